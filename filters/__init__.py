@@ -1,0 +1,1 @@
+"""Filtering back ends: EKF-SLAM and FastSLAM (pure numpy; never gtsam or rerun)."""

@@ -1,0 +1,1 @@
+"""Visual front end: images -> observations (numpy + OpenCV; never gtsam or rerun)."""

@@ -1,0 +1,1 @@
+"""Loop closure: images/descriptors -> loop-closure proposals (numpy, scikit-learn, OpenCV)."""
