@@ -82,6 +82,18 @@ class Backend(ABC):
     def estimate(self, with_covariances: bool = False) -> Estimate:
         """Current belief. Covariances only when asked: they can be costly."""
 
+    def associations(self) -> list[int | None]:
+        """Landmark id given to each observation of the last :meth:`update` call.
+
+        Same order as the observations; ``None`` where an observation was not
+        used (gated out, or held on a provisional list). With known
+        association these are the given ids; with unknown association they are
+        the back end's own ids, which the pipeline scores against ground truth.
+        """
+        return list(self._last_associations)
+
+    _last_associations: list[int | None] = []
+
     def finalize(self, with_covariances: bool = False) -> Estimate:
         """End of the run (e.g. a final batch polish); returns the final estimate."""
         return self.estimate(with_covariances=with_covariances)
