@@ -98,6 +98,10 @@ class Backend(ABC):
         """End of the run (e.g. a final batch polish); returns the final estimate."""
         return self.estimate(with_covariances=with_covariances)
 
+    def current_pose(self) -> np.ndarray:
+        """(3,) latest pose. Back ends with a cheap answer override this."""
+        return self.estimate().current_pose
+
     def current_pose_covariance(self) -> np.ndarray | None:
         """(3, 3) covariance of the latest pose, or ``None`` if unavailable.
 

@@ -1,0 +1,130 @@
+"""The back-end contract (DESIGN.md), written once and run on every back end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphslam import pipeline
+from graphslam.backend import Backend
+from graphslam.errors import GraphSlamError, UnsupportedError
+from graphslam.types import LoopClosure, Odometry
+from tests.worlds import assert_poses_close, square_world
+
+#: Noise-free data must be reproduced to this, metres / radians.
+EXACT_TOL = 1e-6
+#: Noisy square world: pose error bound after the run, metres.
+NOISY_POSE_TOL_M = 0.3
+
+
+def _isam2():
+    from graphslam.isam2 import Isam2Backend
+
+    return Isam2Backend()
+
+
+BACKENDS = {"isam2": _isam2}
+
+
+@pytest.fixture(params=sorted(BACKENDS))
+def make_backend(request):
+    return BACKENDS[request.param]
+
+
+def test_is_a_backend(make_backend):
+    b = make_backend()
+    assert isinstance(b, Backend)
+    assert isinstance(b.name, str) and b.name
+
+
+def test_noise_free_run_reproduces_truth(make_backend):
+    ds = square_world(noise=False, loop_closure=False)
+    res = pipeline.run(ds, make_backend())
+    ids, truth = ds.ground_truth()
+    np.testing.assert_array_equal(res.estimate.pose_ids, ids)
+    assert_poses_close(res.estimate.wTb, truth, EXACT_TOL)
+    for lid, m in zip(res.estimate.landmark_ids, res.estimate.landmarks_w):
+        np.testing.assert_allclose(m, ds.landmarks_true[int(lid)], atol=EXACT_TOL)
+
+
+def test_noisy_run_is_accurate_and_repeatable(make_backend):
+    ds = square_world(seed=3, loop_closure=False)
+    a = pipeline.run(ds, make_backend()).estimate
+    b = pipeline.run(ds, make_backend()).estimate
+    np.testing.assert_array_equal(a.wTb, b.wTb)  # same inputs, same bits
+    err = np.linalg.norm(a.wTb[:, :2] - ds.ground_truth()[1][:, :2], axis=1)
+    assert err.max() < NOISY_POSE_TOL_M
+
+
+def test_reversed_odometry_edges(make_backend):
+    fwd = square_world(noise=False, loop_closure=False)
+    rev = square_world(noise=False, loop_closure=False, reverse_every=3)
+    a = pipeline.run(fwd, make_backend()).estimate
+    b = pipeline.run(rev, make_backend()).estimate
+    assert_poses_close(a.wTb, b.wTb, EXACT_TOL)
+
+
+def test_odometry_not_touching_known_pose_is_refused(make_backend):
+    b = make_backend()
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    with pytest.raises(GraphSlamError):
+        b.predict(Odometry(5, 6, np.array([1.0, 0, 0]), np.eye(3) * 0.01), 6)
+
+
+def test_associations_one_per_observation(make_backend):
+    ds = square_world(noise=False)
+    b = make_backend()
+    b.initialize(0, ds.prior_wTb, ds.prior_covariance)
+    b.update(ds.frames[0].observations)
+    assert b.associations() == [o.landmark_id for o in ds.frames[0].observations]
+
+
+def test_predicted_observations(make_backend):
+    ds = square_world(seed=1, loop_closure=False)
+    b = make_backend()
+    pipeline.run(ds.truncated(15), b)
+    est = b.estimate()
+    preds = b.predict_observations(list(est.landmark_ids) + [999])  # 999 unknown: skipped
+    assert {p.landmark_id for p in preds} == set(int(i) for i in est.landmark_ids)
+    from filters.models import observe
+
+    for p in preds:
+        m = est.landmarks_w[list(est.landmark_ids).index(p.landmark_id)]
+        np.testing.assert_allclose(p.z, observe(est.current_pose, m), atol=1e-6)
+        S = p.innovation_covariance
+        np.testing.assert_allclose(S, S.T, atol=1e-12)
+        assert np.all(np.linalg.eigvalsh(S) > 0)
+
+
+def test_estimate_covariances(make_backend):
+    ds = square_world(seed=2, loop_closure=False)
+    est = pipeline.run(ds, make_backend(), with_covariances=True).estimate
+    n, m = len(est.pose_ids), len(est.landmark_ids)
+    assert est.pose_covariances.shape == (n, 3, 3)
+    assert est.landmark_covariances.shape == (m, 2, 2)
+    assert np.all(np.linalg.eigvalsh(est.landmark_covariances) > 0)
+
+
+def test_loop_closure_used_or_refused_plainly(make_backend):
+    b = make_backend()
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    b.predict(Odometry(0, 1, np.array([1.0, 0, 0]), np.eye(3) * 0.01), 1)
+    lc = LoopClosure(0, 1, np.array([1.0, 0, 0]), np.eye(3) * 0.01)
+    if b.supports_loop_closures:
+        b.add_loop_closure(lc)
+        assert b.estimate().wTb.shape == (2, 3)
+    else:
+        with pytest.raises(UnsupportedError):
+            b.add_loop_closure(lc)
+
+
+def test_loop_closure_reduces_error_when_supported(make_backend):
+    if not make_backend().supports_loop_closures:
+        pytest.skip("back end closes loops by re-observing landmarks")
+    kw = dict(seed=5, sensor_range_m=0.5)  # no landmarks in range: odometry + closure only
+    with_lc = pipeline.run(square_world(loop_closure=True, **kw), make_backend()).estimate
+    without = pipeline.run(square_world(loop_closure=False, **kw), make_backend()).estimate
+    truth = square_world(**kw).ground_truth()[1]
+    e_with = np.linalg.norm(with_lc.wTb[-1, :2] - truth[-1, :2])
+    e_without = np.linalg.norm(without.wTb[-1, :2] - truth[-1, :2])
+    assert e_with < e_without
