@@ -1,0 +1,54 @@
+"""Names on the command line -> datasets and back ends (imports are lazy)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from graphslam.backend import Backend
+from graphslam.config import load_section
+from graphslam.errors import ConfigError, InputError
+from graphslam.sources.base import Dataset
+
+#: Built-in datasets; anything else is taken as a pose-graph file path.
+DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
+#: Back ends available to ``graphslam run``.
+BACKENDS = ("isam2",)
+
+
+def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None = None) -> Dataset:
+    """Dataset by name or pose-graph file path (``.graph`` TORO, ``.g2o``)."""
+    if spec == "synthetic":
+        from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+
+        return make_synthetic(load_section(SyntheticConfig, config_path, {"seed": seed}))
+    if spec == "victoria-park":
+        from graphslam.sources.victoria_park import read_victoria_park, victoria_park_path
+
+        return read_victoria_park(victoria_park_path())
+    if spec == "city10000":
+        from graphslam.sources.posegraph import read_city10000
+
+        return read_city10000()
+    if spec == "w10000":
+        import gtsam
+
+        from graphslam.sources.posegraph import read_pose_graph
+
+        return read_pose_graph(gtsam.findExampleDataFile("w10000.graph"))
+    path = Path(spec)
+    if not path.exists():
+        raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
+                         path)
+    from graphslam.sources.posegraph import read_pose_graph
+
+    return read_pose_graph(path)
+
+
+def make_backend(name: str, *, config_path: Path | None = None,
+                 overrides: dict | None = None) -> Backend:
+    """Back end by name, configured from the file's section plus ``overrides``."""
+    if name == "isam2":
+        from graphslam.isam2 import Isam2Backend, Isam2Config
+
+        return Isam2Backend(load_section(Isam2Config, config_path, overrides))
+    raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
