@@ -80,6 +80,30 @@ def build_parser() -> argparse.ArgumentParser:
                        help="log the full estimate every N steps (default: about 50 snapshots)")
     run_p.add_argument("--quiet", action="store_true", help="no progress bar")
     run_p.set_defaults(func=cmd_run)
+
+    cmp_p = sub.add_parser(
+        "compare", help="run several back ends on the same stream and compare them",
+        description="Run several back ends on the same data (same seed, same observations), "
+                    "each in its own process, and write one table, compare.json, "
+                    "compare.png and one Rerun recording with a subtree per back end.",
+        epilog=RUN_EPILOG.split("outputs")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    cmp_p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
+                       help="built-in dataset name or pose-graph file (default: synthetic)")
+    cmp_p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS,
+                       metavar="NAME", help=f"back ends to run (default: all of {', '.join(BACKENDS)})")
+    cmp_p.add_argument("--seed", type=int, default=None,
+                       help="seed of the synthetic world and of particle filters")
+    cmp_p.add_argument("--out", type=Path, default=None,
+                       help="output folder (default: runs/<dataset>-compare)")
+    cmp_p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
+    cmp_p.add_argument("--max-steps", type=int, default=None, metavar="N",
+                       help="stop after N frames")
+    cmp_p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
+                       help="save compare.rrd in --out (default), spawn, connect, or off")
+    cmp_p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
+    cmp_p.add_argument("--in-process", action="store_true",
+                       help="run back ends in this process (no per-back-end memory figure)")
+    cmp_p.set_defaults(func=cmd_compare)
     return parser
 
 
@@ -133,6 +157,39 @@ def cmd_run(args: argparse.Namespace) -> int:
     if result.interrupted:
         print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
         return EXIT_INTERRUPTED
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from graphslam import compare, registry, writers
+
+    if args.max_steps is not None and args.max_steps < 1:
+        raise GraphSlamError("--max-steps must be at least 1")
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)
+    out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-compare"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
+    entries = compare.compare(
+        dataset, args.backends, config_path=args.config, overrides=overrides,
+        max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
+        progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
+    print(compare.format_table(entries))
+    writers.write_json(out_dir / "compare.json",
+                       {"dataset": dataset.name, "runs": [e.metrics for e in entries]})
+    outputs = ["compare.json", compare.plot(entries, dataset, out_dir / "compare.png").name]
+    if args.rerun != "off":
+        from graphslam.rerun_log import RunRecorder
+
+        recorder = RunRecorder.open(args.rerun, out_dir / "compare.rrd", args.rerun_url)
+        compare.record(entries, dataset, recorder)
+        recorder.close()
+        if args.rerun == "save":
+            outputs.append("compare.rrd")
+    skipped = {e.backend: e.metrics["loop_closures_skipped"] for e in entries
+               if e.metrics.get("loop_closures_skipped")}
+    for name, n in skipped.items():
+        print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
+    print(f"outputs in {out_dir}/: " + ", ".join(outputs))
     return 0
 
 

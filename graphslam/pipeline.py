@@ -7,7 +7,6 @@ and leaves printing to the CLI.
 from __future__ import annotations
 
 import time
-import tracemalloc
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,13 +29,13 @@ class RunResult:
     Attributes:
         estimate: final estimate (polished if the back end does that).
         steps: frames processed (the first, anchoring frame included).
-        wall_s: processing time of the frames plus finalisation, seconds.
+        wall_s: processing time of the frames plus finalisation (not the
+            covariances fetched for reporting), seconds.
         interrupted: True if stopped by Ctrl-C; the estimate is what was
             estimated up to then.
         associations: per processed observation ``(true_id, assigned_id)``,
             where the data has ground-truth landmark ids.
         loop_closures_skipped: constraints a back end could not use.
-        peak_memory_mb: peak Python heap during the run (tracemalloc), if measured.
     """
 
     dataset: Dataset
@@ -47,12 +46,11 @@ class RunResult:
     interrupted: bool = False
     associations: list[tuple[int, int | None]] = field(default_factory=list)
     loop_closures_skipped: int = 0
-    peak_memory_mb: float | None = None
 
 
 def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         progress: bool = False, on_step: StepHook | None = None,
-        with_covariances: bool = False, measure_memory: bool = False) -> RunResult:
+        with_covariances: bool = False) -> RunResult:
     """Stream ``dataset`` into ``backend`` and finalise.
 
     Ctrl-C (KeyboardInterrupt) stops the loop; the estimate so far is still
@@ -66,8 +64,6 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     skipped = 0
     interrupted = False
     steps = 0
-    if measure_memory:
-        tracemalloc.start()
     t0 = time.perf_counter()
     try:
         for k, frame in enumerate(frames):
@@ -91,7 +87,7 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
                 on_step(k, frame, backend)
             if bar is not None:
                 bar.update(1)
-        estimate = backend.finalize(with_covariances=with_covariances)
+        estimate = backend.finalize()
     except KeyboardInterrupt:
         interrupted = True
         if steps == 0:
@@ -101,12 +97,10 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         if bar is not None:
             bar.close()
     wall_s = time.perf_counter() - t0
-    peak = None
-    if measure_memory:
-        peak = tracemalloc.get_traced_memory()[1] / 2**20
-        tracemalloc.stop()
-    return RunResult(dataset, backend.name, estimate, steps, wall_s, interrupted, assoc,
-                     skipped, peak)
+    if with_covariances and not interrupted:
+        # fetched after the clock stops: reporting, not estimation
+        estimate = backend.estimate(with_covariances=True)
+    return RunResult(dataset, backend.name, estimate, steps, wall_s, interrupted, assoc, skipped)
 
 
 def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -186,8 +180,6 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
     acc = association_accuracy(result.associations)
     if acc is not None:
         out["association"] = acc
-    if result.peak_memory_mb is not None:
-        out["peak_memory_mb"] = result.peak_memory_mb
     return out
 
 

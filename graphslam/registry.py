@@ -52,3 +52,14 @@ def make_backend(name: str, *, config_path: Path | None = None,
 
         return Isam2Backend(load_section(Isam2Config, config_path, overrides))
     raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
+
+
+def seed_override(name: str, seed: int | None) -> dict:
+    """Config override that hands ``--seed`` to back ends that draw random numbers."""
+    if seed is None or name not in SEEDED_BACKENDS:
+        return {}
+    return {"seed": seed}
+
+
+#: Back ends whose configuration takes a ``seed``.
+SEEDED_BACKENDS: tuple[str, ...] = ()

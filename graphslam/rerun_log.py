@@ -136,12 +136,12 @@ class RunRecorder:
         gt = dataset.ground_truth()
         self.log.log_ground_truth(None if gt is None else gt[1][:n_steps], dataset.landmarks_true)
 
-    def _color(self, backend: str) -> int:
+    def color_index(self, backend: str) -> int:
         return self._colors.setdefault(backend, len(self._colors))
 
     def hook(self, backend: str, every: int):
         """An ``on_step`` callback for :func:`graphslam.pipeline.run`."""
-        color = self._color(backend)
+        color = self.color_index(backend)
 
         def on_step(k, frame, backend_obj):
             self.log.set_step(k, frame.stamp_s)
@@ -158,8 +158,8 @@ class RunRecorder:
         self.log.set_step(max(result.steps - 1, 0))
         est = result.estimate
         cov = est.current_covariance
-        self.log.log_pose(backend, est.current_pose, cov, self._color(backend))
-        self.log.log_estimate(backend, est, self._color(backend))
+        self.log.log_pose(backend, est.current_pose, cov, self.color_index(backend))
+        self.log.log_estimate(backend, est, self.color_index(backend))
 
     def close(self) -> None:
         self.log.close()

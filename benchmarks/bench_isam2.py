@@ -1,0 +1,114 @@
+"""This project's iSAM2 loop against a bare gtsam.ISAM2 loop, same factors, same order.
+
+Both loops see the same frames and make one ``ISAM2.update`` per frame with
+the same factors and initial values; the bare loop gets its factors prebuilt
+(outside the timing), so the ratio ours / bare is the whole overhead of our
+records, conversion and back-end bookkeeping. Target: <= 1.2.
+
+    python benchmarks/bench_isam2.py [--datasets victoria-park w10000] [--out FILE.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from graphslam import gtsam_convert as conv
+from graphslam import pipeline, registry
+from graphslam.isam2 import Isam2Backend, Isam2Config
+
+
+def prebuild(dataset, steps):
+    """Per-frame factor graphs and the odometry / first-observation links to initialise from."""
+    out = []
+    seen_landmarks = set()
+    for k, frame in enumerate(dataset.frames[:steps]):
+        graph = gtsam.NonlinearFactorGraph()
+        if k == 0:
+            graph.add(conv.prior_factor(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance))
+            link = None
+        else:
+            odo = frame.odometry
+            graph.add(conv.between_factor(odo))
+            if odo.to_id == frame.pose_id:
+                link = (X(odo.from_id), conv.pose2(odo.delta))
+            else:
+                link = (X(odo.to_id), conv.pose2(odo.delta).inverse())
+        new_lms = []
+        for obs in frame.observations:
+            graph.add(conv.bearing_range_factor(obs, obs.landmark_id))
+            if obs.landmark_id not in seen_landmarks:
+                seen_landmarks.add(obs.landmark_id)
+                r, b = obs.z
+                new_lms.append((L(obs.landmark_id), np.array([r * np.cos(b), r * np.sin(b)])))
+        for lc in frame.loop_closures:
+            graph.add(conv.between_factor(lc))
+        out.append((X(frame.pose_id), graph, link, new_lms))
+    return out
+
+
+def bare_loop(dataset, prebuilt, params):
+    isam = gtsam.ISAM2(params)
+    t0 = time.perf_counter()
+    for k, (x_key, graph, link, new_lms) in enumerate(prebuilt):
+        values = gtsam.Values()
+        if link is None:
+            pose = conv.pose2(dataset.prior_wTb)
+        else:
+            pose = isam.calculateEstimatePose2(link[0]).compose(link[1])
+        values.insert(x_key, pose)
+        for l_key, b_xy in new_lms:
+            values.insert(l_key, pose.transformFrom(b_xy))
+        isam.update(graph, values)
+    wall = time.perf_counter() - t0
+    return wall, isam.getFactorsUnsafe().error(isam.calculateEstimate())
+
+
+def our_loop(dataset, steps, config):
+    backend = Isam2Backend(config)
+    result = pipeline.run(dataset, backend, max_steps=steps)  # polish is off in config
+    return result.wall_s, backend.error()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--datasets", nargs="+", default=["victoria-park", "w10000"])
+    ap.add_argument("--steps", type=int, default=None, help="first N frames only")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="alternate ours/bare this many times; the minimum of each is kept")
+    ap.add_argument("--out", default="benchmarks/results/bench_isam2.json")
+    args = ap.parse_args(argv)
+    config = Isam2Config(polish=False)
+    rows = []
+    for name in args.datasets:
+        ds = registry.load_dataset(name)
+        steps = len(ds.frames) if args.steps is None else min(args.steps, len(ds.frames))
+        prebuilt = prebuild(ds, steps)
+        ours, bare = [], []
+        for _ in range(args.repeats):  # interleaved so machine noise hits both alike
+            ours.append(our_loop(ds, steps, config))
+            bare.append(bare_loop(ds, prebuilt, config.isam2_params()))
+        t_ours, e_ours = min(ours)
+        t_bare, e_bare = min(bare)
+        rows.append({"dataset": name, "steps": steps, "ours_s": t_ours, "bare_s": t_bare,
+                     "ratio": t_ours / t_bare, "error_ours": e_ours, "error_bare": e_bare})
+        print(f"{name:14s} steps={steps:6d}  ours={t_ours:8.2f}s  bare={t_bare:8.2f}s  "
+              f"ratio={t_ours / t_bare:5.3f}  error ours={e_ours:.6g} bare={e_bare:.6g}",
+              flush=True)
+    from pathlib import Path
+
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump({"benchmark": "isam2_overhead", "target_ratio": 1.2, "rows": rows}, f, indent=2)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
