@@ -35,6 +35,13 @@ class Isam2Config:
         polish: run batch Levenberg-Marquardt on the whole graph at the end,
             starting from the incremental solution.
         polish_max_iterations: LM iteration cap for the polish.
+        loop_closure_kernel: robust kernel on loop-closure factors, "none",
+            "huber" or "cauchy", so one wrong closure cannot wreck the map.
+            Dataset edges that are loop closures get it too.
+        loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
+        polish_method: "lm" (Levenberg-Marquardt on the graph as built) or
+            "gnc" (graduated non-convexity, gtsam's GncLMOptimizer, with every
+            factor but the loop closures known to be an inlier).
     """
 
     SECTION: ClassVar[str] = "isam2"
@@ -42,14 +49,32 @@ class Isam2Config:
     relinearize_skip: int = 10
     polish: bool = True
     polish_max_iterations: int = 100
+    loop_closure_kernel: str = "none"
+    loop_closure_kernel_k: float = 1.0
+    polish_method: str = "lm"
 
     def __post_init__(self):
+        if self.loop_closure_kernel not in ("none", "huber", "cauchy"):
+            raise ConfigError("isam2.loop_closure_kernel must be none, huber or cauchy")
+        if self.loop_closure_kernel_k <= 0:
+            raise ConfigError("isam2.loop_closure_kernel_k must be > 0")
+        if self.polish_method not in ("lm", "gnc"):
+            raise ConfigError("isam2.polish_method must be lm or gnc")
         if self.relinearize_threshold <= 0:
             raise ConfigError("isam2.relinearize_threshold must be > 0")
         if self.relinearize_skip < 1:
             raise ConfigError("isam2.relinearize_skip must be >= 1")
         if self.polish_max_iterations < 1:
             raise ConfigError("isam2.polish_max_iterations must be >= 1")
+
+    def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
+        """Gaussian noise of a closure, wrapped in the configured robust kernel."""
+        gaussian = conv.noise_from_covariance(covariance)
+        if self.loop_closure_kernel == "none":
+            return gaussian
+        kernel = {"huber": gtsam.noiseModel.mEstimator.Huber,
+                  "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[self.loop_closure_kernel]
+        return gtsam.noiseModel.Robust.Create(kernel.Create(self.loop_closure_kernel_k), gaussian)
 
     def isam2_params(self) -> gtsam.ISAM2Params:
         params = gtsam.ISAM2Params()
@@ -76,6 +101,8 @@ class Isam2Backend(Backend):
         self._last_associations = []
         self._measurement_cov: dict[int, np.ndarray] = {}  # last R seen per landmark
         self._polished: gtsam.Values | None = None
+        self._n_factors = 0  # factors handed to iSAM2 or pending, in insertion order
+        self._loop_closures: dict[int, LoopClosure] = {}  # factor index -> closure
 
     # --- the contract -------------------------------------------------------
 
@@ -127,7 +154,9 @@ class Isam2Backend(Backend):
         for pid in (loop_closure.from_id, loop_closure.to_id):
             if pid not in self._pose_set:
                 raise GraphSlamError(f"isam2: loop closure refers to unknown pose {pid}")
-        self._graph.add(conv.between_factor(loop_closure))
+        self._loop_closures[self._n_factors + self._graph.size()] = loop_closure
+        self._graph.add(conv.between_factor(loop_closure,
+                                            self.config.loop_closure_noise(loop_closure.covariance)))
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         """Predicted ``[range, bearing]`` and ``S = H P H^T + R`` for known landmarks.
@@ -174,9 +203,12 @@ class Isam2Backend(Backend):
         if self.config.polish and self._polished is None and self._pose_ids:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(self.config.polish_max_iterations)
-            optimizer = gtsam.LevenbergMarquardtOptimizer(
-                self.factor_graph(), self._isam.calculateEstimate(), params)
-            self._polished = optimizer.optimize()
+            initial = self._isam.calculateEstimate()
+            if self.config.polish_method == "gnc" and self._loop_closures:
+                self._polished = self._gnc(params, initial)
+            else:
+                self._polished = gtsam.LevenbergMarquardtOptimizer(
+                    self.factor_graph(), initial, params).optimize()
         return self.estimate(with_covariances=with_covariances)
 
     def current_pose_covariance(self) -> np.ndarray | None:
@@ -218,6 +250,15 @@ class Isam2Backend(Backend):
             return self._values.atPose2(key)
         return self._isam.calculateEstimatePose2(key)
 
+    def _gnc(self, lm_params: gtsam.LevenbergMarquardtParams, initial: gtsam.Values) -> gtsam.Values:
+        """GNC over the graph with Gaussian closures; all other factors are known inliers."""
+        graph = self.factor_graph()
+        for index, lc in self._loop_closures.items():  # GNC wants plain Gaussian factors
+            graph.replace(index, conv.between_factor(lc))
+        params = gtsam.GncLMParams(lm_params)
+        params.setKnownInliers([i for i in range(graph.size()) if i not in self._loop_closures])
+        return gtsam.GncLMOptimizer(graph, initial, params).optimize()
+
     def _values_now(self) -> gtsam.Values:
         """The estimate answers are given from: the polish if current, else iSAM2's."""
         self._flush()
@@ -227,6 +268,7 @@ class Isam2Backend(Backend):
         if self._graph.size() == 0 and self._values.size() == 0:
             return
         self._isam.update(self._graph, self._values)
+        self._n_factors += self._graph.size()
         self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
         self._polished = None  # new information invalidates a previous polish
