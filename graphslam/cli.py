@@ -144,8 +144,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
                           on_step=hook, with_covariances=log is not None)
-    seed = getattr(dataset, "seed", None) if args.dataset == "synthetic" else None
-    metrics = pipeline.compute_metrics(result, seed=seed)
+    metrics = pipeline.compute_metrics(result, seed=dataset.seed)
     paths = pipeline.write_outputs(result, out_dir, metrics)
     if log is not None:
         log.finish(backend.name, result)

@@ -267,11 +267,13 @@ class Isam2Backend(Backend):
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:
             return
-        self._isam.update(self._graph, self._values)
-        self._n_factors += self._graph.size()
-        self._graph = gtsam.NonlinearFactorGraph()
-        self._values = gtsam.Values()
+        # swap first: a Ctrl-C raised as update() returns must not leave the
+        # factors pending, or the next flush would add them twice
+        graph, values = self._graph, self._values
+        self._graph, self._values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        self._n_factors += graph.size()
         self._polished = None  # new information invalidates a previous polish
+        self._isam.update(graph, values)
 
     def _marginals(self, values: gtsam.Values) -> gtsam.Marginals:
         return gtsam.Marginals(self.factor_graph(), values)

@@ -6,8 +6,11 @@ and leaves printing to the CLI.
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,36 +64,16 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         raise GraphSlamError(f"dataset {dataset.name!r} has no frames")
     bar = _progress(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
-    skipped = 0
+    counters = {"steps": 0, "skipped": 0}
     interrupted = False
-    steps = 0
     t0 = time.perf_counter()
     try:
-        for k, frame in enumerate(frames):
-            if k == 0:
-                backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
-            else:
-                if frame.odometry is None:
-                    raise GraphSlamError(f"frame {k} (pose {frame.pose_id}) has no odometry")
-                backend.predict(frame.odometry, frame.pose_id)
-            if frame.observations:
-                backend.update(frame.observations)
-                if frame.true_landmark_ids is not None:
-                    assoc.extend(zip(frame.true_landmark_ids, backend.associations()))
-            for lc in frame.loop_closures:
-                if backend.supports_loop_closures:
-                    backend.add_loop_closure(lc)
-                else:
-                    skipped += 1
-            steps = k + 1
-            if on_step is not None:
-                on_step(k, frame, backend)
-            if bar is not None:
-                bar.update(1)
+        with _interrupt_between_frames() as stop:
+            _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters)
         estimate = backend.finalize()
     except KeyboardInterrupt:
         interrupted = True
-        if steps == 0:
+        if counters["steps"] == 0:
             raise
         estimate = backend.estimate(with_covariances=False)
     finally:
@@ -100,7 +83,61 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     if with_covariances and not interrupted:
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
-    return RunResult(dataset, backend.name, estimate, steps, wall_s, interrupted, assoc, skipped)
+    return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
+                     assoc, counters["skipped"])
+
+
+def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
+    """Stream frames into the back end; a pending Ctrl-C is honoured between frames."""
+    for k, frame in enumerate(frames):
+        if stop["requested"]:
+            raise KeyboardInterrupt
+        if k == 0:
+            backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
+        else:
+            if frame.odometry is None:
+                raise GraphSlamError(f"frame {k} (pose {frame.pose_id}) has no odometry")
+            backend.predict(frame.odometry, frame.pose_id)
+        if frame.observations:
+            backend.update(frame.observations)
+            if frame.true_landmark_ids is not None:
+                assoc.extend(zip(frame.true_landmark_ids, backend.associations()))
+        for lc in frame.loop_closures:
+            if backend.supports_loop_closures:
+                backend.add_loop_closure(lc)
+            else:
+                counters["skipped"] += 1
+        counters["steps"] = k + 1
+        if on_step is not None:
+            on_step(k, frame, backend)
+        if bar is not None:
+            bar.update(1)
+
+
+@contextmanager
+def _interrupt_between_frames() -> Iterator[dict]:
+    """Turn the first Ctrl-C into a request honoured at the next frame boundary.
+
+    A KeyboardInterrupt raised in the middle of a frame (say, inside an iSAM2
+    update) would leave the back end half-updated and its estimate unusable;
+    a second Ctrl-C still interrupts at once. Only the main thread can hold a
+    signal handler; elsewhere Ctrl-C behaves as usual.
+    """
+    stop = {"requested": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum, frame):
+        if stop["requested"]:
+            signal.default_int_handler(signum, frame)
+        stop["requested"] = True
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -42,7 +42,7 @@ def square_world(seed: int = 0, noise: bool = True, steps_per_side: int = 10,
             if reverse_every and k % reverse_every == 0:
                 c, s = np.cos(u[2]), np.sin(u[2])
                 inv = np.array([-c * u[0] - s * u[1], s * u[0] - c * u[1], -u[2]])
-                J = np.array([[-c, -s, -s * u[0] + c * u[1]],
+                J = np.array([[-c, -s, s * u[0] - c * u[1]],
                               [s, -c, c * u[0] + s * u[1]],
                               [0, 0, -1.0]])
                 odo = Odometry(k, k - 1, inv, J @ odo_cov @ J.T)

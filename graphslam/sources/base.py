@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -25,6 +25,7 @@ class Dataset:
         has_timestamps: whether ``Frame.stamp_s`` holds real times; when not,
             writers use the pose id in the time column.
         source_path: file the data came from, if any.
+        seed: seed that generated a simulated dataset (None for recorded data).
     """
 
     name: str
@@ -34,6 +35,7 @@ class Dataset:
     landmarks_true: dict[int, np.ndarray] | None = None
     has_timestamps: bool = False
     source_path: str | None = None
+    seed: int | None = None
 
     @property
     def has_ground_truth(self) -> bool:
@@ -48,6 +50,4 @@ class Dataset:
 
     def truncated(self, max_frames: int) -> "Dataset":
         """The first ``max_frames`` frames (loop closures to later poses cannot occur)."""
-        return Dataset(self.name, list(self.frames[:max_frames]), self.prior_wTb,
-                       self.prior_covariance, self.landmarks_true, self.has_timestamps,
-                       self.source_path)
+        return replace(self, frames=list(self.frames[:max_frames]))

@@ -1,0 +1,337 @@
+"""Tests of the dataset readers (graphslam.sources.victoria_park / posegraph).
+
+Noise interpretation is checked factor by factor against gtsam's own loaders.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import numpy as np
+import pytest
+
+from graphslam.errors import InputError
+from graphslam.sources.posegraph import (read_city10000, read_g2o, read_pose_graph,
+                                         read_toro)
+from graphslam.sources.victoria_park import read_victoria_park, victoria_park_path
+from graphslam.types import ObservationKind
+
+#: Relative tolerance when comparing our numbers with gtsam's (both parse the
+#: same decimal text; the only differences are inversion round-off).
+REL_TOL = 1e-9
+#: Published optimum of w10000 with load2D's noise and a 1e-3 prior.
+W10000_OPTIMUM = 144.867
+
+
+def _edges(ds):
+    """All relative-pose records of a pose-graph Dataset, in frame order."""
+    out = []
+    for f in ds.frames:
+        if f.odometry is not None:
+            out.append(f.odometry)
+        out.extend(f.loop_closures)
+    return out
+
+
+def _between_factors(graph):
+    return [graph.at(i) for i in range(graph.size())
+            if isinstance(graph.at(i), gtsam.BetweenFactorPose2)]
+
+
+def _edge_key(a, b):
+    return (int(a), int(b))
+
+
+def _assert_edges_match_gtsam(ds, graph):
+    """Our edges and gtsam's BetweenFactorPose2s agree one to one: keys, value, covariance.
+
+    Both sides are sorted by (from, to) with a stable sort, so repeated pairs
+    keep their file order.
+    """
+    ours = _edges(ds)
+    theirs = _between_factors(graph)
+    assert len(ours) == len(theirs)
+    k1 = np.array([(e.from_id, e.to_id) for e in ours], dtype=np.int64)
+    k2 = np.array([tuple(f.keys()) for f in theirs], dtype=np.int64)
+    o1 = np.lexsort((k1[:, 1], k1[:, 0]))
+    o2 = np.lexsort((k2[:, 1], k2[:, 0]))
+    np.testing.assert_array_equal(k1[o1], k2[o2])
+    d1 = np.array([e.delta for e in ours])[o1]
+    d2 = np.array([[m.x(), m.y(), m.theta()] for m in (f.measured() for f in theirs)])[o2]
+    np.testing.assert_allclose(d1[:, :2], d2[:, :2], rtol=REL_TOL, atol=1e-12)
+    assert np.max(np.abs(d1[:, 2] - d2[:, 2])) < 1e-12  # both wrapped to [-pi, pi)
+    c1 = np.array([e.covariance for e in ours])[o1]
+    c2 = np.array([f.noiseModel().covariance() for f in theirs])[o2]
+    scale = np.max(np.abs(c2), axis=(1, 2), keepdims=True)
+    assert np.all(np.abs(c1 - c2) <= REL_TOL * scale)
+
+
+# ------------------------------------------------------------------- Victoria Park
+@pytest.fixture(scope="module")
+def victoria():
+    return read_victoria_park(victoria_park_path())
+
+
+def test_victoria_park_counts(victoria):
+    ds = victoria
+    assert ds.name == "victoria-park"
+    assert len(ds.frames) == 6969
+    obs = [o for f in ds.frames for o in f.observations]
+    assert len(obs) == 3640
+    assert len({o.landmark_id for o in obs}) == 151
+    assert ds.frames[0].pose_id == 0 and ds.frames[0].odometry is None
+    assert all(f.odometry is not None for f in ds.frames[1:])
+    assert all(o.kind is ObservationKind.RANGE_BEARING for o in obs)
+    assert all(o.pose_id == f.pose_id for f in ds.frames for o in f.observations)
+    assert ds.source_path == victoria_park_path()
+    assert not ds.has_timestamps and not ds.has_ground_truth
+    np.testing.assert_array_equal(ds.prior_wTb, np.zeros(3))
+    np.testing.assert_array_equal(ds.prior_covariance, np.eye(3) * 1e-6)
+    # ids kept as in the file: landmark 5 sits between poses 4 and 6
+    assert [f.pose_id for f in ds.frames[:6]] == [0, 1, 2, 3, 4, 6]
+    assert ds.frames[5].odometry.from_id == 4
+
+
+def test_victoria_park_matches_load2d(victoria):
+    graph, _ = gtsam.load2D(victoria_park_path())
+    odo = {f.odometry.to_id: f.odometry for f in victoria.frames[1:]}
+    obs = [o for f in victoria.frames for o in f.observations]
+    n_between = n_br = 0
+    obs_iter = iter(obs)
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.BetweenFactorPose2):
+            a, b = f.keys()
+            e = odo[b]
+            assert (e.from_id, e.to_id) == (a, b)
+            m = f.measured()
+            np.testing.assert_allclose(e.delta, [m.x(), m.y(), m.theta()], rtol=REL_TOL,
+                                       atol=1e-15)
+            np.testing.assert_allclose(np.sqrt(np.diag(e.covariance)),
+                                       f.noiseModel().sigmas(), rtol=REL_TOL)
+            np.testing.assert_allclose(e.covariance, f.noiseModel().covariance(),
+                                       rtol=REL_TOL, atol=1e-18)
+            n_between += 1
+        else:
+            assert isinstance(f, gtsam.BearingRangeFactor2D)
+            o = next(obs_iter)  # load2D keeps file order, so do we
+            pose_key, lm_key = f.keys()
+            assert pose_key == o.pose_id
+            assert lm_key == gtsam.symbol_shorthand.L(o.landmark_id)
+            m = f.measured()
+            assert o.z[0] == pytest.approx(m.range(), rel=REL_TOL)
+            assert o.z[1] == pytest.approx(m.bearing().theta(), rel=REL_TOL, abs=1e-15)
+            bearing_sigma, range_sigma = f.noiseModel().sigmas()
+            np.testing.assert_allclose(np.sqrt(np.diag(o.covariance)),
+                                       [range_sigma, bearing_sigma], rtol=REL_TOL)
+            assert o.covariance[0, 1] == 0.0
+            n_br += 1
+    assert n_between == 6968 and n_br == 3640
+    assert next(obs_iter, None) is None
+
+
+def test_victoria_park_landmark_for_older_pose(tmp_path):
+    p = tmp_path / "vp.txt"
+    p.write_text("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\n"
+                 "ODOMETRY 1 2 1 0 0 0.01 0 0 0.01 0 0.01\n"
+                 "LANDMARK 1 7 3 4 0.4 0 0.4\n")
+    ds = read_victoria_park(p)
+    assert len(ds.frames[1].observations) == 1 and not ds.frames[2].observations
+    o = ds.frames[1].observations[0]
+    assert o.z[0] == pytest.approx(5.0) and o.z[1] == pytest.approx(math.atan2(4, 3))
+    np.testing.assert_allclose(o.covariance, np.diag([0.4, 0.04]))
+
+
+@pytest.mark.parametrize("text, line, words", [
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0\n", 1, "tokens"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nLANDMARK 1 5 x 1 0.4 0 0.4\n", 2,
+     "not a number"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\n\n# c\nLANDMARK 1 5 nan 1 0.4 0 0.4\n", 4,
+     "not finite"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nLANDMARK 3 5 1 1 0.4 0 0.4\n", 2,
+     "does not exist"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nODOMETRY 2 3 1 0 0 0.01 0 0 0.01 0 0.01\n",
+     2, "does not exist"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 -0.01 0 0.01\n", 1, "positive definite"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nLANDMARK 1 5 1 1 0 0 0.4\n", 2,
+     "positive definite"),
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nGPS 1 2 3\n", 2, "unknown tag"),
+])
+def test_victoria_park_bad_lines(tmp_path, text, line, words):
+    p = tmp_path / "bad_vp.txt"
+    p.write_text(text)
+    with pytest.raises(InputError) as info:
+        read_victoria_park(p)
+    assert info.value.line == line
+    assert info.value.path == str(p)
+    msg = str(info.value)
+    assert f"bad_vp.txt:{line}" in msg and words in msg
+
+
+# ------------------------------------------------------------------------ w10000
+@pytest.fixture(scope="module")
+def w10000_path():
+    return gtsam.findExampleDataFile("w10000.graph")
+
+
+@pytest.fixture(scope="module")
+def w10000(w10000_path):
+    return read_toro(w10000_path)
+
+
+def test_w10000_counts(w10000, w10000_path):
+    ds = w10000
+    assert len(ds.frames) == 10000
+    assert [f.pose_id for f in ds.frames] == list(range(10000))
+    assert len(_edges(ds)) == 64311
+    assert ds.frames[0].odometry is None
+    assert all(f.odometry is not None for f in ds.frames[1:])
+    # direction kept as in the file: "EDGE2 1 0 ..."
+    assert (ds.frames[1].odometry.from_id, ds.frames[1].odometry.to_id) == (1, 0)
+    for f in ds.frames:
+        for lc in f.loop_closures:
+            assert max(lc.from_id, lc.to_id) == f.pose_id and lc.source == "dataset"
+
+
+def test_w10000_matches_load2d(w10000, w10000_path):
+    graph, _ = gtsam.load2D(w10000_path)
+    _assert_edges_match_gtsam(w10000, graph)
+
+
+def _graph_from_records(ds, prior_sigma=1e-3):
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorPose2(ds.frames[0].pose_id, gtsam.Pose2(0, 0, 0),
+                                     gtsam.noiseModel.Isotropic.Sigma(3, prior_sigma)))
+    for e in _edges(ds):
+        graph.add(gtsam.BetweenFactorPose2(
+            e.from_id, e.to_id, gtsam.Pose2(*e.delta),
+            gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance))))
+    return graph
+
+
+@pytest.mark.slow
+def test_w10000_optimum(w10000, w10000_path):
+    _, initial = gtsam.load2D(w10000_path)
+    graph = _graph_from_records(w10000)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    assert graph.error(result) == pytest.approx(W10000_OPTIMUM, rel=1e-3)
+
+
+# ---------------------------------------------------- noise formats, synthetic
+#: Noise numbers positive definite in g2o layout [[v1 v2 v3], [v2 v4 v5], [v3 v5 v6]]
+_G2O_NOISE = [(40, 2, 3, 30, 1, 50), (60, 1, 2, 50, 3, 40), (45, 0, 1, 35, 2, 55)]
+#: ... and in TORO layout [[v1 v2 v5], [v2 v3 v6], [v5 v6 v4]]
+_TORO_NOISE = [(40, 2, 35, 30, 1, 3), (60, 1, 50, 40, 3, 2), (45, 0, 35, 55, 2, 1)]
+
+
+def _write_graph(tmp_path, tag, suffix, noise):
+    p = tmp_path / f"g{suffix}"
+    lines = [f"{tag} {a} {b} 1 0.1 0.05 " + " ".join(map(str, v))
+             for (a, b), v in zip([(0, 1), (1, 2), (0, 2)], noise)]
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("fmt, gtsam_fmt, noise", [
+    ("toro", gtsam.NoiseFormat.NoiseFormatTORO, _TORO_NOISE),
+    ("graph", gtsam.NoiseFormat.NoiseFormatGRAPH, _TORO_NOISE),
+    ("cov", gtsam.NoiseFormat.NoiseFormatCOV, _G2O_NOISE),
+    ("g2o", gtsam.NoiseFormat.NoiseFormatG2O, _G2O_NOISE),
+])
+def test_noise_formats_match_load2d(tmp_path, fmt, gtsam_fmt, noise):
+    p = _write_graph(tmp_path, "EDGE2", ".graph", noise)
+    graph, _ = gtsam.load2D(str(p), None, 0, False, True, gtsam_fmt)
+    _assert_edges_match_gtsam(read_toro(p, noise_format=fmt), graph)
+
+
+def test_g2o_matches_readg2o(tmp_path):
+    p = _write_graph(tmp_path, "EDGE_SE2", ".g2o", _G2O_NOISE)
+    # gtsam's parser stops at the first line it does not know (FIX), so FIX goes last
+    p.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
+                 + p.read_text() + "FIX 0\n")
+    graph, _ = gtsam.readG2o(str(p), False)
+    ds = read_g2o(p)
+    assert [f.pose_id for f in ds.frames] == [0, 1, 2]
+    assert len(ds.frames[2].loop_closures) == 1
+    _assert_edges_match_gtsam(ds, graph)
+    _assert_edges_match_gtsam(read_pose_graph(p), graph)
+
+
+def test_toro_auto_refuses_what_load2d_refuses(tmp_path):
+    p = _write_graph(tmp_path, "EDGE2", ".graph", _G2O_NOISE)
+    with pytest.raises(InputError) as info:
+        read_toro(p)
+    assert info.value.line == 1 and "noise_format" in str(info.value)
+    with pytest.raises(InputError, match="noise_format"):  # .graph dispatches to TORO
+        read_pose_graph(p)
+
+
+@pytest.mark.parametrize("text, line, words", [
+    ("VERTEX2 0 0 0 0\nEDGE2 1 0 1 0 0 1 0 1 1 0\n", 2, "tokens"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 2 1 1 zero 0 1 0 1 1 0 0\n", 2, "not a number"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\n\n# c\nEDGE2 2 1 1 0 inf 1 0 1 1 0 0\n", 4, "not finite"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 2 1 NaN 0 0 1 0 1 1 0 0\n", 2, "not finite"),
+    ("VERTEX2 1.5 0 0 0\n", 1, "not an integer"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 3 2 1 0 0 1 0 1 1 0 0\n"
+     "EDGE2 3 1 1 0 0 1 0 1 1 0 0\n", 2, "no edge to pose 1"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 3 0 1 0 0 1 0 1 1 0 0\n", 2, "pose 2 is missing"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE3 2 1 1 0 0 1 0 1 1 0 0\n", 2, "unknown tag"),
+    ("EDGE2 1 1 1 0 0 1 0 1 1 0 0\n", 1, "itself"),
+])
+def test_toro_bad_lines(tmp_path, text, line, words):
+    p = tmp_path / "bad.graph"
+    p.write_text(text)
+    with pytest.raises(InputError) as info:
+        read_toro(p)
+    assert info.value.line == line and info.value.path == str(p)
+    assert f"bad.graph:{line}" in str(info.value) and words in str(info.value)
+
+
+@pytest.mark.parametrize("reader", [read_victoria_park, read_toro, read_g2o, read_pose_graph])
+def test_missing_file(tmp_path, reader):
+    p = tmp_path / "nope.txt"
+    with pytest.raises(InputError) as info:
+        reader(p)
+    assert "nope.txt" in str(info.value) and info.value.line is None
+
+
+def test_read_pose_graph_unknown_content(tmp_path):
+    p = tmp_path / "x.dat"
+    p.write_text("# hi\nPOINT 1 2\n")
+    with pytest.raises(InputError) as info:
+        read_pose_graph(p)
+    assert info.value.line == 2
+
+
+# ----------------------------------------------------------------------- city10000
+def test_city10000():
+    ds = read_city10000()
+    assert ds.name == "city10000"
+    assert len(ds.frames) == 10000 and ds.has_ground_truth
+    ids, wTb = ds.ground_truth()
+    assert wTb.shape == (10000, 3) and ids[0] == 0 and ids[-1] == 9999
+    n_lines = sum(1 for line in open(gtsam.findExampleDataFile("T1_city10000_04.txt"))
+                  if line.strip())
+    assert len(_edges(ds)) == n_lines
+    sig = np.sqrt(np.diag(ds.frames[1].odometry.covariance))
+    np.testing.assert_allclose(sig, [1 / 30, 1 / 30, 1 / 100])
+    # first hypothesis kept: line 2 is "EDGE2 1 1 2 0 1 0.999423 0.016409 -0.005213"
+    np.testing.assert_allclose(ds.frames[2].odometry.delta, [0.999423, 0.016409, -0.005213])
+
+
+def test_city10000_truth_count_mismatch(tmp_path):
+    g = tmp_path / "c.txt"
+    g.write_text("EDGE2 0 1 1 0 1 1 0 0\nEDGE2 1 1 2 0 2 1 0 0 5 5 5\n")
+    gt = tmp_path / "gt.txt"
+    gt.write_text("0 0 0\n1 0 0\n")
+    with pytest.raises(InputError) as info:
+        read_city10000(g, gt)
+    assert "gt.txt" in str(info.value)
+    gt.write_text("0 0 0\n1 0 0\n2 0 0\n")
+    ds = read_city10000(g, gt)
+    np.testing.assert_allclose(ds.frames[2].odometry.delta, [1, 0, 0])
+    g.write_text("EDGE2 0 1 1 0 2 1 0 0\n")
+    with pytest.raises(InputError) as info:
+        read_city10000(g, gt)
+    assert info.value.line == 1 and "c.txt:1" in str(info.value)
