@@ -12,9 +12,8 @@ integers and trajectories are matched by id, never by position in the array.
 
 from __future__ import annotations
 
-from statistics import NormalDist
-
 import numpy as np
+from scipy.stats import chi2
 
 from graphslam.errors import GraphSlamError
 from graphslam.types import wrap_angle
@@ -156,25 +155,13 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
 
     ``n_runs * mean NEES`` is chi-square with ``dof * n_runs`` degrees of
     freedom, so the bounds are its ``(1 -+ confidence) / 2`` quantiles divided
-    by ``n_runs``. Uses scipy when importable, else the Wilson-Hilferty
-    approximation (upper bound within 0.3% for k >= 3; lower bound within 1% for
-    k >= 10 but 16% low at k = 3).
+    by ``n_runs``.
     """
     if dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
         raise GraphSlamError(f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; "
                              f"got {dof}, {n_runs}, {confidence}")
     k = int(dof) * int(n_runs)
     q = ((1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0)
-    try:
-        from scipy.stats import chi2
-        lo, hi = (float(chi2.ppf(p, k)) for p in q)
-    except ImportError:  # pragma: no cover - scipy ships with scikit-learn
-        lo, hi = (wilson_hilferty(p, k) for p in q)
+    lo, hi = (float(chi2.ppf(p, k)) for p in q)
     return lo / n_runs, hi / n_runs
 
-
-def wilson_hilferty(p: float, k: int) -> float:
-    """Approximate ``p`` quantile of chi-square with ``k`` dof (Wilson-Hilferty)."""
-    z = NormalDist().inv_cdf(p)
-    a = 2.0 / (9.0 * k)
-    return float(k * max(1.0 - a + z * np.sqrt(a), 0.0) ** 3)

@@ -12,7 +12,7 @@ from graphslam.sources.base import Dataset
 #: Built-in datasets; anything else is taken as a pose-graph file path.
 DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
 #: Back ends available to ``graphslam run``.
-BACKENDS = ("isam2",)
+BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
 def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None = None) -> Dataset:
@@ -51,6 +51,16 @@ def make_backend(name: str, *, config_path: Path | None = None,
         from graphslam.isam2 import Isam2Backend, Isam2Config
 
         return Isam2Backend(load_section(Isam2Config, config_path, overrides))
+    if name == "ekf":
+        from filters.ekf_slam import EkfSlam, EkfSlamConfig
+
+        return EkfSlam(load_section(EkfSlamConfig, config_path, overrides))
+    if name in ("fastslam1", "fastslam2"):
+        from filters.fastslam import FastSlam, FastSlamConfig
+
+        # both share the [fastslam] section; the name picks the version
+        version = {"version": int(name[-1])}
+        return FastSlam(load_section(FastSlamConfig, config_path, {**(overrides or {}), **version}))
     raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
 
 
@@ -62,4 +72,4 @@ def seed_override(name: str, seed: int | None) -> dict:
 
 
 #: Back ends whose configuration takes a ``seed``.
-SEEDED_BACKENDS: tuple[str, ...] = ()
+SEEDED_BACKENDS: tuple[str, ...] = ("fastslam1", "fastslam2")

@@ -1,0 +1,209 @@
+"""Data association for the EKF: individual gating and bounded JCBB (numpy only).
+
+Joint Compatibility Branch and Bound (Neira & Tardos 2001): among the
+hypotheses that pair observations of one scan with map landmarks (each
+landmark used at most once, an observation may stay unpaired), pick the one
+with the most pairings whose *joint* innovation is compatible, i.e. whose
+joint normalised innovation squared ``nu^T C^-1 nu`` lies below the chi-square
+quantile with ``2 k`` degrees of freedom (k pairings, 2-D measurements); ties
+are broken by the lower joint NIS. Correlations between the innovations of
+different pairings (through the shared robot pose and map) are what lets it
+reject pairings that individual gating accepts one by one.
+
+Bounds (JCBB is exponential in the number of observations in the worst case):
+
+- each observation keeps at most ``max_candidates`` individually compatible
+  landmarks (the closest in Mahalanobis distance), so the tree has at most
+  ``(max_candidates + 1) ** m`` leaves;
+- the search visits at most ``max_nodes`` pairing tests; when the budget runs
+  out the search stops and the best hypothesis found so far is returned;
+- the search starts from a greedy nearest-neighbour hypothesis that is itself
+  jointly compatible (observations in increasing order of their best
+  individual distance, each takes its closest unused landmark if the joint
+  test still passes), so the result is never worse than that fallback, and
+  the branch-and-bound prunes against it from the first node.
+
+Each pairing test solves one dense system of size ``2 k <= 2 m``, so the
+worst-case cost is ``O(max_nodes * m^3)`` flops on tiny matrices.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.stats import chi2
+
+from filters import models
+
+
+@lru_cache(maxsize=512)
+def chi2_quantile(prob: float, dof: int) -> float:
+    """Chi-square quantile; cached because JCBB asks for the same few per scan."""
+    if dof <= 0:
+        raise ValueError(f"dof must be positive, got {dof}")
+    if not 0.0 < prob < 1.0:
+        raise ValueError(f"prob must be in (0, 1), got {prob}")
+    return float(chi2.ppf(prob, dof))
+
+
+def mahalanobis_sq_2d(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``nu^T S^-1 nu`` for batches of 2-vectors (..., 2) and 2x2 matrices (..., 2, 2)."""
+    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+    det = a * d - b * c
+    x, y = nu[..., 0], nu[..., 1]
+    return (d * x * x - (b + c) * x * y + a * y * y) / det
+
+
+def individual_candidates(d2: np.ndarray, gate: float, max_candidates: int) -> list[list[int]]:
+    """Per observation, the landmark indices with ``d2 < gate``, closest first, at most ``max_candidates``.
+
+    Args:
+        d2: (m, L) squared Mahalanobis distances of observation i to landmark l.
+    """
+    out: list[list[int]] = []
+    for row in np.asarray(d2):
+        ok = np.flatnonzero(row < gate)
+        ok = ok[np.argsort(row[ok], kind="stable")][:max_candidates]
+        out.append([int(j) for j in ok])
+    return out
+
+
+@dataclass(frozen=True)
+class JcbbResult:
+    """Outcome of :func:`jcbb`.
+
+    Attributes:
+        hypothesis: per observation, the landmark index (as given in
+            ``pair_landmark``) or ``None``.
+        pairs: per observation, the index of the chosen candidate pair or ``None``.
+        joint_nis: joint NIS of the chosen pairings (0 when none).
+        nodes: pairing tests done.
+        budget_exhausted: the node budget stopped the search early.
+    """
+
+    hypothesis: list[int | None]
+    pairs: list[int | None]
+    joint_nis: float
+    nodes: int
+    budget_exhausted: bool
+
+
+def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
+         pair_obs: np.ndarray, pair_landmark: np.ndarray, *, chi2_prob: float = 0.99,
+         max_nodes: int = 2000, individual_d2: np.ndarray | None = None) -> JcbbResult:
+    """Joint-compatibility branch and bound over candidate (observation, landmark) pairs.
+
+    Args:
+        z: (m, 2) observations ``[range_m, bearing_rad]`` of one scan.
+        z_pred: (P, 2) predicted measurement of each candidate pair.
+        joint_covariance: (2P, 2P) covariance of the stacked innovations of all
+            pairs, ``H P H^T + R`` (R only on a pair's own diagonal block).
+            Blocks between two pairs of the same observation are never used.
+        pair_obs: (P,) observation index of each pair; candidates of one
+            observation should be listed closest first (they are tried in order).
+        pair_landmark: (P,) landmark index of each pair.
+        chi2_prob: joint compatibility probability (chi-square, 2k dof).
+        max_nodes: budget of pairing tests (see the module docstring).
+        individual_d2: (P,) individual distances, used to order the greedy
+            fallback; computed from the diagonal blocks when omitted.
+
+    Returns:
+        :class:`JcbbResult`.
+    """
+    z = np.asarray(z, dtype=float).reshape(-1, 2)
+    m = z.shape[0]
+    pair_obs = np.asarray(pair_obs, dtype=np.int64).reshape(-1)
+    pair_landmark = np.asarray(pair_landmark, dtype=np.int64).reshape(-1)
+    n_pairs = pair_obs.size
+    C = np.asarray(joint_covariance, dtype=float)
+    if C.shape != (2 * n_pairs, 2 * n_pairs):
+        raise ValueError(f"joint_covariance must be {(2 * n_pairs,) * 2}, got {C.shape}")
+    nu = models.innovation(z[pair_obs], np.asarray(z_pred, dtype=float).reshape(-1, 2)) \
+        if n_pairs else np.zeros((0, 2))
+    nu_flat = nu.reshape(-1)
+    if individual_d2 is None:
+        blocks = np.stack([C[2 * p:2 * p + 2, 2 * p:2 * p + 2] for p in range(n_pairs)]) \
+            if n_pairs else np.zeros((0, 2, 2))
+        individual_d2 = mahalanobis_sq_2d(nu, blocks)
+
+    cands: list[list[int]] = [[] for _ in range(m)]
+    for p in range(n_pairs):
+        cands[int(pair_obs[p])].append(p)
+    order = [i for i in range(m) if cands[i]]
+
+    def joint_nis(pairs: list[int]) -> float:
+        if not pairs:
+            return 0.0
+        rows = np.array([[2 * p, 2 * p + 1] for p in pairs]).reshape(-1)
+        Cs = C[np.ix_(rows, rows)]
+        v = nu_flat[rows]
+        try:
+            L = np.linalg.cholesky(Cs)
+        except np.linalg.LinAlgError:
+            return math.inf
+        y = np.linalg.solve(L, v)
+        return float(y @ y)
+
+    def compatible(pairs: list[int]) -> tuple[bool, float]:
+        nis = joint_nis(pairs)
+        return nis <= chi2_quantile(chi2_prob, 2 * len(pairs)), nis
+
+    # Greedy nearest-neighbour start: jointly compatible by construction.
+    greedy: list[int] = []
+    used: set[int] = set()
+    best_d = {i: min(individual_d2[p] for p in cands[i]) for i in order}
+    for i in sorted(order, key=lambda i: best_d[i]):
+        for p in sorted(cands[i], key=lambda p: individual_d2[p]):
+            if int(pair_landmark[p]) in used:
+                continue
+            ok, _ = compatible(greedy + [p])
+            if ok:
+                greedy.append(p)
+                used.add(int(pair_landmark[p]))
+                break
+    best_pairs = list(greedy)
+    best_nis = joint_nis(best_pairs)
+    nodes = 0
+    exhausted = False
+
+    class _Budget(Exception):
+        pass
+
+    def search(level: int, chosen: list[int], used_lm: set[int]) -> None:
+        nonlocal best_pairs, best_nis, nodes
+        if level == len(order):
+            nis = joint_nis(chosen)
+            if len(chosen) > len(best_pairs) or (len(chosen) == len(best_pairs) and nis < best_nis):
+                best_pairs, best_nis = list(chosen), nis
+            return
+        remaining = len(order) - level - 1  # levels after this one
+        i = order[level]
+        if len(chosen) + 1 + remaining >= len(best_pairs):
+            for p in cands[i]:
+                lm = int(pair_landmark[p])
+                if lm in used_lm:
+                    continue
+                nodes += 1
+                if nodes > max_nodes:
+                    raise _Budget
+                ok, _ = compatible(chosen + [p])
+                if ok:
+                    used_lm.add(lm)
+                    search(level + 1, chosen + [p], used_lm)
+                    used_lm.discard(lm)
+        if len(chosen) + remaining >= len(best_pairs):  # the "leave unpaired" branch
+            search(level + 1, chosen, used_lm)
+
+    try:
+        search(0, [], set())
+    except _Budget:
+        exhausted = True
+
+    per_obs_pair: list[int | None] = [None] * m
+    for p in best_pairs:
+        per_obs_pair[int(pair_obs[p])] = int(p)
+    hyp = [None if p is None else int(pair_landmark[p]) for p in per_obs_pair]
+    return JcbbResult(hyp, per_obs_pair, float(best_nis), nodes, exhausted)
