@@ -104,6 +104,13 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_p.add_argument("--in-process", action="store_true",
                        help="run back ends in this process (no per-back-end memory figure)")
     cmp_p.set_defaults(func=cmd_compare)
+
+    import importlib
+
+    from graphslam.commands import COMMANDS
+
+    for name in COMMANDS:
+        importlib.import_module(f"graphslam.commands.{name}").register(sub)
     return parser
 
 
