@@ -147,16 +147,6 @@ class EkfSlamConfig:
                 raise ConfigError(f"ekf.{name} must be a positive number, got {v!r}")
 
 
-def invert_odometry(delta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``bTa`` and its covariance from ``aTb`` (first-order, through the Jacobian)."""
-    dx, dy, dth = delta
-    c, s = math.cos(dth), math.sin(dth)
-    inv = np.array([-c * dx - s * dy, s * dx - c * dy, float(wrap_angle(-dth))])
-    J = np.array([[-c, -s, -s * dx + c * dy],
-                  [s, -c, -c * dx - s * dy],
-                  [0.0, 0.0, -1.0]])
-    out = J @ cov @ J.T
-    return inv, 0.5 * (out + out.T)
 
 
 class EkfSlam(Backend):
@@ -298,7 +288,7 @@ class EkfSlam(Backend):
         if odometry.from_id == cur and odometry.to_id == pose_id:
             u, Q = odometry.delta, odometry.covariance
         elif odometry.from_id == pose_id and odometry.to_id == cur:
-            u, Q = invert_odometry(odometry.delta, odometry.covariance)
+            u, Q = models.invert(odometry.delta, odometry.covariance)
         else:
             raise GraphSlamError(
                 f"ekf: odometry {odometry.from_id}->{odometry.to_id} does not link the current "

@@ -167,15 +167,6 @@ def _tr(A: np.ndarray) -> np.ndarray:
     return np.swapaxes(A, -1, -2)
 
 
-def invert_odometry(delta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``bTa`` and its covariance from ``aTb`` (3,) and its (3, 3) covariance."""
-    dx, dy, dth = delta
-    c, s = math.cos(dth), math.sin(dth)
-    inv = np.array([-c * dx - s * dy, s * dx - c * dy, -dth])
-    J = np.array([[-c, -s, s * dx - c * dy],
-                  [s, -c, c * dx + s * dy],
-                  [0.0, 0.0, -1.0]])
-    return inv, J @ cov @ J.T
 
 
 def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -253,7 +244,7 @@ class FastSlam(Backend):
         if odometry.from_id == cur and odometry.to_id == pose_id:
             u, cov = np.asarray(odometry.delta), np.asarray(odometry.covariance)
         elif odometry.from_id == pose_id and odometry.to_id == cur:
-            u, cov = invert_odometry(odometry.delta, odometry.covariance)
+            u, cov = models.invert(odometry.delta, odometry.covariance)
         else:
             raise GraphSlamError(
                 f"{self.name}: odometry {odometry.from_id}->{odometry.to_id} must link new pose "

@@ -43,6 +43,22 @@ def compose_jacobians(wTb: np.ndarray, bTc: np.ndarray) -> tuple[np.ndarray, np.
     return J_x, J_u
 
 
+def invert(aTb: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``bTa`` (3,) and its (3, 3) covariance from ``aTb`` (3,) and its covariance.
+
+    First order: the covariance goes through the Jacobian of the inverse, for
+    odometry stored new->old (as pose-graph files do).
+    """
+    dx, dy, dth = aTb
+    c, s = np.cos(dth), np.sin(dth)
+    bTa = np.array([-c * dx - s * dy, s * dx - c * dy, wrap_angle(-dth)])
+    J = np.array([[-c, -s, s * dx - c * dy],
+                  [s, -c, c * dx + s * dy],
+                  [0.0, 0.0, -1.0]])
+    out = J @ covariance @ J.T
+    return bTa, 0.5 * (out + out.T)
+
+
 def observe(wTb: np.ndarray, m_w: np.ndarray) -> np.ndarray:
     """Predicted ``[range_m, bearing_rad]`` of landmark ``m_w`` (..., 2) from ``wTb`` (..., 3)."""
     d = m_w - wTb[..., :2]

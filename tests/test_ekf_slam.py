@@ -10,7 +10,7 @@ from scipy.stats import chi2
 
 from filters import models
 from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
-from filters.ekf_slam import EkfSlam, EkfSlamConfig, invert_odometry
+from filters.ekf_slam import EkfSlam, EkfSlamConfig
 from graphslam.config import from_dict
 from graphslam.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
 from graphslam.pipeline import association_accuracy
@@ -187,7 +187,7 @@ def test_reversed_odometry_is_inverted_with_its_covariance():
     rev = EkfSlam()
     rev.load_state(7, x, P)
     fwd.predict(Odometry(7, 8, u, Q), 8)
-    u_inv, Q_inv = invert_odometry(u, Q)
+    u_inv, Q_inv = models.invert(u, Q)
     rev.predict(Odometry(8, 7, u_inv, Q_inv), 8)
     np.testing.assert_allclose(rev.state_vector(), fwd.state_vector(), atol=DENSE_TOL)
     np.testing.assert_allclose(rev.state_covariance(), fwd.state_covariance(), atol=DENSE_TOL)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from filters import models
-from filters.fastslam import FastSlam, FastSlamConfig, invert_odometry, low_variance_resample
+from filters.fastslam import FastSlam, FastSlamConfig, low_variance_resample
 from filters.fastslam_map import ParticleMaps
 from graphslam import pipeline
 from graphslam.backend import Backend
@@ -58,7 +58,7 @@ def loop_world(seed: int = 0, steps: int = 60, n_landmarks: int = 32, radius_m: 
             x = models.compose(x, u_true)
             u = u_true + rng.normal(0, [sigma_xy_m, sigma_xy_m, sigma_th_rad])
             if reverse_every and k % reverse_every == 0:
-                odo = Odometry(k, k - 1, *invert_odometry(u, Q))
+                odo = Odometry(k, k - 1, *models.invert(u, Q))
             else:
                 odo = Odometry(k - 1, k, u, Q)
         z = models.observe(np.broadcast_to(x, (n_landmarks, 3)), lms)

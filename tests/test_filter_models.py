@@ -65,3 +65,16 @@ def test_batched_equals_single(rng):
         hx, hm = models.observe_jacobians(X[i], M[i])
         np.testing.assert_allclose(Hx[i], hx)
         np.testing.assert_allclose(Hm[i], hm)
+
+
+def test_invert_matches_gtsam_and_propagates_through_its_jacobian(rng):
+    for _ in range(10):
+        u = rng.normal(size=3)
+        A = rng.normal(size=(3, 3))
+        Q = A @ A.T + 0.1 * np.eye(3)
+        inv, Q_inv = models.invert(u, Q)
+        expected = gtsam.Pose2(*u).inverse()
+        np.testing.assert_allclose(inv, [expected.x(), expected.y(), expected.theta()],
+                                   atol=VALUE_TOL)
+        J = numeric_jacobian(lambda v: models.invert(v, Q)[0], u)
+        np.testing.assert_allclose(Q_inv, J @ Q @ J.T, atol=JAC_TOL)
