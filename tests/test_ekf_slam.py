@@ -407,3 +407,40 @@ def test_bad_input_is_refused():
     with pytest.raises(UnsupportedError):
         ekf.add_loop_closure(LoopClosure(0, 0, np.zeros(3), np.eye(3) * 1e-2))
     assert not EkfSlam.supports_loop_closures and EkfSlam.name == "ekf"
+
+
+def test_observability_constrained_jacobian_keeps_rotation_unobservable():
+    # after a few steps the current estimates have moved away from the
+    # predicted pose / first estimates; the OC Jacobian must still annihilate
+    # the global translation and rotation directions tracked at those points
+    ekf, *_ = _run(4, steps=12, laps=0.5)
+    slot = 0
+    H_x, H_m = models.observe_jacobians(ekf.current_pose(), ekf.state_vector()[3:5])
+    Hx_oc, Hm_oc = ekf._observability_constrained(slot, H_x, H_m)
+    p, m = ekf._x_pred, ekf._m_first[slot]
+    N = np.array([[1, 0, -p[1]], [0, 1, p[0]], [0, 0, 1], [1, 0, -m[1]], [0, 1, m[0]]])
+    np.testing.assert_allclose(np.hstack([Hx_oc, Hm_oc]) @ N, 0.0, atol=DENSE_TOL)
+    # and it is the nearest such matrix: the change is orthogonal to the constraint
+    dH = np.hstack([H_x - Hx_oc, H_m - Hm_oc])
+    assert np.linalg.matrix_rank(np.hstack([N, dH.T]), tol=1e-9) == 3
+
+
+@pytest.mark.slow
+def test_default_synthetic_world_nees_is_consistent_over_20_runs():
+    """Issue 3's consistency criterion on the course demo (known association)."""
+    from graphslam import metrics, pipeline
+    from graphslam.compare import errors_against_truth
+    from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+
+    runs = 20
+    nees = []
+    for seed in range(runs):
+        ds = make_synthetic(SyntheticConfig(seed=seed))
+        est = pipeline.run(ds, EkfSlam(), with_covariances=True).estimate
+        ids, truth = ds.ground_truth()
+        err = errors_against_truth(est.pose_ids, est.wTb, dict(zip(ids.tolist(), truth)))
+        nees.append(metrics.nees(err, est.pose_covariances))
+    mean = np.mean(nees, axis=0)[1:]  # step 0 is the prior, error exactly 0
+    lo, hi = metrics.chi2_bounds(3, runs)
+    inside = np.mean((mean >= lo) & (mean <= hi))
+    assert inside >= 0.9, f"average NEES inside the 95 % bounds on {inside:.1%} of steps"
