@@ -1,0 +1,54 @@
+"""Greyscale image loading and validation for the front end (numpy + OpenCV).
+
+Every detector takes an ``(H, W)`` ``uint8`` greyscale image and calls
+:func:`check_gray` first, so a colour image, a float image or an empty array
+fails with one clear :class:`~graphslam.errors.InputError` instead of a
+confusing OpenCV assertion deep inside a filter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from graphslam.errors import InputError
+
+
+def check_gray(image: object, what: str = "image") -> np.ndarray:
+    """Return ``image`` if it is a non-empty ``(H, W)`` ``uint8`` array, else raise.
+
+    Float images (even in [0, 1]) are refused rather than silently rescaled:
+    the caller knows its scale, we do not. Raises :class:`InputError` naming
+    ``what``.
+    """
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"{what}: expected a numpy array, got {type(image).__name__}")
+    if image.ndim != 2:
+        hint = ""
+        if image.ndim == 3 and image.shape[-1] in (3, 4):
+            hint = " (colour image: convert with cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))"
+        raise InputError(f"{what}: expected a (H, W) greyscale image, got shape {image.shape}{hint}")
+    if image.size == 0:
+        raise InputError(f"{what}: empty image, shape {image.shape}")
+    if image.dtype != np.uint8:
+        hint = ""
+        if image.dtype.kind == "f":
+            hint = " (float image: scale it yourself, e.g. np.round(img * 255).astype(np.uint8))"
+        raise InputError(f"{what}: expected dtype uint8, got {image.dtype}{hint}")
+    return image
+
+
+def load_gray(path: str | Path) -> np.ndarray:
+    """Read an image file as ``(H, W)`` ``uint8`` greyscale (``cv2.IMREAD_GRAYSCALE``).
+
+    Raises :class:`InputError` naming the file when it is missing or unreadable.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found", path)
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        raise InputError("cannot decode image (not an image file, or unsupported format)", path)
+    return check_gray(image, what=str(path))
