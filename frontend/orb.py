@@ -1,0 +1,147 @@
+"""ORB corners and descriptors (OpenCV) with per-cell selection, like the Harris tessellation.
+
+OpenCV's ORB (oriented FAST + rotated BRIEF, an image pyramid) finds up to
+``n_features`` candidates; the image is then tessellated into square cells of
+``cell_size_px`` from the top-left corner (cell index = ``cell_row *
+n_cell_cols + cell_col``, the same numbering as :mod:`frontend.harris`) and
+only the ``per_cell`` best-response keypoints of each cell are kept, so
+features spread over the image instead of piling up on one textured patch.
+``cell_size_px = 0`` turns the tessellation off (``cell`` is then None).
+Descriptors (32 bytes, uint8) are computed on the kept keypoints only; they
+serve matching and the bag-of-words vocabulary.
+
+Determinism: the same image gives the same output (OpenCV ORB is
+deterministic; ties in response are broken by (row, column, octave) and the
+output is sorted by cell, then decreasing response).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import cv2
+import numpy as np
+
+from frontend.features import Features
+from frontend.image import check_gray
+from graphslam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class OrbConfig:
+    """ORB settings (config section ``[orb]``).
+
+    Attributes:
+        n_features: candidates ORB retains before the cell selection
+            (``cv2.ORB_create(nfeatures=...)``).
+        cell_size_px: side of the square cells; 0 disables the tessellation.
+        per_cell: keypoints kept per cell (best responses).
+        max_features: cap after the cell selection (best responses overall), 0 = none.
+        fast_threshold: FAST intensity threshold (grey levels).
+        scale_factor, n_levels: pyramid ratio and number of levels.
+        edge_threshold, patch_size: ORB border and descriptor patch (pixels).
+        score: ``"harris"`` or ``"fast"`` keypoint ranking.
+    """
+
+    SECTION: ClassVar[str] = "orb"
+
+    n_features: int = 5000
+    cell_size_px: int = 32
+    per_cell: int = 1
+    max_features: int = 0
+    fast_threshold: int = 20
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    edge_threshold: int = 31
+    patch_size: int = 31
+    score: str = "harris"
+
+    def __post_init__(self):
+        for name, lo in (("n_features", 1), ("cell_size_px", 0), ("per_cell", 1), ("max_features", 0),
+                         ("fast_threshold", 0), ("n_levels", 1), ("edge_threshold", 0), ("patch_size", 2)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ConfigError(f"orb.{name} must be an integer >= {lo}, got {v!r}")
+        sf = self.scale_factor
+        if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not sf > 1.0:
+            raise ConfigError(f"orb.scale_factor must be > 1, got {sf!r}")
+        if self.score not in ("harris", "fast"):
+            raise ConfigError(f"orb.score must be 'harris' or 'fast', got {self.score!r}")
+
+
+class OrbDetector:
+    """ORB + per-cell selection (:class:`frontend.features.Detector`).
+
+    ``OrbDetector(config)`` or ``OrbDetector(cell_size_px=64, ...)`` (keyword
+    overrides of :class:`OrbConfig`).
+    """
+
+    def __init__(self, config: OrbConfig | None = None, **overrides):
+        config = config or OrbConfig()
+        if overrides:
+            config = OrbConfig(**{**config.__dict__, **overrides})
+        self.config = config
+
+    def _orb(self):
+        c = self.config
+        return cv2.ORB_create(
+            nfeatures=int(c.n_features), scaleFactor=float(c.scale_factor), nlevels=int(c.n_levels),
+            edgeThreshold=int(c.edge_threshold), firstLevel=0, WTA_K=2,
+            scoreType=cv2.ORB_HARRIS_SCORE if c.score == "harris" else cv2.ORB_FAST_SCORE,
+            patchSize=int(c.patch_size), fastThreshold=int(c.fast_threshold))
+
+    def _cells(self, xy: np.ndarray, shape) -> np.ndarray:
+        cs = self.config.cell_size_px
+        n_cols = -(-shape[1] // cs)
+        col = np.clip((xy[:, 0] // cs).astype(np.int64), 0, n_cols - 1)
+        row = np.clip((xy[:, 1] // cs).astype(np.int64), 0, -(-shape[0] // cs) - 1)
+        return row * n_cols + col
+
+    @staticmethod
+    def _order(xy, resp, octave, cell):
+        """Sort by (cell, -response, row, column, octave): a total, deterministic order."""
+        keys = [octave, xy[:, 0], xy[:, 1], -resp]
+        if cell is not None:
+            keys.append(cell)
+        return np.lexsort(keys)
+
+    def detect(self, image: np.ndarray) -> Features:
+        """``image``: (H, W) uint8. Returns :class:`Features` with (N, 32) uint8 descriptors."""
+        image = check_gray(image)
+        c = self.config
+        orb = self._orb()
+        kps = orb.detect(image, None)
+        empty = Features(xy_px=np.zeros((0, 2)), response=np.zeros(0),
+                         descriptors=np.zeros((0, 32), np.uint8),
+                         cell=np.zeros(0, np.int64) if c.cell_size_px else None)
+        if not kps:
+            return empty
+        kps = list(kps)
+        xy = np.array([k.pt for k in kps], dtype=np.float64)
+        resp = np.array([k.response for k in kps], dtype=np.float64)
+        octv = np.array([k.octave for k in kps], dtype=np.int64)
+        keep = np.arange(len(kps))
+        if c.cell_size_px:
+            cell = self._cells(xy, image.shape)
+            order = self._order(xy, resp, octv, cell)
+            sc = cell[order]
+            # rank within the cell (order is sorted by cell, best first)
+            start = np.r_[0, np.flatnonzero(np.diff(sc)) + 1]
+            first = np.repeat(start, np.diff(np.r_[start, len(sc)]))
+            rank = np.arange(len(sc)) - first
+            keep = order[rank < c.per_cell]
+        if c.max_features and len(keep) > c.max_features:
+            o = np.lexsort([octv[keep], xy[keep, 0], xy[keep, 1], -resp[keep]])
+            keep = keep[o[:c.max_features]]
+        kept_kps = [kps[i] for i in np.sort(keep)]
+        kept_kps, desc = orb.compute(image, kept_kps)
+        if desc is None or not kept_kps:
+            return empty
+        xy = np.array([k.pt for k in kept_kps], dtype=np.float64)
+        resp = np.array([k.response for k in kept_kps], dtype=np.float64)
+        octv = np.array([k.octave for k in kept_kps], dtype=np.int64)
+        cell = self._cells(xy, image.shape) if c.cell_size_px else None
+        o = self._order(xy, resp, octv, cell)
+        return Features(xy_px=xy[o], response=resp[o], descriptors=np.ascontiguousarray(desc[o]),
+                        cell=None if cell is None else cell[o])
