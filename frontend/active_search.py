@@ -1,0 +1,363 @@
+"""Active search: look for each landmark only inside its innovation ellipse.
+
+Seed 003, section 4.4. After the filter's prediction every landmark is
+projected into the image with an innovation covariance ``S`` (2x2, px^2); the
+observation must lie, with probability ``gate_probability``, in the ellipse
+
+    (z - z_hat)^T S^-1 (z - z_hat) <= gamma,   gamma = chi2_2dof(p) = -2 ln(1 - p)
+
+(9.21 for p = 0.99: for 2 degrees of freedom the chi-square quantile is exact
+in closed form). Landmarks are searched largest ellipse first (``sqrt(det S)``,
+proportional to the area: their observation brings the most information), and
+at most ``max_corrections`` are searched per frame, a hard bound on the time.
+
+Two modes (``ActiveSearchConfig.mode``):
+
+* ``"zncc"`` (software, RT-SLAM): the stored patch (``patch_size_px`` square,
+  from the previous image) is correlated (zero-mean normalised
+  cross-correlation, ``cv2.matchTemplate(TM_CCOEFF_NORMED)`` on the ellipse's
+  bounding box) and the best score among the integer pixels inside the
+  ellipse is accepted if ``>= min_score``; image windows whose standard
+  deviation is below ``min_patch_std`` grey levels are never accepted (ZNCC is
+  undefined on flat windows). Optional sub-pixel refinement by a parabola
+  through the 3 scores around the peak on each axis. Optional appearance
+  prediction: the patch is warped from the previous image by a per-landmark
+  affine map of pixel offsets (previous -> current, e.g.
+  :func:`frontend.camera.plane_induced_affine`) before correlation.
+* ``"nearest"`` (hardware, the FPGA variant): among the current frame's Harris
+  points (:class:`frontend.features.Features`), the one nearest to the
+  prediction in Mahalanobis distance and inside the ellipse is taken. Points are
+  not exclusive (two landmarks may take the same point), as in the paper.
+
+Pixels "searched" by a landmark are the integer pixels inside its ellipse (and
+inside the image, where a patch fits for ZNCC); the image fraction reported is
+the union of these pixels over the frame, divided by ``H * W`` (the sum, which
+counts overlaps twice, is reported as well).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import cv2
+import numpy as np
+
+from frontend.features import Features
+from frontend.image import check_gray
+from graphslam.errors import ConfigError, InputError, MeasurementError
+
+__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "chi2_2dof", "ellipse_pixels",
+           "extract_patches"]
+
+
+def chi2_2dof(probability: float) -> float:
+    """Chi-square quantile with 2 degrees of freedom: ``-2 ln(1 - p)`` (9.2103 at 0.99)."""
+    if not 0.0 < probability < 1.0:
+        raise ConfigError(f"gate probability must be in (0, 1), got {probability!r}")
+    return -2.0 * math.log1p(-probability)
+
+
+@dataclass(frozen=True)
+class ActiveSearchConfig:
+    """Active search settings (config section ``[active_search]``).
+
+    Attributes:
+        mode: ``"zncc"`` (software patch correlation) or ``"nearest"`` (hardware:
+            nearest Harris point inside the ellipse).
+        gate_probability: probability mass of the search ellipse (chi-square, 2 dof).
+        max_corrections: landmarks searched per frame at most (largest
+            ellipses first); 0 = no cap.
+        patch_size_px: odd side of the correlation patch, pixels.
+        min_score: smallest ZNCC accepted, in [-1, 1].
+        min_patch_std: patches / image windows with a grey-level standard
+            deviation below this are not matched (flat, ZNCC undefined).
+        subpixel: parabolic sub-pixel refinement of the ZNCC peak.
+        predict_appearance: warp the patch by the given per-landmark affine
+            before correlating (needs the previous image and points).
+        max_half_extent_px: landmarks whose ellipse's bounding box has a
+            half-side above this are not searched (their prediction is
+            meaningless; they would cost a large part of the frame).
+    """
+
+    SECTION: ClassVar[str] = "active_search"
+
+    mode: str = "zncc"
+    gate_probability: float = 0.99
+    max_corrections: int = 20
+    patch_size_px: int = 11
+    min_score: float = 0.8
+    min_patch_std: float = 3.0
+    subpixel: bool = True
+    predict_appearance: bool = False
+    max_half_extent_px: float = 150.0
+
+    def __post_init__(self):
+        if self.mode not in ("zncc", "nearest"):
+            raise ConfigError(f"active_search.mode must be 'zncc' or 'nearest', got {self.mode!r}")
+        p = self.gate_probability
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 < p < 1.0:
+            raise ConfigError(f"active_search.gate_probability must be in (0, 1), got {p!r}")
+        m = self.max_corrections
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
+            raise ConfigError(f"active_search.max_corrections must be an integer >= 0, got {m!r}")
+        s = self.patch_size_px
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 3 or s % 2 == 0:
+            raise ConfigError(f"active_search.patch_size_px must be an odd integer >= 3, got {s!r}")
+        if not -1.0 <= float(self.min_score) <= 1.0:
+            raise ConfigError(f"active_search.min_score must be in [-1, 1], got {self.min_score!r}")
+        if not float(self.min_patch_std) >= 0.0:
+            raise ConfigError(f"active_search.min_patch_std must be >= 0, got {self.min_patch_std!r}")
+        if not float(self.max_half_extent_px) > 0.0:
+            raise ConfigError(f"active_search.max_half_extent_px must be > 0, got {self.max_half_extent_px!r}")
+
+    @property
+    def gate(self) -> float:
+        """Mahalanobis-squared threshold gamma of the ellipse."""
+        return chi2_2dof(self.gate_probability)
+
+
+@dataclass(frozen=True, eq=False)
+class ActiveSearchResult:
+    """Outcome of one frame's active search, per landmark (N = number of predictions).
+
+    Attributes:
+        order: (M,) indices of the searched landmarks, in search order (largest ellipse first).
+        searched: (N,) bool.
+        found: (N,) bool, a match was accepted.
+        uv: (N, 2) measured pixel position ``[u, v]``, NaN where not found.
+        score: (N,) best ZNCC in the ellipse (zncc mode, even if rejected) or
+            the Harris response of the chosen point (nearest mode); NaN if none.
+        d2: (N,) Mahalanobis squared distance of ``uv`` to the prediction; NaN if not found.
+        pixels: (N,) integer pixels evaluated inside the ellipse (0 if not searched).
+        image_fraction: union of the searched pixels / (H W).
+        image_fraction_sum: sum of ``pixels`` / (H W) (overlaps counted twice).
+    """
+
+    order: np.ndarray
+    searched: np.ndarray
+    found: np.ndarray
+    uv: np.ndarray
+    score: np.ndarray
+    d2: np.ndarray
+    pixels: np.ndarray
+    image_fraction: float
+    image_fraction_sum: float
+
+    @property
+    def n_found(self) -> int:
+        return int(self.found.sum())
+
+
+def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple[int, int],
+                   margin: int = 0):
+    """Integer pixels inside the gate ellipse and at least ``margin`` px from every edge.
+
+    Returns ``(u0, v0, mask)``: ``mask`` (h, w) bool over the bounding box whose
+    top-left pixel is ``(u0, v0)``; ``mask[j, i]`` is pixel ``(u0 + i, v0 + j)``.
+    An empty box gives a (0, 0) mask.
+    """
+    H, W = shape
+    cu, cv = float(center[0]), float(center[1])
+    au, av = math.sqrt(gamma * S[0, 0]), math.sqrt(gamma * S[1, 1])
+    u0 = max(math.ceil(cu - au), margin)
+    u1 = min(math.floor(cu + au), W - 1 - margin)
+    v0 = max(math.ceil(cv - av), margin)
+    v1 = min(math.floor(cv + av), H - 1 - margin)
+    if u1 < u0 or v1 < v0:
+        return u0, v0, np.zeros((0, 0), dtype=bool)
+    Si = np.linalg.inv(S)
+    du = np.arange(u0, u1 + 1, dtype=np.float64) - cu
+    dv = np.arange(v0, v1 + 1, dtype=np.float64) - cv
+    d2 = (Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None]
+          + Si[1, 1] * dv[:, None] ** 2)
+    return u0, v0, d2 <= gamma
+
+
+def extract_patches(image: np.ndarray, xy: np.ndarray, size: int) -> np.ndarray:
+    """(N, size, size) float32 patches centred on ``xy`` (N, 2) (sub-pixel, edges replicated)."""
+    image = check_gray(image)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    out = np.empty((len(xy), size, size), np.float32)
+    for i, (u, v) in enumerate(xy):
+        out[i] = cv2.getRectSubPix(image, (size, size), (float(u), float(v)), patchType=cv2.CV_32F)
+    return out
+
+
+def _warp_patch(image: np.ndarray, xy: np.ndarray, A: np.ndarray, size: int) -> np.ndarray:
+    """Patch of ``image`` as seen after the offset map ``A`` (prev -> cur): P(d) = I(xy + A^-1 d)."""
+    Ai = np.linalg.inv(A)
+    c = (size - 1) / 2.0
+    M = np.zeros((2, 3))
+    M[:, :2] = Ai
+    M[:, 2] = xy - Ai @ np.array([c, c])
+    return cv2.warpAffine(image.astype(np.float32), M, (size, size),
+                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _parabola(rm: float, r0: float, rp: float) -> float:
+    den = rm - 2.0 * r0 + rp
+    if not den < 0.0:
+        return 0.0
+    return float(np.clip(0.5 * (rm - rp) / den, -0.5, 0.5))
+
+
+class ActiveSearch:
+    """Active search for one frame at a time (see the module docstring).
+
+    ``ActiveSearch(config)`` or ``ActiveSearch(max_corrections=10, ...)``.
+    """
+
+    def __init__(self, config: ActiveSearchConfig | None = None, **overrides):
+        config = config or ActiveSearchConfig()
+        if overrides:
+            config = ActiveSearchConfig(**{**config.__dict__, **overrides})
+        self.config = config
+
+    # ------------------------------------------------------------------ ordering
+
+    def search_order(self, predictions: np.ndarray, S: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Candidate landmark indices, largest ellipse (``sqrt(det S)``) first, ties by index.
+
+        Drops predictions that are not finite, lie outside the image, or whose
+        ellipse is larger than ``max_half_extent_px``. The cap is applied by
+        :meth:`search` (a landmark whose ellipse has no usable pixel does not use it).
+        """
+        H, W = shape
+        z = predictions
+        ok = np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(S.reshape(len(S), 4)), axis=1)
+        ok &= (z[:, 0] >= -0.5) & (z[:, 0] <= W - 0.5) & (z[:, 1] >= -0.5) & (z[:, 1] <= H - 0.5)
+        g = self.config.gate
+        half = np.sqrt(g * np.maximum(np.maximum(S[:, 0, 0], S[:, 1, 1]), 0.0))
+        ok &= half <= self.config.max_half_extent_px
+        size = np.sqrt(np.maximum(np.linalg.det(S), 0.0))
+        idx = np.flatnonzero(ok)
+        return idx[np.argsort(-size[idx], kind="stable")]
+
+    # ------------------------------------------------------------------ search
+
+    def search(self, image: np.ndarray, predictions: np.ndarray, S: np.ndarray, *,
+               patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
+               prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
+               features: Features | None = None) -> ActiveSearchResult:
+        """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
+
+        ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
+        (N, p, p) or ``prev_image`` + ``prev_xy`` (N, 2) (patches are cut there);
+        appearance prediction needs ``prev_image``, ``prev_xy`` and ``affine``
+        (N, 2, 2). nearest mode needs ``features`` (the current frame's points).
+        """
+        image = check_gray(image)
+        cfg = self.config
+        z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
+        S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
+        n = len(z)
+        if len(S) != n:
+            raise InputError(f"{n} predictions but {len(S)} covariances")
+        finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
+        Sf = S[finite]
+        if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
+                np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
+            raise MeasurementError("innovation covariances must be symmetric positive definite")
+        H, W = image.shape
+        p = cfg.patch_size_px
+        h = p // 2
+        if cfg.mode == "zncc":
+            warp = cfg.predict_appearance and affine is not None
+            if warp:
+                if prev_image is None or prev_xy is None:
+                    raise InputError("appearance prediction needs prev_image and prev_xy")
+                prev_image = check_gray(prev_image, "prev_image")
+                prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+                affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
+            elif patches is None:
+                if prev_image is None or prev_xy is None:
+                    raise InputError("zncc mode needs patches, or prev_image and prev_xy")
+                patches = extract_patches(prev_image, prev_xy, p)
+            if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
+                raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
+            margin = h
+            imf = image.astype(np.float32)
+        else:
+            if features is None:
+                raise InputError("nearest mode needs the current frame's features")
+            fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
+            fresp = np.asarray(features.response, dtype=np.float64)
+            margin = 0
+
+        g = cfg.gate
+        searched = np.zeros(n, bool)
+        found = np.zeros(n, bool)
+        uv = np.full((n, 2), np.nan)
+        score = np.full(n, np.nan)
+        d2 = np.full(n, np.nan)
+        pixels = np.zeros(n, np.int64)
+        union = np.zeros((H, W), bool)
+        order = []
+        cap = cfg.max_corrections or n
+        for i in self.search_order(z, S, (H, W)):
+            if len(order) >= cap:
+                break
+            u0, v0, mask = ellipse_pixels(z[i], S[i], g, (H, W), margin)
+            cnt = int(mask.sum())
+            if cnt == 0:
+                continue
+            order.append(i)
+            searched[i] = True
+            pixels[i] = cnt
+            bh, bw = mask.shape
+            union[v0:v0 + bh, u0:u0 + bw] |= mask
+            Si = np.linalg.inv(S[i])
+            if cfg.mode == "zncc":
+                if patches is not None and not (warp):
+                    tpl = np.ascontiguousarray(patches[i], dtype=np.float32)
+                else:
+                    tpl = _warp_patch(prev_image, prev_xy[i], affine[i], p)
+                if float(tpl.std()) < cfg.min_patch_std:
+                    continue
+                region = imf[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h]
+                res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
+                # window standard deviation: flat windows have no defined ZNCC
+                k = (p, p)
+                m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+                m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True,
+                                   borderType=cv2.BORDER_CONSTANT)
+                var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
+                valid = mask & (var >= cfg.min_patch_std ** 2) & np.isfinite(res)
+                if not valid.any():
+                    continue
+                masked = np.where(valid, res, -np.inf)
+                j = int(np.argmax(masked))
+                jv, ju = divmod(j, bw)
+                best = float(res[jv, ju])
+                score[i] = best
+                if best < cfg.min_score:
+                    continue
+                du = dv = 0.0
+                if cfg.subpixel:
+                    if 0 < ju < bw - 1:
+                        du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
+                    if 0 < jv < bh - 1:
+                        dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
+                m = np.array([u0 + ju + du, v0 + jv + dv])
+            else:
+                if len(fxy) == 0:
+                    continue
+                d = fxy - z[i]
+                dd = np.einsum("ni,ij,nj->n", d, Si, d)
+                inside = np.flatnonzero(dd <= g)
+                if len(inside) == 0:
+                    continue
+                j = inside[np.argmin(dd[inside])]
+                m = fxy[j].copy()
+                score[i] = fresp[j]
+            e = m - z[i]
+            d2[i] = float(e @ Si @ e)
+            uv[i] = m
+            found[i] = True
+        npx = float(H * W)
+        return ActiveSearchResult(order=np.asarray(order, dtype=np.int64), searched=searched, found=found,
+                                  uv=uv, score=score, d2=d2, pixels=pixels,
+                                  image_fraction=float(union.sum()) / npx,
+                                  image_fraction_sum=float(pixels.sum()) / npx)
