@@ -190,3 +190,18 @@ def test_detect_is_a_detector_stamped_at_ready_time(three_frames):
     for bad in (np.zeros((0, 4), np.uint8), np.zeros((30, 30), np.float32)):
         with pytest.raises(InputError):
             stream.detect(bad)
+
+
+@pytest.mark.slow
+def test_stream_bit_identical_on_a_synthetic_sequence():
+    """Every frame of a rendered synthetic image sequence (VGA, 30 frames, one lap)."""
+    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+
+    seq = make_synthetic_images(SyntheticImagesConfig(n_frames=30, laps=1.0, pixel_noise_sigma=1.0))
+    cfg = HarrisConfig(arithmetic="fixed")
+    stream, ref = FpgaHarrisStream(cfg), HarrisDetector(cfg)
+    for i in range(len(seq)):
+        img = seq.load(i)
+        got = stream.detect(img)
+        assert len(got) > 50, f"frame {i}: too few points for the comparison to mean much"
+        assert_same_points(got, ref.detect(img))
