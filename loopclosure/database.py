@@ -1,0 +1,293 @@
+"""Bag-of-words image database: TF-IDF vectors, DBoW2's L1 score, inverted index.
+
+An image's descriptors are quantised by a fitted vocabulary
+(:class:`loopclosure.vocabulary.FlatVocabulary` or
+:class:`loopclosure.vocabulary.VocabularyTree`) into a sparse
+:class:`BowVector`: for every word ``w`` present, ``tf_w * idf_w`` with
+``tf_w = count_w / n_descriptors``, then L1-normalised (weights sum to 1).
+Words of zero IDF (present in every training image) carry no information and
+are left out, so every stored weight is > 0.
+
+Score (DBoW2's L1 score, Gálvez-López & Tardós, "Bags of binary words for
+fast place recognition in image sequences", IEEE T-RO 2012)::
+
+    s(a, b) = 1 - 0.5 * || a - b ||_1          a, b L1-normalised, s in [0, 1]
+
+Because both vectors sum to 1 and words outside the intersection contribute
+``|a_w|`` or ``|b_w|`` alone::
+
+    s(a, b) = 0.5 * sum over common words w of (|a_w| + |b_w| - |a_w - b_w|)
+            = sum over common words w of min(a_w, b_w)          (weights > 0)
+
+so a query only needs the postings of its own words. The inverted index
+keeps, for every word, a growable array of (image id, weight) postings; a
+query concatenates the postings of its K words, adds ``min(q_w, d_w)`` per
+image with ``np.bincount`` and keeps the best. Cost: proportional to the
+number of postings of the query's words, never to a scan of all images.
+
+An empty vector (an image without descriptors, or whose words all have zero
+IDF) cannot be L1-normalised; its score against anything is 0 (the
+common-word sum is empty), and it matches nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from graphslam.errors import ConfigError
+
+#: Allowed |sum(weights) - 1| of a BowVector (float64 rounding of a normalised sum).
+L1_NORM_TOL = 1e-9
+
+#: First capacity of a word's posting arrays; they double when full.
+_INITIAL_CAPACITY = 8
+
+#: Query scan stages: fractions of the query's postings after which pruning is tried.
+_SCAN_FRACTIONS = (1 / 16, 1 / 8, 1 / 4, 1 / 2)
+
+#: Slack on pruning comparisons, far above the float64 rounding of a sum of <= 1 weights.
+_PRUNE_MARGIN = 1e-9
+
+#: Cost model of probing vs scanning, in "postings scanned" units (measured order of
+#: magnitude: a numpy call ~ 1000 postings, a binary search ~ 4 postings).
+_PROBE_CALL_COST = 1000
+_PROBE_COST = 4
+
+
+@dataclass(frozen=True, eq=False)
+class BowVector:
+    """Sparse TF-IDF vector, L1-normalised (weights sum to 1) unless empty.
+
+    Attributes:
+        word_ids: (K,) int64 word ids, sorted, unique.
+        weights: (K,) float64 weights, > 0, summing to 1 (K = 0: empty vector).
+
+    Both arrays are read-only; construction checks these invariants
+    (ValueError otherwise).
+    """
+
+    word_ids: np.ndarray
+    weights: np.ndarray
+
+    def __post_init__(self):
+        ids = np.array(self.word_ids, dtype=np.int64, copy=True).reshape(-1)
+        wts = np.array(self.weights, dtype=np.float64, copy=True).reshape(-1)
+        if ids.shape != wts.shape:
+            raise ValueError(f"word_ids {ids.shape} and weights {wts.shape} differ in length")
+        if ids.size:
+            if np.any(np.diff(ids) <= 0) or ids[0] < 0:
+                raise ValueError("word_ids must be sorted, unique and >= 0")
+            if not np.all(np.isfinite(wts)) or np.any(wts <= 0.0):
+                raise ValueError("weights must be finite and > 0")
+            if abs(wts.sum() - 1.0) > L1_NORM_TOL:
+                raise ValueError(f"weights must sum to 1 (L1-normalised), sum is {wts.sum()!r}")
+        ids.setflags(write=False)
+        wts.setflags(write=False)
+        object.__setattr__(self, "word_ids", ids)
+        object.__setattr__(self, "weights", wts)
+
+    def __len__(self) -> int:
+        return int(self.word_ids.size)
+
+    @classmethod
+    def empty(cls) -> "BowVector":
+        return cls(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
+
+
+class BowDatabase:
+    """Images as BoW vectors behind an inverted index (see the module docstring).
+
+    ``BowDatabase(vocabulary)``: ``vocabulary`` is a fitted FlatVocabulary
+    or VocabularyTree (anything with ``transform``, ``idf_`` and
+    ``n_words_``). Image ids are 0, 1, 2... in insertion order.
+    """
+
+    def __init__(self, vocabulary):
+        if not all(hasattr(vocabulary, a) for a in ("transform", "idf_", "n_words_")):
+            raise ConfigError("BowDatabase needs a fitted vocabulary (transform, idf_, n_words_)")
+        self.vocabulary = vocabulary
+        self._idf = np.asarray(vocabulary.idf_, dtype=np.float64)
+        self._n_words = int(vocabulary.n_words_)
+        # Inverted index: per word, postings [0, _count[w]) of image ids and weights;
+        # arrays are allocated on a word's first posting and doubled when full.
+        self._post_ids: list[np.ndarray | None] = [None] * self._n_words
+        self._post_wts: list[np.ndarray | None] = [None] * self._n_words
+        self._count = np.zeros(self._n_words, dtype=np.int64)
+        self._capacity = np.zeros(self._n_words, dtype=np.int64)
+        self._n_images = 0
+
+    def __len__(self) -> int:
+        return self._n_images
+
+    # -- vectors -----------------------------------------------------------------
+
+    def bow(self, descriptors: np.ndarray) -> BowVector:
+        """(N, D) descriptors of one image -> its L1-normalised TF-IDF BowVector.
+
+        N = 0 gives the empty vector.
+        """
+        d = np.asarray(descriptors)
+        if d.size == 0:
+            return BowVector.empty()
+        words = self.vocabulary.transform(d)
+        ids, counts = np.unique(words, return_counts=True)
+        w = counts / words.size * self._idf[ids]
+        keep = w > 0.0  # zero-IDF words carry no information (and weights must be > 0)
+        ids, w = ids[keep], w[keep]
+        if ids.size == 0:
+            return BowVector.empty()
+        return BowVector(ids, w / w.sum())
+
+    def score(self, a: BowVector, b: BowVector) -> float:
+        """DBoW2's L1 score ``1 - 0.5 * ||a - b||_1`` in [0, 1]; 0 when either is empty.
+
+        Computed as the sum over common words of ``min(a_w, b_w)``, equal for
+        L1-normalised vectors (module docstring).
+        """
+        _, ia, ib = np.intersect1d(a.word_ids, b.word_ids, assume_unique=True, return_indices=True)
+        if ia.size == 0:
+            return 0.0
+        return float(min(1.0, np.minimum(a.weights[ia], b.weights[ib]).sum()))
+
+    # -- inverted index ----------------------------------------------------------
+
+    def _check_words(self, bow: BowVector) -> None:
+        if not isinstance(bow, BowVector):
+            raise TypeError(f"expected a BowVector, got {type(bow).__name__}")
+        if bow.word_ids.size and bow.word_ids[-1] >= self._n_words:
+            raise ValueError(f"word id {int(bow.word_ids[-1])} outside the vocabulary "
+                             f"({self._n_words} words)")
+
+    def add(self, bow: BowVector) -> int:
+        """Insert one image; returns its id (0, 1, 2... in insertion order)."""
+        self._check_words(bow)
+        image = self._n_images
+        words = bow.word_ids
+        slots = self._count[words]
+        # Grow the (few) full posting arrays first, so the fill loop below is plain stores.
+        for w in words[slots == self._capacity[words]].tolist():
+            cap = max(_INITIAL_CAPACITY, 2 * int(self._capacity[w]))
+            ids = np.empty(cap, dtype=np.int32)
+            wts = np.empty(cap, dtype=np.float64)
+            n = int(self._count[w])
+            if n:
+                ids[:n] = self._post_ids[w][:n]
+                wts[:n] = self._post_wts[w][:n]
+            self._post_ids[w], self._post_wts[w] = ids, wts
+            self._capacity[w] = cap
+        post_ids, post_wts = self._post_ids, self._post_wts
+        for w, n, x in zip(words.tolist(), slots.tolist(), bow.weights.tolist()):
+            post_ids[w][n] = image
+            post_wts[w][n] = x
+        self._count[words] += 1
+        self._n_images = image + 1
+        return image
+
+    def query(self, bow: BowVector, max_results: int = 10,
+              exclude_recent: int = 0) -> list[tuple[int, float]]:
+        """Best matches of ``bow``: [(image id, score)], best first (ties: lower id first).
+
+        Only images sharing at least one word with ``bow`` (score > 0) are
+        returned, at most ``max_results`` of them; the ``exclude_recent``
+        most recently added images are never returned. Scores are exact
+        (equal to :meth:`score` up to float rounding).
+
+        Uses the inverted index only, in two phases (the "max-score"
+        pruning of text retrieval, exact): the query's words are scanned
+        rarest first, accumulating ``min(q_w, d_w)`` per image with
+        ``np.bincount``. The words not yet scanned can add at most
+        ``B = sum of their q_w`` to any image; once the ``max_results``-th
+        best partial score ``theta`` exceeds ``B``, only images with
+        ``partial + B >= theta`` can still be in the answer, and when they
+        are few the long posting lists of the frequent words are probed for
+        those images alone (binary search: postings are sorted by image id)
+        instead of being scanned.
+        """
+        if isinstance(max_results, bool) or not isinstance(max_results, (int, np.integer)) \
+                or max_results < 0:
+            raise ConfigError(f"max_results must be an integer >= 0, got {max_results!r}")
+        if isinstance(exclude_recent, bool) or not isinstance(exclude_recent, (int, np.integer)) \
+                or exclude_recent < 0:
+            raise ConfigError(f"exclude_recent must be an integer >= 0, got {exclude_recent!r}")
+        self._check_words(bow)
+        k = int(max_results)
+        n_allowed = self._n_images - int(exclude_recent)
+        if k == 0 or n_allowed <= 0 or bow.word_ids.size == 0:
+            return []
+        lengths = self._count[bow.word_ids]
+        present = lengths > 0
+        order = np.argsort(lengths[present], kind="stable")  # rarest words first
+        words = bow.word_ids[present][order].tolist()
+        lengths = lengths[present][order]
+        q = bow.weights[present][order]
+        if not words:
+            return []
+        # bound_after[e]: largest score the words e, e+1, ... can still add to any image.
+        bound_after = np.r_[np.cumsum(q[::-1])[::-1], 0.0]
+        cum = np.cumsum(lengths)
+        total = int(cum[-1])
+        # Scan in stages ending where 1/16, 1/8, ... of the postings are done.
+        stops = sorted({int(np.searchsorted(cum, total * f, side="left")) + 1
+                        for f in _SCAN_FRACTIONS} | {len(words)})
+        scores = np.zeros(self._n_images, dtype=np.float64)
+        start = 0
+        for end in stops:
+            if end <= start:
+                continue
+            scores += self._scan(words[start:end], lengths[start:end], q[start:end])
+            start = end
+            if end == len(words):
+                break
+            bound = bound_after[end]
+            allowed = scores[:n_allowed]
+            n_hit = int(np.count_nonzero(allowed))
+            if n_hit < k:
+                continue  # fewer than k images seen: any unseen one may still enter
+            theta = np.partition(allowed, n_allowed - k)[n_allowed - k]
+            if theta <= bound + _PRUNE_MARGIN:
+                continue  # an image not seen yet could still reach the top k
+            cand = np.flatnonzero(allowed + bound >= theta - _PRUNE_MARGIN)
+            remaining = total - int(cum[end - 1])
+            # Probing costs ~ one call per word plus a binary search per candidate;
+            # scanning costs ~ one pass over the remaining postings.
+            if (len(words) - end) * (_PROBE_CALL_COST + cand.size * _PROBE_COST) < remaining:
+                part = allowed[cand] + self._probe(words[end:], q[end:], cand)
+                return _best(cand, part, k)
+        allowed = scores[:n_allowed]
+        cand = np.flatnonzero(allowed > 0.0)
+        return _best(cand, allowed[cand], k)
+
+    def _scan(self, words: list[int], lengths: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(n_images,) sum over ``words`` of min(q_w, d_w), from their whole posting lists."""
+        ns = lengths.tolist()
+        ids = np.concatenate([self._post_ids[w][:n] for w, n in zip(words, ns)])
+        wts = np.concatenate([self._post_wts[w][:n] for w, n in zip(words, ns)])
+        np.minimum(wts, np.repeat(q, lengths), out=wts)
+        return np.bincount(ids, weights=wts, minlength=self._n_images)
+
+    def _probe(self, words: list[int], q: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        """(len(cand),) sum over ``words`` of min(q_w, d_w) for the sorted image ids ``cand``."""
+        out = np.zeros(cand.size, dtype=np.float64)
+        for w, qw in zip(words, q.tolist()):
+            n = int(self._count[w])
+            ids = self._post_ids[w][:n]
+            pos = np.searchsorted(ids, cand)
+            np.minimum(pos, n - 1, out=pos)
+            hit = ids[pos] == cand
+            out[hit] += np.minimum(self._post_wts[w][pos[hit]], qw)
+        return out
+
+
+def _best(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]]:
+    """The k best (id, score) with score > 0, best first, ties by lower id."""
+    keep = scores > 0.0
+    ids, scores = ids[keep], scores[keep]
+    if ids.size > k:
+        # Keep everything tied with the k-th best so that ties resolve by id below.
+        kth = np.partition(scores, ids.size - k)[ids.size - k]
+        keep = scores >= kth
+        ids, scores = ids[keep], scores[keep]
+    order = np.lexsort((ids, -scores))[:k]
+    return [(int(i), float(min(1.0, s))) for i, s in zip(ids[order], scores[order])]

@@ -1,0 +1,230 @@
+"""Bag-of-words database: DBoW2 L1 score, inverted-index query vs brute force, exclusions, KITTI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.errors import ConfigError
+from loopclosure.database import BowDatabase, BowVector
+from loopclosure.vocabulary import FlatVocabulary, VocabularyTree
+
+#: Agreement of two computations of one score (float64 sums of <= a few thousand terms).
+SCORE_TOL = 1e-12
+
+N_WORDS = 500
+
+
+class UniformVocabulary:
+    """Stand-in fitted vocabulary for database tests that build BowVectors directly."""
+
+    n_words_ = N_WORDS
+    idf_ = np.ones(N_WORDS)
+
+    def transform(self, descriptors):
+        raise AssertionError("not used")
+
+
+def random_bow(rng, n_words=N_WORDS, zipf=1.0, n_draws=60) -> BowVector:
+    """Seeded sparse vector: words drawn from a Zipf-like law so postings overlap a lot."""
+    p = 1.0 / np.arange(1, n_words + 1) ** zipf
+    ids, counts = np.unique(rng.choice(n_words, n_draws, p=p / p.sum()), return_counts=True)
+    w = counts * rng.uniform(0.5, 2.0, ids.size)
+    return BowVector(ids, w / w.sum())
+
+
+def dense(b: BowVector, n_words=N_WORDS) -> np.ndarray:
+    v = np.zeros(n_words)
+    v[b.word_ids] = b.weights
+    return v
+
+
+def brute_force_ranking(db_vectors, q, n_allowed):
+    """(ids, scores) of images 0..n_allowed-1 with a positive L1 score, best first, ties by id."""
+    n_words = max([N_WORDS] + [int(v.word_ids[-1]) + 1 for v in db_vectors[:n_allowed] if len(v)])
+    n_words = max(n_words, int(q.word_ids[-1]) + 1 if len(q) else 0)
+    qd = dense(q, n_words)
+    s = np.array([1.0 - 0.5 * np.abs(dense(d, n_words) - qd).sum() if len(d) and len(q) else 0.0
+                  for d in db_vectors[:n_allowed]])
+    ids = np.flatnonzero(s > SCORE_TOL)
+    order = np.lexsort((ids, -s[ids]))
+    return ids[order], s[ids][order]
+
+
+def filled_db(seed=0, n=300):
+    rng = np.random.default_rng(seed)
+    vectors = [random_bow(rng) for _ in range(n)]
+    db = BowDatabase(UniformVocabulary())
+    for i, v in enumerate(vectors):
+        assert db.add(v) == i
+    return db, vectors, rng
+
+
+def test_bow_vector_invariants():
+    with pytest.raises(ValueError):
+        BowVector(np.array([2, 1]), np.array([0.5, 0.5]))       # not sorted
+    with pytest.raises(ValueError):
+        BowVector(np.array([1, 2]), np.array([0.5, 0.6]))       # not L1-normalised
+    with pytest.raises(ValueError):
+        BowVector(np.array([1, 2]), np.array([1.0, 0.0]))       # zero weight
+    b = BowVector(np.array([1, 5]), np.array([0.25, 0.75]))
+    assert b.word_ids.dtype == np.int64 and b.weights.dtype == np.float64
+    with pytest.raises(ValueError):
+        b.weights[0] = 1.0                                       # read-only
+
+
+def test_score_is_the_l1_formula_and_its_inverted_index_form():
+    rng = np.random.default_rng(0)
+    db = BowDatabase(UniformVocabulary())
+    for _ in range(200):
+        a, b = random_bow(rng), random_bow(rng)
+        l1 = 1.0 - 0.5 * np.abs(dense(a) - dense(b)).sum()
+        common = np.intersect1d(a.word_ids, b.word_ids)
+        aw, bw = dense(a)[common], dense(b)[common]
+        inv = 0.5 * np.sum(np.abs(aw) + np.abs(bw) - np.abs(aw - bw))
+        s = db.score(a, b)
+        assert s == pytest.approx(l1, abs=SCORE_TOL) and s == pytest.approx(inv, abs=SCORE_TOL)
+        assert 0.0 <= s <= 1.0 and s == pytest.approx(db.score(b, a), abs=SCORE_TOL)
+    assert db.score(a, a) == pytest.approx(1.0, abs=SCORE_TOL)
+    # disjoint vectors score 0
+    assert db.score(BowVector([1], [1.0]), BowVector([2], [1.0])) == 0.0
+
+
+@pytest.mark.parametrize("exclude_recent", [0, 7])
+def test_query_equals_brute_force_ranking(exclude_recent):
+    db, vectors, rng = filled_db()
+    n_allowed = len(vectors) - exclude_recent
+    for _ in range(30):
+        q = random_bow(rng)
+        ids, scores = brute_force_ranking(vectors, q, n_allowed)
+        for k in (1, 10, 1000):
+            got = db.query(q, max_results=k, exclude_recent=exclude_recent)
+            assert len(got) == min(k, ids.size)
+            got_ids = np.array([i for i, _ in got])
+            got_s = np.array([s for _, s in got])
+            np.testing.assert_allclose(got_s, scores[:len(got)], rtol=0, atol=SCORE_TOL)
+            # same ids, except where two scores are equal within rounding
+            distinct = np.r_[np.diff(scores[:len(got)]) < -SCORE_TOL, True]
+            distinct &= np.r_[True, np.diff(scores[:len(got)]) < -SCORE_TOL]
+            assert np.array_equal(got_ids[distinct], ids[:len(got)][distinct])
+            assert all(i < n_allowed for i in got_ids)
+
+
+class WideVocabulary(UniformVocabulary):
+    n_words_ = 2000
+    idf_ = np.ones(2000)
+
+
+def test_query_prunes_exactly_on_a_large_database():
+    # Many images, a Zipf word law and IDF-like weights (frequent words weigh little):
+    # the pruned (probing) path runs, and it must stay exact.
+    rng = np.random.default_rng(5)
+    n_words, draws = 2000, 200
+    p = 1.0 / np.arange(1, n_words + 1)
+    p /= p.sum()
+    idf = np.log(1.0 / (1.0 - (1.0 - p) ** draws))  # expected log(N / document frequency)
+
+    def bow():
+        ids, counts = np.unique(rng.choice(n_words, draws, p=p), return_counts=True)
+        w = counts * idf[ids]
+        return BowVector(ids[w > 0], w[w > 0] / w[w > 0].sum())
+
+    db = BowDatabase(WideVocabulary())
+    vectors = [bow() for _ in range(3000)]
+    for v in vectors:
+        db.add(v)
+    probed = []
+    original = db._probe
+    db._probe = lambda *a: probed.append(1) or original(*a)
+    for _ in range(10):
+        q = vectors[int(rng.integers(len(vectors)))]
+        ids, scores = brute_force_ranking(vectors, q, len(vectors))
+        got = db.query(q, max_results=5)
+        np.testing.assert_allclose([s for _, s in got], scores[:5], rtol=0, atol=SCORE_TOL)
+        assert got[0][1] == pytest.approx(1.0, abs=SCORE_TOL)
+    assert probed, "the pruned path was never taken: the test does not exercise it"
+
+
+def test_exclude_recent_and_self_query():
+    db, vectors, _ = filled_db(n=50)
+    for i in (0, 17, 49):
+        best = db.query(vectors[i], max_results=3)
+        assert best[0][0] == i and best[0][1] == pytest.approx(1.0, abs=SCORE_TOL)
+    # the most recent images are never returned, however good
+    for excl in (1, 10, 50, 80):
+        got = db.query(vectors[49], max_results=100, exclude_recent=excl)
+        assert all(i < 50 - excl for i, _ in got)
+    assert db.query(vectors[49], exclude_recent=50) == []
+    assert db.query(vectors[3], max_results=0) == []
+    with pytest.raises(ConfigError):
+        db.query(vectors[3], exclude_recent=-1)
+
+
+def test_empty_vectors():
+    db, vectors, _ = filled_db(n=20)
+    empty = BowVector.empty()
+    assert len(empty) == 0 and db.bow(np.zeros((0, 32), np.uint8)).word_ids.size == 0
+    assert db.query(empty) == []
+    assert db.score(empty, vectors[0]) == 0.0 and db.score(empty, empty) == 0.0
+    assert db.add(empty) == 20 and len(db) == 21
+    assert all(i != 20 for i, _ in db.query(vectors[0], max_results=100))
+    assert BowDatabase(UniformVocabulary()).query(vectors[0]) == []
+
+
+def test_bow_is_tf_idf_l1_normalised():
+    rng = np.random.default_rng(2)
+    centres = rng.normal(0.0, 100.0, size=(8, 4))
+    lab = np.repeat(np.arange(8), 30)
+    x = (centres[lab] + rng.normal(0.0, 0.5, size=(lab.size, 4))).astype(np.float32)
+    # cluster 0 in every image (IDF 0), the others in one or two images
+    images = [x[np.isin(lab, c)] for c in ([0, 1, 2, 3], [0, 3, 4, 5], [0, 5, 6, 7])]
+    voc = FlatVocabulary(n_words=8, seed=0, minibatch=False, n_init=5).fit(images)
+    db = BowDatabase(voc)
+    d = x[rng.choice(lab.size, 57, replace=False)]
+    b = db.bow(d)
+    words = voc.transform(d)
+    expect = np.bincount(words, minlength=8) / words.size * voc.idf_
+    expect /= expect.sum()
+    assert np.all(np.diff(b.word_ids) > 0) and np.all(b.weights > 0)
+    np.testing.assert_allclose(dense(b, 8), expect, rtol=0, atol=SCORE_TOL)
+    zero_idf = np.flatnonzero(voc.idf_ == 0.0)
+    assert zero_idf.size == 1 and zero_idf[0] in words and zero_idf[0] not in b.word_ids
+    assert b.weights.sum() == pytest.approx(1.0, abs=SCORE_TOL)
+
+
+# -- real images ------------------------------------------------------------------
+
+#: Query frames: none inserted, each at most 3 frames (a few metres) from an inserted one.
+KITTI_QUERIES = (2, 33, 48, 71, 88, 119, 142, 157)
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti07" / "image_0"
+
+
+@pytest.fixture(scope="module")
+def kitti_descriptors():
+    if not KITTI.is_dir():
+        pytest.skip(f"KITTI 07 frames not found at {KITTI}")
+    from frontend.image import load_gray
+    from frontend.orb import OrbDetector
+
+    det = OrbDetector(cell_size_px=0, n_features=500)
+    files = sorted(KITTI.glob("*.png"))[:160]
+    if len(files) < 160:
+        pytest.skip(f"fewer than 160 KITTI 07 frames in {KITTI}")
+    needed = set(range(0, 160, 5)) | set(KITTI_QUERIES)
+    return {i: det.detect(load_gray(files[i])).descriptors for i in sorted(needed)}
+
+
+def test_kitti_frame_ranks_its_nearest_inserted_frame_first(kitti_descriptors):
+    d = kitti_descriptors
+    # vocabulary from frames that are neither inserted nor queried
+    voc = VocabularyTree(branching=8, depth=3, seed=0).fit([d[i] for i in range(5, 160, 10)])
+    db = BowDatabase(voc)
+    inserted = list(range(0, 160, 10))
+    for i in inserted:
+        db.add(db.bow(d[i]))
+    for f in KITTI_QUERIES:
+        nearest = min(inserted, key=lambda i: abs(i - f))
+        got = db.query(db.bow(d[f]), max_results=3)
+        assert inserted[got[0][0]] == nearest, (f, [(inserted[i], s) for i, s in got])
