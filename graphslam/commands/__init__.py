@@ -8,4 +8,4 @@ the parser is built, so nothing runs at import time.
 """
 
 #: Module names (under ``graphslam.commands``) registered by the CLI, in help order.
-COMMANDS: tuple[str, ...] = ()
+COMMANDS: tuple[str, ...] = ("vocab", "loops")

@@ -1,0 +1,199 @@
+"""Precision and recall of loop closures on the synthetic image sequence (issue 6).
+
+One process: render the default synthetic image sequence
+(:func:`graphslam.sources.synthetic_images.make_synthetic_images`, 300 VGA
+frames, 1.5 laps), ORB features, a vocabulary tree trained on the sequence
+itself (as ``graphslam loops`` does without ``--vocab``: 10-way tree of
+depth 3, the 300 strongest descriptors per image), then
+:class:`loopclosure.detector.LoopDetector` with its defaults, and a few
+variants that loosen one safeguard at a time to show what each buys.
+
+Definitions (``revisit_pairs`` of the sequence is the ground truth, ``(i, j)``
+with ``i < j``; tolerance ``--tol`` frames, default 2):
+
+- a closure ``(q, m)`` (query q, earlier match m) is **true** when it is a
+  true pair or within the index tolerance of one: some true ``(i, j)`` has
+  ``|m - i| <= tol`` and ``|q - j| <= tol``; precision = true / accepted.
+  **Strict** precision also asks ``j == q`` (the query frame itself has a true
+  partner near m). The two differ on frames just outside the revisit rule,
+  e.g. (198, 1) of the default sequence: 0.42 m apart, headings 10.5 deg
+  apart (the rule takes <= 10 deg), one frame before the first true revisit
+  frame; the JSON gives distance and heading of every strict miss;
+- **recall** = the fraction of frames j that have at least one true partner
+  (some ``(i, j)`` in ``revisit_pairs``) for which the detector accepted at
+  least one true closure ``(j, m)``.
+
+Optionally (``--kitti DIR``, default ``../shared/data/kitti07`` when present)
+it also runs the default detector on KITTI 07 frames, a drive with no revisit,
+and counts closures (the target is 0).
+
+Prints one table and writes JSON to ``benchmarks/results/loop_pr.json`` (or ``--out``).
+
+    python benchmarks/bench_loop_pr.py [--tol 2] [--no-variants] [--kitti DIR|none] [--out FILE]
+
+Targets: 100 % precision, recall >= 80 %; no closure on KITTI 07.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from frontend.orb import OrbDetector
+from graphslam.commands.vocab import train_vocabulary
+from graphslam.sources.synthetic_images import make_synthetic_images
+from loopclosure.detector import LoopDetector, LoopDetectorConfig
+from loopclosure.verify import VerifyConfig
+
+HERE = Path(__file__).resolve().parent
+KITTI_DEFAULT = HERE.parent.parent / "shared" / "data" / "kitti07"
+
+
+def precision_recall(closures, revisit_pairs, tol: int, wTc: np.ndarray | None = None) -> dict:
+    """Precision (tolerant and strict), recall and counts (definitions in the module docstring)."""
+    partners: dict[int, list[int]] = {}
+    for i, j in revisit_pairs:
+        partners.setdefault(int(j), []).append(int(i))
+    strict = [any(abs(c.match - i) <= tol for i in partners.get(c.query, [])) for c in closures]
+    true = [any(abs(c.match - i) <= tol for j in range(c.query - tol, c.query + tol + 1)
+                for i in partners.get(j, [])) for c in closures]
+    hit = {c.query for c, t in zip(closures, strict) if t} & set(partners)
+    misses = []
+    for c, t in zip(closures, strict):
+        if not t:
+            m = {"query": c.query, "match": c.match}
+            if wTc is not None:
+                fq, fm = wTc[c.query][:3, 2], wTc[c.match][:3, 2]
+                dyaw = np.arctan2(fq[1], fq[0]) - np.arctan2(fm[1], fm[0])
+                m["distance_m"] = float(np.linalg.norm(wTc[c.query][:3, 3] - wTc[c.match][:3, 3]))
+                m["heading_deg"] = float(np.degrees(abs((dyaw + np.pi) % (2 * np.pi) - np.pi)))
+            misses.append(m)
+    n = len(closures)
+    return {"accepted": n, "true": int(sum(true)), "false": n - int(sum(true)),
+            "precision": sum(true) / n if n else None,
+            "false_strict": n - int(sum(strict)),
+            "precision_strict": sum(strict) / n if n else None,
+            "revisit_frames": len(partners), "recalled_frames": len(hit),
+            "recall": len(hit) / len(partners) if partners else None,
+            "false_closures": [(c.query, c.match) for c, t in zip(closures, true) if not t],
+            "strict_misses": misses}
+
+
+def orb_of(config: LoopDetectorConfig) -> OrbDetector:
+    return OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
+                       per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
+
+
+def detect(features, vocab, config, verify_config, K, desc: str):
+    det = LoopDetector(vocab, config, verify_config, K=K)
+    t0 = time.perf_counter()
+    for f in tqdm(features, desc=desc, unit="img", file=sys.stderr, leave=False):
+        det.process_features(f.xy_px, f.descriptors)
+    return det, time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tol", type=int, default=2, help="frame tolerance of a true closure (default 2)")
+    ap.add_argument("--no-variants", action="store_true", help="only the default configuration")
+    ap.add_argument("--kitti", default=None,
+                    help="KITTI odometry folder with image_0/ (default: ../shared/data/kitti07 "
+                         "if present; 'none' to skip)")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_pr.json")
+    args = ap.parse_args(argv)
+
+    base = LoopDetectorConfig()
+    vbase = VerifyConfig()
+    timings = {}
+    t0 = time.perf_counter()
+    seq = make_synthetic_images()
+    images = [seq.load(i) for i in tqdm(range(len(seq.image_paths)), desc="render", file=sys.stderr,
+                                        leave=False)]
+    timings["render_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    orb = orb_of(base)
+    feats = [orb.detect(im) for im in tqdm(images, desc="ORB", file=sys.stderr, leave=False)]
+    timings["orb_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    vocab = train_vocabulary([f.descriptors for f in feats], 1000)
+    timings["vocab_train_s"] = time.perf_counter() - t0
+
+    variants = [("default", base, vbase)]
+    if not args.no_variants:
+        variants += [
+            ("no feature-share test", base, dataclasses.replace(vbase, min_feature_share=0.0)),
+            ("consistency_k=1", dataclasses.replace(base, consistency_k=1), vbase),
+            ("no share, k=1, window 20", dataclasses.replace(base, consistency_k=1, exclude_recent=20),
+             dataclasses.replace(vbase, min_feature_share=0.0)),
+        ]
+    rows = []
+    for name, cfg, vcfg in variants:
+        det, wall = detect(feats, vocab, cfg, vcfg, seq.K, name)
+        pr = precision_recall(det.closures, seq.revisit_pairs, args.tol, seq.wTc_true)
+        rejected = {}
+        for r in det.records:
+            if not r.accepted:
+                key = r.reason.split(" (")[0]
+                rejected[key] = rejected.get(key, 0) + 1
+        rows.append({"variant": name, **pr, "detect_s": wall, "ms_per_frame": 1000 * wall / len(feats),
+                     "rejections": rejected, "loops": dataclasses.asdict(cfg),
+                     "loop_verify": dataclasses.asdict(vcfg)})
+
+    kitti = None
+    kdir = KITTI_DEFAULT if args.kitti is None else (None if args.kitti == "none" else Path(args.kitti))
+    if kdir is not None and (kdir / "image_0").is_dir():
+        from graphslam.commands.vocab import folder_images
+        from frontend.image import load_gray
+
+        t0 = time.perf_counter()
+        paths = folder_images(kdir / "image_0")
+        kf = [orb.detect(load_gray(p)) for p in tqdm(paths, desc="KITTI ORB", file=sys.stderr,
+                                                       leave=False)]
+        kvoc = train_vocabulary([f.descriptors for f in kf], 1000)
+        det, _ = detect(kf, kvoc, base, vbase, None, "KITTI")
+        kitti = {"folder": str(kdir), "frames": len(paths), "closures": len(det.closures),
+                 "candidates": len(det.records), "total_s": time.perf_counter() - t0,
+                 "closure_pairs": [(paths[c.query].name, paths[c.match].name) for c in det.closures]}
+
+    print(f"synthetic image sequence: {len(images)} frames {seq.image_size[0]}x{seq.image_size[1]}, "
+          f"{len(seq.revisit_pairs)} revisit pairs, {rows[0]['revisit_frames']} revisit frames; "
+          f"vocabulary {vocab.n_words_} words; tolerance {args.tol} frames")
+    print(f"timings: render {timings['render_s']:.1f} s, ORB {timings['orb_s']:.1f} s, "
+          f"vocabulary {timings['vocab_train_s']:.1f} s")
+    head = (f"{'variant':<26} {'accepted':>8} {'false':>6} {'precision':>9} {'strict':>7} "
+            f"{'recall':>7} {'ms/frame':>9}")
+    print(head)
+    print("-" * len(head))
+
+    def pct(x):
+        return "n/a" if x is None else f"{100 * x:.1f}%"
+
+    for r in rows:
+        print(f"{r['variant']:<26} {r['accepted']:>8} {r['false']:>6} {pct(r['precision']):>9} "
+              f"{pct(r['precision_strict']):>7} {pct(r['recall']):>7} {r['ms_per_frame']:>9.1f}")
+    for m in rows[0]["strict_misses"]:
+        print(f"default, strict miss: query {m['query']} match {m['match']}: "
+              f"{m.get('distance_m', float('nan')):.2f} m, {m.get('heading_deg', float('nan')):.1f} deg apart")
+    if kitti is not None:
+        print(f"KITTI 07 ({kitti['frames']} frames, default detector, vocabulary trained on the "
+              f"folder): {kitti['closures']} closures ({kitti['total_s']:.1f} s)")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({
+        "benchmark": "loop_pr", "sequence": dataclasses.asdict(seq.config), "tolerance_frames": args.tol,
+        "vocabulary_words": vocab.n_words_, "timings": timings, "variants": rows, "kitti07": kitti,
+        "machine": {"python": platform.python_version(), "platform": platform.platform()},
+    }, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,285 @@
+"""Loop-closure detector: images in time order -> verified loop closures.
+
+Per image (DBoW2's scheme, Gálvez-López & Tardós, T-RO 2012):
+
+1. ORB features (:class:`frontend.orb.OrbDetector`) and the image's
+   bag-of-words vector (:class:`loopclosure.database.BowDatabase`, TF-IDF,
+   DBoW2's L1 score in [0, 1]).
+2. Prior score ``s_prev``: the L1 score of this image against the previous
+   one. Below ``min_prior_score`` the image is too unlike its own neighbour
+   for scores to be comparable (blur, a blank wall) and it proposes nothing.
+3. Database query, excluding the ``exclude_recent`` most recent images (they
+   resemble the query only because they are recent). Each answer's score is
+   normalised, ``eta = s / s_prev``, and the best answer with
+   ``eta >= min_normalised_score`` and ``s >= min_score`` is the candidate.
+4. Temporal consistency: the candidate of this query and those of the
+   ``consistency_k - 1`` queries before it must form a chain in which every
+   match index is within ``consistency_tolerance`` of the previous one. A
+   query without a candidate breaks the chain.
+5. Geometric verification (:class:`loopclosure.verify.GeometricVerifier`):
+   RANSAC on ORB matches; with ``K`` the relative pose ``query T match``
+   (rotation, unit translation).
+
+The image is added to the database after its query, so it is never its own
+answer. Every query that produced a candidate, or was skipped, leaves a
+:class:`CandidateRecord` saying what happened (:meth:`LoopDetector.write_log`
+writes them as JSON lines). The defaults favour precision: a false closure can
+wreck a map, a missed one only costs accuracy.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, ClassVar, Iterable
+
+import numpy as np
+
+from frontend.orb import OrbDetector
+from graphslam.errors import ConfigError
+from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
+
+__all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector"]
+
+
+@dataclass(frozen=True)
+class LoopDetectorConfig:
+    """Loop detector settings (config section ``[loops]``).
+
+    Attributes:
+        exclude_recent: the most recent images never returned by a query
+            (frames); must cover the frames a camera needs to leave a place.
+        max_results: database answers examined per query.
+        min_prior_score: skip the query when the score against the previous
+            image is below this (L1 score, [0, 1]).
+        min_normalised_score: smallest ``score / prior score`` of a candidate
+            (DBoW2's alpha).
+        min_score: smallest raw L1 score of a candidate.
+        consistency_k: consecutive queries whose candidates must agree.
+        consistency_tolerance: largest difference (frames) between the match
+            indices of two consecutive queries that still agree.
+        orb_n_features, orb_cell_size_px, orb_per_cell, orb_fast_threshold: ORB
+            settings of the detector (see :class:`frontend.orb.OrbConfig`;
+            cell size 0 turns the per-cell selection off).
+    """
+
+    SECTION: ClassVar[str] = "loops"
+
+    exclude_recent: int = 40
+    max_results: int = 10
+    min_prior_score: float = 0.01
+    min_normalised_score: float = 0.3
+    min_score: float = 0.0
+    consistency_k: int = 3
+    consistency_tolerance: int = 3
+    orb_n_features: int = 1000
+    orb_cell_size_px: int = 0
+    orb_per_cell: int = 1
+    orb_fast_threshold: int = 20
+
+    def __post_init__(self):
+        s = self.SECTION
+        for name, lo in (("exclude_recent", 0), ("max_results", 1), ("consistency_k", 1),
+                         ("consistency_tolerance", 0), ("orb_n_features", 1),
+                         ("orb_cell_size_px", 0), ("orb_per_cell", 1), ("orb_fast_threshold", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ConfigError(f"{s}.{name} must be an integer >= {lo}, got {v!r}")
+        for name in ("min_prior_score", "min_normalised_score", "min_score"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                raise ConfigError(f"{s}.{name} must be a number >= 0, got {v!r}")
+        if self.min_prior_score > 1 or self.min_score > 1:
+            raise ConfigError(f"{s}.min_prior_score and min_score are L1 scores in [0, 1]")
+
+
+@dataclass(frozen=True)
+class CandidateRecord:
+    """The fate of one query (one JSON line of the candidate log).
+
+    ``match`` is None when the query was skipped or had no candidate above the
+    thresholds (its best answer is still given in ``best_match``/``score``).
+    ``reason`` is None when ``accepted``; otherwise one of: ``"low prior
+    score"``, ``"no database answer"``, ``"below threshold"``, ``"not
+    temporally consistent (c/k)"``, or the verifier's reason prefixed by
+    ``"geometry: "``.
+    """
+
+    query: int
+    match: int | None
+    best_match: int | None
+    score: float
+    normalised_score: float | None
+    prior_score: float | None
+    consistency: int
+    n_matches: int | None
+    n_inliers: int | None
+    accepted: bool
+    reason: str | None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class DetectedLoop:
+    """An accepted closure between image ``query`` and the older image ``match``.
+
+    Attributes:
+        query, match: image indices (``match < query``).
+        score: DBoW2 L1 score; normalised_score: score / prior score.
+        n_inliers: RANSAC inliers of the geometric verification.
+        R: (3, 3) rotation of ``query T match`` (``p_query = R p_match + s t``),
+            or None without intrinsics; t_unit: (3,) unit translation, or None.
+    """
+
+    query: int
+    match: int
+    score: float
+    normalised_score: float
+    n_inliers: int
+    R: np.ndarray | None = None
+    t_unit: np.ndarray | None = None
+
+
+@dataclass
+class _Stored:
+    xy: np.ndarray
+    descriptors: np.ndarray
+
+
+class LoopDetector:
+    """Feed images in time order with :meth:`process`; closures come back as found.
+
+    Parameters:
+        vocabulary: a fitted vocabulary (:mod:`loopclosure.vocabulary`).
+        config: :class:`LoopDetectorConfig` (defaults if None).
+        verify_config: :class:`loopclosure.verify.VerifyConfig` (defaults if None).
+        K: (3, 3) intrinsics shared by all images, or None (fundamental matrix,
+            no relative pose).
+        distortion: OpenCV distortion coefficients, or None.
+        database: a :class:`loopclosure.database.BowDatabase`-like object; a new
+            ``BowDatabase(vocabulary)`` when None.
+
+    Attributes after running: ``records`` (list of :class:`CandidateRecord`),
+    ``closures`` (list of :class:`DetectedLoop`).
+    """
+
+    def __init__(self, vocabulary, config: LoopDetectorConfig | None = None,
+                 verify_config: VerifyConfig | None = None, K: np.ndarray | None = None,
+                 distortion: np.ndarray | None = None, database=None):
+        self.config = config or LoopDetectorConfig()
+        self.verifier = GeometricVerifier(verify_config)
+        self.K = None if K is None else np.asarray(K, np.float64)
+        self.distortion = distortion
+        if database is None:
+            from loopclosure.database import BowDatabase
+
+            database = BowDatabase(vocabulary)
+        self.database = database
+        c = self.config
+        self.orb = OrbDetector(n_features=c.orb_n_features, cell_size_px=c.orb_cell_size_px,
+                               per_cell=c.orb_per_cell, fast_threshold=c.orb_fast_threshold)
+        self.records: list[CandidateRecord] = []
+        self.closures: list[DetectedLoop] = []
+        self._features: list[_Stored] = []
+        self._prev_bow = None
+        # (query index, match index) of the recent candidates forming the current chain
+        self._chain: list[tuple[int, int]] = []
+
+    def __len__(self) -> int:
+        return len(self._features)
+
+    def process(self, image: np.ndarray) -> DetectedLoop | None:
+        """Add the next image ((H, W) uint8); returns the closure it makes, if any."""
+        f = self.orb.detect(image)
+        return self.process_features(f.xy_px, f.descriptors)
+
+    def process_features(self, xy_px: np.ndarray, descriptors: np.ndarray) -> DetectedLoop | None:
+        """Like :meth:`process` with precomputed ORB features ((N, 2) px, (N, 32) uint8)."""
+        i = len(self._features)
+        descriptors = np.asarray(descriptors, np.uint8).reshape(-1, 32)
+        self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors))
+        bow = self.database.bow(descriptors)
+        prev, self._prev_bow = self._prev_bow, bow
+        loop = self._query(i, bow, prev)  # before adding: an image never answers itself
+        added = self.database.add(bow)
+        if added != i:  # records and closures use our numbering; the database must agree
+            raise RuntimeError(f"database gave id {added} to image {i}")
+        return loop
+
+    def _query(self, i: int, bow, prev) -> DetectedLoop | None:
+        c = self.config
+        if len(self.database) <= c.exclude_recent:
+            return None  # nothing old enough to be a loop: no record, nothing happened
+        prior = None if prev is None else float(self.database.score(bow, prev))
+        answers = self.database.query(bow, max_results=c.max_results,
+                                      exclude_recent=c.exclude_recent)
+        best_match, best_score = (answers[0][0], float(answers[0][1])) if answers else (None, 0.0)
+        if prior is None or prior < c.min_prior_score:
+            self._chain.clear()
+            self._record(i, None, best_match, best_score, None, prior, 0, None, "low prior score")
+            return None
+        if not answers:
+            self._chain.clear()
+            self._record(i, None, None, 0.0, None, prior, 0, None, "no database answer")
+            return None
+        # Answers come best first; the first passing both thresholds is the candidate.
+        cand = next(((m, float(s)) for m, s in answers
+                     if s >= c.min_score and s / prior >= c.min_normalised_score), None)
+        if cand is None:
+            self._chain.clear()
+            self._record(i, None, best_match, best_score, best_score / prior, prior, 0, None,
+                         "below threshold")
+            return None
+        match, score = cand
+        eta = score / prior
+        if self._chain and (self._chain[-1][0] != i - 1
+                            or abs(self._chain[-1][1] - match) > c.consistency_tolerance):
+            self._chain.clear()
+        self._chain.append((i, match))
+        n_chain = len(self._chain)
+        if n_chain < c.consistency_k:
+            self._record(i, match, best_match, score, eta, prior, n_chain, None,
+                         f"not temporally consistent ({n_chain}/{c.consistency_k})")
+            return None
+        a, b = self._features[i], self._features[match]
+        v: Verification = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors,
+                                               self.K, self.distortion)
+        if not v.accepted:
+            self._record(i, match, best_match, score, eta, prior, n_chain, v, "geometry: " + v.reason)
+            return None
+        self._record(i, match, best_match, score, eta, prior, n_chain, v, None)
+        loop = DetectedLoop(i, match, score, eta, v.n_inliers, v.R, v.t_unit)
+        self.closures.append(loop)
+        return loop
+
+    def _record(self, i, match, best_match, score, eta, prior, n_chain, v: Verification | None,
+                reason: str | None) -> None:
+        self.records.append(CandidateRecord(
+            query=int(i), match=None if match is None else int(match),
+            best_match=None if best_match is None else int(best_match), score=float(score),
+            normalised_score=None if eta is None else float(eta),
+            prior_score=None if prior is None else float(prior), consistency=int(n_chain),
+            n_matches=None if v is None else int(v.n_matches),
+            n_inliers=None if v is None else int(v.n_inliers),
+            accepted=reason is None, reason=reason))
+
+    def run(self, images: Iterable[np.ndarray],
+            progress: Callable[[Iterable], Iterable] | None = None) -> list[DetectedLoop]:
+        """Process every image of ``images`` (in time order); returns all accepted closures.
+
+        ``progress`` wraps the iterable (e.g. ``tqdm``) when given.
+        """
+        for img in (progress(images) if progress else images):
+            self.process(img)
+        return list(self.closures)
+
+    def write_log(self, path: str | Path) -> Path:
+        """Write every :class:`CandidateRecord` as one JSON object per line."""
+        path = Path(path)
+        with path.open("w", encoding="utf-8") as fh:
+            for r in self.records:
+                fh.write(json.dumps(r.to_dict()) + "\n")
+        return path

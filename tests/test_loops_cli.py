@@ -1,0 +1,136 @@
+"""``graphslam vocab train`` and ``graphslam loops`` end to end on a small synthetic folder."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import cv2
+import pytest
+
+from graphslam.cli import build_parser, main
+
+#: A CSV closure (q, m) is true when a true revisit pair (i, q) has |m - i| <= this (frames).
+MATCH_TOL_FRAMES = 2
+#: Words of the vocabularies trained in these tests (small: few images).
+WORDS = "100"
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """80 QVGA frames of a 1.5-lap synthetic route as PNG, with the true revisit pairs."""
+    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+
+    seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
+                                                      cx=159.5, cy=119.5, n_frames=80))
+    folder = tmp_path_factory.mktemp("frames")
+    for i in range(len(seq.image_paths)):
+        # unpadded names: the CLI must order them naturally (f9 before f10)
+        cv2.imwrite(str(folder / f"f{i}.png"), seq.load(i))
+    config = folder.parent / "loops.toml"
+    config.write_text("[loops]\nexclude_recent = 20\n")
+    return folder, seq.revisit_pairs, config
+
+
+def read_rows(path):
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == ["query", "match", "score", "inliers"]
+    return rows[1:]
+
+
+def index(name: str) -> int:
+    return int(name[1:-4])
+
+
+def test_loops_end_to_end(frames, tmp_path, capsys):
+    folder, pairs, config = frames
+    out, log = tmp_path / "out" / "loops.csv", tmp_path / "cands.jsonl"
+    assert main(["loops", str(folder), "--out", str(out), "--log", str(log), "--words", WORDS,
+                 "--config", str(config), "--quiet"]) == 0
+    assert "closures accepted" in capsys.readouterr().out
+    rows = read_rows(out)
+    assert len(rows) > 0
+    partners: dict[int, list[int]] = {}
+    for i, j in pairs:
+        partners.setdefault(j, []).append(i)
+    for q, m, score, inliers in rows:
+        assert (folder / q).is_file() and (folder / m).is_file()
+        assert 0.0 < float(score) <= 1.0 and int(inliers) > 0
+        # every closure is a true revisit (precision first)
+        assert any(abs(index(m) - i) <= MATCH_TOL_FRAMES for i in partners.get(index(q), []))
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    assert sum(r["accepted"] for r in records) == len(rows)
+    assert {r["query_name"] for r in records if r["accepted"]} == {q for q, *_ in rows}
+
+
+def test_vocab_train_then_loops_gives_the_same_closures(frames, tmp_path, capsys):
+    folder, _, config = frames
+    voc = tmp_path / "v.voc"
+    assert main(["vocab", "train", str(folder), "--words", WORDS, "--out", str(voc), "--quiet"]) == 0
+    assert str(voc) in capsys.readouterr().out
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    common = ["--config", str(config), "--quiet"]
+    assert main(["loops", str(folder), "--out", str(a), "--vocab", str(voc)] + common) == 0
+    assert main(["loops", str(folder), "--out", str(b), "--words", WORDS] + common) == 0
+    # same ORB, same seed, same training subset: the on-the-fly vocabulary is the same one
+    assert read_rows(a) == read_rows(b) and len(read_rows(a)) > 0
+
+
+def test_vocab_train_flat_from_files(frames, tmp_path, capsys):
+    from loopclosure.vocabulary import FlatVocabulary, load_vocabulary
+
+    folder, _, _ = frames
+    files = [str(folder / f"f{i}.png") for i in range(0, 80, 10)]
+    voc = tmp_path / "flat.voc"
+    assert main(["vocab", "train", *files, "--words", "50", "--flat", "--out", str(voc),
+                 "--quiet"]) == 0
+    v = load_vocabulary(voc)
+    assert isinstance(v, FlatVocabulary) and v.n_words_ == 50
+    assert "flat vocabulary, 50 words" in capsys.readouterr().out
+
+
+def _one_line_error(capsys, argv):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("graphslam: error:") and "\n" not in err
+    return err
+
+
+def test_bad_input_is_one_line(frames, tmp_path, capsys):
+    folder, _, _ = frames
+    out = str(tmp_path / "x.csv")
+    assert "not found" in _one_line_error(capsys, ["loops", str(tmp_path / "nope"), "--out", out])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "no images" in _one_line_error(capsys, ["loops", str(empty), "--out", out])
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "a.png").write_bytes(b"not a png")
+    assert "a.png" in _one_line_error(capsys, ["loops", str(broken), "--out", out, "--quiet"])
+    garbage = tmp_path / "garbage.voc"
+    garbage.write_bytes(b"\x00garbage")
+    assert "garbage.voc" in _one_line_error(
+        capsys, ["loops", str(folder), "--out", out, "--vocab", str(garbage)])
+    assert "missing.voc" in _one_line_error(
+        capsys, ["loops", str(folder), "--out", out, "--vocab", str(tmp_path / "missing.voc")])
+    assert "nope.png" in _one_line_error(
+        capsys, ["vocab", "train", str(tmp_path / "nope.png"), "--out", str(tmp_path / "v.voc")])
+    bad_cfg = tmp_path / "bad.toml"
+    bad_cfg.write_text("[loops]\nconsistency_k = 0\n")
+    assert "consistency_k" in _one_line_error(
+        capsys, ["loops", str(folder), "--out", out, "--config", str(bad_cfg)])
+
+
+def test_help_explains_every_option(capsys):
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    vocab_sub = next(a for a in sub.choices["vocab"]._actions if a.dest == "vocab_command")
+    for p in (sub.choices["loops"], vocab_sub.choices["train"]):
+        for action in p._actions:
+            assert action.help and len(action.help) > 10, action.dest
+    with pytest.raises(SystemExit):
+        main(["loops", "--help"])
+    text = capsys.readouterr().out
+    for opt in ("--out", "--vocab", "--config", "--log", "--words", "--intrinsics"):
+        assert opt in text
