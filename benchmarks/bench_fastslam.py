@@ -10,10 +10,8 @@ map size (50, 150, 500 landmarks). Prints a table, optionally writes JSON.
 with 100 particles (and 1000 with ``--vp-particles 100 1000``), printing the
 total time. The file's odometry covariance is scaled by ``--vp-odometry-scale``
 (default 10): at 1 it is too confident for a particle filter and the estimate
-drifts away from the landmarks. It uses ``graphslam.sources.victoria_park`` when present; otherwise
-it reads gtsam's bundled ``victoria_park.txt`` with a minimal reader (same
-conversion as gtsam's load2D: landmark x-y in the body frame -> range-bearing,
-sigma_r = sqrt(v1), sigma_b = sqrt(v1 / 10)).
+drifts away from the landmarks. The data is read by
+``graphslam.sources.victoria_park`` (the reader every back end uses).
 
     python benchmarks/bench_fastslam.py [--out FILE.json] [--victoria-park]
 """
@@ -31,6 +29,7 @@ import numpy as np
 from filters import models
 from filters.fastslam import FastSlam, FastSlamConfig
 from graphslam.sources.base import Dataset
+from graphslam.sources.victoria_park import read_victoria_park
 from graphslam.types import Frame, Observation, Odometry
 
 
@@ -81,44 +80,6 @@ def run_backend(ds: Dataset, backend: FastSlam, pairs: list | None = None) -> fl
     return time.perf_counter() - t0
 
 
-def read_gtsam_victoria_park() -> Dataset:
-    """Minimal reader of gtsam's bundled victoria_park.txt (benchmark fallback only)."""
-    import gtsam  # benchmarks may use gtsam; filters/ never does
-
-    path = gtsam.findExampleDataFile("victoria_park.txt")
-    odo: dict[int, Odometry] = {}
-    obs: dict[int, list[Observation]] = {}
-    with open(path) as f:
-        for line in f:
-            t = line.split()
-            if not t:
-                continue
-            if t[0] == "ODOMETRY":
-                a, b = int(t[1]), int(t[2])
-                d = [float(v) for v in t[3:6]]
-                c11, c12, c13, c22, c23, c33 = (float(v) for v in t[6:12])
-                cov = np.array([[c11, c12, c13], [c12, c22, c23], [c13, c23, c33]])
-                odo[b] = Odometry(a, b, d, cov)
-            elif t[0] == "LANDMARK":
-                p, lid = int(t[1]), int(t[2])
-                lx, ly, v1 = float(t[3]), float(t[4]), float(t[5])
-                z = [math.hypot(lx, ly), math.atan2(ly, lx)]
-                R = np.diag([v1, v1 / 10.0])
-                obs.setdefault(p, []).append(Observation(p, lid, z, R))
-    ids = sorted(set(odo) | {0})
-    frames = [Frame(i, None, odo.get(i), tuple(obs.get(i, ()))) for i in ids]
-    return Dataset("victoria-park", frames, prior_covariance=np.eye(3) * 1e-6,
-                   source_path=path)
-
-
-def load_victoria_park() -> tuple[Dataset, str]:
-    try:
-        from graphslam.sources.victoria_park import read_victoria_park, victoria_park_path
-    except ImportError:
-        return read_gtsam_victoria_park(), "gtsam victoria_park.txt (bench fallback reader)"
-    return read_victoria_park(victoria_park_path()), "graphslam.sources.victoria_park"
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", help="write results as JSON here")
@@ -163,7 +124,8 @@ def main(argv=None) -> int:
                                         "ms_per_step": ms})
 
     if args.victoria_park:
-        vp, how = load_victoria_park()
+        vp = read_victoria_park()
+        how = "graphslam.sources.victoria_park"
         n_obs = sum(len(f.observations) for f in vp.frames)
         print(f"\nVictoria Park ({how}): {len(vp.frames)} poses, {n_obs} observations")
         for n in args.vp_particles:

@@ -128,6 +128,20 @@ class EkfSlamConfig:
         jacobians: "oc" (observability-constrained, default) or "standard".
         default_sigma_range_m, default_sigma_bearing_rad: measurement noise used
             by :meth:`EkfSlam.predict_observations` before any observation is seen.
+        odometry_covariance_scale: the odometry covariance is multiplied by
+            this in :meth:`EkfSlam.predict` (> 0). The filter assumes white
+            odometry noise; real odometry errors are correlated (a slowly
+            varying heading bias on Victoria Park), so over the steps between
+            two sightings they grow faster than the file's per-step covariance
+            says, and an unscaled filter trusts its drifted pose too much.
+        known_gate_chi2_prob: known association only: an observation whose
+            innovation's squared Mahalanobis distance (2 dof) exceeds this
+            chi-square quantile is rejected (not absorbed, counted in
+            :attr:`EkfSlam.rejected_count`, reported as None by
+            :meth:`EkfSlam.associations`). A given id does not make a
+            measurement right: one spurious range-bearing pair absorbed
+            with full trust corrupts the pose and the map. None (default)
+            absorbs every identified observation.
     """
 
     SECTION: ClassVar[str] = "ekf"
@@ -142,6 +156,8 @@ class EkfSlamConfig:
     default_sigma_range_m: float = 0.2
     default_sigma_bearing_rad: float = math.radians(10.0)
     jacobians: str = "oc"
+    odometry_covariance_scale: float = 1.0
+    known_gate_chi2_prob: float | None = None
 
     def __post_init__(self):
         if self.jacobians not in ("standard", "oc"):
@@ -164,6 +180,14 @@ class EkfSlamConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"ekf.{name} must be a positive number, got {v!r}")
+        v = self.odometry_covariance_scale
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"ekf.odometry_covariance_scale must be a positive number, got {v!r}")
+        v = self.known_gate_chi2_prob
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not 0.0 < float(v) < 1.0):
+            raise ConfigError("ekf.known_gate_chi2_prob must be None or a probability in (0, 1), "
+                              f"got {v!r}")
 
 
 
@@ -178,6 +202,8 @@ class EkfSlam(Backend):
         self.config = config if config is not None else EkfSlamConfig()
         self._gate = chi2_quantile(self.config.gate_chi2_prob, 2)
         self._new_gate = chi2_quantile(self.config.new_landmark_chi2_prob, 2)
+        self._known_gate = (math.inf if self.config.known_gate_chi2_prob is None
+                            else chi2_quantile(self.config.known_gate_chi2_prob, 2))
         self._R_typical = np.diag([self.config.default_sigma_range_m ** 2,
                                    self.config.default_sigma_bearing_rad ** 2])
         self._reset(self.config.initial_capacity)
@@ -204,6 +230,8 @@ class EkfSlam(Backend):
         self._scan = 0
         self._last_associations = []
         self.last_jcbb = None
+        #: Identified observations rejected by ``known_gate_chi2_prob`` since initialisation.
+        self.rejected_count = 0
 
     @property
     def _x(self) -> np.ndarray:
@@ -320,6 +348,7 @@ class EkfSlam(Backend):
                 f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)")
         if pose_id == cur:
             raise GraphSlamError(f"ekf: pose {pose_id} is already the current pose")
+        Q = np.asarray(Q) * self.config.odometry_covariance_scale
         n = self._n
         x = self._xbuf
         P = self._Pbuf
@@ -366,8 +395,10 @@ class EkfSlam(Backend):
             lid = int(lid)
             slot = self._slot.get(lid)
             if slot is not None:
-                self._kalman_update(slot, o.z, o.covariance)
-                assoc[k] = lid
+                if self._kalman_update(slot, o.z, o.covariance, self._known_gate):
+                    assoc[k] = lid
+                else:
+                    self.rejected_count += 1
                 continue
             if lid not in seen_prov:
                 self._prov_known[lid] = self._prov_known.get(lid, 0) + 1
@@ -436,8 +467,13 @@ class EkfSlam(Backend):
         H_x, H_m = models.observe_jacobians(xr, m)
         return z, np.hstack([H_x, H_m]), [0, 1, 2, i, i + 1]
 
-    def _kalman_update(self, slot: int, z: np.ndarray, R: np.ndarray) -> None:
-        """One sequential EKF update with the landmark in ``slot`` (see module docstring)."""
+    def _kalman_update(self, slot: int, z: np.ndarray, R: np.ndarray,
+                       gate: float = math.inf) -> bool:
+        """One sequential EKF update with the landmark in ``slot`` (see module docstring).
+
+        Returns False, leaving the state untouched, when the innovation's squared
+        Mahalanobis distance exceeds ``gate``.
+        """
         n = self._n
         i = 3 + 2 * slot
         x = self._xbuf
@@ -464,6 +500,8 @@ class EkfSlam(Backend):
         # w = L^-1 nu; state += (H P)^T S^-1 nu = M (L^-1 nu)
         w0 = nu[0] / a
         w1 = (nu[1] - b * w0) / c
+        if w0 * w0 + w1 * w1 > gate:  # |L^-1 nu|^2 = nu^T S^-1 nu
+            return False
         x[:n] += Mt[0] * w0 + Mt[1] * w1
         x[2] = wrap_angle(x[2])
         # P -= M M^T, in place, one block of rows at a time.
@@ -475,6 +513,7 @@ class EkfSlam(Backend):
             for r0 in range(0, n, rows):
                 blk = P[r0:r0 + rows]
                 np.subtract(blk, M[r0:r0 + rows] @ Mt, out=blk)
+        return True
 
     def _observability_constrained(self, slot, H_x, H_m):
         """The Jacobian nearest to ``[H_x H_m]`` that keeps global rotation unobservable.

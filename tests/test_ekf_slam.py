@@ -444,3 +444,59 @@ def test_default_synthetic_world_nees_is_consistent_over_20_runs():
     lo, hi = metrics.chi2_bounds(3, runs)
     inside = np.mean((mean >= lo) & (mean <= hi))
     assert inside >= 0.9, f"average NEES inside the 95 % bounds on {inside:.1%} of steps"
+
+
+# ------------------------------------------- odometry scale, known-association gate
+
+def test_new_options_are_validated():
+    for bad in (0.0, -1.0, math.inf, True, "10"):
+        with pytest.raises(ConfigError):
+            EkfSlamConfig(odometry_covariance_scale=bad)
+    for bad in (0.0, 1.0, 1.5, True):
+        with pytest.raises(ConfigError):
+            EkfSlamConfig(known_gate_chi2_prob=bad)
+    assert EkfSlamConfig().odometry_covariance_scale == 1.0
+    assert EkfSlamConfig().known_gate_chi2_prob is None
+
+
+def test_odometry_covariance_scale_scales_the_process_noise():
+    rng = np.random.default_rng(21)
+    u = np.array([0.8, 0.2, 0.3])
+    Q = np.diag([0.01, 0.02, 0.003])
+    _, x, P = _random_filter(rng, 3)
+    plain, scaled = EkfSlam(), EkfSlam(EkfSlamConfig(odometry_covariance_scale=7.0))
+    plain.load_state(7, x, P)
+    scaled.load_state(7, x, P)
+    plain.predict(Odometry(7, 8, u, Q), 8)
+    scaled.predict(Odometry(7, 8, u, Q), 8)
+    # same mean; only the G Q G^T term of P_rr differs, by (7 - 1) G Q G^T
+    np.testing.assert_allclose(scaled.state_vector(), plain.state_vector())
+    _, G = models.compose_jacobians(x[:3], u)
+    expected = plain.state_covariance()
+    expected[:3, :3] += 6.0 * G @ Q @ G.T
+    np.testing.assert_allclose(scaled.state_covariance(), expected, atol=DENSE_TOL)
+
+
+def test_known_gate_rejects_and_counts_an_inconsistent_observation():
+    rng = np.random.default_rng(22)
+    _, x, P = _random_filter(rng, 3)
+    R = np.diag([0.04, 0.003])
+    gated = EkfSlam(EkfSlamConfig(known_gate_chi2_prob=0.999))
+    gated.load_state(7, x, P)
+    zhat = models.observe(x[:3], x[5:7])  # landmark id 1 sits in slot 1
+    outlier = zhat + np.array([50.0, 0.0])  # 50 m off: far outside any 2-dof gate
+    gated.update([Observation(7, 1, outlier, R)])
+    assert gated.rejected_count == 1
+    assert gated.associations() == [None]
+    np.testing.assert_array_equal(gated.state_vector(), x)  # not absorbed
+    np.testing.assert_array_equal(gated.state_covariance(), P)
+    # a consistent observation of the same landmark still goes through
+    gated.update([Observation(7, 1, zhat + np.array([0.05, 0.01]), R)])
+    assert gated.rejected_count == 1 and gated.associations() == [1]
+    assert not np.allclose(gated.state_vector(), x)
+    # without the gate the same outlier is absorbed
+    plain = EkfSlam()
+    plain.load_state(7, x, P)
+    plain.update([Observation(7, 1, outlier, R)])
+    assert plain.rejected_count == 0 and plain.associations() == [1]
+    assert not np.allclose(plain.state_vector(), x)
