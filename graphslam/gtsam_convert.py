@@ -120,3 +120,51 @@ def graph_error(dataset: Dataset, estimate: Estimate) -> float | None:
         if not values.exists(key):
             return None
     return float(graph.error(values))
+
+
+# --- 3-D (visual back ends) -------------------------------------------------
+#
+# Pose covariances: ours (graphslam.visual_backend) are in the order
+# [rho (translation), phi (rotation)] of a right perturbation; gtsam's Pose3
+# tangent is [phi, rho], also on the right (Pose3.retract = compose(Expmap)).
+# Same perturbation, swapped blocks: the permutation below is its own inverse.
+
+_POSE3_SWAP = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
+
+
+def pose3(wTc: np.ndarray) -> gtsam.Pose3:
+    """(4, 4) rigid transform -> ``gtsam.Pose3``."""
+    T = np.asarray(wTc, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"expected a (4, 4) pose, got {T.shape}")
+    return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), T[:3, 3].copy())
+
+
+def pose3_matrix(p: gtsam.Pose3) -> np.ndarray:
+    """``gtsam.Pose3`` -> (4, 4) float64."""
+    return np.asarray(p.matrix(), dtype=np.float64)
+
+
+def cal3_s2(K: np.ndarray) -> gtsam.Cal3_S2:
+    """(3, 3) intrinsic matrix ``[[fx, s, u0], [0, fy, v0], [0, 0, 1]]`` -> ``gtsam.Cal3_S2``."""
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"expected K (3, 3), got {K.shape}")
+    return gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+
+
+def pose3_covariance_to_gtsam(covariance: np.ndarray) -> np.ndarray:
+    """(6, 6) ``[rho, phi]`` covariance (ours) -> gtsam's Pose3 order ``[phi, rho]``."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    return _POSE3_SWAP @ cov @ _POSE3_SWAP
+
+
+def pose3_covariance_from_gtsam(covariance: np.ndarray) -> np.ndarray:
+    """(6, 6) gtsam Pose3 covariance ``[phi, rho]`` -> ours ``[rho, phi]``."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    return _POSE3_SWAP @ cov @ _POSE3_SWAP
+
+
+def pose3_noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
+    """Gaussian noise model of a Pose3 factor from our ``[rho, phi]`` covariance."""
+    return noise_from_covariance(pose3_covariance_to_gtsam(covariance))
