@@ -23,6 +23,15 @@ datasets:
   city10000       city10000 pose graph with ground truth (gtsam wheel)
   w10000          w10000 Manhattan pose graph (gtsam wheel)
   PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
+  synthetic-images  rendered textured room, VGA, noisy odometry (visual SLAM;
+                  [synthetic_images] of --config)
+  FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder
+                  with an intrinsics file (visual SLAM)
+
+visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
+  --odometry sequence|derived|none (derived: ground truth times noise, default
+  2 % of the distance and 0.1 deg per frame; none: EKF constant velocity,
+  Sim(3)-aligned ATE); landmarks.csv is id,x,y,z
 
 outputs (in --out):
   trajectory.tum  TUM format; time column = pose id where the data has no stamps
@@ -35,6 +44,8 @@ examples:
   graphslam run --dataset victoria-park --out runs/vp
   graphslam run --dataset city10000 --rerun off
   graphslam run --seed 3 --config my.toml --rerun spawn
+  graphslam run --dataset synthetic-images --backend ekf --frontend fpga
+  graphslam run --dataset ../shared/data/kitti07 --max-steps 160 --odometry derived
 """
 
 
@@ -57,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "outputs to --out.",
         epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     run_p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
-                       help="built-in dataset name or pose-graph file (default: synthetic)")
+                       help="built-in dataset name, pose-graph file or image-sequence folder "
+                            "(default: synthetic)")
     run_p.add_argument("--backend", default="isam2", choices=BACKENDS,
                        help="estimator (default: isam2)")
     run_p.add_argument("--seed", type=int, default=None,
@@ -79,6 +91,17 @@ def build_parser() -> argparse.ArgumentParser:
     run_p.add_argument("--rerun-every", type=int, default=None, metavar="N",
                        help="log the full estimate every N steps (default: about 50 snapshots)")
     run_p.add_argument("--quiet", action="store_true", help="no progress bar")
+    vis = run_p.add_argument_group("image sequences")
+    vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
+                     help="corner detector and matching (default: [tracker] of --config, else harris)")
+    vis.add_argument("--odometry", choices=("auto", "sequence", "derived", "none"), default=None,
+                     help="sequence's own odometry, noisy odometry derived from ground truth, or "
+                          "none (constant-velocity model, EKF only); default auto: sequence if "
+                          "it has odometry, else derived")
+    vis.add_argument("--odometry-noise", type=float, nargs=2, default=None,
+                     metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
+                     help="derived odometry noise: translation sigma per metre travelled and "
+                          "rotation sigma per frame in degrees (default 0.02 0.1)")
     run_p.set_defaults(func=cmd_run)
 
     cmp_p = sub.add_parser(
@@ -130,6 +153,13 @@ def main(argv: list[str] | None = None) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from graphslam import pipeline, registry
 
+    if registry.is_visual_dataset(args.dataset):
+        from graphslam.visual_run import run_visual
+
+        return run_visual(args)
+    for flag in ("frontend", "odometry", "odometry_noise"):
+        if getattr(args, flag, None) is not None:
+            raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)

@@ -73,3 +73,44 @@ def seed_override(name: str, seed: int | None) -> dict:
 
 #: Back ends whose configuration takes a ``seed``.
 SEEDED_BACKENDS: tuple[str, ...] = ("fastslam1", "fastslam2")
+
+
+# --------------------------------------------------------------------------- image sequences
+
+#: Built-in image-sequence datasets; a folder path is read as an image sequence
+#: (KITTI, TUM RGB-D, EuRoC or a plain folder of images), a file as a pose graph.
+VISUAL_DATASETS = ("synthetic-images",)
+#: Back ends ``graphslam run`` offers on image sequences.
+VISUAL_BACKENDS = ("isam2", "ekf")
+
+
+def is_visual_dataset(spec: str) -> bool:
+    """Whether ``--dataset spec`` names an image sequence (built-in or a folder)."""
+    return spec in VISUAL_DATASETS or Path(spec).is_dir()
+
+
+def load_image_sequence(spec: str, *, seed: int | None = None, config_path: Path | None = None):
+    """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``) or folder."""
+    if spec == "synthetic-images":
+        from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+
+        return make_synthetic_images(load_section(SyntheticImagesConfig, config_path, {"seed": seed}))
+    from graphslam.sources.images import read_image_sequence
+
+    return read_image_sequence(Path(spec))
+
+
+def make_visual_backend(name: str, *, config_path: Path | None = None,
+                        overrides: dict | None = None):
+    """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
+    (monocular EKF-SLAM, section ``[mono_ekf]``)."""
+    if name == "isam2":
+        from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
+
+        return VisualIsam2Backend(load_section(VisualIsam2Config, config_path, overrides))
+    if name == "ekf":
+        from filters.mono_ekf import MonoEkf, MonoEkfConfig
+
+        return MonoEkf(load_section(MonoEkfConfig, config_path, overrides))
+    raise ConfigError(f"back end {name!r} does not run on image sequences "
+                      f"(available: {', '.join(VISUAL_BACKENDS)})")

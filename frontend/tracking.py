@@ -1,0 +1,528 @@
+"""The visual front end, one frame at a time: track ids that stay on one physical point.
+
+Per frame (:meth:`Tracker.track`), given the image and the back end's
+:class:`~graphslam.visual_backend.PixelPredictions`:
+
+1. **Detection**: corners by the configured detector, ``"harris"``
+   (:class:`frontend.harris.HarrisDetector`), ``"orb"``
+   (:class:`frontend.orb.OrbDetector`) or ``"fpga"`` (the simulated pixel-rate
+   stream :class:`frontend.fpga_stream.FpgaHarrisStream`, fixed point).
+2. **Active search** of the mapped landmarks (those the back end predicts),
+   largest ellipse first, capped per frame (:mod:`frontend.active_search`).
+   The matching depends on ``search`` (``"auto"`` picks by detector):
+   ``"zncc"`` correlates the track's patch inside the ellipse (software
+   RT-SLAM; default for Harris), ``"nearest"`` takes the Harris point nearest
+   to the prediction inside the ellipse (the FPGA variant; default for
+   ``fpga``), ``"descriptor"`` takes the ORB point inside the ellipse with the
+   smallest Hamming distance to the track's descriptor (default for ORB).
+3. **Following** of tracks not mapped yet (``follow_unmapped``): a back end
+   that maps a point only once it has parallax (iSAM2 triangulates) needs the
+   same id on the same point over several frames before it predicts it. Each
+   such track is searched in a fixed window (``follow_window_px``) around its
+   last position plus its last image velocity, by ZNCC of its patch (Harris,
+   FPGA) or by descriptor among the ORB points in the window. A back end that
+   initialises undelayed (the EKF) does not need this: unmapped tracks then
+   live one frame, as candidates.
+4. **New tracks**: detected corners at least ``min_distance_px`` from every
+   tracked or predicted point, best response first, at most
+   ``max_new_per_frame`` and only while fewer than ``max_tracks`` points are
+   tracked, each with a fresh integer id.
+
+Patches are cut where a track was born and kept (no drift along the track;
+``patch_update = "last"`` re-cuts them at each match instead, which follows
+appearance changes at the cost of slow drift). Nothing here knows 3-D: numpy
+and OpenCV only.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import cv2
+import numpy as np
+
+from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, \
+    ellipse_pixels, extract_patches
+from frontend.features import Features
+from frontend.harris import HarrisConfig
+from frontend.image import check_gray
+from frontend.orb import OrbConfig
+from graphslam.errors import ConfigError
+from graphslam.visual_backend import PixelObservations, PixelPredictions
+
+__all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES"]
+
+DETECTORS = ("harris", "orb", "fpga")
+SEARCH_MODES = ("auto", "zncc", "nearest", "descriptor")
+_AUTO_SEARCH = {"harris": "zncc", "fpga": "nearest", "orb": "descriptor"}
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Front-end tracking settings (config section ``[tracker]``).
+
+    Attributes:
+        detector: ``"harris"``, ``"orb"`` or ``"fpga"``.
+        search: active-search matching: ``"auto"`` (by detector, see module
+            doc), ``"zncc"``, ``"nearest"`` (Harris/FPGA only) or
+            ``"descriptor"`` (ORB only).
+        max_tracks: new corners are started only while fewer points than this
+            are tracked in the frame.
+        max_new_per_frame: new tracks started per frame at most.
+        min_distance_px: a new corner is at least this far from every tracked
+            or predicted point (no two ids on one physical point).
+        follow_unmapped: follow not-yet-mapped tracks from frame to frame;
+            ``None`` lets the pipeline decide from the back end.
+        follow_window_px: half side of the square window a followed track is
+            searched in, around its last position plus its last image motion.
+        follow_min_score: smallest ZNCC accepted when following.
+        follow_min_margin: the best ZNCC must beat every other peak of the
+            window (more than 2 px away) by this much (repeated texture).
+        max_unmapped_age: frames a track may stay unmapped before it is dropped.
+        max_hamming: largest Hamming distance (bits of 256) of an ORB match.
+        patch_update: ``"anchor"`` (patch from the frame the track was born)
+            or ``"last"`` (re-cut at every match).
+        sigma_px: pixel standard deviation reported with the observations.
+    """
+
+    SECTION: ClassVar[str] = "tracker"
+
+    detector: str = "harris"
+    search: str = "auto"
+    max_tracks: int = 80
+    max_new_per_frame: int = 20
+    min_distance_px: float = 16.0
+    follow_unmapped: bool | None = None
+    follow_window_px: int = 24
+    follow_min_score: float = 0.85
+    follow_min_margin: float = 0.05
+    max_unmapped_age: int = 60
+    max_hamming: int = 64
+    patch_update: str = "anchor"
+    sigma_px: float = 1.0
+
+    def __post_init__(self):
+        if self.detector not in DETECTORS:
+            raise ConfigError(f"tracker.detector must be one of {', '.join(DETECTORS)}, "
+                              f"got {self.detector!r}")
+        if self.search not in SEARCH_MODES:
+            raise ConfigError(f"tracker.search must be one of {', '.join(SEARCH_MODES)}, "
+                              f"got {self.search!r}")
+        mode = self.search_mode
+        if (mode == "descriptor") != (self.detector == "orb"):
+            raise ConfigError(f"tracker.search {mode!r} does not fit detector {self.detector!r} "
+                              "(descriptor matching needs ORB, ORB needs descriptor matching)")
+        for name, lo in (("max_tracks", 1), ("max_new_per_frame", 0), ("follow_window_px", 1),
+                         ("max_unmapped_age", 1), ("max_hamming", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ConfigError(f"tracker.{name} must be an integer >= {lo}, got {v!r}")
+        if not float(self.min_distance_px) >= 0.0:
+            raise ConfigError(f"tracker.min_distance_px must be >= 0, got {self.min_distance_px!r}")
+        if not -1.0 <= float(self.follow_min_score) <= 1.0:
+            raise ConfigError(f"tracker.follow_min_score must be in [-1, 1], got {self.follow_min_score!r}")
+        if self.patch_update not in ("anchor", "last"):
+            raise ConfigError(f"tracker.patch_update must be 'anchor' or 'last', got {self.patch_update!r}")
+        if not float(self.sigma_px) > 0.0:
+            raise ConfigError(f"tracker.sigma_px must be > 0, got {self.sigma_px!r}")
+
+    @property
+    def search_mode(self) -> str:
+        return _AUTO_SEARCH[self.detector] if self.search == "auto" else self.search
+
+
+@dataclass
+class _Track:
+    track_id: int
+    uv: np.ndarray                  # last measured pixel
+    velocity: np.ndarray            # last image motion, px/frame
+    born: int
+    last_seen: int
+    patch: np.ndarray | None        # (p, p) float32
+    descriptor: np.ndarray | None   # (32,) uint8
+    mapped: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingResult:
+    """One frame of the front end: what goes to the back end and what Rerun draws.
+
+    Attributes:
+        observations: found landmarks, followed tracks and new tracks.
+        corners: (F, 2) detected corners.
+        cell_size_px: tessellation cell side of the detector (0 if none).
+        pred_ids, pred_uv, pred_S: the predictions searched from (K,), (K, 2), (K, 2, 2).
+        searched, found: (K,) bool per prediction; found_uv (K, 2), NaN if not found.
+        gate: Mahalanobis-squared gate of the search ellipses.
+        followed_ids, followed_from, followed_to: unmapped tracks followed (T,), (T, 2), (T, 2).
+        new_ids, new_uv: tracks started this frame.
+        image_fraction: union of the active-search ellipses' pixels / image area.
+        follow_fraction: union of the follow windows / image area.
+        timings_s: seconds spent in ``detect``, ``search``, ``follow``, ``new``.
+    """
+
+    observations: PixelObservations
+    corners: np.ndarray
+    cell_size_px: int
+    pred_ids: np.ndarray
+    pred_uv: np.ndarray
+    pred_S: np.ndarray
+    searched: np.ndarray
+    found: np.ndarray
+    found_uv: np.ndarray
+    gate: float
+    followed_ids: np.ndarray
+    followed_from: np.ndarray
+    followed_to: np.ndarray
+    new_ids: np.ndarray
+    new_uv: np.ndarray
+    image_fraction: float
+    follow_fraction: float
+    timings_s: dict = field(default_factory=dict)
+
+    @property
+    def n_found(self) -> int:
+        return int(self.found.sum())
+
+    @property
+    def n_searched(self) -> int:
+        return int(self.searched.sum())
+
+
+def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None,
+                  orb: OrbConfig | None = None):
+    """The detector named by ``config.detector`` (imports are lazy)."""
+    if config.detector == "harris":
+        from frontend.harris import HarrisDetector
+
+        return HarrisDetector(harris or HarrisConfig())
+    if config.detector == "orb":
+        from frontend.orb import OrbDetector
+
+        return OrbDetector(orb or OrbConfig())
+    from frontend.fpga_stream import FpgaHarrisStream
+
+    # the stream is always fixed point: the hardware has no float unit
+    base = harris or HarrisConfig()
+    return FpgaHarrisStream(HarrisConfig(**{**base.__dict__, "arithmetic": "fixed"}))
+
+
+def _hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamming distances between one (32,) descriptor ``a`` and (N, 32) ``b``."""
+    return np.unpackbits(np.bitwise_xor(b, a[None, :]), axis=1).sum(axis=1)
+
+
+def _parabola(rm: float, r0: float, rp: float) -> float:
+    den = rm - 2.0 * r0 + rp
+    if not den < 0.0:
+        return 0.0
+    return float(np.clip(0.5 * (rm - rp) / den, -0.5, 0.5))
+
+
+class Tracker:
+    """Stateful per-sequence tracker (see the module docstring).
+
+    Args:
+        config: :class:`TrackerConfig`.
+        active_search: :class:`ActiveSearchConfig` (its ``mode`` is set from
+            the tracker's search mode; ``"descriptor"`` reuses its gate and cap).
+        harris, orb: detector configurations.
+        follow_unmapped: overrides ``config.follow_unmapped`` (the pipeline
+            passes what the back end needs); ``None`` keeps the config, and an
+            unset config means True.
+    """
+
+    def __init__(self, config: TrackerConfig | None = None, *,
+                 active_search: ActiveSearchConfig | None = None,
+                 harris: HarrisConfig | None = None, orb: OrbConfig | None = None,
+                 follow_unmapped: bool | None = None):
+        self.config = config or TrackerConfig()
+        self.detector = make_detector(self.config, harris, orb)
+        mode = self.config.search_mode
+        base = active_search or ActiveSearchConfig()
+        self.search_config = ActiveSearchConfig(
+            **{**base.__dict__, "mode": "nearest" if mode == "nearest" else "zncc"})
+        self._search = ActiveSearch(self.search_config)
+        if follow_unmapped is None:
+            follow_unmapped = self.config.follow_unmapped
+        self.follow_unmapped = True if follow_unmapped is None else bool(follow_unmapped)
+        self._tracks: dict[int, _Track] = {}
+        self._next_id = 0
+        self._frame = -1
+        self._flow = np.zeros(2)  # median image motion of the tracks followed last frame
+
+    @property
+    def patch_size(self) -> int:
+        return self.search_config.patch_size_px
+
+    @property
+    def n_tracks(self) -> int:
+        return len(self._tracks)
+
+    def cell_size_px(self) -> int:
+        cfg = getattr(self.detector, "config", None)
+        return int(getattr(cfg, "cell_size_px", 0) or 0)
+
+    # ------------------------------------------------------------------ one frame
+
+    def track(self, image: np.ndarray, predictions: PixelPredictions | None = None) -> TrackingResult:
+        """Process the next frame (``image`` (H, W) uint8) given the back end's predictions."""
+        image = check_gray(image)
+        cfg = self.config
+        self._frame += 1
+        k = self._frame
+        H, W = image.shape
+        timings = {}
+
+        t = time.perf_counter()
+        feats = self.detector.detect(image)
+        if feats is None:  # an FPGA stream before its first stamp: no points yet
+            feats = Features(xy_px=np.zeros((0, 2)), response=np.zeros(0))
+        timings["detect"] = time.perf_counter() - t
+
+        # ---- active search of mapped landmarks
+        t = time.perf_counter()
+        if predictions is None:
+            predictions = PixelPredictions(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)))
+        pids = np.asarray(predictions.track_ids, dtype=np.int64).reshape(-1)
+        known = np.array([int(i) in self._tracks for i in pids], dtype=bool)
+        pids = pids[known]
+        puv = np.asarray(predictions.uv_px, dtype=np.float64).reshape(-1, 2)[known]
+        pS = np.asarray(predictions.S_px2, dtype=np.float64).reshape(-1, 2, 2)[known]
+        # a back end's S is symmetric up to rounding; active search wants it exactly so
+        pS = 0.5 * (pS + np.swapaxes(pS, 1, 2))
+        for tid in pids:
+            self._tracks[int(tid)].mapped = True
+        res = self._active_search(image, feats, pids, puv, pS)
+        obs_ids: list[int] = []
+        obs_uv: list[np.ndarray] = []
+        for j in np.flatnonzero(res.found):
+            tr = self._tracks[int(pids[j])]
+            self._matched(tr, res.uv[j], image, feats, k)
+            obs_ids.append(tr.track_id)
+            obs_uv.append(res.uv[j].copy())
+        timings["search"] = time.perf_counter() - t
+
+        # ---- follow unmapped tracks
+        t = time.perf_counter()
+        f_ids, f_from, f_to, follow_fraction = self._follow(image, feats, obs_uv, k)
+        obs_ids.extend(f_ids)
+        obs_uv.extend(f_to)
+        self._forget(k)
+        timings["follow"] = time.perf_counter() - t
+
+        # ---- new tracks away from everything tracked or predicted
+        t = time.perf_counter()
+        occupied = list(obs_uv)
+        unfound = ~res.found
+        inside = (puv[:, 0] >= 0) & (puv[:, 0] <= W - 1) & (puv[:, 1] >= 0) & (puv[:, 1] <= H - 1)
+        occupied.extend(puv[unfound & inside])
+        n_room = min(cfg.max_new_per_frame, max(0, cfg.max_tracks - len(obs_ids)))
+        new_ids, new_uv = self._start_tracks(image, feats, np.array(occupied).reshape(-1, 2), n_room, k)
+        obs_ids.extend(new_ids)
+        obs_uv.extend(new_uv)
+        timings["new"] = time.perf_counter() - t
+
+        observations = PixelObservations(
+            track_ids=np.asarray(obs_ids, dtype=np.int64),
+            uv_px=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2), sigma_px=float(cfg.sigma_px))
+        return TrackingResult(
+            observations=observations, corners=np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2),
+            cell_size_px=self.cell_size_px(), pred_ids=pids, pred_uv=puv, pred_S=pS,
+            searched=res.searched, found=res.found, found_uv=res.uv, gate=self.search_config.gate,
+            followed_ids=np.asarray(f_ids, dtype=np.int64),
+            followed_from=np.asarray(f_from, dtype=np.float64).reshape(-1, 2),
+            followed_to=np.asarray(f_to, dtype=np.float64).reshape(-1, 2),
+            new_ids=np.asarray(new_ids, dtype=np.int64),
+            new_uv=np.asarray(new_uv, dtype=np.float64).reshape(-1, 2),
+            image_fraction=res.image_fraction, follow_fraction=follow_fraction, timings_s=timings)
+
+    # ------------------------------------------------------------------ stages
+
+    def _active_search(self, image, feats, pids, puv, pS) -> ActiveSearchResult:
+        n = len(pids)
+        mode = self.config.search_mode
+        if n == 0:
+            z = np.zeros(0)
+            return ActiveSearchResult(order=np.zeros(0, np.int64), searched=z.astype(bool),
+                                      found=z.astype(bool), uv=np.zeros((0, 2)), score=z, d2=z,
+                                      pixels=z.astype(np.int64), image_fraction=0.0,
+                                      image_fraction_sum=0.0)
+        if mode == "zncc":
+            patches = np.stack([self._tracks[int(i)].patch for i in pids])
+            return self._search.search(image, puv, pS, patches=patches)
+        if mode == "nearest":
+            return self._search.search(image, puv, pS, features=feats)
+        return self._descriptor_search(image.shape, feats, pids, puv, pS)
+
+    def _descriptor_search(self, shape, feats, pids, puv, pS) -> ActiveSearchResult:
+        """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
+        H, W = shape
+        cfg = self.search_config
+        g = cfg.gate
+        n = len(pids)
+        searched, found = np.zeros(n, bool), np.zeros(n, bool)
+        uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
+        pixels = np.zeros(n, np.int64)
+        union = np.zeros((H, W), bool)
+        order = []
+        fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
+        desc = feats.descriptors
+        cap = cfg.max_corrections or n
+        for i in self._search.search_order(puv, pS, (H, W)):
+            if len(order) >= cap:
+                break
+            u0, v0, mask = ellipse_pixels(puv[i], pS[i], g, (H, W))
+            if mask.size == 0 or not mask.any():
+                continue
+            order.append(i)
+            searched[i] = True
+            pixels[i] = int(mask.sum())
+            bh, bw = mask.shape
+            union[v0:v0 + bh, u0:u0 + bw] |= mask
+            if len(fxy) == 0 or desc is None:
+                continue
+            Si = np.linalg.inv(pS[i])
+            d = fxy - puv[i]
+            dd = np.einsum("ni,ij,nj->n", d, Si, d)
+            inside = np.flatnonzero(dd <= g)
+            if len(inside) == 0:
+                continue
+            ham = _hamming(self._tracks[int(pids[i])].descriptor, desc[inside])
+            j = int(np.argmin(ham))
+            score[i] = float(ham[j])
+            if ham[j] > self.config.max_hamming:
+                continue
+            uv[i] = fxy[inside[j]]
+            d2[i] = float(dd[inside[j]])
+            found[i] = True
+        npx = float(H * W)
+        return ActiveSearchResult(order=np.asarray(order, np.int64), searched=searched, found=found,
+                                  uv=uv, score=score, d2=d2, pixels=pixels,
+                                  image_fraction=float(union.sum()) / npx,
+                                  image_fraction_sum=float(pixels.sum()) / npx)
+
+    def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
+        tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
+        tr.uv = np.asarray(uv, dtype=np.float64).copy()
+        tr.last_seen = k
+        if self.config.patch_update == "last" and tr.patch is not None:
+            tr.patch = extract_patches(image, tr.uv[None], self.patch_size)[0]
+
+    def _follow(self, image, feats, taken: list, k: int):
+        """Search each unmapped track seen last frame in its window; returns ids, from, to, fraction."""
+        ids, src, dst = [], [], []
+        H, W = image.shape
+        if not self.follow_unmapped:
+            return ids, src, dst, 0.0
+        cfg = self.config
+        half = int(cfg.follow_window_px)
+        p = self.patch_size
+        h = p // 2
+        imf = image.astype(np.float32)
+        union = np.zeros((H, W), bool)
+        fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
+        cands = []  # (score, track, uv); best first resolves two tracks landing on one point
+        for tr in list(self._tracks.values()):
+            if tr.mapped or tr.last_seen != k - 1:
+                continue
+            # a track born last frame has no motion of its own yet: use the image's
+            c = tr.uv + (tr.velocity if tr.last_seen > tr.born or tr.mapped else self._flow)
+            cu, cv = int(round(c[0])), int(round(c[1]))
+            u0, u1 = max(cu - half, h), min(cu + half, W - 1 - h)
+            v0, v1 = max(cv - half, h), min(cv + half, H - 1 - h)
+            if u1 < u0 or v1 < v0:
+                continue
+            union[v0:v1 + 1, u0:u1 + 1] = True
+            if self.config.search_mode == "descriptor":
+                if len(fxy) == 0 or feats.descriptors is None:
+                    continue
+                inw = np.flatnonzero((fxy[:, 0] >= u0) & (fxy[:, 0] <= u1)
+                                     & (fxy[:, 1] >= v0) & (fxy[:, 1] <= v1))
+                if len(inw) == 0:
+                    continue
+                ham = _hamming(tr.descriptor, feats.descriptors[inw])
+                j = int(np.argmin(ham))
+                if ham[j] > cfg.max_hamming:
+                    continue
+                cands.append((-float(ham[j]), tr.track_id, fxy[inw[j]].copy()))
+                continue
+            region = imf[v0 - h:v1 + h + 1, u0 - h:u1 + h + 1]
+            r = cv2.matchTemplate(region, tr.patch, cv2.TM_CCOEFF_NORMED)
+            r = np.nan_to_num(r, nan=-1.0, posinf=-1.0, neginf=-1.0)
+            jv, ju = np.unravel_index(int(np.argmax(r)), r.shape)
+            best = float(r[jv, ju])
+            if best < cfg.follow_min_score:
+                continue
+            # A second peak almost as good away from the best one means a repeated
+            # texture: the match is a guess, and a wrong id is worse than none.
+            rr = r.copy()
+            rr[max(jv - 2, 0):jv + 3, max(ju - 2, 0):ju + 3] = -1.0
+            if rr.size and float(rr.max()) > best - cfg.follow_min_margin:
+                continue
+            du = dv = 0.0
+            if 0 < ju < r.shape[1] - 1:
+                du = _parabola(float(r[jv, ju - 1]), best, float(r[jv, ju + 1]))
+            if 0 < jv < r.shape[0] - 1:
+                dv = _parabola(float(r[jv - 1, ju]), best, float(r[jv + 1, ju]))
+            cands.append((best, tr.track_id, np.array([u0 + ju + du, v0 + jv + dv])))
+        cands.sort(key=lambda c: (-c[0], c[1]))
+        moved = []
+        placed = [np.asarray(u) for u in taken]
+        min_sep = 3.0  # px: two ids on one spot means one of them slipped to its neighbour
+        for _, tid, uv in cands:
+            if placed and np.min(np.linalg.norm(np.asarray(placed) - uv, axis=1)) < min_sep:
+                continue
+            tr = self._tracks[tid]
+            ids.append(tid)
+            src.append(tr.uv.copy())
+            dst.append(uv)
+            placed.append(uv)
+            moved.append(uv - tr.uv)
+            self._matched(tr, uv, image, feats, k)
+        self._flow = np.median(np.asarray(moved), axis=0) if moved else np.zeros(2)
+        return ids, src, dst, float(union.sum()) / float(H * W)
+
+    def _forget(self, k: int) -> None:
+        """Drop unmapped tracks that were lost or stayed unmapped too long."""
+        age = self.config.max_unmapped_age
+        for tid in [t.track_id for t in self._tracks.values()
+                    if not t.mapped and (t.last_seen < k or k - t.born >= age)]:
+            del self._tracks[tid]
+
+    def _start_tracks(self, image, feats, occupied: np.ndarray, n_room: int, k: int):
+        ids, uvs = [], []
+        if n_room <= 0 or len(feats) == 0:
+            return ids, uvs
+        H, W = image.shape
+        p = self.patch_size
+        h = p // 2
+        xy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
+        resp = np.asarray(feats.response, dtype=np.float64)
+        ok = (xy[:, 0] >= h) & (xy[:, 0] <= W - 1 - h) & (xy[:, 1] >= h) & (xy[:, 1] <= H - 1 - h)
+        # best response first; ties by position for a deterministic order
+        order = [i for i in np.lexsort([xy[:, 0], xy[:, 1], -resp]) if ok[i]]
+        dmin = float(self.config.min_distance_px)
+        placed = [u for u in occupied]
+        orb = self.config.search_mode == "descriptor"
+        min_std = self.search_config.min_patch_std
+        for i in order:
+            if len(ids) >= n_room:
+                break
+            uv = xy[i]
+            if placed and np.min(np.linalg.norm(np.asarray(placed) - uv, axis=1)) < dmin:
+                continue
+            patch = extract_patches(image, uv[None], p)[0]
+            if not orb and float(patch.std()) < min_std:
+                continue  # flat: ZNCC could never find it again
+            tid = self._next_id
+            self._next_id += 1
+            self._tracks[tid] = _Track(
+                track_id=tid, uv=uv.copy(), velocity=np.zeros(2), born=k, last_seen=k,
+                patch=patch, descriptor=None if not orb else np.asarray(feats.descriptors[i]).copy())
+            ids.append(tid)
+            uvs.append(uv.copy())
+            placed.append(uv)
+        return ids, uvs

@@ -1,0 +1,134 @@
+"""3-D trajectory metrics on hand-built cases with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from frontend.camera import se3_exp, so3_exp
+from graphslam import metrics3d
+from graphslam.errors import GraphSlamError
+
+EXACT = 1e-9  # m / rad: a known transform must come back to rounding
+
+
+def _traj(n=30, seed=0):
+    """(n, 4, 4) poses of a wiggly 3-D path."""
+    rng = np.random.default_rng(seed)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(1, n):
+        T[k] = T[k - 1] @ se3_exp(np.r_[rng.normal(0.5, 0.2, 3), rng.normal(0, 0.1, 3)])
+    return T
+
+
+def _apply(s, R, t, wTc):
+    out = wTc.copy()
+    out[:, :3, :3] = R @ wTc[:, :3, :3]
+    out[:, :3, 3] = s * wTc[:, :3, 3] @ R.T + t
+    return out
+
+
+def test_umeyama_recovers_a_known_rigid_transform():
+    rng = np.random.default_rng(1)
+    src = rng.normal(size=(20, 3))
+    R = so3_exp([0.3, -1.2, 0.7])
+    t = np.array([4.0, -2.0, 0.5])
+    s, R_hat, t_hat = metrics3d.align_umeyama(src, src @ R.T + t)
+    assert s == 1.0
+    assert np.allclose(R_hat, R, atol=EXACT) and np.allclose(t_hat, t, atol=EXACT)
+
+
+def test_umeyama_recovers_a_known_similarity():
+    rng = np.random.default_rng(2)
+    src = rng.normal(size=(15, 3))
+    R = so3_exp([-0.4, 0.2, 2.5])
+    t = np.array([1.0, 2.0, 3.0])
+    s, R_hat, t_hat = metrics3d.align_umeyama(src, 2.5 * src @ R.T + t, with_scale=True)
+    assert s == pytest.approx(2.5, abs=EXACT)
+    assert np.allclose(R_hat, R, atol=EXACT) and np.allclose(t_hat, t, atol=EXACT)
+
+
+def test_umeyama_never_returns_a_reflection():
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(10, 3))
+    dst = src * np.array([1.0, 1.0, -1.0])  # a mirror image
+    _, R, _ = metrics3d.align_umeyama(src, dst)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_ate_is_zero_after_a_rigid_motion_and_se3_alignment():
+    gt = _traj()
+    est = _apply(1.0, so3_exp([0.1, 0.2, -0.3]), np.array([5.0, -1.0, 2.0]), gt)
+    ids = np.arange(len(gt))
+    a = metrics3d.ate(ids, est, ids, gt, alignment="se3")
+    assert a["rmse_m"] < EXACT and a["alignment"] == "se3" and a["scale"] == 1.0
+    assert metrics3d.ate(ids, est, ids, gt, alignment="none")["rmse_m"] > 1.0
+
+
+def test_ate_sim3_recovers_the_scale_of_a_monocular_run():
+    gt = _traj()
+    est = _apply(0.4, so3_exp([0.0, 0.5, 0.1]), np.array([0.0, 3.0, 0.0]), gt)
+    ids = np.arange(len(gt))
+    sim = metrics3d.ate(ids, est, ids, gt, alignment="sim3")
+    assert sim["rmse_m"] < EXACT and sim["scale"] == pytest.approx(1 / 0.4)
+    assert metrics3d.ate(ids, est, ids, gt, alignment="se3")["rmse_m"] > 0.5
+
+
+def test_ate_of_a_hand_built_error_is_its_size():
+    # positions on the x axis, estimate off by +-d in z with no correlation with x:
+    # no rotation or translation can reduce the error, so the RMSE is d.
+    d = 0.25
+    gt = np.tile(np.eye(4), (4, 1, 1))
+    gt[:, 0, 3] = [0.0, 1.0, 2.0, 3.0]
+    est = gt.copy()
+    est[:, 2, 3] = [d, -d, -d, d]
+    ids = np.arange(4)
+    a = metrics3d.ate(ids, est, ids, gt)
+    assert a["rmse_m"] == pytest.approx(d, abs=1e-12) and a["max_m"] == pytest.approx(d)
+
+
+def test_ate_matches_frames_by_id_not_by_position():
+    gt = _traj(10)
+    ids = np.arange(10)
+    est_ids = ids[::-1]
+    assert metrics3d.ate(est_ids, gt[::-1], ids, gt)["rmse_m"] < EXACT
+    assert metrics3d.ate(ids[:5], gt[:5], ids, gt)["n"] == 5
+    with pytest.raises(GraphSlamError):
+        metrics3d.ate(np.array([0]), gt[:1], ids, gt)
+    with pytest.raises(GraphSlamError):
+        metrics3d.ate(ids, gt, ids, gt, alignment="affine")
+
+
+def test_rpe_of_a_known_scale_error_per_step():
+    # steps of 1 m along x; the estimate steps 1.1 m: 0.1 m error per frame, no rotation error
+    n = 8
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n)
+    est = gt.copy()
+    est[:, 0, 3] *= 1.1
+    ids = np.arange(n)
+    r = metrics3d.rpe(ids, est, ids, gt)
+    assert r["trans_rmse_m"] == pytest.approx(0.1) and r["rot_rmse_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert r["n"] == n - 1
+    assert metrics3d.rpe(ids, est, ids, gt, delta=2)["trans_rmse_m"] == pytest.approx(0.2)
+    # with the Sim(3) scale of a monocular run the same estimate is exact
+    assert metrics3d.rpe(ids, est, ids, gt, scale=1 / 1.1)["trans_rmse_m"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_rpe_of_a_known_rotation_error():
+    n = 5
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    est = gt.copy()
+    for k in range(n):
+        est[k, :3, :3] = so3_exp([0.0, 0.0, np.radians(2.0) * k])  # 2 deg more per frame
+    ids = np.arange(n)
+    assert metrics3d.rpe(ids, est, ids, gt)["rot_rmse_deg"] == pytest.approx(2.0)
+
+
+def test_path_length_of_a_unit_square():
+    T = np.tile(np.eye(4), (5, 1, 1))
+    T[:, :3, 3] = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 0]]
+    assert metrics3d.path_length(T) == pytest.approx(4.0)
+    assert metrics3d.path_length(T[:1]) == 0.0
+    assert metrics3d.percent_of(0.04, 4.0) == pytest.approx(1.0)
+    assert metrics3d.percent_of(None, 4.0) is None

@@ -1,0 +1,156 @@
+"""The visual front end: track ids stay on one physical point (checked against ground truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from frontend.tracking import Tracker, TrackerConfig
+from graphslam.errors import ConfigError
+from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+from graphslam.visual_backend import PixelPredictions
+
+#: A tracked pixel is "on its point" within this distance of the point's true projection, px.
+ON_POINT_PX = 3.0
+#: Corners on a depth discontinuity (an object's outline) have no single 3-D point.
+EDGE_DEPTH_RATIO = 0.05
+
+
+@pytest.fixture(scope="module")
+def seq():
+    """QVGA version of the default synthetic sequence (same scene, half the pixels)."""
+    return make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250.0, fy=250.0,
+                                                       cx=159.5, cy=119.5))
+
+
+@pytest.fixture(scope="module")
+def frames(seq):
+    return [seq.render(k) for k in range(30)]
+
+
+def _backproject(seq, k, uv, depth):
+    """World point under pixel ``uv`` of frame ``k``, or None on a depth edge / nothing."""
+    u, v = int(round(uv[0])), int(round(uv[1]))
+    win = depth[max(v - 3, 0):v + 4, max(u - 3, 0):u + 4]
+    z = float(depth[v, u])
+    if not np.all(np.isfinite(win)) or np.ptp(win) > EDGE_DEPTH_RATIO * z:
+        return None
+    pc = np.linalg.inv(seq.K) @ np.array([uv[0], uv[1], 1.0]) * z
+    T = seq.wTc_true[k]
+    return T[:3, :3] @ pc + T[:3, 3]
+
+
+def _errors(seq, frames, tracker, predict=None):
+    """Pixel error to the true projection of each tracked observation after its birth."""
+    points, errs, ids_per_frame = {}, [], []
+    for k, (img, depth) in enumerate(frames):
+        pred = None if predict is None else predict(k, points)
+        r = tracker.track(img, pred)
+        ids_per_frame.append(set(map(int, r.observations.track_ids)))
+        new = set(map(int, r.new_ids))
+        for tid, uv in zip(map(int, r.observations.track_ids), r.observations.uv_px):
+            if tid in new:
+                points[tid] = _backproject(seq, k, uv, depth)
+            elif points.get(tid) is not None:
+                errs.append(float(np.linalg.norm(seq.project(k, points[tid][None])[0][0] - uv)))
+    return np.array(errs), ids_per_frame, points
+
+
+def test_followed_tracks_keep_their_id_on_the_same_3d_point(seq, frames):
+    tracker = Tracker(TrackerConfig(detector="harris"), follow_unmapped=True)
+    errs, ids, _ = _errors(seq, frames, tracker)
+    assert len(errs) > 500  # tracks do live over several frames
+    assert np.mean(errs > ON_POINT_PX) < 0.01
+    assert np.median(errs) < 0.5
+    # ids persist: most points of a frame were already tracked in the one before
+    carried = [len(a & b) / max(len(b), 1) for a, b in zip(ids[:-1], ids[1:])]
+    assert np.mean(carried[5:]) > 0.6
+
+
+def test_orb_descriptor_tracks_keep_their_id(seq, frames):
+    tracker = Tracker(TrackerConfig(detector="orb"), follow_unmapped=True)
+    errs, _, _ = _errors(seq, frames[:15], tracker)
+    assert len(errs) > 100
+    assert np.mean(errs > ON_POINT_PX) < 0.05
+
+
+def _truth_predictions(seq, sigma_px=3.0):
+    """Back end stand-in: exact projections of the tracks' true points, S = sigma^2 I."""
+    def predict(k, points):
+        ids = [t for t, p in points.items() if p is not None]
+        if k == 0 or not ids:
+            return None
+        uv, z = seq.project(k, np.array([points[t] for t in ids]))
+        W, H = seq.image_size
+        ok = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+        n = int(ok.sum())
+        return PixelPredictions(np.array(ids, dtype=np.int64)[ok], uv[ok],
+                                np.tile(np.eye(2) * sigma_px**2, (n, 1, 1)))
+    return predict
+
+
+@pytest.mark.parametrize("detector", ["harris", "fpga"])
+def test_active_search_finds_predicted_landmarks_at_their_point(seq, frames, detector):
+    # follow off (the EKF's way): ids survive only through active search
+    tracker = Tracker(TrackerConfig(detector=detector, max_new_per_frame=10), follow_unmapped=False)
+    errs, _, _ = _errors(seq, frames[:20], tracker, predict=_truth_predictions(seq))
+    assert len(errs) > 100
+    assert np.mean(errs > ON_POINT_PX) < 0.05
+
+
+def test_active_search_result_for_rerun(seq, frames):
+    tracker = Tracker(TrackerConfig(max_new_per_frame=5), follow_unmapped=False)
+    predict = _truth_predictions(seq)
+    points = {}
+    for k, (img, depth) in enumerate(frames[:6]):
+        r = tracker.track(img, predict(k, points))
+        for tid, uv in zip(map(int, r.new_ids), r.new_uv):
+            points[tid] = _backproject(seq, k, uv, depth)
+    assert len(r.pred_ids) > 0 and r.n_searched > 0 and r.n_found > 0
+    assert r.pred_S.shape == (len(r.pred_ids), 2, 2)
+    assert 0.0 < r.image_fraction < 0.5
+    found_ids = set(map(int, r.pred_ids[r.found]))
+    assert found_ids <= set(map(int, r.observations.track_ids))
+    assert np.all(np.isnan(r.found_uv[~r.found]))
+    assert len(r.corners) > 20 and r.cell_size_px == 32
+
+
+def test_without_following_unmapped_tracks_live_one_frame(seq, frames):
+    tracker = Tracker(TrackerConfig(), follow_unmapped=False)
+    seen = set()
+    for img, _ in frames[:4]:
+        r = tracker.track(img)  # no predictions: the back end mapped nothing
+        ids = set(map(int, r.observations.track_ids))
+        assert ids == set(map(int, r.new_ids)) and not ids & seen
+        seen |= ids
+    assert tracker.n_tracks == len(r.new_ids)
+
+
+def test_new_tracks_keep_their_distance(seq, frames):
+    cfg = TrackerConfig(min_distance_px=20.0, max_new_per_frame=50)
+    tracker = Tracker(cfg, follow_unmapped=True)
+    for img, _ in frames[:5]:
+        r = tracker.track(img)
+        uv = r.observations.uv_px
+        new = np.isin(r.observations.track_ids, r.new_ids)
+        d = np.linalg.norm(uv[new][:, None] - uv[None], axis=2)
+        d[np.arange(new.sum()), np.flatnonzero(new)] = np.inf
+        assert d.min() >= cfg.min_distance_px
+        assert len(np.unique(r.observations.track_ids)) == len(r.observations)
+
+
+def test_same_input_same_tracks(seq, frames):
+    a, b = Tracker(TrackerConfig()), Tracker(TrackerConfig())
+    for img, _ in frames[:6]:
+        ra, rb = a.track(img), b.track(img)
+        assert np.array_equal(ra.observations.track_ids, rb.observations.track_ids)
+        assert np.array_equal(ra.observations.uv_px, rb.observations.uv_px)
+
+
+def test_bad_configuration_is_refused():
+    with pytest.raises(ConfigError, match="detector"):
+        TrackerConfig(detector="sift")
+    with pytest.raises(ConfigError, match="descriptor"):
+        TrackerConfig(detector="harris", search="descriptor")
+    with pytest.raises(ConfigError, match="max_tracks"):
+        TrackerConfig(max_tracks=0)
