@@ -1,7 +1,7 @@
 """2-D motion and range-bearing models with analytic Jacobians (numpy only).
 
-Shared by EKF-SLAM and FastSLAM. Written by hand because the filters must not
-import gtsam (DESIGN.md layering); the same maths is checked against gtsam's
+Shared by EKF-SLAM and FastSLAM. Written by hand because the filters must stay
+free of gtsam (DESIGN.md layering); the same maths is checked against gtsam's
 Pose2 and BearingRange in the tests. Functions accept a leading batch axis so
 FastSLAM can evaluate all particles at once.
 
