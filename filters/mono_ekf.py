@@ -229,6 +229,7 @@ class MonoEkf(VisualBackend):
     """Monocular EKF-SLAM back end (see the module docstring)."""
 
     name = "mono_ekf"
+    needs_track_history = False  # landmarks initialised undelayed, from one pixel
 
     def __init__(self, config: MonoEkfConfig | None = None):
         self.config = config if config is not None else MonoEkfConfig()

@@ -99,6 +99,10 @@ class VisualBackend(ABC):
     name: str = "visual"
     #: Whether :meth:`predict` accepts ``odometry=None`` (a motion model of its own).
     has_motion_model: bool = False
+    #: Whether the front end must follow a track over frames before the back end can
+    #: map it (iSAM2 triangulates once the track has parallax); False for back ends that
+    #: initialise a landmark from one pixel (the monocular EKF, undelayed inverse depth).
+    needs_track_history: bool = True
 
     @abstractmethod
     def initialize(self, frame_id: int, wTc: np.ndarray, covariance: np.ndarray,

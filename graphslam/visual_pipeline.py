@@ -203,20 +203,10 @@ def resolve_odometry(sequence: ImageSequence, mode: str,
     raise ConfigError(f"odometry must be one of {', '.join(ODOMETRY_MODES)}, got {mode!r}")
 
 
-#: Back ends (by ``name``) that initialise landmarks undelayed from one pixel.
-UNDELAYED_BACKENDS = ("mono_ekf",)
-
-
 def needs_track_history(backend: VisualBackend) -> bool:
-    """Whether the tracker must follow unmapped tracks over frames for ``backend``.
-
-    A back end may say so with a ``needs_track_history`` attribute; otherwise
-    the filters of :data:`UNDELAYED_BACKENDS` (landmarks from one pixel, so an
-    unmapped track is a one-frame candidate) do not, and every other back end
-    (iSAM2 triangulates once a track has parallax) does.
-    """
-    flag = getattr(backend, "needs_track_history", None)
-    return backend.name not in UNDELAYED_BACKENDS if flag is None else bool(flag)
+    """Whether the tracker must follow unmapped tracks over frames for ``backend``
+    (:attr:`VisualBackend.needs_track_history`)."""
+    return bool(backend.needs_track_history)
 
 
 def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
