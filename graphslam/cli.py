@@ -188,9 +188,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         log.close()
         if args.rerun == "save":
             paths["recording"] = out_dir / "run.rrd"
-    print(format_summary(metrics))
+    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+
+
+def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) -> int:
+    """Print a run's summary table and where its outputs went; the exit status."""
+    print(summary)
     print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
-    if result.interrupted:
+    if interrupted:
         print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0

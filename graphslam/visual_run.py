@@ -17,13 +17,11 @@ constant-velocity model (``mono_ekf.robot_model``) with its own
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from graphslam.cli import report_outputs
 from graphslam.config import load_section
 from graphslam.errors import GraphSlamError
-
-EXIT_INTERRUPTED = 130
 
 
 def _backend_overrides(args, mode: str) -> dict:
@@ -97,12 +95,7 @@ def run_visual(args: argparse.Namespace) -> int:
         recorder.close()
         if args.rerun == "save":
             paths["recording"] = out_dir / "run.rrd"
-    print(format_summary(metrics))
-    print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
-    if result.interrupted:
-        print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    return 0
+    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
 
 def format_summary(m: dict) -> str:
