@@ -106,6 +106,28 @@ class OrbDetector:
             keys.append(cell)
         return np.lexsort(keys)
 
+    def describe(self, image: np.ndarray, xy_px: np.ndarray,
+                 size_px: float = 31.0) -> tuple[np.ndarray, np.ndarray]:
+        """ORB descriptors at given pixels (e.g. Harris corners of mapped tracks).
+
+        Returns ``(index (M,) int64 into xy_px, descriptors (M, 32) uint8)``:
+        OpenCV drops points too close to the border for the 31-px patch, so
+        ``index`` says which points got a descriptor, in input order.
+        """
+        image = check_gray(image)
+        xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 2)
+        if len(xy) == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
+        # class_id carries the input index through compute(), which may drop points
+        kps = [cv2.KeyPoint(float(x), float(y), float(size_px), -1.0, 0.0, 0, int(i))
+               for i, (x, y) in enumerate(xy)]
+        kept, desc = self._orb().compute(image, kps)
+        if desc is None or not kept:
+            return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
+        index = np.array([k.class_id for k in kept], dtype=np.int64)
+        o = np.argsort(index, kind="stable")
+        return index[o], np.ascontiguousarray(desc[o])
+
     def detect(self, image: np.ndarray) -> Features:
         """``image``: (H, W) uint8. Returns :class:`Features` with (N, 32) uint8 descriptors."""
         image = check_gray(image)

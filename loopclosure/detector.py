@@ -191,6 +191,11 @@ class LoopDetector:
     def __len__(self) -> int:
         return len(self._features)
 
+    def features(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """ORB features of image ``i`` as processed: ``(xy_px (N, 2), descriptors (N, 32))``."""
+        f = self._features[i]
+        return f.xy, f.descriptors
+
     def process(self, image: np.ndarray) -> DetectedLoop | None:
         """Add the next image ((H, W) uint8); returns the closure it makes, if any."""
         f = self.orb.detect(image)
