@@ -58,8 +58,8 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam import gtsam_convert as conv
 from graphslam.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from graphslam.visual_backend import (PixelObservations, PixelPredictions, VisualBackend,
-                                      VisualEstimate)
+from graphslam.visual_backend import (PixelObservations, PixelPredictions, PoseClosure,
+                                      VisualBackend, VisualEstimate)
 
 #: The first pose's prior is floored at this standard deviation (m and rad):
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a
@@ -100,8 +100,21 @@ class VisualIsam2Config:
             with most observations first; 0: all in view. The joint marginal
             costs grow with it (measured on the 300-frame benchmark scene:
             ~5 ms for 20, ~30 ms for 100 landmarks at frame 120, CPU time).
+        predict_window_frames: predict only landmarks observed within this many
+            frames (0: every mapped landmark in view). A window turns the map
+            into a local one (visual odometry): old places are then recognised
+            only through loop closures, never by re-finding their landmarks.
+        loop_closure_kernel: robust kernel on loop-closure factors, "none",
+            "huber" or "cauchy", so that a wrong closure cannot wreck the map.
+        loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
         polish: at :meth:`VisualIsam2Backend.finalize`, run batch
             Levenberg-Marquardt on the whole graph from the incremental solution.
+        polish_method: "lm", or "gnc" (gtsam's GncLMOptimizer with every factor
+            but the loop closures known to be an inlier; closures it weighs
+            below 0.5 are counted in ``stats["closures_dropped_by_gnc"]``).
+            GNC solves with the Gaussian core of every factor (its own weights
+            replace robust kernels), so the pixel factors lose their Huber
+            kernel in that solve.
         polish_max_iterations: LM iteration cap for the polish.
     """
 
@@ -124,7 +137,11 @@ class VisualIsam2Config:
     newest_pose_last: bool = False
     prediction_covariance: str = "joint"
     max_predictions: int = 10
+    predict_window_frames: int = 0
+    loop_closure_kernel: str = "cauchy"
+    loop_closure_kernel_k: float = 1.0
     polish: bool = True
+    polish_method: str = "lm"
     polish_max_iterations: int = 50
 
     def __post_init__(self):
@@ -154,6 +171,14 @@ class VisualIsam2Config:
             raise ConfigError("isam2_visual.max_landmarks_per_frame must be >= 0 (0: no bound)")
         if self.max_predictions < 0:
             raise ConfigError("isam2_visual.max_predictions must be >= 0 (0: no cap)")
+        if self.predict_window_frames < 0:
+            raise ConfigError("isam2_visual.predict_window_frames must be >= 0 (0: no window)")
+        if self.loop_closure_kernel not in ("none", "huber", "cauchy"):
+            raise ConfigError("isam2_visual.loop_closure_kernel must be none, huber or cauchy")
+        if not self.loop_closure_kernel_k > 0:
+            raise ConfigError("isam2_visual.loop_closure_kernel_k must be > 0")
+        if self.polish_method not in ("lm", "gnc"):
+            raise ConfigError("isam2_visual.polish_method must be lm or gnc")
         if self.polish_max_iterations < 1:
             raise ConfigError("isam2_visual.polish_max_iterations must be >= 1")
 
@@ -181,6 +206,7 @@ class VisualIsam2Backend(VisualBackend):
 
     name = "isam2"
     has_motion_model = False
+    supports_loop_closures = True
 
     def __init__(self, config: VisualIsam2Config | None = None):
         self.config = config or VisualIsam2Config()
@@ -202,6 +228,8 @@ class VisualIsam2Backend(VisualBackend):
         self._lm_pos = np.zeros((0, 3))  # last read position (pre-selection only)
         self._lm_nobs = np.zeros(0, dtype=np.int64)
         self._lm_sigma = np.zeros(0)  # latest sigma_px seen
+        self._lm_last = np.zeros(0, dtype=np.int64)  # index in _frames of the latest pixel
+        self._closures: list[tuple[int, int, gtsam.Pose3, np.ndarray]] = []  # (a, b, aTb, cov)
         self._n_lm = 0
         self._pose_cache: dict[int, gtsam.Pose3] = {}  # valid until the next isam.update
         self._noise_cache: dict[float, gtsam.noiseModel.Base] = {}
@@ -209,7 +237,7 @@ class VisualIsam2Backend(VisualBackend):
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
-                       "unused_pixels": 0}
+                       "unused_pixels": 0, "loop_closures": 0}
 
     # --- the contract -------------------------------------------------------
 
@@ -290,6 +318,7 @@ class VisualIsam2Backend(VisualBackend):
                     uv[i], noise, X(fid), L(tid), self._cal))
                 self._lm_nobs[slot] += 1
                 self._lm_sigma[slot] = sigma
+                self._lm_last[slot] = now
                 continue
             if tid in self._rejected:
                 self._stats["ignored_pixels"] += 1
@@ -344,6 +373,9 @@ class VisualIsam2Backend(VisualBackend):
         for s in slots.tolist():  # fresh positions of the pre-selected only
             self._lm_pos[s] = self._point(self._lm_ids[s])
         slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=0.0)]
+        if self.config.predict_window_frames:
+            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
+            slots = slots[recent]
         if self.config.max_predictions and len(slots) > self.config.max_predictions:
             order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
             slots = np.sort(slots[order[:self.config.max_predictions]])
@@ -404,13 +436,53 @@ class VisualIsam2Backend(VisualBackend):
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(self.config.polish_max_iterations)
             graph = self.factor_graph()
-            self._polished = gtsam.LevenbergMarquardtOptimizer(
-                graph, self._isam.calculateEstimate(), params).optimize()
+            if self.config.polish_method == "gnc" and self._closures:
+                graph, self._polished = self._gnc(graph, params)
+            else:
+                self._polished = gtsam.LevenbergMarquardtOptimizer(
+                    graph, self._isam.calculateEstimate(), params).optimize()
             # the polished pose's covariance, from a batch factorisation at the polish
             marginals = gtsam.Marginals(graph, self._polished)
             self._current_cov_polished = conv.pose3_covariance_from_gtsam(
                 marginals.marginalCovariance(X(self._frames[-1])))
         return self.estimate()
+
+    def add_loop_closure(self, closure: PoseClosure) -> None:
+        """A ``BetweenFactorPose3(X(a), X(b), aTb)`` under ``loop_closure_kernel``."""
+        a, b = int(closure.frame_a), int(closure.frame_b)
+        for f in (a, b):
+            if f not in self._frame_set:
+                raise GraphSlamError(f"isam2 (visual): loop closure names unknown frame {f}")
+        if a == b:
+            raise MeasurementError(f"isam2 (visual): loop closure from frame {a} to itself")
+        aTb = np.asarray(closure.aTb, dtype=np.float64)
+        if aTb.shape != (4, 4) or not np.all(np.isfinite(aTb)):
+            raise MeasurementError(f"isam2 (visual): loop closure {a}-{b} pose is not a finite (4, 4)")
+        cov = _checked_covariance(closure.covariance, f"loop closure {a}-{b}")
+        measured = conv.pose3(aTb)
+        noise = conv.pose3_noise(cov)
+        if self.config.loop_closure_kernel != "none":
+            kernel = {"huber": gtsam.noiseModel.mEstimator.Huber,
+                      "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[self.config.loop_closure_kernel]
+            noise = gtsam.noiseModel.Robust.Create(kernel.Create(self.config.loop_closure_kernel_k),
+                                                   noise)
+        self._graph.add(gtsam.BetweenFactorPose3(X(a), X(b), measured, noise))
+        self._closures.append((a, b, measured, cov))
+        self._stats["loop_closures"] += 1
+
+    def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
+        fid = int(frame_id)
+        if fid not in self._frame_set:
+            raise GraphSlamError(f"isam2 (visual): unknown frame {fid}")
+        ids = np.asarray(track_ids, dtype=np.int64).reshape(-1)
+        out = np.full((len(ids), 3), np.nan)
+        # reads go through iSAM2's current solution (pending factors stay pending)
+        T = conv.pose3_matrix(self._polished.atPose3(X(fid)) if self._polished is not None
+                              else self._pose(fid))
+        for i, tid in enumerate(ids.tolist()):
+            if tid in self._slot:
+                out[i] = (self._point(tid) - T[:3, 3]) @ T[:3, :3]
+        return out
 
     # --- extras -------------------------------------------------------------
 
@@ -550,10 +622,12 @@ class VisualIsam2Backend(VisualBackend):
             self._lm_pos = np.resize(self._lm_pos, (cap, 3))
             self._lm_nobs = np.resize(self._lm_nobs, cap)
             self._lm_sigma = np.resize(self._lm_sigma, cap)
+            self._lm_last = np.resize(self._lm_last, cap)
         s = self._n_lm
         self._slot[tid] = s
         self._lm_ids.append(tid)
         self._lm_pos[s], self._lm_nobs[s], self._lm_sigma[s] = point, nobs, sigma
+        self._lm_last[s] = len(self._frames) - 1
         self._n_lm += 1
 
     def _forget_stale_tracks(self, now: int) -> None:
@@ -563,6 +637,28 @@ class VisualIsam2Backend(VisualBackend):
         for tid in stale:
             del self._tracks[tid]
         self._stats["dropped_tracks"] += len(stale)
+
+    def _gnc(self, graph: gtsam.NonlinearFactorGraph, lm_params: gtsam.LevenbergMarquardtParams):
+        """GNC over the whole graph, loop closures Gaussian and the only suspects."""
+        keys = {(X(a), X(b)): (measured, cov) for a, b, measured, cov in self._closures}
+        suspects = []
+        for i in range(graph.size()):
+            f = graph.at(i)
+            if f is None or not isinstance(f, gtsam.BetweenFactorPose3):
+                continue
+            k = tuple(f.keys())
+            if k in keys:  # GNC wants plain Gaussian factors: its own weights are the kernel
+                measured, cov = keys[k]
+                graph.replace(i, gtsam.BetweenFactorPose3(k[0], k[1], measured,
+                                                          conv.pose3_noise(cov)))
+                suspects.append(i)
+        params = gtsam.GncLMParams(lm_params)
+        params.setKnownInliers([i for i in range(graph.size()) if i not in set(suspects)])
+        optimizer = gtsam.GncLMOptimizer(graph, self._isam.calculateEstimate(), params)
+        result = optimizer.optimize()
+        weights = np.asarray(optimizer.getWeights())
+        self._stats["closures_dropped_by_gnc"] = int(sum(weights[i] < 0.5 for i in suspects))
+        return graph, result
 
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:

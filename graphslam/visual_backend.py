@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from graphslam.errors import UnsupportedError
+
 
 @dataclass(frozen=True, eq=False)
 class PixelObservations:
@@ -40,11 +42,16 @@ class PixelObservations:
         track_ids: (M,) int64 front-end track ids (unique within the frame).
         uv_px: (M, 2) float64 measured pixels.
         sigma_px: standard deviation of each pixel coordinate.
+        unsearched_ids: (U,) int64 ids of predicted landmarks the front end did not
+            look for because its per-frame search budget was spent
+            (:attr:`PixelPredictions.max_corrections`): no evidence either way, so
+            not a miss. Empty by default.
     """
 
     track_ids: np.ndarray
     uv_px: np.ndarray
     sigma_px: float = 1.0
+    unsearched_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __len__(self) -> int:
         return len(self.track_ids)
@@ -60,11 +67,16 @@ class PixelPredictions:
         uv_px: (K, 2) predicted pixels.
         S_px2: (K, 2, 2) innovation covariances (pose and landmark uncertainty
             projected, plus the pixel noise), px^2.
+        max_corrections: the back end corrects at most this many landmarks per
+            frame, largest ellipses first (:attr:`VisualBackend.max_corrections`);
+            the front end may stop searching once it has found that many
+            (paper 4.4). ``None``: every prediction is used.
     """
 
     track_ids: np.ndarray
     uv_px: np.ndarray
     S_px2: np.ndarray
+    max_corrections: int | None = None
 
     def __len__(self) -> int:
         return len(self.track_ids)
@@ -93,6 +105,23 @@ class VisualEstimate:
     stats: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class PoseClosure:
+    """A verified loop closure between two frames, with a metric relative pose.
+
+    Attributes:
+        frame_a: the earlier frame (the match); frame_b: the later one (the query).
+        aTb: (4, 4) ``c_a T c_b`` measured, metres.
+        covariance: (6, 6) of ``aTb`` in the contract order ``[rho, phi]``
+            (perturbation on the right, in camera ``b``).
+    """
+
+    frame_a: int
+    frame_b: int
+    aTb: np.ndarray
+    covariance: np.ndarray
+
+
 class VisualBackend(ABC):
     """Abstract 3-D visual back end. Subclasses set :attr:`name`."""
 
@@ -103,6 +132,13 @@ class VisualBackend(ABC):
     #: map it (iSAM2 triangulates once the track has parallax); False for back ends that
     #: initialise a landmark from one pixel (the monocular EKF, undelayed inverse depth).
     needs_track_history: bool = True
+    #: Landmarks corrected per frame at most (largest innovation ellipses first), or
+    #: None for no cap. A back end that caps puts it in its :class:`PixelPredictions`
+    #: so the front end does not search for measurements that would not be used.
+    max_corrections: int | None = None
+    #: Whether :meth:`add_loop_closure` can use a relative-pose constraint; filters
+    #: that keep no past poses close loops only by re-observing landmarks.
+    supports_loop_closures: bool = False
 
     @abstractmethod
     def initialize(self, frame_id: int, wTc: np.ndarray, covariance: np.ndarray,
@@ -133,3 +169,23 @@ class VisualBackend(ABC):
     def finalize(self) -> VisualEstimate:
         """End of the run (e.g. a batch polish); returns the final estimate."""
         return self.estimate()
+
+    def add_loop_closure(self, closure: PoseClosure) -> None:
+        """Add a relative-pose constraint between two past frames.
+
+        Raises:
+            UnsupportedError: back ends that keep no past poses (they close
+                loops by re-observing landmarks).
+        """
+        raise UnsupportedError(f"{self.name} cannot use relative-pose loop closures; "
+                               "it closes loops by re-observing landmarks")
+
+    def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
+        """(N, 3) current positions of the landmarks ``track_ids`` in camera
+        ``frame_id``'s frame (metres), NaN rows for tracks not mapped. Needed
+        for metric loop closures (PnP against the map around an old frame).
+
+        Raises:
+            UnsupportedError: back ends that keep no past poses.
+        """
+        raise UnsupportedError(f"{self.name} keeps no past poses to express its map in")
