@@ -31,7 +31,9 @@ datasets:
 visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
   --odometry sequence|derived|none (derived: ground truth times noise, default
   2 % of the distance and 0.1 deg per frame; none: EKF constant velocity,
-  Sim(3)-aligned ATE); landmarks.csv is id,x,y,z
+  Sim(3)-aligned ATE); landmarks.csv is id,x,y,z; --loops adds place
+  recognition ([loops], [loop_verify], [loop_pnp] of --config) and writes
+  loops.csv (query,match,score,inliers) and loops.jsonl (every candidate)
 
 outputs (in --out):
   trajectory.tum  TUM format; time column = pose id where the data has no stamps
@@ -102,6 +104,13 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
                      help="derived odometry noise: translation sigma per metre travelled and "
                           "rotation sigma per frame in degrees (default 0.02 0.1)")
+    vis.add_argument("--loops", action="store_true",
+                     help="detect loop closures (bag of words, RANSAC, metric pose by PnP on the "
+                          "map) and add them to the back end as robust factors (isam2 only); "
+                          "writes loops.csv and loops.jsonl. Without --vocab a vocabulary is "
+                          "first trained on the sequence's own images (an extra pass)")
+    vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
+                     help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
     run_p.set_defaults(func=cmd_run)
 
     cmp_p = sub.add_parser(
@@ -157,9 +166,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         from graphslam.visual_run import run_visual
 
         return run_visual(args)
-    for flag in ("frontend", "odometry", "odometry_noise"):
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab"):
         if getattr(args, flag, None) is not None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
+    if getattr(args, "loops", False):
+        raise GraphSlamError("--loops applies to image sequences only (pose graphs bring "
+                             "their own closures)")
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)

@@ -15,7 +15,13 @@ where the sequence has stamps):
   and the estimated frusta, logged at the end of the run onto the frames they
   belong to (the final, smoothed estimate: see :meth:`VisualRecorder.hook`);
   ``world/odometry/trajectory`` at the last frame;
-- ``plots/tracking/{found,searched,observations,image_fraction}``.
+- ``plots/tracking/{found,searched,observations,image_fraction}``;
+- with loop closing: ``loops/candidates`` (a text line per candidate: scores,
+  inliers, accepted or why not), ``loops/pair`` (query and match images side
+  by side, the PnP inliers joined by lines, for candidates that passed the
+  detector's geometry), ``plots/loops/{score,normalised_score}``, and
+  ``world/<backend>/loop_closures`` (the closures as 3-D segments between the
+  estimated cameras, at the end of the run).
 
 Modes save / spawn / connect as :class:`graphslam.rerun_log.RerunLog`.
 """
@@ -182,6 +188,53 @@ class VisualRecorder:
             self.rec.log("world/odometry/trajectory",
                          rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)],
                                          radii=0.01))
+
+    def loop_hook(self, sequence):
+        """An ``on_candidate`` callback for :class:`graphslam.visual_loops.VisualLoopCloser`."""
+
+        def on_candidate(k, record, image, links):
+            self.log_loop_candidate(k, record, image, links, sequence)
+
+        return on_candidate
+
+    def log_loop_candidate(self, k: int, record: dict, image: np.ndarray, links, sequence) -> None:
+        """One candidate on the timeline; both images side by side when it got a pose."""
+        rr = self._rr
+        self._set_time(k)
+        fate = "ACCEPTED" if record.get("accepted") else f"rejected: {record.get('reason')}"
+        match = record.get("match")
+        text = (f"query {k} match {match if match is not None else record.get('best_match')} "
+                f"score {record.get('score', 0.0):.3f} "
+                f"eta {record.get('normalised_score') or 0.0:.2f} "
+                f"inliers {record.get('n_inliers')} pnp {record.get('pnp_inliers')}: {fate}")
+        level = "INFO" if record.get("accepted") else "DEBUG"
+        self.rec.log("loops/candidates", rr.TextLog(text, level=level))
+        self.rec.log("plots/loops/score", rr.Scalars(float(record.get("score") or 0.0)))
+        if record.get("normalised_score") is not None:
+            self.rec.log("plots/loops/normalised_score", rr.Scalars(float(record["normalised_score"])))
+        if links is None or match is None:
+            return
+        other = sequence.load(int(match))
+        W = image.shape[1]
+        pair = np.hstack([image, other])
+        im = rr.Image(pair)
+        self.rec.log("loops/pair", im.compress(jpeg_quality=self.jpeg_quality)
+                     if self.jpeg_quality else im)
+        segs = np.asarray(links, dtype=np.float64).reshape(-1, 2, 2).copy()
+        segs[:, 1, 0] += W
+        color = FOUND_COLOR if record.get("accepted") else MISSED_COLOR
+        self.rec.log("loops/pair/inliers", rr.LineStrips2D(list(segs), colors=[color], radii=0.8))
+
+    def log_loop_closures(self, backend: str, estimate, closures, color=(255, 0, 255)) -> None:
+        """Accepted closures as 3-D segments between the estimated camera centres."""
+        rr = self._rr
+        ids = {int(f): i for i, f in enumerate(np.asarray(estimate.frame_ids))}
+        wTc = np.asarray(estimate.wTc).reshape(-1, 4, 4)
+        segs = [np.stack([wTc[ids[c.frame_a], :3, 3], wTc[ids[c.frame_b], :3, 3]])
+                for c in closures if c.frame_a in ids and c.frame_b in ids]
+        if segs:
+            self.rec.log(f"world/{backend}/loop_closures",
+                         rr.LineStrips3D(segs, colors=[color], radii=0.01))
 
     def close(self) -> None:
         self.log.close()

@@ -212,8 +212,14 @@ def needs_track_history(backend: VisualBackend) -> bool:
 def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
         config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
         max_frames: int | None = None, progress: bool = False,
-        on_frame: FrameHook | None = None, frontend: str | None = None) -> VisualRunResult:
-    """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring)."""
+        on_frame: FrameHook | None = None, frontend: str | None = None,
+        loop_closer=None) -> VisualRunResult:
+    """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring).
+
+    ``loop_closer``: a :class:`graphslam.visual_loops.VisualLoopCloser`, fed every
+    frame after the back end's update (its time counts in ``wall_s`` and in
+    ``stats["loops_s"]``); None runs without place recognition.
+    """
     from graphslam.pipeline import _interrupt_between_frames, _progress
 
     cfg = config or VisualRunConfig()
@@ -228,7 +234,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
     K = np.asarray(sequence.K, dtype=np.float64)
     stats = {"observations": [], "found": [], "searched": [], "predicted": [], "followed": [],
-             "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": []}
+             "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": [], "loops_s": []}
     bar = _progress(n, sequence.name, backend.name, progress)
     done = 0
     wall = 0.0
@@ -254,9 +260,13 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                 t2 = time.perf_counter()
                 backend.update(tracking.observations)
                 t3 = time.perf_counter()
-                wall += t3 - t1
+                if loop_closer is not None:
+                    loop_closer.process(k, image, tracking, backend)
+                t4 = time.perf_counter()
+                wall += t4 - t1
                 done = k + 1
                 _count(stats, tracking, t3 - t2)
+                stats["loops_s"].append(t4 - t3)
                 if on_frame is not None:
                     on_frame(k, image, tracking, backend)
                 if bar is not None:
@@ -368,6 +378,7 @@ def _tracking_summary(stats: dict) -> dict:
         "detect_ms": 1e3 * mean["detect_s"],
         "search_ms": 1e3 * mean["search_s"],
         "update_ms": 1e3 * mean["update_s"],
+        "loops_ms": 1e3 * mean.get("loops_s", 0.0),
     }
 
 

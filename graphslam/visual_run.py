@@ -3,7 +3,8 @@
 Called by :func:`graphslam.cli.cmd_run` when ``--dataset`` is ``synthetic-images``
 or a folder. Configuration sections read from ``--config`` (flags win):
 ``[synthetic_images]``, ``[visual]``, ``[odometry_noise]``, ``[tracker]``,
-``[active_search]``, ``[harris]``, ``[orb]``, ``[isam2_visual]``, ``[mono_ekf]``.
+``[active_search]``, ``[harris]``, ``[orb]``, ``[isam2_visual]``, ``[mono_ekf]``,
+and with ``--loops`` ``[loops]``, ``[loop_verify]``, ``[loop_pnp]``, ``[loop_closing]``.
 
 Flags and what they set: ``--frontend`` -> ``tracker.detector``; ``--odometry``
 -> ``visual.odometry``; ``--odometry-noise T R`` -> ``odometry_noise.sigma_t_per_m``
@@ -11,7 +12,10 @@ and ``sigma_r_deg``; ``--seed`` -> the synthetic scene, the derived-odometry
 noise and the EKF's RANSAC; ``--max-steps`` -> frames; ``--no-polish`` ->
 ``isam2_visual.polish = false``. With ``--odometry none`` the EKF runs its
 constant-velocity model (``mono_ekf.robot_model``) with its own
-``frame_dt_s``.
+``frame_dt_s``. ``--loops`` (or ``--vocab FILE``) runs
+:class:`graphslam.visual_loops.VisualLoopCloser` alongside the back end;
+without ``--vocab`` a 1000-word vocabulary tree is first trained on the ORB
+features of the frames the run will see (as ``graphslam loops`` does).
 """
 
 from __future__ import annotations
@@ -21,7 +25,10 @@ from pathlib import Path
 
 from graphslam.cli import report_outputs
 from graphslam.config import load_section
-from graphslam.errors import GraphSlamError
+from graphslam.errors import GraphSlamError, UnsupportedError
+
+#: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
+SELF_TRAINED_WORDS = 1000
 
 
 def _backend_overrides(args, mode: str) -> dict:
@@ -83,19 +90,85 @@ def run_visual(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
+    closer = build_loop_closer(args, sequence, backend, n_frames,
+                               None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
-                    frontend=tracker_cfg.detector)
+                    frontend=tracker_cfg.detector, loop_closer=closer)
     metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None))
     metrics["backend"] = args.backend
     metrics["backend_class"] = result.backend
+    if closer is not None:
+        metrics["loops"] = {**closer.stats, "vocabulary": closer.vocabulary_source}
     paths = vp.write_outputs(result, out_dir, metrics)
+    if closer is not None:
+        paths.update(write_loops(closer, out_dir))
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
+        if closer is not None:
+            recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
         recorder.close()
         if args.rerun == "save":
             paths["recording"] = out_dir / "run.rrd"
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+
+
+def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None):
+    """The :class:`~graphslam.visual_loops.VisualLoopCloser` of ``--loops``/``--vocab``, or None."""
+    if not (getattr(args, "loops", False) or getattr(args, "vocab", None) is not None):
+        return None
+    import sys
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from graphslam.commands.loops import _check_vocabulary
+    from graphslam.commands.vocab import describe, orb_for, train_vocabulary
+    from graphslam.visual_loops import LoopClosingConfig, VisualLoopCloser
+    from loopclosure.detector import LoopDetector, LoopDetectorConfig
+    from loopclosure.pnp import PnpConfig
+    from loopclosure.verify import VerifyConfig
+    from loopclosure.vocabulary import load_vocabulary
+
+    if not backend.supports_loop_closures:
+        raise UnsupportedError(f"--loops: back end {args.backend!r} cannot use relative-pose loop "
+                               "closures (it closes loops by re-observing landmarks); use isam2")
+    if args.vocab is not None:
+        vocab = load_vocabulary(args.vocab)
+        _check_vocabulary(vocab, args.vocab)
+        source = str(args.vocab)
+    else:
+        # Not online: the vocabulary needs the sequence's descriptors before the run.
+        orb = orb_for(args.config)
+        descs = [orb.detect(sequence.load(i)).descriptors
+                 for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
+                               disable=args.quiet, file=sys.stderr)]
+        vocab = train_vocabulary(descs, SELF_TRAINED_WORDS)
+        source = f"trained on the sequence ({n_frames} frames)"
+        if not args.quiet:
+            print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
+    detector = LoopDetector(vocab, load_section(LoopDetectorConfig, args.config),
+                            load_section(VerifyConfig, args.config),
+                            K=np.asarray(sequence.K, dtype=np.float64))
+    return VisualLoopCloser(detector, load_section(PnpConfig, args.config),
+                            load_section(LoopClosingConfig, args.config), on_candidate,
+                            vocabulary_source=source)
+
+
+def write_loops(closer, out_dir: Path) -> dict[str, Path]:
+    """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)."""
+    import csv
+
+    paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
+    with paths["loops"].open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
+        for r in closer.records:
+            if r.get("accepted"):
+                w.writerow([r["query"], r["match"], f"{r['score']:.6f}", r["n_inliers"],
+                            r["pnp_inliers"], f"{r['distance_m']:.4f}"])
+    closer.write_log(paths["loops_log"])
+    return paths
 
 
 def format_summary(m: dict) -> str:
@@ -122,6 +195,12 @@ def format_summary(m: dict) -> str:
     stats = m.get("backend_stats") or {}
     if "reparametrised" in stats:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
+    if m.get("loops"):
+        lp = m["loops"]
+        rows.append(("loop closures added / verified / candidates",
+                     f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
+        if lp.get("redundant"):
+            rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.get("interrupted"):
         rows.append(("interrupted", "yes"))
     width = max(len(k) for k, _ in rows)

@@ -1,0 +1,105 @@
+"""What loop closures buy the visual iSAM2: ATE with and without them (issue 6).
+
+One process, the default synthetic image sequence (300 VGA frames, 1.5 laps,
+the sequence's noisy odometry), the default Harris front end, and four runs of
+:func:`graphslam.visual_pipeline.run`:
+
+- ``local map``: landmarks predicted for active search only if observed within
+  the last ``--window`` frames (``isam2_visual.predict_window_frames``), so an
+  old place is recognised only by a loop closure: without closures this is
+  visual odometry, the "same run without loop closure" of issue 6;
+- ``full map`` (the default): every mapped landmark in view is predicted, so
+  active search itself re-finds old landmarks on a revisit;
+
+each without and with :class:`graphslam.visual_loops.VisualLoopCloser` (the
+detector with its defaults and a 1000-word tree trained on the sequence, the
+metric PnP pose, the redundancy rule). Closures are checked against the
+sequence's revisit pairs (within 2 frames).
+
+    python benchmarks/bench_loop_ate.py [--window 30] [--out FILE]
+
+Target (issue 6): with closures, ATE at most half of the same run without.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from frontend.orb import OrbDetector
+from frontend.tracking import Tracker, TrackerConfig
+from graphslam import visual_pipeline as vp
+from graphslam.commands.vocab import train_vocabulary
+from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
+from graphslam.sources.synthetic_images import make_synthetic_images
+from graphslam.visual_loops import VisualLoopCloser
+from loopclosure.detector import LoopDetector, LoopDetectorConfig
+
+HERE = Path(__file__).resolve().parent
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--window", type=int, default=30,
+                    help="prediction window of the local-map runs, frames (default 30)")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_ate.json")
+    args = ap.parse_args(argv)
+
+    seq = make_synthetic_images()
+    orb = OrbDetector(n_features=LoopDetectorConfig().orb_n_features)
+    t0 = time.perf_counter()
+    descs = [orb.detect(seq.load(i)).descriptors
+             for i in tqdm(range(len(seq)), desc="vocabulary ORB", file=sys.stderr, leave=False)]
+    vocab = train_vocabulary(descs, 1000)
+    vocab_s = time.perf_counter() - t0
+    partners: dict[int, list[int]] = {}
+    for i, j in seq.revisit_pairs:
+        partners.setdefault(int(j), []).append(int(i))
+
+    rows = []
+    for mode, window in (("local map", args.window), ("full map", 0)):
+        for loops in (False, True):
+            closer = VisualLoopCloser(LoopDetector(vocab, K=seq.K)) if loops else None
+            backend = VisualIsam2Backend(VisualIsam2Config(predict_window_frames=window))
+            res = vp.run(seq, backend, Tracker(TrackerConfig(), follow_unmapped=True),
+                         loop_closer=closer, progress=True)
+            m = vp.compute_metrics(res)
+            row = {"mode": mode, "window": window, "loops": loops, "ate_rmse_m": m["ate_rmse_m"],
+                   "odometry_ate_rmse_m": m["odometry_ate_rmse_m"], "wall_s": res.wall_s}
+            if closer is not None:
+                true = sum(any(abs(c.frame_a - i) <= 2 for j in range(c.frame_b - 2, c.frame_b + 3)
+                               for i in partners.get(j, [])) for c in closer.closures)
+                row.update(closer.stats, true_closures=true)
+            rows.append(row)
+
+    print(f"synthetic image sequence, {len(seq)} frames, path "
+          f"{vp.compute_metrics(res)['path_length_m']:.2f} m; vocabulary {vocab.n_words_} words "
+          f"({vocab_s:.1f} s)")
+    head = (f"{'mode':<10} {'loops':>5} {'ATE [m]':>8} {'ratio':>6} {'added':>6} {'true':>5} "
+            f"{'redund.':>7} {'pnp rej.':>8} {'wall [s]':>8}")
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        base = next(b for b in rows if b["mode"] == r["mode"] and not b["loops"])
+        ratio = r["ate_rmse_m"] / base["ate_rmse_m"]
+        print(f"{r['mode']:<10} {'yes' if r['loops'] else 'no':>5} {r['ate_rmse_m']:>8.4f} "
+              f"{ratio:>6.2f} {r.get('closures', ''):>6} {r.get('true_closures', ''):>5} "
+              f"{r.get('redundant', ''):>7} {r.get('pnp_rejected', ''):>8} {r['wall_s']:>8.1f}")
+        r["ratio_to_without"] = ratio
+    print(f"odometry alone: ATE {rows[0]['odometry_ate_rmse_m']:.4f} m")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"benchmark": "loop_ate", "rows": rows, "vocabulary_s": vocab_s,
+                                    "machine": {"python": platform.python_version(),
+                                                "platform": platform.platform()}}, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
