@@ -56,7 +56,12 @@ Data association:
   the filter one by one; an unpaired observation whose squared Mahalanobis
   distance to every landmark exceeds the ``new_landmark_chi2_prob`` quantile
   becomes a new landmark (after the scan's updates, from the updated pose),
-  otherwise it is discarded as ambiguous. Own ids are consecutive ints from 0
+  otherwise it is discarded as ambiguous. That distance is taken over the
+  landmarks *not* paired in the scan (mutual exclusion: a landmark gives at
+  most one observation per scan), so a landmark 0.3-0.7 m from a mapped one
+  that is seen in the same scan still enters the map; without it, such
+  neighbours stayed out of the map for good and their observations were
+  discarded or absorbed by the neighbour. Own ids are consecutive ints from 0
   (in "known" mode, the next int above every id used so far: a given id that
   later collides with an id the filter made up is taken as the same landmark,
   so do not mix anonymous and identified observations of different landmarks
@@ -117,9 +122,17 @@ class EkfSlamConfig:
         association: "known" (landmark_id, else signature) or "unknown"
             (gating + JCBB; the given ids are ignored).
         gate_chi2_prob: individual and joint compatibility probability.
+            0.999 by default: at 0.99, 1 % of the true pairings fall outside
+            the gate by construction.
         new_landmark_chi2_prob: an unpaired observation starts a landmark only
             if its squared Mahalanobis distance to every landmark exceeds this
             chi-square (2 dof) quantile; must be >= ``gate_chi2_prob``.
+            Default equal to the gate (0.999): no discard zone, since a
+            discarded observation is a lost one, while a landmark started
+            twice is counted (``duplicates`` in the association report).
+            Measured on the default synthetic world (course noise, seeds
+            0-4): 96.9/89.3/97.6/91.5/97.8 % accuracy, against
+            96.9/86.4/97.1/90.4/97.7 % with 0.9999.
         provisional_sightings: sightings before a landmark enters the map
             (1 = at first sighting).
         initial_capacity: landmarks the buffers hold before the first doubling.
@@ -147,8 +160,8 @@ class EkfSlamConfig:
     SECTION: ClassVar[str] = "ekf"
 
     association: str = "known"
-    gate_chi2_prob: float = 0.99
-    new_landmark_chi2_prob: float = 0.9999
+    gate_chi2_prob: float = 0.999
+    new_landmark_chi2_prob: float = 0.999
     provisional_sightings: int = 1
     initial_capacity: int = 64
     jcbb_max_candidates: int = 3
@@ -616,6 +629,14 @@ class EkfSlam(Backend):
                 assoc[where[i]] = self._ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
+        if L:
+            # Mutual exclusion: a landmark paired with another observation of
+            # this scan cannot also be this one, so it does not block a new one.
+            taken = [s for s in hyp if s is not None]
+            if taken:
+                d2x = d2.copy()
+                d2x[:, taken] = np.inf
+                min_d2 = d2x.min(axis=1)
         for i in range(m):
             if hyp[i] is not None or not min_d2[i] > self._new_gate:
                 continue

@@ -22,8 +22,12 @@ Per frame:
   ``signature`` when the id is None) or unknown: then each particle picks its
   own maximum-likelihood landmark among those inside a Mahalanobis gate, and
   starts a new one when none is (new landmarks of one observation share one
-  new id across particles). New landmarks come from the inverse observation
-  model.
+  new id across particles). A landmark a particle gave to an earlier
+  observation of the same scan is out of the running for the later ones
+  (mutual exclusion): two landmarks 0.3-0.7 m apart, always seen together,
+  otherwise merged into one in every particle (default synthetic world,
+  100 particles: accuracy 91.9 -> 96.2 % for 1.0, 90.9 -> 95.0 % for 2.0).
+  New landmarks come from the inverse observation model.
 
   * FastSLAM 1.0: weight *= N(z; h(x, m), S), S = H_m P H_m^T + R, then the
     landmark EKF update.
@@ -375,11 +379,17 @@ class FastSlam(Backend):
             - 0.5 * math.log(np.linalg.det(R))
 
     def _columns_for(self, o: Observation, poses: np.ndarray,
-                     pose_cov: np.ndarray | None) -> np.ndarray:
-        """(N,) column of observation ``o`` per particle (created if new)."""
+                     pose_cov: np.ndarray | None,
+                     taken: Sequence[np.ndarray] = ()) -> np.ndarray:
+        """(N,) column of observation ``o`` per particle (created if new).
+
+        ``taken``: the columns earlier observations of the same scan got, per
+        particle; they are excluded (mutual exclusion: one landmark gives at
+        most one observation per scan).
+        """
         if self.config.association == "known":
             return np.full(self.n_particles, self._known_column(o), dtype=np.intp)
-        cols, new = self._associate(o.z, o.covariance, poses, pose_cov)
+        cols, new = self._associate(o.z, o.covariance, poses, pose_cov, taken)
         if new.any():
             c = self._maps.add_column(self._next_id)
             self._next_id += 1
@@ -388,7 +398,7 @@ class FastSlam(Backend):
             self._last_R[self._maps._ids[int(c)]] = o.covariance
         return cols
 
-    def _associate(self, z, R, poses, pose_cov) -> tuple[np.ndarray, np.ndarray]:
+    def _associate(self, z, R, poses, pose_cov, taken=()) -> tuple[np.ndarray, np.ndarray]:
         """Per-particle maximum likelihood among gated landmarks: (cols (N,), new (N,)).
 
         Evaluates every (particle, landmark) pair, O(N L), in elementwise
@@ -427,6 +437,9 @@ class FastSlam(Backend):
         det = s00 * s11 - s01 * s01
         d2 = (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) / det
         ok = valid & (d2 <= self.config.new_landmark_mahalanobis_sq)
+        rows = np.arange(N)
+        for prev in taken:  # two landmarks 0.3 m apart otherwise merge into one
+            ok[rows, prev] = False
         ll = np.where(ok, -0.5 * d2 - 0.5 * np.log(det), -np.inf)
         cols = np.argmax(ll, axis=1)
         return cols, ~ok.any(axis=1)
@@ -465,7 +478,7 @@ class FastSlam(Backend):
     def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
         out = []
         for o in obs:
-            cols = self._columns_for(o, self._poses, None)
+            cols = self._columns_for(o, self._poses, None, out)
             self._landmark_step(o.z, o.covariance, cols, self._poses, weigh=True)
             out.append(cols)
         return out
@@ -477,7 +490,7 @@ class FastSlam(Backend):
         out = []
         for o in obs:
             z, R = o.z, o.covariance
-            cols = self._columns_for(o, mu, Sig)
+            cols = self._columns_for(o, mu, Sig, out)
             ptr = maps._table[np.arange(self.n_particles), cols]
             old = ptr >= 0
             i = np.flatnonzero(old)

@@ -102,6 +102,9 @@ def compare(dataset: Dataset, backends: list[str], *, config_path=None,
             result, peak_mb = _run_one(dataset, name, config_path, ov, max_steps), None
         m = pipeline.compute_metrics(result, seed=seed)
         m["peak_rss_mb"] = peak_mb
+        if m.get("association") is not None:
+            m["association"]["oracle_accuracy"] = oracle_association_accuracy(
+                dataset, result.steps)
         m.update(pose_statistics(dataset, result))
         entries.append(CompareEntry(name, result, m))
     reference = next((e for e in entries if e.backend == "isam2"), None)
@@ -132,6 +135,45 @@ def pose_statistics(dataset: Dataset, result: pipeline.RunResult) -> dict:
     return out
 
 
+def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> float | None:
+    """Association accuracy of an oracle that knows the true poses, the true
+    landmark positions and which landmarks each scan sees; None without that truth.
+
+    Per scan it picks the assignment of observations to the visible landmarks
+    with the least total squared Mahalanobis distance under each observation's
+    own R (the Bayes choice given everything but the noise). Its errors are
+    swaps between landmarks the sensor cannot separate (e.g. two landmarks
+    0.3 m apart under 0.2 m range noise), so no estimator can be expected to
+    beat it: it is the ceiling to read a back end's accuracy against.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    from filters import models
+
+    truth = dataset.landmarks_true
+    frames = dataset.frames if steps is None else dataset.frames[:steps]
+    if not truth:
+        return None
+    n = correct = 0
+    for f in frames:
+        if not f.observations:
+            continue
+        if f.wTb_true is None or f.true_landmark_ids is None:
+            return None
+        ids = np.array(sorted(set(f.true_landmark_ids)))
+        lm = np.array([truth[int(i)] for i in ids]).reshape(-1, 2)
+        z = np.array([o.z for o in f.observations]).reshape(-1, 2)
+        Rinv = np.linalg.inv(np.array([o.covariance for o in f.observations]))
+        nu = models.innovation(z[:, None, :], models.observe(np.asarray(f.wTb_true)[None], lm)[None])
+        d2 = np.einsum("mli,mij,mlj->ml", nu, Rinv, nu)
+        rows, cols = linear_sum_assignment(d2)
+        got = dict(zip(rows.tolist(), ids[cols].tolist()))
+        for i, t in enumerate(f.true_landmark_ids):
+            n += 1
+            correct += int(got.get(i) == int(t))
+    return correct / n if n else None
+
+
 def errors_against_truth(pose_ids: np.ndarray, wTb: np.ndarray, gt_of: dict) -> np.ndarray:
     """(N, 3) ``estimate - truth`` (heading wrapped), unaligned: both share the prior frame."""
     truth = np.array([gt_of[int(i)] for i in pose_ids])
@@ -157,6 +199,9 @@ COLUMNS = [
     ("nees_mean", "mean NEES", ".2f"),
     ("nees_in_bounds_fraction", "NEES in 95%", ".2f"),
     ("association_accuracy", "assoc acc", ".4f"),
+    ("association_oracle", "oracle acc", ".4f"),
+    ("association_unused", "obs unused", "d"),
+    ("association_duplicates", "dup lm", "d"),
     ("wall_s", "wall [s]", ".2f"),
     ("steps_per_s", "steps/s", ".0f"),
     ("peak_rss_mb", "peak MB", ".0f"),
@@ -168,7 +213,13 @@ def format_table(entries: list[CompareEntry]) -> str:
     rows = []
     for e in entries:
         m = dict(e.metrics)
-        m["association_accuracy"] = (m.get("association") or {}).get("accuracy")
+        a = m.get("association") or {}
+        m["association_accuracy"] = a.get("accuracy")
+        # the oracle's ceiling, observations left unused (counted as wrong) and
+        # extra estimated landmarks mapped to an already-taken true landmark
+        m["association_oracle"] = a.get("oracle_accuracy")
+        m["association_unused"] = a.get("unused")
+        m["association_duplicates"] = a.get("duplicates")
         rows.append(m)
     cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
     cells = [[h for _, h, _ in cols]]

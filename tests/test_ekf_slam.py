@@ -300,7 +300,9 @@ def test_unknown_association_accuracy(seed):
     # The gate is widened to 0.999 because with 0.99 about 1 % of the true
     # pairings fall outside it by construction and are discarded as ambiguous
     # (measured: 97.6-99.2 % accuracy with 0.99 on these seeds).
-    cfg = EkfSlamConfig(association="unknown", gate_chi2_prob=0.999)
+    # new_landmark_chi2_prob: the former default, which keeps a discard zone
+    # between the two gates (the default is now 0.999, see EkfSlamConfig)
+    cfg = EkfSlamConfig(association="unknown", gate_chi2_prob=0.999, new_landmark_chi2_prob=0.9999)
     world = dict(steps=40, laps=1.25, sensor_range_m=9.0, n_landmarks=32)
     ekf, truth, lms, pairs = _run(seed, config=cfg, known=False, **world)
     score = association_accuracy(pairs)
@@ -500,3 +502,53 @@ def test_known_gate_rejects_and_counts_an_inconsistent_observation():
     plain.update([Observation(7, 1, outlier, R)])
     assert plain.rejected_count == 0 and plain.associations() == [1]
     assert not np.allclose(plain.state_vector(), x)
+
+
+# ------------------------------------------- unknown association: close landmarks
+
+#: Two landmarks this close gate with each other under the course's noise.
+CLOSE_PAIR_M = 0.4
+
+
+def test_unknown_association_mutual_exclusion_starts_the_close_neighbour():
+    """A landmark paired with one observation of a scan cannot block a second,
+    unmapped landmark 0.4 m away from entering the map (before: discarded)."""
+    R = np.diag([0.2, math.radians(10.0)]) ** 2
+    ekf = EkfSlam(EkfSlamConfig(association="unknown"))
+    ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    a, b = np.array([4.0, 1.0]), np.array([4.0, 1.0 + CLOSE_PAIR_M])
+    ekf.update([Observation(0, None, models.observe(np.zeros(3), a), R)])
+    assert ekf.num_landmarks == 1
+    ekf.predict(Odometry(0, 1, np.array([0.1, 0.0, 0.0]), np.eye(3) * 1e-6), 1)
+    x = np.array([0.1, 0.0, 0.0])
+    ekf.update([Observation(1, None, models.observe(x, a), R),
+                Observation(1, None, models.observe(x, b), R)])
+    got = ekf.associations()
+    assert None not in got and len(set(got)) == 2, got
+    assert ekf.num_landmarks == 2
+
+
+def test_unknown_association_on_the_default_synthetic_world():
+    """Course noise, default world, seed 0: measured 96.9 % with no duplicated
+    landmark (86.6 % before mutual exclusion and the 0.999 gates). The oracle
+    that knows the true poses and map reaches 98.8 % here: most misses are swaps
+    between landmarks 0.3-0.7 m apart."""
+    from graphslam.pipeline import run
+    from graphslam.sources.synthetic import make_synthetic
+
+    res = run(make_synthetic(), EkfSlam(EkfSlamConfig(association="unknown")))
+    score = association_accuracy(res.associations)
+    assert score["accuracy"] >= 0.96, score
+    assert score["duplicates"] <= 1, score
+
+
+def test_oracle_association_ceiling():
+    """The oracle (true poses and map, best assignment per scan) is perfect with a
+    precise sensor and falls short only under the course's 10-degree bearing noise."""
+    from graphslam.compare import oracle_association_accuracy
+    from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+
+    precise = make_synthetic(SyntheticConfig(sigma_r_m=0.01, sigma_phi_deg=0.1))
+    assert oracle_association_accuracy(precise, steps=300) == 1.0
+    course = oracle_association_accuracy(make_synthetic(), steps=300)
+    assert 0.9 < course < 1.0

@@ -351,3 +351,35 @@ def test_filters_stay_free_of_gtsam_and_rerun():
             elif isinstance(node, ast.ImportFrom):
                 mods = [node.module or ""]
             assert not any(m.split(".")[0] in ("gtsam", "rerun") for m in mods), (name, mods)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_unknown_association_mutual_exclusion_within_a_scan(version):
+    """Two observations of one scan never go to the same landmark of a particle:
+    a second landmark 0.4 m from a mapped one is started, not merged into it."""
+    R = np.diag([0.2, math.radians(10.0)]) ** 2
+    b = FastSlam(FastSlamConfig(version=version, n_particles=50, association="unknown"))
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    m_a, m_b = np.array([4.0, 1.0]), np.array([4.0, 1.4])
+    b.update([Observation(0, None, models.observe(np.zeros(3), m_a), R)])
+    b.predict(Odometry(0, 1, np.array([0.1, 0.0, 0.0]), np.eye(3) * 1e-6), 1)
+    x = np.array([0.1, 0.0, 0.0])
+    b.update([Observation(1, None, models.observe(x, m_a), R),
+              Observation(1, None, models.observe(x, m_b), R)])
+    got = b.associations()
+    assert len(set(got)) == 2, got
+    T = b.maps.table
+    assert ((T >= 0).sum(axis=1) == 2).all()  # every particle now knows two landmarks
+
+
+@pytest.mark.parametrize("version, min_accuracy", [(1, 0.955), (2, 0.945)])
+def test_unknown_association_on_the_default_synthetic_world(version, min_accuracy):
+    """Course noise, default world, seed 0, 100 particles: measured 96.2 % (1.0)
+    and 95.0 % (2.0), against 91.9 % / 90.9 % without mutual exclusion. The
+    oracle (true poses and map) reaches 98.8 %."""
+    from graphslam.sources.synthetic import make_synthetic
+
+    res = pipeline.run(make_synthetic(), FastSlam(FastSlamConfig(
+        version=version, n_particles=100, association="unknown")))
+    score = pipeline.association_accuracy(res.associations)
+    assert score["accuracy"] >= min_accuracy, score
