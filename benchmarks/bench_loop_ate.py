@@ -32,14 +32,13 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from frontend.orb import OrbDetector
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam import visual_pipeline as vp
-from graphslam.commands.vocab import train_vocabulary
+from graphslam.commands.vocab import orb_for, train_vocabulary
 from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
 from graphslam.sources.synthetic_images import make_synthetic_images
 from graphslam.visual_loops import VisualLoopCloser
-from loopclosure.detector import LoopDetector, LoopDetectorConfig
+from loopclosure.detector import LoopDetector
 
 HERE = Path(__file__).resolve().parent
 
@@ -52,7 +51,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     seq = make_synthetic_images()
-    orb = OrbDetector(n_features=LoopDetectorConfig().orb_n_features)
+    orb = orb_for(None)  # the detector's own ORB settings, as graphslam run --loops
     t0 = time.perf_counter()
     descs = [orb.detect(seq.load(i)).descriptors
              for i in tqdm(range(len(seq)), desc="vocabulary ORB", file=sys.stderr, leave=False)]

@@ -315,15 +315,15 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     run without loop closure"). Measured: 0.1013 m without, 0.0231 m with 68
     closures, all true (``benchmarks/bench_loop_ate.py``)."""
     from graphslam import visual_pipeline as vp
-    from graphslam.commands.vocab import train_vocabulary
+    from graphslam.commands.vocab import orb_for, train_vocabulary
     from graphslam.sources.synthetic_images import make_synthetic_images
     from graphslam.visual_loops import VisualLoopCloser
     from frontend.tracking import Tracker, TrackerConfig
-    from loopclosure.detector import LoopDetector, LoopDetectorConfig
+    from loopclosure.detector import LoopDetector
 
     seq = make_synthetic_images()
     cfg = VisualIsam2Config(predict_window_frames=30)
-    orb = OrbDetector(n_features=LoopDetectorConfig().orb_n_features)
+    orb = orb_for(None)  # the detector's own ORB settings, as graphslam run --loops
     vocab = train_vocabulary([orb.detect(seq.load(i)).descriptors for i in range(len(seq))], 1000)
 
     def ate(closer):
