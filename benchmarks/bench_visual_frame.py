@@ -21,6 +21,12 @@ The first ``--frames`` frames are rendered into memory BEFORE any timing
 ``finalize`` (iSAM2's batch polish) is not part of the per-frame loop and is
 not run.
 
+Active search stops once the back end's ``max_corrections`` landmarks are
+found (largest ellipses first; the EKF says so in its predictions, paper 4.4:
+it would not use more), so the "search" stage of the EKF rows searches about
+``max_corrections`` landmarks, not every one in view; the column ``srch``
+shows how many.
+
 How ``tracker.track`` is split: the tracker's detector object is wrapped in a
 thin proxy that times each ``detect`` call (wall clock and process CPU time)
 and forwards it unchanged: the very call the tracker makes, on the same

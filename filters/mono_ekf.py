@@ -56,7 +56,10 @@ Per frame (:meth:`MonoEkf.update`):
    ``forget_unseen_frames`` consecutive frames leaves the state (its last
    estimate stays in the map if it was Euclidean); one predicted in view but
    not found or rejected ``max_consecutive_misses`` frames in a row is deleted
-   and its track id is never initialised again.
+   and its track id is never initialised again. The predictions carry
+   ``max_corrections`` so the front end stops searching once it has found
+   that many; landmarks it reports unsearched
+   (``PixelObservations.unsearched_ids``) are not misses.
 
 Costs, n = state size, k = corrections: :meth:`predict` touches the robot rows
 and columns only, O(n). The update's ``H`` is non-zero on the 7 pose columns
@@ -236,6 +239,8 @@ class MonoEkf(VisualBackend):
         if not isinstance(self.config, MonoEkfConfig):
             raise ConfigError(f"MonoEkf needs a MonoEkfConfig, got {type(self.config).__name__}")
         self.has_motion_model = self.config.robot_model == "constant_velocity"
+        # the contract's cap, also sent with the predictions (the front end stops there)
+        self.max_corrections = int(self.config.max_corrections)
         self._rdim = 13 if self.has_motion_model else 7
         self._kind0 = lp.IDP if self.config.landmark_param == "idp" else lp.AHP
         self._rescue_gate = _chi2_2dof(self.config.rescue_chi2_prob)
@@ -404,7 +409,7 @@ class MonoEkf(VisualBackend):
         uv, hz, _, _, S = self._predicted(self._sigma_px ** 2)
         vis = np.flatnonzero(self._in_view(uv, hz))
         ids = np.array([self._lms[i].track_id for i in vis], dtype=np.int64)
-        return PixelPredictions(ids, uv[vis], S[vis])
+        return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections)
 
     def _predicted(self, var: float):
         """Pixels, ``h_z``, Jacobians and ``S_i`` (pixel variance ``var``) of the whole map.
@@ -477,6 +482,11 @@ class MonoEkf(VisualBackend):
             corrected_ids = rejected_ids = np.zeros(0, dtype=np.int64)
         observed = np.zeros(len(self._lms), dtype=bool)
         observed[k_slots] = True
+        # not searched because the front end's budget was spent: not a miss
+        for t in getattr(observations, "unsearched_ids", ()):
+            slot = self._slot.get(int(t))
+            if slot is not None:
+                observed[slot] = True
         changes = self._manage_map(visible, observed, accepted, rejected)
         if c.linearity_threshold > 0:
             changes.update(self._reparametrise(exclude=changes))

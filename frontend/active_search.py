@@ -9,7 +9,9 @@ observation must lie, with probability ``gate_probability``, in the ellipse
 (9.21 for p = 0.99: for 2 degrees of freedom the chi-square quantile is exact
 in closed form). Landmarks are searched largest ellipse first (``sqrt(det S)``,
 proportional to the area: their observation brings the most information), and
-at most ``max_corrections`` are searched per frame, a hard bound on the time.
+at most ``max_corrections`` are searched per frame, a hard bound on the time;
+``max_found`` stops the search once a back end's per-frame correction budget
+is found (the others would not be used).
 
 Two modes (``ActiveSearchConfig.mode``):
 
@@ -133,6 +135,9 @@ class ActiveSearchResult:
         pixels: (N,) integer pixels evaluated inside the ellipse (0 if not searched).
         image_fraction: union of the searched pixels / (H W).
         image_fraction_sum: sum of ``pixels`` / (H W) (overlaps counted twice).
+        skipped: (N,) bool, searchable but left unsearched because the search
+            stopped (``max_corrections`` searched or ``max_found`` found); None
+            when nothing was skipped.
     """
 
     order: np.ndarray
@@ -144,6 +149,7 @@ class ActiveSearchResult:
     pixels: np.ndarray
     image_fraction: float
     image_fraction_sum: float
+    skipped: np.ndarray | None = None
 
     @property
     def n_found(self) -> int:
@@ -167,7 +173,7 @@ def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple
     v1 = min(math.floor(cv + av), H - 1 - margin)
     if u1 < u0 or v1 < v0:
         return u0, v0, np.zeros((0, 0), dtype=bool)
-    Si = np.linalg.inv(S)
+    Si = _inv2(S)
     du = np.arange(u0, u1 + 1, dtype=np.float64) - cu
     dv = np.arange(v0, v1 + 1, dtype=np.float64) - cv
     d2 = (Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None]
@@ -196,11 +202,23 @@ def _warp_patch(image: np.ndarray, xy: np.ndarray, A: np.ndarray, size: int) -> 
                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
 
 
+#: Flat-window peaks tested one by one before testing every window of the ellipse.
+_PEAK_TRIES = 4
+
+
 def _parabola(rm: float, r0: float, rp: float) -> float:
     den = rm - 2.0 * r0 + rp
     if not den < 0.0:
         return 0.0
-    return float(np.clip(0.5 * (rm - rp) / den, -0.5, 0.5))
+    # plain floats: np.clip on a scalar costs more than the whole fit
+    return min(max(0.5 * (rm - rp) / den, -0.5), 0.5)
+
+
+def _inv2(S: np.ndarray) -> np.ndarray:
+    """Inverse of a 2x2 matrix in closed form (np.linalg.inv's call overhead is ~30 us)."""
+    a, b, c, d = float(S[0, 0]), float(S[0, 1]), float(S[1, 0]), float(S[1, 1])
+    det = a * d - b * c
+    return np.array([[d / det, -b / det], [-c / det, a / det]])
 
 
 class ActiveSearch:
@@ -240,13 +258,17 @@ class ActiveSearch:
     def search(self, image: np.ndarray, predictions: np.ndarray, S: np.ndarray, *,
                patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
                prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
-               features: Features | None = None) -> ActiveSearchResult:
+               features: Features | None = None, max_found: int | None = None) -> ActiveSearchResult:
         """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
 
         ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
         (N, p, p) or ``prev_image`` + ``prev_xy`` (N, 2) (patches are cut there);
         appearance prediction needs ``prev_image``, ``prev_xy`` and ``affine``
         (N, 2, 2). nearest mode needs ``features`` (the current frame's points).
+        ``max_found``: stop once this many landmarks are found (a back end that
+        corrects at most that many per frame, largest ellipses first, would not
+        use the others: paper section 4.4); ``None`` or 0: no such stop. The
+        config's ``max_corrections`` still caps the landmarks searched.
         """
         image = check_gray(image)
         cfg = self.config
@@ -278,7 +300,10 @@ class ActiveSearch:
             if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
                 raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
             margin = h
-            imf = image.astype(np.float32)
+            if not warp:
+                # one vectorised call instead of one np.std per landmark
+                tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
+            min_var = float(cfg.min_patch_std) ** 2
         else:
             if features is None:
                 raise InputError("nearest mode needs the current frame's features")
@@ -296,8 +321,12 @@ class ActiveSearch:
         union = np.zeros((H, W), bool)
         order = []
         cap = cfg.max_corrections or n
-        for i in self.search_order(z, S, (H, W)):
-            if len(order) >= cap:
+        n_found = 0
+        skipped = np.zeros(n, bool)
+        cand = self.search_order(z, S, (H, W))
+        for pos, i in enumerate(cand):
+            if len(order) >= cap or (max_found and n_found >= max_found):
+                skipped[cand[pos:]] = True
                 break
             u0, v0, mask = ellipse_pixels(z[i], S[i], g, (H, W), margin)
             cnt = int(mask.sum())
@@ -308,28 +337,43 @@ class ActiveSearch:
             pixels[i] = cnt
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
-            Si = np.linalg.inv(S[i])
             if cfg.mode == "zncc":
-                if patches is not None and not (warp):
+                if not warp:
+                    if tpl_std[i] < cfg.min_patch_std:
+                        continue
                     tpl = np.ascontiguousarray(patches[i], dtype=np.float32)
                 else:
                     tpl = _warp_patch(prev_image, prev_xy[i], affine[i], p)
-                if float(tpl.std()) < cfg.min_patch_std:
-                    continue
-                region = imf[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h]
+                    if float(tpl.std()) < cfg.min_patch_std:
+                        continue
+                # only the ellipse's bounding box (plus the patch margin) is converted
+                region = image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
                 res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
-                # window standard deviation: flat windows have no defined ZNCC
-                k = (p, p)
-                m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-                m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True,
-                                   borderType=cv2.BORDER_CONSTANT)
-                var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
-                valid = mask & (var >= cfg.min_patch_std ** 2) & np.isfinite(res)
-                if not valid.any():
+                masked = np.where(mask & np.isfinite(res), res, -np.inf)
+                # Best ZNCC inside the ellipse whose image window is not flat (ZNCC is
+                # undefined there). The window test is done at the peak only and the
+                # next peak tried if it fails (the same pixel as testing every window);
+                # after a few flat peaks (a flat area) every window is tested at once.
+                for _ in range(_PEAK_TRIES):
+                    j = int(np.argmax(masked))
+                    jv, ju = divmod(j, bw)
+                    if masked[jv, ju] == -np.inf:
+                        break
+                    _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
+                    if float(sd[0, 0]) ** 2 >= min_var:
+                        break
+                    masked[jv, ju] = -np.inf
+                else:
+                    k = (p, p)
+                    m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+                    m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True,
+                                       borderType=cv2.BORDER_CONSTANT)
+                    var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
+                    masked[var < min_var] = -np.inf
+                    j = int(np.argmax(masked))
+                    jv, ju = divmod(j, bw)
+                if masked[jv, ju] == -np.inf:
                     continue
-                masked = np.where(valid, res, -np.inf)
-                j = int(np.argmax(masked))
-                jv, ju = divmod(j, bw)
                 best = float(res[jv, ju])
                 score[i] = best
                 if best < cfg.min_score:
@@ -344,6 +388,7 @@ class ActiveSearch:
             else:
                 if len(fxy) == 0:
                     continue
+                Si = _inv2(S[i])
                 d = fxy - z[i]
                 dd = np.einsum("ni,ij,nj->n", d, Si, d)
                 inside = np.flatnonzero(dd <= g)
@@ -353,11 +398,13 @@ class ActiveSearch:
                 m = fxy[j].copy()
                 score[i] = fresp[j]
             e = m - z[i]
+            Si = _inv2(S[i])
             d2[i] = float(e @ Si @ e)
             uv[i] = m
             found[i] = True
+            n_found += 1
         npx = float(H * W)
         return ActiveSearchResult(order=np.asarray(order, dtype=np.int64), searched=searched, found=found,
                                   uv=uv, score=score, d2=d2, pixels=pixels,
                                   image_fraction=float(union.sum()) / npx,
-                                  image_fraction_sum=float(pixels.sum()) / npx)
+                                  image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)

@@ -8,7 +8,11 @@ Per frame (:meth:`Tracker.track`), given the image and the back end's
    (:class:`frontend.orb.OrbDetector`) or ``"fpga"`` (the simulated pixel-rate
    stream :class:`frontend.fpga_stream.FpgaHarrisStream`, fixed point).
 2. **Active search** of the mapped landmarks (those the back end predicts),
-   largest ellipse first, capped per frame (:mod:`frontend.active_search`).
+   largest ellipse first, capped per frame (:mod:`frontend.active_search`);
+   when the predictions carry the back end's ``max_corrections`` the search
+   stops once that many are found, and the predicted landmarks left unsearched
+   are reported (``PixelObservations.unsearched_ids``) so that the back end
+   does not count them as misses.
    The matching depends on ``search`` (``"auto"`` picks by detector):
    ``"zncc"`` correlates the track's patch inside the ellipse (software
    RT-SLAM; default for Harris), ``"nearest"`` takes the Harris point nearest
@@ -295,7 +299,10 @@ class Tracker:
         pS = 0.5 * (pS + np.swapaxes(pS, 1, 2))
         for tid in pids:
             self._tracks[int(tid)].mapped = True
-        res = self._active_search(image, feats, pids, puv, pS)
+        # a back end that corrects at most m landmarks (largest ellipses first) would
+        # not use more: stop searching once m are found (paper 4.4)
+        max_found = getattr(predictions, "max_corrections", None)
+        res = self._active_search(image, feats, pids, puv, pS, max_found)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []
         for j in np.flatnonzero(res.found):
@@ -325,9 +332,11 @@ class Tracker:
         obs_uv.extend(new_uv)
         timings["new"] = time.perf_counter() - t
 
+        skipped = res.skipped if res.skipped is not None else np.zeros(len(pids), bool)
         observations = PixelObservations(
             track_ids=np.asarray(obs_ids, dtype=np.int64),
-            uv_px=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2), sigma_px=float(cfg.sigma_px))
+            uv_px=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2), sigma_px=float(cfg.sigma_px),
+            unsearched_ids=pids[skipped].astype(np.int64))
         return TrackingResult(
             observations=observations, corners=np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2),
             cell_size_px=self.cell_size_px(), pred_ids=pids, pred_uv=puv, pred_S=pS,
@@ -341,7 +350,7 @@ class Tracker:
 
     # ------------------------------------------------------------------ stages
 
-    def _active_search(self, image, feats, pids, puv, pS) -> ActiveSearchResult:
+    def _active_search(self, image, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
         n = len(pids)
         mode = self.config.search_mode
         if n == 0:
@@ -352,12 +361,12 @@ class Tracker:
                                       image_fraction_sum=0.0)
         if mode == "zncc":
             patches = np.stack([self._tracks[int(i)].patch for i in pids])
-            return self._search.search(image, puv, pS, patches=patches)
+            return self._search.search(image, puv, pS, patches=patches, max_found=max_found)
         if mode == "nearest":
-            return self._search.search(image, puv, pS, features=feats)
-        return self._descriptor_search(image.shape, feats, pids, puv, pS)
+            return self._search.search(image, puv, pS, features=feats, max_found=max_found)
+        return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found)
 
-    def _descriptor_search(self, shape, feats, pids, puv, pS) -> ActiveSearchResult:
+    def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
         """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
         H, W = shape
         cfg = self.search_config
@@ -371,8 +380,11 @@ class Tracker:
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
         desc = feats.descriptors
         cap = cfg.max_corrections or n
-        for i in self._search.search_order(puv, pS, (H, W)):
-            if len(order) >= cap:
+        skipped = np.zeros(n, bool)
+        cand = self._search.search_order(puv, pS, (H, W))
+        for pos, i in enumerate(cand):
+            if len(order) >= cap or (max_found and found.sum() >= max_found):
+                skipped[cand[pos:]] = True
                 break
             u0, v0, mask = ellipse_pixels(puv[i], pS[i], g, (H, W))
             if mask.size == 0 or not mask.any():
@@ -402,7 +414,7 @@ class Tracker:
         return ActiveSearchResult(order=np.asarray(order, np.int64), searched=searched, found=found,
                                   uv=uv, score=score, d2=d2, pixels=pixels,
                                   image_fraction=float(union.sum()) / npx,
-                                  image_fraction_sum=float(pixels.sum()) / npx)
+                                  image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
@@ -503,20 +515,42 @@ class Tracker:
         resp = np.asarray(feats.response, dtype=np.float64)
         ok = (xy[:, 0] >= h) & (xy[:, 0] <= W - 1 - h) & (xy[:, 1] >= h) & (xy[:, 1] <= H - 1 - h)
         # best response first; ties by position for a deterministic order
-        order = [i for i in np.lexsort([xy[:, 0], xy[:, 1], -resp]) if ok[i]]
-        dmin = float(self.config.min_distance_px)
-        placed = [u for u in occupied]
+        order = np.lexsort([xy[:, 0], xy[:, 1], -resp])
+        order = order[ok[order]]
+        dmin2 = float(self.config.min_distance_px) ** 2
+        # Distances checked in one go (not one norm per candidate): a candidate is
+        # blocked by the occupied points, then by every candidate accepted before it.
+        cxy = xy[order]
         orb = self.config.search_mode == "descriptor"
         min_std = self.search_config.min_patch_std
-        for i in order:
+        flat = np.zeros(len(order), bool)
+        if not orb and len(order) and np.array_equal(cxy, np.round(cxy)):
+            # Harris points sit on integer pixels: every candidate's patch (the very
+            # pixels getRectSubPix cuts there) and its flatness test in one gather
+            off = np.arange(p) - h
+            vi, ui = cxy[:, 1].astype(np.intp), cxy[:, 0].astype(np.intp)
+            cand_patches = image[vi[:, None, None] + off[None, :, None],
+                                 ui[:, None, None] + off[None, None, :]].astype(np.float32)
+            flat = cand_patches.reshape(len(order), p * p).astype(np.float64).std(axis=1) < min_std
+        else:
+            cand_patches = None
+        occupied = np.asarray(occupied, dtype=np.float64).reshape(-1, 2)
+        blocked = np.zeros(len(order), bool)
+        for o in occupied:  # tens of points; an (F, O, 2) array would be large with ORB
+            d = cxy - o
+            blocked |= np.einsum("ci,ci->c", d, d) < dmin2
+        for c, i in enumerate(order):
             if len(ids) >= n_room:
                 break
-            uv = xy[i]
-            if placed and np.min(np.linalg.norm(np.asarray(placed) - uv, axis=1)) < dmin:
+            if blocked[c] or flat[c]:
                 continue
-            patch = extract_patches(image, uv[None], p)[0]
-            if not orb and float(patch.std()) < min_std:
-                continue  # flat: ZNCC could never find it again
+            uv = xy[i]
+            if cand_patches is not None:
+                patch = cand_patches[c].copy()  # a view would keep the whole batch alive
+            else:
+                patch = extract_patches(image, uv[None], p)[0]
+                if not orb and float(patch.std()) < min_std:
+                    continue  # flat: ZNCC could never find it again
             tid = self._next_id
             self._next_id += 1
             self._tracks[tid] = _Track(
@@ -524,5 +558,6 @@ class Tracker:
                 patch=patch, descriptor=None if not orb else np.asarray(feats.descriptors[i]).copy())
             ids.append(tid)
             uvs.append(uv.copy())
-            placed.append(uv)
+            d = cxy - uv
+            blocked |= np.einsum("ci,ci->c", d, d) < dmin2
         return ids, uvs

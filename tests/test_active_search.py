@@ -104,6 +104,24 @@ def test_order_largest_ellipse_first_and_cap():
     assert list(r.order) == [1, 2, 0]
 
 
+def test_max_found_stops_the_search_and_marks_the_rest_skipped():
+    img = noise_image()
+    z, S = _three_landmarks()
+    # the same image as the patches' source: every searched landmark is found
+    full = ActiveSearch(max_corrections=0).search(img, z, S, prev_image=img, prev_xy=z)
+    assert full.found.all() and not full.skipped.any()
+    r = ActiveSearch(max_corrections=0).search(img, z, S, prev_image=img, prev_xy=z, max_found=2)
+    assert list(r.order) == [1, 2] and r.found.tolist() == [False, True, True]
+    assert r.skipped.tolist() == [True, False, False]
+    np.testing.assert_array_equal(r.uv[1:], full.uv[1:])
+    # a landmark searched but not found does not use the budget: the next one is searched
+    patches = extract_patches(img, z, 11)
+    patches[1] = patches[1][::-1, ::-1].T  # a patch that is nowhere in its ellipse
+    r = ActiveSearch(max_corrections=0).search(img, z, S, patches=patches, max_found=2)
+    assert list(r.order) == [1, 2, 0] and r.found.tolist() == [True, False, True]
+    assert not r.skipped.any()
+
+
 def test_image_fraction_union_and_sum():
     img = noise_image()
     z = np.array([[100.0, 100.0], [100.0, 100.0]])

@@ -481,6 +481,30 @@ def test_map_limits_are_respected():
     assert max(c[1] for c in counts) <= 3
 
 
+def test_unsearched_landmarks_are_not_misses():
+    """Landmarks the front end skipped (its search budget spent) keep their place;
+    the same landmarks simply not found are deleted after max_consecutive_misses."""
+    poses, pts, odo, Q, frames, _ = loop_world(9, n_points=300)
+    cfg = MonoEkfConfig(max_consecutive_misses=3)
+    kept = {}
+    for report in (True, False):
+        ekf = run_filter(cfg, poses[:10], odo, Q, frames[:10])
+        for k in range(10, 16):
+            ekf.predict(k, odo[k - 1], Q)
+            pred = ekf.predict_observations()
+            assert pred.max_corrections == cfg.max_corrections == ekf.max_corrections
+            hidden = pred.track_ids[:4]  # predicted in view, never reported found
+            obs = frames[k]
+            keep = ~np.isin(obs.track_ids, hidden)
+            ekf.update(PixelObservations(obs.track_ids[keep], obs.uv_px[keep], obs.sigma_px,
+                                         unsearched_ids=hidden if report else np.zeros(0, np.int64)))
+            if k == 10:
+                first_hidden = set(map(int, hidden))
+        in_state = {lm.track_id for lm in ekf._lms}
+        kept[report] = first_hidden & in_state
+    assert kept[True] and not kept[False]
+
+
 # ------------------------------------------------------------ synthetic runs
 
 #: The synthetic scene has no point nearer than 2.5 m; this prior covers 2 m to infinity.

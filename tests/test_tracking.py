@@ -115,6 +115,43 @@ def test_active_search_result_for_rerun(seq, frames):
     assert len(r.corners) > 20 and r.cell_size_px == 32
 
 
+def test_search_stops_at_the_back_ends_correction_cap(seq, frames):
+    """A back end correcting at most m landmarks gets at most m found; the rest are
+    reported unsearched (not missed), largest ellipses searched first."""
+    cap = 3
+    truth = _truth_predictions(seq)
+
+    def capped(k, points):
+        p = truth(k, points)
+        if p is None:
+            return None
+        # ellipses of different sizes so that the order is defined
+        S = p.S_px2 * (1.0 + 0.1 * np.arange(len(p)))[:, None, None]
+        return PixelPredictions(p.track_ids, p.uv_px, S, max_corrections=cap)
+
+    tracker = Tracker(TrackerConfig(max_new_per_frame=10), follow_unmapped=False)
+    points = {}
+    checked = 0
+    for k, (img, depth) in enumerate(frames[:8]):
+        pred = capped(k, points)
+        r = tracker.track(img, pred)
+        for tid, uv in zip(map(int, r.new_ids), r.new_uv):
+            points[tid] = _backproject(seq, k, uv, depth)
+        if pred is None or len(r.pred_ids) <= cap:
+            continue
+        checked += 1
+        assert r.n_found <= cap
+        unsearched = set(map(int, r.observations.unsearched_ids))
+        assert unsearched == set(map(int, r.pred_ids[~r.searched]))
+        if r.n_found == cap:
+            # searched in decreasing ellipse size: every unsearched one is smaller
+            area = np.linalg.det(r.pred_S)
+            assert area[~r.searched].max() <= area[r.searched].min()
+        else:
+            assert not unsearched
+    assert checked >= 3
+
+
 def test_without_following_unmapped_tracks_live_one_frame(seq, frames):
     tracker = Tracker(TrackerConfig(), follow_unmapped=False)
     seen = set()
