@@ -22,8 +22,8 @@ Columns: ``ate_m`` ATE RMSE against ground truth after SE(2) alignment (city1000
 only), ``ratio`` that over the clean optimum's ATE; ``rms_clean_m`` RMS position
 distance (no alignment: both anchored by the same prior) to the clean optimum;
 ``rejected`` injected closures the final solution does not use: for the robust
-configuration, held back by the gate or dropped by the gated polish
-(``Isam2Backend.rejected_loop_closures``); for the plain one, whose solution
+configuration, held back by the gate or left out by the gated polish after
+its last re-test (``Isam2Backend.rejected_loop_closures``); for the plain one, whose solution
 uses them all, the injected closures left with a squared Mahalanobis residual
 above 16.27 (chi-square 3 dof, 99.9 %), i.e. fought rather than absorbed;
 ``true_rej`` true closures rejected the same way. JSON goes to
