@@ -122,7 +122,7 @@ def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None)
     import numpy as np
     from tqdm import tqdm
 
-    from graphslam.commands.loops import _check_vocabulary
+    from graphslam.commands.loops import check_vocabulary
     from graphslam.commands.vocab import describe, orb_for, train_vocabulary
     from graphslam.visual_loops import LoopClosingConfig, VisualLoopCloser
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
@@ -135,7 +135,7 @@ def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None)
                                "closures (it closes loops by re-observing landmarks); use isam2")
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
-        _check_vocabulary(vocab, args.vocab)
+        check_vocabulary(vocab, args.vocab)
         source = str(args.vocab)
     else:
         # Not online: the vocabulary needs the sequence's descriptors before the run.

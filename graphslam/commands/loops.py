@@ -64,7 +64,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_loops)
 
 
-def _check_vocabulary(vocab, path: Path) -> None:
+def check_vocabulary(vocab, path: Path) -> None:
+    """Refuse (InputError naming ``path``) a vocabulary that cannot quantise ORB descriptors."""
     # ORB descriptors are 32-byte binary strings; a float vocabulary cannot quantise them.
     if getattr(vocab, "metric_", None) != "hamming" or getattr(vocab, "descriptor_dim_", None) != 32:
         raise InputError(f"vocabulary is not for ORB descriptors (metric "
@@ -95,7 +96,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     features = None
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
-        _check_vocabulary(vocab, args.vocab)
+        check_vocabulary(vocab, args.vocab)
     else:
         # One ORB pass serves both the training and the detection.
         from graphslam.commands.vocab import orb_for
