@@ -165,6 +165,20 @@ def pose3_covariance_from_gtsam(covariance: np.ndarray) -> np.ndarray:
     return _POSE3_SWAP @ cov @ _POSE3_SWAP
 
 
+#: Robust kernels by configuration name ("none" keeps the Gaussian).
+ROBUST_KERNELS = ("none", "huber", "cauchy")
+
+
+def robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseModel.Base:
+    """``noise`` wrapped in the M-estimator ``kernel`` ("huber" or "cauchy") of width
+    ``k`` (in sigmas of the whitened residual); "none" returns ``noise`` itself."""
+    if kernel == "none":
+        return noise
+    estimator = {"huber": gtsam.noiseModel.mEstimator.Huber,
+                 "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[kernel]
+    return gtsam.noiseModel.Robust.Create(estimator.Create(k), noise)
+
+
 def pose3_noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
     """Gaussian noise model of a Pose3 factor from our ``[rho, phi]`` covariance."""
     return noise_from_covariance(pose3_covariance_to_gtsam(covariance))

@@ -130,7 +130,7 @@ class Isam2Config:
     gate_polish_rounds: int = 3
 
     def __post_init__(self):
-        if self.loop_closure_kernel not in ("none", "huber", "cauchy"):
+        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
             raise ConfigError("isam2.loop_closure_kernel must be none, huber or cauchy")
         if self.loop_closure_kernel_k <= 0:
             raise ConfigError("isam2.loop_closure_kernel_k must be > 0")
@@ -155,12 +155,8 @@ class Isam2Config:
 
     def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
         """Gaussian noise of a closure, wrapped in the configured robust kernel."""
-        gaussian = conv.noise_from_covariance(covariance)
-        if self.loop_closure_kernel == "none":
-            return gaussian
-        kernel = {"huber": gtsam.noiseModel.mEstimator.Huber,
-                  "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[self.loop_closure_kernel]
-        return gtsam.noiseModel.Robust.Create(kernel.Create(self.loop_closure_kernel_k), gaussian)
+        return conv.robust(conv.noise_from_covariance(covariance), self.loop_closure_kernel,
+                           self.loop_closure_kernel_k)
 
     def isam2_params(self) -> gtsam.ISAM2Params:
         params = gtsam.ISAM2Params()

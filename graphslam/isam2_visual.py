@@ -160,7 +160,7 @@ class VisualIsam2Config:
     polish_max_iterations: int = 50
 
     def __post_init__(self):
-        if self.pixel_kernel not in ("none", "huber", "cauchy"):
+        if self.pixel_kernel not in conv.ROBUST_KERNELS:
             raise ConfigError("isam2_visual.pixel_kernel must be none, huber or cauchy")
         if not self.pixel_kernel_k > 0:
             raise ConfigError("isam2_visual.pixel_kernel_k must be > 0")
@@ -188,7 +188,7 @@ class VisualIsam2Config:
             raise ConfigError("isam2_visual.max_predictions must be >= 0 (0: no cap)")
         if self.predict_window_frames < 0:
             raise ConfigError("isam2_visual.predict_window_frames must be >= 0 (0: no window)")
-        if self.loop_closure_kernel not in ("none", "huber", "cauchy"):
+        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
             raise ConfigError("isam2_visual.loop_closure_kernel must be none, huber or cauchy")
         if not self.loop_closure_kernel_k > 0:
             raise ConfigError("isam2_visual.loop_closure_kernel_k must be > 0")
@@ -475,12 +475,8 @@ class VisualIsam2Backend(VisualBackend):
             raise MeasurementError(f"isam2 (visual): loop closure {a}-{b} pose is not a finite (4, 4)")
         cov = _checked_covariance(closure.covariance, f"loop closure {a}-{b}")
         measured = conv.pose3(aTb)
-        noise = conv.pose3_noise(cov)
-        if self.config.loop_closure_kernel != "none":
-            kernel = {"huber": gtsam.noiseModel.mEstimator.Huber,
-                      "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[self.config.loop_closure_kernel]
-            noise = gtsam.noiseModel.Robust.Create(kernel.Create(self.config.loop_closure_kernel_k),
-                                                   noise)
+        noise = conv.robust(conv.pose3_noise(cov), self.config.loop_closure_kernel,
+                            self.config.loop_closure_kernel_k)
         self._graph.add(gtsam.BetweenFactorPose3(X(a), X(b), measured, noise))
         self._closures.append((a, b, measured, cov))
         self._stats["loop_closures"] += 1
@@ -585,12 +581,8 @@ class VisualIsam2Backend(VisualBackend):
     def _pixel_noise(self, sigma: float) -> gtsam.noiseModel.Base:
         model = self._noise_cache.get(sigma)
         if model is None:
-            model = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-            if self.config.pixel_kernel != "none":
-                kernel = {"huber": gtsam.noiseModel.mEstimator.Huber,
-                          "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[self.config.pixel_kernel]
-                model = gtsam.noiseModel.Robust.Create(kernel.Create(self.config.pixel_kernel_k),
-                                                       model)
+            model = conv.robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
+                                self.config.pixel_kernel, self.config.pixel_kernel_k)
             self._noise_cache[sigma] = model
         return model
 
@@ -668,7 +660,8 @@ class VisualIsam2Backend(VisualBackend):
                                                           conv.pose3_noise(cov)))
                 suspects.append(i)
         params = gtsam.GncLMParams(lm_params)
-        params.setKnownInliers([i for i in range(graph.size()) if i not in set(suspects)])
+        suspect = set(suspects)
+        params.setKnownInliers([i for i in range(graph.size()) if i not in suspect])
         optimizer = gtsam.GncLMOptimizer(graph, self._isam.calculateEstimate(), params)
         result = optimizer.optimize()
         weights = np.asarray(optimizer.getWeights())
