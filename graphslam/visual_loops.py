@@ -91,6 +91,10 @@ class VisualLoopCloser:
         config: :class:`LoopClosingConfig`.
         on_candidate: optional callback per candidate record (e.g. Rerun).
         vocabulary_source: where the vocabulary came from (for the report).
+        features: optional per-frame ORB :class:`frontend.features.Features` already
+            computed with the detector's ORB settings (the vocabulary's training
+            pass): the detector then takes them instead of detecting again. Each
+            is released once used.
     """
 
     detector: LoopDetector
@@ -98,6 +102,7 @@ class VisualLoopCloser:
     config: LoopClosingConfig = field(default_factory=LoopClosingConfig)
     on_candidate: CandidateHook | None = None
     vocabulary_source: str = ""
+    features: list | None = None
     records: list[dict] = field(default_factory=list)
     closures: list[PoseClosure] = field(default_factory=list)
 
@@ -107,8 +112,16 @@ class VisualLoopCloser:
                              "(a metric closure is a calibrated PnP)")
         self._frames: dict[int, _FrameMap] = {}
         self._describer = OrbDetector(self.detector.orb.config)
-        self.stats = {"candidates": 0, "verified": 0, "redundant": 0, "pnp_rejected": 0,
-                      "closures": 0}
+
+    @property
+    def stats(self) -> dict:
+        """Counts over :attr:`records`: candidates (queries with a candidate match),
+        verified (passed the detector's geometry), redundant, pnp_rejected, closures."""
+        stages = [r["stage"] for r in self.records]
+        return {"candidates": sum(r["match"] is not None for r in self.records),
+                "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
+                "redundant": stages.count("redundant"), "pnp_rejected": stages.count("pnp"),
+                "closures": len(self.closures)}
 
     def process(self, k: int, image: np.ndarray, tracking: TrackingResult,
                 backend: VisualBackend) -> PoseClosure | None:
@@ -121,13 +134,17 @@ class VisualLoopCloser:
         if len(self.detector) != k:
             raise RuntimeError(f"loop detector holds {len(self.detector)} images at frame {k}; "
                                "frames must be fed in order from 0")
-        loop = self.detector.process(image)
+        pre = None if self.features is None else self.features[k]
+        if pre is None:
+            loop = self.detector.process(image)
+        else:
+            self.features[k] = None  # free memory as we go
+            loop = self.detector.process_features(pre.xy_px, pre.descriptors)
         if len(self.detector.records) == n_records:
             return None  # too early for any query: nothing happened
         record = self.detector.records[-1].to_dict()
         record["stage"] = "accepted" if loop is not None else "detector"
         record["pnp_accepted"] = None
-        self.stats["candidates"] += record["match"] is not None
         result = None
         closure = None
         links = None
@@ -136,14 +153,11 @@ class VisualLoopCloser:
         record["shared_tracks"] = None if loop is None else shared
         need = self.config.redundant_shared_tracks
         if loop is not None and need and shared >= need:
-            self.stats["verified"] += 1
-            self.stats["redundant"] += 1
             record.update(stage="redundant", accepted=False,
                           reason=f"redundant: {shared} landmarks of frame {loop.match} "
                                  "already re-observed")
             loop = None
         if loop is not None:
-            self.stats["verified"] += 1
             result, links = self._metric_pose(loop.match, image, tracking, backend)
             record.update(pnp_accepted=result.accepted, pnp_reason=result.reason,
                           pnp_matches=result.n_matches, pnp_inliers=result.n_inliers,
@@ -154,10 +168,8 @@ class VisualLoopCloser:
                                       covariance=result.covariance)
                 backend.add_loop_closure(closure)
                 self.closures.append(closure)
-                self.stats["closures"] += 1
                 record["distance_m"] = float(np.linalg.norm(result.aTb[:3, 3]))
             else:
-                self.stats["pnp_rejected"] += 1
                 record["accepted"] = False
                 record["stage"] = "pnp"
                 record["reason"] = "pnp: " + str(result.reason)

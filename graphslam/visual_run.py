@@ -133,17 +133,19 @@ def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None)
     if not backend.supports_loop_closures:
         raise UnsupportedError(f"--loops: back end {args.backend!r} cannot use relative-pose loop "
                                "closures (it closes loops by re-observing landmarks); use isam2")
+    features = None
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
         check_vocabulary(vocab, args.vocab)
         source = str(args.vocab)
     else:
         # Not online: the vocabulary needs the sequence's descriptors before the run.
+        # The same features then feed the detector (one ORB pass, as graphslam loops).
         orb = orb_for(args.config)
-        descs = [orb.detect(sequence.load(i)).descriptors
-                 for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
-                               disable=args.quiet, file=sys.stderr)]
-        vocab = train_vocabulary(descs, SELF_TRAINED_WORDS)
+        features = [orb.detect(sequence.load(i))
+                    for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
+                                  disable=args.quiet, file=sys.stderr)]
+        vocab = train_vocabulary([f.descriptors for f in features], SELF_TRAINED_WORDS)
         source = f"trained on the sequence ({n_frames} frames)"
         if not args.quiet:
             print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
@@ -152,7 +154,7 @@ def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None)
                             K=np.asarray(sequence.K, dtype=np.float64))
     return VisualLoopCloser(detector, load_section(PnpConfig, args.config),
                             load_section(LoopClosingConfig, args.config), on_candidate,
-                            vocabulary_source=source)
+                            vocabulary_source=source, features=features)
 
 
 def write_loops(closer, out_dir: Path) -> dict[str, Path]:
