@@ -128,7 +128,7 @@ def run_once(seq, images, kind: str, params: dict, frontend: str) -> dict:
     backend = make_backend(kind, params)
     tracker = Tracker(TrackerConfig(detector=frontend), active_search=ActiveSearchConfig(),
                       harris=HarrisConfig(), orb=OrbConfig(),
-                      follow_unmapped=vp.needs_track_history(backend))
+                      follow_unmapped=backend.needs_track_history)
     det = _TimedDetector(tracker.detector)
     tracker.detector = det
     run_cfg = vp.VisualRunConfig(odometry="sequence")

@@ -483,7 +483,7 @@ class MonoEkf(VisualBackend):
         observed = np.zeros(len(self._lms), dtype=bool)
         observed[k_slots] = True
         # not searched because the front end's budget was spent: not a miss
-        for t in getattr(observations, "unsearched_ids", ()):
+        for t in observations.unsearched_ids.tolist():
             slot = self._slot.get(int(t))
             if slot is not None:
                 observed[slot] = True

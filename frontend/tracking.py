@@ -301,7 +301,7 @@ class Tracker:
             self._tracks[int(tid)].mapped = True
         # a back end that corrects at most m landmarks (largest ellipses first) would
         # not use more: stop searching once m are found (paper 4.4)
-        max_found = getattr(predictions, "max_corrections", None)
+        max_found = predictions.max_corrections
         res = self._active_search(image, feats, pids, puv, pS, max_found)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []

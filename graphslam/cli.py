@@ -169,7 +169,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     for flag in ("frontend", "odometry", "odometry_noise", "vocab"):
         if getattr(args, flag, None) is not None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
-    if getattr(args, "loops", False):
+    if args.loops:
         raise GraphSlamError("--loops applies to image sequences only (pose graphs bring "
                              "their own closures)")
     if args.max_steps is not None and args.max_steps < 1:
@@ -246,6 +246,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def summary_table(rows: list[tuple[str, object]]) -> str:
+    """``(label, value)`` rows as an indented two-column table."""
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
+
+
+def fmt(value, spec: str) -> str:
+    """``value`` formatted with ``spec``, or "n/a" when it is None."""
+    return "n/a" if value is None else format(value, spec)
+
+
 def format_summary(metrics: dict) -> str:
     """A two-column table of the headline numbers."""
     rows = [
@@ -253,22 +264,17 @@ def format_summary(metrics: dict) -> str:
         ("backend", metrics["backend"]),
         ("steps", metrics["steps"]),
         ("landmarks", metrics["landmarks"]),
-        ("final error", _fmt(metrics["final_error"], ".6g")),
-        ("ATE RMSE [m]", _fmt(metrics["ate_rmse_m"], ".4f")),
-        ("odometry ATE RMSE [m]", _fmt(metrics["odometry_ate_rmse_m"], ".4f")),
-        ("wall time [s]", _fmt(metrics["wall_s"], ".2f")),
-        ("steps/s", _fmt(metrics["steps_per_s"], ".1f")),
+        ("final error", fmt(metrics["final_error"], ".6g")),
+        ("ATE RMSE [m]", fmt(metrics["ate_rmse_m"], ".4f")),
+        ("odometry ATE RMSE [m]", fmt(metrics["odometry_ate_rmse_m"], ".4f")),
+        ("wall time [s]", fmt(metrics["wall_s"], ".2f")),
+        ("steps/s", fmt(metrics["steps_per_s"], ".1f")),
     ]
     if metrics.get("loop_closures_skipped"):
         rows.append(("loop closures skipped", metrics["loop_closures_skipped"]))
     if metrics.get("interrupted"):
         rows.append(("interrupted", "yes"))
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
-
-
-def _fmt(value, spec: str) -> str:
-    return "n/a" if value is None else format(value, spec)
+    return summary_table(rows)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -203,12 +203,6 @@ def resolve_odometry(sequence: ImageSequence, mode: str,
     raise ConfigError(f"odometry must be one of {', '.join(ODOMETRY_MODES)}, got {mode!r}")
 
 
-def needs_track_history(backend: VisualBackend) -> bool:
-    """Whether the tracker must follow unmapped tracks over frames for ``backend``
-    (:attr:`VisualBackend.needs_track_history`)."""
-    return bool(backend.needs_track_history)
-
-
 def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
         config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
         max_frames: int | None = None, progress: bool = False,

@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from graphslam.cli import report_outputs
+from graphslam.cli import fmt, report_outputs, summary_table
 from graphslam.config import load_section
 from graphslam.errors import GraphSlamError, UnsupportedError
 
@@ -75,7 +75,7 @@ def run_visual(args: argparse.Namespace) -> int:
                       active_search=load_section(ActiveSearchConfig, args.config),
                       harris=load_section(HarrisConfig, args.config),
                       orb=load_section(OrbConfig, args.config),
-                      follow_unmapped=vp.needs_track_history(backend) if follow is None else follow)
+                      follow_unmapped=backend.needs_track_history if follow is None else follow)
 
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
@@ -115,7 +115,7 @@ def run_visual(args: argparse.Namespace) -> int:
 
 def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None):
     """The :class:`~graphslam.visual_loops.VisualLoopCloser` of ``--loops``/``--vocab``, or None."""
-    if not (getattr(args, "loops", False) or getattr(args, "vocab", None) is not None):
+    if not (args.loops or args.vocab is not None):
         return None
     import sys
 
@@ -184,15 +184,15 @@ def format_summary(m: dict) -> str:
         ("odometry", m["odometry"]),
         ("frames", m["frames"]),
         ("landmarks", m["landmarks"]),
-        (f"ATE RMSE [m], {align}-aligned", _fmt(m["ate_rmse_m"], ".4f")),
-        ("ATE [% of path]", _fmt(m["ate_percent_of_path"], ".2f")),
-        ("odometry ATE RMSE [m]", _fmt(m["odometry_ate_rmse_m"], ".4f")),
-        ("odometry ATE [% of path]", _fmt(m["odometry_ate_percent_of_path"], ".2f")),
+        (f"ATE RMSE [m], {align}-aligned", fmt(m["ate_rmse_m"], ".4f")),
+        ("ATE [% of path]", fmt(m["ate_percent_of_path"], ".2f")),
+        ("odometry ATE RMSE [m]", fmt(m["odometry_ate_rmse_m"], ".4f")),
+        ("odometry ATE [% of path]", fmt(m["odometry_ate_percent_of_path"], ".2f")),
         ("RPE per frame [m / deg]", "n/a" if not rpe else
          f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}"),
-        ("path length [m]", _fmt(m["path_length_m"], ".2f")),
-        ("wall time [s]", _fmt(m["wall_s"], ".2f")),
-        ("frames/s", _fmt(m["frames_per_s"], ".1f")),
+        ("path length [m]", fmt(m["path_length_m"], ".2f")),
+        ("wall time [s]", fmt(m["wall_s"], ".2f")),
+        ("frames/s", fmt(m["frames_per_s"], ".1f")),
     ]
     stats = m.get("backend_stats") or {}
     if "reparametrised" in stats:
@@ -205,9 +205,4 @@ def format_summary(m: dict) -> str:
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.get("interrupted"):
         rows.append(("interrupted", "yes"))
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
-
-
-def _fmt(value, spec: str) -> str:
-    return "n/a" if value is None else format(value, spec)
+    return summary_table(rows)

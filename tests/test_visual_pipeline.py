@@ -214,7 +214,7 @@ def test_real_backends_against_odometry_on_a_short_sequence(seq, name):
     from graphslam import registry
 
     backend = registry.make_visual_backend(name)
-    tracker = Tracker(TrackerConfig(), follow_unmapped=vp.needs_track_history(backend))
+    tracker = Tracker(TrackerConfig(), follow_unmapped=backend.needs_track_history)
     result = vp.run(seq, backend, tracker, max_frames=40)
     m = vp.compute_metrics(result)
     assert result.frames == 40 and m["landmarks"] > 5
