@@ -383,14 +383,14 @@ class VisualIsam2Backend(VisualBackend):
         wTc = self._current_pose()
         # pre-select on cached positions, with a margin: they may be stale
         slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
+        if self.config.predict_window_frames:  # before the reads: it needs no position
+            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
+            slots = slots[recent]
         if len(slots) == 0:
             return empty
         for s in slots.tolist():  # fresh positions of the pre-selected only
             self._lm_pos[s] = self._point(self._lm_ids[s])
         slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=0.0)]
-        if self.config.predict_window_frames:
-            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
-            slots = slots[recent]
         if self.config.max_predictions and len(slots) > self.config.max_predictions:
             order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
             slots = np.sort(slots[order[:self.config.max_predictions]])
