@@ -137,7 +137,7 @@ class ActiveSearchResult:
         image_fraction_sum: sum of ``pixels`` / (H W) (overlaps counted twice).
         skipped: (N,) bool, searchable but left unsearched because the search
             stopped (``max_corrections`` searched or ``max_found`` found); None
-            when nothing was skipped.
+            for a result made without a search (no prediction).
     """
 
     order: np.ndarray
@@ -337,6 +337,7 @@ class ActiveSearch:
             pixels[i] = cnt
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
+            Si = _inv2(S[i])
             if cfg.mode == "zncc":
                 if not warp:
                     if tpl_std[i] < cfg.min_patch_std:
@@ -388,7 +389,6 @@ class ActiveSearch:
             else:
                 if len(fxy) == 0:
                     continue
-                Si = _inv2(S[i])
                 d = fxy - z[i]
                 dd = np.einsum("ni,ij,nj->n", d, Si, d)
                 inside = np.flatnonzero(dd <= g)
@@ -398,7 +398,6 @@ class ActiveSearch:
                 m = fxy[j].copy()
                 score[i] = fresp[j]
             e = m - z[i]
-            Si = _inv2(S[i])
             d2[i] = float(e @ Si @ e)
             uv[i] = m
             found[i] = True
