@@ -284,7 +284,8 @@ def test_cli_loops_writes_csv_log_and_counts(tmp_path, capsys):
     records = [json.loads(l) for l in (out / "loops.jsonl").read_text().splitlines()]
     assert records and all(r["query"] >= 40 for r in records)  # exclude_recent = 40
     m = json.loads((out / "metrics.json").read_text())
-    assert m["loops"]["candidates"] <= len(records)
+    assert m["loops"]["candidates"] == sum(r["match"] is not None for r in records)
+    assert m["loops"]["closures"] == len((out / "loops.csv").read_text().splitlines()) - 1
     assert m["loops"]["vocabulary"].startswith("trained on the sequence")
     assert "loop closures added" in capsys.readouterr().out
 
