@@ -173,7 +173,7 @@ def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple
     v1 = min(math.floor(cv + av), H - 1 - margin)
     if u1 < u0 or v1 < v0:
         return u0, v0, np.zeros((0, 0), dtype=bool)
-    Si = _inv2(S)
+    Si = inv2(S)
     du = np.arange(u0, u1 + 1, dtype=np.float64) - cu
     dv = np.arange(v0, v1 + 1, dtype=np.float64) - cv
     d2 = (Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None]
@@ -214,7 +214,7 @@ def _parabola(rm: float, r0: float, rp: float) -> float:
     return min(max(0.5 * (rm - rp) / den, -0.5), 0.5)
 
 
-def _inv2(S: np.ndarray) -> np.ndarray:
+def inv2(S: np.ndarray) -> np.ndarray:
     """Inverse of a 2x2 matrix in closed form (np.linalg.inv's call overhead is ~30 us)."""
     a, b, c, d = float(S[0, 0]), float(S[0, 1]), float(S[1, 0]), float(S[1, 1])
     det = a * d - b * c
@@ -337,7 +337,7 @@ class ActiveSearch:
             pixels[i] = cnt
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
-            Si = _inv2(S[i])
+            Si = inv2(S[i])
             if cfg.mode == "zncc":
                 if not warp:
                     if tpl_std[i] < cfg.min_patch_std:

@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, \
-    ellipse_pixels, extract_patches
+    ellipse_pixels, extract_patches, inv2
 from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
@@ -396,7 +396,7 @@ class Tracker:
             union[v0:v0 + bh, u0:u0 + bw] |= mask
             if len(fxy) == 0 or desc is None:
                 continue
-            Si = np.linalg.inv(pS[i])
+            Si = inv2(pS[i])
             d = fxy - puv[i]
             dd = np.einsum("ni,ij,nj->n", d, Si, d)
             inside = np.flatnonzero(dd <= g)
