@@ -32,10 +32,10 @@ import sys
 
 import numpy as np
 
-from filters import models
 from graphslam import pipeline, registry
 from graphslam.compare import oracle_association_accuracy
 from graphslam.sources.base import Dataset
+from graphslam.sources.outliers import relative_pose
 from graphslam.types import Odometry
 
 #: Odometry sigma (m, rad) of the "known poses" run: far below any landmark or
@@ -43,15 +43,6 @@ from graphslam.types import Odometry
 KNOWN_POSE_SIGMA = 1e-6
 
 BACKENDS = ("ekf", "fastslam1", "fastslam2")
-
-
-def _relative(wTa: np.ndarray, wTb: np.ndarray) -> np.ndarray:
-    """(3,) pose of b in the frame of a."""
-    c, s = np.cos(wTa[2]), np.sin(wTa[2])
-    d = wTb[:2] - wTa[:2]
-    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1],
-                     float(models.innovation(np.array([0.0, wTb[2]]),
-                                             np.array([0.0, wTa[2]]))[1])])
 
 
 def with_exact_odometry(dataset: Dataset) -> Dataset:
@@ -62,7 +53,7 @@ def with_exact_odometry(dataset: Dataset) -> Dataset:
     for f in dataset.frames:
         if f.odometry is not None:
             o = f.odometry
-            delta = _relative(truth[o.from_id], truth[o.to_id])
+            delta = relative_pose(truth[o.from_id], truth[o.to_id])
             f = dataclasses.replace(f, odometry=Odometry(o.from_id, o.to_id, delta, cov))
         frames.append(f)
     return dataclasses.replace(dataset, frames=frames,
