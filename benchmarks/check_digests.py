@@ -1,0 +1,103 @@
+"""Same outputs before and after a refactor: SHA-256 of the files five commands write.
+
+Runs the default ``graphslam run``, ``--dataset victoria-park``, the synthetic
+image sequence on both visual back ends, and ``graphslam loops`` on KITTI 07,
+each with ``--rerun off`` into a temporary folder, and compares the trajectory,
+landmark and loop files byte for byte with ``digests.json`` (recorded by
+``--record``; the file says which commit and machine the digests came from).
+
+Floating-point results are only bit-identical on the same BLAS and CPU
+features, so this is a script to run on the team's machine around a
+refactor, not a CI test.
+
+    python benchmarks/check_digests.py            # compare (about 60 s)
+    python benchmarks/check_digests.py --record   # store new digests
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "data"
+DIGESTS = HERE / "digests.json"
+
+#: name -> (arguments after ``graphslam``, files whose bytes must not change)
+CASES: dict[str, tuple[list[str], list[str]]] = {
+    "synthetic-isam2": (["run", "--rerun", "off", "--quiet"],
+                        ["trajectory.tum", "landmarks.csv"]),
+    "victoria-park-isam2": (["run", "--dataset", "victoria-park", "--rerun", "off", "--quiet"],
+                            ["trajectory.tum", "landmarks.csv"]),
+    "synthetic-images-isam2": (["run", "--dataset", "synthetic-images", "--backend", "isam2",
+                                "--rerun", "off", "--quiet"], ["trajectory.tum", "landmarks.csv"]),
+    "synthetic-images-ekf": (["run", "--dataset", "synthetic-images", "--backend", "ekf",
+                              "--rerun", "off", "--quiet"], ["trajectory.tum", "landmarks.csv"]),
+    "kitti07-loops": (["loops", str(SHARED / "kitti07" / "image_0"), "--quiet"],
+                      ["loops.csv", "loops.jsonl"]),
+}
+
+
+def graphslam_exe() -> str:
+    """The console script of the interpreter running this file."""
+    local = Path(sys.executable).parent / "graphslam"
+    return str(local) if local.exists() else (shutil.which("graphslam") or "graphslam")
+
+
+def run_case(name: str, workdir: Path) -> dict[str, str]:
+    args, files = CASES[name]
+    out = workdir / name
+    if args[0] == "loops":
+        cmd = [graphslam_exe(), *args, "--out", str(out / "loops.csv"),
+               "--log", str(out / "loops.jsonl")]
+    else:
+        cmd = [graphslam_exe(), *args, "--out", str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{name}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
+    return {f: hashlib.sha256((out / f).read_bytes()).hexdigest() for f in files}
+
+
+def git_head() -> str:
+    proc = subprocess.run(["git", "rev-parse", "HEAD"], cwd=HERE, capture_output=True, text=True)
+    return proc.stdout.strip() or "unknown"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--record", action="store_true", help="store the digests instead of comparing")
+    ap.add_argument("--only", nargs="+", choices=sorted(CASES), help="run only these cases")
+    args = ap.parse_args()
+    names = args.only or list(CASES)
+    with tempfile.TemporaryDirectory() as tmp:
+        got = {}
+        for name in names:
+            print(f"running {name} ...", file=sys.stderr, flush=True)
+            got[name] = run_case(name, Path(tmp))
+    if args.record:
+        DIGESTS.write_text(json.dumps({
+            "commit": git_head(), "machine": f"{platform.machine()} {platform.processor()}",
+            "python": platform.python_version(), "digests": got}, indent=2) + "\n")
+        print(f"recorded {DIGESTS}")
+        return 0
+    stored = json.loads(DIGESTS.read_text())
+    bad = 0
+    for name in names:
+        for f, digest in got[name].items():
+            same = stored["digests"][name][f] == digest
+            bad += not same
+            print(f"{'same' if same else 'DIFFERENT':9s} {name}/{f}")
+    print(f"against digests from commit {stored['commit'][:10]}: "
+          f"{'all identical' if not bad else f'{bad} file(s) differ'}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
