@@ -60,7 +60,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from frontend.active_search import ActiveSearch, ActiveSearchConfig, extract_patches  # noqa: E402
-from frontend.camera import (innovation_covariance, invert_pose, plane_induced_affine,  # noqa: E402
+from slamcore.spatial.camera import (innovation_covariance, invert_pose, plane_induced_affine,  # noqa: E402
                              pose_covariance, project, project_jacobians, read_kitti_calib, read_kitti_poses, se3_exp)
 from frontend.harris import HarrisDetector  # noqa: E402
 from frontend.image import load_gray  # noqa: E402

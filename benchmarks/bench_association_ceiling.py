@@ -5,7 +5,7 @@ synthetic world. This script measures, per world seed, how far that is
 reachable at all:
 
 - ``oracle``: the best per-scan assignment given the true poses *and the true
-  landmark positions* (:func:`graphslam.compare.oracle_association_accuracy`).
+  landmark positions* (:func:`graphslam.pipelines.compare.oracle_association_accuracy`).
   Its only errors are swaps between landmarks the sensor cannot separate.
 - ``known poses``: the EKF-SLAM back end itself (JCBB, same gates) fed exact
   odometry with a negligible covariance, so the robot pose is known and only
@@ -16,7 +16,7 @@ reachable at all:
 - ``ekf``, ``fastslam1``, ``fastslam2`` (100 particles): the real runs
   (noisy odometry), as ``graphslam compare`` runs them.
 
-Each cell is association accuracy (``graphslam.pipeline.association_accuracy``:
+Each cell is association accuracy (``graphslam.pipelines.planar.association_accuracy``:
 majority mapping of estimated to true landmarks; an unused observation counts
 as wrong). One process, seeded: the same seeds give the same table.
 
@@ -32,11 +32,12 @@ import sys
 
 import numpy as np
 
-from graphslam import pipeline, registry
-from graphslam.compare import oracle_association_accuracy
-from graphslam.sources.base import Dataset
-from graphslam.sources.outliers import relative_pose
-from graphslam.types import Odometry
+from graphslam import registry
+from graphslam.pipelines import planar as pipeline
+from graphslam.pipelines.compare import oracle_association_accuracy
+from slamcore.planar.records import Dataset
+from graphslam.sources.planar.outliers import relative_pose
+from slamcore.planar.records import Odometry
 
 #: Odometry sigma (m, rad) of the "known poses" run: far below any landmark or
 #: sensor scale, large enough to keep the covariance positive definite.

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from filters import models  # noqa: E402
 from filters.ekf_slam import EkfSlam, EkfSlamConfig  # noqa: E402
-from graphslam.types import Observation  # noqa: E402
+from slamcore.planar.records import Observation  # noqa: E402
 
 SIZES = (100, 200, 500, 1000, 2000)
 

@@ -8,7 +8,7 @@ For each dataset (city10000, w10000), one process runs:
   configuration (``benchmarks/robust_isam2.toml`` by default);
 - for each fraction f (default 0.1 and 0.3) the dataset with
   ``round(f * number of true loop closures)`` false closures added by
-  :func:`graphslam.sources.outliers.inject_false_closures` (f is false closures
+  :func:`graphslam.sources.planar.outliers.inject_false_closures` (f is false closures
   per true closure, odometry edges not counted; seed ``--seed``; the claims are
   at least 10 sigma off the ground truth for city10000, off the clean optimum
   for w10000), with the robust configuration on the whole dataset, and with the
@@ -49,11 +49,13 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam import metrics, pipeline, registry
-from graphslam import gtsam_convert as conv
-from graphslam.config import load_section
-from graphslam.isam2 import Isam2Backend, Isam2Config
-from graphslam.sources.outliers import inject_false_closures, is_injected
+from graphslam import registry
+from graphslam.evaluation import planar as metrics
+from graphslam.pipelines import planar as pipeline
+from graphslam.backends import gtsam_convert as conv
+from slamcore.config import load_section
+from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.sources.planar.outliers import inject_false_closures, is_injected
 
 HERE = Path(__file__).resolve().parent
 #: Chi-square 3 dof 99.9 % quantile: a plain run's closure with a larger squared

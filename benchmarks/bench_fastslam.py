@@ -11,7 +11,7 @@ with 100 particles (and 1000 with ``--vp-particles 100 1000``), printing the
 total time. The file's odometry covariance is scaled by ``--vp-odometry-scale``
 (default 10): at 1 it is too confident for a particle filter and the estimate
 drifts away from the landmarks. The data is read by
-``graphslam.sources.victoria_park`` (the reader every back end uses).
+``graphslam.sources.planar.victoria_park`` (the reader every back end uses).
 
     python benchmarks/bench_fastslam.py [--out FILE.json] [--victoria-park]
 """
@@ -26,11 +26,11 @@ import time
 
 import numpy as np
 
-from filters import models
+from slamcore.planar import geometry as models
 from filters.fastslam import FastSlam, FastSlamConfig
-from graphslam.sources.base import Dataset
-from graphslam.sources.victoria_park import read_victoria_park
-from graphslam.types import Frame, Observation, Odometry
+from slamcore.planar.records import Dataset
+from graphslam.sources.planar.victoria_park import read_victoria_park
+from slamcore.planar.records import Frame, Observation, Odometry
 
 
 def simulated_run(n_landmarks: int, steps: int, seed: int = 0, visible: int = 8) -> Dataset:
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
 
     if args.victoria_park:
         vp = read_victoria_park()
-        how = "graphslam.sources.victoria_park"
+        how = "graphslam.sources.planar.victoria_park"
         n_obs = sum(len(f.observations) for f in vp.frames)
         print(f"\nVictoria Park ({how}): {len(vp.frames)} poses, {n_obs} observations")
         for n in args.vp_particles:
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
                     f"covariance x{args.vp_odometry_scale:g}: {dt:.2f} s total, "
                     f"{len(est.landmark_ids)} landmarks, {b.resample_count} resamplings")
             if args.vp_association == "unknown":
-                from graphslam.pipeline import association_accuracy
+                from graphslam.pipelines.planar import association_accuracy
 
                 acc = association_accuracy([p for p in pairs if p[0] is not None])
                 row["association_accuracy"] = acc["accuracy"]

@@ -19,9 +19,10 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from graphslam import gtsam_convert as conv
-from graphslam import pipeline, registry
-from graphslam.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends import gtsam_convert as conv
+from graphslam import registry
+from graphslam.pipelines import planar as pipeline
+from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
 
 
 def prebuild(dataset, steps):

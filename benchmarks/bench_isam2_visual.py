@@ -36,9 +36,9 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
-from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from graphslam.visual_backend import PixelObservations
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+from slamcore.spatial.backend import PixelObservations
 
 
 def make_stream(frames: int, sigma_px: float, seed: int):

@@ -2,7 +2,7 @@
 
 One process, the default synthetic image sequence (300 VGA frames, 1.5 laps,
 the sequence's noisy odometry), the default Harris front end, and four runs of
-:func:`graphslam.visual_pipeline.run`:
+:func:`graphslam.pipelines.spatial.run`:
 
 - ``local map``: landmarks predicted for active search only if observed within
   the last ``--window`` frames (``isam2_visual.predict_window_frames``), so an
@@ -11,7 +11,7 @@ the sequence's noisy odometry), the default Harris front end, and four runs of
 - ``full map`` (the default): every mapped landmark in view is predicted, so
   active search itself re-finds old landmarks on a revisit;
 
-each without and with :class:`graphslam.visual_loops.VisualLoopCloser` (the
+each without and with :class:`graphslam.pipelines.loop_closing.VisualLoopCloser` (the
 detector with its defaults and a 1000-word tree trained on the sequence, the
 metric PnP pose, the redundancy rule). Closures are checked against the
 sequence's revisit pairs (within 2 frames).
@@ -33,11 +33,11 @@ from pathlib import Path
 from tqdm import tqdm
 
 from frontend.tracking import Tracker, TrackerConfig
-from graphslam import visual_pipeline as vp
-from graphslam.commands.vocab import orb_for, train_vocabulary
-from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
-from graphslam.sources.synthetic_images import make_synthetic_images
-from graphslam.visual_loops import VisualLoopCloser
+from graphslam.pipelines import spatial as vp
+from graphslam.cli.vocab import orb_for, train_vocabulary
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from graphslam.sources.spatial.synthetic_images import make_synthetic_images
+from graphslam.pipelines.loop_closing import VisualLoopCloser
 from loopclosure.detector import LoopDetector
 
 HERE = Path(__file__).resolve().parent

@@ -1,7 +1,7 @@
 """Precision and recall of loop closures on the synthetic image sequence (issue 6).
 
 One process: render the default synthetic image sequence
-(:func:`graphslam.sources.synthetic_images.make_synthetic_images`, 300 VGA
+(:func:`graphslam.sources.spatial.synthetic_images.make_synthetic_images`, 300 VGA
 frames, 1.5 laps), ORB features, a vocabulary tree trained on the sequence
 itself (as ``graphslam loops`` does without ``--vocab``: 10-way tree of
 depth 3, the 300 strongest descriptors per image), then
@@ -48,8 +48,8 @@ import numpy as np
 from tqdm import tqdm
 
 from frontend.orb import OrbDetector
-from graphslam.commands.vocab import train_vocabulary
-from graphslam.sources.synthetic_images import make_synthetic_images
+from graphslam.cli.vocab import train_vocabulary
+from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import VerifyConfig
 
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
     kitti = None
     kdir = KITTI_DEFAULT if args.kitti is None else (None if args.kitti == "none" else Path(args.kitti))
     if kdir is not None and (kdir / "image_0").is_dir():
-        from graphslam.commands.vocab import folder_images
+        from graphslam.cli.vocab import folder_images
         from frontend.image import load_gray
 
         t0 = time.perf_counter()

@@ -1,14 +1,14 @@
 """Whole per-frame visual SLAM loop on the synthetic VGA image sequence, split by stage.
 
-The loop is the one :func:`graphslam.visual_pipeline.run` drives (``graphslam
+The loop is the one :func:`graphslam.pipelines.spatial.run` drives (``graphslam
 run --dataset synthetic-images``), with the real pieces, built as
-:mod:`graphslam.visual_run` builds them (default configurations plus the
+:mod:`graphslam.cli.run_spatial` builds them (default configurations plus the
 swept fields): the synthetic image sequence (``make_synthetic_images``,
 default config: 640 x 480, fx = 500, seed ``--seed``, its own noisy
 odometry), the front-end :class:`frontend.tracking.Tracker` (detector
 ``harris`` or ``fpga``; ``follow_unmapped`` from the back end as in the
 pipeline) and a back end (:class:`filters.mono_ekf.MonoEkf` or
-:class:`graphslam.isam2_visual.VisualIsam2Backend`). Per frame ``k >= 1``::
+:class:`graphslam.backends.spatial.isam2.VisualIsam2Backend`). Per frame ``k >= 1``::
 
     backend.predict(k, odometry[k-1], covariance)      # stage "pred"
     predictions = backend.predict_observations()       # stage "pred"
@@ -81,9 +81,9 @@ from frontend.active_search import ActiveSearchConfig  # noqa: E402
 from frontend.harris import HarrisConfig  # noqa: E402
 from frontend.orb import OrbConfig  # noqa: E402
 from frontend.tracking import Tracker, TrackerConfig  # noqa: E402
-from graphslam import visual_pipeline as vp  # noqa: E402
-from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config  # noqa: E402
-from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
+from graphslam.pipelines import spatial as vp  # noqa: E402
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config  # noqa: E402
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 
 WARMUP_FRAMES = 10
 STAGES = ("detect", "search", "pred", "update")

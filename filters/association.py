@@ -36,7 +36,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
-from filters import models
+from slamcore.planar import geometry as models
 
 
 @lru_cache(maxsize=512)

@@ -94,12 +94,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from filters import models
+from slamcore.planar import geometry as models
 from filters.association import (chi2_quantile, individual_candidates, jcbb,
                                  mahalanobis_sq_2d)
-from graphslam.backend import Backend
-from graphslam.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from graphslam.types import (Estimate, Observation, ObservationKind, Odometry, Prediction,
+from slamcore.planar.backend import Backend
+from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
+from slamcore.planar.records import (Estimate, Observation, ObservationKind, Odometry, Prediction,
                              as_covariance, as_vector, wrap_angle)
 
 #: Size of one block of the in-place rank-2 downdate, in doubles (1 MiB): the

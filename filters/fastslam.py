@@ -73,11 +73,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from filters import models
+from slamcore.planar import geometry as models
 from filters.fastslam_map import ParticleMaps
-from graphslam.backend import Backend
-from graphslam.errors import ConfigError, GraphSlamError, UnsupportedError
-from graphslam.types import (Estimate, Observation, ObservationKind, Odometry, Prediction,
+from slamcore.planar.backend import Backend
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from slamcore.planar.records import (Estimate, Observation, ObservationKind, Odometry, Prediction,
                              as_covariance, as_vector, wrap_angle)
 
 _LOG_2PI = math.log(2.0 * math.pi)

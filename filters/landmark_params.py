@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from frontend.camera import skew
+from slamcore.spatial.camera import skew
 
 #: Landmark kinds (codes stored by the filter).
 EUCLIDEAN, IDP, AHP = 0, 1, 2

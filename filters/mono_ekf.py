@@ -1,7 +1,7 @@
 """Monocular EKF-SLAM with undelayed inverse-depth landmarks (numpy only).
 
 The filter of the FPGA paper (seed 003, sections 2 and 4.4; RT-SLAM), behind
-:class:`graphslam.visual_backend.VisualBackend`.
+:class:`slamcore.spatial.backend.VisualBackend`.
 
 State ``X = [R, L1 ... Ln]`` with a full covariance ``P``. The robot is the
 camera (``wTc``):
@@ -88,8 +88,8 @@ from typing import ClassVar
 import numpy as np
 
 from filters import landmark_params as lp
-from graphslam.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from graphslam.visual_backend import (PixelObservations, PixelPredictions, VisualBackend,
+from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
+from slamcore.spatial.backend import (PixelObservations, PixelPredictions, VisualBackend,
                                       VisualEstimate)
 
 __all__ = ["MonoEkfConfig", "MonoEkf", "odometry_motion", "constant_velocity_motion"]

@@ -25,7 +25,7 @@ Two modes (``ActiveSearchConfig.mode``):
   through the 3 scores around the peak on each axis. Optional appearance
   prediction: the patch is warped from the previous image by a per-landmark
   affine map of pixel offsets (previous -> current, e.g.
-  :func:`frontend.camera.plane_induced_affine`) before correlation.
+  :func:`slamcore.spatial.camera.plane_induced_affine`) before correlation.
 * ``"nearest"`` (hardware, the FPGA variant): among the current frame's Harris
   points (:class:`frontend.features.Features`), the one nearest to the
   prediction in Mahalanobis distance and inside the ellipse is taken. Points are
@@ -48,7 +48,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import check_gray
-from graphslam.errors import ConfigError, InputError, MeasurementError
+from slamcore.errors import ConfigError, InputError, MeasurementError
 
 __all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "chi2_2dof", "ellipse_pixels",
            "extract_patches"]

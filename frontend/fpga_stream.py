@@ -69,7 +69,7 @@ from frontend.harris import (
     cell_grid,
 )
 from frontend.image import check_gray
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 
 _S_SHIFT = 12
 _W_SHIFT = 16

@@ -93,7 +93,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import check_gray
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 
 #: Pixels of look-ahead of one response on each side (2 smoothing + 1 derivative + 2 window).
 REACH_PX = 5

@@ -2,7 +2,7 @@
 
 Every detector takes an ``(H, W)`` ``uint8`` greyscale image and calls
 :func:`check_gray` first, so a colour image, a float image or an empty array
-fails with one clear :class:`~graphslam.errors.InputError` instead of a
+fails with one clear :class:`~slamcore.errors.InputError` instead of a
 confusing OpenCV assertion deep inside a filter.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from graphslam.errors import InputError
+from slamcore.errors import InputError
 
 
 def check_gray(image: object, what: str = "image") -> np.ndarray:

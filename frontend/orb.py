@@ -25,7 +25,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import check_gray
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The visual front end, one frame at a time: track ids that stay on one physical point.
 
 Per frame (:meth:`Tracker.track`), given the image and the back end's
-:class:`~graphslam.visual_backend.PixelPredictions`:
+:class:`~slamcore.spatial.backend.PixelPredictions`:
 
 1. **Detection**: corners by the configured detector, ``"harris"``
    (:class:`frontend.harris.HarrisDetector`), ``"orb"``
@@ -53,8 +53,8 @@ from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
-from graphslam.errors import ConfigError
-from graphslam.visual_backend import PixelObservations, PixelPredictions
+from slamcore.errors import ConfigError
+from slamcore.spatial.backend import PixelObservations, PixelPredictions
 
 __all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES"]
 

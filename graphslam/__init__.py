@@ -2,11 +2,11 @@
 
 Import the parts you need; nothing heavy happens at import time:
 
-- :mod:`graphslam.types` and :mod:`graphslam.backend`: numpy records and the
+- :mod:`slamcore.planar.records` and :mod:`slamcore.planar.backend`: numpy records and the
   back-end contract (no gtsam);
-- :mod:`graphslam.isam2`: the iSAM2 back end;
+- :mod:`graphslam.backends.planar.isam2`: the iSAM2 back end;
 - :mod:`graphslam.sources`: synthetic world and dataset readers;
-- :mod:`graphslam.pipeline`, :mod:`graphslam.cli`: the application.
+- :mod:`graphslam.pipelines.planar`, :mod:`graphslam.cli.main`: the application.
 """
 
 __version__ = "0.1.0"

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from graphslam.backend import Backend
-from graphslam.config import load_section
-from graphslam.errors import ConfigError, InputError
-from graphslam.sources.base import Dataset
+from slamcore.planar.backend import Backend
+from slamcore.config import load_section
+from slamcore.errors import ConfigError, InputError
+from slamcore.planar.records import Dataset
 
 #: Built-in datasets; anything else is taken as a pose-graph file path.
 DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
@@ -18,28 +18,28 @@ BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None = None) -> Dataset:
     """Dataset by name or pose-graph file path (``.graph`` TORO, ``.g2o``)."""
     if spec == "synthetic":
-        from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+        from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
         return make_synthetic(load_section(SyntheticConfig, config_path, {"seed": seed}))
     if spec == "victoria-park":
-        from graphslam.sources.victoria_park import read_victoria_park, victoria_park_path
+        from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 
         return read_victoria_park(victoria_park_path())
     if spec == "city10000":
-        from graphslam.sources.posegraph import read_city10000
+        from graphslam.sources.planar.posegraph import read_city10000
 
         return read_city10000()
     if spec == "w10000":
         import gtsam
 
-        from graphslam.sources.posegraph import read_pose_graph
+        from graphslam.sources.planar.posegraph import read_pose_graph
 
         return read_pose_graph(gtsam.findExampleDataFile("w10000.graph"))
     path = Path(spec)
     if not path.exists():
         raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
                          path)
-    from graphslam.sources.posegraph import read_pose_graph
+    from graphslam.sources.planar.posegraph import read_pose_graph
 
     return read_pose_graph(path)
 
@@ -48,7 +48,7 @@ def make_backend(name: str, *, config_path: Path | None = None,
                  overrides: dict | None = None) -> Backend:
     """Back end by name, configured from the file's section plus ``overrides``."""
     if name == "isam2":
-        from graphslam.isam2 import Isam2Backend, Isam2Config
+        from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
 
         return Isam2Backend(load_section(Isam2Config, config_path, overrides))
     if name == "ekf":
@@ -92,10 +92,10 @@ def is_visual_dataset(spec: str) -> bool:
 def load_image_sequence(spec: str, *, seed: int | None = None, config_path: Path | None = None):
     """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``) or folder."""
     if spec == "synthetic-images":
-        from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+        from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
         return make_synthetic_images(load_section(SyntheticImagesConfig, config_path, {"seed": seed}))
-    from graphslam.sources.images import read_image_sequence
+    from graphslam.sources.spatial.images import read_image_sequence
 
     return read_image_sequence(Path(spec))
 
@@ -105,7 +105,7 @@ def make_visual_backend(name: str, *, config_path: Path | None = None,
     """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
     (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
-        from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
+        from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
 
         return VisualIsam2Backend(load_section(VisualIsam2Config, config_path, overrides))
     if name == "ekf":

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 
 #: Allowed |sum(weights) - 1| of a BowVector (float64 rounding of a normalised sum).
 L1_NORM_TOL = 1e-9

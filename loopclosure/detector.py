@@ -37,7 +37,7 @@ from typing import Callable, ClassVar, Iterable
 import numpy as np
 
 from frontend.orb import OrbDetector
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector"]

@@ -12,7 +12,7 @@ the answer ``aTb`` does not depend on the drift the closure is meant to remove.
 
 Covariance (contract order ``[rho, phi]``, right perturbation of ``aTb``): the
 Gauss-Newton covariance ``sigma_px^2 (J^T J)^-1`` of the inlier reprojections,
-``J`` = d pixel / d pose (:func:`frontend.camera.project_jacobians`: a left
+``J`` = d pixel / d pose (:func:`slamcore.spatial.camera.project_jacobians`: a left
 perturbation of ``bTa`` is minus a right perturbation of ``aTb``, so the
 covariance is the same), times ``covariance_inflation`` because the map points
 carry errors of their own that PnP treats as exact, plus a floor.
@@ -29,8 +29,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from frontend.camera import invert_pose, project_jacobians
-from graphslam.errors import ConfigError
+from slamcore.spatial.camera import invert_pose, project_jacobians
+from slamcore.errors import ConfigError
 from loopclosure.verify import match_descriptors
 
 __all__ = ["PnpConfig", "PnpResult", "relative_pose_pnp"]

@@ -46,7 +46,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 
 __all__ = ["VerifyConfig", "Verification", "GeometricVerifier", "match_descriptors", "MODELS"]
 

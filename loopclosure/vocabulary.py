@@ -40,7 +40,7 @@ Persistence: ``save(path)`` writes ONE ``.npz`` file (exactly ``path``, no
 suffix added) holding ``format_version``, ``kind``, the parameters and the
 learned arrays; ``load(path)`` (class method, or :func:`load_vocabulary` for
 either kind) returns arrays identical to the saved ones (same dtype, same
-bits) and raises :class:`graphslam.errors.InputError` naming the file when it
+bits) and raises :class:`slamcore.errors.InputError` naming the file when it
 is missing, damaged, truncated, of another format version, of another kind or
 internally inconsistent.
 """
@@ -57,7 +57,7 @@ from sklearn.cluster import KMeans, MiniBatchKMeans
 # only to pin k-means to one thread: see _one_thread.
 from threadpoolctl import threadpool_limits
 
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 
 FORMAT_VERSION = 1
 

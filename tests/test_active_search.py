@@ -13,7 +13,7 @@ import pytest
 from frontend.active_search import (ActiveSearch, ActiveSearchConfig, chi2_2dof, ellipse_pixels,
                                     extract_patches)
 from frontend.features import Features
-from graphslam.errors import ConfigError, InputError, MeasurementError
+from slamcore.errors import ConfigError, InputError, MeasurementError
 
 from .conftest import ROOT
 

@@ -11,8 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from filters import models
-from graphslam import pipeline, registry
+from slamcore.planar import geometry as models
+from graphslam import registry
+from graphslam.pipelines import planar as pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 

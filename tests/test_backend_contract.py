@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graphslam import pipeline, registry
-from graphslam.backend import Backend
-from graphslam.errors import GraphSlamError, UnsupportedError
-from graphslam.types import LoopClosure, Odometry
+from graphslam import registry
+from graphslam.pipelines import planar as pipeline
+from slamcore.planar.backend import Backend
+from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.planar.records import LoopClosure, Odometry
 from tests.worlds import assert_poses_close, square_world
 
 #: Noise-free data must be reproduced to this by deterministic back ends, m / rad.
@@ -95,7 +96,7 @@ def test_predicted_observations(make_backend):
     est = b.estimate()
     preds = b.predict_observations(list(est.landmark_ids) + [999])  # 999 unknown: skipped
     assert {p.landmark_id for p in preds} == set(int(i) for i in est.landmark_ids)
-    from filters.models import observe
+    from slamcore.planar.geometry import observe
 
     for p in preds:
         m = est.landmarks_w[list(est.landmark_ids).index(p.landmark_id)]

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from graphslam.cli import main
+from graphslam.cli.main import main
 from tests.conftest import ROOT
 
 METRIC_KEYS = {"dataset", "backend", "steps", "landmarks", "final_error", "ate_rmse_m",
@@ -20,7 +20,7 @@ METRIC_KEYS = {"dataset", "backend", "steps", "landmarks", "final_error", "ate_r
 
 def run_cli(args, tmp_path, timeout=300):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "graphslam.cli", *args], cwd=tmp_path,
+    return subprocess.run([sys.executable, "-m", "graphslam.cli.main", *args], cwd=tmp_path,
                           capture_output=True, text=True, timeout=timeout, env=env)
 
 
@@ -96,7 +96,7 @@ def test_bad_config_is_one_line(tmp_path):
 @pytest.mark.slow
 def test_ctrl_c_writes_what_was_estimated(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "graphslam.cli", "run", "--dataset",
+    proc = subprocess.Popen([sys.executable, "-m", "graphslam.cli.main", "run", "--dataset",
                              "victoria-park", "--out", "vp", "--rerun", "off", "--quiet"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)

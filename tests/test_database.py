@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 from loopclosure.database import BowDatabase, BowVector
 from loopclosure.vocabulary import FlatVocabulary, VocabularyTree
 

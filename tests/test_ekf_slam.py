@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from filters import models
+from slamcore.planar import geometry as models
 from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
 from filters.ekf_slam import EkfSlam, EkfSlamConfig
-from graphslam.config import from_dict
-from graphslam.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from graphslam.pipeline import association_accuracy
-from graphslam.types import LoopClosure, Observation, ObservationKind, Odometry, wrap_angle
+from slamcore.config import from_dict
+from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
+from graphslam.pipelines.planar import association_accuracy
+from slamcore.planar.records import LoopClosure, Observation, ObservationKind, Odometry, wrap_angle
 
 #: Dense-reference agreement (state units: metres, radians; covariance m^2, rad^2).
 DENSE_TOL = 1e-9
@@ -430,9 +430,10 @@ def test_observability_constrained_jacobian_keeps_rotation_unobservable():
 @pytest.mark.slow
 def test_default_synthetic_world_nees_is_consistent_over_20_runs():
     """Issue 3's consistency criterion on the course demo (known association)."""
-    from graphslam import metrics, pipeline
-    from graphslam.compare import errors_against_truth
-    from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+    from graphslam.evaluation import planar as metrics
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.pipelines.compare import errors_against_truth
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
     runs = 20
     nees = []
@@ -533,8 +534,8 @@ def test_unknown_association_on_the_default_synthetic_world():
     landmark (86.6 % before mutual exclusion and the 0.999 gates). The oracle
     that knows the true poses and map reaches 98.8 % here: most misses are swaps
     between landmarks 0.3-0.7 m apart."""
-    from graphslam.pipeline import run
-    from graphslam.sources.synthetic import make_synthetic
+    from graphslam.pipelines.planar import run
+    from graphslam.sources.planar.synthetic import make_synthetic
 
     res = run(make_synthetic(), EkfSlam(EkfSlamConfig(association="unknown")))
     score = association_accuracy(res.associations)
@@ -545,8 +546,8 @@ def test_unknown_association_on_the_default_synthetic_world():
 def test_oracle_association_ceiling():
     """The oracle (true poses and map, best assignment per scan) is perfect with a
     precise sensor and falls short only under the course's 10-degree bearing noise."""
-    from graphslam.compare import oracle_association_accuracy
-    from graphslam.sources.synthetic import SyntheticConfig, make_synthetic
+    from graphslam.pipelines.compare import oracle_association_accuracy
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
     precise = make_synthetic(SyntheticConfig(sigma_r_m=0.01, sigma_phi_deg=0.1))
     assert oracle_association_accuracy(precise, steps=300) == 1.0

@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graphslam import metrics, pipeline
-from graphslam.config import load_section
-from graphslam.errors import ConfigError, GraphSlamError
-from graphslam.isam2 import Isam2Backend, Isam2Config
-from graphslam.sources.outliers import (INJECTED_SOURCE, closure_mahalanobis,
+from graphslam.evaluation import planar as metrics
+from graphslam.pipelines import planar as pipeline
+from slamcore.config import load_section
+from slamcore.errors import ConfigError, GraphSlamError
+from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.sources.planar.outliers import (INJECTED_SOURCE, closure_mahalanobis,
                                         inject_false_closures, is_injected)
 
 ROBUST_TOML = Path(__file__).resolve().parents[1] / "benchmarks" / "robust_isam2.toml"
@@ -34,7 +35,7 @@ SAME_OPTIMUM_TOL_M = 0.01
 
 @pytest.fixture(scope="module")
 def city():
-    from graphslam.sources.posegraph import read_city10000
+    from graphslam.sources.planar.posegraph import read_city10000
 
     return read_city10000().truncated(800)
 
@@ -43,7 +44,7 @@ def city():
 def w10000():
     import gtsam
 
-    from graphslam.sources.posegraph import read_pose_graph
+    from graphslam.sources.planar.posegraph import read_pose_graph
 
     return read_pose_graph(gtsam.findExampleDataFile("w10000.graph")).truncated(600)
 

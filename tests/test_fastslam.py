@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filters import models
+from slamcore.planar import geometry as models
 from filters.fastslam import FastSlam, FastSlamConfig, low_variance_resample
 from filters.fastslam_map import ParticleMaps
-from graphslam import pipeline
-from graphslam.backend import Backend
-from graphslam.config import from_dict
-from graphslam.errors import ConfigError, GraphSlamError, UnsupportedError
-from graphslam.sources.base import Dataset
-from graphslam.types import Frame, LoopClosure, Observation, Odometry
+from graphslam.pipelines import planar as pipeline
+from slamcore.planar.backend import Backend
+from slamcore.config import from_dict
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from slamcore.planar.records import Dataset
+from slamcore.planar.records import Frame, LoopClosure, Observation, Odometry
 
 #: Known association, 100 particles, one 50 m loop past 32 landmarks: max position
 #: error along the run, metres (seen over 8 seeded worlds: 0.11-0.49 m; online
@@ -377,7 +377,7 @@ def test_unknown_association_on_the_default_synthetic_world(version, min_accurac
     """Course noise, default world, seed 0, 100 particles: measured 96.2 % (1.0)
     and 95.0 % (2.0), against 91.9 % / 90.9 % without mutual exclusion. The
     oracle (true poses and map) reaches 98.8 %."""
-    from graphslam.sources.synthetic import make_synthetic
+    from graphslam.sources.planar.synthetic import make_synthetic
 
     res = pipeline.run(make_synthetic(), FastSlam(FastSlamConfig(
         version=version, n_particles=100, association="unknown")))

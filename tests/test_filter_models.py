@@ -4,7 +4,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from filters import models
+from slamcore.planar import geometry as models
 
 JAC_TOL = 1e-6  # absolute, on derivatives of metres/radians (step 1e-6)
 VALUE_TOL = 1e-9  # metres / radians

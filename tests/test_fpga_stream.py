@@ -9,7 +9,7 @@ from frontend.features import Detector, Features
 from frontend.fpga_stream import FpgaHarrisStream, FpgaTiming
 from frontend.harris import HarrisConfig, HarrisDetector
 from frontend.image import load_gray
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 from tests.test_harris import kitti_frames, noise_texture
 
 #: Tolerance on times computed from the pixel clock, seconds.
@@ -195,7 +195,7 @@ def test_detect_is_a_detector_stamped_at_ready_time(three_frames):
 @pytest.mark.slow
 def test_stream_bit_identical_on_a_synthetic_sequence():
     """Every frame of a rendered synthetic image sequence (VGA, 30 frames, one lap)."""
-    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
     seq = make_synthetic_images(SyntheticImagesConfig(n_frames=30, laps=1.0, pixel_noise_sigma=1.0))
     cfg = HarrisConfig(arithmetic="fixed")

@@ -20,7 +20,7 @@ from frontend.harris import (
     tessellate,
 )
 from frontend.image import check_gray, load_gray
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 
 #: Share of tessellated points that must be identical between fixed and float.
 MIN_IDENTICAL_SHARE = 0.90

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from graphslam.errors import InputError
-from graphslam.sources.images import (
+from slamcore.errors import InputError
+from graphslam.sources.spatial.images import (
     ImageSequence, read_euroc, read_image_folder, read_image_sequence, read_intrinsics_file,
     read_kitti, read_tum_rgbd,
 )

@@ -6,12 +6,12 @@ import gtsam
 import numpy as np
 import pytest
 
-from filters.models import observe_jacobians
-from graphslam import gtsam_convert as conv
-from graphslam import pipeline
-from graphslam.errors import ConfigError
-from graphslam.isam2 import Isam2Backend, Isam2Config
-from graphslam.types import Estimate
+from slamcore.planar.geometry import observe_jacobians
+from graphslam.backends import gtsam_convert as conv
+from graphslam.pipelines import planar as pipeline
+from slamcore.errors import ConfigError
+from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from slamcore.planar.records import Estimate
 from tests.worlds import assert_poses_close, square_world
 
 #: Incremental with default relinearisation (threshold 0.1) vs batch optimum:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import Verification
 
@@ -152,7 +152,7 @@ def precision_recall(closures, revisit_pairs, tol=MATCH_TOL_FRAMES, strict=True)
 @pytest.fixture(scope="module")
 def small_run():
     from frontend.orb import OrbDetector
-    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
     from loopclosure.vocabulary import VocabularyTree
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
@@ -199,7 +199,7 @@ def test_candidate_log_is_json_lines(small_run, tmp_path):
 
 
 def test_default_detector_on_images_is_repeatable():
-    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
     from loopclosure.vocabulary import VocabularyTree
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=160, height=120, fx=125, fy=125,
@@ -225,8 +225,8 @@ TARGET_RECALL = 0.8
 @pytest.mark.slow
 def test_default_sequence_meets_issue_targets():
     """Default detector and sequence, vocabulary trained on the sequence (as `graphslam loops`)."""
-    from graphslam.commands.vocab import train_vocabulary
-    from graphslam.sources.synthetic_images import make_synthetic_images
+    from graphslam.cli.vocab import train_vocabulary
+    from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 
     from frontend.orb import OrbDetector
 

@@ -8,7 +8,7 @@ import json
 import cv2
 import pytest
 
-from graphslam.cli import build_parser, main
+from graphslam.cli.main import build_parser, main
 
 #: A CSV closure (q, m) is true when a true revisit pair (i, q) has |m - i| <= this (frames).
 MATCH_TOL_FRAMES = 2
@@ -19,7 +19,7 @@ WORDS = "100"
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     """80 QVGA frames of a 1.5-lap synthetic route as PNG, with the true revisit pairs."""
-    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
                                                       cx=159.5, cy=119.5, n_frames=80))

@@ -1,12 +1,12 @@
-"""Tests of graphslam.metrics (numpy only)."""
+"""Tests of graphslam.evaluation.planar (numpy only)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from graphslam import metrics
-from graphslam.errors import GraphSlamError
+from graphslam.evaluation import planar as metrics
+from slamcore.errors import GraphSlamError
 
 #: Alignment / ATE exactness on noise-free data, metres.
 EXACT_TOL_M = 1e-9

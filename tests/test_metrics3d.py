@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import se3_exp, so3_exp
-from graphslam import metrics3d
-from graphslam.errors import GraphSlamError
+from slamcore.spatial.camera import se3_exp, so3_exp
+from graphslam.evaluation import spatial as metrics3d
+from slamcore.errors import GraphSlamError
 
 EXACT = 1e-9  # m / rad: a known transform must come back to rounding
 

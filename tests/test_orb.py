@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import (invert_pose, plane_induced_affine, project, project_jacobians,
+from slamcore.spatial.camera import (invert_pose, plane_induced_affine, project, project_jacobians,
                              read_kitti_calib, read_kitti_poses, se3_exp)
 from frontend.features import Detector
 from frontend.orb import OrbConfig, OrbDetector
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 
 #: Tolerance of analytic vs central-difference Jacobians, px per unit (relative to the entry scale).
 JAC_RTOL = 1e-5

@@ -1,4 +1,4 @@
-"""Tests of the dataset readers (graphslam.sources.victoria_park / posegraph).
+"""Tests of the dataset readers (graphslam.sources.planar.victoria_park / posegraph).
 
 Noise interpretation is checked factor by factor against gtsam's own loaders.
 """
@@ -11,11 +11,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from graphslam.errors import InputError
-from graphslam.sources.posegraph import (read_city10000, read_g2o, read_pose_graph,
+from slamcore.errors import InputError
+from graphslam.sources.planar.posegraph import (read_city10000, read_g2o, read_pose_graph,
                                          read_toro)
-from graphslam.sources.victoria_park import read_victoria_park, victoria_park_path
-from graphslam.types import ObservationKind
+from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
+from slamcore.planar.records import ObservationKind
 
 #: Relative tolerance when comparing our numbers with gtsam's (both parse the
 #: same decimal text; the only differences are inversion round-off).

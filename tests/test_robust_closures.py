@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from graphslam import pipeline
-from graphslam.errors import ConfigError
-from graphslam.isam2 import Isam2Backend, Isam2Config
-from graphslam.types import LoopClosure
+from graphslam.pipelines import planar as pipeline
+from slamcore.errors import ConfigError
+from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from slamcore.planar.records import LoopClosure
 from tests.worlds import square_world
 
 #: A run with false closures must stay this close (RMS position) to the clean run.

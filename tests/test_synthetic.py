@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from filters.models import compose, observe
-from graphslam.config import from_dict, load_section
-from graphslam.errors import ConfigError
-from graphslam.sources.synthetic import (ODOMETRY_COVARIANCE_FLOOR, SyntheticConfig,
+from slamcore.planar.geometry import compose, observe
+from slamcore.config import from_dict, load_section
+from slamcore.errors import ConfigError
+from graphslam.sources.planar.synthetic import (ODOMETRY_COVARIANCE_FLOOR, SyntheticConfig,
                                          dead_reckon, make_synthetic, route_controls,
                                          unicycle_delta)
-from graphslam.types import ObservationKind, wrap_angle
+from slamcore.planar.records import ObservationKind, wrap_angle
 
 #: How far the last true pose may be from the first (straights round to whole steps).
 ROUTE_CLOSURE_TOL_M = 1e-6
@@ -155,7 +155,7 @@ def test_odometry_covariance_floor(world):
 
 
 def test_dead_reckoning_drifts(world):
-    from graphslam import metrics
+    from graphslam.evaluation import planar as metrics
     ids, odo = dead_reckon(world)
     gt_ids, gt = world.ground_truth()
     ate = metrics.ate(ids, odo, gt_ids, gt)["rmse_m"]

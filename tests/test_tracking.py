@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from frontend.tracking import Tracker, TrackerConfig
-from graphslam.errors import ConfigError
-from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from graphslam.visual_backend import PixelPredictions
+from slamcore.errors import ConfigError
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+from slamcore.spatial.backend import PixelPredictions
 
 #: A tracked pixel is "on its point" within this distance of the point's true projection, px.
 ON_POINT_PX = 3.0

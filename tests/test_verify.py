@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from frontend.camera import invert_pose, read_kitti_calib, read_kitti_poses
+from slamcore.spatial.camera import invert_pose, read_kitti_calib, read_kitti_poses
 from frontend.orb import OrbDetector
-from graphslam.errors import ConfigError
+from slamcore.errors import ConfigError
 from loopclosure.verify import GeometricVerifier, VerifyConfig, match_descriptors
 
 #: Lund door: rotation of the recovered relative pose vs COLMAP's, degrees
@@ -165,7 +165,7 @@ def test_kitti_fundamental_without_intrinsics(kitti):
 
 @pytest.fixture(scope="module")
 def synthetic_pair():
-    from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
                                                       cx=159.5, cy=119.5, n_frames=120))

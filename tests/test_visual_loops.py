@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from filters.mono_ekf import MonoEkf
-from frontend.camera import invert_pose, project, se3_exp
+from slamcore.spatial.camera import invert_pose, project, se3_exp
 from frontend.orb import OrbDetector
-from graphslam.cli import main
-from graphslam.errors import ConfigError, UnsupportedError
-from graphslam.isam2_visual import VisualIsam2Backend, VisualIsam2Config
-from graphslam.visual_backend import PixelObservations, PoseClosure
+from graphslam.cli.main import main
+from slamcore.errors import ConfigError, UnsupportedError
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from slamcore.spatial.backend import PixelObservations, PoseClosure
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
 from tests.test_isam2_visual import K, SIZE, SIGMA_PX, dead_reckoning, make_world, position_rmse
 
@@ -235,7 +235,7 @@ def test_redundant_closure_is_skipped_and_recorded(need, stage):
     (5) the closure is skipped as redundant; with it off (0) it goes to PnP."""
     from types import SimpleNamespace
 
-    from graphslam.visual_loops import LoopClosingConfig, VisualLoopCloser
+    from graphslam.pipelines.loop_closing import LoopClosingConfig, VisualLoopCloser
 
     rng = np.random.default_rng(0)
     img = cv2.GaussianBlur(rng.integers(0, 256, (240, 320), dtype=np.uint8), (3, 3), 0)
@@ -315,10 +315,10 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     by closures, so the run without them is visual odometry (issue 6's "same
     run without loop closure"). Measured: 0.1013 m without, 0.0231 m with 68
     closures, all true (``benchmarks/bench_loop_ate.py``)."""
-    from graphslam import visual_pipeline as vp
-    from graphslam.commands.vocab import orb_for, train_vocabulary
-    from graphslam.sources.synthetic_images import make_synthetic_images
-    from graphslam.visual_loops import VisualLoopCloser
+    from graphslam.pipelines import spatial as vp
+    from graphslam.cli.vocab import orb_for, train_vocabulary
+    from graphslam.sources.spatial.synthetic_images import make_synthetic_images
+    from graphslam.pipelines.loop_closing import VisualLoopCloser
     from frontend.tracking import Tracker, TrackerConfig
     from loopclosure.detector import LoopDetector
 
@@ -348,8 +348,8 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
 def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
     from types import SimpleNamespace
 
-    from graphslam.rerun_visual import VisualRecorder
-    from graphslam.visual_backend import VisualEstimate
+    from graphslam.visualisation.spatial import VisualRecorder
+    from slamcore.spatial.backend import VisualEstimate
 
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(3)]

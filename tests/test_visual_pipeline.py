@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frontend.camera import invert_pose, so3_exp
+from slamcore.spatial.camera import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackerConfig
-from graphslam import visual_pipeline as vp
-from graphslam.cli import main
-from graphslam.errors import GraphSlamError, UnsupportedError
-from graphslam.sources.images import ImageSequence
-from graphslam.sources.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from graphslam.visual_backend import PixelPredictions, VisualBackend, VisualEstimate
+from graphslam.pipelines import spatial as vp
+from graphslam.cli.main import main
+from slamcore.errors import GraphSlamError, UnsupportedError
+from graphslam.sources.spatial.images import ImageSequence
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+from slamcore.spatial.backend import PixelPredictions, VisualBackend, VisualEstimate
 from tests.conftest import ROOT, SHARED_DATA
 
 QVGA = dict(width=320, height=240, fx=250.0, fy=250.0, cx=159.5, cy=119.5)
@@ -329,7 +329,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
 
 
 def test_rerun_recording_of_a_visual_run_is_written(seq, tmp_path):
-    from graphslam.rerun_visual import VisualRecorder
+    from graphslam.visualisation.spatial import VisualRecorder
 
     path = tmp_path / "v.rrd"
     rec = VisualRecorder.open("save", path)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graphslam.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError
 from loopclosure.vocabulary import (FORMAT_VERSION, FlatVocabulary, VocabularyTree,
                                     hamming_distances, load_vocabulary)
 

@@ -1,0 +1,184 @@
+"""numpy records <-> gtsam types. The only module besides the iSAM2 back end that
+builds gtsam objects.
+
+Keys: poses ``X(id)``, landmarks ``L(id)`` (``gtsam.symbol_shorthand``), with
+the ids as in the input data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from functools import lru_cache
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from slamcore.errors import UnsupportedError
+from slamcore.planar.records import Dataset
+from slamcore.planar.records import Estimate, LoopClosure, Observation, ObservationKind, Odometry
+
+#: Reorders ``[range, bearing]`` (ours) into ``[bearing, range]`` (gtsam's BearingRange).
+_RB_TO_BR = np.array([[0.0, 1.0], [1.0, 0.0]])
+
+
+def pose2(wTb: np.ndarray) -> gtsam.Pose2:
+    return gtsam.Pose2(float(wTb[0]), float(wTb[1]), float(wTb[2]))
+
+
+def pose2_vector(p: gtsam.Pose2) -> np.ndarray:
+    """(3,) ``[x, y, theta]``."""
+    return np.array([p.x(), p.y(), p.theta()])
+
+
+def noise_from_covariance(covariance: np.ndarray) -> gtsam.noiseModel.Base:
+    """Diagonal model when the covariance is diagonal (as gtsam's loaders build), else full."""
+    cov = np.ascontiguousarray(covariance, dtype=np.float64)
+    return _noise_model(cov.tobytes(), cov.shape[0])
+
+
+@lru_cache(maxsize=4096)
+def _noise_model(cov_bytes: bytes, dim: int) -> gtsam.noiseModel.Base:
+    # Pose graphs repeat a handful of covariances thousands of times; noise
+    # models are immutable, so factors can share one (measured: building them
+    # was a third of our per-step overhead on w10000).
+    cov = np.frombuffer(cov_bytes, dtype=np.float64).reshape(dim, dim)
+    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
+        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov)))
+    return gtsam.noiseModel.Gaussian.Covariance(cov.copy())
+
+
+def prior_factor(pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> gtsam.PriorFactorPose2:
+    return gtsam.PriorFactorPose2(X(pose_id), pose2(wTb), noise_from_covariance(covariance))
+
+
+def between_factor(edge: Odometry | LoopClosure, noise=None) -> gtsam.BetweenFactorPose2:
+    """Factor on ``X(from) ^-1 X(to) = delta``; ``noise`` overrides the edge's Gaussian."""
+    model = noise if noise is not None else noise_from_covariance(edge.covariance)
+    return gtsam.BetweenFactorPose2(X(edge.from_id), X(edge.to_id), pose2(edge.delta), model)
+
+
+def bearing_range_factor(observation: Observation, landmark_id: int) -> gtsam.BearingRangeFactor2D:
+    if observation.kind is not ObservationKind.RANGE_BEARING:
+        raise UnsupportedError(f"2-D back end cannot use {observation.kind.value} observations")
+    range_m, bearing_rad = observation.z
+    cov_br = _RB_TO_BR @ observation.covariance @ _RB_TO_BR.T
+    return gtsam.BearingRangeFactor2D(
+        X(observation.pose_id), L(landmark_id), gtsam.Rot2(float(bearing_rad)), float(range_m),
+        noise_from_covariance(cov_br))
+
+
+def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.NonlinearFactorGraph:
+    """Batch factor graph of a dataset (prior, odometry, landmarks, loop closures).
+
+    Landmark observations without an id are left out (they need association).
+    """
+    graph = gtsam.NonlinearFactorGraph()
+    selected = dataset.frames if frames is None else dataset.frames[:frames]
+    if not selected:
+        return graph
+    graph.add(prior_factor(selected[0].pose_id, dataset.prior_wTb, dataset.prior_covariance))
+    for frame in selected:
+        if frame.odometry is not None:
+            graph.add(between_factor(frame.odometry))
+        for obs in frame.observations:
+            if obs.landmark_id is not None:
+                graph.add(bearing_range_factor(obs, obs.landmark_id))
+        for lc in frame.loop_closures:
+            graph.add(between_factor(lc))
+    return graph
+
+
+def estimate_values(estimate: Estimate) -> gtsam.Values:
+    values = gtsam.Values()
+    for pid, p in zip(estimate.pose_ids, estimate.wTb):
+        values.insert(X(int(pid)), pose2(p))
+    for lid, m in zip(estimate.landmark_ids, estimate.landmarks_w):
+        values.insert(L(int(lid)), np.asarray(m, dtype=float))
+    return values
+
+
+def values_to_estimate(values: gtsam.Values, pose_ids: Iterable[int],
+                       landmark_ids: Iterable[int]) -> Estimate:
+    """Pull the named poses and landmarks out of ``values`` (order kept)."""
+    pose_ids = np.fromiter(pose_ids, dtype=np.int64)
+    landmark_ids = np.fromiter(landmark_ids, dtype=np.int64)
+    wTb = np.array([pose2_vector(values.atPose2(X(int(i)))) for i in pose_ids]).reshape(-1, 3)
+    lms = np.array([values.atPoint2(L(int(j))) for j in landmark_ids]).reshape(-1, 2)
+    return Estimate(pose_ids=pose_ids, wTb=wTb, landmark_ids=landmark_ids, landmarks_w=lms)
+
+
+def graph_error(dataset: Dataset, estimate: Estimate) -> float | None:
+    """GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate`` under the dataset's noise.
+
+    Returns None when the estimate lacks a variable the graph needs (e.g. a
+    filter's own landmark ids under unknown association).
+    """
+    graph = dataset_graph(dataset, frames=len(estimate.pose_ids))
+    values = estimate_values(estimate)
+    for key in graph.keyVector():
+        if not values.exists(key):
+            return None
+    return float(graph.error(values))
+
+
+# --- 3-D (visual back ends) -------------------------------------------------
+#
+# Pose covariances: ours (slamcore.spatial.backend) are in the order
+# [rho (translation), phi (rotation)] of a right perturbation; gtsam's Pose3
+# tangent is [phi, rho], also on the right (Pose3.retract = compose(Expmap)).
+# Same perturbation, swapped blocks: the permutation below is its own inverse.
+
+_POSE3_SWAP = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
+
+
+def pose3(wTc: np.ndarray) -> gtsam.Pose3:
+    """(4, 4) rigid transform -> ``gtsam.Pose3``."""
+    T = np.asarray(wTc, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"expected a (4, 4) pose, got {T.shape}")
+    return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), T[:3, 3].copy())
+
+
+def pose3_matrix(p: gtsam.Pose3) -> np.ndarray:
+    """``gtsam.Pose3`` -> (4, 4) float64."""
+    return np.asarray(p.matrix(), dtype=np.float64)
+
+
+def cal3_s2(K: np.ndarray) -> gtsam.Cal3_S2:
+    """(3, 3) intrinsic matrix ``[[fx, s, u0], [0, fy, v0], [0, 0, 1]]`` -> ``gtsam.Cal3_S2``."""
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"expected K (3, 3), got {K.shape}")
+    return gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+
+
+def pose3_covariance_to_gtsam(covariance: np.ndarray) -> np.ndarray:
+    """(6, 6) ``[rho, phi]`` covariance (ours) -> gtsam's Pose3 order ``[phi, rho]``."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    return _POSE3_SWAP @ cov @ _POSE3_SWAP
+
+
+def pose3_covariance_from_gtsam(covariance: np.ndarray) -> np.ndarray:
+    """(6, 6) gtsam Pose3 covariance ``[phi, rho]`` -> ours ``[rho, phi]``."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    return _POSE3_SWAP @ cov @ _POSE3_SWAP
+
+
+#: Robust kernels by configuration name ("none" keeps the Gaussian).
+ROBUST_KERNELS = ("none", "huber", "cauchy")
+
+
+def robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseModel.Base:
+    """``noise`` wrapped in the M-estimator ``kernel`` ("huber" or "cauchy") of width
+    ``k`` (in sigmas of the whitened residual); "none" returns ``noise`` itself."""
+    if kernel == "none":
+        return noise
+    estimator = {"huber": gtsam.noiseModel.mEstimator.Huber,
+                 "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[kernel]
+    return gtsam.noiseModel.Robust.Create(estimator.Create(k), noise)
+
+
+def pose3_noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
+    """Gaussian noise model of a Pose3 factor from our ``[rho, phi]`` covariance."""
+    return noise_from_covariance(pose3_covariance_to_gtsam(covariance))

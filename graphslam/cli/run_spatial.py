@@ -1,0 +1,209 @@
+"""``graphslam run`` on an image sequence: parse the visual flags, run, write, print.
+
+Called by :func:`graphslam.cli.main.cmd_run` when ``--dataset`` is ``synthetic-images``
+or a folder. Configuration sections read from ``--config`` (flags win):
+``[synthetic_images]``, ``[visual]``, ``[odometry_noise]``, ``[tracker]``,
+``[active_search]``, ``[harris]``, ``[orb]``, ``[isam2_visual]``, ``[mono_ekf]``,
+and with ``--loops`` ``[loops]``, ``[loop_verify]``, ``[loop_pnp]``, ``[loop_closing]``.
+
+Flags and what they set: ``--frontend`` -> ``tracker.detector``; ``--odometry``
+-> ``visual.odometry``; ``--odometry-noise T R`` -> ``odometry_noise.sigma_t_per_m``
+and ``sigma_r_deg``; ``--seed`` -> the synthetic scene, the derived-odometry
+noise and the EKF's RANSAC; ``--max-steps`` -> frames; ``--no-polish`` ->
+``isam2_visual.polish = false``. With ``--odometry none`` the EKF runs its
+constant-velocity model (``mono_ekf.robot_model``) with its own
+``frame_dt_s``. ``--loops`` (or ``--vocab FILE``) runs
+:class:`graphslam.pipelines.loop_closing.VisualLoopCloser` alongside the back end;
+without ``--vocab`` a 1000-word vocabulary tree is first trained on the ORB
+features of the frames the run will see (as ``graphslam loops`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from graphslam.cli.main import fmt, report_outputs, summary_table
+from slamcore.config import load_section
+from slamcore.errors import GraphSlamError, UnsupportedError
+
+#: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
+SELF_TRAINED_WORDS = 1000
+
+
+def _backend_overrides(args, mode: str) -> dict:
+    """Flags that reach the back end's configuration."""
+    if args.backend == "isam2":
+        return {"polish": False} if args.no_polish else {}
+    out: dict = {}
+    if args.seed is not None:
+        out["seed"] = args.seed
+    if mode == "none":
+        # The EKF's frame_dt_s stays its own (config) value, not the sequence's
+        # frame interval: its acceleration noise is tuned per frame at that dt,
+        # and a monocular run has no metric scale for velocities anyway. With
+        # the 0.1 s of the synthetic stamps the same noise lets it diverge.
+        out["robot_model"] = "constant_velocity"
+    return out
+
+
+def run_visual(args: argparse.Namespace) -> int:
+    """The visual ``graphslam run``; returns the exit status."""
+    from frontend.active_search import ActiveSearchConfig
+    from frontend.harris import HarrisConfig
+    from frontend.orb import OrbConfig
+    from frontend.tracking import Tracker, TrackerConfig
+    from graphslam import registry
+    from graphslam.pipelines import spatial as vp
+
+    if args.max_steps is not None and args.max_steps < 1:
+        raise GraphSlamError("--max-steps must be at least 1")
+    if args.backend not in registry.VISUAL_BACKENDS:
+        raise GraphSlamError(f"back end {args.backend!r} does not run on image sequences "
+                             f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})")
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config_path=args.config)
+    run_cfg = load_section(vp.VisualRunConfig, args.config, {"odometry": args.odometry})
+    noise_over = {"seed": args.seed}
+    if args.odometry_noise is not None:
+        noise_over.update(sigma_t_per_m=args.odometry_noise[0], sigma_r_deg=args.odometry_noise[1])
+    noise = load_section(vp.OdometryNoiseConfig, args.config, noise_over)
+    mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
+    backend = registry.make_visual_backend(args.backend, config_path=args.config,
+                                           overrides=_backend_overrides(args, mode))
+    tracker_cfg = load_section(TrackerConfig, args.config, {"detector": args.frontend})
+    follow = tracker_cfg.follow_unmapped
+    tracker = Tracker(tracker_cfg,
+                      active_search=load_section(ActiveSearchConfig, args.config),
+                      harris=load_section(HarrisConfig, args.config),
+                      orb=load_section(OrbConfig, args.config),
+                      follow_unmapped=backend.needs_track_history if follow is None else follow)
+
+    n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
+    name = Path(sequence.source_path).name if sequence.source_path else sequence.name
+    out_dir = args.out or Path("runs") / f"{name}-{args.backend}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    recorder = None
+    hook = None
+    if args.rerun != "off":
+        from graphslam.visualisation.spatial import VisualRecorder
+
+        recorder = VisualRecorder.open(args.rerun, out_dir / "run.rrd", args.rerun_url)
+        recorder.start(sequence, n_frames)
+        hook = recorder.hook(args.backend)
+
+    closer = build_loop_closer(args, sequence, backend, n_frames,
+                               None if recorder is None else recorder.loop_hook(sequence))
+    result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
+                    max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
+                    frontend=tracker_cfg.detector, loop_closer=closer)
+    metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None))
+    metrics["backend"] = args.backend
+    metrics["backend_class"] = result.backend
+    if closer is not None:
+        metrics["loops"] = {**closer.stats, "vocabulary": closer.vocabulary_source}
+    paths = vp.write_outputs(result, out_dir, metrics)
+    if closer is not None:
+        paths.update(write_loops(closer, out_dir))
+    if recorder is not None:
+        recorder.finish(args.backend, result, every=args.rerun_every or 5)
+        if closer is not None:
+            recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
+        recorder.close()
+        if args.rerun == "save":
+            paths["recording"] = out_dir / "run.rrd"
+    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+
+
+def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None):
+    """The :class:`~graphslam.pipelines.loop_closing.VisualLoopCloser` of ``--loops``/``--vocab``, or None."""
+    if not (args.loops or args.vocab is not None):
+        return None
+    import sys
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from graphslam.cli.loops import check_vocabulary
+    from graphslam.cli.vocab import describe, orb_for, train_vocabulary
+    from graphslam.pipelines.loop_closing import LoopClosingConfig, VisualLoopCloser
+    from loopclosure.detector import LoopDetector, LoopDetectorConfig
+    from loopclosure.pnp import PnpConfig
+    from loopclosure.verify import VerifyConfig
+    from loopclosure.vocabulary import load_vocabulary
+
+    if not backend.supports_loop_closures:
+        raise UnsupportedError(f"--loops: back end {args.backend!r} cannot use relative-pose loop "
+                               "closures (it closes loops by re-observing landmarks); use isam2")
+    features = None
+    if args.vocab is not None:
+        vocab = load_vocabulary(args.vocab)
+        check_vocabulary(vocab, args.vocab)
+        source = str(args.vocab)
+    else:
+        # Not online: the vocabulary needs the sequence's descriptors before the run.
+        # The same features then feed the detector (one ORB pass, as graphslam loops).
+        orb = orb_for(args.config)
+        features = [orb.detect(sequence.load(i))
+                    for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
+                                  disable=args.quiet, file=sys.stderr)]
+        vocab = train_vocabulary([f.descriptors for f in features], SELF_TRAINED_WORDS)
+        source = f"trained on the sequence ({n_frames} frames)"
+        if not args.quiet:
+            print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
+    detector = LoopDetector(vocab, load_section(LoopDetectorConfig, args.config),
+                            load_section(VerifyConfig, args.config),
+                            K=np.asarray(sequence.K, dtype=np.float64))
+    return VisualLoopCloser(detector, load_section(PnpConfig, args.config),
+                            load_section(LoopClosingConfig, args.config), on_candidate,
+                            vocabulary_source=source, features=features)
+
+
+def write_loops(closer, out_dir: Path) -> dict[str, Path]:
+    """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)."""
+    import csv
+
+    paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
+    with paths["loops"].open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
+        for r in closer.records:
+            if r.get("accepted"):
+                w.writerow([r["query"], r["match"], f"{r['score']:.6f}", r["n_inliers"],
+                            r["pnp_inliers"], f"{r['distance_m']:.4f}"])
+    closer.write_log(paths["loops_log"])
+    return paths
+
+
+def format_summary(m: dict) -> str:
+    """A two-column table of the headline numbers of a visual run."""
+    align = "Sim(3)" if m.get("alignment") == "sim3" else "SE(3)"
+    rpe = m.get("rpe") or {}
+    rows = [
+        ("dataset", m["dataset"]),
+        ("backend", m["backend"]),
+        ("frontend", m["frontend"]),
+        ("odometry", m["odometry"]),
+        ("frames", m["frames"]),
+        ("landmarks", m["landmarks"]),
+        (f"ATE RMSE [m], {align}-aligned", fmt(m["ate_rmse_m"], ".4f")),
+        ("ATE [% of path]", fmt(m["ate_percent_of_path"], ".2f")),
+        ("odometry ATE RMSE [m]", fmt(m["odometry_ate_rmse_m"], ".4f")),
+        ("odometry ATE [% of path]", fmt(m["odometry_ate_percent_of_path"], ".2f")),
+        ("RPE per frame [m / deg]", "n/a" if not rpe else
+         f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}"),
+        ("path length [m]", fmt(m["path_length_m"], ".2f")),
+        ("wall time [s]", fmt(m["wall_s"], ".2f")),
+        ("frames/s", fmt(m["frames_per_s"], ".1f")),
+    ]
+    stats = m.get("backend_stats") or {}
+    if "reparametrised" in stats:
+        rows.append(("landmarks reparametrised", stats["reparametrised"]))
+    if m.get("loops"):
+        lp = m["loops"]
+        rows.append(("loop closures added / verified / candidates",
+                     f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
+        if lp.get("redundant"):
+            rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
+    if m.get("interrupted"):
+        rows.append(("interrupted", "yes"))
+    return summary_table(rows)

@@ -1,0 +1,167 @@
+"""Trajectory metrics against ground truth (numpy only, no gtsam).
+
+Conventions: poses are ``[x_m, y_m, theta_rad]`` rows (``wTb``); pose ids are
+integers and trajectories are matched by id, never by position in the array.
+
+- :func:`align_se2` -- least-squares rigid 2-D alignment (Umeyama, no scale);
+- :func:`ate` -- absolute trajectory error (translation), optionally aligned;
+- :func:`rpe` -- relative pose error over a fixed id step;
+- :func:`pose_errors` -- per-pose ``est - gt`` with the heading wrapped;
+- :func:`nees` / :func:`chi2_bounds` -- filter consistency.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from slamcore.errors import GraphSlamError
+from slamcore.planar.records import wrap_angle
+
+
+def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform ``(R, t)`` minimising ``sum |R src_i + t - dst_i|^2``.
+
+    Umeyama's method without scale; the SVD sign correction keeps ``det R = +1``
+    (no reflection, even for degenerate or mirrored inputs).
+
+    Args:
+        src_xy: (N, 2) points, metres.
+        dst_xy: (N, 2) corresponding points, metres.
+
+    Returns:
+        R: (2, 2) rotation; t: (2,) translation in metres.
+    """
+    src = np.asarray(src_xy, dtype=np.float64)
+    dst = np.asarray(dst_xy, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] != 2 or src.shape != dst.shape:
+        raise GraphSlamError(f"align_se2: expected two (N, 2) arrays, got {src.shape} and {dst.shape}")
+    if src.shape[0] < 1:
+        raise GraphSlamError("align_se2: no points")
+    mu_s = src.mean(axis=0)
+    mu_d = dst.mean(axis=0)
+    cov = (dst - mu_d).T @ (src - mu_s) / src.shape[0]
+    U, _, Vt = np.linalg.svd(cov)
+    S = np.eye(2)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
+        S[1, 1] = -1.0
+    R = U @ S @ Vt
+    t = mu_d - R @ mu_s
+    return R, t
+
+
+def _common(est_ids, est_wTb, gt_ids, gt_wTb) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sorted common ids and the matching (K, 3) rows of both trajectories."""
+    est_ids = np.asarray(est_ids).astype(np.int64).reshape(-1)
+    gt_ids = np.asarray(gt_ids).astype(np.int64).reshape(-1)
+    est = np.asarray(est_wTb, dtype=np.float64).reshape(-1, 3)
+    gt = np.asarray(gt_wTb, dtype=np.float64).reshape(-1, 3)
+    if est.shape[0] != est_ids.size or gt.shape[0] != gt_ids.size:
+        raise GraphSlamError("trajectory ids and poses differ in length")
+    common, i_est, i_gt = np.intersect1d(est_ids, gt_ids, assume_unique=False, return_indices=True)
+    return common, est[i_est], gt[i_gt]
+
+
+def ate(est_ids, est_wTb, gt_ids, gt_wTb, align: bool = True) -> dict:
+    """Absolute trajectory error (positions) over the pose ids common to both.
+
+    Args:
+        est_ids: (N,) int pose ids of the estimate; est_wTb: (N, 3).
+        gt_ids: (M,) int pose ids of the truth; gt_wTb: (M, 3).
+        align: first move the estimate onto the truth with :func:`align_se2`.
+
+    Returns:
+        ``{"rmse_m", "mean_m", "max_m", "n"}`` of the position error norms.
+
+    Raises:
+        GraphSlamError: fewer than 2 ids in common.
+    """
+    common, est, gt = _common(est_ids, est_wTb, gt_ids, gt_wTb)
+    if common.size < 2:
+        raise GraphSlamError(f"ATE needs at least 2 common pose ids, got {common.size}")
+    xy = est[:, :2]
+    if align:
+        R, t = align_se2(xy, gt[:, :2])
+        xy = xy @ R.T + t
+    e = np.linalg.norm(xy - gt[:, :2], axis=1)
+    return {"rmse_m": float(np.sqrt(np.mean(e**2))), "mean_m": float(np.mean(e)),
+            "max_m": float(np.max(e)), "n": int(common.size)}
+
+
+def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``aTb`` for pose rows (..., 3)."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
+
+
+def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
+    """Relative pose error between common poses ``delta`` apart.
+
+    The common ids are sorted; pairs are ``(c[i], c[i + delta])`` (so gaps in
+    the ids are skipped over, not treated as missing). For each pair the error
+    is ``between(gt_rel, est_rel)``: its translation norm and wrapped angle.
+
+    Returns:
+        ``{"trans_rmse_m", "rot_rmse_rad", "n"}`` with ``n`` the number of pairs.
+
+    Raises:
+        GraphSlamError: ``delta < 1`` or no pair available.
+    """
+    if int(delta) < 1:
+        raise GraphSlamError(f"RPE delta must be >= 1, got {delta}")
+    delta = int(delta)
+    common, est, gt = _common(est_ids, est_wTb, gt_ids, gt_wTb)
+    if common.size <= delta:
+        raise GraphSlamError(f"RPE needs more than {delta} common pose ids, got {common.size}")
+    rel_est = _between(est[:-delta], est[delta:])
+    rel_gt = _between(gt[:-delta], gt[delta:])
+    err = _between(rel_gt, rel_est)
+    t = np.linalg.norm(err[:, :2], axis=1)
+    return {"trans_rmse_m": float(np.sqrt(np.mean(t**2))),
+            "rot_rmse_rad": float(np.sqrt(np.mean(err[:, 2] ** 2))),
+            "n": int(err.shape[0])}
+
+
+def pose_errors(est_wTb: np.ndarray, gt_wTb: np.ndarray) -> np.ndarray:
+    """(N, 3) ``est - gt`` row by row, heading difference wrapped to [-pi, pi)."""
+    est = np.asarray(est_wTb, dtype=np.float64).reshape(-1, 3)
+    gt = np.asarray(gt_wTb, dtype=np.float64).reshape(-1, 3)
+    if est.shape != gt.shape:
+        raise GraphSlamError(f"pose_errors: shapes differ, {est.shape} vs {gt.shape}")
+    err = est - gt
+    err[:, 2] = wrap_angle(err[:, 2])
+    return err
+
+
+def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared ``e_i^T P_i^-1 e_i``.
+
+    Args:
+        err: (N, d) errors; cov: (N, d, d) covariances (SPD), same units.
+
+    Returns:
+        (N,) NEES values; for a consistent estimator each is chi-square(d).
+    """
+    e = np.asarray(err, dtype=np.float64)
+    P = np.asarray(cov, dtype=np.float64)
+    if e.ndim != 2 or P.shape != e.shape + (e.shape[1],):
+        raise GraphSlamError(f"nees: expected (N, d) and (N, d, d), got {e.shape} and {P.shape}")
+    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])
+
+
+def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``confidence`` bounds of the NEES averaged over ``n_runs`` runs.
+
+    ``n_runs * mean NEES`` is chi-square with ``dof * n_runs`` degrees of
+    freedom, so the bounds are its ``(1 -+ confidence) / 2`` quantiles divided
+    by ``n_runs``.
+    """
+    if dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
+        raise GraphSlamError(f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; "
+                             f"got {dof}, {n_runs}, {confidence}")
+    k = int(dof) * int(n_runs)
+    q = ((1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0)
+    lo, hi = (float(chi2.ppf(p, k)) for p in q)
+    return lo / n_runs, hi / n_runs
+

@@ -1,0 +1,153 @@
+"""3-D trajectory metrics against ground truth (numpy only, no gtsam).
+
+Conventions: poses are (N, 4, 4) ``wTc`` (camera to world); trajectories are
+matched by integer frame id, never by position in the array.
+
+- :func:`align_umeyama` -- least-squares SE(3) or Sim(3) alignment of point
+  sets (Umeyama 1991; Horn's closed form with the reflection fix);
+- :func:`ate` -- absolute trajectory error of the camera centres after an
+  ``"se3"`` (metric runs: odometry gives the scale), ``"sim3"`` (monocular
+  runs without odometry: the scale is unobservable) or ``"none"`` alignment;
+  the dict says which alignment was used and, for Sim(3), the scale;
+- :func:`rpe` -- relative pose error over a fixed frame step: translation
+  (metres) and rotation (degrees), on the estimate scaled by the Sim(3) scale
+  when one is given;
+- :func:`path_length` -- distance travelled along a trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slamcore.errors import GraphSlamError
+
+ALIGNMENTS = ("se3", "sim3", "none")
+
+
+def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
+                  ) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2``.
+
+    Args:
+        src: (N, 3) points (the estimate), metres.
+        dst: (N, 3) corresponding points (the truth), metres.
+        with_scale: fit the scale ``s`` too (Sim(3)); else ``s = 1`` (SE(3)).
+
+    Returns:
+        s: scale; R: (3, 3) rotation with ``det R = +1`` (never a reflection);
+        t: (3,) translation, metres.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] != 3 or src.shape != dst.shape:
+        raise GraphSlamError(f"align_umeyama: expected two (N, 3) arrays, got {src.shape} and {dst.shape}")
+    if src.shape[0] < 2:
+        raise GraphSlamError("align_umeyama: need at least 2 points")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = 1.0
+    if with_scale:
+        var_s = float(np.mean(np.sum(xs**2, axis=1)))
+        if var_s <= 0.0:
+            raise GraphSlamError("align_umeyama: the estimate does not move; no scale to fit")
+        s = float(np.sum(D * np.diag(S)) / var_s)
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def _common(est_ids, est_wTc, gt_ids, gt_wTc):
+    est_ids = np.asarray(est_ids).astype(np.int64).reshape(-1)
+    gt_ids = np.asarray(gt_ids).astype(np.int64).reshape(-1)
+    est = np.asarray(est_wTc, dtype=np.float64).reshape(-1, 4, 4)
+    gt = np.asarray(gt_wTc, dtype=np.float64).reshape(-1, 4, 4)
+    if len(est) != est_ids.size or len(gt) != gt_ids.size:
+        raise GraphSlamError("trajectory ids and poses differ in length")
+    common, i_est, i_gt = np.intersect1d(est_ids, gt_ids, return_indices=True)
+    return common, est[i_est], gt[i_gt]
+
+
+def ate(est_ids, est_wTc, gt_ids, gt_wTc, alignment: str = "se3") -> dict:
+    """Absolute trajectory error of the camera centres over the common frame ids.
+
+    Returns ``{"rmse_m", "mean_m", "max_m", "n", "alignment", "scale"}``;
+    ``scale`` is the fitted Sim(3) scale (1.0 otherwise).
+    """
+    if alignment not in ALIGNMENTS:
+        raise GraphSlamError(f"ATE alignment must be one of {ALIGNMENTS}, got {alignment!r}")
+    common, est, gt = _common(est_ids, est_wTc, gt_ids, gt_wTc)
+    if common.size < 2:
+        raise GraphSlamError(f"ATE needs at least 2 common frame ids, got {common.size}")
+    p, q = est[:, :3, 3], gt[:, :3, 3]
+    s = 1.0
+    if alignment != "none":
+        s, R, t = align_umeyama(p, q, with_scale=alignment == "sim3")
+        p = s * p @ R.T + t
+    e = np.linalg.norm(p - q, axis=1)
+    return {"rmse_m": float(np.sqrt(np.mean(e**2))), "mean_m": float(np.mean(e)),
+            "max_m": float(np.max(e)), "n": int(common.size), "alignment": alignment,
+            "scale": float(s)}
+
+
+def _rotation_angle(R: np.ndarray) -> np.ndarray:
+    """(N,) rotation angles (rad) of (N, 3, 3) rotations."""
+    c = (np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) -> dict:
+    """Relative pose error between common frames ``delta`` apart (sorted common ids).
+
+    For each pair the error is ``inv(gt_rel) @ est_rel`` with the estimate's
+    relative translation multiplied by ``scale`` (the Sim(3) scale of a
+    monocular run; 1 for metric runs).
+
+    Returns ``{"delta_frames", "trans_rmse_m", "trans_mean_m", "rot_rmse_deg",
+    "rot_mean_deg", "n"}``.
+    """
+    delta = int(delta)
+    if delta < 1:
+        raise GraphSlamError(f"RPE delta must be >= 1, got {delta}")
+    common, est, gt = _common(est_ids, est_wTc, gt_ids, gt_wTc)
+    if common.size <= delta:
+        raise GraphSlamError(f"RPE needs more than {delta} common frame ids, got {common.size}")
+    rel_est = _inv(est[:-delta]) @ est[delta:]
+    rel_est[:, :3, 3] *= float(scale)
+    rel_gt = _inv(gt[:-delta]) @ gt[delta:]
+    err = _inv(rel_gt) @ rel_est
+    t = np.linalg.norm(err[:, :3, 3], axis=1)
+    r = np.degrees(_rotation_angle(err[:, :3, :3]))
+    return {"delta_frames": delta, "trans_rmse_m": float(np.sqrt(np.mean(t**2))),
+            "trans_mean_m": float(np.mean(t)), "rot_rmse_deg": float(np.sqrt(np.mean(r**2))),
+            "rot_mean_deg": float(np.mean(r)), "n": int(len(err))}
+
+
+def path_length(wTc: np.ndarray) -> float:
+    """Sum of the distances between consecutive camera centres, metres."""
+    p = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)[:, :3, 3]
+    if len(p) < 2:
+        return 0.0
+    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+
+def percent_of(value: float | None, length: float) -> float | None:
+    """``100 value / length``, or None when either is missing or the length is 0."""
+    if value is None or not length or not math.isfinite(length):
+        return None
+    return 100.0 * float(value) / float(length)

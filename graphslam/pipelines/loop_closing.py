@@ -1,0 +1,214 @@
+"""Loop closing inside a visual run: place recognition -> metric closure -> back end.
+
+Per frame ``k``, after the back end's update (:func:`graphslam.pipelines.spatial.run`
+calls :meth:`VisualLoopCloser.process`):
+
+1. ORB descriptors are computed at the pixels of the frame's observed tracks
+   (:meth:`frontend.orb.OrbDetector.describe`) and kept with their track ids:
+   they are what an old frame's landmarks look like, for step 3.
+2. The image goes through :class:`loopclosure.detector.LoopDetector`
+   (bag of words, normalised score, temporal consistency, RANSAC on the
+   essential matrix with the minimum feature share).
+3. An accepted candidate ``(query k, match a)`` gets a metric pose
+   (:func:`loopclosure.pnp.relative_pose_pnp`): the landmarks the back end has
+   mapped among frame ``a``'s tracks, expressed in camera ``a``
+   (:meth:`VisualBackend.landmarks_in_frame`), against the query's ORB
+   features. An accepted pose becomes :class:`PoseClosure` for the back end
+   (iSAM2: a robust ``BetweenFactorPose3``).
+
+A closure is *redundant* (stage ``"redundant"``, not added) when the query
+frame already observes at least ``LoopClosingConfig.redundant_shared_tracks``
+of the landmarks the match frame observed: active search has re-found the old
+map, the graph already holds the loop, and the PnP pose would count the same
+pixels a second time (measured on the default synthetic sequence with the
+full map: 2.56 cm ATE without closures, 2.84 cm with them all added).
+
+Every candidate's fate is kept in :attr:`VisualLoopCloser.records` (one dict per
+query that produced a candidate or was skipped: the detector's
+:class:`~loopclosure.detector.CandidateRecord` fields, plus ``pnp_*`` fields
+and ``stage`` = where it stopped), written as JSON lines by :meth:`write_log`,
+and handed to ``on_candidate`` (the Rerun recorder) as it happens.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from frontend.orb import OrbDetector
+from frontend.tracking import TrackingResult
+from slamcore.errors import ConfigError
+from slamcore.spatial.backend import PoseClosure, VisualBackend
+from loopclosure.detector import LoopDetector
+from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
+
+#: ``on_candidate(k, record, image, links)`` after each query that left a record;
+#: ``links`` (M, 2, 2) are the PnP inliers ``[query pixel, match pixel]``, or None.
+CandidateHook = Callable[[int, dict, np.ndarray, "np.ndarray | None"], None]
+
+
+@dataclass(frozen=True)
+class LoopClosingConfig:
+    """Loop closing in visual runs (config section ``[loop_closing]``).
+
+    Attributes:
+        redundant_shared_tracks: skip a closure when the query frame observes at
+            least this many landmarks the match frame observed (module
+            docstring); 0 adds every closure.
+    """
+
+    SECTION: ClassVar[str] = "loop_closing"
+
+    redundant_shared_tracks: int = 5
+
+    def __post_init__(self):
+        v = self.redundant_shared_tracks
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ConfigError(f"{self.SECTION}.redundant_shared_tracks must be an integer >= 0, "
+                              f"got {v!r}")
+
+
+@dataclass
+class _FrameMap:
+    """Tracks observed in one frame that have an ORB descriptor there."""
+
+    track_ids: np.ndarray  # (N,) int64
+    uv_px: np.ndarray  # (N, 2)
+    descriptors: np.ndarray  # (N, 32) uint8
+
+
+@dataclass
+class VisualLoopCloser:
+    """Runs the loop detector alongside a visual back end (module docstring).
+
+    Args:
+        detector: a :class:`LoopDetector` (vocabulary, thresholds, ``K``).
+        pnp: :class:`PnpConfig` of the metric pose.
+        config: :class:`LoopClosingConfig`.
+        on_candidate: optional callback per candidate record (e.g. Rerun).
+        vocabulary_source: where the vocabulary came from (for the report).
+        features: optional per-frame ORB :class:`frontend.features.Features` already
+            computed with the detector's ORB settings (the vocabulary's training
+            pass): the detector then takes them instead of detecting again. Each
+            is released once used.
+    """
+
+    detector: LoopDetector
+    pnp: PnpConfig = field(default_factory=PnpConfig)
+    config: LoopClosingConfig = field(default_factory=LoopClosingConfig)
+    on_candidate: CandidateHook | None = None
+    vocabulary_source: str = ""
+    features: list | None = None
+    records: list[dict] = field(default_factory=list)
+    closures: list[PoseClosure] = field(default_factory=list)
+
+    def __post_init__(self):
+        if self.detector.K is None:
+            raise ValueError("loop closing in a visual run needs the detector to have K "
+                             "(a metric closure is a calibrated PnP)")
+        self._frames: dict[int, _FrameMap] = {}
+        self._describer = OrbDetector(self.detector.orb.config)
+
+    @property
+    def stats(self) -> dict:
+        """Counts over :attr:`records`: candidates (queries with a candidate match),
+        verified (passed the detector's geometry), redundant, pnp_rejected, closures."""
+        stages = [r["stage"] for r in self.records]
+        return {"candidates": sum(r["match"] is not None for r in self.records),
+                "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
+                "redundant": stages.count("redundant"), "pnp_rejected": stages.count("pnp"),
+                "closures": len(self.closures)}
+
+    def process(self, k: int, image: np.ndarray, tracking: TrackingResult,
+                backend: VisualBackend) -> PoseClosure | None:
+        """Frame ``k`` (its image and the tracker's result, after the back end's update)."""
+        obs = tracking.observations
+        idx, desc = self._describer.describe(image, obs.uv_px)
+        ids = np.asarray(obs.track_ids, np.int64)[idx]
+        self._frames[int(k)] = _FrameMap(ids, np.asarray(obs.uv_px, np.float64)[idx], desc)
+        n_records = len(self.detector.records)
+        if len(self.detector) != k:
+            raise RuntimeError(f"loop detector holds {len(self.detector)} images at frame {k}; "
+                               "frames must be fed in order from 0")
+        pre = None if self.features is None else self.features[k]
+        if pre is None:
+            loop = self.detector.process(image)
+        else:
+            self.features[k] = None  # free memory as we go
+            loop = self.detector.process_features(pre.xy_px, pre.descriptors)
+        if len(self.detector.records) == n_records:
+            return None  # too early for any query: nothing happened
+        record = self.detector.records[-1].to_dict()
+        record["stage"] = "accepted" if loop is not None else "detector"
+        record["pnp_accepted"] = None
+        result = None
+        closure = None
+        links = None
+        shared = 0 if loop is None else len(np.intersect1d(self._frames[int(loop.match)].track_ids,
+                                                           np.asarray(obs.track_ids, np.int64)))
+        record["shared_tracks"] = None if loop is None else shared
+        need = self.config.redundant_shared_tracks
+        if loop is not None and need and shared >= need:
+            record.update(stage="redundant", accepted=False,
+                          reason=f"redundant: {shared} landmarks of frame {loop.match} "
+                                 "already re-observed")
+            loop = None
+        if loop is not None:
+            result, links = self._metric_pose(loop.match, image, tracking, backend)
+            record.update(pnp_accepted=result.accepted, pnp_reason=result.reason,
+                          pnp_matches=result.n_matches, pnp_inliers=result.n_inliers,
+                          pnp_points=result.n_points,
+                          pnp_rmse_px=result.reprojection_rmse_px)
+            if result.accepted:
+                closure = PoseClosure(frame_a=int(loop.match), frame_b=int(k), aTb=result.aTb,
+                                      covariance=result.covariance)
+                backend.add_loop_closure(closure)
+                self.closures.append(closure)
+                record["distance_m"] = float(np.linalg.norm(result.aTb[:3, 3]))
+            else:
+                record["accepted"] = False
+                record["stage"] = "pnp"
+                record["reason"] = "pnp: " + str(result.reason)
+        self.records.append(record)
+        if self.on_candidate is not None:
+            self.on_candidate(int(k), record, image, links)
+        return closure
+
+    def _metric_pose(self, match: int, image: np.ndarray, tracking: TrackingResult,
+                     backend: VisualBackend):
+        """``(PnpResult, links (M, 2, 2) [query px, match px] of its inliers)``.
+
+        The query side is the front end's own corners of this frame, described
+        like the map's pixels were (same detector, same ORB patch): the ORB
+        keypoints of the detector rarely fall on the same pixels as the corners
+        the map was built from.
+        """
+        old = self._frames[int(match)]
+        p_a = backend.landmarks_in_frame(match, old.track_ids)
+        ok = np.all(np.isfinite(p_a), axis=1) & (p_a[:, 2] > 0)
+        corners = np.asarray(tracking.corners, np.float64).reshape(-1, 2)
+        idx, desc_b = self._describer.describe(image, corners)
+        xy_b = corners[idx]
+        result = relative_pose_pnp(p_a[ok], old.descriptors[ok], xy_b, desc_b, self.detector.K,
+                                   self.pnp)
+        pairs = result.inlier_pairs
+        links = np.stack([xy_b[pairs[:, 1]], old.uv_px[ok][pairs[:, 0]]], axis=1)
+        return result, links
+
+    def write_log(self, path: str | Path) -> Path:
+        """Every record as one JSON object per line."""
+        path = Path(path)
+        with path.open("w", encoding="utf-8") as fh:
+            for r in self.records:
+                fh.write(json.dumps(r, default=_json_default) + "\n")
+        return path
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -1,0 +1,249 @@
+"""Run a dataset through a back end, collect metrics, write outputs.
+
+The pipeline is where packages are wired together; it computes and returns,
+and leaves printing to the CLI.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from slamcore.planar.backend import Backend
+from slamcore.errors import GraphSlamError
+from slamcore.planar.records import Dataset
+from slamcore.planar.records import Estimate, Frame
+
+#: ``on_step(step_index, frame, backend)`` hook, called after each frame.
+StepHook = Callable[[int, Frame, Backend], None]
+
+
+@dataclass
+class RunResult:
+    """What one run produced.
+
+    Attributes:
+        estimate: final estimate (polished if the back end does that).
+        steps: frames processed (the first, anchoring frame included).
+        wall_s: processing time of the frames plus finalisation (not the
+            covariances fetched for reporting), seconds.
+        interrupted: True if stopped by Ctrl-C; the estimate is what was
+            estimated up to then.
+        associations: per processed observation ``(true_id, assigned_id)``,
+            where the data has ground-truth landmark ids.
+        loop_closures_skipped: constraints a back end could not use.
+    """
+
+    dataset: Dataset
+    backend: str
+    estimate: Estimate
+    steps: int
+    wall_s: float
+    interrupted: bool = False
+    associations: list[tuple[int, int | None]] = field(default_factory=list)
+    loop_closures_skipped: int = 0
+
+
+def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
+        progress: bool = False, on_step: StepHook | None = None,
+        with_covariances: bool = False) -> RunResult:
+    """Stream ``dataset`` into ``backend`` and finalise.
+
+    Ctrl-C (KeyboardInterrupt) stops the loop; the estimate so far is still
+    returned (without the final polish) with ``interrupted=True``.
+    """
+    frames = dataset.frames if max_steps is None else dataset.frames[:max_steps]
+    if not frames:
+        raise GraphSlamError(f"dataset {dataset.name!r} has no frames")
+    bar = _progress(len(frames), dataset.name, backend.name, progress)
+    assoc: list[tuple[int, int | None]] = []
+    counters = {"steps": 0, "skipped": 0}
+    interrupted = False
+    t0 = time.perf_counter()
+    try:
+        with _interrupt_between_frames() as stop:
+            _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters)
+        estimate = backend.finalize()
+    except KeyboardInterrupt:
+        interrupted = True
+        if counters["steps"] == 0:
+            raise
+        estimate = backend.estimate(with_covariances=False)
+    finally:
+        if bar is not None:
+            bar.close()
+    wall_s = time.perf_counter() - t0
+    if with_covariances and not interrupted:
+        # fetched after the clock stops: reporting, not estimation
+        estimate = backend.estimate(with_covariances=True)
+    return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
+                     assoc, counters["skipped"])
+
+
+def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
+    """Stream frames into the back end; a pending Ctrl-C is honoured between frames."""
+    for k, frame in enumerate(frames):
+        if stop["requested"]:
+            raise KeyboardInterrupt
+        if k == 0:
+            backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
+        else:
+            if frame.odometry is None:
+                raise GraphSlamError(f"frame {k} (pose {frame.pose_id}) has no odometry")
+            backend.predict(frame.odometry, frame.pose_id)
+        if frame.observations:
+            backend.update(frame.observations)
+            if frame.true_landmark_ids is not None:
+                assoc.extend(zip(frame.true_landmark_ids, backend.associations()))
+        for lc in frame.loop_closures:
+            if backend.supports_loop_closures:
+                backend.add_loop_closure(lc)
+            else:
+                counters["skipped"] += 1
+        counters["steps"] = k + 1
+        if on_step is not None:
+            on_step(k, frame, backend)
+        if bar is not None:
+            bar.update(1)
+
+
+@contextmanager
+def _interrupt_between_frames() -> Iterator[dict]:
+    """Turn the first Ctrl-C into a request honoured at the next frame boundary.
+
+    A KeyboardInterrupt raised in the middle of a frame (say, inside an iSAM2
+    update) would leave the back end half-updated and its estimate unusable;
+    a second Ctrl-C still interrupts at once. Only the main thread can hold a
+    signal handler; elsewhere Ctrl-C behaves as usual.
+    """
+    stop = {"requested": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum, frame):
+        if stop["requested"]:
+            signal.default_int_handler(signum, frame)
+        stop["requested"] = True
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Odometry-only trajectory ``(pose_ids (N,), wTb (N, 3))`` from the prior pose."""
+    import gtsam  # the app layer may use gtsam; kept local so importing is cheap
+
+    frames = dataset.frames if steps is None else dataset.frames[:steps]
+    poses = {frames[0].pose_id: gtsam.Pose2(*map(float, dataset.prior_wTb))}
+    for frame in frames[1:]:
+        odo = frame.odometry
+        delta = gtsam.Pose2(*map(float, odo.delta))
+        if odo.to_id == frame.pose_id:
+            poses[frame.pose_id] = poses[odo.from_id].compose(delta)
+        else:
+            poses[frame.pose_id] = poses[odo.to_id].compose(delta.inverse())
+    ids = np.array([f.pose_id for f in frames], dtype=np.int64)
+    wTb = np.array([[poses[i].x(), poses[i].y(), poses[i].theta()] for i in ids])
+    return ids, wTb
+
+
+def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
+    """Score data association against ground truth.
+
+    Each back-end landmark id is mapped to the true id it was most often
+    given to; an observation counts as correct when its assigned id maps to
+    its true id. Unused observations (None) count as wrong. ``duplicates`` is
+    the number of extra back-end landmarks that map to an already-taken true id.
+    """
+    if not pairs:
+        return None
+    votes: dict[int, dict[int, int]] = {}
+    for true_id, got in pairs:
+        if got is not None:
+            votes.setdefault(got, {}).setdefault(true_id, 0)
+            votes[got][true_id] += 1
+    mapping = {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
+    correct = sum(1 for true_id, got in pairs if got is not None and mapping[got] == true_id)
+    mapped_true = list(mapping.values())
+    return {
+        "accuracy": correct / len(pairs),
+        "observations": len(pairs),
+        "unused": sum(1 for _, got in pairs if got is None),
+        "landmarks_created": len(mapping),
+        "duplicates": len(mapped_true) - len(set(mapped_true)),
+    }
+
+
+def compute_metrics(result: RunResult, *, seed: int | None = None,
+                    with_graph_error: bool = True) -> dict:
+    """The metrics of ``metrics.json`` for one run."""
+    from graphslam.evaluation import planar as metrics
+
+    est = result.estimate
+    out: dict = {
+        "dataset": result.dataset.name,
+        "backend": result.backend,
+        "seed": seed,
+        "steps": result.steps,
+        "landmarks": int(len(est.landmark_ids)),
+        "final_error": None,
+        "ate_rmse_m": None,
+        "odometry_ate_rmse_m": None,
+        "wall_s": result.wall_s,
+        "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
+        "interrupted": result.interrupted,
+        "loop_closures_skipped": result.loop_closures_skipped,
+    }
+    if with_graph_error:
+        from graphslam.backends.gtsam_convert import graph_error
+
+        out["final_error"] = graph_error(result.dataset, est)
+    gt = result.dataset.ground_truth()
+    if gt is not None:
+        out["ate_rmse_m"] = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
+        odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
+        out["odometry_ate_rmse_m"] = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
+    acc = association_accuracy(result.associations)
+    if acc is not None:
+        out["association"] = acc
+    return out
+
+
+def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict) -> dict[str, Path]:
+    """Write ``trajectory.tum``, ``landmarks.csv`` and ``metrics.json``; return their paths."""
+    from graphslam.outputs import writers
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    est = result.estimate
+    if result.dataset.has_timestamps:
+        stamp_of = {f.pose_id: f.stamp_s for f in result.dataset.frames[: result.steps]}
+        stamps = np.array([stamp_of[int(i)] for i in est.pose_ids], dtype=float)
+    else:
+        stamps = est.pose_ids.astype(float)
+    paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
+             "metrics": out_dir / "metrics.json"}
+    writers.write_tum(paths["trajectory"], stamps, est.wTb)
+    writers.write_landmarks_csv(paths["landmarks"], est)
+    writers.write_json(paths["metrics"], run_metrics)
+    return paths
+
+
+def _progress(total: int, dataset: str, backend: str, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    # disable=None: tqdm switches itself off when stderr is not a terminal (CI logs).
+    return tqdm(total=total, desc=f"{backend} on {dataset}", unit="step", disable=None,
+                dynamic_ncols=True)

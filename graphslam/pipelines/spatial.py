@@ -1,0 +1,436 @@
+"""Run a 3-D visual back end over an image sequence with the front-end tracker.
+
+Per frame ``k``::
+
+    k == 0:  backend.initialize(0, wTc0, P0, K, image_size)
+    k >= 1:  backend.predict(k, odometry_k, covariance_k)   # c_{k-1} T c_k, or None
+             predictions = backend.predict_observations()
+    tracking = tracker.track(image_k, predictions)           # active search + new tracks
+    backend.update(tracking.observations)
+
+``wTc0`` is the first ground-truth pose when the sequence has one (so the
+estimate is in the ground truth's frame), else the identity.
+
+Odometry (``VisualRunConfig.odometry``):
+
+* ``"sequence"``: the sequence's own noisy odometry (synthetic sequences);
+* ``"derived"``: for sequences with ground truth but no odometry (KITTI 07):
+  the true relative pose ``c_{k-1} T c_k`` times ``E = [[exp(phi), rho], [0, 1]]``
+  with ``rho ~ N(0, sigma_t^2 I3)``, ``sigma_t = max(sigma_t_per_m * d_k,
+  min_sigma_t_m)`` (``d_k`` the true distance travelled in the frame) and
+  ``phi ~ N(0, sigma_r^2 I3)``, ``sigma_r = sigma_r_deg`` per frame, drawn
+  from ``default_rng(seed)``; the covariance handed to the back end is that
+  ``diag(sigma_t^2 I3, sigma_r^2 I3)``. Defaults: 2 % of the distance and
+  0.1 deg per frame (:class:`OdometryNoiseConfig`); the metrics state them;
+* ``"none"``: the back end's own motion model (constant velocity); only for
+  back ends with ``has_motion_model``. Such a monocular run has no metric
+  scale: its ATE is Sim(3)-aligned.
+* ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"``.
+
+Ctrl-C is honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
+result then holds what was estimated so far with ``interrupted=True``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from slamcore.spatial.camera import invert_pose, so3_exp
+from frontend.tracking import Tracker, TrackingResult
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from graphslam.sources.spatial.images import ImageSequence
+from slamcore.spatial.backend import VisualBackend, VisualEstimate
+
+ODOMETRY_MODES = ("auto", "sequence", "derived", "none")
+
+#: ``on_frame(k, image, tracking, backend)``, called after each frame's update.
+FrameHook = Callable[[int, np.ndarray, TrackingResult, VisualBackend], None]
+
+
+@dataclass(frozen=True)
+class OdometryNoiseConfig:
+    """Noise of derived odometry (config section ``[odometry_noise]``).
+
+    Attributes:
+        sigma_t_per_m: translation standard deviation per axis, per metre
+            travelled in the frame (0.02 = 2 % of the distance).
+        min_sigma_t_m: floor of the translation sigma (a still camera is not
+            known to the micrometre), metres.
+        sigma_r_deg: rotation standard deviation per axis and per frame, degrees.
+        seed: seed of the noise draws.
+    """
+
+    SECTION: ClassVar[str] = "odometry_noise"
+
+    sigma_t_per_m: float = 0.02
+    min_sigma_t_m: float = 0.001
+    sigma_r_deg: float = 0.1
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("sigma_t_per_m", "min_sigma_t_m", "sigma_r_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"odometry_noise.{name} must be a finite number >= 0, got {v!r}")
+        if self.min_sigma_t_m <= 0 or self.sigma_r_deg <= 0:
+            raise ConfigError("odometry_noise: min_sigma_t_m and sigma_r_deg must be > 0 "
+                              "(a zero covariance cannot weigh a factor)")
+
+
+@dataclass(frozen=True)
+class VisualRunConfig:
+    """Visual run settings (config section ``[visual]``).
+
+    Attributes:
+        odometry: ``"auto"``, ``"sequence"``, ``"derived"`` or ``"none"`` (module doc).
+        prior_sigma_t_m, prior_sigma_r_deg: standard deviations of the first pose.
+    """
+
+    SECTION: ClassVar[str] = "visual"
+
+    odometry: str = "auto"
+    prior_sigma_t_m: float = 0.001
+    prior_sigma_r_deg: float = 0.01
+
+    def __post_init__(self):
+        if self.odometry not in ODOMETRY_MODES:
+            raise ConfigError(f"visual.odometry must be one of {', '.join(ODOMETRY_MODES)}, "
+                              f"got {self.odometry!r}")
+        if not (self.prior_sigma_t_m > 0 and self.prior_sigma_r_deg > 0):
+            raise ConfigError("visual.prior_sigma_t_m and prior_sigma_r_deg must be > 0")
+
+
+@dataclass
+class VisualRunResult:
+    """What one visual run produced.
+
+    Attributes:
+        estimate: final estimate (``finalize``'d unless interrupted).
+        frames: frames processed.
+        wall_s: seconds in the tracker and the back end (detection, search,
+            update, finalisation); image loading and logging are not counted.
+        load_s: seconds spent reading (or rendering) the images.
+        odometry: the odometry mode used (``"sequence"``, ``"derived"``, ``"none"``).
+        odometry_noise: the stated noise of derived odometry, else None.
+        odometry_wTc: (frames, 4, 4) odometry-only trajectory from the first
+            pose, or None without odometry.
+        tracking: per-frame front-end counters (lists).
+    """
+
+    sequence: ImageSequence
+    backend: str
+    frontend: str
+    estimate: VisualEstimate
+    frames: int
+    wall_s: float
+    load_s: float
+    interrupted: bool
+    odometry: str
+    odometry_noise: dict | None
+    odometry_wTc: np.ndarray | None
+    tracking: dict = field(default_factory=dict)
+
+
+def derive_odometry(wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Noisy odometry from ground truth: ``(odometry (N-1, 4, 4), covariances (N-1, 6, 6))``.
+
+    ``odometry[k] = c_k T c_{k+1} @ E`` (module docstring), seeded by ``config.seed``.
+    """
+    cfg = config or OdometryNoiseConfig()
+    wTc = np.asarray(wTc_true, dtype=np.float64).reshape(-1, 4, 4)
+    rng = np.random.default_rng(cfg.seed)
+    n = len(wTc) - 1
+    odo = np.empty((max(n, 0), 4, 4))
+    cov = np.empty((max(n, 0), 6, 6))
+    sigma_r = math.radians(cfg.sigma_r_deg)
+    for k in range(n):
+        rel = invert_pose(wTc[k]) @ wTc[k + 1]
+        sigma_t = max(cfg.sigma_t_per_m * float(np.linalg.norm(rel[:3, 3])), cfg.min_sigma_t_m)
+        E = np.eye(4)
+        E[:3, 3] = rng.normal(0.0, sigma_t, 3)
+        E[:3, :3] = so3_exp(rng.normal(0.0, sigma_r, 3))
+        odo[k] = rel @ E
+        cov[k] = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+    return odo, cov
+
+
+def chain(wTc0: np.ndarray, odometry: np.ndarray) -> np.ndarray:
+    """(N+1, 4, 4) poses from ``wTc0`` composed with (N, 4, 4) relative poses."""
+    out = np.empty((len(odometry) + 1, 4, 4))
+    out[0] = wTc0
+    for k, T in enumerate(odometry):
+        out[k + 1] = out[k] @ T
+    return out
+
+
+def resolve_odometry(sequence: ImageSequence, mode: str,
+                     noise: OdometryNoiseConfig | None = None):
+    """``(mode, odometry (N-1, 4, 4) or None, covariances (N-1, 6, 6) or None, stated noise)``."""
+    has_seq = getattr(sequence, "odometry", None) is not None
+    if mode == "auto":
+        mode = "sequence" if has_seq else "derived"
+    if mode == "sequence":
+        if not has_seq:
+            raise GraphSlamError(f"sequence {sequence.name!r} has no odometry of its own; "
+                                 "use --odometry derived (needs ground truth) or none")
+        odo = np.asarray(sequence.odometry, dtype=np.float64)
+        cov = np.broadcast_to(np.asarray(sequence.odometry_covariance, dtype=np.float64),
+                              (len(odo), 6, 6))
+        st, sr = getattr(sequence, "odometry_sigmas", (None, None))
+        stated = None if st is None else {"kind": "sequence", "sigma_t_m_per_frame": st,
+                                          "sigma_r_deg_per_frame": math.degrees(sr)}
+        return mode, odo, cov, stated
+    if mode == "derived":
+        if sequence.wTc_true is None:
+            raise GraphSlamError(f"sequence {sequence.name!r} has no ground truth to derive "
+                                 "odometry from; use --odometry none")
+        cfg = noise or OdometryNoiseConfig()
+        odo, cov = derive_odometry(sequence.wTc_true, cfg)
+        stated = {"kind": "derived from ground truth", "sigma_t_per_m": cfg.sigma_t_per_m,
+                  "min_sigma_t_m": cfg.min_sigma_t_m, "sigma_r_deg_per_frame": cfg.sigma_r_deg,
+                  "seed": cfg.seed}
+        return mode, odo, cov, stated
+    if mode == "none":
+        return mode, None, None, None
+    raise ConfigError(f"odometry must be one of {', '.join(ODOMETRY_MODES)}, got {mode!r}")
+
+
+def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
+        config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
+        max_frames: int | None = None, progress: bool = False,
+        on_frame: FrameHook | None = None, frontend: str | None = None,
+        loop_closer=None) -> VisualRunResult:
+    """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring).
+
+    ``loop_closer``: a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`, fed every
+    frame after the back end's update (its time counts in ``wall_s`` and in
+    ``stats["loops_s"]``); None runs without place recognition.
+    """
+    from graphslam.pipelines.planar import _interrupt_between_frames, _progress
+
+    cfg = config or VisualRunConfig()
+    n = len(sequence) if max_frames is None else min(int(max_frames), len(sequence))
+    if n < 1:
+        raise GraphSlamError(f"sequence {sequence.name!r} has no frames")
+    mode, odo, odo_cov, stated = resolve_odometry(sequence, cfg.odometry, odometry_noise)
+    if mode == "none" and not backend.has_motion_model:
+        raise UnsupportedError(f"back end {backend.name!r} has no motion model of its own; "
+                               "use --odometry sequence or derived")
+    wTc0 = np.eye(4) if sequence.wTc_true is None else np.asarray(sequence.wTc_true[0], dtype=np.float64)
+    P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
+    K = np.asarray(sequence.K, dtype=np.float64)
+    stats = {"observations": [], "found": [], "searched": [], "predicted": [], "followed": [],
+             "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": [], "loops_s": []}
+    bar = _progress(n, sequence.name, backend.name, progress)
+    done = 0
+    wall = 0.0
+    load = 0.0
+    interrupted = False
+    try:
+        with _interrupt_between_frames() as stop:
+            for k in range(n):
+                if stop["requested"]:
+                    raise KeyboardInterrupt
+                t = time.perf_counter()
+                image = sequence.load(k)
+                t1 = time.perf_counter()
+                load += t1 - t
+                pred = None
+                if k == 0:
+                    backend.initialize(0, wTc0, P0, K, tuple(sequence.image_size))
+                else:
+                    backend.predict(k, None if odo is None else odo[k - 1],
+                                    None if odo_cov is None else odo_cov[k - 1])
+                    pred = backend.predict_observations()
+                tracking = tracker.track(image, pred)
+                t2 = time.perf_counter()
+                backend.update(tracking.observations)
+                t3 = time.perf_counter()
+                if loop_closer is not None:
+                    loop_closer.process(k, image, tracking, backend)
+                t4 = time.perf_counter()
+                wall += t4 - t1
+                done = k + 1
+                _count(stats, tracking, t3 - t2)
+                stats["loops_s"].append(t4 - t3)
+                if on_frame is not None:
+                    on_frame(k, image, tracking, backend)
+                if bar is not None:
+                    bar.update(1)
+        t = time.perf_counter()
+        estimate = backend.finalize()
+        wall += time.perf_counter() - t
+    except KeyboardInterrupt:
+        interrupted = True
+        if done == 0:
+            raise
+        estimate = backend.estimate()
+    finally:
+        if bar is not None:
+            bar.close()
+    odo_wTc = None if odo is None else chain(wTc0, odo[:done - 1])
+    return VisualRunResult(sequence=sequence, backend=backend.name,
+                           frontend=frontend or tracker.config.detector, estimate=estimate,
+                           frames=done, wall_s=wall, load_s=load, interrupted=interrupted,
+                           odometry=mode, odometry_noise=stated, odometry_wTc=odo_wTc,
+                           tracking=stats)
+
+
+def _count(stats: dict, tr: TrackingResult, update_s: float) -> None:
+    stats["observations"].append(len(tr.observations))
+    stats["found"].append(tr.n_found)
+    stats["searched"].append(tr.n_searched)
+    stats["predicted"].append(len(tr.pred_ids))
+    stats["followed"].append(len(tr.followed_ids))
+    stats["new"].append(len(tr.new_ids))
+    stats["image_fraction"].append(tr.image_fraction)
+    stats["detect_s"].append(tr.timings_s.get("detect", 0.0))
+    stats["search_s"].append(tr.timings_s.get("search", 0.0) + tr.timings_s.get("follow", 0.0))
+    stats["update_s"].append(update_s)
+
+
+# --------------------------------------------------------------------------- metrics
+
+def compute_metrics(result: VisualRunResult, *, seed: int | None = None) -> dict:
+    """The metrics of ``metrics.json`` for one visual run.
+
+    The ATE alignment is SE(3) when the run had odometry (metric scale), Sim(3)
+    when it had none (monocular: scale unobservable); ``alignment`` says which.
+    """
+    from graphslam.evaluation import spatial as metrics3d
+
+    est = result.estimate
+    seq = result.sequence
+    n = result.frames
+    alignment = "sim3" if result.odometry == "none" else "se3"
+    out: dict = {
+        "dataset": seq.name,
+        "source": seq.source_path,
+        "backend": result.backend,
+        "frontend": result.frontend,
+        "seed": seed,
+        "frames": n,
+        "landmarks": int(len(est.landmark_ids)),
+        "odometry": result.odometry,
+        "odometry_noise": result.odometry_noise,
+        "alignment": alignment,
+        "ate_rmse_m": None,
+        "ate_percent_of_path": None,
+        "odometry_ate_rmse_m": None,
+        "odometry_ate_percent_of_path": None,
+        "rpe": None,
+        "path_length_m": None,
+        "wall_s": result.wall_s,
+        "frames_per_s": n / result.wall_s if result.wall_s > 0 else None,
+        "image_load_s": result.load_s,
+        "interrupted": result.interrupted,
+        "backend_stats": dict(est.stats or {}),
+        "tracking": _tracking_summary(result.tracking),
+    }
+    if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
+        gt_ids = np.arange(n, dtype=np.int64)
+        gt = np.asarray(seq.wTc_true[:n])
+        length = metrics3d.path_length(gt)
+        out["path_length_m"] = length
+        try:
+            a = metrics3d.ate(est.frame_ids, est.wTc, gt_ids, gt, alignment=alignment)
+        except GraphSlamError as e:  # e.g. a Sim(3) fit to an estimate that never moved
+            out["ate_error"] = str(e)
+        else:
+            out["ate"] = a
+            out["ate_rmse_m"] = a["rmse_m"]
+            out["ate_percent_of_path"] = metrics3d.percent_of(a["rmse_m"], length)
+            out["rpe"] = metrics3d.rpe(est.frame_ids, est.wTc, gt_ids, gt, delta=1, scale=a["scale"])
+        if result.odometry_wTc is not None:
+            o = metrics3d.ate(gt_ids, result.odometry_wTc, gt_ids, gt, alignment="se3")
+            out["odometry_ate_rmse_m"] = o["rmse_m"]
+            out["odometry_ate_percent_of_path"] = metrics3d.percent_of(o["rmse_m"], length)
+            out["odometry_rpe"] = metrics3d.rpe(gt_ids, result.odometry_wTc, gt_ids, gt, delta=1)
+    return out
+
+
+def _tracking_summary(stats: dict) -> dict:
+    if not stats or not stats.get("observations"):
+        return {}
+    mean = {k: float(np.mean(v)) for k, v in stats.items() if v}
+    return {
+        "observations_per_frame": mean["observations"],
+        "predicted_per_frame": mean["predicted"],
+        "searched_per_frame": mean["searched"],
+        "found_per_frame": mean["found"],
+        "followed_per_frame": mean["followed"],
+        "new_tracks": int(np.sum(stats["new"])),
+        "image_fraction_searched": mean["image_fraction"],
+        "detect_ms": 1e3 * mean["detect_s"],
+        "search_ms": 1e3 * mean["search_s"],
+        "update_ms": 1e3 * mean["update_s"],
+        "loops_ms": 1e3 * mean.get("loops_s", 0.0),
+    }
+
+
+# --------------------------------------------------------------------------- outputs
+
+def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations -> (N, 4) unit quaternions ``[qx, qy, qz, qw]``, ``qw >= 0``."""
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    q = np.empty((len(R), 4))
+    for i, m in enumerate(R):
+        # Shepperd: pivot on the largest of (trace, diagonal) for precision
+        tr = np.trace(m)
+        d = np.diag(m)
+        j = int(np.argmax([tr, *d]))
+        if j == 0:
+            s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
+            v = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+        elif j == 1:
+            s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+            v = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+        elif j == 2:
+            s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
+            v = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+        else:
+            s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
+            v = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+        v = np.asarray(v)
+        v /= np.linalg.norm(v)
+        q[i] = -v if v[3] < 0 else v
+    return q
+
+
+def write_tum3d(path: Path, stamps: np.ndarray, wTc: np.ndarray) -> None:
+    """TUM ``t x y z qx qy qz qw`` of (N, 4, 4) camera poses."""
+    wTc = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)
+    q = rotation_to_quaternion(wTc[:, :3, :3])
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for s, T, qq in zip(stamps, wTc, q):
+            stamp = f"{int(s)}" if float(s).is_integer() else f"{float(s):.6f}"
+            f.write(stamp + " " + " ".join(f"{v:.9g}" for v in (*T[:3, 3], *qq)) + "\n")
+
+
+def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: dict) -> dict[str, Path]:
+    """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``) and ``metrics.json``."""
+    from graphslam.outputs import writers
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    est = result.estimate
+    ids = np.asarray(est.frame_ids, dtype=np.int64)
+    seq = result.sequence
+    stamps = ids.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, dtype=float)[ids]
+    paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
+             "metrics": out_dir / "metrics.json"}
+    write_tum3d(paths["trajectory"], stamps, est.wTc)
+    with open(paths["landmarks"], "w", encoding="utf-8") as f:
+        f.write("id,x,y,z\n")
+        for lid, p in zip(est.landmark_ids, np.asarray(est.landmarks_w).reshape(-1, 3)):
+            f.write(f"{int(lid)},{p[0]:.9g},{p[1]:.9g},{p[2]:.9g}\n")
+    writers.write_json(paths["metrics"], run_metrics)
+    return paths

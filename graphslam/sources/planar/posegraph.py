@@ -1,0 +1,328 @@
+"""Readers for 2-D pose-graph files: TORO ``.graph``, g2o ``.g2o``, City10000.
+
+Every reader parses line by line and raises :class:`~slamcore.errors.InputError`
+naming the file and the 1-based line of bad input. Blank lines and lines
+starting with ``#`` are skipped.
+
+Grouping into frames: poses are numbered ``first..last`` without gaps; frame
+``k`` holds pose ``k``. The edge between ``k-1`` and ``k`` (in either direction,
+kept as written: w10000 has ``EDGE2 1 0 ...``) is the frame's ``odometry``; every
+other edge whose larger id is ``k`` is one of its ``loop_closures`` (direction
+kept as written, ``source="dataset"``). Inverting an edge would change the
+error value, so nothing is inverted.
+
+Noise interpretation reproduces gtsam's loader (``gtsam/slam/dataset.cpp``,
+``readNoiseModel``), checked factor by factor against ``gtsam.load2D`` and
+``gtsam.readG2o`` in ``tests/test_readers.py``. The six numbers ``v1..v6`` after
+an edge's measurement are read according to ``noise_format``:
+
+- ``"auto"`` (what ``gtsam.load2D`` does by default, decided per line from the
+  zero pattern): ``v1 0 v3 v4 0 0`` -> ``"graph"``; ``v1 0 0 v4 0 v6`` -> ``"cov"``;
+  anything else is refused (gtsam refuses it too).
+- ``"graph"``: TORO layout ``[[v1 v2 v5], [v2 v3 v6], [v5 v6 v4]]`` taken as a
+  **covariance** (gtsam's NoiseFormatGRAPH).
+- ``"toro"``: the same TORO layout taken as an **information** matrix (the TORO
+  specification; gtsam's NoiseFormatTORO).
+- ``"cov"``: g2o layout ``[[v1 v2 v3], [v2 v4 v5], [v3 v5 v6]]`` as a covariance.
+- ``"g2o"``: g2o layout as an information matrix (what ``gtsam.readG2o`` uses).
+
+Relative-pose angles are wrapped to [-pi, pi) (w10000 has values such as
+-3.15858; gtsam's Pose2 wraps them the same way, so errors are unchanged).
+
+So ``w10000.graph`` (every edge ``1 0 1 1 0 0``) gets identity covariances under
+``read_toro``'s default, exactly like ``gtsam.load2D``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from slamcore.errors import InputError, MeasurementError
+from slamcore.planar.records import Dataset
+from slamcore.planar.records import Frame, LoopClosure, Odometry, wrap_angle
+
+NOISE_FORMATS = ("auto", "graph", "toro", "cov", "g2o")
+
+#: City10000 pose noise sigmas [x_m, y_m, theta_rad], from gtsam's C++ examples
+#: (examples/City10000.h and Hybrid_City10000.cpp: ``kPoseNoiseModel`` =
+#: Sigmas(1/30, 1/30, 1/100)), used there for odometry and loop closures alike.
+CITY10000_SIGMAS = np.array([1.0 / 30.0, 1.0 / 30.0, 1.0 / 100.0])
+
+
+# --------------------------------------------------------------------------- helpers
+def iter_lines(path):
+    """Yield ``(line_no, tokens)`` of the non-blank, non-comment lines of ``path``.
+
+    Raises InputError naming the path if the file cannot be read.
+    """
+    p = Path(path)
+    try:
+        fh = open(p, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot open file: {exc.strerror or exc}", p) from None
+    with fh:
+        try:
+            for line_no, line in enumerate(fh, start=1):
+                s = line.strip()
+                if not s or s.startswith("#"):
+                    continue
+                yield line_no, s.split()
+        except UnicodeDecodeError as exc:
+            raise InputError(f"not a text file: {exc}", p) from None
+
+
+def parse_floats(tokens, path, line_no, what="value"):
+    """Tokens as finite floats, or InputError at ``path:line_no``."""
+    out = []
+    for t in tokens:
+        try:
+            v = float(t)
+        except ValueError:
+            raise InputError(f"{what} {t!r} is not a number", path, line_no) from None
+        if not math.isfinite(v):
+            raise InputError(f"{what} {t!r} is not finite", path, line_no)
+        out.append(v)
+    return out
+
+
+def parse_int(token, path, line_no, what="id"):
+    """A token as an int (``"3"``, also ``"3.0"``), or InputError."""
+    try:
+        return int(token)
+    except ValueError:
+        pass
+    try:
+        v = float(token)
+    except ValueError:
+        raise InputError(f"{what} {token!r} is not an integer", path, line_no) from None
+    if not math.isfinite(v) or v != int(v):
+        raise InputError(f"{what} {token!r} is not an integer", path, line_no)
+    return int(v)
+
+
+def check_count(tokens, expected, path, line_no, layout):
+    if len(tokens) != expected:
+        raise InputError(f"{tokens[0]} line needs {expected} tokens ({layout}), "
+                         f"got {len(tokens)}", path, line_no)
+
+
+def noise_covariance(v, noise_format, path, line_no):
+    """(3, 3) covariance from the six noise numbers ``v``, the way gtsam reads them."""
+    v1, v2, v3, v4, v5, v6 = v
+    fmt = noise_format
+    if fmt == "auto":
+        if v1 != 0 and v2 == 0 and v3 != 0 and v4 != 0 and v5 == 0 and v6 == 0:
+            fmt = "graph"
+        elif v1 != 0 and v2 == 0 and v3 == 0 and v4 != 0 and v5 == 0 and v6 != 0:
+            fmt = "cov"
+        else:
+            raise InputError(
+                "noise numbers match neither diagonal layout gtsam.load2D recognises "
+                f"({' '.join(f'{x:g}' for x in v)}); pass noise_format= explicitly",
+                path, line_no)
+    if fmt in ("graph", "toro"):
+        m = np.array([[v1, v2, v5], [v2, v3, v6], [v5, v6, v4]])
+    elif fmt in ("cov", "g2o"):
+        m = np.array([[v1, v2, v3], [v2, v4, v5], [v3, v5, v6]])
+    else:
+        raise ValueError(f"noise_format must be one of {NOISE_FORMATS}, got {noise_format!r}")
+    if fmt in ("toro", "g2o"):  # information matrix
+        try:
+            np.linalg.cholesky(m)
+        except np.linalg.LinAlgError:
+            raise InputError("information matrix is not positive definite", path,
+                             line_no) from None
+        m = np.linalg.inv(m)
+        m = 0.5 * (m + m.T)
+    return m
+
+
+def group_edges(edges, path, pose_lines=None, ground_truth=None):
+    """Frames from relative-pose edges.
+
+    Args:
+        edges: list of ``(line_no, from_id, to_id, delta (3,), covariance (3,3))``.
+        pose_lines: optional ``{pose_id: line_no}`` of vertex declarations.
+        ground_truth: optional list of (3,) true poses indexed from the first id.
+
+    Returns:
+        list of Frame, first pose first.
+    """
+    first_mention: dict[int, int] = {}
+    for line_no, a, b, _, _ in edges:
+        for k in (a, b):
+            if k not in first_mention or line_no < first_mention[k]:
+                first_mention[k] = line_no
+    ids = set(first_mention) | set(pose_lines or {})
+    if not ids:
+        raise InputError("no poses found", path)
+    first, last = min(ids), max(ids)
+    odometry: dict[int, Odometry] = {}
+    closures: dict[int, list[LoopClosure]] = {}
+    for line_no, a, b, delta, cov in edges:
+        if a == b:
+            raise InputError(f"edge from pose {a} to itself", path, line_no)
+        hi = max(a, b)
+        try:
+            if abs(a - b) == 1 and hi not in odometry:
+                odometry[hi] = Odometry(a, b, delta, cov)
+            else:
+                closures.setdefault(hi, []).append(
+                    LoopClosure(a, b, delta, cov, source="dataset"))
+        except MeasurementError as exc:
+            raise InputError(str(exc), path, line_no) from None
+    for k in range(first + 1, last + 1):
+        if k not in odometry:
+            mentions = [first_mention.get(k), (pose_lines or {}).get(k)]
+            mentions = [m for m in mentions if m is not None]
+            if mentions:
+                raise InputError(f"pose {k} has no edge to pose {k - 1}", path, min(mentions))
+            # pose k never mentioned: blame the first line mentioning a later pose
+            later = min(first_mention.get(j, 1 << 62) for j in range(k + 1, last + 1)
+                        if j in first_mention)
+            raise InputError(f"pose {k} is missing (gap in pose ids)", path, later)
+    frames = []
+    for i, k in enumerate(range(first, last + 1)):
+        frames.append(Frame(
+            pose_id=k,
+            odometry=odometry.get(k),
+            loop_closures=tuple(closures.get(k, ())),
+            wTb_true=None if ground_truth is None else ground_truth[i],
+        ))
+    return frames
+
+
+def _delta(values):
+    """(3,) relative pose with its angle wrapped to [-pi, pi) (gtsam's Pose2 wraps too)."""
+    d = np.array(values, dtype=np.float64)
+    d[2] = float(wrap_angle(d[2]))
+    return d
+
+
+def _dataset(name, frames, path):
+    return Dataset(name=name, frames=frames, prior_wTb=np.zeros(3),
+                   prior_covariance=np.eye(3) * 1e-6, landmarks_true=None,
+                   has_timestamps=False, source_path=str(path))
+
+
+def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name):
+    if noise_format not in NOISE_FORMATS:
+        raise ValueError(f"noise_format must be one of {NOISE_FORMATS}, got {noise_format!r}")
+    edges = []
+    pose_lines: dict[int, int] = {}
+    for line_no, tok in iter_lines(path):
+        tag = tok[0]
+        if tag == edge_tag:
+            check_count(tok, 12, path, line_no, f"{edge_tag} id1 id2 dx dy dth + 6 noise")
+            a = parse_int(tok[1], path, line_no)
+            b = parse_int(tok[2], path, line_no)
+            nums = parse_floats(tok[3:], path, line_no)
+            cov = noise_covariance(nums[3:], noise_format, path, line_no)
+            edges.append((line_no, a, b, _delta(nums[:3]), cov))
+        elif tag == vertex_tag:
+            check_count(tok, 5, path, line_no, f"{vertex_tag} id x y theta")
+            k = parse_int(tok[1], path, line_no)
+            parse_floats(tok[2:], path, line_no)
+            if k in pose_lines:
+                raise InputError(f"pose {k} declared twice", path, line_no)
+            pose_lines[k] = line_no
+        elif tag in ignored:
+            continue
+        else:
+            raise InputError(f"unknown tag {tag!r}", path, line_no)
+    return _dataset(name, group_edges(edges, path, pose_lines), path)
+
+
+# --------------------------------------------------------------------------- public
+def read_toro(path, noise_format: str = "auto") -> Dataset:
+    """Read a TORO ``.graph`` file (``VERTEX2``, ``EDGE2``; ``EQUIV`` ignored).
+
+    ``EDGE2 id1 id2 dx dy dth v1..v6``; the noise numbers are read as
+    ``gtsam.load2D`` reads them (``noise_format="auto"``, see module docstring).
+    Name of the dataset: the file stem.
+    """
+    return _read_se2_graph(path, "VERTEX2", "EDGE2", ("EQUIV",), noise_format, Path(path).stem)
+
+
+def read_g2o(path, noise_format: str = "g2o") -> Dataset:
+    """Read a 2-D g2o file (``VERTEX_SE2``, ``EDGE_SE2``; ``FIX`` lines ignored).
+
+    ``EDGE_SE2 id1 id2 dx dy dth i11 i12 i13 i22 i23 i33`` is an information
+    matrix in g2o order, as ``gtsam.readG2o`` reads it. (gtsam's parser stops
+    silently at the first line it does not know, e.g. ``FIX``; we skip ``FIX``
+    and read on.) Landmark tags
+    (``VERTEX_XY``, ``EDGE_SE2_XY``) are refused as unknown.
+    """
+    return _read_se2_graph(path, "VERTEX_SE2", "EDGE_SE2", ("FIX",), noise_format,
+                           Path(path).stem)
+
+
+def read_pose_graph(path) -> Dataset:
+    """Dispatch on extension (``.graph`` -> TORO, ``.g2o`` -> g2o), else on the first tag."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".graph":
+        return read_toro(path)
+    if suffix == ".g2o":
+        return read_g2o(path)
+    for line_no, tok in iter_lines(path):
+        if tok[0] in ("VERTEX2", "EDGE2", "EQUIV"):
+            return read_toro(path)
+        if tok[0] in ("VERTEX_SE2", "EDGE_SE2", "FIX"):
+            return read_g2o(path)
+        raise InputError(f"cannot tell the pose-graph format from tag {tok[0]!r}",
+                         path, line_no)
+    raise InputError("empty pose-graph file", path)
+
+
+def read_city10000(path=None, ground_truth_path=None) -> Dataset:
+    """Read gtsam's City10000 pose graph with its ground truth (name "city10000").
+
+    Line format: ``EDGE2 keyS <unused> keyT ambiguous n x1 y1 th1 [x2 y2 th2 ...]``
+    (tokens as parsed by gtsam's ``HybridCity10000.py``); only the first
+    hypothesis, the correct one, is kept. Every edge gets the covariance
+    ``diag(CITY10000_SIGMAS**2)`` with sigmas (1/30, 1/30, 1/100) from gtsam's C++
+    City10000 examples (``kPoseNoiseModel``; note: one version of the Python
+    example ``HybridCity10000.py`` uses 1/20 for x, y instead).
+
+    The ground-truth file has one ``x y theta`` line per pose; its line count must
+    equal the number of poses.
+    """
+    import gtsam
+
+    if path is None:
+        path = gtsam.findExampleDataFile("T1_city10000_04.txt")
+    if ground_truth_path is None:
+        ground_truth_path = gtsam.findExampleDataFile("ISAM2_GT_city10000.txt")
+    cov = np.diag(CITY10000_SIGMAS ** 2)
+    edges = []
+    for line_no, tok in iter_lines(path):
+        if tok[0] != "EDGE2":
+            raise InputError(f"unknown tag {tok[0]!r}", path, line_no)
+        if len(tok) < 9:
+            raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}",
+                             path, line_no)
+        a = parse_int(tok[1], path, line_no)
+        b = parse_int(tok[3], path, line_no)
+        parse_int(tok[4], path, line_no, "ambiguity flag")
+        n = parse_int(tok[5], path, line_no, "hypothesis count")
+        if n < 1 or len(tok) != 6 + 3 * n:
+            raise InputError(f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, "
+                             f"got {len(tok)}", path, line_no)
+        nums = parse_floats(tok[6:], path, line_no)
+        edges.append((line_no, a, b, _delta(nums[:3]), cov))
+    truth = []
+    for line_no, tok in iter_lines(ground_truth_path):
+        if len(tok) != 3:
+            raise InputError(f"ground-truth line needs 3 numbers (x y theta), got {len(tok)}",
+                             ground_truth_path, line_no)
+        truth.append(np.array(parse_floats(tok, ground_truth_path, line_no)))
+    ids = {e[1] for e in edges} | {e[2] for e in edges}
+    n_poses = (max(ids) - min(ids) + 1) if ids else 0
+    if len(truth) != n_poses:
+        raise InputError(f"ground truth has {len(truth)} poses, the graph has {n_poses}",
+                         ground_truth_path)
+    frames = group_edges(edges, path, ground_truth=truth)
+    return _dataset("city10000", frames, path)

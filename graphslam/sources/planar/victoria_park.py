@@ -1,0 +1,110 @@
+"""Reader for gtsam's ``victoria_park.txt`` (real landmark SLAM, Sydney).
+
+Format (one record a line; blank and ``#`` lines skipped):
+
+- ``ODOMETRY i j dx dy dtheta c11 c12 c13 c22 c23 c33``: pose ``j`` relative to
+  pose ``i`` with the upper triangle of its covariance.
+- ``LANDMARK i j lx ly v1 v2 v3``: Cartesian position of landmark ``j`` in the
+  frame of pose ``i``, with covariance ``[[v1, v2], [v2, v3]]``.
+
+Pose ids have gaps (``ODOMETRY 4 6`` because landmark 5 was named in between);
+they are kept as in the file. In the file every ``LANDMARK i`` line comes after
+the ``ODOMETRY`` line that creates pose ``i``; such an observation joins the
+frame of pose ``i`` (even if ``i`` is no longer the latest pose).
+
+Noise follows ``gtsam.load2D`` on purpose, so that graph errors compare with
+published numbers (checked factor by factor in ``tests/test_readers.py``):
+
+- odometry: the six numbers are the g2o-layout covariance
+  ``[[c11 c12 c13], [c12 c22 c23], [c13 c23 c33]]`` (load2D's automatic format
+  detection picks "COV" for the ``c 0 0 c 0 c`` pattern of this file), which
+  here is ``diag(c11, c22, c33)``;
+- landmarks: load2D converts to a bearing-range factor with
+  ``bearing = atan2(ly, lx)``, ``range = hypot(lx, ly)``, bearing sigma
+  ``sqrt(v1 / 10)``, range sigma ``sqrt(v1)``, and ignores ``v2``, ``v3``. Our
+  :class:`~slamcore.planar.records.Observation` has ``z = [range_m, bearing_rad]``, so its
+  covariance is ``diag(v1, v1 / 10)``. This is load2D's model, not a propagation
+  of the Cartesian covariance.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slamcore.errors import InputError, MeasurementError
+from slamcore.planar.records import Dataset
+from graphslam.sources.planar.posegraph import (_delta, check_count, iter_lines, noise_covariance,
+                                         parse_floats, parse_int)
+from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
+
+
+def victoria_park_path() -> str:
+    """Path of ``victoria_park.txt`` shipped in the gtsam wheel."""
+    import gtsam
+
+    return gtsam.findExampleDataFile("victoria_park.txt")
+
+
+def read_victoria_park(path=None) -> Dataset:
+    """Read a Victoria-Park-format file into a Dataset (name "victoria-park").
+
+    Args:
+        path: the file; ``None`` reads the copy in the gtsam wheel.
+
+    Returns:
+        Dataset whose frames are the poses in file order; ``frames[0]`` is the
+        ``from`` pose of the first ODOMETRY line.
+
+    Raises:
+        InputError: missing file or malformed line (names file and line).
+    """
+    if path is None:
+        path = victoria_park_path()
+    order: list[int] = []  # pose ids in creation order
+    odometry: dict[int, Odometry] = {}
+    observations: dict[int, list[Observation]] = {}
+    for line_no, tok in iter_lines(path):
+        tag = tok[0]
+        try:
+            if tag == "ODOMETRY":
+                check_count(tok, 12, path, line_no, "ODOMETRY i j dx dy dtheta + 6 covariance")
+                i = parse_int(tok[1], path, line_no)
+                j = parse_int(tok[2], path, line_no)
+                nums = parse_floats(tok[3:], path, line_no)
+                if not order:
+                    order.append(i)
+                    observations[i] = []
+                elif i not in observations:
+                    raise InputError(f"ODOMETRY from pose {i}, which does not exist yet",
+                                     path, line_no)
+                if j in observations:
+                    raise InputError(f"ODOMETRY creates pose {j}, which already exists",
+                                     path, line_no)
+                cov = noise_covariance(nums[3:], "cov", path, line_no)
+                odometry[j] = Odometry(i, j, _delta(nums[:3]), cov)
+                order.append(j)
+                observations[j] = []
+            elif tag == "LANDMARK":
+                check_count(tok, 8, path, line_no, "LANDMARK i j lx ly v1 v2 v3")
+                i = parse_int(tok[1], path, line_no)
+                j = parse_int(tok[2], path, line_no, "landmark id")
+                lx, ly, v1, _v2, _v3 = parse_floats(tok[3:], path, line_no)
+                if i not in observations:
+                    raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
+                                     path, line_no)
+                z = [math.hypot(lx, ly), math.atan2(ly, lx)]
+                cov = np.diag([v1, v1 / 10.0])
+                observations[i].append(Observation(i, j, z, cov, ObservationKind.RANGE_BEARING))
+            else:
+                raise InputError(f"unknown tag {tag!r}", path, line_no)
+        except MeasurementError as exc:
+            raise InputError(str(exc), path, line_no) from None
+    if not order:
+        raise InputError("no ODOMETRY line", path)
+    frames = [Frame(pose_id=k, odometry=odometry.get(k),
+                    observations=tuple(observations[k])) for k in order]
+    return Dataset(name="victoria-park", frames=frames, prior_wTb=np.zeros(3),
+                   prior_covariance=np.eye(3) * 1e-6, landmarks_true=None,
+                   has_timestamps=False, source_path=str(path))

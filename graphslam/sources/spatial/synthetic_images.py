@@ -1,0 +1,566 @@
+"""Synthetic image sequences for visual SLAM and loop closure (numpy + OpenCV).
+
+The scene is a closed textured room (walls split into panels, a tiled floor
+and ceiling) with textured boxes inside and around the route. Every surface is
+a planar quad with its own texture, so each place looks different and has
+plenty of corners for Harris/ORB.
+
+Camera and frames: world ``z`` is up; the camera looks along its ``+z``, ``x``
+right, ``y`` down; ``wTc`` (4, 4) maps camera points to world points. ``K`` uses
+pixel centres at integer coordinates (OpenCV's convention), so projecting a 3-D
+point with ``K`` and ``inv(wTc)`` lands where :func:`cv2.warpPerspective` drew it.
+
+Trajectory: the camera drives counter-clockwise around a rounded rectangle
+(``path_length_m`` x ``path_width_m``, corner radius ``corner_radius_m``,
+centred in the room) for ``laps`` laps (default 1.5: one full lap then half a
+lap again, so places are revisited), heading along the path, at height
+``camera_height_m``. Small deterministic wobbles (lateral offset, height,
+pitch) with periods that are not a multiple of the lap make revisits similar
+but not pixel-identical.
+
+Rendering (:meth:`SyntheticImageSequence.load`): per surface, the quad is
+transformed into the camera frame, back-facing quads are culled, the polygon is
+clipped in 3-D against the near plane ``z >= near_m`` (so quads crossing the
+camera plane are handled exactly), projected, and its bounding box warped
+from a mip level of the texture with the plane homography
+``H = K [R a, R b, R o + t]``. A per-pixel inverse-depth z-buffer (inverse
+depth is affine in pixel coordinates on a plane) composites the surfaces.
+
+Odometry: ``odometry[k]`` (4, 4) is the noisy relative pose ``c_k T c_{k+1}``:
+the true relative pose times ``E = [[exp(phi), rho], [0, 1]]`` with
+``rho ~ N(0, sigma_t^2 I3)`` metres and ``phi ~ N(0, sigma_r^2 I3)`` radians
+(rotation vector), drawn from ``default_rng(seed)``. The 6x6 covariance, in
+order ``[rho, phi]``, is ``odometry_covariance``.
+
+Revisit rule (:attr:`SyntheticImageSequence.revisit_pairs`): ``(i, j)`` with
+``j - i >= revisit_min_gap_frames``, camera centres within
+``revisit_distance_m`` and headings (yaw) within ``revisit_heading_deg``.
+
+Determinism: textures come from ``default_rng([seed, surface index])``; the same
+config renders the same images to the bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import cv2
+import numpy as np
+
+from slamcore.errors import ConfigError
+from graphslam.sources.spatial.images import ImageSequence, intrinsics_matrix
+
+__all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "Surface", "make_synthetic_images",
+           "clip_polygon_near"]
+
+
+@dataclass(frozen=True)
+class SyntheticImagesConfig:
+    """Parameters of the synthetic image sequence (section ``[synthetic_images]``).
+
+    Units: metres, radians for noise sigmas, degrees where the name says so,
+    pixels for the camera.
+    """
+
+    SECTION: ClassVar[str] = "synthetic_images"
+
+    seed: int = 0
+    width: int = 640
+    height: int = 480
+    fx: float = 500.0
+    fy: float = 500.0
+    cx: float = 319.5
+    cy: float = 239.5
+    n_frames: int = 300
+    laps: float = 1.5
+    room_length_m: float = 16.0
+    room_width_m: float = 11.0
+    room_height_m: float = 3.0
+    path_length_m: float = 10.0
+    path_width_m: float = 5.0
+    corner_radius_m: float = 1.5
+    camera_height_m: float = 1.4
+    wobble_lateral_m: float = 0.15
+    wobble_height_m: float = 0.05
+    wobble_pitch_deg: float = 2.0
+    odometry_sigma_t_m: float = 0.01
+    odometry_sigma_r_rad: float = 0.002
+    texture: str = "procedural"
+    texture_px_per_m: float = 100.0
+    pixel_noise_sigma: float = 0.0
+    near_m: float = 0.05
+    revisit_distance_m: float = 1.0
+    revisit_heading_deg: float = 10.0
+    revisit_min_gap_frames: int = 50
+
+    def __post_init__(self):
+        if self.width < 16 or self.height < 16:
+            raise ConfigError(f"[{self.SECTION}] width/height must be >= 16 px")
+        if min(self.fx, self.fy) <= 0:
+            raise ConfigError(f"[{self.SECTION}] fx, fy must be positive")
+        if self.n_frames < 2 or self.laps <= 0:
+            raise ConfigError(f"[{self.SECTION}] need n_frames >= 2 and laps > 0")
+        if self.texture not in ("procedural", "balbianello"):
+            raise ConfigError(f"[{self.SECTION}] texture must be 'procedural' or 'balbianello', "
+                              f"got {self.texture!r}")
+        if not 0 < self.corner_radius_m <= min(self.path_length_m, self.path_width_m) / 2:
+            raise ConfigError(f"[{self.SECTION}] corner_radius_m must be in (0, path_width_m/2]")
+        margin = 0.5 + self.wobble_lateral_m
+        if (self.path_length_m / 2 + margin > self.room_length_m / 2
+                or self.path_width_m / 2 + margin > self.room_width_m / 2):
+            raise ConfigError(f"[{self.SECTION}] the path must fit in the room with 0.5 m to spare")
+        if not 0 < self.camera_height_m < self.room_height_m:
+            raise ConfigError(f"[{self.SECTION}] camera_height_m must be inside the room")
+        if min(self.odometry_sigma_t_m, self.odometry_sigma_r_rad, self.pixel_noise_sigma) < 0:
+            raise ConfigError(f"[{self.SECTION}] sigmas must be >= 0")
+        if self.near_m <= 0 or self.texture_px_per_m <= 0:
+            raise ConfigError(f"[{self.SECTION}] near_m and texture_px_per_m must be positive")
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """A textured planar quad.
+
+    ``corners_w`` (4, 3): ``o, o + A, o + A + B, o + B`` counter-clockwise seen
+    from the visible side; texel ``(u, v)`` (column, row, centres at integers)
+    of the level-0 texture (``th`` x ``tw``) is at ``o + (u+0.5)/tw A + (v+0.5)/th B``.
+    ``normal_w`` points to the visible side. ``mips``: texture pyramid (uint8).
+    """
+
+    name: str
+    corners_w: np.ndarray
+    normal_w: np.ndarray
+    mips: tuple[np.ndarray, ...]
+
+    def texel_to_world(self, uv: np.ndarray) -> np.ndarray:
+        """(M, 2) level-0 texel coordinates -> (M, 3) world points."""
+        th, tw = self.mips[0].shape
+        o, A, B = self.corners_w[0], self.corners_w[1] - self.corners_w[0], self.corners_w[3] - self.corners_w[0]
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        return o + np.outer((uv[:, 0] + 0.5) / tw, A) + np.outer((uv[:, 1] + 0.5) / th, B)
+
+
+def clip_polygon_near(poly_c: np.ndarray, near: float) -> np.ndarray:
+    """Sutherland-Hodgman clip of a (M, 3) camera-frame polygon to ``z >= near``."""
+    out = []
+    n = len(poly_c)
+    for k in range(n):
+        p, q = poly_c[k], poly_c[(k + 1) % n]
+        p_in, q_in = p[2] >= near, q[2] >= near
+        if p_in:
+            out.append(p)
+        if p_in != q_in:
+            s = (near - p[2]) / (q[2] - p[2])
+            out.append(p + s * (q - p))
+    return np.array(out).reshape(-1, 3)
+
+
+# ------------------------------------------------------------------------- textures
+
+def _procedural_texture(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
+    """Distinct, corner-rich greyscale texture: blotchy background + random shapes."""
+    small = rng.uniform(60, 190, size=(max(2, h // 40), max(2, w // 40))).astype(np.float32)
+    img = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    n_shapes = int(max(8, w * h / 900))
+    for _ in range(n_shapes):
+        kind = rng.integers(0, 4)
+        g = int(rng.integers(0, 256))
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        s = int(rng.integers(6, 28))
+        if kind == 0:
+            cv2.rectangle(img, (x, y), (x + s, y + int(rng.integers(6, 28))), g, -1)
+        elif kind == 1:
+            pts = np.array([[x, y], [x + s, y + int(rng.integers(-s, s))],
+                            [x + int(rng.integers(-s, s)), y + s]], np.int32)
+            cv2.fillConvexPoly(img, pts, g)
+        elif kind == 2:
+            cv2.circle(img, (x, y), s // 2, g, -1)
+        else:
+            cv2.line(img, (x, y), (x + int(rng.integers(-3 * s, 3 * s)), y + int(rng.integers(-3 * s, 3 * s))),
+                     g, int(rng.integers(1, 4)))
+    return img
+
+
+def _balbianello_photos() -> list[np.ndarray]:
+    import glob
+    import os
+
+    import gtsam  # only for the example-data path; see the module doc
+
+    try:
+        folder = gtsam.findExampleDataFile("Balbianello")
+    except Exception:
+        folder = None
+    if not folder or not os.path.isdir(folder):
+        raise ConfigError("texture 'balbianello': gtsam's Balbianello example folder was not found")
+    photos = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in sorted(glob.glob(os.path.join(folder, "*.jpg")))]
+    photos = [p for p in photos if p is not None]
+    if not photos:
+        raise ConfigError(f"texture 'balbianello': no readable .jpg in {folder}")
+    return photos
+
+
+def _photo_texture(rng: np.random.Generator, photos: list[np.ndarray], w: int, h: int) -> np.ndarray:
+    """A random crop of a random photo, resized to (h, w)."""
+    ph = photos[int(rng.integers(len(photos)))]
+    H, W = ph.shape
+    scale = rng.uniform(0.3, 0.7)
+    cw = int(W * scale)
+    ch = int(min(H, cw * h / w))
+    cw = int(ch * w / h)
+    x0, y0 = int(rng.integers(0, W - cw + 1)), int(rng.integers(0, H - ch + 1))
+    if rng.random() < 0.5:
+        crop = ph[y0:y0 + ch, x0:x0 + cw][:, ::-1]
+    else:
+        crop = ph[y0:y0 + ch, x0:x0 + cw]
+    return cv2.resize(np.ascontiguousarray(crop), (w, h), interpolation=cv2.INTER_AREA)
+
+
+def _mips(tex: np.ndarray, levels: int = 5) -> tuple[np.ndarray, ...]:
+    out = [tex]
+    while len(out) < levels and min(out[-1].shape) >= 16:
+        out.append(cv2.pyrDown(out[-1]))
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------- scene
+
+def _quads(cfg: SyntheticImagesConfig) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, corners (4, 3), normal) of every surface, room first then boxes."""
+    Lx, Ly, Hz = cfg.room_length_m / 2, cfg.room_width_m / 2, cfg.room_height_m
+    quads = []
+
+    def quad(name, o, A, B, normal):
+        o, A, B = (np.asarray(v, dtype=np.float64) for v in (o, A, B))
+        quads.append((name, np.array([o, o + A, o + A + B, o + B]), np.asarray(normal, float)))
+
+    # Walls, split into ~4 m panels; texture "up" (B) points down so rows go down.
+    walls = [  # (start corner, direction along wall, length, inward normal)
+        ((-Lx, -Ly), (1, 0), 2 * Lx, (0, 1, 0)),
+        ((Lx, -Ly), (0, 1), 2 * Ly, (-1, 0, 0)),
+        ((Lx, Ly), (-1, 0), 2 * Lx, (0, -1, 0)),
+        ((-Lx, Ly), (0, -1), 2 * Ly, (1, 0, 0)),
+    ]
+    for wi, (start, d, length, n) in enumerate(walls):
+        k = max(1, round(length / 4.0))
+        seg = length / k
+        for p in range(k):
+            o = (start[0] + d[0] * seg * p, start[1] + d[1] * seg * p, Hz)
+            # Seen from inside: along-wall direction d is to the viewer's left when
+            # normal is n; use -d... choose A so that A x B points along n.
+            A = np.array([d[0] * seg, d[1] * seg, 0.0])
+            B = np.array([0.0, 0.0, -Hz])
+            if np.dot(np.cross(A, B), n) < 0:
+                o = (o[0] + A[0], o[1] + A[1], Hz)
+                A = -A
+            quad(f"wall{wi}.{p}", o, A, B, n)
+    # Floor and ceiling tiles (2 m).
+    nx, ny = max(1, round(2 * Lx / 2.0)), max(1, round(2 * Ly / 2.0))
+    sx, sy = 2 * Lx / nx, 2 * Ly / ny
+    for i in range(nx):
+        for j in range(ny):
+            x0, y0 = -Lx + i * sx, -Ly + j * sy
+            quad(f"floor{i}.{j}", (x0, y0 + sy, 0), (sx, 0, 0), (0, -sy, 0), (0, 0, 1))
+            quad(f"ceiling{i}.{j}", (x0, y0, Hz), (sx, 0, 0), (0, sy, 0), (0, 0, -1))
+    # Boxes: centre (x, y), half sizes (hx, hy), height; inside and outside the loop.
+    px, py = cfg.path_length_m / 2, cfg.path_width_m / 2
+    gap_x = (Lx - px) / 2
+    gap_y = (Ly - py) / 2
+    boxes = [
+        ((-px / 2, 0.0), (0.5, 0.5), 2.0),
+        ((px / 2, 0.0), (0.4, 0.6), 1.2),
+        ((0.0, 0.0), (0.3, 0.3), Hz),
+        ((px + gap_x, py + gap_y), (0.5, 0.4), 1.0),
+        ((-px - gap_x, -py - gap_y), (0.4, 0.5), 1.6),
+        ((0.0, py + gap_y), (0.6, 0.3), 0.8),
+        ((0.0, -py - gap_y), (0.3, 0.5), 2.2),
+        ((-px - gap_x, py + gap_y * 0.5), (0.35, 0.35), 1.3),
+    ]
+    for bi, ((cx, cy), (hx, hy), hz) in enumerate(boxes):
+        if min(gap_x, gap_y) < 0.9 and bi >= 3:
+            continue  # no room between path and walls for outer boxes
+        x0, x1, y0, y1 = cx - hx, cx + hx, cy - hy, cy + hy
+        quad(f"box{bi}.-y", (x0, y0, hz), (2 * hx, 0, 0), (0, 0, -hz), (0, -1, 0))
+        quad(f"box{bi}.+x", (x1, y0, hz), (0, 2 * hy, 0), (0, 0, -hz), (1, 0, 0))
+        quad(f"box{bi}.+y", (x1, y1, hz), (-2 * hx, 0, 0), (0, 0, -hz), (0, 1, 0))
+        quad(f"box{bi}.-x", (x0, y1, hz), (0, -2 * hy, 0), (0, 0, -hz), (-1, 0, 0))
+        if hz < Hz - 1e-6:
+            quad(f"box{bi}.top", (x0, y1, hz), (2 * hx, 0, 0), (0, -2 * hy, 0), (0, 0, 1))
+    return quads
+
+
+def _path(cfg: SyntheticImagesConfig, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rounded-rectangle path: arc length s (m) -> (x, y, heading), CCW from the bottom straight."""
+    a, b, r = cfg.path_length_m / 2, cfg.path_width_m / 2, cfg.corner_radius_m
+    lx, ly = 2 * (a - r), 2 * (b - r)
+    arc = 0.5 * math.pi * r
+    segs = [("line", (-a + r, -b), (1, 0), lx), ("arc", (a - r, -b + r), -0.5 * math.pi, arc),
+            ("line", (a, -b + r), (0, 1), ly), ("arc", (a - r, b - r), 0.0, arc),
+            ("line", (a - r, b), (-1, 0), lx), ("arc", (-a + r, b - r), 0.5 * math.pi, arc),
+            ("line", (-a, b - r), (0, -1), ly), ("arc", (-a + r, -b + r), math.pi, arc)]
+    total = sum(sg[3] for sg in segs)
+    s = np.mod(s, total)
+    x, y, h = np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
+    start = 0.0
+    for kind, p, q, length in segs:
+        m = (s >= start) & (s < start + length + 1e-12)
+        d = s[m] - start
+        if kind == "line":
+            x[m], y[m] = p[0] + q[0] * d, p[1] + q[1] * d
+            h[m] = math.atan2(q[1], q[0])
+        else:
+            ang = q + d / r
+            x[m], y[m] = p[0] + r * np.cos(ang), p[1] + r * np.sin(ang)
+            h[m] = ang + 0.5 * math.pi
+        start += length
+    return x, y, h
+
+
+def _path_length(cfg: SyntheticImagesConfig) -> float:
+    a, b, r = cfg.path_length_m / 2, cfg.path_width_m / 2, cfg.corner_radius_m
+    return 4 * (a - r) + 4 * (b - r) + 2 * math.pi * r
+
+
+def _trajectory(cfg: SyntheticImagesConfig) -> np.ndarray:
+    """(N, 4, 4) wTc of the camera along the path, with the wobbles."""
+    L = _path_length(cfg)
+    n = cfg.n_frames
+    s = np.linspace(0.0, cfg.laps * L, n, endpoint=False)
+    x, y, yaw = _path(cfg, s)
+    k = np.arange(n)
+    lateral = cfg.wobble_lateral_m * np.sin(2 * np.pi * s / (0.77 * L))
+    x = x - np.sin(yaw) * lateral
+    y = y + np.cos(yaw) * lateral
+    z = cfg.camera_height_m + cfg.wobble_height_m * np.sin(2 * np.pi * k / 23.0)
+    pitch = np.deg2rad(cfg.wobble_pitch_deg) * np.sin(2 * np.pi * k / 37.0)
+    wTc = np.tile(np.eye(4), (n, 1, 1))
+    for i in range(n):
+        fwd = np.array([math.cos(yaw[i]) * math.cos(pitch[i]), math.sin(yaw[i]) * math.cos(pitch[i]),
+                        math.sin(pitch[i])])
+        right = np.array([math.sin(yaw[i]), -math.cos(yaw[i]), 0.0])
+        down = np.cross(fwd, right)
+        wTc[i, :3, :3] = np.column_stack([right, down, fwd])
+        wTc[i, :3, 3] = [x[i], y[i], z[i]]
+    return wTc
+
+
+def _so3_exp(phi: np.ndarray) -> np.ndarray:
+    R, _ = cv2.Rodrigues(np.asarray(phi, dtype=np.float64).reshape(3, 1))
+    return R
+
+
+def _invert(T: np.ndarray) -> np.ndarray:
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return Ti
+
+
+def _yaw(wTc: np.ndarray) -> np.ndarray:
+    fwd = wTc[..., :3, 2]
+    return np.arctan2(fwd[..., 1], fwd[..., 0])
+
+
+# ------------------------------------------------------------------------- sequence
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SyntheticImageSequence(ImageSequence):
+    """An :class:`ImageSequence` rendered on demand, with its ground truth.
+
+    Extra attributes:
+        config: the :class:`SyntheticImagesConfig` it was made from.
+        odometry: (N-1, 4, 4) noisy relative poses ``c_k T c_{k+1}``.
+        odometry_sigmas: ``(sigma_t_m, sigma_r_rad)`` per frame.
+        odometry_covariance: (6, 6) ``diag([sigma_t^2]*3 + [sigma_r^2]*3)``, order ``[rho, phi]``.
+        points_w: (M, 3) texture corners (goodFeaturesToTrack on each texture) in world.
+        point_surface: (M,) index into ``surfaces`` of each point.
+        surfaces: the textured quads.
+        revisit_pairs: ``(i, j)`` frame pairs seeing the same place (rule in the module doc).
+
+    ``image_paths`` holds pseudo-names (``synthetic:seed=S:frame=00042``); read
+    images with :meth:`load`, never with ``cv2.imread``.
+    """
+
+    config: SyntheticImagesConfig
+    odometry: np.ndarray
+    odometry_sigmas: tuple[float, float]
+    odometry_covariance: np.ndarray
+    points_w: np.ndarray
+    point_surface: np.ndarray
+    surfaces: tuple[Surface, ...]
+    revisit_pairs: list[tuple[int, int]] = field(default_factory=list)
+
+    def load(self, i: int) -> np.ndarray:
+        """Frame ``i`` as (H, W) uint8 greyscale (rendered, deterministic)."""
+        return self.render(i)[0]
+
+    def render(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(image (H, W) uint8, depth (H, W) float32 metres, inf where empty)`` of frame ``i``."""
+        n = len(self.image_paths)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range [0, {n})")
+        i %= n
+        img, invz = _render(self.surfaces, self.K, _invert(self.wTc_true[i]), self.image_size,
+                            self.config.near_m)
+        if self.config.pixel_noise_sigma > 0:
+            rng = np.random.default_rng([self.config.seed, 1, i])
+            noisy = img.astype(np.float32) + rng.normal(0, self.config.pixel_noise_sigma, img.shape)
+            img = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        with np.errstate(divide="ignore"):
+            depth = np.where(invz > 0, 1.0 / invz, np.inf).astype(np.float32)
+        return img, depth
+
+    def project(self, i: int, points_w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(uv (M, 2) pixels, depth (M,) metres)`` of world points in frame ``i``."""
+        P = self.points_w if points_w is None else np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+        cTw = _invert(self.wTc_true[i])
+        pc = P @ cTw[:3, :3].T + cTw[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uvw = pc @ self.K.T
+            uv = uvw[:, :2] / uvw[:, 2:3]
+        return uv, pc[:, 2]
+
+    def visible_points(self, i: int, depth_map: np.ndarray | None = None,
+                       border_px: float = 0.0, depth_tol: float = 0.02) -> np.ndarray:
+        """Indices of ``points_w`` seen in frame ``i``: in front, inside the image
+        (``border_px`` margin) and not occluded (depth within ``depth_tol`` relative)."""
+        if depth_map is None:
+            depth_map = self.render(i)[1]
+        uv, z = self.project(i)
+        W, H = self.image_size
+        ok = (z > self.config.near_m) & np.all(np.isfinite(uv), axis=1)
+        ok &= (uv[:, 0] >= border_px) & (uv[:, 0] <= W - 1 - border_px)
+        ok &= (uv[:, 1] >= border_px) & (uv[:, 1] <= H - 1 - border_px)
+        idx = np.flatnonzero(ok)
+        px = np.rint(uv[idx]).astype(int)
+        d = depth_map[px[:, 1], px[:, 0]]
+        good = np.abs(d - z[idx]) <= depth_tol * z[idx]
+        return idx[good]
+
+
+def _render(surfaces, K, cTw, size, near):
+    W, H = size
+    img = np.zeros((H, W), np.uint8)
+    invz = np.zeros((H, W), np.float32)
+    R, t = cTw[:3, :3], cTw[:3, 3]
+    cam_w = -R.T @ t
+    Kinv = np.linalg.inv(K)
+    for surf in surfaces:
+        c = surf.corners_w
+        if np.dot(surf.normal_w, cam_w - c[0]) <= 1e-9:
+            continue  # back-facing (or edge-on)
+        pc = c @ R.T + t
+        if np.all(pc[:, 2] < near):
+            continue
+        poly = clip_polygon_near(pc, near) if np.any(pc[:, 2] < near) else pc
+        if len(poly) < 3:
+            continue
+        uvw = poly @ K.T
+        uv = uvw[:, :2] / uvw[:, 2:3]
+        x0 = max(int(math.floor(uv[:, 0].min())), 0)
+        x1 = min(int(math.ceil(uv[:, 0].max())), W - 1)
+        y0 = max(int(math.floor(uv[:, 1].min())), 0)
+        y1 = min(int(math.ceil(uv[:, 1].max())), H - 1)
+        if x1 < x0 or y1 < y0:
+            continue
+        w, h = x1 - x0 + 1, y1 - y0 + 1
+        # Mip level from texels per pixel (area ratio over the clipped polygon).
+        th0, tw0 = surf.mips[0].shape
+        A = c[1] - c[0]
+        B = c[3] - c[0]
+        a_len, b_len = np.linalg.norm(A), np.linalg.norm(B)
+        # Polygon areas: in the plane (m^2 -> texels) and in the image (px^2).
+        pw = poly @ R  # back to world orientation, relative (translation cancels in areas)
+        area_w = 0.5 * np.linalg.norm(np.sum(np.cross(pw, np.roll(pw, -1, axis=0)), axis=0))
+        area_tex = area_w * (tw0 / a_len) * (th0 / b_len)
+        area_img = 0.5 * abs(np.sum(uv[:, 0] * np.roll(uv[:, 1], -1) - uv[:, 1] * np.roll(uv[:, 0], -1)))
+        ratio = math.sqrt(area_tex / max(area_img, 1e-9))
+        level = int(min(len(surf.mips) - 1, max(0, math.floor(math.log2(max(ratio, 1.0)) + 0.5))))
+        tex = surf.mips[level]
+        s = 2.0 ** level
+        a_l = A / tw0 * s
+        b_l = B / th0 * s
+        o_l = c[0] + 0.5 * a_l + 0.5 * b_l
+        Hm = K @ np.column_stack([R @ a_l, R @ b_l, R @ o_l + t])
+        T = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
+        patch = cv2.warpPerspective(tex, T @ Hm, (w, h), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REFLECT)
+        mask = np.zeros((h, w), np.uint8)
+        pts = np.rint((uv - [x0, y0]) * 16).astype(np.int64)
+        pts = np.clip(pts, -(1 << 26), 1 << 26).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=4)
+        # Inverse depth on the plane n.X = d (camera frame): 1/z = (n^T K^-1 [x y 1]) / d.
+        n_c = R @ surf.normal_w
+        d_c = float(n_c @ pc[0])
+        g = (Kinv.T @ n_c) / d_c
+        xs = np.arange(x0, x1 + 1, dtype=np.float32)
+        ys = np.arange(y0, y1 + 1, dtype=np.float32)
+        iz = (np.float32(g[0]) * xs[None, :] + np.float32(g[1]) * ys[:, None] + np.float32(g[2]))
+        zroi = invz[y0:y1 + 1, x0:x1 + 1]
+        write = (mask > 0) & (iz > zroi)
+        np.copyto(img[y0:y1 + 1, x0:x1 + 1], patch, where=write)
+        np.copyto(zroi, iz, where=write)
+    return img, invz
+
+
+def make_synthetic_images(config: SyntheticImagesConfig | None = None) -> SyntheticImageSequence:
+    """Build the scene, trajectory, noisy odometry and revisit pairs of ``config``."""
+    cfg = config or SyntheticImagesConfig()
+    photos = _balbianello_photos() if cfg.texture == "balbianello" else None
+    surfaces, pts, owner = [], [], []
+    for si, (name, corners, normal) in enumerate(_quads(cfg)):
+        A = np.linalg.norm(corners[1] - corners[0])
+        B = np.linalg.norm(corners[3] - corners[0])
+        tw = max(16, int(round(A * cfg.texture_px_per_m)))
+        th = max(16, int(round(B * cfg.texture_px_per_m)))
+        rng = np.random.default_rng([cfg.seed, si])
+        if photos is None:
+            tex = _procedural_texture(rng, tw, th)
+        else:
+            tex = _photo_texture(rng, photos, tw, th)
+        surf = Surface(name, corners, normal, _mips(tex))
+        surfaces.append(surf)
+        corners_uv = cv2.goodFeaturesToTrack(tex, maxCorners=max(4, int(tw * th / 4000)),
+                                             qualityLevel=0.05, minDistance=10, blockSize=5)
+        if corners_uv is not None:
+            uv = corners_uv.reshape(-1, 2)
+            inner = ((uv[:, 0] >= 8) & (uv[:, 0] <= tw - 9) & (uv[:, 1] >= 8) & (uv[:, 1] <= th - 9))
+            pts.append(surf.texel_to_world(uv[inner]))
+            owner.append(np.full(int(inner.sum()), si))
+    points_w = np.concatenate(pts) if pts else np.zeros((0, 3))
+    point_surface = np.concatenate(owner) if owner else np.zeros(0, int)
+
+    wTc = _trajectory(cfg)
+    n = cfg.n_frames
+    rng = np.random.default_rng(cfg.seed)
+    odo = np.empty((n - 1, 4, 4))
+    for k in range(n - 1):
+        E = np.eye(4)
+        E[:3, 3] = rng.normal(0.0, cfg.odometry_sigma_t_m, 3)
+        E[:3, :3] = _so3_exp(rng.normal(0.0, cfg.odometry_sigma_r_rad, 3))
+        odo[k] = _invert(wTc[k]) @ wTc[k + 1] @ E
+    cov = np.diag([cfg.odometry_sigma_t_m ** 2] * 3 + [cfg.odometry_sigma_r_rad ** 2] * 3)
+
+    pos = wTc[:, :3, 3]
+    yaw = _yaw(wTc)
+    pairs = []
+    for i in range(n):
+        j = np.arange(i + cfg.revisit_min_gap_frames, n)
+        if j.size == 0:
+            break
+        close = np.linalg.norm(pos[j] - pos[i], axis=1) <= cfg.revisit_distance_m
+        dyaw = np.abs((yaw[j] - yaw[i] + np.pi) % (2 * np.pi) - np.pi)
+        close &= dyaw <= np.deg2rad(cfg.revisit_heading_deg)
+        pairs.extend((i, int(jj)) for jj in j[close])
+
+    K = intrinsics_matrix(cfg.fx, cfg.fy, cfg.cx, cfg.cy)
+    paths = [f"synthetic:seed={cfg.seed}:frame={k:05d}" for k in range(n)]
+    return SyntheticImageSequence(
+        name="synthetic-images", image_paths=paths, stamps_s=np.arange(n, dtype=np.float64) * 0.1,
+        K=K, distortion=None, wTc_true=wTc, image_size=(cfg.width, cfg.height), source_path=None,
+        config=cfg, odometry=odo, odometry_sigmas=(cfg.odometry_sigma_t_m, cfg.odometry_sigma_r_rad),
+        odometry_covariance=cov, points_w=points_w, point_surface=point_surface,
+        surfaces=tuple(surfaces), revisit_pairs=pairs)

@@ -1,0 +1,248 @@
+"""Rerun logging of visual runs (images, search ellipses, frusta, 3-D map); imports rerun.
+
+Layout of a recording, on the ``frame`` timeline (and ``time`` in seconds
+where the sequence has stamps):
+
+- ``world/ground_truth/trajectory``: static, when known;
+  ``world/ground_truth/camera``: the true pose's frustum (Transform3D + Pinhole);
+- ``world/<backend>/camera``: the estimated current pose's frustum; under it
+  ``image`` (the frame, JPEG), ``image/corners`` (detected corners),
+  ``image/grid`` (the detector's tessellation), ``image/ellipses`` (active
+  search ellipses at the gate: green where found, red where not),
+  ``image/matches`` (predicted -> found), ``image/followed`` (unmapped tracks
+  followed: previous -> current) and ``image/new`` (tracks started);
+- ``world/<backend>/trajectory`` and ``world/<backend>/landmarks`` (3-D map)
+  and the estimated frusta, logged at the end of the run onto the frames they
+  belong to (the final, smoothed estimate: see :meth:`VisualRecorder.hook`);
+  ``world/odometry/trajectory`` at the last frame;
+- ``plots/tracking/{found,searched,observations,image_fraction}``;
+- with loop closing: ``loops/candidates`` (a text line per candidate: scores,
+  inliers, accepted or why not), ``loops/pair`` (query and match images side
+  by side, the PnP inliers joined by lines, for candidates that passed the
+  detector's geometry), ``plots/loops/{score,normalised_score}``, and
+  ``world/<backend>/loop_closures`` (the closures as 3-D segments between the
+  estimated cameras, at the end of the run).
+
+Modes save / spawn / connect as :class:`graphslam.visualisation.planar.RerunLog`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.visualisation.planar import PALETTE, RerunLog, ellipse_points
+
+GT_COLOR = (160, 160, 160)
+FOUND_COLOR = (40, 200, 60)
+MISSED_COLOR = (220, 50, 40)
+CORNER_COLOR = (255, 200, 0)
+NEW_COLOR = (0, 170, 255)
+FOLLOW_COLOR = (200, 80, 255)
+GRID_COLOR = (90, 90, 90, 120)
+
+
+class VisualRecorder:
+    """Records one visual run. ``open(mode, path, url)``, ``start``, ``hook``, ``finish``, ``close``.
+
+    Args:
+        log: the :class:`RerunLog` to write to.
+        image_every: log the image every N frames (overlays every frame).
+        jpeg_quality: JPEG quality of the logged images (0 logs raw pixels).
+    """
+
+    def __init__(self, log: RerunLog, image_every: int = 1, jpeg_quality: int = 85):
+        self.log = log
+        self.rec = log.rec
+        self._rr = log._rr
+        self.image_every = max(1, int(image_every))
+        self.jpeg_quality = int(jpeg_quality)
+        self._sequence = None
+
+    @classmethod
+    def open(cls, mode: str, path: Path | None, url: str | None = None, **kw) -> "VisualRecorder":
+        return cls(RerunLog(mode, path=path, url=url, recording_id="graphslam-visual-run"), **kw)
+
+    # ------------------------------------------------------------------ static
+
+    def start(self, sequence, n_frames: int) -> None:
+        """Static ground truth, if the sequence has it."""
+        rr = self._rr
+        self._sequence = sequence
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if sequence.wTc_true is not None:
+            p = np.asarray(sequence.wTc_true[:n_frames])[:, :3, 3]
+            self.rec.log("world/ground_truth/trajectory",
+                         rr.LineStrips3D([p], colors=[GT_COLOR], radii=0.01), static=True)
+
+    def _set_time(self, k: int) -> None:
+        self.rec.set_time("frame", sequence=int(k))
+        stamps = None if self._sequence is None else self._sequence.stamps_s
+        if stamps is not None:
+            self.rec.set_time("time", duration=float(stamps[k]))
+
+    def _camera(self, entity: str, wTc: np.ndarray, K: np.ndarray, size, color) -> None:
+        rr = self._rr
+        self.rec.log(entity, rr.Transform3D(translation=wTc[:3, 3], mat3x3=wTc[:3, :3]))
+        self.rec.log(entity, rr.Pinhole(image_from_camera=K, resolution=[int(size[0]), int(size[1])],
+                                        image_plane_distance=0.3, color=color))
+
+    # ------------------------------------------------------------------ per frame
+
+    def log_frame(self, backend: str, k: int, image: np.ndarray, tracking, wTc: np.ndarray | None,
+                  color_index: int = 0) -> None:
+        """One frame: frusta, image with its overlays, tracking plots."""
+        rr = self._rr
+        seq = self._sequence
+        self._set_time(k)
+        K = np.asarray(seq.K, dtype=np.float64)
+        size = seq.image_size
+        color = PALETTE[color_index % len(PALETTE)]
+        if seq.wTc_true is not None:
+            self._camera("world/ground_truth/camera", np.asarray(seq.wTc_true[k]), K, size, GT_COLOR)
+        cam = f"world/{backend}/camera"
+        if wTc is not None:
+            self._camera(cam, wTc, K, size, color)
+        img = f"{cam}/image"
+        if k % self.image_every == 0:
+            im = rr.Image(image)
+            self.rec.log(img, im.compress(jpeg_quality=self.jpeg_quality) if self.jpeg_quality else im)
+        if k == 0 and tracking.cell_size_px:
+            self.rec.log(f"{img}/grid", rr.LineStrips2D(grid_lines(size, tracking.cell_size_px),
+                                                        colors=[GRID_COLOR], radii=0.5), static=True)
+        self.rec.log(f"{img}/corners", rr.Points2D(tracking.corners, colors=[CORNER_COLOR], radii=2.0))
+        s = tracking.searched
+        if s.any():
+            rings = ellipse_points(tracking.pred_uv[s], tracking.pred_S[s], chi2=tracking.gate)
+            cols = np.where(tracking.found[s][:, None], FOUND_COLOR, MISSED_COLOR)
+            labels = [str(int(i)) for i in tracking.pred_ids[s]]
+            self.rec.log(f"{img}/ellipses", rr.LineStrips2D(list(rings), colors=cols, radii=0.7,
+                                                            labels=labels, show_labels=False))
+        else:
+            self.rec.log(f"{img}/ellipses", rr.Clear(recursive=False))
+        f = tracking.found
+        if f.any():
+            segs = np.stack([tracking.pred_uv[f], tracking.found_uv[f]], axis=1)
+            self.rec.log(f"{img}/matches", rr.LineStrips2D(list(segs), colors=[FOUND_COLOR], radii=0.8))
+        else:
+            self.rec.log(f"{img}/matches", rr.Clear(recursive=False))
+        if len(tracking.followed_ids):
+            segs = np.stack([tracking.followed_from, tracking.followed_to], axis=1)
+            self.rec.log(f"{img}/followed", rr.LineStrips2D(list(segs), colors=[FOLLOW_COLOR], radii=0.6))
+        else:
+            self.rec.log(f"{img}/followed", rr.Clear(recursive=False))
+        self.rec.log(f"{img}/new", rr.Points2D(tracking.new_uv, colors=[NEW_COLOR], radii=3.0))
+        self.rec.log("plots/tracking/found", rr.Scalars(float(tracking.n_found)))
+        self.rec.log("plots/tracking/searched", rr.Scalars(float(tracking.n_searched)))
+        self.rec.log("plots/tracking/observations", rr.Scalars(float(len(tracking.observations))))
+        self.rec.log("plots/tracking/image_fraction", rr.Scalars(float(tracking.image_fraction)))
+
+    def log_estimate(self, backend: str, estimate, color_index: int = 0) -> None:
+        """Estimated trajectory and 3-D map points."""
+        rr = self._rr
+        color = PALETTE[color_index % len(PALETTE)]
+        wTc = np.asarray(estimate.wTc).reshape(-1, 4, 4)
+        if len(wTc) >= 2:
+            self.rec.log(f"world/{backend}/trajectory",
+                         rr.LineStrips3D([wTc[:, :3, 3]], colors=[color], radii=0.01))
+        pts = np.asarray(estimate.landmarks_w).reshape(-1, 3)
+        self.rec.log(f"world/{backend}/landmarks",
+                     rr.Points3D(pts, colors=[color], radii=0.03,
+                                 labels=[str(int(i)) for i in estimate.landmark_ids], show_labels=False))
+
+    def hook(self, backend: str, color_index: int = 0):
+        """An ``on_frame`` callback for :func:`graphslam.pipelines.spatial.run`.
+
+        It logs the front end only and never asks the back end for its
+        estimate: reading it may change the back end's work (iSAM2 flushes its
+        pending factors), and a run must give the same numbers with or without
+        a recording. The estimated frusta and map come in :meth:`finish`.
+        """
+
+        def on_frame(k, image, tracking, backend_obj):
+            self.log_frame(backend, k, image, tracking, None, color_index)
+
+        return on_frame
+
+    def finish(self, backend: str, result, color_index: int = 0, every: int = 5) -> None:
+        """The estimate, placed on the timeline: each frame's estimated frustum at
+        its own frame, the trajectory so far every ``every`` frames, the final
+        map and the odometry-only trajectory at the last frame."""
+        rr = self._rr
+        est = result.estimate
+        seq = self._sequence
+        K = np.asarray(seq.K, dtype=np.float64)
+        color = PALETTE[color_index % len(PALETTE)]
+        wTc = np.asarray(est.wTc).reshape(-1, 4, 4)
+        ids = np.asarray(est.frame_ids, dtype=np.int64)
+        for j, (k, T) in enumerate(zip(ids, wTc)):
+            self._set_time(int(k))
+            self._camera(f"world/{backend}/camera", T, K, seq.image_size, color)
+            if j % max(1, int(every)) == 0 and j >= 1:
+                self.rec.log(f"world/{backend}/trajectory",
+                             rr.LineStrips3D([wTc[:j + 1, :3, 3]], colors=[color], radii=0.01))
+        self._set_time(max(result.frames - 1, 0))
+        self.log_estimate(backend, est, color_index)
+        if result.odometry_wTc is not None and len(result.odometry_wTc) >= 2:
+            self.rec.log("world/odometry/trajectory",
+                         rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)],
+                                         radii=0.01))
+
+    def loop_hook(self, sequence):
+        """An ``on_candidate`` callback for :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""
+
+        def on_candidate(k, record, image, links):
+            self.log_loop_candidate(k, record, image, links, sequence)
+
+        return on_candidate
+
+    def log_loop_candidate(self, k: int, record: dict, image: np.ndarray, links, sequence) -> None:
+        """One candidate on the timeline; both images side by side when it got a pose."""
+        rr = self._rr
+        self._set_time(k)
+        fate = "ACCEPTED" if record.get("accepted") else f"rejected: {record.get('reason')}"
+        match = record.get("match")
+        text = (f"query {k} match {match if match is not None else record.get('best_match')} "
+                f"score {record.get('score', 0.0):.3f} "
+                f"eta {record.get('normalised_score') or 0.0:.2f} "
+                f"inliers {record.get('n_inliers')} pnp {record.get('pnp_inliers')}: {fate}")
+        level = "INFO" if record.get("accepted") else "DEBUG"
+        self.rec.log("loops/candidates", rr.TextLog(text, level=level))
+        self.rec.log("plots/loops/score", rr.Scalars(float(record.get("score") or 0.0)))
+        if record.get("normalised_score") is not None:
+            self.rec.log("plots/loops/normalised_score", rr.Scalars(float(record["normalised_score"])))
+        if links is None or match is None:
+            return
+        other = sequence.load(int(match))
+        W = image.shape[1]
+        pair = np.hstack([image, other])
+        im = rr.Image(pair)
+        self.rec.log("loops/pair", im.compress(jpeg_quality=self.jpeg_quality)
+                     if self.jpeg_quality else im)
+        segs = np.asarray(links, dtype=np.float64).reshape(-1, 2, 2).copy()
+        segs[:, 1, 0] += W
+        color = FOUND_COLOR if record.get("accepted") else MISSED_COLOR
+        self.rec.log("loops/pair/inliers", rr.LineStrips2D(list(segs), colors=[color], radii=0.8))
+
+    def log_loop_closures(self, backend: str, estimate, closures, color=(255, 0, 255)) -> None:
+        """Accepted closures as 3-D segments between the estimated camera centres."""
+        rr = self._rr
+        ids = {int(f): i for i, f in enumerate(np.asarray(estimate.frame_ids))}
+        wTc = np.asarray(estimate.wTc).reshape(-1, 4, 4)
+        segs = [np.stack([wTc[ids[c.frame_a], :3, 3], wTc[ids[c.frame_b], :3, 3]])
+                for c in closures if c.frame_a in ids and c.frame_b in ids]
+        if segs:
+            self.rec.log(f"world/{backend}/loop_closures",
+                         rr.LineStrips3D(segs, colors=[color], radii=0.01))
+
+    def close(self) -> None:
+        self.log.close()
+
+
+def grid_lines(size, cell: int) -> list[np.ndarray]:
+    """Tessellation cell borders of a ``(W, H)`` image as 2-point line strips."""
+    W, H = int(size[0]), int(size[1])
+    lines = [np.array([[x - 0.5, -0.5], [x - 0.5, H - 0.5]]) for x in range(cell, W, cell)]
+    lines += [np.array([[-0.5, y - 0.5], [W - 0.5, y - 0.5]]) for y in range(cell, H, cell)]
+    return lines

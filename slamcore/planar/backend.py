@@ -1,0 +1,112 @@
+"""The back-end contract shared by iSAM2, EKF-SLAM and FastSLAM (no gtsam here).
+
+A back end is driven frame by frame::
+
+    backend.initialize(first_pose_id, wTb0, covariance0)
+    for frame in frames[1:]:
+        backend.predict(frame.odometry, frame.pose_id)   # motion step adds a pose
+        backend.update(frame.observations)               # observations at that pose
+        for lc in frame.loop_closures:
+            backend.add_loop_closure(lc)                 # or UnsupportedError
+    estimate = backend.finalize()
+
+Back ends may defer work until an answer is asked for (iSAM2 batches one
+``update`` per frame), so callers must not assume a call has been applied
+before :meth:`Backend.estimate` or :meth:`Backend.predict_observations`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from slamcore.errors import UnsupportedError
+from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, Prediction
+
+
+class Backend(ABC):
+    """Abstract SLAM back end. Subclasses set :attr:`name`."""
+
+    #: Short name used on the command line and in reports.
+    name: str = "backend"
+    #: Whether :meth:`add_loop_closure` can use a relative-pose constraint.
+    supports_loop_closures: bool = False
+
+    @abstractmethod
+    def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
+        """Anchor the first pose.
+
+        Args:
+            pose_id: id of the first pose.
+            wTb: (3,) ``[x_m, y_m, theta_rad]``.
+            covariance: (3, 3) prior covariance.
+        """
+
+    @abstractmethod
+    def predict(self, odometry: Odometry, pose_id: int) -> None:
+        """Motion step: add pose ``pose_id`` linked to a known pose by ``odometry``.
+
+        ``odometry`` connects ``pose_id`` with a pose the back end already has,
+        in either direction (pose-graph files store some edges new->old).
+        """
+
+    @abstractmethod
+    def update(self, observations: Sequence[Observation]) -> None:
+        """Apply landmark observations taken at the current pose.
+
+        Unknown landmarks are initialised from their first observation.
+        """
+
+    def add_loop_closure(self, loop_closure: LoopClosure) -> None:
+        """Add a relative-pose constraint between two known poses.
+
+        Raises:
+            UnsupportedError: back ends that close loops only by re-observing
+                landmarks (the filters) say so here.
+        """
+        raise UnsupportedError(
+            f"{self.name} cannot use relative-pose loop closures; "
+            "it closes loops by re-observing landmarks"
+        )
+
+    @abstractmethod
+    def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
+        """Predicted measurement and innovation covariance from the current pose.
+
+        Landmarks the back end does not know are skipped.
+        """
+
+    @abstractmethod
+    def estimate(self, with_covariances: bool = False) -> Estimate:
+        """Current belief. Covariances only when asked: they can be costly."""
+
+    def associations(self) -> list[int | None]:
+        """Landmark id given to each observation of the last :meth:`update` call.
+
+        Same order as the observations; ``None`` where an observation was not
+        used (gated out, or held on a provisional list). With known
+        association these are the given ids; with unknown association they are
+        the back end's own ids, which the pipeline scores against ground truth.
+        """
+        return list(self._last_associations)
+
+    _last_associations: list[int | None] = []
+
+    def finalize(self, with_covariances: bool = False) -> Estimate:
+        """End of the run (e.g. a final batch polish); returns the final estimate."""
+        return self.estimate(with_covariances=with_covariances)
+
+    def current_pose(self) -> np.ndarray:
+        """(3,) latest pose. Back ends with a cheap answer override this."""
+        return self.estimate().current_pose
+
+    def current_pose_covariance(self) -> np.ndarray | None:
+        """(3, 3) covariance of the latest pose, or ``None`` if unavailable.
+
+        Back ends with a cheap answer override this; the default asks for all
+        covariances, which may be slow.
+        """
+        return self.estimate(with_covariances=True).current_covariance
+

@@ -1,0 +1,256 @@
+"""The bottom layer: plain numpy records passed between stages (no gtsam).
+
+Conventions (2-D):
+
+- a pose is ``[x_m, y_m, theta_rad]``, body ``b`` in world ``w`` (``wTb``);
+- a relative pose ``aTb`` is ``[dx_m, dy_m, dtheta_rad]`` of ``b`` expressed in
+  frame ``a`` (what :class:`gtsam.Pose2.between` returns);
+- a range-bearing measurement is ``[range_m, bearing_rad]`` in the body frame;
+- covariances are in the same units and order as the vector they describe.
+
+Every record validates itself at construction: non-finite values and
+covariances that are not symmetric positive definite are refused with a
+:class:`~slamcore.errors.MeasurementError`, so nothing bad reaches a back end.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from slamcore.errors import MeasurementError
+
+#: Relative tolerance on covariance symmetry (file formats round to ~6 digits).
+COV_SYMMETRY_RTOL = 1e-6
+
+
+def as_vector(value, size: int, what: str) -> np.ndarray:
+    """Return ``value`` as a read-only float64 vector of ``size``; refuse NaN/inf."""
+    v = np.array(value, dtype=np.float64).reshape(-1)
+    if v.shape != (size,):
+        raise MeasurementError(f"{what}: expected {size} values, got {v.size}")
+    if not np.all(np.isfinite(v)):
+        raise MeasurementError(f"{what}: non-finite value {v.tolist()}")
+    v.setflags(write=False)
+    return v
+
+
+def as_covariance(value, size: int, what: str) -> np.ndarray:
+    """Return ``value`` as a read-only (size, size) SPD covariance or raise."""
+    c = np.array(value, dtype=np.float64)
+    if c.shape != (size, size):
+        raise MeasurementError(f"{what}: covariance must be {size}x{size}, got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise MeasurementError(f"{what}: covariance has non-finite entries")
+    scale = max(float(np.max(np.abs(c))), 1e-300)
+    if np.max(np.abs(c - c.T)) > COV_SYMMETRY_RTOL * scale:
+        raise MeasurementError(f"{what}: covariance is not symmetric")
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        raise MeasurementError(f"{what}: covariance is not positive definite") from None
+    c.setflags(write=False)
+    return c
+
+
+def wrap_angle(theta_rad):
+    """Wrap angle(s) to [-pi, pi)."""
+    return (np.asarray(theta_rad) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class ObservationKind(enum.Enum):
+    """What an observation's measurement vector ``z`` holds."""
+
+    RANGE_BEARING = "range_bearing"  #: z = [range_m, bearing_rad], (2,)
+    PIXEL = "pixel"  #: z = [u_px, v_px], (2,)
+
+
+@dataclass(frozen=True, eq=False)
+class Odometry:
+    """A relative-pose measurement ``fromTto`` between two poses.
+
+    Attributes:
+        from_id, to_id: pose ids as in the input (one of them is the new pose).
+        delta: (3,) ``[dx_m, dy_m, dtheta_rad]`` of ``to`` in the ``from`` frame.
+        covariance: (3, 3) covariance of ``delta``.
+    """
+
+    from_id: int
+    to_id: int
+    delta: np.ndarray
+    covariance: np.ndarray
+
+    def __post_init__(self):
+        what = f"odometry {self.from_id}->{self.to_id}"
+        object.__setattr__(self, "delta", as_vector(self.delta, 3, what))
+        object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """One landmark measurement made at a pose.
+
+    Attributes:
+        pose_id: id of the pose the measurement was taken from.
+        landmark_id: landmark id when association is known, ``None`` when not.
+        z: measurement, shape and units given by ``kind``.
+        covariance: (2, 2) measurement covariance.
+        kind: :class:`ObservationKind`.
+        signature: optional appearance signature (course slides: landmarks
+            carry one that data association may use).
+    """
+
+    pose_id: int
+    landmark_id: int | None
+    z: np.ndarray
+    covariance: np.ndarray
+    kind: ObservationKind = ObservationKind.RANGE_BEARING
+    signature: int | None = None
+
+    def __post_init__(self):
+        what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
+        object.__setattr__(self, "z", as_vector(self.z, 2, what))
+        object.__setattr__(self, "covariance", as_covariance(self.covariance, 2, what))
+        if self.kind is ObservationKind.RANGE_BEARING and self.z[0] <= 0.0:
+            raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")
+
+
+@dataclass(frozen=True, eq=False)
+class LoopClosure:
+    """A relative-pose constraint between two non-consecutive poses.
+
+    Attributes:
+        from_id, to_id: pose ids; ``delta`` is ``fromTto``, (3,).
+        covariance: (3, 3).
+        score: detector's confidence, if any (bag-of-words score, inliers...).
+        source: who proposed it ("dataset", "bow", "injected-false", ...).
+    """
+
+    from_id: int
+    to_id: int
+    delta: np.ndarray
+    covariance: np.ndarray
+    score: float | None = None
+    source: str = "dataset"
+
+    def __post_init__(self):
+        what = f"loop closure {self.from_id}->{self.to_id}"
+        object.__setattr__(self, "delta", as_vector(self.delta, 3, what))
+        object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """Everything that arrives with one new pose.
+
+    Attributes:
+        pose_id: id of the new pose (as in the input; may have gaps).
+        stamp_s: timestamp in seconds, or ``None`` if the data has none.
+        odometry: measurement linking the new pose to an earlier one; ``None``
+            for the first frame.
+        observations: landmark measurements taken at ``pose_id``.
+        loop_closures: constraints between ``pose_id`` and earlier poses.
+        wTb_true: (3,) ground-truth pose, when known.
+        true_landmark_ids: ground-truth landmark id of each observation (same
+            order), when known; used only for scoring data association.
+    """
+
+    pose_id: int
+    stamp_s: float | None = None
+    odometry: Odometry | None = None
+    observations: tuple[Observation, ...] = ()
+    loop_closures: tuple[LoopClosure, ...] = ()
+    wTb_true: np.ndarray | None = None
+    true_landmark_ids: tuple[int, ...] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction:
+    """A predicted observation of a known landmark, for active search / gating.
+
+    Attributes:
+        landmark_id: landmark id.
+        z: (2,) predicted measurement (same kind as the observations).
+        innovation_covariance: (2, 2) ``S = H P H^T + R``.
+    """
+
+    landmark_id: int
+    z: np.ndarray
+    innovation_covariance: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """A back end's current belief, all numpy.
+
+    Attributes:
+        pose_ids: (N,) int ids of the poses in ``wTb``, in insertion order.
+        wTb: (N, 3) poses ``[x_m, y_m, theta_rad]``.
+        landmark_ids: (M,) int landmark ids.
+        landmarks_w: (M, 2) landmark positions in world, metres.
+        pose_covariances: (N, 3, 3) or ``None`` if not computed.
+        landmark_covariances: (M, 2, 2) or ``None`` if not computed.
+    """
+
+    pose_ids: np.ndarray
+    wTb: np.ndarray
+    landmark_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    landmarks_w: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    pose_covariances: np.ndarray | None = None
+    landmark_covariances: np.ndarray | None = None
+
+    @property
+    def current_pose(self) -> np.ndarray:
+        """(3,) the most recent pose."""
+        return self.wTb[-1]
+
+    @property
+    def current_covariance(self) -> np.ndarray | None:
+        """(3, 3) covariance of the most recent pose, if computed."""
+        return None if self.pose_covariances is None else self.pose_covariances[-1]
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """A recorded or simulated run, ready to stream into a back end.
+
+    Attributes:
+        name: short name for reports ("synthetic", "victoria-park", ...).
+        frames: in time order; ``frames[0]`` has no odometry and anchors the
+            run with ``prior_wTb`` / ``prior_covariance``.
+        prior_wTb: (3,) pose of the first frame.
+        prior_covariance: (3, 3) prior on the first pose (datasets without one
+            use sigma 1e-3 on each axis, as gtsam's examples do).
+        landmarks_true: ground-truth landmark positions ``{id: (2,)}`` or None.
+        has_timestamps: whether ``Frame.stamp_s`` holds real times; when not,
+            writers use the pose id in the time column.
+        source_path: file the data came from, if any.
+        seed: seed that generated a simulated dataset (None for recorded data).
+    """
+
+    name: str
+    frames: Sequence[Frame]
+    prior_wTb: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    prior_covariance: np.ndarray = field(default_factory=lambda: np.eye(3) * 1e-6)
+    landmarks_true: dict[int, np.ndarray] | None = None
+    has_timestamps: bool = False
+    source_path: str | None = None
+    seed: int | None = None
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return len(self.frames) > 0 and all(f.wTb_true is not None for f in self.frames)
+
+    def ground_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(pose_ids (N,), wTb (N, 3))`` of the true trajectory, or None."""
+        if not self.has_ground_truth:
+            return None
+        ids = np.array([f.pose_id for f in self.frames], dtype=np.int64)
+        return ids, np.array([f.wTb_true for f in self.frames], dtype=np.float64)
+
+    def truncated(self, max_frames: int) -> "Dataset":
+        """The first ``max_frames`` frames (loop closures to later poses cannot occur)."""
+        return replace(self, frames=list(self.frames[:max_frames]))
