@@ -60,8 +60,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from frontend.active_search import ActiveSearch, ActiveSearchConfig, extract_patches  # noqa: E402
-from slamcore.spatial.camera import (innovation_covariance, invert_pose, plane_induced_affine,  # noqa: E402
-                             pose_covariance, project, project_jacobians, read_kitti_calib, read_kitti_poses, se3_exp)
+from slamcore.spatial.camera import (
+    innovation_covariance, plane_induced_affine, # noqa: E402
+                             pose_covariance, project, project_jacobians,
+)
+from slamcore.spatial.geometry import invert_pose, se3_exp
+from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from frontend.harris import HarrisDetector  # noqa: E402
 from frontend.image import load_gray  # noqa: E402
 
@@ -99,7 +103,7 @@ class Kitti:
 
     def __init__(self, root: Path = KITTI07):
         self.root = Path(root)
-        self.K = read_kitti_calib(self.root / "calib.txt")
+        self.K, _ = read_kitti_calib(self.root / "calib.txt")
         self.wTc = read_kitti_poses(self.root / "poses.txt")
         self.cTw = invert_pose(self.wTc)
         self._cache: dict[int, np.ndarray] = {}

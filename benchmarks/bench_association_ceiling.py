@@ -36,7 +36,7 @@ from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from graphslam.pipelines.compare import oracle_association_accuracy
 from slamcore.planar.records import Dataset
-from graphslam.sources.planar.outliers import relative_pose
+from slamcore.planar.geometry import between
 from slamcore.planar.records import Odometry
 
 #: Odometry sigma (m, rad) of the "known poses" run: far below any landmark or
@@ -54,7 +54,7 @@ def with_exact_odometry(dataset: Dataset) -> Dataset:
     for f in dataset.frames:
         if f.odometry is not None:
             o = f.odometry
-            delta = relative_pose(truth[o.from_id], truth[o.to_id])
+            delta = between(truth[o.from_id], truth[o.to_id])
             f = dataclasses.replace(f, odometry=Odometry(o.from_id, o.to_id, delta, cov))
         frames.append(f)
     return dataclasses.replace(dataset, frames=frames,

@@ -38,7 +38,7 @@ import numpy as np
 
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from slamcore.spatial.backend import PixelObservations
+from slamcore.spatial.records import PixelObservations
 
 
 def make_stream(frames: int, sigma_px: float, seed: int):

@@ -61,7 +61,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from filters.mono_ekf import MonoEkf, MonoEkfConfig  # noqa: E402
-from slamcore.spatial.camera import invert_pose, project, se3_exp  # noqa: E402
+from slamcore.spatial.geometry import invert_pose
+from slamcore.spatial.camera import project, se3_exp  # noqa: E402
 from slamcore.spatial.backend import PixelObservations  # noqa: E402
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])

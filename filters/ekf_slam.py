@@ -99,8 +99,10 @@ from filters.association import (chi2_quantile, individual_candidates, jcbb,
                                  mahalanobis_sq_2d)
 from slamcore.planar.backend import Backend
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from slamcore.planar.records import (Estimate, Observation, ObservationKind, Odometry, Prediction,
-                             as_covariance, as_vector, wrap_angle)
+from slamcore.planar.records import (
+    Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
+)
+from slamcore.planar.geometry import wrap_angle
 
 #: Size of one block of the in-place rank-2 downdate, in doubles (1 MiB): the
 #: block has ``clip(ROW_BLOCK_ELEMENTS // n, 8, 64)`` rows of P. Small blocks keep

@@ -77,8 +77,10 @@ from slamcore.planar import geometry as models
 from filters.fastslam_map import ParticleMaps
 from slamcore.planar.backend import Backend
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
-from slamcore.planar.records import (Estimate, Observation, ObservationKind, Odometry, Prediction,
-                             as_covariance, as_vector, wrap_angle)
+from slamcore.planar.records import (
+    Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
+)
+from slamcore.planar.geometry import wrap_angle
 
 _LOG_2PI = math.log(2.0 * math.pi)
 

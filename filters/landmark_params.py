@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from slamcore.spatial.camera import skew
+from slamcore.spatial.geometry import skew
 
 #: Landmark kinds (codes stored by the filter).
 EUCLIDEAN, IDP, AHP = 0, 1, 2

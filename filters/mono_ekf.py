@@ -89,8 +89,8 @@ import numpy as np
 
 from filters import landmark_params as lp
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from slamcore.spatial.backend import (PixelObservations, PixelPredictions, VisualBackend,
-                                      VisualEstimate)
+from slamcore.spatial.records import PixelObservations, PixelPredictions, VisualEstimate
+from slamcore.spatial.backend import VisualBackend
 
 __all__ = ["MonoEkfConfig", "MonoEkf", "odometry_motion", "constant_velocity_motion"]
 

@@ -54,7 +54,7 @@ from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
 from slamcore.errors import ConfigError
-from slamcore.spatial.backend import PixelObservations, PixelPredictions
+from slamcore.spatial.records import PixelObservations, PixelPredictions
 
 __all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES"]
 

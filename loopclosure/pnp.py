@@ -29,7 +29,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from slamcore.spatial.camera import invert_pose, project_jacobians
+from slamcore.spatial.geometry import invert_pose
+from slamcore.spatial.camera import project_jacobians
 from slamcore.errors import ConfigError
 from loopclosure.verify import match_descriptors
 

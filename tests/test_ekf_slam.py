@@ -14,7 +14,8 @@ from filters.ekf_slam import EkfSlam, EkfSlamConfig
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
 from graphslam.pipelines.planar import association_accuracy
-from slamcore.planar.records import LoopClosure, Observation, ObservationKind, Odometry, wrap_angle
+from slamcore.planar.records import LoopClosure, Observation, ObservationKind, Odometry
+from slamcore.planar.geometry import wrap_angle
 
 #: Dense-reference agreement (state units: metres, radians; covariance m^2, rad^2).
 DENSE_TOL = 1e-9

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from slamcore.errors import InputError
+from graphslam.sources.spatial.sequence import ImageSequence
 from graphslam.sources.spatial.images import (
-    ImageSequence, read_euroc, read_image_folder, read_image_sequence, read_intrinsics_file,
-    read_kitti, read_tum_rgbd,
+    read_euroc, read_image_folder, read_image_sequence, read_tum_rgbd,
 )
+from graphslam.sources.spatial.calibration import read_intrinsics_file
+from graphslam.sources.spatial.kitti import read_kitti
 
 KITTI_K = np.array([[707.0912, 0, 601.8873], [0, 707.0912, 183.1104], [0, 0, 1]])
 #: KITTI poses are printed with 7 significant digits.

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from graphslam.evaluation import planar as metrics
+from slamcore.planar.geometry import between
 from slamcore.errors import GraphSlamError
 
 #: Alignment / ATE exactness on noise-free data, metres.
@@ -99,7 +100,7 @@ def test_rpe_sanity():
     est = gt.copy()
     bias = 0.01
     for k in range(1, len(gt)):
-        rel = metrics._between(gt[k - 1:k], gt[k:k + 1])[0]
+        rel = between(gt[k - 1:k], gt[k:k + 1])[0]
         rel[2] += bias
         c, s = np.cos(est[k - 1, 2]), np.sin(est[k - 1, 2])
         est[k] = [est[k - 1, 0] + c * rel[0] - s * rel[1], est[k - 1, 1] + s * rel[0] + c * rel[1],

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamcore.spatial.camera import se3_exp, so3_exp
+from slamcore.spatial.geometry import se3_exp, so3_exp
 from graphslam.evaluation import spatial as metrics3d
 from slamcore.errors import GraphSlamError
 

@@ -9,10 +9,12 @@ import pytest
 
 from filters import landmark_params as lp
 from filters.mono_ekf import MonoEkf, MonoEkfConfig, constant_velocity_motion, odometry_motion
-from slamcore.spatial.camera import invert_pose, project, se3_exp
+from slamcore.spatial.geometry import invert_pose, se3_exp
+from slamcore.spatial.camera import project
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from slamcore.spatial.backend import PixelObservations, VisualBackend
+from slamcore.spatial.records import PixelObservations
+from slamcore.spatial.backend import VisualBackend
 
 #: Central-difference step (state units: m, rad, 1/m, px).
 FD_STEP = 1e-6

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamcore.spatial.camera import (invert_pose, plane_induced_affine, project, project_jacobians,
-                             read_kitti_calib, read_kitti_poses, se3_exp)
+from slamcore.spatial.geometry import invert_pose, se3_exp
+from slamcore.spatial.camera import plane_induced_affine, project, project_jacobians
+from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from frontend.features import Detector
 from frontend.orb import OrbConfig, OrbDetector
 from slamcore.errors import ConfigError, InputError
@@ -141,7 +142,7 @@ def test_plane_induced_affine_matches_numerical():
 
 def test_read_kitti_files(shared_data):
     root = shared_data / "kitti07"
-    K = read_kitti_calib(root / "calib.txt")
+    K, _ = read_kitti_calib(root / "calib.txt")
     assert np.allclose(K, [[707.0912, 0, 601.8873], [0, 707.0912, 183.1104], [0, 0, 1]])
     P = read_kitti_poses(root / "poses.txt")
     assert P.shape == (160, 4, 4)

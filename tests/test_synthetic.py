@@ -11,7 +11,8 @@ from slamcore.errors import ConfigError
 from graphslam.sources.planar.synthetic import (ODOMETRY_COVARIANCE_FLOOR, SyntheticConfig,
                                          dead_reckon, make_synthetic, route_controls,
                                          unicycle_delta)
-from slamcore.planar.records import ObservationKind, wrap_angle
+from slamcore.planar.records import ObservationKind
+from slamcore.planar.geometry import wrap_angle
 
 #: How far the last true pose may be from the first (straights round to whole steps).
 ROUTE_CLOSURE_TOL_M = 1e-6

@@ -8,7 +8,7 @@ import pytest
 from frontend.tracking import Tracker, TrackerConfig
 from slamcore.errors import ConfigError
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from slamcore.spatial.backend import PixelPredictions
+from slamcore.spatial.records import PixelPredictions
 
 #: A tracked pixel is "on its point" within this distance of the point's true projection, px.
 ON_POINT_PX = 3.0

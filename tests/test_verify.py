@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from slamcore.spatial.camera import invert_pose, read_kitti_calib, read_kitti_poses
+from slamcore.spatial.geometry import invert_pose
+from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from frontend.orb import OrbDetector
 from slamcore.errors import ConfigError
 from loopclosure.verify import GeometricVerifier, VerifyConfig, match_descriptors
@@ -123,7 +124,7 @@ def kitti(shared_data):
     root = shared_data / "kitti07"
     if not (root / "poses.txt").is_file():
         pytest.skip("KITTI 07 data missing")
-    K = read_kitti_calib(root / "calib.txt")
+    K, _ = read_kitti_calib(root / "calib.txt")
     wTc = read_kitti_poses(root / "poses.txt")
     orb = OrbDetector(cell_size_px=0, n_features=1000)
 

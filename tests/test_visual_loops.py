@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from filters.mono_ekf import MonoEkf
-from slamcore.spatial.camera import invert_pose, project, se3_exp
+from slamcore.spatial.geometry import invert_pose, se3_exp
+from slamcore.spatial.camera import project
 from frontend.orb import OrbDetector
 from graphslam.cli.main import main
 from slamcore.errors import ConfigError, UnsupportedError
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
-from slamcore.spatial.backend import PixelObservations, PoseClosure
+from slamcore.spatial.records import PixelObservations, PoseClosure
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
 from tests.test_isam2_visual import K, SIZE, SIGMA_PX, dead_reckoning, make_world, position_rmse
 
@@ -349,7 +350,7 @@ def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
     from types import SimpleNamespace
 
     from graphslam.visualisation.spatial import VisualRecorder
-    from slamcore.spatial.backend import VisualEstimate
+    from slamcore.spatial.records import VisualEstimate
 
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(3)]

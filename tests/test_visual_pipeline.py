@@ -14,14 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slamcore.spatial.camera import invert_pose, so3_exp
+from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.cli.main import main
 from slamcore.errors import GraphSlamError, UnsupportedError
-from graphslam.sources.spatial.images import ImageSequence
+from graphslam.sources.spatial.sequence import ImageSequence
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
-from slamcore.spatial.backend import PixelPredictions, VisualBackend, VisualEstimate
+from slamcore.spatial.records import PixelPredictions, VisualEstimate
+from slamcore.spatial.backend import VisualBackend
+from slamcore.spatial.geometry import rotation_to_quaternion
 from tests.conftest import ROOT, SHARED_DATA
 
 QVGA = dict(width=320, height=240, fx=250.0, fy=250.0, cx=159.5, cy=119.5)
@@ -198,7 +200,7 @@ def test_quaternions_round_trip():
     rng = np.random.default_rng(0)
     for _ in range(50):
         R = so3_exp(rng.normal(0, 2.0, 3))
-        qx, qy, qz, qw = vp.rotation_to_quaternion(R[None])[0]
+        qx, qy, qz, qw = rotation_to_quaternion(R[None])[0]
         R2 = np.array([
             [1 - 2 * (qy**2 + qz**2), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)],
             [2 * (qx * qy + qw * qz), 1 - 2 * (qx**2 + qz**2), 2 * (qy * qz - qw * qx)],

@@ -67,7 +67,7 @@ def square_world(seed: int = 0, noise: bool = True, steps_per_side: int = 10,
 
 def assert_poses_close(a: np.ndarray, b: np.ndarray, atol: float) -> None:
     """Compare (N, 3) poses with the heading difference wrapped (pi == -pi)."""
-    from slamcore.planar.records import wrap_angle
+    from slamcore.planar.geometry import wrap_angle
 
     d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
     d[..., 2] = wrap_angle(d[..., 2])

@@ -89,7 +89,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     verify_config = load_section(VerifyConfig, args.config)
     K = distortion = None
     if args.intrinsics is not None:
-        from graphslam.sources.spatial.images import read_intrinsics_file
+        from graphslam.sources.spatial.calibration import read_intrinsics_file
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from slamcore.errors import GraphSlamError
-from slamcore.planar.records import wrap_angle
+from slamcore.planar.geometry import between, wrap_angle
 
 
 def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,13 +88,6 @@ def ate(est_ids, est_wTb, gt_ids, gt_wTb, align: bool = True) -> dict:
             "max_m": float(np.max(e)), "n": int(common.size)}
 
 
-def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``aTb`` for pose rows (..., 3)."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
-
-
 def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
     """Relative pose error between common poses ``delta`` apart.
 
@@ -114,9 +107,9 @@ def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
     common, est, gt = _common(est_ids, est_wTb, gt_ids, gt_wTb)
     if common.size <= delta:
         raise GraphSlamError(f"RPE needs more than {delta} common pose ids, got {common.size}")
-    rel_est = _between(est[:-delta], est[delta:])
-    rel_gt = _between(gt[:-delta], gt[delta:])
-    err = _between(rel_gt, rel_est)
+    rel_est = between(est[:-delta], est[delta:])
+    rel_gt = between(gt[:-delta], gt[delta:])
+    err = between(rel_gt, rel_est)
     t = np.linalg.norm(err[:, :2], axis=1)
     return {"trans_rmse_m": float(np.sqrt(np.mean(t**2))),
             "rot_rmse_rad": float(np.sqrt(np.mean(err[:, 2] ** 2))),

@@ -1,4 +1,4 @@
-"""Output files: TUM trajectory, landmark CSV, metrics JSON (numpy + stdlib)."""
+"""Output files: TUM trajectories (2-D and 3-D), landmark CSV, metrics JSON (numpy + stdlib)."""
 
 from __future__ import annotations
 
@@ -8,19 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from slamcore.planar.records import Estimate
+from slamcore.spatial.geometry import rotation_to_quaternion
 
 
-def write_tum(path: Path, stamps: np.ndarray, wTb: np.ndarray) -> None:
-    """TUM format ``t x y z qx qy qz qw``; 2-D poses lie in z = 0, yaw about z.
+def write_tum(path: Path, stamps: np.ndarray, t_w: np.ndarray, q_xyzw: np.ndarray) -> None:
+    """TUM format ``t x y z qx qy qz qw``, one pose a line, 9 significant digits.
 
     Args:
-        stamps: (N,) seconds, or pose ids where the data has no timestamps.
-        wTb: (N, 3) ``[x, y, theta]``.
+        stamps: (N,) seconds, or pose ids where the data has no timestamps
+            (written as integers).
+        t_w: (N, 3) positions in the world, metres.
+        q_xyzw: (N, 4) unit quaternions of the body-to-world rotation.
     """
-    half = 0.5 * wTb[:, 2]
-    rows = np.column_stack([stamps, wTb[:, 0], wTb[:, 1], np.zeros(len(wTb)),
-                            np.zeros(len(wTb)), np.zeros(len(wTb)), np.sin(half), np.cos(half)])
+    rows = np.column_stack([np.asarray(stamps, dtype=float), t_w, q_xyzw])
     with open(path, "w", encoding="utf-8") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
         for r in rows:
@@ -28,12 +28,28 @@ def write_tum(path: Path, stamps: np.ndarray, wTb: np.ndarray) -> None:
             f.write(stamp + " " + " ".join(f"{v:.9g}" for v in r[1:]) + "\n")
 
 
-def write_landmarks_csv(path: Path, estimate: Estimate) -> None:
-    """``id,x,y`` with ids as in the input (or the back end's own under unknown association)."""
+def write_tum_planar(path: Path, stamps: np.ndarray, wTb: np.ndarray) -> None:
+    """:func:`write_tum` of (N, 3) 2-D poses ``[x, y, theta]``: z = 0, yaw about z."""
+    half = 0.5 * wTb[:, 2]
+    zeros = np.zeros(len(wTb))
+    write_tum(path, stamps, np.column_stack([wTb[:, 0], wTb[:, 1], zeros]),
+              np.column_stack([zeros, zeros, np.sin(half), np.cos(half)]))
+
+
+def write_tum_spatial(path: Path, stamps: np.ndarray, wTc: np.ndarray) -> None:
+    """:func:`write_tum` of (N, 4, 4) camera-to-world poses."""
+    wTc = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)
+    write_tum(path, stamps, wTc[:, :3, 3], rotation_to_quaternion(wTc[:, :3, :3]))
+
+
+def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.ndarray) -> None:
+    """``id,x,y`` (2-D) or ``id,x,y,z`` (3-D): ids as the back end gives them, metres."""
+    landmarks_w = np.asarray(landmarks_w, dtype=np.float64)
+    dim = landmarks_w.shape[1] if landmarks_w.ndim == 2 else 2
     with open(path, "w", encoding="utf-8") as f:
-        f.write("id,x,y\n")
-        for lid, (x, y) in zip(estimate.landmark_ids, estimate.landmarks_w):
-            f.write(f"{int(lid)},{x:.9g},{y:.9g}\n")
+        f.write("id," + ",".join("xyz"[:dim]) + "\n")
+        for lid, p in zip(landmark_ids, landmarks_w.reshape(-1, dim)):
+            f.write(f"{int(lid)}," + ",".join(f"{v:.9g}" for v in p) + "\n")
 
 
 def _jsonable(value):

@@ -20,7 +20,7 @@ from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
-from slamcore.planar.records import wrap_angle
+from slamcore.planar.geometry import wrap_angle
 
 #: 95 % two-sided chi-square bounds are taken at this confidence.
 NEES_CONFIDENCE = 0.95

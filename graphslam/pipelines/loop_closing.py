@@ -42,7 +42,8 @@ import numpy as np
 from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
 from slamcore.errors import ConfigError
-from slamcore.spatial.backend import PoseClosure, VisualBackend
+from slamcore.spatial.records import PoseClosure
+from slamcore.spatial.backend import VisualBackend
 from loopclosure.detector import LoopDetector
 from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
 

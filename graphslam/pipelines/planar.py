@@ -6,18 +6,17 @@ and leaves printing to the CLI.
 
 from __future__ import annotations
 
-import signal
-import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from graphslam.pipelines.common import interrupt_between_frames, progress_bar
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError
+from slamcore.planar import geometry as se2
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import Estimate, Frame
 
@@ -62,13 +61,13 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     frames = dataset.frames if max_steps is None else dataset.frames[:max_steps]
     if not frames:
         raise GraphSlamError(f"dataset {dataset.name!r} has no frames")
-    bar = _progress(len(frames), dataset.name, backend.name, progress)
+    bar = progress_bar(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
     counters = {"steps": 0, "skipped": 0}
     interrupted = False
     t0 = time.perf_counter()
     try:
-        with _interrupt_between_frames() as stop:
+        with interrupt_between_frames() as stop:
             _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters)
         estimate = backend.finalize()
     except KeyboardInterrupt:
@@ -114,48 +113,18 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
             bar.update(1)
 
 
-@contextmanager
-def _interrupt_between_frames() -> Iterator[dict]:
-    """Turn the first Ctrl-C into a request honoured at the next frame boundary.
-
-    A KeyboardInterrupt raised in the middle of a frame (say, inside an iSAM2
-    update) would leave the back end half-updated and its estimate unusable;
-    a second Ctrl-C still interrupts at once. Only the main thread can hold a
-    signal handler; elsewhere Ctrl-C behaves as usual.
-    """
-    stop = {"requested": False}
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-
-    def handler(signum, frame):
-        if stop["requested"]:
-            signal.default_int_handler(signum, frame)
-        stop["requested"] = True
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield stop
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Odometry-only trajectory ``(pose_ids (N,), wTb (N, 3))`` from the prior pose."""
-    import gtsam  # the app layer may use gtsam; kept local so importing is cheap
-
     frames = dataset.frames if steps is None else dataset.frames[:steps]
-    poses = {frames[0].pose_id: gtsam.Pose2(*map(float, dataset.prior_wTb))}
+    poses = {frames[0].pose_id: np.asarray(dataset.prior_wTb, dtype=np.float64)}
     for frame in frames[1:]:
         odo = frame.odometry
-        delta = gtsam.Pose2(*map(float, odo.delta))
         if odo.to_id == frame.pose_id:
-            poses[frame.pose_id] = poses[odo.from_id].compose(delta)
+            poses[frame.pose_id] = se2.compose(poses[odo.from_id], odo.delta)
         else:
-            poses[frame.pose_id] = poses[odo.to_id].compose(delta.inverse())
+            poses[frame.pose_id] = se2.compose(poses[odo.to_id], se2.inverse(odo.delta))
     ids = np.array([f.pose_id for f in frames], dtype=np.int64)
-    wTb = np.array([[poses[i].x(), poses[i].y(), poses[i].theta()] for i in ids])
-    return ids, wTb
+    return ids, np.array([poses[i] for i in ids])
 
 
 def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
@@ -233,17 +202,7 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict) -> dict[s
         stamps = est.pose_ids.astype(float)
     paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
              "metrics": out_dir / "metrics.json"}
-    writers.write_tum(paths["trajectory"], stamps, est.wTb)
-    writers.write_landmarks_csv(paths["landmarks"], est)
+    writers.write_tum_planar(paths["trajectory"], stamps, est.wTb)
+    writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
     writers.write_json(paths["metrics"], run_metrics)
     return paths
-
-
-def _progress(total: int, dataset: str, backend: str, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    # disable=None: tqdm switches itself off when stderr is not a terminal (CI logs).
-    return tqdm(total=total, desc=f"{backend} on {dataset}", unit="step", disable=None,
-                dynamic_ncols=True)

@@ -42,11 +42,13 @@ from typing import ClassVar
 
 import numpy as np
 
-from slamcore.spatial.camera import invert_pose, so3_exp
+from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackingResult
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
-from graphslam.sources.spatial.images import ImageSequence
-from slamcore.spatial.backend import VisualBackend, VisualEstimate
+from graphslam.pipelines.common import interrupt_between_frames, progress_bar
+from graphslam.sources.spatial.sequence import ImageSequence
+from slamcore.spatial.backend import VisualBackend
+from slamcore.spatial.records import VisualEstimate
 
 ODOMETRY_MODES = ("auto", "sequence", "derived", "none")
 
@@ -214,7 +216,6 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     frame after the back end's update (its time counts in ``wall_s`` and in
     ``stats["loops_s"]``); None runs without place recognition.
     """
-    from graphslam.pipelines.planar import _interrupt_between_frames, _progress
 
     cfg = config or VisualRunConfig()
     n = len(sequence) if max_frames is None else min(int(max_frames), len(sequence))
@@ -229,13 +230,13 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     K = np.asarray(sequence.K, dtype=np.float64)
     stats = {"observations": [], "found": [], "searched": [], "predicted": [], "followed": [],
              "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": [], "loops_s": []}
-    bar = _progress(n, sequence.name, backend.name, progress)
+    bar = progress_bar(n, sequence.name, backend.name, progress)
     done = 0
     wall = 0.0
     load = 0.0
     interrupted = False
     try:
-        with _interrupt_between_frames() as stop:
+        with interrupt_between_frames() as stop:
             for k in range(n):
                 if stop["requested"]:
                     raise KeyboardInterrupt
@@ -378,44 +379,6 @@ def _tracking_summary(stats: dict) -> dict:
 
 # --------------------------------------------------------------------------- outputs
 
-def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations -> (N, 4) unit quaternions ``[qx, qy, qz, qw]``, ``qw >= 0``."""
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    q = np.empty((len(R), 4))
-    for i, m in enumerate(R):
-        # Shepperd: pivot on the largest of (trace, diagonal) for precision
-        tr = np.trace(m)
-        d = np.diag(m)
-        j = int(np.argmax([tr, *d]))
-        if j == 0:
-            s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
-            v = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-        elif j == 1:
-            s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-            v = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-        elif j == 2:
-            s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
-            v = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-        else:
-            s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
-            v = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
-        v = np.asarray(v)
-        v /= np.linalg.norm(v)
-        q[i] = -v if v[3] < 0 else v
-    return q
-
-
-def write_tum3d(path: Path, stamps: np.ndarray, wTc: np.ndarray) -> None:
-    """TUM ``t x y z qx qy qz qw`` of (N, 4, 4) camera poses."""
-    wTc = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)
-    q = rotation_to_quaternion(wTc[:, :3, :3])
-    with open(path, "w", encoding="utf-8") as f:
-        f.write("# timestamp tx ty tz qx qy qz qw\n")
-        for s, T, qq in zip(stamps, wTc, q):
-            stamp = f"{int(s)}" if float(s).is_integer() else f"{float(s):.6f}"
-            f.write(stamp + " " + " ".join(f"{v:.9g}" for v in (*T[:3, 3], *qq)) + "\n")
-
-
 def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: dict) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``) and ``metrics.json``."""
     from graphslam.outputs import writers
@@ -427,10 +390,8 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: dict) -> 
     stamps = ids.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, dtype=float)[ids]
     paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
              "metrics": out_dir / "metrics.json"}
-    write_tum3d(paths["trajectory"], stamps, est.wTc)
-    with open(paths["landmarks"], "w", encoding="utf-8") as f:
-        f.write("id,x,y,z\n")
-        for lid, p in zip(est.landmark_ids, np.asarray(est.landmarks_w).reshape(-1, 3)):
-            f.write(f"{int(lid)},{p[0]:.9g},{p[1]:.9g},{p[2]:.9g}\n")
+    writers.write_tum_spatial(paths["trajectory"], stamps, est.wTc)
+    writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids,
+                                np.asarray(est.landmarks_w).reshape(-1, 3))
     writers.write_json(paths["metrics"], run_metrics)
     return paths

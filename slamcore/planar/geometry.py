@@ -1,4 +1,4 @@
-"""2-D motion and range-bearing models with analytic Jacobians (numpy only).
+"""SE(2) maths and the range-bearing sensor model, with analytic Jacobians (numpy only).
 
 Shared by EKF-SLAM and FastSLAM. Written by hand because the filters must stay
 free of gtsam (DESIGN.md layering); the same maths is checked against gtsam's
@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamcore.planar.records import wrap_angle
+
+def wrap_angle(theta_rad):
+    """Wrap angle(s) to [-pi, pi)."""
+    return (np.asarray(theta_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def compose(wTb: np.ndarray, bTc: np.ndarray) -> np.ndarray:
@@ -43,6 +46,21 @@ def compose_jacobians(wTb: np.ndarray, bTc: np.ndarray) -> tuple[np.ndarray, np.
     return J_x, J_u
 
 
+def between(wTa: np.ndarray, wTb: np.ndarray) -> np.ndarray:
+    """``aTb = wTa^-1 (+) wTb`` of poses (..., 3) (numpy ``Pose2.between``)."""
+    c, s = np.cos(wTa[..., 2]), np.sin(wTa[..., 2])
+    dx, dy = wTb[..., 0] - wTa[..., 0], wTb[..., 1] - wTa[..., 1]
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(wTb[..., 2] - wTa[..., 2])],
+                    axis=-1)
+
+
+def inverse(aTb: np.ndarray) -> np.ndarray:
+    """``bTa`` of a pose (3,)."""
+    dx, dy, dth = aTb
+    c, s = np.cos(dth), np.sin(dth)
+    return np.array([-c * dx - s * dy, s * dx - c * dy, wrap_angle(-dth)])
+
+
 def invert(aTb: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``bTa`` (3,) and its (3, 3) covariance from ``aTb`` (3,) and its covariance.
 
@@ -51,7 +69,7 @@ def invert(aTb: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndar
     """
     dx, dy, dth = aTb
     c, s = np.cos(dth), np.sin(dth)
-    bTa = np.array([-c * dx - s * dy, s * dx - c * dy, wrap_angle(-dth)])
+    bTa = inverse(aTb)
     J = np.array([[-c, -s, s * dx - c * dy],
                   [s, -c, c * dx + s * dy],
                   [0.0, 0.0, -1.0]])

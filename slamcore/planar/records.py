@@ -56,11 +56,6 @@ def as_covariance(value, size: int, what: str) -> np.ndarray:
     return c
 
 
-def wrap_angle(theta_rad):
-    """Wrap angle(s) to [-pi, pi)."""
-    return (np.asarray(theta_rad) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 class ObservationKind(enum.Enum):
     """What an observation's measurement vector ``z`` holds."""
 

@@ -1,4 +1,5 @@
-"""Pinhole projection with Jacobians, and KITTI calibration / pose readers (numpy only).
+"""Pinhole camera maths in numpy: projection with Jacobians, innovation covariances,
+plane-induced patch warps.
 
 Conventions
 -----------
@@ -11,81 +12,19 @@ Conventions
   frame: ``cTw <- se3_exp(delta) @ cTw``. To first order
   ``p_c <- p_c + rho + phi x p_c``, so ``d p_c / d delta = [I, -[p_c]_x]``.
   A pose covariance ``Sigma (6, 6)`` uses the same order (translation first).
-
-KITTI odometry files
---------------------
-* ``calib.txt``: lines ``P0: 12 numbers`` (row-major 3x4 projection); ``K`` of
-  camera ``P0`` is its left 3x3 block.
-* ``poses.txt``: one line per frame, 12 numbers, the row-major 3x4 ``wTc_k``
-  mapping points of camera 0 at frame k into camera 0 at frame 0 (the world).
-  :func:`read_kitti_poses` returns these as (N, 4, 4) ``wTc``; invert them
-  (:func:`invert_pose`) for ``cTw``.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
-
 import numpy as np
 
-from slamcore.errors import InputError
+from slamcore.spatial.geometry import skew
 
 __all__ = [
-    "skew", "so3_exp", "se3_exp", "invert_pose", "project", "project_jacobians",
-    "innovation_covariance", "pose_covariance", "plane_induced_affine", "read_kitti_calib",
-    "read_kitti_poses",
+    "project", "project_jacobians", "innovation_covariance", "pose_covariance",
+    "plane_induced_affine", "intrinsics_matrix",
 ]
-
-
-def skew(w: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[w]_x`` (``[w]_x v = w x v``)."""
-    w = np.asarray(w, dtype=np.float64)
-    out = np.zeros(w.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
-    return out
-
-
-def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector ``phi`` (3,) (Rodrigues)."""
-    phi = np.asarray(phi, dtype=np.float64)
-    th = float(np.linalg.norm(phi))
-    W = skew(phi)
-    if th < 1e-8:
-        return np.eye(3) + W + 0.5 * W @ W
-    return np.eye(3) + math.sin(th) / th * W + (1 - math.cos(th)) / th**2 * W @ W
-
-
-def se3_exp(delta: np.ndarray) -> np.ndarray:
-    """(4, 4) SE(3) exponential of ``delta = [rho, phi]`` (translation first)."""
-    delta = np.asarray(delta, dtype=np.float64).reshape(6)
-    rho, phi = delta[:3], delta[3:]
-    th = float(np.linalg.norm(phi))
-    W = skew(phi)
-    if th < 1e-8:
-        V = np.eye(3) + 0.5 * W + W @ W / 6.0
-    else:
-        V = (np.eye(3) + (1 - math.cos(th)) / th**2 * W
-             + (th - math.sin(th)) / th**3 * W @ W)
-    T = np.eye(4)
-    T[:3, :3] = so3_exp(phi)
-    T[:3, 3] = V @ rho
-    return T
-
-
-def invert_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid transform (4, 4) or a stack (N, 4, 4)."""
-    T = np.asarray(T, dtype=np.float64)
-    R = T[..., :3, :3]
-    t = T[..., :3, 3]
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(R, -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def _check(K, cTw, p_w):
@@ -151,58 +90,6 @@ def innovation_covariance(J_pose: np.ndarray, sigma_pose: np.ndarray, sigma_px: 
     return S + (sigma_px**2) * np.eye(2)
 
 
-def _numbers(path: Path, lineno: int, fields: list[str], count: int) -> np.ndarray:
-    if len(fields) != count:
-        raise InputError(f"expected {count} numbers, got {len(fields)}", path, lineno)
-    try:
-        vals = np.array([float(x) for x in fields], dtype=np.float64)
-    except ValueError:
-        raise InputError("non-numeric value", path, lineno) from None
-    if not np.all(np.isfinite(vals)):
-        raise InputError("non-finite value", path, lineno)
-    return vals
-
-
-def read_kitti_calib(path: str | Path, camera: str = "P0") -> np.ndarray:
-    """``K`` (3, 3) of ``camera`` (``"P0"``..``"P3"``) from a KITTI odometry ``calib.txt``."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("calibration file not found", path)
-    with path.open("r", encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            if not line.strip():
-                continue
-            name, sep, rest = line.partition(":")
-            if not sep:
-                raise InputError("expected 'NAME: 12 numbers'", path, lineno)
-            if name.strip() != camera:
-                continue
-            P = _numbers(path, lineno, rest.split(), 12).reshape(3, 4)
-            K = P[:, :3].copy()
-            if K[2, 2] == 0 or abs(K[0, 0]) == 0 or abs(K[1, 1]) == 0:
-                raise InputError(f"degenerate {camera} projection matrix", path, lineno)
-            return K / K[2, 2]
-    raise InputError(f"no line for camera {camera!r}", path)
-
-
-def read_kitti_poses(path: str | Path) -> np.ndarray:
-    """(N, 4, 4) ``wTc_k`` from a KITTI ``poses.txt`` (12 numbers per line, row-major 3x4)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("pose file not found", path)
-    poses = []
-    with path.open("r", encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            if not line.strip():
-                continue
-            T = np.eye(4)
-            T[:3, :] = _numbers(path, lineno, line.split(), 12).reshape(3, 4)
-            poses.append(T)
-    if not poses:
-        raise InputError("no poses", path)
-    return np.stack(poses)
-
-
 def plane_induced_affine(K: np.ndarray, c1Tc0: np.ndarray, uv0: np.ndarray, depth0: np.ndarray) -> np.ndarray:
     """(N, 2, 2) local affine maps of image-0 pixel offsets to image-1 offsets.
 
@@ -223,3 +110,8 @@ def plane_induced_affine(K: np.ndarray, c1Tc0: np.ndarray, uv0: np.ndarray, dept
     h = np.einsum("nij,nj->ni", H, x)
     uv1 = h[:, :2] / h[:, 2:3]
     return (H[:, :2, :2] - uv1[:, :, None] * H[:, 2:3, :2]) / h[:, 2, None, None]
+
+
+def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """(3, 3) ``K`` from focal lengths and principal point (pixels)."""
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])

@@ -58,8 +58,10 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from slamcore.spatial.backend import (PixelObservations, PixelPredictions, PoseClosure,
-                                      VisualBackend, VisualEstimate)
+from slamcore.spatial.records import (
+    PixelObservations, PixelPredictions, PoseClosure, VisualEstimate,
+)
+from slamcore.spatial.backend import VisualBackend
 
 #: The first pose's prior is floored at this standard deviation (m and rad):
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a

@@ -40,8 +40,8 @@ import dataclasses
 import numpy as np
 
 from slamcore.errors import GraphSlamError
-from slamcore.planar.records import Dataset
-from slamcore.planar.records import LoopClosure, wrap_angle
+from slamcore.planar.geometry import between, wrap_angle
+from slamcore.planar.records import Dataset, LoopClosure
 
 #: ``LoopClosure.source`` of every injected closure.
 INJECTED_SOURCE = "injected"
@@ -54,14 +54,6 @@ DEFAULT_MIN_MAHALANOBIS = 10.0
 MAX_DRAWS_PER_CLOSURE = 1000
 
 
-def relative_pose(wTa: np.ndarray, wTb: np.ndarray) -> np.ndarray:
-    """``aTb`` ``[dx_m, dy_m, dtheta_rad]`` of pose rows ``(..., 3)`` (numpy ``Pose2.between``)."""
-    c, s = np.cos(wTa[..., 2]), np.sin(wTa[..., 2])
-    dx, dy = wTb[..., 0] - wTa[..., 0], wTb[..., 1] - wTa[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(wTb[..., 2] - wTa[..., 2])],
-                    axis=-1)
-
-
 def closure_mahalanobis(lc: LoopClosure, pose_ids: np.ndarray, wTb: np.ndarray) -> float:
     """Mahalanobis distance (unitless) of ``lc``'s claim from trajectory ``wTb``.
 
@@ -70,7 +62,7 @@ def closure_mahalanobis(lc: LoopClosure, pose_ids: np.ndarray, wTb: np.ndarray) 
     whitened by ``lc.covariance``.
     """
     index = {int(p): k for k, p in enumerate(pose_ids)}
-    rel = relative_pose(wTb[index[lc.from_id]], wTb[index[lc.to_id]])
+    rel = between(wTb[index[lc.from_id]], wTb[index[lc.to_id]])
     e = np.asarray(lc.delta) - rel
     e[2] = float(wrap_angle(e[2]))
     return float(np.sqrt(e @ np.linalg.solve(lc.covariance, e)))
@@ -145,7 +137,7 @@ def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
             if ref_pose is not None:
                 wTi, wTj = ref_pose(lc.from_id), ref_pose(lc.to_id)
                 if wTi is not None and wTj is not None:
-                    e = np.asarray(lc.delta) - relative_pose(wTi, wTj)
+                    e = np.asarray(lc.delta) - between(wTi, wTj)
                     e[2] = float(wrap_angle(e[2]))
                     if np.sqrt(e @ np.linalg.solve(lc.covariance, e)) < min_mahalanobis:
                         continue  # nearly true: not a false closure, draw again

@@ -42,7 +42,8 @@ import numpy as np
 
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
-from slamcore.planar.records import Frame, LoopClosure, Odometry, wrap_angle
+from slamcore.planar.records import Frame, LoopClosure, Odometry
+from slamcore.planar.geometry import wrap_angle
 
 NOISE_FORMATS = ("auto", "graph", "toro", "cov", "g2o")
 

@@ -48,7 +48,8 @@ import numpy as np
 from slamcore.planar.geometry import compose, observe
 from slamcore.errors import ConfigError
 from slamcore.planar.records import Dataset
-from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry, wrap_angle
+from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
+from slamcore.planar.geometry import wrap_angle
 
 #: Added to the odometry covariance diagonal: two velocity noises drive three
 #: outputs, so ``J Q J^T`` is rank 2 (singular; on straights ``dy`` and

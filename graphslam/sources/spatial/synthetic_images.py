@@ -50,7 +50,8 @@ import cv2
 import numpy as np
 
 from slamcore.errors import ConfigError
-from graphslam.sources.spatial.images import ImageSequence, intrinsics_matrix
+from graphslam.sources.spatial.sequence import ImageSequence
+from slamcore.spatial.camera import intrinsics_matrix
 
 __all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "Surface", "make_synthetic_images",
            "clip_polygon_near"]

@@ -1,0 +1,177 @@
+"""Camera intrinsics files (text or YAML) and the TUM RGB-D presets.
+
+Text files: ``#`` comments, numbers separated by spaces or commas, either
+``fx fy cx cy`` on one line or the three rows of ``K`` on three lines;
+optionally one more line with the OpenCV distortion coefficients ``k1 k2 p1 p2
+[k3 ...]``. YAML: ``fx, fy, cx, cy`` keys, or ``K``/``camera_matrix`` (3x3
+nested list, 9-list or OpenCV ``{rows, cols, data}``), or EuRoC's
+``intrinsics: [fu, fv, cu, cv]``; optional ``distortion`` /
+``distortion_coefficients`` / ``dist_coeffs``. ``%YAML`` directives are ignored.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from graphslam.sources.spatial.sequence import check_K, parse_floats, read_lines
+from slamcore.errors import InputError
+from slamcore.spatial.camera import intrinsics_matrix
+
+#: Intrinsics files looked for in a folder, in this order.
+INTRINSICS_FILE_NAMES = ("intrinsics.txt", "camera.txt", "intrinsics.yaml", "intrinsics.yml",
+                         "camera.yaml", "camera.yml", "calibration.txt")
+
+#: TUM RGB-D colour-camera calibrations (fx, fy, cx, cy) and distortion
+#: (k1, k2, p1, p2, k3), from the dataset's "file formats" page. "ros" is the
+#: ROS default used for the uncalibrated/undistorted case.
+TUM_INTRINSICS = {
+    "fr1": ((517.3, 516.5, 318.6, 255.3), (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
+    "fr2": ((520.9, 521.0, 325.1, 249.7), (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
+    "fr3": ((535.4, 539.2, 320.1, 247.6), None),
+    "ros": ((525.0, 525.0, 319.5, 239.5), None),
+}
+
+
+def _fs_to_python(node):
+    """An OpenCV FileNode as plain Python (dict / list / float / str / None)."""
+    if node.isMap():
+        return {k: _fs_to_python(node.getNode(k)) for k in node.keys()}
+    if node.isSeq():
+        return [_fs_to_python(node.at(i)) for i in range(node.size())]
+    if node.isInt() or node.isReal():
+        return node.real()
+    if node.isString():
+        return node.string()
+    return None
+
+
+def load_yaml(path: Path):
+    """Parse a small YAML file (PyYAML if installed, else OpenCV's YAML reader).
+
+    ``%YAML`` directives and OpenCV's ``!!opencv-matrix`` tags are ignored, so
+    OpenCV/Kalibr/EuRoC files read the same way as plain YAML.
+    """
+    text = path.read_text(encoding="utf-8", errors="replace")
+    text = "\n".join("" if ln.lstrip().startswith("%") else ln for ln in text.splitlines())
+    text = text.replace("!!opencv-matrix", "")
+    try:
+        import yaml
+    except ImportError:
+        yaml = None
+    if yaml is not None:
+        try:
+            return yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            line = None if mark is None else mark.line + 1
+            raise InputError(f"malformed YAML: {getattr(e, 'problem', e)}", path, line) from None
+    try:
+        fs = cv2.FileStorage("%YAML:1.0\n" + text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        return _fs_to_python(fs.root())
+    except (cv2.error, SystemError) as e:  # OpenCV 5 wraps parse errors in SystemError
+        msg = " ".join(str(e.__cause__ or e).split())
+        m = re.search(r"\((\d+)\)", msg)
+        line = int(m.group(1)) - 1 if m else None  # OpenCV counts the added header line
+        raise InputError(f"malformed YAML: {msg[-120:]}", path, line) from None
+
+
+def yaml_matrix(value, path: Path, key: str) -> np.ndarray:
+    if isinstance(value, dict) and "data" in value:
+        value = value["data"]
+    try:
+        arr = np.array(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{key}: expected a list of numbers", path) from None
+    return arr
+
+
+def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(K (3, 3), distortion or None)`` from a text or YAML file (formats in the module doc)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("intrinsics file not found", path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        data = load_yaml(path)
+        if not isinstance(data, dict):
+            raise InputError("intrinsics YAML must be a mapping", path)
+        if all(k in data for k in ("fx", "fy", "cx", "cy")):
+            try:
+                K = intrinsics_matrix(*(float(data[k]) for k in ("fx", "fy", "cx", "cy")))
+            except (TypeError, ValueError):
+                raise InputError("fx, fy, cx, cy must be numbers", path) from None
+        elif "K" in data or "camera_matrix" in data:
+            key = "K" if "K" in data else "camera_matrix"
+            arr = yaml_matrix(data[key], path, key)
+            if arr.size != 9:
+                raise InputError(f"{key}: expected 9 numbers, got {arr.size}", path)
+            K = arr.reshape(3, 3)
+        elif "intrinsics" in data:
+            arr = yaml_matrix(data["intrinsics"], path, "intrinsics")
+            if arr.size != 4:
+                raise InputError(f"intrinsics: expected [fu, fv, cu, cv], got {arr.size} numbers", path)
+            K = intrinsics_matrix(*arr)
+        else:
+            raise InputError("no intrinsics found: expected fx/fy/cx/cy, K, camera_matrix "
+                             "or intrinsics", path)
+        dist = None
+        for key in ("distortion", "distortion_coefficients", "dist_coeffs"):
+            if key in data and data[key] is not None:
+                dist = yaml_matrix(data[key], path, key)
+                break
+        return check_K(K, path), dist
+    lines = read_lines(path, "intrinsics file")
+    if not lines:
+        raise InputError("intrinsics file is empty", path)
+    first_no, first = lines[0]
+    v = parse_floats(first, path, first_no, what="intrinsics numbers")
+    if v.size == 4:
+        K, rest = intrinsics_matrix(*v), lines[1:]
+    elif v.size == 3:
+        if len(lines) < 3:
+            raise InputError("a 3x3 K needs three lines of 3 numbers", path, first_no)
+        rows = [v] + [parse_floats(t, path, n, 3, "numbers (row of K)") for n, t in lines[1:3]]
+        K, rest = np.array(rows), lines[3:]
+    else:
+        raise InputError(f"expected 'fx fy cx cy' (4 numbers) or a row of K (3), got {v.size}",
+                         path, first_no)
+    K = check_K(K, path, first_no)
+    dist = None
+    if rest:
+        n, t = rest[0]
+        dist = parse_floats(t, path, n, what="distortion coefficients")
+        if dist.size not in (4, 5, 8, 12, 14):
+            raise InputError(f"expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}",
+                             path, n)
+        if len(rest) > 1:
+            raise InputError("unexpected extra line after the distortion coefficients", path, rest[1][0])
+    return K, dist
+
+
+def resolve_intrinsics(intrinsics, folder: Path, presets: dict | None = None):
+    """Explicit value -> (K, dist). ``intrinsics`` may be a tuple, a K, a path or a preset name."""
+    if isinstance(intrinsics, str) and presets and intrinsics.lower() in presets:
+        f, d = presets[intrinsics.lower()]
+        return intrinsics_matrix(*f), None if d is None else np.array(d, dtype=np.float64)
+    if isinstance(intrinsics, (str, Path)):
+        p = Path(intrinsics)
+        if not p.is_absolute() and not p.exists():
+            p = folder / p
+        return read_intrinsics_file(p)
+    arr = np.asarray(intrinsics, dtype=np.float64)
+    if arr.shape == (4,):
+        return check_K(intrinsics_matrix(*arr), "intrinsics argument"), None
+    if arr.shape == (3, 3):
+        return check_K(arr, "intrinsics argument"), None
+    raise InputError(f"intrinsics must be (fx, fy, cx, cy), a 3x3 K, a file or a preset, "
+                     f"got shape {arr.shape}", "intrinsics argument")
+
+
+def find_intrinsics_file(folder: Path) -> Path | None:
+    for name in INTRINSICS_FILE_NAMES:
+        if (folder / name).is_file():
+            return folder / name
+    return None

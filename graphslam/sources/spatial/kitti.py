@@ -1,0 +1,85 @@
+"""KITTI odometry sequences: ``calib.txt``, ``poses.txt``, ``times.txt`` and ``image_<c>/``.
+
+* ``calib.txt``: lines ``P<c>: 12 numbers`` (row-major 3x4 projection of
+  rectified camera ``c``); ``K`` is its left 3x3 block and ``P[:, 3] = K t``
+  gives the camera's offset from camera 0.
+* ``poses.txt``: one line per frame, 12 numbers, the row-major 3x4 ``wTc_k``
+  mapping points of camera 0 at frame k into camera 0 at frame 0 (the world).
+* ``times.txt``: one time in seconds per frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.sources.spatial.sequence import (
+    ImageSequence, check_K, image_size, parse_floats, read_lines,
+)
+from slamcore.errors import InputError
+
+def read_kitti_calib(path: str | Path, camera: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(K (3, 3), c0Tck (4, 4))`` of camera ``camera`` from a KITTI ``calib.txt``."""
+    path = Path(path)
+    found = {}
+    for n, text in read_lines(path, "KITTI calib.txt"):
+        if ":" not in text:
+            raise InputError(f"malformed line, expected 'NAME: numbers': {text[:80]!r}", path, n)
+        key, rest = text.split(":", 1)
+        vals = parse_floats(rest, path, n, what="numbers")
+        found[key.strip()] = (vals, n)
+    key = f"P{camera}"
+    if key not in found:
+        raise InputError(f"no {key} line (cameras present: {sorted(found)})", path)
+    vals, n = found[key]
+    if vals.size != 12:
+        raise InputError(f"{key}: expected 12 numbers, got {vals.size}", path, n)
+    P = vals.reshape(3, 4)
+    K = check_K(P[:, :3], path, n)
+    ckTc0 = np.eye(4)
+    ckTc0[:3, 3] = np.linalg.solve(K, P[:, 3])
+    c0Tck = np.eye(4)
+    c0Tck[:3, 3] = -ckTc0[:3, 3]
+    return K, c0Tck
+
+
+def read_kitti_poses(path: str | Path) -> np.ndarray:
+    """(N, 4, 4) ``wTc_k`` from a KITTI ``poses.txt`` (12 numbers per line, row-major 3x4)."""
+    path = Path(path)
+    lines = read_lines(path, "KITTI poses.txt")
+    if not lines:
+        raise InputError("no poses", path)
+    wTc = np.tile(np.eye(4), (len(lines), 1, 1))
+    for k, (n, text) in enumerate(lines):
+        wTc[k, :3, :] = parse_floats(text, path, n, 12, "numbers (row-major 3x4 pose)").reshape(3, 4)
+    return wTc
+
+
+def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
+    """A KITTI odometry sequence folder (``image_<camera>/``, ``calib.txt``, ...)."""
+    folder = Path(folder)
+    img_dir = folder / f"image_{camera}"
+    if not img_dir.is_dir():
+        raise InputError(f"KITTI image folder image_{camera}/ not found", folder)
+    paths = sorted(str(p) for p in img_dir.glob("*.png"))
+    if not paths:
+        raise InputError("no .png images", img_dir)
+    K, c0Tck = read_kitti_calib(folder / "calib.txt", camera)
+    stamps = None
+    tpath = folder / "times.txt"
+    if tpath.is_file():
+        lines = read_lines(tpath, "KITTI times.txt")
+        stamps = np.array([parse_floats(t, tpath, n, 1, "time in seconds")[0] for n, t in lines])
+        if stamps.size != len(paths):
+            raise InputError(f"{stamps.size} timestamps but {len(paths)} images in {img_dir}", tpath)
+    wTc = None
+    ppath = folder / "poses.txt"
+    if ppath.is_file():
+        wTc = read_kitti_poses(ppath)
+        if len(wTc) != len(paths):
+            raise InputError(f"{len(wTc)} poses but {len(paths)} images in {img_dir}", ppath)
+        if camera != 0:
+            wTc = wTc @ c0Tck
+    return ImageSequence(f"kitti-{folder.name}", paths, stamps, K, None, wTc,
+                         image_size(paths[0]), str(folder))

@@ -1,0 +1,154 @@
+"""Image sequences: the :class:`ImageSequence` record every image reader returns,
+and the small parsing helpers the readers share (numpy + OpenCV, no gtsam).
+
+Readers: :mod:`.kitti`, :mod:`.images` (TUM RGB-D, EuRoC, plain folders, and
+the layout detection), :mod:`.calibration` (intrinsics files), and the
+rendered :mod:`.synthetic_images`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slamcore.errors import InputError
+
+#: Extensions :func:`read_image_folder` accepts (compared lower-case).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+#: Nearest-timestamp association tolerance (s) for TUM and EuRoC ground truth.
+ASSOCIATION_MAX_DT_S = 0.02
+
+
+@dataclass(frozen=True, eq=False)
+class ImageSequence:
+    """An ordered image sequence with its calibration and optional ground truth.
+
+    Attributes:
+        name: short name for reports ("kitti", "tum-rgbd", "euroc", "folder", ...).
+        image_paths: (N,) image file paths in time order.
+        stamps_s: (N,) timestamps in seconds, or ``None``.
+        K: (3, 3) intrinsic matrix (pixels; pixel centres at integer coordinates).
+        distortion: OpenCV distortion coefficients ``(k1, k2, p1, p2[, k3...])`` or ``None``.
+        wTc_true: (N, 4, 4) camera-to-world ground truth, or ``None``.
+        image_size: ``(W, H)`` in pixels.
+        source_path: the folder the sequence came from, if any.
+    """
+
+    name: str
+    image_paths: list[str]
+    stamps_s: np.ndarray | None
+    K: np.ndarray
+    distortion: np.ndarray | None
+    wTc_true: np.ndarray | None
+    image_size: tuple[int, int]
+    source_path: str | None = None
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return self.wTc_true is not None
+
+    def load(self, i: int) -> np.ndarray:
+        """Image ``i`` as (H, W) uint8 greyscale; an unreadable file raises InputError."""
+        path = self.image_paths[i]
+        img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise InputError("cannot read image (missing or not an image)", path)
+        return img
+
+
+def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
+    """(line_no, stripped text) of non-empty, non-comment lines; missing file -> InputError."""
+    if not path.is_file():
+        raise InputError(f"{what} not found", path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise InputError(f"cannot read {what}: {e.strerror}", path) from None
+    out = []
+    for k, line in enumerate(text.splitlines(), start=1):
+        s = line.split("#", 1)[0].strip()
+        if s:
+            out.append((k, s))
+    return out
+
+
+def parse_floats(text: str, path: Path, line: int, count: int | None = None,
+            what: str = "numbers") -> np.ndarray:
+    parts = [p for p in re.split(r"[\s,]+", text.strip()) if p]
+    try:
+        vals = np.array([float(p) for p in parts], dtype=np.float64)
+    except ValueError:
+        raise InputError(f"malformed line, expected {what}: {text[:80]!r}", path, line) from None
+    if count is not None and vals.size != count:
+        raise InputError(f"expected {count} {what}, got {vals.size}", path, line)
+    if not np.all(np.isfinite(vals)):
+        raise InputError(f"non-finite value in {text[:80]!r}", path, line)
+    return vals
+
+
+def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: Path, line: int) -> np.ndarray:
+    n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if not 0.9 < n < 1.1:
+        raise InputError(f"quaternion norm {n:.4f} is not 1", path, line)
+    w, x, y, z = qw / n, qx / n, qy / n, qz / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise InputError("intrinsics must be a finite 3x3 matrix", path, line)
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+        raise InputError("intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0",
+                         path, line)
+    return K
+
+
+def image_size(path: str) -> tuple[int, int]:
+    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError("cannot read image (missing or not an image)", path)
+    return int(img.shape[1]), int(img.shape[0])
+
+
+def check_exist(paths: Sequence[str], where: Path) -> None:
+    missing = [p for p in paths if not Path(p).is_file()]
+    if missing:
+        raise InputError(f"{len(missing)} of {len(paths)} listed images are missing "
+                         f"(first: {missing[0]})", where)
+
+
+def natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarray:
+    """Index into ``gt_t`` (sorted) of the nearest stamp per image, -1 if > max_dt_s."""
+    if gt_t.size == 0:
+        return np.full(img_t.shape, -1)
+    j = np.clip(np.searchsorted(gt_t, img_t), 1, max(gt_t.size - 1, 1))
+    j0 = np.clip(j - 1, 0, gt_t.size - 1)
+    j1 = np.clip(j, 0, gt_t.size - 1)
+    pick = np.where(np.abs(gt_t[j0] - img_t) <= np.abs(gt_t[j1] - img_t), j0, j1)
+    return np.where(np.abs(gt_t[pick] - img_t) <= max_dt_s, pick, -1)
+
+
+
+def list_images(folder: Path) -> list[str]:
+    return sorted((str(p) for p in folder.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
+                  key=lambda s: natural_key(Path(s).name))
