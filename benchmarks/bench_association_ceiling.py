@@ -5,7 +5,7 @@ synthetic world. This script measures, per world seed, how far that is
 reachable at all:
 
 - ``oracle``: the best per-scan assignment given the true poses *and the true
-  landmark positions* (:func:`graphslam.pipelines.compare.oracle_association_accuracy`).
+  landmark positions* (:func:`graphslam.evaluation.planar.oracle_association_accuracy`).
   Its only errors are swaps between landmarks the sensor cannot separate.
 - ``known poses``: the EKF-SLAM back end itself (JCBB, same gates) fed exact
   odometry with a negligible covariance, so the robot pose is known and only
@@ -16,7 +16,7 @@ reachable at all:
 - ``ekf``, ``fastslam1``, ``fastslam2`` (100 particles): the real runs
   (noisy odometry), as ``graphslam compare`` runs them.
 
-Each cell is association accuracy (``graphslam.pipelines.planar.association_accuracy``:
+Each cell is association accuracy (``graphslam.evaluation.planar.association_accuracy``:
 majority mapping of estimated to true landmarks; an unused observation counts
 as wrong). One process, seeded: the same seeds give the same table.
 
@@ -33,8 +33,9 @@ import sys
 import numpy as np
 
 from graphslam import registry
+from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
-from graphslam.pipelines.compare import oracle_association_accuracy
+from graphslam.evaluation.planar import oracle_association_accuracy
 from slamcore.planar.records import Dataset
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Odometry
@@ -67,7 +68,7 @@ def accuracy(dataset: Dataset, backend: str) -> dict:
     if backend.startswith("fastslam"):
         overrides["n_particles"] = 100
     result = pipeline.run(dataset, registry.make_backend(backend, overrides=overrides))
-    return pipeline.association_accuracy(result.associations)
+    return metrics.association_accuracy(result.associations)
 
 
 def main(argv: list[str] | None = None) -> int:

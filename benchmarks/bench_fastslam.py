@@ -142,7 +142,7 @@ def main(argv=None) -> int:
                     f"covariance x{args.vp_odometry_scale:g}: {dt:.2f} s total, "
                     f"{len(est.landmark_ids)} landmarks, {b.resample_count} resamplings")
             if args.vp_association == "unknown":
-                from graphslam.pipelines.planar import association_accuracy
+                from graphslam.evaluation.planar import association_accuracy
 
                 acc = association_accuracy([p for p in pairs if p[0] is not None])
                 row["association_accuracy"] = acc["accuracy"]

@@ -34,7 +34,8 @@ from tqdm import tqdm
 
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
-from graphslam.cli.vocab import orb_for, train_vocabulary
+from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
+from loopclosure.detector import LoopDetectorConfig
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
 from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 from graphslam.pipelines.loop_closing import VisualLoopCloser
@@ -51,7 +52,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     seq = make_synthetic_images()
-    orb = orb_for(None)  # the detector's own ORB settings, as graphslam run --loops
+    orb = orb_for(LoopDetectorConfig())  # the detector's own ORB settings, as graphslam run --loops
     t0 = time.perf_counter()
     descs = [orb.detect(seq.load(i)).descriptors
              for i in tqdm(range(len(seq)), desc="vocabulary ORB", file=sys.stderr, leave=False)]

@@ -48,7 +48,7 @@ import numpy as np
 from tqdm import tqdm
 
 from frontend.orb import OrbDetector
-from graphslam.cli.vocab import train_vocabulary
+from graphslam.pipelines.place_recognition import train_vocabulary
 from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import VerifyConfig
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
     kitti = None
     kdir = KITTI_DEFAULT if args.kitti is None else (None if args.kitti == "none" else Path(args.kitti))
     if kdir is not None and (kdir / "image_0").is_dir():
-        from graphslam.cli.vocab import folder_images
+        from graphslam.sources.spatial.sequence import folder_images
         from frontend.image import load_gray
 
         t0 = time.perf_counter()

@@ -2,7 +2,7 @@
 
 The loop is the one :func:`graphslam.pipelines.spatial.run` drives (``graphslam
 run --dataset synthetic-images``), with the real pieces, built as
-:mod:`graphslam.cli.run_spatial` builds them (default configurations plus the
+:mod:`graphslam.cli.run.spatial` builds them (default configurations plus the
 swept fields): the synthetic image sequence (``make_synthetic_images``,
 default config: 640 x 480, fx = 500, seed ``--seed``, its own noisy
 odometry), the front-end :class:`frontend.tracking.Tracker` (detector

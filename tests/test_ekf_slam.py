@@ -13,7 +13,7 @@ from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
 from filters.ekf_slam import EkfSlam, EkfSlamConfig
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
-from graphslam.pipelines.planar import association_accuracy
+from graphslam.evaluation.planar import association_accuracy
 from slamcore.planar.records import LoopClosure, Observation, ObservationKind, Odometry
 from slamcore.planar.geometry import wrap_angle
 
@@ -433,7 +433,7 @@ def test_default_synthetic_world_nees_is_consistent_over_20_runs():
     """Issue 3's consistency criterion on the course demo (known association)."""
     from graphslam.evaluation import planar as metrics
     from graphslam.pipelines import planar as pipeline
-    from graphslam.pipelines.compare import errors_against_truth
+    from graphslam.evaluation.planar import errors_against_truth
     from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
     runs = 20
@@ -547,7 +547,7 @@ def test_unknown_association_on_the_default_synthetic_world():
 def test_oracle_association_ceiling():
     """The oracle (true poses and map, best assignment per scan) is perfect with a
     precise sensor and falls short only under the course's 10-degree bearing noise."""
-    from graphslam.pipelines.compare import oracle_association_accuracy
+    from graphslam.evaluation.planar import oracle_association_accuracy
     from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
     precise = make_synthetic(SyntheticConfig(sigma_r_m=0.01, sigma_phi_deg=0.1))

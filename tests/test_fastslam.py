@@ -12,6 +12,7 @@ import pytest
 from slamcore.planar import geometry as models
 from filters.fastslam import FastSlam, FastSlamConfig, low_variance_resample
 from filters.fastslam_map import ParticleMaps
+from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from slamcore.planar.backend import Backend
 from slamcore.config import from_dict
@@ -205,7 +206,7 @@ def test_fastslam2_beats_or_matches_fastslam1_with_few_particles():
 def test_unknown_association_is_accurate(version):
     ds = loop_world(seed=2, known_ids=False)
     backend, res = run(ds, version=version, n_particles=100, association="unknown")
-    acc = pipeline.association_accuracy(res.associations)
+    acc = metrics.association_accuracy(res.associations)
     assert acc["accuracy"] >= MIN_ASSOCIATION_ACCURACY
     assert pose_errors_m(ds, res.estimate.wTb).max() < POSE_TOL_M
 
@@ -381,5 +382,5 @@ def test_unknown_association_on_the_default_synthetic_world(version, min_accurac
 
     res = pipeline.run(make_synthetic(), FastSlam(FastSlamConfig(
         version=version, n_particles=100, association="unknown")))
-    score = pipeline.association_accuracy(res.associations)
+    score = metrics.association_accuracy(res.associations)
     assert score["accuracy"] >= min_accuracy, score

@@ -225,7 +225,7 @@ TARGET_RECALL = 0.8
 @pytest.mark.slow
 def test_default_sequence_meets_issue_targets():
     """Default detector and sequence, vocabulary trained on the sequence (as `graphslam loops`)."""
-    from graphslam.cli.vocab import train_vocabulary
+    from graphslam.pipelines.place_recognition import train_vocabulary
     from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 
     from frontend.orb import OrbDetector

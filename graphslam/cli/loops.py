@@ -10,8 +10,6 @@ later image first), and optionally every candidate's fate as JSON lines.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import sys
 import time
 from pathlib import Path
@@ -64,21 +62,12 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_loops)
 
 
-def check_vocabulary(vocab, path: Path) -> None:
-    """Refuse (InputError naming ``path``) a vocabulary that cannot quantise ORB descriptors."""
-    # ORB descriptors are 32-byte binary strings; a float vocabulary cannot quantise them.
-    if getattr(vocab, "metric_", None) != "hamming" or getattr(vocab, "descriptor_dim_", None) != 32:
-        raise InputError(f"vocabulary is not for ORB descriptors (metric "
-                         f"{getattr(vocab, 'metric_', '?')}, dimension "
-                         f"{getattr(vocab, 'descriptor_dim_', '?')}; need hamming, 32)", path)
-
-
 def cmd_loops(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from graphslam.cli.vocab import describe, detect_all, folder_images, train_vocabulary
+    from graphslam.pipelines.place_recognition import (
+        check_vocabulary, describe, detect_all, detect_loops, orb_for, train_vocabulary,
+    )
+    from graphslam.sources.spatial.sequence import folder_images
     from slamcore.config import load_section
-    from frontend.image import load_gray
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
     from loopclosure.verify import VerifyConfig
     from loopclosure.vocabulary import load_vocabulary
@@ -99,40 +88,20 @@ def cmd_loops(args: argparse.Namespace) -> int:
         check_vocabulary(vocab, args.vocab)
     else:
         # One ORB pass serves both the training and the detection.
-        from graphslam.cli.vocab import orb_for
-
-        features = detect_all(paths, orb_for(args.config), quiet=args.quiet)
+        features = detect_all(paths, orb_for(config), progress=not args.quiet)
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
     detector = LoopDetector(vocab, config, verify_config, K=K, distortion=distortion)
-    bar = tqdm(range(len(paths)), desc="loops", unit="img", disable=args.quiet, file=sys.stderr)
-    for i in bar:
-        if features is None:
-            detector.process(load_gray(paths[i]))
-        else:
-            f = features[i]
-            features[i] = None  # free memory as we go
-            detector.process_features(f.xy_px, f.descriptors)
-        bar.set_postfix(closures=len(detector.closures), refresh=False)
-    bar.close()
+    detect_loops(paths, detector, features, progress=not args.quiet)
 
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["query", "match", "score", "inliers"])
-        for c in detector.closures:
-            w.writerow([paths[c.query].name, paths[c.match].name, f"{c.score:.6f}", c.n_inliers])
+    from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv
+
+    write_folder_loops_csv(args.out, detector.closures, paths)
     written = [str(args.out)]
     if args.log is not None:
-        args.log.parent.mkdir(parents=True, exist_ok=True)
-        with args.log.open("w", encoding="utf-8") as fh:
-            for r in detector.records:
-                d = r.to_dict()
-                d["query_name"] = paths[r.query].name
-                d["match_name"] = None if r.match is None else paths[r.match].name
-                fh.write(json.dumps(d) + "\n")
+        write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
     print(f"{len(paths)} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "

@@ -16,7 +16,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from slamcore.errors import GraphSlamError
+from slamcore.planar import geometry as se2
 from slamcore.planar.geometry import between, wrap_angle
+from slamcore.planar.records import Dataset, Estimate
 
 
 def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,3 +160,105 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
     lo, hi = (float(chi2.ppf(p, k)) for p in q)
     return lo / n_runs, hi / n_runs
 
+
+#: 95 % two-sided chi-square bounds are taken at this confidence.
+NEES_CONFIDENCE = 0.95
+
+
+def errors_against_truth(pose_ids: np.ndarray, wTb: np.ndarray, gt_of: dict) -> np.ndarray:
+    """(N, 3) ``estimate - truth`` (heading wrapped), unaligned: both share the prior frame."""
+    truth = np.array([gt_of[int(i)] for i in pose_ids])
+    err = wTb - truth
+    err[:, 2] = wrap_angle(err[:, 2])
+    return err
+
+
+def rms_position_distance(a, b) -> float | None:
+    """RMS distance (m) between the positions two estimates give the same pose ids."""
+    common, ia, ib = np.intersect1d(a.pose_ids, b.pose_ids, return_indices=True)
+    if len(common) == 0:
+        return None
+    d = a.wTb[ia, :2] - b.wTb[ib, :2]
+    return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+
+
+def pose_statistics(dataset: Dataset, estimate: Estimate) -> dict:
+    """Final pose error and pose NEES against ground truth (where both exist)."""
+    gt = dataset.ground_truth()
+    est = estimate
+    out = {"final_pose_error_m": None, "nees_mean": None, "nees_in_bounds_fraction": None}
+    if gt is None:
+        return out
+    gt_of = dict(zip(gt[0].tolist(), gt[1]))
+    err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
+    out["final_pose_error_m"] = float(np.linalg.norm(err[-1, :2]))
+    if est.pose_covariances is not None:
+        nees = nees(err, est.pose_covariances)
+        lo, hi = chi2_bounds(3, 1, NEES_CONFIDENCE)
+        out["nees_mean"] = float(np.mean(nees))
+        out["nees_in_bounds_fraction"] = float(np.mean((nees >= lo) & (nees <= hi)))
+    return out
+
+
+def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> float | None:
+    """Association accuracy of an oracle that knows the true poses, the true
+    landmark positions and which landmarks each scan sees; None without that truth.
+
+    Per scan it picks the assignment of observations to the visible landmarks
+    with the least total squared Mahalanobis distance under each observation's
+    own R (the Bayes choice given everything but the noise). Its errors are
+    swaps between landmarks the sensor cannot separate (e.g. two landmarks
+    0.3 m apart under 0.2 m range noise), so no estimator can be expected to
+    beat it: it is the ceiling to read a back end's accuracy against.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    truth = dataset.landmarks_true
+    frames = dataset.frames if steps is None else dataset.frames[:steps]
+    if not truth:
+        return None
+    n = correct = 0
+    for f in frames:
+        if not f.observations:
+            continue
+        if f.wTb_true is None or f.true_landmark_ids is None:
+            return None
+        ids = np.array(sorted(set(f.true_landmark_ids)))
+        lm = np.array([truth[int(i)] for i in ids]).reshape(-1, 2)
+        z = np.array([o.z for o in f.observations]).reshape(-1, 2)
+        Rinv = np.linalg.inv(np.array([o.covariance for o in f.observations]))
+        nu = se2.innovation(z[:, None, :], se2.observe(np.asarray(f.wTb_true)[None], lm)[None])
+        d2 = np.einsum("mli,mij,mlj->ml", nu, Rinv, nu)
+        rows, cols = linear_sum_assignment(d2)
+        got = dict(zip(rows.tolist(), ids[cols].tolist()))
+        for i, t in enumerate(f.true_landmark_ids):
+            n += 1
+            correct += int(got.get(i) == int(t))
+    return correct / n if n else None
+
+
+def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
+    """Score data association against ground truth.
+
+    Each back-end landmark id is mapped to the true id it was most often
+    given to; an observation counts as correct when its assigned id maps to
+    its true id. Unused observations (None) count as wrong. ``duplicates`` is
+    the number of extra back-end landmarks that map to an already-taken true id.
+    """
+    if not pairs:
+        return None
+    votes: dict[int, dict[int, int]] = {}
+    for true_id, got in pairs:
+        if got is not None:
+            votes.setdefault(got, {}).setdefault(true_id, 0)
+            votes[got][true_id] += 1
+    mapping = {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
+    correct = sum(1 for true_id, got in pairs if got is not None and mapping[got] == true_id)
+    mapped_true = list(mapping.values())
+    return {
+        "accuracy": correct / len(pairs),
+        "observations": len(pairs),
+        "unused": sum(1 for _, got in pairs if got is None),
+        "landmarks_created": len(mapping),
+        "duplicates": len(mapped_true) - len(set(mapped_true)),
+    }

@@ -41,7 +41,7 @@ import numpy as np
 
 from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, UnsupportedError
 from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
 from loopclosure.detector import LoopDetector
@@ -213,3 +213,40 @@ def _json_default(o):
     if isinstance(o, np.generic):
         return o.item()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def require_loop_closures(backend: VisualBackend) -> None:
+    """Raise :class:`UnsupportedError` unless ``backend`` takes relative-pose closures."""
+    if not backend.supports_loop_closures:
+        raise UnsupportedError(f"--loops: back end {backend.name!r} cannot use relative-pose loop "
+                               "closures (it closes loops by re-observing landmarks); use isam2")
+
+
+def make_loop_closer(sequence, backend: VisualBackend, vocab, detector_config, verify_config,
+                     pnp_config: PnpConfig, closing_config: LoopClosingConfig, *,
+                     features: list | None = None, on_candidate: CandidateHook | None = None,
+                     vocabulary_source: str = "") -> VisualLoopCloser:
+    """The :class:`VisualLoopCloser` of ``graphslam run --loops`` for ``sequence``.
+
+    ``features``: the ORB features of the frames, if the vocabulary was trained
+    on them (one ORB pass then serves both).
+
+    Raises:
+        UnsupportedError: the back end cannot use relative-pose closures.
+    """
+    require_loop_closures(backend)
+    detector = LoopDetector(vocab, detector_config, verify_config,
+                            K=np.asarray(sequence.K, dtype=np.float64))
+    return VisualLoopCloser(detector, pnp_config, closing_config, on_candidate,
+                            vocabulary_source=vocabulary_source, features=features)
+
+
+def sequence_features(sequence, n_frames: int, orb, progress: bool = False) -> list:
+    """ORB features of the first ``n_frames`` images of ``sequence`` (progress on stderr)."""
+    import sys
+
+    from tqdm import tqdm
+
+    return [orb.detect(sequence.load(i))
+            for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
+                          disable=not progress, file=sys.stderr)]

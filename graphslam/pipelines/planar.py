@@ -127,33 +127,6 @@ def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarr
     return ids, np.array([poses[i] for i in ids])
 
 
-def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
-    """Score data association against ground truth.
-
-    Each back-end landmark id is mapped to the true id it was most often
-    given to; an observation counts as correct when its assigned id maps to
-    its true id. Unused observations (None) count as wrong. ``duplicates`` is
-    the number of extra back-end landmarks that map to an already-taken true id.
-    """
-    if not pairs:
-        return None
-    votes: dict[int, dict[int, int]] = {}
-    for true_id, got in pairs:
-        if got is not None:
-            votes.setdefault(got, {}).setdefault(true_id, 0)
-            votes[got][true_id] += 1
-    mapping = {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
-    correct = sum(1 for true_id, got in pairs if got is not None and mapping[got] == true_id)
-    mapped_true = list(mapping.values())
-    return {
-        "accuracy": correct / len(pairs),
-        "observations": len(pairs),
-        "unused": sum(1 for _, got in pairs if got is None),
-        "landmarks_created": len(mapping),
-        "duplicates": len(mapped_true) - len(set(mapped_true)),
-    }
-
-
 def compute_metrics(result: RunResult, *, seed: int | None = None,
                     with_graph_error: bool = True) -> dict:
     """The metrics of ``metrics.json`` for one run."""
@@ -183,7 +156,7 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         out["ate_rmse_m"] = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         out["odometry_ate_rmse_m"] = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
-    acc = association_accuracy(result.associations)
+    acc = metrics.association_accuracy(result.associations)
     if acc is not None:
         out["association"] = acc
     return out

@@ -1,4 +1,4 @@
-"""Rerun logging: the only module that imports rerun.
+"""Rerun logging of 2-D runs and comparisons.
 
 Layout of a recording (2-D views, z up is implicit):
 
@@ -17,58 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from slamcore.errors import ConfigError
-from slamcore.planar.records import Estimate
-
-#: chi-square 95 % quantile with 2 degrees of freedom.
-CHI2_2DOF_95 = 5.991464547107979
-_ELLIPSE_POINTS = 33
-_CIRCLE = np.stack([np.cos(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS)),
-                    np.sin(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS))])  # (2, P)
-
-GT_COLOR = (160, 160, 160)
-PALETTE = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14)]
+from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
+from slamcore.planar.records import Dataset, Estimate
 
 
-def ellipse_points(centers: np.ndarray, covariances: np.ndarray,
-                   chi2: float = CHI2_2DOF_95) -> np.ndarray:
-    """(M, P, 2) outline points of the ``chi2`` ellipses of (M, 2) centres, (M, 2, 2) covs."""
-    vals, vecs = np.linalg.eigh(covariances)
-    axes = vecs * np.sqrt(np.clip(vals, 0.0, None) * chi2)[:, None, :]  # (M, 2, 2)
-    return centers[:, None, :] + np.einsum("mij,jp->mpi", axes, _CIRCLE)
-
-
-class RerunLog:
-    """One recording stream, saved to a file, spawned into a viewer, or sent to one.
-
-    Args:
-        mode: "save" (write ``path``), "spawn" (start a local viewer) or
-            "connect" (gRPC to ``url``, default the viewer's own default).
-        recording_id: fixed id so the same run gives the same recording.
-    """
-
-    def __init__(self, mode: str, path: Path | None = None, url: str | None = None,
-                 application_id: str = "graphslam", recording_id: str = "graphslam-run"):
-        import rerun as rr  # imported here: no work at import time, and only this module
-
-        self._rr = rr
-        self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        if mode == "save":
-            if path is None:
-                raise ConfigError("rerun: mode 'save' needs a path")
-            self.rec.save(str(path))
-        elif mode == "spawn":
-            self.rec.spawn()
-        elif mode == "connect":
-            self.rec.connect_grpc(url) if url else self.rec.connect_grpc()
-        else:
-            raise ConfigError(f"rerun: unknown mode {mode!r} (save, spawn, connect)")
-        self.path = path
-
-    def set_step(self, step: int, stamp_s: float | None = None) -> None:
-        self.rec.set_time("step", sequence=int(step))
-        if stamp_s is not None:
-            self.rec.set_time("time", duration=float(stamp_s))
+class PlanarLog(RerunLog):
+    """A :class:`RerunLog` with the 2-D entities: ground truth, poses, landmarks."""
 
     def log_ground_truth(self, wTb: np.ndarray | None, landmarks: dict | None) -> None:
         rr = self._rr
@@ -112,25 +66,21 @@ class RerunLog:
                 self.rec.log(f"world/{backend}/landmark_ellipses",
                              rr.LineStrips2D(list(rings), colors=[color], radii=0.02))
 
-    def close(self) -> None:
-        self.rec.flush()
-        self.rec.disconnect()
-
 
 class RunRecorder:
-    """Records one or more back ends' runs of one dataset into a :class:`RerunLog`.
+    """Records one or more back ends' runs of one dataset into a :class:`PlanarLog`.
 
     Every step logs the current pose (cheap for all back ends); every
     ``every`` steps, and at the end, the whole estimate with landmark ellipses.
     """
 
-    def __init__(self, log: RerunLog):
+    def __init__(self, log: PlanarLog):
         self.log = log
         self._colors: dict[str, int] = {}
 
     @classmethod
     def open(cls, mode: str, path: Path, url: str | None = None) -> "RunRecorder":
-        return cls(RerunLog(mode, path=path, url=url))
+        return cls(PlanarLog(mode, path=path, url=url))
 
     def start(self, dataset, n_steps: int) -> None:
         gt = dataset.ground_truth()
@@ -163,3 +113,16 @@ class RunRecorder:
 
     def close(self) -> None:
         self.log.close()
+
+    def record_comparison(self, entries, dataset: Dataset) -> None:
+        """Finished runs (:class:`graphslam.pipelines.compare.CompareEntry`), one entity
+        subtree per back end, on the step timeline."""
+        n = max(e.result.steps for e in entries)
+        self.start(dataset, n)
+        for e in entries:
+            est = e.result.estimate
+            for k in range(len(est.pose_ids)):
+                self.log.set_step(k)
+                cov = None if est.pose_covariances is None else est.pose_covariances[k]
+                self.log.log_pose(e.backend, est.wTb[k], cov, self.color_index(e.backend))
+            self.finish(e.backend, e.result)

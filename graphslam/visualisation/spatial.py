@@ -23,7 +23,7 @@ where the sequence has stamps):
   ``world/<backend>/loop_closures`` (the closures as 3-D segments between the
   estimated cameras, at the end of the run).
 
-Modes save / spawn / connect as :class:`graphslam.visualisation.planar.RerunLog`.
+Modes save / spawn / connect as :class:`graphslam.visualisation.recording.RerunLog`.
 """
 
 from __future__ import annotations
@@ -32,9 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.visualisation.planar import PALETTE, RerunLog, ellipse_points
+from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
 
-GT_COLOR = (160, 160, 160)
 FOUND_COLOR = (40, 200, 60)
 MISSED_COLOR = (220, 50, 40)
 CORNER_COLOR = (255, 200, 0)

@@ -20,7 +20,7 @@ import numpy as np
 from slamcore.errors import InputError
 
 #: Extensions :func:`read_image_folder` accepts (compared lower-case).
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm")
 
 #: Nearest-timestamp association tolerance (s) for TUM and EuRoC ground truth.
 ASSOCIATION_MAX_DT_S = 0.02
@@ -149,6 +149,32 @@ def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarra
 
 
 def list_images(folder: Path) -> list[str]:
-    return sorted((str(p) for p in folder.iterdir()
+    """Image files of ``folder`` (:data:`IMAGE_EXTENSIONS`) in natural file-name order."""
+    return sorted((str(p) for p in Path(folder).iterdir()
                    if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
                   key=lambda s: natural_key(Path(s).name))
+
+
+def folder_images(folder: Path) -> list[Path]:
+    """:func:`list_images` as paths; InputError when the folder is missing or has none."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("image folder not found", folder)
+    paths = [Path(p) for p in list_images(folder)]
+    if not paths:
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in folder", folder)
+    return paths
+
+
+def expand_images(items: list[str | Path]) -> list[Path]:
+    """Image files and folders (each in natural order) as one list of paths."""
+    out: list[Path] = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            out.extend(folder_images(p))
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise InputError("no such image file or folder", p)
+    return out

@@ -1,6 +1,6 @@
 """``graphslam run`` on an image sequence: parse the visual flags, run, write, print.
 
-Called by :func:`graphslam.cli.main.cmd_run` when ``--dataset`` is ``synthetic-images``
+Called by :func:`graphslam.cli.run.command.cmd_run` when ``--dataset`` is ``synthetic-images``
 or a folder. Configuration sections read from ``--config`` (flags win):
 ``[synthetic_images]``, ``[visual]``, ``[odometry_noise]``, ``[tracker]``,
 ``[active_search]``, ``[harris]``, ``[orb]``, ``[isam2_visual]``, ``[mono_ekf]``,
@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from graphslam.cli.main import fmt, report_outputs, summary_table
+from graphslam.cli.common import fmt, report_outputs, summary_table
 from slamcore.config import load_section
 from slamcore.errors import GraphSlamError, UnsupportedError
 
@@ -47,7 +47,7 @@ def _backend_overrides(args, mode: str) -> dict:
     return out
 
 
-def run_visual(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     """The visual ``graphslam run``; returns the exit status."""
     from frontend.active_search import ActiveSearchConfig
     from frontend.harris import HarrisConfig
@@ -91,8 +91,10 @@ def run_visual(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
-    closer = build_loop_closer(args, sequence, backend, n_frames,
-                               None if recorder is None else recorder.loop_hook(sequence))
+    closer = None
+    if args.loops or args.vocab is not None:
+        closer = _loop_closer(args, sequence, backend, n_frames,
+                              None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
                     frontend=tracker_cfg.detector, loop_closer=closer)
@@ -103,6 +105,8 @@ def run_visual(args: argparse.Namespace) -> int:
         metrics["loops"] = {**closer.stats, "vocabulary": closer.vocabulary_source}
     paths = vp.write_outputs(result, out_dir, metrics)
     if closer is not None:
+        from graphslam.outputs.loops import write_loops
+
         paths.update(write_loops(closer, out_dir))
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
@@ -114,64 +118,40 @@ def run_visual(args: argparse.Namespace) -> int:
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
 
-def build_loop_closer(args, sequence, backend, n_frames: int, on_candidate=None):
-    """The :class:`~graphslam.pipelines.loop_closing.VisualLoopCloser` of ``--loops``/``--vocab``, or None."""
-    if not (args.loops or args.vocab is not None):
-        return None
+def _loop_closer(args, sequence, backend, n_frames: int, on_candidate):
+    """``--loops``/``--vocab``: the vocabulary (loaded, or trained on the run's frames)
+    and the loop closer around it."""
     import sys
 
-    import numpy as np
-    from tqdm import tqdm
-
-    from graphslam.cli.loops import check_vocabulary
-    from graphslam.cli.vocab import describe, orb_for, train_vocabulary
-    from graphslam.pipelines.loop_closing import LoopClosingConfig, VisualLoopCloser
-    from loopclosure.detector import LoopDetector, LoopDetectorConfig
+    from graphslam.pipelines import loop_closing as lc
+    from graphslam.pipelines.place_recognition import (
+        check_vocabulary, describe, orb_for, train_vocabulary,
+    )
+    from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
     from loopclosure.verify import VerifyConfig
     from loopclosure.vocabulary import load_vocabulary
 
-    if not backend.supports_loop_closures:
-        raise UnsupportedError(f"--loops: back end {args.backend!r} cannot use relative-pose loop "
-                               "closures (it closes loops by re-observing landmarks); use isam2")
+    lc.require_loop_closures(backend)
+    detector_config = load_section(LoopDetectorConfig, args.config)
     features = None
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
         check_vocabulary(vocab, args.vocab)
         source = str(args.vocab)
     else:
-        # Not online: the vocabulary needs the sequence's descriptors before the run.
-        # The same features then feed the detector (one ORB pass, as graphslam loops).
-        orb = orb_for(args.config)
-        features = [orb.detect(sequence.load(i))
-                    for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
-                                  disable=args.quiet, file=sys.stderr)]
+        features = lc.sequence_features(sequence, n_frames, orb_for(detector_config),
+                                        progress=not args.quiet)
         vocab = train_vocabulary([f.descriptors for f in features], SELF_TRAINED_WORDS)
         source = f"trained on the sequence ({n_frames} frames)"
         if not args.quiet:
             print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
-    detector = LoopDetector(vocab, load_section(LoopDetectorConfig, args.config),
-                            load_section(VerifyConfig, args.config),
-                            K=np.asarray(sequence.K, dtype=np.float64))
-    return VisualLoopCloser(detector, load_section(PnpConfig, args.config),
-                            load_section(LoopClosingConfig, args.config), on_candidate,
-                            vocabulary_source=source, features=features)
-
-
-def write_loops(closer, out_dir: Path) -> dict[str, Path]:
-    """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)."""
-    import csv
-
-    paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
-    with paths["loops"].open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
-        for r in closer.records:
-            if r.get("accepted"):
-                w.writerow([r["query"], r["match"], f"{r['score']:.6f}", r["n_inliers"],
-                            r["pnp_inliers"], f"{r['distance_m']:.4f}"])
-    closer.write_log(paths["loops_log"])
-    return paths
+    return lc.make_loop_closer(sequence, backend, vocab, detector_config,
+                               load_section(VerifyConfig, args.config),
+                               load_section(PnpConfig, args.config),
+                               load_section(lc.LoopClosingConfig, args.config),
+                               features=features, on_candidate=on_candidate,
+                               vocabulary_source=source)
 
 
 def format_summary(m: dict) -> str:

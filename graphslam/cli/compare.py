@@ -1,0 +1,130 @@
+"""``graphslam compare``: several 2-D back ends on the same stream, one table."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from slamcore.errors import GraphSlamError
+
+EPILOG = """\
+datasets:
+  synthetic       2-D landmark world driven around a closed route (default)
+  victoria-park   Victoria Park (gtsam wheel), trees seen by laser
+  city10000       city10000 pose graph with ground truth (gtsam wheel)
+  w10000          w10000 Manhattan pose graph (gtsam wheel)
+  PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
+
+outputs (in --out): compare.json, compare.png, compare.rrd
+
+examples:
+  graphslam compare
+  graphslam compare --dataset victoria-park --backends isam2 ekf --rerun off
+"""
+
+
+def register(sub) -> None:
+    """Add the ``compare`` sub-command to the ``graphslam`` parser."""
+    from graphslam.registry import BACKENDS
+
+    p = sub.add_parser(
+        "compare", help="run several back ends on the same stream and compare them",
+        description="Run several back ends on the same data (same seed, same observations), "
+                    "each in its own process, and write one table, compare.json, "
+                    "compare.png and one Rerun recording with a subtree per back end.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
+                       help="built-in dataset name or pose-graph file (default: synthetic)")
+    p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS,
+                       metavar="NAME", help=f"back ends to run (default: all of {', '.join(BACKENDS)})")
+    p.add_argument("--seed", type=int, default=None,
+                       help="seed of the synthetic world and of particle filters")
+    p.add_argument("--out", type=Path, default=None,
+                       help="output folder (default: runs/<dataset>-compare)")
+    p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
+    p.add_argument("--max-steps", type=int, default=None, metavar="N",
+                       help="stop after N frames")
+    p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
+                       help="save compare.rrd in --out (default), spawn, connect, or off")
+    p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
+    p.add_argument("--in-process", action="store_true",
+                       help="run back ends in this process (no per-back-end memory figure)")
+    p.set_defaults(func=cmd_compare)
+
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from graphslam import registry
+    from graphslam.pipelines import compare
+    from graphslam.outputs import writers
+
+    if args.max_steps is not None and args.max_steps < 1:
+        raise GraphSlamError("--max-steps must be at least 1")
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)
+    out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-compare"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
+    entries = compare.compare(
+        dataset, args.backends, config_path=args.config, overrides=overrides,
+        max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
+        progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
+    print(format_table(entries))
+    writers.write_json(out_dir / "compare.json",
+                       {"dataset": dataset.name, "runs": [e.metrics for e in entries]})
+    outputs = ["compare.json", plot_comparison(entries, dataset, out_dir / "compare.png").name]
+    if args.rerun != "off":
+        from graphslam.visualisation.planar import RunRecorder
+
+        recorder = RunRecorder.open(args.rerun, out_dir / "compare.rrd", args.rerun_url)
+        recorder.record_comparison(entries, dataset)
+        recorder.close()
+        if args.rerun == "save":
+            outputs.append("compare.rrd")
+    skipped = {e.backend: e.metrics["loop_closures_skipped"] for e in entries
+               if e.metrics.get("loop_closures_skipped")}
+    for name, n in skipped.items():
+        print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
+    print(f"outputs in {out_dir}/: " + ", ".join(outputs))
+    return 0
+
+
+COLUMNS = [
+    ("backend", "backend", "s"),
+    ("ate_rmse_m", "ATE [m]", ".3f"),
+    ("final_pose_error_m", "final err [m]", ".3f"),
+    ("rms_to_isam2_m", "RMS to iSAM2 [m]", ".3f"),
+    ("nees_mean", "mean NEES", ".2f"),
+    ("nees_in_bounds_fraction", "NEES in 95%", ".2f"),
+    ("association_accuracy", "assoc acc", ".4f"),
+    ("association_oracle", "oracle acc", ".4f"),
+    ("association_unused", "obs unused", "d"),
+    ("association_duplicates", "dup lm", "d"),
+    ("wall_s", "wall [s]", ".2f"),
+    ("steps_per_s", "steps/s", ".0f"),
+    ("peak_rss_mb", "peak MB", ".0f"),
+]
+
+
+def format_table(entries) -> str:
+    """Plain-text table of the comparison; columns with no value anywhere are left out."""
+    rows = []
+    for e in entries:
+        m = dict(e.metrics)
+        a = m.get("association") or {}
+        m["association_accuracy"] = a.get("accuracy")
+        # the oracle's ceiling, observations left unused (counted as wrong) and
+        # extra estimated landmarks mapped to an already-taken true landmark
+        m["association_oracle"] = a.get("oracle_accuracy")
+        m["association_unused"] = a.get("unused")
+        m["association_duplicates"] = a.get("duplicates")
+        rows.append(m)
+    cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
+    cells = [[h for _, h, _ in cols]]
+    for r in rows:
+        cells.append(["n/a" if r.get(k) is None else format(r[k], f) for k, _, f in cols])
+    widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
+    lines = ["  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths)))
+             for row in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)

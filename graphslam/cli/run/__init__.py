@@ -1,0 +1,1 @@
+"""``graphslam run``: :mod:`.command` (parser, dispatch), :mod:`.planar`, :mod:`.spatial`."""

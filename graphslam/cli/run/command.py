@@ -1,0 +1,115 @@
+"""``graphslam run``: the parser, and the dispatch to the 2-D or the visual run.
+
+A ``--dataset`` that names an image sequence (``synthetic-images`` or a folder)
+runs :mod:`graphslam.cli.run.spatial`; anything else (a 2-D world, a landmark
+log, a pose-graph file) runs :mod:`graphslam.cli.run.planar`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+RUN_EPILOG = """\
+datasets:
+  synthetic       2-D landmark world driven around a closed route (default);
+                  noise from the course demo, settable in [synthetic] of --config
+  victoria-park   Victoria Park (gtsam wheel), trees seen by laser, no ground truth
+  city10000       city10000 pose graph with ground truth (gtsam wheel)
+  w10000          w10000 Manhattan pose graph (gtsam wheel)
+  PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
+  synthetic-images  rendered textured room, VGA, noisy odometry (visual SLAM;
+                  [synthetic_images] of --config)
+  FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder
+                  with an intrinsics file (visual SLAM)
+
+visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
+  --odometry sequence|derived|none (derived: ground truth times noise, default
+  2 % of the distance and 0.1 deg per frame; none: EKF constant velocity,
+  Sim(3)-aligned ATE); landmarks.csv is id,x,y,z; --loops adds place
+  recognition ([loops], [loop_verify], [loop_pnp] of --config) and writes
+  loops.csv (query,match,score,inliers) and loops.jsonl (every candidate)
+
+outputs (in --out):
+  trajectory.tum  TUM format; time column = pose id where the data has no stamps
+  landmarks.csv   id,x,y
+  metrics.json    final_error (gtsam graph error), ate_rmse_m, wall_s, ...
+  run.rrd         Rerun recording (open with: rerun run.rrd)
+
+examples:
+  graphslam run
+  graphslam run --dataset victoria-park --out runs/vp
+  graphslam run --dataset city10000 --rerun off
+  graphslam run --seed 3 --config my.toml --rerun spawn
+  graphslam run --dataset synthetic-images --backend ekf --frontend fpga
+  graphslam run --dataset ../shared/data/kitti07 --max-steps 160 --odometry derived
+"""
+
+
+
+def register(sub) -> None:
+    """Add the ``run`` sub-command to the ``graphslam`` parser."""
+    from graphslam.registry import BACKENDS
+
+    p = sub.add_parser(
+        "run", help="run SLAM on a dataset and write trajectory, map, metrics, recording",
+        description="Run one back end over a dataset, print a summary table and write the "
+                    "outputs to --out.",
+        epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
+                       help="built-in dataset name, pose-graph file or image-sequence folder "
+                            "(default: synthetic)")
+    p.add_argument("--backend", default="isam2", choices=BACKENDS,
+                       help="estimator (default: isam2)")
+    p.add_argument("--seed", type=int, default=None,
+                       help="seed of the synthetic world (default: config file, else 0)")
+    p.add_argument("--out", type=Path, default=None,
+                       help="output folder (default: runs/<dataset>-<backend>)")
+    p.add_argument("--config", type=Path, default=None,
+                       help="TOML or YAML file with [synthetic], [isam2] sections")
+    p.add_argument("--max-steps", type=int, default=None, metavar="N",
+                       help="stop after N frames")
+    p.add_argument("--no-polish", action="store_true",
+                       help="skip the final batch Levenberg-Marquardt polish (iSAM2)")
+    p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
+                       help="save run.rrd in --out (default), spawn a viewer, connect to a "
+                            "running one, or log nothing")
+    p.add_argument("--rerun-url", default=None,
+                       help="viewer gRPC URL for --rerun connect "
+                            "(default: rerun+http://127.0.0.1:9876/proxy)")
+    p.add_argument("--rerun-every", type=int, default=None, metavar="N",
+                       help="log the full estimate every N steps (default: about 50 snapshots)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    vis = p.add_argument_group("image sequences")
+    vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
+                     help="corner detector and matching (default: [tracker] of --config, else harris)")
+    vis.add_argument("--odometry", choices=("auto", "sequence", "derived", "none"), default=None,
+                     help="sequence's own odometry, noisy odometry derived from ground truth, or "
+                          "none (constant-velocity model, EKF only); default auto: sequence if "
+                          "it has odometry, else derived")
+    vis.add_argument("--odometry-noise", type=float, nargs=2, default=None,
+                     metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
+                     help="derived odometry noise: translation sigma per metre travelled and "
+                          "rotation sigma per frame in degrees (default 0.02 0.1)")
+    vis.add_argument("--loops", action="store_true",
+                     help="detect loop closures (bag of words, RANSAC, metric pose by PnP on the "
+                          "map) and add them to the back end as robust factors (isam2 only); "
+                          "writes loops.csv and loops.jsonl. Without --vocab a vocabulary is "
+                          "first trained on the sequence's own images (an extra pass)")
+    vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
+                     help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
+    p.set_defaults(func=cmd_run)
+
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
+    from graphslam import registry
+
+    if registry.is_visual_dataset(args.dataset):
+        from graphslam.cli.run import spatial
+
+        return spatial.run(args)
+    from graphslam.cli.run import planar
+
+    return planar.run(args)

@@ -1,0 +1,44 @@
+"""Loop-closure outputs of ``graphslam loops`` and of a visual run: CSV and JSON lines."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+
+def write_loops(closer, out_dir: Path) -> dict[str, Path]:
+    """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)
+    of a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""
+    paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
+    with paths["loops"].open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
+        for r in closer.records:
+            if r.get("accepted"):
+                w.writerow([r["query"], r["match"], f"{r['score']:.6f}", r["n_inliers"],
+                            r["pnp_inliers"], f"{r['distance_m']:.4f}"])
+    closer.write_log(paths["loops_log"])
+    return paths
+
+
+def write_folder_loops_csv(path: Path, closures, paths: list[Path]) -> None:
+    """``query,match,score,inliers`` (file names, the later image first) per accepted
+    :class:`loopclosure.detector.DetectedLoop`."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "match", "score", "inliers"])
+        for c in closures:
+            w.writerow([paths[c.query].name, paths[c.match].name, f"{c.score:.6f}", c.n_inliers])
+
+
+def write_candidates_jsonl(path: Path, records, paths: list[Path]) -> None:
+    """Every :class:`loopclosure.detector.CandidateRecord` as one JSON line, with file names."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", encoding="utf-8") as fh:
+        for r in records:
+            d = r.to_dict()
+            d["query_name"] = paths[r.query].name
+            d["match_name"] = None if r.match is None else paths[r.match].name
+            fh.write(json.dumps(d) + "\n")

@@ -1,0 +1,110 @@
+"""Place recognition as the ``loops`` and ``vocab`` commands and the visual run use it:
+ORB features of an image list, vocabulary training, and loop detection over a folder.
+
+Library functions: they compute and return; the CLI prints.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from slamcore.errors import ConfigError, InputError
+
+
+def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB") -> list:
+    """ORB :class:`frontend.features.Features` of every image (progress bar on stderr)."""
+    from tqdm import tqdm
+
+    from frontend.image import load_gray
+
+    return [orb.detect(load_gray(p)) for p in tqdm(paths, desc=desc, unit="img",
+                                                    disable=not progress, file=sys.stderr)]
+
+
+def tree_depth(n_words: int, branching: int) -> int:
+    """Smallest depth L with ``branching ** L >= n_words``."""
+    depth = max(1, math.ceil(math.log(n_words) / math.log(branching) - 1e-9))
+    while branching ** depth < n_words:
+        depth += 1
+    return depth
+
+
+def train_vocabulary(descriptors: list[np.ndarray], n_words: int, flat: bool = False,
+                     branching: int = 10, per_image: int = 300, seed: int = 0):
+    """Fit a vocabulary on per-image (N, 32) uint8 descriptor arrays.
+
+    Keeps the first ``per_image`` rows of each array (ORB output is sorted by
+    decreasing response when the cell selection is off); 0 keeps all.
+    """
+    from loopclosure.vocabulary import FlatVocabulary, VocabularyTree
+
+    if n_words < 2:
+        raise ConfigError(f"--words must be at least 2, got {n_words}")
+    if branching < 2:
+        raise ConfigError(f"--branching must be at least 2, got {branching}")
+    if per_image < 0:
+        raise ConfigError(f"--per-image must be >= 0, got {per_image}")
+    train = [d[:per_image] if per_image else d for d in descriptors]
+    train = [d for d in train if len(d)]
+    total = sum(len(d) for d in train)
+    if total == 0:
+        raise InputError("no ORB features found in the images: cannot train a vocabulary")
+    if flat:
+        if total < n_words:
+            raise InputError(f"only {total} descriptors for {n_words} words: use fewer --words "
+                             f"or more images")
+        return FlatVocabulary(n_words=n_words, seed=seed).fit(train)
+    return VocabularyTree(branching=branching, depth=tree_depth(n_words, branching),
+                          seed=seed).fit(train)
+
+
+def orb_for(config):
+    """The loop detector's ORB detector, from its :class:`LoopDetectorConfig`."""
+    from frontend.orb import OrbDetector
+
+    return OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
+                       per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
+
+
+def describe(vocab) -> str:
+    """One line naming a vocabulary's kind and size."""
+    kind = type(vocab).__name__
+    if kind == "VocabularyTree":
+        return f"vocabulary tree k={vocab.branching} L={vocab.depth}, {vocab.n_words_} words"
+    return f"flat vocabulary, {vocab.n_words_} words"
+
+
+def check_vocabulary(vocab, path: Path) -> None:
+    """Refuse (InputError naming ``path``) a vocabulary that cannot quantise ORB descriptors."""
+    # ORB descriptors are 32-byte binary strings; a float vocabulary cannot quantise them.
+    if getattr(vocab, "metric_", None) != "hamming" or getattr(vocab, "descriptor_dim_", None) != 32:
+        raise InputError(f"vocabulary is not for ORB descriptors (metric "
+                         f"{getattr(vocab, 'metric_', '?')}, dimension "
+                         f"{getattr(vocab, 'descriptor_dim_', '?')}; need hamming, 32)", path)
+
+
+def detect_loops(paths: list[Path], detector, features: list | None = None,
+                 progress: bool = False):
+    """Feed every image (or its precomputed ORB ``features``) to ``detector`` in order.
+
+    ``features`` entries are released as they are used. Returns ``detector``.
+    """
+    from tqdm import tqdm
+
+    from frontend.image import load_gray
+
+    bar = tqdm(range(len(paths)), desc="loops", unit="img", disable=not progress, file=sys.stderr)
+    for i in bar:
+        if features is None:
+            detector.process(load_gray(paths[i]))
+        else:
+            f = features[i]
+            features[i] = None  # free memory as we go
+            detector.process_features(f.xy_px, f.descriptors)
+        bar.set_postfix(closures=len(detector.closures), refresh=False)
+    bar.close()
+    return detector

@@ -1,0 +1,62 @@
+"""Matplotlib figures (PNG files, no display): the only module that imports matplotlib."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.evaluation.planar import errors_against_truth
+from slamcore.planar.records import Dataset
+
+
+def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
+    """PNG of finished runs (``CompareEntry``): trajectories over ground truth, and pose
+    errors with 3-sigma bounds over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only; no display on servers or CI
+    import matplotlib.pyplot as plt
+
+    gt = dataset.ground_truth()
+    n_err = 3 if gt is not None else 0
+    fig = plt.figure(figsize=(13, 7 if n_err else 6), constrained_layout=True)
+    grid = fig.add_gridspec(max(n_err, 1), 2, width_ratios=[1.1, 1])
+    ax = fig.add_subplot(grid[:, 0])
+    if gt is not None:
+        ax.plot(gt[1][:, 0], gt[1][:, 1], color="0.6", lw=2, label="ground truth")
+    if dataset.landmarks_true:
+        lm = np.array(list(dataset.landmarks_true.values()))
+        ax.scatter(lm[:, 0], lm[:, 1], marker="x", color="0.6", s=12, label="true landmarks")
+    for i, e in enumerate(entries):
+        est = e.result.estimate
+        ax.plot(est.wTb[:, 0], est.wTb[:, 1], lw=1, color=f"C{i}", label=e.backend)
+        if len(est.landmarks_w):
+            ax.scatter(est.landmarks_w[:, 0], est.landmarks_w[:, 1], s=6, color=f"C{i}")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{dataset.name}: trajectories")
+    ax.legend(loc="best", fontsize=8)
+    if gt is not None:
+        gt_of = dict(zip(gt[0].tolist(), gt[1]))
+        labels = ["x error [m]", "y error [m]", "heading error [rad]"]
+        axes = [fig.add_subplot(grid[r, 1]) for r in range(3)]
+        for i, e in enumerate(entries):
+            est = e.result.estimate
+            err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
+            steps = np.arange(len(err))
+            for r in range(3):
+                axes[r].plot(steps, err[:, r], color=f"C{i}", lw=0.8, label=e.backend)
+                if est.pose_covariances is not None:
+                    s3 = 3 * np.sqrt(np.clip(est.pose_covariances[:, r, r], 0, None))
+                    axes[r].fill_between(steps, -s3, s3, color=f"C{i}", alpha=0.15, lw=0)
+        for r in range(3):
+            axes[r].set_ylabel(labels[r])
+            axes[r].axhline(0, color="0.5", lw=0.5)
+        axes[0].set_title("error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)")
+        axes[-1].set_xlabel("step")
+        axes[0].legend(loc="upper left", fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
