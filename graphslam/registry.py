@@ -30,11 +30,9 @@ def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None
 
         return read_city10000()
     if spec == "w10000":
-        import gtsam
+        from graphslam.sources.planar.posegraph import read_w10000
 
-        from graphslam.sources.planar.posegraph import read_pose_graph
-
-        return read_pose_graph(gtsam.findExampleDataFile("w10000.graph"))
+        return read_w10000()
     path = Path(spec)
     if not path.exists():
         raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",

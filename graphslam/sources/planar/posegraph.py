@@ -196,7 +196,7 @@ def group_edges(edges, path, pose_lines=None, ground_truth=None):
     return frames
 
 
-def _delta(values):
+def wrapped_delta(values):
     """(3,) relative pose with its angle wrapped to [-pi, pi) (gtsam's Pose2 wraps too)."""
     d = np.array(values, dtype=np.float64)
     d[2] = float(wrap_angle(d[2]))
@@ -222,7 +222,7 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name):
             b = parse_int(tok[2], path, line_no)
             nums = parse_floats(tok[3:], path, line_no)
             cov = noise_covariance(nums[3:], noise_format, path, line_no)
-            edges.append((line_no, a, b, _delta(nums[:3]), cov))
+            edges.append((line_no, a, b, wrapped_delta(nums[:3]), cov))
         elif tag == vertex_tag:
             check_count(tok, 5, path, line_no, f"{vertex_tag} id x y theta")
             k = parse_int(tok[1], path, line_no)
@@ -278,6 +278,13 @@ def read_pose_graph(path) -> Dataset:
     raise InputError("empty pose-graph file", path)
 
 
+def read_w10000() -> Dataset:
+    """gtsam's w10000 Manhattan pose graph (``w10000.graph``, TORO, in the gtsam wheel)."""
+    import gtsam  # only to find the wheel's example data
+
+    return read_pose_graph(gtsam.findExampleDataFile("w10000.graph"))
+
+
 def read_city10000(path=None, ground_truth_path=None) -> Dataset:
     """Read gtsam's City10000 pose graph with its ground truth (name "city10000").
 
@@ -313,7 +320,7 @@ def read_city10000(path=None, ground_truth_path=None) -> Dataset:
             raise InputError(f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, "
                              f"got {len(tok)}", path, line_no)
         nums = parse_floats(tok[6:], path, line_no)
-        edges.append((line_no, a, b, _delta(nums[:3]), cov))
+        edges.append((line_no, a, b, wrapped_delta(nums[:3]), cov))
     truth = []
     for line_no, tok in iter_lines(ground_truth_path):
         if len(tok) != 3:

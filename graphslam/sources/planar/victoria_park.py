@@ -35,7 +35,7 @@ import numpy as np
 
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
-from graphslam.sources.planar.posegraph import (_delta, check_count, iter_lines, noise_covariance,
+from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
                                          parse_floats, parse_int)
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
 
@@ -83,7 +83,7 @@ def read_victoria_park(path=None) -> Dataset:
                     raise InputError(f"ODOMETRY creates pose {j}, which already exists",
                                      path, line_no)
                 cov = noise_covariance(nums[3:], "cov", path, line_no)
-                odometry[j] = Odometry(i, j, _delta(nums[:3]), cov)
+                odometry[j] = Odometry(i, j, wrapped_delta(nums[:3]), cov)
                 order.append(j)
                 observations[j] = []
             elif tag == "LANDMARK":
