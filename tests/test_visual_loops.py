@@ -247,8 +247,8 @@ def test_redundant_closure_is_skipped_and_recorded(need, stage):
     for k in range(6):
         closer.process(k, img, tracking, backend)
     (record,) = closer.records
-    assert record["stage"] == stage and not record["accepted"] and backend.closures == []
-    assert record["shared_tracks"] == 10
+    assert record.stage == stage and not record.accepted and backend.closures == []
+    assert record.shared_tracks == 10
     assert closer.stats["redundant"] == (stage == "redundant")
     assert closer.stats["pnp_rejected"] == (stage == "pnp")
     with pytest.raises(ConfigError):
@@ -350,7 +350,10 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
 def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
     from types import SimpleNamespace
 
+    from graphslam.pipelines.loop_closing import LoopCandidate
     from graphslam.visualisation.spatial import VisualRecorder
+    from loopclosure.detector import CandidateRecord
+    from loopclosure.pnp import PnpResult
     from slamcore.spatial.records import VisualEstimate
 
     rng = np.random.default_rng(0)
@@ -362,10 +365,11 @@ def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
     rec.start(seq, 3)
     hook = rec.loop_hook(seq)
     links = np.array([[[10.0, 10.0], [12.0, 11.0]], [[30.0, 20.0], [31.0, 22.0]]])
-    hook(2, {"accepted": True, "match": 0, "score": 0.5, "normalised_score": 1.1,
-             "n_inliers": 40, "pnp_inliers": 2}, frames[2], links)
-    hook(1, {"accepted": False, "reason": "below threshold", "match": None, "best_match": 0,
-             "score": 0.1, "normalised_score": 0.2, "n_inliers": None}, frames[1], None)
+    accepted = CandidateRecord(2, 0, 0, 0.5, 1.1, 0.45, 3, 60, 40, True, None)
+    pnp = PnpResult(True, None, n_points=30, n_matches=5, n_inliers=2, aTb=np.eye(4))
+    hook(2, LoopCandidate(accepted, "accepted", True, None, 10, pnp, 0.0), frames[2], links)
+    below = CandidateRecord(1, None, 0, 0.1, 0.2, 0.5, 0, None, None, False, "below threshold")
+    hook(1, LoopCandidate(below, "detector", False, "below threshold"), frames[1], None)
     est = VisualEstimate(np.arange(3), np.stack([np.eye(4)] * 3), np.zeros(0, np.int64),
                          np.zeros((0, 3)))
     rec.log_loop_closures("isam2", est, [PoseClosure(0, 2, np.eye(4), np.eye(6))])

@@ -23,10 +23,10 @@ map, the graph already holds the loop, and the PnP pose would count the same
 pixels a second time (measured on the default synthetic sequence with the
 full map: 2.56 cm ATE without closures, 2.84 cm with them all added).
 
-Every candidate's fate is kept in :attr:`VisualLoopCloser.records` (one dict per
-query that produced a candidate or was skipped: the detector's
-:class:`~loopclosure.detector.CandidateRecord` fields, plus ``pnp_*`` fields
-and ``stage`` = where it stopped), written as JSON lines by :meth:`write_log`,
+Every candidate's fate is kept in :attr:`VisualLoopCloser.records` (one
+:class:`LoopCandidate` per query that produced a candidate or was skipped: the
+detector's :class:`~loopclosure.detector.CandidateRecord`, the PnP outcome and
+the ``stage`` where it stopped), written as JSON lines by :meth:`write_log`,
 and handed to ``on_candidate`` (the Rerun recorder) as it happens.
 """
 
@@ -44,12 +44,62 @@ from frontend.tracking import TrackingResult
 from slamcore.errors import ConfigError, UnsupportedError
 from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
-from loopclosure.detector import LoopDetector
+from loopclosure.detector import CandidateRecord, LoopDetector
 from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
 
 #: ``on_candidate(k, record, image, links)`` after each query that left a record;
 #: ``links`` (M, 2, 2) are the PnP inliers ``[query pixel, match pixel]``, or None.
-CandidateHook = Callable[[int, dict, np.ndarray, "np.ndarray | None"], None]
+CandidateHook = Callable[[int, "LoopCandidate", np.ndarray, "np.ndarray | None"], None]
+
+#: Where a candidate stopped: rejected by the detector, accepted, skipped as
+#: redundant, or rejected by the metric pose.
+STAGES = ("detector", "accepted", "redundant", "pnp")
+
+
+@dataclass
+class LoopCandidate:
+    """The fate of one query in a visual run (one line of ``loops.jsonl``).
+
+    Attributes:
+        detector: the detector's record (query, match, scores, verification).
+        stage: one of :data:`STAGES`.
+        accepted: whether a closure was added to the back end.
+        reason: why not, or None when accepted.
+        shared_tracks: landmarks of the match frame the query re-observes
+            (None without a detector-accepted match).
+        pnp: the metric pose's outcome, when it was computed.
+        distance_m: length of the closure's translation, when accepted.
+    """
+
+    detector: CandidateRecord
+    stage: str
+    accepted: bool
+    reason: str | None
+    shared_tracks: int | None = None
+    pnp: PnpResult | None = None
+    distance_m: float | None = None
+
+    @property
+    def query(self) -> int:
+        return self.detector.query
+
+    @property
+    def match(self) -> int | None:
+        return self.detector.match
+
+    def to_dict(self) -> dict:
+        """Flat JSON-ready fields: the detector's, then ``stage``, ``pnp_*``, ``distance_m``."""
+        d = self.detector.to_dict()
+        d.update(accepted=self.accepted, reason=self.reason, stage=self.stage,
+                 pnp_accepted=None if self.pnp is None else self.pnp.accepted,
+                 shared_tracks=self.shared_tracks)
+        if self.pnp is not None:
+            d.update(pnp_reason=self.pnp.reason, pnp_matches=self.pnp.n_matches,
+                     pnp_inliers=self.pnp.n_inliers, pnp_points=self.pnp.n_points,
+                     pnp_rmse_px=self.pnp.reprojection_rmse_px)
+        if self.distance_m is not None:
+            d["distance_m"] = self.distance_m
+        return d
 
 
 @dataclass(frozen=True)
@@ -104,7 +154,7 @@ class VisualLoopCloser:
     on_candidate: CandidateHook | None = None
     vocabulary_source: str = ""
     features: list | None = None
-    records: list[dict] = field(default_factory=list)
+    records: list[LoopCandidate] = field(default_factory=list)
     closures: list[PoseClosure] = field(default_factory=list)
 
     def __post_init__(self):
@@ -118,8 +168,8 @@ class VisualLoopCloser:
     def stats(self) -> dict:
         """Counts over :attr:`records`: candidates (queries with a candidate match),
         verified (passed the detector's geometry), redundant, pnp_rejected, closures."""
-        stages = [r["stage"] for r in self.records]
-        return {"candidates": sum(r["match"] is not None for r in self.records),
+        stages = [r.stage for r in self.records]
+        return {"candidates": sum(r.match is not None for r in self.records),
                 "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
                 "redundant": stages.count("redundant"), "pnp_rejected": stages.count("pnp"),
                 "closures": len(self.closures)}
@@ -143,37 +193,32 @@ class VisualLoopCloser:
             loop = self.detector.process_features(pre.xy_px, pre.descriptors)
         if len(self.detector.records) == n_records:
             return None  # too early for any query: nothing happened
-        record = self.detector.records[-1].to_dict()
-        record["stage"] = "accepted" if loop is not None else "detector"
-        record["pnp_accepted"] = None
-        result = None
+        record = LoopCandidate(self.detector.records[-1],
+                               "accepted" if loop is not None else "detector",
+                               accepted=self.detector.records[-1].accepted,
+                               reason=self.detector.records[-1].reason)
         closure = None
         links = None
-        shared = 0 if loop is None else len(np.intersect1d(self._frames[int(loop.match)].track_ids,
-                                                           np.asarray(obs.track_ids, np.int64)))
-        record["shared_tracks"] = None if loop is None else shared
+        if loop is not None:
+            record.shared_tracks = len(np.intersect1d(self._frames[int(loop.match)].track_ids,
+                                                      np.asarray(obs.track_ids, np.int64)))
         need = self.config.redundant_shared_tracks
-        if loop is not None and need and shared >= need:
-            record.update(stage="redundant", accepted=False,
-                          reason=f"redundant: {shared} landmarks of frame {loop.match} "
-                                 "already re-observed")
+        if loop is not None and need and record.shared_tracks >= need:
+            record.stage, record.accepted = "redundant", False
+            record.reason = (f"redundant: {record.shared_tracks} landmarks of frame {loop.match} "
+                             "already re-observed")
             loop = None
         if loop is not None:
-            result, links = self._metric_pose(loop.match, image, tracking, backend)
-            record.update(pnp_accepted=result.accepted, pnp_reason=result.reason,
-                          pnp_matches=result.n_matches, pnp_inliers=result.n_inliers,
-                          pnp_points=result.n_points,
-                          pnp_rmse_px=result.reprojection_rmse_px)
-            if result.accepted:
-                closure = PoseClosure(frame_a=int(loop.match), frame_b=int(k), aTb=result.aTb,
-                                      covariance=result.covariance)
+            record.pnp, links = self._metric_pose(loop.match, image, tracking, backend)
+            if record.pnp.accepted:
+                closure = PoseClosure(frame_a=int(loop.match), frame_b=int(k),
+                                      aTb=record.pnp.aTb, covariance=record.pnp.covariance)
                 backend.add_loop_closure(closure)
                 self.closures.append(closure)
-                record["distance_m"] = float(np.linalg.norm(result.aTb[:3, 3]))
+                record.distance_m = float(np.linalg.norm(record.pnp.aTb[:3, 3]))
             else:
-                record["accepted"] = False
-                record["stage"] = "pnp"
-                record["reason"] = "pnp: " + str(result.reason)
+                record.stage, record.accepted = "pnp", False
+                record.reason = "pnp: " + str(record.pnp.reason)
         self.records.append(record)
         if self.on_candidate is not None:
             self.on_candidate(int(k), record, image, links)
@@ -205,7 +250,7 @@ class VisualLoopCloser:
         path = Path(path)
         with path.open("w", encoding="utf-8") as fh:
             for r in self.records:
-                fh.write(json.dumps(r, default=_json_default) + "\n")
+                fh.write(json.dumps(r.to_dict(), default=_json_default) + "\n")
         return path
 
 

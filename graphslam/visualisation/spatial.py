@@ -196,21 +196,23 @@ class VisualRecorder:
 
         return on_candidate
 
-    def log_loop_candidate(self, k: int, record: dict, image: np.ndarray, links, sequence) -> None:
-        """One candidate on the timeline; both images side by side when it got a pose."""
+    def log_loop_candidate(self, k: int, record, image: np.ndarray, links, sequence) -> None:
+        """One :class:`~graphslam.pipelines.loop_closing.LoopCandidate` on the timeline;
+        both images side by side when it got a pose."""
         rr = self._rr
         self._set_time(k)
-        fate = "ACCEPTED" if record.get("accepted") else f"rejected: {record.get('reason')}"
-        match = record.get("match")
-        text = (f"query {k} match {match if match is not None else record.get('best_match')} "
-                f"score {record.get('score', 0.0):.3f} "
-                f"eta {record.get('normalised_score') or 0.0:.2f} "
-                f"inliers {record.get('n_inliers')} pnp {record.get('pnp_inliers')}: {fate}")
-        level = "INFO" if record.get("accepted") else "DEBUG"
+        det = record.detector
+        fate = "ACCEPTED" if record.accepted else f"rejected: {record.reason}"
+        match = record.match
+        text = (f"query {k} match {match if match is not None else det.best_match} "
+                f"score {det.score:.3f} eta {det.normalised_score or 0.0:.2f} "
+                f"inliers {det.n_inliers} pnp {None if record.pnp is None else record.pnp.n_inliers}"
+                f": {fate}")
+        level = "INFO" if record.accepted else "DEBUG"
         self.rec.log("loops/candidates", rr.TextLog(text, level=level))
-        self.rec.log("plots/loops/score", rr.Scalars(float(record.get("score") or 0.0)))
-        if record.get("normalised_score") is not None:
-            self.rec.log("plots/loops/normalised_score", rr.Scalars(float(record["normalised_score"])))
+        self.rec.log("plots/loops/score", rr.Scalars(float(det.score or 0.0)))
+        if det.normalised_score is not None:
+            self.rec.log("plots/loops/normalised_score", rr.Scalars(float(det.normalised_score)))
         if links is None or match is None:
             return
         other = sequence.load(int(match))
@@ -221,7 +223,7 @@ class VisualRecorder:
                      if self.jpeg_quality else im)
         segs = np.asarray(links, dtype=np.float64).reshape(-1, 2, 2).copy()
         segs[:, 1, 0] += W
-        color = FOUND_COLOR if record.get("accepted") else MISSED_COLOR
+        color = FOUND_COLOR if record.accepted else MISSED_COLOR
         self.rec.log("loops/pair/inliers", rr.LineStrips2D(list(segs), colors=[color], radii=0.8))
 
     def log_loop_closures(self, backend: str, estimate, closures, color=(255, 0, 255)) -> None:
