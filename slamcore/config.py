@@ -1,15 +1,33 @@
-"""Frozen-dataclass configuration, loadable from TOML or YAML.
+"""Frozen-dataclass configuration, loadable from TOML or YAML, checked in one place.
 
-A config file has one table per section, each named as the section's
-dataclass expects (``[synthetic]``, ``[isam2]``, ``[run]``, ...). Unknown keys
-are refused with the file name, so a typo never silently does nothing.
+A config file has one table per section, each named by the ``SECTION`` of the
+dataclass it configures (``[synthetic]``, ``[isam2]``, ...); a field that is
+itself a config dataclass is a sub-table (``[loops.orb]``). A file is parsed
+once per run into a :class:`ConfigFile`; every section is taken from it with
+:meth:`ConfigFile.section` (defaults, then the file, then command-line
+overrides). Unknown sections and keys are refused naming the file and line, so
+a typo never silently does nothing.
+
+Values are checked by :func:`validate`, which every config dataclass calls from
+its ``__post_init__``, so a config built in code is held to the same rules as
+one read from a file:
+
+- the type hint: ``int``, ``float``, ``bool``, ``str``, tuples of those, an
+  optional (``X | None``) or a nested config;
+- enum-like string modes: a ``typing.Literal`` hint lists the allowed values;
+- ranges: field metadata ``{"min": a, "max": b}`` (inclusive) or
+  ``{"gt": a, "lt": b}`` (exclusive), via :func:`bounded`; integers must also
+  fit what the machine can index (:data:`INT_LIMIT`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 import tomllib
 import typing
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -17,51 +35,19 @@ from slamcore.errors import ConfigError
 
 T = TypeVar("T")
 
-
-def read_config_file(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML (``.toml``) or YAML (``.yaml``/``.yml``) file into a dict."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: config file not found")
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".toml":
-            with path.open("rb") as f:
-                data = tomllib.load(f)
-        elif suffix in (".yaml", ".yml"):
-            import yaml  # imported here: only YAML users pay for it
-
-            with path.open("r", encoding="utf-8") as f:
-                data = yaml.safe_load(f) or {}
-        else:
-            raise ConfigError(f"{path}: config must be .toml, .yaml or .yml")
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: {e}") from None
-    except ConfigError:
-        raise
-    except Exception as e:  # yaml.YAMLError and friends carry line info in str(e)
-        raise ConfigError(f"{path}: {' '.join(str(e).split())}") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: top level must be a table of sections")
-    return data
+#: Largest integer a config value may hold: counts and sizes index numpy arrays
+#: (int64), and anything near this is a typo or an attack, not a setting.
+INT_LIMIT = 2**62
 
 
-def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
-    """Build dataclass ``cls`` from ``data``, refusing unknown keys and bad types."""
-    data = dict(data or {})
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {unknown} for [{section_name(cls)}]; "
-                          f"known: {sorted(names)}")
-    kwargs = {}
-    for key, value in data.items():
-        kwargs[key] = _coerce(value, hints[key], f"{where}: [{section_name(cls)}] {key}")
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"{where}: [{section_name(cls)}] {e}") from None
+def bounded(default: Any = dataclasses.MISSING, *, min: float | None = None,
+            max: float | None = None, gt: float | None = None, lt: float | None = None,
+            default_factory: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field with range metadata that :func:`validate` checks."""
+    meta = {k: v for k, v in (("min", min), ("max", max), ("gt", gt), ("lt", lt)) if v is not None}
+    if default_factory is not dataclasses.MISSING:
+        return field(default_factory=default_factory, metadata=meta)
+    return field(default=default, metadata=meta)
 
 
 def section_name(cls: type) -> str:
@@ -69,42 +55,244 @@ def section_name(cls: type) -> str:
     return getattr(cls, "SECTION", cls.__name__.lower())
 
 
-def load_section(cls: type[T], path: str | Path | None, overrides: dict[str, Any] | None = None) -> T:
-    """Defaults, then the file's section (if a file is given), then ``overrides``."""
-    data: dict[str, Any] = {}
-    where = "command line"
-    if path is not None:
-        data.update(read_config_file(path).get(section_name(cls), {}) or {})
-        where = str(path)
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return from_dict(cls, data, where)
+def choices_of(cls: type, name: str) -> tuple | None:
+    """Allowed values of a ``Literal``-typed field, or None."""
+    hint = typing.get_type_hints(cls)[name]
+    if typing.get_origin(hint) is typing.Literal:
+        return typing.get_args(hint)
+    return None
 
 
-def _coerce(value: Any, hint: Any, what: str) -> Any:
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
+# --------------------------------------------------------------------------- checking values
+
+def _is_config(hint: Any) -> bool:
+    return isinstance(hint, type) and dataclasses.is_dataclass(hint)
+
+
+def _check_value(value: Any, hint: Any, what: str) -> Any:
+    """``value`` coerced to ``hint`` (int -> float only), or ConfigError."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
         if value is None and type(None) in args:
             return None
-        non_none = [a for a in args if a is not type(None)]
-        return _coerce(value, non_none[0], what)
+        return _check_value(value, next(a for a in args if a is not type(None)), what)
+    if origin is typing.Literal:
+        if not isinstance(value, str) and not isinstance(value, type(args[0])):
+            raise ConfigError(f"{what} must be one of {list(args)}, got {value!r}")
+        if value not in args:
+            raise ConfigError(f"{what} must be one of {list(args)}, got {value!r}")
+        return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{what}: expected a list, got {value!r}")
         inner = args[0] if args else float
-        return tuple(_coerce(v, inner, what) for v in value)
+        return tuple(_check_value(v, inner, what) for v in value)
+    if _is_config(hint):
+        if not isinstance(value, hint):
+            raise ConfigError(f"{what}: expected a [{section_name(hint)}] table, got {value!r}")
+        return value
     if hint is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{what}: expected true/false, got {value!r}")
         return value
     if hint in (int, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{what}: expected a number, got {value!r}")
-        if hint is int and float(value) != int(value):
-            raise ConfigError(f"{what}: expected an integer, got {value!r}")
-        return hint(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{what}: expected a string, got {value!r}")
-        return value
+        return _check_number(value, hint, what)
+    if hint is str and not isinstance(value, str):
+        raise ConfigError(f"{what}: expected a string, got {value!r}")
     return value
+
+
+def _check_number(value: Any, hint: type, what: str) -> int | float:
+    import numpy as np  # numpy scalars are accepted as numbers
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                       np.floating)):
+        raise ConfigError(f"{what}: expected a number, got {value!r}")
+    if hint is int:
+        if isinstance(value, (float, np.floating)) and not (math.isfinite(value)
+                                                            and float(value).is_integer()):
+            raise ConfigError(f"{what}: expected an integer, got {value!r}")
+        if abs(value) > INT_LIMIT:
+            raise ConfigError(f"{what}: {value!r} is beyond what this machine can hold "
+                              f"(|value| <= 2**62)")
+        return int(value)
+    if not math.isfinite(float(value)):
+        raise ConfigError(f"{what}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _check_range(value: Any, meta: typing.Mapping, what: str) -> None:
+    if value is None or not meta:
+        return
+    lo, hi, gt, lt = (meta.get(k) for k in ("min", "max", "gt", "lt"))
+    vals = value if isinstance(value, tuple) else (value,)
+    for v in vals:
+        if ((lo is not None and v < lo) or (hi is not None and v > hi)
+                or (gt is not None and not v > gt) or (lt is not None and not v < lt)):
+            parts = [f">= {lo}" if lo is not None else "", f"> {gt}" if gt is not None else "",
+                     f"<= {hi}" if hi is not None else "", f"< {lt}" if lt is not None else ""]
+            raise ConfigError(f"{what} must be {' and '.join(p for p in parts if p)}, "
+                              f"got {value!r}")
+
+
+def validate(config: Any) -> None:
+    """Check every field of a config dataclass against its hint and range metadata.
+
+    Call from ``__post_init__``; values are normalised in place (an integer
+    given for a float field becomes a float).
+    """
+    cls = type(config)
+    hints = typing.get_type_hints(cls)
+    section = section_name(cls)
+    for f in dataclasses.fields(cls):
+        what = f"{section}.{f.name}"
+        value = _check_value(getattr(config, f.name), hints[f.name], what)
+        _check_range(value, f.metadata, what)
+        object.__setattr__(config, f.name, value)
+
+
+# --------------------------------------------------------------------------- files
+
+def _toml_lines(text: str) -> dict[tuple[str, ...], int]:
+    """1-based line of each ``[table]`` and ``key =`` of a TOML text, by dotted path."""
+    lines: dict[tuple[str, ...], int] = {}
+    table: tuple[str, ...] = ()
+    for n, raw in enumerate(text.splitlines(), start=1):
+        s = raw.split("#", 1)[0].strip()
+        m = re.fullmatch(r"\[\[?\s*([^\]]+?)\s*\]\]?", s)
+        if m:
+            table = tuple(p.strip().strip('"') for p in m.group(1).split("."))
+            lines.setdefault(table, n)
+            continue
+        m = re.match(r"([A-Za-z0-9_\-.\"]+)\s*=", s)
+        if m:
+            key = tuple(p.strip().strip('"') for p in m.group(1).split("."))
+            lines.setdefault(table + key, n)
+    return lines
+
+
+def _yaml_lines(text: str) -> dict[tuple[str, ...], int]:
+    """1-based line of each mapping key of a YAML text, by dotted path."""
+    import yaml
+
+    lines: dict[tuple[str, ...], int] = {}
+
+    def walk(node, prefix):
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                key = prefix + (str(k.value),)
+                lines.setdefault(key, k.start_mark.line + 1)
+                walk(v, key)
+
+    walk(yaml.compose(text), ())
+    return lines
+
+
+def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int]]:
+    suffix = path.suffix.lower()
+    try:
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not a key
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read config file: {e}", path) from None
+    try:
+        if suffix == ".toml":
+            return tomllib.loads(text), _toml_lines(text)
+        if suffix in (".yaml", ".yml"):
+            import yaml  # imported here: only YAML users pay for it
+
+            return yaml.safe_load(text) or {}, _yaml_lines(text)
+    except tomllib.TOMLDecodeError as e:
+        m = re.search(r"at line (\d+)", str(e))
+        raise ConfigError(str(e), path, int(m.group(1)) if m else None) from None
+    except Exception as e:  # yaml.YAMLError carries its own mark
+        mark = getattr(e, "problem_mark", None)
+        raise ConfigError(" ".join(str(getattr(e, "problem", None) or e).split()), path,
+                          None if mark is None else mark.line + 1) from None
+    raise ConfigError("config must be .toml, .yaml or .yml", path)
+
+
+@dataclass(frozen=True)
+class ConfigFile:
+    """A parsed config file (or none): sections by name, and where each key was written.
+
+    Build with :meth:`read` once per run and take sections from it with
+    :meth:`section`; :meth:`check_sections` refuses sections nothing reads.
+    """
+
+    path: Path | None = None
+    data: dict = field(default_factory=dict)
+    lines: dict = field(default_factory=dict)
+
+    @classmethod
+    def read(cls, path: str | Path | None) -> "ConfigFile":
+        """Parse ``path`` (TOML or YAML); ``None`` gives an empty config."""
+        if path is None:
+            return cls()
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError("config file not found", path)
+        data, lines = _parse(path)
+        if not isinstance(data, dict):
+            raise ConfigError("top level must be a table of sections", path, 1)
+        for name, value in data.items():
+            if not isinstance(value, dict):
+                raise ConfigError(f"[{name}] must be a table of settings, got {value!r}", path,
+                                  lines.get((str(name),)))
+        return cls(path, data, lines)
+
+    def line_of(self, *keys: str) -> int | None:
+        return self.lines.get(tuple(keys))
+
+    def check_sections(self, known: typing.Iterable[str]) -> None:
+        """Refuse a section that no component reads (a typo would do nothing)."""
+        known = sorted(set(known))
+        for name in self.data:
+            if name not in known:
+                raise ConfigError(f"unknown section [{name}]; known sections: "
+                                  f"{', '.join(known)}", self.path, self.line_of(name))
+
+    def section(self, cls: type[T], overrides: dict[str, Any] | None = None) -> T:
+        """Defaults of ``cls``, then the file's section, then non-None ``overrides``."""
+        name = section_name(cls)
+        data = dict(self.data.get(name, {}) or {})
+        data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+        return self._build(cls, data, (name,))
+
+    def _build(self, cls: type[T], data: dict, where: tuple[str, ...]) -> T:
+        hints = typing.get_type_hints(cls)
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ConfigError(f"unknown key(s) {unknown} in [{'.'.join(where)}]; known: "
+                              f"{sorted(names)}", self.path, self.line_of(*where, unknown[0]))
+        kwargs = {}
+        for key, value in data.items():
+            hint = hints[key]
+            if _is_config(hint) and isinstance(value, dict):
+                value = self._build(hint, value, where + (key,))
+            try:
+                kwargs[key] = _check_value(value, hint, f"{'.'.join(where)}.{key}")
+            except ConfigError as e:
+                raise ConfigError(str(e), self.path, self.line_of(*where, key)) from None
+        try:
+            return cls(**kwargs)
+        except ConfigError as e:
+            if self.path is None or e.path is not None:
+                raise
+            key = next((k for k in kwargs if f".{k} " in f"{e} " or f".{k}:" in str(e)), None)
+            raise ConfigError(str(e), self.path,
+                              self.line_of(*where, key) if key else self.line_of(*where)) from None
+        except (TypeError, ValueError) as e:
+            raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
+
+
+def load_section(cls: type[T], source: "ConfigFile | str | Path | None",
+                 overrides: dict[str, Any] | None = None) -> T:
+    """One section: ``source`` is a :class:`ConfigFile`, a file path, or None (defaults)."""
+    config = source if isinstance(source, ConfigFile) else ConfigFile.read(source)
+    return config.section(cls, overrides)
+
+
+def from_dict(cls: type[T], data: dict[str, Any] | None) -> T:
+    """Build ``cls`` from a plain dict (no file), refusing unknown keys and bad values."""
+    return ConfigFile(data={section_name(cls): dict(data or {})}).section(cls)

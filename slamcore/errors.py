@@ -13,8 +13,8 @@ class GraphSlamError(Exception):
     """Base class of every error the toolkit raises on purpose."""
 
 
-class InputError(GraphSlamError):
-    """Bad input data: names the file and (when known) the 1-based line."""
+class LocatedError(GraphSlamError):
+    """An error in a file: names the file and (when known) the 1-based line."""
 
     def __init__(self, message: str, path: str | Path | None = None, line: int | None = None):
         self.path = None if path is None else str(path)
@@ -27,8 +27,12 @@ class InputError(GraphSlamError):
         super().__init__(where + message)
 
 
-class ConfigError(GraphSlamError):
-    """A configuration file or option that cannot be used."""
+class InputError(LocatedError):
+    """Bad input data: names the file and (when known) the 1-based line."""
+
+
+class ConfigError(LocatedError):
+    """A configuration file or option that cannot be used (file and line when from a file)."""
 
 
 class MeasurementError(GraphSlamError):

@@ -1,0 +1,109 @@
+"""Configuration loading and checking (slamcore.config), on toy config classes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
+
+import pytest
+
+from slamcore.config import ConfigFile, bounded, choices_of, from_dict, load_section, validate
+from slamcore.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Inner:
+    SECTION: ClassVar[str] = "inner"
+    n_features: int = bounded(100, min=1)
+
+    def __post_init__(self):
+        validate(self)
+
+
+@dataclass(frozen=True)
+class Outer:
+    SECTION: ClassVar[str] = "outer"
+    mode: Literal["fast", "exact"] = "fast"
+    sigma_m: float = bounded(0.1, gt=0.0)
+    probability: float = bounded(0.99, gt=0.0, lt=1.0)
+    count: int = bounded(3, min=0)
+    name: str | None = None
+    inner: Inner = field(default_factory=Inner)
+
+    def __post_init__(self):
+        validate(self)
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_defaults_file_and_overrides_in_that_order(tmp_path):
+    p = _write(tmp_path, "c.toml", "[outer]\ncount = 7\nsigma_m = 2\n[outer.inner]\nn_features = 5\n")
+    cfg = load_section(Outer, p, {"count": 9, "mode": None})
+    assert cfg == Outer(mode="fast", sigma_m=2.0, count=9, inner=Inner(5))
+    assert isinstance(cfg.sigma_m, float)  # an integer in the file becomes the field's float
+
+
+def test_file_is_parsed_once_and_sections_come_from_it(tmp_path):
+    p = _write(tmp_path, "c.toml", "[outer]\ncount = 1\n")
+    config = ConfigFile.read(p)
+    p.unlink()  # nothing reads the file again
+    assert config.section(Outer).count == 1 and config.section(Inner) == Inner()
+
+
+@pytest.mark.parametrize("name, text, line, words", [
+    ("c.toml", "[outer]\ncount = 1\n\n[outr]\nx = 1\n", 4, "unknown section [outr]"),
+    ("c.toml", "[outer]\ncount = 1\ncuont = 2\n", 3, "unknown key(s) ['cuont']"),
+    ("c.toml", "[outer]\n[outer.inner]\nn_feature = 2\n", 3, "unknown key(s) ['n_feature']"),
+    ("c.toml", "[outer]\nmode = \"slow\"\n", 2, "outer.mode must be one of ['fast', 'exact']"),
+    ("c.toml", "[outer]\ncount = -1\n", 2, "outer.count must be >= 0"),
+    ("c.toml", "[outer]\nprobability = 1.0\n", 2, "outer.probability must be > 0.0 and < 1.0"),
+    ("c.toml", "[outer]\ncount = 1.5\n", 2, "expected an integer"),
+    ("c.toml", "[outer]\ncount = 100000000000000000000\n", 2, "beyond what this machine"),
+    ("c.toml", "[outer]\nsigma_m = \"big\"\n", 2, "expected a number"),
+    ("c.toml", "[outer]\ncount = \n", 2, ""),  # TOML syntax error keeps its line
+    ("c.toml", "outer = 3\n", 1, "[outer] must be a table"),
+    ("c.yaml", "outer:\n  count: 1\n  cuont: 2\n", 3, "unknown key(s) ['cuont']"),
+    ("c.yaml", "outer:\n  mode: slow\n", 2, "must be one of"),
+    ("c.yaml", "outer: [1, 2\n", 2, ""),
+])
+def test_bad_files_name_file_and_line(tmp_path, name, text, line, words):
+    p = _write(tmp_path, name, text)
+    with pytest.raises(ConfigError) as e:
+        config = ConfigFile.read(p)
+        config.check_sections(["outer", "inner"])
+        config.section(Outer)
+    assert e.value.path == str(p) and e.value.line == line, str(e.value)
+    assert words in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_byte_order_mark_is_not_part_of_the_first_section(tmp_path):
+    p = tmp_path / "bom.toml"
+    p.write_bytes("\ufeff[outer]\ncount = 4\n".encode("utf-8"))
+    config = ConfigFile.read(p)
+    config.check_sections(["outer"])
+    assert config.section(Outer).count == 4
+
+
+def test_code_built_configs_are_checked_the_same_way():
+    with pytest.raises(ConfigError, match="outer.mode must be one of"):
+        Outer(mode="slow")
+    with pytest.raises(ConfigError, match="inner.n_features must be >= 1"):
+        Inner(0)
+    with pytest.raises(ConfigError, match="expected true/false|expected a number"):
+        Outer(count=True)
+    assert choices_of(Outer, "mode") == ("fast", "exact")
+    assert from_dict(Outer, {"count": 2}).count == 2
+    with pytest.raises(ConfigError, match="unknown key"):
+        from_dict(Outer, {"bogus": 2})
+
+
+def test_missing_file_is_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="config file not found"):
+        ConfigFile.read(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="must be .toml, .yaml or .yml"):
+        ConfigFile.read(_write(tmp_path, "c.ini", "[outer]\n"))
