@@ -64,6 +64,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam.outputs import writers
 
     from graphslam.cli.common import check_rerun_flags, close_recorder, open_recorder, rerun_sink
+    from graphslam.visualisation.plots import plot_comparison
 
     check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
