@@ -1,4 +1,5 @@
-"""What every command shares: exit statuses and the summary-table formatting."""
+"""What every command shares: exit statuses, the summary-table formatting and the
+Rerun sink checks (a viewer that cannot be used becomes a saved recording)."""
 
 from __future__ import annotations
 
@@ -29,3 +30,62 @@ def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) 
         print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK
+
+
+def warn(message: str) -> None:
+    """One ``graphslam: warning:`` line on stderr."""
+    print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
+
+
+def check_rerun_flags(args) -> None:
+    """Refuse Rerun flags that would do nothing, and a malformed ``--rerun-url``,
+    before any work."""
+    from graphslam.visualisation.recording import parse_viewer_url
+    from slamcore.errors import ConfigError
+
+    if args.rerun_url is not None:
+        if args.rerun != "connect":
+            raise ConfigError("--rerun-url applies to --rerun connect only")
+        parse_viewer_url(args.rerun_url)
+    every = getattr(args, "rerun_every", None)
+    if every is not None:
+        if args.rerun == "off":
+            raise ConfigError("--rerun-every applies only when a recording is made "
+                              "(not with --rerun off)")
+        if every < 1:
+            raise ConfigError("--rerun-every must be at least 1")
+
+
+def rerun_sink(mode: str, url: str | None, file_name: str) -> str:
+    """The stream a run will use: ``mode``, or "save" (after one warning line)
+    when the viewer to spawn or connect to cannot be used."""
+    from graphslam.visualisation.recording import sink_problem
+
+    problem = sink_problem(mode, url)
+    if problem is None:
+        return mode
+    warn(f"{problem}; saving {file_name} in the output folder instead")
+    return "save"
+
+
+def open_recorder(open_fn, mode: str, path: Path, url: str | None):
+    """``(recorder, mode used)``: ``open_fn(mode, path, url)``, falling back to
+    saving ``path`` when the viewer fails to start after all."""
+    from graphslam.visualisation.recording import ViewerUnavailable
+
+    try:
+        return open_fn(mode, path, url), mode
+    except ViewerUnavailable as e:
+        warn(f"{e}; saving {path.name} instead")
+        return open_fn("save", path, None), "save"
+
+
+def close_recorder(recorder) -> None:
+    """Close a recorder; a viewer that stopped taking the stream is a warning
+    (the run's files are written by then)."""
+    from graphslam.visualisation.recording import ViewerUnavailable
+
+    try:
+        recorder.close()
+    except ViewerUnavailable as e:
+        warn(str(e))

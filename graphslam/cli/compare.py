@@ -16,7 +16,10 @@ datasets:
   w10000          w10000 Manhattan pose graph (gtsam wheel)
   PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
 
-outputs (in --out): compare.json, compare.png, compare.rrd
+outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
+  spawn/connect, when no viewer can be started or reached: a warning and
+  compare.rrd saved instead); files of these names that a run will not write
+  (compare.rrd with --rerun off) are removed first, other files never
 
 examples:
   graphslam compare
@@ -39,7 +42,8 @@ def register(sub) -> None:
     p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS,
                        metavar="NAME", help=f"back ends to run (default: all of {', '.join(BACKENDS)})")
     p.add_argument("--seed", type=int, default=None,
-                       help="seed of the synthetic world and of particle filters")
+                       help="seed of the synthetic world and of particle filters (refused "
+                            "when neither is in the comparison)")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-compare)")
     p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
@@ -59,11 +63,23 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam.pipelines import compare
     from graphslam.outputs import writers
 
+    from graphslam.cli.common import check_rerun_flags, close_recorder, open_recorder, rerun_sink
+    from graphslam.visualisation.plots import plot_comparison
+
+    check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
+    if (args.seed is not None and args.dataset != "synthetic"
+            and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
+        raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
+                             "none of the back ends draws random numbers")
+    rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)
     out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-compare"
     out_dir.mkdir(parents=True, exist_ok=True)
+    writers.remove_stale_outputs(out_dir, {"compare.json", "compare.png"}
+                                 | ({"compare.rrd"} if rerun_mode == "save" else set()),
+                                 writers.COMPARE_OUTPUT_NAMES)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
         dataset, args.backends, config_path=args.config, overrides=overrides,
@@ -73,13 +89,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     writers.write_json(out_dir / "compare.json",
                        {"dataset": dataset.name, "runs": [e.metrics for e in entries]})
     outputs = ["compare.json", plot_comparison(entries, dataset, out_dir / "compare.png").name]
-    if args.rerun != "off":
+    if rerun_mode != "off":
         from graphslam.visualisation.planar import RunRecorder
 
-        recorder = RunRecorder.open(args.rerun, out_dir / "compare.rrd", args.rerun_url)
+        recorder, rerun_mode = open_recorder(RunRecorder.open, rerun_mode,
+                                             out_dir / "compare.rrd", args.rerun_url)
         recorder.record_comparison(entries, dataset)
-        recorder.close()
-        if args.rerun == "save":
+        close_recorder(recorder)
+        if rerun_mode == "save":
             outputs.append("compare.rrd")
     skipped = {e.backend: e.metrics["loop_closures_skipped"] for e in entries
                if e.metrics.get("loop_closures_skipped")}

@@ -193,10 +193,10 @@ def pose_statistics(dataset: Dataset, estimate: Estimate) -> dict:
     err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
     out["final_pose_error_m"] = float(np.linalg.norm(err[-1, :2]))
     if est.pose_covariances is not None:
-        nees = nees(err, est.pose_covariances)
+        nees_k = nees(err, est.pose_covariances)
         lo, hi = chi2_bounds(3, 1, NEES_CONFIDENCE)
-        out["nees_mean"] = float(np.mean(nees))
-        out["nees_in_bounds_fraction"] = float(np.mean((nees >= lo) & (nees <= hi)))
+        out["nees_mean"] = float(np.mean(nees_k))
+        out["nees_in_bounds_fraction"] = float(np.mean((nees_k >= lo) & (nees_k <= hi)))
     return out
 
 

@@ -68,3 +68,27 @@ def write_json(path: Path, data: dict) -> None:
     with open(path, "w", encoding="utf-8") as f:
         json.dump(_jsonable(data), f, indent=2, sort_keys=False)
         f.write("\n")
+
+
+#: Files ``graphslam run`` may write into ``--out``.
+RUN_OUTPUT_NAMES = ("trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json",
+                    "run.rrd", "loops.csv", "loops.jsonl")
+#: Files ``graphslam compare`` may write into ``--out``.
+COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")
+
+
+def remove_stale_outputs(out_dir: Path, will_write: set[str] | frozenset[str],
+                         known: tuple[str, ...] = RUN_OUTPUT_NAMES) -> list[Path]:
+    """Delete the files of ``known`` names in ``out_dir`` that this run will not
+    write, so a folder never mixes two runs' outputs; return what was removed.
+
+    Only our own output names are touched, never other files, and only plain
+    files (a folder of that name is left alone).
+    """
+    removed = []
+    for name in known:
+        p = Path(out_dir) / name
+        if name not in will_write and p.is_file():
+            p.unlink()
+            removed.append(p)
+    return removed

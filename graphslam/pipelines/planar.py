@@ -128,8 +128,18 @@ def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarr
 
 
 def compute_metrics(result: RunResult, *, seed: int | None = None,
-                    with_graph_error: bool = True) -> dict:
-    """The metrics of ``metrics.json`` for one run."""
+                    with_graph_error: bool = True,
+                    ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
+                    wall_s: float | None = None) -> dict:
+    """The metrics of ``metrics.json`` for one run.
+
+    Args:
+        ground_truth: ``(pose_ids (M,), wTb (M, 3))`` to score against instead
+            of the dataset's own (``--ground-truth``); ATE is over the common ids.
+        wall_s: the whole run's time (loading, running, scoring), seconds;
+            without it ``wall_s`` is the back end's ``backend_s``. ``steps_per_s``
+            is always the back end's rate.
+    """
     from graphslam.evaluation import planar as metrics
 
     est = result.estimate
@@ -142,7 +152,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         "final_error": None,
         "ate_rmse_m": None,
         "odometry_ate_rmse_m": None,
-        "wall_s": result.wall_s,
+        "wall_s": result.wall_s if wall_s is None else wall_s,
+        "backend_s": result.wall_s,
         "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
         "interrupted": result.interrupted,
         "loop_closures_skipped": result.loop_closures_skipped,
@@ -151,7 +162,7 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         from graphslam.backends.gtsam_convert import graph_error
 
         out["final_error"] = graph_error(result.dataset, est)
-    gt = result.dataset.ground_truth()
+    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     if gt is not None:
         out["ate_rmse_m"] = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
@@ -162,20 +173,33 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
     return out
 
 
-def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict) -> dict[str, Path]:
-    """Write ``trajectory.tum``, ``landmarks.csv`` and ``metrics.json``; return their paths."""
+def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict,
+                  ground_truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
+    """Write ``trajectory.tum``, ``landmarks.csv``, ``metrics.json`` and, when the
+    run has truth (``ground_truth`` or the dataset's), ``ground_truth.tum`` for the
+    run's poses with the same time column; return their paths."""
     from graphslam.outputs import writers
 
     out_dir.mkdir(parents=True, exist_ok=True)
     est = result.estimate
+    run_frames = result.dataset.frames[: result.steps]
     if result.dataset.has_timestamps:
-        stamp_of = {f.pose_id: f.stamp_s for f in result.dataset.frames[: result.steps]}
+        stamp_of = {f.pose_id: f.stamp_s for f in run_frames}
         stamps = np.array([stamp_of[int(i)] for i in est.pose_ids], dtype=float)
     else:
+        stamp_of = {f.pose_id: float(f.pose_id) for f in run_frames}
         stamps = est.pose_ids.astype(float)
     paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
              "metrics": out_dir / "metrics.json"}
     writers.write_tum_planar(paths["trajectory"], stamps, est.wTb)
+    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
+    if gt is not None:
+        in_run = np.array([int(i) in stamp_of for i in gt[0]], dtype=bool)
+        if np.any(in_run):
+            paths["ground_truth"] = out_dir / "ground_truth.tum"
+            writers.write_tum_planar(paths["ground_truth"],
+                                     np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
+                                     np.asarray(gt[1])[in_run])
     writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
     writers.write_json(paths["metrics"], run_metrics)
     return paths

@@ -5,11 +5,31 @@ only modules that import rerun.
 
 from __future__ import annotations
 
+import os
+import shutil
+import socket
+import sys
+import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import numpy as np
 
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, GraphSlamError
+
+#: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
+#: URL schemes the Rerun SDK accepts, with the port a URL without one means.
+VIEWER_URL_SCHEMES = {"rerun+http": 80, "rerun+https": 443, "rerun": 443}
+#: gRPC port of a viewer we spawn.
+SPAWN_PORT = 9876
+#: How long a viewer's port is given to answer: before the run (connect), after
+#: starting one (spawn), seconds.
+CONNECT_TIMEOUT_S = 1.0
+SPAWN_WAIT_S = 5.0
+#: Longest wait for a viewer to take the last of the stream at the end, seconds:
+#: a viewer that went away must not keep the command from exiting.
+FLUSH_TIMEOUT_S = 10.0
 
 #: chi-square 95 % quantile with 2 degrees of freedom.
 CHI2_2DOF_95 = 5.991464547107979
@@ -27,6 +47,85 @@ def ellipse_points(centers: np.ndarray, covariances: np.ndarray,
     vals, vecs = np.linalg.eigh(covariances)
     axes = vecs * np.sqrt(np.clip(vals, 0.0, None) * chi2)[:, None, :]  # (M, 2, 2)
     return centers[:, None, :] + np.einsum("mij,jp->mpi", axes, _CIRCLE)
+
+
+class ViewerUnavailable(GraphSlamError):
+    """The Rerun viewer a run was to stream to cannot be started or reached."""
+
+
+def parse_viewer_url(url: str) -> tuple[str, int]:
+    """``(host, port)`` of a viewer gRPC URL such as :data:`DEFAULT_VIEWER_URL`.
+
+    Raises:
+        ConfigError: not a ``rerun+http://``, ``rerun+https://`` or ``rerun://``
+            URL with a host and the ``/proxy`` path (what the SDK would refuse
+            only after the run).
+    """
+    parts = urlsplit(url.strip())
+    try:
+        port = parts.port
+    except ValueError:
+        port = -1
+    if (parts.scheme not in VIEWER_URL_SCHEMES or not parts.hostname or port == -1
+            or parts.path.rstrip("/") != "/proxy"):
+        raise ConfigError(f"Rerun viewer URL {url!r} is not like {DEFAULT_VIEWER_URL} "
+                          f"(schemes: {', '.join(VIEWER_URL_SCHEMES)}; path /proxy)")
+    return parts.hostname, port or VIEWER_URL_SCHEMES[parts.scheme]
+
+
+def find_viewer() -> str | None:
+    """Path of the ``rerun`` viewer executable: on PATH, else beside this interpreter
+    (a virtualenv's ``bin/``, which is not on PATH when its console script is run
+    by its full path)."""
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+    return str(beside) if beside.is_file() and os.access(beside, os.X_OK) else None
+
+
+def _port_answers(host: str, port: int, timeout_s: float) -> str | None:
+    """None when a TCP connection to ``host:port`` succeeds, else why not."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return None
+    except OSError as e:
+        return e.strerror or type(e).__name__
+
+
+def sink_problem(mode: str, url: str | None = None) -> str | None:
+    """Why the stream of ``mode`` cannot be used on this machine, or None.
+
+    ``spawn`` needs the viewer executable (:func:`find_viewer`) and, on Linux,
+    a display to open its window on; ``connect`` needs a viewer answering at
+    ``url`` within :data:`CONNECT_TIMEOUT_S`. ``save`` and ``off`` always work.
+
+    Raises:
+        ConfigError: ``url`` is malformed (:func:`parse_viewer_url`).
+    """
+    if mode == "spawn":
+        if find_viewer() is None:
+            return "no Rerun viewer executable ('rerun') on PATH or beside the interpreter"
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                     or os.environ.get("WAYLAND_DISPLAY")):
+            return "no display to open a Rerun viewer on (DISPLAY and WAYLAND_DISPLAY unset)"
+    elif mode == "connect":
+        url = url or DEFAULT_VIEWER_URL
+        host, port = parse_viewer_url(url)
+        why = _port_answers(host, port, CONNECT_TIMEOUT_S)
+        if why is not None:
+            return f"no Rerun viewer answers at {url} ({why})"
+    return None
+
+
+def _wait_for_port(host: str, port: int, wait_s: float) -> bool:
+    deadline = time.monotonic() + wait_s
+    while True:
+        if _port_answers(host, port, 0.2) is None:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.1)
 
 
 class RerunLog:
@@ -49,11 +148,23 @@ class RerunLog:
                 raise ConfigError("rerun: mode 'save' needs a path")
             self.rec.save(str(path))
         elif mode == "spawn":
-            self.rec.spawn()
+            # Started by path (it may not be on PATH) and without connecting, so a
+            # viewer that dies at once (no display) is noticed here, not as a
+            # stream that never drains at the end of the run.
+            exe = find_viewer()
+            if exe is None:
+                raise ViewerUnavailable("no Rerun viewer executable ('rerun') found")
+            rr.spawn(port=SPAWN_PORT, connect=False, executable_path=exe, recording=self.rec)
+            if not _wait_for_port("127.0.0.1", SPAWN_PORT, SPAWN_WAIT_S):
+                raise ViewerUnavailable(f"the Rerun viewer started ({exe}) did not open "
+                                        f"port {SPAWN_PORT} within {SPAWN_WAIT_S:.0f} s")
+            self.rec.connect_grpc(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy")
         elif mode == "connect":
-            self.rec.connect_grpc(url) if url else self.rec.connect_grpc()
+            parse_viewer_url(url or DEFAULT_VIEWER_URL)
+            self.rec.connect_grpc(url or DEFAULT_VIEWER_URL)
         else:
             raise ConfigError(f"rerun: unknown mode {mode!r} (save, spawn, connect)")
+        self.mode = mode
         self.path = path
 
     def set_step(self, step: int, stamp_s: float | None = None) -> None:
@@ -62,5 +173,16 @@ class RerunLog:
             self.rec.set_time("time", duration=float(stamp_s))
 
     def close(self) -> None:
-        self.rec.flush()
+        """Flush and close the stream.
+
+        Raises:
+            ViewerUnavailable: a viewer stopped taking the stream; after at most
+                :data:`FLUSH_TIMEOUT_S` the rest is dropped.
+        """
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S if self.mode != "save" else 1e38)
+        except RuntimeError as e:
+            self.rec.disconnect()
+            raise ViewerUnavailable(f"the Rerun viewer stopped taking the stream; the "
+                                    f"recording is incomplete ({str(e).splitlines()[0]})") from None
         self.rec.disconnect()

@@ -30,11 +30,27 @@ visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
   recognition ([loops], [loop_verify], [loop_pnp] of --config) and writes
   loops.csv (query,match,score,inliers) and loops.jsonl (every candidate)
 
+ground truth: built in for synthetic, synthetic-images, city10000, KITTI
+  (poses.txt, or dataset/poses/NN.txt of the KITTI odometry layout), TUM and
+  EuRoC folders; --ground-truth FILE gives (or replaces) it: TUM (t x y z qx
+  qy qz qw), KITTI (12 numbers a line, one per frame) or EuRoC CSV, told from
+  the content; images match by timestamp (TUM, EuRoC; frame index for
+  sequences without times) or frame number (KITTI), 2-D poses by pose id
+  (TUM time column; x, y and yaw)
+
 outputs (in --out):
-  trajectory.tum  TUM format; time column = pose id where the data has no stamps
-  landmarks.csv   id,x,y
-  metrics.json    final_error (gtsam graph error), ate_rmse_m, wall_s, ...
-  run.rrd         Rerun recording (open with: rerun run.rrd)
+  trajectory.tum    TUM format; time column = pose id where the data has no stamps
+  ground_truth.tum  the truth of the same poses, same time column (when there is
+                    truth): evo_ape tum ground_truth.tum trajectory.tum
+  landmarks.csv     id,x,y
+  metrics.json      final_error (gtsam graph error), ate_rmse_m, wall_s (the whole
+                    run), backend_s / processing_s (the estimator alone), ...
+  run.rrd           Rerun recording (open with: rerun run.rrd); with --rerun
+                    spawn/connect, when no viewer can be started or reached, a
+                    warning and run.rrd is saved instead
+  A run first removes files of these names (and loops.csv, loops.jsonl) that
+  it will not write itself, left in --out by an earlier run; other files are
+  never touched.
 
 examples:
   graphslam run
@@ -62,15 +78,19 @@ def register(sub) -> None:
     p.add_argument("--backend", default="isam2", choices=BACKENDS,
                        help="estimator (default: isam2)")
     p.add_argument("--seed", type=int, default=None,
-                       help="seed of the synthetic world (default: config file, else 0)")
+                       help="seed of the synthetic worlds, derived odometry, FastSLAM's "
+                            "particles and the visual EKF's RANSAC (default: config file, "
+                            "else 0); refused where nothing is random")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-<backend>)")
     p.add_argument("--config", type=Path, default=None,
                        help="TOML or YAML file with [synthetic], [isam2] sections")
     p.add_argument("--max-steps", type=int, default=None, metavar="N",
                        help="stop after N frames")
+    p.add_argument("--ground-truth", type=Path, default=None, metavar="FILE",
+                       help="trajectory to score against: TUM, KITTI or EuRoC (see below)")
     p.add_argument("--no-polish", action="store_true",
-                       help="skip the final batch Levenberg-Marquardt polish (iSAM2)")
+                       help="skip the final batch Levenberg-Marquardt polish (isam2 only)")
     p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
                        help="save run.rrd in --out (default), spawn a viewer, connect to a "
                             "running one, or log nothing")
@@ -78,7 +98,8 @@ def register(sub) -> None:
                        help="viewer gRPC URL for --rerun connect "
                             "(default: rerun+http://127.0.0.1:9876/proxy)")
     p.add_argument("--rerun-every", type=int, default=None, metavar="N",
-                       help="log the full estimate every N steps (default: about 50 snapshots)")
+                       help="log the full estimate every N steps (default: about 50 "
+                            "snapshots; image sequences: every 5 frames)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     vis = p.add_argument_group("image sequences")
     vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
@@ -90,7 +111,8 @@ def register(sub) -> None:
     vis.add_argument("--odometry-noise", type=float, nargs=2, default=None,
                      metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
                      help="derived odometry noise: translation sigma per metre travelled and "
-                          "rotation sigma per frame in degrees (default 0.02 0.1)")
+                          "rotation sigma per frame in degrees (default 0.02 0.1); refused "
+                          "when the odometry is not derived")
     vis.add_argument("--loops", action="store_true",
                      help="detect loop closures (bag of words, RANSAC, metric pose by PnP on the "
                           "map) and add them to the back end as robust factors (isam2 only); "
@@ -105,7 +127,12 @@ def register(sub) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
+    from graphslam.cli.common import check_rerun_flags, rerun_sink
 
+    check_rerun_flags(args)
+    # Decided before any work: a viewer that cannot be used costs one warning
+    # line and a saved recording, not the run.
+    args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
     if registry.is_visual_dataset(args.dataset):
         from graphslam.cli.run import spatial
 

@@ -21,11 +21,14 @@ features of the frames the run will see (as ``graphslam loops`` does).
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
-from graphslam.cli.common import fmt, report_outputs, summary_table
+from graphslam.cli.common import (
+    close_recorder, fmt, open_recorder, report_outputs, summary_table,
+)
 from slamcore.config import load_section
-from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
 SELF_TRAINED_WORDS = 1000
@@ -47,58 +50,102 @@ def _backend_overrides(args, mode: str) -> dict:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
-    """The visual ``graphslam run``; returns the exit status."""
+def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
+    """Flags that would have no effect on this visual run are refused, one line each.
+
+    ``mode`` is the odometry the run uses (``auto`` resolved).
+    """
+    if args.odometry_noise is not None and mode != "derived":
+        used = "the sequence's own odometry" if mode == "sequence" else "no odometry"
+        raise ConfigError(f"--odometry-noise sets the noise of derived odometry; this run uses "
+                          f"{used} (--odometry {mode})")
+    if args.no_polish and args.backend != "isam2":
+        raise ConfigError(f"--no-polish applies to the isam2 back end only (its final batch "
+                          f"polish); {args.backend} has none")
+    if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
+            and args.backend != "ekf"):
+        raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "
+                          f"not derived and {args.backend} draws no random numbers")
+
+
+def _tracker(args, backend):
+    """``(tracker config, tracker)`` from ``--config`` and ``--frontend``."""
     from frontend.active_search import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
     from frontend.tracking import Tracker, TrackerConfig
+
+    cfg = load_section(TrackerConfig, args.config, {"detector": args.frontend})
+    follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
+    return cfg, Tracker(cfg, active_search=load_section(ActiveSearchConfig, args.config),
+                        harris=load_section(HarrisConfig, args.config),
+                        orb=load_section(OrbConfig, args.config), follow_unmapped=follow)
+
+
+def _load_sequence(args):
+    """The image sequence of ``--dataset``, with ``--ground-truth`` if given."""
     from graphslam import registry
+
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config_path=args.config)
+    if args.ground_truth is not None:
+        from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
+
+        sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
+    return sequence
+
+
+def run(args: argparse.Namespace) -> int:
+    """The visual ``graphslam run``; returns the exit status."""
+    from graphslam import registry
+    from graphslam.outputs.writers import remove_stale_outputs
     from graphslam.pipelines import spatial as vp
 
+    t0 = time.perf_counter()
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
     if args.backend not in registry.VISUAL_BACKENDS:
         raise GraphSlamError(f"back end {args.backend!r} does not run on image sequences "
                              f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})")
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config_path=args.config)
+    sequence = _load_sequence(args)
     run_cfg = load_section(vp.VisualRunConfig, args.config, {"odometry": args.odometry})
     noise_over = {"seed": args.seed}
     if args.odometry_noise is not None:
         noise_over.update(sigma_t_per_m=args.odometry_noise[0], sigma_r_deg=args.odometry_noise[1])
     noise = load_section(vp.OdometryNoiseConfig, args.config, noise_over)
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
+    refuse_ignored_flags(args, mode)
     backend = registry.make_visual_backend(args.backend, config_path=args.config,
                                            overrides=_backend_overrides(args, mode))
-    tracker_cfg = load_section(TrackerConfig, args.config, {"detector": args.frontend})
-    follow = tracker_cfg.follow_unmapped
-    tracker = Tracker(tracker_cfg,
-                      active_search=load_section(ActiveSearchConfig, args.config),
-                      harris=load_section(HarrisConfig, args.config),
-                      orb=load_section(OrbConfig, args.config),
-                      follow_unmapped=backend.needs_track_history if follow is None else follow)
+    tracker_cfg, tracker = _tracker(args, backend)
 
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    recorder = None
-    hook = None
-    if args.rerun != "off":
+    loops = args.loops or args.vocab is not None
+    remove_stale_outputs(out_dir, {"trajectory.tum", "landmarks.csv", "metrics.json"}
+                         | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
+                         | ({"run.rrd"} if args.rerun == "save" else set())
+                         | ({"loops.csv", "loops.jsonl"} if loops else set()))
+    recorder = hook = None
+    rerun_mode = args.rerun
+    if rerun_mode != "off":
         from graphslam.visualisation.spatial import VisualRecorder
 
-        recorder = VisualRecorder.open(args.rerun, out_dir / "run.rrd", args.rerun_url)
+        recorder, rerun_mode = open_recorder(VisualRecorder.open, rerun_mode,
+                                             out_dir / "run.rrd", args.rerun_url)
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
     closer = None
-    if args.loops or args.vocab is not None:
+    if loops:
         closer = _loop_closer(args, sequence, backend, n_frames,
                               None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
                     frontend=tracker_cfg.detector, loop_closer=closer)
-    metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None))
+    metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
+                                 wall_s=time.perf_counter() - t0)
     metrics["backend"] = args.backend
     metrics["backend_class"] = result.backend
     if closer is not None:
@@ -112,9 +159,10 @@ def run(args: argparse.Namespace) -> int:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
         if closer is not None:
             recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
-        recorder.close()
-        if args.rerun == "save":
+        close_recorder(recorder)
+        if rerun_mode == "save":
             paths["recording"] = out_dir / "run.rrd"
+    remove_stale_outputs(out_dir, {p.name for p in paths.values()})
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
 
@@ -173,6 +221,7 @@ def format_summary(m: dict) -> str:
          f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}"),
         ("path length [m]", fmt(m["path_length_m"], ".2f")),
         ("wall time [s]", fmt(m["wall_s"], ".2f")),
+        ("tracking + back end [s]", fmt(m.get("processing_s"), ".2f")),
         ("frames/s", fmt(m["frames_per_s"], ".1f")),
     ]
     stats = m.get("backend_stats") or {}

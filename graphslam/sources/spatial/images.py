@@ -4,7 +4,10 @@ Every reader returns an :class:`ImageSequence` (numpy + OpenCV only, no gtsam):
 ordered image paths, timestamps, intrinsics ``K`` (3, 3), distortion, optional
 ground truth ``wTc_true`` (N, 4, 4, camera-to-world: ``p_w = wTc @ p_c``,
 camera looking along +z) and the image size ``(W, H)``. Images are read lazily
-by :meth:`ImageSequence.load` as (H, W) uint8 greyscale.
+by :meth:`ImageSequence.load` as (H, W) uint8 greyscale, with the distortion
+the calibration states (TUM fr1/fr2 presets, EuRoC
+``distortion_coefficients``, an intrinsics file's distortion line) removed, so
+``K`` is a pinhole model of what it returns.
 
 Bad input raises :class:`~slamcore.errors.InputError` naming the file and, for
 a malformed line, its 1-based line number; a missing file or a count mismatch

@@ -6,6 +6,13 @@
 * ``poses.txt``: one line per frame, 12 numbers, the row-major 3x4 ``wTc_k``
   mapping points of camera 0 at frame k into camera 0 at frame 0 (the world).
 * ``times.txt``: one time in seconds per frame.
+
+Ground truth is ``poses.txt`` in the sequence folder or, in the KITTI odometry
+download's own layout (``dataset/sequences/07/`` beside ``dataset/poses/07.txt``),
+``../../poses/<sequence>.txt``. ``times.txt`` and the poses file may cover more
+frames than the folder holds (a few frames copied out of a sequence): the
+frames are then picked by the number in each image's file name (``000042.png``
+is frame 42).
 """
 
 from __future__ import annotations
@@ -56,6 +63,29 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
     return wTc
 
 
+def kitti_poses_path(folder: Path) -> Path | None:
+    """The sequence's ground-truth file: ``poses.txt`` beside the images, else
+    ``dataset/poses/<name>.txt`` of the KITTI odometry layout; None if neither."""
+    for p in (folder / "poses.txt", folder.parent.parent / "poses" / f"{folder.name}.txt"):
+        if p.is_file():
+            return p
+    return None
+
+
+def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path,
+               source: Path) -> np.ndarray:
+    """``rows`` (one per frame of the sequence) for the images present: all of
+    them when the counts agree, else those of the frame numbers in the names."""
+    if len(rows) == len(paths):
+        return rows
+    stems = [Path(p).stem for p in paths]
+    if len(rows) > len(paths) and all(s.isdigit() for s in stems):
+        numbers = np.array([int(s) for s in stems])
+        if numbers.max() < len(rows):
+            return rows[numbers]
+    raise InputError(f"{len(rows)} {what} but {len(paths)} images in {img_dir}", source)
+
+
 def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
     """A KITTI odometry sequence folder (``image_<camera>/``, ``calib.txt``, ...)."""
     folder = Path(folder)
@@ -71,14 +101,11 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
     if tpath.is_file():
         lines = read_lines(tpath, "KITTI times.txt")
         stamps = np.array([parse_floats(t, tpath, n, 1, "time in seconds")[0] for n, t in lines])
-        if stamps.size != len(paths):
-            raise InputError(f"{stamps.size} timestamps but {len(paths)} images in {img_dir}", tpath)
+        stamps = _per_image(stamps, paths, "timestamps", img_dir, tpath)
     wTc = None
-    ppath = folder / "poses.txt"
-    if ppath.is_file():
-        wTc = read_kitti_poses(ppath)
-        if len(wTc) != len(paths):
-            raise InputError(f"{len(wTc)} poses but {len(paths)} images in {img_dir}", ppath)
+    ppath = kitti_poses_path(folder)
+    if ppath is not None:
+        wTc = _per_image(read_kitti_poses(ppath), paths, "poses", img_dir, ppath)
         if camera != 0:
             wTc = wTc @ c0Tck
     return ImageSequence(f"kitti-{folder.name}", paths, stamps, K, None, wTc,

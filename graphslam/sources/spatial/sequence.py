@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -34,8 +34,10 @@ class ImageSequence:
         name: short name for reports ("kitti", "tum-rgbd", "euroc", "folder", ...).
         image_paths: (N,) image file paths in time order.
         stamps_s: (N,) timestamps in seconds, or ``None``.
-        K: (3, 3) intrinsic matrix (pixels; pixel centres at integer coordinates).
-        distortion: OpenCV distortion coefficients ``(k1, k2, p1, p2[, k3...])`` or ``None``.
+        K: (3, 3) intrinsic matrix (pixels; pixel centres at integer coordinates)
+            of the images :meth:`load` returns: a pinhole model, distortion removed.
+        distortion: OpenCV distortion coefficients ``(k1, k2, p1, p2[, k3...])``
+            of the files on disk, or ``None``; :meth:`load` undoes them.
         wTc_true: (N, 4, 4) camera-to-world ground truth, or ``None``.
         image_size: ``(W, H)`` in pixels.
         source_path: the folder the sequence came from, if any.
@@ -49,6 +51,10 @@ class ImageSequence:
     wTc_true: np.ndarray | None
     image_size: tuple[int, int]
     source_path: str | None = None
+    #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
+    #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
+    _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False,
+                                                  compare=False)
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -57,13 +63,57 @@ class ImageSequence:
     def has_ground_truth(self) -> bool:
         return self.wTc_true is not None
 
-    def load(self, i: int) -> np.ndarray:
-        """Image ``i`` as (H, W) uint8 greyscale; an unreadable file raises InputError."""
+    @property
+    def is_distorted(self) -> bool:
+        """Whether the files carry lens distortion (a non-zero coefficient)."""
+        return self.distortion is not None and bool(np.any(np.asarray(self.distortion) != 0))
+
+    def load_raw(self, i: int) -> np.ndarray:
+        """Image ``i`` as stored, (H, W) uint8 greyscale; an unreadable file raises InputError."""
         path = self.image_paths[i]
         img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
         if img is None:
             raise InputError("cannot read image (missing or not an image)", path)
         return img
+
+    def load(self, i: int) -> np.ndarray:
+        """Image ``i`` as (H, W) uint8 greyscale, undistorted: a pinhole image with ``K``.
+
+        Why the images and not the points: everything after the reader, the
+        corner detectors, active search around the back ends' predictions,
+        ORB matching for loops, the Rerun overlays, works in pixels of a
+        pinhole camera. Removing the distortion from the image once, here,
+        keeps all of them right without each having to undistort detections
+        and distort predictions. ``K`` stays the camera matrix of the output
+        (``newCameraMatrix = K``), so no consumer sees a different model; the
+        remap maps are built once per sequence and cost one ``cv2.remap`` per
+        frame. Pixels that fall outside the stored image repeat the border
+        (``BORDER_REPLICATE``) so no artificial black edge gives the
+        detectors corners that do not exist.
+        """
+        img = self.load_raw(i)
+        maps = self._maps(img.shape)
+        if not maps:
+            return img
+        if maps[0].shape[:2] != img.shape[:2]:
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, the sequence's first "
+                             f"is {maps[0].shape[1]}x{maps[0].shape[0]}", self.image_paths[i])
+        return cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
+
+    def _maps(self, shape_hw: tuple[int, ...]):
+        """The undistortion maps for (H, W) images, or ``False`` when there is no distortion."""
+        if self._undistort_maps is None:
+            maps: tuple | bool = False
+            if self.is_distorted:
+                size_wh = (int(shape_hw[1]), int(shape_hw[0]))
+                K = np.asarray(self.K, dtype=np.float64)
+                maps = cv2.initUndistortRectifyMap(
+                    K, np.asarray(self.distortion, dtype=np.float64).reshape(-1), None, K,
+                    size_wh, cv2.CV_16SC2)
+            # frozen record: the cache is the one field written after construction
+            object.__setattr__(self, "_undistort_maps", maps)
+        return self._undistort_maps
 
 
 def read_lines(path: Path, what: str) -> list[tuple[int, str]]:

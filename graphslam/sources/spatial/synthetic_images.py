@@ -398,6 +398,8 @@ class SyntheticImageSequence(ImageSequence):
         """Frame ``i`` as (H, W) uint8 greyscale (rendered, deterministic)."""
         return self.render(i)[0]
 
+    load_raw = load  # rendered through the pinhole K: nothing to undistort
+
     def render(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """``(image (H, W) uint8, depth (H, W) float32 metres, inf where empty)`` of frame ``i``."""
         n = len(self.image_paths)

@@ -1,0 +1,184 @@
+"""Ground-truth trajectory files (``--ground-truth FILE``) and their association
+with an image sequence's frames or a 2-D dataset's poses (numpy only).
+
+Formats, told apart by the content (the ``.csv`` extension also says EuRoC):
+
+* **TUM**: ``t x y z qx qy qz qw`` a line (spaces), the camera-to-world pose
+  at time ``t`` (seconds; for pose graphs and sequences without timestamps,
+  the pose id or frame index, as our own ``trajectory.tum`` writes it);
+* **KITTI**: 12 numbers a line, the row-major 3x4 ``wTc`` of frame k on line
+  k (no times: associated by frame index);
+* **EuRoC** ``state_groundtruth_estimate0/data.csv``: ``timestamp [ns], px,
+  py, pz, qw, qx, qy, qz, ...`` separated by commas (the body pose; the
+  camera extrinsics of ``sensor.yaml`` are not applied here).
+
+Association: an image sequence takes, per frame, the truth with the nearest
+timestamp within :data:`~graphslam.sources.spatial.sequence.ASSOCIATION_MAX_DT_S`
+(TUM, EuRoC) or the line of its frame number (KITTI: the number in the image
+file name when every name is one, else the position); frames without truth
+are dropped, as the TUM and EuRoC readers do. A 2-D dataset takes the truth
+of each pose by its pose id (TUM time column, KITTI line number), or by its
+timestamp when the dataset has real ones, keeping x, y and the yaw.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.sources.spatial.sequence import (
+    ASSOCIATION_MAX_DT_S, ImageSequence, associate, parse_floats, quat_to_rotation, read_lines,
+)
+from slamcore.errors import InputError
+from slamcore.planar.records import Dataset
+
+TRAJECTORY_FORMATS = ("tum", "kitti", "euroc")
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Poses read from a ground-truth file.
+
+    Attributes:
+        format: ``"tum"``, ``"kitti"`` or ``"euroc"``.
+        stamps_s: (N,) time column in seconds (TUM as written, EuRoC ns / 1e9),
+            None for KITTI.
+        wTc: (N, 4, 4) camera- (or body-) to-world poses, in file order.
+        path: the file.
+    """
+
+    format: str
+    stamps_s: np.ndarray | None
+    wTc: np.ndarray
+    path: str
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def detect_format(path: Path, first_line: str) -> str:
+    """``"euroc"`` (commas or ``.csv``), ``"kitti"`` (12 numbers) or ``"tum"`` (8)."""
+    if path.suffix.lower() == ".csv" or "," in first_line:
+        return "euroc"
+    n = len(first_line.split())
+    if n == 12:
+        return "kitti"
+    if n == 8:
+        return "tum"
+    raise InputError(f"cannot tell the ground-truth format: {n} numbers a line (TUM has 8: "
+                     "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated)", path)
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """A ground-truth file in any of :data:`TRAJECTORY_FORMATS` (module doc)."""
+    path = Path(path)
+    lines = read_lines(path, "ground-truth file")
+    if not lines:
+        raise InputError("no poses in the ground-truth file", path)
+    fmt = detect_format(path, lines[0][1])
+    stamps, poses = [], []
+    for n, text in lines:
+        if fmt == "kitti":
+            v = parse_floats(text, path, n, 12, "numbers (KITTI: row-major 3x4 pose)")
+            poses.append(_pose(v.reshape(3, 4)[:, :3], v.reshape(3, 4)[:, 3]))
+        elif fmt == "tum":
+            v = parse_floats(text, path, n, 8, "numbers (TUM: t x y z qx qy qz qw)")
+            stamps.append(v[0])
+            poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n), v[1:4]))
+        else:
+            v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
+            if v.size < 8:
+                raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
+            stamps.append(v[0] * 1e-9)
+            poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), v[1:4]))
+    return Trajectory(fmt, None if fmt == "kitti" else np.array(stamps), np.array(poses),
+                      str(path))
+
+
+def _frame_numbers(sequence: ImageSequence) -> np.ndarray:
+    """(N,) frame number per image: the file name's number (KITTI's 000042.png),
+    else the position in the sequence."""
+    stems = [Path(p).stem for p in sequence.image_paths]
+    if all(s.isdigit() for s in stems):
+        return np.array([int(s) for s in stems], dtype=np.int64)
+    return np.arange(len(stems), dtype=np.int64)
+
+
+def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarray:
+    """(N,) row of ``truth`` per frame of ``sequence``, -1 where it has none."""
+    if truth.stamps_s is None:
+        rows = _frame_numbers(sequence)
+        return np.where(rows < len(truth.wTc), rows, -1)
+    order = np.argsort(truth.stamps_s, kind="stable")
+    if sequence.stamps_s is None:
+        # no image times: the time column is the frame index (our trajectory.tum)
+        frame_t = np.arange(len(sequence), dtype=np.float64)
+        idx = associate(frame_t, truth.stamps_s[order], 0.5)
+    else:
+        idx = associate(np.asarray(sequence.stamps_s, dtype=np.float64),
+                        truth.stamps_s[order], ASSOCIATION_MAX_DT_S)
+    return np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
+
+
+def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequence:
+    """``sequence`` with ``wTc_true`` from ``truth`` (replacing any it had).
+
+    Frames without truth are dropped (module doc); a sequence that brings its
+    own per-frame odometry (the synthetic one) cannot lose frames, so there a
+    missing frame raises InputError, as does no frame matching at all.
+    """
+    rows = _indices_for_frames(truth, sequence)
+    keep = rows >= 0
+    how = "by frame index" if truth.stamps_s is None else "by timestamp"
+    if not np.any(keep):
+        raise InputError(f"no frame of {sequence.name!r} has ground truth ({how})", truth.path)
+    changes: dict = {"wTc_true": truth.wTc[rows[keep]]}
+    if not np.all(keep):
+        if getattr(sequence, "odometry", None) is not None:
+            raise InputError(f"{int(np.sum(~keep))} of {len(keep)} frames have no ground truth "
+                             f"({how}), and {sequence.name!r} cannot drop frames", truth.path)
+        changes["image_paths"] = [p for p, k in zip(sequence.image_paths, keep) if k]
+        if sequence.stamps_s is not None:
+            changes["stamps_s"] = np.asarray(sequence.stamps_s)[keep]
+    return dataclasses.replace(sequence, **changes)
+
+
+def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """``(pose_ids (M,), wTb (M, 3))``: the truth of ``dataset``'s poses, ``[x, y, yaw]``.
+
+    By pose id (TUM time column, KITTI line number) or, when the dataset has
+    real timestamps, by nearest time; poses without truth are left out (ATE
+    is taken over the common ids). InputError when no pose matches.
+    """
+    if truth.format == "euroc":
+        raise InputError("EuRoC ground truth has nanosecond times, not the pose ids of a 2-D "
+                         "dataset; give TUM (t = pose id) or KITTI (line = pose id)", truth.path)
+    ids = np.array([f.pose_id for f in dataset.frames], dtype=np.int64)
+    if truth.stamps_s is None:
+        rows = np.where(ids < len(truth.wTc), ids, -1)
+    elif dataset.has_timestamps:
+        order = np.argsort(truth.stamps_s, kind="stable")
+        t = np.array([f.stamp_s for f in dataset.frames], dtype=np.float64)
+        idx = associate(t, truth.stamps_s[order], ASSOCIATION_MAX_DT_S)
+        rows = np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
+    else:
+        row_of = {}
+        for r, s in enumerate(truth.stamps_s):
+            if float(s).is_integer():
+                row_of[int(s)] = r
+        rows = np.array([row_of.get(int(i), -1) for i in ids], dtype=np.int64)
+    keep = rows >= 0
+    if not np.any(keep):
+        by_time = dataset.has_timestamps and truth.stamps_s is not None
+        raise InputError(f"no pose of {dataset.name!r} has ground truth (matched by "
+                         f"{'time' if by_time else 'pose id'})", truth.path)
+    wTc = truth.wTc[rows[keep]]
+    yaw = np.arctan2(wTc[:, 1, 0], wTc[:, 0, 0])
+    return ids[keep], np.column_stack([wTc[:, 0, 3], wTc[:, 1, 3], yaw])

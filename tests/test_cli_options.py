@@ -1,0 +1,519 @@
+"""Every option of ``graphslam run``, ``compare``, ``loops`` and ``vocab train`` has a
+row here that shows its effect (a quick run with and without it differs) or its
+refusal (exit 2, one line).
+
+The options are read from the argparse parser itself, so an option added
+without a row fails :func:`test_every_option_has_a_row`. Inputs are small: the
+2-D synthetic world for 10 steps, 5 frames of the synthetic image sequence,
+a few KITTI 07 frames and the 10 slambook2 desk images.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from graphslam.cli.main import build_parser, main
+from tests.conftest import SHARED_DATA
+
+KITTI07 = SHARED_DATA / "kitti07"
+DESK = SHARED_DATA / "slambook2_desk" / "images"
+
+RUN_2D = ["run", "--max-steps", "10", "--rerun", "off", "--quiet"]
+RUN_IMAGES = ["run", "--dataset", "synthetic-images", "--backend", "ekf", "--max-steps", "5",
+              "--rerun", "off", "--quiet"]
+COMPARE = ["compare", "--max-steps", "10", "--backends", "isam2", "ekf", "--in-process",
+           "--rerun", "off"]
+
+
+# --------------------------------------------------------------------------- the parser
+
+def _subcommands(parser: argparse.ArgumentParser, prefix: str = ""):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _subcommands(sub, f"{prefix}{name} ")
+            return
+    yield prefix.strip(), parser
+
+
+def command_options() -> set[str]:
+    """``"run --seed"``-style keys of every option of the four commands."""
+    keys = set()
+    for command, parser in _subcommands(build_parser()):
+        if command in ("run", "compare", "loops", "vocab train"):
+            for action in parser._actions:
+                if action.option_strings:
+                    keys.add(f"{command} {max(action.option_strings, key=len)}")
+    return keys
+
+
+# --------------------------------------------------------------------------- running
+
+@dataclass
+class Result:
+    rc: int
+    out: str
+    err: str
+    files: dict[str, bytes] = field(default_factory=dict)
+
+    def text(self, name: str) -> str:
+        return self.files[name].decode()
+
+    def metrics(self) -> dict:
+        return json.loads(self.files["metrics.json"])
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:  # progress bars draw only on a terminal
+        return True
+
+
+class Cli:
+    """Runs ``graphslam`` in this process; each call gets its own output folder."""
+
+    def __init__(self, tmp_path: Path, capsys, monkeypatch):
+        self.tmp = tmp_path
+        self.capsys = capsys
+        self.monkeypatch = monkeypatch
+        self.n = 0
+
+    def path(self, name: str) -> Path:
+        return self.tmp / name
+
+    def __call__(self, *argv: str, tty: bool = False, out: bool = True) -> Result:
+        self.n += 1
+        folder = self.tmp / f"out{self.n}"
+        args = list(argv)
+        if out and args[0] in ("run", "compare") and "--out" not in args:
+            args += ["--out", str(folder)]
+        if tty:
+            with self.monkeypatch.context() as m:
+                fake = _Tty()
+                m.setattr("sys.stderr", fake)
+                rc = main(args)
+                err = fake.getvalue()
+            out_text = self.capsys.readouterr().out
+        else:
+            rc = main(args)
+            cap = self.capsys.readouterr()
+            out_text, err = cap.out, cap.err
+        files = {p.name: p.read_bytes() for p in folder.iterdir()} if folder.is_dir() else {}
+        return Result(rc, out_text, err, files)
+
+
+def refused(res: Result, fragment: str) -> None:
+    assert res.rc == 2, res.err
+    lines = res.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("graphslam: error:"), res.err
+    assert fragment in lines[0], lines[0]
+
+
+def differ(a: Result, b: Result, name: str = "trajectory.tum") -> None:
+    assert a.rc == 0 and b.rc == 0, a.err + b.err
+    assert a.files[name] != b.files[name]
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _square_graph(cli: Cli) -> Path:
+    from tests.test_run_options import _square_graph as square
+
+    return square(cli.tmp)[0]
+
+
+def _truth_of_square(cli: Cli) -> Path:
+    import math
+
+    from tests.test_run_options import _square_graph as square
+
+    _, truth = square(cli.tmp)
+    gt = cli.path("gt.tum")
+    gt.write_text("".join(f"{k} {x} {y} 0 0 0 {math.sin(t / 2)} {math.cos(t / 2)}\n"
+                          for k, (x, y, t) in enumerate(truth)))
+    return gt
+
+
+def _config(cli: Cli, text: str) -> Path:
+    p = cli.path(f"c{abs(hash(text))}.toml")
+    p.write_text(text)
+    return p
+
+
+def _kitti_bare(cli: Cli) -> Path:
+    """KITTI 07 without its poses (links), for derived odometry from --ground-truth."""
+    folder = cli.path("kitti_bare")
+    if not folder.exists():
+        folder.mkdir()
+        for name in ("image_0", "calib.txt", "times.txt"):
+            (folder / name).symlink_to(KITTI07 / name)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def vocab_file(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("vocab") / "desk.voc"
+    assert main(["vocab", "train", str(DESK), "--words", "100", "--out", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
+# --------------------------------------------------------------------------- the table
+
+ROWS: dict[str, Callable] = {}
+
+
+def row(*keys: str):
+    def register(fn):
+        for key in keys:
+            ROWS[key] = fn
+        return fn
+    return register
+
+
+@row("run --help", "compare --help", "loops --help", "vocab train --help")
+def _help(cli, key):
+    command = key.rsplit(" ", 1)[0].split()
+    with pytest.raises(SystemExit) as e:
+        main([*command, "--help"])
+    assert e.value.code == 0
+    assert "usage: graphslam" in cli.capsys.readouterr().out
+
+
+@row("run --dataset")
+def _run_dataset(cli, key):
+    differ(cli(*RUN_2D), cli(*RUN_2D, "--dataset", str(_square_graph(cli))))
+
+
+@row("run --backend")
+def _run_backend(cli, key):
+    differ(cli(*RUN_2D), cli(*RUN_2D, "--backend", "ekf"))
+
+
+@row("run --seed")
+def _run_seed(cli, key):
+    differ(cli(*RUN_2D), cli(*RUN_2D, "--seed", "7"))
+    graph = str(_square_graph(cli))
+    # recorded data: only FastSLAM's particles draw random numbers
+    particles = [*RUN_2D, "--dataset", graph, "--backend", "fastslam1"]
+    differ(cli(*particles), cli(*particles, "--seed", "7"))
+    refused(cli(*RUN_2D, "--dataset", graph, "--seed", "7"), "--seed")
+
+
+@row("run --out")
+def _run_out(cli, key):
+    target = cli.path("here")
+    assert cli(*RUN_2D, "--out", str(target)).rc == 0
+    assert (target / "trajectory.tum").is_file()
+
+
+@row("run --config")
+def _run_config(cli, key):
+    differ(cli(*RUN_2D), cli(*RUN_2D, "--config", str(_config(cli, "[synthetic]\nseed = 5\n"))))
+
+
+@row("run --max-steps")
+def _run_max_steps(cli, key):
+    differ(cli(*RUN_2D), cli(*RUN_2D, "--max-steps", "5"))
+    refused(cli(*RUN_2D, "--max-steps", "0"), "--max-steps")
+
+
+@row("run --ground-truth")
+def _run_ground_truth(cli, key):
+    graph = str(_square_graph(cli))
+    plain = cli(*RUN_2D, "--dataset", graph)
+    scored = cli(*RUN_2D, "--dataset", graph, "--ground-truth", str(_truth_of_square(cli)))
+    assert plain.metrics()["ate_rmse_m"] is None and scored.metrics()["ate_rmse_m"] is not None
+    assert "ground_truth.tum" in scored.files and "ground_truth.tum" not in plain.files
+
+
+@row("run --no-polish")
+def _run_no_polish(cli, key):
+    polished = cli(*RUN_2D, "--max-steps", "40")
+    raw = cli(*RUN_2D, "--max-steps", "40", "--no-polish")
+    assert polished.metrics()["final_error"] != raw.metrics()["final_error"]
+    refused(cli(*RUN_2D, "--backend", "ekf", "--no-polish"), "isam2 back end only")
+
+
+@row("run --rerun")
+def _run_rerun(cli, key):
+    saved = cli(*RUN_2D[:-3], "--quiet")  # default: save
+    assert "run.rrd" in saved.files and "run.rrd" not in cli(*RUN_2D).files
+
+
+@row("run --rerun-url", "compare --rerun-url")
+def _rerun_url(cli, key):
+    base = RUN_2D[:-3] if key.startswith("run") else COMPARE[:-2]
+    url = f"rerun+http://127.0.0.1:{_closed_port()}/proxy"
+    res = cli(*base, "--rerun", "connect", "--rerun-url", url)
+    assert res.rc == 0 and url in res.err and res.err.startswith("graphslam: warning:")
+    refused(cli(*base, "--rerun-url", url), "--rerun connect only")
+
+
+@row("run --rerun-every")
+def _run_rerun_every(cli, key):
+    base = RUN_2D[:-3]
+    every = cli(*base, "--rerun-every", "1")
+    default = cli(*base)
+    assert len(every.files["run.rrd"]) != len(default.files["run.rrd"])
+    refused(cli(*RUN_2D, "--rerun-every", "2"), "--rerun-every")
+
+
+@row("run --quiet")
+def _quiet(cli, key):
+    base = [a for a in RUN_2D if a != "--quiet"]
+    assert "it/s" in cli(*base, tty=True).err or "step/s" in cli(*base, tty=True).err
+    assert cli(*base, "--quiet", tty=True).err == ""
+
+
+@row("run --frontend")
+def _run_frontend(cli, key):
+    differ(cli(*RUN_IMAGES), cli(*RUN_IMAGES, "--frontend", "orb"))
+    refused(cli(*RUN_2D, "--frontend", "orb"), "image sequences only")
+
+
+@row("run --odometry")
+def _run_odometry(cli, key):
+    differ(cli(*RUN_IMAGES), cli(*RUN_IMAGES, "--odometry", "none"))
+    refused(cli(*RUN_2D, "--odometry", "none"), "image sequences only")
+
+
+@row("run --odometry-noise")
+def _run_odometry_noise(cli, key):
+    derived = [*RUN_IMAGES, "--odometry", "derived"]
+    differ(cli(*derived), cli(*derived, "--odometry-noise", "0.1", "0.5"))
+    refused(cli(*RUN_IMAGES, "--odometry-noise", "0.1", "0.5"), "--odometry-noise")
+
+
+@row("run --loops")
+def _run_loops(cli, key):
+    res = cli(*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:], "--loops")
+    assert res.rc == 0, res.err
+    assert {"loops.csv", "loops.jsonl"} <= set(res.files) and "loops" in res.metrics()
+    refused(cli(*RUN_2D, "--loops"), "image sequences only")
+
+
+@row("run --vocab")
+def _run_vocab(cli, key, vocab_file=None):
+    res = cli(*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:], "--vocab", str(vocab_file))
+    assert res.rc == 0, res.err
+    assert res.metrics()["loops"]["vocabulary"] == str(vocab_file)
+    refused(cli(*RUN_2D, "--vocab", str(vocab_file)), "image sequences only")
+
+
+@row("compare --dataset")
+def _compare_dataset(cli, key):
+    a = cli(*COMPARE)
+    b = cli(*COMPARE, "--dataset", str(_square_graph(cli)))
+    differ(a, b, "compare.json")
+
+
+@row("compare --backends")
+def _compare_backends(cli, key):
+    runs = json.loads(cli(*COMPARE[:4], "isam2", *COMPARE[6:]).files["compare.json"])["runs"]
+    assert [r["backend"] for r in runs] == ["isam2"]
+
+
+@row("compare --seed")
+def _compare_seed(cli, key):
+    a = json.loads(cli(*COMPARE).files["compare.json"])["runs"][0]["ate_rmse_m"]
+    b = json.loads(cli(*COMPARE, "--seed", "7").files["compare.json"])["runs"][0]["ate_rmse_m"]
+    assert a != b
+    refused(cli(*COMPARE, "--dataset", str(_square_graph(cli)), "--seed", "7"), "--seed")
+
+
+@row("compare --out")
+def _compare_out(cli, key):
+    target = cli.path("cmp")
+    assert cli(*COMPARE, "--out", str(target)).rc == 0
+    assert (target / "compare.json").is_file()
+
+
+@row("compare --config")
+def _compare_config(cli, key):
+    a = json.loads(cli(*COMPARE).files["compare.json"])["runs"][0]["ate_rmse_m"]
+    cfg = _config(cli, "[synthetic]\nseed = 5\n")
+    b = json.loads(cli(*COMPARE, "--config", str(cfg)).files["compare.json"])["runs"][0]["ate_rmse_m"]
+    assert a != b
+
+
+@row("compare --max-steps")
+def _compare_max_steps(cli, key):
+    runs = json.loads(cli(*COMPARE[:1], *COMPARE[3:], "--max-steps", "5")
+                      .files["compare.json"])["runs"]
+    assert {r["steps"] for r in runs} == {5}
+
+
+@row("compare --rerun")
+def _compare_rerun(cli, key):
+    assert "compare.rrd" in cli(*COMPARE[:-2]).files
+    assert "compare.rrd" not in cli(*COMPARE).files
+
+
+@row("compare --in-process")
+def _compare_in_process(cli, key):
+    base = ["compare", "--max-steps", "10", "--backends", "isam2", "--rerun", "off"]
+    isolated = json.loads(cli(*base).files["compare.json"])["runs"][0]
+    inside = json.loads(cli(*base, "--in-process").files["compare.json"])["runs"][0]
+    assert isolated.get("peak_rss_mb") is not None and inside.get("peak_rss_mb") is None
+
+
+def _loops(cli: Cli, *extra: str, tty: bool = False) -> Result:
+    csv = cli.path(f"loops{cli.n}.csv")
+    res = cli("loops", str(DESK), "--out", str(csv), "--words", "100",
+              *([] if tty else ["--quiet"]), *extra, tty=tty)
+    assert res.rc == 0, res.err
+    res.files["csv"] = csv.read_bytes()
+    return res
+
+
+@row("loops --out")
+def _loops_out(cli, key):
+    res = _loops(cli)
+    assert res.files["csv"].startswith(b"query,match,score,inliers")
+
+
+@row("loops --vocab")
+def _loops_vocab(cli, key, vocab_file=None):
+    assert "training a vocabulary" in _loops(cli).err
+    assert "training a vocabulary" not in _loops(cli, "--vocab", str(vocab_file)).err
+
+
+@row("loops --words")
+def _loops_words(cli, key):
+    assert "100 words" in _loops(cli).err
+    assert "10 words" in _loops(cli, "--words", "10").err
+
+
+@row("loops --intrinsics")
+def _loops_intrinsics(cli, key):
+    # 10 desk images give no loop candidate to verify, so the check is that the
+    # camera reaches the detector's geometric verification (essential matrix).
+    import loopclosure.detector as detector
+
+    seen = []
+    real = detector.LoopDetector
+
+    class Spy(real):
+        def __init__(self, *a, **kw):
+            seen.append(kw.get("K"))
+            super().__init__(*a, **kw)
+
+    cli.monkeypatch.setattr(detector, "LoopDetector", Spy)
+    intr = cli.path("intr.txt")
+    intr.write_text("520 521 320 240\n")
+    _loops(cli)
+    _loops(cli, "--intrinsics", str(intr))
+    assert seen[0] is None and seen[1][1, 1] == 521
+
+
+@row("loops --config")
+def _loops_config(cli, key):
+    # the desk images are all of one scene: with the recency window and the
+    # score thresholds lowered, candidates appear
+    cfg = _config(cli, "[loops]\nexclude_recent = 1\nconsistency_k = 1\n"
+                       "min_normalised_score = 0.0\nmin_prior_score = 0.0\n")
+    _loops(cli, "--log", str(cli.path("a.jsonl")))
+    _loops(cli, "--log", str(cli.path("b.jsonl")), "--config", str(cfg))
+    assert cli.path("a.jsonl").read_text() == ""
+    assert cli.path("b.jsonl").read_text().count("\n") > 0
+
+
+@row("loops --log")
+def _loops_log(cli, key):
+    log = cli.path("cand.jsonl")
+    _loops(cli, "--log", str(log))
+    assert log.is_file()
+
+
+@row("loops --quiet")
+def _loops_quiet(cli, key):
+    assert "img" in _loops(cli, tty=True).err
+    assert "img" not in _loops(cli).err
+
+
+def _train(cli: Cli, *extra: str, tty: bool = False) -> tuple[Result, bytes]:
+    out = cli.path(f"v{cli.n}.voc")
+    res = cli("vocab", "train", str(DESK), "--words", "100", "--out", str(out),
+              *([] if tty else ["--quiet"]), *extra, tty=tty)
+    assert res.rc == 0, res.err
+    return res, out.read_bytes()
+
+
+@row("vocab train --out")
+def _vocab_out(cli, key):
+    assert len(_train(cli)[1]) > 0
+
+
+@row("vocab train --words")
+def _vocab_words(cli, key):
+    assert _train(cli)[1] != _train(cli, "--words", "10")[1]
+
+
+@row("vocab train --flat")
+def _vocab_flat(cli, key):
+    assert _train(cli)[1] != _train(cli, "--flat")[1]
+
+
+@row("vocab train --branching")
+def _vocab_branching(cli, key):
+    assert _train(cli)[1] != _train(cli, "--branching", "5")[1]
+
+
+@row("vocab train --per-image")
+def _vocab_per_image(cli, key):
+    assert _train(cli)[1] != _train(cli, "--per-image", "50")[1]
+
+
+@row("vocab train --seed")
+def _vocab_seed(cli, key):
+    assert _train(cli)[1] != _train(cli, "--seed", "3")[1]
+
+
+@row("vocab train --config")
+def _vocab_config(cli, key):
+    cfg = _config(cli, "[loops]\norb_n_features = 100\n")
+    assert _train(cli)[1] != _train(cli, "--config", str(cfg))[1]
+
+
+@row("vocab train --quiet")
+def _vocab_quiet(cli, key):
+    assert "img" in _train(cli, tty=True)[0].err
+    assert "img" not in _train(cli)[0].err
+
+
+# --------------------------------------------------------------------------- tests
+
+def test_every_option_has_a_row():
+    options = command_options()
+    assert options - set(ROWS) == set(), "options without a row"
+    assert set(ROWS) - options == set(), "rows for options that no longer exist"
+
+
+def test_compare_help_lists_only_2d_datasets(capsys):
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    text = capsys.readouterr().out
+    assert "synthetic-images" not in text and "FOLDER" not in text
+    assert "--frontend" not in text and "--odometry" not in text
+
+
+@pytest.mark.skipif(not DESK.is_dir() or not KITTI07.is_dir(), reason="shared data missing")
+@pytest.mark.parametrize("key", sorted(ROWS))
+def test_option(key, tmp_path, capsys, monkeypatch, request):
+    fn = ROWS[key]
+    kw = {}
+    if "vocab_file" in fn.__code__.co_varnames[:fn.__code__.co_argcount]:
+        kw["vocab_file"] = request.getfixturevalue("vocab_file")
+    fn(Cli(tmp_path, capsys, monkeypatch), key, **kw)
