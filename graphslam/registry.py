@@ -5,9 +5,29 @@ from __future__ import annotations
 from pathlib import Path
 
 from slamcore.planar.backend import Backend
-from slamcore.config import load_section
+from slamcore.config import ConfigFile, load_section
 from slamcore.errors import ConfigError, InputError
 from slamcore.planar.records import Dataset
+
+#: A parsed config file, a path to one, or None (defaults only).
+ConfigSource = ConfigFile | str | Path | None
+
+#: Every section a config file may hold (``tests/test_config_sections.py`` checks
+#: this list against the ``SECTION`` of every config dataclass in the tree).
+CONFIG_SECTIONS = (
+    "synthetic", "isam2", "ekf", "fastslam",  # 2-D worlds and back ends
+    "synthetic_images", "visual", "odometry_noise", "tracker", "active_search", "harris", "orb",
+    "isam2_visual", "mono_ekf",  # image sequences
+    "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
+)
+
+
+def read_config(path: str | Path | None) -> ConfigFile:
+    """Parse ``--config`` once for the whole run; refuse sections nothing reads."""
+    config = ConfigFile.read(path)
+    config.check_sections(CONFIG_SECTIONS)
+    return config
+
 
 #: Built-in datasets; anything else is taken as a pose-graph file path.
 DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
@@ -15,12 +35,12 @@ DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
 BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
-def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None = None) -> Dataset:
+def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None) -> Dataset:
     """Dataset by name or pose-graph file path (``.graph`` TORO, ``.g2o``)."""
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
-        return make_synthetic(load_section(SyntheticConfig, config_path, {"seed": seed}))
+        return make_synthetic(load_section(SyntheticConfig, config, {"seed": seed}))
     if spec == "victoria-park":
         from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 
@@ -42,23 +62,23 @@ def load_dataset(spec: str, *, seed: int | None = None, config_path: Path | None
     return read_pose_graph(path)
 
 
-def make_backend(name: str, *, config_path: Path | None = None,
+def make_backend(name: str, *, config: ConfigSource = None,
                  overrides: dict | None = None) -> Backend:
     """Back end by name, configured from the file's section plus ``overrides``."""
     if name == "isam2":
         from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
 
-        return Isam2Backend(load_section(Isam2Config, config_path, overrides))
+        return Isam2Backend(load_section(Isam2Config, config, overrides))
     if name == "ekf":
         from filters.ekf_slam import EkfSlam, EkfSlamConfig
 
-        return EkfSlam(load_section(EkfSlamConfig, config_path, overrides))
+        return EkfSlam(load_section(EkfSlamConfig, config, overrides))
     if name in ("fastslam1", "fastslam2"):
         from filters.fastslam import FastSlam, FastSlamConfig
 
         # both share the [fastslam] section; the name picks the version
         version = {"version": int(name[-1])}
-        return FastSlam(load_section(FastSlamConfig, config_path, {**(overrides or {}), **version}))
+        return FastSlam(load_section(FastSlamConfig, config, {**(overrides or {}), **version}))
     raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
 
 
@@ -87,28 +107,28 @@ def is_visual_dataset(spec: str) -> bool:
     return spec in VISUAL_DATASETS or Path(spec).is_dir()
 
 
-def load_image_sequence(spec: str, *, seed: int | None = None, config_path: Path | None = None):
+def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSource = None):
     """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``) or folder."""
     if spec == "synthetic-images":
         from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
-        return make_synthetic_images(load_section(SyntheticImagesConfig, config_path, {"seed": seed}))
+        return make_synthetic_images(load_section(SyntheticImagesConfig, config, {"seed": seed}))
     from graphslam.sources.spatial.images import read_image_sequence
 
     return read_image_sequence(Path(spec))
 
 
-def make_visual_backend(name: str, *, config_path: Path | None = None,
+def make_visual_backend(name: str, *, config: ConfigSource = None,
                         overrides: dict | None = None):
     """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
     (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
         from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
 
-        return VisualIsam2Backend(load_section(VisualIsam2Config, config_path, overrides))
+        return VisualIsam2Backend(load_section(VisualIsam2Config, config, overrides))
     if name == "ekf":
         from filters.mono_ekf import MonoEkf, MonoEkfConfig
 
-        return MonoEkf(load_section(MonoEkfConfig, config_path, overrides))
+        return MonoEkf(load_section(MonoEkfConfig, config, overrides))
     raise ConfigError(f"back end {name!r} does not run on image sequences "
                       f"(available: {', '.join(VISUAL_BACKENDS)})")

@@ -279,7 +279,7 @@ class ConfigFile:
         except ConfigError as e:
             if self.path is None or e.path is not None:
                 raise
-            key = next((k for k in kwargs if f".{k} " in f"{e} " or f".{k}:" in str(e)), None)
+            key = next((k for k in kwargs if re.search(rf"\b{re.escape(k)}\b", str(e))), None)
             raise ConfigError(str(e), self.path,
                               self.line_of(*where, key) if key else self.line_of(*where)) from None
         except (TypeError, ValueError) as e:

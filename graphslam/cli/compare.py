@@ -74,7 +74,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
                              "none of the back ends draws random numbers")
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)
+    config = registry.read_config(args.config)
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
     out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-compare"
     out_dir.mkdir(parents=True, exist_ok=True)
     writers.remove_stale_outputs(out_dir, {"compare.json", "compare.png"}
@@ -82,7 +83,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                  writers.COMPARE_OUTPUT_NAMES)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
-        dataset, args.backends, config_path=args.config, overrides=overrides,
+        dataset, args.backends, config=config, overrides=overrides,
         max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
         progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
     print(format_table(entries))

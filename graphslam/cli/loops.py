@@ -67,15 +67,16 @@ def cmd_loops(args: argparse.Namespace) -> int:
         check_vocabulary, describe, detect_all, detect_loops, orb_for, train_vocabulary,
     )
     from graphslam.sources.spatial.sequence import folder_images
-    from slamcore.config import load_section
+    from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
     from loopclosure.verify import VerifyConfig
     from loopclosure.vocabulary import load_vocabulary
 
     t0 = time.perf_counter()
     paths = folder_images(args.images_dir)
-    config = load_section(LoopDetectorConfig, args.config)
-    verify_config = load_section(VerifyConfig, args.config)
+    config = read_config(args.config)
+    detector_config = config.section(LoopDetectorConfig)
+    verify_config = config.section(VerifyConfig)
     K = distortion = None
     if args.intrinsics is not None:
         from graphslam.sources.spatial.calibration import read_intrinsics_file
@@ -88,12 +89,12 @@ def cmd_loops(args: argparse.Namespace) -> int:
         check_vocabulary(vocab, args.vocab)
     else:
         # One ORB pass serves both the training and the detection.
-        features = detect_all(paths, orb_for(config), progress=not args.quiet)
+        features = detect_all(paths, orb_for(detector_config), progress=not args.quiet)
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
-    detector = LoopDetector(vocab, config, verify_config, K=K, distortion=distortion)
+    detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion)
     detect_loops(paths, detector, features, progress=not args.quiet)
 
     from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv

@@ -64,10 +64,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     from graphslam.sources.spatial.sequence import expand_images
     from loopclosure.detector import LoopDetectorConfig
-    from slamcore.config import load_section
+    from graphslam.registry import read_config
 
     paths = expand_images(args.images)
-    orb = orb_for(load_section(LoopDetectorConfig, args.config))
+    orb = orb_for(read_config(args.config).section(LoopDetectorConfig))
     feats = detect_all(paths, orb, progress=not args.quiet)
     t0 = time.perf_counter()
     print(f"training on {len(paths)} images ...", file=sys.stderr, flush=True)

@@ -26,16 +26,16 @@ class CompareEntry:
     metrics: dict
 
 
-def _run_one(dataset: Dataset, name: str, config_path, overrides, max_steps) -> tuple:
-    backend = registry.make_backend(name, config_path=config_path, overrides=overrides)
+def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> tuple:
+    backend = registry.make_backend(name, config=config, overrides=overrides)
     result = pipeline.run(dataset, backend, max_steps=max_steps, with_covariances=True)
     return result
 
 
-def _child(conn, dataset, name, config_path, overrides, max_steps):
+def _child(conn, dataset, name, config, overrides, max_steps):
     try:
         start_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        result = _run_one(dataset, name, config_path, overrides, max_steps)
+        result = _run_one(dataset, name, config, overrides, max_steps)
         peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         result.dataset = None  # the parent has it; don't send it back
         conn.send(("ok", result, (peak_kb - start_kb) / 1024.0))
@@ -47,12 +47,12 @@ def _child(conn, dataset, name, config_path, overrides, max_steps):
         conn.close()
 
 
-def run_isolated(dataset: Dataset, name: str, config_path=None, overrides=None,
+def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
                  max_steps=None) -> tuple[pipeline.RunResult, float]:
     """Run one back end in a forked child; returns its result and peak RSS (MB)."""
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, dataset, name, config_path, overrides,
+    proc = ctx.Process(target=_child, args=(child, dataset, name, config, overrides,
                                             max_steps))
     proc.start()
     child.close()
@@ -74,7 +74,7 @@ def run_isolated(dataset: Dataset, name: str, config_path=None, overrides=None,
     return payload, peak_mb
 
 
-def compare(dataset: Dataset, backends: list[str], *, config_path=None,
+def compare(dataset: Dataset, backends: list[str], *, config=None,
             overrides: dict[str, dict] | None = None, max_steps: int | None = None,
             isolate: bool = True, seed: int | None = None, progress=None) -> list[CompareEntry]:
     """Run each back end on ``dataset``; return results with their metrics.
@@ -91,9 +91,9 @@ def compare(dataset: Dataset, backends: list[str], *, config_path=None,
             progress(name)
         ov = (overrides or {}).get(name, {})
         if isolate:
-            result, peak_mb = run_isolated(dataset, name, config_path, ov, max_steps)
+            result, peak_mb = run_isolated(dataset, name, config, ov, max_steps)
         else:
-            result, peak_mb = _run_one(dataset, name, config_path, ov, max_steps), None
+            result, peak_mb = _run_one(dataset, name, config, ov, max_steps), None
         m = pipeline.compute_metrics(result, seed=seed)
         m["peak_rss_mb"] = peak_mb
         if m.get("association") is not None:

@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     refuse_ignored_flags(args)
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config_path=args.config)
+    config = registry.read_config(args.config)
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
     truth = None
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
-    backend = registry.make_backend(args.backend, config_path=args.config, overrides=overrides)
+    backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum"}

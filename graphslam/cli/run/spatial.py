@@ -27,7 +27,6 @@ from pathlib import Path
 from graphslam.cli.common import (
     close_recorder, fmt, open_recorder, report_outputs, summary_table,
 )
-from slamcore.config import load_section
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
@@ -68,25 +67,25 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
                           f"not derived and {args.backend} draws no random numbers")
 
 
-def _tracker(args, backend):
+def _tracker(args, backend, config):
     """``(tracker config, tracker)`` from ``--config`` and ``--frontend``."""
     from frontend.active_search import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
     from frontend.tracking import Tracker, TrackerConfig
 
-    cfg = load_section(TrackerConfig, args.config, {"detector": args.frontend})
+    cfg = config.section(TrackerConfig, {"detector": args.frontend})
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
-    return cfg, Tracker(cfg, active_search=load_section(ActiveSearchConfig, args.config),
-                        harris=load_section(HarrisConfig, args.config),
-                        orb=load_section(OrbConfig, args.config), follow_unmapped=follow)
+    return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
+                        harris=config.section(HarrisConfig),
+                        orb=config.section(OrbConfig), follow_unmapped=follow)
 
 
-def _load_sequence(args):
+def _load_sequence(args, config):
     """The image sequence of ``--dataset``, with ``--ground-truth`` if given."""
     from graphslam import registry
 
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config_path=args.config)
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config)
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
@@ -106,17 +105,18 @@ def run(args: argparse.Namespace) -> int:
     if args.backend not in registry.VISUAL_BACKENDS:
         raise GraphSlamError(f"back end {args.backend!r} does not run on image sequences "
                              f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})")
-    sequence = _load_sequence(args)
-    run_cfg = load_section(vp.VisualRunConfig, args.config, {"odometry": args.odometry})
+    config = registry.read_config(args.config)
+    sequence = _load_sequence(args, config)
+    run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
     noise_over = {"seed": args.seed}
     if args.odometry_noise is not None:
         noise_over.update(sigma_t_per_m=args.odometry_noise[0], sigma_r_deg=args.odometry_noise[1])
-    noise = load_section(vp.OdometryNoiseConfig, args.config, noise_over)
+    noise = config.section(vp.OdometryNoiseConfig, noise_over)
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
     refuse_ignored_flags(args, mode)
-    backend = registry.make_visual_backend(args.backend, config_path=args.config,
+    backend = registry.make_visual_backend(args.backend, config=config,
                                            overrides=_backend_overrides(args, mode))
-    tracker_cfg, tracker = _tracker(args, backend)
+    tracker_cfg, tracker = _tracker(args, backend, config)
 
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
     closer = None
     if loops:
-        closer = _loop_closer(args, sequence, backend, n_frames,
+        closer = _loop_closer(args, config, sequence, backend, n_frames,
                               None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
 
-def _loop_closer(args, sequence, backend, n_frames: int, on_candidate):
+def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
     """``--loops``/``--vocab``: the vocabulary (loaded, or trained on the run's frames)
     and the loop closer around it."""
     import sys
@@ -181,7 +181,7 @@ def _loop_closer(args, sequence, backend, n_frames: int, on_candidate):
     from loopclosure.vocabulary import load_vocabulary
 
     lc.require_loop_closures(backend)
-    detector_config = load_section(LoopDetectorConfig, args.config)
+    detector_config = config.section(LoopDetectorConfig)
     features = None
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
@@ -195,9 +195,9 @@ def _loop_closer(args, sequence, backend, n_frames: int, on_candidate):
         if not args.quiet:
             print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
     return lc.make_loop_closer(sequence, backend, vocab, detector_config,
-                               load_section(VerifyConfig, args.config),
-                               load_section(PnpConfig, args.config),
-                               load_section(lc.LoopClosingConfig, args.config),
+                               config.section(VerifyConfig),
+                               config.section(PnpConfig),
+                               config.section(lc.LoopClosingConfig),
                                features=features, on_candidate=on_candidate,
                                vocabulary_source=source)
 

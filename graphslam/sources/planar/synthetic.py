@@ -46,6 +46,7 @@ from typing import ClassVar
 import numpy as np
 
 from slamcore.planar.geometry import compose, observe
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
@@ -64,6 +65,12 @@ ODOMETRY_COVARIANCE_FLOOR = np.diag([1e-6, 1e-6, 1e-7])
 #: Prior on the first pose: variance 1e-6 (1 mm, 1 mrad std), i.e. the first
 #: pose is known; it anchors the gauge of the graph.
 PRIOR_VARIANCE = 1e-6
+
+#: Longest run the world may generate: each step holds a frame with its
+#: observations (about 1 kB), so 1e6 steps is already a few GB of frames.
+MAX_STEPS = 1_000_000
+#: More landmarks than this are not a 2-D SLAM benchmark but a memory test.
+MAX_LANDMARKS = 1_000_000
 
 #: Below this |w dt| (rad) the unicycle integration uses Taylor series.
 _SMALL_ANGLE = 1e-4
@@ -84,48 +91,38 @@ class SyntheticConfig:
 
     SECTION: ClassVar[str] = "synthetic"
 
-    seed: int = 0
-    n_landmarks: int = 200
-    route_length_m: float = 120.0
-    route_width_m: float = 80.0
-    corner_radius_m: float = 10.0
-    laps: int = 2
-    world_margin_m: float = 8.0
-    landmark_clearance_m: float = 2.0
-    signature_count: int = 1000
-    speed_mps: float = 1.0
-    dt_s: float = 1.0
-    sensor_range_m: float = 8.0
-    fov_deg: float = 180.0
-    sigma_v_mps: float = 0.05
-    sigma_w_degps: float = 0.1
-    sigma_r_m: float = 0.2
-    sigma_phi_deg: float = 10.0
+    seed: int = bounded(0, min=0)
+    n_landmarks: int = bounded(200, min=1, max=MAX_LANDMARKS)
+    route_length_m: float = bounded(120.0, gt=0.0)
+    route_width_m: float = bounded(80.0, gt=0.0)
+    corner_radius_m: float = bounded(10.0, gt=0.0)
+    laps: int = bounded(2, min=1)
+    world_margin_m: float = bounded(8.0, min=0.0)
+    landmark_clearance_m: float = bounded(2.0, min=0.0)
+    signature_count: int = bounded(1000, min=1)
+    speed_mps: float = bounded(1.0, gt=0.0)
+    dt_s: float = bounded(1.0, gt=0.0)
+    sensor_range_m: float = bounded(8.0, gt=0.0)
+    fov_deg: float = bounded(180.0, gt=0.0, max=360.0)
+    sigma_v_mps: float = bounded(0.05, gt=0.0)
+    sigma_w_degps: float = bounded(0.1, gt=0.0)
+    sigma_r_m: float = bounded(0.2, gt=0.0)
+    sigma_phi_deg: float = bounded(10.0, gt=0.0)
 
     def __post_init__(self):
-        positive = ("route_length_m", "route_width_m", "corner_radius_m", "speed_mps", "dt_s",
-                    "sensor_range_m", "fov_deg", "sigma_v_mps", "sigma_w_degps", "sigma_r_m",
-                    "sigma_phi_deg")
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise ConfigError(f"[synthetic] {name} must be a positive number, got {value!r}")
-        for name in ("world_margin_m", "landmark_clearance_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise ConfigError(f"[synthetic] {name} must be >= 0, got {value!r}")
-        for name, low in (("seed", 0), ("n_landmarks", 1), ("laps", 1), ("signature_count", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"[synthetic] {name} must be an integer >= {low}, got {value!r}")
-        if self.fov_deg > 360.0:
-            raise ConfigError(f"[synthetic] fov_deg must be <= 360, got {self.fov_deg}")
+        validate(self)
         if 2.0 * self.corner_radius_m >= min(self.route_length_m, self.route_width_m):
-            raise ConfigError("[synthetic] corner_radius_m must be less than half of "
+            raise ConfigError("synthetic.corner_radius_m must be less than half of "
                               "route_length_m and route_width_m")
         if self.landmark_clearance_m >= self.world_margin_m + min(self.route_length_m,
                                                                  self.route_width_m) / 2:
-            raise ConfigError("[synthetic] landmark_clearance_m leaves no room for landmarks")
+            raise ConfigError("synthetic.landmark_clearance_m leaves no room for landmarks")
+        perimeter = (2 * (self.route_length_m + self.route_width_m)
+                     - (8 - 2 * np.pi) * self.corner_radius_m)
+        steps = self.laps * perimeter / (self.speed_mps * self.dt_s)
+        if steps > MAX_STEPS:
+            raise ConfigError(f"synthetic.dt_s: the route would take {steps:.3g} steps "
+                              f"(laps x perimeter / (speed_mps x dt_s)); at most {MAX_STEPS:.0e}")
 
     def replace(self, **changes) -> "SyntheticConfig":
         """A copy with ``changes`` applied (validated again)."""
