@@ -265,10 +265,11 @@ def _rerun_url(cli, key):
 def _run_rerun_every(cli, key):
     base = RUN_2D[:-3]
     # 10 steps: the default logs the whole estimate every step (max(1, 10 // 50));
-    # every 5th step logs two snapshots instead of ten, a clearly smaller file
+    # every 5th step logs two snapshots instead of ten: about 9 % smaller (size jitter
+    # between identical runs is under 0.1 %)
     sparse = cli(*base, "--rerun-every", "5")
     default = cli(*base)
-    assert len(sparse.files["run.rrd"]) < 0.8 * len(default.files["run.rrd"])
+    assert len(sparse.files["run.rrd"]) < 0.97 * len(default.files["run.rrd"])
     refused(cli(*RUN_2D, "--rerun-every", "2"), "--rerun-every")
 
 
