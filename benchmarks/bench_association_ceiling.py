@@ -84,12 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         ds = registry.load_dataset("synthetic", seed=seed)
         row = {"seed": seed, "oracle": oracle_association_accuracy(ds),
-               "known poses": accuracy(with_exact_odometry(ds), "ekf")["accuracy"]}
+               "known poses": accuracy(with_exact_odometry(ds), "ekf").accuracy}
         dups = []
         for b in BACKENDS:
             a = accuracy(ds, b)
-            row[b] = a["accuracy"]
-            dups.append(a["duplicates"])
+            row[b] = a.accuracy
+            dups.append(a.duplicates)
         row["duplicates"] = dict(zip(BACKENDS, dups))
         rows.append(row)
         print(f"{seed:>4}  " + "  ".join(f"{100 * row[c]:10.1f}%" for c in columns)

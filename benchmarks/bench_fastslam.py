@@ -145,7 +145,7 @@ def main(argv=None) -> int:
                 from graphslam.evaluation.planar import association_accuracy
 
                 acc = association_accuracy([p for p in pairs if p[0] is not None])
-                row["association_accuracy"] = acc["accuracy"]
+                row["association_accuracy"] = acc.accuracy
                 line += f", association accuracy {acc['accuracy']:.3f}"
             print(line)
             results["victoria_park"].append(row)

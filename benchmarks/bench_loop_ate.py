@@ -69,7 +69,7 @@ def main(argv=None) -> int:
             backend = VisualIsam2Backend(VisualIsam2Config(predict_window_frames=window))
             res = vp.run(seq, backend, Tracker(TrackerConfig(), follow_unmapped=True),
                          loop_closer=closer, progress=True)
-            m = vp.compute_metrics(res)
+            m = vp.compute_metrics(res).to_dict()
             row = {"mode": mode, "window": window, "loops": loops, "ate_rmse_m": m["ate_rmse_m"],
                    "odometry_ate_rmse_m": m["odometry_ate_rmse_m"], "wall_s": res.wall_s}
             if closer is not None:
@@ -79,7 +79,7 @@ def main(argv=None) -> int:
             rows.append(row)
 
     print(f"synthetic image sequence, {len(seq)} frames, path "
-          f"{vp.compute_metrics(res)['path_length_m']:.2f} m; vocabulary {vocab.n_words_} words "
+          f"{vp.compute_metrics(res).path_length_m:.2f} m; vocabulary {vocab.n_words_} words "
           f"({vocab_s:.1f} s)")
     head = (f"{'mode':<10} {'loops':>5} {'ATE [m]':>8} {'ratio':>6} {'added':>6} {'true':>5} "
             f"{'redund.':>7} {'pnp rej.':>8} {'wall [s]':>8}")

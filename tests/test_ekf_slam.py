@@ -307,8 +307,8 @@ def test_unknown_association_accuracy(seed):
     world = dict(steps=40, laps=1.25, sensor_range_m=9.0, n_landmarks=32)
     ekf, truth, lms, pairs = _run(seed, config=cfg, known=False, **world)
     score = association_accuracy(pairs)
-    assert score["accuracy"] >= 0.98, score
-    assert score["duplicates"] == 0, score
+    assert score.accuracy >= 0.98, score
+    assert score.duplicates == 0, score
     assert ekf.landmark_ids() == list(range(ekf.num_landmarks))  # own ids 0, 1, 2, ...
     # given ids are ignored in "unknown" mode
     ekf2, *_ = _run(seed, config=cfg, known=True, **world)
@@ -540,8 +540,8 @@ def test_unknown_association_on_the_default_synthetic_world():
 
     res = run(make_synthetic(), EkfSlam(EkfSlamConfig(association="unknown")))
     score = association_accuracy(res.associations)
-    assert score["accuracy"] >= 0.96, score
-    assert score["duplicates"] <= 1, score
+    assert score.accuracy >= 0.96, score
+    assert score.duplicates <= 1, score
 
 
 def test_oracle_association_ceiling():

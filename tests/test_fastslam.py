@@ -207,7 +207,7 @@ def test_unknown_association_is_accurate(version):
     ds = loop_world(seed=2, known_ids=False)
     backend, res = run(ds, version=version, n_particles=100, association="unknown")
     acc = metrics.association_accuracy(res.associations)
-    assert acc["accuracy"] >= MIN_ASSOCIATION_ACCURACY
+    assert acc.accuracy >= MIN_ASSOCIATION_ACCURACY
     assert pose_errors_m(ds, res.estimate.wTb).max() < POSE_TOL_M
 
 
@@ -383,4 +383,4 @@ def test_unknown_association_on_the_default_synthetic_world(version, min_accurac
     res = pipeline.run(make_synthetic(), FastSlam(FastSlamConfig(
         version=version, n_particles=100, association="unknown")))
     score = metrics.association_accuracy(res.associations)
-    assert score["accuracy"] >= min_accuracy, score
+    assert score.accuracy >= min_accuracy, score

@@ -332,7 +332,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     def ate(closer):
         res = vp.run(seq, VisualIsam2Backend(cfg), Tracker(TrackerConfig(), follow_unmapped=True),
                      loop_closer=closer)
-        return vp.compute_metrics(res)["ate_rmse_m"]
+        return vp.compute_metrics(res).ate_rmse_m
 
     without = ate(None)
     closer = VisualLoopCloser(LoopDetector(vocab, K=seq.K))

@@ -120,7 +120,7 @@ def test_pipeline_drives_the_backend_frame_by_frame(seq):
 def test_metrics_state_alignment_and_compare_to_odometry(seq):
     result = vp.run(seq, TruthBackend(seq), Tracker(TrackerConfig(), follow_unmapped=False),
                     max_frames=10)
-    m = vp.compute_metrics(result, seed=0)
+    m = vp.compute_metrics(result, seed=0).to_dict()
     # the double reports the odometry chain, so its ATE is the odometry's
     assert m["ate_rmse_m"] == pytest.approx(m["odometry_ate_rmse_m"], rel=1e-9)
     assert m["ate_rmse_m"] > 0 and m["alignment"] == "se3" and m["frames"] == 10
@@ -139,7 +139,7 @@ def test_no_odometry_needs_a_motion_model_and_gives_sim3(seq):
     result = vp.run(seq, backend, Tracker(TrackerConfig(), follow_unmapped=False),
                     config=vp.VisualRunConfig(odometry="none"), max_frames=4)
     assert all(c[2] is None for c in backend.calls if c[0] == "predict")
-    m = vp.compute_metrics(result)
+    m = vp.compute_metrics(result).to_dict()
     assert m["alignment"] == "sim3" and m["ate"]["alignment"] == "sim3"
     assert m["ate"]["scale"] == pytest.approx(0.5, rel=0.01) and m["ate_rmse_m"] < 0.01
     assert m["odometry_ate_rmse_m"] is None
@@ -218,7 +218,7 @@ def test_real_backends_against_odometry_on_a_short_sequence(seq, name):
     backend = registry.make_visual_backend(name)
     tracker = Tracker(TrackerConfig(), follow_unmapped=backend.needs_track_history)
     result = vp.run(seq, backend, tracker, max_frames=40)
-    m = vp.compute_metrics(result)
+    m = vp.compute_metrics(result).to_dict()
     assert result.frames == 40 and m["landmarks"] > 5
     # iSAM2 must beat odometry already; the EKF (20 landmarks, QVGA pixels twice
     # as coarse, 5 m of path) is about at par here and must at least not diverge

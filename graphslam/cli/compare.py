@@ -99,8 +99,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         close_recorder(recorder)
         if rerun_mode == "save":
             outputs.append("compare.rrd")
-    skipped = {e.backend: e.metrics["loop_closures_skipped"] for e in entries
-               if e.metrics.get("loop_closures_skipped")}
+    skipped = {e.backend: e.metrics.loop_closures_skipped for e in entries
+               if e.metrics.loop_closures_skipped}
     for name, n in skipped.items():
         print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
     print(f"outputs in {out_dir}/: " + ", ".join(outputs))
@@ -128,14 +128,14 @@ def format_table(entries) -> str:
     """Plain-text table of the comparison; columns with no value anywhere are left out."""
     rows = []
     for e in entries:
-        m = dict(e.metrics)
-        a = m.get("association") or {}
-        m["association_accuracy"] = a.get("accuracy")
+        m = e.metrics.to_dict()
+        a = e.metrics.association
         # the oracle's ceiling, observations left unused (counted as wrong) and
         # extra estimated landmarks mapped to an already-taken true landmark
-        m["association_oracle"] = a.get("oracle_accuracy")
-        m["association_unused"] = a.get("unused")
-        m["association_duplicates"] = a.get("duplicates")
+        m.update(association_accuracy=None if a is None else a.accuracy,
+                 association_oracle=None if a is None else a.oracle_accuracy,
+                 association_unused=None if a is None else a.unused,
+                 association_duplicates=None if a is None else a.duplicates)
         rows.append(m)
     cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
     cells = [[h for _, h, _ in cols]]

@@ -237,7 +237,7 @@ def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> f
     return correct / n if n else None
 
 
-def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
+def association_accuracy(pairs: list[tuple[int, int | None]]):
     """Score data association against ground truth.
 
     Each back-end landmark id is mapped to the true id it was most often
@@ -255,10 +255,9 @@ def association_accuracy(pairs: list[tuple[int, int | None]]) -> dict | None:
     mapping = {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
     correct = sum(1 for true_id, got in pairs if got is not None and mapping[got] == true_id)
     mapped_true = list(mapping.values())
-    return {
-        "accuracy": correct / len(pairs),
-        "observations": len(pairs),
-        "unused": sum(1 for _, got in pairs if got is None),
-        "landmarks_created": len(mapping),
-        "duplicates": len(mapped_true) - len(set(mapped_true)),
-    }
+    from graphslam.evaluation.records import AssociationScore
+
+    return AssociationScore(
+        accuracy=correct / len(pairs), observations=len(pairs),
+        unused=sum(1 for _, got in pairs if got is None), landmarks_created=len(mapping),
+        duplicates=len(mapped_true) - len(set(mapped_true)))

@@ -53,6 +53,8 @@ def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.nd
 
 
 def _jsonable(value):
+    if hasattr(value, "to_dict"):  # typed records (run metrics, scores)
+        return _jsonable(value.to_dict())
     if isinstance(value, dict):
         return {k: _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from graphslam import registry
 from graphslam.evaluation import planar as metrics
+from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines import planar as pipeline
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
@@ -23,7 +24,7 @@ from slamcore.planar.records import Dataset
 class CompareEntry:
     backend: str
     result: pipeline.RunResult
-    metrics: dict
+    metrics: PlanarRunMetrics
 
 
 def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> tuple:
@@ -95,15 +96,16 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
         else:
             result, peak_mb = _run_one(dataset, name, config, ov, max_steps), None
         m = pipeline.compute_metrics(result, seed=seed)
-        m["peak_rss_mb"] = peak_mb
-        if m.get("association") is not None:
-            m["association"]["oracle_accuracy"] = metrics.oracle_association_accuracy(
+        m.peak_rss_mb = peak_mb
+        if m.association is not None:
+            m.association.oracle_accuracy = metrics.oracle_association_accuracy(
                 dataset, result.steps)
-        m.update(metrics.pose_statistics(dataset, result.estimate))
+        for key, value in metrics.pose_statistics(dataset, result.estimate).items():
+            setattr(m, key, value)
         entries.append(CompareEntry(name, result, m))
     reference = next((e for e in entries if e.backend == "isam2"), None)
     if reference is not None:
         for e in entries:
-            e.metrics["rms_to_isam2_m"] = metrics.rms_position_distance(e.result.estimate,
-                                                                reference.result.estimate)
+            e.metrics.rms_to_isam2_m = metrics.rms_position_distance(e.result.estimate,
+                                                                     reference.result.estimate)
     return entries

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError
@@ -130,7 +131,7 @@ def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarr
 def compute_metrics(result: RunResult, *, seed: int | None = None,
                     with_graph_error: bool = True,
                     ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
-                    wall_s: float | None = None) -> dict:
+                    wall_s: float | None = None) -> PlanarRunMetrics:
     """The metrics of ``metrics.json`` for one run.
 
     Args:
@@ -143,37 +144,27 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
     from graphslam.evaluation import planar as metrics
 
     est = result.estimate
-    out: dict = {
-        "dataset": result.dataset.name,
-        "backend": result.backend,
-        "seed": seed,
-        "steps": result.steps,
-        "landmarks": int(len(est.landmark_ids)),
-        "final_error": None,
-        "ate_rmse_m": None,
-        "odometry_ate_rmse_m": None,
-        "wall_s": result.wall_s if wall_s is None else wall_s,
-        "backend_s": result.wall_s,
-        "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
-        "interrupted": result.interrupted,
-        "loop_closures_skipped": result.loop_closures_skipped,
-    }
+    final_error = ate = odo_ate = None
     if with_graph_error:
         from graphslam.backends.gtsam_convert import graph_error
 
-        out["final_error"] = graph_error(result.dataset, est)
+        final_error = graph_error(result.dataset, est)
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     if gt is not None:
-        out["ate_rmse_m"] = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
+        ate = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
-        out["odometry_ate_rmse_m"] = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
-    acc = metrics.association_accuracy(result.associations)
-    if acc is not None:
-        out["association"] = acc
-    return out
+        odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
+    return PlanarRunMetrics(
+        dataset=result.dataset.name, backend=result.backend, seed=seed, steps=result.steps,
+        landmarks=int(len(est.landmark_ids)), final_error=final_error, ate_rmse_m=ate,
+        odometry_ate_rmse_m=odo_ate, wall_s=result.wall_s if wall_s is None else wall_s,
+        backend_s=result.wall_s,
+        steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
+        interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
+        association=metrics.association_accuracy(result.associations))
 
 
-def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict,
+def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,
                   ground_truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv``, ``metrics.json`` and, when the
     run has truth (``ground_truth`` or the dataset's), ``ground_truth.tum`` for the
@@ -201,5 +192,5 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: dict,
                                      np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
                                      np.asarray(gt[1])[in_run])
     writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
-    writers.write_json(paths["metrics"], run_metrics)
+    writers.write_json(paths["metrics"], run_metrics.to_dict())
     return paths

@@ -45,6 +45,7 @@ import numpy as np
 from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackingResult
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.spatial.backend import VisualBackend
@@ -302,7 +303,7 @@ def _count(stats: dict, tr: TrackingResult, update_s: float) -> None:
 # --------------------------------------------------------------------------- metrics
 
 def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
-                    wall_s: float | None = None) -> dict:
+                    wall_s: float | None = None) -> SpatialRunMetrics:
     """The metrics of ``metrics.json`` for one visual run.
 
     The ATE alignment is SE(3) when the run had odometry (metric scale), Sim(3)
@@ -312,58 +313,48 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
     it. Without it, the time of tracking and the back end (``processing_s``)
     plus image loading (``image_load_s``) stands in.
     """
-    from graphslam.evaluation import spatial as metrics3d
-
     est = result.estimate
     seq = result.sequence
     n = result.frames
-    alignment = "sim3" if result.odometry == "none" else "se3"
     whole_s = result.wall_s + result.load_s if wall_s is None else wall_s
-    out: dict = {
-        "dataset": seq.name,
-        "source": seq.source_path,
-        "backend": result.backend,
-        "frontend": result.frontend,
-        "seed": seed,
-        "frames": n,
-        "landmarks": int(len(est.landmark_ids)),
-        "odometry": result.odometry,
-        "odometry_noise": result.odometry_noise,
-        "alignment": alignment,
-        "ate_rmse_m": None,
-        "ate_percent_of_path": None,
-        "odometry_ate_rmse_m": None,
-        "odometry_ate_percent_of_path": None,
-        "rpe": None,
-        "path_length_m": None,
-        "wall_s": whole_s,
-        "frames_per_s": n / whole_s if whole_s > 0 else None,
-        "processing_s": result.wall_s,
-        "image_load_s": result.load_s,
-        "interrupted": result.interrupted,
-        "backend_stats": dict(est.stats or {}),
-        "tracking": _tracking_summary(result.tracking),
-    }
+    m = SpatialRunMetrics(
+        dataset=seq.name, source=seq.source_path, backend=result.backend,
+        frontend=result.frontend, seed=seed, frames=n, landmarks=int(len(est.landmark_ids)),
+        odometry=result.odometry, odometry_noise=result.odometry_noise,
+        alignment="sim3" if result.odometry == "none" else "se3", ate_rmse_m=None,
+        ate_percent_of_path=None, odometry_ate_rmse_m=None, odometry_ate_percent_of_path=None,
+        rpe=None, path_length_m=None, wall_s=whole_s,
+        frames_per_s=n / whole_s if whole_s > 0 else None, processing_s=result.wall_s,
+        image_load_s=result.load_s, interrupted=result.interrupted,
+        backend_stats=dict(est.stats or {}), tracking=_tracking_summary(result.tracking))
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
-        gt_ids = np.arange(n, dtype=np.int64)
-        gt = np.asarray(seq.wTc_true[:n])
-        length = metrics3d.path_length(gt)
-        out["path_length_m"] = length
-        try:
-            a = metrics3d.ate(est.frame_ids, est.wTc, gt_ids, gt, alignment=alignment)
-        except GraphSlamError as e:  # e.g. a Sim(3) fit to an estimate that never moved
-            out["ate_error"] = str(e)
-        else:
-            out["ate"] = a
-            out["ate_rmse_m"] = a["rmse_m"]
-            out["ate_percent_of_path"] = metrics3d.percent_of(a["rmse_m"], length)
-            out["rpe"] = metrics3d.rpe(est.frame_ids, est.wTc, gt_ids, gt, delta=1, scale=a["scale"])
-        if result.odometry_wTc is not None:
-            o = metrics3d.ate(gt_ids, result.odometry_wTc, gt_ids, gt, alignment="se3")
-            out["odometry_ate_rmse_m"] = o["rmse_m"]
-            out["odometry_ate_percent_of_path"] = metrics3d.percent_of(o["rmse_m"], length)
-            out["odometry_rpe"] = metrics3d.rpe(gt_ids, result.odometry_wTc, gt_ids, gt, delta=1)
-    return out
+        _score_against_truth(m, result)
+    return m
+
+
+def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:
+    """ATE, RPE and path length of the estimate and of the odometry, into ``m``."""
+    from graphslam.evaluation import spatial as metrics3d
+
+    est, n = result.estimate, result.frames
+    gt_ids = np.arange(n, dtype=np.int64)
+    gt = np.asarray(result.sequence.wTc_true[:n])
+    length = metrics3d.path_length(gt)
+    m.path_length_m = length
+    try:
+        a = metrics3d.ate(est.frame_ids, est.wTc, gt_ids, gt, alignment=m.alignment)
+    except GraphSlamError as e:  # e.g. a Sim(3) fit to an estimate that never moved
+        m.ate_error = str(e)
+    else:
+        m.ate = a
+        m.ate_rmse_m = a["rmse_m"]
+        m.ate_percent_of_path = metrics3d.percent_of(a["rmse_m"], length)
+        m.rpe = metrics3d.rpe(est.frame_ids, est.wTc, gt_ids, gt, delta=1, scale=a["scale"])
+    if result.odometry_wTc is not None:
+        o = metrics3d.ate(gt_ids, result.odometry_wTc, gt_ids, gt, alignment="se3")
+        m.odometry_ate_rmse_m = o["rmse_m"]
+        m.odometry_ate_percent_of_path = metrics3d.percent_of(o["rmse_m"], length)
+        m.odometry_rpe = metrics3d.rpe(gt_ids, result.odometry_wTc, gt_ids, gt, delta=1)
 
 
 def _tracking_summary(stats: dict) -> dict:
@@ -387,7 +378,7 @@ def _tracking_summary(stats: dict) -> dict:
 
 # --------------------------------------------------------------------------- outputs
 
-def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: dict) -> dict[str, Path]:
+def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``), ``metrics.json`` and,
     when the sequence has ground truth, ``ground_truth.tum`` of the run's frames
     (same time column as the trajectory)."""

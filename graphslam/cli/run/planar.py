@@ -82,22 +82,22 @@ def run(args: argparse.Namespace) -> int:
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
 
-def format_summary(metrics: dict) -> str:
+def format_summary(metrics) -> str:
     """A two-column table of the headline numbers."""
     rows = [
-        ("dataset", metrics["dataset"]),
-        ("backend", metrics["backend"]),
-        ("steps", metrics["steps"]),
-        ("landmarks", metrics["landmarks"]),
-        ("final error", fmt(metrics["final_error"], ".6g")),
-        ("ATE RMSE [m]", fmt(metrics["ate_rmse_m"], ".4f")),
-        ("odometry ATE RMSE [m]", fmt(metrics["odometry_ate_rmse_m"], ".4f")),
-        ("wall time [s]", fmt(metrics["wall_s"], ".2f")),
-        ("back end [s]", fmt(metrics.get("backend_s"), ".2f")),
-        ("back end steps/s", fmt(metrics["steps_per_s"], ".1f")),
+        ("dataset", metrics.dataset),
+        ("backend", metrics.backend),
+        ("steps", metrics.steps),
+        ("landmarks", metrics.landmarks),
+        ("final error", fmt(metrics.final_error, ".6g")),
+        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f")),
+        ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
+        ("wall time [s]", fmt(metrics.wall_s, ".2f")),
+        ("back end [s]", fmt(metrics.backend_s, ".2f")),
+        ("back end steps/s", fmt(metrics.steps_per_s, ".1f")),
     ]
-    if metrics.get("loop_closures_skipped"):
-        rows.append(("loop closures skipped", metrics["loop_closures_skipped"]))
-    if metrics.get("interrupted"):
+    if metrics.loop_closures_skipped:
+        rows.append(("loop closures skipped", metrics.loop_closures_skipped))
+    if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

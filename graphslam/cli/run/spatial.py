@@ -146,10 +146,10 @@ def run(args: argparse.Namespace) -> int:
                     frontend=tracker_cfg.detector, loop_closer=closer)
     metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
                                  wall_s=time.perf_counter() - t0)
-    metrics["backend"] = args.backend
-    metrics["backend_class"] = result.backend
+    metrics.backend = args.backend
+    metrics.backend_class = result.backend
     if closer is not None:
-        metrics["loops"] = {**closer.stats, "vocabulary": closer.vocabulary_source}
+        metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     paths = vp.write_outputs(result, out_dir, metrics)
     if closer is not None:
         from graphslam.outputs.loops import write_loops
@@ -202,37 +202,37 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
                                vocabulary_source=source)
 
 
-def format_summary(m: dict) -> str:
+def format_summary(m) -> str:
     """A two-column table of the headline numbers of a visual run."""
-    align = "Sim(3)" if m.get("alignment") == "sim3" else "SE(3)"
-    rpe = m.get("rpe") or {}
+    align = "Sim(3)" if m.alignment == "sim3" else "SE(3)"
+    rpe = m.rpe or {}
     rows = [
-        ("dataset", m["dataset"]),
-        ("backend", m["backend"]),
-        ("frontend", m["frontend"]),
-        ("odometry", m["odometry"]),
-        ("frames", m["frames"]),
-        ("landmarks", m["landmarks"]),
-        (f"ATE RMSE [m], {align}-aligned", fmt(m["ate_rmse_m"], ".4f")),
-        ("ATE [% of path]", fmt(m["ate_percent_of_path"], ".2f")),
-        ("odometry ATE RMSE [m]", fmt(m["odometry_ate_rmse_m"], ".4f")),
-        ("odometry ATE [% of path]", fmt(m["odometry_ate_percent_of_path"], ".2f")),
+        ("dataset", m.dataset),
+        ("backend", m.backend),
+        ("frontend", m.frontend),
+        ("odometry", m.odometry),
+        ("frames", m.frames),
+        ("landmarks", m.landmarks),
+        (f"ATE RMSE [m], {align}-aligned", fmt(m.ate_rmse_m, ".4f")),
+        ("ATE [% of path]", fmt(m.ate_percent_of_path, ".2f")),
+        ("odometry ATE RMSE [m]", fmt(m.odometry_ate_rmse_m, ".4f")),
+        ("odometry ATE [% of path]", fmt(m.odometry_ate_percent_of_path, ".2f")),
         ("RPE per frame [m / deg]", "n/a" if not rpe else
          f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}"),
-        ("path length [m]", fmt(m["path_length_m"], ".2f")),
-        ("wall time [s]", fmt(m["wall_s"], ".2f")),
-        ("tracking + back end [s]", fmt(m.get("processing_s"), ".2f")),
-        ("frames/s", fmt(m["frames_per_s"], ".1f")),
+        ("path length [m]", fmt(m.path_length_m, ".2f")),
+        ("wall time [s]", fmt(m.wall_s, ".2f")),
+        ("tracking + back end [s]", fmt(m.processing_s, ".2f")),
+        ("frames/s", fmt(m.frames_per_s, ".1f")),
     ]
-    stats = m.get("backend_stats") or {}
+    stats = m.backend_stats or {}
     if "reparametrised" in stats:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
-    if m.get("loops"):
-        lp = m["loops"]
+    if m.loops:
+        lp = m.loops
         rows.append(("loop closures added / verified / candidates",
                      f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
-    if m.get("interrupted"):
+    if m.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

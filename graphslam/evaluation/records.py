@@ -1,0 +1,140 @@
+"""Typed run metrics: what ``metrics.json`` holds, as dataclasses.
+
+Pipelines fill these; the CLI reads their attributes for the summary table;
+:meth:`to_dict` gives the JSON layout (fields in declaration order; optional
+fields left out while they are None, so files keep their familiar shape).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
+
+def _as_dict(record, optional: frozenset[str]) -> dict:
+    out = {}
+    for f in dataclasses.fields(record):
+        value = getattr(record, f.name)
+        if f.name in optional and value is None:
+            continue
+        if dataclasses.is_dataclass(value):
+            value = value.to_dict()
+        out[f.name] = value
+    return out
+
+
+@dataclass
+class AssociationScore:
+    """Data association against ground truth (:func:`.planar.association_accuracy`).
+
+    Attributes:
+        accuracy: share of observations given the right landmark (unused count wrong).
+        observations: observations scored; unused: observations the back end left unused.
+        landmarks_created: back-end landmarks; duplicates: extra back-end landmarks
+            mapped to an already-taken true landmark.
+        oracle_accuracy: the ceiling of an oracle knowing poses and map (compare only).
+    """
+
+    accuracy: float
+    observations: int
+    unused: int
+    landmarks_created: int
+    duplicates: int
+    oracle_accuracy: float | None = None
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"oracle_accuracy"})
+
+    def to_dict(self) -> dict:
+        return _as_dict(self, self.OPTIONAL)
+
+
+@dataclass
+class PlanarRunMetrics:
+    """Metrics of a 2-D run (``metrics.json``; one entry of ``compare.json``).
+
+    Attributes:
+        final_error: GTSAM graph error ``0.5 sum ||whitened residual||^2`` under the
+            dataset's noise model, or None.
+        ate_rmse_m, odometry_ate_rmse_m: SE(2)-aligned ATE of the estimate and of
+            dead reckoning, or None without ground truth.
+        wall_s: the whole run's time; backend_s: the back end's; steps_per_s: its rate.
+        peak_rss_mb .. rms_to_isam2_m: filled by ``compare`` only.
+    """
+
+    dataset: str
+    backend: str
+    seed: int | None
+    steps: int
+    landmarks: int
+    final_error: float | None
+    ate_rmse_m: float | None
+    odometry_ate_rmse_m: float | None
+    wall_s: float
+    backend_s: float
+    steps_per_s: float | None
+    interrupted: bool
+    loop_closures_skipped: int
+    association: AssociationScore | None = None
+    peak_rss_mb: float | None = None
+    final_pose_error_m: float | None = None
+    nees_mean: float | None = None
+    nees_in_bounds_fraction: float | None = None
+    rms_to_isam2_m: float | None = None
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
+        "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
+        "nees_in_bounds_fraction", "rms_to_isam2_m"})
+
+    def to_dict(self) -> dict:
+        return _as_dict(self, self.OPTIONAL)
+
+
+@dataclass
+class SpatialRunMetrics:
+    """Metrics of a visual run (``metrics.json``).
+
+    Attributes:
+        alignment: ``"se3"`` with metric odometry, ``"sim3"`` without (monocular).
+        ate: the ATE record of :func:`.spatial.ate` (rmse, mean, max, scale...);
+            ate_error: why it could not be computed, if so.
+        rpe, odometry_rpe: per-frame RPE records; tracking: front-end counters;
+            backend_stats: the back end's counters; loops: loop-closing counts.
+        wall_s: the whole run's time; processing_s: tracking and back end;
+            image_load_s: reading images.
+    """
+
+    dataset: str
+    source: str | None
+    backend: str
+    frontend: str
+    seed: int | None
+    frames: int
+    landmarks: int
+    odometry: str
+    odometry_noise: dict | None
+    alignment: str
+    ate_rmse_m: float | None
+    ate_percent_of_path: float | None
+    odometry_ate_rmse_m: float | None
+    odometry_ate_percent_of_path: float | None
+    rpe: dict | None
+    path_length_m: float | None
+    wall_s: float
+    frames_per_s: float | None
+    processing_s: float
+    image_load_s: float
+    interrupted: bool
+    backend_stats: dict
+    tracking: dict
+    ate_error: str | None = None
+    ate: dict | None = None
+    odometry_rpe: dict | None = None
+    backend_class: str | None = None
+    loops: dict | None = None
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
+        "ate_error", "ate", "odometry_rpe", "backend_class", "loops"})
+
+    def to_dict(self) -> dict:
+        return _as_dict(self, self.OPTIONAL)
