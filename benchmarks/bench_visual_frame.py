@@ -76,7 +76,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters.mono_ekf import MonoEkf, MonoEkfConfig  # noqa: E402
+from filters.mono_ekf import MonoEkf  # noqa: E402
+from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
 from frontend.active_search import ActiveSearchConfig  # noqa: E402
 from frontend.harris import HarrisConfig  # noqa: E402
 from frontend.orb import OrbConfig  # noqa: E402

@@ -107,7 +107,8 @@ def make_visual_backend(name: str, *, config_path: Path | None = None,
 
         return VisualIsam2Backend(load_section(VisualIsam2Config, config_path, overrides))
     if name == "ekf":
-        from filters.mono_ekf import MonoEkf, MonoEkfConfig
+        from filters.mono_ekf import MonoEkf
+        from filters.mono_ekf_config import MonoEkfConfig
 
         return MonoEkf(load_section(MonoEkfConfig, config_path, overrides))
     raise ConfigError(f"back end {name!r} does not run on image sequences "
