@@ -83,7 +83,8 @@ from frontend.harris import HarrisConfig  # noqa: E402
 from frontend.orb import OrbConfig  # noqa: E402
 from frontend.tracking import Tracker, TrackerConfig  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
-from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config  # noqa: E402
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 
 WARMUP_FRAMES = 10

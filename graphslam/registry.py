@@ -103,7 +103,8 @@ def make_visual_backend(name: str, *, config_path: Path | None = None,
     """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
     (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
-        from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+        from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+        from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 
         return VisualIsam2Backend(load_section(VisualIsam2Config, config_path, overrides))
     if name == "ekf":
