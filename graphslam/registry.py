@@ -50,7 +50,8 @@ def make_backend(name: str, *, config_path: Path | None = None,
 
         return Isam2Backend(load_section(Isam2Config, config_path, overrides))
     if name == "ekf":
-        from filters.ekf_slam import EkfSlam, EkfSlamConfig
+        from filters.ekf_slam import EkfSlam
+        from filters.ekf_slam_config import EkfSlamConfig
 
         return EkfSlam(load_section(EkfSlamConfig, config_path, overrides))
     if name in ("fastslam1", "fastslam2"):
