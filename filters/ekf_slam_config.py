@@ -45,9 +45,10 @@ class EkfSlamConfig:
         jcbb_max_nodes: pairing tests JCBB may do per scan.
         jacobians: "oc" (observability-constrained, default) or "standard".
         default_sigma_range_m, default_sigma_bearing_rad: measurement noise used
-            by :meth:`EkfSlam.predict_observations` before any observation is seen.
+            by :meth:`~filters.ekf_slam.EkfSlam.predict_observations` before any
+            observation is seen.
         odometry_covariance_scale: the odometry covariance is multiplied by
-            this in :meth:`EkfSlam.predict` (> 0). The filter assumes white
+            this in :meth:`~filters.ekf_slam.EkfSlam.predict` (> 0). The filter assumes white
             odometry noise; real odometry errors are correlated (a slowly
             varying heading bias on Victoria Park), so over the steps between
             two sightings they grow faster than the file's per-step covariance
@@ -55,8 +56,8 @@ class EkfSlamConfig:
         known_gate_chi2_prob: known association only: an observation whose
             innovation's squared Mahalanobis distance (2 dof) exceeds this
             chi-square quantile is rejected (not absorbed, counted in
-            :attr:`EkfSlam.rejected_count`, reported as None by
-            :meth:`EkfSlam.associations`). A given id does not make a
+            :attr:`~filters.ekf_slam.EkfSlam.rejected_count`, reported as None by
+            :meth:`~filters.ekf_slam.EkfSlam.associations`). A given id does not make a
             measurement right: one spurious range-bearing pair absorbed
             with full trust corrupts the pose and the map. None (default)
             absorbs every identified observation.

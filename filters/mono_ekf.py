@@ -414,11 +414,13 @@ class MonoEkf(VisualBackend):
                 & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
 
     def _innovation_blocks(self, slots, Hp, Hl, var) -> np.ndarray:
-        """Per-landmark ``S_i`` (k, 2, 2) of landmark ``slots`` (:func:`filters.mono_ekf_correction.innovation_blocks`)."""
+        """Per-landmark ``S_i`` (k, 2, 2) of landmark ``slots``
+        (:func:`filters.mono_ekf_correction.innovation_blocks`)."""
         return innovation_blocks(self._P, self._idx[slots], Hp, Hl, var)
 
     def _gain_blocks(self, slots, Hp, Hl, var) -> tuple[np.ndarray, np.ndarray]:
-        """``P H^T`` (n, 2k) and ``S`` (2k, 2k) of landmark ``slots`` (:func:`filters.mono_ekf_correction.gain_blocks`)."""
+        """``P H^T`` (n, 2k) and ``S`` (2k, 2k) of landmark ``slots``
+        (:func:`filters.mono_ekf_correction.gain_blocks`)."""
         return gain_blocks(self._P, self._idx[slots], Hp, Hl, var)
 
     def _apply_update(self, PHt: np.ndarray, S: np.ndarray, nu: np.ndarray) -> None:

@@ -62,8 +62,9 @@ class MonoEkfConfig:
             acceleration noise (linear m/s^2, angular rad/s^2), held over a frame.
         cv_initial_sigma_v_mps, cv_initial_sigma_w_radps: prior std of the
             initial velocities (zero mean).
-        default_sigma_px: pixel std used by :meth:`MonoEkf.predict_observations`
-            before any observation is seen.
+        default_sigma_px: pixel std used by
+            :meth:`~filters.mono_ekf.MonoEkf.predict_observations` before any
+            observation is seen.
         seed: RANSAC sampling seed.
     """
 

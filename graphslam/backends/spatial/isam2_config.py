@@ -72,8 +72,9 @@ class VisualIsam2Config:
         loop_closure_kernel: robust kernel on loop-closure factors, "none",
             "huber" or "cauchy", so that a wrong closure cannot wreck the map.
         loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
-        polish: at :meth:`VisualIsam2Backend.finalize`, run batch
-            Levenberg-Marquardt on the whole graph from the incremental solution.
+        polish: at :meth:`~graphslam.backends.spatial.isam2.VisualIsam2Backend.finalize`,
+            run batch Levenberg-Marquardt on the whole graph from the
+            incremental solution.
         polish_method: "lm", or "gnc" (gtsam's GncLMOptimizer with every factor
             but the loop closures known to be an inlier; closures it weighs
             below 0.5 are counted in ``stats["closures_dropped_by_gnc"]``).
