@@ -29,7 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from filters import models  # noqa: E402
-from filters.ekf_slam import EkfSlam, EkfSlamConfig  # noqa: E402
+from filters.ekf_slam import EkfSlam  # noqa: E402
+from filters.ekf_slam_config import EkfSlamConfig  # noqa: E402
 from slamcore.planar.records import Observation  # noqa: E402
 
 SIZES = (100, 200, 500, 1000, 2000)

@@ -36,7 +36,8 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.spatial.records import PixelObservations
 

@@ -36,7 +36,8 @@ from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
 from loopclosure.detector import LoopDetectorConfig
-from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 from graphslam.pipelines.loop_closing import VisualLoopCloser
 from loopclosure.detector import LoopDetector

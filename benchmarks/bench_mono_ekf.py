@@ -60,7 +60,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters.mono_ekf import MonoEkf, MonoEkfConfig  # noqa: E402
+from filters.mono_ekf import MonoEkf  # noqa: E402
+from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
 from slamcore.spatial.geometry import invert_pose
 from slamcore.spatial.camera import project, se3_exp  # noqa: E402
 from slamcore.spatial.backend import PixelObservations  # noqa: E402

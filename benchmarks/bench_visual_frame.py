@@ -76,13 +76,15 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters.mono_ekf import MonoEkf, MonoEkfConfig  # noqa: E402
+from filters.mono_ekf import MonoEkf  # noqa: E402
+from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
 from frontend.active_search import ActiveSearchConfig  # noqa: E402
 from frontend.harris import HarrisConfig  # noqa: E402
 from frontend.orb import OrbConfig  # noqa: E402
 from frontend.tracking import Tracker, TrackerConfig  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
-from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config  # noqa: E402
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 
 WARMUP_FRAMES = 10

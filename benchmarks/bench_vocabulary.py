@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from loopclosure.database import BowDatabase, BowVector
-from loopclosure.vocabulary import VocabularyTree, hamming_distances
+from loopclosure.descriptor_distance import hamming_distances
+from loopclosure.vocabulary import VocabularyTree
 
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti07" / "image_0"
 N_TRAIN = 200_000

@@ -123,7 +123,6 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
         raise ValueError(f"joint_covariance must be {(2 * n_pairs,) * 2}, got {C.shape}")
     nu = models.innovation(z[pair_obs], np.asarray(z_pred, dtype=float).reshape(-1, 2)) \
         if n_pairs else np.zeros((0, 2))
-    nu_flat = nu.reshape(-1)
     if individual_d2 is None:
         blocks = np.stack([C[2 * p:2 * p + 2, 2 * p:2 * p + 2] for p in range(n_pairs)]) \
             if n_pairs else np.zeros((0, 2, 2))
@@ -132,14 +131,59 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
     cands: list[list[int]] = [[] for _ in range(m)]
     for p in range(n_pairs):
         cands[int(pair_obs[p])].append(p)
-    order = [i for i in range(m) if cands[i]]
+    search = _JcbbSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob, max_nodes)
+    best_pairs, best_nis, exhausted = search.run(individual_d2)
 
-    def joint_nis(pairs: list[int]) -> float:
+    per_obs_pair: list[int | None] = [None] * m
+    for p in best_pairs:
+        per_obs_pair[int(pair_obs[p])] = int(p)
+    hyp = [None if p is None else int(pair_landmark[p]) for p in per_obs_pair]
+    return JcbbResult(hyp, per_obs_pair, float(best_nis), search.nodes, exhausted)
+
+
+class _Budget(Exception):
+    """The node budget of :func:`jcbb` ran out."""
+
+
+class _JcbbSearch:
+    """The branch and bound of :func:`jcbb` over one scan's candidate pairs.
+
+    ``C`` (2P, 2P) and ``nu_flat`` (2P,): joint covariance and stacked
+    innovations of the P pairs; ``cands[i]``: pair indices of observation i,
+    tried in order; ``pair_landmark`` (P,): landmark of each pair. Holds the
+    best hypothesis found so far (pair indices) and the pairing tests done.
+    """
+
+    def __init__(self, C: np.ndarray, nu_flat: np.ndarray, cands: list[list[int]],
+                 pair_landmark: np.ndarray, chi2_prob: float, max_nodes: int):
+        self.C = C
+        self.nu_flat = nu_flat
+        self.cands = cands
+        self.order = [i for i in range(len(cands)) if cands[i]]  # observations with candidates
+        self.pair_landmark = pair_landmark
+        self.chi2_prob = chi2_prob
+        self.max_nodes = max_nodes
+        self.best_pairs: list[int] = []
+        self.best_nis = 0.0
+        self.nodes = 0
+
+    def run(self, individual_d2: np.ndarray) -> tuple[list[int], float, bool]:
+        """Best pairs, their joint NIS and whether the budget stopped the search early."""
+        self.best_pairs = self.greedy(individual_d2)
+        self.best_nis = self.joint_nis(self.best_pairs)
+        try:
+            self.search(0, [], set())
+        except _Budget:
+            return self.best_pairs, self.best_nis, True
+        return self.best_pairs, self.best_nis, False
+
+    def joint_nis(self, pairs: list[int]) -> float:
+        """``nu^T C^-1 nu`` over ``pairs`` (inf when their covariance is not positive definite)."""
         if not pairs:
             return 0.0
         rows = np.array([[2 * p, 2 * p + 1] for p in pairs]).reshape(-1)
-        Cs = C[np.ix_(rows, rows)]
-        v = nu_flat[rows]
+        Cs = self.C[np.ix_(rows, rows)]
+        v = self.nu_flat[rows]
         try:
             L = np.linalg.cholesky(Cs)
         except np.linalg.LinAlgError:
@@ -147,63 +191,57 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
         y = np.linalg.solve(L, v)
         return float(y @ y)
 
-    def compatible(pairs: list[int]) -> tuple[bool, float]:
-        nis = joint_nis(pairs)
-        return nis <= chi2_quantile(chi2_prob, 2 * len(pairs)), nis
+    def compatible(self, pairs: list[int]) -> tuple[bool, float]:
+        """Joint NIS of ``pairs`` below the chi-square quantile with ``2 len(pairs)`` dof, and the NIS."""
+        nis = self.joint_nis(pairs)
+        return nis <= chi2_quantile(self.chi2_prob, 2 * len(pairs)), nis
 
-    # Greedy nearest-neighbour start: jointly compatible by construction.
-    greedy: list[int] = []
-    used: set[int] = set()
-    best_d = {i: min(individual_d2[p] for p in cands[i]) for i in order}
-    for i in sorted(order, key=lambda i: best_d[i]):
-        for p in sorted(cands[i], key=lambda p: individual_d2[p]):
-            if int(pair_landmark[p]) in used:
-                continue
-            ok, _ = compatible(greedy + [p])
-            if ok:
-                greedy.append(p)
-                used.add(int(pair_landmark[p]))
-                break
-    best_pairs = list(greedy)
-    best_nis = joint_nis(best_pairs)
-    nodes = 0
-    exhausted = False
+    def greedy(self, individual_d2: np.ndarray) -> list[int]:
+        """Greedy nearest-neighbour start: jointly compatible by construction.
 
-    class _Budget(Exception):
-        pass
+        Observations in increasing order of their best individual distance,
+        each takes its closest unused landmark if the joint test still passes.
+        """
+        greedy: list[int] = []
+        used: set[int] = set()
+        cands = self.cands
+        best_d = {i: min(individual_d2[p] for p in cands[i]) for i in self.order}
+        for i in sorted(self.order, key=lambda i: best_d[i]):
+            for p in sorted(cands[i], key=lambda p: individual_d2[p]):
+                if int(self.pair_landmark[p]) in used:
+                    continue
+                ok, _ = self.compatible(greedy + [p])
+                if ok:
+                    greedy.append(p)
+                    used.add(int(self.pair_landmark[p]))
+                    break
+        return greedy
 
-    def search(level: int, chosen: list[int], used_lm: set[int]) -> None:
-        nonlocal best_pairs, best_nis, nodes
+    def search(self, level: int, chosen: list[int], used_lm: set[int]) -> None:
+        """Depth-first over ``order[level:]``: pair observation ``order[level]`` with each
+        compatible unused candidate, then leave it unpaired; prune branches that
+        cannot beat the best pairing count. Raises :class:`_Budget` past ``max_nodes``."""
+        order = self.order
         if level == len(order):
-            nis = joint_nis(chosen)
-            if len(chosen) > len(best_pairs) or (len(chosen) == len(best_pairs) and nis < best_nis):
-                best_pairs, best_nis = list(chosen), nis
+            nis = self.joint_nis(chosen)
+            if len(chosen) > len(self.best_pairs) or (len(chosen) == len(self.best_pairs)
+                                                      and nis < self.best_nis):
+                self.best_pairs, self.best_nis = list(chosen), nis
             return
         remaining = len(order) - level - 1  # levels after this one
         i = order[level]
-        if len(chosen) + 1 + remaining >= len(best_pairs):
-            for p in cands[i]:
-                lm = int(pair_landmark[p])
+        if len(chosen) + 1 + remaining >= len(self.best_pairs):
+            for p in self.cands[i]:
+                lm = int(self.pair_landmark[p])
                 if lm in used_lm:
                     continue
-                nodes += 1
-                if nodes > max_nodes:
+                self.nodes += 1
+                if self.nodes > self.max_nodes:
                     raise _Budget
-                ok, _ = compatible(chosen + [p])
+                ok, _ = self.compatible(chosen + [p])
                 if ok:
                     used_lm.add(lm)
-                    search(level + 1, chosen + [p], used_lm)
+                    self.search(level + 1, chosen + [p], used_lm)
                     used_lm.discard(lm)
-        if len(chosen) + remaining >= len(best_pairs):  # the "leave unpaired" branch
-            search(level + 1, chosen, used_lm)
-
-    try:
-        search(0, [], set())
-    except _Budget:
-        exhausted = True
-
-    per_obs_pair: list[int | None] = [None] * m
-    for p in best_pairs:
-        per_obs_pair[int(pair_obs[p])] = int(p)
-    hyp = [None if p is None else int(pair_landmark[p]) for p in per_obs_pair]
-    return JcbbResult(hyp, per_obs_pair, float(best_nis), nodes, exhausted)
+        if len(chosen) + remaining >= len(self.best_pairs):  # the "leave unpaired" branch
+            self.search(level + 1, chosen, used_lm)

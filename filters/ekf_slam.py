@@ -2,6 +2,10 @@
 
 Course slides "Algorithme EKF-SLAM (2D)": the state is
 ``X = [x, y, theta, m1x, m1y, m2x, m2y, ...]`` with a full covariance ``P``.
+Beside this module: :mod:`filters.ekf_slam_config` (settings),
+:mod:`filters.ekf_slam_update` (the in-place rank-2 correction) and
+:mod:`filters.ekf_slam_association` (scan association with unknown ids and
+the provisional list).
 
 Storage: ``X`` and ``P`` live in preallocated buffers sized for
 ``capacity`` landmarks; when a landmark does not fit, the capacity doubles and
@@ -21,7 +25,7 @@ Costs per step, n = 3 + 2 M:
   ``P -= K S K^T = (H P)^T S^-1 (H P)`` is written as
   ``P -= M M^T`` with ``M = (L^-1 H P)^T`` (n x 2, ``S = L L^T``). That rank-2
   downdate is applied in place, one block of 8-64 rows at a time
-  (``P[r0:r1] -= M[r0:r1] @ M.T``, see :data:`ROW_BLOCK_ELEMENTS`), so the
+  (``P[r0:r1] -= M[r0:r1] @ M.T``, see :mod:`filters.ekf_slam_update`), so the
   temporary stays small enough to sit in cache and no n x n temporary is built. Nothing is O(n^3) and the only
   O(n^2) work is that one pass over ``P``. Each entry (i, j) and (j, i) is the
   same two products summed in the same order, so ``P`` stays symmetric.
@@ -89,122 +93,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
 from slamcore.planar import geometry as models
-from filters.association import (chi2_quantile, individual_candidates, jcbb,
-                                 mahalanobis_sq_2d)
+from filters.association import chi2_quantile
+from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
+from filters.ekf_slam_config import EkfSlamConfig
+from filters.ekf_slam_update import rank2_correction
 from slamcore.planar.backend import Backend
-from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
+from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar.records import (
     Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
 )
 from slamcore.planar.geometry import wrap_angle
-
-#: Size of one block of the in-place rank-2 downdate, in doubles (1 MiB): the
-#: block has ``clip(ROW_BLOCK_ELEMENTS // n, 8, 64)`` rows of P. Small blocks keep
-#: the temporary in cache and keep OpenBLAS on one thread for each small gemm
-#: (measured: 128-row blocks at n = 4003 went multithreaded and ran 15x slower
-#: on a loaded machine).
-ROW_BLOCK_ELEMENTS = 1 << 17
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-
-@dataclass(frozen=True)
-class EkfSlamConfig:
-    """EKF-SLAM settings (config file section ``[ekf]``).
-
-    Attributes:
-        association: "known" (landmark_id, else signature) or "unknown"
-            (gating + JCBB; the given ids are ignored).
-        gate_chi2_prob: individual and joint compatibility probability.
-            0.999 by default: at 0.99, 1 % of the true pairings fall outside
-            the gate by construction.
-        new_landmark_chi2_prob: an unpaired observation starts a landmark only
-            if its squared Mahalanobis distance to every landmark exceeds this
-            chi-square (2 dof) quantile; must be >= ``gate_chi2_prob``.
-            Default equal to the gate (0.999): no discard zone, since a
-            discarded observation is a lost one, while a landmark started
-            twice is counted (``duplicates`` in the association report).
-            Measured on the default synthetic world (course noise, seeds
-            0-4): 96.9/89.3/97.6/91.5/97.8 % accuracy, against
-            96.9/86.4/97.1/90.4/97.7 % with 0.9999.
-        provisional_sightings: sightings before a landmark enters the map
-            (1 = at first sighting).
-        initial_capacity: landmarks the buffers hold before the first doubling.
-        jcbb_max_candidates: individually compatible landmarks kept per observation.
-        jcbb_max_nodes: pairing tests JCBB may do per scan.
-        jacobians: "oc" (observability-constrained, default) or "standard".
-        default_sigma_range_m, default_sigma_bearing_rad: measurement noise used
-            by :meth:`EkfSlam.predict_observations` before any observation is seen.
-        odometry_covariance_scale: the odometry covariance is multiplied by
-            this in :meth:`EkfSlam.predict` (> 0). The filter assumes white
-            odometry noise; real odometry errors are correlated (a slowly
-            varying heading bias on Victoria Park), so over the steps between
-            two sightings they grow faster than the file's per-step covariance
-            says, and an unscaled filter trusts its drifted pose too much.
-        known_gate_chi2_prob: known association only: an observation whose
-            innovation's squared Mahalanobis distance (2 dof) exceeds this
-            chi-square quantile is rejected (not absorbed, counted in
-            :attr:`EkfSlam.rejected_count`, reported as None by
-            :meth:`EkfSlam.associations`). A given id does not make a
-            measurement right: one spurious range-bearing pair absorbed
-            with full trust corrupts the pose and the map. None (default)
-            absorbs every identified observation.
-    """
-
-    SECTION: ClassVar[str] = "ekf"
-
-    association: str = "known"
-    gate_chi2_prob: float = 0.999
-    new_landmark_chi2_prob: float = 0.999
-    provisional_sightings: int = 1
-    initial_capacity: int = 64
-    jcbb_max_candidates: int = 3
-    jcbb_max_nodes: int = 2000
-    default_sigma_range_m: float = 0.2
-    default_sigma_bearing_rad: float = math.radians(10.0)
-    jacobians: str = "oc"
-    odometry_covariance_scale: float = 1.0
-    known_gate_chi2_prob: float | None = None
-
-    def __post_init__(self):
-        if self.jacobians not in ("standard", "oc"):
-            raise ConfigError(f"ekf.jacobians must be 'standard' or 'oc', got {self.jacobians!r}")
-        if self.association not in ("known", "unknown"):
-            raise ConfigError(f"ekf.association must be 'known' or 'unknown', got {self.association!r}")
-        for name in ("gate_chi2_prob", "new_landmark_chi2_prob"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < float(v) < 1.0:
-                raise ConfigError(f"ekf.{name} must be a probability in (0, 1), got {v!r}")
-        if self.new_landmark_chi2_prob < self.gate_chi2_prob:
-            raise ConfigError("ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "
-                              f"({self.new_landmark_chi2_prob} < {self.gate_chi2_prob})")
-        for name, lo in (("provisional_sightings", 1), ("initial_capacity", 1),
-                         ("jcbb_max_candidates", 1), ("jcbb_max_nodes", 0)):
-            v = getattr(self, name)
-            if not _is_int(v) or v < lo:
-                raise ConfigError(f"ekf.{name} must be an integer >= {lo}, got {v!r}")
-        for name in ("default_sigma_range_m", "default_sigma_bearing_rad"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"ekf.{name} must be a positive number, got {v!r}")
-        v = self.odometry_covariance_scale
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"ekf.odometry_covariance_scale must be a positive number, got {v!r}")
-        v = self.known_gate_chi2_prob
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                              or not 0.0 < float(v) < 1.0):
-            raise ConfigError("ekf.known_gate_chi2_prob must be None or a probability in (0, 1), "
-                              f"got {v!r}")
-
-
 
 
 class EkfSlam(Backend):
@@ -241,7 +143,8 @@ class EkfSlam(Backend):
         self._hist_wTb: list[np.ndarray] = []
         self._hist_cov: list[np.ndarray] = []
         self._prov_known: dict[int, int] = {}  # known-association provisional counts
-        self._prov: list[dict] = []  # unknown-association provisional entries
+        # unknown-association provisional entries
+        self._prov = ProvisionalList(self.config.provisional_sightings, self._gate)
         self._scan = 0
         self._last_associations = []
         self.last_jcbb = None
@@ -503,31 +406,9 @@ class EkfSlam(Backend):
         S = HP[:, 0:3] @ H_x.T + HP[:, i:i + 2] @ H_m.T + R  # (2, 2)
         S = 0.5 * (S + S.T)
         nu = models.innovation(z, zhat)
-        # S = L L^T, L lower triangular 2x2, written out.
-        a = math.sqrt(S[0, 0])
-        b = S[1, 0] / a
-        c = math.sqrt(S[1, 1] - b * b)
-        # L^-1 = [[1/a, 0], [-b/(a c), 1/c]]
-        Mt = np.empty((2, n))
-        np.multiply(HP[0], 1.0 / a, out=Mt[0])
-        np.multiply(HP[1], 1.0 / c, out=Mt[1])
-        Mt[1] -= (b / (a * c)) * HP[0]
-        # w = L^-1 nu; state += (H P)^T S^-1 nu = M (L^-1 nu)
-        w0 = nu[0] / a
-        w1 = (nu[1] - b * w0) / c
-        if w0 * w0 + w1 * w1 > gate:  # |L^-1 nu|^2 = nu^T S^-1 nu
+        if not rank2_correction(x[:n], P, HP, S, nu, gate):
             return False
-        x[:n] += Mt[0] * w0 + Mt[1] * w1
         x[2] = wrap_angle(x[2])
-        # P -= M M^T, in place, one block of rows at a time.
-        M = Mt.T  # (n, 2) view
-        rows = min(64, max(8, ROW_BLOCK_ELEMENTS // n))
-        if n <= 2 * rows:
-            np.subtract(P, M @ Mt, out=P)
-        else:
-            for r0 in range(0, n, rows):
-                blk = P[r0:r0 + rows]
-                np.subtract(blk, M[r0:r0 + rows] @ Mt, out=blk)
         return True
 
     def _observability_constrained(self, slot, H_x, H_m):
@@ -571,59 +452,21 @@ class EkfSlam(Backend):
         self._n = n + 2
         return slot
 
-    def _all_predictions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Predicted z (L, 2), H_x (L, 2, 3), H_m (L, 2, 2) and S - R (L, 2, 2) for every landmark. O(L)."""
-        L = len(self._ids)
-        x, P = self._xbuf, self._Pbuf
-        xr = x[:3]
-        m = x[3:3 + 2 * L].reshape(L, 2)
-        zhat = models.observe(xr, m)
-        H_x, H_m = models.observe_jacobians(xr, m)
-        Prr = P[:3, :3]
-        Prm = P[:3, 3:3 + 2 * L].reshape(3, L, 2).transpose(1, 0, 2)  # (L, 3, 2)
-        Pmm = self._landmark_marginals()
-        HxPrm = H_x @ Prm  # (L, 2, 2)
-        cross = HxPrm @ H_m.transpose(0, 2, 1)
-        S0 = (H_x @ Prr @ H_x.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
-              + H_m @ Pmm @ H_m.transpose(0, 2, 1))
-        return zhat, H_x, H_m, S0
-
     def _update_unknown(self, obs: list[Observation], where: list[int],
                         assoc: list[int | None]) -> None:
+        """Associate the observations ``obs`` (rows ``where`` of the scan) by gating and
+        JCBB, update with the pairs, then start landmarks (or provisional
+        sightings) from the unpaired ones far from every unpaired landmark."""
         m = len(obs)
         Z = np.array([o.z for o in obs]).reshape(m, 2)
         Rs = np.array([o.covariance for o in obs]).reshape(m, 2, 2)
-        L = len(self._ids)
-        pairs: list[tuple[int, int]] = []
-        min_d2 = np.full(m, np.inf)
-        if L:
-            zhat, H_x, H_m, S0 = self._all_predictions()
-            nu = models.innovation(Z[:, None, :], zhat[None, :, :])  # (m, L, 2)
-            d2 = mahalanobis_sq_2d(nu, S0[None] + Rs[:, None])  # (m, L)
-            min_d2 = d2.min(axis=1)
-            cands = individual_candidates(d2, self._gate, self.config.jcbb_max_candidates)
-            pairs = [(i, l) for i, cl in enumerate(cands) for l in cl]
-        hyp: list[int | None] = [None] * m
-        if pairs:
-            pair_obs = np.array([p[0] for p in pairs])
-            pair_lm = np.array([p[1] for p in pairs])
-            U = sorted(set(pair_lm.tolist()))
-            col = {u: 3 + 2 * k for k, u in enumerate(U)}
-            idx = [0, 1, 2] + [j for u in U for j in (3 + 2 * u, 4 + 2 * u)]
-            Psub = self._Pbuf[np.ix_(idx, idx)]
-            A = np.zeros((2 * len(pairs), len(idx)))
-            for p, (i, l) in enumerate(pairs):
-                A[2 * p:2 * p + 2, :3] = H_x[l]
-                A[2 * p:2 * p + 2, col[l]:col[l] + 2] = H_m[l]
-            C = A @ Psub @ A.T
-            for p, (i, _) in enumerate(pairs):
-                C[2 * p:2 * p + 2, 2 * p:2 * p + 2] += Rs[i]
-            res = jcbb(Z, zhat[pair_lm], C, pair_obs, pair_lm,
-                       chi2_prob=self.config.gate_chi2_prob,
-                       max_nodes=self.config.jcbb_max_nodes,
-                       individual_d2=d2[pair_obs, pair_lm])
+        c = self.config
+        hyp, d2, res = associate_scan(self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs,
+                                      gate=self._gate, chi2_prob=c.gate_chi2_prob,
+                                      max_candidates=c.jcbb_max_candidates,
+                                      max_nodes=c.jcbb_max_nodes)
+        if res is not None:
             self.last_jcbb = res
-            hyp = res.hypothesis
         # Updates first (slots are stable: new landmarks only append).
         for i, slot in enumerate(hyp):
             if slot is not None:
@@ -631,18 +474,11 @@ class EkfSlam(Backend):
                 assoc[where[i]] = self._ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
-        if L:
-            # Mutual exclusion: a landmark paired with another observation of
-            # this scan cannot also be this one, so it does not block a new one.
-            taken = [s for s in hyp if s is not None]
-            if taken:
-                d2x = d2.copy()
-                d2x[:, taken] = np.inf
-                min_d2 = d2x.min(axis=1)
+        min_d2 = unpaired_distances(d2, hyp)
         for i in range(m):
             if hyp[i] is not None or not min_d2[i] > self._new_gate:
                 continue
-            if self.config.provisional_sightings <= 1:
+            if c.provisional_sightings <= 1:
                 lid = self._next_id
                 self._add_landmark(lid, Z[i], Rs[i])
                 assoc[where[i]] = lid
@@ -650,32 +486,16 @@ class EkfSlam(Backend):
             lid = self._provisional_sighting(Z[i], Rs[i], hit_prov)
             if lid is not None:
                 assoc[where[i]] = lid
-        self._prov = [e for e in self._prov if e is not None]
+        self._prov.compact()
 
     def _provisional_sighting(self, z: np.ndarray, R: np.ndarray, hit: set[int]) -> int | None:
+        """Sight ``z`` on the provisional list; the new landmark's id when it enters the map."""
         xr = self._xbuf[:3].copy()
         G_x, G_z = models.inverse_observe_jacobians(xr, z)
         pt = models.inverse_observe(xr, z)
         C = G_x @ self._Pbuf[:3, :3] @ G_x.T + G_z @ R @ G_z.T
-        best, best_d2 = None, self._gate
-        for k, e in enumerate(self._prov):
-            if e is None or k in hit:
-                continue
-            d = pt - e["pt"]
-            d2 = float(mahalanobis_sq_2d(d, C + e["cov"]))
-            if d2 < best_d2:
-                best, best_d2 = k, d2
-        if best is None:
-            self._prov.append({"pt": pt, "cov": C, "count": 1})
-            hit.add(len(self._prov) - 1)
+        if not self._prov.sight(pt, C, hit):
             return None
-        e = self._prov[best]
-        e["count"] += 1
-        e["pt"], e["cov"] = pt, C
-        hit.add(best)
-        if e["count"] >= self.config.provisional_sightings:
-            self._prov[best] = None  # placeholder keeps indices in ``hit`` valid this scan
-            lid = self._next_id
-            self._add_landmark(lid, z, R)
-            return lid
-        return None
+        lid = self._next_id
+        self._add_landmark(lid, z, R)
+        return lid

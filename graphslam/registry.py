@@ -70,7 +70,8 @@ def make_backend(name: str, *, config: ConfigSource = None,
 
         return Isam2Backend(load_section(Isam2Config, config, overrides))
     if name == "ekf":
-        from filters.ekf_slam import EkfSlam, EkfSlamConfig
+        from filters.ekf_slam import EkfSlam
+        from filters.ekf_slam_config import EkfSlamConfig
 
         return EkfSlam(load_section(EkfSlamConfig, config, overrides))
     if name in ("fastslam1", "fastslam2"):
@@ -123,11 +124,13 @@ def make_visual_backend(name: str, *, config: ConfigSource = None,
     """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
     (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
-        from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+        from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+        from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 
         return VisualIsam2Backend(load_section(VisualIsam2Config, config, overrides))
     if name == "ekf":
-        from filters.mono_ekf import MonoEkf, MonoEkfConfig
+        from filters.mono_ekf import MonoEkf
+        from filters.mono_ekf_config import MonoEkfConfig
 
         return MonoEkf(load_section(MonoEkfConfig, config, overrides))
     raise ConfigError(f"back end {name!r} does not run on image sequences "

@@ -10,7 +10,8 @@ from scipy.stats import chi2
 
 from slamcore.planar import geometry as models
 from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
-from filters.ekf_slam import EkfSlam, EkfSlamConfig
+from filters.ekf_slam import EkfSlam
+from filters.ekf_slam_config import EkfSlamConfig
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
 from graphslam.evaluation.planar import association_accuracy

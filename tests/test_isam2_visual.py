@@ -10,7 +10,8 @@ from gtsam.symbol_shorthand import L, X
 from slamcore.spatial.geometry import invert_pose, se3_exp
 from graphslam.backends import gtsam_convert as conv
 from slamcore.errors import ConfigError, UnsupportedError
-from graphslam.backends.spatial.isam2 import PRIOR_SIGMA_FLOOR, VisualIsam2Backend, VisualIsam2Config
+from graphslam.backends.spatial.isam2 import PRIOR_SIGMA_FLOOR, VisualIsam2Backend
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from slamcore.spatial.records import PixelObservations
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from filters import landmark_params as lp
-from filters.mono_ekf import MonoEkf, MonoEkfConfig, constant_velocity_motion, odometry_motion
+from filters.mono_ekf import MonoEkf
+from filters.mono_ekf_config import MonoEkfConfig
+from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion
 from slamcore.spatial.geometry import invert_pose, se3_exp
 from slamcore.spatial.camera import project
 from slamcore.config import from_dict

@@ -16,7 +16,8 @@ from slamcore.spatial.camera import project
 from frontend.orb import OrbDetector
 from graphslam.cli.main import main
 from slamcore.errors import ConfigError, UnsupportedError
-from graphslam.backends.spatial.isam2 import VisualIsam2Backend, VisualIsam2Config
+from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from slamcore.spatial.records import PixelObservations, PoseClosure
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
 from tests.test_isam2_visual import K, SIZE, SIGMA_PX, dead_reckoning, make_world, position_rmse

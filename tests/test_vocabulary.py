@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from slamcore.errors import ConfigError, InputError
-from loopclosure.vocabulary import (FORMAT_VERSION, FlatVocabulary, VocabularyTree,
-                                    hamming_distances, load_vocabulary)
+from loopclosure.descriptor_distance import hamming_distances
+from loopclosure.vocabulary import FlatVocabulary, VocabularyTree, load_vocabulary
+from loopclosure.vocabulary_file import FORMAT_VERSION
 
 #: Bits flipped between a parent and a child cluster centre (of 256) in the binary hierarchy.
 CHILD_FLIP_BITS = 40

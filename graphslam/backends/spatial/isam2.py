@@ -1,6 +1,10 @@
 """The visual iSAM2 back end (3-D): Pose3 cameras, point landmarks, projection factors.
 
 Implements :class:`slamcore.spatial.backend.VisualBackend` on ``gtsam.ISAM2``.
+Beside it: :mod:`~graphslam.backends.spatial.isam2_config` (settings),
+:mod:`~graphslam.backends.spatial.isam2_checks` (input checks),
+:mod:`~graphslam.backends.spatial.landmark_init` (tracks waiting for parallax,
+triangulation) and :mod:`~graphslam.backends.spatial.polish` (GNC polish).
 
 Graph: ``X(frame_id)`` Pose3 camera poses (``wTc``), a prior on the first,
 ``BetweenFactorPose3`` from odometry, ``L(track_id)`` Point3 landmarks with one
@@ -49,15 +53,17 @@ most often first, as the course advises), which bounds the per-frame cost.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import ClassVar
-
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
-from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
+from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
+                                                     checked_pixels, checked_transform)
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
+from graphslam.backends.spatial.landmark_init import Track, consistent, triangulate
+from graphslam.backends.spatial.polish import gnc_polish
+from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.spatial.records import (
     PixelObservations, PixelPredictions, PoseClosure, VisualEstimate,
 )
@@ -67,155 +73,6 @@ from slamcore.spatial.backend import VisualBackend
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a
 #: proper Gaussian. 1e-4 is far below any pixel's information at VGA.
 PRIOR_SIGMA_FLOOR = 1e-4
-
-
-@dataclass(frozen=True)
-class VisualIsam2Config:
-    """Visual iSAM2 settings.
-
-    Attributes:
-        relinearize_threshold: relinearise a variable when its delta exceeds this
-            (gtsam tangent units: radians / metres).
-        relinearize_skip: check for relinearisation every this many updates.
-        pixel_kernel: robust kernel on pixel factors, "huber", "cauchy" or "none".
-            On real images wrong ZNCC matches (repeated texture) are off by many
-            pixels and Huber still gives them a linear pull: on KITTI 07 frames
-            0-159 (derived odometry, seeds 0-3) ATE / odometry ATE is 0.72 on
-            average with Cauchy k=1 against 1.00 with Huber 1.345
-            (benchmarks/kitti07_visual.toml). Huber stays the default: with
-            Cauchy (not convex) the incremental estimate strays farther from
-            the batch optimum between relinearisations (0.13 m against
-            0.07 m in tests/test_isam2_visual.py::test_matches_batch_lm).
-        pixel_kernel_k: kernel width in sigmas of the whitened pixel residual.
-        min_parallax_deg: angle between the world rays of a track's first and
-            latest observations before it is triangulated, degrees. It also
-            guards against "parallax" made of pose error alone: a camera
-            turning on the spot with drifting odometry passes 1 deg within
-            30 frames in tests/test_isam2_visual.py. In forward motion with
-            metric odometry (KITTI 07) 1 deg maps points near the direction of
-            travel before they leave the tracker: seeds 0-3 with the Cauchy
-            kernel, ATE / odometry 0.61 with 1 deg against 0.72 with 2 deg
-            (benchmarks/kitti07_visual.toml).
-        min_observations: pixels a track needs before it is triangulated.
-        min_depth_m: a triangulated point must be at least this far in front of
-            every camera that saw it.
-        max_reprojection_sigmas: a triangulated point's every pixel must
-            reproject within this many ``sigma_px`` (Euclidean, in the image).
-        track_timeout_frames: a waiting track not seen for this many frames is
-            forgotten (bounds the buffer).
-        max_track_observations: buffered pixels per waiting track; beyond, the
-            oldest but the first (the parallax baseline) is dropped.
-        max_landmarks_per_frame: cost bound: at most this many landmarks get a
-            factor per frame (those seen longest first; newly triangulated ones
-            count, and wait for a later frame when the budget is spent); the
-            other pixels are unused (``stats["unused_pixels"]``). 0: no bound.
-        newest_pose_last: elimination ordering hint given to each update: only
-            the newest pose is constrained to the root of the Bayes tree (False:
-            gtsam's default, every variable of the new factors).
-        prediction_covariance: "joint" or "marginal", see the module docstring.
-        max_predictions: at most this many landmarks predicted per frame, those
-            with most observations first; 0: all in view. The joint marginal
-            costs grow with it (measured on the 300-frame benchmark scene:
-            ~5 ms for 20, ~30 ms for 100 landmarks at frame 120, CPU time).
-        predict_window_frames: predict only landmarks observed within this many
-            frames (0: every mapped landmark in view). A window turns the map
-            into a local one (visual odometry): old places are then recognised
-            only through loop closures, never by re-finding their landmarks.
-        loop_closure_kernel: robust kernel on loop-closure factors, "none",
-            "huber" or "cauchy", so that a wrong closure cannot wreck the map.
-        loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
-        polish: at :meth:`VisualIsam2Backend.finalize`, run batch
-            Levenberg-Marquardt on the whole graph from the incremental solution.
-        polish_method: "lm", or "gnc" (gtsam's GncLMOptimizer with every factor
-            but the loop closures known to be an inlier; closures it weighs
-            below 0.5 are counted in ``stats["closures_dropped_by_gnc"]``).
-            GNC solves with the Gaussian core of every factor (its own weights
-            replace robust kernels), so the pixel factors lose their Huber
-            kernel in that solve.
-        polish_max_iterations: LM iteration cap for the polish.
-    """
-
-    SECTION: ClassVar[str] = "isam2_visual"
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
-    pixel_kernel: str = "huber"
-    pixel_kernel_k: float = 1.345
-    min_parallax_deg: float = 2.0
-    min_observations: int = 3
-    min_depth_m: float = 0.1
-    max_reprojection_sigmas: float = 4.0
-    track_timeout_frames: int = 10
-    max_track_observations: int = 30
-    # 0 (no bound) by default: with a bound of 40 and max_predictions = 10 the back end runs at
-    # 19 frames/s on the 300-frame room (2.3 with no bound and 20 predictions), but with 5 % gross
-    # outlier pixels the bound loses 1 cm of ATE (fewer landmarks). Predictions: 10 keeps the
-    # joint marginal cheap; active search needs only the most informative few.
-    max_landmarks_per_frame: int = 0
-    newest_pose_last: bool = False
-    prediction_covariance: str = "joint"
-    max_predictions: int = 10
-    predict_window_frames: int = 0
-    loop_closure_kernel: str = "cauchy"
-    loop_closure_kernel_k: float = 1.0
-    polish: bool = True
-    polish_method: str = "lm"
-    polish_max_iterations: int = 50
-
-    def __post_init__(self):
-        if self.pixel_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2_visual.pixel_kernel must be none, huber or cauchy")
-        if not self.pixel_kernel_k > 0:
-            raise ConfigError("isam2_visual.pixel_kernel_k must be > 0")
-        if not self.relinearize_threshold > 0:
-            raise ConfigError("isam2_visual.relinearize_threshold must be > 0")
-        if self.relinearize_skip < 1:
-            raise ConfigError("isam2_visual.relinearize_skip must be >= 1")
-        if not 0 <= self.min_parallax_deg < 90:
-            raise ConfigError("isam2_visual.min_parallax_deg must be in [0, 90)")
-        if self.min_observations < 2:
-            raise ConfigError("isam2_visual.min_observations must be >= 2 (triangulation)")
-        if not self.min_depth_m > 0:
-            raise ConfigError("isam2_visual.min_depth_m must be > 0")
-        if not self.max_reprojection_sigmas > 0:
-            raise ConfigError("isam2_visual.max_reprojection_sigmas must be > 0")
-        if self.track_timeout_frames < 1:
-            raise ConfigError("isam2_visual.track_timeout_frames must be >= 1")
-        if self.max_track_observations < self.min_observations:
-            raise ConfigError("isam2_visual.max_track_observations must be >= min_observations")
-        if self.prediction_covariance not in ("joint", "marginal"):
-            raise ConfigError("isam2_visual.prediction_covariance must be joint or marginal")
-        if self.max_landmarks_per_frame < 0:
-            raise ConfigError("isam2_visual.max_landmarks_per_frame must be >= 0 (0: no bound)")
-        if self.max_predictions < 0:
-            raise ConfigError("isam2_visual.max_predictions must be >= 0 (0: no cap)")
-        if self.predict_window_frames < 0:
-            raise ConfigError("isam2_visual.predict_window_frames must be >= 0 (0: no window)")
-        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2_visual.loop_closure_kernel must be none, huber or cauchy")
-        if not self.loop_closure_kernel_k > 0:
-            raise ConfigError("isam2_visual.loop_closure_kernel_k must be > 0")
-        if self.polish_method not in ("lm", "gnc"):
-            raise ConfigError("isam2_visual.polish_method must be lm or gnc")
-        if self.polish_max_iterations < 1:
-            raise ConfigError("isam2_visual.polish_max_iterations must be >= 1")
-
-    def isam2_params(self) -> gtsam.ISAM2Params:
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.relinearize_threshold)
-        params.relinearizeSkip = self.relinearize_skip
-        return params
-
-
-@dataclass
-class _Track:
-    """A track waiting for parallax: its pixels, and the world ray of the first."""
-
-    first_ray_w: np.ndarray  # (3,) unit
-    frames: list[int] = field(default_factory=list)
-    uv: list[np.ndarray] = field(default_factory=list)
-    sigma: list[float] = field(default_factory=list)
-    last_index: int = -1  # position in the frame list of the latest pixel
-    queued: bool = False  # qualified: triangulated at the next frame
 
 
 class VisualIsam2Backend(VisualBackend):
@@ -236,7 +93,7 @@ class VisualIsam2Backend(VisualBackend):
         self._K = np.eye(3)
         self._K_inv = np.eye(3)
         self._size = (0, 0)
-        self._tracks: dict[int, _Track] = {}  # waiting for parallax
+        self._tracks: dict[int, Track] = {}  # waiting for parallax
         self._rejected: set[int] = set()  # failed triangulation: ignored from then on
         self._queued: list[int] = []  # qualified at the previous frame, see update()
         # mapped landmarks: slot per track id, numpy caches indexed by slot
@@ -261,13 +118,11 @@ class VisualIsam2Backend(VisualBackend):
     def initialize(self, frame_id, wTc, covariance, K, image_size):
         if self._frames:
             raise GraphSlamError("isam2 (visual): initialize() called twice")
-        K = np.asarray(K, dtype=np.float64)
-        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise MeasurementError(f"isam2 (visual): bad intrinsic matrix K {K.tolist()}")
+        K = checked_intrinsics(K)
         self._K, self._K_inv = K, np.linalg.inv(K)
         self._cal = conv.cal3_s2(K)
         self._size = (int(image_size[0]), int(image_size[1]))
-        cov = _checked_covariance(covariance, "prior", allow_singular=True)
+        cov = checked_covariance(covariance, "prior", allow_singular=True)
         cov = cov + PRIOR_SIGMA_FLOOR**2 * np.eye(6)
         fid = int(frame_id)
         self._graph.add(gtsam.PriorFactorPose3(X(fid), conv.pose3(wTc), conv.pose3_noise(cov)))
@@ -283,11 +138,8 @@ class VisualIsam2Backend(VisualBackend):
         fid = int(frame_id)
         if fid in self._frame_set:
             raise GraphSlamError(f"isam2 (visual): frame {fid} added twice")
-        odo = np.asarray(odometry, dtype=np.float64)
-        if odo.shape != (4, 4) or not np.all(np.isfinite(odo)):
-            raise MeasurementError(
-                f"isam2 (visual): odometry to frame {fid} is not a finite (4, 4)")
-        cov = _checked_covariance(covariance, f"odometry to frame {fid}")
+        odo = checked_transform(odometry, f"odometry to frame {fid}")
+        cov = checked_covariance(covariance, f"odometry to frame {fid}")
         prev = self._frames[-1]
         delta = conv.pose3(odo)
         # initialised from the previous pose as estimated before its own
@@ -300,13 +152,7 @@ class VisualIsam2Backend(VisualBackend):
     def update(self, observations: PixelObservations) -> None:
         if not self._frames:
             raise GraphSlamError("isam2 (visual): update() before initialize()")
-        ids = np.asarray(observations.track_ids, dtype=np.int64).reshape(-1)
-        uv = np.asarray(observations.uv_px, dtype=np.float64).reshape(-1, 2)
-        sigma = float(observations.sigma_px)
-        if len(ids) != len(uv):
-            raise MeasurementError("isam2 (visual): track_ids and uv_px differ in length")
-        if not (np.all(np.isfinite(uv)) and np.isfinite(sigma) and sigma > 0):
-            raise MeasurementError("isam2 (visual): pixels must be finite and sigma_px > 0")
+        ids, uv, sigma = checked_pixels(observations)
         if len(ids) == 0:
             return
         fid = self._frames[-1]
@@ -318,14 +164,8 @@ class VisualIsam2Backend(VisualBackend):
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
         qualified: list[int] = []
         budget = self.config.max_landmarks_per_frame or len(ids) + len(self._queued)
-        skip = set()
-        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._slot]
-        if len(mapped) > budget:  # keep the longest-seen landmarks (best constrained)
-            nobs = self._lm_nobs[[self._slot[int(ids[i])] for i in mapped]]
-            order = np.lexsort((ids[mapped], -nobs))
-            skip = {mapped[j] for j in order[budget:].tolist()}
-            self._stats["unused_pixels"] += len(skip)
-        budget -= len(mapped) - len(skip)
+        skip, used = self._over_budget(ids, budget)
+        budget -= used
         for i, tid in enumerate(ids.tolist()):
             slot = self._slot.get(tid)
             if i in skip:
@@ -342,36 +182,16 @@ class VisualIsam2Backend(VisualBackend):
                 continue
             track = self._tracks.get(tid)
             if track is None:
-                track = self._tracks[tid] = _Track(first_ray_w=rays[i])
+                track = self._tracks[tid] = Track(first_ray_w=rays[i])
             elif track.last_index == now:  # same track twice in a frame: keep the first
                 self._stats["ignored_pixels"] += 1
                 continue
-            track.frames.append(fid)
-            track.uv.append(uv[i])
-            track.sigma.append(sigma)
-            track.last_index = now
-            if len(track.frames) > self.config.max_track_observations:
-                del track.frames[1], track.uv[1], track.sigma[1]
-            if (not track.queued and len(track.frames) >= self.config.min_observations
-                    and track.first_ray_w @ rays[i] <= self._cos_parallax):
-                track.queued = True
+            if track.add(fid, uv[i], sigma, now, rays[i],
+                         max_observations=self.config.max_track_observations,
+                         min_observations=self.config.min_observations,
+                         cos_parallax=self._cos_parallax):
                 qualified.append(tid)
-        # Tracks that qualified at the previous frame are triangulated now, from
-        # the pixels of frames before this one: those poses have been corrected
-        # by their own pixels in this frame's update, while this frame's pose is
-        # still odometry alone (a few pixels off, which the consistency test
-        # would take for a bad track). This frame's pixel still gets its factor.
-        # New landmarks only within this frame's budget; the others wait.
-        waiting = []
-        for tid in self._queued:
-            if tid not in self._tracks:
-                continue
-            if budget <= 0:
-                waiting.append(tid)
-                continue
-            if self._triangulate(tid, self._tracks.pop(tid), fid):
-                budget -= 1
-        self._queued = waiting + qualified
+        self._queued = self._triangulate_queued(fid, budget) + qualified
         if now % self.config.track_timeout_frames == 0:  # amortised sweep
             self._forget_stale_tracks(now)
 
@@ -454,7 +274,9 @@ class VisualIsam2Backend(VisualBackend):
             params.setMaxIterations(self.config.polish_max_iterations)
             graph = self.factor_graph()
             if self.config.polish_method == "gnc" and self._closures:
-                graph, self._polished = self._gnc(graph, params)
+                graph, self._polished, dropped = gnc_polish(
+                    graph, self._isam.calculateEstimate(), self._closures, params)
+                self._stats["closures_dropped_by_gnc"] = dropped
             else:
                 self._polished = gtsam.LevenbergMarquardtOptimizer(
                     graph, self._isam.calculateEstimate(), params).optimize()
@@ -472,10 +294,8 @@ class VisualIsam2Backend(VisualBackend):
                 raise GraphSlamError(f"isam2 (visual): loop closure names unknown frame {f}")
         if a == b:
             raise MeasurementError(f"isam2 (visual): loop closure from frame {a} to itself")
-        aTb = np.asarray(closure.aTb, dtype=np.float64)
-        if aTb.shape != (4, 4) or not np.all(np.isfinite(aTb)):
-            raise MeasurementError(f"isam2 (visual): loop closure {a}-{b} pose is not a finite (4, 4)")
-        cov = _checked_covariance(closure.covariance, f"loop closure {a}-{b}")
+        aTb = checked_transform(closure.aTb, f"loop closure {a}-{b} pose")
+        cov = checked_covariance(closure.covariance, f"loop closure {a}-{b}")
         measured = conv.pose3(aTb)
         noise = conv.robust(conv.pose3_noise(cov), self.config.loop_closure_kernel,
                             self.config.loop_closure_kernel_k)
@@ -588,21 +408,51 @@ class VisualIsam2Backend(VisualBackend):
             self._noise_cache[sigma] = model
         return model
 
-    def _triangulate(self, tid: int, track: _Track, current: int) -> bool:
+    def _over_budget(self, ids: np.ndarray, budget: int) -> tuple[set[int], int]:
+        """Rows of ``ids`` whose landmark gets no factor this frame (beyond ``budget``),
+        and how many mapped landmarks do get one."""
+        skip = set()
+        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._slot]
+        if len(mapped) > budget:  # keep the longest-seen landmarks (best constrained)
+            nobs = self._lm_nobs[[self._slot[int(ids[i])] for i in mapped]]
+            order = np.lexsort((ids[mapped], -nobs))
+            skip = {mapped[j] for j in order[budget:].tolist()}
+            self._stats["unused_pixels"] += len(skip)
+        return skip, len(mapped) - len(skip)
+
+    def _triangulate_queued(self, fid: int, budget: int) -> list[int]:
+        """Triangulate the tracks queued at the previous frame, at most ``budget`` of
+        them mapped; returns those left waiting for a later frame's budget.
+
+        They are triangulated now, from the pixels of frames before this one
+        (``fid``): those poses have been corrected by their own pixels in this
+        frame's update, while this frame's pose is still odometry alone (a few
+        pixels off, which the consistency test would take for a bad track).
+        This frame's pixel still gets its factor.
+        """
+        waiting = []
+        for tid in self._queued:
+            if tid not in self._tracks:
+                continue
+            if budget <= 0:
+                waiting.append(tid)
+                continue
+            if self._triangulate(tid, self._tracks.pop(tid), fid):
+                budget -= 1
+        return waiting
+
+    def _triangulate(self, tid: int, track: Track, current: int) -> bool:
         """Triangulate a track from its pixels of frames other than ``current``;
         map it with factors for all its pixels, or reject it for good."""
         used = [i for i, f in enumerate(track.frames) if f != current]
         poses = [self._pose(track.frames[i]) for i in used]
         uv = np.array([track.uv[i] for i in used])
         sigma = np.array([track.sigma[i] for i in used])
-        try:
-            point = np.asarray(gtsam.triangulatePoint3(
-                poses, self._cal, [u.reshape(2, 1) for u in uv], 1e-9, True,
-                gtsam.noiseModel.Isotropic.Sigma(2, float(sigma.min())))).reshape(3)
-        except RuntimeError:  # gtsam's underconstrained / cheirality exceptions
-            point = None
+        point = triangulate(poses, self._cal, uv, sigma)
         if (point is None or not np.all(np.isfinite(point))
-                or not self._consistent(poses, uv, sigma, point)):
+                or not consistent(poses, self._K, uv, sigma, point,
+                                  min_depth_m=self.config.min_depth_m,
+                                  max_sigmas=self.config.max_reprojection_sigmas)):
             self._rejected.add(tid)
             self._stats["rejected_triangulations"] += 1
             return False
@@ -613,17 +463,6 @@ class VisualIsam2Backend(VisualBackend):
                 u, self._pixel_noise(s), X(f), key, self._cal))
         self._add_landmark(tid, point, len(track.frames), track.sigma[-1])
         return True
-
-    def _consistent(self, poses, uv, sigma, point) -> bool:
-        """In front of every camera by ``min_depth_m`` and every pixel reprojects
-        within ``max_reprojection_sigmas``."""
-        T = np.array([conv.pose3_matrix(p) for p in poses])
-        p_c = np.einsum("nji,nj->ni", T[:, :3, :3], point - T[:, :3, 3])  # R^T (p - t)
-        if np.any(p_c[:, 2] < self.config.min_depth_m):
-            return False
-        h = p_c @ self._K.T
-        err = np.linalg.norm(h[:, :2] / h[:, 2:3] - uv, axis=1)
-        return bool(np.all(err <= self.config.max_reprojection_sigmas * sigma))
 
     def _add_landmark(self, tid: int, point: np.ndarray, nobs: int, sigma: float) -> None:
         if self._n_lm == len(self._lm_pos):  # grow by doubling: amortised O(1)
@@ -647,29 +486,6 @@ class VisualIsam2Backend(VisualBackend):
             del self._tracks[tid]
         self._stats["dropped_tracks"] += len(stale)
 
-    def _gnc(self, graph: gtsam.NonlinearFactorGraph, lm_params: gtsam.LevenbergMarquardtParams):
-        """GNC over the whole graph, loop closures Gaussian and the only suspects."""
-        keys = {(X(a), X(b)): (measured, cov) for a, b, measured, cov in self._closures}
-        suspects = []
-        for i in range(graph.size()):
-            f = graph.at(i)
-            if f is None or not isinstance(f, gtsam.BetweenFactorPose3):
-                continue
-            k = tuple(f.keys())
-            if k in keys:  # GNC wants plain Gaussian factors: its own weights are the kernel
-                measured, cov = keys[k]
-                graph.replace(i, gtsam.BetweenFactorPose3(k[0], k[1], measured,
-                                                          conv.pose3_noise(cov)))
-                suspects.append(i)
-        params = gtsam.GncLMParams(lm_params)
-        suspect = set(suspects)
-        params.setKnownInliers([i for i in range(graph.size()) if i not in suspect])
-        optimizer = gtsam.GncLMOptimizer(graph, self._isam.calculateEstimate(), params)
-        result = optimizer.optimize()
-        weights = np.asarray(optimizer.getWeights())
-        self._stats["closures_dropped_by_gnc"] = int(sum(weights[i] < 0.5 for i in suspects))
-        return graph, result
-
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:
             return
@@ -692,20 +508,3 @@ class VisualIsam2Backend(VisualBackend):
         else:
             self._isam.update(graph, values)
 
-
-def _checked_covariance(covariance, what: str, allow_singular: bool = False) -> np.ndarray:
-    """(6, 6) finite symmetric covariance, positive definite (or semi-definite)."""
-    if covariance is None:
-        raise MeasurementError(f"isam2 (visual): {what} needs a (6, 6) covariance")
-    cov = np.asarray(covariance, dtype=np.float64)
-    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-        raise MeasurementError(f"isam2 (visual): {what} covariance must be a finite (6, 6)")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
-        raise MeasurementError(f"isam2 (visual): {what} covariance is not symmetric")
-    cov = 0.5 * (cov + cov.T)
-    lowest = float(np.linalg.eigvalsh(cov)[0])
-    if lowest < 0 and not (allow_singular and lowest > -1e-12 * max(1.0, float(np.trace(cov)))):
-        raise MeasurementError(f"isam2 (visual): {what} covariance is not positive semi-definite")
-    if lowest <= 0 and not allow_singular:
-        raise MeasurementError(f"isam2 (visual): {what} covariance is not positive definite")
-    return cov

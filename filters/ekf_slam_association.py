@@ -1,0 +1,156 @@
+"""Scan association of the 2-D EKF-SLAM (:class:`filters.ekf_slam.EkfSlam`) when landmark ids are unknown.
+
+Every landmark is predicted at once (:func:`predict_landmarks`), each
+observation is gated against all of them (Mahalanobis, 2 dof), and JCBB
+(:func:`filters.association.jcbb`) picks the jointly compatible pairing of
+the scan (:func:`associate_scan`), from the joint innovation covariance of
+the candidate pairs (:func:`pair_covariance`). An unpaired observation is
+judged new by its distance to the landmarks *not* paired in the scan
+(:func:`unpaired_distances`: mutual exclusion). With ``provisional_sightings
+> 1`` a new one waits on a :class:`ProvisionalList` first.
+
+Observations are ``z = [range_m, bearing_rad]``; ``P`` is the filter's
+covariance buffer (state ``[x, y, theta, m1x, m1y, ...]``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from filters.association import JcbbResult, individual_candidates, jcbb, mahalanobis_sq_2d
+from slamcore.planar import geometry as models
+
+
+def predict_landmarks(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray):
+    """Predicted z (L, 2), H_x (L, 2, 3), H_m (L, 2, 2) and S - R (L, 2, 2) for every landmark. O(L).
+
+    ``x``, ``P``: the state and covariance (buffers may be larger than the
+    state); ``Pmm`` (L, 2, 2): the landmarks' marginal covariances.
+    """
+    L = len(Pmm)
+    xr = x[:3]
+    m = x[3:3 + 2 * L].reshape(L, 2)
+    zhat = models.observe(xr, m)
+    H_x, H_m = models.observe_jacobians(xr, m)
+    Prr = P[:3, :3]
+    Prm = P[:3, 3:3 + 2 * L].reshape(3, L, 2).transpose(1, 0, 2)  # (L, 3, 2)
+    HxPrm = H_x @ Prm  # (L, 2, 2)
+    cross = HxPrm @ H_m.transpose(0, 2, 1)
+    S0 = (H_x @ Prr @ H_x.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
+          + H_m @ Pmm @ H_m.transpose(0, 2, 1))
+    return zhat, H_x, H_m, S0
+
+
+def pair_covariance(P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndarray,
+                    pairs: list[tuple[int, int]]) -> np.ndarray:
+    """Joint covariance (2p, 2p) of the innovations of the candidate ``pairs``
+    ``(observation i, landmark l)``: ``A P A^T`` over the robot and the landmarks
+    involved, plus each observation's ``R_i`` (``Rs`` (m, 2, 2)) on its own block.
+
+    ``H_x``, ``H_m``: every landmark's Jacobians (:func:`predict_landmarks`).
+    """
+    pair_lm = np.array([p[1] for p in pairs])
+    U = sorted(set(pair_lm.tolist()))
+    col = {u: 3 + 2 * k for k, u in enumerate(U)}
+    idx = [0, 1, 2] + [j for u in U for j in (3 + 2 * u, 4 + 2 * u)]
+    Psub = P[np.ix_(idx, idx)]
+    A = np.zeros((2 * len(pairs), len(idx)))
+    for p, (i, l) in enumerate(pairs):
+        A[2 * p:2 * p + 2, :3] = H_x[l]
+        A[2 * p:2 * p + 2, col[l]:col[l] + 2] = H_m[l]
+    C = A @ Psub @ A.T
+    for p, (i, _) in enumerate(pairs):
+        C[2 * p:2 * p + 2, 2 * p:2 * p + 2] += Rs[i]
+    return C
+
+
+def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray, Rs: np.ndarray,
+                   *, gate: float, chi2_prob: float, max_candidates: int, max_nodes: int):
+    """Landmark slot (or None) of each observation of one scan, by gating then JCBB.
+
+    ``Z`` (m, 2) observations with covariances ``Rs`` (m, 2, 2); ``gate``:
+    the individual chi-square gate (2 dof) of ``chi2_prob``, the joint
+    test's probability; at most ``max_candidates`` landmarks per observation
+    and ``max_nodes`` pairing tests. Returns the hypothesis (m,), the squared
+    Mahalanobis distances (m, L) (None without landmarks) and the
+    :class:`filters.association.JcbbResult` (None when no pair passed the gate).
+    """
+    m = len(Z)
+    hyp: list[int | None] = [None] * m
+    if not len(Pmm):
+        return hyp, None, None
+    zhat, H_x, H_m, S0 = predict_landmarks(x, P, Pmm)
+    nu = models.innovation(Z[:, None, :], zhat[None, :, :])  # (m, L, 2)
+    d2 = mahalanobis_sq_2d(nu, S0[None] + Rs[:, None])  # (m, L)
+    cands = individual_candidates(d2, gate, max_candidates)
+    pairs = [(i, l) for i, cl in enumerate(cands) for l in cl]
+    if not pairs:
+        return hyp, d2, None
+    pair_obs = np.array([p[0] for p in pairs])
+    pair_lm = np.array([p[1] for p in pairs])
+    C = pair_covariance(P, H_x, H_m, Rs, pairs)
+    res: JcbbResult = jcbb(Z, zhat[pair_lm], C, pair_obs, pair_lm, chi2_prob=chi2_prob,
+                           max_nodes=max_nodes, individual_d2=d2[pair_obs, pair_lm])
+    return res.hypothesis, d2, res
+
+
+def unpaired_distances(d2: np.ndarray | None, hypothesis: list[int | None]) -> np.ndarray:
+    """(m,) squared Mahalanobis distance of each observation to its nearest landmark
+    not paired in the scan (inf without landmarks).
+
+    Mutual exclusion: a landmark paired with another observation of the scan
+    cannot also be this one, so it does not stop this one from being new.
+    """
+    if d2 is None:
+        return np.full(len(hypothesis), np.inf)
+    taken = [s for s in hypothesis if s is not None]
+    if taken:
+        d2 = d2.copy()
+        d2[:, taken] = np.inf
+    return d2.min(axis=1)
+
+
+class ProvisionalList:
+    """Points sighted but not yet mapped (unknown association), matched by a world-frame gate.
+
+    Each entry is the last inverse-observed point ``pt`` (2,) m, its
+    covariance ``cov`` (2, 2) (``G_x P_rr G_x^T + G_z R G_z^T``, correlations
+    ignored) and its sighting count.
+    """
+
+    def __init__(self, sightings: int, gate: float):
+        self.sightings = sightings  # sightings before a point enters the map
+        self.gate = gate  # chi-square (2 dof) on the difference of two points
+        self.entries: list[dict | None] = []
+
+    def sight(self, pt: np.ndarray, cov: np.ndarray, hit: set[int]) -> bool:
+        """Count a sighting of ``pt`` against the nearest entry within the gate not
+        already sighted this scan (``hit``, updated), or start an entry.
+
+        True when the entry reaches ``sightings``: it leaves the list (its slot
+        stays None until :meth:`compact`, so the indices in ``hit`` stay valid).
+        """
+        best, best_d2 = None, self.gate
+        for k, e in enumerate(self.entries):
+            if e is None or k in hit:
+                continue
+            d = pt - e["pt"]
+            d2 = float(mahalanobis_sq_2d(d, cov + e["cov"]))
+            if d2 < best_d2:
+                best, best_d2 = k, d2
+        if best is None:
+            self.entries.append({"pt": pt, "cov": cov, "count": 1})
+            hit.add(len(self.entries) - 1)
+            return False
+        e = self.entries[best]
+        e["count"] += 1
+        e["pt"], e["cov"] = pt, cov
+        hit.add(best)
+        if e["count"] >= self.sightings:
+            self.entries[best] = None
+            return True
+        return False
+
+    def compact(self) -> None:
+        """Drop the slots of entries that entered the map (end of a scan)."""
+        self.entries = [e for e in self.entries if e is not None]

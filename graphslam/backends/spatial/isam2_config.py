@@ -1,0 +1,156 @@
+"""Settings of the visual iSAM2 back end (:class:`graphslam.backends.spatial.isam2.VisualIsam2Backend`).
+
+Section ``[isam2_visual]`` of the config file; checked on creation
+(:class:`slamcore.errors.ConfigError`). The measured trade-offs behind the
+defaults are in the attribute notes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import gtsam
+
+from graphslam.backends import gtsam_convert as conv
+from slamcore.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class VisualIsam2Config:
+    """Visual iSAM2 settings.
+
+    Attributes:
+        relinearize_threshold: relinearise a variable when its delta exceeds this
+            (gtsam tangent units: radians / metres).
+        relinearize_skip: check for relinearisation every this many updates.
+        pixel_kernel: robust kernel on pixel factors, "huber", "cauchy" or "none".
+            On real images wrong ZNCC matches (repeated texture) are off by many
+            pixels and Huber still gives them a linear pull: on KITTI 07 frames
+            0-159 (derived odometry, seeds 0-3) ATE / odometry ATE is 0.72 on
+            average with Cauchy k=1 against 1.00 with Huber 1.345
+            (benchmarks/kitti07_visual.toml). Huber stays the default: with
+            Cauchy (not convex) the incremental estimate strays farther from
+            the batch optimum between relinearisations (0.13 m against
+            0.07 m in tests/test_isam2_visual.py::test_matches_batch_lm).
+        pixel_kernel_k: kernel width in sigmas of the whitened pixel residual.
+        min_parallax_deg: angle between the world rays of a track's first and
+            latest observations before it is triangulated, degrees. It also
+            guards against "parallax" made of pose error alone: a camera
+            turning on the spot with drifting odometry passes 1 deg within
+            30 frames in tests/test_isam2_visual.py. In forward motion with
+            metric odometry (KITTI 07) 1 deg maps points near the direction of
+            travel before they leave the tracker: seeds 0-3 with the Cauchy
+            kernel, ATE / odometry 0.61 with 1 deg against 0.72 with 2 deg
+            (benchmarks/kitti07_visual.toml).
+        min_observations: pixels a track needs before it is triangulated.
+        min_depth_m: a triangulated point must be at least this far in front of
+            every camera that saw it.
+        max_reprojection_sigmas: a triangulated point's every pixel must
+            reproject within this many ``sigma_px`` (Euclidean, in the image).
+        track_timeout_frames: a waiting track not seen for this many frames is
+            forgotten (bounds the buffer).
+        max_track_observations: buffered pixels per waiting track; beyond, the
+            oldest but the first (the parallax baseline) is dropped.
+        max_landmarks_per_frame: cost bound: at most this many landmarks get a
+            factor per frame (those seen longest first; newly triangulated ones
+            count, and wait for a later frame when the budget is spent); the
+            other pixels are unused (``stats["unused_pixels"]``). 0: no bound.
+        newest_pose_last: elimination ordering hint given to each update: only
+            the newest pose is constrained to the root of the Bayes tree (False:
+            gtsam's default, every variable of the new factors).
+        prediction_covariance: "joint" or "marginal", see
+            :mod:`graphslam.backends.spatial.isam2`.
+        max_predictions: at most this many landmarks predicted per frame, those
+            with most observations first; 0: all in view. The joint marginal
+            costs grow with it (measured on the 300-frame benchmark scene:
+            ~5 ms for 20, ~30 ms for 100 landmarks at frame 120, CPU time).
+        predict_window_frames: predict only landmarks observed within this many
+            frames (0: every mapped landmark in view). A window turns the map
+            into a local one (visual odometry): old places are then recognised
+            only through loop closures, never by re-finding their landmarks.
+        loop_closure_kernel: robust kernel on loop-closure factors, "none",
+            "huber" or "cauchy", so that a wrong closure cannot wreck the map.
+        loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
+        polish: at :meth:`~graphslam.backends.spatial.isam2.VisualIsam2Backend.finalize`,
+            run batch Levenberg-Marquardt on the whole graph from the
+            incremental solution.
+        polish_method: "lm", or "gnc" (gtsam's GncLMOptimizer with every factor
+            but the loop closures known to be an inlier; closures it weighs
+            below 0.5 are counted in ``stats["closures_dropped_by_gnc"]``).
+            GNC solves with the Gaussian core of every factor (its own weights
+            replace robust kernels), so the pixel factors lose their Huber
+            kernel in that solve.
+        polish_max_iterations: LM iteration cap for the polish.
+    """
+
+    SECTION: ClassVar[str] = "isam2_visual"
+    relinearize_threshold: float = 0.1
+    relinearize_skip: int = 10
+    pixel_kernel: str = "huber"
+    pixel_kernel_k: float = 1.345
+    min_parallax_deg: float = 2.0
+    min_observations: int = 3
+    min_depth_m: float = 0.1
+    max_reprojection_sigmas: float = 4.0
+    track_timeout_frames: int = 10
+    max_track_observations: int = 30
+    # 0 (no bound) by default: with a bound of 40 and max_predictions = 10 the back end runs at
+    # 19 frames/s on the 300-frame room (2.3 with no bound and 20 predictions), but with 5 % gross
+    # outlier pixels the bound loses 1 cm of ATE (fewer landmarks). Predictions: 10 keeps the
+    # joint marginal cheap; active search needs only the most informative few.
+    max_landmarks_per_frame: int = 0
+    newest_pose_last: bool = False
+    prediction_covariance: str = "joint"
+    max_predictions: int = 10
+    predict_window_frames: int = 0
+    loop_closure_kernel: str = "cauchy"
+    loop_closure_kernel_k: float = 1.0
+    polish: bool = True
+    polish_method: str = "lm"
+    polish_max_iterations: int = 50
+
+    def __post_init__(self):
+        if self.pixel_kernel not in conv.ROBUST_KERNELS:
+            raise ConfigError("isam2_visual.pixel_kernel must be none, huber or cauchy")
+        if not self.pixel_kernel_k > 0:
+            raise ConfigError("isam2_visual.pixel_kernel_k must be > 0")
+        if not self.relinearize_threshold > 0:
+            raise ConfigError("isam2_visual.relinearize_threshold must be > 0")
+        if self.relinearize_skip < 1:
+            raise ConfigError("isam2_visual.relinearize_skip must be >= 1")
+        if not 0 <= self.min_parallax_deg < 90:
+            raise ConfigError("isam2_visual.min_parallax_deg must be in [0, 90)")
+        if self.min_observations < 2:
+            raise ConfigError("isam2_visual.min_observations must be >= 2 (triangulation)")
+        if not self.min_depth_m > 0:
+            raise ConfigError("isam2_visual.min_depth_m must be > 0")
+        if not self.max_reprojection_sigmas > 0:
+            raise ConfigError("isam2_visual.max_reprojection_sigmas must be > 0")
+        if self.track_timeout_frames < 1:
+            raise ConfigError("isam2_visual.track_timeout_frames must be >= 1")
+        if self.max_track_observations < self.min_observations:
+            raise ConfigError("isam2_visual.max_track_observations must be >= min_observations")
+        if self.prediction_covariance not in ("joint", "marginal"):
+            raise ConfigError("isam2_visual.prediction_covariance must be joint or marginal")
+        if self.max_landmarks_per_frame < 0:
+            raise ConfigError("isam2_visual.max_landmarks_per_frame must be >= 0 (0: no bound)")
+        if self.max_predictions < 0:
+            raise ConfigError("isam2_visual.max_predictions must be >= 0 (0: no cap)")
+        if self.predict_window_frames < 0:
+            raise ConfigError("isam2_visual.predict_window_frames must be >= 0 (0: no window)")
+        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
+            raise ConfigError("isam2_visual.loop_closure_kernel must be none, huber or cauchy")
+        if not self.loop_closure_kernel_k > 0:
+            raise ConfigError("isam2_visual.loop_closure_kernel_k must be > 0")
+        if self.polish_method not in ("lm", "gnc"):
+            raise ConfigError("isam2_visual.polish_method must be lm or gnc")
+        if self.polish_max_iterations < 1:
+            raise ConfigError("isam2_visual.polish_max_iterations must be >= 1")
+
+    def isam2_params(self) -> gtsam.ISAM2Params:
+        """gtsam's ISAM2 parameters for these settings."""
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.relinearize_threshold)
+        params.relinearizeSkip = self.relinearize_skip
+        return params
