@@ -40,6 +40,7 @@ counts overlaps twice, is reported as well).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -50,8 +51,8 @@ from frontend.features import Features
 from frontend.image import check_gray
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
-__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "chi2_2dof", "ellipse_pixels",
-           "extract_patches"]
+__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
+           "NearestMatcher", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
 
 
 def chi2_2dof(probability: float) -> float:
@@ -221,6 +222,148 @@ def inv2(S: np.ndarray) -> np.ndarray:
     return np.array([[d / det, -b / det], [-c / det, a / det]])
 
 
+#: One mode's matching of one landmark inside its ellipse:
+#: ``matcher(i, Si, u0, v0, mask) -> (uv, score, d2)`` with ``Si`` (2, 2) the
+#: inverse innovation covariance and ``(u0, v0, mask)`` the ellipse's pixels
+#: (:func:`ellipse_pixels`). ``uv`` (2,) is the accepted measurement or None;
+#: ``score`` is recorded even when nothing is accepted (None: no score);
+#: ``d2`` None lets the search compute ``e^T S^-1 e`` from ``uv``.
+Matcher = Callable[[int, np.ndarray, int, int, np.ndarray],
+                   tuple[np.ndarray | None, float | None, float | None]]
+
+
+def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
+    """``(z (N, 2), S (N, 2, 2))`` as float64; InputError / MeasurementError if malformed."""
+    z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
+    S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
+    n = len(z)
+    if len(S) != n:
+        raise InputError(f"{n} predictions but {len(S)} covariances")
+    finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
+    Sf = S[finite]
+    if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
+            np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
+        raise MeasurementError("innovation covariances must be symmetric positive definite")
+    return z, S
+
+
+class ZnccMatcher:
+    """``"zncc"`` mode: best ZNCC of the landmark's template inside its ellipse.
+
+    Templates are the stored ``patches`` (N, p, p), or, with appearance
+    prediction, cut from ``prev_image`` at ``prev_xy`` (N, 2) through the
+    offset map ``affine`` (N, 2, 2) when the landmark is searched.
+    """
+
+    def __init__(self, config: ActiveSearchConfig, image: np.ndarray, n: int, *,
+                 patches: np.ndarray | None, prev_image: np.ndarray | None,
+                 prev_xy: np.ndarray | None, affine: np.ndarray | None):
+        p = config.patch_size_px
+        self.config, self.image, self.p, self.margin = config, image, p, p // 2
+        self.warp = config.predict_appearance and affine is not None
+        if self.warp:
+            if prev_image is None or prev_xy is None:
+                raise InputError("appearance prediction needs prev_image and prev_xy")
+            prev_image = check_gray(prev_image, "prev_image")
+            prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+            affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
+        elif patches is None:
+            if prev_image is None or prev_xy is None:
+                raise InputError("zncc mode needs patches, or prev_image and prev_xy")
+            patches = extract_patches(prev_image, prev_xy, p)
+        if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
+            raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
+        if not self.warp:
+            # one vectorised call instead of one np.std per landmark
+            self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
+        self.patches, self.prev_image, self.prev_xy, self.affine = patches, prev_image, prev_xy, affine
+        self.min_var = float(config.min_patch_std) ** 2
+
+    def template(self, i: int) -> np.ndarray | None:
+        """(p, p) float32 template of landmark ``i``, None if flat (ZNCC undefined)."""
+        if not self.warp:
+            if self.tpl_std[i] < self.config.min_patch_std:
+                return None
+            return np.ascontiguousarray(self.patches[i], dtype=np.float32)
+        tpl = _warp_patch(self.prev_image, self.prev_xy[i], self.affine[i], self.p)
+        return None if float(tpl.std()) < self.config.min_patch_std else tpl
+
+    def __call__(self, i, Si, u0, v0, mask):
+        tpl = self.template(i)
+        if tpl is None:
+            return None, None, None
+        h = self.margin
+        bh, bw = mask.shape
+        # only the ellipse's bounding box (plus the patch margin) is converted
+        region = self.image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
+        res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
+        masked = np.where(mask & np.isfinite(res), res, -np.inf)
+        jv, ju = self._peak(region, masked)
+        if masked[jv, ju] == -np.inf:
+            return None, None, None
+        best = float(res[jv, ju])
+        if best < self.config.min_score:
+            return None, best, None
+        du = dv = 0.0
+        if self.config.subpixel:
+            if 0 < ju < bw - 1:
+                du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
+            if 0 < jv < bh - 1:
+                dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
+        return np.array([u0 + ju + du, v0 + jv + dv]), best, None
+
+    def _peak(self, region: np.ndarray, masked: np.ndarray) -> tuple[int, int]:
+        """Best ZNCC ``(row, col)`` in ``masked`` whose image window is not flat.
+
+        ZNCC is undefined on a flat window. The window test is done at the peak
+        only and the next peak tried if it fails (the same pixel as testing
+        every window); after a few flat peaks (a flat area) every window is
+        tested at once. Flat windows are set to -inf in ``masked``; a -inf
+        answer means no acceptable pixel.
+        """
+        p, h = self.p, self.margin
+        bh, bw = masked.shape
+        for _ in range(_PEAK_TRIES):
+            jv, ju = divmod(int(np.argmax(masked)), bw)
+            if masked[jv, ju] == -np.inf:
+                return jv, ju
+            _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
+            if float(sd[0, 0]) ** 2 >= self.min_var:
+                return jv, ju
+            masked[jv, ju] = -np.inf
+        k = (p, p)
+        m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+        m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+        var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
+        masked[var < self.min_var] = -np.inf
+        return divmod(int(np.argmax(masked)), bw)
+
+
+class NearestMatcher:
+    """``"nearest"`` mode: the detected point nearest to the prediction (Mahalanobis)
+    inside the ellipse; its detector response is the score."""
+
+    margin = 0
+
+    def __init__(self, config: ActiveSearchConfig, z: np.ndarray, features: Features | None):
+        if features is None:
+            raise InputError("nearest mode needs the current frame's features")
+        self.z, self.gate = z, config.gate
+        self.fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
+        self.fresp = np.asarray(features.response, dtype=np.float64)
+
+    def __call__(self, i, Si, u0, v0, mask):
+        if len(self.fxy) == 0:
+            return None, None, None
+        d = self.fxy - self.z[i]
+        dd = np.einsum("ni,ij,nj->n", d, Si, d)
+        inside = np.flatnonzero(dd <= self.gate)
+        if len(inside) == 0:
+            return None, None, None
+        j = inside[np.argmin(dd[inside])]
+        return self.fxy[j].copy(), self.fresp[j], None
+
+
 class ActiveSearch:
     """Active search for one frame at a time (see the module docstring).
 
@@ -271,58 +414,33 @@ class ActiveSearch:
         config's ``max_corrections`` still caps the landmarks searched.
         """
         image = check_gray(image)
-        cfg = self.config
-        z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
-        S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
-        n = len(z)
-        if len(S) != n:
-            raise InputError(f"{n} predictions but {len(S)} covariances")
-        finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
-        Sf = S[finite]
-        if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
-                np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
-            raise MeasurementError("innovation covariances must be symmetric positive definite")
-        H, W = image.shape
-        p = cfg.patch_size_px
-        h = p // 2
-        if cfg.mode == "zncc":
-            warp = cfg.predict_appearance and affine is not None
-            if warp:
-                if prev_image is None or prev_xy is None:
-                    raise InputError("appearance prediction needs prev_image and prev_xy")
-                prev_image = check_gray(prev_image, "prev_image")
-                prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
-                affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
-            elif patches is None:
-                if prev_image is None or prev_xy is None:
-                    raise InputError("zncc mode needs patches, or prev_image and prev_xy")
-                patches = extract_patches(prev_image, prev_xy, p)
-            if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
-                raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
-            margin = h
-            if not warp:
-                # one vectorised call instead of one np.std per landmark
-                tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
-            min_var = float(cfg.min_patch_std) ** 2
+        z, S = _checked_predictions(predictions, S)
+        if self.config.mode == "zncc":
+            matcher = ZnccMatcher(self.config, image, len(z), patches=patches, prev_image=prev_image,
+                                  prev_xy=prev_xy, affine=affine)
         else:
-            if features is None:
-                raise InputError("nearest mode needs the current frame's features")
-            fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
-            fresp = np.asarray(features.response, dtype=np.float64)
-            margin = 0
+            matcher = NearestMatcher(self.config, z, features)
+        return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found)
 
-        g = cfg.gate
-        searched = np.zeros(n, bool)
-        found = np.zeros(n, bool)
-        uv = np.full((n, 2), np.nan)
-        score = np.full(n, np.nan)
-        d2 = np.full(n, np.nan)
+    def search_with(self, shape: tuple[int, int], z: np.ndarray, S: np.ndarray, matcher: Matcher, *,
+                    margin: int = 0, max_found: int | None = None) -> ActiveSearchResult:
+        """The search loop shared by every mode: ``matcher`` (see :data:`Matcher`) looks
+        inside each ellipse, largest first, within the caps (:meth:`search`).
+
+        ``shape``: ``(H, W)`` of the image; ``z`` (N, 2) and ``S`` (N, 2, 2)
+        float64, already checked; ``margin``: pixels of every edge an ellipse
+        pixel must keep (half the patch for ZNCC).
+        """
+        H, W = shape
+        n = len(z)
+        g = self.config.gate
+        searched, found, skipped = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+        uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
         pixels = np.zeros(n, np.int64)
         union = np.zeros((H, W), bool)
         order = []
-        cap = cfg.max_corrections or n
+        cap = self.config.max_corrections or n
         n_found = 0
-        skipped = np.zeros(n, bool)
         cand = self.search_order(z, S, (H, W))
         for pos, i in enumerate(cand):
             if len(order) >= cap or (max_found and n_found >= max_found):
@@ -338,67 +456,15 @@ class ActiveSearch:
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
             Si = inv2(S[i])
-            if cfg.mode == "zncc":
-                if not warp:
-                    if tpl_std[i] < cfg.min_patch_std:
-                        continue
-                    tpl = np.ascontiguousarray(patches[i], dtype=np.float32)
-                else:
-                    tpl = _warp_patch(prev_image, prev_xy[i], affine[i], p)
-                    if float(tpl.std()) < cfg.min_patch_std:
-                        continue
-                # only the ellipse's bounding box (plus the patch margin) is converted
-                region = image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
-                res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
-                masked = np.where(mask & np.isfinite(res), res, -np.inf)
-                # Best ZNCC inside the ellipse whose image window is not flat (ZNCC is
-                # undefined there). The window test is done at the peak only and the
-                # next peak tried if it fails (the same pixel as testing every window);
-                # after a few flat peaks (a flat area) every window is tested at once.
-                for _ in range(_PEAK_TRIES):
-                    j = int(np.argmax(masked))
-                    jv, ju = divmod(j, bw)
-                    if masked[jv, ju] == -np.inf:
-                        break
-                    _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
-                    if float(sd[0, 0]) ** 2 >= min_var:
-                        break
-                    masked[jv, ju] = -np.inf
-                else:
-                    k = (p, p)
-                    m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-                    m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True,
-                                       borderType=cv2.BORDER_CONSTANT)
-                    var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
-                    masked[var < min_var] = -np.inf
-                    j = int(np.argmax(masked))
-                    jv, ju = divmod(j, bw)
-                if masked[jv, ju] == -np.inf:
-                    continue
-                best = float(res[jv, ju])
-                score[i] = best
-                if best < cfg.min_score:
-                    continue
-                du = dv = 0.0
-                if cfg.subpixel:
-                    if 0 < ju < bw - 1:
-                        du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
-                    if 0 < jv < bh - 1:
-                        dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
-                m = np.array([u0 + ju + du, v0 + jv + dv])
-            else:
-                if len(fxy) == 0:
-                    continue
-                d = fxy - z[i]
-                dd = np.einsum("ni,ij,nj->n", d, Si, d)
-                inside = np.flatnonzero(dd <= g)
-                if len(inside) == 0:
-                    continue
-                j = inside[np.argmin(dd[inside])]
-                m = fxy[j].copy()
-                score[i] = fresp[j]
-            e = m - z[i]
-            d2[i] = float(e @ Si @ e)
+            m, sc, e2 = matcher(i, Si, u0, v0, mask)
+            if sc is not None:
+                score[i] = sc
+            if m is None:
+                continue
+            if e2 is None:
+                e = m - z[i]
+                e2 = float(e @ Si @ e)
+            d2[i] = e2
             uv[i] = m
             found[i] = True
             n_found += 1

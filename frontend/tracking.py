@@ -47,8 +47,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, \
-    ellipse_pixels, extract_patches, inv2
+from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, extract_patches
 from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
@@ -368,53 +367,25 @@ class Tracker:
 
     def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
         """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
-        H, W = shape
-        cfg = self.search_config
-        g = cfg.gate
-        n = len(pids)
-        searched, found = np.zeros(n, bool), np.zeros(n, bool)
-        uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
-        pixels = np.zeros(n, np.int64)
-        union = np.zeros((H, W), bool)
-        order = []
+        g = self.search_config.gate
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
         desc = feats.descriptors
-        cap = cfg.max_corrections or n
-        skipped = np.zeros(n, bool)
-        cand = self._search.search_order(puv, pS, (H, W))
-        for pos, i in enumerate(cand):
-            if len(order) >= cap or (max_found and found.sum() >= max_found):
-                skipped[cand[pos:]] = True
-                break
-            u0, v0, mask = ellipse_pixels(puv[i], pS[i], g, (H, W))
-            if mask.size == 0 or not mask.any():
-                continue
-            order.append(i)
-            searched[i] = True
-            pixels[i] = int(mask.sum())
-            bh, bw = mask.shape
-            union[v0:v0 + bh, u0:u0 + bw] |= mask
+
+        def closest_descriptor(i, Si, u0, v0, mask):
             if len(fxy) == 0 or desc is None:
-                continue
-            Si = inv2(pS[i])
+                return None, None, None
             d = fxy - puv[i]
             dd = np.einsum("ni,ij,nj->n", d, Si, d)
             inside = np.flatnonzero(dd <= g)
             if len(inside) == 0:
-                continue
+                return None, None, None
             ham = _hamming(self._tracks[int(pids[i])].descriptor, desc[inside])
             j = int(np.argmin(ham))
-            score[i] = float(ham[j])
             if ham[j] > self.config.max_hamming:
-                continue
-            uv[i] = fxy[inside[j]]
-            d2[i] = float(dd[inside[j]])
-            found[i] = True
-        npx = float(H * W)
-        return ActiveSearchResult(order=np.asarray(order, np.int64), searched=searched, found=found,
-                                  uv=uv, score=score, d2=d2, pixels=pixels,
-                                  image_fraction=float(union.sum()) / npx,
-                                  image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)
+                return None, float(ham[j]), None
+            return fxy[inside[j]], float(ham[j]), float(dd[inside[j]])
+
+        return self._search.search_with(shape, puv, pS, closest_descriptor, max_found=max_found)
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
