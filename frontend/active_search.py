@@ -23,9 +23,11 @@ Two modes (``ActiveSearchConfig.mode``):
   deviation is below ``min_patch_std`` grey levels are never accepted (ZNCC is
   undefined on flat windows). Optional sub-pixel refinement by a parabola
   through the 3 scores around the peak on each axis. Optional appearance
-  prediction: the patch is warped from the previous image by a per-landmark
-  affine map of pixel offsets (previous -> current, e.g.
-  :func:`slamcore.spatial.camera.plane_induced_affine`) before correlation.
+  prediction: the patch is warped, from the previous image or from a larger
+  patch cut around the point, by a per-landmark affine map of pixel offsets
+  (previous -> current, e.g.
+  :func:`slamcore.spatial.camera.plane_induced_affine`; the tracker's are
+  those of :mod:`frontend.appearance`) before correlation.
 * ``"nearest"`` (hardware, the FPGA variant): among the current frame's Harris
   points (:class:`frontend.features.Features`), the one nearest to the
   prediction in Mahalanobis distance and inside the ellipse is taken. Points are
@@ -78,7 +80,9 @@ class ActiveSearchConfig:
             deviation below this are not matched (flat, ZNCC undefined).
         subpixel: parabolic sub-pixel refinement of the ZNCC peak.
         predict_appearance: warp the patch by the given per-landmark affine
-            before correlating (needs the previous image and points).
+            before correlating (needs the previous image and points, or
+            larger source patches; the tracker's patches are warped by the
+            view change since they were cut, :mod:`frontend.appearance`).
         max_half_extent_px: landmarks whose ellipse's bounding box has a
             half-side above this are not searched (their prediction is
             meaningless; they would cost a large part of the frame).
@@ -192,14 +196,14 @@ def extract_patches(image: np.ndarray, xy: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def _warp_patch(image: np.ndarray, xy: np.ndarray, A: np.ndarray, size: int) -> np.ndarray:
-    """Patch of ``image`` as seen after the offset map ``A`` (prev -> cur): P(d) = I(xy + A^-1 d)."""
-    Ai = np.linalg.inv(A)
+def _warp_patch(image: np.ndarray, xy: np.ndarray, A_inv: np.ndarray, size: int) -> np.ndarray:
+    """Patch of float32 ``image`` as seen after the offset map ``A`` (prev -> cur), given
+    ``A_inv`` (2, 2): ``P(d) = I(xy + A^-1 d)`` for offsets ``d`` from the patch centre."""
     c = (size - 1) / 2.0
-    M = np.zeros((2, 3))
-    M[:, :2] = Ai
-    M[:, 2] = xy - Ai @ np.array([c, c])
-    return cv2.warpAffine(image.astype(np.float32), M, (size, size),
+    M = np.empty((2, 3))
+    M[:, :2] = A_inv
+    M[:, 2] = xy - A_inv @ np.array([c, c])
+    return cv2.warpAffine(image, M, (size, size),
                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -251,22 +255,22 @@ class ZnccMatcher:
     """``"zncc"`` mode: best ZNCC of the landmark's template inside its ellipse.
 
     Templates are the stored ``patches`` (N, p, p), or, with appearance
-    prediction, cut from ``prev_image`` at ``prev_xy`` (N, 2) through the
-    offset map ``affine`` (N, 2, 2) when the landmark is searched.
+    prediction, warped through the offset map ``affine`` (N, 2, 2) when the
+    landmark is searched, from ``prev_image`` at ``prev_xy`` (N, 2) or from the
+    centre of ``source_patches`` (N, q, q), q odd >= p (a track's patch cut
+    larger, so that the corners of a rotated or shrunk template are image).
     """
 
     def __init__(self, config: ActiveSearchConfig, image: np.ndarray, n: int, *,
                  patches: np.ndarray | None, prev_image: np.ndarray | None,
-                 prev_xy: np.ndarray | None, affine: np.ndarray | None):
+                 prev_xy: np.ndarray | None, affine: np.ndarray | None,
+                 source_patches: np.ndarray | None = None):
         p = config.patch_size_px
         self.config, self.image, self.p, self.margin = config, image, p, p // 2
+        self.min_var = float(config.min_patch_std) ** 2
         self.warp = config.predict_appearance and affine is not None
         if self.warp:
-            if prev_image is None or prev_xy is None:
-                raise InputError("appearance prediction needs prev_image and prev_xy")
-            prev_image = check_gray(prev_image, "prev_image")
-            prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
-            affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
+            self._warp_sources(n, prev_image, prev_xy, affine, source_patches)
         elif patches is None:
             if prev_image is None or prev_xy is None:
                 raise InputError("zncc mode needs patches, or prev_image and prev_xy")
@@ -276,8 +280,29 @@ class ZnccMatcher:
         if not self.warp:
             # one vectorised call instead of one np.std per landmark
             self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
-        self.patches, self.prev_image, self.prev_xy, self.affine = patches, prev_image, prev_xy, affine
-        self.min_var = float(config.min_patch_std) ** 2
+        self.patches = patches
+
+    def _warp_sources(self, n: int, prev_image, prev_xy, affine, source_patches) -> None:
+        """Check and keep what appearance prediction warps: float32 sources, their
+        points, and the inverse maps (one batched inverse, not one per landmark)."""
+        affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
+        if len(affine) != n or not np.all(np.isfinite(affine)) or np.any(np.linalg.det(affine) == 0):
+            raise InputError(f"affine must be {n} finite invertible (2, 2) maps")
+        self.affine_inv = np.linalg.inv(affine)
+        self.sources = None
+        if source_patches is not None:
+            self.sources = np.asarray(source_patches, dtype=np.float32)
+            q = self.sources.shape[-1]
+            if self.sources.shape != (n, q, q) or q < self.p or q % 2 == 0:
+                raise InputError(f"source_patches must be ({n}, q, q) with q odd >= {self.p}, "
+                                 f"got {self.sources.shape}")
+            self.source_xy = np.array([(q - 1) / 2.0, (q - 1) / 2.0])
+            return
+        if prev_image is None or prev_xy is None:
+            raise InputError("appearance prediction needs prev_image and prev_xy, or source_patches")
+        # converted once here, not once per landmark searched
+        self.prev_image = check_gray(prev_image, "prev_image").astype(np.float32)
+        self.prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
 
     def template(self, i: int) -> np.ndarray | None:
         """(p, p) float32 template of landmark ``i``, None if flat (ZNCC undefined)."""
@@ -285,8 +310,12 @@ class ZnccMatcher:
             if self.tpl_std[i] < self.config.min_patch_std:
                 return None
             return np.ascontiguousarray(self.patches[i], dtype=np.float32)
-        tpl = _warp_patch(self.prev_image, self.prev_xy[i], self.affine[i], self.p)
-        return None if float(tpl.std()) < self.config.min_patch_std else tpl
+        if self.sources is not None:
+            tpl = _warp_patch(self.sources[i], self.source_xy, self.affine_inv[i], self.p)
+        else:
+            tpl = _warp_patch(self.prev_image, self.prev_xy[i], self.affine_inv[i], self.p)
+        _, sd = cv2.meanStdDev(tpl)  # a tenth of np.std's cost on a patch
+        return None if float(sd[0, 0]) < self.config.min_patch_std else tpl
 
     def __call__(self, i, Si, u0, v0, mask):
         tpl = self.template(i)
@@ -401,13 +430,16 @@ class ActiveSearch:
     def search(self, image: np.ndarray, predictions: np.ndarray, S: np.ndarray, *,
                patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
                prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
-               features: Features | None = None, max_found: int | None = None) -> ActiveSearchResult:
+               features: Features | None = None, max_found: int | None = None,
+               source_patches: np.ndarray | None = None) -> ActiveSearchResult:
         """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
 
         ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
         (N, p, p) or ``prev_image`` + ``prev_xy`` (N, 2) (patches are cut there);
-        appearance prediction needs ``prev_image``, ``prev_xy`` and ``affine``
-        (N, 2, 2). nearest mode needs ``features`` (the current frame's points).
+        appearance prediction needs ``affine`` (N, 2, 2) and either
+        ``prev_image`` + ``prev_xy`` or ``source_patches`` (N, q, q), q odd >= p,
+        centred on the points (:class:`ZnccMatcher`); without ``affine`` it is
+        off. nearest mode needs ``features`` (the current frame's points).
         ``max_found``: stop once this many landmarks are found (a back end that
         corrects at most that many per frame, largest ellipses first, would not
         use the others: paper section 4.4); ``None`` or 0: no such stop. The
@@ -417,7 +449,7 @@ class ActiveSearch:
         z, S = _checked_predictions(predictions, S)
         if self.config.mode == "zncc":
             matcher = ZnccMatcher(self.config, image, len(z), patches=patches, prev_image=prev_image,
-                                  prev_xy=prev_xy, affine=affine)
+                                  prev_xy=prev_xy, affine=affine, source_patches=source_patches)
         else:
             matcher = NearestMatcher(self.config, z, features)
         return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found)
