@@ -14,9 +14,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from filters.mono_ekf import MonoEkf, MonoEkfConfig
 from frontend.active_search import ActiveSearchConfig
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.tracking import Tracker, TrackerConfig
+from graphslam.pipelines import spatial as vp
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.spatial.camera import intrinsics_matrix, plane_induced_affine, project
 from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
@@ -31,6 +33,8 @@ SEARCH_SIGMA_PX = 2.0
 #: First-order map vs projection, for offsets of OFFSET_PX: the error is second order.
 OFFSET_PX = 1.0
 AFFINE_TOL_PX = 2e-3
+#: Predicted pixels reproduced from the predicted camera and landmarks, px.
+REPROJECTION_TOL_PX = 1e-6
 #: Accepted matches are on the landmark's true projection within this, px (median).
 ON_POINT_PX = 1.0
 
@@ -144,3 +148,38 @@ def test_appearance_prediction_off_ignores_the_camera(rolling):
         assert np.array_equal(ra.observations.track_ids, rb.observations.track_ids)
         assert ra.observations.uv_px.tobytes() == rb.observations.uv_px.tobytes()
 
+
+# ----------------------------------------------------------------------------- the data path
+
+@pytest.mark.parametrize("backend_name", ["mono_ekf", "isam2"])
+def test_backends_hand_the_tracker_their_camera_and_landmarks(backend_name):
+    """Through the pipeline: the first frame gets the known first pose, later frames
+    the back end's predicted camera, from which the landmark positions project to
+    the predicted pixels; with the option on the run differs from off."""
+    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+
+    seq = make_synthetic_images(SyntheticImagesConfig(**QVGA, n_frames=300))
+    n = 10
+
+    def run(on):
+        backend = MonoEkf(MonoEkfConfig()) if backend_name == "mono_ekf" else VisualIsam2Backend()
+        tracker = Tracker(TrackerConfig(), follow_unmapped=backend.needs_track_history,
+                          active_search=ActiveSearchConfig(predict_appearance=on))
+        seen = []
+        track = tracker.track
+        tracker.track = lambda image, pred: (seen.append(pred), track(image, pred))[1]
+        result = vp.run(seq, backend, tracker, max_frames=n)
+        return seen, result
+
+    seen, result = run(True)
+    assert len(seen) == n and len(seen[0]) == 0
+    assert np.array_equal(seen[0].wTc, seq.wTc_true[0]) and np.array_equal(seen[0].K, seq.K)
+    for pred in seen[1:]:
+        assert pred.wTc.shape == (4, 4) and np.array_equal(pred.K, seq.K)
+        assert pred.landmarks_w.shape == (len(pred), 3)
+        ok = np.all(np.isfinite(pred.landmarks_w), axis=1)
+        uv, _ = project(seq.K, invert_pose(pred.wTc), pred.landmarks_w[ok])
+        assert np.abs(uv - pred.uv_px[ok]).max(initial=0.0) < REPROJECTION_TOL_PX
+    assert sum(len(p) for p in seen) > 0
+    _, off = run(False)
+    assert not np.array_equal(result.estimate.wTc, off.estimate.wTc)
