@@ -28,8 +28,10 @@ prediction for the frame, before the frame's own update: its error is what one
 update would correct, drift common to both cameras cancels in the relative
 pose, and the warp of a patch of ten-odd pixels hardly feels it; it needs no
 extra call to the back end (reading the updated pose would need one more
-contract method and a call per frame). The first frame has no prediction: the
-pipeline hands its known pose the same way (:meth:`PixelPredictions.empty`).
+contract method and a call per frame). The next frame's predicted pose would
+be one frame's motion off (4 degrees on a camera rolling 4 degrees a frame).
+The first frame has no prediction: the pipeline hands its known pose the same
+way (:meth:`PixelPredictions.empty`).
 Predictions without these fields, or tracks cut without a pose, are
 correlated unwarped, as with the option off.
 
