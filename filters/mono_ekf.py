@@ -272,7 +272,11 @@ class MonoEkf(VisualBackend):
         uv, hz, _, _, S = self._predicted(self._sigma_px ** 2)
         vis = np.flatnonzero(self._in_view(uv, hz))
         ids = np.array([self._lms[i].track_id for i in vis], dtype=np.int64)
-        return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections)
+        with np.errstate(invalid="ignore", divide="ignore"):  # rho = 0: at infinity, not finite
+            p_w, _ = lp.to_euclidean(self._kinds[vis], self._x[self._idx[vis]])
+        # pose, K and positions: for the front end's appearance prediction
+        return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections,
+                                wTc=self._wTc(), K=self._K.copy(), landmarks_w=p_w)
 
     def _predicted(self, var: float):
         """Pixels, ``h_z``, Jacobians and ``S_i`` (pixel variance ``var``) of the whole map.

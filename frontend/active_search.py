@@ -23,9 +23,11 @@ Two modes (``ActiveSearchConfig.mode``):
   deviation is below ``min_patch_std`` grey levels are never accepted (ZNCC is
   undefined on flat windows). Optional sub-pixel refinement by a parabola
   through the 3 scores around the peak on each axis. Optional appearance
-  prediction: the patch is warped from the previous image by a per-landmark
-  affine map of pixel offsets (previous -> current, e.g.
-  :func:`slamcore.spatial.camera.plane_induced_affine`) before correlation.
+  prediction: the patch is warped, from the previous image or from a larger
+  patch cut around the point, by a per-landmark affine map of pixel offsets
+  (previous -> current, e.g.
+  :func:`slamcore.spatial.camera.plane_induced_affine`; the tracker's are
+  those of :mod:`frontend.appearance`) before correlation.
 * ``"nearest"`` (hardware, the FPGA variant): among the current frame's Harris
   points (:class:`frontend.features.Features`), the one nearest to the
   prediction in Mahalanobis distance and inside the ellipse is taken. Points are
@@ -40,6 +42,7 @@ counts overlaps twice, is reported as well).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -50,8 +53,8 @@ from frontend.features import Features
 from frontend.image import check_gray
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
-__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "chi2_2dof", "ellipse_pixels",
-           "extract_patches"]
+__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
+           "NearestMatcher", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
 
 
 def chi2_2dof(probability: float) -> float:
@@ -77,7 +80,9 @@ class ActiveSearchConfig:
             deviation below this are not matched (flat, ZNCC undefined).
         subpixel: parabolic sub-pixel refinement of the ZNCC peak.
         predict_appearance: warp the patch by the given per-landmark affine
-            before correlating (needs the previous image and points).
+            before correlating (needs the previous image and points, or
+            larger source patches; the tracker's patches are warped by the
+            view change since they were cut, :mod:`frontend.appearance`).
         max_half_extent_px: landmarks whose ellipse's bounding box has a
             half-side above this are not searched (their prediction is
             meaningless; they would cost a large part of the frame).
@@ -191,14 +196,14 @@ def extract_patches(image: np.ndarray, xy: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def _warp_patch(image: np.ndarray, xy: np.ndarray, A: np.ndarray, size: int) -> np.ndarray:
-    """Patch of ``image`` as seen after the offset map ``A`` (prev -> cur): P(d) = I(xy + A^-1 d)."""
-    Ai = np.linalg.inv(A)
+def _warp_patch(image: np.ndarray, xy: np.ndarray, A_inv: np.ndarray, size: int) -> np.ndarray:
+    """Patch of float32 ``image`` as seen after the offset map ``A`` (prev -> cur), given
+    ``A_inv`` (2, 2): ``P(d) = I(xy + A^-1 d)`` for offsets ``d`` from the patch centre."""
     c = (size - 1) / 2.0
-    M = np.zeros((2, 3))
-    M[:, :2] = Ai
-    M[:, 2] = xy - Ai @ np.array([c, c])
-    return cv2.warpAffine(image.astype(np.float32), M, (size, size),
+    M = np.empty((2, 3))
+    M[:, :2] = A_inv
+    M[:, 2] = xy - A_inv @ np.array([c, c])
+    return cv2.warpAffine(image, M, (size, size),
                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -219,6 +224,173 @@ def inv2(S: np.ndarray) -> np.ndarray:
     a, b, c, d = float(S[0, 0]), float(S[0, 1]), float(S[1, 0]), float(S[1, 1])
     det = a * d - b * c
     return np.array([[d / det, -b / det], [-c / det, a / det]])
+
+
+#: One mode's matching of one landmark inside its ellipse:
+#: ``matcher(i, Si, u0, v0, mask) -> (uv, score, d2)`` with ``Si`` (2, 2) the
+#: inverse innovation covariance and ``(u0, v0, mask)`` the ellipse's pixels
+#: (:func:`ellipse_pixels`). ``uv`` (2,) is the accepted measurement or None;
+#: ``score`` is recorded even when nothing is accepted (None: no score);
+#: ``d2`` None lets the search compute ``e^T S^-1 e`` from ``uv``.
+Matcher = Callable[[int, np.ndarray, int, int, np.ndarray],
+                   tuple[np.ndarray | None, float | None, float | None]]
+
+
+def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
+    """``(z (N, 2), S (N, 2, 2))`` as float64; InputError / MeasurementError if malformed."""
+    z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
+    S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
+    n = len(z)
+    if len(S) != n:
+        raise InputError(f"{n} predictions but {len(S)} covariances")
+    finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
+    Sf = S[finite]
+    if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
+            np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
+        raise MeasurementError("innovation covariances must be symmetric positive definite")
+    return z, S
+
+
+class ZnccMatcher:
+    """``"zncc"`` mode: best ZNCC of the landmark's template inside its ellipse.
+
+    Templates are the stored ``patches`` (N, p, p), or, with appearance
+    prediction, warped through the offset map ``affine`` (N, 2, 2) when the
+    landmark is searched, from ``prev_image`` at ``prev_xy`` (N, 2) or from the
+    centre of ``source_patches`` (N, q, q), q odd >= p (a track's patch cut
+    larger, so that the corners of a rotated or shrunk template are image).
+    """
+
+    def __init__(self, config: ActiveSearchConfig, image: np.ndarray, n: int, *,
+                 patches: np.ndarray | None, prev_image: np.ndarray | None,
+                 prev_xy: np.ndarray | None, affine: np.ndarray | None,
+                 source_patches: np.ndarray | None = None):
+        p = config.patch_size_px
+        self.config, self.image, self.p, self.margin = config, image, p, p // 2
+        self.min_var = float(config.min_patch_std) ** 2
+        self.warp = config.predict_appearance and affine is not None
+        if self.warp:
+            self._warp_sources(n, prev_image, prev_xy, affine, source_patches)
+        elif patches is None:
+            if prev_image is None or prev_xy is None:
+                raise InputError("zncc mode needs patches, or prev_image and prev_xy")
+            patches = extract_patches(prev_image, prev_xy, p)
+        if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
+            raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
+        if not self.warp:
+            # one vectorised call instead of one np.std per landmark
+            self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
+        self.patches = patches
+
+    def _warp_sources(self, n: int, prev_image, prev_xy, affine, source_patches) -> None:
+        """Check and keep what appearance prediction warps: float32 sources, their
+        points, and the inverse maps (one batched inverse, not one per landmark)."""
+        affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
+        if len(affine) != n or not np.all(np.isfinite(affine)) or np.any(np.linalg.det(affine) == 0):
+            raise InputError(f"affine must be {n} finite invertible (2, 2) maps")
+        self.affine_inv = np.linalg.inv(affine)
+        self.sources = None
+        if source_patches is not None:
+            self.sources = np.asarray(source_patches, dtype=np.float32)
+            q = self.sources.shape[-1]
+            if self.sources.shape != (n, q, q) or q < self.p or q % 2 == 0:
+                raise InputError(f"source_patches must be ({n}, q, q) with q odd >= {self.p}, "
+                                 f"got {self.sources.shape}")
+            self.source_xy = np.array([(q - 1) / 2.0, (q - 1) / 2.0])
+            return
+        if prev_image is None or prev_xy is None:
+            raise InputError("appearance prediction needs prev_image and prev_xy, or source_patches")
+        # converted once here, not once per landmark searched
+        self.prev_image = check_gray(prev_image, "prev_image").astype(np.float32)
+        self.prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+
+    def template(self, i: int) -> np.ndarray | None:
+        """(p, p) float32 template of landmark ``i``, None if flat (ZNCC undefined)."""
+        if not self.warp:
+            if self.tpl_std[i] < self.config.min_patch_std:
+                return None
+            return np.ascontiguousarray(self.patches[i], dtype=np.float32)
+        if self.sources is not None:
+            tpl = _warp_patch(self.sources[i], self.source_xy, self.affine_inv[i], self.p)
+        else:
+            tpl = _warp_patch(self.prev_image, self.prev_xy[i], self.affine_inv[i], self.p)
+        _, sd = cv2.meanStdDev(tpl)  # a tenth of np.std's cost on a patch
+        return None if float(sd[0, 0]) < self.config.min_patch_std else tpl
+
+    def __call__(self, i, Si, u0, v0, mask):
+        tpl = self.template(i)
+        if tpl is None:
+            return None, None, None
+        h = self.margin
+        bh, bw = mask.shape
+        # only the ellipse's bounding box (plus the patch margin) is converted
+        region = self.image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
+        res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
+        masked = np.where(mask & np.isfinite(res), res, -np.inf)
+        jv, ju = self._peak(region, masked)
+        if masked[jv, ju] == -np.inf:
+            return None, None, None
+        best = float(res[jv, ju])
+        if best < self.config.min_score:
+            return None, best, None
+        du = dv = 0.0
+        if self.config.subpixel:
+            if 0 < ju < bw - 1:
+                du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
+            if 0 < jv < bh - 1:
+                dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
+        return np.array([u0 + ju + du, v0 + jv + dv]), best, None
+
+    def _peak(self, region: np.ndarray, masked: np.ndarray) -> tuple[int, int]:
+        """Best ZNCC ``(row, col)`` in ``masked`` whose image window is not flat.
+
+        ZNCC is undefined on a flat window. The window test is done at the peak
+        only and the next peak tried if it fails (the same pixel as testing
+        every window); after a few flat peaks (a flat area) every window is
+        tested at once. Flat windows are set to -inf in ``masked``; a -inf
+        answer means no acceptable pixel.
+        """
+        p, h = self.p, self.margin
+        bh, bw = masked.shape
+        for _ in range(_PEAK_TRIES):
+            jv, ju = divmod(int(np.argmax(masked)), bw)
+            if masked[jv, ju] == -np.inf:
+                return jv, ju
+            _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
+            if float(sd[0, 0]) ** 2 >= self.min_var:
+                return jv, ju
+            masked[jv, ju] = -np.inf
+        k = (p, p)
+        m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+        m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
+        var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
+        masked[var < self.min_var] = -np.inf
+        return divmod(int(np.argmax(masked)), bw)
+
+
+class NearestMatcher:
+    """``"nearest"`` mode: the detected point nearest to the prediction (Mahalanobis)
+    inside the ellipse; its detector response is the score."""
+
+    margin = 0
+
+    def __init__(self, config: ActiveSearchConfig, z: np.ndarray, features: Features | None):
+        if features is None:
+            raise InputError("nearest mode needs the current frame's features")
+        self.z, self.gate = z, config.gate
+        self.fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
+        self.fresp = np.asarray(features.response, dtype=np.float64)
+
+    def __call__(self, i, Si, u0, v0, mask):
+        if len(self.fxy) == 0:
+            return None, None, None
+        d = self.fxy - self.z[i]
+        dd = np.einsum("ni,ij,nj->n", d, Si, d)
+        inside = np.flatnonzero(dd <= self.gate)
+        if len(inside) == 0:
+            return None, None, None
+        j = inside[np.argmin(dd[inside])]
+        return self.fxy[j].copy(), self.fresp[j], None
 
 
 class ActiveSearch:
@@ -258,71 +430,49 @@ class ActiveSearch:
     def search(self, image: np.ndarray, predictions: np.ndarray, S: np.ndarray, *,
                patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
                prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
-               features: Features | None = None, max_found: int | None = None) -> ActiveSearchResult:
+               features: Features | None = None, max_found: int | None = None,
+               source_patches: np.ndarray | None = None) -> ActiveSearchResult:
         """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
 
         ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
         (N, p, p) or ``prev_image`` + ``prev_xy`` (N, 2) (patches are cut there);
-        appearance prediction needs ``prev_image``, ``prev_xy`` and ``affine``
-        (N, 2, 2). nearest mode needs ``features`` (the current frame's points).
+        appearance prediction needs ``affine`` (N, 2, 2) and either
+        ``prev_image`` + ``prev_xy`` or ``source_patches`` (N, q, q), q odd >= p,
+        centred on the points (:class:`ZnccMatcher`); without ``affine`` it is
+        off. nearest mode needs ``features`` (the current frame's points).
         ``max_found``: stop once this many landmarks are found (a back end that
         corrects at most that many per frame, largest ellipses first, would not
         use the others: paper section 4.4); ``None`` or 0: no such stop. The
         config's ``max_corrections`` still caps the landmarks searched.
         """
         image = check_gray(image)
-        cfg = self.config
-        z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
-        S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
-        n = len(z)
-        if len(S) != n:
-            raise InputError(f"{n} predictions but {len(S)} covariances")
-        finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
-        Sf = S[finite]
-        if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
-                np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
-            raise MeasurementError("innovation covariances must be symmetric positive definite")
-        H, W = image.shape
-        p = cfg.patch_size_px
-        h = p // 2
-        if cfg.mode == "zncc":
-            warp = cfg.predict_appearance and affine is not None
-            if warp:
-                if prev_image is None or prev_xy is None:
-                    raise InputError("appearance prediction needs prev_image and prev_xy")
-                prev_image = check_gray(prev_image, "prev_image")
-                prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
-                affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
-            elif patches is None:
-                if prev_image is None or prev_xy is None:
-                    raise InputError("zncc mode needs patches, or prev_image and prev_xy")
-                patches = extract_patches(prev_image, prev_xy, p)
-            if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
-                raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
-            margin = h
-            if not warp:
-                # one vectorised call instead of one np.std per landmark
-                tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
-            min_var = float(cfg.min_patch_std) ** 2
+        z, S = _checked_predictions(predictions, S)
+        if self.config.mode == "zncc":
+            matcher = ZnccMatcher(self.config, image, len(z), patches=patches, prev_image=prev_image,
+                                  prev_xy=prev_xy, affine=affine, source_patches=source_patches)
         else:
-            if features is None:
-                raise InputError("nearest mode needs the current frame's features")
-            fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
-            fresp = np.asarray(features.response, dtype=np.float64)
-            margin = 0
+            matcher = NearestMatcher(self.config, z, features)
+        return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found)
 
-        g = cfg.gate
-        searched = np.zeros(n, bool)
-        found = np.zeros(n, bool)
-        uv = np.full((n, 2), np.nan)
-        score = np.full(n, np.nan)
-        d2 = np.full(n, np.nan)
+    def search_with(self, shape: tuple[int, int], z: np.ndarray, S: np.ndarray, matcher: Matcher, *,
+                    margin: int = 0, max_found: int | None = None) -> ActiveSearchResult:
+        """The search loop shared by every mode: ``matcher`` (see :data:`Matcher`) looks
+        inside each ellipse, largest first, within the caps (:meth:`search`).
+
+        ``shape``: ``(H, W)`` of the image; ``z`` (N, 2) and ``S`` (N, 2, 2)
+        float64, already checked; ``margin``: pixels of every edge an ellipse
+        pixel must keep (half the patch for ZNCC).
+        """
+        H, W = shape
+        n = len(z)
+        g = self.config.gate
+        searched, found, skipped = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+        uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
         pixels = np.zeros(n, np.int64)
         union = np.zeros((H, W), bool)
         order = []
-        cap = cfg.max_corrections or n
+        cap = self.config.max_corrections or n
         n_found = 0
-        skipped = np.zeros(n, bool)
         cand = self.search_order(z, S, (H, W))
         for pos, i in enumerate(cand):
             if len(order) >= cap or (max_found and n_found >= max_found):
@@ -338,67 +488,15 @@ class ActiveSearch:
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
             Si = inv2(S[i])
-            if cfg.mode == "zncc":
-                if not warp:
-                    if tpl_std[i] < cfg.min_patch_std:
-                        continue
-                    tpl = np.ascontiguousarray(patches[i], dtype=np.float32)
-                else:
-                    tpl = _warp_patch(prev_image, prev_xy[i], affine[i], p)
-                    if float(tpl.std()) < cfg.min_patch_std:
-                        continue
-                # only the ellipse's bounding box (plus the patch margin) is converted
-                region = image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
-                res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
-                masked = np.where(mask & np.isfinite(res), res, -np.inf)
-                # Best ZNCC inside the ellipse whose image window is not flat (ZNCC is
-                # undefined there). The window test is done at the peak only and the
-                # next peak tried if it fails (the same pixel as testing every window);
-                # after a few flat peaks (a flat area) every window is tested at once.
-                for _ in range(_PEAK_TRIES):
-                    j = int(np.argmax(masked))
-                    jv, ju = divmod(j, bw)
-                    if masked[jv, ju] == -np.inf:
-                        break
-                    _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
-                    if float(sd[0, 0]) ** 2 >= min_var:
-                        break
-                    masked[jv, ju] = -np.inf
-                else:
-                    k = (p, p)
-                    m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-                    m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True,
-                                       borderType=cv2.BORDER_CONSTANT)
-                    var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
-                    masked[var < min_var] = -np.inf
-                    j = int(np.argmax(masked))
-                    jv, ju = divmod(j, bw)
-                if masked[jv, ju] == -np.inf:
-                    continue
-                best = float(res[jv, ju])
-                score[i] = best
-                if best < cfg.min_score:
-                    continue
-                du = dv = 0.0
-                if cfg.subpixel:
-                    if 0 < ju < bw - 1:
-                        du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
-                    if 0 < jv < bh - 1:
-                        dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
-                m = np.array([u0 + ju + du, v0 + jv + dv])
-            else:
-                if len(fxy) == 0:
-                    continue
-                d = fxy - z[i]
-                dd = np.einsum("ni,ij,nj->n", d, Si, d)
-                inside = np.flatnonzero(dd <= g)
-                if len(inside) == 0:
-                    continue
-                j = inside[np.argmin(dd[inside])]
-                m = fxy[j].copy()
-                score[i] = fresp[j]
-            e = m - z[i]
-            d2[i] = float(e @ Si @ e)
+            m, sc, e2 = matcher(i, Si, u0, v0, mask)
+            if sc is not None:
+                score[i] = sc
+            if m is None:
+                continue
+            if e2 is None:
+                e = m - z[i]
+                e2 = float(e @ Si @ e)
+            d2[i] = e2
             uv[i] = m
             found[i] = True
             n_found += 1

@@ -34,8 +34,16 @@ Per frame (:meth:`Tracker.track`), given the image and the back end's
 
 Patches are cut where a track was born and kept (no drift along the track;
 ``patch_update = "last"`` re-cuts them at each match instead, which follows
-appearance changes at the cost of slow drift). Nothing here knows 3-D: numpy
-and OpenCV only.
+appearance changes at the cost of slow drift).
+
+**Appearance prediction** (``[active_search] predict_appearance``, zncc
+matching): each patch is warped, before correlation, by the view change the
+back end predicts between the camera it was cut in and the current one. The
+predictions carry the current camera's predicted ``wTc``, ``K`` and the
+landmarks' positions; where a patch is cut the tracker keeps a larger source
+patch, its pixel and that frame's predicted ``wTc`` (data path and why that
+pose: :mod:`frontend.appearance`). Followed unmapped tracks are not warped.
+Nothing here knows 3-D but that warp: numpy and OpenCV only.
 """
 
 from __future__ import annotations
@@ -47,8 +55,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, \
-    ellipse_pixels, extract_patches, inv2
+from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, extract_patches
+from frontend.appearance import patch_affines, source_patch_size
 from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
@@ -147,6 +155,11 @@ class _Track:
     patch: np.ndarray | None        # (p, p) float32
     descriptor: np.ndarray | None   # (32,) uint8
     mapped: bool = False
+    # appearance prediction only: (q, q) float32 patch around cut_uv, the pixel
+    # the patch was cut around, and the predicted (4, 4) wTc of that frame
+    source: np.ndarray | None = None
+    cut_uv: np.ndarray | None = None
+    cut_wTc: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,6 +269,8 @@ class Tracker:
         self._next_id = 0
         self._frame = -1
         self._flow = np.zeros(2)  # median image motion of the tracks followed last frame
+        self._appearance = self.search_config.predict_appearance and mode == "zncc"
+        self._view = PixelPredictions.empty()  # this frame's predictions: camera wTc and K
 
     @property
     def patch_size(self) -> int:
@@ -288,21 +303,11 @@ class Tracker:
 
         # ---- active search of mapped landmarks
         t = time.perf_counter()
-        if predictions is None:
-            predictions = PixelPredictions(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)))
-        pids = np.asarray(predictions.track_ids, dtype=np.int64).reshape(-1)
-        known = np.array([int(i) in self._tracks for i in pids], dtype=bool)
-        pids = pids[known]
-        puv = np.asarray(predictions.uv_px, dtype=np.float64).reshape(-1, 2)[known]
-        pS = np.asarray(predictions.S_px2, dtype=np.float64).reshape(-1, 2, 2)[known]
-        # a back end's S is symmetric up to rounding; active search wants it exactly so
-        pS = 0.5 * (pS + np.swapaxes(pS, 1, 2))
-        for tid in pids:
-            self._tracks[int(tid)].mapped = True
+        self._view = predictions = predictions if predictions is not None else PixelPredictions.empty()
+        pids, puv, pS, lm_w = self._searchable(predictions)
         # a back end that corrects at most m landmarks (largest ellipses first) would
         # not use more: stop searching once m are found (paper 4.4)
-        max_found = predictions.max_corrections
-        res = self._active_search(image, feats, pids, puv, pS, max_found)
+        res = self._active_search(image, feats, pids, puv, pS, predictions.max_corrections, lm_w)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []
         for j in np.flatnonzero(res.found):
@@ -350,7 +355,24 @@ class Tracker:
 
     # ------------------------------------------------------------------ stages
 
-    def _active_search(self, image, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
+    def _searchable(self, predictions: PixelPredictions):
+        """Predictions of tracks this tracker knows, marked mapped: ids (K,), pixels
+        (K, 2), S (K, 2, 2) exactly symmetric, landmarks_w (K, 3) or None."""
+        pids = np.asarray(predictions.track_ids, dtype=np.int64).reshape(-1)
+        known = np.array([int(i) in self._tracks for i in pids], dtype=bool)
+        pids = pids[known]
+        puv = np.asarray(predictions.uv_px, dtype=np.float64).reshape(-1, 2)[known]
+        pS = np.asarray(predictions.S_px2, dtype=np.float64).reshape(-1, 2, 2)[known]
+        # a back end's S is symmetric up to rounding; active search wants it exactly so
+        pS = 0.5 * (pS + np.swapaxes(pS, 1, 2))
+        lm_w = predictions.landmarks_w
+        if lm_w is not None:
+            lm_w = np.asarray(lm_w, dtype=np.float64).reshape(-1, 3)[known]
+        for tid in pids:
+            self._tracks[int(tid)].mapped = True
+        return pids, puv, pS, lm_w
+
+    def _active_search(self, image, feats, pids, puv, pS, max_found=None, lm_w=None) -> ActiveSearchResult:
         n = len(pids)
         mode = self.config.search_mode
         if n == 0:
@@ -360,61 +382,46 @@ class Tracker:
                                       pixels=z.astype(np.int64), image_fraction=0.0,
                                       image_fraction_sum=0.0)
         if mode == "zncc":
-            patches = np.stack([self._tracks[int(i)].patch for i in pids])
-            return self._search.search(image, puv, pS, patches=patches, max_found=max_found)
+            return self._zncc_search(image, pids, puv, pS, max_found, lm_w)
         if mode == "nearest":
             return self._search.search(image, puv, pS, features=feats, max_found=max_found)
         return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found)
 
     def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
         """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
-        H, W = shape
-        cfg = self.search_config
-        g = cfg.gate
-        n = len(pids)
-        searched, found = np.zeros(n, bool), np.zeros(n, bool)
-        uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
-        pixels = np.zeros(n, np.int64)
-        union = np.zeros((H, W), bool)
-        order = []
+        g = self.search_config.gate
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
         desc = feats.descriptors
-        cap = cfg.max_corrections or n
-        skipped = np.zeros(n, bool)
-        cand = self._search.search_order(puv, pS, (H, W))
-        for pos, i in enumerate(cand):
-            if len(order) >= cap or (max_found and found.sum() >= max_found):
-                skipped[cand[pos:]] = True
-                break
-            u0, v0, mask = ellipse_pixels(puv[i], pS[i], g, (H, W))
-            if mask.size == 0 or not mask.any():
-                continue
-            order.append(i)
-            searched[i] = True
-            pixels[i] = int(mask.sum())
-            bh, bw = mask.shape
-            union[v0:v0 + bh, u0:u0 + bw] |= mask
+
+        def closest_descriptor(i, Si, u0, v0, mask):
             if len(fxy) == 0 or desc is None:
-                continue
-            Si = inv2(pS[i])
+                return None, None, None
             d = fxy - puv[i]
             dd = np.einsum("ni,ij,nj->n", d, Si, d)
             inside = np.flatnonzero(dd <= g)
             if len(inside) == 0:
-                continue
+                return None, None, None
             ham = _hamming(self._tracks[int(pids[i])].descriptor, desc[inside])
             j = int(np.argmin(ham))
-            score[i] = float(ham[j])
             if ham[j] > self.config.max_hamming:
-                continue
-            uv[i] = fxy[inside[j]]
-            d2[i] = float(dd[inside[j]])
-            found[i] = True
-        npx = float(H * W)
-        return ActiveSearchResult(order=np.asarray(order, np.int64), searched=searched, found=found,
-                                  uv=uv, score=score, d2=d2, pixels=pixels,
-                                  image_fraction=float(union.sum()) / npx,
-                                  image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)
+                return None, float(ham[j]), None
+            return fxy[inside[j]], float(ham[j]), float(dd[inside[j]])
+
+        return self._search.search_with(shape, puv, pS, closest_descriptor, max_found=max_found)
+
+    def _zncc_search(self, image, pids, puv, pS, max_found, lm_w) -> ActiveSearchResult:
+        """Patch correlation; with appearance prediction, each patch warped by the
+        predicted view change since it was cut (module docstring)."""
+        tracks = [self._tracks[int(i)] for i in pids]
+        patches = np.stack([tr.patch for tr in tracks])
+        view = self._view
+        if not self._appearance or lm_w is None or view.wTc is None or view.K is None:
+            return self._search.search(image, puv, pS, patches=patches, max_found=max_found)
+        unknown = np.full((4, 4), np.nan)  # a patch cut without a pose: not warped
+        cut_wTc = np.stack([unknown if tr.cut_wTc is None else tr.cut_wTc for tr in tracks])
+        affine = patch_affines(view.K, view.wTc, lm_w, cut_wTc, np.stack([tr.cut_uv for tr in tracks]))
+        return self._search.search(image, puv, pS, patches=patches, affine=affine, max_found=max_found,
+                                   source_patches=np.stack([tr.source for tr in tracks]))
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
@@ -422,6 +429,17 @@ class Tracker:
         tr.last_seen = k
         if self.config.patch_update == "last" and tr.patch is not None:
             tr.patch = extract_patches(image, tr.uv[None], self.patch_size)[0]
+            self._remember_cut(tr, image)
+
+    def _remember_cut(self, tr: _Track, image: np.ndarray) -> None:
+        """Appearance prediction: keep, as ``tr``'s patch is cut at ``tr.uv``, a larger
+        source patch there, that pixel, and this frame's predicted camera pose."""
+        if not self._appearance:
+            return
+        tr.source = extract_patches(image, tr.uv[None], source_patch_size(self.patch_size))[0]
+        tr.cut_uv = tr.uv.copy()
+        wTc = self._view.wTc
+        tr.cut_wTc = None if wTc is None else np.array(wTc, dtype=np.float64)
 
     def _follow(self, image, feats, taken: list, k: int):
         """Search each unmapped track seen last frame in its window; returns ids, from, to, fraction."""
@@ -556,6 +574,7 @@ class Tracker:
             self._tracks[tid] = _Track(
                 track_id=tid, uv=uv.copy(), velocity=np.zeros(2), born=k, last_seen=k,
                 patch=patch, descriptor=None if not orb else np.asarray(feats.descriptors[i]).copy())
+            self._remember_cut(self._tracks[tid], image)
             ids.append(tid)
             uvs.append(uv.copy())
             d = cxy - uv

@@ -24,6 +24,8 @@ SUBPIXEL_TOL_PX = 0.1
 MIN_FOUND = 0.90
 MAX_WRONG = 0.02
 MAX_IMAGE_FRACTION = 0.10
+#: One warp cut from a source patch or from the whole image: the same match within, px.
+SAME_WARP_TOL_PX = 1e-3
 
 
 def _bench():
@@ -190,6 +192,34 @@ def test_appearance_prediction_by_warping():
     with pytest.raises(InputError):
         ActiveSearch(predict_appearance=True).search(cur, truth, S, patches=extract_patches(prev, xy_prev, 11),
                                                      affine=aff)
+
+
+def test_appearance_prediction_from_source_patches():
+    """Warping from patches cut larger around the points (what the tracker keeps)
+    gives what warping from the whole previous image gives."""
+    prev = cv2.GaussianBlur(noise_image(6, (200, 200)), (5, 5), 0)
+    th = math.radians(35.0)
+    A = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])  # a 35 deg roll
+    c = np.array([100.0, 100.0])
+    cur = cv2.warpAffine(prev, np.hstack([A, (c - A @ c)[:, None]]), (200, 200), flags=cv2.INTER_LINEAR)
+    xy_prev = np.array([[80.0, 84.0], [120.0, 112.0], [92.0, 120.0]])
+    truth = xy_prev @ A.T + (c - A @ c)
+    S = np.array([np.eye(2) * 9.0] * 3)
+    aff = np.array([A] * 3)
+    search = ActiveSearch(predict_appearance=True)
+    from_image = search.search(cur, truth, S, prev_image=prev, prev_xy=xy_prev, affine=aff)
+    sources = extract_patches(prev, xy_prev, 21)
+    from_sources = search.search(cur, truth, S, source_patches=sources, affine=aff)
+    assert from_sources.found.all() and from_image.found.all()
+    # not bit-equal: cv2.warpAffine rounds sampling positions to 1/32 px from other origins
+    assert np.abs(from_sources.uv - from_image.uv).max() < SAME_WARP_TOL_PX
+    assert np.abs(from_sources.uv - truth).max() < 0.5
+    # unwarped, a 35 deg roll is beyond ZNCC's reach
+    assert not ActiveSearch().search(cur, truth, S, prev_image=prev, prev_xy=xy_prev).found.any()
+    with pytest.raises(InputError):  # even sides have no centre pixel
+        search.search(cur, truth, S, source_patches=sources[:, :20, :20], affine=aff)
+    with pytest.raises(InputError):
+        search.search(cur, truth, S, source_patches=sources, affine=np.zeros((3, 2, 2)))
 
 
 def test_hardware_mode_picks_nearest_inside():

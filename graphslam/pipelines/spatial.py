@@ -49,7 +49,7 @@ from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.spatial.backend import VisualBackend
-from slamcore.spatial.records import VisualEstimate
+from slamcore.spatial.records import PixelPredictions, VisualEstimate
 
 ODOMETRY_MODES = ("auto", "sequence", "derived", "none")
 
@@ -246,9 +246,9 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                 image = sequence.load(k)
                 t1 = time.perf_counter()
                 load += t1 - t
-                pred = None
                 if k == 0:
                     backend.initialize(0, wTc0, P0, K, tuple(sequence.image_size))
+                    pred = PixelPredictions.empty(wTc0, K)  # no landmark, a known camera
                 else:
                     backend.predict(k, None if odo is None else odo[k - 1],
                                     None if odo_cov is None else odo_cov[k - 1])

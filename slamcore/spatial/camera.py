@@ -94,18 +94,21 @@ def plane_induced_affine(K: np.ndarray, c1Tc0: np.ndarray, uv0: np.ndarray, dept
     """(N, 2, 2) local affine maps of image-0 pixel offsets to image-1 offsets.
 
     Each point ``uv0`` (N, 2) of camera 0 at ``depth0`` (N,) is taken on the
-    fronto-parallel plane ``z = depth`` of camera 0; ``c1Tc0`` moves camera-0
-    points into camera 1. The plane (``n^T p0 = d``, n = [0, 0, 1]) induces the
-    homography ``H = K (R + t n^T / d) K^-1``; the affine is its Jacobian at
-    ``uv0``. Used to predict a patch's appearance (``frontend.active_search``).
+    fronto-parallel plane ``z = depth`` of camera 0; ``c1Tc0`` (4, 4), or
+    (N, 4, 4) one per point, moves camera-0 points into camera 1. The plane
+    (``n^T p0 = d``, n = [0, 0, 1]) induces the homography
+    ``H = K (R + t n^T / d) K^-1``; the affine is its Jacobian at ``uv0``. An
+    infinite depth gives the rotation-only map. Used to predict a patch's
+    appearance (``frontend.active_search``, ``frontend.appearance``).
     """
     K = np.asarray(K, dtype=np.float64)
     uv0 = np.asarray(uv0, dtype=np.float64).reshape(-1, 2)
     d = np.asarray(depth0, dtype=np.float64).reshape(-1)
-    R, t = c1Tc0[:3, :3], c1Tc0[:3, 3]
+    c1Tc0 = np.asarray(c1Tc0, dtype=np.float64)
+    R, t = c1Tc0[..., :3, :3], c1Tc0[..., :3, 3]
     Kinv = np.linalg.inv(K)
     n = np.array([0.0, 0.0, 1.0])
-    H = K @ (R[None] + t[None, :, None] * n[None, None, :] / d[:, None, None]) @ Kinv  # (N,3,3)
+    H = K @ (R + t[..., :, None] * n / d[:, None, None]) @ Kinv  # (N,3,3)
     x = np.concatenate([uv0, np.ones((len(uv0), 1))], axis=1)
     h = np.einsum("nij,nj->ni", H, x)
     uv1 = h[:, :2] / h[:, 2:3]

@@ -41,24 +41,45 @@ class PixelPredictions:
     """Where the back end expects its landmarks in the current frame.
 
     Attributes:
-        track_ids: (K,) int64 ids of landmarks predicted in front of the camera
+        track_ids: (N,) int64 ids of landmarks predicted in front of the camera
             and inside the image.
-        uv_px: (K, 2) predicted pixels.
-        S_px2: (K, 2, 2) innovation covariances (pose and landmark uncertainty
+        uv_px: (N, 2) predicted pixels.
+        S_px2: (N, 2, 2) innovation covariances (pose and landmark uncertainty
             projected, plus the pixel noise), px^2.
         max_corrections: the back end corrects at most this many landmarks per
             frame, largest ellipses first (:attr:`VisualBackend.max_corrections`);
             the front end may stop searching once it has found that many
             (paper 4.4). ``None``: every prediction is used.
+        wTc: (4, 4) predicted pose of the current camera, the one ``uv_px`` was
+            projected from, or None. A front end that predicts appearance
+            (RT-SLAM) warps a landmark's patch by the view change between the
+            camera it was cut in and this one; it also remembers this pose for
+            the patches it cuts in this frame. Given even when ``track_ids`` is
+            empty.
+        K: (3, 3) intrinsic matrix the pixels were predicted with, or None.
+        landmarks_w: (N, 3) estimated world positions of the predicted
+            landmarks, metres, rows in ``track_ids`` order, or None; a row that
+            is not finite has no Euclidean position (inverse depth ``rho <= 0``:
+            at infinity).
     """
 
     track_ids: np.ndarray
     uv_px: np.ndarray
     S_px2: np.ndarray
     max_corrections: int | None = None
+    wTc: np.ndarray | None = None
+    K: np.ndarray | None = None
+    landmarks_w: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.track_ids)
+
+    @classmethod
+    def empty(cls, wTc: np.ndarray | None = None, K: np.ndarray | None = None,
+              max_corrections: int | None = None) -> "PixelPredictions":
+        """No landmark predicted, from the camera ``wTc`` (4, 4) with ``K`` (3, 3) if known."""
+        return cls(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)), max_corrections,
+                   wTc=wTc, K=K, landmarks_w=None if wTc is None else np.zeros((0, 3)))
 
 
 @dataclass(frozen=True, eq=False)

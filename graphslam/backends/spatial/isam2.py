@@ -197,12 +197,14 @@ class VisualIsam2Backend(VisualBackend):
 
     def predict_observations(self) -> PixelPredictions:
         self._flush()
-        empty = PixelPredictions(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)))
-        if not self._frames or self._n_lm == 0:
-            return empty
-        fid = self._frames[-1]
-        x_key = X(fid)
+        if not self._frames:
+            return PixelPredictions.empty()
+        x_key = X(self._frames[-1])
         wTc = self._current_pose()
+        # the camera even without landmarks: the front end's appearance prediction keeps it
+        empty = PixelPredictions.empty(conv.pose3_matrix(wTc), self._K.copy())
+        if self._n_lm == 0:
+            return empty
         # pre-select on cached positions, with a margin: they may be stale
         slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
         if self.config.predict_window_frames:  # before the reads: it needs no position
@@ -247,7 +249,7 @@ class VisualIsam2Backend(VisualBackend):
                        + D_point @ self._point_marginal(L(tid)) @ D_point.T)
             S[i] = 0.5 * (S_i + S_i.T) + self._lm_sigma[s] ** 2 * np.eye(2)
             ids[i] = tid
-        return PixelPredictions(ids, uvs, S)
+        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lm_pos[slots].copy())
 
     def estimate(self) -> VisualEstimate:
         self._flush()
