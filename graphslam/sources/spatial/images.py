@@ -83,6 +83,19 @@ from slamcore.spatial.camera import intrinsics_matrix
 
 # --------------------------------------------------------------------------- TUM RGB-D
 
+def _keep_matched(paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: list,
+                  max_dt_s: float, gpath: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Images with a ground-truth stamp within ``max_dt_s`` and their ``wTc`` (N, 4, 4);
+    the others are dropped (TUM and EuRoC truth often starts after the first images)."""
+    order = np.argsort(gt_t, kind="stable")
+    idx = associate(stamps, gt_t[order], max_dt_s)
+    keep = idx >= 0
+    if not np.any(keep):
+        raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
+    return ([p for p, k in zip(paths, keep) if k], stamps[keep],
+            np.array(gt_T)[order][idx[keep]])
+
+
 def read_tum_rgbd(folder: str | Path, intrinsics=None,
                   max_dt_s: float = ASSOCIATION_MAX_DT_S) -> ImageSequence:
     """A TUM RGB-D sequence folder (``rgb.txt``, ``rgb/``, ``groundtruth.txt``).
@@ -132,15 +145,7 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
             T[:3, 3] = v[1:4]
             gt_t.append(v[0])
             gt_T.append(T)
-        gt_t = np.array(gt_t)
-        order = np.argsort(gt_t, kind="stable")
-        idx = associate(stamps, gt_t[order], max_dt_s)
-        keep = idx >= 0
-        if not np.any(keep):
-            raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
-        paths = [p for p, k in zip(paths, keep) if k]
-        stamps = stamps[keep]
-        wTc = np.array(gt_T)[order][idx[keep]]
+        paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc,
                          image_size(paths[0]), str(folder))
 
@@ -204,15 +209,7 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
             T[:3, 3] = v[1:4]
             gt_t.append(v[0] * 1e-9)
             gt_T.append(T @ T_BS)
-        gt_t = np.array(gt_t)
-        order = np.argsort(gt_t, kind="stable")
-        idx = associate(stamps, gt_t[order], max_dt_s)
-        keep = idx >= 0
-        if not np.any(keep):
-            raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
-        paths = [p for p, k in zip(paths, keep) if k]
-        stamps = stamps[keep]
-        wTc = np.array(gt_T)[order][idx[keep]]
+        paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     return ImageSequence(f"euroc-{folder.name}", paths, stamps, K, dist, wTc,
                          image_size(paths[0]), str(folder))
 
