@@ -315,7 +315,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     """Default synthetic sequence (300 VGA frames, 1.5 laps). With a local map
     (landmarks predicted only within 30 frames) old places are recognised only
     by closures, so the run without them is visual odometry (issue 6's "same
-    run without loop closure"). Measured: 0.1013 m without, 0.0231 m with 68
+    run without loop closure"). Measured: 0.1013 m without, 0.0227 m with 64
     closures, all true (``benchmarks/bench_loop_ate.py``)."""
     from graphslam.pipelines import spatial as vp
     from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
