@@ -1,22 +1,28 @@
 """Settings of the 2-D EKF-SLAM (:class:`filters.ekf_slam.EkfSlam`), checked on creation.
 
-Section ``[ekf]`` of the config file; a bad value raises
-:class:`slamcore.errors.ConfigError` naming the key.
+Section ``[ekf]`` of the config file; types, modes and ranges are declared on
+the fields and checked by :func:`slamcore.config.validate`, so a bad value
+raises :class:`slamcore.errors.ConfigError` naming the key.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
-import numpy as np
-
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+#: Most landmark slots the buffers may hold before the first doubling: the
+#: state's covariance is a dense (3 + 2 L)^2 float64 allocated up front, so
+#: 10 000 slots are already 3.2 GB (and every update touches all of it).
+MAX_INITIAL_CAPACITY = 10_000
+#: Most pairing tests JCBB may do per scan: the budget exists to bound the
+#: search's time (the tree has up to (candidates + 1)^m leaves for m
+#: observations), and a test costs about 50 us here (12 observations, 3
+#: candidates each), so a million tests are already about a minute per scan.
+MAX_JCBB_NODES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -65,45 +71,21 @@ class EkfSlamConfig:
 
     SECTION: ClassVar[str] = "ekf"
 
-    association: str = "known"
-    gate_chi2_prob: float = 0.999
-    new_landmark_chi2_prob: float = 0.999
-    provisional_sightings: int = 1
-    initial_capacity: int = 64
-    jcbb_max_candidates: int = 3
-    jcbb_max_nodes: int = 2000
-    default_sigma_range_m: float = 0.2
-    default_sigma_bearing_rad: float = math.radians(10.0)
-    jacobians: str = "oc"
-    odometry_covariance_scale: float = 1.0
-    known_gate_chi2_prob: float | None = None
+    association: Literal["known", "unknown"] = "known"
+    gate_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)
+    new_landmark_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)
+    provisional_sightings: int = bounded(1, min=1)
+    initial_capacity: int = bounded(64, min=1, max=MAX_INITIAL_CAPACITY)
+    jcbb_max_candidates: int = bounded(3, min=1)
+    jcbb_max_nodes: int = bounded(2000, min=0, max=MAX_JCBB_NODES)
+    default_sigma_range_m: float = bounded(0.2, gt=0.0)
+    default_sigma_bearing_rad: float = bounded(math.radians(10.0), gt=0.0)
+    jacobians: Literal["standard", "oc"] = "oc"
+    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
+    known_gate_chi2_prob: float | None = bounded(None, gt=0.0, lt=1.0)
 
     def __post_init__(self):
-        if self.jacobians not in ("standard", "oc"):
-            raise ConfigError(f"ekf.jacobians must be 'standard' or 'oc', got {self.jacobians!r}")
-        if self.association not in ("known", "unknown"):
-            raise ConfigError(f"ekf.association must be 'known' or 'unknown', got {self.association!r}")
-        for name in ("gate_chi2_prob", "new_landmark_chi2_prob"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < float(v) < 1.0:
-                raise ConfigError(f"ekf.{name} must be a probability in (0, 1), got {v!r}")
+        validate(self)
         if self.new_landmark_chi2_prob < self.gate_chi2_prob:
             raise ConfigError("ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "
                               f"({self.new_landmark_chi2_prob} < {self.gate_chi2_prob})")
-        for name, lo in (("provisional_sightings", 1), ("initial_capacity", 1),
-                         ("jcbb_max_candidates", 1), ("jcbb_max_nodes", 0)):
-            v = getattr(self, name)
-            if not _is_int(v) or v < lo:
-                raise ConfigError(f"ekf.{name} must be an integer >= {lo}, got {v!r}")
-        for name in ("default_sigma_range_m", "default_sigma_bearing_rad"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"ekf.{name} must be a positive number, got {v!r}")
-        v = self.odometry_covariance_scale
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"ekf.odometry_covariance_scale must be a positive number, got {v!r}")
-        v = self.known_gate_chi2_prob
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                              or not 0.0 < float(v) < 1.0):
-            raise ConfigError("ekf.known_gate_chi2_prob must be None or a probability in (0, 1), "
-                              f"got {v!r}")

@@ -69,20 +69,29 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
+from slamcore.config import bounded, validate
 from slamcore.planar import geometry as models
 from filters.fastslam_map import ParticleMaps
 from slamcore.planar.backend import Backend
-from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
     Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
 )
 from slamcore.planar.geometry import wrap_angle
 
 _LOG_2PI = math.log(2.0 * math.pi)
+
+#: Most particles a filter may have. Every particle carries its own 2-D EKF per
+#: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
+#: for each particle an update touches) and an int32 pointer per landmark column,
+#: so N particles x L landmarks take up to about 52 N L bytes: 1e6 particles are 5 GB
+#: for a map of only 100 landmarks, and the per-observation (N, 2, 2)
+#: temporaries grow alike. 1e11 would need terabytes for the poses alone.
+MAX_PARTICLES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -91,7 +100,7 @@ class FastSlamConfig:
 
     Attributes:
         version: 1 (motion proposal) or 2 (proposal including the observation).
-        n_particles: number of particles N.
+        n_particles: number of particles N, at most :data:`MAX_PARTICLES` (memory).
         seed: seed of the one random generator; runs repeat to the bit.
         resample_ess_fraction: resample when ESS < fraction * N; in [0, 1]
             (0 never resamples, 1 always does).
@@ -112,39 +121,17 @@ class FastSlamConfig:
 
     SECTION: ClassVar[str] = "fastslam"
 
-    version: int = 2
-    n_particles: int = 100
-    seed: int = 0
-    resample_ess_fraction: float = 0.5
-    association: str = "known"
-    new_landmark_mahalanobis_sq: float = 13.8155
+    version: int = bounded(2, min=1, max=2)
+    n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)
+    seed: int = bounded(0, min=0)
+    resample_ess_fraction: float = bounded(0.5, min=0.0, max=1.0)
+    association: Literal["known", "unknown"] = "known"
+    new_landmark_mahalanobis_sq: float = bounded(13.8155, gt=0.0)
     new_landmark_log_likelihood: float | None = None
-    odometry_covariance_scale: float = 1.0
+    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
 
     def __post_init__(self):
-        if self.version not in (1, 2) or isinstance(self.version, bool):
-            raise ConfigError(f"fastslam.version must be 1 or 2, got {self.version!r}")
-        if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, int) \
-                or self.n_particles < 1:
-            raise ConfigError("fastslam.n_particles must be an integer >= 1, "
-                              f"got {self.n_particles!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"fastslam.seed must be an integer >= 0, got {self.seed!r}")
-        if not (0.0 <= float(self.resample_ess_fraction) <= 1.0):
-            raise ConfigError("fastslam.resample_ess_fraction must be in [0, 1], "
-                              f"got {self.resample_ess_fraction!r}")
-        if self.association not in ("known", "unknown"):
-            raise ConfigError(f"fastslam.association must be 'known' or 'unknown', "
-                              f"got {self.association!r}")
-        if not (math.isfinite(self.new_landmark_mahalanobis_sq)
-                and self.new_landmark_mahalanobis_sq > 0):
-            raise ConfigError("fastslam.new_landmark_mahalanobis_sq must be > 0")
-        if not (math.isfinite(self.odometry_covariance_scale)
-                and self.odometry_covariance_scale > 0):
-            raise ConfigError("fastslam.odometry_covariance_scale must be > 0")
-        if self.new_landmark_log_likelihood is not None \
-                and not math.isfinite(self.new_landmark_log_likelihood):
-            raise ConfigError("fastslam.new_landmark_log_likelihood must be finite")
+        validate(self)
 
 
 # --------------------------------------------------------------------- helpers

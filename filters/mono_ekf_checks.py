@@ -2,8 +2,8 @@
 
 Every check raises before the filter's state is touched, so a bad frame
 leaves the filter as it was. Errors are :class:`slamcore.errors.MeasurementError`
-(the settings' own checks, in :mod:`filters.mono_ekf_config`, raise
-``ConfigError`` from the predicates here).
+(the settings are checked apart, by :func:`slamcore.config.validate` in
+:mod:`filters.mono_ekf_config`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Settings of the monocular EKF-SLAM (:class:`filters.mono_ekf.MonoEkf`), checked on creation.
 
-Section ``[mono_ekf]`` of the config file. The landmark prior
+Section ``[mono_ekf]`` of the config file; types, modes and ranges are declared
+on the fields and checked by :func:`slamcore.config.validate`. The landmark prior
 (:attr:`MonoEkfConfig.rho0`, :attr:`MonoEkfConfig.sigma_rho`) is derived from
 ``min_depth_m`` here so the filter and its tests read one definition.
 """
@@ -9,10 +10,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
-from filters.mono_ekf_checks import is_int, is_num
-from slamcore.errors import ConfigError
+from slamcore.config import bounded, validate
+
+#: Most landmarks the state may hold. The covariance is dense, up to
+#: (13 + 7 L)^2 float64 (constant-velocity model, AHP landmarks), and every
+#: correction rewrites all of it: 1000 landmarks are 0.4 GB and O(n^2) work per
+#: measurement, where the filter is meant for tens (the default 20).
+MAX_LANDMARKS = 1000
 
 
 def chi2_2dof(prob: float) -> float:
@@ -35,7 +41,7 @@ class MonoEkfConfig:
             (benchmarks/bench_mono_ekf.py), leaving most of a 60 Hz frame
             (16.7 ms) to detection and search. 40 (all IDP) costs about
             1.7 times as much; 30 did not lower the ATE on the synthetic
-            loop (seeds 0-3).
+            loop (seeds 0-3). At most :data:`MAX_LANDMARKS` (memory).
         max_init_per_frame: new landmarks per frame at most (paper: 5).
         max_corrections: measurements used per frame at most, largest
             innovation ellipse first.
@@ -70,54 +76,29 @@ class MonoEkfConfig:
 
     SECTION: ClassVar[str] = "mono_ekf"
 
-    robot_model: str = "odometry"
-    landmark_param: str = "idp"
-    max_landmarks: int = 20
-    max_init_per_frame: int = 5
-    max_corrections: int = 10
-    min_depth_m: float = 1.0
-    linearity_threshold: float = 0.1
+    robot_model: Literal["odometry", "constant_velocity"] = "odometry"
+    landmark_param: Literal["idp", "ahp"] = "idp"
+    max_landmarks: int = bounded(20, min=1, max=MAX_LANDMARKS)
+    max_init_per_frame: int = bounded(5, min=0)
+    max_corrections: int = bounded(10, min=1)
+    min_depth_m: float = bounded(1.0, gt=0.0)
+    linearity_threshold: float = bounded(0.1, min=0.0)
     ransac: bool = True
-    ransac_inlier_sigmas: float = 3.0
-    ransac_max_hypotheses: int = 20
-    rescue_chi2_prob: float = 0.99
-    forget_unseen_frames: int = 3
-    max_consecutive_misses: int = 5
-    frame_dt_s: float = 1.0 / 30.0
-    cv_sigma_accel_mps2: float = 4.0
-    cv_sigma_alpha_radps2: float = 4.0
-    cv_initial_sigma_v_mps: float = 1.0
-    cv_initial_sigma_w_radps: float = 1.0
-    default_sigma_px: float = 1.0
-    seed: int = 0
+    ransac_inlier_sigmas: float = bounded(3.0, gt=0.0)
+    ransac_max_hypotheses: int = bounded(20, min=1)
+    rescue_chi2_prob: float = bounded(0.99, gt=0.0, lt=1.0)
+    forget_unseen_frames: int = bounded(3, min=1)
+    max_consecutive_misses: int = bounded(5, min=1)
+    frame_dt_s: float = bounded(1.0 / 30.0, gt=0.0)
+    cv_sigma_accel_mps2: float = bounded(4.0, gt=0.0)
+    cv_sigma_alpha_radps2: float = bounded(4.0, gt=0.0)
+    cv_initial_sigma_v_mps: float = bounded(1.0, gt=0.0)
+    cv_initial_sigma_w_radps: float = bounded(1.0, gt=0.0)
+    default_sigma_px: float = bounded(1.0, gt=0.0)
+    seed: int = bounded(0, min=0)
 
     def __post_init__(self):
-        if self.robot_model not in ("odometry", "constant_velocity"):
-            raise ConfigError("mono_ekf.robot_model must be 'odometry' or 'constant_velocity', "
-                              f"got {self.robot_model!r}")
-        if self.landmark_param not in ("idp", "ahp"):
-            raise ConfigError(f"mono_ekf.landmark_param must be 'idp' or 'ahp', got {self.landmark_param!r}")
-        if not isinstance(self.ransac, bool):
-            raise ConfigError(f"mono_ekf.ransac must be true or false, got {self.ransac!r}")
-        for name, lo in (("max_landmarks", 1), ("max_init_per_frame", 0), ("max_corrections", 1),
-                         ("ransac_max_hypotheses", 1), ("forget_unseen_frames", 1),
-                         ("max_consecutive_misses", 1), ("seed", 0)):
-            v = getattr(self, name)
-            if not is_int(v) or v < lo:
-                raise ConfigError(f"mono_ekf.{name} must be an integer >= {lo}, got {v!r}")
-        for name in ("min_depth_m", "ransac_inlier_sigmas", "frame_dt_s", "cv_sigma_accel_mps2",
-                     "cv_sigma_alpha_radps2", "cv_initial_sigma_v_mps", "cv_initial_sigma_w_radps",
-                     "default_sigma_px"):
-            v = getattr(self, name)
-            if not is_num(v) or v <= 0:
-                raise ConfigError(f"mono_ekf.{name} must be a positive number, got {v!r}")
-        v = self.linearity_threshold
-        if not is_num(v) or v < 0:
-            raise ConfigError(f"mono_ekf.linearity_threshold must be a number >= 0, got {v!r}")
-        for name in ("rescue_chi2_prob",):
-            v = getattr(self, name)
-            if not is_num(v) or not 0.0 < v < 1.0:
-                raise ConfigError(f"mono_ekf.{name} must be a probability in (0, 1), got {v!r}")
+        validate(self)
 
     @property
     def rho0(self) -> float:

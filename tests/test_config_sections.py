@@ -45,3 +45,21 @@ def test_run_refuses_bad_config_with_file_and_line(tmp_path, text, line, words):
     err = proc.stderr.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert f"{cfg}:{line}:" in err and words in err, err
+
+
+def test_absurd_particle_count_is_one_line_with_file_and_line(tmp_path, capsys):
+    """1e11 particles would need terabytes (filters.fastslam.MAX_PARTICLES): refused
+    before anything is allocated, as one line naming the file and line, exit 2."""
+    from graphslam.cli.main import main
+
+    cfg = tmp_path / "particles.toml"
+    cfg.write_text("[fastslam]\nseed = 1\nn_particles = 1e11\n")
+    out = tmp_path / "out"
+    rc = main(["run", "--backend", "fastslam1", "--config", str(cfg), "--rerun", "off",
+               "--quiet", "--max-steps", "5", "--out", str(out)])
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith(f"graphslam: error: {cfg}:3: fastslam.n_particles must be"), err
+    assert not out.exists()

@@ -11,7 +11,7 @@ from scipy.stats import chi2
 from slamcore.planar import geometry as models
 from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
 from filters.ekf_slam import EkfSlam
-from filters.ekf_slam_config import EkfSlamConfig
+from filters.ekf_slam_config import MAX_INITIAL_CAPACITY, MAX_JCBB_NODES, EkfSlamConfig
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
 from graphslam.evaluation.planar import association_accuracy
@@ -449,6 +449,32 @@ def test_default_synthetic_world_nees_is_consistent_over_20_runs():
     lo, hi = metrics.chi2_bounds(3, runs)
     inside = np.mean((mean >= lo) & (mean <= hi))
     assert inside >= 0.9, f"average NEES inside the 95 % bounds on {inside:.1%} of steps"
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("association", "maybe", "must be one of ['known', 'unknown']"),
+    ("jacobians", "exact", "must be one of ['standard', 'oc']"),
+    ("jacobians", None, "must be one of"),
+    ("gate_chi2_prob", 1.0, "must be > 0.0 and < 1.0"),
+    ("gate_chi2_prob", "high", "expected a number"),
+    ("new_landmark_chi2_prob", 0.0, "must be > 0.0 and < 1.0"),
+    ("provisional_sightings", 0, "must be >= 1"),
+    ("initial_capacity", 2.5, "expected an integer"),
+    ("initial_capacity", MAX_INITIAL_CAPACITY + 1, f"<= {MAX_INITIAL_CAPACITY}"),  # memory
+    ("jcbb_max_candidates", 0, "must be >= 1"),
+    ("jcbb_max_nodes", -1, "must be >= 0"),
+    ("jcbb_max_nodes", MAX_JCBB_NODES + 1, f"<= {MAX_JCBB_NODES}"),  # time per scan
+    ("default_sigma_range_m", -1.0, "must be > 0.0"),
+    ("default_sigma_bearing_rad", math.nan, "finite"),
+    ("odometry_covariance_scale", True, "expected a number"),
+    ("known_gate_chi2_prob", 1.5, "must be > 0.0 and < 1.0"),
+])
+def test_config_refuses_bad_values_naming_the_key(key, value, words):
+    for build in (lambda: EkfSlamConfig(**{key: value}),
+                  lambda: from_dict(EkfSlamConfig, {key: value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith(f"ekf.{key}") and words in str(e.value), str(e.value)
 
 
 # ------------------------------------------- odometry scale, known-association gate

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from slamcore.planar import geometry as models
-from filters.fastslam import FastSlam, FastSlamConfig, low_variance_resample
+from filters.fastslam import MAX_PARTICLES, FastSlam, FastSlamConfig, low_variance_resample
 from filters.fastslam_map import ParticleMaps
 from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
@@ -82,14 +82,30 @@ def pose_errors_m(ds: Dataset, wTb: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- config / API
-@pytest.mark.parametrize("bad", [
-    {"version": 3}, {"n_particles": 0}, {"seed": -1}, {"resample_ess_fraction": 1.5},
-    {"association": "nearest"}, {"new_landmark_mahalanobis_sq": 0.0},
-    {"new_landmark_log_likelihood": math.inf}, {"odometry_covariance_scale": 0.0},
+@pytest.mark.parametrize("key, value, words", [
+    ("version", 3, "must be >= 1 and <= 2"),
+    ("version", True, "expected a number"),
+    ("n_particles", 0, "must be >= 1"),
+    ("n_particles", 2.5, "expected an integer"),
+    ("n_particles", MAX_PARTICLES + 1, f"<= {MAX_PARTICLES}"),  # memory, see MAX_PARTICLES
+    ("n_particles", 1e11, f"<= {MAX_PARTICLES}"),
+    ("seed", -1, "must be >= 0"),
+    ("seed", "0", "expected a number"),
+    ("resample_ess_fraction", 1.5, "must be >= 0.0 and <= 1.0"),
+    ("resample_ess_fraction", "half", "expected a number"),
+    ("association", "nearest", "must be one of ['known', 'unknown']"),
+    ("association", 1, "must be one of"),
+    ("new_landmark_mahalanobis_sq", 0.0, "must be > 0.0"),
+    ("new_landmark_log_likelihood", math.inf, "finite"),
+    ("odometry_covariance_scale", 0.0, "must be > 0.0"),
+    ("odometry_covariance_scale", None, "expected a number"),
 ])
-def test_config_refuses_bad_values(bad):
-    with pytest.raises(ConfigError):
-        FastSlamConfig(**bad)
+def test_config_refuses_bad_values_naming_the_key(key, value, words):
+    for build in (lambda: FastSlamConfig(**{key: value}),
+                  lambda: from_dict(FastSlamConfig, {key: value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith(f"fastslam.{key}") and words in str(e.value), str(e.value)
 
 
 def test_config_loads_from_section_dict():

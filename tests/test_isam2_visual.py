@@ -9,6 +9,7 @@ from gtsam.symbol_shorthand import L, X
 
 from slamcore.spatial.geometry import invert_pose, se3_exp
 from graphslam.backends import gtsam_convert as conv
+from slamcore.config import choices_of, from_dict
 from slamcore.errors import ConfigError, UnsupportedError
 from graphslam.backends.spatial.isam2 import PRIOR_SIGMA_FLOOR, VisualIsam2Backend
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
@@ -233,6 +234,36 @@ def test_repeatable_to_the_bit(world):
     assert a.wTc.tobytes() == b.wTc.tobytes()
     assert a.landmarks_w.tobytes() == b.landmarks_w.tobytes()
     np.testing.assert_array_equal(a.landmark_ids, b.landmark_ids)
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("pixel_kernel", "tukey", "must be one of ['none', 'huber', 'cauchy']"),
+    ("loop_closure_kernel", "tukey", "must be one of"),
+    ("prediction_covariance", "full", "must be one of ['joint', 'marginal']"),
+    ("polish_method", "dogleg", "must be one of ['lm', 'gnc']"),
+    ("relinearize_threshold", 0.0, "must be > 0.0"),
+    ("relinearize_skip", 1.5, "expected an integer"),
+    ("min_parallax_deg", 90.0, "must be >= 0.0 and < 90.0"),
+    ("min_observations", 1, "must be >= 2"),
+    ("max_track_observations", 2, "must be >= min_observations"),  # cross-field, after validate
+    ("max_landmarks_per_frame", -1, "must be >= 0"),
+    ("max_predictions", "10", "expected a number"),
+    ("newest_pose_last", 1, "expected true/false"),
+    ("polish", "no", "expected true/false"),
+    ("pixel_kernel_k", float("inf"), "finite"),
+])
+def test_config_refuses_bad_values_naming_the_key(key, value, words):
+    for build in (lambda: VisualIsam2Config(**{key: value}),
+                  lambda: from_dict(VisualIsam2Config, {key: value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith(f"isam2_visual.{key}") and words in str(e.value), \
+            str(e.value)
+
+
+def test_config_kernels_are_the_ones_gtsam_convert_builds():
+    assert choices_of(VisualIsam2Config, "pixel_kernel") == conv.ROBUST_KERNELS
+    assert choices_of(VisualIsam2Config, "loop_closure_kernel") == conv.ROBUST_KERNELS
 
 
 def test_contract_errors():

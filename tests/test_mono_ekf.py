@@ -9,7 +9,7 @@ import pytest
 
 from filters import landmark_params as lp
 from filters.mono_ekf import MonoEkf
-from filters.mono_ekf_config import MonoEkfConfig
+from filters.mono_ekf_config import MAX_LANDMARKS, MonoEkfConfig
 from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion
 from slamcore.spatial.geometry import invert_pose, se3_exp
 from slamcore.spatial.camera import project
@@ -391,17 +391,29 @@ def test_is_a_visual_backend_and_config_section():
     assert c.rho0 + 2 * c.sigma_rho == pytest.approx(1 / 2.0) and c.rho0 - 2 * c.sigma_rho == 0.0
 
 
-@pytest.mark.parametrize("bad", [
-    {"robot_model": "inertial"}, {"landmark_param": "euclidean"}, {"max_landmarks": 0},
-    {"max_init_per_frame": -1}, {"max_corrections": 2.5}, {"min_depth_m": 0.0},
-    {"linearity_threshold": -0.1}, {"ransac": 1}, {"ransac_max_hypotheses": 0},
-    {"rescue_chi2_prob": 0.0}, {"frame_dt_s": float("nan")}, {"max_consecutive_misses": True},
+@pytest.mark.parametrize("key, value, words", [
+    ("robot_model", "inertial", "must be one of ['odometry', 'constant_velocity']"),
+    ("landmark_param", "euclidean", "must be one of ['idp', 'ahp']"),
+    ("max_landmarks", 0, "must be >= 1"),
+    ("max_landmarks", MAX_LANDMARKS + 1, f"<= {MAX_LANDMARKS}"),  # dense covariance: memory
+    ("max_init_per_frame", -1, "must be >= 0"),
+    ("max_corrections", 2.5, "expected an integer"),
+    ("min_depth_m", 0.0, "must be > 0.0"),
+    ("linearity_threshold", -0.1, "must be >= 0.0"),
+    ("ransac", 1, "expected true/false"),
+    ("ransac_max_hypotheses", 0, "must be >= 1"),
+    ("rescue_chi2_prob", 0.0, "must be > 0.0 and < 1.0"),
+    ("frame_dt_s", float("nan"), "finite"),
+    ("max_consecutive_misses", True, "expected a number"),
+    ("default_sigma_px", "1", "expected a number"),
+    ("seed", -3, "must be >= 0"),
 ])
-def test_bad_config_is_refused(bad):
-    with pytest.raises(ConfigError):
-        MonoEkfConfig(**bad)
-    with pytest.raises(ConfigError):
-        from_dict(MonoEkfConfig, bad)
+def test_bad_config_is_refused_naming_the_key(key, value, words):
+    for build in (lambda: MonoEkfConfig(**{key: value}),
+                  lambda: from_dict(MonoEkfConfig, {key: value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith(f"mono_ekf.{key}") and words in str(e.value), str(e.value)
 
 
 def test_bad_input_raises_measurement_error():

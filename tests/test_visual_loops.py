@@ -252,8 +252,22 @@ def test_redundant_closure_is_skipped_and_recorded(need, stage):
     assert record.shared_tracks == 10
     assert closer.stats["redundant"] == (stage == "redundant")
     assert closer.stats["pnp_rejected"] == (stage == "pnp")
-    with pytest.raises(ConfigError):
-        LoopClosingConfig(redundant_shared_tracks=-1)
+
+
+@pytest.mark.parametrize("value, words", [
+    (-1, "must be >= 0"), (2.5, "expected an integer"), ("5", "expected a number"),
+    (True, "expected a number"),
+])
+def test_loop_closing_config_refuses_bad_values(value, words):
+    from graphslam.pipelines.loop_closing import LoopClosingConfig
+    from slamcore.config import from_dict
+
+    for build in (lambda: LoopClosingConfig(redundant_shared_tracks=value),
+                  lambda: from_dict(LoopClosingConfig, {"redundant_shared_tracks": value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith("loop_closing.redundant_shared_tracks") \
+            and words in str(e.value), str(e.value)
 
 
 def test_filters_say_plainly_they_cannot_use_closures():

@@ -18,8 +18,10 @@ from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.cli.main import main
-from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.config import ConfigFile, from_dict
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from graphslam.sources.spatial.sequence import ImageSequence
+from graphslam.sources.spatial import synthetic_images as si
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
 from slamcore.spatial.backend import VisualBackend
@@ -183,6 +185,73 @@ def test_derived_odometry_is_seeded():
     b, _ = vp.derive_odometry(gt, vp.OdometryNoiseConfig(seed=1))
     c, _ = vp.derive_odometry(gt, vp.OdometryNoiseConfig(seed=2))
     assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+# --------------------------------------------------------------------------- settings
+
+def _refused(cls, key, value, words):
+    """``cls`` built in code and from a dict refuses ``key = value`` naming section.key."""
+    for build in (lambda: cls(**{key: value}), lambda: from_dict(cls, {key: value})):
+        with pytest.raises(ConfigError) as e:
+            build()
+        assert str(e.value).startswith(f"{cls.SECTION}.{key}") and words in str(e.value), \
+            str(e.value)
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("sigma_t_per_m", -0.01, "must be >= 0.0"),
+    ("sigma_t_per_m", "2 %", "expected a number"),
+    ("min_sigma_t_m", 0.0, "must be > 0.0"),  # a zero covariance cannot weigh a factor
+    ("sigma_r_deg", 0, "must be > 0.0"),
+    ("sigma_r_deg", float("inf"), "finite"),
+    ("seed", -1, "must be >= 0"),
+    ("seed", 1.5, "expected an integer"),
+])
+def test_odometry_noise_config_refuses_bad_values(key, value, words):
+    _refused(vp.OdometryNoiseConfig, key, value, words)
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("odometry", "gps", "must be one of ['auto', 'sequence', 'derived', 'none']"),
+    ("odometry", None, "must be one of"),
+    ("prior_sigma_t_m", 0.0, "must be > 0.0"),
+    ("prior_sigma_r_deg", "tiny", "expected a number"),
+])
+def test_visual_run_config_refuses_bad_values(key, value, words):
+    _refused(vp.VisualRunConfig, key, value, words)
+    assert vp.ODOMETRY_MODES == ("auto", "sequence", "derived", "none")
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("width", 8, "must be >= 16"),
+    ("width", si.MAX_IMAGE_SIDE_PX + 1, f"<= {si.MAX_IMAGE_SIDE_PX}"),  # what a camera gives
+    ("height", 240.5, "expected an integer"),
+    ("n_frames", 1, "must be >= 2"),
+    ("n_frames", si.MAX_FRAMES + 1, f"<= {si.MAX_FRAMES}"),  # O(n^2) revisit search, render time
+    ("n_frames", "300", "expected a number"),
+    ("fx", 0.0, "must be > 0.0"),
+    ("laps", -1.0, "must be > 0.0"),
+    ("room_length_m", si.MAX_ROOM_M * 10, f"<= {si.MAX_ROOM_M}"),  # surfaces per frame
+    ("texture", "marble", "must be one of ['procedural', 'balbianello']"),
+    ("texture_px_per_m", 1e4, "texels"),  # memory: 5e10 texels for the default room
+    ("pixel_noise_sigma", -1.0, "must be >= 0.0"),
+    ("near_m", 0.0, "must be > 0.0"),
+    ("revisit_min_gap_frames", 0, "must be >= 1"),
+    ("corner_radius_m", 3.0, "must be <= half of path_length_m"),  # cross-field
+    ("path_width_m", 10.0, "must fit in room_width_m"),  # cross-field
+    ("camera_height_m", 3.5, "must be < room_height_m"),  # cross-field
+])
+def test_synthetic_images_config_refuses_bad_values(key, value, words):
+    _refused(SyntheticImagesConfig, key, value, words)
+
+
+def test_synthetic_images_config_error_names_file_and_line(tmp_path):
+    path = tmp_path / "big.toml"
+    path.write_text("[synthetic_images]\nseed = 2\nn_frames = 1e9\n")
+    with pytest.raises(ConfigError) as e:
+        ConfigFile.read(path).section(SyntheticImagesConfig)
+    assert (e.value.path, e.value.line) == (str(path), 3)
+    assert "synthetic_images.n_frames must be >= 2 and <= 100000" in str(e.value)
 
 
 def test_ctrl_c_stops_between_frames_and_keeps_the_estimate(seq):

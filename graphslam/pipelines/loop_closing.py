@@ -41,7 +41,8 @@ import numpy as np
 
 from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
-from slamcore.errors import ConfigError, UnsupportedError
+from slamcore.config import bounded, validate
+from slamcore.errors import UnsupportedError
 from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
 from loopclosure.detector import CandidateRecord, LoopDetector
@@ -114,13 +115,10 @@ class LoopClosingConfig:
 
     SECTION: ClassVar[str] = "loop_closing"
 
-    redundant_shared_tracks: int = 5
+    redundant_shared_tracks: int = bounded(5, min=0)
 
     def __post_init__(self):
-        v = self.redundant_shared_tracks
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-            raise ConfigError(f"{self.SECTION}.redundant_shared_tracks must be an integer >= 0, "
-                              f"got {v!r}")
+        validate(self)
 
 
 @dataclass

@@ -38,12 +38,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Literal, get_args
 
 import numpy as np
 
 from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackingResult
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar
@@ -51,7 +52,9 @@ from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
 
-ODOMETRY_MODES = ("auto", "sequence", "derived", "none")
+#: Where a visual run's odometry comes from (module docstring).
+OdometryMode = Literal["auto", "sequence", "derived", "none"]
+ODOMETRY_MODES: tuple[str, ...] = get_args(OdometryMode)
 
 #: ``on_frame(k, image, tracking, backend)``, called after each frame's update.
 FrameHook = Callable[[int, np.ndarray, TrackingResult, VisualBackend], None]
@@ -72,19 +75,14 @@ class OdometryNoiseConfig:
 
     SECTION: ClassVar[str] = "odometry_noise"
 
-    sigma_t_per_m: float = 0.02
-    min_sigma_t_m: float = 0.001
-    sigma_r_deg: float = 0.1
-    seed: int = 0
+    # the floor and the rotation sigma must be > 0: a zero covariance cannot weigh a factor
+    sigma_t_per_m: float = bounded(0.02, min=0.0)
+    min_sigma_t_m: float = bounded(0.001, gt=0.0)
+    sigma_r_deg: float = bounded(0.1, gt=0.0)
+    seed: int = bounded(0, min=0)
 
     def __post_init__(self):
-        for name in ("sigma_t_per_m", "min_sigma_t_m", "sigma_r_deg"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"odometry_noise.{name} must be a finite number >= 0, got {v!r}")
-        if self.min_sigma_t_m <= 0 or self.sigma_r_deg <= 0:
-            raise ConfigError("odometry_noise: min_sigma_t_m and sigma_r_deg must be > 0 "
-                              "(a zero covariance cannot weigh a factor)")
+        validate(self)
 
 
 @dataclass(frozen=True)
@@ -98,16 +96,12 @@ class VisualRunConfig:
 
     SECTION: ClassVar[str] = "visual"
 
-    odometry: str = "auto"
-    prior_sigma_t_m: float = 0.001
-    prior_sigma_r_deg: float = 0.01
+    odometry: OdometryMode = "auto"
+    prior_sigma_t_m: float = bounded(0.001, gt=0.0)
+    prior_sigma_r_deg: float = bounded(0.01, gt=0.0)
 
     def __post_init__(self):
-        if self.odometry not in ODOMETRY_MODES:
-            raise ConfigError(f"visual.odometry must be one of {', '.join(ODOMETRY_MODES)}, "
-                              f"got {self.odometry!r}")
-        if not (self.prior_sigma_t_m > 0 and self.prior_sigma_r_deg > 0):
-            raise ConfigError("visual.prior_sigma_t_m and prior_sigma_r_deg must be > 0")
+        validate(self)
 
 
 @dataclass

@@ -1,19 +1,24 @@
 """Settings of the visual iSAM2 back end (:class:`graphslam.backends.spatial.isam2.VisualIsam2Backend`).
 
-Section ``[isam2_visual]`` of the config file; checked on creation
-(:class:`slamcore.errors.ConfigError`). The measured trade-offs behind the
-defaults are in the attribute notes.
+Section ``[isam2_visual]`` of the config file; types, modes and ranges are
+declared on the fields and checked on creation by
+:func:`slamcore.config.validate` (:class:`slamcore.errors.ConfigError`). The
+measured trade-offs behind the defaults are in the attribute notes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import gtsam
 
-from graphslam.backends import gtsam_convert as conv
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
+
+#: Robust kernels :func:`graphslam.backends.gtsam_convert.robust` builds (its
+#: ``ROBUST_KERNELS``; tests/test_isam2_visual.py checks the two agree).
+RobustKernel = Literal["none", "huber", "cauchy"]
 
 
 @dataclass(frozen=True)
@@ -85,68 +90,36 @@ class VisualIsam2Config:
     """
 
     SECTION: ClassVar[str] = "isam2_visual"
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
-    pixel_kernel: str = "huber"
-    pixel_kernel_k: float = 1.345
-    min_parallax_deg: float = 2.0
-    min_observations: int = 3
-    min_depth_m: float = 0.1
-    max_reprojection_sigmas: float = 4.0
-    track_timeout_frames: int = 10
+    relinearize_threshold: float = bounded(0.1, gt=0.0)
+    relinearize_skip: int = bounded(10, min=1)
+    pixel_kernel: RobustKernel = "huber"
+    pixel_kernel_k: float = bounded(1.345, gt=0.0)
+    min_parallax_deg: float = bounded(2.0, min=0.0, lt=90.0)
+    min_observations: int = bounded(3, min=2)  # two rays to triangulate
+    min_depth_m: float = bounded(0.1, gt=0.0)
+    max_reprojection_sigmas: float = bounded(4.0, gt=0.0)
+    track_timeout_frames: int = bounded(10, min=1)
     max_track_observations: int = 30
     # 0 (no bound) by default: with a bound of 40 and max_predictions = 10 the back end runs at
     # 19 frames/s on the 300-frame room (2.3 with no bound and 20 predictions), but with 5 % gross
     # outlier pixels the bound loses 1 cm of ATE (fewer landmarks). Predictions: 10 keeps the
     # joint marginal cheap; active search needs only the most informative few.
-    max_landmarks_per_frame: int = 0
+    max_landmarks_per_frame: int = bounded(0, min=0)  # 0: no bound
     newest_pose_last: bool = False
-    prediction_covariance: str = "joint"
-    max_predictions: int = 10
-    predict_window_frames: int = 0
-    loop_closure_kernel: str = "cauchy"
-    loop_closure_kernel_k: float = 1.0
+    prediction_covariance: Literal["joint", "marginal"] = "joint"
+    max_predictions: int = bounded(10, min=0)  # 0: no cap
+    predict_window_frames: int = bounded(0, min=0)  # 0: no window
+    loop_closure_kernel: RobustKernel = "cauchy"
+    loop_closure_kernel_k: float = bounded(1.0, gt=0.0)
     polish: bool = True
-    polish_method: str = "lm"
-    polish_max_iterations: int = 50
+    polish_method: Literal["lm", "gnc"] = "lm"
+    polish_max_iterations: int = bounded(50, min=1)
 
     def __post_init__(self):
-        if self.pixel_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2_visual.pixel_kernel must be none, huber or cauchy")
-        if not self.pixel_kernel_k > 0:
-            raise ConfigError("isam2_visual.pixel_kernel_k must be > 0")
-        if not self.relinearize_threshold > 0:
-            raise ConfigError("isam2_visual.relinearize_threshold must be > 0")
-        if self.relinearize_skip < 1:
-            raise ConfigError("isam2_visual.relinearize_skip must be >= 1")
-        if not 0 <= self.min_parallax_deg < 90:
-            raise ConfigError("isam2_visual.min_parallax_deg must be in [0, 90)")
-        if self.min_observations < 2:
-            raise ConfigError("isam2_visual.min_observations must be >= 2 (triangulation)")
-        if not self.min_depth_m > 0:
-            raise ConfigError("isam2_visual.min_depth_m must be > 0")
-        if not self.max_reprojection_sigmas > 0:
-            raise ConfigError("isam2_visual.max_reprojection_sigmas must be > 0")
-        if self.track_timeout_frames < 1:
-            raise ConfigError("isam2_visual.track_timeout_frames must be >= 1")
+        validate(self)
         if self.max_track_observations < self.min_observations:
-            raise ConfigError("isam2_visual.max_track_observations must be >= min_observations")
-        if self.prediction_covariance not in ("joint", "marginal"):
-            raise ConfigError("isam2_visual.prediction_covariance must be joint or marginal")
-        if self.max_landmarks_per_frame < 0:
-            raise ConfigError("isam2_visual.max_landmarks_per_frame must be >= 0 (0: no bound)")
-        if self.max_predictions < 0:
-            raise ConfigError("isam2_visual.max_predictions must be >= 0 (0: no cap)")
-        if self.predict_window_frames < 0:
-            raise ConfigError("isam2_visual.predict_window_frames must be >= 0 (0: no window)")
-        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2_visual.loop_closure_kernel must be none, huber or cauchy")
-        if not self.loop_closure_kernel_k > 0:
-            raise ConfigError("isam2_visual.loop_closure_kernel_k must be > 0")
-        if self.polish_method not in ("lm", "gnc"):
-            raise ConfigError("isam2_visual.polish_method must be lm or gnc")
-        if self.polish_max_iterations < 1:
-            raise ConfigError("isam2_visual.polish_max_iterations must be >= 1")
+            raise ConfigError("isam2_visual.max_track_observations must be >= min_observations "
+                              f"({self.max_track_observations} < {self.min_observations})")
 
     def isam2_params(self) -> gtsam.ISAM2Params:
         """gtsam's ISAM2 parameters for these settings."""

@@ -44,17 +44,36 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
 
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.spatial.camera import intrinsics_matrix
 
 __all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "Surface", "make_synthetic_images",
            "clip_polygon_near"]
+
+#: Largest image side, pixels: 8K video (7680 x 4320) is about the most a video
+#: camera delivers. Each frame is rendered into an (H, W) uint8 image and a
+#: float32 inverse-depth buffer (0.3 GB at 8192 x 8192), and the tracker builds
+#: pyramids of it.
+MAX_IMAGE_SIDE_PX = 8192
+#: Most frames: revisit pairs are found by testing every frame against every
+#: later one (n^2 / 2 pairs, 5e9 at 1e5 frames), and a run renders every frame;
+#: 1e5 frames are already 2.8 hours of this sequence (10 frames per second).
+MAX_FRAMES = 100_000
+#: Largest room side, metres: the floor and ceiling are 2 m tiles and the walls
+#: 4 m panels, each a textured surface that the renderer visits for every
+#: frame, so their number grows with the area (5 000 at 100 m x 100 m).
+MAX_ROOM_M = 100.0
+#: Most texels of the room's level-0 textures together (1 GB of uint8, plus a
+#: third for the mip levels), held in memory for the whole run: surface area x
+#: texture_px_per_m^2; the default room at 100 px/m takes about 5e6.
+MAX_TEXELS = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -67,57 +86,56 @@ class SyntheticImagesConfig:
 
     SECTION: ClassVar[str] = "synthetic_images"
 
-    seed: int = 0
-    width: int = 640
-    height: int = 480
-    fx: float = 500.0
-    fy: float = 500.0
+    seed: int = bounded(0, min=0)
+    width: int = bounded(640, min=16, max=MAX_IMAGE_SIDE_PX)
+    height: int = bounded(480, min=16, max=MAX_IMAGE_SIDE_PX)
+    fx: float = bounded(500.0, gt=0.0)
+    fy: float = bounded(500.0, gt=0.0)
     cx: float = 319.5
     cy: float = 239.5
-    n_frames: int = 300
-    laps: float = 1.5
-    room_length_m: float = 16.0
-    room_width_m: float = 11.0
-    room_height_m: float = 3.0
-    path_length_m: float = 10.0
-    path_width_m: float = 5.0
-    corner_radius_m: float = 1.5
-    camera_height_m: float = 1.4
-    wobble_lateral_m: float = 0.15
+    n_frames: int = bounded(300, min=2, max=MAX_FRAMES)
+    laps: float = bounded(1.5, gt=0.0)
+    room_length_m: float = bounded(16.0, gt=0.0, max=MAX_ROOM_M)
+    room_width_m: float = bounded(11.0, gt=0.0, max=MAX_ROOM_M)
+    room_height_m: float = bounded(3.0, gt=0.0, max=MAX_ROOM_M)
+    path_length_m: float = bounded(10.0, gt=0.0)
+    path_width_m: float = bounded(5.0, gt=0.0)
+    corner_radius_m: float = bounded(1.5, gt=0.0)
+    camera_height_m: float = bounded(1.4, gt=0.0)
+    wobble_lateral_m: float = bounded(0.15, min=0.0)
     wobble_height_m: float = 0.05
     wobble_pitch_deg: float = 2.0
-    odometry_sigma_t_m: float = 0.01
-    odometry_sigma_r_rad: float = 0.002
-    texture: str = "procedural"
-    texture_px_per_m: float = 100.0
-    pixel_noise_sigma: float = 0.0
-    near_m: float = 0.05
-    revisit_distance_m: float = 1.0
-    revisit_heading_deg: float = 10.0
-    revisit_min_gap_frames: int = 50
+    odometry_sigma_t_m: float = bounded(0.01, min=0.0)
+    odometry_sigma_r_rad: float = bounded(0.002, min=0.0)
+    texture: Literal["procedural", "balbianello"] = "procedural"
+    texture_px_per_m: float = bounded(100.0, gt=0.0)
+    pixel_noise_sigma: float = bounded(0.0, min=0.0)
+    near_m: float = bounded(0.05, gt=0.0)
+    revisit_distance_m: float = bounded(1.0, min=0.0)
+    revisit_heading_deg: float = bounded(10.0, min=0.0)
+    revisit_min_gap_frames: int = bounded(50, min=1)
 
     def __post_init__(self):
-        if self.width < 16 or self.height < 16:
-            raise ConfigError(f"[{self.SECTION}] width/height must be >= 16 px")
-        if min(self.fx, self.fy) <= 0:
-            raise ConfigError(f"[{self.SECTION}] fx, fy must be positive")
-        if self.n_frames < 2 or self.laps <= 0:
-            raise ConfigError(f"[{self.SECTION}] need n_frames >= 2 and laps > 0")
-        if self.texture not in ("procedural", "balbianello"):
-            raise ConfigError(f"[{self.SECTION}] texture must be 'procedural' or 'balbianello', "
-                              f"got {self.texture!r}")
-        if not 0 < self.corner_radius_m <= min(self.path_length_m, self.path_width_m) / 2:
-            raise ConfigError(f"[{self.SECTION}] corner_radius_m must be in (0, path_width_m/2]")
+        validate(self)
+        s = f"{self.SECTION}."
+        if self.corner_radius_m > min(self.path_length_m, self.path_width_m) / 2:
+            raise ConfigError(f"{s}corner_radius_m must be <= half of path_length_m and "
+                              f"path_width_m, got {self.corner_radius_m!r}")
         margin = 0.5 + self.wobble_lateral_m
-        if (self.path_length_m / 2 + margin > self.room_length_m / 2
-                or self.path_width_m / 2 + margin > self.room_width_m / 2):
-            raise ConfigError(f"[{self.SECTION}] the path must fit in the room with 0.5 m to spare")
-        if not 0 < self.camera_height_m < self.room_height_m:
-            raise ConfigError(f"[{self.SECTION}] camera_height_m must be inside the room")
-        if min(self.odometry_sigma_t_m, self.odometry_sigma_r_rad, self.pixel_noise_sigma) < 0:
-            raise ConfigError(f"[{self.SECTION}] sigmas must be >= 0")
-        if self.near_m <= 0 or self.texture_px_per_m <= 0:
-            raise ConfigError(f"[{self.SECTION}] near_m and texture_px_per_m must be positive")
+        if self.path_length_m / 2 + margin > self.room_length_m / 2:
+            raise ConfigError(f"{s}path_length_m must fit in room_length_m with 0.5 m + "
+                              f"wobble_lateral_m to spare at each end, got {self.path_length_m!r}")
+        if self.path_width_m / 2 + margin > self.room_width_m / 2:
+            raise ConfigError(f"{s}path_width_m must fit in room_width_m with 0.5 m + "
+                              f"wobble_lateral_m to spare at each side, got {self.path_width_m!r}")
+        if not self.camera_height_m < self.room_height_m:
+            raise ConfigError(f"{s}camera_height_m must be < room_height_m "
+                              f"({self.room_height_m!r}), got {self.camera_height_m!r}")
+        L, W, H = self.room_length_m, self.room_width_m, self.room_height_m
+        texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m ** 2
+        if texels > MAX_TEXELS:
+            raise ConfigError(f"{s}texture_px_per_m: the room's textures would take {texels:.3g} "
+                              f"texels; at most {MAX_TEXELS:.0e} (memory)")
 
 
 @dataclass(frozen=True, eq=False)
