@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from slamcore.errors import ConfigError
+from frontend.orb import OrbConfig
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import Verification
 
@@ -157,7 +158,7 @@ def small_run():
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
                                                       cx=159.5, cy=119.5, n_frames=120))
-    config = LoopDetectorConfig(exclude_recent=20, orb_n_features=500)
+    config = LoopDetectorConfig(exclude_recent=20, orb=OrbConfig(n_features=500, cell_size_px=0))
     orb = OrbDetector(n_features=500, cell_size_px=0)
     feats = [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
     vocab = VocabularyTree(branching=10, depth=2, seed=0).fit([f.descriptors[:300] for f in feats])
@@ -211,7 +212,8 @@ def test_default_detector_on_images_is_repeatable():
         [OrbDetector(n_features=200, cell_size_px=0).detect(im).descriptors for im in imgs[::4]])
     runs = []
     for _ in range(2):
-        det = LoopDetector(vocab, LoopDetectorConfig(exclude_recent=10, orb_n_features=200), K=seq.K)
+        config = LoopDetectorConfig(exclude_recent=10, orb=OrbConfig(n_features=200, cell_size_px=0))
+        det = LoopDetector(vocab, config, K=seq.K)
         det.run(imgs)
         runs.append([r.to_dict() for r in det.records])
     assert runs[0] == runs[1] and len(runs[0]) > 0
@@ -232,8 +234,7 @@ def test_default_sequence_meets_issue_targets():
 
     seq = make_synthetic_images()
     config = LoopDetectorConfig()
-    orb = OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
-                      per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
+    orb = OrbDetector(config.orb)
     feats = [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
     det = LoopDetector(train_vocabulary([f.descriptors for f in feats], 1000), config, K=seq.K)
     for f in feats:

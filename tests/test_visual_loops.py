@@ -200,7 +200,7 @@ class _StubDetector:
         from loopclosure.detector import LoopDetectorConfig
 
         self.K = K
-        self.orb = OrbDetector(n_features=LoopDetectorConfig().orb_n_features)
+        self.orb = OrbDetector(n_features=LoopDetectorConfig().orb.n_features)
         self.records = []
         self._n = 0
 
@@ -318,7 +318,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     run without loop closure"). Measured: 0.1013 m without, 0.0231 m with 68
     closures, all true (``benchmarks/bench_loop_ate.py``)."""
     from graphslam.pipelines import spatial as vp
-    from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
+    from graphslam.pipelines.place_recognition import train_vocabulary
     from loopclosure.detector import LoopDetectorConfig
     from graphslam.sources.spatial.synthetic_images import make_synthetic_images
     from graphslam.pipelines.loop_closing import VisualLoopCloser
@@ -327,7 +327,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
 
     seq = make_synthetic_images()
     cfg = VisualIsam2Config(predict_window_frames=30)
-    orb = orb_for(LoopDetectorConfig())  # the detector's own ORB settings, as graphslam run --loops
+    orb = OrbDetector(LoopDetectorConfig().orb)  # the detector's own ORB, as graphslam run --loops
     vocab = train_vocabulary([orb.detect(seq.load(i)).descriptors for i in range(len(seq))], 1000)
 
     def ate(closer):
