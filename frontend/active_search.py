@@ -41,9 +41,9 @@ counts overlaps twice, is reported as well).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
-import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 

@@ -59,7 +59,7 @@ MODELS = typing.get_args(Model)
 
 #: Most RANSAC iterations a config may ask for. A hopeless pair runs all of
 #: them; 10^6 already covers 5-point samples at 10 % inliers with 99.9 %
-#: confidence (ln(0.001) / ln(1 - 0.1^5) = 690 000), and costs minutes per pair
+#: confidence (ln(0.001) / ln(1 - 0.1^5), about 690 000), and costs minutes per pair
 #: (about 0.2 ms per essential-matrix iteration on 300 matches).
 MAX_RANSAC_ITERS = 1_000_000
 
