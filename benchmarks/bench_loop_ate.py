@@ -32,9 +32,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from frontend.orb import OrbDetector
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
-from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
+from graphslam.pipelines.place_recognition import train_vocabulary
 from loopclosure.detector import LoopDetectorConfig
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
@@ -53,7 +54,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     seq = make_synthetic_images()
-    orb = orb_for(LoopDetectorConfig())  # the detector's own ORB settings, as graphslam run --loops
+    orb = OrbDetector(LoopDetectorConfig().orb)  # the detector's own ORB, as graphslam run --loops
     t0 = time.perf_counter()
     descs = [orb.detect(seq.load(i)).descriptors
              for i in tqdm(range(len(seq)), desc="vocabulary ORB", file=sys.stderr, leave=False)]

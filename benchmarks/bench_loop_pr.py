@@ -87,11 +87,6 @@ def precision_recall(closures, revisit_pairs, tol: int, wTc: np.ndarray | None =
             "strict_misses": misses}
 
 
-def orb_of(config: LoopDetectorConfig) -> OrbDetector:
-    return OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
-                       per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
-
-
 def detect(features, vocab, config, verify_config, K, desc: str):
     det = LoopDetector(vocab, config, verify_config, K=K)
     t0 = time.perf_counter()
@@ -119,7 +114,7 @@ def main(argv=None) -> int:
                                         leave=False)]
     timings["render_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    orb = orb_of(base)
+    orb = OrbDetector(base.orb)
     feats = [orb.detect(im) for im in tqdm(images, desc="ORB", file=sys.stderr, leave=False)]
     timings["orb_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -41,16 +41,18 @@ counts overlaps twice, is reported as well).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
 
 from frontend.features import Features
-from frontend.image import check_gray
+from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, check_gray
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
 __all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
@@ -90,34 +92,21 @@ class ActiveSearchConfig:
 
     SECTION: ClassVar[str] = "active_search"
 
-    mode: str = "zncc"
-    gate_probability: float = 0.99
-    max_corrections: int = 20
-    patch_size_px: int = 11
-    min_score: float = 0.8
-    min_patch_std: float = 3.0
+    mode: Literal["zncc", "nearest"] = "zncc"
+    gate_probability: float = bounded(0.99, gt=0.0, lt=1.0)
+    max_corrections: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
+    patch_size_px: int = bounded(11, min=3, max=MAX_PATCH_PX)
+    min_score: float = bounded(0.8, min=-1.0, max=1.0)
+    min_patch_std: float = bounded(3.0, min=0.0)
     subpixel: bool = True
     predict_appearance: bool = False
-    max_half_extent_px: float = 150.0
+    max_half_extent_px: float = bounded(150.0, gt=0.0)
 
     def __post_init__(self):
-        if self.mode not in ("zncc", "nearest"):
-            raise ConfigError(f"active_search.mode must be 'zncc' or 'nearest', got {self.mode!r}")
-        p = self.gate_probability
-        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 < p < 1.0:
-            raise ConfigError(f"active_search.gate_probability must be in (0, 1), got {p!r}")
-        m = self.max_corrections
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 0:
-            raise ConfigError(f"active_search.max_corrections must be an integer >= 0, got {m!r}")
-        s = self.patch_size_px
-        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 3 or s % 2 == 0:
-            raise ConfigError(f"active_search.patch_size_px must be an odd integer >= 3, got {s!r}")
-        if not -1.0 <= float(self.min_score) <= 1.0:
-            raise ConfigError(f"active_search.min_score must be in [-1, 1], got {self.min_score!r}")
-        if not float(self.min_patch_std) >= 0.0:
-            raise ConfigError(f"active_search.min_patch_std must be >= 0, got {self.min_patch_std!r}")
-        if not float(self.max_half_extent_px) > 0.0:
-            raise ConfigError(f"active_search.max_half_extent_px must be > 0, got {self.max_half_extent_px!r}")
+        validate(self)
+        if self.patch_size_px % 2 == 0:  # parity is not a range: checked here
+            raise ConfigError(f"active_search.patch_size_px must be odd (a centre pixel), "
+                              f"got {self.patch_size_px!r}")
 
     @property
     def gate(self) -> float:
@@ -402,7 +391,7 @@ class ActiveSearch:
     def __init__(self, config: ActiveSearchConfig | None = None, **overrides):
         config = config or ActiveSearchConfig()
         if overrides:
-            config = ActiveSearchConfig(**{**config.__dict__, **overrides})
+            config = dataclasses.replace(config, **overrides)
         self.config = config
 
     # ------------------------------------------------------------------ ordering

@@ -53,6 +53,7 @@ previous one's last pixel.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -69,7 +70,8 @@ from frontend.harris import (
     cell_grid,
 )
 from frontend.image import check_gray
-from slamcore.errors import ConfigError, InputError
+from slamcore.config import bounded, validate
+from slamcore.errors import InputError
 
 _S_SHIFT = 12
 _W_SHIFT = 16
@@ -91,23 +93,20 @@ class FpgaTiming:
             row leaving the pipeline (paper: 6; must be >= 5, the look-ahead).
         pipeline_cycles: depth of the per-pixel pipeline in clocks (paper: 13
             pipelined operations).
+
+    No config file sets it (it has no ``SECTION``): its errors name it
+    ``fpgatiming``. None of these values sizes a buffer (the line registers
+    hold at most the image's rows), so only their lower bounds are checked.
     """
 
-    pixel_clock_hz: float = 25.175e6
-    h_blank_px: int = 160
-    v_blank_lines: int = 45
-    latency_lines: int = 6
-    pipeline_cycles: int = 13
+    pixel_clock_hz: float = bounded(25.175e6, gt=0.0)
+    h_blank_px: int = bounded(160, min=0)
+    v_blank_lines: int = bounded(45, min=0)
+    latency_lines: int = bounded(6, min=REACH_PX)
+    pipeline_cycles: int = bounded(13, min=0)
 
     def __post_init__(self):
-        f = self.pixel_clock_hz
-        if isinstance(f, bool) or not isinstance(f, (int, float)) or not (math.isfinite(f) and f > 0):
-            raise ConfigError(f"fpga.pixel_clock_hz must be a positive number, got {f!r}")
-        for name, lo in (("h_blank_px", 0), ("v_blank_lines", 0), ("latency_lines", REACH_PX),
-                         ("pipeline_cycles", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"fpga.{name} must be an integer >= {lo}, got {v!r}")
+        validate(self)
 
     def line_s(self, width: int) -> float:
         """Duration of one line (pixels + horizontal blanking), seconds."""
@@ -158,7 +157,7 @@ class FpgaHarrisStream:
                  **overrides):
         config = config or HarrisConfig(arithmetic="fixed")
         if overrides:
-            config = HarrisConfig(**{**config.__dict__, **overrides})
+            config = dataclasses.replace(config, **overrides)
         self.config = config
         self.timing = timing or FpgaTiming()
         self._frames: deque[_Frame] = deque(maxlen=3)

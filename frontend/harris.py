@@ -85,15 +85,16 @@ response and cells, against 8 ms in float64 with numpy temporaries).
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
 
 from frontend.features import Features
-from frontend.image import check_gray
-from slamcore.errors import ConfigError
+from frontend.image import MAX_SIDE_PX, check_gray
+from slamcore.config import bounded, validate
 
 #: Pixels of look-ahead of one response on each side (2 smoothing + 1 derivative + 2 window).
 REACH_PX = 5
@@ -137,28 +138,16 @@ class HarrisConfig:
 
     SECTION: ClassVar[str] = "harris"
 
-    k: float = 0.04
-    cell_size_px: int = 32
-    threshold: float = 1.0e4
-    arithmetic: str = "float"
-    border_px: int = 8
+    # below half a fixed-point step (1/2048) k rounds to 0 in the hardware's k_num / 1024
+    k: float = bounded(0.04, gt=0.5 / (1 << K_SHIFT), lt=0.25)
+    cell_size_px: int = bounded(32, min=1, max=MAX_SIDE_PX)
+    # the fixed-point threshold threshold * 2^20 must fit the int64 response
+    threshold: float = bounded(1.0e4, min=0.0, lt=2.0 ** (62 - RESPONSE_SHIFT))
+    arithmetic: Literal["float", "fixed"] = "float"
+    border_px: int = bounded(8, min=REACH_PX, max=MAX_SIDE_PX)
 
     def __post_init__(self):
-        if isinstance(self.k, bool) or not isinstance(self.k, (int, float)) or not 0.0 < self.k < 0.25:
-            raise ConfigError(f"harris.k must be in (0, 0.25), got {self.k!r}")
-        if round(self.k * (1 << K_SHIFT)) < 1:
-            raise ConfigError(f"harris.k = {self.k} is below the fixed-point resolution 1/{1 << K_SHIFT}")
-        for name, lo in (("cell_size_px", 1), ("border_px", REACH_PX)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"harris.{name} must be an integer >= {lo}, got {v!r}")
-        t = self.threshold
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
-            raise ConfigError(f"harris.threshold must be a finite number >= 0, got {t!r}")
-        if abs(t) * 2.0**RESPONSE_SHIFT >= 2.0**62:
-            raise ConfigError(f"harris.threshold = {t} is too large for the fixed-point response")
-        if self.arithmetic not in ("float", "fixed"):
-            raise ConfigError(f"harris.arithmetic must be 'float' or 'fixed', got {self.arithmetic!r}")
+        validate(self)
 
     @property
     def k_num(self) -> int:
@@ -377,7 +366,7 @@ class HarrisDetector:
     def __init__(self, config: HarrisConfig | None = None, **overrides):
         config = config or HarrisConfig()
         if overrides:
-            config = HarrisConfig(**{**config.__dict__, **overrides})
+            config = dataclasses.replace(config, **overrides)
         self.config = config
         self._work: dict = {}
 

@@ -15,6 +15,27 @@ import numpy as np
 
 from slamcore.errors import InputError
 
+# Bounds of the front-end settings (``bounded(..., max=...)`` in the config
+# dataclasses): what a camera gives, so that a typo is refused at once instead
+# of allocating, or asking OpenCV to allocate, more than the machine holds.
+
+#: Longest image side a pixel size is checked against: 4096 px, the width of a
+#: 4K (DCI) sensor. A cell, window or border longer than this covers more than
+#: a frame and only costs memory (the Harris tessellation pads the response to
+#: whole cells: ``cell_size_px ** 2`` values at least).
+MAX_SIDE_PX = 4096
+
+#: Points of one frame at most: the pixels of a ``MAX_SIDE_PX`` square frame
+#: (2^24). No frame gives more corners than pixels, so a per-frame count or cap
+#: above it is a typo (OpenCV's ORB fails with ``bad_alloc`` from 2^30 asked).
+MAX_POINTS_PER_FRAME = MAX_SIDE_PX * MAX_SIDE_PX
+
+#: Longest side of a descriptor or correlation patch: a patch is a local
+#: window, and at 255 px it already spans half a VGA frame. Each costs
+#: ``side ** 2`` floats per point (the tracker gathers one per candidate
+#: corner at once; ORB pads every pyramid level by its patch and border).
+MAX_PATCH_PX = 255
+
 
 def check_gray(image: object, what: str = "image") -> np.ndarray:
     """Return ``image`` if it is a non-empty ``(H, W)`` ``uint8`` array, else raise.

@@ -17,15 +17,16 @@ output is sorted by cell, then decreasing response).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
 
 from frontend.features import Features
-from frontend.image import check_gray
-from slamcore.errors import ConfigError
+from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
+from slamcore.config import bounded, validate
 
 
 @dataclass(frozen=True)
@@ -46,28 +47,23 @@ class OrbConfig:
 
     SECTION: ClassVar[str] = "orb"
 
-    n_features: int = 5000
-    cell_size_px: int = 32
-    per_cell: int = 1
-    max_features: int = 0
-    fast_threshold: int = 20
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    edge_threshold: int = 31
-    patch_size: int = 31
-    score: str = "harris"
+    n_features: int = bounded(5000, min=1, max=MAX_POINTS_PER_FRAME)
+    cell_size_px: int = bounded(32, min=0, max=MAX_SIDE_PX)
+    per_cell: int = bounded(1, min=1, max=MAX_POINTS_PER_FRAME)
+    max_features: int = bounded(0, min=0, max=MAX_POINTS_PER_FRAME)
+    # FAST compares grey levels of a uint8 image: above 255 nothing is a corner
+    fast_threshold: int = bounded(20, min=0, max=255)
+    scale_factor: float = bounded(1.2, gt=1.0)
+    # OpenCV keeps one image per level, each scale_factor times smaller: at 1.2,
+    # 32 levels take a 4096-px side down to 14 px (a level with no pixel fails)
+    n_levels: int = bounded(8, min=1, max=32)
+    # every pyramid level is padded by the border (and half the patch) on each side
+    edge_threshold: int = bounded(31, min=0, max=MAX_PATCH_PX)
+    patch_size: int = bounded(31, min=2, max=MAX_PATCH_PX)
+    score: Literal["harris", "fast"] = "harris"
 
     def __post_init__(self):
-        for name, lo in (("n_features", 1), ("cell_size_px", 0), ("per_cell", 1), ("max_features", 0),
-                         ("fast_threshold", 0), ("n_levels", 1), ("edge_threshold", 0), ("patch_size", 2)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"orb.{name} must be an integer >= {lo}, got {v!r}")
-        sf = self.scale_factor
-        if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not sf > 1.0:
-            raise ConfigError(f"orb.scale_factor must be > 1, got {sf!r}")
-        if self.score not in ("harris", "fast"):
-            raise ConfigError(f"orb.score must be 'harris' or 'fast', got {self.score!r}")
+        validate(self)
 
 
 class OrbDetector:
@@ -80,7 +76,7 @@ class OrbDetector:
     def __init__(self, config: OrbConfig | None = None, **overrides):
         config = config or OrbConfig()
         if overrides:
-            config = OrbConfig(**{**config.__dict__, **overrides})
+            config = dataclasses.replace(config, **overrides)
         self.config = config
 
     def _orb(self):

@@ -48,9 +48,11 @@ Nothing here knows 3-D but that warp: numpy and OpenCV only.
 
 from __future__ import annotations
 
+import dataclasses
 import time
+import typing
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
@@ -59,15 +61,18 @@ from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearc
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.features import Features
 from frontend.harris import HarrisConfig
-from frontend.image import check_gray
+from frontend.image import MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
 from frontend.orb import OrbConfig
+from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
 __all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES"]
 
-DETECTORS = ("harris", "orb", "fpga")
-SEARCH_MODES = ("auto", "zncc", "nearest", "descriptor")
+DetectorName = Literal["harris", "orb", "fpga"]
+SearchMode = Literal["auto", "zncc", "nearest", "descriptor"]
+DETECTORS = typing.get_args(DetectorName)
+SEARCH_MODES = typing.get_args(SearchMode)
 _AUTO_SEARCH = {"harris": "zncc", "fpga": "nearest", "orb": "descriptor"}
 
 
@@ -101,44 +106,28 @@ class TrackerConfig:
 
     SECTION: ClassVar[str] = "tracker"
 
-    detector: str = "harris"
-    search: str = "auto"
-    max_tracks: int = 80
-    max_new_per_frame: int = 20
-    min_distance_px: float = 16.0
+    detector: DetectorName = "harris"
+    search: SearchMode = "auto"
+    max_tracks: int = bounded(80, min=1, max=MAX_POINTS_PER_FRAME)
+    max_new_per_frame: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
+    min_distance_px: float = bounded(16.0, min=0.0)
     follow_unmapped: bool | None = None
-    follow_window_px: int = 24
-    follow_min_score: float = 0.85
-    follow_min_margin: float = 0.05
-    max_unmapped_age: int = 60
-    max_hamming: int = 64
-    patch_update: str = "anchor"
-    sigma_px: float = 1.0
+    follow_window_px: int = bounded(24, min=1, max=MAX_SIDE_PX)
+    follow_min_score: float = bounded(0.85, min=-1.0, max=1.0)
+    # ZNCC scores lie in [-1, 1]: two differ by 2 at most
+    follow_min_margin: float = bounded(0.05, min=0.0, max=2.0)
+    max_unmapped_age: int = bounded(60, min=1)
+    # a Hamming distance between 256-bit descriptors
+    max_hamming: int = bounded(64, min=0, max=256)
+    patch_update: Literal["anchor", "last"] = "anchor"
+    sigma_px: float = bounded(1.0, gt=0.0)
 
     def __post_init__(self):
-        if self.detector not in DETECTORS:
-            raise ConfigError(f"tracker.detector must be one of {', '.join(DETECTORS)}, "
-                              f"got {self.detector!r}")
-        if self.search not in SEARCH_MODES:
-            raise ConfigError(f"tracker.search must be one of {', '.join(SEARCH_MODES)}, "
-                              f"got {self.search!r}")
+        validate(self)
         mode = self.search_mode
         if (mode == "descriptor") != (self.detector == "orb"):
             raise ConfigError(f"tracker.search {mode!r} does not fit detector {self.detector!r} "
                               "(descriptor matching needs ORB, ORB needs descriptor matching)")
-        for name, lo in (("max_tracks", 1), ("max_new_per_frame", 0), ("follow_window_px", 1),
-                         ("max_unmapped_age", 1), ("max_hamming", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"tracker.{name} must be an integer >= {lo}, got {v!r}")
-        if not float(self.min_distance_px) >= 0.0:
-            raise ConfigError(f"tracker.min_distance_px must be >= 0, got {self.min_distance_px!r}")
-        if not -1.0 <= float(self.follow_min_score) <= 1.0:
-            raise ConfigError(f"tracker.follow_min_score must be in [-1, 1], got {self.follow_min_score!r}")
-        if self.patch_update not in ("anchor", "last"):
-            raise ConfigError(f"tracker.patch_update must be 'anchor' or 'last', got {self.patch_update!r}")
-        if not float(self.sigma_px) > 0.0:
-            raise ConfigError(f"tracker.sigma_px must be > 0, got {self.sigma_px!r}")
 
     @property
     def search_mode(self) -> str:
@@ -223,7 +212,7 @@ def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None,
 
     # the stream is always fixed point: the hardware has no float unit
     base = harris or HarrisConfig()
-    return FpgaHarrisStream(HarrisConfig(**{**base.__dict__, "arithmetic": "fixed"}))
+    return FpgaHarrisStream(dataclasses.replace(base, arithmetic="fixed"))
 
 
 def _hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -259,8 +248,8 @@ class Tracker:
         self.detector = make_detector(self.config, harris, orb)
         mode = self.config.search_mode
         base = active_search or ActiveSearchConfig()
-        self.search_config = ActiveSearchConfig(
-            **{**base.__dict__, "mode": "nearest" if mode == "nearest" else "zncc"})
+        self.search_config = dataclasses.replace(
+            base, mode="nearest" if mode == "nearest" else "zncc")
         self._search = ActiveSearch(self.search_config)
         if follow_unmapped is None:
             follow_unmapped = self.config.follow_unmapped

@@ -36,11 +36,14 @@ from typing import Callable, ClassVar, Iterable
 
 import numpy as np
 
-from frontend.orb import OrbDetector
-from slamcore.errors import ConfigError
+from frontend.orb import OrbConfig, OrbDetector
+from slamcore.config import bounded, validate
 from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
 
-__all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector"]
+__all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
+
+#: ORB of the loop detector by default (:attr:`LoopDetectorConfig.orb`).
+LOOP_ORB = OrbConfig(n_features=1000, cell_size_px=0, per_cell=1, fast_threshold=20)
 
 
 @dataclass(frozen=True)
@@ -59,39 +62,30 @@ class LoopDetectorConfig:
         consistency_k: consecutive queries whose candidates must agree.
         consistency_tolerance: largest difference (frames) between the match
             indices of two consecutive queries that still agree.
-        orb_n_features, orb_cell_size_px, orb_per_cell, orb_fast_threshold: ORB
-            settings of the detector (see :class:`frontend.orb.OrbConfig`;
-            cell size 0 turns the per-cell selection off).
+        orb: ORB settings of the detector (:class:`frontend.orb.OrbConfig`),
+            a ``[loops.orb]`` table in a config file. The default is not the
+            tracker's ``[orb]``: 1000 candidates and no per-cell selection
+            (``n_features = 1000``, ``cell_size_px = 0``, ``per_cell = 1``,
+            ``fast_threshold = 20``, the rest as :class:`OrbConfig`). A
+            ``[loops.orb]`` table starts from :class:`OrbConfig`'s defaults,
+            not from these: write ``n_features`` and ``cell_size_px`` in it
+            to keep them.
     """
 
     SECTION: ClassVar[str] = "loops"
 
-    exclude_recent: int = 40
-    max_results: int = 10
-    min_prior_score: float = 0.01
-    min_normalised_score: float = 0.3
-    min_score: float = 0.0
-    consistency_k: int = 3
-    consistency_tolerance: int = 3
-    orb_n_features: int = 1000
-    orb_cell_size_px: int = 0
-    orb_per_cell: int = 1
-    orb_fast_threshold: int = 20
+    exclude_recent: int = bounded(40, min=0)
+    max_results: int = bounded(10, min=1)
+    # DBoW2's L1 score lies in [0, 1]; the normalised score (score / prior) may exceed 1
+    min_prior_score: float = bounded(0.01, min=0.0, max=1.0)
+    min_normalised_score: float = bounded(0.3, min=0.0)
+    min_score: float = bounded(0.0, min=0.0, max=1.0)
+    consistency_k: int = bounded(3, min=1)
+    consistency_tolerance: int = bounded(3, min=0)
+    orb: OrbConfig = LOOP_ORB
 
     def __post_init__(self):
-        s = self.SECTION
-        for name, lo in (("exclude_recent", 0), ("max_results", 1), ("consistency_k", 1),
-                         ("consistency_tolerance", 0), ("orb_n_features", 1),
-                         ("orb_cell_size_px", 0), ("orb_per_cell", 1), ("orb_fast_threshold", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"{s}.{name} must be an integer >= {lo}, got {v!r}")
-        for name in ("min_prior_score", "min_normalised_score", "min_score"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
-                raise ConfigError(f"{s}.{name} must be a number >= 0, got {v!r}")
-        if self.min_prior_score > 1 or self.min_score > 1:
-            raise ConfigError(f"{s}.min_prior_score and min_score are L1 scores in [0, 1]")
+        validate(self)
 
 
 @dataclass(frozen=True)
@@ -178,9 +172,7 @@ class LoopDetector:
 
             database = BowDatabase(vocabulary)
         self.database = database
-        c = self.config
-        self.orb = OrbDetector(n_features=c.orb_n_features, cell_size_px=c.orb_cell_size_px,
-                               per_cell=c.orb_per_cell, fast_threshold=c.orb_fast_threshold)
+        self.orb = OrbDetector(self.config.orb)
         self.records: list[CandidateRecord] = []
         self.closures: list[DetectedLoop] = []
         self._features: list[_Stored] = []

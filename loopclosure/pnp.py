@@ -31,8 +31,8 @@ import numpy as np
 
 from slamcore.spatial.geometry import invert_pose
 from slamcore.spatial.camera import project_jacobians
-from slamcore.errors import ConfigError
-from loopclosure.verify import match_descriptors
+from slamcore.config import bounded, validate
+from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED, match_descriptors
 
 __all__ = ["PnpConfig", "PnpResult", "relative_pose_pnp"]
 
@@ -56,34 +56,23 @@ class PnpConfig:
 
     SECTION: ClassVar[str] = "loop_pnp"
 
-    ratio: float = 0.8
-    max_hamming: int = 64
-    ransac_threshold_px: float = 3.0
-    confidence: float = 0.999
-    max_iters: int = 500
-    min_inliers: int = 15
-    min_inlier_ratio: float = 0.4
-    sigma_px: float = 1.0
-    covariance_inflation: float = 4.0
-    min_sigma_t_m: float = 0.005
-    min_sigma_r_deg: float = 0.05
-    seed: int = 0
+    ratio: float = bounded(0.8, gt=0.0, max=1.0)
+    # a Hamming distance between 256-bit descriptors
+    max_hamming: int = bounded(64, min=0, max=256)
+    ransac_threshold_px: float = bounded(3.0, gt=0.0)
+    confidence: float = bounded(0.999, gt=0.0, lt=1.0)
+    max_iters: int = bounded(500, min=1, max=MAX_RANSAC_ITERS)
+    # EPnP needs 4 points
+    min_inliers: int = bounded(15, min=4)
+    min_inlier_ratio: float = bounded(0.4, min=0.0, max=1.0)
+    sigma_px: float = bounded(1.0, gt=0.0)
+    covariance_inflation: float = bounded(4.0, gt=0.0)
+    min_sigma_t_m: float = bounded(0.005, gt=0.0)
+    min_sigma_r_deg: float = bounded(0.05, gt=0.0)
+    seed: int = bounded(0, min=0, max=MAX_SEED)
 
     def __post_init__(self):
-        s = self.SECTION
-        for name in ("ratio", "ransac_threshold_px", "sigma_px", "covariance_inflation",
-                     "min_sigma_t_m", "min_sigma_r_deg"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{s}.{name} must be a finite number > 0, got {v!r}")
-        if not 0 < self.confidence < 1:
-            raise ConfigError(f"{s}.confidence must be in (0, 1), got {self.confidence!r}")
-        if not 0 <= self.min_inlier_ratio <= 1:
-            raise ConfigError(f"{s}.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
-        for name, lo in (("max_hamming", 0), ("max_iters", 1), ("min_inliers", 4), ("seed", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ConfigError(f"{s}.{name} must be an integer >= {lo}, got {v!r}")
+        validate(self)
 
 
 @dataclass(frozen=True, eq=False)

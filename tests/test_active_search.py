@@ -243,12 +243,28 @@ def test_hardware_mode_picks_nearest_inside():
         ActiveSearch(mode="nearest").search(img, z, S)
 
 
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("gate_probability", "0.99"), ("max_corrections", 2.5), ("patch_size_px", True),
+    ("subpixel", 1), ("predict_appearance", "yes"), ("min_score", None),
+    # out of range
+    ("gate_probability", 0.0), ("gate_probability", 1.0), ("max_corrections", -1),
+    ("max_corrections", 2**24 + 1), ("patch_size_px", 1), ("patch_size_px", 257),
+    ("patch_size_px", 10),                              # even: no centre pixel
+    ("min_score", 2.0), ("min_score", -1.5), ("min_patch_std", -0.1),
+    ("max_half_extent_px", 0.0), ("max_half_extent_px", float("inf")),
+    # unknown mode
+    ("mode", "x"),
+])
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ConfigError, match=rf"^active_search\.{field}\b"):
+        ActiveSearchConfig(**{field: value})
+    with pytest.raises(ConfigError, match=rf"^active_search\.{field}\b"):
+        ActiveSearch(**{field: value})  # keyword overrides are checked the same way
+
+
 def test_config_and_input_validation():
     assert ActiveSearchConfig.SECTION == "active_search"
-    for bad in (dict(mode="x"), dict(gate_probability=1.0), dict(max_corrections=-1), dict(patch_size_px=10),
-                dict(min_score=2.0)):
-        with pytest.raises(ConfigError):
-            ActiveSearchConfig(**bad)
     img = noise_image()
     z = np.array([[50.0, 50.0]])
     with pytest.raises(MeasurementError):

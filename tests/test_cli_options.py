@@ -493,7 +493,7 @@ def _vocab_seed(cli, key):
 
 @row("vocab train --config")
 def _vocab_config(cli, key):
-    cfg = _config(cli, "[loops]\norb_n_features = 100\n")
+    cfg = _config(cli, "[loops.orb]\nn_features = 100\ncell_size_px = 0\n")
     assert _train(cli)[1] != _train(cli, "--config", str(cfg))[1]
 
 

@@ -92,11 +92,23 @@ def test_stamp_formula_vga():
     assert abs(t.frame_period_s((480, 640)) - 525 * 800 / f) < TIME_TOL_S   # 59.94 Hz
 
 
-@pytest.mark.parametrize("kwargs", [dict(latency_lines=4), dict(pixel_clock_hz=0.0),
-                                    dict(h_blank_px=-1), dict(pipeline_cycles=1.5)])
-def test_timing_refuses_bad_values(kwargs):
-    with pytest.raises(ConfigError):
-        FpgaTiming(**kwargs)
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("pipeline_cycles", 1.5), ("pixel_clock_hz", "25 MHz"), ("v_blank_lines", True),
+    # out of range (no mode to choose here)
+    ("latency_lines", 4), ("pixel_clock_hz", 0.0), ("pixel_clock_hz", float("inf")),
+    ("h_blank_px", -1), ("v_blank_lines", -1), ("pipeline_cycles", -1),
+])
+def test_timing_refuses_a_bad_value_naming_it(field, value):
+    # no config file sets the timing: its errors name the class
+    with pytest.raises(ConfigError, match=rf"^fpgatiming\.{field}\b"):
+        FpgaTiming(**{field: value})
+
+
+def test_stream_overrides_are_checked_like_the_harris_config():
+    assert FpgaHarrisStream(cell_size_px=16).config == HarrisConfig(arithmetic="fixed", cell_size_px=16)
+    with pytest.raises(ConfigError, match=r"^harris\.cell_size_px\b"):
+        FpgaHarrisStream(cell_size_px=0)
 
 
 # ----------------------------------------------------------------------------- ping-pong

@@ -92,13 +92,27 @@ def test_load_gray_reads_kitti(shared_data):
 # ----------------------------------------------------------------------------- config
 
 
-@pytest.mark.parametrize("kwargs", [
-    dict(border_px=4), dict(cell_size_px=0), dict(arithmetic="double"), dict(k=0.0),
-    dict(k=0.3), dict(threshold=-1.0), dict(threshold=float("nan")), dict(cell_size_px=8.5),
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("cell_size_px", 8.5), ("k", "0.04"), ("threshold", None), ("border_px", True),
+    ("arithmetic", 0),
+    # out of range
+    ("border_px", 4), ("border_px", 4097), ("cell_size_px", 0), ("cell_size_px", 4097),
+    ("k", 0.0), ("k", 0.3), ("k", 0.0004),            # 0.0004 * 1024 rounds to k_num = 0
+    ("threshold", -1.0), ("threshold", float("nan")), ("threshold", 2.0**42),
+    # unknown mode
+    ("arithmetic", "double"),
 ])
-def test_config_refuses_bad_values(kwargs):
-    with pytest.raises(ConfigError):
-        HarrisConfig(**kwargs)
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ConfigError, match=rf"^harris\.{field}\b"):
+        HarrisConfig(**{field: value})
+    with pytest.raises(ConfigError, match=rf"^harris\.{field}\b"):
+        HarrisDetector(**{field: value})  # keyword overrides are checked the same way
+
+
+def test_config_limits_are_the_fixed_point_ones():
+    assert HarrisConfig(k=0.0005).k_num == 1                 # just above half a step
+    assert HarrisConfig(threshold=2.0**42 - 1).threshold_fixed < 2**62
 
 
 def test_config_section_and_fixed_constants():

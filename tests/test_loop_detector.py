@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from slamcore.errors import ConfigError
+from frontend.orb import OrbConfig
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import Verification
 
@@ -114,12 +115,62 @@ def test_geometric_rejection_is_recorded():
 
 
 def test_config_is_validated():
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"loops\.consistency_k must be >= 1"):
         LoopDetectorConfig(consistency_k=0)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"loops\.min_prior_score must be >= 0.0 and <= 1.0"):
         LoopDetectorConfig(min_prior_score=2.0)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"loops\.exclude_recent must be >= 0"):
         LoopDetectorConfig(exclude_recent=-1)
+
+
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("exclude_recent", 4.5), ("max_results", "10"), ("min_score", None), ("consistency_k", True),
+    ("orb", {"n_features": 100}), ("orb", 1000),
+    # out of range
+    ("exclude_recent", -1), ("max_results", 0), ("min_prior_score", -0.1),
+    ("min_prior_score", 1.5), ("min_normalised_score", -1.0), ("min_score", 1.5),
+    ("consistency_k", 0), ("consistency_tolerance", -1),
+])
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    # (no mode here: the detector's modes are its ORB's, checked by OrbConfig)
+    with pytest.raises(ConfigError, match=rf"^loops\.{field}\b"):
+        LoopDetectorConfig(**{field: value})
+
+
+def test_nested_orb_reproduces_the_detector_settings_it_replaces():
+    """``orb_n_features = 1000, orb_cell_size_px = 0, orb_per_cell = 1,
+    orb_fast_threshold = 20`` were the copied fields; the nested default is the
+    same ORB in every setting, so features (and closures) are unchanged."""
+    from frontend.orb import OrbDetector
+
+    before = OrbDetector(n_features=1000, cell_size_px=0, per_cell=1, fast_threshold=20)
+    config = LoopDetectorConfig()
+    assert config.orb == before.config
+    img = np.random.default_rng(0).integers(0, 256, (120, 160), dtype=np.uint8)
+    a, b = before.detect(img), OrbDetector(config.orb).detect(img)
+    assert len(a) > 0
+    assert np.array_equal(a.xy_px, b.xy_px) and np.array_equal(a.descriptors, b.descriptors)
+
+
+def test_config_file_writes_the_orb_as_a_sub_table(tmp_path):
+    from slamcore.config import load_section
+
+    path = tmp_path / "loops.toml"
+    path.write_text("[loops]\nexclude_recent = 5\n\n[loops.orb]\nn_features = 500\n"
+                    "cell_size_px = 0\n")
+    config = load_section(LoopDetectorConfig, path)
+    assert config.exclude_recent == 5 and config.orb == OrbConfig(n_features=500, cell_size_px=0)
+    # the copied keys are gone: refused, not silently ignored
+    path.write_text("[loops]\norb_n_features = 500\n")
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['orb_n_features'\] in \[loops\]") as e:
+        load_section(LoopDetectorConfig, path)
+    assert e.value.line == 2
+    # a bad ORB value names the ORB field and its line
+    path.write_text("[loops]\n[loops.orb]\nscore = \"fast\"\nn_levels = 99\n")
+    with pytest.raises(ConfigError, match=r"orb\.n_levels must be >= 1 and <= 32") as e:
+        load_section(LoopDetectorConfig, path)
+    assert e.value.line == 4
 
 
 # ----------------------------------------------------------------------------- synthetic sequence
@@ -157,7 +208,7 @@ def small_run():
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
                                                       cx=159.5, cy=119.5, n_frames=120))
-    config = LoopDetectorConfig(exclude_recent=20, orb_n_features=500)
+    config = LoopDetectorConfig(exclude_recent=20, orb=OrbConfig(n_features=500, cell_size_px=0))
     orb = OrbDetector(n_features=500, cell_size_px=0)
     feats = [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
     vocab = VocabularyTree(branching=10, depth=2, seed=0).fit([f.descriptors[:300] for f in feats])
@@ -211,7 +262,8 @@ def test_default_detector_on_images_is_repeatable():
         [OrbDetector(n_features=200, cell_size_px=0).detect(im).descriptors for im in imgs[::4]])
     runs = []
     for _ in range(2):
-        det = LoopDetector(vocab, LoopDetectorConfig(exclude_recent=10, orb_n_features=200), K=seq.K)
+        config = LoopDetectorConfig(exclude_recent=10, orb=OrbConfig(n_features=200, cell_size_px=0))
+        det = LoopDetector(vocab, config, K=seq.K)
         det.run(imgs)
         runs.append([r.to_dict() for r in det.records])
     assert runs[0] == runs[1] and len(runs[0]) > 0
@@ -232,8 +284,7 @@ def test_default_sequence_meets_issue_targets():
 
     seq = make_synthetic_images()
     config = LoopDetectorConfig()
-    orb = OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
-                      per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
+    orb = OrbDetector(config.orb)
     feats = [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
     det = LoopDetector(train_vocabulary([f.descriptors for f in feats], 1000), config, K=seq.K)
     for f in feats:

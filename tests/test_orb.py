@@ -67,11 +67,38 @@ def test_orb_max_features_and_empty_image():
     assert len(e) == 0 and e.descriptors.shape == (0, 32)
     with pytest.raises(InputError):
         OrbDetector().detect(np.zeros((10, 10), np.float32))
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"orb\.cell_size_px must be >= 0"):
         OrbConfig(cell_size_px=-1)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"orb\.scale_factor must be > 1"):
         OrbConfig(scale_factor=1.0)
     assert OrbConfig.SECTION == "orb"
+
+
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("n_features", "many"), ("n_features", 1.5), ("per_cell", True), ("scale_factor", "big"),
+    ("score", 1),
+    # out of range: below the minimum, above what a frame or the machine can hold
+    ("n_features", 0), ("n_features", 2**24 + 1), ("cell_size_px", -1), ("cell_size_px", 4097),
+    ("per_cell", 0), ("max_features", -1), ("fast_threshold", 256), ("scale_factor", 1.0),
+    ("n_levels", 0), ("n_levels", 33), ("edge_threshold", 256), ("patch_size", 1),
+    ("patch_size", 256),
+    # unknown mode
+    ("score", "orb"),
+])
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ConfigError, match=rf"^orb\.{field}\b"):
+        OrbConfig(**{field: value})
+    with pytest.raises(ConfigError, match=rf"^orb\.{field}\b"):
+        OrbDetector(**{field: value})  # keyword overrides are checked the same way
+
+
+def test_config_normalises_and_keeps_defaults():
+    c = OrbConfig(n_features=np.int64(300), scale_factor=2)
+    assert type(c.n_features) is int and type(c.scale_factor) is float
+    assert OrbDetector(cell_size_px=64).config == OrbConfig(cell_size_px=64)
+    with pytest.raises(TypeError):
+        OrbDetector(n_feature=10)  # a typo in an override is not ignored
 
 
 # ---------------------------------------------------------------- camera model

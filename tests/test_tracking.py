@@ -185,9 +185,29 @@ def test_same_input_same_tracks(seq, frames):
 
 
 def test_bad_configuration_is_refused():
-    with pytest.raises(ConfigError, match="detector"):
+    with pytest.raises(ConfigError, match=r"tracker\.detector must be one of"):
         TrackerConfig(detector="sift")
-    with pytest.raises(ConfigError, match="descriptor"):
+    # across fields: each value is fine alone, not together
+    with pytest.raises(ConfigError, match=r"tracker\.search 'descriptor' does not fit detector"):
         TrackerConfig(detector="harris", search="descriptor")
-    with pytest.raises(ConfigError, match="max_tracks"):
+    with pytest.raises(ConfigError, match=r"tracker\.search 'zncc' does not fit detector 'orb'"):
+        TrackerConfig(detector="orb", search="zncc")
+    with pytest.raises(ConfigError, match=r"tracker\.max_tracks must be >= 1"):
         TrackerConfig(max_tracks=0)
+
+
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("max_tracks", 8.5), ("max_new_per_frame", "20"), ("min_distance_px", "far"),
+    ("follow_unmapped", 1), ("follow_window_px", True), ("sigma_px", None), ("detector", 1),
+    # out of range
+    ("max_tracks", 0), ("max_tracks", 2**24 + 1), ("max_new_per_frame", -1),
+    ("min_distance_px", -1.0), ("follow_window_px", 0), ("follow_window_px", 4097),
+    ("follow_min_score", 1.5), ("follow_min_margin", -0.1), ("follow_min_margin", 2.5),
+    ("max_unmapped_age", 0), ("max_hamming", -1), ("max_hamming", 257), ("sigma_px", 0.0),
+    # unknown mode
+    ("detector", "sift"), ("search", "brute"), ("patch_update", "first"),
+])
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ConfigError, match=rf"^tracker\.{field}\b"):
+        TrackerConfig(**{field: value})

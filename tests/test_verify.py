@@ -216,13 +216,26 @@ def test_match_descriptors_ratio_and_cross_check():
     assert match_descriptors(d[:1], d).shape == (0, 2)
 
 
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("ratio", "0.8"), ("cross_check", 1), ("max_hamming", 64.5), ("max_iters", True),
+    ("seed", None), ("model", 3),
+    # out of range
+    ("ratio", 0.0), ("ratio", 1.5), ("max_hamming", -1), ("max_hamming", 257),
+    ("ransac_threshold_px", 0), ("confidence", 1.0), ("max_iters", 0), ("max_iters", 10**6 + 1),
+    ("min_inliers", 0), ("min_inlier_ratio", 1.5), ("min_feature_share", -0.1), ("seed", -1),
+    ("seed", 2**31),                                    # cv2.setRNGSeed takes a C int
+    # unknown mode
+    ("model", "affine"),
+])
+def test_config_refuses_a_bad_value_naming_it(field, value):
+    with pytest.raises(ConfigError, match=rf"^loop_verify\.{field}\b"):
+        VerifyConfig(**{field: value})
+    with pytest.raises(ConfigError, match=rf"^loop_verify\.{field}\b"):
+        GeometricVerifier(**{field: value})  # keyword overrides are checked the same way
+
+
 def test_config_validation_and_essential_needs_k():
-    with pytest.raises(ConfigError):
-        VerifyConfig(model="affine")
-    with pytest.raises(ConfigError):
-        VerifyConfig(min_inlier_ratio=1.5)
-    with pytest.raises(ConfigError):
-        VerifyConfig(ransac_threshold_px=0)
     xy = np.zeros((60, 2))
     d = np.random.default_rng(0).integers(0, 256, size=(60, 32), dtype=np.uint8)
     with pytest.raises(ConfigError):

@@ -90,8 +90,25 @@ def test_pnp_rejects_too_few_points_and_random_matches():
     shuffled = rng.uniform([0, 0], SIZE, (len(xy_b), 2))  # no geometry left
     r = relative_pose_pnp(p_a, desc_a, shuffled, desc_b, K)
     assert not r.accepted
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"loop_pnp\.min_inliers must be >= 4"):
         PnpConfig(min_inliers=3)
+
+
+@pytest.mark.parametrize("field, value", [
+    # wrong type
+    ("ratio", "0.8"), ("max_hamming", 64.5), ("max_iters", True), ("sigma_px", None),
+    ("seed", "0"),
+    # out of range
+    ("ratio", 0.0), ("ratio", 1.5), ("max_hamming", -1), ("max_hamming", 257),
+    ("ransac_threshold_px", 0.0), ("confidence", 0.0), ("confidence", 1.0), ("max_iters", 0),
+    ("max_iters", 10**6 + 1), ("min_inliers", 3), ("min_inlier_ratio", 1.5), ("sigma_px", -1.0),
+    ("covariance_inflation", 0.0), ("min_sigma_t_m", 0.0), ("min_sigma_r_deg", float("nan")),
+    ("seed", -1), ("seed", 2**31),
+])
+def test_pnp_config_refuses_a_bad_value_naming_it(field, value):
+    # (no mode to choose in [loop_pnp])
+    with pytest.raises(ConfigError, match=rf"^loop_pnp\.{field}\b"):
+        PnpConfig(**{field: value})
 
 
 def test_pnp_is_repeatable():
@@ -200,7 +217,7 @@ class _StubDetector:
         from loopclosure.detector import LoopDetectorConfig
 
         self.K = K
-        self.orb = OrbDetector(n_features=LoopDetectorConfig().orb_n_features)
+        self.orb = OrbDetector(n_features=LoopDetectorConfig().orb.n_features)
         self.records = []
         self._n = 0
 
@@ -332,7 +349,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     run without loop closure"). Measured: 0.1013 m without, 0.0227 m with 64
     closures, all true (``benchmarks/bench_loop_ate.py``)."""
     from graphslam.pipelines import spatial as vp
-    from graphslam.pipelines.place_recognition import orb_for, train_vocabulary
+    from graphslam.pipelines.place_recognition import train_vocabulary
     from loopclosure.detector import LoopDetectorConfig
     from graphslam.sources.spatial.synthetic_images import make_synthetic_images
     from graphslam.pipelines.loop_closing import VisualLoopCloser
@@ -341,7 +358,7 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
 
     seq = make_synthetic_images()
     cfg = VisualIsam2Config(predict_window_frames=30)
-    orb = orb_for(LoopDetectorConfig())  # the detector's own ORB settings, as graphslam run --loops
+    orb = OrbDetector(LoopDetectorConfig().orb)  # the detector's own ORB, as graphslam run --loops
     vocab = train_vocabulary([orb.detect(seq.load(i)).descriptors for i in range(len(seq))], 1000)
 
     def ate(closer):

@@ -23,7 +23,8 @@ output:
   L1 similarity in [0, 1], inliers = RANSAC inliers of the geometric check.
 
 detector (config sections, see loopclosure/detector.py and verify.py):
-  [loops]        exclude_recent, min_normalised_score, consistency_k, ORB settings ...
+  [loops]        exclude_recent, min_normalised_score, consistency_k ...
+  [loops.orb]    the detector's ORB: n_features, cell_size_px, fast_threshold ...
   [loop_verify]  model, ratio, ransac_threshold_px, min_inliers, min_feature_share ...
 
 examples:
@@ -63,8 +64,9 @@ def register(subparsers) -> None:
 
 
 def cmd_loops(args: argparse.Namespace) -> int:
+    from frontend.orb import OrbDetector
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, orb_for, train_vocabulary,
+        check_vocabulary, describe, detect_all, detect_loops, train_vocabulary,
     )
     from graphslam.sources.spatial.sequence import folder_images
     from graphslam.registry import read_config
@@ -89,7 +91,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         check_vocabulary(vocab, args.vocab)
     else:
         # One ORB pass serves both the training and the detection.
-        features = detect_all(paths, orb_for(detector_config), progress=not args.quiet)
+        features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)

@@ -1,6 +1,6 @@
 """``graphslam vocab train IMAGES... --words N --out FILE``: train a visual vocabulary.
 
-ORB features (the loop detector's settings, ``[loops]`` of ``--config``) on
+ORB features (the loop detector's settings, ``[loops.orb]`` of ``--config``) on
 every image, then a vocabulary tree with ``branching ** depth >= N`` leaves
 (depth chosen as the smallest that reaches N) or, with ``--flat``, one k-means
 of N words.
@@ -48,7 +48,7 @@ def register(subparsers) -> None:
                         "0 = all); bounds training time")
     t.add_argument("--seed", type=int, default=0, help="k-means seed (default: 0)")
     t.add_argument("--config", type=Path, default=None, metavar="FILE",
-                   help="TOML or YAML file; ORB settings are read from its [loops] section")
+                   help="TOML or YAML file; ORB settings are read from its [loops.orb] table")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
 
@@ -59,15 +59,14 @@ def register(subparsers) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     import time
 
-    from graphslam.pipelines.place_recognition import (
-        describe, detect_all, orb_for, train_vocabulary,
-    )
+    from frontend.orb import OrbDetector
+    from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
     from graphslam.sources.spatial.sequence import expand_images
     from loopclosure.detector import LoopDetectorConfig
     from graphslam.registry import read_config
 
     paths = expand_images(args.images)
-    orb = orb_for(read_config(args.config).section(LoopDetectorConfig))
+    orb = OrbDetector(read_config(args.config).section(LoopDetectorConfig).orb)
     feats = detect_all(paths, orb, progress=not args.quiet)
     t0 = time.perf_counter()
     print(f"training on {len(paths)} images ...", file=sys.stderr, flush=True)

@@ -62,14 +62,6 @@ def train_vocabulary(descriptors: list[np.ndarray], n_words: int, flat: bool = F
                           seed=seed).fit(train)
 
 
-def orb_for(config):
-    """The loop detector's ORB detector, from its :class:`LoopDetectorConfig`."""
-    from frontend.orb import OrbDetector
-
-    return OrbDetector(n_features=config.orb_n_features, cell_size_px=config.orb_cell_size_px,
-                       per_cell=config.orb_per_cell, fast_threshold=config.orb_fast_threshold)
-
-
 def describe(vocab) -> str:
     """One line naming a vocabulary's kind and size."""
     kind = type(vocab).__name__

@@ -4,7 +4,8 @@ Called by :func:`graphslam.cli.run.command.cmd_run` when ``--dataset`` is ``synt
 or a folder. Configuration sections read from ``--config`` (flags win):
 ``[synthetic_images]``, ``[visual]``, ``[odometry_noise]``, ``[tracker]``,
 ``[active_search]``, ``[harris]``, ``[orb]``, ``[isam2_visual]``, ``[mono_ekf]``,
-and with ``--loops`` ``[loops]``, ``[loop_verify]``, ``[loop_pnp]``, ``[loop_closing]``.
+and with ``--loops`` ``[loops]`` (its ORB in ``[loops.orb]``), ``[loop_verify]``,
+``[loop_pnp]``, ``[loop_closing]``.
 
 Flags and what they set: ``--frontend`` -> ``tracker.detector``; ``--odometry``
 -> ``visual.odometry``; ``--odometry-noise T R`` -> ``odometry_noise.sigma_t_per_m``
@@ -172,8 +173,9 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
     import sys
 
     from graphslam.pipelines import loop_closing as lc
+    from frontend.orb import OrbDetector
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, orb_for, train_vocabulary,
+        check_vocabulary, describe, train_vocabulary,
     )
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
@@ -188,7 +190,7 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
         check_vocabulary(vocab, args.vocab)
         source = str(args.vocab)
     else:
-        features = lc.sequence_features(sequence, n_frames, orb_for(detector_config),
+        features = lc.sequence_features(sequence, n_frames, OrbDetector(detector_config.orb),
                                         progress=not args.quiet)
         vocab = train_vocabulary([f.descriptors for f in features], SELF_TRAINED_WORDS)
         source = f"trained on the sequence ({n_frames} frames)"
