@@ -67,9 +67,7 @@ class LoopDetectorConfig:
             tracker's ``[orb]``: 1000 candidates and no per-cell selection
             (``n_features = 1000``, ``cell_size_px = 0``, ``per_cell = 1``,
             ``fast_threshold = 20``, the rest as :class:`OrbConfig`). A
-            ``[loops.orb]`` table starts from :class:`OrbConfig`'s defaults,
-            not from these: write ``n_features`` and ``cell_size_px`` in it
-            to keep them.
+            ``[loops.orb]`` table changes only the keys it writes.
     """
 
     SECTION: ClassVar[str] = "loops"

@@ -258,7 +258,10 @@ class ConfigFile:
         data.update({k: v for k, v in (overrides or {}).items() if v is not None})
         return self._build(cls, data, (name,))
 
-    def _build(self, cls: type[T], data: dict, where: tuple[str, ...]) -> T:
+    def _build(self, cls: type[T], data: dict, where: tuple[str, ...], base: Any = None) -> T:
+        """``cls`` from ``data``; a nested table starts from its field's own default
+        (``base``), so ``[loops.orb] n_features = 500`` keeps the loop detector's
+        other ORB settings instead of ORB's general defaults."""
         hints = typing.get_type_hints(cls)
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
@@ -269,13 +272,13 @@ class ConfigFile:
         for key, value in data.items():
             hint = hints[key]
             if _is_config(hint) and isinstance(value, dict):
-                value = self._build(hint, value, where + (key,))
+                value = self._build(hint, value, where + (key,), _field_default(cls, key))
             try:
                 kwargs[key] = _check_value(value, hint, f"{'.'.join(where)}.{key}")
             except ConfigError as e:
                 raise ConfigError(str(e), self.path, self.line_of(*where, key)) from None
         try:
-            return cls(**kwargs)
+            return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
         except ConfigError as e:
             if self.path is None or e.path is not None:
                 raise
@@ -284,6 +287,16 @@ class ConfigFile:
                               self.line_of(*where, key) if key else self.line_of(*where)) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
+
+
+def _field_default(cls: type, name: str) -> Any:
+    """The default value of field ``name`` of ``cls`` (None if it has none)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
 
 
 def load_section(cls: type[T], source: "ConfigFile | str | Path | None",

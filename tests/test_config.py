@@ -20,6 +20,10 @@ class Inner:
         validate(self)
 
 
+#: A nested default that differs from Inner's own defaults.
+SPECIAL_INNER = Inner(42)
+
+
 @dataclass(frozen=True)
 class Outer:
     SECTION: ClassVar[str] = "outer"
@@ -29,6 +33,7 @@ class Outer:
     count: int = bounded(3, min=0)
     name: str | None = None
     inner: Inner = field(default_factory=Inner)
+    special: Inner = SPECIAL_INNER
 
     def __post_init__(self):
         validate(self)
@@ -107,3 +112,28 @@ def test_missing_file_is_one_line(tmp_path):
         ConfigFile.read(tmp_path / "nope.toml")
     with pytest.raises(ConfigError, match="must be .toml, .yaml or .yml"):
         ConfigFile.read(_write(tmp_path, "c.ini", "[outer]\n"))
+
+
+@dataclass(frozen=True)
+class Wide:
+    SECTION: ClassVar[str] = "wide"
+    n_features: int = bounded(100, min=1)
+    cell_px: int = bounded(32, min=0)
+
+    def __post_init__(self):
+        validate(self)
+
+
+@dataclass(frozen=True)
+class Holder:
+    SECTION: ClassVar[str] = "holder"
+    wide: Wide = Wide(n_features=1000, cell_px=0)
+
+    def __post_init__(self):
+        validate(self)
+
+
+def test_a_partial_nested_table_keeps_the_fields_own_default(tmp_path):
+    p = _write(tmp_path, "c.toml", "[holder.wide]\nn_features = 500\n")
+    assert load_section(Holder, p).wide == Wide(n_features=500, cell_px=0)
+    assert load_section(Holder, None).wide == Wide(n_features=1000, cell_px=0)
