@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -221,13 +222,8 @@ class _Collector:
             fixed=np.array(sorted({k for k, _ in self.fixed}), dtype=np.int64),
             equiv=np.array(self.equiv, dtype=np.int64).reshape(-1, 2),
             source_path=str(self.path))
-        self._check_connected(graph)
-        if not has_vertex.all():
-            from dataclasses import replace
-
-            init = pg.chain_initialisation(graph)
-            graph = replace(graph, vertices=np.where(has_vertex[:, None], vertices, init))
-        return graph
+        check_connected(graph, self.path)
+        return with_chain_start(graph)
 
     def _check_declared(self) -> None:
         """With vertex lines present, an edge or FIX naming an undeclared pose is refused."""
@@ -246,12 +242,43 @@ class _Collector:
                 raise InputError(f"FIX names pose {k}, which has no vertex line", self.path,
                                  line_no)
 
-    def _check_connected(self, graph: pg.PoseGraph) -> None:
-        rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
-        parts = pg.components(graph.n_poses, rows)
-        if len(parts) > 1:
-            raise InputError(f"the graph is not connected: {len(parts)} components: "
-                             f"{pg.describe_components(graph.ids, parts)}", self.path)
+
+
+def check_connected(graph: pg.PoseGraph, path) -> None:
+    """InputError naming the components when ``graph`` is not connected."""
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    parts = pg.components(graph.n_poses, rows)
+    if len(parts) > 1:
+        raise InputError(f"the graph is not connected: {len(parts)} components: "
+                         f"{pg.describe_components(graph.ids, parts)}", path)
+
+
+def with_chain_start(graph: pg.PoseGraph) -> pg.PoseGraph:
+    """Poses without a vertex line get the spanning-tree composition of the edges."""
+    if graph.has_vertex.all():
+        return graph
+    init = pg.chain_initialisation(graph)
+    return replace(graph, vertices=np.where(graph.has_vertex[:, None], graph.vertices, init))
+
+
+def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
+    """The first ``n_poses`` poses in id order and the edges among them
+    (``--max-steps``); InputError if they do not form a connected graph."""
+    if n_poses >= graph.n_poses:
+        return graph
+    keep_ids = graph.ids[:n_poses]
+    keep = np.isin(graph.edges, keep_ids).all(axis=1)
+    if not keep.any():
+        raise InputError(f"the first {n_poses} poses have no edge between them",
+                         graph.source_path)
+    cut = replace(
+        graph, ids=keep_ids, vertices=graph.vertices[:n_poses],
+        has_vertex=graph.has_vertex[:n_poses], edges=graph.edges[keep],
+        measurements=graph.measurements[keep], information=graph.information[keep],
+        edge_lines=graph.edge_lines[keep], fixed=graph.fixed[np.isin(graph.fixed, keep_ids)],
+        equiv=graph.equiv[np.isin(graph.equiv, keep_ids).all(axis=1)])
+    check_connected(cut, graph.source_path)
+    return with_chain_start(cut)
 
 
 def read_pose_graph_file(path) -> pg.PoseGraph:
