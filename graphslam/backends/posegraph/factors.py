@@ -73,6 +73,14 @@ def noise_model(information: np.ndarray) -> gtsam.noiseModel.Base:
     return _information_model(info.tobytes(), info.shape[0])
 
 
+def diagonal_model(information: np.ndarray) -> gtsam.noiseModel.Base:
+    """Diagonal model from the diagonal of an information matrix (gtsam order)."""
+    d = np.diag(information).astype(np.float64)
+    if len(d) == 6:
+        d = np.concatenate([d[3:], d[:3]])
+    return gtsam.noiseModel.Diagonal.Precisions(d)
+
+
 def between(graph: PoseGraph, e: int, noise=None):
     """Factor of edge ``e``; ``noise`` replaces the file's Gaussian (robust kernels)."""
     a, b = (int(k) for k in graph.edges[e])

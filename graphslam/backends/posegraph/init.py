@@ -53,7 +53,11 @@ def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
     if method == "shonan":
         return _shonan(graph)
-    pose_graph = fx.edge_graph(graph)
+    # LAGO and the chordal relaxation take diagonal noise only: the diagonal of
+    # each information matrix (a start, not the cost being minimised)
+    pose_graph = gtsam.NonlinearFactorGraph()
+    for e in range(graph.n_edges):
+        pose_graph.add(fx.between(graph, e, fx.diagonal_model(graph.information[e])))
     anchor = int(fx.anchors(graph)[0])
     first = fx.pose(graph.vertices[graph.index_of([anchor])[0]], graph.rotation)
     pose_graph.add(fx.prior(graph, anchor, first, sigma))

@@ -188,7 +188,6 @@ class Isam2PoseGraph:
 
     def run(self) -> gtsam.Values:
         g, ids = self.graph, self.graph.ids.tolist()
-        estimate = self.isam.calculateEstimatePose2 if g.dim == 2 else self.isam.calculateEstimatePose3
         for n, step in enumerate(self.steps):
             factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
             for row, e, src in step.inits:
@@ -198,7 +197,7 @@ class Isam2PoseGraph:
                 else:
                     src_key = ids[src]
                     base = (_at(g, values, src_key) if values.exists(src_key)
-                            else estimate(src_key))
+                            else self._estimate(src_key))
                     z = self.meas[e]
                     value = base.compose(z if self.rows[e, 1] == row else z.inverse())
                 values.insert(k, value)
@@ -210,6 +209,12 @@ class Isam2PoseGraph:
             if not self._update(factors, values, n):
                 return self._batch_rest(n)
         return self.isam.calculateEstimate()
+
+    def _estimate(self, key: int):
+        """One pose of the current estimate (``self.isam`` may have been rebuilt)."""
+        if self.graph.dim == 2:
+            return self.isam.calculateEstimatePose2(key)
+        return self.isam.calculateEstimatePose3(key)
 
     def _update(self, factors, values, n: int) -> bool:
         """One iSAM2 update; False when only a batch solve can go on."""
