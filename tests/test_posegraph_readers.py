@@ -137,8 +137,8 @@ BAD_LINES = [
     ("EDGE_SE2 0 1 1 inf 0 100 0 0 100 0 1000\n", 1, "not finite"),
     ("EDGE_SE2 -1 1 1 0 0 100 0 0 100 0 1000\n", 1, "negative"),
     (f"EDGE_SE2 0 {2**62 + 1} 1 0 0 100 0 0 100 0 1000\n", 1, "larger than 2**62"),
-    ("EDGE_SE2 0 1e3 1 0 0 100 0 0 100 0 1000\n", 1, "not a decimal integer"),
-    ("EDGE_SE2 0 3.0 1 0 0 100 0 0 100 0 1000\n", 1, "not a decimal integer"),
+    ("EDGE_SE2 0 1e3 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
+    ("EDGE_SE2 0 3.0 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 1 1 0 0 100 0 0 -100 0 1000\n", 1, "not positive definite"),
     ("EDGE_SE2 1 1 1 0 0 100 0 0 100 0 1000\n", 1, "to itself"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", 2, "declared twice"),
@@ -163,3 +163,29 @@ def test_bad_line_is_one_line_with_file_and_line(tmp_path, capsys, text, line, f
     lines = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(lines) == 1
     assert f"g.g2o:{line}:" in lines[0] and fragment in lines[0]
+
+
+# the frame-by-frame 2-D reader (filters on pose-graph files) gets the same id checks
+@pytest.mark.parametrize("text,line,fragment", [
+    ("EDGE2 0 1 1 0 0 1 0 1 1 0 0\nEDGE2 1 -2 1 0 0 1 0 1 1 0 0\n", 2, "negative"),
+    (f"EDGE2 0 {2**56} 1 0 0 1 0 1 1 0 0\n", 1, "symbol key"),
+    ("\ufeffEDGE2 0 1 1 0 0 1 0 1 1 0 0\nEDGE2 1 3 1 0 0 1 0 1 1 0 0\n", 2, "pose 2 is missing"),
+    ("VERTEX2 0 0 0 0\nVERTEX2 1 0 0 0\nEDGE2 0 1 1 0 0 1 0 1 1 0 0\n"
+     "EDGE2 1 2 1 0 0 1 0 1 1 0 0\n", 4, "no vertex line"),
+])
+def test_frame_reader_id_checks(tmp_path, text, line, fragment):
+    from graphslam.sources.planar.posegraph import read_toro
+
+    with pytest.raises(InputError, match=re.escape(fragment)) as err:
+        read_toro(_file(tmp_path, text, "f.graph"))
+    assert err.value.line == line
+
+
+def test_frame_reader_gap_of_2_40_is_refused_at_once(tmp_path):
+    from graphslam.sources.planar.posegraph import read_toro
+
+    text = f"EDGE2 0 1 1 0 0 1 0 1 1 0 0\nEDGE2 1 {2**40} 1 0 0 1 0 1 1 0 0\n"
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match="gap"):
+        read_toro(_file(tmp_path, text, "f.graph"))
+    assert time.perf_counter() - t0 < GAP_READ_S

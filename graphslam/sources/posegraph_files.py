@@ -91,7 +91,8 @@ def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
     if token.startswith("-") and _ID.match(token[1:]):
         raise InputError(f"{what} {token} is negative", path, line_no)
     if not _ID.match(token):
-        raise InputError(f"{what} {token!r} is not a decimal integer", path, line_no)
+        raise InputError(f"{what} {token!r} is not an integer (decimal digits only)", path,
+                         line_no)
     value = int(token)
     if value > MAX_ID:
         raise InputError(f"{what} {token} is larger than 2**62", path, line_no)
