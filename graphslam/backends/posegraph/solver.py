@@ -185,6 +185,8 @@ class Isam2PoseGraph:
         self.meas = [fx.pose(m, graph.rotation) for m in graph.measurements]
         fixed = set(graph.fixed.tolist())
         self.anchored = fixed or {int(graph.ids[0])}
+        #: set to a list to get the clock after every update (per-step benchmarks)
+        self.step_end_s: list[float] | None = None
 
     def run(self) -> gtsam.Values:
         g, ids = self.graph, self.graph.ids.tolist()
@@ -208,6 +210,8 @@ class Isam2PoseGraph:
                 factors.add(self.edges.at(e))
             if not self._update(factors, values, n):
                 return self._batch_rest(n)
+            if self.step_end_s is not None:
+                self.step_end_s.append(time.perf_counter())
         return self.isam.calculateEstimate()
 
     def _estimate(self, key: int):
