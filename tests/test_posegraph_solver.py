@@ -160,3 +160,15 @@ def test_cost_is_gtsams_graph_error(tmp_path):
     graph, initial = gtsam.readG2o(str(tmp_path / "g3.g2o"), True)
     assert fx.cost(g, fx.values_of(g, g.vertices)) == pytest.approx(graph.error(initial),
                                                                     rel=1e-12)
+
+
+def test_gnc_rejects_a_false_closure(tmp_path):
+    truth = square_walk(20, 2)
+    lines = graph_lines(truth, edges_with_closures(20, [(0, 19), (3, 14), (6, 17)]), sigma=0.01)
+    lines.append("EDGE_SE2 2 12 5.0 -3.0 1.0 100 0 0 100 0 1000")  # a false closure
+    g = read_pose_graph_file(write(tmp_path / "false.g2o", lines))
+    res = solve(g, PoseGraphConfig(robust_closures="gnc"), "batch")
+    closures = np.flatnonzero(~g.odometry_mask())
+    assert res.rejected[closures].tolist() == [False, False, False, True]
+    T = params_to_matrix(res.params, "angle")
+    assert np.abs(T[:, :2, 2] - np.array([p.translation() for p in truth])).max() < 0.1

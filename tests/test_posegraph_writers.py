@@ -4,6 +4,7 @@ optimised graph a run writes gives the run's cost back; ``graphslam convert``.""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -95,3 +96,18 @@ def test_convert_command(tmp_path, capsys):
     capsys.readouterr()
     assert main(["convert", str(src), str(tmp_path / "b.txt")]) == 2
     assert "--to" in capsys.readouterr().err
+
+
+def test_rejected_closures_in_csv_and_recording(tmp_path, capsys):
+    lines = graph_lines(square_walk(10, 2), edges_with_closures(10, [(0, 9), (2, 8), (1, 5)]),
+                        sigma=0.01) + ["EDGE_SE2 2 7 5.0 -3.0 1.0 100 0 0 100 0 1000"]
+    src = write(tmp_path / "in.g2o", lines)
+    config = tmp_path / "c.toml"
+    config.write_text('[posegraph]\nrobust_closures = "gnc"\n')
+    out = tmp_path / "out"
+    assert main(["run", "--dataset", str(src), "--backend", "batch", "--config", str(config),
+                 "--out", str(out)]) == 0
+    assert re.search(r"closures rejected\s+1\n", capsys.readouterr().out)
+    rows = (out / "closures.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[3] for r in rows] == ["1", "1", "1", "0"]
+    assert (out / "run.rrd").stat().st_size > 0
