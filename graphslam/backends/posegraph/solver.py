@@ -75,18 +75,21 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
     edges = fx.edge_graph(graph)
     recoveries: list[str] = []
     isam2_s = isam2_cost = None
-    start = initialisers.initial(graph, config.init, config.prior_sigma)
     if solver == "isam2":
         t1 = time.perf_counter()
         incremental = Isam2PoseGraph(graph, config, edges)
         values = incremental.run()
         recoveries += incremental.recoveries
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
+        if not config.polish:
+            return _result(graph, solver, initialisers.Start("isam2", values), values, None,
+                           edges, np.zeros(graph.n_edges, dtype=bool), recoveries, t0,
+                           isam2_s, isam2_cost)
+        start = initialisers.initial(graph, config.init, config.prior_sigma)
         if isam2_cost <= fx.cost(graph, start.values, edges):
             start = initialisers.Start("isam2", values)
-        if not config.polish:
-            return _result(graph, solver, start, start.values, None, edges, np.zeros(
-                graph.n_edges, dtype=bool), recoveries, t0, isam2_s, isam2_cost)
+    else:
+        start = initialisers.initial(graph, config.init, config.prior_sigma)
     full = with_priors(graph, edges, start.values, config.prior_sigma)
     if config.robust_closures == "gnc":
         result, rejected, iterations = _gnc(graph, full, start.values, config)
