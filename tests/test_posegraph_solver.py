@@ -42,10 +42,11 @@ def _gtsam_optimum(path, dim: int) -> float:
     graph, initial = gtsam.readG2o(str(path), dim == 3)
     full = gtsam.NonlinearFactorGraph(graph)
     k = initial.keys()[0]
+    gauge = gtsam.noiseModel.Isotropic.Sigma(3 if dim == 2 else 6, 1e-3)
     if dim == 2:
-        full.add(gtsam.PriorFactorPose2(k, initial.atPose2(k), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+        full.add(gtsam.PriorFactorPose2(k, initial.atPose2(k), gauge))
     else:
-        full.add(gtsam.PriorFactorPose3(k, initial.atPose3(k), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+        full.add(gtsam.PriorFactorPose3(k, initial.atPose3(k), gauge))
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-12)
     params.setAbsoluteErrorTol(1e-12)

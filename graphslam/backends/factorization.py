@@ -2,18 +2,20 @@
 
 Why a fallback and not QR always: Cholesky factors the normal equations, whose
 condition number is the square of the Jacobian's. Graphs with very anisotropic
-information (a synthetic odometry covariance made positive definite by a
-1e-7 floor next to 1e-3 m range noise; the community pose graphs whose
-information spans 1e7) reach condition numbers near 1e10-1e12 in iSAM2's
-cliques. There the Schur complements iSAM2 caches from earlier updates (linearised
-at older points, summed in floating point) can lose positive definiteness,
-and Eigen's LLT in a frontal clique meets a non-positive pivot: gtsam throws
-``IndeterminateSystemException`` although the same graph, eliminated in one
-batch, is positive definite (checked: smallest Hessian eigenvalue 1.4e-3 on
-the synthetic world with sigma_r = 1e-3 m). QR works on the Jacobian and does
-not square the condition number, at about 1.3-2x the cost, so ``auto`` keeps
+information (the synthetic world's odometry covariance, rank 2 plus a 1e-7
+floor, next to 1e-3 m range noise; community pose graphs whose information
+spans 1e7) reach condition numbers near 1e10-1e12. iSAM2 eliminates in its own
+incremental order (new variables last) and factors each clique's frontal block
+with Eigen's LLT; there a pivot comes out non-positive and gtsam throws
+``IndeterminateSystemException``, although the same graph at the same
+linearisation point is positive definite (smallest Hessian eigenvalue 1.4e-3
+on the synthetic world with sigma_r = 1e-3 m) and a batch Cholesky solve of it
+succeeds. Relinearising every variable at every update (threshold 0.01, skip 1)
+fails at the same pose, so the linearisation point is not the cause; the
+elimination's arithmetic is. QR works on the whitened Jacobian and does not
+square the condition number, at about 1.3-2x the cost, so ``auto`` keeps
 Cholesky (bit-identical results where it works) and switches to QR only when
-it fails, by handing every factor to a fresh QR iSAM2 at the current estimate.
+it fails, by handing every factor to a fresh QR iSAM2 at the current values.
 """
 
 from __future__ import annotations

@@ -62,8 +62,9 @@ TAGS = {
     "EDGE3": ("toro", 3, "rpy", "edge", 30),
 }
 #: Tag names per (format, dim), for the writers.
-TAG_NAMES = {("g2o", 2): ("VERTEX_SE2", "EDGE_SE2"), ("g2o", 3): ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT"),
-             ("toro", 2): ("VERTEX2", "EDGE2"), ("toro", 3): ("VERTEX3", "EDGE3")}
+TAG_NAMES = {(fmt, dim): (tags[0], tags[1]) for fmt, dim, tags in (
+    ("g2o", 2, ("VERTEX_SE2", "EDGE_SE2")), ("g2o", 3, ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")),
+    ("toro", 2, ("VERTEX2", "EDGE2")), ("toro", 3, ("VERTEX3", "EDGE3")))}
 #: TORO 2-D information order ``ixx ixy iyy ith ixt iyt`` as (row, col) of the matrix.
 TORO2_ORDER = ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))
 

@@ -2,7 +2,8 @@
 
 Keys are the pose ids themselves (ids are checked to be below 2**62 on
 reading). Poses and noise are built exactly as ``gtsam.readG2o`` / ``load3D``
-build them (``Rot3.Quaternion(w, x, y, z)`` of the normalised quaternion, ``Rot3.Ypr(yaw, pitch, roll)``,
+build them (``Rot3.Quaternion(w, x, y, z)`` of the normalised quaternion,
+``Rot3.Ypr(yaw, pitch, roll)``,
 ``Gaussian.Information`` of the file's matrix with the translation and rotation
 blocks swapped into gtsam's ``[rotation, translation]`` tangent order), so the
 cost of an estimate is the one gtsam gives the same file.
