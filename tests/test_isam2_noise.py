@@ -54,3 +54,20 @@ def test_default_world_takes_no_fallback():
 def test_factorization_is_checked():
     with pytest.raises(ConfigError, match="factorization"):
         Isam2Config(factorization="lu")
+
+
+#: The course's noise values; the grid scales each by 0.1 and 10, alone and all together.
+COURSE_NOISE = {"sigma_v_mps": 0.05, "sigma_w_degps": 0.1, "sigma_r_m": 0.2,
+                "sigma_phi_deg": 10.0}
+NOISE_GRID = ([{k: v * f} for k, v in COURSE_NOISE.items() for f in (0.1, 10.0)]
+              + [{k: v * f for k, v in COURSE_NOISE.items()} for f in (0.1, 10.0)])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("world", NOISE_GRID,
+                         ids=lambda w: ",".join(f"{k}={v:g}" for k, v in w.items()))
+def test_noise_grid_runs_to_the_end(world, seed):
+    ds = make_synthetic(SyntheticConfig(seed=seed, **world))
+    result = pipeline.run(ds, Isam2Backend())
+    assert result.steps == len(ds.frames) and not result.interrupted
