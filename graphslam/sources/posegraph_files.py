@@ -23,7 +23,13 @@ both               ``FIX id ...`` (poses held at their vertex), ``EQUIV i j``
 The numbers after an edge are an **information** matrix in every format (the
 g2o and TORO specifications; note ``gtsam.load2D`` reads TORO's as a
 covariance when its zero pattern says so: identical on w10000, whose are
-identity). Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
+identity). Files written by iSAM use the TORO tags with the upper triangle of
+the *square-root* information instead: gtsam's ``sphere2500.txt`` is one (its
+measurements' residuals against ``sphere2500_groundtruth.txt`` have standard
+deviations 0.10 m and 0.010/0.010/0.040 rad, the inverses of its numbers 10
+and 100/100/25). Nothing in such a file tells the two apart; read as
+information, its optimum (364.49) is neither gtsam's (which takes the numbers
+in its own rotation-first order) nor that of the true noise. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
 
 Checks, each one line with file and line: ids are decimal integers read as
 Python ints (never through a float), from 0 to 2**62; numbers finite;
