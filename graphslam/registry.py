@@ -59,7 +59,10 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
                          path)
     from graphslam.sources.planar.posegraph import read_pose_graph
+    from graphslam.sources.posegraph_files import TAGS, first_tag
 
+    if TAGS.get(first_tag(path), (None, 2))[1] == 3:
+        raise ConfigError(f"{path} is a 3-D pose graph: run it with --backend isam2 or batch")
     return read_pose_graph(path)
 
 

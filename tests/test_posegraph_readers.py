@@ -189,3 +189,10 @@ def test_frame_reader_gap_of_2_40_is_refused_at_once(tmp_path):
     with pytest.raises(InputError, match="gap"):
         read_toro(_file(tmp_path, text, "f.graph"))
     assert time.perf_counter() - t0 < GAP_READ_S
+
+
+def test_a_filter_on_a_3d_graph_is_refused_in_one_line(tmp_path, capsys):
+    path = write(tmp_path / "g3.g2o", graph_lines(square_walk(5, 3), edges_with_closures(5, [])))
+    assert main(["run", "--dataset", str(path), "--backend", "ekf", "--rerun", "off",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "3-D pose graph" in capsys.readouterr().err

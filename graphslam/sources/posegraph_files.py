@@ -300,9 +300,14 @@ def read_pose_graph_file(path) -> pg.PoseGraph:
 
 def is_pose_graph_file(path) -> bool:
     """Whether the first tag of a file is a pose-graph tag (cheap: one line read)."""
+    return first_tag(path) in (*TAGS, "FIX", "EQUIV")
+
+
+def first_tag(path) -> str | None:
+    """The first tag of a text file, or None (unreadable or empty)."""
     try:
         for _, tok in _lines(Path(path)):
-            return tok[0] in TAGS or tok[0] in ("FIX", "EQUIV")
+            return tok[0]
     except InputError:
-        return False
-    return False
+        return None
+    return None
