@@ -100,49 +100,62 @@ def helix_graph(n: int, per_turn: int, folder: Path) -> Path:
     return path
 
 
-def bare_isam2(graph: pg.PoseGraph, solver: Isam2PoseGraph) -> tuple[float, list[float]]:
-    """The same updates on a bare gtsam.ISAM2 (factors prebuilt); clock per step."""
-    ids, meas, rows = graph.ids.tolist(), solver.meas, solver.rows
-    prior = fx.prior(graph, ids[0], fx.pose(graph.vertices[0], graph.rotation), 1e-3)
-    edges = [solver.edges.at(e) for e in range(graph.n_edges)]
-    at = (lambda v, k: v.atPose2(k)) if graph.dim == 2 else (lambda v, k: v.atPose3(k))
-    isam = gtsam.ISAM2(solver.params)
-    get = isam.calculateEstimatePose2 if graph.dim == 2 else isam.calculateEstimatePose3
-    ends = []
-    t0 = time.perf_counter()
-    for step in solver.steps:
+class BareIsam2:
+    """The same updates on a bare gtsam.ISAM2, factors and schedule prebuilt."""
+
+    def __init__(self, graph: pg.PoseGraph, solver: Isam2PoseGraph):
+        self.graph, self.solver = graph, solver
+        self.ids = graph.ids.tolist()
+        self.prior = fx.prior(graph, self.ids[0], fx.pose(graph.vertices[0], graph.rotation),
+                              solver.config.prior_sigma)
+        self.edges = [solver.edges.at(e) for e in range(graph.n_edges)]
+        self.to_row = solver.rows[:, 1].tolist()
+        self.isam = gtsam.ISAM2(solver.params)
+        self.get = (self.isam.calculateEstimatePose2 if graph.dim == 2
+                    else self.isam.calculateEstimatePose3)
+        self.at = gtsam.Values.atPose2 if graph.dim == 2 else gtsam.Values.atPose3
+
+    def step(self, n: int) -> None:
+        ids, meas = self.ids, self.solver.meas
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for row, e, src in step.inits:
+        for row, e, src in self.solver.steps[n].inits:
             if e < 0:
-                values.insert(ids[row], fx.pose(graph.vertices[row], graph.rotation))
-                factors.add(prior)
+                values.insert(ids[row], fx.pose(self.graph.vertices[row], self.graph.rotation))
+                factors.add(self.prior)
                 continue
-            base = at(values, ids[src]) if values.exists(ids[src]) else get(ids[src])
-            z = meas[e] if rows[e, 1] == row else meas[e].inverse()
-            values.insert(ids[row], base.compose(z))
-        for e in step.edges:
-            factors.add(edges[e])
-        isam.update(factors, values)
-        ends.append(time.perf_counter())
-    isam.calculateEstimate()
-    return time.perf_counter() - t0, [t - t0 for t in ends]
+            base = self.at(values, ids[src]) if values.exists(ids[src]) else self.get(ids[src])
+            values.insert(ids[row], base.compose(meas[e] if self.to_row[e] == row
+                                                 else meas[e].inverse()))
+        for e in self.solver.steps[n].edges:
+            factors.add(self.edges[e])
+        self.isam.update(factors, values)
 
 
 def bench_isam2(path: Path, config: PoseGraphConfig) -> dict:
+    """Ours and bare in lockstep (update n of one, then of the other), so that
+    load from other processes on the machine falls on both alike."""
     graph = read_pose_graph_file(path)
     edges = fx.edge_graph(graph)
     t0 = time.perf_counter()
     ours = Isam2PoseGraph(graph, config, edges)
-    ours.step_end_s = []
-    values = ours.run()
-    ours_s = time.perf_counter() - t0
-    ours_steps = np.array(ours.step_end_s) - t0
-    bare_s, bare_steps = bare_isam2(graph, Isam2PoseGraph(graph, config, edges))
-    n = min(len(ours_steps), len(bare_steps))
-    over = ours_steps[:n] - np.array(bare_steps[:n])
-    quarters = [int(q * (n - 1) / 4) for q in range(5)]
-    per_step_ms = [1e3 * (over[b] - over[a]) / max(b - a, 1)
-                   for a, b in zip(quarters[:-1], quarters[1:])]
+    setup_s = time.perf_counter() - t0
+    bare = BareIsam2(graph, Isam2PoseGraph(graph, config, edges))
+    ours_dt, bare_dt = [], []
+    for n in range(len(ours.steps)):
+        t0 = time.perf_counter()
+        ours.step(n)
+        t1 = time.perf_counter()
+        bare.step(n)
+        ours_dt.append(t1 - t0)
+        bare_dt.append(time.perf_counter() - t1)
+    t0 = time.perf_counter()
+    values = ours.isam.calculateEstimate()
+    t1 = time.perf_counter()
+    bare.isam.calculateEstimate()
+    t2 = time.perf_counter()
+    ours_s, bare_s = setup_s + sum(ours_dt) + (t1 - t0), sum(bare_dt) + (t2 - t1)
+    over = np.array(ours_dt) - np.array(bare_dt)
+    per_step_ms = [1e3 * float(np.mean(q)) for q in np.array_split(over, 4)]
     return {"file": path.name, "dim": graph.dim, "poses": graph.n_poses,
             "edges": graph.n_edges, "ours_s": ours_s, "bare_s": bare_s,
             "ratio": ours_s / bare_s, "overhead_ms_per_step_by_quarter": per_step_ms,

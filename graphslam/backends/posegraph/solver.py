@@ -188,34 +188,36 @@ class Isam2PoseGraph:
         self.meas = [fx.pose(m, graph.rotation) for m in graph.measurements]
         fixed = set(graph.fixed.tolist())
         self.anchored = fixed or {int(graph.ids[0])}
-        #: set to a list to get the clock after every update (per-step benchmarks)
-        self.step_end_s: list[float] | None = None
+        self.ids = graph.ids.tolist()
+        self.to_row = self.rows[:, 1].tolist()
 
     def run(self) -> gtsam.Values:
-        g, ids = self.graph, self.graph.ids.tolist()
-        for n, step in enumerate(self.steps):
-            factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-            for row, e, src in step.inits:
-                k = ids[row]
-                if e < 0:
-                    value = fx.pose(g.vertices[row], g.rotation)
-                else:
-                    src_key = ids[src]
-                    base = (_at(g, values, src_key) if values.exists(src_key)
-                            else self._estimate(src_key))
-                    z = self.meas[e]
-                    value = base.compose(z if self.rows[e, 1] == row else z.inverse())
-                values.insert(k, value)
-                if k in self.anchored:
-                    held = fx.pose(g.vertices[row], g.rotation) if len(g.fixed) else value
-                    factors.add(fx.prior(g, k, held, self.config.prior_sigma))
-            for e in step.edges:
-                factors.add(self.edges.at(e))
-            if not self._update(factors, values, n):
+        for n in range(len(self.steps)):
+            if not self.step(n):
                 return self._batch_rest(n)
-            if self.step_end_s is not None:
-                self.step_end_s.append(time.perf_counter())
         return self.isam.calculateEstimate()
+
+    def step(self, n: int) -> bool:
+        """Update ``n`` of :attr:`steps`; False when only a batch solve can go on."""
+        g, ids, step = self.graph, self.ids, self.steps[n]
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for row, e, src in step.inits:
+            k = ids[row]
+            if e < 0:
+                value = fx.pose(g.vertices[row], g.rotation)
+            else:
+                src_key = ids[src]
+                base = (_at(g, values, src_key) if values.exists(src_key)
+                        else self._estimate(src_key))
+                z = self.meas[e]
+                value = base.compose(z if self.to_row[e] == row else z.inverse())
+            values.insert(k, value)
+            if k in self.anchored:
+                held = fx.pose(g.vertices[row], g.rotation) if len(g.fixed) else value
+                factors.add(fx.prior(g, k, held, self.config.prior_sigma))
+        for e in step.edges:
+            factors.add(self.edges.at(e))
+        return self._update(factors, values, n)
 
     def _estimate(self, key: int):
         """One pose of the current estimate (``self.isam`` may have been rebuilt)."""
