@@ -17,7 +17,11 @@ of the iSAM2 result and of the batch optimum.
 
     python benchmarks/bench_posegraph.py [FILE|FOLDER ...] [--out DIR] [--isam2]
 
-Default files: the pose graphs of the gtsam wheel.
+Default files: the pose graphs of the gtsam wheel. Measured (2 shared cores,
+other jobs running): iSAM2 ours / bare 1.009 on the helix (3-D, 10 000 poses),
+0.995 on w10000, overhead per step by quarter within +-0.6 ms of zero (steps of
+14-32 ms), no trend; sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio
+1.0000); w10000 batch final cost 144.8673816, sphere2500 364.4948686.
 """
 
 from __future__ import annotations
@@ -193,7 +197,8 @@ def isam2_rows(config: PoseGraphConfig) -> list[dict]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("inputs", nargs="*", help="pose-graph files or folders (default: gtsam's)")
-    ap.add_argument("--out", type=Path, default=Path("runs/bench_posegraph"))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph"),
+                    help="folder for bench_posegraph.json and the PNGs")
     ap.add_argument("--isam2", action="store_true", help="also time iSAM2 against bare ISAM2")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
