@@ -81,11 +81,11 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     return is_pose_graph_file(spec)
 
 
-def load_pose_graph(spec: str | Path):
+def load_pose_graph(spec: str | Path, toro_noise: str = "information"):
     """A g2o or TORO pose-graph file, 2-D or 3-D, as a :class:`slamcore.posegraph.PoseGraph`."""
     from graphslam.sources.posegraph_files import read_pose_graph_file
 
-    return read_pose_graph_file(spec)
+    return read_pose_graph_file(spec, toro_noise)
 
 
 def pose_graph_config(config: ConfigSource = None, overrides: dict | None = None):

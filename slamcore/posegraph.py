@@ -45,6 +45,9 @@ class PoseGraph:
         edge_lines: (M,) 1-based line of each edge in the file (0: not from a file).
         fixed: (F,) int64 ids of ``FIX`` lines. equiv: (E, 2) int64 ``EQUIV`` pairs.
         source_path: the file read, or None.
+        noise: how the file's edge numbers were read, ``"information"`` or
+            ``"sqrt_information"`` (TORO tags written by iSAM); :attr:`information`
+            is the information matrix either way.
     """
 
     name: str
@@ -61,6 +64,7 @@ class PoseGraph:
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     equiv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     source_path: str | None = None
+    noise: str = "information"
 
     @property
     def n_poses(self) -> int:

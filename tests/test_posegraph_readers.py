@@ -196,3 +196,12 @@ def test_a_filter_on_a_3d_graph_is_refused_in_one_line(tmp_path, capsys):
     assert main(["run", "--dataset", str(path), "--backend", "ekf", "--rerun", "off",
                  "--out", str(tmp_path / "o")]) == 2
     assert "3-D pose graph" in capsys.readouterr().err
+
+
+def test_toro_square_root_information(tmp_path):
+    # iSAM writes the upper triangle R of the information R^T R under TORO tags
+    R = np.array([[10.0, 1, 2], [0, 20, 3], [0, 0, 30]])
+    text = "EDGE2 0 1 1 0 0 10 1 20 30 2 3\n"  # TORO order: xx xy yy tt xt yt
+    g = read_pose_graph_file(_file(tmp_path, text, "s.graph"), toro_noise="sqrt_information")
+    np.testing.assert_array_equal(g.information[0], R.T @ R)
+    assert g.noise == "sqrt_information"

@@ -111,3 +111,17 @@ def test_rejected_closures_in_csv_and_recording(tmp_path, capsys):
     rows = (out / "closures.csv").read_text().splitlines()[1:]
     assert [r.split(",")[3] for r in rows] == ["1", "1", "1", "0"]
     assert (out / "run.rrd").stat().st_size > 0
+
+
+#: Square-root information goes back through a Cholesky factor: equal to rounding.
+SQRT_ROUND_TRIP_REL = 1e-13
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_square_root_information_round_trip(tmp_path, dim):
+    first = read_pose_graph_file(write(tmp_path / "a.graph", _lines(dim, "toro")),
+                                 toro_noise="sqrt_information")
+    write_pose_graph(tmp_path / "b.graph", first)
+    again = read_pose_graph_file(tmp_path / "b.graph", toro_noise="sqrt_information")
+    np.testing.assert_array_equal(again.measurements, first.measurements)
+    np.testing.assert_allclose(again.information, first.information, rtol=SQRT_ROUND_TRIP_REL)

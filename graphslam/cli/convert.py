@@ -22,6 +22,10 @@ def register(sub) -> None:
     p.add_argument("output", type=Path, metavar="OUT")
     p.add_argument("--to", choices=("g2o", "toro"), default=None,
                    help="output format (default: from OUT's extension)")
+    p.add_argument("--toro-noise", choices=("information", "sqrt_information"),
+                   default="information",
+                   help="how TORO edge numbers are read and written: information (the "
+                        "format) or sqrt_information (files written by iSAM)")
     p.set_defaults(func=cmd_convert)
 
 
@@ -36,7 +40,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
                           "name it .g2o or .graph, or pass --to g2o|toro")
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
-    graph = registry.load_pose_graph(args.input)
+    graph = registry.load_pose_graph(args.input, args.toro_noise)
     converted, notes = convert(graph, fmt)
     for note in notes:
         warn(note)

@@ -41,6 +41,8 @@ def convert(graph: pg.PoseGraph, fmt: str) -> tuple[pg.PoseGraph, list[str]]:
         if not out.has_vertex.all():  # what a reader of the converted file will compute
             out = replace(out, vertices=np.where(out.has_vertex[:, None], out.vertices,
                                                  pg.chain_initialisation(out)))
+    if fmt == "g2o":  # g2o numbers are information
+        out = replace(out, noise="information")
     if fmt == "g2o" and len(graph.equiv):
         notes.append(f"{len(graph.equiv)} EQUIV line(s) left out: g2o has no EQUIV")
         out = replace(out, equiv=np.zeros((0, 2), dtype=np.int64))
@@ -57,8 +59,11 @@ def graph_lines(graph: pg.PoseGraph) -> list[str]:
     # poses without a vertex line stay without one, so an edge-only file stays edge-only
     lines = [f"{vertex_tag} {k} " + " ".join(map(_num, row))
              for k, row, has in zip(graph.ids.tolist(), graph.vertices, graph.has_vertex) if has]
+    order = information_order(graph.format, graph.dim)
+    sqrt = graph.format == "toro" and graph.noise == "sqrt_information"
     for (a, b), z, info in zip(graph.edges.tolist(), graph.measurements, graph.information):
-        order = information_order(graph.format, graph.dim)
+        if sqrt:  # upper Cholesky factor: read back as R^T R (to rounding, not bit for bit)
+            info = np.linalg.cholesky(info).T
         numbers = [info[r, c] for r, c in order]
         lines.append(f"{edge_tag} {a} {b} " + " ".join(map(_num, [*z, *numbers])))
     lines += [f"EQUIV {a} {b}" for a, b in graph.equiv.tolist()]

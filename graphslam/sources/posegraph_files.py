@@ -29,7 +29,8 @@ measurements' residuals against ``sphere2500_groundtruth.txt`` have standard
 deviations 0.10 m and 0.010/0.010/0.040 rad, the inverses of its numbers 10
 and 100/100/25). Nothing in such a file tells the two apart; read as
 information, its optimum (364.49) is neither gtsam's (which takes the numbers
-in its own rotation-first order) nor that of the true noise. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
+in its own rotation-first order) nor that of the true noise: pass
+``toro_noise="sqrt_information"`` (``[posegraph] toro_noise``) for such files. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
 
 Checks, each one line with file and line: ids are decimal integers read as
 Python ints (never through a float), from 0 to 2**62; numbers finite;
@@ -134,11 +135,18 @@ def _lines(path: Path):
             raise InputError(f"not a text file: {exc}", path) from None
 
 
+#: How TORO edge numbers are read (g2o's are information always).
+TORO_NOISE = ("information", "sqrt_information")
+
+
 class _Collector:
     """Lines of one file, checked as they come."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, toro_noise: str = "information"):
+        if toro_noise not in TORO_NOISE:
+            raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
         self.path = path
+        self.toro_noise = toro_noise
         self.kind: tuple[str, int, str] | None = None  # (format, dim, rotation)
         self.kind_line = 0
         self.vertices: dict[int, list[float]] = {}
@@ -200,8 +208,13 @@ class _Collector:
         numbers = parse_numbers(tok[3:], self.path, line_no)
         side = pg.TANGENT_SIZE[dim]
         info = np.zeros((side, side))
+        sqrt = fmt == "toro" and self.toro_noise == "sqrt_information"
         for (r, c), v in zip(information_order(fmt, dim, numbers[size:]), numbers[size:]):
-            info[r, c] = info[c, r] = v
+            info[r, c] = v
+            if not sqrt:
+                info[c, r] = v
+        if sqrt:  # the numbers are the upper triangle R of information = R^T R
+            info = info.T @ info
         if not pg.is_positive_definite(info):
             raise InputError("information matrix is not positive definite", self.path, line_no)
         self.edges.append((a, b))
@@ -229,7 +242,8 @@ class _Collector:
             edge_lines=np.array(self.edge_lines, dtype=np.int64),
             fixed=np.array(sorted({k for k, _ in self.fixed}), dtype=np.int64),
             equiv=np.array(self.equiv, dtype=np.int64).reshape(-1, 2),
-            source_path=str(self.path))
+            source_path=str(self.path),
+            noise=self.toro_noise if fmt == "toro" else "information")
         check_connected(graph, self.path)
         return with_chain_start(graph)
 
@@ -289,10 +303,14 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     return with_chain_start(cut)
 
 
-def read_pose_graph_file(path) -> pg.PoseGraph:
-    """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags)."""
+def read_pose_graph_file(path, toro_noise: str = "information") -> pg.PoseGraph:
+    """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags).
+
+    ``toro_noise = "sqrt_information"`` reads TORO edge numbers as the upper
+    triangle ``R`` of the information ``R^T R`` (files written by iSAM).
+    """
     path = Path(path)
-    collector = _Collector(path)
+    collector = _Collector(path, toro_noise)
     for line_no, tok in _lines(path):
         collector.line(line_no, tok)
     return collector.graph()

@@ -36,6 +36,9 @@ class PoseGraphConfig:
             it weighs below 0.5 are rejected (listed in ``closures.csv``).
         prior_sigma: gauge prior on the first pose (or the ``FIX`` poses), in
             metres / radians; it costs nothing at the optimum.
+        toro_noise: how TORO files' edge numbers are read: ``information`` (the
+            TORO format) or ``sqrt_information`` (files written by iSAM, such as
+            gtsam's ``sphere2500.txt``: the upper triangle ``R`` of ``R^T R``).
     """
 
     SECTION: ClassVar[str] = "posegraph"
@@ -49,6 +52,7 @@ class PoseGraphConfig:
     polish: bool = True
     robust_closures: Literal["none", "gnc"] = "none"
     prior_sigma: float = bounded(1e-3, gt=0.0)
+    toro_noise: Literal["information", "sqrt_information"] = "information"
 
     def __post_init__(self):
         validate(self)

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--no-polish applies to the isam2 back end only")
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
-    graph = registry.load_pose_graph(args.dataset)
+    graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise)
     if args.max_steps is not None:
         from graphslam.sources.posegraph_files import truncated
 
