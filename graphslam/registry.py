@@ -19,6 +19,7 @@ CONFIG_SECTIONS = (
     "synthetic_images", "visual", "odometry_noise", "tracker", "active_search", "harris", "orb",
     "isam2_visual", "mono_ekf",  # image sequences
     "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
+    "posegraph",  # pose-graph files (g2o, TORO; 2-D and 3-D)
 )
 
 
@@ -58,8 +59,40 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
                          path)
     from graphslam.sources.planar.posegraph import read_pose_graph
+    from graphslam.sources.posegraph_files import TAGS, first_tag
 
+    if TAGS.get(first_tag(path), (None, 2))[1] == 3:
+        raise ConfigError(f"{path} is a 3-D pose graph: run it with --backend isam2 or batch")
     return read_pose_graph(path)
+
+
+#: Back ends ``graphslam run`` offers on pose-graph files (2-D and 3-D alike).
+POSEGRAPH_BACKENDS = ("isam2", "batch")
+
+
+def is_pose_graph_run(spec: str, backend: str) -> bool:
+    """Whether ``--dataset spec --backend backend`` is a pose-graph solve: a
+    g2o/TORO file (not a built-in name) with ``isam2`` or ``batch``. Filters on
+    2-D pose-graph files still stream them frame by frame (odometry only)."""
+    if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
+        return False
+    from graphslam.sources.posegraph_files import is_pose_graph_file
+
+    return is_pose_graph_file(spec)
+
+
+def load_pose_graph(spec: str | Path, toro_noise: str = "information"):
+    """A g2o or TORO pose-graph file, 2-D or 3-D, as a :class:`slamcore.posegraph.PoseGraph`."""
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+
+    return read_pose_graph_file(spec, toro_noise)
+
+
+def pose_graph_config(config: ConfigSource = None, overrides: dict | None = None):
+    """The pose-graph solver's settings, section ``[posegraph]``."""
+    from graphslam.backends.posegraph.config import PoseGraphConfig
+
+    return load_section(PoseGraphConfig, config, overrides)
 
 
 def make_backend(name: str, *, config: ConfigSource = None,

@@ -211,6 +211,17 @@ def _run_seed(cli, key):
     refused(cli(*RUN_2D, "--dataset", graph, "--seed", "7"), "--seed")
 
 
+@row("run --init")
+def _run_init(cli, key):
+    graph = str(_square_graph(cli))
+    batch = [*RUN_2D, "--dataset", graph, "--backend", "batch"]
+    lago, odometry = cli(*batch), cli(*batch, "--init", "odometry")
+    assert lago.metrics()["init"] == "lago" and odometry.metrics()["init"] == "odometry"
+    assert lago.metrics()["initial_cost"] != odometry.metrics()["initial_cost"]
+    refused(cli(*RUN_2D, "--init", "lago"), "pose-graph files only")
+    refused(cli(*batch, "--init", "chordal"), "3-D graphs")
+
+
 @row("run --out")
 def _run_out(cli, key):
     target = cli.path("here")

@@ -39,6 +39,7 @@ class RunResult:
         associations: per processed observation ``(true_id, assigned_id)``,
             where the data has ground-truth landmark ids.
         loop_closures_skipped: constraints a back end could not use.
+        numerical_recoveries: fallbacks the back end took (another factorisation).
     """
 
     dataset: Dataset
@@ -49,6 +50,7 @@ class RunResult:
     interrupted: bool = False
     associations: list[tuple[int, int | None]] = field(default_factory=list)
     loop_closures_skipped: int = 0
+    numerical_recoveries: list[str] = field(default_factory=list)
 
 
 def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
@@ -84,7 +86,7 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
     return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
-                     assoc, counters["skipped"])
+                     assoc, counters["skipped"], backend.numerical_recoveries())
 
 
 def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
@@ -161,7 +163,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         backend_s=result.wall_s,
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
         interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
-        association=metrics.association_accuracy(result.associations))
+        association=metrics.association_accuracy(result.associations),
+        numerical_recoveries=result.numerical_recoveries or None)
 
 
 def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,

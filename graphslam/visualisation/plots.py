@@ -60,3 +60,33 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarray,
+                    odometry: np.ndarray, rejected: np.ndarray) -> Path:
+    """PNG of an optimised pose graph seen from above (3-D graphs projected on x-y):
+    the odometry chain, kept closures (thin, grey) and rejected closures (red)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    xy = np.asarray(xyz)[:, :2]
+    fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
+    kept = ~odometry & ~rejected
+    for mask, color, width, label in ((kept, "0.75", 0.3, f"closures kept ({kept.sum()})"),
+                                      (odometry, "C0", 0.8, "odometry"),
+                                      (~odometry & rejected, "C3", 1.0,
+                                       f"closures rejected ({(~odometry & rejected).sum()})")):
+        segments = np.stack([xy[edge_rows[mask, 0]], xy[edge_rows[mask, 1]]], axis=1)
+        ax.add_collection(LineCollection(segments, colors=color, linewidths=width, label=label))
+    ax.autoscale()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    ax.legend(loc="best", fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

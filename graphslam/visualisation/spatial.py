@@ -247,3 +247,30 @@ def grid_lines(size, cell: int) -> list[np.ndarray]:
     lines = [np.array([[x - 0.5, -0.5], [x - 0.5, H - 0.5]]) for x in range(cell, W, cell)]
     lines += [np.array([[-0.5, y - 0.5], [W - 0.5, y - 0.5]]) for y in range(cell, H, cell)]
     return lines
+
+
+#: Pose-graph recordings: odometry chain, closures kept, closures rejected.
+ODOMETRY_COLOR = PALETTE[0]
+KEPT_CLOSURE_COLOR = (44, 160, 44, 110)
+REJECTED_CLOSURE_COLOR = (214, 39, 40)
+
+
+def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarray) -> None:
+    """The optimised pose graph (2-D views for 2-D graphs, 3-D otherwise):
+    ``world/posegraph/{odometry,closures_kept,closures_rejected}``; rejected
+    closures are drawn in red over the kept (translucent green) ones."""
+    from slamcore.posegraph import params_to_matrix
+
+    import rerun as rr
+    T = params_to_matrix(params, graph.rotation)
+    xyz = T[:, :graph.dim, -1]
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    odometry = graph.odometry_mask()
+    strips = rr.LineStrips2D if graph.dim == 2 else rr.LineStrips3D
+    parts = {"odometry": (odometry, ODOMETRY_COLOR, 0.02),
+             "closures_kept": (~odometry & ~rejected, KEPT_CLOSURE_COLOR, 0.01),
+             "closures_rejected": (~odometry & rejected, REJECTED_CLOSURE_COLOR, 0.03)}
+    for name, (mask, color, radius) in parts.items():
+        segments = np.stack([xyz[rows[mask, 0]], xyz[rows[mask, 1]]], axis=1)
+        log.rec.log(f"world/posegraph/{name}", strips(segments, colors=[color], radii=radius),
+                    static=True)

@@ -110,3 +110,8 @@ class Backend(ABC):
         """
         return self.estimate(with_covariances=True).current_covariance
 
+
+    def numerical_recoveries(self) -> list[str]:
+        """Numerical fallbacks the back end took (e.g. another factorisation), one
+        sentence each, so that the summary and ``metrics.json`` can say so."""
+        return []

@@ -67,6 +67,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
+from graphslam.backends import factorization as fact
 from slamcore.planar.backend import Backend
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, Prediction
@@ -111,6 +112,10 @@ class Isam2Config:
         gate_polish_rounds: with the gate and an "lm" polish, how many times
             every closure may be re-tested against the polished solution
             (kept set = closures within the gate) and the polish redone.
+        factorization: "auto" (Cholesky; on an indeterminate system, QR from
+            then on, reported by :meth:`Isam2Backend.numerical_recoveries`),
+            "cholesky" (no fallback) or "qr"; see
+            :mod:`graphslam.backends.factorization`.
     """
 
     SECTION: ClassVar[str] = "isam2"
@@ -128,6 +133,7 @@ class Isam2Config:
     gate_min_support: int = 2
     gate_scale_from_data: bool = True
     gate_polish_rounds: int = 3
+    factorization: str = "auto"
 
     def __post_init__(self):
         if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
@@ -152,6 +158,8 @@ class Isam2Config:
             raise ConfigError("isam2.gate_window must be >= 1")
         if self.gate_polish_rounds < 0:
             raise ConfigError("isam2.gate_polish_rounds must be >= 0")
+        if self.factorization not in fact.FACTORIZATIONS:
+            raise ConfigError("isam2.factorization must be auto, cholesky or qr")
 
     def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
         """Gaussian noise of a closure, wrapped in the configured robust kernel."""
@@ -162,7 +170,7 @@ class Isam2Config:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.relinearize_threshold)
         params.relinearizeSkip = self.relinearize_skip
-        return params
+        return fact.isam2_factorization(params, self.factorization)
 
 
 class Isam2Backend(Backend):
@@ -193,6 +201,7 @@ class Isam2Backend(Backend):
         self._closures_near: dict[int, list[list]] = {}
         self._dropped: set[int] = set()  # factor indices the gated polish left out
         self._gate_rounds = 0  # LM solves of the last gated polish (diagnostics)
+        self._recoveries: list[str] = []  # numerical fallbacks taken, for the summary
 
     # --- the contract -------------------------------------------------------
 
@@ -341,6 +350,10 @@ class Isam2Backend(Backend):
         dropped by the gated polish, or given a GNC weight below 0.5."""
         self._flush()
         return list(self._held_back) + [self._loop_closures[i] for i in sorted(self._dropped)]
+
+    def numerical_recoveries(self) -> list[str]:
+        """Fallbacks taken because a factorisation failed, one sentence each."""
+        return list(self._recoveries)
 
     # --- internals ----------------------------------------------------------
 
@@ -546,7 +559,25 @@ class Isam2Backend(Backend):
         self._n_factors += graph.size()
         self._polished = None  # new information invalidates a previous polish
         self._dropped = set()
-        self._isam.update(graph, values)
+        try:
+            self._isam.update(graph, values)
+        except RuntimeError as exc:
+            self._recover(exc)
+
+    def _recover(self, exc: RuntimeError) -> None:
+        """Cholesky met an indeterminate system: QR from here on (``auto``), else one line."""
+        where = fact.failed_variable(exc) or "?"
+        if not fact.is_indeterminate(exc):
+            raise exc
+        if self.config.factorization != "auto" or self._recoveries:
+            raise GraphSlamError(
+                f"isam2: indeterminate linear system near {where} with "
+                f"{self.config.factorization} factorization (isam2.factorization = "
+                f"\"auto\" falls back to QR)") from None
+        self._isam = fact.rebuild_with_qr(self._isam, self.config.isam2_params())
+        self._recoveries.append(
+            f"iSAM2 Cholesky found an indeterminate system near {where} at pose "
+            f"{self._pose_ids[-1]}; refactored with QR from there on")
 
     def _marginals(self, values: gtsam.Values) -> gtsam.Marginals:
         return gtsam.Marginals(self.factor_graph(), values)

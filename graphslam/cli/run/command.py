@@ -17,7 +17,11 @@ datasets:
   victoria-park   Victoria Park (gtsam wheel), trees seen by laser, no ground truth
   city10000       city10000 pose graph with ground truth (gtsam wheel)
   w10000          w10000 Manhattan pose graph (gtsam wheel)
-  PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
+  PATH            a pose graph, g2o or TORO, 2-D or 3-D (VERTEX_SE2/EDGE_SE2,
+                  VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX2/EDGE2, VERTEX3/EDGE3);
+                  --backend isam2 (one update per pose, then LM) or batch (LM
+                  from --init); writes graph.g2o or graph.graph (input format,
+                  vertices at the estimate) and closures.csv
   synthetic-images  rendered textured room, VGA, noisy odometry (visual SLAM;
                   [synthetic_images] of --config)
   FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder
@@ -65,7 +69,7 @@ examples:
 
 def register(sub) -> None:
     """Add the ``run`` sub-command to the ``graphslam`` parser."""
-    from graphslam.registry import BACKENDS
+    from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
 
     p = sub.add_parser(
         "run", help="run SLAM on a dataset and write trajectory, map, metrics, recording",
@@ -75,8 +79,9 @@ def register(sub) -> None:
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
                        help="built-in dataset name, pose-graph file or image-sequence folder "
                             "(default: synthetic)")
-    p.add_argument("--backend", default="isam2", choices=BACKENDS,
-                       help="estimator (default: isam2)")
+    p.add_argument("--backend", default="isam2",
+                   choices=BACKENDS + tuple(b for b in POSEGRAPH_BACKENDS if b not in BACKENDS),
+                   help="estimator (default: isam2; batch: pose-graph files only)")
     p.add_argument("--seed", type=int, default=None,
                        help="seed of the synthetic worlds, derived odometry, FastSLAM's "
                             "particles and the visual EKF's RANSAC (default: config file, "
@@ -101,6 +106,12 @@ def register(sub) -> None:
                        help="log the full estimate every N steps (default: about 50 "
                             "snapshots; image sequences: every 5 frames)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    graphs = p.add_argument_group("pose-graph files")
+    graphs.add_argument("--init", default=None,
+                        choices=("auto", "odometry", "vertices", "lago", "chordal", "shonan"),
+                        help="start of the batch solve (and candidate start of isam2's polish): "
+                             "auto = lago in 2-D, chordal in 3-D (default: [posegraph] of "
+                             "--config, else auto)")
     vis = p.add_argument_group("image sequences")
     vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
                      help="corner detector and matching (default: [tracker] of --config, else harris)")
@@ -133,6 +144,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
+    if registry.is_pose_graph_run(args.dataset, args.backend):
+        from graphslam.cli.run import posegraph
+
+        return posegraph.run(args)
+    from graphslam.cli.run.posegraph import check_backend
+
+    check_backend(args)
     if registry.is_visual_dataset(args.dataset):
         from graphslam.cli.run import spatial
 

@@ -98,6 +98,8 @@ def format_summary(metrics) -> str:
     ]
     if metrics.loop_closures_skipped:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
+    for note in metrics.numerical_recoveries or ():
+        rows.append(("numerical recovery", note))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

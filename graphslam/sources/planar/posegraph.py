@@ -40,12 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.sources.posegraph_files import parse_id
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import Frame, LoopClosure, Odometry
 from slamcore.planar.geometry import wrap_angle
 
 NOISE_FORMATS = ("auto", "graph", "toro", "cov", "g2o")
+#: Pose ids become ``X(id)`` keys, whose index has 56 bits.
+SYMBOL_INDEX_LIMIT = 2**56
 
 #: City10000 pose noise sigmas [x_m, y_m, theta_rad], from gtsam's C++ examples
 #: (examples/City10000.h and Hybrid_City10000.cpp: ``kPoseNoiseModel`` =
@@ -61,7 +64,7 @@ def iter_lines(path):
     """
     p = Path(path)
     try:
-        fh = open(p, encoding="utf-8")
+        fh = open(p, encoding="utf-8-sig")  # -sig: a byte-order mark is not a tag
     except OSError as exc:
         raise InputError(f"cannot open file: {exc.strerror or exc}", p) from None
     with fh:
@@ -90,18 +93,13 @@ def parse_floats(tokens, path, line_no, what="value"):
 
 
 def parse_int(token, path, line_no, what="id"):
-    """A token as an int (``"3"``, also ``"3.0"``), or InputError."""
-    try:
-        return int(token)
-    except ValueError:
-        pass
-    try:
-        v = float(token)
-    except ValueError:
-        raise InputError(f"{what} {token!r} is not an integer", path, line_no) from None
-    if not math.isfinite(v) or v != int(v):
-        raise InputError(f"{what} {token!r} is not an integer", path, line_no)
-    return int(v)
+    """A decimal id as a Python int (never through a float), from 0 to the
+    largest index a gtsam symbol key holds (``X(id)``: 2**56 - 1), or InputError."""
+    value = parse_id(token, path, line_no, what)
+    if value >= SYMBOL_INDEX_LIMIT:
+        raise InputError(f"{what} {token} is too large for a gtsam symbol key (max 2**56 - 1)",
+                         path, line_no)
+    return value
 
 
 def check_count(tokens, expected, path, line_no, layout):
@@ -175,7 +173,8 @@ def group_edges(edges, path, pose_lines=None, ground_truth=None):
                     LoopClosure(a, b, delta, cov, source="dataset"))
         except MeasurementError as exc:
             raise InputError(str(exc), path, line_no) from None
-    for k in range(first + 1, last + 1):
+    _check_no_gap(sorted(ids), first_mention, path)
+    for k in range(first + 1, last + 1):  # no gap: as many ids as lines, at most
         if k not in odometry:
             mentions = [first_mention.get(k), (pose_lines or {}).get(k)]
             mentions = [m for m in mentions if m is not None]
@@ -194,6 +193,15 @@ def group_edges(edges, path, pose_lines=None, ground_truth=None):
             wTb_true=None if ground_truth is None else ground_truth[i],
         ))
     return frames
+
+
+def _check_no_gap(ids: list[int], first_mention: dict[int, int], path) -> None:
+    """InputError at the first gap in the sorted ids, found without looping over it."""
+    gaps = np.flatnonzero(np.diff(np.array(ids, dtype=object)) != 1)
+    if len(gaps):
+        after = ids[gaps[0] + 1]
+        raise InputError(f"pose {ids[gaps[0]] + 1} is missing (gap in pose ids)", path,
+                         first_mention.get(after))
 
 
 def wrapped_delta(values):
@@ -234,6 +242,12 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name):
             continue
         else:
             raise InputError(f"unknown tag {tag!r}", path, line_no)
+    if pose_lines:  # with vertex lines, an edge to an undeclared pose is an error
+        for line_no, a, b, _, _ in edges:
+            for k in (a, b):
+                if k not in pose_lines:
+                    raise InputError(f"edge names pose {k}, which has no vertex line", path,
+                                     line_no)
     return _dataset(name, group_edges(edges, path, pose_lines), path)
 
 

@@ -1,0 +1,58 @@
+"""Settings of the pose-graph solver (section ``[posegraph]``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+from slamcore.config import bounded, validate
+
+#: How the batch solve is started (``--init``).
+INIT_METHODS = ("auto", "odometry", "vertices", "lago", "chordal", "shonan")
+
+
+@dataclass(frozen=True)
+class PoseGraphConfig:
+    """Pose-graph solver settings.
+
+    Attributes:
+        init: start of the batch solve: ``odometry`` (edges composed along a
+            spanning tree that prefers the odometry chain), ``vertices`` (the
+            file's), ``lago`` (2-D, ``gtsam.lago``), ``chordal`` (3-D,
+            ``gtsam.InitializePose3``), ``shonan`` (``gtsam.ShonanAveraging2/3``
+            rotations, certified when its minimum eigenvalue is >= 0), or
+            ``auto`` = lago in 2-D, chordal in 3-D. iSAM2's polish starts from
+            whichever of the iSAM2 estimate and this start has the lower cost.
+        factorization: ``auto`` (Cholesky; QR where it meets an indeterminate
+            system; batch LM if QR fails too), ``cholesky`` or ``qr``.
+        max_iterations, relative_error_tol, absolute_error_tol: Levenberg-Marquardt
+            stopping rules; the tolerances are tight because the benchmark
+            graphs' cost surfaces are flat near the optimum and gtsam's default
+            1e-5 stops short of it by more than 1e-6 relative.
+        relinearize_threshold, relinearize_skip: iSAM2's, as in ``[isam2]``.
+        polish: batch LM after iSAM2.
+        robust_closures: ``gnc``: the solve (or the polish) is gtsam's
+            GncLMOptimizer with every odometry edge a known inlier, so closures
+            it weighs below 0.5 are rejected (listed in ``closures.csv``).
+        prior_sigma: gauge prior on the first pose (or the ``FIX`` poses), in
+            metres / radians; it costs nothing at the optimum.
+        toro_noise: how TORO files' edge numbers are read: ``information`` (the
+            TORO format) or ``sqrt_information`` (files written by iSAM, such as
+            gtsam's ``sphere2500.txt``: the upper triangle ``R`` of ``R^T R``).
+    """
+
+    SECTION: ClassVar[str] = "posegraph"
+    init: Literal["auto", "odometry", "vertices", "lago", "chordal", "shonan"] = "auto"
+    factorization: Literal["auto", "cholesky", "qr"] = "auto"
+    max_iterations: int = bounded(200, min=1, max=100_000)
+    relative_error_tol: float = bounded(1e-10, gt=0.0, lt=1.0)
+    absolute_error_tol: float = bounded(1e-10, gt=0.0)
+    relinearize_threshold: float = bounded(0.1, gt=0.0)
+    relinearize_skip: int = bounded(10, min=1, max=1_000_000)
+    polish: bool = True
+    robust_closures: Literal["none", "gnc"] = "none"
+    prior_sigma: float = bounded(1e-3, gt=0.0)
+    toro_noise: Literal["information", "sqrt_information"] = "information"
+
+    def __post_init__(self):
+        validate(self)

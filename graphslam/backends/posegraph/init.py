@@ -1,0 +1,121 @@
+"""Starting points of the batch pose-graph solve (``--init``).
+
+LAGO (2-D) and the chordal relaxation (3-D) first solve the rotations alone,
+a problem with a unique minimum in practice, then the translations linearly:
+Levenberg-Marquardt from there reaches the global optimum where it stalls from
+the odometry chain (a graph that winds round a torus several times: 2.8x the
+optimum from odometry in ``tests/test_posegraph_solver.py``). Shonan averaging
+solves the rotations by a convex relaxation lifted to SO(p) and returns a
+certificate: a minimum eigenvalue >= 0 (to numerical tolerance) of its
+certificate matrix proves the **rotation averaging** problem (chordal cost,
+isotropic rotation weights taken from the information) solved globally; it
+does not certify the full pose-graph cost under the file's anisotropic
+information, which LM then minimises locally from that start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from graphslam.backends.posegraph import factors as fx
+from slamcore.errors import GraphSlamError
+from slamcore.posegraph import PoseGraph, chain_initialisation
+
+
+@dataclass
+class Start:
+    """An initial estimate. ``certificate``: Shonan's minimum eigenvalue (else None)."""
+
+    method: str
+    values: gtsam.Values
+    certificate: float | None = None
+
+
+def resolve(method: str, dim: int) -> str:
+    if method == "auto":
+        return "lago" if dim == 2 else "chordal"
+    if method == "lago" and dim != 2:
+        raise GraphSlamError("--init lago is for 2-D graphs; use chordal (or shonan) in 3-D")
+    if method == "chordal" and dim != 3:
+        raise GraphSlamError("--init chordal is for 3-D graphs; use lago (or shonan) in 2-D")
+    return method
+
+
+def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
+    """The start named by ``method`` (``auto`` resolved by dimension)."""
+    method = resolve(method, graph.dim)
+    if method == "vertices":
+        return Start(method, fx.values_of(graph, graph.vertices))
+    if method == "odometry":
+        return Start(method, fx.values_of(graph, chain_initialisation(graph)))
+    if method == "shonan":
+        return _shonan(graph)
+    # LAGO and the chordal relaxation take diagonal noise only: the diagonal of
+    # each information matrix (a start, not the cost being minimised)
+    pose_graph = gtsam.NonlinearFactorGraph()
+    for e in range(graph.n_edges):
+        pose_graph.add(fx.between(graph, e, fx.diagonal_model(graph.information[e])))
+    anchor = int(fx.anchors(graph)[0])
+    first = fx.pose(graph.vertices[graph.index_of([anchor])[0]], graph.rotation)
+    pose_graph.add(fx.prior(graph, anchor, first, sigma))
+    if method == "lago":
+        return Start(method, gtsam.lago.initialize(pose_graph))
+    return Start(method, gtsam.InitializePose3.initialize(pose_graph))
+
+
+def _shonan(graph: PoseGraph) -> Start:
+    """Shonan rotations (certified or not), translations by a linear solve.
+
+    Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id.
+    """
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    factor = gtsam.BetweenFactorPose2 if graph.dim == 2 else gtsam.BetweenFactorPose3
+    ranked = [factor(int(a), int(b), fx.pose(graph.measurements[e], graph.rotation),
+                     fx.noise_model(graph.information[e])) for e, (a, b) in enumerate(rows)]
+    lm = gtsam.LevenbergMarquardtParams.CeresDefaults()
+    if graph.dim == 2:
+        shonan = gtsam.ShonanAveraging2(ranked, gtsam.ShonanAveragingParameters2(lm))
+    else:
+        shonan = gtsam.ShonanAveraging3(ranked, gtsam.ShonanAveragingParameters3(lm))
+    p_min = graph.dim
+    rotations, min_eigenvalue = shonan.run(shonan.initializeRandomly(), p_min, p_min + 7)
+    rot_of = rotations.atRot2 if graph.dim == 2 else rotations.atRot3
+    R = np.array([np.asarray(rot_of(r).matrix()) for r in range(graph.n_poses)])
+    return Start("shonan", _with_translations(graph, R, rows), float(min_eigenvalue))
+
+
+def _with_translations(graph: PoseGraph, R: np.ndarray, rows: np.ndarray) -> gtsam.Values:
+    """Poses from fixed rotations ``R`` (N, d, d): translations by weighted least
+    squares on ``t_b - t_a = R_a t_ab`` (the translation block of the information
+    as weight), the first pose at the origin."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    d, n = graph.dim, graph.n_poses
+    r_idx, c_idx, vals = [], [], []
+    rhs = np.zeros(graph.n_edges * d + d)
+    for e, (ia, ib) in enumerate(rows.tolist()):
+        W = np.linalg.cholesky(graph.information[e][:d, :d]).T  # whitens the translation
+        for i in range(d):
+            for j in range(d):
+                r_idx += [e * d + i, e * d + i]
+                c_idx += [ib * d + j, ia * d + j]
+                vals += [W[i, j], -W[i, j]]
+        rhs[e * d:e * d + d] = W @ (R[ia] @ graph.measurements[e, :d])
+    for i in range(d):  # gauge
+        r_idx.append(graph.n_edges * d + i)
+        c_idx.append(i)
+        vals.append(1.0)
+    A = coo_matrix((vals, (r_idx, c_idx)), shape=(len(rhs), n * d)).tocsr()
+    t = spsolve((A.T @ A).tocsc(), A.T @ rhs).reshape(-1, d)
+    values = gtsam.Values()
+    for row, k in enumerate(graph.ids.tolist()):
+        if d == 2:
+            values.insert(k, gtsam.Pose2(gtsam.Rot2.fromCosSin(R[row][0, 0], R[row][1, 0]),
+                                         t[row]))
+        else:
+            values.insert(k, gtsam.Pose3(gtsam.Rot3(R[row]), t[row]))
+    return values

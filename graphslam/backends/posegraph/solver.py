@@ -1,0 +1,263 @@
+"""Pose-graph optimisation, 2-D and 3-D alike: incremental (iSAM2) or batch.
+
+``isam2``: one update per pose in id order (:mod:`.schedule`), each new pose
+initialised from an edge to the current estimate; per step only the
+neighbour's estimate is read, so the per-step cost does not grow with the run.
+Then (``polish``) batch Levenberg-Marquardt from the better (lower cost) of the
+iSAM2 estimate and the ``init`` start. ``batch``: LM (or GNC) from ``init``.
+
+Factorisation ``auto``: Cholesky first. iSAM2 meeting an indeterminate system
+is rebuilt with QR at its current values and goes on; if QR fails too, the
+rest of the graph is solved in one batch LM. A batch LM that fails with
+Cholesky is re-run with QR. Every such recovery is one sentence in
+:attr:`SolveResult.recoveries`, which the summary and ``metrics.json`` show.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from graphslam.backends import factorization as fact
+from graphslam.backends.posegraph import factors as fx
+from graphslam.backends.posegraph import init as initialisers
+from graphslam.backends.posegraph.config import PoseGraphConfig
+from graphslam.backends.posegraph.schedule import schedule
+from slamcore.errors import GraphSlamError
+from slamcore.posegraph import PoseGraph
+
+#: Back ends of ``graphslam run`` on pose-graph files.
+SOLVERS = ("isam2", "batch")
+
+
+@dataclass
+class SolveResult:
+    """What a pose-graph solve produced.
+
+    Attributes:
+        params: (N, P) optimised poses, parameters as in the graph.
+        init_method: the start the final LM ran from (``isam2`` for the
+            incremental estimate); initial_cost: its cost; final_cost: the result's
+            (both ``0.5 sum ||whitened residual||^2`` over the file's edges).
+        iterations: LM iterations (None for GNC).
+        certificate: Shonan's minimum eigenvalue, when ``shonan`` was used.
+        residuals: (M,) whitened residual norm of every edge at the result.
+        rejected: (M,) bool, closures GNC weighed below 0.5.
+        recoveries: numerical fallbacks taken, one sentence each.
+        isam2_s: time of the incremental part alone (None for batch).
+    """
+
+    solver: str
+    params: np.ndarray
+    init_method: str
+    initial_cost: float
+    final_cost: float
+    iterations: int | None
+    residuals: np.ndarray
+    rejected: np.ndarray
+    certificate: float | None = None
+    recoveries: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+    isam2_s: float | None = None
+    isam2_cost: float | None = None
+
+
+def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
+          solver: str = "isam2") -> SolveResult:
+    """Optimise ``graph`` with ``solver`` (``isam2`` or ``batch``)."""
+    config = config or PoseGraphConfig()
+    if solver not in SOLVERS:
+        raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: isam2, batch)")
+    t0 = time.perf_counter()
+    edges = fx.edge_graph(graph)
+    recoveries: list[str] = []
+    isam2_s = isam2_cost = None
+    if solver == "isam2":
+        t1 = time.perf_counter()
+        incremental = Isam2PoseGraph(graph, config, edges)
+        values = incremental.run()
+        recoveries += incremental.recoveries
+        isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
+        if not config.polish:
+            return _result(graph, solver, initialisers.Start("isam2", values), values, None,
+                           edges, np.zeros(graph.n_edges, dtype=bool), recoveries, t0,
+                           isam2_s, isam2_cost)
+        start = initialisers.initial(graph, config.init, config.prior_sigma)
+        if isam2_cost <= fx.cost(graph, start.values, edges):
+            start = initialisers.Start("isam2", values)
+    else:
+        start = initialisers.initial(graph, config.init, config.prior_sigma)
+    full = with_priors(graph, edges, start.values, config.prior_sigma)
+    if config.robust_closures == "gnc":
+        result, rejected, iterations = _gnc(graph, full, start.values, config)
+    else:
+        result, iterations = lm(full, start.values, config, recoveries)
+        rejected = np.zeros(graph.n_edges, dtype=bool)
+    return _result(graph, solver, start, result, iterations, edges, rejected, recoveries, t0,
+                   isam2_s, isam2_cost)
+
+
+def _result(graph, solver, start, values, iterations, edges, rejected, recoveries, t0,
+            isam2_s, isam2_cost) -> SolveResult:
+    residuals = np.sqrt([2.0 * edges.at(i).error(values) for i in range(edges.size())])
+    return SolveResult(solver, fx.params_from(graph, values), start.method,
+                       fx.cost(graph, start.values, edges), fx.cost(graph, values, edges),
+                       iterations, residuals, rejected, start.certificate, recoveries,
+                       time.perf_counter() - t0, isam2_s, isam2_cost)
+
+
+def with_priors(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                sigma: float) -> gtsam.NonlinearFactorGraph:
+    """The edges plus the gauge priors (FIX poses at their vertex, else the first
+    pose where ``values`` has it). Priors come last: edge ``e`` is factor ``e``."""
+    full = gtsam.NonlinearFactorGraph(edges)
+    for k in fx.anchors(graph).tolist():
+        held = (fx.pose(graph.vertices[graph.index_of([k])[0]], graph.rotation)
+                if len(graph.fixed) else _at(graph, values, k))
+        full.add(fx.prior(graph, k, held, sigma))
+    return full
+
+
+def _at(graph: PoseGraph, values: gtsam.Values, k: int):
+    return values.atPose2(k) if graph.dim == 2 else values.atPose3(k)
+
+
+def lm_params(config: PoseGraphConfig, factorization: str) -> gtsam.LevenbergMarquardtParams:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.max_iterations)
+    params.setRelativeErrorTol(config.relative_error_tol)
+    params.setAbsoluteErrorTol(config.absolute_error_tol)
+    params.setLinearSolverType("MULTIFRONTAL_QR" if factorization == "qr"
+                               else "MULTIFRONTAL_CHOLESKY")
+    return params
+
+
+def lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGraphConfig,
+       recoveries: list[str]) -> tuple[gtsam.Values, int]:
+    """Levenberg-Marquardt; ``auto`` re-runs with QR where Cholesky fails."""
+    kinds = ["cholesky", "qr"] if config.factorization == "auto" else [config.factorization]
+    for i, kind in enumerate(kinds):
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(config, kind))
+        try:
+            result = optimizer.optimize()
+        except RuntimeError as exc:
+            if not fact.is_indeterminate(exc):
+                raise
+            where = fact.failed_variable(exc) or "?"
+            if i == len(kinds) - 1:
+                raise GraphSlamError(f"batch LM: indeterminate linear system near {where} with "
+                                     f"{kind} factorization") from None
+            recoveries.append(f"batch LM: Cholesky found an indeterminate system near {where}; "
+                              "re-run with QR")
+            continue
+        return result, int(optimizer.iterations())
+    raise AssertionError("unreachable")
+
+
+def _gnc(graph: PoseGraph, full: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+         config: PoseGraphConfig) -> tuple[gtsam.Values, np.ndarray, None]:
+    """GNC with the odometry edges and priors known inliers; closures weighed."""
+    closures = ~graph.odometry_mask()
+    params = gtsam.GncLMParams(lm_params(config, "qr" if config.factorization == "qr"
+                                         else "cholesky"))
+    params.setKnownInliers([i for i in range(full.size())
+                            if i >= graph.n_edges or not closures[i]])
+    optimizer = gtsam.GncLMOptimizer(full, values, params)
+    result = optimizer.optimize()
+    weights = np.asarray(optimizer.getWeights())[:graph.n_edges]
+    return result, closures & (weights < 0.5), None
+
+
+class Isam2PoseGraph:
+    """The incremental solve; :meth:`run` returns the iSAM2 estimate."""
+
+    def __init__(self, graph: PoseGraph, config: PoseGraphConfig,
+                 edges: gtsam.NonlinearFactorGraph):
+        self.graph, self.config, self.edges = graph, config, edges
+        self.rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+        self.steps = schedule(graph.n_poses, self.rows)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(config.relinearize_threshold)
+        params.relinearizeSkip = config.relinearize_skip
+        self.params = fact.isam2_factorization(params, config.factorization)
+        self.isam = gtsam.ISAM2(self.params)
+        self.recoveries: list[str] = []
+        self.meas = [fx.pose(m, graph.rotation) for m in graph.measurements]
+        fixed = set(graph.fixed.tolist())
+        self.anchored = fixed or {int(graph.ids[0])}
+        self.ids = graph.ids.tolist()
+        self.to_row = self.rows[:, 1].tolist()
+
+    def run(self) -> gtsam.Values:
+        for n in range(len(self.steps)):
+            if not self.step(n):
+                return self._batch_rest(n)
+        return self.isam.calculateEstimate()
+
+    def step(self, n: int) -> bool:
+        """Update ``n`` of :attr:`steps`; False when only a batch solve can go on."""
+        g, ids, step = self.graph, self.ids, self.steps[n]
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for row, e, src in step.inits:
+            k = ids[row]
+            if e < 0:
+                value = fx.pose(g.vertices[row], g.rotation)
+            else:
+                src_key = ids[src]
+                base = (_at(g, values, src_key) if values.exists(src_key)
+                        else self._estimate(src_key))
+                z = self.meas[e]
+                value = base.compose(z if self.to_row[e] == row else z.inverse())
+            values.insert(k, value)
+            if k in self.anchored:
+                held = fx.pose(g.vertices[row], g.rotation) if len(g.fixed) else value
+                factors.add(fx.prior(g, k, held, self.config.prior_sigma))
+        for e in step.edges:
+            factors.add(self.edges.at(e))
+        return self._update(factors, values, n)
+
+    def _estimate(self, key: int):
+        """One pose of the current estimate (``self.isam`` may have been rebuilt)."""
+        if self.graph.dim == 2:
+            return self.isam.calculateEstimatePose2(key)
+        return self.isam.calculateEstimatePose3(key)
+
+    def _update(self, factors, values, n: int) -> bool:
+        """One iSAM2 update; False when only a batch solve can go on."""
+        try:
+            self.isam.update(factors, values)
+            return True
+        except RuntimeError as exc:
+            if not fact.is_indeterminate(exc):
+                raise
+            where = fact.failed_variable(exc) or "?"
+            if self.config.factorization == "cholesky":
+                raise GraphSlamError(f"isam2: indeterminate linear system near {where} with "
+                                     "cholesky factorization (factorization = \"auto\" falls "
+                                     "back to QR)") from None
+            if self.config.factorization == "auto" and not self.recoveries:
+                self.recoveries.append(f"iSAM2 Cholesky found an indeterminate system near "
+                                       f"{where} at update {n}; refactored with QR from there on")
+                try:
+                    self.isam = fact.rebuild_with_qr(self.isam, self.params)
+                    return True
+                except RuntimeError as again:
+                    if not fact.is_indeterminate(again):
+                        raise
+            self.recoveries.append(f"iSAM2 QR failed too near {where} at update {n}; the "
+                                   "rest of the graph was solved by batch LM")
+            return False
+
+    def _batch_rest(self, n: int) -> gtsam.Values:
+        """All factors at the last values, remaining poses from the odometry start."""
+        values = gtsam.Values(self.isam.getLinearizationPoint())
+        chain = initialisers.initial(self.graph, "odometry", self.config.prior_sigma).values
+        for k in self.graph.ids.tolist():
+            if not values.exists(k):
+                values.insert(k, _at(self.graph, chain, k))
+        full = with_priors(self.graph, self.edges, values, self.config.prior_sigma)
+        result, _ = lm(full, values, self.config, self.recoveries)
+        return result

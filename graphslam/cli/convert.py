@@ -1,0 +1,53 @@
+"""``graphslam convert IN OUT``: a pose graph from one file format to the other."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from slamcore.errors import ConfigError
+
+FORMAT_OF_SUFFIX = {".g2o": "g2o", ".graph": "toro"}
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "convert", help="convert a pose graph between g2o and TORO (2-D and 3-D)",
+        description="Read a g2o or TORO pose graph (2-D or 3-D) and write it in the format "
+                    "that OUT's extension names (.g2o or .graph, unless --to), same dimension, "
+                    "numbers unchanged (3-D rotations re-expressed: quaternion <-> roll pitch "
+                    "yaw). g2o has no EQUIV lines: converting TORO to g2o drops them and says "
+                    "so.")
+    p.add_argument("input", type=Path, metavar="IN")
+    p.add_argument("output", type=Path, metavar="OUT")
+    p.add_argument("--to", choices=("g2o", "toro"), default=None,
+                   help="output format (default: from OUT's extension)")
+    p.add_argument("--toro-noise", choices=("information", "sqrt_information"),
+                   default="information",
+                   help="how TORO edge numbers are read and written: information (the "
+                        "format) or sqrt_information (files written by iSAM)")
+    p.set_defaults(func=cmd_convert)
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from graphslam import registry
+    from graphslam.cli.common import warn
+    from graphslam.outputs.posegraph import convert, write_pose_graph
+
+    fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
+    if fmt is None:
+        raise ConfigError(f"cannot tell the output format from {args.output.name!r}: "
+                          "name it .g2o or .graph, or pass --to g2o|toro")
+    if args.output.is_dir():
+        raise ConfigError("is a folder, not a file", args.output)
+    graph = registry.load_pose_graph(args.input, args.toro_noise)
+    converted, notes = convert(graph, fmt)
+    for note in notes:
+        warn(note)
+    try:
+        write_pose_graph(args.output, converted)
+    except OSError as exc:
+        raise ConfigError(f"cannot write: {exc.strerror or exc}", args.output) from None
+    print(f"{args.input} ({graph.dim}-D {graph.format}, {graph.n_poses} poses, "
+          f"{graph.n_edges} edges) -> {args.output} ({fmt})")
+    return 0

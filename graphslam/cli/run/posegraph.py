@@ -1,0 +1,115 @@
+"""``graphslam run`` on a pose-graph file (g2o or TORO, 2-D or 3-D) with the
+``isam2`` or ``batch`` pose-graph solver."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from graphslam.cli.common import fmt, report_outputs, summary_table
+from slamcore.errors import ConfigError, GraphSlamError
+
+#: Outputs of a pose-graph run (an earlier run's files of these names are removed).
+OUTPUTS = {"trajectory.tum", "graph.g2o", "graph.graph", "closures.csv", "metrics.json",
+           "ground_truth.tum"}
+
+
+def refuse_ignored_flags(args: argparse.Namespace) -> None:
+    """Flags a pose-graph solve cannot use are refused, one line each."""
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "rerun_every", "seed"):
+        if getattr(args, flag, None) is not None:
+            raise ConfigError(f"--{flag.replace('_', '-')} does not apply to a pose-graph "
+                              "solve (nothing is random or streamed)")
+    if args.max_steps is not None and args.max_steps < 2:
+        raise ConfigError("--max-steps must be at least 2 for a pose graph (one edge)")
+    if args.loops:
+        raise ConfigError("--loops applies to image sequences only (pose graphs bring "
+                          "their own closures)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Solve the pose graph named by ``--dataset``; returns the exit status."""
+    from graphslam import registry
+    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.pipelines import posegraph as pipeline
+
+    t0 = time.perf_counter()
+    refuse_ignored_flags(args)
+    config = registry.read_config(args.config)
+    overrides = {}
+    if args.init is not None:
+        overrides["init"] = args.init
+    if args.no_polish:
+        if args.backend != "isam2":
+            raise ConfigError("--no-polish applies to the isam2 back end only")
+        overrides["polish"] = False
+    solver_config = registry.pose_graph_config(config, overrides)
+    graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise)
+    if args.max_steps is not None:
+        from graphslam.sources.posegraph_files import truncated
+
+        graph = truncated(graph, args.max_steps)
+    truth = None
+    if args.ground_truth is not None:
+        from graphslam.sources.ground_truth import read_trajectory
+
+        truth = pipeline.ground_truth_of(graph, read_trajectory(args.ground_truth))
+    out_dir = args.out or Path("runs") / f"{graph.name}-{args.backend}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
+    result = pipeline.run(graph, args.backend, solver_config)
+    metrics = pipeline.metrics(graph, result, time.perf_counter() - t0, truth)
+    paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
+    if args.rerun != "off":
+        paths.update(record(args, graph, result, out_dir))
+    remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    return report_outputs(format_summary(metrics), out_dir, paths, False)
+
+
+def record(args, graph, result, out_dir: Path) -> dict[str, Path]:
+    """Rerun recording of the optimised graph, rejected closures in their own colour."""
+    from graphslam.cli.common import close_recorder, open_recorder
+    from graphslam.visualisation.spatial import log_pose_graph
+
+    log, mode = open_recorder(_opener, args.rerun, out_dir / "run.rrd", args.rerun_url)
+    log_pose_graph(log, graph, result.params, result.rejected)
+    close_recorder(log)
+    return {"recording": out_dir / "run.rrd"} if mode == "save" else {}
+
+
+def _opener(mode: str, path: Path, url: str | None):
+    from graphslam.visualisation.recording import RerunLog
+
+    return RerunLog(mode, path, url, application_id="graphslam-posegraph")
+
+
+def format_summary(metrics) -> str:
+    rows = [
+        ("dataset", metrics.dataset),
+        ("backend", metrics.backend),
+        ("graph", f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
+                  f"{metrics.edges} edges ({metrics.closures} closures)"),
+        ("initialisation", metrics.init),
+        ("initial cost", fmt(metrics.initial_cost, ".10g")),
+        ("final cost", fmt(metrics.final_cost, ".10g")),
+        ("LM iterations", fmt(metrics.iterations, "d")),
+        ("closures rejected", metrics.closures_rejected),
+        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f")),
+        ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
+        ("wall time [s]", fmt(metrics.wall_s, ".2f")),
+        ("back end [s]", fmt(metrics.backend_s, ".2f")),
+    ]
+    if metrics.shonan_min_eigenvalue is not None:
+        rows.append(("Shonan min eigenvalue", fmt(metrics.shonan_min_eigenvalue, ".3g")))
+    for note in metrics.numerical_recoveries or ():
+        rows.append(("numerical recovery", note))
+    return summary_table(rows)
+
+
+def check_backend(args: argparse.Namespace) -> None:
+    """``--backend batch`` and ``--init`` exist for pose-graph files only."""
+    if args.backend == "batch":
+        raise GraphSlamError("--backend batch solves pose-graph files only (g2o or TORO)")
+    if args.init is not None:
+        raise GraphSlamError("--init applies to pose-graph files only (g2o or TORO)")

@@ -1,0 +1,165 @@
+"""Run a pose-graph file through the pose-graph solver; metrics and outputs.
+
+2-D and 3-D alike. Outputs: ``trajectory.tum`` (time column = pose id),
+``graph.g2o`` or ``graph.graph`` (the input's format and dimension, vertices at
+the estimate), ``closures.csv`` and ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from graphslam.backends.posegraph.config import PoseGraphConfig
+from graphslam.backends.posegraph.solver import SolveResult, solve
+from slamcore import posegraph as pg
+from slamcore.errors import InputError
+
+#: What Shonan's certificate covers, written next to it in ``metrics.json``.
+SHONAN_CERTIFIES = ("a minimum eigenvalue >= 0 (to numerical tolerance) proves the rotation "
+                    "averaging relaxation tight, i.e. the start's rotations globally optimal for "
+                    "the chordal rotation cost; it does not certify the final pose-graph cost "
+                    "under the file's full information, which LM minimises locally from there")
+
+
+@dataclass
+class PoseGraphRunMetrics:
+    """``metrics.json`` of a pose-graph run; costs are ``0.5 sum ||whitened
+    residual||^2`` over the file's edges (the gtsam graph error)."""
+
+    dataset: str
+    backend: str
+    dim: int
+    format: str
+    poses: int
+    edges: int
+    closures: int
+    closures_rejected: int
+    init: str
+    initial_cost: float
+    final_cost: float
+    iterations: int | None
+    wall_s: float
+    backend_s: float
+    isam2_cost: float | None = None
+    isam2_s: float | None = None
+    shonan_min_eigenvalue: float | None = None
+    shonan_certifies: str | None = None
+    numerical_recoveries: list[str] | None = None
+    ate_rmse_m: float | None = None
+    odometry_ate_rmse_m: float | None = None
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
+        "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
+        "numerical_recoveries"})
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if not (f.name in self.OPTIONAL and getattr(self, f.name) is None)}
+
+
+def run(graph: pg.PoseGraph, solver: str = "isam2",
+        config: PoseGraphConfig | None = None) -> SolveResult:
+    """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`."""
+    return solve(graph, config, solver)
+
+
+def ground_truth_of(graph: pg.PoseGraph, truth) -> tuple[np.ndarray, np.ndarray]:
+    """``(ids (M,), wTc (M, 4, 4))``: the truth of the graph's poses by pose id
+    (TUM time column, KITTI line number); InputError when none matches."""
+    if truth.format == "euroc":
+        raise InputError("EuRoC ground truth has nanosecond times, not pose ids; give TUM "
+                         "(t = pose id) or KITTI (line = pose id)", truth.path)
+    if truth.stamps_s is None:
+        row_of = {k: k for k in range(len(truth.wTc))}
+    else:
+        row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist())
+                  if float(t).is_integer()}
+    rows = np.array([row_of.get(k, -1) for k in graph.ids.tolist()], dtype=np.int64)
+    if not np.any(rows >= 0):
+        raise InputError(f"no pose of {graph.name!r} has ground truth (matched by pose id)",
+                         truth.path)
+    return graph.ids[rows >= 0], np.asarray(truth.wTc)[rows[rows >= 0]]
+
+
+def ate_rmse(graph: pg.PoseGraph, params: np.ndarray, truth: tuple[np.ndarray, np.ndarray]
+             ) -> float:
+    """Aligned ATE RMSE (SE(2) in 2-D, SE(3) in 3-D) of ``params`` against ``truth``."""
+    from graphslam.evaluation import planar, spatial
+
+    gt_ids, gt_wTc = truth
+    T = trajectory_matrices(graph, params)
+    if graph.dim == 3:
+        return spatial.ate(graph.ids, T, gt_ids, gt_wTc)["rmse_m"]
+    return planar.ate(graph.ids, _xy_yaw(T), gt_ids, _xy_yaw(gt_wTc))["rmse_m"]
+
+
+def _xy_yaw(T: np.ndarray) -> np.ndarray:
+    return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
+
+
+def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
+            truth: tuple[np.ndarray, np.ndarray] | None = None) -> PoseGraphRunMetrics:
+    """The run's metrics; ATE of the estimate and of the odometry chain when ``truth``."""
+    closures = ~graph.odometry_mask()
+    shonan = result.certificate
+    return PoseGraphRunMetrics(
+        dataset=graph.name, backend=result.solver, dim=graph.dim, format=graph.format,
+        poses=graph.n_poses, edges=graph.n_edges, closures=int(closures.sum()),
+        closures_rejected=int(result.rejected.sum()), init=result.init_method,
+        initial_cost=result.initial_cost, final_cost=result.final_cost,
+        iterations=result.iterations, wall_s=wall_s, backend_s=result.wall_s,
+        isam2_cost=result.isam2_cost, isam2_s=result.isam2_s, shonan_min_eigenvalue=shonan,
+        shonan_certifies=None if shonan is None else SHONAN_CERTIFIES,
+        numerical_recoveries=result.recoveries or None,
+        ate_rmse_m=None if truth is None else ate_rmse(graph, result.params, truth),
+        odometry_ate_rmse_m=None if truth is None else ate_rmse(
+            graph, pg.chain_initialisation(graph), truth))
+
+
+def trajectory_matrices(graph: pg.PoseGraph, params: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses (2-D ones lifted to the plane z = 0)."""
+    T = pg.params_to_matrix(params, graph.rotation)
+    if graph.dim == 3:
+        return T
+    out = np.repeat(np.eye(4)[None], len(T), axis=0)
+    out[:, :2, :2], out[:, :2, 3] = T[:, :2, :2], T[:, :2, 2]
+    return out
+
+
+def write_outputs(graph: pg.PoseGraph, result: SolveResult, out_dir: Path,
+                  run_metrics: PoseGraphRunMetrics,
+                  truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
+    """Write trajectory, graph, closures, metrics (and ``ground_truth.tum`` of the
+    poses with truth, same time column); return their paths."""
+    from graphslam.outputs import posegraph as graph_writer
+    from graphslam.outputs import writers
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"trajectory": out_dir / "trajectory.tum",
+             "graph": out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format]),
+             "closures": out_dir / "closures.csv", "metrics": out_dir / "metrics.json"}
+    writers.write_tum_spatial(paths["trajectory"], graph.ids.astype(float),
+                              trajectory_matrices(graph, result.params))
+    graph_writer.write_pose_graph(paths["graph"], graph.with_vertices(result.params))
+    write_closures_csv(paths["closures"], graph, result)
+    writers.write_json(paths["metrics"], run_metrics.to_dict())
+    if truth is not None:
+        paths["ground_truth"] = out_dir / "ground_truth.tum"
+        writers.write_tum_spatial(paths["ground_truth"], truth[0].astype(float), truth[1])
+    return paths
+
+
+def write_closures_csv(path: Path, graph: pg.PoseGraph, result: SolveResult) -> None:
+    """Every non-odometry edge: ``from,to,line,kept,whitened_residual``."""
+    closures = np.flatnonzero(~graph.odometry_mask())
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("from,to,line,kept,whitened_residual\n")
+        for e in closures.tolist():
+            a, b = graph.edges[e].tolist()
+            f.write(f"{a},{b},{int(graph.edge_lines[e])},{int(not result.rejected[e])},"
+                    f"{result.residuals[e]:.9g}\n")

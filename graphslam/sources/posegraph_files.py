@@ -1,0 +1,331 @@
+"""Readers of g2o and TORO pose-graph files, 2-D and 3-D, into :class:`PoseGraph`.
+
+Tags (the format and dimension are told from the tags, not the file name):
+
+=================  =========================================================
+g2o 2-D            ``VERTEX_SE2 id x y th``;
+                   ``EDGE_SE2 i j dx dy dth`` + 6 information numbers, upper
+                   triangle row by row (``i11 i12 i13 i22 i23 i33``)
+g2o 3-D            ``VERTEX_SE3:QUAT id x y z qx qy qz qw``;
+                   ``EDGE_SE3:QUAT i j x y z qx qy qz qw`` + 21 numbers, the
+                   upper triangle of the 6x6 information, translation first
+TORO 2-D           ``VERTEX2 id x y th``; ``EDGE2 i j dx dy dth`` +
+                   ``ixx ixy iyy ith ixt iyt`` (TORO's own order); a line
+                   whose six numbers read ``a 0 0 b 0 c`` is in g2o's order
+                   (gtsam's ``w20000.txt``, ``w100_30.g2o`` are written so;
+                   ``gtsam.load2D`` tells them apart by the same pattern)
+TORO 3-D           ``VERTEX3 id x y z roll pitch yaw``; ``EDGE3 i j x y z roll
+                   pitch yaw`` + 21 numbers as in g2o 3-D
+both               ``FIX id ...`` (poses held at their vertex), ``EQUIV i j``
+                   (kept and written back, not used by the solver, as in gtsam)
+=================  =========================================================
+
+The numbers after an edge are an **information** matrix in every format (the
+g2o and TORO specifications; note ``gtsam.load2D`` reads TORO's as a
+covariance when its zero pattern says so: identical on w10000, whose are
+identity). Files written by iSAM use the TORO tags with the upper triangle of
+the *square-root* information instead: gtsam's ``sphere2500.txt`` is one (its
+measurements' residuals against ``sphere2500_groundtruth.txt`` have standard
+deviations 0.10 m and 0.010/0.010/0.040 rad, the inverses of its numbers 10
+and 100/100/25). Nothing in such a file tells the two apart; read as
+information, its optimum (364.49) is neither gtsam's (which takes the numbers
+in its own rotation-first order) nor that of the true noise: pass
+``toro_noise="sqrt_information"`` (``[posegraph] toro_noise``) for such files. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
+
+Checks, each one line with file and line: ids are decimal integers read as
+Python ints (never through a float), from 0 to 2**62; numbers finite;
+quaternions non-zero; information positive definite; no edge from a pose to
+itself, no vertex twice; when the file has vertex lines, every edge and ``FIX``
+names a declared pose. Edge-only files are initialised by composing edges
+along a spanning tree that prefers the odometry chain. The graph must be
+connected: otherwise its components are named.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from slamcore.errors import InputError
+from slamcore import posegraph as pg
+
+#: Largest pose id accepted: ids are int64 and gtsam keys; 2**62 leaves room.
+MAX_ID = 2**62
+_ID = re.compile(r"\+?[0-9]+\Z")
+
+#: tag -> (format, dim, rotation, kind, token count)
+TAGS = {
+    "VERTEX_SE2": ("g2o", 2, "angle", "vertex", 5),
+    "EDGE_SE2": ("g2o", 2, "angle", "edge", 12),
+    "VERTEX_SE3:QUAT": ("g2o", 3, "quat", "vertex", 9),
+    "EDGE_SE3:QUAT": ("g2o", 3, "quat", "edge", 31),
+    "VERTEX2": ("toro", 2, "angle", "vertex", 5),
+    "EDGE2": ("toro", 2, "angle", "edge", 12),
+    "VERTEX3": ("toro", 3, "rpy", "vertex", 8),
+    "EDGE3": ("toro", 3, "rpy", "edge", 30),
+}
+#: Tag names per (format, dim), for the writers.
+TAG_NAMES = {(fmt, dim): (tags[0], tags[1]) for fmt, dim, tags in (
+    ("g2o", 2, ("VERTEX_SE2", "EDGE_SE2")), ("g2o", 3, ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")),
+    ("toro", 2, ("VERTEX2", "EDGE2")), ("toro", 3, ("VERTEX3", "EDGE3")))}
+#: TORO 2-D information order ``ixx ixy iyy ith ixt iyt`` as (row, col) of the matrix.
+TORO2_ORDER = ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))
+
+
+def upper_order(side: int) -> tuple[tuple[int, int], ...]:
+    """(row, col) of the upper triangle row by row (g2o's order)."""
+    return tuple((r, c) for r in range(side) for c in range(r, side))
+
+
+def information_order(fmt: str, dim: int, numbers=None) -> tuple[tuple[int, int], ...]:
+    """(row, col) of each information number; ``numbers`` decides TORO 2-D's layout."""
+    if (fmt, dim) == ("toro", 2) and not is_g2o_diagonal(numbers):
+        return TORO2_ORDER
+    return upper_order(pg.TANGENT_SIZE[dim])
+
+
+def is_g2o_diagonal(v) -> bool:
+    """Six numbers ``a 0 0 b 0 c`` (a, b, c non-zero): a diagonal in g2o's order."""
+    return (v is not None and v[0] != 0 and v[1] == 0 and v[2] == 0 and v[3] != 0
+            and v[4] == 0 and v[5] != 0)
+
+
+def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
+    """A decimal id as a Python int in [0, MAX_ID], or one-line InputError."""
+    if token.startswith("-") and _ID.match(token[1:]):
+        raise InputError(f"{what} {token} is negative", path, line_no)
+    if not _ID.match(token):
+        raise InputError(f"{what} {token!r} is not an integer (decimal digits only)", path,
+                         line_no)
+    value = int(token)
+    if value > MAX_ID:
+        raise InputError(f"{what} {token} is larger than 2**62", path, line_no)
+    return value
+
+
+def parse_numbers(tokens: list[str], path, line_no: int) -> list[float]:
+    out = []
+    for t in tokens:
+        try:
+            v = float(t)
+        except ValueError:
+            raise InputError(f"{t!r} is not a number", path, line_no) from None
+        if not math.isfinite(v):
+            raise InputError(f"{t!r} is not finite", path, line_no)
+        out.append(v)
+    return out
+
+
+def _lines(path: Path):
+    try:
+        fh = open(path, encoding="utf-8-sig")  # -sig: a byte-order mark is not a tag
+    except OSError as exc:
+        raise InputError(f"cannot open file: {exc.strerror or exc}", path) from None
+    with fh:
+        try:
+            for line_no, line in enumerate(fh, start=1):
+                s = line.strip()
+                if s and not s.startswith("#"):
+                    yield line_no, s.split()
+        except UnicodeDecodeError as exc:
+            raise InputError(f"not a text file: {exc}", path) from None
+
+
+#: How TORO edge numbers are read (g2o's are information always).
+TORO_NOISE = ("information", "sqrt_information")
+
+
+class _Collector:
+    """Lines of one file, checked as they come."""
+
+    def __init__(self, path: Path, toro_noise: str = "information"):
+        if toro_noise not in TORO_NOISE:
+            raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
+        self.path = path
+        self.toro_noise = toro_noise
+        self.kind: tuple[str, int, str] | None = None  # (format, dim, rotation)
+        self.kind_line = 0
+        self.vertices: dict[int, list[float]] = {}
+        self.vertex_lines: dict[int, int] = {}
+        self.edges: list[tuple[int, int]] = []
+        self.measurements: list[list[float]] = []
+        self.information: list[np.ndarray] = []
+        self.edge_lines: list[int] = []
+        self.fixed: list[tuple[int, int]] = []
+        self.equiv: list[tuple[int, int]] = []
+
+    def line(self, line_no: int, tok: list[str]) -> None:
+        tag = tok[0]
+        if tag == "FIX":
+            if len(tok) < 2:
+                raise InputError("FIX line needs at least one pose id", self.path, line_no)
+            self.fixed += [(parse_id(t, self.path, line_no), line_no) for t in tok[1:]]
+            return
+        if tag == "EQUIV":
+            if len(tok) != 3:
+                raise InputError(f"EQUIV line needs 2 pose ids, got {len(tok) - 1}", self.path,
+                                 line_no)
+            self.equiv.append((parse_id(tok[1], self.path, line_no),
+                               parse_id(tok[2], self.path, line_no)))
+            return
+        if tag not in TAGS:
+            raise InputError(f"unknown tag {tag!r}", self.path, line_no)
+        fmt, dim, rotation, kind, count = TAGS[tag]
+        if self.kind is None:
+            self.kind, self.kind_line = (fmt, dim, rotation), line_no
+        elif self.kind != (fmt, dim, rotation):
+            raise InputError(f"{tag} in a {self.kind[1]}-D {self.kind[0]} file (see line "
+                             f"{self.kind_line})", self.path, line_no)
+        if len(tok) != count:
+            raise InputError(f"{tag} line needs {count} tokens, got {len(tok)}", self.path,
+                             line_no)
+        (self._vertex if kind == "vertex" else self._edge)(line_no, tok)
+
+    def _pose(self, numbers: list[float], line_no: int) -> list[float]:
+        if self.kind[2] == "quat" and not any(numbers[3:7]):
+            raise InputError("quaternion is zero", self.path, line_no)
+        return numbers
+
+    def _vertex(self, line_no: int, tok: list[str]) -> None:
+        k = parse_id(tok[1], self.path, line_no)
+        if k in self.vertices:
+            raise InputError(f"pose {k} declared twice (first on line {self.vertex_lines[k]})",
+                             self.path, line_no)
+        self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no)
+        self.vertex_lines[k] = line_no
+
+    def _edge(self, line_no: int, tok: list[str]) -> None:
+        a = parse_id(tok[1], self.path, line_no)
+        b = parse_id(tok[2], self.path, line_no)
+        if a == b:
+            raise InputError(f"edge from pose {a} to itself", self.path, line_no)
+        fmt, dim, rotation = self.kind
+        size = pg.PARAM_SIZE[rotation]
+        numbers = parse_numbers(tok[3:], self.path, line_no)
+        side = pg.TANGENT_SIZE[dim]
+        info = np.zeros((side, side))
+        sqrt = fmt == "toro" and self.toro_noise == "sqrt_information"
+        for (r, c), v in zip(information_order(fmt, dim, numbers[size:]), numbers[size:]):
+            info[r, c] = v
+            if not sqrt:
+                info[c, r] = v
+        if sqrt:  # the numbers are the upper triangle R of information = R^T R
+            info = info.T @ info
+        if not pg.is_positive_definite(info):
+            raise InputError("information matrix is not positive definite", self.path, line_no)
+        self.edges.append((a, b))
+        self.measurements.append(self._pose(numbers[:size], line_no))
+        self.information.append(info)
+        self.edge_lines.append(line_no)
+
+    def graph(self) -> pg.PoseGraph:
+        if self.kind is None or not self.edges:
+            raise InputError("no pose-graph edges in the file", self.path)
+        self._check_declared()
+        fmt, dim, rotation = self.kind
+        ids = np.array(sorted(set(self.vertices) | {k for e in self.edges for k in e}),
+                       dtype=np.int64)
+        size = pg.PARAM_SIZE[rotation]
+        has_vertex = np.array([int(k) in self.vertices for k in ids.tolist()], dtype=bool)
+        vertices = np.array([self.vertices.get(k, [0.0] * size) for k in ids.tolist()],
+                            dtype=np.float64).reshape(-1, size)
+        graph = pg.PoseGraph(
+            name=self.path.stem, format=fmt, dim=dim, rotation=rotation, ids=ids,
+            vertices=vertices, has_vertex=has_vertex,
+            edges=np.array(self.edges, dtype=np.int64).reshape(-1, 2),
+            measurements=np.array(self.measurements, dtype=np.float64).reshape(-1, size),
+            information=np.array(self.information),
+            edge_lines=np.array(self.edge_lines, dtype=np.int64),
+            fixed=np.array(sorted({k for k, _ in self.fixed}), dtype=np.int64),
+            equiv=np.array(self.equiv, dtype=np.int64).reshape(-1, 2),
+            source_path=str(self.path),
+            noise=self.toro_noise if fmt == "toro" else "information")
+        check_connected(graph, self.path)
+        return with_chain_start(graph)
+
+    def _check_declared(self) -> None:
+        """With vertex lines present, an edge or FIX naming an undeclared pose is refused."""
+        if not self.vertices:
+            for k, line_no in self.fixed:
+                if not any(k in e for e in self.edges):
+                    raise InputError(f"FIX names pose {k}, which no edge uses", self.path, line_no)
+            return
+        for (a, b), line_no in zip(self.edges, self.edge_lines):
+            for k in (a, b):
+                if k not in self.vertices:
+                    raise InputError(f"edge names pose {k}, which has no vertex line",
+                                     self.path, line_no)
+        for k, line_no in self.fixed:
+            if k not in self.vertices:
+                raise InputError(f"FIX names pose {k}, which has no vertex line", self.path,
+                                 line_no)
+
+
+
+def check_connected(graph: pg.PoseGraph, path) -> None:
+    """InputError naming the components when ``graph`` is not connected."""
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    parts = pg.components(graph.n_poses, rows)
+    if len(parts) > 1:
+        raise InputError(f"the graph is not connected: {len(parts)} components: "
+                         f"{pg.describe_components(graph.ids, parts)}", path)
+
+
+def with_chain_start(graph: pg.PoseGraph) -> pg.PoseGraph:
+    """Poses without a vertex line get the spanning-tree composition of the edges."""
+    if graph.has_vertex.all():
+        return graph
+    init = pg.chain_initialisation(graph)
+    return replace(graph, vertices=np.where(graph.has_vertex[:, None], graph.vertices, init))
+
+
+def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
+    """The first ``n_poses`` poses in id order and the edges among them
+    (``--max-steps``); InputError if they do not form a connected graph."""
+    if n_poses >= graph.n_poses:
+        return graph
+    keep_ids = graph.ids[:n_poses]
+    keep = np.isin(graph.edges, keep_ids).all(axis=1)
+    if not keep.any():
+        raise InputError(f"the first {n_poses} poses have no edge between them",
+                         graph.source_path)
+    cut = replace(
+        graph, ids=keep_ids, vertices=graph.vertices[:n_poses],
+        has_vertex=graph.has_vertex[:n_poses], edges=graph.edges[keep],
+        measurements=graph.measurements[keep], information=graph.information[keep],
+        edge_lines=graph.edge_lines[keep], fixed=graph.fixed[np.isin(graph.fixed, keep_ids)],
+        equiv=graph.equiv[np.isin(graph.equiv, keep_ids).all(axis=1)])
+    check_connected(cut, graph.source_path)
+    return with_chain_start(cut)
+
+
+def read_pose_graph_file(path, toro_noise: str = "information") -> pg.PoseGraph:
+    """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags).
+
+    ``toro_noise = "sqrt_information"`` reads TORO edge numbers as the upper
+    triangle ``R`` of the information ``R^T R`` (files written by iSAM).
+    """
+    path = Path(path)
+    collector = _Collector(path, toro_noise)
+    for line_no, tok in _lines(path):
+        collector.line(line_no, tok)
+    return collector.graph()
+
+
+def is_pose_graph_file(path) -> bool:
+    """Whether the first tag of a file is a pose-graph tag (cheap: one line read)."""
+    return first_tag(path) in (*TAGS, "FIX", "EQUIV")
+
+
+def first_tag(path) -> str | None:
+    """The first tag of a text file, or None (unreadable or empty)."""
+    try:
+        for _, tok in _lines(Path(path)):
+            return tok[0]
+    except InputError:
+        return None
+    return None

@@ -1,0 +1,253 @@
+"""Pose graphs as numpy records (2-D and 3-D), their pose maths and their structure.
+
+A :class:`PoseGraph` holds what a g2o or TORO file says, numbers as written, so
+that writing it back gives the same file content:
+
+- 2-D poses are ``[x, y, theta]``;
+- 3-D poses are ``[x, y, z, qx, qy, qz, qw]`` (g2o, ``rotation = "quat"``) or
+  ``[x, y, z, roll, pitch, yaw]`` (TORO, ``rotation = "rpy"``, rotation
+  ``Rz(yaw) Ry(pitch) Rx(roll)``);
+- information matrices are full and symmetric, in the order
+  ``[translation, rotation]`` of the file (2-D ``x, y, theta``).
+
+Ids are Python-int checked on reading and stored as int64; they may have gaps
+(nothing here loops over the gap). Edge ``(i, j)`` with measurement ``iTj``
+says pose ``j`` seen from pose ``i``; a backwards edge (``i > j``) is kept as
+written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Pose parameter count per rotation kind.
+PARAM_SIZE = {"angle": 3, "quat": 7, "rpy": 6}
+#: Tangent dimension (information matrix side) per graph dimension.
+TANGENT_SIZE = {2: 3, 3: 6}
+
+
+@dataclass(frozen=True, eq=False)
+class PoseGraph:
+    """A pose graph as read from a file.
+
+    Attributes:
+        name: file stem. format: ``"g2o"`` or ``"toro"``. dim: 2 or 3.
+        rotation: ``"angle"`` (2-D), ``"quat"`` or ``"rpy"`` (3-D).
+        ids: (N,) int64 pose ids, increasing.
+        vertices: (N, P) pose parameters (P from :data:`PARAM_SIZE`); for poses
+            without a vertex line, the spanning-tree initialisation.
+        has_vertex: (N,) bool, whether the file gave the pose a vertex line.
+        edges: (M, 2) int64 ``(from_id, to_id)``.
+        measurements: (M, P) relative poses ``from T to``.
+        information: (M, D, D) full information matrices (D = 3 or 6).
+        edge_lines: (M,) 1-based line of each edge in the file (0: not from a file).
+        fixed: (F,) int64 ids of ``FIX`` lines. equiv: (E, 2) int64 ``EQUIV`` pairs.
+        source_path: the file read, or None.
+        noise: how the file's edge numbers were read, ``"information"`` or
+            ``"sqrt_information"`` (TORO tags written by iSAM); :attr:`information`
+            is the information matrix either way.
+    """
+
+    name: str
+    format: str
+    dim: int
+    rotation: str
+    ids: np.ndarray
+    vertices: np.ndarray
+    has_vertex: np.ndarray
+    edges: np.ndarray
+    measurements: np.ndarray
+    information: np.ndarray
+    edge_lines: np.ndarray
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    equiv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    source_path: str | None = None
+    noise: str = "information"
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.ids)
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edges)
+
+    def index_of(self, pose_ids: np.ndarray) -> np.ndarray:
+        """Row of each id in :attr:`ids` (ids must be in the graph)."""
+        return np.searchsorted(self.ids, np.asarray(pose_ids, dtype=np.int64))
+
+    def odometry_mask(self) -> np.ndarray:
+        """(M,) bool: edges between neighbours in id order (the odometry chain);
+        every other edge is a loop closure."""
+        rank = self.index_of(self.edges.ravel()).reshape(-1, 2)
+        return np.abs(rank[:, 0] - rank[:, 1]) == 1
+
+    def with_vertices(self, vertices: np.ndarray) -> "PoseGraph":
+        """The same graph with other vertex values (e.g. an optimised estimate)."""
+        from dataclasses import replace
+
+        return replace(self, vertices=np.asarray(vertices, dtype=np.float64),
+                       has_vertex=np.ones(self.n_poses, dtype=bool))
+
+
+# --------------------------------------------------------------------------- pose maths
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) ``[qx, qy, qz, qw]`` (normalised here) -> (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
+    """(..., 3) ``[roll, pitch, yaw]`` -> ``Rz(yaw) Ry(pitch) Rx(roll)`` (..., 3, 3)."""
+    r, p, y = np.moveaxis(np.asarray(rpy, dtype=np.float64), -1, 0)
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+        np.stack([-sp, cp * sr, cp * cr], -1),
+    ], -2)
+
+
+def matrix_to_rpy(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 3) ``[roll, pitch, yaw]`` (inverse of :func:`rpy_to_matrix`)."""
+    R = np.asarray(R, dtype=np.float64)
+    pitch = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
+    return np.stack([np.arctan2(R[..., 2, 1], R[..., 2, 2]), pitch,
+                     np.arctan2(R[..., 1, 0], R[..., 0, 0])], -1)
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 4) unit ``[qx, qy, qz, qw]`` with ``qw >= 0``."""
+    from slamcore.spatial.geometry import rotation_to_quaternion
+
+    R = np.asarray(R, dtype=np.float64)
+    return rotation_to_quaternion(R.reshape(-1, 3, 3)).reshape(*R.shape[:-2], 4)
+
+
+def params_to_matrix(params: np.ndarray, rotation: str) -> np.ndarray:
+    """(N, P) pose parameters -> (N, 3, 3) SE(2) or (N, 4, 4) SE(3) matrices."""
+    p = np.asarray(params, dtype=np.float64).reshape(-1, PARAM_SIZE[rotation])
+    if rotation == "angle":
+        T = np.zeros((len(p), 3, 3))
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
+        T[:, :2, 2] = p[:, :2]
+        T[:, 2, 2] = 1.0
+        return T
+    T = np.zeros((len(p), 4, 4))
+    T[:, :3, :3] = quat_to_matrix(p[:, 3:7]) if rotation == "quat" else rpy_to_matrix(p[:, 3:6])
+    T[:, :3, 3] = p[:, :3]
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def matrix_to_params(T: np.ndarray, rotation: str) -> np.ndarray:
+    """Inverse of :func:`params_to_matrix`: (N, 3, 3) or (N, 4, 4) -> (N, P)."""
+    T = np.asarray(T, dtype=np.float64)
+    if rotation == "angle":
+        return np.column_stack([T[:, 0, 2], T[:, 1, 2], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
+    rot = matrix_to_quat(T[:, :3, :3]) if rotation == "quat" else matrix_to_rpy(T[:, :3, :3])
+    return np.column_stack([T[:, :3, 3], rot])
+
+
+# --------------------------------------------------------------------------- structure
+class _UnionFind:
+    def __init__(self, n: int):
+        self.parent = list(range(n))
+
+    def find(self, a: int) -> int:
+        root = a
+        while self.parent[root] != root:
+            root = self.parent[root]
+        while self.parent[a] != root:  # path compression
+            self.parent[a], a = root, self.parent[a]
+        return root
+
+    def union(self, a: int, b: int) -> bool:
+        ra, rb = self.find(a), self.find(b)
+        if ra == rb:
+            return False
+        self.parent[max(ra, rb)] = min(ra, rb)
+        return True
+
+
+def components(n: int, edge_rows: np.ndarray) -> list[np.ndarray]:
+    """Connected components of ``n`` nodes joined by ``edge_rows`` (M, 2) row
+    indices, each an increasing array of rows, the component of row 0 first."""
+    uf = _UnionFind(n)
+    for a, b in edge_rows.tolist():
+        uf.union(a, b)
+    roots = np.array([uf.find(i) for i in range(n)], dtype=np.int64)
+    return [np.flatnonzero(roots == r) for r in np.unique(roots)]
+
+
+def spanning_tree(n: int, edge_rows: np.ndarray, odometry: np.ndarray) -> list[tuple[int, int]]:
+    """Tree edges ``(edge index, row reached)`` in breadth-first order from row 0.
+
+    Odometry edges are taken first (Kruskal with two weights), so the tree is
+    the odometry chain wherever the chain exists and loop edges join the rest.
+    """
+    uf = _UnionFind(n)
+    order = np.concatenate([np.flatnonzero(odometry), np.flatnonzero(~odometry)])
+    adjacency: list[list[tuple[int, int]]] = [[] for _ in range(n)]
+    for e in order.tolist():
+        a, b = int(edge_rows[e, 0]), int(edge_rows[e, 1])
+        if uf.union(a, b):
+            adjacency[a].append((e, b))
+            adjacency[b].append((e, a))
+    seen = np.zeros(n, dtype=bool)
+    seen[0] = True
+    out, frontier = [], [0]
+    while frontier:
+        nxt = []
+        for row in frontier:
+            for e, other in adjacency[row]:
+                if not seen[other]:
+                    seen[other] = True
+                    out.append((e, other))
+                    nxt.append(other)
+        frontier = nxt
+    return out
+
+
+def chain_initialisation(graph: PoseGraph) -> np.ndarray:
+    """(N, P) poses composed along :func:`spanning_tree` from the first pose
+    (at its vertex if the file has one, else at the origin)."""
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    meas = params_to_matrix(graph.measurements, graph.rotation)
+    side = meas.shape[-1]
+    poses = np.repeat(np.eye(side)[None], graph.n_poses, axis=0)
+    if graph.has_vertex[0]:
+        poses[0] = params_to_matrix(graph.vertices[:1], graph.rotation)[0]
+    for e, reached in spanning_tree(graph.n_poses, rows, graph.odometry_mask()):
+        a, b = rows[e]
+        if reached == b:
+            poses[b] = poses[a] @ meas[e]
+        else:
+            poses[a] = poses[b] @ np.linalg.inv(meas[e])
+    return matrix_to_params(poses, graph.rotation)
+
+
+def describe_components(ids: np.ndarray, parts: list[np.ndarray], limit: int = 5) -> str:
+    """``"ids 0..99 (100 poses); ids 200..250 (51 poses)"`` for the first ``limit`` parts."""
+    text = "; ".join(f"ids {ids[p[0]]}..{ids[p[-1]]} ({len(p)} poses)" for p in parts[:limit])
+    if len(parts) > limit:
+        text += f"; and {len(parts) - limit} more"
+    return text
+
+
+def is_positive_definite(m: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.all(np.isfinite(m)))
+
