@@ -68,14 +68,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import ClassVar, Literal
-
 import numpy as np
 
-from slamcore.config import bounded, validate
 from slamcore.planar import geometry as models
+from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
 from filters.fastslam_map import ParticleMaps
+from filters.numerics import Recoveries, floored_noise
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
@@ -85,54 +83,7 @@ from slamcore.planar.geometry import wrap_angle
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-#: Most particles a filter may have. Every particle carries its own 2-D EKF per
-#: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
-#: for each particle an update touches) and an int32 pointer per landmark column,
-#: so N particles x L landmarks take up to about 52 N L bytes: 1e6 particles are 5 GB
-#: for a map of only 100 landmarks, and the per-observation (N, 2, 2)
-#: temporaries grow alike. 1e11 would need terabytes for the poses alone.
-MAX_PARTICLES = 1_000_000
-
-
-@dataclass(frozen=True)
-class FastSlamConfig:
-    """FastSLAM settings (config file section ``[fastslam]``).
-
-    Attributes:
-        version: 1 (motion proposal) or 2 (proposal including the observation).
-        n_particles: number of particles N, at most :data:`MAX_PARTICLES` (memory).
-        seed: seed of the one random generator; runs repeat to the bit.
-        resample_ess_fraction: resample when ESS < fraction * N; in [0, 1]
-            (0 never resamples, 1 always does).
-        association: "known" (landmark_id or signature) or "unknown" (per
-            particle maximum likelihood).
-        new_landmark_mahalanobis_sq: unknown association: squared Mahalanobis
-            gate (2 dof); an observation outside it for every landmark of a
-            particle starts a new landmark in that particle. Default: chi-square
-            0.999 quantile.
-        new_landmark_log_likelihood: unknown association: log-likelihood
-            weight factor of starting a new landmark; None uses the Gaussian
-            density of the measurement noise R at the gate.
-        odometry_covariance_scale: the odometry covariance is multiplied by
-            this before sampling (> 0). Particle filters need motion noise
-            that covers the real odometry error; e.g. gtsam's Victoria Park
-            file is too confident for them at 1 and runs well at 10.
-    """
-
-    SECTION: ClassVar[str] = "fastslam"
-
-    version: int = bounded(2, min=1, max=2)
-    n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)
-    seed: int = bounded(0, min=0)
-    resample_ess_fraction: float = bounded(0.5, min=0.0, max=1.0)
-    association: Literal["known", "unknown"] = "known"
-    new_landmark_mahalanobis_sq: float = bounded(13.8155, gt=0.0)
-    new_landmark_log_likelihood: float | None = None
-    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
-
-    def __post_init__(self):
-        validate(self)
-
+__all__ = ["MAX_PARTICLES", "FastSlam", "FastSlamConfig", "low_variance_resample"]
 
 # --------------------------------------------------------------------- helpers
 def _inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,6 +101,22 @@ def _inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _quad(nu: np.ndarray, Sinv: np.ndarray) -> np.ndarray:
     """``nu^T Sinv nu`` for (..., 2) and (..., 2, 2)."""
     return np.einsum("...i,...ij,...j->...", nu, Sinv, nu)
+
+
+def _max_var(P: np.ndarray) -> np.ndarray:
+    """(n,) largest diagonal entry of each (n, k, k) covariance."""
+    return np.max(np.diagonal(P, axis1=-2, axis2=-1), axis=-1)
+
+
+def _positive_definite(P: np.ndarray) -> np.ndarray:
+    """(n,) whether each (n, k, k) symmetric matrix (k = 2 or 3) is finite positive
+    definite, by its leading principal minors (Sylvester)."""
+    a, b, d = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
+    ok = (a > 0) & (a * d - b * b > 0)
+    if P.shape[-1] == 3:
+        c, e, f = P[:, 0, 2], P[:, 1, 2], P[:, 2, 2]
+        ok &= a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c) > 0
+    return ok & np.all(np.isfinite(P), axis=(-2, -1))
 
 
 def _sym(P: np.ndarray) -> np.ndarray:
@@ -175,12 +142,17 @@ def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.n
     return np.minimum(np.searchsorted(cdf, positions, side="right"), n - 1)
 
 
-def _sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One draw per row from N(mean (n, 3), cov (n, 3, 3))."""
+def _sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator,
+                     recoveries: Recoveries | None = None) -> np.ndarray:
+    """One draw per row from N(mean (n, 3), cov (n, 3, 3)); a covariance that is
+    not positive definite is drawn through its eigen decomposition (negative
+    eigenvalues clipped to 0; counted in ``recoveries``)."""
     cov = _sym(cov)
     try:
         chol = np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
+        if recoveries is not None:
+            recoveries.add("eig_fallback")
         w, V = np.linalg.eigh(cov)
         chol = V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
     eps = rng.standard_normal(mean.shape)
@@ -215,6 +187,8 @@ class FastSlam(Backend):
         self._last_associations: list[int | None] = []
         #: How many times the particles were resampled.
         self.resample_count = 0
+        #: Numerical recoveries (:class:`filters.numerics.Recoveries`).
+        self.recoveries = Recoveries()
 
     # ------------------------------------------------------------- contract
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
@@ -446,23 +420,53 @@ class FastSlam(Backend):
             x = poses[i]
             H_x, H_m = models.observe_jacobians(x, m)
             nu = models.innovation(z, models.observe(x, m))
+            Rf = self._floored(R, _max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1))
             PHt = P @ _tr(H_m)
-            S = H_m @ PHt + R
+            S = H_m @ PHt + Rf
             Sinv, logdet = _inv2(S)
             if weigh:
                 self._logw[i] += -0.5 * _quad(nu, Sinv) - 0.5 * logdet - _LOG_2PI
             K = PHt @ Sinv
             m_new = m + np.einsum("nij,nj->ni", K, nu)
-            P_new = _sym(P - K @ _tr(PHt))
+            P_new = self._joseph_where_indefinite(_sym(P - K @ _tr(PHt)), P, K, H_m, lambda: Rf)
             maps.write(i, cols[i], m_new, P_new)
         if j.size:
             x = poses[j]
             zz = np.broadcast_to(z, (j.size, 2))
             m_new = models.inverse_observe(x, zz)
             _, G_z = models.inverse_observe_jacobians(x, zz)
-            maps.write(j, cols[j], m_new, _sym(G_z @ R @ _tr(G_z)))
+            P0 = _sym(G_z @ R @ _tr(G_z))
+            # a 1e-9 m range against a 10 deg bearing makes P0 rank one in
+            # float64: floor R against P0's own spread ([1, 1/r^2]: |rows of H_m|^2)
+            spread = _max_var(P0)[:, None] * np.array([1.0, 1.0 / max(z[0], 1e-300) ** 2])
+            Rf, hit = floored_noise(R, spread)
+            if np.any(hit):
+                self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
+                P0 = _sym(G_z @ Rf @ _tr(G_z))
+            maps.write(j, cols[j], m_new, P0)
             if weigh and self.config.association == "unknown":
                 self._logw[j] += self._log_p0(R)
+
+    def _floored(self, R: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) ``R`` raised to the float64 floor of :mod:`filters.numerics` (counted)."""
+        Rf, hit = floored_noise(R, prior_var)
+        self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
+        return Rf
+
+    def _joseph_where_indefinite(self, P_new, P, K, H, noise):
+        """``P_new`` (n, k, k), recomputed in Joseph form ``(I - K H) P (I - K H)^T + K R K^T``
+        (positive semi-definite by construction) where the short form lost definiteness.
+
+        ``noise()`` gives ``R`` (2, 2) or (n, 2, 2), built only when needed.
+        """
+        bad = ~_positive_definite(P_new)
+        if np.any(bad):
+            self.recoveries.add("joseph_fallback", int(np.count_nonzero(bad)))
+            R = np.broadcast_to(noise(), (len(P),) + (2, 2))[bad]
+            IKH = np.eye(P.shape[-1]) - K[bad] @ H[bad]
+            P_new = P_new.copy()
+            P_new[bad] = _sym(IKH @ P[bad] @ _tr(IKH) + K[bad] @ R @ _tr(K[bad]))
+        return P_new
 
     def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
         out = []
@@ -489,19 +493,25 @@ class FastSlam(Backend):
                 x, Sx = mu[i], Sig[i]
                 H_x, H_m = models.observe_jacobians(x, m)
                 nu = models.innovation(z, models.observe(x, m))
+                prior_var = (_max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1)
+                             + _max_var(Sx)[:, None] * np.sum(H_x * H_x, axis=-1))
+                Rf = self._floored(R, prior_var)
+                HmPHmt = H_m @ P @ _tr(H_m)
                 SxHt = Sx @ _tr(H_x)  # (n, 3, 2)
-                L = H_x @ SxHt + H_m @ P @ _tr(H_m) + R
+                L = H_x @ SxHt + HmPHmt + Rf
                 Linv, logdet = _inv2(L)
                 self._logw[i] += -0.5 * _quad(nu, Linv) - 0.5 * logdet - _LOG_2PI
                 K = SxHt @ Linv  # (n, 3, 2)
                 x_new = x + np.einsum("nij,nj->ni", K, nu)
                 x_new[:, 2] = wrap_angle(x_new[:, 2])
                 mu[i] = x_new
-                Sig[i] = _sym(Sx - K @ _tr(SxHt))
+                # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
+                Sig[i] = self._joseph_where_indefinite(_sym(Sx - K @ _tr(SxHt)), Sx, K, H_x,
+                                                       lambda: HmPHmt + Rf)
             if self.config.association == "unknown" and i.size < self.n_particles:
                 self._logw[~old] += self._log_p0(R)
             out.append(cols)
-        self._poses = _sample_gaussian(mu, Sig, self._rng)
+        self._poses = _sample_gaussian(mu, Sig, self._rng, self.recoveries)
         for o, cols in zip(obs, out):
             self._landmark_step(o.z, o.covariance, cols, self._poses, weigh=False)
         return out

@@ -46,11 +46,12 @@ def floored_noise(R: np.ndarray, prior_var: np.ndarray) -> tuple[np.ndarray, np.
     """
     floor = REL_VARIANCE_FLOOR * np.asarray(prior_var, dtype=float)
     d = np.stack([R[..., 0, 0], R[..., 1, 1]], axis=-1)
-    raise_by = np.where(d < floor, floor - d, 0.0)
+    raise_by = np.where(d < floor, floor - d, 0.0)  # NaN floors raise nothing
     hit = np.any(raise_by > 0.0, axis=-1)
     if not np.any(hit):
         return R, hit
-    out = np.array(R, dtype=float, copy=True)
+    shape = np.broadcast_shapes(np.shape(R), raise_by.shape[:-1] + (2, 2))
+    out = np.array(np.broadcast_to(R, shape), dtype=float)
     out[..., 0, 0] += raise_by[..., 0]
     out[..., 1, 1] += raise_by[..., 1]
     return out, hit
@@ -72,12 +73,11 @@ class Recoveries(dict):
     its innovation covariance was not positive definite),
     ``joseph_fallback`` (FastSLAM 2.0's proposal covariance recomputed in
     Joseph form), ``eig_fallback`` (a sample drawn through an eigen
-    decomposition), ``nonfinite_particles`` (particles whose state became
-    non-finite, given zero weight).
+    decomposition).
     """
 
     KINDS = ("noise_floor", "damped_update", "oc_fallback", "skipped_update", "joseph_fallback",
-             "eig_fallback", "nonfinite_particles")
+             "eig_fallback")
 
     def __init__(self):
         super().__init__({k: 0 for k in self.KINDS})

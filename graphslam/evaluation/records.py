@@ -60,6 +60,8 @@ class PlanarRunMetrics:
             dead reckoning, or None without ground truth.
         wall_s: the whole run's time; backend_s: the back end's; steps_per_s: its rate.
         peak_rss_mb .. rms_to_isam2_m: filled by ``compare`` only.
+        recoveries: numerical recoveries the back end made, by kind (filters
+            only; see :class:`filters.numerics.Recoveries`), or None.
     """
 
     dataset: str
@@ -81,10 +83,11 @@ class PlanarRunMetrics:
     nees_mean: float | None = None
     nees_in_bounds_fraction: float | None = None
     rms_to_isam2_m: float | None = None
+    recoveries: dict[str, int] | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
-        "nees_in_bounds_fraction", "rms_to_isam2_m"})
+        "nees_in_bounds_fraction", "rms_to_isam2_m", "recoveries"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -39,6 +39,8 @@ class RunResult:
         associations: per processed observation ``(true_id, assigned_id)``,
             where the data has ground-truth landmark ids.
         loop_closures_skipped: constraints a back end could not use.
+        recoveries: the back end's numerical recovery counts by kind (the
+            filters' ``recoveries``; None for back ends that keep none).
     """
 
     dataset: Dataset
@@ -49,6 +51,7 @@ class RunResult:
     interrupted: bool = False
     associations: list[tuple[int, int | None]] = field(default_factory=list)
     loop_closures_skipped: int = 0
+    recoveries: dict[str, int] | None = None
 
 
 def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
@@ -83,8 +86,9 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     if with_covariances and not interrupted:
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
+    recoveries = getattr(backend, "recoveries", None)
     return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
-                     assoc, counters["skipped"])
+                     assoc, counters["skipped"], None if recoveries is None else dict(recoveries))
 
 
 def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
@@ -161,7 +165,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         backend_s=result.wall_s,
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
         interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
-        association=metrics.association_accuracy(result.associations))
+        association=metrics.association_accuracy(result.associations),
+        recoveries=result.recoveries)
 
 
 def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    close_recorder, fmt, open_recorder, report_outputs, summary_table,
+    close_recorder, fmt, open_recorder, recoveries_text, report_outputs, summary_table,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -98,6 +98,8 @@ def format_summary(metrics) -> str:
     ]
     if metrics.loop_closures_skipped:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
+    if metrics.recoveries and any(metrics.recoveries.values()):
+        rows.append(("numerical recoveries", recoveries_text(metrics.recoveries)))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)
