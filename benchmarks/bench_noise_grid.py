@@ -84,7 +84,9 @@ def run_cell(backend: str, field: str, scale: float, seed: int) -> dict:
         row["recoveries"] = getattr(be, "recoveries", None)
     except Exception as exc:  # noqa: BLE001 - a failure is what the grid records
         where = traceback.extract_tb(exc.__traceback__)[-1]
-        row["error"] = (f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''} "
+        text = str(exc).strip().splitlines()
+        # gtsam's IndeterminateSystem reaches Python as a RuntimeError with no message
+        row["error"] = (f"{type(exc).__name__}: {text[0] if text else '(no message)'} "
                         f"({Path(where.filename).name}:{where.lineno})")
     row["wall_s"] = time.perf_counter() - t0
     return row

@@ -421,10 +421,13 @@ class EkfSlam(EkfCorrection, Backend):
         Z = np.array([o.z for o in obs]).reshape(m, 2)
         Rs = np.array([o.covariance for o in obs]).reshape(m, 2, 2)
         c = self.config
-        hyp, d2, res = associate_scan(self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs,
-                                      gate=self._gate, chi2_prob=c.gate_chi2_prob,
-                                      max_candidates=c.jcbb_max_candidates,
-                                      max_nodes=c.jcbb_max_nodes)
+        likelihood = None
+        if c.jcbb_objective == "likelihood":
+            likelihood = (c.new_landmark_density_per_m2, c.detection_prob)
+        hyp, novelty, res = associate_scan(
+            self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs, gate=self._gate,
+            chi2_prob=c.gate_chi2_prob, max_candidates=c.jcbb_max_candidates,
+            max_nodes=c.jcbb_max_nodes, likelihood=likelihood)
         if res is not None:
             self.last_jcbb = res
         # Updates first (slots are stable: new landmarks only append).
@@ -434,9 +437,10 @@ class EkfSlam(EkfCorrection, Backend):
                 assoc[where[i]] = self._ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
-        min_d2 = unpaired_distances(d2, hyp)
+        least = unpaired_distances(novelty, hyp)
+        threshold = self._new_gate if likelihood is None else 0.0
         for i in range(m):
-            if hyp[i] is not None or not min_d2[i] > self._new_gate:
+            if hyp[i] is not None or not least[i] > threshold:
                 continue
             if c.provisional_sightings <= 1:
                 lid = self._next_id

@@ -69,6 +69,16 @@ class EkfSlamConfig:
             measurement right: one spurious range-bearing pair absorbed
             with full trust corrupts the pose and the map. None (default)
             absorbs every identified observation.
+        jcbb_objective: unknown association: "count" (JCBB's most jointly
+            compatible pairings, ties to the lower joint NIS) or "likelihood"
+            (the jointly compatible hypothesis of highest likelihood against
+            new landmarks, :func:`filters.association.jcbb` with
+            ``pair_gain``; an unpaired observation is new where a new landmark
+            explains it better than every landmark left unpaired).
+        new_landmark_density_per_m2, detection_prob: the "likelihood"
+            objective's density of not yet mapped landmarks (0.015: the
+            default synthetic world's 200 landmarks over its ~13 000 m2) and
+            probability that a mapped landmark in view is detected.
         damped_update_nis: an update whose innovation's squared Mahalanobis
             distance (2 dof) exceeds this takes the damped iterated step
             (:func:`filters.ekf_slam_update.damped_iterated_step`) instead of
@@ -93,6 +103,9 @@ class EkfSlamConfig:
     odometry_covariance_scale: float = bounded(1.0, gt=0.0)
     known_gate_chi2_prob: float | None = bounded(None, gt=0.0, lt=1.0)
     damped_update_nis: float | None = bounded(DAMPED_UPDATE_NIS, gt=0.0)
+    jcbb_objective: Literal["count", "likelihood"] = "count"
+    new_landmark_density_per_m2: float = bounded(0.015, gt=0.0)
+    detection_prob: float = bounded(0.9, gt=0.0, lt=1.0)
 
     def __post_init__(self):
         validate(self)
