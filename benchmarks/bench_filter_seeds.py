@@ -21,7 +21,6 @@ points of the ceiling and the seeds with the loop unbroken (issue 17's goals:
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -44,14 +43,6 @@ VARIANTS = {
     "fastslam1": ("fastslam1", {"n_particles": 100}),
     "fastslam2": ("fastslam2", {"n_particles": 100}),
 }
-
-
-def _ceiling_module():
-    spec = importlib.util.spec_from_file_location(
-        "bench_association_ceiling", ROOT / "benchmarks" / "bench_association_ceiling.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _run(dataset, backend: str, overrides: dict, seed: int) -> tuple[float, float]:
@@ -91,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="write the rows as JSON to this file")
     args = ap.parse_args(argv)
     seeds = args.seeds or list(range(args.first, args.last + 1))
-    ceiling_mod = _ceiling_module()
+    import bench_association_ceiling as ceiling_mod  # beside this script
     rows = []
     print("seed  ceiling  " + "  ".join(f"{v:>22}" for v in args.backends)
           + "   (accuracy %, ATE / known ATE)")

@@ -13,24 +13,12 @@ mark when it is merged.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.benchmarks import load_benchmark
 
-
-def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_noise_grid", ROOT / "benchmarks" / "bench_noise_grid.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-BENCH = _bench()
+BENCH = load_benchmark("bench_noise_grid")
 
 #: Filter cells ``(backend, field, scale, seed)`` that crashed before the fixes
 #: (the EKF's math domain errors and singular solves; measured with the full grid).
