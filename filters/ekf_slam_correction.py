@@ -50,7 +50,7 @@ class EkfCorrection:
         oc, H = self._prior_jacobian(slot, x[J], P[np.ix_(J, J)], R)
         R = self._floored(R, H, P)
         HP = H[:, :3] @ P[0:3] + H[:, 3:] @ P[i:i + 2]  # (2, n): H P, from contiguous rows
-        S = symmetrise(HP[:, J] @ H.T + R)  # (2, 2)
+        S = symmetrise(HP[:, 0:3] @ H[:, :3].T + HP[:, i:i + 2] @ H[:, 3:].T + R)  # (2, 2)
         nu = models.innovation(z, models.observe(x[:3], x[i:i + 2]))
         limit = self.config.damped_update_nis
         nis = nis_2x2(S, nu)
@@ -66,7 +66,7 @@ class EkfCorrection:
             x[:n] += P[:, J] @ a  # the iterate; the covariance is linearised there (IEKF)
             H = self._jacobian(slot, x[J], oc)
             HP = H[:, :3] @ P[0:3] + H[:, 3:] @ P[i:i + 2]
-            S = symmetrise(HP[:, J] @ H.T + R)
+            S = symmetrise(HP[:, 0:3] @ H[:, :3].T + HP[:, i:i + 2] @ H[:, 3:].T + R)
             outcome = rank2_correction(x[:n], P, HP, S, nu, move_state=False)
             self.recoveries.add("damped_update")
         if outcome == INDEFINITE:
