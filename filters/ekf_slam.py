@@ -58,8 +58,12 @@ Data association:
   observation with neither id nor signature): individual compatibility
   (Mahalanobis gate at ``gate_chi2_prob``, 2 dof) against every landmark, then
   JCBB over the scan (:mod:`filters.association`, bounded by
-  ``jcbb_max_candidates`` and ``jcbb_max_nodes``). Paired observations update
-  the filter one by one; an unpaired observation whose squared Mahalanobis
+  ``jcbb_max_candidates`` and ``jcbb_max_nodes``), maximising the scan's
+  likelihood against new landmarks (``jcbb_objective = "likelihood"``, the
+  default) or the number of pairings ("count"). Paired observations update
+  the filter one by one. With "likelihood" an unpaired observation is new
+  where a new landmark explains it better than every landmark left unpaired;
+  with "count", an unpaired observation whose squared Mahalanobis
   distance to every landmark exceeds the ``new_landmark_chi2_prob`` quantile
   becomes a new landmark (after the scan's updates, from the updated pose),
   otherwise it is discarded as ambiguous. That distance is taken over the
