@@ -77,7 +77,7 @@ class EkfSlamConfig:
             explains it better than every landmark left unpaired). Default
             "likelihood": unknown association on the default synthetic world,
             seeds 0-49 (``benchmarks/bench_filter_seeds.py``), within 1.5
-            points of the known-pose ceiling on 45 seeds and the loop unbroken
+            points of the known-pose ceiling on 44 seeds and the loop unbroken
             (ATE <= 2x known association) on 47, against 38 and 39 with "count".
         new_landmark_density_per_m2, detection_prob: the "likelihood"
             objective's density of not yet mapped landmarks (0.015: the
