@@ -93,7 +93,9 @@ class JcbbResult:
 
 def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
          pair_obs: np.ndarray, pair_landmark: np.ndarray, *, chi2_prob: float = 0.99,
-         max_nodes: int = 2000, individual_d2: np.ndarray | None = None) -> JcbbResult:
+         max_nodes: int = 2000, individual_d2: np.ndarray | None = None,
+         pair_gain: np.ndarray | None = None,
+         noise_logdet: np.ndarray | None = None) -> JcbbResult:
     """Joint-compatibility branch and bound over candidate (observation, landmark) pairs.
 
     Args:
@@ -109,6 +111,13 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
         max_nodes: budget of pairing tests (see the module docstring).
         individual_d2: (P,) individual distances, used to order the greedy
             fallback; computed from the diagonal blocks when omitted.
+        pair_gain: (P,) None (default) maximises the number of pairings (ties:
+            lower joint NIS). Given, the search maximises the likelihood
+            objective of :class:`_LikelihoodSearch` instead, ``pair_gain[p]``
+            being the log-odds constant of pairing p rather than starting a
+            new landmark (e.g. ``log(P_D / (1 - P_D)) - log(density_z)``).
+        noise_logdet: (m,) ``log det(2 pi R_i)`` of each observation's noise;
+            required with ``pair_gain`` (it bounds the search).
 
     Returns:
         :class:`JcbbResult`.
@@ -131,7 +140,14 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
     cands: list[list[int]] = [[] for _ in range(m)]
     for p in range(n_pairs):
         cands[int(pair_obs[p])].append(p)
-    search = _JcbbSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob, max_nodes)
+    if pair_gain is None:
+        search = _JcbbSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob, max_nodes)
+    else:
+        if noise_logdet is None:
+            raise ValueError("jcbb: pair_gain needs noise_logdet")
+        search = _LikelihoodSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob,
+                                   max_nodes, np.asarray(pair_gain, dtype=float).reshape(-1),
+                                   np.asarray(noise_logdet, dtype=float).reshape(-1))
     best_pairs, best_nis, exhausted = search.run(individual_d2)
 
     per_obs_pair: list[int | None] = [None] * m
@@ -245,3 +261,87 @@ class _JcbbSearch:
                     used_lm.discard(lm)
         if len(chosen) + remaining >= len(self.best_pairs):  # the "leave unpaired" branch
             self.search(level + 1, chosen, used_lm)
+
+
+class _LikelihoodSearch(_JcbbSearch):
+    """JCBB maximising the likelihood of the scan instead of the pairing count.
+
+    Maximum-likelihood association with a density of new features (Cox &
+    Leonard 1994; the track score of Blackman & Popoli 1999, ch. 6): among
+    jointly compatible hypotheses H, maximise
+
+        score(H) = sum_{p in H} gain_p - NIS_H / 2 - log det(2 pi C_H) / 2,
+
+    the log-likelihood ratio of H against "every observation is a new landmark",
+    where ``gain_p = log(P_D / (1 - P_D)) - log(lambda_i)`` weighs detecting a
+    mapped landmark against a new one at observation i's density ``lambda_i``.
+    Counting pairings rewards a pairing that is barely compatible as much as a
+    good one: a first sighting inside a wide gate of a landmark mapped long ago
+    is accepted as soon as it is jointly compatible; here it must also explain
+    the observation better than a new landmark would.
+
+    Bound: adding pair p to a hypothesis adds ``gain_p - dNIS/2 - log det(2 pi
+    S_p|H)/2`` with ``dNIS >= 0`` and the conditional covariance ``S_p|H >=
+    R_i`` (the observation's own noise), so a branch cannot gain more than
+    ``max_p max(0, gain_p - log det(2 pi R_i) / 2)`` per remaining observation.
+    """
+
+    def __init__(self, C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes, pair_gain,
+                 noise_logdet):
+        super().__init__(C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes)
+        self.gain = pair_gain
+        # per observation with candidates, the most one pairing can add
+        bound = [max(0.0, max(pair_gain[p] - 0.5 * noise_logdet[i] for p in cands[i]))
+                 for i in self.order]
+        #: tail[k]: the most the observations order[k:] can still add
+        self.tail = np.concatenate([np.cumsum(bound[::-1])[::-1], [0.0]])
+        self.best_score = 0.0
+
+    def score(self, pairs: list[int]) -> tuple[bool, float, float]:
+        """Joint compatibility, score and joint NIS of ``pairs``."""
+        if not pairs:
+            return True, 0.0, 0.0
+        rows = np.array([[2 * p, 2 * p + 1] for p in pairs]).reshape(-1)
+        try:
+            L = np.linalg.cholesky(self.C[np.ix_(rows, rows)])
+        except np.linalg.LinAlgError:
+            return False, -math.inf, math.inf
+        y = np.linalg.solve(L, self.nu_flat[rows])
+        nis = float(y @ y)
+        logdet = 2.0 * float(np.sum(np.log(np.diag(L)))) + len(rows) * math.log(2 * math.pi)
+        ok = nis <= chi2_quantile(self.chi2_prob, 2 * len(pairs))
+        return ok, float(sum(self.gain[p] for p in pairs)) - 0.5 * nis - 0.5 * logdet, nis
+
+    def run(self, individual_d2: np.ndarray) -> tuple[list[int], float, bool]:
+        self.best_pairs = self.greedy(individual_d2)
+        _, self.best_score, self.best_nis = self.score(self.best_pairs)
+        if self.best_score < 0.0:  # every observation new scores 0
+            self.best_pairs, self.best_score, self.best_nis = [], 0.0, 0.0
+        try:
+            self.search_score(0, [], set(), 0.0)
+        except _Budget:
+            return self.best_pairs, self.best_nis, True
+        return self.best_pairs, self.best_nis, False
+
+    def search_score(self, level: int, chosen: list[int], used_lm: set[int],
+                     current: float) -> None:
+        """Depth-first as :meth:`_JcbbSearch.search`, pruned by the score bound."""
+        if current > self.best_score:
+            self.best_pairs, self.best_score = list(chosen), current
+            self.best_nis = self.score(chosen)[2]
+        if level == len(self.order) or current + self.tail[level] <= self.best_score:
+            return
+        i = self.order[level]
+        for p in self.cands[i]:
+            lm = int(self.pair_landmark[p])
+            if lm in used_lm:
+                continue
+            self.nodes += 1
+            if self.nodes > self.max_nodes:
+                raise _Budget
+            ok, s, _ = self.score(chosen + [p])
+            if ok:
+                used_lm.add(lm)
+                self.search_score(level + 1, chosen + [p], used_lm, s)
+                used_lm.discard(lm)
+        self.search_score(level + 1, chosen, used_lm, current)

@@ -3,7 +3,9 @@
 Course slides "Algorithme EKF-SLAM (2D)": the state is
 ``X = [x, y, theta, m1x, m1y, m2x, m2y, ...]`` with a full covariance ``P``.
 Beside this module: :mod:`filters.ekf_slam_config` (settings),
-:mod:`filters.ekf_slam_update` (the in-place rank-2 correction) and
+:mod:`filters.ekf_slam_correction` (one observation's update, its Jacobians
+and its numerical safeguards), :mod:`filters.ekf_slam_update` (the in-place
+rank-2 correction and the damped iterated step) and
 :mod:`filters.ekf_slam_association` (scan association with unknown ids and
 the provisional list).
 
@@ -56,8 +58,12 @@ Data association:
   observation with neither id nor signature): individual compatibility
   (Mahalanobis gate at ``gate_chi2_prob``, 2 dof) against every landmark, then
   JCBB over the scan (:mod:`filters.association`, bounded by
-  ``jcbb_max_candidates`` and ``jcbb_max_nodes``). Paired observations update
-  the filter one by one; an unpaired observation whose squared Mahalanobis
+  ``jcbb_max_candidates`` and ``jcbb_max_nodes``), maximising the scan's
+  likelihood against new landmarks (``jcbb_objective = "likelihood"``, the
+  default) or the number of pairings ("count"). Paired observations update
+  the filter one by one. With "likelihood" an unpaired observation is new
+  where a new landmark explains it better than every landmark left unpaired;
+  with "count", an unpaired observation whose squared Mahalanobis
   distance to every landmark exceeds the ``new_landmark_chi2_prob`` quantile
   becomes a new landmark (after the scan's updates, from the updated pose),
   otherwise it is discarded as ambiguous. That distance is taken over the
@@ -100,7 +106,8 @@ from slamcore.planar import geometry as models
 from filters.association import chi2_quantile
 from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
 from filters.ekf_slam_config import EkfSlamConfig
-from filters.ekf_slam_update import rank2_correction
+from filters.ekf_slam_correction import EkfCorrection
+from filters.numerics import Recoveries
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar.records import (
@@ -108,8 +115,7 @@ from slamcore.planar.records import (
 )
 from slamcore.planar.geometry import wrap_angle
 
-
-class EkfSlam(Backend):
+class EkfSlam(EkfCorrection, Backend):
     """EKF-SLAM back end (see the module docstring)."""
 
     name = "ekf"
@@ -150,6 +156,8 @@ class EkfSlam(Backend):
         self.last_jcbb = None
         #: Identified observations rejected by ``known_gate_chi2_prob`` since initialisation.
         self.rejected_count = 0
+        #: Numerical recoveries since initialisation (:class:`filters.numerics.Recoveries`).
+        self.recoveries = Recoveries()
 
     @property
     def _x(self) -> np.ndarray:
@@ -385,50 +393,6 @@ class EkfSlam(Backend):
         H_x, H_m = models.observe_jacobians(xr, m)
         return z, np.hstack([H_x, H_m]), [0, 1, 2, i, i + 1]
 
-    def _kalman_update(self, slot: int, z: np.ndarray, R: np.ndarray,
-                       gate: float = math.inf) -> bool:
-        """One sequential EKF update with the landmark in ``slot`` (see module docstring).
-
-        Returns False, leaving the state untouched, when the innovation's squared
-        Mahalanobis distance exceeds ``gate``.
-        """
-        n = self._n
-        i = 3 + 2 * slot
-        x = self._xbuf
-        P = self._Pbuf[:n, :n]
-        xr = x[:3]
-        m = x[i:i + 2]
-        zhat = models.observe(xr, m)
-        H_x, H_m = models.observe_jacobians(xr, m)
-        if self.config.jacobians == "oc":
-            H_x, H_m = self._observability_constrained(slot, H_x, H_m)
-        HP = H_x @ P[0:3] + H_m @ P[i:i + 2]  # (2, n): H P, from contiguous rows
-        S = HP[:, 0:3] @ H_x.T + HP[:, i:i + 2] @ H_m.T + R  # (2, 2)
-        S = 0.5 * (S + S.T)
-        nu = models.innovation(z, zhat)
-        if not rank2_correction(x[:n], P, HP, S, nu, gate):
-            return False
-        x[2] = wrap_angle(x[2])
-        return True
-
-    def _observability_constrained(self, slot, H_x, H_m):
-        """The Jacobian nearest to ``[H_x H_m]`` that keeps global rotation unobservable.
-
-        OC-EKF (Huang, Mourikis & Roumeliotis, IJRR 2010): the plain EKF
-        linearises at estimates that move over time, which hands it information
-        about the global heading that no measurement carries, and it becomes
-        overconfident. The unobservable directions (translation, and rotation
-        about the origin) are tracked at the robot's predicted positions and the
-        landmark's first estimate; ``H`` is projected onto their complement.
-        """
-        px, py = self._x_pred[0], self._x_pred[1]
-        mx, my = self._m_first[slot]
-        N = np.array([[1.0, 0.0, -py], [0.0, 1.0, px], [0.0, 0.0, 1.0],
-                      [1.0, 0.0, -my], [0.0, 1.0, mx]])
-        H = np.hstack([H_x, H_m])
-        H = H - (H @ N) @ np.linalg.solve(N.T @ N, N.T)
-        return H[:, :3], H[:, 3:]
-
     def _add_landmark(self, lid: int, z: np.ndarray, R: np.ndarray) -> int:
         """Insert landmark ``lid`` from observation ``z`` (inverse observation model)."""
         if len(self._ids) >= self._cap:
@@ -461,10 +425,13 @@ class EkfSlam(Backend):
         Z = np.array([o.z for o in obs]).reshape(m, 2)
         Rs = np.array([o.covariance for o in obs]).reshape(m, 2, 2)
         c = self.config
-        hyp, d2, res = associate_scan(self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs,
-                                      gate=self._gate, chi2_prob=c.gate_chi2_prob,
-                                      max_candidates=c.jcbb_max_candidates,
-                                      max_nodes=c.jcbb_max_nodes)
+        likelihood = None
+        if c.jcbb_objective == "likelihood":
+            likelihood = (c.new_landmark_density_per_m2, c.detection_prob)
+        hyp, novelty, res = associate_scan(
+            self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs, gate=self._gate,
+            chi2_prob=c.gate_chi2_prob, max_candidates=c.jcbb_max_candidates,
+            max_nodes=c.jcbb_max_nodes, likelihood=likelihood)
         if res is not None:
             self.last_jcbb = res
         # Updates first (slots are stable: new landmarks only append).
@@ -474,9 +441,10 @@ class EkfSlam(Backend):
                 assoc[where[i]] = self._ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
-        min_d2 = unpaired_distances(d2, hyp)
+        least = unpaired_distances(novelty, hyp)
+        threshold = self._new_gate if likelihood is None else 0.0
         for i in range(m):
-            if hyp[i] is not None or not min_d2[i] > self._new_gate:
+            if hyp[i] is not None or not least[i] > threshold:
                 continue
             if c.provisional_sightings <= 1:
                 lid = self._next_id

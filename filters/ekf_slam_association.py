@@ -15,6 +15,8 @@ covariance buffer (state ``[x, y, theta, m1x, m1y, ...]``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from filters.association import JcbbResult, individual_candidates, jcbb, mahalanobis_sq_2d
@@ -65,15 +67,25 @@ def pair_covariance(P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndar
 
 
 def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray, Rs: np.ndarray,
-                   *, gate: float, chi2_prob: float, max_candidates: int, max_nodes: int):
+                   *, gate: float, chi2_prob: float, max_candidates: int, max_nodes: int,
+                   likelihood: tuple[float, float] | None = None):
     """Landmark slot (or None) of each observation of one scan, by gating then JCBB.
 
     ``Z`` (m, 2) observations with covariances ``Rs`` (m, 2, 2); ``gate``:
     the individual chi-square gate (2 dof) of ``chi2_prob``, the joint
     test's probability; at most ``max_candidates`` landmarks per observation
-    and ``max_nodes`` pairing tests. Returns the hypothesis (m,), the squared
-    Mahalanobis distances (m, L) (None without landmarks) and the
-    :class:`filters.association.JcbbResult` (None when no pair passed the gate).
+    and ``max_nodes`` pairing tests. Returns the hypothesis (m,), the novelty
+    (m, L) of each observation against each landmark (None without landmarks)
+    and the :class:`filters.association.JcbbResult` (None when no pair passed
+    the gate).
+
+    ``likelihood = (new_landmark_density_per_m2, detection_prob)`` makes JCBB
+    maximise the likelihood objective (:func:`filters.association.jcbb` with
+    ``pair_gain``): a new landmark seen at range r has density ``rho r`` per
+    m rad in measurement space. The novelty is then the log-likelihood ratio of
+    "new landmark" over "this landmark" (an observation is new where it is > 0
+    against every landmark not paired in the scan); without it, the squared
+    Mahalanobis distance (new beyond the caller's chi-square gate).
     """
     m = len(Z)
     hyp: list[int | None] = [None] * m
@@ -85,13 +97,33 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
     cands = individual_candidates(d2, gate, max_candidates)
     pairs = [(i, l) for i, cl in enumerate(cands) for l in cl]
     if not pairs:
+        if likelihood is not None:
+            return hyp, _likelihood_terms(Z, Rs, S0, d2, *likelihood)[2], None
         return hyp, d2, None
     pair_obs = np.array([p[0] for p in pairs])
     pair_lm = np.array([p[1] for p in pairs])
     C = pair_covariance(P, H_x, H_m, Rs, pairs)
+    extra = {}
+    if likelihood is not None:
+        gain, noise_logdet, novelty = _likelihood_terms(Z, Rs, S0, d2, *likelihood)
+        extra = dict(pair_gain=gain[pair_obs], noise_logdet=noise_logdet)
     res: JcbbResult = jcbb(Z, zhat[pair_lm], C, pair_obs, pair_lm, chi2_prob=chi2_prob,
-                           max_nodes=max_nodes, individual_d2=d2[pair_obs, pair_lm])
-    return res.hypothesis, d2, res
+                           max_nodes=max_nodes, individual_d2=d2[pair_obs, pair_lm], **extra)
+    return res.hypothesis, (d2 if likelihood is None else novelty), res
+
+
+def _likelihood_terms(Z, Rs, S0, d2, density_per_m2: float, detection_prob: float):
+    """Per observation the log-odds of pairing over a new landmark ``gain`` (m,) and
+    ``log det(2 pi R_i)`` (m,); per (observation, landmark) the novelty (m, L):
+    ``-(gain_i - d2 / 2 - log det(2 pi S_il) / 2)``."""
+    r = np.maximum(Z[:, 0], 1e-9)  # the density in (range, bearing) is rho r
+    gain = math.log(detection_prob / (1.0 - detection_prob)) - np.log(density_per_m2 * r)
+    two_pi = 2.0 * math.pi
+    noise_logdet = np.log(np.linalg.det(two_pi * Rs))
+    S = S0[None] + Rs[:, None]  # (m, L, 2, 2)
+    logdet_S = np.log(two_pi ** 2 * (S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]))
+    novelty = -(gain[:, None] - 0.5 * d2 - 0.5 * logdet_S)
+    return gain, noise_logdet, novelty
 
 
 def unpaired_distances(d2: np.ndarray | None, hypothesis: list[int | None]) -> np.ndarray:

@@ -68,14 +68,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import ClassVar, Literal
-
 import numpy as np
 
-from slamcore.config import bounded, validate
 from slamcore.planar import geometry as models
+from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
 from filters.fastslam_map import ParticleMaps
+from filters.fastslam_math import (
+    inv2, logsumexp, low_variance_resample, max_var, positive_definite, quad, sample_gaussian,
+    sym, tr,
+)
+from filters.numerics import Recoveries, floored_noise
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
@@ -85,111 +87,9 @@ from slamcore.planar.geometry import wrap_angle
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-#: Most particles a filter may have. Every particle carries its own 2-D EKF per
-#: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
-#: for each particle an update touches) and an int32 pointer per landmark column,
-#: so N particles x L landmarks take up to about 52 N L bytes: 1e6 particles are 5 GB
-#: for a map of only 100 landmarks, and the per-observation (N, 2, 2)
-#: temporaries grow alike. 1e11 would need terabytes for the poses alone.
-MAX_PARTICLES = 1_000_000
+__all__ = ["MAX_PARTICLES", "FastSlam", "FastSlamConfig", "low_variance_resample"]
 
 
-@dataclass(frozen=True)
-class FastSlamConfig:
-    """FastSLAM settings (config file section ``[fastslam]``).
-
-    Attributes:
-        version: 1 (motion proposal) or 2 (proposal including the observation).
-        n_particles: number of particles N, at most :data:`MAX_PARTICLES` (memory).
-        seed: seed of the one random generator; runs repeat to the bit.
-        resample_ess_fraction: resample when ESS < fraction * N; in [0, 1]
-            (0 never resamples, 1 always does).
-        association: "known" (landmark_id or signature) or "unknown" (per
-            particle maximum likelihood).
-        new_landmark_mahalanobis_sq: unknown association: squared Mahalanobis
-            gate (2 dof); an observation outside it for every landmark of a
-            particle starts a new landmark in that particle. Default: chi-square
-            0.999 quantile.
-        new_landmark_log_likelihood: unknown association: log-likelihood
-            weight factor of starting a new landmark; None uses the Gaussian
-            density of the measurement noise R at the gate.
-        odometry_covariance_scale: the odometry covariance is multiplied by
-            this before sampling (> 0). Particle filters need motion noise
-            that covers the real odometry error; e.g. gtsam's Victoria Park
-            file is too confident for them at 1 and runs well at 10.
-    """
-
-    SECTION: ClassVar[str] = "fastslam"
-
-    version: int = bounded(2, min=1, max=2)
-    n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)
-    seed: int = bounded(0, min=0)
-    resample_ess_fraction: float = bounded(0.5, min=0.0, max=1.0)
-    association: Literal["known", "unknown"] = "known"
-    new_landmark_mahalanobis_sq: float = bounded(13.8155, gt=0.0)
-    new_landmark_log_likelihood: float | None = None
-    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
-
-    def __post_init__(self):
-        validate(self)
-
-
-# --------------------------------------------------------------------- helpers
-def _inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse and log-determinant of (..., 2, 2) SPD matrices."""
-    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
-    det = a * d - b * c
-    inv = np.empty_like(S)
-    inv[..., 0, 0] = d / det
-    inv[..., 0, 1] = -b / det
-    inv[..., 1, 0] = -c / det
-    inv[..., 1, 1] = a / det
-    return inv, np.log(det)
-
-
-def _quad(nu: np.ndarray, Sinv: np.ndarray) -> np.ndarray:
-    """``nu^T Sinv nu`` for (..., 2) and (..., 2, 2)."""
-    return np.einsum("...i,...ij,...j->...", nu, Sinv, nu)
-
-
-def _sym(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
-
-
-def _tr(A: np.ndarray) -> np.ndarray:
-    return np.swapaxes(A, -1, -2)
-
-
-
-
-def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Systematic resampling: (N,) parent indices for normalised ``weights`` (N,).
-
-    One uniform draw; particle ``i`` is copied ``floor(N w_i)`` or
-    ``ceil(N w_i)`` times (expected count ``N w_i``), in index order.
-    """
-    n = weights.shape[0]
-    positions = (rng.random() + np.arange(n)) / n
-    cdf = np.cumsum(weights)
-    cdf[-1] = 1.0  # guard against round-off
-    return np.minimum(np.searchsorted(cdf, positions, side="right"), n - 1)
-
-
-def _sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One draw per row from N(mean (n, 3), cov (n, 3, 3))."""
-    cov = _sym(cov)
-    try:
-        chol = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        w, V = np.linalg.eigh(cov)
-        chol = V * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
-    eps = rng.standard_normal(mean.shape)
-    out = mean + np.einsum("nij,nj->ni", chol, eps)
-    out[:, 2] = wrap_angle(out[:, 2])
-    return out
-
-
-# --------------------------------------------------------------------- backend
 class FastSlam(Backend):
     """FastSLAM 1.0 / 2.0 back end (``name`` "fastslam1" / "fastslam2")."""
 
@@ -215,6 +115,8 @@ class FastSlam(Backend):
         self._last_associations: list[int | None] = []
         #: How many times the particles were resampled.
         self.resample_count = 0
+        #: Numerical recoveries (:class:`filters.numerics.Recoveries`).
+        self.recoveries = Recoveries()
 
     # ------------------------------------------------------------- contract
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
@@ -223,7 +125,7 @@ class FastSlam(Backend):
         wTb = as_vector(wTb, 3, "initial pose")
         cov = as_covariance(covariance, 3, "initial pose")
         mean = np.broadcast_to(wTb, (self.n_particles, 3))
-        self._poses = _sample_gaussian(mean, np.broadcast_to(cov, (self.n_particles, 3, 3)),
+        self._poses = sample_gaussian(mean, np.broadcast_to(cov, (self.n_particles, 3, 3)),
                                        self._rng)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
@@ -243,13 +145,13 @@ class FastSlam(Backend):
                 f"{self.name}: odometry {odometry.from_id}->{odometry.to_id} must link new pose "
                 f"{pose_id} with the current pose {cur} (a filter keeps only the latest pose)")
         self._close_step()
-        cov = _sym(cov) * self.config.odometry_covariance_scale
+        cov = sym(cov) * self.config.odometry_covariance_scale
         chol = np.linalg.cholesky(cov)
         eps = self._rng.standard_normal((self.n_particles, 3)) @ chol.T
         if self.config.version == 2:
             x_hat = models.compose(self._poses, u)
             _, J_u = models.compose_jacobians(self._poses, np.broadcast_to(u, self._poses.shape))
-            self._pending = (x_hat, J_u @ cov @ _tr(J_u))
+            self._pending = (x_hat, J_u @ cov @ tr(J_u))
         self._poses = models.compose(self._poses, u + eps)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
@@ -277,7 +179,7 @@ class FastSlam(Backend):
         else:
             cols = self._update_v1(obs)
         self._pending = None
-        self._logw -= _logsumexp(self._logw)
+        self._logw -= logsumexp(self._logw)
         self._best = int(np.argmax(self._logw))
         ids = self._maps._ids
         self._last_associations = [ids[int(c[self._best])] for c in cols]
@@ -304,7 +206,7 @@ class FastSlam(Backend):
             m, P = self._maps.pool_mean[p], self._maps.pool_cov[p]
             H_x, H_m = models.observe_jacobians(x, m)
             S = H_x @ P_x @ H_x.T + H_m @ P @ H_m.T + self._last_R[int(lid)]
-            out.append(Prediction(int(lid), models.observe(x, m), _sym(S)))
+            out.append(Prediction(int(lid), models.observe(x, m), sym(S)))
         return out
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
@@ -446,23 +348,53 @@ class FastSlam(Backend):
             x = poses[i]
             H_x, H_m = models.observe_jacobians(x, m)
             nu = models.innovation(z, models.observe(x, m))
-            PHt = P @ _tr(H_m)
-            S = H_m @ PHt + R
-            Sinv, logdet = _inv2(S)
+            Rf = self._floored(R, max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1))
+            PHt = P @ tr(H_m)
+            S = H_m @ PHt + Rf
+            Sinv, logdet = inv2(S)
             if weigh:
-                self._logw[i] += -0.5 * _quad(nu, Sinv) - 0.5 * logdet - _LOG_2PI
+                self._logw[i] += -0.5 * quad(nu, Sinv) - 0.5 * logdet - _LOG_2PI
             K = PHt @ Sinv
             m_new = m + np.einsum("nij,nj->ni", K, nu)
-            P_new = _sym(P - K @ _tr(PHt))
+            P_new = self._joseph_where_indefinite(sym(P - K @ tr(PHt)), P, K, H_m, lambda: Rf)
             maps.write(i, cols[i], m_new, P_new)
         if j.size:
             x = poses[j]
             zz = np.broadcast_to(z, (j.size, 2))
             m_new = models.inverse_observe(x, zz)
             _, G_z = models.inverse_observe_jacobians(x, zz)
-            maps.write(j, cols[j], m_new, _sym(G_z @ R @ _tr(G_z)))
+            P0 = sym(G_z @ R @ tr(G_z))
+            # a 1e-9 m range against a 10 deg bearing makes P0 rank one in
+            # float64: floor R against P0's own spread ([1, 1/r^2]: |rows of H_m|^2)
+            spread = max_var(P0)[:, None] * np.array([1.0, 1.0 / max(z[0], 1e-300) ** 2])
+            Rf, hit = floored_noise(R, spread)
+            if np.any(hit):
+                self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
+                P0 = sym(G_z @ Rf @ tr(G_z))
+            maps.write(j, cols[j], m_new, P0)
             if weigh and self.config.association == "unknown":
                 self._logw[j] += self._log_p0(R)
+
+    def _floored(self, R: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) ``R`` raised to the float64 floor of :mod:`filters.numerics` (counted)."""
+        Rf, hit = floored_noise(R, prior_var)
+        self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
+        return Rf
+
+    def _joseph_where_indefinite(self, P_new, P, K, H, noise):
+        """``P_new`` (n, k, k), recomputed in Joseph form ``(I - K H) P (I - K H)^T + K R K^T``
+        (positive semi-definite by construction) where the short form lost definiteness.
+
+        ``noise()`` gives ``R`` (2, 2) or (n, 2, 2), built only when needed.
+        """
+        bad = ~positive_definite(P_new)
+        if np.any(bad):
+            self.recoveries.add("joseph_fallback", int(np.count_nonzero(bad)))
+            R = np.broadcast_to(noise(), (len(P),) + (2, 2))[bad]
+            IKH = np.eye(P.shape[-1]) - K[bad] @ H[bad]
+            P_new = P_new.copy()
+            P_new[bad] = sym(IKH @ P[bad] @ tr(IKH) + K[bad] @ R @ tr(K[bad]))
+        return P_new
 
     def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
         out = []
@@ -489,19 +421,25 @@ class FastSlam(Backend):
                 x, Sx = mu[i], Sig[i]
                 H_x, H_m = models.observe_jacobians(x, m)
                 nu = models.innovation(z, models.observe(x, m))
-                SxHt = Sx @ _tr(H_x)  # (n, 3, 2)
-                L = H_x @ SxHt + H_m @ P @ _tr(H_m) + R
-                Linv, logdet = _inv2(L)
-                self._logw[i] += -0.5 * _quad(nu, Linv) - 0.5 * logdet - _LOG_2PI
+                prior_var = (max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1)
+                             + max_var(Sx)[:, None] * np.sum(H_x * H_x, axis=-1))
+                Rf = self._floored(R, prior_var)
+                HmPHmt = H_m @ P @ tr(H_m)
+                SxHt = Sx @ tr(H_x)  # (n, 3, 2)
+                L = H_x @ SxHt + HmPHmt + Rf
+                Linv, logdet = inv2(L)
+                self._logw[i] += -0.5 * quad(nu, Linv) - 0.5 * logdet - _LOG_2PI
                 K = SxHt @ Linv  # (n, 3, 2)
                 x_new = x + np.einsum("nij,nj->ni", K, nu)
                 x_new[:, 2] = wrap_angle(x_new[:, 2])
                 mu[i] = x_new
-                Sig[i] = _sym(Sx - K @ _tr(SxHt))
+                # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
+                Sig[i] = self._joseph_where_indefinite(sym(Sx - K @ tr(SxHt)), Sx, K, H_x,
+                                                       lambda: HmPHmt + Rf)
             if self.config.association == "unknown" and i.size < self.n_particles:
                 self._logw[~old] += self._log_p0(R)
             out.append(cols)
-        self._poses = _sample_gaussian(mu, Sig, self._rng)
+        self._poses = sample_gaussian(mu, Sig, self._rng, self.recoveries)
         for o, cols in zip(obs, out):
             self._landmark_step(o.z, o.covariance, cols, self._poses, weigh=False)
         return out
@@ -516,7 +454,7 @@ class FastSlam(Backend):
         d = x - mean
         d[:, 2] = wrap_angle(d[:, 2])
         cov = (d * w[:, None]).T @ d
-        return mean, _sym(cov)
+        return mean, sym(cov)
 
     def _close_step(self, force: bool = False) -> None:
         """Record (or refresh) the history entry of the current pose."""
@@ -542,8 +480,3 @@ class FastSlam(Backend):
         self._best = int(np.flatnonzero(parents == self._best)[0])
         self._logw = np.full(self.n_particles, -math.log(self.n_particles))
         self.resample_count += 1
-
-
-def _logsumexp(a: np.ndarray) -> float:
-    m = float(np.max(a))
-    return m + math.log(float(np.sum(np.exp(a - m))))

@@ -6,27 +6,19 @@ the true path, or the ceiling it reports would be a noisy run in disguise.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 from slamcore.planar import geometry as models
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.benchmarks import load_benchmark
 
 #: Position error (m) the near-noise-free odometry may leave over a whole run.
 KNOWN_POSE_TOL_M = 1e-3
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_association_ceiling", ROOT / "benchmarks" / "bench_association_ceiling.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("bench_association_ceiling")
 
 
 def test_exact_odometry_composes_to_the_true_path_and_the_ekf_stays_on_it():

@@ -22,6 +22,11 @@ def fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
 
+def recoveries_text(recoveries: dict[str, int]) -> str:
+    """The non-zero numerical recovery counts, e.g. ``"damped_update 3, noise_floor 1"``."""
+    return ", ".join(f"{k} {v}" for k, v in recoveries.items() if v)
+
+
 def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) -> int:
     """Print a run's summary table and where its outputs went; the exit status."""
     print(summary)

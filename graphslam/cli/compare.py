@@ -63,7 +63,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam.pipelines import compare
     from graphslam.outputs import writers
 
-    from graphslam.cli.common import check_rerun_flags, close_recorder, open_recorder, rerun_sink
+    from graphslam.cli.common import (
+        check_rerun_flags, close_recorder, open_recorder, recoveries_text, rerun_sink,
+    )
     from graphslam.visualisation.plots import plot_comparison
 
     check_rerun_flags(args)
@@ -103,6 +105,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
                if e.metrics.loop_closures_skipped}
     for name, n in skipped.items():
         print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
+    for e in entries:
+        if e.metrics.recoveries and any(e.metrics.recoveries.values()):
+            print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
     print(f"outputs in {out_dir}/: " + ", ".join(outputs))
     return 0
 

@@ -60,7 +60,10 @@ class PlanarRunMetrics:
             dead reckoning, or None without ground truth.
         wall_s: the whole run's time; backend_s: the back end's; steps_per_s: its rate.
         peak_rss_mb .. rms_to_isam2_m: filled by ``compare`` only.
-        numerical_recoveries: fallbacks the back end took (left out when none).
+        numerical_recoveries: switches the back end made, one line each with
+            the step (iSAM2's factorisation fallbacks); left out when none.
+        recoveries: per-update safeguards counted by kind (filters only; see
+            :class:`filters.numerics.Recoveries`), or None.
     """
 
     dataset: str
@@ -83,10 +86,11 @@ class PlanarRunMetrics:
     nees_in_bounds_fraction: float | None = None
     rms_to_isam2_m: float | None = None
     numerical_recoveries: list[str] | None = None
+    recoveries: dict[str, int] | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
-        "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries"})
+        "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -39,7 +39,9 @@ class RunResult:
         associations: per processed observation ``(true_id, assigned_id)``,
             where the data has ground-truth landmark ids.
         loop_closures_skipped: constraints a back end could not use.
-        numerical_recoveries: fallbacks the back end took (another factorisation).
+        numerical_recoveries: switches the back end made (another factorisation).
+        recoveries: the back end's per-update safeguards counted by kind (the
+            filters' ``recoveries``; None for back ends that keep none).
     """
 
     dataset: Dataset
@@ -51,6 +53,7 @@ class RunResult:
     associations: list[tuple[int, int | None]] = field(default_factory=list)
     loop_closures_skipped: int = 0
     numerical_recoveries: list[str] = field(default_factory=list)
+    recoveries: dict[str, int] | None = None
 
 
 def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
@@ -85,8 +88,10 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     if with_covariances and not interrupted:
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
+    recoveries = getattr(backend, "recoveries", None)
     return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
-                     assoc, counters["skipped"], backend.numerical_recoveries())
+                     assoc, counters["skipped"], backend.numerical_recoveries(),
+                     None if recoveries is None else dict(recoveries))
 
 
 def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
@@ -164,7 +169,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
         interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
         association=metrics.association_accuracy(result.associations),
-        numerical_recoveries=result.numerical_recoveries or None)
+        numerical_recoveries=result.numerical_recoveries or None,
+        recoveries=result.recoveries)
 
 
 def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,

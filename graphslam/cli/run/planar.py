@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    close_recorder, fmt, open_recorder, report_outputs, summary_table,
+    close_recorder, fmt, open_recorder, recoveries_text, report_outputs, summary_table,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -100,6 +100,8 @@ def format_summary(metrics) -> str:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
     for note in metrics.numerical_recoveries or ():
         rows.append(("numerical recovery", note))
+    if metrics.recoveries and any(metrics.recoveries.values()):
+        rows.append(("numerical recoveries", recoveries_text(metrics.recoveries)))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

@@ -1,0 +1,60 @@
+"""Settings of FastSLAM 1.0 / 2.0 (:class:`filters.fastslam.FastSlam`), checked on creation.
+
+Section ``[fastslam]`` of the config file; types, modes and ranges are
+declared on the fields and checked by :func:`slamcore.config.validate`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+from slamcore.config import bounded, validate
+
+#: Most particles a filter may have. Every particle carries its own 2-D EKF per
+#: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
+#: for each particle an update touches) and an int32 pointer per landmark column,
+#: so N particles x L landmarks take up to about 52 N L bytes: 1e6 particles are 5 GB
+#: for a map of only 100 landmarks, and the per-observation (N, 2, 2)
+#: temporaries grow alike. 1e11 would need terabytes for the poses alone.
+MAX_PARTICLES = 1_000_000
+
+
+@dataclass(frozen=True)
+class FastSlamConfig:
+    """FastSLAM settings (config file section ``[fastslam]``).
+
+    Attributes:
+        version: 1 (motion proposal) or 2 (proposal including the observation).
+        n_particles: number of particles N, at most :data:`MAX_PARTICLES` (memory).
+        seed: seed of the one random generator; runs repeat to the bit.
+        resample_ess_fraction: resample when ESS < fraction * N; in [0, 1]
+            (0 never resamples, 1 always does).
+        association: "known" (landmark_id or signature) or "unknown" (per
+            particle maximum likelihood).
+        new_landmark_mahalanobis_sq: unknown association: squared Mahalanobis
+            gate (2 dof); an observation outside it for every landmark of a
+            particle starts a new landmark in that particle. Default: chi-square
+            0.999 quantile.
+        new_landmark_log_likelihood: unknown association: log-likelihood
+            weight factor of starting a new landmark; None uses the Gaussian
+            density of the measurement noise R at the gate.
+        odometry_covariance_scale: the odometry covariance is multiplied by
+            this before sampling (> 0). Particle filters need motion noise
+            that covers the real odometry error; e.g. gtsam's Victoria Park
+            file is too confident for them at 1 and runs well at 10.
+    """
+
+    SECTION: ClassVar[str] = "fastslam"
+
+    version: int = bounded(2, min=1, max=2)
+    n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)
+    seed: int = bounded(0, min=0)
+    resample_ess_fraction: float = bounded(0.5, min=0.0, max=1.0)
+    association: Literal["known", "unknown"] = "known"
+    new_landmark_mahalanobis_sq: float = bounded(13.8155, gt=0.0)
+    new_landmark_log_likelihood: float | None = None
+    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
+
+    def __post_init__(self):
+        validate(self)
