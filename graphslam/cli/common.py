@@ -27,7 +27,11 @@ def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) 
     print(summary)
     print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
     if interrupted:
-        print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
+        from graphslam.pipelines.common import active_guard
+
+        guard = active_guard()
+        name = "" if guard is None else f" ({guard.signal_name})"
+        print(f"graphslam: interrupted{name}; wrote the estimate so far", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK
 
