@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 EXIT_OK = 0
+#: Some of the work failed; what succeeded is written (``compare``).
+EXIT_FAILED = 1
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 

@@ -41,12 +41,14 @@ class StopGuard:
     Attributes:
         signum: the first stop signal received, or None.
         deferring: True once a run started: a first signal is a request.
+        escalate: a second signal raises KeyboardInterrupt (not in workers).
         owner_pid: the command's process (a forked worker keeps its parent's).
     """
 
     def __init__(self) -> None:
         self.signum: int | None = None
         self.deferring = False
+        self.escalate = True
         self.owner_pid = os.getpid()
         self._previous: dict = {}
 
@@ -70,15 +72,19 @@ class StopGuard:
         """From now on a first signal is a request honoured at step boundaries."""
         self.deferring = True
 
-    def forget(self) -> None:
-        """A forked worker starts with no request of its own (its parent's stays the parent's)."""
+    def become_worker(self) -> None:
+        """In a forked worker: no request yet (the parent's stays the parent's), and
+        no escalation: the parent passes on every signal it gets and kills a
+        worker that does not stop in time, so a repeated signal must not cut
+        the worker mid-step."""
         self.signum = None
+        self.escalate = False
 
     def _handle(self, signum, frame) -> None:
         first = self.signum is None
         if first:
             self.signum = signum
-        if not (first and self.deferring):
+        if first and not self.deferring or not first and self.escalate:
             raise KeyboardInterrupt
 
     def install(self) -> bool:
