@@ -30,14 +30,30 @@ published numbers (checked factor by factor in ``tests/test_readers.py``):
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
 from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
-                                         parse_floats, parse_int)
+                                         parse_floats)
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
+
+
+#: Ids become gtsam symbol keys ``X(id)``, ``L(id)``, whose index has 56 bits.
+ID_LIMIT = 2**56
+
+
+def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
+    """A decimal id as a Python int (never through a float, which rounds ids
+    from 2**53), from 0 to :data:`ID_LIMIT` - 1; InputError otherwise."""
+    if re.fullmatch(r"[+-]?[0-9]+", token) is None:
+        raise InputError(f"{what} {token!r} is not an integer", path, line_no)
+    value = int(token)
+    if not 0 <= value < ID_LIMIT:
+        raise InputError(f"{what} {token} is out of range (0 to 2**56 - 1)", path, line_no)
+    return value
 
 
 def victoria_park_path() -> str:
@@ -70,8 +86,8 @@ def read_victoria_park(path=None) -> Dataset:
         try:
             if tag == "ODOMETRY":
                 check_count(tok, 12, path, line_no, "ODOMETRY i j dx dy dtheta + 6 covariance")
-                i = parse_int(tok[1], path, line_no)
-                j = parse_int(tok[2], path, line_no)
+                i = parse_id(tok[1], path, line_no)
+                j = parse_id(tok[2], path, line_no)
                 nums = parse_floats(tok[3:], path, line_no)
                 if not order:
                     order.append(i)
@@ -88,8 +104,8 @@ def read_victoria_park(path=None) -> Dataset:
                 observations[j] = []
             elif tag == "LANDMARK":
                 check_count(tok, 8, path, line_no, "LANDMARK i j lx ly v1 v2 v3")
-                i = parse_int(tok[1], path, line_no)
-                j = parse_int(tok[2], path, line_no, "landmark id")
+                i = parse_id(tok[1], path, line_no)
+                j = parse_id(tok[2], path, line_no, "landmark id")
                 lx, ly, v1, _v2, _v3 = parse_floats(tok[3:], path, line_no)
                 if i not in observations:
                     raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
