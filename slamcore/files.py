@@ -64,21 +64,15 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
     """Refuse, before any work, an output folder that cannot be written: an
     existing file, a folder without write permission, or a parent that is a file.
 
-    Creates the folder (and its parents) when missing. Raises ConfigError.
+    Creates nothing (a refused run leaves no trace); raises ConfigError.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{flag} {path} is an existing file, not a folder")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise ConfigError(f"{flag} {path}: {parent} is a file, not a folder")
-            break
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ConfigError(f"{flag} {path}: cannot create the folder ({e.strerror})") from None
-    _check_writable(path, flag, path)
+    existing = next(p for p in (path, *path.absolute().parents) if p.exists())
+    if not existing.is_dir():
+        raise ConfigError(f"{flag} {path}: {existing} is a file, not a folder")
+    _check_writable(existing, flag, path)
     return path
 
 
@@ -86,7 +80,7 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     """Refuse, before any work, an output file that cannot be written: an existing
     folder, a parent that is a file, or a folder without write permission.
 
-    Creates the parent folders when missing. Raises ConfigError.
+    Creates nothing; raises ConfigError.
     """
     path = Path(path)
     if path.is_dir():

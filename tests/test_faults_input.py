@@ -173,6 +173,17 @@ def test_victoria_park_ids_are_integers_in_range(tmp_path, line, match):
     assert e.value.line == 2
 
 
+def test_covariance_overflowing_its_factor_is_refused(tmp_path):
+    """Found by the fuzzer: a covariance with entries near the float limit made
+    Cholesky overflow to inf instead of failing, and passed as positive definite."""
+    from graphslam.sources.planar.victoria_park import read_victoria_park
+
+    path = tmp_path / "vp.txt"
+    path.write_text(VP_HEAD + "ODOMETRY 1 2 1 0 0 1e-4 0 1e308 4e-6 0 4e-6\n")
+    with pytest.raises(InputError, match="not positive definite"):
+        read_victoria_park(path)
+
+
 def test_victoria_park_ids_past_2_53_stay_exact(tmp_path):
     from graphslam.sources.planar.victoria_park import read_victoria_park
 
@@ -202,4 +213,5 @@ def test_output_checks_raise_config_errors(tmp_path):
         check_output_dir(tmp_path / "f")
     with pytest.raises(ConfigError):
         check_output_file(tmp_path)
-    assert check_output_file(tmp_path / "new" / "x.csv").parent.is_dir()
+    assert check_output_file(tmp_path / "new" / "x.csv") == tmp_path / "new" / "x.csv"
+    assert not (tmp_path / "new").exists()  # checking creates nothing

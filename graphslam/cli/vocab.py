@@ -81,6 +81,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     vocab = train_vocabulary([f.descriptors for f in feats], args.words, flat=args.flat,
                              branching=args.branching, per_image=args.per_image, seed=args.seed)
     wall = time.perf_counter() - t0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     with replacing(args.out) as tmp:
         vocab.save(tmp)
     n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
