@@ -255,3 +255,24 @@ def test_a_cut_writer_leaves_the_old_file(tmp_path):
             raise KeyboardInterrupt
     assert path.read_text() == "old complete file\n"
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+
+
+def test_a_cut_run_is_no_benchmark_row():
+    """Library use: Ctrl-C cuts the loop and returns the estimate so far, and
+    :func:`whole` (what benchmarks call) refuses to score it."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.pipelines.common import whole
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    def ctrl_c_at_3(k, frame, backend):
+        if k == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    dataset = make_synthetic()
+    result = pipeline.run(dataset, registry.make_backend("ekf"), max_steps=20, on_step=ctrl_c_at_3)
+    assert result.interrupted and result.steps == 4
+    with pytest.raises(KeyboardInterrupt):
+        whole(result)
+    full = pipeline.run(dataset, registry.make_backend("ekf"), max_steps=5)
+    assert whole(full) is full

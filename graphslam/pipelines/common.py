@@ -147,6 +147,14 @@ def interrupt_between_frames() -> Iterator[StopGuard]:
         yield guard
 
 
+def whole(result):
+    """``result`` of a run, or KeyboardInterrupt when Ctrl-C cut it: for callers
+    that score runs (benchmarks), where a cut run must not pass for a whole one."""
+    if result.interrupted:
+        raise KeyboardInterrupt
+    return result
+
+
 def signal_hook(point: str, step: int | None = None) -> None:
     """Test hook (module docstring): send the configured signal at ``point``."""
     spec = os.environ.get("GRAPHSLAM_SIGNAL_AT")
