@@ -9,6 +9,7 @@ that turns errors into lines and statuses) where a command is involved.
 from __future__ import annotations
 
 import os
+import re
 import time
 from pathlib import Path
 
@@ -182,6 +183,25 @@ def test_covariance_overflowing_its_factor_is_refused(tmp_path):
     path.write_text(VP_HEAD + "ODOMETRY 1 2 1 0 0 1e-4 0 1e308 4e-6 0 4e-6\n")
     with pytest.raises(InputError, match="not positive definite"):
         read_victoria_park(path)
+
+
+@pytest.mark.parametrize("line, match", [
+    ("ODOMETRY 1 2 1 0 0 1e-4 0 0 1e-4 0 1e308", "heading variance 1e+308 is outside"),
+    ("ODOMETRY 1 2 1 0 0 1e-4 0 0 1e-4 0 1e-320", "heading variance 9.99989e-321 is outside"),
+    ("ODOMETRY 1 2 1e300 0 0 1e-4 0 0 1e-4 0 1e-5", "offset 1e+300 m is beyond"),
+    ("LANDMARK 1 3 1.0 9223372036854775807 0.4 0 0.4", "is beyond 1e+06 m"),
+    ("LANDMARK 1 3 1.0 2.0 1e30 0 0.4", "range variance 1e+30 is outside"),
+])
+def test_victoria_park_values_a_solver_can_weigh(tmp_path, line, match):
+    """Found by the fuzzer: a heading variance of 1e308 or a tree 9e18 m away read
+    fine and then broke iSAM2 (indeterminate system) and the EKF (math domain)."""
+    from graphslam.sources.planar.victoria_park import read_victoria_park
+
+    path = tmp_path / "vp.txt"
+    path.write_text(VP_HEAD + line + "\n")
+    with pytest.raises(InputError, match=re.escape(match)) as e:
+        read_victoria_park(path)
+    assert e.value.line == 2
 
 
 def test_victoria_park_ids_past_2_53_stay_exact(tmp_path):

@@ -77,6 +77,33 @@ def test_fuzz_victoria_park_reader(tmp_path):
     assert_clean(findings, t0)
 
 
+def run_every_backend(ds) -> None:
+    """A read log also runs: every back end over its first :data:`RUN_STEPS` frames
+    ends with a finite estimate (or one of our errors)."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+
+    check_landmark_log(ds)
+    for name in registry.BACKENDS:
+        result = pipeline.run(ds, registry.make_backend(name), max_steps=RUN_STEPS)
+        assert np.all(np.isfinite(result.estimate.wTb)), name
+
+
+#: Frames of a mutated log each back end runs through.
+RUN_STEPS = 40
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # degenerate geometry warns, then is refused
+def test_fuzz_victoria_park_runs(tmp_path):
+    from graphslam.sources.planar.victoria_park import read_victoria_park
+
+    base = head(gtsam_data("victoria_park.txt"), 80)
+    t0 = time.perf_counter()
+    findings = fuzz(base, tmp_path / "vp.txt", read_victoria_park, N_MUTANTS // 4,
+                    seed=N_MUTANTS, check=run_every_backend, timeout_s=10.0)
+    assert_clean(findings, t0)
+
+
 # ------------------------------------------------------------------------------ config files
 
 def config_classes() -> list[type]:
