@@ -22,6 +22,10 @@ outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
   compare.rrd saved instead); files of these names that a run will not write
   (compare.rrd with --rerun off) are removed first, other files never
 
+a back end that fails, or is cut by Ctrl-C or SIGTERM, is marked in the table's
+  status column and in compare.json (status, error); the others' results are
+  kept. Exit status 1 when one failed, 130 / 143 when stopped by a signal.
+
 examples:
   graphslam compare
   graphslam compare --dataset victoria-park --backends isam2 ekf --rerun off
