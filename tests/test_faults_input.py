@@ -235,3 +235,29 @@ def test_output_checks_raise_config_errors(tmp_path):
         check_output_file(tmp_path)
     assert check_output_file(tmp_path / "new" / "x.csv") == tmp_path / "new" / "x.csv"
     assert not (tmp_path / "new").exists()  # checking creates nothing
+
+
+def test_a_folder_that_refuses_files_is_refused(tmp_path, monkeypatch, capsys):
+    """What a read-only folder (or mount) does to the write probe, for users (root in
+    CI) whom permissions do not stop: the run is refused before it starts."""
+    import errno
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    refused(capsys, ["run", "--quiet", "--out", str(tmp_path / "o")],
+            f"cannot write in {tmp_path} (Permission denied)")
+    assert not (tmp_path / "o").exists()
+
+
+def test_victoria_park_with_a_byte_order_mark_reads_the_same(tmp_path):
+    from graphslam.sources.planar.victoria_park import read_victoria_park
+
+    plain, bom = tmp_path / "plain.txt", tmp_path / "bom.txt"
+    plain.write_text(VP_HEAD + "LANDMARK 1 3 1.0 2.0 0.4 0 0.4\n")
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = read_victoria_park(plain), read_victoria_park(bom)
+    assert [f.pose_id for f in a.frames] == [f.pose_id for f in b.frames] == [0, 1]
+    assert len(b.frames[1].observations) == 1
