@@ -276,3 +276,39 @@ def test_a_cut_run_is_no_benchmark_row():
         whole(result)
     full = pipeline.run(dataset, registry.make_backend("ekf"), max_steps=5)
     assert whole(full) is full
+
+
+def test_a_worker_that_does_not_stop_is_killed(monkeypatch):
+    """SIGTERM to the command while its worker is stuck in a step: the worker is
+    asked to stop, then killed after the grace period; its row says cut."""
+    import time as _time
+
+    from graphslam import registry
+    from graphslam.pipelines import compare
+    from graphslam.pipelines.common import stop_guard
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    real = registry.make_backend
+
+    def stuck(name, **kw):
+        backend = real(name, **kw)
+        update, calls = backend.update, []
+
+        def update_then_hang(observations):
+            calls.append(1)
+            if len(calls) > 3:
+                _time.sleep(60)
+            update(observations)
+        backend.update = update_then_hang
+        return backend
+
+    monkeypatch.setattr(registry, "make_backend", stuck)
+    monkeypatch.setattr(compare, "STOP_GRACE_S", 0.5)
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_AT", "step:1")  # in the worker, to this process
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL", "TERM")
+    t0 = _time.perf_counter()
+    with stop_guard() as guard:
+        entries = compare.compare(make_synthetic(), ["ekf", "isam2"], max_steps=20)
+    assert guard.signal_name == "SIGTERM" and _time.perf_counter() - t0 < 30
+    assert [(e.backend, e.status) for e in entries] == [("ekf", "cut"), ("isam2", "not run")]
+    assert "did not stop" in entries[0].error

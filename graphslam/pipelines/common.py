@@ -158,12 +158,12 @@ def whole(result):
 def signal_hook(point: str, step: int | None = None) -> None:
     """Test hook (module docstring): send the configured signal at ``point``."""
     spec = os.environ.get("GRAPHSLAM_SIGNAL_AT")
-    if not spec or _fired:
+    if not spec or (os.getpid(), spec) in _fired:
         return
     name, _, at = spec.partition(":")
     if name != point or (at and (step is None or int(at) != step)):
         return
-    _fired.append(point)
+    _fired.add((os.getpid(), spec))
     signum = getattr(signal, "SIG" + os.environ.get("GRAPHSLAM_SIGNAL", "INT").upper())
     target = os.environ.get("GRAPHSLAM_SIGNAL_TO", "main")
     if target == "group":
@@ -174,7 +174,7 @@ def signal_hook(point: str, step: int | None = None) -> None:
     os.kill(pid, signum)
 
 
-_fired: list[str] = []  # the hook fires once per process
+_fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worker too)
 
 
 def progress_bar(total: int, dataset: str, backend: str, enabled: bool):

@@ -49,7 +49,7 @@ def finished(entries: list[CompareEntry]) -> list[CompareEntry]:
     return [e for e in entries if e.result is not None]
 
 
-def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> tuple:
+def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipeline.RunResult:
     backend = registry.make_backend(name, config=config, overrides=overrides)
     result = pipeline.run(dataset, backend, max_steps=max_steps, with_covariances=True)
     return result
@@ -117,16 +117,16 @@ def _wait_for(proc, conn, name: str):
     """The worker's message, or None if it died without one; forwards a stop
     request to it and kills it when it does not answer in time."""
     deadline = None
-    while not conn.poll(POLL_S):
+    while not conn.poll(POLL_S):  # True on a message and on the pipe's end (child gone)
         if not proc.is_alive():
-            return conn.recv() if conn.poll() else None
+            break
         if deadline is None and stop_requested():
             os.kill(proc.pid, signal.SIGINT)
             deadline = time.monotonic() + STOP_GRACE_S
         elif deadline is not None and time.monotonic() > deadline:
             raise GraphSlamError(f"{name}: did not stop within {STOP_GRACE_S:.0f} s; killed")
     try:
-        return conn.recv()
+        return conn.recv() if conn.poll() else None
     except EOFError:
         return None
 
@@ -173,8 +173,8 @@ def _compare_one(dataset, name, config, overrides, max_steps, isolate, seed) -> 
             result, peak_mb = _run_one(dataset, name, config, overrides, max_steps), None
     except KeyboardInterrupt:  # a second signal: this one is lost, the others are kept
         return CompareEntry(name, None, None, "cut", "stopped before its first step")
-    except GraphSlamError as e:
-        return CompareEntry(name, None, None, "failed", str(e))
+    except GraphSlamError as e:  # a worker asked to stop and killed for not stopping is cut
+        return CompareEntry(name, None, None, "cut" if stop_requested() else "failed", str(e))
     except Exception:  # a bug in one back end must not lose the others' results
         return CompareEntry(name, None, None, "failed", traceback.format_exc())
     m = pipeline.compute_metrics(result, seed=seed)
