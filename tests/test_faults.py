@@ -312,3 +312,24 @@ def test_a_worker_that_does_not_stop_is_killed(monkeypatch):
     assert guard.signal_name == "SIGTERM" and _time.perf_counter() - t0 < 30
     assert [(e.backend, e.status) for e in entries] == [("ekf", "cut"), ("isam2", "not run")]
     assert "did not stop" in entries[0].error
+
+
+def test_ctrl_c_inside_an_import_is_one_line(monkeypatch, capsys):
+    """Ctrl-C while a C extension initialises (numpy, gtsam: the first second of a
+    command) surfaces as "ImportError: initialization failed", not as
+    KeyboardInterrupt: still one line and 130, no traceback."""
+    import time as _time
+
+    from graphslam.cli import main as cli
+    from graphslam.cli.run import command
+
+    def importing(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            _time.sleep(1)
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+
+    monkeypatch.setattr(command, "cmd_run", importing)
+    assert cli.main(["run"]) == 130
+    assert capsys.readouterr().err == "graphslam: interrupted (SIGINT)\n"

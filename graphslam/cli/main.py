@@ -51,6 +51,13 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)
             return guard.exit_status()
+        except Exception:
+            # KeyboardInterrupt inside a C extension's import surfaces as
+            # "ImportError: initialization failed": the signal's doing, not a bug
+            if not guard.requested:
+                raise
+            print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)
+            return guard.exit_status()
         if guard.requested and status in (EXIT_OK, EXIT_INTERRUPTED):
             # the signal came while the outputs were being finished: all written
             if status == EXIT_OK:
