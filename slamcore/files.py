@@ -23,7 +23,7 @@ def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path``; moved over ``path`` when the block ends
     without an exception, deleted otherwise.
 
-    For writers that want a file name (``np.savez``, matplotlib, Rerun)."""
+    For writers that want a file name (``np.savez``, matplotlib)."""
     path = Path(path)
     # hidden, same folder (same file system, so the rename is atomic), same
     # suffix (matplotlib and numpy choose the format from it)
@@ -54,7 +54,15 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs):
 
 @functools.cache
 def _umask() -> int:
-    # read once: setting it back and forth races with threads creating files
+    """The process umask, read once: Linux states it in /proc; elsewhere setting it
+    back and forth is the only way (a moment in which another thread's new file
+    would get the wrong mode, hence once)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except OSError:
+        pass
     mask = os.umask(0)
     os.umask(mask)
     return mask
