@@ -9,6 +9,7 @@ config files (every section built, range checks included), and the 2-D pose-grap
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import math
 import time
@@ -106,7 +107,8 @@ def test_fuzz_victoria_park_runs(tmp_path):
 
 # ------------------------------------------------------------------------------ config files
 
-def config_classes() -> list[type]:
+@functools.cache
+def config_classes() -> tuple[type, ...]:
     """Every config dataclass of the tree (a ``SECTION`` class attribute)."""
     found = []
     for module, path in module_files(ROOT).items():
@@ -116,7 +118,7 @@ def config_classes() -> list[type]:
                     isinstance(b, ast.AnnAssign) and getattr(b.target, "id", "") == "SECTION"
                     for b in node.body):
                 found.append(getattr(importlib.import_module(module), node.name))
-    return found
+    return tuple(found)
 
 
 def defaults_toml(classes: list[type]) -> bytes:
@@ -150,15 +152,13 @@ def read_every_section(path: Path) -> list:
     from graphslam import registry
 
     config = registry.read_config(path)
-    return [config.section(cls) for cls in CLASSES]
+    return [config.section(cls) for cls in config_classes()]
 
-
-CLASSES = config_classes()
 
 
 @pytest.mark.parametrize("suffix", [".toml", ".yaml"])
 def test_fuzz_config_reader(tmp_path, suffix):
-    base = defaults_toml(CLASSES)
+    base = defaults_toml(config_classes())
     if suffix == ".yaml":
         import tomllib
 
@@ -166,7 +166,7 @@ def test_fuzz_config_reader(tmp_path, suffix):
 
         base = yaml.safe_dump(tomllib.loads(base.decode()), sort_keys=False).encode()
     (tmp_path / f"ok{suffix}").write_bytes(base)
-    assert len(read_every_section(tmp_path / f"ok{suffix}")) == len(CLASSES)  # a valid corpus
+    assert len(read_every_section(tmp_path / f"ok{suffix}")) == len(config_classes())  # a valid corpus
     t0 = time.perf_counter()
     # YAML parses in pure Python, about five times slower: fewer mutants
     n = N_MUTANTS // 2 if suffix == ".toml" else N_MUTANTS // 6
