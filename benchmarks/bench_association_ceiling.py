@@ -33,6 +33,7 @@ import sys
 import numpy as np
 
 from graphslam import registry
+from graphslam.pipelines.common import whole  # a cut run is no row
 from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from graphslam.evaluation.planar import oracle_association_accuracy
@@ -67,7 +68,7 @@ def accuracy(dataset: Dataset, backend: str) -> dict:
     overrides = {"association": "unknown"}
     if backend.startswith("fastslam"):
         overrides["n_particles"] = 100
-    result = pipeline.run(dataset, registry.make_backend(backend, overrides=overrides))
+    result = whole(pipeline.run(dataset, registry.make_backend(backend, overrides=overrides)))
     return metrics.association_accuracy(result.associations)
 
 

@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam import registry
+from graphslam.pipelines.common import whole  # a cut run is no row
 from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from graphslam.backends import gtsam_convert as conv
@@ -87,7 +88,7 @@ def residual_rejected(dataset, estimate) -> tuple[int, int]:
 
 def one_run(dataset, config, label, fraction, clean, clean_ate, plain_prefix=False):
     backend = Isam2Backend(config)
-    result = pipeline.run(dataset, backend)
+    result = whole(pipeline.run(dataset, backend))
     est = result.estimate
     n_inj = sum(is_injected(lc) for f in dataset.frames for lc in f.loop_closures)
     row = {"dataset": dataset.name, "config": label, "fraction": fraction,
@@ -146,7 +147,7 @@ def main(argv=None) -> int:
         if args.max_steps:
             ds = ds.truncated(args.max_steps)
         clean_backend = Isam2Backend(plain_cfg)
-        clean_run = pipeline.run(ds, clean_backend)
+        clean_run = whole(pipeline.run(ds, clean_backend))
         clean = clean_run.estimate
         gt = ds.ground_truth()
         clean_ate = metrics.ate(clean.pose_ids, clean.wTb, *gt)["rmse_m"] if gt else None
@@ -169,7 +170,7 @@ def main(argv=None) -> int:
             if args.plain_max_steps:
                 if prefix is None:
                     pre = ds.truncated(args.plain_max_steps)
-                    prefix_run = pipeline.run(pre, Isam2Backend(plain_cfg))
+                    prefix_run = whole(pipeline.run(pre, Isam2Backend(plain_cfg)))
                     pgt = pre.ground_truth()
                     pre_ate = (metrics.ate(prefix_run.estimate.pose_ids, prefix_run.estimate.wTb,
                                            *pgt)["rmse_m"] if pgt else None)

@@ -35,6 +35,7 @@ from tqdm import tqdm
 from frontend.orb import OrbDetector
 from frontend.tracking import Tracker, TrackerConfig
 from graphslam.pipelines import spatial as vp
+from graphslam.pipelines.common import whole  # a cut run is no row
 from graphslam.pipelines.place_recognition import train_vocabulary
 from loopclosure.detector import LoopDetectorConfig
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend
@@ -69,8 +70,8 @@ def main(argv=None) -> int:
         for loops in (False, True):
             closer = VisualLoopCloser(LoopDetector(vocab, K=seq.K)) if loops else None
             backend = VisualIsam2Backend(VisualIsam2Config(predict_window_frames=window))
-            res = vp.run(seq, backend, Tracker(TrackerConfig(), follow_unmapped=True),
-                         loop_closer=closer, progress=True)
+            res = whole(vp.run(seq, backend, Tracker(TrackerConfig(), follow_unmapped=True),
+                               loop_closer=closer, progress=True))
             m = vp.compute_metrics(res).to_dict()
             row = {"mode": mode, "window": window, "loops": loops, "ate_rmse_m": m["ate_rmse_m"],
                    "odometry_ate_rmse_m": m["odometry_ate_rmse_m"], "wall_s": res.wall_s}

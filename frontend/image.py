@@ -61,15 +61,44 @@ def check_gray(image: object, what: str = "image") -> np.ndarray:
     return image
 
 
+#: How far from the end of a file its end marker may be (some writers pad), bytes.
+END_MARKER_SLACK = 256
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_JPEG_START = b"\xff\xd8"
+
+
+def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
+    """Decode the bytes of an image file as ``(H, W)`` ``uint8`` greyscale.
+
+    A PNG without its ``IEND`` chunk or a JPEG without its end-of-image marker
+    (a truncated file) is refused before decoding: OpenCV would decode the part
+    it has, fill the rest with grey and name no file. Raises :class:`InputError`
+    naming ``path``.
+    """
+    tail = data[-END_MARKER_SLACK:]
+    if data.startswith(_PNG_SIGNATURE) and b"IEND" not in tail:
+        raise InputError("truncated PNG (no IEND chunk at the end)", path)
+    if data.startswith(_JPEG_START) and b"\xff\xd9" not in tail:
+        raise InputError("truncated JPEG (no end-of-image marker)", path)
+    image = None
+    if data:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        raise InputError("cannot read image (not an image file, or an unsupported format)", path)
+    return check_gray(image, what=str(path))
+
+
 def load_gray(path: str | Path) -> np.ndarray:
     """Read an image file as ``(H, W)`` ``uint8`` greyscale (``cv2.IMREAD_GRAYSCALE``).
 
-    Raises :class:`InputError` naming the file when it is missing or unreadable.
+    Raises :class:`InputError` naming the file when it is missing, unreadable,
+    truncated (:func:`decode_gray`) or not an image.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("image file not found", path)
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None or image.size == 0:
-        raise InputError("cannot decode image (not an image file, or unsupported format)", path)
-    return check_gray(image, what=str(path))
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"cannot read image ({e.strerror})", path) from None
+    return decode_gray(data, path)

@@ -87,6 +87,14 @@ class OrbDetector:
             scoreType=cv2.ORB_HARRIS_SCORE if c.score == "harris" else cv2.ORB_FAST_SCORE,
             patchSize=int(c.patch_size), fastThreshold=int(c.fast_threshold))
 
+    def _too_small(self, image: np.ndarray) -> bool:
+        """No point of ``image`` is ``edge_threshold`` px inside every border, so ORB
+        can describe none (and OpenCV fails on a 1-px side, whose pyramid levels
+        have no pixel)."""
+        c = self.config
+        side = min(image.shape)
+        return side <= 2 * c.edge_threshold or side / c.scale_factor ** (c.n_levels - 1) < 1.5
+
     def _cells(self, xy: np.ndarray, shape) -> np.ndarray:
         cs = self.config.cell_size_px
         n_cols = -(-shape[1] // cs)
@@ -112,7 +120,7 @@ class OrbDetector:
         """
         image = check_gray(image)
         xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 2)
-        if len(xy) == 0:
+        if len(xy) == 0 or self._too_small(image):
             return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
         # class_id carries the input index through compute(), which may drop points
         kps = [cv2.KeyPoint(float(x), float(y), float(size_px), -1.0, 0.0, 0, int(i))
@@ -129,10 +137,12 @@ class OrbDetector:
         image = check_gray(image)
         c = self.config
         orb = self._orb()
-        kps = orb.detect(image, None)
         empty = Features(xy_px=np.zeros((0, 2)), response=np.zeros(0),
                          descriptors=np.zeros((0, 32), np.uint8),
                          cell=np.zeros(0, np.int64) if c.cell_size_px else None)
+        if self._too_small(image):
+            return empty
+        kps = orb.detect(image, None)
         if not kps:
             return empty
         kps = list(kps)

@@ -164,6 +164,16 @@ def restore_tree(cls, data: dict, path):
     return v
 
 
+def _is_tree(children: np.ndarray) -> bool:
+    """``children`` links form one tree rooted at node 0: the root has no parent,
+    every other node exactly one, with a smaller index (nodes are numbered
+    breadth first), so no link leads back up and a descent always ends."""
+    rows, _ = np.nonzero(children >= 0)
+    targets = children[children >= 0].astype(np.int64)
+    parents = np.bincount(targets, minlength=children.shape[0])
+    return bool(np.all(targets > rows) and parents[0] == 0 and np.all(parents[1:] == 1))
+
+
 def _check_tree(v, path) -> None:
     """The tree's arrays agree: int32 links within range, words exactly the leaves."""
     ch, nw, wn = v.children_, v.node_word_, v.word_node_
@@ -173,6 +183,7 @@ def _check_tree(v, path) -> None:
           and ch.shape[1] == v.branching and nw.shape == (n_nodes,) and wn.ndim == 1
           and bool(np.all((ch >= -1) & (ch < n_nodes)))
           and bool(np.all((wn >= 0) & (wn < n_nodes))))
+    ok = ok and _is_tree(ch)
     # Every leaf (no child) is a word and every word a leaf, numbered in node order.
     ok = ok and np.array_equal(np.flatnonzero((ch < 0).all(axis=1)), wn) \
         and np.array_equal(nw[wn], np.arange(wn.size)) and int((nw >= 0).sum()) == wn.size

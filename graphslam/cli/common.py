@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 EXIT_OK = 0
+#: Some of the work failed; what succeeded is written (``compare``).
+EXIT_FAILED = 1
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -32,7 +34,11 @@ def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) 
     print(summary)
     print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
     if interrupted:
-        print("graphslam: interrupted; wrote the estimate so far", file=sys.stderr)
+        from graphslam.pipelines.common import active_guard
+
+        guard = active_guard()
+        name = "" if guard is None else f" ({guard.signal_name})"
+        print(f"graphslam: interrupted{name}; wrote the estimate so far", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK
 

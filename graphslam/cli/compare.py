@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from slamcore.errors import GraphSlamError
+from slamcore.files import check_output_dir, replacing
 
 EPILOG = """\
 datasets:
@@ -20,6 +21,10 @@ outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
   spawn/connect, when no viewer can be started or reached: a warning and
   compare.rrd saved instead); files of these names that a run will not write
   (compare.rrd with --rerun off) are removed first, other files never
+
+a back end that fails, or is cut by Ctrl-C or SIGTERM, is marked in the table's
+  status column and in compare.json (status, error); the others' results are
+  kept. Exit status 1 when one failed, 130 / 143 when stopped by a signal.
 
 examples:
   graphslam compare
@@ -63,10 +68,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam.pipelines import compare
     from graphslam.outputs import writers
 
-    from graphslam.cli.common import (
-        check_rerun_flags, close_recorder, open_recorder, recoveries_text, rerun_sink,
-    )
-    from graphslam.visualisation.plots import plot_comparison
+    from graphslam.cli.common import check_rerun_flags, rerun_sink
 
     check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
@@ -75,6 +77,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
         raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
                              "none of the back ends draws random numbers")
+    if args.out is not None:  # refused now, not after the runs
+        check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     config = registry.read_config(args.config)
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
@@ -88,28 +92,64 @@ def cmd_compare(args: argparse.Namespace) -> int:
         dataset, args.backends, config=config, overrides=overrides,
         max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
         progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
+    return _write_comparison(args, entries, dataset, out_dir, rerun_mode)
+
+
+def _write_comparison(args, entries, dataset, out_dir: Path, rerun_mode: str) -> int:
+    """Table, compare.json, compare.png and compare.rrd of the back ends that have
+    a result (the failed and cut ones marked); the exit status."""
+    from graphslam.cli.common import (
+        EXIT_FAILED, EXIT_INTERRUPTED, close_recorder, open_recorder, recoveries_text, warn,
+    )
+    from graphslam.outputs import writers
+    from graphslam.pipelines.common import active_guard
+    from graphslam.pipelines.compare import finished
+    from graphslam.visualisation.plots import plot_comparison
+
+    done = finished(entries)
     print(format_table(entries))
-    writers.write_json(out_dir / "compare.json",
-                       {"dataset": dataset.name, "runs": [e.metrics for e in entries]})
-    outputs = ["compare.json", plot_comparison(entries, dataset, out_dir / "compare.png").name]
-    if rerun_mode != "off":
+    writers.write_json(out_dir / "compare.json", {"dataset": dataset.name, "runs": [
+        e.metrics if e.status == "ok" else _marked(e) for e in entries]})
+    outputs = ["compare.json"]
+    if done:
+        with replacing(out_dir / "compare.png") as tmp:
+            plot_comparison(done, dataset, tmp)
+        outputs.append("compare.png")
+    if rerun_mode != "off" and done:
         from graphslam.visualisation.planar import RunRecorder
 
         recorder, rerun_mode = open_recorder(RunRecorder.open, rerun_mode,
                                              out_dir / "compare.rrd", args.rerun_url)
-        recorder.record_comparison(entries, dataset)
+        recorder.record_comparison(done, dataset)
         close_recorder(recorder)
         if rerun_mode == "save":
             outputs.append("compare.rrd")
-    skipped = {e.backend: e.metrics.loop_closures_skipped for e in entries
+    writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
+    skipped = {e.backend: e.metrics.loop_closures_skipped for e in done
                if e.metrics.loop_closures_skipped}
     for name, n in skipped.items():
         print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
-    for e in entries:
+    for e in done:
         if e.metrics.recoveries and any(e.metrics.recoveries.values()):
             print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
     print(f"outputs in {out_dir}/: " + ", ".join(outputs))
-    return 0
+    for e in entries:
+        if e.status == "failed":
+            warn(f"{e.backend} failed: {e.error.strip().splitlines()[-1]}")
+    guard = active_guard()
+    if guard is not None and guard.requested:
+        print(f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results "
+              "so far", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_FAILED if any(e.status == "failed" for e in entries) else 0
+
+
+def _marked(entry) -> dict:
+    """compare.json's entry of a back end that did not run to its end."""
+    out = {"backend": entry.backend, "status": entry.status, "error": entry.error}
+    if entry.metrics is not None:
+        out = {**entry.metrics.to_dict(), **out}
+    return out
 
 
 COLUMNS = [
@@ -133,7 +173,10 @@ def format_table(entries) -> str:
     """Plain-text table of the comparison; columns with no value anywhere are left out."""
     rows = []
     for e in entries:
-        m = e.metrics.to_dict()
+        if e.metrics is None:
+            rows.append({"backend": e.backend, "status": e.status})
+            continue
+        m = {**e.metrics.to_dict(), "status": e.status}
         a = e.metrics.association
         # the oracle's ceiling, observations left unused (counted as wrong) and
         # extra estimated landmarks mapped to an already-taken true landmark
@@ -143,6 +186,8 @@ def format_table(entries) -> str:
                  association_duplicates=None if a is None else a.duplicates)
         rows.append(m)
     cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
+    if any(r["status"] != "ok" for r in rows):  # cut, failed, not run: say which
+        cols.insert(1, ("status", "status", "s"))
     cells = [[h for _, h, _ in cols]]
     for r in rows:
         cells.append(["n/a" if r.get(k) is None else format(r[k], f) for k, _, f in cols])

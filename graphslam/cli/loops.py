@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from slamcore.errors import InputError
+from slamcore.files import check_output_file
 
 EPILOG = """\
 output:
@@ -65,6 +66,8 @@ def register(subparsers) -> None:
 
 def cmd_loops(args: argparse.Namespace) -> int:
     from frontend.orb import OrbDetector
+    from graphslam.cli.common import EXIT_INTERRUPTED
+    from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
         check_vocabulary, describe, detect_all, detect_loops, train_vocabulary,
     )
@@ -75,6 +78,9 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from loopclosure.vocabulary import load_vocabulary
 
     t0 = time.perf_counter()
+    check_output_file(args.out)  # refused now, not after the detection
+    if args.log is not None:
+        check_output_file(args.log, "--log")
     paths = folder_images(args.images_dir)
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
@@ -106,7 +112,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
-    print(f"{len(paths)} images, {len(detector.records)} candidates, "
+    guard = active_guard()
+    seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
+    print(f"{seen} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
+    if stop_requested():
+        print(f"graphslam: interrupted ({guard.signal_name}); wrote the closures found in "
+              f"the images seen", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0

@@ -1,7 +1,8 @@
 """``graphslam`` command line: parses, calls the library, prints.
 
 Any :class:`~slamcore.errors.GraphSlamError` becomes one line on stderr and
-exit status 2; Ctrl-C writes what was estimated so far and exits with 130.
+exit status 2; Ctrl-C (SIGINT) or SIGTERM writes what was estimated so far and
+exits with 130 or 143 (:mod:`graphslam.pipelines.common`).
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED
+from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK
 from slamcore.errors import GraphSlamError
 
 
@@ -34,16 +35,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except GraphSlamError as e:
-        print(f"graphslam: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("graphslam: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    from graphslam.pipelines.common import signal_hook, stop_guard
+
+    # The guard first: a signal while the parser and the libraries load is
+    # one line and its exit status, never a traceback.
+    with stop_guard() as guard:
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            signal_hook("start")
+            status = args.func(args)
+        except GraphSlamError as e:
+            print(f"graphslam: error: {e}", file=sys.stderr)
+            return EXIT_ERROR
+        except KeyboardInterrupt:
+            print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)
+            return guard.exit_status()
+        except Exception:
+            # KeyboardInterrupt inside a C extension's import surfaces as
+            # "ImportError: initialization failed": the signal's doing, not a bug
+            if not guard.requested:
+                raise
+            print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)
+            return guard.exit_status()
+        if guard.requested and status in (EXIT_OK, EXIT_INTERRUPTED):
+            # the signal came while the outputs were being finished: all written
+            if status == EXIT_OK:
+                print(f"graphslam: interrupted ({guard.signal_name}); the outputs are complete",
+                      file=sys.stderr)
+            return guard.exit_status()
+        return status
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -60,22 +60,35 @@ def cmd_train(args: argparse.Namespace) -> int:
     import time
 
     from frontend.orb import OrbDetector
+    from graphslam.cli.common import EXIT_INTERRUPTED
+    from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
+    from slamcore.files import check_output_file, replacing
     from graphslam.sources.spatial.sequence import expand_images
     from loopclosure.detector import LoopDetectorConfig
     from graphslam.registry import read_config
 
+    check_output_file(args.out)  # refused now, not after the training
     paths = expand_images(args.images)
     orb = OrbDetector(read_config(args.config).section(LoopDetectorConfig).orb)
-    feats = detect_all(paths, orb, progress=not args.quiet)
+    # A stop during the ORB pass trains on the images described so far; one
+    # during the training lets it finish (a second one aborts, the old file kept).
+    feats = detect_all(paths, orb, progress=not args.quiet, stoppable=True)
+    if stop_requested() and not feats:
+        raise KeyboardInterrupt
     t0 = time.perf_counter()
-    print(f"training on {len(paths)} images ...", file=sys.stderr, flush=True)
+    print(f"training on {len(feats)} images ...", file=sys.stderr, flush=True)
     vocab = train_vocabulary([f.descriptors for f in feats], args.words, flat=args.flat,
                              branching=args.branching, per_image=args.per_image, seed=args.seed)
     wall = time.perf_counter() - t0
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    vocab.save(args.out)
+    with replacing(args.out) as tmp:
+        vocab.save(tmp)
     n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
-    print(f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(paths)} "
+    print(f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
           f"images, trained in {wall:.1f} s")
+    if stop_requested():
+        print(f"graphslam: interrupted ({active_guard().signal_name}); the vocabulary is "
+              f"trained on {len(feats)} of {len(paths)} images", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0

@@ -6,12 +6,14 @@ import csv
 import json
 from pathlib import Path
 
+from slamcore.files import atomic_open
+
 
 def write_loops(closer, out_dir: Path) -> dict[str, Path]:
     """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)
     of a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""
     paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
-    with paths["loops"].open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(paths["loops"], "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
         for r in closer.records:
@@ -26,7 +28,7 @@ def write_folder_loops_csv(path: Path, closures, paths: list[Path]) -> None:
     """``query,match,score,inliers`` (file names, the later image first) per accepted
     :class:`loopclosure.detector.DetectedLoop`."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["query", "match", "score", "inliers"])
         for c in closures:
@@ -36,7 +38,7 @@ def write_folder_loops_csv(path: Path, closures, paths: list[Path]) -> None:
 def write_candidates_jsonl(path: Path, records, paths: list[Path]) -> None:
     """Every :class:`loopclosure.detector.CandidateRecord` as one JSON line, with file names."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", encoding="utf-8") as fh:
+    with atomic_open(path, "w", encoding="utf-8") as fh:
         for r in records:
             d = r.to_dict()
             d["query_name"] = paths[r.query].name

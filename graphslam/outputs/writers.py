@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slamcore.files import atomic_open
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 
@@ -21,7 +22,7 @@ def write_tum(path: Path, stamps: np.ndarray, t_w: np.ndarray, q_xyzw: np.ndarra
         q_xyzw: (N, 4) unit quaternions of the body-to-world rotation.
     """
     rows = np.column_stack([np.asarray(stamps, dtype=float), t_w, q_xyzw])
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
         for r in rows:
             stamp = f"{int(r[0])}" if float(r[0]).is_integer() else f"{r[0]:.6f}"
@@ -46,7 +47,7 @@ def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.nd
     """``id,x,y`` (2-D) or ``id,x,y,z`` (3-D): ids as the back end gives them, metres."""
     landmarks_w = np.asarray(landmarks_w, dtype=np.float64)
     dim = landmarks_w.shape[1] if landmarks_w.ndim == 2 else 2
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("id," + ",".join("xyz"[:dim]) + "\n")
         for lid, p in zip(landmark_ids, landmarks_w.reshape(-1, dim)):
             f.write(f"{int(lid)}," + ",".join(f"{v:.9g}" for v in p) + "\n")
@@ -67,7 +68,7 @@ def _jsonable(value):
 
 
 def write_json(path: Path, data: dict) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         json.dump(_jsonable(data), f, indent=2, sort_keys=False)
         f.write("\n")
 

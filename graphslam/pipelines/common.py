@@ -1,37 +1,180 @@
-"""What the 2-D and visual pipelines share: the Ctrl-C guard and the progress bar."""
+"""What the pipelines share: the stop guard (SIGINT, SIGTERM), its test hook, and
+the progress bar.
+
+A command runs inside one :func:`stop_guard` (``graphslam.cli.main`` opens it).
+Until a run starts (:meth:`StopGuard.defer`), SIGINT or SIGTERM raises
+KeyboardInterrupt at once: nothing is estimated yet, nothing is lost. From then
+on, to the end of the command (the loop, finalisation, metrics, writing), the
+first signal is only recorded: loops stop at their next step boundary, optional
+work (covariances) is skipped, and every output is still written. A second
+signal raises KeyboardInterrupt at once; the writers replace files atomically,
+so even then each file is the old complete one or the new complete one.
+
+Test hook: ``GRAPHSLAM_SIGNAL_AT=POINT[:N]`` makes the process send itself a
+signal the first time the code reaches ``POINT`` (with ``N``: step ``N``,
+0-based), so tests hit exact moments without sleeping. Points: ``start`` (the
+command has parsed its arguments), ``step`` (a step is done), ``finalize``
+(the loop is over; finalisation and covariances next), ``write`` (the first
+output file is written, the others not yet). ``GRAPHSLAM_SIGNAL`` names the
+signal (``INT``, ``TERM``, ``KILL``; default ``INT``); ``GRAPHSLAM_SIGNAL_TO``
+its target: ``main`` (the command's process, default; from a ``compare``
+worker that is the parent), ``self`` or ``group`` (the process group, as a
+terminal's Ctrl-C).
+"""
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+#: Exit status of a command stopped by each signal (128 + the signal number).
+EXIT_STATUS_OF_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopGuard:
+    """SIGINT and SIGTERM of one command (module docstring).
+
+    Attributes:
+        signum: the first stop signal received, or None.
+        deferring: True once a run started: a first signal is a request.
+        escalate: a second signal raises KeyboardInterrupt (not in workers).
+        owner_pid: the command's process (a forked worker keeps its parent's).
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.deferring = False
+        self.escalate = True
+        self.owner_pid = os.getpid()
+        self._previous: dict = {}
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    @property
+    def signal_name(self) -> str:
+        return signal.Signals(self.signum or signal.SIGINT).name
+
+    def exit_status(self) -> int:
+        return EXIT_STATUS_OF_SIGNAL.get(self.signum, 130)
+
+    def check(self) -> None:
+        """Raise KeyboardInterrupt when a stop was asked for (call between steps)."""
+        if self.signum is not None:
+            raise KeyboardInterrupt
+
+    def defer(self) -> None:
+        """From now on a first signal is a request honoured at step boundaries."""
+        self.deferring = True
+
+    def become_worker(self) -> None:
+        """In a forked worker: no request yet (the parent's stays the parent's), and
+        no escalation: the parent passes on every signal it gets and kills a
+        worker that does not stop in time, so a repeated signal must not cut
+        the worker mid-step."""
+        self.signum = None
+        self.escalate = False
+
+    def _handle(self, signum, frame) -> None:
+        first = self.signum is None
+        if first:
+            self.signum = signum
+        if first and not self.deferring or not first and self.escalate:
+            raise KeyboardInterrupt
+
+    def install(self) -> bool:
+        """Install the handlers (main thread only); False where signals cannot be caught."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        for s in STOP_SIGNALS:
+            self._previous[s] = signal.signal(s, self._handle)
+        return True
+
+    def restore(self) -> None:
+        for s, previous in self._previous.items():
+            signal.signal(s, previous)
+        self._previous.clear()
+
+
+_active: list[StopGuard] = []  # the guard of the command running in this process
+
 
 @contextmanager
-def interrupt_between_frames() -> Iterator[dict]:
-    """Turn the first Ctrl-C into a request honoured at the next frame boundary.
-
-    A KeyboardInterrupt raised in the middle of a frame (say, inside an iSAM2
-    update) would leave the back end half-updated and its estimate unusable;
-    a second Ctrl-C still interrupts at once. Only the main thread can hold a
-    signal handler; elsewhere Ctrl-C behaves as usual.
-    """
-    stop = {"requested": False}
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-
-    def handler(signum, frame):
-        if stop["requested"]:
-            signal.default_int_handler(signum, frame)
-        stop["requested"] = True
-
-    previous = signal.signal(signal.SIGINT, handler)
+def stop_guard() -> Iterator[StopGuard]:
+    """The guard of one command, installed for the duration of the block."""
+    guard = StopGuard()
+    installed = guard.install()
+    _active.append(guard)
     try:
-        yield stop
+        yield guard
     finally:
-        signal.signal(signal.SIGINT, previous)
+        _active.remove(guard)
+        if installed:
+            guard.restore()
+
+
+def active_guard() -> StopGuard | None:
+    """The command's guard, or None when the library is used without one."""
+    return _active[-1] if _active else None
+
+
+def stop_requested() -> bool:
+    """True when the command was asked to stop (always False without a guard)."""
+    guard = active_guard()
+    return guard is not None and guard.requested
+
+
+@contextmanager
+def interrupt_between_frames() -> Iterator[StopGuard]:
+    """A guard whose ``requested`` the loop checks between steps.
+
+    Inside a command: the command's guard, now deferring (and left so: what
+    follows the loop is part of the run). Without one (library use): a guard
+    of its own for the loop only, so a first Ctrl-C still cuts the loop cleanly.
+    """
+    guard = active_guard()
+    if guard is not None:
+        guard.defer()
+        yield guard
+        return
+    with stop_guard() as guard:
+        guard.defer()
+        yield guard
+
+
+def whole(result):
+    """``result`` of a run, or KeyboardInterrupt when Ctrl-C cut it: for callers
+    that score runs (benchmarks), where a cut run must not pass for a whole one."""
+    if result.interrupted:
+        raise KeyboardInterrupt
+    return result
+
+
+def signal_hook(point: str, step: int | None = None) -> None:
+    """Test hook (module docstring): send the configured signal at ``point``."""
+    spec = os.environ.get("GRAPHSLAM_SIGNAL_AT")
+    if not spec or (os.getpid(), spec) in _fired:
+        return
+    name, _, at = spec.partition(":")
+    if name != point or (at and (step is None or int(at) != step)):
+        return
+    _fired.add((os.getpid(), spec))
+    signum = getattr(signal, "SIG" + os.environ.get("GRAPHSLAM_SIGNAL", "INT").upper())
+    target = os.environ.get("GRAPHSLAM_SIGNAL_TO", "main")
+    if target == "group":
+        os.killpg(os.getpgrp(), signum)
+        return
+    guard = active_guard()
+    pid = guard.owner_pid if target == "main" and guard is not None else os.getpid()
+    os.kill(pid, signum)
+
+
+_fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worker too)
 
 
 def progress_bar(total: int, dataset: str, backend: str, enabled: bool):

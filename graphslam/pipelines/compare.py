@@ -9,7 +9,10 @@ it started. Rerun logging happens afterwards in the parent, off the clock.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import resource
+import signal
+import time
 import traceback
 from dataclasses import dataclass
 
@@ -17,23 +20,45 @@ from graphslam import registry
 from graphslam.evaluation import planar as metrics
 from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines import planar as pipeline
+from graphslam.pipelines.common import active_guard, interrupt_between_frames, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
 
+#: How long a worker asked to stop may take to send what it has, seconds; then
+#: it is killed (its row says so).
+STOP_GRACE_S = 20.0
+#: How often the parent checks for a stop request while a worker runs, seconds.
+POLL_S = 0.1
+
+
 @dataclass
 class CompareEntry:
+    """One back end's row: ``status`` "ok", "cut" (stopped by a signal; the
+    estimate so far), "failed" or "not run" (the comparison was stopped first);
+    ``result`` and ``metrics`` are None unless ok or cut; ``error`` says why not."""
+
     backend: str
-    result: pipeline.RunResult
-    metrics: PlanarRunMetrics
+    result: pipeline.RunResult | None
+    metrics: PlanarRunMetrics | None
+    status: str = "ok"
+    error: str | None = None
 
 
-def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> tuple:
+def finished(entries: list[CompareEntry]) -> list[CompareEntry]:
+    """The entries with a result (ok or cut)."""
+    return [e for e in entries if e.result is not None]
+
+
+def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipeline.RunResult:
     backend = registry.make_backend(name, config=config, overrides=overrides)
     result = pipeline.run(dataset, backend, max_steps=max_steps, with_covariances=True)
     return result
 
 
 def _child(conn, dataset, name, config, overrides, max_steps):
+    guard = active_guard()
+    if guard is not None:
+        guard.become_worker()
     try:
         start_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         result = _run_one(dataset, name, config, overrides, max_steps)
@@ -42,6 +67,8 @@ def _child(conn, dataset, name, config, overrides, max_steps):
         conn.send(("ok", result, (peak_kb - start_kb) / 1024.0))
     except GraphSlamError as e:
         conn.send(("error", str(e), None))
+    except KeyboardInterrupt:  # stopped before its first step: nothing to send
+        conn.send(("error", "stopped before its first step", None))
     except BaseException:  # report anything else with its traceback to the parent
         conn.send(("crash", traceback.format_exc(), None))
     finally:
@@ -50,7 +77,13 @@ def _child(conn, dataset, name, config, overrides, max_steps):
 
 def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
                  max_steps=None) -> tuple[pipeline.RunResult, float]:
-    """Run one back end in a forked child; returns its result and peak RSS (MB)."""
+    """Run one back end in a forked child; returns its result and peak RSS (MB).
+
+    A stop request of this process (:mod:`graphslam.pipelines.common`) is passed
+    on to the child, which sends the estimate it has; a child that does not
+    answer within :data:`STOP_GRACE_S`, and any child still alive when this
+    returns or raises, is killed: none is left behind.
+    """
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child, args=(child, dataset, name, config, overrides,
@@ -58,27 +91,54 @@ def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
     proc.start()
     child.close()
     try:
-        status, payload, peak_mb = parent.recv()
-    except EOFError:
+        message = _wait_for(proc, parent, name)
+    finally:
+        if proc.is_alive():
+            proc.kill()
         proc.join()
-        raise GraphSlamError(f"{name}: worker died (exit code {proc.exitcode})") from None
-    except KeyboardInterrupt:
-        proc.terminate()
-        proc.join()
-        raise
-    proc.join()
+        parent.close()
+    if message is None:
+        raise GraphSlamError(f"{name}: worker died (exit code {proc.exitcode})")
+    status, payload, peak_mb = message
     if status == "error":
         raise GraphSlamError(payload)
     if status == "crash":
-        raise RuntimeError(f"{name} crashed in its worker:\n{payload}")
+        raise BackendCrash(f"{name} crashed in its worker:\n{payload}")
     payload.dataset = dataset
     return payload, peak_mb
+
+
+class BackendCrash(RuntimeError):
+    """A back end raised something that is not a GraphSlamError (a bug): the text
+    holds its traceback."""
+
+
+def _wait_for(proc, conn, name: str):
+    """The worker's message, or None if it died without one; forwards a stop
+    request to it and kills it when it does not answer in time."""
+    deadline = None
+    while not conn.poll(POLL_S):  # True on a message and on the pipe's end (child gone)
+        if not proc.is_alive():
+            break
+        if deadline is None and stop_requested():
+            os.kill(proc.pid, signal.SIGINT)
+            deadline = time.monotonic() + STOP_GRACE_S
+        elif deadline is not None and time.monotonic() > deadline:
+            raise GraphSlamError(f"{name}: did not stop within {STOP_GRACE_S:.0f} s; killed")
+    try:
+        return conn.recv() if conn.poll() else None
+    except EOFError:
+        return None
 
 
 def compare(dataset: Dataset, backends: list[str], *, config=None,
             overrides: dict[str, dict] | None = None, max_steps: int | None = None,
             isolate: bool = True, seed: int | None = None, progress=None) -> list[CompareEntry]:
-    """Run each back end on ``dataset``; return results with their metrics.
+    """Run each back end on ``dataset``; return one entry per back end, in order.
+
+    A back end that fails is a "failed" entry and the others still run; a stop
+    request (SIGINT, SIGTERM) cuts the running back end (a "cut" entry with its
+    estimate so far) and leaves the rest "not run".
 
     Args:
         overrides: per back-end config overrides, ``{name: {key: value}}``.
@@ -87,25 +147,40 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
         progress: optional callable ``progress(name)`` called before each run.
     """
     entries = []
-    for name in backends:
-        if progress is not None:
-            progress(name)
-        ov = (overrides or {}).get(name, {})
-        if isolate:
-            result, peak_mb = run_isolated(dataset, name, config, ov, max_steps)
-        else:
-            result, peak_mb = _run_one(dataset, name, config, ov, max_steps), None
-        m = pipeline.compute_metrics(result, seed=seed)
-        m.peak_rss_mb = peak_mb
-        if m.association is not None:
-            m.association.oracle_accuracy = metrics.oracle_association_accuracy(
-                dataset, result.steps)
-        for key, value in metrics.pose_statistics(dataset, result.estimate).items():
-            setattr(m, key, value)
-        entries.append(CompareEntry(name, result, m))
-    reference = next((e for e in entries if e.backend == "isam2"), None)
+    with interrupt_between_frames() as stop:
+        for name in backends:
+            if stop.requested:
+                entries.append(CompareEntry(name, None, None, "not run", "stopped before it"))
+                continue
+            if progress is not None:
+                progress(name)
+            entries.append(_compare_one(dataset, name, config, (overrides or {}).get(name, {}),
+                                        max_steps, isolate, seed))
+    reference = next((e for e in entries if e.backend == "isam2" and e.result is not None), None)
     if reference is not None:
-        for e in entries:
+        for e in finished(entries):
             e.metrics.rms_to_isam2_m = metrics.rms_position_distance(e.result.estimate,
                                                                      reference.result.estimate)
     return entries
+
+
+def _compare_one(dataset, name, config, overrides, max_steps, isolate, seed) -> CompareEntry:
+    """One back end's entry; its failure is recorded, not raised."""
+    try:
+        if isolate:
+            result, peak_mb = run_isolated(dataset, name, config, overrides, max_steps)
+        else:
+            result, peak_mb = _run_one(dataset, name, config, overrides, max_steps), None
+    except KeyboardInterrupt:  # a second signal: this one is lost, the others are kept
+        return CompareEntry(name, None, None, "cut", "stopped before its first step")
+    except GraphSlamError as e:  # a worker asked to stop and killed for not stopping is cut
+        return CompareEntry(name, None, None, "cut" if stop_requested() else "failed", str(e))
+    except Exception:  # a bug in one back end must not lose the others' results
+        return CompareEntry(name, None, None, "failed", traceback.format_exc())
+    m = pipeline.compute_metrics(result, seed=seed)
+    m.peak_rss_mb = peak_mb
+    if m.association is not None:
+        m.association.oracle_accuracy = metrics.oracle_association_accuracy(dataset, result.steps)
+    for key, value in metrics.pose_statistics(dataset, result.estimate).items():
+        setattr(m, key, value)
+    return CompareEntry(name, result, m, "cut" if result.interrupted else "ok")

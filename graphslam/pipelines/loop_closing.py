@@ -43,6 +43,7 @@ from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
 from slamcore.config import bounded, validate
 from slamcore.errors import UnsupportedError
+from slamcore.files import atomic_open
 from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
 from loopclosure.detector import CandidateRecord, LoopDetector
@@ -246,7 +247,7 @@ class VisualLoopCloser:
     def write_log(self, path: str | Path) -> Path:
         """Every record as one JSON object per line."""
         path = Path(path)
-        with path.open("w", encoding="utf-8") as fh:
+        with atomic_open(path, "w", encoding="utf-8") as fh:
             for r in self.records:
                 fh.write(json.dumps(r.to_dict(), default=_json_default) + "\n")
         return path

@@ -12,17 +12,34 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.pipelines.common import interrupt_between_frames, signal_hook
 from slamcore.errors import ConfigError, InputError
 
 
-def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB") -> list:
-    """ORB :class:`frontend.features.Features` of every image (progress bar on stderr)."""
+def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB",
+               stoppable: bool = False) -> list:
+    """ORB :class:`frontend.features.Features` of every image (progress bar on stderr).
+
+    ``stoppable``: a stop request (SIGINT, SIGTERM; :mod:`graphslam.pipelines.common`)
+    ends the pass at the next image and the features so far are returned
+    (fewer than ``paths``); otherwise a signal aborts it.
+    """
     from tqdm import tqdm
 
     from frontend.image import load_gray
 
-    return [orb.detect(load_gray(p)) for p in tqdm(paths, desc=desc, unit="img",
-                                                    disable=not progress, file=sys.stderr)]
+    bar = tqdm(paths, desc=desc, unit="img", disable=not progress, file=sys.stderr)
+    if not stoppable:
+        return [orb.detect(load_gray(p)) for p in bar]
+    features = []
+    with interrupt_between_frames() as stop:
+        for i, p in enumerate(bar):
+            if stop.requested:
+                break
+            features.append(orb.detect(load_gray(p)))
+            signal_hook("step", i)
+    bar.close()
+    return features
 
 
 def tree_depth(n_words: int, branching: int) -> int:
@@ -83,20 +100,26 @@ def detect_loops(paths: list[Path], detector, features: list | None = None,
                  progress: bool = False):
     """Feed every image (or its precomputed ORB ``features``) to ``detector`` in order.
 
-    ``features`` entries are released as they are used. Returns ``detector``.
+    ``features`` entries are released as they are used. A stop request (SIGINT,
+    SIGTERM) ends the pass at the next image, the closures so far kept in
+    ``detector``. Returns ``detector``.
     """
     from tqdm import tqdm
 
     from frontend.image import load_gray
 
     bar = tqdm(range(len(paths)), desc="loops", unit="img", disable=not progress, file=sys.stderr)
-    for i in bar:
-        if features is None:
-            detector.process(load_gray(paths[i]))
-        else:
-            f = features[i]
-            features[i] = None  # free memory as we go
-            detector.process_features(f.xy_px, f.descriptors)
-        bar.set_postfix(closures=len(detector.closures), refresh=False)
+    with interrupt_between_frames() as stop:  # a stop keeps the closures found so far
+        for i in bar:
+            if stop.requested:
+                break
+            if features is None:
+                detector.process(load_gray(paths[i]))
+            else:
+                f = features[i]
+                features[i] = None  # free memory as we go
+                detector.process_features(f.xy_px, f.descriptors)
+            bar.set_postfix(closures=len(detector.closures), refresh=False)
+            signal_hook("step", i)
     bar.close()
     return detector

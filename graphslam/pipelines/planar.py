@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.records import PlanarRunMetrics
-from graphslam.pipelines.common import interrupt_between_frames, progress_bar
+from graphslam.pipelines.common import (
+    interrupt_between_frames, progress_bar, signal_hook, stop_requested,
+)
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
@@ -61,8 +63,9 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         with_covariances: bool = False) -> RunResult:
     """Stream ``dataset`` into ``backend`` and finalise.
 
-    Ctrl-C (KeyboardInterrupt) stops the loop; the estimate so far is still
-    returned (without the final polish) with ``interrupted=True``.
+    Ctrl-C or SIGTERM (:mod:`graphslam.pipelines.common`) stops the loop at the
+    next frame; the estimate so far is still returned (without the final
+    polish and the covariances) with ``interrupted=True``.
     """
     frames = dataset.frames if max_steps is None else dataset.frames[:max_steps]
     if not frames:
@@ -75,7 +78,11 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
     try:
         with interrupt_between_frames() as stop:
             _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters)
+            signal_hook("finalize")
         estimate = backend.finalize()
+        # a stop asked for during finalisation: the estimate is whole, the
+        # covariances (reporting only) are skipped
+        interrupted = stop.requested
     except KeyboardInterrupt:
         interrupted = True
         if counters["steps"] == 0:
@@ -97,8 +104,7 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
 def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
     """Stream frames into the back end; a pending Ctrl-C is honoured between frames."""
     for k, frame in enumerate(frames):
-        if stop["requested"]:
-            raise KeyboardInterrupt
+        stop.check()
         if k == 0:
             backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
         else:
@@ -119,6 +125,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
             on_step(k, frame, backend)
         if bar is not None:
             bar.update(1)
+        signal_hook("step", k)
 
 
 def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -157,7 +164,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
 
         final_error = graph_error(result.dataset, est)
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
-    if gt is not None:
+    # ATE needs two common poses: a run cut after its first step has none (null)
+    if gt is not None and np.intersect1d(est.pose_ids, gt[0]).size >= 2:
         ate = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
@@ -192,6 +200,9 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetric
     paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
              "metrics": out_dir / "metrics.json"}
     writers.write_tum_planar(paths["trajectory"], stamps, est.wTb)
+    signal_hook("write")
+    if stop_requested():  # asked while the outputs are written: say so in them
+        run_metrics.interrupted = True
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     if gt is not None:
         in_run = np.array([int(i) in stamp_of for i in gt[0]], dtype=bool)

@@ -27,7 +27,7 @@ Odometry (``VisualRunConfig.odometry``):
   scale: its ATE is Sim(3)-aligned.
 * ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"``.
 
-Ctrl-C is honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
+Ctrl-C and SIGTERM are honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
 result then holds what was estimated so far with ``interrupted=True``.
 """
 
@@ -47,7 +47,9 @@ from frontend.tracking import Tracker, TrackingResult
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from graphslam.evaluation.records import SpatialRunMetrics
-from graphslam.pipelines.common import interrupt_between_frames, progress_bar
+from graphslam.pipelines.common import (
+    interrupt_between_frames, progress_bar, signal_hook, stop_requested,
+)
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
@@ -234,8 +236,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     try:
         with interrupt_between_frames() as stop:
             for k in range(n):
-                if stop["requested"]:
-                    raise KeyboardInterrupt
+                stop.check()
                 t = time.perf_counter()
                 image = sequence.load(k)
                 t1 = time.perf_counter()
@@ -262,9 +263,12 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                     on_frame(k, image, tracking, backend)
                 if bar is not None:
                     bar.update(1)
+                signal_hook("step", k)
+            signal_hook("finalize")
         t = time.perf_counter()
         estimate = backend.finalize()
         wall += time.perf_counter() - t
+        interrupted = stop.requested  # asked during finalisation: the estimate is whole
     except KeyboardInterrupt:
         interrupted = True
         if done == 0:
@@ -386,6 +390,9 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
     paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
              "metrics": out_dir / "metrics.json"}
     writers.write_tum_spatial(paths["trajectory"], stamps, est.wTc)
+    signal_hook("write")
+    if stop_requested():  # asked while the outputs are written: say so in them
+        run_metrics.interrupted = True
     if seq.wTc_true is not None and result.frames > 0:
         frames = np.arange(result.frames)
         paths["ground_truth"] = out_dir / "ground_truth.tum"

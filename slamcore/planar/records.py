@@ -49,9 +49,12 @@ def as_covariance(value, size: int, what: str) -> np.ndarray:
     if np.max(np.abs(c - c.T)) > COV_SYMMETRY_RTOL * scale:
         raise MeasurementError(f"{what}: covariance is not symmetric")
     try:
-        np.linalg.cholesky(c)
+        # entries near the float limit overflow the factor instead of failing it
+        positive = bool(np.all(np.isfinite(np.linalg.cholesky(c))))
     except np.linalg.LinAlgError:
-        raise MeasurementError(f"{what}: covariance is not positive definite") from None
+        positive = False
+    if not positive:
+        raise MeasurementError(f"{what}: covariance is not positive definite")
     c.setflags(write=False)
     return c
 

@@ -141,6 +141,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from graphslam.cli.common import check_rerun_flags, rerun_sink
 
     check_rerun_flags(args)
+    if args.out is not None:  # refused now, not after the run
+        from slamcore.files import check_output_dir
+
+        check_output_dir(args.out)
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")

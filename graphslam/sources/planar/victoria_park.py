@@ -30,14 +30,60 @@ published numbers (checked factor by factor in ``tests/test_readers.py``):
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
 from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
-                                         parse_floats, parse_int)
+                                         parse_floats)
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
+
+
+#: Ids become gtsam symbol keys ``X(id)``, ``L(id)``, whose index has 56 bits.
+ID_LIMIT = 2**56
+
+
+def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
+    """A decimal id as a Python int (never through a float, which rounds ids
+    from 2**53), from 0 to :data:`ID_LIMIT` - 1; InputError otherwise."""
+    if re.fullmatch(r"[+-]?[0-9]+", token) is None:
+        raise InputError(f"{what} {token!r} is not an integer", path, line_no)
+    value = int(token)
+    if not 0 <= value < ID_LIMIT:
+        raise InputError(f"{what} {token} is out of range (0 to 2**56 - 1)", path, line_no)
+    return value
+
+
+#: Variances a measurement of this log may state: standard deviations from
+#: 1 micrometre (microradian) to 1 km (a full turn). Outside, the number says
+#: nothing physical, and its information (1 / variance) leaves the range in
+#: which a solver can weigh it against the others in double precision.
+VARIANCE_MIN = 1e-12
+VARIANCE_MAX = {"x": 1e6, "y": 1e6, "range": 1e6, "heading": (2 * math.pi) ** 2,
+                "bearing": (2 * math.pi) ** 2}
+
+
+#: Longest odometry step or landmark offset, metres: 1000 km, far past any
+#: vehicle step or laser range, and where float64 still resolves micrometres.
+DISTANCE_MAX_M = 1e6
+
+
+def check_distances(values, path, line_no: int) -> None:
+    """InputError when an offset is longer than :data:`DISTANCE_MAX_M`."""
+    for v in values:
+        if abs(v) > DISTANCE_MAX_M:
+            raise InputError(f"offset {v:g} m is beyond {DISTANCE_MAX_M:g} m", path, line_no)
+
+
+def check_variances(variances, names, path, line_no: int) -> None:
+    """InputError when a positive variance is outside :data:`VARIANCE_MIN` ..
+    :data:`VARIANCE_MAX` (one <= 0 is the records' "not positive definite")."""
+    for v, name in zip(variances, names):
+        if v > 0 and not VARIANCE_MIN <= v <= VARIANCE_MAX[name]:
+            raise InputError(f"{name} variance {v:g} is outside {VARIANCE_MIN:g} .. "
+                             f"{VARIANCE_MAX[name]:.4g}", path, line_no)
 
 
 def victoria_park_path() -> str:
@@ -66,13 +112,15 @@ def read_victoria_park(path=None) -> Dataset:
     odometry: dict[int, Odometry] = {}
     observations: dict[int, list[Observation]] = {}
     for line_no, tok in iter_lines(path):
-        tag = tok[0]
+        # a UTF-8 byte-order mark (Windows editors) is not part of the first tag
+        tag = tok[0].removeprefix("\ufeff") if line_no == 1 else tok[0]
         try:
             if tag == "ODOMETRY":
                 check_count(tok, 12, path, line_no, "ODOMETRY i j dx dy dtheta + 6 covariance")
-                i = parse_int(tok[1], path, line_no)
-                j = parse_int(tok[2], path, line_no)
+                i = parse_id(tok[1], path, line_no)
+                j = parse_id(tok[2], path, line_no)
                 nums = parse_floats(tok[3:], path, line_no)
+                check_distances(nums[:2], path, line_no)
                 if not order:
                     order.append(i)
                     observations[i] = []
@@ -83,19 +131,22 @@ def read_victoria_park(path=None) -> Dataset:
                     raise InputError(f"ODOMETRY creates pose {j}, which already exists",
                                      path, line_no)
                 cov = noise_covariance(nums[3:], "cov", path, line_no)
+                check_variances(np.diag(cov), ("x", "y", "heading"), path, line_no)
                 odometry[j] = Odometry(i, j, wrapped_delta(nums[:3]), cov)
                 order.append(j)
                 observations[j] = []
             elif tag == "LANDMARK":
                 check_count(tok, 8, path, line_no, "LANDMARK i j lx ly v1 v2 v3")
-                i = parse_int(tok[1], path, line_no)
-                j = parse_int(tok[2], path, line_no, "landmark id")
+                i = parse_id(tok[1], path, line_no)
+                j = parse_id(tok[2], path, line_no, "landmark id")
                 lx, ly, v1, _v2, _v3 = parse_floats(tok[3:], path, line_no)
+                check_distances((lx, ly), path, line_no)
                 if i not in observations:
                     raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
                                      path, line_no)
                 z = [math.hypot(lx, ly), math.atan2(ly, lx)]
                 cov = np.diag([v1, v1 / 10.0])
+                check_variances(np.diag(cov), ("range", "bearing"), path, line_no)
                 observations[i].append(Observation(i, j, z, cov, ObservationKind.RANGE_BEARING))
             else:
                 raise InputError(f"unknown tag {tag!r}", path, line_no)

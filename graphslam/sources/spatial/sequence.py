@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from frontend.image import load_gray
 from slamcore.errors import InputError
 
 #: Extensions :func:`read_image_folder` accepts (compared lower-case).
@@ -70,10 +71,12 @@ class ImageSequence:
 
     def load_raw(self, i: int) -> np.ndarray:
         """Image ``i`` as stored, (H, W) uint8 greyscale; an unreadable file raises InputError."""
-        path = self.image_paths[i]
-        img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise InputError("cannot read image (missing or not an image)", path)
+        img = load_gray(self.image_paths[i])
+        if (img.shape[1], img.shape[0]) != tuple(self.image_size):
+            # the intrinsics are the first image's: another size is another camera
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
+                             f"are {self.image_size[0]}x{self.image_size[1]}",
+                             self.image_paths[i])
         return img
 
     def load(self, i: int) -> np.ndarray:
@@ -169,9 +172,7 @@ def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
 
 
 def image_size(path: str) -> tuple[int, int]:
-    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise InputError("cannot read image (missing or not an image)", path)
+    img = load_gray(path)
     return int(img.shape[1]), int(img.shape[0])
 
 
