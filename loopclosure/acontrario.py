@@ -16,17 +16,19 @@
   model is meaningful when ``min_k NFA(k) <= 1``: fewer than one such model is
   expected by chance. It is a relative criterion: 20 inliers among 60
   matches are meaningful, 20 among 2000 are not.
-- :func:`grid_coverage`: the share of an image's textured grid cells that
-  hold an inlier, a measure of how much of the view the geometry explains.
+- :func:`hull_coverage`: the share of an image's textured area (convex hull
+  of its features) that the inliers span, a measure of how much of the view
+  the geometry explains.
 """
 
 from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
-__all__ = ["MINIMAL_SAMPLE", "log10_nfa", "grid_coverage", "image_extent"]
+__all__ = ["MINIMAL_SAMPLE", "log10_nfa", "hull_coverage", "image_extent"]
 
 #: (sample size s, solutions per sample N_sol) of each model: 7-point F (up to
 #: 3 real roots), 5-point E (up to 10, Nister 2004), 4-point H (one).
@@ -74,22 +76,16 @@ def image_extent(xy_px: np.ndarray) -> tuple[float, float]:
     return float(np.floor(xy[:, 0].max()) + 1), float(np.floor(xy[:, 1].max()) + 1)
 
 
-def _cells(xy: np.ndarray, width: float, height: float, grid: int) -> np.ndarray:
-    col = np.clip((xy[:, 0] * grid / width).astype(np.int64), 0, grid - 1)
-    row = np.clip((xy[:, 1] * grid / height).astype(np.int64), 0, grid - 1)
-    return np.unique(row * grid + col)
+def hull_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray) -> float:
+    """Area of the inliers' convex hull over the area of all features' convex hull.
 
-
-def grid_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray, width: float, height: float,
-                  grid: int) -> float:
-    """Share of the ``grid`` x ``grid`` cells holding a feature that also hold an inlier.
-
-    Cells without any feature (sky, a blank wall) do not count: the measure
-    is the share of what the image could offer that the geometry explains.
+    A continuous measure of how much of the view the geometry explains
+    (untextured parts of the image, which hold no feature, do not count); it
+    needs no image size and has no cell boundaries to flip on a pixel.
     """
-    xy_all = np.asarray(xy_all, float).reshape(-1, 2)
-    if len(xy_all) == 0:
+    xy_all = np.asarray(xy_all, np.float32).reshape(-1, 2)
+    xy_in = np.asarray(xy_inliers, np.float32).reshape(-1, 2)
+    if len(xy_all) < 3 or len(xy_in) < 3:
         return 0.0
-    textured = _cells(xy_all, width, height, grid)
-    hit = _cells(np.asarray(xy_inliers, float).reshape(-1, 2), width, height, grid)
-    return len(np.intersect1d(hit, textured)) / len(textured)
+    whole = cv2.contourArea(cv2.convexHull(xy_all))
+    return float(cv2.contourArea(cv2.convexHull(xy_in)) / whole) if whole > 0 else 0.0
