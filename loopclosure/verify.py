@@ -158,9 +158,9 @@ class Verification:
         accepted: whether the pair passed.
         reason: why it was rejected (None when accepted).
         model: model used (``"essential"``, ``"fundamental"``, ``"homography"``).
-        n_matches: descriptor matches the final fit saw (guided ones when guided).
-        n_inliers: inliers among them.
-        inlier_ratio: ``n_inliers / n_matches`` (0 without matches).
+        n_matches: descriptor matches of the first (unguided) matching.
+        n_inliers: inliers of the final fit (after guided matching when guided).
+        inlier_ratio: inliers / matches of the final fit (0 without matches).
         R: (3, 3) rotation of ``aTb`` (essential model with K), else None.
         t_unit: (3,) unit translation of ``aTb``, else None.
         inlier_pairs: (n_inliers, 2) int64 feature indices ``(index in a, index in b)``.
@@ -277,6 +277,7 @@ class GeometricVerifier:
         if lnfa > c.max_log10_nfa:
             return self._reject(model, n, n_in, pairs[inl], f"not meaningful (log10 NFA {lnfa:.1f} "
                                 f"> {c.max_log10_nfa:g})", lnfa)
+        n_first = n
         if c.guided and model != "homography":
             D = hamming_distances(desc_a, desc_b)
             gpairs = guided_match(D, _as_fundamental(model, M, K), ua, ub, c.ransac_threshold_px,
@@ -284,14 +285,14 @@ class GeometricVerifier:
             if len(gpairs) >= need:
                 M2, inl2 = self._fit(model, ua[gpairs[:, 0]], ub[gpairs[:, 1]], K)
                 if M2 is not None and inl2.sum() >= n_in:
-                    pairs, M, inl, n, n_in = gpairs, M2, inl2, len(gpairs), int(inl2.sum())
-        return self._accept_or_reject(model, M, K, ua, ub, pairs, inl, lnfa)
+                    pairs, M, inl = gpairs, M2, inl2
+        return self._accept_or_reject(model, M, K, ua, ub, pairs, inl, lnfa, n_first)
 
-    def _accept_or_reject(self, model, M, K, ua, ub, pairs, inl, lnfa) -> Verification:
+    def _accept_or_reject(self, model, M, K, ua, ub, pairs, inl, lnfa, n) -> Verification:
         c = self.config
-        n, n_in = len(pairs), int(inl.sum())
+        n_in = int(inl.sum())
         ipairs = pairs[inl]
-        ratio = n_in / n
+        ratio = n_in / len(pairs)
         if ratio < c.min_inlier_ratio:
             return self._reject(model, n, n_in, ipairs, f"inlier ratio too low ({ratio:.2f} < "
                                 f"{c.min_inlier_ratio:.2f})", lnfa)

@@ -10,6 +10,7 @@ later image first), and optionally every candidate's fate as JSON lines.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -66,7 +67,7 @@ def register(subparsers) -> None:
 def cmd_loops(args: argparse.Namespace) -> int:
     from frontend.orb import OrbDetector
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, train_vocabulary,
+        check_vocabulary, describe, detect_all, detect_loops, folder_places, train_vocabulary,
     )
     from graphslam.sources.spatial.sequence import folder_images
     from graphslam.registry import read_config
@@ -85,19 +86,20 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
-    features = None
+    # One ORB pass serves the mode choice, the training (if any) and the detection.
+    features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
+    places = folder_places(paths, features, detector_config)
+    detector_config = dataclasses.replace(detector_config, mode=places.mode)
     if args.vocab is not None:
         vocab = load_vocabulary(args.vocab)
         check_vocabulary(vocab, args.vocab)
     else:
-        # One ORB pass serves both the training and the detection.
-        features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
     detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion)
-    detect_loops(paths, detector, features, progress=not args.quiet)
+    detect_loops(paths, detector, features, progress=not args.quiet, timestamps=places.timestamps)
 
     from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv
 
@@ -106,6 +108,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
+    print(f"places: {places.describe(detector_config)}")
     print(f"{len(paths)} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
