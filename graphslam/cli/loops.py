@@ -86,14 +86,15 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
+    vocab = None
+    if args.vocab is not None:  # a bad file fails before the long ORB pass
+        vocab = load_vocabulary(args.vocab)
+        check_vocabulary(vocab, args.vocab)
     # One ORB pass serves the mode choice, the training (if any) and the detection.
     features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
     places = folder_places(paths, features, detector_config)
     detector_config = dataclasses.replace(detector_config, mode=places.mode)
-    if args.vocab is not None:
-        vocab = load_vocabulary(args.vocab)
-        check_vocabulary(vocab, args.vocab)
-    else:
+    if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
