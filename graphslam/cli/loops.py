@@ -1,7 +1,8 @@
 """``graphslam loops IMAGES_DIR --out loops.csv``: place recognition on a folder of images.
 
-Images in natural file-name order; vocabulary from ``--vocab`` or trained on
-the fly on the folder itself; :class:`loopclosure.detector.LoopDetector`
+Images in natural file-name order; vocabulary from ``--vocab``, trained on
+the fly on the folder itself with ``--words N``, else the general one shipped
+with the package (:mod:`loopclosure.shipped`); :class:`loopclosure.detector.LoopDetector`
 settings from ``[loops]`` and ``[loop_verify]`` of ``--config``. Writes one CSV
 row per accepted closure, ``query,match,score,inliers`` (file names, the
 later image first), and optionally every candidate's fate as JSON lines.
@@ -15,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from slamcore.errors import InputError
+from slamcore.errors import ConfigError, InputError
 
 EPILOG = """\
 output:
@@ -47,11 +48,11 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="FILE",
                    help="CSV file to write: query,match,score,inliers")
     p.add_argument("--vocab", type=Path, default=None, metavar="FILE",
-                   help="vocabulary file from 'graphslam vocab train' (default: train one on "
-                        "the folder itself, see --words)")
-    p.add_argument("--words", type=int, default=1000, metavar="N",
-                   help="words of the vocabulary trained on the fly when --vocab is not given "
-                        "(default: 1000, a 10-way tree of depth 3)")
+                   help="vocabulary file from 'graphslam vocab train' (default: the general "
+                        "10 000-word ORB vocabulary shipped with the package)")
+    p.add_argument("--words", type=int, default=None, metavar="N",
+                   help="instead, train a vocabulary of N words on the folder itself "
+                        "(e.g. 1000, a 10-way tree of depth 3)")
     p.add_argument("--intrinsics", type=Path, default=None, metavar="FILE",
                    help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
                         "enables the essential-matrix check (default: fundamental matrix)")
@@ -73,6 +74,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
     from loopclosure.verify import VerifyConfig
+    from loopclosure.shipped import SHIPPED_VOCABULARY
     from loopclosure.vocabulary import load_vocabulary
 
     t0 = time.perf_counter()
@@ -86,10 +88,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
+    if args.vocab is not None and args.words is not None:
+        raise ConfigError("give --vocab FILE or --words N, not both")
     vocab = None
-    if args.vocab is not None:  # a bad file fails before the long ORB pass
-        vocab = load_vocabulary(args.vocab)
-        check_vocabulary(vocab, args.vocab)
+    if args.words is None:  # a bad file fails before the long ORB pass
+        vocab_path = SHIPPED_VOCABULARY if args.vocab is None else args.vocab
+        vocab = load_vocabulary(vocab_path)
+        check_vocabulary(vocab, vocab_path)
     # One ORB pass serves the mode choice, the training (if any) and the detection.
     features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
     places = folder_places(paths, features, detector_config)
