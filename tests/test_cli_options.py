@@ -443,6 +443,27 @@ def _loops_config(cli, key):
     assert cli.path("b.jsonl").read_text() == ""
 
 
+@row("loops --truth")
+def _loops_truth(cli, key):
+    # the desk's one true pair, as a CSV of names and as a 10x10 image; both
+    # give the same figures, and a wrong truth changes them
+    import cv2
+    import numpy as np
+
+    grid = np.zeros((10, 10), np.uint8)
+    grid[9, 0] = 255
+    cv2.imwrite(str(cli.path("truth.png")), grid)
+    cli.path("truth.csv").write_text("query,match\n10.png,01.png\n")
+    cli.path("wrong.csv").write_text("query,match\n09.png,01.png\n")
+    outs = [_loops(cli, "--truth", str(cli.path(t)), words=None).out
+            for t in ("truth.csv", "truth.png", "wrong.csv")]
+    assert "precision 1.000 (1/1), recall 1.000" in outs[0]
+    assert "precision 1.000 (1/1), recall 1.000" in outs[1]
+    assert "precision 0.000 (0/1), recall 0.000" in outs[2]
+    assert "pr.csv" in outs[0] and "pr.png" in outs[0]
+    assert "pr.csv" not in _loops(cli, words=None).out
+
+
 @row("loops --log")
 def _loops_log(cli, key):
     log = cli.path("cand.jsonl")

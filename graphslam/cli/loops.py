@@ -61,6 +61,10 @@ def register(subparsers) -> None:
     p.add_argument("--log", type=Path, default=None, metavar="FILE",
                    help="write every candidate's fate (scores, inliers, accepted or why "
                         "rejected) as JSON lines")
+    p.add_argument("--truth", type=Path, default=None, metavar="FILE",
+                   help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
+                        "image whose non-zero pixel (i, j) marks images i and j as one place; "
+                        "prints precision and recall and writes pr.csv and pr.png next to --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_loops)
 
@@ -105,6 +109,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
     detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion)
+    kept = list(features) if args.truth is not None else None  # detect_loops frees its list
     detect_loops(paths, detector, features, progress=not args.quiet, timestamps=places.timestamps)
 
     from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv
@@ -114,8 +119,32 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
+    if args.truth is not None:
+        written += _evaluate(args, paths, kept, detector, places.timestamps)
     print(f"places: {places.describe(detector_config)}")
     print(f"{len(paths)} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
     return 0
+
+
+def _evaluate(args, paths, features, detector, timestamps) -> list[str]:
+    """``--truth``: precision and recall printed, the PR curve written; returns the files."""
+    from graphslam.evaluation.places import pr_curve, read_truth, score
+    from graphslam.pipelines.place_recognition import sweep_scores, write_pr
+    from loopclosure.detector import LoopDetector
+
+    truth = read_truth(args.truth, paths)
+    closures = [(c.query, c.match) for c in detector.closures]
+    precision, recall, n_true = score(closures, truth)
+    # The sweep: the same detector with no score threshold, every verified candidate kept.
+    loose = dataclasses.replace(detector.config, min_normalised_score=0.0, min_score=0.0)
+    sweep = LoopDetector(detector.database.vocabulary, loose, detector.verifier.config,
+                         K=detector.K, distortion=detector.distortion)
+    points = pr_curve(sweep_scores(paths, features, sweep, timestamps), truth)
+    files = write_pr(points, (precision, recall), args.out.parent)
+    n_queries = len({q for q, _ in truth})
+    prec = "n/a (no closure)" if precision is None else f"{precision:.3f}"
+    print(f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
+          f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}")
+    return [str(f) for f in files]
