@@ -131,7 +131,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
 def _evaluate(args, paths, features, detector, timestamps) -> list[str]:
     """``--truth``: precision and recall printed, the PR curve written; returns the files."""
     from graphslam.evaluation.places import pr_curve, read_truth, score
-    from graphslam.pipelines.place_recognition import sweep_scores, write_pr
+    from graphslam.pipelines.place_recognition import sweep_scores
     from loopclosure.detector import LoopDetector
 
     truth = read_truth(args.truth, paths)
@@ -148,3 +148,17 @@ def _evaluate(args, paths, features, detector, timestamps) -> list[str]:
     print(f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
           f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}")
     return [str(f) for f in files]
+
+
+def write_pr(points, operating: tuple[float | None, float], out_dir: Path) -> list[Path]:
+    """``pr.csv`` (threshold,closures,true,precision,recall) and ``pr.png`` in ``out_dir``."""
+    from graphslam.visualisation.plots import plot_precision_recall
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = out_dir / "pr.csv"
+    with csv_path.open("w", encoding="utf-8") as fh:
+        fh.write("threshold,closures,true,precision,recall\n")
+        for p in points:
+            prec = "" if p.precision is None else f"{p.precision:.6f}"
+            fh.write(f"{p.threshold:.6f},{p.closures},{p.true},{prec},{p.recall:.6f}\n")
+    return [csv_path, plot_precision_recall(points, operating, out_dir / "pr.png")]

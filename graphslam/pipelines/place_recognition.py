@@ -174,16 +174,3 @@ def sweep_scores(paths: list[Path], features: list, detector, timestamps=None) -
     detect_loops(paths, detector, list(features), timestamps=timestamps)
     return [(r.query, r.match, r.normalised_score) for r in detector.records if r.accepted]
 
-
-def write_pr(points, operating: tuple[float | None, float], out_dir: Path) -> list[Path]:
-    """``pr.csv`` (threshold,closures,true,precision,recall) and ``pr.png`` in ``out_dir``."""
-    from graphslam.visualisation.plots import plot_precision_recall
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    csv_path = out_dir / "pr.csv"
-    with csv_path.open("w", encoding="utf-8") as fh:
-        fh.write("threshold,closures,true,precision,recall\n")
-        for p in points:
-            prec = "" if p.precision is None else f"{p.precision:.6f}"
-            fh.write(f"{p.threshold:.6f},{p.closures},{p.true},{prec},{p.recall:.6f}\n")
-    return [csv_path, plot_precision_recall(points, operating, out_dir / "pr.png")]
