@@ -64,7 +64,7 @@ class LoopDetectorConfig:
             features) below which ``"auto"`` chooses keyframes, and from which
             two consecutive keyframes count as overlapping.
         probe_pairs: consecutive pairs ``"auto"`` measures before deciding
-            (online; the folder command measures the whole folder first).
+            (online; the folder command measures pairs spread over the folder first).
         max_results: database answers examined per query.
         min_prior_score: skip the query when the score against the previous
             image is below this (L1 score, [0, 1]).

@@ -52,7 +52,6 @@ distances), :mod:`loopclosure.vocabulary_training` (steps shared by both
 from __future__ import annotations
 
 import numpy as np
-from sklearn.cluster import KMeans, MiniBatchKMeans
 
 from loopclosure.descriptor_distance import check_query, metric_for, nearest_centre, popcount_sum
 from loopclosure.vocabulary_file import (flat_arrays, read_kind, read_npz, restore_flat,
@@ -118,10 +117,14 @@ class FlatVocabulary:
             raise ValueError(f"{x.shape[0]} descriptors hold fewer than {n_words} distinct ones")
         feats = kmeans_features(x, metric)
         if self.minibatch:
+            from sklearn.cluster import MiniBatchKMeans  # here: loading a vocabulary needs no sklearn
+
             km = MiniBatchKMeans(n_clusters=n_words, random_state=seed,
                                  batch_size=max(1024, 3 * n_words), n_init=n_init,
                                  max_iter=max_iter)
         else:
+            from sklearn.cluster import KMeans
+
             km = KMeans(n_clusters=n_words, random_state=seed, n_init=n_init, max_iter=max_iter)
         with one_thread():
             km.fit(feats)
@@ -227,6 +230,8 @@ class VocabularyTree:
             pts = pts[np.sort(pick)]
         if not n_distinct_at_least(pts, k):
             return None
+        from sklearn.cluster import KMeans  # here: loading a vocabulary needs no sklearn (~1 s)
+
         km = KMeans(n_clusters=k, init=self.init, n_init=int(self.n_init), max_iter=max_iter, random_state=seed)
         km.fit(kmeans_features(pts, metric))
         return centres_from_kmeans(km.cluster_centers_, metric)

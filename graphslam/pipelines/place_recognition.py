@@ -129,12 +129,21 @@ def folder_timestamps(paths: list[Path]) -> np.ndarray | None:
     return None
 
 
+#: Consecutive pairs the folder commands measure to choose the mode (about 10 ms each).
+FOLDER_PROBE_PAIRS = 25
+
+
 def folder_places(paths: list[Path], features: list, config) -> FolderPlaces:
-    """Resolve ``config.mode`` (``[loops]``) on a whole folder: every consecutive pair is measured."""
+    """Resolve ``config.mode`` (``[loops]``) on a whole folder from consecutive pairs spread
+    over it (all of them up to :data:`FOLDER_PROBE_PAIRS`)."""
     from loopclosure.places import choose_mode, consecutive_overlap
 
-    overlaps = [consecutive_overlap(a.descriptors, b.descriptors)
-                for a, b in zip(features[:-1], features[1:])] if config.mode == "auto" else []
+    overlaps = []
+    if config.mode == "auto" and len(features) > 1:
+        # at most FOLDER_PROBE_PAIRS evenly spaced pairs: a median needs no more
+        starts = np.unique(np.linspace(0, len(features) - 2, FOLDER_PROBE_PAIRS).astype(int))
+        overlaps = [consecutive_overlap(features[k].descriptors, features[k + 1].descriptors)
+                    for k in starts]
     mode = choose_mode(config.mode, overlaps, config.keyframe_overlap)
     return FolderPlaces(mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None,
                         folder_timestamps(paths))
