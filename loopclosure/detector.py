@@ -35,13 +35,13 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, ClassVar, Iterable, Literal
+from typing import Callable, ClassVar, Iterable
 
 import numpy as np
 
 from frontend.orb import OrbConfig, OrbDetector
 from slamcore.config import bounded, validate
-from loopclosure.places import choose_mode, consecutive_overlap, recent_window
+from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
@@ -84,7 +84,7 @@ class LoopDetectorConfig:
 
     SECTION: ClassVar[str] = "loops"
 
-    mode: Literal["auto", "video", "keyframes"] = "auto"
+    mode: Mode = "auto"
     # 40 frames: at 10-30 Hz, 1.3-4 s, the time a camera takes to leave a place
     # (set on the synthetic sequence, 300 frames for 1.5 laps)
     exclude_recent: int = bounded(40, min=0)

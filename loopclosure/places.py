@@ -25,6 +25,7 @@ chooses keyframes when the median is below ``keyframe_overlap``.
 from __future__ import annotations
 
 import re
+import typing
 from pathlib import Path
 from typing import Literal, Sequence
 
@@ -32,11 +33,12 @@ import numpy as np
 
 from loopclosure.matching import match_descriptors
 
-__all__ = ["consecutive_overlap", "choose_mode", "recent_window",
+__all__ = ["Mode", "consecutive_overlap", "choose_mode", "recent_window",
            "timestamps_from_names", "MODES"]
 
+#: ``[loops] mode`` values (module docstring).
 Mode = Literal["auto", "video", "keyframes"]
-MODES = ("auto", "video", "keyframes")
+MODES = typing.get_args(Mode)
 
 #: Features compared per image when measuring overlap: the strongest ones
 #: (ORB output is sorted by response), enough for a share to two decimals.

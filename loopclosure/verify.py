@@ -275,7 +275,10 @@ class GeometricVerifier:
         if n_in < c.min_inliers:
             return self._reject(model, n, n_in, pairs[inl], f"too few inliers ({n_in} < {c.min_inliers})")
         res = _residuals(model, M, K, ua[pairs[:, 0]], ub[pairs[:, 1]])
-        lnfa, _ = log10_nfa(res, model, *size_b)
+        # the image where a random point lands near a line most easily (largest
+        # diagonal / area): the more conservative of the two backgrounds
+        size = max(size_a, size_b, key=lambda s: np.hypot(*s) / (s[0] * s[1]))
+        lnfa, _ = log10_nfa(res, model, *size)
         if lnfa > c.max_log10_nfa:
             return self._reject(model, n, n_in, pairs[inl], f"not meaningful (log10 NFA {lnfa:.1f} "
                                 f"> {c.max_log10_nfa:g})", lnfa)
