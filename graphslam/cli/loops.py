@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from slamcore.errors import ConfigError, InputError
+from slamcore.errors import ConfigError
 
 EPILOG = """\
 output:
