@@ -29,7 +29,14 @@ and counts closures (the target is 0).
 
 Prints one table and writes JSON to ``benchmarks/results/loop_pr.json`` (or ``--out``).
 
+``--real`` instead measures real images with the defaults of ``graphslam
+loops`` (shipped vocabulary): the slambook2 desk, KITTI 07 frames 0-159, KITTI
+07 pairs 1-5 m apart, the Lund door pairs and pairs of different places
+(``benchmarks/loop_real.py`` says what each is), written to
+``benchmarks/results/loop_pr_real.json``.
+
     python benchmarks/bench_loop_pr.py [--tol 2] [--no-variants] [--kitti DIR|none] [--out FILE]
+    python benchmarks/bench_loop_pr.py --real [--data ../shared/data] [--out FILE]
 
 Targets: 100 % precision, recall >= 80 %; no closure on KITTI 07.
 """
@@ -102,8 +109,16 @@ def main(argv=None) -> int:
     ap.add_argument("--kitti", default=None,
                     help="KITTI odometry folder with image_0/ (default: ../shared/data/kitti07 "
                          "if present; 'none' to skip)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_pr.json")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="JSON to write (default benchmarks/results/loop_pr.json, "
+                         "loop_pr_real.json with --real)")
+    ap.add_argument("--real", action="store_true", help="real images instead (see the docstring)")
+    ap.add_argument("--data", type=Path, default=KITTI_DEFAULT.parent,
+                    help="the shared data folder (default ../shared/data)")
     args = ap.parse_args(argv)
+    if args.real:
+        return real_main(args.data, args.out or HERE / "results" / "loop_pr_real.json")
+    args.out = args.out or HERE / "results" / "loop_pr.json"
 
     base = LoopDetectorConfig()
     vbase = VerifyConfig()
@@ -187,6 +202,20 @@ def main(argv=None) -> int:
         "machine": {"python": platform.python_version(), "platform": platform.platform()},
     }, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))
     print(f"wrote {args.out}")
+    return 0
+
+
+def real_main(data: Path, out: Path) -> int:
+    """``--real``: the real-image figures, printed and written as JSON."""
+    sys.path.insert(0, str(HERE))
+    from loop_real import print_figures, real_figures
+
+    r = real_figures(data)
+    print_figures(r)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"benchmark": "loop_pr_real", **r, "machine": {
+        "python": platform.python_version(), "platform": platform.platform()}}, indent=2))
+    print(f"wrote {out}")
     return 0
 
 

@@ -8,11 +8,14 @@ Per image (DBoW2's scheme, Gálvez-López & Tardós, T-RO 2012):
 2. Prior score ``s_prev``: the L1 score of this image against the previous
    one. Below ``min_prior_score`` the image is too unlike its own neighbour
    for scores to be comparable (blur, a blank wall) and it proposes nothing.
-3. Database query, excluding the ``exclude_recent`` most recent images (they
-   resemble the query only because they are recent). Each answer's score is
+3. Database query, excluding the most recent images (they resemble the
+   query only because they are recent): a window in seconds or frames for
+   video, the overlapping predecessors for a sparse keyframe folder
+   (:mod:`loopclosure.places`, ``mode``; ``"auto"`` measures consecutive
+   overlap and decides after ``probe_pairs`` images). Each answer's score is
    normalised, ``eta = s / s_prev``, and the best answer with
    ``eta >= min_normalised_score`` and ``s >= min_score`` is the candidate.
-4. Temporal consistency: the candidate of this query and those of the
+4. Temporal consistency (video mode; keyframe mode takes one query): the candidate of this query and those of the
    ``consistency_k - 1`` queries before it must form a chain in which every
    match index is within ``consistency_tolerance`` of the previous one. A
    query without a candidate breaks the chain.
@@ -38,6 +41,7 @@ import numpy as np
 
 from frontend.orb import OrbConfig, OrbDetector
 from slamcore.config import bounded, validate
+from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
@@ -51,8 +55,16 @@ class LoopDetectorConfig:
     """Loop detector settings (config section ``[loops]``).
 
     Attributes:
-        exclude_recent: the most recent images never returned by a query
-            (frames); must cover the frames a camera needs to leave a place.
+        mode: ``"auto"``, ``"video"`` or ``"keyframes"`` (:mod:`loopclosure.places`).
+        exclude_recent: video without timestamps: the most recent images
+            never returned by a query (frames); must cover the frames a camera
+            needs to leave a place.
+        exclude_recent_s: video with timestamps: the same window in seconds.
+        keyframe_overlap: consecutive-image overlap (share of matched
+            features) below which ``"auto"`` chooses keyframes, and from which
+            two consecutive keyframes count as overlapping.
+        probe_pairs: consecutive pairs ``"auto"`` measures before deciding
+            (online; the folder command measures pairs spread over the folder first).
         max_results: database answers examined per query.
         min_prior_score: skip the query when the score against the previous
             image is below this (L1 score, [0, 1]).
@@ -72,7 +84,19 @@ class LoopDetectorConfig:
 
     SECTION: ClassVar[str] = "loops"
 
+    mode: Mode = "auto"
+    # 40 frames: at 10-30 Hz, 1.3-4 s, the time a camera takes to leave a place
+    # (set on the synthetic sequence, 300 frames for 1.5 laps)
     exclude_recent: int = bounded(40, min=0)
+    # 10 s: a walker (1.4 m/s) covers 14 m, less than the shortest loop round a
+    # room; a car (10 m/s) 100 m, less than a city block's perimeter
+    exclude_recent_s: float = bounded(10.0, min=0.0)
+    # Measured (1000-feature loop ORB, 500 strongest compared): consecutive
+    # KITTI 07 frames (10 Hz driving) share a median 0.52 of their features,
+    # the slambook2 desk photos 0.02 (0.01-0.09); 0.1 is near the geometric
+    # mean of the two (0.10), an order of magnitude from each
+    keyframe_overlap: float = bounded(0.1, min=0.0, max=1.0)
+    probe_pairs: int = bounded(5, min=1, max=1000)
     max_results: int = bounded(10, min=1)
     # DBoW2's L1 score lies in [0, 1]; the normalised score (score / prior) may exceed 1
     min_prior_score: float = bounded(0.01, min=0.0, max=1.0)
@@ -139,6 +163,7 @@ class DetectedLoop:
 class _Stored:
     xy: np.ndarray
     descriptors: np.ndarray
+    size: tuple[float, float] | None  # (width, height) px, when known
 
 
 class LoopDetector:
@@ -177,6 +202,10 @@ class LoopDetector:
         self._prev_bow = None
         # (query index, match index) of the recent candidates forming the current chain
         self._chain: list[tuple[int, int]] = []
+        #: resolved mode ("video" or "keyframes"); None while "auto" is still measuring
+        self.mode: str | None = None if self.config.mode == "auto" else self.config.mode
+        self._overlaps: list[float] = []  # overlap of images k and k+1
+        self._times: list[float] | None = None
 
     def __len__(self) -> int:
         return len(self._features)
@@ -186,16 +215,23 @@ class LoopDetector:
         f = self._features[i]
         return f.xy, f.descriptors
 
-    def process(self, image: np.ndarray) -> DetectedLoop | None:
-        """Add the next image ((H, W) uint8); returns the closure it makes, if any."""
+    def process(self, image: np.ndarray, timestamp: float | None = None) -> DetectedLoop | None:
+        """Add the next image ((H, W) uint8, its time in seconds if known); returns the
+        closure it makes, if any."""
         f = self.orb.detect(image)
-        return self.process_features(f.xy_px, f.descriptors)
+        return self.process_features(f.xy_px, f.descriptors, timestamp,
+                                     (float(image.shape[1]), float(image.shape[0])))
 
-    def process_features(self, xy_px: np.ndarray, descriptors: np.ndarray) -> DetectedLoop | None:
-        """Like :meth:`process` with precomputed ORB features ((N, 2) px, (N, 32) uint8)."""
+    def process_features(self, xy_px: np.ndarray, descriptors: np.ndarray,
+                         timestamp: float | None = None,
+                         image_size: tuple[float, float] | None = None) -> DetectedLoop | None:
+        """Like :meth:`process` with precomputed ORB features ((N, 2) px, (N, 32) uint8);
+        ``image_size`` (width, height) px, default the features' extent."""
         i = len(self._features)
         descriptors = np.asarray(descriptors, np.uint8).reshape(-1, 32)
-        self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors))
+        self._track_places(i, descriptors, timestamp)
+        self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors,
+                                      image_size))
         bow = self.database.bow(descriptors)
         prev, self._prev_bow = self._prev_bow, bow
         loop = self._query(i, bow, prev)  # before adding: an image never answers itself
@@ -204,13 +240,30 @@ class LoopDetector:
             raise RuntimeError(f"database gave id {added} to image {i}")
         return loop
 
+    def _track_places(self, i: int, descriptors: np.ndarray, timestamp: float | None) -> None:
+        """Timestamps, consecutive overlaps (while they matter) and the resolved mode."""
+        if (timestamp is None) != (self._times is None) and i > 0:
+            raise ValueError("give a timestamp for every image or for none")
+        if timestamp is not None:
+            self._times = (self._times or []) + [float(timestamp)]
+        if i > 0 and self.mode != "video":  # video never needs them
+            self._overlaps.append(consecutive_overlap(self._features[-1].descriptors, descriptors))
+        if self.mode is None and len(self._overlaps) >= self.config.probe_pairs:
+            self.mode = choose_mode("auto", self._overlaps, self.config.keyframe_overlap)
+
+    def _window(self, i: int) -> int | None:
+        """Recent images excluded from image i's query; None while the mode is undecided."""
+        if self.mode is None:
+            return None
+        return recent_window(i, self.mode, self.config, self._overlaps, self._times)
+
     def _query(self, i: int, bow, prev) -> DetectedLoop | None:
         c = self.config
-        if len(self.database) <= c.exclude_recent:
+        window = self._window(i)
+        if window is None or len(self.database) <= window:
             return None  # nothing old enough to be a loop: no record, nothing happened
         prior = None if prev is None else float(self.database.score(bow, prev))
-        answers = self.database.query(bow, max_results=c.max_results,
-                                      exclude_recent=c.exclude_recent)
+        answers = self.database.query(bow, max_results=c.max_results, exclude_recent=window)
         best_match, best_score = (answers[0][0], float(answers[0][1])) if answers else (None, 0.0)
         if prior is None or prior < c.min_prior_score:
             self._chain.clear()
@@ -235,13 +288,15 @@ class LoopDetector:
             self._chain.clear()
         self._chain.append((i, match))
         n_chain = len(self._chain)
-        if n_chain < c.consistency_k:
+        # keyframes: consecutive queries see different places, one query must do
+        need = 1 if self.mode == "keyframes" else c.consistency_k
+        if n_chain < need:
             self._record(i, match, best_match, score, eta, prior, n_chain, None,
-                         f"not temporally consistent ({n_chain}/{c.consistency_k})")
+                         f"not temporally consistent ({n_chain}/{need})")
             return None
         a, b = self._features[i], self._features[match]
         v: Verification = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors,
-                                               self.K, self.distortion)
+                                               self.K, self.distortion, a.size, b.size)
         if not v.accepted:
             self._record(i, match, best_match, score, eta, prior, n_chain, v, "geometry: " + v.reason)
             return None

@@ -52,7 +52,6 @@ distances), :mod:`loopclosure.vocabulary_training` (steps shared by both
 from __future__ import annotations
 
 import numpy as np
-from sklearn.cluster import KMeans, MiniBatchKMeans
 
 from loopclosure.descriptor_distance import check_query, metric_for, nearest_centre, popcount_sum
 from loopclosure.vocabulary_file import (flat_arrays, read_kind, read_npz, restore_flat,
@@ -61,6 +60,17 @@ from loopclosure.vocabulary_training import (as_training_set, centres_from_kmean
                                              idf_from_images, kmeans_features,
                                              n_distinct_at_least, one_thread)
 from slamcore.errors import ConfigError, InputError
+
+
+def _kmeans():
+    """scikit-learn's ``(KMeans, MiniBatchKMeans)``, imported on first training only:
+    loading a vocabulary needs no scikit-learn (about 1 s of imports). Training calls
+    it before :func:`one_thread`, so the thread limit sees sklearn's OpenMP and BLAS
+    (a library loaded inside the limit would run unlimited, and k-means sums in
+    another order: other centres)."""
+    from sklearn.cluster import KMeans, MiniBatchKMeans
+
+    return KMeans, MiniBatchKMeans
 
 
 def load_vocabulary(path) -> "FlatVocabulary | VocabularyTree":
@@ -108,6 +118,7 @@ class FlatVocabulary:
 
     def fit(self, descriptors) -> "FlatVocabulary":
         """Learn the words from an (N, D) array or a list of per-image (N_i, D) arrays."""
+        _kmeans()  # before one_thread(): see _kmeans
         n_words = check_int("n_words", self.n_words, 1)
         max_iter = check_int("max_iter", self.max_iter, 1)
         seed = check_int("seed", self.seed, 0)
@@ -118,11 +129,11 @@ class FlatVocabulary:
             raise ValueError(f"{x.shape[0]} descriptors hold fewer than {n_words} distinct ones")
         feats = kmeans_features(x, metric)
         if self.minibatch:
-            km = MiniBatchKMeans(n_clusters=n_words, random_state=seed,
+            km = _kmeans()[1](n_clusters=n_words, random_state=seed,
                                  batch_size=max(1024, 3 * n_words), n_init=n_init,
                                  max_iter=max_iter)
         else:
-            km = KMeans(n_clusters=n_words, random_state=seed, n_init=n_init, max_iter=max_iter)
+            km = _kmeans()[0](n_clusters=n_words, random_state=seed, n_init=n_init, max_iter=max_iter)
         with one_thread():
             km.fit(feats)
         self.centres_ = centres_from_kmeans(km.cluster_centers_, metric)
@@ -227,12 +238,13 @@ class VocabularyTree:
             pts = pts[np.sort(pick)]
         if not n_distinct_at_least(pts, k):
             return None
-        km = KMeans(n_clusters=k, init=self.init, n_init=int(self.n_init), max_iter=max_iter, random_state=seed)
+        km = _kmeans()[0](n_clusters=k, init=self.init, n_init=int(self.n_init), max_iter=max_iter, random_state=seed)
         km.fit(kmeans_features(pts, metric))
         return centres_from_kmeans(km.cluster_centers_, metric)
 
     def fit(self, descriptors) -> "VocabularyTree":
         """Learn the tree from an (N, D) array or a list of per-image (N_i, D) arrays."""
+        _kmeans()  # before one_thread(): see _kmeans
         k, depth, seed, max_iter, max_samples = self._check_params()
         x, images = as_training_set(descriptors)
         metric = metric_for(x.dtype)

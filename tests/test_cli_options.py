@@ -390,9 +390,9 @@ def _compare_in_process(cli, key):
     assert isolated.get("peak_rss_mb") is not None and inside.get("peak_rss_mb") is None
 
 
-def _loops(cli: Cli, *extra: str, tty: bool = False) -> Result:
+def _loops(cli: Cli, *extra: str, tty: bool = False, words: str | None = "100") -> Result:
     csv = cli.path(f"loops{cli.n}.csv")
-    res = cli("loops", str(DESK), "--out", str(csv), "--words", "100",
+    res = cli("loops", str(DESK), "--out", str(csv), *(["--words", words] if words else []),
               *([] if tty else ["--quiet"]), *extra, tty=tty)
     assert res.rc == 0, res.err
     res.files["csv"] = csv.read_bytes()
@@ -408,7 +408,11 @@ def _loops_out(cli, key):
 @row("loops --vocab")
 def _loops_vocab(cli, key, vocab_file=None):
     assert "training a vocabulary" in _loops(cli).err
-    assert "training a vocabulary" not in _loops(cli, "--vocab", str(vocab_file)).err
+    assert "training a vocabulary" not in _loops(cli, "--vocab", str(vocab_file), words=None).err
+    # --vocab and --words together are refused; neither loads the shipped vocabulary
+    assert cli("loops", str(DESK), "--out", str(cli.path("x.csv")), "--words", "10",
+               "--vocab", str(vocab_file)).rc == 2
+    assert "training a vocabulary" not in _loops(cli, words=None).err
 
 
 @row("loops --words")
@@ -441,14 +445,34 @@ def _loops_intrinsics(cli, key):
 
 @row("loops --config")
 def _loops_config(cli, key):
-    # the desk images are all of one scene: with the recency window and the
-    # score thresholds lowered, candidates appear
-    cfg = _config(cli, "[loops]\nexclude_recent = 1\nconsistency_k = 1\n"
-                       "min_normalised_score = 0.0\nmin_prior_score = 0.0\n")
+    # the desk folder is sparse: "auto" takes it as keyframes and queries from
+    # image 3 on; forced to video, the 40-frame window leaves no query at all
+    cfg = _config(cli, '[loops]\nmode = "video"\n')
     _loops(cli, "--log", str(cli.path("a.jsonl")))
     _loops(cli, "--log", str(cli.path("b.jsonl")), "--config", str(cfg))
-    assert cli.path("a.jsonl").read_text() == ""
-    assert cli.path("b.jsonl").read_text().count("\n") > 0
+    assert cli.path("a.jsonl").read_text().count("\n") > 0
+    assert cli.path("b.jsonl").read_text() == ""
+
+
+@row("loops --truth")
+def _loops_truth(cli, key):
+    # the desk's one true pair, as a CSV of names and as a 10x10 image; both
+    # give the same figures, and a wrong truth changes them
+    import cv2
+    import numpy as np
+
+    grid = np.zeros((10, 10), np.uint8)
+    grid[9, 0] = 255
+    cv2.imwrite(str(cli.path("truth.png")), grid)
+    cli.path("truth.csv").write_text("query,match\n10.png,01.png\n")
+    cli.path("wrong.csv").write_text("query,match\n09.png,01.png\n")
+    outs = [_loops(cli, "--truth", str(cli.path(t)), words=None).out
+            for t in ("truth.csv", "truth.png", "wrong.csv")]
+    assert "precision 1.000 (1/1), recall 1.000" in outs[0]
+    assert "precision 1.000 (1/1), recall 1.000" in outs[1]
+    assert "precision 0.000 (0/1), recall 0.000" in outs[2]
+    assert "pr.csv" in outs[0] and "pr.png" in outs[0]
+    assert "pr.csv" not in _loops(cli, words=None).out
 
 
 @row("loops --log")

@@ -123,8 +123,12 @@ def test_one_pixel_images_do_not_crash_orb(tmp_path, capsys):
         index, _ = OrbDetector().describe(np.full(shape, 128, np.uint8), np.zeros((1, 2)))
         assert len(index) == 0
     folder = image_folder(tmp_path / "tiny", [np.full((1, 1), v, np.uint8) for v in (0, 255)])
-    refused(capsys, ["loops", str(folder), "--out", str(tmp_path / "l.csv"), "--quiet"],
-            "no ORB features")
+    # training a vocabulary on them is refused in one line ...
+    refused(capsys, ["loops", str(folder), "--words", "5", "--out", str(tmp_path / "l.csv"),
+                     "--quiet"], "no ORB features")
+    # ... and the shipped vocabulary finds no place in them: a valid, empty run
+    assert main(["loops", str(folder), "--out", str(tmp_path / "l.csv"), "--quiet"]) == 0
+    assert "0 closures accepted" in capsys.readouterr().out
 
 
 # ------------------------------------------------------------------------------ vocabulary

@@ -57,7 +57,7 @@ class StubVerifier:
     def __init__(self, accept: set[tuple[int, int]]):
         self.accept, self.calls = accept, []
 
-    def verify(self, xy_a, desc_a, xy_b, desc_b, K=None, distortion=None):
+    def verify(self, xy_a, desc_a, xy_b, desc_b, K=None, distortion=None, size_a=None, size_b=None):
         q, m = int(xy_a[0, 0]), int(xy_b[0, 0])  # the stub features carry their image index
         self.calls.append((q, m))
         ok = (q, m) in self.accept
@@ -66,7 +66,8 @@ class StubVerifier:
 
 
 def run_scripted(answers, prior, accept, n=12, **cfg):
-    config = LoopDetectorConfig(**{"exclude_recent": 3, "consistency_k": 3, **cfg})
+    # the decision logic of video mode (keyframe mode is tested with tests/test_places.py)
+    config = LoopDetectorConfig(**{"mode": "video", "exclude_recent": 3, "consistency_k": 3, **cfg})
     db = ScriptedDatabase(answers, prior)
     det = LoopDetector(vocabulary=None, config=config, database=db)
     det.verifier = StubVerifier(accept)

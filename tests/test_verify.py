@@ -26,8 +26,8 @@ KITTI_ROT_TOL_DEG = 0.5
 #: matrix is ill-conditioned (measured 2.1 deg).
 SYNTH_ROT_TOL_DEG = 3.0
 
-#: Relative-pose verification of arbitrary views, not loop closure: no feature-share test.
-WIDE = dict(min_feature_share=0.0)
+#: Relative-pose verification of arbitrary views, not loop closure: no view-overlap test.
+WIDE = dict(min_feature_share=0.0, min_coverage=0.0)
 
 
 def rot_angle_deg(R: np.ndarray) -> float:

@@ -1,7 +1,8 @@
 """``graphslam loops IMAGES_DIR --out loops.csv``: place recognition on a folder of images.
 
-Images in natural file-name order; vocabulary from ``--vocab`` or trained on
-the fly on the folder itself; :class:`loopclosure.detector.LoopDetector`
+Images in natural file-name order; vocabulary from ``--vocab``, trained on
+the fly on the folder itself with ``--words N``, else the general one shipped
+with the package (:mod:`loopclosure.shipped`); :class:`loopclosure.detector.LoopDetector`
 settings from ``[loops]`` and ``[loop_verify]`` of ``--config``. Writes one CSV
 row per accepted closure, ``query,match,score,inliers`` (file names, the
 later image first), and optionally every candidate's fate as JSON lines.
@@ -10,11 +11,12 @@ later image first), and optionally every candidate's fate as JSON lines.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
 
-from slamcore.errors import InputError
+from slamcore.errors import ConfigError, InputError
 from slamcore.files import check_output_file
 
 EPILOG = """\
@@ -47,11 +49,11 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="FILE",
                    help="CSV file to write: query,match,score,inliers")
     p.add_argument("--vocab", type=Path, default=None, metavar="FILE",
-                   help="vocabulary file from 'graphslam vocab train' (default: train one on "
-                        "the folder itself, see --words)")
-    p.add_argument("--words", type=int, default=1000, metavar="N",
-                   help="words of the vocabulary trained on the fly when --vocab is not given "
-                        "(default: 1000, a 10-way tree of depth 3)")
+                   help="vocabulary file from 'graphslam vocab train' (default: the general "
+                        "10 000-word ORB vocabulary shipped with the package)")
+    p.add_argument("--words", type=int, default=None, metavar="N",
+                   help="instead, train a vocabulary of N words on the folder itself "
+                        "(e.g. 1000, a 10-way tree of depth 3)")
     p.add_argument("--intrinsics", type=Path, default=None, metavar="FILE",
                    help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
                         "enables the essential-matrix check (default: fundamental matrix)")
@@ -60,6 +62,10 @@ def register(subparsers) -> None:
     p.add_argument("--log", type=Path, default=None, metavar="FILE",
                    help="write every candidate's fate (scores, inliers, accepted or why "
                         "rejected) as JSON lines")
+    p.add_argument("--truth", type=Path, default=None, metavar="FILE",
+                   help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
+                        "image whose non-zero pixel (i, j) marks images i and j as one place; "
+                        "prints precision and recall and writes pr.csv and pr.png next to --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_loops)
 
@@ -69,12 +75,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, train_vocabulary,
+        check_vocabulary, describe, detect_all, detect_loops, folder_places, train_vocabulary,
     )
     from graphslam.sources.spatial.sequence import folder_images
     from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
     from loopclosure.verify import VerifyConfig
+    from loopclosure.shipped import SHIPPED_VOCABULARY
     from loopclosure.vocabulary import load_vocabulary
 
     t0 = time.perf_counter()
@@ -91,19 +98,25 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
-    features = None
-    if args.vocab is not None:
-        vocab = load_vocabulary(args.vocab)
-        check_vocabulary(vocab, args.vocab)
-    else:
-        # One ORB pass serves both the training and the detection.
-        features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
+    if args.vocab is not None and args.words is not None:
+        raise ConfigError("give --vocab FILE or --words N, not both")
+    vocab = None
+    if args.words is None:  # a bad file fails before the long ORB pass
+        vocab_path = SHIPPED_VOCABULARY if args.vocab is None else args.vocab
+        vocab = load_vocabulary(vocab_path)
+        check_vocabulary(vocab, vocab_path)
+    # One ORB pass serves the mode choice, the training (if any) and the detection.
+    features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
+    places = folder_places(paths, features, detector_config)
+    detector_config = dataclasses.replace(detector_config, mode=places.mode)
+    if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
     detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion)
-    detect_loops(paths, detector, features, progress=not args.quiet)
+    kept = list(features) if args.truth is not None else None  # detect_loops frees its list
+    detect_loops(paths, detector, features, progress=not args.quiet, timestamps=places.timestamps)
 
     from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv
 
@@ -112,8 +125,11 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
+    if args.truth is not None and not stop_requested():  # a cut run has no whole PR curve
+        written += _evaluate(args, paths, kept, detector, places.timestamps)
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
+    print(f"places: {places.describe(detector_config)}")
     print(f"{seen} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
@@ -122,3 +138,39 @@ def cmd_loops(args: argparse.Namespace) -> int:
               f"the images seen", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _evaluate(args, paths, features, detector, timestamps) -> list[str]:
+    """``--truth``: precision and recall printed, the PR curve written; returns the files."""
+    from graphslam.evaluation.places import pr_curve, read_truth, score
+    from graphslam.pipelines.place_recognition import sweep_scores
+    from loopclosure.detector import LoopDetector
+
+    truth = read_truth(args.truth, paths)
+    closures = [(c.query, c.match) for c in detector.closures]
+    precision, recall, n_true = score(closures, truth)
+    # The sweep: the same detector with no score threshold, every verified candidate kept.
+    loose = dataclasses.replace(detector.config, min_normalised_score=0.0, min_score=0.0)
+    sweep = LoopDetector(detector.database.vocabulary, loose, detector.verifier.config,
+                         K=detector.K, distortion=detector.distortion)
+    points = pr_curve(sweep_scores(paths, features, sweep, timestamps), truth)
+    files = write_pr(points, (precision, recall), args.out.parent)
+    n_queries = len({q for q, _ in truth})
+    prec = "n/a (no closure)" if precision is None else f"{precision:.3f}"
+    print(f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
+          f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}")
+    return [str(f) for f in files]
+
+
+def write_pr(points, operating: tuple[float | None, float], out_dir: Path) -> list[Path]:
+    """``pr.csv`` (threshold,closures,true,precision,recall) and ``pr.png`` in ``out_dir``."""
+    from graphslam.visualisation.plots import plot_precision_recall
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = out_dir / "pr.csv"
+    with csv_path.open("w", encoding="utf-8") as fh:
+        fh.write("threshold,closures,true,precision,recall\n")
+        for p in points:
+            prec = "" if p.precision is None else f"{p.precision:.6f}"
+            fh.write(f"{p.threshold:.6f},{p.closures},{p.true},{prec},{p.recall:.6f}\n")
+    return [csv_path, plot_precision_recall(points, operating, out_dir / "pr.png")]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -96,13 +97,83 @@ def check_vocabulary(vocab, path: Path) -> None:
                          f"{getattr(vocab, 'descriptor_dim_', '?')}; need hamming, 32)", path)
 
 
+@dataclass(frozen=True)
+class FolderPlaces:
+    """How a folder's images are told apart in time (:mod:`loopclosure.places`).
+
+    Attributes:
+        mode: ``"video"`` or ``"keyframes"``, as resolved.
+        chosen: True when ``"auto"`` chose it (from ``median_overlap``).
+        median_overlap: median share of features matched between consecutive images.
+        timestamps: (N,) seconds (from file names or a KITTI-style ``times.txt``), or None.
+    """
+
+    mode: str
+    chosen: bool
+    median_overlap: float | None
+    timestamps: np.ndarray | None
+
+    def describe(self, config) -> str:
+        """One line for the summary: the mode, why, and what it excludes."""
+        why = ""
+        if self.median_overlap is not None:
+            rel = "<" if self.mode == "keyframes" else ">="
+            why = (f" (median consecutive overlap {self.median_overlap:.2f} {rel} "
+                   f"{config.keyframe_overlap:g})")
+        how = ("auto: " if self.chosen else "") + self.mode + why
+        if self.mode == "keyframes":
+            return f"{how}: excluding overlapping predecessors, one verified query suffices"
+        if self.timestamps is not None:
+            return f"{how}: excluding the last {config.exclude_recent_s:g} s"
+        return f"{how}: excluding the last {config.exclude_recent} frames"
+
+
+def folder_timestamps(paths: list[Path]) -> np.ndarray | None:
+    """Seconds per image from the file names (TUM style) or ``../times.txt`` (KITTI), else None."""
+    from loopclosure.places import timestamps_from_names
+
+    t = timestamps_from_names(paths)
+    if t is not None or not paths:
+        return t
+    times = paths[0].parent.parent / "times.txt"
+    if times.is_file():
+        try:
+            t = np.loadtxt(times, ndmin=1)
+        except ValueError:
+            return None  # not a list of numbers: not a timestamp file
+        if t.ndim == 1 and len(t) == len(paths) and np.all(np.diff(t) > 0):
+            return t
+    return None
+
+
+#: Consecutive pairs the folder commands measure to choose the mode (about 10 ms each).
+FOLDER_PROBE_PAIRS = 25
+
+
+def folder_places(paths: list[Path], features: list, config) -> FolderPlaces:
+    """Resolve ``config.mode`` (``[loops]``) on a whole folder from consecutive pairs spread
+    over it (all of them up to :data:`FOLDER_PROBE_PAIRS`)."""
+    from loopclosure.places import choose_mode, consecutive_overlap
+
+    overlaps = []
+    if config.mode == "auto" and len(features) > 1:
+        # at most FOLDER_PROBE_PAIRS evenly spaced pairs: a median needs no more
+        starts = np.unique(np.linspace(0, len(features) - 2, FOLDER_PROBE_PAIRS).astype(int))
+        overlaps = [consecutive_overlap(features[k].descriptors, features[k + 1].descriptors)
+                    for k in starts]
+    mode = choose_mode(config.mode, overlaps, config.keyframe_overlap)
+    return FolderPlaces(mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None,
+                        folder_timestamps(paths))
+
+
 def detect_loops(paths: list[Path], detector, features: list | None = None,
-                 progress: bool = False):
+                 progress: bool = False, timestamps: np.ndarray | None = None):
     """Feed every image (or its precomputed ORB ``features``) to ``detector`` in order.
 
-    ``features`` entries are released as they are used. A stop request (SIGINT,
-    SIGTERM) ends the pass at the next image, the closures so far kept in
-    ``detector``. Returns ``detector``.
+    ``features`` entries are released as they are used; ``timestamps``
+    (seconds) go with the images when given. A stop request (SIGINT, SIGTERM)
+    ends the pass at the next image, the closures so far kept in ``detector``.
+    Returns ``detector``.
     """
     from tqdm import tqdm
 
@@ -113,13 +184,25 @@ def detect_loops(paths: list[Path], detector, features: list | None = None,
         for i in bar:
             if stop.requested:
                 break
+            t = None if timestamps is None else float(timestamps[i])
             if features is None:
-                detector.process(load_gray(paths[i]))
+                detector.process(load_gray(paths[i]), t)
             else:
                 f = features[i]
                 features[i] = None  # free memory as we go
-                detector.process_features(f.xy_px, f.descriptors)
+                detector.process_features(f.xy_px, f.descriptors, t)
             bar.set_postfix(closures=len(detector.closures), refresh=False)
             signal_hook("step", i)
     bar.close()
     return detector
+
+
+def sweep_scores(paths: list[Path], features: list, detector, timestamps=None) -> list:
+    """``(query, match, normalised score)`` of every verified candidate of a run of
+    ``detector`` (built with no score threshold) over precomputed ``features``.
+
+    The precision-recall curve of ``--truth`` sweeps its threshold over these.
+    """
+    detect_loops(paths, detector, list(features), timestamps=timestamps)
+    return [(r.query, r.match, r.normalised_score) for r in detector.records if r.accepted]
+

@@ -90,3 +90,31 @@ def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarr
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_precision_recall(points, operating: tuple[float | None, float], path: Path) -> Path:
+    """PNG of a precision-recall curve (``PrPoint`` list, swept over the normalised
+    score) with the operating point ``(precision, recall)`` of the run marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), constrained_layout=True)
+    pts = [p for p in points if p.precision is not None]
+    if pts:
+        ax.plot([p.recall for p in pts], [p.precision for p in pts], "-o", ms=3, lw=1,
+                label="swept over the normalised score")
+    prec, rec = operating
+    if prec is not None:
+        ax.plot([rec], [prec], "r*", ms=14, label="operating point (defaults)")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("recall (queries with a true match that got one)")
+    ax.set_ylabel("precision")
+    ax.set_title("place recognition: precision-recall")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left", fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
