@@ -60,3 +60,48 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _pyplot():
+    """pyplot on the file-only Agg back end (no display on servers or CI)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_trajectory_eval(results, path: Path) -> Path:
+    """PNG of ``graphslam eval`` (``EstimateResult`` list): the aligned estimates over the
+    reference (seen along its least-spread axis), ATE over time and along the path."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
+    ref = results[0].result.ref[:, :3, 3]
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
+    names = "xyz"
+    axes[0].plot(ref[:, a], ref[:, b], color="0.5", lw=2, label="reference")
+    for i, r in enumerate(results):
+        res, name = r.result, Path(r.path).name
+        p = res.est[:, :3, 3]
+        axes[0].plot(p[:, a], p[:, b], color=f"C{i}", lw=1, label=name)
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(res.ref[:, :3, 3], axis=0),
+                                                                axis=1))])
+        axes[1].plot(res.stamps_s - res.stamps_s[0], res.ate_trans_m, color=f"C{i}", lw=0.8,
+                     label=name)
+        axes[2].plot(along, res.ate_trans_m, color=f"C{i}", lw=0.8, label=name)
+    axes[0].set_aspect("equal", adjustable="datalim")
+    axes[0].set_xlabel(f"{names[a]} [m]")
+    axes[0].set_ylabel(f"{names[b]} [m]")
+    axes[0].set_title("aligned trajectories")
+    axes[0].legend(loc="best", fontsize=8)
+    axes[1].set_xlabel("time since first match [s] (frames without stamps)")
+    axes[2].set_xlabel("distance along the reference [m]")
+    for ax in axes[1:]:
+        ax.set_ylabel("ATE [m]")
+        ax.set_ylim(bottom=0)
+    axes[1].set_title("translation error over time")
+    axes[2].set_title("translation error along the path")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
