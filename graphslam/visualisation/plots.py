@@ -105,3 +105,57 @@ def plot_trajectory_eval(results, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _metric_by(rows, group: str, metric: str = "ate_rmse_m") -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {}
+    for r in rows:
+        if r.get("status") == "ok" and r.get(metric) not in (None, "") and r.get(group) != "":
+            out.setdefault(str(r[group]), []).append(float(r[metric]))
+    return out
+
+
+def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Path]:
+    """The PNGs of ``graphslam sweep``: Monte Carlo NEES, ATE per back end, ATE per
+    swept value; returns the files written."""
+    from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds
+
+    plt = _pyplot()
+    written = []
+    if nees:
+        fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
+        for i, (label, runs) in enumerate(sorted(nees.items())):
+            # step 0 is the prior pose, known exactly: no error to score
+            ax.plot(np.arange(1, runs.shape[1]), runs[:, 1:].mean(axis=0), color=f"C{i}", lw=0.8,
+                    label=f"{label} ({len(runs)} runs)")
+            lo, hi = chi2_bounds(3, len(runs), NEES_CONFIDENCE)
+            ax.axhline(lo, color=f"C{i}", ls="--", lw=0.6)
+            ax.axhline(hi, color=f"C{i}", ls="--", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_xlabel("step")
+        ax.set_ylabel("average pose NEES (3 dof)")
+        ax.set_title("Monte Carlo consistency: average NEES and 95 % chi-square bounds "
+                     "(filters: filtered; iSAM2: smoothed)")
+        ax.legend(loc="best", fontsize=8)
+        written.append(_save(fig, out_dir / "sweep_nees.png"))
+    for group, name in [("label", "sweep_ate.png")] + [(k, f"sweep_{k}.png") for k in set_keys]:
+        data = _metric_by(rows, group)
+        if not data or (group != "label" and len(data) < 2):
+            continue
+        fig, ax = plt.subplots(figsize=(max(5, 1.4 * len(data) + 2), 4.5), constrained_layout=True)
+        labels = sorted(data)
+        ax.boxplot([data[k] for k in labels])
+        ax.set_xticks(np.arange(1, len(labels) + 1), labels, rotation=20 if group == "label" else 0)
+        ax.set_xlabel("back end and swept settings" if group == "label" else group)
+        ax.set_ylabel("ATE RMSE [m]")
+        ax.set_title(f"ATE over {sum(len(v) for v in data.values())} runs")
+        written.append(_save(fig, out_dir / name))
+    return written
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
