@@ -7,6 +7,11 @@ it is the child's Python start and imports).
 from __future__ import annotations
 
 import csv
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -15,6 +20,7 @@ from graphslam.pipelines.sweep import run_sweep
 from graphslam.pipelines.sweep_exec import PoolExecutor
 from graphslam.pipelines.sweep_spec import parse_sweep
 from slamcore.errors import ConfigError
+from tests.conftest import ROOT
 
 SMALL = """\
 [sweep]
@@ -121,6 +127,26 @@ def test_ctrl_c_keeps_finished_runs_and_a_rerun_resumes(tmp_path):
 
     third = run_sweep(spec, out, PoolExecutor(2))
     assert third.ran == 0 and third.skipped == 4
+
+
+def test_sigint_to_the_sweep_process_keeps_finished_runs(tmp_path):
+    """The real signal: SIGINT to a ``graphslam sweep`` process once its first run is
+    in sweep.csv; it stops the run in flight and exits 130 with the finished rows."""
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(_file(tmp_path, SMALL)),
+         "--out", str(out), "--workers", "1", "--quiet", "--no-plots"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    deadline = time.monotonic() + 120  # s: generous on a loaded machine
+    while not ((out / "sweep.csv").is_file() and _csv(out / "sweep.csv")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.02)  # polling for the first row, not waiting a guessed time
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    rows = _csv(out / "sweep.csv")
+    assert 1 <= len(rows) < 4 and all(r["status"] == "ok" for r in rows)
 
 
 def test_cli_sweep_writes_table_and_plots(tmp_path, capsys):

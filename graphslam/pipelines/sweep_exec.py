@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -31,9 +32,11 @@ from pathlib import Path
 from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
 from slamcore.errors import ConfigError
 
-#: Runs in flight in this process (Ctrl-C stops them).
+#: Runs in flight in this process (Ctrl-C stops them), and the flag that keeps
+#: a thread that was about to start one from starting it after the stop.
 _LIVE: set[subprocess.Popen] = set()
 _LIVE_LOCK = threading.Lock()
+_STOPPING = threading.Event()
 
 
 def run_command(run: RunSpec, out_dir: Path) -> list[str]:
@@ -56,19 +59,22 @@ def _last_error_line(text: str) -> str:
 
 
 def _spawn_and_wait(cmd: list[str], out_dir: Path) -> tuple[int, float, float]:
-    """``(exit status, wall s, peak RSS MB of the child)``; stderr goes to stderr.txt."""
+    """``(exit status, wall s, peak RSS MB of the child)``; stderr goes to stderr.txt.
+    Once :func:`stop_live_runs` has been called, nothing starts (status 130)."""
     t0 = time.perf_counter()
-    with open(out_dir / "stderr.txt", "wb") as err:
+    with open(out_dir / "stderr.txt", "wb") as err, _LIVE_LOCK:
+        if _STOPPING.is_set():
+            return 130, 0.0, 0.0
+        # the child holds its own copy of the stderr file once started
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err,
                                 cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": _pythonpath()})
+        _LIVE.add(proc)
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    finally:
         with _LIVE_LOCK:
-            _LIVE.add(proc)
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-            proc.returncode = os.waitstatus_to_exitcode(status)
-        finally:
-            with _LIVE_LOCK:
-                _LIVE.discard(proc)
+            _LIVE.discard(proc)
     return proc.returncode, time.perf_counter() - t0, usage.ru_maxrss / 1024.0
 
 
@@ -118,12 +124,22 @@ def execute_run(run: RunSpec, root: str) -> dict:
 
 
 def stop_live_runs() -> None:
-    """Interrupt every run this process started and is still waiting for."""
+    """Stop every run this process started and is still waiting for, and start no
+    more until :func:`allow_runs`."""
     with _LIVE_LOCK:
-        live = list(_LIVE)
-    for proc in live:
-        if proc.poll() is None:
-            proc.terminate()
+        _STOPPING.set()
+        for proc in _LIVE:
+            # os.kill, not proc.terminate(): terminate() polls, which could reap the
+            # child under the thread blocked in os.wait4 on it
+            try:
+                os.kill(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+
+
+def allow_runs() -> None:
+    """Let runs start again (after :func:`stop_live_runs`)."""
+    _STOPPING.clear()
 
 
 class PoolExecutor:
@@ -150,6 +166,7 @@ class PoolExecutor:
                 f.cancel()
             stop_live_runs()
             pool.shutdown(wait=True)
+            allow_runs()
 
     def close(self) -> None:
         pass
