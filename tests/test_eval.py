@@ -13,8 +13,10 @@ from graphslam.pipelines.trajectory_eval import evaluate_files
 from slamcore.errors import ConfigError
 from tests import trajectories as tr
 
-#: the issue's bound for agreement with evo (relative)
-EVO_REL_TOL = 1e-6
+#: agreement with evo, relative: the issue asks 1e-6; the same formulas agree to
+#: rounding (~1e-14), and 1e-9 catches a different formula (a general matrix
+#: inverse instead of evo's rigid one parts at ~3e-8 on KITTI 07)
+EVO_REL_TOL = 1e-9
 #: metric values compared with evo's
 EVO_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_rot_rmse_deg",
             "rpe_trans_rmse_m", "rpe_rot_rmse_deg")
@@ -48,6 +50,16 @@ def test_agrees_with_evo_itself(tmp_path, fmt):
     gt, est = tr.write_pair(tmp_path, fmt)
     for name, *case in tr.CASES:
         _assert_agrees(_ours(tmp_path, fmt, *case), tr.evo_numbers(gt, est, fmt, *case))
+
+
+@pytest.mark.parametrize("case", tr.CASES, ids=[c[0] for c in tr.CASES])
+def test_agrees_with_evo_on_kitti07_ground_truth(tmp_path, shared_data, case):
+    """Real KITTI poses: rotations orthonormal to ~1e-7 only, where a general matrix
+    inverse and evo's rigid inverse part at 1e-8 of a frame-to-frame RPE."""
+    gt, est = tr.kitti07_pair(tmp_path, shared_data / "kitti07" / "poses.txt")
+    options = EvalOptions(align=case[1], n_align=case[2], delta=case[3], delta_unit=case[4])
+    ours = evaluate_files(gt, [est], options)[0].result.summary()
+    _assert_agrees(ours, json.loads(tr.REFERENCE.read_text())[f"kitti07/{case[0]}"])
 
 
 def test_partial_association_drops_far_stamps(tmp_path):

@@ -76,6 +76,29 @@ def write_pair(folder: Path, fmt: str) -> tuple[Path, Path]:
     return gt, est
 
 
+def drifted(wTc: np.ndarray) -> np.ndarray:
+    """Odometry-like drift of a real trajectory: each relative motion 1 % long and
+    turned by a slowly varying 0.1-0.3 mrad about the camera's y axis."""
+    out = [wTc[0]]
+    for i in range(1, len(wTc)):
+        rel = np.linalg.inv(wTc[i - 1]) @ wTc[i]
+        turn = np.eye(4)
+        turn[:3, :3] = Rotation.from_rotvec([0.0, 2e-4 * np.sin(0.01 * i) + 1e-4, 0.0]).as_matrix()
+        rel = rel @ turn
+        rel[:3, 3] *= 1.01
+        out.append(out[-1] @ rel)
+    return np.array(out)
+
+
+def kitti07_pair(folder: Path, poses: Path) -> tuple[Path, Path]:
+    """KITTI 07's own ground truth (rotations rounded to 7 digits in the file, so not
+    exactly orthonormal) and a drifted copy of it."""
+    gt = np.loadtxt(poses).reshape(-1, 3, 4)
+    T = np.tile(np.eye(4), (len(gt), 1, 1))
+    T[:, :3, :] = gt
+    return poses, write(folder / "est_kitti07.txt", "kitti", np.zeros(len(T)), drifted(T))
+
+
 def evo_numbers(gt: Path, est: Path, fmt: str, align: str, n_align, delta, unit) -> dict:
     """evo's APE and RPE on the two files (evo's API, as ``evo_ape``/``evo_rpe`` run it)."""
     from evo.core import metrics, sync
@@ -115,6 +138,11 @@ def main(folder: Path) -> None:
         gt, est = write_pair(folder, fmt)
         for name, *case in CASES:
             table[f"{fmt}/{name}"] = evo_numbers(gt, est, fmt, *case)
+    from tests.conftest import SHARED_DATA
+
+    gt, est = kitti07_pair(folder, SHARED_DATA / "kitti07" / "poses.txt")
+    for name, *case in CASES:
+        table[f"kitti07/{name}"] = evo_numbers(gt, est, "kitti", *case)
     REFERENCE.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n")
 
 

@@ -127,7 +127,7 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
     if method == "none":
         return est, 1.0
     if method == "first":
-        T = ref[0] @ np.linalg.inv(est[0])
+        T = ref[0] @ _se3_inv(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
@@ -142,9 +142,20 @@ def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
     return np.degrees(Rotation.from_matrix(np.asarray(R).reshape(-1, 3, 3)).magnitude())
 
 
+def _se3_inv(T: np.ndarray) -> np.ndarray:
+    """``[R^T, -R^T t]``: the rigid inverse evo takes (file rotations, rounded to a
+    few digits, are orthonormal only to ~1e-7, so this is not ``np.linalg.inv``)."""
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``inv(a) @ b`` row by row."""
-    return np.linalg.inv(a) @ b
+    """``inv(a) @ b`` row by row (rigid inverse, as evo)."""
+    return _se3_inv(a) @ b
 
 
 def ate(ref: np.ndarray, est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +208,9 @@ def kitti_drift(ref: np.ndarray, est: np.ndarray) -> tuple[float | None, float |
             if beyond.size == 0:
                 continue
             last = first + int(beyond[0])
-            e = _relative(_relative(est[first], est[last]), _relative(ref[first], ref[last]))
+            # the devkit inverts with a general matrix inverse
+            inv = np.linalg.inv
+            e = inv(inv(est[first]) @ est[last]) @ (inv(ref[first]) @ ref[last])
             d = 0.5 * (e[0, 0] + e[1, 1] + e[2, 2] - 1.0)
             r_err.append(np.arccos(max(min(d, 1.0), -1.0)) / length)
             t_err.append(np.linalg.norm(e[:3, 3]) / length)
