@@ -163,10 +163,21 @@ def test_cli_sweep_writes_table_and_plots(tmp_path, capsys):
     assert "4 runs" in capsys.readouterr().out
 
 
-def test_workers_below_one_refused(tmp_path, capsys):
-    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
-                 "--workers", "0"]) == 2
+@pytest.mark.parametrize("argv", [["--workers", "0"],
+                                  ["--workers", "2", "--cluster", "tcp://127.0.0.1:1"]])
+def test_workers_refused_where_they_do_nothing(tmp_path, capsys, argv):
+    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"), *argv]) == 2
     assert "--workers" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_unreachable_cluster_is_one_line(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
+                 "--cluster", "tcp://127.0.0.1:1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot connect" in err[0]
 
 
 @pytest.mark.slow

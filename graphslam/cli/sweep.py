@@ -92,6 +92,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
     if workers < 1:
         raise ConfigError("--workers must be at least 1")
+    if args.workers is not None and args.cluster not in (None, "local"):
+        raise ConfigError("--workers sets the local pool or --cluster local; a running "
+                          "cluster has the workers it was started with")
     spec = parse_sweep(args.sweep_file)
     n_runs = len(spec.runs())
     executor = make_executor(workers, args.cluster)

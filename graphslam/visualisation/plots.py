@@ -128,9 +128,10 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
             # step 0 is the prior pose, known exactly: no error to score
             ax.plot(np.arange(1, runs.shape[1]), runs[:, 1:].mean(axis=0), color=f"C{i}", lw=0.8,
                     label=f"{label} ({len(runs)} runs)")
-            lo, hi = chi2_bounds(3, len(runs), NEES_CONFIDENCE)
-            ax.axhline(lo, color=f"C{i}", ls="--", lw=0.6)
-            ax.axhline(hi, color=f"C{i}", ls="--", lw=0.6)
+        for n_runs in sorted({len(r) for r in nees.values()}):
+            lo, hi = chi2_bounds(3, n_runs, NEES_CONFIDENCE)
+            ax.axhspan(lo, hi, color="0.5", alpha=0.15, lw=0,
+                       label=f"95 % bounds of the average of {n_runs} runs")
         ax.set_yscale("log")
         ax.set_xlabel("step")
         ax.set_ylabel("average pose NEES (3 dof)")
