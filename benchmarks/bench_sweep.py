@@ -9,6 +9,9 @@ run with one worker and with ``--workers`` workers:
   the mean wall time of the run's own process (``wall_s`` of its row): what
   the engine adds per run (config file, process start bookkeeping, scoring
   the run's files, handing the row back);
+- this process's CPU time per run (load-independent): the pool's threads
+  and scoring; with Dask, the client and the LocalCluster's scheduler (the
+  scoring runs in the workers);
 - Dask round trip: submit-to-result of an empty task on the running cluster,
   the scheduler's own share of that overhead.
 
@@ -48,14 +51,15 @@ def sweep_file(folder: Path, runs: int, steps: int) -> Path:
 def timed_sweep(spec, executor, folder: Path) -> dict:
     """Wall time of the whole sweep and the mean wall time of its runs' processes."""
     shutil.rmtree(folder, ignore_errors=True)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     outcome = run_sweep(spec, folder, executor)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     if any(r["status"] != "ok" for r in outcome.rows):
         raise SystemExit(f"a benchmark run failed: {[r['error'] for r in outcome.rows]}")
     child = statistics.mean(float(r["wall_s"]) for r in outcome.rows)
     return {"wall_s": wall, "runs_per_s": len(outcome.rows) / wall, "child_wall_s": child,
-            "overhead_per_run_ms": 1e3 * (wall / len(outcome.rows) - child)}
+            "overhead_per_run_ms": 1e3 * (wall / len(outcome.rows) - child),
+            "this_process_cpu_per_run_ms": 1e3 * cpu / len(outcome.rows)}
 
 
 def _noop() -> None:
@@ -107,14 +111,15 @@ def main(argv=None) -> int:
             results["dask"] = engine("dask", lambda k: DaskExecutor("local", k), spec,
                                      args.workers, folder)
     print(f"{'engine':<6} {'1 worker runs/s':>15} {f'{args.workers} workers runs/s':>17} "
-          f"{'efficiency':>10} {'overhead/run ms':>15} {'round trip ms':>13}")
+          f"{'efficiency':>10} {'overhead/run ms':>15} {'CPU/run ms':>10} {'round trip ms':>13}")
     for name in ("pool", "dask"):
         if name in results:
             r = results[name]
             trip = "" if r["round_trip_ms"] is None else f"{r['round_trip_ms']:.1f}"
             print(f"{name:<6} {r['one_worker']['runs_per_s']:>15.3f} "
                   f"{r[f'{args.workers}_workers']['runs_per_s']:>17.3f} {r['efficiency']:>10.2f} "
-                  f"{r['one_worker']['overhead_per_run_ms']:>15.1f} {trip:>13}")
+                  f"{r['one_worker']['overhead_per_run_ms']:>15.1f} "
+                  f"{r['one_worker']['this_process_cpu_per_run_ms']:>10.1f} {trip:>13}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {args.out}")
