@@ -193,17 +193,24 @@ class DaskExecutor:
                 self.client = Client(address, timeout="10s")
             except (OSError, TimeoutError) as e:
                 raise ConfigError(f"--cluster {address}: cannot connect ({e})") from None
+        self.client.run(allow_runs)  # a Ctrl-C'd sweep before this one left them stopped
 
     def map_unordered(self, runs: list[RunSpec], root: Path):
         from dask.distributed import as_completed
 
         futures = {self.client.submit(execute_run, r, str(root), pure=False): r for r in runs}
+        finished = False
         try:
             for f in as_completed(list(futures)):
                 yield futures[f], f.result()
+            finished = True
         finally:
             for f in futures:
                 f.cancel()
+            if not finished:
+                # cancelling a task does not stop the process it started: the
+                # workers stop their runs in flight themselves
+                self.client.run(stop_live_runs)
 
     def close(self) -> None:
         self.client.close()
