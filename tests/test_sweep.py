@@ -68,6 +68,22 @@ seed = {from = 3, to = 5}
     assert [r.run_id for r in again] == [r.run_id for r in runs]  # hashes are stable
 
 
+def test_base_config_and_overrides_make_the_run_config(tmp_path):
+    _file(tmp_path, "[ekf]\nodometry_covariance_scale = 2.0\nassociation = \"known\"\n", "base.toml")
+    spec = parse_sweep(_file(tmp_path, """\
+[sweep]
+dataset = ["synthetic"]
+backend = ["ekf"]
+config = "base.toml"
+max_steps = 7
+[sweep.set]
+"ekf.association" = ["unknown"]
+"""))
+    (run,) = spec.runs()
+    assert run.seed is None and run.max_steps == 7
+    assert run.config == {"ekf": {"odometry_covariance_scale": 2.0, "association": "unknown"}}
+
+
 @pytest.mark.parametrize("text, line, words", [
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseeds = [1]\n', 4, "unknown key 'seeds'"),
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"ekf.asociation" = ["unknown"]\n',
@@ -81,6 +97,8 @@ seed = {from = 3, to = 5}
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"synthetic.sigma_r_m" = [-1.0]\n',
      5, "sigma_r_m"),
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf2"]\n', 3, "unknown back end"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n\n[ekf]\nassociation = "unknown"\n', 5,
+     "unknown table [ekf]"),
 ])
 def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, line, words):
     path = _file(tmp_path, text)
@@ -202,3 +220,14 @@ def test_local_dask_cluster_gives_the_pool_results(tmp_path):
         for name in ("trajectory.tum", "nees.csv"):
             assert ((tmp_path / "dask" / "runs" / r["run_id"] / name).read_bytes()
                     == (tmp_path / "pool" / "runs" / r["run_id"] / name).read_bytes())
+
+
+def test_run_config_file_reads_back_as_written():
+    import tomllib
+
+    from graphslam.pipelines.sweep_spec import dump_toml
+
+    config = {"ekf": {"association": "unknown", "odometry_covariance_scale": 1e-05,
+                      "flag": True, "n": 3},
+              "loops": {"top_k": 5, "orb": {"n_features": 500, "sizes": [1.5, 2]}}}
+    assert tomllib.loads(dump_toml(config)) == config
