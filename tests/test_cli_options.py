@@ -295,6 +295,7 @@ def _run_nees(cli, key):
     assert lines[0] == "step,pose_id,nees" and len(lines) == 1 + 10
     assert scored.metrics()["nees_mean"] > 0
     refused(cli(*RUN_IMAGES, "--nees"), "2-D runs only")
+    refused(cli(*RUN_2D, "--dataset", "victoria-park", "--nees"), "needs ground truth")
 
 
 @row("run --frontend")

@@ -231,3 +231,15 @@ def test_run_config_file_reads_back_as_written():
                       "flag": True, "n": 3},
               "loops": {"top_k": 5, "orb": {"n_features": 500, "sizes": [1.5, 2]}}}
     assert tomllib.loads(dump_toml(config)) == config
+
+
+def test_nees_defaults_to_the_synthetic_world_only(tmp_path):
+    def spec(datasets, extra=""):
+        return parse_sweep(_file(tmp_path, f'[sweep]\ndataset = {datasets}\nbackend = ["ekf"]\n{extra}'))
+
+    assert spec('["synthetic"]').nees and not spec('["victoria-park"]').nees
+    assert not spec('["synthetic"]', "nees = false\n").nees
+    with pytest.raises(ConfigError):
+        spec('["synthetic"]', 'nees = "yes"\n')
+    on, off = spec('["synthetic"]').runs()[0], spec('["synthetic"]', "nees = false\n").runs()[0]
+    assert on.config_hash != off.config_hash  # a resumed sweep never mixes the two

@@ -14,11 +14,12 @@ sweep file (TOML):
   backend = ["isam2", "ekf", "fastslam1", "fastslam2"]
   seed = {from = 0, to = 49}          # or a list; absent: no --seed
   max_steps = 200                     # optional
+  nees = true                         # optional; default: true on the synthetic world
   config = "base.toml"                # optional base config, beside the sweep file
   [sweep.set]                         # config overrides, the grid is their product
   "ekf.association" = ["unknown"]
 
-every run is `graphslam run ... --nees` in its own process, outputs in
+every run is `graphslam run ... [--nees]` in its own process, outputs in
 OUT/runs/<backend>-<config hash>-s<seed>/. Re-running a sweep into the same
 --out skips the runs already done (same config hash and seed); Ctrl-C keeps
 every finished run (exit 130); a failed run is a row with its error.

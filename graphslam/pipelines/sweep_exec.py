@@ -1,7 +1,8 @@
 """Running a sweep's runs: one ``graphslam run`` process each, on a local pool or Dask.
 
 :func:`execute_run` is the unit of work: it writes the run's config file,
-starts ``python -m graphslam.cli.main run ... --nees`` in the run's folder,
+starts ``python -m graphslam.cli.main run ...`` (``--nees`` when the sweep
+scores NEES) in the run's folder,
 waits for it (``os.wait4``: the child's own peak memory), then reads its
 ``metrics.json`` and scores ``trajectory.tum`` against ``ground_truth.tum``
 for the RPE. It returns one row of ``sweep.csv`` and never raises for a
@@ -43,7 +44,9 @@ def run_command(run: RunSpec, out_dir: Path) -> list[str]:
     """The ``graphslam run`` command line of ``run``."""
     cmd = [sys.executable, "-m", "graphslam.cli.main", "run", "--dataset", run.dataset,
            "--backend", run.backend, "--config", str(out_dir / "config.toml"), "--out",
-           str(out_dir), "--rerun", "off", "--quiet", "--nees"]
+           str(out_dir), "--rerun", "off", "--quiet"]
+    if run.nees:
+        cmd.append("--nees")
     if run.seed is not None:
         cmd += ["--seed", str(run.seed)]
     if run.max_steps is not None:

@@ -6,6 +6,10 @@ dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph file
 backend = ["isam2", "ekf"]
 seed = {from = 0, to = 49}              # or a list; absent: runs get no --seed
 max_steps = 200                         # optional: --max-steps of every run
+nees = true                             # optional: runs score their pose NEES (default:
+                                        # true when every dataset is the synthetic world,
+                                        # the one built-in 2-D dataset with truth and
+                                        # covariances cheap enough to take at every pose)
 config = "base.toml"                    # optional: the runs' base config (relative
                                         # to the sweep file); overrides go on top
 [sweep.set]
@@ -18,8 +22,8 @@ world), so ``fastslam.n_particles = [10, 100]`` does not run iSAM2 twice.
 Everything is checked before any run: unknown keys and sections, values out
 of range, an empty list (empty grid), each refused with file and line.
 
-A run's *config hash* is the hash of its dataset, back end, step limit and
-full config (base plus overrides), without the seed: ``(config_hash, seed)``
+A run's *config hash* is the hash of its dataset, back end, step limit, NEES
+switch and full config (base plus overrides), without the seed: ``(config_hash, seed)``
 names a run, and a sweep that is run again skips the ones already done.
 """
 
@@ -35,7 +39,7 @@ from pathlib import Path
 from slamcore.config import ConfigFile, from_dict
 from slamcore.errors import ConfigError
 
-SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "set")
+SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set")
 #: Seeds a ``{from, to}`` range may hold (a typo like to = 1e9 would never end).
 MAX_SEEDS = 100_000
 
@@ -48,6 +52,7 @@ class RunSpec:
     backend: str
     seed: int | None
     max_steps: int | None
+    nees: bool = True
     overrides: dict = field(default_factory=dict)  # "section.key" -> value, applied ones
     config: dict = field(default_factory=dict)     # the full config file of the run
     config_hash: str = ""
@@ -66,6 +71,7 @@ class SweepSpec:
     backends: tuple[str, ...]
     seeds: tuple[int | None, ...]
     max_steps: int | None
+    nees: bool
     base_config: dict
     set_keys: tuple[str, ...]
     set_values: tuple[tuple, ...]
@@ -81,13 +87,13 @@ class SweepSpec:
                 applied = {k: v for k, v in zip(self.set_keys, combo)
                            if k.split(".", 1)[0] in sections}
                 config = merged_config(self.base_config, applied)
-                chash = config_hash(dataset, backend, self.max_steps, config)
+                chash = config_hash(dataset, backend, self.max_steps, self.nees, config)
                 for seed in self.seeds:
                     if (chash, seed) in seen:
                         continue
                     seen.add((chash, seed))
-                    out.append(RunSpec(dataset, backend, seed, self.max_steps, applied, config,
-                                       chash))
+                    out.append(RunSpec(dataset, backend, seed, self.max_steps, self.nees,
+                                       applied, config, chash))
         return out
 
 
@@ -100,10 +106,11 @@ def merged_config(base: dict, overrides: dict) -> dict:
     return config
 
 
-def config_hash(dataset: str, backend: str, max_steps: int | None, config: dict) -> str:
+def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool,
+                config: dict) -> str:
     """12 hex digits naming a run's settings (everything but the seed)."""
     text = json.dumps({"dataset": dataset, "backend": backend, "max_steps": max_steps,
-                       "config": config}, sort_keys=True)
+                       "nees": nees, "config": config}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -221,6 +228,10 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
         raise ConfigError(f"[sweep] max_steps must be a whole number >= 1, got {max_steps!r}",
                           cfg.path, cfg.line_of("sweep", "max_steps"))
+    nees = sweep.get("nees", all(d == "synthetic" for d in datasets))
+    if not isinstance(nees, bool):
+        raise ConfigError(f"[sweep] nees must be true or false, got {nees!r}", cfg.path,
+                          cfg.line_of("sweep", "nees"))
     base = {}
     if "config" in sweep:
         base = dict(read_config(Path(cfg.path).parent / str(sweep["config"])).data)
@@ -229,4 +240,4 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         grid_sections.update(planar_sections(d, b))
     keys, values = _check_set(sweep, cfg, grid_sections)
     return SweepSpec(Path(path), tuple(datasets), tuple(backends), _seeds(sweep, cfg), max_steps,
-                     base, keys, values)
+                     nees, base, keys, values)

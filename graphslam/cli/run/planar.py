@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
 
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
+    if args.nees and truth is None and not dataset.has_ground_truth:
+        raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
     backend = registry.make_backend(args.backend, config=config, overrides=overrides)
