@@ -41,6 +41,10 @@ def _file(tmp_path, text, name="sweep.toml"):
     return path
 
 
+def _without_timing(rows):
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
+
+
 def _csv(path):
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
@@ -214,8 +218,7 @@ def test_local_dask_cluster_gives_the_pool_results(tmp_path):
     run_sweep(spec, tmp_path / "pool", PoolExecutor(2))
     a, b = _csv(tmp_path / "dask" / "sweep.csv"), _csv(tmp_path / "pool" / "sweep.csv")
     assert len(a) == 4 and all(r["status"] == "ok" for r in a)
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in TIMING} for r in rows]  # noqa: E731
-    assert strip(a) == strip(b)
+    assert _without_timing(a) == _without_timing(b)
     for r in a:
         for name in ("trajectory.tum", "nees.csv"):
             assert ((tmp_path / "dask" / "runs" / r["run_id"] / name).read_bytes()

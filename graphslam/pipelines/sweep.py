@@ -73,6 +73,11 @@ class SweepOutcome:
     runs: list[RunSpec] = field(default_factory=list)
 
 
+def _key(run: RunSpec) -> tuple[str, str]:
+    """``(config_hash, seed)`` as sweep.csv spells them."""
+    return run.config_hash, "" if run.seed is None else str(run.seed)
+
+
 def run_sweep(spec: SweepSpec, out: Path, executor, *,
               on_result: Callable[[RunSpec, dict], None] | None = None) -> SweepOutcome:
     """Run every run of ``spec`` not already done in ``out`` on ``executor``.
@@ -88,9 +93,8 @@ def run_sweep(spec: SweepSpec, out: Path, executor, *,
     runs = spec.runs()
     done = {(r.get("config_hash"), r.get("seed")): r for r in read_rows(csv_path)
             if r.get("status") == "ok"}
-    key = lambda run: (run.config_hash, "" if run.seed is None else str(run.seed))  # noqa: E731
-    rows = {run.run_id: done[key(run)] for run in runs if key(run) in done}
-    todo = [run for run in runs if key(run) not in done]
+    rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
+    todo = [run for run in runs if _key(run) not in done]
     outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs)
     order = {run.run_id: i for i, run in enumerate(runs)}
 

@@ -100,7 +100,7 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
             v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
-            stamps.append(v[0] * 1e-9)
+            stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
             poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), v[1:4]))
     return Trajectory(fmt, None if fmt == "kitti" else np.array(stamps), np.array(poses),
                       str(path))
