@@ -246,3 +246,18 @@ def test_nees_defaults_to_the_synthetic_world_only(tmp_path):
         spec('["synthetic"]', 'nees = "yes"\n')
     on, off = spec('["synthetic"]').runs()[0], spec('["synthetic"]', "nees = false\n").runs()[0]
     assert on.config_hash != off.config_hash  # a resumed sweep never mixes the two
+
+
+def test_progress_bar_counts_runs_and_failures(tmp_path, monkeypatch, capsys):
+    import io
+
+    class Tty(io.StringIO):
+        def isatty(self):  # tqdm draws only on a terminal
+            return True
+
+    fake = Tty()
+    monkeypatch.setattr("sys.stderr", fake)
+    path = _file(tmp_path, '[sweep]\ndataset = ["missing.g2o"]\nbackend = ["ekf"]\n')
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"]) == 0
+    bar = fake.getvalue()
+    assert "1/1" in bar and "failed=1" in bar
