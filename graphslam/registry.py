@@ -127,6 +127,24 @@ def seed_override(name: str, seed: int | None) -> dict:
 SEEDED_BACKENDS: tuple[str, ...] = ("fastslam1", "fastslam2")
 
 
+def planar_sections(dataset: str, backend: str) -> dict[str, type]:
+    """Config classes a 2-D ``graphslam run`` of ``dataset`` on ``backend`` reads,
+    by section name (``graphslam sweep`` checks its overrides against them)."""
+    from filters.ekf_slam_config import EkfSlamConfig
+    from filters.fastslam import FastSlamConfig
+    from graphslam.backends.planar.isam2 import Isam2Config
+    from graphslam.sources.planar.synthetic import SyntheticConfig
+
+    by_backend = {"isam2": Isam2Config, "ekf": EkfSlamConfig, "fastslam1": FastSlamConfig,
+                  "fastslam2": FastSlamConfig}
+    if backend not in by_backend:
+        raise ConfigError(f"unknown back end {backend!r} (available: {', '.join(BACKENDS)})")
+    out = {by_backend[backend].SECTION: by_backend[backend]}
+    if dataset == "synthetic":
+        out[SyntheticConfig.SECTION] = SyntheticConfig
+    return out
+
+
 # --------------------------------------------------------------------------- image sequences
 
 #: Built-in image-sequence datasets; a folder path is read as an image sequence

@@ -298,6 +298,17 @@ def _quiet(cli, key):
     assert cli(*base, "--quiet", tty=True).err == ""
 
 
+@row("run --nees")
+def _run_nees(cli, key):
+    plain, scored = cli(*RUN_2D), cli(*RUN_2D, "--nees")
+    assert "nees.csv" not in plain.files and "nees_mean" not in plain.metrics()
+    lines = scored.text("nees.csv").splitlines()
+    assert lines[0] == "step,pose_id,nees" and len(lines) == 1 + 10
+    assert scored.metrics()["nees_mean"] > 0
+    refused(cli(*RUN_IMAGES, "--nees"), "2-D runs only")
+    refused(cli(*RUN_2D, "--dataset", "victoria-park", "--nees"), "needs ground truth")
+
+
 @row("run --frontend")
 def _run_frontend(cli, key):
     differ(cli(*RUN_IMAGES), cli(*RUN_IMAGES, "--frontend", "orb"))

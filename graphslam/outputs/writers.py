@@ -75,7 +75,7 @@ def write_json(path: Path, data: dict) -> None:
 
 #: Files ``graphslam run`` may write into ``--out``.
 RUN_OUTPUT_NAMES = ("trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json",
-                    "run.rrd", "loops.csv", "loops.jsonl")
+                    "run.rrd", "loops.csv", "loops.jsonl", "nees.csv")
 #: Files ``graphslam compare`` may write into ``--out``.
 COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")
 
@@ -95,3 +95,12 @@ def remove_stale_outputs(out_dir: Path, will_write: set[str] | frozenset[str],
             p.unlink()
             removed.append(p)
     return removed
+
+
+def write_nees_csv(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:
+    """``step,pose_id,nees`` a line: the pose NEES of each step (``graphslam run --nees``)."""
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("step,pose_id,nees\n")
+        for k, (i, v) in enumerate(zip(pose_ids, nees)):
+            f.write(f"{k},{int(i)},{float(v):.9g}\n")
+    return path

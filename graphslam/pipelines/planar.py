@@ -214,3 +214,39 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetric
     writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
     writers.write_json(paths["metrics"], run_metrics.to_dict())
     return paths
+
+
+def add_nees(result: RunResult, run_metrics: PlanarRunMetrics,
+             ground_truth: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose NEES of each step against the truth (``ground_truth`` or the dataset's):
+    fills the NEES fields of ``run_metrics`` and returns ``(pose_ids, nees)``.
+
+    Filters give each step's filtered covariance, iSAM2 the smoothed marginals.
+    GraphSlamError when the run has no truth or no covariances (interrupted).
+    """
+    from graphslam.evaluation import planar as metrics
+
+    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
+    est = result.estimate
+    if gt is None:
+        raise GraphSlamError(f"--nees needs ground truth; {result.dataset.name!r} has none")
+    if est.pose_covariances is None:
+        raise GraphSlamError("--nees: the run stopped before its covariances were computed")
+    gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1]))
+    keep = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)
+    ids = est.pose_ids[keep]
+    err = metrics.errors_against_truth(ids, est.wTb[keep], gt_of)
+    nees = metrics.nees(err, est.pose_covariances[keep])
+    lo, hi = metrics.chi2_bounds(3, 1, metrics.NEES_CONFIDENCE)
+    run_metrics.final_pose_error_m = float(np.linalg.norm(err[-1, :2]))
+    run_metrics.nees_mean = float(np.mean(nees))
+    run_metrics.nees_in_bounds_fraction = float(np.mean((nees >= lo) & (nees <= hi)))
+    return ids, nees
+
+
+def write_nees(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:
+    """``nees.csv`` (:func:`graphslam.outputs.writers.write_nees_csv`)."""
+    from graphslam.outputs.writers import write_nees_csv
+
+    return write_nees_csv(path, pose_ids, nees)

@@ -76,13 +76,17 @@ def detect_format(path: Path, first_line: str) -> str:
                      "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated)", path)
 
 
-def read_trajectory(path: str | Path) -> Trajectory:
-    """A ground-truth file in any of :data:`TRAJECTORY_FORMATS` (module doc)."""
+def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
+    """A trajectory file in any of :data:`TRAJECTORY_FORMATS` (module doc); ``fmt``
+    None tells the format from the content."""
     path = Path(path)
-    lines = read_lines(path, "ground-truth file")
+    lines = read_lines(path, "trajectory file")
     if not lines:
-        raise InputError("no poses in the ground-truth file", path)
-    fmt = detect_format(path, lines[0][1])
+        raise InputError("no poses in the trajectory file", path)
+    if fmt is None:
+        fmt = detect_format(path, lines[0][1])
+    elif fmt not in TRAJECTORY_FORMATS:
+        raise InputError(f"unknown trajectory format {fmt!r} (one of {TRAJECTORY_FORMATS})", path)
     stamps, poses = [], []
     for n, text in lines:
         if fmt == "kitti":
@@ -96,10 +100,22 @@ def read_trajectory(path: str | Path) -> Trajectory:
             v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
-            stamps.append(v[0] * 1e-9)
+            stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
             poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), v[1:4]))
     return Trajectory(fmt, None if fmt == "kitti" else np.array(stamps), np.array(poses),
                       str(path))
+
+
+def read_times(path: str | Path, trajectory: Trajectory) -> Trajectory:
+    """``trajectory`` (KITTI, no times) with the stamps of a KITTI ``times.txt``:
+    one time in seconds a line, one line per pose."""
+    path = Path(path)
+    stamps = np.array([parse_floats(text, path, n, 1, "number (a time in seconds)")[0]
+                       for n, text in read_lines(path, "times file")])
+    if len(stamps) != len(trajectory.wTc):
+        raise InputError(f"{len(stamps)} times for {len(trajectory.wTc)} poses of "
+                         f"{trajectory.path}", path)
+    return dataclasses.replace(trajectory, stamps_s=stamps)
 
 
 def _frame_numbers(sequence: ImageSequence) -> np.ndarray:

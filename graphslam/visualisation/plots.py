@@ -118,3 +118,103 @@ def plot_precision_recall(points, operating: tuple[float | None, float], path: P
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _pyplot():
+    """pyplot on the file-only Agg back end (no display on servers or CI)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_trajectory_eval(results, path: Path) -> Path:
+    """PNG of ``graphslam eval`` (``EstimateResult`` list): the aligned estimates over the
+    reference (seen along its least-spread axis), ATE over time and along the path."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
+    ref = results[0].result.ref[:, :3, 3]
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
+    names = "xyz"
+    axes[0].plot(ref[:, a], ref[:, b], color="0.5", lw=2, label="reference")
+    for i, r in enumerate(results):
+        res, name = r.result, Path(r.path).name
+        p = res.est[:, :3, 3]
+        axes[0].plot(p[:, a], p[:, b], color=f"C{i}", lw=1, label=name)
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(res.ref[:, :3, 3], axis=0),
+                                                                axis=1))])
+        axes[1].plot(res.stamps_s - res.stamps_s[0], res.ate_trans_m, color=f"C{i}", lw=0.8,
+                     label=name)
+        axes[2].plot(along, res.ate_trans_m, color=f"C{i}", lw=0.8, label=name)
+    axes[0].set_aspect("equal", adjustable="datalim")
+    axes[0].set_xlabel(f"{names[a]} [m]")
+    axes[0].set_ylabel(f"{names[b]} [m]")
+    axes[0].set_title("aligned trajectories")
+    axes[0].legend(loc="best", fontsize=8)
+    axes[1].set_xlabel("time since first match [s] (frames without stamps)")
+    axes[2].set_xlabel("distance along the reference [m]")
+    for ax in axes[1:]:
+        ax.set_ylabel("ATE [m]")
+        ax.set_ylim(bottom=0)
+    axes[1].set_title("translation error over time")
+    axes[2].set_title("translation error along the path")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _metric_by(rows, group: str, metric: str = "ate_rmse_m") -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {}
+    for r in rows:
+        if r.get("status") == "ok" and r.get(metric) not in (None, "") and r.get(group) != "":
+            out.setdefault(str(r[group]), []).append(float(r[metric]))
+    return out
+
+
+def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Path]:
+    """The PNGs of ``graphslam sweep``: Monte Carlo NEES, ATE per back end, ATE per
+    swept value; returns the files written."""
+    from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds
+
+    plt = _pyplot()
+    written = []
+    if nees:
+        fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
+        for i, (label, runs) in enumerate(sorted(nees.items())):
+            # step 0 is the prior pose, known exactly: no error to score
+            ax.plot(np.arange(1, runs.shape[1]), runs[:, 1:].mean(axis=0), color=f"C{i}", lw=0.8,
+                    label=f"{label} ({len(runs)} runs)")
+        for n_runs in sorted({len(r) for r in nees.values()}):
+            lo, hi = chi2_bounds(3, n_runs, NEES_CONFIDENCE)
+            ax.axhspan(lo, hi, color="0.5", alpha=0.15, lw=0,
+                       label=f"95 % bounds of the average of {n_runs} runs")
+        ax.set_yscale("log")
+        ax.set_xlabel("step")
+        ax.set_ylabel("average pose NEES (3 dof)")
+        ax.set_title("Monte Carlo consistency: average NEES and 95 % chi-square bounds "
+                     "(filters: filtered; iSAM2: smoothed)")
+        ax.legend(loc="best", fontsize=8)
+        written.append(_save(fig, out_dir / "sweep_nees.png"))
+    for group, name in [("label", "sweep_ate.png")] + [(k, f"sweep_{k}.png") for k in set_keys]:
+        data = _metric_by(rows, group)
+        if not data or (group != "label" and len(data) < 2):
+            continue
+        fig, ax = plt.subplots(figsize=(max(5, 1.4 * len(data) + 2), 4.5), constrained_layout=True)
+        labels = sorted(data)
+        ax.boxplot([data[k] for k in labels])
+        ax.set_xticks(np.arange(1, len(labels) + 1), labels, rotation=20 if group == "label" else 0)
+        ax.set_xlabel("back end and swept settings" if group == "label" else group)
+        ax.set_ylabel("ATE RMSE [m]")
+        ax.set_title(f"ATE over {sum(len(v) for v in data.values())} runs")
+        written.append(_save(fig, out_dir / name))
+    return written
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path

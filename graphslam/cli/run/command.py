@@ -47,6 +47,7 @@ outputs (in --out):
   ground_truth.tum  the truth of the same poses, same time column (when there is
                     truth): evo_ape tum ground_truth.tum trajectory.tum
   landmarks.csv     id,x,y
+  nees.csv          with --nees: step,pose_id,nees (2-D runs with ground truth)
   metrics.json      final_error (gtsam graph error), ate_rmse_m, wall_s (the whole
                     run), backend_s / processing_s (the estimator alone), ...
   run.rrd           Rerun recording (open with: rerun run.rrd); with --rerun
@@ -106,6 +107,9 @@ def register(sub) -> None:
                        help="log the full estimate every N steps (default: about 50 "
                             "snapshots; image sequences: every 5 frames)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--nees", action="store_true",
+                   help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
+                        "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)")
     graphs = p.add_argument_group("pose-graph files")
     graphs.add_argument("--init", default=None,
                         choices=("auto", "odometry", "vertices", "lago", "chordal", "shonan"),

@@ -49,12 +49,15 @@ def run(args: argparse.Namespace) -> int:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
 
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
+    if args.nees and truth is None and not dataset.has_ground_truth:
+        raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
     backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum"}
+    will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum",
+                  "nees.csv"}
     remove_stale_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
 
     n_steps = len(dataset.frames) if args.max_steps is None else min(args.max_steps,
@@ -69,10 +72,13 @@ def run(args: argparse.Namespace) -> int:
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
     result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
-                          on_step=hook, with_covariances=log is not None)
+                          on_step=hook, with_covariances=log is not None or args.nees)
     metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
                                        wall_s=time.perf_counter() - t0)
+    nees = pipeline.add_nees(result, metrics, truth) if args.nees else None
     paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
+    if nees is not None:
+        paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
     if log is not None:
         log.finish(backend.name, result)
         close_recorder(log)

@@ -62,6 +62,8 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
     if args.no_polish and args.backend != "isam2":
         raise ConfigError(f"--no-polish applies to the isam2 back end only (its final batch "
                           f"polish); {args.backend} has none")
+    if args.nees:
+        raise ConfigError("--nees applies to 2-D runs only")
     if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
             and args.backend != "ekf"):
         raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "

@@ -1,0 +1,125 @@
+"""``graphslam sweep SWEEP.toml``: a grid of 2-D runs, one process each, one table."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+EPILOG = """\
+sweep file (TOML):
+  [sweep]
+  dataset = ["synthetic"]
+  backend = ["isam2", "ekf", "fastslam1", "fastslam2"]
+  seed = {from = 0, to = 49}          # or a list; absent: no --seed
+  max_steps = 200                     # optional
+  nees = true                         # optional; default: true on the synthetic world
+  config = "base.toml"                # optional base config, beside the sweep file
+  [sweep.set]                         # config overrides, the grid is their product
+  "ekf.association" = ["unknown"]
+
+every run is `graphslam run ... [--nees]` in its own process, outputs in
+OUT/runs/<backend>-<config hash>-s<seed>/. Re-running a sweep into the same
+--out skips the runs already done (same config hash and seed); Ctrl-C keeps
+every finished run (exit 130); a failed run is a row with its error.
+
+outputs (in --out): sweep.csv, sweep_nees.png (average pose NEES over the runs
+  against its 95 % chi-square bounds, per back end), sweep_ate.png (ATE per
+  back end), sweep_<section.key>.png (ATE against each swept value)
+
+engines: a local pool of --workers runs at a time (default); --cluster local
+  starts a Dask LocalCluster of --workers processes, --cluster ADDRESS uses a
+  running Dask scheduler (tcp://host:8786; workers must see --out);
+  pip install 'graphslam-toolkit[cluster]'
+
+examples:
+  graphslam sweep benchmarks/sweep_unknown_association.toml --out runs/sweep-ua
+  graphslam sweep my.toml --out runs/s --workers 4 --cluster local
+"""
+
+
+def register(sub) -> None:
+    """Add the ``sweep`` sub-command to the ``graphslam`` parser."""
+    p = sub.add_parser(
+        "sweep", help="run a grid of datasets x back ends x settings x seeds",
+        description="Monte Carlo and parameter sweeps: every run of the grid as its own "
+                    "'graphslam run', one table (sweep.csv) and plots.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("sweep_file", type=Path, metavar="SWEEP.toml", help="the sweep file")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="runs at a time (default: the number of CPU cores)")
+    p.add_argument("--cluster", default=None, metavar="local|ADDRESS",
+                   help="run on Dask distributed: a local cluster, or a scheduler address")
+    p.add_argument("--no-plots", action="store_true", help="write sweep.csv only")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
+
+
+def make_executor(workers: int, cluster: str | None):
+    """The local pool, or Dask when ``cluster`` is given."""
+    from graphslam.pipelines.sweep_exec import DaskExecutor, PoolExecutor
+
+    if cluster is None:
+        return PoolExecutor(workers)
+    return DaskExecutor(cluster, workers)
+
+
+def _progress(total: int, quiet: bool):
+    """``(callback, bar)``: a tqdm bar of runs with done / failed counts and time left."""
+    if quiet or total == 0:
+        return None, None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc="sweep", unit="run", disable=None, dynamic_ncols=True)
+    counts = {"failed": 0}
+
+    def update(run, row):
+        counts["failed"] += row["status"] != "ok"
+        bar.set_postfix(failed=counts["failed"], last=run.run_id, refresh=False)
+        bar.update(1)
+
+    return update, bar
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run the sweep, write the table and plots; the exit status."""
+    from graphslam.cli.common import EXIT_INTERRUPTED, EXIT_OK
+    from graphslam.pipelines.sweep import run_sweep
+    from graphslam.pipelines.sweep_spec import parse_sweep
+    from slamcore.errors import ConfigError
+
+    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    if workers < 1:
+        raise ConfigError("--workers must be at least 1")
+    if args.workers is not None and args.cluster not in (None, "local"):
+        raise ConfigError("--workers sets the local pool or --cluster local; a running "
+                          "cluster has the workers it was started with")
+    spec = parse_sweep(args.sweep_file)
+    n_runs = len(spec.runs())
+    executor = make_executor(workers, args.cluster)
+    try:
+        update, bar = _progress(n_runs, args.quiet)
+        try:
+            outcome = run_sweep(spec, args.out, executor, on_result=update)
+        finally:
+            if bar is not None:
+                bar.close()
+    finally:
+        executor.close()
+    written = [outcome.csv_path]
+    if not args.no_plots and outcome.rows:
+        from graphslam.pipelines.sweep import nees_series, with_labels
+        from graphslam.visualisation.plots import plot_sweep
+
+        rows = with_labels(outcome.rows, spec.set_keys)
+        written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out)
+    ok = sum(r.get("status") == "ok" for r in outcome.rows)
+    print(f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "
+          f"({outcome.failed} failed); {ok} ok in {outcome.csv_path}")
+    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
+    if outcome.interrupted:
+        print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_OK

@@ -1,0 +1,281 @@
+"""Trajectory-file evaluation as evo and the KITTI devkit compute it (numpy, scipy).
+
+Poses are (N, 4, 4) ``wTc``; the reference comes first in every call.
+
+- :func:`associate` -- evo's nearest-timestamp association: the shorter
+  trajectory's stamps each take the nearest stamp of the longer one within
+  ``max_diff`` (ties to the earlier one), the estimate's stamps shifted by
+  ``offset``; defaults 0.01 s and 0 s, evo's;
+- :func:`align` -- none, SE(3) or Sim(3) Umeyama over all or the first ``n``
+  positions (evo ``-a``, ``-as``, ``--n_to_align``), or the first pose onto
+  the reference's first pose (evo ``--align_origin``);
+- :func:`ate` -- translation errors and rotation angles of ``inv(est) ref``;
+- :func:`rpe_pairs`, :func:`rpe` -- evo's consecutive (non-overlapping)
+  pairs a frame count or a path length (along the estimate, evo's default)
+  apart, error ``inv(inv(Q_i) Q_j) inv(P_i) P_j``;
+- :func:`kitti_drift` -- the KITTI odometry devkit's segment errors: path
+  lengths 100..800 m measured on the reference, start frames every 10,
+  translation error in % and rotation error in deg per 100 m.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from graphslam.evaluation.spatial import align_umeyama
+from slamcore.errors import ConfigError, GraphSlamError
+
+ALIGN_METHODS = ("none", "se3", "sim3", "first")
+DELTA_UNITS = ("frames", "m")
+#: evo's defaults for timestamp association.
+DEFAULT_MAX_DIFF_S = 0.01
+DEFAULT_OFFSET_S = 0.0
+#: KITTI devkit (evaluate_odometry.cpp): segment lengths and start-frame step.
+KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+KITTI_STEP_FRAMES = 10
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """How two trajectories are compared (every value checked here).
+
+    Attributes:
+        align: ``none``, ``se3``, ``sim3`` or ``first`` (first pose onto first pose).
+        n_align: se3/sim3 fit on the first ``n_align`` matched poses (None: all).
+        max_diff_s: largest time difference of an associated pair, seconds.
+        offset_s: added to the estimate's stamps before association, seconds.
+        delta, delta_unit: RPE step, in frames (an integer) or metres of path.
+    """
+
+    align: str = "se3"
+    n_align: int | None = None
+    max_diff_s: float = DEFAULT_MAX_DIFF_S
+    offset_s: float = DEFAULT_OFFSET_S
+    delta: float = 1
+    delta_unit: str = "frames"
+
+    def __post_init__(self):
+        if self.align not in ALIGN_METHODS:
+            raise ConfigError(f"--align must be one of {', '.join(ALIGN_METHODS)}, got {self.align!r}")
+        if self.n_align is not None and (self.n_align < 2 or self.align not in ("se3", "sim3")):
+            raise ConfigError("--n-align needs --align se3 or sim3 and at least 2 poses")
+        if not (np.isfinite(self.max_diff_s) and self.max_diff_s >= 0):
+            raise ConfigError(f"--max-diff must be >= 0 seconds, got {self.max_diff_s}")
+        if not np.isfinite(self.offset_s):
+            raise ConfigError(f"--offset must be finite, got {self.offset_s}")
+        if self.delta_unit not in DELTA_UNITS:
+            raise ConfigError(f"--delta-unit must be frames or m, got {self.delta_unit!r}")
+        if not (np.isfinite(self.delta) and self.delta > 0):
+            raise ConfigError(f"--delta must be > 0, got {self.delta}")
+        if self.delta_unit == "frames" and float(self.delta) != int(self.delta):
+            raise ConfigError(f"--delta in frames must be a whole number, got {self.delta}")
+
+    def to_dict(self) -> dict:
+        return {"align": self.align, "n_align": self.n_align, "max_diff_s": self.max_diff_s,
+                "offset_s": self.offset_s, "delta": self.delta, "delta_unit": self.delta_unit}
+
+
+def _nearest(short_t: np.ndarray, long_t: np.ndarray, max_diff: float) -> tuple[list, list]:
+    """evo ``matching_time_indices``: per short stamp the nearest long one (ties earlier)."""
+    i_short, i_long = [], []
+    if np.all(np.diff(long_t) >= 0):
+        for i, t in enumerate(short_t):
+            if t < long_t[0] - max_diff or t > long_t[-1] + max_diff:
+                continue
+            j = min(int(np.searchsorted(long_t, t, side="right")), len(long_t) - 1)
+            ub = long_t[j] - t
+            lb = t - long_t[j - 1] if j > 0 else np.inf
+            if ub <= max_diff and ub < lb:
+                best = j
+            elif lb <= max_diff and lb <= ub:
+                best = j - 1
+            else:
+                continue
+            i_short.append(i)
+            i_long.append(best)
+        return i_short, i_long
+    for i, t in enumerate(short_t):  # unsorted: linear search, as evo does
+        d = np.abs(long_t - t)
+        j = int(np.argmin(d))
+        if d[j] <= max_diff:
+            i_short.append(i)
+            i_long.append(j)
+    return i_short, i_long
+
+
+def associate(ref_t: np.ndarray, est_t: np.ndarray, max_diff: float = DEFAULT_MAX_DIFF_S,
+              offset: float = DEFAULT_OFFSET_S) -> tuple[np.ndarray, np.ndarray]:
+    """``(ref_rows, est_rows)`` of associated poses (module doc); GraphSlamError if none."""
+    ref_t = np.asarray(ref_t, dtype=np.float64)
+    est_t = np.asarray(est_t, dtype=np.float64)
+    if len(est_t) > len(ref_t):
+        i_ref, i_est = _nearest(ref_t, est_t + offset, max_diff)
+    else:
+        i_est, i_ref = _nearest(est_t, ref_t - offset, max_diff)
+    if not i_ref:
+        raise GraphSlamError(f"no timestamps match within {max_diff} s (offset {offset} s)")
+    return np.asarray(i_ref, dtype=np.int64), np.asarray(i_est, dtype=np.int64)
+
+
+def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
+          ) -> tuple[np.ndarray, float]:
+    """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first."""
+    est = np.array(est, dtype=np.float64)
+    if method == "none":
+        return est, 1.0
+    if method == "first":
+        T = ref[0] @ _se3_inv(est[0])
+        return T @ est, 1.0
+    k = len(est) if n is None else min(int(n), len(est))
+    s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
+    est[:, :3, 3] *= s
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T @ est, float(s)
+
+
+def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
+    """(N,) angles of (N, 3, 3) rotations, degrees (through the quaternion, as evo)."""
+    return np.degrees(Rotation.from_matrix(np.asarray(R).reshape(-1, 3, 3)).magnitude())
+
+
+def _se3_inv(T: np.ndarray) -> np.ndarray:
+    """``[R^T, -R^T t]``: the rigid inverse evo takes (file rotations, rounded to a
+    few digits, are orthonormal only to ~1e-7, so this is not ``np.linalg.inv``)."""
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``inv(a) @ b`` row by row (rigid inverse, as evo)."""
+    return _se3_inv(a) @ b
+
+
+def ate(ref: np.ndarray, est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose ``(translation error m, rotation error deg)`` of aligned, matched poses."""
+    trans = np.linalg.norm(est[:, :3, 3] - ref[:, :3, 3], axis=1)
+    rot = rotation_angles_deg(_relative(est, ref)[:, :3, :3])
+    return trans, rot
+
+
+def rpe_pairs(poses: np.ndarray, delta: float, unit: str) -> list[tuple[int, int]]:
+    """evo's consecutive pairs ``delta`` frames, or ``delta`` metres of path, apart."""
+    if unit == "frames":
+        ids = np.arange(0, len(poses), int(delta))
+        return [(int(i), int(j)) for i, j in zip(ids, ids[1:])]
+    ids, travelled = [0], 0.0
+    for i in range(1, len(poses)):
+        travelled += float(np.linalg.norm(poses[i, :3, 3] - poses[i - 1, :3, 3]))
+        if travelled >= delta:
+            ids.append(i)
+            travelled = 0.0
+    return list(zip(ids, ids[1:]))
+
+
+def rpe(ref: np.ndarray, est: np.ndarray, pairs: list[tuple[int, int]]
+        ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pair ``(translation error m, rotation error deg)``."""
+    if not pairs:
+        return np.zeros(0), np.zeros(0)
+    i, j = np.array(pairs).T
+    err = _relative(_relative(ref[i], ref[j]), _relative(est[i], est[j]))
+    return np.linalg.norm(err[:, :3, 3], axis=1), rotation_angles_deg(err[:, :3, :3])
+
+
+def kitti_drift(ref: np.ndarray, est: np.ndarray) -> tuple[float | None, float | None]:
+    """``(translation error %, rotation error deg/100 m)`` averaged over every segment.
+
+    As ``calcSequenceErrors`` of the KITTI devkit: for each start frame
+    (every :data:`KITTI_STEP_FRAMES`) and each length, the segment ends at the
+    first frame whose reference path distance exceeds the start's by the
+    length; error pose ``inv(inv(E_a) E_b) inv(G_a) G_b``; translation error
+    and rotation angle (``acos`` of the trace form, the devkit's) divided by
+    the length. (None, None) when the path is shorter than 100 m.
+    """
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0),
+                                                           axis=1))])
+    t_err, r_err = [], []
+    for first in range(0, len(ref), KITTI_STEP_FRAMES):
+        for length in KITTI_LENGTHS_M:
+            beyond = np.nonzero(dist[first:] > dist[first] + length)[0]
+            if beyond.size == 0:
+                continue
+            last = first + int(beyond[0])
+            # the devkit inverts with a general matrix inverse
+            inv = np.linalg.inv
+            e = inv(inv(est[first]) @ est[last]) @ (inv(ref[first]) @ ref[last])
+            d = 0.5 * (e[0, 0] + e[1, 1] + e[2, 2] - 1.0)
+            r_err.append(np.arccos(max(min(d, 1.0), -1.0)) / length)
+            t_err.append(np.linalg.norm(e[:3, 3]) / length)
+    if not t_err:
+        return None, None
+    return 100.0 * float(np.mean(t_err)), float(np.degrees(np.mean(r_err)) * 100.0)
+
+
+def _rmse(x: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean(x**2))) if x.size else None
+
+
+@dataclass
+class TrajectoryEval:
+    """One estimate scored against the reference; arrays are kept for plots.
+
+    Attributes:
+        ref, est: (N, 4, 4) matched reference and aligned estimate poses.
+        stamps_s: (N,) the reference's stamps (or frame indices) of the matches.
+        ate_trans_m, ate_rot_deg: (N,) per-pose errors.
+        rpe_trans_m, rpe_rot_deg: per-pair errors.
+    """
+
+    ref: np.ndarray
+    est: np.ndarray
+    stamps_s: np.ndarray
+    scale: float
+    ate_trans_m: np.ndarray
+    ate_rot_deg: np.ndarray
+    rpe_trans_m: np.ndarray
+    rpe_rot_deg: np.ndarray
+    kitti_pct: float | None
+    kitti_deg_per_100m: float | None
+
+    def summary(self) -> dict:
+        """The numbers of ``eval.json`` (None where not computable)."""
+        e = self.ate_trans_m
+        return {"ate_rmse_m": _rmse(e), "ate_mean_m": float(np.mean(e)),
+                "ate_median_m": float(np.median(e)), "ate_max_m": float(np.max(e)),
+                "ate_rot_rmse_deg": _rmse(self.ate_rot_deg),
+                "rpe_trans_rmse_m": _rmse(self.rpe_trans_m),
+                "rpe_rot_rmse_deg": _rmse(self.rpe_rot_deg), "rpe_pairs": int(self.rpe_trans_m.size),
+                "kitti_drift_pct": self.kitti_pct, "kitti_drift_deg_per_100m": self.kitti_deg_per_100m,
+                "matched_poses": int(len(self.ref)), "scale": self.scale}
+
+
+def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> TrajectoryEval:
+    """Associate, align and score (module doc). A stamp array of None pairs by index."""
+    ref_wTc = np.asarray(ref_wTc, dtype=np.float64)
+    est_wTc = np.asarray(est_wTc, dtype=np.float64)
+    if ref_t is None and est_t is None:
+        n = min(len(ref_wTc), len(est_wTc))
+        i_ref = i_est = np.arange(n)
+        stamps = np.arange(n, dtype=np.float64)
+    elif ref_t is None or est_t is None:
+        raise GraphSlamError("one trajectory has timestamps and the other has none "
+                             "(KITTI): give its times file with --times")
+    else:
+        i_ref, i_est = associate(ref_t, est_t, options.max_diff_s, options.offset_s)
+        stamps = np.asarray(ref_t, dtype=np.float64)[i_ref]
+    ref, est = ref_wTc[i_ref], est_wTc[i_est]
+    if len(ref) < 2:
+        raise GraphSlamError(f"only {len(ref)} matched pose(s); at least 2 are needed")
+    est, scale = align(ref, est, options.align, options.n_align)
+    ate_t, ate_r = ate(ref, est)
+    rpe_t, rpe_r = rpe(ref, est, rpe_pairs(est, options.delta, options.delta_unit))
+    pct, deg = kitti_drift(ref, est)
+    return TrajectoryEval(ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg)

@@ -1,0 +1,150 @@
+"""``graphslam sweep``: every run of a sweep file, its table, and what the plots need.
+
+``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset``,
+``backend``, every swept ``section.key`` (empty where the run does not read
+that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
+``wall_s``, ``peak_rss_mb``, ``status`` (ok, failed, interrupted) and
+``error`` (the failed run's one-line error). The file is rewritten after
+every finished run, so Ctrl-C keeps them all; a sweep run again into the same
+folder skips the runs whose ``(config_hash, seed)`` has status ok.
+Each run's own files are in ``runs/<run_id>/`` (its config.toml, metrics.json,
+trajectories, nees.csv, stderr.txt).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec
+
+METRIC_COLUMNS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "nees_mean",
+                  "nees_in_bounds_fraction", "association_accuracy", "duplicates")
+TAIL_COLUMNS = ("wall_s", "peak_rss_mb", "status", "error")
+
+
+def columns(spec: SweepSpec) -> list[str]:
+    return ["run_id", "dataset", "backend", *spec.set_keys, "config_hash", "seed",
+            *METRIC_COLUMNS, *TAIL_COLUMNS]
+
+
+def base_row(run: RunSpec, spec: SweepSpec) -> dict:
+    row = {"run_id": run.run_id, "dataset": run.dataset, "backend": run.backend,
+           "config_hash": run.config_hash, "seed": "" if run.seed is None else run.seed}
+    for key in spec.set_keys:
+        row[key] = run.overrides.get(key, "")
+    return row
+
+
+def read_rows(path: Path) -> list[dict]:
+    """Rows of an existing ``sweep.csv`` (empty when there is none)."""
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def write_rows(path: Path, header: list[str], rows: list[dict]) -> None:
+    """Write ``sweep.csv`` whole, through a temporary file (never half a table)."""
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=header, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in header})
+    os.replace(tmp, path)
+
+
+@dataclass
+class SweepOutcome:
+    """What a sweep did: every row of sweep.csv, and this call's counts."""
+
+    rows: list[dict]
+    csv_path: Path
+    ran: int = 0
+    failed: int = 0
+    skipped: int = 0
+    interrupted: bool = False
+    runs: list[RunSpec] = field(default_factory=list)
+
+
+def _key(run: RunSpec) -> tuple[str, str]:
+    """``(config_hash, seed)`` as sweep.csv spells them."""
+    return run.config_hash, "" if run.seed is None else str(run.seed)
+
+
+def run_sweep(spec: SweepSpec, out: Path, executor, *,
+              on_result: Callable[[RunSpec, dict], None] | None = None) -> SweepOutcome:
+    """Run every run of ``spec`` not already done in ``out`` on ``executor``.
+
+    ``on_result(run, row)`` is called after each finished run (the progress
+    bar). A KeyboardInterrupt (Ctrl-C) stops the sweep: runs in flight are
+    stopped and left out, finished ones stay in sweep.csv, and the outcome
+    says ``interrupted``.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "sweep.csv"
+    header = columns(spec)
+    runs = spec.runs()
+    done = {(r.get("config_hash"), r.get("seed")): r for r in read_rows(csv_path)
+            if r.get("status") == "ok"}
+    rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
+    todo = [run for run in runs if _key(run) not in done]
+    outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs)
+    order = {run.run_id: i for i, run in enumerate(runs)}
+
+    def flush():
+        outcome.rows = sorted(rows.values(), key=lambda r: order.get(r["run_id"], len(order)))
+        write_rows(csv_path, header, outcome.rows)
+
+    flush()
+    results = executor.map_unordered(todo, out)
+    try:
+        for run, result in results:
+            row = {**base_row(run, spec), **result}
+            outcome.ran += 1
+            outcome.failed += row["status"] != "ok"
+            if row["status"] != "interrupted":
+                rows[run.run_id] = row
+            flush()
+            if on_result is not None:
+                on_result(run, row)
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+    finally:
+        results.close()  # stops the runs still in flight
+    flush()
+    return outcome
+
+
+def as_float(value) -> float | None:
+    """A CSV cell as a float, None when empty."""
+    return None if value in (None, "") else float(value)
+
+
+def with_labels(rows: list[dict], set_keys) -> list[dict]:
+    """Rows with a ``label``: the back end and the swept values it ran with (the
+    group a plot puts it in; seeds are the Monte Carlo runs of a group)."""
+    out = []
+    for r in rows:
+        parts = [f"{k.split('.', 1)[1]}={r[k]}" for k in set_keys if r.get(k) not in (None, "")]
+        out.append({**r, "label": " ".join([r["backend"], *parts])})
+    return out
+
+
+def nees_series(out: Path, rows: list[dict]) -> dict[str, np.ndarray]:
+    """Per ``label`` (:func:`with_labels`), the (runs, steps) pose NEES of its ok runs
+    (``nees.csv`` of each), cut to the shortest run."""
+    by_backend: dict[str, list[np.ndarray]] = {}
+    for r in rows:
+        path = out / "runs" / r["run_id"] / "nees.csv"
+        if r.get("status") == "ok" and path.is_file():
+            values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 2]
+            by_backend.setdefault(r["label"], []).append(values)
+    return {b: np.array([v[:min(len(x) for x in vs)] for v in vs])
+            for b, vs in by_backend.items()}

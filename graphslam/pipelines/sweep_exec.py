@@ -1,0 +1,221 @@
+"""Running a sweep's runs: one ``graphslam run`` process each, on a local pool or Dask.
+
+:func:`execute_run` is the unit of work: it writes the run's config file,
+starts ``python -m graphslam.cli.main run ...`` (``--nees`` when the sweep
+scores NEES) in the run's folder,
+waits for it (``os.wait4``: the child's own peak memory), then reads its
+``metrics.json`` and scores ``trajectory.tum`` against ``ground_truth.tum``
+for the RPE. It returns one row of ``sweep.csv`` and never raises for a
+failed run: the row says ``failed`` and carries the run's one-line error.
+
+Executors (same rows whichever runs them: every run is seeded and shares
+nothing with the others):
+
+- :class:`PoolExecutor`: ``workers`` runs at a time from threads of this
+  process (the work is in the child processes; a thread only waits);
+- :class:`DaskExecutor`: Dask distributed, ``local`` (a ``LocalCluster`` of
+  ``workers`` single-threaded worker processes) or the address of a running
+  scheduler, whose workers must see the same ``--out`` folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from pathlib import Path
+
+from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
+from slamcore.errors import ConfigError
+
+#: Runs in flight in this process (Ctrl-C stops them), and the flag that keeps
+#: a thread that was about to start one from starting it after the stop.
+_LIVE: set[subprocess.Popen] = set()
+_LIVE_LOCK = threading.Lock()
+_STOPPING = threading.Event()
+
+
+def run_command(run: RunSpec, out_dir: Path) -> list[str]:
+    """The ``graphslam run`` command line of ``run``."""
+    cmd = [sys.executable, "-m", "graphslam.cli.main", "run", "--dataset", run.dataset,
+           "--backend", run.backend, "--config", str(out_dir / "config.toml"), "--out",
+           str(out_dir), "--rerun", "off", "--quiet"]
+    if run.nees:
+        cmd.append("--nees")
+    if run.seed is not None:
+        cmd += ["--seed", str(run.seed)]
+    if run.max_steps is not None:
+        cmd += ["--max-steps", str(run.max_steps)]
+    return cmd
+
+
+def _last_error_line(text: str) -> str:
+    """The run's one-line error (its last stderr line, without the program prefix)."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    last = lines[-1] if lines else ""
+    return last.removeprefix("graphslam: error: ")
+
+
+def _spawn_and_wait(cmd: list[str], out_dir: Path) -> tuple[int, float, float]:
+    """``(exit status, wall s, peak RSS MB of the child)``; stderr goes to stderr.txt.
+    Once :func:`stop_live_runs` has been called, nothing starts (status 130)."""
+    t0 = time.perf_counter()
+    with open(out_dir / "stderr.txt", "wb") as err, _LIVE_LOCK:
+        if _STOPPING.is_set():
+            return 130, 0.0, 0.0
+        # the child holds its own copy of the stderr file once started
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err,
+                                cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": _pythonpath()})
+        _LIVE.add(proc)
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    finally:
+        with _LIVE_LOCK:
+            _LIVE.discard(proc)
+    return proc.returncode, time.perf_counter() - t0, usage.ru_maxrss / 1024.0
+
+
+def _pythonpath() -> str:
+    """This package's root first, so the child runs the same code as the sweep."""
+    root = str(Path(__file__).resolve().parents[2])
+    rest = os.environ.get("PYTHONPATH")
+    return root if not rest else f"{root}{os.pathsep}{rest}"
+
+
+def _scores(out_dir: Path) -> dict:
+    """Metrics of a finished run: metrics.json, and the frame-delta RPE of its files."""
+    from graphslam.evaluation.trajectory import EvalOptions
+    from graphslam.pipelines.trajectory_eval import evaluate_files
+
+    m = json.loads((out_dir / "metrics.json").read_text())
+    assoc = m.get("association") or {}
+    row = {"ate_rmse_m": m.get("ate_rmse_m"), "nees_mean": m.get("nees_mean"),
+           "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
+           "association_accuracy": assoc.get("accuracy"), "duplicates": assoc.get("duplicates")}
+    gt = out_dir / "ground_truth.tum"
+    if gt.is_file():
+        # time column = pose id on both sides: exact association; SE(2) poses as z = 0
+        s = evaluate_files(gt, [out_dir / "trajectory.tum"], EvalOptions(max_diff_s=0.0))[0]
+        summary = s.result.summary()
+        row["rpe_trans_rmse_m"] = summary["rpe_trans_rmse_m"]
+        row["rpe_rot_rmse_deg"] = summary["rpe_rot_rmse_deg"]
+    return row
+
+
+def execute_run(run: RunSpec, root: str) -> dict:
+    """Run one sweep run in ``root/runs/<run_id>`` (module doc); its ``sweep.csv`` row."""
+    out_dir = Path(root) / "runs" / run.run_id
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "config.toml").write_text(dump_toml(run.config), encoding="utf-8")
+    rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
+    row = {"run_id": run.run_id, "wall_s": wall, "peak_rss_mb": peak}
+    if rc != 0:
+        err = _last_error_line((out_dir / "stderr.txt").read_text(errors="replace"))
+        status = "interrupted" if rc in (130, -2) else "failed"
+        return {**row, "status": status, "error": err or f"exit status {rc}"}
+    try:
+        row.update(_scores(out_dir))
+    except Exception as e:  # a run whose files cannot be scored is a failed run, not a crash
+        return {**row, "status": "failed", "error": f"scoring: {e}"}
+    return {**row, "status": "ok", "error": ""}
+
+
+def stop_live_runs() -> None:
+    """Stop every run this process started and is still waiting for, and start no
+    more until :func:`allow_runs`."""
+    with _LIVE_LOCK:
+        _STOPPING.set()
+        for proc in _LIVE:
+            # os.kill, not proc.terminate(): terminate() polls, which could reap the
+            # child under the thread blocked in os.wait4 on it
+            try:
+                os.kill(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+
+
+def allow_runs() -> None:
+    """Let runs start again (after :func:`stop_live_runs`)."""
+    _STOPPING.clear()
+
+
+class PoolExecutor:
+    """``workers`` runs at a time on this machine."""
+
+    name = "pool"
+
+    def __init__(self, workers: int):
+        self.workers = workers
+
+    def map_unordered(self, runs: list[RunSpec], root: Path):
+        """Yield ``(run, row)`` as runs finish; on KeyboardInterrupt stop everything."""
+        pool = ThreadPoolExecutor(max_workers=self.workers)
+        futures = {pool.submit(execute_run, r, str(root)): r for r in runs}
+        try:
+            pending = set(futures)
+            while pending:
+                # short timeout: the main thread stays responsive to Ctrl-C
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                for f in done:
+                    yield futures[f], f.result()
+        finally:
+            for f in futures:
+                f.cancel()
+            stop_live_runs()
+            pool.shutdown(wait=True)
+            allow_runs()
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """Runs on Dask distributed: ``address`` ``"local"`` starts a LocalCluster."""
+
+    name = "dask"
+
+    def __init__(self, address: str, workers: int):
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise ConfigError("--cluster needs Dask: pip install 'graphslam-toolkit[cluster]'") from None
+        self.cluster = None
+        if address == "local":
+            # one thread a worker: a run is a process of its own, a worker only waits
+            self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                        dashboard_address=None)
+            self.client = Client(self.cluster)
+        else:
+            try:
+                self.client = Client(address, timeout="10s")
+            except (OSError, TimeoutError) as e:
+                raise ConfigError(f"--cluster {address}: cannot connect ({e})") from None
+        self.client.run(allow_runs)  # a Ctrl-C'd sweep before this one left them stopped
+
+    def map_unordered(self, runs: list[RunSpec], root: Path):
+        from dask.distributed import as_completed
+
+        futures = {self.client.submit(execute_run, r, str(root), pure=False): r for r in runs}
+        finished = False
+        try:
+            for f in as_completed(list(futures)):
+                yield futures[f], f.result()
+            finished = True
+        finally:
+            for f in futures:
+                f.cancel()
+            if not finished:
+                # cancelling a task does not stop the process it started: the
+                # workers stop their runs in flight themselves
+                self.client.run(stop_live_runs)
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()

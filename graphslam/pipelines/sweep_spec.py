@@ -1,0 +1,243 @@
+"""Sweep files: a grid of datasets x back ends x config overrides x seeds.
+
+```toml
+[sweep]
+dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph files)
+backend = ["isam2", "ekf"]
+seed = {from = 0, to = 49}              # or a list; absent: runs get no --seed
+max_steps = 200                         # optional: --max-steps of every run
+nees = true                             # optional: runs score their pose NEES (default:
+                                        # true when every dataset is the synthetic world,
+                                        # the one built-in 2-D dataset with truth and
+                                        # covariances cheap enough to take at every pose)
+config = "base.toml"                    # optional: the runs' base config (relative
+                                        # to the sweep file); overrides go on top
+[sweep.set]
+"ekf.association" = ["known", "unknown"]
+```
+
+The grid is the product of every list. An override applies only to runs
+that read its section (``[ekf]`` to the EKF, ``[synthetic]`` to the synthetic
+world), so ``fastslam.n_particles = [10, 100]`` does not run iSAM2 twice.
+Everything is checked before any run: unknown keys and sections, values out
+of range, an empty list (empty grid), each refused with file and line.
+
+A run's *config hash* is the hash of its dataset, back end, step limit, NEES
+switch and full config (base plus overrides), without the seed: ``(config_hash, seed)``
+names a run, and a sweep that is run again skips the ones already done.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from slamcore.config import ConfigFile, from_dict
+from slamcore.errors import ConfigError
+
+SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set")
+#: Seeds a ``{from, to}`` range may hold (a typo like to = 1e9 would never end).
+MAX_SEEDS = 100_000
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep: ``graphslam run`` with these arguments and config."""
+
+    dataset: str
+    backend: str
+    seed: int | None
+    max_steps: int | None
+    nees: bool = True
+    overrides: dict = field(default_factory=dict)  # "section.key" -> value, applied ones
+    config: dict = field(default_factory=dict)     # the full config file of the run
+    config_hash: str = ""
+
+    @property
+    def run_id(self) -> str:
+        return f"{self.backend}-{self.config_hash}-s{'none' if self.seed is None else self.seed}"
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A parsed sweep file."""
+
+    path: Path
+    datasets: tuple[str, ...]
+    backends: tuple[str, ...]
+    seeds: tuple[int | None, ...]
+    max_steps: int | None
+    nees: bool
+    base_config: dict
+    set_keys: tuple[str, ...]
+    set_values: tuple[tuple, ...]
+
+    def runs(self) -> list[RunSpec]:
+        """Every run of the grid, in a fixed order, without repeats."""
+        from graphslam.registry import planar_sections
+
+        out, seen = [], set()
+        for dataset, backend in itertools.product(self.datasets, self.backends):
+            sections = planar_sections(dataset, backend)
+            for combo in itertools.product(*self.set_values):
+                applied = {k: v for k, v in zip(self.set_keys, combo)
+                           if k.split(".", 1)[0] in sections}
+                config = merged_config(self.base_config, applied)
+                chash = config_hash(dataset, backend, self.max_steps, self.nees, config)
+                for seed in self.seeds:
+                    if (chash, seed) in seen:
+                        continue
+                    seen.add((chash, seed))
+                    out.append(RunSpec(dataset, backend, seed, self.max_steps, self.nees,
+                                       applied, config, chash))
+        return out
+
+
+def merged_config(base: dict, overrides: dict) -> dict:
+    """``base`` with each ``"section.key": value`` set."""
+    config = copy.deepcopy(base)
+    for dotted, value in overrides.items():
+        section, key = dotted.split(".", 1)
+        config.setdefault(section, {})[key] = value
+    return config
+
+
+def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool,
+                config: dict) -> str:
+    """12 hex digits naming a run's settings (everything but the seed)."""
+    text = json.dumps({"dataset": dataset, "backend": backend, "max_steps": max_steps,
+                       "nees": nees, "config": config}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, float) and value != value:
+        return "nan"
+    if isinstance(value, float) and abs(value) == float("inf"):
+        return "inf" if value > 0 else "-inf"
+    return json.dumps(value)  # strings, booleans, integers and floats read back as TOML
+
+
+def dump_toml(config: dict, prefix: tuple[str, ...] = ()) -> str:
+    """A run's config as TOML text (tables and sub-tables of scalars and lists)."""
+    lines, tables = [], []
+    for key, value in config.items():
+        if isinstance(value, dict):
+            tables.append((key, value))
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    text = ""
+    if prefix and (lines or not tables):
+        text += f"[{'.'.join(prefix)}]\n"
+    text += "".join(line + "\n" for line in lines)
+    for key, value in tables:
+        text += ("\n" if text else "") + dump_toml(value, prefix + (key,))
+    return text
+
+
+def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
+    value = sweep.get(key)
+    line = cfg.line_of("sweep", key)
+    if not isinstance(value, list) or not all(isinstance(v, kind) and not isinstance(v, bool)
+                                               for v in value):
+        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {value!r}",
+                          cfg.path, line)
+    if not value:
+        raise ConfigError(f"[sweep] {key} is empty: the grid has no run", cfg.path, line)
+    return value
+
+
+def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
+    value = sweep.get("seed")
+    line = cfg.line_of("sweep", "seed")
+    if value is None:
+        return (None,)
+    if isinstance(value, dict):
+        if set(value) != {"from", "to"} or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                    for v in value.values()):
+            raise ConfigError(f"[sweep] seed must be a list or {{from = A, to = B}} with whole "
+                              f"numbers, got {value!r}", cfg.path, line)
+        if value["to"] < value["from"]:
+            raise ConfigError(f"[sweep] seed range {value['from']}..{value['to']} is empty: the "
+                              f"grid has no run", cfg.path, line)
+        if value["to"] - value["from"] >= MAX_SEEDS:
+            raise ConfigError(f"[sweep] seed range holds more than {MAX_SEEDS} seeds", cfg.path, line)
+        return tuple(range(value["from"], value["to"] + 1))
+    return tuple(_list(sweep, cfg, "seed", int))
+
+
+def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple, tuple]:
+    """``(keys, value lists)`` of ``[sweep.set]``, each value checked by its config class."""
+    table = sweep.get("set", {})
+    if not isinstance(table, dict):
+        raise ConfigError("[sweep.set] must be a table", cfg.path, cfg.line_of("sweep", "set"))
+    keys, values = [], []
+    for dotted, options in table.items():
+        line = cfg.line_of("sweep", "set", *dotted.split("."))
+        section, _, key = dotted.partition(".")
+        cls = grid_sections.get(section)
+        if cls is None or not key:
+            raise ConfigError(f"[sweep.set] {dotted!r}: not a section.key that these runs read "
+                              f"(sections: {', '.join(sorted(grid_sections))})", cfg.path, line)
+        if not isinstance(options, list) or not options:
+            raise ConfigError(f"[sweep.set] {dotted} must be a non-empty list of values: the grid "
+                              f"has no run", cfg.path, line)
+        for value in options:
+            try:
+                from_dict(cls, {key: value})
+            except ConfigError as e:
+                raise ConfigError(f"[sweep.set] {dotted} = {value!r}: {e}", cfg.path, line) from None
+        keys.append(dotted)
+        values.append(tuple(options))
+    return tuple(keys), tuple(values)
+
+
+def parse_sweep(path: str | Path) -> SweepSpec:
+    """Read and check a sweep file (module doc); ConfigError with file and line."""
+    from graphslam.registry import BACKENDS, is_visual_dataset, planar_sections, read_config
+
+    cfg = ConfigFile.read(path)
+    for name in cfg.data:
+        if name != "sweep":
+            raise ConfigError(f"unknown table [{name}]; a sweep file has [sweep] and [sweep.set]",
+                              cfg.path, cfg.line_of(name))
+    sweep = cfg.data.get("sweep")
+    if sweep is None:
+        raise ConfigError("no [sweep] table", cfg.path)
+    for key in sweep:
+        if key not in SWEEP_KEYS:
+            raise ConfigError(f"unknown key {key!r} in [sweep]; known: {', '.join(SWEEP_KEYS)}",
+                              cfg.path, cfg.line_of("sweep", key))
+    datasets = _list(sweep, cfg, "dataset", str)
+    backends = _list(sweep, cfg, "backend", str)
+    for name in datasets:
+        if is_visual_dataset(name):
+            raise ConfigError(f"[sweep] dataset {name!r} is an image sequence; sweeps run 2-D "
+                              f"datasets", cfg.path, cfg.line_of("sweep", "dataset"))
+    for b in backends:
+        if b not in BACKENDS:
+            raise ConfigError(f"[sweep] unknown back end {b!r} (available: {', '.join(BACKENDS)})",
+                              cfg.path, cfg.line_of("sweep", "backend"))
+    max_steps = sweep.get("max_steps")
+    if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
+        raise ConfigError(f"[sweep] max_steps must be a whole number >= 1, got {max_steps!r}",
+                          cfg.path, cfg.line_of("sweep", "max_steps"))
+    nees = sweep.get("nees", all(d == "synthetic" for d in datasets))
+    if not isinstance(nees, bool):
+        raise ConfigError(f"[sweep] nees must be true or false, got {nees!r}", cfg.path,
+                          cfg.line_of("sweep", "nees"))
+    base = {}
+    if "config" in sweep:
+        base = dict(read_config(Path(cfg.path).parent / str(sweep["config"])).data)
+    grid_sections = {}
+    for d, b in itertools.product(datasets, backends):
+        grid_sections.update(planar_sections(d, b))
+    keys, values = _check_set(sweep, cfg, grid_sections)
+    return SweepSpec(Path(path), tuple(datasets), tuple(backends), _seeds(sweep, cfg), max_steps,
+                     nees, base, keys, values)

@@ -1,0 +1,59 @@
+"""``graphslam eval``: score trajectory files of any origin against a reference.
+
+Reads the files (TUM, KITTI with an optional times file, EuRoC; told from the
+content or given), scores each estimate with
+:func:`graphslam.evaluation.trajectory.evaluate` and writes ``eval.json``:
+``{"ground_truth", "options", "estimates": [{"estimate", <metrics>, "options"}]}``
+with the metric keys of :meth:`TrajectoryEval.summary` (null where not
+computable, e.g. the KITTI drift of a path under 100 m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from graphslam.evaluation.trajectory import EvalOptions, TrajectoryEval, evaluate
+from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
+
+
+@dataclass
+class EstimateResult:
+    """One estimate file and its score."""
+
+    path: str
+    result: TrajectoryEval
+
+    def to_dict(self, options: EvalOptions) -> dict:
+        return {"estimate": self.path, **self.result.summary(), "options": options.to_dict()}
+
+
+def load(path: Path, fmt: str | None, times: Path | None) -> Trajectory:
+    """A trajectory file; a KITTI one takes its stamps from ``times`` when given."""
+    trajectory = read_trajectory(path, fmt)
+    if times is not None and trajectory.stamps_s is None:
+        trajectory = read_times(times, trajectory)
+    return trajectory
+
+
+def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptions, *,
+                   fmt: str | None = None, times: Path | None = None) -> list[EstimateResult]:
+    """Score every estimate against ``ground_truth`` (same format and times options)."""
+    ref = load(ground_truth, fmt, times)
+    out = []
+    for path in estimates:
+        est = load(path, fmt, times)
+        out.append(EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s,
+                                                      est.wTc, options)))
+    return out
+
+
+def write_eval_json(path: Path, ground_truth: Path, results: list[EstimateResult],
+                    options: EvalOptions) -> Path:
+    """``eval.json`` (module doc)."""
+    from graphslam.outputs.writers import write_json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, {"ground_truth": str(ground_truth), "options": options.to_dict(),
+                      "estimates": [r.to_dict(options) for r in results]})
+    return path

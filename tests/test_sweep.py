@@ -1,0 +1,263 @@
+"""``graphslam sweep``: the grid, bad sweep files, a failing run, resume, Ctrl-C, Dask = pool.
+
+Runs are short (20 steps of the synthetic world, about a second each: most of
+it is the child's Python start and imports).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.pipelines.sweep import run_sweep
+from graphslam.pipelines.sweep_exec import PoolExecutor
+from graphslam.pipelines.sweep_spec import parse_sweep
+from slamcore.errors import ConfigError
+from tests.conftest import ROOT
+
+SMALL = """\
+[sweep]
+dataset = ["synthetic"]
+backend = ["isam2", "ekf"]
+seed = [0, 1]
+max_steps = 20
+[sweep.set]
+"ekf.association" = ["unknown"]
+"""
+#: columns that differ between two executions of the same run
+TIMING = ("wall_s", "peak_rss_mb")
+
+
+def _file(tmp_path, text, name="sweep.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _without_timing(rows):
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
+
+
+def _csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_grid_is_the_product_and_overrides_reach_only_their_readers(tmp_path):
+    spec = parse_sweep(_file(tmp_path, """\
+[sweep]
+dataset = ["synthetic"]
+backend = ["isam2", "ekf", "fastslam1"]
+seed = {from = 3, to = 5}
+[sweep.set]
+"fastslam.n_particles" = [10, 20]
+"synthetic.sigma_r_m" = [0.1, 0.2]
+"""))
+    runs = spec.runs()
+    # isam2 and ekf: 2 world settings; fastslam1: 2 x 2; each over 3 seeds
+    assert len(runs) == (2 + 2 + 4) * 3
+    assert {r.seed for r in runs} == {3, 4, 5}
+    isam2 = [r for r in runs if r.backend == "isam2"]
+    assert all("fastslam.n_particles" not in r.overrides for r in isam2)
+    assert {r.config["synthetic"]["sigma_r_m"] for r in isam2} == {0.1, 0.2}
+    assert len({(r.config_hash, r.seed) for r in runs}) == len(runs)
+    again = parse_sweep(tmp_path / "sweep.toml").runs()
+    assert [r.run_id for r in again] == [r.run_id for r in runs]  # hashes are stable
+
+
+def test_base_config_and_overrides_make_the_run_config(tmp_path):
+    _file(tmp_path, "[ekf]\nodometry_covariance_scale = 2.0\nassociation = \"known\"\n", "base.toml")
+    spec = parse_sweep(_file(tmp_path, """\
+[sweep]
+dataset = ["synthetic"]
+backend = ["ekf"]
+config = "base.toml"
+max_steps = 7
+[sweep.set]
+"ekf.association" = ["unknown"]
+"""))
+    (run,) = spec.runs()
+    assert run.seed is None and run.max_steps == 7
+    assert run.config == {"ekf": {"odometry_covariance_scale": 2.0, "association": "unknown"}}
+
+
+@pytest.mark.parametrize("text, line, words", [
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseeds = [1]\n', 4, "unknown key 'seeds'"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"ekf.asociation" = ["unknown"]\n',
+     5, "unknown key(s) ['asociation']"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"isam2.polish" = [true]\n',
+     5, "not a section.key that these runs read"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = []\n', 3, "empty"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseed = {from = 5, to = 4}\n', 4, "empty"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"ekf.association" = []\n',
+     5, "grid has no run"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"synthetic.sigma_r_m" = [-1.0]\n',
+     5, "sigma_r_m"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf2"]\n', 3, "unknown back end"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n\n[ekf]\nassociation = "unknown"\n', 5,
+     "unknown table [ekf]"),
+])
+def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, line, words):
+    path = _file(tmp_path, text)
+    with pytest.raises(ConfigError) as e:
+        parse_sweep(path)
+    assert e.value.line == line and words in str(e.value)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{path}:{line}:" in err[0]
+    assert not (tmp_path / "o").exists()  # refused before any run
+
+
+def test_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
+    spec = parse_sweep(_file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "missing.g2o"]')
+                             .replace("seed = [0, 1]\n", "")))
+    outcome = run_sweep(spec, tmp_path / "o", PoolExecutor(2))
+    rows = {r["dataset"]: r for r in _csv(tmp_path / "o" / "sweep.csv")}
+    assert outcome.ran == 4 and outcome.failed == 2
+    assert rows["synthetic"]["status"] == "ok" and float(rows["synthetic"]["ate_rmse_m"]) > 0
+    bad = rows["missing.g2o"]
+    assert bad["status"] == "failed" and bad["error"].startswith("missing.g2o: no such dataset")
+    assert "\n" not in bad["error"]
+
+
+def test_ctrl_c_keeps_finished_runs_and_a_rerun_resumes(tmp_path):
+    """Ctrl-C arrives in the main thread right after the first run finished (the
+    progress callback raises it); the next invocation runs only what is missing."""
+    spec = parse_sweep(_file(tmp_path, SMALL))
+    out = tmp_path / "o"
+
+    def ctrl_c(run, row):
+        raise KeyboardInterrupt
+
+    first = run_sweep(spec, out, PoolExecutor(1), on_result=ctrl_c)
+    assert first.interrupted and first.ran == 1
+    kept = _csv(out / "sweep.csv")
+    assert len(kept) == 1 and kept[0]["status"] == "ok"
+
+    second = run_sweep(spec, out, PoolExecutor(2))
+    assert not second.interrupted and second.skipped == 1 and second.ran == 3
+    rows = _csv(out / "sweep.csv")
+    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows)
+    assert rows[0] == kept[0]  # the finished run is kept as it was, not run again
+
+    third = run_sweep(spec, out, PoolExecutor(2))
+    assert third.ran == 0 and third.skipped == 4
+
+
+def test_sigint_to_the_sweep_process_keeps_finished_runs(tmp_path):
+    """The real signal: SIGINT to a ``graphslam sweep`` process once its first run is
+    in sweep.csv; it stops the run in flight and exits 130 with the finished rows."""
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(_file(tmp_path, SMALL)),
+         "--out", str(out), "--workers", "1", "--quiet", "--no-plots"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    deadline = time.monotonic() + 120  # s: generous on a loaded machine
+    while not ((out / "sweep.csv").is_file() and _csv(out / "sweep.csv")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.02)  # polling for the first row, not waiting a guessed time
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    rows = _csv(out / "sweep.csv")
+    assert 1 <= len(rows) < 4 and all(r["status"] == "ok" for r in rows)
+
+
+def test_cli_sweep_writes_table_and_plots(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["sweep", str(_file(tmp_path, SMALL.replace("[0, 1]", "{from = 0, to = 1}"))),
+                 "--out", str(out), "--workers", "2", "--quiet"]) == 0
+    rows = _csv(out / "sweep.csv")
+    assert len(rows) == 4 and {r["backend"] for r in rows} == {"isam2", "ekf"}
+    assert {r["ekf.association"] for r in rows if r["backend"] == "ekf"} == {"unknown"}
+    assert all(r["nees_mean"] and r["rpe_trans_rmse_m"] and float(r["peak_rss_mb"]) > 0
+               for r in rows)
+    for name in ("sweep_nees.png", "sweep_ate.png"):
+        assert (out / name).stat().st_size > 0
+    assert "4 runs" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["--workers", "0"],
+                                  ["--workers", "2", "--cluster", "tcp://127.0.0.1:1"]])
+def test_workers_refused_where_they_do_nothing(tmp_path, capsys, argv):
+    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"), *argv]) == 2
+    assert "--workers" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_unreachable_cluster_is_one_line(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
+                 "--cluster", "tcp://127.0.0.1:1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot connect" in err[0]
+
+
+@pytest.mark.slow
+def test_local_dask_cluster_gives_the_pool_results(tmp_path):
+    """A real LocalCluster with two worker processes against the local pool: same
+    rows (timings aside) and the same trajectories, to the byte."""
+    pytest.importorskip("distributed")
+    from graphslam.pipelines.sweep_exec import DaskExecutor
+
+    spec = parse_sweep(_file(tmp_path, SMALL))
+    dask = DaskExecutor("local", 2)
+    try:
+        run_sweep(spec, tmp_path / "dask", dask)
+    finally:
+        dask.close()
+    run_sweep(spec, tmp_path / "pool", PoolExecutor(2))
+    a, b = _csv(tmp_path / "dask" / "sweep.csv"), _csv(tmp_path / "pool" / "sweep.csv")
+    assert len(a) == 4 and all(r["status"] == "ok" for r in a)
+    assert _without_timing(a) == _without_timing(b)
+    for r in a:
+        for name in ("trajectory.tum", "nees.csv"):
+            assert ((tmp_path / "dask" / "runs" / r["run_id"] / name).read_bytes()
+                    == (tmp_path / "pool" / "runs" / r["run_id"] / name).read_bytes())
+
+
+def test_run_config_file_reads_back_as_written():
+    import tomllib
+
+    from graphslam.pipelines.sweep_spec import dump_toml
+
+    config = {"ekf": {"association": "unknown", "odometry_covariance_scale": 1e-05,
+                      "flag": True, "n": 3},
+              "loops": {"top_k": 5, "orb": {"n_features": 500, "sizes": [1.5, 2]}}}
+    assert tomllib.loads(dump_toml(config)) == config
+
+
+def test_nees_defaults_to_the_synthetic_world_only(tmp_path):
+    def spec(datasets, extra=""):
+        return parse_sweep(_file(tmp_path, f'[sweep]\ndataset = {datasets}\nbackend = ["ekf"]\n{extra}'))
+
+    assert spec('["synthetic"]').nees and not spec('["victoria-park"]').nees
+    assert not spec('["synthetic"]', "nees = false\n").nees
+    with pytest.raises(ConfigError):
+        spec('["synthetic"]', 'nees = "yes"\n')
+    on, off = spec('["synthetic"]').runs()[0], spec('["synthetic"]', "nees = false\n").runs()[0]
+    assert on.config_hash != off.config_hash  # a resumed sweep never mixes the two
+
+
+def test_progress_bar_counts_runs_and_failures(tmp_path, monkeypatch, capsys):
+    import io
+
+    class Tty(io.StringIO):
+        def isatty(self):  # tqdm draws only on a terminal
+            return True
+
+    fake = Tty()
+    monkeypatch.setattr("sys.stderr", fake)
+    path = _file(tmp_path, '[sweep]\ndataset = ["missing.g2o"]\nbackend = ["ekf"]\n')
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"]) == 0
+    bar = fake.getvalue()
+    assert "1/1" in bar and "failed=1" in bar
