@@ -322,6 +322,22 @@ def _run_vocab(cli, key, vocab_file=None):
     refused(cli(*RUN_2D, "--vocab", str(vocab_file)), "image sequences only")
 
 
+@row("run --frames")
+def _run_frames(cli, key):
+    every = cli(*RUN_IMAGES)
+    second = cli(*RUN_IMAGES, "--frames", "2:12:2")
+    differ(every, second)
+    # frames 2, 4, 6, 8, 10 (--max-steps 5): ground truth sliced the same way
+    gt = [line.split()[1:4] for line in second.text("ground_truth.tum").splitlines()
+          if not line.startswith("#")]
+    full = [line.split()[1:4] for line in cli(*RUN_IMAGES, "--max-steps", "11")
+            .text("ground_truth.tum").splitlines() if not line.startswith("#")]
+    assert gt == full[2:12:2]
+    refused(cli(*RUN_IMAGES, "--frames", "5:5"), "selects no frame")
+    refused(cli(*RUN_IMAGES, "--frames", "a:b"), "--frames")
+    refused(cli(*RUN_2D, "--frames", "0:5"), "image sequences only")
+
+
 @row("compare --dataset")
 def _compare_dataset(cli, key):
     a = cli(*COMPARE)
@@ -445,6 +461,14 @@ def _loops_log(cli, key):
     log = cli.path("cand.jsonl")
     _loops(cli, "--log", str(log))
     assert log.is_file()
+
+
+@row("loops --frames")
+def _loops_frames(cli, key):
+    log_all, log_some = cli.path("all.jsonl"), cli.path("some.jsonl")
+    _loops(cli, "--log", str(log_all))
+    res = _loops(cli, "--frames", "0:6", "--log", str(log_some))
+    assert "6 images" in res.out
 
 
 @row("loops --quiet")

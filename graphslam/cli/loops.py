@@ -59,6 +59,8 @@ def register(subparsers) -> None:
     p.add_argument("--log", type=Path, default=None, metavar="FILE",
                    help="write every candidate's fate (scores, inliers, accepted or why "
                         "rejected) as JSON lines")
+    p.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
+                   help="use these images only (Python slice of the file-name order)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_loops)
 
@@ -76,6 +78,10 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     paths = folder_images(args.images_dir)
+    if args.frames is not None:
+        from graphslam.sources.spatial.frames import frame_indices, parse_frames
+
+        paths = [paths[i] for i in frame_indices(parse_frames(args.frames), len(paths))]
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)

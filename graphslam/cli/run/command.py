@@ -120,6 +120,9 @@ def register(sub) -> None:
                           "first trained on the sequence's own images (an extra pass)")
     vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
                      help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
+    vis.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
+                     help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
+                          "backwards); ground truth and odometry follow")
     p.set_defaults(func=cmd_run)
 
 

@@ -91,6 +91,10 @@ def _load_sequence(args, config):
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
         sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
+    if getattr(args, "frames", None) is not None:
+        from graphslam.sources.spatial.frames import parse_frames, select_frames
+
+        sequence = select_frames(sequence, parse_frames(args.frames))
     return sequence
 
 
