@@ -338,6 +338,20 @@ def _run_frames(cli, key):
     refused(cli(*RUN_2D, "--frames", "0:5"), "image sequences only")
 
 
+@row("run --save-map")
+def _run_save_map(cli, key):
+    from graphslam.maps.files import load_map
+
+    folder = cli.path("map")
+    res = cli(*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:], "--frames", "0:10:2", "--save-map",
+              str(folder))
+    assert res.rc == 0, res.err
+    smap = load_map(folder)
+    assert smap.keyframe_ids.tolist() == [0, 2, 4, 6, 8] and smap.n_landmarks > 0
+    refused(cli(*RUN_IMAGES, "--save-map", str(cli.path("ekf_map"))), "isam2")
+    refused(cli(*RUN_2D, "--save-map", str(cli.path("planar_map"))), "image sequences only")
+
+
 @row("compare --dataset")
 def _compare_dataset(cli, key):
     a = cli(*COMPARE)

@@ -123,6 +123,10 @@ def register(sub) -> None:
     vis.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
                      help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
                           "backwards); ground truth and odometry follow")
+    vis.add_argument("--save-map", type=Path, default=None, metavar="DIR",
+                     help="save the map (keyframes, landmarks with covariances, descriptors and "
+                          "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
+                          "(isam2 only)")
     p.set_defaults(func=cmd_run)
 
 

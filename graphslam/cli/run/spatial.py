@@ -142,6 +142,10 @@ def run(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
+    from graphslam.cli.run.maps import chain_hooks, save_run_map, start_map
+
+    mapper = start_map(args, config, sequence, backend, tracker)
+    hook = chain_hooks(hook, mapper)
     closer = None
     if loops:
         closer = _loop_closer(args, config, sequence, backend, n_frames,
@@ -160,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
         from graphslam.outputs.loops import write_loops
 
         paths.update(write_loops(closer, out_dir))
+    if mapper is not None:
+        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet)
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
         if closer is not None:

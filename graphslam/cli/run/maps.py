@@ -1,0 +1,62 @@
+"""``graphslam run --save-map DIR`` on an image sequence: record the map while running, save it after.
+
+Kept apart from :mod:`graphslam.cli.run.spatial` so that the run itself only
+gains two calls: :func:`start_map` (a frame hook, or None without the flag)
+and :func:`save_run_map`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+def start_map(args, config, sequence, backend, tracker):
+    """The :class:`~graphslam.pipelines.mapping.MapRecorder` of ``--save-map``, or None."""
+    if getattr(args, "save_map", None) is None:
+        return None
+    from graphslam.pipelines.mapping import MapRecorder, require_map_backend
+    from frontend.orb import OrbDetector
+    from loopclosure.detector import LoopDetectorConfig
+
+    require_map_backend(backend)
+    orb = config.section(LoopDetectorConfig).orb
+    return MapRecorder(OrbDetector(orb), tracker.patch_size, getattr(sequence, "indices", None))
+
+
+def chain_hooks(*hooks):
+    """One frame hook calling each of ``hooks`` that is not None, in order (None if none)."""
+    live = [h for h in hooks if h is not None]
+    if not live:
+        return None
+    if len(live) == 1:
+        return live[0]
+
+    def hook(*a):
+        for h in live:
+            h(*a)
+    return hook
+
+
+def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool) -> None:
+    """Build the map of the finished run, write it to ``--save-map`` and say so on stdout."""
+    import sys
+
+    from graphslam.maps.files import save_map
+
+    if result.interrupted:
+        return  # an interrupted run is not finalised: no map from half an estimate
+    seq = result.sequence
+    if not quiet and closer is None:
+        print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
+    meta = {"dataset": seq.name, "source": seq.source_path, "frames": args.frames,
+            "n_frames": result.frames, "backend": result.backend, "frontend": result.frontend,
+            "odometry": result.odometry,
+            "tracker": dataclasses.asdict(tracker.config),
+            "bow_orb": dataclasses.asdict(recorder.bow_orb.config)}
+    smap = recorder.build(result.estimate, backend,
+                          vocabulary=None if closer is None else closer.detector.database.vocabulary,
+                          meta=meta, K=seq.K, image_size=seq.image_size)
+    save_map(smap, args.save_map)
+    c = smap.counts()
+    print(f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
+          f"{c['observations']} observations")
