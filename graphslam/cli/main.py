@@ -25,10 +25,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    from graphslam.cli import compare, loops, vocab
+    from graphslam.cli import compare, localize, loops, vocab
     from graphslam.cli.run import command as run
 
-    for command in (run, compare, vocab, loops):
+    for command in (run, compare, vocab, loops, localize):
         command.register(sub)
     return parser
 
