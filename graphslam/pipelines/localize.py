@@ -139,12 +139,8 @@ class Localizer:
         if placed is None:
             placed = self._relocalise(image, xy, desc)
             self.timings_s["relocalise"] += time.perf_counter() - t2
-        if placed.wTc is None:
-            self._last = []
-        else:
-            # a relocalised frame has no trustworthy velocity: start again from it
-            self._last = ([*self._last[-1:], placed.wTc] if placed.status == "tracked"
-                          else [placed.wTc])
+        # the velocity comes from two consecutive placed frames; a lost frame forgets it
+        self._last = [] if placed.wTc is None else [*self._last[-1:], placed.wTc]
         return placed
 
     # ------------------------------------------------------------------ tracking
