@@ -1,9 +1,9 @@
 """Localisation against a saved map: a small synthetic room mapped on its first lap by
 ``graphslam run --save-map``, then its last frames placed by ``graphslam localize``.
 
-The room is the default synthetic sequence rendered at half resolution (320 x 240,
-f = 250 px: the same geometry, a quarter of the pixels) so the map is built in
-seconds. Tolerances in metres.
+The room is the default synthetic sequence (VGA, 300 frames, 1.5 laps): the map
+is built on frames 0-199 (about 25 s) and shared by the tests of this module.
+Tolerances in metres.
 """
 
 from __future__ import annotations
@@ -17,16 +17,18 @@ import pytest
 
 from graphslam.cli.main import main
 
-#: Frames localised that must be placed (issue 18 asks 95 % on the full-size room).
-MIN_LOCALISED = 0.90
-#: ATE bound of the placed frames, in the map's frame (no alignment), metres.
-ATE_TOL_M = 0.06
+#: Frames localised that must be placed (issue 18: 95 %).
+MIN_LOCALISED = 0.95
+#: ATE bound of the placed frames, in the map's frame (no alignment), metres: the
+#: full SLAM run of the 300 frames scores 2.56 cm (SE(3)-aligned); measured 2.54 cm.
+ATE_TOL_M = 0.03
 #: No placed frame may be farther than this from the truth (issue 18), metres.
 FAR_M = 0.5
 #: Frames after a blackout within which the camera must be placed again.
 RECOVER_FRAMES = 3
 
-ROOM = """\
+#: The same room at half resolution: another camera than the map's.
+HALF = """\
 [synthetic_images]
 width = 320
 height = 240
@@ -43,7 +45,7 @@ def room(tmp_path_factory) -> tuple[Path, Path]:
     """``(config file, map folder)`` of the small room mapped on frames 0-199."""
     tmp = tmp_path_factory.mktemp("room")
     config = tmp / "room.toml"
-    config.write_text(ROOM)
+    config.write_text("")
     folder = tmp / "map"
     rc = main(["run", "--dataset", "synthetic-images", "--config", str(config), "--frames",
                MAP_FRAMES, "--save-map", str(folder), "--out", str(tmp / "run"),
@@ -111,8 +113,9 @@ def test_refusals_are_one_line(room, tmp_path, capsys):
     config, folder = room
     base = ["localize", "--dataset", "synthetic-images", "--out", str(tmp_path / "x"),
             "--rerun", "off", "--quiet"]
-    # the full-size room has another camera than the map's
-    assert main([*base, "--map", str(folder), "--frames", "0:2"]) == 2
+    half = tmp_path / "half.toml"
+    half.write_text(HALF)
+    assert main([*base, "--map", str(folder), "--config", str(half), "--frames", "0:2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "640x480" in err[0]
     assert main([*base, "--map", str(tmp_path / "none")]) == 2
