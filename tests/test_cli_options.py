@@ -352,6 +352,29 @@ def _run_save_map(cli, key):
     refused(cli(*RUN_2D, "--save-map", str(cli.path("planar_map"))), "image sequences only")
 
 
+@row("run --map")
+def _run_map(cli, key):
+    from graphslam.maps.files import load_map
+
+    isam2 = [*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:]]
+    first, joint = cli.path("map1"), cli.path("joint")
+    assert cli(*isam2, "--max-steps", "12", "--save-map", str(first)).rc == 0
+    # the second session starts at frame 3 and is placed by relocalisation in the first map
+    res = cli(*isam2, "--frames", "3:", "--map", str(first), "--save-map", str(joint))
+    assert res.rc == 0, res.err
+
+    def first_pose(name):
+        return [float(v) for v in res.text(name).splitlines()[1].split()[1:4]]
+
+    err = sum((a - b) ** 2 for a, b in zip(first_pose("trajectory.tum"),
+                                            first_pose("ground_truth.tum"))) ** 0.5
+    assert err < 0.02  # metres: the relocalised anchor, not an assumed start pose
+    smap = load_map(joint)
+    assert smap.n_keyframes == 12 + 5 and len(smap.meta["sessions"]) == 2
+    refused(cli(*RUN_2D, "--map", str(first)), "image sequences only")
+    refused(cli(*isam2, "--map", str(cli.path("nowhere"))), "map folder not found")
+
+
 @row("compare --dataset")
 def _compare_dataset(cli, key):
     a = cli(*COMPARE)

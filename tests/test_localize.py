@@ -9,7 +9,6 @@ Tolerances in metres.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -72,33 +71,21 @@ def test_localises_the_last_half_lap(room, tmp_path, capsys):
     assert {"trajectory.tum", "ground_truth.tum", "localize.rrd"} <= {p.name for p in out.iterdir()}
 
 
-@dataclass(frozen=True, eq=False, kw_only=True)
-class _Blackout:
-    """Mixin of a frame selection whose frames ``black`` are all zeros."""
-
-    black: frozenset = frozenset()
-
-    def load(self, i: int) -> np.ndarray:
-        image = super().load(i)
-        return np.zeros_like(image) if i in self.black else image
-
-
 def test_recovers_after_a_blackout(room):
     from graphslam import registry
-    from graphslam.cli.localize import _localizer
     from graphslam.maps.files import load_map
     from graphslam.pipelines import localize_run
-    from graphslam.sources.spatial.frames import FrameSelection, parse_frames, select_frames
+    from graphslam.pipelines.localize import make_localizer
+    from graphslam.sources.spatial.frames import black_out, parse_frames, select_frames
 
     config_path, folder = room
     config = registry.read_config(config_path)
     sel = select_frames(registry.load_image_sequence("synthetic-images", config=config),
                         parse_frames("200:240"))
-    cls = dataclass(frozen=True, eq=False, kw_only=True)(type("Blackout", (_Blackout, FrameSelection), {}))
-    black = frozenset(range(15, 25))  # ten black frames in the middle
-    seq = cls(**{f.name: getattr(sel, f.name) for f in fields(sel) if f.init}, black=black)
+    black = range(15, 25)  # ten black frames in the middle
+    seq = black_out(sel, black)
     smap = load_map(folder)
-    result = localize_run.run(seq, _localizer(smap, seq, config))
+    result = localize_run.run(seq, make_localizer(smap, seq.K, config))
     status = [p.status for p in result.placements]
     assert all(status[i] == "lost" for i in black)  # nothing to see: not placed
     after = status[25:25 + RECOVER_FRAMES]

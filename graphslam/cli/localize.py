@@ -62,6 +62,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     from graphslam.maps.files import check_camera, load_map
     from graphslam.outputs.writers import remove_stale_outputs
     from graphslam.pipelines import localize_run
+    from graphslam.pipelines.localize import make_localizer
     from graphslam.sources.spatial.frames import parse_frames, select_frames
 
     t0 = time.perf_counter()
@@ -76,7 +77,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     config = registry.read_config(args.config)
     sequence = select_frames(registry.load_image_sequence(args.dataset, config=config), frames)
     check_camera(smap, sequence.K, sequence.image_size, args.dataset)
-    localizer = _localizer(smap, sequence, config)
+    localizer = make_localizer(smap, sequence.K, config)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -99,21 +100,6 @@ def cmd_localize(args: argparse.Namespace) -> int:
             paths["recording"] = out_dir / "localize.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()}, tuple(sorted(names)))
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
-
-
-def _localizer(smap, sequence, config):
-    """The :class:`Localizer` with the map's own detector and ORB settings."""
-    from frontend.harris import HarrisConfig
-    from frontend.orb import OrbConfig, OrbDetector
-    from frontend.tracking import TrackerConfig, make_detector
-    from graphslam.pipelines.localize import LocalizeConfig, Localizer
-    from loopclosure.pnp import PnpConfig
-
-    detector = make_detector(TrackerConfig(detector=smap.meta.get("tracker", {}).get("detector", "harris")),
-                             config.section(HarrisConfig), config.section(OrbConfig))
-    bow_orb = OrbDetector(OrbConfig(**smap.meta["bow_orb"])) if "bow_orb" in smap.meta else None
-    return Localizer(smap, sequence.K, detector, config.section(LocalizeConfig),
-                     config.section(PnpConfig), bow_orb=bow_orb)
 
 
 def format_summary(m: dict) -> str:

@@ -243,3 +243,20 @@ class Localizer:
         return Placement("relocalised", res.aTb, res.covariance, res.n_inliers, hits[0][0],
                          uv_px=xy[res.inlier_pairs[:, 1]])
 
+
+
+def make_localizer(smap: SpatialMap, K: np.ndarray, config=None) -> Localizer:
+    """The :class:`Localizer` of ``smap`` with the map's own corner detector and BoW ORB,
+    the other settings from ``config`` (a :class:`slamcore.config.ConfigFile`: sections
+    ``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``), defaults without."""
+    from frontend.harris import HarrisConfig
+    from frontend.orb import OrbConfig
+    from frontend.tracking import TrackerConfig, make_detector
+    from slamcore.config import load_section
+
+    tracker = TrackerConfig(detector=smap.meta.get("tracker", {}).get("detector", "harris"))
+    detector = make_detector(tracker, load_section(HarrisConfig, config),
+                             load_section(OrbConfig, config))
+    bow_orb = OrbDetector(OrbConfig(**smap.meta["bow_orb"])) if "bow_orb" in smap.meta else None
+    return Localizer(smap, K, detector, load_section(LocalizeConfig, config),
+                     load_section(PnpConfig, config), bow_orb=bow_orb)

@@ -205,12 +205,13 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
         config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
         max_frames: int | None = None, progress: bool = False,
         on_frame: FrameHook | None = None, frontend: str | None = None,
-        loop_closer=None) -> VisualRunResult:
+        loop_closer=None, start_pose=None) -> VisualRunResult:
     """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring).
 
     ``loop_closer``: a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`, fed every
     frame after the back end's update (its time counts in ``wall_s`` and in
     ``stats["loops_s"]``); None runs without place recognition.
+    ``start_pose``: ``(wTc0, P0)`` of the first frame (``run --map``: relocalised), or None.
     """
 
     cfg = config or VisualRunConfig()
@@ -223,6 +224,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                                "use --odometry sequence or derived")
     wTc0 = np.eye(4) if sequence.wTc_true is None else np.asarray(sequence.wTc_true[0], dtype=np.float64)
     P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
+    wTc0, P0 = (wTc0, P0) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
     stats = {"observations": [], "found": [], "searched": [], "predicted": [], "followed": [],
              "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": [], "loops_s": []}

@@ -127,6 +127,10 @@ def register(sub) -> None:
                      help="save the map (keyframes, landmarks with covariances, descriptors and "
                           "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
                           "(isam2 only)")
+    vis.add_argument("--map", type=Path, default=None, metavar="DIR",
+                     help="continue mapping from a saved map: the first frame is relocalised in "
+                          "it (its pose and covariance start the run); with --save-map the "
+                          "joint map of both sessions is saved")
     p.set_defaults(func=cmd_run)
 
 

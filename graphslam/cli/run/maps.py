@@ -23,6 +23,25 @@ def start_map(args, config, sequence, backend, tracker):
     return MapRecorder(OrbDetector(orb), tracker.patch_size, getattr(sequence, "indices", None))
 
 
+def anchor_on_map(args, config, sequence):
+    """``--map``: ``(map, (wTc0, covariance))`` of the first frame relocalised in the saved
+    map, or ``(None, None)`` without the flag. GraphSlamError when it cannot be placed."""
+    if getattr(args, "map", None) is None:
+        return None, None
+    from graphslam.maps.files import check_camera, load_map
+    from graphslam.pipelines.localize import make_localizer
+    from slamcore.errors import GraphSlamError
+
+    smap = load_map(args.map)
+    check_camera(smap, sequence.K, sequence.image_size, args.dataset)
+    placed = make_localizer(smap, sequence.K, config).locate(sequence.load(0))
+    if placed.wTc is None:
+        raise GraphSlamError(f"--map: the first frame cannot be relocalised in {args.map} "
+                             "(place recognition and PnP found no pose); start the run where "
+                             "the map was seen (--frames)")
+    return smap, (placed.wTc, placed.covariance)
+
+
 def chain_hooks(*hooks):
     """One frame hook calling each of ``hooks`` that is not None, in order (None if none)."""
     live = [h for h in hooks if h is not None]
@@ -37,8 +56,10 @@ def chain_hooks(*hooks):
     return hook
 
 
-def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool) -> None:
-    """Build the map of the finished run, write it to ``--save-map`` and say so on stdout."""
+def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool,
+                 prior_map=None) -> None:
+    """Build the map of the finished run (joined after ``prior_map``, the ``--map`` of
+    this session, when given), write it to ``--save-map`` and say so on stdout."""
     import sys
 
     from graphslam.maps.files import save_map
@@ -46,16 +67,22 @@ def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool) 
     if result.interrupted:
         return  # an interrupted run is not finalised: no map from half an estimate
     seq = result.sequence
-    if not quiet and closer is None:
+    if not quiet and closer is None and prior_map is None:
         print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
     meta = {"dataset": seq.name, "source": seq.source_path, "frames": args.frames,
             "n_frames": result.frames, "backend": result.backend, "frontend": result.frontend,
             "odometry": result.odometry,
             "tracker": dataclasses.asdict(tracker.config),
             "bow_orb": dataclasses.asdict(recorder.bow_orb.config)}
-    smap = recorder.build(result.estimate, backend,
-                          vocabulary=None if closer is None else closer.detector.database.vocabulary,
+    vocabulary = None if closer is None else closer.detector.database.vocabulary
+    if prior_map is not None:
+        vocabulary = prior_map.vocabulary  # one vocabulary for the joint map's BoW vectors
+    smap = recorder.build(result.estimate, backend, vocabulary=vocabulary,
                           meta=meta, K=seq.K, image_size=seq.image_size)
+    if prior_map is not None:
+        from graphslam.maps.merge import merge_maps
+
+        smap = merge_maps(prior_map, smap)
     save_map(smap, args.save_map)
     c = smap.counts()
     print(f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "

@@ -142,8 +142,9 @@ def run(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
-    from graphslam.cli.run.maps import chain_hooks, save_run_map, start_map
+    from graphslam.cli.run.maps import anchor_on_map, chain_hooks, save_run_map, start_map
 
+    prior_map, start_pose = anchor_on_map(args, config, sequence)
     mapper = start_map(args, config, sequence, backend, tracker)
     hook = chain_hooks(hook, mapper)
     closer = None
@@ -152,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
                               None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
-                    frontend=tracker_cfg.detector, loop_closer=closer)
+                    frontend=tracker_cfg.detector, loop_closer=closer, start_pose=start_pose)
     metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
                                  wall_s=time.perf_counter() - t0)
     metrics.backend = args.backend
@@ -165,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
 
         paths.update(write_loops(closer, out_dir))
     if mapper is not None:
-        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet)
+        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
         if closer is not None:

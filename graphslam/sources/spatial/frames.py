@@ -17,7 +17,7 @@ grow with the square root of the stride.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -120,3 +120,24 @@ def _composed_odometry(sequence, idx: np.ndarray):
     if sig is not None and sig[0] is not None:
         sig = (sig[0] * math.sqrt(stride), sig[1] * math.sqrt(stride))
     return out, cov, sig
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class BlackedOut(FrameSelection):
+    """A frame selection whose frames ``black`` (indices into it) load as all-zero
+    images: a camera covered or blinded for a while (tracking-loss tests)."""
+
+    black: frozenset = frozenset()
+
+    def load(self, i: int) -> np.ndarray:
+        image = super().load(i)
+        return np.zeros_like(image) if i in self.black else image
+
+    load_raw = load
+
+
+def black_out(sequence: ImageSequence, black) -> BlackedOut:
+    """``sequence`` with the frames ``black`` (indices) blacked out, everything else kept."""
+    sel = sequence if isinstance(sequence, FrameSelection) else select_frames(sequence, slice(None))
+    kept = {f.name: getattr(sel, f.name) for f in fields(sel) if f.init and f.name != "black"}
+    return BlackedOut(**kept, black=frozenset(int(i) for i in black))
