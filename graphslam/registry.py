@@ -19,7 +19,7 @@ CONFIG_SECTIONS = (
     "synthetic_images", "visual", "odometry_noise", "tracker", "active_search", "harris", "orb",
     "isam2_visual", "mono_ekf",  # image sequences
     "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
-    "localize",  # localisation against a saved map
+    "localize", "relocalise",  # saved maps, tracking loss
 )
 
 

@@ -375,6 +375,18 @@ def _run_map(cli, key):
     refused(cli(*isam2, "--map", str(cli.path("nowhere"))), "map folder not found")
 
 
+@row("run --relocalise")
+def _run_relocalise(cli, key):
+    isam2 = [*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:]]
+    plain = cli(*isam2)
+    res = cli(*isam2, "--relocalise")
+    assert res.rc == 0, res.err
+    assert "tracking_loss" in res.metrics() and "tracking_loss" not in plain.metrics()
+    assert set(res.metrics()["tracking_loss"]) >= {"losses", "relocalisations", "loss_lengths"}
+    refused(cli(*RUN_IMAGES, "--relocalise"), "use isam2")
+    refused(cli(*RUN_2D, "--relocalise"), "image sequences only")
+
+
 @row("compare --dataset")
 def _compare_dataset(cli, key):
     a = cli(*COMPARE)

@@ -131,6 +131,10 @@ def register(sub) -> None:
                      help="continue mapping from a saved map: the first frame is relocalised in "
                           "it (its pose and covariance start the run); with --save-map the "
                           "joint map of both sessions is saved")
+    vis.add_argument("--relocalise", action="store_true",
+                     help="when active search loses the track, relocalise against the run's own "
+                          "map (PnP, added as a closure; isam2 only); metrics.json counts the "
+                          "losses and recoveries ([relocalise] of --config)")
     p.set_defaults(func=cmd_run)
 
 

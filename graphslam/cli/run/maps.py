@@ -1,13 +1,22 @@
 """``graphslam run --save-map DIR`` on an image sequence: record the map while running, save it after.
 
-Kept apart from :mod:`graphslam.cli.run.spatial` so that the run itself only
-gains two calls: :func:`start_map` (a frame hook, or None without the flag)
+Also ``--map`` (the start pose relocalised in a saved map) and ``--relocalise``
+(a frame hook). Kept apart from :mod:`graphslam.cli.run.spatial` so that the
+run itself only gains a few calls: :func:`session_extras`, :func:`chain_hooks`
 and :func:`save_run_map`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+
+
+def session_extras(args, config, sequence, backend, tracker):
+    """``(prior map, start pose, map recorder, relocaliser)`` of ``--map``, ``--save-map``
+    and ``--relocalise`` (None for each flag not given)."""
+    prior_map, start_pose = anchor_on_map(args, config, sequence)
+    return (prior_map, start_pose, start_map(args, config, sequence, backend, tracker),
+            start_relocaliser(args, config, sequence, backend))
 
 
 def start_map(args, config, sequence, backend, tracker):
@@ -40,6 +49,21 @@ def anchor_on_map(args, config, sequence):
                              "(place recognition and PnP found no pose); start the run where "
                              "the map was seen (--frames)")
     return smap, (placed.wTc, placed.covariance)
+
+
+def start_relocaliser(args, config, sequence, backend):
+    """The :class:`~graphslam.pipelines.relocalise.RunRelocaliser` of ``--relocalise``, or None."""
+    if not getattr(args, "relocalise", False):
+        return None
+    from graphslam.pipelines.loop_closing import require_loop_closures
+    from graphslam.pipelines.relocalise import RelocaliseConfig, RunRelocaliser
+    from loopclosure.detector import LoopDetectorConfig
+    from loopclosure.pnp import PnpConfig
+    from frontend.orb import OrbDetector
+
+    require_loop_closures(backend)
+    return RunRelocaliser(sequence.K, config.section(RelocaliseConfig), config.section(PnpConfig),
+                          OrbDetector(config.section(LoopDetectorConfig).orb))
 
 
 def chain_hooks(*hooks):

@@ -142,11 +142,11 @@ def run(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
-    from graphslam.cli.run.maps import anchor_on_map, chain_hooks, save_run_map, start_map
+    from graphslam.cli.run.maps import chain_hooks, save_run_map, session_extras
 
-    prior_map, start_pose = anchor_on_map(args, config, sequence)
-    mapper = start_map(args, config, sequence, backend, tracker)
-    hook = chain_hooks(hook, mapper)
+    prior_map, start_pose, mapper, relocaliser = session_extras(args, config, sequence, backend,
+                                                                tracker)
+    hook = chain_hooks(hook, mapper, relocaliser)
     closer = None
     if loops:
         closer = _loop_closer(args, config, sequence, backend, n_frames,
@@ -160,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
     metrics.backend_class = result.backend
     if closer is not None:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
+    if relocaliser is not None:
+        metrics.tracking_loss = relocaliser.stats
     paths = vp.write_outputs(result, out_dir, metrics)
     if closer is not None:
         from graphslam.outputs.loops import write_loops
@@ -246,6 +248,10 @@ def format_summary(m) -> str:
                      f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
+    if m.tracking_loss:
+        tl = m.tracking_loss
+        rows.append(("tracking losses / relocalised / found again",
+                     f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}"))
     if m.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)
