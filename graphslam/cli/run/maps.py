@@ -88,8 +88,11 @@ def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool,
 
     from graphslam.maps.files import save_map
 
-    if result.interrupted:
-        return  # an interrupted run is not finalised: no map from half an estimate
+    if result.interrupted:  # not finalised: no map from half an estimate
+        from graphslam.cli.common import warn
+
+        warn(f"run interrupted: no map saved in {args.save_map}")
+        return
     seq = result.sequence
     if not quiet and closer is None and prior_map is None:
         print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
