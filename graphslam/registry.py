@@ -20,6 +20,7 @@ CONFIG_SECTIONS = (
     "isam2_visual", "mono_ekf",  # image sequences
     "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
     "posegraph",  # pose-graph files (g2o, TORO; 2-D and 3-D)
+    "localize", "relocalise",  # saved maps, tracking loss
 )
 
 

@@ -33,6 +33,7 @@ RANKS: dict[str, int] = {
     "graphslam.backends": 3,
     "graphslam.evaluation": 3,
     "graphslam.outputs": 3,
+    "graphslam.maps": 3,
     "graphslam.registry": 4,
     "graphslam.pipelines": 5,
     "graphslam.visualisation": 6,

@@ -344,6 +344,71 @@ def _run_vocab(cli, key, vocab_file=None):
     refused(cli(*RUN_2D, "--vocab", str(vocab_file)), "image sequences only")
 
 
+@row("run --frames")
+def _run_frames(cli, key):
+    every = cli(*RUN_IMAGES)
+    second = cli(*RUN_IMAGES, "--frames", "2:12:2")
+    differ(every, second)
+    # frames 2, 4, 6, 8, 10 (--max-steps 5): ground truth sliced the same way
+    gt = [line.split()[1:4] for line in second.text("ground_truth.tum").splitlines()
+          if not line.startswith("#")]
+    full = [line.split()[1:4] for line in cli(*RUN_IMAGES, "--max-steps", "11")
+            .text("ground_truth.tum").splitlines() if not line.startswith("#")]
+    assert gt == full[2:12:2]
+    refused(cli(*RUN_IMAGES, "--frames", "5:5"), "selects no frame")
+    refused(cli(*RUN_IMAGES, "--frames", "a:b"), "--frames")
+    refused(cli(*RUN_2D, "--frames", "0:5"), "image sequences only")
+
+
+@row("run --save-map")
+def _run_save_map(cli, key):
+    from graphslam.maps.files import load_map
+
+    folder = cli.path("map")
+    res = cli(*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:], "--frames", "0:10:2", "--save-map",
+              str(folder))
+    assert res.rc == 0, res.err
+    smap = load_map(folder)
+    assert smap.keyframe_ids.tolist() == [0, 2, 4, 6, 8] and smap.n_landmarks > 0
+    refused(cli(*RUN_IMAGES, "--save-map", str(cli.path("ekf_map"))), "isam2")
+    refused(cli(*RUN_2D, "--save-map", str(cli.path("planar_map"))), "image sequences only")
+
+
+@row("run --map")
+def _run_map(cli, key):
+    from graphslam.maps.files import load_map
+
+    isam2 = [*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:]]
+    first, joint = cli.path("map1"), cli.path("joint")
+    assert cli(*isam2, "--max-steps", "12", "--save-map", str(first)).rc == 0
+    # the second session starts at frame 3 and is placed by relocalisation in the first map
+    res = cli(*isam2, "--frames", "3:", "--map", str(first), "--save-map", str(joint))
+    assert res.rc == 0, res.err
+
+    def first_pose(name):
+        return [float(v) for v in res.text(name).splitlines()[1].split()[1:4]]
+
+    err = sum((a - b) ** 2 for a, b in zip(first_pose("trajectory.tum"),
+                                            first_pose("ground_truth.tum"))) ** 0.5
+    assert err < 0.02  # metres: the relocalised anchor, not an assumed start pose
+    smap = load_map(joint)
+    assert smap.n_keyframes == 12 + 5 and len(smap.meta["sessions"]) == 2
+    refused(cli(*RUN_2D, "--map", str(first)), "image sequences only")
+    refused(cli(*isam2, "--map", str(cli.path("nowhere"))), "map folder not found")
+
+
+@row("run --relocalise")
+def _run_relocalise(cli, key):
+    isam2 = [*RUN_IMAGES[:4], "isam2", *RUN_IMAGES[5:]]
+    plain = cli(*isam2)
+    res = cli(*isam2, "--relocalise")
+    assert res.rc == 0, res.err
+    assert "tracking_loss" in res.metrics() and "tracking_loss" not in plain.metrics()
+    assert set(res.metrics()["tracking_loss"]) >= {"losses", "relocalisations", "loss_lengths"}
+    refused(cli(*RUN_IMAGES, "--relocalise"), "use isam2")
+    refused(cli(*RUN_2D, "--relocalise"), "image sequences only")
+
+
 @row("compare --dataset")
 def _compare_dataset(cli, key):
     a = cli(*COMPARE)
@@ -491,6 +556,14 @@ def _loops_log(cli, key):
     log = cli.path("cand.jsonl")
     _loops(cli, "--log", str(log))
     assert log.is_file()
+
+
+@row("loops --frames")
+def _loops_frames(cli, key):
+    log_all, log_some = cli.path("all.jsonl"), cli.path("some.jsonl")
+    _loops(cli, "--log", str(log_all))
+    res = _loops(cli, "--frames", "0:6", "--log", str(log_some))
+    assert "6 images" in res.out
 
 
 @row("loops --quiet")

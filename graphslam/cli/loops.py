@@ -66,6 +66,8 @@ def register(subparsers) -> None:
                    help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
                         "image whose non-zero pixel (i, j) marks images i and j as one place; "
                         "prints precision and recall and writes pr.csv and pr.png next to --out")
+    p.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
+                   help="use these images only (Python slice of the file-name order)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_loops)
 
@@ -89,6 +91,10 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_output_file(args.log, "--log")
     paths = folder_images(args.images_dir)
+    if args.frames is not None:
+        from graphslam.sources.spatial.frames import frame_indices, parse_frames
+
+        paths = [paths[i] for i in frame_indices(parse_frames(args.frames), len(paths))]
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)

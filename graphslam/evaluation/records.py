@@ -105,7 +105,8 @@ class SpatialRunMetrics:
         ate: the ATE record of :func:`.spatial.ate` (rmse, mean, max, scale...);
             ate_error: why it could not be computed, if so.
         rpe, odometry_rpe: per-frame RPE records; tracking: front-end counters;
-            backend_stats: the back end's counters; loops: loop-closing counts.
+            backend_stats: the back end's counters; loops: loop-closing counts;
+            tracking_loss: losses and recoveries (``run --relocalise``).
         wall_s: the whole run's time; processing_s: tracking and back end;
             image_load_s: reading images.
     """
@@ -138,9 +139,10 @@ class SpatialRunMetrics:
     odometry_rpe: dict | None = None
     backend_class: str | None = None
     loops: dict | None = None
+    tracking_loss: dict | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
-        "ate_error", "ate", "odometry_rpe", "backend_class", "loops"})
+        "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

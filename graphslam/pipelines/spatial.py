@@ -207,12 +207,13 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
         config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
         max_frames: int | None = None, progress: bool = False,
         on_frame: FrameHook | None = None, frontend: str | None = None,
-        loop_closer=None) -> VisualRunResult:
+        loop_closer=None, start_pose=None) -> VisualRunResult:
     """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring).
 
     ``loop_closer``: a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`, fed every
     frame after the back end's update (its time counts in ``wall_s`` and in
     ``stats["loops_s"]``); None runs without place recognition.
+    ``start_pose``: ``(wTc0, P0)`` of the first frame (``run --map``: relocalised), or None.
     """
 
     cfg = config or VisualRunConfig()
@@ -223,11 +224,9 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     if mode == "none" and not backend.has_motion_model:
         raise UnsupportedError(f"back end {backend.name!r} has no motion model of its own; "
                                "use --odometry sequence or derived")
-    wTc0 = np.eye(4) if sequence.wTc_true is None else np.asarray(sequence.wTc_true[0], dtype=np.float64)
-    P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
+    wTc0, P0 = _first_pose(sequence, cfg) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
-    stats = {"observations": [], "found": [], "searched": [], "predicted": [], "followed": [],
-             "new": [], "image_fraction": [], "detect_s": [], "search_s": [], "update_s": [], "loops_s": []}
+    stats = {name: [] for name in TRACKING_STATS}
     bar = progress_bar(n, sequence.name, backend.name, progress)
     done = 0
     wall = 0.0
@@ -283,6 +282,18 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                            frames=done, wall_s=wall, load_s=load, interrupted=interrupted,
                            odometry=mode, odometry_noise=stated, odometry_wTc=odo_wTc,
                            tracking=stats)
+
+
+#: Per-frame lists in ``VisualRunResult.tracking``.
+TRACKING_STATS = ("observations", "found", "searched", "predicted", "followed", "new",
+                  "image_fraction", "detect_s", "search_s", "update_s", "loops_s")
+
+
+def _first_pose(sequence: ImageSequence, cfg: VisualRunConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(wTc0 (4, 4), P0 (6, 6))``: the true first pose (else identity) and the prior."""
+    wTc0 = np.eye(4) if sequence.wTc_true is None else np.asarray(sequence.wTc_true[0], dtype=np.float64)
+    P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
+    return wTc0, P0
 
 
 def _count(stats: dict, tr: TrackingResult, update_s: float) -> None:

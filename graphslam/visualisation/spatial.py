@@ -274,3 +274,52 @@ def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarra
         segments = np.stack([xyz[rows[mask, 0]], xyz[rows[mask, 1]]], axis=1)
         log.rec.log(f"world/posegraph/{name}", strips(segments, colors=[color], radii=radius),
                     static=True)
+
+
+MAP_COLOR = (150, 150, 150)
+STATUS_COLORS = {"tracked": FOUND_COLOR, "relocalised": NEW_COLOR}
+
+
+class LocalizeRecorder(VisualRecorder):
+    """Records ``graphslam localize``: the prior map in grey (static: its landmarks and
+    keyframe path), and per frame the live camera over it (green when tracked, blue when
+    relocalised, nothing when lost), the image with the inlier pixels, the path so far,
+    the status as a text line and ``plots/localize/inliers``."""
+
+    def start_map(self, smap, sequence, n_frames: int) -> None:
+        rr = self._rr
+        self.start(sequence, n_frames)
+        self.rec.log("world/map/landmarks", rr.Points3D(smap.landmark_w, colors=[MAP_COLOR],
+                                                        radii=0.02), static=True)
+        self.rec.log("world/map/keyframes", rr.LineStrips3D([smap.keyframe_wTc[:, :3, 3]],
+                                                            colors=[MAP_COLOR], radii=0.005),
+                     static=True)
+        self._path: list[np.ndarray] = []
+
+    def log_placement(self, i: int, image: np.ndarray, placement) -> None:
+        rr = self._rr
+        seq = self._sequence
+        self._set_time(i)
+        K = np.asarray(seq.K, dtype=np.float64)
+        if seq.wTc_true is not None:
+            self._camera("world/ground_truth/camera", np.asarray(seq.wTc_true[i]), K,
+                         seq.image_size, GT_COLOR)
+        self.rec.log("localize/status", rr.TextLog(
+            f"frame {i}: {placement.status}, {placement.inliers} inliers",
+            level="WARN" if placement.status == "lost" else "INFO"))
+        self.rec.log("plots/localize/inliers", rr.Scalars(float(placement.inliers)))
+        cam = "world/localize/camera"
+        if placement.wTc is None:
+            self.rec.log(cam, rr.Clear(recursive=True))
+            return
+        color = STATUS_COLORS[placement.status]
+        self._camera(cam, placement.wTc, K, seq.image_size, color)
+        if i % self.image_every == 0:
+            im = rr.Image(image)
+            self.rec.log(f"{cam}/image", im.compress(jpeg_quality=self.jpeg_quality)
+                         if self.jpeg_quality else im)
+        self.rec.log(f"{cam}/image/inliers", rr.Points2D(placement.uv_px, colors=[color], radii=3.0))
+        self._path.append(placement.wTc[:3, 3])
+        if len(self._path) >= 2:
+            self.rec.log("world/localize/trajectory",
+                         rr.LineStrips3D([np.array(self._path)], colors=[PALETTE[0]], radii=0.01))

@@ -110,13 +110,20 @@ def register(sub) -> None:
     p.add_argument("--nees", action="store_true",
                    help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
                         "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)")
-    graphs = p.add_argument_group("pose-graph files")
+    _add_posegraph_options(p.add_argument_group("pose-graph files"))
+    _add_image_options(p.add_argument_group("image sequences"))
+    p.set_defaults(func=cmd_run)
+
+
+def _add_posegraph_options(graphs) -> None:
     graphs.add_argument("--init", default=None,
                         choices=("auto", "odometry", "vertices", "lago", "chordal", "shonan"),
                         help="start of the batch solve (and candidate start of isam2's polish): "
                              "auto = lago in 2-D, chordal in 3-D (default: [posegraph] of "
                              "--config, else auto)")
-    vis = p.add_argument_group("image sequences")
+
+
+def _add_image_options(vis) -> None:
     vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
                      help="corner detector and matching (default: [tracker] of --config, else harris)")
     vis.add_argument("--odometry", choices=("auto", "sequence", "derived", "none"), default=None,
@@ -135,7 +142,21 @@ def register(sub) -> None:
                           "first trained on the sequence's own images (an extra pass)")
     vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
                      help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
-    p.set_defaults(func=cmd_run)
+    vis.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
+                     help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
+                          "backwards); ground truth and odometry follow")
+    vis.add_argument("--save-map", type=Path, default=None, metavar="DIR",
+                     help="save the map (keyframes, landmarks with covariances, descriptors and "
+                          "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
+                          "(isam2 only)")
+    vis.add_argument("--map", type=Path, default=None, metavar="DIR",
+                     help="continue mapping from a saved map: the first frame is relocalised in "
+                          "it (its pose and covariance start the run); with --save-map the "
+                          "joint map of both sessions is saved")
+    vis.add_argument("--relocalise", action="store_true",
+                     help="when active search loses the track, relocalise against the run's own "
+                          "map (PnP, added as a closure; isam2 only); metrics.json counts the "
+                          "losses and recoveries ([relocalise] of --config)")
 
 
 

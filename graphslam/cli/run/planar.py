@@ -16,9 +16,11 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
     """Flags that would have no effect on this 2-D run are refused, one line each."""
     from graphslam import registry
 
-    for flag in ("frontend", "odometry", "odometry_noise", "vocab"):
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "frames", "save_map", "map"):
         if getattr(args, flag, None) is not None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
+    if getattr(args, "relocalise", False):
+        raise GraphSlamError("--relocalise applies to image sequences only")
     if args.loops:
         raise GraphSlamError("--loops applies to image sequences only (pose graphs bring "
                              "their own closures)")

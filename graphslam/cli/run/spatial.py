@@ -93,6 +93,10 @@ def _load_sequence(args, config):
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
         sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
+    if getattr(args, "frames", None) is not None:
+        from graphslam.sources.spatial.frames import parse_frames, select_frames
+
+        sequence = select_frames(sequence, parse_frames(args.frames))
     return sequence
 
 
@@ -140,24 +144,33 @@ def run(args: argparse.Namespace) -> int:
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
+    from graphslam.cli.run.maps import chain_hooks, save_run_map, session_extras
+
+    prior_map, start_pose, mapper, relocaliser = session_extras(args, config, sequence, backend,
+                                                                tracker)
+    hook = chain_hooks(hook, mapper, relocaliser)
     closer = None
     if loops:
         closer = _loop_closer(args, config, sequence, backend, n_frames,
                               None if recorder is None else recorder.loop_hook(sequence))
     result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
                     max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
-                    frontend=tracker_cfg.detector, loop_closer=closer)
+                    frontend=tracker_cfg.detector, loop_closer=closer, start_pose=start_pose)
     metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
                                  wall_s=time.perf_counter() - t0)
     metrics.backend = args.backend
     metrics.backend_class = result.backend
     if closer is not None:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
+    if relocaliser is not None:
+        metrics.tracking_loss = relocaliser.stats
     paths = vp.write_outputs(result, out_dir, metrics)
     if closer is not None:
         from graphslam.outputs.loops import write_loops
 
         paths.update(write_loops(closer, out_dir))
+    if mapper is not None:
+        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
         if closer is not None:
@@ -237,6 +250,10 @@ def format_summary(m) -> str:
                      f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
+    if m.tracking_loss:
+        tl = m.tracking_loss
+        rows.append(("tracking losses / relocalised / found again",
+                     f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}"))
     if m.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

@@ -1,0 +1,139 @@
+"""Issue 18's "done means", measured: maps saved, loaded and localised against.
+
+1. Synthetic room (1.5 laps, 300 frames): ``graphslam run --frames 0:200
+   --save-map``, then ``graphslam localize --frames 200:300`` from an unknown
+   start pose; localised share, ATE (the map's frame, no alignment), largest
+   error of a placed frame. Baseline, same process: the full SLAM run over all
+   300 frames (its SE(3)-aligned ATE, and its unaligned error over frames
+   200-299, the same frames).
+2. KITTI 07 frames 0-159: map the even frames (``--frames 0:160:2``,
+   ``benchmarks/kitti07_visual.toml``, derived odometry), localise the odd
+   ones (``1:160:2``) from an unknown start; localised share and median error.
+   The same odd frames played backwards (``159::-2``), whatever they give.
+3. Tracking loss: frames 200-299 of the room with 10 black frames in the
+   middle (240-249): frames until placed again after them.
+4. Round trip: save, load, save gives identical files.
+
+    python benchmarks/bench_localize.py [--out FILE.json] [--skip-kitti]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from graphslam.cli.main import main as graphslam  # noqa: E402
+
+KITTI = ROOT.parent / "shared" / "data" / "kitti07"
+BLACK = range(40, 50)  # frames 240-249 of the localised range 200:300
+
+
+def cli(*argv) -> None:
+    rc = graphslam([*map(str, argv), "--quiet"])
+    if rc != 0:
+        raise SystemExit(f"graphslam {' '.join(map(str, argv))} exited with {rc}")
+
+
+def metrics(folder: Path) -> dict:
+    return json.loads((folder / "metrics.json").read_text())
+
+
+def tum_xyz(path: Path) -> np.ndarray:
+    return np.loadtxt(path)[:, 1:4]
+
+
+def room(tmp: Path) -> dict:
+    cli("run", "--dataset", "synthetic-images", "--frames", "0:200", "--save-map", tmp / "map",
+        "--out", tmp / "map_run", "--rerun", "off")
+    cli("localize", "--map", tmp / "map", "--dataset", "synthetic-images", "--frames", "200:300",
+        "--out", tmp / "loc")
+    cli("run", "--dataset", "synthetic-images", "--out", tmp / "full", "--rerun", "off")
+    loc, full = metrics(tmp / "loc"), metrics(tmp / "full")
+    err = np.linalg.norm(tum_xyz(tmp / "full/trajectory.tum") - tum_xyz(tmp / "full/ground_truth.tum"),
+                         axis=1)[200:]
+    return {"localised_fraction": loc["localised_fraction"], "tracked": loc["tracked"],
+            "relocalisations": loc["relocalisations"], "lost_frames": loc["lost_frames"],
+            "ate_rmse_m": loc["ate_rmse_m"], "error_max_m": loc["error_max_m"],
+            "frames_over_0_5m": loc["frames_over_0_5m"],
+            "map_run_ate_rmse_m_se3": metrics(tmp / "map_run")["ate_rmse_m"],
+            "full_slam_ate_rmse_m_se3": full["ate_rmse_m"],
+            "full_slam_error_rmse_m_frames_200_299_unaligned": float(np.sqrt(np.mean(err**2))),
+            "pass": bool(loc["localised_fraction"] >= 0.95 and loc["ate_rmse_m"] <= full["ate_rmse_m"]
+                         and loc["frames_over_0_5m"] == 0)}
+
+
+def kitti(tmp: Path) -> dict:
+    cli("run", "--dataset", KITTI, "--frames", "0:160:2", "--config",
+        ROOT / "benchmarks/kitti07_visual.toml", "--save-map", tmp / "kmap", "--out",
+        tmp / "kmap_run", "--rerun", "off")
+    out = {"map_run_ate_rmse_m_se3": metrics(tmp / "kmap_run")["ate_rmse_m"]}
+    for name, frames in (("forward", "1:160:2"), ("backwards", "159::-2")):
+        cli("localize", "--map", tmp / "kmap", "--dataset", KITTI, "--frames", frames,
+            "--out", tmp / name, "--rerun", "off")
+        m = metrics(tmp / name)
+        out[name] = {k: m.get(k) for k in ("frames", "localised_fraction", "relocalisations",
+                                           "lost_frames", "ate_rmse_m", "error_median_m",
+                                           "error_max_m")}
+    f = out["forward"]
+    out["pass"] = bool(f["localised_fraction"] >= 0.9 and f["error_median_m"] < 0.3)
+    return out
+
+
+def blackout(tmp: Path) -> dict:
+    from graphslam import registry
+    from graphslam.maps.files import load_map
+    from graphslam.pipelines import localize_run
+    from graphslam.pipelines.localize import make_localizer
+    from graphslam.sources.spatial.frames import black_out, parse_frames, select_frames
+
+    config = registry.read_config(None)
+    sel = select_frames(registry.load_image_sequence("synthetic-images", config=config),
+                        parse_frames("200:300"))
+    seq = black_out(sel, BLACK)
+    res = localize_run.run(seq, make_localizer(load_map(tmp / "map"), seq.K, config))
+    status = [p.status for p in res.placements]
+    after = status[BLACK[-1] + 1:]
+    recover = next((i + 1 for i, s in enumerate(after) if s != "lost"), None)
+    err = localize_run.errors_m(res)
+    return {"black_frames": f"{200 + BLACK[0]}-{200 + BLACK[-1]}",
+            "lost_in_blackout": sum(status[i] == "lost" for i in BLACK),
+            "frames_to_recover": recover, "status_after": after[:3],
+            "error_max_m": float(np.nanmax(err)), "pass": recover is not None and recover <= 3}
+
+
+def round_trip(tmp: Path) -> dict:
+    from graphslam.maps.files import load_map, save_map
+
+    save_map(load_map(tmp / "map"), tmp / "again")
+    same = {n: (tmp / "map" / n).read_bytes() == (tmp / "again" / n).read_bytes()
+            for n in ("map.json", "map.npz", "vocabulary.npz")}
+    return {"identical": same, "pass": all(same.values())}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--skip-kitti", action="store_true")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as t:
+        tmp = Path(t)
+        out = {"synthetic_room": room(tmp), "blackout": blackout(tmp), "round_trip": round_trip(tmp)}
+        if not args.skip_kitti and KITTI.is_dir():
+            out["kitti07"] = kitti(tmp)
+    text = json.dumps(out, indent=2)
+    print(text)
+    if args.out is not None:
+        args.out.write_text(text + "\n")
+    return 0 if all(v["pass"] for v in out.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

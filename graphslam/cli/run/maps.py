@@ -1,0 +1,116 @@
+"""``graphslam run --save-map DIR`` on an image sequence: record the map while running, save it after.
+
+Also ``--map`` (the start pose relocalised in a saved map) and ``--relocalise``
+(a frame hook). Kept apart from :mod:`graphslam.cli.run.spatial` so that the
+run itself only gains a few calls: :func:`session_extras`, :func:`chain_hooks`
+and :func:`save_run_map`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+def session_extras(args, config, sequence, backend, tracker):
+    """``(prior map, start pose, map recorder, relocaliser)`` of ``--map``, ``--save-map``
+    and ``--relocalise`` (None for each flag not given)."""
+    prior_map, start_pose = anchor_on_map(args, config, sequence)
+    return (prior_map, start_pose, start_map(args, config, sequence, backend, tracker),
+            start_relocaliser(args, config, sequence, backend))
+
+
+def start_map(args, config, sequence, backend, tracker):
+    """The :class:`~graphslam.pipelines.mapping.MapRecorder` of ``--save-map``, or None."""
+    if getattr(args, "save_map", None) is None:
+        return None
+    from graphslam.pipelines.mapping import MapRecorder, require_map_backend
+    from frontend.orb import OrbDetector
+    from loopclosure.detector import LoopDetectorConfig
+
+    require_map_backend(backend)
+    orb = config.section(LoopDetectorConfig).orb
+    return MapRecorder(OrbDetector(orb), tracker.patch_size, getattr(sequence, "indices", None))
+
+
+def anchor_on_map(args, config, sequence):
+    """``--map``: ``(map, (wTc0, covariance))`` of the first frame relocalised in the saved
+    map, or ``(None, None)`` without the flag. GraphSlamError when it cannot be placed."""
+    if getattr(args, "map", None) is None:
+        return None, None
+    from graphslam.maps.files import check_camera, load_map
+    from graphslam.pipelines.localize import make_localizer
+    from slamcore.errors import GraphSlamError
+
+    smap = load_map(args.map)
+    check_camera(smap, sequence.K, sequence.image_size, args.dataset)
+    placed = make_localizer(smap, sequence.K, config).locate(sequence.load(0))
+    if placed.wTc is None:
+        raise GraphSlamError(f"--map: the first frame cannot be relocalised in {args.map} "
+                             "(place recognition and PnP found no pose); start the run where "
+                             "the map was seen (--frames)")
+    return smap, (placed.wTc, placed.covariance)
+
+
+def start_relocaliser(args, config, sequence, backend):
+    """The :class:`~graphslam.pipelines.relocalise.RunRelocaliser` of ``--relocalise``, or None."""
+    if not getattr(args, "relocalise", False):
+        return None
+    from graphslam.pipelines.loop_closing import require_loop_closures
+    from graphslam.pipelines.relocalise import RelocaliseConfig, RunRelocaliser
+    from loopclosure.detector import LoopDetectorConfig
+    from loopclosure.pnp import PnpConfig
+    from frontend.orb import OrbDetector
+
+    require_loop_closures(backend)
+    return RunRelocaliser(sequence.K, config.section(RelocaliseConfig), config.section(PnpConfig),
+                          OrbDetector(config.section(LoopDetectorConfig).orb))
+
+
+def chain_hooks(*hooks):
+    """One frame hook calling each of ``hooks`` that is not None, in order (None if none)."""
+    live = [h for h in hooks if h is not None]
+    if not live:
+        return None
+    if len(live) == 1:
+        return live[0]
+
+    def hook(*a):
+        for h in live:
+            h(*a)
+    return hook
+
+
+def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool,
+                 prior_map=None) -> None:
+    """Build the map of the finished run (joined after ``prior_map``, the ``--map`` of
+    this session, when given), write it to ``--save-map`` and say so on stdout."""
+    import sys
+
+    from graphslam.maps.files import save_map
+
+    if result.interrupted:  # not finalised: no map from half an estimate
+        from graphslam.cli.common import warn
+
+        warn(f"run interrupted: no map saved in {args.save_map}")
+        return
+    seq = result.sequence
+    if not quiet and closer is None and prior_map is None:
+        print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
+    meta = {"dataset": seq.name, "source": seq.source_path, "frames": args.frames,
+            "n_frames": result.frames, "backend": result.backend, "frontend": result.frontend,
+            "odometry": result.odometry,
+            "tracker": dataclasses.asdict(tracker.config),
+            "bow_orb": dataclasses.asdict(recorder.bow_orb.config)}
+    vocabulary = None if closer is None else closer.detector.database.vocabulary
+    if prior_map is not None:
+        vocabulary = prior_map.vocabulary  # one vocabulary for the joint map's BoW vectors
+    smap = recorder.build(result.estimate, backend, vocabulary=vocabulary,
+                          meta=meta, K=seq.K, image_size=seq.image_size)
+    if prior_map is not None:
+        from graphslam.maps.merge import merge_maps
+
+        smap = merge_maps(prior_map, smap)
+    save_map(smap, args.save_map)
+    c = smap.counts()
+    print(f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
+          f"{c['observations']} observations")

@@ -1,0 +1,162 @@
+"""The map folder: ``map.json`` + ``map.npz`` + ``vocabulary.npz``, plain JSON and numpy.
+
+``map.json`` (self-describing; written last, so a folder whose writing was cut
+short has none and is refused as incomplete)::
+
+    {"format": "graphslam-map", "version": 1,
+     "camera": {"K": [[...]], "image_size": [W, H]},
+     "counts": {"keyframes": K, "landmarks": L, "observations": O, ...},
+     "arrays": {"file": "map.npz", "sha256": "..."},
+     "vocabulary": {"file": "vocabulary.npz", "sha256": "...", "kind": ..., "words": N},
+     "meta": {...: dataset, frames, back end, the configuration that built it}}
+
+``map.npz``: the arrays of :data:`graphslam.maps.spatial_map.ARRAYS` plus
+``landmark_patch``, stored uncompressed (a 10 000-keyframe map is written and
+read in well under a second) in a zip whose entries carry a fixed date, so
+that saving the same map twice gives the same bytes. Read with
+``allow_pickle=False``. ``vocabulary.npz`` is the vocabulary's own file format
+(:mod:`loopclosure.vocabulary_file`); a loaded map keeps its bytes and writes
+them back verbatim.
+
+Refused with one line (:class:`~slamcore.errors.InputError` naming the file):
+a missing file, JSON or zip damage, a file whose SHA-256 is not the one
+``map.json`` recorded (damaged, truncated or swapped), another format, a
+newer version, arrays that disagree with the counts; and, by
+:func:`check_camera`, a map built with another camera.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.maps.spatial_map import ARRAYS, SpatialMap
+from slamcore.errors import InputError
+
+FORMAT = "graphslam-map"
+FORMAT_VERSION = 1
+MAP_JSON, MAP_NPZ, VOCAB_NPZ = "map.json", "map.npz", "vocabulary.npz"
+#: Largest difference between two intrinsic matrices that are the same camera, pixels.
+CAMERA_TOL_PX = 1e-6
+#: Zip entry date of every array (the earliest a zip can hold): same map, same bytes.
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+_NAMES = tuple(ARRAYS) + ("landmark_patch",)
+
+
+def save_map(smap: SpatialMap, folder) -> dict[str, Path]:
+    """Write ``smap`` into ``folder`` (created); returns the three paths."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    smap.check(folder)
+    paths = {"json": folder / MAP_JSON, "arrays": folder / MAP_NPZ, "vocabulary": folder / VOCAB_NPZ}
+    paths["json"].unlink(missing_ok=True)  # a half-written folder must not look complete
+    vocab = smap.vocabulary_bytes
+    if vocab is None:
+        smap.vocabulary.save(paths["vocabulary"])
+        vocab = smap.vocabulary_bytes = paths["vocabulary"].read_bytes()
+    else:
+        paths["vocabulary"].write_bytes(vocab)
+    blob = _npz_bytes({name: getattr(smap, name) for name in _NAMES})
+    paths["arrays"].write_bytes(blob)
+    doc = {"format": FORMAT, "version": FORMAT_VERSION,
+           "camera": {"K": np.asarray(smap.K, float).tolist(),
+                      "image_size": [int(v) for v in smap.image_size]},
+           "counts": smap.counts(),
+           "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
+           "vocabulary": {"file": VOCAB_NPZ, "sha256": hashlib.sha256(vocab).hexdigest(),
+                          "kind": type(smap.vocabulary).__name__,
+                          "words": int(smap.vocabulary.n_words_)},
+           "meta": smap.meta}
+    paths["json"].write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    return paths
+
+
+def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An uncompressed .npz of ``arrays`` with fixed entry dates (byte-reproducible)."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name in sorted(arrays):
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.ascontiguousarray(arrays[name]), allow_pickle=False)
+            info = zipfile.ZipInfo(name + ".npy", date_time=_ZIP_DATE)
+            zf.writestr(info, buf.getvalue())
+    return out.getvalue()
+
+
+def read_map_json(folder) -> dict:
+    """``map.json`` of ``folder``, checked for format and version."""
+    path = Path(folder) / MAP_JSON
+    if not Path(folder).is_dir():
+        raise InputError("map folder not found", folder)
+    if not path.is_file():
+        raise InputError("not a complete map folder (no map.json)", path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"damaged map.json ({e})", path) from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise InputError(f"not a {FORMAT} file", path)
+    version = doc.get("version")
+    if not isinstance(version, int) or version < 1:
+        raise InputError(f"damaged map.json (version {version!r})", path)
+    if version > FORMAT_VERSION:
+        raise InputError(f"map format version {version} is newer than this graphslam reads "
+                         f"({FORMAT_VERSION}); upgrade graphslam", path)
+    for key in ("camera", "counts", "arrays", "vocabulary"):
+        if not isinstance(doc.get(key), dict):
+            raise InputError(f"damaged map.json (no {key!r} table)", path)
+    return doc
+
+
+def _checked_bytes(folder: Path, entry: dict, what: str) -> tuple[Path, bytes]:
+    path = folder / str(entry.get("file", ""))
+    if not path.is_file():
+        raise InputError(f"map {what} file missing", path)
+    data = path.read_bytes()
+    if hashlib.sha256(data).hexdigest() != entry.get("sha256"):
+        raise InputError(f"map {what} file is damaged, truncated or from another map "
+                         "(SHA-256 differs from map.json)", path)
+    return path, data
+
+
+def load_map(folder) -> SpatialMap:
+    """Read a map folder written by :func:`save_map` (refusals in the module docstring)."""
+    from loopclosure.vocabulary import load_vocabulary
+
+    folder = Path(folder)
+    doc = read_map_json(folder)
+    npz_path, blob = _checked_bytes(folder, doc["arrays"], "array")
+    vocab_path, vocab_bytes = _checked_bytes(folder, doc["vocabulary"], "vocabulary")
+    try:
+        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
+            arrays = {name: z[name] for name in _NAMES}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+        raise InputError(f"damaged map arrays ({type(e).__name__}: {e})", npz_path) from None
+    try:
+        K = np.array(doc["camera"]["K"], dtype=np.float64).reshape(3, 3)
+        size = tuple(int(v) for v in doc["camera"]["image_size"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
+    smap = SpatialMap(K=K, image_size=size, vocabulary=load_vocabulary(vocab_path),
+                      meta=doc.get("meta", {}), vocabulary_bytes=vocab_bytes, **arrays)
+    smap.check(npz_path)
+    if smap.counts() != doc["counts"]:
+        raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
+    return smap
+
+
+def check_camera(smap: SpatialMap, K: np.ndarray, image_size, where) -> None:
+    """InputError unless ``K`` and ``image_size`` are the camera the map was built with."""
+    size = tuple(int(v) for v in image_size)
+    if size != tuple(smap.image_size):
+        raise InputError(f"map was built with {smap.image_size[0]}x{smap.image_size[1]} images, "
+                         f"this sequence's are {size[0]}x{size[1]}", where)
+    diff = float(np.max(np.abs(np.asarray(K, float) - smap.K)))
+    if diff > CAMERA_TOL_PX:
+        raise InputError(f"map was built with another camera (intrinsics differ by up to "
+                         f"{diff:.3g} px)", where)

@@ -1,0 +1,148 @@
+"""``graphslam localize``: a sequence placed frame by frame in a fixed map, scored, written.
+
+:func:`run` feeds every frame to a :class:`~graphslam.pipelines.localize.Localizer`
+(Ctrl-C honoured between frames, as in the visual run); :func:`compute_metrics`
+scores it; :func:`write_outputs` writes ``localize.csv``, ``trajectory.tum``
+(placed frames only), ``ground_truth.tum`` (the same frames, when there is
+truth) and ``metrics.json``.
+
+Metrics: ``frames``; ``localised_fraction`` (tracked or relocalised over
+frames); ``tracked``; ``relocalisations`` (frames placed by place recognition,
+the first one included); ``lost_frames``; and with ground truth, over the
+placed frames, in the map's frame without any alignment (the map was built in
+the truth's frame, so an error is an error): ``ate_rmse_m``,
+``error_median_m``, ``error_max_m`` and ``frames_over_0_5m`` (placed frames
+more than 0.5 m from the truth).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook
+from graphslam.pipelines.localize import Localizer, Placement
+
+#: A placed frame farther than this from the truth is counted (issue 18's bound), metres.
+FAR_M = 0.5
+
+#: ``on_frame(i, image, placement)`` after each frame.
+LocalizeHook = Callable[[int, np.ndarray, Placement], None]
+
+
+@dataclass
+class LocalizeResult:
+    """Placements of every processed frame of ``sequence``."""
+
+    sequence: object
+    placements: list[Placement] = field(default_factory=list)
+    wall_s: float = 0.0
+    load_s: float = 0.0
+    interrupted: bool = False
+
+    @property
+    def frame_index(self) -> np.ndarray:
+        """(N,) original frame index of each processed frame (``--frames`` aware)."""
+        idx = getattr(self.sequence, "indices", None)
+        n = len(self.placements)
+        return np.arange(n, dtype=np.int64) if idx is None else np.asarray(idx[:n], np.int64)
+
+    def placed(self) -> np.ndarray:
+        return np.array([p.wTc is not None for p in self.placements], dtype=bool)
+
+
+def run(sequence, localizer: Localizer, *, progress: bool = False,
+        on_frame: LocalizeHook | None = None, max_frames: int | None = None) -> LocalizeResult:
+    """Place every frame of ``sequence`` in ``localizer``'s map."""
+    n = len(sequence) if max_frames is None else min(max_frames, len(sequence))
+    result = LocalizeResult(sequence)
+    bar = progress_bar(n, sequence.name, "localize", progress)
+    try:
+        with interrupt_between_frames() as stop:
+            for i in range(n):
+                if stop.requested:  # SIGINT/SIGTERM: keep the frames placed so far
+                    result.interrupted = True
+                    break
+                t = time.perf_counter()
+                image = sequence.load(i)
+                t1 = time.perf_counter()
+                placement = localizer.locate(image)
+                result.wall_s += time.perf_counter() - t1
+                result.load_s += t1 - t
+                result.placements.append(placement)
+                if on_frame is not None:
+                    on_frame(i, image, placement)
+                if bar is not None:
+                    bar.update(1)
+                signal_hook("step", i)
+    except KeyboardInterrupt:
+        if not result.placements:
+            raise
+        result.interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    return result
+
+
+def errors_m(result: LocalizeResult) -> np.ndarray | None:
+    """(N,) distance of each frame's placed camera centre to the truth (NaN when lost)."""
+    truth = getattr(result.sequence, "wTc_true", None)
+    if truth is None:
+        return None
+    out = np.full(len(result.placements), np.nan)
+    for i, p in enumerate(result.placements):
+        if p.wTc is not None:
+            out[i] = float(np.linalg.norm(p.wTc[:3, 3] - np.asarray(truth[i])[:3, 3]))
+    return out
+
+
+def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None = None) -> dict:
+    """The ``metrics.json`` of a localisation run (module docstring)."""
+    status = [p.status for p in result.placements]
+    n = len(status)
+    placed = result.placed()
+    whole = result.wall_s + result.load_s if wall_s is None else wall_s
+    m = {"dataset": result.sequence.name, "source": result.sequence.source_path, "map": map_info,
+         "frames": n, "localised_fraction": float(placed.mean()) if n else 0.0,
+         "tracked": status.count("tracked"), "relocalisations": status.count("relocalised"),
+         "lost_frames": status.count("lost"), "ate_rmse_m": None,
+         "wall_s": whole, "processing_s": result.wall_s, "image_load_s": result.load_s,
+         "frames_per_s": n / whole if whole > 0 else None, "interrupted": result.interrupted}
+    err = errors_m(result)
+    if err is not None and placed.any():
+        e = err[placed]
+        m.update(ate_rmse_m=float(np.sqrt(np.mean(e**2))), error_median_m=float(np.median(e)),
+                 error_max_m=float(np.max(e)), frames_over_0_5m=int(np.sum(e > FAR_M)),
+                 ate_alignment="none (map frame)")
+    return m
+
+
+def write_outputs(result: LocalizeResult, out_dir: Path, metrics: dict) -> dict[str, Path]:
+    """``localize.csv``, ``trajectory.tum``, ``ground_truth.tum`` (with truth), ``metrics.json``."""
+    from graphslam.outputs import writers
+    from graphslam.outputs.localize import write_localize_csv
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    seq = result.sequence
+    n = len(result.placements)
+    stamps = (result.frame_index.astype(float) if seq.stamps_s is None
+              else np.asarray(seq.stamps_s, float)[:n])
+    placed = result.placed()
+    paths = {"localize": out_dir / "localize.csv", "trajectory": out_dir / "trajectory.tum",
+             "metrics": out_dir / "metrics.json"}
+    write_localize_csv(paths["localize"], result.frame_index, stamps,
+                       [p.status for p in result.placements], [p.wTc for p in result.placements],
+                       [p.covariance for p in result.placements])
+    wTc = np.array([p.wTc for p in result.placements if p.wTc is not None]).reshape(-1, 4, 4)
+    writers.write_tum_spatial(paths["trajectory"], stamps[placed], wTc)
+    if seq.wTc_true is not None:
+        paths["ground_truth"] = out_dir / "ground_truth.tum"
+        writers.write_tum_spatial(paths["ground_truth"], stamps[placed],
+                                  np.asarray(seq.wTc_true)[:n][placed])
+    writers.write_json(paths["metrics"], metrics)
+    return paths
