@@ -84,6 +84,20 @@ class PoseGraph:
         rank = self.index_of(self.edges.ravel()).reshape(-1, 2)
         return np.abs(rank[:, 0] - rank[:, 1]) == 1
 
+    def subgraph(self, keep_rows: np.ndarray) -> "PoseGraph":
+        """The poses of ``keep_rows`` ((N,) bool) and the edges among them."""
+        from dataclasses import replace
+
+        keep_rows = np.asarray(keep_rows, dtype=bool)
+        keep_ids = self.ids[keep_rows]
+        keep = np.isin(self.edges, keep_ids).all(axis=1)
+        return replace(
+            self, ids=keep_ids, vertices=self.vertices[keep_rows],
+            has_vertex=self.has_vertex[keep_rows], edges=self.edges[keep],
+            measurements=self.measurements[keep], information=self.information[keep],
+            edge_lines=self.edge_lines[keep], fixed=self.fixed[np.isin(self.fixed, keep_ids)],
+            equiv=self.equiv[np.isin(self.equiv, keep_ids).all(axis=1)])
+
     def with_vertices(self, vertices: np.ndarray) -> "PoseGraph":
         """The same graph with other vertex values (e.g. an optimised estimate)."""
         from dataclasses import replace

@@ -106,6 +106,31 @@ def test_run_signal_keeps_every_file(tmp_path, at, sig):
         assert metrics["steps"] == 40
 
 
+@pytest.mark.parametrize("backend, at, sig", [
+    ("isam2", "step:40", "INT"), ("isam2", "step:40", "TERM"), ("isam2", "finalize", "INT"),
+    ("batch", "finalize", "TERM"), ("isam2", "write", "INT")])
+def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
+    import gtsam
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    done = graphslam(tmp_path, "run", "--dataset", w100, "--backend", backend, "--out", "o",
+                     "--quiet", at=at, sig=sig)
+    assert done.returncode == STATUS[sig]
+    assert f"interrupted (SIG{sig})" in one_line(done.stderr)
+    out = tmp_path / "o"
+    assert {p.name for p in out.iterdir()} == {"trajectory.tum", "graph.graph", "closures.csv",
+                                               "metrics.json", "run.rrd"}
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    traj = np.loadtxt(out / "trajectory.tum", ndmin=2)
+    # a stop between iSAM2 updates keeps the poses added so far, else every pose
+    assert len(traj) == metrics["poses"] == (40 if at.startswith("step") else 100)
+    assert np.all(np.isfinite(traj))
+    edges = [ln for ln in (out / "graph.graph").read_text().splitlines() if ln.startswith("EDGE")]
+    assert len(edges) == metrics["edges"]
+    verify_rrd(out / "run.rrd")
+
+
 def test_signal_before_the_run_is_one_line(tmp_path):
     done = graphslam(tmp_path, "run", "--max-steps", "5", "--out", "o", "--quiet",
                      at="start", sig="TERM")

@@ -16,6 +16,7 @@ import numpy as np
 
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import SolveResult, solve
+from graphslam.pipelines.common import interrupt_between_frames, signal_hook, stop_requested
 from slamcore import posegraph as pg
 from slamcore.errors import InputError
 
@@ -52,6 +53,7 @@ class PoseGraphRunMetrics:
     numerical_recoveries: list[str] | None = None
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
+    interrupted: bool = False
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
@@ -64,8 +66,25 @@ class PoseGraphRunMetrics:
 
 def run(graph: pg.PoseGraph, solver: str = "isam2",
         config: PoseGraphConfig | None = None) -> SolveResult:
-    """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`."""
-    return solve(graph, config, solver)
+    """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`.
+
+    SIGINT or SIGTERM between iSAM2 updates ends the solve with the poses added
+    so far (``result.cut``); during the batch LM (C++) it takes effect when the
+    LM ends, the estimate whole.
+    """
+    with interrupt_between_frames() as stop:
+        def should_stop(update: int) -> bool:
+            signal_hook("step", update)
+            return stop.requested
+
+        result = solve(graph, config, solver, should_stop)
+        signal_hook("finalize")  # the batch LM (C++) defers a signal to here
+    return result
+
+
+def solved_graph(graph: pg.PoseGraph, result: SolveResult) -> pg.PoseGraph:
+    """The graph ``result`` covers: ``graph``, or the poses solved before a stop."""
+    return graph if result.cut is None else result.cut
 
 
 def ground_truth_of(graph: pg.PoseGraph, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -104,7 +123,9 @@ def _xy_yaw(T: np.ndarray) -> np.ndarray:
 
 def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
             truth: tuple[np.ndarray, np.ndarray] | None = None) -> PoseGraphRunMetrics:
-    """The run's metrics; ATE of the estimate and of the odometry chain when ``truth``."""
+    """The run's metrics; ATE of the estimate and of the odometry chain when ``truth``
+    (of the poses solved, when a stop cut the solve)."""
+    graph = solved_graph(graph, result)
     closures = ~graph.odometry_mask()
     shonan = result.certificate
     return PoseGraphRunMetrics(
@@ -118,7 +139,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         numerical_recoveries=result.recoveries or None,
         ate_rmse_m=None if truth is None else ate_rmse(graph, result.params, truth),
         odometry_ate_rmse_m=None if truth is None else ate_rmse(
-            graph, pg.chain_initialisation(graph), truth))
+            graph, pg.chain_initialisation(graph), truth),
+        interrupted=result.cut is not None or stop_requested())
 
 
 def trajectory_matrices(graph: pg.PoseGraph, params: np.ndarray) -> np.ndarray:
@@ -139,12 +161,17 @@ def write_outputs(graph: pg.PoseGraph, result: SolveResult, out_dir: Path,
     from graphslam.outputs import posegraph as graph_writer
     from graphslam.outputs import writers
 
+    graph = solved_graph(graph, result)
+
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"trajectory": out_dir / "trajectory.tum",
              "graph": out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format]),
              "closures": out_dir / "closures.csv", "metrics": out_dir / "metrics.json"}
     writers.write_tum_spatial(paths["trajectory"], graph.ids.astype(float),
                               trajectory_matrices(graph, result.params))
+    signal_hook("write")
+    if stop_requested():  # asked while the outputs are written: say so in them
+        run_metrics.interrupted = True
     graph_writer.write_pose_graph(paths["graph"], graph.with_vertices(result.params))
     write_closures_csv(paths["closures"], graph, result)
     writers.write_json(paths["metrics"], run_metrics.to_dict())

@@ -288,17 +288,11 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     (``--max-steps``); InputError if they do not form a connected graph."""
     if n_poses >= graph.n_poses:
         return graph
-    keep_ids = graph.ids[:n_poses]
-    keep = np.isin(graph.edges, keep_ids).all(axis=1)
-    if not keep.any():
+    keep_rows = np.arange(graph.n_poses) < n_poses
+    cut = graph.subgraph(keep_rows)
+    if not cut.n_edges:
         raise InputError(f"the first {n_poses} poses have no edge between them",
                          graph.source_path)
-    cut = replace(
-        graph, ids=keep_ids, vertices=graph.vertices[:n_poses],
-        has_vertex=graph.has_vertex[:n_poses], edges=graph.edges[keep],
-        measurements=graph.measurements[keep], information=graph.information[keep],
-        edge_lines=graph.edge_lines[keep], fixed=graph.fixed[np.isin(graph.fixed, keep_ids)],
-        equiv=graph.equiv[np.isin(graph.equiv, keep_ids).all(axis=1)])
     check_connected(cut, graph.source_path)
     return with_chain_start(cut)
 

@@ -16,6 +16,7 @@ Cholesky is re-run with QR. Every such recovery is one sentence in
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -48,6 +49,8 @@ class SolveResult:
         rejected: (M,) bool, closures GNC weighed below 0.5.
         recoveries: numerical fallbacks taken, one sentence each.
         isam2_s: time of the incremental part alone (None for batch).
+        cut: the poses solved when a stop cut the incremental solve (their
+            subgraph, which ``params`` and ``residuals`` cover), else None.
     """
 
     solver: str
@@ -63,11 +66,21 @@ class SolveResult:
     wall_s: float = 0.0
     isam2_s: float | None = None
     isam2_cost: float | None = None
+    cut: PoseGraph | None = None
+
+
+#: ``should_stop(update)``: asked before each iSAM2 update; True ends the solve there.
+StopCheck = Callable[[int], bool]
 
 
 def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
-          solver: str = "isam2") -> SolveResult:
-    """Optimise ``graph`` with ``solver`` (``isam2`` or ``batch``)."""
+          solver: str = "isam2", should_stop: StopCheck | None = None) -> SolveResult:
+    """Optimise ``graph`` with ``solver`` (``isam2`` or ``batch``).
+
+    ``should_stop``: a stop between iSAM2 updates returns the estimate of the
+    poses added so far (:attr:`SolveResult.cut`), with no polish. The batch LM
+    runs in C++ to its end.
+    """
     config = config or PoseGraphConfig()
     if solver not in SOLVERS:
         raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: isam2, batch)")
@@ -78,8 +91,10 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
     if solver == "isam2":
         t1 = time.perf_counter()
         incremental = Isam2PoseGraph(graph, config, edges)
-        values = incremental.run()
+        values = incremental.run(should_stop)
         recoveries += incremental.recoveries
+        if incremental.stopped:
+            return _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
         if not config.polish:
             return _result(graph, solver, initialisers.Start("isam2", values), values, None,
@@ -107,6 +122,19 @@ def _result(graph, solver, start, values, iterations, edges, rejected, recoverie
                        fx.cost(graph, start.values, edges), fx.cost(graph, values, edges),
                        iterations, residuals, rejected, start.certificate, recoveries,
                        time.perf_counter() - t0, isam2_s, isam2_cost)
+
+
+def _cut_result(graph: PoseGraph, values: gtsam.Values, recoveries: list[str], t0: float,
+                isam2_s: float) -> SolveResult:
+    """The incremental estimate of the poses added before a stop, on their subgraph."""
+    added = np.array([values.exists(k) for k in graph.ids.tolist()], dtype=bool)
+    cut = graph.subgraph(added)
+    edges = fx.edge_graph(cut)
+    result = _result(cut, "isam2", initialisers.Start("isam2", values), values, None, edges,
+                     np.zeros(cut.n_edges, dtype=bool), recoveries, t0, isam2_s,
+                     fx.cost(cut, values, edges))
+    result.cut = cut
+    return result
 
 
 def with_priors(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -190,9 +218,15 @@ class Isam2PoseGraph:
         self.anchored = fixed or {int(graph.ids[0])}
         self.ids = graph.ids.tolist()
         self.to_row = self.rows[:, 1].tolist()
+        self.stopped = False
 
-    def run(self) -> gtsam.Values:
+    def run(self, should_stop: StopCheck | None = None) -> gtsam.Values:
+        """The estimate; when ``should_stop`` says so, that of the poses added so far
+        (:attr:`stopped` set; at least the first update is made)."""
         for n in range(len(self.steps)):
+            if n > 0 and should_stop is not None and should_stop(n):
+                self.stopped = True
+                break
             if not self.step(n):
                 return self._batch_rest(n)
         return self.isam.calculateEstimate()

@@ -64,16 +64,17 @@ def run(args: argparse.Namespace) -> int:
     if args.rerun != "off":
         paths.update(record(args, graph, result, out_dir))
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
-    return report_outputs(format_summary(metrics), out_dir, paths, False)
+    return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 
 def record(args, graph, result, out_dir: Path) -> dict[str, Path]:
     """Rerun recording of the optimised graph, rejected closures in their own colour."""
     from graphslam.cli.common import close_recorder, open_recorder
+    from graphslam.pipelines.posegraph import solved_graph
     from graphslam.visualisation.spatial import log_pose_graph
 
     log, mode = open_recorder(_opener, args.rerun, out_dir / "run.rrd", args.rerun_url)
-    log_pose_graph(log, graph, result.params, result.rejected)
+    log_pose_graph(log, solved_graph(graph, result), result.params, result.rejected)
     close_recorder(log)
     return {"recording": out_dir / "run.rrd"} if mode == "save" else {}
 
@@ -100,6 +101,8 @@ def format_summary(metrics) -> str:
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
     ]
+    if metrics.interrupted:
+        rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
     if metrics.shonan_min_eigenvalue is not None:
         rows.append(("Shonan min eigenvalue", fmt(metrics.shonan_min_eigenvalue, ".3g")))
     for note in metrics.numerical_recoveries or ():
