@@ -171,6 +171,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         from slamcore.files import check_output_dir
 
         check_output_dir(args.out)
+    if getattr(args, "save_map", None) is not None:
+        from slamcore.files import check_output_dir
+
+        check_output_dir(args.save_map, "--save-map")
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
