@@ -19,7 +19,7 @@ from graphslam.maps.planar_map import PlanarMap
 from slamcore.errors import InputError
 from tests.test_maps import random_map
 
-#: Steps of the short synthetic run (about a third of a lap: 2 minutes of driving).
+#: Steps of the short synthetic run (150 s of driving, 0.4 of a lap).
 STEPS = "150"
 #: How much worse than SLAM on the same steps a localisation-only run may be, metres.
 #: Its map comes from that very SLAM run, so it should match it; the margin covers
