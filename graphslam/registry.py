@@ -117,6 +117,30 @@ def make_backend(name: str, *, config: ConfigSource = None,
     raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
 
 
+#: Back ends that localise against a fixed 2-D map (``graphslam run --map``).
+LOCALISING_BACKENDS = ("isam2", "ekf")
+
+
+def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
+                   config: ConfigSource = None, overrides: dict | None = None) -> Backend:
+    """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
+    positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
+    if name == "isam2":
+        from graphslam.backends.planar.isam2 import Isam2Config
+        from graphslam.backends.planar.isam2_localise import Isam2Localiser
+
+        return Isam2Localiser(landmark_ids, landmarks_w, landmark_cov,
+                              load_section(Isam2Config, config, overrides))
+    if name == "ekf":
+        from filters.ekf_localise import EkfLocaliser
+        from filters.ekf_slam_config import EkfSlamConfig
+
+        return EkfLocaliser(landmark_ids, landmarks_w, landmark_cov,
+                            load_section(EkfSlamConfig, config, overrides))
+    raise ConfigError(f"--map: {name} cannot localise against a fixed map "
+                      f"(available: {', '.join(LOCALISING_BACKENDS)})")
+
+
 def seed_override(name: str, seed: int | None) -> dict:
     """Config override that hands ``--seed`` to back ends that draw random numbers."""
     if seed is None or name not in SEEDED_BACKENDS:

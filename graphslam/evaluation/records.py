@@ -64,6 +64,8 @@ class PlanarRunMetrics:
             the step (iSAM2's factorisation fallbacks); left out when none.
         recoveries: per-update safeguards counted by kind (filters only; see
             :class:`filters.numerics.Recoveries`), or None.
+        map, localisation_only, unmapped_observations: with ``run --map``: the map
+            folder, True, and the observations of landmarks not in the map (not used).
     """
 
     dataset: str
@@ -87,10 +89,14 @@ class PlanarRunMetrics:
     rms_to_isam2_m: float | None = None
     numerical_recoveries: list[str] | None = None
     recoveries: dict[str, int] | None = None
+    map: str | None = None
+    localisation_only: bool | None = None
+    unmapped_observations: int | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
-        "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries"})
+        "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries",
+        "map", "localisation_only", "unmapped_observations"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

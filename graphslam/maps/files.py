@@ -1,17 +1,25 @@
-"""The map folder: ``map.json`` + ``map.npz`` + ``vocabulary.npz``, plain JSON and numpy.
+"""The map folder: ``map.json`` + ``map.npz`` (+ ``vocabulary.npz``), plain JSON and numpy.
+
+Two kinds share the format and its checks: ``"spatial"`` (a visual map of an
+image-sequence run, :class:`~graphslam.maps.spatial_map.SpatialMap`) and
+``"planar"`` (a 2-D landmark map, :class:`~graphslam.maps.planar_map.PlanarMap`).
 
 ``map.json`` (self-describing; written last, so a folder whose writing was cut
 short has none and is refused as incomplete)::
 
-    {"format": "graphslam-map", "version": 1,
-     "camera": {"K": [[...]], "image_size": [W, H]},
+    {"format": "graphslam-map", "version": 1, "kind": "spatial" | "planar",
      "counts": {"keyframes": K, "landmarks": L, "observations": O, ...},
      "arrays": {"file": "map.npz", "sha256": "..."},
-     "vocabulary": {"file": "vocabulary.npz", "sha256": "...", "kind": ..., "words": N},
-     "meta": {...: dataset, frames, back end, the configuration that built it}}
+     "meta": {...: dataset, frames or steps, back end, the configuration that built it},
+     spatial only:
+     "camera": {"K": [[...]], "image_size": [W, H]},
+     "vocabulary": {"file": "vocabulary.npz", "sha256": "...", "kind": ..., "words": N}}
+
+A version-1 map without ``kind`` is spatial (3-D maps were written before 2-D ones).
 
 ``map.npz``: the arrays of :data:`graphslam.maps.spatial_map.ARRAYS` plus
-``landmark_patch``, stored uncompressed (a 10 000-keyframe map is written and
+``landmark_patch`` (spatial) or of :data:`graphslam.maps.planar_map.ARRAYS`
+(planar), stored uncompressed (a 10 000-keyframe map is written and
 read in well under a second) in a zip whose entries carry a fixed date, so
 that saving the same map twice gives the same bytes. Read with
 ``allow_pickle=False``. ``vocabulary.npz`` is the vocabulary's own file format
@@ -21,7 +29,8 @@ them back verbatim.
 Refused with one line (:class:`~slamcore.errors.InputError` naming the file):
 a missing file, JSON or zip damage, a file whose SHA-256 is not the one
 ``map.json`` recorded (damaged, truncated or swapped), another format, a
-newer version, arrays that disagree with the counts; and, by
+newer version, a map of the other kind (a 2-D map given to an image-sequence
+run or the reverse), arrays that disagree with the counts; and, by
 :func:`check_camera`, a map built with another camera.
 """
 
@@ -35,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS, PlanarMap
 from graphslam.maps.spatial_map import ARRAYS, SpatialMap
 from slamcore.errors import InputError
 
@@ -46,6 +56,10 @@ CAMERA_TOL_PX = 1e-6
 #: Zip entry date of every array (the earliest a zip can hold): same map, same bytes.
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 _NAMES = tuple(ARRAYS) + ("landmark_patch",)
+SPATIAL, PLANAR = "spatial", "planar"
+#: What each kind is called in a refusal, and the tables its map.json must hold.
+_KIND_TEXT = {SPATIAL: "3-D map of an image sequence", PLANAR: "2-D landmark map"}
+_TABLES = {SPATIAL: ("camera", "counts", "arrays", "vocabulary"), PLANAR: ("counts", "arrays")}
 
 
 def save_map(smap: SpatialMap, folder) -> dict[str, Path]:
@@ -61,19 +75,36 @@ def save_map(smap: SpatialMap, folder) -> dict[str, Path]:
         vocab = smap.vocabulary_bytes = paths["vocabulary"].read_bytes()
     else:
         paths["vocabulary"].write_bytes(vocab)
-    blob = _npz_bytes({name: getattr(smap, name) for name in _NAMES})
-    paths["arrays"].write_bytes(blob)
-    doc = {"format": FORMAT, "version": FORMAT_VERSION,
-           "camera": {"K": np.asarray(smap.K, float).tolist(),
+    doc = {"camera": {"K": np.asarray(smap.K, float).tolist(),
                       "image_size": [int(v) for v in smap.image_size]},
-           "counts": smap.counts(),
-           "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
            "vocabulary": {"file": VOCAB_NPZ, "sha256": hashlib.sha256(vocab).hexdigest(),
                           "kind": type(smap.vocabulary).__name__,
-                          "words": int(smap.vocabulary.n_words_)},
-           "meta": smap.meta}
-    paths["json"].write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+                          "words": int(smap.vocabulary.n_words_)}}
+    _write_arrays_and_json(paths, SPATIAL, {name: getattr(smap, name) for name in _NAMES},
+                           smap.counts(), smap.meta, doc)
     return paths
+
+
+def save_planar_map(pmap: PlanarMap, folder) -> dict[str, Path]:
+    """Write the 2-D map ``pmap`` into ``folder`` (created); returns the two paths."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    pmap.check(folder)
+    paths = {"json": folder / MAP_JSON, "arrays": folder / MAP_NPZ}
+    paths["json"].unlink(missing_ok=True)  # a half-written folder must not look complete
+    _write_arrays_and_json(paths, PLANAR, pmap.arrays(), pmap.counts(), pmap.meta, {})
+    return paths
+
+
+def _write_arrays_and_json(paths: dict[str, Path], kind: str, arrays: dict[str, np.ndarray],
+                           counts: dict, meta: dict, extra: dict) -> None:
+    """``map.npz`` of ``arrays``, then ``map.json`` (last: its presence means complete)."""
+    blob = _npz_bytes(arrays)
+    paths["arrays"].write_bytes(blob)
+    doc = {"format": FORMAT, "version": FORMAT_VERSION, "kind": kind, "counts": counts,
+           "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
+           "meta": meta, **extra}
+    paths["json"].write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
 def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -88,8 +119,8 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return out.getvalue()
 
 
-def read_map_json(folder) -> dict:
-    """``map.json`` of ``folder``, checked for format and version."""
+def read_map_json(folder, kind: str = SPATIAL) -> dict:
+    """``map.json`` of ``folder``, checked for format, version and ``kind``."""
     path = Path(folder) / MAP_JSON
     if not Path(folder).is_dir():
         raise InputError("map folder not found", folder)
@@ -107,7 +138,13 @@ def read_map_json(folder) -> dict:
     if version > FORMAT_VERSION:
         raise InputError(f"map format version {version} is newer than this graphslam reads "
                          f"({FORMAT_VERSION}); upgrade graphslam", path)
-    for key in ("camera", "counts", "arrays", "vocabulary"):
+    found = doc.get("kind", SPATIAL)  # version-1 maps written before 2-D maps have none
+    if found not in _TABLES:
+        raise InputError(f"damaged map.json (kind {found!r})", path)
+    if found != kind:
+        raise InputError(f"this is a {_KIND_TEXT[found]}; this run needs a {_KIND_TEXT[kind]}",
+                         path)
+    for key in _TABLES[kind]:
         if not isinstance(doc.get(key), dict):
             raise InputError(f"damaged map.json (no {key!r} table)", path)
     return doc
@@ -132,11 +169,7 @@ def load_map(folder) -> SpatialMap:
     doc = read_map_json(folder)
     npz_path, blob = _checked_bytes(folder, doc["arrays"], "array")
     vocab_path, vocab_bytes = _checked_bytes(folder, doc["vocabulary"], "vocabulary")
-    try:
-        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
-            arrays = {name: z[name] for name in _NAMES}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
-        raise InputError(f"damaged map arrays ({type(e).__name__}: {e})", npz_path) from None
+    arrays = _read_npz(blob, npz_path, _NAMES)
     try:
         K = np.array(doc["camera"]["K"], dtype=np.float64).reshape(3, 3)
         size = tuple(int(v) for v in doc["camera"]["image_size"])
@@ -148,6 +181,30 @@ def load_map(folder) -> SpatialMap:
     if smap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
     return smap
+
+
+def _read_npz(blob: bytes, npz_path: Path, names) -> dict[str, np.ndarray]:
+    try:
+        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
+            return {name: z[name] for name in names}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+        raise InputError(f"damaged map arrays ({type(e).__name__}: {e})", npz_path) from None
+
+
+def load_planar_map(folder) -> PlanarMap:
+    """Read a 2-D map folder written by :func:`save_planar_map` (refusals in the module
+    docstring; a 3-D map is refused)."""
+    folder = Path(folder)
+    doc = read_map_json(folder, PLANAR)
+    npz_path, blob = _checked_bytes(folder, doc["arrays"], "array")
+    meta = doc.get("meta", {})
+    if not isinstance(meta, dict):
+        raise InputError("damaged map.json (meta)", folder / MAP_JSON)
+    pmap = PlanarMap(meta=meta, **_read_npz(blob, npz_path, PLANAR_ARRAYS))
+    pmap.check(npz_path)
+    if pmap.counts() != doc["counts"]:
+        raise InputError(f"map arrays hold {pmap.counts()}, map.json says {doc['counts']}", npz_path)
+    return pmap
 
 
 def check_camera(smap: SpatialMap, K: np.ndarray, image_size, where) -> None:

@@ -148,11 +148,12 @@ def _add_image_options(vis) -> None:
     vis.add_argument("--save-map", type=Path, default=None, metavar="DIR",
                      help="save the map (keyframes, landmarks with covariances, descriptors and "
                           "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
-                          "(isam2 only)")
+                          "(isam2 only); 2-D runs: the landmarks with their 2x2 covariances")
     vis.add_argument("--map", type=Path, default=None, metavar="DIR",
                      help="continue mapping from a saved map: the first frame is relocalised in "
                           "it (its pose and covariance start the run); with --save-map the "
-                          "joint map of both sessions is saved")
+                          "joint map of both sessions is saved. 2-D runs (isam2, ekf): "
+                          "localisation only, the map's landmarks held fixed, associated by id")
     vis.add_argument("--relocalise", action="store_true",
                      help="when active search loses the track, relocalise against the run's own "
                           "map (PnP, added as a closure; isam2 only); metrics.json counts the "
@@ -170,6 +171,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         from slamcore.files import check_output_dir
 
         check_output_dir(args.out)
+    if getattr(args, "save_map", None) is not None:
+        from slamcore.files import check_output_dir
+
+        check_output_dir(args.save_map, "--save-map")
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")

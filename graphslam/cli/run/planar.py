@@ -16,9 +16,16 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
     """Flags that would have no effect on this 2-D run are refused, one line each."""
     from graphslam import registry
 
-    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "frames", "save_map", "map"):
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "frames"):
         if getattr(args, flag, None) is not None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
+    if getattr(args, "map", None) is not None:
+        if args.backend not in registry.LOCALISING_BACKENDS:
+            raise ConfigError(f"--map: {args.backend} cannot localise against a fixed map "
+                              f"(2-D: {' or '.join(registry.LOCALISING_BACKENDS)})")
+        if getattr(args, "save_map", None) is not None:
+            raise ConfigError("--save-map with --map: a 2-D localisation run keeps the map "
+                              "fixed and adds no landmark, so there is no new map to save")
     if getattr(args, "relocalise", False):
         raise GraphSlamError("--relocalise applies to image sequences only")
     if args.loops:
@@ -55,7 +62,14 @@ def run(args: argparse.Namespace) -> int:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
-    backend = registry.make_backend(args.backend, config=config, overrides=overrides)
+    pmap = None
+    if getattr(args, "map", None) is not None:
+        from graphslam.pipelines import planar_maps
+
+        pmap = planar_maps.load_run_map(args.map, dataset.name, dataset.seed, config)
+        backend = planar_maps.localiser(args.backend, pmap, config, overrides)
+    else:
+        backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum",
@@ -73,10 +87,15 @@ def run(args: argparse.Namespace) -> int:
         log.start(dataset, n_steps)
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
+    save_map = getattr(args, "save_map", None)
     result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
-                          on_step=hook, with_covariances=log is not None or args.nees)
+                          on_step=hook,
+                          with_covariances=log is not None or args.nees or save_map is not None)
     metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
                                        wall_s=time.perf_counter() - t0)
+    if pmap is not None:
+        metrics.map, metrics.localisation_only = str(args.map), True
+        metrics.unmapped_observations = backend.unmapped_count
     nees = pipeline.add_nees(result, metrics, truth) if args.nees else None
     paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
     if nees is not None:
@@ -87,7 +106,26 @@ def run(args: argparse.Namespace) -> int:
         if mode == "save":
             paths["recording"] = out_dir / "run.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
-    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+    status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+    if save_map is not None:
+        save_planar_run_map(save_map, result, backend, config, args.max_steps)
+    return status
+
+
+def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> None:
+    """``--save-map``: the run's landmarks and covariances to ``folder``; say so on stdout."""
+    from graphslam.maps.files import save_planar_map
+    from graphslam.pipelines.planar_maps import build_run_map
+
+    if result.interrupted:  # no covariances, not finalised: no map from half an estimate
+        from graphslam.cli.common import warn
+
+        warn(f"run interrupted: no map saved in {folder}")
+        return
+    pmap = build_run_map(result, backend, config, max_steps)
+    save_planar_map(pmap, folder)
+    print(f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "
+          f"({result.steps} steps of {result.dataset.name}, {result.backend})")
 
 
 def format_summary(metrics) -> str:
@@ -110,6 +148,9 @@ def format_summary(metrics) -> str:
         rows.append(("numerical recovery", note))
     if metrics.recoveries and any(metrics.recoveries.values()):
         rows.append(("numerical recoveries", recoveries_text(metrics.recoveries)))
+    if metrics.localisation_only:
+        rows.append(("localisation only", f"map {metrics.map}"))
+        rows.append(("unmapped observations", metrics.unmapped_observations))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

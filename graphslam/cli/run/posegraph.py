@@ -21,6 +21,10 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
         if getattr(args, flag, None) is not None:
             raise ConfigError(f"--{flag.replace('_', '-')} does not apply to a pose-graph "
                               "solve (nothing is random or streamed)")
+    for flag in ("save_map", "map"):
+        if getattr(args, flag, None) is not None:
+            raise ConfigError(f"--{flag.replace('_', '-')} applies to landmark runs and image "
+                              "sequences, not to a pose-graph solve")
     if args.max_steps is not None and args.max_steps < 2:
         raise ConfigError("--max-steps must be at least 2 for a pose graph (one edge)")
     if args.loops:
