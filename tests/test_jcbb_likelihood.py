@@ -47,13 +47,16 @@ def test_a_wide_gate_does_not_buy_a_pairing():
     assert _one(np.diag([0.05, 0.01]), d2).hypothesis == [0]
 
 
-def _exhaustive_best(C, nu, pair_obs, pair_lm, gain, m):
-    """Best score over every hypothesis (one pair per observation at most, one per landmark)."""
+def _exhaustive_best(C, nu, pair_obs, pair_lm, gain, m, ambiguous=None):
+    """Best score over every hypothesis (one pair per observation at most, one per
+    landmark; with ``ambiguous``, never exactly one ambiguous pair)."""
     best, best_h = 0.0, ()
     options = [[None] + [p for p in range(len(pair_obs)) if pair_obs[p] == i] for i in range(m)]
     for choice in itertools.product(*options):
         pairs = [p for p in choice if p is not None]
         if len({pair_lm[p] for p in pairs}) < len(pairs) or not pairs:
+            continue
+        if ambiguous is not None and sum(bool(ambiguous[p]) for p in pairs) == 1:
             continue
         rows = np.array([[2 * p, 2 * p + 1] for p in pairs]).reshape(-1)
         Cs = C[np.ix_(rows, rows)]
@@ -68,8 +71,8 @@ def _exhaustive_best(C, nu, pair_obs, pair_lm, gain, m):
     return best_h
 
 
-@pytest.mark.parametrize("seed", range(8))
-def test_branch_and_bound_finds_the_exhaustive_optimum(seed):
+@pytest.mark.parametrize("seed, with_support_rule", [(s, s % 2 == 1) for s in range(12)])
+def test_branch_and_bound_finds_the_exhaustive_optimum(seed, with_support_rule):
     rng = np.random.default_rng(seed)
     m, L = 4, 3
     pair_obs = np.repeat(np.arange(m), L)
@@ -80,10 +83,11 @@ def test_branch_and_bound_finds_the_exhaustive_optimum(seed):
     z = np.column_stack([rng.uniform(3, 8, m), rng.uniform(-1, 1, m)])
     z[pair_obs[::L], :] = z_pred[::L] + rng.normal(scale=0.3, size=(m, 2))
     gain = rng.uniform(0.0, 6.0, len(pair_obs))
+    ambiguous = rng.random(len(pair_obs)) < 0.5 if with_support_rule else None
     res = jcbb(z, z_pred, C, pair_obs, pair_lm, chi2_prob=0.99, max_nodes=10 ** 6,
-               pair_gain=gain, noise_logdet=np.full(m, NOISE_LOGDET))
+               pair_gain=gain, noise_logdet=np.full(m, NOISE_LOGDET), pair_ambiguous=ambiguous)
     nu = models.innovation(z[pair_obs], z_pred).reshape(-1)
-    expected = _exhaustive_best(C, nu, pair_obs, pair_lm, gain, m)
+    expected = _exhaustive_best(C, nu, pair_obs, pair_lm, gain, m, ambiguous)
     got = tuple(sorted(p for p in res.pairs if p is not None))
     assert got == expected
     assert not res.budget_exhausted
