@@ -95,7 +95,8 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
          pair_obs: np.ndarray, pair_landmark: np.ndarray, *, chi2_prob: float = 0.99,
          max_nodes: int = 2000, individual_d2: np.ndarray | None = None,
          pair_gain: np.ndarray | None = None,
-         noise_logdet: np.ndarray | None = None) -> JcbbResult:
+         noise_logdet: np.ndarray | None = None,
+         pair_ambiguous: np.ndarray | None = None) -> JcbbResult:
     """Joint-compatibility branch and bound over candidate (observation, landmark) pairs.
 
     Args:
@@ -118,6 +119,9 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
             new landmark (e.g. ``log(P_D / (1 - P_D)) - log(density_z)``).
         noise_logdet: (m,) ``log det(2 pi R_i)`` of each observation's noise;
             required with ``pair_gain`` (it bounds the search).
+        pair_ambiguous: (P,) bool, with ``pair_gain`` only: pairings whose gate
+            cannot tell the landmark from a new one on its own; a hypothesis
+            holding exactly one of them is refused (see :class:`_LikelihoodSearch`).
 
     Returns:
         :class:`JcbbResult`.
@@ -145,9 +149,11 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
     else:
         if noise_logdet is None:
             raise ValueError("jcbb: pair_gain needs noise_logdet")
+        ambiguous = np.zeros(n_pairs, dtype=bool) if pair_ambiguous is None \
+            else np.asarray(pair_ambiguous, dtype=bool).reshape(-1)
         search = _LikelihoodSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob,
                                    max_nodes, np.asarray(pair_gain, dtype=float).reshape(-1),
-                                   np.asarray(noise_logdet, dtype=float).reshape(-1))
+                                   np.asarray(noise_logdet, dtype=float).reshape(-1), ambiguous)
     best_pairs, best_nis, exhausted = search.run(individual_d2)
 
     per_obs_pair: list[int | None] = [None] * m
@@ -284,12 +290,27 @@ class _LikelihoodSearch(_JcbbSearch):
     S_p|H)/2`` with ``dNIS >= 0`` and the conditional covariance ``S_p|H >=
     R_i`` (the observation's own noise), so a branch cannot gain more than
     ``max_p max(0, gain_p - log det(2 pi R_i) / 2)`` per remaining observation.
+    The bound holds for every extension, so it also prunes under the support
+    rule below.
+
+    Support rule: a pairing marked ``ambiguous`` (by the caller: e.g. its gate
+    is so wide that a new landmark is expected inside it about as often as the
+    mapped one, the re-observation of a landmark mapped long ago across a
+    drifted pose, and the measurement alone does not decide) is accepted only
+    in a hypothesis holding at least one other ambiguous pairing. Joint compatibility is a test only between pairings whose
+    innovations are correlated: a recently mapped landmark moves with the
+    robot and lends no support to a loop-closing pairing, while two wide-gate
+    pairings of one loop share the pose error, so their joint test checks
+    their relative geometry (Neira & Tardos 2001: the probability that
+    spurious pairings are jointly compatible falls with their number; a
+    single one is not a hypothesis to close a loop on).
     """
 
     def __init__(self, C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes, pair_gain,
-                 noise_logdet):
+                 noise_logdet, ambiguous):
         super().__init__(C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes)
         self.gain = pair_gain
+        self.ambiguous = ambiguous
         # per observation with candidates, the most one pairing can add
         bound = [max(0.0, max(pair_gain[p] - 0.5 * noise_logdet[i] for p in cands[i]))
                  for i in self.order]
@@ -312,10 +333,17 @@ class _LikelihoodSearch(_JcbbSearch):
         ok = nis <= chi2_quantile(self.chi2_prob, 2 * len(pairs))
         return ok, float(sum(self.gain[p] for p in pairs)) - 0.5 * nis - 0.5 * logdet, nis
 
+    def supported(self, pairs: list[int]) -> bool:
+        """The support rule: not exactly one ambiguous pairing."""
+        return int(np.count_nonzero(self.ambiguous[pairs])) != 1 if pairs else True
+
     def run(self, individual_d2: np.ndarray) -> tuple[list[int], float, bool]:
-        self.best_pairs = self.greedy(individual_d2)
-        _, self.best_score, self.best_nis = self.score(self.best_pairs)
-        if self.best_score < 0.0:  # every observation new scores 0
+        greedy = self.greedy(individual_d2)
+        if not self.supported(greedy):  # drop its lone ambiguous pairing
+            greedy = [p for p in greedy if not self.ambiguous[p]]
+        self.best_pairs = greedy
+        ok, self.best_score, self.best_nis = self.score(greedy)
+        if not ok or self.best_score < 0.0:  # every observation new scores 0
             self.best_pairs, self.best_score, self.best_nis = [], 0.0, 0.0
         try:
             self.search_score(0, [], set(), 0.0)
@@ -326,7 +354,7 @@ class _LikelihoodSearch(_JcbbSearch):
     def search_score(self, level: int, chosen: list[int], used_lm: set[int],
                      current: float) -> None:
         """Depth-first as :meth:`_JcbbSearch.search`, pruned by the score bound."""
-        if current > self.best_score:
+        if current > self.best_score and self.supported(chosen):
             self.best_pairs, self.best_score = list(chosen), current
             self.best_nis = self.score(chosen)[2]
         if level == len(self.order) or current + self.tail[level] <= self.best_score:

@@ -61,8 +61,13 @@ Data association:
   ``jcbb_max_candidates`` and ``jcbb_max_nodes``), maximising the scan's
   likelihood against new landmarks (``jcbb_objective = "likelihood"``, the
   default) or the number of pairings ("count"). Paired observations update
-  the filter one by one. With "likelihood" an unpaired observation is new
-  where a new landmark explains it better than every landmark left unpaired;
+  the filter one by one. With "likelihood" a pairing whose gate is as likely
+  to hold a new landmark as the mapped one (a landmark mapped before a long
+  drift) is kept only if the measurement alone favours it or a second such
+  pairing of the scan supports it
+  (:func:`filters.ekf_slam_association.ambiguous_gates`), and an unpaired
+  observation is new where a new landmark explains it better than every
+  landmark left unpaired (a refused pairing's observation is thus dropped);
   with "count", an unpaired observation whose squared Mahalanobis
   distance to every landmark exceeds the ``new_landmark_chi2_prob`` quantile
   becomes a new landmark (after the scan's updates, from the updated pose),

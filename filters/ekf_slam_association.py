@@ -6,7 +6,9 @@ observation is gated against all of them (Mahalanobis, 2 dof), and JCBB
 the scan (:func:`associate_scan`), from the joint innovation covariance of
 the candidate pairs (:func:`pair_covariance`). An unpaired observation is
 judged new by its distance to the landmarks *not* paired in the scan
-(:func:`unpaired_distances`: mutual exclusion). With ``provisional_sightings
+(:func:`unpaired_distances`: mutual exclusion). A pairing inside a gate that
+cannot tell its landmark from a new one (:func:`ambiguous_gates`) needs
+support. With ``provisional_sightings
 > 1`` a new one waits on a :class:`ProvisionalList` first.
 
 Observations are ``z = [range_m, bearing_rad]``; ``P`` is the filter's
@@ -85,7 +87,10 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
     m rad in measurement space. The novelty is then the log-likelihood ratio of
     "new landmark" over "this landmark" (an observation is new where it is > 0
     against every landmark not paired in the scan); without it, the squared
-    Mahalanobis distance (new beyond the caller's chi-square gate).
+    Mahalanobis distance (new beyond the caller's chi-square gate). With it,
+    too, a pairing inside an ambiguous gate (:func:`ambiguous_gates`) that the
+    measurement alone does not decide needs a second one in the hypothesis
+    (the support rule of :class:`filters.association._LikelihoodSearch`).
     """
     m = len(Z)
     hyp: list[int | None] = [None] * m
@@ -106,7 +111,15 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
     extra = {}
     if likelihood is not None:
         gain, noise_logdet, novelty = _likelihood_terms(Z, Rs, S0, d2, *likelihood)
-        extra = dict(pair_gain=gain[pair_obs], noise_logdet=noise_logdet)
+        # A wide-gate pairing stands alone only where the measurement itself,
+        # without the prior odds of detection (which such a gate voids), favours
+        # the landmark over a new one: N(nu; S) >= lambda, i.e. a novelty at most
+        # -log(P_D / (1 - P_D)); otherwise it needs a second one's support.
+        detection_log_odds = math.log(likelihood[1] / (1.0 - likelihood[1]))
+        ambiguous = ambiguous_gates(Z, Rs, S0, gate, chi2_prob, *likelihood) \
+            & (novelty > -detection_log_odds)
+        extra = dict(pair_gain=gain[pair_obs], noise_logdet=noise_logdet,
+                     pair_ambiguous=ambiguous[pair_obs, pair_lm])
     res: JcbbResult = jcbb(Z, zhat[pair_lm], C, pair_obs, pair_lm, chi2_prob=chi2_prob,
                            max_nodes=max_nodes, individual_d2=d2[pair_obs, pair_lm], **extra)
     return res.hypothesis, (d2 if likelihood is None else novelty), res
@@ -124,6 +137,30 @@ def _likelihood_terms(Z, Rs, S0, d2, density_per_m2: float, detection_prob: floa
     logdet_S = np.log(two_pi ** 2 * (S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]))
     novelty = -(gain[:, None] - 0.5 * d2 - 0.5 * logdet_S)
     return gain, noise_logdet, novelty
+
+
+def ambiguous_gates(Z, Rs, S0, gate: float, gate_prob: float, density_per_m2: float,
+                    detection_prob: float) -> np.ndarray:
+    """(m, L) bool: the gate of observation i on landmark l cannot tell that landmark
+    from a new one on its own (:class:`filters.association._LikelihoodSearch`'s support rule).
+
+    The gate ``nu^T S^-1 nu < gate`` is an ellipse of area ``pi gate sqrt(det S)``
+    in (range, bearing); new landmarks fall in it ``lambda_i = rho r_i`` per m rad
+    (the likelihood objective's density), so ``lambda_i V`` are expected there
+    (the clutter count of Bar-Shalom & Fortmann's PDA), against ``P_D P_G`` for
+    the mapped landmark (detected, and inside its gate). Ambiguous where
+    ``lambda_i V >= P_D P_G``: a candidate found in the gate is then a priori no
+    likelier the landmark than a new one, so the prior odds of detection
+    ``P_D / (1 - P_D)`` that the likelihood objective grants a pairing do not
+    hold there (:func:`associate_scan` lets such a pairing stand alone only where
+    the measurement's own likelihood ratio favours the landmark). The gate
+    quantile ``gate`` and its probability ``gate_prob`` are the individual gate's.
+    """
+    r = np.maximum(Z[:, 0], 1e-9)
+    S = S0[None] + Rs[:, None]  # (m, L, 2, 2)
+    det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+    expected_new = (density_per_m2 * r)[:, None] * math.pi * gate * np.sqrt(det)
+    return expected_new >= detection_prob * gate_prob
 
 
 def unpaired_distances(d2: np.ndarray | None, hypothesis: list[int | None]) -> np.ndarray:

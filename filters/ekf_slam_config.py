@@ -74,11 +74,16 @@ class EkfSlamConfig:
             (the jointly compatible hypothesis of highest likelihood against
             new landmarks, :func:`filters.association.jcbb` with
             ``pair_gain``; an unpaired observation is new where a new landmark
-            explains it better than every landmark left unpaired). Default
+            explains it better than every landmark left unpaired; a pairing
+            inside a gate as likely to hold a new landmark as the mapped one
+            needs the measurement alone to favour it, or a second such pairing:
+            :func:`filters.ekf_slam_association.ambiguous_gates`). Default
             "likelihood": unknown association on the default synthetic world,
             seeds 0-49 (``benchmarks/bench_filter_seeds.py``), within 1.5
-            points of the known-pose ceiling on 44 seeds and the loop unbroken
-            (ATE <= 2x known association) on 47, against 38 and 39 with "count".
+            points of the known-pose ceiling on 46 seeds and the loop unbroken
+            (ATE <= 2x known association) on 49 (44 and 47 without the support
+            rule), against 38 and 39 with "count"; on seeds 50-99, 42 and 46
+            (44 and 44 without the rule).
         new_landmark_density_per_m2, detection_prob: the "likelihood"
             objective's density of not yet mapped landmarks (0.015: the
             default synthetic world's 200 landmarks over its ~13 000 m2) and
