@@ -127,6 +127,15 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert "\n" not in bad["error"]
 
 
+def test_a_sweep_with_a_failed_run_exits_1(tmp_path, capsys):
+    path = _file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "missing.g2o"]')
+                 .replace("seed = [0, 1]\n", ""))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "2",
+                 "--quiet", "--no-plots"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["graphslam: warning: 2 of 4 runs failed; their errors are in sweep.csv"]
+
+
 def test_ctrl_c_keeps_finished_runs_and_a_rerun_resumes(tmp_path):
     """Ctrl-C arrives in the main thread right after the first run finished (the
     progress callback raises it); the next invocation runs only what is missing."""
@@ -258,6 +267,6 @@ def test_progress_bar_counts_runs_and_failures(tmp_path, monkeypatch, capsys):
     fake = Tty()
     monkeypatch.setattr("sys.stderr", fake)
     path = _file(tmp_path, '[sweep]\ndataset = ["missing.g2o"]\nbackend = ["ekf"]\n')
-    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"]) == 0
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"]) == 1
     bar = fake.getvalue()
     assert "1/1" in bar and "failed=1" in bar

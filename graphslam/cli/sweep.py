@@ -22,7 +22,7 @@ sweep file (TOML):
 every run is `graphslam run ... [--nees]` in its own process, outputs in
 OUT/runs/<backend>-<config hash>-s<seed>/. Re-running a sweep into the same
 --out skips the runs already done (same config hash and seed); Ctrl-C keeps
-every finished run (exit 130); a failed run is a row with its error.
+every finished run (exit 130); a failed run is a row with its error (exit 1).
 
 outputs (in --out): sweep.csv, sweep_nees.png (average pose NEES over the runs
   against its 95 % chi-square bounds, per back end), sweep_ate.png (ATE per
@@ -85,7 +85,7 @@ def _progress(total: int, quiet: bool):
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
-    from graphslam.cli.common import EXIT_INTERRUPTED, EXIT_OK
+    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
     from graphslam.pipelines.sweep import run_sweep
     from graphslam.pipelines.sweep_spec import parse_sweep
     from slamcore.errors import ConfigError
@@ -122,4 +122,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
         return EXIT_INTERRUPTED
+    failed = len(outcome.rows) - ok
+    if failed:  # the table is whole, but a script must not take the sweep for a clean one
+        warn(f"{failed} of {len(outcome.rows)} runs failed; their errors are in sweep.csv")
+        return EXIT_FAILED
     return EXIT_OK
