@@ -15,7 +15,9 @@ points of the ceiling and the seeds with the loop unbroken (issue 17's goals:
 90 % and 96 % for the EKF).
 
     python benchmarks/bench_filter_seeds.py [--seeds 0 1 ...] [--from 0 --to 49]
-        [--backends ekf-count ekf-likelihood fastslam1 fastslam2] [--out FILE.json]
+        [--backends ekf-count ekf-likelihood fastslam1 fastslam2] [--quick] [--out FILE.json]
+
+JSON (default ``benchmarks/results/filter_seeds.json``) and its PNG beside it.
 """
 
 from __future__ import annotations
@@ -73,15 +75,31 @@ def seed_row(seed: int, variants: list[str], ceiling_mod) -> dict:
     return row
 
 
+def plot(rows: list[dict], backends: list[str], out: Path) -> Path:
+    """Accuracy below the ceiling and ATE over the known-association ATE, per seed."""
+    from plotting import Panel, save_figure  # beside this script
+
+    seeds = [r["seed"] for r in rows]
+    gap = {v: (seeds, [100 * (r["ceiling"] - r[v]["accuracy"]) for r in rows]) for v in backends}
+    ratio = {v: (seeds, [r[v]["ate_m"] / r[v]["known_ate_m"] for r in rows]) for v in backends}
+    return save_figure(out, f"Unknown association on {len(rows)} synthetic world seeds", [
+        Panel("accuracy below the known-pose ceiling", "world seed", "ceiling - accuracy [points]",
+              gap, targets={f"within {CEILING_POINTS} points": CEILING_POINTS}),
+        Panel("does the loop hold?", "world seed", "ATE / ATE with known association",
+              ratio, logy=True, targets={f"broken above x{BROKEN_LOOP_RATIO:g}": BROKEN_LOOP_RATIO})])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+")
     ap.add_argument("--from", dest="first", type=int, default=0)
     ap.add_argument("--to", dest="last", type=int, default=49)
     ap.add_argument("--backends", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    ap.add_argument("--out", help="write the rows as JSON to this file")
+    ap.add_argument("--quick", action="store_true", help="seed 0 only")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "filter_seeds.json",
+                    help="write the rows as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
-    seeds = args.seeds or list(range(args.first, args.last + 1))
+    seeds = [0] if args.quick else args.seeds or list(range(args.first, args.last + 1))
     import bench_association_ceiling as ceiling_mod  # beside this script
     rows = []
     print("seed  ceiling  " + "  ".join(f"{v:>22}" for v in args.backends)
@@ -99,8 +117,9 @@ def main(argv: list[str] | None = None) -> int:
         unbroken = sum(r[v]["loop_unbroken"] for r in rows)
         print(f"{v}: within {CEILING_POINTS} points of the ceiling on {within}/{n} seeds, "
               f"loop unbroken on {unbroken}/{n}")
-    if args.out:
-        Path(args.out).write_text(json.dumps(rows, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(rows, indent=1))
+    plot(rows, args.backends, args.out)
     return 0
 
 

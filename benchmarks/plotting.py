@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+#: Styles of the target lines, in turn (several targets on one panel stay apart).
+TARGET_STYLES = (("k", "--"), ("0.4", ":"), ("tab:red", "-."))
 #: Width and height of one panel (inches) and the resolution: keeps each PNG well under 150 kB.
 PANEL_IN = (5.6, 3.8)
 DPI = 90
@@ -54,6 +56,12 @@ def _pyplot():
     return plt
 
 
+def _ticker():
+    import matplotlib.ticker
+
+    return matplotlib.ticker
+
+
 def _finite(v) -> float:
     return float(v) if v is not None and math.isfinite(float(v)) else math.nan
 
@@ -73,19 +81,24 @@ def _bars(ax, panel: Panel) -> None:
 
 
 def _draw(ax, panel: Panel) -> None:
+    ticker = _ticker()
     if panel.kind == "bar":
         _bars(ax, panel)
     elif panel.kind == "line":
         for label, (xs, ys) in panel.series.items():
             ax.plot([float(x) for x in xs], [_finite(y) for y in ys], marker="o", ms=3, label=label)
+        if all(float(x).is_integer() for xs, _ in panel.series.values() for x in xs):
+            ax.xaxis.set_major_locator(ticker.MaxNLocator(integer=True))  # seeds, frames, counts
     else:
         raise ValueError(f"panel kind {panel.kind!r}: 'line' or 'bar'")
-    for label, y in panel.targets.items():
-        ax.axhline(y, color="k", ls="--", lw=1, label=label)
-    if panel.logx:
-        ax.set_xscale("log")
-    if panel.logy:
-        ax.set_yscale("log")
+    for (label, y), (colour, style) in zip(panel.targets.items(), TARGET_STYLES * 4):
+        ax.axhline(y, color=colour, ls=style, lw=1.2, label=label)
+    for on, axis, scale in ((panel.logx, ax.xaxis, ax.set_xscale), (panel.logy, ax.yaxis, ax.set_yscale)):
+        if on:
+            scale("log")
+            # plain numbers (2, 30, 0.5) rather than 2 x 10^0, on narrow ranges too
+            axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     if panel.ylim is not None:
         ax.set_ylim(*panel.ylim)
     ax.set_title(panel.title, fontsize=10)
