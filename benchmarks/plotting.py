@@ -10,6 +10,7 @@ here directly (the library keeps it in ``graphslam.visualisation.plots``).
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -93,12 +94,17 @@ def _draw(ax, panel: Panel) -> None:
         raise ValueError(f"panel kind {panel.kind!r}: 'line' or 'bar'")
     for (label, y), (colour, style) in zip(panel.targets.items(), TARGET_STYLES * 4):
         ax.axhline(y, color=colour, ls=style, lw=1.2, label=label)
-    for on, axis, scale in ((panel.logx, ax.xaxis, ax.set_xscale), (panel.logy, ax.yaxis, ax.set_yscale)):
+    for on, axis, scale, lim in ((panel.logx, ax.xaxis, ax.set_xscale, ax.get_xlim),
+                                 (panel.logy, ax.yaxis, ax.set_yscale, ax.get_ylim)):
         if on:
             scale("log")
-            # plain numbers (2, 30, 0.5) rather than 2 x 10^0, on narrow ranges too
-            axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
-            axis.set_minor_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            # plain numbers (2, 30, 0.5) rather than 2 x 10^0; minor ticks labelled only
+            # on ranges under about a decade (else they crowd)
+            plain = ticker.FuncFormatter(lambda v, _: f"{v:g}")
+            axis.set_major_formatter(plain)
+            lo, hi = lim()
+            narrow = lo > 0 and math.log10(hi / lo) < 1.3
+            axis.set_minor_formatter(plain if narrow else ticker.NullFormatter())
     if panel.ylim is not None:
         ax.set_ylim(*panel.ylim)
     ax.set_title(panel.title, fontsize=10)
@@ -120,7 +126,7 @@ def save_figure(json_path: Path | str, title: str, panels: list[Panel], ncols: i
         _draw(ax, panel)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle(title, fontsize=11)
+    fig.suptitle(textwrap.fill(title, 75 * ncols), fontsize=11)  # long titles wrap, not clip
     path = png_beside(json_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI)
