@@ -63,6 +63,12 @@ def _ticker():
     return matplotlib.ticker
 
 
+def _two_five(v: float, _pos=None) -> str:
+    """Minor log ticks labelled at 2 and 5 times a power of ten only."""
+    mantissa = round(v / 10 ** math.floor(math.log10(v)), 6) if v > 0 else 0
+    return f"{v:g}" if mantissa in (2, 5) else ""
+
+
 def _finite(v) -> float:
     return float(v) if v is not None and math.isfinite(float(v)) else math.nan
 
@@ -100,11 +106,14 @@ def _draw(ax, panel: Panel) -> None:
             scale("log")
             # plain numbers (2, 30, 0.5) rather than 2 x 10^0; minor ticks labelled only
             # on ranges under about a decade (else they crowd)
-            plain = ticker.FuncFormatter(lambda v, _: f"{v:g}")
-            axis.set_major_formatter(plain)
+            axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
             lo, hi = lim()
             narrow = lo > 0 and math.log10(hi / lo) < 1.3
-            axis.set_minor_formatter(plain if narrow else ticker.NullFormatter())
+            axis.set_minor_formatter(ticker.FuncFormatter(_two_five) if narrow else ticker.NullFormatter())
+    if panel.logy and panel.kind == "bar" and panel.ylim is None:
+        low = [float(y) for _, ys in panel.series.values() for y in ys if _finite(y) > 0]
+        if low:  # bars start at 0: show the shortest one whole on a log axis
+            ax.set_ylim(bottom=min(low) / 2)
     if panel.ylim is not None:
         ax.set_ylim(*panel.ylim)
     ax.set_title(panel.title, fontsize=10)
