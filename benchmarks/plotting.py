@@ -135,7 +135,7 @@ def save_figure(json_path: Path | str, title: str, panels: list[Panel], ncols: i
         _draw(ax, panel)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle(textwrap.fill(title, 75 * ncols), fontsize=11)  # long titles wrap, not clip
+    fig.suptitle(textwrap.fill(title, 62 * ncols), fontsize=11)  # long titles wrap, not clip
     path = png_beside(json_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI)
