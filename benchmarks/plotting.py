@@ -105,10 +105,10 @@ def _draw(ax, panel: Panel) -> None:
         if on:
             scale("log")
             # plain numbers (2, 30, 0.5) rather than 2 x 10^0; minor ticks labelled only
-            # on ranges under about a decade (else they crowd)
+            # on ranges under about two decades (else they crowd)
             axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
             lo, hi = lim()
-            narrow = lo > 0 and math.log10(hi / lo) < 1.3
+            narrow = lo > 0 and math.log10(hi / lo) < 2.1
             axis.set_minor_formatter(ticker.FuncFormatter(_two_five) if narrow else ticker.NullFormatter())
     if panel.logy and panel.kind == "bar" and panel.ylim is None:
         low = [float(y) for _, ys in panel.series.values() for y in ys if _finite(y) > 0]
