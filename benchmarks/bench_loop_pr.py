@@ -37,7 +37,7 @@ frames.
 loops`` (shipped vocabulary): the slambook2 desk, KITTI 07 frames 0-159, KITTI
 07 pairs 1-5 m apart, the Lund door pairs and pairs of different places
 (``benchmarks/loop_real.py`` says what each is), written to
-``benchmarks/results/loop_pr_real.json``.
+``benchmarks/results/loop_pr_real.json`` and its PNG beside it.
 
     python benchmarks/bench_loop_pr.py [--tol 2] [--no-variants] [--kitti DIR|none] [--quick] [--out FILE]
     python benchmarks/bench_loop_pr.py --real [--data ../shared/data] [--out FILE]
@@ -232,6 +232,25 @@ def main(argv=None) -> int:
     return 0
 
 
+def plot_real(r: dict, out: Path) -> Path:
+    """``--real``: share of pairs verified (same places high, different places 0) and closures found."""
+    from plotting import Panel, save_figure  # beside this script
+
+    d = r["different_places"]
+    kinds = ["KITTI 07 pairs 1-5 m apart", "Lund door pairs", "different places"]
+    shares = [100 * r["kitti07_near_pairs"]["verified"] / max(r["kitti07_near_pairs"]["pairs"], 1),
+              100 * r["lund_pairs"]["verified"] / max(r["lund_pairs"]["pairs"], 1),
+              100 * (d["pairs"] - d["rejected"]) / max(d["pairs"], 1)]
+    folders = [f"desk ({r['desk']['images']} photos; target 1)", f"KITTI 07 ({r['kitti07']['images']} "
+               "frames; target 0)"]
+    return save_figure(out, "Place recognition on real images (graphslam loops defaults, shipped vocabulary)", [
+        Panel("geometric verification", "image pairs", "pairs verified [%]",
+              {"verified": (kinds, shares)}, kind="bar", ylim=(0, 105)),
+        Panel("closures of whole folders", "folder", "closures accepted",
+              {"closures": (folders, [len(r["desk"]["closures"]), len(r["kitti07"]["closures"])])},
+              kind="bar")])
+
+
 def real_main(data: Path, out: Path) -> int:
     """``--real``: the real-image figures, printed and written as JSON."""
     sys.path.insert(0, str(HERE))
@@ -243,6 +262,7 @@ def real_main(data: Path, out: Path) -> int:
     out.write_text(json.dumps({"benchmark": "loop_pr_real", **r, "machine": {
         "python": platform.python_version(), "platform": platform.platform()}}, indent=2))
     print(f"wrote {out}")
+    plot_real(r, out)
     return 0
 
 
