@@ -120,7 +120,10 @@ def _draw(ax, panel: Panel) -> None:
     ax.set_xlabel(panel.xlabel)
     ax.set_ylabel(panel.ylabel)
     ax.grid(alpha=0.3)
-    if panel.series or panel.targets:
+    entries = len(panel.series) + len(panel.targets)
+    if panel.kind == "bar" and entries > 3:  # many bars fill the panel: legend beside it
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    elif entries:
         ax.legend(fontsize=7)
 
 
