@@ -117,7 +117,8 @@ def plot(rows: list[dict], frames: int, ratio: float, out) -> object:
     series = {"mean": (loops, [r["cpu_ms_mean"] for r in rows]),
               "95th percentile": (loops, [r["cpu_ms_p95"] for r in rows]),
               "mean of the last 50 frames": (loops, [r["cpu_ms_last50"] for r in rows])}
-    return save_figure(out, f"Visual iSAM2 back end against bare gtsam.ISAM2, synthetic room, {frames} frames", [
+    title = f"Visual iSAM2 back end against bare gtsam.ISAM2, synthetic room, {frames} frames"
+    return save_figure(out, title, [
         Panel(f"CPU time per frame; ours_nopred / bare = {ratio:.3f}", "loop", "CPU time per frame [ms]",
               series, kind="bar", targets={"20 Hz whole loop (50 ms)": 50.0})], ncols=1)
 

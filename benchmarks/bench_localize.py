@@ -180,7 +180,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)
         plan = quick_plan(tmp) if args.quick else Plan()
-        out = {"synthetic_room": room(tmp, plan), "blackout": blackout(tmp, plan), "round_trip": round_trip(tmp)}
+        out = {"synthetic_room": room(tmp, plan), "blackout": blackout(tmp, plan),
+               "round_trip": round_trip(tmp)}
         if not (args.skip_kitti or args.quick) and KITTI.is_dir():
             out["kitti07"] = kitti(tmp)
     text = json.dumps(out, indent=2)

@@ -59,7 +59,8 @@ def plot(rows: list[dict], n_frames: int, out: Path) -> Path:
     series = {("with loop closures" if loops else "without"):
               (modes, [next(r["ate_rmse_m"] for r in rows if r["mode"] == m and r["loops"] == loops)
                        for m in modes]) for loops in (False, True)}
-    return save_figure(out, f"Visual iSAM2 with and without loop closures, synthetic sequence ({n_frames} frames)", [
+    title = f"Visual iSAM2 with and without loop closures, synthetic sequence ({n_frames} frames)"
+    return save_figure(out, title, [
         Panel("ATE (target: with closures at most half of without)", "map used by active search",
               "ATE RMSE [m]", series, kind="bar",
               targets={"odometry alone": rows[0]["odometry_ate_rmse_m"]})], ncols=1)

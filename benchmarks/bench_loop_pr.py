@@ -243,7 +243,8 @@ def plot_real(r: dict, out: Path) -> Path:
               100 * (d["pairs"] - d["rejected"]) / max(d["pairs"], 1)]
     folders = [f"desk ({r['desk']['images']} photos; target 1)", f"KITTI 07 ({r['kitti07']['images']} "
                "frames; target 0)"]
-    return save_figure(out, "Place recognition on real images (graphslam loops defaults, shipped vocabulary)", [
+    title = "Place recognition on real images (graphslam loops defaults, shipped vocabulary)"
+    return save_figure(out, title, [
         Panel("geometric verification", "image pairs", "pairs verified [%]",
               {"verified": (kinds, shares)}, kind="bar", ylim=(0, 105)),
         Panel("closures of whole folders", "folder", "closures accepted",

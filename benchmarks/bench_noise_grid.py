@@ -124,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS))
     ap.add_argument("--scales", type=float, nargs="+", default=list(SCALES))
     ap.add_argument("--quick", action="store_true", help="seed 0, scale 10 (each noise alone and all)")
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "noise_grid.json",
+    ap.add_argument("--out", type=Path,
+                    default=Path(__file__).resolve().parent / "results" / "noise_grid.json",
                     help="write every cell's row as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -213,7 +213,8 @@ def plot(result: dict, out: Path) -> Path:
               {"ours": (files, [r["wall_s"] for r in rows]),
                "bare gtsam LM": (files, [r["wall_s"] / r["ratio"] for r in rows])}, kind="bar", logy=True)]
     if "isam2" in result:
-        panels.append(Panel("iSAM2: ours minus bare, per step", "quarter of the run", "overhead [ms per step]",
+        panels.append(Panel("iSAM2: ours minus bare, per step", "quarter of the run",
+                            "overhead [ms per step]",
                             {f"{r['file']} (ratio {r['ratio']:.3f})": (
                                 [1, 2, 3, 4], r["overhead_ms_per_step_by_quarter"]) for r in result["isam2"]},
                             targets={"none": 0.0}))
