@@ -36,9 +36,10 @@ for the first):
    the number of corrections 1..20 (as in the paper's figure 5), on real KITTI
    frame pairs with the landmarks and covariances above, for the ZNCC
    (software) and nearest-Harris-point (hardware) modes. One process; prints a
-   table and writes JSON with ``--out``.
+   table and writes JSON (``--out``, default
+   ``benchmarks/results/active_search.json``) and its figure beside it (PNG).
 
-    python benchmarks/bench_active_search.py [--pairs 20] [--repeat 5] [--out FILE.json]
+    python benchmarks/bench_active_search.py [--pairs 20] [--repeat 5] [--quick] [--out FILE.json]
     python benchmarks/bench_active_search.py --evaluate [--step 1]   # the accuracy protocol
 """
 
@@ -281,11 +282,27 @@ def bench(n_pairs: int = 20, repeat: int = 5, caps=range(1, 21), seed: int = 0) 
     return rows
 
 
+def plot(rows: list[dict], pairs: int, repeat: int, out: Path) -> Path:
+    """Figure 5's shape: time per frame and matches found against the correction cap."""
+    from plotting import Panel, save_figure  # beside this script
+
+    caps = [r["corrections"] for r in rows]
+    modes = {"zncc": "ZNCC (software)", "nearest": "nearest Harris point (hardware)"}
+    return save_figure(out, f"Active search on KITTI 07: {pairs} frame pairs, best of {repeat}", [
+        Panel("time per frame", "corrections per frame (cap)", "active search time [ms]",
+              {lab: (caps, [r[f"{m}_ms"] for r in rows]) for m, lab in modes.items()}),
+        Panel("landmarks matched", "corrections per frame (cap)", "found per frame",
+              {lab: (caps, [r[f"{m}_found_per_frame"] for r in rows]) for m, lab in modes.items()}),
+    ])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=20, help="KITTI frame pairs timed (spread over the sequence)")
     ap.add_argument("--repeat", type=int, default=5, help="repetitions per frame (the best is kept)")
-    ap.add_argument("--out", type=Path, help="write the results as JSON")
+    ap.add_argument("--quick", action="store_true", help="2 pairs, 1 repetition (a smoke run)")
+    ap.add_argument("--out", type=Path, help="write the results as JSON (timing default: "
+                    "benchmarks/results/active_search.json, and its PNG beside it)")
     ap.add_argument("--evaluate", action="store_true", help="run the accuracy protocol instead")
     ap.add_argument("--step", type=int, default=1, help="with --evaluate: every step-th pair")
     ap.add_argument("--max-corrections", type=int, default=20, help="with --evaluate (0 = no cap)")
@@ -305,6 +322,8 @@ def main(argv=None) -> int:
         if args.out:
             args.out.write_text(json.dumps(res, indent=2))
         return 0
+    if args.quick:
+        args.pairs, args.repeat = 2, 1
     t0 = time.perf_counter()
     rows = bench(args.pairs, args.repeat)
     print(f"active search on KITTI 07, {args.pairs} frame pairs, best of {args.repeat}, one process")
@@ -315,8 +334,10 @@ def main(argv=None) -> int:
               f"{100 * r['zncc_image_fraction']:6.2f} | {r['nearest_ms']:10.3f} {r['nearest_hz']:8.0f} "
               f"{r['nearest_found_per_frame']:6.1f}")
     print(f"total {time.perf_counter() - t0:.1f} s")
-    if args.out:
-        args.out.write_text(json.dumps({"pairs": args.pairs, "repeat": args.repeat, "rows": rows}, indent=2))
+    out = args.out or ROOT / "benchmarks" / "results" / "active_search.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"pairs": args.pairs, "repeat": args.repeat, "rows": rows}, indent=2))
+    plot(rows, args.pairs, args.repeat, out)
     return 0
 
 

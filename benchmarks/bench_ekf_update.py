@@ -12,7 +12,8 @@ is the reference:
   which numpy sends to BLAS syrk.
 
 Usage: ``python benchmarks/bench_ekf_update.py [--out FILE.json] [--repeats R]
-[--sizes 100 200 ...]``.
+[--sizes 100 200 ...] [--quick]``; default output
+``benchmarks/results/ekf_update.json`` and its PNG beside it.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters import models  # noqa: E402
+from slamcore.planar import geometry as models  # noqa: E402
 from filters.ekf_slam import EkfSlam  # noqa: E402
 from filters.ekf_slam_config import EkfSlamConfig  # noqa: E402
 from slamcore.planar.records import Observation  # noqa: E402
@@ -82,12 +83,30 @@ def bench(n_lm: int, repeats: int, seed: int = 0) -> dict:
             "bare_syrk_s": t_syrk, "bare_s": t_bare, "ratio": t_ours / t_bare}
 
 
+def plot(rows: list[dict], out: Path) -> Path:
+    """Update time and the two bare downdates against the map size (log-log)."""
+    from plotting import Panel, save_figure  # beside this script
+
+    n = [r["landmarks"] for r in rows]
+    series = {"EkfSlam.update (one observation)": (n, [1e3 * r["update_s"] for r in rows]),
+              "bare P -= K S K^T (gemm)": (n, [1e3 * r["bare_gemm_s"] for r in rows]),
+              "bare P -= M M^T (syrk)": (n, [1e3 * r["bare_syrk_s"] for r in rows])}
+    return save_figure(out, "EKF-SLAM update against the bare O(n^2) covariance downdate", [
+        Panel("median time per update", "landmarks", "time [ms]", series, logx=True, logy=True),
+        Panel("overhead", "landmarks", "update / min(gemm, syrk)",
+              {"ratio": (n, [r["ratio"] for r in rows])}, logx=True)])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, help="write the results as JSON here")
+    ap.add_argument("--out", type=Path, help="write the results as JSON here (and its PNG beside it)",
+                    default=Path(__file__).resolve().parent / "results" / "ekf_update.json")
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
+    ap.add_argument("--quick", action="store_true", help="sizes 100 and 200, 3 repeats")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.sizes, args.repeats = [100, 200], 3
     rows = []
     print(f"{'landmarks':>9} {'state':>6} {'update ms':>10} {'gemm ms':>9} {'syrk ms':>9} "
           f"{'ratio':>6}")
@@ -97,15 +116,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['landmarks']:>9d} {r['state_size']:>6d} {1e3 * r['update_s']:>10.3f} "
               f"{1e3 * r['bare_gemm_s']:>9.3f} {1e3 * r['bare_syrk_s']:>9.3f} {r['ratio']:>6.2f}",
               flush=True)
-    if args.out:
-        payload = {"benchmark": "ekf_update", "numpy": np.__version__,
-                   "python": platform.python_version(), "machine": platform.machine(),
-                   "repeats": args.repeats,
-                   "ratio_definition": "update_s / min(bare_gemm_s, bare_syrk_s)",
-                   "results": rows}
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(payload, indent=2) + "\n")
-        print(f"wrote {args.out}")
+    payload = {"benchmark": "ekf_update", "numpy": np.__version__,
+               "python": platform.python_version(), "machine": platform.machine(),
+               "repeats": args.repeats,
+               "ratio_definition": "update_s / min(bare_gemm_s, bare_syrk_s)",
+               "results": rows}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    plot(rows, args.out)
     return 0
 
 

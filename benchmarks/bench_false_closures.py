@@ -27,11 +27,13 @@ its last re-test (``Isam2Backend.rejected_loop_closures``); for the plain one, w
 uses them all, the injected closures left with a squared Mahalanobis residual
 above 16.27 (chi-square 3 dof, 99.9 %), i.e. fought rather than absorbed;
 ``true_rej`` true closures rejected the same way. JSON goes to
-``benchmarks/results/false_closures.json`` (or ``--out``).
+``benchmarks/results/false_closures.json`` (or ``--out``), its figure beside it
+(PNG: distance to the clean optimum and rejected false closures against f).
+``--quick``: city10000's first 300 poses, f = 0.1, plain runs on 200 poses.
 
     python benchmarks/bench_false_closures.py [--dataset city10000 w10000]
         [--fractions 0.1 0.3] [--max-steps N] [--plain-max-steps 1500] [--seed 0]
-        [--config benchmarks/robust_isam2.toml] [--out FILE.json]
+        [--config benchmarks/robust_isam2.toml] [--quick] [--out FILE.json]
 
 Targets: robust city10000 ATE <= 1.1 x clean; robust w10000 within 0.1 m RMS of
 its clean optimum.
@@ -123,6 +125,25 @@ HEADER = ("dataset    config   frac    poses injected ate_m   ratio  rms_clean_m
           "true_rej   wall_s")
 
 
+def plot(rows: list[dict], out: Path) -> Path:
+    """Per data set and configuration, against f: RMS distance to the clean optimum and the share
+    of injected closures rejected."""
+    from plotting import Panel, save_figure  # beside this script
+
+    runs = {}
+    for r in rows:
+        runs.setdefault(f"{r['dataset']} {r['config']} ({r['poses']} poses)", []).append(r)
+    dist = {k: ([r["fraction"] for r in v], [r["rms_clean_m"] for r in v]) for k, v in runs.items()}
+    rej = {k: ([f"f = {r['fraction']:g}" for r in v if r["injected"]],
+               [100 * r["rejected"] / r["injected"] for r in v if r["injected"]]) for k, v in runs.items()}
+    return save_figure(out, "iSAM2 against injected false loop closures", [
+        Panel("damage: distance to the clean optimum", "false closures per true closure (f)",
+              "RMS distance to the clean optimum [m]", dist),
+        Panel("false closures rejected (robust: gate/polish; plain: residual)",
+              "false closures per true closure (f)", "injected closures rejected [%]",
+              {k: v for k, v in rej.items() if v[0]}, kind="bar", ylim=(0, 105))])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dataset", nargs="+", default=["city10000", "w10000"],
@@ -133,8 +154,12 @@ def main(argv=None) -> int:
                     help="poses of the plain runs with injected closures (0: skip them)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--config", type=Path, default=HERE / "robust_isam2.toml")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "false_closures.json")
+    ap.add_argument("--quick", action="store_true", help="a small prefix of city10000 (see the docstring)")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "false_closures.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.dataset, args.fractions, args.max_steps, args.plain_max_steps = ["city10000"], [0.1], 300, 200
 
     robust_cfg = load_section(Isam2Config, args.config)
     # plain: the robust configuration without its robustness (same polish tolerances)
@@ -193,6 +218,7 @@ def main(argv=None) -> int:
                "date": time.strftime("%Y-%m-%d %H:%M:%S"), "rows": rows}
     args.out.write_text(json.dumps(payload, indent=2, default=str))
     print(f"wrote {args.out}")
+    plot(rows, args.out)
     return 0
 
 

@@ -13,7 +13,9 @@ total time. The file's odometry covariance is scaled by ``--vp-odometry-scale``
 drifts away from the landmarks. The data is read by
 ``graphslam.sources.planar.victoria_park`` (the reader every back end uses).
 
-    python benchmarks/bench_fastslam.py [--out FILE.json] [--victoria-park]
+JSON (default ``benchmarks/results/fastslam.json``) and its PNG beside it.
+
+    python benchmarks/bench_fastslam.py [--out FILE.json] [--victoria-park] [--quick]
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -80,9 +83,28 @@ def run_backend(ds: Dataset, backend: FastSlam, pairs: list | None = None) -> fl
     return time.perf_counter() - t0
 
 
+def plot(results: dict, out: Path) -> Path:
+    """Time per step against particles (both versions) and against map size."""
+    from plotting import Panel, save_figure  # beside this script
+
+    vp, vl = results["vs_particles"], results["vs_landmarks"]
+    per_n = {f"FastSLAM {v}.0": ([r["n_particles"] for r in vp if r["version"] == v],
+                                 [r["ms_per_step"] for r in vp if r["version"] == v]) for v in (1, 2)}
+    return save_figure(out, f"FastSLAM time per step, simulated circle ({results['steps']} steps, "
+                            f"seed {results['seed']})", [
+        Panel("against particle count (150 landmarks)", "particles", "time per step [ms]",
+              per_n, logx=True, logy=True),
+        Panel("against map size (FastSLAM 2.0, 100 particles)", "landmarks in the world",
+              "time per step [ms]", {"FastSLAM 2.0, N=100": ([r["landmarks"] for r in vl],
+                                                              [r["ms_per_step"] for r in vl])})])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", help="write results as JSON here")
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "fastslam.json",
+                    help="write results as JSON here (and its PNG beside it)")
+    ap.add_argument("--quick", action="store_true",
+                    help="20 steps, 10 and 30 particles, 50 and 150 landmarks")
     ap.add_argument("--steps", type=int, default=60, help="steps of the simulated run")
     ap.add_argument("--particles", type=int, nargs="+", default=[10, 30, 100, 300, 1000])
     ap.add_argument("--landmarks", type=int, nargs="+", default=[50, 150, 500])
@@ -95,6 +117,8 @@ def main(argv=None) -> int:
                     help="unknown: the data's landmark ids are used only to score association")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    if args.quick:
+        args.steps, args.particles, args.landmarks = 20, [10, 30], [50, 150]
 
     results: dict = {"steps": args.steps, "seed": args.seed, "vs_particles": [],
                      "vs_landmarks": [], "victoria_park": []}
@@ -149,10 +173,11 @@ def main(argv=None) -> int:
                 line += f", association accuracy {acc['accuracy']:.3f}"
             print(line)
             results["victoria_park"].append(row)
-    if args.out:
-        with open(args.out, "w") as f:
-            json.dump(results, f, indent=2)
-        print(f"wrote {args.out}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump(results, f, indent=2)
+    print(f"wrote {args.out}")
+    plot(results, args.out)
     return 0
 
 

@@ -22,9 +22,12 @@ seed, with the median and worst over the seeds (issue 17: no seed above 3x
 the EKF's RMS). ``--max-steps N`` runs a prefix of the sequence.
 
     python benchmarks/bench_filter_seeds.py [--seeds 0 1 ...] [--from 0 --to 49]
-        [--backends ekf-count ekf-likelihood fastslam1 fastslam2] [--out FILE.json]
+        [--backends ekf-count ekf-likelihood fastslam1 fastslam2] [--quick] [--out FILE.json]
     python benchmarks/bench_filter_seeds.py --victoria-park --from 0 --to 9
         [--max-steps N] [--out FILE.json]
+
+JSON (default ``benchmarks/results/filter_seeds.json``, with ``--victoria-park``
+``benchmarks/results/filter_seeds_vp.json``) and, for the seed rows, its PNG beside it.
 """
 
 from __future__ import annotations
@@ -120,25 +123,46 @@ def victoria_park(seeds: list[int], max_steps: int | None) -> dict:
     return out
 
 
+def plot(rows: list[dict], backends: list[str], out: Path) -> Path:
+    """Accuracy below the ceiling and ATE over the known-association ATE, per seed."""
+    from plotting import Panel, save_figure  # beside this script
+
+    seeds = [r["seed"] for r in rows]
+    gap = {v: (seeds, [100 * (r["ceiling"] - r[v]["accuracy"]) for r in rows]) for v in backends}
+    ratio = {v: (seeds, [r[v]["ate_m"] / r[v]["known_ate_m"] for r in rows]) for v in backends}
+    return save_figure(out, f"Unknown association on {len(rows)} synthetic world seeds", [
+        Panel("accuracy below the known-pose ceiling", "world seed", "ceiling - accuracy [points]",
+              gap, targets={f"within {CEILING_POINTS} points": CEILING_POINTS}),
+        Panel("does the loop hold?", "world seed", "ATE / ATE with known association",
+              ratio, logy=True, targets={f"broken above x{BROKEN_LOOP_RATIO:g}": BROKEN_LOOP_RATIO})])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+")
     ap.add_argument("--from", dest="first", type=int, default=0)
     ap.add_argument("--to", dest="last", type=int, default=49)
     ap.add_argument("--backends", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    ap.add_argument("--out", help="write the rows as JSON to this file")
+    ap.add_argument("--quick", action="store_true", help="seed 0 only")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="write the rows as JSON to this file (and its PNG beside it); default "
+                         "benchmarks/results/filter_seeds.json (filter_seeds_vp.json with "
+                         "--victoria-park)")
     ap.add_argument("--victoria-park", action="store_true",
                     help="RMS to iSAM2 on Victoria Park instead (see the docstring)")
     ap.add_argument("--max-steps", type=int, help="--victoria-park: first N steps only")
     args = ap.parse_args(argv)
-    seeds = args.seeds or list(range(args.first, args.last + 1))
+    seeds = [0] if args.quick else args.seeds or list(range(args.first, args.last + 1))
     if args.max_steps is not None and not args.victoria_park:
         ap.error("--max-steps needs --victoria-park")
+    results = ROOT / "benchmarks" / "results"
     if args.victoria_park:
         out = victoria_park(seeds, args.max_steps)
-        if args.out:
-            Path(args.out).write_text(json.dumps(out, indent=1))
+        path = args.out or results / "filter_seeds_vp.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(out, indent=1))
         return 0
+    args.out = args.out or results / "filter_seeds.json"
     import bench_association_ceiling as ceiling_mod  # beside this script
     rows = []
     print("seed  ceiling  " + "  ".join(f"{v:>22}" for v in args.backends)
@@ -156,8 +180,9 @@ def main(argv: list[str] | None = None) -> int:
         unbroken = sum(r[v]["loop_unbroken"] for r in rows)
         print(f"{v}: within {CEILING_POINTS} points of the ceiling on {within}/{n} seeds, "
               f"loop unbroken on {unbroken}/{n}")
-    if args.out:
-        Path(args.out).write_text(json.dumps(rows, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(rows, indent=1))
+    plot(rows, args.backends, args.out)
     return 0
 
 

@@ -7,7 +7,9 @@ simulation (target >= 20) next to the simulated hardware rate (pixel clock /
 (pixels + blanking) per frame). Points are checked against
 ``HarrisDetector(arithmetic="fixed")`` on the first frame.
 
-    python benchmarks/bench_fpga_stream.py [--frames 40] [--synthetic] [--out FILE.json]
+JSON (default ``benchmarks/results/fpga_stream.json``) and its PNG beside it.
+
+    python benchmarks/bench_fpga_stream.py [--frames 40] [--synthetic] [--quick] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -46,12 +48,31 @@ def frames(n, synthetic, seed=0):
         "kitti07 resized"
 
 
+def plot(result: dict, per_frame_ms: list[float], out: Path) -> Path:
+    """Simulation time of each frame, with the hardware's frame period and the target."""
+    from plotting import Panel, save_figure  # beside this script
+
+    k = list(range(len(per_frame_ms)))
+    return save_figure(out, f"Simulated FPGA Harris stream, {SHAPE[1]}x{SHAPE[0]}, "
+                            f"{result['frames']} frames ({result['source']})", [
+        Panel("time per frame", "frame", "time per frame [ms]",
+              {f"simulation (mean {result['fps']:.1f} frames/s)": (k, per_frame_ms)},
+              targets={f"simulated hardware ({result['hardware_fps']:.1f} frames/s)":
+                       1e3 / result["hardware_fps"],
+                       f"target {result['target_fps']:g} frames/s": 1e3 / result["target_fps"]})],
+        ncols=1)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--synthetic", action="store_true")
-    ap.add_argument("--out", type=Path)
+    ap.add_argument("--quick", action="store_true", help="4 frames")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fpga_stream.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames = 4
 
     imgs, source = frames(args.frames, args.synthetic)
     cfg = HarrisConfig(arithmetic="fixed")
@@ -88,8 +109,9 @@ def main(argv=None):
               "ms_per_frame_best": float(min(per_frame) * 1e3), "wall_s": wall,
               "hardware_fps": hw_fps, "points_per_frame": n_points / len(imgs),
               "bit_identical_frame0": ok, "target_fps": 20.0}
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=2))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2))
+    plot(result, [1e3 * t for t in per_frame], args.out)
     return 0
 
 

@@ -8,7 +8,9 @@ window) then the same ``tessellate``. Target: ours / OpenCV <= 2. The fixed-poin
 detector is timed too, and its approximation errors against the float one are
 printed.
 
-    python benchmarks/bench_harris.py [--frame N] [--repeats 20] [--out FILE.json]
+JSON (default ``benchmarks/results/harris.json``) and its PNG beside it.
+
+    python benchmarks/bench_harris.py [--frame N] [--repeats 20] [--quick] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -45,12 +47,29 @@ def cv_detect(image, cfg):
     return tessellate(r, cfg.cell_size_px, cfg.border_px, 0.0)
 
 
+def plot(result: dict, labels: dict, out: Path) -> Path:
+    """Median time per frame of each detector, with the target (twice OpenCV)."""
+    from plotting import Panel, save_figure  # beside this script
+
+    med = result["median_s"]
+    names = [labels[k] for k in med]
+    return save_figure(out, f"Harris on KITTI 07 frame {result['frame']:06d} "
+                            f"({result['shape'][1]}x{result['shape'][0]}), median of {result['repeats']}", [
+        Panel(f"ours float / OpenCV = {result['ratio_float_over_opencv']:.2f}", "detector",
+              "time per frame [ms]", {"median": (names, [1e3 * v for v in med.values()])}, kind="bar",
+              targets={"target: 2 x OpenCV": result["target_ratio"] * 1e3 * med["opencv"]})], ncols=1)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frame", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--out", type=Path)
+    ap.add_argument("--quick", action="store_true", help="3 repeats")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "harris.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.repeats = 3
 
     image = load_gray(KITTI / f"{args.frame:06d}.png")
     cfg = HarrisConfig()
@@ -100,8 +119,9 @@ def main(argv=None):
     result = {"frame": args.frame, "shape": [h, w], "repeats": args.repeats,
               "median_s": med, "ratio_float_over_opencv": ratio, "target_ratio": 2.0,
               "points": npts, "fixed_point": approx}
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=2))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2))
+    plot(result, labels, args.out)
     return 0
 
 

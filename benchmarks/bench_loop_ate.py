@@ -16,7 +16,11 @@ detector with its defaults and a 1000-word tree trained on the sequence, the
 metric PnP pose, the redundancy rule). Closures are checked against the
 sequence's revisit pairs (within 2 frames).
 
-    python benchmarks/bench_loop_ate.py [--window 30] [--out FILE]
+    python benchmarks/bench_loop_ate.py [--window 30] [--quick] [--out FILE]
+
+JSON (default ``benchmarks/results/loop_ate.json``) and its PNG beside it
+(ATE per run, odometry alone for scale). ``--quick``: a 150-frame sequence
+(same room, 1.5 laps).
 
 Target (issue 6): with closures, ATE at most half of the same run without.
 """
@@ -40,21 +44,38 @@ from graphslam.pipelines.place_recognition import train_vocabulary
 from loopclosure.detector import LoopDetectorConfig
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
-from graphslam.sources.spatial.synthetic_images import make_synthetic_images
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from graphslam.pipelines.loop_closing import VisualLoopCloser
 from loopclosure.detector import LoopDetector
 
 HERE = Path(__file__).resolve().parent
 
 
+def plot(rows: list[dict], n_frames: int, out: Path) -> Path:
+    """ATE of the four runs (without and with closures, per map mode), odometry alone for scale."""
+    from plotting import Panel, save_figure  # beside this script
+
+    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    series = {("with loop closures" if loops else "without"):
+              (modes, [next(r["ate_rmse_m"] for r in rows if r["mode"] == m and r["loops"] == loops)
+                       for m in modes]) for loops in (False, True)}
+    title = f"Visual iSAM2 with and without loop closures, synthetic sequence ({n_frames} frames)"
+    return save_figure(out, title, [
+        Panel("ATE (target: with closures at most half of without)", "map used by active search",
+              "ATE RMSE [m]", series, kind="bar",
+              targets={"odometry alone": rows[0]["odometry_ate_rmse_m"]})], ncols=1)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--window", type=int, default=30,
                     help="prediction window of the local-map runs, frames (default 30)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_ate.json")
+    ap.add_argument("--quick", action="store_true", help="a 150-frame sequence")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_ate.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
 
-    seq = make_synthetic_images()
+    seq = make_synthetic_images(SyntheticImagesConfig(n_frames=150) if args.quick else None)
     orb = OrbDetector(LoopDetectorConfig().orb)  # the detector's own ORB, as graphslam run --loops
     t0 = time.perf_counter()
     descs = [orb.detect(seq.load(i)).descriptors
@@ -101,6 +122,7 @@ def main(argv=None) -> int:
                                     "machine": {"python": platform.python_version(),
                                                 "platform": platform.platform()}}, indent=2))
     print(f"wrote {args.out}")
+    plot(rows, len(seq), args.out)
     return 0
 
 

@@ -27,15 +27,19 @@ Optionally (``--kitti DIR``, default ``../shared/data/kitti07`` when present)
 it also runs the default detector on KITTI 07 frames, a drive with no revisit,
 and counts closures (the target is 0).
 
-Prints one table and writes JSON to ``benchmarks/results/loop_pr.json`` (or ``--out``).
+Prints one table and writes JSON to ``benchmarks/results/loop_pr.json`` (or
+``--out``) and its figure beside it (PNG: precision, strict precision and
+recall, accepted and false closures, per variant). ``--quick``: a 100-frame
+sequence (same room, 1.5 laps), the default variant only, KITTI 07's first 20
+frames.
 
 ``--real`` instead measures real images with the defaults of ``graphslam
 loops`` (shipped vocabulary): the slambook2 desk, KITTI 07 frames 0-159, KITTI
 07 pairs 1-5 m apart, the Lund door pairs and pairs of different places
 (``benchmarks/loop_real.py`` says what each is), written to
-``benchmarks/results/loop_pr_real.json``.
+``benchmarks/results/loop_pr_real.json`` and its PNG beside it.
 
-    python benchmarks/bench_loop_pr.py [--tol 2] [--no-variants] [--kitti DIR|none] [--out FILE]
+    python benchmarks/bench_loop_pr.py [--tol 2] [--no-variants] [--kitti DIR|none] [--quick] [--out FILE]
     python benchmarks/bench_loop_pr.py --real [--data ../shared/data] [--out FILE]
 
 Targets: 100 % precision, recall >= 80 %; no closure on KITTI 07.
@@ -46,6 +50,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import platform
 import sys
 import time
@@ -56,7 +61,7 @@ from tqdm import tqdm
 
 from frontend.orb import OrbDetector
 from graphslam.pipelines.place_recognition import train_vocabulary
-from graphslam.sources.spatial.synthetic_images import make_synthetic_images
+from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import VerifyConfig
 
@@ -102,6 +107,25 @@ def detect(features, vocab, config, verify_config, K, desc: str):
     return det, time.perf_counter() - t0
 
 
+def plot(rows: list[dict], kitti: dict | None, n_frames: int, out: Path) -> Path:
+    """Per variant: precision, strict precision and recall; accepted and false closures."""
+    from plotting import Panel, save_figure  # beside this script
+
+    names = [r["variant"] for r in rows]
+
+    def pct(key):
+        return [math.nan if r[key] is None else 100 * r[key] for r in rows]
+
+    on_kitti = "" if kitti is None else f"; KITTI 07 ({kitti['frames']} frames): {kitti['closures']} closures"
+    return save_figure(out, f"Loop closures on the synthetic image sequence ({n_frames} frames){on_kitti}", [
+        Panel("precision and recall", "variant", "[%]",
+              {"precision": (names, pct("precision")), "strict precision": (names, pct("precision_strict")),
+               "recall": (names, pct("recall"))}, kind="bar", ylim=(0, 105),
+              targets={"recall target 80 %": 80.0}),
+        Panel("closures", "variant", "closures", {"accepted": (names, [r["accepted"] for r in rows]),
+                                                  "false": (names, [r["false"] for r in rows])}, kind="bar")])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tol", type=int, default=2, help="frame tolerance of a true closure (default 2)")
@@ -113,6 +137,8 @@ def main(argv=None) -> int:
                     help="JSON to write (default benchmarks/results/loop_pr.json, "
                          "loop_pr_real.json with --real)")
     ap.add_argument("--real", action="store_true", help="real images instead (see the docstring)")
+    ap.add_argument("--quick", action="store_true",
+                    help="100 frames, default variant, KITTI's first 20 (see the docstring)")
     ap.add_argument("--data", type=Path, default=KITTI_DEFAULT.parent,
                     help="the shared data folder (default ../shared/data)")
     args = ap.parse_args(argv)
@@ -124,7 +150,7 @@ def main(argv=None) -> int:
     vbase = VerifyConfig()
     timings = {}
     t0 = time.perf_counter()
-    seq = make_synthetic_images()
+    seq = make_synthetic_images(SyntheticImagesConfig(n_frames=100) if args.quick else None)
     images = [seq.load(i) for i in tqdm(range(len(seq.image_paths)), desc="render", file=sys.stderr,
                                         leave=False)]
     timings["render_s"] = time.perf_counter() - t0
@@ -137,7 +163,7 @@ def main(argv=None) -> int:
     timings["vocab_train_s"] = time.perf_counter() - t0
 
     variants = [("default", base, vbase)]
-    if not args.no_variants:
+    if not (args.no_variants or args.quick):
         variants += [
             ("no feature-share test", base, dataclasses.replace(vbase, min_feature_share=0.0)),
             ("consistency_k=1", dataclasses.replace(base, consistency_k=1), vbase),
@@ -164,7 +190,7 @@ def main(argv=None) -> int:
         from frontend.image import load_gray
 
         t0 = time.perf_counter()
-        paths = folder_images(kdir / "image_0")
+        paths = folder_images(kdir / "image_0")[:20 if args.quick else None]
         kf = [orb.detect(load_gray(p)) for p in tqdm(paths, desc="KITTI ORB", file=sys.stderr,
                                                        leave=False)]
         kvoc = train_vocabulary([f.descriptors for f in kf], 1000)
@@ -202,7 +228,28 @@ def main(argv=None) -> int:
         "machine": {"python": platform.python_version(), "platform": platform.platform()},
     }, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))
     print(f"wrote {args.out}")
+    plot(rows, kitti, len(images), args.out)
     return 0
+
+
+def plot_real(r: dict, out: Path) -> Path:
+    """``--real``: share of pairs verified (same places high, different places 0) and closures found."""
+    from plotting import Panel, save_figure  # beside this script
+
+    d = r["different_places"]
+    kinds = ["KITTI 07 pairs 1-5 m apart", "Lund door pairs", "different places"]
+    shares = [100 * r["kitti07_near_pairs"]["verified"] / max(r["kitti07_near_pairs"]["pairs"], 1),
+              100 * r["lund_pairs"]["verified"] / max(r["lund_pairs"]["pairs"], 1),
+              100 * (d["pairs"] - d["rejected"]) / max(d["pairs"], 1)]
+    folders = [f"desk ({r['desk']['images']} photos; target 1)", f"KITTI 07 ({r['kitti07']['images']} "
+               "frames; target 0)"]
+    title = "Place recognition on real images (graphslam loops defaults, shipped vocabulary)"
+    return save_figure(out, title, [
+        Panel("geometric verification", "image pairs", "pairs verified [%]",
+              {"verified": (kinds, shares)}, kind="bar", ylim=(0, 105)),
+        Panel("closures of whole folders", "folder", "closures accepted",
+              {"closures": (folders, [len(r["desk"]["closures"]), len(r["kitti07"]["closures"])])},
+              kind="bar")])
 
 
 def real_main(data: Path, out: Path) -> int:
@@ -216,6 +263,7 @@ def real_main(data: Path, out: Path) -> int:
     out.write_text(json.dumps({"benchmark": "loop_pr_real", **r, "machine": {
         "python": platform.python_version(), "platform": platform.platform()}}, indent=2))
     print(f"wrote {out}")
+    plot_real(r, out)
     return 0
 
 

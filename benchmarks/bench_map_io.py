@@ -8,7 +8,9 @@ same process: ``np.savez`` / ``np.load`` of the same arrays (numpy's own
 writer, pickle off), so the ratio shows what the format's checks (SHA-256,
 shape checks, the byte-reproducible zip) cost. Best of ``--repeat`` runs.
 
-    python benchmarks/bench_map_io.py [--keyframes N] [--repeat R] [--out FILE.json]
+JSON (default ``benchmarks/results/map_io.json``) and its PNG beside it.
+
+    python benchmarks/bench_map_io.py [--keyframes N] [--repeat R] [--quick] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ from loopclosure.vocabulary import FlatVocabulary  # noqa: E402
 TARGET_S = 2.0
 
 
-def big_map(n_kf: int, seed: int = 0) -> SpatialMap:
+def big_map(n_kf: int, seed: int = 0, words: int = 1000, bow_kf: int = 500) -> SpatialMap:
+    """The synthetic map; ``words`` and ``bow_kf`` (BoW entries per keyframe) shrink for ``--quick``."""
     rng = np.random.default_rng(seed)
-    n_lm, per_kf, bow_kf, words = 10 * n_kf, 60, 500, 1000
+    n_lm, per_kf = 10 * n_kf, 60
     vocab = FlatVocabulary(n_words=words, seed=0).fit(
         [rng.integers(0, 256, (2000, 32), dtype=np.uint8) for _ in range(3)])
     wTc = np.tile(np.eye(4), (n_kf, 1, 1))
@@ -69,13 +72,32 @@ def best(fn, repeat: int) -> float:
     return min(times)
 
 
+def plot(out: dict, repeat: int, path: Path) -> Path:
+    """Save and load times of the map format beside np.savez / np.load, with the 2 s target."""
+    from plotting import Panel, save_figure  # beside this script
+
+    ops = ["save", "load"]
+    return save_figure(path, f"Map files: {out['keyframes']} keyframes, {out['size_mb']} MB, best of "
+                             f"{repeat}", [
+        Panel(f"save x{out['save_ratio']:.2f}, load x{out['load_ratio']:.2f} the baseline", "operation",
+              "wall time [s]", {"graphslam.maps (save_map / load_map)": (ops, [out["save_s"], out["load_s"]]),
+                                "baseline np.savez / np.load": (ops, [out["baseline_savez_s"],
+                                                                     out["baseline_load_s"]])},
+              kind="bar", logy=True, targets={f"target {out['target_s']:g} s": out["target_s"]})],
+        ncols=1)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--keyframes", type=int, default=10_000)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--quick", action="store_true", help="100 keyframes, 100 words, 1 repeat")
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "map_io.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
-    smap = big_map(args.keyframes)
+    if args.quick:
+        args.keyframes, args.repeat = 100, 1
+    smap = big_map(args.keyframes, words=100, bow_kf=50) if args.quick else big_map(args.keyframes)
     arrays = {n: getattr(smap, n) for n in ("keyframe_wTc", "keyframe_cov", "landmark_w",
                                              "landmark_cov", "landmark_desc", "landmark_patch",
                                              "obs_keyframe", "obs_landmark", "obs_uv", "obs_desc",
@@ -98,8 +120,9 @@ def main(argv=None) -> int:
            "pass": bool(save_s < TARGET_S and load_s < TARGET_S)}
     text = json.dumps(out, indent=2)
     print(text)
-    if args.out is not None:
-        args.out.write_text(text + "\n")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text + "\n")
+    plot(out, args.repeat, args.out)
     return 0 if out["pass"] else 1
 
 

@@ -37,7 +37,9 @@ small-numpy work) is printed and stored so runs under different loads can
 be compared.
 
 Usage: ``python benchmarks/bench_mono_ekf.py [--out FILE.json] [--frames N]
-[--runs R] [--quick]``; default output ``benchmarks/results/mono_ekf.json``.
+[--runs R] [--quick]``; default output ``benchmarks/results/mono_ekf.json`` and
+its figure ``mono_ekf.png`` beside it (part A against corrections, part B
+against map size).
 """
 
 from __future__ import annotations
@@ -62,8 +64,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from filters.mono_ekf import MonoEkf  # noqa: E402
 from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
-from slamcore.spatial.geometry import invert_pose
-from slamcore.spatial.camera import project, se3_exp  # noqa: E402
+from slamcore.spatial.geometry import invert_pose, se3_exp  # noqa: E402
+from slamcore.spatial.camera import project  # noqa: E402
 from slamcore.spatial.backend import PixelObservations  # noqa: E402
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -192,6 +194,28 @@ def dense_baseline_ms(n: int, k: int, repeats: int = 100, seed: int = 0) -> floa
     return 1e3 * float(np.median(ts))
 
 
+def plot(rows: list[dict], frames: int, out: Path) -> Path:
+    """Part A: ms per frame against corrections; part B: against the map size, per correction cap."""
+    from plotting import Panel, save_figure  # beside this script
+
+    a = [r for r in rows if r["part"] == "A"]
+    b = [r for r in rows if r["part"] == "B"]
+    corr = [r["max_corrections"] for r in a]
+    part_a = {"wall, median": (corr, [r["frame_ms_median"] for r in a]),
+              "CPU, median": (corr, [r["frame_cpu_ms_median"] for r in a]),
+              "bare dense EKF update (same n, k)": (corr, [r["dense_update_ms"] for r in a])}
+    part_b = {f"{c} corrections": ([r["max_landmarks"] for r in b if r["max_corrections"] == c],
+                                   [r["frame_cpu_ms_median"] for r in b if r["max_corrections"] == c])
+              for c in dict.fromkeys(r["max_corrections"] for r in b)}
+    target = {"60 Hz whole loop (16.7 ms)": 1e3 / 60}
+    return save_figure(out, f"Monocular EKF-SLAM: predict + predict_observations + update per frame "
+                            f"(simulated VGA camera, {frames} frames)", [
+        Panel("A: against corrections (map of 20, re-parametrisation on)", "corrections per frame (cap)",
+              "time per frame [ms]", part_a, targets=target, logy=True),
+        Panel("B: against map size (all IDP)", "landmarks in the map (limit)", "CPU time per frame [ms]",
+              part_b, targets=target, logy=True)])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path,
@@ -251,6 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2) + "\n")
     print(f"wrote {args.out}")
+    plot(rows, args.frames, args.out)
     return 0
 
 

@@ -12,7 +12,9 @@ filters as ``recoveries``) are printed per cell, so a pass that needed them
 is visible.
 
     python benchmarks/bench_noise_grid.py [--backends ekf fastslam1 fastslam2 isam2]
-        [--seeds 0 1 ...] [--scales 0.1 0.3 1 3 10] [--out FILE.json]
+        [--seeds 0 1 ...] [--scales 0.1 0.3 1 3 10] [--quick] [--out FILE.json]
+
+JSON (default ``benchmarks/results/noise_grid.json``) and its PNG beside it.
 
 Exit status 1 when any cell fails. FastSLAM runs with 100 particles (the
 default) and the world seed as its own seed.
@@ -92,13 +94,42 @@ def run_cell(backend: str, field: str, scale: float, seed: int) -> dict:
     return row
 
 
+def plot(rows: list[dict], backends: list[str], scales: list[float], out: Path) -> Path:
+    """Per back end and noise scale: share of cells run to the end, share that needed recoveries."""
+    from plotting import Panel, save_figure  # beside this script
+
+    def share(backend, scale, test):
+        cells = [r for r in rows if r["backend"] == backend and r["scale"] == scale]
+        return 100.0 * sum(map(test, cells)) / max(len(cells), 1)
+
+    def recovered(r):
+        return bool(r["recoveries"]) and any(r["recoveries"].values())
+
+    names = [f"x{s:g}" for s in scales]
+    ran = {b: (names, [share(b, s, lambda r: r["ok"]) for s in scales]) for b in backends}
+    rec = {b: (names, [share(b, s, recovered) for s in scales]) for b in backends}
+    seeds = sorted({r["seed"] for r in rows})
+    seeds_txt = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]}"
+    return save_figure(out, f"Noise grid: synthetic world, noise x scale (each alone and all), "
+                            f"{seeds_txt}", [
+        Panel("runs that reached the last frame", "noise scale (x the course's values)",
+              "cells run to the end [%]", ran, kind="bar", ylim=(0, 105)),
+        Panel("runs that needed numerical recoveries", "noise scale (x the course's values)",
+              "cells with recoveries [%]", rec, kind="bar", ylim=(0, 105))])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS))
     ap.add_argument("--scales", type=float, nargs="+", default=list(SCALES))
-    ap.add_argument("--out", help="write every cell's row as JSON to this file")
+    ap.add_argument("--quick", action="store_true", help="seed 0, scale 10 (each noise alone and all)")
+    ap.add_argument("--out", type=Path,
+                    default=Path(__file__).resolve().parent / "results" / "noise_grid.json",
+                    help="write every cell's row as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.seeds, args.scales = [0], [10.0]
     rows = []
     for backend in args.backends:
         fails = 0
@@ -116,8 +147,9 @@ def main(argv: list[str] | None = None) -> int:
                           flush=True)
         n = len(noise_cells(args.scales)) * len(args.seeds)
         print(f"{backend}: {n - fails}/{n} cells ran to the end", flush=True)
-    if args.out:
-        Path(args.out).write_text(json.dumps(rows, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(rows, indent=1))
+    plot(rows, args.backends, args.scales, args.out)
     return 1 if any(not r["ok"] for r in rows) else 0
 
 

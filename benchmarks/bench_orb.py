@@ -8,7 +8,9 @@ the cost of ``compute`` depends on the pyramid levels they sit on). The two alte
 (CPU time, ``time.process_time``), so machine load hits both alike; the
 figure is the ratio of the medians. Goal: at most 1.1.
 
-    python benchmarks/bench_orb.py [--frames 40] [--repeats 5]
+JSON (default ``benchmarks/results/orb.json``) and its PNG beside it.
+
+    python benchmarks/bench_orb.py [--frames 40] [--repeats 5] [--quick] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -28,12 +30,30 @@ HERE = Path(__file__).resolve().parent
 KITTI = HERE.parent.parent / "shared" / "data" / "kitti07" / "image_0"
 
 
+def plot(t_ours: list[float], t_cv: list[float], n_frames: int, ratio: float, out: Path) -> Path:
+    """CPU time per frame, ours against OpenCV, frame by frame (median over the repeats)."""
+    from plotting import Panel, save_figure  # beside this script
+
+    k = list(range(n_frames))
+    ours = 1e3 * np.median(np.reshape(t_ours, (-1, n_frames)), axis=0)
+    cv = 1e3 * np.median(np.reshape(t_cv, (-1, n_frames)), axis=0)
+    return save_figure(out, "ORB on KITTI 07: OrbDetector against bare OpenCV", [
+        Panel(f"CPU time per frame; ratio of medians {ratio:.3f} (goal <= 1.1)", "KITTI 07 frame",
+              "CPU time [ms] (median over the repeats)",
+              {"OrbDetector.detect": (k, ours),
+               "OpenCV detect + compute of the kept keypoints": (k, cv)})], ncols=1)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "orb.json")
+    ap.add_argument("--quick", action="store_true", help="3 frames, 1 repeat")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "orb.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames, args.repeats = 3, 1
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
               for p in sorted(KITTI.glob("*.png"))[:args.frames]]
     ours = OrbDetector(OrbConfig())
@@ -65,6 +85,7 @@ def main(argv=None) -> int:
                                     "opencv_ms": 1000 * float(np.median(t_cv)),
                                     "candidates": float(np.median(n_cand)),
                                     "kept": float(np.median(n_kept))}, indent=2))
+    plot(t_ours, t_cv, len(images), ratio, args.out)
     return 0
 
 

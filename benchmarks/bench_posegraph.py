@@ -15,7 +15,12 @@ prebuilt factors, on w10000 (2-D, 10 000 poses) and a generated 3-D helix of
 flat. Also sphere2500 against gtsam's ground truth: ATE after SE(3) alignment
 of the iSAM2 result and of the batch optimum.
 
-    python benchmarks/bench_posegraph.py [FILE|FOLDER ...] [--out DIR] [--isam2]
+    python benchmarks/bench_posegraph.py [FILE|FOLDER ...] [--out DIR] [--isam2] [--quick]
+
+``DIR/bench_posegraph.json`` gets its summary figure beside it
+(``bench_posegraph.png``: time ratios and wall times per file, iSAM2's
+overhead per step by quarter). ``--quick``: w100 and pose3example only, and
+with ``--isam2`` a 500-pose helix and w100.
 
 Default files: the pose graphs of the gtsam wheel. Measured (2 shared cores,
 other jobs running): iSAM2 ours / bare 1.009 on the helix (3-D, 10 000 poses),
@@ -99,7 +104,7 @@ def helix_graph(n: int, per_turn: int, folder: Path) -> Path:
         q, t = z.rotation().toQuaternion(), z.translation()
         numbers = [*map(float, t), q.x(), q.y(), q.z(), q.w()]
         lines.append(f"EDGE_SE3:QUAT {a} {b} " + " ".join(map(repr, numbers)) + f" {info}")
-    path = folder / "helix10000.g2o"
+    path = folder / f"helix{n}.g2o"
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -179,12 +184,13 @@ def sphere2500_ate(config: PoseGraphConfig) -> dict:
     return out
 
 
-def isam2_rows(config: PoseGraphConfig) -> list[dict]:
-    """iSAM2 ours / bare on a 10 000-pose 3-D helix and on w10000, printed as they come."""
+def isam2_rows(config: PoseGraphConfig, quick: bool = False) -> list[dict]:
+    """iSAM2 ours / bare on a 10 000-pose 3-D helix and on w10000 (quick: 500 poses and w100),
+    printed as they come."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for path in (helix_graph(10000, 100, Path(tmp)),
-                     Path(gtsam.findExampleDataFile("w10000.graph"))):
+        for path in (helix_graph(500 if quick else 10000, 100, Path(tmp)),
+                     Path(gtsam.findExampleDataFile("w100.graph" if quick else "w10000.graph"))):
             r = bench_isam2(path, config)
             rows.append(r)
             print(f"iSAM2 {r['file']}: ours {r['ours_s']:.2f} s, bare {r['bare_s']:.2f} s, "
@@ -194,13 +200,37 @@ def isam2_rows(config: PoseGraphConfig) -> list[dict]:
     return rows
 
 
-def main() -> int:
+def plot(result: dict, out: Path) -> Path:
+    """Summary figure: ours / bare and wall times per file, iSAM2 overhead per step by quarter."""
+    from plotting import Panel, save_figure  # beside this script
+
+    rows = result["batch"]
+    files = [r["file"] for r in rows]
+    panels = [
+        Panel("batch: our time over bare gtsam LM", "file", "ours / bare",
+              {"ratio": (files, [r["ratio"] for r in rows])}, kind="bar", targets={"parity": 1.0}),
+        Panel("batch: wall time (reading excluded)", "file", "wall time [s]",
+              {"ours": (files, [r["wall_s"] for r in rows]),
+               "bare gtsam LM": (files, [r["wall_s"] / r["ratio"] for r in rows])}, kind="bar", logy=True)]
+    if "isam2" in result:
+        panels.append(Panel("iSAM2: ours minus bare, per step", "quarter of the run",
+                            "overhead [ms per step]",
+                            {f"{r['file']} (ratio {r['ratio']:.3f})": (
+                                [1, 2, 3, 4], r["overhead_ms_per_step_by_quarter"]) for r in result["isam2"]},
+                            targets={"none": 0.0}))
+    return save_figure(out / "bench_posegraph.json", "Pose graphs against bare gtsam", panels)
+
+
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("inputs", nargs="*", help="pose-graph files or folders (default: gtsam's)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph"),
                     help="folder for bench_posegraph.json and the PNGs")
     ap.add_argument("--isam2", action="store_true", help="also time iSAM2 against bare ISAM2")
-    args = ap.parse_args()
+    ap.add_argument("--quick", action="store_true", help="small files only (see the docstring)")
+    args = ap.parse_args(argv)
+    if args.quick and not args.inputs:
+        args.inputs = [gtsam.findExampleDataFile(n) for n in ("w100.graph", "pose3example.txt")]
     args.out.mkdir(parents=True, exist_ok=True)
     config = PoseGraphConfig()
     rows = []
@@ -214,10 +244,12 @@ def main() -> int:
               f"{r['wall_s']:7.2f} {r['ratio']:6.2f}", flush=True)
     result = {"batch": rows}
     if args.isam2:
-        result["isam2"] = isam2_rows(config)
-        result["sphere2500_ate_m"] = sphere2500_ate(config)
-        print("sphere2500 ATE (SE(3)-aligned) [m]:", json.dumps(result["sphere2500_ate_m"]))
+        result["isam2"] = isam2_rows(config, args.quick)
+        if not args.quick:  # sphere2500 is 2 500 poses solved twice: not a smoke run
+            result["sphere2500_ate_m"] = sphere2500_ate(config)
+            print("sphere2500 ATE (SE(3)-aligned) [m]:", json.dumps(result["sphere2500_ate_m"]))
     (args.out / "bench_posegraph.json").write_text(json.dumps(result, indent=2) + "\n")
+    plot(result, args.out)
     return 0
 
 

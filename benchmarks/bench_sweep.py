@@ -19,7 +19,10 @@ Every measurement is taken in this process, one after the other, so the
 machine's load is shared alike; on a loaded machine the efficiency measures
 the cores actually free, not the engine. Writes JSON.
 
-    python benchmarks/bench_sweep.py [--runs 8] [--steps 200] [--workers 2] [--out FILE.json]
+    python benchmarks/bench_sweep.py [--runs 8] [--steps 200] [--workers 2] [--quick] [--out FILE.json]
+
+The PNG beside the JSON shows runs per second with one and k workers, and the
+per-run costs, for each engine. ``--quick``: 2 runs of 20 steps.
 """
 
 from __future__ import annotations
@@ -103,13 +106,37 @@ def engine(name: str, make, spec, k: int, folder: Path) -> dict:
             "efficiency": many["runs_per_s"] / (k * one["runs_per_s"])}
 
 
+def plot(results: dict, out: Path) -> Path:
+    """Runs per second with one and k workers, and what each engine adds per run."""
+    from plotting import Panel, save_figure  # beside this script
+
+    k = results["workers"]
+    names = [n for n in ("pool", "dask") if n in results]
+    r = {n: results[n] for n in names}
+    costs = {"dispatch overhead per run": (names, [r[n]["one_worker"]["overhead_per_run_ms"] for n in names]),
+             "this process's CPU per run": (names, [r[n]["one_worker"]["this_process_cpu_per_run_ms"]
+                                                    for n in names])}
+    if "dask" in r:
+        costs["Dask round trip (empty task)"] = (["dask"], [r["dask"]["round_trip_ms"]])
+    return save_figure(out, f"Sweep engines: {results['runs']} EKF runs of {results['steps']} steps", [
+        Panel("throughput (efficiency " + ", ".join(f"{n} {r[n]['efficiency']:.2f}" for n in names) + ")",
+              "engine", "runs per second", {
+                  "1 worker": (names, [r[n]["one_worker"]["runs_per_s"] for n in names]),
+                  f"{k} workers": (names, [r[n][f"{k}_workers"]["runs_per_s"] for n in names])}, kind="bar"),
+        Panel("per-run costs (one worker)", "engine", "time per run [ms]", costs, kind="bar")])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=8)
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sweep.json"))
+    ap.add_argument("--quick", action="store_true", help="2 runs of 20 steps")
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sweep.json"),
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.runs, args.steps = 2, 20
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         spec = parse_sweep(sweep_file(folder, args.runs, args.steps))
@@ -137,6 +164,7 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {args.out}")
+    plot(results, args.out)
     return 0
 
 

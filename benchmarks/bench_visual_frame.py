@@ -192,6 +192,22 @@ def run_once(seq, images, kind: str, params: dict, frontend: str) -> dict:
     return out
 
 
+def plot(rows: list[dict], frames: int, out: Path) -> Path:
+    """Mean wall ms of each stage per configuration, and the loop's rate against the targets."""
+    from plotting import Panel, save_figure  # beside this script
+
+    names = [f"{r['frontend']}: {r['config']}" for r in rows]
+    stages = {s: (names, [r[f"{s}_ms_mean"] for r in rows]) for s in STAGES}
+    rates = {"whole loop": (names, [r["loop_hz"] for r in rows]),
+             "without detection (fpga: detection in hardware)": (names, [r["no_detect_hz"] for r in rows])}
+    targets = {f"target {k} ({v:g} Hz)": v for k, v in TARGETS.items()}
+    return save_figure(out, f"Visual SLAM per-frame loop on the synthetic VGA sequence, {frames} frames", [
+        Panel("time per stage (mean)", "front end: configuration", "wall time per frame [ms]",
+              stages, kind="bar"),
+        Panel("frame rate", "front end: configuration", "frames per second (wall)", rates, kind="bar",
+              targets=targets)])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path,
@@ -298,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2) + "\n")
     print(f"wrote {args.out}")
+    plot(rows, len(images), args.out)
     return 0
 
 

@@ -18,7 +18,11 @@
   ``np.bincount``). Median and p90 wall time; CPU time too, since the
   machine is shared. Target: median <= 5 ms at 10 000 images.
 
-    python benchmarks/bench_vocabulary.py [--out FILE.json] [--queries N]
+    python benchmarks/bench_vocabulary.py [--out FILE.json] [--queries N] [--quick]
+
+The PNG beside the JSON shows the three (training, quantisation, query time
+against database size). ``--quick``: 20 000 descriptors from the first 20
+frames, a k=10, L=3 tree, databases of 100 and 1 000 images, 20 queries.
 """
 
 from __future__ import annotations
@@ -42,9 +46,9 @@ DESC_PER_IMAGE = 1000
 N_WORDS = 10_000
 
 
-def orb_descriptors(n_train: int):
+def orb_descriptors(n_train: int, max_frames: int | None = None):
     """(per-image training arrays, held-out per-image arrays, source description)."""
-    files = sorted(KITTI.glob("*.png")) if KITTI.is_dir() else []
+    files = sorted(KITTI.glob("*.png"))[:max_frames] if KITTI.is_dir() else []
     per = []
     if files:
         from frontend.image import load_gray
@@ -169,22 +173,50 @@ def bench_queries(sizes, n_queries, seed=0):
     return rows
 
 
+def plot(training: dict, quant: dict, rows: list[dict], out) -> object:
+    """Training beside its tenth-of-the-data baseline, quantisation, query time against database size."""
+    from plotting import Panel, save_figure  # beside this script
+
+    sizes = [r["images"] for r in rows]
+    return save_figure(out, f"Vocabulary tree ({training['words']} words, {training['descriptors']} "
+                            f"descriptors) and BoW database", [
+        Panel("training", "data", "fit time [s]",
+              {"wall": (["all", "1/10 (baseline)"], [training["fit_s"], training["baseline_fit_tenth_s"]]),
+               "CPU": (["all", "1/10 (baseline)"], [training["fit_cpu_s"],
+                                                     training["baseline_fit_tenth_cpu_s"]])},
+              kind="bar", logy=True, targets={f"target {training['target_s']:g} s": training["target_s"]}),
+        Panel(f"quantisation ({100 * quant['same_word_fraction']:.1f} % same word)", "method",
+              "time per image [ms] (median)",
+              {"median": (["tree descent", "brute force over leaves"],
+                          [quant["tree_median_ms"], quant["brute_force_median_ms"]])}, kind="bar"),
+        Panel("query (10 results)", "images in the database", "query time [ms]",
+              {"inverted index, median": (sizes, [r["query_median_ms"] for r in rows]),
+               "inverted index, p90": (sizes, [r["query_p90_ms"] for r in rows]),
+               "brute-force scan, median": (sizes, [r["brute_median_ms"] for r in rows])},
+              logx=True, logy=True, targets={"target 5 ms at 10 000 images": 5.0})], ncols=3)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--queries", type=int, default=200, help="queries per database size")
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10_000])
-    ap.add_argument("--out", default="benchmarks/results/bench_vocabulary.json")
+    ap.add_argument("--quick", action="store_true", help="small sizes (see the docstring)")
+    ap.add_argument("--out", default="benchmarks/results/bench_vocabulary.json",
+                    help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
+    n_train, max_frames, depth = (20_000, 20, 3) if args.quick else (N_TRAIN, None, 4)
+    if args.quick:
+        args.sizes, args.queries = [100, 1000], 20
     load_start = os.getloadavg()
     print(f"load average {load_start[0]:.1f} on {os.cpu_count()} cores", flush=True)
 
-    train, held, source = orb_descriptors(N_TRAIN)
+    train, held, source = orb_descriptors(n_train, max_frames)
     n_desc = sum(len(d) for d in train)
     print(f"descriptors: {source}", flush=True)
     small = [d[: max(1, len(d) // 10)] for d in train]
-    _, small_wall, small_cpu = timed(VocabularyTree(10, 4, seed=0).fit, small)
-    tree, wall, cpu = timed(VocabularyTree(10, 4, seed=0).fit, train)
-    training = {"descriptors": n_desc, "source": source, "branching": 10, "depth": 4,
+    _, small_wall, small_cpu = timed(VocabularyTree(10, depth, seed=0).fit, small)
+    tree, wall, cpu = timed(VocabularyTree(10, depth, seed=0).fit, train)
+    training = {"descriptors": n_desc, "source": source, "branching": 10, "depth": depth,
                 "words": tree.n_words_, "fit_s": wall, "fit_cpu_s": cpu, "target_s": 60.0,
                 "baseline_fit_tenth_s": small_wall, "baseline_fit_tenth_cpu_s": small_cpu}
     print(f"train  {n_desc} descriptors -> {tree.n_words_} words: {wall:6.1f} s (cpu {cpu:6.1f} s), "
@@ -221,6 +253,7 @@ def main(argv=None) -> int:
                              "max_results": 10, "target_median_ms_at_10000": 5.0, "rows": rows}},
                   f, indent=2)
     print(f"wrote {args.out}")
+    plot(training, quant, rows, args.out)
     return 0
 
 
