@@ -57,6 +57,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
@@ -282,11 +283,22 @@ class VisualIsam2Backend(VisualBackend):
             else:
                 self._polished = gtsam.LevenbergMarquardtOptimizer(
                     graph, self._isam.calculateEstimate(), params).optimize()
-            # the polished pose's covariance, from a batch factorisation at the polish
-            marginals = gtsam.Marginals(graph, self._polished)
             self._current_cov_polished = conv.pose3_covariance_from_gtsam(
-                marginals.marginalCovariance(X(self._frames[-1])))
+                self._polished_pose_covariance(graph, X(self._frames[-1])))
         return self.estimate()
+
+    def _polished_pose_covariance(self, graph: gtsam.NonlinearFactorGraph, key: int) -> np.ndarray:
+        """The last pose's covariance from a batch factorisation at the polish; where
+        that Cholesky meets an indeterminate system (a landmark the polish left barely
+        constrained, e.g. seen from two close frames), iSAM2's own marginal, counted
+        in ``stats()["pose_covariance_from_isam2"]``: the run keeps its estimate."""
+        try:
+            return gtsam.Marginals(graph, self._polished).marginalCovariance(key)
+        except RuntimeError as exc:
+            if not fact.is_indeterminate(exc):
+                raise
+        self._stats["pose_covariance_from_isam2"] = 1
+        return self._isam.marginalCovariance(key)
 
     def add_loop_closure(self, closure: PoseClosure) -> None:
         """A ``BetweenFactorPose3(X(a), X(b), aTb)`` under ``loop_closure_kernel``."""

@@ -242,6 +242,9 @@ def format_summary(m) -> str:
         ("frames/s", fmt(m.frames_per_s, ".1f")),
     ]
     stats = m.backend_stats or {}
+    if stats.get("pose_covariance_from_isam2"):
+        rows.append(("numerical recovery", "polished marginals indeterminate; last pose "
+                                           "covariance from iSAM2"))
     if "reparametrised" in stats:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
     if m.loops:
