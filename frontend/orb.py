@@ -144,20 +144,23 @@ class OrbDetector:
         n_cols = -(-shape[1] // cs)
         # Truncation, then clipping at 0, is the floor of x / cs; and the float64
         # quotient of a float32 pixel (KeyPoint.pt) never rounds up to the next
-        # integer, so this is ``xy // cs`` at a third of the cost.
+        # integer, so this is ``xy // cs`` at a third of the cost (as is
+        # clipping each column by a scalar, not both by a pair).
         rc = (xy / cs).astype(np.int64)
         np.maximum(rc, 0, out=rc)
-        np.minimum(rc, (n_cols - 1, -(-shape[0] // cs) - 1), out=rc)
-        return rc[:, 1] * n_cols + rc[:, 0]
+        col, row = rc[:, 0], rc[:, 1]
+        np.minimum(col, n_cols - 1, out=col)
+        np.minimum(row, -(-shape[0] // cs) - 1, out=row)
+        return row * n_cols + col
 
     @staticmethod
-    def _order(xy, resp, cell, kps):
+    def _order(xy, resp, cell, octaves):
         """Sort by (cell, -response, row, column, octave): a total, deterministic order.
 
         Sorted on (cell, -response) first; only when two keypoints of one cell
         share a response (rare) is the full five-key sort needed, which costs
         about 3x more on a KITTI frame's ~4 800 candidates (and reads the
-        octaves of the OpenCV keypoints ``kps``, which nothing else needs).
+        octaves, ``octaves()``, which nothing else needs).
         """
         key = _sort_key(resp, cell)
         o = np.argsort(key)
@@ -165,23 +168,21 @@ class OrbDetector:
         if not (ko[1:] == ko[:-1]).any():
             return o
         head = [-resp] if cell is None else [-resp, cell]
-        return np.lexsort([_octaves(kps), xy[:, 0], xy[:, 1]] + head)
+        return np.lexsort([octaves(), xy[:, 0], xy[:, 1]] + head)
 
     def _cell_best(self, xy, resp, cell, kps, shape) -> np.ndarray:
-        """Indices, unsorted, of the ``per_cell`` first keypoints of each cell in :meth:`_order`."""
+        """Indices of the ``per_cell`` first keypoints of each cell in :meth:`_order`, in that order."""
         per_cell = self.config.per_cell
         if per_cell == 1:
-            # The best of each cell is its smallest key: found without a sort
-            # (a quarter of its cost), unless two share it and the order must decide.
+            # The best response of each cell, found without a sort (a third of
+            # its cost), unless two share it (or it is NaN) and the order decides.
             cs = self.config.cell_size_px
-            none = np.iinfo(np.int64).max
-            best = np.full(-(-shape[0] // cs) * -(-shape[1] // cs), none)
-            key = _sort_key(resp, cell)
-            np.minimum.at(best, cell, key)
-            won = np.flatnonzero(key == best[cell])
-            if len(won) == np.count_nonzero(best != none):
-                return won
-        order = self._order(xy, resp, cell, kps)
+            best = np.full(-(-shape[0] // cs) * -(-shape[1] // cs), -np.inf)
+            np.maximum.at(best, cell, resp)
+            won = np.flatnonzero(resp == best[cell])
+            if len(won) == np.count_nonzero(best != -np.inf):
+                return won[np.argsort(cell[won])]  # one a cell
+        order = self._order(xy, resp, cell, lambda: _octaves(kps))
         sc = cell[order]
         start = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])  # order is sorted by cell
         first = np.repeat(start, np.diff(np.r_[start, len(sc)]))
@@ -212,21 +213,26 @@ class OrbDetector:
     def select(self, kps, shape) -> np.ndarray:
         """Indices (sorted) of the OpenCV keypoints ``kps`` of an image of ``shape`` that
         :meth:`detect` keeps and describes: per-cell best, then the ``max_features`` cap."""
-        return self._select(kps, shape)[0]
+        return np.sort(self._select(kps, shape)[0])
 
     def _select(self, kps, shape):
-        """:meth:`select`, with the pixels, responses and cells (or None) of all ``kps``."""
+        """:meth:`select` in output order (:meth:`_order`), with the pixels, responses
+        and cells (or None) of all ``kps``."""
         c = self.config
         xy, resp = _pixels(kps), _responses(kps)
-        cell = self._cells(xy, shape) if c.cell_size_px else None
-        keep = np.arange(len(kps))
-        if cell is not None:
-            keep = self._cell_best(xy, resp, cell, kps, shape)
+        if not c.cell_size_px:
+            # the cap's order (best response first, ties as _order) is the output order
+            keep = self._order(xy, resp, None, lambda: _octaves(kps))[:c.max_features or None]
+            return keep, xy, resp, None
+        cell = self._cells(xy, shape)
+        keep = self._cell_best(xy, resp, cell, kps, shape)
         if c.max_features and len(keep) > c.max_features:
-            octv = _octaves([kps[i] for i in keep])
-            o = np.lexsort([octv, xy[keep, 0], xy[keep, 1], -resp[keep]])
-            keep = keep[o[:c.max_features]]
-        return np.sort(keep), xy, resp, cell
+            keep = np.sort(keep)
+            sub = [kps[i] for i in keep]
+            o = np.lexsort([_octaves(sub), xy[keep, 0], xy[keep, 1], -resp[keep]])[:c.max_features]
+            keep = keep[o[self._order(xy[keep[o]], resp[keep[o]], cell[keep[o]],
+                                      lambda: _octaves([sub[i] for i in o]))]]
+        return keep, xy, resp, cell
 
     def _empty(self) -> Features:
         return Features(xy_px=np.zeros((0, 2)), response=np.zeros(0),
@@ -245,16 +251,15 @@ class OrbDetector:
         keep, xy, resp, cell = self._select(kps, image.shape)
         kept_kps = [kps[i] for i in keep.tolist()]  # only these are described
         # compute() drops keypoints it cannot describe and regroups the rest by
-        # octave: class_id says which candidate each one is, so their pixels,
-        # responses and cells need not be read and computed again
+        # octave: class_id (the rank in the output order) puts them back, so
+        # their pixels, responses and cells need not be read or sorted again
         for j, k in enumerate(kept_kps):
             k.class_id = j
         kept_kps, desc = orb.compute(image, kept_kps)
         if desc is None or not kept_kps:
             return self._empty()
-        got = keep[np.fromiter(map(_CLASS_ID, kept_kps), np.int64, len(kept_kps))]
-        xy, resp = xy[got], resp[got]
-        cell = None if cell is None else cell[got]
-        o = self._order(xy, resp, cell, kept_kps)
-        return Features(xy_px=xy[o], response=resp[o], descriptors=np.ascontiguousarray(desc[o]),
-                        cell=None if cell is None else cell[o])
+        rank = np.fromiter(map(_CLASS_ID, kept_kps), np.int64, len(kept_kps))
+        o = np.argsort(rank)
+        got = keep[rank[o]]
+        return Features(xy_px=xy[got], response=resp[got], descriptors=desc[o],
+                        cell=None if cell is None else cell[got])
