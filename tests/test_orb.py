@@ -198,3 +198,47 @@ def test_read_kitti_errors_name_the_line(tmp_path):
         read_kitti_calib(c)  # no P0
     with pytest.raises(InputError):
         read_kitti_poses(tmp_path / "missing.txt")
+
+
+def _reference_select(kps, shape, cs: int, per_cell: int) -> np.ndarray:
+    """The selection spelled out: one five-key sort (cell, -response, row, column,
+    octave) of every candidate, the first ``per_cell`` of each cell."""
+    xy = np.array([k.pt for k in kps], np.float64)
+    resp = np.array([k.response for k in kps])
+    octv = np.array([k.octave for k in kps])
+    n_cols = -(-shape[1] // cs)
+    col = np.clip((xy[:, 0] // cs).astype(int), 0, n_cols - 1)
+    row = np.clip((xy[:, 1] // cs).astype(int), 0, -(-shape[0] // cs) - 1)
+    cell = row * n_cols + col
+    order = np.lexsort([octv, xy[:, 0], xy[:, 1], -resp, cell])
+    rank = np.zeros(len(kps), int)
+    for pos in range(1, len(order)):
+        same = cell[order[pos]] == cell[order[pos - 1]]
+        rank[pos] = rank[pos - 1] + 1 if same else 0
+    return np.sort(order[rank < per_cell])
+
+
+@pytest.mark.parametrize("per_cell", [1, 2])
+def test_orb_fast_selection_equals_the_full_sort_with_and_without_ties(per_cell):
+    """The selection skips the five-key sort when no two keypoints of a cell share a
+    response, and finds a cell's best without sorting: both must keep exactly what
+    the full sort keeps, on texture (no ties) and on a tiled pattern (many ties)."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    tile = rng.integers(0, 256, (16, 16)).astype(np.uint8)
+    tiled = np.tile(cv2.resize(tile, (32, 32), interpolation=cv2.INTER_NEAREST), (8, 10))
+    ties_seen = 0
+    for img in (textured_image(1), tiled):
+        det = OrbDetector(cell_size_px=40, per_cell=per_cell)
+        kps = det._orb().detect(img, None)
+        resp = np.array([k.response for k in kps])
+        ties_seen += len(resp) - len(np.unique(resp))
+        assert np.array_equal(det.select(kps, img.shape), _reference_select(kps, img.shape, 40, per_cell))
+        f = det.detect(img)
+        kept = [kps[i] for i in det.select(kps, img.shape)]
+        assert len(f) == len(kept)  # compute() dropped none of ORB's own keypoints
+        assert np.all(np.diff(f.cell) >= 0)
+        same = f.cell[1:] == f.cell[:-1]
+        assert np.all(f.response[:-1][same] >= f.response[1:][same])
+    assert ties_seen > 0  # the tiled image does exercise the tie path
