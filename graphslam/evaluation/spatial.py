@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from slamcore.errors import GraphSlamError
+from slamcore.spatial.geometry import invert_pose
 
 ALIGNMENTS = ("se3", "sim3", "none")
 
@@ -102,15 +103,6 @@ def _rotation_angle(R: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
 def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) -> dict:
     """Relative pose error between common frames ``delta`` apart (sorted common ids).
 
@@ -127,10 +119,10 @@ def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) ->
     common, est, gt = _common(est_ids, est_wTc, gt_ids, gt_wTc)
     if common.size <= delta:
         raise GraphSlamError(f"RPE needs more than {delta} common frame ids, got {common.size}")
-    rel_est = _inv(est[:-delta]) @ est[delta:]
+    rel_est = invert_pose(est[:-delta]) @ est[delta:]
     rel_est[:, :3, 3] *= float(scale)
-    rel_gt = _inv(gt[:-delta]) @ gt[delta:]
-    err = _inv(rel_gt) @ rel_est
+    rel_gt = invert_pose(gt[:-delta]) @ gt[delta:]
+    err = invert_pose(rel_gt) @ rel_est
     t = np.linalg.norm(err[:, :3, 3], axis=1)
     r = np.degrees(_rotation_angle(err[:, :3, :3]))
     return {"delta_frames": delta, "trans_rmse_m": float(np.sqrt(np.mean(t**2))),

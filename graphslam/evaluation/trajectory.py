@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.spatial.geometry import invert_pose
 
 ALIGN_METHODS = ("none", "se3", "sim3", "first")
 DELTA_UNITS = ("frames", "m")
@@ -127,7 +128,7 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
     if method == "none":
         return est, 1.0
     if method == "first":
-        T = ref[0] @ _se3_inv(est[0])
+        T = ref[0] @ invert_pose(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
@@ -142,20 +143,11 @@ def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
     return np.degrees(Rotation.from_matrix(np.asarray(R).reshape(-1, 3, 3)).magnitude())
 
 
-def _se3_inv(T: np.ndarray) -> np.ndarray:
-    """``[R^T, -R^T t]``: the rigid inverse evo takes (file rotations, rounded to a
-    few digits, are orthonormal only to ~1e-7, so this is not ``np.linalg.inv``)."""
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
+# invert_pose is the rigid inverse [R^T, -R^T t] evo takes: file rotations, rounded to a
+# few digits, are orthonormal only to ~1e-7, so np.linalg.inv would differ.
 def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``inv(a) @ b`` row by row (rigid inverse, as evo)."""
-    return _se3_inv(a) @ b
+    return invert_pose(a) @ b
 
 
 def ate(ref: np.ndarray, est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
