@@ -54,6 +54,7 @@ class PoseGraphRunMetrics:
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
     interrupted: bool = False
+    converged: bool = True
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
@@ -140,7 +141,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         ate_rmse_m=None if truth is None else ate_rmse(graph, result.params, truth),
         odometry_ate_rmse_m=None if truth is None else ate_rmse(
             graph, pg.chain_initialisation(graph), truth),
-        interrupted=result.cut is not None or stop_requested())
+        interrupted=result.cut is not None or stop_requested(),
+        converged=not result.lm_capped)
 
 
 def trajectory_matrices(graph: pg.PoseGraph, params: np.ndarray) -> np.ndarray:

@@ -51,6 +51,7 @@ class SolveResult:
         isam2_s: time of the incremental part alone (None for batch).
         cut: the poses solved when a stop cut the incremental solve (their
             subgraph, which ``params`` and ``residuals`` cover), else None.
+        lm_capped: the final LM stopped at ``max_iterations``, not converged.
     """
 
     solver: str
@@ -67,6 +68,7 @@ class SolveResult:
     isam2_s: float | None = None
     isam2_cost: float | None = None
     cut: PoseGraph | None = None
+    lm_capped: bool = False
 
 
 #: ``should_stop(update)``: asked before each iSAM2 update; True ends the solve there.
@@ -111,8 +113,11 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
     else:
         result, iterations = lm(full, start.values, config, recoveries)
         rejected = np.zeros(graph.n_edges, dtype=bool)
-    return _result(graph, solver, start, result, iterations, edges, rejected, recoveries, t0,
-                   isam2_s, isam2_cost)
+    out = _result(graph, solver, start, result, iterations, edges, rejected, recoveries, t0,
+                  isam2_s, isam2_cost)
+    # LM that used every iteration it was allowed stopped on the cap, not on a tolerance
+    out.lm_capped = iterations is not None and iterations >= config.max_iterations
+    return out
 
 
 def _result(graph, solver, start, values, iterations, edges, rejected, recoveries, t0,
