@@ -110,3 +110,23 @@ def test_refusals_are_one_line(room, tmp_path, capsys):
     assert len(err) == 1 and "map folder not found" in err[0]
     assert main([*base, "--map", str(folder), "--config", str(config), "--frames", "3:3"]) == 2
     assert "selects no frame" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("sig, status", [("INT", 130), ("TERM", 143)])
+def test_signal_keeps_the_frames_placed_so_far(room, tmp_path, sig, status):
+    """SIGINT/SIGTERM between frames (the test hook, in a subprocess): every file is
+    written with the frames placed so far, interrupted in metrics.json, one line."""
+    from tests.test_faults import graphslam, one_line
+
+    config, folder = room
+    done = graphslam(tmp_path, "localize", "--map", str(folder), "--dataset", "synthetic-images",
+                     "--config", str(config), "--frames", LOCALISE_FRAMES, "--out", "loc",
+                     "--quiet", at="step:5", sig=sig)
+    assert done.returncode == status
+    assert f"interrupted (SIG{sig})" in one_line(done.stderr)
+    out = tmp_path / "loc"
+    assert {p.name for p in out.iterdir()} == {"localize.csv", "trajectory.tum", "metrics.json",
+                                               "ground_truth.tum", "localize.rrd"}
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["interrupted"] is True and m["frames"] == 6  # frames 0-5, stopped before 6
+    assert len((out / "localize.csv").read_text().splitlines()) == 1 + m["frames"]
