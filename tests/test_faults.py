@@ -131,6 +131,21 @@ def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
     verify_rrd(out / "run.rrd")
 
 
+def test_pose_graph_cut_after_one_pose_keeps_its_files(tmp_path):
+    """Stopped after the first update, with ground truth: one pose solved, ATE null
+    (it needs two), every file still written."""
+    import gtsam
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    truth = tmp_path / "gt.tum"
+    truth.write_text("".join(f"{k} {k} 0 0 0 0 0 1\n" for k in range(100)))
+    done = graphslam(tmp_path, "run", "--dataset", w100, "--out", "o", "--quiet",
+                     "--rerun", "off", "--ground-truth", str(truth), at="step:1")
+    assert done.returncode == 130, done.stderr
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["poses"] == 1 and metrics["ate_rmse_m"] is None
+
+
 def test_signal_before_the_run_is_one_line(tmp_path):
     done = graphslam(tmp_path, "run", "--max-steps", "5", "--out", "o", "--quiet",
                      at="start", sig="TERM")

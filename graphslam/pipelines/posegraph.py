@@ -127,6 +127,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
     """The run's metrics; ATE of the estimate and of the odometry chain when ``truth``
     (of the poses solved, when a stop cut the solve)."""
     graph = solved_graph(graph, result)
+    # ATE needs two poses with truth: a run cut after its first pose has none (null)
+    scored = truth is not None and np.isin(truth[0], graph.ids).sum() >= 2
     closures = ~graph.odometry_mask()
     shonan = result.certificate
     return PoseGraphRunMetrics(
@@ -138,8 +140,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         isam2_cost=result.isam2_cost, isam2_s=result.isam2_s, shonan_min_eigenvalue=shonan,
         shonan_certifies=None if shonan is None else SHONAN_CERTIFIES,
         numerical_recoveries=result.recoveries or None,
-        ate_rmse_m=None if truth is None else ate_rmse(graph, result.params, truth),
-        odometry_ate_rmse_m=None if truth is None else ate_rmse(
+        ate_rmse_m=None if not scored else ate_rmse(graph, result.params, truth),
+        odometry_ate_rmse_m=None if not scored else ate_rmse(
             graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),
         converged=not result.lm_capped)
