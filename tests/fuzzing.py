@@ -107,7 +107,7 @@ class Finding:
         return f"seed {self.seed}: {self.problem}\ninput: {self.data[:400]!r}"
 
 
-class TooSlow(Exception):
+class TooSlow(BaseException):
     """A mutant took longer than the fuzzer's per-input limit (a hang, say)."""
 
 

@@ -92,6 +92,15 @@ def verify_rrd(path: Path) -> None:
 
 # ------------------------------------------------------------------------------ run, 2-D
 
+def test_nees_run_cut_keeps_every_file(tmp_path):
+    """--nees needs the covariances a cut run skips: NEES null, the files kept."""
+    done = graphslam(tmp_path, "run", "--max-steps", "40", "--out", "o", "--quiet", "--nees",
+                     at="step:3", sig="TERM")
+    assert done.returncode == 143, done.stderr
+    metrics = check_run_files(tmp_path / "o", interrupted=True)
+    assert metrics.get("nees_mean") is None
+
+
 @pytest.mark.parametrize("at, sig", [("step:3", "INT"), ("step:3", "TERM"),
                                      ("finalize", "TERM"), ("write", "INT")])
 def test_run_signal_keeps_every_file(tmp_path, at, sig):

@@ -41,11 +41,16 @@ def refused(capsys, argv: list[str], match: str) -> str:
 # ------------------------------------------------------------------------------ --out
 
 @pytest.mark.parametrize("command", [
-    ["run", "--quiet"], ["compare", "--rerun", "off"],
+    ["run", "--quiet"], ["compare", "--rerun", "off"], ["eval", "T", "T"],
+    ["sweep", "SWEEP"], ["localize", "--map", "MAP", "--dataset", "synthetic-images"],
 ])
 def test_out_that_is_a_file_is_refused_before_the_run(tmp_path, capsys, command):
     target = tmp_path / "taken"
     target.write_text("mine")
+    (tmp_path / "t.tum").write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")
+    (tmp_path / "s.toml").write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n')
+    stand_in = {"T": tmp_path / "t.tum", "SWEEP": tmp_path / "s.toml", "MAP": tmp_path / "nomap"}
+    command = [str(stand_in.get(a, a)) for a in command]  # --out is checked before any of them
     refused(capsys, [*command, "--out", str(target)], "is an existing file, not a folder")
     refused(capsys, [*command, "--out", str(target / "sub")], "is a file, not a folder")
     assert target.read_text() == "mine"

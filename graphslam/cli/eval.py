@@ -89,6 +89,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.pipelines.trajectory_eval import evaluate_files, write_eval_json
 
+    from slamcore.files import check_output_dir
+
+    check_output_dir(args.out)  # refused now, not after scoring
     options = EvalOptions(align=args.align, n_align=args.n_align, max_diff_s=args.max_diff,
                           offset_s=args.offset, delta=args.delta, delta_unit=args.delta_unit)
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format,

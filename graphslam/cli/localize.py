@@ -73,6 +73,10 @@ def cmd_localize(args: argparse.Namespace) -> int:
         from slamcore.errors import InputError
 
         raise InputError("not an image sequence (synthetic-images or a folder)", args.dataset)
+    if args.out is not None:  # refused now, not after loading the map
+        from slamcore.files import check_output_dir
+
+        check_output_dir(args.out)
     smap = load_map(args.map)
     config = registry.read_config(args.config)
     sequence = select_frames(registry.load_image_sequence(args.dataset, config=config), frames)

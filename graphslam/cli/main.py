@@ -57,8 +57,9 @@ def main(argv: list[str] | None = None) -> int:
             return guard.exit_status()
         except Exception:
             # KeyboardInterrupt inside a C extension's import surfaces as
-            # "ImportError: initialization failed": the signal's doing, not a bug
-            if not guard.requested:
+            # "ImportError: initialization failed": the signal's doing, not a bug.
+            # Once a run defers signals, an exception is a bug, signal or not.
+            if not guard.requested or guard.deferring:
                 raise
             print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)
             return guard.exit_status()

@@ -96,6 +96,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.workers is not None and args.cluster not in (None, "local"):
         raise ConfigError("--workers sets the local pool or --cluster local; a running "
                           "cluster has the workers it was started with")
+    from slamcore.files import check_output_dir
+
+    check_output_dir(args.out)  # refused now, not as each run's error
     spec = parse_sweep(args.sweep_file)
     n_runs = len(spec.runs())
     executor = make_executor(workers, args.cluster)

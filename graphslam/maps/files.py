@@ -147,6 +147,9 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
     for key in _TABLES[kind]:
         if not isinstance(doc.get(key), dict):
             raise InputError(f"damaged map.json (no {key!r} table)", path)
+    doc.setdefault("meta", {})
+    if not isinstance(doc["meta"], dict):  # no checksum covers map.json itself
+        raise InputError("damaged map.json (meta)", path)
     return doc
 
 
@@ -175,8 +178,10 @@ def load_map(folder) -> SpatialMap:
         size = tuple(int(v) for v in doc["camera"]["image_size"])
     except (KeyError, TypeError, ValueError):
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
+    if not np.all(np.isfinite(K)):
+        raise InputError("damaged map.json (camera K not finite)", folder / MAP_JSON)
     smap = SpatialMap(K=K, image_size=size, vocabulary=load_vocabulary(vocab_path),
-                      meta=doc.get("meta", {}), vocabulary_bytes=vocab_bytes, **arrays)
+                      meta=doc["meta"], vocabulary_bytes=vocab_bytes, **arrays)
     smap.check(npz_path)
     if smap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
@@ -197,10 +202,7 @@ def load_planar_map(folder) -> PlanarMap:
     folder = Path(folder)
     doc = read_map_json(folder, PLANAR)
     npz_path, blob = _checked_bytes(folder, doc["arrays"], "array")
-    meta = doc.get("meta", {})
-    if not isinstance(meta, dict):
-        raise InputError("damaged map.json (meta)", folder / MAP_JSON)
-    pmap = PlanarMap(meta=meta, **_read_npz(blob, npz_path, PLANAR_ARRAYS))
+    pmap = PlanarMap(meta=doc["meta"], **_read_npz(blob, npz_path, PLANAR_ARRAYS))
     pmap.check(npz_path)
     if pmap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {pmap.counts()}, map.json says {doc['counts']}", npz_path)
@@ -214,6 +216,6 @@ def check_camera(smap: SpatialMap, K: np.ndarray, image_size, where) -> None:
         raise InputError(f"map was built with {smap.image_size[0]}x{smap.image_size[1]} images, "
                          f"this sequence's are {size[0]}x{size[1]}", where)
     diff = float(np.max(np.abs(np.asarray(K, float) - smap.K)))
-    if diff > CAMERA_TOL_PX:
+    if not diff <= CAMERA_TOL_PX:  # NaN intrinsics differ too
         raise InputError(f"map was built with another camera (intrinsics differ by up to "
                          f"{diff:.3g} px)", where)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from graphslam.maps.files import check_camera
 from graphslam.maps.spatial_map import SpatialMap
 from slamcore.errors import InputError
 
@@ -24,8 +25,7 @@ def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
     if old.vocabulary is not new.vocabulary:
         raise InputError("the two sessions' maps were built with different vocabularies",
                          "--map")
-    if tuple(old.image_size) != tuple(new.image_size) or not np.allclose(old.K, new.K):
-        raise InputError("the two sessions' maps were built with different cameras", "--map")
+    check_camera(old, new.K, new.image_size, "--map")
     ids = new.landmark_ids.copy()
     pos = ids >= 0
     ids[pos] += int(max(old.landmark_ids.max(initial=-1), -1)) + 1

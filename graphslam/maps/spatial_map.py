@@ -143,6 +143,13 @@ class SpatialMap:
         ip = self.bow_indptr
         if len(ip) and (ip[0] != 0 or ip[-1] != len(self.bow_words) or np.any(np.diff(ip) < 0)):
             raise InputError("map bag-of-words rows (bow_indptr) are inconsistent", where)
+        w = self.bow_words
+        if len(w) and (w.min() < 0 or w.max() >= self.vocabulary.n_words_):
+            raise InputError(f"map bag-of-words word ids outside the vocabulary's "
+                             f"{self.vocabulary.n_words_} words", where)
+        for name in ("keyframe_wTc", "landmark_w", "bow_weights"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise InputError(f"map array {name} holds non-finite values", where)
 
 
 def bow_csr(vectors: list[BowVector]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

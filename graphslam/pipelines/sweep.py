@@ -14,7 +14,6 @@ trajectories, nees.csv, stderr.txt).
 from __future__ import annotations
 
 import csv
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec
+from slamcore.files import atomic_open
 
 METRIC_COLUMNS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "nees_mean",
                   "nees_in_bounds_fraction", "association_accuracy", "duplicates")
@@ -51,13 +51,11 @@ def read_rows(path: Path) -> list[dict]:
 
 def write_rows(path: Path, header: list[str], rows: list[dict]) -> None:
     """Write ``sweep.csv`` whole, through a temporary file (never half a table)."""
-    tmp = path.with_suffix(".csv.tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
+    with atomic_open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(f, fieldnames=header, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in header})
-    os.replace(tmp, path)
 
 
 @dataclass

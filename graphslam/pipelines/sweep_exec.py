@@ -30,8 +30,9 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 
+from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
 from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, GraphSlamError
 
 #: Runs in flight in this process (Ctrl-C stops them), and the flag that keeps
 #: a thread that was about to start one from starting it after the stop.
@@ -101,7 +102,10 @@ def _scores(out_dir: Path) -> dict:
     gt = out_dir / "ground_truth.tum"
     if gt.is_file():
         # time column = pose id on both sides: exact association; SE(2) poses as z = 0
-        s = evaluate_files(gt, [out_dir / "trajectory.tum"], EvalOptions(max_diff_s=0.0))[0]
+        try:
+            s = evaluate_files(gt, [out_dir / "trajectory.tum"], EvalOptions(max_diff_s=0.0))[0]
+        except GraphSlamError:  # fewer than two poses: RPE null, as the run's own ATE
+            return {**row, "rpe_trans_rmse_m": None, "rpe_rot_rmse_deg": None}
         summary = s.result.summary()
         row["rpe_trans_rmse_m"] = summary["rpe_trans_rmse_m"]
         row["rpe_rot_rmse_deg"] = summary["rpe_rot_rmse_deg"]
@@ -117,7 +121,9 @@ def execute_run(run: RunSpec, root: str) -> dict:
     row = {"run_id": run.run_id, "wall_s": wall, "peak_rss_mb": peak}
     if rc != 0:
         err = _last_error_line((out_dir / "stderr.txt").read_text(errors="replace"))
-        status = "interrupted" if rc in (130, -2) else "failed"
+        # stopped by SIGINT or SIGTERM (ours via stop_live_runs, or a batch system's)
+        stopped = {*EXIT_STATUS_OF_SIGNAL.values(), *(-s for s in EXIT_STATUS_OF_SIGNAL)}
+        status = "interrupted" if rc in stopped else "failed"
         return {**row, "status": status, "error": err or f"exit status {rc}"}
     try:
         row.update(_scores(out_dir))

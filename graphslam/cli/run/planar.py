@@ -96,7 +96,13 @@ def run(args: argparse.Namespace) -> int:
     if pmap is not None:
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = backend.unmapped_count
-    nees = pipeline.add_nees(result, metrics, truth) if args.nees else None
+    nees = None
+    if args.nees and result.interrupted:  # no covariances: NEES null, the files still written
+        from graphslam.cli.common import warn
+
+        warn("run interrupted before its covariances: no nees.csv")
+    elif args.nees:
+        nees = pipeline.add_nees(result, metrics, truth)
     paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
     if nees is not None:
         paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
