@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from slamcore.errors import GraphSlamError
-from slamcore.files import check_output_dir, replacing
+from slamcore.files import check_output_dir
 
 EPILOG = """\
 datasets:
@@ -112,8 +112,7 @@ def _write_comparison(args, entries, dataset, out_dir: Path, rerun_mode: str) ->
         e.metrics if e.status == "ok" else _marked(e) for e in entries]})
     outputs = ["compare.json"]
     if done:
-        with replacing(out_dir / "compare.png") as tmp:
-            plot_comparison(done, dataset, tmp)
+        plot_comparison(done, dataset, out_dir / "compare.png")
         outputs.append("compare.png")
     if rerun_mode != "off" and done:
         from graphslam.visualisation.planar import RunRecorder

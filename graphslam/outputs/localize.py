@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slamcore.files import atomic_open
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 _UPPER = np.triu_indices(6)
@@ -25,7 +26,7 @@ def write_localize_csv(path: Path, frames, stamps, statuses, poses, covariances)
     """One row per frame (module docstring); ``poses``/``covariances`` entries may be None."""
     stamps = np.asarray(stamps, dtype=float)
     whole = bool(np.all(stamps == np.round(stamps)))  # frame indices, not seconds
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         f.write(HEADER + "\n")
         for frame, t, status, T, C in zip(frames, stamps, statuses, poses, covariances):
             stamp = f"{int(t)}" if whole else f"{t:.6f}"

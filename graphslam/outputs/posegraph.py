@@ -17,6 +17,7 @@ import numpy as np
 
 from graphslam.sources.posegraph_files import TAG_NAMES, information_order
 from slamcore import posegraph as pg
+from slamcore.files import atomic_open
 
 #: File name extension per format.
 EXTENSIONS = {"g2o": ".g2o", "toro": ".graph"}
@@ -74,6 +75,6 @@ def graph_lines(graph: pg.PoseGraph) -> list[str]:
 
 def write_pose_graph(path: Path, graph: pg.PoseGraph) -> None:
     """Write ``graph`` in its own format and dimension."""
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         for line in graph_lines(graph):
             f.write(line + "\n")

@@ -99,7 +99,7 @@ def remove_stale_outputs(out_dir: Path, will_write: set[str] | frozenset[str],
 
 def write_nees_csv(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:
     """``step,pose_id,nees`` a line: the pose NEES of each step (``graphslam run --nees``)."""
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("step,pose_id,nees\n")
         for k, (i, v) in enumerate(zip(pose_ids, nees)):
             f.write(f"{k},{int(i)},{float(v):.9g}\n")

@@ -19,6 +19,7 @@ from graphslam.backends.posegraph.solver import SolveResult, solve
 from graphslam.pipelines.common import interrupt_between_frames, signal_hook, stop_requested
 from slamcore import posegraph as pg
 from slamcore.errors import InputError
+from slamcore.files import atomic_open
 
 #: What Shonan's certificate covers, written next to it in ``metrics.json``.
 SHONAN_CERTIFIES = ("a minimum eigenvalue >= 0 (to numerical tolerance) proves the rotation "
@@ -188,7 +189,7 @@ def write_outputs(graph: pg.PoseGraph, result: SolveResult, out_dir: Path,
 def write_closures_csv(path: Path, graph: pg.PoseGraph, result: SolveResult) -> None:
     """Every non-odometry edge: ``from,to,line,kept,whitened_residual``."""
     closures = np.flatnonzero(~graph.odometry_mask())
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("from,to,line,kept,whitened_residual\n")
         for e in closures.tolist():
             a, b = graph.edges[e].tolist()

@@ -7,16 +7,14 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.planar import errors_against_truth
+from slamcore.files import replacing
 from slamcore.planar.records import Dataset
 
 
 def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     """PNG of finished runs (``CompareEntry``): trajectories over ground truth, and pose
     errors with 3-sigma bounds over time."""
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only; no display on servers or CI
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     gt = dataset.ground_truth()
     n_err = 3 if gt is not None else 0
@@ -57,19 +55,14 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
         axes[0].set_title("error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)")
         axes[-1].set_xlabel("step")
         axes[0].legend(loc="upper left", fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarray,
                     odometry: np.ndarray, rejected: np.ndarray) -> Path:
     """PNG of an optimised pose graph seen from above (3-D graphs projected on x-y):
     the odometry chain, kept closures (thin, grey) and rejected closures (red)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
     from matplotlib.collections import LineCollection
 
     xy = np.asarray(xyz)[:, :2]
@@ -87,19 +80,13 @@ def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarr
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.legend(loc="best", fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_precision_recall(points, operating: tuple[float | None, float], path: Path) -> Path:
     """PNG of a precision-recall curve (``PrPoint`` list, swept over the normalised
     score) with the operating point ``(precision, recall)`` of the run marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4.5), constrained_layout=True)
     pts = [p for p in points if p.precision is not None]
     if pts:
@@ -115,9 +102,7 @@ def plot_precision_recall(points, operating: tuple[float | None, float], path: P
     ax.set_title("place recognition: precision-recall")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower left", fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _pyplot():
@@ -160,9 +145,7 @@ def plot_trajectory_eval(results, path: Path) -> Path:
         ax.set_ylim(bottom=0)
     axes[1].set_title("translation error over time")
     axes[2].set_title("translation error along the path")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _metric_by(rows, group: str, metric: str = "ate_rmse_m") -> dict[str, list[float]]:
@@ -213,8 +196,12 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
 
 
 def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=110)
+    """Write ``fig`` to ``path`` whole (through a temporary file) and close it."""
     import matplotlib.pyplot as plt
 
-    plt.close(fig)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
