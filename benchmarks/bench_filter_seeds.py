@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -69,7 +70,7 @@ def _run(dataset, backend: str, overrides: dict, seed: int) -> tuple[float, floa
     overrides = dict(overrides)
     if backend in registry.SEEDED_BACKENDS:
         overrides["seed"] = seed
-    result = pipeline.run(dataset, registry.make_backend(backend, overrides=overrides))
+    result = whole(pipeline.run(dataset, registry.make_backend(backend, overrides=overrides)))
     est = result.estimate
     ate = metrics.ate(est.pose_ids, est.wTb, *dataset.ground_truth())["rmse_m"]
     return metrics.association_accuracy(result.associations).accuracy, ate
@@ -118,7 +119,7 @@ def victoria_park(seeds: list[int], max_steps: int | None) -> dict:
                         "seeds_above_goal": [s for s, v in per_seed.items()
                                              if v > VP_EKF_RATIO * ekf]}
         print(f"{backend}: median {out[backend]['median_m']:.2f} m, worst {worst:.2f} m "
-              f"({worst / ekf:.1f}x the EKF); above {VP_EKF_RATIO:g}x the EKF on seeds "
+              f"({worst / ekf if ekf > 0 else math.inf:.1f}x the EKF); above {VP_EKF_RATIO:g}x the EKF on seeds "
               f"{out[backend]['seeds_above_goal'] or 'none'}", flush=True)
     return out
 
@@ -153,6 +154,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, help="--victoria-park: first N steps only")
     args = ap.parse_args(argv)
     seeds = [0] if args.quick else args.seeds or list(range(args.first, args.last + 1))
+    if not seeds:
+        ap.error("no seed: --from is after --to")
+    if args.max_steps is not None and args.max_steps < 2:
+        ap.error("--max-steps must be at least 2")
     if args.max_steps is not None and not args.victoria_park:
         ap.error("--max-steps needs --victoria-park")
     results = ROOT / "benchmarks" / "results"

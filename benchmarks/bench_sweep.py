@@ -56,6 +56,8 @@ def timed_sweep(spec, executor, folder: Path) -> dict:
     shutil.rmtree(folder, ignore_errors=True)
     t0, cpu0 = time.perf_counter(), time.process_time()
     outcome = run_sweep(spec, folder, executor)
+    if outcome.interrupted:  # a cut sweep's throughput is no measurement
+        raise KeyboardInterrupt
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     if any(r["status"] != "ok" for r in outcome.rows):
         raise SystemExit(f"a benchmark run failed: {[r['error'] for r in outcome.rows]}")

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from filters.numerics import Recoveries
+from filters.numerics import symmetrise as sym
 from slamcore.planar.geometry import wrap_angle
 
 
@@ -46,10 +47,6 @@ def positive_definite(P: np.ndarray) -> np.ndarray:
         c, e, f = P[:, 0, 2], P[:, 1, 2], P[:, 2, 2]
         ok &= a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c) > 0
     return ok & np.all(np.isfinite(P), axis=(-2, -1))
-
-
-def sym(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
 def tr(A: np.ndarray) -> np.ndarray:

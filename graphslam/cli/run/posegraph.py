@@ -108,10 +108,11 @@ def format_summary(metrics) -> str:
     if metrics.interrupted:
         rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
     if not metrics.converged:
+        tries = ("--backend isam2, another --init" if metrics.backend == "batch"
+                 else "--no-polish")
         rows.append(("NOT CONVERGED", f"LM stopped at its cap of {metrics.iterations} "
                                       "iterations; the cost may be far from the optimum "
-                                      "(try --backend isam2, another --init, or [posegraph] "
-                                      "max_iterations)"))
+                                      f"(try {tries}, or [posegraph] max_iterations)"))
     if metrics.shonan_min_eigenvalue is not None:
         rows.append(("Shonan min eigenvalue", fmt(metrics.shonan_min_eigenvalue, ".3g")))
     for note in metrics.numerical_recoveries or ():

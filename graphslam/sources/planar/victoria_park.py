@@ -112,8 +112,7 @@ def read_victoria_park(path=None) -> Dataset:
     odometry: dict[int, Odometry] = {}
     observations: dict[int, list[Observation]] = {}
     for line_no, tok in iter_lines(path):
-        # a UTF-8 byte-order mark (Windows editors) is not part of the first tag
-        tag = tok[0].removeprefix("\ufeff") if line_no == 1 else tok[0]
+        tag = tok[0]  # iter_lines reads utf-8-sig: a byte-order mark is already gone
         try:
             if tag == "ODOMETRY":
                 check_count(tok, 12, path, line_no, "ODOMETRY i j dx dy dtheta + 6 covariance")
