@@ -61,9 +61,13 @@ def check_gray(image: object, what: str = "image") -> np.ndarray:
     return image
 
 
-#: How far from the end of a file its end marker may be (some writers pad), bytes.
+#: How far from the end of a JPEG its end-of-image marker may be (some writers
+#: pad), bytes. Only the tail counts: an EXIF thumbnail has its own marker early on.
 END_MARKER_SLACK = 256
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: A PNG's IEND chunk, whole (length 0, type, CRC): a file that holds it was written to
+#: its end, whatever trails it.
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 _JPEG_START = b"\xff\xd8"
 
 
@@ -75,10 +79,9 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     it has, fill the rest with grey and name no file. Raises :class:`InputError`
     naming ``path``.
     """
-    tail = data[-END_MARKER_SLACK:]
-    if data.startswith(_PNG_SIGNATURE) and b"IEND" not in tail:
-        raise InputError("truncated PNG (no IEND chunk at the end)", path)
-    if data.startswith(_JPEG_START) and b"\xff\xd9" not in tail:
+    if data.startswith(_PNG_SIGNATURE) and _PNG_IEND not in data:
+        raise InputError("truncated PNG (no IEND chunk)", path)
+    if data.startswith(_JPEG_START) and b"\xff\xd9" not in data[-END_MARKER_SLACK:]:
         raise InputError("truncated JPEG (no end-of-image marker)", path)
     image = None
     if data:

@@ -100,6 +100,15 @@ def image_folder(root: Path, frames, ext: str = ".png") -> Path:
     return root
 
 
+def test_whole_png_with_trailing_bytes_is_read():
+    """A PNG written to its IEND chunk is whole, whatever a tool appended after it."""
+    from frontend.image import decode_gray
+
+    ok, buf = cv2.imencode(".png", np.full((20, 30), 7, np.uint8))
+    image = decode_gray(buf.tobytes() + bytes(1000), "x.png")
+    assert image.shape == (20, 30) and np.all(image == 7)
+
+
 @pytest.mark.parametrize("ext, what", [(".jpg", "truncated JPEG"), (".png", "truncated PNG")])
 def test_truncated_image_is_refused_with_its_name(tmp_path, capsys, frames, ext, what):
     folder = image_folder(tmp_path / "seq", frames, ext)

@@ -44,6 +44,7 @@ import numpy as np
 
 from frontend.orb import OrbDetector
 from graphslam.maps.spatial_map import SpatialMap
+from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.database import BowDatabase
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
 from slamcore.config import bounded, validate
@@ -181,7 +182,7 @@ class Localizer:
         i, j = np.nonzero(np.max(np.abs(uv[:, None, :] - xy[None, :, :]), axis=2) <= r)
         if len(i) == 0:
             return np.zeros((0, 2), np.int64)
-        ham = np.unpackbits(np.bitwise_xor(obs_desc[i], desc[j]), axis=1).sum(axis=1)
+        ham = popcount_sum(np.bitwise_xor(obs_desc[i], desc[j]))
         keep = ham <= self.config.max_hamming
         cand = np.stack([lm[i[keep]], j[keep], ham[keep]], axis=1)
         cand = cand[np.lexsort((cand[:, 1], cand[:, 0], cand[:, 2]))]  # best distance first

@@ -320,6 +320,7 @@ class LocalizeRecorder(VisualRecorder):
                          if self.jpeg_quality else im)
         self.rec.log(f"{cam}/image/inliers", rr.Points2D(placement.uv_px, colors=[color], radii=3.0))
         self._path.append(placement.wTc[:3, 3])
-        if len(self._path) >= 2:
+        # the whole path each frame would make the recording quadratic in its length
+        if len(self._path) >= 2 and i % self.image_every == 0:
             self.rec.log("world/localize/trajectory",
                          rr.LineStrips3D([np.array(self._path)], colors=[PALETTE[0]], radii=0.01))
