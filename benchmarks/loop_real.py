@@ -27,7 +27,9 @@ import numpy as np
 
 from frontend.image import load_gray
 from frontend.orb import OrbDetector
-from graphslam.pipelines.place_recognition import detect_all, detect_loops, folder_places
+from graphslam.pipelines.place_recognition import (
+    detect_all, detect_loops, folder_places, folder_timestamps,
+)
 from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from graphslam.sources.spatial.sequence import folder_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
@@ -46,7 +48,7 @@ def folder_run(folder: Path, vocab) -> dict:
     paths = folder_images(folder)
     config = LoopDetectorConfig()
     feats = detect_all(paths, OrbDetector(config.orb))
-    places = folder_places(paths, feats, config)
+    places = folder_places(feats, config, folder_timestamps(paths))
     config = dataclasses.replace(config, mode=places.mode)
     det = detect_loops(paths, LoopDetector(vocab, config), feats, timestamps=places.timestamps)
     return {"images": len(paths), "mode": places.describe(config),

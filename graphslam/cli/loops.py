@@ -77,7 +77,8 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, folder_places, train_vocabulary,
+        check_vocabulary, describe, detect_all, detect_loops, folder_places, folder_timestamps,
+        train_vocabulary,
     )
     from graphslam.sources.spatial.sequence import folder_images
     from graphslam.registry import read_config
@@ -91,10 +92,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_output_file(args.log, "--log")
     paths = folder_images(args.images_dir)
+    times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
     if args.frames is not None:
         from graphslam.sources.spatial.frames import frame_indices, parse_frames
 
-        paths = [paths[i] for i in frame_indices(parse_frames(args.frames), len(paths))]
+        index = frame_indices(parse_frames(args.frames), len(paths))
+        paths = [paths[i] for i in index]
+        times = None if times is None else times[index]
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
@@ -113,7 +117,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         check_vocabulary(vocab, vocab_path)
     # One ORB pass serves the mode choice, the training (if any) and the detection.
     features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
-    places = folder_places(paths, features, detector_config)
+    places = folder_places(features, detector_config, times)
     detector_config = dataclasses.replace(detector_config, mode=places.mode)
     if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)

@@ -150,9 +150,10 @@ def folder_timestamps(paths: list[Path]) -> np.ndarray | None:
 FOLDER_PROBE_PAIRS = 25
 
 
-def folder_places(paths: list[Path], features: list, config) -> FolderPlaces:
+def folder_places(features: list, config, timestamps: np.ndarray | None) -> FolderPlaces:
     """Resolve ``config.mode`` (``[loops]``) on a whole folder from consecutive pairs spread
-    over it (all of them up to :data:`FOLDER_PROBE_PAIRS`)."""
+    over it (all of them up to :data:`FOLDER_PROBE_PAIRS`); ``timestamps`` (seconds, from
+    :func:`folder_timestamps`) are kept only when they increase (not a backwards run)."""
     from loopclosure.places import choose_mode, consecutive_overlap
 
     overlaps = []
@@ -163,7 +164,8 @@ def folder_places(paths: list[Path], features: list, config) -> FolderPlaces:
                     for k in starts]
     mode = choose_mode(config.mode, overlaps, config.keyframe_overlap)
     return FolderPlaces(mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None,
-                        folder_timestamps(paths))
+                        timestamps if timestamps is not None and np.all(np.diff(timestamps) > 0)
+                        else None)
 
 
 def detect_loops(paths: list[Path], detector, features: list | None = None,
