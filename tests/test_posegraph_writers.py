@@ -143,3 +143,16 @@ def test_lm_stopped_by_its_cap_is_flagged(tmp_path, capsys):
         summary = capsys.readouterr().out
         assert json.loads((out / "metrics.json").read_text())["converged"] is converged
         assert ("NOT CONVERGED" in summary) is not converged
+
+
+def test_convert_writes_toro_as_its_toro_noise_says(tmp_path, capsys):
+    """g2o -> TORO with --toro-noise sqrt_information writes R (information = R^T R), so
+    reading it back the same way gives the g2o file's information."""
+    src = tmp_path / "a.g2o"
+    truth = square_walk(6, 2)
+    write(src, graph_lines(truth, edges_with_closures(len(truth), [(0, 5)]), fmt="g2o"))
+    out = tmp_path / "b.graph"
+    assert main(["convert", str(src), str(out), "--toro-noise", "sqrt_information"]) == 0
+    a = read_pose_graph_file(src)
+    b = read_pose_graph_file(out, toro_noise="sqrt_information")
+    np.testing.assert_allclose(b.information, a.information, rtol=1e-9)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from slamcore.errors import ConfigError
@@ -22,6 +23,7 @@ def register(sub) -> None:
     p.add_argument("output", type=Path, metavar="OUT")
     p.add_argument("--to", choices=("g2o", "toro"), default=None,
                    help="output format (default: from OUT's extension)")
+    # posegraph_files.TORO_NOISE, written out: building the parser imports no numpy
     p.add_argument("--toro-noise", choices=("information", "sqrt_information"),
                    default="information",
                    help="how TORO edge numbers are read and written: information (the "
@@ -42,6 +44,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
         raise ConfigError("is a folder, not a file", args.output)
     graph = registry.load_pose_graph(args.input, args.toro_noise)
     converted, notes = convert(graph, fmt)
+    if fmt == "toro":  # --toro-noise says how TORO numbers are written too
+        converted = dataclasses.replace(converted, noise=args.toro_noise)
     for note in notes:
         warn(note)
     try:
