@@ -64,10 +64,6 @@ def world_config(field: str, scale: float, seed: int) -> SyntheticConfig:
     return base.replace(**{f: getattr(base, f) * scale for f in fields})
 
 
-def backend_overrides(backend: str, seed: int) -> dict | None:
-    return {"seed": seed} if backend in registry.SEEDED_BACKENDS else None
-
-
 def run_cell(backend: str, field: str, scale: float, seed: int) -> dict:
     """Run one cell; a dict with ``ok``, ``error`` (one line or None), ``recoveries``, ``wall_s``."""
     dataset = make_synthetic(world_config(field, scale, seed))
@@ -75,7 +71,7 @@ def run_cell(backend: str, field: str, scale: float, seed: int) -> dict:
     row = {"backend": backend, "field": field, "scale": scale, "seed": seed,
            "ok": False, "error": None, "recoveries": None}
     try:
-        be = registry.make_backend(backend, overrides=backend_overrides(backend, seed))
+        be = registry.make_backend(backend, overrides=registry.seed_override(backend, seed))
         result = pipeline.run(dataset, be)
         est = result.estimate
         finite = bool(np.all(np.isfinite(est.wTb)) and np.all(np.isfinite(est.landmarks_w)))
@@ -83,7 +79,7 @@ def run_cell(backend: str, field: str, scale: float, seed: int) -> dict:
         row["ok"] = finite and done
         if not row["ok"]:
             row["error"] = "non-finite estimate" if not finite else f"stopped at {result.steps}"
-        row["recoveries"] = getattr(be, "recoveries", None)
+        row["recoveries"] = result.recoveries
     except Exception as exc:  # noqa: BLE001 - a failure is what the grid records
         where = traceback.extract_tb(exc.__traceback__)[-1]
         text = str(exc).strip().splitlines()

@@ -64,11 +64,12 @@ def _csv_truth(path: Path, names: dict[str, int]) -> set[tuple[int, int]]:
 
 
 def _image_truth(path: Path, n: int) -> set[tuple[int, int]]:
-    import cv2
+    from frontend.image import load_gray  # truncation checked, the file named
 
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise InputError("cannot read the truth file as a CSV or an image", path)
+    try:
+        img = load_gray(path)
+    except InputError as e:
+        raise InputError(f"cannot read the truth file as a CSV or an image ({e})", path) from None
     if img.shape != (n, n):
         raise InputError(f"truth image is {img.shape[1]}x{img.shape[0]}, the folder has {n} "
                          f"images (need {n}x{n})", path)
