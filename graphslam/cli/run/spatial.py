@@ -169,8 +169,6 @@ def run(args: argparse.Namespace) -> int:
         from graphslam.outputs.loops import write_loops
 
         paths.update(write_loops(closer, out_dir))
-    if mapper is not None:
-        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     if recorder is not None:
         recorder.finish(args.backend, result, every=args.rerun_every or 5)
         if closer is not None:
@@ -178,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
         close_recorder(recorder)
         if rerun_mode == "save":
             paths["recording"] = out_dir / "run.rrd"
+    if mapper is not None:  # last: a map that cannot be built costs no other file
+        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
 
