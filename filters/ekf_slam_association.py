@@ -98,25 +98,27 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
         return hyp, None, None
     zhat, H_x, H_m, S0 = predict_landmarks(x, P, Pmm)
     nu = models.innovation(Z[:, None, :], zhat[None, :, :])  # (m, L, 2)
-    d2 = mahalanobis_sq_2d(nu, S0[None] + Rs[:, None])  # (m, L)
+    S = S0[None] + Rs[:, None]  # (m, L, 2, 2), built once for d2 and the likelihood terms
+    d2 = mahalanobis_sq_2d(nu, S)  # (m, L)
+    det_S = _det2(S) if likelihood is not None else None
     cands = individual_candidates(d2, gate, max_candidates)
     pairs = [(i, l) for i, cl in enumerate(cands) for l in cl]
     if not pairs:
         if likelihood is not None:
-            return hyp, _likelihood_terms(Z, Rs, S0, d2, *likelihood)[2], None
+            return hyp, _likelihood_terms(Z, Rs, det_S, d2, *likelihood)[2], None
         return hyp, d2, None
     pair_obs = np.array([p[0] for p in pairs])
     pair_lm = np.array([p[1] for p in pairs])
     C = pair_covariance(P, H_x, H_m, Rs, pairs)
     extra = {}
     if likelihood is not None:
-        gain, noise_logdet, novelty = _likelihood_terms(Z, Rs, S0, d2, *likelihood)
+        gain, noise_logdet, novelty = _likelihood_terms(Z, Rs, det_S, d2, *likelihood)
         # A wide-gate pairing stands alone only where the measurement itself,
         # without the prior odds of detection (which such a gate voids), favours
         # the landmark over a new one: N(nu; S) >= lambda, i.e. a novelty at most
         # -log(P_D / (1 - P_D)); otherwise it needs a second one's support.
         detection_log_odds = math.log(likelihood[1] / (1.0 - likelihood[1]))
-        ambiguous = ambiguous_gates(Z, Rs, S0, gate, chi2_prob, *likelihood) \
+        ambiguous = _ambiguous(Z, det_S, gate, chi2_prob, *likelihood) \
             & (novelty > -detection_log_odds)
         extra = dict(pair_gain=gain[pair_obs], noise_logdet=noise_logdet,
                      pair_ambiguous=ambiguous[pair_obs, pair_lm])
@@ -125,7 +127,12 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
     return res.hypothesis, (d2 if likelihood is None else novelty), res
 
 
-def _likelihood_terms(Z, Rs, S0, d2, density_per_m2: float, detection_prob: float):
+def _det2(S: np.ndarray) -> np.ndarray:
+    """Determinants of a stack of 2x2 matrices (..., 2, 2)."""
+    return S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+
+
+def _likelihood_terms(Z, Rs, det_S, d2, density_per_m2: float, detection_prob: float):
     """Per observation the log-odds of pairing over a new landmark ``gain`` (m,) and
     ``log det(2 pi R_i)`` (m,); per (observation, landmark) the novelty (m, L):
     ``-(gain_i - d2 / 2 - log det(2 pi S_il) / 2)``."""
@@ -133,8 +140,7 @@ def _likelihood_terms(Z, Rs, S0, d2, density_per_m2: float, detection_prob: floa
     gain = math.log(detection_prob / (1.0 - detection_prob)) - np.log(density_per_m2 * r)
     two_pi = 2.0 * math.pi
     noise_logdet = np.log(np.linalg.det(two_pi * Rs))
-    S = S0[None] + Rs[:, None]  # (m, L, 2, 2)
-    logdet_S = np.log(two_pi ** 2 * (S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]))
+    logdet_S = np.log(two_pi ** 2 * det_S)
     novelty = -(gain[:, None] - 0.5 * d2 - 0.5 * logdet_S)
     return gain, noise_logdet, novelty
 
@@ -156,10 +162,14 @@ def ambiguous_gates(Z, Rs, S0, gate: float, gate_prob: float, density_per_m2: fl
     the measurement's own likelihood ratio favours the landmark). The gate
     quantile ``gate`` and its probability ``gate_prob`` are the individual gate's.
     """
+    return _ambiguous(Z, _det2(S0[None] + Rs[:, None]), gate, gate_prob, density_per_m2,
+                      detection_prob)
+
+
+def _ambiguous(Z, det_S, gate, gate_prob, density_per_m2, detection_prob) -> np.ndarray:
+    """:func:`ambiguous_gates` from the determinants (m, L) of the innovation covariances."""
     r = np.maximum(Z[:, 0], 1e-9)
-    S = S0[None] + Rs[:, None]  # (m, L, 2, 2)
-    det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
-    expected_new = (density_per_m2 * r)[:, None] * math.pi * gate * np.sqrt(det)
+    expected_new = (density_per_m2 * r)[:, None] * math.pi * gate * np.sqrt(det_S)
     return expected_new >= detection_prob * gate_prob
 
 
