@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
+from filters.numerics import CHI2_2DOF_999
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
@@ -23,8 +24,9 @@ MAX_INITIAL_CAPACITY = 10_000
 #: observations), and a test costs about 50 us here (12 observations, 3
 #: candidates each), so a million tests are already about a minute per scan.
 MAX_JCBB_NODES = 1_000_000
-#: Default ``damped_update_nis``: see the measurement in the field's docstring.
-DAMPED_UPDATE_NIS = 13.8155
+#: Default ``damped_update_nis``: the association gate's 0.999 quantile (an innovation
+#: the gate would call an outlier is damped); the measurement is in the field's docstring.
+DAMPED_UPDATE_NIS = CHI2_2DOF_999
 
 
 @dataclass(frozen=True)

@@ -19,14 +19,14 @@ import numpy as np
 from filters.ekf_slam_update import (
     APPLIED, INDEFINITE, damped_iterated_step, nis_2x2, rank2_correction,
 )
-from filters.numerics import floored_noise, symmetrise
+from filters.numerics import CHI2_2DOF_999, floored_noise, symmetrise
 from slamcore.planar import geometry as models
 from slamcore.planar.geometry import wrap_angle
 
 #: Largest ``tr(R^-1 dH P dH^T)`` for which an update keeps the OC Jacobian
 #: (:meth:`EkfCorrection._prior_jacobian`): the chi-square 0.999 quantile, 2 dof, as
 #: the association gate. Course noise, seeds 0-2: at most 7.4 (99 % below 2.2).
-OC_SPREAD_LIMIT = 13.8155
+OC_SPREAD_LIMIT = CHI2_2DOF_999
 
 
 class EkfCorrection:

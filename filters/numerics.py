@@ -57,6 +57,11 @@ def floored_noise(R: np.ndarray, prior_var: np.ndarray) -> tuple[np.ndarray, np.
     return out, hit
 
 
+#: The chi-square 0.999 quantile with 2 degrees of freedom, ``-2 ln(1 - 0.999)``
+#: (closed form for 2 dof; rounded as the association gates write it).
+CHI2_2DOF_999 = 13.8155
+
+
 def symmetrise(P: np.ndarray) -> np.ndarray:
     """``(P + P^T) / 2`` over the last two axes."""
     return 0.5 * (P + np.swapaxes(P, -1, -2))

@@ -166,14 +166,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
 
+    from slamcore.files import check_output_dir
+
     check_rerun_flags(args)
     if args.out is not None:  # refused now, not after the run
-        from slamcore.files import check_output_dir
-
         check_output_dir(args.out)
     if getattr(args, "save_map", None) is not None:
-        from slamcore.files import check_output_dir
-
         check_output_dir(args.save_map, "--save-map")
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
