@@ -108,6 +108,11 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
+    truth = None
+    if args.truth is not None:  # a bad truth file fails before the long ORB pass
+        from graphslam.evaluation.places import read_truth
+
+        truth = read_truth(args.truth, paths)
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
     vocab = None
@@ -136,7 +141,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
     if args.truth is not None and not stop_requested():  # a cut run has no whole PR curve
-        written += _evaluate(args, paths, kept, detector, places.timestamps)
+        written += _evaluate(args, truth, paths, kept, detector, places.timestamps)
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
     print(f"places: {places.describe(detector_config)}")
@@ -150,13 +155,12 @@ def cmd_loops(args: argparse.Namespace) -> int:
     return 0
 
 
-def _evaluate(args, paths, features, detector, timestamps) -> list[str]:
+def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:
     """``--truth``: precision and recall printed, the PR curve written; returns the files."""
-    from graphslam.evaluation.places import pr_curve, read_truth, score
+    from graphslam.evaluation.places import pr_curve, score
     from graphslam.pipelines.place_recognition import sweep_scores
     from loopclosure.detector import LoopDetector
 
-    truth = read_truth(args.truth, paths)
     closures = [(c.query, c.match) for c in detector.closures]
     precision, recall, n_true = score(closures, truth)
     # The sweep: the same detector with no score threshold, every verified candidate kept.
