@@ -182,21 +182,25 @@ def rms_position_distance(a, b) -> float | None:
     return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
 
 
-def pose_statistics(dataset: Dataset, estimate: Estimate) -> dict:
-    """Final pose error and pose NEES against ground truth (where both exist)."""
-    gt = dataset.ground_truth()
+def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> dict:
+    """Final pose error and pose NEES against ground truth (``ground_truth`` ``(ids,
+    (N, 3))`` or the dataset's; poses without truth left out), where both exist;
+    ``pose_ids`` and ``nees`` (N,) per pose too when there are covariances."""
+    gt = dataset.ground_truth() if ground_truth is None else ground_truth
     est = estimate
     out = {"final_pose_error_m": None, "nees_mean": None, "nees_in_bounds_fraction": None}
     if gt is None:
         return out
-    gt_of = dict(zip(gt[0].tolist(), gt[1]))
-    err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
+    gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1]))
+    keep = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)
+    err = errors_against_truth(est.pose_ids[keep], est.wTb[keep], gt_of)
     out["final_pose_error_m"] = float(np.linalg.norm(err[-1, :2]))
     if est.pose_covariances is not None:
-        nees_k = nees(err, est.pose_covariances)
+        nees_k = nees(err, est.pose_covariances[keep])
         lo, hi = chi2_bounds(3, 1, NEES_CONFIDENCE)
         out["nees_mean"] = float(np.mean(nees_k))
         out["nees_in_bounds_fraction"] = float(np.mean((nees_k >= lo) & (nees_k <= hi)))
+        out["pose_ids"], out["nees"] = est.pose_ids[keep], nees_k
     return out
 
 

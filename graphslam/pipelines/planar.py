@@ -233,16 +233,11 @@ def add_nees(result: RunResult, run_metrics: PlanarRunMetrics,
         raise GraphSlamError(f"--nees needs ground truth; {result.dataset.name!r} has none")
     if est.pose_covariances is None:
         raise GraphSlamError("--nees: the run stopped before its covariances were computed")
-    gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1]))
-    keep = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)
-    ids = est.pose_ids[keep]
-    err = metrics.errors_against_truth(ids, est.wTb[keep], gt_of)
-    nees = metrics.nees(err, est.pose_covariances[keep])
-    lo, hi = metrics.chi2_bounds(3, 1, metrics.NEES_CONFIDENCE)
-    run_metrics.final_pose_error_m = float(np.linalg.norm(err[-1, :2]))
-    run_metrics.nees_mean = float(np.mean(nees))
-    run_metrics.nees_in_bounds_fraction = float(np.mean((nees >= lo) & (nees <= hi)))
-    return ids, nees
+    stats = metrics.pose_statistics(result.dataset, est, gt)
+    run_metrics.final_pose_error_m = stats["final_pose_error_m"]
+    run_metrics.nees_mean = stats["nees_mean"]
+    run_metrics.nees_in_bounds_fraction = stats["nees_in_bounds_fraction"]
+    return stats["pose_ids"], stats["nees"]
 
 
 def write_nees(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:
