@@ -99,6 +99,26 @@ class PnpResult:
     reprojection_rmse_px: float | None = None
 
 
+def pose_from_rodrigues(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """(4, 4) ``cTw`` of OpenCV's rotation vector and translation."""
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = np.asarray(tvec).reshape(3)
+    return T
+
+
+def pnp_covariance(J: np.ndarray, c: PnpConfig) -> np.ndarray | None:
+    """(6, 6) covariance of a PnP pose from its inliers' reprojection Jacobians
+    ``J`` (N, 2, 6): ``(J^T J / sigma_px^2)^-1``, inflated and floored as ``c`` says;
+    None when the information is singular."""
+    try:
+        cov = np.linalg.inv(np.einsum("nij,nik->jk", J, J) / c.sigma_px**2)
+    except np.linalg.LinAlgError:
+        return None
+    floor = np.r_[[c.min_sigma_t_m**2] * 3, [math.radians(c.min_sigma_r_deg)**2] * 3]
+    return c.covariance_inflation * 0.5 * (cov + cov.T) + np.diag(floor)
+
+
 def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray,
                       desc_b: np.ndarray, K: np.ndarray, config: PnpConfig | None = None) -> PnpResult:
     """Metric ``aTb`` from map points of frame ``a`` and ORB features of image ``b``.
@@ -137,20 +157,14 @@ def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray
         return PnpResult(False, f"inlier ratio {len(inl) / m:.2f} < {c.min_inlier_ratio}",
                          n, m, len(inl))
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
-    bTa = np.eye(4)
-    bTa[:3, :3] = cv2.Rodrigues(rvec)[0]
-    bTa[:3, 3] = tvec.reshape(3)
+    bTa = pose_from_rodrigues(rvec, tvec)
     uv, depth, _, J = project_jacobians(K, bTa, obj[inl])
     if np.any(depth <= 0):
         return PnpResult(False, "PnP pose puts inliers behind the camera", n, m, len(inl))
     err = uv - img[inl]
     rmse = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    info = np.einsum("nij,nik->jk", J, J) / c.sigma_px**2
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
+    cov = pnp_covariance(J, c)
+    if cov is None:
         return PnpResult(False, "PnP pose is degenerate (singular information)", n, m, len(inl))
-    floor = np.r_[[c.min_sigma_t_m**2] * 3, [math.radians(c.min_sigma_r_deg)**2] * 3]
-    cov = c.covariance_inflation * 0.5 * (cov + cov.T) + np.diag(floor)
     return PnpResult(True, None, n, m, len(inl), aTb=invert_pose(bTa), covariance=cov,
                      inlier_pairs=pairs[inl], reprojection_rmse_px=rmse)

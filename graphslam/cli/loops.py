@@ -77,10 +77,8 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, folder_places, folder_timestamps,
-        train_vocabulary,
+        check_vocabulary, describe, detect_all, detect_loops, folder_places, train_vocabulary,
     )
-    from graphslam.sources.spatial.sequence import folder_images
     from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
     from loopclosure.verify import VerifyConfig
@@ -91,14 +89,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     check_output_file(args.out)  # refused now, not after the detection
     if args.log is not None:
         check_output_file(args.log, "--log")
-    paths = folder_images(args.images_dir)
-    times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
-    if args.frames is not None:
-        from graphslam.sources.spatial.frames import frame_indices, parse_frames
-
-        index = frame_indices(parse_frames(args.frames), len(paths))
-        paths = [paths[i] for i in index]
-        times = None if times is None else times[index]
+    paths, times, truth = _images(args)
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
@@ -108,11 +99,6 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
         K, distortion = read_intrinsics_file(args.intrinsics)
 
-    truth = None
-    if args.truth is not None:  # a bad truth file fails before the long ORB pass
-        from graphslam.evaluation.places import read_truth
-
-        truth = read_truth(args.truth, paths)
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
     vocab = None
@@ -153,6 +139,28 @@ def cmd_loops(args: argparse.Namespace) -> int:
               f"the images seen", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _images(args):
+    """``(paths, timestamps or None, truth pairs or None)`` of the folder and ``--frames``;
+    a bad ``--truth`` is refused here, before the long ORB pass."""
+    from graphslam.pipelines.place_recognition import folder_timestamps
+    from graphslam.sources.spatial.sequence import folder_images
+
+    paths = folder_images(args.images_dir)
+    times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
+    if args.frames is not None:
+        from graphslam.sources.spatial.frames import frame_indices, parse_frames
+
+        index = frame_indices(parse_frames(args.frames), len(paths))
+        paths = [paths[i] for i in index]
+        times = None if times is None else times[index]
+    truth = None
+    if args.truth is not None:
+        from graphslam.evaluation.places import read_truth
+
+        truth = read_truth(args.truth, paths)
+    return paths, times, truth
 
 
 def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:

@@ -34,7 +34,6 @@ error and floored (``[loop_pnp]`` settings).
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
@@ -46,7 +45,7 @@ from frontend.orb import OrbDetector
 from graphslam.maps.spatial_map import SpatialMap
 from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.database import BowDatabase
-from loopclosure.pnp import PnpConfig, relative_pose_pnp
+from loopclosure.pnp import PnpConfig, pnp_covariance, pose_from_rodrigues, relative_pose_pnp
 from slamcore.config import bounded, validate
 from slamcore.spatial.camera import project, project_jacobians
 from slamcore.spatial.geometry import invert_pose
@@ -206,9 +205,7 @@ class Localizer:
             return None
         inl = inl.reshape(-1)
         rvec, tvec = cv2.solvePnPRefineLM(pts[inl], img[inl], self.K, None, rvec, tvec)
-        cTw = np.eye(4)
-        cTw[:3, :3] = cv2.Rodrigues(rvec)[0]
-        cTw[:3, 3] = tvec.reshape(3)
+        cTw = pose_from_rodrigues(rvec, tvec)
         cov = self._covariance(cTw, pts[inl])
         if cov is None:
             return None
@@ -218,12 +215,7 @@ class Localizer:
         _, depth, _, J = project_jacobians(self.K, cTw, pts)
         if np.any(depth <= 0):
             return None
-        try:
-            cov = np.linalg.inv(np.einsum("nij,nik->jk", J, J) / self.pnp.sigma_px**2)
-        except np.linalg.LinAlgError:
-            return None
-        floor = np.r_[[self.pnp.min_sigma_t_m**2] * 3, [math.radians(self.pnp.min_sigma_r_deg)**2] * 3]
-        return self.pnp.covariance_inflation * 0.5 * (cov + cov.T) + np.diag(floor)
+        return pnp_covariance(J, self.pnp)
 
     # ------------------------------------------------------------------ relocalisation
 
