@@ -2,7 +2,7 @@
 
 Every benchmark writes a ``"summary"`` record (or a list under
 ``"summaries"``) made by :func:`timing.summary` into its JSON. This script
-reads every ``benchmarks/figures/*.json`` (the results the README shows),
+reads every ``benchmarks/figures/**/*.json`` (the results the README shows),
 and replaces the text between the ``<!-- targets:begin -->`` and
 ``<!-- targets:end -->`` markers of ``benchmarks/README.md`` with one row per
 summary: ours, the floor (in words and its value), the ratio, the team's
@@ -29,16 +29,18 @@ BEGIN, END = "<!-- targets:begin -->", "<!-- targets:end -->"
 
 
 def summaries(figures: Path = FIGURES) -> tuple[list[tuple[str, dict]], list[str]]:
-    """(figure stem, summary) for every summary found, and the stems without one."""
+    """(figure path without .json, relative to ``figures``, summary) for every summary found,
+    and the paths without one."""
     rows, missing = [], []
-    for path in sorted(figures.glob("*.json")):
+    for path in sorted(figures.rglob("*.json")):
         data = json.loads(path.read_text())
         if not isinstance(data, dict):     # an older result written as a bare list
             data = {}
         found = data.get("summaries") or ([data["summary"]] if "summary" in data else [])
+        stem = path.relative_to(figures).with_suffix("").as_posix()
         if not found:
-            missing.append(path.stem)
-        rows.extend((path.stem, s) for s in found)
+            missing.append(stem)
+        rows.extend((stem, s) for s in found)
     return rows, missing
 
 
