@@ -112,6 +112,7 @@ from filters.association import chi2_quantile
 from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_correction import EkfCorrection
+from filters.ekf_slam_update import padded
 from filters.numerics import Recoveries
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
@@ -140,9 +141,10 @@ class EkfSlam(EkfCorrection, Backend):
 
     def _reset(self, capacity: int) -> None:
         self._cap = int(capacity)
-        dim = 3 + 2 * self._cap
+        dim = padded(3 + 2 * self._cap)  # the downdate's padding fits (filters.ekf_slam_update)
         self._xbuf = np.zeros(dim)
         self._Pbuf = np.zeros((dim, dim))
+        self._make_downdate()
         self._n = 0  # used state size; 0 = not initialised
         self._ids: list[int] = []  # landmark id of each landmark slot
         self._slot: dict[int, int] = {}  # landmark id -> slot
@@ -229,13 +231,14 @@ class EkfSlam(EkfCorrection, Backend):
 
     def _grow(self) -> None:
         new_cap = 2 * self._cap
-        dim = 3 + 2 * new_cap
+        dim = padded(3 + 2 * new_cap)
         n = self._n
         xbuf = np.zeros(dim)
         xbuf[:n] = self._xbuf[:n]
         Pbuf = np.zeros((dim, dim))
         Pbuf[:n, :n] = self._Pbuf[:n, :n]
         self._xbuf, self._Pbuf, self._cap = xbuf, Pbuf, new_cap
+        self._make_downdate()
 
     def _record_pose(self, new: bool) -> None:
         pose = self._xbuf[:3].copy()
