@@ -64,14 +64,16 @@ def oc_project(h0, h1, p: list[float], f: list[float]):
     """
     ex, ey = 0.5 * (p[0] - f[0]), 0.5 * (p[1] - f[1])
     rr = 1.0 + 2.0 * (ex * ex + ey * ey)  # |r|^2
-    out = []
-    for h in (h0, h1):
-        tx = -0.5 * (h[0] + h[3])
-        ty = -0.5 * (h[1] + h[4])
-        tr = -(-ey * h[0] + ex * h[1] + h[2] + ey * h[3] - ex * h[4]) / rr
-        out.append((tx - tr * ey, ty + tr * ex, tr, tx + tr * ey, ty - tr * ex))
-    (d0, d1) = out
-    return (tuple(a + b for a, b in zip(h0, d0)), tuple(a + b for a, b in zip(h1, d1)), d0, d1)
+    a0, a1, a2, a3, a4 = h0
+    tx, ty = -0.5 * (a0 + a3), -0.5 * (a1 + a4)
+    t = -(-ey * a0 + ex * a1 + a2 + ey * a3 - ex * a4) / rr
+    d0 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
+    b0, b1, b2, b3, b4 = h1
+    tx, ty = -0.5 * (b0 + b3), -0.5 * (b1 + b4)
+    t = -(-ey * b0 + ex * b1 + b2 + ey * b3 - ex * b4) / rr
+    d1 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
+    return ((a0 + d0[0], a1 + d0[1], a2 + d0[2], a3 + d0[3], a4 + d0[4]),
+            (b0 + d1[0], b1 + d1[1], b2 + d1[2], b3 + d1[3], b4 + d1[4]), d0, d1)
 
 
 class EkfCorrection:

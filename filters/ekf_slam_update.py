@@ -117,7 +117,7 @@ class Rank2Downdate:
         P = self._P
         step = min(64, max(8, ROW_BLOCK_ELEMENTS // m))
         for r0 in range(0, m, step):
-            blk = P[r0:r0 + step, :m]
+            blk = P[r0:min(r0 + step, m), :m]
             np.subtract(blk, W[r0:r0 + step] @ Wt, out=blk)
 
 
