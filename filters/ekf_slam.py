@@ -145,6 +145,7 @@ class EkfSlam(EkfCorrection, Backend):
         self._xbuf = np.zeros(dim)
         self._Pbuf = np.zeros((dim, dim))
         self._make_downdate()
+        self._pmax_ub = math.inf  # upper bound of P's largest variance (EkfCorrection._floored)
         self._n = 0  # used state size; 0 = not initialised
         self._ids: list[int] = []  # landmark id of each landmark slot
         self._slot: dict[int, int] = {}  # landmark id -> slot
@@ -296,6 +297,7 @@ class EkfSlam(EkfCorrection, Backend):
         self._x_pred = x[:3].copy()
         Prr = F @ P[:3, :3] @ F.T + G @ Q @ G.T
         P[:3, :3] = 0.5 * (Prr + Prr.T)
+        self._pmax_ub = max(self._pmax_ub, float(P[:3, :3].diagonal().max()))
         if n > 3:
             Prm = F @ P[:3, 3:n]
             P[:3, 3:n] = Prm
@@ -417,6 +419,7 @@ class EkfSlam(EkfCorrection, Backend):
         P[n:n + 2, :n] = Pmx
         P[:n, n:n + 2] = Pmx.T
         P[n:n + 2, n:n + 2] = 0.5 * (Pmm + Pmm.T)
+        self._pmax_ub = max(self._pmax_ub, float(P[n, n]), float(P[n + 1, n + 1]))
         slot = len(self._ids)
         self._ids.append(lid)
         self._slot[lid] = slot

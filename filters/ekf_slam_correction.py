@@ -52,7 +52,8 @@ def range_bearing(xr: list[float], m: list[float]):
 def oc_project(h0, h1, p: list[float], f: list[float]):
     """Rows ``h0``, ``h1`` (5 floats each) projected onto the complement of the unobservable
     directions tracked at robot position ``p`` and landmark first estimate ``f``;
-    returns the two projected rows and the two rows of ``dH`` = projected - given.
+    returns the two projected rows and the two rows of ``dH`` = projected - given,
+    flat (20 floats, row after row).
 
     Those directions are the two translations ``e_x = (1,0,0,1,0)``,
     ``e_y = (0,1,0,0,1)`` and the rotation about the origin; taken about the
@@ -72,8 +73,8 @@ def oc_project(h0, h1, p: list[float], f: list[float]):
     tx, ty = -0.5 * (b0 + b3), -0.5 * (b1 + b4)
     t = -(-ey * b0 + ex * b1 + b2 + ey * b3 - ex * b4) / rr
     d1 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
-    return ((a0 + d0[0], a1 + d0[1], a2 + d0[2], a3 + d0[3], a4 + d0[4]),
-            (b0 + d1[0], b1 + d1[1], b2 + d1[2], b3 + d1[3], b4 + d1[4]), d0, d1)
+    return (a0 + d0[0], a1 + d0[1], a2 + d0[2], a3 + d0[3], a4 + d0[4],
+            b0 + d1[0], b1 + d1[1], b2 + d1[2], b3 + d1[3], b4 + d1[4]) + d0 + d1
 
 
 class EkfCorrection:
@@ -138,7 +139,7 @@ class EkfCorrection:
     @staticmethod
     def _with_jacobian(H: np.ndarray, PJ: np.ndarray):
         """``H`` (2, 5) as two tuples of floats, and ``H P_JJ H^T`` as nested lists."""
-        return tuple(map(tuple, H.tolist())), (H @ PJ @ H.T).tolist()
+        return tuple(map(tuple, H.tolist())), H.dot(PJ).dot(H.T).tolist()
 
     def _jacobian(self, slot: int, xJ: np.ndarray, oc: bool) -> np.ndarray:
         """(2, 5) observation Jacobian over robot and landmark at ``xJ`` (OC-projected if ``oc``)."""
@@ -146,10 +147,11 @@ class EkfCorrection:
         pred = range_bearing(xJ[:3], xJ[3:5])
         h = pred[2] if pred is not None else ((math.nan,) * 5,) * 2
         if oc:
-            h = self._oc_rows(slot, h)[:2]
+            return np.array(self._oc_rows(slot, h)[:10]).reshape(2, 5)
         return np.array(h)
 
     def _oc_rows(self, slot: int, h):
+        """:func:`oc_project` of ``h`` at the predicted pose and the landmark's first estimate."""
         return oc_project(h[0], h[1], self._x_pred.tolist(), self._m_first[slot].tolist())
 
     def _choose_jacobian(self, slot: int, h, PJ: np.ndarray, Rl: list):
@@ -167,28 +169,40 @@ class EkfCorrection:
         ``oc_fallback``).
         """
         if self.config.jacobians == "oc":
-            G = self._oc_rows(slot, h)  # H_oc (2 rows), dH (2 rows)
-            Ga = np.array(G)
-            Q = (Ga @ PJ @ Ga.T).tolist()  # [[H PJ H^T, .], [., dH PJ dH^T]]
+            G = self._oc_rows(slot, h)  # H_oc (2 rows), dH (2 rows), flat
+            Ga = np.array(G).reshape(4, 5)
+            Q = Ga.dot(PJ).dot(Ga.T).tolist()  # [[H PJ H^T, .], [., dH PJ dH^T]]
             (r00, r01), (r10, r11) = Rl
             det = r00 * r11 - r01 * r10
             spread = math.inf
             if det > 0.0:  # tr(R^-1 D), D = dH PJ dH^T
                 spread = (r11 * Q[2][2] - r01 * Q[3][2] - r10 * Q[2][3] + r00 * Q[3][3]) / det
             if spread <= OC_SPREAD_LIMIT:  # False for NaN too
-                return True, G[:2], (Q[0][:2], Q[1][:2])
+                return True, (G[:5], G[5:10]), (Q[0][:2], Q[1][:2])
             self.recoveries.add("oc_fallback")
         Ha = np.array(h)
-        return False, h, (Ha @ PJ @ Ha.T).tolist()
+        return False, h, Ha.dot(PJ).dot(Ha.T).tolist()
 
     def _floored(self, R: np.ndarray, Rl: list, H) -> np.ndarray:
-        """``R`` raised to the float64 floor of :mod:`filters.numerics` (counted when it acts)."""
-        pmax = float(self._Pdiag.max())  # the diagonal beyond n is zero
+        """``R`` raised to the float64 floor of :mod:`filters.numerics` (counted when it acts).
+
+        The floor scales with P's largest variance. ``_pmax_ub`` bounds it from
+        above (a downdate only lowers variances; the filter raises the bound
+        where it raises one), so the O(n) maximum is taken only when the floor
+        might act.
+        """
         (h0, h1) = H
-        v0 = pmax * (h0[0] * h0[0] + h0[1] * h0[1] + h0[2] * h0[2] + h0[3] * h0[3] + h0[4] * h0[4])
-        v1 = pmax * (h1[0] * h1[0] + h1[1] * h1[1] + h1[2] * h1[2] + h1[3] * h1[3] + h1[4] * h1[4])
-        if not (Rl[0][0] < REL_VARIANCE_FLOOR * v0 or Rl[1][1] < REL_VARIANCE_FLOOR * v1):
-            return R  # the floor cannot act (floored_noise's test, without its arrays)
+        g0 = h0[0] * h0[0] + h0[1] * h0[1] + h0[2] * h0[2] + h0[3] * h0[3] + h0[4] * h0[4]
+        g1 = h1[0] * h1[0] + h1[1] * h1[1] + h1[2] * h1[2] + h1[3] * h1[3] + h1[4] * h1[4]
+        r00, r11 = Rl[0][0], Rl[1][1]
+        ub = self._pmax_ub * REL_VARIANCE_FLOOR
+        if not (r00 < ub * g0 or r11 < ub * g1):
+            return R
+        pmax = float(self._Pdiag.max())  # the diagonal beyond n is zero
+        self._pmax_ub = pmax
+        v0, v1 = pmax * g0, pmax * g1
+        if not (r00 < REL_VARIANCE_FLOOR * v0 or r11 < REL_VARIANCE_FLOOR * v1):
+            return R  # floored_noise's test, without its arrays
         R, hit = floored_noise(R, np.array([v0, v1]))
         if hit:
             self.recoveries.add("noise_floor")
@@ -205,7 +219,7 @@ class EkfCorrection:
         landmark's first estimate; ``H`` is projected onto their complement
         (:func:`oc_project`).
         """
-        H = np.array(self._oc_rows(slot, np.hstack([H_x, H_m]).tolist())[:2])
+        H = np.array(self._oc_rows(slot, np.hstack([H_x, H_m]).tolist())[:10]).reshape(2, 5)
         return H[:, :3], H[:, 3:]
 
 

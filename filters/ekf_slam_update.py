@@ -169,11 +169,11 @@ def rank2_correction(x: np.ndarray, n: int, rows: np.ndarray, H, S: tuple[float,
     (p0, p1, p2, p3, p4), (q0, q1, q2, q3, q4) = H
     W = downdate.W
     # [M^T; (S^-1 nu)^T H P] = [L^-1 H_J; (S^-1 nu)^T H_J] P[J, :], beyond n zero
-    np.dot(np.array(((ia * p0, ia * p1, ia * p2, ia * p3, ia * p4),
-                     (l10 * p0 + ic * q0, l10 * p1 + ic * q1, l10 * p2 + ic * q2,
-                      l10 * p3 + ic * q3, l10 * p4 + ic * q4),
-                     (u0 * p0 + u1 * q0, u0 * p1 + u1 * q1, u0 * p2 + u1 * q2,
-                      u0 * p3 + u1 * q3, u0 * p4 + u1 * q4))), rows, out=W)
+    np.dot(np.array((ia * p0, ia * p1, ia * p2, ia * p3, ia * p4,
+                     l10 * p0 + ic * q0, l10 * p1 + ic * q1, l10 * p2 + ic * q2,
+                     l10 * p3 + ic * q3, l10 * p4 + ic * q4,
+                     u0 * p0 + u1 * q0, u0 * p1 + u1 * q1, u0 * p2 + u1 * q2,
+                     u0 * p3 + u1 * q3, u0 * p4 + u1 * q4)).reshape(3, 5), rows, out=W)
     if move_state:
         x += W[2]
     downdate(-(-n // PAD) * PAD)

@@ -84,7 +84,7 @@ def test_standard_jacobians_equal_the_dense_textbook_update():
     x = np.r_[0.3, -0.2, 0.4, rng.uniform(-10, 10, size=2 * 30)]
     B = rng.normal(size=(x.size, 5)) * 0.1
     P = B @ B.T + np.eye(x.size) * 0.02
-    ekf = EkfSlam(EkfSlamConfig(initial_capacity=40))
+    ekf = EkfSlam(EkfSlamConfig(initial_capacity=40, jacobians="standard"))
     ekf.load_state(3, x, P)
     for slot in (7, 7, 22, 0):
         i = 3 + 2 * slot
