@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{1e3 * r['floor_s']:>9.4f} {1e3 * r['downdate_s']:>9.4f} {r['ratio']:>6.2f} "
                   f"{r['ratio_vs_downdate']:>7.2f}", flush=True)
     worst = max(rows, key=lambda r: r["ratio"])
-    command = "python benchmarks/bench_ekf_update.py" + (" --quick" if args.quick else "")
+    given = sys.argv[1:] if argv is None else list(argv)
+    command = " ".join(["python benchmarks/bench_ekf_update.py", *given])
     summary = timing.summary(
         "EKF-SLAM update (worst size)", worst["update_s"], worst["floor_s"],
         target=timing.TARGETS["ekf"], floor=FLOOR, command=command,
