@@ -47,6 +47,9 @@ PAD = 16
 #: Rows per block of the numpy fallback downdate (no BLAS pointer): small blocks keep
 #: the temporary in cache.
 ROW_BLOCK_ELEMENTS = 1 << 17
+#: Largest panel of the BLAS downdate, in entries of P (rows x m): OpenBLAS runs a
+#: dgemm with m n k below 65536 x 4 on one thread (its SMP threshold), k = 2 here.
+PANEL_ELEMENTS = 1 << 16
 
 #: :func:`rank2_correction` outcomes.
 APPLIED, GATED, INDEFINITE = "applied", "gated", "indefinite"
@@ -86,9 +89,14 @@ class Rank2Downdate:
     """``P[:m, :m] -= W[:2, :m]^T W[:2, :m]`` in place on a C-ordered (dim, dim) buffer ``P``.
 
     ``W`` is a (3, dim) scratch array owned here (row 2 is free for the
-    caller). The arguments of the BLAS call are built once per buffer (its
-    addresses are fixed); a call only sets ``m``. ``use_blas=False`` (or no
-    BLAS pointer) takes a row-blocked numpy form, for comparison in tests.
+    caller). The downdate runs in panels of P's rows, each one dgemm small
+    enough (:data:`PANEL_ELEMENTS`) that OpenBLAS keeps it on one thread:
+    a whole-matrix dgemm goes multithreaded from about n = 500, and on a loaded
+    2-core machine that made it 100x slower (68 ms against 0.7 ms at n = 1003,
+    the same for the plain dgemm floor of ``benchmarks/bench_ekf_update.py
+    --threads 0``). The calls' arguments are built once per ``m`` (the buffer's
+    addresses are fixed). ``use_blas=False`` (or no BLAS pointer) takes a
+    row-blocked numpy form, for comparison in tests.
     """
 
     def __init__(self, P: np.ndarray, use_blas: bool = True):
@@ -98,19 +106,32 @@ class Rank2Downdate:
         self._P = P
         self.W = np.zeros((3, dim))
         self._use_blas = use_blas and _DGEMM is not None
-        self._m = ctypes.c_int(0)
         self._consts = (ctypes.c_char(b"N"), ctypes.c_char(b"T"), ctypes.c_int(2),
                         ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(dim))
+        self._calls: tuple[int, list[tuple], list[ctypes.c_int]] = (0, [], [])
+
+    def _panels(self, m: int) -> list[tuple]:
+        """The dgemm argument tuples of ``m``'s panels (cached for the last ``m``)."""
+        if self._calls[0] == m:
+            return self._calls[1]
         no, tr, two, minus, one, ld = (ctypes.addressof(c) for c in self._consts)
-        m, w = ctypes.addressof(self._m), self.W.ctypes.data
-        # column-major: C = P^T and A = W^T (dim x 3), both leading dimension dim;
-        # C[:m, :m] += -1 A[:m, :2] A[:m, :2]^T
-        self._args = (no, tr, m, m, two, minus, w, ld, w, ld, one, P.ctypes.data, ld)
+        dim, w, p = self._P.shape[0], self.W.ctypes.data, self._P.ctypes.data
+        rows = max(PAD, min(m, PANEL_ELEMENTS // m) // PAD * PAD)
+        ints = [ctypes.c_int(m)]
+        calls = []
+        for r0 in range(0, m, rows):
+            ints.append(ctypes.c_int(min(rows, m - r0)))
+            # column-major: C = P^T, A = W^T (dim x 3), both leading dimension dim;
+            # C[:m, r0:r1] += -1 A[:m, :2] A[r0:r1, :2]^T (P's rows r0:r1)
+            calls.append((no, tr, ctypes.addressof(ints[0]), ctypes.addressof(ints[-1]), two, minus,
+                          w, ld, w + 8 * r0, ld, one, p + 8 * dim * r0, ld))
+        self._calls = (m, calls, ints)
+        return calls
 
     def __call__(self, m: int) -> None:
         if self._use_blas:
-            self._m.value = m
-            _DGEMM(*self._args)
+            for args in self._panels(m):
+                _DGEMM(*args)
             return
         Wt = self.W[:2, :m]
         W = Wt.T
