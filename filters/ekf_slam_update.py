@@ -49,7 +49,7 @@ PAD = 16
 ROW_BLOCK_ELEMENTS = 1 << 17
 #: Largest panel of the BLAS downdate, in entries of P (rows x m): OpenBLAS runs a
 #: dgemm with m n k below 65536 x 4 on one thread (its SMP threshold), k = 2 here.
-PANEL_ELEMENTS = 1 << 16
+PANEL_ELEMENTS = 1 << 17
 
 #: :func:`rank2_correction` outcomes.
 APPLIED, GATED, INDEFINITE = "applied", "gated", "indefinite"
@@ -82,21 +82,41 @@ def _blas_dgemm():
     return ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 13)(address)
 
 
+def _blas_threads():
+    """OpenBLAS's ``get_num_threads`` of the library behind :data:`_DGEMM`, or None."""
+    try:
+        from scipy.linalg import cython_blas
+
+        lib = ctypes.CDLL(cython_blas.__file__)
+    except (ImportError, OSError):
+        return None
+    for name in ("scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_",
+                 "openblas_get_num_threads", "openblas_get_num_threads64_"):
+        get = getattr(lib, name, None)
+        if get is not None:
+            get.restype, get.argtypes = ctypes.c_int, []
+            return get
+    return None
+
+
 _DGEMM = _blas_dgemm()
+_BLAS_THREADS = _blas_threads()
 
 
 class Rank2Downdate:
     """``P[:m, :m] -= W[:2, :m]^T W[:2, :m]`` in place on a C-ordered (dim, dim) buffer ``P``.
 
     ``W`` is a (3, dim) scratch array owned here (row 2 is free for the
-    caller). The downdate runs in panels of P's rows, each one dgemm small
-    enough (:data:`PANEL_ELEMENTS`) that OpenBLAS keeps it on one thread:
-    a whole-matrix dgemm goes multithreaded from about n = 500, and on a loaded
-    2-core machine that made it 100x slower (68 ms against 0.7 ms at n = 1003,
-    the same for the plain dgemm floor of ``benchmarks/bench_ekf_update.py
-    --threads 0``). The calls' arguments are built once per ``m`` (the buffer's
-    addresses are fixed). ``use_blas=False`` (or no BLAS pointer) takes a
-    row-blocked numpy form, for comparison in tests.
+    caller). When BLAS may use several threads the downdate runs in panels
+    of P's rows, each one dgemm small enough (:data:`PANEL_ELEMENTS`) that
+    OpenBLAS keeps it on one thread: a whole-matrix dgemm goes multithreaded
+    from about n = 500, and on the loaded 2-core machine that made it 40-100x
+    slower (68 ms against 0.7 ms at n = 1003, the same for the plain dgemm
+    floor of ``benchmarks/bench_ekf_update.py --threads 0``). Pinned to one
+    thread (``threadpoolctl``), it is one dgemm over the whole matrix, as the
+    panels' per-call cost showed at n = 500 (1.3x). The calls' arguments are
+    built once per ``m`` (the buffer's addresses are fixed). ``use_blas=False``
+    (or no BLAS pointer) takes a row-blocked numpy form, for comparison in tests.
     """
 
     def __init__(self, P: np.ndarray, use_blas: bool = True):
@@ -108,15 +128,15 @@ class Rank2Downdate:
         self._use_blas = use_blas and _DGEMM is not None
         self._consts = (ctypes.c_char(b"N"), ctypes.c_char(b"T"), ctypes.c_int(2),
                         ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(dim))
-        self._calls: tuple[int, list[tuple], list[ctypes.c_int]] = (0, [], [])
+        self._plans: dict[tuple[int, int], tuple[list[tuple], list[ctypes.c_int]]] = {}
 
-    def _panels(self, m: int) -> list[tuple]:
-        """The dgemm argument tuples of ``m``'s panels (cached for the last ``m``)."""
-        if self._calls[0] == m:
-            return self._calls[1]
+    def _plan(self, m: int, rows: int) -> list[tuple]:
+        """The dgemm argument tuples of ``m`` in panels of ``rows`` rows (the last two kept)."""
+        plan = self._plans.get((m, rows))
+        if plan is not None:
+            return plan[0]
         no, tr, two, minus, one, ld = (ctypes.addressof(c) for c in self._consts)
         dim, w, p = self._P.shape[0], self.W.ctypes.data, self._P.ctypes.data
-        rows = max(PAD, min(m, PANEL_ELEMENTS // m) // PAD * PAD)
         ints = [ctypes.c_int(m)]
         calls = []
         for r0 in range(0, m, rows):
@@ -125,12 +145,17 @@ class Rank2Downdate:
             # C[:m, r0:r1] += -1 A[:m, :2] A[r0:r1, :2]^T (P's rows r0:r1)
             calls.append((no, tr, ctypes.addressof(ints[0]), ctypes.addressof(ints[-1]), two, minus,
                           w, ld, w + 8 * r0, ld, one, p + 8 * dim * r0, ld))
-        self._calls = (m, calls, ints)
+        if len(self._plans) >= 2:
+            self._plans.clear()
+        self._plans[(m, rows)] = (calls, ints)
         return calls
 
     def __call__(self, m: int) -> None:
         if self._use_blas:
-            for args in self._panels(m):
+            rows = max(PAD, min(m, PANEL_ELEMENTS // m) // PAD * PAD)
+            if rows < m and _BLAS_THREADS is not None and _BLAS_THREADS() == 1:
+                rows = m
+            for args in self._plan(m, rows):
                 _DGEMM(*args)
             return
         Wt = self.W[:2, :m]
