@@ -32,7 +32,7 @@ Costs per step, n = 3 + 2 M:
   (:mod:`filters.ekf_slam_update`): no n x n temporary, nothing O(n^3), and the
   only O(n^2) work is that one pass over ``P``, which stays symmetric to the bit.
   Measured against the same update written plainly in numpy with an in-place
-  dgemm (``benchmarks/bench_ekf_update.py``): 0.9-1.05x from 50 to 2000 landmarks.
+  dgemm (``benchmarks/bench_ekf_update.py``): 0.9-1.1x from 50 to 2000 landmarks.
 - New landmark (inverse observation model ``m = g(x_r, z)``):
   ``P_mX = G_x P[0:3, :]`` (all cross-covariances), ``P_mm = G_x P_rr G_x^T +
   G_z R G_z^T``. O(n).
