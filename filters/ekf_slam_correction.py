@@ -17,20 +17,73 @@ import math
 import numpy as np
 
 from filters.ekf_slam_update import (
-    APPLIED, INDEFINITE, damped_iterated_step, nis_2x2, rank2_correction,
+    APPLIED, INDEFINITE, Rank2Downdate, damped_iterated_step, rank2_correction,
 )
-from filters.numerics import CHI2_2DOF_999, floored_noise, symmetrise
-from slamcore.planar import geometry as models
-from slamcore.planar.geometry import wrap_angle
+from filters.numerics import CHI2_2DOF_999, REL_VARIANCE_FLOOR, floored_noise
 
 #: Largest ``tr(R^-1 dH P dH^T)`` for which an update keeps the OC Jacobian
-#: (:meth:`EkfCorrection._prior_jacobian`): the chi-square 0.999 quantile, 2 dof, as
+#: (:meth:`EkfCorrection._choose_jacobian`): the chi-square 0.999 quantile, 2 dof, as
 #: the association gate. Course noise, seeds 0-2: at most 7.4 (99 % below 2.2).
 OC_SPREAD_LIMIT = CHI2_2DOF_999
+
+_PI, _TWO_PI = math.pi, 2.0 * math.pi
+
+
+def _wrap(a: float) -> float:
+    """:func:`slamcore.planar.geometry.wrap_angle` on a float (same formula, same bits)."""
+    return (a + _PI) % _TWO_PI - _PI
+
+
+def range_bearing(xr: list[float], m: list[float]):
+    """Predicted ``(range, bearing)`` of landmark ``m`` from pose ``xr`` and the two rows
+    of its Jacobian over (x, y, theta, mx, my), as floats (the formulas of
+    :func:`slamcore.planar.geometry.observe` and ``observe_jacobians``); None when
+    the landmark sits on the robot or the numbers are not finite."""
+    dx, dy = m[0] - xr[0], m[1] - xr[1]
+    q = dx * dx + dy * dy
+    if not (0.0 < q < math.inf):
+        return None
+    r = math.sqrt(q)
+    h0 = (-(dx / r), -(dy / r), 0.0, dx / r, dy / r)
+    h1 = (-(-dy / q), -(dx / q), -1.0, -dy / q, dx / q)
+    return math.hypot(dx, dy), _wrap(math.atan2(dy, dx) - xr[2]), (h0, h1)
+
+
+def oc_project(h0, h1, p: list[float], f: list[float]):
+    """Rows ``h0``, ``h1`` (5 floats each) projected onto the complement of the unobservable
+    directions tracked at robot position ``p`` and landmark first estimate ``f``;
+    returns the two projected rows and the two rows of ``dH`` = projected - given,
+    flat (20 floats, row after row).
+
+    Those directions are the two translations ``e_x = (1,0,0,1,0)``,
+    ``e_y = (0,1,0,0,1)`` and the rotation about the origin; taken about the
+    midpoint of ``p`` and ``f`` instead (same span: it differs by a
+    translation) the rotation is ``r = (-ey, ex, 1, ey, -ex)`` with ``(ex, ey) =
+    (p - f) / 2``, orthogonal to both translations, so the projection is three
+    independent dot products, with no 3x3 solve and no loss of digits far from
+    the origin.
+    """
+    ex, ey = 0.5 * (p[0] - f[0]), 0.5 * (p[1] - f[1])
+    rr = 1.0 + 2.0 * (ex * ex + ey * ey)  # |r|^2
+    a0, a1, a2, a3, a4 = h0
+    tx, ty = -0.5 * (a0 + a3), -0.5 * (a1 + a4)
+    t = -(-ey * a0 + ex * a1 + a2 + ey * a3 - ex * a4) / rr
+    d0 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
+    b0, b1, b2, b3, b4 = h1
+    tx, ty = -0.5 * (b0 + b3), -0.5 * (b1 + b4)
+    t = -(-ey * b0 + ex * b1 + b2 + ey * b3 - ex * b4) / rr
+    d1 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
+    return (a0 + d0[0], a1 + d0[1], a2 + d0[2], a3 + d0[3], a4 + d0[4],
+            b0 + d1[0], b1 + d1[1], b2 + d1[2], b3 + d1[3], b4 + d1[4]) + d0 + d1
 
 
 class EkfCorrection:
     """Mixin of :class:`filters.ekf_slam.EkfSlam`: the update by one observation."""
+
+    def _make_downdate(self) -> None:
+        """The BLAS downdate bound to the current covariance buffer (after each allocation)."""
+        self._downdate = Rank2Downdate(self._Pbuf)
+        self._Pdiag = self._Pbuf.reshape(-1)[::self._Pbuf.shape[0] + 1]
 
     def _kalman_update(self, slot: int, z: np.ndarray, R: np.ndarray,
                        gate: float = math.inf) -> bool:
@@ -42,50 +95,68 @@ class EkfCorrection:
         innovation beyond ``damped_update_nis`` takes the damped iterated step
         (:func:`filters.ekf_slam_update.damped_iterated_step`).
         """
-        n = self._n
-        i = 3 + 2 * slot
-        x = self._xbuf
-        P = self._Pbuf[:n, :n]
-        J = [0, 1, 2, i, i + 1]
-        oc, H = self._prior_jacobian(slot, x[J], P[np.ix_(J, J)], R)
-        R = self._floored(R, H, P)
-        HP = H[:, :3] @ P[0:3] + H[:, 3:] @ P[i:i + 2]  # (2, n): H P, from contiguous rows
-        S = symmetrise(HP[:, 0:3] @ H[:, :3].T + HP[:, i:i + 2] @ H[:, 3:].T + R)  # (2, 2)
-        nu = models.innovation(z, models.observe(x[:3], x[i:i + 2]))
+        n, i, x = self._n, 3 + 2 * slot, self._xbuf
+        pred = range_bearing(x[:3].tolist(), x[i:i + 2].tolist())
+        if pred is None:
+            self.recoveries.add("skipped_update")
+            return False
+        J = np.array((0, 1, 2, i, i + 1))
+        rows = self._Pbuf.take(J, axis=0)  # P[J, :] (symmetric P: the columns J too)
+        PJ = rows.take(J, axis=1)
+        Rl = R.tolist()
+        oc, H, HPH = self._choose_jacobian(slot, pred[2], PJ, Rl)
+        Rf = self._floored(R, Rl, H)
+        if Rf is not R:
+            R, Rl = Rf, Rf.tolist()
+        S = _innovation_cov(HPH, Rl)
+        z0, z1 = z.tolist()
+        nu = (z0 - pred[0], _wrap(z1 - pred[1]))
         limit = self.config.damped_update_nis
-        nis = nis_2x2(S, nu)
-        damped = limit is not None and limit < nis <= gate  # nis is inf if S is indefinite
-        if damped:
-            a = damped_iterated_step(x[J].copy(), P[np.ix_(J, J)], z, R,
-                                     lambda xJ: self._jacobian(slot, xJ, oc))
-            if a is None:
-                damped = False
-        if not damped:
-            outcome = rank2_correction(x[:n], P, HP, S, nu, gate)
+        if limit is not None and limit < _nis(S, nu) <= gate:  # _nis is inf if S is indefinite
+            outcome = self._damped_update(slot, J, rows, PJ, z, R, oc, nu, H, S)
         else:
-            x[:n] += P[:, J] @ a  # the iterate; the covariance is linearised there (IEKF)
-            H = self._jacobian(slot, x[J], oc)
-            HP = H[:, :3] @ P[0:3] + H[:, 3:] @ P[i:i + 2]
-            S = symmetrise(HP[:, 0:3] @ H[:, :3].T + HP[:, i:i + 2] @ H[:, 3:].T + R)
-            outcome = rank2_correction(x[:n], P, HP, S, nu, move_state=False)
-            self.recoveries.add("damped_update")
+            outcome = rank2_correction(x, n, rows, H, S, nu, self._downdate, gate)
         if outcome == INDEFINITE:
             self.recoveries.add("skipped_update")
         if outcome != APPLIED:
             return False
-        x[2] = wrap_angle(x[2])
+        x[2] = _wrap(float(x[2]))
         return True
+
+    def _damped_update(self, slot, J, rows, PJ, z, R, oc, nu, H, S) -> str:
+        """The damped iterated step, then the covariance linearised at its iterate (IEKF);
+        the plain correction (``H``, ``S``) when no step decreases the MAP cost."""
+        n, x = self._n, self._xbuf
+        a = damped_iterated_step(x[J].copy(), PJ, z, R, lambda xJ: self._jacobian(slot, xJ, oc))
+        if a is None:
+            return rank2_correction(x, n, rows, H, S, nu, self._downdate)
+        x[:n] += a @ rows[:, :n]  # the iterate x0 + P[:, J] a (P symmetric)
+        H, HPH = self._with_jacobian(self._jacobian(slot, x[J], oc), PJ)
+        self.recoveries.add("damped_update")
+        return rank2_correction(x, n, rows, H, _innovation_cov(HPH, R.tolist()), nu, self._downdate,
+                                move_state=False)
+
+    @staticmethod
+    def _with_jacobian(H: np.ndarray, PJ: np.ndarray):
+        """``H`` (2, 5) as two tuples of floats, and ``H P_JJ H^T`` as nested lists."""
+        return tuple(map(tuple, H.tolist())), H.dot(PJ).dot(H.T).tolist()
 
     def _jacobian(self, slot: int, xJ: np.ndarray, oc: bool) -> np.ndarray:
         """(2, 5) observation Jacobian over robot and landmark at ``xJ`` (OC-projected if ``oc``)."""
-        H_x, H_m = models.observe_jacobians(xJ[:3], xJ[3:5])
+        xJ = xJ.tolist()
+        pred = range_bearing(xJ[:3], xJ[3:5])
+        h = pred[2] if pred is not None else ((math.nan,) * 5,) * 2
         if oc:
-            H_x, H_m = self._observability_constrained(slot, H_x, H_m)
-        return np.hstack([H_x, H_m])
+            return np.array(self._oc_rows(slot, h)[:10]).reshape(2, 5)
+        return np.array(h)
 
-    def _prior_jacobian(self, slot: int, xJ: np.ndarray, PJ: np.ndarray,
-                        R: np.ndarray) -> tuple[bool, np.ndarray]:
-        """Whether this update uses the OC Jacobian (``jacobians = "oc"``), and H at ``xJ``.
+    def _oc_rows(self, slot: int, h):
+        """:func:`oc_project` of ``h`` at the predicted pose and the landmark's first estimate."""
+        return oc_project(h[0], h[1], self._x_pred.tolist(), self._m_first[slot].tolist())
+
+    def _choose_jacobian(self, slot: int, h, PJ: np.ndarray, Rl: list):
+        """Whether this update uses the OC Jacobian (``jacobians = "oc"``), ``H`` (two rows of
+        floats) and ``H P_JJ H^T`` (nested lists); ``Rl`` is R as nested lists.
 
         The projection moves ``H`` by ``dH``, through the landmark's first
         estimate; the error that makes in the predicted measurement over the
@@ -97,22 +168,42 @@ class EkfCorrection:
         1e100 m. Then the update takes the standard Jacobian (counted as
         ``oc_fallback``).
         """
-        H_x, H_m = models.observe_jacobians(xJ[:3], xJ[3:5])
-        H = np.hstack([H_x, H_m])
-        if self.config.jacobians != "oc":
-            return False, H
-        H_oc = np.hstack(self._observability_constrained(slot, H_x, H_m))
-        dH = H_oc - H
-        spread = np.trace(np.linalg.solve(R, dH @ PJ @ dH.T))
-        if spread <= OC_SPREAD_LIMIT:  # False for NaN too
-            return True, H_oc
-        self.recoveries.add("oc_fallback")
-        return False, H
+        if self.config.jacobians == "oc":
+            G = self._oc_rows(slot, h)  # H_oc (2 rows), dH (2 rows), flat
+            Ga = np.array(G).reshape(4, 5)
+            Q = Ga.dot(PJ).dot(Ga.T).tolist()  # [[H PJ H^T, .], [., dH PJ dH^T]]
+            (r00, r01), (r10, r11) = Rl
+            det = r00 * r11 - r01 * r10
+            spread = math.inf
+            if det > 0.0:  # tr(R^-1 D), D = dH PJ dH^T
+                spread = (r11 * Q[2][2] - r01 * Q[3][2] - r10 * Q[2][3] + r00 * Q[3][3]) / det
+            if spread <= OC_SPREAD_LIMIT:  # False for NaN too
+                return True, (G[:5], G[5:10]), (Q[0][:2], Q[1][:2])
+            self.recoveries.add("oc_fallback")
+        Ha = np.array(h)
+        return False, h, Ha.dot(PJ).dot(Ha.T).tolist()
 
-    def _floored(self, R: np.ndarray, H: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """``R`` raised to the float64 floor of :mod:`filters.numerics` (counted when it acts)."""
-        pmax = float(np.max(np.diagonal(P)))
-        R, hit = floored_noise(R, pmax * np.einsum("ij,ij->i", H, H))
+    def _floored(self, R: np.ndarray, Rl: list, H) -> np.ndarray:
+        """``R`` raised to the float64 floor of :mod:`filters.numerics` (counted when it acts).
+
+        The floor scales with P's largest variance. ``_pmax_ub`` bounds it from
+        above (a downdate only lowers variances; the filter raises the bound
+        where it raises one), so the O(n) maximum is taken only when the floor
+        might act.
+        """
+        (h0, h1) = H
+        g0 = h0[0] * h0[0] + h0[1] * h0[1] + h0[2] * h0[2] + h0[3] * h0[3] + h0[4] * h0[4]
+        g1 = h1[0] * h1[0] + h1[1] * h1[1] + h1[2] * h1[2] + h1[3] * h1[3] + h1[4] * h1[4]
+        r00, r11 = Rl[0][0], Rl[1][1]
+        ub = self._pmax_ub * REL_VARIANCE_FLOOR
+        if not (r00 < ub * g0 or r11 < ub * g1):
+            return R
+        pmax = float(self._Pdiag.max())  # the diagonal beyond n is zero
+        self._pmax_ub = pmax
+        v0, v1 = pmax * g0, pmax * g1
+        if not (r00 < REL_VARIANCE_FLOOR * v0 or r11 < REL_VARIANCE_FLOOR * v1):
+            return R  # floored_noise's test, without its arrays
+        R, hit = floored_noise(R, np.array([v0, v1]))
         if hit:
             self.recoveries.add("noise_floor")
         return R
@@ -125,17 +216,23 @@ class EkfCorrection:
         about the global heading that no measurement carries, and it becomes
         overconfident. The unobservable directions (translation, and rotation
         about the origin) are tracked at the robot's predicted positions and the
-        landmark's first estimate; ``H`` is projected onto their complement.
+        landmark's first estimate; ``H`` is projected onto their complement
+        (:func:`oc_project`).
         """
-        px, py = self._x_pred[0], self._x_pred[1]
-        mx, my = self._m_first[slot]
-        N = np.array([[1.0, 0.0, -py], [0.0, 1.0, px], [0.0, 0.0, 1.0],
-                      [1.0, 0.0, -my], [0.0, 1.0, mx]])
-        H = np.hstack([H_x, H_m])
-        try:
-            H = H - (H @ N) @ np.linalg.solve(N.T @ N, N.T)
-        except np.linalg.LinAlgError:
-            # N has full column rank (rows 1-3 are [I | p]); only a state at
-            # ~1e8 m makes N^T N numerically singular, and lstsq stays defined
-            H = H - (H @ N) @ np.linalg.lstsq(N, np.eye(5), rcond=None)[0]
+        H = np.array(self._oc_rows(slot, np.hstack([H_x, H_m]).tolist())[:10]).reshape(2, 5)
         return H[:, :3], H[:, 3:]
+
+
+def _nis(S: tuple[float, float, float], nu: tuple[float, float]) -> float:
+    """``nu^T S^-1 nu`` for ``S = (s00, s01, s11)``; inf when S is not positive definite."""
+    s00, s01, s11 = S
+    det = s00 * s11 - s01 * s01
+    if not (s00 > 0.0 and det > 0.0 and det < math.inf):
+        return math.inf
+    return (s11 * nu[0] * nu[0] - 2.0 * s01 * nu[0] * nu[1] + s00 * nu[1] * nu[1]) / det
+
+
+def _innovation_cov(HPH, Rl: list) -> tuple[float, float, float]:
+    """``H P H^T + R`` symmetrised, as ``(s00, s01, s11)``."""
+    (r00, r01), (r10, r11) = Rl
+    return HPH[0][0] + r00, 0.5 * ((HPH[0][1] + r01) + (HPH[1][0] + r10)), HPH[1][1] + r11

@@ -1,11 +1,22 @@
 """One sequential EKF correction with a 2-D measurement, as an in-place rank-2 downdate.
 
-With ``H P`` (2, n) and ``S = H P H^T + R`` (2, 2), the state moves by
-``(H P)^T S^-1 nu`` and the covariance loses ``(H P)^T S^-1 (H P) = M M^T``
-with ``M = (L^-1 H P)^T`` (n, 2), ``S = L L^T``. ``P -= M M^T`` is applied in
-place one block of rows at a time (:data:`ROW_BLOCK_ELEMENTS`), so no n x n
-temporary is built; each entry (i, j) and (j, i) is the same two products
-summed in the same order, so ``P`` stays symmetric. O(n^2), nothing O(n^3).
+With ``H`` non-zero only on the 5 entries ``J`` (robot, landmark), ``H P`` is
+``H_J P[J, :]`` (P is symmetric: rows, not columns), ``S = H_J P[J, J] H_J^T + R``,
+the state moves by ``(H P)^T S^-1 nu`` and the covariance loses
+``(H P)^T S^-1 (H P) = M M^T`` with ``M = (L^-1 H P)^T`` (n, 2), ``S = L L^T``.
+:func:`rank2_correction` forms ``L^-1 H_J`` and ``(S^-1 nu)^T H_J`` as floats
+(a 3x5 matrix), multiplies it with the 5 gathered rows once (``M^T`` and the
+state step in one 3 x n product) and hands ``P -= M M^T`` to
+:class:`Rank2Downdate`: one BLAS ``dgemm`` with ``beta = 1`` written straight
+into the filter's buffer (through the ``dgemm`` pointer SciPy exports for
+Cython, since ``scipy.linalg.blas.dgemm`` silently copies a strided ``c``), so
+no n x n temporary and no copy of ``P`` is made. O(n^2), nothing O(n^3); the
+per-call Python work is a fixed ~20 numpy calls, which is what dominates below
+~200 landmarks (issue 20 item 3). ``P`` stays symmetric to the bit: the dgemm
+is run on a size padded to :data:`PAD` (the padding rows and columns are
+zero), where OpenBLAS computes entries (i, j) and (j, i) with the same kernel
+(measured at every odd n up to 200 and 303-2003; unpadded, n = 1003 and 1503
+came out asymmetric in the last bit).
 
 :func:`damped_iterated_step` is the update for innovations the linearisation
 cannot be trusted with: the iterated EKF is Gauss-Newton on the MAP cost
@@ -21,6 +32,7 @@ search runs on 5-vectors: ``|x - x0|^2_{P^-1} = a^T P_JJ a``.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from collections.abc import Callable
 
@@ -28,12 +40,16 @@ import numpy as np
 
 from slamcore.planar import geometry as models
 
-#: Size of one block of the in-place rank-2 downdate, in doubles (1 MiB): the
-#: block has ``clip(ROW_BLOCK_ELEMENTS // n, 8, 64)`` rows of P. Small blocks keep
-#: the temporary in cache and keep OpenBLAS on one thread for each small gemm
-#: (measured: 128-row blocks at n = 4003 went multithreaded and ran 15x slower
-#: on a loaded machine).
+#: The covariance buffer's side and every downdate are padded to a multiple of this
+#: (see the module docstring: exact symmetry of OpenBLAS's dgemm).
+PAD = 16
+
+#: Rows per block of the numpy fallback downdate (no BLAS pointer): small blocks keep
+#: the temporary in cache.
 ROW_BLOCK_ELEMENTS = 1 << 17
+#: Largest panel of the BLAS downdate, in entries of P (rows x m): OpenBLAS runs a
+#: dgemm with m n k below 65536 x 4 on one thread (its SMP threshold), k = 2 here.
+PANEL_ELEMENTS = 1 << 17
 
 #: :func:`rank2_correction` outcomes.
 APPLIED, GATED, INDEFINITE = "applied", "gated", "indefinite"
@@ -45,56 +61,168 @@ MAX_HALVINGS = 30
 COST_TOLERANCE = 1e-10
 
 
-def cholesky_2x2(S: np.ndarray) -> tuple[float, float, float] | None:
+def padded(n: int) -> int:
+    """``n`` rounded up to a multiple of :data:`PAD`."""
+    return -(-n // PAD) * PAD
+
+
+def _blas_dgemm():
+    """Fortran ``dgemm`` from SciPy's Cython BLAS table, or None where it is not exported."""
+    try:
+        from scipy.linalg import cython_blas
+
+        capsule = cython_blas.__pyx_capi__["dgemm"]
+        name = ctypes.pythonapi.PyCapsule_GetName
+        name.restype, name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        pointer = ctypes.pythonapi.PyCapsule_GetPointer
+        pointer.restype, pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        address = pointer(capsule, name(capsule))
+    except (ImportError, AttributeError, KeyError, ValueError):
+        return None
+    return ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 13)(address)
+
+
+def _blas_threads():
+    """OpenBLAS's ``get_num_threads`` of the library behind :data:`_DGEMM`, or None."""
+    try:
+        from scipy.linalg import cython_blas
+
+        lib = ctypes.CDLL(cython_blas.__file__)
+    except (ImportError, OSError):
+        return None
+    for name in ("scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_",
+                 "openblas_get_num_threads", "openblas_get_num_threads64_"):
+        get = getattr(lib, name, None)
+        if get is not None:
+            get.restype, get.argtypes = ctypes.c_int, []
+            return get
+    return None
+
+
+_DGEMM = _blas_dgemm()
+_BLAS_THREADS = _blas_threads()
+
+
+class Rank2Downdate:
+    """``P[:m, :m] -= W[:2, :m]^T W[:2, :m]`` in place on a C-ordered (dim, dim) buffer ``P``.
+
+    ``W`` is a (3, dim) scratch array owned here (row 2 is free for the
+    caller). When BLAS may use several threads the downdate runs in panels
+    of P's rows, each one dgemm small enough (:data:`PANEL_ELEMENTS`) that
+    OpenBLAS keeps it on one thread: a whole-matrix dgemm goes multithreaded
+    from about n = 500, and on the loaded 2-core machine that made it 40-100x
+    slower (68 ms against 0.7 ms at n = 1003, the same for the plain dgemm
+    floor of ``benchmarks/bench_ekf_update.py --threads 0``). Pinned to one
+    thread (``threadpoolctl``), it is one dgemm over the whole matrix, as the
+    panels' per-call cost showed at n = 500 (1.3x). The calls' arguments are
+    built once per ``m`` (the buffer's addresses are fixed). ``use_blas=False``
+    (or no BLAS pointer) takes a row-blocked numpy form, for comparison in tests.
+    """
+
+    def __init__(self, P: np.ndarray, use_blas: bool = True):
+        if P.ndim != 2 or P.shape[0] != P.shape[1] or not P.flags.c_contiguous:
+            raise ValueError("Rank2Downdate needs a C-contiguous square buffer")
+        dim = P.shape[0]
+        self._P = P
+        self.W = np.zeros((3, dim))
+        self._use_blas = use_blas and _DGEMM is not None
+        self._consts = (ctypes.c_char(b"N"), ctypes.c_char(b"T"), ctypes.c_int(2),
+                        ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(dim))
+        self._plans: dict[tuple[int, int], tuple[list[tuple], list[ctypes.c_int]]] = {}
+
+    def _plan(self, m: int, rows: int) -> list[tuple]:
+        """The dgemm argument tuples of ``m`` in panels of ``rows`` rows (the last two kept)."""
+        plan = self._plans.get((m, rows))
+        if plan is not None:
+            return plan[0]
+        no, tr, two, minus, one, ld = (ctypes.addressof(c) for c in self._consts)
+        dim, w, p = self._P.shape[0], self.W.ctypes.data, self._P.ctypes.data
+        ints = [ctypes.c_int(m)]
+        calls = []
+        for r0 in range(0, m, rows):
+            ints.append(ctypes.c_int(min(rows, m - r0)))
+            # column-major: C = P^T, A = W^T (dim x 3), both leading dimension dim;
+            # C[:m, r0:r1] += -1 A[:m, :2] A[r0:r1, :2]^T (P's rows r0:r1)
+            calls.append((no, tr, ctypes.addressof(ints[0]), ctypes.addressof(ints[-1]), two, minus,
+                          w, ld, w + 8 * r0, ld, one, p + 8 * dim * r0, ld))
+        if len(self._plans) >= 2:
+            self._plans.clear()
+        self._plans[(m, rows)] = (calls, ints)
+        return calls
+
+    def __call__(self, m: int) -> None:
+        if self._use_blas:
+            rows = max(PAD, min(m, PANEL_ELEMENTS // m) // PAD * PAD)
+            if rows < m and _BLAS_THREADS is not None and _BLAS_THREADS() == 1:
+                rows = m
+            for args in self._plan(m, rows):
+                _DGEMM(*args)
+            return
+        Wt = self.W[:2, :m]
+        W = Wt.T
+        P = self._P
+        step = min(64, max(8, ROW_BLOCK_ELEMENTS // m))
+        for r0 in range(0, m, step):
+            blk = P[r0:min(r0 + step, m), :m]
+            np.subtract(blk, W[r0:r0 + step] @ Wt, out=blk)
+
+
+def cholesky_2x2(S) -> tuple[float, float, float] | None:
     """``S = L L^T`` with ``L = [[a, 0], [b, c]]``; None unless S is finite positive definite."""
-    s00 = float(S[0, 0])
-    if not (s00 > 0.0 and math.isfinite(s00)):
+    return cholesky_2x2_floats(float(S[0, 0]), float(S[1, 0]), float(S[1, 1]))
+
+
+def cholesky_2x2_floats(s00: float, s10: float, s11: float) -> tuple[float, float, float] | None:
+    """:func:`cholesky_2x2` of ``[[s00, s10], [s10, s11]]`` given as floats."""
+    if not (s00 > 0.0 and s00 < math.inf):
         return None
     a = math.sqrt(s00)
-    b = float(S[1, 0]) / a
-    c2 = float(S[1, 1]) - b * b
-    if not (c2 > 0.0 and math.isfinite(c2)):
+    b = s10 / a
+    c2 = s11 - b * b
+    if not (c2 > 0.0 and c2 < math.inf):
         return None
     return a, b, math.sqrt(c2)
 
 
-def rank2_correction(x: np.ndarray, P: np.ndarray, HP: np.ndarray, S: np.ndarray,
-                     nu: np.ndarray, gate: float = math.inf, move_state: bool = True) -> str:
-    """Correct ``x`` (n,) and ``P`` (n, n) in place with ``H P`` (2, n), ``S`` (2, 2)
-    and the innovation ``nu`` (2,).
+def rank2_correction(x: np.ndarray, n: int, rows: np.ndarray, H, S: tuple[float, float, float],
+                     nu: tuple[float, float], downdate: Rank2Downdate, gate: float = math.inf,
+                     move_state: bool = True) -> str:
+    """Correct the state buffer ``x`` and the downdate's ``P`` in place (state size ``n``).
+
+    Args:
+        x: the state buffer (dim,), zero beyond ``n``.
+        rows: P's rows ``J`` (5, dim), zero beyond column ``n``.
+        H: the two rows (5 floats each) of the Jacobian over ``J``.
+        S: ``(s00, s01, s11)`` of the innovation covariance; nu: the innovation.
 
     Returns :data:`GATED` when ``nu^T S^-1 nu`` exceeds ``gate`` and
     :data:`INDEFINITE` when ``S`` is not positive definite (both leave ``x``
     and ``P`` untouched), else :data:`APPLIED`. ``move_state=False`` applies
-    only the covariance downdate (the caller moved the state). Angles in
-    ``x`` are not wrapped here.
+    only the covariance downdate (the caller moved the state). Angles in ``x``
+    are not wrapped here.
     """
-    chol = cholesky_2x2(S)
+    chol = cholesky_2x2_floats(S[0], S[1], S[2])
     if chol is None:
         return INDEFINITE
     a, b, c = chol
-    n = len(x)
-    # L^-1 = [[1/a, 0], [-b/(a c), 1/c]]
-    Mt = np.empty((2, n))
-    np.multiply(HP[0], 1.0 / a, out=Mt[0])
-    np.multiply(HP[1], 1.0 / c, out=Mt[1])
-    Mt[1] -= (b / (a * c)) * HP[0]
-    # w = L^-1 nu; state += (H P)^T S^-1 nu = M (L^-1 nu)
-    w0 = nu[0] / a
+    w0 = nu[0] / a  # w = L^-1 nu, |w|^2 = nu^T S^-1 nu
     w1 = (nu[1] - b * w0) / c
-    if w0 * w0 + w1 * w1 > gate:  # |L^-1 nu|^2 = nu^T S^-1 nu
+    if w0 * w0 + w1 * w1 > gate:
         return GATED
+    u1 = w1 / c if move_state else 0.0  # u = S^-1 nu = L^-T w
+    u0 = (w0 - b * u1) / a if move_state else 0.0
+    l10, ia, ic = -b / (a * c), 1.0 / a, 1.0 / c  # L^-1 = [[1/a, 0], [-b/(a c), 1/c]]
+    (p0, p1, p2, p3, p4), (q0, q1, q2, q3, q4) = H
+    W = downdate.W
+    # [M^T; (S^-1 nu)^T H P] = [L^-1 H_J; (S^-1 nu)^T H_J] P[J, :], beyond n zero
+    np.dot(np.array((ia * p0, ia * p1, ia * p2, ia * p3, ia * p4,
+                     l10 * p0 + ic * q0, l10 * p1 + ic * q1, l10 * p2 + ic * q2,
+                     l10 * p3 + ic * q3, l10 * p4 + ic * q4,
+                     u0 * p0 + u1 * q0, u0 * p1 + u1 * q1, u0 * p2 + u1 * q2,
+                     u0 * p3 + u1 * q3, u0 * p4 + u1 * q4)).reshape(3, 5), rows, out=W)
     if move_state:
-        x += Mt[0] * w0 + Mt[1] * w1
-    # P -= M M^T, in place, one block of rows at a time.
-    M = Mt.T  # (n, 2) view
-    rows = min(64, max(8, ROW_BLOCK_ELEMENTS // n))
-    if n <= 2 * rows:
-        np.subtract(P, M @ Mt, out=P)
-    else:
-        for r0 in range(0, n, rows):
-            blk = P[r0:r0 + rows]
-            np.subtract(blk, M[r0:r0 + rows] @ Mt, out=blk)
+        x += W[2]
+    downdate(-(-n // PAD) * PAD)
     return APPLIED
 
 
@@ -143,14 +271,3 @@ def damped_iterated_step(x0J: np.ndarray, PJ: np.ndarray, z: np.ndarray, R: np.n
         if decrease <= COST_TOLERANCE * max(cost, 1.0):
             break
     return a if moved else None
-
-
-def nis_2x2(S: np.ndarray, nu: np.ndarray) -> float:
-    """``nu^T S^-1 nu`` for a 2x2 ``S``; inf when S is not positive definite."""
-    chol = cholesky_2x2(S)
-    if chol is None:
-        return math.inf
-    a, b, c = chol
-    w0 = nu[0] / a
-    w1 = (nu[1] - b * w0) / c
-    return w0 * w0 + w1 * w1

@@ -16,7 +16,8 @@ import pytest
 
 from filters.ekf_slam import EkfSlam
 from filters.ekf_slam_update import (
-    APPLIED, INDEFINITE, cholesky_2x2, damped_iterated_step, map_cost, rank2_correction,
+    APPLIED, INDEFINITE, Rank2Downdate, cholesky_2x2, damped_iterated_step, map_cost,
+    rank2_correction,
 )
 from filters.fastslam import FastSlam, FastSlamConfig
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries, floored_noise
@@ -120,14 +121,18 @@ def test_floor_is_per_row_on_batches():
 
 
 def test_indefinite_innovation_covariance_is_refused_untouched():
-    x = np.zeros(5)
-    P = np.eye(5)
-    HP = np.ones((2, 5))
+    P = np.eye(16)
+    x = np.zeros(16)
+    rows = P[:5].copy()
+    H = ((1.0,) * 5, (1.0,) * 5)
     S = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and -1
     assert cholesky_2x2(S) is None
-    assert rank2_correction(x, P, HP, S, np.ones(2)) == INDEFINITE
-    assert np.all(x == 0) and np.all(P == np.eye(5))
-    assert rank2_correction(x, P, 0.1 * HP, np.eye(2), np.ones(2)) == APPLIED
+    downdate = Rank2Downdate(P)
+    assert rank2_correction(x, 5, rows, H, (1.0, 2.0, 1.0), (1.0, 1.0), downdate) == INDEFINITE
+    assert np.all(x == 0) and np.all(P == np.eye(16))
+    H = ((0.1,) * 5, (0.1,) * 5)
+    assert rank2_correction(x, 5, rows, H, (1.0, 0.0, 1.0), (1.0, 1.0), downdate) == APPLIED
+    assert np.any(x != 0) and np.any(P != np.eye(16))
 
 
 def test_damped_step_decreases_the_map_cost_where_the_ekf_step_overshoots():
