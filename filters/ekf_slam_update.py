@@ -33,6 +33,7 @@ search runs on 5-vectors: ``|x - x0|^2_{P^-1} = a^T P_JJ a``.
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 from collections.abc import Callable
 
@@ -66,6 +67,7 @@ def padded(n: int) -> int:
     return -(-n // PAD) * PAD
 
 
+@functools.cache
 def _blas_dgemm():
     """Fortran ``dgemm`` from SciPy's Cython BLAS table, or None where it is not exported."""
     try:
@@ -82,8 +84,9 @@ def _blas_dgemm():
     return ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 13)(address)
 
 
+@functools.cache
 def _blas_threads():
-    """OpenBLAS's ``get_num_threads`` of the library behind :data:`_DGEMM`, or None."""
+    """OpenBLAS's ``get_num_threads`` of the library behind :func:`_blas_dgemm`, or None."""
     try:
         from scipy.linalg import cython_blas
 
@@ -97,10 +100,6 @@ def _blas_threads():
             get.restype, get.argtypes = ctypes.c_int, []
             return get
     return None
-
-
-_DGEMM = _blas_dgemm()
-_BLAS_THREADS = _blas_threads()
 
 
 class Rank2Downdate:
@@ -125,10 +124,23 @@ class Rank2Downdate:
         dim = P.shape[0]
         self._P = P
         self.W = np.zeros((3, dim))
-        self._use_blas = use_blas and _DGEMM is not None
+        self._use_blas = use_blas and _blas_dgemm() is not None  # looked up once, on first use
+        self._init_calls()
+
+    def _init_calls(self) -> None:
+        """The dgemm constants; plans hold raw addresses of ``P`` and ``W``, so they are
+        rebuilt lazily (and never copied: see ``__getstate__``)."""
         self._consts = (ctypes.c_char(b"N"), ctypes.c_char(b"T"), ctypes.c_int(2),
-                        ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(dim))
+                        ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(self._P.shape[0]))
         self._plans: dict[tuple[int, int], tuple[list[tuple], list[ctypes.c_int]]] = {}
+
+    def __getstate__(self) -> dict:
+        # A copied or unpickled downdate must not keep the original buffers' addresses.
+        return {k: v for k, v in self.__dict__.items() if k not in ("_consts", "_plans")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._init_calls()
 
     def _plan(self, m: int, rows: int) -> list[tuple]:
         """The dgemm argument tuples of ``m`` in panels of ``rows`` rows (the last two kept)."""
@@ -153,10 +165,11 @@ class Rank2Downdate:
     def __call__(self, m: int) -> None:
         if self._use_blas:
             rows = max(PAD, min(m, PANEL_ELEMENTS // m) // PAD * PAD)
-            if rows < m and _BLAS_THREADS is not None and _BLAS_THREADS() == 1:
+            threads, dgemm = _blas_threads(), _blas_dgemm()
+            if rows < m and threads is not None and threads() == 1:
                 rows = m
             for args in self._plan(m, rows):
-                _DGEMM(*args)
+                dgemm(*args)
             return
         Wt = self.W[:2, :m]
         W = Wt.T

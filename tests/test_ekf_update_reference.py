@@ -120,3 +120,34 @@ def _check_downdate(n: int) -> None:
     np.testing.assert_allclose(P[:n, :n], B @ B.T + np.eye(n) - Wn.T @ Wn, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(P, P.T)
     assert not P[n:].any() and not P[:, n:].any()  # the padding stays zero
+
+
+def test_copied_and_pickled_filters_update_their_own_covariance():
+    """The BLAS downdate holds raw buffer addresses: a deep copy or a pickle round trip
+    must update its own P, leave the original's alone, and give the original's result."""
+    import copy
+    import pickle
+
+    from filters.ekf_slam import EkfSlam
+    from filters.ekf_slam_config import EkfSlamConfig
+    from slamcore.planar import geometry as models
+    from slamcore.planar.records import Observation
+
+    rng = np.random.default_rng(7)
+    n_lm = 20
+    x = np.r_[0.0, 0.0, 0.1, rng.uniform(-20, 20, size=2 * n_lm)]
+    B = rng.normal(size=(x.size, 6)) * 0.05
+    P = B @ B.T + 0.01 * np.eye(x.size)
+    ekf = EkfSlam(EkfSlamConfig(initial_capacity=n_lm))
+    ekf.load_state(0, x, P)
+    z = models.observe(x[:3], x[3 + 10:3 + 12]) + np.array([0.05, 0.01])
+    obs = [Observation(0, 5, z, np.diag([0.04, 0.003]))]
+    ekf.update([Observation(0, 3, models.observe(x[:3], x[3 + 6:3 + 8]), np.diag([0.04, 0.003]))])
+    before = ekf._Pbuf.copy()  # the downdate's plans now hold this buffer's address
+    twins = [copy.deepcopy(ekf), pickle.loads(pickle.dumps(ekf))]
+    for twin in twins:
+        twin.update(obs)
+    assert np.array_equal(ekf._Pbuf, before)
+    ekf.update(obs)
+    for twin in twins:
+        assert np.array_equal(twin._Pbuf, ekf._Pbuf) and np.array_equal(twin._xbuf, ekf._xbuf)
