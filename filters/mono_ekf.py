@@ -366,10 +366,13 @@ class MonoEkf(VisualBackend):
         predicted = self._predicted(var)
         slots = np.array([self._slot[int(t)] for t in ids], dtype=np.int64)
         front = predicted[1][slots] > 0  # behind the camera: dropped, as update() drops them
-        if front.any():
-            sel, inl = self._correct(slots[front], z[front], predicted, var)
-            for i, ok in zip(sel, inl):
-                self._sequential[self._lms[i].track_id] = bool(ok)
+        sel, z = slots[front], z[front]
+        if len(sel) >= 3 and self.config.ransac:
+            sel, inl = self._correct(sel, z, predicted, var)
+        elif len(sel):
+            inl = self._gated(sel, z, predicted, var)
+        for i, ok in zip(sel, inl if len(sel) else ()):
+            self._sequential[self._lms[i].track_id] = bool(ok)
         pend = np.asarray(pending_ids, dtype=np.int64).reshape(-1)
         uv, hz, _, _, S = self._predicted(var)
         p = np.array([self._slot.get(int(t), -1) for t in pend], dtype=np.int64)
@@ -411,6 +414,22 @@ class MonoEkf(VisualBackend):
         self._stats["ransac_rejected"] += int((~inl).sum())
         self._stats["corrections"] += int(inl.sum())
         return sel, inl
+
+    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: tuple, var: float) -> np.ndarray:
+        """Each measurement gated alone at the ``rescue_chi2_prob`` quantile, the kept ones
+        corrected in one batch, from ``predicted`` (:meth:`_predicted` at this state): what
+        :meth:`_correct` does without RANSAC, minus its re-prediction at an unchanged state.
+        Returns the kept mask (k,)."""
+        uv, _, Hp, Hl, S = (a[slots] for a in predicted)
+        nu = z - uv
+        d2 = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[:, :, None])[:, :, 0])
+        ok = d2 < self._rescue_gate
+        if ok.any():
+            PHt, S_ok = self._gain_blocks(slots[ok], Hp[ok], Hl[ok], var)
+            self._apply_update(PHt, S_ok, nu[ok].reshape(-1))
+        self._stats["ransac_rejected"] += int((~ok).sum())
+        self._stats["corrections"] += int(ok.sum())
+        return ok
 
     def _rescue(self, slots: np.ndarray, z: np.ndarray, var: float) -> np.ndarray:
         """Rescue (or plain gating): re-predict ``slots`` at the updated state, keep those
