@@ -128,8 +128,8 @@ def plot_rates(res: dict, corrections, corrections7, out: Path) -> Path:
 
     stream_hz = 1.0 / FpgaTiming().frame_period_s((480, 640))
     # the two are 0.1 % apart: one line, both named
-    lines = {f"paper: RT-SLAM {PAPER_HZ:g} Hz VGA (sec. 4.4, 5.1); the FPGA stream's VGA "
-             f"frame rate ({stream_hz:.1f} Hz) caps its curves": PAPER_HZ}
+    lines = {f"paper: RT-SLAM {PAPER_HZ:g} Hz, VGA (4.4, 5.1)\n= FPGA stream frame rate "
+             f"({stream_hz:.1f} Hz)": PAPER_HZ}
     fig5 = {label: (list(corrections), [r["hz"] for r in rows]) for label, rows in res["fig5"].items()}
     fig7 = {label: ([r["landmarks"] for r in rows], [r["hz"] for r in rows])
             for label, rows in res["fig7_map"].items()}
@@ -145,7 +145,7 @@ def plot_rates(res: dict, corrections, corrections7, out: Path) -> Path:
         Panel("fig. 7, the paper's layout: FPGA stream, one curve per map limit",
               "corrections per frame (cap)", "frames per second (CPU time)", fig7b,
               targets=lines, logy=True)],
-        ncols=3)
+        ncols=2)
 
 
 def trajectories(seq, frames: int) -> dict:
