@@ -253,7 +253,9 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                     backend.predict(k, None if odo is None else odo[k - 1],
                                     None if odo_cov is None else odo_cov[k - 1])
                     pred = backend.predict_observations()
-                tracking = tracker.track(image, pred, repredict if k else None)
+                # the batch order calls track as it always has (wrappers of it keep working)
+                tracking = tracker.track(image, pred) if repredict is None or k == 0 else \
+                    tracker.track(image, pred, repredict=repredict)
                 t2 = time.perf_counter()
                 backend.update(tracking.observations)
                 t3 = time.perf_counter()
