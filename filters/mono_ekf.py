@@ -67,6 +67,15 @@ Per frame (:meth:`MonoEkf.update`):
    that many; landmarks it reports unsearched
    (``PixelObservations.unsearched_ids``) are not misses.
 
+Sequential active search (``[active_search] order = "sequential"``, RT-SLAM):
+between :meth:`predict_observations` and :meth:`update` the front end hands
+over each match at once (:meth:`MonoEkf.correct_and_repredict`): one
+measurement is gated alone and corrects the state, a first batch of 3 or more
+(``ransac_every``) goes through the one-point RANSAC above; the landmarks
+still to search are re-predicted from the corrected state. :meth:`update` then
+skips those tracks and does steps 3 and 4. Each sequential correction costs a
+re-prediction of the map (O(n) projections) and an O(n^2) downdate.
+
 Costs, n = state size, k = corrections: :meth:`predict` touches the robot rows
 and columns only, O(n). The update's ``H`` is non-zero on the 7 pose columns
 and one landmark block per 2-row block, so ``P H^T`` is gathered from those
@@ -95,8 +104,8 @@ from filters import landmark_params as lp
 from filters.mono_ekf_checks import (check_camera, check_initial_pose, check_observations,
                                      check_odometry)
 from filters.mono_ekf_config import MonoEkfConfig, chi2_2dof
-from filters.mono_ekf_correction import (apply_correction, gain_blocks, innovation_blocks,
-                                         one_point_ransac)
+from filters.mono_ekf_correction import (apply_correction, gain_blocks, gated_correction,
+                                         innovation_blocks, one_point_ransac)
 from filters.mono_ekf_map import (augment_with_landmarks, euclidean_conversion, euclidean_points,
                                   farthest_candidates, linear_enough, transform_state)
 from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion, propagate_covariance
@@ -416,17 +425,12 @@ class MonoEkf(VisualBackend):
         return sel, inl
 
     def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: tuple, var: float) -> np.ndarray:
-        """Each measurement gated alone at the ``rescue_chi2_prob`` quantile, the kept ones
-        corrected in one batch, from ``predicted`` (:meth:`_predicted` at this state): what
-        :meth:`_correct` does without RANSAC, minus its re-prediction at an unchanged state.
-        Returns the kept mask (k,)."""
+        """:func:`filters.mono_ekf_correction.gated_correction` of ``slots`` measured at
+        ``z`` from ``predicted`` (:meth:`_predicted` at this state); returns the kept mask."""
         uv, _, Hp, Hl, S = (a[slots] for a in predicted)
-        nu = z - uv
-        d2 = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[:, :, None])[:, :, 0])
-        ok = d2 < self._rescue_gate
-        if ok.any():
-            PHt, S_ok = self._gain_blocks(slots[ok], Hp[ok], Hl[ok], var)
-            self._apply_update(PHt, S_ok, nu[ok].reshape(-1))
+        ok = gated_correction(self._x, self._P, self._idx[slots], Hp, Hl, z - uv, S, var,
+                              self._rescue_gate)
+        self._version += int(ok.any())
         self._stats["ransac_rejected"] += int((~ok).sum())
         self._stats["corrections"] += int(ok.sum())
         return ok

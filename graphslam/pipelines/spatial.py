@@ -253,9 +253,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                     backend.predict(k, None if odo is None else odo[k - 1],
                                     None if odo_cov is None else odo_cov[k - 1])
                     pred = backend.predict_observations()
-                # the batch order calls track as it always has (wrappers of it keep working)
-                tracking = tracker.track(image, pred) if repredict is None or k == 0 else \
-                    tracker.track(image, pred, repredict=repredict)
+                tracking = _track(tracker, image, pred, repredict if k else None)
                 t2 = time.perf_counter()
                 backend.update(tracking.observations)
                 t3 = time.perf_counter()
@@ -306,6 +304,12 @@ def _sequential_link(tracker: Tracker, backend: VisualBackend):
         raise ConfigError(f"active_search.order = 'sequential' needs a back end that corrects one "
                           f"landmark at a time (mono_ekf); {backend.name!r} does not")
     return backend.correct_and_repredict
+
+
+def _track(tracker: Tracker, image: np.ndarray, pred: PixelPredictions, repredict) -> TrackingResult:
+    """``tracker.track``; the batch order calls it as it always has (wrappers keep working)."""
+    return tracker.track(image, pred) if repredict is None else \
+        tracker.track(image, pred, repredict=repredict)
 
 
 def _first_pose(sequence: ImageSequence, cfg: VisualRunConfig) -> tuple[np.ndarray, np.ndarray]:
