@@ -131,6 +131,8 @@ def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, corrections:
 
     result = vp.run(seq, backend, tracker, config=vp.VisualRunConfig(odometry="sequence"),
                     on_frame=on_frame, max_frames=frames)
+    if result.interrupted:  # SIGTERM / Ctrl-C stop a run between frames: not a full measurement
+        raise SystemExit(f"run interrupted after {result.frames} frames")
     m = vp.compute_metrics(result)
     st = result.estimate.stats
     n = max(counts["frames"] - 1, 1)  # frame 0 has nothing to search
