@@ -67,6 +67,15 @@ Per frame (:meth:`MonoEkf.update`):
    that many; landmarks it reports unsearched
    (``PixelObservations.unsearched_ids``) are not misses.
 
+Sequential active search (``[active_search] order = "sequential"``, RT-SLAM):
+between :meth:`predict_observations` and :meth:`update` the front end hands
+over each match at once (:meth:`MonoEkf.correct_and_repredict`): one
+measurement is gated alone and corrects the state, a first batch of 3 or more
+(``ransac_every``) goes through the one-point RANSAC above; the landmarks
+still to search are re-predicted from the corrected state. :meth:`update` then
+skips those tracks and does steps 3 and 4. Each sequential correction costs a
+re-prediction of the map (O(n) projections) and an O(n^2) downdate.
+
 Costs, n = state size, k = corrections: :meth:`predict` touches the robot rows
 and columns only, O(n). The update's ``H`` is non-zero on the 7 pose columns
 and one landmark block per 2-row block, so ``P H^T`` is gathered from those
@@ -95,8 +104,8 @@ from filters import landmark_params as lp
 from filters.mono_ekf_checks import (check_camera, check_initial_pose, check_observations,
                                      check_odometry)
 from filters.mono_ekf_config import MonoEkfConfig, chi2_2dof
-from filters.mono_ekf_correction import (apply_correction, gain_blocks, innovation_blocks,
-                                         one_point_ransac)
+from filters.mono_ekf_correction import (apply_correction, gain_blocks, gated_correction,
+                                         innovation_blocks, one_point_ransac)
 from filters.mono_ekf_map import (augment_with_landmarks, euclidean_conversion, euclidean_points,
                                   farthest_candidates, linear_enough, transform_state)
 from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion, propagate_covariance
@@ -122,6 +131,7 @@ class MonoEkf(VisualBackend):
 
     name = "mono_ekf"
     needs_track_history = False  # landmarks initialised undelayed, from one pixel
+    supports_sequential_search = True
 
     def __init__(self, config: MonoEkfConfig | None = None):
         self.config = config if config is not None else MonoEkfConfig()
@@ -243,6 +253,7 @@ class MonoEkf(VisualBackend):
         self._poses: list[np.ndarray] = [self._wTc()]
         self._stats = {"reparametrised": 0, "ransac_rejected": 0, "initialised": 0,
                        "forgotten": 0, "deleted": 0, "corrections": 0, "frames": 1}
+        self._sequential: dict[int, bool] = {}  # this frame: track id -> accepted (sequential)
 
     def predict(self, frame_id: int, odometry: np.ndarray | None,
                 covariance: np.ndarray | None) -> None:
@@ -263,6 +274,7 @@ class MonoEkf(VisualBackend):
             self._x[:r], F, G = odometry_motion(self._x[:r], T, self.config.frame_dt_s)
         propagate_covariance(self._P, self._rdim, F, G, Q)
         self._version += 1
+        self._sequential = {}
         self._frame_ids.append(int(frame_id))
         self._poses.append(self._wTc())
         self._stats["frames"] += 1
@@ -303,10 +315,16 @@ class MonoEkf(VisualBackend):
         predicted = self._predicted(var)
         visible = self._in_view(predicted[0], predicted[1])
         known = np.array([int(t) in self._slot for t in ids], dtype=bool)
-        k_rows = np.flatnonzero(known)
+        # tracks used by correct_and_repredict this frame are not corrected again
+        k_rows = np.array([r for r in np.flatnonzero(known) if int(ids[r]) not in self._sequential],
+                          dtype=np.int64)
         k_slots = np.array([self._slot[int(ids[r])] for r in k_rows], dtype=np.int64)
         accepted = np.zeros(len(self._lms), dtype=bool)
         rejected = np.zeros(len(self._lms), dtype=bool)
+        seq_ids = {True: [], False: []}
+        for t, ok in self._sequential.items():
+            (accepted if ok else rejected)[self._slot[t]] = True
+            seq_ids[ok].append(t)
         if len(k_slots):
             front = predicted[1][k_slots] > 0
             k_rows, k_slots = k_rows[front], k_slots[front]
@@ -318,7 +336,9 @@ class MonoEkf(VisualBackend):
             rejected_ids = np.array([self._lms[i].track_id for i in sel[~inl]], dtype=np.int64)
         else:
             corrected_ids = rejected_ids = np.zeros(0, dtype=np.int64)
-        observed = np.zeros(len(self._lms), dtype=bool)
+        corrected_ids = np.concatenate([np.array(seq_ids[True], np.int64), corrected_ids])
+        rejected_ids = np.concatenate([np.array(seq_ids[False], np.int64), rejected_ids])
+        observed = accepted | rejected
         observed[k_slots] = True
         # not searched because the front end's budget was spent: not a miss
         for t in observations.unsearched_ids.tolist():
@@ -334,6 +354,41 @@ class MonoEkf(VisualBackend):
         self._poses[-1] = self._wTc()
         self.last_update = {"corrected": corrected_ids, "rejected": rejected_ids,
                             "initialised": new_ids}
+
+    def correct_and_repredict(self, track_ids, uv_px, pending_ids) -> tuple[np.ndarray, np.ndarray]:
+        """Sequential active search (:meth:`VisualBackend.correct_and_repredict`).
+
+        The measurements are corrected as :meth:`update` corrects a batch
+        (one-point RANSAC from 3 measurements, else each gated alone at the
+        ``rescue_chi2_prob`` quantile), with the last pixel sigma seen; then
+        the pending landmarks are re-predicted (NaN where not in the state or
+        behind the camera).
+        """
+        self._require_init()
+        ids = np.asarray(track_ids, dtype=np.int64).reshape(-1)
+        z = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
+        if len(ids) != len(z) or any(int(t) not in self._slot or int(t) in self._sequential
+                                     for t in ids):
+            raise GraphSlamError("mono_ekf: correct_and_repredict needs mapped tracks not yet "
+                                 "used this frame, one pixel each")
+        var = self._sigma_px ** 2
+        predicted = self._predicted(var)
+        slots = np.array([self._slot[int(t)] for t in ids], dtype=np.int64)
+        front = predicted[1][slots] > 0  # behind the camera: dropped, as update() drops them
+        sel, z = slots[front], z[front]
+        if len(sel) >= 3 and self.config.ransac:
+            sel, inl = self._correct(sel, z, predicted, var)
+        elif len(sel):
+            inl = self._gated(sel, z, predicted, var)
+        for i, ok in zip(sel, inl if len(sel) else ()):
+            self._sequential[self._lms[i].track_id] = bool(ok)
+        pend = np.asarray(pending_ids, dtype=np.int64).reshape(-1)
+        uv, hz, _, _, S = self._predicted(var)
+        p = np.array([self._slot.get(int(t), -1) for t in pend], dtype=np.int64)
+        uv_p, S_p = uv[p].copy(), S[p].copy()
+        bad = (p < 0) | ~(hz[p] > 0)
+        uv_p[bad], S_p[bad] = np.nan, np.nan
+        return uv_p, S_p
 
     def _correct(self, k_slots: np.ndarray, z_known: np.ndarray, predicted: tuple,
                  var: float) -> tuple[np.ndarray, np.ndarray]:
@@ -368,6 +423,17 @@ class MonoEkf(VisualBackend):
         self._stats["ransac_rejected"] += int((~inl).sum())
         self._stats["corrections"] += int(inl.sum())
         return sel, inl
+
+    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: tuple, var: float) -> np.ndarray:
+        """:func:`filters.mono_ekf_correction.gated_correction` of ``slots`` measured at
+        ``z`` from ``predicted`` (:meth:`_predicted` at this state); returns the kept mask."""
+        uv, _, Hp, Hl, S = (a[slots] for a in predicted)
+        ok = gated_correction(self._x, self._P, self._idx[slots], Hp, Hl, z - uv, S, var,
+                              self._rescue_gate)
+        self._version += int(ok.any())
+        self._stats["ransac_rejected"] += int((~ok).sum())
+        self._stats["corrections"] += int(ok.sum())
+        return ok
 
     def _rescue(self, slots: np.ndarray, z: np.ndarray, var: float) -> np.ndarray:
         """Rescue (or plain gating): re-predict ``slots`` at the updated state, keep those

@@ -63,6 +63,24 @@ def apply_correction(x: np.ndarray, P: np.ndarray, PHt: np.ndarray, S: np.ndarra
     normalise_quaternion(x, P)
 
 
+def gated_correction(x: np.ndarray, P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray,
+                     nu: np.ndarray, S: np.ndarray, var: float, gate: float) -> np.ndarray:
+    """Gate each measurement alone, correct with the kept ones in one batch; returns the
+    kept mask (k,).
+
+    ``nu`` (k, 2) px innovations and ``S`` (k, 2, 2) their covariances at the
+    current state, ``idx``, ``Hp``, ``Hl`` as :func:`innovation_blocks`;
+    kept: squared Mahalanobis distance below ``gate``. The sequential search's
+    step (what the RANSAC rescue does, without re-predicting an unchanged state).
+    """
+    d2 = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[:, :, None])[:, :, 0])
+    ok = d2 < gate
+    if ok.any():
+        PHt, S_ok = gain_blocks(P, idx[ok], Hp[ok], Hl[ok], var)
+        apply_correction(x, P, PHt, S_ok, nu[ok].reshape(-1))
+    return ok
+
+
 def normalise_quaternion(x: np.ndarray, P: np.ndarray) -> None:
     """``q <- q / |q|`` (``x[3:7]``) in place, ``P`` through the normalisation's Jacobian."""
     q = x[3:7]

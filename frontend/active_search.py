@@ -13,6 +13,22 @@ at most ``max_corrections`` are searched per frame, a hard bound on the time;
 ``max_found`` stops the search once a back end's per-frame correction budget
 is found (the others would not be used).
 
+Two orders (``ActiveSearchConfig.order``):
+
+* ``"batch"``: every ellipse comes from the one prediction of the frame and the
+  back end corrects with all the matches at once, after the search.
+* ``"sequential"`` (RT-SLAM): the largest ellipse is searched, the back end
+  corrects with its match at once, and the landmarks still to search are
+  re-predicted from the corrected state (their ellipses shrink) and re-sorted;
+  the next is searched inside its new ellipse, up to the caps. With
+  ``ransac_every = n`` (the paper's RT-SLAM variant, section 5.1: "one
+  correction in two by one-point RANSAC" is n = 2, RT-SLAM's
+  ``N_UPDATES_RANSAC``), the first ``ceil(cap / n)`` matches (``cap`` the
+  back end's correction budget) are found in their predicted ellipses and
+  handed over together, for the back end's one-point RANSAC; the rest
+  follow one by one. The back end is reached through the ``repredict``
+  callback of :meth:`ActiveSearch.search_with`.
+
 Two modes (``ActiveSearchConfig.mode``):
 
 * ``"zncc"`` (software, RT-SLAM): the stored patch (``patch_size_px`` square,
@@ -56,7 +72,7 @@ from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
 __all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
-           "NearestMatcher", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
+           "NearestMatcher", "Repredict", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
 
 
 def chi2_2dof(probability: float) -> float:
@@ -88,6 +104,12 @@ class ActiveSearchConfig:
         max_half_extent_px: landmarks whose ellipse's bounding box has a
             half-side above this are not searched (their prediction is
             meaningless; they would cost a large part of the frame).
+        order: ``"batch"`` or ``"sequential"`` (module docstring); sequential
+            needs a back end that corrects one landmark at a time (the
+            monocular EKF).
+        ransac_every: sequential only: one correction in ``n`` comes from the
+            back end's one-point RANSAC over the first matches (module
+            docstring); 0: none (every correction sequential, gated alone).
     """
 
     SECTION: ClassVar[str] = "active_search"
@@ -101,9 +123,15 @@ class ActiveSearchConfig:
     subpixel: bool = True
     predict_appearance: bool = False
     max_half_extent_px: float = bounded(150.0, gt=0.0)
+    order: Literal["batch", "sequential"] = "batch"
+    # 1 would hand every match to RANSAC at once: the batch order
+    ransac_every: int = bounded(0, min=0, max=MAX_POINTS_PER_FRAME)
 
     def __post_init__(self):
         validate(self)
+        if self.ransac_every == 1 or (self.ransac_every and self.order != "sequential"):
+            raise ConfigError(f"active_search.ransac_every must be 0 or at least 2, with order "
+                              f"'sequential' (got {self.ransac_every!r}, order {self.order!r})")
         if self.patch_size_px % 2 == 0:  # parity is not a range: checked here
             raise ConfigError(f"active_search.patch_size_px must be odd (a centre pixel), "
                               f"got {self.patch_size_px!r}")
@@ -112,6 +140,13 @@ class ActiveSearchConfig:
     def gate(self) -> float:
         """Mahalanobis-squared threshold gamma of the ellipse."""
         return chi2_2dof(self.gate_probability)
+
+    def first_batch(self, budget: int | None) -> int:
+        """Matches handed to the back end together before the first re-prediction
+        (sequential order): ``ceil(budget / ransac_every)``, else 1."""
+        if not self.ransac_every or not budget:
+            return 1
+        return max(1, -(-int(budget) // self.ransac_every))
 
 
 @dataclass(frozen=True, eq=False)
@@ -223,6 +258,12 @@ def inv2(S: np.ndarray) -> np.ndarray:
 #: ``d2`` None lets the search compute ``e^T S^-1 e`` from ``uv``.
 Matcher = Callable[[int, np.ndarray, int, int, np.ndarray],
                    tuple[np.ndarray | None, float | None, float | None]]
+
+#: Sequential order's link to the back end: ``repredict(found, uv, pending) ->
+#: (z (P, 2), S (P, 2, 2))``: correct with the landmarks ``found`` (M,) (indices
+#: into the predictions) measured at ``uv`` (M, 2) px, and return the new
+#: predictions and innovation covariances of the landmarks ``pending`` (P,).
+Repredict = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
@@ -420,7 +461,8 @@ class ActiveSearch:
                patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
                prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
                features: Features | None = None, max_found: int | None = None,
-               source_patches: np.ndarray | None = None) -> ActiveSearchResult:
+               source_patches: np.ndarray | None = None,
+               repredict: Repredict | None = None) -> ActiveSearchResult:
         """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
 
         ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
@@ -433,6 +475,8 @@ class ActiveSearch:
         corrects at most that many per frame, largest ellipses first, would not
         use the others: paper section 4.4); ``None`` or 0: no such stop. The
         config's ``max_corrections`` still caps the landmarks searched.
+        ``repredict``: the sequential order's link to the back end
+        (:meth:`search_with`).
         """
         image = check_gray(image)
         z, S = _checked_predictions(predictions, S)
@@ -441,33 +485,44 @@ class ActiveSearch:
                                   prev_xy=prev_xy, affine=affine, source_patches=source_patches)
         else:
             matcher = NearestMatcher(self.config, z, features)
-        return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found)
+        return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found,
+                                repredict=repredict)
 
     def search_with(self, shape: tuple[int, int], z: np.ndarray, S: np.ndarray, matcher: Matcher, *,
-                    margin: int = 0, max_found: int | None = None) -> ActiveSearchResult:
+                    margin: int = 0, max_found: int | None = None,
+                    repredict: Repredict | None = None) -> ActiveSearchResult:
         """The search loop shared by every mode: ``matcher`` (see :data:`Matcher`) looks
         inside each ellipse, largest first, within the caps (:meth:`search`).
 
         ``shape``: ``(H, W)`` of the image; ``z`` (N, 2) and ``S`` (N, 2, 2)
         float64, already checked; ``margin``: pixels of every edge an ellipse
         pixel must keep (half the patch for ZNCC).
+
+        ``repredict`` (:data:`Repredict`), with ``order = "sequential"``: each
+        match (the first :meth:`ActiveSearchConfig.first_batch` together) goes
+        to the back end at once, and the landmarks not searched yet are
+        re-predicted and re-sorted. ``z`` and ``S`` are then updated in place:
+        they end up holding the ellipse each landmark was searched in (the
+        matcher reads them).
         """
+        if repredict is not None and self.config.order != "sequential":
+            raise ConfigError("active_search: a back-end link (repredict) needs order = 'sequential'")
         H, W = shape
         n = len(z)
-        g = self.config.gate
         searched, found, skipped = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
         uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
         pixels = np.zeros(n, np.int64)
         union = np.zeros((H, W), bool)
-        order = []
+        order, pending = [], []
         cap = self.config.max_corrections or n
-        n_found = 0
-        cand = self.search_order(z, S, (H, W))
-        for pos, i in enumerate(cand):
-            if len(order) >= cap or (max_found and n_found >= max_found):
-                skipped[cand[pos:]] = True
+        batch = self.config.first_batch(max_found or self.config.max_corrections)
+        cand = list(self.search_order(z, S, (H, W)))
+        while cand:
+            if len(order) >= cap or (max_found and int(found.sum()) >= max_found):
+                skipped[cand] = True
                 break
-            u0, v0, mask = ellipse_pixels(z[i], S[i], g, (H, W), margin)
+            i = cand.pop(0)
+            u0, v0, mask = ellipse_pixels(z[i], S[i], self.config.gate, (H, W), margin)
             cnt = int(mask.sum())
             if cnt == 0:
                 continue
@@ -476,21 +531,49 @@ class ActiveSearch:
             pixels[i] = cnt
             bh, bw = mask.shape
             union[v0:v0 + bh, u0:u0 + bw] |= mask
-            Si = inv2(S[i])
-            m, sc, e2 = matcher(i, Si, u0, v0, mask)
-            if sc is not None:
-                score[i] = sc
-            if m is None:
+            if not self._match_one(i, z, S, matcher, (u0, v0, mask), uv, score, d2):
                 continue
-            if e2 is None:
-                e = m - z[i]
-                e2 = float(e @ Si @ e)
-            d2[i] = e2
-            uv[i] = m
             found[i] = True
-            n_found += 1
+            if repredict is not None:
+                pending.append(i)
+                if len(pending) >= batch:
+                    cand = self._corrected(repredict, pending, uv, cand, z, S, (H, W))
+                    pending, batch = [], 1
+        if pending:  # the last matches still correct the back end
+            self._corrected(repredict, pending, uv, [], z, S, (H, W))
         npx = float(H * W)
         return ActiveSearchResult(order=np.asarray(order, dtype=np.int64), searched=searched, found=found,
                                   uv=uv, score=score, d2=d2, pixels=pixels,
                                   image_fraction=float(union.sum()) / npx,
                                   image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)
+
+    @staticmethod
+    def _match_one(i, z, S, matcher, box, uv, score, d2) -> bool:
+        """Run ``matcher`` on landmark ``i`` in its ellipse ``box`` = ``(u0, v0, mask)``;
+        fills ``uv``, ``score``, ``d2`` at ``i``; returns whether a match was accepted."""
+        Si = inv2(S[i])
+        m, sc, e2 = matcher(i, Si, *box)
+        if sc is not None:
+            score[i] = sc
+        if m is None:
+            return False
+        if e2 is None:
+            e = m - z[i]
+            e2 = float(e @ Si @ e)
+        d2[i] = e2
+        uv[i] = m
+        return True
+
+    def _corrected(self, repredict, pending, uv, cand, z, S, shape) -> list:
+        """Hand the matches ``pending`` to the back end, write the re-predictions of
+        ``cand`` into ``z`` and ``S``, and return ``cand`` re-sorted (largest first;
+        those now out of the image or too large dropped, as by :meth:`search_order`)."""
+        p = np.asarray(pending, dtype=np.int64)
+        c = np.asarray(cand, dtype=np.int64)
+        z_new, S_new = repredict(p, uv[p].copy(), c)
+        if not len(c):
+            return []
+        z[c] = np.asarray(z_new, dtype=np.float64).reshape(-1, 2)
+        S_new = np.asarray(S_new, dtype=np.float64).reshape(-1, 2, 2)
+        S[c] = 0.5 * (S_new + np.swapaxes(S_new, 1, 2))  # exactly symmetric, as the tracker's
+        return c[self.search_order(z[c], S[c], shape)].tolist()

@@ -159,7 +159,8 @@ class TrackingResult:
         observations: found landmarks, followed tracks and new tracks.
         corners: (F, 2) detected corners.
         cell_size_px: tessellation cell side of the detector (0 if none).
-        pred_ids, pred_uv, pred_S: the predictions searched from (K,), (K, 2), (K, 2, 2).
+        pred_ids, pred_uv, pred_S: the predictions searched from (K,), (K, 2), (K, 2, 2)
+            (sequential order: the re-predicted ellipse each was searched in).
         searched, found: (K,) bool per prediction; found_uv (K, 2), NaN if not found.
         gate: Mahalanobis-squared gate of the search ellipses.
         followed_ids, followed_from, followed_to: unmapped tracks followed (T,), (T, 2), (T, 2).
@@ -275,8 +276,15 @@ class Tracker:
 
     # ------------------------------------------------------------------ one frame
 
-    def track(self, image: np.ndarray, predictions: PixelPredictions | None = None) -> TrackingResult:
-        """Process the next frame (``image`` (H, W) uint8) given the back end's predictions."""
+    def track(self, image: np.ndarray, predictions: PixelPredictions | None = None,
+              repredict=None) -> TrackingResult:
+        """Process the next frame (``image`` (H, W) uint8) given the back end's predictions.
+
+        ``repredict``: with ``[active_search] order = "sequential"``, the back end's
+        ``(track_ids (M,), uv (M, 2), pending_ids (P,)) -> (uv (P, 2), S (P, 2, 2))``:
+        it corrects with the matches at once and re-predicts the landmarks still
+        to search (:meth:`slamcore.spatial.backend.VisualBackend.correct_and_repredict`).
+        """
         image = check_gray(image)
         cfg = self.config
         self._frame += 1
@@ -296,7 +304,11 @@ class Tracker:
         pids, puv, pS, lm_w = self._searchable(predictions)
         # a back end that corrects at most m landmarks (largest ellipses first) would
         # not use more: stop searching once m are found (paper 4.4)
-        res = self._active_search(image, feats, pids, puv, pS, predictions.max_corrections, lm_w)
+        link = None
+        if repredict is not None and len(pids):
+            def link(found, uv, pending):  # indices of the predictions -> track ids
+                return repredict(pids[found], uv, pids[pending])
+        res = self._active_search(image, feats, pids, puv, pS, predictions.max_corrections, lm_w, link)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []
         for j in np.flatnonzero(res.found):
@@ -361,7 +373,8 @@ class Tracker:
             self._tracks[int(tid)].mapped = True
         return pids, puv, pS, lm_w
 
-    def _active_search(self, image, feats, pids, puv, pS, max_found=None, lm_w=None) -> ActiveSearchResult:
+    def _active_search(self, image, feats, pids, puv, pS, max_found=None, lm_w=None,
+                       repredict=None) -> ActiveSearchResult:
         n = len(pids)
         mode = self.config.search_mode
         if n == 0:
@@ -371,12 +384,14 @@ class Tracker:
                                       pixels=z.astype(np.int64), image_fraction=0.0,
                                       image_fraction_sum=0.0)
         if mode == "zncc":
-            return self._zncc_search(image, pids, puv, pS, max_found, lm_w)
+            return self._zncc_search(image, pids, puv, pS, max_found, lm_w, repredict)
         if mode == "nearest":
-            return self._search.search(image, puv, pS, features=feats, max_found=max_found)
-        return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found)
+            return self._search.search(image, puv, pS, features=feats, max_found=max_found,
+                                       repredict=repredict)
+        return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found, repredict)
 
-    def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None) -> ActiveSearchResult:
+    def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None,
+                           repredict=None) -> ActiveSearchResult:
         """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
         g = self.search_config.gate
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
@@ -396,21 +411,24 @@ class Tracker:
                 return None, float(ham[j]), None
             return fxy[inside[j]], float(ham[j]), float(dd[inside[j]])
 
-        return self._search.search_with(shape, puv, pS, closest_descriptor, max_found=max_found)
+        return self._search.search_with(shape, puv, pS, closest_descriptor, max_found=max_found,
+                                        repredict=repredict)
 
-    def _zncc_search(self, image, pids, puv, pS, max_found, lm_w) -> ActiveSearchResult:
+    def _zncc_search(self, image, pids, puv, pS, max_found, lm_w, repredict=None) -> ActiveSearchResult:
         """Patch correlation; with appearance prediction, each patch warped by the
         predicted view change since it was cut (module docstring)."""
         tracks = [self._tracks[int(i)] for i in pids]
         patches = np.stack([tr.patch for tr in tracks])
         view = self._view
         if not self._appearance or lm_w is None or view.wTc is None or view.K is None:
-            return self._search.search(image, puv, pS, patches=patches, max_found=max_found)
+            return self._search.search(image, puv, pS, patches=patches, max_found=max_found,
+                                       repredict=repredict)
         unknown = np.full((4, 4), np.nan)  # a patch cut without a pose: not warped
         cut_wTc = np.stack([unknown if tr.cut_wTc is None else tr.cut_wTc for tr in tracks])
         affine = patch_affines(view.K, view.wTc, lm_w, cut_wTc, np.stack([tr.cut_uv for tr in tracks]))
         return self._search.search(image, puv, pS, patches=patches, affine=affine, max_found=max_found,
-                                   source_patches=np.stack([tr.source for tr in tracks]))
+                                   source_patches=np.stack([tr.source for tr in tracks]),
+                                   repredict=repredict)
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)

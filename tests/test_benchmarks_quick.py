@@ -30,6 +30,8 @@ SLOW = {
     "bench_vocabulary": 8, "bench_filter_seeds": 8, "bench_isam2_visual": 9, "bench_noise_grid": 11,
     "bench_loop_pr": 16, "bench_sweep": 22, "bench_association_ceiling": 39, "bench_localize": 68,
     "bench_loop_ate": 251,
+    # under a load average of 10 (about 5 s of CPU each)
+    "bench_sequential_search": 21, "bench_paper_figures": 45,
 }
 
 #: Arguments besides ``--quick`` (scripts whose quick mode predates this test keep their

@@ -8,6 +8,11 @@ Per frame ``k``::
     tracking = tracker.track(image_k, predictions)           # active search + new tracks
     backend.update(tracking.observations)
 
+With ``[active_search] order = "sequential"`` the tracker also gets
+``backend.correct_and_repredict``: each match corrects the back end during the
+search (RT-SLAM), and ``update`` adds the rest (map management, new landmarks).
+A back end without that ability (visual iSAM2) is refused with a ConfigError.
+
 ``wTc0`` is the first ground-truth pose when the sequence has one (so the
 estimate is in the ground truth's frame), else the identity.
 
@@ -224,6 +229,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     if mode == "none" and not backend.has_motion_model:
         raise UnsupportedError(f"back end {backend.name!r} has no motion model of its own; "
                                "use --odometry sequence or derived")
+    repredict = _sequential_link(tracker, backend)
     wTc0, P0 = _first_pose(sequence, cfg) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
     stats = {name: [] for name in TRACKING_STATS}
@@ -247,7 +253,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                     backend.predict(k, None if odo is None else odo[k - 1],
                                     None if odo_cov is None else odo_cov[k - 1])
                     pred = backend.predict_observations()
-                tracking = tracker.track(image, pred)
+                tracking = _track(tracker, image, pred, repredict if k else None)
                 t2 = time.perf_counter()
                 backend.update(tracking.observations)
                 t3 = time.perf_counter()
@@ -287,6 +293,23 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
 #: Per-frame lists in ``VisualRunResult.tracking``.
 TRACKING_STATS = ("observations", "found", "searched", "predicted", "followed", "new",
                   "image_fraction", "detect_s", "search_s", "update_s", "loops_s")
+
+
+def _sequential_link(tracker: Tracker, backend: VisualBackend):
+    """``backend.correct_and_repredict`` for the sequential active search, else None;
+    ConfigError if the order is sequential and the back end cannot correct one at a time."""
+    if tracker.search_config.order != "sequential":
+        return None
+    if not backend.supports_sequential_search:
+        raise ConfigError(f"active_search.order = 'sequential' needs a back end that corrects one "
+                          f"landmark at a time (mono_ekf); {backend.name!r} does not")
+    return backend.correct_and_repredict
+
+
+def _track(tracker: Tracker, image: np.ndarray, pred: PixelPredictions, repredict) -> TrackingResult:
+    """``tracker.track``; the batch order calls it as it always has (wrappers keep working)."""
+    return tracker.track(image, pred) if repredict is None else \
+        tracker.track(image, pred, repredict=repredict)
 
 
 def _first_pose(sequence: ImageSequence, cfg: VisualRunConfig) -> tuple[np.ndarray, np.ndarray]:

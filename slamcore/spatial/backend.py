@@ -50,6 +50,9 @@ class VisualBackend(ABC):
     #: Whether :meth:`add_loop_closure` can use a relative-pose constraint; filters
     #: that keep no past poses close loops only by re-observing landmarks.
     supports_loop_closures: bool = False
+    #: Whether :meth:`correct_and_repredict` works: the sequential active search
+    #: (``[active_search] order = "sequential"``, RT-SLAM) corrects one landmark at a time.
+    supports_sequential_search: bool = False
 
     @abstractmethod
     def initialize(self, frame_id: int, wTc: np.ndarray, covariance: np.ndarray,
@@ -90,6 +93,20 @@ class VisualBackend(ABC):
         """
         raise UnsupportedError(f"{self.name} cannot use relative-pose loop closures; "
                                "it closes loops by re-observing landmarks")
+
+    def correct_and_repredict(self, track_ids: np.ndarray, uv_px: np.ndarray,
+                              pending_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sequential active search, between :meth:`predict_observations` and
+        :meth:`update`: correct now with the landmarks ``track_ids`` (M,) measured
+        at ``uv_px`` (M, 2), and return the predicted pixels (P, 2) and innovation
+        covariances (P, 2, 2) of ``pending_ids`` (P,) at the corrected state.
+        :meth:`update` then skips these tracks (already used or rejected).
+
+        Raises:
+            UnsupportedError: back ends that do not correct one landmark at a time.
+        """
+        raise UnsupportedError(f"{self.name} cannot correct one landmark at a time "
+                               "(sequential active search)")
 
     def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
         """(N, 3) current positions of the landmarks ``track_ids`` in camera
