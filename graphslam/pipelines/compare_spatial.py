@@ -100,9 +100,9 @@ def run_one(setup: VisualCompareSetup, name: str) -> vp.VisualRunResult:
     kind, overrides = registry.visual_compare_backend(name)
     mode, odometry, _, _ = vp.resolve_odometry(setup.sequence, setup.run_config.odometry,
                                                setup.odometry_noise)
-    backend = registry.make_visual_backend(
-        kind, config=setup.config, overrides={**overrides, **vp.backend_overrides(kind, mode,
-                                                                                  setup.seed)})
+    depth = vp.scene_nearest_depth(setup.sequence, setup.config)
+    overrides = {**overrides, **vp.backend_overrides(kind, mode, setup.seed, nearest_depth_m=depth)}
+    backend = registry.make_visual_backend(kind, config=setup.config, overrides=overrides)
     tracker_cfg, tracker = vp.make_tracker(setup.config, backend, setup.detector)
     feed = _Feed(filtered=kind != "isam2")
     result = vp.run(setup.sequence, backend, tracker, config=setup.run_config,

@@ -145,15 +145,18 @@ class VisualRunResult:
 
 
 def backend_overrides(backend: str, mode: str, seed: int | None = None,
-                      no_polish: bool = False) -> dict:
+                      no_polish: bool = False, nearest_depth_m: float | None = None) -> dict:
     """Config overrides a visual run hands back end ``backend`` (``isam2`` or ``ekf``)
-    for odometry ``mode``: iSAM2's polish off; the EKF's RANSAC seed and, without
-    odometry, its constant-velocity model."""
+    for odometry ``mode``: iSAM2's polish off; the EKF's RANSAC seed, its
+    inverse-depth prior from the scene's nearest depth (:func:`scene_nearest_depth`)
+    and, without odometry, its constant-velocity model."""
     if backend == "isam2":
         return {"polish": False} if no_polish else {}
     out: dict = {}
     if seed is not None:
         out["seed"] = seed
+    if nearest_depth_m is not None:
+        out["min_depth_m"] = nearest_depth_m
     if mode == "none":
         # The EKF's frame_dt_s stays its own (config) value, not the sequence's
         # frame interval: its acceleration noise is tuned per frame at that dt,
@@ -161,6 +164,17 @@ def backend_overrides(backend: str, mode: str, seed: int | None = None,
         # the 0.1 s of the synthetic stamps the same noise lets it diverge.
         out["robot_model"] = "constant_velocity"
     return out
+
+
+def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:
+    """The sequence's nearest scene depth (metres) for the EKF's ``min_depth_m``, or None
+    when the sequence does not know it or ``[mono_ekf] min_depth_m`` is in the config
+    file (the file wins). A prior meant for a nearer scene biases every new
+    landmark's first corrections the same way, and the filter becomes
+    overconfident (measured in README.md, "compare on image sequences")."""
+    if config is not None and config.line_of("mono_ekf", "min_depth_m") is not None:
+        return None
+    return sequence.nearest_depth_m
 
 
 def make_tracker(config, backend: VisualBackend, detector: str | None = None):

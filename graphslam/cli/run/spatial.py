@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     noise = config.section(vp.OdometryNoiseConfig, noise_over)
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
     refuse_ignored_flags(args, mode)
-    overrides = vp.backend_overrides(args.backend, mode, args.seed, args.no_polish)
+    overrides = vp.backend_overrides(args.backend, mode, args.seed, args.no_polish,
+                                     vp.scene_nearest_depth(sequence, config))
     backend = registry.make_visual_backend(args.backend, config=config, overrides=overrides)
     tracker_cfg, tracker = vp.make_tracker(config, backend, args.frontend)
 
