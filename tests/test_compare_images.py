@@ -14,18 +14,10 @@ import pytest
 from graphslam.evaluation.spatial import pose_nees
 from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
 from tests.test_faults import graphslam, one_line, verify_rrd
+from tests.test_localize import HALF
 
 #: A small, fast room: QVGA images, 30 frames of which a few are run.
-SMALL_ROOM = """\
-[synthetic_images]
-width = 320
-height = 240
-fx = 250.0
-fy = 250.0
-cx = 159.5
-cy = 119.5
-n_frames = 30
-"""
+SMALL_ROOM = HALF + "n_frames = 30\n"
 FIELDS = {"ate_rmse_m", "nees_mean", "nees_in_bounds_fraction", "frames_per_s", "peak_rss_mb",
           "input_digest", "rpe"}
 #: Tolerance of a mean of N chi-square(6) draws: 5 standard deviations (sqrt(12 / N)).

@@ -95,7 +95,6 @@ def run(args: argparse.Namespace) -> int:
                                      vp.scene_nearest_depth(sequence, config))
     backend = registry.make_visual_backend(args.backend, config=config, overrides=overrides)
     tracker_cfg, tracker = vp.make_tracker(config, backend, args.frontend)
-
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-{args.backend}"
