@@ -128,3 +128,22 @@ def test_compare_refuses_a_2d_back_end_on_images(tmp_path, small_room):
     done = graphslam(tmp_path, "compare", "--dataset", "synthetic-images", "--backends", "ekf")
     assert done.returncode == 2
     assert "not on image sequences" in one_line(done.stderr)
+
+
+def test_the_rooms_nearest_depth_sets_the_ekf_prior_unless_the_file_does(tmp_path, small_room):
+    from graphslam import registry
+    from graphslam.pipelines import spatial as vp
+
+    seq = registry.load_image_sequence("synthetic-images", config=registry.read_config(small_room))
+    uv_z = [seq.project(i) for i in range(len(seq))]
+    nearest = min(z[(z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= 319) & (uv[:, 1] >= 0)
+                    & (uv[:, 1] <= 239)].min() for uv, z in uv_z)
+    # the 1st percentile: above the very nearest point, below 10 m (the room is 11 m wide)
+    assert nearest <= seq.nearest_depth_m < 10.0
+    assert vp.scene_nearest_depth(seq, registry.read_config(None)) == seq.nearest_depth_m
+    own = tmp_path / "own.toml"
+    own.write_text("[mono_ekf]\nmin_depth_m = 4.0\n")
+    assert vp.scene_nearest_depth(seq, registry.read_config(own)) is None
+    ekf = registry.make_visual_backend("ekf", overrides=vp.backend_overrides(
+        "ekf", "sequence", nearest_depth_m=seq.nearest_depth_m))
+    assert ekf.config.min_depth_m == seq.nearest_depth_m

@@ -63,8 +63,9 @@ def register(sub) -> None:
                        help="image sequences: where odometry comes from, as graphslam run "
                             "(default: [visual] of --config, else auto)")
     p.add_argument("--seed", type=int, default=None,
-                       help="seed of the synthetic world and of particle filters (refused "
-                            "when neither is in the comparison)")
+                       help="seed of simulated data (the synthetic world or room, derived "
+                            "odometry) and of back ends that draw random numbers (particle "
+                            "filters, the EKF's RANSAC); refused when none is in the comparison")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-compare)")
     p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
@@ -154,7 +155,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
     if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
             and not any(n.startswith("ekf") for n in names)):
-        raise GraphSlamError(f"--seed has no effect here: the images are recorded, the odometry "
+        raise GraphSlamError("--seed has no effect here: the images are recorded, the odometry "
                              "is not derived and no back end draws random numbers")
     setup = cs.VisualCompareSetup(sequence, config, run_cfg, noise, seed=args.seed,
                                   max_frames=args.max_steps)
