@@ -211,3 +211,20 @@ def make_visual_backend(name: str, *, config: ConfigSource = None,
         return MonoEkf(load_section(MonoEkfConfig, config, overrides))
     raise ConfigError(f"back end {name!r} does not run on image sequences "
                       f"(available: {', '.join(VISUAL_BACKENDS)})")
+
+
+#: ``graphslam compare`` entries on image sequences -> (back end, its config overrides):
+#: the monocular EKF once per landmark parametrisation.
+VISUAL_COMPARE_BACKENDS: dict[str, tuple[str, dict]] = {
+    "isam2": ("isam2", {}),
+    "ekf-idp": ("ekf", {"landmark_param": "idp"}),
+    "ekf-ahp": ("ekf", {"landmark_param": "ahp"}),
+}
+
+
+def visual_compare_backend(name: str) -> tuple[str, dict]:
+    """``(back end, overrides)`` of a ``graphslam compare`` entry on image sequences."""
+    if name not in VISUAL_COMPARE_BACKENDS:
+        raise ConfigError(f"back end {name!r} is not compared on image sequences "
+                          f"(available: {', '.join(VISUAL_COMPARE_BACKENDS)})")
+    return VISUAL_COMPARE_BACKENDS[name]

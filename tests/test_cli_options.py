@@ -461,6 +461,17 @@ def _compare_rerun(cli, key):
     assert "compare.rrd" not in cli(*COMPARE).files
 
 
+@row("compare --odometry")
+def _compare_odometry(cli, key):
+    images = ["compare", "--dataset", "synthetic-images", "--max-steps", "5", "--backends",
+              "ekf-idp", "--in-process", "--rerun", "off"]
+    a = json.loads(cli(*images).files["compare.json"])
+    b = json.loads(cli(*images, "--odometry", "none").files["compare.json"])
+    assert (a["odometry"], b["odometry"]) == ("sequence", "none")
+    assert b["runs"][0]["alignment"] == "sim3" and b["runs"][0]["nees_alignment"] == "sim3"
+    refused(cli(*COMPARE, "--odometry", "none"), "image sequences only")
+
+
 @row("compare --in-process")
 def _compare_in_process(cli, key):
     base = ["compare", "--max-steps", "10", "--backends", "isam2", "--rerun", "off"]
@@ -633,12 +644,12 @@ def test_every_option_has_a_row():
     assert set(ROWS) - options == set(), "rows for options that no longer exist"
 
 
-def test_compare_help_lists_only_2d_datasets(capsys):
+def test_compare_help_lists_image_datasets(capsys):
     with pytest.raises(SystemExit):
         main(["compare", "--help"])
     text = capsys.readouterr().out
-    assert "synthetic-images" not in text and "FOLDER" not in text
-    assert "--frontend" not in text and "--odometry" not in text
+    assert "synthetic-images" in text and "FOLDER" in text and "ekf-ahp" in text
+    assert "--odometry" in text and "--frontend" not in text
 
 
 @pytest.mark.skipif(not DESK.is_dir() or not KITTI07.is_dir(), reason="shared data missing")

@@ -1,4 +1,5 @@
-"""``graphslam compare``: several 2-D back ends on the same stream, one table."""
+"""``graphslam compare``: several back ends on the same stream, one table (2-D
+datasets, or image sequences with the visual back ends)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,11 @@ datasets:
   city10000       city10000 pose graph with ground truth (gtsam wheel)
   w10000          w10000 Manhattan pose graph (gtsam wheel)
   PATH            a 2-D pose graph, TORO (.graph) or g2o (.g2o)
+  synthetic-images, FOLDER
+                  an image sequence (as graphslam run): back ends isam2 (visual),
+                  ekf-idp and ekf-ahp (monocular EKF, inverse-depth or anchored
+                  homogeneous landmarks) on the same frames, detections and
+                  active-search budget; NEES is the 6-DoF pose NEES
 
 outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
   spawn/connect, when no viewer can be started or reached: a warning and
@@ -29,12 +35,17 @@ a back end that fails, or is cut by Ctrl-C or SIGTERM, is marked in the table's
 examples:
   graphslam compare
   graphslam compare --dataset victoria-park --backends isam2 ekf --rerun off
+  graphslam compare --dataset synthetic-images
+  graphslam compare --dataset ../shared/data/kitti07 --odometry derived
 """
 
 
 def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
-    from graphslam.registry import BACKENDS
+    from graphslam.pipelines.spatial import ODOMETRY_MODES
+    from graphslam.registry import BACKENDS, VISUAL_COMPARE_BACKENDS
+
+    names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS]))
 
     p = sub.add_parser(
         "compare", help="run several back ends on the same stream and compare them",
@@ -43,12 +54,18 @@ def register(sub) -> None:
                     "compare.png and one Rerun recording with a subtree per back end.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
-                       help="built-in dataset name or pose-graph file (default: synthetic)")
-    p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS,
-                       metavar="NAME", help=f"back ends to run (default: all of {', '.join(BACKENDS)})")
+                       help="built-in dataset name, pose-graph file or image folder "
+                            "(default: synthetic)")
+    p.add_argument("--backends", nargs="+", default=None, choices=names, metavar="NAME",
+                       help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
+                            f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)})")
+    p.add_argument("--odometry", choices=ODOMETRY_MODES, default=None,
+                       help="image sequences: where odometry comes from, as graphslam run "
+                            "(default: [visual] of --config, else auto)")
     p.add_argument("--seed", type=int, default=None,
-                       help="seed of the synthetic world and of particle filters (refused "
-                            "when neither is in the comparison)")
+                       help="seed of simulated data (the synthetic world or room, derived "
+                            "odometry) and of back ends that draw random numbers (particle "
+                            "filters, the EKF's RANSAC); refused when none is in the comparison")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-compare)")
     p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
@@ -66,70 +83,129 @@ def register(sub) -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.pipelines import compare
-    from graphslam.outputs import writers
 
     from graphslam.cli.common import check_rerun_flags, rerun_sink
 
     check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
-    if (args.seed is not None and args.dataset != "synthetic"
-            and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
-        raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
-                             "none of the back ends draws random numbers")
     if args.out is not None:  # refused now, not after the runs
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     config = registry.read_config(args.config)
+    if registry.is_visual_dataset(args.dataset):
+        return _compare_images(args, config, rerun_mode)
+    if args.odometry is not None:
+        raise GraphSlamError("--odometry applies to image sequences only")
+    args.backends = args.backends or list(registry.BACKENDS)
+    _check_names(args.backends, registry.BACKENDS, "2-D datasets")
+    if (args.seed is not None and args.dataset != "synthetic"
+            and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
+        raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
+                             "none of the back ends draws random numbers")
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
-    out_dir = args.out or Path("runs") / f"{Path(dataset.name).stem}-compare"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    writers.remove_stale_outputs(out_dir, {"compare.json", "compare.png"}
-                                 | ({"compare.rrd"} if rerun_mode == "save" else set()),
-                                 writers.COMPARE_OUTPUT_NAMES)
+    out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
         dataset, args.backends, config=config, overrides=overrides,
         max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
         progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
-    return _write_comparison(args, entries, dataset, out_dir, rerun_mode)
+    from graphslam.visualisation.planar import RunRecorder
+    from graphslam.visualisation.plots import plot_comparison
+
+    return _write_comparison(args, entries, {"dataset": dataset.name}, out_dir, rerun_mode,
+                             lambda done, path: plot_comparison(done, dataset, path),
+                             RunRecorder.open, dataset)
 
 
-def _write_comparison(args, entries, dataset, out_dir: Path, rerun_mode: str) -> int:
-    """Table, compare.json, compare.png and compare.rrd of the back ends that have
-    a result (the failed and cut ones marked); the exit status."""
+def _check_names(names, allowed, where: str) -> None:
+    bad = [n for n in names if n not in allowed]
+    if bad:
+        raise GraphSlamError(f"--backends {' '.join(bad)}: not on {where} "
+                             f"(available: {', '.join(allowed)})")
+
+
+def _out_dir(args, name: str, rerun_mode: str) -> Path:
+    """``--out`` (default ``runs/<name>-compare``), created, without the stale outputs
+    this comparison will not write."""
+    from graphslam.outputs import writers
+
+    out_dir = args.out or Path("runs") / f"{name}-compare"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    writers.remove_stale_outputs(out_dir, {"compare.json", "compare.png"}
+                                 | ({"compare.rrd"} if rerun_mode == "save" else set()),
+                                 writers.COMPARE_OUTPUT_NAMES)
+    return out_dir
+
+
+def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
+    """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`)."""
+    from frontend.active_search import ActiveSearchConfig
+    from graphslam import registry
+    from graphslam.pipelines import compare_spatial as cs
+    from graphslam.pipelines import spatial as vp
+    from graphslam.visualisation.plots import plot_visual_comparison
+    from graphslam.visualisation.spatial import VisualRecorder
+
+    names = args.backends or list(registry.VISUAL_COMPARE_BACKENDS)
+    _check_names(names, registry.VISUAL_COMPARE_BACKENDS, "image sequences")
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config)
+    run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
+    noise = config.section(vp.OdometryNoiseConfig, {"seed": args.seed})
+    mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
+    if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
+            and not any(n.startswith("ekf") for n in names)):
+        raise GraphSlamError("--seed has no effect here: the images are recorded, the odometry "
+                             "is not derived and no back end draws random numbers")
+    setup = cs.VisualCompareSetup(sequence, config, run_cfg, noise, seed=args.seed,
+                                  max_frames=args.max_steps)
+    name = Path(sequence.source_path).name if sequence.source_path else sequence.name
+    out_dir = _out_dir(args, name, rerun_mode)
+    entries = cs.compare(
+        setup, names, isolate=not args.in_process,
+        progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
+    header = {"dataset": sequence.name, "odometry": mode,
+              "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
+              "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT}}
+    return _write_comparison(args, entries, header, out_dir, rerun_mode,
+                             lambda done, path: plot_visual_comparison(done, sequence, path),
+                             VisualRecorder.open, sequence)
+
+
+def _write_comparison(args, entries, header: dict, out_dir: Path, rerun_mode: str, plot,
+                      open_recording, source) -> int:
+    """Table, compare.json (``header`` and the runs), compare.png (``plot(done, path)``)
+    and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
+    of the back ends that have a result (the failed and cut ones marked); the exit status."""
     from graphslam.cli.common import (
         EXIT_FAILED, EXIT_INTERRUPTED, close_recorder, open_recorder, recoveries_text, warn,
     )
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard
     from graphslam.pipelines.compare import finished
-    from graphslam.visualisation.plots import plot_comparison
 
     done = finished(entries)
     print(format_table(entries))
-    writers.write_json(out_dir / "compare.json", {"dataset": dataset.name, "runs": [
+    writers.write_json(out_dir / "compare.json", {**header, "runs": [
         e.metrics if e.status == "ok" else _marked(e) for e in entries]})
     outputs = ["compare.json"]
     if done:
-        plot_comparison(done, dataset, out_dir / "compare.png")
+        plot(done, out_dir / "compare.png")
         outputs.append("compare.png")
     if rerun_mode != "off" and done:
-        from graphslam.visualisation.planar import RunRecorder
-
-        recorder, rerun_mode = open_recorder(RunRecorder.open, rerun_mode,
+        recorder, rerun_mode = open_recorder(open_recording, rerun_mode,
                                              out_dir / "compare.rrd", args.rerun_url)
-        recorder.record_comparison(done, dataset)
+        recorder.record_comparison(done, source)
         close_recorder(recorder)
         if rerun_mode == "save":
             outputs.append("compare.rrd")
     writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
     skipped = {e.backend: e.metrics.loop_closures_skipped for e in done
-               if e.metrics.loop_closures_skipped}
+               if getattr(e.metrics, "loop_closures_skipped", 0)}
     for name, n in skipped.items():
         print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
     for e in done:
-        if e.metrics.recoveries and any(e.metrics.recoveries.values()):
+        if getattr(e.metrics, "recoveries", None) and any(e.metrics.recoveries.values()):
             print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
     print(f"outputs in {out_dir}/: " + ", ".join(outputs))
     for e in entries:
@@ -162,8 +238,11 @@ COLUMNS = [
     ("association_oracle", "oracle acc", ".4f"),
     ("association_unused", "obs unused", "d"),
     ("association_duplicates", "dup lm", "d"),
+    ("rpe_trans_rmse_m", "RPE [m/frame]", ".4f"),
+    ("rpe_rot_rmse_deg", "RPE [deg/frame]", ".3f"),
     ("wall_s", "wall [s]", ".2f"),
     ("steps_per_s", "steps/s", ".0f"),
+    ("frames_per_s", "frames/s", ".1f"),
     ("peak_rss_mb", "peak MB", ".0f"),
 ]
 
@@ -176,7 +255,9 @@ def format_table(entries) -> str:
             rows.append({"backend": e.backend, "status": e.status})
             continue
         m = {**e.metrics.to_dict(), "status": e.status}
-        a = e.metrics.association
+        a = getattr(e.metrics, "association", None)
+        rpe = m.get("rpe") or {}  # image sequences: per-frame relative pose error
+        m.update(rpe_trans_rmse_m=rpe.get("trans_rmse_m"), rpe_rot_rmse_deg=rpe.get("rot_rmse_deg"))
         # the oracle's ceiling, observations left unused (counted as wrong) and
         # extra estimated landmarks mapped to an already-taken true landmark
         m.update(association_accuracy=None if a is None else a.accuracy,

@@ -115,6 +115,9 @@ class SpatialRunMetrics:
             tracking_loss: losses and recoveries (``run --relocalise``).
         wall_s: the whole run's time; processing_s: tracking and back end;
             image_load_s: reading images.
+        peak_rss_mb, nees_mean, nees_in_bounds_fraction, nees_alignment,
+            input_digest: filled by ``compare`` only (6-DoF pose NEES, the
+            alignment it was scored after, the digest of what was fed).
     """
 
     dataset: str
@@ -146,9 +149,16 @@ class SpatialRunMetrics:
     backend_class: str | None = None
     loops: dict | None = None
     tracking_loss: dict | None = None
+    peak_rss_mb: float | None = None
+    nees_mean: float | None = None
+    nees_in_bounds_fraction: float | None = None
+    nees_alignment: str | None = None
+    input_digest: str | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
-        "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss"})
+        "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss",
+        "peak_rss_mb", "nees_mean", "nees_in_bounds_fraction", "nees_alignment",
+        "input_digest"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

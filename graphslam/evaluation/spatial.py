@@ -12,7 +12,10 @@ matched by integer frame id, never by position in the array.
 - :func:`rpe` -- relative pose error over a fixed frame step: translation
   (metres) and rotation (degrees), on the estimate scaled by the Sim(3) scale
   when one is given;
-- :func:`path_length` -- distance travelled along a trajectory.
+- :func:`path_length` -- distance travelled along a trajectory;
+- :func:`pose_errors` / :func:`pose_nees` -- 6-DoF pose errors in the contract's
+  right perturbation ``[rho, phi]`` and their NEES against the back end's
+  (6, 6) pose covariances, with the 95 % chi-square bounds of the 2-D NEES.
 """
 
 from __future__ import annotations
@@ -21,6 +24,9 @@ import math
 
 import numpy as np
 
+from scipy.spatial.transform import Rotation
+
+from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
@@ -143,3 +149,66 @@ def percent_of(value: float | None, length: float) -> float | None:
     if value is None or not length or not math.isfinite(length):
         return None
     return 100.0 * float(value) / float(length)
+
+
+#: Degrees of freedom of the visual pose NEES (``[rho, phi]``).
+POSE_DOF = 6
+
+
+def pose_errors(est_wTc: np.ndarray, gt_wTc: np.ndarray) -> np.ndarray:
+    """(N, 6) ``[rho, phi]`` with ``gt ~ est @ se3_exp([rho, phi])`` to first order:
+    ``rho = R_est^T (t_gt - t_est)`` (metres, camera frame), ``phi = log(R_est^T R_gt)``
+    (radians) -- the right perturbation the back ends' covariances are stated in."""
+    est = np.asarray(est_wTc, dtype=np.float64).reshape(-1, 4, 4)
+    gt = np.asarray(gt_wTc, dtype=np.float64).reshape(-1, 4, 4)
+    Rt = np.swapaxes(est[:, :3, :3], 1, 2)
+    rho = np.einsum("nij,nj->ni", Rt, gt[:, :3, 3] - est[:, :3, 3])
+    phi = Rotation.from_matrix(Rt @ gt[:, :3, :3]).as_rotvec()
+    return np.concatenate([rho, phi], axis=1)
+
+
+def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "none") -> dict:
+    """Per-frame 6-DoF pose NEES of an estimate against the truth, over common frame ids.
+
+    ``alignment`` ``"none"``: the estimate is in the truth's frame (a run that starts
+    at the true first pose, whose covariance grows from that prior). ``"se3"`` /
+    ``"sim3"``: the estimate is first mapped by the Umeyama fit of :func:`ate`,
+    ``wTc' = [R_a R, s R_a t + t_a]``. In the right perturbation the fit's rotation
+    cancels (``R'^T R_a = R^T``) and its scale multiplies ``rho``, so the covariance
+    becomes ``D C D`` with ``D = diag(s, s, s, 1, 1, 1)``.
+
+    Args:
+        covariances: (N, 6, 6) pose covariances ``[rho, phi]``, rows as ``est_wTc``.
+
+    Returns:
+        ``{"frame_ids" (K,), "errors" (K, 6), "covariances" (K, 6, 6) (scaled),
+        "nees" (K,), "nees_mean", "nees_in_bounds_fraction", "bounds" (lo, hi),
+        "alignment", "scale"}``; the bounds are the two-sided 95 % chi-square(6)
+        quantiles of one run.
+    """
+    if alignment not in ALIGNMENTS:
+        raise GraphSlamError(f"NEES alignment must be one of {ALIGNMENTS}, got {alignment!r}")
+    cov = np.asarray(covariances, dtype=np.float64).reshape(-1, 6, 6)
+    if len(cov) != len(np.asarray(est_ids).reshape(-1)):
+        raise GraphSlamError("pose_nees: one covariance per estimated pose is needed")
+    ids = np.asarray(est_ids).astype(np.int64).reshape(-1)
+    common, est, gt = _common(ids, est_wTc, gt_ids, gt_wTc)
+    if common.size < 1:
+        raise GraphSlamError("pose_nees: no frame id in common with the truth")
+    order = np.argsort(ids)
+    cov = cov[order[np.searchsorted(ids[order], common)]]
+    s = 1.0
+    if alignment != "none":
+        s, R, t = align_umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=alignment == "sim3")
+        est = est.copy()
+        est[:, :3, :3] = R @ est[:, :3, :3]
+        est[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
+        D = np.diag([s] * 3 + [1.0] * 3)
+        cov = D @ cov @ D
+    err = pose_errors(est, gt)
+    nees_k = nees(err, cov)
+    lo, hi = chi2_bounds(POSE_DOF, 1, NEES_CONFIDENCE)
+    return {"frame_ids": common, "errors": err, "covariances": cov, "nees": nees_k,
+            "nees_mean": float(np.mean(nees_k)),
+            "nees_in_bounds_fraction": float(np.mean((nees_k >= lo) & (nees_k <= hi))),
+            "bounds": (lo, hi), "alignment": alignment, "scale": float(s)}

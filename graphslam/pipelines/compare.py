@@ -1,5 +1,9 @@
 """Several back ends on the same stream: one table, one JSON, plots, one recording.
 
+:func:`run_entries` is what 2-D and image comparisons share (one process per
+back end, failures and signals); :func:`compare` is the 2-D one and
+:mod:`graphslam.pipelines.compare_spatial` the one on image sequences.
+
 Each back end runs in a forked child process on the same in-memory dataset
 (same seed, same observations), so its wall time and peak memory are its own:
 ``peak_rss_mb`` is the child's peak resident set above its resident set when
@@ -14,7 +18,9 @@ import resource
 import signal
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 from graphslam import registry
 from graphslam.evaluation import planar as metrics
@@ -23,6 +29,8 @@ from graphslam.pipelines import planar as pipeline
 from graphslam.pipelines.common import active_guard, interrupt_between_frames, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
+
+R = TypeVar("R")
 
 #: How long a worker asked to stop may take to send what it has, seconds; then
 #: it is killed (its row says so).
@@ -35,13 +43,16 @@ POLL_S = 0.1
 class CompareEntry:
     """One back end's row: ``status`` "ok", "cut" (stopped by a signal; the
     estimate so far), "failed" or "not run" (the comparison was stopped first);
-    ``result`` and ``metrics`` are None unless ok or cut; ``error`` says why not."""
+    ``result`` and ``metrics`` are None unless ok or cut; ``error`` says why not;
+    ``nees``: the per-frame pose NEES record of an image comparison
+    (:func:`graphslam.evaluation.spatial.pose_nees`), when there is one."""
 
     backend: str
-    result: pipeline.RunResult | None
-    metrics: PlanarRunMetrics | None
+    result: Any  # a 2-D RunResult or a VisualRunResult
+    metrics: Any  # PlanarRunMetrics or SpatialRunMetrics
     status: str = "ok"
     error: str | None = None
+    nees: dict | None = None
 
 
 def finished(entries: list[CompareEntry]) -> list[CompareEntry]:
@@ -55,16 +66,15 @@ def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipel
     return result
 
 
-def _child(conn, dataset, name, config, overrides, max_steps):
+def _child(conn, job, strip):
     guard = active_guard()
     if guard is not None:
         guard.become_worker()
     try:
         start_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        result = _run_one(dataset, name, config, overrides, max_steps)
+        result = job()
         peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        result.dataset = None  # the parent has it; don't send it back
-        conn.send(("ok", result, (peak_kb - start_kb) / 1024.0))
+        conn.send(("ok", result if strip is None else strip(result), (peak_kb - start_kb) / 1024.0))
     except GraphSlamError as e:
         conn.send(("error", str(e), None))
     except KeyboardInterrupt:  # stopped before its first step: nothing to send
@@ -75,9 +85,11 @@ def _child(conn, dataset, name, config, overrides, max_steps):
         conn.close()
 
 
-def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
-                 max_steps=None) -> tuple[pipeline.RunResult, float]:
-    """Run one back end in a forked child; returns its result and peak RSS (MB).
+def run_isolated(job: Callable[[], R], name: str, strip: Callable[[R], R] | None = None
+                 ) -> tuple[R, float]:
+    """Run ``job()`` (one back end's run) in a forked child; returns its result and
+    peak RSS (MB). ``strip`` lightens the result before it is sent back (drops
+    what the parent already holds, e.g. the dataset).
 
     A stop request of this process (:mod:`graphslam.pipelines.common`) is passed
     on to the child, which sends the estimate it has; a child that does not
@@ -86,8 +98,7 @@ def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
     """
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, dataset, name, config, overrides,
-                                            max_steps))
+    proc = ctx.Process(target=_child, args=(child, job, strip))
     proc.start()
     child.close()
     try:
@@ -104,7 +115,6 @@ def run_isolated(dataset: Dataset, name: str, config=None, overrides=None,
         raise GraphSlamError(payload)
     if status == "crash":
         raise BackendCrash(f"{name} crashed in its worker:\n{payload}")
-    payload.dataset = dataset
     return payload, peak_mb
 
 
@@ -134,11 +144,8 @@ def _wait_for(proc, conn, name: str):
 def compare(dataset: Dataset, backends: list[str], *, config=None,
             overrides: dict[str, dict] | None = None, max_steps: int | None = None,
             isolate: bool = True, seed: int | None = None, progress=None) -> list[CompareEntry]:
-    """Run each back end on ``dataset``; return one entry per back end, in order.
-
-    A back end that fails is a "failed" entry and the others still run; a stop
-    request (SIGINT, SIGTERM) cuts the running back end (a "cut" entry with its
-    estimate so far) and leaves the rest "not run".
+    """Run each 2-D back end on ``dataset``; return one entry per back end, in order
+    (:func:`run_entries`).
 
     Args:
         overrides: per back-end config overrides, ``{name: {key: value}}``.
@@ -146,16 +153,16 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
             are its own); False runs them in this process (no memory figure).
         progress: optional callable ``progress(name)`` called before each run.
     """
-    entries = []
-    with interrupt_between_frames() as stop:
-        for name in backends:
-            if stop.requested:
-                entries.append(CompareEntry(name, None, None, "not run", "stopped before it"))
-                continue
-            if progress is not None:
-                progress(name)
-            entries.append(_compare_one(dataset, name, config, (overrides or {}).get(name, {}),
-                                        max_steps, isolate, seed))
+
+    def job(name):
+        return lambda: _run_one(dataset, name, config, (overrides or {}).get(name, {}), max_steps)
+
+    def score(name, result, peak_mb):
+        result.dataset = dataset  # the worker sent it back without (strip)
+        return _score(dataset, result, peak_mb, seed)
+
+    entries = run_entries(backends, job, score, isolate=isolate, strip=_without_dataset,
+                          progress=progress)
     reference = next((e for e in entries if e.backend == "isam2" and e.result is not None), None)
     if reference is not None:
         for e in finished(entries):
@@ -164,19 +171,52 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
     return entries
 
 
-def _compare_one(dataset, name, config, overrides, max_steps, isolate, seed) -> CompareEntry:
+def _without_dataset(result: pipeline.RunResult) -> pipeline.RunResult:
+    result.dataset = None  # the parent has it; don't send it back
+    return result
+
+
+def run_entries(names: list[str], job, score, *, isolate: bool = True, strip=None,
+                progress=None) -> list[CompareEntry]:
+    """One entry per name, in order: ``job(name)()`` runs that back end (in a forked
+    child when ``isolate``), ``score(name, result, peak_mb)`` gives its metrics.
+
+    A back end that fails is a "failed" entry and the others still run; a stop
+    request (SIGINT, SIGTERM) cuts the running back end (a "cut" entry with its
+    estimate so far) and leaves the rest "not run". ``result.interrupted`` marks
+    a cut result.
+    """
+    entries = []
+    with interrupt_between_frames() as stop:
+        for name in names:
+            if stop.requested:
+                entries.append(CompareEntry(name, None, None, "not run", "stopped before it"))
+                continue
+            if progress is not None:
+                progress(name)
+            entries.append(_compare_one(name, job(name), score, isolate, strip))
+    return entries
+
+
+def _compare_one(name, job, score, isolate, strip) -> CompareEntry:
     """One back end's entry; its failure is recorded, not raised."""
     try:
         if isolate:
-            result, peak_mb = run_isolated(dataset, name, config, overrides, max_steps)
+            result, peak_mb = run_isolated(job, name, strip)
         else:
-            result, peak_mb = _run_one(dataset, name, config, overrides, max_steps), None
+            result, peak_mb = job(), None
     except KeyboardInterrupt:  # a second signal: this one is lost, the others are kept
         return CompareEntry(name, None, None, "cut", "stopped before its first step")
     except GraphSlamError as e:  # a worker asked to stop and killed for not stopping is cut
         return CompareEntry(name, None, None, "cut" if stop_requested() else "failed", str(e))
     except Exception:  # a bug in one back end must not lose the others' results
         return CompareEntry(name, None, None, "failed", traceback.format_exc())
+    return CompareEntry(name, result, score(name, result, peak_mb),
+                        "cut" if result.interrupted else "ok")
+
+
+def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:
+    """The 2-D metrics of one finished run, with its peak memory and pose NEES."""
     m = pipeline.compute_metrics(result, seed=seed)
     m.peak_rss_mb = peak_mb
     if m.association is not None:
@@ -184,4 +224,4 @@ def _compare_one(dataset, name, config, overrides, max_steps, isolate, seed) -> 
     stats = metrics.pose_statistics(dataset, result.estimate)
     for key in ("final_pose_error_m", "nees_mean", "nees_in_bounds_fraction"):
         setattr(m, key, stats[key])
-    return CompareEntry(name, result, m, "cut" if result.interrupted else "ok")
+    return m

@@ -127,6 +127,10 @@ class VisualRunResult:
         odometry_wTc: (frames, 4, 4) odometry-only trajectory from the first
             pose, or None without odometry.
         tracking: per-frame front-end counters (lists).
+        pose_covariances: (frames, 6, 6) ``[rho, phi]`` covariances of
+            ``estimate.wTc`` (``graphslam compare`` fills it), else None.
+        input_digest: SHA-256 of what the back end was fed (images, detected
+            corners, odometry), filled by ``graphslam compare``, else None.
     """
 
     sequence: ImageSequence
@@ -141,6 +145,57 @@ class VisualRunResult:
     odometry_noise: dict | None
     odometry_wTc: np.ndarray | None
     tracking: dict = field(default_factory=dict)
+    pose_covariances: np.ndarray | None = None
+    input_digest: str | None = None
+
+
+def backend_overrides(backend: str, mode: str, seed: int | None = None,
+                      no_polish: bool = False, nearest_depth_m: float | None = None) -> dict:
+    """Config overrides a visual run hands back end ``backend`` (``isam2`` or ``ekf``)
+    for odometry ``mode``: iSAM2's polish off; the EKF's RANSAC seed, its
+    inverse-depth prior from the scene's nearest depth (:func:`scene_nearest_depth`)
+    and, without odometry, its constant-velocity model."""
+    if backend == "isam2":
+        return {"polish": False} if no_polish else {}
+    out: dict = {}
+    if seed is not None:
+        out["seed"] = seed
+    if nearest_depth_m is not None:
+        out["min_depth_m"] = nearest_depth_m
+    if mode == "none":
+        # The EKF's frame_dt_s stays its own (config) value, not the sequence's
+        # frame interval: its acceleration noise is tuned per frame at that dt,
+        # and a monocular run has no metric scale for velocities anyway. With
+        # the 0.1 s of the synthetic stamps the same noise lets it diverge.
+        out["robot_model"] = "constant_velocity"
+    return out
+
+
+def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:
+    """The sequence's nearest scene depth (metres) for the EKF's ``min_depth_m``, or None
+    when the sequence does not know it or ``[mono_ekf] min_depth_m`` is in the config
+    file (the file wins). A prior meant for a nearer scene biases every new
+    landmark's first corrections the same way, and the filter becomes
+    overconfident (measured in README.md, "compare on image sequences")."""
+    if config is not None and config.line_of("mono_ekf", "min_depth_m") is not None:
+        return None
+    return sequence.nearest_depth_m
+
+
+def make_tracker(config, backend: VisualBackend, detector: str | None = None):
+    """``(tracker config, tracker)`` from the config file's ``[tracker]``,
+    ``[active_search]``, ``[harris]`` and ``[orb]`` with ``detector`` on top;
+    unmapped tracks are followed when the back end needs their history."""
+    from frontend.active_search import ActiveSearchConfig
+    from frontend.harris import HarrisConfig
+    from frontend.orb import OrbConfig
+    from frontend.tracking import TrackerConfig
+
+    cfg = config.section(TrackerConfig, {"detector": detector})
+    follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
+    return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
+                        harris=config.section(HarrisConfig),
+                        orb=config.section(OrbConfig), follow_unmapped=follow)
 
 
 def derive_odometry(wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None

@@ -14,46 +14,86 @@ from slamcore.planar.records import Dataset
 def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     """PNG of finished runs (``CompareEntry``): trajectories over ground truth, and pose
     errors with 3-sigma bounds over time."""
-    plt = _pyplot()
-
     gt = dataset.ground_truth()
-    n_err = 3 if gt is not None else 0
+    lm = (np.array(list(dataset.landmarks_true.values())).reshape(-1, 2)
+          if dataset.landmarks_true else None)
+    tracks = [(e.backend, e.result.estimate.wTb[:, :2], e.result.estimate.landmarks_w)
+              for e in entries]
+    errors = []
+    if gt is not None:
+        gt_of = dict(zip(gt[0].tolist(), gt[1]))
+        for e in entries:
+            est = e.result.estimate
+            err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
+            s3 = (None if est.pose_covariances is None else
+                  3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances), 0, None)))
+            errors.append((e.backend, np.arange(len(err)), err, s3))
+    return _comparison_figure(
+        path, f"{dataset.name}: trajectories", None if gt is None else gt[1][:, :2], lm,
+        tracks, errors, ["x error [m]", "y error [m]", "heading error [rad]"], ("x [m]", "y [m]"),
+        "error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)", "step")
+
+
+def plot_visual_comparison(entries, sequence, path: Path) -> Path:
+    """PNG of finished image-sequence runs (``CompareEntry`` with their ``nees``
+    records): camera centres over the truth (seen along the truth's least-spread
+    axis), and the translation error in the camera frame with its 3-sigma bounds
+    (after the NEES alignment) over the frames."""
+    truth = None if sequence.wTc_true is None else np.asarray(sequence.wTc_true)[:, :3, 3]
+    ref = truth if truth is not None else entries[0].result.estimate.wTc[:, :3, 3]
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
+    tracks = [(e.backend, e.result.estimate.wTc[:, :3, 3][:, [a, b]],
+               np.asarray(e.result.estimate.landmarks_w).reshape(-1, 3)[:, [a, b]])
+              for e in entries]
+    errors = [(e.backend, e.nees["frame_ids"], e.nees["errors"][:, :3],
+               3 * np.sqrt(np.clip(np.einsum("nii->ni", e.nees["covariances"])[:, :3], 0, None)))
+              for e in entries if e.nees is not None]
+    n = max(e.result.frames for e in entries)
+    return _comparison_figure(
+        path, f"{sequence.name}: camera centres", None if truth is None else truth[:n, [a, b]],
+        None, tracks, errors, [f"{c} error, camera [m]" for c in "xyz"],
+        ("xyz"[a] + " [m]", "xyz"[b] + " [m]"),
+        "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)", "frame")
+
+
+def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, errors,
+                       error_labels, axis_labels, error_title: str, step_label: str) -> Path:
+    """Trajectories ``(label, (N, 2) path, (L, 2) landmarks)`` over ``truth_xy`` on the
+    left; per error component, ``(label, steps, (N, r) errors, (N, r) 3-sigma or None)``
+    on the right (none without truth)."""
+    plt = _pyplot()
+    n_err = len(error_labels) if errors else 0
     fig = plt.figure(figsize=(13, 7 if n_err else 6), constrained_layout=True)
     grid = fig.add_gridspec(max(n_err, 1), 2, width_ratios=[1.1, 1])
     ax = fig.add_subplot(grid[:, 0])
-    if gt is not None:
-        ax.plot(gt[1][:, 0], gt[1][:, 1], color="0.6", lw=2, label="ground truth")
-    if dataset.landmarks_true:
-        lm = np.array(list(dataset.landmarks_true.values()))
-        ax.scatter(lm[:, 0], lm[:, 1], marker="x", color="0.6", s=12, label="true landmarks")
-    for i, e in enumerate(entries):
-        est = e.result.estimate
-        ax.plot(est.wTb[:, 0], est.wTb[:, 1], lw=1, color=f"C{i}", label=e.backend)
-        if len(est.landmarks_w):
-            ax.scatter(est.landmarks_w[:, 0], est.landmarks_w[:, 1], s=6, color=f"C{i}")
+    if truth_xy is not None:
+        ax.plot(truth_xy[:, 0], truth_xy[:, 1], color="0.6", lw=2, label="ground truth")
+    if marks_xy is not None:
+        ax.scatter(marks_xy[:, 0], marks_xy[:, 1], marker="x", color="0.6", s=12,
+                   label="true landmarks")
+    for i, (label, xy, landmarks) in enumerate(tracks):
+        ax.plot(xy[:, 0], xy[:, 1], lw=1, color=f"C{i}", label=label)
+        if len(landmarks):
+            ax.scatter(landmarks[:, 0], landmarks[:, 1], s=6, color=f"C{i}")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{dataset.name}: trajectories")
+    ax.set_xlabel(axis_labels[0])
+    ax.set_ylabel(axis_labels[1])
+    ax.set_title(title)
     ax.legend(loc="best", fontsize=8)
-    if gt is not None:
-        gt_of = dict(zip(gt[0].tolist(), gt[1]))
-        labels = ["x error [m]", "y error [m]", "heading error [rad]"]
-        axes = [fig.add_subplot(grid[r, 1]) for r in range(3)]
-        for i, e in enumerate(entries):
-            est = e.result.estimate
-            err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
-            steps = np.arange(len(err))
-            for r in range(3):
-                axes[r].plot(steps, err[:, r], color=f"C{i}", lw=0.8, label=e.backend)
-                if est.pose_covariances is not None:
-                    s3 = 3 * np.sqrt(np.clip(est.pose_covariances[:, r, r], 0, None))
-                    axes[r].fill_between(steps, -s3, s3, color=f"C{i}", alpha=0.15, lw=0)
-        for r in range(3):
-            axes[r].set_ylabel(labels[r])
+    if n_err:
+        axes = [fig.add_subplot(grid[r, 1]) for r in range(n_err)]
+        colour = {label: f"C{i}" for i, (label, *_) in enumerate(tracks)}
+        for label, steps, err, s3 in errors:
+            for r in range(n_err):
+                axes[r].plot(steps, err[:, r], color=colour[label], lw=0.8, label=label)
+                if s3 is not None:
+                    axes[r].fill_between(steps, -s3[:, r], s3[:, r], color=colour[label],
+                                         alpha=0.15, lw=0)
+        for r in range(n_err):
+            axes[r].set_ylabel(error_labels[r])
             axes[r].axhline(0, color="0.5", lw=0.5)
-        axes[0].set_title("error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)")
-        axes[-1].set_xlabel("step")
+        axes[0].set_title(error_title)
+        axes[-1].set_xlabel(step_label)
         axes[0].legend(loc="upper left", fontsize=8)
     return _save(fig, path)
 

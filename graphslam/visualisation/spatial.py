@@ -188,6 +188,13 @@ class VisualRecorder:
                          rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)],
                                          radii=0.01))
 
+    def record_comparison(self, entries, sequence) -> None:
+        """Finished image-sequence runs (``CompareEntry``), one entity subtree per back
+        end, on the frame timeline."""
+        self.start(sequence, max(e.result.frames for e in entries))
+        for i, e in enumerate(entries):
+            self.finish(e.backend, e.result, color_index=i)
+
     def loop_hook(self, sequence):
         """An ``on_candidate`` callback for :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""
 

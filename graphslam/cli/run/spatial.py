@@ -34,22 +34,6 @@ from slamcore.errors import ConfigError, GraphSlamError
 SELF_TRAINED_WORDS = 1000
 
 
-def _backend_overrides(args, mode: str) -> dict:
-    """Flags that reach the back end's configuration."""
-    if args.backend == "isam2":
-        return {"polish": False} if args.no_polish else {}
-    out: dict = {}
-    if args.seed is not None:
-        out["seed"] = args.seed
-    if mode == "none":
-        # The EKF's frame_dt_s stays its own (config) value, not the sequence's
-        # frame interval: its acceleration noise is tuned per frame at that dt,
-        # and a monocular run has no metric scale for velocities anyway. With
-        # the 0.1 s of the synthetic stamps the same noise lets it diverge.
-        out["robot_model"] = "constant_velocity"
-    return out
-
-
 def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
     """Flags that would have no effect on this visual run are refused, one line each.
 
@@ -68,20 +52,6 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
             and args.backend != "ekf"):
         raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "
                           f"not derived and {args.backend} draws no random numbers")
-
-
-def _tracker(args, backend, config):
-    """``(tracker config, tracker)`` from ``--config`` and ``--frontend``."""
-    from frontend.active_search import ActiveSearchConfig
-    from frontend.harris import HarrisConfig
-    from frontend.orb import OrbConfig
-    from frontend.tracking import Tracker, TrackerConfig
-
-    cfg = config.section(TrackerConfig, {"detector": args.frontend})
-    follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
-    return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
-                        harris=config.section(HarrisConfig),
-                        orb=config.section(OrbConfig), follow_unmapped=follow)
 
 
 def _load_sequence(args, config):
@@ -121,10 +91,10 @@ def run(args: argparse.Namespace) -> int:
     noise = config.section(vp.OdometryNoiseConfig, noise_over)
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
     refuse_ignored_flags(args, mode)
-    backend = registry.make_visual_backend(args.backend, config=config,
-                                           overrides=_backend_overrides(args, mode))
-    tracker_cfg, tracker = _tracker(args, backend, config)
-
+    overrides = vp.backend_overrides(args.backend, mode, args.seed, args.no_polish,
+                                     vp.scene_nearest_depth(sequence, config))
+    backend = registry.make_visual_backend(args.backend, config=config, overrides=overrides)
+    tracker_cfg, tracker = vp.make_tracker(config, backend, args.frontend)
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-{args.backend}"

@@ -65,6 +65,13 @@ class ImageSequence:
         return self.wTc_true is not None
 
     @property
+    def nearest_depth_m(self) -> float | None:
+        """Nearest depth of the scene's points, metres, when the sequence knows it
+        (a rendered scene), else None. The monocular EKF's inverse-depth prior is
+        set from it (:func:`graphslam.pipelines.spatial.backend_overrides`)."""
+        return None
+
+    @property
     def is_distorted(self) -> bool:
         """Whether the files carry lens distortion (a non-zero coefficient)."""
         return self.distortion is not None and bool(np.any(np.asarray(self.distortion) != 0))

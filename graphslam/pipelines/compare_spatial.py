@@ -1,0 +1,159 @@
+"""``graphslam compare`` on image sequences: visual iSAM2 and the monocular EKF
+(IDP and AHP landmarks) on the same frames, detections and active-search budget.
+
+Each entry (:data:`graphslam.registry.VISUAL_COMPARE_BACKENDS`) runs
+:func:`graphslam.pipelines.spatial.run` in its own forked process
+(:func:`graphslam.pipelines.compare.run_entries`: failures, Ctrl-C and SIGTERM
+as in the 2-D compare) on the same sequence, with the same odometry (resolved
+or derived from the same seed) and the same ``[tracker]``, ``[active_search]``
+and detector sections, so the search budget is one. The detector does not
+depend on the back end's predictions, so the frames and corners fed are the
+same for every entry; ``input_digest`` (SHA-256 of every frame's image, its
+detected corners and the odometry) shows it per entry.
+
+Pose NEES has 6 degrees of freedom (``[rho, phi]``, the back ends' covariance
+convention, :func:`graphslam.evaluation.spatial.pose_nees`). The EKF's is
+filtered: the covariance of each frame while it was current, read after that
+frame's update (off the clock). iSAM2's is smoothed: the marginals of every
+pose at the final estimate (one ``gtsam.Marginals``; skipped when the run was
+cut, as the 2-D compare skips its covariances). Metric runs (odometry) start at
+the true first pose and are scored unaligned, in the truth's frame, as the 2-D
+NEES is; runs without odometry (monocular, no scale) after the Sim(3) fit of
+their ATE, the covariance scaled with it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from graphslam import registry
+from graphslam.evaluation.records import SpatialRunMetrics
+from graphslam.evaluation.spatial import pose_nees
+from graphslam.pipelines import spatial as vp
+from graphslam.pipelines.compare import CompareEntry, finished, run_entries
+from graphslam.sources.spatial.sequence import ImageSequence
+from slamcore.config import ConfigFile
+from slamcore.errors import GraphSlamError
+
+#: NEES alignment by the run's ATE alignment (module docstring).
+NEES_ALIGNMENT = {"se3": "none", "sim3": "sim3"}
+
+
+@dataclass(frozen=True)
+class VisualCompareSetup:
+    """What every entry shares: the sequence, the config file (front end, back ends),
+    the run and derived-odometry settings, the seed, the frame limit and the detector."""
+
+    sequence: ImageSequence
+    config: ConfigFile
+    run_config: vp.VisualRunConfig
+    odometry_noise: vp.OdometryNoiseConfig
+    seed: int | None = None
+    max_frames: int | None = None
+    detector: str | None = None
+
+
+class _Feed:
+    """``on_frame`` hook: digests what the back end is fed and, for a filter, keeps
+    each frame's pose covariance (the estimate is only read, never changed)."""
+
+    def __init__(self, filtered: bool):
+        self.sha = hashlib.sha256()
+        self.filtered = filtered
+        self.covariances: list[np.ndarray] = []
+
+    def __call__(self, k, image, tracking, backend) -> None:
+        self.sha.update(np.ascontiguousarray(image).tobytes())
+        self.sha.update(np.ascontiguousarray(tracking.corners, dtype=np.float64).tobytes())
+        if self.filtered:
+            self.covariances.append(backend.estimate().current_covariance)
+
+
+def compare(setup: VisualCompareSetup, names: list[str], *, isolate: bool = True,
+            progress=None) -> list[CompareEntry]:
+    """Run each entry of ``names`` on ``setup``'s sequence; one entry each, in order,
+    with its metrics (ATE, RPE, frames/s, peak memory, pose NEES)."""
+
+    def job(name):
+        return lambda: run_one(setup, name)
+
+    def score(name, result, peak_mb):
+        result.sequence = setup.sequence  # the worker sent it back without (strip)
+        return _score(setup, name, result, peak_mb)
+
+    entries = run_entries(names, job, score, isolate=isolate, strip=_without_sequence,
+                          progress=progress)
+    for e in finished(entries):
+        e.nees = entry_nees(e.result, e.metrics.alignment)
+        if e.nees is not None:
+            e.metrics.nees_mean = e.nees["nees_mean"]
+            e.metrics.nees_in_bounds_fraction = e.nees["nees_in_bounds_fraction"]
+            e.metrics.nees_alignment = e.nees["alignment"]
+    return entries
+
+
+def run_one(setup: VisualCompareSetup, name: str) -> vp.VisualRunResult:
+    """Entry ``name``'s run, with its input digest and pose covariances."""
+    kind, overrides = registry.visual_compare_backend(name)
+    mode, odometry, _, _ = vp.resolve_odometry(setup.sequence, setup.run_config.odometry,
+                                               setup.odometry_noise)
+    depth = vp.scene_nearest_depth(setup.sequence, setup.config)
+    overrides = {**overrides, **vp.backend_overrides(kind, mode, setup.seed, nearest_depth_m=depth)}
+    backend = registry.make_visual_backend(kind, config=setup.config, overrides=overrides)
+    tracker_cfg, tracker = vp.make_tracker(setup.config, backend, setup.detector)
+    feed = _Feed(filtered=kind != "isam2")
+    result = vp.run(setup.sequence, backend, tracker, config=setup.run_config,
+                    odometry_noise=setup.odometry_noise, max_frames=setup.max_frames,
+                    on_frame=feed, frontend=tracker_cfg.detector)
+    if odometry is not None:
+        feed.sha.update(np.ascontiguousarray(odometry[:max(result.frames - 1, 0)]).tobytes())
+    result.input_digest = feed.sha.hexdigest()
+    result.pose_covariances = _covariances(feed, backend, result)
+    return result
+
+
+def _covariances(feed: _Feed, backend, result: vp.VisualRunResult) -> np.ndarray | None:
+    """(frames, 6, 6) pose covariances of the estimate, or None (module docstring)."""
+    est = result.estimate
+    if feed.filtered:
+        covs = np.array(feed.covariances).reshape(-1, 6, 6)
+        return covs if len(covs) == len(est.frame_ids) else None
+    if result.interrupted:
+        return None
+    from graphslam.backends.spatial.marginals import pose_marginals
+
+    try:
+        return pose_marginals(backend, est)
+    except GraphSlamError:  # an indeterminate system: no NEES, the run still counts
+        return None
+
+
+def _without_sequence(result: vp.VisualRunResult) -> vp.VisualRunResult:
+    result.sequence = None  # the parent has it; don't send it back
+    return result
+
+
+def _score(setup: VisualCompareSetup, name: str, result: vp.VisualRunResult,
+           peak_mb: float | None) -> SpatialRunMetrics:
+    m = vp.compute_metrics(result, seed=getattr(getattr(setup.sequence, "config", None),
+                                                "seed", None))
+    m.backend = name
+    m.backend_class = result.backend
+    m.peak_rss_mb = peak_mb
+    m.input_digest = result.input_digest
+    return m
+
+
+def entry_nees(result: vp.VisualRunResult, alignment: str) -> dict | None:
+    """The per-frame pose NEES record of one run (``alignment``: its ATE's), or None
+    without covariances or ground truth."""
+    truth = result.sequence.wTc_true
+    est = result.estimate
+    if result.pose_covariances is None or truth is None or len(est.frame_ids) < 2:
+        return None
+    truth = np.asarray(truth)
+    return pose_nees(est.frame_ids, est.wTc, result.pose_covariances, np.arange(len(truth)),
+                     truth, alignment=NEES_ALIGNMENT[alignment])
