@@ -131,7 +131,16 @@ class BowDatabase:
         d = np.asarray(descriptors)
         if d.size == 0:
             return BowVector.empty()
-        words = self.vocabulary.transform(d)
+        return self.bow_from_words(self.vocabulary.transform(d))
+
+    def bow_from_words(self, words: np.ndarray) -> BowVector:
+        """(N,) word ids of one image's descriptors (as ``vocabulary.transform`` gives
+        them) -> its L1-normalised TF-IDF BowVector; N = 0 gives the empty vector."""
+        words = np.asarray(words, dtype=np.int64).reshape(-1)
+        if words.size == 0:
+            return BowVector.empty()
+        if words.min() < 0 or words.max() >= self._n_words:
+            raise ValueError(f"word ids must be in [0, {self._n_words})")
         ids, counts = np.unique(words, return_counts=True)
         w = counts / words.size * self._idf[ids]
         keep = w > 0.0  # zero-IDF words carry no information (and weights must be > 0)
