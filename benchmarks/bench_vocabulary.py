@@ -338,7 +338,7 @@ def main(argv=None) -> int:
     load_end = os.getloadavg()
     print(f"load average at the end {load_end[0]:.1f}", flush=True)
     top = rows[-1]
-    command = "python benchmarks/bench_vocabulary.py" + (" --quick" if args.quick else "")
+    command = " ".join(["python benchmarks/bench_vocabulary.py", *(sys.argv[1:] if argv is None else argv)])
     summ = timing.summary(
         "BoW query (real-image vectors)", top["ours_median_ms"] / 1e3, top["floor_median_ms"] / 1e3,
         target=None, command=command, images=top["images"], target_ms=TARGET_MS,
