@@ -117,9 +117,12 @@ class WideVocabulary(UniformVocabulary):
     idf_ = np.ones(2000)
 
 
-def test_query_prunes_exactly_on_a_large_database():
+def test_query_prunes_exactly_on_a_large_database(monkeypatch):
     # Many images, a Zipf word law and IDF-like weights (frequent words weigh little):
-    # the pruned (probing) path runs, and it must stay exact.
+    # the pruned path runs (tried at any size here), and it must stay exact.
+    import loopclosure.database
+
+    monkeypatch.setattr(loopclosure.database, "_MIN_PRUNE", 0)
     rng = np.random.default_rng(5)
     n_words, draws = 2000, 200
     p = 1.0 / np.arange(1, n_words + 1)
@@ -135,16 +138,60 @@ def test_query_prunes_exactly_on_a_large_database():
     vectors = [bow() for _ in range(3000)]
     for v in vectors:
         db.add(v)
-    probed = []
-    original = db._probe
-    db._probe = lambda *a: probed.append(1) or original(*a)
+    skipped = 0
     for _ in range(10):
         q = vectors[int(rng.integers(len(vectors)))]
         ids, scores = brute_force_ranking(vectors, q, len(vectors))
+        scanned = count_scanned(db)
         got = db.query(q, max_results=5)
         np.testing.assert_allclose([s for _, s in got], scores[:5], rtol=0, atol=SCORE_TOL)
         assert got[0][1] == pytest.approx(1.0, abs=SCORE_TOL)
-    assert probed, "the pruned path was never taken: the test does not exercise it"
+        skipped += len(q) - sum(scanned)
+    assert skipped, "the pruned path was never taken: the test does not exercise it"
+
+
+def count_scanned(db: BowDatabase) -> list[int]:
+    """A list that the next queries of ``db`` fill with the number of words each scan reads."""
+    scanned: list[int] = []
+    original = db._scan
+    db._scan = lambda scores, words, *a: scanned.append(len(words)) or original(scores, words, *a)
+    return scanned
+
+
+def test_query_equals_the_sparse_floor_on_real_image_vectors(shared_data):
+    # Real ORB words (the loop detector's ORB, the shipped vocabulary) of 6 real images,
+    # replicated to 3000 images as bench_vocabulary.py does: the pruned query must give
+    # the floor's top 10, ids in order and scores to SCORE_TOL, with and without exclusions.
+    from frontend.image import load_gray
+    from frontend.orb import OrbDetector
+    from loopclosure.detector import LoopDetectorConfig
+    from loopclosure.shipped import load_shipped_vocabulary
+    from tests.benchmarks import load_benchmark
+
+    bench = load_benchmark("bench_vocabulary")
+    paths = (sorted((shared_data / "kitti07" / "image_0").glob("*.png"))[:150:40]
+             + sorted((shared_data / "lund_door" / "images").glob("*.JPG"))[:1]
+             + sorted((shared_data / "slambook2_desk" / "images").glob("*.png"))[:1])
+    vocab = load_shipped_vocabulary()
+    orb = OrbDetector(LoopDetectorConfig().orb)
+    words = [vocab.transform(orb.detect(load_gray(p)).descriptors) for p in paths]
+    db = BowDatabase(vocab)
+    replicas = [db.bow_from_words(w) for w in bench.replica_words(words, 3000, seed=3)]
+    for v in replicas:
+        db.add(v)
+    floor, _ = bench.sparse_floor(replicas, vocab.n_words_)
+    scanned = count_scanned(db)
+    for w in words:
+        q = db.bow_from_words(w)
+        for exclude in (0, 1000):
+            got = db.query(q, 10, exclude_recent=exclude)
+            want = floor(q, 10) if exclude == 0 else \
+                bench.sparse_floor(replicas[:-exclude], vocab.n_words_)[0](q, 10)
+            assert [i for i, _ in got] == [i for i, _ in want]
+            np.testing.assert_allclose([s for _, s in got], [s for _, s in want],
+                                       rtol=0, atol=SCORE_TOL)
+    assert sum(scanned) < sum(len(db.bow_from_words(w)) for w in words) * 2, \
+        "every word was scanned: the pruned path is not exercised"
 
 
 def test_exclude_recent_and_self_query():
