@@ -7,6 +7,12 @@ Layout of a recording (2-D views, z up is implicit):
   on the ``step`` timeline (and ``time`` in seconds where the data has stamps);
 - ``plots/<backend>/pose_sigma_m``: 1-sigma position uncertainty over time,
   where the loop closure shows as a drop.
+- filters (:mod:`.filter_state`): ``filter/<backend>/correlation``, the EKF's
+  covariance as an entity-by-entity ``|rho|`` image, with
+  ``plots/<backend>/mean_abs_correlation``, every ``every`` steps;
+  ``world/<backend>/particles``, FastSLAM's cloud, with ``plots/<backend>/ess``
+  (before resampling) and ``plots/<backend>/resampling`` (a text entry per
+  resampling), every step.
 
 Ellipses are 95 % confidence regions (chi-square, 2 dof).
 """
@@ -17,6 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.visualisation.filter_state import (
+    CorrelationSnapshot, ParticleSnapshot, log_filter_state,
+)
 from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
 from slamcore.planar.records import Dataset, Estimate
 
@@ -66,6 +75,25 @@ class PlanarLog(RerunLog):
                 self.rec.log(f"world/{backend}/landmark_ellipses",
                              rr.LineStrips2D(list(rings), colors=[color], radii=0.02))
 
+    def log_correlation(self, backend: str, snap: CorrelationSnapshot) -> None:
+        """The EKF's entity correlation image (viridis in a tensor view) and mean |rho|."""
+        rr = self._rr
+        self.rec.log(f"filter/{backend}/correlation",
+                     rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)))
+        self.rec.log(f"plots/{backend}/mean_abs_correlation", rr.Scalars(snap.mean_abs))
+
+    def log_particles(self, backend: str, snap: ParticleSnapshot, color_index: int = 0) -> None:
+        """FastSLAM's particle positions, ESS before resampling, and a resampling entry."""
+        rr = self._rr
+        color = PALETTE[color_index % len(PALETTE)]
+        self.rec.log(f"world/{backend}/particles",
+                     rr.Points2D(snap.poses[:, :2], colors=[color], radii=0.05))
+        self.rec.log(f"plots/{backend}/ess", rr.Scalars(snap.ess))
+        if snap.resampled:
+            self.rec.log(f"plots/{backend}/resampling",
+                         rr.TextLog(f"resampling {snap.resample_count}: ESS {snap.ess:.1f} "
+                                    f"of {len(snap.weights)}", level="INFO"))
+
 
 class RunRecorder:
     """Records one or more back ends' runs of one dataset into a :class:`PlanarLog`.
@@ -100,6 +128,7 @@ class RunRecorder:
             self.log.log_pose(backend, backend_obj.current_pose(), cov, color)
             if snapshot:
                 self.log.log_estimate(backend, backend_obj.estimate(with_covariances=False), color)
+            log_filter_state(self.log, backend, k, backend_obj, every, color)
 
         return on_step
 
