@@ -14,9 +14,11 @@ def entity_rows(path: Path, entity: str, component: str) -> list[tuple[int, obje
 
     rows = []
     for chunk in RrdReader(str(path)).stream():
-        if chunk.entity_path != entity:
+        if chunk.entity_path != entity or chunk.is_static:
             continue
         batch = chunk.to_record_batch()
+        if component not in batch.schema.names:
+            continue
         steps = batch.column("step").to_pylist()
         rows += zip(steps, batch.column(component).to_pylist())
     return sorted(rows, key=lambda r: r[0])

@@ -10,7 +10,7 @@ from filters.fastslam import FastSlam, FastSlamConfig
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from graphslam.visualisation.filter_state import (
-    correlation_matrix, entity_image, mean_abs_correlation,
+    FilterStateLogger, correlation_matrix, entity_image, mean_off_diagonal,
 )
 from graphslam.visualisation.planar import RunRecorder
 from tests.recordings import entity_rows, points2d, scalars, tensors
@@ -59,15 +59,23 @@ def test_correlation_matrix_and_entity_image_by_brute_force():
     blocks = [range(0, 3), range(3, 5), range(5, 7), range(7, 9)]
     expect = np.array([[max(abs(rho[a, b]) for a in ra for b in rb) for rb in blocks]
                        for ra in blocks])
-    assert np.allclose(entity_image(rho), expect, atol=FLOAT32_TOL)
+    a = np.abs(rho)
+    assert np.allclose(entity_image(a), expect, atol=FLOAT32_TOL)
     # above max_side entities, consecutive pairs share a cell by the same maximum
-    halved = entity_image(rho, max_side=2)
+    halved = entity_image(a, max_side=2)
     assert halved.shape == (2, 2)
     assert halved[0, 1] == pytest.approx(expect[:2, 2:].max(), abs=FLOAT32_TOL)
+    B = rng.standard_normal((11, 11))  # 5 entities in tiles of 3: the last tile padded
+    b = np.abs(correlation_matrix(B @ B.T))
+    full = entity_image(b)
+    tiles = entity_image(b, max_side=2)
+    assert tiles.shape == (2, 2)
+    assert tiles[0, 1] == pytest.approx(full[:3, 3:].max(), abs=FLOAT32_TOL)
+    assert tiles[1, 1] == pytest.approx(1.0)
     off = ~np.eye(9, dtype=bool)
-    assert mean_abs_correlation(rho) == pytest.approx(np.abs(rho[off]).mean())
+    assert mean_off_diagonal(a) == pytest.approx(a[off].mean())
     with pytest.raises(ValueError, match="not 3 \\+ 2"):
-        entity_image(rho[:8, :8])
+        entity_image(a[:8, :8])
 
 
 def test_ekf_recording_has_the_correlation_image(tmp_path):
@@ -81,11 +89,11 @@ def test_ekf_recording_has_the_correlation_image(tmp_path):
         assert image.min() >= 0.0 and image.max() <= 1.0
         assert np.allclose(np.diag(image), 1.0)
     # the recording holds the filter's own state at that step
-    rho = correlation_matrix(ekf.state_covariance())
-    assert np.allclose(last, entity_image(rho), atol=FLOAT32_TOL)
+    a = np.abs(correlation_matrix(ekf.state_covariance()))
+    assert np.allclose(last, entity_image(a), atol=FLOAT32_TOL)
     s, mean_abs = scalars(path, "/plots/ekf/mean_abs_correlation")
     assert list(s) == [s for s, _ in images]
-    assert mean_abs[-1] == pytest.approx(mean_abs_correlation(rho), abs=FLOAT32_TOL)
+    assert mean_abs[-1] == pytest.approx(mean_off_diagonal(a), abs=FLOAT32_TOL)
 
 
 def test_fastslam_recording_has_cloud_ess_and_resampling(tmp_path):
@@ -146,3 +154,26 @@ def test_loop_closure_shows_in_the_logged_series(tmp_path):
     s, mean_abs = scalars(path, "/plots/ekf/mean_abs_correlation")
     early = mean_abs[(s > 0) & (s <= closure // 4)].mean()
     assert mean_abs[-1] > early + 0.1
+
+
+def test_filter_state_logger_batches_fastslam_and_ignores_other_backends():
+    sent = []
+    log = type("FakeLog", (), {"send_particles": lambda self, b, series, c: sent.append(series),
+                               "log_correlation": lambda self, b, snap: sent.append(snap)})()
+    logger = FilterStateLogger(log, "other", every=1)
+    logger(0, None, object())  # iSAM2, a localiser: no filter state to show
+    logger.flush()
+    assert sent == []
+    dataset = registry.load_dataset("synthetic", seed=0)
+    fs = FastSlam(FastSlamConfig(n_particles=10, seed=1))
+    fs.initialize(dataset.frames[0].pose_id, dataset.prior_wTb, dataset.prior_covariance)
+    logger = FilterStateLogger(log, "fastslam1", every=1)
+    steps = FilterStateLogger.FLUSH_STEPS + 3
+    for k in range(steps):
+        logger(k, 0.1 * k, fs)
+    assert [len(s.steps) for s in sent] == [FilterStateLogger.FLUSH_STEPS]
+    logger.flush()
+    assert [len(s.steps) for s in sent] == [FilterStateLogger.FLUSH_STEPS, 3]
+    assert list(sent[1].steps) == list(range(FilterStateLogger.FLUSH_STEPS, steps))
+    assert sent[1].positions.shape == (3, 10, 2) and sent[1].stamps_s[-1] == pytest.approx(
+        0.1 * (steps - 1))

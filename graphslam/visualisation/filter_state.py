@@ -34,41 +34,63 @@ def correlation_matrix(P: np.ndarray) -> np.ndarray:
     """
     sigma = np.sqrt(np.clip(np.diag(P), 0.0, None))
     inv = np.divide(1.0, sigma, out=np.zeros_like(sigma), where=sigma > 0)
-    return np.clip(P * inv[:, None] * inv[None, :], -1.0, 1.0)
+    rho = P * inv[:, None]
+    rho *= inv[None, :]
+    return np.clip(rho, -1.0, 1.0, out=rho)
 
 
-def mean_abs_correlation(rho: np.ndarray) -> float:
-    """Mean ``|rho_ij|`` over the off-diagonal entries (0 for a 1 x 1 matrix)."""
-    n = len(rho)
+def mean_off_diagonal(a: np.ndarray) -> float:
+    """Mean of the off-diagonal entries of square ``a`` (0 for a 1 x 1 matrix):
+    with ``a = |rho|``, the mean absolute correlation."""
+    n = len(a)
     if n < 2:
         return 0.0
-    a = np.abs(rho)
     return float((a.sum() - np.trace(a)) / (n * n - n))
 
 
-def _block_max(a: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Maximum of ``a`` over the blocks whose rows and columns begin at ``starts``."""
-    return np.maximum.reduceat(np.maximum.reduceat(a, starts, axis=0), starts, axis=1)
+def _block_max(a: np.ndarray, block: int) -> np.ndarray:
+    """Maximum of square ``a`` >= 0 over ``block x block`` tiles (zero-padded at the end)."""
+    n = len(a)
+    k = -(-n // block)
+    padded = np.zeros((k * block, k * block), dtype=a.dtype)
+    padded[:n, :n] = a
+    # one axis at a time: numpy's multi-axis max over a 4-D view is 10x slower
+    rows = padded.reshape(k, block, k * block).max(axis=1)
+    return rows.reshape(k, k, block).max(axis=2)
 
 
-def entity_image(rho: np.ndarray, pose_dim: int = 3, landmark_dim: int = 2,
+def _merge_pairs(a: np.ndarray, start: int, width: int, axis: int) -> np.ndarray:
+    """Elementwise maximum of the ``width`` interleaved slices from ``start`` on ``axis``
+    (one landmark's coordinates into one row or column); strided views, no copy."""
+    pick = [slice(None)] * a.ndim
+    out = None
+    for j in range(width):
+        pick[axis] = slice(start + j, None, width)
+        out = a[tuple(pick)] if out is None else np.maximum(out, a[tuple(pick)])
+    return out
+
+
+def entity_image(abs_rho: np.ndarray, pose_dim: int = 3, landmark_dim: int = 2,
                  max_side: int = MAX_IMAGE_SIDE) -> np.ndarray:
     """(k, k) float32 image of the largest ``|rho|`` between entities (module docstring).
 
     Args:
-        rho: (n, n) correlation matrix of the state ``[pose, m1, m2, ...]``.
+        abs_rho: (n, n) ``|correlation|`` of the state ``[pose, m1, m2, ...]``.
         max_side: at most this many rows; above it, ``ceil(entities / max_side)``
             consecutive entities share a cell.
     """
-    n = len(rho)
+    n = len(abs_rho)
     if n < pose_dim or (n - pose_dim) % landmark_dim:
         raise ValueError(f"state of size {n} is not {pose_dim} + {landmark_dim} x landmarks")
-    starts = np.concatenate([[0], np.arange(pose_dim, n, landmark_dim)])
-    image = _block_max(np.abs(rho), starts)
+    m = (n - pose_dim) // landmark_dim
+    rows = np.empty((1 + m, n), dtype=np.float32)  # entity rows, state columns
+    rows[0] = abs_rho[:pose_dim].max(axis=0)
+    rows[1:] = _merge_pairs(abs_rho, pose_dim, landmark_dim, axis=0)
+    image = np.empty((1 + m, 1 + m), dtype=np.float32)
+    image[:, 0] = rows[:, :pose_dim].max(axis=1)
+    image[:, 1:] = _merge_pairs(rows, pose_dim, landmark_dim, axis=1)
     block = -(-len(image) // max_side)
-    if block > 1:
-        image = _block_max(image, np.arange(0, len(image), block))
-    return image.astype(np.float32)
+    return _block_max(image, block) if block > 1 else image
 
 
 @dataclass(frozen=True)
@@ -81,39 +103,65 @@ class CorrelationSnapshot:
 
 
 @dataclass(frozen=True)
-class ParticleSnapshot:
-    """One FastSLAM step: the cloud, its ESS before resampling and the event."""
+class ParticleSeries:
+    """FastSLAM's state over consecutive logged steps, sent to Rerun in one batch."""
 
-    poses: np.ndarray  # (N, 3)
-    weights: np.ndarray  # (N,)
-    ess: float
-    resampled: bool
-    resample_count: int
+    steps: np.ndarray  # (T,) int64
+    stamps_s: np.ndarray | None  # (T,) seconds, when every step has a stamp
+    positions: np.ndarray  # (T, N, 2) particle positions
+    ess: np.ndarray  # (T,) ESS before each step's resampling
+    events: list[tuple[int, str]]  # (step, text) of each resampling
 
 
 def correlation_snapshot(ekf: EkfSlam, max_side: int = MAX_IMAGE_SIDE) -> CorrelationSnapshot:
     """The EKF's correlation image now. O(n^2): the cost of one observation update."""
-    rho = correlation_matrix(ekf.state_covariance())
-    return CorrelationSnapshot(entity_image(rho, max_side=max_side), mean_abs_correlation(rho),
-                               ekf.num_landmarks)
+    abs_rho = np.abs(correlation_matrix(ekf.state_covariance()))
+    return CorrelationSnapshot(entity_image(abs_rho, max_side=max_side),
+                               mean_off_diagonal(abs_rho), ekf.num_landmarks)
 
 
-def particle_snapshot(fs: FastSlam) -> ParticleSnapshot:
-    """FastSLAM's particles now (O(N) copies)."""
-    return ParticleSnapshot(fs.particle_poses, fs.weights, fs.step_ess(),
-                            fs.resampled_this_step(), fs.resample_count)
+class FilterStateLogger:
+    """Logs one back end's filter demos into a
+    :class:`graphslam.visualisation.planar.PlanarLog`; nothing for back ends without
+    any (iSAM2, the localisers).
 
-
-def log_filter_state(log, backend: str, k: int, backend_obj, every: int,
-                     color_index: int = 0) -> None:
-    """Log step ``k``'s filter demos of ``backend_obj`` into ``log`` (a
-    :class:`graphslam.visualisation.planar.PlanarLog`); nothing for back ends
-    without any (iSAM2, the localisers).
-
-    FastSLAM: the cloud, ESS and any resampling event every step (O(N)). EKF:
-    the correlation image and mean ``|rho|`` every ``every`` steps (O(n^2)).
+    EKF: the correlation image and mean ``|rho|`` every ``every`` steps (O(n^2)
+    each). FastSLAM: the cloud, ESS and resampling events of every step, kept
+    here and sent every :data:`FLUSH_STEPS` steps and at :meth:`flush` as columns
+    (one Rerun call per entity instead of three per step, which cost about as
+    much as the filter's own step).
     """
-    if isinstance(backend_obj, FastSlam):
-        log.log_particles(backend, particle_snapshot(backend_obj), color_index)
-    elif isinstance(backend_obj, EkfSlam) and k % every == 0:
-        log.log_correlation(backend, correlation_snapshot(backend_obj))
+
+    #: Steps of FastSLAM state held before they are sent (a live viewer lags this much).
+    FLUSH_STEPS = 100
+
+    def __init__(self, log, backend: str, every: int, color_index: int = 0):
+        self.log, self.backend, self.every, self.color_index = log, backend, every, color_index
+        self._rows: list[tuple[int, float | None, np.ndarray, float]] = []
+        self._events: list[tuple[int, str]] = []
+
+    def __call__(self, k: int, stamp_s: float | None, backend_obj) -> None:
+        if isinstance(backend_obj, FastSlam):
+            self._add_particles(k, stamp_s, backend_obj)
+        elif isinstance(backend_obj, EkfSlam) and k % self.every == 0:
+            self.log.log_correlation(self.backend, correlation_snapshot(backend_obj))
+
+    def _add_particles(self, k: int, stamp_s: float | None, fs: FastSlam) -> None:
+        ess = fs.step_ess()
+        self._rows.append((k, stamp_s, fs.particle_poses[:, :2], ess))
+        if fs.resampled_this_step():
+            self._events.append((k, f"resampling {fs.resample_count}: ESS {ess:.1f} "
+                                    f"of {fs.n_particles}"))
+        if len(self._rows) >= self.FLUSH_STEPS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send the FastSLAM steps held so far (none: nothing)."""
+        if not self._rows:
+            return
+        steps, stamps, positions, ess = zip(*self._rows)
+        timed = all(t is not None for t in stamps)
+        self.log.send_particles(self.backend, ParticleSeries(
+            np.array(steps, dtype=np.int64), np.array(stamps, dtype=np.float64) if timed else None,
+            np.stack(positions), np.array(ess), self._events), self.color_index)
+        self._rows, self._events = [], []

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.visualisation.filter_state import (
-    CorrelationSnapshot, ParticleSnapshot, log_filter_state,
+    CorrelationSnapshot, FilterStateLogger, ParticleSeries,
 )
 from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
 from slamcore.planar.records import Dataset, Estimate
@@ -82,17 +82,31 @@ class PlanarLog(RerunLog):
                      rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)))
         self.rec.log(f"plots/{backend}/mean_abs_correlation", rr.Scalars(snap.mean_abs))
 
-    def log_particles(self, backend: str, snap: ParticleSnapshot, color_index: int = 0) -> None:
-        """FastSLAM's particle positions, ESS before resampling, and a resampling entry."""
+    def send_particles(self, backend: str, series: ParticleSeries, color_index: int = 0) -> None:
+        """FastSLAM's particle positions, ESS before resampling and resampling entries
+        of several steps, as columns on the step (and time) timelines."""
         rr = self._rr
-        color = PALETTE[color_index % len(PALETTE)]
-        self.rec.log(f"world/{backend}/particles",
-                     rr.Points2D(snap.poses[:, :2], colors=[color], radii=0.05))
-        self.rec.log(f"plots/{backend}/ess", rr.Scalars(snap.ess))
-        if snap.resampled:
-            self.rec.log(f"plots/{backend}/resampling",
-                         rr.TextLog(f"resampling {snap.resample_count}: ESS {snap.ess:.1f} "
-                                    f"of {len(snap.weights)}", level="INFO"))
+        entity = f"world/{backend}/particles"
+        color = PALETTE[color_index % len(PALETTE)]  # static: one colour and size for all steps
+        self.rec.log(entity, rr.Points2D.from_fields(colors=[color], radii=0.05), static=True)
+
+        def indexes(steps, stamps=None):
+            out = [rr.TimeColumn("step", sequence=steps)]
+            return out if stamps is None else out + [rr.TimeColumn("time", duration=stamps)]
+
+        T, N = series.positions.shape[:2]
+        self.rec.send_columns(entity, indexes(series.steps, series.stamps_s),
+                              rr.Points2D.columns(positions=series.positions.reshape(-1, 2))
+                              .partition(np.full(T, N)))
+        self.rec.send_columns(f"plots/{backend}/ess", indexes(series.steps, series.stamps_s),
+                              rr.Scalars.columns(scalars=series.ess))
+        if series.events:
+            at = np.searchsorted(series.steps, [k for k, _ in series.events])
+            stamps = None if series.stamps_s is None else series.stamps_s[at]
+            self.rec.send_columns(f"plots/{backend}/resampling",
+                                  indexes(series.steps[at], stamps),
+                                  rr.TextLog.columns(text=[t for _, t in series.events],
+                                                     level=["INFO"] * len(series.events)))
 
 
 class RunRecorder:
@@ -105,6 +119,7 @@ class RunRecorder:
     def __init__(self, log: PlanarLog):
         self.log = log
         self._colors: dict[str, int] = {}
+        self._filters: dict[str, FilterStateLogger] = {}
 
     @classmethod
     def open(cls, mode: str, path: Path, url: str | None = None) -> "RunRecorder":
@@ -120,6 +135,7 @@ class RunRecorder:
     def hook(self, backend: str, every: int):
         """An ``on_step`` callback for :func:`graphslam.pipelines.planar.run`."""
         color = self.color_index(backend)
+        filter_state = self._filters[backend] = FilterStateLogger(self.log, backend, every, color)
 
         def on_step(k, frame, backend_obj):
             self.log.set_step(k, frame.stamp_s)
@@ -128,12 +144,14 @@ class RunRecorder:
             self.log.log_pose(backend, backend_obj.current_pose(), cov, color)
             if snapshot:
                 self.log.log_estimate(backend, backend_obj.estimate(with_covariances=False), color)
-            log_filter_state(self.log, backend, k, backend_obj, every, color)
+            filter_state(k, frame.stamp_s, backend_obj)
 
         return on_step
 
     def finish(self, backend: str, result) -> None:
         """Log the final estimate (with ellipses if it has covariances) at the last step."""
+        if backend in self._filters:
+            self._filters[backend].flush()
         self.log.set_step(max(result.steps - 1, 0))
         est = result.estimate
         cov = est.current_covariance
