@@ -21,6 +21,8 @@ POSITION_TOL_M = 1e-4
 #: Steps between a re-sighting after this many unseen steps and the ESS minimum.
 REVISIT_GAP_STEPS = 100
 LOOP_WINDOW_STEPS = 5
+#: First steps, where the first landmarks make mean |rho| jump from 0.
+SETTLE_STEPS = 10
 
 
 def _record(tmp_path, backend_name, steps, every, overrides=None):
@@ -150,10 +152,14 @@ def test_loop_closure_shows_in_the_logged_series(tmp_path):
     assert abs(int(s[np.argmin(ess)]) - closure) <= LOOP_WINDOW_STEPS
     events = [k for k, _ in entity_rows(path, "/plots/fastslam1/resampling", "TextLog:text")]
     assert any(abs(k - closure) <= LOOP_WINDOW_STEPS for k in events)
-    path, _, _ = _record(tmp_path, "ekf", steps, 30)
+    path, _, _ = _record(tmp_path, "ekf", steps, 1)
     s, mean_abs = scalars(path, "/plots/ekf/mean_abs_correlation")
     early = mean_abs[(s > 0) & (s <= closure // 4)].mean()
     assert mean_abs[-1] > early + 0.1
+    # past the first landmarks, the largest one-step rise is the closure's
+    later = s[1:] > SETTLE_STEPS
+    assert abs(int(s[1:][later][np.argmax(np.diff(mean_abs)[later])]) - closure) \
+        <= LOOP_WINDOW_STEPS
 
 
 def test_filter_state_logger_batches_fastslam_and_ignores_other_backends():
