@@ -164,7 +164,8 @@ def test_loop_closure_shows_in_the_logged_series(tmp_path):
 
 def test_filter_state_logger_batches_fastslam_and_ignores_other_backends():
     sent = []
-    log = type("FakeLog", (), {"send_particles": lambda self, b, series, c: sent.append(series),
+    log = type("FakeLog", (), {"send_particles": lambda self, b, series, c, style:
+                               sent.append(series),
                                "log_correlation": lambda self, b, snap: sent.append(snap)})()
     logger = FilterStateLogger(log, "other", every=1)
     logger(0, None, object())  # iSAM2, a localiser: no filter state to show

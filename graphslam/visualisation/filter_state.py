@@ -139,6 +139,7 @@ class FilterStateLogger:
         self.log, self.backend, self.every, self.color_index = log, backend, every, color_index
         self._rows: list[tuple[int, float | None, np.ndarray, float]] = []
         self._events: list[tuple[int, str]] = []
+        self._sent = False  # the cloud's static style goes with the first batch
 
     def __call__(self, k: int, stamp_s: float | None, backend_obj) -> None:
         if isinstance(backend_obj, FastSlam):
@@ -163,5 +164,6 @@ class FilterStateLogger:
         timed = all(t is not None for t in stamps)
         self.log.send_particles(self.backend, ParticleSeries(
             np.array(steps, dtype=np.int64), np.array(stamps, dtype=np.float64) if timed else None,
-            np.stack(positions), np.array(ess), self._events), self.color_index)
-        self._rows, self._events = [], []
+            np.stack(positions), np.array(ess), self._events), self.color_index,
+            style=not self._sent)
+        self._rows, self._events, self._sent = [], [], True

@@ -82,13 +82,16 @@ class PlanarLog(RerunLog):
                      rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)))
         self.rec.log(f"plots/{backend}/mean_abs_correlation", rr.Scalars(snap.mean_abs))
 
-    def send_particles(self, backend: str, series: ParticleSeries, color_index: int = 0) -> None:
+    def send_particles(self, backend: str, series: ParticleSeries, color_index: int = 0,
+                       style: bool = True) -> None:
         """FastSLAM's particle positions, ESS before resampling and resampling entries
-        of several steps, as columns on the step (and time) timelines."""
+        of several steps, as columns on the step (and time) timelines; with ``style``
+        the cloud's colour and size, static (once is enough)."""
         rr = self._rr
         entity = f"world/{backend}/particles"
-        color = PALETTE[color_index % len(PALETTE)]  # static: one colour and size for all steps
-        self.rec.log(entity, rr.Points2D.from_fields(colors=[color], radii=0.05), static=True)
+        if style:
+            color = PALETTE[color_index % len(PALETTE)]
+            self.rec.log(entity, rr.Points2D.from_fields(colors=[color], radii=0.05), static=True)
 
         def indexes(steps, stamps=None):
             out = [rr.TimeColumn("step", sequence=steps)]
