@@ -115,6 +115,9 @@ class FastSlam(Backend):
         self._last_associations: list[int | None] = []
         #: How many times the particles were resampled.
         self.resample_count = 0
+        # (poses so far, ESS, resample_count) at the last resampling decision: read
+        # by step_ess() and resampled_this_step(), never by the filter itself
+        self._decision: tuple[int, float, int] = (-1, float(self.n_particles), 0)
         #: Numerical recoveries (:class:`filters.numerics.Recoveries`).
         self.recoveries = Recoveries()
 
@@ -252,6 +255,22 @@ class FastSlam(Backend):
     def effective_sample_size(self) -> float:
         w = self.weights
         return float(1.0 / np.sum(w * w))
+
+    def step_ess(self) -> float:
+        """ESS of the current step's weights before this step's resampling, if any.
+
+        After a resampling the weights are uniform (:meth:`effective_sample_size`
+        is N); this is the ESS that triggered it, so a time series of it shows the
+        depletion. Steps without a resampling decision (no observations) give the
+        ESS of the current weights.
+        """
+        step, ess, _ = self._decision
+        return ess if step == len(self._pose_ids) else self.effective_sample_size()
+
+    def resampled_this_step(self) -> bool:
+        """Whether the particles were resampled at the current step."""
+        step, _, count_before = self._decision
+        return step == len(self._pose_ids) and self.resample_count > count_before
 
     # ------------------------------------------------------------ internals
     def _require_init(self) -> None:
@@ -472,6 +491,7 @@ class FastSlam(Backend):
     def _maybe_resample(self) -> None:
         w = self.weights
         ess = 1.0 / float(np.sum(w * w))
+        self._decision = (len(self._pose_ids), ess, self.resample_count)
         if ess >= self.config.resample_ess_fraction * self.n_particles:
             return
         parents = low_variance_resample(w, self._rng)

@@ -7,6 +7,12 @@ Layout of a recording (2-D views, z up is implicit):
   on the ``step`` timeline (and ``time`` in seconds where the data has stamps);
 - ``plots/<backend>/pose_sigma_m``: 1-sigma position uncertainty over time,
   where the loop closure shows as a drop.
+- filters (:mod:`.filter_state`): ``filter/<backend>/correlation``, the EKF's
+  covariance as an entity-by-entity ``|rho|`` image, with
+  ``plots/<backend>/mean_abs_correlation``, every ``every`` steps;
+  ``world/<backend>/particles``, FastSLAM's cloud, with ``plots/<backend>/ess``
+  (before resampling) and ``plots/<backend>/resampling`` (a text entry per
+  resampling), every step.
 
 Ellipses are 95 % confidence regions (chi-square, 2 dof).
 """
@@ -17,6 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.visualisation.filter_state import (
+    CorrelationSnapshot, FilterStateLogger, ParticleSeries,
+)
 from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
 from slamcore.planar.records import Dataset, Estimate
 
@@ -66,6 +75,42 @@ class PlanarLog(RerunLog):
                 self.rec.log(f"world/{backend}/landmark_ellipses",
                              rr.LineStrips2D(list(rings), colors=[color], radii=0.02))
 
+    def log_correlation(self, backend: str, snap: CorrelationSnapshot) -> None:
+        """The EKF's entity correlation image (viridis in a tensor view) and mean |rho|."""
+        rr = self._rr
+        self.rec.log(f"filter/{backend}/correlation",
+                     rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)))
+        self.rec.log(f"plots/{backend}/mean_abs_correlation", rr.Scalars(snap.mean_abs))
+
+    def send_particles(self, backend: str, series: ParticleSeries, color_index: int = 0,
+                       style: bool = True) -> None:
+        """FastSLAM's particle positions, ESS before resampling and resampling entries
+        of several steps, as columns on the step (and time) timelines; with ``style``
+        the cloud's colour and size, static (once is enough)."""
+        rr = self._rr
+        entity = f"world/{backend}/particles"
+        if style:
+            color = PALETTE[color_index % len(PALETTE)]
+            self.rec.log(entity, rr.Points2D.from_fields(colors=[color], radii=0.05), static=True)
+
+        def indexes(steps, stamps=None):
+            out = [rr.TimeColumn("step", sequence=steps)]
+            return out if stamps is None else out + [rr.TimeColumn("time", duration=stamps)]
+
+        T, N = series.positions.shape[:2]
+        self.rec.send_columns(entity, indexes(series.steps, series.stamps_s),
+                              rr.Points2D.columns(positions=series.positions.reshape(-1, 2))
+                              .partition(np.full(T, N)))
+        self.rec.send_columns(f"plots/{backend}/ess", indexes(series.steps, series.stamps_s),
+                              rr.Scalars.columns(scalars=series.ess))
+        if series.events:
+            at = np.searchsorted(series.steps, [k for k, _ in series.events])
+            stamps = None if series.stamps_s is None else series.stamps_s[at]
+            self.rec.send_columns(f"plots/{backend}/resampling",
+                                  indexes(series.steps[at], stamps),
+                                  rr.TextLog.columns(text=[t for _, t in series.events],
+                                                     level=["INFO"] * len(series.events)))
+
 
 class RunRecorder:
     """Records one or more back ends' runs of one dataset into a :class:`PlanarLog`.
@@ -77,6 +122,7 @@ class RunRecorder:
     def __init__(self, log: PlanarLog):
         self.log = log
         self._colors: dict[str, int] = {}
+        self._filters: dict[str, FilterStateLogger] = {}
 
     @classmethod
     def open(cls, mode: str, path: Path, url: str | None = None) -> "RunRecorder":
@@ -92,6 +138,7 @@ class RunRecorder:
     def hook(self, backend: str, every: int):
         """An ``on_step`` callback for :func:`graphslam.pipelines.planar.run`."""
         color = self.color_index(backend)
+        filter_state = self._filters[backend] = FilterStateLogger(self.log, backend, every, color)
 
         def on_step(k, frame, backend_obj):
             self.log.set_step(k, frame.stamp_s)
@@ -100,11 +147,14 @@ class RunRecorder:
             self.log.log_pose(backend, backend_obj.current_pose(), cov, color)
             if snapshot:
                 self.log.log_estimate(backend, backend_obj.estimate(with_covariances=False), color)
+            filter_state(k, frame.stamp_s, backend_obj)
 
         return on_step
 
     def finish(self, backend: str, result) -> None:
         """Log the final estimate (with ellipses if it has covariances) at the last step."""
+        if backend in self._filters:
+            self._filters[backend].flush()
         self.log.set_step(max(result.steps - 1, 0))
         est = result.estimate
         cov = est.current_covariance

@@ -104,8 +104,9 @@ def register(sub) -> None:
                        help="viewer gRPC URL for --rerun connect "
                             "(default: rerun+http://127.0.0.1:9876/proxy)")
     p.add_argument("--rerun-every", type=int, default=None, metavar="N",
-                       help="log the full estimate every N steps (default: about 50 "
-                            "snapshots; image sequences: every 5 frames)")
+                       help="log the full estimate and the EKF's correlation image every N "
+                            "steps (default: about 50 snapshots; image sequences: every 5 "
+                            "frames)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--nees", action="store_true",
                    help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
