@@ -198,8 +198,8 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
     """One observation's refinement of FastSLAM 2.0's pose proposal N(mu, Sx), Sx (n, 3, 3).
 
     ``n..``: the noise besides the pose's, ``H_m P H_m^T + R``. Returns
-    ``(dmu (n, 3), Sx_new (n, 3, 3), log N(nu; 0, L), K (n, 3, 2), every L positive
-    definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``, ``Sx_new = Sx - K (Sx
+    ``(-dmu (n, 3), Sx_new (n, 3, 3), log N(nu; 0, L), -K as its columns (k0, k1),
+    every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``, ``Sx_new = Sx - K (Sx
     H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v`` are the columns of
     ``-Sx H_x^T``; the signs cancel).
     """
@@ -216,7 +216,7 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
     k0 = u * i00[:, None] + v * i01[:, None]  # -K, columns
     k1 = u * i01[:, None] + v * i11[:, None]
     S_new = Sx - (k0[:, :, None] * u[:, None, :] + k1[:, :, None] * v[:, None, :])
-    return (-(k0 * nu_r[:, None] + k1 * nu_b[:, None]), S_new,
+    return (k0 * nu_r[:, None] + k1 * nu_b[:, None], S_new,
             log_gaussian(nu_r, nu_b, inv, det), (k0, k1), L_pd)
 
 

@@ -24,7 +24,6 @@ from filters.fastslam_math import (
     sym, tr,
 )
 from filters.numerics import REL_VARIANCE_FLOOR
-from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import Observation
 
 
@@ -229,9 +228,8 @@ class ParticleUpdates:
         r00, r11 = self._proposal_floor(R, Pf, Sx, a, b, c, d)
         # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
         noise = (h00 + r00, h01 + R[0, 1], h11 + r11)
-        dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise)
-        x_new = x + dmu
-        x_new[:, 2] = wrap_angle(x_new[:, 2])
+        neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise)
+        x_new = x - neg_dmu  # heading unwrapped: bearings are wrapped, and so is the draw
         if careful:
             S_new = sym(S_new)
             if not all_positive_definite3(S_new):
