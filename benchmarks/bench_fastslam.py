@@ -338,27 +338,33 @@ def floor_agreement_m(ours: FastSlam, floor: FloorFastSlam) -> float:
 
 
 def plot(results: dict, out: Path) -> Path:
-    """Time per step of ours and the floor, their ratio, and time against map size."""
+    """Time per step of ours and the floor per version, their ratio, and time against map size."""
     from plotting import Panel, save_figure  # beside this script
 
     vp, vl = results["vs_particles"], results["vs_landmarks"]
-    per_n, ratio = {}, {}
+    panels, ratio = [], {}
     for v in (1, 2):
         rows = [r for r in vp if r["version"] == v]
         ns = [r["n_particles"] for r in rows]
-        per_n[f"ours, FastSLAM {v}.0"] = (ns, [r["ms_per_step"] for r in rows])
-        per_n[f"floor, FastSLAM {v}.0"] = (ns, [r["floor_ms_per_step"] for r in rows])
+        panels.append(Panel(f"FastSLAM {v}.0: ours and the numpy floor (150 landmarks)",
+                            "particles", "time per step [ms]",
+                            {"ours": (ns, [r["ms_per_step"] for r in rows]),
+                             "floor": (ns, [r["floor_ms_per_step"] for r in rows])},
+                            logx=True, logy=True))
         ratio[f"FastSLAM {v}.0"] = (ns, [r["ratio"] for r in rows])
+    target = timing.TARGETS["fastslam"]
+    top = max([target] + [y for _, ys in ratio.values() for y in ys])
+    ms = [r["ms_per_step"] for r in vl]
+    panels += [
+        Panel("ours / floor (median of alternated repeats)", "particles", "time ratio", ratio,
+              logx=True, targets={f"target {target}": target}, ylim=(0.0, 1.15 * top)),
+        Panel("against map size (FastSLAM 2.0, 100 particles, one run each)",
+              "landmarks in the world", "time per step [ms]",
+              {"FastSLAM 2.0, N=100": ([r["landmarks"] for r in vl], ms)},
+              ylim=(0.0, 1.2 * max(ms, default=1.0)))]
     return save_figure(out, f"FastSLAM time per step, simulated circle ({results['steps']} steps, "
-                            f"{results['obs_per_step']:.1f} observations a step, seed {results['seed']})", [
-        Panel("ours and the numpy floor (150 landmarks)", "particles", "time per step [ms]",
-              per_n, logx=True, logy=True),
-        Panel("ours / floor (median of alternated repeats)", "particles", "time ratio",
-              ratio, logx=True, targets={f"target {timing.TARGETS['fastslam']}":
-                                         timing.TARGETS["fastslam"]}),
-        Panel("against map size (FastSLAM 2.0, 100 particles)", "landmarks in the world",
-              "time per step [ms]", {"FastSLAM 2.0, N=100": ([r["landmarks"] for r in vl],
-                                                              [r["ms_per_step"] for r in vl])})])
+                            f"{results['obs_per_step']:.1f} observations a step, seed "
+                            f"{results['seed']})", panels)
 
 
 FLOOR_WORDS = ("the same FastSLAM step written plainly in numpy on dense (N, L, 2) means and "
