@@ -314,8 +314,9 @@ def against_floor(ds: Dataset, version: int, n: int, seed: int, repeats: int) ->
     ours, floor = made["ours"], made["floor"]
     agreement = floor_agreement_m(ours, floor)
     if not agreement <= FLOOR_AGREEMENT_M:
-        raise RuntimeError(f"FastSLAM {version}.0, N={n}: the floor's estimate is {agreement:.3g} m "
-                           f"from ours (tolerance {FLOOR_AGREEMENT_M} m): the ratio would mean nothing")
+        raise RuntimeError(f"FastSLAM {version}.0, N={n}: the floor's estimate is "
+                           f"{agreement:.3g} m from ours (tolerance {FLOOR_AGREEMENT_M} m): "
+                           "the ratio would mean nothing")
     n_obs = sum(len(f.observations) for f in ds.frames)
     return {"version": version, "n_particles": n, "ours": timing.timing_dict(t["ours"]),
             "floor": timing.timing_dict(t["floor"]),
@@ -324,12 +325,13 @@ def against_floor(ds: Dataset, version: int, n: int, seed: int, repeats: int) ->
             "us_per_observation": 1e6 * t["ours"].median_s / n_obs,
             "floor_us_per_observation": 1e6 * t["floor"].median_s / n_obs,
             "ratio": t["ours"].median_s / t["floor"].median_s, "agreement_m": agreement,
-            "final_error_m": float(np.linalg.norm(ours.current_pose()[:2] - ds.frames[-1].wTb_true[:2])),
+            "final_error_m": float(np.linalg.norm(ours.current_pose()[:2]
+                                                  - ds.frames[-1].wTb_true[:2])),
             "resamplings": ours.resample_count}
 
 
 def floor_agreement_m(ours: FastSlam, floor: FloorFastSlam) -> float:
-    """Largest distance between ours and the floor: trajectory points and the best map's landmarks."""
+    """Largest distance between ours' and the floor's trajectory points and best-map landmarks."""
     est = ours.estimate()
     d_traj = np.linalg.norm(est.wTb[:, :2] - np.array(floor.means)[:, :2], axis=1)
     lms = floor.landmarks()

@@ -199,9 +199,9 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
 
     ``n..``: the noise besides the pose's, ``H_m P H_m^T + R``. Returns
     ``(-dmu (n, 3), Sx_new (n, 3, 3), log N(nu; 0, L), -K as its columns (k0, k1),
-    every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``, ``Sx_new = Sx - K (Sx
-    H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v`` are the columns of
-    ``-Sx H_x^T``; the signs cancel).
+    every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``,
+    ``Sx_new = Sx - K (Sx H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v``
+    are the columns of ``-Sx H_x^T``; the signs cancel).
     """
     a_, b_, c_, d_ = a[:, None], b[:, None], c[:, None], d[:, None]
     S0 = Sx[:, 0]  # rows = columns (Sx symmetric), contiguous

@@ -137,7 +137,8 @@ class ParticleUpdates:
         the short form lost definiteness (:meth:`_joseph_where_indefinite`)."""
         def mats(e):  # (nb, 2, 2) of the bad pairs from upper-triangle or 4 entries
             e = e if len(e) == 4 else (e[0], e[1], e[1], e[2])
-            return np.stack(np.broadcast_arrays(*e), axis=-1)[bad].reshape(-1, 2, 2)
+            full = [np.broadcast_to(x, bad.shape) for x in e]
+            return np.stack(full, axis=-1)[bad].reshape(-1, 2, 2)
 
         Pm, Hm, Rm = mats(P), mats(H), mats(R)
         PHt = Pm @ tr(Hm)
