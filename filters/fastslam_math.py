@@ -37,16 +37,6 @@ def inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return inv, np.log(det)
 
 
-def quad(nu: np.ndarray, Sinv: np.ndarray) -> np.ndarray:
-    """``nu^T Sinv nu`` for (..., 2) and (..., 2, 2)."""
-    return np.einsum("...i,...ij,...j->...", nu, Sinv, nu)
-
-
-def max_var(P: np.ndarray) -> np.ndarray:
-    """(n,) largest diagonal entry of each (n, k, k) covariance."""
-    return np.max(np.diagonal(P, axis1=-2, axis2=-1), axis=-1)
-
-
 def positive_definite(P: np.ndarray) -> np.ndarray:
     """(n,) whether each (n, k, k) symmetric matrix (k = 2 or 3) is finite positive
     definite, by its leading principal minors (Sylvester)."""

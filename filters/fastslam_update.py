@@ -248,9 +248,9 @@ class ParticleUpdates:
         return mu, Sig, ok
 
     def _proposal_floor(self, R, Pf, Sx, a, b, c, d):
-        """2.0: ``R``'s variances raised to the float64 floor against the prior variances
-        ``max_var(P) |H_m rows|^2 + max_var(Sx) |H_x rows|^2`` (:meth:`_floor`), after a
-        cheap bound from the largest variances that clears the usual case."""
+        """2.0: ``R``'s variances raised to the float64 floor (:meth:`_floor`) against the
+        prior variances ``var(P) |H_m rows|^2 + var(Sx) |H_x rows|^2`` (largest variances
+        of each), after a cheap bound over all particles that clears the usual case."""
         cd = c * c + d * d
         big_P = np.maximum.reduce(Pf[:, ::3], axis=None)
         big_S = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=None)
