@@ -2,9 +2,11 @@
 
 Rao-Blackwellised particle filter (course slides "FastSLAM"; Montemerlo et al.
 2002, 2003): each of N particles holds a pose and one small EKF per landmark.
-Everything is vectorised over particles: poses are ``(N, 3)``, and per
-observation the work is a handful of numpy calls on ``(N, ...)`` arrays, so a
-step costs O(N) numpy work with no per-particle Python loop.
+Everything is vectorised over particles: poses are ``(N, 3)``, and the landmark
+EKF steps of a whole scan are one elementwise pass over its (particle,
+observation) pairs (:mod:`filters.fastslam_update`), so a step costs O(N K)
+numpy work with no per-particle Python loop and a few dozen numpy calls per
+scan; only 2.0's proposal takes one pass per observation.
 
 Landmark EKFs live in :class:`filters.fastslam_map.ParticleMaps`: an
 append-only pool of records plus an ``(N, L)`` int32 pointer table, so
@@ -43,6 +45,9 @@ Per frame:
     sampled once from N(mu_x, Sigma_x) and the landmark EKFs are updated from
     it. A second ``update`` for the same pose (no motion step in between)
     cannot resample the pose any more and falls back to the 1.0 update.
+    The proposal covariances are checked for definiteness once per scan; if
+    that fails the scan's proposal is recomputed with a check (and Joseph-form
+    repair) at every observation.
 
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.
@@ -73,11 +78,9 @@ import numpy as np
 from slamcore.planar import geometry as models
 from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
 from filters.fastslam_map import ParticleMaps
-from filters.fastslam_math import (
-    inv2, logsumexp, low_variance_resample, max_var, positive_definite, quad, sample_gaussian,
-    sym, tr,
-)
-from filters.numerics import Recoveries, floored_noise
+from filters.fastslam_math import logsumexp, low_variance_resample, rotated_xy, sample_gaussian, sym
+from filters.fastslam_update import ParticleUpdates
+from filters.numerics import Recoveries
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
@@ -90,7 +93,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 __all__ = ["MAX_PARTICLES", "FastSlam", "FastSlamConfig", "low_variance_resample"]
 
 
-class FastSlam(Backend):
+class FastSlam(ParticleUpdates, Backend):
     """FastSLAM 1.0 / 2.0 back end (``name`` "fastslam1" / "fastslam2")."""
 
     supports_loop_closures = False
@@ -100,6 +103,7 @@ class FastSlam(Backend):
         self.name = f"fastslam{self.config.version}"
         self.n_particles = self.config.n_particles
         self._rng = np.random.default_rng(self.config.seed)
+        self._rows = np.arange(self.n_particles)
         self._maps = ParticleMaps(self.n_particles)
         self._poses: np.ndarray | None = None  # (N, 3)
         self._logw = np.full(self.n_particles, -math.log(self.n_particles))
@@ -152,9 +156,7 @@ class FastSlam(Backend):
         chol = np.linalg.cholesky(cov)
         eps = self._rng.standard_normal((self.n_particles, 3)) @ chol.T
         if self.config.version == 2:
-            x_hat = models.compose(self._poses, u)
-            _, J_u = models.compose_jacobians(self._poses, np.broadcast_to(u, self._poses.shape))
-            self._pending = (x_hat, J_u @ cov @ tr(J_u))
+            self._pending = (models.compose(self._poses, u), rotated_xy(cov, self._poses[:, 2]))
         self._poses = models.compose(self._poses, u + eps)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
@@ -186,8 +188,9 @@ class FastSlam(Backend):
         self._best = int(np.argmax(self._logw))
         ids = self._maps._ids
         self._last_associations = [ids[int(c[self._best])] for c in cols]
-        self._close_step(force=True)
-        self._maybe_resample()
+        w = self.weights
+        self._close_step(force=True, w=w)
+        self._maybe_resample(w)
         if self.config.association == "unknown":
             self._maps.drop_empty_columns()
 
@@ -354,118 +357,30 @@ class FastSlam(Backend):
         cols = np.argmax(ll, axis=1)
         return cols, ~ok.any(axis=1)
 
-    def _landmark_step(self, z, R, cols: np.ndarray, poses: np.ndarray, weigh: bool) -> None:
-        """EKF update (or initialisation) of each particle's landmark ``cols``; 1.0 weights."""
-        maps = self._maps
-        ptr = maps._table[np.arange(self.n_particles), cols]
-        old = ptr >= 0
-        i = np.flatnonzero(old)
-        j = np.flatnonzero(~old)
-        if i.size:
-            p = ptr[i]
-            m, P = maps.pool_mean[p], maps.pool_cov[p]
-            x = poses[i]
-            H_x, H_m = models.observe_jacobians(x, m)
-            nu = models.innovation(z, models.observe(x, m))
-            Rf = self._floored(R, max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1))
-            PHt = P @ tr(H_m)
-            S = H_m @ PHt + Rf
-            Sinv, logdet = inv2(S)
-            if weigh:
-                self._logw[i] += -0.5 * quad(nu, Sinv) - 0.5 * logdet - _LOG_2PI
-            K = PHt @ Sinv
-            m_new = m + np.einsum("nij,nj->ni", K, nu)
-            P_new = self._joseph_where_indefinite(sym(P - K @ tr(PHt)), P, K, H_m, lambda: Rf)
-            maps.write(i, cols[i], m_new, P_new)
-        if j.size:
-            x = poses[j]
-            zz = np.broadcast_to(z, (j.size, 2))
-            m_new = models.inverse_observe(x, zz)
-            _, G_z = models.inverse_observe_jacobians(x, zz)
-            P0 = sym(G_z @ R @ tr(G_z))
-            # a 1e-9 m range against a 10 deg bearing makes P0 rank one in
-            # float64: floor R against P0's own spread ([1, 1/r^2]: |rows of H_m|^2)
-            spread = max_var(P0)[:, None] * np.array([1.0, 1.0 / max(z[0], 1e-300) ** 2])
-            Rf, hit = floored_noise(R, spread)
-            if np.any(hit):
-                self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
-                P0 = sym(G_z @ Rf @ tr(G_z))
-            maps.write(j, cols[j], m_new, P0)
-            if weigh and self.config.association == "unknown":
-                self._logw[j] += self._log_p0(R)
-
-    def _floored(self, R: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
-        """(n, 2, 2) ``R`` raised to the float64 floor of :mod:`filters.numerics` (counted)."""
-        Rf, hit = floored_noise(R, prior_var)
-        self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
-        return Rf
-
-    def _joseph_where_indefinite(self, P_new, P, K, H, noise):
-        """``P_new`` (n, k, k), recomputed in Joseph form ``(I - K H) P (I - K H)^T + K R K^T``
-        (positive semi-definite by construction) where the short form lost definiteness.
-
-        ``noise()`` gives ``R`` (2, 2) or (n, 2, 2), built only when needed.
-        """
-        bad = ~positive_definite(P_new)
-        if np.any(bad):
-            self.recoveries.add("joseph_fallback", int(np.count_nonzero(bad)))
-            R = np.broadcast_to(noise(), (len(P),) + (2, 2))[bad]
-            IKH = np.eye(P.shape[-1]) - K[bad] @ H[bad]
-            P_new = P_new.copy()
-            P_new[bad] = sym(IKH @ P[bad] @ tr(IKH) + K[bad] @ R @ tr(K[bad]))
-        return P_new
-
     def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
-        out = []
+        # association ignores the landmarks earlier observations of the scan took
+        # (mutual exclusion), so it may run before their updates
+        out: list[np.ndarray] = []
         for o in obs:
-            cols = self._columns_for(o, self._poses, None, out)
-            self._landmark_step(o.z, o.covariance, cols, self._poses, weigh=True)
-            out.append(cols)
+            out.append(self._columns_for(o, self._poses, None, out))
+        self._scan_steps(obs, out, self._poses, weigh=True)
         return out
 
     def _update_v2(self, obs: list[Observation]) -> list[np.ndarray]:
-        mu, Sig = self._pending
-        mu, Sig = mu.copy(), Sig.copy()
-        maps = self._maps
-        out = []
-        for o in obs:
-            z, R = o.z, o.covariance
-            cols = self._columns_for(o, mu, Sig, out)
-            ptr = maps._table[np.arange(self.n_particles), cols]
-            old = ptr >= 0
-            i = np.flatnonzero(old)
-            if i.size:
-                p = ptr[i]
-                m, P = maps.pool_mean[p], maps.pool_cov[p]
-                x, Sx = mu[i], Sig[i]
-                H_x, H_m = models.observe_jacobians(x, m)
-                nu = models.innovation(z, models.observe(x, m))
-                prior_var = (max_var(P)[:, None] * np.sum(H_m * H_m, axis=-1)
-                             + max_var(Sx)[:, None] * np.sum(H_x * H_x, axis=-1))
-                Rf = self._floored(R, prior_var)
-                HmPHmt = H_m @ P @ tr(H_m)
-                SxHt = Sx @ tr(H_x)  # (n, 3, 2)
-                L = H_x @ SxHt + HmPHmt + Rf
-                Linv, logdet = inv2(L)
-                self._logw[i] += -0.5 * quad(nu, Linv) - 0.5 * logdet - _LOG_2PI
-                K = SxHt @ Linv  # (n, 3, 2)
-                x_new = x + np.einsum("nij,nj->ni", K, nu)
-                x_new[:, 2] = wrap_angle(x_new[:, 2])
-                mu[i] = x_new
-                # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
-                Sig[i] = self._joseph_where_indefinite(sym(Sx - K @ tr(SxHt)), Sx, K, H_x,
-                                                       lambda: HmPHmt + Rf)
-            if self.config.association == "unknown" and i.size < self.n_particles:
-                self._logw[~old] += self._log_p0(R)
-            out.append(cols)
+        logw, counts = self._logw.copy(), dict(self.recoveries)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a failed pass is redone
+            mu, Sig, out, ok = self._proposal(obs)
+        if not ok:  # a proposal covariance lost definiteness: again, checking every step
+            self._logw = logw
+            self.recoveries.update(counts)
+            mu, Sig, _, _ = self._proposal(obs, out)
         self._poses = sample_gaussian(mu, Sig, self._rng, self.recoveries)
-        for o, cols in zip(obs, out):
-            self._landmark_step(o.z, o.covariance, cols, self._poses, weigh=False)
+        self._scan_steps(obs, out, self._poses, weigh=False)
         return out
 
-    def _cloud_stats(self) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean pose (3,) and covariance (3, 3) of the particle cloud."""
-        w = self.weights
+    def _cloud_stats(self, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean pose (3,) and covariance (3, 3) of the particle cloud (weights ``w``)."""
+        w = self.weights if w is None else w
         x = self._poses
         th = x[:, 2]
         mean = np.array([w @ x[:, 0], w @ x[:, 1],
@@ -475,11 +390,11 @@ class FastSlam(Backend):
         cov = (d * w[:, None]).T @ d
         return mean, sym(cov)
 
-    def _close_step(self, force: bool = False) -> None:
+    def _close_step(self, force: bool = False, w: np.ndarray | None = None) -> None:
         """Record (or refresh) the history entry of the current pose."""
         if not (self._dirty or force):
             return
-        mean, cov = self._cloud_stats()
+        mean, cov = self._cloud_stats(w)
         k = len(self._pose_ids)
         if len(self._hist_mean) == k:
             self._hist_mean[-1], self._hist_cov[-1] = mean, cov
@@ -488,8 +403,7 @@ class FastSlam(Backend):
             self._hist_cov.append(cov)
         self._dirty = False
 
-    def _maybe_resample(self) -> None:
-        w = self.weights
+    def _maybe_resample(self, w: np.ndarray) -> None:
         ess = 1.0 / float(np.sum(w * w))
         self._decision = (len(self._pose_ids), ess, self.resample_count)
         if ess >= self.config.resample_ess_fraction * self.n_particles:

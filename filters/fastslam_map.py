@@ -107,18 +107,25 @@ class ParticleMaps:
             raise KeyError(f"landmark column {col} unknown to some particles")
         return self.pool_mean[p], self.pool_cov[p]
 
-    def write(self, particles: np.ndarray, col: int, mean: np.ndarray, cov: np.ndarray) -> None:
+    def write(self, particles: np.ndarray, col, mean: np.ndarray, cov: np.ndarray) -> None:
         """Give ``particles`` new records for landmark ``col`` (copy-on-write)."""
-        particles = np.asarray(particles)
-        n = particles.size
-        if n == 0:
+        if np.size(particles) == 0:
             return
+        sl = self.allocate(np.asarray(particles), col)
+        self.pool_mean[sl] = mean
+        self.pool_cov[sl] = cov
+
+    def allocate(self, particles: np.ndarray, cols) -> slice:
+        """Point ``table[particles, cols]`` (broadcast together, C order) at fresh records
+        and return their pool slice, for the caller to fill (copy-on-write: read the old
+        records first, compaction may move them)."""
+        shape = np.broadcast_shapes(np.shape(particles), np.shape(cols))
+        n = int(np.prod(shape))
         self._reserve(n)
         start = self.pool_size
-        self.pool_mean[start:start + n] = mean
-        self.pool_cov[start:start + n] = cov
-        self._table[particles, col] = np.arange(start, start + n, dtype=np.int32)
+        self._table[particles, cols] = np.arange(start, start + n, dtype=np.int32).reshape(shape)
         self.pool_size = start + n
+        return slice(start, start + n)
 
     def resample(self, parents: np.ndarray) -> None:
         """Particle ``i`` becomes a copy of ``parents[i]``: copies table rows only."""

@@ -1,7 +1,14 @@
 """Batched small-matrix helpers of FastSLAM (:mod:`filters.fastslam`), numpy only.
 
-Every function works on stacks over particles: (n, 2, 2) or (n, 3, 3)
-covariances, (n, 2) innovations. Resampling and Gaussian draws take the
+Stack helpers work on (n, 2, 2) or (n, 3, 3) covariances and (n, 2)
+innovations. The per-observation maths (:func:`range_bearing`,
+:func:`landmark_update`, :func:`new_landmark`, :func:`proposal_update`) is
+written on the matrix entries as separate arrays of any (broadcastable)
+shape, e.g. (particles, observations): on 2x2 and 3x3 matrices a stacked
+``@`` costs ~30x the elementwise arithmetic at 1000 particles (numpy's
+small-matrix loop), and one call on all (particle, observation) pairs of a
+scan replaces one call per observation. Symmetric matrices are passed as their
+upper triangle (``p00, p01, p11``). Resampling and Gaussian draws take the
 filter's one random generator, so runs repeat to the bit.
 """
 
@@ -11,9 +18,11 @@ import math
 
 import numpy as np
 
-from filters.numerics import Recoveries
+from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from filters.numerics import symmetrise as sym
 from slamcore.planar.geometry import wrap_angle
+
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 def inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -26,16 +35,6 @@ def inv2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inv[..., 1, 0] = -c / det
     inv[..., 1, 1] = a / det
     return inv, np.log(det)
-
-
-def quad(nu: np.ndarray, Sinv: np.ndarray) -> np.ndarray:
-    """``nu^T Sinv nu`` for (..., 2) and (..., 2, 2)."""
-    return np.einsum("...i,...ij,...j->...", nu, Sinv, nu)
-
-
-def max_var(P: np.ndarray) -> np.ndarray:
-    """(n,) largest diagonal entry of each (n, k, k) covariance."""
-    return np.max(np.diagonal(P, axis1=-2, axis2=-1), axis=-1)
 
 
 def positive_definite(P: np.ndarray) -> np.ndarray:
@@ -68,6 +67,16 @@ def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.n
     return np.minimum(np.searchsorted(cdf, positions, side="right"), n - 1)
 
 
+def rotated_xy(Q: np.ndarray, th: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) ``J Q J^T`` for ``J`` = rotation by ``th`` (n,) in x-y, 1 on theta: the
+    covariance of odometry ``u ~ N(., Q)`` composed onto poses of headings ``th``."""
+    n = len(th)
+    J = np.zeros((n, 3, 3))
+    c, s = np.cos(th), np.sin(th)
+    J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1], J[:, 2, 2] = c, -s, s, c, 1.0
+    return J @ Q @ tr(J)
+
+
 def sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator,
                      recoveries: Recoveries | None = None) -> np.ndarray:
     """One draw per row from N(mean (n, 3), cov (n, 3, 3)); a covariance that is
@@ -90,3 +99,123 @@ def sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator,
 def logsumexp(a: np.ndarray) -> float:
     m = float(np.max(a))
     return m + math.log(float(np.sum(np.exp(a - m))))
+
+
+def range_bearing(px, py, th, mx, my, z0, z1):
+    """Innovation and Jacobian entries of a range-bearing observation, elementwise.
+
+    Returns ``(a, b, c, d, nu_r, nu_b)`` with ``H_m = [[a, b], [c, d]]`` (landmark)
+    and ``H_x = [[-a, -b, 0], [-c, -d, -1]]`` (pose), ``nu = z - h(x, m)``.
+    """
+    dx, dy = mx - px, my - py
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    nu_b = wrap_angle(z1 - (np.arctan2(dy, dx) - th))
+    return dx / r, dy / r, -dy / q, dx / q, z0 - r, nu_b
+
+
+def sandwich(a, b, c, d, p00, p01, p11):
+    """``H P H^T`` (upper triangle) and ``P H^T`` (``t00, t01, t10, t11``) for 2x2 H, P."""
+    t00, t10 = p00 * a + p01 * b, p01 * a + p11 * b
+    t01, t11 = p00 * c + p01 * d, p01 * c + p11 * d
+    return (a * t00 + b * t10, a * t01 + b * t11, c * t01 + d * t11), (t00, t01, t10, t11)
+
+
+def inverse_sym2(s00, s01, s11):
+    """Inverse (upper triangle) and determinant of symmetric 2x2 matrices."""
+    det = s00 * s11 - s01 * s01
+    return (s11 / det, -s01 / det, s00 / det), det
+
+
+def log_gaussian(nu_r, nu_b, inv, det):
+    """``log N(nu; 0, S)`` from ``S^-1`` (upper triangle) and ``det S``."""
+    i00, i01, i11 = inv
+    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    return -0.5 * maha - 0.5 * np.log(det) - _LOG_2PI
+
+
+def positive_definite2(p00, p01, p11):
+    """Whether symmetric 2x2 matrices are finite positive definite (Sylvester)."""
+    return (p00 > 0) & (p00 * p11 - p01 * p01 > 0) & (p00 + p11 < np.inf)
+
+
+def floor_hits(r00, r11, pv0, pv1):
+    """``(hit, f0, f1)``: where :func:`filters.numerics.floored_noise` raises ``R``'s
+    variances for prior variances ``pv0, pv1``, and its floors (NaN floors raise nothing)."""
+    f0, f1 = REL_VARIANCE_FLOOR * pv0, REL_VARIANCE_FLOOR * pv1
+    return (r00 < f0) | (r11 < f1), f0, f1
+
+
+def raise_to_floor(r, f):
+    """``r`` raised to the floor ``f`` where below it (as :func:`floored_noise`)."""
+    return r + np.where(r < f, f - r, 0.0)
+
+
+def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11):
+    """Landmark EKF update on the entries: ``(dm_x, dm_y, (n00, n01, n11), log N(nu; 0, S))``.
+
+    ``S = H_m P H_m^T + R``, ``K = P H_m^T S^-1``, ``m += K nu``, ``P -= K (P H_m^T)^T``.
+    """
+    (s00, s01, s11), (t00, t01, t10, t11) = sandwich(a, b, c, d, p00, p01, p11)
+    inv, det = inverse_sym2(s00 + r00, s01 + r01, s11 + r11)
+    i00, i01, i11 = inv
+    k00, k01 = t00 * i00 + t01 * i01, t00 * i01 + t01 * i11
+    k10, k11 = t10 * i00 + t11 * i01, t10 * i01 + t11 * i11
+    P_new = (p00 - (k00 * t00 + k01 * t01), p01 - (k00 * t10 + k01 * t11),
+             p11 - (k10 * t10 + k11 * t11))
+    return (k00 * nu_r + k01 * nu_b, k10 * nu_r + k11 * nu_b, P_new,
+            log_gaussian(nu_r, nu_b, inv, det))
+
+
+def new_landmark(px, py, th, z0, z1, r00, r01, r11):
+    """Inverse observation model: mean ``(m_x, m_y)``, covariance ``G R G^T`` (upper
+    triangle) and ``G``'s entries (``G`` = Jacobian w.r.t. z)."""
+    ang = th + z1
+    c, s = np.cos(ang), np.sin(ang)
+    g = (c, -z0 * s, s, z0 * c)
+    return (px + z0 * c, py + z0 * s), spread_noise(g, r00, r01, r11), g
+
+
+def spread_noise(g, r00, r01, r11):
+    """``G R G^T`` (upper triangle) for 2x2 ``G = [[g0, g1], [g2, g3]]``."""
+    g0, g1, g2, g3 = g
+    u00, u01 = g0 * r00 + g1 * r01, g0 * r01 + g1 * r11
+    u10, u11 = g2 * r00 + g3 * r01, g2 * r01 + g3 * r11
+    return u00 * g0 + u01 * g1, u00 * g2 + u01 * g3, u10 * g2 + u11 * g3
+
+
+def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
+    """One observation's refinement of FastSLAM 2.0's pose proposal N(mu, Sx), Sx (n, 3, 3).
+
+    ``n..``: the noise besides the pose's, ``H_m P H_m^T + R``. Returns
+    ``(-dmu (n, 3), Sx_new (n, 3, 3), log N(nu; 0, L), -K as its columns (k0, k1),
+    every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``,
+    ``Sx_new = Sx - K (Sx H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v``
+    are the columns of ``-Sx H_x^T``; the signs cancel).
+    """
+    a_, b_, c_, d_ = a[:, None], b[:, None], c[:, None], d[:, None]
+    S0 = Sx[:, 0]  # rows = columns (Sx symmetric), contiguous
+    S1 = Sx[:, 1]
+    u = a_ * S0 + b_ * S1
+    v = c_ * S0 + d_ * S1 + Sx[:, 2]
+    L00 = a * u[:, 0] + b * u[:, 1] + n00
+    inv, det = inverse_sym2(L00, a * v[:, 0] + b * v[:, 1] + n01,
+                            c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11)
+    i00, i01, i11 = inv
+    L_pd = bool(np.minimum.reduce(L00) > 0 and np.minimum.reduce(det) > 0)
+    k0 = u * i00[:, None] + v * i01[:, None]  # -K, columns
+    k1 = u * i01[:, None] + v * i11[:, None]
+    S_new = Sx - (k0[:, :, None] * u[:, None, :] + k1[:, :, None] * v[:, None, :])
+    return (k0 * nu_r[:, None] + k1 * nu_b[:, None], S_new,
+            log_gaussian(nu_r, nu_b, inv, det), (k0, k1), L_pd)
+
+
+def all_positive_definite3(S: np.ndarray) -> bool:
+    """Whether every symmetric (n, 3, 3) matrix is finite positive definite (Sylvester's
+    minors, as :func:`positive_definite`; a NaN or infinite entry fails a minor or the trace)."""
+    F = S.reshape(-1, 9)
+    a, b, c, d, e, f = F[:, 0], F[:, 1], F[:, 2], F[:, 4], F[:, 5], F[:, 8]
+    det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
+    low = np.minimum.reduce
+    return bool(low(a) > 0 and low(a * d - b * b) > 0 and low(det) > 0
+                and np.maximum.reduce(a + d + f) < np.inf)

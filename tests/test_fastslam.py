@@ -400,3 +400,67 @@ def test_unknown_association_on_the_default_synthetic_world(version, min_accurac
         version=version, n_particles=100, association="unknown")))
     score = metrics.association_accuracy(res.associations)
     assert score.accuracy >= min_accuracy, score
+
+
+# ------------------------------------------------ per-scan update (issue 17 item 5)
+@pytest.mark.parametrize("version, association", [(1, "known"), (2, "known"), (1, "unknown"),
+                                                  (2, "unknown")])
+def test_scan_in_one_pass_equals_one_observation_at_a_time(monkeypatch, version, association):
+    """The landmark steps of a scan in one pass give the run of one pass per observation."""
+    ds = loop_world(seed=6, steps=25, known_ids=association == "known")
+    cfg = dict(version=version, n_particles=40, seed=3, association=association)
+    a = run(ds, **cfg)[1].estimate
+
+    def one_at_a_time(self, obs, cols, poses, weigh):
+        for o, c in zip(obs, cols):
+            self._landmark_steps([o], [c], poses, weigh)
+
+    monkeypatch.setattr(FastSlam, "_scan_steps", one_at_a_time)
+    b = run(ds, **cfg)[1].estimate
+    np.testing.assert_allclose(a.wTb, b.wTb, atol=ROUNDOFF_TOL)
+    np.testing.assert_allclose(a.landmarks_w, b.landmarks_w, atol=ROUNDOFF_TOL)
+
+
+def test_checked_proposal_pass_gives_the_same_run_and_counts(monkeypatch):
+    """When the once-a-scan definiteness check fails, the checked pass redoes the scan:
+    weights and recovery counts of the failed pass are undone (1e-9 m ranges: floors hit)."""
+    ds = loop_world(seed=2, steps=20, sigma_r_m=1e-9)
+    be_a, res_a = run(ds, version=2, n_particles=20, seed=1)
+    original = FastSlam._proposal
+
+    def always_fails_first(self, obs, cols=None):
+        mu, Sig, out, ok = original(self, obs, cols)
+        return mu, Sig, out, ok and cols is not None
+
+    monkeypatch.setattr(FastSlam, "_proposal", always_fails_first)
+    be_b, res_b = run(ds, version=2, n_particles=20, seed=1)
+    assert be_a.recoveries["noise_floor"] > 0
+    assert dict(be_a.recoveries) == dict(be_b.recoveries)
+    np.testing.assert_allclose(res_a.estimate.wTb, res_b.estimate.wTb, atol=ROUNDOFF_TOL)
+
+
+def test_landmark_joseph_form_repairs_only_the_indefinite_pairs():
+    b = FastSlam(FastSlamConfig(version=1, n_particles=3))
+    P = (np.array([1.0, 1.0, 1.0]), np.zeros(3), np.array([1.0, 1.0, 1.0]))  # identity
+    H = (np.ones(3), np.zeros(3), np.zeros(3), np.ones(3))  # identity
+    R = (0.5, 0.0, 0.5)
+    short = (np.array([1 / 3, -1e-3, 1 / 3]), np.zeros(3), np.array([1 / 3, 1 / 3, 1 / 3]))
+    bad = short[0] <= 0
+    fixed = b._landmark_joseph(bad, P, H, R, short)
+    assert b.recoveries["joseph_fallback"] == 1
+    np.testing.assert_array_equal(fixed[0][~bad], short[0][~bad])  # the others untouched
+    # Joseph form of P = I, H = I, R = I/2: K = 2/3 I, (I - K) P (I - K)^T + K R K^T = I/3
+    np.testing.assert_allclose([fixed[0][1], fixed[1][1], fixed[2][1]], [1 / 3, 0.0, 1 / 3])
+
+
+def test_checked_proposal_pass_runs_its_joseph_check(monkeypatch):
+    """Every definiteness check reported failed: the checked pass builds the Joseph form's
+    inputs at each step (which finds nothing to repair) and the run is unchanged."""
+    import filters.fastslam_update as steps
+
+    ds = loop_world(seed=2, steps=10)
+    a = run(ds, version=2, n_particles=20, seed=1)[1].estimate
+    monkeypatch.setattr(steps, "all_positive_definite3", lambda S: False)
+    be, res = run(ds, version=2, n_particles=20, seed=1)
+    assert be.recoveries["joseph_fallback"] == 0
+    np.testing.assert_allclose(a.wTb, res.estimate.wTb, atol=ROUNDOFF_TOL)
