@@ -20,6 +20,7 @@ NOT_BENCHMARKS = {
     "loop_real": "the --real part of bench_loop_pr.py (its figure is drawn there)",
     "check_digests": "compares output bytes with recorded digests: no figure to draw",
     "train_shipped_vocabulary": "trains the vocabulary shipped in loopclosure/data: a build step",
+    "bare_run": "the floor bench_command.py runs as a subprocess (a bare gtsam script)",
 }
 
 #: Quick runs of 8 s or more on the shared 2-core machine -> seconds measured there (the
@@ -27,7 +28,7 @@ NOT_BENCHMARKS = {
 SLOW = {
     "bench_vocabulary": 8, "bench_filter_seeds": 8, "bench_isam2_visual": 9, "bench_noise_grid": 11,
     "bench_loop_pr": 16, "bench_sweep": 22, "bench_association_ceiling": 39, "bench_localize": 68,
-    "bench_loop_ate": 251,
+    "bench_loop_ate": 251, "bench_command": 27,
 }
 
 #: Arguments besides ``--quick`` (scripts whose quick mode predates this test keep their
