@@ -6,7 +6,8 @@ per keyframe (600 000 pixels with their ORB descriptors), 500 bag-of-words
 entries per keyframe (5 000 000), a 1 000-word vocabulary. Baseline, in the
 same process: ``np.savez`` / ``np.load`` of the same arrays (numpy's own
 writer, pickle off), so the ratio shows what the format's checks (SHA-256,
-shape checks, the byte-reproducible zip) cost. Best of ``--repeat`` runs.
+shape checks, the byte-reproducible zip) cost. Ours and the baseline are
+alternated ``--repeat`` times by ``benchmarks/timing.py`` (median, not best-of).
 
 JSON (default ``benchmarks/results/map_io.json``) and its PNG beside it.
 
@@ -19,15 +20,16 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from graphslam.maps.files import load_map, save_map  # noqa: E402
 from graphslam.maps.spatial_map import SpatialMap  # noqa: E402
+import timing  # noqa: E402
 from loopclosure.vocabulary import FlatVocabulary  # noqa: E402
 
 TARGET_S = 2.0
@@ -63,21 +65,12 @@ def big_map(n_kf: int, seed: int = 0, words: int = 1000, bow_kf: int = 500) -> S
         vocabulary=vocab, meta={"benchmark": "bench_map_io"})
 
 
-def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
-
-
 def plot(out: dict, repeat: int, path: Path) -> Path:
     """Save and load times of the map format beside np.savez / np.load, with the 2 s target."""
     from plotting import Panel, save_figure  # beside this script
 
     ops = ["save", "load"]
-    return save_figure(path, f"Map files: {out['keyframes']} keyframes, {out['size_mb']} MB, best of "
+    return save_figure(path, f"Map files: {out['keyframes']} keyframes, {out['size_mb']} MB, median of "
                              f"{repeat}", [
         Panel(f"save x{out['save_ratio']:.2f}, load x{out['load_ratio']:.2f} the baseline", "operation",
               "wall time [s]", {"graphslam.maps (save_map / load_map)": (ops, [out["save_s"], out["load_s"]]),
@@ -104,20 +97,27 @@ def main(argv=None) -> int:
                                              "bow_indptr", "bow_words", "bow_weights")}
     with tempfile.TemporaryDirectory() as tmp:
         folder, plain = Path(tmp) / "map", Path(tmp) / "plain.npz"
-        save_s = best(lambda: save_map(smap, folder), args.repeat)
-        load_s = best(lambda: load_map(folder), args.repeat)
-        base_save_s = best(lambda: np.savez(plain, **arrays), args.repeat)
-
         def base_load():
             with np.load(plain, allow_pickle=False) as z:
                 return {n: z[n] for n in z.files}
-        base_load_s = best(base_load, args.repeat)
+        t = timing.alternate({"save": lambda: save_map(smap, folder),
+                              "savez": lambda: np.savez(plain, **arrays)}, args.repeat, warmup=0)
+        t.update(timing.alternate({"load": lambda: load_map(folder), "np.load": base_load},
+                                  args.repeat, warmup=0))
+        save_s, base_save_s, load_s, base_load_s = (
+            t[k].median_s for k in ("save", "savez", "load", "np.load"))
         size_mb = sum(p.stat().st_size for p in folder.iterdir()) / 1e6
     out = {"keyframes": args.keyframes, "counts": smap.counts(), "size_mb": round(size_mb, 1),
            "save_s": save_s, "load_s": load_s, "baseline_savez_s": base_save_s,
            "baseline_load_s": base_load_s, "save_ratio": save_s / base_save_s,
            "load_ratio": load_s / base_load_s, "target_s": TARGET_S,
            "pass": bool(save_s < TARGET_S and load_s < TARGET_S)}
+    cmd = "python benchmarks/bench_map_io.py"
+    out["summaries"] = [timing.summary(
+        f"map {op} ({args.keyframes} keyframes)", ours, base, target=None, target_abs_s=TARGET_S,
+        floor=f"np.{name} of the same arrays", command=cmd)
+        for op, ours, base, name in (("save", save_s, base_save_s, "savez"),
+                                     ("load", load_s, base_load_s, "load"))]
     text = json.dumps(out, indent=2)
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)

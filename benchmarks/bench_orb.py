@@ -8,9 +8,9 @@ the cost of ``compute`` depends on the pyramid levels they sit on). Both use
 the same ORB settings, image and OpenCV thread count (``--threads``, set with
 ``cv2.setNumThreads``; 1 by default, so CPU time is the work done, not pool
 threads spinning), and both are run once on every frame before timing. They
-alternate frame by frame on KITTI 07 frames, each going first on every other
-frame (CPU time, ``time.process_time``), so machine load and caches hit both
-alike. The figure is the ratio of the medians over all frames and repeats
+alternate repeat by repeat on each KITTI 07 frame (``benchmarks/timing.py``),
+each going first on every other repeat (CPU time, ``time.process_time``), so
+machine load and caches hit both alike. The figure is the ratio of the medians over all frames and repeats
 (never a best-of); the spread is the same ratio taken per repeat. Goal: at
 most 1.1.
 
@@ -32,8 +32,10 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # this working tree's packages, not an installed copy
+sys.path.insert(0, str(HERE))
 
 from frontend.orb import OrbConfig, OrbDetector  # noqa: E402
+import timing  # noqa: E402
 
 KITTI = HERE.parent.parent / "shared" / "data" / "kitti07" / "image_0"
 
@@ -74,28 +76,22 @@ def main(argv=None) -> int:
         ours.detect(img)
         chosen.append(ours.select(opencv.detect(img, None), img.shape).tolist())
 
-    def run_ours(img, keep):
-        t0 = time.process_time()
-        n = len(ours.detect(img).xy_px)
-        return time.process_time() - t0, n
-
-    def run_opencv(img, keep):
-        t0 = time.process_time()
-        kps = opencv.detect(img, None)
-        opencv.compute(img, [kps[i] for i in keep])
-        return time.process_time() - t0, len(kps)
-
     t_ours = np.zeros((args.repeats, len(images)))
     t_cv = np.zeros_like(t_ours)
     n_cand, n_kept = [], []
-    for r in range(args.repeats):
-        for f, (img, keep) in enumerate(zip(images, chosen)):
-            if (r + f) % 2:
-                (t_cv[r, f], nc), (t_ours[r, f], nk) = run_opencv(img, keep), run_ours(img, keep)
-            else:
-                (t_ours[r, f], nk), (t_cv[r, f], nc) = run_ours(img, keep), run_opencv(img, keep)
-            n_cand.append(nc)
-            n_kept.append(nk)
+    for f, (img, keep) in enumerate(zip(images, chosen)):
+        def run_ours(img=img):
+            n_kept.append(len(ours.detect(img).xy_px))
+
+        def run_opencv(img=img, keep=keep):
+            kps = opencv.detect(img, None)
+            opencv.compute(img, [kps[i] for i in keep])
+            n_cand.append(len(kps))
+
+        # warmed up above; each side goes first on every other repeat
+        t = timing.alternate({"ours": run_ours, "opencv": run_opencv}, args.repeats, warmup=0,
+                             clock=time.process_time)
+        t_ours[:, f], t_cv[:, f] = t["ours"].samples_s, t["opencv"].samples_s
     ratio = float(np.median(t_ours) / np.median(t_cv))
     per_repeat = np.median(t_ours, axis=1) / np.median(t_cv, axis=1)
     print(f"KITTI 07, {len(images)} frames x {args.repeats}, {cv2.getNumThreads()} OpenCV thread(s): "
@@ -104,7 +100,12 @@ def main(argv=None) -> int:
           f"{1000 * np.median(t_cv):.1f} ms: ratio {ratio:.3f} (per repeat "
           f"{per_repeat.min():.3f}-{per_repeat.max():.3f}; goal <= 1.1)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"benchmark": "orb", "ratio": ratio,
+    summary = timing.summary(
+        "ORB extraction", float(np.median(t_ours)), float(np.median(t_cv)),
+        target=timing.TARGETS["orb"], unit="s CPU", frames=len(images),
+        floor="OpenCV ORB detect + compute of the same kept keypoints, same settings, "
+              "1 OpenCV thread", command="python benchmarks/bench_orb.py")
+    args.out.write_text(json.dumps({"benchmark": "orb", "ratio": ratio, "summary": summary,
                                     "ratio_per_repeat": per_repeat.tolist(),
                                     "opencv_threads": cv2.getNumThreads(),
                                     "ours_ms": 1000 * float(np.median(t_ours)),

@@ -37,7 +37,8 @@ class Timing:
 
 def alternate(candidates: Mapping[str, Callable[[], object]], repeats: int, *,
               warmup: int = 1, setup: Mapping[str, Callable[[], object]] | None = None,
-              number: int = 1) -> dict[str, Timing]:
+              number: int = 1, clock: Callable[[], float] = time.perf_counter
+              ) -> dict[str, Timing]:
     """Time each candidate ``repeats`` times, interleaved, and return the medians.
 
     Repeat ``r`` runs every candidate once, starting with candidate ``r mod k``
@@ -59,18 +60,19 @@ def alternate(candidates: Mapping[str, Callable[[], object]], repeats: int, *,
     for r in range(repeats):
         k = r % len(names)
         for name in names[k:] + names[:k]:
-            samples[name].append(_time_once(candidates[name], setup.get(name), number))
+            samples[name].append(_time_once(candidates[name], setup.get(name), number, clock))
     return {name: _summarise(s) for name, s in samples.items()}
 
 
-def _time_once(fn: Callable[[], object], setup: Callable[[], object] | None, number: int) -> float:
+def _time_once(fn: Callable[[], object], setup: Callable[[], object] | None, number: int,
+               clock: Callable[[], float]) -> float:
     total = 0.0
     for _ in range(number):
         if setup is not None:
             setup()
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        total += time.perf_counter() - t0
+        total += clock() - t0
     return total / number
 
 

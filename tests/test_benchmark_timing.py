@@ -58,3 +58,26 @@ def test_blas_threads_pins_and_restores():
     with timing.blas_threads(1):
         assert all(p["num_threads"] == 1 for p in threadpool_info())
     assert [p["num_threads"] for p in threadpool_info()] == before
+
+
+def test_table_rows_from_summaries_and_missing_listed(tmp_path):
+    import json
+
+    import table
+
+    (tmp_path / "a.json").write_text(json.dumps({"summary": timing.summary(
+        "A", 0.0012, 0.001, target=1.1, floor="plain numpy", command="python benchmarks/a.py")}))
+    (tmp_path / "b.json").write_text(json.dumps({"summaries": [timing.summary(
+        "B1", 2.0, 1.0, target=None, floor="f", command="c")]}))
+    (tmp_path / "c.json").write_text(json.dumps({"no": "summary"}))
+    rows, missing = table.summaries(tmp_path)
+    assert [s["name"] for _, s in rows] == ["A", "B1"] and missing == ["c"]
+    text = table.render(rows, missing)
+    assert "| 1.20 | 1.1 | **no** |" in text and "1.2 ms" in text and "c." in text
+
+
+def test_readme_table_is_current():
+    """The README's targets table is what the committed results give (re-run benchmarks/table.py)."""
+    import table
+
+    assert table.update(check=True), "benchmarks/README.md table is stale: python benchmarks/table.py"

@@ -17,6 +17,8 @@ from tests.benchmarks import BENCHMARKS, load_benchmark
 #: Python files of benchmarks/ that are not benchmarks, and why.
 NOT_BENCHMARKS = {
     "plotting": "the figure helper every benchmark uses",
+    "timing": "the timing helper every benchmark uses (tests/test_benchmark_timing.py)",
+    "table": "rebuilds the README's targets table from the results (tests/test_benchmark_timing.py)",
     "loop_real": "the --real part of bench_loop_pr.py (its figure is drawn there)",
     "check_digests": "compares output bytes with recorded digests: no figure to draw",
     "train_shipped_vocabulary": "trains the vocabulary shipped in loopclosure/data: a build step",
