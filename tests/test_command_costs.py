@@ -144,3 +144,42 @@ def test_recording_in_a_second_process_is_valid_and_failures_are_reported(tmp_pa
     broken.set_step(0)
     with pytest.raises(GraphSlamError, match="recording failed: ConfigError"):
         broken.close()
+
+
+def test_long_runs_record_in_a_second_process_and_the_recording_verifies(tmp_path, monkeypatch):
+    """The run's own recorder in background mode (runs of 1000 steps and more): same
+    snapshots as in one process, a file ``rerun rrd verify`` accepts."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.visualisation.background import BackgroundLog
+    from graphslam.visualisation.planar import RunRecorder
+    from graphslam.visualisation.recording import find_viewer
+
+    dataset = registry.load_dataset("synthetic")
+    recorders = {}
+    for background in (False, True):
+        path = tmp_path / f"run-{background}.rrd"
+        rec = RunRecorder.open("save", path, background=background)
+        assert isinstance(rec.log, BackgroundLog) is background
+        calls = []
+        log = rec.log
+
+        class Counting:  # counts what the recorder asks of its log, in either process
+            def __getattr__(self, name):
+                calls.append(name)
+                return getattr(log, name)
+
+        rec.log = Counting()
+        rec.start(dataset, 60)
+        backend = registry.make_backend("isam2")
+        result = pipeline.run(dataset, backend, max_steps=60, on_step=rec.hook("isam2", every=7),
+                              with_covariances=True)
+        rec.finish("isam2", result)
+        rec.close()
+        recorders[background] = calls
+        exe = find_viewer()
+        if exe is not None:
+            done = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True)
+            assert done.returncode == 0, done.stderr
+    assert recorders[True] == recorders[False]
+    assert recorders[True].count("log_estimate") == 60 // 7 + 1 + 1  # snapshots and the end

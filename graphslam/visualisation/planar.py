@@ -106,12 +106,19 @@ class RunRecorder:
         self._colors: dict[str, int] = {}
         self._pending: dict[str, tuple[list, list, list]] = {}  # backend -> steps, stamps, poses
 
+    #: Runs of at least this many steps record in a second process with ``save``: it
+    #: costs an interpreter and Rerun's import (1-3 s of the other core's time), which a
+    #: long run hides and a short one would wait for at the end.
+    BACKGROUND_MIN_STEPS = 1000
+
     @classmethod
-    def open(cls, mode: str, path: Path, url: str | None = None) -> "RunRecorder":
-        """A recorder; ``save`` records in a second process (:mod:`.background`): the
-        run does not wait for Rerun's import and encoding. A viewer (``spawn``,
-        ``connect``) is started or reached here, so that failing to is known now."""
-        if mode == "save":
+    def open(cls, mode: str, path: Path, url: str | None = None, *,
+             background: bool = False) -> "RunRecorder":
+        """A recorder; with ``background``, ``save`` records in a second process
+        (:mod:`.background`): the run does not wait for Rerun's import and encoding.
+        A viewer (``spawn``, ``connect``) is started or reached here, in this process,
+        so that failing to is known now."""
+        if mode == "save" and background:
             from graphslam.visualisation.background import BackgroundLog
 
             return cls(BackgroundLog(PlanarLog, mode, path, url))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 
@@ -83,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
     if mode != "off":
         from graphslam.visualisation.planar import RunRecorder
 
-        log, mode = open_recorder(RunRecorder.open, mode, out_dir / "run.rrd", args.rerun_url)
+        opener = functools.partial(RunRecorder.open,
+                                   background=n_steps >= RunRecorder.BACKGROUND_MIN_STEPS)
+        log, mode = open_recorder(opener, mode, out_dir / "run.rrd", args.rerun_url)
         log.start(dataset, n_steps)
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
