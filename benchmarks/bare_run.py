@@ -29,9 +29,12 @@ CITY_SIGMAS = np.array([1 / 30, 1 / 30, 1 / 100])
 def load(name: str) -> list:
     """The data set's factors, in file order."""
     path = gtsam.findExampleDataFile(FILES[name])
-    if name != "city10000":
+    if name == "victoria-park":  # file order: each pose, then what is seen from it
         graph, _ = gtsam.load2D(path)
         return [graph.at(i) for i in range(graph.size())]
+    if name == "w10000":
+        graph, _ = gtsam.load2D(path)
+        return by_pose([graph.at(i) for i in range(graph.size())])
     noise = gtsam.noiseModel.Diagonal.Sigmas(CITY_SIGMAS)
     factors = []
     with open(path) as f:
@@ -41,7 +44,17 @@ def load(name: str) -> list:
                 factors.append(gtsam.BetweenFactorPose2(
                     int(tok[1]), int(tok[3]),
                     gtsam.Pose2(float(tok[6]), float(tok[7]), float(tok[8])), noise))
-    return factors
+    return by_pose(factors)
+
+
+def by_pose(factors: list) -> list:
+    """Pose-graph edges in pose order, as ``graphslam run`` adds them: each pose with
+    the edge from its predecessor first, then its other edges to earlier poses."""
+    def key(f):
+        a, b = f.keys()
+        return max(a, b), abs(int(a) - int(b)) != 1
+
+    return sorted(factors, key=key)
 
 
 def solve(factors: list, max_poses: int | None) -> tuple[gtsam.ISAM2, list[int]]:

@@ -183,3 +183,17 @@ def test_long_runs_record_in_a_second_process_and_the_recording_verifies(tmp_pat
             assert done.returncode == 0, done.stderr
     assert recorders[True] == recorders[False]
     assert recorders[True].count("log_estimate") == 60 // 7 + 1 + 1  # snapshots and the end
+
+
+def test_pose_graph_edges_checked_in_bulk_equal_one_by_one(monkeypatch):
+    import graphslam.sources.planar.posegraph as pg
+
+    fast = pg.read_city10000()
+    monkeypatch.setattr(pg, "_edge_records", pg._edge_records_one_by_one)
+    slow = pg.read_city10000()
+    for fa, fb in zip(fast.frames, slow.frames, strict=True):
+        recs = [r for r in (fa.odometry, *fa.loop_closures) if r is not None]
+        again = [r for r in (fb.odometry, *fb.loop_closures) if r is not None]
+        assert [(type(r), r.from_id, r.to_id, r.delta.tobytes(), r.covariance.tobytes())
+                for r in recs] == [(type(r), r.from_id, r.to_id, r.delta.tobytes(),
+                                    r.covariance.tobytes()) for r in again]

@@ -180,8 +180,7 @@ def _positive(m: np.ndarray) -> bool:
 def _bare(cls, **fields):
     """A record whose fields were checked in bulk (no second check per record)."""
     obj = object.__new__(cls)
-    for name, value in fields.items():
-        object.__setattr__(obj, name, value)
+    obj.__dict__.update(fields)  # what object.__setattr__ does per field, in one call
     return obj
 
 
@@ -192,6 +191,17 @@ def odometry_batch(from_ids, to_ids, deltas, covariances) -> list[Odometry]:
     d = _checked_batch(deltas, (3,), "odometry row")
     c = _checked_covariances(covariances, 3, "odometry row")
     return [_bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
+            for k, (a, b) in enumerate(zip(from_ids, to_ids))]
+
+
+def loop_closure_batch(from_ids, to_ids, deltas, covariances,
+                       source: str = "dataset") -> list[LoopClosure]:
+    """:class:`LoopClosure` records of N edges without a score, checked in bulk (see
+    :func:`odometry_batch`)."""
+    d = _checked_batch(deltas, (3,), "loop closure row")
+    c = _checked_covariances(covariances, 3, "loop closure row")
+    return [_bare(LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k],
+                  score=None, source=source)
             for k, (a, b) in enumerate(zip(from_ids, to_ids))]
 
 
