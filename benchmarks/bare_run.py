@@ -73,9 +73,10 @@ def solve(factors: list, max_poses: int | None) -> tuple[gtsam.ISAM2, list[int]]
         if isinstance(f, gtsam.BetweenFactorPose2):
             a, b = f.keys()
             new = b if b not in known else a if a not in known else None
+            if not poses:  # the first pose (the lower id, as the run takes it), held by the prior
+                first, new = min(a, b), max(a, b)
             if new is not None:
-                if not poses:  # the first pose, held by the prior
-                    first = a if new == b else b
+                if not poses:
                     graph.add(gtsam.PriorFactorPose2(first, gtsam.Pose2(),
                                                      gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
                     values.insert(first, gtsam.Pose2())

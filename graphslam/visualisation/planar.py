@@ -163,12 +163,23 @@ class RunRecorder:
             for column in (steps, stamps, poses):
                 column.clear()
 
-    def finish(self, backend: str, result) -> None:
-        """Log the final estimate (with ellipses if it has covariances) at the last step."""
+    def finish(self, backend: str, result, source=None) -> None:
+        """Log the final estimate (with ellipses if it has covariances) at the last step.
+
+        ``source``: the back end, asked here for what the recording shows when the run
+        fetched no covariances: the last pose's, and the landmarks' if there are any
+        (a pose graph's 10 000 pose marginals would cost more than the whole recording).
+        """
         self._send_poses(backend)
         self.log.set_step(max(result.steps - 1, 0))
         est = result.estimate
         cov = est.current_covariance
+        if source is not None and est.pose_covariances is None and not result.interrupted:
+            if len(est.landmark_ids):
+                est = source.estimate(with_covariances=True)
+                cov = est.current_covariance
+            else:
+                cov = source.current_pose_covariance()
         self.log.log_pose(backend, est.current_pose, cov, self.color_index(backend))
         self.log.log_estimate(backend, est, self.color_index(backend))
 

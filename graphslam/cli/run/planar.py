@@ -92,8 +92,8 @@ def run(args: argparse.Namespace) -> int:
 
     save_map = getattr(args, "save_map", None)
     result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
-                          on_step=hook,
-                          with_covariances=log is not None or args.nees or save_map is not None)
+                          on_step=hook,  # the recorder asks for its own covariances (finish)
+                          with_covariances=args.nees or save_map is not None)
     metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
                                        wall_s=time.perf_counter() - t0)
     if pmap is not None:
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     if nees is not None:
         paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
     if log is not None:
-        log.finish(backend.name, result)
+        log.finish(backend.name, result, backend)
         close_recorder(log)
         if mode == "save":
             paths["recording"] = out_dir / "run.rrd"
