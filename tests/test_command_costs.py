@@ -197,3 +197,16 @@ def test_pose_graph_edges_checked_in_bulk_equal_one_by_one(monkeypatch):
         assert [(type(r), r.from_id, r.to_id, r.delta.tobytes(), r.covariance.tobytes())
                 for r in recs] == [(type(r), r.from_id, r.to_id, r.delta.tobytes(),
                                     r.covariance.tobytes()) for r in again]
+
+
+@pytest.mark.parametrize("name", ["isam2", "ekf"])
+def test_landmark_covariances_alone_equal_those_of_the_full_estimate(name):
+    """What the recording asks for at the end instead of every pose marginal."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+
+    backend = registry.make_backend(name)
+    pipeline.run(registry.load_dataset("synthetic"), backend, max_steps=40)
+    full = backend.estimate(with_covariances=True).landmark_covariances
+    alone = backend.landmark_covariances()
+    assert len(full) > 0 and np.array_equal(alone, full)

@@ -13,6 +13,7 @@ Ellipses are 95 % confidence regions (chi-square, 2 dof).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -175,11 +176,9 @@ class RunRecorder:
         est = result.estimate
         cov = est.current_covariance
         if source is not None and est.pose_covariances is None and not result.interrupted:
+            cov = source.current_pose_covariance()
             if len(est.landmark_ids):
-                est = source.estimate(with_covariances=True)
-                cov = est.current_covariance
-            else:
-                cov = source.current_pose_covariance()
+                est = dataclasses.replace(est, landmark_covariances=source.landmark_covariances())
         self.log.log_pose(backend, est.current_pose, cov, self.color_index(backend))
         self.log.log_estimate(backend, est, self.color_index(backend))
 
