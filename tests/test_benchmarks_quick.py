@@ -22,6 +22,7 @@ NOT_BENCHMARKS = {
     "loop_real": "the --real part of bench_loop_pr.py (its figure is drawn there)",
     "check_digests": "compares output bytes with recorded digests: no figure to draw",
     "train_shipped_vocabulary": "trains the vocabulary shipped in loopclosure/data: a build step",
+    "bare_run": "the floor bench_command.py runs as a subprocess (a bare gtsam script)",
 }
 
 #: Quick runs of 8 s or more on the shared 2-core machine -> seconds measured there (the
@@ -29,7 +30,7 @@ NOT_BENCHMARKS = {
 SLOW = {
     "bench_vocabulary": 8, "bench_filter_seeds": 8, "bench_isam2_visual": 9, "bench_noise_grid": 11,
     "bench_loop_pr": 16, "bench_sweep": 22, "bench_association_ceiling": 39, "bench_localize": 68,
-    "bench_loop_ate": 251,
+    "bench_loop_ate": 251, "bench_command": 27,
     # under a load average of 10 (about 5 s of CPU each)
     "bench_sequential_search": 21, "bench_paper_figures": 45,
 }

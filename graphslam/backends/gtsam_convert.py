@@ -103,9 +103,31 @@ def values_to_estimate(values: gtsam.Values, pose_ids: Iterable[int],
     """Pull the named poses and landmarks out of ``values`` (order kept)."""
     pose_ids = np.fromiter(pose_ids, dtype=np.int64)
     landmark_ids = np.fromiter(landmark_ids, dtype=np.int64)
-    wTb = np.array([pose2_vector(values.atPose2(X(int(i)))) for i in pose_ids]).reshape(-1, 3)
-    lms = np.array([values.atPoint2(L(int(j))) for j in landmark_ids]).reshape(-1, 2)
+    keys = np.array(values.keys(), dtype=np.uint64)
+    wTb = _rows_of(keys, gtsam.utilities.extractPose2(values), "x", pose_ids)
+    if wTb is None:
+        wTb = np.array([pose2_vector(values.atPose2(X(int(i)))) for i in pose_ids]).reshape(-1, 3)
+    lms = _rows_of(keys, gtsam.utilities.extractPoint2(values), "l", landmark_ids)
+    if lms is None:
+        lms = np.array([values.atPoint2(L(int(j))) for j in landmark_ids]).reshape(-1, 2)
     return Estimate(pose_ids=pose_ids, wTb=wTb, landmark_ids=landmark_ids, landmarks_w=lms)
+
+
+def _rows_of(keys: np.ndarray, rows: np.ndarray, char: str, ids: np.ndarray) -> np.ndarray | None:
+    """Rows of ``ids`` in gtsam's one-call extraction (``rows``: one per value of the
+    type, in key order), or None when the values do not hold exactly those
+    variables under ``char`` keys (then one lookup per id). 7000 poses: 1 ms, not 40."""
+    width = 3 if char == "x" else 2
+    if not len(ids):
+        return np.zeros((0, width))
+    mine = keys[(keys >> np.uint64(56)) == np.uint64(ord(char))]  # gtsam.Symbol: char in the top byte
+    if len(mine) != len(rows) or len(ids) > len(mine):
+        return None
+    wanted = (np.uint64(ord(char)) << np.uint64(56)) | ids.astype(np.uint64)
+    at = np.searchsorted(mine, wanted)
+    if at.max() >= len(mine) or not np.array_equal(mine[at], wanted):
+        return None
+    return np.asarray(rows, dtype=np.float64).reshape(-1, width)[at]
 
 
 def graph_error(dataset: Dataset, estimate: Estimate) -> float | None:

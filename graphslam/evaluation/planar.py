@@ -13,7 +13,6 @@ integers and trajectories are matched by id, never by position in the array.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
@@ -155,6 +154,8 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
     if dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
         raise GraphSlamError(f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; "
                              f"got {dof}, {n_runs}, {confidence}")
+    from scipy.stats import chi2  # here, not at import: scipy.stats costs every run 0.3-0.6 s
+
     k = int(dof) * int(n_runs)
     q = ((1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0)
     lo, hi = (float(chi2.ppf(p, k)) for p in q)

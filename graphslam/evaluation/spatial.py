@@ -24,7 +24,6 @@ import math
 
 import numpy as np
 
-from scipy.spatial.transform import Rotation
 
 from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError
@@ -163,6 +162,8 @@ def pose_errors(est_wTc: np.ndarray, gt_wTc: np.ndarray) -> np.ndarray:
     gt = np.asarray(gt_wTc, dtype=np.float64).reshape(-1, 4, 4)
     Rt = np.swapaxes(est[:, :3, :3], 1, 2)
     rho = np.einsum("nij,nj->ni", Rt, gt[:, :3, 3] - est[:, :3, 3])
+    from scipy.spatial.transform import Rotation  # lazy: scipy.spatial costs every run ~0.2 s
+
     phi = Rotation.from_matrix(Rt @ gt[:, :3, :3]).as_rotvec()
     return np.concatenate([rho, phi], axis=1)
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
@@ -140,6 +139,8 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
 
 def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
     """(N,) angles of (N, 3, 3) rotations, degrees (through the quaternion, as evo)."""
+    from scipy.spatial.transform import Rotation  # lazy: the parser imports this module
+
     return np.degrees(Rotation.from_matrix(np.asarray(R).reshape(-1, 3, 3)).magnitude())
 
 

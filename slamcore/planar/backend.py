@@ -110,6 +110,14 @@ class Backend(ABC):
         """
         return self.estimate(with_covariances=True).current_covariance
 
+    def landmark_covariances(self) -> np.ndarray | None:
+        """(M, 2, 2) covariances of the estimate's landmarks, in its order, or ``None``.
+
+        Back ends with a cheap answer override this; the default asks for all
+        covariances, which may be slow.
+        """
+        return self.estimate(with_covariances=True).landmark_covariances
+
 
     def numerical_recoveries(self) -> list[str]:
         """Numerical fallbacks the back end took (e.g. another factorisation), one

@@ -140,6 +140,83 @@ class LoopClosure:
         object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
 
 
+
+def _checked_batch(values, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """(N, *shape) float64, read-only, finite; MeasurementError naming the first bad row."""
+    a = np.array(values, dtype=np.float64).reshape((-1,) + shape)
+    bad = ~np.isfinite(a).reshape(len(a), -1).all(axis=1) if len(a) else np.zeros(0, bool)
+    if bad.any():
+        raise MeasurementError(f"{what} {int(np.argmax(bad))}: non-finite value")
+    a.setflags(write=False)
+    return a
+
+
+def _checked_covariances(values, size: int, what: str) -> np.ndarray:
+    """:func:`as_covariance` on (N, size, size) at once: the same tests, one numpy call each."""
+    c = _checked_batch(values, (size, size), what)
+    if not len(c):
+        return c
+    scale = np.maximum(np.abs(c).reshape(len(c), -1).max(axis=1, initial=0.0), 1e-300)
+    asym = np.abs(c - c.transpose(0, 2, 1)).reshape(len(c), -1).max(axis=1, initial=0.0)
+    bad = asym > COV_SYMMETRY_RTOL * scale
+    if not bad.any():
+        try:
+            bad = ~np.isfinite(np.linalg.cholesky(c)).reshape(len(c), -1).all(axis=1)
+        except np.linalg.LinAlgError:  # which one: row by row, only on this failure
+            bad = np.array([not _positive(m) for m in c])
+    if bad.any():
+        raise MeasurementError(f"{what} {int(np.argmax(bad))}: covariance is not symmetric "
+                               f"positive definite")
+    return c
+
+
+def _positive(m: np.ndarray) -> bool:
+    try:
+        return bool(np.all(np.isfinite(np.linalg.cholesky(m))))
+    except np.linalg.LinAlgError:
+        return False
+
+
+def _bare(cls, **fields):
+    """A record whose fields were checked in bulk (no second check per record)."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)  # what object.__setattr__ does per field, in one call
+    return obj
+
+
+def odometry_batch(from_ids, to_ids, deltas, covariances) -> list[Odometry]:
+    """:class:`Odometry` records of N edges, checked as their constructor checks them but
+    in a few numpy calls (a reader's 7000 records: 0.5 s one by one). MeasurementError
+    names the first bad row; the deltas and covariances are views of read-only arrays."""
+    d = _checked_batch(deltas, (3,), "odometry row")
+    c = _checked_covariances(covariances, 3, "odometry row")
+    return [_bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
+            for k, (a, b) in enumerate(zip(from_ids, to_ids))]
+
+
+def loop_closure_batch(from_ids, to_ids, deltas, covariances,
+                       source: str = "dataset") -> list[LoopClosure]:
+    """:class:`LoopClosure` records of N edges without a score, checked in bulk (see
+    :func:`odometry_batch`)."""
+    d = _checked_batch(deltas, (3,), "loop closure row")
+    c = _checked_covariances(covariances, 3, "loop closure row")
+    return [_bare(LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k],
+                  score=None, source=source)
+            for k, (a, b) in enumerate(zip(from_ids, to_ids))]
+
+
+def range_bearing_batch(pose_ids, landmark_ids, zs, covariances) -> list[Observation]:
+    """Range-bearing :class:`Observation` records of N rows, checked in bulk (see
+    :func:`odometry_batch`): finite, SPD covariances, positive ranges."""
+    z = _checked_batch(zs, (2,), "observation row")
+    c = _checked_covariances(covariances, 2, "observation row")
+    bad = z[:, 0] <= 0.0
+    if bad.any():
+        raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
+    return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
+                  kind=ObservationKind.RANGE_BEARING, signature=None)
+            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids))]
+
 @dataclass(frozen=True, eq=False)
 class Frame:
     """Everything that arrives with one new pose.

@@ -325,6 +325,13 @@ class Isam2Backend(Backend):
             return None
         return np.asarray(self._isam.marginalCovariance(X(self._pose_ids[-1])))
 
+    def landmark_covariances(self) -> np.ndarray:
+        """The landmarks' marginals alone (what a recording draws): the pose marginals
+        :meth:`estimate` adds are most of its cost on long runs."""
+        marginals = self._marginals(self._values_now())
+        return np.array([marginals.marginalCovariance(L(j))
+                         for j in self._landmark_ids]).reshape(-1, 2, 2)
+
     # --- extras -------------------------------------------------------------
 
     def factor_graph(self) -> gtsam.NonlinearFactorGraph:

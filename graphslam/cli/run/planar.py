@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 
@@ -83,14 +84,16 @@ def run(args: argparse.Namespace) -> int:
     if mode != "off":
         from graphslam.visualisation.planar import RunRecorder
 
-        log, mode = open_recorder(RunRecorder.open, mode, out_dir / "run.rrd", args.rerun_url)
+        opener = functools.partial(RunRecorder.open,
+                                   background=n_steps >= RunRecorder.BACKGROUND_MIN_STEPS)
+        log, mode = open_recorder(opener, mode, out_dir / "run.rrd", args.rerun_url)
         log.start(dataset, n_steps)
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
     save_map = getattr(args, "save_map", None)
     result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
-                          on_step=hook,
-                          with_covariances=log is not None or args.nees or save_map is not None)
+                          on_step=hook,  # the recorder asks for its own covariances (finish)
+                          with_covariances=args.nees or save_map is not None)
     metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
                                        wall_s=time.perf_counter() - t0)
     if pmap is not None:
@@ -107,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     if nees is not None:
         paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
     if log is not None:
-        log.finish(backend.name, result)
+        log.finish(backend.name, result, backend)
         close_recorder(log)
         if mode == "save":
             paths["recording"] = out_dir / "run.rrd"
