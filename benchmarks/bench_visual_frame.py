@@ -274,7 +274,7 @@ def plot(rows: list[dict], frames: int, out: Path) -> Path:
               stages, kind="bar"),
         Panel("frame rate", "front end: configuration", "frames per second (wall)", rates, kind="bar",
               targets=targets),
-        Panel("iSAM2 pred stage (its update + predictions) along the sequence, 10-frame means", "frame",
+        Panel("iSAM2 pred stage (update + predictions), 10-frame means", "frame",
               "pred stage wall time [ms]", along)])
 
 

@@ -48,7 +48,16 @@ sigma_px^2 I`` with ``J = [d uv / d pose, d uv / d point]`` from
 
 Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian
 itself; ``max_predictions`` caps how many landmarks are predicted (those seen
-most often first, as the course advises), which bounds the per-frame cost.
+most often first, as the course advises). What the read costs depends on where
+those keys sit in the tree: with gtsam's ordering the landmarks in view share
+one dense clique of hundreds of variables, which each query eliminated again
+(0.1-0.6 s a frame late in the 300-frame benchmark room, more than the update
+itself). ``predicted_in_root`` (default) passes an ordering hint to each update
+so that the previous pose, the landmarks about to be predicted and the newest
+pose are eliminated last and make the root clique by themselves; the query
+then reads a clique of about 50 dimensions (about 1 ms), the same numbers to
+rounding (tests/test_isam2_visual.py compares them with a batch
+``gtsam.Marginals``).
 """
 
 from __future__ import annotations
@@ -217,7 +226,7 @@ class VisualIsam2Backend(VisualBackend):
         empty = PixelPredictions.empty(conv.pose3_matrix(wTc), self._K.copy())
         if self._n_lm == 0:
             return empty
-        slots = self._select_in_view(wTc, self.config.max_predictions, margin=0.0)
+        slots = np.sort(self._select_in_view(wTc, self.config.max_predictions, margin=0.0))
         self._stats["predicted_outside_root"] += int(np.count_nonzero(~np.isin(slots, self._root_slots)))
         n = len(slots)
         if n == 0:
@@ -501,9 +510,9 @@ class VisualIsam2Backend(VisualBackend):
         self._stats["dropped_tracks"] += len(stale)
 
     def _select_in_view(self, wTc: gtsam.Pose3, count: int, margin: float) -> np.ndarray:
-        """Sorted slots of the mapped landmarks in view of ``wTc`` (positions read fresh;
-        the image grown by ``margin`` of its size each side), at most ``count`` of them
-        (0: all), the most observed first, then the oldest."""
+        """Slots of the mapped landmarks in view of ``wTc`` (positions read fresh; the
+        image grown by ``margin`` of its size each side), at most ``count`` of them (0:
+        all), the most observed first, then the oldest, in that order."""
         # pre-select on cached positions, with a margin: they may be stale
         slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
         if self.config.predict_window_frames:  # before the reads: it needs no position
@@ -512,10 +521,8 @@ class VisualIsam2Backend(VisualBackend):
         for s in slots.tolist():  # fresh positions of the pre-selected only
             self._lm_pos[s] = self._point(self._lm_ids[s])
         slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
-        if count and len(slots) > count:
-            order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
-            slots = np.sort(slots[order[:count]])
-        return slots
+        order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
+        return slots[order[:count] if count else order]
 
     def _ordering_hint(self) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
         """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default
@@ -530,7 +537,9 @@ class VisualIsam2Backend(VisualBackend):
         it in), and their joint marginal is read from that clique without
         touching the dense clique of the landmarks in view below it. A landmark
         coming back into view was not in the last frame's pixels: iSAM2 would
-        leave it deep in the tree (and ignore its group), so it is re-eliminated.
+        leave it deep in the tree (and ignore its group), so the ``max_predictions``
+        likeliest are re-eliminated; the extras join the root only when the update
+        touches them anyway.
         """
         self._root_slots = np.zeros(0, np.int64)
         reelim = gtsam.KeyList()
@@ -544,7 +553,7 @@ class VisualIsam2Backend(VisualBackend):
                 self._pose(newest), cap + ROOT_EXTRA_CANDIDATES if cap else 0, margin=ROOT_MARGIN)
             order.append([X(self._frames[-2])])
             order.append([L(self._lm_ids[s]) for s in self._root_slots.tolist()])
-            for key in order[-1]:
+            for key in order[-1][:cap or None]:  # the likeliest: extras only if affected anyway
                 reelim.push_back(key)
         order.append([X(newest)])
         order = [keys for keys in order if keys]
