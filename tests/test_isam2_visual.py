@@ -39,6 +39,10 @@ POLISHED_TOL_M = 1e-3
 PIXEL_TOL_PX = 1e-9
 #: Outliers: ATE with 5 % gross pixels may grow at most this much over clean, metres.
 OUTLIER_ATE_TOL_M = 0.01
+#: Innovation covariance read from the root clique (``predicted_in_root``) vs the batch
+#: joint marginal of the same linear system, as the 1-sigma ellipse (the matrix square
+#: root of S), pixels: both are exact, only rounding differs (measured 1e-12).
+ELLIPSE_TOL_PX = 1e-6
 
 
 def make_world(seed=0, n_points=400, n_frames=60, radius=3.0, translate=True):
@@ -168,6 +172,43 @@ def test_predictions_are_gtsam_projections_with_shrinking_spd_covariance(world):
     assert np.all(trace(after.S_px2) < trace(before.S_px2))
 
 
+def _sqrt_px(S):
+    w, V = np.linalg.eigh(S)
+    return (V * np.sqrt(w)) @ V.T
+
+
+@pytest.mark.parametrize("in_root", [True, False])
+def test_innovation_covariance_is_the_exact_joint_marginal(world, in_root):
+    """S from iSAM2's root clique (or, with gtsam's ordering, from the dense clique
+    below it) against gtsam.Marginals of the whole graph at iSAM2's linearisation
+    point, with the pose-landmark cross-covariance."""
+    checked = []
+
+    def check(k, backend, pred):
+        if len(pred) == 0 or k % 5:
+            return
+        marginals = gtsam.Marginals(backend.factor_graph(), backend._isam.getLinearizationPoint())
+        est = backend.estimate()
+        camera = gtsam.PinholeCameraCal3_S2(conv.pose3(est.wTc[-1]), conv.cal3_s2(K))
+        where = {int(j): i for i, j in enumerate(est.landmark_ids)}
+        for tid, S in zip(pred.track_ids.tolist(), pred.S_px2):
+            d_pose, d_point = np.zeros((2, 6), order="F"), np.zeros((2, 3), order="F")
+            camera.project(est.landmarks_w[where[tid]], d_pose, d_point)
+            J = np.hstack([d_pose, d_point])
+            sigma = marginals.jointMarginalCovariance([X(k), L(tid)]).fullMatrix()
+            exact = J @ sigma @ J.T + SIGMA_PX**2 * np.eye(2)
+            np.testing.assert_allclose(_sqrt_px(S), _sqrt_px(exact), atol=ELLIPSE_TOL_PX)
+            checked.append(tid)
+
+    config = VisualIsam2Config(polish=False, predicted_in_root=in_root)
+    stats = run(world, config, on_predictions=check).stats()
+    assert len(checked) > 50
+    if in_root:  # every predicted landmark was in the root clique (the 60 frames close a loop)
+        assert stats["predicted_outside_root"] == 0
+    else:
+        assert stats["predicted_outside_root"] > len(checked)
+
+
 def test_marginal_mode_predicts_same_pixels(world):
     a, b = [], []
     run(world, frames=15, on_predictions=lambda k, be, p: a.append(p))
@@ -249,6 +290,8 @@ def test_repeatable_to_the_bit(world):
     ("max_landmarks_per_frame", -1, "must be >= 0"),
     ("max_predictions", "10", "expected a number"),
     ("newest_pose_last", 1, "expected true/false"),
+    ("predicted_in_root", "yes", "expected true/false"),
+    ("newest_pose_last", True, "two elimination orderings"),  # with predicted_in_root
     ("polish", "no", "expected true/false"),
     ("pixel_kernel_k", float("inf"), "finite"),
 ])
@@ -259,6 +302,12 @@ def test_config_refuses_bad_values_naming_the_key(key, value, words):
             build()
         assert str(e.value).startswith(f"isam2_visual.{key}") and words in str(e.value), \
             str(e.value)
+
+
+def test_newest_pose_last_ordering_still_runs(world):
+    backend = run(world, VisualIsam2Config(polish=False, newest_pose_last=True,
+                                           predicted_in_root=False), frames=20)
+    assert backend.stats()["landmarks"] > 50
 
 
 def test_config_kernels_are_the_ones_gtsam_convert_builds():

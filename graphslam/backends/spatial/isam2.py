@@ -48,7 +48,16 @@ sigma_px^2 I`` with ``J = [d uv / d pose, d uv / d point]`` from
 
 Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian
 itself; ``max_predictions`` caps how many landmarks are predicted (those seen
-most often first, as the course advises), which bounds the per-frame cost.
+most often first, as the course advises). What the read costs depends on where
+those keys sit in the tree: with gtsam's ordering the landmarks in view share
+one dense clique of hundreds of variables, which each query eliminated again
+(0.1-0.6 s a frame late in the 300-frame benchmark room, more than the update
+itself). ``predicted_in_root`` (default) passes an ordering hint to each update
+so that the previous pose, the landmarks about to be predicted and the newest
+pose are eliminated last and make the root clique by themselves; the query
+then reads a clique of about 50 dimensions (about 1 ms), the same numbers to
+rounding (tests/test_isam2_visual.py compares them with a batch
+``gtsam.Marginals``).
 """
 
 from __future__ import annotations
@@ -74,6 +83,16 @@ from slamcore.spatial.backend import VisualBackend
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a
 #: proper Gaussian. 1e-4 is far below any pixel's information at VGA.
 PRIOR_SIGMA_FLOOR = 1e-4
+
+#: Landmarks put in the root beyond ``max_predictions`` (``predicted_in_root``):
+#: the selection made before the update can differ from the one made after it
+#: at the image border and between landmarks seen equally often. A landmark
+#: predicted outside the root still gets its exact covariance, only slower
+#: (``stats()["predicted_outside_root"]``).
+ROOT_EXTRA_CANDIDATES = 5
+#: ... and chosen in the image grown by this fraction of its size each side (13
+#: pixels at VGA): the landmarks the update moves into view are at the border.
+ROOT_MARGIN = 0.02
 
 
 class VisualIsam2Backend(VisualBackend):
@@ -111,8 +130,9 @@ class VisualIsam2Backend(VisualBackend):
         self._polished: gtsam.Values | None = None
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
+        self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
-                       "unused_pixels": 0, "loop_closures": 0}
+                       "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0}
 
     # --- the contract -------------------------------------------------------
 
@@ -206,19 +226,8 @@ class VisualIsam2Backend(VisualBackend):
         empty = PixelPredictions.empty(conv.pose3_matrix(wTc), self._K.copy())
         if self._n_lm == 0:
             return empty
-        # pre-select on cached positions, with a margin: they may be stale
-        slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
-        if self.config.predict_window_frames:  # before the reads: it needs no position
-            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
-            slots = slots[recent]
-        if len(slots) == 0:
-            return empty
-        for s in slots.tolist():  # fresh positions of the pre-selected only
-            self._lm_pos[s] = self._point(self._lm_ids[s])
-        slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=0.0)]
-        if self.config.max_predictions and len(slots) > self.config.max_predictions:
-            order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
-            slots = np.sort(slots[order[:self.config.max_predictions]])
+        slots = np.sort(self._select_in_view(wTc, self.config.max_predictions, margin=0.0))
+        self._stats["predicted_outside_root"] += int(np.count_nonzero(~np.isin(slots, self._root_slots)))
         n = len(slots)
         if n == 0:
             return empty
@@ -500,9 +509,68 @@ class VisualIsam2Backend(VisualBackend):
             del self._tracks[tid]
         self._stats["dropped_tracks"] += len(stale)
 
+    def _select_in_view(self, wTc: gtsam.Pose3, count: int, margin: float) -> np.ndarray:
+        """Slots of the mapped landmarks in view of ``wTc`` (positions read fresh; the
+        image grown by ``margin`` of its size each side), at most ``count`` of them (0:
+        all), the most observed first, then the oldest, in that order."""
+        # pre-select on cached positions, with a margin: they may be stale
+        slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
+        if self.config.predict_window_frames:  # before the reads: it needs no position
+            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
+            slots = slots[recent]
+        for s in slots.tolist():  # fresh positions of the pre-selected only
+            self._lm_pos[s] = self._point(self._lm_ids[s])
+        slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
+        order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
+        return slots[order[:count] if count else order]
+
+    def _ordering_hint(self) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
+        """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default
+        ordering), and keys it re-eliminates though no new factor touches them.
+
+        ``predicted_in_root``: the previous pose, then the landmarks
+        :meth:`predict_observations` is likely to select (chosen the same way at
+        the newest pose's current value, in the image grown by ``ROOT_MARGIN``,
+        ``ROOT_EXTRA_CANDIDATES`` more than ``max_predictions``),
+        then the newest pose. The three groups make those keys the root clique
+        alone (the rest's separator lacks the newest pose, so gtsam does not merge
+        it in), and their joint marginal is read from that clique without
+        touching the dense clique of the landmarks in view below it. A landmark
+        coming back into view was not in the last frame's pixels: iSAM2 would
+        leave it deep in the tree (and ignore its group), so the ``max_predictions``
+        likeliest are re-eliminated; the extras join the root only when the update
+        touches them anyway.
+        """
+        self._root_slots = np.zeros(0, np.int64)
+        reelim = gtsam.KeyList()
+        if not self._frames or not (self.config.newest_pose_last or self.config.predicted_in_root):
+            return None, reelim
+        newest = self._frames[-1]
+        order: list[list[int]] = []  # groups of keys, eliminated in this order, after the rest
+        if self.config.predicted_in_root and self._n_lm and len(self._frames) > 1:
+            cap = self.config.max_predictions
+            self._root_slots = self._select_in_view(
+                self._pose(newest), cap + ROOT_EXTRA_CANDIDATES if cap else 0, margin=ROOT_MARGIN)
+            order.append([X(self._frames[-2])])
+            order.append([L(self._lm_ids[s]) for s in self._root_slots.tolist()])
+            for key in order[-1][:cap or None]:  # the likeliest: extras only if affected anyway
+                reelim.push_back(key)
+        order.append([X(newest)])
+        order = [keys for keys in order if keys]
+        # ccolamd wants every group number below the count of variables it orders,
+        # of which the new factors' keys are a lower bound
+        if len(order) >= self._graph.keys().size():
+            order = order[-1:]
+        groups = gtsam.KeyGroupMap()
+        for number, keys in enumerate(order, start=1):
+            for key in keys:
+                groups.insert2(key, number)
+        return groups, reelim
+
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:
             return
+        groups, reelim = self._ordering_hint()  # before the swap: it reads the pending values
         # swap first: a Ctrl-C raised as update() returns must not leave the
         # factors pending, or the next flush would add them twice
         graph, values = self._graph, self._values
@@ -511,14 +579,8 @@ class VisualIsam2Backend(VisualBackend):
         self._polished = None  # new information invalidates a previous polish
         self._current_cov_polished = None
         self._n_updates += 1
-        if self.config.newest_pose_last and self._frames:
-            # Only the newest pose is forced to the root. gtsam's default forces
-            # every key of the new factors there: ~all landmarks in view, which
-            # makes a root clique of hundreds of dimensions, dense, re-factored
-            # at every frame (and every marginal goes through it).
-            groups = gtsam.KeyGroupMap()
-            groups.insert2(X(self._frames[-1]), 1)
-            self._isam.update(graph, values, [], groups)
+        if groups is not None:
+            self._isam.update(graph, values, [], groups, None, reelim)
         else:
             self._isam.update(graph, values)
 
