@@ -210,3 +210,16 @@ def test_landmark_covariances_alone_equal_those_of_the_full_estimate(name):
     full = backend.estimate(with_covariances=True).landmark_covariances
     alone = backend.landmark_covariances()
     assert len(full) > 0 and np.array_equal(alone, full)
+
+
+def test_failed_background_recording_is_a_warning_not_a_lost_run(capsys):
+    """A recording process that fails (here: its log cannot be built) is reported at
+    close as one warning line; close_recorder returns False so the run goes on to its
+    map and summary instead of ending in an error after its files were written."""
+    from graphslam.cli.common import close_recorder
+    from graphslam.visualisation.background import BackgroundLog
+
+    log = BackgroundLog(int, "not a number")   # int("not a number") raises in the child
+    log.anything(1, 2)                          # calls after the failure are dropped
+    assert close_recorder(log) is False
+    assert "recording failed" in capsys.readouterr().err

@@ -6,6 +6,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from slamcore.errors import GraphSlamError
+
 EXIT_OK = 0
 #: Some of the work failed; what succeeded is written (``compare``).
 EXIT_FAILED = 1
@@ -86,17 +88,21 @@ def open_recorder(open_fn, mode: str, path: Path, url: str | None):
 
     try:
         return open_fn(mode, path, url), mode
-    except ViewerUnavailable as e:
+    except (ViewerUnavailable, GraphSlamError) as e:
         warn(f"{e}; saving {path.name} instead")
         return open_fn("save", path, None), "save"
 
 
-def close_recorder(recorder) -> None:
-    """Close a recorder; a viewer that stopped taking the stream is a warning
-    (the run's files are written by then)."""
+def close_recorder(recorder) -> bool:
+    """Close a recorder; a viewer that stopped taking the stream, or a recording
+    process that failed, is a warning (the run's files are written by then, and the
+    steps after this one -- the map, the summary -- must still run). Returns
+    whether the recording was closed whole."""
     from graphslam.visualisation.recording import ViewerUnavailable
 
     try:
         recorder.close()
-    except ViewerUnavailable as e:
+    except (ViewerUnavailable, GraphSlamError) as e:
         warn(str(e))
+        return False
+    return True

@@ -111,8 +111,7 @@ def run(args: argparse.Namespace) -> int:
         paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
     if log is not None:
         log.finish(backend.name, result, backend)
-        close_recorder(log)
-        if mode == "save":
+        if close_recorder(log) and mode == "save":
             paths["recording"] = out_dir / "run.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
