@@ -314,7 +314,8 @@ def main(argv: list[str] | None = None) -> int:
               f"truth outside ellipse {100 * m['truth_outside_share']:.2f} %")
     floor = "the batch order: one prediction per frame, the 10 matches corrected at once " \
             "(same tracker, filter and sequence)"
-    cmd = COMMAND + (" --quick" if args.quick else f" --seeds {args.seeds} --frames {args.frames}")
+    cmd = COMMAND + (" --quick" if args.quick else f" --seeds {args.seeds} --frames {args.frames}") \
+        + (" --control" if args.control else "")
     summaries = [timing.summary(f"sequential active search ({label}), time per frame",
                                 mean[label]["ms_per_frame"] / 1e3, mean["batch"]["ms_per_frame"] / 1e3,
                                 target=None, floor=floor, command=cmd,
