@@ -29,6 +29,20 @@ ellipse (found / searched: a sequential ellipse that shrank past the true
 point finds nothing, or a wrong point), the mean image fraction the ellipses
 cover, and the share of matches the filter accepted (RANSAC / gate).
 
+Scored against the sequence's truth (:func:`truth_scores`): each landmark's
+true point is its first pixel back-projected through the rendered depth map
+and the true camera (landmarks on a depth edge, where the pixel has no single
+true point, are left out); ``outlier_share`` is the share of the matches the
+filter accepted that lie more than 3 pixel sigmas from the true projection
+(``gross_outlier_share``: 10 sigmas), ``truth_outside_share`` the share of
+searches whose true point lay outside the ellipse searched (1 - gate
+probability, 1 %, for consistent ellipses). Over the seeds, each order's ATE
+minus the batch one's, paired by seed, with its standard error
+(``ate_minus_batch_m``, ``ate_minus_batch_se_m``): the per-seed ATE moves by
+about 0.01-0.03 m under an immaterial change (any change of which matches
+are corrected changes the drift), so a mean difference within two standard
+errors is no difference.
+
 Usage: ``python benchmarks/bench_sequential_search.py [--seeds 0,1,2]
 [--frames N] [--repeats R] [--quick] [--out FILE.json]``; default output
 ``benchmarks/results/sequential_search.json`` and the PNG beside it.
@@ -60,10 +74,19 @@ from frontend.tracking import Tracker, TrackerConfig  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 
-#: label -> (order, ransac_every)
-ORDERS = {"batch": ("batch", 0), "sequential": ("sequential", 0),
-          "sequential + RANSAC 1 in 2": ("sequential", 2)}
+#: label -> (order, ransac_every, pixel sigma of the tracker and filter)
+ORDERS = {"batch": ("batch", 0, 1.0), "sequential": ("sequential", 0, 1.0),
+          "sequential + RANSAC 1 in 2": ("sequential", 2, 1.0)}
+#: ``--control``: the batch order with the pixel sigma 1 % larger, a change of no
+#: consequence to the method, run to measure how far the ATE moves by chance
+#: (which matches are corrected changes, and the drift with it).
+CONTROL = {"batch, sigma 1.01 px (control)": ("batch", 0, 1.01)}
 CORRECTIONS = 10
+#: Outlier thresholds against the true projection, in pixel sigmas (the tracker's 1 px).
+OUTLIER_SIGMAS, GROSS_SIGMAS = 3.0, 10.0
+#: A first pixel whose 3 x 3 depths differ by more than this fraction lies on a depth
+#: edge (an occluding contour: foreground and background both in the corner).
+DEPTH_EDGE = 0.05
 COMMAND = "python benchmarks/bench_sequential_search.py"
 
 
@@ -103,7 +126,8 @@ class CpuTimedDetector:
         return getattr(self._inner, name)
 
 
-def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, corrections: int = CORRECTIONS,
+def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, sigma_px: float = 1.0,
+               corrections: int = CORRECTIONS,
                max_landmarks: int = 20, detector: str = "harris", arithmetic: str = "float",
                linearity_threshold: float = 0.1, frames: int | None = None) -> dict:
     """One monocular EKF run over ``seq`` (its first ``frames``; 5 initialisations per frame
@@ -114,20 +138,24 @@ def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, corrections:
     landmarks in the state (``frame_landmarks``)."""
     backend = MonoEkf(MonoEkfConfig(max_corrections=corrections, max_landmarks=max_landmarks,
                                     max_init_per_frame=5, linearity_threshold=linearity_threshold))
-    tracker = Tracker(TrackerConfig(detector=detector), harris=HarrisConfig(arithmetic=arithmetic),
+    tracker = Tracker(TrackerConfig(detector=detector, sigma_px=sigma_px), harris=HarrisConfig(arithmetic=arithmetic),
                       active_search=ActiveSearchConfig(order=order, ransac_every=ransac_every),
                       follow_unmapped=False)
     tracker.detector = detector_timer = CpuTimedDetector(tracker.detector)
     counts = {"searched": 0, "found": 0, "pixels": 0.0, "frames": 0}
     stamps, landmarks = [], []
+    log = {"first": [], "accepted": [], "searched": [], "spent": 0.0}
 
     def on_frame(k, image, tracking, be):
-        stamps.append(time.process_time())
+        c = time.process_time()
+        stamps.append(c - log["spent"])  # the recording below is not the loop's time
         landmarks.append(be.num_landmarks)
         counts["searched"] += tracking.n_searched
         counts["found"] += tracking.n_found
         counts["pixels"] += tracking.image_fraction
         counts["frames"] += 1
+        record(log, k, tracking, be.last_update)
+        log["spent"] += time.process_time() - c
 
     result = vp.run(seq, backend, tracker, config=vp.VisualRunConfig(odometry="sequence"),
                     on_frame=on_frame, max_frames=frames)
@@ -137,7 +165,8 @@ def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, corrections:
     st = result.estimate.stats
     n = max(counts["frames"] - 1, 1)  # frame 0 has nothing to search
     detect_s = float(np.sum(result.tracking["detect_s"]))
-    return {"ate_rmse_m": m.ate_rmse_m, "frames": result.frames, "wall_s": result.wall_s,
+    return {**truth_scores(seq, log, sigma_px, tracker.search_config.gate),
+            "ate_rmse_m": m.ate_rmse_m, "frames": result.frames, "wall_s": result.wall_s,
             "detect_s": detect_s, "searched_per_frame": counts["searched"] / n,
             "found_per_frame": counts["found"] / n,
             "inside_share": counts["found"] / max(counts["searched"], 1),
@@ -149,15 +178,65 @@ def visual_run(seq, *, order: str = "batch", ransac_every: int = 0, corrections:
             "frame_landmarks": np.asarray(landmarks[1:])}
 
 
-def bench_seed(seed: int, frames: int, repeats: int) -> dict:
+def record(log: dict, k: int, tracking, last_update: dict) -> None:
+    """Frame ``k``'s first pixels of new landmarks, accepted matches and searched
+    ellipses, as ``(k, track id, ...)`` rows of ``log`` (scored after the run)."""
+    obs = tracking.observations
+    uv = dict(zip(obs.track_ids.tolist(), obs.uv_px))
+    log["first"] += [(k, t, uv[t]) for t in last_update["initialised"].tolist()]
+    log["accepted"] += [(k, t, uv[t]) for t in last_update["corrected"].tolist() if t in uv]
+    log["searched"] += [(k, int(tracking.pred_ids[j]), tracking.pred_uv[j], tracking.pred_S[j])
+                        for j in np.flatnonzero(tracking.searched)]
+
+
+def truth_scores(seq, log: dict, sigma_px: float, gate: float) -> dict:
+    """Accepted matches and searched ellipses of one run against the true projections
+    (module docstring); ``log`` from :func:`record`, ``gate`` the ellipses' squared
+    Mahalanobis bound."""
+    Kinv = np.linalg.inv(np.asarray(seq.K, dtype=np.float64))
+    truth, frames = {}, {}
+    for k, t, uv in log["first"]:
+        frames.setdefault(k, []).append((t, uv))
+    for k, firsts in frames.items():
+        depth, wTc = seq.render(k)[1], np.asarray(seq.wTc_true[k])
+        H, W = depth.shape
+        for t, uv in firsts:
+            u, v = int(np.clip(round(uv[0]), 1, W - 2)), int(np.clip(round(uv[1]), 1, H - 2))
+            win = depth[v - 1:v + 2, u - 1:u + 2]
+            if not np.all(np.isfinite(win)) or np.ptp(win) > DEPTH_EDGE * win.min():
+                continue  # a depth edge: no single true point
+            p_c = Kinv @ np.array([uv[0], uv[1], 1.0]) * float(depth[v, u])
+            truth[t] = wTc[:3, :3] @ p_c + wTc[:3, 3]
+
+    def true_uv(k, t):
+        return seq.project(k, truth[t][None])[0][0]
+
+    err = np.array([np.linalg.norm(uv - true_uv(k, t)) for k, t, uv in log["accepted"] if t in truth])
+    d2 = np.array([e @ np.linalg.solve(S, e) for k, t, z, S in log["searched"] if t in truth
+                   for e in [true_uv(k, t) - z]])
+    return {"outlier_share": float(np.mean(err > OUTLIER_SIGMAS * sigma_px)) if len(err) else 0.0,
+            "gross_outlier_share": float(np.mean(err > GROSS_SIGMAS * sigma_px)) if len(err) else 0.0,
+            "truth_outside_share": float(np.mean(d2 > gate)) if len(d2) else 0.0,
+            "scored_accepted": int(len(err)), "scored_searched": int(len(d2))}
+
+
+def paired_difference(per_seed: dict, seeds: list[int], label: str) -> tuple[float, float | None]:
+    """Mean over ``seeds`` of ``label``'s ATE minus the batch one's, and its standard error
+    (m; None from one seed)."""
+    d = np.array([per_seed[s][label]["ate_rmse_m"] - per_seed[s]["batch"]["ate_rmse_m"] for s in seeds])
+    return float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else None
+
+
+def bench_seed(seed: int, frames: int, repeats: int, labels: dict) -> dict:
     seq = Prerendered(make_synthetic_images(SyntheticImagesConfig(seed=seed)), frames)
     last: dict[str, dict] = {}
 
     def runner(label):
-        order, every = ORDERS[label]
-        return lambda: last.__setitem__(label, visual_run(seq, order=order, ransac_every=every))
+        order, every, sigma = labels[label]
+        return lambda: last.__setitem__(label, visual_run(seq, order=order, ransac_every=every,
+                                                          sigma_px=sigma))
 
-    t = timing.alternate({label: runner(label) for label in ORDERS}, repeats, warmup=0)
+    t = timing.alternate({label: runner(label) for label in labels}, repeats, warmup=0)
     rows = {}
     for label, r in last.items():
         r["cpu_ms_per_frame"] = 1e3 * float(np.mean(r["frame_cpu_s"]))
@@ -168,13 +247,13 @@ def bench_seed(seed: int, frames: int, repeats: int) -> dict:
     return rows
 
 
-def plot(seeds: list[int], per_seed: dict, out: Path) -> Path:
+def plot(seeds: list[int], per_seed: dict, out: Path, labels: dict) -> Path:
     from plotting import Panel, save_figure  # beside this script
 
     names = [str(s) for s in seeds]
 
     def series(key, scale=1.0):
-        return {label: (names, [scale * per_seed[s][label][key] for s in seeds]) for label in ORDERS}
+        return {label: (names, [scale * per_seed[s][label][key] for s in seeds]) for label in labels}
 
     return save_figure(out, f"Sequential vs batch active search, mono EKF, {CORRECTIONS} corrections "
                             "per frame, synthetic VGA sequence", [
@@ -193,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0,1,2", help="synthetic sequence seeds, comma-separated")
     ap.add_argument("--frames", type=int, default=300, help="frames per run (the sequence has 300)")
     ap.add_argument("--repeats", type=int, default=2, help="alternated runs per order (median)")
+    ap.add_argument("--control", action="store_true",
+                    help="also run the batch order with a 1 %% larger pixel sigma (chance variation)")
     ap.add_argument("--quick", action="store_true", help="seed 0, 30 frames, one run each")
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "sequential_search.json")
@@ -201,34 +282,47 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         seeds, args.frames, args.repeats = seeds[:1], 30, 1
     per_seed = {}
-    print(f"{'seed':>4} {'order':<27} {'ATE m':>7} {'ms/frame':>8} {'cpu ms':>6} {'srch':>5} {'found':>5} "
-          f"{'inside %':>8} {'image %':>7} {'accept %':>8}")
+    labels = {**ORDERS, **(CONTROL if args.control else {})}
+    print(f"{'seed':>4} {'order':<31} {'ATE m':>7} {'ms/frame':>8} {'cpu ms':>6} {'srch':>5} {'found':>5} "
+          f"{'inside %':>8} {'image %':>7} {'accept %':>8} {'outl %':>6} {'gross %':>7} {'true out %':>10}")
     with timing.blas_threads(1):
         for s in seeds:
-            per_seed[s] = bench_seed(s, args.frames, args.repeats)
+            per_seed[s] = bench_seed(s, args.frames, args.repeats, labels)
             for label, r in per_seed[s].items():
-                print(f"{s:>4} {label:<27} {r['ate_rmse_m']:>7.4f} {r['ms_per_frame']:>8.1f} "
+                print(f"{s:>4} {label:<31} {r['ate_rmse_m']:>7.4f} {r['ms_per_frame']:>8.1f} "
                       f"{r['cpu_ms_per_frame']:>6.1f} "
                       f"{r['searched_per_frame']:>5.1f} {r['found_per_frame']:>5.1f} "
                       f"{100 * r['inside_share']:>8.1f} {100 * r['image_fraction']:>7.2f} "
-                      f"{100 * r['accepted_share']:>8.1f}", flush=True)
+                      f"{100 * r['accepted_share']:>8.1f} {100 * r['outlier_share']:>6.2f} "
+                      f"{100 * r['gross_outlier_share']:>7.2f} {100 * r['truth_outside_share']:>10.2f}",
+                      flush=True)
     mean = {label: {k: float(np.mean([per_seed[s][label][k] for s in seeds]))
                     for k in ("ate_rmse_m", "ms_per_frame", "cpu_ms_per_frame", "inside_share",
-                              "image_fraction")}
-            for label in ORDERS}
+                              "image_fraction", "outlier_share", "gross_outlier_share",
+                              "truth_outside_share")}
+            for label in labels}
+    for label in labels:
+        mean[label]["ate_minus_batch_m"], mean[label]["ate_minus_batch_se_m"] = \
+            paired_difference(per_seed, seeds, label)
     print("\nmean over seeds:")
     for label, m in mean.items():
-        print(f"  {label:<27} ATE {m['ate_rmse_m']:.4f} m, {m['ms_per_frame']:.1f} ms/frame "
+        print(f"  {label:<31} ATE {m['ate_rmse_m']:.4f} m, {m['ms_per_frame']:.1f} ms/frame "
               f"(CPU {m['cpu_ms_per_frame']:.1f}), "
-              f"inside {100 * m['inside_share']:.1f} %, image {100 * m['image_fraction']:.2f} %")
+              f"inside {100 * m['inside_share']:.1f} %, image {100 * m['image_fraction']:.2f} %, "
+              f"ATE - batch {m['ate_minus_batch_m']:+.4f} +- {m['ate_minus_batch_se_m'] or 0.0:.4f} m (SE), "
+              f"accepted outliers {100 * m['outlier_share']:.2f} % (gross {100 * m['gross_outlier_share']:.2f} %), "
+              f"truth outside ellipse {100 * m['truth_outside_share']:.2f} %")
     floor = "the batch order: one prediction per frame, the 10 matches corrected at once " \
             "(same tracker, filter and sequence)"
-    cmd = COMMAND + (" --quick" if args.quick else f" --seeds {args.seeds} --frames {args.frames}")
+    cmd = COMMAND + (" --quick" if args.quick else f" --seeds {args.seeds} --frames {args.frames}") \
+        + (" --control" if args.control else "")
     summaries = [timing.summary(f"sequential active search ({label}), time per frame",
                                 mean[label]["ms_per_frame"] / 1e3, mean["batch"]["ms_per_frame"] / 1e3,
                                 target=None, floor=floor, command=cmd,
                                 ate_rmse_m=mean[label]["ate_rmse_m"],
                                 batch_ate_rmse_m=mean["batch"]["ate_rmse_m"],
+                                ate_minus_batch_m=mean[label]["ate_minus_batch_m"],
+                                ate_minus_batch_se_m=mean[label]["ate_minus_batch_se_m"],
                                 cpu_ratio=mean[label]["cpu_ms_per_frame"] / mean["batch"]["cpu_ms_per_frame"],
                                 inside_share=mean[label]["inside_share"])
                  for label in ORDERS if label != "batch"]
@@ -239,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2) + "\n")
     print(f"wrote {args.out}")
-    plot(seeds, per_seed, args.out)
+    plot(seeds, per_seed, args.out, labels)
     return 0
 
 
