@@ -56,8 +56,11 @@ def values_of(graph: PoseGraph, params: np.ndarray) -> gtsam.Values:
 
 def params_from(graph: PoseGraph, values: gtsam.Values) -> np.ndarray:
     """(N, P) parameters of every pose of ``graph`` read from ``values``."""
+    ids = graph.ids.tolist()
+    if graph.dim == 2 and values.keys() == ids:  # the usual case: x, y, theta() in one C++ call
+        return gtsam.utilities.extractPose2(values)
     get = values.atPose2 if graph.dim == 2 else values.atPose3
-    return np.array([params_of(get(k), graph.rotation) for k in graph.ids.tolist()])
+    return np.array([params_of(get(k), graph.rotation) for k in ids])
 
 
 @lru_cache(maxsize=4096)
