@@ -37,13 +37,16 @@ the figure's). The README's figure is the full run,
 (every gtsam wheel pose graph, about 25 min on a quiet 2-core machine, most of
 it w20000's capped LM and the two 10 000-pose iSAM2 runs).
 
-Measured (process CPU, quiet-ish machine, 2026-11-26): batch ours / floor
-1.03-1.10 on the small files, where the gap is our Python report (SolveResult,
-residual array) and the garbage collection its objects bring, tens of
-microseconds against solves of 0.4-7 ms; w10000 1.02. iSAM2: helix10000 1.015
-(load 8), per-step overhead by quarter 0.08-0.26 ms of steps of about 14 ms;
-sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio 1.0000); w10000 batch
-final cost 144.8673816, sphere2500 364.4948686.
+Measured on 2026-11-26 under a load average of 8-12 (so with the process-CPU
+clock, ``time.process_time``, in place of the wall clock; 3 runs each): batch
+ours / floor 1.01-1.04 on pose2example, 1.06-1.09 on pose3example (5 poses:
+tens of microseconds of our Python report against a 0.7 ms solve),
+1.00-1.06 on pose3example-grid, 0.98-1.02 on w100; iSAM2 0.99-1.03 on the
+500-pose helix, 0.99-1.11 on w100 (15 ms runs). The full run before this
+round's changes, wall clock, load 8-10: iSAM2 1.015 on the 10 000-pose helix
+and 0.998 on w10000, overhead per step by quarter within 0.3 ms of zero (steps
+of 14-25 ms), no trend; sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio
+1.0000); w10000 batch final cost 144.8673816, sphere2500 364.4948686.
 """
 
 from __future__ import annotations
