@@ -34,18 +34,21 @@ overhead per step by quarter). ``--quick``: w100 and pose3example only, and
 with ``--isam2`` a 500-pose helix and w100 (a smoke run: its ratios are not
 the figure's). The README's figure is the full run,
 ``python benchmarks/bench_posegraph.py --isam2 --out benchmarks/figures/posegraph``
-(every gtsam wheel pose graph, about 25 min on a quiet 2-core machine, most of
-it w20000's capped LM and the two 10 000-pose iSAM2 runs).
+(every gtsam wheel pose graph: 26 min wall, 9.6 min of CPU, under a load average
+of 5-12; most of it the two 10 000-pose iSAM2 runs and w20000's capped LM).
 
 Measured on 2026-11-26 under a load average of 8-12 (so with the process-CPU
 clock, ``time.process_time``, in place of the wall clock; 3 runs each): batch
 ours / floor 1.01-1.04 on pose2example, 1.06-1.09 on pose3example (5 poses:
 tens of microseconds of our Python report against a 0.7 ms solve),
 1.00-1.06 on pose3example-grid, 0.98-1.02 on w100; iSAM2 0.99-1.03 on the
-500-pose helix, 0.99-1.11 on w100 (15 ms runs). The full run before this
-round's changes, wall clock, load 8-10: iSAM2 1.015 on the 10 000-pose helix
-and 0.998 on w10000, overhead per step by quarter within 0.3 ms of zero (steps
-of 14-25 ms), no trend; sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio
+500-pose helix, 0.99-1.11 on w100 (15 ms runs); batch 1.018 on w10000 and
+1.01 on sphere2500 (one run each). The full run, wall clock, load 5-12: iSAM2
+1.003 on the 10 000-pose helix and 1.008 on w10000, overhead per step by
+quarter within 0.27 ms of zero (steps of 8-20 ms), no trend; every file's
+final cost, trajectory and residuals equal to the floor's (differences 0.0);
+its batch wall ratios (0.27-1.16, one sample for w10000 and w20000) are the
+load's, not ours. sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio
 1.0000); w10000 batch final cost 144.8673816, sphere2500 364.4948686.
 """
 
