@@ -56,8 +56,51 @@ def values_of(graph: PoseGraph, params: np.ndarray) -> gtsam.Values:
 
 def params_from(graph: PoseGraph, values: gtsam.Values) -> np.ndarray:
     """(N, P) parameters of every pose of ``graph`` read from ``values``."""
+    ids = graph.ids.tolist()
+    if graph.dim == 2 and values.keys() == ids:  # the usual case: x, y, theta() in one call
+        return gtsam.utilities.extractPose2(values)
+    if graph.rotation == "quat" and len(ids) >= VECTOR_QUAT_MIN and values.keys() == ids:
+        rt = gtsam.utilities.extractPose3(values)  # R row-major, then t
+        quat = quaternions(rt[:, :9].reshape(-1, 3, 3))
+        quat[quat[:, 3] < 0] *= -1.0
+        return np.concatenate([rt[:, 9:], quat], axis=1)
     get = values.atPose2 if graph.dim == 2 else values.atPose3
-    return np.array([params_of(get(k), graph.rotation) for k in graph.ids.tolist()])
+    return np.array([params_of(get(k), graph.rotation) for k in ids])
+
+
+#: Poses from which :func:`quaternions` (75 us of numpy fixed cost) beats reading each
+#: pose's (4 us a pose).
+VECTOR_QUAT_MIN = 16
+
+
+def quaternions(R: np.ndarray) -> np.ndarray:
+    """(N, 4) ``x, y, z, w`` of rotation matrices (N, 3, 3), bit for bit as
+    ``Rot3.toQuaternion`` (Eigen's ``Quaternion(Matrix3)``: the same branches, the
+    same order of operations, the trace summed as ``m00 + (m11 + m22)``)."""
+    q = np.empty((len(R), 4))
+    trace = R[:, 0, 0] + (R[:, 1, 1] + R[:, 2, 2])
+    pos = trace > 0
+    t = np.sqrt(trace[pos] + 1.0)
+    q[pos, 3] = 0.5 * t
+    t = 0.5 / t
+    Rp = R[pos]
+    q[pos, 0] = (Rp[:, 2, 1] - Rp[:, 1, 2]) * t
+    q[pos, 1] = (Rp[:, 0, 2] - Rp[:, 2, 0]) * t
+    q[pos, 2] = (Rp[:, 1, 0] - Rp[:, 0, 1]) * t
+    d = np.diagonal(R, axis1=1, axis2=2)  # Eigen: i = 1 if m11 > m00; i = 2 if m22 > m_ii
+    first = np.where(d[:, 1] > d[:, 0], 1, 0)
+    first = np.where(d[:, 2] > d[np.arange(len(R)), first], 2, first)
+    for i in range(3):
+        rows = np.flatnonzero(~pos & (first == i))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        m = R[rows]
+        t = np.sqrt(m[:, i, i] - m[:, j, j] - m[:, k, k] + 1.0)
+        q[rows, i] = 0.5 * t
+        t = 0.5 / t
+        q[rows, 3] = (m[:, k, j] - m[:, j, k]) * t
+        q[rows, j] = (m[:, j, i] + m[:, i, j]) * t
+        q[rows, k] = (m[:, k, i] + m[:, i, k]) * t
+    return q
 
 
 @lru_cache(maxsize=4096)

@@ -36,17 +36,21 @@ def schedule(n_poses: int, edge_rows: np.ndarray) -> list[Step]:
     connected graph: every pose is added by the last step)."""
     hi = edge_rows.max(axis=1)
     order = np.argsort(hi, kind="stable")
-    bounds = np.searchsorted(hi[order], np.arange(n_poses + 1))
+    bounds = np.searchsorted(hi[order], np.arange(n_poses + 1)).tolist()
+    # the loop runs once per pose: plain lists, not numpy scalars (a fixed cost of the solve)
+    other_of = (edge_rows.sum(axis=1) - hi)[order].tolist()
+    order_list = order.tolist()
     added = np.zeros(n_poses, dtype=bool)
     added[0] = True
+    is_added = added.tolist()  # a list copy of ``added``, kept equal
     steps = [Step([(0, -1, -1)])]
     waiting: dict[int, set[int]] = {}  # deferred row -> its edges seen so far
     for j in range(1, n_poses):
-        group = order[bounds[j]:bounds[j + 1]].tolist()
-        others = [int(edge_rows[e, 0] + edge_rows[e, 1] - j) for e in group]
-        if group and j not in waiting and all(added[o] for o in others):
+        lo, up = bounds[j], bounds[j + 1]
+        group, others = order_list[lo:up], other_of[lo:up]
+        if group and j not in waiting and all(is_added[o] for o in others):
             steps.append(Step([(j, group[0], others[0])], group))  # the usual case
-            added[j] = True
+            added[j] = is_added[j] = True
             continue
         for e in group:
             for r in edge_rows[e].tolist():
@@ -55,6 +59,8 @@ def schedule(n_poses: int, edge_rows: np.ndarray) -> list[Step]:
         step = _join(j, edge_rows, added, waiting)
         if step is not None:
             steps.append(step)
+            for row, _, _ in step.inits:
+                is_added[row] = True
     return steps
 
 
