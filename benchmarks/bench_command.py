@@ -16,7 +16,11 @@ recording (``save`` / ``off``, target 1.05) are two ratios, each a summary
 row. Each process is timed from its start to its exit: interpreter start,
 imports, reading, solving, scoring, writing. The JSON also holds both runs'
 final graph error and the largest position difference between the two
-trajectories (same factors, same settings: equal up to iSAM2's key order).
+trajectories (same factors, same settings: equal up to iSAM2's key order), and
+each command's CPU seconds (``*_cpu_s``, ``command_cpu_ratio``,
+``rerun_cpu_ratio``: user + system time of the process and of the recording
+process it waits for, from ``RUSAGE_CHILDREN``), which a loaded machine shifts
+less than wall time.
 
     python benchmarks/bench_command.py [--datasets victoria-park w10000 city10000]
         [--repeats 3] [--max-steps N] [--quick] [--out FILE.json]
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -58,9 +63,20 @@ def commands(name: str, work: Path, max_steps: int | None) -> dict[str, list[str
     }
 
 
-def call(cmd: list[str]) -> str:
-    """Run one command from the repository root; its stdout; RuntimeError on failure."""
+def children_cpu_s() -> float:
+    """User + system CPU seconds of this process's finished (waited-for) descendants: the
+    command and, through its own wait, the recording process of ``--rerun save``."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def call(cmd: list[str], cpu: list[float] | None = None) -> str:
+    """Run one command from the repository root; its stdout; RuntimeError on failure.
+    ``cpu``: the command's CPU seconds (:func:`children_cpu_s`) are appended to it."""
+    before = children_cpu_s()
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if cpu is not None:
+        cpu.append(children_cpu_s() - before)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} exited {done.returncode}: {done.stderr[-2000:]}")
     return done.stdout
@@ -86,15 +102,21 @@ def measure(name: str, repeats: int, max_steps: int | None) -> dict:
             call(cmd)
         cmds = commands(name, work, max_steps)
         out: dict[str, str] = {}
-        timed = timing.alternate({k: (lambda k=k: out.__setitem__(k, call(cmds[k])))
+        cpu: dict[str, list[float]] = {k: [] for k in cmds}
+        timed = timing.alternate({k: (lambda k=k: out.__setitem__(k, call(cmds[k], cpu[k])))
                                   for k in cmds}, repeats, warmup=0)
         row = {"dataset": name, "max_steps": max_steps, "repeats": repeats,
                **{f"{k}_s": t.median_s for k, t in timed.items()},
+               # CPU time shifts less than wall time with the machine's load
+               **{f"{k}_cpu_s": float(np.median(c)) for k, c in cpu.items()},
+               "cpu_samples_s": cpu,
                "timings": {k: timing.timing_dict(t) for k, t in timed.items()},
                **agreement(work)}
         row["error_bare"] = float(out["bare"].split()[1])
     row["command_ratio"] = row["off_s"] / row["bare_s"]
     row["rerun_ratio"] = row["save_s"] / row["off_s"]
+    row["command_cpu_ratio"] = row["off_cpu_s"] / row["bare_cpu_s"]
+    row["rerun_cpu_ratio"] = row["save_cpu_s"] / row["off_cpu_s"]  # both processes of save
     return row
 
 
@@ -154,6 +176,9 @@ def main(argv=None) -> int:
               f"save={row['save_s']:7.2f}s  run/bare={row['command_ratio']:.3f} "
               f"(target {TARGET_COMMAND})  save/off={row['rerun_ratio']:.3f} "
               f"(target {TARGET_RERUN})  max |dp|={row['max_position_diff_m']} m", flush=True)
+        print(f"{'':14s} CPU: bare={row['bare_cpu_s']:7.2f}s  off={row['off_cpu_s']:7.2f}s  "
+              f"save={row['save_cpu_s']:7.2f}s  run/bare={row['command_cpu_ratio']:.3f}  "
+              f"save/off={row['rerun_cpu_ratio']:.3f}", flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     with open(args.out, "w") as f:
         json.dump({"benchmark": "command_overhead", "rows": rows,

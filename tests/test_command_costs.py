@@ -91,7 +91,9 @@ def test_parser_and_planar_run_modules_do_not_import_scipy():
     """scipy.stats alone cost each run 0.3-0.6 s before any work (issue 20)."""
     code = ("import sys; from graphslam.cli.main import build_parser; build_parser(); "
             "import graphslam.pipelines.planar, graphslam.evaluation.planar, "
-            "graphslam.evaluation.trajectory, graphslam.cli.run.planar; "
+            "graphslam.evaluation.trajectory, graphslam.cli.run.planar, "
+            # a recording's both processes (the run's imports the filters for their demos)
+            "graphslam.visualisation.planar, graphslam.visualisation.filter_state; "
             "print(sorted(m for m in sys.modules if m.startswith(('scipy.stats', "
             "'scipy.spatial'))))")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
@@ -183,6 +185,19 @@ def test_long_runs_record_in_a_second_process_and_the_recording_verifies(tmp_pat
             assert done.returncode == 0, done.stderr
     assert recorders[True] == recorders[False]
     assert recorders[True].count("log_estimate") == 60 // 7 + 1 + 1  # snapshots and the end
+    # read back: the second process (which leaves by os._exit once the file is closed)
+    # wrote every row the run's own process writes
+    from tests.recordings import entity_rows
+
+    for entity, component, rows in (("/world/isam2/pose", "Arrows2D:origins", 61),  # and the end
+                                    ("/world/isam2/trajectory", "LineStrips2D:strips", 10),
+                                    ("/world/isam2/landmarks", "Points2D:positions", 9),  # none at 0
+                                    ("/world/isam2/landmark_ellipses", "LineStrips2D:strips", 1),
+                                    ("/plots/isam2/pose_sigma_m", "Scalars:scalars", 10)):
+        logged = {bg: entity_rows(tmp_path / f"run-{bg}.rrd", entity, component)
+                  for bg in (False, True)}
+        assert len(logged[True]) == rows, entity
+        assert logged[True] == logged[False], entity
 
 
 def test_pose_graph_edges_checked_in_bulk_equal_one_by_one(monkeypatch):

@@ -21,14 +21,17 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from graphslam.visualisation.filter_state import (
-    CorrelationSnapshot, FilterStateLogger, ParticleSeries,
-)
 from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
 from slamcore.planar.records import Dataset, Estimate
+
+if TYPE_CHECKING:  # the recording process needs none of the filters filter_state imports
+    from graphslam.visualisation.filter_state import (
+        CorrelationSnapshot, FilterStateLogger, ParticleSeries,
+    )
 
 
 class PlanarLog(RerunLog):
@@ -184,6 +187,8 @@ class RunRecorder:
         Pose arrows are gathered and sent as columns at each snapshot (every
         ``every`` steps) and at :meth:`finish`, not logged one call a step.
         """
+        from graphslam.visualisation.filter_state import FilterStateLogger
+
         color = self.color_index(backend)
         filter_state = self._filters[backend] = FilterStateLogger(self.log, backend, every, color)
         pending = self._pending.setdefault(backend, ([], [], []))
