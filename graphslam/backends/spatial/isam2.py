@@ -68,6 +68,7 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
+from graphslam.backends.spatial import innovation as inn
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
@@ -131,6 +132,7 @@ class VisualIsam2Backend(VisualBackend):
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
+        self._lm_cov = inn.LandmarkCovariances(self.config.landmark_covariance_max_age)
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
                        "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0}
 
@@ -232,34 +234,30 @@ class VisualIsam2Backend(VisualBackend):
         if n == 0:
             return empty
         camera = gtsam.PinholeCameraCal3_S2(wTc, self._cal)
-        joint = None
-        if self._polished is None and self.config.prediction_covariance == "joint":
+        uvs, Jx, Jl = inn.project_with_jacobians(camera, self._lm_pos[slots])
+        S = self._innovation(x_key, [L(self._lm_ids[s]) for s in slots.tolist()], Jx, Jl)
+        S += self._lm_sigma[slots, None, None] ** 2 * np.eye(2)
+        ids = np.array([self._lm_ids[s] for s in slots.tolist()], np.int64)
+        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K,
+                                landmarks_w=self._lm_pos[slots].copy())
+
+    def _innovation(self, x_key: int, l_keys: list[int], Jx: np.ndarray, Jl: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) ``J Sigma J^T`` of the landmarks ``l_keys`` seen from pose ``x_key``,
+        as ``prediction_covariance`` says (:mod:`~graphslam.backends.spatial.innovation`)."""
+        mode = self.config.prediction_covariance
+        if self._polished is None and mode == "joint":
             # one call for the pose and all selected landmarks: the Bayes-tree
             # work is shared (one call per landmark costs nearly as much each)
-            joint = self._isam.jointMarginalCovariance(
-                [x_key] + [L(self._lm_ids[s]) for s in slots.tolist()])
-            cov_x = joint.at(x_key, x_key)
+            joint = self._isam.jointMarginalCovariance([x_key] + l_keys)
+            return inn.joint_innovation(
+                Jx, Jl, joint.at(x_key, x_key), np.array([joint.at(x_key, k) for k in l_keys]),
+                np.array([joint.at(k, k) for k in l_keys]))
+        if self._polished is not None:  # batch marginals of the polished graph: no reuse
+            cov_l = np.array([self._point_marginal(k) for k in l_keys])
         else:
-            cov_x = self._pose_marginal(x_key)
-        ids = np.empty(n, np.int64)
-        uvs = np.empty((n, 2))
-        S = np.empty((n, 2, 2))
-        for i, s in enumerate(slots.tolist()):
-            tid = self._lm_ids[s]
-            D_pose = np.zeros((2, 6), order="F")
-            D_point = np.zeros((2, 3), order="F")
-            uvs[i] = camera.project(self._lm_pos[s], D_pose, D_point)
-            if joint is not None:
-                l_key = L(tid)
-                cross = D_pose @ joint.at(x_key, l_key) @ D_point.T
-                S_i = (D_pose @ cov_x @ D_pose.T + cross + cross.T
-                       + D_point @ joint.at(l_key, l_key) @ D_point.T)
-            else:
-                S_i = (D_pose @ cov_x @ D_pose.T
-                       + D_point @ self._point_marginal(L(tid)) @ D_point.T)
-            S[i] = 0.5 * (S_i + S_i.T) + self._lm_sigma[s] ** 2 * np.eye(2)
-            ids[i] = tid
-        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lm_pos[slots].copy())
+            cov_l = self._lm_cov.get(l_keys, self._n_updates, self._isam.marginalCovariance)
+        return inn.block_innovation(Jx, Jl, self._pose_marginal(x_key), cov_l,
+                                    inn.BOUND_FACTOR if mode == "bound" else 1.0)
 
     def estimate(self) -> VisualEstimate:
         self._flush()

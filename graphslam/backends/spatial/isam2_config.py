@@ -73,8 +73,12 @@ class VisualIsam2Config:
             clique of hundreds of variables below the root, which every
             marginal query eliminates again (0.1-0.6 s a frame on the 300-frame
             benchmark scene). Excludes ``newest_pose_last``.
-        prediction_covariance: "joint" or "marginal", see
-            :mod:`graphslam.backends.spatial.isam2`.
+        prediction_covariance: "joint", "bound" or "marginal", see
+            :mod:`graphslam.backends.spatial.innovation`.
+        landmark_covariance_max_age: "bound" and "marginal": a landmark's
+            marginal covariance read from iSAM2 is reused for this many updates
+            (0: read at every update). It only shrinks as pixels are added, so
+            the bound stays a bound.
         max_predictions: at most this many landmarks predicted per frame, those
             with most observations first; 0: all in view. The joint marginal
             costs grow with it (measured on the 300-frame benchmark scene:
@@ -116,7 +120,8 @@ class VisualIsam2Config:
     max_landmarks_per_frame: int = bounded(0, min=0)  # 0: no bound
     newest_pose_last: bool = False
     predicted_in_root: bool = True
-    prediction_covariance: Literal["joint", "marginal"] = "joint"
+    prediction_covariance: Literal["joint", "bound", "marginal"] = "joint"
+    landmark_covariance_max_age: int = bounded(0, min=0)
     max_predictions: int = bounded(10, min=0)  # 0: no cap
     predict_window_frames: int = bounded(0, min=0)  # 0: no window
     loop_closure_kernel: RobustKernel = "cauchy"
