@@ -11,8 +11,11 @@ of ``(x, l)``. :class:`~graphslam.backends.spatial.isam2_config.VisualIsam2Confi
   pose's and each landmark's own marginal, no cross term. For any vectors
   ``a = Jx dx`` and ``b = Jl dl``, ``(a + b)(a + b)^T <= 2 (a a^T + b b^T)``
   (the difference is ``(a - b)(a - b)^T >= 0``); taking expectations gives the
-  bound, so the 3-sigma ellipse of the bound contains the exact one and is at
-  most ``sqrt(2)`` times longer along any axis. A landmark's marginal only
+  bound, so the 3-sigma ellipse of the bound contains the exact one. It is not
+  within ``sqrt(2)`` of it: the current pose is localised from the landmarks
+  in view, their errors are correlated and cancel in the projection, which the
+  exact ``S`` sees and the blocks do not (tests/test_isam2_visual.py measures
+  areas up to several times the exact one). A landmark's marginal only
   shrinks as factors are added (at a fixed linearisation point), so one read
   some frames ago still bounds today's: :class:`LandmarkCovariances` keeps them
   for ``landmark_covariance_max_age`` updates, and the bound holds up to
