@@ -33,31 +33,19 @@ the full estimate. Landmark positions are cached in a numpy array used only to
 pre-select those possibly in view (with a margin); the ones selected are read
 fresh from iSAM2.
 
-Innovation covariance (:meth:`predict_observations`): ``S = J Sigma J^T +
-sigma_px^2 I`` with ``J = [d uv / d pose, d uv / d point]`` from
-``PinholeCameraCal3_S2.project``. ``prediction_covariance`` chooses Sigma:
-
-- ``"joint"``: iSAM2's exact joint marginal of the current pose and the
-  predicted landmarks, one ``jointMarginalCovariance`` call per frame;
-- ``"marginal"``: block-diagonal approximation, the pose marginal (once) and
-  each landmark's own marginal (one ``marginalCovariance`` call each, which is
-  slower than the joint call here), cross-covariance dropped. The current pose is
-  localised *from* those landmarks, so their errors are positively
-  correlated and dropping the cross term mostly over-states S (larger, safe
-  search ellipses), more so as the map drifts away from the prior.
-
-Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian
-itself; ``max_predictions`` caps how many landmarks are predicted (those seen
-most often first, as the course advises). What the read costs depends on where
-those keys sit in the tree: with gtsam's ordering the landmarks in view share
-one dense clique of hundreds of variables, which each query eliminated again
-(0.1-0.6 s a frame late in the 300-frame benchmark room, more than the update
-itself). ``predicted_in_root`` (default) passes an ordering hint to each update
-so that the previous pose, the landmarks about to be predicted and the newest
-pose are eliminated last and make the root clique by themselves; the query
-then reads a clique of about 50 dimensions (about 1 ms), the same numbers to
-rounding (tests/test_isam2_visual.py compares them with a batch
-``gtsam.Marginals``).
+Innovation covariances (:meth:`predict_observations`): ``prediction_covariance``
+"joint" (exact), "bound" or "marginal", computed in
+:mod:`~graphslam.backends.spatial.innovation`; ``max_predictions`` caps how
+many landmarks are predicted (those seen most often first, as the course
+advises). What a joint read costs depends on where the keys sit in the tree:
+with gtsam's ordering the landmarks in view share one dense clique of hundreds
+of variables, which each query eliminates again (0.1-0.6 s a frame late in the
+300-frame benchmark room). ``predicted_in_root`` passes an ordering hint to
+each update so that the previous pose, the landmarks about to be predicted and
+the newest pose make the root clique by themselves; the query then reads a
+clique of about 50 dimensions (about 1 ms), the same numbers to rounding
+(tests/test_isam2_visual.py compares them with a batch ``gtsam.Marginals``),
+but the constrained ordering makes each update about 1.5 times dearer.
 """
 
 from __future__ import annotations
@@ -516,11 +504,18 @@ class VisualIsam2Backend(VisualBackend):
         if self.config.predict_window_frames:  # before the reads: it needs no position
             recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
             slots = slots[recent]
-        for s in slots.tolist():  # fresh positions of the pre-selected only
-            self._lm_pos[s] = self._point(self._lm_ids[s])
-        slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
-        order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
-        return slots[order[:count] if count else order]
+        slots = slots[np.lexsort((slots, -self._lm_nobs[slots]))]  # most observed, then oldest
+        chosen, step = [], count or len(slots)
+        # fresh positions in that order, ``count`` at a time, until ``count`` are in view:
+        # the same choice as reading every pre-selected one, a few reads instead of hundreds
+        for start in range(0, len(slots), max(step, 1)):
+            batch = slots[start:start + step]
+            for s in batch.tolist():
+                self._lm_pos[s] = self._point(self._lm_ids[s])
+            chosen.append(batch[self._in_view(wTc, self._lm_pos[batch], margin=margin)])
+            if count and sum(len(c) for c in chosen) >= count:
+                break
+        return np.concatenate(chosen)[:count or None] if chosen else slots
 
     def _ordering_hint(self) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
         """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default
