@@ -338,6 +338,7 @@ def test_repeatable_to_the_bit(world):
     ("pixel_kernel", "tukey", "must be one of ['none', 'huber', 'cauchy']"),
     ("loop_closure_kernel", "tukey", "must be one of"),
     ("prediction_covariance", "full", "must be one of ['joint', 'bound', 'marginal']"),
+    ("landmark_covariance_max_age", -1, ">= 0"),
     ("polish_method", "dogleg", "must be one of ['lm', 'gnc']"),
     ("relinearize_threshold", 0.0, "must be > 0.0"),
     ("relinearize_skip", 1.5, "expected an integer"),

@@ -128,7 +128,7 @@ class VisualIsam2Config:
     newest_pose_last: bool = False
     predicted_in_root: bool = True
     prediction_covariance: Literal["joint", "bound", "marginal"] = "joint"
-    landmark_covariance_max_age: int = bounded(0, min=0)
+    landmark_covariance_max_age: int = bounded(30, min=0)
     max_predictions: int = bounded(10, min=0)  # 0: no cap
     predict_window_frames: int = bounded(0, min=0)  # 0: no window
     loop_closure_kernel: RobustKernel = "cauchy"
