@@ -21,12 +21,6 @@ Three loops, alternated ``--repeats`` times in this process by
   passes an ordering hint and keys to re-eliminate, ``predicted_in_root``;
   their cost or gain is ours.)
 
-``--covariance`` (default: the back end's default, ``joint``) sets
-``prediction_covariance``; with ``bound`` or ``marginal`` the ordering hint is
-off (gtsam's ordering, as the floor). Whatever the mode, the first run also
-compares, at each prediction, the bound's 3-sigma ellipse with the exact one
-(area ratio) and counts the true projections inside each (JSON ``ellipses``).
-
 Target (issue 20 item 4): ``ours / bare`` at most 1.5 over all the frames. The
 figure shows the cost per frame along the sequence (flat predictions: the
 mean of the first and of the last 50 frames are in the JSON).
@@ -46,16 +40,13 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L, X
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages first
 
 import timing  # noqa: E402  (beside this script)
-from graphslam.backends.spatial import innovation as inn  # noqa: E402
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
-from slamcore.config import choices_of  # noqa: E402
 from slamcore.spatial.records import PixelObservations  # noqa: E402
 
 
@@ -85,35 +76,13 @@ class _Recorder:
         return getattr(self.isam, name)
 
 
-def ellipse_check(backend, pred, uv_true) -> np.ndarray:
-    """Per predicted landmark: (area of the bound's ellipse / the exact one's, exact
-    3-sigma ellipse holds the true projection, the bound's does): both from the
-    joint marginal at this very state, whatever mode the back end ran."""
-    x_key = X(backend._frames[-1])
-    l_keys = [L(int(t)) for t in pred.track_ids]
-    joint = backend._isam.jointMarginalCovariance([x_key] + l_keys)
-    wTc = backend._current_pose()
-    _, Jx, Jl = inn.project_with_jacobians(gtsam.PinholeCameraCal3_S2(wTc, backend._cal),
-                                           pred.landmarks_w)
-    cov_l = np.array([joint.at(k, k) for k in l_keys])
-    R = backend._lm_sigma[[backend._slot[int(t)] for t in pred.track_ids], None, None] ** 2 * np.eye(2)
-    exact = inn.joint_innovation(Jx, Jl, joint.at(x_key, x_key),
-                                 np.array([joint.at(x_key, k) for k in l_keys]), cov_l) + R
-    bound = inn.block_innovation(Jx, Jl, joint.at(x_key, x_key), cov_l, inn.BOUND_FACTOR) + R
-    r = (uv_true[pred.track_ids] - pred.uv_px)[:, :, None]
-    inside = [(r.transpose(0, 2, 1) @ np.linalg.solve(S, r))[:, 0, 0] <= 9.0 for S in (exact, bound)]
-    return np.c_[np.sqrt(np.linalg.det(bound) / np.linalg.det(exact)), inside[0], inside[1]]
-
-
 def our_loop(seq, obs, config, predictions: bool, record: bool = False):
     """Run the back end over the stream; per-frame wall seconds (whole frame, and the
-    ``predict_observations`` call alone). ``record``: also each update's inputs (the
-    back end's iSAM2 wrapped) and :func:`ellipse_check` rows of every prediction."""
+    ``predict_observations`` call alone)."""
     backend = VisualIsam2Backend(config)
     if record:
         backend._isam = _Recorder(backend._isam)
-    wall, pred_wall, n_pred, ellipses = [], [], [], []
-    c0 = time.process_time()
+    wall, pred_wall, n_pred = [], [], []
     backend.initialize(0, seq.wTc_true[0], np.zeros((6, 6)), seq.K, seq.image_size)
     backend.update(obs[0])
     for k in range(1, len(obs)):
@@ -121,28 +90,23 @@ def our_loop(seq, obs, config, predictions: bool, record: bool = False):
         backend.predict(k, seq.odometry[k - 1], seq.odometry_covariance)
         if predictions:
             t1 = time.perf_counter()
-            pred = backend.predict_observations()
+            n_pred.append(len(backend.predict_observations()))
             pred_wall.append(time.perf_counter() - t1)
-            n_pred.append(len(pred))
-            if record and len(pred):
-                ellipses.append(ellipse_check(backend, pred, seq.project(k)[0]))
         backend.update(obs[k])
         wall.append(time.perf_counter() - t0)
-    return backend, dict(wall=np.array(wall), cpu_s=time.process_time() - c0,
-                         pred_wall=np.array(pred_wall), n_pred=np.array(n_pred),
-                         ellipses=np.concatenate(ellipses) if ellipses else np.zeros((0, 3)))
+    return backend, dict(wall=np.array(wall), pred_wall=np.array(pred_wall), n_pred=np.array(n_pred))
 
 
 def bare_loop(calls, params):
     """gtsam's ISAM2 on the recorded graphs and values, default ordering; per-frame wall s."""
     isam = gtsam.ISAM2(params)
-    wall, c0 = [], time.process_time()
+    wall = []
     for args in calls:
         t0 = time.perf_counter()
         isam.update(args[0], args[1])
         wall.append(time.perf_counter() - t0)
     # the first call (prior + frame 0 + frame 1) is in frame 1 of ours: same count
-    return dict(wall=np.array(wall), cpu_s=time.process_time() - c0)
+    return dict(wall=np.array(wall))
 
 
 def position_rmse(a, b):
@@ -175,33 +139,25 @@ def plot(per_frame: dict, summary: dict, out) -> object:
 
 
 def run_timed(seq, obs, config, calls, repeats: int) -> tuple[dict, dict]:
-    """Alternate the three loops; their medians, per-frame medians over the repeats and
-    median process CPU seconds of each loop (steadier than wall time on a shared machine)."""
+    """Alternate the three loops; their medians, and per-frame medians over the repeats."""
     frames: dict[str, list] = {"ours": [], "ours_nopred": [], "bare": [], "pred": []}
-    cpu: dict[str, list] = {"ours": [], "ours_nopred": [], "bare": []}
 
     def ours():
         r = our_loop(seq, obs, config, predictions=True)[1]
         frames["ours"].append(r["wall"])
         frames["pred"].append(r["pred_wall"])
-        cpu["ours"].append(r["cpu_s"])
 
     def ours_nopred():
-        r = our_loop(seq, obs, config, predictions=False)[1]
-        frames["ours_nopred"].append(r["wall"])
-        cpu["ours_nopred"].append(r["cpu_s"])
+        frames["ours_nopred"].append(our_loop(seq, obs, config, predictions=False)[1]["wall"])
 
     def bare():
-        r = bare_loop(calls, config.isam2_params())
-        frames["bare"].append(r["wall"])
-        cpu["bare"].append(r["cpu_s"])
+        frames["bare"].append(bare_loop(calls, config.isam2_params())["wall"])
 
     with timing.blas_threads(1):
         # the recording run warmed the code paths; a warm-up per loop would double the cost
         timings = timing.alternate({"ours": ours, "ours_nopred": ours_nopred, "bare": bare},
                                    repeats, warmup=0)
-    per_frame = {k: np.median(np.array(v), axis=0) for k, v in frames.items()}
-    return timings, per_frame, {k: float(np.median(v)) for k, v in cpu.items()}
+    return timings, {k: np.median(np.array(v), axis=0) for k, v in frames.items()}
 
 
 def main(argv=None) -> int:
@@ -211,16 +167,11 @@ def main(argv=None) -> int:
     ap.add_argument("--sigma-px", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--covariance", choices=choices_of(VisualIsam2Config, "prediction_covariance"),
-                    default=VisualIsam2Config.prediction_covariance,
-                    help="the back end's prediction_covariance (default: its default)")
     ap.add_argument("--out", default="benchmarks/results/bench_isam2_visual.json")
     args = ap.parse_args(argv)
     if args.quick:
         args.frames, args.repeats = 40, 1
-    # the ordering hint serves the joint read only: the others run at gtsam's ordering
-    config = VisualIsam2Config(polish=False, prediction_covariance=args.covariance,
-                               predicted_in_root=args.covariance == "joint")
+    config = VisualIsam2Config(polish=False)
 
     t = time.perf_counter()
     seq, obs = make_stream(args.frames, args.sigma_px, args.seed)
@@ -237,36 +188,24 @@ def main(argv=None) -> int:
     path_m = float(np.sum(np.linalg.norm(np.diff(seq.wTc_true[:, :3, 3], axis=0), axis=1)))
     ate, ate_odo = position_rmse(est.wTc, seq.wTc_true), position_rmse(np.array(odo), seq.wTc_true)
 
-    timings, per_frame, cpu = run_timed(seq, obs, config, calls, args.repeats)
+    timings, per_frame = run_timed(seq, obs, config, calls, args.repeats)
     n = args.frames - 1
     ours, nopred, bare = (timings[k].median_s / n for k in ("ours", "ours_nopred", "bare"))
     pred = per_frame["pred"]
-    cmd = "python benchmarks/bench_isam2_visual.py" + (" --quick" if args.quick else "") + (
-        "" if args.covariance == VisualIsam2Config.prediction_covariance else f" --covariance {args.covariance}")
-    ell = first["ellipses"]
-    ellipses = {"predictions": len(ell), "bound_over_exact_area_median": float(np.median(ell[:, 0])),
-                "bound_over_exact_area_p90": float(np.percentile(ell[:, 0], 90)),
-                "inside_3sigma_exact": float(ell[:, 1].mean()), "inside_3sigma_bound": float(ell[:, 2].mean())}
+    cmd = "python benchmarks/bench_isam2_visual.py" + (" --quick" if args.quick else "")
     summary = timing.summary(
         "isam2_visual_predictions", ours, bare, target=1.5, command=cmd,
         floor="gtsam.ISAM2.update on the same per-frame factor graphs and initial values, "
               "gtsam's default ordering (synthetic room, all frames)",
-        frames=args.frames, prediction_covariance=args.covariance, nopred_over_bare=nopred / bare,
-        cpu_ratio=cpu["ours"] / cpu["bare"], cpu_nopred_over_bare=cpu["ours_nopred"] / cpu["bare"],
+        frames=args.frames, nopred_over_bare=nopred / bare,
         predict_ms_first50=1e3 * float(pred[:50].mean()), predict_ms_last50=1e3 * float(pred[-50:].mean()))
     for name, v in (("ours", ours), ("ours_nopred", nopred), ("bare", bare)):
         print(f"{name:12s} {1e3 * v:8.1f} ms/frame (median of {args.repeats} runs of {n} frames)")
     print(f"ours / bare = {summary['ratio']:.3f} (target 1.5: "
-          f"{'met' if summary['meets_target'] else 'NOT met'}); ours_nopred / bare = {nopred / bare:.3f}; "
-          f"process CPU: ours / bare {summary['cpu_ratio']:.3f}, ours_nopred / bare "
-          f"{summary['cpu_nopred_over_bare']:.3f}")
+          f"{'met' if summary['meets_target'] else 'NOT met'}); ours_nopred / bare = {nopred / bare:.3f}")
     print(f"predict_observations: {1e3 * pred.mean():.1f} ms/frame for {first['n_pred'].mean():.1f} "
           f"landmarks; first 50 frames {summary['predict_ms_first50']:.1f} ms, last 50 "
           f"{summary['predict_ms_last50']:.1f} ms, max {1e3 * pred.max():.1f} ms")
-    print(f"3-sigma ellipses of {ellipses['predictions']} predictions: bound / exact area median "
-          f"{ellipses['bound_over_exact_area_median']:.2f}, p90 {ellipses['bound_over_exact_area_p90']:.2f}; "
-          f"true projection inside: exact {ellipses['inside_3sigma_exact']:.3f}, "
-          f"bound {ellipses['inside_3sigma_bound']:.3f}")
     print(f"ATE (no alignment) {ate:.3f} m = {100 * ate / path_m:.2f} % of {path_m:.1f} m; "
           f"odometry alone {ate_odo:.3f} m; stats {est.stats}")
 
@@ -279,7 +218,6 @@ def main(argv=None) -> int:
                    "timings": {k: timing.timing_dict(v) for k, v in timings.items()},
                    "per_frame_ms": {k: (1e3 * v).tolist() for k, v in per_frame.items()},
                    "predictions_per_frame_mean": float(first["n_pred"].mean()),
-                   "prediction_covariance": args.covariance, "ellipses": ellipses,
                    "ate_m": ate, "odometry_ate_m": ate_odo, "path_m": path_m,
                    "stats": est.stats}, f, indent=2)
     print(f"wrote {args.out}")

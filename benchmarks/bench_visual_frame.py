@@ -28,10 +28,7 @@ with gtsam's default ordering on the very factor graphs and values the back
 end handed to iSAM2 in a first (untimed) run, alternated with the timed runs.
 The summary (target 1.5) is the back end's share of the loop (stages
 ``pred`` + ``update``: predictions for active search included) over that floor,
-for "isam2 defaults" with the Harris front end; ``--covariance`` sets the iSAM2
-rows' ``prediction_covariance`` (default: the back end's default; other than
-``joint``, without the ``predicted_in_root`` ordering hint), named in the JSON
-summary. The figure's third panel shows
+for "isam2 defaults" with the Harris front end. The figure's third panel shows
 the ``pred`` stage along the sequence (flat: the mean of the first and of the
 last 50 frames are in the JSON).
 
@@ -68,8 +65,7 @@ whole-loop rate with the Harris (software) front end and stated for the
 others too. One BLAS thread.
 
 Usage: ``python benchmarks/bench_visual_frame.py [--frames N] [--runs R]
-[--seed S] [--frontends harris,fpga] [--covariance joint|bound|marginal] [--quick]
-[--out FILE.json]``; default
+[--seed S] [--frontends harris,fpga] [--quick] [--out FILE.json]``; default
 output ``benchmarks/results/bench_visual_frame.json``.
 """
 
@@ -103,7 +99,6 @@ from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
-from slamcore.config import choices_of  # noqa: E402
 
 WARMUP_FRAMES = 1  # frame 0 only: initialisation
 ISAM2_TARGET = 1.5  # issue 20 item 4: back end with predictions / bare gtsam.ISAM2
@@ -227,16 +222,14 @@ def summarise(runs: list[dict]) -> dict:
 def time_configs(seq, images, configs, frontend: str, runs: int) -> tuple[list[dict], dict | None]:
     """Every configuration ``runs`` times, alternated; iSAM2 ones with their bare floor."""
     got: dict[str, list] = {label: [] for label, _, _ in configs}
-    candidates, floors, bare_cpu = {}, {}, {}
+    candidates, floors = {}, {}
     for label, kind, params in configs:
         candidates[label] = (lambda lb=label, kd=kind, pr=params:
                              got[lb].append(run_once(seq, images, kd, pr, frontend)))
         if kind == "isam2":  # the floor replays the graphs of a first, untimed run
             first = run_once(seq, images, kind, params, frontend, record=True)
             calls, isam_params = first["backend"]._isam.calls, VisualIsam2Config(**params).isam2_params()
-            bare_cpu[label] = []
-            candidates[f"{label} bare"] = lambda c=calls, ip=isam_params, out=bare_cpu[label]: (
-                out.append(bare_loop(c, ip)["cpu_s"]))
+            candidates[f"{label} bare"] = lambda c=calls, ip=isam_params: bare_loop(c, ip)
             floors[label] = f"{label} bare"
     timings = timing.alternate(candidates, runs, warmup=0)
     rows = [summarise(got[label]) for label, _, _ in configs]
@@ -249,20 +242,12 @@ def time_configs(seq, images, configs, frontend: str, runs: int) -> tuple[list[d
             ours_s = 1e-3 * (row["pred_ms_mean"] + row["update_ms_mean"])
             row["bare_isam2_ms_mean"] = 1e3 * bare_s
             row["backend_over_bare"] = ours_s / bare_s
-            bare_cpu_ms = 1e3 * float(np.median(bare_cpu[label])) / (len(images) - 1)
-            row["bare_isam2_cpu_ms_mean"] = bare_cpu_ms
-            row["backend_over_bare_cpu"] = (row["pred_cpu_ms_mean"] + row["update_cpu_ms_mean"]) / bare_cpu_ms
             if label == "isam2 defaults" and frontend == "harris":
                 summary = timing.summary(
                     "visual_frame_isam2_backend", ours_s, bare_s, target=ISAM2_TARGET,
                     floor="gtsam.ISAM2.update, default ordering, on the same per-frame factor "
                           "graphs and values (synthetic VGA sequence, Harris front end)",
-                    command="python benchmarks/bench_visual_frame.py" + (
-                        "" if params["prediction_covariance"] == VisualIsam2Config.prediction_covariance
-                        else f" --covariance {params['prediction_covariance']}"),
-                    frames=n, prediction_covariance=params["prediction_covariance"],
-                    cpu_ratio=row["backend_over_bare_cpu"],
-                    mean_found=row["mean_found"],
+                    command="python benchmarks/bench_visual_frame.py", frames=n,
                     pred_ms_first50=row["pred_ms_first50"], pred_ms_last50=row["pred_ms_last50"])
     return rows, summary
 
@@ -304,9 +289,6 @@ def main(argv: list[str] | None = None) -> int:
                     help="runs per configuration, alternated; per-frame medians over the runs")
     ap.add_argument("--frontends", default="harris,fpga", help="comma-separated: harris, fpga")
     ap.add_argument("--quick", action="store_true", help="only the two target configurations")
-    ap.add_argument("--covariance", choices=choices_of(VisualIsam2Config, "prediction_covariance"),
-                    default=VisualIsam2Config.prediction_covariance,
-                    help="iSAM2 rows: prediction_covariance (default: the back end's default)")
     args = ap.parse_args(argv)
     if args.frames <= WARMUP_FRAMES + 1:
         ap.error(f"--frames must exceed {WARMUP_FRAMES + 1}")
@@ -321,13 +303,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{len(images) - WARMUP_FRAMES} counted; load average {load0[0]:.1f} on "
           f"{os.cpu_count()} cores")
 
-    # the ordering hint serves the joint read only
-    isam2_params = {"prediction_covariance": args.covariance, "predicted_in_root": args.covariance == "joint"}
     configs = []  # (label, kind, params)
     if args.quick:
         configs.append(("ekf L20 C10", "mono_ekf",
                         {"max_landmarks": 20, "max_corrections": 10, "max_init_per_frame": 5}))
-        configs.append(("isam2 defaults", "isam2", isam2_params))
+        configs.append(("isam2 defaults", "isam2", {}))
     else:
         for cmax in EKF_CORRECTIONS:
             configs.append((f"ekf L20 C{cmax}", "mono_ekf",
@@ -337,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue  # the C10 row of the sweep above
             configs.append((f"ekf L{lmax} C10", "mono_ekf",
                             {"max_landmarks": lmax, "max_corrections": 10, "max_init_per_frame": 5}))
-        configs.append(("isam2 defaults", "isam2", isam2_params))
-        configs.append(("isam2 lmpf40", "isam2", {**isam2_params, "max_landmarks_per_frame": 40}))
+        configs.append(("isam2 defaults", "isam2", {}))
+        configs.append(("isam2 lmpf40", "isam2", {"max_landmarks_per_frame": 40}))
 
     hdr = (f"{'front':>6} {'config':<15} {'pred':>5} {'srch':>5} {'corr':>5} "
            f"{'detect':^13} {'search':^13} {'pred+pobs':^13} {'update':^13} "
@@ -392,9 +372,7 @@ def main(argv: list[str] | None = None) -> int:
               f"/ bare gtsam.ISAM2 {1e3 * summary['floor_value']:.1f} ms = {summary['ratio']:.2f} "
               f"(<= {ISAM2_TARGET:g}: {'met' if summary['meets_target'] else 'NOT met'}); pred stage "
               f"{summary['pred_ms_first50']:.1f} ms over the first 50 frames, "
-              f"{summary['pred_ms_last50']:.1f} ms over the last 50; process CPU ratio "
-              f"{summary['cpu_ratio']:.2f}; {summary['mean_found']:.1f} landmarks found a frame "
-              f"({summary['prediction_covariance']} covariance)")
+              f"{summary['pred_ms_last50']:.1f} ms over the last 50")
     payload = {"benchmark": "visual_frame", "numpy": np.__version__,
                "python": platform.python_version(), "machine": platform.machine(),
                "cpu_count": os.cpu_count(), "load_average_start": load0,

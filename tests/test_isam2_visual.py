@@ -11,7 +11,6 @@ from slamcore.spatial.geometry import invert_pose, se3_exp
 from graphslam.backends import gtsam_convert as conv
 from slamcore.config import choices_of, from_dict
 from slamcore.errors import ConfigError, UnsupportedError
-from graphslam.backends.spatial import innovation as inn
 from graphslam.backends.spatial.isam2 import PRIOR_SIGMA_FLOOR, VisualIsam2Backend
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from slamcore.spatial.records import PixelObservations
@@ -210,62 +209,6 @@ def test_innovation_covariance_is_the_exact_joint_marginal(world, in_root):
         assert stats["predicted_outside_root"] > len(checked)
 
 
-#: The bound's ellipse against the exact one (both at iSAM2's linearisation point),
-#: pixels^2 of S: only rounding may put the bound below (measured ~1e-12).
-BOUND_TOL_PX2 = 1e-9
-#: Finite-difference step (metres, radians) and agreement (pixels per unit) of Jacobians.
-FD_STEP = 1e-6
-FD_TOL = 1e-4
-
-
-@pytest.mark.parametrize("max_age", [0, 5])
-def test_bound_contains_the_exact_joint_marginal_ellipse(world, max_age):
-    """S_bound - S_exact is positive semidefinite (Cauchy-Schwarz), against
-    gtsam.Marginals of the whole graph; with
-    landmark covariances kept ``max_age`` updates, still a bound (they only shrink)."""
-    ratios = []
-
-    def check(k, backend, pred):
-        if len(pred) == 0:
-            return
-        marginals = gtsam.Marginals(backend.factor_graph(), backend._isam.getLinearizationPoint())
-        camera = gtsam.PinholeCameraCal3_S2(conv.pose3(pred.wTc), conv.cal3_s2(K))
-        _, Jx, Jl = inn.project_with_jacobians(camera, pred.landmarks_w)
-        for tid, S, jx, jl in zip(pred.track_ids.tolist(), pred.S_px2, Jx, Jl):
-            J = np.hstack([jx, jl])
-            sigma = marginals.jointMarginalCovariance([X(k), L(tid)]).fullMatrix()
-            exact = J @ sigma @ J.T + SIGMA_PX**2 * np.eye(2)
-            assert np.linalg.eigvalsh(S - exact).min() >= -BOUND_TOL_PX2
-            ratios.append(np.sqrt(np.linalg.det(S) / np.linalg.det(exact)))
-
-    config = VisualIsam2Config(polish=False, prediction_covariance="bound",
-                               landmark_covariance_max_age=max_age)
-    backend = run(world, config, frames=30, on_predictions=check)
-    assert len(ratios) > 50
-    assert max(ratios) > 1.0 + 1e-3  # the bound is not the exact ellipse
-    reads, predicted = backend._lm_cov.reads, len(ratios)
-    assert (reads == predicted) if max_age == 0 else (reads < predicted)
-
-
-def test_projection_jacobians_match_finite_differences(world):
-    wTc = conv.pose3(world["wTc"][3])
-    camera = gtsam.PinholeCameraCal3_S2(wTc, conv.cal3_s2(K))
-    points = np.array([[0.3, -0.2, 4.0], [-1.0, 0.5, 6.0]]) @ world["wTc"][3][:3, :3].T \
-        + world["wTc"][3][:3, 3]
-    uv, Jx, Jl = inn.project_with_jacobians(camera, points)
-    for i, p in enumerate(points):
-        for j in range(6):  # gtsam's right perturbation of the pose
-            d = np.zeros(6)
-            d[j] = FD_STEP
-            moved = gtsam.PinholeCameraCal3_S2(wTc.retract(d), conv.cal3_s2(K)).project(p)
-            np.testing.assert_allclose((moved - uv[i]) / FD_STEP, Jx[i][:, j], atol=FD_TOL * 1e3)
-        for j in range(3):
-            d = np.zeros(3)
-            d[j] = FD_STEP
-            np.testing.assert_allclose((camera.project(p + d) - uv[i]) / FD_STEP, Jl[i][:, j],
-                                       atol=FD_TOL * 1e3)
-
-
 def test_marginal_mode_predicts_same_pixels(world):
     a, b = [], []
     run(world, frames=15, on_predictions=lambda k, be, p: a.append(p))
@@ -337,8 +280,7 @@ def test_repeatable_to_the_bit(world):
 @pytest.mark.parametrize("key, value, words", [
     ("pixel_kernel", "tukey", "must be one of ['none', 'huber', 'cauchy']"),
     ("loop_closure_kernel", "tukey", "must be one of"),
-    ("prediction_covariance", "full", "must be one of ['joint', 'bound', 'marginal']"),
-    ("landmark_covariance_max_age", -1, ">= 0"),
+    ("prediction_covariance", "full", "must be one of ['joint', 'marginal']"),
     ("polish_method", "dogleg", "must be one of ['lm', 'gnc']"),
     ("relinearize_threshold", 0.0, "must be > 0.0"),
     ("relinearize_skip", 1.5, "expected an integer"),

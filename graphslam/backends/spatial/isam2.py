@@ -33,19 +33,31 @@ the full estimate. Landmark positions are cached in a numpy array used only to
 pre-select those possibly in view (with a margin); the ones selected are read
 fresh from iSAM2.
 
-Innovation covariances (:meth:`predict_observations`): ``prediction_covariance``
-"joint" (exact), "bound" or "marginal", computed in
-:mod:`~graphslam.backends.spatial.innovation`; ``max_predictions`` caps how
-many landmarks are predicted (those seen most often first, as the course
-advises). What a joint read costs depends on where the keys sit in the tree:
-with gtsam's ordering the landmarks in view share one dense clique of hundreds
-of variables, which each query eliminates again (0.1-0.6 s a frame late in the
-300-frame benchmark room). ``predicted_in_root`` passes an ordering hint to
-each update so that the previous pose, the landmarks about to be predicted and
-the newest pose make the root clique by themselves; the query then reads a
-clique of about 50 dimensions (about 1 ms), the same numbers to rounding
-(tests/test_isam2_visual.py compares them with a batch ``gtsam.Marginals``),
-but the constrained ordering makes each update about 1.5 times dearer.
+Innovation covariance (:meth:`predict_observations`): ``S = J Sigma J^T +
+sigma_px^2 I`` with ``J = [d uv / d pose, d uv / d point]`` from
+``PinholeCameraCal3_S2.project``. ``prediction_covariance`` chooses Sigma:
+
+- ``"joint"``: iSAM2's exact joint marginal of the current pose and the
+  predicted landmarks, one ``jointMarginalCovariance`` call per frame;
+- ``"marginal"``: block-diagonal approximation, the pose marginal (once) and
+  each landmark's own marginal (one ``marginalCovariance`` call each, which is
+  slower than the joint call here), cross-covariance dropped. The current pose is
+  localised *from* those landmarks, so their errors are positively
+  correlated and dropping the cross term mostly over-states S (larger, safe
+  search ellipses), more so as the map drifts away from the prior.
+
+Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian
+itself; ``max_predictions`` caps how many landmarks are predicted (those seen
+most often first, as the course advises). What the read costs depends on where
+those keys sit in the tree: with gtsam's ordering the landmarks in view share
+one dense clique of hundreds of variables, which each query eliminated again
+(0.1-0.6 s a frame late in the 300-frame benchmark room, more than the update
+itself). ``predicted_in_root`` (default) passes an ordering hint to each update
+so that the previous pose, the landmarks about to be predicted and the newest
+pose are eliminated last and make the root clique by themselves; the query
+then reads a clique of about 50 dimensions (about 1 ms), the same numbers to
+rounding (tests/test_isam2_visual.py compares them with a batch
+``gtsam.Marginals``).
 """
 
 from __future__ import annotations
@@ -56,7 +68,6 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
-from graphslam.backends.spatial import innovation as inn
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
@@ -120,7 +131,6 @@ class VisualIsam2Backend(VisualBackend):
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
-        self._lm_cov = inn.LandmarkCovariances(self.config.landmark_covariance_max_age)
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
                        "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0}
 
@@ -222,30 +232,34 @@ class VisualIsam2Backend(VisualBackend):
         if n == 0:
             return empty
         camera = gtsam.PinholeCameraCal3_S2(wTc, self._cal)
-        uvs, Jx, Jl = inn.project_with_jacobians(camera, self._lm_pos[slots])
-        S = self._innovation(x_key, [L(self._lm_ids[s]) for s in slots.tolist()], Jx, Jl)
-        S += self._lm_sigma[slots, None, None] ** 2 * np.eye(2)
-        ids = np.array([self._lm_ids[s] for s in slots.tolist()], np.int64)
-        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K,
-                                landmarks_w=self._lm_pos[slots].copy())
-
-    def _innovation(self, x_key: int, l_keys: list[int], Jx: np.ndarray, Jl: np.ndarray) -> np.ndarray:
-        """(n, 2, 2) ``J Sigma J^T`` of the landmarks ``l_keys`` seen from pose ``x_key``,
-        as ``prediction_covariance`` says (:mod:`~graphslam.backends.spatial.innovation`)."""
-        mode = self.config.prediction_covariance
-        if self._polished is None and mode == "joint":
+        joint = None
+        if self._polished is None and self.config.prediction_covariance == "joint":
             # one call for the pose and all selected landmarks: the Bayes-tree
             # work is shared (one call per landmark costs nearly as much each)
-            joint = self._isam.jointMarginalCovariance([x_key] + l_keys)
-            return inn.joint_innovation(
-                Jx, Jl, joint.at(x_key, x_key), np.array([joint.at(x_key, k) for k in l_keys]),
-                np.array([joint.at(k, k) for k in l_keys]))
-        if self._polished is not None:  # batch marginals of the polished graph: no reuse
-            cov_l = np.array([self._point_marginal(k) for k in l_keys])
+            joint = self._isam.jointMarginalCovariance(
+                [x_key] + [L(self._lm_ids[s]) for s in slots.tolist()])
+            cov_x = joint.at(x_key, x_key)
         else:
-            cov_l = self._lm_cov.get(l_keys, self._n_updates, self._isam.marginalCovariance)
-        return inn.block_innovation(Jx, Jl, self._pose_marginal(x_key), cov_l,
-                                    inn.BOUND_FACTOR if mode == "bound" else 1.0)
+            cov_x = self._pose_marginal(x_key)
+        ids = np.empty(n, np.int64)
+        uvs = np.empty((n, 2))
+        S = np.empty((n, 2, 2))
+        for i, s in enumerate(slots.tolist()):
+            tid = self._lm_ids[s]
+            D_pose = np.zeros((2, 6), order="F")
+            D_point = np.zeros((2, 3), order="F")
+            uvs[i] = camera.project(self._lm_pos[s], D_pose, D_point)
+            if joint is not None:
+                l_key = L(tid)
+                cross = D_pose @ joint.at(x_key, l_key) @ D_point.T
+                S_i = (D_pose @ cov_x @ D_pose.T + cross + cross.T
+                       + D_point @ joint.at(l_key, l_key) @ D_point.T)
+            else:
+                S_i = (D_pose @ cov_x @ D_pose.T
+                       + D_point @ self._point_marginal(L(tid)) @ D_point.T)
+            S[i] = 0.5 * (S_i + S_i.T) + self._lm_sigma[s] ** 2 * np.eye(2)
+            ids[i] = tid
+        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lm_pos[slots].copy())
 
     def estimate(self) -> VisualEstimate:
         self._flush()
@@ -504,18 +518,11 @@ class VisualIsam2Backend(VisualBackend):
         if self.config.predict_window_frames:  # before the reads: it needs no position
             recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
             slots = slots[recent]
-        slots = slots[np.lexsort((slots, -self._lm_nobs[slots]))]  # most observed, then oldest
-        chosen, step = [], count or len(slots)
-        # fresh positions in that order, ``count`` at a time, until ``count`` are in view:
-        # the same choice as reading every pre-selected one, a few reads instead of hundreds
-        for start in range(0, len(slots), max(step, 1)):
-            batch = slots[start:start + step]
-            for s in batch.tolist():
-                self._lm_pos[s] = self._point(self._lm_ids[s])
-            chosen.append(batch[self._in_view(wTc, self._lm_pos[batch], margin=margin)])
-            if count and sum(len(c) for c in chosen) >= count:
-                break
-        return np.concatenate(chosen)[:count or None] if chosen else slots
+        for s in slots.tolist():  # fresh positions of the pre-selected only
+            self._lm_pos[s] = self._point(self._lm_ids[s])
+        slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
+        order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
+        return slots[order[:count] if count else order]
 
     def _ordering_hint(self) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
         """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default

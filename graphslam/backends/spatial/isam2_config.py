@@ -73,29 +73,8 @@ class VisualIsam2Config:
             clique of hundreds of variables below the root, which every
             marginal query eliminates again (0.1-0.6 s a frame on the 300-frame
             benchmark scene). Excludes ``newest_pose_last``.
-        prediction_covariance: "joint", "bound" or "marginal", see
-            :mod:`graphslam.backends.spatial.innovation`. "joint" (exact) is the
-            default by measurement: the bound needs no ordering hint (set
-            ``predicted_in_root = false`` with it) but its 3-sigma ellipses are
-            6.6 times the exact area at the median and 39 times at p90 on the
-            300-frame room (``benchmarks/bench_isam2_visual.py``: the pose is
-            localised from the landmarks it predicts, the cross term cancels
-            most of the blocks), and each frame's pose marginal (and each
-            landmark's, when read) eliminates the dense root clique again: there
-            ``bound`` ran at 3.8 times the bare loop against 1.54-1.58 for
-            ``joint`` (CPU, ``--repeats 1``); in the real loop (``bench_visual_frame.py
-            --covariance bound``) active search then finds 5.4 landmarks a
-            frame against 7.0, the back end is no cheaper against its floor
-            (2.7 against 2.8-3.0 CPU), and on ``--dataset synthetic-images`` a
-            wrong match accepted inside such an ellipse sent a landmark 12 km
-            away and stopped iSAM2 at frame 260 (indeterminate system).
-        landmark_covariance_max_age: "bound" and "marginal": a landmark's
-            marginal covariance read from iSAM2 is reused for this many updates
-            (0: read at every update). It only shrinks as pixels are added, so
-            the bound stays a bound. Each read eliminates the dense root clique
-            again with gtsam's ordering (about 80 ms CPU late in the 300-frame
-            room, where reading all 10 every frame cost 877 ms a frame); 30 is
-            not tuned beyond that.
+        prediction_covariance: "joint" or "marginal", see
+            :mod:`graphslam.backends.spatial.isam2`.
         max_predictions: at most this many landmarks predicted per frame, those
             with most observations first; 0: all in view. The joint marginal
             costs grow with it (measured on the 300-frame benchmark scene:
@@ -137,8 +116,7 @@ class VisualIsam2Config:
     max_landmarks_per_frame: int = bounded(0, min=0)  # 0: no bound
     newest_pose_last: bool = False
     predicted_in_root: bool = True
-    prediction_covariance: Literal["joint", "bound", "marginal"] = "joint"
-    landmark_covariance_max_age: int = bounded(30, min=0)
+    prediction_covariance: Literal["joint", "marginal"] = "joint"
     max_predictions: int = bounded(10, min=0)  # 0: no cap
     predict_window_frames: int = bounded(0, min=0)  # 0: no window
     loop_closure_kernel: RobustKernel = "cauchy"
