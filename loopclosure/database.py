@@ -378,26 +378,38 @@ class BowDatabase:
     def _rescore(self, cand: np.ndarray, dense_q: np.ndarray) -> np.ndarray:
         """(len(cand),) exact scores of the image ids ``cand`` from their rows.
 
-        The rows are gathered by slicing (one slice per row: rows are ~1000 entries, a
-        slice costs as much as copying a few dozen) and summed in word order, as the
-        floor sums them; word ids are widened to intp while gathered, since ``take``
+        Rows are summed in word order, as the floor sums them, in groups of about
+        ``_CHUNK`` entries gathered into the scan's buffers (cache-sized, as in
+        :meth:`_scan`); word ids are widened to intp while gathered, since ``take``
         would convert int32 indices in a pass of its own.
         """
         out = np.zeros(cand.size, dtype=np.float64)
         ptr = self._row_ptr
-        starts, ends = ptr[cand], ptr[cand + 1]
-        lens = ends - starts
-        n = int(lens.sum())
-        if n == 0:
-            return out
-        spans = [(s, e) for s, e in zip(starts.tolist(), ends.tolist()) if e > s]
-        words = np.empty(n, dtype=np.intp)
-        np.concatenate([self._row_words[s:e] for s, e in spans], out=words, casting="same_kind")
-        contrib = np.concatenate([self._row_wts[s:e] for s, e in spans])
-        np.minimum(dense_q.take(words), contrib, out=contrib)
-        filled = np.flatnonzero(lens)  # reduceat needs non-empty rows
-        out[filled] = np.add.reduceat(contrib, (np.cumsum(lens) - lens)[filled])
+        starts, ends = ptr[cand].tolist(), ptr[cand + 1].tolist()
+        i = 0
+        while i < len(starts):
+            j, n = i, 0
+            while j < len(starts) and (n == 0 or n + ends[j] - starts[j] <= _CHUNK):
+                n += ends[j] - starts[j]
+                j += 1
+            if n:
+                self._rescore_rows(out, i, starts[i:j], ends[i:j], n, dense_q)
+            i = j
         return out
+
+    def _rescore_rows(self, out, first: int, starts: list, ends: list, n: int, dense_q) -> None:
+        """out[first + r] = exact score of the row [starts[r], ends[r]), n entries in all."""
+        if n > self._scan_ids.size:
+            self._scan_ids = np.empty(n, dtype=np.intp)
+            self._scan_wts = np.empty(n, dtype=np.float64)
+        words, contrib = self._scan_ids[:n], self._scan_wts[:n]
+        spans = [(s, e) for s, e in zip(starts, ends) if e > s]
+        np.concatenate([self._row_words[s:e] for s, e in spans], out=words, casting="same_kind")
+        np.concatenate([self._row_wts[s:e] for s, e in spans], out=contrib)
+        np.minimum(dense_q.take(words), contrib, out=contrib)
+        lens = np.array(ends) - np.array(starts)
+        filled = np.flatnonzero(lens)  # reduceat needs non-empty rows
+        out[first + filled] = np.add.reduceat(contrib, (np.cumsum(lens) - lens)[filled])
 
 
 def _grown(a: np.ndarray, capacity: int, keep: int) -> np.ndarray:
