@@ -275,3 +275,100 @@ def test_kitti_frame_ranks_its_nearest_inserted_frame_first(kitti_descriptors):
         nearest = min(inserted, key=lambda i: abs(i - f))
         got = db.query(db.bow(d[f]), max_results=3)
         assert inserted[got[0][0]] == nearest, (f, [(inserted[i], s) for i, s in got])
+
+
+# -- pruned query: exactness against brute force ------------------------------------
+
+def zipf_idf_bow(rng, n_words=2000, used=1500, draws=200):
+    """Vector over the first ``used`` words, Zipf-drawn, IDF-like weights (frequent words
+    weigh little): the shape under which the pruned query skips the long lists."""
+    p = 1.0 / np.arange(1, used + 1)
+    p /= p.sum()
+    idf = np.log(1.0 / (1.0 - (1.0 - p) ** draws))
+    ids, counts = np.unique(rng.choice(used, draws, p=p), return_counts=True)
+    w = counts * idf[ids]
+    return BowVector(ids[w > 0], w[w > 0] / w[w > 0].sum())
+
+
+def assert_same_ranking(got, vectors, q, n_allowed, k):
+    ids, scores = brute_force_ranking(vectors, q, n_allowed)
+    assert len(got) == min(k, ids.size)
+    got_ids, got_s = np.array([i for i, _ in got], dtype=int), np.array([s for _, s in got])
+    np.testing.assert_allclose(got_s, scores[:len(got)], rtol=0, atol=SCORE_TOL)
+    # same ids wherever the scores are not equal to rounding (exact ties: lower id first,
+    # checked on duplicated vectors below)
+    distinct = np.r_[np.diff(scores[:len(got)]) < -SCORE_TOL, True]
+    distinct &= np.r_[True, np.diff(scores[:len(got)]) < -SCORE_TOL]
+    assert np.array_equal(got_ids[distinct], ids[:len(got)][distinct])
+    assert len(set(got_ids.tolist())) == len(got) and all(i < n_allowed for i in got_ids)
+
+
+@pytest.fixture
+def pruning_everywhere(monkeypatch):
+    """Prune at any database size, with scan and rescoring groups of a few lists or rows."""
+    import loopclosure.database
+
+    monkeypatch.setattr(loopclosure.database, "_MIN_PRUNE", 0)
+    monkeypatch.setattr(loopclosure.database, "_CHUNK", 700)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pruned_query_equals_brute_force_with_ties_exclusions_and_growth(pruning_everywhere, seed):
+    rng = np.random.default_rng(seed)
+    db = BowDatabase(WideVocabulary())
+    vectors = [zipf_idf_bow(rng) for _ in range(1500)]
+    for v in vectors:
+        db.add(v)
+    scanned, pruned = count_scanned(db), 0
+    for round_ in range(2):  # the second round after the database grew by 500 images
+        n = len(vectors)
+        stored = np.unique(np.concatenate([v.word_ids for v in vectors]))
+        for _ in range(6):
+            q = vectors[int(rng.integers(n))] if rng.random() < 0.5 else zipf_idf_bow(rng)
+            for k, exclude in ((1, 0), (10, 0), (10, 300), (25, n - 40), (3000, 0)):
+                del scanned[:]
+                got = db.query(q, max_results=k, exclude_recent=exclude)
+                assert_same_ranking(got, vectors, q, n - exclude, k)
+                pruned += sum(scanned) < np.isin(q.word_ids, stored).sum()
+            assert db.query(q, max_results=0) == []
+        grown = [zipf_idf_bow(rng) for _ in range(500)]
+        for v in grown:
+            db.add(v)
+        vectors += grown
+    assert pruned >= 20, f"only {pruned} of 60 queries skipped words: the pruned path is not exercised"
+
+
+def test_pruned_query_breaks_exact_ties_by_lower_id(pruning_everywhere):
+    rng = np.random.default_rng(7)
+    db = BowDatabase(WideVocabulary())
+    vectors = [zipf_idf_bow(rng) for _ in range(1200)]
+    # the query's own vector at 4 ids, a second vector at 3 ids: exact ties at 1 and below
+    q, other = vectors[5], zipf_idf_bow(rng)
+    for i in (40, 300, 301, 999):
+        vectors[i] = q
+    for i in (41, 500, 800):
+        vectors[i] = other
+    for v in vectors:
+        db.add(v)
+    got = db.query(q, max_results=4)
+    assert [i for i, _ in got] == [5, 40, 300, 301]
+    assert all(s == pytest.approx(1.0, abs=SCORE_TOL) for _, s in got)
+    assert db.query(q, max_results=1) == [(5, got[0][1])]
+    got = db.query(other, max_results=10)
+    assert [i for i, _ in got[:3]] == [41, 500, 800]
+    assert_same_ranking(got, vectors, other, len(vectors), 10)
+
+
+def test_query_words_absent_from_the_database(pruning_everywhere):
+    rng = np.random.default_rng(3)
+    db = BowDatabase(WideVocabulary())
+    vectors = [zipf_idf_bow(rng) for _ in range(800)]  # words 0..1499 only
+    for v in vectors:
+        db.add(v)
+    absent = BowVector(np.arange(1600, 1610), np.full(10, 0.1))
+    assert db.query(absent) == []
+    base = zipf_idf_bow(rng)
+    mixed_ids = np.r_[base.word_ids, np.arange(1700, 1720)]
+    mixed = BowVector(mixed_ids, np.r_[base.weights * 0.5, np.full(20, 0.5 / 20)])
+    for k in (1, 10):
+        assert_same_ranking(db.query(mixed, max_results=k), vectors, mixed, len(vectors), k)
