@@ -64,3 +64,22 @@ def rebuild_with_qr(isam: gtsam.ISAM2, params: gtsam.ISAM2Params) -> gtsam.ISAM2
     fresh = gtsam.ISAM2(isam2_factorization(params, "qr"))
     fresh.update(factors, values)
     return fresh
+
+
+def rebuild_without(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, key: int) -> gtsam.ISAM2:
+    """A fresh iSAM2 (``params``' factorisation) holding every factor of ``isam`` that
+    does not involve ``key``, at ``isam``'s values without ``key``: the variable and
+    its measurements are gone. Called after an ``update`` threw, like
+    :func:`rebuild_with_qr`; the new factors are then already in ``isam``'s list."""
+    factors = gtsam.NonlinearFactorGraph()
+    old = isam.getFactorsUnsafe()
+    for i in range(old.size()):
+        factor = old.at(i)
+        if factor is not None and key not in factor.keys():
+            factors.add(factor)
+    values = gtsam.Values(isam.getLinearizationPoint())
+    if values.exists(key):
+        values.erase(key)
+    fresh = gtsam.ISAM2(params)
+    fresh.update(factors, values)
+    return fresh

@@ -71,6 +71,7 @@ from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
+from graphslam.backends.spatial.isam2_recovery import IndeterminateRecovery
 from graphslam.backends.spatial.landmark_init import Track, consistent, triangulate
 from graphslam.backends.spatial.polish import gnc_polish
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
@@ -95,7 +96,7 @@ ROOT_EXTRA_CANDIDATES = 5
 ROOT_MARGIN = 0.02
 
 
-class VisualIsam2Backend(VisualBackend):
+class VisualIsam2Backend(IndeterminateRecovery, VisualBackend):
     """Smoothing visual back end on ``gtsam.ISAM2``; tracks give the association."""
 
     name = "isam2"
@@ -132,7 +133,8 @@ class VisualIsam2Backend(VisualBackend):
         self._n_updates = 0
         self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
-                       "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0}
+                       "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0,
+                       "landmarks_dropped_indeterminate": 0}
 
     # --- the contract -------------------------------------------------------
 
@@ -579,8 +581,11 @@ class VisualIsam2Backend(VisualBackend):
         self._polished = None  # new information invalidates a previous polish
         self._current_cov_polished = None
         self._n_updates += 1
-        if groups is not None:
-            self._isam.update(graph, values, [], groups, None, reelim)
-        else:
-            self._isam.update(graph, values)
+        try:
+            if groups is not None:
+                self._isam.update(graph, values, [], groups, None, reelim)
+            else:
+                self._isam.update(graph, values)
+        except RuntimeError as exc:
+            self._recover(exc)
 
