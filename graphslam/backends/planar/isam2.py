@@ -59,8 +59,6 @@ not use.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import ClassVar
 
 import gtsam
 import numpy as np
@@ -68,109 +66,14 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends import factorization as fact
+from graphslam.backends.planar.isam2_config import Isam2Config
 from slamcore.planar.backend import Backend
-from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, Prediction
 
 
 #: Median of the chi-square distribution with 3 degrees of freedom.
 CHI2_3DOF_MEDIAN = 2.3660
-
-
-@dataclass(frozen=True)
-class Isam2Config:
-    """iSAM2 settings.
-
-    Attributes:
-        relinearize_threshold: relinearise a variable when its delta exceeds this
-            (gtsam units: metres / radians of the tangent vector).
-        relinearize_skip: check for relinearisation every this many updates.
-        polish: run batch Levenberg-Marquardt on the whole graph at the end,
-            starting from the incremental solution.
-        polish_max_iterations: LM iteration cap for the polish.
-        polish_relative_error_tol, polish_absolute_error_tol: LM stops when
-            the error decreases by less than this fraction / this amount
-            (gtsam's defaults, 1e-5 both). Tighter matters on graphs whose stated
-            noise is much looser than the real one (w10000): their error
-            surface is so flat that a whole-map bend of 0.2 m changes the error
-            by 1e-6, and the defaults stop decimetres from the optimum.
-        loop_closure_kernel: robust kernel on loop-closure factors, "none",
-            "huber" or "cauchy", so one wrong closure cannot wreck the map.
-            Dataset edges that are loop closures get it too.
-        loop_closure_kernel_k: kernel width, in sigmas of the whitened residual.
-        polish_method: "lm" (Levenberg-Marquardt on the graph as built) or
-            "gnc" (graduated non-convexity, gtsam's GncLMOptimizer, with every
-            factor but the loop closures known to be an inlier).
-        loop_closure_gate: chi-square threshold on a closure's squared
-            Mahalanobis residual (3 dof; 16.27 is the 99.9 % quantile), see the
-            module docstring; 0 disables the gate (every closure goes in).
-        gate_window: poses either side searched for a consistent partner closure.
-        gate_min_support: consistent partners needed to accept a closure that
-            fails the residual test.
-        gate_scale_from_data: scale the gate by the robust residual scale, see
-            the module docstring.
-        gate_polish_rounds: with the gate and an "lm" polish, how many times
-            every closure may be re-tested against the polished solution
-            (kept set = closures within the gate) and the polish redone.
-        factorization: "auto" (Cholesky; on an indeterminate system, QR from
-            then on, reported by :meth:`Isam2Backend.numerical_recoveries`),
-            "cholesky" (no fallback) or "qr"; see
-            :mod:`graphslam.backends.factorization`.
-    """
-
-    SECTION: ClassVar[str] = "isam2"
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
-    polish: bool = True
-    polish_max_iterations: int = 100
-    polish_relative_error_tol: float = 1e-5
-    polish_absolute_error_tol: float = 1e-5
-    loop_closure_kernel: str = "none"
-    loop_closure_kernel_k: float = 1.0
-    polish_method: str = "lm"
-    loop_closure_gate: float = 0.0
-    gate_window: int = 5
-    gate_min_support: int = 2
-    gate_scale_from_data: bool = True
-    gate_polish_rounds: int = 3
-    factorization: str = "auto"
-
-    def __post_init__(self):
-        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2.loop_closure_kernel must be none, huber or cauchy")
-        if self.loop_closure_kernel_k <= 0:
-            raise ConfigError("isam2.loop_closure_kernel_k must be > 0")
-        if self.polish_method not in ("lm", "gnc"):
-            raise ConfigError("isam2.polish_method must be lm or gnc")
-        if self.relinearize_threshold <= 0:
-            raise ConfigError("isam2.relinearize_threshold must be > 0")
-        if self.relinearize_skip < 1:
-            raise ConfigError("isam2.relinearize_skip must be >= 1")
-        if self.polish_max_iterations < 1:
-            raise ConfigError("isam2.polish_max_iterations must be >= 1")
-        if not (self.polish_relative_error_tol > 0 and self.polish_absolute_error_tol > 0):
-            raise ConfigError("isam2.polish_relative_error_tol and _absolute_error_tol must be > 0")
-        if not self.loop_closure_gate >= 0:
-            raise ConfigError("isam2.loop_closure_gate must be >= 0 (0: no gate)")
-        if self.gate_min_support < 1:
-            raise ConfigError("isam2.gate_min_support must be >= 1")
-        if self.gate_window < 1:
-            raise ConfigError("isam2.gate_window must be >= 1")
-        if self.gate_polish_rounds < 0:
-            raise ConfigError("isam2.gate_polish_rounds must be >= 0")
-        if self.factorization not in fact.FACTORIZATIONS:
-            raise ConfigError("isam2.factorization must be auto, cholesky or qr")
-
-    def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
-        """Gaussian noise of a closure, wrapped in the configured robust kernel."""
-        return conv.robust(conv.noise_from_covariance(covariance), self.loop_closure_kernel,
-                           self.loop_closure_kernel_k)
-
-    def isam2_params(self) -> gtsam.ISAM2Params:
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.relinearize_threshold)
-        params.relinearizeSkip = self.relinearize_skip
-        return fact.isam2_factorization(params, self.factorization)
 
 
 class Isam2Backend(Backend):
