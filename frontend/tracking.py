@@ -50,9 +50,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import typing
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
@@ -61,78 +59,12 @@ from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearc
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.features import Features
 from frontend.harris import HarrisConfig
-from frontend.image import MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
+from frontend.image import check_gray
 from frontend.orb import OrbConfig
-from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError
+from frontend.tracking_config import DETECTORS, SEARCH_MODES, TrackerConfig, make_detector
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
-__all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES"]
-
-DetectorName = Literal["harris", "orb", "fpga"]
-SearchMode = Literal["auto", "zncc", "nearest", "descriptor"]
-DETECTORS = typing.get_args(DetectorName)
-SEARCH_MODES = typing.get_args(SearchMode)
-_AUTO_SEARCH = {"harris": "zncc", "fpga": "nearest", "orb": "descriptor"}
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Front-end tracking settings (config section ``[tracker]``).
-
-    Attributes:
-        detector: ``"harris"``, ``"orb"`` or ``"fpga"``.
-        search: active-search matching: ``"auto"`` (by detector, see module
-            doc), ``"zncc"``, ``"nearest"`` (Harris/FPGA only) or
-            ``"descriptor"`` (ORB only).
-        max_tracks: new corners are started only while fewer points than this
-            are tracked in the frame.
-        max_new_per_frame: new tracks started per frame at most.
-        min_distance_px: a new corner is at least this far from every tracked
-            or predicted point (no two ids on one physical point).
-        follow_unmapped: follow not-yet-mapped tracks from frame to frame;
-            ``None`` lets the pipeline decide from the back end.
-        follow_window_px: half side of the square window a followed track is
-            searched in, around its last position plus its last image motion.
-        follow_min_score: smallest ZNCC accepted when following.
-        follow_min_margin: the best ZNCC must beat every other peak of the
-            window (more than 2 px away) by this much (repeated texture).
-        max_unmapped_age: frames a track may stay unmapped before it is dropped.
-        max_hamming: largest Hamming distance (bits of 256) of an ORB match.
-        patch_update: ``"anchor"`` (patch from the frame the track was born)
-            or ``"last"`` (re-cut at every match).
-        sigma_px: pixel standard deviation reported with the observations.
-    """
-
-    SECTION: ClassVar[str] = "tracker"
-
-    detector: DetectorName = "harris"
-    search: SearchMode = "auto"
-    max_tracks: int = bounded(80, min=1, max=MAX_POINTS_PER_FRAME)
-    max_new_per_frame: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
-    min_distance_px: float = bounded(16.0, min=0.0)
-    follow_unmapped: bool | None = None
-    follow_window_px: int = bounded(24, min=1, max=MAX_SIDE_PX)
-    follow_min_score: float = bounded(0.85, min=-1.0, max=1.0)
-    # ZNCC scores lie in [-1, 1]: two differ by 2 at most
-    follow_min_margin: float = bounded(0.05, min=0.0, max=2.0)
-    max_unmapped_age: int = bounded(60, min=1)
-    # a Hamming distance between 256-bit descriptors
-    max_hamming: int = bounded(64, min=0, max=256)
-    patch_update: Literal["anchor", "last"] = "anchor"
-    sigma_px: float = bounded(1.0, gt=0.0)
-
-    def __post_init__(self):
-        validate(self)
-        mode = self.search_mode
-        if (mode == "descriptor") != (self.detector == "orb"):
-            raise ConfigError(f"tracker.search {mode!r} does not fit detector {self.detector!r} "
-                              "(descriptor matching needs ORB, ORB needs descriptor matching)")
-
-    @property
-    def search_mode(self) -> str:
-        return _AUTO_SEARCH[self.detector] if self.search == "auto" else self.search
-
+__all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES", "make_detector"]
 
 @dataclass
 class _Track:
@@ -196,24 +128,6 @@ class TrackingResult:
     @property
     def n_searched(self) -> int:
         return int(self.searched.sum())
-
-
-def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None,
-                  orb: OrbConfig | None = None):
-    """The detector named by ``config.detector`` (imports are lazy)."""
-    if config.detector == "harris":
-        from frontend.harris import HarrisDetector
-
-        return HarrisDetector(harris or HarrisConfig())
-    if config.detector == "orb":
-        from frontend.orb import OrbDetector
-
-        return OrbDetector(orb or OrbConfig())
-    from frontend.fpga_stream import FpgaHarrisStream
-
-    # the stream is always fixed point: the hardware has no float unit
-    base = harris or HarrisConfig()
-    return FpgaHarrisStream(dataclasses.replace(base, arithmetic="fixed"))
 
 
 def _hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
