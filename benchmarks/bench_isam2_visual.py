@@ -23,7 +23,14 @@ Three loops, alternated ``--repeats`` times in this process by
 
 Target (issue 20 item 4): ``ours / bare`` at most 1.5 over all the frames. The
 figure shows the cost per frame along the sequence (flat predictions: the
-mean of the first and of the last 50 frames are in the JSON).
+mean of the first and of the last 50 frames are in the JSON). The prediction
+stage is timed with and without its first estimate read
+(``current_pose()``, timed apart just before ``predict_observations``, which
+then reads the pose from a cache): that read pays iSAM2's lazy
+back-substitution of the update (the wildfire over every clique whose solution
+moved), which grows with the map and which the frame pays once whoever reads
+first (``ours_nopred`` pays it in ``update``; the bare loop pays it inside its
+relinearisation steps, every 10th update).
 
     python benchmarks/bench_isam2_visual.py [--frames 300] [--repeats 3] [--quick] [--out FILE.json]
 
@@ -82,7 +89,7 @@ def our_loop(seq, obs, config, predictions: bool, record: bool = False):
     backend = VisualIsam2Backend(config)
     if record:
         backend._isam = _Recorder(backend._isam)
-    wall, pred_wall, n_pred = [], [], []
+    wall, pred_wall, read_wall, n_pred = [], [], [], []
     backend.initialize(0, seq.wTc_true[0], np.zeros((6, 6)), seq.K, seq.image_size)
     backend.update(obs[0])
     for k in range(1, len(obs)):
@@ -90,11 +97,15 @@ def our_loop(seq, obs, config, predictions: bool, record: bool = False):
         backend.predict(k, seq.odometry[k - 1], seq.odometry_covariance)
         if predictions:
             t1 = time.perf_counter()
-            n_pred.append(len(backend.predict_observations()))
+            backend.current_pose()  # the first read after the update: iSAM2's back-substitution
+            t2 = time.perf_counter()
+            n_pred.append(len(backend.predict_observations()))  # reads that pose from a cache
             pred_wall.append(time.perf_counter() - t1)
+            read_wall.append(t2 - t1)
         backend.update(obs[k])
         wall.append(time.perf_counter() - t0)
-    return backend, dict(wall=np.array(wall), pred_wall=np.array(pred_wall), n_pred=np.array(n_pred))
+    return backend, dict(wall=np.array(wall), pred_wall=np.array(pred_wall),
+                         read_wall=np.array(read_wall), n_pred=np.array(n_pred))
 
 
 def bare_loop(calls, params):
@@ -131,8 +142,9 @@ def plot(per_frame: dict, summary: dict, out) -> object:
                             f"(target {summary['target']:g})", [
         Panel("whole frame (10-frame means)", "frame", "wall time per frame [ms]",
               {name: smooth(a) for name, a in loops.items()}),
-        Panel("predict_observations alone (10-frame means)", "frame", "wall time per frame [ms]",
-              {"predict_observations": smooth(pred)}),
+        Panel("prediction stage (10-frame means)", "frame", "wall time per frame [ms]",
+              {"with the first estimate read": smooth(pred),
+               "without it": smooth(pred - per_frame["read"])}),
         Panel("predict_observations: start and end of the sequence", "frames", "mean wall time [ms]",
               {"predict_observations": (list(edges), [1e3 * float(np.mean(a)) for a in edges.values()])},
               kind="bar")], ncols=3)
@@ -140,12 +152,13 @@ def plot(per_frame: dict, summary: dict, out) -> object:
 
 def run_timed(seq, obs, config, calls, repeats: int) -> tuple[dict, dict]:
     """Alternate the three loops; their medians, and per-frame medians over the repeats."""
-    frames: dict[str, list] = {"ours": [], "ours_nopred": [], "bare": [], "pred": []}
+    frames: dict[str, list] = {"ours": [], "ours_nopred": [], "bare": [], "pred": [], "read": []}
 
     def ours():
         r = our_loop(seq, obs, config, predictions=True)[1]
         frames["ours"].append(r["wall"])
         frames["pred"].append(r["pred_wall"])
+        frames["read"].append(r["read_wall"])
 
     def ours_nopred():
         frames["ours_nopred"].append(our_loop(seq, obs, config, predictions=False)[1]["wall"])
@@ -191,21 +204,25 @@ def main(argv=None) -> int:
     timings, per_frame = run_timed(seq, obs, config, calls, args.repeats)
     n = args.frames - 1
     ours, nopred, bare = (timings[k].median_s / n for k in ("ours", "ours_nopred", "bare"))
-    pred = per_frame["pred"]
+    pred, own = per_frame["pred"], per_frame["pred"] - per_frame["read"]
     cmd = "python benchmarks/bench_isam2_visual.py" + (" --quick" if args.quick else "")
     summary = timing.summary(
         "isam2_visual_predictions", ours, bare, target=1.5, command=cmd,
         floor="gtsam.ISAM2.update on the same per-frame factor graphs and initial values, "
               "gtsam's default ordering (synthetic room, all frames)",
         frames=args.frames, nopred_over_bare=nopred / bare,
-        predict_ms_first50=1e3 * float(pred[:50].mean()), predict_ms_last50=1e3 * float(pred[-50:].mean()))
+        predict_ms_first50=1e3 * float(pred[:50].mean()), predict_ms_last50=1e3 * float(pred[-50:].mean()),
+        predict_without_read_ms_first50=1e3 * float(own[:50].mean()),
+        predict_without_read_ms_last50=1e3 * float(own[-50:].mean()))
     for name, v in (("ours", ours), ("ours_nopred", nopred), ("bare", bare)):
         print(f"{name:12s} {1e3 * v:8.1f} ms/frame (median of {args.repeats} runs of {n} frames)")
     print(f"ours / bare = {summary['ratio']:.3f} (target 1.5: "
           f"{'met' if summary['meets_target'] else 'NOT met'}); ours_nopred / bare = {nopred / bare:.3f}")
     print(f"predict_observations: {1e3 * pred.mean():.1f} ms/frame for {first['n_pred'].mean():.1f} "
           f"landmarks; first 50 frames {summary['predict_ms_first50']:.1f} ms, last 50 "
-          f"{summary['predict_ms_last50']:.1f} ms, max {1e3 * pred.max():.1f} ms")
+          f"{summary['predict_ms_last50']:.1f} ms, max {1e3 * pred.max():.1f} ms; without the first "
+          f"estimate read (the back-substitution) {summary['predict_without_read_ms_first50']:.1f} "
+          f"and {summary['predict_without_read_ms_last50']:.1f} ms")
     print(f"ATE (no alignment) {ate:.3f} m = {100 * ate / path_m:.2f} % of {path_m:.1f} m; "
           f"odometry alone {ate_odo:.3f} m; stats {est.stats}")
 

@@ -71,6 +71,7 @@ from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
+from graphslam.backends.spatial.isam2_ordering import RootOrdering
 from graphslam.backends.spatial.isam2_recovery import IndeterminateRecovery
 from graphslam.backends.spatial.landmark_init import Track, consistent, triangulate
 from graphslam.backends.spatial.polish import gnc_polish
@@ -85,18 +86,7 @@ from slamcore.spatial.backend import VisualBackend
 #: proper Gaussian. 1e-4 is far below any pixel's information at VGA.
 PRIOR_SIGMA_FLOOR = 1e-4
 
-#: Landmarks put in the root beyond ``max_predictions`` (``predicted_in_root``):
-#: the selection made before the update can differ from the one made after it
-#: at the image border and between landmarks seen equally often. A landmark
-#: predicted outside the root still gets its exact covariance, only slower
-#: (``stats()["predicted_outside_root"]``).
-ROOT_EXTRA_CANDIDATES = 5
-#: ... and chosen in the image grown by this fraction of its size each side (13
-#: pixels at VGA): the landmarks the update moves into view are at the border.
-ROOT_MARGIN = 0.02
-
-
-class VisualIsam2Backend(IndeterminateRecovery, VisualBackend):
+class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
     """Smoothing visual back end on ``gtsam.ISAM2``; tracks give the association."""
 
     name = "isam2"
@@ -525,49 +515,6 @@ class VisualIsam2Backend(IndeterminateRecovery, VisualBackend):
         slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
         order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
         return slots[order[:count] if count else order]
-
-    def _ordering_hint(self) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
-        """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default
-        ordering), and keys it re-eliminates though no new factor touches them.
-
-        ``predicted_in_root``: the previous pose, then the landmarks
-        :meth:`predict_observations` is likely to select (chosen the same way at
-        the newest pose's current value, in the image grown by ``ROOT_MARGIN``,
-        ``ROOT_EXTRA_CANDIDATES`` more than ``max_predictions``),
-        then the newest pose. The three groups make those keys the root clique
-        alone (the rest's separator lacks the newest pose, so gtsam does not merge
-        it in), and their joint marginal is read from that clique without
-        touching the dense clique of the landmarks in view below it. A landmark
-        coming back into view was not in the last frame's pixels: iSAM2 would
-        leave it deep in the tree (and ignore its group), so the ``max_predictions``
-        likeliest are re-eliminated; the extras join the root only when the update
-        touches them anyway.
-        """
-        self._root_slots = np.zeros(0, np.int64)
-        reelim = gtsam.KeyList()
-        if not self._frames or not (self.config.newest_pose_last or self.config.predicted_in_root):
-            return None, reelim
-        newest = self._frames[-1]
-        order: list[list[int]] = []  # groups of keys, eliminated in this order, after the rest
-        if self.config.predicted_in_root and self._n_lm and len(self._frames) > 1:
-            cap = self.config.max_predictions
-            self._root_slots = self._select_in_view(
-                self._pose(newest), cap + ROOT_EXTRA_CANDIDATES if cap else 0, margin=ROOT_MARGIN)
-            order.append([X(self._frames[-2])])
-            order.append([L(self._lm_ids[s]) for s in self._root_slots.tolist()])
-            for key in order[-1][:cap or None]:  # the likeliest: extras only if affected anyway
-                reelim.push_back(key)
-        order.append([X(newest)])
-        order = [keys for keys in order if keys]
-        # ccolamd wants every group number below the count of variables it orders,
-        # of which the new factors' keys are a lower bound
-        if len(order) >= self._graph.keys().size():
-            order = order[-1:]
-        groups = gtsam.KeyGroupMap()
-        for number, keys in enumerate(order, start=1):
-            for key in keys:
-                groups.insert2(key, number)
-        return groups, reelim
 
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:

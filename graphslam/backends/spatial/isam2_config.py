@@ -65,8 +65,10 @@ class VisualIsam2Config:
             the newest pose is constrained to the root of the Bayes tree (False:
             gtsam's default, every variable of the new factors).
         predicted_in_root: elimination ordering hint given to each update: the
-            previous pose, the landmarks likely to be predicted next and the newest
-            pose are eliminated last, so that they alone make the Bayes tree's
+            new factors' other keys (where gtsam's default puts them), then the
+            previous pose, the landmarks likely to be predicted next (re-eliminated
+            even if untouched) and the newest pose are eliminated last, so that
+            the last three alone make the Bayes tree's
             root clique and :meth:`~graphslam.backends.spatial.isam2.VisualIsam2Backend.predict_observations`
             reads their joint marginal from it (exact, about 1 ms). With
             gtsam's default ordering the landmarks in view sit in one dense
