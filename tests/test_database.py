@@ -154,7 +154,7 @@ def count_scanned(db: BowDatabase) -> list[int]:
     """A list that the next queries of ``db`` fill with the number of words each scan reads."""
     scanned: list[int] = []
     original = db._scan
-    db._scan = lambda scores, words, *a: scanned.append(len(words)) or original(scores, words, *a)
+    db._scan = lambda scores, words, *a, **kw: scanned.append(len(words)) or original(scores, words, *a, **kw)
     return scanned
 
 
@@ -336,6 +336,27 @@ def test_pruned_query_equals_brute_force_with_ties_exclusions_and_growth(pruning
             db.add(v)
         vectors += grown
     assert pruned >= 20, f"only {pruned} of 60 queries skipped words: the pruned path is not exercised"
+
+
+def test_pruned_query_is_exact_when_it_scans_every_word(pruning_everywhere, monkeypatch):
+    # When rescoring never pays (the cost model told so), the pruned scan reads every
+    # word and the query ranks its complete scores: exact still, with exclusions.
+    import loopclosure.database
+
+    monkeypatch.setattr(loopclosure.database, "_STOP_STEPS", 0.0)
+    rng = np.random.default_rng(11)
+    db = BowDatabase(WideVocabulary())
+    vectors = [zipf_idf_bow(rng) for _ in range(1500)]
+    for v in vectors:
+        db.add(v)
+    scanned = count_scanned(db)
+    for _ in range(6):
+        q = vectors[int(rng.integers(len(vectors)))] if rng.random() < 0.5 else zipf_idf_bow(rng)
+        for k, exclude in ((1, 0), (10, 0), (10, 300), (25, len(vectors) - 40)):
+            del scanned[:]
+            got = db.query(q, max_results=k, exclude_recent=exclude)
+            assert_same_ranking(got, vectors, q, len(vectors) - exclude, k)
+            assert len(scanned) > 1, "the pruned path was not taken"
 
 
 def test_pruned_query_breaks_exact_ties_by_lower_id(pruning_everywhere):
