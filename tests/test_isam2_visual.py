@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import gtsam
 import numpy as np
 import pytest
@@ -207,6 +209,60 @@ def test_innovation_covariance_is_the_exact_joint_marginal(world, in_root):
         assert stats["predicted_outside_root"] == 0
     else:
         assert stats["predicted_outside_root"] > len(checked)
+
+
+def _root_clique_keys(isam, folder) -> set[str]:
+    """Frontal keys of iSAM2's root clique as gtsam names them ('x12', 'l40'), read
+    from the Bayes tree it writes in DOT (``saveGraph``: "frontals : separator")."""
+    path = folder / "bayes_tree.dot"
+    isam.saveGraph(str(path))
+    text = path.read_text()
+    labels = dict(re.findall(r'^(\d+)\[label="([^"]*)"\]', text, re.M))
+    children = set(re.findall(r"^\d+->(\d+)", text, re.M))
+    roots = [node for node in labels if node not in children]
+    assert len(roots) == 1, roots
+    return set(labels[roots[0]].split(" : ")[0].split(", "))
+
+
+def test_predicted_landmarks_sit_in_the_root_clique(world, tmp_path):
+    """``predicted_in_root``: every landmark predict_observations reads, those coming
+    back into view as the 60 frames close their loop included, is a frontal of the
+    Bayes tree's root clique with the newest pose (what makes the joint marginal cheap)."""
+    outside, predicted = [], 0
+
+    def check(k, backend, pred):
+        nonlocal predicted
+        root = _root_clique_keys(backend._isam, tmp_path)
+        assert f"x{k}" in root and f"x{k - 1}" in root
+        outside.extend((k, t) for t in pred.track_ids.tolist() if f"l{t}" not in root)
+        predicted += len(pred)
+
+    run(world, on_predictions=check)
+    assert predicted > 300 and not outside, outside
+
+
+@pytest.mark.slow
+def test_landmarks_back_in_view_are_predicted_from_the_root_clique(tmp_path):
+    """The benchmark room (bench_isam2_visual.py's stream) around its loop, frames
+    180-199: landmarks coming back into view, untouched by the last update, are
+    predicted there. Each must have been re-eliminated into the root clique (before
+    the fix two at frame 195 were not, and reading them cost 0.6-3 s)."""
+    from tests.benchmarks import load_benchmark
+
+    seq, obs = load_benchmark("bench_isam2_visual").make_stream(200, 1.0, 0)
+    backend = VisualIsam2Backend(VisualIsam2Config(polish=False))
+    backend.initialize(0, seq.wTc_true[0], np.zeros((6, 6)), seq.K, seq.image_size)
+    backend.update(obs[0])
+    outside, predicted = [], 0
+    for k in range(1, 200):
+        backend.predict(k, seq.odometry[k - 1], seq.odometry_covariance)
+        pred = backend.predict_observations()
+        if k >= 180:
+            root = _root_clique_keys(backend._isam, tmp_path)
+            outside += [(k, t) for t in pred.track_ids.tolist() if f"l{t}" not in root]
+            predicted += len(pred)
+        backend.update(obs[k])
+    assert predicted >= 150 and not outside, outside
 
 
 def test_marginal_mode_predicts_same_pixels(world):
