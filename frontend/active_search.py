@@ -58,95 +58,21 @@ counts overlaps twice, is reported as well).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar, Literal
 
-import cv2
 import numpy as np
 
+from frontend.active_search_config import ActiveSearchConfig, chi2_2dof
 from frontend.features import Features
-from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, check_gray
-from slamcore.config import bounded, validate
+from frontend.image import check_gray
+from frontend.search_matchers import (Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels,
+                                      extract_patches, inv2)
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
+# the settings and the matchers live in their own modules (re-exported here)
 __all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
            "NearestMatcher", "Repredict", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
-
-
-def chi2_2dof(probability: float) -> float:
-    """Chi-square quantile with 2 degrees of freedom: ``-2 ln(1 - p)`` (9.2103 at 0.99)."""
-    if not 0.0 < probability < 1.0:
-        raise ConfigError(f"gate probability must be in (0, 1), got {probability!r}")
-    return -2.0 * math.log1p(-probability)
-
-
-@dataclass(frozen=True)
-class ActiveSearchConfig:
-    """Active search settings (config section ``[active_search]``).
-
-    Attributes:
-        mode: ``"zncc"`` (software patch correlation) or ``"nearest"`` (hardware:
-            nearest Harris point inside the ellipse).
-        gate_probability: probability mass of the search ellipse (chi-square, 2 dof).
-        max_corrections: landmarks searched per frame at most (largest
-            ellipses first); 0 = no cap.
-        patch_size_px: odd side of the correlation patch, pixels.
-        min_score: smallest ZNCC accepted, in [-1, 1].
-        min_patch_std: patches / image windows with a grey-level standard
-            deviation below this are not matched (flat, ZNCC undefined).
-        subpixel: parabolic sub-pixel refinement of the ZNCC peak.
-        predict_appearance: warp the patch by the given per-landmark affine
-            before correlating (needs the previous image and points, or
-            larger source patches; the tracker's patches are warped by the
-            view change since they were cut, :mod:`frontend.appearance`).
-        max_half_extent_px: landmarks whose ellipse's bounding box has a
-            half-side above this are not searched (their prediction is
-            meaningless; they would cost a large part of the frame).
-        order: ``"batch"`` or ``"sequential"`` (module docstring); sequential
-            needs a back end that corrects one landmark at a time (the
-            monocular EKF).
-        ransac_every: sequential only: one correction in ``n`` comes from the
-            back end's one-point RANSAC over the first matches (module
-            docstring); 0: none (every correction sequential, gated alone).
-    """
-
-    SECTION: ClassVar[str] = "active_search"
-
-    mode: Literal["zncc", "nearest"] = "zncc"
-    gate_probability: float = bounded(0.99, gt=0.0, lt=1.0)
-    max_corrections: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
-    patch_size_px: int = bounded(11, min=3, max=MAX_PATCH_PX)
-    min_score: float = bounded(0.8, min=-1.0, max=1.0)
-    min_patch_std: float = bounded(3.0, min=0.0)
-    subpixel: bool = True
-    predict_appearance: bool = False
-    max_half_extent_px: float = bounded(150.0, gt=0.0)
-    order: Literal["batch", "sequential"] = "batch"
-    # 1 would hand every match to RANSAC at once: the batch order
-    ransac_every: int = bounded(0, min=0, max=MAX_POINTS_PER_FRAME)
-
-    def __post_init__(self):
-        validate(self)
-        if self.ransac_every == 1 or (self.ransac_every and self.order != "sequential"):
-            raise ConfigError(f"active_search.ransac_every must be 0 or at least 2, with order "
-                              f"'sequential' (got {self.ransac_every!r}, order {self.order!r})")
-        if self.patch_size_px % 2 == 0:  # parity is not a range: checked here
-            raise ConfigError(f"active_search.patch_size_px must be odd (a centre pixel), "
-                              f"got {self.patch_size_px!r}")
-
-    @property
-    def gate(self) -> float:
-        """Mahalanobis-squared threshold gamma of the ellipse."""
-        return chi2_2dof(self.gate_probability)
-
-    def first_batch(self, budget: int | None) -> int:
-        """Matches handed to the back end together before the first re-prediction
-        (sequential order): ``ceil(budget / ransac_every)``, else 1."""
-        if not self.ransac_every or not budget:
-            return 1
-        return max(1, -(-int(budget) // self.ransac_every))
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,80 +111,6 @@ class ActiveSearchResult:
         return int(self.found.sum())
 
 
-def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple[int, int],
-                   margin: int = 0):
-    """Integer pixels inside the gate ellipse and at least ``margin`` px from every edge.
-
-    Returns ``(u0, v0, mask)``: ``mask`` (h, w) bool over the bounding box whose
-    top-left pixel is ``(u0, v0)``; ``mask[j, i]`` is pixel ``(u0 + i, v0 + j)``.
-    An empty box gives a (0, 0) mask.
-    """
-    H, W = shape
-    cu, cv = float(center[0]), float(center[1])
-    au, av = math.sqrt(gamma * S[0, 0]), math.sqrt(gamma * S[1, 1])
-    u0 = max(math.ceil(cu - au), margin)
-    u1 = min(math.floor(cu + au), W - 1 - margin)
-    v0 = max(math.ceil(cv - av), margin)
-    v1 = min(math.floor(cv + av), H - 1 - margin)
-    if u1 < u0 or v1 < v0:
-        return u0, v0, np.zeros((0, 0), dtype=bool)
-    Si = inv2(S)
-    du = np.arange(u0, u1 + 1, dtype=np.float64) - cu
-    dv = np.arange(v0, v1 + 1, dtype=np.float64) - cv
-    d2 = (Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None]
-          + Si[1, 1] * dv[:, None] ** 2)
-    return u0, v0, d2 <= gamma
-
-
-def extract_patches(image: np.ndarray, xy: np.ndarray, size: int) -> np.ndarray:
-    """(N, size, size) float32 patches centred on ``xy`` (N, 2) (sub-pixel, edges replicated)."""
-    image = check_gray(image)
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    out = np.empty((len(xy), size, size), np.float32)
-    for i, (u, v) in enumerate(xy):
-        out[i] = cv2.getRectSubPix(image, (size, size), (float(u), float(v)), patchType=cv2.CV_32F)
-    return out
-
-
-def _warp_patch(image: np.ndarray, xy: np.ndarray, A_inv: np.ndarray, size: int) -> np.ndarray:
-    """Patch of float32 ``image`` as seen after the offset map ``A`` (prev -> cur), given
-    ``A_inv`` (2, 2): ``P(d) = I(xy + A^-1 d)`` for offsets ``d`` from the patch centre."""
-    c = (size - 1) / 2.0
-    M = np.empty((2, 3))
-    M[:, :2] = A_inv
-    M[:, 2] = xy - A_inv @ np.array([c, c])
-    return cv2.warpAffine(image, M, (size, size),
-                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-
-
-#: Flat-window peaks tested one by one before testing every window of the ellipse.
-_PEAK_TRIES = 4
-
-
-def _parabola(rm: float, r0: float, rp: float) -> float:
-    den = rm - 2.0 * r0 + rp
-    if not den < 0.0:
-        return 0.0
-    # plain floats: np.clip on a scalar costs more than the whole fit
-    return min(max(0.5 * (rm - rp) / den, -0.5), 0.5)
-
-
-def inv2(S: np.ndarray) -> np.ndarray:
-    """Inverse of a 2x2 matrix in closed form (np.linalg.inv's call overhead is ~30 us)."""
-    a, b, c, d = float(S[0, 0]), float(S[0, 1]), float(S[1, 0]), float(S[1, 1])
-    det = a * d - b * c
-    return np.array([[d / det, -b / det], [-c / det, a / det]])
-
-
-#: One mode's matching of one landmark inside its ellipse:
-#: ``matcher(i, Si, u0, v0, mask) -> (uv, score, d2)`` with ``Si`` (2, 2) the
-#: inverse innovation covariance and ``(u0, v0, mask)`` the ellipse's pixels
-#: (:func:`ellipse_pixels`). ``uv`` (2,) is the accepted measurement or None;
-#: ``score`` is recorded even when nothing is accepted (None: no score);
-#: ``d2`` None lets the search compute ``e^T S^-1 e`` from ``uv``.
-Matcher = Callable[[int, np.ndarray, int, int, np.ndarray],
-                   tuple[np.ndarray | None, float | None, float | None]]
-
 #: Sequential order's link to the back end: ``repredict(found, uv, pending) ->
 #: (z (P, 2), S (P, 2, 2))``: correct with the landmarks ``found`` (M,) (indices
 #: into the predictions) measured at ``uv`` (M, 2) px, and return the new
@@ -279,148 +131,6 @@ def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
             np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
         raise MeasurementError("innovation covariances must be symmetric positive definite")
     return z, S
-
-
-class ZnccMatcher:
-    """``"zncc"`` mode: best ZNCC of the landmark's template inside its ellipse.
-
-    Templates are the stored ``patches`` (N, p, p), or, with appearance
-    prediction, warped through the offset map ``affine`` (N, 2, 2) when the
-    landmark is searched, from ``prev_image`` at ``prev_xy`` (N, 2) or from the
-    centre of ``source_patches`` (N, q, q), q odd >= p (a track's patch cut
-    larger, so that the corners of a rotated or shrunk template are image).
-    """
-
-    def __init__(self, config: ActiveSearchConfig, image: np.ndarray, n: int, *,
-                 patches: np.ndarray | None, prev_image: np.ndarray | None,
-                 prev_xy: np.ndarray | None, affine: np.ndarray | None,
-                 source_patches: np.ndarray | None = None):
-        p = config.patch_size_px
-        self.config, self.image, self.p, self.margin = config, image, p, p // 2
-        self.min_var = float(config.min_patch_std) ** 2
-        self.warp = config.predict_appearance and affine is not None
-        if self.warp:
-            self._warp_sources(n, prev_image, prev_xy, affine, source_patches)
-        elif patches is None:
-            if prev_image is None or prev_xy is None:
-                raise InputError("zncc mode needs patches, or prev_image and prev_xy")
-            patches = extract_patches(prev_image, prev_xy, p)
-        if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
-            raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
-        if not self.warp:
-            # one vectorised call instead of one np.std per landmark
-            self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
-        self.patches = patches
-
-    def _warp_sources(self, n: int, prev_image, prev_xy, affine, source_patches) -> None:
-        """Check and keep what appearance prediction warps: float32 sources, their
-        points, and the inverse maps (one batched inverse, not one per landmark)."""
-        affine = np.asarray(affine, dtype=np.float64).reshape(-1, 2, 2)
-        if len(affine) != n or not np.all(np.isfinite(affine)) or np.any(np.linalg.det(affine) == 0):
-            raise InputError(f"affine must be {n} finite invertible (2, 2) maps")
-        self.affine_inv = np.linalg.inv(affine)
-        self.sources = None
-        if source_patches is not None:
-            self.sources = np.asarray(source_patches, dtype=np.float32)
-            q = self.sources.shape[-1]
-            if self.sources.shape != (n, q, q) or q < self.p or q % 2 == 0:
-                raise InputError(f"source_patches must be ({n}, q, q) with q odd >= {self.p}, "
-                                 f"got {self.sources.shape}")
-            self.source_xy = np.array([(q - 1) / 2.0, (q - 1) / 2.0])
-            return
-        if prev_image is None or prev_xy is None:
-            raise InputError("appearance prediction needs prev_image and prev_xy, or source_patches")
-        # converted once here, not once per landmark searched
-        self.prev_image = check_gray(prev_image, "prev_image").astype(np.float32)
-        self.prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
-
-    def template(self, i: int) -> np.ndarray | None:
-        """(p, p) float32 template of landmark ``i``, None if flat (ZNCC undefined)."""
-        if not self.warp:
-            if self.tpl_std[i] < self.config.min_patch_std:
-                return None
-            return np.ascontiguousarray(self.patches[i], dtype=np.float32)
-        if self.sources is not None:
-            tpl = _warp_patch(self.sources[i], self.source_xy, self.affine_inv[i], self.p)
-        else:
-            tpl = _warp_patch(self.prev_image, self.prev_xy[i], self.affine_inv[i], self.p)
-        _, sd = cv2.meanStdDev(tpl)  # a tenth of np.std's cost on a patch
-        return None if float(sd[0, 0]) < self.config.min_patch_std else tpl
-
-    def __call__(self, i, Si, u0, v0, mask):
-        tpl = self.template(i)
-        if tpl is None:
-            return None, None, None
-        h = self.margin
-        bh, bw = mask.shape
-        # only the ellipse's bounding box (plus the patch margin) is converted
-        region = self.image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
-        res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
-        masked = np.where(mask & np.isfinite(res), res, -np.inf)
-        jv, ju = self._peak(region, masked)
-        if masked[jv, ju] == -np.inf:
-            return None, None, None
-        best = float(res[jv, ju])
-        if best < self.config.min_score:
-            return None, best, None
-        du = dv = 0.0
-        if self.config.subpixel:
-            if 0 < ju < bw - 1:
-                du = _parabola(float(res[jv, ju - 1]), best, float(res[jv, ju + 1]))
-            if 0 < jv < bh - 1:
-                dv = _parabola(float(res[jv - 1, ju]), best, float(res[jv + 1, ju]))
-        return np.array([u0 + ju + du, v0 + jv + dv]), best, None
-
-    def _peak(self, region: np.ndarray, masked: np.ndarray) -> tuple[int, int]:
-        """Best ZNCC ``(row, col)`` in ``masked`` whose image window is not flat.
-
-        ZNCC is undefined on a flat window. The window test is done at the peak
-        only and the next peak tried if it fails (the same pixel as testing
-        every window); after a few flat peaks (a flat area) every window is
-        tested at once. Flat windows are set to -inf in ``masked``; a -inf
-        answer means no acceptable pixel.
-        """
-        p, h = self.p, self.margin
-        bh, bw = masked.shape
-        for _ in range(_PEAK_TRIES):
-            jv, ju = divmod(int(np.argmax(masked)), bw)
-            if masked[jv, ju] == -np.inf:
-                return jv, ju
-            _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
-            if float(sd[0, 0]) ** 2 >= self.min_var:
-                return jv, ju
-            masked[jv, ju] = -np.inf
-        k = (p, p)
-        m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-        m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-        var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
-        masked[var < self.min_var] = -np.inf
-        return divmod(int(np.argmax(masked)), bw)
-
-
-class NearestMatcher:
-    """``"nearest"`` mode: the detected point nearest to the prediction (Mahalanobis)
-    inside the ellipse; its detector response is the score."""
-
-    margin = 0
-
-    def __init__(self, config: ActiveSearchConfig, z: np.ndarray, features: Features | None):
-        if features is None:
-            raise InputError("nearest mode needs the current frame's features")
-        self.z, self.gate = z, config.gate
-        self.fxy = np.asarray(features.xy_px, dtype=np.float64).reshape(-1, 2)
-        self.fresp = np.asarray(features.response, dtype=np.float64)
-
-    def __call__(self, i, Si, u0, v0, mask):
-        if len(self.fxy) == 0:
-            return None, None, None
-        d = self.fxy - self.z[i]
-        dd = np.einsum("ni,ij,nj->n", d, Si, d)
-        inside = np.flatnonzero(dd <= self.gate)
-        if len(inside) == 0:
-            return None, None, None
-        j = inside[np.argmin(dd[inside])]
-        return self.fxy[j].copy(), self.fresp[j], None
 
 
 class ActiveSearch:
