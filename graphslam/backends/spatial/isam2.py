@@ -111,6 +111,7 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
         self._slot: dict[int, int] = {}
         self._lm_ids: list[int] = []
         self._lm_pos = np.zeros((0, 3))  # last read position (pre-selection only)
+        self._lm_read = np.zeros(0, dtype=np.int64)  # _epoch of that read (-1: not read)
         self._lm_nobs = np.zeros(0, dtype=np.int64)
         self._lm_sigma = np.zeros(0)  # latest sigma_px seen
         self._lm_last = np.zeros(0, dtype=np.int64)  # index in _frames of the latest pixel
@@ -121,6 +122,7 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
         self._polished: gtsam.Values | None = None
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
+        self._epoch = 0  # changes whenever the estimate can: each isam update, a polish
         self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
         self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
                        "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0,
@@ -264,6 +266,7 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
         wTc = np.array([conv.pose3_matrix(values.atPose3(X(f))) for f in self._frames])
         pts = np.array([values.atPoint3(L(t)) for t in self._lm_ids]).reshape(-1, 3)
         self._lm_pos[:self._n_lm] = pts  # free refresh of the pre-selection cache
+        self._lm_read[:self._n_lm] = self._epoch
         if self._polished is not None:
             cov = self._current_cov_polished
         else:
@@ -286,6 +289,7 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
                     graph, self._isam.calculateEstimate(), params).optimize()
             self._current_cov_polished = conv.pose3_covariance_from_gtsam(
                 self._polished_pose_covariance(graph, X(self._frames[-1])))
+            self._epoch += 1
         return self.estimate()
 
     def _polished_pose_covariance(self, graph: gtsam.NonlinearFactorGraph, key: int) -> np.ndarray:
@@ -486,11 +490,13 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
             self._lm_nobs = np.resize(self._lm_nobs, cap)
             self._lm_sigma = np.resize(self._lm_sigma, cap)
             self._lm_last = np.resize(self._lm_last, cap)
+            self._lm_read = np.resize(self._lm_read, cap)
         s = self._n_lm
         self._slot[tid] = s
         self._lm_ids.append(tid)
         self._lm_pos[s], self._lm_nobs[s], self._lm_sigma[s] = point, nobs, sigma
         self._lm_last[s] = len(self._frames) - 1
+        self._lm_read[s] = -1  # its pending initial value: read again once iSAM2 has it
         self._n_lm += 1
 
     def _forget_stale_tracks(self, now: int) -> None:
@@ -510,8 +516,13 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
         if self.config.predict_window_frames:  # before the reads: it needs no position
             recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
             slots = slots[recent]
-        for s in slots.tolist():  # fresh positions of the pre-selected only
+        # fresh positions of the pre-selected only, and only those not yet read at this
+        # estimate (the hint before an update and the predictions after it read the same
+        # landmarks once each frame: same numbers, half the reads)
+        stale = slots[self._lm_read[slots] != self._epoch]
+        for s in stale.tolist():
             self._lm_pos[s] = self._point(self._lm_ids[s])
+        self._lm_read[stale] = self._epoch
         slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
         order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
         return slots[order[:count] if count else order]
@@ -526,6 +537,7 @@ class VisualIsam2Backend(RootOrdering, IndeterminateRecovery, VisualBackend):
         self._graph, self._values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         self._pose_cache.clear()
         self._polished = None  # new information invalidates a previous polish
+        self._epoch += 1
         self._current_cov_polished = None
         self._n_updates += 1
         try:

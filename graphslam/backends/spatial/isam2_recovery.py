@@ -54,7 +54,7 @@ class IndeterminateRecovery:
         """Forget landmark ``tid``: its slot is removed (the later ones shift down)
         and its track is ignored from then on."""
         s, n = self._slot.pop(tid), self._n_lm
-        for arr in (self._lm_pos, self._lm_nobs, self._lm_sigma, self._lm_last):
+        for arr in (self._lm_pos, self._lm_nobs, self._lm_sigma, self._lm_last, self._lm_read):
             arr[s:n - 1] = arr[s + 1:n].copy()
         del self._lm_ids[s]
         for t in self._lm_ids[s:]:
