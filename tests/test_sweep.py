@@ -103,6 +103,14 @@ max_steps = 7
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf2"]\n', 3, "unknown back end"),
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n\n[ekf]\nassociation = "unknown"\n', 5,
      "unknown table [ekf]"),
+    ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["fastslam1"]\n', 3,
+     "does not run on the image sequence"),
+    ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["ekf"]\nnees = true\n', 4,
+     "write no nees.csv"),
+    ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["isam2"]\n[sweep.set]\n"ekf.association" = ["known"]\n',
+     5, "not a section.key that these runs read"),
+    ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["ekf"]\n[sweep.set]\n"active_search.order" = ["random"]\n',
+     5, "active_search.order"),
 ])
 def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, line, words):
     path = _file(tmp_path, text)
@@ -192,6 +200,46 @@ def test_cli_sweep_writes_table_and_plots(tmp_path, capsys):
     for name in ("sweep_nees.png", "sweep_ate.png"):
         assert (out / name).stat().st_size > 0
     assert "4 runs" in capsys.readouterr().out
+
+
+def test_image_sequence_grid_reads_the_visual_sections(tmp_path):
+    spec = parse_sweep(_file(tmp_path, """\
+[sweep]
+dataset = ["synthetic-images"]
+backend = ["isam2", "ekf"]
+[sweep.set]
+"active_search.order" = ["batch", "sequential"]
+"mono_ekf.landmark_param" = ["idp", "ahp"]
+"synthetic_images.n_frames" = [40]
+"""))
+    assert not spec.nees  # image-sequence runs write no nees.csv
+    runs = spec.runs()
+    # iSAM2 does not read [mono_ekf]: 2 runs for it, 4 for the EKF
+    assert sorted(r.backend for r in runs) == ["ekf"] * 4 + ["isam2"] * 2
+    assert all(r.config["synthetic_images"] == {"n_frames": 40} for r in runs)
+    assert all(("mono_ekf" in r.config) == (r.backend == "ekf") for r in runs)
+
+
+@pytest.mark.slow
+def test_cli_sweep_over_an_image_sequence(tmp_path, capsys):
+    # two back ends on 12 frames of the synthetic image sequence, each run a real
+    # `graphslam run` in its own process: ATE and RPE scored from its files
+    out = tmp_path / "o"
+    path = _file(tmp_path, """\
+[sweep]
+dataset = ["synthetic-images"]
+backend = ["isam2", "ekf"]
+max_steps = 12
+[sweep.set]
+"synthetic_images.n_frames" = [12]
+""")
+    assert main(["sweep", str(path), "--out", str(out), "--workers", "2", "--quiet"]) == 0
+    rows = _csv(out / "sweep.csv")
+    assert sorted(r["backend"] for r in rows) == ["ekf", "isam2"]
+    assert all(r["status"] == "ok" and float(r["ate_rmse_m"]) >= 0.0 and r["rpe_trans_rmse_m"]
+               and not r["nees_mean"] for r in rows), rows
+    assert (out / "sweep_ate.png").stat().st_size > 0
+    assert "2 runs" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv", [["--workers", "0"],

@@ -1,4 +1,5 @@
-"""``graphslam sweep SWEEP.toml``: a grid of 2-D runs, one process each, one table."""
+"""``graphslam sweep SWEEP.toml``: a grid of runs (2-D, pose graphs or image sequences),
+one process each, one table."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ sweep file (TOML):
   seed = {from = 0, to = 49}          # or a list; absent: no --seed
   max_steps = 200                     # optional
   nees = true                         # optional; default: true on the synthetic world
+                                      # (image sequences: false, they write no nees.csv)
   config = "base.toml"                # optional base config, beside the sweep file
   [sweep.set]                         # config overrides, the grid is their product
   "ekf.association" = ["unknown"]
@@ -36,6 +38,8 @@ engines: a local pool of --workers runs at a time (default); --cluster local
 examples:
   graphslam sweep benchmarks/sweep_unknown_association.toml --out runs/sweep-ua
   graphslam sweep my.toml --out runs/s --workers 4 --cluster local
+  image sequences: dataset = ["synthetic-images"], backend = ["isam2", "ekf"],
+  [sweep.set] "active_search.order" = ["batch", "sequential"]
 """
 
 

@@ -2,14 +2,16 @@
 
 ```toml
 [sweep]
-dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph files)
+dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph files) or
+                                        # image sequences (synthetic-images, a folder)
 backend = ["isam2", "ekf"]
 seed = {from = 0, to = 49}              # or a list; absent: runs get no --seed
 max_steps = 200                         # optional: --max-steps of every run
 nees = true                             # optional: runs score their pose NEES (default:
                                         # true when every dataset is the synthetic world,
                                         # the one built-in 2-D dataset with truth and
-                                        # covariances cheap enough to take at every pose)
+                                        # covariances cheap enough to take at every pose;
+                                        # image-sequence runs write no nees.csv)
 config = "base.toml"                    # optional: the runs' base config (relative
                                         # to the sweep file); overrides go on top
 [sweep.set]
@@ -78,11 +80,9 @@ class SweepSpec:
 
     def runs(self) -> list[RunSpec]:
         """Every run of the grid, in a fixed order, without repeats."""
-        from graphslam.registry import planar_sections
-
         out, seen = [], set()
         for dataset, backend in itertools.product(self.datasets, self.backends):
-            sections = planar_sections(dataset, backend)
+            sections = run_sections(dataset, backend)
             for combo in itertools.product(*self.set_values):
                 applied = {k: v for k, v in zip(self.set_keys, combo)
                            if k.split(".", 1)[0] in sections}
@@ -112,6 +112,42 @@ def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool,
     text = json.dumps({"dataset": dataset, "backend": backend, "max_steps": max_steps,
                        "nees": nees, "config": config}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def visual_sections(dataset: str, backend: str) -> dict[str, type]:
+    """Config classes ``graphslam run`` on the image sequence ``dataset`` with ``backend``
+    reads, by section name (without ``--loops``; ``graphslam sweep`` checks its
+    overrides against them)."""
+    from filters.mono_ekf_config import MonoEkfConfig
+    from frontend.active_search_config import ActiveSearchConfig
+    from frontend.harris import HarrisConfig
+    from frontend.orb import OrbConfig
+    from frontend.tracking_config import TrackerConfig
+    from graphslam.backends.spatial.isam2_config import VisualIsam2Config
+    from graphslam.pipelines.spatial import OdometryNoiseConfig, VisualRunConfig
+    from graphslam.registry import VISUAL_BACKENDS
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig
+
+    by_backend = {"isam2": VisualIsam2Config, "ekf": MonoEkfConfig}
+    if backend not in by_backend:
+        raise ConfigError(f"back end {backend!r} does not run on image sequences "
+                          f"(available: {', '.join(VISUAL_BACKENDS)})")
+    classes = (VisualRunConfig, OdometryNoiseConfig, TrackerConfig, ActiveSearchConfig,
+               HarrisConfig, OrbConfig, by_backend[backend])
+    out = {cls.SECTION: cls for cls in classes}
+    if dataset == "synthetic-images":
+        out[SyntheticImagesConfig.SECTION] = SyntheticImagesConfig
+    return out
+
+
+def run_sections(dataset: str, backend: str) -> dict[str, type]:
+    """:func:`visual_sections` for an image sequence, else
+    :func:`graphslam.registry.planar_sections`."""
+    from graphslam.registry import is_visual_dataset, planar_sections
+
+    if is_visual_dataset(dataset):
+        return visual_sections(dataset, backend)
+    return planar_sections(dataset, backend)
 
 
 def _toml_value(value) -> str:
@@ -200,7 +236,7 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
 
 def parse_sweep(path: str | Path) -> SweepSpec:
     """Read and check a sweep file (module doc); ConfigError with file and line."""
-    from graphslam.registry import BACKENDS, is_visual_dataset, planar_sections, read_config
+    from graphslam.registry import BACKENDS, VISUAL_BACKENDS, is_visual_dataset, read_config
 
     cfg = ConfigFile.read(path)
     for name in cfg.data:
@@ -216,13 +252,14 @@ def parse_sweep(path: str | Path) -> SweepSpec:
                               cfg.path, cfg.line_of("sweep", key))
     datasets = _list(sweep, cfg, "dataset", str)
     backends = _list(sweep, cfg, "backend", str)
-    for name in datasets:
-        if is_visual_dataset(name):
-            raise ConfigError(f"[sweep] dataset {name!r} is an image sequence; sweeps run 2-D "
-                              f"datasets", cfg.path, cfg.line_of("sweep", "dataset"))
+    visual = [name for name in datasets if is_visual_dataset(name)]
     for b in backends:
         if b not in BACKENDS:
             raise ConfigError(f"[sweep] unknown back end {b!r} (available: {', '.join(BACKENDS)})",
+                              cfg.path, cfg.line_of("sweep", "backend"))
+        if visual and b not in VISUAL_BACKENDS:
+            raise ConfigError(f"[sweep] back end {b!r} does not run on the image sequence "
+                              f"{visual[0]!r} (available: {', '.join(VISUAL_BACKENDS)})",
                               cfg.path, cfg.line_of("sweep", "backend"))
     max_steps = sweep.get("max_steps")
     if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
@@ -232,12 +269,16 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     if not isinstance(nees, bool):
         raise ConfigError(f"[sweep] nees must be true or false, got {nees!r}", cfg.path,
                           cfg.line_of("sweep", "nees"))
+    if nees and visual:
+        raise ConfigError(f"[sweep] nees = true, but {visual[0]!r} is an image sequence, whose "
+                          f"runs write no nees.csv: set nees = false", cfg.path,
+                          cfg.line_of("sweep", "nees"))
     base = {}
     if "config" in sweep:
         base = dict(read_config(Path(cfg.path).parent / str(sweep["config"])).data)
     grid_sections = {}
     for d, b in itertools.product(datasets, backends):
-        grid_sections.update(planar_sections(d, b))
+        grid_sections.update(run_sections(d, b))
     keys, values = _check_set(sweep, cfg, grid_sections)
     return SweepSpec(Path(path), tuple(datasets), tuple(backends), _seeds(sweep, cfg), max_steps,
                      nees, base, keys, values)
