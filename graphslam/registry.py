@@ -195,22 +195,32 @@ def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSou
     return read_image_sequence(Path(spec))
 
 
-def make_visual_backend(name: str, *, config: ConfigSource = None,
-                        overrides: dict | None = None):
-    """Visual back end by name: ``isam2`` (section ``[isam2_visual]``) or ``ekf``
-    (monocular EKF-SLAM, section ``[mono_ekf]``)."""
+def visual_backend_config(name: str) -> type:
+    """Config class of the visual back end ``name``: ``isam2`` (section
+    ``[isam2_visual]``) or ``ekf`` (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
-        from graphslam.backends.spatial.isam2 import VisualIsam2Backend
         from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 
-        return VisualIsam2Backend(load_section(VisualIsam2Config, config, overrides))
+        return VisualIsam2Config
     if name == "ekf":
-        from filters.mono_ekf import MonoEkf
         from filters.mono_ekf_config import MonoEkfConfig
 
-        return MonoEkf(load_section(MonoEkfConfig, config, overrides))
+        return MonoEkfConfig
     raise ConfigError(f"back end {name!r} does not run on image sequences "
                       f"(available: {', '.join(VISUAL_BACKENDS)})")
+
+
+def make_visual_backend(name: str, *, config: ConfigSource = None,
+                        overrides: dict | None = None):
+    """Visual back end by name (:func:`visual_backend_config` names its section)."""
+    settings = load_section(visual_backend_config(name), config, overrides)
+    if name == "isam2":
+        from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+
+        return VisualIsam2Backend(settings)
+    from filters.mono_ekf import MonoEkf
+
+    return MonoEkf(settings)
 
 
 #: ``graphslam compare`` entries on image sequences -> (back end, its config overrides):

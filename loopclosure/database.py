@@ -357,9 +357,8 @@ class BowDatabase:
         a query.
         """
         ns, qs = lengths.tolist(), q.tolist()
-        chunk = _CHUNK
         starts = np.cumsum(lengths) - lengths
-        group = starts // chunk  # each word goes with the group of its first posting
+        group = starts // _CHUNK  # each word goes with the group of its first posting
         cuts = [0, *(np.flatnonzero(np.diff(group)) + 1).tolist(), len(ns)]
         big = int(np.max(np.add.reduceat(lengths, cuts[:-1]))) if len(ns) else 0
         self._reserve(big)

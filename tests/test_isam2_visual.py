@@ -470,3 +470,31 @@ def test_indeterminate_landmark_is_dropped_and_the_run_goes_on(world):
 def test_indeterminate_pose_is_one_line(world):
     with pytest.raises(GraphSlamError, match="indeterminate linear system near x30"):
         run(world, on_predictions=_fail_at(30, lambda backend, pred: "x30"))
+
+
+def test_second_landmark_named_while_recovering_is_dropped_with_the_first(world, monkeypatch):
+    """The re-solve after dropping one landmark may itself meet another: both go,
+    and the graph iSAM2 keeps holds no factor of either."""
+    from graphslam.backends import factorization as fact
+
+    real, picked = fact.rebuild_without, []
+
+    def pick(backend, pred):
+        picked.extend(int(t) for t in pred.track_ids[:2])
+        return f"l{picked[0]}"
+
+    def fail_first_rebuild(isam, params, keys):
+        if len(picked) < 3:  # the first re-solve names the second landmark
+            picked.append(-1)
+            raise RuntimeError("\nIndeterminate linear system detected while working near "
+                               f"variable\n124 (Symbol: l{picked[1]}).\n")
+        return real(isam, params, keys)
+
+    monkeypatch.setattr(fact, "rebuild_without", fail_first_rebuild)
+    backend = run(world, frames=40, on_predictions=_fail_at(30, pick))
+    est = backend.estimate()
+    assert est.stats["landmarks_dropped_indeterminate"] == 2
+    gone = {L(picked[0]), L(picked[1])}
+    assert not gone & set(int(k) for k in backend.factor_graph().keyVector())
+    assert not set(picked[:2]) & set(est.landmark_ids.tolist())
+    assert np.all(np.isfinite(est.wTc))

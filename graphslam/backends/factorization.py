@@ -56,28 +56,29 @@ def rebuild_with_qr(isam: gtsam.ISAM2, params: gtsam.ISAM2Params) -> gtsam.ISAM2
     and values but not their elimination, so its factor list and linearisation
     point are complete while its Bayes tree is not.
     """
-    return _rebuilt(isam, isam2_factorization(params, "qr"), None)
+    return _rebuilt(isam, isam2_factorization(params, "qr"), set())
 
 
-def rebuild_without(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, key: int) -> gtsam.ISAM2:
+def rebuild_without(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, keys) -> gtsam.ISAM2:
     """A fresh iSAM2 (``params``' factorisation) holding every factor of ``isam`` that
-    does not involve ``key``, at ``isam``'s values without ``key``: the variable and
-    its measurements are gone. Called after an ``update`` threw, as
+    involves none of ``keys``, at ``isam``'s values without ``keys``: the variables and
+    their measurements are gone. Called after an ``update`` threw, as
     :func:`rebuild_with_qr` is."""
-    return _rebuilt(isam, params, key)
+    return _rebuilt(isam, params, set(keys))
 
 
-def _rebuilt(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, drop: int | None) -> gtsam.ISAM2:
+def _rebuilt(isam: gtsam.ISAM2, params: gtsam.ISAM2Params, drop: set[int]) -> gtsam.ISAM2:
     """A fresh iSAM2 with ``params`` on ``isam``'s factors and values, less those of ``drop``."""
     factors = gtsam.NonlinearFactorGraph()
     old = isam.getFactorsUnsafe()
     for i in range(old.size()):
         factor = old.at(i)
-        if drop is None or (factor is not None and drop not in factor.keys()):
+        if not drop or (factor is not None and drop.isdisjoint(factor.keys())):
             factors.add(factor)
     values = gtsam.Values(isam.getLinearizationPoint())
-    if drop is not None and values.exists(drop):
-        values.erase(drop)
+    for key in drop:
+        if values.exists(key):
+            values.erase(key)
     fresh = gtsam.ISAM2(params)
     fresh.update(factors, values)
     return fresh

@@ -118,22 +118,16 @@ def visual_sections(dataset: str, backend: str) -> dict[str, type]:
     """Config classes ``graphslam run`` on the image sequence ``dataset`` with ``backend``
     reads, by section name (without ``--loops``; ``graphslam sweep`` checks its
     overrides against them)."""
-    from filters.mono_ekf_config import MonoEkfConfig
     from frontend.active_search_config import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
     from frontend.tracking_config import TrackerConfig
-    from graphslam.backends.spatial.isam2_config import VisualIsam2Config
     from graphslam.pipelines.spatial import OdometryNoiseConfig, VisualRunConfig
-    from graphslam.registry import VISUAL_BACKENDS
+    from graphslam.registry import visual_backend_config
     from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig
 
-    by_backend = {"isam2": VisualIsam2Config, "ekf": MonoEkfConfig}
-    if backend not in by_backend:
-        raise ConfigError(f"back end {backend!r} does not run on image sequences "
-                          f"(available: {', '.join(VISUAL_BACKENDS)})")
     classes = (VisualRunConfig, OdometryNoiseConfig, TrackerConfig, ActiveSearchConfig,
-               HarrisConfig, OrbConfig, by_backend[backend])
+               HarrisConfig, OrbConfig, visual_backend_config(backend))
     out = {cls.SECTION: cls for cls in classes}
     if dataset == "synthetic-images":
         out[SyntheticImagesConfig.SECTION] = SyntheticImagesConfig

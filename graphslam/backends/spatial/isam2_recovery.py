@@ -33,7 +33,9 @@ class IndeterminateRecovery:
         pivot). So the landmark and its factors leave the graph, its track is ignored
         from then on (``stats()["landmarks_dropped_indeterminate"]``) and the rest is
         re-solved from the current values; repeated while gtsam names a landmark. A
-        pose named is one line (GraphSlamError)."""
+        pose named is one line (GraphSlamError). Each re-solve starts again from the
+        failed iSAM2 (it holds every factor and value), without all landmarks dropped so far."""
+        failed, dropped = self._isam, []
         for _ in range(MAX_DROPS_PER_UPDATE):
             if not fact.is_indeterminate(exc):
                 raise exc
@@ -42,8 +44,9 @@ class IndeterminateRecovery:
             if tid is None or tid not in self._slot:
                 break
             self._drop_landmark(tid)
+            dropped.append(L(tid))
             try:
-                self._isam = fact.rebuild_without(self._isam, self.config.isam2_params(), L(tid))
+                self._isam = fact.rebuild_without(failed, self.config.isam2_params(), dropped)
                 return
             except RuntimeError as again:
                 exc = again
