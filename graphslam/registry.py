@@ -38,7 +38,8 @@ BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
 def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None) -> Dataset:
-    """Dataset by name or pose-graph file path (``.graph`` TORO, ``.g2o``)."""
+    """Dataset by name, pose-graph file path (``.graph`` TORO, ``.g2o``; TORO ``BR`` lines
+    are landmark observations) or a landmark log in Victoria Park's format."""
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
@@ -62,7 +63,12 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
     from graphslam.sources.planar.posegraph import read_pose_graph
     from graphslam.sources.posegraph_files import TAGS, first_tag
 
-    if TAGS.get(first_tag(path), (None, 2))[1] == 3:
+    tag = first_tag(path)
+    if tag in ("ODOMETRY", "LANDMARK"):  # a landmark log in Victoria Park's format
+        from graphslam.sources.planar.victoria_park import read_victoria_park
+
+        return read_victoria_park(path, name=path.stem)
+    if TAGS.get(tag, (None, 2))[1] == 3:
         raise ConfigError(f"{path} is a 3-D pose graph: run it with --backend isam2 or batch")
     return read_pose_graph(path)
 
@@ -74,12 +80,16 @@ POSEGRAPH_BACKENDS = ("isam2", "batch")
 def is_pose_graph_run(spec: str, backend: str) -> bool:
     """Whether ``--dataset spec --backend backend`` is a pose-graph solve: a
     g2o/TORO file (not a built-in name) with ``isam2`` or ``batch``. Filters on
-    2-D pose-graph files still stream them frame by frame (odometry only)."""
+    2-D pose-graph files still stream them frame by frame (odometry only). A TORO
+    file with landmark lines (``BR``) runs as landmark SLAM with ``isam2``; with
+    ``batch`` the pose-graph reader refuses it at its first such line."""
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
-    from graphslam.sources.posegraph_files import is_pose_graph_file
+    from graphslam.sources.posegraph_files import has_landmark_lines, is_pose_graph_file
 
-    return is_pose_graph_file(spec)
+    if not is_pose_graph_file(spec):
+        return False
+    return backend == "batch" or not has_landmark_lines(spec)
 
 
 def load_pose_graph(spec: str | Path, toro_noise: str = "information"):

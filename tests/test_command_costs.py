@@ -49,7 +49,7 @@ def test_victoria_park_one_pass_reads_the_records_line_by_line_reads(monkeypatch
     path = vp.victoria_park_path()
     fast = vp.read_well_formed(path)
     assert fast is not None and len(fast.frames) == 6969
-    monkeypatch.setattr(vp, "read_well_formed", lambda _path: None)
+    monkeypatch.setattr(vp, "read_well_formed", lambda _path, _name=None: None)
     _same_records(fast, vp.read_victoria_park(path))
 
 

@@ -172,6 +172,10 @@ class _Collector:
             self.equiv.append((parse_id(tok[1], self.path, line_no),
                                parse_id(tok[2], self.path, line_no)))
             return
+        if tag in LANDMARK_TAGS:
+            raise InputError(f"{tag} is a landmark observation: this file is landmark SLAM, "
+                             "run it with --backend isam2, ekf, fastslam1 or fastslam2",
+                             self.path, line_no)
         if tag not in TAGS:
             raise InputError(f"unknown tag {tag!r}", self.path, line_no)
         fmt, dim, rotation, kind, count = TAGS[tag]
@@ -308,6 +312,20 @@ def read_pose_graph_file(path, toro_noise: str = "information") -> pg.PoseGraph:
     for line_no, tok in _lines(path):
         collector.line(line_no, tok)
     return collector.graph()
+
+
+#: Landmark-observation tags a 2-D pose-graph file may hold (gtsam's ``load2D`` reads
+#: ``BR`` in TORO files): such a file is landmark SLAM (graphslam.sources.planar.posegraph).
+LANDMARK_TAGS = ("BR",)
+_LANDMARK_LINE = re.compile(rb"^[ \t]*(?:\xef\xbb\xbf)?BR[ \t]", re.MULTILINE)
+
+
+def has_landmark_lines(path) -> bool:
+    """Whether any line of a file starts with a landmark tag (one regex over the bytes)."""
+    try:
+        return _LANDMARK_LINE.search(Path(path).read_bytes()) is not None
+    except OSError:
+        return False
 
 
 def is_pose_graph_file(path) -> bool:

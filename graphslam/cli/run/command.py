@@ -22,6 +22,10 @@ datasets:
                   --backend isam2 (one update per pose, then LM) or batch (LM
                   from --init); writes graph.g2o or graph.graph (input format,
                   vertices at the estimate) and closures.csv
+  PATH            landmark SLAM from a file (isam2, ekf, fastslam1, fastslam2):
+                  a 2-D TORO file with BR lines (BR pose landmark bearing range
+                  sigma_bearing sigma_range, as gtsam.load2D reads them), or a
+                  log in Victoria Park's format (ODOMETRY, LANDMARK lines)
   synthetic-images  rendered textured room, VGA, noisy odometry (visual SLAM;
                   [synthetic_images] of --config)
   FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder

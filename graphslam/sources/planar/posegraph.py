@@ -31,11 +31,21 @@ Relative-pose angles are wrapped to [-pi, pi) (w10000 has values such as
 
 So ``w10000.graph`` (every edge ``1 0 1 1 0 0``) gets identity covariances under
 ``read_toro``'s default, exactly like ``gtsam.load2D``.
+
+Landmarks: a TORO file may hold ``BR i j bearing range bearing_sigma range_sigma``
+lines (gtsam's ``example.graph``): landmark ``j`` seen from pose ``i``, read as
+``gtsam.load2D`` reads them (a BearingRangeFactor2D with diagonal sigmas
+``[bearing_sigma, range_sigma]``, rad and m). Each becomes a range-bearing
+:class:`~slamcore.planar.records.Observation` of pose ``i``'s frame, with
+``z = [range, bearing]`` (bearing wrapped to [-pi, pi)) and covariance
+``diag(range_sigma**2, bearing_sigma**2)``: the file is then landmark SLAM, run
+by the landmark back ends, not a pose graph.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +54,8 @@ from graphslam.sources.posegraph_files import parse_id
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import (
-    Frame, LoopClosure, Odometry, loop_closure_batch, odometry_batch,
+    Frame, LoopClosure, Observation, ObservationKind, Odometry, loop_closure_batch,
+    odometry_batch,
 )
 from slamcore.planar.geometry import wrap_angle
 
@@ -256,14 +267,18 @@ def _dataset(name, frames, path):
                    has_timestamps=False, source_path=str(path))
 
 
-def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name):
+def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name,
+                    landmark_tag=None):
     if noise_format not in NOISE_FORMATS:
         raise ValueError(f"noise_format must be one of {NOISE_FORMATS}, got {noise_format!r}")
     edges = []
+    sightings: list[tuple[int, Observation]] = []  # (line, observation)
     pose_lines: dict[int, int] = {}
     for line_no, tok in iter_lines(path):
         tag = tok[0]
-        if tag == edge_tag:
+        if tag == landmark_tag:
+            sightings.append((line_no, _bearing_range(tok, path, line_no)))
+        elif tag == edge_tag:
             check_count(tok, 12, path, line_no, f"{edge_tag} id1 id2 dx dy dth + 6 noise")
             a = parse_int(tok[1], path, line_no)
             b = parse_int(tok[2], path, line_no)
@@ -287,18 +302,49 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name):
                 if k not in pose_lines:
                     raise InputError(f"edge names pose {k}, which has no vertex line", path,
                                      line_no)
-    return _dataset(name, group_edges(edges, path, pose_lines), path)
+    frames = group_edges(edges, path, pose_lines)
+    return _dataset(name, _with_sightings(frames, sightings, path) if sightings else frames, path)
+
+
+def _bearing_range(tok, path, line_no) -> Observation:
+    """A ``BR i j bearing range bearing_sigma range_sigma`` line as an Observation."""
+    check_count(tok, 7, path, line_no, "BR pose landmark bearing range bearing_sigma range_sigma")
+    pose = parse_int(tok[1], path, line_no)
+    landmark = parse_int(tok[2], path, line_no, "landmark id")
+    bearing, range_m, sigma_b, sigma_r = parse_floats(tok[3:], path, line_no)
+    if sigma_b <= 0.0 or sigma_r <= 0.0:
+        raise InputError("BR sigmas must be positive", path, line_no)
+    try:
+        return Observation(pose, landmark, [range_m, float(wrap_angle(bearing))],
+                           np.diag([sigma_r ** 2, sigma_b ** 2]), ObservationKind.RANGE_BEARING)
+    except MeasurementError as exc:
+        raise InputError(str(exc), path, line_no) from None
+
+
+def _with_sightings(frames, sightings, path):
+    """``frames`` with each observation in the frame of the pose it was taken from."""
+    index = {f.pose_id: n for n, f in enumerate(frames)}
+    seen: list[list[Observation]] = [[] for _ in frames]
+    for line_no, obs in sightings:
+        if obs.pose_id not in index:
+            raise InputError(f"BR seen from pose {obs.pose_id}, which no edge or vertex names",
+                             path, line_no)
+        seen[index[obs.pose_id]].append(obs)
+    return [replace(f, observations=tuple(f.observations) + tuple(o)) if o else f
+            for f, o in zip(frames, seen)]
 
 
 # --------------------------------------------------------------------------- public
 def read_toro(path, noise_format: str = "auto") -> Dataset:
-    """Read a TORO ``.graph`` file (``VERTEX2``, ``EDGE2``; ``EQUIV`` ignored).
+    """Read a TORO ``.graph`` file (``VERTEX2``, ``EDGE2``, ``BR``; ``EQUIV`` ignored).
 
     ``EDGE2 id1 id2 dx dy dth v1..v6``; the noise numbers are read as
     ``gtsam.load2D`` reads them (``noise_format="auto"``, see module docstring).
+    ``BR`` lines are landmark observations (module docstring).
     Name of the dataset: the file stem.
     """
-    return _read_se2_graph(path, "VERTEX2", "EDGE2", ("EQUIV",), noise_format, Path(path).stem)
+    return _read_se2_graph(path, "VERTEX2", "EDGE2", ("EQUIV",), noise_format, Path(path).stem,
+                           landmark_tag="BR")
 
 
 def read_g2o(path, noise_format: str = "g2o") -> Dataset:
@@ -322,7 +368,7 @@ def read_pose_graph(path) -> Dataset:
     if suffix == ".g2o":
         return read_g2o(path)
     for line_no, tok in iter_lines(path):
-        if tok[0] in ("VERTEX2", "EDGE2", "EQUIV"):
+        if tok[0] in ("VERTEX2", "EDGE2", "EQUIV", "BR"):
             return read_toro(path)
         if tok[0] in ("VERTEX_SE2", "EDGE_SE2", "FIX"):
             return read_g2o(path)

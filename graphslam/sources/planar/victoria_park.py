@@ -96,11 +96,12 @@ def victoria_park_path() -> str:
     return gtsam.findExampleDataFile("victoria_park.txt")
 
 
-def read_victoria_park(path=None) -> Dataset:
-    """Read a Victoria-Park-format file into a Dataset (name "victoria-park").
+def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
+    """Read a Victoria-Park-format file into a Dataset.
 
     Args:
         path: the file; ``None`` reads the copy in the gtsam wheel.
+        name: the dataset's name (what summaries and outputs call it).
 
     Returns:
         Dataset whose frames are the poses in file order; ``frames[0]`` is the
@@ -111,7 +112,7 @@ def read_victoria_park(path=None) -> Dataset:
     """
     if path is None:
         path = victoria_park_path()
-    fast = read_well_formed(path)
+    fast = read_well_formed(path, name)
     if fast is not None:
         return fast
     # Something in the file is off: the line-by-line reader names the line and why.
@@ -160,13 +161,13 @@ def read_victoria_park(path=None) -> Dataset:
             raise InputError(str(exc), path, line_no) from None
     if not order:
         raise InputError("no ODOMETRY line", path)
-    return _dataset(path, order, odometry, observations)
+    return _dataset(path, order, odometry, observations, name)
 
 
-def _dataset(path, order, odometry, observations) -> Dataset:
+def _dataset(path, order, odometry, observations, name: str) -> Dataset:
     frames = [Frame(pose_id=k, odometry=odometry.get(k),
                     observations=tuple(observations[k])) for k in order]
-    return Dataset(name="victoria-park", frames=frames, prior_wTb=np.zeros(3),
+    return Dataset(name=name, frames=frames, prior_wTb=np.zeros(3),
                    prior_covariance=np.eye(3) * 1e-6, landmarks_true=None,
                    has_timestamps=False, source_path=str(path))
 
@@ -177,7 +178,7 @@ def _plain_ids(tokens) -> bool:
     return joined.isascii() and joined.isdigit()
 
 
-def read_well_formed(path) -> Dataset | None:
+def read_well_formed(path, name: str = "victoria-park") -> Dataset | None:
     """The whole file at once, when every line is well formed: the same records as the
     line-by-line reader (same numbers: ``float`` on each token, ``math.hypot`` and
     ``math.atan2``), checked in bulk; None as soon as anything is off, for the
@@ -218,10 +219,10 @@ def read_well_formed(path) -> Dataset | None:
     # a LANDMARK line must come after the ODOMETRY line that creates its pose
     if any(created.get(i, len(o_ids) + 1) > n for (i, _), n in zip(l_ids, where)):
         return None
-    return _well_formed_records(path, order, o_ids, o_num, l_ids, l_num)
+    return _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name)
 
 
-def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num) -> Dataset | None:
+def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name) -> Dataset | None:
     """Records of the parsed numbers, or None where a check of the reader fails."""
     if not (np.isfinite(o_num).all() and np.isfinite(l_num).all()):
         return None
@@ -246,7 +247,7 @@ def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num) -> Dataset | N
     observations: dict[int, list[Observation]] = {k: [] for k in order}
     for obs in seen:
         observations[obs.pose_id].append(obs)
-    return _dataset(path, order, {o.to_id: o for o in odometry}, observations)
+    return _dataset(path, order, {o.to_id: o for o in odometry}, observations, name)
 
 
 def _variances_ok(variances: np.ndarray, upper) -> bool:

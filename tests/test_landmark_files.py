@@ -1,0 +1,134 @@
+"""Landmark SLAM from files: TORO ``BR`` lines (gtsam's example.graph) and logs in
+Victoria Park's format given by path, checked against gtsam's own reader and optimiser."""
+
+from __future__ import annotations
+
+import json
+
+import gtsam
+import numpy as np
+import pytest
+
+from graphslam import registry
+from graphslam.cli.main import main
+from graphslam.sources.planar.posegraph import read_toro
+from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
+from slamcore.errors import InputError
+
+#: Range and bearing as read back from gtsam's factors (text -> double both ways).
+MEASUREMENT_TOL = 1e-12
+#: Graph error of our polished iSAM2 estimate against gtsam's Levenberg-Marquardt
+#: optimum of the same file (chi-square units; both converge to ~1e-7 of each other).
+OPTIMUM_TOL = 1e-4
+
+EDGE = "EDGE2 {a} {b} 1 0 0 1 0 1 1 0 0\n"
+
+
+def _example_graph() -> str:
+    return gtsam.findExampleDataFile("example.graph")
+
+
+def _gtsam_bearing_ranges(path):
+    graph, _ = gtsam.load2D(path)
+    out = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.BearingRangeFactor2D):
+            pose, landmark = f.keys()
+            out.append((gtsam.Symbol(pose).index(), gtsam.Symbol(landmark).index(), f))
+    return out
+
+
+def test_example_graph_observations_match_load2d():
+    ds = read_toro(_example_graph())
+    ours = [o for f in ds.frames for o in f.observations]
+    theirs = _gtsam_bearing_ranges(_example_graph())
+    assert len(ds.frames) == 95 and len(ours) == len(theirs) == 422
+    # same observations, file order within a frame, frames in pose order
+    theirs.sort(key=lambda t: t[0])
+    for obs, (pose, landmark, factor) in zip(ours, theirs):
+        assert (obs.pose_id, obs.landmark_id) == (pose, landmark)
+        measured = factor.measured()
+        assert obs.z[0] == pytest.approx(measured.range(), abs=MEASUREMENT_TOL)
+        assert obs.z[1] == pytest.approx(measured.bearing().theta(), abs=MEASUREMENT_TOL)
+        sigmas = factor.noiseModel().sigmas()  # gtsam: [bearing, range]
+        np.testing.assert_allclose(np.sqrt(np.diag(obs.covariance)), sigmas[::-1],
+                                   rtol=0, atol=MEASUREMENT_TOL)
+
+
+def test_example_graph_runs_as_landmark_slam_to_gtsams_optimum(tmp_path, capsys):
+    path = _example_graph()
+    assert not registry.is_pose_graph_run(path, "isam2")
+    assert registry.is_pose_graph_run(path, "batch")
+    rc = main(["run", "--dataset", path, "--out", str(tmp_path / "r"), "--rerun", "off",
+               "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    graph, initial = gtsam.load2D(path)
+    optimum = graph.error(gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize())
+    assert metrics["final_error"] == pytest.approx(optimum, abs=OPTIMUM_TOL)
+    landmarks = (tmp_path / "r" / "landmarks.csv").read_text().splitlines()
+    assert len(landmarks) - 1 == 24  # every landmark of the file, one row each
+
+
+@pytest.mark.parametrize("backend", ["ekf", "fastslam1"])
+def test_example_graph_runs_on_the_filters(tmp_path, capsys, backend):
+    rc = main(["run", "--dataset", _example_graph(), "--backend", backend, "--out",
+               str(tmp_path / backend), "--rerun", "off", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / backend / "metrics.json").read_text())["steps"] == 95
+
+
+def test_batch_refuses_a_landmark_file_at_its_first_br_line(tmp_path, capsys):
+    rc = main(["run", "--dataset", _example_graph(), "--backend", "batch", "--out",
+               str(tmp_path / "b"), "--rerun", "off", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1
+    assert "example.graph:190:" in err and "landmark SLAM" in err and "--backend isam2" in err
+
+
+@pytest.mark.parametrize("line, fragment", [
+    ("BR 1 5 0.1 2 0.01", "needs 7 tokens"),
+    ("BR 3 5 0.1 2 0.01 0.1", "pose 3, which no edge or vertex names"),
+    ("BR 1 5 0.1 0 0.01 0.1", "range must be positive"),
+    ("BR 1 5 0.1 2 0 0.1", "sigmas must be positive"),
+    ("BR 1 5 0.1 2 0.01 nan", "not finite"),
+    ("BR 1 x 0.1 2 0.01 0.1", "landmark id"),
+])
+def test_bad_br_lines_are_named(tmp_path, capsys, line, fragment):
+    path = tmp_path / "bad.graph"
+    path.write_text("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\n" + EDGE.format(a=0, b=1) + line + "\n")
+    with pytest.raises(InputError) as info:
+        read_toro(path)
+    assert info.value.line == 4 and fragment in str(info.value)
+    rc = main(["run", "--dataset", str(path), "--out", str(tmp_path / "r"), "--rerun", "off",
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "bad.graph:4:" in err and err.count("\n") == 1
+
+
+def test_bearing_is_wrapped_and_observations_join_their_pose(tmp_path):
+    path = tmp_path / "w.graph"
+    path.write_text(EDGE.format(a=0, b=1) + EDGE.format(a=1, b=2)
+                    + "BR 2 7 4.0 3 0.01 0.1\nBR 0 7 -0.5 2 0.01 0.1\n")
+    ds = read_toro(path)
+    seen = {f.pose_id: f.observations for f in ds.frames}
+    assert [len(seen[k]) for k in (0, 1, 2)] == [1, 0, 1]
+    assert seen[2][0].z[1] == pytest.approx(4.0 - 2 * np.pi, abs=MEASUREMENT_TOL)
+
+
+def test_victoria_park_format_by_path(tmp_path, capsys):
+    lines = open(victoria_park_path()).read().splitlines(keepends=True)[:600]
+    path = tmp_path / "log.txt"
+    path.write_text("".join(lines))
+    ds = registry.load_dataset(str(path))
+    reference = read_victoria_park(path)
+    assert ds.name == "log" and reference.name == "victoria-park"
+    assert [f.pose_id for f in ds.frames] == [f.pose_id for f in reference.frames]
+    assert sum(len(f.observations) for f in ds.frames) \
+        == sum(len(f.observations) for f in reference.frames) > 0
+    rc = main(["run", "--dataset", str(path), "--out", str(tmp_path / "r"), "--rerun", "off",
+               "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert metrics["dataset"] == "log" and metrics["steps"] == len(ds.frames)
