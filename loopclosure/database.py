@@ -310,17 +310,19 @@ class BowDatabase:
         neg_bound = -bound_after  # increasing, for searchsorted
         end = min(n_q, int(np.searchsorted(cum, total * _FIRST_FRACTION, side="left")) + 1)
         self._scan(scores, words[:end], lengths[:end], q[:end])
-        theta, refreshed = self._theta(scores[:n_allowed], k, m, dense_q), False
+        exact = np.full(n_allowed, np.nan)  # exact scores rescored so far (NaN: not yet)
+        theta, refreshed = self._theta(scores[:n_allowed], k, m, dense_q, exact), False
         while end < n_q:
             bound = bound_after[end]
             nxt = int(np.searchsorted(cum, int(cum[end - 1]) + step, side="left")) + 1
             if theta > bound + _PRUNE_MARGIN:
                 if not refreshed:  # partial scores are better now: a tighter theta, once
-                    theta, refreshed = max(theta, self._theta(scores[:n_allowed], k, m, dense_q)), True
+                    theta, refreshed = max(theta, self._theta(scores[:n_allowed], k, m, dense_q,
+                                                              exact)), True
                 cand = np.flatnonzero(scores[:n_allowed] >= theta - bound - _PRUNE_MARGIN)
                 left = total - int(cum[end - 1])
                 if cand.size * row_len * _RESCORE_COST <= min(left, _STOP_STEPS * step):
-                    return _best(cand, self._rescore(cand, dense_q), k)
+                    return _best(cand, self._exact(cand, dense_q, exact), k)
             else:  # no image can be ruled out before the bound falls below theta: jump there
                 nxt = max(nxt, int(np.searchsorted(neg_bound, _PRUNE_MARGIN - theta, side="right")))
             nxt = min(nxt, n_q)
@@ -328,12 +330,20 @@ class BowDatabase:
             end = nxt
         return None
 
-    def _theta(self, allowed: np.ndarray, k: int, m: int, dense_q: np.ndarray) -> float:
+    def _theta(self, allowed: np.ndarray, k: int, m: int, dense_q: np.ndarray,
+               exact: np.ndarray) -> float:
         """A lower bound of the final k-th best score: the k-th best exact score of the
         ``m`` (>= k) images of best partial score."""
         top = np.sort(np.argpartition(allowed, allowed.size - m)[allowed.size - m:])
-        exact = self._rescore(top, dense_q)
-        return float(np.partition(exact, m - k)[m - k])
+        return float(np.partition(self._exact(top, dense_q, exact), m - k)[m - k])
+
+    def _exact(self, ids: np.ndarray, dense_q: np.ndarray, exact: np.ndarray) -> np.ndarray:
+        """Exact scores of the sorted image ids ``ids``, rescoring only those ``exact``
+        does not hold yet (NaN) and keeping them there."""
+        need = ids[np.isnan(exact[ids])]
+        if need.size:
+            exact[need] = self._rescore(need, dense_q)
+        return exact[ids]
 
     def _check_query(self, bow: BowVector, max_results, exclude_recent) -> tuple[int, int]:
         """(k, number of images allowed) after checking the arguments (ConfigError)."""
