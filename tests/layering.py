@@ -45,7 +45,7 @@ RANKS: dict[str, int] = {
 TOOLS: dict[str, tuple[str, ...]] = {
     "gtsam": ("graphslam.backends", "graphslam.sources"),
     "rerun": ("graphslam.visualisation.recording", "graphslam.visualisation.planar",
-              "graphslam.visualisation.spatial"),
+              "graphslam.visualisation.spatial", "graphslam.visualisation.layout"),
     "matplotlib": ("graphslam.visualisation.plots",),
     "argparse": ("graphslam.cli",),
 }

@@ -44,3 +44,35 @@ def points2d(path: Path, entity: str) -> list[tuple[int, np.ndarray]]:
     """``(step, (n, 2) positions)`` of a ``Points2D`` entity."""
     return [(s, np.asarray(v, dtype=np.float64).reshape(-1, 2))
             for s, v in entity_rows(path, entity, "Points2D:positions")]
+
+
+def blueprint_views(path: Path) -> list[dict]:
+    """The views of the recording's blueprint: ``{"kind", "name", "origin", "contents"}``
+    (contents: the view's query expressions)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.blueprints()
+    if not stores:
+        return []
+    views: dict[str, dict] = {}
+    for chunk in reader.stream(store=stores[0]):
+        parts = chunk.entity_path.strip("/").split("/")
+        if parts[0] != "view":
+            continue
+        row = chunk.to_record_batch().to_pylist()[-1]
+        view = views.setdefault(parts[1], {})
+        if parts[-1] == "ViewContents":
+            view["contents"] = row["ViewContents:query"]
+        else:
+            view["kind"] = row["ViewBlueprint:class_identifier"][0]
+            view["name"] = (row.get("ViewBlueprint:display_name") or [None])[0]
+            view["origin"] = row["ViewBlueprint:space_origin"][0]
+    return list(views.values())
+
+
+def entity_paths(path: Path) -> set[str]:
+    """Every entity path the recording holds data for."""
+    from rerun.chunk import RrdReader
+
+    return {chunk.entity_path for chunk in RrdReader(str(path)).stream()}

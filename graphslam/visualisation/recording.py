@@ -15,6 +15,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from graphslam.visualisation.layout import LoggedEntities, blueprint
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
@@ -128,8 +129,30 @@ def _wait_for_port(host: str, port: int, wait_s: float) -> bool:
         time.sleep(0.1)
 
 
+class _NotingStream:
+    """A RecordingStream that notes what each ``log`` and ``send_columns`` wrote
+    (:class:`graphslam.visualisation.layout.LoggedEntities`), for the layout."""
+
+    def __init__(self, stream, logged: LoggedEntities):
+        self._stream, self._logged = stream, logged
+
+    def log(self, path: str, *entities, **kwargs) -> None:
+        self._logged.note_log(path, entities)
+        self._stream.log(path, *entities, **kwargs)
+
+    def send_columns(self, path: str, indexes, columns, **kwargs) -> None:
+        self._logged.note_columns(path, columns)
+        self._stream.send_columns(path, indexes, columns, **kwargs)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 class RerunLog:
     """One recording stream, saved to a file, spawned into a viewer, or sent to one.
+
+    ``rec`` is the stream to log to; when the log closes, the viewer layout of
+    what was logged (:mod:`graphslam.visualisation.layout`) is sent with it.
 
     Args:
         mode: "save" (write ``path``), "spawn" (start a local viewer) or
@@ -142,7 +165,9 @@ class RerunLog:
         import rerun as rr  # imported here: no work at import time, and only this module
 
         self._rr = rr
-        self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
+        self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
+        self.logged = LoggedEntities()
+        self.rec = _NotingStream(self._stream, self.logged)
         if mode == "save":
             if path is None:
                 raise ConfigError("rerun: mode 'save' needs a path")
@@ -154,7 +179,8 @@ class RerunLog:
             exe = find_viewer()
             if exe is None:
                 raise ViewerUnavailable("no Rerun viewer executable ('rerun') found")
-            rr.spawn(port=SPAWN_PORT, connect=False, executable_path=exe, recording=self.rec)
+            rr.spawn(port=SPAWN_PORT, connect=False, executable_path=exe,
+                     recording=self._stream)
             if not _wait_for_port("127.0.0.1", SPAWN_PORT, SPAWN_WAIT_S):
                 raise ViewerUnavailable(f"the Rerun viewer started ({exe}) did not open "
                                         f"port {SPAWN_PORT} within {SPAWN_WAIT_S:.0f} s")
@@ -173,12 +199,15 @@ class RerunLog:
             self.rec.set_time("time", duration=float(stamp_s))
 
     def close(self) -> None:
-        """Flush and close the stream.
+        """Send the layout, flush and close the stream.
 
         Raises:
             ViewerUnavailable: a viewer stopped taking the stream; after at most
                 :data:`FLUSH_TIMEOUT_S` the rest is dropped.
         """
+        layout = blueprint(self.logged)
+        if layout is not None:
+            self._stream.send_blueprint(layout, make_active=True, make_default=True)
         try:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S if self.mode != "save" else 1e38)
         except RuntimeError as e:

@@ -1,0 +1,76 @@
+"""The viewer layout sent with every recording: one view per kind of thing logged, and
+no view of something the run did not log."""
+
+from __future__ import annotations
+
+import pytest
+
+from graphslam.cli.main import main
+from tests.recordings import blueprint_views, entity_paths
+
+
+def _run(tmp_path, capsys, *args) -> tuple[list[dict], set[str]]:
+    out = tmp_path / "run"
+    rc = main(["run", *args, "--out", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    return blueprint_views(out / "run.rrd"), entity_paths(out / "run.rrd")
+
+
+def _shows_only_what_was_logged(views, paths) -> None:
+    for v in views:
+        for query in v["contents"]:
+            if query == "$origin/**":
+                assert any(p == v["origin"] or p.startswith(v["origin"].rstrip("/") + "/")
+                           for p in paths), v
+            else:
+                assert query in paths, v
+
+
+def _by_kind(views) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = {}
+    for v in views:
+        out.setdefault(v["kind"], []).append(v)
+    return out
+
+
+def test_ekf_run_layout(tmp_path, capsys):
+    views, paths = _run(tmp_path, capsys, "--backend", "ekf", "--max-steps", "40")
+    _shows_only_what_was_logged(views, paths)
+    kinds = _by_kind(views)
+    assert [(v["name"], v["origin"]) for v in kinds["2D"]] == [("map", "/world")]
+    assert [v["origin"] for v in kinds["Tensor"]] == ["/filter/ekf/correlation"]
+    series = {v["name"]: v["contents"] for v in kinds["TimeSeries"]}
+    assert series == {"pose_sigma_m": ["/plots/ekf/pose_sigma_m"],
+                      "mean_abs_correlation": ["/plots/ekf/mean_abs_correlation"]}
+    assert "3D" not in kinds
+
+
+def test_fastslam_run_layout(tmp_path, capsys):
+    views, paths = _run(tmp_path, capsys, "--backend", "fastslam1", "--max-steps", "60")
+    _shows_only_what_was_logged(views, paths)
+    kinds = _by_kind(views)
+    assert {v["name"] for v in kinds["TimeSeries"]} == {"pose_sigma_m", "ess"}
+    assert "Tensor" not in kinds
+    resampled = "/plots/fastslam1/resampling" in paths
+    assert [v["origin"] for v in kinds.get("TextLog", [])] \
+        == (["/plots/fastslam1/resampling"] if resampled else [])
+
+
+@pytest.mark.slow
+def test_visual_run_layout(tmp_path, capsys):
+    views, paths = _run(tmp_path, capsys, "--dataset", "synthetic-images", "--max-steps", "8")
+    _shows_only_what_was_logged(views, paths)
+    kinds = _by_kind(views)
+    assert [(v["name"], v["origin"]) for v in kinds["3D"]] == [("world", "/world")]
+    assert [(v["name"], v["origin"]) for v in kinds["2D"]] \
+        == [("isam2 camera", "/world/isam2/camera/image")]
+    assert {v["name"] for v in kinds["TimeSeries"]} \
+        == {"found", "searched", "observations", "image_fraction"}
+
+
+def test_pose_graph_run_layout(tmp_path, capsys):
+    import gtsam
+
+    views, paths = _run(tmp_path, capsys, "--dataset", gtsam.findExampleDataFile("w100.graph"))
+    _shows_only_what_was_logged(views, paths)
+    assert [v["origin"] for v in views] == ["/world"]
