@@ -132,3 +132,13 @@ def test_victoria_park_format_by_path(tmp_path, capsys):
     assert rc == 0, capsys.readouterr().err
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert metrics["dataset"] == "log" and metrics["steps"] == len(ds.frames)
+
+
+def test_pose_graph_only_options_say_why_on_a_landmark_file(tmp_path, capsys):
+    rc = main(["run", "--dataset", _example_graph(), "--init", "lago", "--out",
+               str(tmp_path / "r"), "--rerun", "off", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "has landmark lines" in err
+    rc = main(["convert", _example_graph(), str(tmp_path / "g.g2o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "example.graph:190:" in err and "not a pose graph" in err

@@ -173,9 +173,9 @@ class _Collector:
                                parse_id(tok[2], self.path, line_no)))
             return
         if tag in LANDMARK_TAGS:
-            raise InputError(f"{tag} is a landmark observation: this file is landmark SLAM, "
-                             "run it with --backend isam2, ekf, fastslam1 or fastslam2",
-                             self.path, line_no)
+            raise InputError(f"{tag} is a landmark observation (landmark SLAM, not a pose "
+                             "graph): graphslam run takes this file with --backend isam2, ekf, "
+                             "fastslam1 or fastslam2", self.path, line_no)
         if tag not in TAGS:
             raise InputError(f"unknown tag {tag!r}", self.path, line_no)
         fmt, dim, rotation, kind, count = TAGS[tag]

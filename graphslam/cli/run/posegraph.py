@@ -125,4 +125,9 @@ def check_backend(args: argparse.Namespace) -> None:
     if args.backend == "batch":
         raise GraphSlamError("--backend batch solves pose-graph files only (g2o or TORO)")
     if args.init is not None:
-        raise GraphSlamError("--init applies to pose-graph files only (g2o or TORO)")
+        from graphslam.sources.posegraph_files import has_landmark_lines
+
+        why = (f" ({args.dataset} has landmark lines: it runs as landmark SLAM, whose poses "
+               "start from the odometry)" if Path(args.dataset).is_file()
+               and has_landmark_lines(args.dataset) else "")
+        raise GraphSlamError(f"--init applies to pose-graph files only (g2o or TORO){why}")
