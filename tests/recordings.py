@@ -60,14 +60,20 @@ def blueprint_views(path: Path) -> list[dict]:
         parts = chunk.entity_path.strip("/").split("/")
         if parts[0] != "view":
             continue
-        row = chunk.to_record_batch().to_pylist()[-1]
+        batch = chunk.to_record_batch()
+
+        def last(column: str):  # one column at a time: log_time needs pandas to convert
+            if column not in batch.schema.names:
+                return None
+            return batch.column(column).to_pylist()[-1]
+
         view = views.setdefault(parts[1], {})
         if parts[-1] == "ViewContents":
-            view["contents"] = row["ViewContents:query"]
+            view["contents"] = last("ViewContents:query")
         else:
-            view["kind"] = row["ViewBlueprint:class_identifier"][0]
-            view["name"] = (row.get("ViewBlueprint:display_name") or [None])[0]
-            view["origin"] = row["ViewBlueprint:space_origin"][0]
+            view["kind"] = last("ViewBlueprint:class_identifier")[0]
+            view["name"] = (last("ViewBlueprint:display_name") or [None])[0]
+            view["origin"] = last("ViewBlueprint:space_origin")[0]
     return list(views.values())
 
 
