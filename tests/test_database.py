@@ -393,3 +393,72 @@ def test_query_words_absent_from_the_database(pruning_everywhere):
     mixed = BowVector(mixed_ids, np.r_[base.weights * 0.5, np.full(20, 0.5 / 20)])
     for k in (1, 10):
         assert_same_ranking(db.query(mixed, max_results=k), vectors, mixed, len(vectors), k)
+
+
+def near_ties(rng, n_near=30, step=1e-9):
+    """A query and ``n_near`` images whose scores against it are 1 - i * step (i = 1..n):
+    apart by far more than float64 rounding, by far less than float32 resolves near 1."""
+    q = zipf_idf_bow(rng)
+    near = []
+    for i in range(1, n_near + 1):
+        w = q.weights.copy()
+        w[0] += 2 * i * step  # L1 distance 4 i step after renormalising: score 1 - 2 i step
+        near.append(BowVector(q.word_ids, w / w.sum()))
+    return q, near
+
+
+@pytest.mark.parametrize("pruned", [False, True])
+def test_scores_closer_than_float32_resolves_rank_exactly(request, pruned):
+    # The scan sums in float32 (half the memory traffic); the answer's order and scores
+    # come from float64 rescoring of every image within the scan's error bound.
+    if pruned:
+        request.getfixturevalue("pruning_everywhere")
+    rng = np.random.default_rng(3)
+    q, near = near_ties(rng)
+    vectors = [zipf_idf_bow(rng) for _ in range(1200)]
+    for i, v in zip(rng.permutation(len(vectors))[:len(near)], near):
+        vectors[int(i)] = v
+    db = BowDatabase(WideVocabulary())
+    for v in vectors:
+        db.add(v)
+    for k in (1, 10, 30):
+        got = db.query(q, max_results=k)
+        assert_same_ranking(got, vectors, q, len(vectors), k)
+        exact = [float(db.score(q, vectors[i])) for i, _ in got]
+        # the float64 scores (float32 would be off by up to 6e-8 here)
+        np.testing.assert_allclose([s for _, s in got], exact, rtol=0, atol=SCORE_TOL)
+
+
+def test_float32_scan_error_is_within_its_bound():
+    import loopclosure.database as D
+
+    rng = np.random.default_rng(5)
+    vectors = [zipf_idf_bow(rng) for _ in range(800)]
+    db = BowDatabase(WideVocabulary())
+    for v in vectors:
+        db.add(v)
+    for _ in range(10):
+        q = zipf_idf_bow(rng)
+        words, lengths, qs, _, _, _ = db._plan(q)
+        scan = np.zeros(len(db), dtype=np.float32)
+        db._scan(scan, words, lengths, qs)
+        exact = np.array([db.score(q, v) for v in vectors])
+        assert np.abs(scan - exact).max() <= D._scan_error(len(words))
+
+
+@pytest.mark.parametrize("pruned", [False, True])
+def test_add_and_query_in_turn_as_a_slam_loop_does(request, pruned):
+    # Each add makes its words' cached posting views stale (and may reallocate the
+    # lists); every query must still read every posting added before it.
+    if pruned:
+        request.getfixturevalue("pruning_everywhere")
+    rng = np.random.default_rng(13)
+    db = BowDatabase(WideVocabulary())
+    vectors = []
+    for i in range(400):
+        v = zipf_idf_bow(rng)
+        db.add(v)
+        vectors.append(v)
+        if i % 7 == 0:
+            q = vectors[int(rng.integers(len(vectors)))] if rng.random() < 0.5 else zipf_idf_bow(rng)
+            assert_same_ranking(db.query(q, max_results=5), vectors, q, len(vectors), 5)
