@@ -399,9 +399,9 @@ class BowDatabase:
         for a, b in zip(cuts[:-1], cuts[1:]):
             n = int(starts[b - 1] - starts[a]) + ns[b - 1]
             ids, wts = self._scan_ids[:n], self._scan_wts[:n]
-            group = words[a:b]
-            np.concatenate([ids_view[w] for w in group], out=ids, casting="same_kind")
-            np.concatenate([wts_view[w] for w in group], out=wts)
+            chunk = words[a:b]
+            np.concatenate([ids_view[w] for w in chunk], out=ids, casting="same_kind")
+            np.concatenate([wts_view[w] for w in chunk], out=wts)
             np.minimum(wts, np.repeat(q32[a:b], lengths[a:b]), out=wts)
             np.add.at(scores, ids, wts)
 
