@@ -85,11 +85,15 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     ``batch`` the pose-graph reader refuses it at its first such line."""
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
-    from graphslam.sources.posegraph_files import has_landmark_lines, is_pose_graph_file
+    from graphslam.sources.posegraph_files import (TAGS, first_tag, has_landmark_lines,
+                                                   is_pose_graph_file)
 
     if not is_pose_graph_file(spec):
         return False
-    return backend == "batch" or not has_landmark_lines(spec)
+    # only a 2-D TORO file can be landmark SLAM (BR lines, as gtsam.load2D reads them):
+    # others are read once, by the pose-graph reader, which refuses a BR line
+    fmt, dim = TAGS.get(first_tag(spec), ("toro", 2))[:2]
+    return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
 def load_pose_graph(spec: str | Path, toro_noise: str = "information"):

@@ -142,3 +142,24 @@ def test_pose_graph_only_options_say_why_on_a_landmark_file(tmp_path, capsys):
     rc = main(["convert", _example_graph(), str(tmp_path / "g.g2o")])
     err = capsys.readouterr().err
     assert rc == 2 and "example.graph:190:" in err and "not a pose graph" in err
+
+
+def test_a_3d_file_with_a_br_line_is_refused_at_that_line(tmp_path, capsys):
+    path = tmp_path / "b.graph"
+    path.write_text("VERTEX3 0 0 0 0 0 0 0\nVERTEX3 1 1 0 0 0 0 0\n"
+                    "EDGE3 0 1 1 0 0 0 0 0" + " 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1"
+                    + "\nBR 1 5 0.1 2 0.01 0.1\n")
+    rc = main(["run", "--dataset", str(path), "--out", str(tmp_path / "r"), "--rerun", "off",
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "b.graph:4:" in err and "landmark" in err
+
+
+def test_a_g2o_file_with_a_br_line_is_refused_at_that_line(tmp_path, capsys):
+    path = tmp_path / "b.g2o"
+    path.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nBR 1 5 0.1 2 0.01 0.1\n")
+    rc = main(["run", "--dataset", str(path), "--out", str(tmp_path / "r"), "--rerun", "off",
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "b.g2o:4:" in err and "2-D TORO" in err

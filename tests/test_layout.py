@@ -74,3 +74,20 @@ def test_pose_graph_run_layout(tmp_path, capsys):
     views, paths = _run(tmp_path, capsys, "--dataset", gtsam.findExampleDataFile("w100.graph"))
     _shows_only_what_was_logged(views, paths)
     assert [v["origin"] for v in views] == ["/world"]
+
+
+def test_a_failing_layout_still_leaves_the_logged_data(tmp_path, monkeypatch):
+    import rerun as rr
+
+    import graphslam.visualisation.recording as recording
+
+    def broken(_logged):
+        raise RuntimeError("layout bug")
+
+    monkeypatch.setattr(recording, "blueprint", broken)
+    log = recording.RerunLog("save", tmp_path / "run.rrd")
+    log.set_step(0)
+    log.rec.log("world/points", rr.Points2D([[0.0, 1.0]]))
+    with pytest.raises(RuntimeError, match="layout bug"):
+        log.close()
+    assert "/world/points" in entity_paths(tmp_path / "run.rrd")

@@ -174,8 +174,8 @@ class _Collector:
             return
         if tag in LANDMARK_TAGS:
             raise InputError(f"{tag} is a landmark observation (landmark SLAM, not a pose "
-                             "graph): graphslam run takes this file with --backend isam2, ekf, "
-                             "fastslam1 or fastslam2", self.path, line_no)
+                             "graph): graphslam run takes a 2-D TORO file with BR lines with "
+                             "--backend isam2, ekf, fastslam1 or fastslam2", self.path, line_no)
         if tag not in TAGS:
             raise InputError(f"unknown tag {tag!r}", self.path, line_no)
         fmt, dim, rotation, kind, count = TAGS[tag]

@@ -58,8 +58,6 @@ def blueprint(logged: LoggedEntities):
     import rerun.blueprint as rrb  # only when a recording closes
 
     world = [p for p in logged.kinds if p == "/world" or p.startswith("/world/")]
-    if not logged.kinds:
-        return None
     main = []
     if world:
         three_d = any(logged.kinds[p] & _3D for p in world)

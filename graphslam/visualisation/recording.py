@@ -205,9 +205,14 @@ class RerunLog:
             ViewerUnavailable: a viewer stopped taking the stream; after at most
                 :data:`FLUSH_TIMEOUT_S` the rest is dropped.
         """
-        layout = blueprint(self.logged)
-        if layout is not None:
-            self._stream.send_blueprint(layout, make_active=True, make_default=True)
+        try:  # the layout is an extra: whatever it meets, the logged data is flushed
+            layout = blueprint(self.logged)
+            if layout is not None:
+                self._stream.send_blueprint(layout, make_active=True, make_default=True)
+        finally:
+            self._flush_and_disconnect()
+
+    def _flush_and_disconnect(self) -> None:
         try:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S if self.mode != "save" else 1e38)
         except RuntimeError as e:
