@@ -1,8 +1,10 @@
 """Readers for 2-D pose-graph files: TORO ``.graph``, g2o ``.g2o``, City10000.
 
-Every reader parses line by line and raises :class:`~slamcore.errors.InputError`
-naming the file and the 1-based line of bad input. Blank lines and lines
-starting with ``#`` are skipped.
+Every reader raises :class:`~slamcore.errors.InputError` naming the file and
+the 1-based line of bad input. Blank lines and lines starting with ``#`` are
+skipped. TORO and g2o files are first read in bulk
+(:mod:`graphslam.sources.planar.bulk`: all numbers parsed and checked at once);
+whatever the bulk path declines is read line by line, which names the line.
 
 Grouping into frames: poses are numbered ``first..last`` without gaps; frame
 ``k`` holds pose ``k``. The edge between ``k-1`` and ``k`` (in either direction,
@@ -50,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.sources.planar.bulk import read_se2_lines
 from graphslam.sources.posegraph_files import parse_id
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
@@ -271,6 +274,9 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name,
                     landmark_tag=None):
     if noise_format not in NOISE_FORMATS:
         raise ValueError(f"noise_format must be one of {NOISE_FORMATS}, got {noise_format!r}")
+    bulk = read_se2_lines(path, vertex_tag, edge_tag, ignored, noise_format, SYMBOL_INDEX_LIMIT)
+    if bulk is not None:  # a valid file without landmark lines, read in bulk
+        return _dataset(name, _grouped(*bulk, path), path)
     edges = []
     sightings: list[tuple[int, Observation]] = []  # (line, observation)
     pose_lines: dict[int, int] = {}
@@ -296,14 +302,19 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name,
             continue
         else:
             raise InputError(f"unknown tag {tag!r}", path, line_no)
-    if pose_lines:  # with vertex lines, an edge to an undeclared pose is an error
+    frames = _grouped(edges, pose_lines, path)
+    return _dataset(name, _with_sightings(frames, sightings, path) if sightings else frames, path)
+
+
+def _grouped(edges, pose_lines, path):
+    """Frames of the edges; with vertex lines, an edge to an undeclared pose is an error."""
+    if pose_lines:
         for line_no, a, b, _, _ in edges:
             for k in (a, b):
                 if k not in pose_lines:
                     raise InputError(f"edge names pose {k}, which has no vertex line", path,
                                      line_no)
-    frames = group_edges(edges, path, pose_lines)
-    return _dataset(name, _with_sightings(frames, sightings, path) if sightings else frames, path)
+    return group_edges(edges, path, pose_lines)
 
 
 def _bearing_range(tok, path, line_no) -> Observation:
