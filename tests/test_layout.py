@@ -91,3 +91,71 @@ def test_a_failing_layout_still_leaves_the_logged_data(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="layout bug"):
         log.close()
     assert "/world/points" in entity_paths(tmp_path / "run.rrd")
+
+
+def _counting_log(tmp_path, monkeypatch, **kw):
+    """A RerunLog writing a file whose blueprint sends are counted in ``log.sends``."""
+    import graphslam.visualisation.recording as recording
+
+    log = recording.RerunLog("save", tmp_path / "run.rrd", **kw)
+    log.sends = []
+    real = log._stream.send_blueprint
+    monkeypatch.setattr(log._stream, "send_blueprint",
+                        lambda bp, **k: (log.sends.append(bp), real(bp, **k)))
+    return log
+
+
+def test_live_layout_is_sent_when_the_views_change(tmp_path, monkeypatch):
+    """A live viewer gets the layout as the run's views appear, not once per new entity
+    inside a view (each send resets what the user arranged), and again at the close."""
+    import rerun as rr
+
+    log = _counting_log(tmp_path, monkeypatch, live_layout=True)
+    log.set_step(0)
+    assert log.sends == []  # nothing logged yet: no layout
+    log.rec.log("world/ekf/pose", rr.Arrows2D(origins=[[0, 0]], vectors=[[1, 0]]))
+    log.rec.log("plots/ekf/pose_sigma_m", rr.Scalars(0.1))
+    log.set_step(1)
+    assert len(log.sends) == 1
+    log.rec.log("world/ekf/trajectory", rr.LineStrips2D([[[0, 0], [1, 0]]]))  # same map view
+    log.rec.log("plots/ekf/pose_sigma_m", rr.Scalars(0.2))
+    log.set_step(2)
+    assert len(log.sends) == 1
+    log.rec.log("plots/fastslam1/pose_sigma_m", rr.Scalars(0.3))  # a new series in the view
+    log.set_step(3)
+    assert len(log.sends) == 2
+    log.close()
+    assert len(log.sends) == 3
+
+
+def test_a_file_gets_its_layout_once(tmp_path, monkeypatch):
+    import rerun as rr
+
+    log = _counting_log(tmp_path, monkeypatch)
+    for step in range(3):
+        log.set_step(step)
+        log.rec.log(f"plots/ekf/q{step}", rr.Scalars(1.0))
+    log.close()
+    assert len(log.sends) == 1
+
+
+def test_a_failing_live_layout_does_not_end_the_run(tmp_path, monkeypatch):
+    import rerun as rr
+
+    import graphslam.visualisation.recording as recording
+
+    calls = []
+
+    def broken(_logged):
+        calls.append(1)
+        raise RuntimeError("layout bug")
+
+    monkeypatch.setattr(recording, "blueprint", broken)
+    log = recording.RerunLog("save", tmp_path / "run.rrd", live_layout=True)
+    for step in range(3):
+        log.rec.log(f"plots/ekf/q{step}", rr.Scalars(1.0))
+        log.set_step(step)  # does not raise, and stops trying after the first failure
+    assert len(calls) == 1
+    with pytest.raises(RuntimeError, match="layout bug"):  # the close says why
+        log.close()
+    assert "/plots/ekf/q2" in entity_paths(tmp_path / "run.rrd")

@@ -14,7 +14,10 @@ entity a :class:`~graphslam.visualisation.recording.RerunLog` writes, and
   first logged.
 
 The blueprint is sent when the recording closes, as the default and active
-layout (a viewer watching live switches to it at the end of the run).
+layout. A viewer watching live (``--rerun spawn`` or ``connect``) also gets it
+during the run, each time a step begins after the layout changed
+(:func:`layout_key`: a new view, not a new entity inside one), so panels do
+not jump once the run's views all exist.
 """
 
 from __future__ import annotations
@@ -32,9 +35,13 @@ class LoggedEntities:
 
     def __init__(self):
         self.kinds: dict[str, set[str]] = defaultdict(set)
+        self.version = 0  # counts (path, archetype) pairs first noted: cheap "anything new?"
 
     def note(self, path: str, kind: str) -> None:
-        self.kinds["/" + path.strip("/")].add(kind.rsplit(".", 1)[-1])
+        kinds, kind = self.kinds["/" + path.strip("/")], kind.rsplit(".", 1)[-1]
+        if kind not in kinds:
+            kinds.add(kind)
+            self.version += 1
 
     def note_log(self, path: str, entities) -> None:
         """What ``RecordingStream.log(path, *entities)`` logged."""
@@ -53,20 +60,37 @@ class LoggedEntities:
         return [p for p, k in self.kinds.items() if k & set(kinds)]
 
 
+def layout_key(logged: LoggedEntities) -> tuple:
+    """What :func:`blueprint` builds from: equal keys, equal layouts.
+
+    ``(world: None, "2d" or "3d"; image paths; (leaf, series paths) per plotted
+    quantity; text log paths; tensor paths)``.
+    """
+    world = [p for p in logged.kinds if p == "/world" or p.startswith("/world/")]
+    kind = None if not world else "3d" if any(logged.kinds[p] & _3D for p in world) else "2d"
+    by_leaf: dict[str, list[str]] = defaultdict(list)
+    for p in logged.paths("Scalars"):
+        by_leaf[p.rsplit("/", 1)[-1]].append(p)
+    return (kind, tuple(logged.paths(*_IMAGES)),
+            tuple((leaf, tuple(paths)) for leaf, paths in by_leaf.items()),
+            tuple(logged.paths("TextLog")), tuple(logged.paths("Tensor")))
+
+
 def blueprint(logged: LoggedEntities):
     """The layout of the module docstring, or None when nothing was logged."""
-    import rerun.blueprint as rrb  # only when a recording closes
+    import rerun.blueprint as rrb  # only when a layout is sent
 
-    world = [p for p in logged.kinds if p == "/world" or p.startswith("/world/")]
+    world, image_paths, series, texts, tensors = layout_key(logged)
     main = []
     if world:
-        three_d = any(logged.kinds[p] & _3D for p in world)
-        view = rrb.Spatial3DView if three_d else rrb.Spatial2DView
-        main.append(view(name="world" if three_d else "map", origin="/world"))
-    images = [rrb.Spatial2DView(name=_image_name(p), origin=p) for p in logged.paths(*_IMAGES)]
-    tabs = _series_views(rrb, logged)
-    tabs += [rrb.TextLogView(name=_tail(p), origin=p) for p in logged.paths("TextLog")]
-    tabs += [rrb.TensorView(name=_tail(p), origin=p) for p in logged.paths("Tensor")]
+        view = rrb.Spatial3DView if world == "3d" else rrb.Spatial2DView
+        main.append(view(name="world" if world == "3d" else "map", origin="/world"))
+    images = [rrb.Spatial2DView(name=_image_name(p), origin=p) for p in image_paths]
+    # one TimeSeriesView per plotted quantity (leaf name), its series from every run
+    tabs = [rrb.TimeSeriesView(name=leaf, origin="/", contents=list(paths))
+            for leaf, paths in series]
+    tabs += [rrb.TextLogView(name=_tail(p), origin=p) for p in texts]
+    tabs += [rrb.TensorView(name=_tail(p), origin=p) for p in tensors]
     side = images + ([rrb.Tabs(*tabs)] if tabs else [])
     if not main and not side:
         return None
@@ -76,15 +100,6 @@ def blueprint(logged: LoggedEntities):
     else:
         root = main[0]
     return rrb.Blueprint(root, collapse_panels=False)
-
-
-def _series_views(rrb, logged: LoggedEntities) -> list:
-    """One TimeSeriesView per plotted quantity (leaf name), its series from every run."""
-    by_leaf: dict[str, list[str]] = defaultdict(list)
-    for p in logged.paths("Scalars"):
-        by_leaf[p.rsplit("/", 1)[-1]].append(p)
-    return [rrb.TimeSeriesView(name=leaf, origin="/", contents=paths)
-            for leaf, paths in by_leaf.items()]
 
 
 def _tail(path: str) -> str:

@@ -15,7 +15,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from graphslam.visualisation.layout import LoggedEntities, blueprint
+from graphslam.visualisation.layout import LoggedEntities, blueprint, layout_key
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
@@ -158,16 +158,22 @@ class RerunLog:
         mode: "save" (write ``path``), "spawn" (start a local viewer) or
             "connect" (gRPC to ``url``, default the viewer's own default).
         recording_id: fixed id so the same run gives the same recording.
+        live_layout: also send the layout during the run, at the first
+            :meth:`set_step` after it changed (default: for a live viewer, not
+            for a file, which gets it once, at the close).
     """
 
     def __init__(self, mode: str, path: Path | None = None, url: str | None = None,
-                 application_id: str = "graphslam", recording_id: str = "graphslam-run"):
+                 application_id: str = "graphslam", recording_id: str = "graphslam-run",
+                 live_layout: bool | None = None):
         import rerun as rr  # imported here: no work at import time, and only this module
 
         self._rr = rr
         self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.logged = LoggedEntities()
         self.rec = _NotingStream(self._stream, self.logged)
+        self._live_layout = mode != "save" if live_layout is None else live_layout
+        self._layout_seen = (0, None)  # (logged.version, layout_key) at the last check
         if mode == "save":
             if path is None:
                 raise ConfigError("rerun: mode 'save' needs a path")
@@ -194,9 +200,26 @@ class RerunLog:
         self.path = path
 
     def set_step(self, step: int, stamp_s: float | None = None) -> None:
+        if self._live_layout and self.logged.version != self._layout_seen[0]:
+            self._send_live_layout()
         self.rec.set_time("step", sequence=int(step))
         if stamp_s is not None:
             self.rec.set_time("time", duration=float(stamp_s))
+
+    def _send_live_layout(self) -> None:
+        """Send the layout if its views changed since the last one sent (not for every
+        new entity inside a view: each send resets what the user arranged)."""
+        key = layout_key(self.logged)
+        changed = key != self._layout_seen[1]
+        self._layout_seen = (self.logged.version, key)
+        if not changed:
+            return
+        try:
+            layout = blueprint(self.logged)
+            if layout is not None:
+                self._stream.send_blueprint(layout, make_active=True, make_default=True)
+        except Exception:  # an extra mid-run: never the run's end; close() tries again and says why
+            self._live_layout = False
 
     def close(self) -> None:
         """Send the layout, flush and close the stream.
