@@ -122,7 +122,7 @@ def test_live_layout_is_sent_when_the_views_change(tmp_path, monkeypatch):
     log.set_step(2)
     assert len(log.sends) == 1
     log.rec.log("plots/fastslam1/pose_sigma_m", rr.Scalars(0.3))  # a new series in the view
-    log.set_step(3)
+    log.rec.set_time("frame", sequence=3)  # as the visual loggers start a frame
     assert len(log.sends) == 2
     log.close()
     assert len(log.sends) == 3
@@ -159,3 +159,24 @@ def test_a_failing_live_layout_does_not_end_the_run(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="layout bug"):  # the close says why
         log.close()
     assert "/plots/ekf/q2" in entity_paths(tmp_path / "run.rrd")
+
+
+@pytest.mark.parametrize("args", [
+    ["--dataset", "synthetic-images", "--backend", "ekf", "--max-steps", "6"],  # rec.set_time
+    ["--dataset", "synthetic", "--max-steps", "30"],  # set_step
+])
+def test_runs_send_their_layout_live(tmp_path, capsys, monkeypatch, args):
+    """The visual and the 2-D loggers both start their steps where the live check runs."""
+    import graphslam.visualisation.recording as recording
+
+    sends = []
+    real_init = recording.RerunLog.__init__
+
+    def init(self, mode, *a, **k):
+        real_init(self, mode, *a, **{**k, "live_layout": True})
+        real = self._stream.send_blueprint
+        self._stream.send_blueprint = lambda bp, **kw: (sends.append(1), real(bp, **kw))
+
+    monkeypatch.setattr(recording.RerunLog, "__init__", init)
+    views, _ = _run(tmp_path, capsys, *args)
+    assert views and len(sends) >= 2  # during the run, and at the close

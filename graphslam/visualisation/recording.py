@@ -131,10 +131,16 @@ def _wait_for_port(host: str, port: int, wait_s: float) -> bool:
 
 class _NotingStream:
     """A RecordingStream that notes what each ``log`` and ``send_columns`` wrote
-    (:class:`graphslam.visualisation.layout.LoggedEntities`), for the layout."""
+    (:class:`graphslam.visualisation.layout.LoggedEntities`), for the layout, and
+    calls ``on_set_time`` before each ``set_time`` (a step or frame begins)."""
 
-    def __init__(self, stream, logged: LoggedEntities):
-        self._stream, self._logged = stream, logged
+    def __init__(self, stream, logged: LoggedEntities, on_set_time=None):
+        self._stream, self._logged, self._on_set_time = stream, logged, on_set_time
+
+    def set_time(self, *args, **kwargs) -> None:
+        if self._on_set_time is not None:
+            self._on_set_time()
+        self._stream.set_time(*args, **kwargs)
 
     def log(self, path: str, *entities, **kwargs) -> None:
         self._logged.note_log(path, entities)
@@ -159,8 +165,8 @@ class RerunLog:
             "connect" (gRPC to ``url``, default the viewer's own default).
         recording_id: fixed id so the same run gives the same recording.
         live_layout: also send the layout during the run, at the first
-            :meth:`set_step` after it changed (default: for a live viewer, not
-            for a file, which gets it once, at the close).
+            ``rec.set_time`` (a new step or frame) after it changed (default:
+            for a live viewer, not for a file, which gets it once, at the close).
     """
 
     def __init__(self, mode: str, path: Path | None = None, url: str | None = None,
@@ -171,9 +177,9 @@ class RerunLog:
         self._rr = rr
         self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.logged = LoggedEntities()
-        self.rec = _NotingStream(self._stream, self.logged)
         self._live_layout = mode != "save" if live_layout is None else live_layout
         self._layout_seen = (0, None)  # (logged.version, layout_key) at the last check
+        self.rec = _NotingStream(self._stream, self.logged, on_set_time=self._live_check)
         if mode == "save":
             if path is None:
                 raise ConfigError("rerun: mode 'save' needs a path")
@@ -200,15 +206,16 @@ class RerunLog:
         self.path = path
 
     def set_step(self, step: int, stamp_s: float | None = None) -> None:
-        if self._live_layout and self.logged.version != self._layout_seen[0]:
-            self._send_live_layout()
         self.rec.set_time("step", sequence=int(step))
         if stamp_s is not None:
             self.rec.set_time("time", duration=float(stamp_s))
 
-    def _send_live_layout(self) -> None:
-        """Send the layout if its views changed since the last one sent (not for every
-        new entity inside a view: each send resets what the user arranged)."""
+    def _live_check(self) -> None:
+        """Before each ``set_time``: send the layout if its views changed since the last
+        one sent (not for every new entity inside a view: each send resets what the
+        user arranged). An integer comparison when nothing new was logged."""
+        if not self._live_layout or self.logged.version == self._layout_seen[0]:
+            return
         key = layout_key(self.logged)
         changed = key != self._layout_seen[1]
         self._layout_seen = (self.logged.version, key)
