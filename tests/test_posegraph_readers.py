@@ -140,6 +140,9 @@ BAD_LINES = [
     ("EDGE_SE2 0 1e3 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 3.0 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 1 1 0 0 100 0 0 -100 0 1000\n", 1, "not positive definite"),
+    # information is checked for all edges at once: the bad one among good ones is named
+    ("EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n# c\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 -1\n"
+     "EDGE_SE2 2 3 1 0 0 -100 0 0 100 0 1000\n", 3, "not positive definite"),
     ("EDGE_SE2 1 1 1 0 0 100 0 0 100 0 1000\n", 1, "to itself"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", 2, "declared twice"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 2 1 0 0 1 0 0 1 0 1\n", 3,
