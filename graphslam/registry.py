@@ -86,13 +86,14 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
     from graphslam.sources.posegraph_files import (TAGS, first_tag, has_landmark_lines,
-                                                   is_pose_graph_file)
+                                                   is_pose_graph_tag)
 
-    if not is_pose_graph_file(spec):
+    tag = first_tag(spec)
+    if not is_pose_graph_tag(tag):
         return False
     # only a 2-D TORO file can be landmark SLAM (BR lines, as gtsam.load2D reads them):
     # others are read once, by the pose-graph reader, which refuses a BR line
-    fmt, dim = TAGS.get(first_tag(spec), ("toro", 2))[:2]
+    fmt, dim = TAGS.get(tag, ("toro", 2))[:2]
     return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 

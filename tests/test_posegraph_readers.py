@@ -140,6 +140,7 @@ BAD_LINES = [
     ("EDGE_SE2 0 1e3 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 3.0 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 1 1 0 0 100 0 0 -100 0 1000\n", 1, "not positive definite"),
+    ("EDGE_SE2 0 " + "7" * 5000 + " 1 0 0 100 0 0 100 0 1000\n", 1, "larger than 2**62"),
     # information is checked for all edges at once: the bad one among good ones is named
     ("EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n# c\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 -1\n"
      "EDGE_SE2 2 3 1 0 0 -100 0 0 100 0 1000\n", 3, "not positive definite"),

@@ -157,6 +157,9 @@ def test_victoria_park_landmark_for_older_pose(tmp_path):
     ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nLANDMARK 1 5 1 1 0 0 0.4\n", 2,
      "positive definite"),
     ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nGPS 1 2 3\n", 2, "unknown tag"),
+    # longer than int() converts (4300 digits): refused, not a ValueError
+    ("ODOMETRY 0 1 1 0 0 0.01 0 0 0.01 0 0.01\nLANDMARK 1 " + "5" * 5000 + " 1 1 0.4 0 0.4\n",
+     2, "out of range"),
 ])
 def test_victoria_park_bad_lines(tmp_path, text, line, words):
     p = tmp_path / "bad_vp.txt"
@@ -278,6 +281,10 @@ def test_toro_auto_refuses_what_load2d_refuses(tmp_path):
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 3 0 1 0 0 1 0 1 1 0 0\n", 2, "pose 2 is missing"),
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE3 2 1 1 0 0 1 0 1 1 0 0\n", 2, "unknown tag"),
     ("EDGE2 1 1 1 0 0 1 0 1 1 0 0\n", 1, "itself"),
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 1 " + "0" * 4999 + "1 1 0 0 1 0 1 1 0 0\n", 2,
+     "itself"),  # leading zeros past int()'s 4300 digits: the id is still 1
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 2 " + "7" * 5000 + " 1 0 0 1 0 1 1 0 0\n", 2,
+     "larger than 2**62"),
 ])
 def test_toro_bad_lines(tmp_path, text, line, words):
     p = tmp_path / "bad.graph"

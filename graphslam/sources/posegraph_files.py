@@ -56,7 +56,8 @@ from slamcore import posegraph as pg
 
 #: Largest pose id accepted: ids are int64 and gtsam keys; 2**62 leaves room.
 MAX_ID = 2**62
-_ID = re.compile(r"\+?[0-9]+\Z")
+#: An id token as parse_id accepts it (the bulk readers build theirs from it).
+ID_TOKEN = re.compile(r"\+?[0-9]+\Z")
 
 #: tag -> (format, dim, rotation, kind, token count)
 TAGS = {
@@ -95,14 +96,30 @@ def is_g2o_diagonal(v) -> bool:
             and v[4] == 0 and v[5] != 0)
 
 
+#: Significant digits beyond any id's (2**62 has 19): such a token is out of range.
+_MAX_ID_DIGITS = 20
+
+
+def decimal_value(token: str) -> int:
+    """``int(token)`` for an optional sign and decimal digits (checked by the caller),
+    without ``int``'s refusal of strings over 4300 digits (a ValueError that would
+    end a run in a traceback): a value of more than 20 significant digits comes back
+    as +-10**20, outside every id range, for the caller's range check to refuse."""
+    sign = -1 if token.startswith("-") else 1
+    digits = token.lstrip("+-").lstrip("0")
+    if len(digits) > _MAX_ID_DIGITS:
+        return sign * 10 ** _MAX_ID_DIGITS
+    return sign * int(digits or "0")
+
+
 def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
     """A decimal id as a Python int in [0, MAX_ID], or one-line InputError."""
-    if token.startswith("-") and _ID.match(token[1:]):
+    if token.startswith("-") and ID_TOKEN.match(token[1:]):
         raise InputError(f"{what} {token} is negative", path, line_no)
-    if not _ID.match(token):
+    if not ID_TOKEN.match(token):
         raise InputError(f"{what} {token!r} is not an integer (decimal digits only)", path,
                          line_no)
-    value = int(token)
+    value = decimal_value(token)
     if value > MAX_ID:
         raise InputError(f"{what} {token} is larger than 2**62", path, line_no)
     return value
@@ -346,7 +363,12 @@ def has_landmark_lines(path) -> bool:
 
 def is_pose_graph_file(path) -> bool:
     """Whether the first tag of a file is a pose-graph tag (cheap: one line read)."""
-    return first_tag(path) in (*TAGS, "FIX", "EQUIV")
+    return is_pose_graph_tag(first_tag(path))
+
+
+def is_pose_graph_tag(tag: str | None) -> bool:
+    """Whether a file whose first tag is ``tag`` is a pose graph."""
+    return tag in (*TAGS, "FIX", "EQUIV")
 
 
 def first_tag(path) -> str | None:

@@ -222,11 +222,14 @@ class RerunLog:
         if not changed:
             return
         try:
-            layout = blueprint(self.logged)
-            if layout is not None:
-                self._stream.send_blueprint(layout, make_active=True, make_default=True)
+            self._send_layout()
         except Exception:  # an extra mid-run: never the run's end; close() tries again and says why
             self._live_layout = False
+
+    def _send_layout(self) -> None:
+        layout = blueprint(self.logged)
+        if layout is not None:
+            self._stream.send_blueprint(layout, make_active=True, make_default=True)
 
     def close(self) -> None:
         """Send the layout, flush and close the stream.
@@ -236,9 +239,7 @@ class RerunLog:
                 :data:`FLUSH_TIMEOUT_S` the rest is dropped.
         """
         try:  # the layout is an extra: whatever it meets, the logged data is flushed
-            layout = blueprint(self.logged)
-            if layout is not None:
-                self._stream.send_blueprint(layout, make_active=True, make_default=True)
+            self._send_layout()
         finally:
             self._flush_and_disconnect()
 

@@ -20,10 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.sources.posegraph_files import ID_TOKEN, decimal_value
 from slamcore.planar.geometry import wrap_angle
 
 #: Ids separated by single spaces, each as ``posegraph_files.parse_id`` accepts one.
-_IDS = re.compile(r"(?:\+?[0-9]+ )*\+?[0-9]+\Z")
+_ONE_ID = ID_TOKEN.pattern.removesuffix(r"\Z")
+_IDS = re.compile(rf"(?:{_ONE_ID} )*{_ONE_ID}\Z")
 #: Edge: tag, 2 ids, 3 measurement numbers, 6 noise numbers; vertex: tag, id, x, y, theta.
 EDGE_TOKENS, VERTEX_TOKENS = 12, 5
 
@@ -69,7 +71,7 @@ def read_se2_lines(path, vertex_tag: str, edge_tag: str, ignored: tuple[str, ...
     pose_lines = dict(zip(ids[2 * n:], vertex_lines))
     if len(pose_lines) != len(vertex_rows):
         return None  # a pose declared twice
-    covariances = _covariances(numbers[:, 3:], noise_format)
+    covariances = noise_covariances(numbers[:, 3:], noise_format)
     if covariances is None:
         return None
     deltas = numbers[:, :3].copy()
@@ -82,7 +84,8 @@ def _ids(tokens: list[str], id_limit: int) -> list[int] | None:
     """Python ints (never through a float) of decimal id tokens all below ``id_limit``."""
     if tokens and not _IDS.match(" ".join(tokens)):
         return None
-    ids = list(map(int, tokens))
+    # int() refuses strings over 4300 digits: any token over 20 goes the long way
+    ids = list(map(int if max(map(len, tokens), default=0) <= 20 else decimal_value, tokens))
     return ids if not ids or max(ids) < id_limit else None
 
 
@@ -95,10 +98,11 @@ def _finite(rows: list[list[str]], width: int) -> np.ndarray | None:
     return out if np.isfinite(out).all() else None
 
 
-def _covariances(v: np.ndarray, noise_format: str) -> np.ndarray | None:
-    """(N, 3, 3) covariances of the (N, 6) noise numbers, as ``posegraph.noise_covariance``
-    reads each row; None if a row would be refused (no layout under ``auto``; an
-    information matrix that is not positive definite)."""
+def noise_covariances(v: np.ndarray, noise_format: str) -> np.ndarray | None:
+    """(N, 3, 3) covariances of the (N, 6) noise numbers read as ``noise_format`` (see
+    :mod:`graphslam.sources.planar.posegraph`); None if a row is refused (no layout
+    under ``auto``; an information matrix that is not positive definite). The line
+    reader's ``noise_covariance`` is this on one row."""
     nz = v != 0
     if noise_format == "auto":
         graph = nz[:, 0] & ~nz[:, 1] & nz[:, 2] & nz[:, 3] & ~nz[:, 4] & ~nz[:, 5]

@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.bulk import read_se2_lines
+from graphslam.sources.planar.bulk import noise_covariances, read_se2_lines
 from graphslam.sources.posegraph_files import parse_id
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
@@ -125,34 +125,19 @@ def check_count(tokens, expected, path, line_no, layout):
 
 
 def noise_covariance(v, noise_format, path, line_no):
-    """(3, 3) covariance from the six noise numbers ``v``, the way gtsam reads them."""
-    v1, v2, v3, v4, v5, v6 = v
-    fmt = noise_format
-    if fmt == "auto":
-        if v1 != 0 and v2 == 0 and v3 != 0 and v4 != 0 and v5 == 0 and v6 == 0:
-            fmt = "graph"
-        elif v1 != 0 and v2 == 0 and v3 == 0 and v4 != 0 and v5 == 0 and v6 != 0:
-            fmt = "cov"
-        else:
-            raise InputError(
-                "noise numbers match neither diagonal layout gtsam.load2D recognises "
-                f"({' '.join(f'{x:g}' for x in v)}); pass noise_format= explicitly",
-                path, line_no)
-    if fmt in ("graph", "toro"):
-        m = np.array([[v1, v2, v5], [v2, v3, v6], [v5, v6, v4]])
-    elif fmt in ("cov", "g2o"):
-        m = np.array([[v1, v2, v3], [v2, v4, v5], [v3, v5, v6]])
-    else:
+    """(3, 3) covariance from the six noise numbers ``v``, the way gtsam reads them
+    (:func:`graphslam.sources.planar.bulk.noise_covariances` on one row), or InputError."""
+    if noise_format not in NOISE_FORMATS:
         raise ValueError(f"noise_format must be one of {NOISE_FORMATS}, got {noise_format!r}")
-    if fmt in ("toro", "g2o"):  # information matrix
-        try:
-            np.linalg.cholesky(m)
-        except np.linalg.LinAlgError:
-            raise InputError("information matrix is not positive definite", path,
-                             line_no) from None
-        m = np.linalg.inv(m)
-        m = 0.5 * (m + m.T)
-    return m
+    m = noise_covariances(np.array([v], dtype=np.float64), noise_format)
+    if m is not None:
+        return m[0]
+    if noise_format == "auto":
+        raise InputError(
+            "noise numbers match neither diagonal layout gtsam.load2D recognises "
+            f"({' '.join(f'{x:g}' for x in v)}); pass noise_format= explicitly",
+            path, line_no)
+    raise InputError("information matrix is not positive definite", path, line_no)
 
 
 def group_edges(edges, path, pose_lines=None, ground_truth=None):

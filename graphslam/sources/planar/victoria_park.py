@@ -36,6 +36,7 @@ import numpy as np
 
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.records import Dataset
+from graphslam.sources.posegraph_files import decimal_value
 from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
                                          parse_floats)
 from slamcore.planar.geometry import wrap_angle
@@ -53,7 +54,7 @@ def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
     from 2**53), from 0 to :data:`ID_LIMIT` - 1; InputError otherwise."""
     if re.fullmatch(r"[+-]?[0-9]+", token) is None:
         raise InputError(f"{what} {token!r} is not an integer", path, line_no)
-    value = int(token)
+    value = decimal_value(token)
     if not 0 <= value < ID_LIMIT:
         raise InputError(f"{what} {token} is out of range (0 to 2**56 - 1)", path, line_no)
     return value
