@@ -66,6 +66,15 @@ from slamcore.spatial.records import PixelObservations, PixelPredictions
 
 __all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES", "make_detector"]
 
+#: Width the frames are reduced to before their image motion is measured, pixels
+#: (PTAM's small blurry images are 80 px wide; twice that keeps a pixel's worth of
+#: motion at VGA within 4 px).
+IMAGE_MOTION_WIDTH_PX = 160
+#: Phase-correlation peak below which the image motion is not trusted (OpenCV's
+#: response is the peak's share of the correlation energy; a pure shift gives ~1,
+#: a scene of independent motions a flat surface).
+IMAGE_MOTION_MIN_RESPONSE = 0.1
+
 @dataclass
 class _Track:
     track_id: int
@@ -173,6 +182,9 @@ class Tracker:
         self._next_id = 0
         self._frame = -1
         self._flow = np.zeros(2)  # median image motion of the tracks followed last frame
+        self._small: np.ndarray | None = None  # last frame, reduced, for its image motion
+        self._shift = np.zeros(2)  # image motion measured last frame (follow_image_motion)
+        self._jerk = np.zeros(2)  # this frame's image motion minus last frame's
         self._appearance = self.search_config.predict_appearance and mode == "zncc"
         self._view = PixelPredictions.empty()  # this frame's predictions: camera wTc and K
 
@@ -234,6 +246,8 @@ class Tracker:
 
         # ---- follow unmapped tracks
         t = time.perf_counter()
+        if self.follow_unmapped and cfg.follow_image_motion:
+            self._measure_image_motion(image)
         f_ids, f_from, f_to, follow_fraction = self._follow(image, feats, obs_uv, k)
         obs_ids.extend(f_ids)
         obs_uv.extend(f_to)
@@ -377,10 +391,10 @@ class Tracker:
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
         cands = []  # (score, track, uv); best first resolves two tracks landing on one point
         for tr in list(self._tracks.values()):
-            if tr.mapped or tr.last_seen != k - 1:
-                continue
+            if tr.last_seen != k - 1 or (tr.mapped and not cfg.follow_missed_landmarks):
+                continue  # (a landmark active search found this frame has last_seen == k)
             # a track born last frame has no motion of its own yet: use the image's
-            c = tr.uv + (tr.velocity if tr.last_seen > tr.born or tr.mapped else self._flow)
+            c = tr.uv + (tr.velocity if tr.last_seen > tr.born or tr.mapped else self._flow) + self._jerk
             cu, cv = int(round(c[0])), int(round(c[1]))
             u0, u1 = max(cu - half, h), min(cu + half, W - 1 - h)
             v0, v1 = max(cv - half, h), min(cv + half, H - 1 - h)
@@ -435,6 +449,35 @@ class Tracker:
             self._matched(tr, uv, image, feats, k)
         self._flow = np.median(np.asarray(moved), axis=0) if moved else np.zeros(2)
         return ids, src, dst, float(union.sum()) / float(H * W)
+
+    def _measure_image_motion(self, image: np.ndarray) -> None:
+        """How much the whole image moved since the last frame changed from the motion
+        before (``self._jerk``, px): phase correlation of the two frames reduced to
+        about 160 px wide (PTAM's small blurry images, Klein & Murray 2008). A camera
+        that starts to turn shifts every point at once, beyond the follow windows
+        placed by each track's last motion; the windows move by this change. A weak
+        correlation peak (a scene that does not move as one) changes nothing."""
+        H, W = image.shape
+        f = max(1, W // IMAGE_MOTION_WIDTH_PX)
+        small = cv2.GaussianBlur(cv2.resize(image, (W // f, H // f), interpolation=cv2.INTER_AREA)
+                                 .astype(np.float32), (0, 0), 1.0)
+        prev, self._small = self._small, small
+        self._jerk = np.zeros(2)
+        if prev is None or prev.shape != small.shape:
+            return
+        (du, dv), response = cv2.phaseCorrelate(prev, small, self._window(small.shape))
+        shift = np.array([du, dv]) * f
+        if response >= IMAGE_MOTION_MIN_RESPONSE:
+            self._jerk = shift - self._shift
+            self._shift = shift
+        else:
+            self._shift = np.zeros(2)
+
+    def _window(self, shape: tuple[int, int]) -> np.ndarray:
+        win = getattr(self, "_hann", None)
+        if win is None or win.shape != shape:
+            win = self._hann = cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
+        return win
 
     def _forget(self, k: int) -> None:
         """Drop unmapped tracks that were lost or stayed unmapped too long."""
