@@ -51,8 +51,9 @@ def bounded(default: Any = dataclasses.MISSING, *, min: float | None = None,
 
 
 def section_name(cls: type) -> str:
-    """Section of a config file that configures ``cls`` (its ``SECTION`` attribute)."""
-    return getattr(cls, "SECTION", cls.__name__.lower())
+    """Section of a config file that configures ``cls`` (its ``SECTION`` attribute), or,
+    for a config that is only ever a nested table, the name its messages use (``TABLE``)."""
+    return getattr(cls, "SECTION", None) or getattr(cls, "TABLE", cls.__name__.lower())
 
 
 def choices_of(cls: type, name: str) -> tuple | None:

@@ -389,9 +389,11 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     _one_line_error(capsys, ["run", "--dataset", str(empty), "--out", str(tmp_path / "o")], str(empty))
     _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--backend", "fastslam1"],
                     "image sequences")
-    _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--odometry", "none",
-                             "--backend", "isam2", "--config", str(_config(tmp_path)),
-                             "--out", str(tmp_path / "o2")], "motion model")
+    # iSAM2 set to track by the camera alone, handed odometry
+    camera = _config(tmp_path, '[isam2_visual]\nrobot_model = "constant_velocity"\n')
+    _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--odometry", "sequence",
+                             "--backend", "isam2", "--config", str(camera),
+                             "--out", str(tmp_path / "o2")], "takes no odometry")
     _one_line_error(capsys, ["run", "--dataset", "synthetic", "--frontend", "orb"], "image sequences only")
     _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--max-steps", "0"], "--max-steps")
     bad = _config(tmp_path, "[tracker]\ndetector = \"sift\"\n")

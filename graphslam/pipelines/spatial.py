@@ -152,12 +152,18 @@ class VisualRunResult:
 def backend_overrides(backend: str, mode: str, seed: int | None = None,
                       no_polish: bool = False, nearest_depth_m: float | None = None) -> dict:
     """Config overrides a visual run hands back end ``backend`` (``isam2`` or ``ekf``)
-    for odometry ``mode``: iSAM2's polish off; the EKF's RANSAC seed, its
+    for odometry ``mode``: iSAM2's polish off and, without odometry, its camera-alone
+    tracking with the RANSAC seed; the EKF's RANSAC seed, its
     inverse-depth prior from the scene's nearest depth (:func:`scene_nearest_depth`)
     and, without odometry, its constant-velocity model."""
     if backend == "isam2":
-        return {"polish": False} if no_polish else {}
-    out: dict = {}
+        out = {"polish": False} if no_polish else {}
+        if mode == "none":  # camera alone: a monocular bootstrap, then PnP tracking
+            out["robot_model"] = "constant_velocity"
+            if seed is not None:
+                out["seed"] = seed
+        return out
+    out = {}
     if seed is not None:
         out["seed"] = seed
     if nearest_depth_m is not None:

@@ -76,7 +76,8 @@ from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.backends.spatial.isam2_mapping import LandmarkMapping
 from graphslam.backends.spatial.isam2_ordering import RootOrdering
 from graphslam.backends.spatial.isam2_recovery import IndeterminateRecovery
-from graphslam.backends.spatial.landmark_init import Track
+from graphslam.backends.spatial.landmark_init import Track, first_map_graph
+from graphslam.backends.spatial.mono_motion import MonoMotion
 from graphslam.backends.spatial.polish import gnc_polish
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.spatial.records import (
@@ -88,16 +89,22 @@ from slamcore.spatial.backend import VisualBackend
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a
 #: proper Gaussian. 1e-4 is far below any pixel's information at VGA.
 PRIOR_SIGMA_FLOOR = 1e-4
+#: Camera alone: the standard deviation of the range factor that fixes the map's
+#: scale (the bootstrap baseline = 1), in that unit: a gauge, not a measurement.
+SCALE_GAUGE_SIGMA = 1e-3
 
 class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, VisualBackend):
     """Smoothing visual back end on ``gtsam.ISAM2``; tracks give the association."""
 
     name = "isam2"
-    has_motion_model = False
     supports_loop_closures = True
 
     def __init__(self, config: VisualIsam2Config | None = None):
         self.config = config or VisualIsam2Config()
+        #: camera alone (``robot_model = "constant_velocity"``): bootstrap, then PnP tracking
+        self.has_motion_model = self.config.robot_model == "constant_velocity"
+        self._mono: MonoMotion | None = None
+        self._lm_sigma_now = 1.0  # pixel sigma of the latest frame (camera alone: the motion floor)
         self._isam = gtsam.ISAM2(self.config.isam2_params())
         self._graph = gtsam.NonlinearFactorGraph()  # pending factors of this frame
         self._values = gtsam.Values()  # pending initial values of this frame
@@ -143,14 +150,22 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         cov = checked_covariance(covariance, "prior", allow_singular=True)
         cov = cov + PRIOR_SIGMA_FLOOR**2 * np.eye(6)
         fid = int(frame_id)
+        if self.has_motion_model:  # camera alone: no pose until the first map is made
+            self._mono = MonoMotion(self.config.mono, K, np.asarray(wTc, dtype=np.float64), cov,
+                                    self.config.seed)
+            self._mono.next_frame(fid)
+            return
         self._graph.add(gtsam.PriorFactorPose3(X(fid), conv.pose3(wTc), conv.pose3_noise(cov)))
         self._values.insert(X(fid), conv.pose3(wTc))
         self._add_frame(fid)
 
     def predict(self, frame_id, odometry, covariance):
+        if self._mono is not None:
+            self._predict_camera_only(int(frame_id), odometry)
+            return
         if odometry is None:
-            raise UnsupportedError("isam2 (visual) has no motion model of its own: "
-                                   "predict() needs odometry")
+            raise UnsupportedError("isam2 (visual) with robot_model = 'odometry' has no motion "
+                                   "model of its own: predict() needs odometry")
         if not self._frames:
             raise GraphSlamError("isam2 (visual): predict() before initialize()")
         fid = int(frame_id)
@@ -168,12 +183,21 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         self._flush()
 
     def update(self, observations: PixelObservations) -> None:
+        if self._mono is not None and not self._mono.mapped:
+            ids, uv, sigma = checked_pixels(observations)
+            first = self._mono.bootstrap(ids, uv, sigma)
+            if first is not None:
+                self._start_map(first, sigma)
+            return
         if not self._frames:
             raise GraphSlamError("isam2 (visual): update() before initialize()")
         ids, uv, sigma = checked_pixels(observations)
+        fid = self._frames[-1]
+        skip_pixels: set[int] = set()
+        if self._mono is not None:
+            skip_pixels = self._measure_pose(fid, ids, uv, sigma)
         if len(ids) == 0:
             return
-        fid = self._frames[-1]
         now = len(self._frames) - 1
         noise = self._pixel_noise(sigma)
         wTc = self._pose(fid)
@@ -182,7 +206,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
         qualified: list[int] = []
         budget = self.config.max_landmarks_per_frame or len(ids) + len(self._queued)
-        skip, used = self._over_budget(ids, budget)
+        skip, used = self._over_budget(ids, budget, skip_pixels)
         budget -= used
         for i, tid in enumerate(ids.tolist()):
             slot = self._slot.get(tid)
@@ -214,10 +238,12 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             self._forget_stale_tracks(now)
 
     def predict_observations(self) -> PixelPredictions:
-        self._flush()
+        if self._mono is None:
+            self._flush()
+        elif not self._mono.mapped:  # camera alone, no map yet: nothing to predict
+            return PixelPredictions.empty(None, self._K.copy())
         if not self._frames:
             return PixelPredictions.empty()
-        x_key = X(self._frames[-1])
         wTc = self._current_pose()
         # the camera even without landmarks: the front end's appearance prediction keeps it
         empty = PixelPredictions.empty(conv.pose3_matrix(wTc), self._K.copy())
@@ -229,15 +255,16 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         if n == 0:
             return empty
         camera = gtsam.PinholeCameraCal3_S2(wTc, self._cal)
+        x_key, A, Q = self._prediction_source()
         joint = None
         if self._polished is None and self.config.prediction_covariance == "joint":
             # one call for the pose and all selected landmarks: the Bayes-tree
             # work is shared (one call per landmark costs nearly as much each)
             joint = self._isam.jointMarginalCovariance(
                 [x_key] + [L(self._lm_ids[s]) for s in slots.tolist()])
-            cov_x = joint.at(x_key, x_key)
+            cov_x = A @ joint.at(x_key, x_key) @ A.T + Q
         else:
-            cov_x = self._pose_marginal(x_key)
+            cov_x = A @ self._pose_marginal(x_key) @ A.T + Q
         ids = np.empty(n, np.int64)
         uvs = np.empty((n, 2))
         S = np.empty((n, 2, 2))
@@ -248,7 +275,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             uvs[i] = camera.project(self._lm_pos[s], D_pose, D_point)
             if joint is not None:
                 l_key = L(tid)
-                cross = D_pose @ joint.at(x_key, l_key) @ D_point.T
+                cross = D_pose @ A @ joint.at(x_key, l_key) @ D_point.T
                 S_i = (D_pose @ cov_x @ D_pose.T + cross + cross.T
                        + D_point @ joint.at(l_key, l_key) @ D_point.T)
             else:
@@ -257,6 +284,16 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             S[i] = 0.5 * (S_i + S_i.T) + self._lm_sigma[s] ** 2 * np.eye(2)
             ids[i] = tid
         return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lm_pos[slots].copy())
+
+    def _prediction_source(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """``(key, A, Q)``: the current pose is ``A`` times the perturbation of pose
+        ``key`` in iSAM2 plus noise ``Q`` (gtsam's ``[phi, rho]`` order): the pose
+        itself with odometry; camera alone, the last measured pose moved by the
+        constant-velocity step ``delta`` (not yet in iSAM2): ``A = Ad(delta^-1)``."""
+        if self._mono is None or not self._mono.awaiting:
+            return X(self._frames[-1]), np.eye(6), np.zeros((6, 6))
+        A = conv.pose3(self._mono.delta).inverse().AdjointMap()
+        return (X(self._frames[-2]), A, conv.pose3_covariance_to_gtsam(self._mono.covariance))
 
     def estimate(self) -> VisualEstimate:
         self._flush()
@@ -278,6 +315,9 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         return VisualEstimate(frame_ids, wTc, lm_ids, pts.copy(), cov, self.stats())
 
     def finalize(self) -> VisualEstimate:
+        if self._mono is not None and not self._mono.mapped:
+            raise GraphSlamError("isam2 (visual): monocular tracking never started: no two frames "
+                                 f"gave a first map ({self._mono.bootstrap_reason})")
         self._flush()
         if self.config.polish and self._polished is None and self._frames:
             params = gtsam.LevenbergMarquardtParams()
@@ -343,9 +383,12 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
 
     def stats(self) -> dict:
         """Counters: landmarks, tracks waiting, rejected triangulations, ..."""
-        return {"frames": len(self._frames), "landmarks": self._n_lm,
-                "tracks_waiting": len(self._tracks), **self._stats,
-                "isam2_updates": self._n_updates}
+        out = {"frames": len(self._frames), "landmarks": self._n_lm,
+               "tracks_waiting": len(self._tracks), **self._stats,
+               "isam2_updates": self._n_updates}
+        if self._mono is not None:
+            out["camera_alone"] = self._mono.stats()
+        return out
 
     def factor_graph(self) -> gtsam.NonlinearFactorGraph:
         """All factors added so far (after flushing pending ones)."""
@@ -362,6 +405,59 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         """(4, 4) latest ``wTc``, read cheaply (no full estimate)."""
         self._flush()
         return conv.pose3_matrix(self._current_pose())
+
+    # --- camera alone (robot_model = "constant_velocity") ----------------------
+
+    def _predict_camera_only(self, fid: int, odometry) -> None:
+        """The frame's pose at constant velocity from the last two (pending, without
+        factors until :meth:`update` measures it); nothing before the first map."""
+        if odometry is not None:
+            raise UnsupportedError("isam2 (visual) with robot_model = 'constant_velocity' tracks "
+                                   "by the camera alone: it takes no odometry")
+        if fid in self._frame_set or fid == self._mono.frame_id:
+            raise GraphSlamError(f"isam2 (visual): frame {fid} added twice")
+        self._mono.next_frame(fid)
+        if not self._mono.mapped:
+            return
+        self._flush()
+        before, last = self._frames[-2], self._frames[-1]
+        wTc_pred = self._mono.predict(conv.pose3_matrix(self._pose(before)),
+                                      conv.pose3_matrix(self._pose(last)), float(self._lm_sigma_now))
+        self._values.insert(X(fid), conv.pose3(wTc_pred))
+        self._add_frame(fid)
+
+    def _measure_pose(self, fid: int, ids: np.ndarray, uv: np.ndarray, sigma: float) -> set[int]:
+        """PnP on the mapped landmarks among the frame's pixels: the pose then
+        replaces the prediction, and the rows of ``ids`` PnP rejects are returned
+        (they get no factor). Too few inliers: the frame is coasted on a
+        constant-velocity factor and keeps only the pixels the prediction explains."""
+        self._lm_sigma_now = sigma
+        rows = np.array([i for i, t in enumerate(ids.tolist()) if t in self._slot], dtype=np.int64)
+        points = np.array([self._point(int(ids[i])) for i in rows.tolist()]).reshape(-1, 3)
+        predicted = conv.pose3_matrix(self._values.atPose3(X(fid)))
+        est = self._mono.measure(points, uv[rows], predicted, sigma, ids, uv)
+        self._values.update(X(fid), conv.pose3(est.wTc if est.wTc is not None else est.wTc_coast))
+        if est.wTc is None:
+            self._add_coasting_factor(fid)
+        return set(rows[~est.inliers].tolist())
+
+    def _add_coasting_factor(self, fid: int) -> None:
+        self._graph.add(gtsam.BetweenFactorPose3(X(self._frames[-2]), X(fid),
+                                                 conv.pose3(self._mono.delta),
+                                                 conv.pose3_noise(self._mono.covariance)))
+
+    def _start_map(self, first, sigma: float) -> None:
+        """The bootstrap's map into the graph (:func:`.landmark_init.first_map_graph`)."""
+        graph, values, landmarks = first_map_graph(
+            first, self._mono.wTc0, conv.pose3_noise(self._mono.prior_covariance),
+            self._cal, self._pixel_noise(sigma), SCALE_GAUGE_SIGMA)
+        self._graph.push_back(graph)
+        self._values.insert(values)
+        for f in first.frame_ids.tolist():
+            self._add_frame(int(f))
+        for tid, p_w, nobs in landmarks:
+            self._add_landmark(tid, p_w, nobs, sigma)
+        self._lm_sigma_now = sigma
 
     # --- internals ----------------------------------------------------------
 
@@ -430,17 +526,20 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             self._noise_cache[sigma] = model
         return model
 
-    def _over_budget(self, ids: np.ndarray, budget: int) -> tuple[set[int], int]:
-        """Rows of ``ids`` whose landmark gets no factor this frame (beyond ``budget``),
-        and how many mapped landmarks do get one."""
-        skip = set()
-        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._slot]
+    def _over_budget(self, ids: np.ndarray, budget: int,
+                     rejected: set[int] = frozenset()) -> tuple[set[int], int]:
+        """Rows of ``ids`` whose landmark gets no factor this frame (``rejected`` ones,
+        then those beyond ``budget``), and how many mapped landmarks do get one."""
+        skip = set(rejected)
+        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._slot and i not in skip]
+        over: set[int] = set()
         if len(mapped) > budget:  # keep the longest-seen landmarks (best constrained)
             nobs = self._lm_nobs[[self._slot[int(ids[i])] for i in mapped]]
             order = np.lexsort((ids[mapped], -nobs))
-            skip = {mapped[j] for j in order[budget:].tolist()}
-            self._stats["unused_pixels"] += len(skip)
-        return skip, len(mapped) - len(skip)
+            over = {mapped[j] for j in order[budget:].tolist()}
+            self._stats["unused_pixels"] += len(over)
+            skip |= over
+        return skip, len(mapped) - len(over)
 
     def _select_in_view(self, wTc: gtsam.Pose3, count: int, margin: float) -> np.ndarray:
         """Slots of the mapped landmarks in view of ``wTc`` (positions read fresh; the
@@ -463,6 +562,11 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         return slots[order[:count] if count else order]
 
     def _flush(self) -> None:
+        if self._mono is not None and self._mono.awaiting:
+            # read before its pixels (a Ctrl-C between predict and update): the
+            # frame keeps its constant-velocity prediction, so iSAM2 can take it
+            self._mono.coast("interrupted before the frame was measured")
+            self._add_coasting_factor(self._frames[-1])
         if self._graph.size() == 0 and self._values.size() == 0:
             return
         groups, reelim = self._ordering_hint()  # before the swap: it reads the pending values

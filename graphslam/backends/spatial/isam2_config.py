@@ -8,11 +8,12 @@ measured trade-offs behind the defaults are in the attribute notes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
 import gtsam
 
+from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
@@ -26,6 +27,14 @@ class VisualIsam2Config:
     """Visual iSAM2 settings.
 
     Attributes:
+        robot_model: ``"odometry"`` (each frame's pose from the odometry, a
+            between-factor) or ``"constant_velocity"`` (camera alone,
+            ``--odometry none``: a monocular bootstrap, then each frame's pose
+            predicted at constant velocity and measured by PnP RANSAC on the
+            re-found landmarks; :mod:`graphslam.backends.spatial.mono_tracking`).
+        seed: seed of the camera-alone RANSACs (two-view geometry, PnP).
+        mono: camera-alone settings (``[isam2_visual.mono]``,
+            :class:`~graphslam.backends.spatial.mono_tracking.MonoTrackingConfig`).
         relinearize_threshold: relinearise a variable when its delta exceeds this
             (gtsam tangent units: radians / metres).
         relinearize_skip: check for relinearisation every this many updates.
@@ -101,6 +110,9 @@ class VisualIsam2Config:
     """
 
     SECTION: ClassVar[str] = "isam2_visual"
+    robot_model: Literal["odometry", "constant_velocity"] = "odometry"
+    seed: int = bounded(0, min=0)
+    mono: MonoTrackingConfig = field(default_factory=MonoTrackingConfig)
     relinearize_threshold: float = bounded(0.1, gt=0.0)
     relinearize_skip: int = bounded(10, min=1)
     pixel_kernel: RobustKernel = "huber"

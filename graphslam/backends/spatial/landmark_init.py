@@ -6,6 +6,8 @@ between the world rays of its first and latest pixels reaches the parallax
 threshold with enough pixels (:meth:`Track.add`); it is then triangulated
 (:func:`triangulate`, ``gtsam.triangulatePoint3``: DLT then Gauss-Newton) and
 kept only if :func:`consistent` with every pixel it was triangulated from.
+Without odometry the first map comes from two views instead
+(:mod:`.mono_init`), and :func:`first_map_graph` turns it into factors.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
+from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
 
@@ -78,3 +81,39 @@ def consistent(poses: list[gtsam.Pose3], K: np.ndarray, uv: np.ndarray, sigma: n
     h = p_c @ K.T
     err = np.linalg.norm(h[:, :2] / h[:, 2:3] - uv, axis=1)
     return bool(np.all(err <= max_sigmas * sigma))
+
+
+def first_map_graph(first, wTc0: np.ndarray, prior_noise: gtsam.noiseModel.Base, cal: gtsam.Cal3_S2,
+                    pixel_noise: gtsam.noiseModel.Base, scale_sigma: float):
+    """Factors and values of a monocular first map (:class:`.mono_init.FirstMap`):
+    its first frame at ``wTc0`` (4, 4) under ``prior_noise``, the scale fixed by a
+    ``RangeFactorPose3`` of 1 (sigma ``scale_sigma``) from the reference frame to
+    the frame that initialised, and a projection factor for every pixel of a
+    landmark seen in two frames or more.
+
+    Returns ``(graph, values, landmarks)``, ``landmarks`` a list of
+    ``(track id, (3,) world position, pixels)``.
+    """
+    frames = [int(f) for f in first.frame_ids]
+    wTref = wTc0 @ np.linalg.inv(first.refTc[0])  # the first frame with a pose at wTc0
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(X(frames[0]), conv.pose3(wTc0), prior_noise))
+    for f, refTc in zip(frames, first.refTc):
+        values.insert(X(f), conv.pose3(wTref @ refTc))
+    graph.add(gtsam.RangeFactorPose3(X(int(first.reference)), X(frames[-1]), 1.0,
+                                     gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
+    nobs = np.zeros(len(first.track_ids), np.int64)
+    for rows, _ in first.pixels:
+        nobs[rows] += 1
+    for f, (rows, uvs) in zip(frames, first.pixels):
+        for r, u in zip(rows.tolist(), uvs):
+            if nobs[r] >= 2:
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(
+                    u, pixel_noise, X(f), L(int(first.track_ids[r])), cal))
+    landmarks = []
+    for r, tid in enumerate(first.track_ids.tolist()):
+        if nobs[r] >= 2:
+            p_w = wTref[:3, :3] @ first.points_ref[r] + wTref[:3, 3]
+            values.insert(L(tid), p_w)
+            landmarks.append((tid, p_w, int(nobs[r])))
+    return graph, values, landmarks

@@ -48,7 +48,7 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
                           f"polish); {args.backend} has none")
     if args.nees:
         raise ConfigError("--nees applies to 2-D runs only")
-    if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
+    if (args.seed is not None and args.dataset != "synthetic-images" and mode not in ("derived", "none")
             and args.backend != "ekf"):
         raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "
                           f"not derived and {args.backend} draws no random numbers")
