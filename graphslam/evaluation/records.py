@@ -116,6 +116,10 @@ class SpatialRunMetrics:
         wall_s: the whole run's time; processing_s: tracking and back end;
             image_load_s: reading images.
         peak_rss_mb, nees_mean, nees_in_bounds_fraction, nees_alignment,
+            frames_with_pose: frames the estimate has a pose for (a monocular run
+            has none before its first map); the scores are over those.
+            warnings: what makes the estimate doubtful, one line each (frames
+            without a pose, frames the camera was not measured in).
             input_digest: filled by ``compare`` only (6-DoF pose NEES, the
             alignment it was scored after, the digest of what was fed).
     """
@@ -154,11 +158,13 @@ class SpatialRunMetrics:
     nees_in_bounds_fraction: float | None = None
     nees_alignment: str | None = None
     input_digest: str | None = None
+    frames_with_pose: int | None = None
+    warnings: list | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss",
         "peak_rss_mb", "nees_mean", "nees_in_bounds_fraction", "nees_alignment",
-        "input_digest"})
+        "input_digest", "warnings"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -420,9 +420,41 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
         frames_per_s=n / whole_s if whole_s > 0 else None, processing_s=result.wall_s,
         image_load_s=result.load_s, interrupted=result.interrupted,
         backend_stats=dict(est.stats or {}), tracking=_tracking_summary(result.tracking))
+    m.frames_with_pose = int(len(est.frame_ids))
+    m.warnings = _doubts(result) or None
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
         _score_against_truth(m, result)
     return m
+
+
+#: Landmarks that must be found in a frame for it to measure the camera: a pose has
+#: six degrees of freedom and a pixel gives two, and three points leave up to four
+#: poses (P3P); the fourth point picks one.
+MIN_LANDMARKS_PER_FRAME = 4
+
+
+def _doubts(result: VisualRunResult) -> list[str]:
+    """One line per reason to doubt the estimate: frames left without a pose, and a
+    camera-alone run whose frames were mostly not measured (the motion model's guess)."""
+    out = []
+    n, n_pose = result.frames, len(result.estimate.frame_ids)
+    if 0 < n_pose < n:
+        out.append(f"{n - n_pose} of {n} frames have no pose (before the monocular map "
+                   f"started, or not placed by it); the scores are over the other {n_pose}")
+    if result.odometry != "none" or n < 2:
+        return out
+    mono = (result.estimate.stats or {}).get("camera_alone")
+    if mono is not None:
+        unmeasured = int(mono.get("coasted_frames", 0))
+        what = "PnP could not measure the pose"
+    else:
+        found = np.asarray(result.tracking.get("found", [])[1:])
+        unmeasured = int(np.count_nonzero(found < MIN_LANDMARKS_PER_FRAME))
+        what = f"fewer than {MIN_LANDMARKS_PER_FRAME} landmarks were found"
+    if unmeasured > 0.5 * max(n_pose - 1, 1):
+        out.append(f"in {unmeasured} of {n - 1} frames {what}: the trajectory is mostly the "
+                   "motion model's guess, not a measurement")
+    return out
 
 
 def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:

@@ -227,6 +227,16 @@ def format_summary(m) -> str:
         tl = m.tracking_loss
         rows.append(("tracking losses / relocalised / found again",
                      f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}"))
+    mono = stats.get("camera_alone")
+    if mono is not None:
+        first = mono.get("first_map")
+        rows.append(("frames with a pose", f"{m.frames_with_pose} of {m.frames}"))
+        rows.append(("monocular map started", "never: " + mono.get("no_first_map_because", "")
+                     if first is None else
+                     f"frame {first['frame']} ({first['model']}, {first['points']} points; "
+                     f"scale: {first['scale_gauge']})"))
+        rows.append(("frames by PnP / coasted", f"{mono['pnp_tracked_frames']} / {mono['coasted_frames']}"))
     if m.interrupted:
         rows.append(("interrupted", "yes"))
-    return summary_table(rows)
+    table = summary_table(rows)
+    return table + "".join(f"\nWARNING: {w}" for w in (m.warnings or []))
