@@ -43,6 +43,7 @@ in units of the baseline. Pixel centres are at integer coordinates (OpenCV's).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -352,6 +353,16 @@ def two_view_geometry(uv_a: np.ndarray, uv_b: np.ndarray, K: np.ndarray,
     if E is None or (H is not None and total > 0 and s_h / total > c.homography_ratio):
         R, t, note = _pose_from_homography(H, K, ua[inl_h], ub[inl_h],
                                            c.max_reprojection_sigmas * sigma_px)
-        return _result("homography", R, t, inl_h, K, ua, ub, s_h, s_f, note, c, sigma_px)
+        homography = _result("homography", R, t, inl_h, K, ua, ub, s_h, s_f, note, c, sigma_px)
+        if not note or E is None:
+            return homography
+        # a plane seen twice has two decompositions; the five-point essential matrix is
+        # not degenerate on a plane (Nister 2004) and chirality picks its pose
+        R, t = _pose_from_essential(E, K, ua[inl_e], ub[inl_e])
+        essential = _result("essential", R, t, inl_e, K, ua, ub, s_h, s_f, "", c, sigma_px)
+        if essential.ok:
+            return essential
+        return dataclasses.replace(homography, reason=f"{homography.reason}; essential matrix: "
+                                                      f"{essential.reason}")
     R, t = _pose_from_essential(E, K, ua[inl_e], ub[inl_e])
     return _result("essential", R, t, inl_e, K, ua, ub, s_h, s_f, "", c, sigma_px)
