@@ -162,12 +162,14 @@ class Tracker:
         follow_unmapped: overrides ``config.follow_unmapped`` (the pipeline
             passes what the back end needs); ``None`` keeps the config, and an
             unset config means True.
+        follow_missed_landmarks: overrides ``config.follow_missed_landmarks``
+            likewise; an unset config means False.
     """
 
     def __init__(self, config: TrackerConfig | None = None, *,
                  active_search: ActiveSearchConfig | None = None,
                  harris: HarrisConfig | None = None, orb: OrbConfig | None = None,
-                 follow_unmapped: bool | None = None):
+                 follow_unmapped: bool | None = None, follow_missed_landmarks: bool | None = None):
         self.config = config or TrackerConfig()
         self.detector = make_detector(self.config, harris, orb)
         mode = self.config.search_mode
@@ -178,6 +180,9 @@ class Tracker:
         if follow_unmapped is None:
             follow_unmapped = self.config.follow_unmapped
         self.follow_unmapped = True if follow_unmapped is None else bool(follow_unmapped)
+        if follow_missed_landmarks is None:
+            follow_missed_landmarks = self.config.follow_missed_landmarks
+        self.follow_missed_landmarks = bool(follow_missed_landmarks)  # unset: off
         self._tracks: dict[int, _Track] = {}
         self._next_id = 0
         self._frame = -1
@@ -391,7 +396,7 @@ class Tracker:
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
         cands = []  # (score, track, uv); best first resolves two tracks landing on one point
         for tr in list(self._tracks.values()):
-            if tr.last_seen != k - 1 or (tr.mapped and not cfg.follow_missed_landmarks):
+            if tr.last_seen != k - 1 or (tr.mapped and not self.follow_missed_landmarks):
                 continue  # (a landmark active search found this frame has last_seen == k)
             # a track born last frame has no motion of its own yet: use the image's
             c = tr.uv + (tr.velocity if tr.last_seen > tr.born or tr.mapped else self._flow) + self._jerk

@@ -56,7 +56,9 @@ class TrackerConfig:
             not find (its prediction was off, or beyond the back end's prediction
             cap) is followed like an unmapped track (with ``follow_unmapped``),
             instead of being lost until a prediction brings it back; the back end
-            judges the pixel (PnP RANSAC, robust kernels).
+            judges the pixel (PnP RANSAC, robust kernels). ``None`` lets the
+            pipeline decide: on when the back end has no odometry (its
+            prediction is a motion model's guess), off with odometry.
         max_unmapped_age: frames a track may stay unmapped before it is dropped.
         max_hamming: largest Hamming distance (bits of 256) of an ORB match.
         patch_update: ``"anchor"`` (patch from the frame the track was born)
@@ -74,7 +76,7 @@ class TrackerConfig:
     follow_unmapped: bool | None = None
     follow_window_px: int = bounded(24, min=1, max=MAX_SIDE_PX)
     follow_image_motion: bool = True
-    follow_missed_landmarks: bool = True
+    follow_missed_landmarks: bool | None = None
     follow_min_score: float = bounded(0.85, min=-1.0, max=1.0)
     # ZNCC scores lie in [-1, 1]: two differ by 2 at most
     follow_min_margin: float = bounded(0.05, min=0.0, max=2.0)

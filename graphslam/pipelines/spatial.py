@@ -191,7 +191,8 @@ def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:
 def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     """``(tracker config, tracker)`` from the config file's ``[tracker]``,
     ``[active_search]``, ``[harris]`` and ``[orb]`` with ``detector`` on top;
-    unmapped tracks are followed when the back end needs their history."""
+    unmapped tracks are followed when the back end needs their history, and
+    landmarks active search missed when it has no odometry (unless the file says)."""
     from frontend.active_search import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
@@ -199,9 +200,13 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
+    # without odometry the back end's predictions are a motion model's guess: a landmark
+    # its ellipse missed is followed too (measured on the room's turns, tests/test_camera_alone.py)
+    missed = backend.has_motion_model if cfg.follow_missed_landmarks is None else cfg.follow_missed_landmarks
     return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
                         harris=config.section(HarrisConfig),
-                        orb=config.section(OrbConfig), follow_unmapped=follow)
+                        orb=config.section(OrbConfig), follow_unmapped=follow,
+                        follow_missed_landmarks=missed)
 
 
 def derive_odometry(wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None
@@ -424,7 +429,17 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
     m.warnings = _doubts(result) or None
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
         _score_against_truth(m, result)
+        if m.ate_percent_of_path is not None and m.ate_percent_of_path > DIVERGED_ATE_PERCENT:
+            m.warnings = (m.warnings or []) + [
+                f"ATE {m.ate_percent_of_path:.1f} % of the path (> {DIVERGED_ATE_PERCENT:g} %): "
+                "the estimate has most likely diverged"]
     return m
+
+
+#: ATE above this share of the path length, percent, is reported as a divergence: monocular
+#: visual odometry on the KITTI benchmark drifts 1-3 % of the distance travelled, and an
+#: ATE (an RMS over the whole path) stays below the end-point drift.
+DIVERGED_ATE_PERCENT = 5.0
 
 
 #: Landmarks that must be found in a frame for it to measure the camera: a pose has
