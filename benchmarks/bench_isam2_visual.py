@@ -40,6 +40,7 @@ relinearisation steps, every 10th update).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -230,7 +231,7 @@ def main(argv=None) -> int:
     with open(args.out, "w") as f:
         json.dump({"benchmark": "isam2_visual", "frames": args.frames, "repeats": args.repeats,
                    "visible_per_frame_mean": float(visible.mean()),
-                   "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+                   "config": dataclasses.asdict(config),
                    "summary": summary,
                    "timings": {k: timing.timing_dict(v) for k, v in timings.items()},
                    "per_frame_ms": {k: (1e3 * v).tolist() for k, v in per_frame.items()},

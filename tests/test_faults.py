@@ -181,6 +181,20 @@ def test_image_run_signal_keeps_every_file(tmp_path, at, sig):
     assert metrics["frames"] == (2 if at == "step:1" else 5)
 
 
+@pytest.mark.parametrize("at", ["step:1", "step:9"])
+def test_camera_alone_signal_keeps_every_file(tmp_path, at):
+    """Camera alone (iSAM2): before the first map (frame 1: no pose yet) and after it
+    (the map starts at frame 5 in this room), a signal keeps what there is."""
+    done = graphslam(tmp_path, "run", "--dataset", "synthetic-images", "--odometry", "none",
+                     "--max-steps", "12", "--out", "o", "--quiet", at=at, sig="INT")
+    assert done.returncode == 130, done.stderr
+    one_line(done.stderr)
+    metrics = check_run_files(tmp_path / "o", interrupted=True, dim=3) if at != "step:1" else \
+        json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    assert metrics["frames_with_pose"] == (0 if at == "step:1" else 10)
+
+
 # ------------------------------------------------------------------------------ compare
 
 COMPARE = ("compare", "--max-steps", "60", "--out", "c", "--rerun", "save")
