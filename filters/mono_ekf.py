@@ -28,6 +28,10 @@ Landmarks (:mod:`filters.landmark_params`): initialised undelayed from one
 pixel as IDP (6) or AHP (7) with the prior inverse distance
 ``rho0 = 1 / (2 d_min)``, ``sigma_rho = 1 / (4 d_min)``: the 2-sigma interval
 ``[0, 1 / d_min]`` covers every depth from ``min_depth_m`` to infinity (RT-SLAM).
+With ``depth_prior = "map"`` only an empty map (or none in view) uses it; later
+landmarks take the median inverse distance of the landmarks in view, so they
+inherit the map's scale instead of pulling it toward ``2 d_min``
+(:meth:`MapBookkeeping._depth_prior`, :class:`filters.mono_ekf_config.MonoEkfConfig`).
 Their cross-covariances come from the inverse observation model's Jacobians.
 After each update, a non-Euclidean landmark whose linearity index
 ``L = 4 sigma_d / d |cos alpha|`` (Civera et al. 2008; ``sigma_d = sigma_rho

@@ -16,7 +16,7 @@ import numpy as np
 
 from filters import landmark_params as lp
 from filters.mono_ekf_map import (augment_with_landmarks, euclidean_points, farthest_candidates,
-                                  linear_enough, transform_state)
+                                  inverse_distances, linear_enough, transform_state)
 
 __all__ = ["LandmarkRecord", "MapBookkeeping"]
 
@@ -95,15 +95,29 @@ class MapBookkeeping:
         picked = farthest_candidates(uv_px[cand], uv_px[known], min(room, len(cand)))
         rows = np.array([cand[j] for j in picked], dtype=np.int64)
         kind = self._kind0
+        rho0, sigma_rho = self._depth_prior()
         L, G_pose, G_uv, G_rho = lp.init_landmarks(kind, self._K_inv, self._x[0:3], self._x[3:7],
-                                                   uv_px[rows], c.rho0)
+                                                   uv_px[rows], rho0)
         self._x, self._P = augment_with_landmarks(self._x, self._P, L, G_pose, G_uv, G_rho, var,
-                                                  c.sigma_rho)
+                                                  sigma_rho)
         self._lms.extend(LandmarkRecord(int(ids[r]), kind) for r in rows)
         self._reindex()
         self._version += 1
         self._stats["initialised"] += len(rows)
         return ids[rows].astype(np.int64)
+
+    def _depth_prior(self) -> tuple[float, float]:
+        """``(rho0, sigma_rho)`` (1/m) of this frame's new landmarks (``depth_prior``)."""
+        c = self.config
+        if c.depth_prior == "fixed" or not self._lms:
+            return c.rho0, c.sigma_rho
+        uv, hz, _, _ = self._observe(np.arange(len(self._lms)), jacobians=False)
+        vis = self._in_view(uv, hz)
+        inv = inverse_distances(self._x, self._idx[vis], self._kinds[vis])
+        rho0 = float(np.median(inv)) if len(inv) else 0.0
+        if not rho0 > 0:  # nothing in view, or only points at infinity: no map unit here
+            return c.rho0, c.sigma_rho
+        return rho0, 0.5 * max(rho0, float(inv.max()) - rho0)
 
     def _euclidean_landmarks(self) -> tuple[np.ndarray, np.ndarray]:
         """Track ids and Euclidean points (m) of the state's landmarks with ``rho > 0``."""

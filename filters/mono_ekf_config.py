@@ -51,6 +51,22 @@ class MonoEkfConfig:
             corrections when the scene is much farther (measured on the
             synthetic loop, points 2.5-10 m away, odometry 1 cm and 5 mrad per
             frame: pose NEES ~100-350 with 1 m, 10-20 with 2 m).
+        depth_prior: where a new landmark's inverse-distance prior comes from.
+            "fixed": :attr:`rho0`, :attr:`sigma_rho` from ``min_depth_m``, the
+            same for every landmark (Civera et al. 2008, RT-SLAM). "map": the
+            first frame's landmarks take the fixed prior; later ones the
+            median inverse distance (from the camera) of the landmarks
+            predicted in view, ``sigma_rho`` half the larger of that median
+            and the distance from it to the nearest one in view, so the
+            2-sigma interval still reaches infinity (``rho = 0``) and the
+            nearest mapped point (the fixed prior's rule, in the map's unit).
+            A monocular map's scale is set only by its length-valued priors
+            ("Dimensionless monocular SLAM", 2007); a fixed metric prior on
+            every new landmark is one more scale measurement per landmark,
+            biased by how far the scene's depth is from ``2 min_depth_m``, so
+            the map's scale follows the scene's depth. Taken from the map,
+            the prior is in the map's own unit and centred where the map's
+            points are: it leaves the scale where the map has it.
         linearity_threshold: re-parametrise to Euclidean when the linearity
             index falls below this (Civera: 0.1); 0 disables it.
         ransac: use one-point RANSAC; else each measurement is gated alone.
@@ -82,6 +98,7 @@ class MonoEkfConfig:
     max_init_per_frame: int = bounded(5, min=0)
     max_corrections: int = bounded(10, min=1)
     min_depth_m: float = bounded(1.0, gt=0.0)
+    depth_prior: Literal["fixed", "map"] = "fixed"
     linearity_threshold: float = bounded(0.1, min=0.0)
     ransac: bool = True
     ransac_inlier_sigmas: float = bounded(3.0, gt=0.0)

@@ -97,6 +97,25 @@ def linear_enough(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarr
     return {int(slots[j]): (p_w[j], J[j, :, :lp.SIZE[int(kinds[j])]]) for j in conv}
 
 
+def inverse_distances(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.ndarray:
+    """Inverse distance (k,) 1/m of every landmark from the camera position ``x[0:3]``.
+
+    With the anchor form ``p = A + C / W`` (``W = rho``, or 1 for a Euclidean
+    point), ``1 / |p - c| = W / |W (A - c) + C|``: continuous through ``rho = 0``
+    (a point at infinity has inverse distance 0); ``rho < 0`` is clipped to 0.
+    """
+    L = x[idx]
+    W = np.where(kinds == lp.IDP, L[:, 5], np.where(kinds == lp.AHP, L[:, 6], 1.0))
+    C = np.zeros((len(L), 3))
+    idp, ahp = kinds == lp.IDP, kinds == lp.AHP
+    C[idp] = lp.idp_direction(L[idp, 3], L[idp, 4])
+    C[ahp] = L[ahp, 3:6]
+    W = np.maximum(W, 0.0)
+    n = np.linalg.norm(W[:, None] * (L[:, 0:3] - x[0:3]) + C, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, W / n, 0.0)
+
+
 def euclidean_conversion(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray,
                          slot: int) -> tuple[np.ndarray, np.ndarray] | None:
     """``(p_w (3,) m, J (3, s))`` converting landmark ``slot`` to Euclidean whatever its
