@@ -162,14 +162,15 @@ class Tracker:
         follow_unmapped: overrides ``config.follow_unmapped`` (the pipeline
             passes what the back end needs); ``None`` keeps the config, and an
             unset config means True.
-        follow_missed_landmarks: overrides ``config.follow_missed_landmarks``
-            likewise; an unset config means False.
+        camera_alone: the back end has no odometry: the aids the config leaves
+            unset (``follow_image_motion``, ``follow_missed_landmarks``,
+            ``fill_first_frame``) are on; else off.
     """
 
     def __init__(self, config: TrackerConfig | None = None, *,
                  active_search: ActiveSearchConfig | None = None,
                  harris: HarrisConfig | None = None, orb: OrbConfig | None = None,
-                 follow_unmapped: bool | None = None, follow_missed_landmarks: bool | None = None):
+                 follow_unmapped: bool | None = None, camera_alone: bool = False):
         self.config = config or TrackerConfig()
         self.detector = make_detector(self.config, harris, orb)
         mode = self.config.search_mode
@@ -180,9 +181,11 @@ class Tracker:
         if follow_unmapped is None:
             follow_unmapped = self.config.follow_unmapped
         self.follow_unmapped = True if follow_unmapped is None else bool(follow_unmapped)
-        if follow_missed_landmarks is None:
-            follow_missed_landmarks = self.config.follow_missed_landmarks
-        self.follow_missed_landmarks = bool(follow_missed_landmarks)  # unset: off
+        aid = {name: bool(camera_alone) if getattr(self.config, name) is None else getattr(self.config, name)
+               for name in ("follow_image_motion", "follow_missed_landmarks", "fill_first_frame")}
+        self.follow_image_motion = aid["follow_image_motion"]
+        self.follow_missed_landmarks = aid["follow_missed_landmarks"]
+        self.fill_first_frame = aid["fill_first_frame"]
         self._tracks: dict[int, _Track] = {}
         self._next_id = 0
         self._frame = -1
@@ -251,7 +254,7 @@ class Tracker:
 
         # ---- follow unmapped tracks
         t = time.perf_counter()
-        if self.follow_unmapped and cfg.follow_image_motion:
+        if self.follow_unmapped and self.follow_image_motion:
             self._measure_image_motion(image)
         f_ids, f_from, f_to, follow_fraction = self._follow(image, feats, obs_uv, k)
         obs_ids.extend(f_ids)
@@ -265,7 +268,10 @@ class Tracker:
         unfound = ~res.found
         inside = (puv[:, 0] >= 0) & (puv[:, 0] <= W - 1) & (puv[:, 1] >= 0) & (puv[:, 1] <= H - 1)
         occupied.extend(puv[unfound & inside])
-        n_room = min(cfg.max_new_per_frame, max(0, cfg.max_tracks - len(obs_ids)))
+        # the per-frame cap spreads the cost of new tracks over frames; a frame with no
+        # track at all (the first) has nothing to spread it against (fill_first_frame)
+        per_frame = cfg.max_tracks if self.fill_first_frame and not self._tracks else cfg.max_new_per_frame
+        n_room = min(per_frame, max(0, cfg.max_tracks - len(obs_ids)))
         new_ids, new_uv = self._start_tracks(image, feats, np.array(occupied).reshape(-1, 2), n_room, k)
         obs_ids.extend(new_ids)
         obs_uv.extend(new_uv)

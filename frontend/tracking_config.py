@@ -38,27 +38,32 @@ class TrackerConfig:
             ``"descriptor"`` (ORB only).
         max_tracks: new corners are started only while fewer points than this
             are tracked in the frame.
-        max_new_per_frame: new tracks started per frame at most.
+        max_new_per_frame: new tracks started per frame at most (see ``fill_first_frame``).
         min_distance_px: a new corner is at least this far from every tracked
             or predicted point (no two ids on one physical point).
         follow_unmapped: follow not-yet-mapped tracks from frame to frame;
             ``None`` lets the pipeline decide from the back end.
         follow_window_px: half side of the square window a followed track is
             searched in, around its last position plus its last image motion.
-        follow_image_motion: move the follow windows by the change of the whole
-            image's motion since the last frame (phase correlation of reduced
-            frames): a camera that starts to turn moves every point at once,
-            farther than a window placed by the track's last motion.
-        follow_min_score: smallest ZNCC accepted when following.
-        follow_min_margin: the best ZNCC must beat every other peak of the
-            window (more than 2 px away) by this much (repeated texture).
-        follow_missed_landmarks: a landmark seen last frame that active search did
-            not find (its prediction was off, or beyond the back end's prediction
-            cap) is followed like an unmapped track (with ``follow_unmapped``),
-            instead of being lost until a prediction brings it back; the back end
-            judges the pixel (PnP RANSAC, robust kernels). ``None`` lets the
-            pipeline decide: on when the back end has no odometry (its
-            prediction is a motion model's guess), off with odometry.
+        follow_image_motion, follow_missed_landmarks, fill_first_frame: aids for a
+            run whose back end has no odometry (its predictions are a motion
+            model's guess, and a monocular start needs many tracks at once);
+            each ``None`` lets the pipeline decide: on without odometry, off
+            with it (where they are not needed and the figures measured
+            without them stand).
+            ``follow_image_motion``: move the follow windows by the change of
+            the whole image's motion since the last frame (phase correlation of
+            reduced frames): a camera that starts or stops turning moves every
+            point at once, farther than a window placed by the track's last
+            motion. ``follow_missed_landmarks``: a landmark seen last frame that
+            active search did not find (its prediction was off, or beyond the
+            back end's prediction cap) is followed like an unmapped track (with
+            ``follow_unmapped``), instead of being lost until a prediction brings
+            it back; the back end judges the pixel (PnP RANSAC, robust kernels).
+            ``fill_first_frame``: a frame that starts with no track at all (the
+            first) fills to ``max_tracks`` instead of ``max_new_per_frame``: the
+            cap spreads the cost of new tracks over frames, and a monocular
+            start measures parallax against one frame's tracks.
         max_unmapped_age: frames a track may stay unmapped before it is dropped.
         max_hamming: largest Hamming distance (bits of 256) of an ORB match.
         patch_update: ``"anchor"`` (patch from the frame the track was born)
@@ -75,8 +80,9 @@ class TrackerConfig:
     min_distance_px: float = bounded(16.0, min=0.0)
     follow_unmapped: bool | None = None
     follow_window_px: int = bounded(24, min=1, max=MAX_SIDE_PX)
-    follow_image_motion: bool = True
+    follow_image_motion: bool | None = None
     follow_missed_landmarks: bool | None = None
+    fill_first_frame: bool | None = None
     follow_min_score: float = bounded(0.85, min=-1.0, max=1.0)
     # ZNCC scores lie in [-1, 1]: two differ by 2 at most
     follow_min_margin: float = bounded(0.05, min=0.0, max=2.0)

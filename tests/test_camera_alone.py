@@ -225,3 +225,49 @@ def test_kitti07_from_the_camera_alone():
     result = vp.run(seq, backend, tracker, config=config.section(vp.VisualRunConfig, {"odometry": "none"}))
     m = vp.compute_metrics(result)
     assert m.frames_with_pose == 160 and m.ate_percent_of_path <= 0.5
+
+
+# ------------------------------------------------------------------ the tracker's aids
+
+def textured(seed: int, shape=(240, 320)) -> np.ndarray:
+    import cv2
+
+    noise = np.random.default_rng(seed).uniform(0, 255, (shape[0] // 4, shape[1] // 4))
+    return cv2.resize(noise, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC).clip(0, 255).astype(np.uint8)
+
+
+def shifted(image: np.ndarray, du: int) -> np.ndarray:
+    """The scene moved ``du`` pixels to the left (a camera turning right), edge repeated."""
+    return np.concatenate([image[:, du:], np.repeat(image[:, -1:], du, axis=1)], axis=1)
+
+
+@pytest.mark.parametrize("camera_alone", [False, True])
+def test_tracker_aids_follow_a_sudden_turn_only_without_odometry(camera_alone):
+    """Two frames at 2 px a frame, then a 40 px jump (a turn starting): the follow
+    windows (24 px) placed by each track's last motion miss it; moved by the change of
+    the whole image's motion they do not. The first frame fills to max_tracks."""
+    from frontend.tracking import Tracker, TrackerConfig
+
+    base = textured(0, (240, 480))
+    tracker = Tracker(TrackerConfig(max_tracks=60, max_new_per_frame=10), follow_unmapped=True,
+                      camera_alone=camera_alone)
+    first = tracker.track(base[:, :320])
+    assert len(first.new_ids) == (60 if camera_alone else 10)
+    tracker.track(base[:, 2:322])
+    tracker.track(base[:, 4:324])
+    jump = tracker.track(base[:, 44:364])
+    moved = jump.followed_from[:, 0] - jump.followed_to[:, 0]
+    right = int(np.count_nonzero(np.abs(moved - 40.0) <= 1.0))  # followed to where it went
+    if camera_alone:
+        assert right >= 0.6 * len(first.new_ids) and right == len(moved)
+    else:
+        assert right == 0
+
+
+def test_tracker_aids_follow_the_config_when_it_sets_them():
+    from frontend.tracking import Tracker, TrackerConfig
+
+    t = Tracker(TrackerConfig(follow_image_motion=False, fill_first_frame=True), camera_alone=True)
+    assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, True)
+    t = Tracker(TrackerConfig(follow_missed_landmarks=True))
+    assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, False)

@@ -415,9 +415,7 @@ def test_indeterminate_polished_marginals_keep_the_run(tmp_path, capsys):
     from graphslam.cli.main import main
 
     config = tmp_path / "c.toml"
-    # the front end as it was when l976 was found (the image-motion aid came later and
-    # changes which landmarks are mapped)
-    config.write_text("[synthetic_images]\nn_frames = 100\n[tracker]\nfollow_image_motion = false\n")
+    config.write_text("[synthetic_images]\nn_frames = 100\n")
     out = tmp_path / "o"
     assert main(["run", "--dataset", "synthetic-images", "--config", str(config),
                  "--rerun", "off", "--quiet", "--out", str(out)]) == 0

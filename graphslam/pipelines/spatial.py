@@ -191,8 +191,9 @@ def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:
 def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     """``(tracker config, tracker)`` from the config file's ``[tracker]``,
     ``[active_search]``, ``[harris]`` and ``[orb]`` with ``detector`` on top;
-    unmapped tracks are followed when the back end needs their history, and
-    landmarks active search missed when it has no odometry (unless the file says)."""
+    unmapped tracks are followed when the back end needs their history, and the
+    tracker's camera-alone aids are on when it has no odometry (its own motion
+    model: the predictions are a guess; unless the file sets them)."""
     from frontend.active_search import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
@@ -200,13 +201,10 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
-    # without odometry the back end's predictions are a motion model's guess: a landmark
-    # its ellipse missed is followed too (measured on the room's turns, tests/test_camera_alone.py)
-    missed = backend.has_motion_model if cfg.follow_missed_landmarks is None else cfg.follow_missed_landmarks
     return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
                         harris=config.section(HarrisConfig),
                         orb=config.section(OrbConfig), follow_unmapped=follow,
-                        follow_missed_landmarks=missed)
+                        camera_alone=backend.has_motion_model)
 
 
 def derive_odometry(wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None
