@@ -254,8 +254,6 @@ class Tracker:
 
         # ---- follow unmapped tracks
         t = time.perf_counter()
-        if self.follow_unmapped and self.follow_image_motion:
-            self._measure_image_motion(image)
         f_ids, f_from, f_to, follow_fraction = self._follow(image, feats, obs_uv, k)
         obs_ids.extend(f_ids)
         obs_uv.extend(f_to)
@@ -393,6 +391,8 @@ class Tracker:
         H, W = image.shape
         if not self.follow_unmapped:
             return ids, src, dst, 0.0
+        if self.follow_image_motion:
+            self._measure_image_motion(image)
         cfg = self.config
         half = int(cfg.follow_window_px)
         p = self.patch_size

@@ -271,3 +271,20 @@ def test_tracker_aids_follow_the_config_when_it_sets_them():
     assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, True)
     t = Tracker(TrackerConfig(follow_missed_landmarks=True))
     assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, False)
+
+
+def test_a_blackout_is_coasted_counted_and_found_again():
+    """Ten black frames (30-39) in the room, camera alone: the frames are coasted on the
+    motion model, the loss is counted, and PnP finds the camera again afterwards."""
+    from graphslam.sources.spatial.frames import black_out, parse_frames, select_frames
+
+    seq = make_synthetic_images(SyntheticImagesConfig(n_frames=300))
+    seq = black_out(select_frames(seq, parse_frames("0:80")), range(30, 40))
+    backend = VisualIsam2Backend(VisualIsam2Config(robot_model="constant_velocity"))
+    _, tracker = vp.make_tracker(vp_config(), backend)
+    m = vp.compute_metrics(vp.run(seq, backend, tracker, config=vp.VisualRunConfig(odometry="none")))
+    losses = m.backend_stats["camera_alone"]["losses"]
+    assert m.frames_with_pose == 80
+    assert len(losses) == 1 and losses[0]["frame"] == 30 and losses[0]["frames"] >= 10
+    assert losses[0]["ended"] == "found again by PnP"
+    assert m.ate_rmse_m < ROOM_ATE_TOL_M  # measured 0.037 m

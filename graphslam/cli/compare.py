@@ -153,7 +153,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
     noise = config.section(vp.OdometryNoiseConfig, {"seed": args.seed})
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
-    if (args.seed is not None and args.dataset != "synthetic-images" and mode != "derived"
+    if (args.seed is not None and args.dataset != "synthetic-images" and mode not in ("derived", "none")
             and not any(n.startswith("ekf") for n in names)):
         raise GraphSlamError("--seed has no effect here: the images are recorded, the odometry "
                              "is not derived and no back end draws random numbers")

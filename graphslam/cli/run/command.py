@@ -33,7 +33,8 @@ datasets:
 
 visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
   --odometry sequence|derived|none (derived: ground truth times noise, default
-  2 % of the distance and 0.1 deg per frame; none: EKF constant velocity,
+  2 % of the distance and 0.1 deg per frame; none: the camera alone, iSAM2
+  with a monocular start and PnP tracking or the EKF's constant velocity,
   Sim(3)-aligned ATE); landmarks.csv is id,x,y,z; --loops adds place
   recognition ([loops], [loop_verify], [loop_pnp] of --config) and writes
   loops.csv (query,match,score,inliers) and loops.jsonl (every candidate)
@@ -89,7 +90,8 @@ def register(sub) -> None:
                    help="estimator (default: isam2; batch: pose-graph files only)")
     p.add_argument("--seed", type=int, default=None,
                        help="seed of the synthetic worlds, derived odometry, FastSLAM's "
-                            "particles and the visual EKF's RANSAC (default: config file, "
+                            "particles, the visual EKF's RANSAC and, with --odometry none, "
+                            "visual iSAM2's two-view and PnP RANSACs (default: config file, "
                             "else 0); refused where nothing is random")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-<backend>)")
@@ -133,8 +135,9 @@ def _add_image_options(vis) -> None:
                      help="corner detector and matching (default: [tracker] of --config, else harris)")
     vis.add_argument("--odometry", choices=("auto", "sequence", "derived", "none"), default=None,
                      help="sequence's own odometry, noisy odometry derived from ground truth, or "
-                          "none (constant-velocity model, EKF only); default auto: sequence if "
-                          "it has odometry, else derived")
+                          "none (the camera alone: iSAM2 starts a monocular map and tracks by "
+                          "PnP, the EKF runs its constant-velocity model); default auto: "
+                          "sequence if it has odometry, else derived")
     vis.add_argument("--odometry-noise", type=float, nargs=2, default=None,
                      metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
                      help="derived odometry noise: translation sigma per metre travelled and "

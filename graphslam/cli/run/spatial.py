@@ -10,10 +10,13 @@ and with ``--loops`` ``[loops]`` (its ORB in ``[loops.orb]``), ``[loop_verify]``
 Flags and what they set: ``--frontend`` -> ``tracker.detector``; ``--odometry``
 -> ``visual.odometry``; ``--odometry-noise T R`` -> ``odometry_noise.sigma_t_per_m``
 and ``sigma_r_deg``; ``--seed`` -> the synthetic scene, the derived-odometry
-noise and the EKF's RANSAC; ``--max-steps`` -> frames; ``--no-polish`` ->
+noise, the EKF's RANSAC and, without odometry, iSAM2's two-view and PnP
+RANSACs (``isam2_visual.seed``); ``--max-steps`` -> frames; ``--no-polish`` ->
 ``isam2_visual.polish = false``. With ``--odometry none`` the EKF runs its
 constant-velocity model (``mono_ekf.robot_model``) with its own
-``frame_dt_s``. ``--loops`` (or ``--vocab FILE``) runs
+``frame_dt_s``, and iSAM2 tracks by the camera alone
+(``isam2_visual.robot_model = "constant_velocity"``: a monocular start, then
+PnP). ``--loops`` (or ``--vocab FILE``) runs
 :class:`graphslam.pipelines.loop_closing.VisualLoopCloser` alongside the back end;
 without ``--vocab`` a 1000-word vocabulary tree is first trained on the ORB
 features of the frames the run will see (as ``graphslam loops`` does).
