@@ -288,3 +288,14 @@ def test_a_blackout_is_coasted_counted_and_found_again():
     assert len(losses) == 1 and losses[0]["frame"] == 30 and losses[0]["frames"] >= 10
     assert losses[0]["ended"] == "found again by PnP"
     assert m.ate_rmse_m < ROOM_ATE_TOL_M  # measured 0.037 m
+
+
+def test_pixels_on_one_line_only_delay_the_bootstrap():
+    """Tracks all on one image line (a degenerate scene): the two-view fit refuses
+    them, and the bootstrap waits with that reason instead of ending the run."""
+    boot = MonoBootstrap(MonoTrackingConfig(), K, sigma_px=1.0, seed=0)
+    ids = np.arange(60)
+    line = np.c_[np.linspace(20, 620, 60), np.full(60, 240.0)]
+    assert boot.add(0, ids, line) is None
+    assert boot.add(1, ids, line + [3.0, 0.0]) is None
+    assert "one line" in boot.reason

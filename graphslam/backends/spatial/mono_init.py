@@ -31,6 +31,7 @@ import numpy as np
 
 from frontend.two_view import two_view_geometry
 from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig, pnp_pose, reprojects
+from slamcore.errors import MeasurementError
 from slamcore.spatial.geometry import invert_pose
 
 __all__ = ["MonoBootstrap", "FirstMap"]
@@ -108,8 +109,12 @@ class MonoBootstrap:
         _, ref_ids, ref_uv = self._frames[j]
         common, ia, ib = np.intersect1d(ref_ids, ids, assume_unique=True, return_indices=True)
         self.attempts += 1
-        geo = two_view_geometry(ref_uv[ia], uv[ib], self._K, self.config.two_view,
-                                seed=self._seed + self.attempts, sigma_px=self._sigma_px)
+        try:
+            geo = two_view_geometry(ref_uv[ia], uv[ib], self._K, self.config.two_view,
+                                    seed=self._seed + self.attempts, sigma_px=self._sigma_px)
+        except MeasurementError as exc:  # degenerate pixels (on one line): wait for better
+            self.reason = str(exc)
+            return None
         if geo is None or not geo.ok:
             self.reason = "two-view geometry found no model" if geo is None else geo.reason
             return None
