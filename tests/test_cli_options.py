@@ -398,6 +398,8 @@ def _run_map(cli, key):
     assert smap.n_keyframes == 12 + 5 and len(smap.meta["sessions"]) == 2
     refused(cli(*RUN_2D, "--map", str(first)), "3-D map")
     refused(cli(*isam2, "--map", str(cli.path("nowhere"))), "map folder not found")
+    # without odometry the run's lengths are its own, not the saved map's
+    refused(cli(*isam2, "--odometry", "none", "--map", str(first)), "scale of its own")
 
 
 @row("run --relocalise")

@@ -51,6 +51,11 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
                           f"polish); {args.backend} has none")
     if args.nees:
         raise ConfigError("--nees applies to 2-D runs only")
+    if getattr(args, "map", None) is not None and mode == "none":
+        # the saved map would give the first pose only: the run's lengths would be its own
+        raise ConfigError("--map anchors the run's first pose in the saved map's metric frame; "
+                          "without odometry the run has a scale of its own (its first baseline), "
+                          "not the map's: give it odometry, or place frames with graphslam localize")
     if (args.seed is not None and args.dataset != "synthetic-images" and mode not in ("derived", "none")
             and args.backend != "ekf"):
         raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "
