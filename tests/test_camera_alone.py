@@ -299,3 +299,64 @@ def test_pixels_on_one_line_only_delay_the_bootstrap():
     assert boot.add(0, ids, line) is None
     assert boot.add(1, ids, line + [3.0, 0.0]) is None
     assert "one line" in boot.reason
+
+
+#: The room's first lap is frames 0-199 (1.5 laps over 300 frames).
+FIRST_LAP = 200
+
+
+def _lap_ates(out) -> tuple[float, float]:
+    """Sim(3)-aligned ATE of the first lap and of the rest, metres, from a run's files."""
+    from graphslam.evaluation.spatial import align_umeyama
+
+    est = np.loadtxt(out / "trajectory.tum", ndmin=2)
+    gt = np.loadtxt(out / "ground_truth.tum", ndmin=2)
+    s, R, t = align_umeyama(est[:, 1:4], gt[:, 1:4], with_scale=True)
+    err = np.linalg.norm(s * est[:, 1:4] @ R.T + t - gt[:, 1:4], axis=1)
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))  # noqa: E731
+    return rms(err[:FIRST_LAP]), rms(err[FIRST_LAP:])
+
+
+@pytest.mark.slow
+def test_closures_bring_a_local_map_back_to_its_first_lap(tmp_path):
+    """Camera alone with a local map (landmarks unseen for 10 frames are not predicted:
+    the second lap cannot re-find the first's): the drift, scale included, grows
+    without closures; with them (PnP against the old map, in its scale) the second
+    lap ends better than the first. Measured: 0.095 / 0.151 m without, 0.013 / 0.010 m
+    with 101 closures."""
+    from graphslam.cli.main import main
+
+    config = tmp_path / "local.toml"
+    config.write_text("[isam2_visual]\npredict_window_frames = 10\n")
+    laps = {}
+    for loops in (False, True):
+        out = tmp_path / f"loops{loops}"
+        argv = ["run", "--dataset", "synthetic-images", "--odometry", "none", "--config", str(config),
+                "--rerun", "off", "--quiet", "--out", str(out)] + (["--loops"] if loops else [])
+        assert main(argv) == 0
+        laps[loops] = _lap_ates(out)
+    assert laps[False][1] > laps[False][0]  # drift: the second lap is worse alone
+    assert laps[True][1] < laps[True][0]  # closed: better than the first
+    assert laps[True][1] < 0.25 * laps[False][1]
+
+
+def test_compare_draws_a_camera_alone_run_as_it_is_scored():
+    """compare.png: a run without odometry is drawn after its Sim(3) fit (its own scale
+    and frame are arbitrary), a run with odometry as it is."""
+    from types import SimpleNamespace
+
+    from graphslam.visualisation.plots import as_scored
+
+    truth = np.c_[np.linspace(0, 9, 10), np.sin(np.arange(10.0)), np.zeros(10)]
+    T = pose([1.0, 2.0, 3.0], [0.1, 0.5, -0.2])
+    wTc = np.tile(np.eye(4), (10, 1, 1))
+    wTc[:, :3, 3] = 0.25 * truth @ T[:3, :3].T + T[:3, 3]  # a quarter of the size, elsewhere
+    lm = 0.25 * np.array([[4.0, 2.0, 1.0]]) @ T[:3, :3].T + T[:3, 3]
+    est = SimpleNamespace(wTc=wTc, landmarks_w=lm, frame_ids=np.arange(10))
+    entry = lambda alignment: SimpleNamespace(  # noqa: E731
+        result=SimpleNamespace(estimate=est), metrics=SimpleNamespace(alignment=alignment))
+    centres, landmarks = as_scored(entry("sim3"), truth)
+    np.testing.assert_allclose(centres, truth, atol=1e-9)
+    np.testing.assert_allclose(landmarks, [[4.0, 2.0, 1.0]], atol=1e-9)
+    centres, _ = as_scored(entry("se3"), truth)
+    np.testing.assert_allclose(centres, wTc[:, :3, 3])

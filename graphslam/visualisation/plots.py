@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.planar import errors_against_truth
+from slamcore.errors import GraphSlamError
 from slamcore.files import replacing
 from slamcore.planar.records import Dataset
 
@@ -37,14 +38,16 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
 def plot_visual_comparison(entries, sequence, path: Path) -> Path:
     """PNG of finished image-sequence runs (``CompareEntry`` with their ``nees``
     records): camera centres over the truth (seen along the truth's least-spread
-    axis), and the translation error in the camera frame with its 3-sigma bounds
-    (after the NEES alignment) over the frames."""
+    axis), aligned as their ATE is scored (a run without odometry by its Sim(3)
+    fit: its own scale and frame are arbitrary), and the translation error in the
+    camera frame with its 3-sigma bounds (after the NEES alignment) over the frames."""
     truth = None if sequence.wTc_true is None else np.asarray(sequence.wTc_true)[:, :3, 3]
     ref = truth if truth is not None else entries[0].result.estimate.wTc[:, :3, 3]
     a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
-    tracks = [(e.backend, e.result.estimate.wTc[:, :3, 3][:, [a, b]],
-               np.asarray(e.result.estimate.landmarks_w).reshape(-1, 3)[:, [a, b]])
-              for e in entries]
+    tracks = []
+    for e in entries:
+        centres, landmarks = as_scored(e, truth)
+        tracks.append((e.backend, centres[:, [a, b]], landmarks[:, [a, b]]))
     errors = [(e.backend, e.nees["frame_ids"], e.nees["errors"][:, :3],
                3 * np.sqrt(np.clip(np.einsum("nii->ni", e.nees["covariances"])[:, :3], 0, None)))
               for e in entries if e.nees is not None]
@@ -54,6 +57,25 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
         None, tracks, errors, [f"{c} error, camera [m]" for c in "xyz"],
         ("xyz"[a] + " [m]", "xyz"[b] + " [m]"),
         "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)", "frame")
+
+
+def as_scored(entry, truth) -> tuple[np.ndarray, np.ndarray]:
+    """``(camera centres (N, 3), landmarks (L, 3))`` of a run mapped by the alignment its
+    ATE uses (``metrics.alignment``: Sim(3) without odometry; a run with odometry
+    starts at the true first pose and is drawn as it is)."""
+    from graphslam.evaluation.spatial import align_umeyama
+
+    est = entry.result.estimate
+    centres = np.asarray(est.wTc)[:, :3, 3]
+    landmarks = np.asarray(est.landmarks_w, dtype=np.float64).reshape(-1, 3)
+    ids = np.asarray(est.frame_ids, dtype=np.int64)
+    if truth is None or entry.metrics.alignment != "sim3" or len(ids) < 3 or ids.max() >= len(truth):
+        return centres, landmarks
+    try:
+        s, R, t = align_umeyama(centres, truth[ids], with_scale=True)
+    except GraphSlamError:  # an estimate that never moved has no scale to fit: drawn as it is
+        return centres, landmarks
+    return s * centres @ R.T + t, s * landmarks @ R.T + t
 
 
 def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, errors,
