@@ -191,7 +191,8 @@ class Tracker:
         self._frame = -1
         self._flow = np.zeros(2)  # median image motion of the tracks followed last frame
         self._small: np.ndarray | None = None  # last frame, reduced, for its image motion
-        self._shift = np.zeros(2)  # image motion measured last frame (follow_image_motion)
+        self._shift = np.zeros(2)  # the last trusted image motion (at the start: none, 0)
+        self._hann: np.ndarray | None = None  # phase correlation's window, per reduced size
         self._jerk = np.zeros(2)  # this frame's image motion minus last frame's
         self._appearance = self.search_config.predict_appearance and mode == "zncc"
         self._view = PixelPredictions.empty()  # this frame's predictions: camera wTc and K
@@ -476,19 +477,15 @@ class Tracker:
         self._jerk = np.zeros(2)
         if prev is None or prev.shape != small.shape:
             return
-        (du, dv), response = cv2.phaseCorrelate(prev, small, self._window(small.shape))
-        shift = np.array([du, dv]) * f
+        if self._hann is None or self._hann.shape != small.shape:
+            self._hann = cv2.createHanningWindow((small.shape[1], small.shape[0]), cv2.CV_32F)
+        (du, dv), response = cv2.phaseCorrelate(prev, small, self._hann)
         if response >= IMAGE_MOTION_MIN_RESPONSE:
+            shift = np.array([du, dv]) * f
             self._jerk = shift - self._shift
+            # an untrusted frame leaves the last trusted motion (resetting it to 0 would
+            # add the whole next motion to the tracks' own: counted twice)
             self._shift = shift
-        else:
-            self._shift = np.zeros(2)
-
-    def _window(self, shape: tuple[int, int]) -> np.ndarray:
-        win = getattr(self, "_hann", None)
-        if win is None or win.shape != shape:
-            win = self._hann = cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
-        return win
 
     def _forget(self, k: int) -> None:
         """Drop unmapped tracks that were lost or stayed unmapped too long."""

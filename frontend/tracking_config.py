@@ -64,6 +64,9 @@ class TrackerConfig:
             first) fills to ``max_tracks`` instead of ``max_new_per_frame``: the
             cap spreads the cost of new tracks over frames, and a monocular
             start measures parallax against one frame's tracks.
+        follow_min_score: smallest ZNCC accepted when following.
+        follow_min_margin: the best ZNCC must beat every other peak of the
+            window (more than 2 px away) by this much (repeated texture).
         max_unmapped_age: frames a track may stay unmapped before it is dropped.
         max_hamming: largest Hamming distance (bits of 256) of an ORB match.
         patch_update: ``"anchor"`` (patch from the frame the track was born)

@@ -19,7 +19,9 @@ from graphslam.backends.spatial.mono_tracking import (
 )
 from graphslam.pipelines import spatial as vp
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+from graphslam.evaluation.trajectory import rotation_angles_deg
 from slamcore.errors import GraphSlamError
+from slamcore.spatial import camera
 from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
 from slamcore.spatial.records import PixelObservations
 from tests.test_visual_pipeline import KITTI07
@@ -41,14 +43,11 @@ BOOT_ROT_TOL_DEG = 0.2
 
 
 def angle_deg(R: np.ndarray) -> float:
-    return math.degrees(math.acos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    return float(rotation_angles_deg(R)[0])
 
 
 def project(wTc: np.ndarray, p_w: np.ndarray) -> np.ndarray:
-    cTw = invert_pose(wTc)
-    p_c = p_w @ cTw[:3, :3].T + cTw[:3, 3]
-    h = p_c @ K.T
-    return h[:, :2] / h[:, 2:]
+    return camera.project(K, invert_pose(wTc), p_w)[0]
 
 
 def scene(n: int, seed: int) -> np.ndarray:
@@ -360,3 +359,15 @@ def test_compare_draws_a_camera_alone_run_as_it_is_scored():
     np.testing.assert_allclose(landmarks, [[4.0, 2.0, 1.0]], atol=1e-9)
     centres, _ = as_scored(entry("se3"), truth)
     np.testing.assert_allclose(centres, wTc[:, :3, 3])
+
+
+def test_run_seeds_stay_within_opencvs_generators():
+    """Draw seeds (the run's seed plus a frame or attempt number) stay within the C int
+    OpenCV takes, and a run seed beyond it is refused when the settings are read."""
+    from graphslam.backends.spatial.mono_tracking import rng_seed
+    from slamcore.errors import ConfigError
+
+    top = 2**31 - 1
+    assert rng_seed(0, 5) == 5 and rng_seed(top, 1) == 0 and rng_seed(top - 2, 1) == top - 1
+    with pytest.raises(ConfigError, match="seed"):
+        VisualIsam2Config(seed=top + 1)

@@ -104,7 +104,6 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         #: camera alone (``robot_model = "constant_velocity"``): bootstrap, then PnP tracking
         self.has_motion_model = self.config.robot_model == "constant_velocity"
         self._mono: MonoMotion | None = None
-        self._lm_sigma_now = 1.0  # pixel sigma of the latest frame (camera alone: the motion floor)
         self._isam = gtsam.ISAM2(self.config.isam2_params())
         self._graph = gtsam.NonlinearFactorGraph()  # pending factors of this frame
         self._values = gtsam.Values()  # pending initial values of this frame
@@ -422,7 +421,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         self._flush()
         before, last = self._frames[-2], self._frames[-1]
         wTc_pred = self._mono.predict(conv.pose3_matrix(self._pose(before)),
-                                      conv.pose3_matrix(self._pose(last)), float(self._lm_sigma_now))
+                                      conv.pose3_matrix(self._pose(last)))
         self._values.insert(X(fid), conv.pose3(wTc_pred))
         self._add_frame(fid)
 
@@ -431,7 +430,6 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         replaces the prediction, and the rows of ``ids`` PnP rejects are returned
         (they get no factor). Too few inliers: the frame is coasted on a
         constant-velocity factor and keeps only the pixels the prediction explains."""
-        self._lm_sigma_now = sigma
         rows = np.array([i for i, t in enumerate(ids.tolist()) if t in self._slot], dtype=np.int64)
         points = np.array([self._point(int(ids[i])) for i in rows.tolist()]).reshape(-1, 3)
         predicted = conv.pose3_matrix(self._values.atPose3(X(fid)))
@@ -457,7 +455,6 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             self._add_frame(int(f))
         for tid, p_w, nobs in landmarks:
             self._add_landmark(tid, p_w, nobs, sigma)
-        self._lm_sigma_now = sigma
 
     # --- internals ----------------------------------------------------------
 

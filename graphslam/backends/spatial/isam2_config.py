@@ -13,6 +13,7 @@ from typing import ClassVar, Literal
 
 import gtsam
 
+from frontend.two_view import MAX_SEED
 from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
@@ -111,7 +112,7 @@ class VisualIsam2Config:
 
     SECTION: ClassVar[str] = "isam2_visual"
     robot_model: Literal["odometry", "constant_velocity"] = "odometry"
-    seed: int = bounded(0, min=0)
+    seed: int = bounded(0, min=0, max=MAX_SEED)  # OpenCV's generators take a C int
     mono: MonoTrackingConfig = field(default_factory=MonoTrackingConfig)
     relinearize_threshold: float = bounded(0.1, gt=0.0)
     relinearize_skip: int = bounded(10, min=1)

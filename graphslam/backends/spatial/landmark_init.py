@@ -92,7 +92,7 @@ def first_map_graph(first, wTc0: np.ndarray, prior_noise: gtsam.noiseModel.Base,
     landmark seen in two frames or more.
 
     Returns ``(graph, values, landmarks)``, ``landmarks`` a list of
-    ``(track id, (3,) world position, pixels)``.
+    ``(track id, (3,) world position, number of its pixels)``.
     """
     frames = [int(f) for f in first.frame_ids]
     wTref = wTc0 @ np.linalg.inv(first.refTc[0])  # the first frame with a pose at wTc0

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontend.two_view import two_view_geometry
-from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig, pnp_pose, reprojects
+from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig, pnp_pose, reprojects, rng_seed
 from slamcore.errors import MeasurementError
 from slamcore.spatial.geometry import invert_pose
 
@@ -51,7 +51,6 @@ class FirstMap:
             of the landmarks it saw that reproject within the PnP threshold.
         model: ``"essential"`` or ``"homography"``.
         median_parallax_deg: of the triangulated points.
-        dropped_frames: kept frames PnP could not place.
     """
 
     frame_ids: np.ndarray
@@ -62,7 +61,6 @@ class FirstMap:
     pixels: list
     model: str
     median_parallax_deg: float
-    dropped_frames: int
 
 
 class MonoBootstrap:
@@ -77,10 +75,6 @@ class MonoBootstrap:
         self._frames: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame id, ids, uv)
         self.reason = "no frame seen yet"
         self.attempts = 0
-
-    @property
-    def frames_waiting(self) -> int:
-        return len(self._frames)
 
     def add(self, frame_id: int, track_ids: np.ndarray, uv_px: np.ndarray) -> FirstMap | None:
         """Frame ``frame_id``'s (M,) track ids at (M, 2) pixels; the first map once
@@ -111,7 +105,7 @@ class MonoBootstrap:
         self.attempts += 1
         try:
             geo = two_view_geometry(ref_uv[ia], uv[ib], self._K, self.config.two_view,
-                                    seed=self._seed + self.attempts, sigma_px=self._sigma_px)
+                                    seed=rng_seed(self._seed, self.attempts), sigma_px=self._sigma_px)
         except MeasurementError as exc:  # degenerate pixels (on one line): wait for better
             self.reason = str(exc)
             return None
@@ -134,7 +128,6 @@ class MonoBootstrap:
         order = np.argsort(track_ids)
         track_ids, points_ref = track_ids[order], points_ref[order]
         frame_ids, poses, pixels = [], [], []
-        dropped = 0
         n = len(self._frames)
         for j, (fid, ids, uv) in enumerate(self._frames):
             _, rows_in_map, rows_in_frame = np.intersect1d(track_ids, ids, assume_unique=True,
@@ -146,9 +139,8 @@ class MonoBootstrap:
             else:
                 est = pnp_pose(points_ref[rows_in_map], uv[rows_in_frame], self._K, refTlast,
                                threshold_px=threshold, min_inliers=c.min_pnp_inliers,
-                               seed=self._seed + j)
-                if est.wTc is None:
-                    dropped += 1
+                               seed=rng_seed(self._seed, j))
+                if est.wTc is None:  # left without a pose (counted by the caller)
                     continue
                 refTc = est.wTc
             ok = reprojects(invert_pose(refTc), points_ref[rows_in_map], uv[rows_in_frame],
@@ -157,4 +149,4 @@ class MonoBootstrap:
             poses.append(refTc)
             pixels.append((rows_in_map[ok], uv[rows_in_frame][ok]))
         return FirstMap(np.asarray(frame_ids, np.int64), self._frames[ref][0], np.asarray(poses),
-                        track_ids, points_ref, pixels, model, parallax, dropped)
+                        track_ids, points_ref, pixels, model, parallax)

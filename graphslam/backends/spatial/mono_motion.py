@@ -16,7 +16,7 @@ import numpy as np
 from graphslam.backends.spatial.mono_init import FirstMap, MonoBootstrap
 from graphslam.backends.spatial.mono_tracking import (
     MonoTrackingConfig, PnpPose, constant_velocity, frame_rotation, motion_covariance, pnp_pose,
-    reprojects,
+    reprojects, rng_seed,
 )
 from slamcore.spatial.geometry import invert_pose
 
@@ -49,6 +49,7 @@ class MonoMotion:
         self.delta = np.eye(4)  # the constant-velocity step c_{k-1} T c_k of the current frame
         self.covariance = np.eye(6)  # its noise, [rho, phi]
         self.median_depth = 1.0  # of the landmarks last measured, map units
+        self.sigma_px = 1.0  # the pixel sigma of the latest frame's observations
         self._coasting = 0
         self.losses: list[dict] = []
         self.counts = {"pnp_tracked_frames": 0, "coasted_frames": 0,
@@ -63,6 +64,7 @@ class MonoMotion:
 
     def bootstrap(self, track_ids: np.ndarray, uv_px: np.ndarray, sigma_px: float) -> FirstMap | None:
         """The current frame's pixels to the bootstrap; the first map once made."""
+        self.sigma_px = float(sigma_px)
         if self._boot is None:
             self._boot = MonoBootstrap(self.config, self.K, sigma_px, self.seed)
         first = self._boot.add(self.frame_id, track_ids, uv_px)
@@ -87,14 +89,14 @@ class MonoMotion:
         """Why no first map has been made yet (one line)."""
         return "no frame seen" if self._boot is None else self._boot.reason
 
-    def predict(self, wTc_before: np.ndarray, wTc_last: np.ndarray, sigma_px: float) -> np.ndarray:
+    def predict(self, wTc_before: np.ndarray, wTc_last: np.ndarray) -> np.ndarray:
         """(4, 4) predicted pose of the current frame; keeps the step and its noise.
 
-        The translation noise is floored at what moves the median landmark by
-        ``sigma_px`` (a camera at rest is not known to the micrometre either).
+        The translation noise is floored at what moves the median landmark by the
+        last frame's pixel sigma (a camera at rest is not known to the micrometre either).
         """
         wTc_pred, self.delta = constant_velocity(wTc_before, wTc_last)
-        floor = sigma_px * self.median_depth / float(self.K[0, 0])
+        floor = self.sigma_px * self.median_depth / float(self.K[0, 0])
         self.covariance = motion_covariance(self.delta, self.config, floor)
         self.awaiting = True
         return wTc_pred
@@ -109,9 +111,10 @@ class MonoMotion:
         prediction; ``inliers`` are then the landmark pixels that agree with the
         coasted pose within the PnP threshold."""
         c = self.config
+        self.sigma_px = float(sigma_px)
         threshold = c.pnp_threshold_sigmas * sigma_px
         est = pnp_pose(points_w, uv_px, self.K, wTc_pred, threshold_px=threshold,
-                       min_inliers=c.min_pnp_inliers, seed=self.seed + int(self.frame_id))
+                       min_inliers=c.min_pnp_inliers, seed=rng_seed(self.seed, self.frame_id))
         before, self._before = self._before, (np.asarray(frame_ids), np.asarray(frame_uv))
         self.awaiting = False
         if est.wTc is not None:
@@ -125,8 +128,9 @@ class MonoMotion:
             self._coasting = 0
             return est
         wTc_coast = wTc_pred
+        wTc_last = wTc_pred @ invert_pose(self.delta)  # the step is replaced, not composed
         if before is not None and self._rotate(before, frame_ids, frame_uv, sigma_px):
-            wTc_coast = wTc_pred @ invert_pose(self._delta_cv) @ self.delta
+            wTc_coast = wTc_last @ self.delta
             self.counts["coasted_on_measured_rotation"] += 1
         self.coast(est.reason)
         gated = reprojects(invert_pose(wTc_coast), np.asarray(points_w, dtype=np.float64).reshape(-1, 3),
@@ -146,10 +150,9 @@ class MonoMotion:
         threshold = step / max(self.median_depth, 1e-12) + self.config.pnp_threshold_sigmas * sigma_px / f
         R, _ = frame_rotation(uv_b[ib], np.asarray(frame_uv)[iu], self.K, threshold_rad=threshold,
                               min_inliers=self.config.min_pnp_inliers,
-                              seed=self.seed + int(self.frame_id))
+                              seed=rng_seed(self.seed, self.frame_id))
         if R is None:
             return False
-        self._delta_cv = self.delta.copy()
         self.delta = self.delta.copy()
         self.delta[:3, :3] = R
         self.covariance = self.covariance.copy()

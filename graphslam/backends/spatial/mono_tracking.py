@@ -33,14 +33,14 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from frontend.two_view import TwoViewConfig
+from frontend.two_view import MAX_SEED, TwoViewConfig
 from loopclosure.pnp import pose_from_rodrigues
 from slamcore.config import bounded, validate
 from slamcore.spatial.camera import project
 from slamcore.spatial.geometry import invert_pose
 
 __all__ = ["MonoTrackingConfig", "PnpPose", "constant_velocity", "motion_covariance", "pnp_pose",
-           "reprojects", "frame_rotation"]
+           "reprojects", "frame_rotation", "rng_seed"]
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,13 @@ class MonoTrackingConfig:
 
     def __post_init__(self):
         validate(self)
+
+
+def rng_seed(base: int, k: int) -> int:
+    """The seed of draw ``k`` (a frame, an attempt) of a run seeded ``base``: distinct draws,
+    repeatable, and within OpenCV's C int (``cv2.setRNGSeed``, USAC's generator state)
+    whatever the run's seed."""
+    return (int(base) + int(k)) % (MAX_SEED + 1)
 
 
 def constant_velocity(wTc_before: np.ndarray, wTc_last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
