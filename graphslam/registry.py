@@ -97,11 +97,13 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
-def load_pose_graph(spec: str | Path, toro_noise: str = "information"):
-    """A g2o or TORO pose-graph file, 2-D or 3-D, as a :class:`slamcore.posegraph.PoseGraph`."""
+def load_pose_graph(spec: str | Path, toro_noise: str = "information",
+                    information_fix: str = "nearest"):
+    """A g2o or TORO pose-graph file, 2-D or 3-D, as a :class:`slamcore.posegraph.PoseGraph`
+    (``information_fix``: what is done with information that is not positive definite)."""
     from graphslam.sources.posegraph_files import read_pose_graph_file
 
-    return read_pose_graph_file(spec, toro_noise)
+    return read_pose_graph_file(spec, toro_noise, information_fix)
 
 
 def pose_graph_config(config: ConfigSource = None, overrides: dict | None = None):

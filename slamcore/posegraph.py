@@ -48,6 +48,13 @@ class PoseGraph:
         noise: how the file's edge numbers were read, ``"information"`` or
             ``"sqrt_information"`` (TORO tags written by iSAM); :attr:`information`
             is the information matrix either way.
+        information_fix: how the reader replaced information matrices that were
+            not positive definite (``"nearest"`` or ``"isotropic"``, see
+            :func:`fixed_information`), None when it replaced none.
+        self_edge_lines: 1-based lines of edges from a pose to itself, left out
+            (such a factor is constant: it constrains nothing).
+        information_fixed: (M,) bool, the edges whose :attr:`information` is such a
+            replacement, not the file's numbers; None when none is.
     """
 
     name: str
@@ -65,6 +72,9 @@ class PoseGraph:
     equiv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     source_path: str | None = None
     noise: str = "information"
+    information_fix: str | None = None
+    information_fixed: np.ndarray | None = None
+    self_edge_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_poses(self) -> int:
@@ -73,6 +83,11 @@ class PoseGraph:
     @property
     def n_edges(self) -> int:
         return len(self.edges)
+
+    @property
+    def n_information_fixed(self) -> int:
+        """How many edges hold a replaced information matrix (:attr:`information_fixed`)."""
+        return 0 if self.information_fixed is None else int(self.information_fixed.sum())
 
     def index_of(self, pose_ids: np.ndarray) -> np.ndarray:
         """Row of each id in :attr:`ids` (ids must be in the graph)."""
@@ -96,7 +111,9 @@ class PoseGraph:
             has_vertex=self.has_vertex[keep_rows], edges=self.edges[keep],
             measurements=self.measurements[keep], information=self.information[keep],
             edge_lines=self.edge_lines[keep], fixed=self.fixed[np.isin(self.fixed, keep_ids)],
-            equiv=self.equiv[np.isin(self.equiv, keep_ids).all(axis=1)])
+            equiv=self.equiv[np.isin(self.equiv, keep_ids).all(axis=1)],
+            information_fixed=(None if self.information_fixed is None
+                               else self.information_fixed[keep]))
 
     def with_vertices(self, vertices: np.ndarray) -> "PoseGraph":
         """The same graph with other vertex values (e.g. an optimised estimate)."""
@@ -265,3 +282,55 @@ def is_positive_definite(m: np.ndarray) -> bool:
         return False
     return bool(np.all(np.isfinite(m)))
 
+
+# --------------------------------------------------------------------------- information
+#: How information matrices that are not positive definite can be replaced.
+INFORMATION_FIXES = ("nearest", "isotropic")
+#: Smallest eigenvalue a replaced information matrix keeps, as a fraction of its
+#: largest. Zero would be Higham's nearest semi-definite matrix, which gtsam cannot
+#: whiten. 1e-6 puts along a direction the file gives no information about a
+#: standard deviation 1000 times that of the edge's best-known direction (so the
+#: other edges decide it) and bounds the matrix's condition number at 1e6, which
+#: Cholesky factors in double precision with digits to spare. Measured on a 3-D
+#: torus (144 poses) whose 30 % of edges lack information along one direction:
+#: floors from 1e-4 to 1e-10 give the same ATE; from 1e-8 down, iSAM2's Cholesky
+#: meets indeterminate systems (its QR fallback acts), at 1e-6 and above it does not.
+INFORMATION_FLOOR = 1e-6
+
+
+def fixed_information(info: np.ndarray, method: str, dim: int,
+                      floor: float = INFORMATION_FLOOR) -> np.ndarray:
+    """(K, D, D) positive-definite replacements of symmetric information matrices
+    ``info`` (K, D, D) (finite, each with a positive eigenvalue), order
+    ``[translation, rotation]``; eigenvalues below ``floor`` times each matrix's
+    largest are raised to it.
+
+    ``nearest``: the nearest symmetric matrix in the Frobenius norm whose
+    eigenvalues are at least that floor: the eigenvalues clipped, eigenvectors
+    kept (Higham 1988, "Computing a nearest symmetric positive semidefinite
+    matrix", with a floor instead of zero).
+
+    ``isotropic``: SE-Sync's weights (``read_g2o_file``): ``tau = d / tr(I_t^-1)`` on
+    the translation block ``I_t`` and, from the rotation block ``I_R``, the
+    precision ``r / tr(I_R^-1)`` (``r`` = 1 in 2-D, 3 in 3-D) on every rotation
+    axis, cross terms dropped. In 3-D that is SE-Sync's ``2 kappa`` (its cost
+    ``kappa ||R_j - R_i R_ij||_F^2`` is ``2 kappa theta^2`` for a small angle
+    ``theta``); in 2-D it is ``I_R`` itself, the angle's precision SE-Sync takes
+    as ``kappa``. Each block's eigenvalues are raised to the floor first
+    (SE-Sync's formula needs positive blocks).
+    """
+    info = np.asarray(info, dtype=np.float64)
+    w, V = np.linalg.eigh(info)
+    low = floor * w[:, -1:]
+    if method == "nearest":
+        out = (V * np.maximum(w, low)[:, None, :]) @ V.transpose(0, 2, 1)
+        return 0.5 * (out + out.transpose(0, 2, 1))
+    if method != "isotropic":
+        raise ValueError(f"method must be one of {INFORMATION_FIXES}, got {method!r}")
+    out = np.zeros_like(info)
+    for block in (slice(0, dim), slice(dim, info.shape[-1])):
+        wb = np.maximum(np.linalg.eigvalsh(info[:, block, block]), low)
+        weight = wb.shape[-1] / np.sum(1.0 / wb, axis=-1)  # size / trace of the inverse
+        idx = np.arange(info.shape[-1])[block]
+        out[:, idx, idx] = weight[:, None]
+    return out

@@ -139,12 +139,13 @@ BAD_LINES = [
     (f"EDGE_SE2 0 {2**62 + 1} 1 0 0 100 0 0 100 0 1000\n", 1, "larger than 2**62"),
     ("EDGE_SE2 0 1e3 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
     ("EDGE_SE2 0 3.0 1 0 0 100 0 0 100 0 1000\n", 1, "not an integer (decimal digits only)"),
-    ("EDGE_SE2 0 1 1 0 0 100 0 0 -100 0 1000\n", 1, "not positive definite"),
+    # information that is not positive definite is replaced by default
+    # (tests/test_posegraph_information_fix.py); one without information is refused
+    ("EDGE_SE2 0 1 1 0 0 0 0 0 0 0 0\n", 1, "no positive eigenvalue"),
     ("EDGE_SE2 0 " + "7" * 5000 + " 1 0 0 100 0 0 100 0 1000\n", 1, "larger than 2**62"),
     # information is checked for all edges at once: the bad one among good ones is named
-    ("EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n# c\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 -1\n"
-     "EDGE_SE2 2 3 1 0 0 -100 0 0 100 0 1000\n", 3, "not positive definite"),
-    ("EDGE_SE2 1 1 1 0 0 100 0 0 100 0 1000\n", 1, "to itself"),
+    ("EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n# c\nEDGE_SE2 1 2 1 0 0 -100 0 0 -100 0 -1\n"
+     "EDGE_SE2 2 3 1 0 0 -100 0 0 100 0 1000\n", 3, "no positive eigenvalue"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", 2, "declared twice"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 2 1 0 0 1 0 0 1 0 1\n", 3,
      "no vertex line"),

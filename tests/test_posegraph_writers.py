@@ -107,7 +107,7 @@ def test_rejected_closures_in_csv_and_recording(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", "--dataset", str(src), "--backend", "batch", "--config", str(config),
                  "--out", str(out)]) == 0
-    assert re.search(r"closures rejected\s+1\n", capsys.readouterr().out)
+    assert re.search(r"closures rejected\s+1 of 4 \(outlier test", capsys.readouterr().out)
     rows = (out / "closures.csv").read_text().splitlines()[1:]
     assert [r.split(",")[3] for r in rows] == ["1", "1", "1", "0"]
     assert (out / "run.rrd").stat().st_size > 0

@@ -28,6 +28,12 @@ def register(sub) -> None:
                    default="information",
                    help="how TORO edge numbers are read and written: information (the "
                         "format) or sqrt_information (files written by iSAM)")
+    # posegraph_files.INFORMATION_FIX, written out for the same reason
+    p.add_argument("--information-fix", choices=("nearest", "isotropic", "refuse"),
+                   default="nearest",
+                   help="an information matrix that is not positive definite is written as "
+                        "the nearest positive-definite one (default), as SE-Sync's isotropic "
+                        "weights, or refused")
     p.set_defaults(func=cmd_convert)
 
 
@@ -42,8 +48,12 @@ def cmd_convert(args: argparse.Namespace) -> int:
                           "name it .g2o or .graph, or pass --to g2o|toro")
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
-    graph = registry.load_pose_graph(args.input, args.toro_noise)
+    graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
     converted, notes = convert(graph, fmt)
+    if graph.n_information_fixed:  # the numbers are no longer the file's: say so
+        notes.append(f"{graph.n_information_fixed} edges' information matrices were not "
+                     f"positive definite: written as replaced ({graph.information_fix}; "
+                     "--information-fix refuse keeps the refusal)")
     if fmt == "toro":  # --toro-noise says how TORO numbers are written too
         converted = dataclasses.replace(converted, noise=args.toro_noise)
     for note in notes:

@@ -31,7 +31,11 @@ SHONAN_CERTIFIES = ("a minimum eigenvalue >= 0 (to numerical tolerance) proves t
 @dataclass
 class PoseGraphRunMetrics:
     """``metrics.json`` of a pose-graph run; costs are ``0.5 sum ||whitened
-    residual||^2`` over the file's edges (the gtsam graph error)."""
+    residual||^2`` over the file's edges (the gtsam graph error), and
+    ``final_cost_kept`` the same over the edges kept when closures were rejected
+    (the cost the solve minimised). ``closure_test``: the outlier test of the
+    closures (``robust_closures``, the whitened residual norm beyond which a
+    closure fails, the re-test rounds), absent when closures were not tested."""
 
     dataset: str
     backend: str
@@ -52,6 +56,10 @@ class PoseGraphRunMetrics:
     shonan_min_eigenvalue: float | None = None
     shonan_certifies: str | None = None
     numerical_recoveries: list[str] | None = None
+    information_fixed: dict | None = None
+    closure_test: dict | None = None
+    self_edges_ignored: dict | None = None
+    final_cost_kept: float | None = None
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
     interrupted: bool = False
@@ -59,7 +67,8 @@ class PoseGraphRunMetrics:
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
-        "numerical_recoveries"})
+        "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept",
+        "self_edges_ignored"})
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
@@ -141,6 +150,17 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         isam2_cost=result.isam2_cost, isam2_s=result.isam2_s, shonan_min_eigenvalue=shonan,
         shonan_certifies=None if shonan is None else SHONAN_CERTIFIES,
         numerical_recoveries=result.recoveries or None,
+        information_fixed=({"method": graph.information_fix, "edges": graph.n_information_fixed}
+                           if graph.n_information_fixed else None),
+        closure_test=None if result.closure_threshold is None else {
+            "robust_closures": result.robust_mode,
+            "threshold_whitened": result.closure_threshold,
+            "noise_scale_squared": result.noise_scale,
+            "retest_rounds": result.closure_rounds},
+        self_edges_ignored=({"edges": len(graph.self_edge_lines),
+                             "lines": graph.self_edge_lines[:10].tolist()}
+                            if len(graph.self_edge_lines) else None),
+        final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
         ate_rmse_m=None if not scored else ate_rmse(graph, result.params, truth),
         odometry_ate_rmse_m=None if not scored else ate_rmse(
             graph, pg.chain_initialisation(graph), truth),

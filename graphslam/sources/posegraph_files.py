@@ -32,12 +32,24 @@ information, its optimum (364.49) is neither gtsam's (which takes the numbers
 in its own rotation-first order) nor that of the true noise: pass
 ``toro_noise="sqrt_information"`` (``[posegraph] toro_noise``) for such files. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
 
+Information matrices are symmetric by construction: the formats write the upper
+triangle, mirrored here. One that is not positive definite (SE-Sync's
+``cubicle.g2o`` has such edges, which g2o and SE-Sync read) is replaced, as
+``information_fix`` says (``[posegraph] information_fix``): ``nearest`` (the
+nearest positive-definite matrix), ``isotropic`` (SE-Sync's isotropic
+translation and rotation weights), both by :func:`slamcore.posegraph.fixed_information`,
+on those edges only, counted in :attr:`PoseGraph.information_fixed`; or
+``refuse`` (an error at the first such edge's line). A non-finite matrix (an
+overflowing square root) or one with no positive eigenvalue (an edge that
+carries no information) is refused whatever the setting.
+
 Checks, each one line with file and line (information matrices are checked
 after the whole file is read, the rest line by line): ids are decimal integers read as
 Python ints (never through a float), from 0 to 2**62; numbers finite;
-quaternions non-zero; information positive definite; no edge from a pose to
-itself, no vertex twice; when the file has vertex lines, every edge and ``FIX``
-names a declared pose. Edge-only files are initialised by composing edges
+quaternions non-zero; information finite and positive definite (or replaced,
+above); an edge from a pose to itself is left out and counted
+(:attr:`PoseGraph.self_edge_lines`); no vertex twice; when the file has vertex
+lines, every edge and ``FIX`` names a declared pose. Edge-only files are initialised by composing edges
 along a spanning tree that prefers the odometry chain. The graph must be
 connected: otherwise its components are named.
 """
@@ -155,16 +167,23 @@ def _lines(path: Path):
 
 #: How TORO edge numbers are read (g2o's are information always).
 TORO_NOISE = ("information", "sqrt_information")
+#: What is done with an information matrix that is not positive definite.
+INFORMATION_FIX = (*pg.INFORMATION_FIXES, "refuse")
 
 
 class _Collector:
     """Lines of one file, checked as they come."""
 
-    def __init__(self, path: Path, toro_noise: str = "information"):
+    def __init__(self, path: Path, toro_noise: str = "information",
+                 information_fix: str = "nearest"):
         if toro_noise not in TORO_NOISE:
             raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
+        if information_fix not in INFORMATION_FIX:
+            raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, "
+                             f"got {information_fix!r}")
         self.path = path
         self.toro_noise = toro_noise
+        self.information_fix = information_fix
         self.kind: tuple[str, int, str] | None = None  # (format, dim, rotation)
         self.kind_line = 0
         self.vertices: dict[int, list[float]] = {}
@@ -173,6 +192,7 @@ class _Collector:
         self.measurements: list[list[float]] = []
         self.information: list[np.ndarray] = []
         self.edge_lines: list[int] = []
+        self.self_edge_lines: list[int] = []
         self.fixed: list[tuple[int, int]] = []
         self.equiv: list[tuple[int, int]] = []
 
@@ -223,11 +243,16 @@ class _Collector:
     def _edge(self, line_no: int, tok: list[str]) -> None:
         a = parse_id(tok[1], self.path, line_no)
         b = parse_id(tok[2], self.path, line_no)
-        if a == b:
-            raise InputError(f"edge from pose {a} to itself", self.path, line_no)
         fmt, dim, rotation = self.kind
         size = pg.PARAM_SIZE[rotation]
         numbers = parse_numbers(tok[3:], self.path, line_no)
+        if a == b:
+            # a place recogniser matching a frame to itself (RRR's NewCollege has 9): the
+            # factor is constant whatever the estimate, so it constrains nothing; left out
+            # and counted, never silently
+            self._pose(numbers[:size], line_no)  # still a well-formed line
+            self.self_edge_lines.append(line_no)
+            return
         side = pg.TANGENT_SIZE[dim]
         info = np.zeros((side, side))
         sqrt = fmt == "toro" and self.toro_noise == "sqrt_information"
@@ -236,7 +261,8 @@ class _Collector:
             if not sqrt:
                 info[c, r] = v
         if sqrt:  # the numbers are the upper triangle R of information = R^T R
-            info = info.T @ info
+            with np.errstate(over="ignore"):  # an overflow is refused as not finite
+                info = info.T @ info
         # positive definiteness: checked for all edges at once, in graph()
         self.edges.append((a, b))
         self.measurements.append(self._pose(numbers[:size], line_no))
@@ -246,7 +272,7 @@ class _Collector:
     def graph(self) -> pg.PoseGraph:
         if self.kind is None or not self.edges:
             raise InputError("no pose-graph edges in the file", self.path)
-        self._check_information()
+        information, fixed = self._checked_information()
         self._check_declared()
         fmt, dim, rotation = self.kind
         ids = np.array(sorted(set(self.vertices) | {k for e in self.edges for k in e}),
@@ -260,29 +286,50 @@ class _Collector:
             vertices=vertices, has_vertex=has_vertex,
             edges=np.array(self.edges, dtype=np.int64).reshape(-1, 2),
             measurements=np.array(self.measurements, dtype=np.float64).reshape(-1, size),
-            information=np.array(self.information),
+            information=information,
             edge_lines=np.array(self.edge_lines, dtype=np.int64),
             fixed=np.array(sorted({k for k, _ in self.fixed}), dtype=np.int64),
             equiv=np.array(self.equiv, dtype=np.int64).reshape(-1, 2),
             source_path=str(self.path),
-            noise=self.toro_noise if fmt == "toro" else "information")
+            noise=self.toro_noise if fmt == "toro" else "information",
+            information_fix=None if fixed is None else self.information_fix,
+            information_fixed=fixed,
+            self_edge_lines=np.array(self.self_edge_lines, dtype=np.int64))
         check_connected(graph, self.path)
         return with_chain_start(graph)
 
-    def _check_information(self) -> None:
-        """Every edge's information positive definite (one Cholesky of the stack: one by
-        one it was half of reading w10000), else InputError at the first bad edge's line."""
+    def _checked_information(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
+
+        One Cholesky of the stack passes a clean file (one by one it was half of
+        reading w10000); otherwise the edges are looked at one by one: a matrix
+        not finite, or without a positive eigenvalue, is an InputError at its
+        line, and so is any that is not positive definite under ``refuse``."""
         stack = np.array(self.information)
         try:
             np.linalg.cholesky(stack)
             if np.isfinite(stack).all():
-                return
+                return stack, None
         except np.linalg.LinAlgError:
             pass
-        for info, line_no in zip(self.information, self.edge_lines):
-            if not pg.is_positive_definite(info):
-                raise InputError("information matrix is not positive definite", self.path,
-                                 line_no)
+        bad = np.zeros(len(stack), dtype=bool)
+        for e, (info, line_no) in enumerate(zip(stack, self.edge_lines)):
+            if not np.isfinite(info).all():
+                raise InputError("information matrix is not finite", self.path, line_no)
+            if pg.is_positive_definite(info):
+                continue
+            if self.information_fix == "refuse":
+                raise InputError("information matrix is not positive definite ([posegraph] "
+                                 "information_fix = \"nearest\" or \"isotropic\" replaces "
+                                 "it)", self.path, line_no)
+            if np.linalg.eigvalsh(info)[-1] <= 0.0:
+                raise InputError("information matrix has no positive eigenvalue (the edge "
+                                 "carries no information)", self.path, line_no)
+            bad[e] = True
+        if not bad.any():
+            return stack, None
+        stack[bad] = pg.fixed_information(stack[bad], self.information_fix, self.kind[1])
+        return stack, bad
 
     def _check_declared(self) -> None:
         """With vertex lines present, an edge or FIX naming an undeclared pose is refused."""
@@ -334,14 +381,17 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     return with_chain_start(cut)
 
 
-def read_pose_graph_file(path, toro_noise: str = "information") -> pg.PoseGraph:
+def read_pose_graph_file(path, toro_noise: str = "information",
+                         information_fix: str = "nearest") -> pg.PoseGraph:
     """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags).
 
     ``toro_noise = "sqrt_information"`` reads TORO edge numbers as the upper
     triangle ``R`` of the information ``R^T R`` (files written by iSAM).
+    ``information_fix``: ``nearest``, ``isotropic`` or ``refuse`` for information
+    that is not positive definite (module docstring).
     """
     path = Path(path)
-    collector = _Collector(path, toro_noise)
+    collector = _Collector(path, toro_noise, information_fix)
     for line_no, tok in _lines(path):
         collector.line(line_no, tok)
     return collector.graph()

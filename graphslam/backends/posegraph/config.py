@@ -31,14 +31,27 @@ class PoseGraphConfig:
             1e-5 stops short of it by more than 1e-6 relative.
         relinearize_threshold, relinearize_skip: iSAM2's, as in ``[isam2]``.
         polish: batch LM after iSAM2.
-        robust_closures: ``gnc``: the solve (or the polish) is gtsam's
-            GncLMOptimizer with every odometry edge a known inlier, so closures
-            it weighs below 0.5 are rejected (listed in ``closures.csv``).
+        robust_closures: how loop closures (edges between poses that are not
+            neighbours in id order) that may be wrong are handled (see
+            :mod:`graphslam.backends.posegraph.robust`): ``auto`` (default)
+            when the graph has closures, iSAM2 adds them under a Cauchy kernel
+            and, if any closure fails the outlier test at the best start, the
+            solve is gtsam's GNC (odometry known inliers), closures it weighs
+            below 0.5 rejected (``closures.csv``) and left out of a final LM;
+            ``gnc``: GNC always; ``none``: plain least squares over every edge
+            (graphs known clean).
+        closure_test_alpha: probability that a graph whose closures all follow
+            their stated noise loses one of them to the outlier test (the test
+            is at ``1 - alpha / M`` per closure, M closures: Bonferroni).
         prior_sigma: gauge prior on the first pose (or the ``FIX`` poses), in
             metres / radians; it costs nothing at the optimum.
         toro_noise: how TORO files' edge numbers are read: ``information`` (the
             TORO format) or ``sqrt_information`` (files written by iSAM, such as
             gtsam's ``sphere2500.txt``: the upper triangle ``R`` of ``R^T R``).
+        information_fix: an edge information that is not positive definite is
+            replaced by the ``nearest`` positive-definite matrix (eigenvalues raised
+            to 1e-6 of the largest), or by SE-Sync's ``isotropic`` translation and
+            rotation weights, or is ``refuse``d (an error naming file and line).
     """
 
     SECTION: ClassVar[str] = "posegraph"
@@ -50,9 +63,11 @@ class PoseGraphConfig:
     relinearize_threshold: float = bounded(0.1, gt=0.0)
     relinearize_skip: int = bounded(10, min=1, max=1_000_000)
     polish: bool = True
-    robust_closures: Literal["none", "gnc"] = "none"
+    robust_closures: Literal["auto", "gnc", "none"] = "auto"
+    closure_test_alpha: float = bounded(0.01, gt=0.0, lt=1.0)
     prior_sigma: float = bounded(1e-3, gt=0.0)
     toro_noise: Literal["information", "sqrt_information"] = "information"
+    information_fix: Literal["nearest", "isotropic", "refuse"] = "nearest"
 
     def __post_init__(self):
         validate(self)

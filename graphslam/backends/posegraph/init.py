@@ -11,15 +11,28 @@ certificate matrix proves the **rotation averaging** problem (chordal cost,
 isotropic rotation weights taken from the information) solved globally; it
 does not certify the full pose-graph cost under the file's anisotropic
 information, which LM then minimises locally from that start.
+
+LAGO and the chordal relaxation are keyed by rank (row of the increasing ids),
+as Shonan is: gtsam's LAGO walks the odometric path ``k-1 -> k`` of its keys and
+fails (``IndexError: map::at``) where a key has no edge from its predecessor, so
+it takes that path only when every consecutive rank pair is joined by an edge,
+and gtsam's own spanning tree over all edges otherwise (an id gap in the file
+costs nothing by rank; a pose joined only by closures, or a second session
+restarted in its own frame, does). Where a relaxation still fails (gtsam
+throws, e.g. an indeterminate system where closures carry information of 1e15
+and more in 3-D, 1e18 in 2-D, or it gives non-finite poses), the start is the
+``odometry`` one and :attr:`Start.note` says so in one sentence, which the
+solver lists among its recoveries.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
 
+from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from slamcore.errors import GraphSlamError
 from slamcore.posegraph import PoseGraph, chain_initialisation
@@ -27,11 +40,17 @@ from slamcore.posegraph import PoseGraph, chain_initialisation
 
 @dataclass
 class Start:
-    """An initial estimate. ``certificate``: Shonan's minimum eigenvalue (else None)."""
+    """An initial estimate. ``certificate``: Shonan's minimum eigenvalue (else None);
+    ``note``: one sentence when the start asked for failed and this one replaces it."""
 
     method: str
     values: gtsam.Values
     certificate: float | None = None
+    note: str | None = None
+
+
+#: The relaxations as a sentence names them.
+NAMES = {"lago": "LAGO", "chordal": "the chordal relaxation", "shonan": "Shonan averaging"}
 
 
 def resolve(method: str, dim: int) -> str:
@@ -45,25 +64,79 @@ def resolve(method: str, dim: int) -> str:
 
 
 def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
-    """The start named by ``method`` (``auto`` resolved by dimension)."""
+    """The start named by ``method`` (``auto`` resolved by dimension); the
+    ``odometry`` start with a :attr:`Start.note` where a relaxation fails."""
     method = resolve(method, graph.dim)
     if method == "vertices":
         return Start(method, fx.values_of(graph, graph.vertices))
     if method == "odometry":
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
-    if method == "shonan":
-        return _shonan(graph)
+    try:
+        start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
+        failure = None if np.isfinite(fx.params_from(graph, start.values)).all() else (
+            "it gave non-finite poses")
+    # gtsam's C++ exceptions: std::out_of_range (IndexError), IndeterminateLinearSystem
+    # and the rest (RuntimeError); anything else is a bug of ours and propagates
+    except (RuntimeError, IndexError) as exc:
+        failure = _why(graph, exc)
+    if failure is None:
+        return start
+    return Start("odometry", fx.values_of(graph, chain_initialisation(graph)),
+                 note=f"--init {method}: {NAMES[method]} failed ({failure}); LM started from "
+                      "the odometry start (edges composed along a spanning tree) instead")
+
+
+def _why(graph: PoseGraph, exc: BaseException) -> str:
+    """A short reason for a relaxation's failure, naming the pose (by id) gtsam names."""
+    if fact.is_indeterminate(exc):
+        where = fact.failed_variable(exc)
+        if where.isdigit() and int(where) < graph.n_poses:  # a rank key: say the pose id
+            where = f"pose {int(graph.ids[int(where)])}"
+        return f"indeterminate linear system near {where or '?'}"
+    first = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {first[0] if first else 'no message'}"
+
+
+def has_odometric_path(graph: PoseGraph) -> bool:
+    """Whether every pose but the first is joined by an edge to its predecessor in
+    id order (LAGO's odometric path exists)."""
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    chained = np.unique(rows[graph.odometry_mask()].min(axis=1))
+    return len(chained) == graph.n_poses - 1
+
+
+def rank_keyed(graph: PoseGraph) -> PoseGraph:
+    """``graph`` with each pose keyed by its rank (0..N-1) instead of its id."""
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    return replace(graph, ids=np.arange(graph.n_poses, dtype=np.int64), edges=rows,
+                   fixed=graph.index_of(graph.fixed).astype(np.int64))
+
+
+def _relaxation(graph: PoseGraph, method: str, sigma: float) -> Start:
+    """LAGO (2-D) or the chordal relaxation (3-D) on the rank-keyed graph."""
+    by_rank = rank_keyed(graph)
     # LAGO and the chordal relaxation take diagonal noise only: the diagonal of
     # each information matrix (a start, not the cost being minimised)
     pose_graph = gtsam.NonlinearFactorGraph()
     for e in range(graph.n_edges):
-        pose_graph.add(fx.between(graph, e, fx.diagonal_model(graph.information[e])))
-    anchor = int(fx.anchors(graph)[0])
-    first = fx.pose(graph.vertices[graph.index_of([anchor])[0]], graph.rotation)
-    pose_graph.add(fx.prior(graph, anchor, first, sigma))
+        pose_graph.add(fx.between(by_rank, e, fx.diagonal_model(graph.information[e])))
+    anchor = int(fx.anchors(by_rank)[0])
+    pose_graph.add(fx.prior(by_rank, anchor, fx.pose(graph.vertices[anchor], graph.rotation),
+                            sigma))
     if method == "lago":
-        return Start(method, gtsam.lago.initialize(pose_graph))
-    return Start(method, gtsam.InitializePose3.initialize(pose_graph))
+        values = gtsam.lago.initialize(pose_graph, has_odometric_path(graph))
+    else:
+        values = gtsam.InitializePose3.initialize(pose_graph)
+    return Start(method, _by_id(graph, values))
+
+
+def _by_id(graph: PoseGraph, values: gtsam.Values) -> gtsam.Values:
+    """Rank-keyed ``values`` keyed by pose id."""
+    at = values.atPose2 if graph.dim == 2 else values.atPose3
+    out = gtsam.Values()
+    for row, k in enumerate(graph.ids.tolist()):
+        out.insert(k, at(row))
+    return out
 
 
 def _shonan(graph: PoseGraph) -> Start:

@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--no-polish applies to the isam2 back end only")
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
-    graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise)
+    graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise,
+                                     solver_config.information_fix)
     if args.max_steps is not None:
         from graphslam.sources.posegraph_files import truncated
 
@@ -95,11 +96,18 @@ def format_summary(metrics) -> str:
         ("backend", metrics.backend),
         ("graph", f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
                   f"{metrics.edges} edges ({metrics.closures} closures)"),
+        *information_rows(metrics.information_fixed),
+        *([("self-edges ignored", f"{metrics.self_edges_ignored['edges']} edges from a pose "
+            f"to itself (lines {', '.join(map(str, metrics.self_edges_ignored['lines']))}"
+            f"{', ...' if metrics.self_edges_ignored['edges'] > 10 else ''}): they constrain "
+            "nothing")] if metrics.self_edges_ignored else []),
         ("initialisation", metrics.init),
         ("initial cost", fmt(metrics.initial_cost, ".10g")),
         ("final cost", fmt(metrics.final_cost, ".10g")),
+        *([("final cost, kept edges", fmt(metrics.final_cost_kept, ".10g"))]
+          if metrics.final_cost_kept is not None else []),
         ("LM iterations", fmt(metrics.iterations, "d")),
-        ("closures rejected", metrics.closures_rejected),
+        ("closures rejected", closure_row(metrics)),
         ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f")),
         ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
@@ -118,6 +126,31 @@ def format_summary(metrics) -> str:
     for note in metrics.numerical_recoveries or ():
         rows.append(("numerical recovery", note))
     return summary_table(rows)
+
+
+def closure_row(metrics) -> str:
+    """How many closures were rejected, and by which test."""
+    test = metrics.closure_test
+    if test is None:
+        why = ("[posegraph] robust_closures = \"none\": every closure kept"
+               if metrics.closures else "no closures")
+        return f"{metrics.closures_rejected} ({why})"
+    return (f"{metrics.closures_rejected} of {metrics.closures} (outlier test: whitened "
+            f"residual > {test['threshold_whitened']:.2f} at the kept-edge optimum; "
+            f"robust_closures = \"{test['robust_closures']}\")")
+
+
+#: What each ``[posegraph] information_fix`` put in place of the file's matrix.
+INFORMATION_FIXES = {"nearest": "the nearest positive-definite matrix",
+                     "isotropic": "SE-Sync's isotropic translation and rotation weights"}
+
+
+def information_rows(fixed: dict | None) -> list[tuple[str, str]]:
+    """The summary row saying how many edges' information the reader replaced, and how."""
+    if not fixed:
+        return []
+    return [("information fixed", f"{fixed['edges']} edges not positive definite, replaced by "
+                                  f"{INFORMATION_FIXES[fixed['method']]}")]
 
 
 def check_backend(args: argparse.Namespace) -> None:
