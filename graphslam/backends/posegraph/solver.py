@@ -126,10 +126,10 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
         recoveries.append(first.note)
     starts.append(first)
     start, at_start = _best_start(graph, edges, starts, robust, threshold)
-    result, iterations, rejected, rounds, scale = _final_solve(
+    result, iterations, rejected, rounds, scale, errors = _final_solve(
         graph, edges, start, at_start, first, robust, threshold, config, recoveries)
     out = _result(graph, solver, start, result, iterations, edges, rejected, recoveries, t0,
-                  isam2_s, isam2_cost)
+                  isam2_s, isam2_cost, errors)
     # LM that used every iteration it was allowed stopped on the cap, not on a tolerance
     out.lm_capped = iterations is not None and iterations >= config.max_iterations
     out.closure_threshold = float(np.sqrt(2.0 * threshold * scale)) if robust else None
@@ -141,23 +141,26 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
 
 
 def _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries
-                 ) -> tuple[gtsam.Values, int, np.ndarray, int, float]:
+                 ) -> tuple[gtsam.Values, int, np.ndarray, int, float, np.ndarray | None]:
     """LM over every edge from ``start``; when closures are suspects and one fails
     the test at that least-squares optimum, GNC (the closures failing at ``start``
     weighed 0 at first) and LM over the kept edges, re-tested until the kept set
     is stable. Returns the estimate, the last LM's iterations, (M,) rejected, the re-test rounds and
-    the noise scale the threshold was multiplied by."""
+    the noise scale the threshold was multiplied by, and the (M,) edge errors at
+    the estimate where they were computed anyway (else None)."""
     full = with_priors(graph, edges, start.values, config.prior_sigma)
     result, iterations = lm(full, start.values, config, recoveries)
     none = np.zeros(graph.n_edges, dtype=bool)
     if not robust:
-        return result, iterations, none, 0, 1.0
+        return result, iterations, none, 0, 1.0, None
     at_optimum = rb.EdgeErrors.at(graph, edges, result)
     scale = rb.noise_scale(graph, at_optimum.errors[at_optimum.closures])
     if config.robust_closures != "gnc" and not at_optimum.failing(threshold * scale).any():
-        return result, iterations, none, 0, scale  # every closure agrees with the optimum
+        # every closure agrees with the optimum (its errors are the report's residuals)
+        return result, iterations, none, 0, scale, at_optimum.errors
     # GNC from the initialiser's start: from the iSAM2 estimate it reached the same
     # closures 3-6x slower on the RRR graphs (its first, convex, steps undo that start)
+    at_start = at_start or rb.EdgeErrors.at(graph, edges, start.values)
     guess, rejected = rb.gnc(graph, with_priors(graph, edges, first.values, config.prior_sigma),
                              first.values, _gnc_lm_params(config), threshold,
                              at_start.failing(threshold))
@@ -174,7 +177,7 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
     else:
         recoveries.append(f"closure re-test: the kept set still changed after {MAX_RETESTS} "
                           "rounds; the last one is reported")
-    return result, iterations, rejected, rounds, scale
+    return result, iterations, rejected, rounds, scale, None
 
 
 #: Re-tests of the closures against the kept-edge optimum before the set is taken as is.
@@ -209,18 +212,23 @@ def _isam2_edges(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, robust: bo
 
 def _best_start(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph,
                 starts: list[initialisers.Start], robust: bool, threshold: float
-                ) -> tuple[initialisers.Start, rb.EdgeErrors]:
+                ) -> tuple[initialisers.Start, rb.EdgeErrors | None]:
     """The start of lowest cost (truncated when ``robust``; ties go to the first,
-    the iSAM2 estimate) and its edge errors."""
+    the iSAM2 estimate) and, when ``robust``, its edge errors (computed on demand
+    by the caller for a single start: None)."""
+    if not robust:
+        return min(starts, key=lambda s: fx.cost(graph, s.values, edges)), None
+    if len(starts) == 1:
+        return starts[0], None
     scored = [(s, rb.EdgeErrors.at(graph, edges, s.values)) for s in starts]
-    cost = ((lambda e: e.truncated_cost(threshold)) if robust
-            else (lambda e: float(e.errors.sum())))
-    return min(scored, key=lambda pair: cost(pair[1]))
+    return min(scored, key=lambda pair: pair[1].truncated_cost(threshold))
 
 
 def _result(graph, solver, start, values, iterations, edges, rejected, recoveries, t0,
-            isam2_s, isam2_cost) -> SolveResult:
-    residuals = np.sqrt([2.0 * edges.at(i).error(values) for i in range(edges.size())])
+            isam2_s, isam2_cost, errors: np.ndarray | None = None) -> SolveResult:
+    if errors is None:
+        errors = np.array([edges.at(i).error(values) for i in range(edges.size())])
+    residuals = np.sqrt(2.0 * errors)
     return SolveResult(solver, fx.params_from(graph, values), start.method,
                        fx.cost(graph, start.values, edges), fx.cost(graph, values, edges),
                        iterations, residuals, rejected, start.certificate, recoveries,
