@@ -74,7 +74,7 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
 
 
 #: Back ends ``graphslam run`` offers on pose-graph files (2-D and 3-D alike).
-POSEGRAPH_BACKENDS = ("isam2", "batch")
+POSEGRAPH_BACKENDS = ("auto", "isam2", "batch")
 
 
 def is_pose_graph_run(spec: str, backend: str) -> bool:

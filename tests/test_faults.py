@@ -148,11 +148,26 @@ def test_pose_graph_cut_after_one_pose_keeps_its_files(tmp_path):
     w100 = gtsam.findExampleDataFile("w100.graph")
     truth = tmp_path / "gt.tum"
     truth.write_text("".join(f"{k} {k} 0 0 0 0 0 1\n" for k in range(100)))
-    done = graphslam(tmp_path, "run", "--dataset", w100, "--out", "o", "--quiet",
-                     "--rerun", "off", "--ground-truth", str(truth), at="step:1")
+    done = graphslam(tmp_path, "run", "--dataset", w100, "--backend", "isam2", "--out", "o",
+                     "--quiet", "--rerun", "off", "--ground-truth", str(truth), at="step:1")
     assert done.returncode == 130, done.stderr
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert metrics["poses"] == 1 and metrics["ate_rmse_m"] is None
+
+
+def test_auto_cut_while_trying_isam2_keeps_batchs_whole_estimate(tmp_path):
+    """--backend auto stopped in its iSAM2 attempt (batch's result had failed the
+    chi-square check): batch's estimate of every pose is kept and says so."""
+    from tests.test_posegraph_route import _manhattan
+
+    path = _manhattan(tmp_path)
+    done = graphslam(tmp_path, "run", "--dataset", str(path), "--out", "o", "--quiet",
+                     "--rerun", "off", at="step:3")
+    assert done.returncode == 130, done.stderr
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] and metrics["poses"] == 300
+    assert metrics["route"]["kept"] == "batch"
+    assert any("batch's estimate kept" in r for r in metrics["numerical_recoveries"])
 
 
 def test_signal_before_the_run_is_one_line(tmp_path):

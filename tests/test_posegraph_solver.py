@@ -24,7 +24,7 @@ OPTIMUM_REL = 1e-6
 LOCAL_MINIMUM_RATIO = 2.0
 
 #: every pose-graph back end of the registry, with what it must meet
-CONTRACT = {"isam2": EXACT_TOL, "batch": EXACT_TOL}
+CONTRACT = {"auto": EXACT_TOL, "isam2": EXACT_TOL, "batch": EXACT_TOL}
 
 
 def test_every_pose_graph_backend_runs_the_contract():

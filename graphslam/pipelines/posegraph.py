@@ -58,6 +58,7 @@ class PoseGraphRunMetrics:
     numerical_recoveries: list[str] | None = None
     information_fixed: dict | None = None
     closure_test: dict | None = None
+    route: dict | None = None
     self_edges_ignored: dict | None = None
     final_cost_kept: float | None = None
     ate_rmse_m: float | None = None
@@ -67,7 +68,7 @@ class PoseGraphRunMetrics:
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
-        "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept",
+        "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept", "route",
         "self_edges_ignored"})
 
     def to_dict(self) -> dict:
@@ -160,6 +161,7 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         self_edges_ignored=({"edges": len(graph.self_edge_lines),
                              "lines": graph.self_edge_lines[:10].tolist()}
                             if len(graph.self_edge_lines) else None),
+        route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
         ate_rmse_m=None if not scored else ate_rmse(graph, result.params, truth),
         odometry_ate_rmse_m=None if not scored else ate_rmse(

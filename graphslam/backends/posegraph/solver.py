@@ -32,7 +32,7 @@ from slamcore.errors import GraphSlamError
 from slamcore.posegraph import PoseGraph
 
 #: Back ends of ``graphslam run`` on pose-graph files.
-SOLVERS = ("isam2", "batch")
+SOLVERS = ("auto", "isam2", "batch")
 
 
 @dataclass
@@ -62,6 +62,7 @@ class SolveResult:
             (:func:`.robust.noise_scale`; 1: the stated noise held).
         final_cost_kept: the cost over the edges kept (rejected closures out).
         robust_mode: ``robust_closures`` when closures were tested, else None.
+        route: for ``auto``, which route was kept and why (:mod:`.route`).
     """
 
     solver: str
@@ -83,6 +84,7 @@ class SolveResult:
     closure_rounds: int = 0
     final_cost_kept: float | None = None
     noise_scale: float = 1.0
+    route: dict | None = None
     robust_mode: str | None = None
 
 
@@ -92,7 +94,8 @@ StopCheck = Callable[[int], bool]
 
 def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
           solver: str = "isam2", should_stop: StopCheck | None = None) -> SolveResult:
-    """Optimise ``graph`` with ``solver`` (``isam2`` or ``batch``).
+    """Optimise ``graph`` with ``solver`` (``isam2``, ``batch``, or ``auto``:
+    batch, and iSAM2 too where batch's result fails a check, see :mod:`.route`).
 
     ``should_stop``: a stop between iSAM2 updates returns the estimate of the
     poses added so far (:attr:`SolveResult.cut`), with no polish. The batch LM
@@ -100,7 +103,12 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
     """
     config = config or PoseGraphConfig()
     if solver not in SOLVERS:
-        raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: isam2, batch)")
+        raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: "
+                             f"{', '.join(SOLVERS)})")
+    if solver == "auto":
+        from graphslam.backends.posegraph.route import solve_auto
+
+        return solve_auto(graph, config, should_stop)
     t0 = time.perf_counter()
     edges = fx.edge_graph(graph)
     robust = rb.is_robust(config.robust_closures, graph)

@@ -19,8 +19,11 @@ datasets:
   w10000          w10000 Manhattan pose graph (gtsam wheel)
   PATH            a pose graph, g2o or TORO, 2-D or 3-D (VERTEX_SE2/EDGE_SE2,
                   VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX2/EDGE2, VERTEX3/EDGE3);
-                  --backend isam2 (one update per pose, then LM) or batch (LM
-                  from --init); writes graph.g2o or graph.graph (input format,
+                  --backend auto (default: batch, and iSAM2 too where batch's
+                  result fails a chi-square check; the lower cost kept), isam2
+                  (one update per pose, then LM) or batch (LM from --init);
+                  loop closures tested for outliers ([posegraph]
+                  robust_closures); writes graph.g2o or graph.graph (input format,
                   vertices at the estimate) and closures.csv
   PATH            landmark SLAM from a file (isam2, ekf, fastslam1, fastslam2):
                   a 2-D TORO file with BR lines (BR pose landmark bearing range
@@ -85,9 +88,10 @@ def register(sub) -> None:
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
                        help="built-in dataset name, pose-graph file or image-sequence folder "
                             "(default: synthetic)")
-    p.add_argument("--backend", default="isam2",
+    p.add_argument("--backend", default=None,
                    choices=BACKENDS + tuple(b for b in POSEGRAPH_BACKENDS if b not in BACKENDS),
-                   help="estimator (default: isam2; batch: pose-graph files only)")
+                   help="estimator (default: auto on a pose-graph file, isam2 otherwise; "
+                        "batch and auto: pose-graph files only)")
     p.add_argument("--seed", type=int, default=None,
                        help="seed of the synthetic worlds, derived odometry, FastSLAM's "
                             "particles, the visual EKF's RANSAC and, with --odometry none, "
@@ -184,6 +188,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
+    if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
+        whole_file = registry.is_pose_graph_run(args.dataset, "auto") and not args.no_polish
+        args.backend = "auto" if whole_file else "isam2"
     if registry.is_pose_graph_run(args.dataset, args.backend):
         from graphslam.cli.run import posegraph
 

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         overrides["init"] = args.init
     if args.no_polish:
         if args.backend != "isam2":
-            raise ConfigError("--no-polish applies to the isam2 back end only")
+            raise ConfigError("--no-polish applies to the isam2 back end only (--backend isam2)")
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
     graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise,
@@ -116,16 +116,31 @@ def format_summary(metrics) -> str:
     if metrics.interrupted:
         rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
     if not metrics.converged:
-        tries = ("--backend isam2, another --init" if metrics.backend == "batch"
+        tries = ("--backend isam2, another --init" if metrics.backend in ("batch", "auto")
                  else "--no-polish")
         rows.append(("NOT CONVERGED", f"LM stopped at its cap of {metrics.iterations} "
                                       "iterations; the cost may be far from the optimum "
                                       f"(try {tries}, or [posegraph] max_iterations)"))
+    rows += route_rows(metrics.route)
     if metrics.shonan_min_eigenvalue is not None:
         rows.append(("Shonan min eigenvalue", fmt(metrics.shonan_min_eigenvalue, ".3g")))
     for note in metrics.numerical_recoveries or ():
         rows.append(("numerical recovery", note))
     return summary_table(rows)
+
+
+def route_rows(route: dict | None) -> list[tuple[str, str]]:
+    """``--backend auto``: the route kept, why, and a local minimum if one was met."""
+    if not route:
+        return []
+    rows = [("route", f"{route['kept']} kept ({route['reason']})")]
+    for name in ("batch", "isam2"):
+        if name in route and name != route["kept"]:
+            rows.append((f"  {name}", f"cost {route[name]['cost']:.10g}, "
+                                      f"{route[name]['wall_s']:.2f} s"))
+    if "local_minimum" in route:
+        rows.append(("local minimum", route["local_minimum"]))
+    return rows
 
 
 def closure_row(metrics) -> str:
@@ -155,8 +170,9 @@ def information_rows(fixed: dict | None) -> list[tuple[str, str]]:
 
 def check_backend(args: argparse.Namespace) -> None:
     """``--backend batch`` and ``--init`` exist for pose-graph files only."""
-    if args.backend == "batch":
-        raise GraphSlamError("--backend batch solves pose-graph files only (g2o or TORO)")
+    if args.backend in ("batch", "auto"):
+        raise GraphSlamError(f"--backend {args.backend} solves pose-graph files only (g2o or "
+                             "TORO)")
     if args.init is not None:
         from graphslam.sources.posegraph_files import has_landmark_lines
 
