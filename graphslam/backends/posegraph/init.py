@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
+from graphslam.backends import deep_stack
 from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from slamcore.errors import GraphSlamError
@@ -124,9 +125,9 @@ def _relaxation(graph: PoseGraph, method: str, sigma: float) -> Start:
     pose_graph.add(fx.prior(by_rank, anchor, fx.pose(graph.vertices[anchor], graph.rotation),
                             sigma))
     if method == "lago":
-        values = gtsam.lago.initialize(pose_graph, has_odometric_path(graph))
+        values = deep_stack.call(gtsam.lago.initialize, pose_graph, has_odometric_path(graph))
     else:
-        values = gtsam.InitializePose3.initialize(pose_graph)
+        values = deep_stack.call(gtsam.InitializePose3.initialize, pose_graph)
     return Start(method, _by_id(graph, values))
 
 
@@ -154,7 +155,8 @@ def _shonan(graph: PoseGraph) -> Start:
     else:
         shonan = gtsam.ShonanAveraging3(ranked, gtsam.ShonanAveragingParameters3(lm))
     p_min = graph.dim
-    rotations, min_eigenvalue = shonan.run(shonan.initializeRandomly(), p_min, p_min + 7)
+    rotations, min_eigenvalue = deep_stack.call(shonan.run, shonan.initializeRandomly(), p_min,
+                                                 p_min + 7)
     rot_of = rotations.atRot2 if graph.dim == 2 else rotations.atRot3
     R = np.array([np.asarray(rot_of(r).matrix()) for r in range(graph.n_poses)])
     return Start("shonan", _with_translations(graph, R, rows), float(min_eigenvalue))

@@ -41,6 +41,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
+from graphslam.backends import deep_stack
 from slamcore.posegraph import PoseGraph
 
 
@@ -123,6 +124,6 @@ def gnc(graph: PoseGraph, full: gtsam.NonlinearFactorGraph, values: gtsam.Values
         weights = np.ones(full.size())
         weights[:graph.n_edges][failing] = 0.0
         optimizer.setWeights(weights)
-    result = optimizer.optimize()
+    result = deep_stack.call(optimizer.optimize)
     weights = np.asarray(optimizer.getWeights())[:graph.n_edges]
     return result, closures & (weights < 0.5)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
+from graphslam.backends import deep_stack
 from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph import init as initialisers
@@ -295,7 +296,7 @@ def lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGrap
     for i, kind in enumerate(kinds):
         optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(config, kind))
         try:
-            result = optimizer.optimize()
+            result = deep_stack.call(optimizer.optimize)
         except RuntimeError as exc:
             if not fact.is_indeterminate(exc):
                 raise
