@@ -151,7 +151,14 @@ BAD_LINES = [
      "no vertex line"),
     ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\n" + EDGE_2D + "\nFIX 7\n", 4, "no vertex line"),
     (EDGE_2D + "\nVERTEX2 1 0 0 0\n", 2, "2-D g2o file"),
-    ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", 1, "quaternion is zero"),
+    ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", 1, "quaternion of norm 0 cannot be normalised"),
+    # issue 34: a norm that underflows (1e-300 squared) ended in a ZeroDivisionError
+    ("EDGE_SE3:QUAT 0 1 1 0 0 1e-300 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 1000 0 0 "
+     "1000 0 1000\n", 1, "quaternion of norm 0 cannot be normalised"),
+    # issue 34: a 1e300 m step ended in an indeterminate system (iSAM2) or a silent 1e300
+    ("EDGE_SE2 0 1 1e300 0 0 100 0 0 100 0 1000\n", 1, "translation beyond 1e+09 m"),
+    ("VERTEX_SE2 0 0 -2e9 0\nEDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n", 1,
+     "translation beyond 1e+09 m"),
     (EDGE_2D + "\nEQUIV 0\n", 2, "EQUIV line needs 2"),
     (EDGE_2D + "\nFIX\n", 2, "FIX line needs"),
 ]

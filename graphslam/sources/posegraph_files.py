@@ -46,8 +46,8 @@ carries no information) is refused whatever the setting.
 Checks, each one line with file and line (information matrices are checked
 after the whole file is read, the rest line by line): ids are decimal integers read as
 Python ints (never through a float), from 0 to 2**62; numbers finite;
-quaternions non-zero; information finite and positive definite (or replaced,
-above); an edge from a pose to itself is left out and counted
+quaternions of norm >= 1e-6; translations within 1e9 m; information finite and
+positive definite (or replaced, above); an edge from a pose to itself is left out and counted
 (:attr:`PoseGraph.self_edge_lines`); no vertex twice; when the file has vertex
 lines, every edge and ``FIX`` names a declared pose. Edge-only files are initialised by composing edges
 along a spanning tree that prefers the odometry chain. The graph must be
@@ -88,6 +88,15 @@ TAG_NAMES = {(fmt, dim): (tags[0], tags[1]) for fmt, dim, tags in (
     ("toro", 2, ("VERTEX2", "EDGE2")), ("toro", 3, ("VERTEX3", "EDGE3")))}
 #: TORO 2-D information order ``ixx ixy iyy ith ixt iyt`` as (row, col) of the matrix.
 TORO2_ORDER = ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))
+
+
+#: Smallest quaternion norm read: files hold unit quaternions to 6 digits, and below
+#: this the components' rounding decides the rotation (1e-300 underflowed to 0).
+QUATERNION_NORM_MIN = 1e-6
+#: Largest translation component read, metres (a million km): beyond it a number is
+#: no robot's motion, and least squares on it overflows (a 1e300 m step: the solve
+#: ended in an indeterminate system, or silently far away).
+TRANSLATION_MAX_M = 1e9
 
 
 def upper_order(side: int) -> tuple[tuple[int, int], ...]:
@@ -228,8 +237,15 @@ class _Collector:
         (self._vertex if kind == "vertex" else self._edge)(line_no, tok)
 
     def _pose(self, numbers: list[float], line_no: int) -> list[float]:
-        if self.kind[2] == "quat" and not any(numbers[3:7]):
-            raise InputError("quaternion is zero", self.path, line_no)
+        dim = self.kind[1]
+        if self.kind[2] == "quat":
+            norm = float(np.linalg.norm(numbers[3:7]))
+            if not norm >= QUATERNION_NORM_MIN:
+                raise InputError(f"quaternion of norm {norm:.3g} cannot be normalised into a "
+                                 "rotation (a unit quaternion is expected)", self.path, line_no)
+        if not np.all(np.abs(numbers[:dim]) <= TRANSLATION_MAX_M):
+            raise InputError(f"translation beyond {TRANSLATION_MAX_M:.0e} m: no robot's pose "
+                             "graph spans that (a shifted column?)", self.path, line_no)
         return numbers
 
     def _vertex(self, line_no: int, tok: list[str]) -> None:
