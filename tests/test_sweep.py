@@ -101,6 +101,11 @@ max_steps = 7
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"synthetic.sigma_r_m" = [-1.0]\n',
      5, "sigma_r_m"),
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf2"]\n', 3, "unknown back end"),
+    # issue 34: a grid of 4 x 10^7 runs spent minutes listing them before starting any
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf", "isam2"]\nseed = {from = 0, to = 99999}\n'
+     '[sweep.set]\n"ekf.association" = ["known", "unknown"]\n', 1,
+     "the grid has 400000 runs, above its cap of 10000"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nmax_runs = 0\n', 4, "max_runs"),
     ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n\n[ekf]\nassociation = "unknown"\n', 5,
      "unknown table [ekf]"),
     ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["fastslam1"]\n', 3,
@@ -257,6 +262,36 @@ def test_unreachable_cluster_is_one_line(tmp_path, capsys):
                  "--cluster", "tcp://127.0.0.1:1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot connect" in err[0]
+
+
+def test_a_cluster_that_is_no_address_is_one_line(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
+                 "--cluster", "not a url"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--cluster not a url: cannot connect" in err[0]
+
+
+def test_max_runs_raises_the_cap(tmp_path):
+    text = ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseed = {from = 0, to = 10000}\n'
+            'max_runs = 10001\n')
+    assert len(parse_sweep(_file(tmp_path, text)).runs()) == 10001
+
+
+def test_the_pool_queues_two_runs_a_worker_not_the_grid(tmp_path, monkeypatch):
+    """A stop leaves nothing queued behind it: at most 2 x workers runs submitted."""
+    import graphslam.pipelines.sweep_exec as sweep_exec
+
+    started = []
+    monkeypatch.setattr(sweep_exec, "execute_run",
+                        lambda run, root: started.append(run) or {"status": "ok"})
+    runs = parse_sweep(_file(tmp_path, '[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n'
+                                       'seed = {from = 0, to = 99}\n')).runs()
+    results = PoolExecutor(2).map_unordered(runs, tmp_path)
+    next(results)
+    assert len(started) <= 4
+    results.close()
+    assert len(started) <= 4
 
 
 @pytest.mark.slow

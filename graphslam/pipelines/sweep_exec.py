@@ -160,16 +160,26 @@ class PoolExecutor:
         self.workers = workers
 
     def map_unordered(self, runs: list[RunSpec], root: Path):
-        """Yield ``(run, row)`` as runs finish; on KeyboardInterrupt stop everything."""
+        """Yield ``(run, row)`` as runs finish; on KeyboardInterrupt stop everything.
+
+        At most two runs a worker are queued at a time: submitting the whole grid
+        first took minutes on a large one, and a signal in that loop left the
+        pool's threads starting runs with nothing to stop them (an orphan)."""
         pool = ThreadPoolExecutor(max_workers=self.workers)
-        futures = {pool.submit(execute_run, r, str(root)): r for r in runs}
+        queue, futures = iter(runs), {}
         try:
-            pending = set(futures)
-            while pending:
+            while True:
+                while len(futures) < 2 * self.workers:
+                    run = next(queue, None)
+                    if run is None:
+                        break
+                    futures[pool.submit(execute_run, run, str(root))] = run
+                if not futures:
+                    break
                 # short timeout: the main thread stays responsive to Ctrl-C
-                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                done, _ = wait(set(futures), timeout=0.2, return_when=FIRST_COMPLETED)
                 for f in done:
-                    yield futures[f], f.result()
+                    yield futures.pop(f), f.result()
         finally:
             for f in futures:
                 f.cancel()
@@ -200,7 +210,8 @@ class DaskExecutor:
         else:
             try:
                 self.client = Client(address, timeout="10s")
-            except (OSError, TimeoutError) as e:
+            except (OSError, TimeoutError, ValueError, TypeError) as e:
+                # ValueError/TypeError: not an address at all ('not a url')
                 raise ConfigError(f"--cluster {address}: cannot connect ({e})") from None
         self.client.run(allow_runs)  # a Ctrl-C'd sweep before this one left them stopped
 

@@ -7,6 +7,7 @@ dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph file
 backend = ["isam2", "ekf"]
 seed = {from = 0, to = 49}              # or a list; absent: runs get no --seed
 max_steps = 200                         # optional: --max-steps of every run
+max_runs = 20000                        # optional: the grid's cap (default 10 000)
 nees = true                             # optional: runs score their pose NEES (default:
                                         # true when every dataset is the synthetic world,
                                         # the one built-in 2-D dataset with truth and
@@ -41,7 +42,12 @@ from pathlib import Path
 from slamcore.config import ConfigFile, from_dict
 from slamcore.errors import ConfigError
 
-SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set")
+SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set", "max_runs")
+#: Runs a grid may hold unless ``[sweep] max_runs`` says more: a sweep of 10 000 runs
+#: of seconds each already takes hours on a workstation, and a product of lists
+#: mistyped by an order of magnitude (4 x 10^7 runs) spent minutes listing its runs
+#: before starting any (issue 34).
+MAX_RUNS = 10_000
 #: Seeds a ``{from, to}`` range may hold (a typo like to = 1e9 would never end).
 MAX_SEEDS = 100_000
 
@@ -228,6 +234,21 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
     return tuple(keys), tuple(values)
 
 
+def _check_size(sweep: dict, cfg: ConfigFile, outer: int, values: tuple[tuple, ...]) -> None:
+    """ConfigError when the grid (counted, not listed) exceeds its cap."""
+    cap = sweep.get("max_runs", MAX_RUNS)
+    if not isinstance(cap, int) or isinstance(cap, bool) or cap < 1:
+        raise ConfigError(f"[sweep] max_runs must be a whole number >= 1, got {cap!r}",
+                          cfg.path, cfg.line_of("sweep", "max_runs"))
+    size = outer
+    for v in values:
+        size *= len(v)
+    if size > cap:
+        raise ConfigError(f"[sweep] the grid has {size} runs, above its cap of {cap}: shrink "
+                          f"the lists, or set [sweep] max_runs = {size} if you mean it",
+                          cfg.path, cfg.line_of("sweep"))
+
+
 def parse_sweep(path: str | Path) -> SweepSpec:
     """Read and check a sweep file (module doc); ConfigError with file and line."""
     from graphslam.registry import BACKENDS, VISUAL_BACKENDS, is_visual_dataset, read_config
@@ -274,5 +295,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     for d, b in itertools.product(datasets, backends):
         grid_sections.update(run_sections(d, b))
     keys, values = _check_set(sweep, cfg, grid_sections)
-    return SweepSpec(Path(path), tuple(datasets), tuple(backends), _seeds(sweep, cfg), max_steps,
+    seeds = _seeds(sweep, cfg)
+    _check_size(sweep, cfg, len(datasets) * len(backends) * len(seeds), values)
+    return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps,
                      nees, base, keys, values)
