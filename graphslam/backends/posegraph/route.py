@@ -56,10 +56,9 @@ def comparable_cost(graph: PoseGraph, result, threshold_error: float | None) -> 
     return errors.truncated_cost(threshold_error)
 
 
-def solve_auto(graph: PoseGraph, config: PoseGraphConfig, should_stop=None):
-    """Batch, then iSAM2 where batch's result is not consistent; the better kept."""
-    from graphslam.backends.posegraph.solver import solve
-
+def solve_auto(graph: PoseGraph, config: PoseGraphConfig, solve, should_stop=None):
+    """Batch, then iSAM2 where batch's result is not consistent; the better kept.
+    ``solve``: :func:`.solver.solve` (passed in: the solver dispatches here)."""
     t0 = time.perf_counter()
     batch = solve(graph, config, "batch")
     ok, why = consistent(graph, batch, config.closure_test_alpha)

@@ -27,6 +27,7 @@ from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph import init as initialisers
 from graphslam.backends.posegraph import robust as rb
+from graphslam.backends.posegraph import route
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.schedule import schedule
 from slamcore.errors import GraphSlamError
@@ -107,9 +108,7 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
         raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: "
                              f"{', '.join(SOLVERS)})")
     if solver == "auto":
-        from graphslam.backends.posegraph.route import solve_auto
-
-        return solve_auto(graph, config, should_stop)
+        return route.solve_auto(graph, config, solve, should_stop)
     t0 = time.perf_counter()
     edges = fx.edge_graph(graph)
     robust = rb.is_robust(config.robust_closures, graph)
