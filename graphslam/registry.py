@@ -7,6 +7,7 @@ from pathlib import Path
 from slamcore.planar.backend import Backend
 from slamcore.config import ConfigFile, load_section
 from slamcore.errors import ConfigError, InputError
+from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset
 
 #: A parsed config file, a path to one, or None (defaults only).
@@ -60,6 +61,7 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
     if not path.exists():
         raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
                          path)
+    check_input_path(path, "--dataset")
     from graphslam.sources.planar.posegraph import read_pose_graph
     from graphslam.sources.posegraph_files import TAGS, first_tag
 
@@ -103,6 +105,8 @@ def load_pose_graph(spec: str | Path, toro_noise: str = "information",
     (``information_fix``: what is done with information that is not positive definite)."""
     from graphslam.sources.posegraph_files import read_pose_graph_file
 
+    if Path(spec).exists():  # a missing file: the reader's own message
+        check_input_path(spec, "pose-graph file")
     return read_pose_graph_file(spec, toro_noise, information_fix)
 
 

@@ -84,7 +84,7 @@ def recent_window(i: int, mode: str, config, overlaps: Sequence[float],
     return min(config.exclude_recent, i)
 
 
-_NUMBER = re.compile(r"^\d+\.\d+$")
+_NUMBER = re.compile(r"[0-9]+\.[0-9]+\Z")
 
 
 def timestamps_from_names(paths: Sequence[Path]) -> np.ndarray | None:

@@ -59,7 +59,7 @@ from loopclosure.vocabulary_file import (flat_arrays, read_kind, read_npz, resto
 from loopclosure.vocabulary_training import (as_training_set, centres_from_kmeans, check_int,
                                              idf_from_images, kmeans_features,
                                              n_distinct_at_least, one_thread)
-from slamcore.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError, quote
 
 
 def _kmeans():
@@ -79,7 +79,7 @@ def load_vocabulary(path) -> "FlatVocabulary | VocabularyTree":
     found = {"FlatVocabulary": (FlatVocabulary, restore_flat),
              "VocabularyTree": (VocabularyTree, restore_tree)}.get(data["kind"])
     if found is None:
-        raise InputError(f"unknown vocabulary kind {data['kind']!r}", path)
+        raise InputError(f"unknown vocabulary kind {quote(data['kind'])}", path)
     cls, restore = found
     return restore(cls, data, path)
 

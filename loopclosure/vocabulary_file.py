@@ -23,6 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from slamcore.errors import InputError
+from slamcore.npz import check_npz_sizes
 
 FORMAT_VERSION = 1
 
@@ -41,6 +42,7 @@ def read_npz(path) -> dict:
     if not path.is_file():
         raise InputError("vocabulary file not found", path)
     try:
+        check_npz_sizes(path, path)  # before np.load allocates what a header declares
         with np.load(path, allow_pickle=False) as z:
             data = {name: z[name] for name in z.files}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, TypeError,

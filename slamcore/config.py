@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, quote
+from slamcore.input_files import check_input_path
 
 T = TypeVar("T")
 
@@ -79,27 +80,27 @@ def _check_value(value: Any, hint: Any, what: str) -> Any:
         return _check_value(value, next(a for a in args if a is not type(None)), what)
     if origin is typing.Literal:
         if not isinstance(value, str) and not isinstance(value, type(args[0])):
-            raise ConfigError(f"{what} must be one of {list(args)}, got {value!r}")
+            raise ConfigError(f"{what} must be one of {list(args)}, got {quote(value)}")
         if value not in args:
-            raise ConfigError(f"{what} must be one of {list(args)}, got {value!r}")
+            raise ConfigError(f"{what} must be one of {list(args)}, got {quote(value)}")
         return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{what}: expected a list, got {value!r}")
+            raise ConfigError(f"{what}: expected a list, got {quote(value)}")
         inner = args[0] if args else float
         return tuple(_check_value(v, inner, what) for v in value)
     if _is_config(hint):
         if not isinstance(value, hint):
-            raise ConfigError(f"{what}: expected a [{section_name(hint)}] table, got {value!r}")
+            raise ConfigError(f"{what}: expected a [{section_name(hint)}] table, got {quote(value)}")
         return value
     if hint is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{what}: expected true/false, got {value!r}")
+            raise ConfigError(f"{what}: expected true/false, got {quote(value)}")
         return value
     if hint in (int, float):
         return _check_number(value, hint, what)
     if hint is str and not isinstance(value, str):
-        raise ConfigError(f"{what}: expected a string, got {value!r}")
+        raise ConfigError(f"{what}: expected a string, got {quote(value)}")
     return value
 
 
@@ -108,17 +109,17 @@ def _check_number(value: Any, hint: type, what: str) -> int | float:
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
                                                                        np.floating)):
-        raise ConfigError(f"{what}: expected a number, got {value!r}")
+        raise ConfigError(f"{what}: expected a number, got {quote(value)}")
     if hint is int:
         if isinstance(value, (float, np.floating)) and not (math.isfinite(value)
                                                             and float(value).is_integer()):
-            raise ConfigError(f"{what}: expected an integer, got {value!r}")
+            raise ConfigError(f"{what}: expected an integer, got {quote(value)}")
         if abs(value) > INT_LIMIT:
-            raise ConfigError(f"{what}: {value!r} is beyond what this machine can hold "
+            raise ConfigError(f"{what}: {quote(value)} is beyond what this machine can hold "
                               f"(|value| <= 2**62)")
         return int(value)
     if not math.isfinite(float(value)):
-        raise ConfigError(f"{what}: expected a finite number, got {value!r}")
+        raise ConfigError(f"{what}: expected a finite number, got {quote(value)}")
     return float(value)
 
 
@@ -133,7 +134,7 @@ def _check_range(value: Any, meta: typing.Mapping, what: str) -> None:
             parts = [f">= {lo}" if lo is not None else "", f"> {gt}" if gt is not None else "",
                      f"<= {hi}" if hi is not None else "", f"< {lt}" if lt is not None else ""]
             raise ConfigError(f"{what} must be {' and '.join(p for p in parts if p)}, "
-                              f"got {value!r}")
+                              f"got {quote(value)}")
 
 
 def validate(config: Any) -> None:
@@ -189,6 +190,36 @@ def _yaml_lines(text: str) -> dict[tuple[str, ...], int]:
     return lines
 
 
+def strict_yaml_loader():
+    """A ``yaml.SafeLoader`` that refuses anchors, aliases and duplicate keys.
+
+    Aliases let ~800 bytes expand to billions of nodes (a "billion laughs"
+    bomb: minutes at full CPU), and a config never needs them. A duplicate key
+    would silently let the last value win, where TOML refuses it.
+    """
+    import yaml
+
+    class StrictLoader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            event = self.peek_event()
+            if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
+                raise yaml.MarkedYAMLError(problem="anchors and aliases (& and *) are not "
+                                           "allowed in a config", problem_mark=event.start_mark)
+            return super().compose_node(parent, index)
+
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key, _ in node.value:
+                if isinstance(key, yaml.ScalarNode):
+                    if (key.tag, key.value) in seen:
+                        raise yaml.MarkedYAMLError(problem=f"duplicate key {quote(key.value)}",
+                                                   problem_mark=key.start_mark)
+                    seen.add((key.tag, key.value))
+            return super().construct_mapping(node, deep)
+
+    return StrictLoader
+
+
 def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int]]:
     suffix = path.suffix.lower()
     try:
@@ -201,7 +232,7 @@ def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int]]:
         if suffix in (".yaml", ".yml"):
             import yaml  # imported here: only YAML users pay for it
 
-            return yaml.safe_load(text) or {}, _yaml_lines(text)
+            return yaml.load(text, Loader=strict_yaml_loader()) or {}, _yaml_lines(text)
     except tomllib.TOMLDecodeError as e:
         m = re.search(r"at line (\d+)", str(e))
         raise ConfigError(str(e), path, int(m.group(1)) if m else None) from None
@@ -230,14 +261,13 @@ class ConfigFile:
         if path is None:
             return cls()
         path = Path(path)
-        if not path.is_file():
-            raise ConfigError("config file not found", path)
+        check_input_path(path, "config file", error=ConfigError)
         data, lines = _parse(path)
         if not isinstance(data, dict):
             raise ConfigError("top level must be a table of sections", path, 1)
         for name, value in data.items():
             if not isinstance(value, dict):
-                raise ConfigError(f"[{name}] must be a table of settings, got {value!r}", path,
+                raise ConfigError(f"[{name}] must be a table of settings, got {quote(value)}", path,
                                   lines.get((str(name),)))
         return cls(path, data, lines)
 

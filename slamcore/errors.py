@@ -41,3 +41,27 @@ class MeasurementError(GraphSlamError):
 
 class UnsupportedError(GraphSlamError):
     """A capability a component does not have (e.g. a filter offered a loop closure)."""
+
+
+#: Characters of a token that an error message quotes: enough to recognise it,
+#: few enough that a 1 GB token (a file of NUL bytes) cannot flood stderr.
+QUOTE_CHARS = 40
+
+
+def quote(value: object) -> str:
+    """``repr(value)`` for an error message, shortened past :data:`QUOTE_CHARS`
+    characters to its start, an ellipsis and its length.
+
+    A string is cut before ``repr`` so that a huge token is never copied whole.
+    """
+    if isinstance(value, str):
+        if len(value) <= QUOTE_CHARS:
+            return repr(value)
+        return f"{value[:QUOTE_CHARS]!r}... ({len(value)} characters)"
+    if isinstance(value, int) and value.bit_length() > 4 * QUOTE_CHARS:
+        # repr of an int over 4300 digits raises ValueError: describe it instead
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    if len(text) <= QUOTE_CHARS:
+        return text
+    return f"{text[:QUOTE_CHARS]}... ({len(text)} characters)"

@@ -17,6 +17,11 @@ from pathlib import Path
 
 from slamcore.errors import ConfigError
 
+#: Longest file or folder name most file systems take (ext4, XFS, Btrfs, tmpfs, APFS), bytes.
+NAME_MAX_BYTES = 255
+#: Longest suffix a temporary file keeps (".npz", ".png"); a longer one is not a format.
+MAX_SUFFIX_BYTES = 16
+
 
 @contextmanager
 def replacing(path: str | Path) -> Iterator[Path]:
@@ -25,18 +30,55 @@ def replacing(path: str | Path) -> Iterator[Path]:
 
     For writers that want a file name (``np.savez``, matplotlib)."""
     path = Path(path)
-    # hidden, same folder (same file system, so the rename is atomic), same
-    # suffix (matplotlib and numpy choose the format from it)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.part-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = temporary_beside(path)
     try:
         yield tmp_path
-        # mkstemp creates the file 0600; outputs get the usual umask-based mode
-        os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
+        move_into_place(tmp_path, path)
     except BaseException:
         tmp_path.unlink(missing_ok=True)
+        raise
+
+
+def temporary_beside(path: Path) -> Path:
+    """A new empty hidden file in ``path``'s folder (same file system, so the rename
+    is atomic) with ``path``'s suffix (matplotlib and numpy choose the format from
+    it). Its name is short whatever ``path``'s length: a 250-byte output name plus a
+    suffix would pass the 255-byte limit only after the work is done."""
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= MAX_SUFFIX_BYTES else ""
+    fd, tmp = tempfile.mkstemp(prefix=".gs-", suffix=".part" + suffix, dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def move_into_place(tmp: Path, path: Path) -> None:
+    """Move the finished temporary ``tmp`` (:func:`temporary_beside`) over ``path``.
+
+    mkstemp creates the file 0600; outputs get the usual umask-based mode."""
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
+
+
+@contextmanager
+def replacing_all(paths: list[Path]) -> Iterator[list[Path]]:
+    """Temporary paths beside each of ``paths``, moved over them in order when the
+    block ends without an exception, all deleted otherwise.
+
+    Nothing is replaced until every file is written, so a full disk or a signal
+    while writing leaves the old set whole. The last path marks the set complete
+    (``map.json``): it is removed before the first move, so a cut between the
+    moves leaves a set that says it is incomplete, never old and new mixed."""
+    paths = [Path(p) for p in paths]
+    tmps: list[Path] = []
+    try:
+        for p in paths:
+            tmps.append(temporary_beside(p))
+        yield list(tmps)
+        paths[-1].unlink(missing_ok=True)
+        for tmp, p in zip(tmps, paths):
+            move_into_place(tmp, p)
+    except BaseException:
+        for tmp in tmps:
+            tmp.unlink(missing_ok=True)
         raise
 
 
@@ -75,6 +117,7 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
     Creates nothing (a refused run leaves no trace); raises ConfigError.
     """
     path = Path(path)
+    check_name_lengths(path, flag)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{flag} {path} is an existing file, not a folder")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())
@@ -91,6 +134,7 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     Creates nothing; raises ConfigError.
     """
     path = Path(path)
+    check_name_lengths(path, flag)
     if path.is_dir():
         raise ConfigError(f"{flag} {path} is a folder; give a file name")
     check_output_dir(path.parent if str(path.parent) else Path("."), flag)
@@ -106,3 +150,43 @@ def _check_writable(folder: Path, flag: str, shown: Path) -> None:
         raise ConfigError(f"{flag} {shown}: cannot write in {folder} ({e.strerror})") from None
     os.close(fd)
     os.unlink(probe)
+
+
+def check_name_lengths(path: str | Path, flag: str) -> None:
+    """Refuse, before any work, a path with a name over :data:`NAME_MAX_BYTES`
+    (the system's answer, ENAMETOOLONG, would come as a traceback, or after the work)."""
+    for part in Path(path).parts:
+        size = len(os.fsencode(part))
+        if size > NAME_MAX_BYTES:
+            raise ConfigError(f"{flag}: the name {part[:24]}... is {size} bytes; file "
+                              f"systems take at most {NAME_MAX_BYTES}")
+
+
+def check_distinct_outputs(outputs: dict[str, str | Path | None]) -> None:
+    """Refuse two options naming the same output file (``{flag: path}``; None skipped):
+    the second write would replace the first."""
+    seen: dict[Path, str] = {}
+    for flag, path in outputs.items():
+        if path is None:
+            continue
+        key = Path(path).resolve()
+        if key in seen:
+            raise ConfigError(f"{seen[key]} and {flag} name the same file ({path}); "
+                              "give each its own")
+        seen[key] = flag
+
+
+def inside_folder(folder: str | Path, name: str | Path) -> Path | None:
+    """``folder / name`` when it stays inside ``folder``, None when it leaves it
+    (``../x``, an absolute path): a data set or a map names only its own files.
+
+    Checked on the names (``..`` folded), not by resolving symbolic links: a data set
+    may keep its images behind a link to another disk, and whoever can place a link
+    in the folder could as well place the file."""
+    folder = Path(folder)
+    path = folder / name
+    base = os.path.normpath(os.path.abspath(folder))
+    full = os.path.normpath(os.path.abspath(path))
+    if Path(full).is_relative_to(base) and full != base:
+        return path
+    return None

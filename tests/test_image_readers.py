@@ -269,3 +269,29 @@ def test_malformed_yaml_names_file(tmp_path):
     bad.write_text("fx: 1\nK: [1, 2\nfy: 3\n")
     with pytest.raises(InputError, match=r"camera.yaml.*malformed YAML"):
         read_intrinsics_file(bad)
+
+
+# ------------------------------------------------------------- files outside the folder
+
+@pytest.mark.parametrize("name", ["../../outside.png", "ABSOLUTE"])
+def test_tum_list_naming_a_file_outside_the_folder_is_refused(tmp_path, name):
+    """Issue 34: ``rgb.txt`` naming ``../../x.png`` or an absolute path made the run
+    read a file outside the sequence folder."""
+    folder = _fake_tum(tmp_path / "a" / "b")
+    outside = tmp_path / "outside.png"
+    _png(outside, 99)
+    name = str(outside) if name == "ABSOLUTE" else name
+    rgb = folder / "rgb.txt"
+    rgb.write_text(rgb.read_text() + f"100.4 {name}\n")
+    with pytest.raises(InputError, match="outside the sequence folder") as err:
+        read_tum_rgbd(folder, intrinsics=(500, 501, 320, 240))
+    assert "rgb.txt" in str(err.value)
+
+
+def test_euroc_list_naming_a_file_outside_the_folder_is_refused(tmp_path):
+    folder = _fake_euroc(tmp_path)
+    _png(tmp_path / "outside.png", 99)
+    csv = folder / "mav0" / "cam0" / "data.csv"
+    csv.write_text(csv.read_text() + "1150000000,../../../../outside.png\n")
+    with pytest.raises(InputError, match="outside the sequence folder"):
+        read_image_sequence(folder)

@@ -3,6 +3,7 @@ Rerun sink checks (a viewer that cannot be used becomes a saved recording)."""
 
 from __future__ import annotations
 
+import errno
 import sys
 from pathlib import Path
 
@@ -84,13 +85,16 @@ def rerun_sink(mode: str, url: str | None, file_name: str) -> str:
 def open_recorder(open_fn, mode: str, path: Path, url: str | None):
     """``(recorder, mode used)``: ``open_fn(mode, path, url)``, falling back to
     saving ``path`` when the viewer fails to start after all."""
+    from graphslam.pipelines.common import signal_hook
     from graphslam.visualisation.recording import ViewerUnavailable
 
     try:
-        return open_fn(mode, path, url), mode
+        opened = open_fn(mode, path, url), mode
     except (ViewerUnavailable, GraphSlamError) as e:
         warn(f"{e}; saving {path.name} instead")
-        return open_fn("save", path, None), "save"
+        opened = open_fn("save", path, None), "save"
+    signal_hook("recorder")
+    return opened
 
 
 def close_recorder(recorder) -> bool:
@@ -106,3 +110,40 @@ def close_recorder(recorder) -> bool:
         warn(str(e))
         return False
     return True
+
+
+#: Write errors that are the disk's, not ours: one line, no traceback.
+_DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+#: Positional arguments holding paths, as ``--help`` names them (by command, dest).
+_POSITIONAL_PATHS = {("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
+                     ("convert", "input"): "IN", ("convert", "output"): "OUT",
+                     ("loops", "images_dir"): "IMAGES_DIR", ("vocab", "images"): "IMAGES",
+                     ("sweep", "sweep_file"): "SWEEP.toml"}
+#: Options given as text that may be a path (a data set name or its folder).
+_TEXT_PATHS = ("dataset", "images")
+
+
+def os_error_line(e: OSError) -> str | None:
+    """The one line for an OSError the user can act on (a full disk, a name too long),
+    or None for any other (a bug: the traceback is wanted)."""
+    where = e.filename if e.filename is not None else "an output file"
+    if e.errno in _DISK_FULL:
+        return f"no space left on device writing {where}: {e.strerror}"
+    if e.errno == errno.ENAMETOOLONG:
+        return f"{where}: a file or folder name is too long ({e.strerror})"
+    return None
+
+
+def check_path_arguments(args) -> None:
+    """Refuse, before any work, a path argument with a name over the file-system limit,
+    naming the option (the system's ENAMETOOLONG names neither, and may come after
+    minutes of work)."""
+    from slamcore.files import check_name_lengths
+
+    command = getattr(args, "command", None)
+    for dest, value in vars(args).items():
+        values = value if isinstance(value, list) else [value]
+        for v in values:
+            if isinstance(v, Path) or (dest in _TEXT_PATHS and isinstance(v, str)):
+                flag = _POSITIONAL_PATHS.get((command, dest), "--" + dest.replace("_", "-"))
+                check_name_lengths(v, flag)

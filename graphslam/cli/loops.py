@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from slamcore.errors import ConfigError, InputError
-from slamcore.files import check_output_file
+from slamcore.files import check_distinct_outputs, check_output_file
 
 EPILOG = """\
 output:
@@ -89,6 +89,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     check_output_file(args.out)  # refused now, not after the detection
     if args.log is not None:
         check_output_file(args.log, "--log")
+    check_distinct_outputs({"--out": args.out, "--log": args.log})
     paths, times, truth = _images(args)
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)

@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK
+from graphslam.cli.common import (
+    EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line,
+)
 from slamcore.errors import GraphSlamError
 
 
@@ -38,6 +40,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Longest error line printed: a full path (PATH_MAX 4096) and a sentence fit;
+#: a message that quotes a huge token whole (a bug) cannot flood stderr.
+MAX_ERROR_CHARS = 8000
+
+
+def one_line(message: str) -> str:
+    """``message`` on one line and at most :data:`MAX_ERROR_CHARS` characters."""
+    message = " ".join(message.splitlines())
+    if len(message) > MAX_ERROR_CHARS:
+        message = f"{message[:MAX_ERROR_CHARS]}... ({len(message)} characters)"
+    return message
+
+
 def main(argv: list[str] | None = None) -> int:
     from graphslam.pipelines.common import signal_hook, stop_guard
 
@@ -47,10 +62,18 @@ def main(argv: list[str] | None = None) -> int:
         try:
             parser = build_parser()
             args = parser.parse_args(argv)
+            check_path_arguments(args)
             signal_hook("start")
             status = args.func(args)
         except GraphSlamError as e:
-            print(f"graphslam: error: {e}", file=sys.stderr)
+            print(f"graphslam: error: {one_line(str(e))}", file=sys.stderr)
+            return EXIT_ERROR
+        except OSError as e:
+            # a full disk or an over-long name met while writing: the user's to fix
+            line = os_error_line(e)
+            if line is None:
+                raise
+            print(f"graphslam: error: {one_line(line)}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
             print(f"graphslam: interrupted ({guard.signal_name})", file=sys.stderr)

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
+from slamcore.input_files import check_input_path
 
 __all__ = ["read_truth", "score", "pr_curve", "PrPoint"]
 
@@ -57,7 +58,7 @@ def _csv_truth(path: Path, names: dict[str, int]) -> set[tuple[int, int]]:
             q, m = (Path(x.strip()).name for x in row[:2])
             for name in (q, m):
                 if name not in names:
-                    raise InputError(f"{name!r} is not an image of the folder", path, line)
+                    raise InputError(f"{quote(name)} is not an image of the folder", path, line)
             if names[q] != names[m]:
                 pairs.add((max(names[q], names[m]), min(names[q], names[m])))
     return pairs
@@ -80,11 +81,15 @@ def _image_truth(path: Path, n: int) -> set[tuple[int, int]]:
 def read_truth(path: str | Path, image_paths: list[Path]) -> set[tuple[int, int]]:
     """True same-place pairs as ``(later index, earlier index)`` (formats in the module docstring)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("truth file not found", path)
+    check_input_path(path, "truth file")
     names = {Path(p).name: i for i, p in enumerate(image_paths)}
     if path.suffix.lower() in (".csv", ".txt"):
-        return _csv_truth(path, names)
+        try:
+            return _csv_truth(path, names)
+        except UnicodeDecodeError as e:
+            raise InputError(f"not a UTF-8 text file (byte {e.start}: {e.reason})", path) from None
+        except (csv.Error, OSError) as e:  # a field over csv's limit, an I/O error
+            raise InputError(f"cannot read the truth CSV: {e}", path) from None
     return _image_truth(path, len(image_paths))
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -47,6 +48,8 @@ import numpy as np
 from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS, PlanarMap
 from graphslam.maps.spatial_map import ARRAYS, SpatialMap
 from slamcore.errors import InputError
+from slamcore.files import inside_folder, replacing_all
+from slamcore.npz import check_npz_sizes
 
 FORMAT = "graphslam-map"
 FORMAT_VERSION = 1
@@ -63,48 +66,63 @@ _TABLES = {SPATIAL: ("camera", "counts", "arrays", "vocabulary"), PLANAR: ("coun
 
 
 def save_map(smap: SpatialMap, folder) -> dict[str, Path]:
-    """Write ``smap`` into ``folder`` (created); returns the three paths."""
+    """Write ``smap`` into ``folder`` (created); returns the three paths. The files
+    replace an earlier map's only once all are written (:func:`replacing_all`)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     smap.check(folder)
-    paths = {"json": folder / MAP_JSON, "arrays": folder / MAP_NPZ, "vocabulary": folder / VOCAB_NPZ}
-    paths["json"].unlink(missing_ok=True)  # a half-written folder must not look complete
-    vocab = smap.vocabulary_bytes
-    if vocab is None:
-        smap.vocabulary.save(paths["vocabulary"])
-        vocab = smap.vocabulary_bytes = paths["vocabulary"].read_bytes()
-    else:
-        paths["vocabulary"].write_bytes(vocab)
-    doc = {"camera": {"K": np.asarray(smap.K, float).tolist(),
-                      "image_size": [int(v) for v in smap.image_size]},
-           "vocabulary": {"file": VOCAB_NPZ, "sha256": hashlib.sha256(vocab).hexdigest(),
-                          "kind": type(smap.vocabulary).__name__,
-                          "words": int(smap.vocabulary.n_words_)}}
-    _write_arrays_and_json(paths, SPATIAL, {name: getattr(smap, name) for name in _NAMES},
-                           smap.counts(), smap.meta, doc)
+    paths = {"arrays": folder / MAP_NPZ, "vocabulary": folder / VOCAB_NPZ, "json": folder / MAP_JSON}
+    with replacing_all(list(paths.values())) as (npz_tmp, vocab_tmp, json_tmp):
+        vocab = smap.vocabulary_bytes
+        if vocab is None:
+            smap.vocabulary.save(vocab_tmp)
+            vocab = vocab_tmp.read_bytes()
+        else:
+            vocab_tmp.write_bytes(vocab)
+        doc = {"camera": {"K": np.asarray(smap.K, float).tolist(),
+                          "image_size": [int(v) for v in smap.image_size]},
+               "vocabulary": {"file": VOCAB_NPZ, "sha256": hashlib.sha256(vocab).hexdigest(),
+                              "kind": type(smap.vocabulary).__name__,
+                              "words": int(smap.vocabulary.n_words_)}}
+        _write_arrays_and_json(npz_tmp, json_tmp, SPATIAL,
+                               {name: getattr(smap, name) for name in _NAMES},
+                               smap.counts(), smap.meta, doc)
+    smap.vocabulary_bytes = vocab
     return paths
 
 
 def save_planar_map(pmap: PlanarMap, folder) -> dict[str, Path]:
-    """Write the 2-D map ``pmap`` into ``folder`` (created); returns the two paths."""
+    """Write the 2-D map ``pmap`` into ``folder`` (created); returns the two paths. The
+    files replace an earlier map's only once both are written."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     pmap.check(folder)
-    paths = {"json": folder / MAP_JSON, "arrays": folder / MAP_NPZ}
-    paths["json"].unlink(missing_ok=True)  # a half-written folder must not look complete
-    _write_arrays_and_json(paths, PLANAR, pmap.arrays(), pmap.counts(), pmap.meta, {})
+    paths = {"arrays": folder / MAP_NPZ, "json": folder / MAP_JSON}
+    with replacing_all(list(paths.values())) as (npz_tmp, json_tmp):
+        _write_arrays_and_json(npz_tmp, json_tmp, PLANAR, pmap.arrays(), pmap.counts(),
+                               pmap.meta, {})
     return paths
 
 
-def _write_arrays_and_json(paths: dict[str, Path], kind: str, arrays: dict[str, np.ndarray],
-                           counts: dict, meta: dict, extra: dict) -> None:
-    """``map.npz`` of ``arrays``, then ``map.json`` (last: its presence means complete)."""
+def _write_arrays_and_json(npz_path: Path, json_path: Path, kind: str,
+                           arrays: dict[str, np.ndarray], counts: dict, meta: dict,
+                           extra: dict) -> None:
+    """``map.npz`` of ``arrays`` and ``map.json`` (its presence means complete)."""
     blob = _npz_bytes(arrays)
-    paths["arrays"].write_bytes(blob)
+    _write_synced(npz_path, blob)
     doc = {"format": FORMAT, "version": FORMAT_VERSION, "kind": kind, "counts": counts,
            "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
            "meta": meta, **extra}
-    paths["json"].write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    _write_synced(json_path, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode("utf-8"))
+
+
+def _write_synced(path: Path, data: bytes) -> None:
+    """``data`` to ``path``, on the disk before the rename that makes it the map's
+    (a crash after the rename must not leave an empty file under the map's name)."""
+    with open(path, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -154,7 +172,11 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
 
 
 def _checked_bytes(folder: Path, entry: dict, what: str) -> tuple[Path, bytes]:
-    path = folder / str(entry.get("file", ""))
+    name = str(entry.get("file", ""))
+    path = inside_folder(folder, name)
+    if path is None:  # a map names only its own files, never ../x or /etc/passwd
+        raise InputError(f"damaged map.json ({what} file {name[:64]!r} is outside the map "
+                         "folder)", folder / MAP_JSON)
     if not path.is_file():
         raise InputError(f"map {what} file missing", path)
     data = path.read_bytes()
@@ -190,6 +212,7 @@ def load_map(folder) -> SpatialMap:
 
 def _read_npz(blob: bytes, npz_path: Path, names) -> dict[str, np.ndarray]:
     try:
+        check_npz_sizes(io.BytesIO(blob), npz_path)  # before np.load allocates
         with np.load(io.BytesIO(blob), allow_pickle=False) as z:
             return {name: z[name] for name in names}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import stat
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +98,34 @@ def remove_stale_outputs(out_dir: Path, will_write: set[str] | frozenset[str],
             p.unlink()
             removed.append(p)
     return removed
+
+
+@contextmanager
+def one_run_or_the_other(out_dir: Path, known: tuple[str, ...] = RUN_OUTPUT_NAMES) -> Iterator[None]:
+    """Around the writing of a run's outputs: when it fails part way (a full disk, a
+    second signal), delete the earlier run's files this run did not yet replace, so
+    the folder holds the new run's files that were written and nothing of the old.
+
+    An earlier run's file is one whose inode and modification time are those seen
+    on entry (each writer replaces its file by a rename: a new inode)."""
+    before = {name: _identity(Path(out_dir) / name) for name in known}
+    try:
+        yield
+    except BaseException:
+        for name, seen in before.items():
+            p = Path(out_dir) / name
+            if seen is not None and _identity(p) == seen:
+                p.unlink(missing_ok=True)
+        raise
+
+
+def _identity(path: Path) -> tuple[int, int, int] | None:
+    """(device, inode, mtime in ns) of a plain file, None when there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_mtime_ns) if stat.S_ISREG(st.st_mode) else None
 
 
 def write_nees_csv(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:

@@ -15,7 +15,8 @@ signal the first time the code reaches ``POINT`` (with ``N``: step ``N``,
 0-based), so tests hit exact moments without sleeping. Points: ``start`` (the
 command has parsed its arguments), ``step`` (a step is done), ``finalize``
 (the loop is over; finalisation and covariances next), ``write`` (the first
-output file is written, the others not yet). ``GRAPHSLAM_SIGNAL`` names the
+output file is written, the others not yet), ``recorder`` (a command's Rerun recorder is
+open, its run not yet started). ``GRAPHSLAM_SIGNAL`` names the
 signal (``INT``, ``TERM``, ``KILL``; default ``INT``); ``GRAPHSLAM_SIGNAL_TO``
 its target: ``main`` (the command's process, default; from a ``compare``
 worker that is the parent), ``self`` or ``group`` (the process group, as a

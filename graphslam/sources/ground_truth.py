@@ -122,7 +122,7 @@ def _frame_numbers(sequence: ImageSequence) -> np.ndarray:
     """(N,) frame number per image: the file name's number (KITTI's 000042.png),
     else the position in the sequence."""
     stems = [Path(p).stem for p in sequence.image_paths]
-    if all(s.isdigit() for s in stems):
+    if all(s.isascii() and s.isdigit() for s in stems):
         return np.array([int(s) for s in stems], dtype=np.int64)
     return np.arange(len(stems), dtype=np.int64)
 

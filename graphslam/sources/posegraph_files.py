@@ -63,13 +63,18 @@ from pathlib import Path
 
 import numpy as np
 
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
 from slamcore import posegraph as pg
 
 #: Largest pose id accepted: ids are int64 and gtsam keys; 2**62 leaves room.
 MAX_ID = 2**62
 #: An id token as parse_id accepts it (the bulk readers build theirs from it).
 ID_TOKEN = re.compile(r"\+?[0-9]+\Z")
+#: A decimal number as g2o's C++ stream reads it: optional sign, ASCII digits,
+#: optional fraction and exponent, or inf/nan (refused later as not finite).
+#: float() alone also takes ``1_000`` and full-width digits, which g2o does not.
+NUMBER_TOKEN = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:e[+-]?[0-9]+)?"
+                          r"|inf(?:inity)?|nan)\Z", re.ASCII | re.IGNORECASE)
 
 #: tag -> (format, dim, rotation, kind, token count)
 TAGS = {
@@ -136,25 +141,25 @@ def decimal_value(token: str) -> int:
 def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
     """A decimal id as a Python int in [0, MAX_ID], or one-line InputError."""
     if token.startswith("-") and ID_TOKEN.match(token[1:]):
-        raise InputError(f"{what} {token} is negative", path, line_no)
+        raise InputError(f"{what} {quote(token)} is negative", path, line_no)
     if not ID_TOKEN.match(token):
-        raise InputError(f"{what} {token!r} is not an integer (decimal digits only)", path,
+        raise InputError(f"{what} {quote(token)} is not an integer (decimal digits only)", path,
                          line_no)
     value = decimal_value(token)
     if value > MAX_ID:
-        raise InputError(f"{what} {token} is larger than 2**62", path, line_no)
+        raise InputError(f"{what} {quote(token)} is larger than 2**62", path, line_no)
     return value
 
 
 def parse_numbers(tokens: list[str], path, line_no: int) -> list[float]:
     out = []
     for t in tokens:
-        try:
-            v = float(t)
-        except ValueError:
-            raise InputError(f"{t!r} is not a number", path, line_no) from None
+        if not NUMBER_TOKEN.match(t):
+            raise InputError(f"{quote(t)} is not a number (decimal ASCII digits)", path,
+                             line_no)
+        v = float(t)
         if not math.isfinite(v):
-            raise InputError(f"{t!r} is not finite", path, line_no)
+            raise InputError(f"{quote(t)} is not finite", path, line_no)
         out.append(v)
     return out
 
@@ -224,7 +229,7 @@ class _Collector:
                              "graph): graphslam run takes a 2-D TORO file with BR lines with "
                              "--backend isam2, ekf, fastslam1 or fastslam2", self.path, line_no)
         if tag not in TAGS:
-            raise InputError(f"unknown tag {tag!r}", self.path, line_no)
+            raise InputError(f"unknown tag {quote(tag)}", self.path, line_no)
         fmt, dim, rotation, kind, count = TAGS[tag]
         if self.kind is None:
             self.kind, self.kind_line = (fmt, dim, rotation), line_no

@@ -17,8 +17,8 @@ run's priority: niced, it starved on a busy machine and the run waited up to
 The child ignores SIGINT and SIGTERM (they are blocked while it starts, and it
 inherits the mask): a Ctrl-C stops the run, whose stop guard then closes the
 recording with what was logged, as in one process. A parent that dies
-without closing leaves the child an end of file: it closes the recording and
-exits.
+without closing leaves the child an end of file: it deletes the recording (the
+earlier run's, if any, stays whole beside that run's files) and exits.
 """
 
 from __future__ import annotations
@@ -44,11 +44,13 @@ def _serve(conn, factory: Callable[..., Any], args: tuple) -> None:
         log = factory(*args)
     except Exception as exc:  # reported at close, where the parent can say it
         log, failure = None, f"{type(exc).__name__}: {exc}"
+    abandoned = False
     while True:
         try:
             name, a, kw = pickle.loads(conn.recv_bytes())
-        except EOFError:
+        except EOFError:  # the run ended without its outputs: no recording of it either
             name, a, kw = "close", (), {}
+            abandoned = hasattr(log, "discard")
         if name == "close":
             break
         if log is not None and failure is None:
@@ -56,7 +58,12 @@ def _serve(conn, factory: Callable[..., Any], args: tuple) -> None:
                 getattr(log, name)(*a, **kw)
             except Exception as exc:
                 failure = f"{name}: {type(exc).__name__}: {exc}"
-    if log is not None:
+    if abandoned:
+        try:
+            log.discard()
+        except Exception:  # nobody is left to tell; the file is a hidden temporary
+            pass
+    elif log is not None:
         try:
             log.close()
         except Exception as exc:

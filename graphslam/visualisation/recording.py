@@ -10,6 +10,7 @@ import shutil
 import socket
 import sys
 import time
+import weakref
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -17,6 +18,7 @@ import numpy as np
 
 from graphslam.visualisation.layout import LoggedEntities, blueprint, layout_key
 from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.files import move_into_place, temporary_beside
 
 #: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
@@ -176,6 +178,7 @@ class RerunLog:
 
         self._rr = rr
         self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
+        self._partial: Path | None = None
         self.logged = LoggedEntities()
         self._live_layout = mode != "save" if live_layout is None else live_layout
         self._layout_seen = (0, None)  # (logged.version, layout_key) at the last check
@@ -183,7 +186,12 @@ class RerunLog:
         if mode == "save":
             if path is None:
                 raise ConfigError("rerun: mode 'save' needs a path")
-            self.rec.save(str(path))
+            # Recorded under a temporary name and moved over ``path`` by close():
+            # an earlier run's recording stays whole beside its other files until
+            # this run ends, and a run that dies leaves no stub (the finalizer).
+            self._partial = temporary_beside(Path(path))
+            weakref.finalize(self, self._partial.unlink, missing_ok=True)
+            self.rec.save(str(self._partial))
         elif mode == "spawn":
             # Started by path (it may not be on PATH) and without connecting, so a
             # viewer that dies at once (no display) is noticed here, not as a
@@ -242,6 +250,17 @@ class RerunLog:
             self._send_layout()
         finally:
             self._flush_and_disconnect()
+            if self._partial is not None:
+                move_into_place(self._partial, Path(self.path))
+                self._partial = None
+
+    def discard(self) -> None:
+        """Stop recording and delete what was recorded: the run ended without its
+        outputs, and ``path`` keeps the earlier run's recording, if any."""
+        self.rec.disconnect()
+        if self._partial is not None:
+            self._partial.unlink(missing_ok=True)
+            self._partial = None
 
     def _flush_and_disconnect(self) -> None:
         try:

@@ -47,7 +47,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """The 2-D ``graphslam run``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import planar as pipeline
 
     t0 = time.perf_counter()
@@ -106,13 +106,14 @@ def run(args: argparse.Namespace) -> int:
         warn("run interrupted before its covariances: no nees.csv")
     elif args.nees:
         nees = pipeline.add_nees(result, metrics, truth)
-    paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
-    if nees is not None:
-        paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
-    if log is not None:
-        log.finish(backend.name, result, backend)
-        if close_recorder(log) and mode == "save":
-            paths["recording"] = out_dir / "run.rrd"
+    with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
+        paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
+        if nees is not None:
+            paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
+        if log is not None:
+            log.finish(backend.name, result, backend)
+            if close_recorder(log) and mode == "save":
+                paths["recording"] = out_dir / "run.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
     if save_map is not None:

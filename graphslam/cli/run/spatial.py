@@ -81,7 +81,8 @@ def _load_sequence(args, config):
 def run(args: argparse.Namespace) -> int:
     """The visual ``graphslam run``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.outputs.loops import write_loops  # stdlib only: cheap
+    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import spatial as vp
 
     t0 = time.perf_counter()
@@ -142,18 +143,17 @@ def run(args: argparse.Namespace) -> int:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     if relocaliser is not None:
         metrics.tracking_loss = relocaliser.stats
-    paths = vp.write_outputs(result, out_dir, metrics)
-    if closer is not None:
-        from graphslam.outputs.loops import write_loops
-
-        paths.update(write_loops(closer, out_dir))
-    if recorder is not None:
-        recorder.finish(args.backend, result, every=args.rerun_every or 5)
+    with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
+        paths = vp.write_outputs(result, out_dir, metrics)
         if closer is not None:
-            recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
-        close_recorder(recorder)
-        if rerun_mode == "save":
-            paths["recording"] = out_dir / "run.rrd"
+            paths.update(write_loops(closer, out_dir))
+        if recorder is not None:
+            recorder.finish(args.backend, result, every=args.rerun_every or 5)
+            if closer is not None:
+                recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
+            close_recorder(recorder)
+            if rerun_mode == "save":
+                paths["recording"] = out_dir / "run.rrd"
     if mapper is not None:  # last: a map that cannot be built costs no other file
         save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})

@@ -90,7 +90,13 @@ def _ids(tokens: list[str], id_limit: int) -> list[int] | None:
 
 
 def _finite(rows: list[list[str]], width: int) -> np.ndarray | None:
-    """(N, width) float64 of number tokens (Python's float syntax), None unless all finite."""
+    """(N, width) float64 of number tokens, None unless all are decimal (as g2o reads
+    them) and finite."""
+    flat = "".join("".join(r) for r in rows)
+    # float() also takes 1_000 and full-width digits; on ASCII without "_" its
+    # syntax is the decimal one: anything else goes to the line reader, which refuses
+    if "_" in flat or not flat.isascii():
+        return None
     try:
         out = np.array(rows, dtype=np.float64).reshape(len(rows), width)
     except ValueError:

@@ -53,8 +53,8 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.planar.bulk import noise_covariances, read_se2_lines
-from graphslam.sources.posegraph_files import parse_id
-from slamcore.errors import InputError, MeasurementError
+from graphslam.sources.posegraph_files import NUMBER_TOKEN, parse_id
+from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import (
     Frame, LoopClosure, Observation, ObservationKind, Odometry, loop_closure_batch,
@@ -98,12 +98,12 @@ def parse_floats(tokens, path, line_no, what="value"):
     """Tokens as finite floats, or InputError at ``path:line_no``."""
     out = []
     for t in tokens:
-        try:
-            v = float(t)
-        except ValueError:
-            raise InputError(f"{what} {t!r} is not a number", path, line_no) from None
+        if not NUMBER_TOKEN.match(t):
+            raise InputError(f"{what} {quote(t)} is not a number (decimal ASCII digits)", path,
+                             line_no)
+        v = float(t)
         if not math.isfinite(v):
-            raise InputError(f"{what} {t!r} is not finite", path, line_no)
+            raise InputError(f"{what} {quote(t)} is not finite", path, line_no)
         out.append(v)
     return out
 
@@ -286,7 +286,7 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name,
         elif tag in ignored:
             continue
         else:
-            raise InputError(f"unknown tag {tag!r}", path, line_no)
+            raise InputError(f"unknown tag {quote(tag)}", path, line_no)
     frames = _grouped(edges, pose_lines, path)
     return _dataset(name, _with_sightings(frames, sightings, path) if sightings else frames, path)
 
@@ -368,7 +368,7 @@ def read_pose_graph(path) -> Dataset:
             return read_toro(path)
         if tok[0] in ("VERTEX_SE2", "EDGE_SE2", "FIX"):
             return read_g2o(path)
-        raise InputError(f"cannot tell the pose-graph format from tag {tok[0]!r}",
+        raise InputError(f"cannot tell the pose-graph format from tag {quote(tok[0])}",
                          path, line_no)
     raise InputError("empty pose-graph file", path)
 
@@ -403,7 +403,7 @@ def read_city10000(path=None, ground_truth_path=None) -> Dataset:
     edges = []
     for line_no, tok in iter_lines(path):
         if tok[0] != "EDGE2":
-            raise InputError(f"unknown tag {tok[0]!r}", path, line_no)
+            raise InputError(f"unknown tag {quote(tok[0])}", path, line_no)
         if len(tok) < 9:
             raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}",
                              path, line_no)

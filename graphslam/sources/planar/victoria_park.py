@@ -34,7 +34,7 @@ import re
 
 import numpy as np
 
-from slamcore.errors import InputError, MeasurementError
+from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.records import Dataset
 from graphslam.sources.posegraph_files import decimal_value
 from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
@@ -53,10 +53,10 @@ def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
     """A decimal id as a Python int (never through a float, which rounds ids
     from 2**53), from 0 to :data:`ID_LIMIT` - 1; InputError otherwise."""
     if re.fullmatch(r"[+-]?[0-9]+", token) is None:
-        raise InputError(f"{what} {token!r} is not an integer", path, line_no)
+        raise InputError(f"{what} {quote(token)} is not an integer", path, line_no)
     value = decimal_value(token)
     if not 0 <= value < ID_LIMIT:
-        raise InputError(f"{what} {token} is out of range (0 to 2**56 - 1)", path, line_no)
+        raise InputError(f"{what} {quote(token)} is out of range (0 to 2**56 - 1)", path, line_no)
     return value
 
 
@@ -157,7 +157,7 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                 check_variances(np.diag(cov), ("range", "bearing"), path, line_no)
                 observations[i].append(Observation(i, j, z, cov, ObservationKind.RANGE_BEARING))
             else:
-                raise InputError(f"unknown tag {tag!r}", path, line_no)
+                raise InputError(f"unknown tag {quote(tag)}", path, line_no)
         except MeasurementError as exc:
             raise InputError(str(exc), path, line_no) from None
     if not order:

@@ -78,8 +78,21 @@ from graphslam.sources.spatial.sequence import (
     ASSOCIATION_MAX_DT_S, IMAGE_EXTENSIONS, ImageSequence, associate, check_K, check_exist,
     image_size, list_images, parse_floats, quat_to_rotation, read_lines,
 )
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
+from slamcore.files import inside_folder
 from slamcore.spatial.camera import intrinsics_matrix
+
+
+def listed_file(folder: Path, name: str, listing: Path, line: int) -> Path:
+    """``folder / name`` of an image list (``rgb.txt``, ``data.csv``), refused when it
+    leaves ``folder`` (``../../x.png``, ``/etc/passwd``): a data set names only its
+    own files, and a list from elsewhere must not make a run read any file."""
+    path = inside_folder(folder, name)
+    if path is None:
+        raise InputError(f"image {name[:64]!r} is outside the sequence folder {folder}",
+                         listing, line)
+    return path
+
 
 # --------------------------------------------------------------------------- TUM RGB-D
 
@@ -109,12 +122,12 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     for n, t in read_lines(rgb, "TUM rgb.txt"):
         parts = t.split()
         if len(parts) != 2:
-            raise InputError(f"expected 'timestamp filename', got {t[:80]!r}", rgb, n)
+            raise InputError(f"expected 'timestamp filename', got {quote(t)}", rgb, n)
         try:
             stamps.append(float(parts[0]))
         except ValueError:
-            raise InputError(f"bad timestamp {parts[0]!r}", rgb, n) from None
-        paths.append(str(folder / parts[1]))
+            raise InputError(f"bad timestamp {quote(parts[0])}", rgb, n) from None
+        paths.append(str(listed_file(folder, parts[1], rgb, n)))
     if not paths:
         raise InputError("no images listed", rgb)
     stamps = np.array(stamps)
@@ -163,12 +176,12 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
     for n, t in read_lines(csv, f"EuRoC {camera}/data.csv"):
         parts = [p.strip() for p in t.split(",")]
         if len(parts) != 2 or not parts[1]:
-            raise InputError(f"expected 'timestamp_ns,filename', got {t[:80]!r}", csv, n)
+            raise InputError(f"expected 'timestamp_ns,filename', got {quote(t)}", csv, n)
         try:
             stamps.append(int(parts[0]) * 1e-9)
         except ValueError:
-            raise InputError(f"bad timestamp {parts[0]!r}", csv, n) from None
-        paths.append(str(cam / "data" / parts[1]))
+            raise InputError(f"bad timestamp {quote(parts[0])}", csv, n) from None
+        paths.append(str(listed_file(cam / "data", parts[1], csv, n)))
     if not paths:
         raise InputError("no images listed", csv)
     stamps = np.array(stamps)

@@ -24,7 +24,7 @@ import numpy as np
 from graphslam.sources.spatial.sequence import (
     ImageSequence, check_K, image_size, parse_floats, read_lines,
 )
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
 
 def read_kitti_calib(path: str | Path, camera: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``(K (3, 3), c0Tck (4, 4))`` of camera ``camera`` from a KITTI ``calib.txt``."""
@@ -32,7 +32,7 @@ def read_kitti_calib(path: str | Path, camera: int = 0) -> tuple[np.ndarray, np.
     found = {}
     for n, text in read_lines(path, "KITTI calib.txt"):
         if ":" not in text:
-            raise InputError(f"malformed line, expected 'NAME: numbers': {text[:80]!r}", path, n)
+            raise InputError(f"malformed line, expected 'NAME: numbers': {quote(text)}", path, n)
         key, rest = text.split(":", 1)
         vals = parse_floats(rest, path, n, what="numbers")
         found[key.strip()] = (vals, n)
@@ -79,7 +79,7 @@ def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path,
     if len(rows) == len(paths):
         return rows
     stems = [Path(p).stem for p in paths]
-    if len(rows) > len(paths) and all(s.isdigit() for s in stems):
+    if len(rows) > len(paths) and all(s.isascii() and s.isdigit() for s in stems):
         numbers = np.array([int(s) for s in stems])
         if numbers.max() < len(rows):
             return rows[numbers]

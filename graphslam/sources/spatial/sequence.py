@@ -18,7 +18,9 @@ import cv2
 import numpy as np
 
 from frontend.image import load_gray
-from slamcore.errors import InputError
+from graphslam.sources.posegraph_files import NUMBER_TOKEN
+from slamcore.errors import InputError, quote
+from slamcore.input_files import check_input_path
 
 #: Extensions :func:`read_image_folder` accepts (compared lower-case).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm")
@@ -128,8 +130,7 @@ class ImageSequence:
 
 def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
     """(line_no, stripped text) of non-empty, non-comment lines; missing file -> InputError."""
-    if not path.is_file():
-        raise InputError(f"{what} not found", path)
+    check_input_path(path, what)
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError as e:
@@ -146,13 +147,15 @@ def parse_floats(text: str, path: Path, line: int, count: int | None = None,
             what: str = "numbers") -> np.ndarray:
     parts = [p for p in re.split(r"[\s,]+", text.strip()) if p]
     try:
+        if not all(NUMBER_TOKEN.match(p) for p in parts):  # float() takes 1_000, full-width
+            raise ValueError
         vals = np.array([float(p) for p in parts], dtype=np.float64)
     except ValueError:
-        raise InputError(f"malformed line, expected {what}: {text[:80]!r}", path, line) from None
+        raise InputError(f"malformed line, expected {what}: {quote(text)}", path, line) from None
     if count is not None and vals.size != count:
         raise InputError(f"expected {count} {what}, got {vals.size}", path, line)
     if not np.all(np.isfinite(vals)):
-        raise InputError(f"non-finite value in {text[:80]!r}", path, line)
+        raise InputError(f"non-finite value in {quote(text)}", path, line)
     return vals
 
 
@@ -190,8 +193,16 @@ def check_exist(paths: Sequence[str], where: Path) -> None:
                          f"(first: {missing[0]})", where)
 
 
+#: Runs of ASCII digits only: ``\d`` and ``str.isdigit`` also take ``²`` or
+#: ``١``, which ``int`` refuses or which no file-name order means as a number.
+_ASCII_DIGITS = re.compile(r"([0-9]+)")
+
+
 def natural_key(name: str):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+    """Sort key of a file name: ``img2`` before ``img10`` (ASCII digit runs as numbers)."""
+    parts = _ASCII_DIGITS.split(name)
+    # split with a group alternates text and digit runs: odd places are digits
+    return [int(t) if i % 2 else t.lower() for i, t in enumerate(parts)]
 
 
 def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarray:

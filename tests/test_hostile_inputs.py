@@ -1,0 +1,145 @@
+"""Hostile inputs of issue 34: each ends in one ``graphslam: error:`` line and exit 2."""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.sources.spatial.sequence import natural_key
+from slamcore.errors import QUOTE_CHARS, quote
+
+DESK = Path("/work/shared/data/slambook2_desk/images")
+#: Longest error line a hostile token may cause: the message, a path and a short quote.
+SHORT_ERROR_CHARS = 600
+
+
+def one_error_line(capsys, argv) -> str:
+    """Run ``argv``; assert exit 2 and one short error line; return it."""
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
+    assert len(lines) == 1, err[:2000]
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_quote_shortens_huge_token():
+    text = quote("\0" * 10**6)
+    assert len(text) < 10 * QUOTE_CHARS and "1000000 characters" in text
+    assert quote("abc") == "'abc'"
+    assert "bits" in quote(10**5000)  # repr would raise past 4300 digits
+
+
+@pytest.mark.parametrize("name", ["nul.g2o", "nul.graph", "nul.txt"])
+def test_megabyte_of_nul_bytes_is_quoted_short(tmp_path, capsys, name):
+    path = tmp_path / name
+    path.write_bytes(b"\0" * 10**6)
+    line = one_error_line(capsys, ["run", "--dataset", path, "--out", tmp_path / "o",
+                                   "--rerun", "off"])
+    assert len(line) < SHORT_ERROR_CHARS
+
+
+def test_natural_key_takes_only_ascii_digits():
+    names = ["img10.png", "²1.png", "img2.png", "١.png"]
+    assert sorted(names, key=natural_key)[:2] == ["img2.png", "img10.png"]
+
+
+@pytest.mark.skipif(not DESK.is_dir(), reason="desk photos not available")
+def test_superscript_image_name_trains_a_vocabulary(tmp_path, capsys):
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for src in sorted(DESK.glob("*.png"))[:3]:
+        shutil.copy(src, folder / src.name)
+    shutil.copy(folder / "01.png", folder / "²1.png")
+    assert main(["vocab", "train", str(folder), "--words", "10", "--out",
+                 str(tmp_path / "v.npz"), "--quiet"]) == 0
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+@pytest.mark.parametrize("flag", ["--dataset", "--config"])
+def test_fifo_is_refused(tmp_path, capsys, flag):
+    fifo = tmp_path / "pipe.g2o"
+    os.mkfifo(fifo)
+    line = one_error_line(capsys, ["run", flag, fifo, "--out", tmp_path / "o", "--rerun", "off"])
+    assert "FIFO" in line
+
+
+def test_device_is_refused(tmp_path, capsys):
+    line = one_error_line(capsys, ["run", "--dataset", "/dev/zero", "--out", tmp_path / "o",
+                                   "--rerun", "off"])
+    assert "device" in line
+    line = one_error_line(capsys, ["convert", "/dev/zero", tmp_path / "x.g2o"])
+    assert "device" in line
+
+
+def test_non_utf8_truth_names_the_file(tmp_path):
+    from graphslam.evaluation.places import read_truth
+    from slamcore.errors import InputError
+
+    truth = tmp_path / "truth.csv"
+    truth.write_bytes(b"query,match\n\xff\xfe,a\n")
+    with pytest.raises(InputError, match="truth.csv: not a UTF-8"):
+        read_truth(truth, [tmp_path / "a.png"])
+
+
+def billion_laughs() -> str:
+    lines = ['a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    for prev, name in zip("abcdefgh", "bcdefghi"):
+        lines.append(f"{name}: &{name} [" + ",".join([f"*{prev}"] * 9) + "]")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("text, expected", [
+    (billion_laughs(), "anchors and aliases"),
+    ("synthetic:\n  seed: 1\n  seed: 2\n", "cfg.yaml:3: duplicate key 'seed'"),
+])
+def test_yaml_aliases_and_duplicate_keys_are_refused(tmp_path, capsys, text, expected):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(text)
+    line = one_error_line(capsys, ["run", "--config", cfg, "--out", tmp_path / "o",
+                                   "--rerun", "off"])
+    assert expected in line
+
+
+@pytest.mark.parametrize("token", ["1_000", "１２"])
+@pytest.mark.parametrize("backend", ["isam2", "ekf"])
+def test_numbers_g2o_would_not_read_are_refused(tmp_path, capsys, token, backend):
+    path = tmp_path / "g.g2o"
+    path.write_text(f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 {token} 0 0\n"
+                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", encoding="utf-8")
+    line = one_error_line(capsys, ["run", "--dataset", path, "--backend", backend,
+                                   "--out", tmp_path / "o", "--rerun", "off"])
+    assert "g.g2o:2:" in line and "not a number" in line
+
+
+def npz_declaring(shape) -> bytes:
+    """A vocabulary-like .npz whose ``centres`` header declares ``shape`` of float64
+    but holds 8 bytes of data."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, arr in (("format_version", np.int64(1)), ("kind", np.str_("tree"))):
+            member = io.BytesIO()
+            np.save(member, arr)
+            zf.writestr(name + ".npy", member.getvalue())
+        member = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            member, {"descr": "<f8", "fortran_order": False, "shape": shape})
+        zf.writestr("centres.npy", member.getvalue() + b"\0" * 8)
+    return buf.getvalue()
+
+
+def test_npz_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
+    from loopclosure.vocabulary_file import read_npz
+    from slamcore.errors import InputError
+
+    path = tmp_path / "v.npz"
+    path.write_bytes(npz_declaring((10**9,)))
+    with pytest.raises(InputError, match="declares shape"):
+        read_npz(path)
