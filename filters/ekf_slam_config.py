@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from filters.numerics import CHI2_2DOF_999
+from filters.numerics import CHI2_2DOF_999, MAX_ODOMETRY_COVARIANCE_SCALE
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
@@ -111,7 +111,7 @@ class EkfSlamConfig:
     default_sigma_range_m: float = bounded(0.2, gt=0.0)
     default_sigma_bearing_rad: float = bounded(math.radians(10.0), gt=0.0)
     jacobians: Literal["standard", "oc"] = "oc"
-    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
+    odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
     known_gate_chi2_prob: float | None = bounded(None, gt=0.0, lt=1.0)
     damped_update_nis: float | None = bounded(DAMPED_UPDATE_NIS, gt=0.0)
     jcbb_objective: Literal["count", "likelihood"] = "likelihood"

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
+from filters.numerics import MAX_ODOMETRY_COVARIANCE_SCALE
 from slamcore.config import bounded, validate
 
 #: Most particles a filter may have. Every particle carries its own 2-D EKF per
@@ -40,7 +41,8 @@ class FastSlamConfig:
             weight factor of starting a new landmark; None uses the Gaussian
             density of the measurement noise R at the gate.
         odometry_covariance_scale: the odometry covariance is multiplied by
-            this before sampling (> 0). Particle filters need motion noise
+            this before sampling (> 0, at most
+            :data:`~filters.numerics.MAX_ODOMETRY_COVARIANCE_SCALE`). Particle filters need motion noise
             that covers the real odometry error; e.g. gtsam's Victoria Park
             file is too confident for them at 1 and runs well at 10.
     """
@@ -54,7 +56,7 @@ class FastSlamConfig:
     association: Literal["known", "unknown"] = "known"
     new_landmark_mahalanobis_sq: float = bounded(13.8155, gt=0.0)
     new_landmark_log_likelihood: float | None = None
-    odometry_covariance_scale: float = bounded(1.0, gt=0.0)
+    odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
 
     def __post_init__(self):
         validate(self)

@@ -29,6 +29,12 @@ EPS = float(np.finfo(np.float64).eps)
 #: Smallest measurement variance relative to the prior variance it updates:
 #: sqrt(eps) keeps half of float64's digits in the downdate.
 REL_VARIANCE_FLOOR = math.sqrt(EPS)
+#: Largest ``odometry_covariance_scale`` of the filters. It multiplies
+#: variances, so 1e6 already widens every odometry standard deviation 1000-fold
+#: (a 5 cm step noise becomes 50 m per step: the motion model says nothing);
+#: beyond it a setting is a typo, and near 1e300 the covariances overflow to
+#: inf and their factorisations fail.
+MAX_ODOMETRY_COVARIANCE_SCALE = 1e6
 
 
 def floored_noise(R: np.ndarray, prior_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -66,6 +66,8 @@ class PlanarRunMetrics:
             :class:`filters.numerics.Recoveries`), or None.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
             folder, True, and the observations of landmarks not in the map (not used).
+        warnings: what makes the estimate absurd, one line each
+            (:func:`graphslam.evaluation.planar.estimate_warnings`); left out when none.
     """
 
     dataset: str
@@ -92,11 +94,12 @@ class PlanarRunMetrics:
     map: str | None = None
     localisation_only: bool | None = None
     unmapped_observations: int | None = None
+    warnings: list[str] | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
         "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries",
-        "map", "localisation_only", "unmapped_observations"})
+        "map", "localisation_only", "unmapped_observations", "warnings"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from graphslam.sources.posegraph_files import MAX_ID, TRANSLATION_MAX_M
 from slamcore.errors import InputError
 from slamcore.planar.records import Estimate
 
@@ -27,6 +28,10 @@ ARRAYS: dict[str, tuple[tuple[int, ...], str]] = {
 }
 #: Largest asymmetry a saved 2x2 covariance may have, relative to its largest entry.
 COV_SYMMETRY_RTOL = 1e-9
+#: Largest landmark variance read, m^2: a standard deviation of the largest
+#: position read (TRANSLATION_MAX_M); beyond it the landmark is no information,
+#: and its inverse (the filter's information) underflows.
+VARIANCE_MAX_M2 = TRANSLATION_MAX_M ** 2
 
 
 @dataclass(eq=False)
@@ -68,6 +73,7 @@ class PlanarMap:
             raise InputError("map landmark ids are not distinct", where)
         if not (np.all(np.isfinite(self.landmark_xy)) and np.all(np.isfinite(self.landmark_cov))):
             raise InputError("map landmarks hold non-finite values", where)
+        self._check_ranges(where)
         C = self.landmark_cov
         scale = np.maximum(np.abs(C).max(axis=(1, 2), initial=0.0), 1e-300)
         asym = np.abs(C[:, 0, 1] - C[:, 1, 0]) / scale if n else np.zeros(0)
@@ -76,6 +82,25 @@ class PlanarMap:
         if bad.size:
             raise InputError(f"map covariance of landmark {int(self.landmark_ids[bad[0]])} is not "
                              "symmetric positive definite", where)
+
+    def _check_ranges(self, where) -> None:
+        """Ids and values the readers of pose graphs would accept: a landmark id
+        from 0 to below 2**62 (gtsam keys; the filters' id arithmetic), positions
+        within TRANSLATION_MAX_M, variances within VARIANCE_MAX_M2. Beyond them
+        a map loaded fine and then overflowed the filter's algebra."""
+        ids = self.landmark_ids
+        bad = np.flatnonzero((ids < 0) | (ids >= MAX_ID))
+        if bad.size:
+            raise InputError(f"map landmark id {int(ids[bad[0]])} is outside 0 to 2**62 - 1",
+                             where)
+        far = np.flatnonzero(np.any(np.abs(self.landmark_xy) > TRANSLATION_MAX_M, axis=1))
+        if far.size:
+            raise InputError(f"map landmark {int(ids[far[0]])} lies beyond "
+                             f"{TRANSLATION_MAX_M:.0e} m", where)
+        wide = np.flatnonzero(np.any(np.abs(self.landmark_cov) > VARIANCE_MAX_M2, axis=(1, 2)))
+        if wide.size:
+            raise InputError(f"map covariance of landmark {int(ids[wide[0]])} exceeds "
+                             f"{VARIANCE_MAX_M2:.0e} m^2", where)
 
     def slot_of(self) -> dict[int, int]:
         """Landmark id -> row."""

@@ -22,6 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+import numpy as np
+
 from graphslam import registry
 from graphslam.evaluation import planar as metrics
 from graphslam.evaluation.records import PlanarRunMetrics
@@ -37,6 +39,10 @@ R = TypeVar("R")
 STOP_GRACE_S = 20.0
 #: How often the parent checks for a stop request while a worker runs, seconds.
 POLL_S = 0.1
+#: Numerical breakdowns of a back end or of its scoring (a singular or
+#: non-finite covariance from absurd settings or data): a one-line "failed"
+#: entry like a GraphSlamError, not a traceback, and never the others' loss.
+NUMERIC_FAILURES = (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError)
 
 
 @dataclass
@@ -77,6 +83,8 @@ def _child(conn, job, strip):
         conn.send(("ok", result if strip is None else strip(result), (peak_kb - start_kb) / 1024.0))
     except GraphSlamError as e:
         conn.send(("error", str(e), None))
+    except NUMERIC_FAILURES as e:
+        conn.send(("error", numeric_failure_line(e), None))
     except KeyboardInterrupt:  # stopped before its first step: nothing to send
         conn.send(("error", "stopped before its first step", None))
     except BaseException:  # report anything else with its traceback to the parent
@@ -198,21 +206,30 @@ def run_entries(names: list[str], job, score, *, isolate: bool = True, strip=Non
     return entries
 
 
+def numeric_failure_line(e: BaseException) -> str:
+    """One line for a numerical breakdown (:data:`NUMERIC_FAILURES`)."""
+    return f"numerical failure ({type(e).__name__}: {e}); check the noise settings and the data"
+
+
 def _compare_one(name, job, score, isolate, strip) -> CompareEntry:
-    """One back end's entry; its failure is recorded, not raised."""
+    """One back end's entry; its failure is recorded, not raised. Scoring is
+    inside the guard too: an estimate too absurd to score (a singular
+    covariance) fails its own row, not the whole comparison."""
     try:
         if isolate:
             result, peak_mb = run_isolated(job, name, strip)
         else:
             result, peak_mb = job(), None
+        scored = score(name, result, peak_mb)
     except KeyboardInterrupt:  # a second signal: this one is lost, the others are kept
         return CompareEntry(name, None, None, "cut", "stopped before its first step")
     except GraphSlamError as e:  # a worker asked to stop and killed for not stopping is cut
         return CompareEntry(name, None, None, "cut" if stop_requested() else "failed", str(e))
+    except NUMERIC_FAILURES as e:
+        return CompareEntry(name, None, None, "failed", f"{name}: {numeric_failure_line(e)}")
     except Exception:  # a bug in one back end must not lose the others' results
         return CompareEntry(name, None, None, "failed", traceback.format_exc())
-    return CompareEntry(name, result, score(name, result, peak_mb),
-                        "cut" if result.interrupted else "ok")
+    return CompareEntry(name, result, scored, "cut" if result.interrupted else "ok")
 
 
 def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:

@@ -259,10 +259,11 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def require_loop_closures(backend: VisualBackend) -> None:
-    """Raise :class:`UnsupportedError` unless ``backend`` takes relative-pose closures."""
+def require_loop_closures(backend: VisualBackend, option: str = "--loops") -> None:
+    """Raise :class:`UnsupportedError` unless ``backend`` takes relative-pose closures;
+    the message names ``option``, the flag the user gave that needs them."""
     if not backend.supports_loop_closures:
-        raise UnsupportedError(f"--loops: back end {backend.name!r} cannot use relative-pose loop "
+        raise UnsupportedError(f"{option}: back end {backend.name!r} cannot use relative-pose loop "
                                "closures (it closes loops by re-observing landmarks); use isam2")
 
 

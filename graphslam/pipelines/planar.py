@@ -178,7 +178,8 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
-        recoveries=result.recoveries)
+        recoveries=result.recoveries,
+        warnings=metrics.estimate_warnings(est, ate, odo_ate) or None)
 
 
 def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,

@@ -61,7 +61,7 @@ def start_relocaliser(args, config, sequence, backend):
     from loopclosure.pnp import PnpConfig
     from frontend.orb import OrbDetector
 
-    require_loop_closures(backend)
+    require_loop_closures(backend, "--relocalise")  # a relocalised pose joins as a closure
     return RunRelocaliser(sequence.K, config.section(RelocaliseConfig), config.section(PnpConfig),
                           OrbDetector(config.section(LoopDetectorConfig).orb))
 

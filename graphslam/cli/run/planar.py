@@ -162,4 +162,4 @@ def format_summary(metrics) -> str:
         rows.append(("unmapped observations", metrics.unmapped_observations))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
-    return summary_table(rows)
+    return summary_table(rows) + "".join(f"\nWARNING: {w}" for w in (metrics.warnings or []))

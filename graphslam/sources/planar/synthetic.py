@@ -72,6 +72,20 @@ MAX_STEPS = 1_000_000
 #: More landmarks than this are not a 2-D SLAM benchmark but a memory test.
 MAX_LANDMARKS = 1_000_000
 
+#: Largest length of the world's geometry (route, margins, sensor range), m:
+#: 1000 km is beyond any driven benchmark route and keeps every position far
+#: inside the 1e9 m the pose-graph readers accept.
+MAX_WORLD_M = 1e6
+#: Largest speed, m/s (and speed noise): faster than sound; no ground robot.
+MAX_SPEED_MPS = 1e3
+#: Largest range noise std, m: 10 km is worse than any range sensor (lidar is
+#: cm, radar m); near 1e154 its square (the covariance) overflows.
+MAX_SIGMA_RANGE_M = 1e4
+#: Largest angular noise std, degrees (bearing per sighting, yaw rate per
+#: second): a wrapped normal of std 180 degrees is already nearly uniform on
+#: the circle, so a larger value carries no more meaning, only overflow.
+MAX_SIGMA_ANGLE_DEG = 180.0
+
 #: Below this |w dt| (rad) the unicycle integration uses Taylor series.
 _SMALL_ANGLE = 1e-4
 
@@ -93,21 +107,21 @@ class SyntheticConfig:
 
     seed: int = bounded(0, min=0)
     n_landmarks: int = bounded(200, min=1, max=MAX_LANDMARKS)
-    route_length_m: float = bounded(120.0, gt=0.0)
-    route_width_m: float = bounded(80.0, gt=0.0)
-    corner_radius_m: float = bounded(10.0, gt=0.0)
+    route_length_m: float = bounded(120.0, gt=0.0, max=MAX_WORLD_M)
+    route_width_m: float = bounded(80.0, gt=0.0, max=MAX_WORLD_M)
+    corner_radius_m: float = bounded(10.0, gt=0.0, max=MAX_WORLD_M)
     laps: int = bounded(2, min=1)
-    world_margin_m: float = bounded(8.0, min=0.0)
-    landmark_clearance_m: float = bounded(2.0, min=0.0)
+    world_margin_m: float = bounded(8.0, min=0.0, max=MAX_WORLD_M)
+    landmark_clearance_m: float = bounded(2.0, min=0.0, max=MAX_WORLD_M)
     signature_count: int = bounded(1000, min=1)
-    speed_mps: float = bounded(1.0, gt=0.0)
+    speed_mps: float = bounded(1.0, gt=0.0, max=MAX_SPEED_MPS)
     dt_s: float = bounded(1.0, gt=0.0)
-    sensor_range_m: float = bounded(8.0, gt=0.0)
+    sensor_range_m: float = bounded(8.0, gt=0.0, max=MAX_WORLD_M)
     fov_deg: float = bounded(180.0, gt=0.0, max=360.0)
-    sigma_v_mps: float = bounded(0.05, gt=0.0)
-    sigma_w_degps: float = bounded(0.1, gt=0.0)
-    sigma_r_m: float = bounded(0.2, gt=0.0)
-    sigma_phi_deg: float = bounded(10.0, gt=0.0)
+    sigma_v_mps: float = bounded(0.05, gt=0.0, max=MAX_SPEED_MPS)
+    sigma_w_degps: float = bounded(0.1, gt=0.0, max=MAX_SIGMA_ANGLE_DEG)
+    sigma_r_m: float = bounded(0.2, gt=0.0, max=MAX_SIGMA_RANGE_M)
+    sigma_phi_deg: float = bounded(10.0, gt=0.0, max=MAX_SIGMA_ANGLE_DEG)
 
     def __post_init__(self):
         validate(self)

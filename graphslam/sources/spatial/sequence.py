@@ -27,6 +27,16 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm")
 
 #: Nearest-timestamp association tolerance (s) for TUM and EuRoC ground truth.
 ASSOCIATION_MAX_DT_S = 0.02
+#: Focal lengths read, pixels (f over the pixel pitch). Below 1 px one pixel
+#: spans more than 45 degrees: no camera; a phone is ~500-3000 px, a long
+#: telephoto on a small pixel ~1e5, so 1e6 is beyond any lens. Outside this a
+#: typo (1e-300, 1e300) made every bearing 0 or inf and left every pose at
+#: the identity without a word.
+FOCAL_MIN_PX, FOCAL_MAX_PX = 1.0, 1e6
+#: Largest |principal point| and |skew| read, pixels: a few widths of the
+#: largest sensors (~2e4 px); a crop moves the principal point by at most
+#: about an image size.
+PRINCIPAL_POINT_MAX_PX = 1e5
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,6 +181,35 @@ def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: Path, lin
     ])
 
 
+#: Largest ``|R^T R - I|`` entry and ``|det R - 1|`` of a rotation read from a file.
+#: Poses printed with 6 significant digits (the KITTI poses' ``%e``) are orthonormal
+#: to ~1e-6, with 4 digits to ~1e-4; 1e-3 keeps every honest file and refuses a
+#: scaled, sheared or reflected block, whose rotation error would be meaningless.
+ROTATION_TOL = 1e-3
+
+
+def check_rotation(R: np.ndarray, path: Path, line: int) -> np.ndarray:
+    """``R`` when it is a rotation to :data:`ROTATION_TOL`, else InputError at ``line``."""
+    off = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if off > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        raise InputError(f"the 3x3 block is not a rotation (|R^T R - I| = {off:.2g}, det R = "
+                         f"{det:.4g}; tolerance {ROTATION_TOL:g})", path, line)
+    return R
+
+
+def check_increasing(stamps, line_numbers, path: Path, what: str = "timestamps") -> None:
+    """InputError at the first stamp not after the one before it: a repeated or
+    decreasing time pairs two frames with one truth pose (or none)."""
+    stamps = np.asarray(stamps, dtype=np.float64)
+    bad = np.nonzero(np.diff(stamps) <= 0)[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise InputError(f"{what} must increase strictly: {stamps[k]!r} is not after "
+                         f"{stamps[k - 1]!r} of line {line_numbers[k - 1]}", path,
+                         line_numbers[k])
+
+
 def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
@@ -178,6 +217,13 @@ def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
         raise InputError("intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0",
                          path, line)
+    fx, fy = K[0, 0], K[1, 1]
+    if not (FOCAL_MIN_PX <= min(fx, fy) and max(fx, fy) <= FOCAL_MAX_PX):
+        raise InputError(f"focal lengths fx = {fx:.6g}, fy = {fy:.6g} px are outside "
+                         f"{FOCAL_MIN_PX:g} to {FOCAL_MAX_PX:.0e} px: no camera's", path, line)
+    if np.max(np.abs([K[0, 1], K[0, 2], K[1, 2]])) > PRINCIPAL_POINT_MAX_PX:
+        raise InputError(f"principal point ({K[0, 2]:.6g}, {K[1, 2]:.6g}) or skew {K[0, 1]:.6g} "
+                         f"beyond {PRINCIPAL_POINT_MAX_PX:.0e} px: no camera's", path, line)
     return K
 
 
