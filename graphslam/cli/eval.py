@@ -20,6 +20,10 @@ as evo: association by nearest timestamp within --max-diff (default 0.01 s)
   KITTI devkit: segments of 100..800 m of the reference path starting every
   10 matched poses; null in eval.json when the path is under 100 m.
 
+the "matched" column is matched poses / the estimate's poses; under half
+  matched, a warning says the ATE covers those alone. Duplicated stamps are
+  refused, unsorted TUM/EuRoC rows sorted, a --times file must increase.
+
 outputs (in --out): eval.json (one entry per estimate), eval.png
 
 examples:
@@ -68,12 +72,12 @@ def format_table(results) -> str:
     """One row per estimate: ATE, RPE and drift."""
     from graphslam.cli.common import fmt
 
-    head = ("estimate", "poses", "ATE rmse", "mean", "median", "max [m]", "rot [deg]",
+    head = ("estimate", "matched", "ATE rmse", "mean", "median", "max [m]", "rot [deg]",
             "RPE [m]", "RPE [deg]", "drift [%]", "[deg/100m]")
     rows = [head]
     for r in results:
         s = r.result.summary()
-        rows.append((Path(r.path).name, str(s["matched_poses"]),
+        rows.append((Path(r.path).name, f"{s['matched_poses']}/{s['estimate_poses']}",
                      *(fmt(s[k], ".4f") for k in ("ate_rmse_m", "ate_mean_m", "ate_median_m",
                                                   "ate_max_m", "ate_rot_rmse_deg",
                                                   "rpe_trans_rmse_m", "rpe_rot_rmse_deg",
@@ -85,9 +89,11 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_OK
+    from graphslam.cli.common import EXIT_OK, warn
     from graphslam.evaluation.trajectory import EvalOptions
-    from graphslam.pipelines.trajectory_eval import evaluate_files, write_eval_json
+    from graphslam.pipelines.trajectory_eval import (
+        coverage_warnings, evaluate_files, write_eval_json,
+    )
 
     from slamcore.files import check_output_dir
 
@@ -102,5 +108,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         written.append(plot_trajectory_eval(results, args.out / "eval.png"))
     print(format_table(results))
+    for message in coverage_warnings(results, options):
+        warn(message)
     print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
     return EXIT_OK

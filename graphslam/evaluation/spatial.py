@@ -30,6 +30,11 @@ from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
 ALIGNMENTS = ("se3", "sim3", "none")
+#: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
+#: which a point set "does not move": far below any printed precision (TUM files
+#: carry 4-9 decimals), far above the float64 residue of subtracting the mean
+#: (~1e-16 per metre), so a still trajectory is caught whatever its coordinates.
+STILL_TOL = 1e-9
 
 
 def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
@@ -62,8 +67,12 @@ def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
     s = 1.0
     if with_scale:
         var_s = float(np.mean(np.sum(xs**2, axis=1)))
-        if var_s <= 0.0:
-            raise GraphSlamError("align_umeyama: the estimate does not move; no scale to fit")
+        var_d = float(np.mean(np.sum(xd**2, axis=1)))
+        # a still target gives s = 0: every point collapses onto it and the error reads 0
+        for var, pts, what in ((var_s, src, "estimate"), (var_d, dst, "reference")):
+            if math.sqrt(var) <= STILL_TOL * max(1.0, float(np.max(np.abs(pts)))):
+                raise GraphSlamError(f"align_umeyama: the {what} does not move; "
+                                     "no Sim(3) scale to fit")
         s = float(np.sum(D * np.diag(S)) / var_s)
     t = mu_d - s * R @ mu_s
     return s, R, t

@@ -8,7 +8,9 @@ Poses are (N, 4, 4) ``wTc``; the reference comes first in every call.
   ``offset``; defaults 0.01 s and 0 s, evo's;
 - :func:`align` -- none, SE(3) or Sim(3) Umeyama over all or the first ``n``
   positions (evo ``-a``, ``-as``, ``--n_to_align``), or the first pose onto
-  the reference's first pose (evo ``--align_origin``);
+  the reference's first pose (evo ``--align_origin``); unlike evo, an se3/sim3
+  fit on positions that do not move or lie on one line (2 poses) is refused
+  (:func:`check_alignable`), its rotation being arbitrary;
 - :func:`ate` -- translation errors and rotation angles of ``inv(est) ref``;
 - :func:`rpe_pairs`, :func:`rpe` -- evo's consecutive (non-overlapping)
   pairs a frame count or a path length (along the estimate, evo's default)
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphslam.evaluation.spatial import align_umeyama
+from graphslam.evaluation.spatial import STILL_TOL, align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
@@ -60,8 +62,9 @@ class EvalOptions:
     def __post_init__(self):
         if self.align not in ALIGN_METHODS:
             raise ConfigError(f"--align must be one of {', '.join(ALIGN_METHODS)}, got {self.align!r}")
-        if self.n_align is not None and (self.n_align < 2 or self.align not in ("se3", "sim3")):
-            raise ConfigError("--n-align needs --align se3 or sim3 and at least 2 poses")
+        # 2 positions always lie on one line: the rotation about it is not determined
+        if self.n_align is not None and (self.n_align < 3 or self.align not in ("se3", "sim3")):
+            raise ConfigError("--n-align needs --align se3 or sim3 and at least 3 poses")
         if not (np.isfinite(self.max_diff_s) and self.max_diff_s >= 0):
             raise ConfigError(f"--max-diff must be >= 0 seconds, got {self.max_diff_s}")
         if not np.isfinite(self.offset_s):
@@ -120,9 +123,34 @@ def associate(ref_t: np.ndarray, est_t: np.ndarray, max_diff: float = DEFAULT_MA
     return np.asarray(i_ref, dtype=np.int64), np.asarray(i_est, dtype=np.int64)
 
 
+#: Positions "lie on one line" when their second principal spread is below this
+#: fraction of the first: a millionth is the precision of 6 printed digits
+#: (KITTI's %e), so a rotation about the line would be fitted to print noise.
+LINE_TOL = 1e-6
+
+
+def check_alignable(points: np.ndarray, what: str, method: str) -> None:
+    """GraphSlamError unless an SE(3)/Sim(3) fit on ``points`` (k, 3) is determined:
+    positions that do not move give no rotation (and a Sim(3) scale of 0), and
+    positions on one line (always the case for 2 poses) leave the rotation about
+    the line free, so the rotation errors after the fit would be arbitrary."""
+    centred = points - points.mean(axis=0)
+    spread = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
+    scale = max(1.0, float(np.max(np.abs(points))))
+    fix = "use --align first (first pose onto first pose) or --align none"
+    if spread[0] <= STILL_TOL * scale:
+        raise GraphSlamError(f"the {what} does not move (its {len(points)} matched positions "
+                             f"are within {spread[0]:.1e} m of their mean): --align {method} "
+                             f"has nothing to fit; {fix}")
+    if spread[1] <= LINE_TOL * spread[0]:
+        raise GraphSlamError(f"the {len(points)} matched positions of the {what} lie on one "
+                             f"line: --align {method} cannot fix the rotation about it; {fix}")
+
+
 def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
           ) -> tuple[np.ndarray, float]:
-    """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first."""
+    """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first;
+    GraphSlamError when an se3/sim3 fit is undetermined (:func:`check_alignable`)."""
     est = np.array(est, dtype=np.float64)
     if method == "none":
         return est, 1.0
@@ -130,6 +158,8 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
         T = ref[0] @ invert_pose(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
+    check_alignable(ref[:k, :3, 3], "reference", method)
+    check_alignable(est[:k, :3, 3], "estimate", method)
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
     est[:, :3, 3] *= s
     T = np.eye(4)
@@ -225,6 +255,8 @@ class TrajectoryEval:
         stamps_s: (N,) the reference's stamps (or frame indices) of the matches.
         ate_trans_m, ate_rot_deg: (N,) per-pose errors.
         rpe_trans_m, rpe_rot_deg: per-pair errors.
+        reference_poses, estimate_poses: poses in each trajectory before association
+            (the matched count is ``len(ref)``).
     """
 
     ref: np.ndarray
@@ -237,6 +269,13 @@ class TrajectoryEval:
     rpe_rot_deg: np.ndarray
     kitti_pct: float | None
     kitti_deg_per_100m: float | None
+    reference_poses: int
+    estimate_poses: int
+
+    @property
+    def matched_share(self) -> float:
+        """Matched poses over the estimate's: how much of the estimate the ATE covers."""
+        return len(self.ref) / self.estimate_poses
 
     def summary(self) -> dict:
         """The numbers of ``eval.json`` (None where not computable)."""
@@ -247,7 +286,9 @@ class TrajectoryEval:
                 "rpe_trans_rmse_m": _rmse(self.rpe_trans_m),
                 "rpe_rot_rmse_deg": _rmse(self.rpe_rot_deg), "rpe_pairs": int(self.rpe_trans_m.size),
                 "kitti_drift_pct": self.kitti_pct, "kitti_drift_deg_per_100m": self.kitti_deg_per_100m,
-                "matched_poses": int(len(self.ref)), "scale": self.scale}
+                "matched_poses": int(len(self.ref)), "estimate_poses": self.estimate_poses,
+                "reference_poses": self.reference_poses, "matched_share": self.matched_share,
+                "scale": self.scale}
 
 
 def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> TrajectoryEval:
@@ -271,4 +312,5 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
     ate_t, ate_r = ate(ref, est)
     rpe_t, rpe_r = rpe(ref, est, rpe_pairs(est, options.delta, options.delta_unit))
     pct, deg = kitti_drift(ref, est)
-    return TrajectoryEval(ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg)
+    return TrajectoryEval(ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg,
+                          len(ref_wTc), len(est_wTc))

@@ -5,7 +5,9 @@ content or given), scores each estimate with
 :func:`graphslam.evaluation.trajectory.evaluate` and writes ``eval.json``:
 ``{"ground_truth", "options", "estimates": [{"estimate", <metrics>, "options"}]}``
 with the metric keys of :meth:`TrajectoryEval.summary` (null where not
-computable, e.g. the KITTI drift of a path under 100 m).
+computable, e.g. the KITTI drift of a path under 100 m), among them
+``matched_poses``, ``estimate_poses`` and ``matched_share``: the ATE covers the
+matched poses only, and :func:`coverage_warnings` says so when they are few.
 """
 
 from __future__ import annotations
@@ -45,6 +47,27 @@ def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptio
         est = load(path, fmt, times)
         out.append(EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s,
                                                       est.wTc, options)))
+    return out
+
+
+#: Below this share of the estimate's poses matched, the ATE describes a minority
+#: of the trajectory: said in a warning, not refused, because an estimate at a
+#: higher rate than its reference (200 Hz against 20 Hz) matches a tenth of its
+#: poses and is still scored correctly.
+LOW_MATCHED_SHARE = 0.5
+
+
+def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:
+    """One sentence per estimate of which fewer than :data:`LOW_MATCHED_SHARE` of
+    the poses matched the reference."""
+    out = []
+    for r in results:
+        e = r.result
+        if e.matched_share < LOW_MATCHED_SHARE:
+            out.append(f"{Path(r.path).name}: only {len(e.ref)} of {e.estimate_poses} poses "
+                       f"({100 * e.matched_share:.0f} %) matched the reference (max diff "
+                       f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
+                       "those alone")
     return out
 
 

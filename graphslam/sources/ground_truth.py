@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.spatial.sequence import (
-    ASSOCIATION_MAX_DT_S, ImageSequence, associate, parse_floats, quat_to_rotation, read_lines,
+    ASSOCIATION_MAX_DT_S, ImageSequence, associate, check_increasing, check_rotation,
+    parse_floats, quat_to_rotation, read_lines,
 )
 from slamcore.errors import InputError
 from slamcore.planar.records import Dataset
@@ -45,8 +46,9 @@ class Trajectory:
     Attributes:
         format: ``"tum"``, ``"kitti"`` or ``"euroc"``.
         stamps_s: (N,) time column in seconds (TUM as written, EuRoC ns / 1e9),
+            strictly increasing (rows sorted by time, a repeated time refused);
             None for KITTI.
-        wTc: (N, 4, 4) camera- (or body-) to-world poses, in file order.
+        wTc: (N, 4, 4) camera- (or body-) to-world poses, in time order (KITTI: file order).
         path: the file.
     """
 
@@ -91,7 +93,8 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
     for n, text in lines:
         if fmt == "kitti":
             v = parse_floats(text, path, n, 12, "numbers (KITTI: row-major 3x4 pose)")
-            poses.append(_pose(v.reshape(3, 4)[:, :3], v.reshape(3, 4)[:, 3]))
+            R = check_rotation(v.reshape(3, 4)[:, :3], path, n)
+            poses.append(_pose(R, v.reshape(3, 4)[:, 3]))
         elif fmt == "tum":
             v = parse_floats(text, path, n, 8, "numbers (TUM: t x y z qx qy qz qw)")
             stamps.append(v[0])
@@ -102,16 +105,35 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
             stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
             poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), v[1:4]))
-    return Trajectory(fmt, None if fmt == "kitti" else np.array(stamps), np.array(poses),
-                      str(path))
+    if fmt == "kitti":
+        return Trajectory(fmt, None, np.array(poses), str(path))
+    order = _time_order(np.array(stamps), [n for n, _ in lines], path)
+    return Trajectory(fmt, np.array(stamps)[order], np.array(poses)[order], str(path))
+
+
+def _time_order(stamps: np.ndarray, line_numbers: list[int], path: Path) -> np.ndarray:
+    """Rows of a TUM or EuRoC file in time order; InputError naming both lines of a
+    repeated stamp. Unsorted rows are sorted, not refused: our own ``trajectory.tum``
+    of a pose graph takes pose ids as times, in the graph's order. A repeated stamp
+    is refused: association would silently take one of the two poses."""
+    order = np.argsort(stamps, kind="stable")
+    same = np.nonzero(np.diff(stamps[order]) == 0)[0]
+    if same.size:
+        a, b = sorted((int(order[same[0]]), int(order[same[0] + 1])))
+        raise InputError(f"time {stamps[b]!r} is duplicated (also on line {line_numbers[a]})",
+                         path, line_numbers[b])
+    return order
 
 
 def read_times(path: str | Path, trajectory: Trajectory) -> Trajectory:
     """``trajectory`` (KITTI, no times) with the stamps of a KITTI ``times.txt``:
-    one time in seconds a line, one line per pose."""
+    one time in seconds a line, one line per pose, strictly increasing (line k
+    is pose k, so a file out of order cannot be sorted: it is refused)."""
     path = Path(path)
+    lines = read_lines(path, "times file")
     stamps = np.array([parse_floats(text, path, n, 1, "number (a time in seconds)")[0]
-                       for n, text in read_lines(path, "times file")])
+                       for n, text in lines])
+    check_increasing(stamps, [n for n, _ in lines], path)
     if len(stamps) != len(trajectory.wTc):
         raise InputError(f"{len(stamps)} times for {len(trajectory.wTc)} poses of "
                          f"{trajectory.path}", path)

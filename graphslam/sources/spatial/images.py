@@ -75,8 +75,8 @@ from graphslam.sources.spatial.calibration import (
 )
 from graphslam.sources.spatial.kitti import read_kitti
 from graphslam.sources.spatial.sequence import (
-    ASSOCIATION_MAX_DT_S, IMAGE_EXTENSIONS, ImageSequence, associate, check_K, check_exist,
-    image_size, list_images, parse_floats, quat_to_rotation, read_lines,
+    ASSOCIATION_MAX_DT_S, IMAGE_EXTENSIONS, ImageSequence, associate, check_exist,
+    check_increasing, check_K, image_size, list_images, parse_floats, quat_to_rotation, read_lines,
 )
 from slamcore.errors import InputError, quote
 from slamcore.files import inside_folder
@@ -118,8 +118,9 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     """
     folder = Path(folder)
     rgb = folder / "rgb.txt"
-    stamps, paths = [], []
+    stamps, paths, numbers = [], [], []
     for n, t in read_lines(rgb, "TUM rgb.txt"):
+        numbers.append(n)
         parts = t.split()
         if len(parts) != 2:
             raise InputError(f"expected 'timestamp filename', got {quote(t)}", rgb, n)
@@ -131,8 +132,7 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     if not paths:
         raise InputError("no images listed", rgb)
     stamps = np.array(stamps)
-    if np.any(np.diff(stamps) < 0):
-        raise InputError("timestamps are not in increasing order", rgb)
+    check_increasing(stamps, numbers, rgb)
     check_exist(paths, rgb)
 
     if intrinsics is not None:
@@ -172,8 +172,9 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
     mav = folder if (folder / camera).is_dir() and not (folder / "mav0").is_dir() else folder / "mav0"
     cam = mav / camera
     csv = cam / "data.csv"
-    stamps, paths = [], []
+    stamps, paths, numbers = [], [], []
     for n, t in read_lines(csv, f"EuRoC {camera}/data.csv"):
+        numbers.append(n)
         parts = [p.strip() for p in t.split(",")]
         if len(parts) != 2 or not parts[1]:
             raise InputError(f"expected 'timestamp_ns,filename', got {quote(t)}", csv, n)
@@ -185,8 +186,7 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
     if not paths:
         raise InputError("no images listed", csv)
     stamps = np.array(stamps)
-    if np.any(np.diff(stamps) < 0):
-        raise InputError("timestamps are not in increasing order", csv)
+    check_increasing(stamps, numbers, csv)
     check_exist(paths, csv)
 
     ypath = cam / "sensor.yaml"

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.spatial.sequence import (
-    ImageSequence, check_K, image_size, parse_floats, read_lines,
+    ImageSequence, check_increasing, check_K, check_rotation, image_size, parse_floats,
+    read_lines,
 )
 from slamcore.errors import InputError, quote
 
@@ -60,6 +61,7 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
     wTc = np.tile(np.eye(4), (len(lines), 1, 1))
     for k, (n, text) in enumerate(lines):
         wTc[k, :3, :] = parse_floats(text, path, n, 12, "numbers (row-major 3x4 pose)").reshape(3, 4)
+        check_rotation(wTc[k, :3, :3], path, n)
     return wTc
 
 
@@ -101,6 +103,7 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
     if tpath.is_file():
         lines = read_lines(tpath, "KITTI times.txt")
         stamps = np.array([parse_floats(t, tpath, n, 1, "time in seconds")[0] for n, t in lines])
+        check_increasing(stamps, [n for n, _ in lines], tpath)
         stamps = _per_image(stamps, paths, "timestamps", img_dir, tpath)
     wTc = None
     ppath = kitti_poses_path(folder)

@@ -1,0 +1,179 @@
+"""Trajectory evaluation never answers a wrong figure without a word (issue 34,
+"Silent answers"): each case ends in a right answer, one ``graphslam: error:``
+line (exit 2) or a stated warning."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.evaluation.spatial import align_umeyama
+from graphslam.evaluation.trajectory import EvalOptions, evaluate
+from graphslam.sources.ground_truth import read_trajectory
+from graphslam.sources.spatial.images import read_tum_rgbd
+from graphslam.sources.spatial.kitti import read_kitti, read_kitti_poses
+from slamcore.errors import GraphSlamError, InputError
+from tests import trajectories as tr
+
+
+def _eval(tmp_path, capsys, *argv) -> tuple[int, str, str]:
+    code = main(["eval", *map(str, argv), "--no-plot", "--out", str(tmp_path / "o")])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _one_error(err: str, *words: str) -> None:
+    assert err.count("\n") == 1 and err.startswith("graphslam: error:"), err
+    for w in words:
+        assert w in err, err
+
+
+def _tum(path, stamps, wTc):
+    return tr.write(path, "tum", np.asarray(stamps, dtype=np.float64), wTc)
+
+
+# 1. duplicated / unsorted timestamps
+
+def test_duplicated_timestamp_is_refused_with_file_and_lines(tmp_path, capsys):
+    gt, est = tr.write_pair(tmp_path, "tum")
+    lines = est.read_text().splitlines()
+    stamp = lines[9].split()[0]
+    lines[10] = " ".join([stamp, *lines[10].split()[1:]])
+    est.write_text("\n".join(lines) + "\n")
+    code, _, err = _eval(tmp_path, capsys, gt, est)
+    assert code == 2
+    _one_error(err, "est_tum.txt:11", "line 10", "duplicated")
+
+
+def test_unsorted_timestamps_are_sorted_same_answer(tmp_path, capsys):
+    gt, est = tr.write_pair(tmp_path, "tum")
+    assert _eval(tmp_path, capsys, gt, est)[0] == 0
+    before = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
+    lines = est.read_text().splitlines()
+    lines[5], lines[200] = lines[200], lines[5]
+    est.write_text("\n".join(lines) + "\n")
+    traj = read_trajectory(est)
+    assert np.all(np.diff(traj.stamps_s) > 0)
+    assert _eval(tmp_path, capsys, gt, est)[0] == 0
+    after = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
+    assert after["ate_rmse_m"] == pytest.approx(before["ate_rmse_m"], rel=1e-12)
+
+
+# 2. two poses: the rotation about their line is undetermined
+
+def test_two_poses_se3_refused_not_180_degrees(tmp_path, capsys):
+    t, wTc = tr.trajectory(2, False)
+    gt = _tum(tmp_path / "gt.txt", t, wTc)
+    code, _, err = _eval(tmp_path, capsys, gt, gt)
+    assert code == 2
+    _one_error(err, "one line", "--align first")
+    # the first-pose alignment is well posed: a file against itself scores 0
+    code, _, _ = _eval(tmp_path, capsys, gt, gt, "--align", "first")
+    assert code == 0
+    s = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
+    assert s["ate_rot_rmse_deg"] < 1e-3
+
+
+def test_straight_line_se3_refused():
+    n = 20
+    wTc = np.tile(np.eye(4), (n, 1, 1))
+    wTc[:, 0, 3] = np.arange(n)
+    t = np.arange(n, dtype=np.float64)
+    with pytest.raises(GraphSlamError, match="one line"):
+        evaluate(t, wTc, t, wTc, EvalOptions(align="se3"))
+
+
+# 3. a rotation block that is not a rotation
+
+@pytest.mark.parametrize("block", [2 * np.eye(3), np.diag([1.0, 1.0, -1.0])])
+def test_kitti_non_rotation_refused_with_line(tmp_path, capsys, block):
+    t, wTc = tr.trajectory(5, False)
+    path = tr.write(tmp_path / "k.txt", "kitti", t, wTc)
+    lines = path.read_text().splitlines()
+    T = np.zeros((3, 4))
+    T[:, :3] = block
+    lines[2] = " ".join(f"{v:.9e}" for v in T.ravel())
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="not a rotation") as e:
+        read_trajectory(path)
+    assert "k.txt:3" in str(e.value)
+    with pytest.raises(InputError, match="not a rotation"):
+        read_kitti_poses(path)
+    code, _, err = _eval(tmp_path, capsys, path, path)
+    assert code == 2
+    _one_error(err, "k.txt:3")
+
+
+# 4. a times file that does not increase
+
+def test_times_all_zero_refused_with_line(tmp_path, capsys):
+    t, wTc = tr.trajectory(50, False)
+    kitti = tr.write(tmp_path / "k.txt", "kitti", t, wTc)
+    times = tmp_path / "times.txt"
+    times.write_text("0.0\n" * 50)
+    code, _, err = _eval(tmp_path, capsys, kitti, kitti, "--times", times)
+    assert code == 2
+    _one_error(err, "times.txt:2", "increase")
+
+
+# 5. a reference (or estimate) that never moves
+
+@pytest.mark.parametrize("align", ["sim3", "se3"])
+def test_static_reference_refused(tmp_path, capsys, align):
+    t, wTc = tr.trajectory(50, False)
+    still = wTc.copy()
+    still[:, :3, 3] = [1.0, 2.0, 3.0]
+    gt = _tum(tmp_path / "gt.txt", t, still)
+    est = _tum(tmp_path / "est.txt", t, wTc)
+    code, _, err = _eval(tmp_path, capsys, gt, est, "--align", align)
+    assert code == 2
+    _one_error(err, "reference", "does not move")
+
+
+def test_umeyama_sim3_onto_a_point_refused():
+    src = np.random.default_rng(0).normal(size=(10, 3))
+    with pytest.raises(GraphSlamError, match="does not move"):
+        align_umeyama(src, np.ones((10, 3)), with_scale=True)
+
+
+# 6. matched poses: counted, shared and warned about
+
+def test_partial_truth_counts_and_warns(tmp_path, capsys):
+    t, wTc = tr.trajectory(400, False)
+    est = _tum(tmp_path / "est.txt", t, wTc)
+    gt = _tum(tmp_path / "gt.txt", t[:50], wTc[:50])
+    code, out, err = _eval(tmp_path, capsys, gt, est)
+    assert code == 0
+    s = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
+    assert s["matched_poses"] == 50 and s["estimate_poses"] == 400
+    assert s["matched_share"] == pytest.approx(0.125)
+    assert "50/400" in out
+    assert err.startswith("graphslam: warning:") and "50 of 400" in err
+
+
+# 7. sequence folders whose stamps do not increase
+
+def _kitti_folder(tmp_path, times: str):
+    folder = tmp_path / "07"
+    (folder / "image_0").mkdir(parents=True)
+    for k in range(3):
+        (folder / "image_0" / f"{k:06d}.png").write_bytes(b"")
+    (folder / "calib.txt").write_text("P0: 700 0 600 0 0 700 180 0 0 0 1 0\n")
+    (folder / "times.txt").write_text(times)
+    return folder
+
+
+def test_kitti_folder_times_all_zero_refused(tmp_path):
+    with pytest.raises(InputError, match="increase") as e:
+        read_kitti(_kitti_folder(tmp_path, "0.0\n0.0\n0.0\n"))
+    assert "times.txt:2" in str(e.value)
+
+
+def test_tum_folder_stamps_all_zero_refused(tmp_path):
+    (tmp_path / "rgb.txt").write_text("# rgb\n0.0 rgb/a.png\n0.0 rgb/b.png\n")
+    with pytest.raises(InputError, match="increase") as e:
+        read_tum_rgbd(tmp_path)
+    assert "rgb.txt:3" in str(e.value)
