@@ -9,8 +9,9 @@ Poses are (N, 4, 4) ``wTc``; the reference comes first in every call.
 - :func:`align` -- none, SE(3) or Sim(3) Umeyama over all or the first ``n``
   positions (evo ``-a``, ``-as``, ``--n_to_align``), or the first pose onto
   the reference's first pose (evo ``--align_origin``); unlike evo, an se3/sim3
-  fit on positions that do not move or lie on one line (2 poses) is refused
-  (:func:`check_alignable`), its rotation being arbitrary;
+  fit on positions that do not move is refused, and on positions along one
+  line (2 poses, a straight drive) the rotation about the line, which
+  positions leave free, is fitted on the orientations;
 - :func:`ate` -- translation errors and rotation angles of ``inv(est) ref``;
 - :func:`rpe_pairs`, :func:`rpe` -- evo's consecutive (non-overlapping)
   pairs a frame count or a path length (along the estimate, evo's default)
@@ -129,28 +130,48 @@ def associate(ref_t: np.ndarray, est_t: np.ndarray, max_diff: float = DEFAULT_MA
 LINE_TOL = 1e-6
 
 
-def check_alignable(points: np.ndarray, what: str, method: str) -> None:
-    """GraphSlamError unless an SE(3)/Sim(3) fit on ``points`` (k, 3) is determined:
-    positions that do not move give no rotation (and a Sim(3) scale of 0), and
-    positions on one line (always the case for 2 poses) leave the rotation about
-    the line free, so the rotation errors after the fit would be arbitrary."""
+def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
+    """Whether an SE(3)/Sim(3) fit on ``points`` (k, 3) leaves a rotation free:
+    positions on one line (always the case for 2 poses) do not fix the rotation
+    about it. GraphSlamError when the positions do not move at all: then there
+    is no rotation to fit (and a Sim(3) scale of 0)."""
     centred = points - points.mean(axis=0)
     spread = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
     scale = max(1.0, float(np.max(np.abs(points))))
-    fix = "use --align first (first pose onto first pose) or --align none"
     if spread[0] <= STILL_TOL * scale:
         raise GraphSlamError(f"the {what} does not move (its {len(points)} matched positions "
                              f"are within {spread[0]:.1e} m of their mean): --align {method} "
-                             f"has nothing to fit; {fix}")
-    if spread[1] <= LINE_TOL * spread[0]:
-        raise GraphSlamError(f"the {len(points)} matched positions of the {what} lie on one "
-                             f"line: --align {method} cannot fix the rotation about it; {fix}")
+                             "has nothing to fit; use --align first (first pose onto first "
+                             "pose) or --align none")
+    return bool(spread[1] <= LINE_TOL * spread[0])
+
+
+def _about_line(ref: np.ndarray, est: np.ndarray) -> np.ndarray:
+    """(4, 4) rotation about the reference's line (through its centroid) that best
+    aligns the estimate's orientations with the reference's (both (k, 4, 4), the
+    estimate already fitted on positions): positions on a line leave that angle
+    free, and Umeyama's arbitrary choice reported up to 180 deg of rotation error
+    for a 2-pose or straight trajectory. Closed form: with R(a) = I + sin a K +
+    (1 - cos a) K^2 about the unit axis u (K = [u]x), sum_i tr(R(a) Q_i P_i^T) is
+    largest at a = atan2(tr(K M), -tr(K^2 M)), M = sum_i Q_i P_i^T."""
+    points = ref[:, :3, 3]
+    centre = points.mean(axis=0)
+    u = np.linalg.svd(points - centre)[2][0]
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    M = np.einsum("kij,klj->il", est[:, :3, :3], ref[:, :3, :3])
+    a = np.arctan2(np.trace(K @ M), -np.trace(K @ K @ M))
+    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, centre - R @ centre
+    return T
 
 
 def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
           ) -> tuple[np.ndarray, float]:
-    """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first;
-    GraphSlamError when an se3/sim3 fit is undetermined (:func:`check_alignable`)."""
+    """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first.
+    Positions on one line leave the rotation about it free: that angle is then
+    fitted on the orientations (:func:`_about_line`); positions that do not move
+    are a GraphSlamError."""
     est = np.array(est, dtype=np.float64)
     if method == "none":
         return est, 1.0
@@ -158,13 +179,16 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
         T = ref[0] @ invert_pose(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
-    check_alignable(ref[:k, :3, 3], "reference", method)
-    check_alignable(est[:k, :3, 3], "estimate", method)
+    line = on_one_line(ref[:k, :3, 3], "reference", method)
+    line = on_one_line(est[:k, :3, 3], "estimate", method) or line
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
     est[:, :3, 3] *= s
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
-    return T @ est, float(s)
+    aligned = T @ est
+    if line:
+        aligned = _about_line(ref[:k], aligned[:k]) @ aligned
+    return aligned, float(s)
 
 
 def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
