@@ -155,6 +155,9 @@ BAD_LINES = [
     # issue 34: a norm that underflows (1e-300 squared) ended in a ZeroDivisionError
     ("EDGE_SE3:QUAT 0 1 1 0 0 1e-300 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 1000 0 0 "
      "1000 0 1000\n", 1, "quaternion of norm 0 cannot be normalised"),
+    # issue 34: an EQUIV of a pose nothing else names was copied into graph.graph
+    ("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 100 0 100 1000 0 0\nEQUIV 0 7\n", 4,
+     "EQUIV names pose 7, which no vertex or edge has"),
     # issue 34: a 1e300 m step ended in an indeterminate system (iSAM2) or a silent 1e300
     ("EDGE_SE2 0 1 1e300 0 0 100 0 0 100 0 1000\n", 1, "translation beyond 1e+09 m"),
     ("VERTEX_SE2 0 0 -2e9 0\nEDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n", 1,

@@ -162,3 +162,13 @@ def test_a_self_edge_is_left_out_and_counted(tmp_path, capsys):
                      capsys.readouterr().out)
     assert json.loads((out / "metrics.json").read_text())["self_edges_ignored"] == {
         "edges": 1, "lines": [len(lines)]}
+
+
+def test_equiv_lines_are_counted_not_silently_ignored(tmp_path, capsys):
+    """Issue 34: TORO EQUIV lines were ignored by run without a word."""
+    path = write(tmp_path / "eq.graph", ["VERTEX2 0 0 0 0", "VERTEX2 1 1 0 0",
+                                        "EDGE2 0 1 1 0 0 100 0 100 1000 0 0", "EQUIV 0 1"])
+    out = tmp_path / "out"
+    assert main(["run", "--dataset", str(path), "--out", str(out), "--rerun", "off"]) == 0
+    assert re.search(r"EQUIV pairs ignored\s+1 \(same-place marks", capsys.readouterr().out)
+    assert json.loads((out / "metrics.json").read_text())["equiv_ignored"] == 1

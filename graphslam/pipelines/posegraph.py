@@ -60,6 +60,7 @@ class PoseGraphRunMetrics:
     closure_test: dict | None = None
     route: dict | None = None
     self_edges_ignored: dict | None = None
+    equiv_ignored: int | None = None
     final_cost_kept: float | None = None
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
@@ -69,7 +70,7 @@ class PoseGraphRunMetrics:
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
         "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept", "route",
-        "self_edges_ignored"})
+        "self_edges_ignored", "equiv_ignored"})
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
@@ -158,6 +159,7 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
             "threshold_whitened": result.closure_threshold,
             "noise_scale_squared": result.noise_scale,
             "retest_rounds": result.closure_rounds},
+        equiv_ignored=len(graph.equiv) or None,
         self_edges_ignored=({"edges": len(graph.self_edge_lines),
                              "lines": graph.self_edge_lines[:10].tolist()}
                             if len(graph.self_edge_lines) else None),

@@ -17,7 +17,8 @@ TORO 2-D           ``VERTEX2 id x y th``; ``EDGE2 i j dx dy dth`` +
 TORO 3-D           ``VERTEX3 id x y z roll pitch yaw``; ``EDGE3 i j x y z roll
                    pitch yaw`` + 21 numbers as in g2o 3-D
 both               ``FIX id ...`` (poses held at their vertex), ``EQUIV i j``
-                   (kept and written back, not used by the solver, as in gtsam)
+                   (kept and written back, not used by the solver, as in gtsam;
+                   counted in the summary; one naming an unknown pose is refused)
 =================  =========================================================
 
 The numbers after an edge are an **information** matrix in every format (the
@@ -209,6 +210,7 @@ class _Collector:
         self.self_edge_lines: list[int] = []
         self.fixed: list[tuple[int, int]] = []
         self.equiv: list[tuple[int, int]] = []
+        self.equiv_lines: list[int] = []
 
     def line(self, line_no: int, tok: list[str]) -> None:
         tag = tok[0]
@@ -223,6 +225,7 @@ class _Collector:
                                  line_no)
             self.equiv.append((parse_id(tok[1], self.path, line_no),
                                parse_id(tok[2], self.path, line_no)))
+            self.equiv_lines.append(line_no)
             return
         if tag in LANDMARK_TAGS:
             raise InputError(f"{tag} is a landmark observation (landmark SLAM, not a pose "
@@ -353,7 +356,15 @@ class _Collector:
         return stack, bad
 
     def _check_declared(self) -> None:
-        """With vertex lines present, an edge or FIX naming an undeclared pose is refused."""
+        """With vertex lines present, an edge or FIX naming an undeclared pose is refused;
+        an EQUIV naming a pose that is in no edge and no vertex line, always (it was
+        copied into the written graph as a pose of nothing)."""
+        known = set(self.vertices) | {k for e in self.edges for k in e}
+        for pair, line_no in zip(self.equiv, self.equiv_lines):
+            for k in pair:
+                if k not in known:
+                    raise InputError(f"EQUIV names pose {k}, which no vertex or edge has",
+                                     self.path, line_no)
         if not self.vertices:
             for k, line_no in self.fixed:
                 if not any(k in e for e in self.edges):

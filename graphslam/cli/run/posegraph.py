@@ -101,6 +101,9 @@ def format_summary(metrics) -> str:
             f"to itself (lines {', '.join(map(str, metrics.self_edges_ignored['lines']))}"
             f"{', ...' if metrics.self_edges_ignored['edges'] > 10 else ''}): they constrain "
             "nothing")] if metrics.self_edges_ignored else []),
+        *([("EQUIV pairs ignored", f"{metrics.equiv_ignored} (same-place marks: the solver "
+            "does not merge them, as gtsam; kept in the written graph)")]
+          if metrics.equiv_ignored else []),
         ("initialisation", metrics.init),
         ("initial cost", fmt(metrics.initial_cost, ".10g")),
         ("final cost", fmt(metrics.final_cost, ".10g")),
