@@ -172,3 +172,17 @@ def test_equiv_lines_are_counted_not_silently_ignored(tmp_path, capsys):
     assert main(["run", "--dataset", str(path), "--out", str(out), "--rerun", "off"]) == 0
     assert re.search(r"EQUIV pairs ignored\s+1 \(same-place marks", capsys.readouterr().out)
     assert json.loads((out / "metrics.json").read_text())["equiv_ignored"] == 1
+
+
+def test_the_ate_says_how_many_poses_it_covers(tmp_path, capsys):
+    """Issue 34: truth covering part of the poses gave an ATE with no count."""
+    path, truth, _ = _world(tmp_path, wrong_runs=0)
+    gt = tmp_path / "gt.tum"
+    gt.write_text("".join(f"{k} {p.x()} {p.y()} 0 0 0 {math.sin(p.theta() / 2)} "
+                          f"{math.cos(p.theta() / 2)}\n" for k, p in enumerate(truth) if k % 4 == 0))
+    out = tmp_path / "out"
+    assert main(["run", "--dataset", str(path), "--ground-truth", str(gt), "--out", str(out),
+                 "--rerun", "off"]) == 0
+    assert re.search(r"ATE RMSE \[m\]\s+[0-9.]+ \(over the 30 of 120 poses with truth\)",
+                     capsys.readouterr().out)
+    assert json.loads((out / "metrics.json").read_text())["ate_poses"] == 30

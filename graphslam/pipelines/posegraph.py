@@ -64,13 +64,14 @@ class PoseGraphRunMetrics:
     final_cost_kept: float | None = None
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
+    ate_poses: int | None = None
     interrupted: bool = False
     converged: bool = True
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
         "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept", "route",
-        "self_edges_ignored", "equiv_ignored"})
+        "self_edges_ignored", "equiv_ignored", "ate_poses"})
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
@@ -166,6 +167,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
         ate_rmse_m=None if not scored else ate_rmse(graph, result.params, truth),
+        # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
+        ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
         odometry_ate_rmse_m=None if not scored else ate_rmse(
             graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),

@@ -111,7 +111,9 @@ def format_summary(metrics) -> str:
           if metrics.final_cost_kept is not None else []),
         ("LM iterations", fmt(metrics.iterations, "d")),
         ("closures rejected", closure_row(metrics)),
-        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f")),
+        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f") + (
+            "" if metrics.ate_poses is None or metrics.ate_rmse_m is None
+            else f" (over the {metrics.ate_poses} of {metrics.poses} poses with truth)")),
         ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
