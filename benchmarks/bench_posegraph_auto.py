@@ -9,7 +9,7 @@ on one where batch stops in a local minimum, ``auto`` pays for iSAM2 too and
 keeps the lower cost (its ratio is then the price of that, no target).
 
 Files: gtsam's sphere2500 (square-root information, as iSAM wrote it), w10000, and the 300-pose Manhattan walk with 0.2 rad of
-heading noise of ``tests/test_posegraph_route.py`` (batch from LAGO stops in
+heading noise of ``tests.posegraphs.manhattan_walk`` (batch from LAGO stops in
 a local minimum there).
 
     python benchmarks/bench_posegraph_auto.py [--repeats 3] [--quick] [--out FILE.json]
@@ -44,9 +44,9 @@ COMMAND = "python benchmarks/bench_posegraph_auto.py --out benchmarks/figures/po
 
 
 def files(quick: bool, folder: Path) -> list[tuple[str, Path, str]]:
-    from tests.test_posegraph_route import _manhattan
+    from tests.posegraphs import manhattan_walk
 
-    manhattan = _manhattan(folder)
+    manhattan = manhattan_walk(folder)
     if quick:
         return [("w100", Path(gtsam.findExampleDataFile("w100.graph")), "information"),
                 ("manhattan300", manhattan, "information")]

@@ -112,3 +112,34 @@ def write(path: Path, lines: list[str]) -> Path:
 
 def _num(v) -> str:
     return repr(float(v))
+
+
+#: Odometry and closure noise of :func:`manhattan_walk`: 5 cm, and 0.2 rad of heading
+#: (the large rotation noise under which LAGO's rotations mislead batch LM).
+MANHATTAN_SIGMA = np.array([0.05, 0.05, 0.2])
+
+
+def manhattan_walk(folder: Path, n: int = 300, sigma=MANHATTAN_SIGMA, seed: int = 0) -> Path:
+    """A random walk on a unit grid (a quarter turn 2 steps in 5), a closure
+    wherever a cell is revisited more than 5 poses later; measurements perturbed
+    by ``sigma``, which the information states; written as g2o into ``folder``."""
+    rng = np.random.default_rng(seed)
+    poses, pose = [gtsam.Pose2()], gtsam.Pose2()
+    for _ in range(1, n):
+        pose = pose.compose(gtsam.Pose2(1.0, 0.0, rng.choice([0, 0, 0, math.pi / 2,
+                                                              -math.pi / 2])))
+        pose = gtsam.Pose2(round(pose.x()), round(pose.y()), pose.theta())
+        poses.append(pose)
+    cells, edges = {}, [(k - 1, k) for k in range(1, n)]
+    for k, q in enumerate(poses):
+        key = (round(q.x()), round(q.y()))
+        edges += [(j, k) for j in cells.get(key, []) if k - j > 5]
+        cells.setdefault(key, []).append(k)
+    noise = np.random.default_rng(seed + 1)
+    info = 1.0 / np.asarray(sigma) ** 2
+    lines = []
+    for a, b in edges:
+        z = poses[a].between(poses[b]).compose(gtsam.Pose2(*(noise.normal(0, 1, 3) * sigma)))
+        lines.append(f"EDGE_SE2 {a} {b} {z.x()} {z.y()} {z.theta()} "
+                     f"{info[0]} 0 0 {info[1]} 0 {info[2]}")
+    return write(folder / f"manhattan_{n}_{seed}.g2o", lines)

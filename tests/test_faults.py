@@ -158,9 +158,9 @@ def test_pose_graph_cut_after_one_pose_keeps_its_files(tmp_path):
 def test_auto_cut_while_trying_isam2_keeps_batchs_whole_estimate(tmp_path):
     """--backend auto stopped in its iSAM2 attempt (batch's result had failed the
     chi-square check): batch's estimate of every pose is kept and says so."""
-    from tests.test_posegraph_route import _manhattan
+    from tests.posegraphs import manhattan_walk
 
-    path = _manhattan(tmp_path)
+    path = manhattan_walk(tmp_path)
     done = graphslam(tmp_path, "run", "--dataset", str(path), "--out", "o", "--quiet",
                      "--rerun", "off", at="step:3")
     assert done.returncode == 130, done.stderr

@@ -99,6 +99,31 @@ def test_a_full_disk_is_one_line_and_leaves_no_earlier_run_beside_the_new(tmp_pa
     assert "metrics.json" not in now and not any(n.startswith(".") for n in now)
 
 
+def test_a_pose_graph_run_on_a_full_disk_leaves_no_earlier_run_beside_the_new(
+        tmp_path, capsys, monkeypatch):
+    import gtsam
+
+    from graphslam.pipelines import posegraph as pipeline
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    out = tmp_path / "run"
+    argv = ("run", "--dataset", w100, "--rerun", "off", "--quiet", "--out", out)
+    assert main([str(a) for a in argv]) == 0
+    capsys.readouterr()
+    old = {p.name: p.stat().st_ino for p in out.iterdir()}
+    assert {"trajectory.tum", "metrics.json", "closures.csv"} <= set(old)
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", "closures.csv")
+
+    monkeypatch.setattr(pipeline, "write_closures_csv", full)
+    line = one_error_line(capsys, *argv)
+    assert "no space left on device writing closures.csv" in line
+    now = {p.name: p.stat().st_ino for p in out.iterdir()}
+    assert "trajectory.tum" in now and all(now[n] != old.get(n) for n in now), (old, now)
+    assert "metrics.json" not in now and "closures.csv" not in now
+
+
 def test_a_map_saved_over_another_on_a_full_disk_leaves_the_old_map_whole(tmp_path,
                                                                           monkeypatch):
     folder = tmp_path / "map"

@@ -154,7 +154,7 @@ BAD_LINES = [
     ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", 1, "quaternion of norm 0 cannot be normalised"),
     # issue 34: a norm that underflows (1e-300 squared) ended in a ZeroDivisionError
     ("EDGE_SE3:QUAT 0 1 1 0 0 1e-300 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 1000 0 0 "
-     "1000 0 1000\n", 1, "quaternion of norm 0 cannot be normalised"),
+     "1000 0 1000\n", 1, "quaternion of norm 1e-300 cannot be normalised"),
     # issue 34: an EQUIV of a pose nothing else names was copied into graph.graph
     ("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 100 0 100 1000 0 0\nEQUIV 0 7\n", 4,
      "EQUIV names pose 7, which no vertex or edge has"),

@@ -5,54 +5,22 @@ not, the lower cost kept and a local minimum named."""
 from __future__ import annotations
 
 import json
-import math
 import re
 
-import gtsam
-import numpy as np
 import pytest
 
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import solve
 from graphslam.cli.main import main
 from graphslam.sources.posegraph_files import read_pose_graph_file
-from tests.posegraphs import write
+from tests.posegraphs import manhattan_walk
 
 #: Two routes at the same optimum agree to this, relative.
 OPTIMUM_REL = 1e-6
-#: Odometry and closure noise of the Manhattan world: 5 cm, and 0.2 rad of heading
-#: (the large rotation noise under which LAGO's rotations mislead batch LM).
-SIGMA = np.array([0.05, 0.05, 0.2])
-
-
-def _manhattan(tmp_path, n: int = 300, sigma=SIGMA, seed: int = 0):
-    """A random walk on a unit grid (a quarter turn 2 steps in 5), a closure
-    wherever a cell is revisited more than 5 poses later; measurements perturbed
-    by ``sigma``, which the information states."""
-    rng = np.random.default_rng(seed)
-    poses, pose = [gtsam.Pose2()], gtsam.Pose2()
-    for _ in range(1, n):
-        pose = pose.compose(gtsam.Pose2(1.0, 0.0, rng.choice([0, 0, 0, math.pi / 2,
-                                                              -math.pi / 2])))
-        pose = gtsam.Pose2(round(pose.x()), round(pose.y()), pose.theta())
-        poses.append(pose)
-    cells, edges = {}, [(k - 1, k) for k in range(1, n)]
-    for k, q in enumerate(poses):
-        key = (round(q.x()), round(q.y()))
-        edges += [(j, k) for j in cells.get(key, []) if k - j > 5]
-        cells.setdefault(key, []).append(k)
-    noise = np.random.default_rng(seed + 1)
-    info = 1.0 / np.asarray(sigma) ** 2
-    lines = []
-    for a, b in edges:
-        z = poses[a].between(poses[b]).compose(gtsam.Pose2(*(noise.normal(0, 1, 3) * sigma)))
-        lines.append(f"EDGE_SE2 {a} {b} {z.x()} {z.y()} {z.theta()} "
-                     f"{info[0]} 0 0 {info[1]} 0 {info[2]}")
-    return write(tmp_path / f"manhattan_{n}_{seed}.g2o", lines)
 
 
 def test_auto_keeps_isam2_where_batch_stops_in_a_local_minimum(tmp_path):
-    g = read_pose_graph_file(_manhattan(tmp_path))
+    g = read_pose_graph_file(manhattan_walk(tmp_path))
     batch = solve(g, PoseGraphConfig(), "batch")
     isam2 = solve(g, PoseGraphConfig(), "isam2")
     auto = solve(g, PoseGraphConfig(), "auto")
@@ -63,7 +31,7 @@ def test_auto_keeps_isam2_where_batch_stops_in_a_local_minimum(tmp_path):
 
 
 def test_auto_keeps_batch_alone_where_its_residuals_are_consistent(tmp_path):
-    g = read_pose_graph_file(_manhattan(tmp_path, seed=1))
+    g = read_pose_graph_file(manhattan_walk(tmp_path, seed=1))
     auto = solve(g, PoseGraphConfig(), "auto")
     isam2 = solve(g, PoseGraphConfig(), "isam2")
     assert auto.route["kept"] == "batch" and "isam2" not in auto.route  # iSAM2 not run
@@ -72,7 +40,7 @@ def test_auto_keeps_batch_alone_where_its_residuals_are_consistent(tmp_path):
 
 
 def test_auto_is_the_default_for_a_pose_graph_file_and_says_its_route(tmp_path, capsys):
-    path = _manhattan(tmp_path)
+    path = manhattan_walk(tmp_path)
     out = tmp_path / "out"
     assert main(["run", "--dataset", str(path), "--out", str(out), "--rerun", "off"]) == 0
     text = capsys.readouterr().out
@@ -85,7 +53,7 @@ def test_auto_is_the_default_for_a_pose_graph_file_and_says_its_route(tmp_path, 
 
 def test_no_polish_alone_still_runs_isam2_on_a_file(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["run", "--dataset", str(_manhattan(tmp_path, seed=1)), "--no-polish",
+    assert main(["run", "--dataset", str(manhattan_walk(tmp_path, seed=1)), "--no-polish",
                  "--out", str(out), "--rerun", "off"]) == 0
     assert re.search(r"backend\s+isam2", capsys.readouterr().out)
 

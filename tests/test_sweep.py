@@ -256,20 +256,14 @@ def test_workers_refused_where_they_do_nothing(tmp_path, capsys, argv):
 
 
 @pytest.mark.slow
-def test_unreachable_cluster_is_one_line(tmp_path, capsys):
+# "not a url" (issue 34) was a ValueError traceback
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "not a url"])
+def test_a_cluster_that_cannot_be_reached_is_one_line(tmp_path, capsys, address):
     pytest.importorskip("distributed")
     assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
-                 "--cluster", "tcp://127.0.0.1:1"]) == 2
+                 "--cluster", address]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "cannot connect" in err[0]
-
-
-def test_a_cluster_that_is_no_address_is_one_line(tmp_path, capsys):
-    pytest.importorskip("distributed")
-    assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
-                 "--cluster", "not a url"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--cluster not a url: cannot connect" in err[0]
+    assert len(err) == 1 and f"--cluster {address}: cannot connect" in err[0]
 
 
 def test_max_runs_raises_the_cap(tmp_path):

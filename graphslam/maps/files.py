@@ -47,7 +47,7 @@ import numpy as np
 
 from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS, PlanarMap
 from graphslam.maps.spatial_map import ARRAYS, SpatialMap
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
 from slamcore.files import inside_folder, replacing_all
 from slamcore.npz import check_npz_sizes
 
@@ -175,7 +175,7 @@ def _checked_bytes(folder: Path, entry: dict, what: str) -> tuple[Path, bytes]:
     name = str(entry.get("file", ""))
     path = inside_folder(folder, name)
     if path is None:  # a map names only its own files, never ../x or /etc/passwd
-        raise InputError(f"damaged map.json ({what} file {name[:64]!r} is outside the map "
+        raise InputError(f"damaged map.json ({what} file {quote(name)} is outside the map "
                          "folder)", folder / MAP_JSON)
     if not path.is_file():
         raise InputError(f"map {what} file missing", path)

@@ -245,13 +245,13 @@ class _Collector:
         (self._vertex if kind == "vertex" else self._edge)(line_no, tok)
 
     def _pose(self, numbers: list[float], line_no: int) -> list[float]:
-        dim = self.kind[1]
+        # plain Python, not numpy: this runs on every line of the file
         if self.kind[2] == "quat":
-            norm = float(np.linalg.norm(numbers[3:7]))
+            norm = math.hypot(*numbers[3:7])
             if not norm >= QUATERNION_NORM_MIN:
                 raise InputError(f"quaternion of norm {norm:.3g} cannot be normalised into a "
                                  "rotation (a unit quaternion is expected)", self.path, line_no)
-        if not np.all(np.abs(numbers[:dim]) <= TRANSLATION_MAX_M):
+        if not max(abs(v) for v in numbers[:self.kind[1]]) <= TRANSLATION_MAX_M:
             raise InputError(f"translation beyond {TRANSLATION_MAX_M:.0e} m: no robot's pose "
                              "graph spans that (a shifted column?)", self.path, line_no)
         return numbers

@@ -9,25 +9,23 @@ tens of metres. The policy, for ``robust_closures = "auto"`` (the default) and
   exceeds the chi-square quantile at ``1 - alpha / M`` (M closures, ``alpha``
   = ``closure_test_alpha``): a Bonferroni bound, so a graph whose closures all
   follow their stated noise loses none of them with probability at least
-  ``1 - alpha``. Where the closures' residuals at the least-squares optimum
-  say the stated noise is too small, that first test's threshold grows by
-  their median-based scale (:func:`noise_scale`). Clean benchmark graphs thus keep every closure and reach the
+  ``1 - alpha``. Clean benchmark graphs thus keep every closure and reach the
   least-squares optimum; a fixed per-closure level (gtsam's 0.99) would drop
   1 % of their closures.
 - **iSAM2** adds closures under a Cauchy kernel whose scale is that
   threshold: an inlier keeps at least half its weight, a closure 10x beyond it
   about 1 %, so a run of wrong closures does not bend the incremental estimate
-  the polish starts from (plain iSAM2 on a real graph with wrong closures ends
-  tens of metres off, and GNC from there stays there).
-- **The polish / batch solve** starts from the candidate start with the lowest
-  truncated cost (odometry edges in full, each closure capped at its
-  threshold): a start bent by wrong closures pays for them in full under a
-  plain cost and loses under the truncated one. If no closure fails the test
-  at that start, a plain LM over every edge follows (the least-squares
-  optimum). Otherwise gtsam's GNC (truncated least squares, odometry and gauge
-  priors known inliers, the same thresholds) weighs the closures; those it
-  weighs below 0.5 are rejected and a plain LM over the kept edges ends the
-  solve (their optimum, at full tolerance).
+  (plain iSAM2 on a real graph with wrong closures ends tens of metres off).
+- **The final solve** (batch, or iSAM2's polish) starts from the candidate
+  with the lowest truncated cost (odometry edges in full, each closure capped
+  at the threshold) and runs LM over every edge. At that least-squares optimum
+  the closures are tested, the threshold loosened by their median-based
+  noise scale where the stated noise is too small (:func:`noise_scale`); if
+  all pass, that optimum is the result. Otherwise gtsam's GNC (truncated least
+  squares, odometry and gauge priors known inliers, the stated threshold)
+  weighs the closures from the initialiser's start; those it weighs below 0.5
+  are left out, LM over the kept edges follows, and every closure is re-tested
+  at that optimum until the kept set is stable.
 
 ``auto`` skips all of it for a graph without closures; ``none`` is plain least
 squares everywhere; ``gnc`` runs GNC even when every closure passes the test.
@@ -58,11 +56,10 @@ def threshold_error(graph: PoseGraph, alpha: float) -> float:
     return 0.5 * float(chi2.isf(alpha / n_closures, dof))
 
 
-def cauchy_model(information_model, threshold: float):
-    """``information_model`` under a Cauchy kernel of scale ``sqrt(2 threshold)``
-    (whitened units: the threshold residual keeps half its weight)."""
-    kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(float(np.sqrt(2.0 * threshold)))
-    return gtsam.noiseModel.Robust.Create(kernel, information_model)
+def cauchy_kernel(threshold: float):
+    """The Cauchy kernel of scale ``sqrt(2 threshold)`` (whitened units: the
+    threshold residual keeps half its weight), one for every closure."""
+    return gtsam.noiseModel.mEstimator.Cauchy.Create(float(np.sqrt(2.0 * threshold)))
 
 
 def noise_scale(graph: PoseGraph, errors: np.ndarray) -> float:

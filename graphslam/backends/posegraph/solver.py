@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -49,8 +50,8 @@ class SolveResult:
         iterations: LM iterations (None for GNC).
         certificate: Shonan's minimum eigenvalue, when ``shonan`` was used.
         residuals: (M,) whitened residual norm of every edge at the result.
-        rejected: (M,) bool, closures GNC weighed below 0.5 (left out of the
-            final LM).
+        rejected: (M,) bool, closures that failed the outlier test at the final
+            kept-edge optimum (:mod:`.robust`; left out of the final LM).
         recoveries: numerical fallbacks taken, one sentence each.
         isam2_s: time of the incremental part alone (None for batch).
         cut: the poses solved when a stop cut the incremental solve (their
@@ -134,38 +135,55 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
         recoveries.append(first.note)
     starts.append(first)
     start, at_start = _best_start(graph, edges, starts, robust, threshold)
-    result, iterations, rejected, rounds, scale, errors = _final_solve(
-        graph, edges, start, at_start, first, robust, threshold, config, recoveries)
-    out = _result(graph, solver, start, result, iterations, edges, rejected, recoveries, t0,
-                  isam2_s, isam2_cost, errors)
+    final = _final_solve(graph, edges, start, at_start, first, robust, threshold, config,
+                         recoveries)
+    out = _result(graph, solver, start, final.values, final.iterations, edges, final.rejected,
+                  recoveries, t0, isam2_s, isam2_cost, final.errors)
     # LM that used every iteration it was allowed stopped on the cap, not on a tolerance
-    out.lm_capped = iterations is not None and iterations >= config.max_iterations
-    out.closure_threshold = float(np.sqrt(2.0 * threshold * scale)) if robust else None
-    out.noise_scale = scale
-    out.closure_rounds = rounds
-    out.final_cost_kept = float(np.sum(np.square(out.residuals[~rejected])) / 2.0)
+    out.lm_capped = final.iterations >= config.max_iterations
+    out.closure_threshold = float(np.sqrt(2.0 * threshold * final.scale)) if robust else None
+    out.noise_scale = final.scale
+    out.closure_rounds = final.rounds
+    out.final_cost_kept = float(np.sum(np.square(out.residuals[~final.rejected])) / 2.0)
     out.robust_mode = config.robust_closures if robust else None
     return out
 
 
+class FinalSolve(NamedTuple):
+    """What :func:`_final_solve` ends with.
+
+    Attributes:
+        values: the estimate. iterations: the last LM's.
+        rejected: (M,) bool, the closures left out.
+        rounds: LM solves over the kept edges (0: all closures passed at once).
+        scale: the squared noise scale the test's threshold was multiplied by.
+        errors: (M,) edge errors at ``values`` where they were computed anyway, else None.
+    """
+
+    values: gtsam.Values
+    iterations: int
+    rejected: np.ndarray
+    rounds: int
+    scale: float
+    errors: np.ndarray | None
+
+
 def _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries
-                 ) -> tuple[gtsam.Values, int, np.ndarray, int, float, np.ndarray | None]:
+                 ) -> FinalSolve:
     """LM over every edge from ``start``; when closures are suspects and one fails
     the test at that least-squares optimum, GNC (the closures failing at ``start``
     weighed 0 at first) and LM over the kept edges, re-tested until the kept set
-    is stable. Returns the estimate, the last LM's iterations, (M,) rejected, the re-test rounds and
-    the noise scale the threshold was multiplied by, and the (M,) edge errors at
-    the estimate where they were computed anyway (else None)."""
+    is stable (:mod:`.robust`)."""
     full = with_priors(graph, edges, start.values, config.prior_sigma)
     result, iterations = lm(full, start.values, config, recoveries)
     none = np.zeros(graph.n_edges, dtype=bool)
     if not robust:
-        return result, iterations, none, 0, 1.0, None
+        return FinalSolve(result, iterations, none, 0, 1.0, None)
     at_optimum = rb.EdgeErrors.at(graph, edges, result)
     scale = rb.noise_scale(graph, at_optimum.errors[at_optimum.closures])
     if config.robust_closures != "gnc" and not at_optimum.failing(threshold * scale).any():
         # every closure agrees with the optimum (its errors are the report's residuals)
-        return result, iterations, none, 0, scale, at_optimum.errors
+        return FinalSolve(result, iterations, none, 0, scale, at_optimum.errors)
     # GNC from the initialiser's start: from the iSAM2 estimate it reached the same
     # closures 3-6x slower on the RRR graphs (its first, convex, steps undo that start)
     at_start = at_start or rb.EdgeErrors.at(graph, edges, start.values)
@@ -185,7 +203,7 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
     else:
         recoveries.append(f"closure re-test: the kept set still changed after {MAX_RETESTS} "
                           "rounds; the last one is reported")
-    return result, iterations, rejected, rounds, scale, None
+    return FinalSolve(result, iterations, rejected, rounds, scale, None)
 
 
 #: Re-tests of the closures against the kept-edge optimum before the set is taken as is.
@@ -210,11 +228,11 @@ def _isam2_edges(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, robust: bo
     if not robust:
         return edges
     closures = ~graph.odometry_mask()
+    kernel = rb.cauchy_kernel(threshold)
     out = gtsam.NonlinearFactorGraph()
     for e in range(graph.n_edges):
-        out.add(fx.between(graph, e, rb.cauchy_model(fx.noise_model(graph.information[e]),
-                                                     threshold))
-                if closures[e] else edges.at(e))
+        out.add(fx.between(graph, e, gtsam.noiseModel.Robust.Create(
+            kernel, fx.noise_model(graph.information[e]))) if closures[e] else edges.at(e))
     return out
 
 

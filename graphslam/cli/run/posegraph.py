@@ -35,7 +35,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve the pose graph named by ``--dataset``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import posegraph as pipeline
 
     t0 = time.perf_counter()
@@ -65,9 +65,11 @@ def run(args: argparse.Namespace) -> int:
     remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)
     metrics = pipeline.metrics(graph, result, time.perf_counter() - t0, truth)
-    paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
-    if args.rerun != "off":
-        paths.update(record(args, graph, result, out_dir))
+    # a full disk part way: no earlier run's file left beside this run's
+    with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
+        paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
+        if args.rerun != "off":
+            paths.update(record(args, graph, result, out_dir))
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 

@@ -89,7 +89,7 @@ def listed_file(folder: Path, name: str, listing: Path, line: int) -> Path:
     own files, and a list from elsewhere must not make a run read any file."""
     path = inside_folder(folder, name)
     if path is None:
-        raise InputError(f"image {name[:64]!r} is outside the sequence folder {folder}",
+        raise InputError(f"image {quote(name)} is outside the sequence folder {folder}",
                          listing, line)
     return path
 
