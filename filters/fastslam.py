@@ -171,7 +171,8 @@ class FastSlam(ParticleUpdates, Backend):
         cur = self._pose_ids[-1]
         for o in obs:
             if o.kind is not ObservationKind.RANGE_BEARING:
-                raise UnsupportedError(f"{self.name}: only range-bearing observations ({o.kind})")
+                raise UnsupportedError(f"{self.name} handles range-bearing observations only, "
+                                       f"got {o.kind.value}")
             if o.pose_id != cur:
                 raise GraphSlamError(f"{self.name}: observation from pose {o.pose_id}, "
                                      f"but the current pose is {cur}")

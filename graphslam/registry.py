@@ -17,6 +17,7 @@ ConfigSource = ConfigFile | str | Path | None
 #: this list against the ``SECTION`` of every config dataclass in the tree).
 CONFIG_SECTIONS = (
     "synthetic", "isam2", "ekf", "fastslam",  # 2-D worlds and back ends
+    "mrclam",  # the UTIAS MRCLAM logs (robot, sensor calibration)
     "synthetic_images", "visual", "odometry_noise", "tracker", "active_search", "harris", "orb",
     "isam2_visual", "mono_ekf",  # image sequences
     "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
@@ -33,14 +34,25 @@ def read_config(path: str | Path | None) -> ConfigFile:
 
 
 #: Built-in datasets; anything else is taken as a pose-graph file path.
-DATASETS = ("synthetic", "victoria-park", "city10000", "w10000")
+DATASETS = ("synthetic", "victoria-park", "city10000", "w10000", "plaza1", "plaza2")
 #: Back ends available to ``graphslam run``.
 BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
-def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None) -> Dataset:
+def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None,
+                 robot: int | None = None) -> Dataset:
     """Dataset by name, pose-graph file path (``.graph`` TORO, ``.g2o``; TORO ``BR`` lines
-    are landmark observations) or a landmark log in Victoria Park's format."""
+    are landmark observations), a landmark log in Victoria Park's format, an
+    MRCLAM folder (``robot`` overrides ``[mrclam] robot``), or a Plaza range-only log
+    (``plaza1``, ``plaza2`` from gtsam's wheel, a ``*_DR.txt`` file or its folder)."""
+    if robot is not None and not is_mrclam_dataset(spec):
+        raise ConfigError("--robot applies to MRCLAM folders only")
+    if is_mrclam_dataset(spec):
+        from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam
+
+        check_input_path(Path(spec), "--dataset", folder_ok=True)
+        overrides = {} if robot is None else {"robot": robot}
+        return read_mrclam(spec, load_section(MrclamConfig, config, overrides))
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
@@ -49,6 +61,13 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 
         return read_victoria_park(victoria_park_path())
+    if spec in ("plaza1", "plaza2") or is_plaza_dataset(spec):
+        from graphslam.sources.planar.plaza import plaza_files, plaza_path, read_plaza
+
+        path = plaza_path(int(spec[-1])) if spec in DATASETS else Path(spec)
+        check_input_path(path, "--dataset", folder_ok=True)
+        dr, td, _ = plaza_files(path)
+        return read_plaza(dr, td)
     if spec == "city10000":
         from graphslam.sources.planar.posegraph import read_city10000
 
@@ -188,6 +207,10 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     out = {by_backend[backend].SECTION: by_backend[backend]}
     if dataset == "synthetic":
         out[SyntheticConfig.SECTION] = SyntheticConfig
+    elif is_mrclam_dataset(dataset):
+        from graphslam.sources.planar.mrclam import MrclamConfig
+
+        out[MrclamConfig.SECTION] = MrclamConfig
     return out
 
 
@@ -200,9 +223,26 @@ VISUAL_DATASETS = ("synthetic-images",)
 VISUAL_BACKENDS = ("isam2", "ekf")
 
 
+def is_mrclam_dataset(spec: str) -> bool:
+    """Whether ``--dataset spec`` is a folder holding a UTIAS MRCLAM data set."""
+    from graphslam.sources.planar.mrclam import is_mrclam_folder
+
+    return spec not in DATASETS and spec not in VISUAL_DATASETS and is_mrclam_folder(spec)
+
+
+def is_plaza_dataset(spec: str) -> bool:
+    """Whether ``--dataset spec`` is a Plaza range-only log: a ``*_DR.txt`` file, or a
+    folder holding one with its ``*_TD.txt`` (the built-in ``plaza1``, ``plaza2`` aside)."""
+    from graphslam.sources.planar.plaza import plaza_files
+
+    return spec not in DATASETS and spec not in VISUAL_DATASETS and plaza_files(spec) is not None
+
+
 def is_visual_dataset(spec: str) -> bool:
-    """Whether ``--dataset spec`` names an image sequence (built-in or a folder)."""
-    return spec in VISUAL_DATASETS or Path(spec).is_dir()
+    """Whether ``--dataset spec`` names an image sequence (built-in or a folder other
+    than an MRCLAM or Plaza log)."""
+    return spec in VISUAL_DATASETS or (Path(spec).is_dir() and not is_mrclam_dataset(spec)
+                                       and not is_plaza_dataset(spec))
 
 
 def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSource = None):

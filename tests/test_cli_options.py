@@ -211,6 +211,16 @@ def _run_seed(cli, key):
     refused(cli(*RUN_2D, "--dataset", graph, "--seed", "7"), "--seed")
 
 
+@row("run --robot")
+def _run_robot(cli, key):
+    mrclam = str(SHARED_DATA / "mrclam6")
+    one, two = cli(*RUN_2D, "--dataset", mrclam), cli(*RUN_2D, "--dataset", mrclam, "--robot", "2")
+    assert one.metrics()["dataset"] == "mrclam6-robot1"
+    assert two.metrics()["dataset"] == "mrclam6-robot2"
+    differ(one, two)
+    refused(cli(*RUN_2D, "--robot", "2"), "--robot applies to MRCLAM folders only")
+
+
 @row("run --init")
 def _run_init(cli, key):
     graph = str(_square_graph(cli))
@@ -419,6 +429,15 @@ def _compare_dataset(cli, key):
     a = cli(*COMPARE)
     b = cli(*COMPARE, "--dataset", str(_square_graph(cli)))
     differ(a, b, "compare.json")
+
+
+@row("compare --robot")
+def _compare_robot(cli, key):
+    mrclam = [*COMPARE, "--dataset", str(SHARED_DATA / "mrclam6"), "--backends", "ekf"]
+    one, three = cli(*mrclam), cli(*mrclam, "--robot", "3")
+    differ(one, three, "compare.json")
+    assert "mrclam6-robot3" in three.text("compare.json")
+    refused(cli(*COMPARE, "--robot", "3"), "--robot applies to MRCLAM folders only")
 
 
 @row("compare --backends")

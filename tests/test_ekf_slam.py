@@ -487,7 +487,7 @@ def test_new_options_are_validated():
         with pytest.raises(ConfigError):
             EkfSlamConfig(known_gate_chi2_prob=bad)
     assert EkfSlamConfig().odometry_covariance_scale == 1.0
-    assert EkfSlamConfig().known_gate_chi2_prob is None
+    assert EkfSlamConfig().known_gate_chi2_prob == 0.9999  # real sightings have outliers
 
 
 def test_odometry_covariance_scale_scales_the_process_noise():
@@ -526,7 +526,7 @@ def test_known_gate_rejects_and_counts_an_inconsistent_observation():
     assert gated.rejected_count == 1 and gated.associations() == [1]
     assert not np.allclose(gated.state_vector(), x)
     # without the gate the same outlier is absorbed
-    plain = EkfSlam()
+    plain = EkfSlam(EkfSlamConfig(known_gate_chi2_prob=None))
     plain.load_state(7, x, P)
     plain.update([Observation(7, 1, outlier, R)])
     assert plain.rejected_count == 0 and plain.associations() == [1]

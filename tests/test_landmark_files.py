@@ -57,11 +57,14 @@ def test_example_graph_observations_match_load2d():
 
 
 def test_example_graph_runs_as_landmark_slam_to_gtsams_optimum(tmp_path, capsys):
+    """gtsam's least squares: the sightings without the default robust kernel."""
     path = _example_graph()
     assert not registry.is_pose_graph_run(path, "isam2")
     assert registry.is_pose_graph_run(path, "batch")
+    gaussian = tmp_path / "gaussian.toml"
+    gaussian.write_text('[isam2]\nobservation_kernel = "none"\n')
     rc = main(["run", "--dataset", path, "--out", str(tmp_path / "r"), "--rerun", "off",
-               "--quiet"])
+               "--quiet", "--config", str(gaussian)])
     assert rc == 0, capsys.readouterr().err
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     graph, initial = gtsam.load2D(path)

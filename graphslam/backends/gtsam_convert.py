@@ -58,18 +58,43 @@ def between_factor(edge: Odometry | LoopClosure, noise=None) -> gtsam.BetweenFac
     return gtsam.BetweenFactorPose2(X(edge.from_id), X(edge.to_id), pose2(edge.delta), model)
 
 
-def bearing_range_factor(observation: Observation, landmark_id: int) -> gtsam.BearingRangeFactor2D:
+def bearing_range_factor(observation: Observation, landmark_id: int, kernel: str = "none",
+                         kernel_k: float = 1.0) -> gtsam.BearingRangeFactor2D:
+    """gtsam's factor of a range-bearing observation, its noise wrapped in the robust
+    ``kernel`` of width ``kernel_k`` (:func:`robust`)."""
     if observation.kind is not ObservationKind.RANGE_BEARING:
         raise UnsupportedError(f"2-D back end cannot use {observation.kind.value} observations")
     range_m, bearing_rad = observation.z
     cov_br = _RB_TO_BR @ observation.covariance @ _RB_TO_BR.T
     return gtsam.BearingRangeFactor2D(
         X(observation.pose_id), L(landmark_id), gtsam.Rot2(float(bearing_rad)), float(range_m),
-        noise_from_covariance(cov_br))
+        robust(noise_from_covariance(cov_br), kernel, kernel_k))
+
+
+def range_factor(observation: Observation, landmark_id: int, kernel: str = "none",
+                 kernel_k: float = 1.0) -> gtsam.RangeFactor2D:
+    """gtsam's factor of a range-only observation (``z = [range_m]``, (1, 1) covariance)
+    from ``X(pose_id)`` to ``L(landmark_id)``, its noise wrapped in the robust
+    ``kernel`` of width ``kernel_k`` (:func:`robust`)."""
+    if observation.kind is not ObservationKind.RANGE:
+        raise UnsupportedError(f"range factor: expected a range observation, got "
+                               f"{observation.kind.value}")
+    return gtsam.RangeFactor2D(X(observation.pose_id), L(landmark_id), float(observation.z[0]),
+                               robust(noise_from_covariance(observation.covariance), kernel,
+                                      kernel_k))
+
+
+def landmark_factor(observation: Observation, landmark_id: int, kernel: str = "none",
+                    kernel_k: float = 1.0) -> gtsam.NonlinearFactor:
+    """:func:`range_factor` or :func:`bearing_range_factor`, by the observation's kind."""
+    if observation.kind is ObservationKind.RANGE:
+        return range_factor(observation, landmark_id, kernel, kernel_k)
+    return bearing_range_factor(observation, landmark_id, kernel, kernel_k)
 
 
 def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.NonlinearFactorGraph:
-    """Batch factor graph of a dataset (prior, odometry, landmarks, loop closures).
+    """Batch factor graph of a dataset (prior, odometry, landmarks, loop closures);
+    range-bearing and range-only observations alike (:func:`landmark_factor`).
 
     Landmark observations without an id are left out (they need association).
     """
@@ -83,7 +108,7 @@ def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.Nonlinea
             graph.add(between_factor(frame.odometry))
         for obs in frame.observations:
             if obs.landmark_id is not None:
-                graph.add(bearing_range_factor(obs, obs.landmark_id))
+                graph.add(landmark_factor(obs, obs.landmark_id))
         for lc in frame.loop_closures:
             graph.add(between_factor(lc))
     return graph

@@ -56,6 +56,9 @@ def register(sub) -> None:
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
                        help="built-in dataset name, pose-graph file or image folder "
                             "(default: synthetic)")
+    p.add_argument("--robot", type=int, default=None, metavar="N",
+                       help="MRCLAM folders: which robot's log (default: [mrclam] robot of "
+                            "--config, else 1)")
     p.add_argument("--backends", nargs="+", default=None, choices=names, metavar="NAME",
                        help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
                             f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)})")
@@ -93,6 +96,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     config = registry.read_config(args.config)
+    if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
+        raise GraphSlamError("--robot applies to MRCLAM folders only")
     if registry.is_visual_dataset(args.dataset):
         return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:
@@ -103,7 +108,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
         raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
                              "none of the back ends draws random numbers")
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(

@@ -18,7 +18,7 @@ from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 from slamcore.planar.geometry import between, wrap_angle
-from slamcore.planar.records import Dataset, Estimate
+from slamcore.planar.records import Dataset, Estimate, ObservationKind
 
 
 #: An estimate whose ATE is more than this many times its own dead reckoning's
@@ -259,6 +259,8 @@ def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> f
             continue
         if f.wTb_true is None or f.true_landmark_ids is None:
             return None
+        if any(o.kind is not ObservationKind.RANGE_BEARING for o in f.observations):
+            return None  # the oracle pairs range-bearing sightings only
         ids = np.array(sorted(set(f.true_landmark_ids)))
         lm = np.array([truth[int(i)] for i in ids]).reshape(-1, 2)
         z = np.array([o.z for o in f.observations]).reshape(-1, 2)
@@ -271,6 +273,63 @@ def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> f
             n += 1
             correct += int(got.get(i) == int(t))
     return correct / n if n else None
+
+
+#: A true landmark counts as recovered when an estimated one lies this close to it
+#: after the trajectory's alignment, metres (issue 31's bound: about two range
+#: sigmas of the MRCLAM camera, and under the 0.18 m between its closest landmarks
+#: plus one sigma).
+MAP_RECOVERY_RADIUS_M = 0.3
+
+
+def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
+               pairs: list[tuple[int, int | None]]) -> dict:
+    """Map error of an estimate against true landmark positions.
+
+    Each estimated landmark is matched to the true landmark its observations were
+    most often of (``pairs`` of ``(true_id, assigned_id)``, as
+    :func:`association_accuracy` maps them; with known association that is its
+    own id). Returns ``map_rmse_m`` (matched landmarks, after the SE(2) alignment of
+    the trajectory onto its truth), ``map_rmse_m_map_aligned`` (after the map's own
+    best SE(2) fit), ``landmarks_matched``, ``landmarks_recovered`` (true landmarks
+    with an estimated one within :data:`MAP_RECOVERY_RADIUS_M` after the
+    trajectory's alignment) and ``landmarks_true``; values None where not defined.
+    """
+    out = {"map_rmse_m": None, "map_rmse_m_map_aligned": None, "landmarks_matched": 0,
+           "landmarks_recovered": None, "landmarks_true": len(landmarks_true)}
+    if ground_truth is None or len(estimate.landmark_ids) == 0:
+        return out
+    common, est, gt = _common(estimate.pose_ids, estimate.wTb, *ground_truth)
+    if common.size < 2:
+        return out
+    R, t = align_se2(est[:, :2], gt[:, :2])
+    lm_w = np.asarray(estimate.landmarks_w, dtype=np.float64) @ R.T + t
+    truth_xy = np.array([landmarks_true[k] for k in sorted(landmarks_true)]).reshape(-1, 2)
+    nearest = np.min(np.linalg.norm(truth_xy[:, None, :] - lm_w[None, :, :], axis=2), axis=1)
+    out["landmarks_recovered"] = int(np.sum(nearest <= MAP_RECOVERY_RADIUS_M))
+    votes: dict[int, dict[int, int]] = {}
+    for true_id, got in pairs:
+        if got is not None:
+            votes.setdefault(got, {}).setdefault(true_id, 0)
+            votes[got][true_id] += 1
+    rows, matched = [], []
+    for k, lid in enumerate(np.asarray(estimate.landmark_ids).tolist()):
+        if lid in votes:
+            true_id = max(votes[lid].items(), key=lambda kv: (kv[1], -kv[0]))[0]
+            if true_id in landmarks_true:
+                rows.append(k)
+                matched.append(landmarks_true[true_id])
+    if not rows:
+        return out
+    matched_xy = np.array(matched, dtype=np.float64).reshape(-1, 2)
+    err = np.linalg.norm(lm_w[rows] - matched_xy, axis=1)
+    out["landmarks_matched"] = len(rows)
+    out["map_rmse_m"] = float(np.sqrt(np.mean(err**2)))
+    if len(rows) >= 2:
+        Rm, tm = align_se2(lm_w[rows], matched_xy)
+        own = np.linalg.norm(lm_w[rows] @ Rm.T + tm - matched_xy, axis=1)
+        out["map_rmse_m_map_aligned"] = float(np.sqrt(np.mean(own**2)))
+    return out
 
 
 def association_accuracy(pairs: list[tuple[int, int | None]]):

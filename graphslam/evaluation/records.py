@@ -68,6 +68,9 @@ class PlanarRunMetrics:
             folder, True, and the observations of landmarks not in the map (not used).
         warnings: what makes the estimate absurd, one line each
             (:func:`graphslam.evaluation.planar.estimate_warnings`); left out when none.
+        dataset_notes: what the reader made of the source (``Dataset.notes``).
+        map_rmse_m .. landmarks_true: the map against true landmark positions
+            (:func:`graphslam.evaluation.planar.map_errors`), where the data has them.
     """
 
     dataset: str
@@ -95,11 +98,19 @@ class PlanarRunMetrics:
     localisation_only: bool | None = None
     unmapped_observations: int | None = None
     warnings: list[str] | None = None
+    dataset_notes: list[str] | None = None
+    map_rmse_m: float | None = None
+    map_rmse_m_map_aligned: float | None = None
+    landmarks_matched: int | None = None
+    landmarks_recovered: int | None = None
+    landmarks_true: int | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
         "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries",
-        "map", "localisation_only", "unmapped_observations", "warnings"})
+        "map", "localisation_only", "unmapped_observations", "warnings", "dataset_notes",
+        "map_rmse_m", "map_rmse_m_map_aligned", "landmarks_matched", "landmarks_recovered",
+        "landmarks_true"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -169,7 +169,12 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         ate = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
+    map_scores = {}
+    if result.dataset.landmarks_true and gt is not None:
+        map_scores = metrics.map_errors(est, gt, result.dataset.landmarks_true,
+                                        result.associations)
     return PlanarRunMetrics(
+        **map_scores, dataset_notes=list(result.dataset.notes) or None,
         dataset=result.dataset.name, backend=result.backend, seed=seed, steps=result.steps,
         landmarks=int(len(est.landmark_ids)), final_error=final_error, ate_rmse_m=ate,
         odometry_ate_rmse_m=odo_ate, wall_s=result.wall_s if wall_s is None else wall_s,

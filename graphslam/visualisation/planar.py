@@ -176,7 +176,9 @@ class RunRecorder:
 
     def start(self, dataset, n_steps: int) -> None:
         gt = dataset.ground_truth()
-        self.log.log_ground_truth(None if gt is None else gt[1][:n_steps], dataset.landmarks_true)
+        # the true poses of the frames run (a real log's truth may cover only some)
+        true_xy = None if gt is None else gt[1][np.isin(gt[0], [f.pose_id for f in dataset.frames[:n_steps]])]
+        self.log.log_ground_truth(true_xy, dataset.landmarks_true)
 
     def color_index(self, backend: str) -> int:
         return self._colors.setdefault(backend, len(self._colors))

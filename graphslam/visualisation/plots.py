@@ -25,10 +25,11 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
         gt_of = dict(zip(gt[0].tolist(), gt[1]))
         for e in entries:
             est = e.result.estimate
-            err = errors_against_truth(est.pose_ids, est.wTb, gt_of)
+            has = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)  # partial truth
+            err = errors_against_truth(est.pose_ids[has], est.wTb[has], gt_of)
             s3 = (None if est.pose_covariances is None else
-                  3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances), 0, None)))
-            errors.append((e.backend, np.arange(len(err)), err, s3))
+                  3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances[has]), 0, None)))
+            errors.append((e.backend, np.flatnonzero(has), err, s3))
     return _comparison_figure(
         path, f"{dataset.name}: trajectories", None if gt is None else gt[1][:, :2], lm,
         tracks, errors, ["x error [m]", "y error [m]", "heading error [rad]"], ("x [m]", "y [m]"),

@@ -6,6 +6,7 @@ Conventions (2-D):
 - a relative pose ``aTb`` is ``[dx_m, dy_m, dtheta_rad]`` of ``b`` expressed in
   frame ``a`` (what :class:`gtsam.Pose2.between` returns);
 - a range-bearing measurement is ``[range_m, bearing_rad]`` in the body frame;
+- a range-only measurement (a radio beacon's) is ``[range_m]``;
 - covariances are in the same units and order as the vector they describe.
 
 Every record validates itself at construction: non-finite values and
@@ -64,6 +65,12 @@ class ObservationKind(enum.Enum):
 
     RANGE_BEARING = "range_bearing"  #: z = [range_m, bearing_rad], (2,)
     PIXEL = "pixel"  #: z = [u_px, v_px], (2,)
+    RANGE = "range"  #: z = [range_m], (1,); covariance (1, 1) (range-only beacons)
+
+    @property
+    def size(self) -> int:
+        """Length of ``z`` (and side of the covariance) for this kind."""
+        return 1 if self is ObservationKind.RANGE else 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,8 +101,8 @@ class Observation:
     Attributes:
         pose_id: id of the pose the measurement was taken from.
         landmark_id: landmark id when association is known, ``None`` when not.
-        z: measurement, shape and units given by ``kind``.
-        covariance: (2, 2) measurement covariance.
+        z: measurement, shape and units given by ``kind`` ((1,) for RANGE, else (2,)).
+        covariance: (2, 2) measurement covariance ((1, 1) for RANGE).
         kind: :class:`ObservationKind`.
         signature: optional appearance signature (course slides: landmarks
             carry one that data association may use).
@@ -110,9 +117,10 @@ class Observation:
 
     def __post_init__(self):
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
-        object.__setattr__(self, "z", as_vector(self.z, 2, what))
-        object.__setattr__(self, "covariance", as_covariance(self.covariance, 2, what))
-        if self.kind is ObservationKind.RANGE_BEARING and self.z[0] <= 0.0:
+        size = self.kind.size
+        object.__setattr__(self, "z", as_vector(self.z, size, what))
+        object.__setattr__(self, "covariance", as_covariance(self.covariance, size, what))
+        if self.kind in (ObservationKind.RANGE_BEARING, ObservationKind.RANGE) and self.z[0] <= 0.0:
             raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")
 
 
@@ -217,6 +225,21 @@ def range_bearing_batch(pose_ids, landmark_ids, zs, covariances) -> list[Observa
                   kind=ObservationKind.RANGE_BEARING, signature=None)
             for k, (p, j) in enumerate(zip(pose_ids, landmark_ids))]
 
+
+def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
+    """Range-only (:attr:`ObservationKind.RANGE`) :class:`Observation` records of N rows,
+    checked in bulk as :func:`range_bearing_batch` checks them: finite, positive ranges
+    (m) and positive variances (m^2); z is (1,), the covariance (1, 1)."""
+    z = _checked_batch(ranges, (1,), "observation row")
+    c = _checked_covariances(np.reshape(variances, (-1, 1, 1)), 1, "observation row")
+    bad = z[:, 0] <= 0.0
+    if bad.any():
+        raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
+    return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
+                  kind=ObservationKind.RANGE, signature=None)
+            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids))]
+
+
 @dataclass(frozen=True, eq=False)
 class Frame:
     """Everything that arrives with one new pose.
@@ -304,6 +327,8 @@ class Dataset:
             writers use the pose id in the time column.
         source_path: file the data came from, if any.
         seed: seed that generated a simulated dataset (None for recorded data).
+        notes: what the reader made of the source, one line each, for the run's
+            summary and ``metrics.json`` (sightings dropped, truth coverage, ...).
     """
 
     name: str
@@ -314,17 +339,20 @@ class Dataset:
     has_timestamps: bool = False
     source_path: str | None = None
     seed: int | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def has_ground_truth(self) -> bool:
-        return len(self.frames) > 0 and all(f.wTb_true is not None for f in self.frames)
+        """Whether any frame has a true pose (real logs may cover part of the run)."""
+        return any(f.wTb_true is not None for f in self.frames)
 
     def ground_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(pose_ids (N,), wTb (N, 3))`` of the true trajectory, or None."""
-        if not self.has_ground_truth:
+        """``(pose_ids (N,), wTb (N, 3))`` of the frames with a true pose, or None."""
+        known = [f for f in self.frames if f.wTb_true is not None]
+        if not known:
             return None
-        ids = np.array([f.pose_id for f in self.frames], dtype=np.int64)
-        return ids, np.array([f.wTb_true for f in self.frames], dtype=np.float64)
+        ids = np.array([f.pose_id for f in known], dtype=np.int64)
+        return ids, np.array([f.wTb_true for f in known], dtype=np.float64)
 
     def truncated(self, max_frames: int) -> "Dataset":
         """The first ``max_frames`` frames (loop closures to later poses cannot occur)."""

@@ -1,5 +1,9 @@
 """The iSAM2 back end (2-D): Pose2 poses, bearing-range landmarks, between factors.
 
+Range-only observations (radio beacons) become ``RangeFactor2D``; a landmark seen
+by ranges alone enters the graph once its buffered ranges determine its position
+(:mod:`graphslam.backends.planar.range_init`), with all those ranges as factors.
+
 Incremental use, as iSAM2 wants it: the factors and initial values of one
 frame are buffered and handed to ``ISAM2.update`` once, when the next frame
 starts or an answer is asked for. Per step we only read the one pose needed to
@@ -67,9 +71,12 @@ from gtsam.symbol_shorthand import L, X
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends import factorization as fact
 from graphslam.backends.planar.isam2_config import Isam2Config
+from graphslam.backends.planar.isam2_unknown import MERGE_SIGMA_M
+from graphslam.backends.planar.range_init import RangeLandmarkInitialiser
 from slamcore.planar.backend import Backend
-from slamcore.errors import GraphSlamError
-from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, Prediction
+from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.planar.records import (Estimate, LoopClosure, Observation, ObservationKind, Odometry,
+                                     Prediction)
 
 
 #: Median of the chi-square distribution with 3 degrees of freedom.
@@ -77,7 +84,8 @@ CHI2_3DOF_MEDIAN = 2.3660
 
 
 class Isam2Backend(Backend):
-    """Smoothing back end on ``gtsam.ISAM2``; uses known data association."""
+    """Smoothing back end on ``gtsam.ISAM2``: known data association, or unknown
+    (``association = "unknown"``, :mod:`~graphslam.backends.planar.landmark_association`)."""
 
     name = "isam2"
     supports_loop_closures = True
@@ -93,6 +101,7 @@ class Isam2Backend(Backend):
         self._landmark_set: set[int] = set()
         self._last_associations = []
         self._measurement_cov: dict[int, np.ndarray] = {}  # last R seen per landmark
+        self._ranges = RangeLandmarkInitialiser()  # range-only landmarks not yet placed
         self._polished: gtsam.Values | None = None
         self._n_factors = 0  # factors handed to iSAM2 or pending, in insertion order
         self._loop_closures: dict[int, LoopClosure] = {}  # factor index -> closure
@@ -105,6 +114,12 @@ class Isam2Backend(Backend):
         self._dropped: set[int] = set()  # factor indices the gated polish left out
         self._gate_rounds = 0  # LM solves of the last gated polish (diagnostics)
         self._recoveries: list[str] = []  # numerical fallbacks taken, for the summary
+        self._unknown = None  # unknown association: owns its state (isam2_unknown)
+        if self.config.association == "unknown":
+            from graphslam.backends.planar.isam2_unknown import UnknownAssociation
+
+            self._unknown = UnknownAssociation(self.config.association_gate_prob,
+                                               self.config.confirm_sightings)
 
     # --- the contract -------------------------------------------------------
 
@@ -134,6 +149,9 @@ class Isam2Backend(Backend):
         self._add_pose_id(pose_id)
 
     def update(self, observations: Sequence[Observation]) -> None:
+        if self._unknown is not None:
+            self._last_associations = self._update_unknown(observations)
+            return
         assoc: list[int | None] = []
         for obs in observations:
             if obs.landmark_id is None:
@@ -143,16 +161,57 @@ class Isam2Backend(Backend):
             if obs.pose_id not in self._pose_set:
                 raise GraphSlamError(f"isam2: observation from unknown pose {obs.pose_id}")
             lid = obs.landmark_id
+            if obs.kind is ObservationKind.RANGE:
+                self._add_range(obs, lid)
+                assoc.append(lid)
+                continue
             if lid not in self._landmark_set:
                 wTb = self._pose(obs.pose_id)
                 r, b = obs.z
                 self._values.insert(L(lid), wTb.transformFrom(np.array([r * np.cos(b), r * np.sin(b)])))
                 self._landmark_ids.append(lid)
                 self._landmark_set.add(lid)
-            self._graph.add(conv.bearing_range_factor(obs, lid))
+            self._graph.add(conv.bearing_range_factor(obs, lid, self.config.observation_kernel,
+                                                      self.config.observation_kernel_k))
             self._measurement_cov[lid] = obs.covariance
             assoc.append(lid)
         self._last_associations = assoc
+
+    def _update_unknown(self, observations: Sequence[Observation]) -> list[int | None]:
+        """Unknown association: :mod:`.isam2_unknown` decides, this adds the factors."""
+        if not observations:
+            return []
+        if any(o.kind is not ObservationKind.RANGE_BEARING for o in observations):
+            raise UnsupportedError("isam2: unknown association needs range-bearing sightings; "
+                                   "range-only beacons carry their ids (association = \"known\")")
+        pose_id = observations[0].pose_id
+        if any(o.pose_id != pose_id for o in observations) or pose_id not in self._pose_set:
+            raise GraphSlamError("isam2: one update takes the observations of one known pose")
+        self._flush()
+        decisions = self._unknown.step(self._isam, pose_id, observations)
+        kernel = (self.config.observation_kernel, self.config.observation_kernel_k)
+        assoc: list[int | None] = []
+        for obs, d in zip(observations, decisions):
+            if d.kind == "confirmed":
+                self._values.insert(L(d.landmark_id), gtsam.Point2(*d.mean_w))
+                self._landmark_ids.append(d.landmark_id)
+                self._landmark_set.add(d.landmark_id)
+                for seen in d.sightings:
+                    self._graph.add(conv.bearing_range_factor(seen, d.landmark_id, *kernel))
+            elif d.kind == "landmark":
+                self._graph.add(conv.bearing_range_factor(obs, d.landmark_id, *kernel))
+            if d.landmark_id is not None:
+                self._measurement_cov[d.landmark_id] = obs.covariance
+            assoc.append(d.landmark_id)
+        paired = [d.landmark_id for d in decisions if d.kind == "landmark"]
+        if paired:
+            self._flush()
+            for keep, drop in self._unknown.merges(self._isam, paired):
+                self._graph.add(gtsam.BetweenFactorPoint2(
+                    L(keep), L(drop), gtsam.Point2(0.0, 0.0),
+                    gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M)))
+                self._landmark_ids.remove(drop)
+        return assoc
 
     def add_loop_closure(self, loop_closure: LoopClosure) -> None:
         for pid in (loop_closure.from_id, loop_closure.to_id):
@@ -429,6 +488,25 @@ class Isam2Backend(Backend):
         self._dropped = {i for i in self._loop_closures
                          if i < n_full and i not in kept}
         return result
+
+    def _add_range(self, obs: Observation, lid: int) -> None:
+        """A range to ``lid``: a factor if it has a position, else buffered until its
+        ranges determine one, then it enters with a factor for each of them."""
+        kernel, k = self.config.observation_kernel, self.config.observation_kernel_k
+        if lid in self._landmark_set:
+            self._graph.add(conv.range_factor(obs, lid, kernel, k))
+            return
+        xy = conv.pose2_vector(self._pose(obs.pose_id))[:2]
+        self._ranges.add(lid, obs.pose_id, xy, obs)
+        ready = self._ranges.try_initialise(lid)
+        if ready is None:
+            return
+        position, buffered = ready
+        self._values.insert(L(lid), position)
+        self._landmark_ids.append(lid)
+        self._landmark_set.add(lid)
+        for o in buffered:
+            self._graph.add(conv.range_factor(o, lid, kernel, k))
 
     def _add_pose_id(self, pose_id: int) -> None:
         self._pose_ids.append(pose_id)

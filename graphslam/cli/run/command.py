@@ -17,6 +17,11 @@ datasets:
   victoria-park   Victoria Park (gtsam wheel), trees seen by laser, no ground truth
   city10000       city10000 pose graph with ground truth (gtsam wheel)
   w10000          w10000 Manhattan pose graph (gtsam wheel)
+  plaza1, plaza2  CMU Plaza range-only logs (gtsam wheel): dead reckoning and
+                  ranges to 4 radio beacons, truth for the vehicle and the
+                  beacons; range-only SLAM on isam2 (RangeFactor2D, beacons
+                  placed from their first ranges); also PATH_DR.txt (with
+                  PATH_TD.txt and PATH_.mat beside it) or a folder holding them
   PATH            a pose graph, g2o or TORO, 2-D or 3-D (VERTEX_SE2/EDGE_SE2,
                   VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX2/EDGE2, VERTEX3/EDGE3);
                   --backend auto (default: batch, and iSAM2 too where batch's
@@ -29,6 +34,10 @@ datasets:
                   a 2-D TORO file with BR lines (BR pose landmark bearing range
                   sigma_bearing sigma_range, as gtsam.load2D reads them), or a
                   log in Victoria Park's format (ODOMETRY, LANDMARK lines)
+  FOLDER          a UTIAS MRCLAM data set (Barcodes.dat, RobotN_*.dat): one robot's
+                  range-bearing log with Vicon truth, --robot N (landmark SLAM on
+                  isam2, ekf, fastslam1, fastslam2; sensor calibration in
+                  [mrclam] of --config); metrics.json adds the map error
   synthetic-images  rendered textured room, VGA, noisy odometry (visual SLAM;
                   [synthetic_images] of --config)
   FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder
@@ -121,6 +130,10 @@ def register(sub) -> None:
     p.add_argument("--nees", action="store_true",
                    help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
                         "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)")
+    logs = p.add_argument_group("landmark logs")
+    logs.add_argument("--robot", type=int, default=None, metavar="N",
+                      help="MRCLAM folders: which robot's log to run (default: [mrclam] robot "
+                           "of --config, else 1)")
     _add_posegraph_options(p.add_argument_group("pose-graph files"))
     _add_image_options(p.add_argument_group("image sequences"))
     p.set_defaults(func=cmd_run)
@@ -178,9 +191,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
 
+    from slamcore.errors import ConfigError
     from slamcore.files import check_output_dir
 
     check_rerun_flags(args)
+    if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
+        raise ConfigError("--robot applies to MRCLAM folders only")
     if args.out is not None:  # refused now, not after the run
         check_output_dir(args.out)
     if getattr(args, "save_map", None) is not None:

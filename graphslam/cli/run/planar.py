@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     refuse_ignored_flags(args)
     config = registry.read_config(args.config)
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config)
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config,
+                                    robot=getattr(args, "robot", None))
     truth = None
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
@@ -151,6 +152,14 @@ def format_summary(metrics) -> str:
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
         ("back end steps/s", fmt(metrics.steps_per_s, ".1f")),
     ]
+    if metrics.map_rmse_m is not None:
+        rows.append(("map RMSE [m]", f"{metrics.map_rmse_m:.4f} ({metrics.landmarks_matched} "
+                     "landmarks, trajectory-aligned)"))
+        rows.append(("map RMSE, map-aligned [m]", fmt(metrics.map_rmse_m_map_aligned, ".4f")))
+        rows.append(("landmarks recovered", f"{metrics.landmarks_recovered} of "
+                     f"{metrics.landmarks_true} within 0.3 m"))
+    for note in metrics.dataset_notes or ():
+        rows.append(("data", note))
     if metrics.loop_closures_skipped:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
     for note in metrics.numerical_recoveries or ():

@@ -1,0 +1,323 @@
+"""Reader for the UTIAS MRCLAM data sets (Leung et al., IJRR 2011): one robot's log
+as a 2-D landmark-SLAM :class:`~slamcore.planar.records.Dataset`.
+
+A data set is a folder of text files (four ``#`` header lines each; tabs and
+spaces): ``Barcodes.dat`` (subject, barcode), ``Landmark_Groundtruth.dat``
+(subject, x, y, std x, std y), and per robot N ``RobotN_Odometry.dat`` (time,
+commanded forward and angular velocity), ``RobotN_Measurement.dat`` (time,
+*barcode*, range, bearing) and ``RobotN_Groundtruth.dat`` (Vicon: time, x, y,
+heading). Subjects 1-5 are the robots, the others the landmarks.
+
+What the reader makes of it:
+
+- **Frames** at every distinct measurement time, and between them at least every
+  ``frame_every_s`` so that the trajectory is sampled while no landmark is in
+  view; the first frame at the first odometry time, the last at the log's end.
+- **Odometry** integrated exactly between frames
+  (:mod:`graphslam.sources.planar.mrclam_motion`) with the calibrated motion
+  model and its propagated covariance.
+- **Sightings**: barcodes mapped to subjects through ``Barcodes.dat``; a landmark
+  subject is the landmark id (known association; back ends configured for
+  unknown association ignore it and are scored against it). Sightings of
+  the other robots are counted and left out (a single-robot run has no use for
+  them), as are barcodes ``Barcodes.dat`` does not list.
+- **Truth**: the Vicon pose interpolated at each frame inside the truth's span
+  (and not across a gap in it longer than :data:`TRUTH_MAX_GAP_S`); the
+  scoring covers those frames only. The landmarks' truth scores the map.
+- **Start**: the truth at the first frame, where there is one (as the data
+  set's authors and the SLAM courses that use it do), else the origin.
+
+Every refusal names the file and line.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from graphslam.sources.planar.mrclam_motion import (COVARIANCE_FLOOR, MotionModel,
+                                                   held_commands, integrate)
+from graphslam.sources.posegraph_files import NUMBER_TOKEN
+from slamcore.config import bounded, validate
+from slamcore.errors import InputError, quote
+from slamcore.input_files import check_input_path
+from slamcore.planar.records import Dataset, Frame, odometry_batch, range_bearing_batch
+
+#: Subjects 1-5 are robots in every MRCLAM data set; the rest are landmarks.
+ROBOT_SUBJECTS = range(1, 6)
+#: Truth is not interpolated across a gap in the Vicon log longer than this, s:
+#: the robots turn at up to 1 rad/s, so half a second is already 0.5 rad of
+#: unobserved motion; frames inside such a gap are not scored.
+TRUTH_MAX_GAP_S = 0.5
+#: Prior on the first pose (variance, m^2 and rad^2): the start is known.
+PRIOR_VARIANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class MrclamConfig:
+    """``[mrclam]``: which robot, and its sensors' calibration.
+
+    The defaults are fitted on MRCLAM Dataset 6 (all five robots) against its
+    Vicon truth by ``python benchmarks/calibrate_mrclam.py``, which writes the
+    fitted values and the consistency check to ``benchmarks/figures/calibrate_mrclam.json``:
+
+    - ``odometry_lag_s``, ``forward_scale``, ``angular_scale``: least squares of
+      the 1 s relative motions against the truth's (per robot the scales are
+      0.91-0.96 forward and 0.91-0.94 angular: one value for all five);
+    - the six noise coefficients (:mod:`~graphslam.sources.planar.mrclam_motion`):
+      maximum likelihood of the relative motion between consecutive frames;
+    - ``sigma_range_m``, ``sigma_bearing_rad``: the robust (1.4826 MAD) scale of
+      the sightings' residuals against the truth. The residuals have heavy
+      tails (about 5 % of ranges beyond 3 robust sigma): a Gaussian fitted to
+      them (std 0.18 m range, 0.07 rad bearing) would weigh every good sighting
+      down for the sake of the bad ones.
+    """
+
+    SECTION: ClassVar[str] = "mrclam"
+    robot: int = bounded(1, min=1, max=5)
+    frame_every_s: float = bounded(1.0, gt=0.0, max=3600.0)
+    odometry_lag_s: float = bounded(0.25, min=0.0, max=10.0)
+    forward_scale: float = bounded(0.933, gt=0.0, max=10.0)
+    angular_scale: float = bounded(0.929, gt=0.0, max=10.0)
+    a_s_m: float = bounded(3.51e-3, min=0.0, max=1.0)
+    b_s_m2_per_s: float = bounded(1.84e-5, min=0.0, max=1.0)
+    a_y_m: float = bounded(5.18e-5, min=0.0, max=1.0)
+    a_theta_rad: float = bounded(7.94e-3, min=0.0, max=10.0)
+    c_theta_rad2_per_m: float = bounded(2.86e-4, min=0.0, max=10.0)
+    b_theta_rad2_per_s: float = bounded(2.6e-8, min=0.0, max=10.0)
+    sigma_range_m: float = bounded(0.131, gt=0.0, max=100.0)
+    sigma_bearing_rad: float = bounded(0.0083, gt=0.0, max=math.pi)
+
+    def __post_init__(self):
+        validate(self)
+
+    def motion_model(self) -> MotionModel:
+        return MotionModel(self.odometry_lag_s, self.forward_scale, self.angular_scale,
+                           self.a_s_m, self.b_s_m2_per_s, self.a_y_m, self.a_theta_rad,
+                           self.c_theta_rad2_per_m, self.b_theta_rad2_per_s)
+
+
+def is_mrclam_folder(path) -> bool:
+    """Whether ``path`` is a folder holding an MRCLAM data set."""
+    p = Path(path)
+    return p.is_dir() and (p / "Barcodes.dat").is_file() and any(p.glob("Robot*_Odometry.dat"))
+
+
+def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:
+    """``(N, columns)`` float64 of a ``.dat`` file and the file line of each row, or
+    InputError naming file and line.
+
+    Every token must be a plain decimal number (no ``inf``, ``nan``, ``1_000``).
+    """
+    if not path.exists():
+        raise InputError(f"the MRCLAM folder has no {path.name} ({what})", path)
+    check_input_path(path, path.name)  # a FIFO or a device is refused, not read forever
+    try:
+        fh = open(path, encoding="utf-8-sig")
+    except OSError as exc:
+        raise InputError(f"cannot open file: {exc.strerror or exc}", path) from None
+    rows = []
+    with fh:
+        try:
+            for line_no, line in enumerate(fh, start=1):
+                tok = line.split()
+                if not tok or tok[0].startswith("#"):
+                    continue
+                if len(tok) != columns:
+                    raise InputError(f"needs {columns} numbers ({what}), got {len(tok)}",
+                                     path, line_no)
+                for t in tok:
+                    if not NUMBER_TOKEN.fullmatch(t):
+                        raise InputError(f"{quote(t)} is not a number", path, line_no)
+                rows.append(line_no)
+                rows.append(tok)
+        except UnicodeDecodeError as exc:
+            raise InputError(f"not a text file: {exc}", path) from None
+    lines, toks = rows[0::2], rows[1::2]
+    table = np.array(toks, dtype=np.float64).reshape(-1, columns)
+    bad = ~np.isfinite(table).all(axis=1)
+    if bad.any():  # 1e999: a decimal number that is not a finite double
+        raise InputError("a value is not finite", path, lines[int(np.argmax(bad))])
+    return table, lines
+
+
+def _check_times(table, lines, path: Path, strictly: bool = False) -> None:
+    """Times (column 0) non-decreasing (increasing with ``strictly``); InputError at the
+    first that is not."""
+    t = table[:, 0]
+    step = np.diff(t)
+    bad = (step <= 0) if strictly else (step < 0)
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
+        raise InputError(f"time {t[k]:.3f} s comes after {t[k - 1]:.3f} s: the log must be "
+                         "in time order", path, lines[k])
+
+
+def _subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
+    """``{barcode: subject}`` and ``{landmark subject: (2,) true position}``."""
+    path = folder / "Barcodes.dat"
+    table, lines = read_table(path, 2, "subject, barcode")
+    barcodes: dict[int, int] = {}
+    for row, (subject, code) in enumerate(table):
+        if subject != int(subject) or code != int(code) or subject < 1 or code < 0:
+            raise InputError("subject and barcode must be whole numbers >= 1 and >= 0",
+                             path, lines[row])
+        if int(code) in barcodes:
+            raise InputError(f"barcode {int(code)} is given to two subjects", path, lines[row])
+        barcodes[int(code)] = int(subject)
+    path = folder / "Landmark_Groundtruth.dat"
+    truth: dict[int, np.ndarray] = {}
+    if path.exists():
+        table, _ = read_table(path, 5, "subject, x, y, std x, std y")
+        for values in table:
+            truth[int(values[0])] = values[1:3].copy()
+    return barcodes, truth
+
+
+def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
+    """One robot of an MRCLAM data set as a Dataset (module docstring).
+
+    Raises:
+        InputError: a missing or malformed file, naming file and line.
+    """
+    folder = Path(folder)
+    config = config or MrclamConfig()
+    n = config.robot
+    barcodes, landmarks_true = _subjects(folder)
+    odo_path = folder / f"Robot{n}_Odometry.dat"
+    if not odo_path.exists():
+        robots = sorted(p.name.split("_")[0] for p in folder.glob("Robot*_Odometry.dat"))
+        raise InputError(f"--robot {n}: no {odo_path.name} here (robots: {', '.join(robots)})",
+                         folder)
+    odo, lines = read_table(odo_path, 3, "time, forward velocity, angular velocity")
+    if len(odo) == 0:
+        raise InputError("no odometry line", odo_path)
+    _check_times(odo, lines, odo_path)
+    _check_speeds(odo, lines, odo_path)
+    meas_path = folder / f"Robot{n}_Measurement.dat"
+    meas, lines = read_table(meas_path, 4, "time, barcode, range, bearing")
+    _check_times(meas, lines, meas_path)
+    _check_sightings(meas, lines, meas_path)
+    gt_path = folder / f"Robot{n}_Groundtruth.dat"
+    truth = None
+    if gt_path.exists():
+        truth, lines = read_table(gt_path, 4, "time, x, y, heading")
+        _check_times(truth, lines, gt_path, strictly=True)
+        if len(truth) < 2:
+            truth = None
+    return _dataset(folder, config, odo, meas, barcodes, landmarks_true, truth)
+
+
+#: Fastest commanded speeds a log may hold: 10 m/s and 10 turns a second are far
+#: beyond these 0.3 m/s robots; past them a number is a corrupt line.
+SPEED_MAX_MPS, TURN_RATE_MAX_RADPS = 10.0, 20 * math.pi
+
+
+def _check_speeds(odo, lines, path: Path) -> None:
+    bad = (np.abs(odo[:, 1]) > SPEED_MAX_MPS) | (np.abs(odo[:, 2]) > TURN_RATE_MAX_RADPS)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"commanded velocity {odo[k, 1]:g} m/s, {odo[k, 2]:g} rad/s is beyond "
+                         f"{SPEED_MAX_MPS:g} m/s or {TURN_RATE_MAX_RADPS:.3g} rad/s", path, lines[k])
+
+
+def _check_sightings(meas, lines, path: Path) -> None:
+    for row in range(len(meas)):
+        _, code, rng, bearing = meas[row]
+        if code != int(code) or code < 0:
+            raise InputError(f"barcode {code:g} is not a whole number >= 0", path,
+                             lines[row])
+        if not 0.0 < rng < 1e3:
+            raise InputError(f"range {rng:g} m is not in (0, 1000)", path, lines[row])
+        if not abs(bearing) <= 2 * math.pi:
+            raise InputError(f"bearing {bearing:g} rad is not within +-2 pi", path,
+                             lines[row])
+
+
+def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) -> np.ndarray:
+    """Frame times: each distinct sighting time in the odometry's span, and more
+    where sightings are further apart than ``every_s``; (F,) increasing."""
+    t0, t1 = float(odometry_s[0]), float(max(odometry_s[-1], sighting_s[-1] if len(sighting_s)
+                                              else odometry_s[-1]))
+    key = np.unique(np.concatenate([[t0, t1], sighting_s[(sighting_s >= t0) & (sighting_s <= t1)]]))
+    out = [key[:1]]
+    for a, b in zip(key[:-1], key[1:]):
+        extra = int(math.ceil((b - a) / every_s)) - 1
+        if extra > 0:
+            out.append(a + (b - a) * np.arange(1, extra + 1) / (extra + 1))
+        out.append(np.array([b]))
+    return np.concatenate(out)
+
+
+def truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    """(F, 3) Vicon pose interpolated at ``times_s`` (heading unwrapped, then wrapped);
+    NaN rows outside the truth's span or inside a gap longer than :data:`TRUTH_MAX_GAP_S`."""
+    t = truth[:, 0]
+    heading = np.unwrap(truth[:, 3])
+    out = np.column_stack([np.interp(times_s, t, truth[:, 1]), np.interp(times_s, t, truth[:, 2]),
+                           np.interp(times_s, t, heading)])
+    out[:, 2] = np.remainder(out[:, 2] + np.pi, 2 * np.pi) - np.pi
+    k = np.searchsorted(t, times_s, side="right")
+    inside = (k > 0) & (k < len(t))
+    kk = np.clip(k, 1, len(t) - 1)
+    gap_ok = (t[kk] - t[kk - 1]) <= TRUTH_MAX_GAP_S
+    exact = np.isin(times_s, t)
+    out[~((inside & gap_ok) | exact)] = np.nan
+    return out
+
+
+def _dataset(folder, config, odo, meas, barcodes, landmarks_true, truth) -> Dataset:
+    notes = [f"robot {config.robot}"]
+    subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]], dtype=np.int64)
+    unknown = subject == 0
+    robots = np.isin(subject, list(ROBOT_SUBJECTS))
+    if unknown.any():
+        codes = sorted({int(c) for c in meas[unknown, 1]})
+        notes.append(f"{int(unknown.sum())} sightings of barcodes Barcodes.dat does not list "
+                     f"({', '.join(map(str, codes))}) dropped")
+    if robots.any():
+        notes.append(f"{int(robots.sum())} sightings of other robots left out (single-robot run)")
+    keep = ~unknown & ~robots & (meas[:, 0] >= odo[0, 0])
+    early = int((~unknown & ~robots & (meas[:, 0] < odo[0, 0])).sum())
+    if early:
+        notes.append(f"{early} sightings before the first odometry dropped")
+    meas = meas[keep]
+    subject = subject[keep]
+    times = frame_times(odo[:, 0], meas[:, 0], config.frame_every_s)
+    model = config.motion_model()
+    deltas, covs = integrate(*held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model), times,
+                             model.coefficients())
+    covs = covs + COVARIANCE_FLOOR
+    wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
+    has_truth = np.isfinite(wTb_true).all(axis=1)
+    if truth is None:
+        notes.append("no ground truth for this robot")
+    elif not has_truth.all():
+        notes.append(f"truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
+    prior = wTb_true[0] if has_truth[0] else np.zeros(3)
+    notes.append("start pose from the truth" if has_truth[0] else
+                 "start pose at the origin (no truth at the first frame)")
+    ids = list(range(len(times)))
+    odometry = odometry_batch(ids[:-1], ids[1:], deltas, covs)
+    frame_of = np.searchsorted(times, meas[:, 0])
+    R = np.diag([config.sigma_range_m**2, config.sigma_bearing_rad**2])
+    observations = range_bearing_batch(frame_of.tolist(), subject.tolist(),
+                                       meas[:, 2:4].tolist(), np.broadcast_to(R, (len(meas), 2, 2)))
+    by_frame: dict[int, list] = {}
+    for obs in observations:
+        by_frame.setdefault(obs.pose_id, []).append(obs)
+    frames = []
+    for k, t in enumerate(times.tolist()):
+        seen = tuple(by_frame.get(k, ()))
+        frames.append(Frame(pose_id=k, stamp_s=t, odometry=odometry[k - 1] if k else None,
+                            observations=seen,
+                            true_landmark_ids=tuple(o.landmark_id for o in seen),
+                            wTb_true=wTb_true[k].copy() if has_truth[k] else None))
+    return Dataset(name=f"{folder.name}-robot{config.robot}", frames=frames, prior_wTb=prior,
+                   prior_covariance=np.eye(3) * PRIOR_VARIANCE,
+                   landmarks_true=landmarks_true or None, has_timestamps=True,
+                   source_path=str(folder), notes=tuple(notes))

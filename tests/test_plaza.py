@@ -1,0 +1,218 @@
+"""Range-only SLAM on gtsam's Plaza logs (issue 31 item 5): the reader, range
+observations, beacon initialisation from ranges, iSAM2 end to end, filters refusing."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from graphslam import registry
+from graphslam.backends import gtsam_convert as conv
+from graphslam.backends.planar.range_init import (RangeLandmarkInitialiser, principal_spread,
+                                                  trilaterate)
+from graphslam.cli.main import main
+from graphslam.sources.planar.plaza import read_plaza
+from slamcore.errors import InputError, MeasurementError
+from slamcore.planar.records import Observation, ObservationKind, range_batch
+
+#: Trilateration of noise-free ranges: exact but for rounding, metres.
+EXACT_TOL_M = 1e-9
+#: Range noise of the synthetic test, metres, and how far the trilaterated beacon may
+#: land: 30 ranges from poses spread over ~20 m, so about sigma / sqrt(30) * a few.
+NOISY_SIGMA_M = 0.5
+NOISY_TOL_M = 0.5
+
+
+def _plaza(name: str) -> Path:
+    return Path(gtsam.findExampleDataFile(f"{name}_DR.txt"))
+
+
+# --- records ------------------------------------------------------------------------
+
+
+def test_range_observation_validates_and_range_bearing_still_does():
+    o = Observation(3, 5, [12.5], [[4.0]], ObservationKind.RANGE)
+    assert o.z.shape == (1,) and o.covariance.shape == (1, 1)
+    rb = Observation(3, 5, [12.5, 0.1], np.eye(2))
+    assert rb.kind is ObservationKind.RANGE_BEARING and rb.z.shape == (2,)
+    for z, cov in (([-1.0], [[1.0]]), ([np.inf], [[1.0]]), ([1.0], [[0.0]]),
+                   ([1.0, 0.2], [[1.0]]), ([1.0], np.eye(2))):
+        with pytest.raises(MeasurementError):
+            Observation(0, 1, z, cov, ObservationKind.RANGE)
+    with pytest.raises(MeasurementError, match="row 1: range must be positive"):
+        range_batch([0, 1], [2, 2], [3.0, 0.0], [1.0, 1.0])
+
+
+def test_range_factor_is_gtsams_range_factor():
+    obs = Observation(0, 7, [5.0], [[0.25]], ObservationKind.RANGE)
+    factor = conv.range_factor(obs, 7)
+    values = gtsam.Values()
+    values.insert(gtsam.symbol_shorthand.X(0), gtsam.Pose2(1.0, 2.0, 0.3))
+    values.insert(gtsam.symbol_shorthand.L(7), np.array([4.0, 6.0]))  # 5 m away: no error
+    assert isinstance(factor, gtsam.RangeFactor2D)
+    assert factor.error(values) == pytest.approx(0.0, abs=1e-12)
+    values.update(gtsam.symbol_shorthand.L(7), np.array([4.0, 7.0]))
+    d = np.hypot(3.0, 5.0) - 5.0
+    assert factor.error(values) == pytest.approx(0.5 * d**2 / 0.25, rel=1e-9)
+    with pytest.raises(Exception, match="range observation"):
+        conv.range_factor(Observation(0, 7, [5.0, 0.1], np.eye(2)), 7)
+
+
+# --- beacon initialisation ----------------------------------------------------------
+
+
+def _synthetic_ranges(rng, n: int, sigma: float):
+    beacon = np.array([7.3, -4.1])
+    t = np.linspace(0.0, 2.5, n)
+    positions = np.column_stack([10.0 * np.cos(t), 6.0 * np.sin(t)]) + rng.normal(0, 0.01, (n, 2))
+    ranges = np.linalg.norm(positions - beacon, axis=1) + rng.normal(0.0, sigma, n)
+    return beacon, positions, ranges
+
+
+def test_trilateration_is_exact_on_noise_free_ranges():
+    rng = np.random.default_rng(31)
+    for _ in range(20):
+        beacon, positions, ranges = _synthetic_ranges(rng, int(rng.integers(3, 40)), 0.0)
+        beacon = beacon + rng.normal(0.0, 30.0, 2)
+        ranges = np.linalg.norm(positions - beacon, axis=1)
+        got = trilaterate(positions, ranges)
+        assert np.linalg.norm(got - beacon) < EXACT_TOL_M
+
+
+def test_trilateration_on_noisy_ranges_within_tolerance():
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        beacon, positions, ranges = _synthetic_ranges(rng, 30, NOISY_SIGMA_M)
+        assert np.linalg.norm(trilaterate(positions, ranges) - beacon) < NOISY_TOL_M
+
+
+def test_trilateration_refuses_what_cannot_be_determined():
+    line = np.column_stack([np.arange(5.0), 2.0 * np.arange(5.0)])
+    assert trilaterate(line, np.full(5, 3.0)) is None  # collinear: two mirror points
+    assert trilaterate(line[:2], np.full(2, 3.0)) is None
+
+
+def test_initialiser_waits_for_spread_poses_then_hands_back_every_range():
+    rng = np.random.default_rng(0)
+    beacon = np.array([3.0, 4.0])
+    init = RangeLandmarkInitialiser(min_ranges=5, min_spread_m=1.0)
+    # a straight drive: ranges pile up, no position (mirror ambiguity)
+    for k in range(10):
+        p = np.array([0.5 * k, 0.0])
+        obs = Observation(k, 9, [np.linalg.norm(p - beacon)], [[1.0]], ObservationKind.RANGE)
+        init.add(9, k, p, obs)
+        assert init.try_initialise(9) is None
+    assert init.pending_count(9) == 10 and init.pending_landmarks() == [9]
+    # then a turn: the poses spread in both directions
+    got = None
+    for k in range(10, 30):
+        p = np.array([4.5, 0.8 * (k - 9)])
+        obs = Observation(k, 9, [np.linalg.norm(p - beacon)], [[1.0]], ObservationKind.RANGE)
+        init.add(9, k, p, obs)
+        got = init.try_initialise(9)
+        if got is not None:
+            break
+    assert got is not None
+    position, observations = got
+    assert len(observations) > 12  # not before the turn had spread the poses by 1 m
+    assert np.linalg.norm(position - beacon) < EXACT_TOL_M
+    assert [o.pose_id for o in observations] == list(range(len(observations)))
+    assert init.pending_count() == 0
+    assert principal_spread(rng.normal(size=(1, 2))) == 0.0
+
+
+# --- the reader -----------------------------------------------------------------------
+
+
+def test_reader_counts_on_plaza2():
+    ds = read_plaza(_plaza("Plaza2"))
+    assert ds.name == "plaza2" and ds.has_timestamps
+    assert len(ds.frames) == 4091  # the start and one pose per DR line
+    obs = [o for f in ds.frames for o in f.observations]
+    assert len(obs) == 1816
+    assert {o.landmark_id for o in obs} == {0, 1, 5, 6} == set(ds.landmarks_true)
+    assert all(o.kind is ObservationKind.RANGE and o.z.shape == (1,) for o in obs)
+    assert all(f.wTb_true is not None for f in ds.frames)
+    assert np.allclose(ds.prior_wTb, [-34.208649, 45.300764, np.pi - 2.021089], atol=1e-5)
+    assert any("heading turned by pi" in n for n in ds.notes)
+    assert ds.frames[1].odometry.delta[1] == 0.0
+
+
+def test_reader_counts_on_plaza1():
+    ds = read_plaza(_plaza("Plaza1"))
+    assert len(ds.frames) == 9658
+    assert sum(len(f.observations) for f in ds.frames) == 3529
+    assert not any("heading turned" in n for n in ds.notes)
+    assert any("out of time order at 2 places" in n for n in ds.notes)
+
+
+def _copy_log(tmp_path: Path, name: str = "Plaza2") -> Path:
+    for suffix in ("_DR.txt", "_TD.txt", "_.mat"):
+        shutil.copy(Path(gtsam.findExampleDataFile(f"{name}_DR.txt")).with_name(name + suffix),
+                    tmp_path / (name + suffix))
+    return tmp_path / f"{name}_DR.txt"
+
+
+@pytest.mark.parametrize("which, line, text, reason", [
+    ("_DR.txt", 3, "3152.3 abc 0.1", "is not a number"),
+    ("_DR.txt", 2, "3152.1 0.1", "needs 3 numbers"),
+    ("_DR.txt", 4, "3000.0 0.1 0.0", "time order"),
+    ("_TD.txt", 5, "3153.0 2 1 -4.0", "range -4 m"),
+    ("_TD.txt", 2, "3153.0 2 1.5 4.0", "whole numbers"),
+])
+def test_a_bad_line_is_named_by_file_and_line(tmp_path, which, line, text, reason):
+    dr = _copy_log(tmp_path)
+    path = tmp_path / ("Plaza2" + which)
+    lines = path.read_text().splitlines()
+    lines[line - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as err:
+        read_plaza(dr)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}:{line}: ") and reason in msg and "\n" not in msg
+
+
+def test_missing_range_file_and_folder_dispatch(tmp_path):
+    dr = _copy_log(tmp_path)
+    ds = registry.load_dataset(str(tmp_path))  # a folder holding the three files
+    assert len(ds.frames) == 4091 and not registry.is_visual_dataset(str(tmp_path))
+    assert registry.load_dataset(str(dr)).name == "plaza2"
+    (tmp_path / "Plaza2_TD.txt").unlink()
+    with pytest.raises(InputError, match="Plaza2_TD.txt: Plaza log file not found"):
+        read_plaza(dr)
+
+
+def test_dataset_graph_holds_range_factors():
+    ds = read_plaza(_plaza("Plaza2")).truncated(400)
+    graph = conv.dataset_graph(ds)
+    n_ranges = sum(len(f.observations) for f in ds.frames)
+    kinds = [type(graph.at(i)).__name__ for i in range(graph.size())]
+    assert kinds.count("RangeFactor2D") == n_ranges > 0
+    assert kinds.count("BetweenFactorPose2") == 399
+
+
+# --- end to end ----------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_isam2_on_plaza2_beats_dead_reckoning(tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", "plaza2", "--rerun", "off", "--quiet",
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["landmarks"] == 4
+    assert m["ate_rmse_m"] < m["odometry_ate_rmse_m"]
+
+
+@pytest.mark.parametrize("backend", ["ekf", "fastslam2"])
+def test_filters_refuse_range_only_data_in_one_line(tmp_path, capsys, backend):
+    code = main(["run", "--dataset", "plaza2", "--backend", backend, "--rerun", "off",
+                 "--quiet", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1 and "range-bearing observations only, got range" in err
