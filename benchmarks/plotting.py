@@ -29,7 +29,8 @@ class Panel:
     ``kind="line"`` draws each series against numeric x; ``kind="bar"`` draws
     grouped bars, x being category names (the union of all series, in order
     of appearance). ``targets``: label -> y of a dashed horizontal line;
-``ylim`` zooms on a narrow range (bars of accuracies near 100 %).
+``ylim`` zooms on a narrow range (bars of accuracies near 100 %). ``kind="map"``
+draws x-y paths at equal scale, the series named in ``points`` as dots (landmarks).
     """
 
     title: str
@@ -41,6 +42,7 @@ class Panel:
     logy: bool = False
     targets: dict[str, float] = field(default_factory=dict)
     ylim: tuple[float, float] | None = None
+    points: tuple[str, ...] = ()
 
 
 def png_beside(json_path: Path | str) -> Path:
@@ -96,8 +98,16 @@ def _draw(ax, panel: Panel) -> None:
             ax.plot([float(x) for x in xs], [_finite(y) for y in ys], marker="o", ms=3, label=label)
         if all(float(x).is_integer() for xs, _ in panel.series.values() for x in xs):
             ax.xaxis.set_major_locator(ticker.MaxNLocator(integer=True))  # seeds, frames, counts
+    elif panel.kind == "map":
+        for label, (xs, ys) in panel.series.items():
+            if label in panel.points:
+                ax.scatter([float(x) for x in xs], [_finite(y) for y in ys], s=14, label=label,
+                           zorder=3)
+            else:
+                ax.plot([float(x) for x in xs], [_finite(y) for y in ys], lw=0.8, label=label)
+        ax.set_aspect("equal", adjustable="datalim")
     else:
-        raise ValueError(f"panel kind {panel.kind!r}: 'line' or 'bar'")
+        raise ValueError(f"panel kind {panel.kind!r}: 'line', 'bar' or 'map'")
     for (label, y), (colour, style) in zip(panel.targets.items(), TARGET_STYLES * 4):
         ax.axhline(y, color=colour, ls=style, lw=1.2, label=label)
     for on, axis, scale, lim in ((panel.logx, ax.xaxis, ax.set_xscale, ax.get_xlim),

@@ -40,7 +40,7 @@ BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
 def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None,
-                 robot: int | None = None) -> Dataset:
+                 robot: int | str | None = None) -> Dataset:
     """Dataset by name, pose-graph file path (``.graph`` TORO, ``.g2o``; TORO ``BR`` lines
     are landmark observations), a landmark log in Victoria Park's format, an
     MRCLAM folder (``robot`` overrides ``[mrclam] robot``), or a Plaza range-only log
@@ -51,7 +51,8 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam
 
         check_input_path(Path(spec), "--dataset", folder_ok=True)
-        overrides = {} if robot is None else {"robot": robot}
+        overrides = ({} if robot is None else {"all_robots": True} if robot == "all"
+                     else {"robot": robot})
         return read_mrclam(spec, load_section(MrclamConfig, config, overrides))
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic

@@ -387,7 +387,8 @@ def test_a_worker_that_does_not_stop_is_killed(monkeypatch):
     t0 = _time.perf_counter()
     with stop_guard() as guard:
         entries = compare.compare(make_synthetic(), ["ekf", "isam2"], max_steps=20)
-    assert guard.signal_name == "SIGTERM" and _time.perf_counter() - t0 < 30
+    # hang guard, minutes above the worst case: the worker that did not stop is abandoned
+    assert guard.signal_name == "SIGTERM" and _time.perf_counter() - t0 < 300
     assert [(e.backend, e.status) for e in entries] == [("ekf", "cut"), ("isam2", "not run")]
     assert "did not stop" in entries[0].error
 

@@ -27,8 +27,9 @@ pytestmark = pytest.mark.slow
 
 #: Mutants per reader and file format.
 N_MUTANTS = 2000
-#: A reader's whole fuzzing pass stays under this, seconds (CI budget).
-BUDGET_S = 40.0
+#: Hang guard on a reader's whole fuzzing pass, seconds: minutes above the worst case
+#: seen (about 40 s under a load of 9 on two cores). Tests check correctness, not time.
+BUDGET_S = 600.0
 
 
 def gtsam_data(name: str) -> Path:

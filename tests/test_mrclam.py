@@ -212,7 +212,7 @@ def test_run_writes_map_error_and_the_readers_notes(mrclam, tmp_path, capsys):
     assert metrics["ate_rmse_m"] < 0.5 * metrics["odometry_ate_rmse_m"]
     assert metrics["map_rmse_m"] < MAP_RECOVERY_RADIUS_M
     assert "3 sightings of barcodes Barcodes.dat does not list (50) dropped" in \
-        metrics["dataset_notes"]
+        " / ".join(metrics["dataset_notes"])
     assert "landmarks recovered" in printed and "map RMSE" in printed
     assert (out / "ground_truth.tum").is_file()
 
@@ -252,3 +252,120 @@ def test_isam2_with_known_ids_is_within_the_issues_bound_on_every_robot(mrclam):
                                      with_graph_error=False)
         assert m.ate_rmse_m <= ISAM2_ATE_BOUND_M, (robot, m.ate_rmse_m)
         assert m.landmarks_recovered == 15, (robot, m.landmarks_recovered)
+
+
+# ----------------------------------------------------------------- several robots, one graph
+
+def test_all_robots_share_one_stream_with_truth_starts_and_sightings(mrclam):
+    from graphslam.sources.planar.mrclam_joint import POSE_ID_STRIDE
+    from slamcore.planar.geometry import between
+
+    ds = read_mrclam(mrclam, MrclamConfig(all_robots=True))
+    assert [name for name, _ in ds.agents] == [f"robot {n}" for n in range(1, 6)]
+    stamps = [f.stamp_s for f in ds.frames]
+    assert stamps == sorted(stamps)
+    seen, first = set(), {}
+    for f in ds.frames:
+        robot = f.pose_id // POSE_ID_STRIDE
+        if f.odometry is not None:
+            assert f.odometry.to_id == f.pose_id and f.odometry.from_id in seen
+        if robot not in first:
+            first[robot] = f
+        seen.add(f.pose_id)
+        for ps in f.pose_sightings:  # both ends exist when the sighting arrives
+            assert ps.from_id in seen and ps.to_id in seen and ps.from_id != ps.to_id
+    anchor = ds.frames[0]
+    for robot, f in first.items():  # every start from the truth
+        if f is not anchor:
+            np.testing.assert_allclose(f.odometry.delta, between(anchor.wTb_true, f.wTb_true),
+                                       atol=1e-12)
+    assert sum(len(f.pose_sightings) for f in ds.frames) == 3981
+    assert "all starts from the truth" in ds.notes[0]
+
+
+def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
+    out = tmp_path / "all"
+    rc = main(["run", "--dataset", str(mrclam), "--robot", "all", "--max-steps", "1200",
+               "--rerun", "off", "--quiet", "--out", str(out)])
+    assert rc == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert sorted(metrics["agents"]) == [f"robot {n}" for n in range(1, 6)]
+    for name, a in metrics["agents"].items():
+        assert a["ate_rmse_m"] < 0.2, name
+        assert (out / f"trajectory_{name.replace(' ', '')}.tum").is_file()
+    assert not (out / "trajectory.tum").exists()  # five robots' stamps interleave
+    capsys.readouterr()
+    line = _one_line_error(capsys, "run", "--dataset", str(mrclam), "--robot", "all",
+                           "--backend", "ekf", "--rerun", "off", "--out", str(tmp_path / "e"))
+    assert "keeps one robot's pose" in line
+
+
+def test_all_robots_recording_draws_one_colour_per_robot(mrclam, tmp_path):
+    from tests.recordings import entity_rows
+
+    out = tmp_path / "rec"
+    assert main(["run", "--dataset", str(mrclam), "--robot", "all", "--max-steps", "300",
+                 "--quiet", "--out", str(out)]) == 0
+    strips = entity_rows(out / "run.rrd", "/world/isam2/trajectory", "LineStrips2D:strips")
+    colors = entity_rows(out / "run.rrd", "/world/isam2/trajectory", "LineStrips2D:colors")
+    assert len(strips[-1][1]) == 5 and len(set(colors[-1][1])) == 5
+
+
+# ----------------------------------------------------------------- unknown association (iSAM2)
+
+def test_a_candidate_enters_the_map_after_three_compatible_sightings():
+    from graphslam.backends.planar.landmark_association import LandmarkAssociator
+    from slamcore.planar.geometry import observe
+    from slamcore.planar.records import Observation
+
+    assoc = LandmarkAssociator(0.999, 3)
+    R = np.diag([0.01, 1e-4])
+    landmark = np.array([4.0, 1.0])
+    kinds = []
+    for k in range(3):
+        wTb = np.array([0.1 * k, 0.0, 0.0])
+        obs = Observation(k, None, observe(wTb, landmark), R)
+        d = assoc.associate([obs], wTb, np.zeros(0, dtype=np.int64), np.zeros((0, 2)),
+                            np.eye(3) * 1e-6)
+        kinds.append(d[0].kind)
+    assert kinds == ["candidate", "candidate", "confirmed"]
+    np.testing.assert_allclose(d[0].mean_w, landmark, atol=1e-9)  # noise-free sightings
+    assert len(d[0].sightings) == 3
+
+
+def test_jcbb_pairs_a_scan_with_two_close_landmarks_despite_a_heading_error():
+    """Two landmarks 0.2 m apart across the line of sight at 4 m, the believed heading
+    off by 0.06 rad (its sigma 0.05): alone, the sighting of the lower landmark is
+    nearest the upper one's prediction; the joint test, which knows the heading error
+    is shared by both sightings, pairs both right."""
+    from graphslam.backends.planar.landmark_association import LandmarkAssociator
+    from slamcore.planar.geometry import innovation, observe
+    from slamcore.planar.records import Observation
+
+    assoc = LandmarkAssociator(0.999, 3)
+    lms = np.array([[4.0, 0.1], [4.0, -0.1]])
+    true_pose, believed = np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.06])
+    R = np.diag([0.13**2, 0.0083**2])
+    obs = [Observation(0, None, observe(true_pose, lm), R) for lm in lms]
+    predicted = observe(believed[None], lms)
+    nearest = np.argmin(np.abs(innovation(obs[1].z[None], predicted)[:, 1]))
+    assert nearest == 0  # nearest neighbour alone gets the second sighting wrong
+    P = np.zeros((7, 7))
+    P[:3, :3] = np.diag([1e-4, 1e-4, 0.05**2])
+    P[3:, 3:] = np.eye(4) * 1e-6
+    d = assoc.associate(obs, believed, np.array([10, 11]), lms, P)
+    assert [x.landmark_id for x in d] == [10, 11]
+
+
+@pytest.mark.slow
+def test_isam2_unknown_association_on_robot_2(mrclam):
+    """Issue 31: without ids, all 15 landmarks within 0.3 m and ATE within 1.3x of the
+    known-id run. Holds on robots 1 (nearly), 2 and 4, not on 3 and 5 (the closing note)."""
+    ds = read_mrclam(mrclam, MrclamConfig(robot=2))
+    known = pipeline.compute_metrics(pipeline.run(ds, registry.make_backend("isam2")),
+                                     with_graph_error=False)
+    unknown = pipeline.compute_metrics(
+        pipeline.run(ds, registry.make_backend("isam2", overrides={"association": "unknown"})),
+        with_graph_error=False)
+    assert unknown.landmarks_recovered == 15
+    assert unknown.ate_rmse_m <= 1.3 * known.ate_rmse_m

@@ -92,6 +92,16 @@ def landmark_factor(observation: Observation, landmark_id: int, kernel: str = "n
     return bearing_range_factor(observation, landmark_id, kernel, kernel_k)
 
 
+def pose_sighting_factor(sighting, kernel: str = "none",
+                         kernel_k: float = 1.0) -> gtsam.BearingRangeFactorPose2:
+    """gtsam's factor of one pose's range and bearing to another's position."""
+    range_m, bearing_rad = sighting.z
+    cov_br = _RB_TO_BR @ sighting.covariance @ _RB_TO_BR.T
+    return gtsam.BearingRangeFactorPose2(
+        X(sighting.from_id), X(sighting.to_id), gtsam.Rot2(float(bearing_rad)), float(range_m),
+        robust(noise_from_covariance(cov_br), kernel, kernel_k))
+
+
 def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.NonlinearFactorGraph:
     """Batch factor graph of a dataset (prior, odometry, landmarks, loop closures);
     range-bearing and range-only observations alike (:func:`landmark_factor`).
@@ -111,6 +121,8 @@ def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.Nonlinea
                 graph.add(landmark_factor(obs, obs.landmark_id))
         for lc in frame.loop_closures:
             graph.add(between_factor(lc))
+        for ps in frame.pose_sightings:
+            graph.add(pose_sighting_factor(ps))
     return graph
 
 

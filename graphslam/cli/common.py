@@ -16,6 +16,17 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def robot_arg(text: str) -> int | str:
+    """``--robot``: a robot number (1-5 in the MRCLAM sets) or ``all``."""
+    import argparse
+
+    if text == "all":
+        return text
+    if text.isascii() and text.isdigit() and 1 <= int(text) <= 5:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"expected a robot number 1-5 or all, got {text[:40]!r}")
+
+
 def summary_table(rows: list[tuple[str, object]]) -> str:
     """``(label, value)`` rows as an indented two-column table."""
     width = max(len(k) for k, _ in rows)

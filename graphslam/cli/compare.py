@@ -42,6 +42,7 @@ examples:
 
 def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
+    from graphslam.cli.common import robot_arg
     from graphslam.pipelines.spatial import ODOMETRY_MODES
     from graphslam.registry import BACKENDS, VISUAL_COMPARE_BACKENDS
 
@@ -56,9 +57,9 @@ def register(sub) -> None:
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
                        help="built-in dataset name, pose-graph file or image folder "
                             "(default: synthetic)")
-    p.add_argument("--robot", type=int, default=None, metavar="N",
-                       help="MRCLAM folders: which robot's log (default: [mrclam] robot of "
-                            "--config, else 1)")
+    p.add_argument("--robot", type=robot_arg, default=None, metavar="N|all",
+                       help="MRCLAM folders: which robot's log, or all (default: [mrclam] robot "
+                            "of --config, else 1)")
     p.add_argument("--backends", nargs="+", default=None, choices=names, metavar="NAME",
                        help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
                             f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)})")

@@ -77,8 +77,11 @@ def write_json(path: Path, data: dict) -> None:
 
 
 #: Files ``graphslam run`` may write into ``--out``.
+#: Several robots in one run (MRCLAM ``--robot all``) write one trajectory per robot.
+AGENT_OUTPUT_NAMES = tuple(f"{kind}_robot{n}.tum" for n in range(1, 6)
+                           for kind in ("trajectory", "ground_truth"))
 RUN_OUTPUT_NAMES = ("trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json",
-                    "run.rrd", "loops.csv", "loops.jsonl", "nees.csv")
+                    "run.rrd", "loops.csv", "loops.jsonl", "nees.csv") + AGENT_OUTPUT_NAMES
 #: Files ``graphslam compare`` may write into ``--out``.
 COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")
 

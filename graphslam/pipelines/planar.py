@@ -120,6 +120,8 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
                 backend.add_loop_closure(lc)
             else:
                 counters["skipped"] += 1
+        for ps in frame.pose_sightings:
+            backend.add_pose_sighting(ps)  # the filters refuse: one robot's pose
         counters["steps"] = k + 1
         if on_step is not None:
             on_step(k, frame, backend)
@@ -169,12 +171,15 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         ate = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
+    agents = None
+    if result.dataset.agents and gt is not None and ate is not None:
+        agents = agent_ates(result, gt)
     map_scores = {}
     if result.dataset.landmarks_true and gt is not None:
         map_scores = metrics.map_errors(est, gt, result.dataset.landmarks_true,
                                         result.associations)
     return PlanarRunMetrics(
-        **map_scores, dataset_notes=list(result.dataset.notes) or None,
+        **map_scores, dataset_notes=list(result.dataset.notes) or None, agents=agents,
         dataset=result.dataset.name, backend=result.backend, seed=seed, steps=result.steps,
         landmarks=int(len(est.landmark_ids)), final_error=final_error, ate_rmse_m=ate,
         odometry_ate_rmse_m=odo_ate, wall_s=result.wall_s if wall_s is None else wall_s,
@@ -187,11 +192,34 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         warnings=metrics.estimate_warnings(est, ate, odo_ate) or None)
 
 
+def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
+    """Each robot's own ATE (its own SE(2) alignment, as a run of it alone is scored)
+    and its dead reckoning's, over its poses with truth."""
+    from graphslam.evaluation import planar as metrics
+
+    est = result.estimate
+    odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
+    out = {}
+    for name, ids in result.dataset.agents:
+        ids = np.asarray(ids, dtype=np.int64)
+        keep = np.isin(est.pose_ids, ids)
+        if np.intersect1d(est.pose_ids[keep], ground_truth[0]).size < 2:
+            continue
+        mine = np.isin(odo_ids, ids)
+        out[name] = {
+            "ate_rmse_m": metrics.ate(est.pose_ids[keep], est.wTb[keep], *ground_truth)["rmse_m"],
+            "odometry_ate_rmse_m": metrics.ate(odo_ids[mine], odo_wTb[mine],
+                                               *ground_truth)["rmse_m"],
+            "poses": int(keep.sum())}
+    return out
+
+
 def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,
                   ground_truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv``, ``metrics.json`` and, when the
     run has truth (``ground_truth`` or the dataset's), ``ground_truth.tum`` for the
-    run's poses with the same time column; return their paths."""
+    run's poses with the same time column; return their paths. A run of several
+    robots writes ``trajectory_robotN.tum`` and ``ground_truth_robotN.tum`` instead."""
     from graphslam.outputs import writers
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -203,20 +231,27 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetric
     else:
         stamp_of = {f.pose_id: float(f.pose_id) for f in run_frames}
         stamps = est.pose_ids.astype(float)
-    paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
-             "metrics": out_dir / "metrics.json"}
-    writers.write_tum_planar(paths["trajectory"], stamps, est.wTb)
+    paths = {"landmarks": out_dir / "landmarks.csv", "metrics": out_dir / "metrics.json"}
+    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
+    # one trajectory per robot where a run holds several (their stamps interleave)
+    agents = result.dataset.agents or (("", tuple(int(i) for i in est.pose_ids)),)
+    for name, ids in agents:
+        suffix = "_" + name.replace(" ", "") if name else ""
+        mine = np.isin(est.pose_ids, np.asarray(ids, dtype=np.int64))
+        paths["trajectory" + suffix] = out_dir / f"trajectory{suffix}.tum"
+        writers.write_tum_planar(paths["trajectory" + suffix], stamps[mine], est.wTb[mine])
+        if gt is None:
+            continue
+        in_run = np.array([int(i) in stamp_of for i in gt[0]], dtype=bool)
+        in_run &= np.isin(gt[0], np.asarray(ids, dtype=np.int64))
+        if np.any(in_run):
+            paths["ground_truth" + suffix] = out_dir / f"ground_truth{suffix}.tum"
+            writers.write_tum_planar(paths["ground_truth" + suffix],
+                                     np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
+                                     np.asarray(gt[1])[in_run])
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
-    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
-    if gt is not None:
-        in_run = np.array([int(i) in stamp_of for i in gt[0]], dtype=bool)
-        if np.any(in_run):
-            paths["ground_truth"] = out_dir / "ground_truth.tum"
-            writers.write_tum_planar(paths["ground_truth"],
-                                     np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
-                                     np.asarray(gt[1])[in_run])
     writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
     writers.write_json(paths["metrics"], run_metrics.to_dict())
     return paths

@@ -72,15 +72,18 @@ class PlanarLog(RerunLog):
         self.rec.log(f"plots/{backend}/pose_sigma_m", rr.Scalars(sigma_m))
 
     def log_pose_columns(self, backend: str, steps, stamps_s, wTb: np.ndarray,
-                         color_index: int = 0) -> None:
+                         color_index: int = 0, row_colors=None) -> None:
         """The pose arrows of many steps in one message (Rerun's columnar API): the
         same rows as :meth:`log_pose`'s arrow step by step, at a fraction of the cost
-        (a log call is ~0.3 ms, the run's iSAM2 step ~2 ms)."""
+        (a log call is ~0.3 ms, the run's iSAM2 step ~2 ms). ``row_colors``: a palette
+        index per row (one colour per robot where a run holds several)."""
         if not len(steps):
             return
         rr = self._rr
         wTb = np.asarray(wTb, dtype=np.float64).reshape(-1, 3)
-        color = np.tile(np.array(PALETTE[color_index % len(PALETTE)], dtype=np.uint8), (len(wTb), 1))
+        palette = np.array(PALETTE, dtype=np.uint8)
+        color = (np.tile(palette[color_index % len(PALETTE)], (len(wTb), 1)) if row_colors is None
+                 else palette[np.asarray(row_colors, dtype=np.int64) % len(PALETTE)])
         indexes = [rr.TimeColumn("step", sequence=np.asarray(steps, dtype=np.int64))]
         if stamps_s is not None:
             indexes.append(rr.TimeColumn("time", duration=np.asarray(stamps_s, dtype=np.float64)))
@@ -89,12 +92,20 @@ class PlanarLog(RerunLog):
                               columns=rr.Arrows2D.columns(origins=wTb[:, :2], vectors=heading,
                                                           colors=color))
 
-    def log_estimate(self, backend: str, estimate: Estimate, color_index: int = 0) -> None:
-        """Trajectory, landmarks and (if present) their 95 % ellipses."""
+    def log_estimate(self, backend: str, estimate: Estimate, color_index: int = 0,
+                     pose_groups=None) -> None:
+        """Trajectory, landmarks and (if present) their 95 % ellipses. ``pose_groups``:
+        several robots' poses (index arrays into ``estimate.wTb``), one strip and one
+        colour each."""
         rr = self._rr
         color = PALETTE[color_index % len(PALETTE)]
+        if pose_groups:
+            strips = [estimate.wTb[np.asarray(g, dtype=np.int64), :2] for g in pose_groups]
+            colors = [PALETTE[i % len(PALETTE)] for i in range(len(strips))]
+        else:
+            strips, colors = [estimate.wTb[:, :2]], [color]
         self.rec.log(f"world/{backend}/trajectory",
-                     rr.LineStrips2D([estimate.wTb[:, :2]], colors=[color], radii=0.05))
+                     rr.LineStrips2D(strips, colors=colors, radii=0.05))
         if len(estimate.landmark_ids):
             self.rec.log(f"world/{backend}/landmarks",
                          rr.Points2D(estimate.landmarks_w, colors=[color], radii=0.2,
@@ -154,7 +165,8 @@ class RunRecorder:
         self.log = log
         self._colors: dict[str, int] = {}
         self._filters: dict[str, FilterStateLogger] = {}
-        self._pending: dict[str, tuple[list, list, list]] = {}  # backend -> steps, stamps, poses
+        self._pending: dict[str, tuple[list, list, list, list]] = {}  # steps, stamps, poses, robots
+        self._agent_of: dict[int, int] = {}  # pose id -> robot index, several robots in one run
 
     #: Runs of at least this many steps record in a second process with ``save``: it
     #: costs an interpreter and Rerun's import (1-3 s of the other core's time), which a
@@ -175,6 +187,7 @@ class RunRecorder:
         return cls(PlanarLog(mode, path=path, url=url))
 
     def start(self, dataset, n_steps: int) -> None:
+        self._agent_of = {int(pid): i for i, (_, ids) in enumerate(dataset.agents) for pid in ids}
         gt = dataset.ground_truth()
         # the true poses of the frames run (a real log's truth may cover only some)
         true_xy = None if gt is None else gt[1][np.isin(gt[0], [f.pose_id for f in dataset.frames[:n_steps]])]
@@ -193,30 +206,40 @@ class RunRecorder:
 
         color = self.color_index(backend)
         filter_state = self._filters[backend] = FilterStateLogger(self.log, backend, every, color)
-        pending = self._pending.setdefault(backend, ([], [], []))
+        pending = self._pending.setdefault(backend, ([], [], [], []))
 
         def on_step(k, frame, backend_obj):
             wTb = backend_obj.current_pose()
             pending[0].append(k)
             pending[1].append(frame.stamp_s)
             pending[2].append(wTb)
+            pending[3].append(self._agent_of.get(frame.pose_id, color))
             if k % every == 0:
                 self._send_poses(backend)
                 self.log.set_step(k, frame.stamp_s)
                 self.log.log_pose_uncertainty(backend, wTb, backend_obj.current_pose_covariance(),
                                               color)
-                self.log.log_estimate(backend, backend_obj.estimate(with_covariances=False), color)
+                est = backend_obj.estimate(with_covariances=False)
+                self.log.log_estimate(backend, est, color, self._groups(est))
             filter_state(k, frame.stamp_s, backend_obj)
 
         return on_step
 
+    def _groups(self, est) -> list | None:
+        """Index arrays of each robot's poses in ``est`` (None for one robot)."""
+        if not self._agent_of:
+            return None
+        robot = np.array([self._agent_of.get(int(i), -1) for i in est.pose_ids])
+        return [np.flatnonzero(robot == r) for r in range(max(self._agent_of.values()) + 1)]
+
     def _send_poses(self, backend: str) -> None:
-        steps, stamps, poses = self._pending.get(backend, ([], [], []))
+        steps, stamps, poses, robots = self._pending.get(backend, ([], [], [], []))
         if steps:
             timed = stamps if all(s is not None for s in stamps) else None
             self.log.log_pose_columns(backend, steps, timed, np.array(poses),
-                                      self.color_index(backend))
-            for column in (steps, stamps, poses):
+                                      self.color_index(backend),
+                                      list(robots) if self._agent_of else None)
+            for column in (steps, stamps, poses, robots):
                 column.clear()
 
     def finish(self, backend: str, result, source=None) -> None:
@@ -237,7 +260,7 @@ class RunRecorder:
             if len(est.landmark_ids):
                 est = dataclasses.replace(est, landmark_covariances=source.landmark_covariances())
         self.log.log_pose(backend, est.current_pose, cov, self.color_index(backend))
-        self.log.log_estimate(backend, est, self.color_index(backend))
+        self.log.log_estimate(backend, est, self.color_index(backend), self._groups(est))
 
     def close(self) -> None:
         self.log.close()

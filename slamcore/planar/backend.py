@@ -8,6 +8,8 @@ A back end is driven frame by frame::
         backend.update(frame.observations)               # observations at that pose
         for lc in frame.loop_closures:
             backend.add_loop_closure(lc)                 # or UnsupportedError
+        for ps in frame.pose_sightings:
+            backend.add_pose_sighting(ps)                # or UnsupportedError
     estimate = backend.finalize()
 
 Back ends may defer work until an answer is asked for (iSAM2 batches one
@@ -23,7 +25,8 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from slamcore.errors import UnsupportedError
-from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, Prediction
+from slamcore.planar.records import (Estimate, LoopClosure, Observation, Odometry, PoseSighting,
+                                     Prediction)
 
 
 class Backend(ABC):
@@ -33,6 +36,8 @@ class Backend(ABC):
     name: str = "backend"
     #: Whether :meth:`add_loop_closure` can use a relative-pose constraint.
     supports_loop_closures: bool = False
+    #: Whether :meth:`add_pose_sighting` can use a pose-to-pose range and bearing.
+    supports_pose_sightings: bool = False
 
     @abstractmethod
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
@@ -70,6 +75,15 @@ class Backend(ABC):
             f"{self.name} cannot use relative-pose loop closures; "
             "it closes loops by re-observing landmarks"
         )
+
+    def add_pose_sighting(self, sighting: PoseSighting) -> None:
+        """Add a range and bearing from one known pose to another (several robots).
+
+        Raises:
+            UnsupportedError: back ends that keep one robot's pose (the filters).
+        """
+        raise UnsupportedError(f"{self.name} keeps one robot's pose: it cannot use sightings "
+                               "of one robot by another")
 
     @abstractmethod
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:

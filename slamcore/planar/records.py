@@ -241,6 +241,30 @@ def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
 
 
 @dataclass(frozen=True, eq=False)
+class PoseSighting:
+    """Range and bearing from one pose to another (one robot seeing another).
+
+    Attributes:
+        from_id: the observing pose; to_id: the pose seen (both must exist when the
+            sighting is added).
+        z: (2,) ``[range_m, bearing_rad]`` of ``to_id``'s position in ``from_id``'s frame.
+        covariance: (2, 2).
+    """
+
+    from_id: int
+    to_id: int
+    z: np.ndarray
+    covariance: np.ndarray
+
+    def __post_init__(self):
+        what = f"sighting of pose {self.to_id} from pose {self.from_id}"
+        object.__setattr__(self, "z", as_vector(self.z, 2, what))
+        object.__setattr__(self, "covariance", as_covariance(self.covariance, 2, what))
+        if self.z[0] <= 0.0:
+            raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")
+
+
+@dataclass(frozen=True, eq=False)
 class Frame:
     """Everything that arrives with one new pose.
 
@@ -254,6 +278,9 @@ class Frame:
         wTb_true: (3,) ground-truth pose, when known.
         true_landmark_ids: ground-truth landmark id of each observation (same
             order), when known; used only for scoring data association.
+        pose_sightings: other poses seen from this one or seeing it
+            (:class:`PoseSighting`; several robots in one graph), added once both
+            poses exist.
     """
 
     pose_id: int
@@ -263,6 +290,7 @@ class Frame:
     loop_closures: tuple[LoopClosure, ...] = ()
     wTb_true: np.ndarray | None = None
     true_landmark_ids: tuple[int, ...] | None = None
+    pose_sightings: tuple[PoseSighting, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,6 +357,8 @@ class Dataset:
         seed: seed that generated a simulated dataset (None for recorded data).
         notes: what the reader made of the source, one line each, for the run's
             summary and ``metrics.json`` (sightings dropped, truth coverage, ...).
+        agents: several robots in one run: ``(name, pose_ids)`` of each robot's
+            trajectory, scored one by one; empty for one robot.
     """
 
     name: str
@@ -340,6 +370,7 @@ class Dataset:
     source_path: str | None = None
     seed: int | None = None
     notes: tuple[str, ...] = ()
+    agents: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     @property
     def has_ground_truth(self) -> bool:

@@ -76,7 +76,7 @@ from graphslam.backends.planar.range_init import RangeLandmarkInitialiser
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (Estimate, LoopClosure, Observation, ObservationKind, Odometry,
-                                     Prediction)
+                                     PoseSighting, Prediction)
 
 
 #: Median of the chi-square distribution with 3 degrees of freedom.
@@ -89,6 +89,7 @@ class Isam2Backend(Backend):
 
     name = "isam2"
     supports_loop_closures = True
+    supports_pose_sightings = True
 
     def __init__(self, config: Isam2Config | None = None):
         self.config = config or Isam2Config()
@@ -221,6 +222,13 @@ class Isam2Backend(Backend):
             self._gate(loop_closure)
             return
         self._insert_closure(loop_closure)
+
+    def add_pose_sighting(self, sighting: PoseSighting) -> None:
+        for pid in (sighting.from_id, sighting.to_id):
+            if pid not in self._pose_set:
+                raise GraphSlamError(f"isam2: sighting refers to unknown pose {pid}")
+        self._graph.add(conv.pose_sighting_factor(sighting, self.config.observation_kernel,
+                                                  self.config.observation_kernel_k))
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         """Predicted ``[range, bearing]`` and ``S = H P H^T + R`` for known landmarks.

@@ -87,6 +87,7 @@ examples:
 
 def register(sub) -> None:
     """Add the ``run`` sub-command to the ``graphslam`` parser."""
+    from graphslam.cli.common import robot_arg
     from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
 
     p = sub.add_parser(
@@ -131,9 +132,9 @@ def register(sub) -> None:
                    help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
                         "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)")
     logs = p.add_argument_group("landmark logs")
-    logs.add_argument("--robot", type=int, default=None, metavar="N",
-                      help="MRCLAM folders: which robot's log to run (default: [mrclam] robot "
-                           "of --config, else 1)")
+    logs.add_argument("--robot", type=robot_arg, default=None, metavar="N|all",
+                      help="MRCLAM folders: which robot's log to run, or all: every robot in one "
+                           "graph (isam2) (default: [mrclam] robot of --config, else 1)")
     _add_posegraph_options(p.add_argument_group("pose-graph files"))
     _add_image_options(p.add_argument_group("image sequences"))
     p.set_defaults(func=cmd_run)

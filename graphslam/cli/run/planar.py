@@ -62,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
     if args.nees and truth is None and not dataset.has_ground_truth:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
+    if dataset.agents and args.backend != "isam2":
+        raise ConfigError(f"--robot all: {args.backend} keeps one robot's pose; every robot in "
+                          "one graph needs --backend isam2")
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
     pmap = None
@@ -158,6 +161,9 @@ def format_summary(metrics) -> str:
         rows.append(("map RMSE, map-aligned [m]", fmt(metrics.map_rmse_m_map_aligned, ".4f")))
         rows.append(("landmarks recovered", f"{metrics.landmarks_recovered} of "
                      f"{metrics.landmarks_true} within 0.3 m"))
+    for name, a in (metrics.agents or {}).items():
+        rows.append((f"ATE RMSE {name} [m]", f"{a['ate_rmse_m']:.4f} (odometry "
+                     f"{a['odometry_ate_rmse_m']:.4f}, {a['poses']} poses)"))
     for note in metrics.dataset_notes or ():
         rows.append(("data", note))
     if metrics.loop_closures_skipped:

@@ -78,7 +78,10 @@ class MrclamConfig:
     """
 
     SECTION: ClassVar[str] = "mrclam"
+    #: ``robot``: which robot's log; ``all_robots``: every robot in one graph
+    #: (:mod:`graphslam.sources.planar.mrclam_joint`), ``robot`` then unused.
     robot: int = bounded(1, min=1, max=5)
+    all_robots: bool = False
     frame_every_s: float = bounded(1.0, gt=0.0, max=3600.0)
     odometry_lag_s: float = bounded(0.25, min=0.0, max=10.0)
     forward_scale: float = bounded(0.933, gt=0.0, max=10.0)
@@ -179,20 +182,45 @@ def _subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
 
 
 def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
-    """One robot of an MRCLAM data set as a Dataset (module docstring).
+    """One robot of an MRCLAM data set as a Dataset (module docstring); with
+    ``config.all_robots``, every robot in one graph
+    (:func:`graphslam.sources.planar.mrclam_joint.read_mrclam_all`).
 
     Raises:
         InputError: a missing or malformed file, naming file and line.
     """
     folder = Path(folder)
     config = config or MrclamConfig()
-    n = config.robot
+    if config.all_robots:
+        from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+        return read_mrclam_all(folder, config)
     barcodes, landmarks_true = _subjects(folder)
+    odo, meas, truth = read_robot(folder, config.robot)
+    track = robot_track(config, config.robot, odo, meas, truth, barcodes)
+    track.notes.insert(0, f"robot {config.robot}")
+    if track.robot_sightings:
+        track.notes.append(f"{len(track.robot_sightings)} sightings of other robots left out "
+                           "(single-robot run)")
+    return _dataset(folder, config, track, landmarks_true)
+
+
+def robots_in(folder: Path) -> list[int]:
+    """Robot numbers N with a ``RobotN_Odometry.dat`` in ``folder``, in order."""
+    out = []
+    for p in folder.glob("Robot*_Odometry.dat"):
+        digits = p.name[len("Robot"):-len("_Odometry.dat")]
+        if digits.isascii() and digits.isdigit():
+            out.append(int(digits))
+    return sorted(out)
+
+
+def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Robot ``n``'s odometry (K, 3), sightings (M, 4) and truth (T, 4) or None, checked."""
     odo_path = folder / f"Robot{n}_Odometry.dat"
     if not odo_path.exists():
-        robots = sorted(p.name.split("_")[0] for p in folder.glob("Robot*_Odometry.dat"))
-        raise InputError(f"--robot {n}: no {odo_path.name} here (robots: {', '.join(robots)})",
-                         folder)
+        robots = ", ".join(f"Robot{r}" for r in robots_in(folder))
+        raise InputError(f"--robot {n}: no {odo_path.name} here (robots: {robots})", folder)
     odo, lines = read_table(odo_path, 3, "time, forward velocity, angular velocity")
     if len(odo) == 0:
         raise InputError("no odometry line", odo_path)
@@ -209,7 +237,7 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
         _check_times(truth, lines, gt_path, strictly=True)
         if len(truth) < 2:
             truth = None
-    return _dataset(folder, config, odo, meas, barcodes, landmarks_true, truth)
+    return odo, meas, truth
 
 
 #: Fastest commanded speeds a log may hold: 10 m/s and 10 turns a second are far
@@ -270,54 +298,101 @@ def truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     return out
 
 
-def _dataset(folder, config, odo, meas, barcodes, landmarks_true, truth) -> Dataset:
-    notes = [f"robot {config.robot}"]
+@dataclass
+class RobotTrack:
+    """One robot's log made into frames (times), before pose ids are given.
+
+    ``deltas (F-1, 3)``, ``covariances (F-1, 3, 3)``: odometry between consecutive
+    frames; ``wTb_true (F, 3)`` with NaN rows where there is no truth;
+    ``landmark_sightings``: ``(frame, subject, z (2,))``; ``robot_sightings``:
+    ``(frame, subject, z (2,), time_s)`` of the other robots.
+    """
+
+    times: np.ndarray
+    deltas: np.ndarray
+    covariances: np.ndarray
+    wTb_true: np.ndarray
+    landmark_sightings: list
+    robot_sightings: list
+    notes: list
+
+
+def robot_track(config: MrclamConfig, n: int, odo, meas, truth, barcodes,
+                extra_times: np.ndarray | None = None) -> RobotTrack:
+    """Frames at the landmark sightings, at least every ``frame_every_s``; odometry
+    integrated between them. With ``extra_times`` (several robots in one graph), also
+    at this robot's sightings of the others and at ``extra_times`` (when they see it)."""
+    notes = []
     subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]], dtype=np.int64)
     unknown = subject == 0
-    robots = np.isin(subject, list(ROBOT_SUBJECTS))
     if unknown.any():
         codes = sorted({int(c) for c in meas[unknown, 1]})
-        notes.append(f"{int(unknown.sum())} sightings of barcodes Barcodes.dat does not list "
-                     f"({', '.join(map(str, codes))}) dropped")
-    if robots.any():
-        notes.append(f"{int(robots.sum())} sightings of other robots left out (single-robot run)")
-    keep = ~unknown & ~robots & (meas[:, 0] >= odo[0, 0])
-    early = int((~unknown & ~robots & (meas[:, 0] < odo[0, 0])).sum())
+        notes.append(f"robot {n}: {int(unknown.sum())} sightings of barcodes Barcodes.dat does "
+                     f"not list ({', '.join(map(str, codes))}) dropped")
+    keep = ~unknown & (subject != n) & (meas[:, 0] >= odo[0, 0])
+    early = int((~unknown & (meas[:, 0] < odo[0, 0])).sum())
     if early:
-        notes.append(f"{early} sightings before the first odometry dropped")
-    meas = meas[keep]
-    subject = subject[keep]
-    times = frame_times(odo[:, 0], meas[:, 0], config.frame_every_s)
+        notes.append(f"robot {n}: {early} sightings before the first odometry dropped")
+    meas, subject = meas[keep], subject[keep]
+    is_robot = np.isin(subject, list(ROBOT_SUBJECTS))
+    wanted = (meas[~is_robot, 0] if extra_times is None
+              else np.concatenate([meas[:, 0], extra_times]))
+    times = frame_times(odo[:, 0], np.sort(wanted), config.frame_every_s)
     model = config.motion_model()
     deltas, covs = integrate(*held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model), times,
                              model.coefficients())
-    covs = covs + COVARIANCE_FLOOR
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
-        notes.append("no ground truth for this robot")
+        notes.append(f"robot {n}: no ground truth")
     elif not has_truth.all():
-        notes.append(f"truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
-    prior = wTb_true[0] if has_truth[0] else np.zeros(3)
-    notes.append("start pose from the truth" if has_truth[0] else
-                 "start pose at the origin (no truth at the first frame)")
-    ids = list(range(len(times)))
-    odometry = odometry_batch(ids[:-1], ids[1:], deltas, covs)
-    frame_of = np.searchsorted(times, meas[:, 0])
-    R = np.diag([config.sigma_range_m**2, config.sigma_bearing_rad**2])
-    observations = range_bearing_batch(frame_of.tolist(), subject.tolist(),
-                                       meas[:, 2:4].tolist(), np.broadcast_to(R, (len(meas), 2, 2)))
+        notes.append(f"robot {n}: truth on {int(has_truth.sum())} of {len(times)} frames "
+                     "(scored there only)")
+    frame_of = np.searchsorted(times, meas[:, 0]).tolist()
+    is_robot = is_robot.tolist()
+    zs, stamps = meas[:, 2:4], meas[:, 0].tolist()
+    landmarks = [(k, int(s), zs[i]) for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot))
+                 if not r]
+    robots = [(k, int(s), zs[i], stamps[i])
+              for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot)) if r]
+    return RobotTrack(times, deltas, covs + COVARIANCE_FLOOR, wTb_true, landmarks, robots, notes)
+
+
+def sighting_covariance(config: MrclamConfig) -> np.ndarray:
+    """(2, 2) ``[range, bearing]`` covariance of the camera's sightings."""
+    return np.diag([config.sigma_range_m**2, config.sigma_bearing_rad**2])
+
+
+def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of) -> dict:
+    """``{frame: [Observation]}`` of the track's landmark sightings, pose ids by
+    ``pose_id_of(frame)``."""
+    rows = track.landmark_sightings
+    observations = range_bearing_batch([pose_id_of(k) for k, _, _ in rows], [s for _, s, _ in rows],
+                                       [z for _, _, z in rows],
+                                       np.broadcast_to(sighting_covariance(config),
+                                                       (len(rows), 2, 2)))
     by_frame: dict[int, list] = {}
-    for obs in observations:
-        by_frame.setdefault(obs.pose_id, []).append(obs)
+    for (k, _, _), obs in zip(rows, observations):
+        by_frame.setdefault(k, []).append(obs)
+    return by_frame
+
+
+def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_true) -> Dataset:
+    has_truth = np.isfinite(track.wTb_true).all(axis=1)
+    prior = track.wTb_true[0] if has_truth[0] else np.zeros(3)
+    track.notes.append("start pose from the truth" if has_truth[0] else
+                       "start pose at the origin (no truth at the first frame)")
+    ids = list(range(len(track.times)))
+    odometry = odometry_batch(ids[:-1], ids[1:], track.deltas, track.covariances)
+    by_frame = landmark_observations(track, config, int)
     frames = []
-    for k, t in enumerate(times.tolist()):
+    for k, t in enumerate(track.times.tolist()):
         seen = tuple(by_frame.get(k, ()))
         frames.append(Frame(pose_id=k, stamp_s=t, odometry=odometry[k - 1] if k else None,
                             observations=seen,
                             true_landmark_ids=tuple(o.landmark_id for o in seen),
-                            wTb_true=wTb_true[k].copy() if has_truth[k] else None))
+                            wTb_true=track.wTb_true[k].copy() if has_truth[k] else None))
     return Dataset(name=f"{folder.name}-robot{config.robot}", frames=frames, prior_wTb=prior,
                    prior_covariance=np.eye(3) * PRIOR_VARIANCE,
                    landmarks_true=landmarks_true or None, has_timestamps=True,
-                   source_path=str(folder), notes=tuple(notes))
+                   source_path=str(folder), notes=tuple(track.notes))
