@@ -37,6 +37,7 @@ from graphslam import registry  # noqa: E402
 from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam  # noqa: E402
+from graphslam.sources.planar.mrclam_joint import read_mrclam_all  # noqa: E402
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 COMMAND = "python benchmarks/bench_mrclam.py --out benchmarks/figures/mrclam.json"
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
                             kind="map", points=("landmarks (truth)", "landmarks (isam2)")))
     joint = None
     if not args.quick and args.joint:
-        dataset = read_mrclam(args.data, MrclamConfig(all_robots=True))
+        dataset = read_mrclam_all(args.data, MrclamConfig(all_robots=True))
         t0 = time.perf_counter()
         result = pipeline.run(dataset, registry.make_backend("isam2"))
         m = pipeline.compute_metrics(result, with_graph_error=False)

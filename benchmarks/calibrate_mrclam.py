@@ -163,9 +163,9 @@ def mean_nees(coef: np.ndarray, E: np.ndarray, U: np.ndarray) -> dict:
 
 
 def sighting_residuals(folder: Path, logs: dict) -> dict:
-    from graphslam.sources.planar.mrclam import _subjects
+    from graphslam.sources.planar.mrclam import read_subjects
 
-    barcodes, landmarks = _subjects(folder)
+    barcodes, landmarks = read_subjects(folder)
     r_res, b_res = [], []
     for log in logs.values():
         meas, truth = log["meas"], log["truth"]

@@ -53,7 +53,12 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         check_input_path(Path(spec), "--dataset", folder_ok=True)
         overrides = ({} if robot is None else {"all_robots": True} if robot == "all"
                      else {"robot": robot})
-        return read_mrclam(spec, load_section(MrclamConfig, config, overrides))
+        settings = load_section(MrclamConfig, config, overrides)
+        if settings.all_robots:
+            from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+            return read_mrclam_all(Path(spec), settings)
+        return read_mrclam(spec, settings)
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 

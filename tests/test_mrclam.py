@@ -260,7 +260,9 @@ def test_all_robots_share_one_stream_with_truth_starts_and_sightings(mrclam):
     from graphslam.sources.planar.mrclam_joint import POSE_ID_STRIDE
     from slamcore.planar.geometry import between
 
-    ds = read_mrclam(mrclam, MrclamConfig(all_robots=True))
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    ds = read_mrclam_all(mrclam, MrclamConfig(all_robots=True))
     assert [name for name, _ in ds.agents] == [f"robot {n}" for n in range(1, 6)]
     stamps = [f.stamp_s for f in ds.frames]
     assert stamps == sorted(stamps)

@@ -160,7 +160,7 @@ def _check_times(table, lines, path: Path, strictly: bool = False) -> None:
                          "in time order", path, lines[k])
 
 
-def _subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
+def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
     """``{barcode: subject}`` and ``{landmark subject: (2,) true position}``."""
     path = folder / "Barcodes.dat"
     table, lines = read_table(path, 2, "subject, barcode")
@@ -182,20 +182,15 @@ def _subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
 
 
 def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
-    """One robot of an MRCLAM data set as a Dataset (module docstring); with
-    ``config.all_robots``, every robot in one graph
-    (:func:`graphslam.sources.planar.mrclam_joint.read_mrclam_all`).
+    """Robot ``config.robot`` of an MRCLAM data set as a Dataset (module docstring);
+    every robot in one graph is :func:`graphslam.sources.planar.mrclam_joint.read_mrclam_all`.
 
     Raises:
         InputError: a missing or malformed file, naming file and line.
     """
     folder = Path(folder)
     config = config or MrclamConfig()
-    if config.all_robots:
-        from graphslam.sources.planar.mrclam_joint import read_mrclam_all
-
-        return read_mrclam_all(folder, config)
-    barcodes, landmarks_true = _subjects(folder)
+    barcodes, landmarks_true = read_subjects(folder)
     odo, meas, truth = read_robot(folder, config.robot)
     track = robot_track(config, config.robot, odo, meas, truth, barcodes)
     track.notes.insert(0, f"robot {config.robot}")

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam import (PRIOR_VARIANCE, MrclamConfig, _subjects,
-                                             landmark_observations, read_robot, robot_track,
-                                             robots_in, sighting_covariance)
+from graphslam.sources.planar.mrclam import (PRIOR_VARIANCE, MrclamConfig, landmark_observations,
+                                             read_robot, read_subjects, robot_track, robots_in,
+                                             sighting_covariance)
 from slamcore.errors import InputError
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Dataset, Frame, Odometry, PoseSighting, odometry_batch
@@ -42,7 +42,7 @@ POSE_ID_STRIDE = 1_000_000
 
 def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     """Every robot of the data set in one Dataset (module docstring)."""
-    barcodes, landmarks_true = _subjects(folder)
+    barcodes, landmarks_true = read_subjects(folder)
     robots = robots_in(folder)
     if not robots:
         raise InputError("no RobotN_Odometry.dat here", folder)
