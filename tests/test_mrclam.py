@@ -143,6 +143,8 @@ def test_partial_truth_scores_only_where_it_exists(mrclam):
     result = pipeline.run(ds, registry.make_backend("ekf"))
     m = pipeline.compute_metrics(result, with_graph_error=False)
     assert m.ate_rmse_m is not None and m.map_rmse_m is not None
+    # the ATE says how many poses it covers: those of the 1500 with truth
+    assert m.ate_poses == sum(f.wTb_true is not None for f in ds.frames) == 1416
     assert m.dataset_notes[0] == "robot 1"
 
 

@@ -73,6 +73,8 @@ class PlanarRunMetrics:
             (:func:`graphslam.evaluation.planar.map_errors`), where the data has them.
         agents: several robots in one run: per robot, its own ATE, its dead
             reckoning's and its pose count (:func:`graphslam.pipelines.planar.agent_ates`).
+        ate_poses: the poses the ATE covers (those with truth; a real log's truth
+            may cover part of the run).
     """
 
     dataset: str
@@ -107,13 +109,14 @@ class PlanarRunMetrics:
     landmarks_recovered: int | None = None
     landmarks_true: int | None = None
     agents: dict | None = None
+    ate_poses: int | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
         "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries",
         "map", "localisation_only", "unmapped_observations", "warnings", "dataset_notes",
         "map_rmse_m", "map_rmse_m_map_aligned", "landmarks_matched", "landmarks_recovered",
-        "landmarks_true", "agents"})
+        "landmarks_true", "agents", "ate_poses"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

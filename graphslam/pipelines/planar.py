@@ -167,8 +167,10 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         final_error = graph_error(result.dataset, est)
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     # ATE needs two common poses: a run cut after its first step has none (null)
+    ate_poses = None
     if gt is not None and np.intersect1d(est.pose_ids, gt[0]).size >= 2:
-        ate = metrics.ate(est.pose_ids, est.wTb, *gt)["rmse_m"]
+        scored = metrics.ate(est.pose_ids, est.wTb, *gt)
+        ate, ate_poses = scored["rmse_m"], scored["n"]
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
     agents = None
@@ -180,6 +182,7 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
                                         result.associations)
     return PlanarRunMetrics(
         **map_scores, dataset_notes=list(result.dataset.notes) or None, agents=agents,
+        ate_poses=ate_poses,
         dataset=result.dataset.name, backend=result.backend, seed=seed, steps=result.steps,
         landmarks=int(len(est.landmark_ids)), final_error=final_error, ate_rmse_m=ate,
         odometry_ate_rmse_m=odo_ate, wall_s=result.wall_s if wall_s is None else wall_s,

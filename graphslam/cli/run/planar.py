@@ -149,7 +149,9 @@ def format_summary(metrics) -> str:
         ("steps", metrics.steps),
         ("landmarks", metrics.landmarks),
         ("final error", fmt(metrics.final_error, ".6g")),
-        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f")),
+        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f") + (
+            f" (over the {metrics.ate_poses} of {metrics.steps} poses with truth)"
+            if metrics.ate_poses is not None and metrics.ate_poses < metrics.steps else "")),
         ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
