@@ -147,6 +147,25 @@ def test_tum_bad(tmp_path):
         read_tum_rgbd(plain)
 
 
+@pytest.mark.parametrize("where, line, text, message", [
+    ("groundtruth.txt", 6, "100.0530 9 9 9 0 0 0 1", "groundtruth timestamps must increase"),
+    ("rgb.txt", 3, "nan rgb/100.000000.png", "non-finite value"),
+    ("rgb.txt", 3, "1_00.0 rgb/100.000000.png", "expected timestamp"),
+])
+def test_tum_repeated_truth_stamps_and_odd_image_stamps_are_refused(tmp_path, where, line,
+                                                                      text, message):
+    """Issue 34: a repeated groundtruth.txt stamp gave an image one of two truths without
+    a word; rgb.txt took "nan" and "1_00.0" as times."""
+    folder = _fake_tum(tmp_path)
+    path = folder / where
+    rows = path.read_text().splitlines()
+    rows[line - 1] = text
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=message) as e:
+        read_tum_rgbd(folder, intrinsics="fr3")
+    assert f"{where}:{line}" in str(e.value)
+
+
 # ----------------------------------------------------------------------------- EuRoC
 
 SENSOR_YAML = """%YAML:1.0

@@ -124,10 +124,8 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
         parts = t.split()
         if len(parts) != 2:
             raise InputError(f"expected 'timestamp filename', got {quote(t)}", rgb, n)
-        try:
-            stamps.append(float(parts[0]))
-        except ValueError:
-            raise InputError(f"bad timestamp {quote(parts[0])}", rgb, n) from None
+        # a decimal number, finite: float() alone takes "nan", "inf", "1_000"
+        stamps.append(float(parse_floats(parts[0], rgb, n, 1, "timestamp")[0]))
         paths.append(str(listed_file(folder, parts[1], rgb, n)))
     if not paths:
         raise InputError("no images listed", rgb)
@@ -150,7 +148,7 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     wTc = None
     gpath = folder / "groundtruth.txt"
     if gpath.is_file():
-        gt_t, gt_T = [], []
+        gt_t, gt_T, gt_lines = [], [], []
         for n, t in read_lines(gpath, "TUM groundtruth.txt"):
             v = parse_floats(t, gpath, n, 8, "numbers (timestamp tx ty tz qx qy qz qw)")
             T = np.eye(4)
@@ -158,6 +156,9 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
             T[:3, 3] = v[1:4]
             gt_t.append(v[0])
             gt_T.append(T)
+            gt_lines.append(n)
+        # a repeated stamp gives one image two truths (association picks one silently)
+        check_increasing(gt_t, gt_lines, gpath, "groundtruth timestamps")
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc,
                          image_size(paths[0]), str(folder))
