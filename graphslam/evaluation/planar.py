@@ -307,18 +307,12 @@ def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
     truth_xy = np.array([landmarks_true[k] for k in sorted(landmarks_true)]).reshape(-1, 2)
     nearest = np.min(np.linalg.norm(truth_xy[:, None, :] - lm_w[None, :, :], axis=2), axis=1)
     out["landmarks_recovered"] = int(np.sum(nearest <= MAP_RECOVERY_RADIUS_M))
-    votes: dict[int, dict[int, int]] = {}
-    for true_id, got in pairs:
-        if got is not None:
-            votes.setdefault(got, {}).setdefault(true_id, 0)
-            votes[got][true_id] += 1
+    true_of = majority_truth(pairs)
     rows, matched = [], []
     for k, lid in enumerate(np.asarray(estimate.landmark_ids).tolist()):
-        if lid in votes:
-            true_id = max(votes[lid].items(), key=lambda kv: (kv[1], -kv[0]))[0]
-            if true_id in landmarks_true:
-                rows.append(k)
-                matched.append(landmarks_true[true_id])
+        if true_of.get(lid) in landmarks_true:
+            rows.append(k)
+            matched.append(landmarks_true[true_of[lid]])
     if not rows:
         return out
     matched_xy = np.array(matched, dtype=np.float64).reshape(-1, 2)
@@ -332,6 +326,17 @@ def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
     return out
 
 
+def majority_truth(pairs: list[tuple[int, int | None]]) -> dict[int, int]:
+    """Each back-end landmark id -> the true id its observations were most often of
+    (ties to the lower true id); ``pairs`` are ``(true_id, assigned_id or None)``."""
+    votes: dict[int, dict[int, int]] = {}
+    for true_id, got in pairs:
+        if got is not None:
+            votes.setdefault(got, {}).setdefault(true_id, 0)
+            votes[got][true_id] += 1
+    return {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
+
+
 def association_accuracy(pairs: list[tuple[int, int | None]]):
     """Score data association against ground truth.
 
@@ -342,12 +347,7 @@ def association_accuracy(pairs: list[tuple[int, int | None]]):
     """
     if not pairs:
         return None
-    votes: dict[int, dict[int, int]] = {}
-    for true_id, got in pairs:
-        if got is not None:
-            votes.setdefault(got, {}).setdefault(true_id, 0)
-            votes[got][true_id] += 1
-    mapping = {got: max(c.items(), key=lambda kv: (kv[1], -kv[0]))[0] for got, c in votes.items()}
+    mapping = majority_truth(pairs)
     correct = sum(1 for true_id, got in pairs if got is not None and mapping[got] == true_id)
     mapped_true = list(mapping.values())
     from graphslam.evaluation.records import AssociationScore

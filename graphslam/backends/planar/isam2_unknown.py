@@ -31,6 +31,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.landmark_association import Decision, LandmarkAssociator
 
 #: Landmarks farther apart than this are not tested for a merge, metres: a duplicate
@@ -54,8 +55,7 @@ class UnknownAssociation:
 
     def step(self, isam: gtsam.ISAM2, pose_id: int, observations) -> list[Decision]:
         """Decisions for the observations of ``pose_id`` (iSAM2 already holds the pose)."""
-        wTb = isam.calculateEstimatePose2(X(pose_id))
-        wTb = np.array([wTb.x(), wTb.y(), wTb.theta()])
+        wTb = conv.pose2_vector(isam.calculateEstimatePose2(X(pose_id)))
         pose_cov = np.asarray(isam.marginalCovariance(X(pose_id)))
         ids = np.array(self.active, dtype=np.int64)
         cached = np.array([self.positions[j] for j in self.active]).reshape(-1, 2)
@@ -109,9 +109,3 @@ class UnknownAssociation:
                 self.active.remove(drop)
                 out.append((keep, drop))
         return out
-
-    def alias(self, landmark_id: int) -> int:
-        """The id a landmark now goes by (itself unless merged)."""
-        while landmark_id in self.merged:
-            landmark_id = self.merged[landmark_id]
-        return landmark_id

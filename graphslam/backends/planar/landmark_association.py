@@ -31,12 +31,11 @@ Returned decisions are plain records; the back end adds the factors.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.association import individual_candidates, jcbb
+from filters.association import chi2_quantile, individual_candidates, jcbb
 from slamcore.planar import geometry as se2
 
 #: Individually compatible landmarks kept per observation for the joint test (the
@@ -45,11 +44,6 @@ from slamcore.planar import geometry as se2
 MAX_CANDIDATES = 3
 #: Pairing tests per scan (the EKF's default budget; scans here hold 1-6 sightings).
 MAX_JCBB_NODES = 2000
-
-
-def chi2_2dof(prob: float) -> float:
-    """Chi-square quantile with 2 degrees of freedom (closed form)."""
-    return -2.0 * math.log(1.0 - prob)
 
 
 @dataclass(eq=False)
@@ -65,7 +59,7 @@ class Candidate:
 class Decision:
     """What to do with one observation: ``kind`` is ``"landmark"`` (factor to
     ``landmark_id``), ``"confirmed"`` (new landmark ``landmark_id`` at ``mean_w``
-    with the factors of ``sightings``), ``"candidate"``, ``"ambiguous"``."""
+    with the factors of ``sightings``) or ``"candidate"`` (held on the list)."""
 
     kind: str
     landmark_id: int | None = None
@@ -78,7 +72,7 @@ class LandmarkAssociator:
 
     def __init__(self, gate_prob: float, confirm_sightings: int):
         self.gate_prob = gate_prob
-        self.gate_d2 = chi2_2dof(gate_prob)
+        self.gate_d2 = chi2_quantile(gate_prob, 2)
         self.confirm_sightings = confirm_sightings
         self.candidates: list[Candidate] = []
         self._next_id = 0
@@ -163,12 +157,11 @@ class LandmarkAssociator:
         d2 = np.einsum("ija,ijab,ijb->ij", nu, np.linalg.inv(S), nu)
         return d2, d2 + np.linalg.slogdet(S)[1]
 
-    def _provisional(self, obs, wTb: np.ndarray, pose_cov=None) -> Decision:
+    def _provisional(self, obs, wTb: np.ndarray, pose_cov: np.ndarray) -> Decision:
         """Extend the compatible candidate (the most likely) or start one; confirm it
         after ``confirm_sightings`` sightings. A candidate takes one sighting per pose:
         two observations of one scan are two landmarks."""
         z = np.asarray(obs.z, dtype=np.float64)
-        _, G_z = se2.inverse_observe_jacobians(wTb, z)
         best = None
         open_ = [c for c in self.candidates if c.sightings[-1].pose_id != obs.pose_id]
         if open_:  # one sighting per pose: two observations of a scan are two landmarks
@@ -180,7 +173,7 @@ class LandmarkAssociator:
             if ok.size:
                 best = open_[int(ok[np.argmin(nll[0, ok])])]
         point = se2.inverse_observe(wTb, z)
-        G_x, _ = se2.inverse_observe_jacobians(wTb, z)
+        G_x, G_z = se2.inverse_observe_jacobians(wTb, z)
         cov = G_z @ obs.covariance @ G_z.T + G_x @ pose_cov @ G_x.T
         if best is None:
             self.candidates.append(Candidate(point, cov, [obs]))

@@ -69,7 +69,8 @@ class MrclamConfig:
       the 1 s relative motions against the truth's (per robot the scales are
       0.91-0.96 forward and 0.91-0.94 angular: one value for all five);
     - the six noise coefficients (:mod:`~graphslam.sources.planar.mrclam_motion`):
-      maximum likelihood of the relative motion between consecutive frames;
+      Student-t maximum likelihood of the relative motions over 5 s windows (the
+      errors are correlated in time; the script's docstring says why 5 s);
     - ``sigma_range_m``, ``sigma_bearing_rad``: the robust (1.4826 MAD) scale of
       the sightings' residuals against the truth. The residuals have heavy
       tails (about 5 % of ranges beyond 3 robust sigma): a Gaussian fitted to
@@ -114,7 +115,8 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
     """``(N, columns)`` float64 of a ``.dat`` file and the file line of each row, or
     InputError naming file and line.
 
-    Every token must be a plain decimal number (no ``inf``, ``nan``, ``1_000``).
+    Every token must be a decimal number as the pose-graph readers take them (no
+    ``1_000``, no full-width digits) and finite.
     """
     if not path.exists():
         raise InputError(f"the MRCLAM folder has no {path.name} ({what})", path)
@@ -123,7 +125,7 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
         fh = open(path, encoding="utf-8-sig")
     except OSError as exc:
         raise InputError(f"cannot open file: {exc.strerror or exc}", path) from None
-    rows = []
+    lines, toks = [], []
     with fh:
         try:
             for line_no, line in enumerate(fh, start=1):
@@ -136,11 +138,10 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
                 for t in tok:
                     if not NUMBER_TOKEN.fullmatch(t):
                         raise InputError(f"{quote(t)} is not a number", path, line_no)
-                rows.append(line_no)
-                rows.append(tok)
+                lines.append(line_no)
+                toks.append(tok)
         except UnicodeDecodeError as exc:
             raise InputError(f"not a text file: {exc}", path) from None
-    lines, toks = rows[0::2], rows[1::2]
     table = np.array(toks, dtype=np.float64).reshape(-1, columns)
     bad = ~np.isfinite(table).all(axis=1)
     if bad.any():  # 1e999: a decimal number that is not a finite double
@@ -148,7 +149,7 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
     return table, lines
 
 
-def _check_times(table, lines, path: Path, strictly: bool = False) -> None:
+def check_times(table, lines, path: Path, strictly: bool = False) -> None:
     """Times (column 0) non-decreasing (increasing with ``strictly``); InputError at the
     first that is not."""
     t = table[:, 0]
@@ -219,17 +220,17 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     odo, lines = read_table(odo_path, 3, "time, forward velocity, angular velocity")
     if len(odo) == 0:
         raise InputError("no odometry line", odo_path)
-    _check_times(odo, lines, odo_path)
+    check_times(odo, lines, odo_path)
     _check_speeds(odo, lines, odo_path)
     meas_path = folder / f"Robot{n}_Measurement.dat"
     meas, lines = read_table(meas_path, 4, "time, barcode, range, bearing")
-    _check_times(meas, lines, meas_path)
+    check_times(meas, lines, meas_path)
     _check_sightings(meas, lines, meas_path)
     gt_path = folder / f"Robot{n}_Groundtruth.dat"
     truth = None
     if gt_path.exists():
         truth, lines = read_table(gt_path, 4, "time, x, y, heading")
-        _check_times(truth, lines, gt_path, strictly=True)
+        check_times(truth, lines, gt_path, strictly=True)
         if len(truth) < 2:
             truth = None
     return odo, meas, truth

@@ -56,7 +56,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     tracks = {n: robot_track(config, n, *logs[n], barcodes, np.array(seen_at[n]))
               for n in robots}
     order = sorted(((t, n, k) for n, tr in tracks.items() for k, t in enumerate(tr.times.tolist())))
-    anchor_t, anchor_n, _ = order[0]
+    _, anchor_n, _ = order[0]
     notes = [f"robots {', '.join(map(str, robots))} in one graph; all starts from the truth"]
     starts = {}
     for n, tr in tracks.items():
@@ -69,13 +69,15 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     sightings = _sightings(tracks, config, position)
     observations = {n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k)
                     for n, tr in tracks.items()}
+    steps = {n: odometry_batch([n * POSE_ID_STRIDE + k for k in range(len(tr.times) - 1)],
+                               [n * POSE_ID_STRIDE + k for k in range(1, len(tr.times))],
+                               tr.deltas, tr.covariances) for n, tr in tracks.items()}
     frames = []
-    for t, n, k in order:
+    for _, n, k in order:
         tr = tracks[n]
         pid = n * POSE_ID_STRIDE + k
         if k > 0:
-            odometry = odometry_batch([pid - 1], [pid], tr.deltas[k - 1:k],
-                                      tr.covariances[k - 1:k])[0]
+            odometry = steps[n][k - 1]
         elif n != anchor_n:
             odometry = Odometry(anchor_n * POSE_ID_STRIDE, pid, between(starts[anchor_n], starts[n]),
                                 np.eye(3) * PRIOR_VARIANCE)
@@ -83,7 +85,8 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
             odometry = None
         seen = tuple(observations[n].get(k, ()))
         has_truth = np.isfinite(tr.wTb_true[k]).all()
-        frames.append(Frame(pose_id=pid, stamp_s=t, odometry=odometry, observations=seen,
+        frames.append(Frame(pose_id=pid, stamp_s=float(tr.times[k]), odometry=odometry,
+                            observations=seen,
                             true_landmark_ids=tuple(o.landmark_id for o in seen),
                             wTb_true=tr.wTb_true[k].copy() if has_truth else None,
                             pose_sightings=tuple(sightings.get(position[(n, k)], ()))))

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam import read_table, truth_at
+from graphslam.sources.planar.mrclam import check_times, read_table, truth_at
 from slamcore.errors import InputError
 from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset, Frame, odometry_batch, range_batch
@@ -112,7 +112,7 @@ def read_plaza(dr_path, td_path=None, mat_path=None) -> Dataset:
     dr, dr_lines = _read(dr_path, 3, "time, distance, heading change")
     if len(dr) == 0:
         raise InputError("no dead-reckoning line", dr_path)
-    _check_times(dr, dr_lines, dr_path, strictly=True)
+    check_times(dr, dr_lines, dr_path, strictly=True)
     _check_steps(dr, dr_lines, dr_path)
     td, td_lines = _read(td_path, 4, "time, sender, receiver, range")
     _check_ranges(td, td_lines, td_path)
@@ -123,20 +123,9 @@ def read_plaza(dr_path, td_path=None, mat_path=None) -> Dataset:
 
 
 def _read(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:
-    if not path.exists():
+    if not path.exists():  # read_table would speak of an MRCLAM folder
         raise InputError(f"Plaza log file not found ({what})", path)
-    check_input_path(path, path.name)
     return read_table(path, columns, what)
-
-
-def _check_times(table, lines, path: Path, strictly: bool = False) -> None:
-    """Times (column 0) non-decreasing (increasing with ``strictly``)."""
-    step = np.diff(table[:, 0])
-    bad = (step <= 0) if strictly else (step < 0)
-    if bad.any():
-        k = int(np.argmax(bad)) + 1
-        raise InputError(f"time {table[k, 0]:.4f} s does not come after {table[k - 1, 0]:.4f} s: "
-                         "the log must be in time order", path, lines[k])
 
 
 def _check_steps(dr, lines, path: Path) -> None:
