@@ -18,7 +18,6 @@ Every figure uses the defaults of ``graphslam loops`` (shipped vocabulary,
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import time
 from pathlib import Path
@@ -49,8 +48,9 @@ def folder_run(folder: Path, vocab) -> dict:
     config = LoopDetectorConfig()
     feats = detect_all(paths, OrbDetector(config.orb))
     places = folder_places(feats, config, folder_timestamps(paths))
-    config = dataclasses.replace(config, mode=places.mode)
-    det = detect_loops(paths, LoopDetector(vocab, config), feats, timestamps=places.timestamps)
+    det = detect_loops(paths, LoopDetector(vocab, config,
+                                           mode=places.mode if config.mode == "auto" else None),
+                       feats, timestamps=places.timestamps)
     return {"images": len(paths), "mode": places.describe(config),
             "closures": [(paths[c.query].name, paths[c.match].name) for c in det.closures],
             "candidates": len(det.records), "seconds": time.perf_counter() - t0}

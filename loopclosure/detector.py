@@ -8,17 +8,28 @@ Per image (DBoW2's scheme, Gálvez-López & Tardós, T-RO 2012):
 2. Prior score ``s_prev``: the L1 score of this image against the previous
    one. Below ``min_prior_score`` the image is too unlike its own neighbour
    for scores to be comparable (blur, a blank wall) and it proposes nothing.
-3. Database query, excluding the most recent images (they resemble the
-   query only because they are recent): a window in seconds or frames for
-   video, the overlapping predecessors for a sparse keyframe folder
-   (:mod:`loopclosure.places`, ``mode``; ``"auto"`` measures consecutive
-   overlap and decides after ``probe_pairs`` images). Each answer's score is
-   normalised, ``eta = s / s_prev``, and the best answer with
-   ``eta >= min_normalised_score`` and ``s >= min_score`` is the candidate.
-4. Temporal consistency (video mode; keyframe mode takes one query): the candidate of this query and those of the
-   ``consistency_k - 1`` queries before it must form a chain in which every
-   match index is within ``consistency_tolerance`` of the previous one. A
-   query without a candidate breaks the chain.
+3. Database query, excluding the images the query is *covisible* with
+   (``mode = "covisibility"``, the default; :mod:`loopclosure.covisibility`):
+   those sharing at least ``min_shared_tracks`` tracked features with it,
+   the tracks being the run's own (``track_ids``) or, for a folder, ORB
+   features followed over a local map. They resemble the query because the
+   camera still sees what they saw; no window of frames or seconds is
+   assumed. The older rules remain as overrides (:mod:`loopclosure.places`):
+   ``"video"`` (a window in seconds or frames), ``"keyframes"`` (the
+   overlapping predecessors), ``"auto"`` (one of the two from consecutive
+   overlap). Each answer's score is normalised, ``eta = s / s_prev``, and
+   the best answer with ``eta >= min_normalised_score`` and
+   ``s >= min_score`` is the candidate.
+4. Consistency over covisible queries (ORB-SLAM's consistent groups): the
+   candidate and those of the queries before it that the query is covisible
+   with must form a chain in which each match is covisible with the previous
+   one (shares ``min_shared_tracks`` tracks, or is the same image); the chain
+   must reach ``consistency_k``, or one more than the covisible queries among
+   the ``consistency_k - 1`` before it. Video, where consecutive frames are
+   covisible, thus asks ``consistency_k`` agreeing queries, and a sparse folder,
+   where they are not, one verified query: one rule for both. A query without a
+   candidate breaks the chain. (``"video"`` mode: match indices within
+   ``consistency_tolerance`` frames; ``"keyframes"``: one query.)
 5. Geometric verification (:class:`loopclosure.verify.GeometricVerifier`):
    RANSAC on ORB matches; with ``K`` the relative pose ``query T match``
    (rotation, unit translation).
@@ -32,6 +43,7 @@ wreck a map, a missed one only costs accuracy.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -41,6 +53,8 @@ import numpy as np
 
 from frontend.orb import OrbConfig, OrbDetector
 from slamcore.config import bounded, validate
+from slamcore.errors import ConfigError
+from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
 from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
 
@@ -55,11 +69,14 @@ class LoopDetectorConfig:
     """Loop detector settings (config section ``[loops]``).
 
     Attributes:
-        mode: ``"auto"``, ``"video"`` or ``"keyframes"`` (:mod:`loopclosure.places`).
-        exclude_recent: video without timestamps: the most recent images
+        mode: ``"covisibility"`` (default: module docstring, step 3), or an
+            override, ``"auto"``, ``"video"`` or ``"keyframes"`` (:mod:`loopclosure.places`).
+        min_shared_tracks: tracked features a frame shares with the query for
+            the two to be covisible (``"covisibility"`` mode).
+        exclude_recent: ``"video"`` mode without timestamps: the most recent images
             never returned by a query (frames); must cover the frames a camera
             needs to leave a place.
-        exclude_recent_s: video with timestamps: the same window in seconds.
+        exclude_recent_s: ``"video"`` mode with timestamps: the same window in seconds.
         keyframe_overlap: consecutive-image overlap (share of matched
             features) below which ``"auto"`` chooses keyframes, and from which
             two consecutive keyframes count as overlapping.
@@ -72,8 +89,8 @@ class LoopDetectorConfig:
             (DBoW2's alpha).
         min_score: smallest raw L1 score of a candidate.
         consistency_k: consecutive queries whose candidates must agree.
-        consistency_tolerance: largest difference (frames) between the match
-            indices of two consecutive queries that still agree.
+        consistency_tolerance: ``"video"`` mode: largest difference (frames)
+            between the match indices of two consecutive queries that still agree.
         orb: ORB settings of the detector (:class:`frontend.orb.OrbConfig`),
             a ``[loops.orb]`` table in a config file. The default is not the
             tracker's ``[orb]``: 1000 candidates and no per-cell selection
@@ -84,7 +101,12 @@ class LoopDetectorConfig:
 
     SECTION: ClassVar[str] = "loops"
 
-    mode: Mode = "auto"
+    mode: Mode = "covisibility"
+    # 20: the verifier's own min_inliers (ORB-SLAM's 20), and above chance:
+    # images of different places share a median 8, at most 18, ratio-tested
+    # mutual matches among their 500 strongest loop-ORB features (800 pairs
+    # of KITTI 07, the desk and the synthetic room, measured)
+    min_shared_tracks: int = bounded(20, min=1)
     # 40 frames: at 10-30 Hz, 1.3-4 s, the time a camera takes to leave a place
     # (set on the synthetic sequence, 300 frames for 1.5 laps)
     exclude_recent: int = bounded(40, min=0)
@@ -108,6 +130,23 @@ class LoopDetectorConfig:
 
     def __post_init__(self):
         validate(self)
+        # a setting the chosen mode does not read is refused, not silently ignored
+        used = _MODE_FIELDS[self.mode]
+        for name in sorted(set().union(*_MODE_FIELDS.values()) - used):
+            if getattr(self, name) != _DEFAULTS[name]:
+                modes = [m for m, f in _MODE_FIELDS.items() if name in f]
+                raise ConfigError(f"loops.{name} is read only with mode = "
+                                  f"{' or '.join(repr(m) for m in modes)}, not {self.mode!r}; "
+                                  "set [loops] mode to use it")
+
+
+#: The settings only some modes read (``__post_init__`` refuses the others).
+_MODE_FIELDS = {"covisibility": {"min_shared_tracks"},
+                "video": {"exclude_recent", "exclude_recent_s", "consistency_tolerance"},
+                "keyframes": {"keyframe_overlap"},
+                "auto": {"exclude_recent", "exclude_recent_s", "consistency_tolerance",
+                         "keyframe_overlap", "probe_pairs"}}
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(LoopDetectorConfig)}
 
 
 @dataclass(frozen=True)
@@ -133,6 +172,8 @@ class CandidateRecord:
     n_inliers: int | None
     accepted: bool
     reason: str | None
+    #: older images the query could not return (covisible with it, or in its window)
+    excluded: int | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -178,6 +219,9 @@ class LoopDetector:
         distortion: OpenCV distortion coefficients, or None.
         database: a :class:`loopclosure.database.BowDatabase`-like object; a new
             ``BowDatabase(vocabulary)`` when None.
+        mode: with ``config.mode = "auto"``, ``"video"`` or ``"keyframes"`` as the
+            caller resolved it (a folder command measures the whole folder first);
+            None lets the detector decide online.
 
     Attributes after running: ``records`` (list of :class:`CandidateRecord`),
     ``closures`` (list of :class:`DetectedLoop`).
@@ -185,8 +229,11 @@ class LoopDetector:
 
     def __init__(self, vocabulary, config: LoopDetectorConfig | None = None,
                  verify_config: VerifyConfig | None = None, K: np.ndarray | None = None,
-                 distortion: np.ndarray | None = None, database=None):
+                 distortion: np.ndarray | None = None, database=None, mode: str | None = None):
         self.config = config or LoopDetectorConfig()
+        if mode is not None and (self.config.mode != "auto" or mode not in ("video", "keyframes")):
+            raise ValueError(f"a resolved mode ({mode!r}) is for mode 'auto' only, as "
+                             "'video' or 'keyframes'")
         self.verifier = GeometricVerifier(verify_config)
         self.K = None if K is None else np.asarray(K, np.float64)
         self.distortion = distortion
@@ -203,9 +250,19 @@ class LoopDetector:
         # (query index, match index) of the recent candidates forming the current chain
         self._chain: list[tuple[int, int]] = []
         #: resolved mode ("video" or "keyframes"); None while "auto" is still measuring
-        self.mode: str | None = None if self.config.mode == "auto" else self.config.mode
+        self.mode: str | None = mode if self.config.mode == "auto" else self.config.mode
         self._overlaps: list[float] = []  # overlap of images k and k+1
         self._times: list[float] | None = None
+        self.covisibility = CovisibilityGraph()
+        self._tracker = DescriptorTracker()
+        self._own_tracks: bool | None = None  # True: the caller gives track ids
+        self._covisible = np.zeros(0, np.int64)  # images the current query is covisible with
+        self._linked = np.zeros(0, np.int64)  # the same without the forced previous image
+        self._direct: list[np.ndarray] = []  # per image, the older images directly covisible
+        #: images each query could not return (covisible, or in the window)
+        self.excluded: list[int] = []
+        self._n_excluded = 0
+        self._record_of: dict[int, int] = {}  # query -> its index in records
 
     def __len__(self) -> int:
         return len(self._features)
@@ -215,21 +272,27 @@ class LoopDetector:
         f = self._features[i]
         return f.xy, f.descriptors
 
-    def process(self, image: np.ndarray, timestamp: float | None = None) -> DetectedLoop | None:
-        """Add the next image ((H, W) uint8, its time in seconds if known); returns the
-        closure it makes, if any."""
+    def process(self, image: np.ndarray, timestamp: float | None = None,
+                track_ids: np.ndarray | None = None) -> DetectedLoop | None:
+        """Add the next image ((H, W) uint8, its time in seconds if known, the run's
+        track ids observed in it if any); returns the closure it makes, if any."""
         f = self.orb.detect(image)
         return self.process_features(f.xy_px, f.descriptors, timestamp,
-                                     (float(image.shape[1]), float(image.shape[0])))
+                                     (float(image.shape[1]), float(image.shape[0])), track_ids)
 
     def process_features(self, xy_px: np.ndarray, descriptors: np.ndarray,
                          timestamp: float | None = None,
-                         image_size: tuple[float, float] | None = None) -> DetectedLoop | None:
+                         image_size: tuple[float, float] | None = None,
+                         track_ids: np.ndarray | None = None) -> DetectedLoop | None:
         """Like :meth:`process` with precomputed ORB features ((N, 2) px, (N, 32) uint8);
-        ``image_size`` (width, height) px, default the features' extent."""
+        ``image_size`` (width, height) px, default the features' extent; ``track_ids``
+        ((M,) int) the tracks a visual run observed in this image, for covisibility
+        (default: the detector tracks its own features)."""
         i = len(self._features)
         descriptors = np.asarray(descriptors, np.uint8).reshape(-1, 32)
         self._track_places(i, descriptors, timestamp)
+        if self.mode == "covisibility":
+            self._track_covisibility(i, descriptors, track_ids)
         self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors,
                                       image_size))
         bow = self.database.bow(descriptors)
@@ -246,10 +309,24 @@ class LoopDetector:
             raise ValueError("give a timestamp for every image or for none")
         if timestamp is not None:
             self._times = (self._times or []) + [float(timestamp)]
-        if i > 0 and self.mode != "video":  # video never needs them
+        if i > 0 and self.mode not in ("video", "covisibility"):  # only auto and keyframes use them
             self._overlaps.append(consecutive_overlap(self._features[-1].descriptors, descriptors))
         if self.mode is None and len(self._overlaps) >= self.config.probe_pairs:
             self.mode = choose_mode("auto", self._overlaps, self.config.keyframe_overlap)
+
+    def _track_covisibility(self, i: int, descriptors: np.ndarray, track_ids) -> None:
+        """The images image i is covisible with (:mod:`loopclosure.covisibility`)."""
+        if i > 0 and (track_ids is not None) != self._own_tracks:
+            raise ValueError("give track ids for every image or for none")
+        self._own_tracks = track_ids is not None
+        if track_ids is None:  # the local map: tracks the previous image's covisible ones saw
+            local = np.zeros(0, np.int64) if i == 0 else np.append(self._direct[-1], i - 1)
+            track_ids = self._tracker.track(descriptors, local)
+        self.covisibility.add(track_ids)
+        shared = self.covisibility.shared(i)
+        self._linked = np.flatnonzero(shared >= self.config.min_shared_tracks)
+        self._direct.append(self.covisibility.covisible(i, self.config.min_shared_tracks))
+        self._covisible = self.covisibility.local_map(i, self.config.min_shared_tracks, self._direct)
 
     def _window(self, i: int) -> int | None:
         """Recent images excluded from image i's query; None while the mode is undecided."""
@@ -257,13 +334,54 @@ class LoopDetector:
             return None
         return recent_window(i, self.mode, self.config, self._overlaps, self._times)
 
-    def _query(self, i: int, bow, prev) -> DetectedLoop | None:
+    def _answers(self, i: int, bow) -> list[tuple[int, float]] | None:
+        """Database answers image i may have (best first), or None when every older
+        image is excluded; sets ``_n_excluded``."""
         c = self.config
+        if self.mode == "covisibility":
+            excluded = self._covisible
+            if len(excluded) >= i:
+                return None
+            self._n_excluded = len(excluded)
+            skip = set(excluded.tolist())
+            # ask for enough answers that max_results survive the exclusion
+            raw = self.database.query(bow, max_results=c.max_results + len(excluded))
+            return [(m, s) for m, s in raw if m not in skip][:c.max_results]
         window = self._window(i)
         if window is None or len(self.database) <= window:
+            return None
+        self._n_excluded = window
+        return self.database.query(bow, max_results=c.max_results, exclude_recent=window)
+
+    def _consistent(self, i: int, match: int) -> tuple[int, int]:
+        """Extend or restart the chain of agreeing candidates with ``(i, match)``;
+        returns (chain length, length needed) (module docstring, step 4)."""
+        c = self.config
+        if self._chain:
+            q_last, m_last = self._chain[-1]
+            if self.mode == "covisibility":
+                agree = q_last in set(self._covisible.tolist()) and (
+                    m_last == match or self.covisibility.shared_between(m_last, match)
+                    >= c.min_shared_tracks)
+            else:
+                agree = q_last == i - 1 and abs(m_last - match) <= c.consistency_tolerance
+            if not agree:
+                self._chain.clear()
+        self._chain.append((i, match))
+        if self.mode == "covisibility":
+            before = np.count_nonzero(self._linked >= i - c.consistency_k + 1)
+            need = min(c.consistency_k, 1 + int(before))
+        else:  # keyframes: consecutive queries see different places, one query must do
+            need = 1 if self.mode == "keyframes" else c.consistency_k
+        return len(self._chain), need
+
+    def _query(self, i: int, bow, prev) -> DetectedLoop | None:
+        c = self.config
+        answers = self._answers(i, bow)
+        if answers is None:
             return None  # nothing old enough to be a loop: no record, nothing happened
+        self.excluded.append(self._n_excluded)
         prior = None if prev is None else float(self.database.score(bow, prev))
-        answers = self.database.query(bow, max_results=c.max_results, exclude_recent=window)
         best_match, best_score = (answers[0][0], float(answers[0][1])) if answers else (None, 0.0)
         if prior is None or prior < c.min_prior_score:
             self._chain.clear()
@@ -283,13 +401,7 @@ class LoopDetector:
             return None
         match, score = cand
         eta = score / prior
-        if self._chain and (self._chain[-1][0] != i - 1
-                            or abs(self._chain[-1][1] - match) > c.consistency_tolerance):
-            self._chain.clear()
-        self._chain.append((i, match))
-        n_chain = len(self._chain)
-        # keyframes: consecutive queries see different places, one query must do
-        need = 1 if self.mode == "keyframes" else c.consistency_k
+        n_chain, need = self._consistent(i, match)
         if n_chain < need:
             self._record(i, match, best_match, score, eta, prior, n_chain, None,
                          f"not temporally consistent ({n_chain}/{need})")
@@ -301,12 +413,35 @@ class LoopDetector:
             self._record(i, match, best_match, score, eta, prior, n_chain, v, "geometry: " + v.reason)
             return None
         self._record(i, match, best_match, score, eta, prior, n_chain, v, None)
+        if self.mode == "covisibility":
+            self._confirm_earlier(n_chain)
         loop = DetectedLoop(i, match, score, eta, v.n_inliers, v.R, v.t_unit)
         self.closures.append(loop)
         return loop
 
+    def _confirm_earlier(self, n_chain: int) -> None:
+        """The chain now agrees: its earlier queries' candidates, held back only for want
+        of agreement, are as supported as the last one; each that passes its own
+        geometric verification becomes a closure too (the first images of a revisit
+        are not lost; they come before the closure returned for this image)."""
+        for q, m in self._chain[:-1]:
+            at = self._record_of.get(q)
+            rec = self.records[at] if at is not None else None
+            if rec is None or rec.match != m or not (rec.reason or "").startswith("not temporally"):
+                continue
+            a, b = self._features[q], self._features[m]
+            v = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors, self.K,
+                                     self.distortion, a.size, b.size)
+            self.records[at] = dataclasses.replace(
+                rec, consistency=n_chain, n_matches=int(v.n_matches), n_inliers=int(v.n_inliers),
+                accepted=v.accepted, reason=None if v.accepted else "geometry: " + v.reason)
+            if v.accepted:
+                self.closures.append(DetectedLoop(q, m, rec.score, rec.normalised_score or 0.0,
+                                                  v.n_inliers, v.R, v.t_unit))
+
     def _record(self, i, match, best_match, score, eta, prior, n_chain, v: Verification | None,
                 reason: str | None) -> None:
+        self._record_of[int(i)] = len(self.records)
         self.records.append(CandidateRecord(
             query=int(i), match=None if match is None else int(match),
             best_match=None if best_match is None else int(best_match), score=float(score),
@@ -314,7 +449,7 @@ class LoopDetector:
             prior_score=None if prior is None else float(prior), consistency=int(n_chain),
             n_matches=None if v is None else int(v.n_matches),
             n_inliers=None if v is None else int(v.n_inliers),
-            accepted=reason is None, reason=reason))
+            accepted=reason is None, reason=reason, excluded=int(self._n_excluded)))
 
     def run(self, images: Iterable[np.ndarray],
             progress: Callable[[Iterable], Iterable] | None = None) -> list[DetectedLoop]:

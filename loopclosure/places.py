@@ -37,7 +37,7 @@ __all__ = ["Mode", "consecutive_overlap", "choose_mode", "recent_window",
            "timestamps_from_names", "MODES"]
 
 #: ``[loops] mode`` values (module docstring).
-Mode = Literal["auto", "video", "keyframes"]
+Mode = Literal["covisibility", "auto", "video", "keyframes"]
 MODES = typing.get_args(Mode)
 
 #: Features compared per image when measuring overlap: the strongest ones

@@ -158,7 +158,7 @@ def test_config_file_writes_the_orb_as_a_sub_table(tmp_path):
     from slamcore.config import load_section
 
     path = tmp_path / "loops.toml"
-    path.write_text("[loops]\nexclude_recent = 5\n\n[loops.orb]\nn_features = 500\n"
+    path.write_text("[loops]\nmode = \"video\"\nexclude_recent = 5\n\n[loops.orb]\nn_features = 500\n"
                     "cell_size_px = 0\n")
     config = load_section(LoopDetectorConfig, path)
     assert config.exclude_recent == 5 and config.orb == OrbConfig(n_features=500, cell_size_px=0)
@@ -209,7 +209,8 @@ def small_run():
 
     seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
                                                       cx=159.5, cy=119.5, n_frames=120))
-    config = LoopDetectorConfig(exclude_recent=20, orb=OrbConfig(n_features=500, cell_size_px=0))
+    config = LoopDetectorConfig(mode="video", exclude_recent=20,
+                                orb=OrbConfig(n_features=500, cell_size_px=0))
     orb = OrbDetector(n_features=500, cell_size_px=0)
     feats = [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
     vocab = VocabularyTree(branching=10, depth=2, seed=0).fit([f.descriptors[:300] for f in feats])
@@ -263,7 +264,7 @@ def test_default_detector_on_images_is_repeatable():
         [OrbDetector(n_features=200, cell_size_px=0).detect(im).descriptors for im in imgs[::4]])
     runs = []
     for _ in range(2):
-        config = LoopDetectorConfig(exclude_recent=10, orb=OrbConfig(n_features=200, cell_size_px=0))
+        config = LoopDetectorConfig(orb=OrbConfig(n_features=200, cell_size_px=0))
         det = LoopDetector(vocab, config, K=seq.K)
         det.run(imgs)
         runs.append([r.to_dict() for r in det.records])

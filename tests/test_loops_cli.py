@@ -28,7 +28,7 @@ def frames(tmp_path_factory):
         # unpadded names: the CLI must order them naturally (f9 before f10)
         cv2.imwrite(str(folder / f"f{i}.png"), seq.load(i))
     config = folder.parent / "loops.toml"
-    config.write_text("[loops]\nexclude_recent = 20\n")
+    config.write_text('[loops]\nmode = "covisibility"\nmin_shared_tracks = 20\n')
     return folder, seq.revisit_pairs, config
 
 

@@ -30,7 +30,7 @@ def _features(path: Path):
 
 
 def test_recent_window_per_mode():
-    cfg = LoopDetectorConfig(exclude_recent=4, exclude_recent_s=1.0, keyframe_overlap=0.1)
+    cfg = LoopDetectorConfig(mode="auto", exclude_recent=4, exclude_recent_s=1.0, keyframe_overlap=0.1)
     # video, frames: the last 4 (fewer at the start)
     assert recent_window(10, "video", cfg, []) == 4
     assert recent_window(2, "video", cfg, []) == 2
@@ -64,15 +64,18 @@ def test_timestamps_from_names():
     assert timestamps_from_names([Path("2.5.png"), Path("1.5.png")]) is None  # not increasing
 
 
-def test_desk_folder_gives_its_true_pair_only():
-    """The detector as `graphslam loops` runs it: auto mode (keyframes here), shipped vocabulary."""
+@pytest.mark.parametrize("mode", ["covisibility", "auto"])
+def test_desk_folder_gives_its_true_pair_only(mode):
+    """The detector as `graphslam loops` runs it (covisibility, the default), and with the
+    older auto mode (keyframes here); shipped vocabulary."""
     from loopclosure.shipped import load_shipped_vocabulary
 
     paths = sorted(DESK.glob("*.png"))
-    det = LoopDetector(load_shipped_vocabulary(), LoopDetectorConfig(probe_pairs=9))
+    extra = {"probe_pairs": 9} if mode == "auto" else {}
+    det = LoopDetector(load_shipped_vocabulary(), LoopDetectorConfig(mode=mode, **extra))
     for p in paths:
         det.process(load_gray(p))
-    assert det.mode == "keyframes"
+    assert det.mode == ("keyframes" if mode == "auto" else "covisibility")
     assert [(c.query, c.match) for c in det.closures] == [(9, 0)]
 
 

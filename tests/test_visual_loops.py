@@ -224,7 +224,7 @@ class _StubDetector:
     def __len__(self):
         return self._n
 
-    def process(self, image):
+    def process(self, image, track_ids=None):
         from loopclosure.detector import CandidateRecord, DetectedLoop
 
         i, self._n = self._n, self._n + 1
@@ -315,7 +315,8 @@ def test_cli_loops_writes_csv_log_and_counts(tmp_path, capsys):
     assert (out / "loops.csv").read_text().splitlines()[0] == \
         "query,match,score,inliers,pnp_inliers,distance_m"
     records = [json.loads(l) for l in (out / "loops.jsonl").read_text().splitlines()]
-    assert records and all(r["query"] >= 40 for r in records)  # exclude_recent = 40
+    # covisibility: every query excludes at least its previous frame
+    assert records and all(r["excluded"] >= 1 for r in records)
     m = json.loads((out / "metrics.json").read_text())
     assert m["loops"]["candidates"] == sum(r["match"] is not None for r in records)
     assert m["loops"]["closures"] == len((out / "loops.csv").read_text().splitlines()) - 1

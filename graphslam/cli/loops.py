@@ -110,13 +110,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
     # One ORB pass serves the mode choice, the training (if any) and the detection.
     features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
     places = folder_places(features, detector_config, times)
-    detector_config = dataclasses.replace(detector_config, mode=places.mode)
     if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
-    detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion)
+    detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion,
+                            mode=places.mode if detector_config.mode == "auto" else None)
     kept = list(features) if args.truth is not None else None  # detect_loops frees its list
     detect_loops(paths, detector, features, progress=not args.quiet, timestamps=places.timestamps)
 
@@ -131,7 +131,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         written += _evaluate(args, truth, paths, kept, detector, places.timestamps)
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
-    print(f"places: {places.describe(detector_config)}")
+    print(f"places: {places.describe(detector_config, detector.excluded)}")
     print(f"{seen} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
@@ -175,7 +175,8 @@ def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:
     # The sweep: the same detector with no score threshold, every verified candidate kept.
     loose = dataclasses.replace(detector.config, min_normalised_score=0.0, min_score=0.0)
     sweep = LoopDetector(detector.database.vocabulary, loose, detector.verifier.config,
-                         K=detector.K, distortion=detector.distortion)
+                         K=detector.K, distortion=detector.distortion,
+                         mode=detector.mode if loose.mode == "auto" else None)
     points = pr_curve(sweep_scores(paths, features, sweep, timestamps), truth)
     files = write_pr(points, (precision, recall), args.out.parent)
     n_queries = len({q for q, _ in truth})

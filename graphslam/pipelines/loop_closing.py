@@ -7,8 +7,10 @@ calls :meth:`VisualLoopCloser.process`):
    (:meth:`frontend.orb.OrbDetector.describe`) and kept with their track ids:
    they are what an old frame's landmarks look like, for step 3.
 2. The image goes through :class:`loopclosure.detector.LoopDetector`
-   (bag of words, normalised score, temporal consistency, RANSAC on the
-   essential matrix with the minimum feature share).
+   (bag of words, normalised score, consistency over covisible queries,
+   RANSAC on the essential matrix) with the frame's observed track ids: the
+   frames it may not return are those sharing the run's own tracks with it
+   (covisibility, as ORB-SLAM's loop detector).
 3. An accepted candidate ``(query k, match a)`` gets a metric pose
    (:func:`loopclosure.pnp.relative_pose_pnp`): the landmarks the back end has
    mapped among frame ``a``'s tracks, expressed in camera ``a``
@@ -185,11 +187,13 @@ class VisualLoopCloser:
             raise RuntimeError(f"loop detector holds {len(self.detector)} images at frame {k}; "
                                "frames must be fed in order from 0")
         pre = None if self.features is None else self.features[k]
+        # covisibility from the run's own tracks (landmarks re-found keep their ids)
+        tracked = np.asarray(obs.track_ids, np.int64)
         if pre is None:
-            loop = self.detector.process(image)
+            loop = self.detector.process(image, track_ids=tracked)
         else:
             self.features[k] = None  # free memory as we go
-            loop = self.detector.process_features(pre.xy_px, pre.descriptors)
+            loop = self.detector.process_features(pre.xy_px, pre.descriptors, track_ids=tracked)
         if len(self.detector.records) == n_records:
             return None  # too early for any query: nothing happened
         record = LoopCandidate(self.detector.records[-1],

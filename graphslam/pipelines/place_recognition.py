@@ -102,7 +102,7 @@ class FolderPlaces:
     """How a folder's images are told apart in time (:mod:`loopclosure.places`).
 
     Attributes:
-        mode: ``"video"`` or ``"keyframes"``, as resolved.
+        mode: ``"covisibility"``, ``"video"`` or ``"keyframes"``, as resolved.
         chosen: True when ``"auto"`` chose it (from ``median_overlap``).
         median_overlap: median share of features matched between consecutive images.
         timestamps: (N,) seconds (from file names or a KITTI-style ``times.txt``), or None.
@@ -113,8 +113,17 @@ class FolderPlaces:
     median_overlap: float | None
     timestamps: np.ndarray | None
 
-    def describe(self, config) -> str:
-        """One line for the summary: the mode, why, and what it excludes."""
+    def describe(self, config, excluded=None) -> str:
+        """One line for the summary: the mode, why, and what it excludes (``excluded``:
+        the number of older images each query could not return, when known)."""
+        if self.mode == "covisibility":
+            line = (f"covisibility: a query never returns the images sharing >= "
+                    f"{config.min_shared_tracks} tracked features with it")
+            if excluded:
+                line += (f" (median {np.median(excluded):g}, at most {max(excluded)} images "
+                         f"excluded)")
+            return line + f"; a closure needs {config.consistency_k} agreeing covisible queries, " \
+                "or one where the query has no covisible predecessor"
         why = ""
         if self.median_overlap is not None:
             rel = "<" if self.mode == "keyframes" else ">="
@@ -156,6 +165,10 @@ def folder_places(features: list, config, timestamps: np.ndarray | None) -> Fold
     :func:`folder_timestamps`) are kept only when they increase (not a backwards run)."""
     from loopclosure.places import choose_mode, consecutive_overlap
 
+    if timestamps is not None and not np.all(np.diff(timestamps) > 0):
+        timestamps = None  # a backwards run: no usable times
+    if config.mode == "covisibility":
+        return FolderPlaces("covisibility", False, None, timestamps)
     overlaps = []
     if config.mode == "auto" and len(features) > 1:
         # at most FOLDER_PROBE_PAIRS evenly spaced pairs: a median needs no more
@@ -164,8 +177,7 @@ def folder_places(features: list, config, timestamps: np.ndarray | None) -> Fold
                     for k in starts]
     mode = choose_mode(config.mode, overlaps, config.keyframe_overlap)
     return FolderPlaces(mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None,
-                        timestamps if timestamps is not None and np.all(np.diff(timestamps) > 0)
-                        else None)
+                        timestamps)
 
 
 def detect_loops(paths: list[Path], detector, features: list | None = None,

@@ -1,0 +1,142 @@
+"""Covisibility instead of a frame window (issue 33): the graph, the folder tracker, and the
+detector on revisits that come back sooner than the old 40-frame window."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from frontend.orb import OrbDetector
+from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
+from loopclosure.detector import LoopDetector, LoopDetectorConfig
+
+
+def test_graph_counts_shared_tracks_and_always_keeps_the_previous_frame():
+    g = CovisibilityGraph()
+    g.add([1, 2, 3, 4])
+    g.add([3, 4, 5])
+    g.add([9])          # a frame sharing nothing
+    g.add([1, 3, 4, 9])
+    assert g.shared(3).tolist() == [3, 2, 1]
+    assert g.shared_between(0, 3) == 3
+    assert g.covisible(3, 2).tolist() == [0, 1, 2]   # 2 is the previous frame
+    assert g.covisible(2, 1).tolist() == [1]         # shares nothing, still the previous
+    assert g.covisible(0, 1).tolist() == []
+
+
+def test_local_map_reaches_two_links_and_no_further():
+    # a chain 0 - 1 - 2 - 3 - 4 where only neighbours share tracks
+    g, direct = CovisibilityGraph(), []
+    for k in range(5):
+        g.add([10 * k + j for j in range(5)] + [10 * (k - 1) + j for j in range(5)])
+        direct.append(g.covisible(k, 5))
+    assert direct[4].tolist() == [3]
+    assert g.local_map(4, 5, direct).tolist() == [2, 3]   # 3, and 3's neighbour 2; not 1
+
+
+def test_tracker_follows_features_within_the_local_map_only():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, (60, 32), dtype=np.uint8)
+    b = rng.integers(0, 256, (60, 32), dtype=np.uint8)
+    tr = DescriptorTracker()
+    ids0 = tr.track(a, np.zeros(0, np.int64))
+    assert ids0.tolist() == list(range(60))
+    ids1 = tr.track(a, np.array([0]))                    # the same features again
+    assert ids1.tolist() == ids0.tolist()
+    ids2 = tr.track(b, np.array([1]))                    # other features: new tracks
+    assert set(ids2.tolist()).isdisjoint(ids0.tolist())
+    ids3 = tr.track(a, np.array([2]))                    # a's tracks left the local map
+    assert set(ids3.tolist()).isdisjoint(ids0.tolist())
+    assert tr.n_tracks == 180
+
+
+def test_track_ids_are_given_for_every_image_or_none():
+    from loopclosure.shipped import load_shipped_vocabulary
+
+    rng = np.random.default_rng(1)
+    det = LoopDetector(load_shipped_vocabulary())
+    xy = rng.uniform(0, 600, (50, 2))
+    d = rng.integers(0, 256, (50, 32), dtype=np.uint8)
+    det.process_features(xy, d, track_ids=np.arange(50))
+    with pytest.raises(ValueError, match="track ids"):
+        det.process_features(xy, d)
+
+
+@pytest.fixture(scope="module")
+def synthetic_features():
+    from graphslam.sources.spatial.synthetic_images import (
+        SyntheticImagesConfig, make_synthetic_images,
+    )
+
+    seq = make_synthetic_images(SyntheticImagesConfig(n_frames=100))
+    orb = OrbDetector(LoopDetectorConfig().orb)
+    return seq, [orb.detect(seq.load(i)) for i in range(len(seq.image_paths))]
+
+
+def _closures(feats, mode, K):
+    from loopclosure.shipped import load_shipped_vocabulary
+
+    det = LoopDetector(load_shipped_vocabulary(), dataclasses.replace(LoopDetectorConfig(), mode=mode),
+                       K=K)
+    for f in feats:
+        det.process_features(f.xy_px, f.descriptors)
+    return det
+
+
+def test_revisit_inside_the_old_window_is_found(synthetic_features):
+    """The 100-frame synthetic sequence taken every 4th frame: the revisit begins about
+    17 frames after the first pass, inside the old 40-frame window, which finds nothing;
+    covisibility finds nearly every revisit frame, none of them wrong."""
+    seq, feats = synthetic_features
+    idx = np.arange(0, len(feats), 4)
+    sub = [feats[k] for k in idx]
+    partners = {}
+    for i, j in seq.revisit_pairs:
+        if i % 4 == 0 and j % 4 == 0:
+            partners.setdefault(j // 4, set()).add(i // 4)
+    assert partners and min(partners) - max(max(p) for p in partners.values()) < 40
+    assert _closures(sub, "video", seq.K).closures == []
+    det = _closures(sub, "covisibility", seq.K)
+    tol = 1  # subsampled frames: 4 original frames
+    true = [any(abs(c.match - i) <= tol for j in range(c.query - tol, c.query + tol + 1)
+                for i in partners.get(j, ())) for c in det.closures]
+    assert all(true), [(c.query, c.match) for c in det.closures]
+    recalled = {c.query for c in det.closures} & set(partners)
+    assert len(recalled) >= 0.8 * len(partners)
+
+
+def test_earlier_queries_of_a_confirmed_chain_become_closures(synthetic_features):
+    """Consistency holds the first queries of a revisit back; once the chain agrees, they
+    are verified and kept (their records say so), so a revisit starts where it starts with
+    one query (consistency_k = 1), not k - 1 queries later."""
+    seq, feats = synthetic_features
+    det = _closures(feats, "covisibility", seq.K)
+    k = det.config.consistency_k
+    assert k >= 2
+    first = min(c.query for c in det.closures)
+    from loopclosure.shipped import load_shipped_vocabulary
+
+    one = LoopDetector(load_shipped_vocabulary(), dataclasses.replace(det.config, consistency_k=1),
+                       K=seq.K)
+    for f in feats:
+        one.process_features(f.xy_px, f.descriptors)
+    assert first == min(c.query for c in one.closures)
+    rec = {r.query: r for r in det.records}
+    assert rec[first].accepted and rec[first].reason is None and rec[first].consistency >= k
+    assert len({c.query for c in det.closures}) == len(det.closures)  # one closure per query
+
+
+def test_a_setting_the_mode_does_not_read_is_refused():
+    from slamcore.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"loops\.exclude_recent is read only with mode = 'video'"):
+        LoopDetectorConfig(exclude_recent=20)  # the default mode, covisibility, has no window
+    with pytest.raises(ConfigError, match=r"loops\.min_shared_tracks is read only"):
+        LoopDetectorConfig(mode="video", min_shared_tracks=10)
+    with pytest.raises(ConfigError, match=r"loops\.keyframe_overlap"):
+        LoopDetectorConfig(mode="video", keyframe_overlap=0.2)
+    assert LoopDetectorConfig(mode="auto", exclude_recent=20, keyframe_overlap=0.2).exclude_recent == 20
+    with pytest.raises(ValueError, match="resolved mode"):
+        LoopDetector(None, LoopDetectorConfig(), mode="video")
