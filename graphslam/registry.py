@@ -84,8 +84,8 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         return read_w10000()
     path = Path(spec)
     if not path.exists():
-        raise InputError(f"no such dataset or file (built-in datasets: {', '.join(DATASETS)})",
-                         path)
+        raise InputError(f"no such dataset or file (built-in datasets: "
+                         f"{', '.join(DATASETS + VISUAL_DATASETS)})", path)
     check_input_path(path, "--dataset")
     from graphslam.sources.planar.posegraph import read_pose_graph
     from graphslam.sources.posegraph_files import TAGS, first_tag
@@ -110,6 +110,10 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     2-D pose-graph files still stream them frame by frame (odometry only). A TORO
     file with landmark lines (``BR``) runs as landmark SLAM with ``isam2``; with
     ``batch`` the pose-graph reader refuses it at its first such line."""
+    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS
+
+    if spec in BUILTIN_POSE_GRAPHS and backend == "batch":
+        return True  # a built-in graph solved whole (streamed by the other back ends)
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
     from graphslam.sources.posegraph_files import (TAGS, first_tag, has_landmark_lines,
@@ -126,10 +130,14 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
 
 def load_pose_graph(spec: str | Path, toro_noise: str = "information",
                     information_fix: str = "nearest"):
-    """A g2o or TORO pose-graph file, 2-D or 3-D, as a :class:`slamcore.posegraph.PoseGraph`
+    """A g2o or TORO pose-graph file, 2-D or 3-D, or a built-in pose graph's name
+    (``w10000``, ``city10000``), as a :class:`slamcore.posegraph.PoseGraph`
     (``information_fix``: what is done with information that is not positive definite)."""
+    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
     from graphslam.sources.posegraph_files import read_pose_graph_file
 
+    if str(spec) in BUILTIN_POSE_GRAPHS and not Path(spec).exists():  # a file of that name wins
+        return builtin_pose_graph(str(spec))[0]
     if Path(spec).exists():  # a missing file: the reader's own message
         check_input_path(spec, "pose-graph file")
     return read_pose_graph_file(spec, toro_noise, information_fix)

@@ -16,7 +16,9 @@ datasets:
                   noise from the course demo, settable in [synthetic] of --config
   victoria-park   Victoria Park (gtsam wheel), trees seen by laser, no ground truth
   city10000       city10000 pose graph with ground truth (gtsam wheel)
-  w10000          w10000 Manhattan pose graph (gtsam wheel)
+  w10000          w10000 Manhattan pose graph (gtsam wheel); both stream frame
+                  by frame, or are solved whole with --backend batch (and
+                  taken by convert) like a pose-graph file
   plaza1, plaza2  CMU Plaza range-only logs (gtsam wheel): dead reckoning and
                   ranges to 4 radio beacons, truth for the vehicle and the
                   beacons; range-only SLAM on isam2 (RangeFactor2D, beacons

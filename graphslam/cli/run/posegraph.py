@@ -7,6 +7,8 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
+
 from graphslam.cli.common import fmt, report_outputs, summary_table
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import posegraph as pipeline
+    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
 
     t0 = time.perf_counter()
     refuse_ignored_flags(args)
@@ -49,13 +52,19 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--no-polish applies to the isam2 back end only (--backend isam2)")
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
-    graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise,
-                                     solver_config.information_fix)
+    truth = None
+    if args.dataset in BUILTIN_POSE_GRAPHS and not Path(args.dataset).exists():
+        graph, truth = builtin_pose_graph(args.dataset)  # city10000's truth comes with it
+    else:
+        graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise,
+                                         solver_config.information_fix)
     if args.max_steps is not None:
         from graphslam.sources.posegraph_files import truncated
 
         graph = truncated(graph, args.max_steps)
-    truth = None
+    if truth is not None:
+        keep = np.isin(truth[0], graph.ids)
+        truth = (truth[0][keep], truth[1][keep]) if keep.sum() >= 2 else None
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import read_trajectory
 
