@@ -128,7 +128,7 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
-def load_pose_graph(spec: str | Path, toro_noise: str = "information",
+def load_pose_graph(spec: str | Path, toro_noise: str = "auto",
                     information_fix: str = "nearest"):
     """A g2o or TORO pose-graph file, 2-D or 3-D, or a built-in pose graph's name
     (``w10000``, ``city10000``), as a :class:`slamcore.posegraph.PoseGraph`

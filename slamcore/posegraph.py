@@ -47,7 +47,8 @@ class PoseGraph:
         source_path: the file read, or None.
         noise: how the file's edge numbers were read, ``"information"`` or
             ``"sqrt_information"`` (TORO tags written by iSAM); :attr:`information`
-            is the information matrix either way.
+            is the information matrix either way. noise_note: why, when a known
+            file decided it.
         information_fix: how the reader replaced information matrices that were
             not positive definite (``"nearest"`` or ``"isotropic"``, see
             :func:`fixed_information`), None when it replaced none.
@@ -72,6 +73,8 @@ class PoseGraph:
     equiv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     source_path: str | None = None
     noise: str = "information"
+    #: why :attr:`noise` was chosen when ``toro_noise = "auto"`` recognised the file, else None
+    noise_note: str | None = None
     information_fix: str | None = None
     information_fixed: np.ndarray | None = None
     self_edge_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))

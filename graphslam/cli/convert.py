@@ -24,10 +24,12 @@ def register(sub) -> None:
     p.add_argument("--to", choices=("g2o", "toro"), default=None,
                    help="output format (default: from OUT's extension)")
     # posegraph_files.TORO_NOISE, written out: building the parser imports no numpy
-    p.add_argument("--toro-noise", choices=("information", "sqrt_information"),
-                   default="information",
+    p.add_argument("--toro-noise", choices=("auto", "information", "sqrt_information"),
+                   default="auto",
                    help="how TORO edge numbers are read and written: information (the "
-                        "format) or sqrt_information (files written by iSAM)")
+                        "format), sqrt_information (files written by iSAM), or auto "
+                        "(default: sqrt_information for the files known to hold it, such as "
+                        "gtsam's sphere2500.txt, said on stderr; else information)")
     # posegraph_files.INFORMATION_FIX, written out for the same reason
     p.add_argument("--information-fix", choices=("nearest", "isotropic", "refuse"),
                    default="nearest",
@@ -54,8 +56,11 @@ def cmd_convert(args: argparse.Namespace) -> int:
         notes.append(f"{graph.n_information_fixed} edges' information matrices were not "
                      f"positive definite: written as replaced ({graph.information_fix}; "
                      "--information-fix refuse keeps the refusal)")
-    if fmt == "toro":  # --toro-noise says how TORO numbers are written too
-        converted = dataclasses.replace(converted, noise=args.toro_noise)
+    if graph.noise_note:
+        notes.append(f"edge numbers read as {graph.noise_note}")
+    if fmt == "toro":  # --toro-noise says how TORO numbers are written too (auto: as read)
+        converted = dataclasses.replace(
+            converted, noise=graph.noise if args.toro_noise == "auto" else args.toro_noise)
     for note in notes:
         warn(note)
     try:

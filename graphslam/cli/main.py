@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit status when stdout's reader closed the pipe (128 + SIGPIPE, as a shell reports it).
+EXIT_BROKEN_PIPE = 141
+
 #: Longest error line printed: a full path (PATH_MAX 4096) and a sentence fit;
 #: a message that quotes a huge token whole (a bug) cannot flood stderr.
 MAX_ERROR_CHARS = 8000
@@ -68,6 +71,14 @@ def main(argv: list[str] | None = None) -> int:
         except GraphSlamError as e:
             print(f"graphslam: error: {one_line(str(e))}", file=sys.stderr)
             return EXIT_ERROR
+        except BrokenPipeError:
+            # the reader of our output left (``graphslam run ... | head``): the files are
+            # written before the summary is printed; exit quietly, as a shell's SIGPIPE
+            # does, and keep Python's exit-time flush of stdout from raising again
+            import os
+
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
         except OSError as e:
             # a full disk or an over-long name met while writing: the user's to fix
             line = os_error_line(e)

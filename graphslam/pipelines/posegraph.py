@@ -57,6 +57,7 @@ class PoseGraphRunMetrics:
     shonan_certifies: str | None = None
     numerical_recoveries: list[str] | None = None
     information_fixed: dict | None = None
+    noise: str | None = None
     closure_test: dict | None = None
     route: dict | None = None
     self_edges_ignored: dict | None = None
@@ -70,7 +71,7 @@ class PoseGraphRunMetrics:
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
-        "numerical_recoveries", "information_fixed", "closure_test", "final_cost_kept", "route",
+        "numerical_recoveries", "information_fixed", "noise", "closure_test", "final_cost_kept", "route",
         "self_edges_ignored", "equiv_ignored", "ate_poses"})
 
     def to_dict(self) -> dict:
@@ -155,6 +156,8 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
         numerical_recoveries=result.recoveries or None,
         information_fixed=({"method": graph.information_fix, "edges": graph.n_information_fixed}
                            if graph.n_information_fixed else None),
+        # how a TORO file's edge numbers were read, when a known file decided it
+        noise=graph.noise_note,
         closure_test=None if result.closure_threshold is None else {
             "robust_closures": result.robust_mode,
             "threshold_whitened": result.closure_threshold,

@@ -57,6 +57,7 @@ connected: otherwise its components are named.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import replace
@@ -180,8 +181,38 @@ def _lines(path: Path):
             raise InputError(f"not a text file: {exc}", path) from None
 
 
-#: How TORO edge numbers are read (g2o's are information always).
-TORO_NOISE = ("information", "sqrt_information")
+#: How TORO edge numbers are read (g2o's are information always); ``auto``: as
+#: :data:`KNOWN_TORO_NOISE` says for a file it knows, else information (the format).
+TORO_NOISE = ("auto", "information", "sqrt_information")
+#: Files whose TORO noise convention is known, by SHA-256 of their bytes -> (name,
+#: convention, why). sphere2500.txt: module docstring (its residuals against the
+#: ground-truth file have the standard deviations its numbers invert).
+KNOWN_TORO_NOISE = {
+    "4b9418a300e6ec3ec0a4223e13b0febb068d18f9a008ebb59c1b9f262626e552": (
+        "gtsam's sphere2500.txt", "sqrt_information", "written by iSAM"),
+}
+
+
+def resolve_toro_noise(path, toro_noise: str) -> tuple[str, str | None]:
+    """``(convention, note)``: ``toro_noise`` unless it is ``auto``; then the known
+    file's convention with a note saying so, or ``information`` and no note."""
+    if toro_noise != "auto":
+        return toro_noise, None
+    import hashlib
+
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    except OSError:
+        return "information", None  # the reader says what is wrong with the file
+    known = KNOWN_TORO_NOISE.get(digest.hexdigest())
+    if known is None:
+        return "information", None
+    name, convention, why = known
+    return convention, (f"{convention} (auto: {name}, {why}; [posegraph] toro_noise = "
+                        f"\"information\" reads the numbers as the format defines them)")
 #: What is done with an information matrix that is not positive definite.
 INFORMATION_FIX = (*pg.INFORMATION_FIXES, "refuse")
 
@@ -191,7 +222,7 @@ class _Collector:
 
     def __init__(self, path: Path, toro_noise: str = "information",
                  information_fix: str = "nearest"):
-        if toro_noise not in TORO_NOISE:
+        if toro_noise not in TORO_NOISE[1:]:
             raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
         if information_fix not in INFORMATION_FIX:
             raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, "
@@ -413,20 +444,26 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     return with_chain_start(cut)
 
 
-def read_pose_graph_file(path, toro_noise: str = "information",
+def read_pose_graph_file(path, toro_noise: str = "auto",
                          information_fix: str = "nearest") -> pg.PoseGraph:
     """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags).
 
     ``toro_noise = "sqrt_information"`` reads TORO edge numbers as the upper
-    triangle ``R`` of the information ``R^T R`` (files written by iSAM).
+    triangle ``R`` of the information ``R^T R`` (files written by iSAM);
+    ``"auto"`` does so for a file :data:`KNOWN_TORO_NOISE` knows to be such,
+    and says so in the graph's ``noise_note``.
     ``information_fix``: ``nearest``, ``isotropic`` or ``refuse`` for information
     that is not positive definite (module docstring).
     """
     path = Path(path)
+    if toro_noise not in TORO_NOISE:
+        raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
+    toro_noise, note = resolve_toro_noise(path, toro_noise)
     collector = _Collector(path, toro_noise, information_fix)
     for line_no, tok in _lines(path):
         collector.line(line_no, tok)
-    return collector.graph()
+    graph = collector.graph()
+    return dataclasses.replace(graph, noise_note=note) if note and graph.format == "toro" else graph
 
 
 #: Landmark-observation tags a 2-D pose-graph file may hold (gtsam's ``load2D`` reads

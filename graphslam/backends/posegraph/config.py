@@ -47,7 +47,10 @@ class PoseGraphConfig:
             metres / radians; it costs nothing at the optimum.
         toro_noise: how TORO files' edge numbers are read: ``information`` (the
             TORO format) or ``sqrt_information`` (files written by iSAM, such as
-            gtsam's ``sphere2500.txt``: the upper triangle ``R`` of ``R^T R``).
+            gtsam's ``sphere2500.txt``: the upper triangle ``R`` of ``R^T R``);
+            ``auto`` (default): ``sqrt_information`` for the files known to hold it
+            (``graphslam.sources.posegraph_files.KNOWN_TORO_NOISE``, by content),
+            said in the summary, else ``information``.
         information_fix: an edge information that is not positive definite is
             replaced by the ``nearest`` positive-definite matrix (eigenvalues raised
             to 1e-6 of the largest), or by SE-Sync's ``isotropic`` translation and
@@ -66,7 +69,7 @@ class PoseGraphConfig:
     robust_closures: Literal["auto", "gnc", "none"] = "auto"
     closure_test_alpha: float = bounded(0.01, gt=0.0, lt=1.0)
     prior_sigma: float = bounded(1e-3, gt=0.0)
-    toro_noise: Literal["information", "sqrt_information"] = "information"
+    toro_noise: Literal["auto", "information", "sqrt_information"] = "auto"
     information_fix: Literal["nearest", "isotropic", "refuse"] = "nearest"
 
     def __post_init__(self):

@@ -108,6 +108,7 @@ def format_summary(metrics) -> str:
         ("graph", f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
                   f"{metrics.edges} edges ({metrics.closures} closures)"),
         *information_rows(metrics.information_fixed),
+        *([("edge numbers read as", metrics.noise)] if metrics.noise else []),
         *([("self-edges ignored", f"{metrics.self_edges_ignored['edges']} edges from a pose "
             f"to itself (lines {', '.join(map(str, metrics.self_edges_ignored['lines']))}"
             f"{', ...' if metrics.self_edges_ignored['edges'] > 10 else ''}): they constrain "
