@@ -162,6 +162,20 @@ def test_cli_writes_eval_json_one_entry_per_estimate(tmp_path, capsys):
     assert "est_tum.txt" in capsys.readouterr().out
 
 
+def test_two_files_of_one_name_are_told_apart_by_their_folders(tmp_path, capsys):
+    gt, est = tr.write_pair(tmp_path, "tum")
+    for run in ("run_a", "run_b"):
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "trajectory.tum").write_bytes(est.read_bytes())
+    out = tmp_path / "out"
+    assert main(["eval", str(gt), str(tmp_path / "run_a" / "trajectory.tum"),
+                 str(tmp_path / "run_b" / "trajectory.tum"), "--no-plot", "--out", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "run_a/trajectory.tum" in table and "run_b/trajectory.tum" in table
+    rows = json.loads((out / "eval.json").read_text())["estimates"]
+    assert [r["label"] for r in rows] == ["run_a/trajectory.tum", "run_b/trajectory.tum"]
+
+
 def test_cli_kitti_needs_times_against_tum(tmp_path, capsys):
     gt, _ = tr.write_pair(tmp_path, "tum")
     _, kitti = tr.write_pair(tmp_path, "kitti")

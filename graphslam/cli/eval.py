@@ -77,7 +77,7 @@ def format_table(results) -> str:
     rows = [head]
     for r in results:
         s = r.result.summary()
-        rows.append((Path(r.path).name, f"{s['matched_poses']}/{s['estimate_poses']}",
+        rows.append((r.label or Path(r.path).name, f"{s['matched_poses']}/{s['estimate_poses']}",
                      *(fmt(s[k], ".4f") for k in ("ate_rmse_m", "ate_mean_m", "ate_median_m",
                                                   "ate_max_m", "ate_rot_rmse_deg",
                                                   "rpe_trans_rmse_m", "rpe_rot_rmse_deg",

@@ -25,9 +25,28 @@ class EstimateResult:
 
     path: str
     result: TrajectoryEval
+    #: the shortest end of ``path`` that no other estimate of the same call shares
+    #: (``a/trajectory.tum`` and ``b/trajectory.tum``, not two ``trajectory.tum``)
+    label: str = ""
 
     def to_dict(self, options: EvalOptions) -> dict:
-        return {"estimate": self.path, **self.result.summary(), "options": options.to_dict()}
+        return {"estimate": self.path, "label": self.label or Path(self.path).name,
+                **self.result.summary(), "options": options.to_dict()}
+
+
+def distinct_labels(paths: list[str | Path]) -> list[str]:
+    """Per path, its file name, with as many parent folders as it takes for no two
+    labels to be equal (the whole path for a path given twice)."""
+    parts = [Path(p).parts or (str(p),) for p in paths]
+    depth = [1] * len(parts)
+    while True:
+        labels = [str(Path(*pp[-d:])) for pp, d in zip(parts, depth)]
+        clash = {lab for lab in labels if labels.count(lab) > 1}
+        grow = [i for i, lab in enumerate(labels) if lab in clash and depth[i] < len(parts[i])]
+        if not grow:
+            return labels
+        for i in grow:
+            depth[i] += 1
 
 
 def load(path: Path, fmt: str | None, times: Path | None) -> Trajectory:
@@ -43,10 +62,10 @@ def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptio
     """Score every estimate against ``ground_truth`` (same format and times options)."""
     ref = load(ground_truth, fmt, times)
     out = []
-    for path in estimates:
+    for path, label in zip(estimates, distinct_labels(estimates)):
         est = load(path, fmt, times)
         out.append(EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s,
-                                                      est.wTc, options)))
+                                                      est.wTc, options), label))
     return out
 
 
@@ -64,7 +83,7 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
     for r in results:
         e = r.result
         if e.matched_share < LOW_MATCHED_SHARE:
-            out.append(f"{Path(r.path).name}: only {len(e.ref)} of {e.estimate_poses} poses "
+            out.append(f"{r.label or Path(r.path).name}: only {len(e.ref)} of {e.estimate_poses} poses "
                        f"({100 * e.matched_share:.0f} %) matched the reference (max diff "
                        f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
                        "those alone")

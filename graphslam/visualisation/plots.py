@@ -188,7 +188,7 @@ def plot_trajectory_eval(results, path: Path) -> Path:
     names = "xyz"
     axes[0].plot(ref[:, a], ref[:, b], color="0.5", lw=2, label="reference")
     for i, r in enumerate(results):
-        res, name = r.result, Path(r.path).name
+        res, name = r.result, r.label or Path(r.path).name
         p = res.est[:, :3, 3]
         axes[0].plot(p[:, a], p[:, b], color=f"C{i}", lw=1, label=name)
         along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(res.ref[:, :3, 3], axis=0),
