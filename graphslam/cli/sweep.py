@@ -71,12 +71,13 @@ def make_executor(workers: int, cluster: str | None):
 
 
 def _progress(total: int, quiet: bool):
-    """``(callback, bar)``: a tqdm bar of runs with done / failed counts and time left."""
+    """``(callback, bar)``: progress of the runs (a bar, or lines in a log) with done /
+    failed counts and time left."""
     if quiet or total == 0:
         return None, None
-    from tqdm import tqdm
+    from graphslam.pipelines.progress import progress
 
-    bar = tqdm(total=total, desc="sweep", unit="run", disable=None, dynamic_ncols=True)
+    bar = progress(total=total, desc="sweep", unit="run")
     counts = {"failed": 0}
 
     def update(run, row):

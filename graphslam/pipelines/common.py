@@ -179,11 +179,10 @@ _fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worke
 
 
 def progress_bar(total: int, dataset: str, backend: str, enabled: bool):
-    """A tqdm bar on stderr, or None when ``enabled`` is False."""
+    """Progress of a run's steps on stderr (:func:`graphslam.pipelines.progress.progress`:
+    a bar on a terminal, a line every few seconds in a log), or None when not ``enabled``."""
     if not enabled:
         return None
-    from tqdm import tqdm
+    from graphslam.pipelines.progress import progress
 
-    # disable=None: tqdm switches itself off when stderr is not a terminal (CI logs).
-    return tqdm(total=total, desc=f"{backend} on {dataset}", unit="step", disable=None,
-                dynamic_ncols=True)
+    return progress(total=total, desc=f"{backend} on {dataset}", unit="step")

@@ -292,10 +292,8 @@ def make_loop_closer(sequence, backend: VisualBackend, vocab, detector_config, v
 
 def sequence_features(sequence, n_frames: int, orb, progress: bool = False) -> list:
     """ORB features of the first ``n_frames`` images of ``sequence`` (progress on stderr)."""
-    import sys
-
-    from tqdm import tqdm
+    from graphslam.pipelines.progress import progress as progress_of
 
     return [orb.detect(sequence.load(i))
-            for i in tqdm(range(n_frames), desc="vocabulary ORB", unit="img",
-                          disable=not progress, file=sys.stderr)]
+            for i in progress_of(range(n_frames), desc="vocabulary ORB", unit="img",
+                                 enabled=progress)]

@@ -7,7 +7,6 @@ Library functions: they compute and return; the CLI prints.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,11 +24,10 @@ def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB"
     ends the pass at the next image and the features so far are returned
     (fewer than ``paths``); otherwise a signal aborts it.
     """
-    from tqdm import tqdm
-
     from frontend.image import load_gray
+    from graphslam.pipelines.progress import progress as progress_of
 
-    bar = tqdm(paths, desc=desc, unit="img", disable=not progress, file=sys.stderr)
+    bar = progress_of(paths, desc=desc, unit="img", enabled=progress)
     if not stoppable:
         return [orb.detect(load_gray(p)) for p in bar]
     features = []
@@ -189,11 +187,10 @@ def detect_loops(paths: list[Path], detector, features: list | None = None,
     ends the pass at the next image, the closures so far kept in ``detector``.
     Returns ``detector``.
     """
-    from tqdm import tqdm
-
     from frontend.image import load_gray
+    from graphslam.pipelines.progress import progress as progress_of
 
-    bar = tqdm(range(len(paths)), desc="loops", unit="img", disable=not progress, file=sys.stderr)
+    bar = progress_of(range(len(paths)), desc="loops", unit="img", enabled=progress)
     with interrupt_between_frames() as stop:  # a stop keeps the closures found so far
         for i in bar:
             if stop.requested:
