@@ -46,7 +46,7 @@ def register(sub) -> None:
     from graphslam.pipelines.spatial import ODOMETRY_MODES
     from graphslam.registry import BACKENDS, VISUAL_COMPARE_BACKENDS
 
-    names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS]))
+    names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, "batch", "auto"]))
 
     p = sub.add_parser(
         "compare", help="run several back ends on the same stream and compare them",
@@ -62,7 +62,9 @@ def register(sub) -> None:
                             "of --config, else 1)")
     p.add_argument("--backends", nargs="+", default=None, choices=names, metavar="NAME",
                        help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
-                            f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)})")
+                            f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)}; on a "
+                            "pose graph naming batch or auto, or on any 3-D graph, its "
+                            "solvers isam2, batch, auto)")
     p.add_argument("--odometry", choices=ODOMETRY_MODES, default=None,
                        help="image sequences: where odometry comes from, as graphslam run "
                             "(default: [visual] of --config, else auto)")
@@ -99,6 +101,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     config = registry.read_config(args.config)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
+    from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
+
+    if wants_pose_graph_compare(args.dataset, args.backends):
+        return compare_pose_graph(args, config, rerun_mode,
+                                  lambda name: _out_dir(args, name, rerun_mode))
     if registry.is_visual_dataset(args.dataset):
         return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:

@@ -268,3 +268,34 @@ def _save(fig, path: Path) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def plot_pose_graph_comparison(path: Path, title: str, tracks: dict[str, np.ndarray],
+                               truth_xyz: np.ndarray | None, wall_s: dict[str, float],
+                               final_cost: dict[str, float]) -> Path:
+    """PNG of ``compare`` on a pose graph: each solver's positions ((N, 3), seen from
+    above) over the truth's if any, and each solver's wall time labelled with its final cost."""
+    plt = _pyplot()
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), constrained_layout=True,
+                                 gridspec_kw={"width_ratios": [2, 1]})
+    if truth_xyz is not None:
+        ax.plot(truth_xyz[:, 0], truth_xyz[:, 1], color="0.6", lw=2.5, label="ground truth")
+    for i, (name, xyz) in enumerate(tracks.items()):
+        ax.plot(xyz[:, 0], xyz[:, 1], color=f"C{i}", lw=0.9, ls=("-", "--", ":")[i % 3],
+                label=name)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=8)
+    ax.set_title("estimates seen from above (first pose fixed)")
+    names = list(wall_s)
+    bars = bx.bar(names, [wall_s[n] for n in names], color=[f"C{i}" for i in range(len(names))])
+    for b, n in zip(bars, names):
+        bx.annotate(f"cost {final_cost[n]:.6g}", (b.get_x() + b.get_width() / 2, b.get_height()),
+                    ha="center", va="bottom", fontsize=8)
+    bx.set_ylabel("wall time [s]")
+    bx.set_title("time to the optimum")
+    fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

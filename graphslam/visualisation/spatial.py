@@ -262,9 +262,10 @@ KEPT_CLOSURE_COLOR = (44, 160, 44, 110)
 REJECTED_CLOSURE_COLOR = (214, 39, 40)
 
 
-def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarray) -> None:
+def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarray,
+                   root: str = "world/posegraph") -> None:
     """The optimised pose graph (2-D views for 2-D graphs, 3-D otherwise):
-    ``world/posegraph/{odometry,closures_kept,closures_rejected}``; rejected
+    ``ROOT/{odometry,closures_kept,closures_rejected}``; rejected
     closures are drawn in red over the kept (translucent green) ones."""
     from slamcore.posegraph import params_to_matrix
 
@@ -279,7 +280,7 @@ def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarra
              "closures_rejected": (~odometry & rejected, REJECTED_CLOSURE_COLOR, 0.03)}
     for name, (mask, color, radius) in parts.items():
         segments = np.stack([xyz[rows[mask, 0]], xyz[rows[mask, 1]]], axis=1)
-        log.rec.log(f"world/posegraph/{name}", strips(segments, colors=[color], radii=radius),
+        log.rec.log(f"{root}/{name}", strips(segments, colors=[color], radii=radius),
                     static=True)
 
 

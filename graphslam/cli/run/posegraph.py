@@ -39,7 +39,6 @@ def run(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import posegraph as pipeline
-    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
 
     t0 = time.perf_counter()
     refuse_ignored_flags(args)
@@ -52,23 +51,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--no-polish applies to the isam2 back end only (--backend isam2)")
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
-    truth = None
-    if args.dataset in BUILTIN_POSE_GRAPHS and not Path(args.dataset).exists():
-        graph, truth = builtin_pose_graph(args.dataset)  # city10000's truth comes with it
-    else:
-        graph = registry.load_pose_graph(args.dataset, solver_config.toro_noise,
-                                         solver_config.information_fix)
-    if args.max_steps is not None:
-        from graphslam.sources.posegraph_files import truncated
-
-        graph = truncated(graph, args.max_steps)
-    if truth is not None:
-        keep = np.isin(truth[0], graph.ids)
-        truth = (truth[0][keep], truth[1][keep]) if keep.sum() >= 2 else None
-    if args.ground_truth is not None:
-        from graphslam.sources.ground_truth import read_trajectory
-
-        truth = pipeline.ground_truth_of(graph, read_trajectory(args.ground_truth))
+    graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
     out_dir = args.out or Path("runs") / f"{graph.name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
@@ -83,19 +66,48 @@ def run(args: argparse.Namespace) -> int:
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 
+def load_graph(dataset: str, solver_config, max_steps: int | None = None,
+               ground_truth: Path | None = None):
+    """``(graph, truth or None)`` of ``--dataset`` (a file or a built-in pose graph, whose
+    truth comes with it), cut to ``max_steps`` poses; ``ground_truth``: a trajectory file
+    matched by pose id."""
+    from graphslam import registry
+    from graphslam.pipelines import posegraph as pipeline
+    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
+
+    truth = None
+    if dataset in BUILTIN_POSE_GRAPHS and not Path(dataset).exists():
+        graph, truth = builtin_pose_graph(dataset)  # city10000's truth comes with it
+    else:
+        graph = registry.load_pose_graph(dataset, solver_config.toro_noise,
+                                         solver_config.information_fix)
+    if max_steps is not None:
+        from graphslam.sources.posegraph_files import truncated
+
+        graph = truncated(graph, max_steps)
+    if truth is not None:
+        keep = np.isin(truth[0], graph.ids)
+        truth = (truth[0][keep], truth[1][keep]) if keep.sum() >= 2 else None
+    if ground_truth is not None:
+        from graphslam.sources.ground_truth import read_trajectory
+
+        truth = pipeline.ground_truth_of(graph, read_trajectory(ground_truth))
+    return graph, truth
+
+
 def record(args, graph, result, out_dir: Path) -> dict[str, Path]:
     """Rerun recording of the optimised graph, rejected closures in their own colour."""
     from graphslam.cli.common import close_recorder, open_recorder
     from graphslam.pipelines.posegraph import solved_graph
     from graphslam.visualisation.spatial import log_pose_graph
 
-    log, mode = open_recorder(_opener, args.rerun, out_dir / "run.rrd", args.rerun_url)
+    log, mode = open_recorder(open_posegraph_recording, args.rerun, out_dir / "run.rrd", args.rerun_url)
     log_pose_graph(log, solved_graph(graph, result), result.params, result.rejected)
     close_recorder(log)
     return {"recording": out_dir / "run.rrd"} if mode == "save" else {}
 
 
-def _opener(mode: str, path: Path, url: str | None):
+def open_posegraph_recording(mode: str, path: Path, url: str | None):
     from graphslam.visualisation.recording import RerunLog
 
     return RerunLog(mode, path, url, application_id="graphslam-posegraph")

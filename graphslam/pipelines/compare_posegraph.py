@@ -1,0 +1,92 @@
+"""``graphslam compare`` on a pose graph: its whole-graph solvers on the same graph.
+
+``isam2`` (incremental, then polished), ``batch`` (LM from the chosen start) and
+``auto`` (the checked fast route) each solve the graph with the same
+``[posegraph]`` settings; every run's metrics are those of ``graphslam run``
+(:class:`graphslam.pipelines.posegraph.PoseGraphRunMetrics`), with the RMS of its
+positions against the first solver's (same gauge: each fixes the first pose), so
+a table says whether they reach one optimum and at what cost in time. A solver
+that fails (one clear line) is marked and the others still run; a stop request
+ends the comparison after the solver in progress, which keeps its estimate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from graphslam.backends.posegraph.solver import SolveResult
+from graphslam.pipelines.common import stop_requested
+from graphslam.pipelines.posegraph import (
+    PoseGraphRunMetrics, metrics, run, solved_graph, trajectory_matrices,
+)
+from slamcore import posegraph as pg
+from slamcore.errors import GraphSlamError
+
+__all__ = ["POSEGRAPH_COMPARE_BACKENDS", "PoseGraphCompareRun", "compare"]
+
+#: Solvers ``compare`` runs on a pose graph (all of them by default).
+POSEGRAPH_COMPARE_BACKENDS = ("isam2", "batch", "auto")
+
+
+@dataclass
+class PoseGraphCompareRun:
+    """One solver's outcome: ``metrics`` and ``result``, or ``error`` (one line)."""
+
+    backend: str
+    metrics: PoseGraphRunMetrics | None = None
+    result: SolveResult | None = None
+    error: str | None = None
+    #: RMS (m) of its positions against the first solver's, over the poses both solved
+    rms_to_first_m: float | None = None
+
+    @property
+    def status(self) -> str:
+        if self.error is not None:
+            return "failed"
+        return "cut" if self.metrics.interrupted else "ok"
+
+    def to_dict(self) -> dict:
+        if self.metrics is None:
+            return {"backend": self.backend, "status": self.status, "error": self.error}
+        return {**self.metrics.to_dict(), "status": self.status,
+                "rms_to_first_m": self.rms_to_first_m}
+
+
+def compare(graph: pg.PoseGraph, backends: list[str], config=None,
+            truth: tuple[np.ndarray, np.ndarray] | None = None,
+            progress=None) -> list[PoseGraphCompareRun]:
+    """Solve ``graph`` with each of ``backends`` in turn (module docstring);
+    ``progress(name)`` is called before each."""
+    runs: list[PoseGraphCompareRun] = []
+    for name in backends:
+        if stop_requested():
+            break
+        if progress is not None:
+            progress(name)
+        t0 = time.perf_counter()
+        try:
+            result = run(graph, name, config)
+        except GraphSlamError as e:
+            runs.append(PoseGraphCompareRun(name, error=" ".join(str(e).splitlines())))
+            continue
+        runs.append(PoseGraphCompareRun(name, metrics(graph, result, time.perf_counter() - t0,
+                                                      truth), result))
+    first = next((r for r in runs if r.result is not None), None)
+    for r in runs:
+        if r.result is not None and first is not None:
+            r.rms_to_first_m = _rms_between(graph, first.result, r.result)
+    return runs
+
+
+def _rms_between(graph: pg.PoseGraph, a: SolveResult, b: SolveResult) -> float | None:
+    """RMS distance (m) between two solutions' positions over the poses both hold."""
+    ga, gb = solved_graph(graph, a), solved_graph(graph, b)
+    common, ia, ib = np.intersect1d(ga.ids, gb.ids, return_indices=True)
+    if common.size == 0:
+        return None
+    pa = trajectory_matrices(ga, a.params)[ia, :3, 3]
+    pb = trajectory_matrices(gb, b.params)[ib, :3, 3]
+    return float(np.sqrt(np.mean(np.sum((pa - pb) ** 2, axis=1))))
