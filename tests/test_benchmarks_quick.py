@@ -33,7 +33,7 @@ SLOW = {
     "bench_loop_ate": 251, "bench_command": 27,
     # under a load average of 10 (about 5 s of CPU each)
     "bench_sequential_search": 21, "bench_paper_figures": 45,
-    "bench_loop_revisit": 21,
+    "bench_loop_revisit": 21, "hostile_pass": 9,
 }
 
 #: Arguments besides ``--quick`` (scripts whose quick mode predates this test keep their

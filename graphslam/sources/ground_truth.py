@@ -120,8 +120,8 @@ def _time_order(stamps: np.ndarray, line_numbers: list[int], path: Path) -> np.n
     same = np.nonzero(np.diff(stamps[order]) == 0)[0]
     if same.size:
         a, b = sorted((int(order[same[0]]), int(order[same[0] + 1])))
-        raise InputError(f"time {stamps[b]!r} is duplicated (also on line {line_numbers[a]})",
-                         path, line_numbers[b])
+        raise InputError(f"time {float(stamps[b])!r} is duplicated (also on line "
+                         f"{line_numbers[a]})", path, line_numbers[b])
     return order
 
 

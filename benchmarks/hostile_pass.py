@@ -1,0 +1,336 @@
+"""The hostile pass of issue 34, re-runnable: attacks on every subcommand, each as a new
+user (or an attacker) would try it, in a subprocess, classified, with totals.
+
+Each attack builds its input in a fresh folder and runs ``python -m graphslam ...``
+there (a hang guard of ``--timeout`` seconds, default 300). Its outcome is
+
+- ``error``: exit 2 and exactly one ``graphslam: error:`` line, at most 600
+  characters, no traceback;
+- ``ok``: exit 0 (or what the attack allows, e.g. 1 for a sweep with a failed
+  run), no traceback;
+- ``crash``: a traceback, a signal (segfault), a hang past the guard, or another
+  exit status.
+
+An attack lists the outcomes that are right for it and may check more (a file
+still written, a word the summary must say). Verdict: **pass**; **silent** (exit 0
+where an error was due, or a check of what must be said failed: a wrong answer
+without a word); **fail** (crash, or an error where a valid run was due).
+
+Prints one line per attack and the totals; writes JSON and a PNG (verdicts by
+issue category) to ``benchmarks/results/hostile_pass.json`` or ``--out``.
+``--quick``: the attacks under a few seconds each (no 100 000-pose chain).
+
+    python benchmarks/hostile_pass.py [--quick] [--only SUBSTRING] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+DATA = ROOT.parent / "shared" / "data"
+#: Longest acceptable error line (a path, a sentence, a short quote).
+MAX_ERROR_CHARS = 600
+
+
+@dataclass
+class Attack:
+    """One attack: ``setup(folder) -> argv`` (after ``graphslam``), the right outcomes,
+    an optional ``check(folder, stdout, stderr) -> None | why`` and the issue's category."""
+
+    name: str
+    category: str  # "fail" or "silent", as the issue lists it
+    setup: Callable[[Path], list[str]]
+    expect: tuple[str, ...] = ("error",)
+    check: Callable[[Path, str, str], str | None] | None = None
+    ok_codes: tuple[int, ...] = (0,)
+    slow: bool = False
+    env: dict = field(default_factory=dict)
+
+
+def _w(folder: Path, name: str, text: str | bytes) -> Path:
+    p = folder / name
+    p.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(text, bytes):
+        p.write_bytes(text)
+    else:
+        p.write_text(text)
+    return p
+
+
+def _run(dataset, *extra) -> list[str]:
+    return ["run", "--dataset", str(dataset), "--rerun", "off", "--quiet", "--out", "out", *extra]
+
+
+def _says(word: str, where: str = "out"):
+    def check(folder, out, err):
+        return None if word in out + err else f"nothing says {word!r}"
+    return check
+
+
+def _files(*names: str):
+    def check(folder, out, err):
+        missing = [n for n in names if not (folder / n).is_file()]
+        return f"missing {missing}" if missing else None
+    return check
+
+
+def _chain_g2o(n: int) -> str:
+    lines = [f"VERTEX_SE2 {k} {k} 0 0" for k in range(n)]
+    lines += [f"EDGE_SE2 {k} {k + 1} 1 0 0 100 0 0 100 0 1000" for k in range(n - 1)]
+    return "\n".join(lines) + "\n"
+
+
+def _desk_copy(folder: Path, names: dict[str, str]) -> Path:
+    imgs = folder / "imgs"
+    imgs.mkdir()
+    for src, dst in names.items():
+        (imgs / dst).write_bytes((DATA / "slambook2_desk" / "images" / src).read_bytes())
+    return imgs
+
+
+def _tum_pair(folder: Path, dup: bool = False) -> tuple[Path, Path]:
+    rows = [f"{t}.0 {t} 0 0 0 0 0 1" for t in range(20)]
+    gt = _w(folder, "gt.tum", "\n".join(rows) + "\n")
+    est_rows = rows[:5] + ([rows[5].replace("5 0 0", "9 0 0")] if dup else []) + rows[5:]
+    est = _w(folder, "est.tum", "\n".join(est_rows) + "\n")
+    return gt, est
+
+
+def attacks() -> list[Attack]:
+    gap = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 2 1 0 0\nEDGE_SE2 0 2 1 0 0 500 0 0 500 0 5000\n"
+    two = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+    laughs = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{c}: &{c} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n"
+        for p, c in zip("abcdefgh", "bcdefghi"))
+    return [
+        # ---- fails of the issue: a traceback, a hang or lost data before
+        Attack("2-D graph with an id gap (default run)", "fail",
+               lambda f: _run(_w(f, "gap.g2o", gap)), ("ok",)),
+        Attack("2-D graph with an id gap (--backend batch)", "fail",
+               lambda f: _run(_w(f, "gap.g2o", gap), "--backend", "batch"), ("ok",)),
+        Attack("closure information 1e300", "fail", lambda f: _run(_w(
+            f, "big.g2o", _chain_g2o(5) + "EDGE_SE2 0 4 4 0 0 1e300 0 0 1e300 0 1e300\n")),
+            ("ok", "error")),
+        Attack("a 1e300 m measurement", "fail", lambda f: _run(_w(
+            f, "far.g2o", two + "EDGE_SE2 0 1 1e300 0 0 1 0 0 1 0 1\n")), ("ok", "error")),
+        Attack("3-D quaternion 1e-300 0 0 0", "fail", lambda f: _run(_w(
+            f, "q.g2o", "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n"
+            "EDGE_SE3:QUAT 0 1 1 0 0 1e-300 0 0 0 " + " ".join(["1"] + ["0"] * 5 + ["1"] + ["0"] * 4
+                                                           + ["1"] + ["0"] * 3 + ["1", "0", "0", "1", "0", "1"])
+            + "\n")), ("ok", "error")),
+        Attack("[synthetic] sigma_r_m = 1e300", "fail",
+               lambda f: _run("synthetic", "--config", str(_w(f, "c.toml",
+                                                             "[synthetic]\nsigma_r_m = 1e300\n"))),
+               ("ok", "error")),
+        Attack("compare with [fastslam] odometry_covariance_scale = 1e300 keeps iSAM2", "fail",
+               lambda f: ["compare", "--dataset", "synthetic", "--max-steps", "60", "--rerun", "off",
+                          "--out", "out", "--backends", "isam2", "fastslam1", "--config",
+                          str(_w(f, "c.toml", "[fastslam]\nodometry_covariance_scale = 1e300\n"))],
+               ("ok", "error"), ok_codes=(0, 1),
+               check=lambda f, o, e: None if (f / "out" / "compare.json").is_file() and any(
+                   r.get("backend") == "isam2" and "final_error" in r for r in json.loads(
+                       (f / "out" / "compare.json").read_text())["runs"]) else "iSAM2's result lost"),
+        Attack("negative pose ids", "fail", lambda f: _run(_w(
+            f, "neg.g2o", "VERTEX_SE2 -1 0 0 0\nVERTEX_SE2 0 1 0 0\n"
+            "EDGE_SE2 -1 0 1 0 0 1 0 0 1 0 1\n")), ("ok", "error")),
+        Attack("pose id 2**62", "fail", lambda f: _run(_w(
+            f, "big_id.g2o", f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 {2**62} 1 0 0\n"
+            f"EDGE_SE2 0 {2**62} 1 0 0 1 0 0 1 0 1\n")), ("ok", "error")),
+        Attack("10 MB of NUL bytes: a short error line", "fail",
+               lambda f: _run(_w(f, "nul.g2o", b"\0" * 10**7))),
+        Attack("100 000-pose chain, --backend batch (gtsam's recursion)", "fail",
+               lambda f: _run(_w(f, "chain.g2o", _chain_g2o(100_000)), "--backend", "batch"),
+               ("ok", "error"), slow=True),
+        Attack("YAML of nested aliases (a billion laughs)", "fail",
+               lambda f: _run("synthetic", "--config", str(_w(f, "c.yaml", laughs)))),
+        Attack("an image named ²1.png (loops)", "fail",
+               lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "²1.png",
+                                                      "03.png": "03.png"})), "--out", "l.csv",
+                          "--quiet"], ("ok",)),
+        Attack("a path component over 255 bytes (--out)", "fail",
+               lambda f: ["run", "--dataset", "synthetic", "--max-steps", "5", "--rerun", "off",
+                          "--out", "x" * 300]),
+        Attack("a .npz vocabulary declaring 10^9 float64", "fail",
+               lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png"})),
+                          "--out", "l.csv", "--vocab", str(_huge_npz(f)), "--quiet"]),
+        Attack("a non-UTF-8 loops --truth", "fail",
+               lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png"})),
+                          "--out", "l.csv", "--truth", str(_w(f, "t.csv", b"\xff\xfe\x00bad")),
+                          "--quiet"]),
+        Attack("a 4x10^7-run sweep grid", "fail", lambda f: ["sweep", str(_w(
+            f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\n"
+            f"seed = [{', '.join(str(k) for k in range(4000))}]\n[sweep.set]\n"
+            f"\"synthetic.sigma_r_m\" = [{', '.join(f'0.{k + 1:05d}' for k in range(10_000))}]\n")),
+            "--out", "sw", "--quiet"]),
+        Attack("sweep --cluster 'not a url'", "fail", lambda f: ["sweep", str(_w(
+            f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\nseed = [0]\n")),
+            "--cluster", "not a url", "--out", "sw", "--quiet"]),
+        Attack("a FIFO as --dataset", "fail", lambda f: _run(_fifo(f))),
+        Attack("/dev/zero as --dataset", "fail", lambda f: _run("/dev/zero")),
+        Attack("stdout closed early (| head): quiet, files written", "fail",
+               lambda f: _run(_w(f, "w.g2o", _chain_g2o(50)), "--backend", "batch"),
+               ("ok",), ok_codes=(141,), check=_files("out/trajectory.tum", "out/metrics.json"),
+               env={"HOSTILE_CLOSE_STDOUT": "1"}),
+        # ---- silent answers of the issue: a wrong figure without a word before
+        Attack("TORO EQUIV lines are said", "silent", lambda f: _run(_w(
+            f, "e.graph", "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 1 0 1 1 0 0\n"
+            "EQUIV 0 1\n")), ("ok", "error"), check=_says("EQUIV")),
+        Attack("a number g2o would not read (1_000)", "silent", lambda f: _run(_w(
+            f, "u.g2o", two + "EDGE_SE2 0 1 1_000 0 0 1 0 0 1 0 1\n"))),
+        Attack("eval with a duplicated stamp", "silent",
+               lambda f: ["eval", *map(str, _tum_pair(f, dup=True)), "--out", "ev", "--no-plot"]),
+        Attack("YAML duplicate key", "silent", lambda f: _run(
+            "synthetic", "--config", str(_w(f, "d.yaml", "synthetic:\n  seed: 1\n  seed: 2\n")))),
+        Attack("loops --out x.csv --log x.csv", "silent",
+               lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png"})),
+                          "--out", "x.csv", "--log", "x.csv", "--quiet"]),
+        Attack("convert of a tiny-quaternion edge", "silent", lambda f: ["convert", str(_w(
+            f, "q.g2o", "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n"
+            "EDGE_SE3:QUAT 0 1 1 0 0 1e-300 0 0 0 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n")),
+            "q.graph"]),
+        Attack("a TUM rgb.txt naming ../../x.png", "silent", lambda f: _run(_tum_escape(f))),
+        Attack("sphere2500's noise convention is said", "silent",
+               lambda f: _run(_gtsam("sphere2500.txt"), "--backend", "batch", "--max-steps", "200"),
+               ("ok",), check=_says("sqrt_information")),
+        Attack("--relocalise with --backend ekf names --relocalise", "silent",
+               lambda f: _run(DATA / "kitti07", "--relocalise", "--backend", "ekf",
+                              "--max-steps", "5"),
+               check=lambda f, o, e: None if "--relocalise" in e else "the error names another option"),
+    ]
+
+
+def _gtsam(name: str) -> str:
+    import gtsam
+
+    return gtsam.findExampleDataFile(name)
+
+
+def _fifo(folder: Path) -> Path:
+    p = folder / "fifo"
+    os.mkfifo(p)
+    return p
+
+
+def _huge_npz(folder: Path) -> Path:
+    """An .npz whose one array's header declares 10^9 float64 (8 GB) over a few bytes."""
+    import zipfile
+
+    header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000,), }"
+    header += b" " * (118 - len(header)) + b"\n"
+    body = b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header + b"\0" * 64
+    p = folder / "v.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        z.writestr("centres.npy", body)
+    return p
+
+
+def _tum_escape(folder: Path) -> Path:
+    seq = folder / "tum"
+    seq.mkdir()
+    (folder / "x.png").write_bytes((DATA / "slambook2_desk" / "images" / "01.png").read_bytes())
+    _w(seq, "rgb.txt", "# rgb\n1.0 ../x.png\n2.0 ../x.png\n")
+    return seq
+
+
+def run_attack(a: Attack, timeout_s: float) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        t0 = time.perf_counter()
+        try:
+            argv = a.setup(folder)
+        except Exception as e:  # the attack could not be built here (no data, no FIFO)
+            return {"attack": a.name, "category": a.category, "verdict": "skipped",
+                    "why": f"{type(e).__name__}: {e}"}
+        cmd = [sys.executable, "-m", "graphslam", *argv]
+        env = {**os.environ, "PYTHONPATH": str(ROOT), **a.env}
+        close = env.pop("HOSTILE_CLOSE_STDOUT", None)
+        try:
+            proc = subprocess.Popen(cmd, cwd=folder, env=env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            if close:
+                proc.stdout.close()
+                out, err = "", proc.communicate(timeout=timeout_s)[1].decode(errors="replace")
+            else:
+                o, e = proc.communicate(timeout=timeout_s)
+                out, err = o.decode(errors="replace"), e.decode(errors="replace")
+            rc = proc.returncode
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            return {"attack": a.name, "category": a.category, "verdict": "fail",
+                    "outcome": "crash", "why": f"hang: over {timeout_s:g} s"}
+        wall = time.perf_counter() - t0
+        lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
+        if "Traceback" in err or rc < 0:
+            outcome, why = "crash", "traceback" if "Traceback" in err else f"signal {-rc}"
+        elif rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_ERROR_CHARS:
+            outcome, why = "error", lines[0][:200]
+        elif rc in a.ok_codes:
+            outcome, why = "ok", None
+        else:
+            outcome, why = "crash", f"exit {rc}: {err.strip()[-200:]}"
+        verdict = "pass" if outcome in a.expect else (
+            "silent" if outcome == "ok" else "fail")
+        if verdict == "pass" and a.check is not None:
+            miss = a.check(folder, out, err)
+            if miss:
+                verdict, why = "silent", miss
+        return {"attack": a.name, "category": a.category, "verdict": verdict, "outcome": outcome,
+                "exit": rc, "why": why, "seconds": round(wall, 2)}
+
+
+def plot(rows: list[dict], out: Path) -> Path:
+    from plotting import Panel, save_figure  # beside this script
+
+    cats = ["fail", "silent"]
+    verdicts = ["pass", "silent", "fail", "skipped"]
+    series = {v: (cats, [sum(r["category"] == c and r["verdict"] == v for r in rows) for c in cats])
+              for v in verdicts}
+    return save_figure(out, f"Hostile pass: {sum(r['verdict'] == 'pass' for r in rows)} of "
+                       f"{len(rows)} attacks pass", [
+                           Panel("verdicts by the issue's category", "category", "attacks",
+                                 series, kind="bar")])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="skip the slow attacks")
+    ap.add_argument("--only", default=None, help="attacks whose name holds this text")
+    ap.add_argument("--timeout", type=float, default=300.0, help="hang guard per attack, s")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "hostile_pass.json")
+    args = ap.parse_args(argv)
+    chosen = [a for a in attacks() if not (args.quick and a.slow)
+              and (args.only is None or args.only in a.name)]
+    if args.quick and args.only is None:
+        chosen = chosen[:6]  # a smoke run: the suite runs the full pass's cases as tests
+    rows = []
+    for a in chosen:
+        r = run_attack(a, args.timeout)
+        rows.append(r)
+        print(f"{r['verdict']:7s} {a.category:6s} {a.name}" + (f"  ({r['why']})" if r.get("why")
+                                                                and r["verdict"] != "pass" else ""))
+    totals = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "silent", "fail", "skipped")}
+    print(f"{len(rows)} attacks: " + ", ".join(f"{n} {v}" for v, n in totals.items()))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"benchmark": "hostile_pass", "quick": args.quick,
+                                    "totals": totals, "rows": rows,
+                                    "machine": {"python": platform.python_version(),
+                                                "platform": platform.platform()}}, indent=1))
+    print(f"wrote {args.out} and {plot(rows, args.out)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
