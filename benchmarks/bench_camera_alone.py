@@ -49,7 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 import plotting  # noqa: E402  (beside this script)
 import timing  # noqa: E402
 from graphslam import registry  # noqa: E402
-from graphslam.evaluation.trajectory import align, rpe, rpe_pairs  # noqa: E402
+from graphslam.evaluation.trajectory import align, rpe  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.sources.spatial.frames import select_frames  # noqa: E402
 

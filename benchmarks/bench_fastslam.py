@@ -407,7 +407,7 @@ def main(argv=None) -> int:
     print(f"simulated: {args.steps} steps, 150 landmarks, {n_obs / args.steps:.1f} obs/step; "
           f"ours and the floor alternated {args.repeats} times (medians), 1 BLAS thread")
     print("final err m: last-pose position error of this one seeded run (not an average); "
-          f"agree m: largest distance between ours' and the floor's estimates")
+          "agree m: largest distance between ours' and the floor's estimates")
     print(f"{'version':>7} {'N':>6} {'ms/step':>9} {'floor ms':>9} {'ratio':>6} {'us/obs':>8} "
           f"{'final err m':>11} {'agree m':>8}")
     for version in (1, 2):

@@ -70,7 +70,6 @@ from graphslam.backends.posegraph import init as initialisers
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import Isam2PoseGraph, lm_params, solve, with_priors
 from graphslam.evaluation import spatial
-from graphslam.outputs.posegraph import write_pose_graph
 from graphslam.sources.posegraph_files import read_pose_graph_file
 from graphslam.visualisation.plots import plot_pose_graph
 from slamcore import posegraph as pg

@@ -22,7 +22,7 @@ from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, ma
 from graphslam.evaluation.trajectory import rotation_angles_deg
 from slamcore.errors import GraphSlamError
 from slamcore.spatial import camera
-from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
+from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelObservations
 from tests.test_visual_pipeline import KITTI07
 

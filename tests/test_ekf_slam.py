@@ -280,7 +280,6 @@ def test_loop_closure_drops_pose_uncertainty():
     steps = 48
     ekf, truth, lms, pairs = _run(5, steps=steps, laps=1.0, hook=hook, sensor_range_m=4.5)
     first_seen = {}
-    k_obs = 0
     _, _, _, scans = _circle_world(5, steps=steps, sensor_range_m=4.5)
     for k, scan in enumerate(scans):
         for j, _ in scan:

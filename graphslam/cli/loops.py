@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from slamcore.errors import ConfigError, InputError
+from slamcore.errors import ConfigError
 from slamcore.files import check_distinct_outputs, check_output_file
 
 EPILOG = """\

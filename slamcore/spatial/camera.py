@@ -16,7 +16,6 @@ Conventions
 
 from __future__ import annotations
 
-import math
 import numpy as np
 
 from slamcore.spatial.geometry import skew
