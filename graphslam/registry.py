@@ -116,6 +116,8 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
         return True  # a built-in graph solved whole (streamed by the other back ends)
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
+    if is_bag_dataset(spec):
+        return False
     from graphslam.sources.posegraph_files import (TAGS, first_tag, has_landmark_lines,
                                                    is_pose_graph_tag)
 
@@ -252,15 +254,36 @@ def is_plaza_dataset(spec: str) -> bool:
     return spec not in DATASETS and spec not in VISUAL_DATASETS and plaza_files(spec) is not None
 
 
+def is_bag_dataset(spec: str) -> bool:
+    """Whether ``--dataset spec`` is a ROS bag (a ``.bag`` file, a ROS 2 bag folder)."""
+    from graphslam.sources.spatial.rosbag import is_bag
+
+    return spec not in DATASETS and spec not in VISUAL_DATASETS and is_bag(spec)
+
+
 def is_visual_dataset(spec: str) -> bool:
-    """Whether ``--dataset spec`` names an image sequence (built-in or a folder other
-    than an MRCLAM or Plaza log)."""
-    return spec in VISUAL_DATASETS or (Path(spec).is_dir() and not is_mrclam_dataset(spec)
-                                       and not is_plaza_dataset(spec))
+    """Whether ``--dataset spec`` names an image sequence (built-in, a ROS bag, or a
+    folder other than an MRCLAM or Plaza log)."""
+    return spec in VISUAL_DATASETS or is_bag_dataset(spec) or (
+        Path(spec).is_dir() and not is_mrclam_dataset(spec) and not is_plaza_dataset(spec))
 
 
-def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSource = None):
-    """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``) or folder."""
+def check_topics_flag(spec: str, topics: str | None) -> None:
+    """``--topics`` is refused, one line, for a dataset that is not a ROS bag."""
+    if topics is not None and not is_bag_dataset(spec):
+        raise ConfigError(f"--topics applies to ROS bags only; {spec} is not one "
+                          "(a .bag file, or a ROS 2 bag folder with metadata.yaml)")
+
+
+def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSource = None,
+                        topics: str | None = None):
+    """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``), ROS
+    bag (``topics``: the ``--topics`` text, ``role=topic,...``) or folder."""
+    check_topics_flag(spec, topics)
+    if is_bag_dataset(spec):
+        from graphslam.sources.spatial.rosbag import parse_topics, read_bag
+
+        return read_bag(spec, parse_topics(topics))
     if spec == "synthetic-images":
         from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 

@@ -196,6 +196,38 @@ def _run_dataset(cli, key):
     differ(cli(*RUN_2D), cli(*RUN_2D, "--dataset", str(_square_graph(cli))))
 
 
+def _two_camera_bag(cli: Cli) -> Path:
+    """The first KITTI 07 frames as a ROS 1 bag with two cameras (tests/bags.py)."""
+    pytest.importorskip("rosbags")
+    from tests.bags import write_kitti_bag
+
+    bag = cli.path("two.bag")
+    return bag if bag.exists() else write_kitti_bag(bag, "ros1", second_camera=True)
+
+
+@row("run --topics", "compare --topics", "loops --topics")
+def _topics(cli, key):
+    bag = str(_two_camera_bag(cli))
+    if key.startswith("loops"):
+        loops = ["loops", bag, "--words", "10", "--quiet", "--out", str(cli.path("l.csv"))]
+        assert cli(*loops, "--topics", "image=/cam1/image_raw").rc == 0
+        refused(cli(*loops), "2 image topics (/cam0/image_raw, /cam1/image_raw)")
+        refused(cli("loops", str(DESK), "--out", str(cli.path("l.csv")), "--topics", "image=/x"),
+                "--topics applies to ROS bags only")
+        return
+    if key.startswith("run"):
+        base, name = ["run", "--dataset", bag, "--max-steps", "5", "--rerun", "off"], "trajectory.tum"
+    else:
+        base, name = ["compare", "--max-steps", "5", "--dataset", bag, "--backends", "isam2",
+                      "--in-process", "--rerun", "off"], "compare.json"
+    a, b = cli(*base, "--topics", "image=/cam0/image_raw"), cli(*base, "--topics", "image=/cam1/image_raw")
+    differ(a, b, name)
+    assert "camera_info: /cam1/camera_info" in b.out + b.text(name)  # its camera's own
+    refused(cli(*base), "2 image topics (/cam0/image_raw, /cam1/image_raw)")
+    refused(cli(*(RUN_2D if key.startswith("run") else COMPARE), "--topics", "image=/x"),
+            "--topics applies to ROS bags only")
+
+
 @row("run --backend")
 def _run_backend(cli, key):
     differ(cli(*RUN_2D), cli(*RUN_2D, "--backend", "ekf"))

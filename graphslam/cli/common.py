@@ -9,6 +9,11 @@ from pathlib import Path
 
 from slamcore.errors import GraphSlamError
 
+#: Help of ``--topics`` (run, compare, localize): which topics of a ROS bag to read.
+TOPICS_HELP = ("ROS bags: topics to read, e.g. image=/cam0/image_raw,camera_info=/cam0/"
+               "camera_info,truth=/vicon/pose (default: the one topic of each kind; "
+               "refused for other datasets)")
+
 EXIT_OK = 0
 #: Some of the work failed; what succeeded is written (``compare``).
 EXIT_FAILED = 1
@@ -129,7 +134,7 @@ _DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 _POSITIONAL_PATHS = {("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
                      ("convert", "input"): "IN", ("convert", "output"): "OUT",
                      ("loops", "images_dir"): "IMAGES_DIR", ("vocab", "images"): "IMAGES",
-                     ("sweep", "sweep_file"): "SWEEP.toml"}
+                     ("sweep", "sweep_file"): "SWEEP.toml", ("info", "bag"): "BAG"}
 #: Options given as text that may be a path (a data set name or its folder).
 _TEXT_PATHS = ("dataset", "images")
 

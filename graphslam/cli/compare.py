@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from graphslam.cli.common import TOPICS_HELP
 from slamcore.errors import GraphSlamError
 from slamcore.files import check_output_dir
 
@@ -57,6 +58,7 @@ def register(sub) -> None:
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
                        help="built-in dataset name, pose-graph file or image folder "
                             "(default: synthetic)")
+    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
     p.add_argument("--robot", type=robot_arg, default=None, metavar="N|all",
                        help="MRCLAM folders: which robot's log, or all (default: [mrclam] robot "
                             "of --config, else 1)")
@@ -99,6 +101,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     config = registry.read_config(args.config)
+    registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
@@ -162,7 +165,8 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
 
     names = args.backends or list(registry.VISUAL_COMPARE_BACKENDS)
     _check_names(names, registry.VISUAL_COMPARE_BACKENDS, "image sequences")
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config)
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
+                                            topics=args.topics)
     run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
     noise = config.section(vp.OdometryNoiseConfig, {"seed": args.seed})
     mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
@@ -177,7 +181,9 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     entries = cs.compare(
         setup, names, isolate=not args.in_process,
         progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
-    header = {"dataset": sequence.name, "odometry": mode,
+    notes = list(getattr(sequence, "notes", ()))  # a ROS bag's topics
+    header = {"dataset": sequence.name, **({"dataset_notes": notes} if notes else {}),
+              "odometry": mode,
               "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
               "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT}}
     return _write_comparison(args, entries, header, out_dir, rerun_mode,

@@ -11,6 +11,9 @@ formats (told from the content unless --format is given):
   kitti   12 numbers a line (row-major 3x4 wTc), one per frame; paired by line
           number, or by time with --times FILE (one time a line, KITTI times.txt)
   euroc   EuRoC ground-truth CSV: timestamp [ns], px, py, pz, qw, qx, qy, qz, ...
+  BAG:TOPIC  a ROS bag's PoseStamped, TransformStamped or Odometry messages at
+          their header stamps (a ROS 1 .bag or a ROS 2 bag folder; BAG alone
+          when it has one such topic; pip install ".[bags]")
 
 as evo: association by nearest timestamp within --max-diff (default 0.01 s)
   after adding --offset (default 0 s) to the estimate's stamps; Umeyama
@@ -28,6 +31,7 @@ outputs (in --out): eval.json (one entry per estimate), eval.png
 
 examples:
   graphslam eval groundtruth.txt trajectory.tum
+  graphslam eval recording.bag:/vicon/pose runs/recording.bag-isam2/trajectory.tum
   graphslam eval poses/07.txt run07.txt --format kitti --align sim3 --delta 100 --delta-unit m
 """
 
@@ -44,8 +48,10 @@ def register(sub) -> None:
         description="ATE, RPE and KITTI drift of one or more estimates against a reference "
                     "trajectory; a table, eval.json and eval.png.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("ground_truth", type=Path, metavar="GT", help="reference trajectory file")
-    p.add_argument("estimates", type=Path, nargs="+", metavar="EST", help="estimate file(s)")
+    p.add_argument("ground_truth", type=Path, metavar="GT",
+                   help="reference trajectory file, or BAG:TOPIC (see below)")
+    p.add_argument("estimates", type=Path, nargs="+", metavar="EST",
+                   help="estimate file(s), or BAG:TOPIC")
     p.add_argument("--format", choices=TRAJECTORY_FORMATS, default=None,
                    help="file format of every file (default: told from the content)")
     p.add_argument("--times", type=Path, default=None, metavar="FILE",

@@ -14,7 +14,9 @@ import argparse
 import time
 from pathlib import Path
 
-from graphslam.cli.common import close_recorder, fmt, open_recorder, report_outputs, summary_table
+from graphslam.cli.common import (
+    TOPICS_HELP, close_recorder, fmt, open_recorder, report_outputs, summary_table,
+)
 
 EPILOG = """\
 outputs (in --out, default runs/<dataset>-localize):
@@ -44,6 +46,7 @@ def register(sub) -> None:
                    help="map folder written by 'graphslam run --save-map'")
     p.add_argument("--dataset", required=True, metavar="NAME|FOLDER",
                    help="synthetic-images or an image-sequence folder (same camera as the map)")
+    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
     p.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
                    help="localise these frames only (Python slice; 159::-2 plays backwards)")
     p.add_argument("--out", type=Path, default=None, help="output folder")
@@ -69,6 +72,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     check_rerun_flags(args)
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "localize.rrd")
     frames = None if args.frames is None else parse_frames(args.frames)
+    registry.check_topics_flag(args.dataset, args.topics)
     if not registry.is_visual_dataset(args.dataset):
         from slamcore.errors import InputError
 
@@ -79,7 +83,8 @@ def cmd_localize(args: argparse.Namespace) -> int:
         check_output_dir(args.out)
     smap = load_map(args.map)
     config = registry.read_config(args.config)
-    sequence = select_frames(registry.load_image_sequence(args.dataset, config=config), frames)
+    sequence = select_frames(registry.load_image_sequence(args.dataset, config=config,
+                                                          topics=args.topics), frames)
     check_camera(smap, sequence.K, sequence.image_size, args.dataset)
     localizer = make_localizer(smap, sequence.K, config)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name

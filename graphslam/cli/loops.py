@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+from graphslam.cli.common import TOPICS_HELP
 from slamcore.errors import ConfigError
 from slamcore.files import check_distinct_outputs, check_output_file
 
@@ -45,7 +46,9 @@ def register(subparsers) -> None:
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("images_dir", type=Path, metavar="IMAGES_DIR",
                    help="folder of images (.png .jpg .jpeg .bmp .tif .tiff .pgm), taken in "
-                        "natural file-name order as a time sequence")
+                        "natural file-name order as a time sequence, or a ROS bag (its image "
+                        "topic in header-stamp order; its camera info as --intrinsics)")
+    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
     p.add_argument("--out", type=Path, required=True, metavar="FILE",
                    help="CSV file to write: query,match,score,inliers")
     p.add_argument("--vocab", type=Path, default=None, metavar="FILE",
@@ -90,15 +93,11 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_output_file(args.log, "--log")
     check_distinct_outputs({"--out": args.out, "--log": args.log})
-    paths, times, truth = _images(args)
+    paths, times, truth, bag = _images(args)
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
-    K = distortion = None
-    if args.intrinsics is not None:
-        from graphslam.sources.spatial.calibration import read_intrinsics_file
-
-        K, distortion = read_intrinsics_file(args.intrinsics)
+    K, distortion = _camera(args, bag)
 
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
@@ -108,7 +107,8 @@ def cmd_loops(args: argparse.Namespace) -> int:
         vocab = load_vocabulary(vocab_path)
         check_vocabulary(vocab, vocab_path)
     # One ORB pass serves the mode choice, the training (if any) and the detection.
-    features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet)
+    features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet,
+                          load=None if bag is None else _bag_loader(bag))
     places = folder_places(features, detector_config, times)
     if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
@@ -143,13 +143,26 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
 
 def _images(args):
-    """``(paths, timestamps or None, truth pairs or None)`` of the folder and ``--frames``;
-    a bad ``--truth`` is refused here, before the long ORB pass."""
+    """``(paths, timestamps or None, truth pairs or None, the bag's sequence or None)``
+    of the folder or bag and ``--frames``; a bad ``--truth`` is refused here, before
+    the long ORB pass."""
     from graphslam.pipelines.place_recognition import folder_timestamps
+    from graphslam.registry import check_topics_flag, is_bag_dataset
     from graphslam.sources.spatial.sequence import folder_images
 
-    paths = folder_images(args.images_dir)
-    times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
+    check_topics_flag(str(args.images_dir), args.topics)
+    bag = None
+    if is_bag_dataset(str(args.images_dir)):
+        from graphslam.sources.spatial.rosbag import parse_topics, read_bag
+
+        # ground truth poses are not read: the same-place pairs come from --truth
+        bag = read_bag(args.images_dir, {"truth": "none", "odometry": "none",
+                                         **parse_topics(args.topics)}, calibrated=False)
+        paths = [Path(p) for p in bag.image_paths]  # <bag>#<topic>/000042: names 000042
+        times = bag.stamps_s
+    else:
+        paths = folder_images(args.images_dir)
+        times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
     if args.frames is not None:
         from graphslam.sources.spatial.frames import frame_indices, parse_frames
 
@@ -161,7 +174,24 @@ def _images(args):
         from graphslam.evaluation.places import read_truth
 
         truth = read_truth(args.truth, paths)
-    return paths, times, truth
+    return paths, times, truth, bag
+
+
+def _camera(args, bag):
+    """``(K, distortion)`` of ``--intrinsics``, else of the bag (a calibrated
+    essential-matrix check), else ``(None, None)`` (the fundamental matrix)."""
+    if args.intrinsics is not None:
+        from graphslam.sources.spatial.calibration import read_intrinsics_file
+
+        return read_intrinsics_file(args.intrinsics)
+    return (None, None) if bag is None else (bag.K, bag.distortion)
+
+
+def _bag_loader(bag):
+    """``load(path)`` of a bag's pseudo-paths: the stored image, lens distortion kept
+    (the detector is given the distortion, as with a folder and --intrinsics)."""
+    index = {p: i for i, p in enumerate(Path(q) for q in bag.image_paths)}
+    return lambda p: bag.load_raw(index[p])
 
 
 def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:

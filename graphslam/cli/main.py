@@ -28,12 +28,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    from graphslam.cli import compare, convert, localize, loops, vocab
+    from graphslam.cli import compare, convert, info, localize, loops, vocab
     from graphslam.cli import eval as eval_command
     from graphslam.cli import sweep as sweep_command
     from graphslam.cli.run import command as run
 
-    for command in (run, compare, vocab, loops, localize, convert):
+    for command in (run, compare, vocab, loops, localize, convert, info):
         command.register(sub)
     eval_command.register(sub)
     sweep_command.register(sub)

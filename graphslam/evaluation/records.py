@@ -142,6 +142,8 @@ class SpatialRunMetrics:
             without a pose, frames the camera was not measured in).
             input_digest: filled by ``compare`` only (6-DoF pose NEES, the
             alignment it was scored after, the digest of what was fed).
+            dataset_notes: what the reader made of the source (a ROS bag's
+            topics), one line each, or None.
     """
 
     dataset: str
@@ -180,11 +182,12 @@ class SpatialRunMetrics:
     input_digest: str | None = None
     frames_with_pose: int | None = None
     warnings: list | None = None
+    dataset_notes: list | None = None
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss",
         "peak_rss_mb", "nees_mean", "nees_in_bounds_fraction", "nees_alignment",
-        "input_digest", "warnings"})
+        "input_digest", "warnings", "dataset_notes"})
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

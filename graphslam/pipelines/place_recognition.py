@@ -17,25 +17,27 @@ from slamcore.errors import ConfigError, InputError
 
 
 def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB",
-               stoppable: bool = False) -> list:
+               stoppable: bool = False, load=None) -> list:
     """ORB :class:`frontend.features.Features` of every image (progress bar on stderr).
 
     ``stoppable``: a stop request (SIGINT, SIGTERM; :mod:`graphslam.pipelines.common`)
     ends the pass at the next image and the features so far are returned
-    (fewer than ``paths``); otherwise a signal aborts it.
+    (fewer than ``paths``); otherwise a signal aborts it. ``load(path)`` reads an
+    image (default :func:`frontend.image.load_gray`).
     """
     from frontend.image import load_gray
     from graphslam.pipelines.progress import progress as progress_of
 
+    read = load or load_gray  # ``load(path)``: images that are not files (a ROS bag's)
     bar = progress_of(paths, desc=desc, unit="img", enabled=progress)
     if not stoppable:
-        return [orb.detect(load_gray(p)) for p in bar]
+        return [orb.detect(read(p)) for p in bar]
     features = []
     with interrupt_between_frames() as stop:
         for i, p in enumerate(bar):
             if stop.requested:
                 break
-            features.append(orb.detect(load_gray(p)))
+            features.append(orb.detect(read(p)))
             signal_hook("step", i)
     bar.close()
     return features

@@ -427,6 +427,7 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
         backend_stats=dict(est.stats or {}), tracking=_tracking_summary(result.tracking))
     m.frames_with_pose = int(len(est.frame_ids))
     m.warnings = _doubts(result) or None
+    m.dataset_notes = list(getattr(seq, "notes", ())) or None
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
         _score_against_truth(m, result)
         if m.ate_percent_of_path is not None and m.ate_percent_of_path > DIVERGED_ATE_PERCENT:

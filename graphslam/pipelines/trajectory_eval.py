@@ -50,7 +50,15 @@ def distinct_labels(paths: list[str | Path]) -> list[str]:
 
 
 def load(path: Path, fmt: str | None, times: Path | None) -> Trajectory:
-    """A trajectory file; a KITTI one takes its stamps from ``times`` when given."""
+    """A trajectory file; a KITTI one takes its stamps from ``times`` when given.
+    ``BAG:TOPIC`` (or a bag with one pose topic): the poses of PoseStamped,
+    TransformStamped or Odometry messages at their header stamps (``fmt`` and
+    ``times`` are for files)."""
+    from graphslam.sources.spatial.rosbag import read_bag_trajectory, split_bag_spec
+
+    bag = split_bag_spec(path)
+    if bag is not None:
+        return read_bag_trajectory(*bag)
     trajectory = read_trajectory(path, fmt)
     if times is not None and trajectory.stamps_s is None:
         trajectory = read_times(times, trajectory)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from graphslam.cli.common import TOPICS_HELP
+
 RUN_EPILOG = """\
 datasets:
   synthetic       2-D landmark world driven around a closed route (default);
@@ -44,6 +46,11 @@ datasets:
                   [synthetic_images] of --config)
   FOLDER          an image sequence: KITTI, TUM RGB-D, EuRoC or a plain folder
                   with an intrinsics file (visual SLAM)
+  BAG             a ROS 1 .bag or a ROS 2 bag folder (sqlite3 or mcap; needs
+                  pip install ".[bags]"): sensor_msgs Image or CompressedImage,
+                  CameraInfo (else an intrinsics file beside the bag), ground
+                  truth from PoseStamped/TransformStamped; --topics picks the
+                  topics when a kind has several; graphslam info BAG lists them
 
 visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
   --odometry sequence|derived|none (derived: ground truth times noise, default
@@ -98,8 +105,8 @@ def register(sub) -> None:
                     "outputs to --out.",
         epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
-                       help="built-in dataset name, pose-graph file or image-sequence folder "
-                            "(default: synthetic)")
+                       help="built-in dataset name, pose-graph file, image-sequence folder "
+                            "or ROS bag (default: synthetic)")
     p.add_argument("--backend", default=None,
                    choices=BACKENDS + tuple(b for b in POSEGRAPH_BACKENDS if b not in BACKENDS),
                    help="estimator (default: auto on a pose-graph file, isam2 otherwise; "
@@ -170,6 +177,8 @@ def _add_image_options(vis) -> None:
                           "first trained on the sequence's own images (an extra pass)")
     vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
                      help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
+    vis.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...",
+                     help=TOPICS_HELP)
     vis.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
                      help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
                           "backwards); ground truth and odometry follow")
@@ -198,6 +207,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_rerun_flags(args)
+    registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise ConfigError("--robot applies to MRCLAM folders only")
     if args.out is not None:  # refused now, not after the run

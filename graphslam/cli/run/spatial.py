@@ -66,7 +66,8 @@ def _load_sequence(args, config):
     """The image sequence of ``--dataset``, with ``--ground-truth`` if given."""
     from graphslam import registry
 
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config)
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
+                                            topics=args.topics)
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
@@ -244,6 +245,8 @@ def format_summary(m) -> str:
                      f"frame {first['frame']} ({first['model']}, {first['points']} points; "
                      f"scale: {first['scale_gauge']})"))
         rows.append(("frames by PnP / coasted", f"{mono['pnp_tracked_frames']} / {mono['coasted_frames']}"))
+    for note in m.dataset_notes or ():
+        rows.append(("data", note))
     if m.interrupted:
         rows.append(("interrupted", "yes"))
     table = summary_table(rows)

@@ -1,0 +1,501 @@
+"""ROS bags as image sequences: ``--dataset BAG`` (``rosbags``; numpy + OpenCV, no gtsam).
+
+A bag is a ROS 1 ``.bag`` file or a ROS 2 bag folder (``metadata.yaml`` with
+sqlite3 ``.db3`` or ``.mcap`` files; naming one of its files names the
+folder). :func:`read_bag` returns a :class:`BagSequence`, an
+:class:`ImageSequence` like any folder's, so every command runs on it unchanged:
+
+* images: ``sensor_msgs/msg/Image`` (mono8, mono16/16UC1, bgr8, rgb8, bgra8,
+  rgba8) or ``sensor_msgs/msg/CompressedImage`` (any format ``cv2.imdecode``
+  reads), as greyscale, read lazily from the bag by :meth:`BagSequence.load`;
+* intrinsics and distortion: ``sensor_msgs/msg/CameraInfo`` (``K``, ``D``;
+  plumb_bob or rational_polynomial), the first message; without a camera-info
+  topic, an intrinsics file (as a plain folder's) in a ROS 2 bag folder or
+  beside the bag;
+* ground truth: ``geometry_msgs/msg/PoseStamped`` or ``TransformStamped``
+  (or ``nav_msgs/msg/Odometry`` when named), the camera-to-world pose,
+  associated with each image by the nearest header stamp within 0.02 s as
+  for TUM RGB-D, images without truth dropped;
+* odometry: ``nav_msgs/msg/Odometry`` (:func:`with_odometry`), the
+  sequence's own odometry (``--odometry sequence``, what ``auto`` picks).
+
+Topics, per role (``image``, ``camera_info``, ``truth``, ``odometry``): the
+one topic of the role's types, or the one named by ``--topics
+image=/cam0/image_raw,...`` (``odometry=none``: do not read one); two
+candidates and no name is an error listing them; no image topic too.
+Times are the header stamps (all zero: the bag's record times, said in the
+notes). Images out of order by header stamp are sorted (said in the notes);
+a repeated stamp is refused. The notes (``BagSequence.notes``) list the
+topics used; the run summary prints them.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from graphslam.sources.spatial import rosbag_messages as rm
+from graphslam.sources.spatial.sequence import ImageSequence
+from slamcore.errors import ConfigError, InputError, quote
+
+#: Message types of each ``--topics`` role; a role is chosen automatically from
+#: :data:`AUTO_TYPES` only (an Odometry topic is truth only when named).
+ROLE_TYPES: dict[str, tuple[str, ...]] = {
+    "image": (rm.IMAGE, rm.COMPRESSED_IMAGE),
+    "camera_info": (rm.CAMERA_INFO,),
+    "truth": (rm.POSE_STAMPED, rm.TRANSFORM_STAMPED, rm.ODOMETRY),
+    "odometry": (rm.ODOMETRY,),
+}
+AUTO_TYPES: dict[str, tuple[str, ...]] = {**ROLE_TYPES,
+                                          "truth": (rm.POSE_STAMPED, rm.TRANSFORM_STAMPED)}
+#: ``--topics ROLE=none``: do not read that role (say, odometry without a usable covariance).
+NO_TOPIC = "none"
+INSTALL_HINT = 'reading ROS bags needs the rosbags package: pip install ".[bags]"'
+
+
+def bag_path(spec: str | Path) -> Path | None:
+    """The path the bag reader opens for ``spec`` (a ``.bag`` file, a ROS 2 bag folder,
+    or a ``.db3``/``.mcap`` file of one), or None when ``spec`` is not a bag."""
+    path = Path(spec)
+    if path.is_file() and path.suffix == ".bag":
+        return path
+    if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
+        return path.parent
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        return path
+    return None
+
+
+def is_bag(spec: str | Path) -> bool:
+    return bag_path(spec) is not None
+
+
+def split_bag_spec(spec: str | Path) -> tuple[Path, str | None] | None:
+    """``BAG`` or ``BAG:TOPIC`` (``graphslam eval``) -> ``(bag, topic or None)``; None
+    when ``spec`` names no bag. ROS names hold no ``:``, so the last one splits."""
+    text = str(spec)
+    if is_bag(text):
+        return Path(text), None
+    head, sep, topic = text.rpartition(":")
+    if sep and topic and is_bag(head):
+        return Path(head), topic
+    return None
+
+
+def parse_topics(text: str | None) -> dict[str, str]:
+    """``"image=/cam0/image_raw,truth=/vicon/pose"`` -> ``{role: topic}``."""
+    out: dict[str, str] = {}
+    for item in [] if text is None else str(text).split(","):
+        role, eq, topic = item.strip().partition("=")
+        if not eq or not topic.strip():
+            raise ConfigError(f"--topics takes ROLE=TOPIC items separated by commas, got "
+                              f"{quote(item)}")
+        role = role.strip()
+        if role not in ROLE_TYPES:
+            raise ConfigError(f"--topics: unknown role {quote(role)} (roles: "
+                              f"{', '.join(ROLE_TYPES)})")
+        if role == "image" and topic.strip() == NO_TOPIC:
+            raise ConfigError("--topics image=none: a run needs images")
+        if role in out:
+            raise ConfigError(f"--topics names {role} twice")
+        out[role] = topic.strip()
+    return out
+
+
+@contextmanager
+def open_bag(path: Path) -> Iterator:
+    """An open ``rosbags`` AnyReader on ``path``; a damaged bag is one InputError."""
+    errors = bag_errors(path)
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    try:
+        # bags without message definitions (early ROS 2 ones) are read with Humble's
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except errors as e:
+        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+    try:
+        yield reader
+    except errors as e:  # a chunk damaged past the index, met while reading
+        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+    finally:
+        reader.close()
+
+
+def bag_errors(path: Path) -> tuple[type[BaseException], ...]:
+    """What ``rosbags`` raises on a damaged bag (its readers' errors, not wrapped
+    while messages are read, and the decoders' own); InputError without rosbags."""
+    try:
+        from rosbags.highlevel import AnyReaderError
+        from rosbags.rosbag1 import ReaderError as Reader1Error
+        from rosbags.rosbag2 import ReaderError as Reader2Error
+        from rosbags.serde import SerdeError
+    except ImportError:
+        raise InputError(INSTALL_HINT, path) from None
+    return (AnyReaderError, Reader1Error, Reader2Error, SerdeError, OSError, ValueError,
+            KeyError, IndexError, EOFError, struct.error)
+
+
+def _reason(e: Exception) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
+@dataclass(frozen=True)
+class TopicSummary:
+    """One topic of a bag (``graphslam info``): type, message count, mean rate."""
+
+    name: str
+    msgtype: str
+    count: int
+    rate_hz: float | None
+
+
+def bag_topics(spec: str | Path) -> list[TopicSummary]:
+    """Every topic of the bag ``spec`` with its type, count and rate (from record times)."""
+    path = _require_bag(spec)
+    with open_bag(path) as reader:
+        first: dict[str, int] = {}
+        last: dict[str, int] = {}
+        for conn, t, _ in reader.messages():
+            first.setdefault(conn.topic, t)
+            last[conn.topic] = t
+        out = []
+        for name, info in sorted(reader.topics.items()):
+            n, span = info.msgcount, (last.get(name, 0) - first.get(name, 0)) / 1e9
+            out.append(TopicSummary(name, info.msgtype or "(mixed types)", n,
+                                    (n - 1) / span if n > 1 and span > 0 else None))
+    return out
+
+
+def chosen_roles(spec: str | Path, topics: list[TopicSummary], named: str | None) -> dict | str:
+    """``{role: topic}`` ``--dataset`` would read (``graphslam info``), or why none: the
+    error line of a missing or ambiguous topic (a listing is not refused for it)."""
+    try:
+        return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named),
+                             _require_bag(spec))
+    except InputError as e:
+        return f"nothing ({e.reason})"
+
+
+def _require_bag(spec: str | Path) -> Path:
+    path = bag_path(spec)
+    if path is None and not Path(spec).exists():
+        raise InputError("no such file or folder", spec)
+    if path is None:
+        raise InputError("not a ROS bag (a .bag file, or a folder with metadata.yaml)", spec)
+    return path
+
+
+def choose_topics(topics: dict[str, str | None], named: dict[str, str],
+                  where: Path) -> dict[str, str]:
+    """``{role: topic}`` from the bag's ``{topic: type}`` and the ``--topics`` names."""
+    chosen: dict[str, str] = {}
+    for role, types in ROLE_TYPES.items():
+        if named.get(role) == NO_TOPIC:
+            continue
+        if role in named:
+            topic = named[role]
+            if topic not in topics:
+                raise InputError(f"--topics {role}={topic}: no such topic (topics: "
+                                 f"{', '.join(sorted(topics))})", where)
+            if topics[topic] not in types:
+                raise InputError(f"--topics {role}={topic}: {topics[topic]} is not one of "
+                                 f"{', '.join(types)}", where)
+            chosen[role] = topic
+            continue
+        found = sorted(t for t, ty in topics.items()
+                       if ty in AUTO_TYPES[role] and t not in chosen.values())
+        if role == "camera_info" and len(found) > 1 and "image" in chosen:
+            # the camera's own: /cam0/camera_info beside /cam0/image_raw
+            ns = chosen["image"].rsplit("/", 1)[0] + "/"
+            found = [t for t in found if t.startswith(ns)] or found
+        if len(found) > 1:
+            raise InputError(f"{len(found)} {role} topics ({', '.join(found)}): name one with "
+                             f"--topics {role}=TOPIC", where)
+        if found:
+            chosen[role] = found[0]
+        elif role == "image":
+            raise InputError(f"no image topic ({', '.join(types)}); topics: "
+                             f"{', '.join(sorted(topics)) or 'none'}", where)
+    return chosen
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """Where one image is in the bag: its connection, record time and rank among
+    the messages of that connection recorded at that time (usually 0)."""
+
+    connection: int
+    record_ns: int
+    rank: int
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class BagSequence(ImageSequence):
+    """An image sequence read from a ROS bag (module doc).
+
+    Extra attributes:
+        bag: the path the reader opens; topics: ``{role: topic}`` used;
+        image_type: the image topic's message type;
+        frames: ``{image path: FrameRef}``; the image paths are pseudo-names
+            ``<bag>#<topic>/<index>``, read with :meth:`load`, never from disk;
+        notes: what was read from where, one line each (the run summary prints them).
+        odometry, odometry_covariance, odometry_sigmas: of an Odometry topic
+            (:func:`with_odometry`), else None.
+    """
+
+    bag: str
+    topics: dict[str, str]
+    image_type: str
+    frames: dict[str, FrameRef]
+    notes: tuple[str, ...] = ()
+    odometry: np.ndarray | None = None
+    odometry_covariance: np.ndarray | None = None
+    odometry_sigmas: tuple | None = None
+    #: ``(pid, reader, context)`` of the open bag: opened on the first load, again in a
+    #: forked child (``graphslam compare``), whose file offsets must not be the parent's.
+    _open_reader: tuple | None = field(default=None, init=False, repr=False, compare=False)
+
+    def load_raw(self, i: int) -> np.ndarray:
+        name = self.image_paths[i]
+        ref = self.frames[name]
+        reader = self._reader()
+        conn = reader.connections[ref.connection]
+        try:
+            got = [raw for _, _, raw in reader.messages([conn], start=ref.record_ns,
+                                                        stop=ref.record_ns + 1)]
+            if len(got) <= ref.rank:
+                raise InputError("image message not found again in the bag", name)
+            msg = reader.deserialize(got[ref.rank], conn.msgtype)
+        except bag_errors(Path(self.bag)) as e:
+            raise InputError(f"cannot read the image: {_reason(e)}", name) from None
+        img = rm.image_gray(msg, self.image_type, name)
+        if (img.shape[1], img.shape[0]) != tuple(self.image_size):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
+                             f"are {self.image_size[0]}x{self.image_size[1]}", name)
+        return img
+
+    def _reader(self):
+        state = self._open_reader
+        if state is None or state[0] != os.getpid():
+            context = open_bag(Path(self.bag))
+            state = (os.getpid(), context.__enter__(), context)
+            object.__setattr__(self, "_open_reader", state)  # frozen: the one cache field
+        return state[1]
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_open_reader"] = None  # an open file does not travel
+        return state
+
+
+# --------------------------------------------------------------------------- reading
+
+def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
+             calibrated: bool = True) -> ImageSequence:
+    """The image sequence of the bag ``spec`` (module doc); ``topics``: ``--topics`` names.
+    ``calibrated=False`` (``graphslam loops``): without a camera, ``K`` is None."""
+    path = _require_bag(spec)
+    with open_bag(path) as reader:
+        types = {name: info.msgtype for name, info in reader.topics.items()}
+        chosen = choose_topics(types, topics or {}, path)
+        image_type = types[chosen["image"]]
+        index = _index_images(reader, chosen["image"], image_type, path)
+        K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path,
+                                      calibrated)
+        truth = odometry = None
+        if "truth" in chosen:
+            truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)
+        if "odometry" in chosen:
+            odometry = _poses(reader, chosen["odometry"], rm.ODOMETRY, path)
+    paths = [f"{path}#{chosen['image']}/{k:06d}" for k in range(len(index.refs))]
+    seq = BagSequence(
+        name=f"rosbag-{path.stem if path.is_file() else path.name}", image_paths=paths,
+        stamps_s=rm.ns_to_s(index.stamps_ns), K=K, distortion=dist, wTc_true=None,
+        image_size=index.size, source_path=str(path), bag=str(path), topics=chosen,
+        image_type=image_type, frames=dict(zip(paths, index.refs)),
+        notes=(f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
+               *notes, *index.notes,
+               *([] if truth is None else [f"truth: {chosen['truth']} "
+                                           f"({types[chosen['truth']]}, {len(truth.wTc)} poses)"])))
+    if truth is not None:
+        from graphslam.sources.ground_truth import with_ground_truth
+
+        seq = with_ground_truth(seq, truth)  # first: frames without truth are dropped
+    return seq if odometry is None else with_odometry(seq, chosen["odometry"], *odometry)
+
+
+@dataclass(frozen=True)
+class ImageIndex:
+    """The image messages of a topic in header-stamp order (:func:`_index_images`)."""
+
+    refs: list[FrameRef]
+    stamps_ns: list[int]
+    size: tuple[int, int]
+    notes: tuple[str, ...]
+
+
+def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
+    """Every image message of ``topic``: where it is, its stamp; sizes of raw images
+    checked (a compressed one's when it is loaded), order by header stamp."""
+    conns = [c for c in reader.connections if c.topic == topic]
+    position = {id(c): k for k, c in enumerate(reader.connections)}
+    refs, stamps, record, size, seen = [], [], [], None, {}
+    for conn, t, raw in reader.messages(conns):
+        msg = reader.deserialize(raw, conn.msgtype)
+        where = f"{path}#{topic}/{len(refs):06d}"
+        wh = (rm.image_size(msg, msgtype, where) if msgtype == rm.IMAGE
+              else _decoded_size(msg, msgtype, where) if size is None else None)
+        if size is None:
+            size = wh
+        elif wh is not None and wh != size:
+            raise InputError(f"image is {wh[0]}x{wh[1]} px, the topic's first is "
+                             f"{size[0]}x{size[1]}: images of changing size", where)
+        key = (position[id(conn)], t)
+        seen[key] = seen.get(key, -1) + 1
+        refs.append(FrameRef(key[0], t, seen[key]))
+        stamps.append(rm.stamp_ns(msg.header))
+        record.append(t)
+    if not refs:
+        raise InputError(f"topic {topic} has no messages", path)
+    notes = []
+    if not any(stamps):
+        notes.append(f"{topic}: every header stamp is 0: the bag's record times are used")
+        stamps = record
+    order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
+    if np.any(order != np.arange(len(order))):
+        late = int(np.sum(np.diff(np.array(stamps, dtype=np.int64)) < 0))
+        notes.append(f"{topic}: {late} images recorded out of header-stamp order: sorted "
+                     "by header stamp")
+    stamps = [stamps[k] for k in order]
+    dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
+    if dup:
+        raise InputError(f"two images on {topic} have the header stamp "
+                         f"{float(rm.ns_to_s([stamps[dup[0]]])[0])!r} s", path)
+    return ImageIndex([refs[k] for k in order], stamps, size, tuple(notes))
+
+
+def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
+    img = rm.image_gray(msg, msgtype, where)
+    return int(img.shape[1]), int(img.shape[0])
+
+
+def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path,
+                 calibrated: bool = True):
+    """``(K, distortion or None, notes)``: the first CameraInfo of ``topic``, else an
+    intrinsics file beside the bag (as a plain image folder's)."""
+    from graphslam.sources.spatial.calibration import (
+        INTRINSICS_FILE_NAMES, find_intrinsics_file, read_intrinsics_file,
+    )
+
+    if topic is None:
+        # a ROS 2 bag folder may hold the file; else the folder holding the bag
+        folders = ([path] if path.is_dir() else []) + [path.parent]
+        found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+        if found is None and not calibrated:
+            return None, None, ("no camera calibration",)
+        if found is None:
+            raise InputError(f"no camera_info topic ({rm.CAMERA_INFO}) and no intrinsics file "
+                             f"({', '.join(INTRINSICS_FILE_NAMES)}) in or beside the bag", path)
+        K, dist = read_intrinsics_file(found)
+        return K, dist, (f"intrinsics: {found}",)
+    where = f"{path}#{topic}"
+    conns = [c for c in reader.connections if c.topic == topic]
+    for conn, _, raw in reader.messages(conns):
+        K, dist, wh = rm.camera_calibration(reader.deserialize(raw, conn.msgtype), where)
+        if wh != (0, 0) and wh != tuple(size):
+            raise InputError(f"camera info is for {wh[0]}x{wh[1]} px images, the images are "
+                             f"{size[0]}x{size[1]}", where)
+        return K, dist, (f"camera_info: {topic} (first message)",)
+    raise InputError("camera info topic has no messages", where)
+
+
+def _trajectory(reader, topic: str, msgtype: str, path: Path):
+    """The poses of ``topic`` as a :class:`~graphslam.sources.ground_truth.Trajectory`."""
+    from graphslam.sources.ground_truth import Trajectory
+
+    stamps_s, poses, _ = _poses(reader, topic, msgtype, path)
+    return Trajectory("tum", stamps_s, poses, f"{path}#{topic}")
+
+
+def _poses(reader, topic: str, msgtype: str, path: Path):
+    """``(stamps (N,) s, poses (N, 4, 4), covariances (N, 6, 6) or None)`` of ``topic``
+    in header-stamp order (covariances of Odometry only); a repeated stamp refused."""
+    where = f"{path}#{topic}"
+    conns = [c for c in reader.connections if c.topic == topic]
+    stamps, poses, covs = [], [], []
+    for conn, _, raw in reader.messages(conns):
+        msg = reader.deserialize(raw, conn.msgtype)
+        poses.append(rm.pose_matrix(msg, msgtype, f"{where}/{len(poses)}"))
+        stamps.append(rm.stamp_ns(msg.header))
+        if msgtype == rm.ODOMETRY:
+            covs.append(np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6))
+    if not poses:
+        raise InputError("pose topic has no messages", where)
+    order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
+    stamps_s = rm.ns_to_s([stamps[k] for k in order])
+    same = np.nonzero(np.diff(stamps_s) == 0)[0]
+    if same.size:
+        raise InputError(f"two poses have the header stamp {float(stamps_s[same[0]])!r} s", where)
+    return stamps_s, np.array(poses)[order], (np.array(covs)[order] if covs else None)
+
+
+def with_odometry(seq: BagSequence, topic: str, stamps_s: np.ndarray, poses: np.ndarray,
+                  covs: np.ndarray) -> BagSequence:
+    """``seq`` with the odometry of an Odometry topic: ``c_k T c_{k+1}`` between the
+    messages nearest each image (within 0.02 s), the message pose taken as the
+    camera's (no TF is applied). Per step the covariance is the later message's
+    pose covariance in the camera frame: drivers publish a fixed per-message
+    covariance, with 1e6 or so on the axes they do not measure, which is what a
+    step's noise needs; a difference of absolute covariances is zero for them.
+    When an image has no message or a covariance is not positive definite the
+    odometry is left out and the notes say why."""
+    import dataclasses
+
+    from graphslam.sources.spatial.sequence import ASSOCIATION_MAX_DT_S, associate
+
+    idx = associate(np.asarray(seq.stamps_s, dtype=np.float64), stamps_s, ASSOCIATION_MAX_DT_S)
+    why = None
+    if np.any(idx < 0):
+        why = (f"{int(np.sum(idx < 0))} of {len(idx)} images have no message within "
+               f"{ASSOCIATION_MAX_DT_S} s")
+    else:
+        T, P = poses[idx], covs[idx]
+        step = np.linalg.inv(T[:-1]) @ T[1:]
+        A = np.zeros((len(T) - 1, 6, 6))
+        A[:, :3, :3] = A[:, 3:, 3:] = np.transpose(T[1:, :3, :3], (0, 2, 1))
+        cov = A @ P[1:] @ np.transpose(A, (0, 2, 1))
+        cov = 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+        if len(cov) and not np.all(np.linalg.eigvalsh(cov)[:, 0] > 0):
+            why = "its pose covariance is not positive definite"
+    if why is not None:
+        return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {topic} not used: {why}"))
+    return dataclasses.replace(
+        seq, odometry=step, odometry_covariance=cov, odometry_sigmas=(None, None),
+        notes=(*seq.notes, f"odometry: {topic} ({len(idx)} poses, taken as the camera's)"))
+
+
+def read_bag_trajectory(spec: str | Path, topic: str | None):
+    """A trajectory from the pose messages of a bag's ``topic`` (``graphslam eval
+    BAG:TOPIC``); without a topic, the bag's one pose topic (any of the truth types)."""
+    path = _require_bag(spec)
+    with open_bag(path) as reader:
+        types = {name: info.msgtype for name, info in reader.topics.items()}
+        if topic is None:
+            found = sorted(t for t, ty in types.items() if ty in ROLE_TYPES["truth"])
+            if len(found) != 1:
+                raise InputError(f"{len(found)} pose topics ({', '.join(found) or 'none'}): "
+                                 "name one as BAG:TOPIC", path)
+            topic = found[0]
+        if types.get(topic) not in ROLE_TYPES["truth"]:
+            raise InputError(f"topic {topic} is {types.get(topic) or 'not in the bag'}, not one "
+                             f"of {', '.join(ROLE_TYPES['truth'])}", path)
+        return _trajectory(reader, topic, types[topic], path)
