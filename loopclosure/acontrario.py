@@ -19,6 +19,11 @@
 - :func:`hull_coverage`: the share of an image's textured area (convex hull
   of its features) that the inliers span, a measure of how much of the view
   the geometry explains.
+- :func:`shared_view_coverage`: the same share, measured only on the part of
+  one image that the other camera also sees (its features' hull carried over
+  by the relative rotation, points at infinity, widened to the inliers): a
+  view turned by 30 degrees is asked to explain only the part of the other
+  view it still looks at.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["MINIMAL_SAMPLE", "log10_nfa", "hull_coverage", "image_extent"]
+__all__ = ["MINIMAL_SAMPLE", "hull_coverage", "image_extent", "log10_nfa", "shared_view_coverage"]
 
 #: (sample size s, solutions per sample N_sol) of each model: 7-point F (up to
 #: 3 real roots), 5-point E (up to 10, Nister 2004), 4-point H (one).
@@ -89,3 +94,57 @@ def hull_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray) -> float:
         return 0.0
     whole = cv2.contourArea(cv2.convexHull(xy_all))
     return float(cv2.contourArea(cv2.convexHull(xy_in)) / whole) if whole > 0 else 0.0
+
+
+def _clip_in_front(rays: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """A closed polygon of (n, 3) rays clipped to ``z >= eps`` (Sutherland-Hodgman, one plane)."""
+    out = []
+    for cur, nxt in zip(rays, np.roll(rays, -1, axis=0)):
+        if cur[2] >= eps:
+            out.append(cur)
+        if (cur[2] >= eps) != (nxt[2] >= eps):
+            out.append(cur + (eps - cur[2]) / (nxt[2] - cur[2]) * (nxt - cur))
+    return np.asarray(out, float).reshape(-1, 3)
+
+
+def shared_view_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray, xy_other: np.ndarray,
+                         K: np.ndarray, R: np.ndarray) -> float:
+    """Share of one image's features' hull, within the other camera's view, that the inliers span.
+
+    ``xy_all``/``xy_inliers``: this image's features and inliers (pixels of
+    ``K``); ``xy_other``: the other image's features; ``R``: rotation taking
+    the other camera's axes to this one's (``p_this = R p_other + t``). The
+    other image's features' hull is carried into this image by the infinite
+    homography ``K R K^-1`` (rays clipped to the half-space in front of this
+    camera), widened to the inliers' hull (both cameras see the inliers) and
+    intersected with this image's hull: the part of this view the other
+    camera sees. The result is ``area(inlier hull within it) / area(it)``,
+    in [0, 1]; 0 when the other camera faces away or the views share no area.
+
+    Points at infinity: the translation's parallax is not modelled (a caller
+    bounds it separately); for a camera that moved forward, nearer points
+    widen the true shared part, as far as the inliers show it.
+    """
+    xy_all = np.asarray(xy_all, np.float32).reshape(-1, 2)
+    xy_in = np.asarray(xy_inliers, np.float32).reshape(-1, 2)
+    xy_other = np.asarray(xy_other, np.float64).reshape(-1, 2)
+    if len(xy_all) < 3 or len(xy_in) < 3 or len(xy_other) < 3:
+        return 0.0
+    K = np.asarray(K, np.float64)
+    hull_other = cv2.convexHull(xy_other.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+    rays = np.c_[hull_other, np.ones(len(hull_other))] @ np.linalg.inv(K).T @ np.asarray(R, float).T
+    rays = _clip_in_front(rays)
+    if len(rays) < 3:
+        return 0.0
+    proj = rays @ K.T
+    # a ray near the image plane projects far out: clip to a bound that keeps float32 exact enough
+    seen = np.clip(proj[:, :2] / proj[:, 2:3], -1e6, 1e6).astype(np.float32)
+    hull_in = cv2.convexHull(xy_in)
+    # the inliers are seen by both cameras wherever they are: at finite depth the
+    # shared part reaches beyond the part at infinity, at least as far as they do
+    seen = cv2.convexHull(np.vstack([seen, hull_in.reshape(-1, 2)]))
+    shared, region = cv2.intersectConvexConvex(cv2.convexHull(xy_all), seen)
+    if region is None or shared <= 0:
+        return 0.0
+    covered, _ = cv2.intersectConvexConvex(hull_in, region)
+    return float(min(covered / shared, 1.0))
