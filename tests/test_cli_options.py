@@ -271,6 +271,16 @@ def _run_out(cli, key):
     assert (target / "trajectory.tum").is_file()
 
 
+@row("run --write-bag")
+def _run_write_bag(cli, key):
+    pytest.importorskip("rosbags")
+    target = cli.path("bagged")
+    assert cli(*RUN_2D, "--out", str(target), "--write-bag").rc == 0
+    assert (target / "trajectory.bag").stat().st_size > 0
+    assert cli(*RUN_2D, "--out", str(target)).rc == 0  # without it: no bag (none stale)
+    assert not (target / "trajectory.bag").exists()
+
+
 @row("run --config")
 def _run_config(cli, key):
     differ(cli(*RUN_2D), cli(*RUN_2D, "--config", str(_config(cli, "[synthetic]\nseed = 5\n"))))

@@ -118,6 +118,10 @@ def register(sub) -> None:
                             "else 0); refused where nothing is random")
     p.add_argument("--out", type=Path, default=None,
                        help="output folder (default: runs/<dataset>-<backend>)")
+    p.add_argument("--write-bag", action="store_true",
+                   help="also write the estimate as trajectory.bag (ROS 1, geometry_msgs/"
+                        "PoseStamped on /graphslam/trajectory; rosbag and evo read it; needs "
+                        "pip install \".[bags]\")")
     p.add_argument("--config", type=Path, default=None,
                        help="TOML or YAML file with [synthetic], [isam2] sections")
     p.add_argument("--max-steps", type=int, default=None, metavar="N",
@@ -220,6 +224,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
         whole_file = registry.is_pose_graph_run(args.dataset, "auto") and not args.no_polish
         args.backend = "auto" if whole_file else "isam2"
+    status = _dispatch(args)
+    if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
+        if args.write_bag:  # a finished or stopped run's estimate
+            _write_bag(args)
+        else:  # an earlier run's bag is not this run's: the folder holds one run
+            (Path(args.resolved_out) / "trajectory.bag").unlink(missing_ok=True)
+    return status
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    from graphslam import registry
+
     if registry.is_pose_graph_run(args.dataset, args.backend):
         from graphslam.cli.run import posegraph
 
@@ -234,3 +250,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     from graphslam.cli.run import planar
 
     return planar.run(args)
+
+
+def _write_bag(args: argparse.Namespace) -> None:
+    """``--write-bag``: the run's ``trajectory.tum`` as ``trajectory.bag`` beside it (each
+    run command sets ``args.resolved_out``, its output folder)."""
+    from graphslam.outputs.trajectory_bag import TOPIC, write_trajectory_bag
+    from graphslam.sources.ground_truth import read_trajectory
+
+    tum = Path(args.resolved_out) / "trajectory.tum"
+    if not tum.is_file():
+        return  # nothing estimated (a stop before the first pose)
+    trajectory = read_trajectory(tum, "tum")
+    bag = write_trajectory_bag(tum.with_suffix(".bag"), trajectory.stamps_s, trajectory.wTc)
+    print(f"wrote {bag} (geometry_msgs/PoseStamped on {TOPIC})")

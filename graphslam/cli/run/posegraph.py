@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
-    out_dir = args.out or Path("runs") / f"{graph.name}-{args.backend}"
+    out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     tracker_cfg, tracker = vp.make_tracker(config, backend, args.frontend)
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
-    out_dir = args.out or Path("runs") / f"{name}-{args.backend}"
+    out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     loops = args.loops or args.vocab is not None
     remove_stale_outputs(out_dir, {"trajectory.tum", "landmarks.csv", "metrics.json"}

@@ -1,0 +1,44 @@
+"""``graphslam run --write-bag`` (issue 35 item 2): the estimate as a ROS 1 bag that reads
+back as the run's own trajectory.tum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.sources.ground_truth import read_trajectory
+
+pytest.importorskip("rosbags")
+
+#: The bag holds the TUM file's numbers (9 significant digits) as float64.
+SAME_M = 1e-9
+
+
+def test_the_bag_reads_back_as_the_trajectory(tmp_path, capsys):
+    from graphslam.sources.spatial.rosbag import read_bag_trajectory
+
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", "synthetic", "--max-steps", "40", "--rerun", "off",
+                 "--quiet", "--out", str(out), "--write-bag"]) == 0
+    assert "PoseStamped on /graphslam/trajectory" in capsys.readouterr().out
+    tum = read_trajectory(out / "trajectory.tum", "tum")
+    bag = read_bag_trajectory(out / "trajectory.bag", "/graphslam/trajectory")
+    assert np.array_equal(bag.stamps_s, tum.stamps_s)
+    assert np.abs(bag.wTc - tum.wTc).max() < SAME_M
+    # the same folder again without --write-bag: the old bag is not left beside the new run
+    assert main(["run", "--dataset", "synthetic", "--max-steps", "10", "--rerun", "off",
+                 "--quiet", "--out", str(out)]) == 0
+    assert not (out / "trajectory.bag").exists()
+
+
+def test_a_pose_graph_run_writes_one_pose_per_id(tmp_path, capsys):
+    import gtsam
+
+    from graphslam.sources.spatial.rosbag import read_bag_trajectory
+
+    out = tmp_path / "pg"
+    assert main(["run", "--dataset", gtsam.findExampleDataFile("w100.graph"), "--backend",
+                 "batch", "--rerun", "off", "--quiet", "--out", str(out), "--write-bag"]) == 0
+    bag = read_bag_trajectory(out / "trajectory.bag", None)
+    assert len(bag.stamps_s) == 100 and bag.stamps_s[0] == 0.0
