@@ -73,24 +73,25 @@ class CovisibilityGraph:
         return int(np.intersect1d(self._frame_ids[a], self._frame_ids[b],
                                   assume_unique=True).size)
 
-    def covisible(self, i: int, min_shared: int) -> np.ndarray:
-        """Sorted older frames covisible with ``i`` (module docstring), the previous always."""
-        near = np.flatnonzero(self.shared(i) >= min_shared)
+    def covisible(self, i: int, min_shared: int, shared: np.ndarray | None = None) -> np.ndarray:
+        """Sorted older frames covisible with ``i`` (module docstring), the previous always;
+        ``shared``: :meth:`shared` of ``i`` when the caller has it already."""
+        near = np.flatnonzero((self.shared(i) if shared is None else shared) >= min_shared)
         if i > 0 and (near.size == 0 or near[-1] != i - 1):
             near = np.append(near, i - 1)
         return near
 
-    def local_map(self, i: int, min_shared: int, neighbours: Sequence[np.ndarray]) -> np.ndarray:
-        """Sorted older frames linked to ``i`` within two covisibility links: the frames
-        covisible with it and those covisible with one of them (``neighbours[k]``: the
-        older frames covisible with frame k, as :meth:`covisible` gave them).
+    @staticmethod
+    def local_map(near: np.ndarray, neighbours: Sequence[np.ndarray]) -> np.ndarray:
+        """Sorted older frames linked to a frame within two covisibility links: ``near``,
+        the frames covisible with it (:meth:`covisible`), and those covisible with one
+        of them (``neighbours[k]``: the older frames covisible with frame k).
 
         ORB-SLAM's local map (T-RO 2015, Sec. V-D) has the same reach. One link
         under-counts: a feature the tracker missed once starts a new track, while
         the verifier's guided matching still finds it, so frames just past the
         direct neighbours would verify as "loops" on a straight drive.
         """
-        near = self.covisible(i, min_shared)
         return np.unique(np.concatenate([near] + [neighbours[k] for k in near.tolist()]))
 
 
@@ -103,6 +104,9 @@ class DescriptorTracker:
         self._desc = np.zeros((1024, 32), np.uint8)  # latest descriptor of each track
         self._last = np.full(1024, -1, np.int64)  # last frame that observed each track
         self._seen = np.zeros(1024, np.int64)  # images that observed each track
+        # the tracks each frame observed: the pool is looked for among the local frames'
+        # own, not among every track of the sequence (a cost growing with its length)
+        self._frame_tracks: list[np.ndarray] = []
         self._n_tracks = 0
         self._n_frames = 0
 
@@ -119,12 +123,19 @@ class DescriptorTracker:
         frame = self._n_frames
         self._n_frames += 1
         n = self._n_tracks
-        last = self._last[:n]
+        local_frames = np.asarray(local_frames, np.int64)
+        if frame > 0:  # the previous image's tracks are always candidates
+            local_frames = np.union1d(local_frames, [frame - 1])
+        # tracks last observed in a local frame (one a later frame re-found is not)
+        seen_in = [self._frame_tracks[f] for f in local_frames.tolist()]
+        act = np.unique(np.concatenate(seen_in)) if seen_in else np.zeros(0, np.int64)
+        last = self._last[act]
+        keep = np.isin(last, local_frames)
+        act, last = act[keep], last[keep]
         # A track seen once and not re-found in the next image is dropped from the local
         # map (ORB-SLAM culls its new map points likewise): most features are such, and
         # matching against them would triple the cost for nothing
-        pool = np.flatnonzero((last == frame - 1) | (
-            (self._seen[:n] >= 2) & np.isin(last, np.asarray(local_frames, np.int64))))
+        pool = act[(last == frame - 1) | (self._seen[act] >= 2)]
         ids = np.full(len(desc), -1, np.int64)
         if pool.size and len(desc):
             m = match_descriptors(desc, self._desc[pool])
@@ -143,5 +154,6 @@ class DescriptorTracker:
         self._desc[n:n + n_new] = desc[~matched]
         self._last[n:n + n_new] = frame
         self._seen[n:n + n_new] = 1
+        self._frame_tracks.append(ids)
         self._n_tracks = n + n_new
         return ids

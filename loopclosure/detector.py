@@ -323,10 +323,10 @@ class LoopDetector:
             local = np.zeros(0, np.int64) if i == 0 else np.append(self._direct[-1], i - 1)
             track_ids = self._tracker.track(descriptors, local)
         self.covisibility.add(track_ids)
-        shared = self.covisibility.shared(i)
+        shared = self.covisibility.shared(i)  # once a frame: the covisible sets follow from it
         self._linked = np.flatnonzero(shared >= self.config.min_shared_tracks)
-        self._direct.append(self.covisibility.covisible(i, self.config.min_shared_tracks))
-        self._covisible = self.covisibility.local_map(i, self.config.min_shared_tracks, self._direct)
+        self._direct.append(self.covisibility.covisible(i, self.config.min_shared_tracks, shared))
+        self._covisible = self.covisibility.local_map(self._direct[-1], self._direct)
 
     def _window(self, i: int) -> int | None:
         """Recent images excluded from image i's query; None while the mode is undecided."""
@@ -360,7 +360,7 @@ class LoopDetector:
         if self._chain:
             q_last, m_last = self._chain[-1]
             if self.mode == "covisibility":
-                agree = q_last in set(self._covisible.tolist()) and (
+                agree = bool(np.isin(q_last, self._covisible)) and (
                     m_last == match or self.covisibility.shared_between(m_last, match)
                     >= c.min_shared_tracks)
             else:

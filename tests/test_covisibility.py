@@ -33,7 +33,7 @@ def test_local_map_reaches_two_links_and_no_further():
         g.add([10 * k + j for j in range(5)] + [10 * (k - 1) + j for j in range(5)])
         direct.append(g.covisible(k, 5))
     assert direct[4].tolist() == [3]
-    assert g.local_map(4, 5, direct).tolist() == [2, 3]   # 3, and 3's neighbour 2; not 1
+    assert g.local_map(direct[4], direct).tolist() == [2, 3]   # 3, and 3's neighbour 2; not 1
 
 
 def test_tracker_follows_features_within_the_local_map_only():
