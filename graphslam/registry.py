@@ -110,9 +110,9 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     2-D pose-graph files still stream them frame by frame (odometry only). A TORO
     file with landmark lines (``BR``) runs as landmark SLAM with ``isam2``; with
     ``batch`` the pose-graph reader refuses it at its first such line."""
-    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS
+    from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
 
-    if spec in BUILTIN_POSE_GRAPHS and backend == "batch":
+    if is_builtin_pose_graph(spec) and backend == "batch":
         return True  # a built-in graph solved whole (streamed by the other back ends)
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
@@ -135,10 +135,10 @@ def load_pose_graph(spec: str | Path, toro_noise: str = "auto",
     """A g2o or TORO pose-graph file, 2-D or 3-D, or a built-in pose graph's name
     (``w10000``, ``city10000``), as a :class:`slamcore.posegraph.PoseGraph`
     (``information_fix``: what is done with information that is not positive definite)."""
-    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
+    from graphslam.sources.builtin_posegraphs import builtin_pose_graph, is_builtin_pose_graph
     from graphslam.sources.posegraph_files import read_pose_graph_file
 
-    if str(spec) in BUILTIN_POSE_GRAPHS and not Path(spec).exists():  # a file of that name wins
+    if is_builtin_pose_graph(spec):
         return builtin_pose_graph(str(spec))[0]
     if Path(spec).exists():  # a missing file: the reader's own message
         check_input_path(spec, "pose-graph file")

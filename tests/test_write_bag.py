@@ -42,3 +42,14 @@ def test_a_pose_graph_run_writes_one_pose_per_id(tmp_path, capsys):
                  "batch", "--rerun", "off", "--quiet", "--out", str(out), "--write-bag"]) == 0
     bag = read_bag_trajectory(out / "trajectory.bag", None)
     assert len(bag.stamps_s) == 100 and bag.stamps_s[0] == 0.0
+
+
+def test_without_rosbags_write_bag_is_refused_before_the_run(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rosbags.rosbag1", None)  # import fails as if missing
+    out = tmp_path / "never"
+    assert main(["run", "--dataset", "synthetic", "--max-steps", "5", "--rerun", "off",
+                 "--quiet", "--out", str(out), "--write-bag"]) == 2
+    assert 'pip install ".[bags]"' in capsys.readouterr().err
+    assert not out.exists()  # nothing ran

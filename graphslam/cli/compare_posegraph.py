@@ -17,10 +17,10 @@ def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
     """Whether ``compare`` compares pose-graph solvers: a pose graph, and ``batch`` or
     ``auto`` named, or a 3-D graph (which only those solvers take)."""
     from graphslam import registry
-    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS
+    from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
 
     named_whole = bool(set(backends or ()) & set(WHOLE_GRAPH_ONLY))
-    if dataset in BUILTIN_POSE_GRAPHS and not Path(dataset).exists():
+    if is_builtin_pose_graph(dataset):
         return named_whole
     if not registry.is_pose_graph_run(dataset, "batch"):
         return False

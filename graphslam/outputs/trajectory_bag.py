@@ -18,7 +18,7 @@ from slamcore.errors import ConfigError, InputError
 from slamcore.files import move_into_place, temporary_beside
 from slamcore.spatial.geometry import rotation_to_quaternion
 
-__all__ = ["TOPIC", "FRAME_ID", "write_trajectory_bag"]
+__all__ = ["TOPIC", "FRAME_ID", "check_bag_writer", "write_trajectory_bag"]
 
 #: Topic and frame of the written poses.
 TOPIC = "/graphslam/trajectory"
@@ -26,15 +26,22 @@ FRAME_ID = "world"
 _POSE = "geometry_msgs/msg/PoseStamped"
 
 
+def check_bag_writer() -> None:
+    """ConfigError (one line) when ``rosbags`` is not installed."""
+    try:
+        import rosbags.rosbag1  # noqa: F401
+    except ImportError:
+        raise ConfigError('--write-bag needs the rosbags package: pip install ".[bags]"') from None
+
+
 def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray,
                          topic: str = TOPIC) -> Path:
     """Write ``wTc`` ((N, 4, 4), camera or body to world) at ``stamps_s`` ((N,) seconds,
     >= 0: ROS time is unsigned) as a ROS 1 bag at ``path``; returns ``path``."""
-    try:
-        from rosbags.rosbag1 import Writer
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise ConfigError('--write-bag needs the rosbags package: pip install ".[bags]"') from None
+    check_bag_writer()
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
     path = Path(path)
     stamps_s = np.asarray(stamps_s, np.float64).reshape(-1)
     wTc = np.asarray(wTc, np.float64).reshape(-1, 4, 4)

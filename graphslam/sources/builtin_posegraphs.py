@@ -15,13 +15,21 @@ import numpy as np
 
 from slamcore import posegraph as pg
 
-__all__ = ["BUILTIN_POSE_GRAPHS", "builtin_pose_graph"]
+__all__ = ["BUILTIN_POSE_GRAPHS", "builtin_pose_graph", "is_builtin_pose_graph"]
 
 #: Built-in dataset names that are pose graphs -> what they are.
 BUILTIN_POSE_GRAPHS = {
     "w10000": "gtsam's w10000.graph (TORO, 10 000 poses, no truth)",
     "city10000": "gtsam's City10000 (10 000 poses, first hypotheses, with ground truth)",
 }
+
+
+def is_builtin_pose_graph(spec) -> bool:
+    """Whether ``spec`` names a built-in pose graph: its name, and no file or folder of
+    that name where it is looked for (a user's own ``w10000`` file wins)."""
+    from pathlib import Path
+
+    return str(spec) in BUILTIN_POSE_GRAPHS and not Path(spec).exists()
 
 
 def builtin_pose_graph(name: str) -> tuple[pg.PoseGraph, tuple[np.ndarray, np.ndarray] | None]:

@@ -212,6 +212,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     check_rerun_flags(args)
     registry.check_topics_flag(args.dataset, args.topics)
+    if args.write_bag:  # refused now, not after the run
+        from graphslam.outputs.trajectory_bag import check_bag_writer
+
+        check_bag_writer()
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise ConfigError("--robot applies to MRCLAM folders only")
     if args.out is not None:  # refused now, not after the run

@@ -73,10 +73,10 @@ def load_graph(dataset: str, solver_config, max_steps: int | None = None,
     matched by pose id."""
     from graphslam import registry
     from graphslam.pipelines import posegraph as pipeline
-    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS, builtin_pose_graph
+    from graphslam.sources.builtin_posegraphs import builtin_pose_graph, is_builtin_pose_graph
 
     truth = None
-    if dataset in BUILTIN_POSE_GRAPHS and not Path(dataset).exists():
+    if is_builtin_pose_graph(dataset):
         graph, truth = builtin_pose_graph(dataset)  # city10000's truth comes with it
     else:
         graph = registry.load_pose_graph(dataset, solver_config.toro_noise,
