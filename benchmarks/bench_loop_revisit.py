@@ -102,13 +102,13 @@ def synthetic_rows(seq, feats, vocab, steps, tol: int) -> list[dict]:
             true = [any(abs(m - i) <= tol for i, j in seq.revisit_pairs if abs(q - j) <= tol)
                     for q, m in oq]
             hit = {q for (q, m), t in zip(oq, true) if t and q in partners}
+            errors = pose_errors(det, seq.wTc_true, idx)
             row = _row(f"synthetic /{s}", mode, len(idx), oq, true, len(partners), len(hit), det,
-                       time.perf_counter() - t0, pose_errors(det, seq.wTc_true, idx))
+                       time.perf_counter() - t0, errors)
             # a closure false by the revisit rule may still be the same place: its distance,
             # heading and rotation error against the truth say which
             row["false_geometry"] = [{**_apart(seq.wTc_true, q, m), "rotation_error_deg": e[0]}
-                                     for (q, m), t, e in zip(oq, true, pose_errors(det, seq.wTc_true, idx))
-                                     if not t]
+                                     for (q, m), t, e in zip(oq, true, errors) if not t]
             rows.append(row)
     return rows
 
