@@ -76,6 +76,37 @@ class MrclamConfig:
       tails (about 5 % of ranges beyond 3 robust sigma): a Gaussian fitted to
       them (std 0.18 m range, 0.07 rad bearing) would weigh every good sighting
       down for the sake of the bad ones.
+
+    Attributes:
+        robot: which robot's log is read (``RobotN_*.dat``, N in 1-5); ``--robot N``
+            overrides it. Unused with ``all_robots``.
+        all_robots: every robot of the folder in one graph
+            (:mod:`graphslam.sources.planar.mrclam_joint`, iSAM2 only), all starts
+            from the truth; ``--robot all`` sets it.
+        frame_every_s: longest time between consecutive frames, s. Frames are put
+            at every distinct landmark-sighting time; where two are further apart,
+            evenly spaced frames are added between them so the trajectory is
+            sampled while no landmark is in view.
+        odometry_lag_s: each commanded velocity takes effect this long after its
+            time stamp, s (the robot stands still before the first one does).
+        forward_scale: the robot drives at this times the commanded forward
+            velocity.
+        angular_scale: the robot turns at this times the commanded angular
+            velocity.
+        a_s_m: along-track odometry variance per metre driven, m^2/m = m
+            (``var_along = a_s |ds| + b_s dt`` per held command interval, in its
+            mid-heading frame, propagated to first order between frames).
+        b_s_m2_per_s: along-track variance per second, m^2/s, whether moving or
+            not (the drift of a robot told to stand still).
+        a_y_m: lateral (across-track) variance per metre driven, m^2/m = m.
+        a_theta_rad: heading variance per radian turned, rad^2/rad = rad
+            (``var_heading = a_theta |dtheta| + c_theta |ds| + b_theta dt``).
+        c_theta_rad2_per_m: heading variance per metre driven, rad^2/m.
+        b_theta_rad2_per_s: heading variance per second, rad^2/s.
+        sigma_range_m: standard deviation of a sighting's range, m; the
+            sightings' covariance is ``diag(sigma_range_m^2, sigma_bearing_rad^2)``
+            (with ``all_robots`` also for robot-to-robot sightings).
+        sigma_bearing_rad: standard deviation of a sighting's bearing, rad.
     """
 
     SECTION: ClassVar[str] = "mrclam"

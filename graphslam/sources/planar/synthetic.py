@@ -101,6 +101,57 @@ class SyntheticConfig:
     grown by ``world_margin_m``, at least ``landmark_clearance_m`` from the
     route; each has a signature drawn from ``[0, signature_count)`` (collisions
     possible, like real appearance).
+
+    Attributes:
+        seed: seed of the one ``np.random.default_rng`` that draws, in this order,
+            the landmark positions, their signatures, the odometry noise and the
+            measurement noise; also stored as the dataset's ``seed``. ``--seed``
+            overrides it.
+        n_landmarks: number of point landmarks (ids ``0 .. n_landmarks - 1``).
+        route_length_m: extent of the rounded-rectangle route along x (the
+            bottom straight, driven first towards +x), m. Each straight is
+            ``route_length_m - 2 corner_radius_m`` rounded to whole steps of
+            ``speed_mps * dt_s``.
+        route_width_m: extent of the route along y, m; its straights are rounded
+            to whole steps likewise.
+        corner_radius_m: radius of the route's four quarter-circle corners, m;
+            must be under half of ``route_length_m`` and ``route_width_m``. Each
+            corner is driven in ``round(0.5 pi corner_radius_m / (speed_mps dt_s))``
+            steps (at least 1) whose yaw rates turn exactly pi/2.
+        laps: how many times the route is driven; each lap ends where it
+            started (up to the rounding of the straights to whole steps).
+        world_margin_m: landmarks are drawn uniformly in the bounding box of the
+            true route grown by this on every side, m.
+        landmark_clearance_m: least distance from a landmark to the true route
+            (its poses and the midpoints between consecutive poses), m; drawn
+            points nearer than this are rejected.
+        signature_count: each landmark's signature is a uniform integer in
+            ``[0, signature_count)``, attached to every observation of it. The
+            filters read a signature only when an observation has no
+            ``landmark_id``, and every synthetic observation has one; iSAM2 does
+            not read it.
+        speed_mps: true forward speed, constant over the whole route, m/s.
+        dt_s: time step, s: one frame (``stamp_s = k dt_s``) and one odometry
+            step every ``dt_s``, over which the noisy velocities are held. The
+            number of steps, ``laps`` x perimeter / (``speed_mps`` x ``dt_s``),
+            must be at most 1e6.
+        sensor_range_m: a landmark is observed when its true range is at most
+            this, m (and it is inside ``fov_deg``); the test is on the true
+            measurement, before noise.
+        fov_deg: full field of view of the sensor, centred on the heading,
+            degrees: a landmark is observed when its true bearing is within
+            ``fov_deg / 2`` of the heading.
+        sigma_v_mps: standard deviation of the zero-mean Gaussian noise added
+            to the forward speed of each step, m/s; also enters the odometry
+            covariance.
+        sigma_w_degps: standard deviation of the noise added to the yaw rate of
+            each step, degrees/s (converted to rad/s); also enters the odometry
+            covariance.
+        sigma_r_m: standard deviation of the noise on each measured range, m;
+            the observations' covariance is ``diag(sigma_r^2, sigma_phi^2)``.
+            A noisy range <= 0 is dropped.
+        sigma_phi_deg: standard deviation of the noise on each measured bearing,
+            degrees (the covariance holds it in rad^2).
     """
 
     SECTION: ClassVar[str] = "synthetic"

@@ -85,6 +85,63 @@ class SyntheticImagesConfig:
 
     Units: metres, radians for noise sigmas, degrees where the name says so,
     pixels for the camera.
+
+    Attributes:
+        seed: seeds the odometry noise (``default_rng(seed)``), each surface's
+            texture (``default_rng([seed, surface index])``) and the pixel noise
+            of frame i (``default_rng([seed, 1, i])``); part of each frame's
+            pseudo-name. ``--seed`` overrides it.
+        width, height: image size, pixels.
+        fx, fy: focal lengths of the pinhole ``K``, pixels.
+        cx, cy: principal point of ``K``, pixels, with pixel centres at integer
+            coordinates; the defaults are the centre of the default 640 x 480
+            image and do not follow ``width`` and ``height``.
+        n_frames: number of frames, spread evenly in arc length over
+            ``laps`` x the path's length (time stamps 0.1 s apart).
+        laps: how many times the path is driven, may be fractional (default 1.5:
+            one lap and then half of it again, so places are revisited).
+        room_length_m: inside length of the room along world x, m; the room is
+            centred on the origin. Walls are cut into panels of about 4 m.
+        room_width_m: inside width of the room along world y, m.
+        room_height_m: floor (z = 0) to ceiling height, m; also the height of
+            the central box, which reaches the ceiling.
+        path_length_m: extent of the rounded-rectangle path along x, m, centred
+            in the room; it must leave 0.5 m + ``wobble_lateral_m`` to each wall.
+            It also places the boxes.
+        path_width_m: extent of the path along y, m; same rule.
+        corner_radius_m: radius of the path's corners, m; at most half of
+            ``path_length_m`` and ``path_width_m``.
+        camera_height_m: height of the camera centre above the floor, m, before
+            the height wobble; must be below ``room_height_m``.
+        wobble_lateral_m: amplitude of a sideways offset from the path, m: a sine
+            of arc length with a period of 0.77 path lengths.
+        wobble_height_m: amplitude of the camera height's sine wobble, m, period
+            23 frames.
+        wobble_pitch_deg: amplitude of the camera pitch's sine wobble, degrees,
+            period 37 frames.
+        odometry_sigma_t_m: standard deviation of the translation noise of each
+            odometry step, per axis, m; the noise ``E`` multiplies the true
+            relative pose on the right. Runs report it as the stated odometry noise.
+        odometry_sigma_r_rad: standard deviation of the rotation-vector noise of
+            each odometry step, per axis, rad. The step covariance is
+            ``diag([sigma_t^2] * 3 + [sigma_r^2] * 3)``.
+        texture: "procedural" (seeded random blotches, rectangles, triangles,
+            circles and lines) or "balbianello" (random crops of gtsam's
+            Balbianello example photos; refused if gtsam does not ship them).
+        texture_px_per_m: texels per metre of each surface's texture (at least
+            16 a side); also sets how many corners ``points_w`` gets (up to one
+            per 4000 texels). The room's textures may total at most 1e9 texels.
+        pixel_noise_sigma: standard deviation of Gaussian noise added to every
+            rendered pixel, in grey levels (0-255; the result is rounded and
+            clipped); 0 renders noise-free images.
+        near_m: near plane, m: surfaces are clipped to camera depth ``z >= near_m``
+            and points at depth ``<= near_m`` count as not visible.
+        revisit_distance_m: a revisit pair's camera centres are at most this far
+            apart, m (3-D distance).
+        revisit_heading_deg: a revisit pair's yaws (heading of the optical axis)
+            differ by at most this, degrees.
+        revisit_min_gap_frames: a revisit pair ``(i, j)`` has ``j - i`` at least
+            this many frames.
     """
 
     SECTION: ClassVar[str] = "synthetic_images"
