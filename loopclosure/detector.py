@@ -56,7 +56,7 @@ from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
 from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
-from loopclosure.verify import GeometricVerifier, Verification, VerifyConfig
+from loopclosure.verify import GeometricVerifier, PairVerifier, Verification, VerifyConfig
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
 
@@ -213,7 +213,10 @@ class LoopDetector:
     Parameters:
         vocabulary: a fitted vocabulary (:mod:`loopclosure.vocabulary`).
         config: :class:`LoopDetectorConfig` (defaults if None).
-        verify_config: :class:`loopclosure.verify.VerifyConfig` (defaults if None).
+        verify_config: :class:`loopclosure.verify.VerifyConfig` of the built-in
+            :class:`~loopclosure.verify.GeometricVerifier` (defaults if None).
+        verifier: any :class:`~loopclosure.verify.PairVerifier` instead of the
+            built-in one (then no ``verify_config``).
         K: (3, 3) intrinsics shared by all images, or None (fundamental matrix,
             no relative pose).
         distortion: OpenCV distortion coefficients, or None.
@@ -229,12 +232,17 @@ class LoopDetector:
 
     def __init__(self, vocabulary, config: LoopDetectorConfig | None = None,
                  verify_config: VerifyConfig | None = None, K: np.ndarray | None = None,
-                 distortion: np.ndarray | None = None, database=None, mode: str | None = None):
+                 distortion: np.ndarray | None = None, database=None, mode: str | None = None,
+                 verifier: PairVerifier | None = None):
         self.config = config or LoopDetectorConfig()
         if mode is not None and (self.config.mode != "auto" or mode not in ("video", "keyframes")):
             raise ValueError(f"a resolved mode ({mode!r}) is for mode 'auto' only, as "
                              "'video' or 'keyframes'")
-        self.verifier = GeometricVerifier(verify_config)
+        if verifier is not None and verify_config is not None:
+            raise ValueError("give a verifier or a verify_config for the built-in one, not both")
+        if verifier is not None and not isinstance(verifier, PairVerifier):
+            raise TypeError(f"verifier {type(verifier).__name__} has no verify() method")
+        self.verifier = GeometricVerifier(verify_config) if verifier is None else verifier
         self.K = None if K is None else np.asarray(K, np.float64)
         self.distortion = distortion
         if database is None:

@@ -76,7 +76,7 @@ from __future__ import annotations
 import dataclasses
 import typing
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -241,6 +241,28 @@ def _residuals(model: str, M: np.ndarray, K, pa: np.ndarray, pb: np.ndarray) -> 
         proj = cv2.perspectiveTransform(pa.reshape(-1, 1, 2), M).reshape(-1, 2)
         return np.linalg.norm(proj - pb, axis=1)
     return epipolar_residuals(_as_fundamental(model, M, K), pa, pb)
+
+
+@runtime_checkable
+class PairVerifier(Protocol):
+    """What the loop detector asks of a verifier: is this image pair one place?
+
+    :class:`GeometricVerifier` is the toolkit's; another (a learned matcher, a
+    stricter geometry, a scripted one in tests) is given to
+    :class:`loopclosure.detector.LoopDetector` as ``verifier=``, as GTSFM injects
+    its verifiers. ``xy_*``: (N, 2) pixels (column, row); ``desc_*``: (N, 32)
+    uint8 ORB descriptors; ``K`` (3, 3) or None; ``distortion`` OpenCV
+    coefficients or None; ``size_*`` (width, height) in pixels or None. The
+    answer's ``R``/``t_unit`` (the relative pose of the views) may be None; the
+    detector keeps them for the closure when given. ``tests/test_verifier_contract.py``
+    holds the contract every implementation passes.
+    """
+
+    def verify(self, xy_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray,
+               desc_b: np.ndarray, K: np.ndarray | None = None,
+               distortion: np.ndarray | None = None,
+               size_a: tuple[float, float] | None = None,
+               size_b: tuple[float, float] | None = None) -> Verification: ...
 
 
 class GeometricVerifier:

@@ -69,8 +69,7 @@ def run_scripted(answers, prior, accept, n=12, **cfg):
     # the decision logic of video mode (keyframe mode is tested with tests/test_places.py)
     config = LoopDetectorConfig(**{"mode": "video", "exclude_recent": 3, "consistency_k": 3, **cfg})
     db = ScriptedDatabase(answers, prior)
-    det = LoopDetector(vocabulary=None, config=config, database=db)
-    det.verifier = StubVerifier(accept)
+    det = LoopDetector(vocabulary=None, config=config, database=db, verifier=StubVerifier(accept))
     desc = np.zeros((1, 32), np.uint8)
     for i in range(n):
         det.process_features(np.array([[float(i), 0.0]]), desc)

@@ -204,7 +204,7 @@ def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:
     precision, recall, n_true = score(closures, truth)
     # The sweep: the same detector with no score threshold, every verified candidate kept.
     loose = dataclasses.replace(detector.config, min_normalised_score=0.0, min_score=0.0)
-    sweep = LoopDetector(detector.database.vocabulary, loose, detector.verifier.config,
+    sweep = LoopDetector(detector.database.vocabulary, loose, verifier=detector.verifier,
                          K=detector.K, distortion=detector.distortion,
                          mode=detector.mode if loose.mode == "auto" else None)
     points = pr_curve(sweep_scores(paths, features, sweep, timestamps), truth)
