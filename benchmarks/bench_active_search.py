@@ -60,7 +60,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from frontend.active_search import ActiveSearch, ActiveSearchConfig, extract_patches  # noqa: E402
+from frontend.active_search import ActiveSearch  # noqa: E402
+from frontend.active_search_config import ActiveSearchConfig  # noqa: E402
+from frontend.search_matchers import extract_patches  # noqa: E402
 from slamcore.spatial.camera import (
     innovation_covariance, plane_induced_affine, # noqa: E402
                              pose_covariance, project, project_jacobians,

@@ -57,7 +57,8 @@ from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from graphslam.backends import gtsam_convert as conv
 from slamcore.config import load_section
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.sources.planar.outliers import inject_false_closures, is_injected
 
 HERE = Path(__file__).resolve().parent

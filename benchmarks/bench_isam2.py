@@ -31,7 +31,8 @@ from graphslam.backends import gtsam_convert as conv
 from graphslam.pipelines.common import whole  # a cut run is no row
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 
 
 def prebuild(dataset, steps):

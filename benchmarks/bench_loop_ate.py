@@ -37,7 +37,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from frontend.orb import OrbDetector
-from frontend.tracking import Tracker, TrackerConfig
+from frontend.tracking import Tracker
+from frontend.tracking_config import TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.pipelines.common import whole  # a cut run is no row
 from graphslam.pipelines.place_recognition import train_vocabulary

@@ -66,7 +66,7 @@ from filters.mono_ekf import MonoEkf  # noqa: E402
 from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
 from slamcore.spatial.geometry import invert_pose, se3_exp  # noqa: E402
 from slamcore.spatial.camera import project  # noqa: E402
-from slamcore.spatial.backend import PixelObservations  # noqa: E402
+from slamcore.spatial.records import PixelObservations  # noqa: E402
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 IMAGE_SIZE = (640, 480)

@@ -68,9 +68,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import timing  # noqa: E402  (beside this script)
 from filters.mono_ekf import MonoEkf  # noqa: E402
 from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
-from frontend.active_search import ActiveSearchConfig  # noqa: E402
+from frontend.active_search_config import ActiveSearchConfig  # noqa: E402
 from frontend.harris import HarrisConfig  # noqa: E402
-from frontend.tracking import Tracker, TrackerConfig  # noqa: E402
+from frontend.tracking import Tracker  # noqa: E402
+from frontend.tracking_config import TrackerConfig  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 

@@ -63,16 +63,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend.active_search_config import ActiveSearchConfig, chi2_2dof
+from frontend.active_search_config import ActiveSearchConfig
 from frontend.features import Features
 from frontend.image import check_gray
 from frontend.search_matchers import (Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels,
-                                      extract_patches, inv2)
+                                      inv2)
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
-# the settings and the matchers live in their own modules (re-exported here)
-__all__ = ["ActiveSearchConfig", "ActiveSearchResult", "ActiveSearch", "Matcher", "ZnccMatcher",
-           "NearestMatcher", "Repredict", "chi2_2dof", "ellipse_pixels", "extract_patches", "inv2"]
+# the settings (frontend.active_search_config) and the matchers (frontend.search_matchers)
+# live in their own modules; import them from there
+__all__ = ["ActiveSearchResult", "ActiveSearch", "Repredict"]
 
 
 @dataclass(frozen=True, eq=False)

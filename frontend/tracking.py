@@ -55,16 +55,18 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from frontend.active_search import ActiveSearch, ActiveSearchConfig, ActiveSearchResult, extract_patches
+from frontend.active_search import ActiveSearch, ActiveSearchResult
+from frontend.active_search_config import ActiveSearchConfig
+from frontend.search_matchers import extract_patches
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
-from frontend.tracking_config import DETECTORS, SEARCH_MODES, TrackerConfig, make_detector
+from frontend.tracking_config import TrackerConfig, make_detector
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
-__all__ = ["TrackerConfig", "Tracker", "TrackingResult", "DETECTORS", "SEARCH_MODES", "make_detector"]
+__all__ = ["Tracker", "TrackingResult"]
 
 #: Width the frames are reduced to before their image motion is measured, pixels
 #: (PTAM's small blurry images are 80 px wide; twice that keeps a pixel's worth of

@@ -1,8 +1,7 @@
 """Settings of the front-end tracker (:mod:`frontend.tracking`) and the detector they name.
 
-Its own module to keep the tracker readable; :mod:`frontend.tracking` re-exports
-:class:`TrackerConfig`, :data:`DETECTORS`, :data:`SEARCH_MODES` and
-:func:`make_detector`.
+Its own module to keep the tracker readable: the settings, and the detector they
+name, are imported from here.
 """
 
 from __future__ import annotations

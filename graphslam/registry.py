@@ -156,7 +156,8 @@ def make_backend(name: str, *, config: ConfigSource = None,
                  overrides: dict | None = None) -> Backend:
     """Back end by name, configured from the file's section plus ``overrides``."""
     if name == "isam2":
-        from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+        from graphslam.backends.planar.isam2 import Isam2Backend
+        from graphslam.backends.planar.isam2_config import Isam2Config
 
         return Isam2Backend(load_section(Isam2Config, config, overrides))
     if name == "ekf":
@@ -182,7 +183,7 @@ def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
     """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
     positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
     if name == "isam2":
-        from graphslam.backends.planar.isam2 import Isam2Config
+        from graphslam.backends.planar.isam2_config import Isam2Config
         from graphslam.backends.planar.isam2_localise import Isam2Localiser
 
         return Isam2Localiser(landmark_ids, landmarks_w, landmark_cov,
@@ -213,7 +214,7 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     by section name (``graphslam sweep`` checks its overrides against them)."""
     from filters.ekf_slam_config import EkfSlamConfig
     from filters.fastslam import FastSlamConfig
-    from graphslam.backends.planar.isam2 import Isam2Config
+    from graphslam.backends.planar.isam2_config import Isam2Config
     from graphslam.sources.planar.synthetic import SyntheticConfig
 
     by_backend = {"isam2": Isam2Config, "ekf": EkfSlamConfig, "fastslam1": FastSlamConfig,

@@ -32,7 +32,8 @@ import numpy as np
 from slamcore.spatial.geometry import invert_pose
 from slamcore.spatial.camera import project_jacobians
 from slamcore.config import bounded, validate
-from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED, match_descriptors
+from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED
+from loopclosure.matching import match_descriptors
 
 __all__ = ["PnpConfig", "PnpResult", "relative_pose_pnp"]
 

@@ -92,7 +92,7 @@ from loopclosure.matching import epipolar_residuals, guided_match, match_descrip
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
-__all__ = ["VerifyConfig", "Verification", "GeometricVerifier", "match_descriptors", "MODELS"]
+__all__ = ["VerifyConfig", "Verification", "PairVerifier", "GeometricVerifier", "MODELS"]
 
 #: RANSAC models the verifier knows.
 Model = Literal["auto", "essential", "fundamental", "homography"]

@@ -10,8 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from frontend.active_search import (ActiveSearch, ActiveSearchConfig, chi2_2dof, ellipse_pixels,
-                                    extract_patches)
+from frontend.active_search import ActiveSearch
+from frontend.active_search_config import ActiveSearchConfig, chi2_2dof
+from frontend.search_matchers import ellipse_pixels, extract_patches
 from frontend.features import Features
 from slamcore.errors import ConfigError, InputError, MeasurementError
 

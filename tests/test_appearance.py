@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from filters.mono_ekf import MonoEkf, MonoEkfConfig
-from frontend.active_search import ActiveSearchConfig
+from frontend.active_search_config import ActiveSearchConfig
 from frontend.appearance import patch_affines, source_patch_size
-from frontend.tracking import Tracker, TrackerConfig
+from frontend.tracking import Tracker
+from frontend.tracking_config import TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.spatial.camera import intrinsics_matrix, plane_induced_affine, project

@@ -245,7 +245,8 @@ def test_tracker_aids_follow_a_sudden_turn_only_without_odometry(camera_alone):
     """Two frames at 2 px a frame, then a 40 px jump (a turn starting): the follow
     windows (24 px) placed by each track's last motion miss it; moved by the change of
     the whole image's motion they do not. The first frame fills to max_tracks."""
-    from frontend.tracking import Tracker, TrackerConfig
+    from frontend.tracking import Tracker
+    from frontend.tracking_config import TrackerConfig
 
     base = textured(0, (240, 480))
     tracker = Tracker(TrackerConfig(max_tracks=60, max_new_per_frame=10), follow_unmapped=True,
@@ -264,7 +265,8 @@ def test_tracker_aids_follow_a_sudden_turn_only_without_odometry(camera_alone):
 
 
 def test_tracker_aids_follow_the_config_when_it_sets_them():
-    from frontend.tracking import Tracker, TrackerConfig
+    from frontend.tracking import Tracker
+    from frontend.tracking_config import TrackerConfig
 
     t = Tracker(TrackerConfig(follow_image_motion=False, fill_first_frame=True), camera_alone=True)
     assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, True)

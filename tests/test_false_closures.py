@@ -17,7 +17,8 @@ from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from slamcore.config import load_section
 from slamcore.errors import ConfigError, GraphSlamError
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.sources.planar.outliers import (INJECTED_SOURCE, closure_mahalanobis,
                                         inject_false_closures, is_injected)
 

@@ -10,7 +10,8 @@ from slamcore.planar.geometry import observe_jacobians
 from graphslam.backends import gtsam_convert as conv
 from graphslam.pipelines import planar as pipeline
 from slamcore.errors import ConfigError
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from slamcore.planar.records import Estimate
 from tests.worlds import assert_poses_close, square_world
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.pipelines import planar as pipeline
 from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 from slamcore.errors import ConfigError, GraphSlamError

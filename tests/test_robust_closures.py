@@ -9,7 +9,8 @@ import pytest
 
 from graphslam.pipelines import planar as pipeline
 from slamcore.errors import ConfigError
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from slamcore.planar.records import LoopClosure
 from tests.worlds import square_world
 

@@ -13,9 +13,11 @@ import pytest
 
 from filters.mono_ekf import MonoEkf
 from filters.mono_ekf_config import MonoEkfConfig
-from frontend.active_search import ActiveSearch, ActiveSearchConfig
+from frontend.active_search import ActiveSearch
+from frontend.active_search_config import ActiveSearchConfig
 from frontend.features import Features
-from frontend.tracking import Tracker, TrackerConfig
+from frontend.tracking import Tracker
+from frontend.tracking_config import TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError

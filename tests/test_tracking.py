@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.tracking import Tracker, TrackerConfig
+from frontend.tracking import Tracker
+from frontend.tracking_config import TrackerConfig
 from slamcore.errors import ConfigError
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from slamcore.spatial.records import PixelPredictions

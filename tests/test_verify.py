@@ -12,7 +12,8 @@ from slamcore.spatial.geometry import invert_pose
 from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from frontend.orb import OrbDetector
 from slamcore.errors import ConfigError
-from loopclosure.verify import GeometricVerifier, VerifyConfig, match_descriptors
+from loopclosure.verify import GeometricVerifier, VerifyConfig
+from loopclosure.matching import match_descriptors
 
 #: Lund door: rotation of the recovered relative pose vs COLMAP's, degrees
 #: (measured 0.2-0.9 deg on the pairs below, 1 px RANSAC threshold on 1936 px images).

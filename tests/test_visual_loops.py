@@ -354,7 +354,8 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     from loopclosure.detector import LoopDetectorConfig
     from graphslam.sources.spatial.synthetic_images import make_synthetic_images
     from graphslam.pipelines.loop_closing import VisualLoopCloser
-    from frontend.tracking import Tracker, TrackerConfig
+    from frontend.tracking import Tracker
+    from frontend.tracking_config import TrackerConfig
     from loopclosure.detector import LoopDetector
 
     seq = make_synthetic_images()

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from slamcore.spatial.geometry import invert_pose, so3_exp
-from frontend.tracking import Tracker, TrackerConfig
+from frontend.tracking import Tracker
+from frontend.tracking_config import TrackerConfig
 from graphslam.pipelines import spatial as vp
 from graphslam.cli.main import main
 from slamcore.config import ConfigFile, from_dict

@@ -156,7 +156,7 @@ def _out_dir(args, name: str, rerun_mode: str) -> Path:
 
 def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`)."""
-    from frontend.active_search import ActiveSearchConfig
+    from frontend.active_search_config import ActiveSearchConfig
     from graphslam import registry
     from graphslam.pipelines import compare_spatial as cs
     from graphslam.pipelines import spatial as vp

@@ -244,7 +244,7 @@ def make_localizer(smap: SpatialMap, K: np.ndarray, config=None) -> Localizer:
     ``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``), defaults without."""
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
-    from frontend.tracking import TrackerConfig, make_detector
+    from frontend.tracking_config import TrackerConfig, make_detector
     from slamcore.config import load_section
 
     tracker = TrackerConfig(detector=smap.meta.get("tracker", {}).get("detector", "harris"))

@@ -24,11 +24,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from frontend.active_search import extract_patches
+from frontend.search_matchers import extract_patches
 from frontend.orb import OrbDetector
 from graphslam.maps.spatial_map import SpatialMap, bow_csr
 from loopclosure.database import BowDatabase
-from loopclosure.verify import match_descriptors
+from loopclosure.matching import match_descriptors
 from slamcore.errors import UnsupportedError
 
 #: Words of a vocabulary trained on the run's own frames (a 10-way tree of depth 3).

@@ -196,10 +196,10 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     unmapped tracks are followed when the back end needs their history, and the
     tracker's camera-alone aids are on when it has no odometry (its own motion
     model: the predictions are a guess; unless the file sets them)."""
-    from frontend.active_search import ActiveSearchConfig
+    from frontend.active_search_config import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
-    from frontend.tracking import TrackerConfig
+    from frontend.tracking_config import TrackerConfig
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped

@@ -1,8 +1,7 @@
 """Settings of the 2-D iSAM2 back end (:mod:`graphslam.backends.planar.isam2`).
 
 Its own module, as for the visual back end (:mod:`graphslam.backends.spatial.isam2_config`):
-the back end re-exports :class:`Isam2Config`, so ``from graphslam.backends.planar.isam2
-import Isam2Config`` keeps working.
+the settings are read without importing the back end.
 """
 
 from __future__ import annotations

@@ -34,7 +34,8 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import gtsam_convert as conv
-from graphslam.backends.planar.isam2 import Isam2Backend, Isam2Config
+from graphslam.backends.planar.isam2 import Isam2Backend
+from graphslam.backends.planar.isam2_config import Isam2Config
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.records import Estimate, Observation, Prediction
