@@ -120,11 +120,6 @@ def run_sweep(spec: SweepSpec, out: Path, executor, *,
     return outcome
 
 
-def as_float(value) -> float | None:
-    """A CSV cell as a float, None when empty."""
-    return None if value in (None, "") else float(value)
-
-
 def with_labels(rows: list[dict], set_keys) -> list[dict]:
     """Rows with a ``label``: the back end and the swept values it ran with (the
     group a plot puts it in; seeds are the Monte Carlo runs of a group)."""

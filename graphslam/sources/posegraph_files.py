@@ -483,11 +483,6 @@ def has_landmark_lines(path) -> bool:
         return False
 
 
-def is_pose_graph_file(path) -> bool:
-    """Whether the first tag of a file is a pose-graph tag (cheap: one line read)."""
-    return is_pose_graph_tag(first_tag(path))
-
-
 def is_pose_graph_tag(tag: str | None) -> bool:
     """Whether a file whose first tag is ``tag`` is a pose graph."""
     return tag in (*TAGS, "FIX", "EQUIV")
