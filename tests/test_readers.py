@@ -6,6 +6,7 @@ Noise interpretation is checked factor by factor against gtsam's own loaders.
 from __future__ import annotations
 
 import math
+import re
 
 import gtsam
 import numpy as np
@@ -284,7 +285,7 @@ def test_toro_auto_refuses_what_load2d_refuses(tmp_path):
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 1 " + "0" * 4999 + "1 1 0 0 1 0 1 1 0 0\n", 2,
      "itself"),  # leading zeros past int()'s 4300 digits: the id is still 1
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 2 " + "7" * 5000 + " 1 0 0 1 0 1 1 0 0\n", 2,
-     "larger than 2**62"),
+     "larger than 2**56 - 1"),  # the frame-stream reader's bound: ids become symbol keys
 ])
 def test_toro_bad_lines(tmp_path, text, line, words):
     p = tmp_path / "bad.graph"
@@ -342,3 +343,23 @@ def test_city10000_truth_count_mismatch(tmp_path):
     with pytest.raises(InputError) as info:
         read_city10000(g, gt)
     assert info.value.line == 1 and "c.txt:1" in str(info.value)
+
+
+@pytest.mark.parametrize("token, words", [
+    ("12", None), ("+12", None), ("0007", None),
+    ("-3", "out of range: negative"), ("3.0", "not an integer"), ("1e3", "not an integer"),
+    ("１２", "not an integer"), (str(2**62 + 1), "larger than 2**62"),
+])
+def test_one_id_parser_for_every_line_reader(token, words):
+    """graphslam.sources.tokens.parse_id: the pose-graph, TORO/g2o frame-stream and
+    Victoria Park readers all read ids with it, so they refuse alike."""
+    from graphslam.sources.tokens import MAX_KEY_ID, parse_id
+    from slamcore.errors import InputError
+
+    if words is None:
+        assert parse_id(token, "f", 3) == int(token)
+        return
+    with pytest.raises(InputError, match=re.escape(words)):
+        parse_id(token, "f", 3)
+    with pytest.raises(InputError, match="out of range: larger than 2\\*\\*56 - 1"):
+        parse_id(str(2**56), "f", 3, limit=MAX_KEY_ID)

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from graphslam.sources.posegraph_files import MAX_ID, TRANSLATION_MAX_M
+from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+from graphslam.sources.tokens import MAX_ID
 from slamcore.errors import InputError
 from slamcore.planar.records import Estimate
 

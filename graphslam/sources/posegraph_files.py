@@ -64,18 +64,10 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.sources.tokens import iter_lines, parse_id, parse_numbers
 from slamcore.errors import InputError, quote
 from slamcore import posegraph as pg
 
-#: Largest pose id accepted: ids are int64 and gtsam keys; 2**62 leaves room.
-MAX_ID = 2**62
-#: An id token as parse_id accepts it (the bulk readers build theirs from it).
-ID_TOKEN = re.compile(r"\+?[0-9]+\Z")
-#: A decimal number as g2o's C++ stream reads it: optional sign, ASCII digits,
-#: optional fraction and exponent, or inf/nan (refused later as not finite).
-#: float() alone also takes ``1_000`` and full-width digits, which g2o does not.
-NUMBER_TOKEN = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:e[+-]?[0-9]+)?"
-                          r"|inf(?:inity)?|nan)\Z", re.ASCII | re.IGNORECASE)
 
 #: tag -> (format, dim, rotation, kind, token count)
 TAGS = {
@@ -121,63 +113,6 @@ def is_g2o_diagonal(v) -> bool:
     """Six numbers ``a 0 0 b 0 c`` (a, b, c non-zero): a diagonal in g2o's order."""
     return (v is not None and v[0] != 0 and v[1] == 0 and v[2] == 0 and v[3] != 0
             and v[4] == 0 and v[5] != 0)
-
-
-#: Significant digits beyond any id's (2**62 has 19): such a token is out of range.
-_MAX_ID_DIGITS = 20
-
-
-def decimal_value(token: str) -> int:
-    """``int(token)`` for an optional sign and decimal digits (checked by the caller),
-    without ``int``'s refusal of strings over 4300 digits (a ValueError that would
-    end a run in a traceback): a value of more than 20 significant digits comes back
-    as +-10**20, outside every id range, for the caller's range check to refuse."""
-    sign = -1 if token.startswith("-") else 1
-    digits = token.lstrip("+-").lstrip("0")
-    if len(digits) > _MAX_ID_DIGITS:
-        return sign * 10 ** _MAX_ID_DIGITS
-    return sign * int(digits or "0")
-
-
-def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
-    """A decimal id as a Python int in [0, MAX_ID], or one-line InputError."""
-    if token.startswith("-") and ID_TOKEN.match(token[1:]):
-        raise InputError(f"{what} {quote(token)} is negative", path, line_no)
-    if not ID_TOKEN.match(token):
-        raise InputError(f"{what} {quote(token)} is not an integer (decimal digits only)", path,
-                         line_no)
-    value = decimal_value(token)
-    if value > MAX_ID:
-        raise InputError(f"{what} {quote(token)} is larger than 2**62", path, line_no)
-    return value
-
-
-def parse_numbers(tokens: list[str], path, line_no: int) -> list[float]:
-    out = []
-    for t in tokens:
-        if not NUMBER_TOKEN.match(t):
-            raise InputError(f"{quote(t)} is not a number (decimal ASCII digits)", path,
-                             line_no)
-        v = float(t)
-        if not math.isfinite(v):
-            raise InputError(f"{quote(t)} is not finite", path, line_no)
-        out.append(v)
-    return out
-
-
-def _lines(path: Path):
-    try:
-        fh = open(path, encoding="utf-8-sig")  # -sig: a byte-order mark is not a tag
-    except OSError as exc:
-        raise InputError(f"cannot open file: {exc.strerror or exc}", path) from None
-    with fh:
-        try:
-            for line_no, line in enumerate(fh, start=1):
-                s = line.strip()
-                if s and not s.startswith("#"):
-                    yield line_no, s.split()
-        except UnicodeDecodeError as exc:
-            raise InputError(f"not a text file: {exc}", path) from None
 
 
 #: How TORO edge numbers are read (g2o's are information always); ``auto``: as
@@ -463,7 +398,7 @@ def read_pose_graph_file(path, toro_noise: str = "auto",
         raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
     toro_noise, note = resolve_toro_noise(path, toro_noise)
     collector = _Collector(path, toro_noise, information_fix)
-    for line_no, tok in _lines(path):
+    for line_no, tok in iter_lines(path):
         collector.line(line_no, tok)
     graph = collector.graph()
     return replace(graph, noise_note=note) if note and graph.format == "toro" else graph
@@ -491,7 +426,7 @@ def is_pose_graph_tag(tag: str | None) -> bool:
 def first_tag(path) -> str | None:
     """The first tag of a text file, or None (unreadable or empty)."""
     try:
-        for _, tok in _lines(Path(path)):
+        for _, tok in iter_lines(path):
             return tok[0]
     except InputError:
         return None

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.posegraph_files import ID_TOKEN, decimal_value
+from graphslam.sources.tokens import ID_TOKEN, decimal_value
 from slamcore.planar.geometry import wrap_angle
 
 #: Ids separated by single spaces, each as ``posegraph_files.parse_id`` accepts one.

@@ -41,7 +41,7 @@ import numpy as np
 
 from graphslam.sources.planar.mrclam_motion import (COVARIANCE_FLOOR, MotionModel,
                                                    held_commands, integrate)
-from graphslam.sources.posegraph_files import NUMBER_TOKEN
+from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import InputError, quote
 from slamcore.input_files import check_input_path

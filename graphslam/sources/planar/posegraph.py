@@ -46,14 +46,14 @@ by the landmark back ends, not a pose graph.
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from graphslam.sources.planar.bulk import noise_covariances, read_se2_lines
-from graphslam.sources.posegraph_files import NUMBER_TOKEN, parse_id
+from graphslam.sources.tokens import (MAX_KEY_ID, SYMBOL_INDEX_LIMIT, iter_lines, parse_id,
+                                      parse_numbers)
 from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import (
@@ -63,8 +63,6 @@ from slamcore.planar.records import (
 from slamcore.planar.geometry import wrap_angle
 
 NOISE_FORMATS = ("auto", "graph", "toro", "cov", "g2o")
-#: Pose ids become ``X(id)`` keys, whose index has 56 bits.
-SYMBOL_INDEX_LIMIT = 2**56
 
 #: City10000 pose noise sigmas [x_m, y_m, theta_rad], from gtsam's C++ examples
 #: (examples/City10000.h and Hybrid_City10000.cpp: ``kPoseNoiseModel`` =
@@ -73,51 +71,6 @@ CITY10000_SIGMAS = np.array([1.0 / 30.0, 1.0 / 30.0, 1.0 / 100.0])
 
 
 # --------------------------------------------------------------------------- helpers
-def iter_lines(path):
-    """Yield ``(line_no, tokens)`` of the non-blank, non-comment lines of ``path``.
-
-    Raises InputError naming the path if the file cannot be read.
-    """
-    p = Path(path)
-    try:
-        fh = open(p, encoding="utf-8-sig")  # -sig: a byte-order mark is not a tag
-    except OSError as exc:
-        raise InputError(f"cannot open file: {exc.strerror or exc}", p) from None
-    with fh:
-        try:
-            for line_no, line in enumerate(fh, start=1):
-                s = line.strip()
-                if not s or s.startswith("#"):
-                    continue
-                yield line_no, s.split()
-        except UnicodeDecodeError as exc:
-            raise InputError(f"not a text file: {exc}", p) from None
-
-
-def parse_floats(tokens, path, line_no, what="value"):
-    """Tokens as finite floats, or InputError at ``path:line_no``."""
-    out = []
-    for t in tokens:
-        if not NUMBER_TOKEN.match(t):
-            raise InputError(f"{what} {quote(t)} is not a number (decimal ASCII digits)", path,
-                             line_no)
-        v = float(t)
-        if not math.isfinite(v):
-            raise InputError(f"{what} {quote(t)} is not finite", path, line_no)
-        out.append(v)
-    return out
-
-
-def parse_int(token, path, line_no, what="id"):
-    """A decimal id as a Python int (never through a float), from 0 to the
-    largest index a gtsam symbol key holds (``X(id)``: 2**56 - 1), or InputError."""
-    value = parse_id(token, path, line_no, what)
-    if value >= SYMBOL_INDEX_LIMIT:
-        raise InputError(f"{what} {token} is too large for a gtsam symbol key (max 2**56 - 1)",
-                         path, line_no)
-    return value
-
-
 def check_count(tokens, expected, path, line_no, layout):
     if len(tokens) != expected:
         raise InputError(f"{tokens[0]} line needs {expected} tokens ({layout}), "
@@ -271,15 +224,15 @@ def _read_se2_graph(path, vertex_tag, edge_tag, ignored, noise_format, name,
             sightings.append((line_no, _bearing_range(tok, path, line_no)))
         elif tag == edge_tag:
             check_count(tok, 12, path, line_no, f"{edge_tag} id1 id2 dx dy dth + 6 noise")
-            a = parse_int(tok[1], path, line_no)
-            b = parse_int(tok[2], path, line_no)
-            nums = parse_floats(tok[3:], path, line_no)
+            a = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
+            b = parse_id(tok[2], path, line_no, "id", limit=MAX_KEY_ID)
+            nums = parse_numbers(tok[3:], path, line_no)
             cov = noise_covariance(nums[3:], noise_format, path, line_no)
             edges.append((line_no, a, b, wrapped_delta(nums[:3]), cov))
         elif tag == vertex_tag:
             check_count(tok, 5, path, line_no, f"{vertex_tag} id x y theta")
-            k = parse_int(tok[1], path, line_no)
-            parse_floats(tok[2:], path, line_no)
+            k = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
+            parse_numbers(tok[2:], path, line_no)
             if k in pose_lines:
                 raise InputError(f"pose {k} declared twice", path, line_no)
             pose_lines[k] = line_no
@@ -305,9 +258,9 @@ def _grouped(edges, pose_lines, path):
 def _bearing_range(tok, path, line_no) -> Observation:
     """A ``BR i j bearing range bearing_sigma range_sigma`` line as an Observation."""
     check_count(tok, 7, path, line_no, "BR pose landmark bearing range bearing_sigma range_sigma")
-    pose = parse_int(tok[1], path, line_no)
-    landmark = parse_int(tok[2], path, line_no, "landmark id")
-    bearing, range_m, sigma_b, sigma_r = parse_floats(tok[3:], path, line_no)
+    pose = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
+    landmark = parse_id(tok[2], path, line_no, "landmark id", limit=MAX_KEY_ID)
+    bearing, range_m, sigma_b, sigma_r = parse_numbers(tok[3:], path, line_no)
     if sigma_b <= 0.0 or sigma_r <= 0.0:
         raise InputError("BR sigmas must be positive", path, line_no)
     try:
@@ -407,21 +360,21 @@ def read_city10000(path=None, ground_truth_path=None) -> Dataset:
         if len(tok) < 9:
             raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}",
                              path, line_no)
-        a = parse_int(tok[1], path, line_no)
-        b = parse_int(tok[3], path, line_no)
-        parse_int(tok[4], path, line_no, "ambiguity flag")
-        n = parse_int(tok[5], path, line_no, "hypothesis count")
+        a = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
+        b = parse_id(tok[3], path, line_no, "id", limit=MAX_KEY_ID)
+        parse_id(tok[4], path, line_no, "ambiguity flag", limit=MAX_KEY_ID)
+        n = parse_id(tok[5], path, line_no, "hypothesis count", limit=MAX_KEY_ID)
         if n < 1 or len(tok) != 6 + 3 * n:
             raise InputError(f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, "
                              f"got {len(tok)}", path, line_no)
-        nums = parse_floats(tok[6:], path, line_no)
+        nums = parse_numbers(tok[6:], path, line_no)
         edges.append((line_no, a, b, wrapped_delta(nums[:3]), cov))
     truth = []
     for line_no, tok in iter_lines(ground_truth_path):
         if len(tok) != 3:
             raise InputError(f"ground-truth line needs 3 numbers (x y theta), got {len(tok)}",
                              ground_truth_path, line_no)
-        truth.append(np.array(parse_floats(tok, ground_truth_path, line_no)))
+        truth.append(np.array(parse_numbers(tok, ground_truth_path, line_no)))
     ids = {e[1] for e in edges} | {e[2] for e in edges}
     n_poses = (max(ids) - min(ids) + 1) if ids else 0
     if len(truth) != n_poses:

@@ -30,34 +30,17 @@ published numbers (checked factor by factor in ``tests/test_readers.py``):
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
 from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.records import Dataset
-from graphslam.sources.posegraph_files import decimal_value
-from graphslam.sources.planar.posegraph import (wrapped_delta, check_count, iter_lines, noise_covariance,
-                                         parse_floats)
+from graphslam.sources.planar.posegraph import wrapped_delta, check_count, noise_covariance
+from graphslam.sources.tokens import MAX_KEY_ID, iter_lines, parse_id, parse_numbers
 from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import (
     Frame, Observation, ObservationKind, Odometry, odometry_batch, range_bearing_batch,
 )
-
-
-#: Ids become gtsam symbol keys ``X(id)``, ``L(id)``, whose index has 56 bits.
-ID_LIMIT = 2**56
-
-
-def parse_id(token: str, path, line_no: int, what: str = "pose id") -> int:
-    """A decimal id as a Python int (never through a float, which rounds ids
-    from 2**53), from 0 to :data:`ID_LIMIT` - 1; InputError otherwise."""
-    if re.fullmatch(r"[+-]?[0-9]+", token) is None:
-        raise InputError(f"{what} {quote(token)} is not an integer", path, line_no)
-    value = decimal_value(token)
-    if not 0 <= value < ID_LIMIT:
-        raise InputError(f"{what} {quote(token)} is out of range (0 to 2**56 - 1)", path, line_no)
-    return value
 
 
 #: Variances a measurement of this log may state: standard deviations from
@@ -125,9 +108,9 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
         try:
             if tag == "ODOMETRY":
                 check_count(tok, 12, path, line_no, "ODOMETRY i j dx dy dtheta + 6 covariance")
-                i = parse_id(tok[1], path, line_no)
-                j = parse_id(tok[2], path, line_no)
-                nums = parse_floats(tok[3:], path, line_no)
+                i = parse_id(tok[1], path, line_no, limit=MAX_KEY_ID)
+                j = parse_id(tok[2], path, line_no, limit=MAX_KEY_ID)
+                nums = parse_numbers(tok[3:], path, line_no)
                 check_distances(nums[:2], path, line_no)
                 if not order:
                     order.append(i)
@@ -145,9 +128,9 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                 observations[j] = []
             elif tag == "LANDMARK":
                 check_count(tok, 8, path, line_no, "LANDMARK i j lx ly v1 v2 v3")
-                i = parse_id(tok[1], path, line_no)
-                j = parse_id(tok[2], path, line_no, "landmark id")
-                lx, ly, v1, _v2, _v3 = parse_floats(tok[3:], path, line_no)
+                i = parse_id(tok[1], path, line_no, limit=MAX_KEY_ID)
+                j = parse_id(tok[2], path, line_no, "landmark id", limit=MAX_KEY_ID)
+                lx, ly, v1, _v2, _v3 = parse_numbers(tok[3:], path, line_no)
                 check_distances((lx, ly), path, line_no)
                 if i not in observations:
                     raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
@@ -209,7 +192,7 @@ def read_well_formed(path, name: str = "victoria-park") -> Dataset | None:
         l_num = np.array([r[3:] for r in lms], dtype=np.float64).reshape(-1, 5)
     except (OSError, UnicodeDecodeError, ValueError):
         return None
-    if max(max(pair) for pair in o_ids + l_ids) >= ID_LIMIT:
+    if max(max(pair) for pair in o_ids + l_ids) > MAX_KEY_ID:
         return None
     order, created = [o_ids[0][0]], {o_ids[0][0]: 1}  # pose -> the ODOMETRY line making it
     for n, (i, j) in enumerate(o_ids, start=1):

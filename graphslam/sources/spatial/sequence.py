@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from frontend.image import load_gray
-from graphslam.sources.posegraph_files import NUMBER_TOKEN
+from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.errors import InputError, quote
 from slamcore.input_files import check_input_path
 
