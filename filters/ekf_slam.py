@@ -3,17 +3,18 @@
 Course slides "Algorithme EKF-SLAM (2D)": the state is
 ``X = [x, y, theta, m1x, m1y, m2x, m2y, ...]`` with a full covariance ``P``.
 Beside this module: :mod:`filters.ekf_slam_config` (settings),
-:mod:`filters.ekf_slam_correction` (one observation's update, its Jacobians
-and its numerical safeguards), :mod:`filters.ekf_slam_update` (the in-place
-rank-2 correction and the damped iterated step) and
+:mod:`filters.ekf_slam_store` (the state, its covariance and the landmark
+slots), :mod:`filters.ekf_slam_correction` (one observation's update, its
+Jacobians and its numerical safeguards), :mod:`filters.ekf_slam_update` (the
+in-place rank-2 correction and the damped iterated step) and
 :mod:`filters.ekf_slam_association` (scan association with unknown ids and
 the provisional list).
 
-Storage: ``X`` and ``P`` live in preallocated buffers sized for
-``capacity`` landmarks; when a landmark does not fit, the capacity doubles and
-the used ``n x n`` block is copied once (amortised O(1) copies per landmark,
-never an ``np.block`` of the whole ``P`` per landmark). The working ``P`` is the
-view ``buffer[:n, :n]``.
+Storage (:class:`filters.ekf_slam_store.SlotStore`): ``X`` and ``P`` live in
+preallocated buffers sized for ``capacity`` landmarks; when a landmark does not
+fit, the capacity doubles and the used ``n x n`` block is copied once
+(amortised O(1) copies per landmark, never an ``np.block`` of the whole ``P``
+per landmark). The working ``P`` is the view ``buffer[:n, :n]``.
 
 Costs per step, n = 3 + 2 M:
 
@@ -113,18 +114,22 @@ from slamcore.planar import geometry as models
 from filters.association import chi2_quantile
 from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
 from filters.ekf_slam_config import EkfSlamConfig
-from filters.ekf_slam_correction import EkfCorrection
-from filters.ekf_slam_update import padded
+from filters.ekf_slam_correction import kalman_update
+from filters.ekf_slam_store import SlotStore
 from filters.numerics import Recoveries
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar.records import (
     Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
 )
-from slamcore.planar.geometry import wrap_angle
 
-class EkfSlam(EkfCorrection, Backend):
-    """EKF-SLAM back end (see the module docstring)."""
+class EkfSlam(Backend):
+    """EKF-SLAM back end (see the module docstring).
+
+    The state, its covariance and the landmark slots are held in a
+    :class:`filters.ekf_slam_store.SlotStore`; the filter keeps the pose
+    history, the ids it hands out, the provisional lists and the counters.
+    """
 
     name = "ekf"
     supports_loop_closures = False
@@ -142,17 +147,7 @@ class EkfSlam(EkfCorrection, Backend):
     # ------------------------------------------------------------------ state
 
     def _reset(self, capacity: int) -> None:
-        self._cap = int(capacity)
-        dim = padded(3 + 2 * self._cap)  # the downdate's padding fits (filters.ekf_slam_update)
-        self._xbuf = np.zeros(dim)
-        self._Pbuf = np.zeros((dim, dim))
-        self._make_downdate()
-        self._pmax_ub = math.inf  # upper bound of P's largest variance (EkfCorrection._floored)
-        self._n = 0  # used state size; 0 = not initialised
-        self._ids: list[int] = []  # landmark id of each landmark slot
-        self._slot: dict[int, int] = {}  # landmark id -> slot
-        self._m_first: list[np.ndarray] = []  # first estimate of each slot (OC)
-        self._x_pred = np.zeros(3)  # robot pose predicted for this step (OC)
+        self._store = SlotStore(capacity)  # st.n == 0: not initialised
         self._next_id = 0
         self._pose_id: int | None = None
         self._hist_ids: list[int] = []
@@ -170,33 +165,25 @@ class EkfSlam(EkfCorrection, Backend):
         self.recoveries = Recoveries()
 
     @property
-    def _x(self) -> np.ndarray:
-        return self._xbuf[:self._n]
-
-    @property
-    def _P(self) -> np.ndarray:
-        return self._Pbuf[:self._n, :self._n]
-
-    @property
     def num_landmarks(self) -> int:
-        return len(self._ids)
+        return len(self._store.ids)
 
     @property
     def capacity(self) -> int:
         """Landmarks the buffers hold before the next doubling."""
-        return self._cap
+        return self._store.cap
 
     def state_vector(self) -> np.ndarray:
         """Copy of the state ``[x, y, theta, m1x, m1y, ...]`` (n,)."""
-        return self._x.copy()
+        return self._store.x.copy()
 
     def state_covariance(self) -> np.ndarray:
         """Copy of the full covariance (n, n). O(n^2)."""
-        return self._P.copy()
+        return self._store.P.copy()
 
     def landmark_ids(self) -> list[int]:
         """Landmark ids in state order."""
-        return list(self._ids)
+        return list(self._store.ids)
 
     def load_state(self, pose_id: int, x: np.ndarray, P: np.ndarray,
                    landmark_ids: Sequence[int] | None = None) -> None:
@@ -219,33 +206,14 @@ class EkfSlam(EkfCorrection, Backend):
         if len(ids) != M or len(set(ids)) != M:
             raise GraphSlamError("load_state: landmark_ids must be M distinct ids")
         self._reset(max(self.config.initial_capacity, M))
-        self._n = x.size
-        self._xbuf[:self._n] = x
-        self._xbuf[2] = wrap_angle(x[2])
-        self._Pbuf[:self._n, :self._n] = P
-        # a loaded state is taken as both predicted and first estimate (OC)
-        self._x_pred = self._xbuf[:3].copy()
-        self._m_first = [self._xbuf[3 + 2 * k:5 + 2 * k].copy() for k in range(M)]
-        self._ids = ids
-        self._slot = {lid: k for k, lid in enumerate(ids)}
+        self._store.load(x, P, ids)  # taken as both predicted pose and first estimates (OC)
         self._next_id = max(ids) + 1 if ids else 0
         self._pose_id = int(pose_id)
         self._record_pose(new=True)
 
-    def _grow(self) -> None:
-        new_cap = 2 * self._cap
-        dim = padded(3 + 2 * new_cap)
-        n = self._n
-        xbuf = np.zeros(dim)
-        xbuf[:n] = self._xbuf[:n]
-        Pbuf = np.zeros((dim, dim))
-        Pbuf[:n, :n] = self._Pbuf[:n, :n]
-        self._xbuf, self._Pbuf, self._cap = xbuf, Pbuf, new_cap
-        self._make_downdate()
-
     def _record_pose(self, new: bool) -> None:
-        pose = self._xbuf[:3].copy()
-        cov = self._Pbuf[:3, :3].copy()
+        pose = self._store.xbuf[:3].copy()
+        cov = self._store.Pbuf[:3, :3].copy()
         if new:
             self._hist_ids.append(self._pose_id)
             self._hist_wTb.append(pose)
@@ -255,7 +223,7 @@ class EkfSlam(EkfCorrection, Backend):
             self._hist_cov[-1] = cov
 
     def _require_init(self) -> None:
-        if self._n == 0:
+        if self._store.n == 0:
             raise GraphSlamError("ekf: initialize() must be called first")
 
     # --------------------------------------------------------------- contract
@@ -264,11 +232,7 @@ class EkfSlam(EkfCorrection, Backend):
         wTb = as_vector(wTb, 3, "ekf initial pose")
         cov = as_covariance(covariance, 3, "ekf initial pose")
         self._reset(self.config.initial_capacity)
-        self._n = 3
-        self._xbuf[:3] = wTb
-        self._xbuf[2] = wrap_angle(wTb[2])
-        self._Pbuf[:3, :3] = cov
-        self._x_pred = self._xbuf[:3].copy()  # robot pose predicted for this step (OC)
+        self._store.start(wTb, cov)
         self._pose_id = int(pose_id)
         self._record_pose(new=True)
 
@@ -286,20 +250,21 @@ class EkfSlam(EkfCorrection, Backend):
         if pose_id == cur:
             raise GraphSlamError(f"ekf: pose {pose_id} is already the current pose")
         Q = np.asarray(Q) * self.config.odometry_covariance_scale
-        n = self._n
-        x = self._xbuf
-        P = self._Pbuf
+        st = self._store
+        n = st.n
+        x = st.xbuf
+        P = st.Pbuf
         F, G = models.compose_jacobians(x[:3], np.asarray(u))
         x[:3] = models.compose(x[:3], np.asarray(u))
         if self.config.jacobians == "oc":
-            # d p_new / d theta between predicted positions, so that the
-            # rotation direction propagates exactly (see _observability_constrained)
-            F[0, 2] = -(x[1] - self._x_pred[1])
-            F[1, 2] = x[0] - self._x_pred[0]
-        self._x_pred = x[:3].copy()
+            # d p_new / d theta between predicted positions, so that the rotation
+            # direction propagates exactly (filters.ekf_slam_correction.observability_constrained)
+            F[0, 2] = -(x[1] - st.x_pred[1])
+            F[1, 2] = x[0] - st.x_pred[0]
+        st.x_pred = x[:3].copy()
         Prr = F @ P[:3, :3] @ F.T + G @ Q @ G.T
         P[:3, :3] = 0.5 * (Prr + Prr.T)
-        self._pmax_ub = max(self._pmax_ub, float(P[:3, :3].diagonal().max()))
+        st.note_variances(float(P[:3, :3].diagonal().max()))
         if n > 3:
             Prm = F @ P[:3, 3:n]
             P[:3, 3:n] = Prm
@@ -331,9 +296,10 @@ class EkfSlam(EkfCorrection, Backend):
                 unknown.append(k)
                 continue
             lid = int(lid)
-            slot = self._slot.get(lid)
+            slot = self._store.slot.get(lid)
             if slot is not None:
-                if self._kalman_update(slot, o.z, o.covariance, self._known_gate):
+                if kalman_update(self._store, slot, o.z, o.covariance, self.config, self.recoveries,
+                                 self._known_gate):
                     assoc[k] = lid
                 else:
                     self.rejected_count += 1
@@ -354,79 +320,62 @@ class EkfSlam(EkfCorrection, Backend):
         self._require_init()
         out = []
         for lid in landmark_ids:
-            slot = self._slot.get(int(lid))
+            slot = self._store.slot.get(int(lid))
             if slot is None:
                 continue
             z, H_s, idx = self._predict_one(slot)
-            Psub = self._P[np.ix_(idx, idx)]
+            Psub = self._store.P[np.ix_(idx, idx)]
             S = H_s @ Psub @ H_s.T + self._R_typical
             out.append(Prediction(int(lid), z, 0.5 * (S + S.T)))
         return out
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
-        M = len(self._ids)
-        lms = self._xbuf[3:3 + 2 * M].reshape(M, 2).copy()
+        st = self._store
+        M = len(st.ids)
+        lms = st.xbuf[3:3 + 2 * M].reshape(M, 2).copy()
         est = dict(pose_ids=np.array(self._hist_ids, dtype=np.int64),
                    wTb=np.array(self._hist_wTb).reshape(-1, 3),
-                   landmark_ids=np.array(self._ids, dtype=np.int64).reshape(M),
+                   landmark_ids=np.array(st.ids, dtype=np.int64).reshape(M),
                    landmarks_w=lms)
         if with_covariances:
             est["pose_covariances"] = np.array(self._hist_cov).reshape(-1, 3, 3)
-            est["landmark_covariances"] = self._landmark_marginals()
+            est["landmark_covariances"] = st.landmark_marginals()
         return Estimate(**est)
 
     def current_pose(self) -> np.ndarray:
         self._require_init()
-        return self._xbuf[:3].copy()
+        return self._store.xbuf[:3].copy()
 
     def current_pose_covariance(self) -> np.ndarray | None:
         self._require_init()
-        return self._Pbuf[:3, :3].copy()
+        return self._store.Pbuf[:3, :3].copy()
 
     # ------------------------------------------------------------- internals
 
-    def _landmark_marginals(self) -> np.ndarray:
-        M = len(self._ids)
-        i = 3 + 2 * np.arange(M)
-        P = self._Pbuf
-        out = np.empty((M, 2, 2))
-        out[:, 0, 0] = P[i, i]
-        out[:, 0, 1] = P[i, i + 1]
-        out[:, 1, 0] = P[i + 1, i]
-        out[:, 1, 1] = P[i + 1, i + 1]
-        return out
-
     def _predict_one(self, slot: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
         i = 3 + 2 * slot
-        xr = self._xbuf[:3]
-        m = self._xbuf[i:i + 2]
+        xr = self._store.xbuf[:3]
+        m = self._store.xbuf[i:i + 2]
         z = models.observe(xr, m)
         H_x, H_m = models.observe_jacobians(xr, m)
         return z, np.hstack([H_x, H_m]), [0, 1, 2, i, i + 1]
 
     def _add_landmark(self, lid: int, z: np.ndarray, R: np.ndarray) -> int:
         """Insert landmark ``lid`` from observation ``z`` (inverse observation model)."""
-        if len(self._ids) >= self._cap:
-            self._grow()
-        n = self._n
-        x = self._xbuf
-        P = self._Pbuf
-        xr = x[:3].copy()
+        st = self._store
+        xr = st.xbuf[:3].copy()
         G_x, G_z = models.inverse_observe_jacobians(xr, z)
-        x[n:n + 2] = models.inverse_observe(xr, z)
-        self._m_first.append(x[n:n + 2].copy())
+        slot = st.open_slot(lid, models.inverse_observe(xr, z))  # may grow the buffers
+        n = 3 + 2 * slot
+        P = st.Pbuf
         Pmx = G_x @ P[0:3, :n]  # (2, n)
         Pmm = G_x @ P[:3, :3] @ G_x.T + G_z @ R @ G_z.T
         P[n:n + 2, :n] = Pmx
         P[:n, n:n + 2] = Pmx.T
         P[n:n + 2, n:n + 2] = 0.5 * (Pmm + Pmm.T)
-        self._pmax_ub = max(self._pmax_ub, float(P[n, n]), float(P[n + 1, n + 1]))
-        slot = len(self._ids)
-        self._ids.append(lid)
-        self._slot[lid] = slot
+        st.note_variances(float(P[n, n]), float(P[n + 1, n + 1]))
         self._next_id = max(self._next_id, lid + 1)
-        self._n = n + 2
         return slot
 
     def _update_unknown(self, obs: list[Observation], where: list[int],
@@ -442,7 +391,7 @@ class EkfSlam(EkfCorrection, Backend):
         if c.jcbb_objective == "likelihood":
             likelihood = (c.new_landmark_density_per_m2, c.detection_prob)
         hyp, novelty, res = associate_scan(
-            self._xbuf, self._Pbuf, self._landmark_marginals(), Z, Rs, gate=self._gate,
+            self._store.xbuf, self._store.Pbuf, self._store.landmark_marginals(), Z, Rs, gate=self._gate,
             chi2_prob=c.gate_chi2_prob, max_candidates=c.jcbb_max_candidates,
             max_nodes=c.jcbb_max_nodes, likelihood=likelihood)
         if res is not None:
@@ -450,8 +399,8 @@ class EkfSlam(EkfCorrection, Backend):
         # Updates first (slots are stable: new landmarks only append).
         for i, slot in enumerate(hyp):
             if slot is not None:
-                self._kalman_update(slot, Z[i], Rs[i])
-                assoc[where[i]] = self._ids[slot]
+                kalman_update(self._store, slot, Z[i], Rs[i], c, self.recoveries)
+                assoc[where[i]] = self._store.ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
         least = unpaired_distances(novelty, hyp)
@@ -471,10 +420,10 @@ class EkfSlam(EkfCorrection, Backend):
 
     def _provisional_sighting(self, z: np.ndarray, R: np.ndarray, hit: set[int]) -> int | None:
         """Sight ``z`` on the provisional list; the new landmark's id when it enters the map."""
-        xr = self._xbuf[:3].copy()
+        xr = self._store.xbuf[:3].copy()
         G_x, G_z = models.inverse_observe_jacobians(xr, z)
         pt = models.inverse_observe(xr, z)
-        C = G_x @ self._Pbuf[:3, :3] @ G_x.T + G_z @ R @ G_z.T
+        C = G_x @ self._store.Pbuf[:3, :3] @ G_x.T + G_z @ R @ G_z.T
         if not self._prov.sight(pt, C, hit):
             return None
         lid = self._next_id

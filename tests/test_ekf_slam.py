@@ -11,6 +11,7 @@ from scipy.stats import chi2
 from slamcore.planar import geometry as models
 from filters.association import chi2_quantile, jcbb, mahalanobis_sq_2d
 from filters.ekf_slam import EkfSlam
+from filters.ekf_slam_correction import observability_constrained
 from filters.ekf_slam_config import MAX_INITIAL_CAPACITY, MAX_JCBB_NODES, EkfSlamConfig
 from slamcore.config import from_dict
 from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, UnsupportedError
@@ -419,8 +420,8 @@ def test_observability_constrained_jacobian_keeps_rotation_unobservable():
     ekf, *_ = _run(4, steps=12, laps=0.5)
     slot = 0
     H_x, H_m = models.observe_jacobians(ekf.current_pose(), ekf.state_vector()[3:5])
-    Hx_oc, Hm_oc = ekf._observability_constrained(slot, H_x, H_m)
-    p, m = ekf._x_pred, ekf._m_first[slot]
+    Hx_oc, Hm_oc = observability_constrained(ekf._store, slot, H_x, H_m)
+    p, m = ekf._store.x_pred, ekf._store.m_first[slot]
     N = np.array([[1, 0, -p[1]], [0, 1, p[0]], [0, 0, 1], [1, 0, -m[1]], [0, 1, m[0]]])
     np.testing.assert_allclose(np.hstack([Hx_oc, Hm_oc]) @ N, 0.0, atol=DENSE_TOL)
     # and it is the nearest such matrix: the change is orthogonal to the constraint

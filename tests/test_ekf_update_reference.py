@@ -143,11 +143,11 @@ def test_copied_and_pickled_filters_update_their_own_covariance():
     z = models.observe(x[:3], x[3 + 10:3 + 12]) + np.array([0.05, 0.01])
     obs = [Observation(0, 5, z, np.diag([0.04, 0.003]))]
     ekf.update([Observation(0, 3, models.observe(x[:3], x[3 + 6:3 + 8]), np.diag([0.04, 0.003]))])
-    before = ekf._Pbuf.copy()  # the downdate's plans now hold this buffer's address
+    before = ekf._store.Pbuf.copy()  # the downdate's plans now hold this buffer's address
     twins = [copy.deepcopy(ekf), pickle.loads(pickle.dumps(ekf))]
     for twin in twins:
         twin.update(obs)
-    assert np.array_equal(ekf._Pbuf, before)
+    assert np.array_equal(ekf._store.Pbuf, before)
     ekf.update(obs)
     for twin in twins:
-        assert np.array_equal(twin._Pbuf, ekf._Pbuf) and np.array_equal(twin._xbuf, ekf._xbuf)
+        assert np.array_equal(twin._store.Pbuf, ekf._store.Pbuf) and np.array_equal(twin._store.xbuf, ekf._store.xbuf)
