@@ -7,8 +7,9 @@ bookkeeping and per-frame logic; the algebra lives beside it:
 (input checks), :mod:`filters.mono_ekf_motion` (motion models),
 :mod:`filters.mono_ekf_correction` (``P H^T``, ``S``, the correction, one-point
 RANSAC), :mod:`filters.mono_ekf_map` (adding, converting and dropping
-landmarks) and :mod:`filters.mono_ekf_bookkeeping` (which landmarks to add,
-convert or drop, and the state changes that do it).
+landmarks) and :mod:`filters.mono_ekf_slots` (the landmark-slot store: which
+track sits in which slot of the state, its counters, and the add, convert and
+drop rules).
 
 State ``X = [R, L1 ... Ln]`` with a full covariance ``P``. The robot is the
 camera (``wTc``):
@@ -31,7 +32,7 @@ pixel as IDP (6) or AHP (7) with the prior inverse distance
 With ``depth_prior = "map"`` only an empty map (or none in view) uses it; later
 landmarks take the median inverse distance of the landmarks in view, so they
 inherit the map's scale instead of pulling it toward ``2 d_min``
-(:meth:`MapBookkeeping._depth_prior`, :class:`filters.mono_ekf_config.MonoEkfConfig`).
+(:meth:`MonoEkf._depth_prior`, :class:`filters.mono_ekf_config.MonoEkfConfig`).
 Their cross-covariances come from the inverse observation model's Jacobians.
 After each update, a non-Euclidean landmark whose linearity index
 ``L = 4 sigma_d / d |cos alpha|`` (Civera et al. 2008; ``sigma_d = sigma_rho
@@ -109,9 +110,8 @@ from filters.mono_ekf_checks import (check_camera, check_initial_pose, check_obs
 from filters.mono_ekf_config import MonoEkfConfig, chi2_2dof
 from filters.mono_ekf_correction import (apply_correction, gain_blocks, gated_correction,
                                          innovation_blocks, one_point_ransac)
-from filters.mono_ekf_bookkeeping import LandmarkRecord, MapBookkeeping
-from filters.mono_ekf_map import euclidean_conversion
 from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion, propagate_covariance
+from filters.mono_ekf_slots import LandmarkSlots
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from slamcore.spatial.records import PixelObservations, PixelPredictions, VisualEstimate
 from slamcore.spatial.backend import VisualBackend
@@ -119,7 +119,7 @@ from slamcore.spatial.backend import VisualBackend
 __all__ = ["MonoEkf"]
 
 
-class MonoEkf(MapBookkeeping, VisualBackend):
+class MonoEkf(VisualBackend):
     """Monocular EKF-SLAM back end (see the module docstring)."""
 
     name = "mono_ekf"
@@ -138,6 +138,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         self._rescue_gate = chi2_2dof(self.config.rescue_chi2_prob)
         self._x: np.ndarray | None = None
         self._P: np.ndarray | None = None
+        self._map = LandmarkSlots(self._rdim)  # the landmarks' slots (reset by initialize)
         #: Track ids of the last update: ``corrected`` (used), ``rejected``
         #: (RANSAC / gate), ``initialised`` (new landmarks); (k,) int64 each.
         self.last_update: dict[str, np.ndarray] = {}
@@ -150,7 +151,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
 
     @property
     def num_landmarks(self) -> int:
-        return 0 if self._x is None else len(self._lms)
+        return 0 if self._x is None else len(self._map)
 
     def state_vector(self) -> np.ndarray:
         """Copy of ``X`` (n,)."""
@@ -166,19 +167,14 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         """``(track_id, kind name, first state index)`` of each landmark, in state order."""
         self._require_init()
         return [(lm.track_id, lp.KIND_NAMES[lm.kind], int(o))
-                for lm, o in zip(self._lms, self._off)]
+                for lm, o in zip(self._map.records, self._map.off)]
 
     def reparametrise(self, track_ids) -> int:
         """Convert the given landmarks to Euclidean now, whatever their linearity
         (tests, or a caller that knows better); returns how many were converted.
         Unknown ids, Euclidean landmarks and ``rho <= 0`` are skipped."""
         self._require_init()
-        changes = {}
-        for t in track_ids:
-            i = self._slot.get(int(t))
-            ch = None if i is None else euclidean_conversion(self._x, self._idx, self._kinds, i)
-            if ch is not None:
-                changes[i] = ch
+        changes = self._map.conversions(self._x, track_ids)
         if changes:
             self._transform(changes)
             self._stats["reparametrised"] += len(changes)
@@ -187,18 +183,6 @@ class MonoEkf(MapBookkeeping, VisualBackend):
     def _require_init(self) -> None:
         if self._x is None:
             raise GraphSlamError("mono_ekf: initialize() must be called first")
-
-    def _reindex(self) -> None:
-        """Offsets, kinds and padded index rows (k, 7) of the landmarks in state order."""
-        sizes = np.array([lp.SIZE[lm.kind] for lm in self._lms], dtype=np.int64)
-        self._off = self._rdim + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) \
-            if len(sizes) else np.zeros(0, dtype=np.int64)
-        self._kinds = np.array([lm.kind for lm in self._lms], dtype=np.int64)
-        cols = np.arange(lp.PAD)
-        # padding columns repeat the landmark's first index; their Jacobian columns are zero
-        self._idx = np.where(cols[None, :] < sizes[:, None], self._off[:, None] + cols[None, :],
-                             self._off[:, None]) if len(sizes) else np.zeros((0, lp.PAD), np.int64)
-        self._slot = {lm.track_id: i for i, lm in enumerate(self._lms)}
 
     def _wTc(self) -> np.ndarray:
         T = np.eye(4)
@@ -234,14 +218,11 @@ class MonoEkf(MapBookkeeping, VisualBackend):
             c = self.config
             self._P[7:10, 7:10] = np.eye(3) * c.cv_initial_sigma_v_mps ** 2
             self._P[10:13, 10:13] = np.eye(3) * c.cv_initial_sigma_w_radps ** 2
-        self._lms: list[LandmarkRecord] = []
-        self._reindex()
+        self._map = LandmarkSlots(self._rdim)
         self._version = 0  # bumped by every change of X or P (prediction cache key)
         self._cache = None
         self._rng = np.random.default_rng(self.config.seed)
         self._sigma_px = float(self.config.default_sigma_px)
-        self._banned: set[int] = set()
-        self._retired: dict[int, np.ndarray] = {}  # track id -> last Euclidean estimate
         self._frame_ids: list[int] = [int(frame_id)]
         self._poses: list[np.ndarray] = [self._wTc()]
         self._stats = {"reparametrised": 0, "ransac_rejected": 0, "initialised": 0,
@@ -276,9 +257,9 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         self._require_init()
         uv, hz, _, _, S = self._predicted(self._sigma_px ** 2)
         vis = np.flatnonzero(self._in_view(uv, hz))
-        ids = np.array([self._lms[i].track_id for i in vis], dtype=np.int64)
+        ids = self._map.ids[vis]
         with np.errstate(invalid="ignore", divide="ignore"):  # rho = 0: at infinity, not finite
-            p_w, _ = lp.to_euclidean(self._kinds[vis], self._x[self._idx[vis]])
+            p_w, _ = lp.to_euclidean(self._map.kinds[vis], self._x[self._map.idx[vis]])
         # pose, K and positions: for the front end's appearance prediction
         return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections,
                                 wTc=self._wTc(), K=self._K.copy(), landmarks_w=p_w)
@@ -291,7 +272,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         """
         key = (self._version, var)
         if self._cache is None or self._cache[0] != key:
-            slots = np.arange(len(self._lms))
+            slots = np.arange(len(self._map))
             uv, hz, Hp, Hl = self._observe(slots)
             with np.errstate(invalid="ignore", over="ignore"):
                 S = self._innovation_blocks(slots, Hp, Hl, var)  # meaningless where h_z <= 0
@@ -307,16 +288,16 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         # predictions and S_i of the known tracks
         predicted = self._predicted(var)
         visible = self._in_view(predicted[0], predicted[1])
-        known = np.array([int(t) in self._slot for t in ids], dtype=bool)
+        known = np.array([int(t) in self._map.slot for t in ids], dtype=bool)
         # tracks used by correct_and_repredict this frame are not corrected again
         k_rows = np.array([r for r in np.flatnonzero(known) if int(ids[r]) not in self._sequential],
                           dtype=np.int64)
-        k_slots = np.array([self._slot[int(ids[r])] for r in k_rows], dtype=np.int64)
-        accepted = np.zeros(len(self._lms), dtype=bool)
-        rejected = np.zeros(len(self._lms), dtype=bool)
+        k_slots = np.array([self._map.slot[int(ids[r])] for r in k_rows], dtype=np.int64)
+        accepted = np.zeros(len(self._map), dtype=bool)
+        rejected = np.zeros(len(self._map), dtype=bool)
         seq_ids = {True: [], False: []}
         for t, ok in self._sequential.items():
-            (accepted if ok else rejected)[self._slot[t]] = True
+            (accepted if ok else rejected)[self._map.slot[t]] = True
             seq_ids[ok].append(t)
         if len(k_slots):
             front = predicted[1][k_slots] > 0
@@ -325,8 +306,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
             sel, inl = self._correct(k_slots, uv_px[k_rows], predicted, var)
             accepted[sel[inl]] = True
             rejected[sel[~inl]] = True
-            corrected_ids = np.array([self._lms[i].track_id for i in sel[inl]], dtype=np.int64)
-            rejected_ids = np.array([self._lms[i].track_id for i in sel[~inl]], dtype=np.int64)
+            corrected_ids, rejected_ids = self._map.ids[sel[inl]], self._map.ids[sel[~inl]]
         else:
             corrected_ids = rejected_ids = np.zeros(0, dtype=np.int64)
         corrected_ids = np.concatenate([np.array(seq_ids[True], np.int64), corrected_ids])
@@ -335,14 +315,10 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         observed[k_slots] = True
         # not searched because the front end's budget was spent: not a miss
         for t in observations.unsearched_ids.tolist():
-            slot = self._slot.get(int(t))
+            slot = self._map.slot.get(int(t))
             if slot is not None:
                 observed[slot] = True
-        changes = self._manage_map(visible, observed, accepted, rejected)
-        if self.config.linearity_threshold > 0:
-            changes.update(self._reparametrise(exclude=changes))
-        if changes:
-            self._transform(changes)
+        self._manage_map(visible, observed, accepted, rejected)
         new_ids = self._initialise(ids, uv_px, known, var)
         self._poses[-1] = self._wTc()
         self.last_update = {"corrected": corrected_ids, "rejected": rejected_ids,
@@ -360,13 +336,13 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         self._require_init()
         ids = np.asarray(track_ids, dtype=np.int64).reshape(-1)
         z = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
-        if len(ids) != len(z) or any(int(t) not in self._slot or int(t) in self._sequential
+        if len(ids) != len(z) or any(int(t) not in self._map.slot or int(t) in self._sequential
                                      for t in ids):
             raise GraphSlamError("mono_ekf: correct_and_repredict needs mapped tracks not yet "
                                  "used this frame, one pixel each")
         var = self._sigma_px ** 2
         predicted = self._predicted(var)
-        slots = np.array([self._slot[int(t)] for t in ids], dtype=np.int64)
+        slots = np.array([self._map.slot[int(t)] for t in ids], dtype=np.int64)
         front = predicted[1][slots] > 0  # behind the camera: dropped, as update() drops them
         sel, z = slots[front], z[front]
         if len(sel) >= 3 and self.config.ransac:
@@ -374,10 +350,10 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         elif len(sel):
             inl = self._gated(sel, z, predicted, var)
         for i, ok in zip(sel, inl if len(sel) else ()):
-            self._sequential[self._lms[i].track_id] = bool(ok)
+            self._sequential[int(self._map.ids[i])] = bool(ok)
         pend = np.asarray(pending_ids, dtype=np.int64).reshape(-1)
         uv, hz, _, _, S = self._predicted(var)
-        p = np.array([self._slot.get(int(t), -1) for t in pend], dtype=np.int64)
+        p = np.array([self._map.slot.get(int(t), -1) for t in pend], dtype=np.int64)
         uv_p, S_p = uv[p].copy(), S[p].copy()
         bad = (p < 0) | ~(hz[p] > 0)
         uv_p[bad], S_p[bad] = np.nan, np.nan
@@ -401,7 +377,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         nu = z - uv[order]
         PHt, S_sel = self._gain_blocks(sel, Hp[order], Hl[order], var)
         if c.ransac and len(sel) >= 3:
-            inl = one_point_ransac(self._rng, self._K, self._x, self._kinds[sel], self._idx[sel],
+            inl = one_point_ransac(self._rng, self._K, self._x, self._map.kinds[sel], self._map.idx[sel],
                                    z, nu, PHt, S_sel, var, max_hypotheses=c.ransac_max_hypotheses,
                                    inlier_sigmas=c.ransac_inlier_sigmas)
         else:
@@ -421,7 +397,7 @@ class MonoEkf(MapBookkeeping, VisualBackend):
         """:func:`filters.mono_ekf_correction.gated_correction` of ``slots`` measured at
         ``z`` from ``predicted`` (:meth:`_predicted` at this state); returns the kept mask."""
         uv, _, Hp, Hl, S = (a[slots] for a in predicted)
-        ok = gated_correction(self._x, self._P, self._idx[slots], Hp, Hl, z - uv, S, var,
+        ok = gated_correction(self._x, self._P, self._map.idx[slots], Hp, Hl, z - uv, S, var,
                               self._rescue_gate)
         self._version += int(ok.any())
         self._stats["ransac_rejected"] += int((~ok).sum())
@@ -444,30 +420,85 @@ class MonoEkf(MapBookkeeping, VisualBackend):
 
     def estimate(self) -> VisualEstimate:
         self._require_init()
-        ids, pts = self._euclidean_landmarks()
-        lm_ids = list(self._retired.keys())
-        lm_pts = list(self._retired.values())
+        ids, pts = self._map.euclidean_landmarks(self._x)
+        lm_ids = list(self._map.retired.keys())
+        lm_pts = list(self._map.retired.values())
         in_state = set(ids.tolist())
         keep = [i for i, t in enumerate(lm_ids) if t not in in_state]
         all_ids = np.array([lm_ids[i] for i in keep] + ids.tolist(), dtype=np.int64)
         all_pts = np.array([lm_pts[i] for i in keep] + list(pts), dtype=np.float64).reshape(-1, 3)
         stats = dict(self._stats)
         for kind, name in lp.KIND_NAMES.items():
-            stats[f"landmarks_{name}"] = int(np.sum(self._kinds == kind))
-        stats["landmarks_in_state"] = len(self._lms)
+            stats[f"landmarks_{name}"] = int(np.sum(self._map.kinds == kind))
+        stats["landmarks_in_state"] = len(self._map)
         stats["landmarks_retired"] = len(keep)
         return VisualEstimate(frame_ids=np.array(self._frame_ids, dtype=np.int64),
                               wTc=np.stack(self._poses), landmark_ids=all_ids,
                               landmarks_w=all_pts, current_covariance=self._pose_covariance(),
                               stats=stats)
 
+    # ------------------------------------------------------------ the map
+
+    def _manage_map(self, visible, observed, accepted, rejected) -> None:
+        """Step 4 (drop the landmarks lost or missed too long) and the conversion of the
+        landmarks linear enough to Euclidean, in one change of the state."""
+        c = self.config
+        changes, deleted, forgotten = self._map.count_frame(
+            self._x, visible, observed, accepted, rejected, c.max_consecutive_misses,
+            c.forget_unseen_frames)
+        self._stats["deleted"] += deleted
+        self._stats["forgotten"] += forgotten
+        if c.linearity_threshold > 0:
+            conv = self._map.linear_enough(self._x, self._P, c.linearity_threshold,
+                                           exclude=changes)
+            self._stats["reparametrised"] += len(conv)
+            changes.update(conv)
+        if changes:
+            self._transform(changes)
+
+    def _transform(self, changes: dict) -> None:
+        """Drop or convert the landmark slots in ``changes`` (:meth:`LandmarkSlots.transform`)."""
+        self._x, self._P = self._map.transform(self._x, self._P, changes)
+        self._version += 1
+
+    def _initialise(self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray,
+                    var: float) -> np.ndarray:
+        """Step 3: new landmarks from unknown tracks (undelayed); returns their track ids."""
+        c = self.config
+        room = min(c.max_init_per_frame, c.max_landmarks - len(self._map))
+        rows = self._map.candidates(ids, uv_px, known, self._image_size, room) if room > 0 \
+            else np.zeros(0, dtype=np.int64)
+        if not len(rows):  # no room, or no candidate
+            return rows
+        kind = self._kind0
+        rho0, sigma_rho = self._depth_prior()
+        init = lp.init_landmarks(kind, self._K_inv, self._x[0:3], self._x[3:7], uv_px[rows], rho0)
+        self._x, self._P = self._map.append(self._x, self._P, ids[rows], kind, init, var,
+                                            sigma_rho)
+        self._version += 1
+        self._stats["initialised"] += len(rows)
+        return ids[rows].astype(np.int64)
+
+    def _depth_prior(self) -> tuple[float, float]:
+        """``(rho0, sigma_rho)`` (1/m) of this frame's new landmarks (``depth_prior``)."""
+        c = self.config
+        if c.depth_prior == "fixed" or not len(self._map):
+            return c.rho0, c.sigma_rho
+        uv, hz, _, _ = self._observe(np.arange(len(self._map)), jacobians=False)
+        vis = self._in_view(uv, hz)
+        inv = self._map.inverse_distances(self._x, vis)
+        rho0 = float(np.median(inv)) if len(inv) else 0.0
+        if not rho0 > 0:  # nothing in view, or only points at infinity: no map unit here
+            return c.rho0, c.sigma_rho
+        return rho0, 0.5 * max(rho0, float(inv.max()) - rho0)
+
     # ------------------------------------------------------------- internals
 
     def _observe(self, slots: np.ndarray, jacobians: bool = True, x: np.ndarray | None = None):
         """Predicted pixels of landmark ``slots`` at state ``x`` (default the current one)."""
         x = self._x if x is None else x
-        idx = self._idx[slots]
-        return lp.observe_landmarks(self._K, x[0:3], x[3:7], self._kinds[slots], x[idx],
+        idx = self._map.idx[slots]
+        return lp.observe_landmarks(self._K, x[0:3], x[3:7], self._map.kinds[slots], x[idx],
                                     jacobians=jacobians)
 
     def _in_view(self, uv: np.ndarray, hz: np.ndarray) -> np.ndarray:
@@ -479,12 +510,12 @@ class MonoEkf(MapBookkeeping, VisualBackend):
     def _innovation_blocks(self, slots, Hp, Hl, var) -> np.ndarray:
         """Per-landmark ``S_i`` (k, 2, 2) of landmark ``slots``
         (:func:`filters.mono_ekf_correction.innovation_blocks`)."""
-        return innovation_blocks(self._P, self._idx[slots], Hp, Hl, var)
+        return innovation_blocks(self._P, self._map.idx[slots], Hp, Hl, var)
 
     def _gain_blocks(self, slots, Hp, Hl, var) -> tuple[np.ndarray, np.ndarray]:
         """``P H^T`` (n, 2k) and ``S`` (2k, 2k) of landmark ``slots``
         (:func:`filters.mono_ekf_correction.gain_blocks`)."""
-        return gain_blocks(self._P, self._idx[slots], Hp, Hl, var)
+        return gain_blocks(self._P, self._map.idx[slots], Hp, Hl, var)
 
     def _apply_update(self, PHt: np.ndarray, S: np.ndarray, nu: np.ndarray) -> None:
         """EKF correction from ``P H^T`` (n, m), ``S`` (m, m) and the innovation ``nu`` (m,)."""

@@ -2,7 +2,8 @@
 re-parametrising and dropping landmarks.
 
 Functions of the state ``x`` (n,) and covariance ``P`` (n, n) that return new
-arrays; the filter keeps the landmarks' bookkeeping (track ids, counters).
+arrays; the landmarks' bookkeeping (track ids, counters) is the slot store's
+(:class:`filters.mono_ekf_slots.LandmarkSlots`).
 Landmarks are addressed by slot (state order) through ``off`` (first state
 index of each), ``kinds`` (:data:`filters.landmark_params.IDP`, ``AHP`` or
 ``EUCLIDEAN``) and ``idx`` (padded state indices, (k, 7)).

@@ -456,8 +456,8 @@ def test_update_exploits_sparsity_and_matches_the_dense_update():
     H = np.zeros((2 * len(slots), len(P)))
     for i in slots:
         H[2 * i:2 * i + 2, :7] = Hp[i]
-        idx = ekf._idx[i]
-        s = lp.SIZE[int(ekf._kinds[i])]
+        idx = ekf._map.idx[i]
+        s = lp.SIZE[int(ekf._map.kinds[i])]
         H[2 * i:2 * i + 2, idx[:s]] = Hl[i, :, :s]
     np.testing.assert_allclose(PHt, P @ H.T, atol=1e-12, rtol=1e-10)
     np.testing.assert_allclose(S, H @ P @ H.T + np.eye(len(H)), atol=1e-9, rtol=1e-10)
@@ -516,7 +516,7 @@ def test_unsearched_landmarks_are_not_misses():
                                          unsearched_ids=hidden if report else np.zeros(0, np.int64)))
             if k == 10:
                 first_hidden = set(map(int, hidden))
-        in_state = {lm.track_id for lm in ekf._lms}
+        in_state = {lm.track_id for lm in ekf._map.records}
         kept[report] = first_hidden & in_state
     assert kept[True] and not kept[False]
 

@@ -196,10 +196,10 @@ def test_sequential_updates_equal_the_batch_update_when_linearised_once(seq):
 
     backend = _ekf_after(seq, 15)
     pred = backend.predict_observations()
-    slots = np.array([backend._slot[int(t)] for t in pred.track_ids[:8]])
+    slots = np.array([backend._map.slot[int(t)] for t in pred.track_ids[:8]])
     assert len(slots) >= 5
     uv0, _, Hp, Hl = backend._observe(slots)
-    idx, var = backend._idx[slots], 1.0
+    idx, var = backend._map.idx[slots], 1.0
     x0, P0 = backend.state_vector(), backend.state_covariance()
     z = uv0 + np.random.default_rng(3).normal(0.0, 1.5, uv0.shape)  # a few pixels off
     xb, Pb = x0.copy(), P0.copy()
