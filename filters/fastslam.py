@@ -2,6 +2,10 @@
 
 Rao-Blackwellised particle filter (course slides "FastSLAM"; Montemerlo et al.
 2002, 2003): each of N particles holds a pose and one small EKF per landmark.
+The particles (poses, log-weights, landmark maps, random stream) are one
+object, :class:`filters.fastslam_particles.ParticleSet`, with the filter's steps
+as its methods; :class:`FastSlam` wraps it in the back-end contract (input
+checks, pose ids, the estimate history, the resampling decision).
 Everything is vectorised over particles: poses are ``(N, 3)``, and the landmark
 EKF steps of a whole scan are one elementwise pass over its (particle,
 observation) pairs (:mod:`filters.fastslam_update`), so a step costs O(N K)
@@ -71,29 +75,25 @@ inputs, same bits.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 import numpy as np
 
 from slamcore.planar import geometry as models
 from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
 from filters.fastslam_map import ParticleMaps
-from filters.fastslam_math import logsumexp, low_variance_resample, rotated_xy, sample_gaussian, sym
-from filters.fastslam_update import ParticleUpdates
+from filters.fastslam_math import low_variance_resample, sym
+from filters.fastslam_particles import ParticleSet
 from filters.numerics import Recoveries
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
     Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
 )
-from slamcore.planar.geometry import wrap_angle
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 __all__ = ["MAX_PARTICLES", "FastSlam", "FastSlamConfig", "low_variance_resample"]
 
 
-class FastSlam(ParticleUpdates, Backend):
+class FastSlam(Backend):
     """FastSLAM 1.0 / 2.0 back end (``name`` "fastslam1" / "fastslam2")."""
 
     supports_loop_closures = False
@@ -102,38 +102,27 @@ class FastSlam(ParticleUpdates, Backend):
         self.config = config if config is not None else FastSlamConfig()
         self.name = f"fastslam{self.config.version}"
         self.n_particles = self.config.n_particles
-        self._rng = np.random.default_rng(self.config.seed)
-        self._rows = np.arange(self.n_particles)
-        self._maps = ParticleMaps(self.n_particles)
-        self._poses: np.ndarray | None = None  # (N, 3)
-        self._logw = np.full(self.n_particles, -math.log(self.n_particles))
+        self._particles = ParticleSet(self.config)
         self._pose_ids: list[int] = []
         self._pose_set: set[int] = set()
         self._hist_mean: list[np.ndarray] = []
         self._hist_cov: list[np.ndarray] = []
         self._dirty = False
-        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # 2.0: (x_hat, Q)
-        self._last_R: dict[int, np.ndarray] = {}  # landmark id -> last R
         self._best = 0
-        self._next_id = 0  # unknown association: ids handed out
         self._last_associations: list[int | None] = []
         #: How many times the particles were resampled.
         self.resample_count = 0
         # (poses so far, ESS, resample_count) at the last resampling decision: read
         # by step_ess() and resampled_this_step(), never by the filter itself
         self._decision: tuple[int, float, int] = (-1, float(self.n_particles), 0)
-        #: Numerical recoveries (:class:`filters.numerics.Recoveries`).
-        self.recoveries = Recoveries()
 
     # ------------------------------------------------------------- contract
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        if self._poses is not None:
+        if self._pose_ids:
             raise GraphSlamError(f"{self.name}: initialize() called twice")
         wTb = as_vector(wTb, 3, "initial pose")
         cov = as_covariance(covariance, 3, "initial pose")
-        mean = np.broadcast_to(wTb, (self.n_particles, 3))
-        self._poses = sample_gaussian(mean, np.broadcast_to(cov, (self.n_particles, 3, 3)),
-                                       self._rng)
+        self._particles.draw_initial(wTb, cov)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
         self._dirty = True
@@ -152,12 +141,7 @@ class FastSlam(ParticleUpdates, Backend):
                 f"{self.name}: odometry {odometry.from_id}->{odometry.to_id} must link new pose "
                 f"{pose_id} with the current pose {cur} (a filter keeps only the latest pose)")
         self._close_step()
-        cov = sym(cov) * self.config.odometry_covariance_scale
-        chol = np.linalg.cholesky(cov)
-        eps = self._rng.standard_normal((self.n_particles, 3)) @ chol.T
-        if self.config.version == 2:
-            self._pending = (models.compose(self._poses, u), rotated_xy(cov, self._poses[:, 2]))
-        self._poses = models.compose(self._poses, u + eps)
+        self._particles.move(u, cov)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
         self._dirty = True
@@ -180,20 +164,16 @@ class FastSlam(ParticleUpdates, Backend):
                     and o.signature is None:
                 raise GraphSlamError(f"{self.name}: known association needs a landmark_id or "
                                      f"a signature (observation from pose {o.pose_id})")
-        if self.config.version == 2 and self._pending is not None:
-            cols = self._update_v2(obs)
-        else:
-            cols = self._update_v1(obs)
-        self._pending = None
-        self._logw -= logsumexp(self._logw)
-        self._best = int(np.argmax(self._logw))
-        ids = self._maps._ids
-        self._last_associations = [ids[int(c[self._best])] for c in cols]
-        w = self.weights
+        particles = self._particles
+        cols = particles.update(obs)
+        self._best = int(np.argmax(particles.logw))
+        ids = particles.maps.ids
+        self._last_associations = [int(ids[int(c[self._best])]) for c in cols]
+        w = particles.weights
         self._close_step(force=True, w=w)
         self._maybe_resample(w)
         if self.config.association == "unknown":
-            self._maps.drop_empty_columns()
+            particles.maps.drop_empty_columns()
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
@@ -202,24 +182,25 @@ class FastSlam(ParticleUpdates, Backend):
         b = self._best
         x = self.current_pose()
         P_x = self.current_pose_covariance()
+        maps = self._particles.maps
         out = []
         for lid in landmark_ids:
-            col = self._maps.column(int(lid))
+            col = maps.column(int(lid))
             if col is None:
                 continue
-            p = int(self._maps.pointers(np.array([b]), col)[0])
+            p = int(maps.pointers(np.array([b]), col)[0])
             if p < 0:
                 continue
-            m, P = self._maps.pool_mean[p], self._maps.pool_cov[p]
+            m, P = maps.pool_mean[p], maps.pool_cov[p]
             H_x, H_m = models.observe_jacobians(x, m)
-            S = H_x @ P_x @ H_x.T + H_m @ P @ H_m.T + self._last_R[int(lid)]
+            S = H_x @ P_x @ H_x.T + H_m @ P @ H_m.T + self._particles.last_noise[int(lid)]
             out.append(Prediction(int(lid), models.observe(x, m), sym(S)))
         return out
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
         self._close_step()
-        ids, means, covs = self._maps.landmarks_of(self._best)
+        ids, means, covs = self._particles.maps.landmarks_of(self._best)
         return Estimate(
             pose_ids=np.array(self._pose_ids, dtype=np.int64),
             wTb=np.array(self._hist_mean),
@@ -241,20 +222,29 @@ class FastSlam(ParticleUpdates, Backend):
 
     # ------------------------------------------------------- introspection
     @property
+    def particles(self) -> ParticleSet:
+        """The particle set (read it, do not modify it)."""
+        return self._particles
+
+    @property
     def particle_poses(self) -> np.ndarray:
         """(N, 3) copy of the particle poses."""
-        return self._poses.copy()
+        return self._particles.poses.copy()
 
     @property
     def weights(self) -> np.ndarray:
         """(N,) normalised particle weights."""
-        w = np.exp(self._logw - self._logw.max())
-        return w / w.sum()
+        return self._particles.weights
 
     @property
     def maps(self) -> ParticleMaps:
         """The shared landmark storage (read it, do not modify it)."""
-        return self._maps
+        return self._particles.maps
+
+    @property
+    def recoveries(self) -> Recoveries:
+        """Numerical recoveries (:class:`filters.numerics.Recoveries`)."""
+        return self._particles.recoveries
 
     def effective_sample_size(self) -> float:
         w = self.weights
@@ -278,124 +268,14 @@ class FastSlam(ParticleUpdates, Backend):
 
     # ------------------------------------------------------------ internals
     def _require_init(self) -> None:
-        if self._poses is None:
+        if not self._pose_ids:
             raise GraphSlamError(f"{self.name}: initialize() must come first")
-
-    def _known_column(self, o: Observation) -> int:
-        key = o.landmark_id if o.landmark_id is not None else o.signature
-        self._last_R[int(key)] = o.covariance
-        return self._maps.add_column(int(key))
-
-    def _log_p0(self, R: np.ndarray) -> float:
-        if self.config.new_landmark_log_likelihood is not None:
-            return self.config.new_landmark_log_likelihood
-        return -0.5 * self.config.new_landmark_mahalanobis_sq - _LOG_2PI \
-            - 0.5 * math.log(np.linalg.det(R))
-
-    def _columns_for(self, o: Observation, poses: np.ndarray,
-                     pose_cov: np.ndarray | None,
-                     taken: Sequence[np.ndarray] = ()) -> np.ndarray:
-        """(N,) column of observation ``o`` per particle (created if new).
-
-        ``taken``: the columns earlier observations of the same scan got, per
-        particle; they are excluded (mutual exclusion: one landmark gives at
-        most one observation per scan).
-        """
-        if self.config.association == "known":
-            return np.full(self.n_particles, self._known_column(o), dtype=np.intp)
-        cols, new = self._associate(o.z, o.covariance, poses, pose_cov, taken)
-        if new.any():
-            c = self._maps.add_column(self._next_id)
-            self._next_id += 1
-            cols[new] = c
-        for c in np.unique(cols):
-            self._last_R[self._maps._ids[int(c)]] = o.covariance
-        return cols
-
-    def _associate(self, z, R, poses, pose_cov, taken=()) -> tuple[np.ndarray, np.ndarray]:
-        """Per-particle maximum likelihood among gated landmarks: (cols (N,), new (N,)).
-
-        Evaluates every (particle, landmark) pair, O(N L), in elementwise
-        arithmetic on (N, L) arrays (much faster than stacks of 2x2 matmuls).
-        """
-        N = self.n_particles
-        C = self._maps.n_cols
-        if C == 0:
-            return np.zeros(N, dtype=np.intp), np.ones(N, dtype=bool)
-        T = self._maps.table
-        valid = T >= 0
-        ptr = np.where(valid, T, 0)
-        m = self._maps.pool_mean[ptr]  # (N, C, 2)
-        P = self._maps.pool_cov[ptr]  # (N, C, 2, 2)
-        dx = m[..., 0] - poses[:, 0:1]
-        dy = m[..., 1] - poses[:, 1:2]
-        q = dx * dx + dy * dy
-        r = np.sqrt(q)
-        # H_m = [[a, b], [c, d]], H_x = [[-a, -b, 0], [-c, -d, -1]]
-        a, b, c, d = dx / r, dy / r, -dy / q, dx / q
-        p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
-        t0, t1 = a * p00 + b * p01, a * p01 + b * p11
-        u0, u1 = c * p00 + d * p01, c * p01 + d * p11
-        s00 = t0 * a + t1 * b + R[0, 0]
-        s01 = t0 * c + t1 * d + R[0, 1]
-        s11 = u0 * c + u1 * d + R[1, 1]
-        if pose_cov is not None:
-            X00, X01, X02 = pose_cov[:, 0:1, 0], pose_cov[:, 0:1, 1], pose_cov[:, 0:1, 2]
-            X11, X12, X22 = pose_cov[:, 1:2, 1], pose_cov[:, 1:2, 2], pose_cov[:, 2:3, 2]
-            s00 = s00 + a * a * X00 + 2 * a * b * X01 + b * b * X11
-            s01 = s01 + a * c * X00 + (a * d + b * c) * X01 + b * d * X11 + a * X02 + b * X12
-            s11 = s11 + c * c * X00 + 2 * c * d * X01 + d * d * X11 + 2 * c * X02 \
-                + 2 * d * X12 + X22
-        nu_r = z[0] - r
-        nu_b = wrap_angle(z[1] - np.arctan2(dy, dx) + poses[:, 2:3])
-        det = s00 * s11 - s01 * s01
-        d2 = (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) / det
-        ok = valid & (d2 <= self.config.new_landmark_mahalanobis_sq)
-        rows = np.arange(N)
-        for prev in taken:  # two landmarks 0.3 m apart otherwise merge into one
-            ok[rows, prev] = False
-        ll = np.where(ok, -0.5 * d2 - 0.5 * np.log(det), -np.inf)
-        cols = np.argmax(ll, axis=1)
-        return cols, ~ok.any(axis=1)
-
-    def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
-        # association ignores the landmarks earlier observations of the scan took
-        # (mutual exclusion), so it may run before their updates
-        out: list[np.ndarray] = []
-        for o in obs:
-            out.append(self._columns_for(o, self._poses, None, out))
-        self._scan_steps(obs, out, self._poses, weigh=True)
-        return out
-
-    def _update_v2(self, obs: list[Observation]) -> list[np.ndarray]:
-        logw, counts = self._logw.copy(), dict(self.recoveries)
-        with np.errstate(invalid="ignore", divide="ignore"):  # a failed pass is redone
-            mu, Sig, out, ok = self._proposal(obs)
-        if not ok:  # a proposal covariance lost definiteness: again, checking every step
-            self._logw = logw
-            self.recoveries.update(counts)
-            mu, Sig, _, _ = self._proposal(obs, out)
-        self._poses = sample_gaussian(mu, Sig, self._rng, self.recoveries)
-        self._scan_steps(obs, out, self._poses, weigh=False)
-        return out
-
-    def _cloud_stats(self, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean pose (3,) and covariance (3, 3) of the particle cloud (weights ``w``)."""
-        w = self.weights if w is None else w
-        x = self._poses
-        th = x[:, 2]
-        mean = np.array([w @ x[:, 0], w @ x[:, 1],
-                         math.atan2(float(w @ np.sin(th)), float(w @ np.cos(th)))])
-        d = x - mean
-        d[:, 2] = wrap_angle(d[:, 2])
-        cov = (d * w[:, None]).T @ d
-        return mean, sym(cov)
 
     def _close_step(self, force: bool = False, w: np.ndarray | None = None) -> None:
         """Record (or refresh) the history entry of the current pose."""
         if not (self._dirty or force):
             return
-        mean, cov = self._cloud_stats(w)
+        mean, cov = self._particles.cloud_stats(w)
         k = len(self._pose_ids)
         if len(self._hist_mean) == k:
             self._hist_mean[-1], self._hist_cov[-1] = mean, cov
@@ -409,9 +289,6 @@ class FastSlam(ParticleUpdates, Backend):
         self._decision = (len(self._pose_ids), ess, self.resample_count)
         if ess >= self.config.resample_ess_fraction * self.n_particles:
             return
-        parents = low_variance_resample(w, self._rng)
-        self._poses = self._poses[parents]
-        self._maps.resample(parents)
+        parents = self._particles.resample(w)
         self._best = int(np.flatnonzero(parents == self._best)[0])
-        self._logw = np.full(self.n_particles, -math.log(self.n_particles))
         self.resample_count += 1

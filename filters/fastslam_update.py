@@ -1,265 +1,240 @@
-"""The per-scan update of FastSLAM (:class:`filters.fastslam.FastSlam`): landmark EKF
-steps of every (particle, observation) pair at once, and FastSLAM 2.0's pose proposal.
+"""The per-scan arithmetic of FastSLAM (:class:`filters.fastslam.FastSlam`): landmark EKF
+steps of every (particle, observation) pair at once, and one step of FastSLAM 2.0's pose
+proposal.
 
-:class:`ParticleUpdates` is a mixin of :class:`~filters.fastslam.FastSlam`; it uses the
-filter's ``config``, ``n_particles``, ``_rows`` (``arange(N)``), ``_maps``
-(:class:`~filters.fastslam_map.ParticleMaps`), ``_logw``, ``_pending`` (2.0: the motion
-prediction ``(x_hat, Q)``), ``recoveries``, ``_columns_for`` and ``_log_p0``.
+Functions of explicit inputs, no state of their own: the particle set
+(:class:`filters.fastslam_particles.ParticleSet`) passes its landmark maps
+(:class:`~filters.fastslam_map.ParticleMaps`, written copy-on-write), its poses, its
+log-weights (added to in place where a step weighs the particles) and its recovery counter
+(:class:`filters.numerics.Recoveries`).
 
-Landmark steps (:meth:`ParticleUpdates._scan_steps`): one elementwise pass over all
-(particle, observation) pairs of a scan whose observations go to distinct landmarks of
-each particle (mutual exclusion, or distinct known ids), so the updates are independent
-of their order; with known association the pairs form an (N, K) block, else flat arrays.
-The 2.0 proposal is sequential over the observations (each refines the Gaussian the next
-one is linearised at) and vectorised over particles.
+Landmark steps (:func:`landmark_steps`): one elementwise pass over all (particle,
+observation) pairs of a scan whose observations go to distinct landmarks of each particle
+(mutual exclusion, or distinct known ids), so the updates are independent of their order;
+with known association the pairs form an (N, K) block, else flat arrays. The 2.0 proposal
+(:func:`refine_proposal`) is sequential over the observations (each refines the Gaussian
+the next one is linearised at) and vectorised over particles.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
+from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
     all_positive_definite3, floor_hits, inv2, landmark_update, new_landmark, positive_definite,
     positive_definite2, proposal_update, raise_to_floor, range_bearing, sandwich, spread_noise,
     sym, tr,
 )
-from filters.numerics import REL_VARIANCE_FLOOR
+from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from slamcore.planar.records import Observation
 
+__all__ = ["floor_noise", "joseph_where_indefinite", "landmark_joseph", "landmark_steps",
+           "refine_proposal"]
 
-class ParticleUpdates:
-    """Landmark steps and the 2.0 proposal of :class:`~filters.fastslam.FastSlam` (mixin)."""
 
-    def _landmark_steps(self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray,
-                        weigh: bool) -> None:
-        """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
-        observation ``k``, all (particle, observation) pairs in one elementwise pass; 1.0 weights.
+def landmark_steps(maps: ParticleMaps, obs: list[Observation], cols: list[np.ndarray],
+                   poses: np.ndarray, recoveries: Recoveries, *, known: bool,
+                   logw: np.ndarray | None = None,
+                   log_p0: Callable[[np.ndarray], float] | None = None) -> None:
+    """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
+    observation ``k``, all (particle, observation) pairs in one elementwise pass.
 
-        The observations must go to distinct landmarks of a particle (mutual exclusion,
-        or distinct known ids); the updates are then independent of their order.
-        """
-        Z = np.array([o.z for o in obs], dtype=float)
-        R = np.array([o.covariance for o in obs], dtype=float)
-        T = self._maps._table
-        if self.config.association == "known":  # one column per observation for all particles
-            col = np.array([int(c[0]) for c in cols])
-            ptr = T[:, col]
-        else:
-            col = np.stack(cols, axis=1)
-            ptr = T[self._rows[:, None], col]
-        old = ptr >= 0
-        for mask, update in ((old, True), (~old, False)):
-            if mask.any():
-                pairs = self._pairs(mask, col)
-                if update:
-                    self._update_pairs(pairs, ptr, Z, R, poses, weigh)
-                else:
-                    self._init_pairs(pairs, Z, R, poses, weigh)
+    ``known``: known association (one column per observation for all particles).
+    ``logw``: when given, the 1.0 weights are added to it in place: the measurement
+    likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
+    given (unknown association). The observations must go to distinct landmarks of a
+    particle (mutual exclusion, or distinct known ids); the updates are then independent
+    of their order.
+    """
+    Z = np.array([o.z for o in obs], dtype=float)
+    R = np.array([o.covariance for o in obs], dtype=float)
+    T = maps.table
+    rows = np.arange(len(poses))
+    if known:  # one column per observation for all particles
+        col = np.array([int(c[0]) for c in cols])
+        ptr = T[:, col]
+    else:
+        col = np.stack(cols, axis=1)
+        ptr = T[rows[:, None], col]
+    old = ptr >= 0
+    for mask, update in ((old, True), (~old, False)):
+        if mask.any():
+            pairs = _pairs(mask, col, rows)
+            if update:
+                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw)
+            else:
+                _init_pairs(maps, pairs, Z, R, poses, recoveries,
+                            logw if log_p0 is not None else None, log_p0)
 
-    def _pairs(self, mask: np.ndarray, col: np.ndarray):
-        """``(particles, k, cols)`` index arrays of the True (particle, observation) pairs:
-        (N, 1), (1, K') and (N or 1, K') when every observation's column is all-True or
-        all-False (always so with known association), flat (M,) arrays otherwise."""
-        every = mask.all(axis=0)
-        if np.array_equal(every, mask.any(axis=0)):
-            k = np.flatnonzero(every)
-            c = col[k] if col.ndim == 1 else col[:, k]
-            return self._rows[:, None], k[None, :], c[None, :] if col.ndim == 1 else c
-        i, k = np.nonzero(mask)
-        return i, k, col[k] if col.ndim == 1 else col[i, k]
 
-    def _add_weights(self, particles: np.ndarray, logl: np.ndarray) -> None:
-        if particles.ndim == 2:
-            self._logw += logl.sum(axis=1)
-        else:
-            self._logw += np.bincount(particles, logl, minlength=self.n_particles)
+def _pairs(mask: np.ndarray, col: np.ndarray, rows: np.ndarray):
+    """``(particles, k, cols)`` index arrays of the True (particle, observation) pairs:
+    (N, 1), (1, K') and (N or 1, K') when every observation's column is all-True or
+    all-False (always so with known association), flat (M,) arrays otherwise."""
+    every = mask.all(axis=0)
+    if np.array_equal(every, mask.any(axis=0)):
+        k = np.flatnonzero(every)
+        c = col[k] if col.ndim == 1 else col[:, k]
+        return rows[:, None], k[None, :], c[None, :] if col.ndim == 1 else c
+    i, k = np.nonzero(mask)
+    return i, k, col[k] if col.ndim == 1 else col[i, k]
 
-    def _update_pairs(self, pairs, ptr, Z, R, poses, weigh: bool) -> None:
-        i, k, c = pairs
-        maps = self._maps
-        p = ptr[i, k]
-        m, P = maps.pool_mean[p], maps.pool_cov[p]
-        mx, my = m[..., 0], m[..., 1]
-        p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
-        a, b, cc, d, nu_r, nu_b = range_bearing(poses[i, 0], poses[i, 1], poses[i, 2], mx, my,
-                                                Z[k, 0], Z[k, 1])
-        r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
-        mv = np.maximum(p00, p11)
-        r00, r11 = self._floor(r00, r11, mv * (a * a + b * b), mv * (cc * cc + d * d))
-        dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11,
-                                                r00, r01, r11)
-        ok = positive_definite2(*P_new)
-        if not ok.all():
-            P_new = self._landmark_joseph(~ok, (p00, p01, p11), (a, b, cc, d),
-                                          (r00, r01, r11), P_new)
-        if weigh:
-            self._add_weights(i, logl)
-        self._write(i, c, (mx + dmx, my + dmy), P_new)
 
-    def _init_pairs(self, pairs, Z, R, poses, weigh: bool) -> None:
-        i, k, c = pairs
-        z0, z1 = Z[k, 0], Z[k, 1]
-        r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
-        mean, P0, g = new_landmark(poses[i, 0], poses[i, 1], poses[i, 2], z0, z1, r00, r01, r11)
-        # a 1e-9 m range against a 10 deg bearing makes P0 rank one in float64: floor R
-        # against P0's own spread ([1, 1/r^2]: |rows of H_m|^2)
-        mv = np.maximum(P0[0], P0[2])
-        f00, f11 = self._floor(r00, r11, mv, mv * (1.0 / np.maximum(z0, 1e-300) ** 2))
-        if f00 is not r00 or f11 is not r11:
-            P0 = spread_noise(g, f00, r01, f11)
-        self._write(i, c, mean, P0)
-        if weigh and self.config.association == "unknown":
-            lp0 = np.array([self._log_p0(r) for r in R])
-            self._add_weights(i, np.broadcast_to(lp0[k], np.broadcast_shapes(i.shape, k.shape)))
+def _add_weights(logw: np.ndarray, particles: np.ndarray, logl: np.ndarray) -> None:
+    if particles.ndim == 2:
+        logw += logl.sum(axis=1)
+    else:
+        logw += np.bincount(particles, logl, minlength=len(logw))
 
-    def _write(self, i, c, mean, cov) -> None:
-        """New pool records of the pairs' landmarks from their entries (upper triangles)."""
-        maps = self._maps
-        shape = np.broadcast_shapes(np.shape(i), np.shape(c), np.shape(mean[0]))
-        sl = maps.allocate(i, c)
-        m = maps.pool_mean[sl].reshape(shape + (2,))
-        P = maps.pool_cov[sl].reshape(shape + (2, 2))
-        m[..., 0], m[..., 1] = mean
-        P[..., 0, 0], P[..., 0, 1], P[..., 1, 1] = cov
-        P[..., 1, 0] = cov[1]
 
-    def _floor(self, r00, r11, pv0, pv1):
-        """``R``'s variances raised to the float64 floor of :mod:`filters.numerics` against the
-        prior variances ``pv0, pv1`` (counted); the same objects when nothing is raised."""
-        hit, f0, f1 = floor_hits(r00, r11, pv0, pv1)
-        if not hit.any():
-            return r00, r11
-        self.recoveries.add("noise_floor", int(np.count_nonzero(hit)))
-        return raise_to_floor(r00, f0), raise_to_floor(r11, f1)
+def _update_pairs(maps: ParticleMaps, pairs, ptr, Z, R, poses, recoveries: Recoveries,
+                  logw: np.ndarray | None) -> None:
+    i, k, c = pairs
+    p = ptr[i, k]
+    m, P = maps.pool_mean[p], maps.pool_cov[p]
+    mx, my = m[..., 0], m[..., 1]
+    p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
+    a, b, cc, d, nu_r, nu_b = range_bearing(poses[i, 0], poses[i, 1], poses[i, 2], mx, my,
+                                            Z[k, 0], Z[k, 1])
+    r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
+    mv = np.maximum(p00, p11)
+    r00, r11 = floor_noise(recoveries, r00, r11, mv * (a * a + b * b), mv * (cc * cc + d * d))
+    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11,
+                                            r00, r01, r11)
+    ok = positive_definite2(*P_new)
+    if not ok.all():
+        P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d),
+                                (r00, r01, r11), P_new)
+    if logw is not None:
+        _add_weights(logw, i, logl)
+    _write(maps, i, c, (mx + dmx, my + dmy), P_new)
 
-    def _landmark_joseph(self, bad, P, H, R, P_new):
-        """The landmark covariances ``P_new`` (entries) recomputed in Joseph form where
-        the short form lost definiteness (:meth:`_joseph_where_indefinite`)."""
-        def mats(e):  # (nb, 2, 2) of the bad pairs from upper-triangle or 4 entries
-            e = e if len(e) == 4 else (e[0], e[1], e[1], e[2])
-            full = [np.broadcast_to(x, bad.shape) for x in e]
-            return np.stack(full, axis=-1)[bad].reshape(-1, 2, 2)
 
-        Pm, Hm, Rm = mats(P), mats(H), mats(R)
-        PHt = Pm @ tr(Hm)
-        K = PHt @ inv2(Hm @ PHt + Rm)[0]
-        fixed = self._joseph_where_indefinite(mats(P_new), Pm, K, Hm, lambda: Rm)
-        out = tuple(np.array(np.broadcast_to(e, bad.shape)) for e in P_new)
-        for e, (r, c) in zip(out, ((0, 0), (0, 1), (1, 1))):
-            e[bad] = fixed[:, r, c]
-        return out
+def _init_pairs(maps: ParticleMaps, pairs, Z, R, poses, recoveries: Recoveries,
+                logw: np.ndarray | None, log_p0: Callable[[np.ndarray], float] | None) -> None:
+    i, k, c = pairs
+    z0, z1 = Z[k, 0], Z[k, 1]
+    r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
+    mean, P0, g = new_landmark(poses[i, 0], poses[i, 1], poses[i, 2], z0, z1, r00, r01, r11)
+    # a 1e-9 m range against a 10 deg bearing makes P0 rank one in float64: floor R
+    # against P0's own spread ([1, 1/r^2]: |rows of H_m|^2)
+    mv = np.maximum(P0[0], P0[2])
+    f00, f11 = floor_noise(recoveries, r00, r11, mv, mv * (1.0 / np.maximum(z0, 1e-300) ** 2))
+    if f00 is not r00 or f11 is not r11:
+        P0 = spread_noise(g, f00, r01, f11)
+    _write(maps, i, c, mean, P0)
+    if logw is not None and log_p0 is not None:
+        lp0 = np.array([log_p0(r) for r in R])
+        _add_weights(logw, i, np.broadcast_to(lp0[k], np.broadcast_shapes(i.shape, k.shape)))
 
-    def _joseph_where_indefinite(self, P_new, P, K, H, noise):
-        """``P_new`` (n, k, k), recomputed in Joseph form ``(I - K H) P (I - K H)^T + K R K^T``
-        (positive semi-definite by construction) where the short form lost definiteness.
 
-        ``noise()`` gives ``R`` (2, 2) or (n, 2, 2), built only when needed.
-        """
-        bad = ~positive_definite(P_new)
-        if np.any(bad):
-            self.recoveries.add("joseph_fallback", int(np.count_nonzero(bad)))
-            R = np.broadcast_to(noise(), (len(P),) + (2, 2))[bad]
-            IKH = np.eye(P.shape[-1]) - K[bad] @ H[bad]
-            P_new = P_new.copy()
-            P_new[bad] = sym(IKH @ P[bad] @ tr(IKH) + K[bad] @ R @ tr(K[bad]))
-        return P_new
+def _write(maps: ParticleMaps, i, c, mean, cov) -> None:
+    """New pool records of the pairs' landmarks from their entries (upper triangles)."""
+    shape = np.broadcast_shapes(np.shape(i), np.shape(c), np.shape(mean[0]))
+    sl = maps.allocate(i, c)
+    m = maps.pool_mean[sl].reshape(shape + (2,))
+    P = maps.pool_cov[sl].reshape(shape + (2, 2))
+    m[..., 0], m[..., 1] = mean
+    P[..., 0, 0], P[..., 0, 1], P[..., 1, 1] = cov
+    P[..., 1, 0] = cov[1]
 
-    def _scan_steps(self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray,
-                    weigh: bool) -> None:
-        """Landmark steps of a scan: in one pass, or one per observation when a known id
-        repeats in the scan (its updates must then follow each other)."""
-        if self.config.association == "known" and len({int(c[0]) for c in cols}) < len(cols):
-            for o, c in zip(obs, cols):
-                self._landmark_steps([o], [c], poses, weigh)
-        else:
-            self._landmark_steps(obs, cols, poses, weigh)
 
-    def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
-        """2.0: the pose proposal N(mu, Sig) refined by each observation of a known
-        landmark, weights included: ``(mu, Sig, columns, ok)``.
+def floor_noise(recoveries: Recoveries, r00, r11, pv0, pv1):
+    """``R``'s variances raised to the float64 floor of :mod:`filters.numerics` against the
+    prior variances ``pv0, pv1`` (counted in ``recoveries``); the same objects when nothing
+    is raised."""
+    hit, f0, f1 = floor_hits(r00, r11, pv0, pv1)
+    if not hit.any():
+        return r00, r11
+    recoveries.add("noise_floor", int(np.count_nonzero(hit)))
+    return raise_to_floor(r00, f0), raise_to_floor(r11, f1)
 
-        Without ``cols`` (the first pass) the columns are chosen here and the covariances
-        are checked once, at the end: a downdate by a positive definite ``L`` keeps an
-        indefinite matrix indefinite, so a final positive definite ``Sig`` with every
-        ``L`` positive definite means no step lost definiteness (``ok``). With ``cols``
-        (the second pass, after a failed check) every step is symmetrised and checked,
-        and repaired in Joseph form where it lost definiteness.
-        """
-        careful = cols is not None
-        mu, Sig = (a.copy() for a in self._pending)
-        out: list[np.ndarray] = []
-        ok = True
-        for k, o in enumerate(obs):
-            c = cols[k] if careful else self._columns_for(o, mu, Sig, out)
-            ptr = self._pointers(c)
-            old = ptr >= 0
-            n_old = int(np.count_nonzero(old))
-            if n_old:
-                i = slice(None) if n_old == self.n_particles else np.flatnonzero(old)
-                mu, Sig, step_ok = self._refine_proposal(o, i, ptr[i], mu, Sig, careful)
-                ok = ok and step_ok
-            if self.config.association == "unknown" and n_old < self.n_particles:
-                self._logw[~old] += self._log_p0(o.covariance)
-            out.append(c)
-        return mu, Sig, out, careful or (ok and all_positive_definite3(Sig))
 
-    def _pointers(self, cols: np.ndarray) -> np.ndarray:
-        """(N,) pool index of each particle's landmark ``cols`` (-1: unknown to it)."""
-        if self.config.association == "known":  # one column for all particles
-            return self._maps._table[:, int(cols[0])]
-        return self._maps._table[self._rows, cols]
+def landmark_joseph(recoveries: Recoveries, bad, P, H, R, P_new):
+    """The landmark covariances ``P_new`` (entries) recomputed in Joseph form where
+    the short form lost definiteness (:func:`joseph_where_indefinite`)."""
+    def mats(e):  # (nb, 2, 2) of the bad pairs from upper-triangle or 4 entries
+        e = e if len(e) == 4 else (e[0], e[1], e[1], e[2])
+        full = [np.broadcast_to(x, bad.shape) for x in e]
+        return np.stack(full, axis=-1)[bad].reshape(-1, 2, 2)
 
-    def _refine_proposal(self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray,
-                         careful: bool) -> tuple[np.ndarray, np.ndarray, bool]:
-        """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
-        landmark records ``p`` (returned; updated in place for a subset), and weighed by it.
+    Pm, Hm, Rm = mats(P), mats(H), mats(R)
+    PHt = Pm @ tr(Hm)
+    K = PHt @ inv2(Hm @ PHt + Rm)[0]
+    fixed = joseph_where_indefinite(recoveries, mats(P_new), Pm, K, Hm, lambda: Rm)
+    out = tuple(np.array(np.broadcast_to(e, bad.shape)) for e in P_new)
+    for e, (r, c) in zip(out, ((0, 0), (0, 1), (1, 1))):
+        e[bad] = fixed[:, r, c]
+    return out
 
-        ``careful``: symmetrise and check the new covariance (Joseph form where it lost
-        definiteness); else it is neither, and the flag returned says whether ``L`` was
-        positive definite for every particle (see :meth:`_proposal`)."""
-        R = o.covariance
-        m, P = self._maps.pool_mean[p], self._maps.pool_cov[p]
-        every = isinstance(i, slice)
-        x, Sx = (mu, Sig) if every else (mu[i], Sig[i])
-        Pf = P.reshape(-1, 4)
-        p00, p01, p11 = Pf[:, 0], Pf[:, 1], Pf[:, 3]
-        a, b, c, d, nu_r, nu_b = range_bearing(x[:, 0], x[:, 1], x[:, 2], m[:, 0], m[:, 1],
-                                               o.z[0], o.z[1])
-        (h00, h01, h11), _ = sandwich(a, b, c, d, p00, p01, p11)
-        r00, r11 = self._proposal_floor(R, Pf, Sx, a, b, c, d)
-        # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
-        noise = (h00 + r00, h01 + R[0, 1], h11 + r11)
-        neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise)
-        x_new = x - neg_dmu  # heading unwrapped: bearings are wrapped, and so is the draw
-        if careful:
-            S_new = sym(S_new)
-            if not all_positive_definite3(S_new):
-                H_x = np.zeros((len(a), 2, 3))
-                H_x[:, 0, 0], H_x[:, 0, 1], H_x[:, 1, 0], H_x[:, 1, 1] = -a, -b, -c, -d
-                H_x[:, 1, 2] = -1.0
-                n = np.stack(np.broadcast_arrays(noise[0], noise[1], noise[1], noise[2]), -1)
-                S_new = self._joseph_where_indefinite(S_new, Sx, -np.stack(K, -1), H_x,
-                                                      lambda: n.reshape(-1, 2, 2))
-        if every:
-            self._logw += logl
-            return x_new, S_new, ok
-        self._logw[i] += logl
-        mu[i], Sig[i] = x_new, S_new
-        return mu, Sig, ok
 
-    def _proposal_floor(self, R, Pf, Sx, a, b, c, d):
-        """2.0: ``R``'s variances raised to the float64 floor (:meth:`_floor`) against the
-        prior variances ``var(P) |H_m rows|^2 + var(Sx) |H_x rows|^2`` (largest variances
-        of each), after a cheap bound over all particles that clears the usual case."""
-        cd = c * c + d * d
-        big_P = np.maximum.reduce(Pf[:, ::3], axis=None)
-        big_S = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=None)
-        big_cd = np.maximum.reduce(cd)
-        slack = 1.0 + 1e-9  # |H_m row 0|^2 = 1 up to round-off
-        if R[0, 0] >= REL_VARIANCE_FLOOR * (big_P + big_S) * slack and \
-                R[1, 1] >= REL_VARIANCE_FLOOR * (big_P * big_cd + big_S * (big_cd + 1.0)) * slack:
-            return R[0, 0], R[1, 1]  # NaN variances fail the bound and take the exact test
-        mvP = np.maximum(Pf[:, 0], Pf[:, 3])
-        mvS = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=1)
-        ab = a * a + b * b
-        return self._floor(R[0, 0], R[1, 1], (mvP + mvS) * ab, mvP * cd + mvS * (cd + 1.0))
+def joseph_where_indefinite(recoveries: Recoveries, P_new, P, K, H, noise):
+    """``P_new`` (n, k, k), recomputed in Joseph form ``(I - K H) P (I - K H)^T + K R K^T``
+    (positive semi-definite by construction) where the short form lost definiteness.
+
+    ``noise()`` gives ``R`` (2, 2) or (n, 2, 2), built only when needed.
+    """
+    bad = ~positive_definite(P_new)
+    if np.any(bad):
+        recoveries.add("joseph_fallback", int(np.count_nonzero(bad)))
+        R = np.broadcast_to(noise(), (len(P),) + (2, 2))[bad]
+        IKH = np.eye(P.shape[-1]) - K[bad] @ H[bad]
+        P_new = P_new.copy()
+        P_new[bad] = sym(IKH @ P[bad] @ tr(IKH) + K[bad] @ R @ tr(K[bad]))
+    return P_new
+
+
+def refine_proposal(maps: ParticleMaps, o: Observation, p: np.ndarray, x: np.ndarray,
+                    Sx: np.ndarray, careful: bool, recoveries: Recoveries
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """2.0: the proposal N(x, Sx) of some particles refined by observation ``o`` of their
+    landmark records ``p``: ``(x_new, S_new, logl, ok)``, ``logl`` the particles' weights.
+
+    ``careful``: symmetrise and check the new covariance (Joseph form where it lost
+    definiteness); else it is neither, and ``ok`` says whether ``L`` was positive
+    definite for every particle (see :meth:`ParticleSet._proposal
+    <filters.fastslam_particles.ParticleSet._proposal>`)."""
+    R = o.covariance
+    m, P = maps.pool_mean[p], maps.pool_cov[p]
+    Pf = P.reshape(-1, 4)
+    p00, p01, p11 = Pf[:, 0], Pf[:, 1], Pf[:, 3]
+    a, b, c, d, nu_r, nu_b = range_bearing(x[:, 0], x[:, 1], x[:, 2], m[:, 0], m[:, 1],
+                                           o.z[0], o.z[1])
+    (h00, h01, h11), _ = sandwich(a, b, c, d, p00, p01, p11)
+    r00, r11 = _proposal_floor(recoveries, R, Pf, Sx, a, b, c, d)
+    # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
+    noise = (h00 + r00, h01 + R[0, 1], h11 + r11)
+    neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise)
+    x_new = x - neg_dmu  # heading unwrapped: bearings are wrapped, and so is the draw
+    if careful:
+        S_new = sym(S_new)
+        if not all_positive_definite3(S_new):
+            H_x = np.zeros((len(a), 2, 3))
+            H_x[:, 0, 0], H_x[:, 0, 1], H_x[:, 1, 0], H_x[:, 1, 1] = -a, -b, -c, -d
+            H_x[:, 1, 2] = -1.0
+            n = np.stack(np.broadcast_arrays(noise[0], noise[1], noise[1], noise[2]), -1)
+            S_new = joseph_where_indefinite(recoveries, S_new, Sx, -np.stack(K, -1), H_x,
+                                            lambda: n.reshape(-1, 2, 2))
+    return x_new, S_new, logl, ok
+
+
+def _proposal_floor(recoveries: Recoveries, R, Pf, Sx, a, b, c, d):
+    """2.0: ``R``'s variances raised to the float64 floor (:func:`floor_noise`) against the
+    prior variances ``var(P) |H_m rows|^2 + var(Sx) |H_x rows|^2`` (largest variances
+    of each), after a cheap bound over all particles that clears the usual case."""
+    cd = c * c + d * d
+    big_P = np.maximum.reduce(Pf[:, ::3], axis=None)
+    big_S = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=None)
+    big_cd = np.maximum.reduce(cd)
+    slack = 1.0 + 1e-9  # |H_m row 0|^2 = 1 up to round-off
+    if R[0, 0] >= REL_VARIANCE_FLOOR * (big_P + big_S) * slack and \
+            R[1, 1] >= REL_VARIANCE_FLOOR * (big_P * big_cd + big_S * (big_cd + 1.0)) * slack:
+        return R[0, 0], R[1, 1]  # NaN variances fail the bound and take the exact test
+    mvP = np.maximum(Pf[:, 0], Pf[:, 3])
+    mvS = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=1)
+    ab = a * a + b * b
+    return floor_noise(recoveries, R[0, 0], R[1, 1], (mvP + mvS) * ab,
+                       mvP * cd + mvS * (cd + 1.0))

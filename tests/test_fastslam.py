@@ -12,6 +12,8 @@ import pytest
 from slamcore.planar import geometry as models
 from filters.fastslam import MAX_PARTICLES, FastSlam, FastSlamConfig, low_variance_resample
 from filters.fastslam_map import ParticleMaps
+from filters.fastslam_particles import ParticleSet
+from filters.fastslam_update import landmark_joseph
 from graphslam.evaluation import planar as metrics
 from graphslam.pipelines import planar as pipeline
 from slamcore.planar.backend import Backend
@@ -243,7 +245,7 @@ def test_association_likelihood_matches_the_matrix_form():
     Sig = 0.1 * A @ A.transpose(0, 2, 1)
     R = np.array([[0.04, 0.001], [0.001, 0.01]])
     z = np.array([3.0, 0.4])
-    cols, new = b._associate(z, R, poses, Sig)
+    cols, new = b.particles.associate(z, R, poses, Sig)
     T = b.maps.table
     m, P = b.maps.pool_mean[T], b.maps.pool_cov[T]
     x = np.broadcast_to(poses[:, None], (N, L, 3))
@@ -415,7 +417,7 @@ def test_scan_in_one_pass_equals_one_observation_at_a_time(monkeypatch, version,
         for o, c in zip(obs, cols):
             self._landmark_steps([o], [c], poses, weigh)
 
-    monkeypatch.setattr(FastSlam, "_scan_steps", one_at_a_time)
+    monkeypatch.setattr(ParticleSet, "_scan_steps", one_at_a_time)
     b = run(ds, **cfg)[1].estimate
     np.testing.assert_allclose(a.wTb, b.wTb, atol=ROUNDOFF_TOL)
     np.testing.assert_allclose(a.landmarks_w, b.landmarks_w, atol=ROUNDOFF_TOL)
@@ -426,13 +428,13 @@ def test_checked_proposal_pass_gives_the_same_run_and_counts(monkeypatch):
     weights and recovery counts of the failed pass are undone (1e-9 m ranges: floors hit)."""
     ds = loop_world(seed=2, steps=20, sigma_r_m=1e-9)
     be_a, res_a = run(ds, version=2, n_particles=20, seed=1)
-    original = FastSlam._proposal
+    original = ParticleSet._proposal
 
     def always_fails_first(self, obs, cols=None):
         mu, Sig, out, ok = original(self, obs, cols)
         return mu, Sig, out, ok and cols is not None
 
-    monkeypatch.setattr(FastSlam, "_proposal", always_fails_first)
+    monkeypatch.setattr(ParticleSet, "_proposal", always_fails_first)
     be_b, res_b = run(ds, version=2, n_particles=20, seed=1)
     assert be_a.recoveries["noise_floor"] > 0
     assert dict(be_a.recoveries) == dict(be_b.recoveries)
@@ -446,7 +448,7 @@ def test_landmark_joseph_form_repairs_only_the_indefinite_pairs():
     R = (0.5, 0.0, 0.5)
     short = (np.array([1 / 3, -1e-3, 1 / 3]), np.zeros(3), np.array([1 / 3, 1 / 3, 1 / 3]))
     bad = short[0] <= 0
-    fixed = b._landmark_joseph(bad, P, H, R, short)
+    fixed = landmark_joseph(b.recoveries, bad, P, H, R, short)
     assert b.recoveries["joseph_fallback"] == 1
     np.testing.assert_array_equal(fixed[0][~bad], short[0][~bad])  # the others untouched
     # Joseph form of P = I, H = I, R = I/2: K = 2/3 I, (I - K) P (I - K)^T + K R K^T = I/3
@@ -456,11 +458,13 @@ def test_landmark_joseph_form_repairs_only_the_indefinite_pairs():
 def test_checked_proposal_pass_runs_its_joseph_check(monkeypatch):
     """Every definiteness check reported failed: the checked pass builds the Joseph form's
     inputs at each step (which finds nothing to repair) and the run is unchanged."""
+    import filters.fastslam_particles as particles
     import filters.fastslam_update as steps
 
     ds = loop_world(seed=2, steps=10)
     a = run(ds, version=2, n_particles=20, seed=1)[1].estimate
     monkeypatch.setattr(steps, "all_positive_definite3", lambda S: False)
+    monkeypatch.setattr(particles, "all_positive_definite3", lambda S: False)
     be, res = run(ds, version=2, n_particles=20, seed=1)
     assert be.recoveries["joseph_fallback"] == 0
     np.testing.assert_allclose(a.wTb, res.estimate.wTb, atol=ROUNDOFF_TOL)

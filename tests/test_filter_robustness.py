@@ -20,6 +20,7 @@ from filters.ekf_slam_update import (
     rank2_correction,
 )
 from filters.fastslam import FastSlam, FastSlamConfig
+from filters.fastslam_update import joseph_where_indefinite
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries, floored_noise
 from graphslam import registry
 from graphslam.evaluation import planar as metrics
@@ -188,7 +189,7 @@ def test_fastslam2_joseph_fallback_repairs_an_indefinite_proposal():
     H[:, 0, 0] = 1.0
     bad = Sx.copy()
     bad[1, 0, 0] = -1e-3  # the short form lost definiteness in particle 1 only
-    fixed = fs._joseph_where_indefinite(bad, Sx, K, H, lambda: np.eye(2))
+    fixed = joseph_where_indefinite(fs.recoveries, bad, Sx, K, H, lambda: np.eye(2))
     assert fs.recoveries["joseph_fallback"] == 1
     assert np.all(fixed[0] == bad[0])
     assert np.all(np.linalg.eigvalsh(fixed[1]) > 0)

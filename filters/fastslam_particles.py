@@ -1,0 +1,299 @@
+"""The particle set of FastSLAM (:class:`filters.fastslam.FastSlam`): poses, weights and
+landmark maps of N particles, and every step that changes them.
+
+:class:`ParticleSet` owns the filter's state: the poses, log-weights, per-particle
+landmark EKFs (:class:`~filters.fastslam_map.ParticleMaps`), the random stream every draw
+comes from, FastSLAM 2.0's motion prediction, the landmark ids and noises of the
+association, and the numerical recovery counts. Its methods are the particle filter's
+steps: the initial draw, the motion draw, the measurement update of a scan (association,
+2.0 proposal, landmark EKF steps of :mod:`filters.fastslam_update`, weights) and
+resampling. :class:`~filters.fastslam.FastSlam` keeps the back-end contract around it
+(input checks, pose ids, the history of estimates, the resampling decision).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slamcore.planar import geometry as models
+from filters.fastslam_config import FastSlamConfig
+from filters.fastslam_map import ParticleMaps
+from filters.fastslam_math import (
+    all_positive_definite3, logsumexp, low_variance_resample, rotated_xy, sample_gaussian, sym,
+)
+from filters.fastslam_update import landmark_steps, refine_proposal
+from filters.numerics import Recoveries
+from slamcore.errors import GraphSlamError
+from slamcore.planar.geometry import wrap_angle
+from slamcore.planar.records import Observation
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+__all__ = ["ParticleSet"]
+
+
+class ParticleSet:
+    """N weighted FastSLAM particles: poses, log-weights, landmark maps, and their steps.
+
+    Owns what the particle filter's arithmetic changes, so that one object holds it and
+    the steps take and change only their own state: :attr:`poses` (N, 3), :attr:`logw`
+    (N,), :attr:`maps`, :attr:`rng` (all randomness, in the order the steps run),
+    :attr:`recoveries`, :attr:`last_noise` (landmark id -> the last measurement noise
+    it was seen with, for predictions), the 2.0 motion prediction of the current step and
+    the next landmark id of unknown association. Separate from
+    :class:`~filters.fastslam.FastSlam` so that this state has one owner: the back end
+    checks the inputs, keeps pose ids and the estimate history and decides when to
+    resample, and only reads the set's public attributes.
+    """
+
+    def __init__(self, config: FastSlamConfig):
+        self.config = config
+        self.n_particles = config.n_particles
+        self.rng = np.random.default_rng(config.seed)
+        self.maps = ParticleMaps(self.n_particles)
+        #: (N, 3) particle poses: empty until :meth:`draw_initial`.
+        self.poses = np.zeros((0, 3))
+        self.logw = np.full(self.n_particles, -math.log(self.n_particles))
+        self.recoveries = Recoveries()
+        self.last_noise: dict[int, np.ndarray] = {}
+        self._rows = np.arange(self.n_particles)
+        self._prior: tuple[np.ndarray, np.ndarray] | None = None  # 2.0: (x_hat, Q)
+        self._next_id = 0  # unknown association: ids handed out
+
+    # ------------------------------------------------------------- draws
+    def draw_initial(self, wTb: np.ndarray, cov: np.ndarray) -> None:
+        """Poses drawn around the first pose ``wTb`` (3,) with covariance ``cov`` (3, 3)."""
+        N = self.n_particles
+        mean = np.broadcast_to(wTb, (N, 3))
+        self.poses = sample_gaussian(mean, np.broadcast_to(cov, (N, 3, 3)), self.rng)
+
+    def move(self, u: np.ndarray, cov: np.ndarray) -> None:
+        """Motion step by odometry ``u`` (3,) with noise ``cov`` (3, 3), scaled by the
+        config's ``odometry_covariance_scale``; 2.0 keeps the prediction its proposal
+        starts from."""
+        cov = sym(cov) * self.config.odometry_covariance_scale
+        chol = np.linalg.cholesky(cov)
+        eps = self.rng.standard_normal((self.n_particles, 3)) @ chol.T
+        if self.config.version == 2:
+            self._prior = (models.compose(self.poses, u), rotated_xy(cov, self.poses[:, 2]))
+        self.poses = models.compose(self.poses, u + eps)
+
+    def resample(self, w: np.ndarray) -> np.ndarray:
+        """Low-variance resampling by the weights ``w``; uniform weights after. Returns
+        the parent of each new particle (N,)."""
+        parents = low_variance_resample(w, self.rng)
+        self.poses = self.poses[parents]
+        self.maps.resample(parents)
+        self.logw = np.full(self.n_particles, -math.log(self.n_particles))
+        return parents
+
+    # ------------------------------------------------------------ weights
+    @property
+    def weights(self) -> np.ndarray:
+        """(N,) normalised particle weights."""
+        w = np.exp(self.logw - self.logw.max())
+        return w / w.sum()
+
+    def cloud_stats(self, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean pose (3,) and covariance (3, 3) of the poses (weights ``w``)."""
+        w = self.weights if w is None else w
+        x = self.poses
+        th = x[:, 2]
+        mean = np.array([w @ x[:, 0], w @ x[:, 1],
+                         math.atan2(float(w @ np.sin(th)), float(w @ np.cos(th)))])
+        d = x - mean
+        d[:, 2] = wrap_angle(d[:, 2])
+        cov = (d * w[:, None]).T @ d
+        return mean, sym(cov)
+
+    # ------------------------------------------------------------- update
+    def update(self, obs: list[Observation]) -> list[np.ndarray]:
+        """Measurement update by a scan's observations (checked by the caller): the
+        landmark column of each observation per particle (N,), in order. Normalises the
+        log-weights; the 2.0 motion prediction is used up."""
+        if self.config.version == 2 and self._prior is not None:
+            cols = self._update_v2(obs)
+        else:
+            cols = self._update_v1(obs)
+        self._prior = None
+        self.logw -= logsumexp(self.logw)
+        return cols
+
+    def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
+        # association ignores the landmarks earlier observations of the scan took
+        # (mutual exclusion), so it may run before their updates
+        out: list[np.ndarray] = []
+        for o in obs:
+            out.append(self._columns_for(o, self.poses, None, out))
+        self._scan_steps(obs, out, self.poses, weigh=True)
+        return out
+
+    def _update_v2(self, obs: list[Observation]) -> list[np.ndarray]:
+        logw, counts = self.logw.copy(), dict(self.recoveries)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a failed pass is redone
+            mu, Sig, out, ok = self._proposal(obs)
+        if not ok:  # a proposal covariance lost definiteness: again, checking every step
+            self.logw = logw
+            self.recoveries.update(counts)
+            mu, Sig, _, _ = self._proposal(obs, out)
+        self.poses = sample_gaussian(mu, Sig, self.rng, self.recoveries)
+        self._scan_steps(obs, out, self.poses, weigh=False)
+        return out
+
+    def _scan_steps(self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray,
+                    weigh: bool) -> None:
+        """Landmark steps of a scan: in one pass, or one per observation when a known id
+        repeats in the scan (its updates must then follow each other)."""
+        if self.config.association == "known" and len({int(c[0]) for c in cols}) < len(cols):
+            for o, c in zip(obs, cols):
+                self._landmark_steps([o], [c], poses, weigh)
+        else:
+            self._landmark_steps(obs, cols, poses, weigh)
+
+    def _landmark_steps(self, obs: list[Observation], cols: list[np.ndarray],
+                        poses: np.ndarray, weigh: bool) -> None:
+        """:func:`~filters.fastslam_update.landmark_steps` on this set (1.0: ``weigh``)."""
+        unknown = self.config.association == "unknown"
+        landmark_steps(self.maps, obs, cols, poses, self.recoveries, known=not unknown,
+                       logw=self.logw if weigh else None,
+                       log_p0=self._log_p0 if unknown else None)
+
+    def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
+        """2.0: the pose proposal N(mu, Sig), from the motion prediction of :meth:`move`,
+        refined by each observation of a known landmark, weights included:
+        ``(mu, Sig, columns, ok)``.
+
+        Without ``cols`` (the first pass) the columns are chosen here and the covariances
+        are checked once, at the end: a downdate by a positive definite ``L`` keeps an
+        indefinite matrix indefinite, so a final positive definite ``Sig`` with every
+        ``L`` positive definite means no step lost definiteness (``ok``). With ``cols``
+        (the second pass, after a failed check) every step is symmetrised and checked,
+        and repaired in Joseph form where it lost definiteness.
+        """
+        if self._prior is None:
+            raise GraphSlamError("FastSLAM 2.0's proposal needs a motion step first")
+        careful = cols is not None
+        mu, Sig = (a.copy() for a in self._prior)
+        out: list[np.ndarray] = []
+        ok = True
+        for k, o in enumerate(obs):
+            c = cols[k] if cols is not None else self._columns_for(o, mu, Sig, out)
+            ptr = self._pointers(c)
+            old = ptr >= 0
+            n_old = int(np.count_nonzero(old))
+            if n_old:
+                i = slice(None) if n_old == self.n_particles else np.flatnonzero(old)
+                mu, Sig, step_ok = self._refine(o, i, ptr[i], mu, Sig, careful)
+                ok = ok and step_ok
+            if self.config.association == "unknown" and n_old < self.n_particles:
+                self.logw[~old] += self._log_p0(o.covariance)
+            out.append(c)
+        return mu, Sig, out, careful or (ok and all_positive_definite3(Sig))
+
+    def _refine(self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray,
+                careful: bool) -> tuple[np.ndarray, np.ndarray, bool]:
+        """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
+        landmark records ``p`` (returned; updated in place for a subset), and weighed by it."""
+        if isinstance(i, slice):
+            x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu, Sig, careful,
+                                                     self.recoveries)
+            self.logw += logl
+            return x_new, S_new, ok
+        x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu[i], Sig[i], careful,
+                                                 self.recoveries)
+        self.logw[i] += logl
+        mu[i], Sig[i] = x_new, S_new
+        return mu, Sig, ok
+
+    def _pointers(self, cols: np.ndarray) -> np.ndarray:
+        """(N,) pool index of each particle's landmark ``cols`` (-1: unknown to it)."""
+        if self.config.association == "known":  # one column for all particles
+            return self.maps.table[:, int(cols[0])]
+        return self.maps.table[self._rows, cols]
+
+    # -------------------------------------------------------- association
+    def _log_p0(self, R: np.ndarray) -> float:
+        """Log-likelihood of a new landmark seen with noise ``R`` (unknown association)."""
+        if self.config.new_landmark_log_likelihood is not None:
+            return self.config.new_landmark_log_likelihood
+        return -0.5 * self.config.new_landmark_mahalanobis_sq - _LOG_2PI \
+            - 0.5 * math.log(np.linalg.det(R))
+
+    def _known_column(self, o: Observation) -> int:
+        key = o.landmark_id if o.landmark_id is not None else o.signature
+        if key is None:
+            raise GraphSlamError("known association needs a landmark_id or a signature")
+        self.last_noise[int(key)] = o.covariance
+        return self.maps.add_column(int(key))
+
+    def _columns_for(self, o: Observation, poses: np.ndarray,
+                     pose_cov: np.ndarray | None,
+                     taken: list[np.ndarray]) -> np.ndarray:
+        """(N,) column of observation ``o`` per particle (created if new).
+
+        ``taken``: the columns earlier observations of the same scan got, per
+        particle; they are excluded (mutual exclusion: one landmark gives at
+        most one observation per scan).
+        """
+        if self.config.association == "known":
+            return np.full(self.n_particles, self._known_column(o), dtype=np.intp)
+        cols, new = self.associate(o.z, o.covariance, poses, pose_cov, taken)
+        if new.any():
+            c = self.maps.add_column(self._next_id)
+            self._next_id += 1
+            cols[new] = c
+        ids = self.maps.ids
+        for c in np.unique(cols):
+            self.last_noise[int(ids[int(c)])] = o.covariance
+        return cols
+
+    def associate(self, z: np.ndarray, R: np.ndarray, poses: np.ndarray,
+                  pose_cov: np.ndarray | None, taken: list[np.ndarray] | tuple = ()
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Per-particle maximum likelihood among gated landmarks of the observation ``z``
+        with noise ``R`` from ``poses`` (N, 3) (covariances ``pose_cov`` (N, 3, 3) or
+        None), landmarks ``taken`` by earlier observations excluded: (cols (N,), new (N,)).
+
+        Evaluates every (particle, landmark) pair, O(N L), in elementwise
+        arithmetic on (N, L) arrays (much faster than stacks of 2x2 matmuls).
+        """
+        N = self.n_particles
+        C = self.maps.n_cols
+        if C == 0:
+            return np.zeros(N, dtype=np.intp), np.ones(N, dtype=bool)
+        T = self.maps.table
+        valid = T >= 0
+        ptr = np.where(valid, T, 0)
+        m = self.maps.pool_mean[ptr]  # (N, C, 2)
+        P = self.maps.pool_cov[ptr]  # (N, C, 2, 2)
+        dx = m[..., 0] - poses[:, 0:1]
+        dy = m[..., 1] - poses[:, 1:2]
+        q = dx * dx + dy * dy
+        r = np.sqrt(q)
+        # H_m = [[a, b], [c, d]], H_x = [[-a, -b, 0], [-c, -d, -1]]
+        a, b, c, d = dx / r, dy / r, -dy / q, dx / q
+        p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
+        t0, t1 = a * p00 + b * p01, a * p01 + b * p11
+        u0, u1 = c * p00 + d * p01, c * p01 + d * p11
+        s00 = t0 * a + t1 * b + R[0, 0]
+        s01 = t0 * c + t1 * d + R[0, 1]
+        s11 = u0 * c + u1 * d + R[1, 1]
+        if pose_cov is not None:
+            X00, X01, X02 = pose_cov[:, 0:1, 0], pose_cov[:, 0:1, 1], pose_cov[:, 0:1, 2]
+            X11, X12, X22 = pose_cov[:, 1:2, 1], pose_cov[:, 1:2, 2], pose_cov[:, 2:3, 2]
+            s00 = s00 + a * a * X00 + 2 * a * b * X01 + b * b * X11
+            s01 = s01 + a * c * X00 + (a * d + b * c) * X01 + b * d * X11 + a * X02 + b * X12
+            s11 = s11 + c * c * X00 + 2 * c * d * X01 + d * d * X11 + 2 * c * X02 \
+                + 2 * d * X12 + X22
+        nu_r = z[0] - r
+        nu_b = wrap_angle(z[1] - np.arctan2(dy, dx) + poses[:, 2:3])
+        det = s00 * s11 - s01 * s01
+        d2 = (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) / det
+        ok = valid & (d2 <= self.config.new_landmark_mahalanobis_sq)
+        for prev in taken:  # two landmarks 0.3 m apart otherwise merge into one
+            ok[self._rows, prev] = False
+        ll = np.where(ok, -0.5 * d2 - 0.5 * np.log(det), -np.inf)
+        cols = np.argmax(ll, axis=1)
+        return cols, ~ok.any(axis=1)
