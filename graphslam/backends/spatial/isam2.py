@@ -4,9 +4,12 @@ Implements :class:`slamcore.spatial.backend.VisualBackend` on ``gtsam.ISAM2``.
 Beside it: :mod:`~graphslam.backends.spatial.isam2_config` (settings),
 :mod:`~graphslam.backends.spatial.isam2_checks` (input checks),
 :mod:`~graphslam.backends.spatial.landmark_init` (tracks waiting for parallax,
-triangulation), :mod:`~graphslam.backends.spatial.isam2_mapping` (mapping a
-track), :mod:`~graphslam.backends.spatial.isam2_ordering` (elimination
-ordering) and :mod:`~graphslam.backends.spatial.polish` (GNC polish).
+triangulation), and the parts it is made of, each owning its state:
+:mod:`~graphslam.backends.spatial.isam2_mapping` (the tracks not yet mapped),
+:mod:`~graphslam.backends.spatial.landmark_slots` (the mapped landmarks' slots),
+:mod:`~graphslam.backends.spatial.isam2_ordering` (elimination ordering),
+:mod:`~graphslam.backends.spatial.isam2_recovery` (an indeterminate system) and
+:mod:`~graphslam.backends.spatial.polish` (GNC polish).
 
 Graph: ``X(frame_id)`` Pose3 camera poses (``wTc``), a prior on the first,
 ``BetweenFactorPose3`` from odometry, ``L(track_id)`` Point3 landmarks with one
@@ -73,10 +76,11 @@ from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
                                                      checked_pixels, checked_transform)
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
-from graphslam.backends.spatial.isam2_mapping import LandmarkMapping
-from graphslam.backends.spatial.isam2_ordering import RootOrdering
-from graphslam.backends.spatial.isam2_recovery import IndeterminateRecovery
+from graphslam.backends.spatial.isam2_mapping import TrackMapper
+from graphslam.backends.spatial.isam2_ordering import RootOrderingPolicy
+from graphslam.backends.spatial.isam2_recovery import recover_dropping_landmarks
 from graphslam.backends.spatial.landmark_init import Track, first_map_graph
+from graphslam.backends.spatial.landmark_slots import LandmarkSlots
 from graphslam.backends.spatial.mono_motion import MonoMotion
 from graphslam.backends.spatial.polish import gnc_polish
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
@@ -93,7 +97,7 @@ PRIOR_SIGMA_FLOOR = 1e-4
 #: scale (the bootstrap baseline = 1), in that unit: a gauge, not a measurement.
 SCALE_GAUGE_SIGMA = 1e-3
 
-class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, VisualBackend):
+class VisualIsam2Backend(VisualBackend):
     """Smoothing visual back end on ``gtsam.ISAM2``; tracks give the association."""
 
     name = "isam2"
@@ -109,33 +113,24 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         self._values = gtsam.Values()  # pending initial values of this frame
         self._frames: list[int] = []
         self._frame_set: set[int] = set()
-        self._cal: gtsam.Cal3_S2 | None = None
-        self._K = np.eye(3)
+        self._K = np.eye(3)  # the camera: placeholders until initialize()
         self._K_inv = np.eye(3)
+        self._cal = conv.cal3_s2(self._K)
         self._size = (0, 0)
-        self._tracks: dict[int, Track] = {}  # waiting for parallax
-        self._rejected: set[int] = set()  # failed triangulation: ignored from then on
-        self._queued: list[int] = []  # qualified at the previous frame, see update()
-        # mapped landmarks: slot per track id, numpy caches indexed by slot
-        self._slot: dict[int, int] = {}
-        self._lm_ids: list[int] = []
-        self._lm_pos = np.zeros((0, 3))  # last read position (pre-selection only)
-        self._lm_read = np.zeros(0, dtype=np.int64)  # _epoch of that read (-1: not read)
-        self._lm_nobs = np.zeros(0, dtype=np.int64)
-        self._lm_sigma = np.zeros(0)  # latest sigma_px seen
-        self._lm_last = np.zeros(0, dtype=np.int64)  # index in _frames of the latest pixel
+        self._mapper = TrackMapper(self.config)  # tracks not yet mapped
+        self._lms = LandmarkSlots()  # mapped landmarks; read epochs are _epoch's
+        self._ordering = RootOrderingPolicy(self.config.predicted_in_root,
+                                            self.config.newest_pose_last,
+                                            self.config.max_predictions)
         self._closures: list[tuple[int, int, gtsam.Pose3, np.ndarray]] = []  # (a, b, aTb, cov)
-        self._n_lm = 0
         self._pose_cache: dict[int, gtsam.Pose3] = {}  # valid until the next isam.update
         self._noise_cache: dict[float, gtsam.noiseModel.Base] = {}
         self._polished: gtsam.Values | None = None
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._epoch = 0  # changes whenever the estimate can: each isam update, a polish
-        self._root_slots = np.zeros(0, np.int64)  # landmarks the last update put in the root
-        self._stats = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0,
-                       "unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0,
-                       "landmarks_dropped_indeterminate": 0}
+        self._stats = {"unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0,
+                       "landmarks_dropped_indeterminate": 0}  # after the mapper's counts
 
     # --- the contract -------------------------------------------------------
 
@@ -203,38 +198,34 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         R_wc = wTc.rotation().matrix()
         rays = (np.c_[uv, np.ones(len(uv))] @ self._K_inv.T) @ R_wc.T  # world ray directions
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        qualified: list[int] = []
-        budget = self.config.max_landmarks_per_frame or len(ids) + len(self._queued)
+        budget = self.config.max_landmarks_per_frame or len(ids) + self._mapper.n_queued
         skip, used = self._over_budget(ids, budget, skip_pixels)
         budget -= used
+        lms = self._lms
         for i, tid in enumerate(ids.tolist()):
-            slot = self._slot.get(tid)
+            slot = lms.slot.get(tid)
             if i in skip:
                 continue
-            if slot is not None:
-                self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    uv[i], noise, X(fid), L(tid), self._cal))
-                self._lm_nobs[slot] += 1
-                self._lm_sigma[slot] = sigma
-                self._lm_last[slot] = now
+            if slot is None:  # buffered until it has parallax
+                self._mapper.observe(tid, fid, uv[i], sigma, now, rays[i])
                 continue
-            if tid in self._rejected:
-                self._stats["ignored_pixels"] += 1
-                continue
-            track = self._tracks.get(tid)
-            if track is None:
-                track = self._tracks[tid] = Track(first_ray_w=rays[i])
-            elif track.last_index == now:  # same track twice in a frame: keep the first
-                self._stats["ignored_pixels"] += 1
-                continue
-            if track.add(fid, uv[i], sigma, now, rays[i],
-                         max_observations=self.config.max_track_observations,
-                         min_observations=self.config.min_observations,
-                         cos_parallax=self._cos_parallax):
-                qualified.append(tid)
-        self._queued = self._triangulate_queued(fid, budget) + qualified
-        if now % self.config.track_timeout_frames == 0:  # amortised sweep
-            self._forget_stale_tracks(now)
+            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
+                uv[i], noise, X(fid), L(tid), self._cal))
+            lms.nobs[slot] += 1
+            lms.sigma[slot] = sigma
+            lms.last[slot] = now
+        for tid, point, track in self._mapper.map_queued(fid, now, budget, self._pose,
+                                                         self._cal, self._K):
+            self._map_track(tid, point, track)
+
+    def _map_track(self, tid: int, point: np.ndarray, track: Track) -> None:
+        """A triangulated track into the map, with factors for all its pixels."""
+        key = L(tid)
+        self._values.insert(key, point)
+        for f, u, s in zip(track.frames, track.uv, track.sigma):
+            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
+                u, self._pixel_noise(s), X(f), key, self._cal))
+        self._lms.add(tid, point, len(track.frames), track.sigma[-1], len(self._frames) - 1)
 
     def predict_observations(self) -> PixelPredictions:
         if self._mono is None:
@@ -246,10 +237,10 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         wTc = self._current_pose()
         # the camera even without landmarks: the front end's appearance prediction keeps it
         empty = PixelPredictions.empty(conv.pose3_matrix(wTc), self._K.copy())
-        if self._n_lm == 0:
+        if self._lms.n == 0:
             return empty
         slots = np.sort(self._select_in_view(wTc, self.config.max_predictions, margin=0.0))
-        self._stats["predicted_outside_root"] += int(np.count_nonzero(~np.isin(slots, self._root_slots)))
+        self._stats["predicted_outside_root"] += self._ordering.outside_root(slots)
         n = len(slots)
         if n == 0:
             return empty
@@ -260,7 +251,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             # one call for the pose and all selected landmarks: the Bayes-tree
             # work is shared (one call per landmark costs nearly as much each)
             joint = self._isam.jointMarginalCovariance(
-                [x_key] + [L(self._lm_ids[s]) for s in slots.tolist()])
+                [x_key] + [L(self._lms.ids[s]) for s in slots.tolist()])
             cov_x = A @ joint.at(x_key, x_key) @ A.T + Q
         else:
             cov_x = A @ self._pose_marginal(x_key) @ A.T + Q
@@ -268,10 +259,10 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         uvs = np.empty((n, 2))
         S = np.empty((n, 2, 2))
         for i, s in enumerate(slots.tolist()):
-            tid = self._lm_ids[s]
+            tid = self._lms.ids[s]
             D_pose = np.zeros((2, 6), order="F")
             D_point = np.zeros((2, 3), order="F")
-            uvs[i] = camera.project(self._lm_pos[s], D_pose, D_point)
+            uvs[i] = camera.project(self._lms.pos[s], D_pose, D_point)
             if joint is not None:
                 l_key = L(tid)
                 cross = D_pose @ A @ joint.at(x_key, l_key) @ D_point.T
@@ -280,9 +271,10 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             else:
                 S_i = (D_pose @ cov_x @ D_pose.T
                        + D_point @ self._point_marginal(L(tid)) @ D_point.T)
-            S[i] = 0.5 * (S_i + S_i.T) + self._lm_sigma[s] ** 2 * np.eye(2)
+            S[i] = 0.5 * (S_i + S_i.T) + self._lms.sigma[s] ** 2 * np.eye(2)
             ids[i] = tid
-        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lm_pos[slots].copy())
+        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K,
+                                landmarks_w=self._lms.pos[slots].copy())
 
     def _prediction_source(self) -> tuple[int, np.ndarray, np.ndarray]:
         """``(key, A, Q)``: the current pose is ``A`` times the perturbation of pose
@@ -297,15 +289,15 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
     def estimate(self) -> VisualEstimate:
         self._flush()
         frame_ids = np.asarray(self._frames, dtype=np.int64)
-        lm_ids = np.asarray(self._lm_ids, dtype=np.int64)
+        lm_ids = np.asarray(self._lms.ids, dtype=np.int64)
         if not self._frames:
             return VisualEstimate(frame_ids, np.zeros((0, 4, 4)), lm_ids, np.zeros((0, 3)),
                                   None, self.stats())
         values = self._polished if self._polished is not None else self._isam.calculateEstimate()
         wTc = np.array([conv.pose3_matrix(values.atPose3(X(f))) for f in self._frames])
-        pts = np.array([values.atPoint3(L(t)) for t in self._lm_ids]).reshape(-1, 3)
-        self._lm_pos[:self._n_lm] = pts  # free refresh of the pre-selection cache
-        self._lm_read[:self._n_lm] = self._epoch
+        pts = np.array([values.atPoint3(L(t)) for t in self._lms.ids]).reshape(-1, 3)
+        self._lms.pos[:self._lms.n] = pts  # free refresh of the pre-selection cache
+        self._lms.read[:self._lms.n] = self._epoch
         if self._polished is not None:
             cov = self._current_cov_polished
         else:
@@ -374,7 +366,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         T = conv.pose3_matrix(self._polished.atPose3(X(fid)) if self._polished is not None
                               else self._pose(fid))
         for i, tid in enumerate(ids.tolist()):
-            if tid in self._slot:
+            if tid in self._lms.slot:
                 out[i] = (self._point(tid) - T[:3, 3]) @ T[:3, :3]
         return out
 
@@ -382,8 +374,8 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
 
     def stats(self) -> dict:
         """Counters: landmarks, tracks waiting, rejected triangulations, ..."""
-        out = {"frames": len(self._frames), "landmarks": self._n_lm,
-               "tracks_waiting": len(self._tracks), **self._stats,
+        out = {"frames": len(self._frames), "landmarks": self._lms.n,
+               "tracks_waiting": len(self._mapper.tracks), **self._mapper.counts, **self._stats,
                "isam2_updates": self._n_updates}
         if self._mono is not None:
             out["camera_alone"] = self._mono.stats()
@@ -430,7 +422,7 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         replaces the prediction, and the rows of ``ids`` PnP rejects are returned
         (they get no factor). Too few inliers: the frame is coasted on a
         constant-velocity factor and keeps only the pixels the prediction explains."""
-        rows = np.array([i for i, t in enumerate(ids.tolist()) if t in self._slot], dtype=np.int64)
+        rows = np.array([i for i, t in enumerate(ids.tolist()) if t in self._lms], dtype=np.int64)
         points = np.array([self._point(int(ids[i])) for i in rows.tolist()]).reshape(-1, 3)
         predicted = conv.pose3_matrix(self._values.atPose3(X(fid)))
         est = self._mono.measure(points, uv[rows], predicted, sigma, ids, uv)
@@ -454,13 +446,9 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         for f in first.frame_ids.tolist():
             self._add_frame(int(f))
         for tid, p_w, nobs in landmarks:
-            self._add_landmark(tid, p_w, nobs, sigma)
+            self._lms.add(tid, p_w, nobs, sigma, len(self._frames) - 1)
 
     # --- internals ----------------------------------------------------------
-
-    @property
-    def _cos_parallax(self) -> float:
-        return float(np.cos(np.deg2rad(self.config.min_parallax_deg)))
 
     def _add_frame(self, fid: int) -> None:
         self._frames.append(fid)
@@ -528,10 +516,10 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         """Rows of ``ids`` whose landmark gets no factor this frame (``rejected`` ones,
         then those beyond ``budget``), and how many mapped landmarks do get one."""
         skip = set(rejected)
-        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._slot and i not in skip]
+        mapped = [i for i, t in enumerate(ids.tolist()) if t in self._lms.slot and i not in skip]
         over: set[int] = set()
         if len(mapped) > budget:  # keep the longest-seen landmarks (best constrained)
-            nobs = self._lm_nobs[[self._slot[int(ids[i])] for i in mapped]]
+            nobs = self._lms.nobs[[self._lms.slot[int(ids[i])] for i in mapped]]
             order = np.lexsort((ids[mapped], -nobs))
             over = {mapped[j] for j in order[budget:].tolist()}
             self._stats["unused_pixels"] += len(over)
@@ -543,19 +531,20 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
         image grown by ``margin`` of its size each side), at most ``count`` of them (0:
         all), the most observed first, then the oldest, in that order."""
         # pre-select on cached positions, with a margin: they may be stale
-        slots = np.flatnonzero(self._in_view(wTc, self._lm_pos[:self._n_lm], margin=0.25))
+        slots = np.flatnonzero(self._in_view(wTc, self._lms.pos[:self._lms.n], margin=0.25))
         if self.config.predict_window_frames:  # before the reads: it needs no position
-            recent = len(self._frames) - 1 - self._lm_last[slots] <= self.config.predict_window_frames
+            age = len(self._frames) - 1 - self._lms.last[slots]
+            recent = age <= self.config.predict_window_frames
             slots = slots[recent]
         # fresh positions of the pre-selected only, and only those not yet read at this
         # estimate (the hint before an update and the predictions after it read the same
         # landmarks once each frame: same numbers, half the reads)
-        stale = slots[self._lm_read[slots] != self._epoch]
+        stale = slots[self._lms.read[slots] != self._epoch]
         for s in stale.tolist():
-            self._lm_pos[s] = self._point(self._lm_ids[s])
-        self._lm_read[stale] = self._epoch
-        slots = slots[self._in_view(wTc, self._lm_pos[slots], margin=margin)]
-        order = np.lexsort((slots, -self._lm_nobs[slots]))  # most observed, then oldest
+            self._lms.pos[s] = self._point(self._lms.ids[s])
+        self._lms.read[stale] = self._epoch
+        slots = slots[self._in_view(wTc, self._lms.pos[slots], margin=margin)]
+        order = np.lexsort((slots, -self._lms.nobs[slots]))  # most observed, then oldest
         return slots[order[:count] if count else order]
 
     def _flush(self) -> None:
@@ -566,7 +555,9 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             self._add_coasting_factor(self._frames[-1])
         if self._graph.size() == 0 and self._values.size() == 0:
             return
-        groups, reelim = self._ordering_hint()  # before the swap: it reads the pending values
+        # before the swap: it reads the pending values
+        groups, reelim = self._ordering.hint(self._frames, self._graph, self._lms.ids,
+                                             self._select_for_root)
         # swap first: a Ctrl-C raised as update() returns must not leave the
         # factors pending, or the next flush would add them twice
         graph, values = self._graph, self._values
@@ -582,5 +573,18 @@ class VisualIsam2Backend(RootOrdering, LandmarkMapping, IndeterminateRecovery, V
             else:
                 self._isam.update(graph, values)
         except RuntimeError as exc:
-            self._recover(exc)
+            self._isam = recover_dropping_landmarks(exc, self._isam, self.config, self._lms,
+                                                    self._drop_landmark, self._frames[-1])
+
+    def _select_for_root(self, count: int, margin: float) -> np.ndarray:
+        """:meth:`_select_in_view` at the newest pose (the ordering hint's candidates)."""
+        return self._select_in_view(self._pose(self._frames[-1]), count, margin=margin)
+
+    def _drop_landmark(self, tid: int) -> None:
+        """Forget landmark ``tid`` (gtsam found it indeterminate): its slot goes and its
+        track is ignored from then on."""
+        self._lms.drop(tid)
+        self._ordering.forget_root()
+        self._mapper.reject(tid)
+        self._stats["landmarks_dropped_indeterminate"] += 1
 

@@ -1,90 +1,131 @@
-"""How the visual iSAM2 back end maps a track: triangulated once it has parallax, checked,
-then added with a factor for each of its pixels.
+"""How the visual iSAM2 back end maps a track: buffered until it has parallax,
+triangulated, checked, then handed back to be added with a factor for each of its pixels.
 
-A mixin of :class:`graphslam.backends.spatial.isam2.VisualIsam2Backend` (its own
-module to keep the back end's size readable, as :mod:`.isam2_ordering`): it
-reads the back end's waiting tracks, poses and pending graph and fills its
-landmark slots; the geometry is :mod:`.landmark_init`'s.
+:class:`TrackMapper` is a part of
+:class:`graphslam.backends.spatial.isam2.VisualIsam2Backend` that owns the tracks not
+yet in the map: those waiting for parallax, those that qualified and wait for a
+frame's budget, those rejected for good, and the counters of what it dropped. It is
+its own part because that bookkeeping is private to delayed initialisation: the back
+end hands it the pixels of unmapped tracks and the current poses and camera, and gets
+back the tracks to map; the geometry is :mod:`.landmark_init`'s.
 """
 
 from __future__ import annotations
 
+from typing import Callable
+
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L, X
 
+from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.backends.spatial.landmark_init import Track, consistent, triangulate
 
-__all__ = ["LandmarkMapping"]
+__all__ = ["TrackMapper"]
 
 
-class LandmarkMapping:
-    """Delayed landmark initialisation of the visual iSAM2 back end."""
+class TrackMapper:
+    """Delayed landmark initialisation of the visual iSAM2 back end.
 
-    def _triangulate_queued(self, fid: int, budget: int) -> list[int]:
-        """Triangulate the tracks queued at the previous frame, at most ``budget`` of
-        them mapped; returns those left waiting for a later frame's budget.
+    Attributes:
+        tracks: track id -> :class:`Track` waiting for parallax (or for a budget).
+        rejected: track ids whose triangulation failed or whose landmark was
+            dropped: their pixels are ignored from then on.
+        counts: ``rejected_triangulations``, ``dropped_tracks`` (timed out) and
+            ``ignored_pixels`` (of a rejected track, or a track's second pixel in a
+            frame), in the back end's ``stats()``.
+    """
 
-        They are triangulated now, from the pixels of frames before this one
-        (``fid``): those poses have been corrected by their own pixels in this
-        frame's update, while this frame's pose is still odometry alone (a few
-        pixels off, which the consistency test would take for a bad track).
-        This frame's pixel still gets its factor.
+    def __init__(self, config: VisualIsam2Config) -> None:
+        self.config = config
+        self.tracks: dict[int, Track] = {}
+        self.rejected: set[int] = set()
+        self.counts = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0}
+        self._queued: list[int] = []  # qualified at the previous frame, see map_queued()
+        self._qualified: list[int] = []  # qualified at this frame
+
+    @property
+    def n_queued(self) -> int:
+        """Tracks qualified at the previous frame, waiting to be triangulated."""
+        return len(self._queued)
+
+    def observe(self, tid: int, fid: int, uv: np.ndarray, sigma: float, now: int,
+                ray_w: np.ndarray) -> None:
+        """A pixel of track ``tid`` (not mapped) in frame ``fid``, the ``now``-th frame,
+        with its world ray direction ``ray_w``: buffered, the track queued for the
+        next frame once it has the parallax and the pixels."""
+        if tid in self.rejected:
+            self.counts["ignored_pixels"] += 1
+            return
+        track = self.tracks.get(tid)
+        if track is None:
+            track = self.tracks[tid] = Track(first_ray_w=ray_w)
+        elif track.last_index == now:  # same track twice in a frame: keep the first
+            self.counts["ignored_pixels"] += 1
+            return
+        if track.add(fid, uv, sigma, now, ray_w,
+                     max_observations=self.config.max_track_observations,
+                     min_observations=self.config.min_observations,
+                     cos_parallax=float(np.cos(np.deg2rad(self.config.min_parallax_deg)))):
+            self._qualified.append(tid)
+
+    def reject(self, tid: int) -> None:
+        """Ignore track ``tid`` from now on (its landmark left the map)."""
+        self.rejected.add(tid)
+
+    def map_queued(self, fid: int, now: int, budget: int, pose: Callable[[int], gtsam.Pose3],
+                   cal: gtsam.Cal3_S2, K: np.ndarray) -> list[tuple[int, np.ndarray, Track]]:
+        """End of frame ``fid`` (the ``now``-th): triangulate the tracks queued at the
+        previous frame, at most ``budget`` of them mapped, with the poses ``pose(frame)``
+        and camera ``cal`` (``K``); returns ``(track id, point, track)`` of each to map,
+        in order. Those left waiting for a later frame's budget are queued again, before
+        the tracks that qualified in this frame.
+
+        They are triangulated now, from the pixels of frames before this one: those
+        poses have been corrected by their own pixels in this frame's update, while
+        this frame's pose is still odometry alone (a few pixels off, which the
+        consistency test would take for a bad track). This frame's pixel still gets
+        its factor.
         """
-        waiting = []
+        mapped, waiting = [], []
         for tid in self._queued:
-            if tid not in self._tracks:
+            if tid not in self.tracks:
                 continue
             if budget <= 0:
                 waiting.append(tid)
                 continue
-            if self._triangulate(tid, self._tracks.pop(tid), fid):
+            track = self.tracks.pop(tid)
+            point = self._triangulate(tid, track, fid, pose, cal, K)
+            if point is not None:
+                mapped.append((tid, point, track))
                 budget -= 1
-        return waiting
+        self._queued, self._qualified = waiting + self._qualified, []
+        if now % self.config.track_timeout_frames == 0:  # amortised sweep
+            self._forget_stale_tracks(now)
+        return mapped
 
-    def _triangulate(self, tid: int, track: Track, current: int) -> bool:
-        """Triangulate a track from its pixels of frames other than ``current``;
-        map it with factors for all its pixels, or reject it for good."""
+    def _triangulate(self, tid: int, track: Track, current: int,
+                     pose: Callable[[int], gtsam.Pose3], cal: gtsam.Cal3_S2,
+                     K: np.ndarray) -> np.ndarray | None:
+        """A track's point from its pixels of frames other than ``current``, or None:
+        rejected for good."""
         used = [i for i, f in enumerate(track.frames) if f != current]
-        poses = [self._pose(track.frames[i]) for i in used]
+        poses = [pose(track.frames[i]) for i in used]
         uv = np.array([track.uv[i] for i in used])
         sigma = np.array([track.sigma[i] for i in used])
-        point = triangulate(poses, self._cal, uv, sigma)
+        point = triangulate(poses, cal, uv, sigma)
         if (point is None or not np.all(np.isfinite(point))
-                or not consistent(poses, self._K, uv, sigma, point,
+                or not consistent(poses, K, uv, sigma, point,
                                   min_depth_m=self.config.min_depth_m,
                                   max_sigmas=self.config.max_reprojection_sigmas)):
-            self._rejected.add(tid)
-            self._stats["rejected_triangulations"] += 1
-            return False
-        key = L(tid)
-        self._values.insert(key, point)
-        for f, u, s in zip(track.frames, track.uv, track.sigma):
-            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                u, self._pixel_noise(s), X(f), key, self._cal))
-        self._add_landmark(tid, point, len(track.frames), track.sigma[-1])
-        return True
-
-    def _add_landmark(self, tid: int, point: np.ndarray, nobs: int, sigma: float) -> None:
-        if self._n_lm == len(self._lm_pos):  # grow by doubling: amortised O(1)
-            cap = max(64, 2 * self._n_lm)
-            self._lm_pos = np.resize(self._lm_pos, (cap, 3))
-            self._lm_nobs = np.resize(self._lm_nobs, cap)
-            self._lm_sigma = np.resize(self._lm_sigma, cap)
-            self._lm_last = np.resize(self._lm_last, cap)
-            self._lm_read = np.resize(self._lm_read, cap)
-        s = self._n_lm
-        self._slot[tid] = s
-        self._lm_ids.append(tid)
-        self._lm_pos[s], self._lm_nobs[s], self._lm_sigma[s] = point, nobs, sigma
-        self._lm_last[s] = len(self._frames) - 1
-        self._lm_read[s] = -1  # its pending initial value: read again once iSAM2 has it
-        self._n_lm += 1
+            self.rejected.add(tid)
+            self.counts["rejected_triangulations"] += 1
+            return None
+        return point
 
     def _forget_stale_tracks(self, now: int) -> None:
         """Drop waiting tracks unseen for more than ``track_timeout_frames`` frames."""
-        stale = [tid for tid, t in self._tracks.items()
+        stale = [tid for tid, t in self.tracks.items()
                  if now - t.last_index > self.config.track_timeout_frames]
         for tid in stale:
-            del self._tracks[tid]
-        self._stats["dropped_tracks"] += len(stale)
+            del self.tracks[tid]
+        self.counts["dropped_tracks"] += len(stale)
