@@ -54,7 +54,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages
 
 import timing  # noqa: E402  (beside this script)
-from filters.fastslam import FastSlam, FastSlamConfig  # noqa: E402
+from filters.fastslam import FastSlam  # noqa: E402
+from filters.fastslam_config import FastSlamConfig  # noqa: E402
 from graphslam.sources.planar.victoria_park import read_victoria_park  # noqa: E402
 from slamcore.planar import geometry as models  # noqa: E402
 from slamcore.planar.records import Dataset, Frame, Observation, Odometry  # noqa: E402

@@ -79,18 +79,17 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from slamcore.planar import geometry as models
-from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
+from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
-from filters.fastslam_math import low_variance_resample, sym
 from filters.fastslam_particles import ParticleSet
-from filters.numerics import Recoveries
+from filters.numerics import Recoveries, symmetrise as sym
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.records import (
     Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
 )
 
-__all__ = ["MAX_PARTICLES", "FastSlam", "FastSlamConfig", "low_variance_resample"]
+__all__ = ["FastSlam"]
 
 
 class FastSlam(Backend):

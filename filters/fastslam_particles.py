@@ -21,8 +21,9 @@ from slamcore.planar import geometry as models
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
-    all_positive_definite3, logsumexp, low_variance_resample, rotated_xy, sample_gaussian, sym,
+    all_positive_definite3, logsumexp, low_variance_resample, rotated_xy, sample_gaussian,
 )
+from filters.numerics import symmetrise as sym
 from filters.fastslam_update import landmark_steps, refine_proposal
 from filters.numerics import Recoveries
 from slamcore.errors import GraphSlamError

@@ -25,9 +25,9 @@ import numpy as np
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
     all_positive_definite3, floor_hits, inv2, landmark_update, new_landmark, positive_definite,
-    positive_definite2, proposal_update, raise_to_floor, range_bearing, sandwich, spread_noise,
-    sym, tr,
+    positive_definite2, proposal_update, raise_to_floor, range_bearing, sandwich, spread_noise, tr,
 )
+from filters.numerics import symmetrise as sym
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from slamcore.planar.records import Observation
 

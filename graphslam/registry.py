@@ -166,7 +166,8 @@ def make_backend(name: str, *, config: ConfigSource = None,
 
         return EkfSlam(load_section(EkfSlamConfig, config, overrides))
     if name in ("fastslam1", "fastslam2"):
-        from filters.fastslam import FastSlam, FastSlamConfig
+        from filters.fastslam import FastSlam
+        from filters.fastslam_config import FastSlamConfig
 
         # both share the [fastslam] section; the name picks the version
         version = {"version": int(name[-1])}
@@ -213,7 +214,7 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     """Config classes a 2-D ``graphslam run`` of ``dataset`` on ``backend`` reads,
     by section name (``graphslam sweep`` checks its overrides against them)."""
     from filters.ekf_slam_config import EkfSlamConfig
-    from filters.fastslam import FastSlamConfig
+    from filters.fastslam_config import FastSlamConfig
     from graphslam.backends.planar.isam2_config import Isam2Config
     from graphslam.sources.planar.synthetic import SyntheticConfig
 

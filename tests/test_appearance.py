@@ -14,7 +14,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from filters.mono_ekf import MonoEkf, MonoEkfConfig
+from filters.mono_ekf import MonoEkf
+from filters.mono_ekf_config import MonoEkfConfig
 from frontend.active_search_config import ActiveSearchConfig
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.tracking import Tracker

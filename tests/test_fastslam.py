@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from slamcore.planar import geometry as models
-from filters.fastslam import MAX_PARTICLES, FastSlam, FastSlamConfig, low_variance_resample
+from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
+from filters.fastslam import FastSlam
+from filters.fastslam_math import low_variance_resample
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
 from filters.fastslam_update import landmark_joseph

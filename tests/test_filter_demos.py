@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from filters.fastslam import FastSlam, FastSlamConfig
+from filters.fastslam import FastSlam
+from filters.fastslam_config import FastSlamConfig
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from graphslam.visualisation.filter_state import (

@@ -19,7 +19,8 @@ from filters.ekf_slam_update import (
     APPLIED, INDEFINITE, Rank2Downdate, cholesky_2x2, damped_iterated_step, map_cost,
     rank2_correction,
 )
-from filters.fastslam import FastSlam, FastSlamConfig
+from filters.fastslam import FastSlam
+from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_update import joseph_where_indefinite
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries, floored_noise
 from graphslam import registry
