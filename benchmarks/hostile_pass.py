@@ -57,6 +57,11 @@ class Attack:
     ok_codes: tuple[int, ...] = (0,)
     slow: bool = False
     env: dict = field(default_factory=dict)
+    #: bytes a file the command writes may hold (RLIMIT_FSIZE, SIGXFSZ ignored: a write
+    #: past it fails with EFBIG as a write to a full disk fails with ENOSPC), or None
+    file_size_limit: int | None = None
+    #: seconds after the start at which SIGTERM is sent (a user's kill), or None
+    sigterm_after_s: float | None = None
 
 
 def _w(folder: Path, name: str, text: str | bytes) -> Path:
@@ -183,6 +188,15 @@ def attacks() -> list[Attack]:
                lambda f: _run(_w(f, "w.g2o", _chain_g2o(50)), "--backend", "batch"),
                ("ok",), ok_codes=(141,), check=_files("out/trajectory.tum", "out/metrics.json"),
                env={"HOSTILE_CLOSE_STDOUT": "1"}),
+        Attack("a full disk during the outputs, over an earlier run (RLIMIT_FSIZE)", "fail",
+               lambda f: (_stash(f, _earlier_run(f)), _run("synthetic"))[1],
+               file_size_limit=20_000, check=_not_mixed(_stashed)),
+        Attack("SIGTERM to a running sweep: finished rows kept, no run left behind", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\n"
+                                              "backend = [\"isam2\", \"ekf\"]\nseed = [0, 1, 2, 3]\n"
+                                              "max_steps = 400\n")),
+                          "--out", "sw", "--workers", "2", "--quiet", "--no-plots"],
+               ("ok",), ok_codes=(143,), sigterm_after_s=8.0, check=_orphans("sw")),
         # ---- silent answers of the issue: a wrong figure without a word before
         Attack("TORO EQUIV lines are said", "silent", lambda f: _run(_w(
             f, "e.graph", "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 1 0 1 1 0 0\n"
@@ -209,6 +223,14 @@ def attacks() -> list[Attack]:
                               "--max-steps", "5"),
                check=lambda f, o, e: None if "--relocalise" in e else "the error names another option"),
     ]
+
+
+def _stash(folder: Path, files: dict[str, bytes]) -> None:
+    (folder / "earlier.json").write_text(json.dumps({k: v.hex() for k, v in files.items()}))
+
+
+def _stashed(folder: Path) -> dict[str, bytes]:
+    return {k: bytes.fromhex(v) for k, v in json.loads((folder / "earlier.json").read_text()).items()}
 
 
 def _gtsam(name: str) -> str:
@@ -244,6 +266,78 @@ def _tum_escape(folder: Path) -> Path:
     return seq
 
 
+def _limits(file_size_limit: int | None):
+    """The child's file-size limit (None: no preexec function at all)."""
+    if file_size_limit is None:
+        return None
+
+    def apply():
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG from write(), not a kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (file_size_limit, file_size_limit))
+    return apply
+
+
+def _sigterm_after(proc: subprocess.Popen, seconds: float) -> None:
+    import signal
+    import threading
+
+    def send():
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+    timer = threading.Timer(seconds, send)
+    timer.daemon = True
+    timer.start()
+
+
+def _earlier_run(folder: Path, *extra: str) -> dict[str, bytes]:
+    """A first, ordinary run into ``folder/out``; returns its files' bytes by name."""
+    subprocess.run([sys.executable, "-m", "graphslam", *_run("synthetic", "--max-steps", "150",
+                                                               *extra)],
+                   cwd=folder, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True,
+                   capture_output=True, timeout=300)
+    return {p.name: p.read_bytes() for p in (folder / "out").iterdir() if p.is_file()}
+
+
+def _not_mixed(earlier_of):
+    """The out folder after the attack holds the earlier run whole, or none of it beside
+    the new run's files (never the earlier run's files beside the new run's)."""
+    def check(folder, out, err):
+        earlier = earlier_of(folder)
+        now = {p.name: p.read_bytes() for p in (folder / "out").iterdir() if p.is_file()
+               and not p.name.startswith(".")}
+        kept = sorted(n for n in now if earlier.get(n) == now[n])
+        new = sorted(n for n in now if earlier.get(n) != now[n])
+        if kept and new:
+            return f"mixed folder: earlier {kept} beside new {new}"
+        left = sorted(p.name for p in (folder / "out").iterdir() if p.name.startswith(".gs-"))
+        return f"temporary files left: {left}" if left else None
+    return check
+
+
+def _orphans(marker: str):
+    """No process is left whose working folder is the attack's (a sweep's runs start
+    there), and the sweep wrote its table."""
+    def check(folder, out, err):
+        time.sleep(1.0)  # a worker told to stop has a moment to go
+        alive = []
+        for p in Path("/proc").iterdir():
+            if p.name.isdigit() and int(p.name) != os.getpid():
+                try:
+                    cwd = os.readlink(p / "cwd")
+                except OSError:
+                    continue
+                if cwd == str(folder) or cwd.startswith(str(folder) + os.sep):
+                    alive.append(p.name)
+        if alive:
+            return f"processes left running: {alive}"
+        rows = folder / marker / "sweep.csv"
+        return None if rows.is_file() else "sweep.csv not written"
+    return check
+
+
 def run_attack(a: Attack, timeout_s: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -258,7 +352,10 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
         close = env.pop("HOSTILE_CLOSE_STDOUT", None)
         try:
             proc = subprocess.Popen(cmd, cwd=folder, env=env, stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+                                    stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                    preexec_fn=_limits(a.file_size_limit))
+            if a.sigterm_after_s is not None:
+                _sigterm_after(proc, a.sigterm_after_s)
             if close:
                 proc.stdout.close()
                 out, err = "", proc.communicate(timeout=timeout_s)[1].decode(errors="replace")
