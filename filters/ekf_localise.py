@@ -110,8 +110,7 @@ class EkfLocaliser(Backend):
         self._record(new=True)
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
-        self._require_init()
-        cur = self._pose_id
+        x, cur = self._current()
         if odometry.from_id == cur and odometry.to_id == pose_id != cur:
             u, Q = odometry.delta, odometry.covariance
         elif odometry.from_id == pose_id and odometry.to_id == cur != pose_id:
@@ -120,8 +119,8 @@ class EkfLocaliser(Backend):
             raise GraphSlamError(
                 f"ekf: odometry {odometry.from_id}->{odometry.to_id} does not link the current "
                 f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)")
-        F, G = models.compose_jacobians(self._x, np.asarray(u))
-        self._x = models.compose(self._x, np.asarray(u))
+        F, G = models.compose_jacobians(x, np.asarray(u))
+        self._x = models.compose(x, np.asarray(u))
         Q = np.asarray(Q) * self.config.odometry_covariance_scale
         self._Prr = symmetrise(F @ self._Prr @ F.T + G @ Q @ G.T)
         self._Prm = F @ self._Prm
@@ -139,14 +138,15 @@ class EkfLocaliser(Backend):
                                      f"pose is {self._pose_id}")
         assoc: list[int | None] = []
         for o in obs:
-            slot = None if o.landmark_id is None else self._slot.get(int(o.landmark_id))
-            if slot is None:
+            lid = o.landmark_id
+            slot = None if lid is None else self._slot.get(int(lid))
+            if lid is None or slot is None:
                 self.unmapped_count += 1
                 assoc.append(None)
                 continue
             self._R_typical = o.covariance
             if self._correct(slot, o.z, o.covariance):
-                assoc.append(int(o.landmark_id))
+                assoc.append(int(lid))
             else:
                 self.rejected_count += 1
                 assoc.append(None)
@@ -174,8 +174,7 @@ class EkfLocaliser(Backend):
             landmark_covariances=self._Pm.copy() if with_covariances else None)
 
     def current_pose(self) -> np.ndarray:
-        self._require_init()
-        return self._x.copy()
+        return self._current()[0].copy()
 
     def current_pose_covariance(self) -> np.ndarray | None:
         self._require_init()
@@ -187,11 +186,12 @@ class EkfLocaliser(Backend):
         """``(z_pred, H_x, H_m, A_r, S)`` of landmark ``slot`` at the current pose."""
         m = self._m[slot]
         c = slice(2 * slot, 2 * slot + 2)
-        H_x, H_m = models.observe_jacobians(self._x, m)
+        x, _ = self._current()
+        H_x, H_m = models.observe_jacobians(x, m)
         A_r = self._Prr @ H_x.T + self._Prm[:, c] @ H_m.T  # robot rows of P H^T
         B = self._Prm[:, c].T @ H_x.T + self._Pm[slot] @ H_m.T  # landmark rows of P H^T
         S = symmetrise(H_x @ A_r + H_m @ B + R)
-        return models.observe(self._x, m), H_x, H_m, A_r, S
+        return models.observe(x, m), H_x, H_m, A_r, S
 
     def _correct(self, slot: int, z: np.ndarray, R: np.ndarray) -> bool:
         """Schmidt update by one observation of landmark ``slot``; False if gated out or
@@ -208,21 +208,29 @@ class EkfLocaliser(Backend):
         K_r = np.linalg.solve(S, A_r.T).T  # (3, 2): S is symmetric
         HPm = H_x @ self._Prm  # (2, 2M): the landmark columns of H P
         HPm[:, 2 * slot:2 * slot + 2] += H_m @ self._Pm[slot]
-        self._x = self._x + K_r @ nu
-        self._x[2] = models.wrap_angle(self._x[2])
+        x = self._current()[0] + K_r @ nu
+        x[2] = models.wrap_angle(x[2])
+        self._x = x
         self._Prm = self._Prm - K_r @ HPm
         self._Prr = symmetrise(self._Prr - K_r @ S @ K_r.T)
         return True
 
     def _record(self, new: bool) -> None:
+        x, pose_id = self._current()
         if new:
-            self._hist_ids.append(self._pose_id)
-            self._hist_wTb.append(self._x.copy())
+            self._hist_ids.append(pose_id)
+            self._hist_wTb.append(x.copy())
             self._hist_cov.append(self._Prr.copy())
         else:
-            self._hist_wTb[-1] = self._x.copy()
+            self._hist_wTb[-1] = x.copy()
             self._hist_cov[-1] = self._Prr.copy()
 
     def _require_init(self) -> None:
-        if self._x is None:
+        self._current()
+
+    def _current(self) -> tuple[np.ndarray, int]:
+        """The current pose ``x`` (3,) (the array itself) and its id, once
+        :meth:`initialize` has run."""
+        if self._x is None or self._pose_id is None:
             raise GraphSlamError("ekf: initialize() must be called first")
+        return self._x, self._pose_id

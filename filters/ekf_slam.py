@@ -215,7 +215,7 @@ class EkfSlam(Backend):
         pose = self._store.xbuf[:3].copy()
         cov = self._store.Pbuf[:3, :3].copy()
         if new:
-            self._hist_ids.append(self._pose_id)
+            self._hist_ids.append(self._current_pose_id())
             self._hist_wTb.append(pose)
             self._hist_cov.append(cov)
         else:
@@ -225,6 +225,11 @@ class EkfSlam(Backend):
     def _require_init(self) -> None:
         if self._store.n == 0:
             raise GraphSlamError("ekf: initialize() must be called first")
+
+    def _current_pose_id(self) -> int:
+        if self._pose_id is None:
+            raise GraphSlamError("ekf: initialize() must be called first")
+        return self._pose_id
 
     # --------------------------------------------------------------- contract
 
@@ -413,9 +418,9 @@ class EkfSlam(Backend):
                 self._add_landmark(lid, Z[i], Rs[i])
                 assoc[where[i]] = lid
                 continue
-            lid = self._provisional_sighting(Z[i], Rs[i], hit_prov)
-            if lid is not None:
-                assoc[where[i]] = lid
+            entered = self._provisional_sighting(Z[i], Rs[i], hit_prov)
+            if entered is not None:
+                assoc[where[i]] = entered
         self._prov.compact()
 
     def _provisional_sighting(self, z: np.ndarray, R: np.ndarray, hit: set[int]) -> int | None:

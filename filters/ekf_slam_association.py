@@ -209,24 +209,25 @@ class ProvisionalList:
         True when the entry reaches ``sightings``: it leaves the list (its slot
         stays None until :meth:`compact`, so the indices in ``hit`` stay valid).
         """
-        best, best_d2 = None, self.gate
+        best: tuple[int, dict] | None = None  # (index, entry) of the nearest entry
+        best_d2 = self.gate
         for k, e in enumerate(self.entries):
             if e is None or k in hit:
                 continue
             d = pt - e["pt"]
             d2 = float(mahalanobis_sq_2d(d, cov + e["cov"]))
             if d2 < best_d2:
-                best, best_d2 = k, d2
+                best, best_d2 = (k, e), d2
         if best is None:
             self.entries.append({"pt": pt, "cov": cov, "count": 1})
             hit.add(len(self.entries) - 1)
             return False
-        e = self.entries[best]
+        k, e = best
         e["count"] += 1
         e["pt"], e["cov"] = pt, cov
-        hit.add(best)
+        hit.add(k)
         if e["count"] >= self.sightings:
-            self.entries[best] = None
+            self.entries[k] = None
             return True
         return False
 

@@ -102,6 +102,8 @@ and enter (``initialize``) through its right inverse.
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
 from filters import landmark_params as lp
@@ -117,6 +119,9 @@ from slamcore.spatial.records import PixelObservations, PixelPredictions, Visual
 from slamcore.spatial.backend import VisualBackend
 
 __all__ = ["MonoEkf"]
+
+#: :meth:`MonoEkf._predicted`: pixels, ``h_z``, ``H_pose``, ``H_lm`` and ``S_i`` of the map
+_Predicted: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 class MonoEkf(VisualBackend):
@@ -155,13 +160,11 @@ class MonoEkf(VisualBackend):
 
     def state_vector(self) -> np.ndarray:
         """Copy of ``X`` (n,)."""
-        self._require_init()
-        return self._x.copy()
+        return self._state()[0].copy()
 
     def state_covariance(self) -> np.ndarray:
         """Copy of ``P`` (n, n)."""
-        self._require_init()
-        return self._P.copy()
+        return self._state()[1].copy()
 
     def landmark_slots(self) -> list[tuple[int, str, int]]:
         """``(track_id, kind name, first state index)`` of each landmark, in state order."""
@@ -173,26 +176,33 @@ class MonoEkf(VisualBackend):
         """Convert the given landmarks to Euclidean now, whatever their linearity
         (tests, or a caller that knows better); returns how many were converted.
         Unknown ids, Euclidean landmarks and ``rho <= 0`` are skipped."""
-        self._require_init()
-        changes = self._map.conversions(self._x, track_ids)
+        x, _ = self._state()
+        changes = self._map.conversions(x, track_ids)
         if changes:
             self._transform(changes)
             self._stats["reparametrised"] += len(changes)
         return len(changes)
 
     def _require_init(self) -> None:
-        if self._x is None:
+        self._state()
+
+    def _state(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(X, P)`` (the arrays themselves, not copies), once :meth:`initialize` has run."""
+        if self._x is None or self._P is None:
             raise GraphSlamError("mono_ekf: initialize() must be called first")
+        return self._x, self._P
 
     def _wTc(self) -> np.ndarray:
+        x, _ = self._state()
         T = np.eye(4)
-        T[:3, :3] = lp.q2R(self._x[3:7])
-        T[:3, 3] = self._x[0:3]
+        T[:3, :3] = lp.q2R(x[3:7])
+        T[:3, 3] = x[0:3]
         return T
 
     def _pose_covariance(self) -> np.ndarray:
-        J = lp.pose_jacobian_to_tangent(self._x[3:7])
-        C = J @ self._P[:7, :7] @ J.T
+        x, P = self._state()
+        J = lp.pose_jacobian_to_tangent(x[3:7])
+        C = J @ P[:7, :7] @ J.T
         return 0.5 * (C + C.T)
 
     # --------------------------------------------------------------- contract
@@ -220,7 +230,8 @@ class MonoEkf(VisualBackend):
             self._P[10:13, 10:13] = np.eye(3) * c.cv_initial_sigma_w_radps ** 2
         self._map = LandmarkSlots(self._rdim)
         self._version = 0  # bumped by every change of X or P (prediction cache key)
-        self._cache = None
+        self._cache: tuple[tuple[int, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                           np.ndarray] | None = None
         self._rng = np.random.default_rng(self.config.seed)
         self._sigma_px = float(self.config.default_sigma_px)
         self._frame_ids: list[int] = [int(frame_id)]
@@ -231,7 +242,7 @@ class MonoEkf(VisualBackend):
 
     def predict(self, frame_id: int, odometry: np.ndarray | None,
                 covariance: np.ndarray | None) -> None:
-        self._require_init()
+        x, P = self._state()
         if frame_id == self._frame_ids[-1]:
             raise GraphSlamError(f"mono_ekf: frame {frame_id} is already the current frame")
         if odometry is None:
@@ -239,14 +250,14 @@ class MonoEkf(VisualBackend):
                 raise UnsupportedError("mono_ekf: the odometry robot model needs odometry "
                                        "(robot_model = 'constant_velocity' has a motion model)")
             c = self.config
-            self._x[:13], F, G = constant_velocity_motion(self._x[:13], c.frame_dt_s)
+            x[:13], F, G = constant_velocity_motion(x[:13], c.frame_dt_s)
             Q = np.diag([(c.cv_sigma_accel_mps2 * c.frame_dt_s) ** 2] * 3
                         + [(c.cv_sigma_alpha_radps2 * c.frame_dt_s) ** 2] * 3)
         else:
             T, Q = check_odometry(odometry, covariance)
             r = self._rdim
-            self._x[:r], F, G = odometry_motion(self._x[:r], T, self.config.frame_dt_s)
-        propagate_covariance(self._P, self._rdim, F, G, Q)
+            x[:r], F, G = odometry_motion(x[:r], T, self.config.frame_dt_s)
+        propagate_covariance(P, self._rdim, F, G, Q)
         self._version += 1
         self._sequential = {}
         self._frame_ids.append(int(frame_id))
@@ -254,17 +265,17 @@ class MonoEkf(VisualBackend):
         self._stats["frames"] += 1
 
     def predict_observations(self) -> PixelPredictions:
-        self._require_init()
+        x, _ = self._state()
         uv, hz, _, _, S = self._predicted(self._sigma_px ** 2)
         vis = np.flatnonzero(self._in_view(uv, hz))
         ids = self._map.ids[vis]
         with np.errstate(invalid="ignore", divide="ignore"):  # rho = 0: at infinity, not finite
-            p_w, _ = lp.to_euclidean(self._map.kinds[vis], self._x[self._map.idx[vis]])
+            p_w, _ = lp.to_euclidean(self._map.kinds[vis], x[self._map.idx[vis]])
         # pose, K and positions: for the front end's appearance prediction
         return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections,
                                 wTc=self._wTc(), K=self._K.copy(), landmarks_w=p_w)
 
-    def _predicted(self, var: float):
+    def _predicted(self, var: float) -> _Predicted:
         """Pixels, ``h_z``, Jacobians and ``S_i`` (pixel variance ``var``) of the whole map.
 
         Cached until the state changes, so :meth:`update` reuses what
@@ -295,7 +306,7 @@ class MonoEkf(VisualBackend):
         k_slots = np.array([self._map.slot[int(ids[r])] for r in k_rows], dtype=np.int64)
         accepted = np.zeros(len(self._map), dtype=bool)
         rejected = np.zeros(len(self._map), dtype=bool)
-        seq_ids = {True: [], False: []}
+        seq_ids: dict[bool, list[int]] = {True: [], False: []}
         for t, ok in self._sequential.items():
             (accepted if ok else rejected)[self._map.slot[t]] = True
             seq_ids[ok].append(t)
@@ -359,7 +370,7 @@ class MonoEkf(VisualBackend):
         uv_p[bad], S_p[bad] = np.nan, np.nan
         return uv_p, S_p
 
-    def _correct(self, k_slots: np.ndarray, z_known: np.ndarray, predicted: tuple,
+    def _correct(self, k_slots: np.ndarray, z_known: np.ndarray, predicted: _Predicted,
                  var: float) -> tuple[np.ndarray, np.ndarray]:
         """Correct with the known landmarks ``k_slots`` (in front of the camera) measured at
         ``z_known`` (k, 2) px; ``predicted``: :meth:`_predicted` at this state.
@@ -377,7 +388,8 @@ class MonoEkf(VisualBackend):
         nu = z - uv[order]
         PHt, S_sel = self._gain_blocks(sel, Hp[order], Hl[order], var)
         if c.ransac and len(sel) >= 3:
-            inl = one_point_ransac(self._rng, self._K, self._x, self._map.kinds[sel], self._map.idx[sel],
+            x, _ = self._state()
+            inl = one_point_ransac(self._rng, self._K, x, self._map.kinds[sel], self._map.idx[sel],
                                    z, nu, PHt, S_sel, var, max_hypotheses=c.ransac_max_hypotheses,
                                    inlier_sigmas=c.ransac_inlier_sigmas)
         else:
@@ -393,11 +405,13 @@ class MonoEkf(VisualBackend):
         self._stats["corrections"] += int(inl.sum())
         return sel, inl
 
-    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: tuple, var: float) -> np.ndarray:
+    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: _Predicted,
+               var: float) -> np.ndarray:
         """:func:`filters.mono_ekf_correction.gated_correction` of ``slots`` measured at
         ``z`` from ``predicted`` (:meth:`_predicted` at this state); returns the kept mask."""
         uv, _, Hp, Hl, S = (a[slots] for a in predicted)
-        ok = gated_correction(self._x, self._P, self._map.idx[slots], Hp, Hl, z - uv, S, var,
+        x, P = self._state()
+        ok = gated_correction(x, P, self._map.idx[slots], Hp, Hl, z - uv, S, var,
                               self._rescue_gate)
         self._version += int(ok.any())
         self._stats["ransac_rejected"] += int((~ok).sum())
@@ -419,8 +433,8 @@ class MonoEkf(VisualBackend):
         return ok
 
     def estimate(self) -> VisualEstimate:
-        self._require_init()
-        ids, pts = self._map.euclidean_landmarks(self._x)
+        x, _ = self._state()
+        ids, pts = self._map.euclidean_landmarks(x)
         lm_ids = list(self._map.retired.keys())
         lm_pts = list(self._map.retired.values())
         in_state = set(ids.tolist())
@@ -443,13 +457,14 @@ class MonoEkf(VisualBackend):
         """Step 4 (drop the landmarks lost or missed too long) and the conversion of the
         landmarks linear enough to Euclidean, in one change of the state."""
         c = self.config
+        x, P = self._state()
         changes, deleted, forgotten = self._map.count_frame(
-            self._x, visible, observed, accepted, rejected, c.max_consecutive_misses,
+            x, visible, observed, accepted, rejected, c.max_consecutive_misses,
             c.forget_unseen_frames)
         self._stats["deleted"] += deleted
         self._stats["forgotten"] += forgotten
         if c.linearity_threshold > 0:
-            conv = self._map.linear_enough(self._x, self._P, c.linearity_threshold,
+            conv = self._map.linear_enough(x, P, c.linearity_threshold,
                                            exclude=changes)
             self._stats["reparametrised"] += len(conv)
             changes.update(conv)
@@ -458,7 +473,8 @@ class MonoEkf(VisualBackend):
 
     def _transform(self, changes: dict) -> None:
         """Drop or convert the landmark slots in ``changes`` (:meth:`LandmarkSlots.transform`)."""
-        self._x, self._P = self._map.transform(self._x, self._P, changes)
+        x, P = self._state()
+        self._x, self._P = self._map.transform(x, P, changes)
         self._version += 1
 
     def _initialise(self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray,
@@ -472,9 +488,9 @@ class MonoEkf(VisualBackend):
             return rows
         kind = self._kind0
         rho0, sigma_rho = self._depth_prior()
-        init = lp.init_landmarks(kind, self._K_inv, self._x[0:3], self._x[3:7], uv_px[rows], rho0)
-        self._x, self._P = self._map.append(self._x, self._P, ids[rows], kind, init, var,
-                                            sigma_rho)
+        x, P = self._state()
+        init = lp.init_landmarks(kind, self._K_inv, x[0:3], x[3:7], uv_px[rows], rho0)
+        self._x, self._P = self._map.append(x, P, ids[rows], kind, init, var, sigma_rho)
         self._version += 1
         self._stats["initialised"] += len(rows)
         return ids[rows].astype(np.int64)
@@ -486,7 +502,7 @@ class MonoEkf(VisualBackend):
             return c.rho0, c.sigma_rho
         uv, hz, _, _ = self._observe(np.arange(len(self._map)), jacobians=False)
         vis = self._in_view(uv, hz)
-        inv = self._map.inverse_distances(self._x, vis)
+        inv = self._map.inverse_distances(self._state()[0], vis)
         rho0 = float(np.median(inv)) if len(inv) else 0.0
         if not rho0 > 0:  # nothing in view, or only points at infinity: no map unit here
             return c.rho0, c.sigma_rho
@@ -496,7 +512,7 @@ class MonoEkf(VisualBackend):
 
     def _observe(self, slots: np.ndarray, jacobians: bool = True, x: np.ndarray | None = None):
         """Predicted pixels of landmark ``slots`` at state ``x`` (default the current one)."""
-        x = self._x if x is None else x
+        x = self._state()[0] if x is None else x
         idx = self._map.idx[slots]
         return lp.observe_landmarks(self._K, x[0:3], x[3:7], self._map.kinds[slots], x[idx],
                                     jacobians=jacobians)
@@ -510,14 +526,15 @@ class MonoEkf(VisualBackend):
     def _innovation_blocks(self, slots, Hp, Hl, var) -> np.ndarray:
         """Per-landmark ``S_i`` (k, 2, 2) of landmark ``slots``
         (:func:`filters.mono_ekf_correction.innovation_blocks`)."""
-        return innovation_blocks(self._P, self._map.idx[slots], Hp, Hl, var)
+        return innovation_blocks(self._state()[1], self._map.idx[slots], Hp, Hl, var)
 
     def _gain_blocks(self, slots, Hp, Hl, var) -> tuple[np.ndarray, np.ndarray]:
         """``P H^T`` (n, 2k) and ``S`` (2k, 2k) of landmark ``slots``
         (:func:`filters.mono_ekf_correction.gain_blocks`)."""
-        return gain_blocks(self._P, self._map.idx[slots], Hp, Hl, var)
+        return gain_blocks(self._state()[1], self._map.idx[slots], Hp, Hl, var)
 
     def _apply_update(self, PHt: np.ndarray, S: np.ndarray, nu: np.ndarray) -> None:
         """EKF correction from ``P H^T`` (n, m), ``S`` (m, m) and the innovation ``nu`` (m,)."""
-        apply_correction(self._x, self._P, PHt, S, nu)
+        x, P = self._state()
+        apply_correction(x, P, PHt, S, nu)
         self._version += 1

@@ -190,6 +190,7 @@ class ActiveSearch:
         """
         image = check_gray(image)
         z, S = _checked_predictions(predictions, S)
+        matcher: ZnccMatcher | NearestMatcher
         if self.config.mode == "zncc":
             matcher = ZnccMatcher(self.config, image, len(z), patches=patches, prev_image=prev_image,
                                   prev_xy=prev_xy, affine=affine, source_patches=source_patches)
@@ -223,7 +224,8 @@ class ActiveSearch:
         uv, score, d2 = np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan)
         pixels = np.zeros(n, np.int64)
         union = np.zeros((H, W), bool)
-        order, pending = [], []
+        order: list[int] = []
+        pending: list[int] = []
         cap = self.config.max_corrections or n
         batch = self.config.first_batch(max_found or self.config.max_corrections)
         cand = list(self.search_order(z, S, (H, W)))

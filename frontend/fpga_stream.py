@@ -71,7 +71,7 @@ from frontend.harris import (
 )
 from frontend.image import check_gray
 from slamcore.config import bounded, validate
-from slamcore.errors import InputError
+from slamcore.errors import GraphSlamError, InputError
 
 _S_SHIFT = 12
 _W_SHIFT = 16
@@ -234,7 +234,10 @@ class FpgaHarrisStream:
         """Drop-in :class:`Detector`: push at the earliest start, read at the stamp."""
         image = check_gray(image)
         ready = self.push_frame(image, self.next_start_s())
-        return self.read(ready)
+        features = self.read(ready)
+        if features is None:  # the frame just pushed is readable at its stamp
+            raise GraphSlamError(f"fpga_stream: no frame readable at its stamp {ready} s")
+        return features
 
     # ------------------------------------------------------------- the pipeline
 

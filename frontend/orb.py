@@ -40,7 +40,9 @@ _CLASS_ID = operator.attrgetter("class_id")
 
 def _pixels(kps) -> np.ndarray:
     """(N, 2) float64 pixels of OpenCV keypoints (``cv2.KeyPoint_convert`` reads them in C)."""
-    return cv2.KeyPoint_convert(kps).astype(np.float64).reshape(len(kps), 2)
+    # cv2's stubs omit the KeyPoint_convert alias (and type KeyPoint.convert as a sequence)
+    pts = cv2.KeyPoint_convert(kps)  # type: ignore[attr-defined]
+    return pts.astype(np.float64).reshape(len(kps), 2)
 
 
 def _responses(kps) -> np.ndarray:

@@ -122,11 +122,12 @@ class ZnccMatcher:
             if prev_image is None or prev_xy is None:
                 raise InputError("zncc mode needs patches, or prev_image and prev_xy")
             patches = extract_patches(prev_image, prev_xy, p)
-        if patches is not None and (patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n):
-            raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
-        if not self.warp:
-            # one vectorised call instead of one np.std per landmark
-            self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
+        if patches is not None:  # always, unless warping
+            if patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n:
+                raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
+            if not self.warp:
+                # one vectorised call instead of one np.std per landmark
+                self.tpl_std = patches.reshape(n, p * p).astype(np.float64).std(axis=1)
         self.patches = patches
 
     def _warp_sources(self, n: int, prev_image, prev_xy, affine, source_patches) -> None:
@@ -156,6 +157,8 @@ class ZnccMatcher:
         if not self.warp:
             if self.tpl_std[i] < self.config.min_patch_std:
                 return None
+            if self.patches is None:  # __init__ has them whenever it does not warp
+                raise InputError("zncc mode needs patches, or prev_image and prev_xy")
             return np.ascontiguousarray(self.patches[i], dtype=np.float32)
         if self.sources is not None:
             tpl = _warp_patch(self.sources[i], self.source_xy, self.affine_inv[i], self.p)

@@ -64,6 +64,7 @@ from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
 from frontend.tracking_config import TrackerConfig, make_detector
+from slamcore.errors import GraphSlamError
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
 __all__ = ["Tracker", "TrackingResult"]
@@ -84,14 +85,28 @@ class _Track:
     velocity: np.ndarray            # last image motion, px/frame
     born: int
     last_seen: int
-    patch: np.ndarray | None        # (p, p) float32
-    descriptor: np.ndarray | None   # (32,) uint8
+    patch: np.ndarray               # (p, p) float32 (cut in every search mode)
+    descriptor: np.ndarray | None   # (32,) uint8, search_mode "descriptor" only
     mapped: bool = False
     # appearance prediction only: (q, q) float32 patch around cut_uv, the pixel
     # the patch was cut around, and the predicted (4, 4) wTc of that frame
     source: np.ndarray | None = None
     cut_uv: np.ndarray | None = None
     cut_wTc: np.ndarray | None = None
+
+    def orb_descriptor(self) -> np.ndarray:
+        """The descriptor (search_mode "descriptor" keeps one for every track)."""
+        if self.descriptor is None:
+            raise GraphSlamError(f"track {self.track_id} has no descriptor "
+                                 "(search_mode is not \"descriptor\")")
+        return self.descriptor
+
+    def cut(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(source, cut_uv)`` (appearance prediction keeps them for every track)."""
+        if self.source is None or self.cut_uv is None:
+            raise GraphSlamError(f"track {self.track_id} has no source patch "
+                                 "(appearance prediction is off)")
+        return self.source, self.cut_uv
 
 
 @dataclass(frozen=True, eq=False)
@@ -345,7 +360,7 @@ class Tracker:
             inside = np.flatnonzero(dd <= g)
             if len(inside) == 0:
                 return None, None, None
-            ham = _hamming(self._tracks[int(pids[i])].descriptor, desc[inside])
+            ham = _hamming(self._tracks[int(pids[i])].orb_descriptor(), desc[inside])
             j = int(np.argmin(ham))
             if ham[j] > self.config.max_hamming:
                 return None, float(ham[j]), None
@@ -365,9 +380,10 @@ class Tracker:
                                        repredict=repredict)
         unknown = np.full((4, 4), np.nan)  # a patch cut without a pose: not warped
         cut_wTc = np.stack([unknown if tr.cut_wTc is None else tr.cut_wTc for tr in tracks])
-        affine = patch_affines(view.K, view.wTc, lm_w, cut_wTc, np.stack([tr.cut_uv for tr in tracks]))
+        cuts = [tr.cut() for tr in tracks]
+        affine = patch_affines(view.K, view.wTc, lm_w, cut_wTc, np.stack([uv for _, uv in cuts]))
         return self._search.search(image, puv, pS, patches=patches, affine=affine, max_found=max_found,
-                                   source_patches=np.stack([tr.source for tr in tracks]),
+                                   source_patches=np.stack([source for source, _ in cuts]),
                                    repredict=repredict)
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
@@ -390,7 +406,9 @@ class Tracker:
 
     def _follow(self, image, feats, taken: list, k: int):
         """Search each unmapped track seen last frame in its window; returns ids, from, to, fraction."""
-        ids, src, dst = [], [], []
+        ids: list[int] = []
+        src: list[np.ndarray] = []
+        dst: list[np.ndarray] = []
         H, W = image.shape
         if not self.follow_unmapped:
             return ids, src, dst, 0.0
@@ -422,7 +440,7 @@ class Tracker:
                                      & (fxy[:, 1] >= v0) & (fxy[:, 1] <= v1))
                 if len(inw) == 0:
                     continue
-                ham = _hamming(tr.descriptor, feats.descriptors[inw])
+                ham = _hamming(tr.orb_descriptor(), feats.descriptors[inw])
                 j = int(np.argmin(ham))
                 if ham[j] > cfg.max_hamming:
                     continue
@@ -497,7 +515,8 @@ class Tracker:
             del self._tracks[tid]
 
     def _start_tracks(self, image, feats, occupied: np.ndarray, n_room: int, k: int):
-        ids, uvs = [], []
+        ids: list[int] = []
+        uvs: list[np.ndarray] = []
         if n_room <= 0 or len(feats) == 0:
             return ids, uvs
         H, W = image.shape

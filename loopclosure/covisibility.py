@@ -45,7 +45,7 @@ TRACKED_FEATURES = 500
 class CovisibilityGraph:
     """Track ids per frame and the frames sharing them (an inverted index)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._frame_ids: list[np.ndarray] = []
         self._frames_of: dict[int, list[int]] = {}
 

@@ -132,7 +132,7 @@ class BowDatabase:
     ``n_words_``). Image ids are 0, 1, 2... in insertion order.
     """
 
-    def __init__(self, vocabulary):
+    def __init__(self, vocabulary) -> None:
         if not all(hasattr(vocabulary, a) for a in ("transform", "idf_", "n_words_")):
             raise ConfigError("BowDatabase needs a fitted vocabulary (transform, idf_, n_words_)")
         self.vocabulary = vocabulary

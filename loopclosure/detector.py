@@ -285,6 +285,8 @@ class LoopDetector:
         """Add the next image ((H, W) uint8, its time in seconds if known, the run's
         track ids observed in it if any); returns the closure it makes, if any."""
         f = self.orb.detect(image)
+        if f.descriptors is None:  # ORB describes every point it keeps
+            raise RuntimeError("the ORB detector returned no descriptors")
         return self.process_features(f.xy_px, f.descriptors, timestamp,
                                      (float(image.shape[1]), float(image.shape[0])), track_ids)
 
@@ -418,7 +420,7 @@ class LoopDetector:
         v: Verification = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors,
                                                self.K, self.distortion, a.size, b.size)
         if not v.accepted:
-            self._record(i, match, best_match, score, eta, prior, n_chain, v, "geometry: " + v.reason)
+            self._record(i, match, best_match, score, eta, prior, n_chain, v, f"geometry: {v.reason}")
             return None
         self._record(i, match, best_match, score, eta, prior, n_chain, v, None)
         if self.mode == "covisibility":
@@ -434,15 +436,17 @@ class LoopDetector:
         are not lost; they come before the closure returned for this image)."""
         for q, m in self._chain[:-1]:
             at = self._record_of.get(q)
-            rec = self.records[at] if at is not None else None
-            if rec is None or rec.match != m or not (rec.reason or "").startswith("not temporally"):
+            if at is None:
+                continue
+            rec = self.records[at]
+            if rec.match != m or not (rec.reason or "").startswith("not temporally"):
                 continue
             a, b = self._features[q], self._features[m]
             v = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors, self.K,
                                      self.distortion, a.size, b.size)
             self.records[at] = dataclasses.replace(
                 rec, consistency=n_chain, n_matches=int(v.n_matches), n_inliers=int(v.n_inliers),
-                accepted=v.accepted, reason=None if v.accepted else "geometry: " + v.reason)
+                accepted=v.accepted, reason=None if v.accepted else f"geometry: {v.reason}")
             if v.accepted:
                 self.closures.append(DetectedLoop(q, m, rec.score, rec.normalised_score or 0.0,
                                                   v.n_inliers, v.R, v.t_unit))

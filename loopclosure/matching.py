@@ -68,11 +68,11 @@ def match_descriptors(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8
     if len(desc_a) < 2 or len(desc_b) < 2:
         return np.zeros((0, 2), np.int64)
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in bf.knnMatch(desc_a, desc_b, k=2)
-             if len(m) == 2 and m[0].distance <= max_hamming and m[0].distance < ratio * m[1].distance]
-    if not pairs:
+    good = [(m[0].queryIdx, m[0].trainIdx) for m in bf.knnMatch(desc_a, desc_b, k=2)
+            if len(m) == 2 and m[0].distance <= max_hamming and m[0].distance < ratio * m[1].distance]
+    if not good:
         return np.zeros((0, 2), np.int64)
-    pairs = np.asarray(pairs, np.int64)
+    pairs = np.asarray(good, np.int64)
     if cross_check:
         back = np.full(len(desc_b), -1, np.int64)
         for m in bf.match(desc_b, desc_a):

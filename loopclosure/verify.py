@@ -230,6 +230,8 @@ class Verification:
 def _as_fundamental(model: str, M: np.ndarray, K: np.ndarray | None) -> np.ndarray:
     """F with ``x_b^T F x_a = 0`` in pixels (E of pixels of K becomes K^-T E K^-1)."""
     if model == "essential":
+        if K is None:
+            raise ConfigError("loop_verify.model 'essential' needs the intrinsics K")
         Ki = np.linalg.inv(K)
         return Ki.T @ M @ Ki
     return M
@@ -319,8 +321,9 @@ class GeometricVerifier:
             raise ConfigError("loop_verify.model 'essential' needs the intrinsics K")
         # USAC reads K's memory as contiguous: a strided view (a slice of P) gives no model
         K = None if K is None else np.ascontiguousarray(K, np.float64)
-        ua = np.asarray(xy_a, np.float64).reshape(-1, 2)
-        ub = np.asarray(xy_b, np.float64).reshape(-1, 2)
+        # np.ndarray, not NDArray[float64]: cv2's stubs type undistortPoints' result loosely
+        ua: np.ndarray = np.asarray(xy_a, np.float64).reshape(-1, 2)
+        ub: np.ndarray = np.asarray(xy_b, np.float64).reshape(-1, 2)
         size_a = size_a or image_extent(ua)
         size_b = size_b or image_extent(ub)
         desc_a = np.ascontiguousarray(desc_a, np.uint8)

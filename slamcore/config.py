@@ -54,7 +54,7 @@ def bounded(default: Any = dataclasses.MISSING, *, min: float | None = None,
 def section_name(cls: type) -> str:
     """Section of a config file that configures ``cls`` (its ``SECTION`` attribute), or,
     for a config that is only ever a nested table, the name its messages use (``TABLE``)."""
-    return getattr(cls, "SECTION", None) or getattr(cls, "TABLE", cls.__name__.lower())
+    return getattr(cls, "SECTION", "") or getattr(cls, "TABLE", cls.__name__.lower())
 
 
 def choices_of(cls: type, name: str) -> tuple | None:
@@ -114,7 +114,9 @@ def _check_number(value: Any, hint: type, what: str) -> int | float:
         if isinstance(value, (float, np.floating)) and not (math.isfinite(value)
                                                             and float(value).is_integer()):
             raise ConfigError(f"{what}: expected an integer, got {quote(value)}")
-        if abs(value) > INT_LIMIT:
+        # abs() keeps the operand's numeric type; mypy joins the union's results to object
+        magnitude = typing.cast("int | float | np.integer | np.floating", abs(value))
+        if magnitude > INT_LIMIT:
             raise ConfigError(f"{what}: {quote(value)} is beyond what this machine can hold "
                               f"(|value| <= 2**62)")
         return int(value)
@@ -294,7 +296,7 @@ class ConfigFile:
         (``base``), so ``[loops.orb] n_features = 500`` keeps the loop detector's
         other ORB settings instead of ORB's general defaults."""
         hints = typing.get_type_hints(cls)
-        names = {f.name for f in dataclasses.fields(cls)}
+        names = _field_names(cls)
         unknown = sorted(set(data) - names)
         if unknown:
             raise ConfigError(f"unknown key(s) {unknown} in [{'.'.join(where)}]; known: "
@@ -318,6 +320,11 @@ class ConfigFile:
                               self.line_of(*where, key) if key else self.line_of(*where)) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
+
+
+def _field_names(cls: type) -> set[str]:
+    """Names of the fields of the dataclass ``cls``."""
+    return {f.name for f in dataclasses.fields(cls)}
 
 
 def _field_default(cls: type, name: str) -> Any:

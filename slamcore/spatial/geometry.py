@@ -86,7 +86,7 @@ def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
         else:
             s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
             v = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
-        v = np.asarray(v)
-        v /= np.linalg.norm(v)
-        q[i] = -v if v[3] < 0 else v
+        qi = np.asarray(v)
+        qi /= np.linalg.norm(qi)
+        q[i] = -qi if qi[3] < 0 else qi
     return q
