@@ -233,8 +233,10 @@ def robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseMo
     ``k`` (in sigmas of the whitened residual); "none" returns ``noise`` itself."""
     if kernel == "none":
         return noise
-    estimator = {"huber": gtsam.noiseModel.mEstimator.Huber,
-                 "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[kernel]
+    estimators: dict[str, type[gtsam.noiseModel.mEstimator.Huber]
+                     | type[gtsam.noiseModel.mEstimator.Cauchy]] = {
+        "huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
+    estimator = estimators[kernel]
     return gtsam.noiseModel.Robust.Create(estimator.Create(k), noise)
 
 

@@ -31,7 +31,7 @@ def convert(graph: pg.PoseGraph, fmt: str) -> tuple[pg.PoseGraph, list[str]]:
     """``graph`` in format ``fmt`` (3-D rotations re-expressed); notes on what is lost."""
     if fmt not in EXTENSIONS:
         raise ValueError(f"format must be g2o or toro, got {fmt!r}")
-    notes = []
+    notes: list[str] = []
     if fmt == graph.format:
         return graph, notes
     rotation = "angle" if graph.dim == 2 else ("quat" if fmt == "g2o" else "rpy")

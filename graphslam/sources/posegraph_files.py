@@ -211,39 +211,40 @@ class _Collector:
         if len(tok) != count:
             raise InputError(f"{tag} line needs {count} tokens, got {len(tok)}", self.path,
                              line_no)
-        (self._vertex if kind == "vertex" else self._edge)(line_no, tok)
+        (self._vertex if kind == "vertex" else self._edge)(line_no, tok, (fmt, dim, rotation))
 
-    def _pose(self, numbers: list[float], line_no: int) -> list[float]:
+    def _pose(self, numbers: list[float], line_no: int, dim: int, rotation: str) -> list[float]:
         # plain Python, not numpy: this runs on every line of the file
-        if self.kind[2] == "quat":
+        if rotation == "quat":
             norm = math.hypot(*numbers[3:7])
             if not norm >= QUATERNION_NORM_MIN:
                 raise InputError(f"quaternion of norm {norm:.3g} cannot be normalised into a "
                                  "rotation (a unit quaternion is expected)", self.path, line_no)
-        if not max(abs(v) for v in numbers[:self.kind[1]]) <= TRANSLATION_MAX_M:
+        if not max(abs(v) for v in numbers[:dim]) <= TRANSLATION_MAX_M:
             raise InputError(f"translation beyond {TRANSLATION_MAX_M:.0e} m: no robot's pose "
                              "graph spans that (a shifted column?)", self.path, line_no)
         return numbers
 
-    def _vertex(self, line_no: int, tok: list[str]) -> None:
+    def _vertex(self, line_no: int, tok: list[str], kind: tuple[str, int, str]) -> None:
         k = parse_id(tok[1], self.path, line_no)
         if k in self.vertices:
             raise InputError(f"pose {k} declared twice (first on line {self.vertex_lines[k]})",
                              self.path, line_no)
-        self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no)
+        self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no,
+                                      kind[1], kind[2])
         self.vertex_lines[k] = line_no
 
-    def _edge(self, line_no: int, tok: list[str]) -> None:
+    def _edge(self, line_no: int, tok: list[str], kind: tuple[str, int, str]) -> None:
         a = parse_id(tok[1], self.path, line_no)
         b = parse_id(tok[2], self.path, line_no)
-        fmt, dim, rotation = self.kind
+        fmt, dim, rotation = kind
         size = pg.PARAM_SIZE[rotation]
         numbers = parse_numbers(tok[3:], self.path, line_no)
         if a == b:
             # a place recogniser matching a frame to itself (RRR's NewCollege has 9): the
             # factor is constant whatever the estimate, so it constrains nothing; left out
             # and counted, never silently
-            self._pose(numbers[:size], line_no)  # still a well-formed line
+            self._pose(numbers[:size], line_no, dim, rotation)  # still a well-formed line
             self.self_edge_lines.append(line_no)
             return
         side = pg.TANGENT_SIZE[dim]
@@ -258,16 +259,16 @@ class _Collector:
                 info = info.T @ info
         # positive definiteness: checked for all edges at once, in graph()
         self.edges.append((a, b))
-        self.measurements.append(self._pose(numbers[:size], line_no))
+        self.measurements.append(self._pose(numbers[:size], line_no, dim, rotation))
         self.information.append(info)
         self.edge_lines.append(line_no)
 
     def graph(self) -> pg.PoseGraph:
         if self.kind is None or not self.edges:
             raise InputError("no pose-graph edges in the file", self.path)
-        information, fixed = self._checked_information()
-        self._check_declared()
         fmt, dim, rotation = self.kind
+        information, fixed = self._checked_information(dim)
+        self._check_declared()
         ids = np.array(sorted(set(self.vertices) | {k for e in self.edges for k in e}),
                        dtype=np.int64)
         size = pg.PARAM_SIZE[rotation]
@@ -291,7 +292,7 @@ class _Collector:
         check_connected(graph, self.path)
         return with_chain_start(graph)
 
-    def _checked_information(self) -> tuple[np.ndarray, np.ndarray | None]:
+    def _checked_information(self, dim: int) -> tuple[np.ndarray, np.ndarray | None]:
         """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
 
         One Cholesky of the stack passes a clean file (one by one it was half of
@@ -321,7 +322,7 @@ class _Collector:
             bad[e] = True
         if not bad.any():
             return stack, None
-        stack[bad] = pg.fixed_information(stack[bad], self.information_fix, self.kind[1])
+        stack[bad] = pg.fixed_information(stack[bad], self.information_fix, dim)
         return stack, bad
 
     def _check_declared(self) -> None:

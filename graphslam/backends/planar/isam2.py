@@ -71,7 +71,7 @@ from gtsam.symbol_shorthand import L, X
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends import factorization as fact
 from graphslam.backends.planar.isam2_config import Isam2Config
-from graphslam.backends.planar.isam2_unknown import MERGE_SIGMA_M
+from graphslam.backends.planar.isam2_unknown import MERGE_SIGMA_M, UnknownAssociation
 from graphslam.backends.planar.range_init import RangeLandmarkInitialiser
 from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
@@ -115,10 +115,9 @@ class Isam2Backend(Backend):
         self._dropped: set[int] = set()  # factor indices the gated polish left out
         self._gate_rounds = 0  # LM solves of the last gated polish (diagnostics)
         self._recoveries: list[str] = []  # numerical fallbacks taken, for the summary
-        self._unknown = None  # unknown association: owns its state (isam2_unknown)
+        # unknown association: owns its state (isam2_unknown)
+        self._unknown: UnknownAssociation | None = None
         if self.config.association == "unknown":
-            from graphslam.backends.planar.isam2_unknown import UnknownAssociation
-
             self._unknown = UnknownAssociation(self.config.association_gate_prob,
                                                self.config.confirm_sightings)
 
@@ -151,7 +150,7 @@ class Isam2Backend(Backend):
 
     def update(self, observations: Sequence[Observation]) -> None:
         if self._unknown is not None:
-            self._last_associations = self._update_unknown(observations)
+            self._last_associations = self._update_unknown(self._unknown, observations)
             return
         assoc: list[int | None] = []
         for obs in observations:
@@ -178,7 +177,8 @@ class Isam2Backend(Backend):
             assoc.append(lid)
         self._last_associations = assoc
 
-    def _update_unknown(self, observations: Sequence[Observation]) -> list[int | None]:
+    def _update_unknown(self, unknown: UnknownAssociation,
+                        observations: Sequence[Observation]) -> list[int | None]:
         """Unknown association: :mod:`.isam2_unknown` decides, this adds the factors."""
         if not observations:
             return []
@@ -189,25 +189,26 @@ class Isam2Backend(Backend):
         if any(o.pose_id != pose_id for o in observations) or pose_id not in self._pose_set:
             raise GraphSlamError("isam2: one update takes the observations of one known pose")
         self._flush()
-        decisions = self._unknown.step(self._isam, pose_id, observations)
+        decisions = unknown.step(self._isam, pose_id, observations)
         kernel = (self.config.observation_kernel, self.config.observation_kernel_k)
         assoc: list[int | None] = []
         for obs, d in zip(observations, decisions):
             if d.kind == "confirmed":
-                self._values.insert(L(d.landmark_id), gtsam.Point2(*d.mean_w))
-                self._landmark_ids.append(d.landmark_id)
-                self._landmark_set.add(d.landmark_id)
+                lid = d.landmark()
+                self._values.insert(L(lid), gtsam.Point2(*d.position()))
+                self._landmark_ids.append(lid)
+                self._landmark_set.add(lid)
                 for seen in d.sightings:
-                    self._graph.add(conv.bearing_range_factor(seen, d.landmark_id, *kernel))
+                    self._graph.add(conv.bearing_range_factor(seen, lid, *kernel))
             elif d.kind == "landmark":
-                self._graph.add(conv.bearing_range_factor(obs, d.landmark_id, *kernel))
+                self._graph.add(conv.bearing_range_factor(obs, d.landmark(), *kernel))
             if d.landmark_id is not None:
                 self._measurement_cov[d.landmark_id] = obs.covariance
             assoc.append(d.landmark_id)
-        paired = [d.landmark_id for d in decisions if d.kind == "landmark"]
+        paired = [d.landmark() for d in decisions if d.kind == "landmark"]
         if paired:
             self._flush()
-            for keep, drop in self._unknown.merges(self._isam, paired):
+            for keep, drop in unknown.merges(self._isam, paired):
                 self._graph.add(gtsam.BetweenFactorPoint2(
                     L(keep), L(drop), gtsam.Point2(0.0, 0.0),
                     gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M)))

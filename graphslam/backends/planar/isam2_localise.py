@@ -66,7 +66,7 @@ class Isam2Localiser(Isam2Backend):
         assoc: list[int | None] = []
         for obs in observations:
             slot = None if obs.landmark_id is None else self._map_slot.get(int(obs.landmark_id))
-            if slot is None:
+            if slot is None or obs.landmark_id is None:  # no id: no slot either
                 self.unmapped_count += 1
                 assoc.append(None)
                 continue

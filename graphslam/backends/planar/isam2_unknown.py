@@ -78,8 +78,8 @@ class UnknownAssociation:
         self.together.update((a, b) for a in paired for b in paired if a < b)
         for d in decisions:
             if d.kind == "confirmed":
-                self.positions[d.landmark_id] = d.mean_w
-                self.active.append(d.landmark_id)
+                self.positions[d.landmark()] = d.position()
+                self.active.append(d.landmark())
         return decisions
 
     def merges(self, isam: gtsam.ISAM2, paired: list[int]) -> list[tuple[int, int]]:

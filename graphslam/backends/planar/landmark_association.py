@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from filters.association import chi2_quantile, individual_candidates, jcbb
+from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 
 #: Individually compatible landmarks kept per observation for the joint test (the
@@ -65,6 +66,18 @@ class Decision:
     landmark_id: int | None = None
     mean_w: np.ndarray | None = None
     sightings: tuple = ()
+
+    def landmark(self) -> int:
+        """``landmark_id`` of a ``"landmark"`` or ``"confirmed"`` decision."""
+        if self.landmark_id is None:
+            raise GraphSlamError(f"association: a {self.kind!r} decision names no landmark")
+        return self.landmark_id
+
+    def position(self) -> np.ndarray:
+        """``mean_w`` of a ``"confirmed"`` decision."""
+        if self.mean_w is None:
+            raise GraphSlamError(f"association: a {self.kind!r} decision places no landmark")
+        return self.mean_w
 
 
 class LandmarkAssociator:

@@ -146,14 +146,16 @@ def _shonan(graph: PoseGraph) -> Start:
     Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id.
     """
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
-    factor = gtsam.BetweenFactorPose2 if graph.dim == 2 else gtsam.BetweenFactorPose3
-    ranked = [factor(int(a), int(b), fx.pose(graph.measurements[e], graph.rotation),
-                     fx.noise_model(graph.information[e])) for e, (a, b) in enumerate(rows)]
+    ranked = [(int(a), int(b), fx.pose(graph.measurements[e], graph.rotation),
+               fx.noise_model(graph.information[e])) for e, (a, b) in enumerate(rows)]
     lm = gtsam.LevenbergMarquardtParams.CeresDefaults()
+    shonan: gtsam.ShonanAveraging2 | gtsam.ShonanAveraging3
     if graph.dim == 2:
-        shonan = gtsam.ShonanAveraging2(ranked, gtsam.ShonanAveragingParameters2(lm))
+        shonan = gtsam.ShonanAveraging2([gtsam.BetweenFactorPose2(*f) for f in ranked],
+                                        gtsam.ShonanAveragingParameters2(lm))
     else:
-        shonan = gtsam.ShonanAveraging3(ranked, gtsam.ShonanAveragingParameters3(lm))
+        shonan = gtsam.ShonanAveraging3([gtsam.BetweenFactorPose3(*f) for f in ranked],
+                                        gtsam.ShonanAveragingParameters3(lm))
     p_min = graph.dim
     rotations, min_eigenvalue = deep_stack.call(shonan.run, shonan.initializeRandomly(), p_min,
                                                  p_min + 7)

@@ -75,7 +75,8 @@ def _join(j: int, edge_rows: np.ndarray, added: list[bool],
                     frontier.append(other)
     if not any(added[r] for e in edges for r in edge_rows[e].tolist()):
         return None  # still floating: wait for a later pose
-    inits, known = [], {r for e in edges for r in edge_rows[e].tolist() if added[r]}
+    inits: list[tuple[int, int, int]] = []
+    known = {r for e in edges for r in edge_rows[e].tolist() if added[r]}
     pending = sorted(edges)
     while len(inits) < len(rows):
         for e in pending:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import gtsam
 import numpy as np
@@ -286,7 +286,8 @@ def with_priors(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gts
         for e in np.flatnonzero(~drop).tolist():
             full.add(edges.at(e))
     for k in fx.anchors(graph).tolist():
-        held = (fx.pose(graph.vertices[graph.index_of([k])[0]], graph.rotation)
+        held = (fx.pose(graph.vertices[graph.index_of(np.array([k], dtype=np.int64))[0]],
+                        graph.rotation)
                 if len(graph.fixed) else _at(graph, values, k))
         full.add(fx.prior(graph, k, held, sigma))
     return full
@@ -342,8 +343,10 @@ class Isam2PoseGraph:
         self.params = fact.isam2_factorization(params, config.factorization)
         self.isam = gtsam.ISAM2(self.params)
         self.recoveries: list[str] = []
-        # the factors' own measurements (the same poses, and 6x cheaper than rebuilding them)
-        self.meas = [edges.at(e).measured() for e in range(edges.size())]
+        # the factors' own measurements (the same poses, and 6x cheaper than rebuilding them);
+        # the edges are Between factors, which at() returns as such (the stubs: the base class)
+        self.meas = [cast("gtsam.BetweenFactorPose2 | gtsam.BetweenFactorPose3",
+                          edges.at(e)).measured() for e in range(edges.size())]
         fixed = set(graph.fixed.tolist())
         self.anchored = fixed or {int(graph.ids[0])}
         self.ids = graph.ids.tolist()

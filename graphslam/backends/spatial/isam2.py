@@ -155,7 +155,7 @@ class VisualIsam2Backend(VisualBackend):
 
     def predict(self, frame_id, odometry, covariance):
         if self._mono is not None:
-            self._predict_camera_only(int(frame_id), odometry)
+            self._predict_camera_only(self._mono, int(frame_id), odometry)
             return
         if odometry is None:
             raise UnsupportedError("isam2 (visual) with robot_model = 'odometry' has no motion "
@@ -181,7 +181,7 @@ class VisualIsam2Backend(VisualBackend):
             ids, uv, sigma = checked_pixels(observations)
             first = self._mono.bootstrap(ids, uv, sigma)
             if first is not None:
-                self._start_map(first, sigma)
+                self._start_map(self._mono, first, sigma)
             return
         if not self._frames:
             raise GraphSlamError("isam2 (visual): update() before initialize()")
@@ -189,7 +189,7 @@ class VisualIsam2Backend(VisualBackend):
         fid = self._frames[-1]
         skip_pixels: set[int] = set()
         if self._mono is not None:
-            skip_pixels = self._measure_pose(fid, ids, uv, sigma)
+            skip_pixels = self._measure_pose(self._mono, fid, ids, uv, sigma)
         if len(ids) == 0:
             return
         now = len(self._frames) - 1
@@ -315,24 +315,26 @@ class VisualIsam2Backend(VisualBackend):
             params.setMaxIterations(self.config.polish_max_iterations)
             graph = self.factor_graph()
             if self.config.polish_method == "gnc" and self._closures:
-                graph, self._polished, dropped = gnc_polish(
+                graph, polished, dropped = gnc_polish(
                     graph, self._isam.calculateEstimate(), self._closures, params)
                 self._stats["closures_dropped_by_gnc"] = dropped
             else:
-                self._polished = gtsam.LevenbergMarquardtOptimizer(
+                polished = gtsam.LevenbergMarquardtOptimizer(
                     graph, self._isam.calculateEstimate(), params).optimize()
+            self._polished = polished
             self._current_cov_polished = conv.pose3_covariance_from_gtsam(
-                self._polished_pose_covariance(graph, X(self._frames[-1])))
+                self._polished_pose_covariance(graph, polished, X(self._frames[-1])))
             self._epoch += 1
         return self.estimate()
 
-    def _polished_pose_covariance(self, graph: gtsam.NonlinearFactorGraph, key: int) -> np.ndarray:
+    def _polished_pose_covariance(self, graph: gtsam.NonlinearFactorGraph, polished: gtsam.Values,
+                                  key: int) -> np.ndarray:
         """The last pose's covariance from a batch factorisation at the polish; where
         that Cholesky meets an indeterminate system (a landmark the polish left barely
         constrained, e.g. seen from two close frames), iSAM2's own marginal, counted
         in ``stats()["pose_covariance_from_isam2"]``: the run keeps its estimate."""
         try:
-            return gtsam.Marginals(graph, self._polished).marginalCovariance(key)
+            return gtsam.Marginals(graph, polished).marginalCovariance(key)
         except RuntimeError as exc:
             if not fact.is_indeterminate(exc):
                 raise
@@ -374,9 +376,10 @@ class VisualIsam2Backend(VisualBackend):
 
     def stats(self) -> dict:
         """Counters: landmarks, tracks waiting, rejected triangulations, ..."""
-        out = {"frames": len(self._frames), "landmarks": self._lms.n,
-               "tracks_waiting": len(self._mapper.tracks), **self._mapper.counts, **self._stats,
-               "isam2_updates": self._n_updates}
+        out: dict[str, object] = {
+            "frames": len(self._frames), "landmarks": self._lms.n,
+            "tracks_waiting": len(self._mapper.tracks), **self._mapper.counts, **self._stats,
+            "isam2_updates": self._n_updates}
         if self._mono is not None:
             out["camera_alone"] = self._mono.stats()
         return out
@@ -399,25 +402,26 @@ class VisualIsam2Backend(VisualBackend):
 
     # --- camera alone (robot_model = "constant_velocity") ----------------------
 
-    def _predict_camera_only(self, fid: int, odometry) -> None:
+    def _predict_camera_only(self, mono: MonoMotion, fid: int, odometry) -> None:
         """The frame's pose at constant velocity from the last two (pending, without
         factors until :meth:`update` measures it); nothing before the first map."""
         if odometry is not None:
             raise UnsupportedError("isam2 (visual) with robot_model = 'constant_velocity' tracks "
                                    "by the camera alone: it takes no odometry")
-        if fid in self._frame_set or fid == self._mono.frame_id:
+        if fid in self._frame_set or fid == mono.frame_id:
             raise GraphSlamError(f"isam2 (visual): frame {fid} added twice")
-        self._mono.next_frame(fid)
-        if not self._mono.mapped:
+        mono.next_frame(fid)
+        if not mono.mapped:
             return
         self._flush()
         before, last = self._frames[-2], self._frames[-1]
-        wTc_pred = self._mono.predict(conv.pose3_matrix(self._pose(before)),
-                                      conv.pose3_matrix(self._pose(last)))
+        wTc_pred = mono.predict(conv.pose3_matrix(self._pose(before)),
+                                conv.pose3_matrix(self._pose(last)))
         self._values.insert(X(fid), conv.pose3(wTc_pred))
         self._add_frame(fid)
 
-    def _measure_pose(self, fid: int, ids: np.ndarray, uv: np.ndarray, sigma: float) -> set[int]:
+    def _measure_pose(self, mono: MonoMotion, fid: int, ids: np.ndarray, uv: np.ndarray,
+                      sigma: float) -> set[int]:
         """PnP on the mapped landmarks among the frame's pixels: the pose then
         replaces the prediction, and the rows of ``ids`` PnP rejects are returned
         (they get no factor). Too few inliers: the frame is coasted on a
@@ -425,21 +429,24 @@ class VisualIsam2Backend(VisualBackend):
         rows = np.array([i for i, t in enumerate(ids.tolist()) if t in self._lms], dtype=np.int64)
         points = np.array([self._point(int(ids[i])) for i in rows.tolist()]).reshape(-1, 3)
         predicted = conv.pose3_matrix(self._values.atPose3(X(fid)))
-        est = self._mono.measure(points, uv[rows], predicted, sigma, ids, uv)
-        self._values.update(X(fid), conv.pose3(est.wTc if est.wTc is not None else est.wTc_coast))
+        est = mono.measure(points, uv[rows], predicted, sigma, ids, uv)
+        wTc = est.wTc if est.wTc is not None else est.wTc_coast
+        if wTc is None:  # measure() gives a frame it coasts its wTc_coast
+            raise GraphSlamError(f"isam2 (visual): frame {fid} has neither a PnP nor a coasted pose")
+        self._values.update(X(fid), conv.pose3(wTc))
         if est.wTc is None:
-            self._add_coasting_factor(fid)
+            self._add_coasting_factor(mono, fid)
         return set(rows[~est.inliers].tolist())
 
-    def _add_coasting_factor(self, fid: int) -> None:
+    def _add_coasting_factor(self, mono: MonoMotion, fid: int) -> None:
         self._graph.add(gtsam.BetweenFactorPose3(X(self._frames[-2]), X(fid),
-                                                 conv.pose3(self._mono.delta),
-                                                 conv.pose3_noise(self._mono.covariance)))
+                                                 conv.pose3(mono.delta),
+                                                 conv.pose3_noise(mono.covariance)))
 
-    def _start_map(self, first, sigma: float) -> None:
+    def _start_map(self, mono: MonoMotion, first, sigma: float) -> None:
         """The bootstrap's map into the graph (:func:`.landmark_init.first_map_graph`)."""
         graph, values, landmarks = first_map_graph(
-            first, self._mono.wTc0, conv.pose3_noise(self._mono.prior_covariance),
+            first, mono.wTc0, conv.pose3_noise(mono.prior_covariance),
             self._cal, self._pixel_noise(sigma), SCALE_GAUGE_SIGMA)
         self._graph.push_back(graph)
         self._values.insert(values)
@@ -480,6 +487,8 @@ class VisualIsam2Backend(VisualBackend):
 
     def _pose_marginal(self, key: int) -> np.ndarray:
         if self._polished is not None:  # gtsam order, as the Jacobians
+            if self._current_cov_polished is None:
+                raise GraphSlamError("isam2 (visual): polished estimate without its covariance")
             return conv.pose3_covariance_to_gtsam(self._current_cov_polished)
         return self._isam.marginalCovariance(key)
 
@@ -512,7 +521,7 @@ class VisualIsam2Backend(VisualBackend):
         return model
 
     def _over_budget(self, ids: np.ndarray, budget: int,
-                     rejected: set[int] = frozenset()) -> tuple[set[int], int]:
+                     rejected: set[int] | frozenset[int] = frozenset()) -> tuple[set[int], int]:
         """Rows of ``ids`` whose landmark gets no factor this frame (``rejected`` ones,
         then those beyond ``budget``), and how many mapped landmarks do get one."""
         skip = set(rejected)
@@ -552,7 +561,7 @@ class VisualIsam2Backend(VisualBackend):
             # read before its pixels (a Ctrl-C between predict and update): the
             # frame keeps its constant-velocity prediction, so iSAM2 can take it
             self._mono.coast("interrupted before the frame was measured")
-            self._add_coasting_factor(self._frames[-1])
+            self._add_coasting_factor(self._mono, self._frames[-1])
         if self._graph.size() == 0 and self._values.size() == 0:
             return
         # before the swap: it reads the pending values

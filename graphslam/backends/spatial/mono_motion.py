@@ -18,6 +18,7 @@ from graphslam.backends.spatial.mono_tracking import (
     MonoTrackingConfig, PnpPose, constant_velocity, frame_rotation, motion_covariance, pnp_pose,
     reprojects, rng_seed,
 )
+from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
 __all__ = ["MonoMotion"]
@@ -62,12 +63,18 @@ class MonoMotion:
         self.frame_id = int(frame_id)
         self._frames_seen += 1
 
+    def _current(self) -> int:
+        """The current frame's id, set by :meth:`next_frame`."""
+        if self.frame_id is None:
+            raise GraphSlamError("isam2 (visual), camera alone: a frame before next_frame()")
+        return self.frame_id
+
     def bootstrap(self, track_ids: np.ndarray, uv_px: np.ndarray, sigma_px: float) -> FirstMap | None:
         """The current frame's pixels to the bootstrap; the first map once made."""
         self.sigma_px = float(sigma_px)
         if self._boot is None:
             self._boot = MonoBootstrap(self.config, self.K, sigma_px, self.seed)
-        first = self._boot.add(self.frame_id, track_ids, uv_px)
+        first = self._boot.add(self._current(), track_ids, uv_px)
         if first is None:
             return None
         self.mapped = True
@@ -114,7 +121,7 @@ class MonoMotion:
         self.sigma_px = float(sigma_px)
         threshold = c.pnp_threshold_sigmas * sigma_px
         est = pnp_pose(points_w, uv_px, self.K, wTc_pred, threshold_px=threshold,
-                       min_inliers=c.min_pnp_inliers, seed=rng_seed(self.seed, self.frame_id))
+                       min_inliers=c.min_pnp_inliers, seed=rng_seed(self.seed, self._current()))
         before, self._before = self._before, (np.asarray(frame_ids), np.asarray(frame_uv))
         self.awaiting = False
         if est.wTc is not None:
@@ -150,7 +157,7 @@ class MonoMotion:
         threshold = step / max(self.median_depth, 1e-12) + self.config.pnp_threshold_sigmas * sigma_px / f
         R, _ = frame_rotation(uv_b[ib], np.asarray(frame_uv)[iu], self.K, threshold_rad=threshold,
                               min_inliers=self.config.min_pnp_inliers,
-                              seed=rng_seed(self.seed, self.frame_id))
+                              seed=rng_seed(self.seed, self._current()))
         if R is None:
             return False
         self.delta = self.delta.copy()
@@ -165,7 +172,7 @@ class MonoMotion:
         self.awaiting = False
         self.counts["coasted_frames"] += 1
         if self._coasting == 0:
-            self.losses.append({"frame": int(self.frame_id), "reason": reason, "frames": 1,
+            self.losses.append({"frame": self._current(), "reason": reason, "frames": 1,
                                 "ended": "still lost at the end of the run"})
         self._coasting += 1
         self.losses[-1]["frames"] = self._coasting

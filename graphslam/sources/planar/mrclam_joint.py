@@ -47,7 +47,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     if not robots:
         raise InputError("no RobotN_Odometry.dat here", folder)
     logs = {n: read_robot(folder, n) for n in robots}
-    seen_at = {n: [] for n in robots}  # times each robot is seen by another
+    seen_at: dict[int, list[float]] = {n: [] for n in robots}  # times each robot is seen by another
     for n, (odo, meas, _) in logs.items():
         for t, code in meas[:, :2].tolist():
             subject = barcodes.get(int(code), 0)

@@ -72,6 +72,20 @@ def is_injected(lc: LoopClosure) -> bool:
     return lc.source == INJECTED_SOURCE
 
 
+def _template(rng: np.random.Generator, true_closures: list[LoopClosure],
+              covariance: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(delta, covariance)`` of the next injected closure: a true closure's, drawn
+    with ``rng``, its covariance replaced by ``covariance`` when given; without true
+    closures, a zero delta and ``covariance``."""
+    if true_closures:
+        template = true_closures[int(rng.integers(len(true_closures)))]
+        return template.delta, (covariance if covariance is not None else template.covariance)
+    if covariance is None:
+        raise GraphSlamError("dataset has no loop closure to copy a covariance from; "
+                             "pass covariance=")
+    return np.zeros(3), covariance
+
+
 def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
                           covariance: np.ndarray | None = None,
                           min_index_gap: int = DEFAULT_MIN_INDEX_GAP,
@@ -126,13 +140,7 @@ def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
             ki, kj = sorted(int(k) for k in rng.integers(0, n_frames, size=2))
             if kj - ki < min_index_gap:
                 continue
-            if true_closures:
-                template = true_closures[int(rng.integers(len(true_closures)))]
-                delta, cov = template.delta, template.covariance
-            else:
-                delta, cov = np.zeros(3), covariance
-            if covariance is not None:
-                cov = covariance
+            delta, cov = _template(rng, true_closures, covariance)
             lc = LoopClosure(pose_ids[ki], pose_ids[kj], delta, cov, source=INJECTED_SOURCE)
             if ref_pose is not None:
                 wTi, wTj = ref_pose(lc.from_id), ref_pose(lc.to_id)

@@ -264,7 +264,7 @@ def _bearing_range(tok, path, line_no) -> Observation:
     if sigma_b <= 0.0 or sigma_r <= 0.0:
         raise InputError("BR sigmas must be positive", path, line_no)
     try:
-        return Observation(pose, landmark, [range_m, float(wrap_angle(bearing))],
+        return Observation(pose, landmark, np.array([range_m, float(wrap_angle(bearing))]),
                            np.diag([sigma_r ** 2, sigma_b ** 2]), ObservationKind.RANGE_BEARING)
     except MeasurementError as exc:
         raise InputError(str(exc), path, line_no) from None

@@ -47,7 +47,7 @@ import numpy as np
 
 from slamcore.planar.geometry import compose, observe
 from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
 from slamcore.planar.geometry import wrap_angle
@@ -331,5 +331,7 @@ def dead_reckon(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
     wTb = np.zeros((len(ids), 3))
     wTb[0] = dataset.prior_wTb
     for k, f in enumerate(dataset.frames[1:], start=1):
+        if f.odometry is None:
+            raise GraphSlamError(f"dead reckoning: frame {f.pose_id} has no odometry")
         wTb[k] = compose(wTb[k - 1], f.odometry.delta)
     return ids, wTb

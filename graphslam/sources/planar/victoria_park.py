@@ -135,7 +135,7 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                 if i not in observations:
                     raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
                                      path, line_no)
-                z = [math.hypot(lx, ly), math.atan2(ly, lx)]
+                z = np.array([math.hypot(lx, ly), math.atan2(ly, lx)])
                 cov = np.diag([v1, v1 / 10.0])
                 check_variances(np.diag(cov), ("range", "bearing"), path, line_no)
                 observations[i].append(Observation(i, j, z, cov, ObservationKind.RANGE_BEARING))

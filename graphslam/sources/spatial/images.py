@@ -118,18 +118,20 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     """
     folder = Path(folder)
     rgb = folder / "rgb.txt"
-    stamps, paths, numbers = [], [], []
+    times: list[float] = []
+    paths: list[str] = []
+    numbers: list[int] = []
     for n, t in read_lines(rgb, "TUM rgb.txt"):
         numbers.append(n)
         parts = t.split()
         if len(parts) != 2:
             raise InputError(f"expected 'timestamp filename', got {quote(t)}", rgb, n)
         # a decimal number, finite: float() alone takes "nan", "inf", "1_000"
-        stamps.append(float(parse_floats(parts[0], rgb, n, 1, "timestamp")[0]))
+        times.append(float(parse_floats(parts[0], rgb, n, 1, "timestamp")[0]))
         paths.append(str(listed_file(folder, parts[1], rgb, n)))
     if not paths:
         raise InputError("no images listed", rgb)
-    stamps = np.array(stamps)
+    stamps = np.array(times)
     check_increasing(stamps, numbers, rgb)
     check_exist(paths, rgb)
 
@@ -142,8 +144,8 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
         if m is None:
             raise InputError("no intrinsics: pass intrinsics=(fx, fy, cx, cy) or 'fr1'/'fr2'/'fr3', "
                              f"or add one of {', '.join(INTRINSICS_FILE_NAMES)}", folder)
-        f, d = TUM_INTRINSICS["fr" + m.group(1)]
-        K, dist = intrinsics_matrix(*f), None if d is None else np.array(d)
+        fxy, d = TUM_INTRINSICS["fr" + m.group(1)]
+        K, dist = intrinsics_matrix(*fxy), None if d is None else np.array(d)
 
     wTc = None
     gpath = folder / "groundtruth.txt"
@@ -173,20 +175,22 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
     mav = folder if (folder / camera).is_dir() and not (folder / "mav0").is_dir() else folder / "mav0"
     cam = mav / camera
     csv = cam / "data.csv"
-    stamps, paths, numbers = [], [], []
+    times: list[float] = []
+    paths: list[str] = []
+    numbers: list[int] = []
     for n, t in read_lines(csv, f"EuRoC {camera}/data.csv"):
         numbers.append(n)
         parts = [p.strip() for p in t.split(",")]
         if len(parts) != 2 or not parts[1]:
             raise InputError(f"expected 'timestamp_ns,filename', got {quote(t)}", csv, n)
         try:
-            stamps.append(int(parts[0]) * 1e-9)
+            times.append(int(parts[0]) * 1e-9)
         except ValueError:
             raise InputError(f"bad timestamp {quote(parts[0])}", csv, n) from None
         paths.append(str(listed_file(cam / "data", parts[1], csv, n)))
     if not paths:
         raise InputError("no images listed", csv)
-    stamps = np.array(stamps)
+    stamps = np.array(times)
     check_increasing(stamps, numbers, csv)
     check_exist(paths, csv)
 

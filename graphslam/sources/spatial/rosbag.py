@@ -37,6 +37,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -143,7 +144,7 @@ def bag_errors(path: Path) -> tuple[type[BaseException], ...]:
             KeyError, IndexError, EOFError, struct.error)
 
 
-def _reason(e: Exception) -> str:
+def _reason(e: BaseException) -> str:
     text = " ".join(str(e).split()) or type(e).__name__
     return text if len(text) <= 200 else text[:200] + "..."
 
@@ -329,7 +330,8 @@ def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
     if truth is not None:
         from graphslam.sources.ground_truth import with_ground_truth
 
-        seq = with_ground_truth(seq, truth)  # first: frames without truth are dropped
+        # first: frames without truth are dropped (dataclasses.replace keeps the class)
+        seq = cast(BagSequence, with_ground_truth(seq, truth))
     return seq if odometry is None else with_odometry(seq, chosen["odometry"], *odometry)
 
 
@@ -348,7 +350,11 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
     checked (a compressed one's when it is loaded), order by header stamp."""
     conns = [c for c in reader.connections if c.topic == topic]
     position = {id(c): k for k, c in enumerate(reader.connections)}
-    refs, stamps, record, size, seen = [], [], [], None, {}
+    refs: list[FrameRef] = []
+    stamps: list[int] = []
+    record: list[int] = []
+    size: tuple[int, int] | None = None
+    seen: dict[tuple[int, int], int] = {}
     for conn, t, raw in reader.messages(conns):
         msg = reader.deserialize(raw, conn.msgtype)
         where = f"{path}#{topic}/{len(refs):06d}"
@@ -364,7 +370,7 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
         refs.append(FrameRef(key[0], t, seen[key]))
         stamps.append(rm.stamp_ns(msg.header))
         record.append(t)
-    if not refs:
+    if not refs or size is None:  # (the first message gives the size)
         raise InputError(f"topic {topic} has no messages", path)
     notes = []
     if not any(stamps):
@@ -431,7 +437,9 @@ def _poses(reader, topic: str, msgtype: str, path: Path):
     in header-stamp order (covariances of Odometry only); a repeated stamp refused."""
     where = f"{path}#{topic}"
     conns = [c for c in reader.connections if c.topic == topic]
-    stamps, poses, covs = [], [], []
+    stamps: list[int] = []
+    poses: list[np.ndarray] = []
+    covs: list[np.ndarray] = []
     for conn, _, raw in reader.messages(conns):
         msg = reader.deserialize(raw, conn.msgtype)
         poses.append(rm.pose_matrix(msg, msgtype, f"{where}/{len(poses)}"))

@@ -66,7 +66,11 @@ def image_gray(msg, msgtype: str, where: str) -> np.ndarray:
     """The image of a ``sensor_msgs`` Image or CompressedImage as (H, W) uint8 grey."""
     if msgtype == COMPRESSED_IMAGE:
         return decode_gray(np.asarray(msg.data, dtype=np.uint8).tobytes(), where)
-    w, h = image_size(msg, msgtype, where)
+    size = image_size(msg, msgtype, where)
+    if size is None:
+        raise InputError(f"{msgtype} is not an image message (expected {IMAGE} or "
+                         f"{COMPRESSED_IMAGE})", where)
+    w, h = size
     channels, depth, code = ENCODINGS[str(msg.encoding)]
     rows = np.asarray(msg.data, dtype=np.uint8)[:int(msg.step) * h].reshape(h, int(msg.step))
     pixels = rows[:, :w * channels * depth]

@@ -169,7 +169,8 @@ def parse_floats(text: str, path: Path, line: int, count: int | None = None,
     return vals
 
 
-def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: Path, line: int) -> np.ndarray:
+def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: str | Path | None,
+                     line: int | None) -> np.ndarray:
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     if not 0.9 < n < 1.1:
         raise InputError(f"quaternion norm {n:.4f} is not 1", path, line)
@@ -188,7 +189,7 @@ def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: Path, lin
 ROTATION_TOL = 1e-3
 
 
-def check_rotation(R: np.ndarray, path: Path, line: int) -> np.ndarray:
+def check_rotation(R: np.ndarray, path: str | Path | None, line: int | None) -> np.ndarray:
     """``R`` when it is a rotation to :data:`ROTATION_TOL`, else InputError at ``line``."""
     off = float(np.max(np.abs(R.T @ R - np.eye(3))))
     det = float(np.linalg.det(R))

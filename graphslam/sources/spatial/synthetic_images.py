@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, GraphSlamError
 from graphslam.sources.spatial.sequence import ImageSequence
 from graphslam.sources.spatial.synthetic_render import (
     Surface, balbianello_photos, clip_polygon_near, mip_levels, photo_texture, procedural_texture,
@@ -269,7 +269,9 @@ def _path(cfg: SyntheticImagesConfig, s: np.ndarray) -> tuple[np.ndarray, np.nda
     a, b, r = cfg.path_length_m / 2, cfg.path_width_m / 2, cfg.corner_radius_m
     lx, ly = 2 * (a - r), 2 * (b - r)
     arc = 0.5 * math.pi * r
-    segs = [("line", (-a + r, -b), (1, 0), lx), ("arc", (a - r, -b + r), -0.5 * math.pi, arc),
+    # (kind, start or centre, direction or start angle, length)
+    segs: list[tuple[str, tuple[float, float], tuple[float, float] | float, float]] = [
+            ("line", (-a + r, -b), (1, 0), lx), ("arc", (a - r, -b + r), -0.5 * math.pi, arc),
             ("line", (a, -b + r), (0, 1), ly), ("arc", (a - r, b - r), 0.0, arc),
             ("line", (a - r, b), (-1, 0), lx), ("arc", (-a + r, b - r), 0.5 * math.pi, arc),
             ("line", (-a, b - r), (0, -1), ly), ("arc", (-a + r, -b + r), math.pi, arc)]
@@ -277,10 +279,10 @@ def _path(cfg: SyntheticImagesConfig, s: np.ndarray) -> tuple[np.ndarray, np.nda
     s = np.mod(s, total)
     x, y, h = np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
     start = 0.0
-    for kind, p, q, length in segs:
+    for _, p, q, length in segs:
         m = (s >= start) & (s < start + length + 1e-12)
         d = s[m] - start
-        if kind == "line":
+        if isinstance(q, tuple):  # a "line": q is its direction; an "arc": its start angle
             x[m], y[m] = p[0] + q[0] * d, p[1] + q[1] * d
             h[m] = math.atan2(q[1], q[0])
         else:
@@ -371,6 +373,12 @@ class SyntheticImageSequence(ImageSequence):
 
     load_raw = load  # rendered through the pinhole K: nothing to undistort
 
+    def _true_wTc(self, i: int) -> np.ndarray:
+        """Frame ``i``'s ground-truth pose (a synthetic sequence is made with them)."""
+        if self.wTc_true is None:
+            raise GraphSlamError("synthetic images: the sequence has lost its ground truth")
+        return self.wTc_true[i]
+
     @property
     def nearest_depth_m(self) -> float | None:
         """1st percentile (a few corners grazing a box's edge are nearer than any trackable
@@ -390,7 +398,7 @@ class SyntheticImageSequence(ImageSequence):
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range [0, {n})")
         i %= n
-        img, invz = render_surfaces(self.surfaces, self.K, _invert(self.wTc_true[i]), self.image_size,
+        img, invz = render_surfaces(self.surfaces, self.K, _invert(self._true_wTc(i)), self.image_size,
                             self.config.near_m)
         if self.config.pixel_noise_sigma > 0:
             rng = np.random.default_rng([self.config.seed, 1, i])
@@ -403,7 +411,7 @@ class SyntheticImageSequence(ImageSequence):
     def project(self, i: int, points_w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(uv (M, 2) pixels, depth (M,) metres)`` of world points in frame ``i``."""
         P = self.points_w if points_w is None else np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
-        cTw = _invert(self.wTc_true[i])
+        cTw = _invert(self._true_wTc(i))
         pc = P @ cTw[:3, :3].T + cTw[:3, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             uvw = pc @ self.K.T
@@ -468,7 +476,7 @@ def make_synthetic_images(config: SyntheticImagesConfig | None = None) -> Synthe
 
     pos = wTc[:, :3, 3]
     yaw = _yaw(wTc)
-    pairs = []
+    pairs: list[tuple[int, int]] = []
     for i in range(n):
         j = np.arange(i + cfg.revisit_min_gap_frames, n)
         if j.size == 0:

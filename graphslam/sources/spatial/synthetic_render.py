@@ -101,8 +101,8 @@ def balbianello_photos() -> list[np.ndarray]:
         folder = None
     if not folder or not os.path.isdir(folder):
         raise ConfigError("texture 'balbianello': gtsam's Balbianello example folder was not found")
-    photos = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in sorted(glob.glob(os.path.join(folder, "*.jpg")))]
-    photos = [p for p in photos if p is not None]
+    read = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in sorted(glob.glob(os.path.join(folder, "*.jpg")))]
+    photos = [p for p in read if p is not None]
     if not photos:
         raise ConfigError(f"texture 'balbianello': no readable .jpg in {folder}")
     return photos
