@@ -55,7 +55,7 @@ def read_npz(path) -> dict:
         raise InputError("not a vocabulary file (no format_version/kind)", path)
     try:
         version = int(data["format_version"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # inf: OverflowError
         raise InputError("bad format_version field", path) from exc
     if version != FORMAT_VERSION:
         raise InputError(f"vocabulary format version {version}, this code reads "
@@ -117,7 +117,7 @@ def restore_flat(cls, data: dict, path):
         v.n_words_ = int(data["n_words"])
         v.idf_ = data["idf"]
         v.n_training_images_ = int(data["n_training_images"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # int(inf): OverflowError
         raise InputError(f"bad vocabulary field ({exc})", path) from exc
     if v.idf_.dtype != np.float64:
         raise InputError("inconsistent arrays in vocabulary file", path)
@@ -160,7 +160,7 @@ def restore_tree(cls, data: dict, path):
         v.n_words_ = int(v.word_node_.size)
         v.idf_ = data["idf"]
         v.n_training_images_ = int(data["n_training_images"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # int(inf): OverflowError
         raise InputError(f"bad vocabulary field ({exc})", path) from exc
     _check_tree(v, path)
     return v

@@ -59,6 +59,8 @@ def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
     mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
     xs, xd = src - mu_s, dst - mu_d
     cov = xd.T @ xs / len(src)
+    if not np.all(np.isfinite(cov)):  # LAPACK's SVD can loop forever on inf or NaN
+        raise GraphSlamError("align_umeyama: non-finite or overflowing coordinates")
     U, D, Vt = np.linalg.svd(cov)
     S = np.eye(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:

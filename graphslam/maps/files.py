@@ -47,7 +47,7 @@ import numpy as np
 
 from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS, PlanarMap
 from graphslam.maps.spatial_map import ARRAYS, SpatialMap
-from slamcore.errors import InputError, quote
+from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import inside_folder, replacing_all
 from slamcore.npz import check_npz_sizes
 
@@ -148,6 +148,8 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise InputError(f"damaged map.json ({e})", path) from None
+    except RecursionError:  # thousands of nested brackets
+        raise InputError("damaged map.json (nested too deeply)", path) from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(f"not a {FORMAT} file", path)
     version = doc.get("version")
@@ -157,8 +159,8 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
         raise InputError(f"map format version {version} is newer than this graphslam reads "
                          f"({FORMAT_VERSION}); upgrade graphslam", path)
     found = doc.get("kind", SPATIAL)  # version-1 maps written before 2-D maps have none
-    if found not in _TABLES:
-        raise InputError(f"damaged map.json (kind {found!r})", path)
+    if not isinstance(found, str) or found not in _TABLES:
+        raise InputError(f"damaged map.json (kind {quote(found)})", path)
     if found != kind:
         raise InputError(f"this is a {_KIND_TEXT[found]}; this run needs a {_KIND_TEXT[kind]}",
                          path)
@@ -202,6 +204,7 @@ def load_map(folder) -> SpatialMap:
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
     if not np.all(np.isfinite(K)):
         raise InputError("damaged map.json (camera K not finite)", folder / MAP_JSON)
+    _check_detectors(doc["meta"], folder / MAP_JSON)
     smap = SpatialMap(K=K, image_size=size, vocabulary=load_vocabulary(vocab_path),
                       meta=doc["meta"], vocabulary_bytes=vocab_bytes, **arrays)
     smap.check(npz_path)
@@ -210,13 +213,35 @@ def load_map(folder) -> SpatialMap:
     return smap
 
 
+def _check_detectors(meta: dict, path: Path) -> None:
+    """InputError naming ``path`` unless the detectors a localizer builds from ``meta``
+    (``tracker.detector``, the ``bow_orb`` ORB settings) are valid settings."""
+    from frontend.orb import OrbConfig
+    from frontend.tracking_config import TrackerConfig
+    from slamcore.config import from_dict
+
+    tracker, bow_orb = meta.get("tracker", {}), meta.get("bow_orb", {})
+    for key, value in (("tracker", tracker), ("bow_orb", bow_orb)):
+        if not isinstance(value, dict):
+            raise InputError(f"damaged map.json (meta {key!r} is not a table)", path)
+    try:
+        TrackerConfig(detector=tracker.get("detector", "harris"))
+        from_dict(OrbConfig, bow_orb)
+    except ConfigError as e:
+        raise InputError(f"damaged map.json (meta: {e})", path) from None
+
+
 def _read_npz(blob: bytes, npz_path: Path, names) -> dict[str, np.ndarray]:
     try:
         check_npz_sizes(io.BytesIO(blob), npz_path)  # before np.load allocates
         with np.load(io.BytesIO(blob), allow_pickle=False) as z:
-            return {name: z[name] for name in names}
+            arrays = {name: z[name] for name in names}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
         raise InputError(f"damaged map arrays ({type(e).__name__}: {e})", npz_path) from None
+    for name, a in arrays.items():
+        if a.ndim == 0:  # every array has a row per keyframe, landmark or observation
+            raise InputError(f"map array {name} is a single value, not rows", npz_path)
+    return arrays
 
 
 def load_planar_map(folder) -> PlanarMap:

@@ -16,11 +16,15 @@ near there), not against one descriptor per landmark from far away.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from loopclosure.database import BowVector
+from loopclosure.database import L1_NORM_TOL, BowVector
 from slamcore.errors import InputError
+
+if TYPE_CHECKING:  # loading a map imports the vocabulary module only when it reads one
+    from loopclosure.vocabulary import FlatVocabulary, VocabularyTree
 
 #: Arrays of a map and their trailing shapes and dtypes (the first axis is a count).
 ARRAYS: dict[str, tuple[tuple[int, ...], str]] = {
@@ -80,7 +84,7 @@ class SpatialMap:
     bow_indptr: np.ndarray
     bow_words: np.ndarray
     bow_weights: np.ndarray
-    vocabulary: object
+    vocabulary: FlatVocabulary | VocabularyTree
     meta: dict = field(default_factory=dict)
     vocabulary_bytes: bytes | None = None
 
@@ -150,6 +154,22 @@ class SpatialMap:
         for name in ("keyframe_wTc", "landmark_w", "bow_weights"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise InputError(f"map array {name} holds non-finite values", where)
+        self._check_bow_rows(where)
+
+    def _check_bow_rows(self, where) -> None:
+        """InputError unless every keyframe's row is a :class:`BowVector` (word ids
+        increasing, weights > 0 summing to 1): :meth:`bow` raised ValueError."""
+        w, wts, ip = self.bow_words, self.bow_weights, self.bow_indptr
+        if not len(w):
+            return
+        starts = ip[:-1][np.diff(ip) > 0]
+        inside = np.ones(len(w) - 1, dtype=bool)  # consecutive entries of one row
+        inside[starts[1:] - 1] = False
+        sums = np.add.reduceat(wts, starts)  # empty rows hold nothing: each segment is a row
+        if np.any(wts <= 0) or np.any(np.abs(sums - 1.0) > L1_NORM_TOL) \
+                or np.any(np.diff(w)[inside] <= 0):
+            raise InputError("map bag-of-words rows are not normalised vectors (word ids "
+                             "increasing, weights > 0 summing to 1)", where)
 
 
 def bow_csr(vectors: list[BowVector]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

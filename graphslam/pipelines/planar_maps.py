@@ -62,7 +62,8 @@ def load_run_map(folder, dataset_name: str, seed: int | None, config) -> PlanarM
                          "(landmarks are associated by id)", folder)
     world = dataset_world(dataset_name, seed, config)
     if world is not None and pmap.meta.get("world") != world:
-        saved = pmap.meta.get("world") or {}
+        saved = pmap.meta.get("world")
+        saved = saved if isinstance(saved, dict) else {}  # a damaged map.json: every key differs
         diff = sorted(k for k in world if saved.get(k) != world[k])
         raise InputError(f"map was built on another synthetic world ([synthetic] "
                          f"{', '.join(diff) or 'world'} differ)", folder)

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from graphslam.sources.spatial.sequence import (
     ASSOCIATION_MAX_DT_S, ImageSequence, associate, check_increasing, check_rotation,
     parse_floats, quat_to_rotation, read_lines,
@@ -65,6 +66,14 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
+def _position(t: np.ndarray, path: Path, line: int) -> np.ndarray:
+    """``t`` when within :data:`TRANSLATION_MAX_M` (as the pose-graph readers), else
+    InputError: beyond it the alignment's sums overflow (LAPACK hung on the inf)."""
+    if not np.max(np.abs(t)) <= TRANSLATION_MAX_M:
+        raise InputError(f"position beyond {TRANSLATION_MAX_M:.0e} m: no trajectory's", path, line)
+    return t
+
+
 def detect_format(path: Path, first_line: str) -> str:
     """``"euroc"`` (commas or ``.csv``), ``"kitti"`` (12 numbers) or ``"tum"`` (8)."""
     if path.suffix.lower() == ".csv" or "," in first_line:
@@ -94,17 +103,19 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         if fmt == "kitti":
             v = parse_floats(text, path, n, 12, "numbers (KITTI: row-major 3x4 pose)")
             R = check_rotation(v.reshape(3, 4)[:, :3], path, n)
-            poses.append(_pose(R, v.reshape(3, 4)[:, 3]))
+            poses.append(_pose(R, _position(v.reshape(3, 4)[:, 3], path, n)))
         elif fmt == "tum":
             v = parse_floats(text, path, n, 8, "numbers (TUM: t x y z qx qy qz qw)")
             stamps.append(v[0])
-            poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n), v[1:4]))
+            poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n),
+                               _position(v[1:4], path, n)))
         else:
             v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
             stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
-            poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), v[1:4]))
+            poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n),
+                               _position(v[1:4], path, n)))
     if fmt == "kitti":
         return Trajectory(fmt, None, np.array(poses), str(path))
     order = _time_order(np.array(stamps), [n for n, _ in lines], path)
