@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamcore.planar.backend import Backend
 from slamcore.config import ConfigFile, load_section
 from slamcore.errors import ConfigError, InputError
 from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset
+
+if TYPE_CHECKING:
+    from filters.ekf_localise import EkfLocaliser
+    from filters.mono_ekf_config import MonoEkfConfig
+    from graphslam.backends.planar.isam2_localise import Isam2Localiser
+    from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 
 #: A parsed config file, a path to one, or None (defaults only).
 ConfigSource = ConfigFile | str | Path | None
@@ -72,7 +79,10 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
 
         path = plaza_path(int(spec[-1])) if spec in DATASETS else Path(spec)
         check_input_path(path, "--dataset", folder_ok=True)
-        dr, td, _ = plaza_files(path)
+        files = plaza_files(path)
+        if files is None:
+            raise InputError("not a Plaza log: no *_DR.txt with its *_TD.txt", path)
+        dr, td, _ = files
         return read_plaza(dr, td)
     if spec == "city10000":
         from graphslam.sources.planar.posegraph import read_city10000
@@ -95,7 +105,7 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         from graphslam.sources.planar.victoria_park import read_victoria_park
 
         return read_victoria_park(path, name=path.stem)
-    if TAGS.get(tag, (None, 2))[1] == 3:
+    if tag is not None and tag in TAGS and TAGS[tag][1] == 3:
         raise ConfigError(f"{path} is a 3-D pose graph: run it with --backend isam2 or batch")
     return read_pose_graph(path)
 
@@ -122,11 +132,11 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
                                                    is_pose_graph_tag)
 
     tag = first_tag(spec)
-    if not is_pose_graph_tag(tag):
+    if tag is None or not is_pose_graph_tag(tag):
         return False
     # only a 2-D TORO file can be landmark SLAM (BR lines, as gtsam.load2D reads them):
     # others are read once, by the pose-graph reader, which refuses a BR line
-    fmt, dim = TAGS.get(tag, ("toro", 2))[:2]
+    fmt, dim = TAGS[tag][:2] if tag in TAGS else ("toro", 2)
     return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
@@ -180,7 +190,8 @@ LOCALISING_BACKENDS = ("isam2", "ekf")
 
 
 def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
-                   config: ConfigSource = None, overrides: dict | None = None) -> Backend:
+                   config: ConfigSource = None,
+                   overrides: dict | None = None) -> Isam2Localiser | EkfLocaliser:
     """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
     positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
     if name == "isam2":
@@ -218,11 +229,12 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     from graphslam.backends.planar.isam2_config import Isam2Config
     from graphslam.sources.planar.synthetic import SyntheticConfig
 
-    by_backend = {"isam2": Isam2Config, "ekf": EkfSlamConfig, "fastslam1": FastSlamConfig,
-                  "fastslam2": FastSlamConfig}
+    by_backend: dict[str, type[Isam2Config | EkfSlamConfig | FastSlamConfig]] = {
+        "isam2": Isam2Config, "ekf": EkfSlamConfig, "fastslam1": FastSlamConfig,
+        "fastslam2": FastSlamConfig}
     if backend not in by_backend:
         raise ConfigError(f"unknown back end {backend!r} (available: {', '.join(BACKENDS)})")
-    out = {by_backend[backend].SECTION: by_backend[backend]}
+    out: dict[str, type] = {by_backend[backend].SECTION: by_backend[backend]}
     if dataset == "synthetic":
         out[SyntheticConfig.SECTION] = SyntheticConfig
     elif is_mrclam_dataset(dataset):
@@ -295,7 +307,7 @@ def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSou
     return read_image_sequence(Path(spec))
 
 
-def visual_backend_config(name: str) -> type:
+def visual_backend_config(name: str) -> type[VisualIsam2Config | MonoEkfConfig]:
     """Config class of the visual back end ``name``: ``isam2`` (section
     ``[isam2_visual]``) or ``ekf`` (monocular EKF-SLAM, section ``[mono_ekf]``)."""
     if name == "isam2":
@@ -313,14 +325,16 @@ def visual_backend_config(name: str) -> type:
 def make_visual_backend(name: str, *, config: ConfigSource = None,
                         overrides: dict | None = None):
     """Visual back end by name (:func:`visual_backend_config` names its section)."""
+    from filters.mono_ekf_config import MonoEkfConfig  # light (no gtsam), unlike isam2's
+
     settings = load_section(visual_backend_config(name), config, overrides)
-    if name == "isam2":
-        from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+    if isinstance(settings, MonoEkfConfig):  # name == "ekf"
+        from filters.mono_ekf import MonoEkf
 
-        return VisualIsam2Backend(settings)
-    from filters.mono_ekf import MonoEkf
+        return MonoEkf(settings)
+    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
 
-    return MonoEkf(settings)
+    return VisualIsam2Backend(settings)
 
 
 #: ``graphslam compare`` entries on image sequences -> (back end, its config overrides):

@@ -131,10 +131,11 @@ def close_recorder(recorder) -> bool:
 #: Write errors that are the disk's, not ours: one line, no traceback.
 _DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 #: Positional arguments holding paths, as ``--help`` names them (by command, dest).
-_POSITIONAL_PATHS = {("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
-                     ("convert", "input"): "IN", ("convert", "output"): "OUT",
-                     ("loops", "images_dir"): "IMAGES_DIR", ("vocab", "images"): "IMAGES",
-                     ("sweep", "sweep_file"): "SWEEP.toml", ("info", "bag"): "BAG"}
+_POSITIONAL_PATHS: dict[tuple[str | None, str], str] = {
+    ("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
+    ("convert", "input"): "IN", ("convert", "output"): "OUT",
+    ("loops", "images_dir"): "IMAGES_DIR", ("vocab", "images"): "IMAGES",
+    ("sweep", "sweep_file"): "SWEEP.toml", ("info", "bag"): "BAG"}
 #: Options given as text that may be a path (a data set name or its folder).
 _TEXT_PATHS = ("dataset", "images")
 

@@ -26,7 +26,8 @@ def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
         return False
     from graphslam.sources.posegraph_files import TAGS, first_tag
 
-    return named_whole or TAGS.get(first_tag(dataset), (None, 2))[1] == 3
+    tag = first_tag(dataset)
+    return named_whole or (tag is not None and tag in TAGS and TAGS[tag][1] == 3)
 
 
 def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_dir_of) -> int:

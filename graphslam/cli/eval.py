@@ -80,7 +80,7 @@ def format_table(results) -> str:
 
     head = ("estimate", "matched", "ATE rmse", "mean", "median", "max [m]", "rot [deg]",
             "RPE [m]", "RPE [deg]", "drift [%]", "[deg/100m]")
-    rows = [head]
+    rows: list[tuple[str, ...]] = [head]
     for r in results:
         s = r.result.summary()
         rows.append((r.label or Path(r.path).name, f"{s['matched_poses']}/{s['estimate_poses']}",

@@ -135,7 +135,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     print(f"{seen} images, {len(detector.records)} candidates, "
           f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
           f"wrote {', '.join(written)}")
-    if stop_requested():
+    if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
         print(f"graphslam: interrupted ({guard.signal_name}); wrote the closures found in "
               f"the images seen", file=sys.stderr)
         return EXIT_INTERRUPTED

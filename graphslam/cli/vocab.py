@@ -87,8 +87,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
     print(f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
           f"images, trained in {wall:.1f} s")
-    if stop_requested():
-        print(f"graphslam: interrupted ({active_guard().signal_name}); the vocabulary is "
+    guard = active_guard()
+    if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
+        print(f"graphslam: interrupted ({guard.signal_name}); the vocabulary is "
               f"trained on {len(feats)} of {len(paths)} images", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0

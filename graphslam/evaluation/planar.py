@@ -12,6 +12,8 @@ integers and trajectories are matched by id, never by position in the array.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
@@ -220,7 +222,8 @@ def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> 
     ``pose_ids`` and ``nees`` (N,) per pose too when there are covariances."""
     gt = dataset.ground_truth() if ground_truth is None else ground_truth
     est = estimate
-    out = {"final_pose_error_m": None, "nees_mean": None, "nees_in_bounds_fraction": None}
+    out: dict[str, Any] = {"final_pose_error_m": None, "nees_mean": None,
+                           "nees_in_bounds_fraction": None}
     if gt is None:
         return out
     gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1]))
@@ -295,8 +298,9 @@ def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
     with an estimated one within :data:`MAP_RECOVERY_RADIUS_M` after the
     trajectory's alignment) and ``landmarks_true``; values None where not defined.
     """
-    out = {"map_rmse_m": None, "map_rmse_m_map_aligned": None, "landmarks_matched": 0,
-           "landmarks_recovered": None, "landmarks_true": len(landmarks_true)}
+    out: dict[str, Any] = {"map_rmse_m": None, "map_rmse_m_map_aligned": None,
+                           "landmarks_matched": 0, "landmarks_recovered": None,
+                           "landmarks_true": len(landmarks_true)}
     if ground_truth is None or len(estimate.landmark_ids) == 0:
         return out
     common, est, gt = _common(estimate.pose_ids, estimate.wTb, *ground_truth)

@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Protocol, cast
+
+
+class _Record(Protocol):
+    def to_dict(self) -> dict: ...
 
 
 def _as_dict(record, optional: frozenset[str]) -> dict:
@@ -18,8 +22,8 @@ def _as_dict(record, optional: frozenset[str]) -> dict:
         value = getattr(record, f.name)
         if f.name in optional and value is None:
             continue
-        if dataclasses.is_dataclass(value):
-            value = value.to_dict()
+        if dataclasses.is_dataclass(value):  # a nested record of this module: has to_dict
+            value = cast(_Record, value).to_dict()
         out[f.name] = value
     return out
 

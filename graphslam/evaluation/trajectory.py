@@ -217,13 +217,13 @@ def rpe_pairs(poses: np.ndarray, delta: float, unit: str) -> list[tuple[int, int
     if unit == "frames":
         ids = np.arange(0, len(poses), int(delta))
         return [(int(i), int(j)) for i, j in zip(ids, ids[1:])]
-    ids, travelled = [0], 0.0
+    kept, travelled = [0], 0.0
     for i in range(1, len(poses)):
         travelled += float(np.linalg.norm(poses[i, :3, 3] - poses[i - 1, :3, 3]))
         if travelled >= delta:
-            ids.append(i)
+            kept.append(i)
             travelled = 0.0
-    return list(zip(ids, ids[1:]))
+    return list(zip(kept, kept[1:]))
 
 
 def rpe(ref: np.ndarray, est: np.ndarray, pairs: list[tuple[int, int]]

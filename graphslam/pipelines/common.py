@@ -32,7 +32,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 #: Exit status of a command stopped by each signal (128 + the signal number).
-EXIT_STATUS_OF_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}
+EXIT_STATUS_OF_SIGNAL: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
@@ -62,6 +62,8 @@ class StopGuard:
         return signal.Signals(self.signum or signal.SIGINT).name
 
     def exit_status(self) -> int:
+        if self.signum is None:
+            return 130
         return EXIT_STATUS_OF_SIGNAL.get(self.signum, 130)
 
     def check(self) -> None:

@@ -20,7 +20,7 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -180,7 +180,8 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
 
 
 def _without_dataset(result: pipeline.RunResult) -> pipeline.RunResult:
-    result.dataset = None  # the parent has it; don't send it back
+    # the parent has it; don't send it back (None in transit only: the parent puts it back)
+    result.dataset = cast(Dataset, None)
     return result
 
 

@@ -46,6 +46,8 @@ class PoseGraphCompareRun:
     def status(self) -> str:
         if self.error is not None:
             return "failed"
+        if self.metrics is None:  # a run has its metrics or its error
+            raise GraphSlamError(f"{self.backend}: a compared run with neither metrics nor error")
         return "cut" if self.metrics.interrupted else "ok"
 
     def to_dict(self) -> dict:
@@ -74,10 +76,10 @@ def compare(graph: pg.PoseGraph, backends: list[str], config=None,
             continue
         runs.append(PoseGraphCompareRun(name, metrics(graph, result, time.perf_counter() - t0,
                                                       truth), result))
-    first = next((r for r in runs if r.result is not None), None)
+    first = next((r.result for r in runs if r.result is not None), None)
     for r in runs:
         if r.result is not None and first is not None:
-            r.rms_to_first_m = _rms_between(graph, first.result, r.result)
+            r.rms_to_first_m = _rms_between(graph, first, r.result)
     return runs
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -132,7 +133,8 @@ def _covariances(feed: _Feed, backend, result: vp.VisualRunResult) -> np.ndarray
 
 
 def _without_sequence(result: vp.VisualRunResult) -> vp.VisualRunResult:
-    result.sequence = None  # the parent has it; don't send it back
+    # the parent has it; don't send it back (None in transit only: the parent puts it back)
+    result.sequence = cast(ImageSequence, None)
     return result
 
 

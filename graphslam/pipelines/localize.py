@@ -47,6 +47,7 @@ from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.database import BowDatabase
 from loopclosure.pnp import PnpConfig, pnp_covariance, pose_from_rodrigues, relative_pose_pnp
 from slamcore.config import bounded, validate
+from slamcore.errors import GraphSlamError
 from slamcore.spatial.camera import project, project_jacobians
 from slamcore.spatial.geometry import invert_pose
 
@@ -221,8 +222,10 @@ class Localizer:
 
     def _relocalise(self, image: np.ndarray, xy: np.ndarray, desc: np.ndarray) -> Placement:
         """Place recognition on the map's keyframes, then PnP against their landmarks."""
-        hits = self.db.query(self.db.bow(self.bow_orb.detect(image).descriptors),
-                             max_results=self.config.candidates)
+        descriptors = self.bow_orb.detect(image).descriptors
+        if descriptors is None:  # ORB's features always have theirs
+            raise GraphSlamError("localize: ORB features without descriptors")
+        hits = self.db.query(self.db.bow(descriptors), max_results=self.config.candidates)
         if not hits:
             return Placement("lost", None, None)
         obs = np.concatenate([self.map.keyframe_observations(k) for k, _ in hits])

@@ -21,11 +21,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook
 from graphslam.pipelines.localize import Localizer, Placement
+
+if TYPE_CHECKING:
+    from graphslam.sources.spatial.sequence import ImageSequence
 
 #: A placed frame farther than this from the truth is counted (issue 18's bound), metres.
 FAR_M = 0.5
@@ -38,7 +42,7 @@ LocalizeHook = Callable[[int, np.ndarray, Placement], None]
 class LocalizeResult:
     """Placements of every processed frame of ``sequence``."""
 
-    sequence: object
+    sequence: ImageSequence
     placements: list[Placement] = field(default_factory=list)
     wall_s: float = 0.0
     load_s: float = 0.0

@@ -44,7 +44,7 @@ import numpy as np
 from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
 from slamcore.config import bounded, validate
-from slamcore.errors import UnsupportedError
+from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.files import atomic_open
 from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
@@ -158,10 +158,12 @@ class VisualLoopCloser:
     records: list[LoopCandidate] = field(default_factory=list)
     closures: list[PoseClosure] = field(default_factory=list)
 
-    def __post_init__(self):
-        if self.detector.K is None:
+    def __post_init__(self) -> None:
+        K = self.detector.K
+        if K is None:
             raise ValueError("loop closing in a visual run needs the detector to have K "
                              "(a metric closure is a calibrated PnP)")
+        self._K: np.ndarray = K
         self._frames: dict[int, _FrameMap] = {}
         self._describer = OrbDetector(self.detector.orb.config)
 
@@ -186,13 +188,14 @@ class VisualLoopCloser:
         if len(self.detector) != k:
             raise RuntimeError(f"loop detector holds {len(self.detector)} images at frame {k}; "
                                "frames must be fed in order from 0")
-        pre = None if self.features is None else self.features[k]
+        features = self.features
+        pre = None if features is None else features[k]
         # covisibility from the run's own tracks (landmarks re-found keep their ids)
         tracked = np.asarray(obs.track_ids, np.int64)
-        if pre is None:
+        if features is None or pre is None:
             loop = self.detector.process(image, track_ids=tracked)
         else:
-            self.features[k] = None  # free memory as we go
+            features[k] = None  # free memory as we go
             loop = self.detector.process_features(pre.xy_px, pre.descriptors, track_ids=tracked)
         if len(self.detector.records) == n_records:
             return None  # too early for any query: nothing happened
@@ -206,7 +209,8 @@ class VisualLoopCloser:
             record.shared_tracks = len(np.intersect1d(self._frames[int(loop.match)].track_ids,
                                                       np.asarray(obs.track_ids, np.int64)))
         need = self.config.redundant_shared_tracks
-        if loop is not None and need and record.shared_tracks >= need:
+        if (loop is not None and need and record.shared_tracks is not None
+                and record.shared_tracks >= need):
             record.stage, record.accepted = "redundant", False
             record.reason = (f"redundant: {record.shared_tracks} landmarks of frame {loop.match} "
                              "already re-observed")
@@ -214,11 +218,10 @@ class VisualLoopCloser:
         if loop is not None:
             record.pnp, links = self._metric_pose(loop.match, image, tracking, backend)
             if record.pnp.accepted:
-                closure = PoseClosure(frame_a=int(loop.match), frame_b=int(k),
-                                      aTb=record.pnp.aTb, covariance=record.pnp.covariance)
+                closure = pnp_closure(int(loop.match), int(k), record.pnp)
                 backend.add_loop_closure(closure)
                 self.closures.append(closure)
-                record.distance_m = float(np.linalg.norm(record.pnp.aTb[:3, 3]))
+                record.distance_m = float(np.linalg.norm(closure.aTb[:3, 3]))
             else:
                 record.stage, record.accepted = "pnp", False
                 record.reason = "pnp: " + str(record.pnp.reason)
@@ -242,8 +245,7 @@ class VisualLoopCloser:
         corners = np.asarray(tracking.corners, np.float64).reshape(-1, 2)
         idx, desc_b = self._describer.describe(image, corners)
         xy_b = corners[idx]
-        result = relative_pose_pnp(p_a[ok], old.descriptors[ok], xy_b, desc_b, self.detector.K,
-                                   self.pnp)
+        result = relative_pose_pnp(p_a[ok], old.descriptors[ok], xy_b, desc_b, self._K, self.pnp)
         pairs = result.inlier_pairs
         links = np.stack([xy_b[pairs[:, 1]], old.uv_px[ok][pairs[:, 0]]], axis=1)
         return result, links
@@ -255,6 +257,15 @@ class VisualLoopCloser:
             for r in self.records:
                 fh.write(json.dumps(r.to_dict(), default=_json_default) + "\n")
         return path
+
+
+def pnp_closure(frame_a: int, frame_b: int, result: PnpResult) -> PoseClosure:
+    """The closure ``frame_a -> frame_b`` of an accepted PnP result (which has its
+    ``aTb`` and ``covariance``; a rejected one has neither)."""
+    if result.aTb is None or result.covariance is None:
+        raise GraphSlamError(f"PnP result without a pose ({result.reason}): no closure of "
+                             f"frames {frame_a}, {frame_b}")
+    return PoseClosure(frame_a, frame_b, result.aTb, result.covariance)
 
 
 def _json_default(o):

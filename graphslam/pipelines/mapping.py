@@ -29,7 +29,7 @@ from frontend.orb import OrbDetector
 from graphslam.maps.spatial_map import SpatialMap, bow_csr
 from loopclosure.database import BowDatabase
 from loopclosure.matching import match_descriptors
-from slamcore.errors import UnsupportedError
+from slamcore.errors import GraphSlamError, UnsupportedError
 
 #: Words of a vocabulary trained on the run's own frames (a 10-way tree of depth 3).
 SELF_TRAINED_WORDS = 1000
@@ -80,7 +80,10 @@ class MapRecorder:
             cut = extract_patches(image, uv[fresh], self.patch_px)
             for j, i in enumerate(fresh):
                 self.patches[int(ids[i])] = cut[j]
-        self.bow_descriptors[int(k)] = self.bow_orb.detect(image).descriptors
+        bow = self.bow_orb.detect(image).descriptors
+        if bow is None:  # ORB's features always have theirs
+            raise GraphSlamError("map: ORB features without descriptors")
+        self.bow_descriptors[int(k)] = bow
         corners = np.asarray(tracking.corners, np.float64).reshape(-1, 2)
         cidx, cdesc = self.describer.describe(image, corners)
         self.corners[int(k)] = (corners[cidx], cdesc)
@@ -124,7 +127,7 @@ class MapRecorder:
         indptr, words, weights = bow_csr([db.bow(self.bow_descriptors[int(f)]) for f in frames])
         index = frames if self.frame_index is None else self.frame_index[frames]
         return SpatialMap(
-            K=np.asarray(K, np.float64), image_size=tuple(int(v) for v in image_size),
+            K=np.asarray(K, np.float64), image_size=(int(image_size[0]), int(image_size[1])),
             keyframe_ids=index.astype(np.int64), keyframe_wTc=wTc, keyframe_cov=pose_cov,
             landmark_ids=lm_ids, landmark_w=lm_w, landmark_cov=lm_cov, landmark_desc=lm_desc,
             landmark_patch=patches, obs_keyframe=kf_obs, obs_landmark=lm_obs, obs_uv=obs_uv,
@@ -165,8 +168,8 @@ def densify(wTc: np.ndarray, corners: list, n_obs: np.ndarray, K: np.ndarray) ->
     from slamcore.spatial.camera import project_jacobians
     from slamcore.spatial.geometry import invert_pose
 
-    out = {"points": [], "covariances": [], "obs_keyframe": [], "obs_landmark": [],
-           "obs_uv": [], "obs_desc": []}
+    out: dict[str, list] = {"points": [], "covariances": [], "obs_keyframe": [],
+                            "obs_landmark": [], "obs_uv": [], "obs_desc": []}
     n = len(wTc)
     for a in range(n):
         b = a + DENSIFY_GAP if a + DENSIFY_GAP < n else a - DENSIFY_GAP

@@ -136,6 +136,8 @@ def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarr
     poses = {frames[0].pose_id: np.asarray(dataset.prior_wTb, dtype=np.float64)}
     for frame in frames[1:]:
         odo = frame.odometry
+        if odo is None:  # only the first frame has none
+            raise GraphSlamError(f"pose {frame.pose_id}: a frame after the first without odometry")
         if odo.to_id == frame.pose_id:
             poses[frame.pose_id] = se2.compose(poses[odo.from_id], odo.delta)
         else:
@@ -203,8 +205,8 @@ def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
     est = result.estimate
     odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
     out = {}
-    for name, ids in result.dataset.agents:
-        ids = np.asarray(ids, dtype=np.int64)
+    for name, agent_ids in result.dataset.agents:
+        ids = np.asarray(agent_ids, dtype=np.int64)
         keep = np.isin(est.pose_ids, ids)
         if np.intersect1d(est.pose_ids[keep], ground_truth[0]).size < 2:
             continue

@@ -169,10 +169,10 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
                             if len(graph.self_edge_lines) else None),
         route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
-        ate_rmse_m=None if not scored else ate_rmse(graph, result.params, truth),
+        ate_rmse_m=None if truth is None or not scored else ate_rmse(graph, result.params, truth),
         # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
-        odometry_ate_rmse_m=None if not scored else ate_rmse(
+        odometry_ate_rmse_m=None if truth is None or not scored else ate_rmse(
             graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),
         converged=not result.lm_capped)

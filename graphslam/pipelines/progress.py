@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Sized
 from typing import Callable, Iterable
 
 __all__ = ["progress", "ProgressLines", "PROGRESS_LINE_INTERVAL_S"]
@@ -30,7 +31,7 @@ class ProgressLines:
                  interval_s: float | None = None,
                  clock: Callable[[], float] = time.monotonic):
         self.iterable = iterable
-        if total is None and iterable is not None and hasattr(iterable, "__len__"):
+        if total is None and isinstance(iterable, Sized):
             total = len(iterable)
         self.total, self.desc, self.unit = total, desc, unit
         self.file = file if file is not None else sys.stderr

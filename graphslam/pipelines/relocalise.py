@@ -28,9 +28,10 @@ from typing import ClassVar
 import numpy as np
 
 from frontend.orb import OrbDetector
+from graphslam.pipelines.loop_closing import pnp_closure
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
 from slamcore.config import bounded, validate
-from slamcore.spatial.records import PoseClosure
+from slamcore.errors import GraphSlamError
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,8 @@ class RunRelocaliser:
         del self._good[:-self.config.candidates]
 
     def _close(self, k: int, how: str) -> None:
+        if self._open is None:  # on_frame closes only an open loss
+            raise GraphSlamError(f"relocalise: frame {k} closes no open loss")
         self.stats[how] += 1
         self.stats["loss_lengths"].append(k - self._open)
         self._open = None
@@ -121,5 +124,5 @@ class RunRelocaliser:
         idx, desc = self.describer.describe(image, corners)
         res = relative_pose_pnp(p_a[ok], desc_a[first][ok], corners[idx], desc, self.K, self.pnp)
         if res.accepted:
-            backend.add_loop_closure(PoseClosure(a, k, res.aTb, res.covariance))
+            backend.add_loop_closure(pnp_closure(a, k, res))
         return res.accepted

@@ -156,6 +156,7 @@ def backend_overrides(backend: str, mode: str, seed: int | None = None,
     tracking with the RANSAC seed; the EKF's RANSAC seed, its
     inverse-depth prior from the scene's nearest depth (:func:`scene_nearest_depth`)
     and, without odometry, its constant-velocity model."""
+    out: dict[str, object]
     if backend == "isam2":
         out = {"polish": False} if no_polish else {}
         if mode == "none":  # camera alone: a monocular bootstrap, then PnP tracking
@@ -245,18 +246,19 @@ def chain(wTc0: np.ndarray, odometry: np.ndarray) -> np.ndarray:
 def resolve_odometry(sequence: ImageSequence, mode: str,
                      noise: OdometryNoiseConfig | None = None):
     """``(mode, odometry (N-1, 4, 4) or None, covariances (N-1, 6, 6) or None, stated noise)``."""
-    has_seq = getattr(sequence, "odometry", None) is not None
+    # only some sequences (synthetic, a bag's, a frame selection of those) carry odometry
+    own = getattr(sequence, "odometry", None)
     if mode == "auto":
-        mode = "sequence" if has_seq else "derived"
+        mode = "sequence" if own is not None else "derived"
     if mode == "sequence":
-        if not has_seq:
+        if own is None:
             raise GraphSlamError(f"sequence {sequence.name!r} has no odometry of its own; "
                                  "use --odometry derived (needs ground truth) or none")
-        odo = np.asarray(sequence.odometry, dtype=np.float64)
-        cov = np.broadcast_to(np.asarray(sequence.odometry_covariance, dtype=np.float64),
-                              (len(odo), 6, 6))
+        odo = np.asarray(own, dtype=np.float64)
+        cov = np.broadcast_to(np.asarray(getattr(sequence, "odometry_covariance"),
+                                         dtype=np.float64), (len(odo), 6, 6))
         st, sr = getattr(sequence, "odometry_sigmas", (None, None))
-        stated = None if st is None else {"kind": "sequence", "sigma_t_m_per_frame": st,
+        stated = None if st is None or sr is None else {"kind": "sequence", "sigma_t_m_per_frame": st,
                                           "sigma_r_deg_per_frame": math.degrees(sr)}
         return mode, odo, cov, stated
     if mode == "derived":
@@ -298,7 +300,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     repredict = _sequential_link(tracker, backend)
     wTc0, P0 = _first_pose(sequence, cfg) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
-    stats = {name: [] for name in TRACKING_STATS}
+    stats: dict[str, list] = {name: [] for name in TRACKING_STATS}
     bar = progress_bar(n, sequence.name, backend.name, progress)
     done = 0
     wall = 0.0
@@ -313,7 +315,7 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                 t1 = time.perf_counter()
                 load += t1 - t
                 if k == 0:
-                    backend.initialize(0, wTc0, P0, K, tuple(sequence.image_size))
+                    backend.initialize(0, wTc0, P0, K, (sequence.image_size[0], sequence.image_size[1]))
                     pred = PixelPredictions.empty(wTc0, K)  # no landmark, a known camera
                 else:
                     backend.predict(k, None if odo is None else odo[k - 1],
@@ -478,8 +480,11 @@ def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:
     from graphslam.evaluation import spatial as metrics3d
 
     est, n = result.estimate, result.frames
+    truth = result.sequence.wTc_true
+    if truth is None:  # scored only where the sequence has ground truth
+        raise GraphSlamError(f"sequence {result.sequence.name!r}: no ground truth to score against")
     gt_ids = np.arange(n, dtype=np.int64)
-    gt = np.asarray(result.sequence.wTc_true[:n])
+    gt = np.asarray(truth[:n])
     length = metrics3d.path_length(gt)
     m.path_length_m = length
     try:
@@ -545,5 +550,5 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
             np.asarray(seq.wTc_true)[frames])
     writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids,
                                 np.asarray(est.landmarks_w).reshape(-1, 3))
-    writers.write_json(paths["metrics"], run_metrics)
+    writers.write_json(paths["metrics"], run_metrics.to_dict())
     return paths

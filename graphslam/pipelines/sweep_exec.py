@@ -27,7 +27,7 @@ import subprocess
 import sys
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
@@ -166,7 +166,8 @@ class PoolExecutor:
         first took minutes on a large one, and a signal in that loop left the
         pool's threads starting runs with nothing to stop them (an orphan)."""
         pool = ThreadPoolExecutor(max_workers=self.workers)
-        queue, futures = iter(runs), {}
+        queue = iter(runs)
+        futures: dict[Future, RunSpec] = {}
         try:
             while True:
                 while len(futures) < 2 * self.workers:

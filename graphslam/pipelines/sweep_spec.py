@@ -134,7 +134,7 @@ def visual_sections(dataset: str, backend: str) -> dict[str, type]:
 
     classes = (VisualRunConfig, OdometryNoiseConfig, TrackerConfig, ActiveSearchConfig,
                HarrisConfig, OrbConfig, visual_backend_config(backend))
-    out = {cls.SECTION: cls for cls in classes}
+    out: dict[str, type] = {cls.SECTION: cls for cls in classes}
     if dataset == "synthetic-images":
         out[SyntheticImagesConfig.SECTION] = SyntheticImagesConfig
     return out
@@ -290,7 +290,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
                           cfg.line_of("sweep", "nees"))
     base = {}
     if "config" in sweep:
-        base = dict(read_config(Path(cfg.path).parent / str(sweep["config"])).data)
+        base = dict(read_config(Path(path).parent / str(sweep["config"])).data)
     grid_sections = {}
     for d, b in itertools.product(datasets, backends):
         grid_sections.update(run_sections(d, b))

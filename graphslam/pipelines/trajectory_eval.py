@@ -12,6 +12,7 @@ matched poses only, and :func:`coverage_warnings` says so when they are few.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +35,7 @@ class EstimateResult:
                 **self.result.summary(), "options": options.to_dict()}
 
 
-def distinct_labels(paths: list[str | Path]) -> list[str]:
+def distinct_labels(paths: Sequence[str | Path]) -> list[str]:
     """Per path, its file name, with as many parent folders as it takes for no two
     labels to be equal (the whole path for a path given twice)."""
     parts = [Path(p).parts or (str(p),) for p in paths]

@@ -63,10 +63,11 @@ def _merge_pairs(a: np.ndarray, start: int, width: int, axis: int) -> np.ndarray
     """Elementwise maximum of the ``width`` interleaved slices from ``start`` on ``axis``
     (one landmark's coordinates into one row or column); strided views, no copy."""
     pick = [slice(None)] * a.ndim
-    out = None
-    for j in range(width):
+    pick[axis] = slice(start, None, width)
+    out = a[tuple(pick)]
+    for j in range(1, width):
         pick[axis] = slice(start + j, None, width)
-        out = a[tuple(pick)] if out is None else np.maximum(out, a[tuple(pick)])
+        out = np.maximum(out, a[tuple(pick)])
     return out
 
 

@@ -81,21 +81,21 @@ def blueprint(logged: LoggedEntities):
     import rerun.blueprint as rrb  # only when a layout is sent
 
     world, image_paths, series, texts, tensors = layout_key(logged)
-    main = []
+    main: list[rrb.View] = []
     if world:
         view = rrb.Spatial3DView if world == "3d" else rrb.Spatial2DView
         main.append(view(name="world" if world == "3d" else "map", origin="/world"))
     images = [rrb.Spatial2DView(name=_image_name(p), origin=p) for p in image_paths]
     # one TimeSeriesView per plotted quantity (leaf name), its series from every run
-    tabs = [rrb.TimeSeriesView(name=leaf, origin="/", contents=list(paths))
+    tabs: list[rrb.View] = [rrb.TimeSeriesView(name=leaf, origin="/", contents=list(paths))
             for leaf, paths in series]
     tabs += [rrb.TextLogView(name=_tail(p), origin=p) for p in texts]
     tabs += [rrb.TensorView(name=_tail(p), origin=p) for p in tensors]
-    side = images + ([rrb.Tabs(*tabs)] if tabs else [])
+    side: list[rrb.Container | rrb.View] = [*images, *([rrb.Tabs(*tabs)] if tabs else [])]
     if not main and not side:
         return None
     if side:
-        column = side[0] if len(side) == 1 else rrb.Vertical(*side)
+        column: rrb.Container | rrb.View = side[0] if len(side) == 1 else rrb.Vertical(*side)
         root = rrb.Horizontal(*main, column, column_shares=[3, 2]) if main else column
     else:
         root = main[0]

@@ -29,6 +29,7 @@ from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellip
 from slamcore.planar.records import Dataset, Estimate
 
 if TYPE_CHECKING:  # the recording process needs none of the filters filter_state imports
+    from graphslam.visualisation.background import BackgroundLog
     from graphslam.visualisation.filter_state import (
         CorrelationSnapshot, FilterStateLogger, ParticleSeries,
     )
@@ -161,7 +162,7 @@ class RunRecorder:
     ellipses.
     """
 
-    def __init__(self, log: PlanarLog):
+    def __init__(self, log: PlanarLog | BackgroundLog):  # BackgroundLog: one in a child process
         self.log = log
         self._colors: dict[str, int] = {}
         self._filters: dict[str, FilterStateLogger] = {}

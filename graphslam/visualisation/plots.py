@@ -136,7 +136,9 @@ def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarr
                                       (~odometry & rejected, "C3", 1.0,
                                        f"closures rejected ({(~odometry & rejected).sum()})")):
         segments = np.stack([xy[edge_rows[mask, 0]], xy[edge_rows[mask, 1]]], axis=1)
-        ax.add_collection(LineCollection(segments, colors=color, linewidths=width, label=label))
+        # matplotlib's stubs take a Sequence only; its docs also take an (N, 2, 2) array
+        ax.add_collection(LineCollection(segments, colors=color, linewidths=width,  # type: ignore[arg-type]
+                                         label=label))
     ax.autoscale()
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")

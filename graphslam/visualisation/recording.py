@@ -181,7 +181,8 @@ class RerunLog:
         self._partial: Path | None = None
         self.logged = LoggedEntities()
         self._live_layout = mode != "save" if live_layout is None else live_layout
-        self._layout_seen = (0, None)  # (logged.version, layout_key) at the last check
+        # (logged.version, layout_key) at the last check
+        self._layout_seen: tuple[int, tuple | None] = (0, None)
         self.rec = _NotingStream(self._stream, self.logged, on_set_time=self._live_check)
         if mode == "save":
             if path is None:
@@ -250,7 +251,7 @@ class RerunLog:
             self._send_layout()
         finally:
             self._flush_and_disconnect()
-            if self._partial is not None:
+            if self._partial is not None and self.path is not None:  # save mode: both set
                 move_into_place(self._partial, Path(self.path))
                 self._partial = None
 

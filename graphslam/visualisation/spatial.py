@@ -29,10 +29,15 @@ Modes save / spawn / connect as :class:`graphslam.visualisation.recording.RerunL
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from graphslam.visualisation.recording import GT_COLOR, PALETTE, RerunLog, ellipse_points
+from slamcore.errors import GraphSlamError
+
+if TYPE_CHECKING:
+    from graphslam.sources.spatial.sequence import ImageSequence
 
 FOUND_COLOR = (40, 200, 60)
 MISSED_COLOR = (220, 50, 40)
@@ -57,7 +62,7 @@ class VisualRecorder:
         self._rr = log._rr
         self.image_every = max(1, int(image_every))
         self.jpeg_quality = int(jpeg_quality)
-        self._sequence = None
+        self._sequence: ImageSequence | None = None
 
     @classmethod
     def open(cls, mode: str, path: Path | None, url: str | None = None, **kw) -> "VisualRecorder":
@@ -74,6 +79,12 @@ class VisualRecorder:
             p = np.asarray(sequence.wTc_true[:n_frames])[:, :3, 3]
             self.rec.log("world/ground_truth/trajectory",
                          rr.LineStrips3D([p], colors=[GT_COLOR], radii=0.01), static=True)
+
+    def _started(self) -> ImageSequence:
+        """The sequence :meth:`start` was given (it comes before any frame)."""
+        if self._sequence is None:
+            raise GraphSlamError("VisualRecorder: start() must come before the frames")
+        return self._sequence
 
     def _set_time(self, k: int) -> None:
         self.rec.set_time("frame", sequence=int(k))
@@ -93,7 +104,7 @@ class VisualRecorder:
                   color_index: int = 0) -> None:
         """One frame: frusta, image with its overlays, tracking plots."""
         rr = self._rr
-        seq = self._sequence
+        seq = self._started()
         self._set_time(k)
         K = np.asarray(seq.K, dtype=np.float64)
         size = seq.image_size
@@ -170,7 +181,7 @@ class VisualRecorder:
         map and the odometry-only trajectory at the last frame."""
         rr = self._rr
         est = result.estimate
-        seq = self._sequence
+        seq = self._started()
         K = np.asarray(seq.K, dtype=np.float64)
         color = PALETTE[color_index % len(PALETTE)]
         wTc = np.asarray(est.wTc).reshape(-1, 4, 4)
@@ -306,7 +317,7 @@ class LocalizeRecorder(VisualRecorder):
 
     def log_placement(self, i: int, image: np.ndarray, placement) -> None:
         rr = self._rr
-        seq = self._sequence
+        seq = self._started()
         self._set_time(i)
         K = np.asarray(seq.K, dtype=np.float64)
         if seq.wTc_true is not None:

@@ -261,10 +261,13 @@ def _write_bag(args: argparse.Namespace) -> None:
     run command sets ``args.resolved_out``, its output folder)."""
     from graphslam.outputs.trajectory_bag import TOPIC, write_trajectory_bag
     from graphslam.sources.ground_truth import read_trajectory
+    from slamcore.errors import GraphSlamError
 
     tum = Path(args.resolved_out) / "trajectory.tum"
     if not tum.is_file():
         return  # nothing estimated (a stop before the first pose)
     trajectory = read_trajectory(tum, "tum")
+    if trajectory.stamps_s is None:  # TUM has a time column: read_trajectory broke its word
+        raise GraphSlamError(f"{tum}: read without its time column")
     bag = write_trajectory_bag(tum.with_suffix(".bag"), trajectory.stamps_s, trajectory.wTc)
     print(f"wrote {bag} (geometry_msgs/PoseStamped on {TOPIC})")

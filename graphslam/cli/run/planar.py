@@ -6,11 +6,19 @@ import argparse
 import functools
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
     close_recorder, fmt, open_recorder, recoveries_text, report_outputs, summary_table,
 )
 from slamcore.errors import ConfigError, GraphSlamError
+
+if TYPE_CHECKING:
+    from filters.ekf_localise import EkfLocaliser
+    from graphslam.backends.planar.isam2_localise import Isam2Localiser
+
+    #: What ``planar_maps.localiser`` returns (``registry.make_localiser``'s back ends).
+    Localiser = Isam2Localiser | EkfLocaliser
 
 
 def refuse_ignored_flags(args: argparse.Namespace) -> None:
@@ -101,9 +109,9 @@ def run(args: argparse.Namespace) -> int:
                           with_covariances=args.nees or save_map is not None)
     metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
                                        wall_s=time.perf_counter() - t0)
-    if pmap is not None:
+    if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
-        metrics.unmapped_observations = backend.unmapped_count
+        metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
     nees = None
     if args.nees and result.interrupted:  # no covariances: NEES null, the files still written
         from graphslam.cli.common import warn
