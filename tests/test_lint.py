@@ -1,6 +1,7 @@
-"""The linter runs with the suite (issue 36): pyflakes' checks (unused imports and
-variables, undefined names, f-strings without fields) and syntax errors, over every
-package, the benchmarks and the tests. ``ruff`` is in the ``test`` extra."""
+"""The linter and the type checker run with the suite (issue 36): pyflakes' checks
+(unused imports and variables, undefined names, f-strings without fields) and syntax
+errors over every package, the benchmarks and the tests; mypy over the library
+packages. ``ruff`` and ``mypy`` are in the ``test`` extra."""
 
 from __future__ import annotations
 
@@ -24,3 +25,13 @@ def test_ruff_finds_nothing():
     proc = subprocess.run([ruff, "check", "--select", "E9,F", "--output-format", "concise",
                            *LINTED], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_mypy_finds_nothing(tmp_path):
+    """The type checker over the library packages (``[tool.mypy]`` in pyproject.toml:
+    slamcore, frontend, loopclosure, filters, graphslam), its cache in a fresh folder so
+    a run never reads another's half-written cache."""
+    proc = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path / "cache")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]
+    assert "Success: no issues found" in proc.stdout

@@ -177,3 +177,13 @@ def test_inconsistent_arrays_are_refused_on_save(tmp_path):
     smap.obs_landmark[0] = smap.n_landmarks  # points past the last landmark
     with pytest.raises(InputError):
         save_map(smap, tmp_path / "bad")
+
+
+@pytest.mark.parametrize("size", [[640], [640, 480, 3]])
+def test_an_image_size_of_other_than_two_numbers_is_refused(saved, size):
+    doc = json.loads((saved / "map.json").read_text())
+    doc["camera"]["image_size"] = size
+    (saved / "map.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError) as e:
+        load_map(saved)
+    assert "damaged map.json (camera)" in one_line(e)

@@ -199,7 +199,8 @@ def load_map(folder) -> SpatialMap:
     arrays = _read_npz(blob, npz_path, _NAMES)
     try:
         K = np.array(doc["camera"]["K"], dtype=np.float64).reshape(3, 3)
-        size = tuple(int(v) for v in doc["camera"]["image_size"])
+        width, height = (int(v) for v in doc["camera"]["image_size"])  # exactly two
+        size = (width, height)
     except (KeyError, TypeError, ValueError):
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
     if not np.all(np.isfinite(K)):

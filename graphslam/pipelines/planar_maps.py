@@ -19,7 +19,7 @@ from graphslam.maps.files import load_planar_map
 from graphslam.maps.planar_map import PlanarMap, map_from_estimate
 from graphslam.pipelines.planar import RunResult
 from slamcore.config import load_section
-from slamcore.errors import InputError
+from slamcore.errors import GraphSlamError, InputError
 from slamcore.planar.backend import Backend
 
 #: Fields of ``[synthetic]`` that decide where the landmarks are (and their ids).
@@ -46,6 +46,8 @@ def build_run_map(result: RunResult, backend: Backend, config, max_steps: int | 
         own = getattr(backend, "config", None)
         value = own if isinstance(own, cls) else load_section(cls, config, {"seed": ds.seed}
                                                               if name == "synthetic" else None)
+        if not dataclasses.is_dataclass(value) or isinstance(value, type):
+            raise GraphSlamError(f"[{name}] settings are not a config record: {value!r}")
         sections[name] = dataclasses.asdict(value)
     meta = {"dataset": ds.name, "source": ds.source_path, "seed": ds.seed,
             "steps": result.steps, "max_steps": max_steps, "backend": result.backend,
