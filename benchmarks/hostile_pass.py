@@ -191,6 +191,13 @@ def attacks() -> list[Attack]:
         Attack("a full disk during the outputs, over an earlier run (RLIMIT_FSIZE)", "fail",
                lambda f: (_stash(f, _earlier_run(f)), _run("synthetic"))[1],
                file_size_limit=20_000, check=_not_mixed(_stashed)),
+        Attack("a full disk during the recording only, over an earlier run's recording",
+               "fail", lambda f: (_stash(f, _earlier_run(f, "--rerun", "save")),
+                                  _run("synthetic", "--rerun", "save"))[1],
+               ("ok",), file_size_limit=150_000,
+               check=lambda f, o, e: _not_mixed(_stashed)(f, o, e) or (
+                   None if "recording could not be written" in e else
+                   "the lost recording is not said")),
         Attack("SIGTERM to a running sweep: finished rows kept, no run left behind", "fail",
                lambda f: ["sweep", str(_w(f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\n"
                                               "backend = [\"isam2\", \"ekf\"]\nseed = [0, 1, 2, 3]\n"

@@ -129,7 +129,8 @@ def close_recorder(recorder) -> bool:
 
 
 #: Write errors that are the disk's, not ours: one line, no traceback.
-_DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+_DISK_FULL = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+              errno.EFBIG: "file larger than this system allows (a file-size limit)"}
 #: Positional arguments holding paths, as ``--help`` names them (by command, dest).
 _POSITIONAL_PATHS: dict[tuple[str | None, str], str] = {
     ("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
@@ -145,7 +146,7 @@ def os_error_line(e: OSError) -> str | None:
     or None for any other (a bug: the traceback is wanted)."""
     where = e.filename if e.filename is not None else "an output file"
     if e.errno in _DISK_FULL:
-        return f"no space left on device writing {where}: {e.strerror}"
+        return f"{_DISK_FULL[e.errno]} writing {where}: {e.strerror}"
     if e.errno == errno.ENAMETOOLONG:
         return f"{where}: a file or folder name is too long ({e.strerror})"
     return None

@@ -268,6 +268,16 @@ class RerunLog:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S if self.mode != "save" else 1e38)
         except RuntimeError as e:
             self.rec.disconnect()
+            reason = str(e).splitlines()[0]
+            if self._partial is not None and self.path is not None:
+                # A file that could not be written (a full disk): nothing of it is kept,
+                # and an earlier run's recording at its name goes too, so the folder
+                # never shows that recording beside this run's files.
+                self._partial.unlink(missing_ok=True)
+                self._partial = None
+                Path(self.path).unlink(missing_ok=True)
+                raise ViewerUnavailable(f"the recording could not be written ({reason}); "
+                                        f"no {Path(self.path).name} is kept") from None
             raise ViewerUnavailable(f"the Rerun viewer stopped taking the stream; the "
-                                    f"recording is incomplete ({str(e).splitlines()[0]})") from None
+                                    f"recording is incomplete ({reason})") from None
         self.rec.disconnect()
