@@ -196,3 +196,23 @@ def test_tum_folder_stamps_all_zero_refused(tmp_path):
     with pytest.raises(InputError, match="increase") as e:
         read_tum_rgbd(tmp_path)
     assert "rgb.txt:3" in str(e.value)
+
+
+def test_a_run_scored_on_under_half_its_poses_says_so(tmp_path, capsys):
+    """A 2-D run given truth for 49 of its 400 poses reports the count and a WARNING
+    (metrics.json ``warnings``); truth for every pose adds none."""
+    from graphslam.cli.main import main
+
+    full = tmp_path / "full"
+    assert main(["run", "--max-steps", "400", "--rerun", "off", "--quiet", "--out", str(full)]) == 0
+    assert json.loads((full / "metrics.json").read_text()).get("warnings") is None
+    lines = (full / "ground_truth.tum").read_text().splitlines()
+    part = tmp_path / "part.tum"
+    part.write_text("\n".join(lines[:50]) + "\n")
+    out = tmp_path / "o"
+    assert main(["run", "--max-steps", "400", "--rerun", "off", "--ground-truth", str(part),
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ate_poses"] < 0.5 * 400
+    assert any("under half the run" in w for w in m["warnings"])
+    assert "WARNING" in capsys.readouterr().out

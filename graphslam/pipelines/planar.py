@@ -194,7 +194,7 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
-        warnings=metrics.estimate_warnings(est, ate, odo_ate) or None)
+        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses) or None)
 
 
 def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
