@@ -62,6 +62,9 @@ class Attack:
     file_size_limit: int | None = None
     #: seconds after the start at which SIGTERM is sent (a user's kill), or None
     sigterm_after_s: float | None = None
+    #: seconds after the start at which SIGINT goes to the whole process group (Ctrl-C
+    #: in a terminal reaches the run and every process it started), or None
+    sigint_group_after_s: float | None = None
 
 
 def _w(folder: Path, name: str, text: str | bytes) -> Path:
@@ -198,6 +201,12 @@ def attacks() -> list[Attack]:
                check=lambda f, o, e: _not_mixed(_stashed)(f, o, e) or (
                    None if "recording could not be written" in e else
                    "the lost recording is not said")),
+        Attack("Ctrl-C to the process group of a long 2-D run recording in a second process",
+               "fail", lambda f: _run("synthetic", "--rerun", "save", "--config",
+                                      str(_w(f, "c.toml", "[synthetic]\nlaps = 20\n"))),
+               ("ok",), ok_codes=(130,), sigint_group_after_s=3.0,
+               check=lambda f, o, e: _files("out/trajectory.tum", "out/run.rrd")(f, o, e) or (
+                   None if "interrupted" in e else "the interruption is not said")),
         Attack("SIGTERM to a running sweep: finished rows kept, no run left behind", "fail",
                lambda f: ["sweep", str(_w(f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\n"
                                               "backend = [\"isam2\", \"ekf\"]\nseed = [0, 1, 2, 3]\n"
@@ -299,6 +308,18 @@ def _sigterm_after(proc: subprocess.Popen, seconds: float) -> None:
     timer.start()
 
 
+def _sigint_group_after(proc: subprocess.Popen, seconds: float) -> None:
+    import signal
+    import threading
+
+    def send():
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+    timer = threading.Timer(seconds, send)
+    timer.daemon = True
+    timer.start()
+
+
 def _earlier_run(folder: Path, *extra: str) -> dict[str, bytes]:
     """A first, ordinary run into ``folder/out``; returns its files' bytes by name."""
     subprocess.run([sys.executable, "-m", "graphslam", *_run("synthetic", "--max-steps", "150",
@@ -360,9 +381,12 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
         try:
             proc = subprocess.Popen(cmd, cwd=folder, env=env, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                    preexec_fn=_limits(a.file_size_limit))
+                                    preexec_fn=_limits(a.file_size_limit),
+                                    start_new_session=a.sigint_group_after_s is not None)
             if a.sigterm_after_s is not None:
                 _sigterm_after(proc, a.sigterm_after_s)
+            if a.sigint_group_after_s is not None:
+                _sigint_group_after(proc, a.sigint_group_after_s)
             if close:
                 proc.stdout.close()
                 out, err = "", proc.communicate(timeout=timeout_s)[1].decode(errors="replace")

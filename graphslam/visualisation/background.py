@@ -15,7 +15,8 @@ run's priority: niced, it starved on a busy machine and the run waited up to
 20 s at the end for what it had not yet written.
 
 The child ignores SIGINT and SIGTERM (they are blocked while it starts, and it
-inherits the mask): a Ctrl-C stops the run, whose stop guard then closes the
+inherits the mask; then ignored, which holds for every thread): a Ctrl-C to the
+process group stops the run, whose stop guard then closes the
 recording with what was logged, as in one process. A parent that dies
 without closing leaves the child an end of file: it deletes the recording (the
 earlier run's, if any, stays whole beside that run's files) and exits.
@@ -39,6 +40,11 @@ _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 def _serve(conn, factory: Callable[..., Any], args: tuple) -> None:
     """The child: build the log, apply the calls, close on request or end of file."""
     signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)  # kept whatever the start method
+    # and ignored: a mask is per thread, and a thread the Rerun SDK starts may unblock them
+    # (seen: one thread of the child with no signal blocked took a Ctrl-C sent to the
+    # process group, and the child died in a KeyboardInterrupt traceback, its file lost)
+    for stop in _STOP_SIGNALS:
+        signal.signal(stop, signal.SIG_IGN)
     failure = None
     try:
         log = factory(*args)
