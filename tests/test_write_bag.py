@@ -53,3 +53,24 @@ def test_without_rosbags_write_bag_is_refused_before_the_run(tmp_path, capsys, m
                  "--quiet", "--out", str(out), "--write-bag"]) == 2
     assert 'pip install ".[bags]"' in capsys.readouterr().err
     assert not out.exists()  # nothing ran
+
+
+def test_evo_reads_the_bag_as_the_trajectory(tmp_path):
+    """evo (the trajectory tool robotics users score with) reads the bag ``--write-bag``
+    writes: the same stamps and poses as the run's trajectory.tum (issue 35)."""
+    pytest.importorskip("evo")
+    from evo.tools import file_interface
+    from rosbags.rosbag1 import Reader
+
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", "synthetic", "--max-steps", "40", "--rerun", "off",
+                 "--quiet", "--out", str(out), "--write-bag"]) == 0
+    with Reader(out / "trajectory.bag") as reader:
+        traj = file_interface.read_bag_trajectory(reader, "/graphslam/trajectory")
+    tum = file_interface.read_tum_trajectory_file(str(out / "trajectory.tum"))
+    assert traj.num_poses == tum.num_poses >= 40
+    np.testing.assert_allclose(traj.timestamps, tum.timestamps, rtol=0, atol=1e-9)
+    assert np.abs(traj.positions_xyz - tum.positions_xyz).max() < SAME_M
+    # quaternions up to sign (q and -q are one rotation)
+    dots = np.abs(np.sum(traj.orientations_quat_wxyz * tum.orientations_quat_wxyz, axis=1))
+    assert np.abs(dots - 1.0).max() < SAME_M
