@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
@@ -33,22 +34,16 @@ ABSURD_ATE_RATIO = 10.0
 ABSURD_ATE_FLOOR_M = 1.0
 
 
-#: Share of a run's poses its truth must cover for the ATE to stand for the run: below
-#: it the figure scores the part with truth only (issue 34: truth for 50 of 400 poses
-#: gave an ATE with nothing said), and the run says so.
-MIN_TRUTH_SHARE = 0.5
-
-
 def estimate_warnings(estimate: Estimate, ate_m: float | None,
                       odometry_ate_m: float | None, ate_poses: int | None = None) -> list[str]:
     """What makes a finished 2-D estimate absurd or its score partial, one line each
     (empty: nothing): a non-finite value, a position beyond the 1e9 m the readers
     accept, an ATE more than :data:`ABSURD_ATE_RATIO` times the dead reckoning's, or
-    an ATE over fewer than :data:`MIN_TRUTH_SHARE` of the ``estimate``'s poses
+    an ATE over fewer than :data:`LOW_MATCHED_SHARE` of the ``estimate``'s poses
     (``ate_poses``: the poses it covers)."""
     doubts = []
     n_poses = len(estimate.pose_ids)
-    if ate_poses is not None and n_poses and ate_poses < MIN_TRUTH_SHARE * n_poses:
+    if ate_poses is not None and n_poses and ate_poses < LOW_MATCHED_SHARE * n_poses:
         doubts.append(f"the ATE covers {ate_poses} of {n_poses} poses "
                       f"({100 * ate_poses / n_poses:.0f} %), under half the run: it scores "
                       "the part with truth, not the run")

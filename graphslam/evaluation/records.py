@@ -11,6 +11,12 @@ import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Protocol, cast
 
+#: Below this share of the estimate's poses matched, the ATE describes a minority of
+#: the trajectory (``graphslam eval``, and a 2-D run's own score): said in a warning,
+#: not refused, because an estimate at a higher rate than its reference (200 Hz against
+#: 20 Hz) matches a tenth of its poses and is still scored correctly.
+LOW_MATCHED_SHARE = 0.5
+
 
 class _Record(Protocol):
     def to_dict(self) -> dict: ...

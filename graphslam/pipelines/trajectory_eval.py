@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.evaluation.trajectory import EvalOptions, TrajectoryEval, evaluate
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
 
@@ -78,11 +79,6 @@ def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptio
     return out
 
 
-#: Below this share of the estimate's poses matched, the ATE describes a minority
-#: of the trajectory: said in a warning, not refused, because an estimate at a
-#: higher rate than its reference (200 Hz against 20 Hz) matches a tenth of its
-#: poses and is still scored correctly.
-LOW_MATCHED_SHARE = 0.5
 
 
 def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:
