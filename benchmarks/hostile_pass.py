@@ -372,9 +372,12 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
         t0 = time.perf_counter()
         try:
             argv = a.setup(folder)
-        except Exception as e:  # the attack could not be built here (no data, no FIFO)
+        except (OSError, AttributeError) as e:  # not buildable here (no data, no FIFO)
             return {"attack": a.name, "category": a.category, "verdict": "skipped",
                     "why": f"{type(e).__name__}: {e}"}
+        except subprocess.SubprocessError as e:  # an earlier run it builds on failed: ours
+            return {"attack": a.name, "category": a.category, "verdict": "fail",
+                    "outcome": "crash", "why": f"setup run failed: {e}"}
         cmd = [sys.executable, "-m", "graphslam", *argv]
         env = {**os.environ, "PYTHONPATH": str(ROOT), **a.env}
         close = env.pop("HOSTILE_CLOSE_STDOUT", None)
