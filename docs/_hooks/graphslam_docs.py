@@ -18,6 +18,7 @@ A marker naming an unknown command or section fails the build (``--strict`` or n
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import inspect
 import io
@@ -42,19 +43,25 @@ def on_page_markdown(markdown, page, config, files):  # noqa: ARG001 (MkDocs' si
 def help_block(command: str) -> str:
     from graphslam.cli.main import build_parser
 
-    os.environ["COLUMNS"] = "92"  # argparse wraps to the terminal; pages want one width
-    parser = build_parser()
     argv = ["--help"] if command == "graphslam" else [*command.split("-"), "--help"]
     text = io.StringIO()
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "92"  # argparse wraps to the terminal; pages want one width
     try:
         with redirect_stdout(text):
-            parser.parse_args(argv)
+            build_parser().parse_args(argv)
     except SystemExit as exit_:
         if exit_.code not in (0, None):
             raise ValueError(f"graphslam-help: no command {command!r}") from None
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
     return "```text\n" + text.getvalue().rstrip() + "\n```"
 
 
+@functools.cache  # nine markers ask; the tree is scanned and imported once a build
 def config_classes() -> dict[str, type]:
     """Section name -> the frozen dataclass that reads it, for every ``SECTION`` in the tree."""
     found: dict[str, type] = {}
@@ -62,7 +69,7 @@ def config_classes() -> dict[str, type]:
         for path in sorted((ROOT / package).rglob("*.py")):
             if "SECTION" not in path.read_text(encoding="utf-8"):
                 continue
-            module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+            module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
             for _, cls in inspect.getmembers(importlib.import_module(module), inspect.isclass):
                 section = cls.__dict__.get("SECTION")
                 if dataclasses.is_dataclass(cls) and isinstance(section, str):
