@@ -10,14 +10,12 @@ real images accepted and a pair of different places rejected.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
-from frontend.orb import OrbDetector
-from graphslam.sources.spatial.kitti import read_kitti_calib
 from loopclosure.detector import LoopDetector
 from loopclosure.verify import GeometricVerifier, PairVerifier, Verification
+from tests.test_verify import kitti  # noqa: F401 (a fixture: the same KITTI 07 ORB features)
 
 #: Every verifier the toolkit ships (a new one is added here and passes the contract).
 IMPLEMENTATIONS = [GeometricVerifier]
@@ -27,19 +25,6 @@ SAME_PLACE = (50, 53)
 DIFFERENT_PLACES = (0, 150)
 #: |det R - 1| and ||R^T R - I|| of a returned rotation (float64 round-off).
 ROTATION_TOL = 1e-9
-
-
-@pytest.fixture(scope="module")
-def kitti_features(shared_data):
-    root = shared_data / "kitti07"
-    K, _ = read_kitti_calib(root / "calib.txt")
-    orb = OrbDetector(cell_size_px=0, n_features=1000)
-
-    def features(i):
-        return orb.detect(cv2.imread(str(root / "image_0" / f"{i:06d}.png"),
-                                     cv2.IMREAD_GRAYSCALE))
-
-    return K, features
 
 
 def check_consistent(v: Verification, n_a: int, n_b: int) -> None:
@@ -63,8 +48,8 @@ def test_is_a_pair_verifier(make):
 
 @pytest.mark.parametrize("make", IMPLEMENTATIONS)
 @pytest.mark.parametrize("pair, same", [(SAME_PLACE, True), (DIFFERENT_PLACES, False)])
-def test_real_pairs(make, kitti_features, pair, same):
-    K, features = kitti_features
+def test_real_pairs(make, kitti, pair, same):  # noqa: F811 (the imported fixture)
+    K, _, features = kitti
     a, b = features(pair[0]), features(pair[1])
     verifier = make()
     first = verifier.verify(a.xy_px, a.descriptors, b.xy_px, b.descriptors, K)

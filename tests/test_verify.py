@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from slamcore.spatial.geometry import invert_pose
-from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
+from tests.kitti import kitti07
 from frontend.orb import OrbDetector
 from slamcore.errors import ConfigError
 from loopclosure.verify import GeometricVerifier, VerifyConfig
@@ -122,11 +122,7 @@ def test_lund_door_is_repeatable(lund):
 
 @pytest.fixture(scope="module")
 def kitti(shared_data):
-    root = shared_data / "kitti07"
-    if not (root / "poses.txt").is_file():
-        pytest.skip("KITTI 07 data missing")
-    K, _ = read_kitti_calib(root / "calib.txt")
-    wTc = read_kitti_poses(root / "poses.txt")
+    root, K, wTc = kitti07(shared_data)
     orb = OrbDetector(cell_size_px=0, n_features=1000)
 
     def features(i):

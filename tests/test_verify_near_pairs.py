@@ -14,7 +14,7 @@ import pytest
 
 from frontend.image import load_gray
 from frontend.orb import OrbDetector
-from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
+from tests.kitti import kitti07
 from loopclosure.acontrario import hull_coverage, shared_view_coverage
 from loopclosure.detector import LoopDetectorConfig
 from loopclosure.verify import GeometricVerifier
@@ -31,11 +31,7 @@ DIR_TOL_DEG = 5.0
 
 @pytest.fixture(scope="module")
 def kitti(shared_data):
-    root = shared_data / "kitti07"
-    if not (root / "poses.txt").is_file():
-        pytest.skip("KITTI 07 data missing")
-    K, _ = read_kitti_calib(root / "calib.txt")
-    wTc = read_kitti_poses(root / "poses.txt")
+    root, K, wTc = kitti07(shared_data)
     orb = OrbDetector(LoopDetectorConfig().orb)
     cache = {}
 
