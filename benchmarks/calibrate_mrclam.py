@@ -19,8 +19,15 @@ this script, run on every robot of Dataset 6:
    within 1.6-4.4 from 1 to 20 s: a compromise between the frame-to-frame steps
    (0.2-1 s) and the longest stretches without a sighting (up to 78 s), which
    is where an overconfident odometry does the most harm.
-3. Range and bearing noise: the robust scale (1.4826 MAD) of the sightings'
-   residuals against the truth, and the fraction beyond 3 robust sigma.
+3. Range and bearing noise, as functions of the measured range r (what a run
+   knows; the true range would fit a little better and be of no use):
+   ``sigma_r^2 = a^2 + (k r)^2`` (a camera reads range from a barcode's apparent
+   size: a relative error) and ``sigma_b^2 = b^2 + (c / r)^2`` (a fixed lateral
+   offset adds an angle that falls with range). The shape (the ratio of the two
+   terms) by Student-t maximum likelihood; the scale so that the residuals
+   divided by the model have a robust scale (1.4826 MAD) of 1, as the constant
+   sigmas were fitted before. Reported: each model's fraction beyond 3 sigma,
+   beside the constant robust sigma's, and the robust sigma per range bin.
 
     python benchmarks/calibrate_mrclam.py [--data ../shared/data/mrclam6] [--quick]
 
@@ -43,8 +50,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from plotting import Panel, save_figure  # noqa: E402
 
-from graphslam.sources.planar.mrclam import (MrclamConfig, frame_times, read_table,  # noqa: E402
-                                             truth_at)
+from graphslam.sources.planar.mrclam import (MIN_MODEL_RANGE_M, MrclamConfig,  # noqa: E402
+                                             frame_times, read_table, truth_at)
 from graphslam.sources.planar.mrclam_motion import MotionModel, held_commands, integrate  # noqa: E402
 from slamcore.planar.geometry import between, wrap_angle  # noqa: E402
 
@@ -52,6 +59,7 @@ DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 COMMAND = "python benchmarks/calibrate_mrclam.py --out benchmarks/figures/calibrate_mrclam.json"
 #: Length of the windows the noise is fitted on, s (module docstring, step 2).
 FIT_WINDOW_S = 5.0
+SIGHTING_NAMES = ("sigma_range_m", "sigma_range_per_m", "sigma_bearing_rad", "sigma_bearing_m")
 NOISE_NAMES = ("a_s_m", "b_s_m2_per_s", "a_y_m", "a_theta_rad", "c_theta_rad2_per_m",
                "b_theta_rad2_per_s")
 
@@ -162,11 +170,64 @@ def mean_nees(coef: np.ndarray, E: np.ndarray, U: np.ndarray) -> dict:
             "windows": int(len(maha)), "median_expected": 2.366}
 
 
+#: Range bins of the per-bin robust sigmas in the report, m.
+RANGE_BINS_M = (0.5, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0)
+
+
+def robust_sigma(res: np.ndarray) -> float:
+    """1.4826 MAD: the standard deviation of a Gaussian, whatever the tails."""
+    return float(1.4826 * np.median(np.abs(res - np.median(res))))
+
+
+def fit_sigma_model(res: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """Coefficients ``theta`` (F,) of ``sigma^2 = features @ theta^2`` (features
+    (N, F)): shape by Student-t (5 dof) maximum likelihood, scale set so the
+    normalised residuals' robust sigma is 1 (module docstring, step 3)."""
+    from scipy.optimize import minimize
+
+    res = res - np.median(res)
+
+    def t_nll(log_theta2: np.ndarray) -> float:
+        var = features @ np.exp(log_theta2)
+        return float(np.sum(0.5 * np.log(var) + 3.0 * np.log1p(res**2 / (5.0 * var))))
+
+    start = np.full(features.shape[1], 2.0 * np.log(robust_sigma(res)))
+    fit = minimize(t_nll, start, method="Nelder-Mead",
+                   options={"maxiter": 4000, "xatol": 1e-6, "fatol": 1e-9})
+    theta = np.sqrt(np.exp(fit.x))
+    return theta * robust_sigma(res / np.sqrt(features @ theta**2))
+
+
+def sighting_model(ranges: np.ndarray, r_res: np.ndarray, b_res: np.ndarray) -> dict:
+    """The fitted range and bearing models (module docstring, step 3) and their checks,
+    as functions of the measured ``ranges`` (what a run knows)."""
+    r = np.maximum(ranges, MIN_MODEL_RANGE_M)
+    ones = np.ones_like(r)
+    a, k = fit_sigma_model(r_res, np.stack([ones, r**2], axis=1))
+    b, c = fit_sigma_model(b_res, np.stack([ones, 1.0 / r**2], axis=1))
+    sig_r, sig_b = np.hypot(a, k * r), np.hypot(b, c / r)
+
+    def beyond(res, sigma):
+        return float(np.mean(np.abs(res - np.median(res)) > 3.0 * sigma))
+
+    edges = np.asarray(RANGE_BINS_M)
+    bins = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (ranges >= lo) & (ranges < hi)
+        bins.append({"range_m": [float(lo), float(hi)], "n": int(m.sum()),
+                     "range_sigma_m": robust_sigma(r_res[m]) if m.sum() > 1 else None,
+                     "bearing_sigma_rad": robust_sigma(b_res[m]) if m.sum() > 1 else None})
+    return {"sigma_range_m": float(a), "sigma_range_per_m": float(k),
+            "sigma_bearing_rad": float(b), "sigma_bearing_m": float(c),
+            "range_beyond_3_sigma": beyond(r_res, sig_r),
+            "bearing_beyond_3_sigma": beyond(b_res, sig_b), "bins": bins}
+
+
 def sighting_residuals(folder: Path, logs: dict) -> dict:
     from graphslam.sources.planar.mrclam import read_subjects
 
     barcodes, landmarks = read_subjects(folder)
-    r_res, b_res = [], []
+    r_res, b_res, ranges = [], [], []
     for log in logs.values():
         meas, truth = log["meas"], log["truth"]
         subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]])
@@ -175,15 +236,20 @@ def sighting_residuals(folder: Path, logs: dict) -> dict:
         lm = np.array([landmarks[s] for s in subject[keep]])
         ok = np.isfinite(p).all(axis=1)
         d = lm[ok] - p[ok, :2]
-        r_res.append(meas[keep, 2][ok] - np.hypot(d[:, 0], d[:, 1]))
+        ranges.append(meas[keep, 2][ok])
+        r_res.append(ranges[-1] - np.hypot(d[:, 0], d[:, 1]))
         b_res.append(wrap_angle(meas[keep, 3][ok] - (np.arctan2(d[:, 1], d[:, 0]) - p[ok, 2])))
-    out = {}
+    out: dict = {}
     for name, res in (("range_m", np.concatenate(r_res)), ("bearing_rad", np.concatenate(b_res))):
         med = float(np.median(res))
-        sigma = float(1.4826 * np.median(np.abs(res - med)))
+        sigma = robust_sigma(res)
         out[name] = {"median": med, "robust_sigma": sigma, "std": float(np.std(res)),
                      "beyond_3_sigma": float(np.mean(np.abs(res - med) > 3 * sigma)),
                      "n": int(res.size), "residuals": res}
+    measured_range = np.concatenate(ranges)
+    out["model"] = sighting_model(measured_range, out["range_m"]["residuals"],
+                                  out["bearing_rad"]["residuals"])
+    out["model"]["measured_range"] = measured_range
     return out
 
 
@@ -210,30 +276,45 @@ def main(argv: list[str] | None = None) -> None:
         "odometry": {k: v for k, v in motion.items() if k != "residual"},
         "noise": dict(zip(NOISE_NAMES, coef.tolist())),
         "nees": checks,
-        "sightings": {k: {kk: vv for kk, vv in v.items() if kk != "residuals"}
+        "sightings": {k: {kk: vv for kk, vv in v.items() if kk not in ("residuals", "measured_range")}
                       for k, v in sightings.items()},
         "defaults_in_use": {"lag_s": default.odometry_lag_s,
                             "forward_scale": default.forward_scale,
                             "angular_scale": default.angular_scale,
                             **{n: getattr(default, n) for n in NOISE_NAMES},
-                            "sigma_range_m": default.sigma_range_m,
-                            "sigma_bearing_rad": default.sigma_bearing_rad},
+                            **{n: getattr(default, n) for n in SIGHTING_NAMES}},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps({k: report[k] for k in ("odometry", "noise", "nees", "sightings")}, indent=1))
+    model = sightings["model"]
+    ranges = model["measured_range"]
+    model_sigma = {"range_m": np.hypot(model["sigma_range_m"], model["sigma_range_per_m"] * ranges),
+                   "bearing_rad": np.hypot(model["sigma_bearing_rad"],
+                                           model["sigma_bearing_m"]
+                                           / np.maximum(ranges, MIN_MODEL_RANGE_M))}
+    grid = np.linspace(RANGE_BINS_M[0], RANGE_BINS_M[-1], 50)
+    curves = {"range_m": np.hypot(model["sigma_range_m"], model["sigma_range_per_m"] * grid),
+              "bearing_rad": np.hypot(model["sigma_bearing_rad"], model["sigma_bearing_m"] / grid)}
     panels = []
     for name, unit in (("range_m", "m"), ("bearing_rad", "rad")):
-        res = sightings[name]["residuals"]
-        sigma = sightings[name]["robust_sigma"]
-        edges = np.linspace(-5 * sigma, 5 * sigma, 41)
-        counts, _ = np.histogram(res, edges)
+        key = "range_sigma_m" if name == "range_m" else "bearing_sigma_rad"
+        rows = [b for b in model["bins"] if b[key] is not None]
+        mids = [0.5 * sum(b["range_m"]) for b in rows]
+        panels.append(Panel(f"{name}: robust sigma by measured range", "measured range [m]",
+                            f"sigma [{unit}]",
+                            {"per bin": (mids, [b[key] for b in rows]),
+                             "model": (grid.tolist(), curves[name].tolist()),
+                             "constant": (grid[[0, -1]].tolist(),
+                                          [sightings[name]["robust_sigma"]] * 2)}))
+        z = (sightings[name]["residuals"] - sightings[name]["median"]) / model_sigma[name]
+        edges = np.linspace(-5.0, 5.0, 41)
+        counts, _ = np.histogram(z, edges)
         centres = 0.5 * (edges[:-1] + edges[1:])
-        gauss = res.size * (edges[1] - edges[0]) * np.exp(-0.5 * (centres / sigma) ** 2) / (
-            sigma * math.sqrt(2 * math.pi))
-        panels.append(Panel(f"{name} residual against the truth", f"residual [{unit}]", "sightings",
+        gauss = z.size * (edges[1] - edges[0]) * np.exp(-0.5 * centres**2) / math.sqrt(2 * math.pi)
+        panels.append(Panel(f"{name} residual / model sigma", "normalised residual", "sightings",
                             {"measured": (centres.tolist(), counts.tolist()),
-                             "N(0, robust sigma)": (centres.tolist(), gauss.tolist())}))
+                             "N(0, 1)": (centres.tolist(), gauss.tolist())}))
     names = list(checks)
     panels.append(Panel("odometry consistency (mean NEES, 3 = consistent)", "window", "NEES",
                         {"mean": (names, [checks[n]["mean"] for n in names]),

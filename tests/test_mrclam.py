@@ -15,7 +15,8 @@ from graphslam import registry
 from graphslam.cli.main import main
 from graphslam.evaluation.planar import MAP_RECOVERY_RADIUS_M, map_errors
 from graphslam.pipelines import planar as pipeline
-from graphslam.sources.planar.mrclam import MrclamConfig, frame_times, read_mrclam
+from graphslam.sources.planar.mrclam import (MIN_MODEL_RANGE_M, MrclamConfig, frame_times,
+                                             read_mrclam, sighting_covariances)
 from graphslam.sources.planar.mrclam_motion import MotionModel, held_commands, integrate
 from slamcore.errors import ConfigError, InputError
 from slamcore.planar.records import Estimate
@@ -24,6 +25,11 @@ from slamcore.planar.records import Estimate
 ARC_TOL = 1e-9
 #: The issue's bound on iSAM2 with known ids, every robot of Dataset 6, metres.
 ISAM2_ATE_BOUND_M = 0.12
+
+#: Share of the sightings' ranges beyond 3 model sigma against the truth that the
+#: reader's noise model may leave, all five robots (a Gaussian: 0.27 %; the fitted
+#: model: 3.1 %, the ranges are quantised and skewed; the old constant sigma: 5.4 %).
+RANGE_TAIL_BOUND = 0.04
 
 UNIT = MotionModel(0.0, 1.0, 1.0, *([0.0] * 6))
 
@@ -116,6 +122,46 @@ def test_frame_times_cover_the_log_with_no_gap_longer_than_asked():
 @pytest.fixture(scope="module")
 def mrclam(shared_data) -> Path:
     return shared_data / "mrclam6"
+
+
+def test_sighting_noise_grows_with_range_as_configured():
+    """The camera's model: range sigma a + k r in quadrature, bearing b + c / r."""
+    cfg = MrclamConfig(sigma_range_m=0.01, sigma_range_per_m=0.04, sigma_bearing_rad=0.007,
+                       sigma_bearing_m=0.016)
+    R = sighting_covariances(cfg, np.array([[1.0, 0.2], [4.0, -0.1], [0.0, 0.0]]))
+    np.testing.assert_allclose(np.sqrt(R[:, 0, 0]), [math.hypot(0.01, 0.04), math.hypot(0.01, 0.16),
+                                                     math.hypot(0.01, 0.04 * MIN_MODEL_RANGE_M)])
+    np.testing.assert_allclose(np.sqrt(R[:, 1, 1]), [math.hypot(0.007, 0.016),
+                                                     math.hypot(0.007, 0.004),
+                                                     math.hypot(0.007, 0.016 / MIN_MODEL_RANGE_M)])
+    assert np.all(R[:, 0, 1] == 0.0) and np.all(np.isfinite(R))
+
+
+@pytest.mark.parametrize("zeroed", [("sigma_range_m", "sigma_range_per_m"),
+                                    ("sigma_bearing_rad", "sigma_bearing_m")])
+def test_a_noiseless_sighting_model_is_refused(zeroed):
+    with pytest.raises(ConfigError, match="both 0"):
+        MrclamConfig(**{name: 0.0 for name in zeroed})
+
+
+def test_the_readers_range_noise_fits_the_truth(mrclam):
+    """Ranges of the five robots against the Vicon truth, divided by the reader's sigma:
+    few beyond 3 (a constant sigma left 5.4 % there: the camera's range error grows
+    with range). Pooled, as the calibration is: each robot's camera differs."""
+    z, sigma = [], []
+    for robot in range(1, 6):
+        ds = read_mrclam(mrclam, MrclamConfig(robot=robot))
+        for f in ds.frames:
+            if f.wTb_true is None or not np.isfinite(f.wTb_true).all():
+                continue
+            for o in f.observations:
+                true_range = np.linalg.norm(ds.landmarks_true[o.landmark_id] - f.wTb_true[:2])
+                z.append(o.z[0] - true_range)
+                sigma.append(math.sqrt(o.covariance[0, 0]))
+    normalised = (np.array(z) - np.median(z)) / np.array(sigma)
+    assert len(z) == 15383
+    assert np.mean(np.abs(normalised) > 3.0) <= RANGE_TAIL_BOUND
+    assert 0.8 <= 1.4826 * np.median(np.abs(normalised)) <= 1.25
 
 
 def test_robot_1_is_read_as_the_data_set_is(mrclam):
@@ -362,10 +408,12 @@ def test_jcbb_pairs_a_scan_with_two_close_landmarks_despite_a_heading_error():
 
 
 @pytest.mark.slow
-def test_isam2_unknown_association_on_robot_2(mrclam):
+@pytest.mark.parametrize("robot", [2, 4, 5])
+def test_isam2_unknown_association_within_the_issues_bound(mrclam, robot):
     """Issue 31: without ids, all 15 landmarks within 0.3 m and ATE within 1.3x of the
-    known-id run. Holds on robots 1 (nearly), 2 and 4, not on 3 and 5 (the closing note)."""
-    ds = read_mrclam(mrclam, MrclamConfig(robot=2))
+    known-id run. Holds on robots 2, 4 and 5, not on 1 (1.34x) and 3 (5.8x: a cluster
+    mapped twice after a 20 s gap; docs/data/landmark-logs.md)."""
+    ds = read_mrclam(mrclam, MrclamConfig(robot=robot))
     known = pipeline.compute_metrics(pipeline.run(ds, registry.make_backend("isam2")),
                                      with_graph_error=False)
     unknown = pipeline.compute_metrics(

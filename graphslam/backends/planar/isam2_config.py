@@ -75,9 +75,9 @@ class Isam2Config:
             gate, a chi-square (2 dof) probability; 0.999 as the EKF's gate.
         confirm_sightings: unknown association: sightings, each compatible with
             the candidate, before a new landmark enters the map (3: one outlier,
-            or two that happen to agree, never make a landmark; with 5-6 % of
+            or two that happen to agree, never make a landmark; with 3-5 % of
             MRCLAM's sightings beyond 3 robust sigma, three outliers among
-            three sightings of a place is a 2e-4 event).
+            three sightings of a place is a 1e-4 event).
         factorization: "auto" (Cholesky; on an indeterminate system, QR from
             then on, reported by :meth:`Isam2Backend.numerical_recoveries`),
             "cholesky" (no fallback) or "qr"; see

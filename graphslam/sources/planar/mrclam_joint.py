@@ -30,7 +30,7 @@ import numpy as np
 
 from graphslam.sources.planar.mrclam import (PRIOR_VARIANCE, MrclamConfig, landmark_observations,
                                              read_robot, read_subjects, robot_track, robots_in,
-                                             sighting_covariance)
+                                             sighting_covariances)
 from slamcore.errors import InputError
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Dataset, Frame, Odometry, PoseSighting, odometry_batch
@@ -101,7 +101,6 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
 
 def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> dict[int, list]:
     """Robot-to-robot sightings by the stream position of the later of their two frames."""
-    R = sighting_covariance(config)
     out: dict[int, list] = {}
     for n, tr in tracks.items():
         for k, subject, z, t in tr.robot_sightings:
@@ -111,7 +110,8 @@ def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> dict[int, 
             j = int(np.searchsorted(other, t))
             if j >= len(other) or other[j] != t:
                 continue  # outside the other robot's log (before its odometry)
-            sighting = PoseSighting(n * POSE_ID_STRIDE + k, subject * POSE_ID_STRIDE + j, z, R)
+            sighting = PoseSighting(n * POSE_ID_STRIDE + k, subject * POSE_ID_STRIDE + j, z,
+                                    sighting_covariances(config, z)[0])
             later = max(position[(n, k)], position[(subject, j)])
             out.setdefault(later, []).append(sighting)
     return out
