@@ -30,6 +30,7 @@ worst-case cost is ``O(max_nodes * m^3)`` flops on tiny matrices.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -241,6 +242,22 @@ class _JcbbSearch:
                     break
         return greedy
 
+    def branches(self, i: int, used_lm: set[int]) -> Iterator[int]:
+        """Candidate pairs of observation ``i`` whose landmark no chosen pair holds, each
+        counted as a node (:class:`_Budget` past ``max_nodes``). A pair's landmark stays in
+        ``used_lm`` until the caller asks for the next pair, so the branch searched below
+        the pair cannot pair that landmark again."""
+        for p in self.cands[i]:
+            lm = int(self.pair_landmark[p])
+            if lm in used_lm:
+                continue
+            self.nodes += 1
+            if self.nodes > self.max_nodes:
+                raise _Budget
+            used_lm.add(lm)
+            yield p
+            used_lm.discard(lm)
+
     def search(self, level: int, chosen: list[int], used_lm: set[int]) -> None:
         """Depth-first over ``order[level:]``: pair observation ``order[level]`` with each
         compatible unused candidate, then leave it unpaired; prune branches that
@@ -255,18 +272,9 @@ class _JcbbSearch:
         remaining = len(order) - level - 1  # levels after this one
         i = order[level]
         if len(chosen) + 1 + remaining >= len(self.best_pairs):
-            for p in self.cands[i]:
-                lm = int(self.pair_landmark[p])
-                if lm in used_lm:
-                    continue
-                self.nodes += 1
-                if self.nodes > self.max_nodes:
-                    raise _Budget
-                ok, _ = self.compatible(chosen + [p])
-                if ok:
-                    used_lm.add(lm)
+            for p in self.branches(i, used_lm):
+                if self.compatible(chosen + [p])[0]:
                     self.search(level + 1, chosen + [p], used_lm)
-                    used_lm.discard(lm)
         if len(chosen) + remaining >= len(self.best_pairs):  # the "leave unpaired" branch
             self.search(level + 1, chosen, used_lm)
 
@@ -361,17 +369,8 @@ class _LikelihoodSearch(_JcbbSearch):
             self.best_nis = self.score(chosen)[2]
         if level == len(self.order) or current + self.tail[level] <= self.best_score:
             return
-        i = self.order[level]
-        for p in self.cands[i]:
-            lm = int(self.pair_landmark[p])
-            if lm in used_lm:
-                continue
-            self.nodes += 1
-            if self.nodes > self.max_nodes:
-                raise _Budget
+        for p in self.branches(self.order[level], used_lm):
             ok, s, _ = self.score(chosen + [p])
             if ok:
-                used_lm.add(lm)
                 self.search_score(level + 1, chosen + [p], used_lm, s)
-                used_lm.discard(lm)
         self.search_score(level + 1, chosen, used_lm, current)

@@ -49,11 +49,12 @@ import numpy as np
 from filters.association import chi2_quantile
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.numerics import symmetrise
-from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from filters.planar_inputs import checked_scan, odometry_step
+from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
 from slamcore.planar.records import (
-    Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
+    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
 )
 
 
@@ -111,17 +112,10 @@ class EkfLocaliser(Backend):
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         x, cur = self._current()
-        if odometry.from_id == cur and odometry.to_id == pose_id != cur:
-            u, Q = odometry.delta, odometry.covariance
-        elif odometry.from_id == pose_id and odometry.to_id == cur != pose_id:
-            u, Q = models.invert(odometry.delta, odometry.covariance)
-        else:
-            raise GraphSlamError(
-                f"ekf: odometry {odometry.from_id}->{odometry.to_id} does not link the current "
-                f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)")
-        F, G = models.compose_jacobians(x, np.asarray(u))
-        self._x = models.compose(x, np.asarray(u))
-        Q = np.asarray(Q) * self.config.odometry_covariance_scale
+        u, Q = odometry_step(odometry, cur, pose_id, "ekf")
+        F, G = models.compose_jacobians(x, u)
+        self._x = models.compose(x, u)
+        Q = Q * self.config.odometry_covariance_scale
         self._Prr = symmetrise(F @ self._Prr @ F.T + G @ Q @ G.T)
         self._Prm = F @ self._Prm
         self._pose_id = int(pose_id)
@@ -129,13 +123,7 @@ class EkfLocaliser(Backend):
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
-        obs = list(observations)
-        for o in obs:  # refuse the whole scan before touching the state
-            if o.kind is not ObservationKind.RANGE_BEARING:
-                raise UnsupportedError(f"ekf handles range-bearing observations only, got {o.kind.value}")
-            if o.pose_id != self._pose_id:
-                raise GraphSlamError(f"ekf: observation from pose {o.pose_id} but the current "
-                                     f"pose is {self._pose_id}")
+        obs = checked_scan(observations, self._pose_id, "ekf")
         assoc: list[int | None] = []
         for o in obs:
             lid = o.landmark_id

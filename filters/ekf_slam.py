@@ -117,10 +117,11 @@ from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_correction import kalman_update
 from filters.ekf_slam_store import SlotStore
 from filters.numerics import Recoveries
+from filters.planar_inputs import checked_scan, odometry_step
 from slamcore.planar.backend import Backend
-from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
+from slamcore.errors import GraphSlamError, MeasurementError
 from slamcore.planar.records import (
-    Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
+    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
 )
 
 class EkfSlam(Backend):
@@ -243,24 +244,14 @@ class EkfSlam(Backend):
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
-        cur = self._pose_id
-        if odometry.from_id == cur and odometry.to_id == pose_id:
-            u, Q = odometry.delta, odometry.covariance
-        elif odometry.from_id == pose_id and odometry.to_id == cur:
-            u, Q = models.invert(odometry.delta, odometry.covariance)
-        else:
-            raise GraphSlamError(
-                f"ekf: odometry {odometry.from_id}->{odometry.to_id} does not link the current "
-                f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)")
-        if pose_id == cur:
-            raise GraphSlamError(f"ekf: pose {pose_id} is already the current pose")
-        Q = np.asarray(Q) * self.config.odometry_covariance_scale
+        u, Q = odometry_step(odometry, self._current_pose_id(), pose_id, "ekf")
+        Q = Q * self.config.odometry_covariance_scale
         st = self._store
         n = st.n
         x = st.xbuf
         P = st.Pbuf
-        F, G = models.compose_jacobians(x[:3], np.asarray(u))
-        x[:3] = models.compose(x[:3], np.asarray(u))
+        F, G = models.compose_jacobians(x[:3], u)
+        x[:3] = models.compose(x[:3], u)
         if self.config.jacobians == "oc":
             # d p_new / d theta between predicted positions, so that the rotation
             # direction propagates exactly (filters.ekf_slam_correction.observability_constrained)
@@ -279,15 +270,7 @@ class EkfSlam(Backend):
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
-        obs = list(observations)
-        for o in obs:  # refuse the whole scan before touching the state
-            if not isinstance(o, Observation):
-                raise MeasurementError(f"ekf: expected Observation, got {type(o).__name__}")
-            if o.kind is not ObservationKind.RANGE_BEARING:
-                raise UnsupportedError(f"ekf handles range-bearing observations only, got {o.kind.value}")
-            if o.pose_id != self._pose_id:
-                raise MeasurementError(f"ekf: observation from pose {o.pose_id} but the current "
-                                       f"pose is {self._pose_id}")
+        obs = checked_scan(observations, self._pose_id, "ekf")
         self._scan += 1
         assoc: list[int | None] = [None] * len(obs)
         unknown: list[int] = []

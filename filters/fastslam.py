@@ -83,10 +83,11 @@ from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
 from filters.numerics import Recoveries, symmetrise as sym
+from filters.planar_inputs import checked_scan, odometry_step
 from slamcore.planar.backend import Backend
-from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.errors import GraphSlamError
 from slamcore.planar.records import (
-    Estimate, Observation, ObservationKind, Odometry, Prediction, as_covariance, as_vector,
+    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
 )
 
 __all__ = ["FastSlam"]
@@ -131,14 +132,7 @@ class FastSlam(Backend):
         cur = self._pose_ids[-1]
         if pose_id in self._pose_set:
             raise GraphSlamError(f"{self.name}: pose {pose_id} added twice")
-        if odometry.from_id == cur and odometry.to_id == pose_id:
-            u, cov = np.asarray(odometry.delta), np.asarray(odometry.covariance)
-        elif odometry.from_id == pose_id and odometry.to_id == cur:
-            u, cov = models.invert(odometry.delta, odometry.covariance)
-        else:
-            raise GraphSlamError(
-                f"{self.name}: odometry {odometry.from_id}->{odometry.to_id} must link new pose "
-                f"{pose_id} with the current pose {cur} (a filter keeps only the latest pose)")
+        u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._close_step()
         self._particles.move(u, cov)
         self._pose_ids.append(int(pose_id))
@@ -147,18 +141,11 @@ class FastSlam(Backend):
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
-        obs = list(observations)
         self._last_associations = []
+        obs = checked_scan(observations, self._pose_ids[-1], self.name)
         if not obs:
             return
-        cur = self._pose_ids[-1]
         for o in obs:
-            if o.kind is not ObservationKind.RANGE_BEARING:
-                raise UnsupportedError(f"{self.name} handles range-bearing observations only, "
-                                       f"got {o.kind.value}")
-            if o.pose_id != cur:
-                raise GraphSlamError(f"{self.name}: observation from pose {o.pose_id}, "
-                                     f"but the current pose is {cur}")
             if self.config.association == "known" and o.landmark_id is None \
                     and o.signature is None:
                 raise GraphSlamError(f"{self.name}: known association needs a landmark_id or "

@@ -57,7 +57,6 @@ counts overlaps twice, is reported as well).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -68,6 +67,7 @@ from frontend.features import Features
 from frontend.image import check_gray
 from frontend.search_matchers import (Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels,
                                       inv2)
+from slamcore.config import with_overrides
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
 # the settings (frontend.active_search_config) and the matchers (frontend.search_matchers)
@@ -140,10 +140,7 @@ class ActiveSearch:
     """
 
     def __init__(self, config: ActiveSearchConfig | None = None, **overrides):
-        config = config or ActiveSearchConfig()
-        if overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = with_overrides(config or ActiveSearchConfig(), overrides)
 
     # ------------------------------------------------------------------ ordering
 

@@ -53,7 +53,6 @@ previous one's last pixel.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -70,7 +69,7 @@ from frontend.harris import (
     cell_grid,
 )
 from frontend.image import check_gray
-from slamcore.config import bounded, validate
+from slamcore.config import bounded, validate, with_overrides
 from slamcore.errors import GraphSlamError, InputError
 
 _S_SHIFT = 12
@@ -155,10 +154,7 @@ class FpgaHarrisStream:
 
     def __init__(self, config: HarrisConfig | None = None, timing: FpgaTiming | None = None,
                  **overrides):
-        config = config or HarrisConfig(arithmetic="fixed")
-        if overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = with_overrides(config or HarrisConfig(arithmetic="fixed"), overrides)
         self.timing = timing or FpgaTiming()
         self._frames: deque[_Frame] = deque(maxlen=3)
         self._n_frames = 0

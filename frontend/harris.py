@@ -85,7 +85,6 @@ response and cells, against 8 ms in float64 with numpy temporaries).
 from __future__ import annotations
 
 import math
-import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -94,7 +93,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import MAX_SIDE_PX, check_gray
-from slamcore.config import bounded, validate
+from slamcore.config import bounded, validate, with_overrides
 
 #: Pixels of look-ahead of one response on each side (2 smoothing + 1 derivative + 2 window).
 REACH_PX = 5
@@ -364,10 +363,7 @@ class HarrisDetector:
     """
 
     def __init__(self, config: HarrisConfig | None = None, **overrides):
-        config = config or HarrisConfig()
-        if overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = with_overrides(config or HarrisConfig(), overrides)
         self._work: dict = {}
 
     def response(self, image: np.ndarray) -> np.ndarray:

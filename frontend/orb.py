@@ -17,7 +17,6 @@ output is sorted by cell, then decreasing response).
 
 from __future__ import annotations
 
-import dataclasses
 import operator
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -27,7 +26,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
-from slamcore.config import bounded, validate
+from slamcore.config import bounded, validate, with_overrides
 
 
 #: Per-keypoint attribute readers: ``map`` over an ``attrgetter`` is the
@@ -112,10 +111,7 @@ class OrbDetector:
     """
 
     def __init__(self, config: OrbConfig | None = None, **overrides):
-        config = config or OrbConfig()
-        if overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = with_overrides(config or OrbConfig(), overrides)
         self._cv_orb = None
 
     def _orb(self):

@@ -73,7 +73,6 @@ the same inputs give the same result; matching is exhaustive and deterministic.
 
 from __future__ import annotations
 
-import dataclasses
 import typing
 from dataclasses import dataclass
 from typing import ClassVar, Literal, Protocol, runtime_checkable
@@ -89,7 +88,7 @@ from loopclosure.acontrario import (
 )
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.matching import epipolar_residuals, guided_match, match_descriptors
-from slamcore.config import bounded, validate
+from slamcore.config import bounded, validate, with_overrides
 from slamcore.errors import ConfigError
 
 __all__ = ["VerifyConfig", "Verification", "PairVerifier", "GeometricVerifier", "MODELS"]
@@ -275,10 +274,7 @@ class GeometricVerifier:
     """
 
     def __init__(self, config: VerifyConfig | None = None, **overrides):
-        config = config or VerifyConfig()
-        if overrides:
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
+        self.config = with_overrides(config or VerifyConfig(), overrides)
 
     def _fit(self, model: str, pa: np.ndarray, pb: np.ndarray, K):
         """Robust fit -> (3x3 model or None, (n,) bool inlier mask or None)."""

@@ -29,12 +29,17 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from slamcore.errors import ConfigError, quote
 from slamcore.input_files import check_input_path
 
 T = TypeVar("T")
+
+if TYPE_CHECKING:  # _typeshed exists for the type checker only
+    from _typeshed import DataclassInstance
+
+    D = TypeVar("D", bound=DataclassInstance)
 
 #: Largest integer a config value may hold: counts and sizes index numpy arrays
 #: (int64), and anything near this is a typo or an attack, not a setting.
@@ -347,3 +352,10 @@ def load_section(cls: type[T], source: "ConfigFile | str | Path | None",
 def from_dict(cls: type[T], data: dict[str, Any] | None) -> T:
     """Build ``cls`` from a plain dict (no file), refusing unknown keys and bad values."""
     return ConfigFile(data={section_name(cls): dict(data or {})}).section(cls)
+
+
+def with_overrides(config: D, overrides: dict[str, Any]) -> D:
+    """``config`` with the named fields replaced (checked again by its ``__post_init__``),
+    or ``config`` itself without overrides: what ``Part(config, **overrides)`` makes of
+    its arguments, for the parts that take their settings either way."""
+    return dataclasses.replace(config, **overrides) if overrides else config

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from graphslam.evaluation.alignment import umeyama
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from slamcore.errors import GraphSlamError
@@ -64,31 +65,17 @@ def estimate_warnings(estimate: Estimate, ate_m: float | None,
 def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform ``(R, t)`` minimising ``sum |R src_i + t - dst_i|^2``.
 
-    Umeyama's method without scale; the SVD sign correction keeps ``det R = +1``
+    Umeyama's method without scale (:func:`.alignment.umeyama`); ``det R = +1``
     (no reflection, even for degenerate or mirrored inputs).
 
     Args:
-        src_xy: (N, 2) points, metres.
+        src_xy: (N, 2) points, metres; at least 1.
         dst_xy: (N, 2) corresponding points, metres.
 
     Returns:
         R: (2, 2) rotation; t: (2,) translation in metres.
     """
-    src = np.asarray(src_xy, dtype=np.float64)
-    dst = np.asarray(dst_xy, dtype=np.float64)
-    if src.ndim != 2 or src.shape[1] != 2 or src.shape != dst.shape:
-        raise GraphSlamError(f"align_se2: expected two (N, 2) arrays, got {src.shape} and {dst.shape}")
-    if src.shape[0] < 1:
-        raise GraphSlamError("align_se2: no points")
-    mu_s = src.mean(axis=0)
-    mu_d = dst.mean(axis=0)
-    cov = (dst - mu_d).T @ (src - mu_s) / src.shape[0]
-    U, _, Vt = np.linalg.svd(cov)
-    S = np.eye(2)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
-        S[1, 1] = -1.0
-    R = U @ S @ Vt
-    t = mu_d - R @ mu_s
+    _, R, t = umeyama(src_xy, dst_xy, 2, with_scale=False, who="align_se2")
     return R, t
 
 

@@ -25,24 +25,20 @@ import math
 import numpy as np
 
 
+from graphslam.evaluation.alignment import umeyama
 from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
 ALIGNMENTS = ("se3", "sim3", "none")
-#: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
-#: which a point set "does not move": far below any printed precision (TUM files
-#: carry 4-9 decimals), far above the float64 residue of subtracting the mean
-#: (~1e-16 per metre), so a still trajectory is caught whatever its coordinates.
-STILL_TOL = 1e-9
 
 
 def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
                   ) -> tuple[float, np.ndarray, np.ndarray]:
-    """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2``.
+    """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2`` (:func:`.alignment.umeyama`).
 
     Args:
-        src: (N, 3) points (the estimate), metres.
+        src: (N, 3) points (the estimate), metres; at least 2.
         dst: (N, 3) corresponding points (the truth), metres.
         with_scale: fit the scale ``s`` too (Sim(3)); else ``s = 1`` (SE(3)).
 
@@ -50,34 +46,7 @@ def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
         s: scale; R: (3, 3) rotation with ``det R = +1`` (never a reflection);
         t: (3,) translation, metres.
     """
-    src = np.asarray(src, dtype=np.float64)
-    dst = np.asarray(dst, dtype=np.float64)
-    if src.ndim != 2 or src.shape[1] != 3 or src.shape != dst.shape:
-        raise GraphSlamError(f"align_umeyama: expected two (N, 3) arrays, got {src.shape} and {dst.shape}")
-    if src.shape[0] < 2:
-        raise GraphSlamError("align_umeyama: need at least 2 points")
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    if not np.all(np.isfinite(cov)):  # LAPACK's SVD can loop forever on inf or NaN
-        raise GraphSlamError("align_umeyama: non-finite or overflowing coordinates")
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = 1.0
-    if with_scale:
-        var_s = float(np.mean(np.sum(xs**2, axis=1)))
-        var_d = float(np.mean(np.sum(xd**2, axis=1)))
-        # a still target gives s = 0: every point collapses onto it and the error reads 0
-        for var, pts, what in ((var_s, src, "estimate"), (var_d, dst, "reference")):
-            if math.sqrt(var) <= STILL_TOL * max(1.0, float(np.max(np.abs(pts)))):
-                raise GraphSlamError(f"align_umeyama: the {what} does not move; "
-                                     "no Sim(3) scale to fit")
-        s = float(np.sum(D * np.diag(S)) / var_s)
-    t = mu_d - s * R @ mu_s
-    return s, R, t
+    return umeyama(src, dst, 3, with_scale, "align_umeyama", min_points=2)
 
 
 def _common(est_ids, est_wTc, gt_ids, gt_wTc):

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphslam.evaluation.spatial import STILL_TOL, align_umeyama
+from graphslam.evaluation.alignment import STILL_TOL
+from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 

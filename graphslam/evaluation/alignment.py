@@ -1,0 +1,74 @@
+"""Least-squares alignment of corresponding point sets, in 2-D and 3-D (numpy only).
+
+Umeyama (1991): the rotation from the SVD of the cross-covariance of the
+centred sets, with the sign correction that keeps ``det R = +1`` (never a
+reflection, even for degenerate or mirrored inputs), and optionally the scale.
+The 2-D metrics (:func:`graphslam.evaluation.planar.align_se2`) and the 3-D ones
+(:func:`graphslam.evaluation.spatial.align_umeyama`) both fit with it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slamcore.errors import GraphSlamError
+
+__all__ = ["STILL_TOL", "umeyama"]
+
+#: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
+#: which a point set "does not move": far below any printed precision (TUM files
+#: carry 4-9 decimals), far above the float64 residue of subtracting the mean
+#: (~1e-16 per metre), so a still trajectory is caught whatever its coordinates.
+STILL_TOL = 1e-9
+
+
+def umeyama(src, dst, dim: int, with_scale: bool, who: str,
+            min_points: int = 1) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2``.
+
+    Args:
+        src: (N, dim) points (the estimate), metres.
+        dst: (N, dim) corresponding points (the truth), metres.
+        dim: 2 or 3.
+        with_scale: fit the scale ``s`` too; else ``s = 1``.
+        who: the caller's name, which starts every error message.
+        min_points: fewest points accepted.
+
+    Returns:
+        s: scale; R: (dim, dim) rotation with ``det R = +1``; t: (dim,) translation.
+
+    Raises:
+        GraphSlamError: other shapes, fewer than ``min_points`` points, non-finite
+            or overflowing coordinates, or (with the scale) a set that does not move.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] != dim or src.shape != dst.shape:
+        raise GraphSlamError(f"{who}: expected two (N, {dim}) arrays, got {src.shape} and {dst.shape}")
+    if src.shape[0] < min_points:
+        raise GraphSlamError(f"{who}: need at least {min_points} "
+                             f"{'point' if min_points == 1 else 'points'}")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    if not np.all(np.isfinite(cov)):  # LAPACK's SVD can loop forever on inf or NaN
+        raise GraphSlamError(f"{who}: non-finite or overflowing coordinates")
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(dim)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
+        S[-1, -1] = -1.0
+    R = U @ S @ Vt
+    s = 1.0
+    if with_scale:
+        var_s = float(np.mean(np.sum(xs**2, axis=1)))
+        var_d = float(np.mean(np.sum(xd**2, axis=1)))
+        # a still target gives s = 0: every point collapses onto it and the error reads 0
+        for var, pts, what in ((var_s, src, "estimate"), (var_d, dst, "reference")):
+            if math.sqrt(var) <= STILL_TOL * max(1.0, float(np.max(np.abs(pts)))):
+                raise GraphSlamError(f"{who}: the {what} does not move; "
+                                     f"no Sim({dim}) scale to fit")
+        s = float(np.sum(D * np.diag(S)) / var_s)
+    t = mu_d - s * R @ mu_s
+    return s, R, t
