@@ -126,3 +126,26 @@ class MonoEkfConfig:
     def sigma_rho(self) -> float:
         """Prior std of the inverse distance, 1/m."""
         return 0.25 / self.min_depth_m
+
+
+def run_overrides(mode: str, seed: int | None, no_polish: bool,
+                  nearest_depth_m: float | None) -> dict:
+    """``[mono_ekf]`` overrides a visual run implies (the back-end table's
+    ``run_overrides``): the RANSAC seed, the inverse-depth prior from the scene's
+    nearest depth (``nearest_depth_m``, None: the file's) and, without odometry
+    (``mode`` ``"none"``), the constant-velocity model. It has no polish.
+
+    ``frame_dt_s`` stays the config's, not the sequence's frame interval: the
+    acceleration and initial-rate noises are set per frame at that dt. With the
+    0.1 s of the synthetic stamps and the default noises (sized for 1/30 s) the
+    first search ellipses exceed the search cap and it diverges;
+    benchmarks/synthetic_mono.toml and kitti07_mono.toml set the interval and the
+    noises together, measured."""
+    out: dict[str, object] = {}
+    if seed is not None:
+        out["seed"] = seed
+    if nearest_depth_m is not None:
+        out["min_depth_m"] = nearest_depth_m
+    if mode == "none":
+        out["robot_model"] = "constant_velocity"
+    return out

@@ -1,10 +1,18 @@
-"""Names on the command line -> datasets and back ends (imports are lazy)."""
+"""Names on the command line -> datasets and back ends (imports are lazy).
+
+What a back end is and accepts comes from one table, :mod:`graphslam.backend_table`;
+the lists and factories here are read from it, and callers ask them rather than
+compare names.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from graphslam.backend_table import (DEFAULT_BACKEND, DEFAULT_POSE_GRAPH_BACKEND, TABLE,
+                                     VISUAL_COMPARE_ENTRIES, BackendDescriptor, Implementation,
+                                     descriptor, load)
 from slamcore.planar.backend import Backend
 from slamcore.config import ConfigFile, load_section
 from slamcore.errors import ConfigError, InputError
@@ -42,8 +50,65 @@ def read_config(path: str | Path | None) -> ConfigFile:
 
 #: Built-in datasets; anything else is taken as a pose-graph file path.
 DATASETS = ("synthetic", "victoria-park", "city10000", "w10000", "plaza1", "plaza2")
-#: Back ends available to ``graphslam run``.
-BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
+#: Every back end's name, in the table's order.
+BACKEND_NAMES = tuple(d.name for d in TABLE)
+#: Back ends that stream 2-D data (landmark logs, synthetic worlds, 2-D graphs frame by frame).
+BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None)
+#: Back ends that solve whole pose-graph files (2-D and 3-D).
+POSEGRAPH_BACKENDS = tuple(d.name for d in TABLE if d.pose_graph)
+#: Solvers that take a whole pose-graph file only (no stream).
+WHOLE_GRAPH_BACKENDS = tuple(d.name for d in TABLE if d.pose_graph and not d.streams)
+#: Back ends that localise against a fixed 2-D map (``graphslam run --map``).
+LOCALISING_BACKENDS = tuple(d.name for d in TABLE
+                            if d.landmarks is not None and d.landmarks.localiser is not None)
+#: 2-D back ends whose configuration takes a ``seed``.
+SEEDED_BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None and d.landmarks.seeded)
+#: Back ends ``graphslam run`` offers on image sequences.
+VISUAL_BACKENDS = tuple(d.name for d in TABLE if d.images is not None)
+#: ``graphslam compare`` entries on image sequences -> (back end, its config overrides).
+VISUAL_COMPARE_BACKENDS = VISUAL_COMPARE_ENTRIES
+
+
+def backend_row(name: str) -> BackendDescriptor:
+    """The table's row of back end ``name``; ConfigError naming the known ones."""
+    row = descriptor(name)
+    if row is None:
+        raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKEND_NAMES)})")
+    return row
+
+
+#: Back ends with a final batch polish (``--no-polish``).
+POLISHED_BACKENDS = tuple(d.name for d in TABLE if d.polish)
+
+
+def check_no_polish(name: str) -> None:
+    """``--no-polish`` on a back end without a polish is refused, one line."""
+    if not backend_row(name).polish:
+        raise ConfigError(f"--no-polish applies to the {' or '.join(POLISHED_BACKENDS)} back "
+                          f"end only (its final batch polish); {name} has none")
+
+
+def check_several_robots(name: str) -> None:
+    """``--robot all`` on a back end that keeps one robot's pose is refused, one line."""
+    if not landmark_implementation(name).several_robots:
+        several = [d.name for d in TABLE if d.landmarks is not None and d.landmarks.several_robots]
+        raise ConfigError(f"--robot all: {name} keeps one robot's pose; every robot in one "
+                          f"graph needs --backend {' or '.join(several)}")
+
+
+def default_backend(whole_pose_graph: bool) -> str:
+    """``graphslam run`` without ``--backend``: the checked route for a whole
+    pose-graph file, iSAM2 for everything else."""
+    return DEFAULT_POSE_GRAPH_BACKEND if whole_pose_graph else DEFAULT_BACKEND
+
+
+def _implementation(name: str, kind: str, data: str) -> Implementation:
+    impl = getattr(backend_row(name), kind)
+    if impl is None:
+        available = [d.name for d in TABLE if getattr(d, kind) is not None]
+        raise ConfigError(f"back end {name!r} does not run on {data} "
+                          f"(available: {', '.join(available)})")
+    return impl
 
 
 def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None,
@@ -110,10 +175,6 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
     return read_pose_graph(path)
 
 
-#: Back ends ``graphslam run`` offers on pose-graph files (2-D and 3-D alike).
-POSEGRAPH_BACKENDS = ("auto", "isam2", "batch")
-
-
 def is_pose_graph_run(spec: str, backend: str) -> bool:
     """Whether ``--dataset spec --backend backend`` is a pose-graph solve: a
     g2o/TORO file (not a built-in name) with ``isam2`` or ``batch``. Filters on
@@ -122,7 +183,8 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     ``batch`` the pose-graph reader refuses it at its first such line."""
     from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
 
-    if is_builtin_pose_graph(spec) and backend == "batch":
+    row = descriptor(backend)
+    if is_builtin_pose_graph(spec) and row is not None and row.pose_graph and not row.streams:
         return True  # a built-in graph solved whole (streamed by the other back ends)
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
@@ -137,7 +199,8 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     # only a 2-D TORO file can be landmark SLAM (BR lines, as gtsam.load2D reads them):
     # others are read once, by the pose-graph reader, which refuses a BR line
     fmt, dim = TAGS[tag][:2] if tag in TAGS else ("toro", 2)
-    return backend == "batch" or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
+    whole_only = row is not None and not row.streams
+    return whole_only or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
 def load_pose_graph(spec: str | Path, toro_noise: str = "auto",
@@ -164,29 +227,11 @@ def pose_graph_config(config: ConfigSource = None, overrides: dict | None = None
 
 def make_backend(name: str, *, config: ConfigSource = None,
                  overrides: dict | None = None) -> Backend:
-    """Back end by name, configured from the file's section plus ``overrides``."""
-    if name == "isam2":
-        from graphslam.backends.planar.isam2 import Isam2Backend
-        from graphslam.backends.planar.isam2_config import Isam2Config
-
-        return Isam2Backend(load_section(Isam2Config, config, overrides))
-    if name == "ekf":
-        from filters.ekf_slam import EkfSlam
-        from filters.ekf_slam_config import EkfSlamConfig
-
-        return EkfSlam(load_section(EkfSlamConfig, config, overrides))
-    if name in ("fastslam1", "fastslam2"):
-        from filters.fastslam import FastSlam
-        from filters.fastslam_config import FastSlamConfig
-
-        # both share the [fastslam] section; the name picks the version
-        version = {"version": int(name[-1])}
-        return FastSlam(load_section(FastSlamConfig, config, {**(overrides or {}), **version}))
-    raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKENDS)})")
-
-
-#: Back ends that localise against a fixed 2-D map (``graphslam run --map``).
-LOCALISING_BACKENDS = ("isam2", "ekf")
+    """2-D back end by name, configured from the file's section plus ``overrides``
+    (plus what the name itself fixes, e.g. FastSLAM's version)."""
+    impl = _implementation(name, "landmarks", "2-D data")
+    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
+    return load(impl.backend)(settings)
 
 
 def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
@@ -194,47 +239,29 @@ def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
                    overrides: dict | None = None) -> Isam2Localiser | EkfLocaliser:
     """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
     positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
-    if name == "isam2":
-        from graphslam.backends.planar.isam2_config import Isam2Config
-        from graphslam.backends.planar.isam2_localise import Isam2Localiser
-
-        return Isam2Localiser(landmark_ids, landmarks_w, landmark_cov,
-                              load_section(Isam2Config, config, overrides))
-    if name == "ekf":
-        from filters.ekf_localise import EkfLocaliser
-        from filters.ekf_slam_config import EkfSlamConfig
-
-        return EkfLocaliser(landmark_ids, landmarks_w, landmark_cov,
-                            load_section(EkfSlamConfig, config, overrides))
-    raise ConfigError(f"--map: {name} cannot localise against a fixed map "
-                      f"(available: {', '.join(LOCALISING_BACKENDS)})")
+    impl = _implementation(name, "landmarks", "2-D data")
+    if impl.localiser is None:
+        raise ConfigError(f"--map: {name} cannot localise against a fixed map "
+                          f"(available: {', '.join(LOCALISING_BACKENDS)})")
+    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
+    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov, settings)
 
 
 def seed_override(name: str, seed: int | None) -> dict:
-    """Config override that hands ``--seed`` to back ends that draw random numbers."""
-    if seed is None or name not in SEEDED_BACKENDS:
+    """Config override that hands ``--seed`` to 2-D back ends that draw random numbers."""
+    row = descriptor(name)
+    if seed is None or row is None or row.landmarks is None or not row.landmarks.seeded:
         return {}
     return {"seed": seed}
-
-
-#: Back ends whose configuration takes a ``seed``.
-SEEDED_BACKENDS: tuple[str, ...] = ("fastslam1", "fastslam2")
 
 
 def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     """Config classes a 2-D ``graphslam run`` of ``dataset`` on ``backend`` reads,
     by section name (``graphslam sweep`` checks its overrides against them)."""
-    from filters.ekf_slam_config import EkfSlamConfig
-    from filters.fastslam_config import FastSlamConfig
-    from graphslam.backends.planar.isam2_config import Isam2Config
     from graphslam.sources.planar.synthetic import SyntheticConfig
 
-    by_backend: dict[str, type[Isam2Config | EkfSlamConfig | FastSlamConfig]] = {
-        "isam2": Isam2Config, "ekf": EkfSlamConfig, "fastslam1": FastSlamConfig,
-        "fastslam2": FastSlamConfig}
-    if backend not in by_backend:
-        raise ConfigError(f"unknown back end {backend!r} (available: {', '.join(BACKENDS)})")
-    out: dict[str, type] = {by_backend[backend].SECTION: by_backend[backend]}
+    config_class = load(_implementation(backend, "landmarks", "2-D data").config)
+    out: dict[str, type] = {config_class.SECTION: config_class}
     if dataset == "synthetic":
         out[SyntheticConfig.SECTION] = SyntheticConfig
     elif is_mrclam_dataset(dataset):
@@ -249,8 +276,6 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
 #: Built-in image-sequence datasets; a folder path is read as an image sequence
 #: (KITTI, TUM RGB-D, EuRoC or a plain folder of images), a file as a pose graph.
 VISUAL_DATASETS = ("synthetic-images",)
-#: Back ends ``graphslam run`` offers on image sequences.
-VISUAL_BACKENDS = ("isam2", "ekf")
 
 
 def is_mrclam_dataset(spec: str) -> bool:
@@ -310,40 +335,25 @@ def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSou
 def visual_backend_config(name: str) -> type[VisualIsam2Config | MonoEkfConfig]:
     """Config class of the visual back end ``name``: ``isam2`` (section
     ``[isam2_visual]``) or ``ekf`` (monocular EKF-SLAM, section ``[mono_ekf]``)."""
-    if name == "isam2":
-        from graphslam.backends.spatial.isam2_config import VisualIsam2Config
+    return load(_implementation(name, "images", "image sequences").config)
 
-        return VisualIsam2Config
-    if name == "ekf":
-        from filters.mono_ekf_config import MonoEkfConfig
 
-        return MonoEkfConfig
-    raise ConfigError(f"back end {name!r} does not run on image sequences "
-                      f"(available: {', '.join(VISUAL_BACKENDS)})")
+def landmark_implementation(name: str) -> Implementation:
+    """The table's 2-D streaming implementation of back end ``name``."""
+    return _implementation(name, "landmarks", "2-D data")
+
+
+def visual_implementation(name: str) -> Implementation:
+    """The table's image-sequence implementation of back end ``name``."""
+    return _implementation(name, "images", "image sequences")
 
 
 def make_visual_backend(name: str, *, config: ConfigSource = None,
                         overrides: dict | None = None):
     """Visual back end by name (:func:`visual_backend_config` names its section)."""
-    from filters.mono_ekf_config import MonoEkfConfig  # light (no gtsam), unlike isam2's
-
-    settings = load_section(visual_backend_config(name), config, overrides)
-    if isinstance(settings, MonoEkfConfig):  # name == "ekf"
-        from filters.mono_ekf import MonoEkf
-
-        return MonoEkf(settings)
-    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
-
-    return VisualIsam2Backend(settings)
-
-
-#: ``graphslam compare`` entries on image sequences -> (back end, its config overrides):
-#: the monocular EKF once per landmark parametrisation.
-VISUAL_COMPARE_BACKENDS: dict[str, tuple[str, dict]] = {
-    "isam2": ("isam2", {}),
-    "ekf-idp": ("ekf", {"landmark_param": "idp"}),
-    "ekf-ahp": ("ekf", {"landmark_param": "ahp"}),
-}
+    impl = _implementation(name, "images", "image sequences")
+    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
+    return load(impl.backend)(settings)
 
 
 def visual_compare_backend(name: str) -> tuple[str, dict]:

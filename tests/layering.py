@@ -40,6 +40,7 @@ RANKS: dict[str, int] = {
     "graphslam.outputs": 3,
     "graphslam.maps": 3,
     "graphslam.registry": 4,
+    "graphslam.backend_table": 4,
     "graphslam.pipelines": 5,
     "graphslam.visualisation": 5,
     "graphslam.cli": 7,

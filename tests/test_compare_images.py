@@ -97,14 +97,13 @@ def test_input_digest_follows_the_input(small_room):
     """The digest is of what was fed: another seed renders other textures."""
     from graphslam import registry
     from graphslam.pipelines import compare_spatial as cs
-    from graphslam.pipelines import spatial as vp
+    from graphslam.pipelines.session import VisualSetup
 
     config = registry.read_config(small_room)
     digests = []
     for seed in (0, 1):
         seq = registry.load_image_sequence("synthetic-images", seed=seed, config=config)
-        setup = cs.VisualCompareSetup(seq, config, vp.VisualRunConfig(),
-                                      vp.OdometryNoiseConfig(), max_frames=3)
+        setup = VisualSetup.read(seq, config, max_frames=3)
         digests.append(cs.run_one(setup, "ekf-ahp").input_digest)
     assert digests[0] != digests[1]
 

@@ -45,9 +45,9 @@ def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
     from graphslam.cli.common import robot_arg
     from graphslam.pipelines.spatial import ODOMETRY_MODES
-    from graphslam.registry import BACKENDS, VISUAL_COMPARE_BACKENDS
+    from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS, VISUAL_COMPARE_BACKENDS
 
-    names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, "batch", "auto"]))
+    names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, *POSEGRAPH_BACKENDS]))
 
     p = sub.add_parser(
         "compare", help="run several back ends on the same stream and compare them",
@@ -159,7 +159,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     from frontend.active_search_config import ActiveSearchConfig
     from graphslam import registry
     from graphslam.pipelines import compare_spatial as cs
-    from graphslam.pipelines import spatial as vp
+    from graphslam.pipelines.session import VisualSetup
     from graphslam.visualisation.plots import plot_visual_comparison
     from graphslam.visualisation.spatial import VisualRecorder
 
@@ -167,15 +167,10 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     _check_names(names, registry.VISUAL_COMPARE_BACKENDS, "image sequences")
     sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
                                             topics=args.topics)
-    run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
-    noise = config.section(vp.OdometryNoiseConfig, {"seed": args.seed})
-    mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
-    if (args.seed is not None and args.dataset != "synthetic-images" and mode not in ("derived", "none")
-            and not any(n.startswith("ekf") for n in names)):
-        raise GraphSlamError("--seed has no effect here: the images are recorded, the odometry "
-                             "is not derived and no back end draws random numbers")
-    setup = cs.VisualCompareSetup(sequence, config, run_cfg, noise, seed=args.seed,
-                                  max_frames=args.max_steps)
+    setup = VisualSetup.read(sequence, config, odometry=args.odometry, seed=args.seed,
+                             max_frames=args.max_steps)
+    setup.check_seed([registry.visual_compare_backend(n)[0] for n in names],
+                     simulated=args.dataset == "synthetic-images")
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = _out_dir(args, name, rerun_mode)
     entries = cs.compare(
@@ -183,7 +178,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
         progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
     notes = list(getattr(sequence, "notes", ()))  # a ROS bag's topics
     header = {"dataset": sequence.name, **({"dataset_notes": notes} if notes else {}),
-              "odometry": mode,
+              "odometry": setup.mode,
               "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
               "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT}}
     return _write_comparison(args, entries, header, out_dir, rerun_mode,

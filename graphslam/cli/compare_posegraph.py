@@ -9,17 +9,13 @@ from pathlib import Path
 
 from slamcore.errors import GraphSlamError
 
-#: The solvers only a whole pose graph has (the others also stream it).
-WHOLE_GRAPH_ONLY = ("batch", "auto")
-
-
 def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
     """Whether ``compare`` compares pose-graph solvers: a pose graph, and ``batch`` or
     ``auto`` named, or a 3-D graph (which only those solvers take)."""
     from graphslam import registry
     from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
 
-    named_whole = bool(set(backends or ()) & set(WHOLE_GRAPH_ONLY))
+    named_whole = bool(set(backends or ()) & set(registry.WHOLE_GRAPH_BACKENDS))
     if is_builtin_pose_graph(dataset):
         return named_whole
     if not registry.is_pose_graph_run(dataset, "batch"):
@@ -38,13 +34,13 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     from graphslam.cli.run.posegraph import load_graph
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard, stop_requested
-    from graphslam.pipelines.compare_posegraph import POSEGRAPH_COMPARE_BACKENDS, compare
+    from graphslam.pipelines.compare_posegraph import compare
 
-    names = list(args.backends or POSEGRAPH_COMPARE_BACKENDS)
-    others = [n for n in names if n not in POSEGRAPH_COMPARE_BACKENDS]
+    names = list(args.backends or registry.POSEGRAPH_BACKENDS)
+    others = [n for n in names if n not in registry.POSEGRAPH_BACKENDS]
     if others:
         raise GraphSlamError(f"--backends {' '.join(others)}: a whole pose graph is compared "
-                             f"across {', '.join(POSEGRAPH_COMPARE_BACKENDS)}; the filters stream "
+                             f"across {', '.join(registry.POSEGRAPH_BACKENDS)}; the filters stream "
                              "a 2-D graph frame by frame: compare them without batch or auto")
     for flag, value in (("--robot", args.robot), ("--odometry", args.odometry)):
         if value is not None:

@@ -171,7 +171,8 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
 
     entries = run_entries(backends, job, score, isolate=isolate, strip=_without_dataset,
                           progress=progress)
-    reference = next((e for e in entries if e.backend == "isam2" and e.result is not None), None)
+    reference = next((e for e in entries if registry.backend_row(e.backend).reference
+                      and e.result is not None), None)
     if reference is not None:
         for e in finished(entries):
             e.metrics.rms_to_isam2_m = metrics.rms_position_distance(e.result.estimate,

@@ -25,10 +25,7 @@ from graphslam.pipelines.posegraph import (
 from slamcore import posegraph as pg
 from slamcore.errors import GraphSlamError
 
-__all__ = ["POSEGRAPH_COMPARE_BACKENDS", "PoseGraphCompareRun", "compare"]
-
-#: Solvers ``compare`` runs on a pose graph (all of them by default).
-POSEGRAPH_COMPARE_BACKENDS = ("isam2", "batch", "auto")
+__all__ = ["PoseGraphCompareRun", "compare"]
 
 
 @dataclass

@@ -25,7 +25,6 @@ their ATE, the covariance scaled with it.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
@@ -35,26 +34,13 @@ from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.evaluation.spatial import pose_nees
 from graphslam.pipelines import spatial as vp
 from graphslam.pipelines.compare import CompareEntry, finished, run_entries
+from graphslam.pipelines.session import VisualSetup
 from graphslam.sources.spatial.sequence import ImageSequence
-from slamcore.config import ConfigFile
 from slamcore.errors import GraphSlamError
 
 #: NEES alignment by the run's ATE alignment (module docstring).
 NEES_ALIGNMENT = {"se3": "none", "sim3": "sim3"}
 
-
-@dataclass(frozen=True)
-class VisualCompareSetup:
-    """What every entry shares: the sequence, the config file (front end, back ends),
-    the run and derived-odometry settings, the seed, the frame limit and the detector."""
-
-    sequence: ImageSequence
-    config: ConfigFile
-    run_config: vp.VisualRunConfig
-    odometry_noise: vp.OdometryNoiseConfig
-    seed: int | None = None
-    max_frames: int | None = None
-    detector: str | None = None
 
 
 class _Feed:
@@ -73,7 +59,7 @@ class _Feed:
             self.covariances.append(backend.estimate().current_covariance)
 
 
-def compare(setup: VisualCompareSetup, names: list[str], *, isolate: bool = True,
+def compare(setup: VisualSetup, names: list[str], *, isolate: bool = True,
             progress=None) -> list[CompareEntry]:
     """Run each entry of ``names`` on ``setup``'s sequence; one entry each, in order,
     with its metrics (ATE, RPE, frames/s, peak memory, pose NEES)."""
@@ -96,23 +82,16 @@ def compare(setup: VisualCompareSetup, names: list[str], *, isolate: bool = True
     return entries
 
 
-def run_one(setup: VisualCompareSetup, name: str) -> vp.VisualRunResult:
+def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
     """Entry ``name``'s run, with its input digest and pose covariances."""
     kind, overrides = registry.visual_compare_backend(name)
-    mode, odometry, _, _ = vp.resolve_odometry(setup.sequence, setup.run_config.odometry,
-                                               setup.odometry_noise)
-    depth = vp.scene_nearest_depth(setup.sequence, setup.config)
-    overrides = {**overrides, **vp.backend_overrides(kind, mode, setup.seed, nearest_depth_m=depth)}
-    backend = registry.make_visual_backend(kind, config=setup.config, overrides=overrides)
-    tracker_cfg, tracker = vp.make_tracker(setup.config, backend, setup.detector)
-    feed = _Feed(filtered=kind != "isam2")
-    result = vp.run(setup.sequence, backend, tracker, config=setup.run_config,
-                    odometry_noise=setup.odometry_noise, max_frames=setup.max_frames,
-                    on_frame=feed, frontend=tracker_cfg.detector)
-    if odometry is not None:
-        feed.sha.update(np.ascontiguousarray(odometry[:max(result.frames - 1, 0)]).tobytes())
+    session = setup.session(kind, overrides)
+    feed = _Feed(filtered=registry.visual_implementation(kind).filtering)
+    result = session.run(on_frame=feed)
+    if setup.odometry is not None:
+        feed.sha.update(np.ascontiguousarray(setup.odometry[:max(result.frames - 1, 0)]).tobytes())
     result.input_digest = feed.sha.hexdigest()
-    result.pose_covariances = _covariances(feed, backend, result)
+    result.pose_covariances = _covariances(feed, session.backend, result)
     return result
 
 
@@ -138,7 +117,7 @@ def _without_sequence(result: vp.VisualRunResult) -> vp.VisualRunResult:
     return result
 
 
-def _score(setup: VisualCompareSetup, name: str, result: vp.VisualRunResult,
+def _score(setup: VisualSetup, name: str, result: vp.VisualRunResult,
            peak_mb: float | None) -> SpatialRunMetrics:
     m = vp.compute_metrics(result, seed=getattr(getattr(setup.sequence, "config", None),
                                                 "seed", None))

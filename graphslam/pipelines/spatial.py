@@ -51,6 +51,8 @@ from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackingResult
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from graphslam import registry
+from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import (
     interrupt_between_frames, progress_bar, signal_hook, stop_requested,
@@ -151,33 +153,14 @@ class VisualRunResult:
 
 def backend_overrides(backend: str, mode: str, seed: int | None = None,
                       no_polish: bool = False, nearest_depth_m: float | None = None) -> dict:
-    """Config overrides a visual run hands back end ``backend`` (``isam2`` or ``ekf``)
-    for odometry ``mode``: iSAM2's polish off and, without odometry, its camera-alone
-    tracking with the RANSAC seed; the EKF's RANSAC seed, its
-    inverse-depth prior from the scene's nearest depth (:func:`scene_nearest_depth`)
-    and, without odometry, its constant-velocity model."""
-    out: dict[str, object]
-    if backend == "isam2":
-        out = {"polish": False} if no_polish else {}
-        if mode == "none":  # camera alone: a monocular bootstrap, then PnP tracking
-            out["robot_model"] = "constant_velocity"
-            if seed is not None:
-                out["seed"] = seed
-        return out
-    out = {}
-    if seed is not None:
-        out["seed"] = seed
-    if nearest_depth_m is not None:
-        out["min_depth_m"] = nearest_depth_m
-    if mode == "none":
-        # The EKF's frame_dt_s stays its own (config) value, not the sequence's
-        # frame interval: its acceleration and initial-rate noises are set per
-        # frame at that dt. With the 0.1 s of the synthetic stamps and the
-        # default noises (sized for 1/30 s) the first search ellipses exceed the
-        # search cap and it diverges; benchmarks/synthetic_mono.toml and
-        # kitti07_mono.toml set the interval and the noises together, measured.
-        out["robot_model"] = "constant_velocity"
-    return out
+    """Config overrides a visual run hands back end ``backend`` for odometry ``mode``,
+    the seed, ``--no-polish`` and the scene's nearest depth
+    (:func:`scene_nearest_depth`): each back end's own ``run_overrides`` (the
+    back-end table's), which knows what its settings make of them."""
+    impl = registry.visual_implementation(backend)
+    if impl.run_overrides is None:
+        return {}
+    return load(impl.run_overrides)(mode, seed, no_polish, nearest_depth_m)
 
 
 def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:

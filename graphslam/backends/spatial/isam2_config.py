@@ -155,3 +155,17 @@ class VisualIsam2Config:
         params.setRelinearizeThreshold(self.relinearize_threshold)
         params.relinearizeSkip = self.relinearize_skip
         return params
+
+
+def run_overrides(mode: str, seed: int | None, no_polish: bool,
+                  nearest_depth_m: float | None) -> dict:
+    """``[isam2_visual]`` overrides a visual run implies (the back-end table's
+    ``run_overrides``): the polish off with ``--no-polish`` and, without odometry
+    (``mode`` ``"none"``), the camera-alone tracking (a monocular bootstrap, then
+    PnP) with the run's RANSAC seed. The scene's depth is the EKF's concern."""
+    out: dict[str, object] = {"polish": False} if no_polish else {}
+    if mode == "none":
+        out["robot_model"] = "constant_velocity"
+        if seed is not None:
+            out["seed"] = seed
+    return out

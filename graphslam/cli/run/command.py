@@ -97,7 +97,7 @@ examples:
 def register(sub) -> None:
     """Add the ``run`` sub-command to the ``graphslam`` parser."""
     from graphslam.cli.common import robot_arg
-    from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
+    from graphslam.registry import BACKEND_NAMES
 
     p = sub.add_parser(
         "run", help="run SLAM on a dataset and write trajectory, map, metrics, recording",
@@ -108,7 +108,7 @@ def register(sub) -> None:
                        help="built-in dataset name, pose-graph file, image-sequence folder "
                             "or ROS bag (default: synthetic)")
     p.add_argument("--backend", default=None,
-                   choices=BACKENDS + tuple(b for b in POSEGRAPH_BACKENDS if b not in BACKENDS),
+                   choices=BACKEND_NAMES,
                    help="estimator (default: auto on a pose-graph file, isam2 otherwise; "
                         "batch and auto: pose-graph files only)")
     p.add_argument("--seed", type=int, default=None,
@@ -226,8 +226,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
     if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
-        whole_file = registry.is_pose_graph_run(args.dataset, "auto") and not args.no_polish
-        args.backend = "auto" if whole_file else "isam2"
+        from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
+
+        whole = (not is_builtin_pose_graph(args.dataset)  # built-in graphs stream by default
+                 and registry.is_pose_graph_run(args.dataset, registry.default_backend(True)))
+        args.backend = registry.default_backend(whole and not args.no_polish)
     status = _dispatch(args)
     if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
         if args.write_bag:  # a finished or stopped run's estimate

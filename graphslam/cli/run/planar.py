@@ -42,9 +42,8 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
                              "their own closures)")
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
-    if args.no_polish and args.backend != "isam2":
-        raise ConfigError(f"--no-polish applies to the isam2 back end only (its final batch "
-                          f"polish); {args.backend} has none")
+    if args.no_polish:
+        registry.check_no_polish(args.backend)
     if (args.seed is not None and args.dataset != "synthetic"
             and args.backend not in registry.SEEDED_BACKENDS):
         raise ConfigError(f"--seed has no effect here: {args.dataset} is not simulated and "
@@ -70,9 +69,8 @@ def run(args: argparse.Namespace) -> int:
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
     if args.nees and truth is None and not dataset.has_ground_truth:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
-    if dataset.agents and args.backend != "isam2":
-        raise ConfigError(f"--robot all: {args.backend} keeps one robot's pose; every robot in "
-                          "one graph needs --backend isam2")
+    if dataset.agents:
+        registry.check_several_robots(args.backend)
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
     pmap = None

@@ -47,8 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if args.init is not None:
         overrides["init"] = args.init
     if args.no_polish:
-        if args.backend != "isam2":
-            raise ConfigError("--no-polish applies to the isam2 back end only (--backend isam2)")
+        registry.check_no_polish(args.backend)
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
@@ -114,6 +113,8 @@ def open_posegraph_recording(mode: str, path: Path, url: str | None):
 
 
 def format_summary(metrics) -> str:
+    from graphslam import registry
+
     rows = [
         ("dataset", metrics.dataset),
         ("backend", metrics.backend),
@@ -145,8 +146,8 @@ def format_summary(metrics) -> str:
     if metrics.interrupted:
         rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
     if not metrics.converged:
-        tries = ("--backend isam2, another --init" if metrics.backend in ("batch", "auto")
-                 else "--no-polish")
+        tries = ("--backend isam2, another --init"
+                 if not registry.backend_row(metrics.backend).streams else "--no-polish")
         rows.append(("NOT CONVERGED", f"LM stopped at its cap of {metrics.iterations} "
                                       "iterations; the cost may be far from the optimum "
                                       f"(try {tries}, or [posegraph] max_iterations)"))
@@ -163,10 +164,9 @@ def route_rows(route: dict | None) -> list[tuple[str, str]]:
     if not route:
         return []
     rows = [("route", f"{route['kept']} kept ({route['reason']})")]
-    for name in ("batch", "isam2"):
-        if name in route and name != route["kept"]:
-            rows.append((f"  {name}", f"cost {route[name]['cost']:.10g}, "
-                                      f"{route[name]['wall_s']:.2f} s"))
+    for name, tried in route.items():  # the attempts are the route's entries with a cost
+        if isinstance(tried, dict) and "cost" in tried and name != route["kept"]:
+            rows.append((f"  {name}", f"cost {tried['cost']:.10g}, {tried['wall_s']:.2f} s"))
     if "local_minimum" in route:
         rows.append(("local minimum", route["local_minimum"]))
     return rows
@@ -199,7 +199,9 @@ def information_rows(fixed: dict | None) -> list[tuple[str, str]]:
 
 def check_backend(args: argparse.Namespace) -> None:
     """``--backend batch`` and ``--init`` exist for pose-graph files only."""
-    if args.backend in ("batch", "auto"):
+    from graphslam import registry
+
+    if not registry.backend_row(args.backend).streams:
         raise GraphSlamError(f"--backend {args.backend} solves pose-graph files only (g2o or "
                              "TORO)")
     if args.init is not None:

@@ -42,13 +42,14 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
 
     ``mode`` is the odometry the run uses (``auto`` resolved).
     """
+    from graphslam import registry
+
     if args.odometry_noise is not None and mode != "derived":
         used = "the sequence's own odometry" if mode == "sequence" else "no odometry"
         raise ConfigError(f"--odometry-noise sets the noise of derived odometry; this run uses "
                           f"{used} (--odometry {mode})")
-    if args.no_polish and args.backend != "isam2":
-        raise ConfigError(f"--no-polish applies to the isam2 back end only (its final batch "
-                          f"polish); {args.backend} has none")
+    if args.no_polish:
+        registry.check_no_polish(args.backend)
     if args.nees:
         raise ConfigError("--nees applies to 2-D runs only")
     if getattr(args, "map", None) is not None and mode == "none":
@@ -56,10 +57,6 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
         raise ConfigError("--map anchors the run's first pose in the saved map's metric frame; "
                           "without odometry the run has a scale of its own (its first baseline), "
                           "not the map's: give it odometry, or place frames with graphslam localize")
-    if (args.seed is not None and args.dataset != "synthetic-images" and mode not in ("derived", "none")
-            and args.backend != "ekf"):
-        raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry is "
-                          f"not derived and {args.backend} draws no random numbers")
 
 
 def _load_sequence(args, config):
@@ -85,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from graphslam.outputs.loops import write_loops  # stdlib only: cheap
     from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
     from graphslam.pipelines import spatial as vp
+    from graphslam.pipelines.session import VisualSetup
 
     t0 = time.perf_counter()
     if args.max_steps is not None and args.max_steps < 1:
@@ -94,17 +92,14 @@ def run(args: argparse.Namespace) -> int:
                              f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})")
     config = registry.read_config(args.config)
     sequence = _load_sequence(args, config)
-    run_cfg = config.section(vp.VisualRunConfig, {"odometry": args.odometry})
-    noise_over = {"seed": args.seed}
-    if args.odometry_noise is not None:
-        noise_over.update(sigma_t_per_m=args.odometry_noise[0], sigma_r_deg=args.odometry_noise[1])
-    noise = config.section(vp.OdometryNoiseConfig, noise_over)
-    mode, *_ = vp.resolve_odometry(sequence, run_cfg.odometry, noise)
-    refuse_ignored_flags(args, mode)
-    overrides = vp.backend_overrides(args.backend, mode, args.seed, args.no_polish,
-                                     vp.scene_nearest_depth(sequence, config))
-    backend = registry.make_visual_backend(args.backend, config=config, overrides=overrides)
-    tracker_cfg, tracker = vp.make_tracker(config, backend, args.frontend)
+    setup = VisualSetup.read(sequence, config, odometry=args.odometry,
+                             odometry_noise=args.odometry_noise, seed=args.seed,
+                             max_frames=args.max_steps, detector=args.frontend,
+                             no_polish=args.no_polish)
+    refuse_ignored_flags(args, setup.mode)
+    setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
+    session = setup.session(args.backend)
+    backend, tracker = session.backend, session.tracker
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
@@ -133,9 +128,8 @@ def run(args: argparse.Namespace) -> int:
     if loops:
         closer = _loop_closer(args, config, sequence, backend, n_frames,
                               None if recorder is None else recorder.loop_hook(sequence))
-    result = vp.run(sequence, backend, tracker, config=run_cfg, odometry_noise=noise,
-                    max_frames=args.max_steps, progress=not args.quiet, on_frame=hook,
-                    frontend=tracker_cfg.detector, loop_closer=closer, start_pose=start_pose)
+    result = session.run(progress=not args.quiet, on_frame=hook, loop_closer=closer,
+                         start_pose=start_pose)
     metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
                                  wall_s=time.perf_counter() - t0)
     metrics.backend = args.backend
