@@ -97,3 +97,11 @@ def test_no_layer_compares_back_end_names():
                 continue  # an "auto" mode of some other setting
             offenders.append(f"{path.relative_to(ROOT)}:{line}: {name!r}")
     assert not offenders, "\n".join(offenders)
+
+
+@pytest.mark.parametrize("name", registry.WHOLE_GRAPH_BACKENDS)
+def test_every_whole_graph_solver_takes_a_builtin_graph(name):
+    """``--backend auto`` on w10000 was refused while ``batch`` solved it: the rule is
+    the row's (a whole-graph solver), not one name's."""
+    assert registry.is_pose_graph_run("w10000", name)
+    assert not registry.is_pose_graph_run("w10000", "isam2")  # streamed by default
