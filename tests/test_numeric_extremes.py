@@ -213,6 +213,51 @@ def test_non_finite_or_far_estimates_are_flagged_without_truth(value, words):
     assert any(words in w for w in estimate_warnings(est, None, None))
 
 
+def _understated(dataset, factor: float):
+    """``dataset`` with every sighting's stated covariance divided by ``factor``."""
+    from dataclasses import replace
+
+    frames = [replace(f, observations=tuple(replace(o, covariance=o.covariance / factor)
+                                            for o in f.observations)) for f in dataset.frames]
+    return replace(dataset, frames=frames)
+
+
+@pytest.mark.parametrize("factor, flagged", [(1.0, False), (100.0, True)])
+def test_a_smoother_whose_cost_no_noise_explains_says_so(factor, flagged):
+    """iSAM2's final cost against the chi-square bound of its degrees of freedom: the
+    synthetic world with its true noise passes (2E/dof about 1); told its sightings are
+    10x more precise than they are, it is flagged, truth or no truth."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    dataset = _understated(make_synthetic(SyntheticConfig()), factor)
+    result = pipeline.run(dataset, registry.make_backend("isam2"), max_steps=150)
+    warnings = pipeline.compute_metrics(result).warnings or []
+    assert any("beyond the chi-square bound" in w for w in warnings) == flagged, warnings
+
+
+def test_a_filters_last_estimate_is_not_held_to_the_cost_test():
+    """A filter's estimate is not a least-squares optimum (its cost on the synthetic
+    world is 10^3 per degree with a good ATE): no cost line for it."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    result = pipeline.run(make_synthetic(SyntheticConfig()), registry.make_backend("ekf"),
+                          max_steps=150)
+    assert not any("chi-square" in w for w in pipeline.compute_metrics(result).warnings or [])
+
+
+def test_the_cost_line_reads_the_ratio_and_catches_a_non_finite_cost():
+    from graphslam.evaluation.planar import cost_warning
+
+    assert cost_warning(500.0, 1000) == []
+    (line,) = cost_warning(50_000.0, 1000)
+    assert "100 per degree" in line and "10x in sigma" in line
+    assert cost_warning(float("nan"), 1000) and cost_warning(1.0, 0) == []
+
+
 # --------------------------------------------------------------------- messages
 
 def test_relocalise_refusal_names_relocalise(tmp_path, capsys):

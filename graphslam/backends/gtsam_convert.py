@@ -173,12 +173,20 @@ def graph_error(dataset: Dataset, estimate: Estimate) -> float | None:
     Returns None when the estimate lacks a variable the graph needs (e.g. a
     filter's own landmark ids under unknown association).
     """
+    cost = graph_cost(dataset, estimate)
+    return None if cost is None else cost[0]
+
+
+def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int] | None:
+    """``(error, dof)``: :func:`graph_error` and the graph's degrees of freedom (the
+    measurements' dimensions less the variables'), or None as there."""
     graph = dataset_graph(dataset, frames=len(estimate.pose_ids))
     values = estimate_values(estimate)
-    for key in graph.keyVector():
-        if not values.exists(key):
-            return None
-    return float(graph.error(values))
+    keys = graph.keyVector()
+    if not all(values.exists(key) for key in keys):
+        return None
+    dof = sum(graph.at(i).dim() for i in range(graph.size()) if graph.at(i) is not None)
+    return float(graph.error(values)), int(dof - values.dim())
 
 
 # --- 3-D (visual back ends) -------------------------------------------------

@@ -162,11 +162,16 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
     from graphslam.evaluation import planar as metrics
 
     est = result.estimate
-    final_error = ate = odo_ate = None
+    final_error = ate = odo_ate = cost = None
     if with_graph_error:
-        from graphslam.backends.gtsam_convert import graph_error
+        from graphslam import registry
+        from graphslam.backends.gtsam_convert import graph_cost
 
-        final_error = graph_error(result.dataset, est)
+        cost = graph_cost(result.dataset, est)
+        final_error = None if cost is None else cost[0]
+        row = registry.descriptor(result.backend)
+        if row is None or row.landmarks is None or row.landmarks.filtering:
+            cost = None  # a filter's last estimate is not a least-squares optimum
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     # ATE needs two common poses: a run cut after its first step has none (null)
     ate_poses = None
@@ -194,7 +199,7 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
-        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses) or None)
+        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost) or None)
 
 
 def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
