@@ -9,7 +9,7 @@ from slamcore.planar.geometry import compose, observe
 from slamcore.config import from_dict, load_section
 from slamcore.errors import ConfigError
 from graphslam.sources.planar.synthetic import (ODOMETRY_COVARIANCE_FLOOR, SyntheticConfig,
-                                         dead_reckon, make_synthetic, route_controls,
+                                         make_synthetic, route_controls,
                                          unicycle_delta)
 from slamcore.planar.records import ObservationKind
 from slamcore.planar.geometry import wrap_angle
@@ -157,7 +157,9 @@ def test_odometry_covariance_floor(world):
 
 def test_dead_reckoning_drifts(world):
     from graphslam.evaluation import planar as metrics
-    ids, odo = dead_reckon(world)
+    from graphslam.pipelines.planar import dead_reckoning
+
+    ids, odo = dead_reckoning(world)
     gt_ids, gt = world.ground_truth()
     ate = metrics.ate(ids, odo, gt_ids, gt)["rmse_m"]
     assert ate > 1.0  # metres: visible drift for the demo

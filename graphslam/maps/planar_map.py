@@ -103,10 +103,6 @@ class PlanarMap:
             raise InputError(f"map covariance of landmark {int(ids[wide[0]])} exceeds "
                              f"{VARIANCE_MAX_M2:.0e} m^2", where)
 
-    def slot_of(self) -> dict[int, int]:
-        """Landmark id -> row."""
-        return {int(i): k for k, i in enumerate(self.landmark_ids)}
-
 
 def map_from_estimate(estimate: Estimate, meta: dict) -> PlanarMap:
     """The map of a finished run's estimate (landmark covariances required), sorted by id."""

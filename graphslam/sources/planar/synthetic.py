@@ -47,7 +47,7 @@ import numpy as np
 
 from slamcore.planar.geometry import compose, observe
 from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.errors import ConfigError
 from slamcore.planar.records import Dataset
 from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
 from slamcore.planar.geometry import wrap_angle
@@ -320,18 +320,3 @@ def make_synthetic(config: SyntheticConfig | None = None) -> Dataset:
                    prior_covariance=PRIOR_VARIANCE * np.eye(3),
                    landmarks_true={i: landmarks[i].copy() for i in range(config.n_landmarks)},
                    has_timestamps=True, seed=config.seed)
-
-
-def dead_reckon(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
-    """``(pose_ids (N,), wTb (N, 3))`` from the prior composed with the odometry chain.
-
-    Assumes each frame's odometry links it to the previous frame (true here).
-    """
-    ids = np.array([f.pose_id for f in dataset.frames], dtype=np.int64)
-    wTb = np.zeros((len(ids), 3))
-    wTb[0] = dataset.prior_wTb
-    for k, f in enumerate(dataset.frames[1:], start=1):
-        if f.odometry is None:
-            raise GraphSlamError(f"dead reckoning: frame {f.pose_id} has no odometry")
-        wTb[k] = compose(wTb[k - 1], f.odometry.delta)
-    return ids, wTb
