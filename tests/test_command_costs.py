@@ -204,7 +204,7 @@ def test_pose_graph_edges_checked_in_bulk_equal_one_by_one(monkeypatch):
     import graphslam.sources.planar.posegraph as pg
 
     fast = pg.read_city10000()
-    monkeypatch.setattr(pg, "_edge_records", pg._edge_records_one_by_one)
+    monkeypatch.setattr(pg, "edge_records", pg.edge_records_one_by_one)
     slow = pg.read_city10000()
     for fa, fb in zip(fast.frames, slow.frames, strict=True):
         recs = [r for r in (fa.odometry, *fa.loop_closures) if r is not None]

@@ -1,6 +1,7 @@
 """Tests of the dataset readers (graphslam.sources.planar.victoria_park / posegraph).
 
-Noise interpretation is checked factor by factor against gtsam's own loaders.
+Noise interpretation is checked factor by factor against gtsam's own loaders (TORO
+noise as gtsam's NoiseFormatTORO reads it: information, the one reader's reading).
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import pytest
 
 from slamcore.errors import InputError
 from graphslam.sources.planar.posegraph import (read_city10000, read_g2o, read_pose_graph,
-                                         read_toro)
+                                                read_toro)
+from graphslam.sources.posegraph_files import read_pose_graph_file, read_pose_graph_records
 from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 from slamcore.planar.records import ObservationKind
 
@@ -237,16 +239,12 @@ def _write_graph(tmp_path, tag, suffix, noise):
     return p
 
 
-@pytest.mark.parametrize("fmt, gtsam_fmt, noise", [
-    ("toro", gtsam.NoiseFormat.NoiseFormatTORO, _TORO_NOISE),
-    ("graph", gtsam.NoiseFormat.NoiseFormatGRAPH, _TORO_NOISE),
-    ("cov", gtsam.NoiseFormat.NoiseFormatCOV, _G2O_NOISE),
-    ("g2o", gtsam.NoiseFormat.NoiseFormatG2O, _G2O_NOISE),
-])
-def test_noise_formats_match_load2d(tmp_path, fmt, gtsam_fmt, noise):
-    p = _write_graph(tmp_path, "EDGE2", ".graph", noise)
-    graph, _ = gtsam.load2D(str(p), None, 0, False, True, gtsam_fmt)
-    _assert_edges_match_gtsam(read_toro(p, noise_format=fmt), graph)
+def test_toro_noise_is_information_as_load2d_reads_it_with_noise_format_toro(tmp_path):
+    # was parametrised over gtsam's four noise formats: the one reader reads TORO's six
+    # numbers as the format defines them (information), whatever the back end (issue 36)
+    p = _write_graph(tmp_path, "EDGE2", ".graph", _TORO_NOISE)
+    graph, _ = gtsam.load2D(str(p), None, 0, False, True, gtsam.NoiseFormat.NoiseFormatTORO)
+    _assert_edges_match_gtsam(read_toro(p), graph)
 
 
 def test_g2o_matches_readg2o(tmp_path):
@@ -262,13 +260,60 @@ def test_g2o_matches_readg2o(tmp_path):
     _assert_edges_match_gtsam(read_pose_graph(p), graph)
 
 
-def test_toro_auto_refuses_what_load2d_refuses(tmp_path):
+def test_toro_numbers_load2d_refuses_are_read_as_the_batch_reader_reads_them(tmp_path):
+    # was: refused as gtsam.load2D's automatic noise format refuses them; the one reader
+    # reads them in TORO's order as information, here not positive definite (issue 36)
     p = _write_graph(tmp_path, "EDGE2", ".graph", _G2O_NOISE)
-    with pytest.raises(InputError) as info:
-        read_toro(p)
-    assert info.value.line == 1 and "noise_format" in str(info.value)
-    with pytest.raises(InputError, match="noise_format"):  # .graph dispatches to TORO
-        read_pose_graph(p)
+    ds = read_pose_graph(p)
+    batch = read_pose_graph_file(p)
+    assert batch.n_information_fixed == 3 and "3 edges' information" in ds.notes[0]
+    np.testing.assert_allclose([np.linalg.inv(e.covariance) for e in _edges(ds)],
+                               batch.information, rtol=1e-9)
+    with pytest.raises(InputError, match="not positive definite") as info:
+        read_toro(p, information_fix="refuse")
+    assert info.value.line == 1
+
+
+def _information_by_edge(ds):
+    return {(e.from_id, e.to_id): np.linalg.inv(e.covariance) for e in _edges(ds)}
+
+
+@pytest.mark.parametrize("name", ["w20000.txt", "w100.graph", "example.graph"])
+def test_a_toro_file_gets_the_same_information_streamed_or_solved_whole(name):
+    """A filter run streams the frames (registry.load_dataset), a batch run solves the
+    graph (registry.load_pose_graph): the same matrices. w20000 is the wheel file whose
+    numbers load2D read as a covariance; example.graph has landmark lines, which only
+    the frame stream reads (the batch side is then the reader with landmarks)."""
+    from graphslam import registry
+
+    path = gtsam.findExampleDataFile(name)
+    frames = _information_by_edge(registry.load_dataset(path))
+    graph = (read_pose_graph_records(path, landmarks=True)[0] if name == "example.graph"
+             else registry.load_pose_graph(path))
+    assert len(frames) == graph.n_edges
+    for (a, b), info in zip(graph.edges.tolist(), graph.information):
+        np.testing.assert_allclose(frames[(a, b)], info, rtol=1e-12, atol=1e-12)
+
+
+def test_a_bad_line_is_refused_once_with_file_and_line_by_the_one_reader(tmp_path, monkeypatch):
+    """Both paths refuse a bad line with the one reader's message, naming file and line,
+    and the frame stream adds no parsing of its own (the reader runs once)."""
+    from graphslam.sources import posegraph_files
+
+    p = tmp_path / "bad.graph"
+    p.write_text("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\n# c\nEDGE2 0 1 1 0 zero 1 0 1 1 0 0\n")
+    calls = []
+    real = posegraph_files.iter_lines
+    monkeypatch.setattr(posegraph_files, "iter_lines", lambda path: calls.append(path) or real(path))
+    messages = []
+    for read in (read_pose_graph, read_pose_graph_file):
+        with pytest.raises(InputError) as info:
+            read(p)
+        assert (info.value.path, info.value.line) == (str(p), 4)
+        messages.append(str(info.value))
+    assert len(calls) == 2  # once a path: the bulk path declined, the line loop named it
+    assert messages[0] == messages[1] == f"{p}:4: 'zero' is not a number (decimal ASCII digits)"
+    assert "\n" not in messages[0]
 
 
 @pytest.mark.parametrize("text, line, words", [
@@ -280,10 +325,9 @@ def test_toro_auto_refuses_what_load2d_refuses(tmp_path):
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 3 2 1 0 0 1 0 1 1 0 0\n"
      "EDGE2 3 1 1 0 0 1 0 1 1 0 0\n", 2, "no edge to pose 1"),
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 3 0 1 0 0 1 0 1 1 0 0\n", 2, "pose 2 is missing"),
-    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE3 2 1 1 0 0 1 0 1 1 0 0\n", 2, "unknown tag"),
+    # was "unknown tag": the one reader knows EDGE3 (TORO 3-D) and refuses the mix (issue 36)
+    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE3 2 1 1 0 0 1 0 1 1 0 0\n", 2, "EDGE3 in a 2-D toro file"),
     ("EDGE2 1 1 1 0 0 1 0 1 1 0 0\n", 1, "itself"),
-    ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 1 " + "0" * 4999 + "1 1 0 0 1 0 1 1 0 0\n", 2,
-     "itself"),  # leading zeros past int()'s 4300 digits: the id is still 1
     ("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 2 " + "7" * 5000 + " 1 0 0 1 0 1 1 0 0\n", 2,
      "larger than 2**56 - 1"),  # the frame-stream reader's bound: ids become symbol keys
 ])
@@ -294,6 +338,17 @@ def test_toro_bad_lines(tmp_path, text, line, words):
         read_toro(p)
     assert info.value.line == line and info.value.path == str(p)
     assert f"bad.graph:{line}" in str(info.value) and words in str(info.value)
+
+
+def test_an_edge_from_a_pose_to_itself_is_left_out_and_said(tmp_path):
+    # was refused: the one reader leaves such edges out and counts them, as the batch
+    # solvers always did (issue 36); leading zeros past int()'s 4300 digits: the id is 1
+    p = tmp_path / "self.graph"
+    p.write_text("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 1 " + "0" * 4999 + "1 1 0 0 1 0 1 1 0 0\n")
+    ds = read_toro(p)
+    assert len(ds.frames) == 2 and not ds.frames[1].loop_closures
+    assert ds.notes == ("1 edges from a pose to itself left out (lines 2): they constrain "
+                        "nothing",)
 
 
 @pytest.mark.parametrize("reader", [read_victoria_park, read_toro, read_g2o, read_pose_graph])
@@ -363,3 +418,21 @@ def test_one_id_parser_for_every_line_reader(token, words):
         parse_id(token, "f", 3)
     with pytest.raises(InputError, match="out of range: larger than 2\\*\\*56 - 1"):
         parse_id(str(2**56), "f", 3, limit=MAX_KEY_ID)
+
+
+def test_the_posegraph_section_reaches_a_streamed_file(tmp_path):
+    """``[posegraph] toro_noise`` is read for a filter's frame stream as for batch: a
+    file whose TORO numbers are the square root of the information gets the squared
+    information in both."""
+    from graphslam import registry
+
+    path = tmp_path / "g.graph"
+    path.write_text("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 2 0 2 2 0 0\n")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[posegraph]\ntoro_noise = "sqrt_information"\n')
+    streamed = registry.load_dataset(str(path), config=str(cfg))
+    whole = registry.load_pose_graph(path, "sqrt_information")
+    info = np.linalg.inv(streamed.frames[1].odometry.covariance)
+    np.testing.assert_allclose(info, whole.information[0], rtol=1e-12)
+    default = registry.load_dataset(str(path))
+    assert not np.allclose(np.linalg.inv(default.frames[1].odometry.covariance), info)

@@ -1,21 +1,27 @@
 """The built-in pose graphs (``w10000``, ``city10000``) as pose-graph files, so a built-in
-name works wherever a path does: ``run --backend batch``, ``convert``.
+name works wherever a path does: ``run --backend batch``, ``convert``; and the reader of
+City10000's own layout.
 
 ``w10000`` is gtsam's ``w10000.graph`` (TORO). ``city10000`` is gtsam's
-``T1_city10000_04.txt``, in its own ``EDGE2`` format with several hypotheses
-per edge, read by :func:`graphslam.sources.planar.posegraph.read_city10000`
-(the first hypothesis, the right one, and the C++ example's noise); its edges
-become a 2-D g2o graph here, and its ground truth (``ISAM2_GT_city10000.txt``)
-goes with it.
+``T1_city10000_04.txt``, in its own ``EDGE2`` layout with several hypotheses
+per edge and no noise numbers (not TORO's, whose reader would refuse it), read by
+:func:`read_city10000_graph` (the first hypothesis, the right one, and the C++
+example's noise) into a 2-D g2o graph; its ground truth (``ISAM2_GT_city10000.txt``)
+goes with it. The frame streams of both are
+:mod:`graphslam.sources.planar.posegraph`'s conversion of these graphs.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from graphslam.sources.posegraph_bulk import ids_in_bulk, numbers_in_bulk, rows_by_tag
+from graphslam.sources.tokens import MAX_KEY_ID, iter_lines, parse_id, parse_numbers
 from slamcore import posegraph as pg
+from slamcore.errors import InputError, quote
 
-__all__ = ["BUILTIN_POSE_GRAPHS", "builtin_pose_graph", "is_builtin_pose_graph"]
+__all__ = ["BUILTIN_POSE_GRAPHS", "CITY10000_SIGMAS", "builtin_pose_graph",
+           "is_builtin_pose_graph", "read_city10000_graph"]
 
 #: Built-in dataset names that are pose graphs -> what they are.
 BUILTIN_POSE_GRAPHS = {
@@ -43,39 +49,121 @@ def builtin_pose_graph(name: str) -> tuple[pg.PoseGraph, tuple[np.ndarray, np.nd
         return read_pose_graph_file(gtsam.findExampleDataFile("w10000.graph")), None
     if name != "city10000":
         raise KeyError(name)
-    from graphslam.sources.planar.posegraph import read_city10000
-
-    ds = read_city10000()
-    return _graph_of_frames("city10000", ds.frames, ds.source_path), _truth_of_frames(ds.frames)
+    graph, truth = read_city10000_graph()
+    return graph, (graph.ids, _truth_matrices(truth))
 
 
-def _graph_of_frames(name: str, frames, source_path) -> pg.PoseGraph:
-    """A 2-D g2o pose graph of planar frames' odometry and loop closures (information =
-    inverse covariance); poses start from the odometry chain."""
+#: City10000 pose noise sigmas [x_m, y_m, theta_rad], from gtsam's C++ examples
+#: (examples/City10000.h and Hybrid_City10000.cpp: ``kPoseNoiseModel`` =
+#: Sigmas(1/30, 1/30, 1/100)), used there for odometry and loop closures alike.
+CITY10000_SIGMAS = np.array([1.0 / 30.0, 1.0 / 30.0, 1.0 / 100.0])
+
+
+def read_city10000_graph(path=None, ground_truth_path=None) -> tuple[pg.PoseGraph, np.ndarray]:
+    """gtsam's City10000 (name "city10000") and its ground truth, ``(graph, truth)``
+    with ``truth`` (N, 3) ``[x, y, theta]`` of each pose in id order.
+
+    Line format: ``EDGE2 keyS <unused> keyT ambiguous n x1 y1 th1 [x2 y2 th2 ...]``
+    (tokens as parsed by gtsam's ``HybridCity10000.py``); only the first
+    hypothesis, the correct one, is kept. Every edge gets the covariance
+    ``diag(CITY10000_SIGMAS**2)`` with sigmas (1/30, 1/30, 1/100) from gtsam's C++
+    City10000 examples (``kPoseNoiseModel``; note: one version of the Python
+    example ``HybridCity10000.py`` uses 1/20 for x, y instead). An edge from a
+    pose to itself is left out and counted, as the pose-graph reader does.
+
+    The ground-truth file has one ``x y theta`` line per pose; its line count must
+    equal the number of poses.
+    """
+    import gtsam
+
     from graphslam.sources.posegraph_files import check_connected, with_chain_start
 
-    rel = [f.odometry for f in frames if f.odometry is not None]
-    rel += [c for f in frames for c in f.loop_closures]
-    ids = np.array([f.pose_id for f in frames], dtype=np.int64)
+    if path is None:
+        path = gtsam.findExampleDataFile("T1_city10000_04.txt")
+    if ground_truth_path is None:
+        ground_truth_path = gtsam.findExampleDataFile("ISAM2_GT_city10000.txt")
+    edges, measurements, lines = _city10000_edges(path)
+    truth = []
+    for line_no, tok in iter_lines(ground_truth_path):
+        if len(tok) != 3:
+            raise InputError(f"ground-truth line needs 3 numbers (x y theta), got {len(tok)}",
+                             ground_truth_path, line_no)
+        truth.append(parse_numbers(tok, ground_truth_path, line_no))
+    ids = np.unique(edges)
+    n_poses = int(ids[-1] - ids[0] + 1) if len(ids) else 0
+    if len(truth) != n_poses:
+        raise InputError(f"ground truth has {len(truth)} poses, the graph has {n_poses}",
+                         ground_truth_path)
+    keep = edges[:, 0] != edges[:, 1]
+    if not keep.any():
+        raise InputError("no pose-graph edges in the file", path)
+    information = np.linalg.inv(np.diag(CITY10000_SIGMAS ** 2))
+    ids = np.unique(edges[keep])
     graph = pg.PoseGraph(
-        name=name, format="g2o", dim=2, rotation="angle", ids=ids,
+        name="city10000", format="g2o", dim=2, rotation="angle", ids=ids,
         vertices=np.zeros((len(ids), 3)), has_vertex=np.zeros(len(ids), dtype=bool),
-        edges=np.array([(r.from_id, r.to_id) for r in rel], dtype=np.int64).reshape(-1, 2),
-        measurements=np.array([r.delta for r in rel], dtype=np.float64).reshape(-1, 3),
-        information=np.linalg.inv(np.array([r.covariance for r in rel])).reshape(-1, 3, 3),
-        edge_lines=np.zeros(len(rel), dtype=np.int64),
-        source_path=None if source_path is None else str(source_path))
-    check_connected(graph, source_path)
-    return with_chain_start(graph)
+        edges=edges[keep], measurements=measurements[keep],
+        information=np.repeat(information[None], int(keep.sum()), axis=0),
+        edge_lines=lines[keep], source_path=str(path), self_edge_lines=lines[~keep])
+    check_connected(graph, path)
+    return with_chain_start(graph), np.array(truth, dtype=np.float64).reshape(-1, 3)
 
 
-def _truth_of_frames(frames) -> tuple[np.ndarray, np.ndarray] | None:
-    known = [f for f in frames if f.wTb_true is not None]
-    if not known:
+def _city10000_edges(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(edges (M, 2), first hypotheses (M, 3), lines (M,))`` of a City10000 file: in
+    bulk when every line is well formed, else line by line, which names the line."""
+    bulk = _city10000_in_bulk(path)
+    if bulk is not None:
+        return bulk
+    edges, measurements, lines = [], [], []
+    for line_no, tok in iter_lines(path):
+        if tok[0] != "EDGE2":
+            raise InputError(f"unknown tag {quote(tok[0])}", path, line_no)
+        if len(tok) < 9:
+            raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}",
+                             path, line_no)
+        a = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
+        b = parse_id(tok[3], path, line_no, "id", limit=MAX_KEY_ID)
+        parse_id(tok[4], path, line_no, "ambiguity flag", limit=MAX_KEY_ID)
+        n = parse_id(tok[5], path, line_no, "hypothesis count", limit=MAX_KEY_ID)
+        if n < 1 or len(tok) != 6 + 3 * n:
+            raise InputError(f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, "
+                             f"got {len(tok)}", path, line_no)
+        edges.append((a, b))
+        measurements.append(parse_numbers(tok[6:], path, line_no)[:3])
+        lines.append(line_no)
+    return (np.array(edges, dtype=np.int64).reshape(-1, 2),
+            np.array(measurements, dtype=np.float64).reshape(-1, 3),
+            np.array(lines, dtype=np.int64))
+
+
+def _city10000_in_bulk(path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`_city10000_edges` of a file whose lines are all well formed, else None
+    (the same arrays: ``tests/test_command_costs.py``)."""
+    got = rows_by_tag(path)
+    if got is None or set(got[0]) != {"EDGE2"}:
         return None
-    wTc = np.tile(np.eye(4), (len(known), 1, 1))
-    for T, f in zip(wTc, known):
-        x, y, th = f.wTb_true
+    rows, lines = got[0]["EDGE2"], got[1]["EDGE2"]
+    if min(map(len, rows)) < 9:
+        return None
+    ids = ids_in_bulk([t[k] for t in rows for k in (1, 3, 4, 5)], MAX_KEY_ID)
+    if ids is None:
+        return None
+    n = np.array(ids[3::4])
+    if (n < 1).any() or any(len(t) != 6 + 3 * k for t, k in zip(rows, n.tolist())):
+        return None
+    first = numbers_in_bulk([t[6:9] for t in rows], 3)
+    others = [x for t in rows for x in t[9:]]  # later hypotheses: checked, not kept
+    if first is None or numbers_in_bulk([others], len(others)) is None:
+        return None
+    edges = np.array(ids, dtype=np.int64).reshape(-1, 4)[:, :2]
+    return edges, first, np.array(lines, dtype=np.int64)
+
+
+def _truth_matrices(truth: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) ``wTc`` of (N, 3) planar poses ``[x, y, theta]``."""
+    wTc = np.tile(np.eye(4), (len(truth), 1, 1))
+    for T, (x, y, th) in zip(wTc, truth.tolist()):
         T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
         T[:2, 3] = x, y
-    return np.array([f.pose_id for f in known], dtype=np.int64), wTc
+    return wTc

@@ -19,13 +19,24 @@ TORO 3-D           ``VERTEX3 id x y z roll pitch yaw``; ``EDGE3 i j x y z roll
 both               ``FIX id ...`` (poses held at their vertex), ``EQUIV i j``
                    (kept and written back, not used by the solver, as in gtsam;
                    counted in the summary; one naming an unknown pose is refused)
+BR (TORO 2-D)      ``BR i j bearing range bearing_sigma range_sigma``: landmark
+                   ``j`` seen from pose ``i`` (gtsam's ``example.graph``), read
+                   beside the graph by :func:`read_pose_graph_records` with
+                   ``landmarks=True`` (the landmark back ends), refused otherwise
 =================  =========================================================
+
+This is the one reader of these files: the frame streams of
+:mod:`graphslam.sources.planar.posegraph` (filters, 2-D iSAM2) convert its graph,
+so a file gets the same information matrices whatever the back end. A valid
+file is read in bulk (:mod:`graphslam.sources.posegraph_bulk`); whatever that
+declines is read line by line, which names the line.
 
 The numbers after an edge are an **information** matrix in every format (the
 g2o and TORO specifications; note ``gtsam.load2D`` reads TORO's as a
 covariance when its zero pattern says so: identical on w10000, whose are
-identity). Files written by iSAM use the TORO tags with the upper triangle of
-the *square-root* information instead: gtsam's ``sphere2500.txt`` is one (its
+identity; :mod:`graphslam.sources.planar.posegraph` says why the format wins).
+Files written by iSAM use the TORO tags with the upper triangle of the
+*square-root* information instead: gtsam's ``sphere2500.txt`` is one (its
 measurements' residuals against ``sphere2500_groundtruth.txt`` have standard
 deviations 0.10 m and 0.010/0.010/0.040 rad, the inverses of its numbers 10
 and 100/100/25). Nothing in such a file tells the two apart; read as
@@ -46,10 +57,11 @@ carries no information) is refused whatever the setting.
 
 Checks, each one line with file and line (information matrices are checked
 after the whole file is read, the rest line by line): ids are decimal integers read as
-Python ints (never through a float), from 0 to 2**62; numbers finite;
+Python ints (never through a float), from 0 to 2**62 (or ``id_limit``); numbers finite;
 quaternions of norm >= 1e-6; translations within 1e9 m; information finite and
 positive definite (or replaced, above); an edge from a pose to itself is left out and counted
-(:attr:`PoseGraph.self_edge_lines`); no vertex twice; when the file has vertex
+(:attr:`PoseGraph.self_edge_lines`); no vertex twice; ``BR`` sigmas and ranges
+positive, in a 2-D TORO file, from a pose of the graph; when the file has vertex
 lines, every edge and ``FIX`` names a declared pose. Edge-only files are initialised by composing edges
 along a spanning tree that prefers the odometry chain. The graph must be
 connected: otherwise its components are named.
@@ -64,7 +76,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.tokens import iter_lines, parse_id, parse_numbers
+from graphslam.sources.posegraph_bulk import FileLines, Sightings, read_in_bulk
+from graphslam.sources.tokens import MAX_ID, check_count, iter_lines, parse_id, parse_numbers
 from slamcore.errors import InputError, quote
 from slamcore import posegraph as pg
 
@@ -102,17 +115,19 @@ def upper_order(side: int) -> tuple[tuple[int, int], ...]:
     return tuple((r, c) for r in range(side) for c in range(r, side))
 
 
-def information_order(fmt: str, dim: int, numbers=None) -> tuple[tuple[int, int], ...]:
-    """(row, col) of each information number; ``numbers`` decides TORO 2-D's layout."""
-    if (fmt, dim) == ("toro", 2) and not is_g2o_diagonal(numbers):
+def information_order(fmt: str, dim: int) -> tuple[tuple[int, int], ...]:
+    """(row, col) of each information number as the format writes it (a TORO 2-D
+    line may also be in g2o's order: :func:`g2o_diagonal_rows`)."""
+    if (fmt, dim) == ("toro", 2):
         return TORO2_ORDER
     return upper_order(pg.TANGENT_SIZE[dim])
 
 
-def is_g2o_diagonal(v) -> bool:
-    """Six numbers ``a 0 0 b 0 c`` (a, b, c non-zero): a diagonal in g2o's order."""
-    return (v is not None and v[0] != 0 and v[1] == 0 and v[2] == 0 and v[3] != 0
-            and v[4] == 0 and v[5] != 0)
+def g2o_diagonal_rows(v: np.ndarray) -> np.ndarray:
+    """(M,) bool of (M, 6) TORO 2-D numbers: ``a 0 0 b 0 c`` (a, b, c non-zero) is a
+    diagonal in g2o's order."""
+    nz = v != 0
+    return nz[:, 0] & ~nz[:, 1] & ~nz[:, 2] & nz[:, 3] & ~nz[:, 4] & nz[:, 5]
 
 
 #: How TORO edge numbers are read (g2o's are information always); ``auto``: as
@@ -155,51 +170,69 @@ def resolve_toro_noise(path, toro_noise: str) -> tuple[str, str | None]:
 INFORMATION_FIX = (*pg.INFORMATION_FIXES, "refuse")
 
 
-class _Collector:
-    """Lines of one file, checked as they come."""
+def information_matrices(fmt: str, dim: int, noise: np.ndarray,
+                         sqrt: bool = False) -> np.ndarray:
+    """(M, D, D) information of the (M, K) numbers after the edges' measurements, in
+    the file's order (:func:`information_order`; g2o's for the TORO 2-D lines
+    :func:`g2o_diagonal_rows` picks); ``sqrt``: the numbers are the upper triangle
+    ``R`` of the information ``R^T R``."""
+    side = pg.TANGENT_SIZE[dim]
+    order = np.array(upper_order(side)).T  # (2, K): row and column of each number
+    rows = np.repeat(order[0][None], len(noise), axis=0)
+    cols = np.repeat(order[1][None], len(noise), axis=0)
+    if (fmt, dim) == ("toro", 2):
+        toro = ~g2o_diagonal_rows(noise)
+        rows[toro], cols[toro] = np.array(information_order(fmt, dim)).T
+    info = np.zeros((len(noise), side, side))
+    edge = np.arange(len(noise))[:, None]
+    info[edge, rows, cols] = noise
+    if sqrt:
+        with np.errstate(over="ignore"):  # an overflow is refused as not finite
+            return np.matmul(info.transpose(0, 2, 1), info)
+    info[edge, cols, rows] = noise
+    return info
 
-    def __init__(self, path: Path, toro_noise: str = "information",
-                 information_fix: str = "nearest"):
-        if toro_noise not in TORO_NOISE[1:]:
-            raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
-        if information_fix not in INFORMATION_FIX:
-            raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, "
-                             f"got {information_fix!r}")
-        self.path = path
-        self.toro_noise = toro_noise
-        self.information_fix = information_fix
+
+class _LineReader:
+    """Lines of one file, each checked as it comes: the reference the bulk path
+    (:mod:`graphslam.sources.posegraph_bulk`) must match, and the one that names lines."""
+
+    def __init__(self, path: Path, landmarks: bool, id_limit: int):
+        self.path, self.landmarks, self.id_limit = path, landmarks, id_limit
         self.kind: tuple[str, int, str] | None = None  # (format, dim, rotation)
         self.kind_line = 0
         self.vertices: dict[int, list[float]] = {}
         self.vertex_lines: dict[int, int] = {}
         self.edges: list[tuple[int, int]] = []
-        self.measurements: list[list[float]] = []
-        self.information: list[np.ndarray] = []
+        self.numbers: list[list[float]] = []
         self.edge_lines: list[int] = []
-        self.self_edge_lines: list[int] = []
-        self.fixed: list[tuple[int, int]] = []
+        self.fixed: list[tuple[int, int]] = []  # (id, line)
         self.equiv: list[tuple[int, int]] = []
         self.equiv_lines: list[int] = []
+        self.sightings: list[tuple[int, int]] = []
+        self.sighting_numbers: list[list[float]] = []
+        self.sighting_lines: list[int] = []
+
+    def _id(self, token: str, line_no: int, what: str = "pose id") -> int:
+        return parse_id(token, self.path, line_no, what, limit=self.id_limit)
 
     def line(self, line_no: int, tok: list[str]) -> None:
         tag = tok[0]
         if tag == "FIX":
             if len(tok) < 2:
                 raise InputError("FIX line needs at least one pose id", self.path, line_no)
-            self.fixed += [(parse_id(t, self.path, line_no), line_no) for t in tok[1:]]
+            self.fixed += [(self._id(t, line_no), line_no) for t in tok[1:]]
             return
         if tag == "EQUIV":
             if len(tok) != 3:
                 raise InputError(f"EQUIV line needs 2 pose ids, got {len(tok) - 1}", self.path,
                                  line_no)
-            self.equiv.append((parse_id(tok[1], self.path, line_no),
-                               parse_id(tok[2], self.path, line_no)))
+            self.equiv.append((self._id(tok[1], line_no), self._id(tok[2], line_no)))
             self.equiv_lines.append(line_no)
             return
         if tag in LANDMARK_TAGS:
-            raise InputError(f"{tag} is a landmark observation (landmark SLAM, not a pose "
-                             "graph): graphslam run takes a 2-D TORO file with BR lines with "
-                             "--backend isam2, ekf, fastslam1 or fastslam2", self.path, line_no)
+            self._sighting(line_no, tok)
+            return
         if tag not in TAGS:
             raise InputError(f"unknown tag {quote(tag)}", self.path, line_no)
         fmt, dim, rotation, kind, count = TAGS[tag]
@@ -208,10 +241,8 @@ class _Collector:
         elif self.kind != (fmt, dim, rotation):
             raise InputError(f"{tag} in a {self.kind[1]}-D {self.kind[0]} file (see line "
                              f"{self.kind_line})", self.path, line_no)
-        if len(tok) != count:
-            raise InputError(f"{tag} line needs {count} tokens, got {len(tok)}", self.path,
-                             line_no)
-        (self._vertex if kind == "vertex" else self._edge)(line_no, tok, (fmt, dim, rotation))
+        check_count(tok, count, self.path, line_no)
+        (self._vertex if kind == "vertex" else self._edge)(line_no, tok, dim, rotation)
 
     def _pose(self, numbers: list[float], line_no: int, dim: int, rotation: str) -> list[float]:
         # plain Python, not numpy: this runs on every line of the file
@@ -225,136 +256,205 @@ class _Collector:
                              "graph spans that (a shifted column?)", self.path, line_no)
         return numbers
 
-    def _vertex(self, line_no: int, tok: list[str], kind: tuple[str, int, str]) -> None:
-        k = parse_id(tok[1], self.path, line_no)
+    def _vertex(self, line_no: int, tok: list[str], dim: int, rotation: str) -> None:
+        k = self._id(tok[1], line_no)
         if k in self.vertices:
             raise InputError(f"pose {k} declared twice (first on line {self.vertex_lines[k]})",
                              self.path, line_no)
         self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no,
-                                      kind[1], kind[2])
+                                      dim, rotation)
         self.vertex_lines[k] = line_no
 
-    def _edge(self, line_no: int, tok: list[str], kind: tuple[str, int, str]) -> None:
-        a = parse_id(tok[1], self.path, line_no)
-        b = parse_id(tok[2], self.path, line_no)
-        fmt, dim, rotation = kind
-        size = pg.PARAM_SIZE[rotation]
+    def _edge(self, line_no: int, tok: list[str], dim: int, rotation: str) -> None:
+        ids = (self._id(tok[1], line_no), self._id(tok[2], line_no))
         numbers = parse_numbers(tok[3:], self.path, line_no)
-        if a == b:
-            # a place recogniser matching a frame to itself (RRR's NewCollege has 9): the
-            # factor is constant whatever the estimate, so it constrains nothing; left out
-            # and counted, never silently
-            self._pose(numbers[:size], line_no, dim, rotation)  # still a well-formed line
-            self.self_edge_lines.append(line_no)
-            return
-        side = pg.TANGENT_SIZE[dim]
-        info = np.zeros((side, side))
-        sqrt = fmt == "toro" and self.toro_noise == "sqrt_information"
-        for (r, c), v in zip(information_order(fmt, dim, numbers[size:]), numbers[size:]):
-            info[r, c] = v
-            if not sqrt:
-                info[c, r] = v
-        if sqrt:  # the numbers are the upper triangle R of information = R^T R
-            with np.errstate(over="ignore"):  # an overflow is refused as not finite
-                info = info.T @ info
-        # positive definiteness: checked for all edges at once, in graph()
-        self.edges.append((a, b))
-        self.measurements.append(self._pose(numbers[:size], line_no, dim, rotation))
-        self.information.append(info)
+        self._pose(numbers[:pg.PARAM_SIZE[rotation]], line_no, dim, rotation)
+        self.edges.append(ids)  # positive definiteness: checked for all edges at once
+        self.numbers.append(numbers)
         self.edge_lines.append(line_no)
 
-    def graph(self) -> pg.PoseGraph:
-        if self.kind is None or not self.edges:
-            raise InputError("no pose-graph edges in the file", self.path)
-        fmt, dim, rotation = self.kind
-        information, fixed = self._checked_information(dim)
-        self._check_declared()
-        ids = np.array(sorted(set(self.vertices) | {k for e in self.edges for k in e}),
-                       dtype=np.int64)
-        size = pg.PARAM_SIZE[rotation]
-        has_vertex = np.array([int(k) in self.vertices for k in ids.tolist()], dtype=bool)
-        vertices = np.array([self.vertices.get(k, [0.0] * size) for k in ids.tolist()],
-                            dtype=np.float64).reshape(-1, size)
-        graph = pg.PoseGraph(
-            name=self.path.stem, format=fmt, dim=dim, rotation=rotation, ids=ids,
-            vertices=vertices, has_vertex=has_vertex,
-            edges=np.array(self.edges, dtype=np.int64).reshape(-1, 2),
-            measurements=np.array(self.measurements, dtype=np.float64).reshape(-1, size),
-            information=information,
-            edge_lines=np.array(self.edge_lines, dtype=np.int64),
-            fixed=np.array(sorted({k for k, _ in self.fixed}), dtype=np.int64),
-            equiv=np.array(self.equiv, dtype=np.int64).reshape(-1, 2),
-            source_path=str(self.path),
-            noise=self.toro_noise if fmt == "toro" else "information",
-            information_fix=None if fixed is None else self.information_fix,
-            information_fixed=fixed,
-            self_edge_lines=np.array(self.self_edge_lines, dtype=np.int64))
-        check_connected(graph, self.path)
-        return with_chain_start(graph)
+    def _sighting(self, line_no: int, tok: list[str]) -> None:
+        """A ``BR`` line (gtsam's load2D reading): only where landmarks are read."""
+        if not self.landmarks:
+            raise InputError(f"{tok[0]} is a landmark observation (landmark SLAM, not a pose "
+                             "graph): graphslam run takes a 2-D TORO file with BR lines with "
+                             "--backend isam2, ekf, fastslam1 or fastslam2", self.path, line_no)
+        check_count(tok, 7, self.path, line_no,
+                    "BR pose landmark bearing range bearing_sigma range_sigma")
+        ids = (self._id(tok[1], line_no), self._id(tok[2], line_no, "landmark id"))
+        numbers = parse_numbers(tok[3:], self.path, line_no)
+        if numbers[2] <= 0.0 or numbers[3] <= 0.0:
+            raise InputError("BR sigmas must be positive", self.path, line_no)
+        if numbers[1] <= 0.0:
+            raise InputError("BR range must be positive", self.path, line_no)
+        self.sightings.append(ids)
+        self.sighting_numbers.append(numbers)
+        self.sighting_lines.append(line_no)
 
-    def _checked_information(self, dim: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
+    def file_lines(self) -> FileLines:
+        size = pg.PARAM_SIZE[self.kind[2]] if self.kind else 0
+        ints = np.int64
+        numbers = (np.array(self.numbers, dtype=np.float64) if self.numbers
+                   else np.zeros((0, size)))
+        return FileLines(
+            kind=self.kind,
+            vertex_ids=np.array(list(self.vertices), dtype=ints),
+            vertices=np.array(list(self.vertices.values()),
+                              dtype=np.float64).reshape(len(self.vertices), size),
+            vertex_lines=np.array(list(self.vertex_lines.values()), dtype=ints),
+            edges=np.array(self.edges, dtype=ints).reshape(-1, 2),
+            numbers=numbers,
+            edge_lines=np.array(self.edge_lines, dtype=ints),
+            fixed=np.array([k for k, _ in self.fixed], dtype=ints),
+            fixed_lines=np.array([n for _, n in self.fixed], dtype=ints),
+            equiv=np.array(self.equiv, dtype=ints).reshape(-1, 2),
+            equiv_lines=np.array(self.equiv_lines, dtype=ints),
+            sightings=Sightings.of_rows(self.sightings, self.sighting_numbers,
+                                        self.sighting_lines))
 
-        One Cholesky of the stack passes a clean file (one by one it was half of
-        reading w10000); otherwise the edges are looked at one by one: a matrix
-        not finite, or without a positive eigenvalue, is an InputError at its
-        line, and so is any that is not positive definite under ``refuse``."""
-        stack = np.array(self.information)
-        try:
-            np.linalg.cholesky(stack)
-            if np.isfinite(stack).all():
-                return stack, None
-        except np.linalg.LinAlgError:
-            pass
-        bad = np.zeros(len(stack), dtype=bool)
-        for e, (info, line_no) in enumerate(zip(stack, self.edge_lines)):
-            if not np.isfinite(info).all():
-                raise InputError("information matrix is not finite", self.path, line_no)
-            if pg.is_positive_definite(info):
-                continue
-            if self.information_fix == "refuse":
-                raise InputError("information matrix is not positive definite ([posegraph] "
-                                 "information_fix = \"nearest\" or \"isotropic\" replaces "
-                                 "it)", self.path, line_no)
-            if np.linalg.eigvalsh(info)[-1] <= 0.0:
-                raise InputError("information matrix has no positive eigenvalue (the edge "
-                                 "carries no information)", self.path, line_no)
-            bad[e] = True
-        if not bad.any():
+
+def _in_range(lines: FileLines) -> bool:
+    """Whether every pose of lines read in bulk passes :meth:`_LineReader._pose` (no:
+    the line loop reads the file again and names the line). Quaternion norms near the
+    bound go to the loop too, whose own arithmetic decides them."""
+    if lines.kind is None:
+        return False
+    _, dim, rotation = lines.kind
+    poses = np.concatenate([lines.vertices] + ([lines.numbers[:, :pg.PARAM_SIZE[rotation]]]
+                                               if len(lines.edges) else []))
+    if not (np.abs(poses[:, :dim]) <= TRANSLATION_MAX_M).all():
+        return False
+    return rotation != "quat" or bool(
+        (np.sqrt((poses[:, 3:7] ** 2).sum(axis=1)) >= 2 * QUATERNION_NORM_MIN).all())
+
+
+def _assembled(lines: FileLines, path: Path, toro_noise: str,
+               information_fix: str) -> pg.PoseGraph:
+    """The graph of a file's lines: the checks across lines (module docstring)."""
+    self_edge = lines.edges[:, 0] == lines.edges[:, 1]
+    if lines.kind is None or self_edge.all():
+        if self_edge.any():  # a place recogniser matching a frame to itself, and nothing else
+            raise InputError("no pose-graph edges in the file but edges from a pose to itself, "
+                             "which constrain nothing", path, int(lines.edge_lines[0]))
+        raise InputError("no pose-graph edges in the file", path)
+    fmt, dim, rotation = lines.kind
+    size = pg.PARAM_SIZE[rotation]
+    # an edge from a pose to itself (RRR's NewCollege has 9): constant whatever the
+    # estimate, so it constrains nothing; left out and counted, never silently
+    keep = ~self_edge
+    edges, numbers, edge_lines = lines.edges[keep], lines.numbers[keep], lines.edge_lines[keep]
+    sqrt = fmt == "toro" and toro_noise == "sqrt_information"
+    information, fixed = _checked_information(
+        information_matrices(fmt, dim, numbers[:, size:], sqrt), edge_lines, dim,
+        information_fix, path)
+    _check_declared(lines, edges, edge_lines, path)
+    ids = np.union1d(lines.vertex_ids, edges.ravel())
+    vertices = np.zeros((len(ids), size))
+    vertices[np.searchsorted(ids, lines.vertex_ids)] = lines.vertices
+    graph = pg.PoseGraph(
+        name=path.stem, format=fmt, dim=dim, rotation=rotation, ids=ids,
+        vertices=vertices, has_vertex=np.isin(ids, lines.vertex_ids), edges=edges,
+        measurements=numbers[:, :size].copy(), information=information, edge_lines=edge_lines,
+        fixed=np.unique(lines.fixed), equiv=lines.equiv, source_path=str(path),
+        noise=toro_noise if fmt == "toro" else "information",
+        information_fix=None if fixed is None else information_fix, information_fixed=fixed,
+        self_edge_lines=lines.edge_lines[self_edge])
+    check_connected(graph, path)
+    return with_chain_start(graph)
+
+
+def _checked_information(stack: np.ndarray, edge_lines: np.ndarray, dim: int,
+                         information_fix: str, path) -> tuple[np.ndarray, np.ndarray | None]:
+    """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
+
+    One Cholesky of the stack passes a clean file (one by one it was half of
+    reading w10000); otherwise the edges are looked at one by one: a matrix
+    not finite, or without a positive eigenvalue, is an InputError at its
+    line, and so is any that is not positive definite under ``refuse``."""
+    try:
+        np.linalg.cholesky(stack)
+        if np.isfinite(stack).all():
             return stack, None
-        stack[bad] = pg.fixed_information(stack[bad], self.information_fix, dim)
-        return stack, bad
+    except np.linalg.LinAlgError:
+        pass
+    bad = np.zeros(len(stack), dtype=bool)
+    for e, (info, line_no) in enumerate(zip(stack, edge_lines.tolist())):
+        if not np.isfinite(info).all():
+            raise InputError("information matrix is not finite", path, line_no)
+        if pg.is_positive_definite(info):
+            continue
+        if information_fix == "refuse":
+            raise InputError("information matrix is not positive definite ([posegraph] "
+                             "information_fix = \"nearest\" or \"isotropic\" replaces "
+                             "it)", path, line_no)
+        if np.linalg.eigvalsh(info)[-1] <= 0.0:
+            raise InputError("information matrix has no positive eigenvalue (the edge "
+                             "carries no information)", path, line_no)
+        bad[e] = True
+    if not bad.any():
+        return stack, None
+    stack[bad] = pg.fixed_information(stack[bad], information_fix, dim)
+    return stack, bad
 
-    def _check_declared(self) -> None:
-        """With vertex lines present, an edge or FIX naming an undeclared pose is refused;
-        an EQUIV naming a pose that is in no edge and no vertex line, always (it was
-        copied into the written graph as a pose of nothing)."""
-        known = set(self.vertices) | {k for e in self.edges for k in e}
-        for pair, line_no in zip(self.equiv, self.equiv_lines):
-            for k in pair:
-                if k not in known:
-                    raise InputError(f"EQUIV names pose {k}, which no vertex or edge has",
-                                     self.path, line_no)
-        if not self.vertices:
-            for k, line_no in self.fixed:
-                if not any(k in e for e in self.edges):
-                    raise InputError(f"FIX names pose {k}, which no edge uses", self.path, line_no)
-            return
-        for (a, b), line_no in zip(self.edges, self.edge_lines):
-            for k in (a, b):
-                if k not in self.vertices:
-                    raise InputError(f"edge names pose {k}, which has no vertex line",
-                                     self.path, line_no)
-        for k, line_no in self.fixed:
-            if k not in self.vertices:
-                raise InputError(f"FIX names pose {k}, which has no vertex line", self.path,
-                                 line_no)
 
+def _first_unknown(pairs: np.ndarray, known: np.ndarray) -> tuple[int, int] | None:
+    """``(row, id)`` of the first id of ``pairs`` (rows in file order) not in ``known``."""
+    if not len(pairs):
+        return None
+    bad = ~np.isin(pairs, known).reshape(len(pairs), -1)
+    if not bad.any():
+        return None
+    row = int(np.argmax(bad.any(axis=1)))
+    return row, int(pairs.reshape(len(pairs), -1)[row][bad[row]][0])
+
+
+def _check_declared(lines: FileLines, edges: np.ndarray, edge_lines: np.ndarray,
+                    path) -> None:
+    """With vertex lines present, an edge or FIX naming an undeclared pose is refused;
+    an EQUIV naming a pose that is in no edge and no vertex line, always (it was
+    copied into the written graph as a pose of nothing)."""
+    bad = _first_unknown(lines.equiv, np.union1d(lines.vertex_ids, edges.ravel()))
+    if bad is not None:
+        raise InputError(f"EQUIV names pose {bad[1]}, which no vertex or edge has", path,
+                         int(lines.equiv_lines[bad[0]]))
+    if not len(lines.vertex_ids):
+        bad = _first_unknown(lines.fixed, edges.ravel())
+        if bad is not None:
+            raise InputError(f"FIX names pose {bad[1]}, which no edge uses", path,
+                             int(lines.fixed_lines[bad[0]]))
+        return
+    bad = _first_unknown(edges, lines.vertex_ids)
+    if bad is not None:
+        raise InputError(f"edge names pose {bad[1]}, which has no vertex line", path,
+                         int(edge_lines[bad[0]]))
+    bad = _first_unknown(lines.fixed, lines.vertex_ids)
+    if bad is not None:
+        raise InputError(f"FIX names pose {bad[1]}, which has no vertex line", path,
+                         int(lines.fixed_lines[bad[0]]))
+
+
+def _checked_sightings(lines: FileLines, graph: pg.PoseGraph, path) -> Sightings:
+    """The BR lines, in a 2-D TORO file only, each seen from a pose of the graph."""
+    seen = lines.sightings
+    if not len(seen):
+        return seen
+    if (graph.format, graph.dim) != ("toro", 2):
+        raise InputError(f"BR in a {graph.dim}-D {graph.format} file: landmark lines are "
+                         "read in 2-D TORO files only", path, int(seen.lines[0]))
+    bad = _first_unknown(seen.pose_ids, graph.ids)
+    if bad is not None:
+        raise InputError(f"BR seen from pose {bad[1]}, which no edge or vertex names", path,
+                         int(seen.lines[bad[0]]))
+    return seen
 
 
 def check_connected(graph: pg.PoseGraph, path) -> None:
     """InputError naming the components when ``graph`` is not connected."""
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    chain = np.zeros(max(graph.n_poses - 1, 0), dtype=bool)
+    chain[rows.min(axis=1)[np.abs(rows[:, 0] - rows[:, 1]) == 1]] = True
+    if chain.all():  # the odometry chain alone joins every pose (most files: no union-find)
+        return
     parts = pg.components(graph.n_poses, rows)
     if len(parts) > 1:
         raise InputError(f"the graph is not connected: {len(parts)} components: "
@@ -385,7 +485,8 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
 
 def read_pose_graph_file(path, toro_noise: str = "auto",
                          information_fix: str = "nearest") -> pg.PoseGraph:
-    """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags).
+    """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags); a landmark
+    line (``BR``) is refused: :func:`read_pose_graph_records` reads those.
 
     ``toro_noise = "sqrt_information"`` reads TORO edge numbers as the upper
     triangle ``R`` of the information ``R^T R`` (files written by iSAM);
@@ -394,15 +495,33 @@ def read_pose_graph_file(path, toro_noise: str = "auto",
     ``information_fix``: ``nearest``, ``isotropic`` or ``refuse`` for information
     that is not positive definite (module docstring).
     """
+    return read_pose_graph_records(path, toro_noise, information_fix)[0]
+
+
+def read_pose_graph_records(path, toro_noise: str = "auto", information_fix: str = "nearest",
+                            *, landmarks: bool = False,
+                            id_limit: int = MAX_ID) -> tuple[pg.PoseGraph, Sightings]:
+    """:func:`read_pose_graph_file`, and with ``landmarks`` the ``BR`` lines of a 2-D
+    TORO file beside the graph (else refused); ids above ``id_limit`` are refused
+    (``tokens.MAX_KEY_ID`` where they become gtsam symbol keys)."""
     path = Path(path)
     if toro_noise not in TORO_NOISE:
         raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
+    if information_fix not in INFORMATION_FIX:
+        raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, "
+                         f"got {information_fix!r}")
     toro_noise, note = resolve_toro_noise(path, toro_noise)
-    collector = _Collector(path, toro_noise, information_fix)
-    for line_no, tok in iter_lines(path):
-        collector.line(line_no, tok)
-    graph = collector.graph()
-    return replace(graph, noise_note=note) if note and graph.format == "toro" else graph
+    lines = read_in_bulk(path, TAGS, id_limit)
+    if lines is None or not _in_range(lines):
+        reader = _LineReader(path, landmarks, id_limit)
+        for line_no, tok in iter_lines(path):
+            reader.line(line_no, tok)
+        lines = reader.file_lines()
+    graph = _assembled(lines, path, toro_noise, information_fix)
+    sightings = _checked_sightings(lines, graph, path)
+    if note and graph.format == "toro":
+        graph = replace(graph, noise_note=note)
+    return graph, sightings
 
 
 #: Landmark-observation tags a 2-D pose-graph file may hold (gtsam's ``load2D`` reads

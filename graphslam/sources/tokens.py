@@ -1,5 +1,6 @@
 """The tokens of every line-based data file (pose graphs, landmark logs): one line
-reader, one number parser, one id parser, and so one wording for their refusals.
+reader, one number parser, one id parser, one token count check, and so one wording
+for their refusals.
 
 Each refusal is an :class:`~slamcore.errors.InputError` naming the file and the
 1-based line, quoting the token at most a few dozen characters long.
@@ -74,6 +75,16 @@ def parse_numbers(tokens: list[str], path, line_no: int, what: str | None = None
             raise InputError(f"{label}{quote(t)} is not finite", path, line_no)
         out.append(v)
     return out
+
+
+def check_count(tokens: list[str], expected: int, path, line_no: int,
+                layout: str | None = None) -> None:
+    """One-line InputError unless the line has ``expected`` tokens (tag included);
+    ``layout`` spells the line out in the message."""
+    if len(tokens) != expected:
+        spelled = f" ({layout})" if layout else ""
+        raise InputError(f"{tokens[0]} line needs {expected} tokens{spelled}, got {len(tokens)}",
+                         path, line_no)
 
 
 def iter_lines(path):

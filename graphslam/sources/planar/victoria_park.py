@@ -35,8 +35,7 @@ import numpy as np
 
 from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.records import Dataset
-from graphslam.sources.planar.posegraph import wrapped_delta, check_count, noise_covariance
-from graphslam.sources.tokens import MAX_KEY_ID, iter_lines, parse_id, parse_numbers
+from graphslam.sources.tokens import MAX_KEY_ID, check_count, iter_lines, parse_id, parse_numbers
 from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import (
     Frame, Observation, ObservationKind, Odometry, odometry_batch, range_bearing_batch,
@@ -51,6 +50,10 @@ VARIANCE_MIN = 1e-12
 VARIANCE_MAX = {"x": 1e6, "y": 1e6, "range": 1e6, "heading": (2 * math.pi) ** 2,
                 "bearing": (2 * math.pi) ** 2}
 
+
+#: ``c11 c12 c13 c22 c23 c33`` (an ODOMETRY line's upper triangle, g2o's order) -> the
+#: row-major 3x3 covariance.
+G2O_UPPER = [0, 1, 2, 1, 3, 4, 2, 4, 5]
 
 #: Longest odometry step or landmark offset, metres: 1000 km, far past any
 #: vehicle step or laser range, and where float64 still resolves micrometres.
@@ -121,9 +124,11 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                 if j in observations:
                     raise InputError(f"ODOMETRY creates pose {j}, which already exists",
                                      path, line_no)
-                cov = noise_covariance(nums[3:], "cov", path, line_no)
+                cov = np.array(nums[3:])[G2O_UPPER].reshape(3, 3)
                 check_variances(np.diag(cov), ("x", "y", "heading"), path, line_no)
-                odometry[j] = Odometry(i, j, wrapped_delta(nums[:3]), cov)
+                delta = np.array(nums[:3])
+                delta[2] = wrap_angle(delta[2])  # gtsam's Pose2 wraps too
+                odometry[j] = Odometry(i, j, delta, cov)
                 order.append(j)
                 observations[j] = []
             elif tag == "LANDMARK":
@@ -212,8 +217,7 @@ def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name) -> Datas
         return None
     if (np.abs(o_num[:, :2]) > DISTANCE_MAX_M).any() or (np.abs(l_num[:, :2]) > DISTANCE_MAX_M).any():
         return None
-    v = o_num[:, 3:]  # c11 c12 c13 c22 c23 c33: the g2o-layout covariance
-    o_cov = v[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+    o_cov = o_num[:, 3:][:, G2O_UPPER].reshape(-1, 3, 3)
     l_cov = np.zeros((len(l_num), 2, 2))
     l_cov[:, 0, 0], l_cov[:, 1, 1] = l_num[:, 2], l_num[:, 2] / 10.0
     upper = [VARIANCE_MAX[k] for k in ("x", "y", "heading", "range", "bearing")]
@@ -221,7 +225,7 @@ def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name) -> Datas
             and _variances_ok(l_cov[:, [0, 1], [0, 1]], upper[3:])):
         return None
     deltas = o_num[:, :3].copy()
-    deltas[:, 2] = wrap_angle(deltas[:, 2])  # as wrapped_delta
+    deltas[:, 2] = wrap_angle(deltas[:, 2])  # as the line reader
     zs = [[math.hypot(lx, ly), math.atan2(ly, lx)] for lx, ly in l_num[:, :2].tolist()]
     try:
         odometry = odometry_batch([i for i, _ in o_ids], [j for _, j in o_ids], deltas, o_cov)
