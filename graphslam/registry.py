@@ -96,10 +96,14 @@ def check_several_robots(name: str) -> None:
                           f"graph needs --backend {' or '.join(several)}")
 
 
-def default_backend(whole_pose_graph: bool) -> str:
-    """``graphslam run`` without ``--backend``: the checked route for a whole
-    pose-graph file, iSAM2 for everything else."""
-    return DEFAULT_POSE_GRAPH_BACKEND if whole_pose_graph else DEFAULT_BACKEND
+def default_backend(spec: str) -> str:
+    """``graphslam run --dataset spec`` without ``--backend``: the checked route for a
+    pose-graph file (one a streaming back end also solves whole: no landmark lines),
+    iSAM2 for everything else (built-in graphs, landmark files, logs, images)."""
+    from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
+
+    whole = not is_builtin_pose_graph(spec) and is_pose_graph_run(spec, DEFAULT_BACKEND)
+    return DEFAULT_POSE_GRAPH_BACKEND if whole else DEFAULT_BACKEND
 
 
 def _implementation(name: str, kind: str, data: str) -> Implementation:
@@ -172,15 +176,18 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         return read_victoria_park(path, name=path.stem)
     if tag is not None and tag in TAGS and TAGS[tag][1] == 3:
         raise ConfigError(f"{path} is a 3-D pose graph: run it with --backend isam2 or batch")
-    return read_pose_graph(path)
+    # the [posegraph] reading of the file's numbers holds for every back end
+    settings = pose_graph_config(config)
+    return read_pose_graph(path, settings.toro_noise, settings.information_fix)
 
 
 def is_pose_graph_run(spec: str, backend: str) -> bool:
     """Whether ``--dataset spec --backend backend`` is a pose-graph solve: a
-    g2o/TORO file (not a built-in name) with ``isam2`` or ``batch``. Filters on
+    g2o/TORO file (not a built-in name) with a pose-graph back end. Filters on
     2-D pose-graph files still stream them frame by frame (odometry only). A TORO
-    file with landmark lines (``BR``) runs as landmark SLAM with ``isam2``; with
-    ``batch`` the pose-graph reader refuses it at its first such line."""
+    file with landmark lines (``BR``) runs as landmark SLAM with ``isam2``; a
+    whole-graph solver (``batch``, ``auto``) is sent to the pose-graph reader,
+    which refuses it at its first such line."""
     from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
 
     row = descriptor(backend)

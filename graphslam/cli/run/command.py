@@ -226,11 +226,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
     if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
-        from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
-
-        whole = (not is_builtin_pose_graph(args.dataset)  # built-in graphs stream by default
-                 and registry.is_pose_graph_run(args.dataset, registry.default_backend(True)))
-        args.backend = registry.default_backend(whole and not args.no_polish)
+        args.backend = (registry.DEFAULT_BACKEND if args.no_polish
+                        else registry.default_backend(args.dataset))
     status = _dispatch(args)
     if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
         if args.write_bag:  # a finished or stopped run's estimate
