@@ -1,6 +1,6 @@
 """Active search on KITTI 07: accuracy protocol and time per frame against the number of corrections.
 
-Two things live here (the test ``tests/test_active_search.py`` loads this file
+Two things live here (the test ``tests/frontend/test_active_search.py`` loads this file
 for the first):
 
 1. The KITTI 07 evaluation protocol (:func:`evaluate`), for consecutive frames

@@ -1,0 +1,148 @@
+"""``graphslam compare`` on image sequences and the visual pose NEES.
+
+The comparisons run on a small QVGA synthetic room for a few frames (seconds);
+the figures on the full sequence are in README.md, with their command.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from graphslam.evaluation.spatial import pose_nees
+from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
+from tests.graphslam.cli.test_faults import graphslam, one_line, verify_rrd
+from tests.graphslam.pipelines.test_localize import HALF
+
+#: A small, fast room: QVGA images, 30 frames of which a few are run.
+SMALL_ROOM = HALF + "n_frames = 30\n"
+FIELDS = {"ate_rmse_m", "nees_mean", "nees_in_bounds_fraction", "frames_per_s", "peak_rss_mb",
+          "input_digest", "rpe"}
+#: Tolerance of a mean of N chi-square(6) draws: 5 standard deviations (sqrt(12 / N)).
+N_DRAWS = 4000
+MEAN_TOL = 5 * np.sqrt(12 / N_DRAWS)
+#: Tolerance of the share inside the 95 % bounds: 5 binomial standard deviations.
+SHARE_TOL = 5 * np.sqrt(0.95 * 0.05 / N_DRAWS)
+
+
+@pytest.fixture(scope="module")
+def small_room(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "room.toml"
+    path.write_text(SMALL_ROOM)
+    return path
+
+
+def _poses_with_errors(seed: int):
+    """Truth along a 20 m path with random attitudes, estimates off by draws of
+    known covariances: ``gt = est @ exp(xi)``, ``xi ~ N(0, C_k)``."""
+    rng = np.random.default_rng(seed)
+    gt = np.stack([se3_exp(np.r_[rng.uniform(-10, 10, 3), rng.normal(0, 1.0, 3)])
+                   for _ in range(N_DRAWS)])
+    A = rng.normal(0.0, 1.0, (N_DRAWS, 6, 6)) * np.r_[0.03, 0.03, 0.03, 0.005, 0.005, 0.005]
+    C = A @ np.swapaxes(A, 1, 2) + np.diag([1e-4] * 3 + [1e-6] * 3)
+    xi = np.einsum("nij,nj->ni", np.linalg.cholesky(C), rng.normal(size=(N_DRAWS, 6)))
+    est = np.stack([g @ invert_pose(se3_exp(x)) for g, x in zip(gt, xi)])
+    return gt, est, C
+
+
+def test_pose_nees_of_consistent_draws_is_chi_square_6():
+    gt, est, C = _poses_with_errors(seed=3)
+    ids = np.arange(N_DRAWS)
+    out = pose_nees(ids, est, C, ids, gt)
+    assert abs(out["nees_mean"] - 6.0) < MEAN_TOL
+    assert abs(out["nees_in_bounds_fraction"] - 0.95) < SHARE_TOL
+    # twice the covariance halves the NEES: the error is scored against C itself
+    assert abs(pose_nees(ids, est, 2 * C, ids, gt)["nees_mean"] - 3.0) < MEAN_TOL
+
+
+def test_pose_nees_after_a_sim3_fit_undoes_scale_and_frame():
+    """An estimate in another frame at another scale (a monocular run), its covariance
+    in that scale: the Sim(3) NEES is the NEES in the truth's frame."""
+    gt, est, C = _poses_with_errors(seed=4)
+    ids = np.arange(N_DRAWS)
+    s, R, t = 0.4, so3_exp([0.3, -1.0, 2.0]), np.array([5.0, -2.0, 1.0])
+    moved = est.copy()
+    moved[:, :3, :3] = R @ est[:, :3, :3]
+    moved[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
+    D = np.diag([s] * 3 + [1.0] * 3)
+    out = pose_nees(ids, moved, D @ C @ D, ids, gt, alignment="sim3")
+    assert abs(out["scale"] - 1 / s) < 1e-3 / s  # the fit on noisy centres, 0.1 %
+    assert abs(out["nees_mean"] - pose_nees(ids, est, C, ids, gt)["nees_mean"]) < MEAN_TOL
+    # unaligned, the same estimate is nowhere near its truth
+    assert pose_nees(ids, moved, D @ C @ D, ids, gt)["nees_mean"] > 1e3
+
+
+def test_compare_on_images_writes_table_json_png_and_recording(tmp_path, small_room):
+    done = graphslam(tmp_path, "compare", "--dataset", "synthetic-images", "--config",
+                     str(small_room), "--max-steps", "6", "--out", "c", "--rerun", "save")
+    assert done.returncode == 0, done.stderr
+    for head in ("ATE [m]", "mean NEES", "NEES in 95%", "RPE [m/frame]", "frames/s", "peak MB"):
+        assert head in done.stdout
+    data = json.loads((tmp_path / "c" / "compare.json").read_text())
+    runs = data["runs"]
+    assert [r["backend"] for r in runs] == ["isam2", "ekf-idp", "ekf-ahp"]
+    for r in runs:
+        assert FIELDS <= set(r) and r["frames"] == 6 and r["alignment"] == "se3"
+        assert 0.0 <= r["nees_in_bounds_fraction"] <= 1.0 and r["nees_mean"] > 0
+    # the same frames, corners and odometry fed to every back end
+    assert len({r["input_digest"] for r in runs}) == 1
+    assert data["nees"]["dof"] == 6 and data["odometry"] == "sequence"
+    assert (tmp_path / "c" / "compare.png").stat().st_size > 0
+    verify_rrd(tmp_path / "c" / "compare.rrd")
+
+
+def test_input_digest_follows_the_input(small_room):
+    """The digest is of what was fed: another seed renders other textures."""
+    from graphslam import registry
+    from graphslam.pipelines import compare_spatial as cs
+    from graphslam.pipelines.session import VisualSetup
+
+    config = registry.read_config(small_room)
+    digests = []
+    for seed in (0, 1):
+        seq = registry.load_image_sequence("synthetic-images", seed=seed, config=config)
+        setup = VisualSetup.read(seq, config, max_frames=3)
+        digests.append(cs.run_one(setup, "ekf-ahp").input_digest)
+    assert digests[0] != digests[1]
+
+
+def test_compare_on_images_ctrl_c_keeps_the_cut_run(tmp_path, small_room):
+    done = graphslam(tmp_path, "compare", "--dataset", "synthetic-images", "--config",
+                     str(small_room), "--max-steps", "8", "--out", "c", "--rerun", "save",
+                     at="step:3", sig="INT", to="group")
+    assert done.returncode == 130
+    one_line(done.stderr)
+    runs = {r["backend"]: r for r in json.loads((tmp_path / "c" / "compare.json").read_text())["runs"]}
+    assert runs["isam2"]["status"] == "cut" and runs["isam2"]["frames"] == 4
+    assert runs["isam2"]["interrupted"] is True
+    assert [runs[b]["status"] for b in ("ekf-idp", "ekf-ahp")] == ["not run"] * 2
+    assert "cut" in done.stdout and "not run" in done.stdout
+    assert (tmp_path / "c" / "compare.png").stat().st_size > 0
+    verify_rrd(tmp_path / "c" / "compare.rrd")
+
+
+def test_compare_refuses_a_2d_back_end_on_images(tmp_path, small_room):
+    done = graphslam(tmp_path, "compare", "--dataset", "synthetic-images", "--backends", "ekf")
+    assert done.returncode == 2
+    assert "not on image sequences" in one_line(done.stderr)
+
+
+def test_the_rooms_nearest_depth_sets_the_ekf_prior_unless_the_file_does(tmp_path, small_room):
+    from graphslam import registry
+    from graphslam.pipelines import spatial as vp
+
+    seq = registry.load_image_sequence("synthetic-images", config=registry.read_config(small_room))
+    uv_z = [seq.project(i) for i in range(len(seq))]
+    nearest = min(z[(z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= 319) & (uv[:, 1] >= 0)
+                    & (uv[:, 1] <= 239)].min() for uv, z in uv_z)
+    # the 1st percentile: above the very nearest point, below 10 m (the room is 11 m wide)
+    assert nearest <= seq.nearest_depth_m < 10.0
+    assert vp.scene_nearest_depth(seq, registry.read_config(None)) == seq.nearest_depth_m
+    own = tmp_path / "own.toml"
+    own.write_text("[mono_ekf]\nmin_depth_m = 4.0\n")
+    assert vp.scene_nearest_depth(seq, registry.read_config(own)) is None
+    ekf = registry.make_visual_backend("ekf", overrides=vp.backend_overrides(
+        "ekf", "sequence", nearest_depth_m=seq.nearest_depth_m))
+    assert ekf.config.min_depth_m == seq.nearest_depth_m

@@ -1,0 +1,414 @@
+"""Signals at marked points of every command leave valid files and the right exit status.
+
+Each test runs ``graphslam`` in a subprocess (its own session, so a signal to
+the process group stays inside it) with the test hook of
+:mod:`graphslam.pipelines.common` (``GRAPHSLAM_SIGNAL_AT``), and checks the
+exit status, one ``graphslam:`` line on stderr and no traceback, and that every
+file that must exist is there and valid; afterwards no process of the session
+is left (``compare``'s workers).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.visualisation.recording import find_viewer
+from tests.conftest import ROOT
+
+RUN_FILES = {"trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json", "run.rrd"}
+STATUS = {"INT": 130, "TERM": 143}
+#: Longest a small command may take here, seconds (a hang fails, not blocks CI).
+TIMEOUT_S = 120
+
+
+def graphslam(cwd: Path, *args: str, at: str | None = None, sig: str = "INT",
+              to: str = "main") -> subprocess.CompletedProcess:
+    """``graphslam ARGS`` in a new session, with the signal hook set to ``at``."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHSLAM_SIGNAL")}
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    if at is not None:
+        env.update(GRAPHSLAM_SIGNAL_AT=at, GRAPHSLAM_SIGNAL=sig, GRAPHSLAM_SIGNAL_TO=to)
+    proc = subprocess.Popen([sys.executable, "-m", "graphslam.cli.main", *args], cwd=cwd,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        left = _session_alive(proc.pid)
+        if left:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert not left, "a process of the command outlived it"
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def _session_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def one_line(stderr: str, *, allowed_prefix=("running ", "training ", "vocabulary: ")) -> str:
+    """The single ``graphslam:`` line of ``stderr`` (progress lines aside); no traceback."""
+    assert "Traceback" not in stderr, stderr
+    lines = [ln for ln in stderr.splitlines() if ln and not ln.startswith(allowed_prefix)]
+    assert len(lines) == 1 and lines[0].startswith("graphslam: "), stderr
+    return lines[0]
+
+
+def check_run_files(out: Path, *, interrupted: bool, dim: int = 2) -> dict:
+    """Every file of a run is there and parses; returns metrics.json."""
+    assert {p.name for p in out.iterdir()} == RUN_FILES
+    assert not list(out.glob(".*"))  # no temporary file left behind
+    traj = np.loadtxt(out / "trajectory.tum", ndmin=2)
+    assert traj.shape[1] == 8 and len(traj) >= 1 and np.all(np.isfinite(traj))
+    header, *rows = (out / "landmarks.csv").read_text().splitlines()
+    assert header == "id," + ",".join("xyz"[:dim])
+    assert all(len([float(v) for v in r.split(",")]) == dim + 1 for r in rows)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["interrupted"] is interrupted
+    verify_rrd(out / "run.rrd")
+    return metrics
+
+
+def verify_rrd(path: Path) -> None:
+    exe = find_viewer()
+    if exe is None:
+        assert path.stat().st_size > 0
+        return
+    done = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+
+
+# ------------------------------------------------------------------------------ run, 2-D
+
+def test_nees_run_cut_keeps_every_file(tmp_path):
+    """--nees needs the covariances a cut run skips: NEES null, the files kept."""
+    done = graphslam(tmp_path, "run", "--max-steps", "40", "--out", "o", "--quiet", "--nees",
+                     at="step:3", sig="TERM")
+    assert done.returncode == 143, done.stderr
+    metrics = check_run_files(tmp_path / "o", interrupted=True)
+    assert metrics.get("nees_mean") is None
+
+
+@pytest.mark.parametrize("at, sig", [("step:3", "INT"), ("step:3", "TERM"),
+                                     ("finalize", "TERM"), ("write", "INT")])
+def test_run_signal_keeps_every_file(tmp_path, at, sig):
+    done = graphslam(tmp_path, "run", "--max-steps", "40", "--out", "o", "--quiet",
+                     at=at, sig=sig)
+    assert done.returncode == STATUS[sig]
+    assert f"interrupted (SIG{sig})" in one_line(done.stderr)
+    metrics = check_run_files(tmp_path / "o", interrupted=True)
+    if at.startswith("step"):
+        assert metrics["steps"] == 4  # stopped at the frame after the signal
+    else:
+        assert metrics["steps"] == 40
+
+
+@pytest.mark.parametrize("backend, at, sig", [
+    ("isam2", "step:40", "INT"), ("isam2", "step:40", "TERM"), ("isam2", "finalize", "INT"),
+    ("batch", "finalize", "TERM"), ("isam2", "write", "INT")])
+def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
+    import gtsam
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    done = graphslam(tmp_path, "run", "--dataset", w100, "--backend", backend, "--out", "o",
+                     "--quiet", at=at, sig=sig)
+    assert done.returncode == STATUS[sig]
+    assert f"interrupted (SIG{sig})" in one_line(done.stderr)
+    out = tmp_path / "o"
+    assert {p.name for p in out.iterdir()} == {"trajectory.tum", "graph.graph", "closures.csv",
+                                               "metrics.json", "run.rrd"}
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    traj = np.loadtxt(out / "trajectory.tum", ndmin=2)
+    # a stop between iSAM2 updates keeps the poses added so far, else every pose
+    assert len(traj) == metrics["poses"] == (40 if at.startswith("step") else 100)
+    assert np.all(np.isfinite(traj))
+    edges = [ln for ln in (out / "graph.graph").read_text().splitlines() if ln.startswith("EDGE")]
+    assert len(edges) == metrics["edges"]
+    verify_rrd(out / "run.rrd")
+
+
+def test_pose_graph_cut_after_one_pose_keeps_its_files(tmp_path):
+    """Stopped after the first update, with ground truth: one pose solved, ATE null
+    (it needs two), every file still written."""
+    import gtsam
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    truth = tmp_path / "gt.tum"
+    truth.write_text("".join(f"{k} {k} 0 0 0 0 0 1\n" for k in range(100)))
+    done = graphslam(tmp_path, "run", "--dataset", w100, "--backend", "isam2", "--out", "o",
+                     "--quiet", "--rerun", "off", "--ground-truth", str(truth), at="step:1")
+    assert done.returncode == 130, done.stderr
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["poses"] == 1 and metrics["ate_rmse_m"] is None
+
+
+def test_auto_cut_while_trying_isam2_keeps_batchs_whole_estimate(tmp_path):
+    """--backend auto stopped in its iSAM2 attempt (batch's result had failed the
+    chi-square check): batch's estimate of every pose is kept and says so."""
+    from tests.posegraphs import manhattan_walk
+
+    path = manhattan_walk(tmp_path)
+    done = graphslam(tmp_path, "run", "--dataset", str(path), "--out", "o", "--quiet",
+                     "--rerun", "off", at="step:3")
+    assert done.returncode == 130, done.stderr
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] and metrics["poses"] == 300
+    assert metrics["route"]["kept"] == "batch"
+    assert any("batch's estimate kept" in r for r in metrics["numerical_recoveries"])
+
+
+def test_signal_before_the_run_is_one_line(tmp_path):
+    done = graphslam(tmp_path, "run", "--max-steps", "5", "--out", "o", "--quiet",
+                     at="start", sig="TERM")
+    assert done.returncode == 143
+    assert one_line(done.stderr) == "graphslam: interrupted (SIGTERM)"
+
+
+def test_one_step_writes_everything_with_null_ate(tmp_path):
+    done = graphslam(tmp_path, "run", "--max-steps", "1", "--out", "o", "--quiet")
+    assert done.returncode == 0, done.stderr
+    metrics = check_run_files(tmp_path / "o", interrupted=False)
+    assert metrics["ate_rmse_m"] is None and metrics["steps"] == 1
+
+
+# ------------------------------------------------------------------------------ run, images
+
+@pytest.mark.parametrize("at, sig", [("step:1", "TERM"), ("write", "INT")])
+def test_image_run_signal_keeps_every_file(tmp_path, at, sig):
+    done = graphslam(tmp_path, "run", "--dataset", "synthetic-images", "--max-steps", "5",
+                     "--out", "o", "--quiet", at=at, sig=sig)
+    assert done.returncode == STATUS[sig]
+    one_line(done.stderr)
+    metrics = check_run_files(tmp_path / "o", interrupted=True, dim=3)
+    assert metrics["frames"] == (2 if at == "step:1" else 5)
+
+
+@pytest.mark.parametrize("at", ["step:1", "step:9"])
+def test_camera_alone_signal_keeps_every_file(tmp_path, at):
+    """Camera alone (iSAM2): before the first map (frame 1: no pose yet) and after it
+    (the map starts at frame 5 in this room), a signal keeps what there is."""
+    done = graphslam(tmp_path, "run", "--dataset", "synthetic-images", "--odometry", "none",
+                     "--max-steps", "12", "--out", "o", "--quiet", at=at, sig="INT")
+    assert done.returncode == 130, done.stderr
+    one_line(done.stderr)
+    metrics = check_run_files(tmp_path / "o", interrupted=True, dim=3) if at != "step:1" else \
+        json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    assert metrics["frames_with_pose"] == (0 if at == "step:1" else 10)
+
+
+# ------------------------------------------------------------------------------ compare
+
+COMPARE = ("compare", "--max-steps", "60", "--out", "c", "--rerun", "save")
+
+
+def compare_runs(tmp_path: Path) -> dict:
+    data = json.loads((tmp_path / "c" / "compare.json").read_text())
+    return {r["backend"]: r for r in data["runs"]}
+
+
+def test_compare_ctrl_c_to_the_group_keeps_the_cut_run(tmp_path):
+    done = graphslam(tmp_path, *COMPARE, at="step:5", sig="INT", to="group")
+    assert done.returncode == 130
+    one_line(done.stderr)
+    runs = compare_runs(tmp_path)
+    assert runs["isam2"]["interrupted"] is True and runs["isam2"]["status"] == "cut"
+    assert runs["isam2"]["steps"] == 6  # the worker stops after its step 5
+    assert [runs[b]["status"] for b in ("ekf", "fastslam1", "fastslam2")] == ["not run"] * 3
+    assert "cut" in done.stdout and "not run" in done.stdout
+    verify_rrd(tmp_path / "c" / "compare.rrd")
+    assert (tmp_path / "c" / "compare.png").stat().st_size > 0
+
+
+def test_compare_sigterm_to_the_parent_stops_its_worker(tmp_path):
+    # the hook fires in the first worker but signals the command (the parent),
+    # which must pass the stop on, keep the worker's result and leave no child
+    done = graphslam(tmp_path, *COMPARE, at="step:5", sig="TERM")
+    assert done.returncode == 143
+    one_line(done.stderr)
+    runs = compare_runs(tmp_path)
+    assert runs["isam2"].get("status", "ok") in ("ok", "cut") and runs["isam2"]["steps"] >= 6
+    assert runs["ekf"]["status"] == "not run"
+
+
+def test_compare_in_process_honours_ctrl_c(tmp_path):
+    done = graphslam(tmp_path, *COMPARE, "--in-process", at="step:5", sig="INT")
+    assert done.returncode == 130
+    one_line(done.stderr)
+    runs = compare_runs(tmp_path)
+    assert runs["isam2"]["status"] == "cut" and runs["isam2"]["steps"] == 6
+    assert runs["ekf"]["status"] == "not run"
+
+
+def test_one_back_end_crashing_loses_no_other(monkeypatch):
+    """A worker that raises a non-GraphSlamError and one killed outright: the
+    other back ends' results are kept and the failures are marked."""
+    from graphslam import registry
+    from graphslam.pipelines import compare
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    real = registry.make_backend
+
+    def make(name, **kw):
+        backend = real(name, **kw)
+        if name == "ekf":
+            def broken(*a, **k):
+                raise ZeroDivisionError("a bug in a back end")
+            backend.update = broken
+        if name == "fastslam1":
+            backend.update = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)
+        return backend
+
+    monkeypatch.setattr(registry, "make_backend", make)
+    entries = compare.compare(make_synthetic(), list(registry.BACKENDS), max_steps=20)
+    status = {e.backend: e.status for e in entries}
+    assert status == {"isam2": "ok", "ekf": "failed", "fastslam1": "failed", "fastslam2": "ok"}
+    errors = {e.backend: e.error for e in entries}
+    assert "ZeroDivisionError" in errors["ekf"] and "worker died" in errors["fastslam1"]
+
+
+# ------------------------------------------------------------------------------ loops, vocab
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """30 QVGA frames of the synthetic room as PNG."""
+    import cv2
+
+    from graphslam.sources.spatial.synthetic_images import (
+        SyntheticImagesConfig, make_synthetic_images,
+    )
+
+    seq = make_synthetic_images(SyntheticImagesConfig(width=320, height=240, fx=250, fy=250,
+                                                      cx=159.5, cy=119.5, n_frames=30))
+    folder = tmp_path_factory.mktemp("frames")
+    for i in range(len(seq.image_paths)):
+        cv2.imwrite(str(folder / f"f{i:02d}.png"), seq.load(i))
+    return folder
+
+
+def test_loops_signal_keeps_what_was_found(tmp_path, frames):
+    done = graphslam(tmp_path, "loops", str(frames), "--out", "l.csv", "--log", "l.jsonl",
+                     "--words", "100", "--quiet", at="step:12", sig="TERM")
+    assert done.returncode == 143
+    assert "closures found" in one_line(done.stderr)
+    assert "13 of 30 images" in done.stdout
+    assert (tmp_path / "l.csv").read_text().startswith("query,match,score,inliers\n")
+    lines = (tmp_path / "l.jsonl").read_text().splitlines()
+    assert all(json.loads(ln)["query"] <= 12 for ln in lines)
+
+
+def test_vocab_train_signal_keeps_a_vocabulary(tmp_path, frames):
+    from loopclosure.vocabulary import load_vocabulary
+
+    done = graphslam(tmp_path, "vocab", "train", str(frames), "--words", "50", "--out", "v.voc",
+                     "--quiet", at="step:9", sig="INT")
+    assert done.returncode == 130
+    assert "10 of 30 images" in one_line(done.stderr)
+    assert load_vocabulary(tmp_path / "v.voc").n_words_ >= 2
+
+
+# ------------------------------------------------------------------------------ writers
+
+def test_a_cut_writer_leaves_the_old_file(tmp_path):
+    from slamcore.files import atomic_open
+
+    path = tmp_path / "metrics.json"
+    path.write_text("old complete file\n")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_open(path) as fh:
+            fh.write("half of the new")
+            raise KeyboardInterrupt
+    assert path.read_text() == "old complete file\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+
+
+def test_a_cut_run_is_no_benchmark_row():
+    """Library use: Ctrl-C cuts the loop and returns the estimate so far, and
+    :func:`whole` (what benchmarks call) refuses to score it."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.pipelines.common import whole
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    def ctrl_c_at_3(k, frame, backend):
+        if k == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    dataset = make_synthetic()
+    result = pipeline.run(dataset, registry.make_backend("ekf"), max_steps=20, on_step=ctrl_c_at_3)
+    assert result.interrupted and result.steps == 4
+    with pytest.raises(KeyboardInterrupt):
+        whole(result)
+    full = pipeline.run(dataset, registry.make_backend("ekf"), max_steps=5)
+    assert whole(full) is full
+
+
+def test_a_worker_that_does_not_stop_is_killed(monkeypatch):
+    """SIGTERM to the command while its worker is stuck in a step: the worker is
+    asked to stop, then killed after the grace period; its row says cut."""
+    import time as _time
+
+    from graphslam import registry
+    from graphslam.pipelines import compare
+    from graphslam.pipelines.common import stop_guard
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    real = registry.make_backend
+
+    def stuck(name, **kw):
+        backend = real(name, **kw)
+        update, calls = backend.update, []
+
+        def update_then_hang(observations):
+            calls.append(1)
+            if len(calls) > 3:
+                _time.sleep(60)
+            update(observations)
+        backend.update = update_then_hang
+        return backend
+
+    monkeypatch.setattr(registry, "make_backend", stuck)
+    monkeypatch.setattr(compare, "STOP_GRACE_S", 0.5)
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_AT", "step:1")  # in the worker, to this process
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL", "TERM")
+    t0 = _time.perf_counter()
+    with stop_guard() as guard:
+        entries = compare.compare(make_synthetic(), ["ekf", "isam2"], max_steps=20)
+    # hang guard, minutes above the worst case: the worker that did not stop is abandoned
+    assert guard.signal_name == "SIGTERM" and _time.perf_counter() - t0 < 300
+    assert [(e.backend, e.status) for e in entries] == [("ekf", "cut"), ("isam2", "not run")]
+    assert "did not stop" in entries[0].error
+
+
+def test_ctrl_c_inside_an_import_is_one_line(monkeypatch, capsys):
+    """Ctrl-C while a C extension initialises (numpy, gtsam: the first second of a
+    command) surfaces as "ImportError: initialization failed", not as
+    KeyboardInterrupt: still one line and 130, no traceback."""
+    import time as _time
+
+    from graphslam.cli import main as cli
+    from graphslam.cli.run import command
+
+    def importing(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            _time.sleep(1)
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+
+    monkeypatch.setattr(command, "cmd_run", importing)
+    assert cli.main(["run"]) == 130
+    assert capsys.readouterr().err == "graphslam: interrupted (SIGINT)\n"

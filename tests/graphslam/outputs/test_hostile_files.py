@@ -1,0 +1,210 @@
+"""Hostile files and folders (issue 34): names over the file-system limit, a full
+disk, a map naming files outside its folder, two outputs naming one file, a signal
+just after the recorder opens. Each ends in a valid run or one line and exit 2,
+and a folder never mixes two runs."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.maps.files import load_planar_map, save_planar_map
+from graphslam.outputs import writers
+from slamcore.errors import InputError
+from slamcore.files import atomic_open, replacing
+from tests.conftest import ROOT
+from tests.graphslam.cli.test_faults import graphslam
+from tests.graphslam.maps.test_maps2d import small_map
+
+LONG = "a" * 300
+#: A valid name (under 255 bytes) whose old temporary name (".NAME.part-XXXXXXXX.npz") was not.
+NEAR_LIMIT = "v" * 244 + ".npz"
+SMALL_RUN = ("run", "--dataset", "synthetic", "--max-steps", "15", "--rerun", "off", "--quiet")
+
+
+def one_error_line(capsys, *argv) -> str:
+    rc = main([str(a) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("graphslam: error:"), err
+    return err[0]
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+# ------------------------------------------------------------------ names too long
+
+@pytest.mark.parametrize("argv, flag", [
+    (("run", "--out", "TMP/" + LONG, "--rerun", "off"), "--out"),
+    (("run", "--dataset", LONG), "--dataset"),
+    (("run", "--config", "TMP/" + LONG), "--config"),
+    (("eval", LONG, "x.tum"), "GT"),
+    (("eval", "x.tum", "TMP/" + LONG + "/y.tum"), "EST"),
+    (("convert", "x.g2o", "TMP/" + LONG), "OUT"),
+    (("vocab", "train", "x.png", "--out", "TMP/" + LONG), "--out"),
+])
+def test_a_name_over_255_bytes_is_one_line_naming_the_option(tmp_path, capsys, argv, flag):
+    argv = [a.replace("TMP", str(tmp_path)) for a in argv]
+    line = one_error_line(capsys, *argv)
+    assert f"error: {flag}:" in line and "255" in line
+    assert list(tmp_path.iterdir()) == []  # refused before any work
+
+
+@pytest.mark.parametrize("write", ["replacing", "atomic_open"])
+def test_a_valid_long_output_name_gets_a_short_temporary_name(tmp_path, write):
+    """A 248-byte output name: the temporary name must not pass 255 bytes (``vocab
+    train`` trained for minutes and then lost everything)."""
+    target = tmp_path / NEAR_LIMIT
+    if write == "replacing":
+        with replacing(target) as tmp:
+            assert len(os.fsencode(tmp.name)) < 64 and tmp.suffix == ".npz"
+            np.savez(tmp, a=np.arange(3))
+    else:
+        with atomic_open(target, "w") as fh:
+            fh.write("x")
+    assert target.is_file() and [p.name for p in tmp_path.iterdir()] == [NEAR_LIMIT]
+
+
+# ------------------------------------------------------------------ a full disk
+
+def _disk_full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, "No space left on device", "landmarks.csv")
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_earlier_run_beside_the_new(tmp_path, capsys,
+                                                                          monkeypatch):
+    out = tmp_path / "run"
+    assert main([*SMALL_RUN, "--out", str(out)]) == 0
+    capsys.readouterr()
+    old = {p.name: p.stat().st_ino for p in out.iterdir()}
+    assert {"trajectory.tum", "metrics.json", "landmarks.csv"} <= set(old)
+    monkeypatch.setattr(writers, "write_landmarks_csv", _disk_full)
+    line = one_error_line(capsys, *SMALL_RUN, "--out", out)
+    assert "no space left on device writing landmarks.csv" in line
+    now = {p.name: p.stat().st_ino for p in out.iterdir()}
+    # what the new run wrote stays (new files: new inodes); nothing of the earlier run
+    assert "trajectory.tum" in now and all(now[n] != old.get(n) for n in now), (old, now)
+    assert "metrics.json" not in now and not any(n.startswith(".") for n in now)
+
+
+def test_a_pose_graph_run_on_a_full_disk_leaves_no_earlier_run_beside_the_new(
+        tmp_path, capsys, monkeypatch):
+    import gtsam
+
+    from graphslam.pipelines import posegraph as pipeline
+
+    w100 = gtsam.findExampleDataFile("w100.graph")
+    out = tmp_path / "run"
+    argv = ("run", "--dataset", w100, "--rerun", "off", "--quiet", "--out", out)
+    assert main([str(a) for a in argv]) == 0
+    capsys.readouterr()
+    old = {p.name: p.stat().st_ino for p in out.iterdir()}
+    assert {"trajectory.tum", "metrics.json", "closures.csv"} <= set(old)
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", "closures.csv")
+
+    monkeypatch.setattr(pipeline, "write_closures_csv", full)
+    line = one_error_line(capsys, *argv)
+    assert "no space left on device writing closures.csv" in line
+    now = {p.name: p.stat().st_ino for p in out.iterdir()}
+    assert "trajectory.tum" in now and all(now[n] != old.get(n) for n in now), (old, now)
+    assert "metrics.json" not in now and "closures.csv" not in now
+
+
+def test_a_map_saved_over_another_on_a_full_disk_leaves_the_old_map_whole(tmp_path,
+                                                                          monkeypatch):
+    folder = tmp_path / "map"
+    save_planar_map(small_map(seed=0), folder)
+    before = digest(folder)
+
+    def full(*args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError):
+        save_planar_map(small_map(seed=1), folder)
+    monkeypatch.undo()
+    assert digest(folder) == before  # no temporary left, the old map untouched
+    assert load_planar_map(folder).n_landmarks == small_map(seed=0).n_landmarks
+    save_planar_map(small_map(seed=1), folder)  # and a later save replaces it whole
+    assert digest(folder) != before and load_planar_map(folder).n_landmarks
+
+
+# ------------------------------------------------------------------ a map naming outside files
+
+@pytest.mark.parametrize("where", ["parent", "absolute"])
+def test_a_map_naming_a_file_outside_its_folder_is_refused(tmp_path, where):
+    folder = tmp_path / "map"
+    save_planar_map(small_map(), folder)
+    # a byte-identical copy outside: only the place is wrong, the checksum is right
+    outside = shutil.copy(folder / "map.npz", tmp_path / "x.npz")
+    doc = json.loads((folder / "map.json").read_text())
+    doc["arrays"]["file"] = "../x.npz" if where == "parent" else str(outside)
+    (folder / "map.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="outside the map folder"):
+        load_planar_map(folder)
+
+
+# ------------------------------------------------------------------ two outputs, one file
+
+def test_loops_out_and_log_naming_one_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "images").mkdir()
+    line = one_error_line(capsys, "loops", tmp_path / "images", "--out", tmp_path / "x.csv",
+                          "--log", tmp_path / "." / "x.csv")
+    assert "--out and --log name the same file" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
+
+
+# ------------------------------------------------------------------ a signal after the recorder opens
+
+@pytest.mark.parametrize("steps", ["30", "700"])
+def test_a_signal_after_the_recorder_opens_keeps_the_earlier_run_whole(tmp_path, steps):
+    run = ("run", "--dataset", "synthetic", "--max-steps", steps, "--rerun", "save",
+           "--quiet", "--out", "out")
+    done = graphslam(tmp_path, *run)
+    assert done.returncode == 0, done.stderr
+    before = digest(tmp_path / "out")
+    assert "run.rrd" in before
+    cut = graphslam(tmp_path, *run, "--seed", "3", at="recorder")
+    assert cut.returncode == 130, cut.stderr
+    assert digest(tmp_path / "out") == before  # the earlier run whole, nothing of the new
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(before)
+
+
+def test_a_recording_process_left_without_close_deletes_its_recording(tmp_path):
+    """Runs of 1000 steps and more record in a second process: when the run dies
+    before closing it, the earlier run's recording stays whole and no stub is left."""
+    old = tmp_path / "run.rrd"
+    old.write_bytes(b"an earlier run's recording")
+    # the run: starts the recording process, waits until it records, dies without close
+    code = ("import os, sys, time; from pathlib import Path; "
+            "from graphslam.visualisation.background import BackgroundLog; "
+            "from graphslam.visualisation.planar import PlanarLog; "
+            "p = Path(sys.argv[1]); BackgroundLog(PlanarLog, 'save', p, None)\n"
+            "for _ in range(1200):\n"
+            "    if any(q.name.startswith('.gs-') for q in p.parent.iterdir()): os._exit(0)\n"
+            "    time.sleep(0.1)\n"
+            "os._exit(1)")
+    subprocess.run([sys.executable, "-c", code, str(old)], check=True, timeout=180,
+                   cwd=ROOT)
+    for _ in range(1200):  # hang guard only: the recording process sees the end of its pipe
+        if not any(p.name.startswith(".gs-") for p in tmp_path.iterdir()):
+            break
+        time.sleep(0.1)
+    assert old.read_bytes() == b"an earlier run's recording"
+    assert [p.name for p in tmp_path.iterdir()] == ["run.rrd"]
+
