@@ -307,7 +307,8 @@ class _LikelihoodSearch(_JcbbSearch):
     is so wide that a new landmark is expected inside it about as often as the
     mapped one, the re-observation of a landmark mapped long ago across a
     drifted pose, and the measurement alone does not decide) is accepted only
-    in a hypothesis holding at least one other ambiguous pairing. Joint compatibility is a test only between pairings whose
+    in a hypothesis holding at least one other ambiguous pairing. Joint
+    compatibility is a test only between pairings whose
     innovations are correlated: a recently mapped landmark moves with the
     robot and lends no support to a loop-closing pairing, while two wide-gate
     pairings of one loop share the pose error, so their joint test checks

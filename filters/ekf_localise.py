@@ -54,7 +54,12 @@ from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
 from slamcore.planar.records import (
-    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
+    Estimate,
+    Observation,
+    Odometry,
+    Prediction,
+    as_covariance,
+    as_vector,
 )
 
 

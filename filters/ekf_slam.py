@@ -110,7 +110,6 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from slamcore.planar import geometry as models
 from filters.association import chi2_quantile
 from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
 from filters.ekf_slam_config import EkfSlamConfig
@@ -118,11 +117,18 @@ from filters.ekf_slam_correction import kalman_update
 from filters.ekf_slam_store import SlotStore
 from filters.numerics import Recoveries
 from filters.planar_inputs import checked_scan, odometry_step
-from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, MeasurementError
+from slamcore.planar import geometry as models
+from slamcore.planar.backend import Backend
 from slamcore.planar.records import (
-    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
+    Estimate,
+    Observation,
+    Odometry,
+    Prediction,
+    as_covariance,
+    as_vector,
 )
+
 
 class EkfSlam(Backend):
     """EKF-SLAM back end (see the module docstring).

@@ -59,9 +59,9 @@ def pair_covariance(P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndar
     idx = [0, 1, 2] + [j for u in U for j in (3 + 2 * u, 4 + 2 * u)]
     Psub = P[np.ix_(idx, idx)]
     A = np.zeros((2 * len(pairs), len(idx)))
-    for p, (i, l) in enumerate(pairs):
-        A[2 * p:2 * p + 2, :3] = H_x[l]
-        A[2 * p:2 * p + 2, col[l]:col[l] + 2] = H_m[l]
+    for p, (_, lm) in enumerate(pairs):
+        A[2 * p:2 * p + 2, :3] = H_x[lm]
+        A[2 * p:2 * p + 2, col[lm]:col[lm] + 2] = H_m[lm]
     C = A @ Psub @ A.T
     for p, (i, _) in enumerate(pairs):
         C[2 * p:2 * p + 2, 2 * p:2 * p + 2] += Rs[i]
@@ -102,7 +102,7 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
     d2 = mahalanobis_sq_2d(nu, S)  # (m, L)
     det_S = _det2(S) if likelihood is not None else None
     cands = individual_candidates(d2, gate, max_candidates)
-    pairs = [(i, l) for i, cl in enumerate(cands) for l in cl]
+    pairs = [(i, lm) for i, cl in enumerate(cands) for lm in cl]
     if not pairs:
         if likelihood is not None:
             return hyp, _likelihood_terms(Z, Rs, det_S, d2, *likelihood)[2], None

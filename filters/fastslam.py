@@ -76,18 +76,25 @@ inputs, same bits.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+
 import numpy as np
 
-from slamcore.planar import geometry as models
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
-from filters.numerics import Recoveries, symmetrise as sym
+from filters.numerics import Recoveries
+from filters.numerics import symmetrise as sym
 from filters.planar_inputs import checked_scan, odometry_step
-from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError
+from slamcore.planar import geometry as models
+from slamcore.planar.backend import Backend
 from slamcore.planar.records import (
-    Estimate, Observation, Odometry, Prediction, as_covariance, as_vector,
+    Estimate,
+    Observation,
+    Odometry,
+    Prediction,
+    as_covariance,
+    as_vector,
 )
 
 __all__ = ["FastSlam"]

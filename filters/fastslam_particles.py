@@ -17,16 +17,20 @@ import math
 
 import numpy as np
 
-from slamcore.planar import geometry as models
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
-    all_positive_definite3, logsumexp, low_variance_resample, rotated_xy, sample_gaussian,
+    all_positive_definite3,
+    logsumexp,
+    low_variance_resample,
+    rotated_xy,
+    sample_gaussian,
 )
-from filters.numerics import symmetrise as sym
 from filters.fastslam_update import landmark_steps, refine_proposal
 from filters.numerics import Recoveries
+from filters.numerics import symmetrise as sym
 from slamcore.errors import GraphSlamError
+from slamcore.planar import geometry as models
 from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import Observation
 
@@ -148,7 +152,7 @@ class ParticleSet:
         """Landmark steps of a scan: in one pass, or one per observation when a known id
         repeats in the scan (its updates must then follow each other)."""
         if self.config.association == "known" and len({int(c[0]) for c in cols}) < len(cols):
-            for o, c in zip(obs, cols):
+            for o, c in zip(obs, cols, strict=True):
                 self._landmark_steps([o], [c], poses, weigh)
         else:
             self._landmark_steps(obs, cols, poses, weigh)

@@ -24,11 +24,22 @@ import numpy as np
 
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
-    all_positive_definite3, floor_hits, inv2, landmark_update, new_landmark, positive_definite,
-    positive_definite2, proposal_update, raise_to_floor, range_bearing, sandwich, spread_noise, tr,
+    all_positive_definite3,
+    floor_hits,
+    inv2,
+    landmark_update,
+    new_landmark,
+    positive_definite,
+    positive_definite2,
+    proposal_update,
+    raise_to_floor,
+    range_bearing,
+    sandwich,
+    spread_noise,
+    tr,
 )
-from filters.numerics import symmetrise as sym
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
+from filters.numerics import symmetrise as sym
 from slamcore.planar.records import Observation
 
 __all__ = ["floor_noise", "joseph_where_indefinite", "landmark_joseph", "landmark_steps",
@@ -166,7 +177,7 @@ def landmark_joseph(recoveries: Recoveries, bad, P, H, R, P_new):
     K = PHt @ inv2(Hm @ PHt + Rm)[0]
     fixed = joseph_where_indefinite(recoveries, mats(P_new), Pm, K, Hm, lambda: Rm)
     out = tuple(np.array(np.broadcast_to(e, bad.shape)) for e in P_new)
-    for e, (r, c) in zip(out, ((0, 0), (0, 1), (1, 1))):
+    for e, (r, c) in zip(out, ((0, 0), (0, 1), (1, 1)), strict=True):
         e[bad] = fixed[:, r, c]
     return out
 

@@ -107,16 +107,25 @@ from typing import TypeAlias
 import numpy as np
 
 from filters import landmark_params as lp
-from filters.mono_ekf_checks import (check_camera, check_initial_pose, check_observations,
-                                     check_odometry)
+from filters.mono_ekf_checks import (
+    check_camera,
+    check_initial_pose,
+    check_observations,
+    check_odometry,
+)
 from filters.mono_ekf_config import MonoEkfConfig, chi2_2dof
-from filters.mono_ekf_correction import (apply_correction, gain_blocks, gated_correction,
-                                         innovation_blocks, one_point_ransac)
+from filters.mono_ekf_correction import (
+    apply_correction,
+    gain_blocks,
+    gated_correction,
+    innovation_blocks,
+    one_point_ransac,
+)
 from filters.mono_ekf_motion import constant_velocity_motion, odometry_motion, propagate_covariance
 from filters.mono_ekf_slots import LandmarkSlots
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
-from slamcore.spatial.records import PixelObservations, PixelPredictions, VisualEstimate
 from slamcore.spatial.backend import VisualBackend
+from slamcore.spatial.records import PixelObservations, PixelPredictions, VisualEstimate
 
 __all__ = ["MonoEkf"]
 
@@ -170,7 +179,7 @@ class MonoEkf(VisualBackend):
         """``(track_id, kind name, first state index)`` of each landmark, in state order."""
         self._require_init()
         return [(lm.track_id, lp.KIND_NAMES[lm.kind], int(o))
-                for lm, o in zip(self._map.records, self._map.off)]
+                for lm, o in zip(self._map.records, self._map.off, strict=True)]
 
     def reparametrise(self, track_ids) -> int:
         """Convert the given landmarks to Euclidean now, whatever their linearity
@@ -360,7 +369,7 @@ class MonoEkf(VisualBackend):
             sel, inl = self._correct(sel, z, predicted, var)
         elif len(sel):
             inl = self._gated(sel, z, predicted, var)
-        for i, ok in zip(sel, inl if len(sel) else ()):
+        for i, ok in zip(sel, inl if len(sel) else (), strict=True):
             self._sequential[int(self._map.ids[i])] = bool(ok)
         pend = np.asarray(pending_ids, dtype=np.int64).reshape(-1)
         uv, hz, _, _, S = self._predicted(var)

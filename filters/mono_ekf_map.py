@@ -172,7 +172,7 @@ def transform_state(x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.nda
         Y = np.concatenate([J @ P[src] for src, J, _ in conv])  # (3c, n)
         P_new[m:, :m] = Y[:, kidx]
         P_new[:m, m:] = P_new[m:, :m].T
-        for b, (src, J, p_w) in enumerate(conv):
+        for b, (_, _, p_w) in enumerate(conv):
             x_new[m + 3 * b:m + 3 * b + 3] = p_w
             for b2, (src2, J2, _) in enumerate(conv):
                 P_new[m + 3 * b:m + 3 * b + 3, m + 3 * b2:m + 3 * b2 + 3] = \

@@ -22,9 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from filters import landmark_params as lp
-from filters.mono_ekf_map import (augment_with_landmarks, euclidean_conversion, euclidean_points,
-                                  farthest_candidates, inverse_distances, linear_enough,
-                                  transform_state)
+from filters.mono_ekf_map import (
+    augment_with_landmarks,
+    euclidean_conversion,
+    euclidean_points,
+    farthest_candidates,
+    inverse_distances,
+    linear_enough,
+    transform_state,
+)
 
 __all__ = ["LandmarkRecord", "LandmarkSlots"]
 

@@ -65,8 +65,7 @@ import numpy as np
 from frontend.active_search_config import ActiveSearchConfig
 from frontend.features import Features
 from frontend.image import check_gray
-from frontend.search_matchers import (Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels,
-                                      inv2)
+from frontend.search_matchers import Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels, inv2
 from slamcore.config import with_overrides
 from slamcore.errors import ConfigError, InputError, MeasurementError
 

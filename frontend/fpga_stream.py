@@ -61,11 +61,11 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.harris import (
+    GAUSS5_INT,
+    K_SHIFT,
     REACH_PX,
     RESPONSE_SHIFT,
-    GAUSS5_INT,
     HarrisConfig,
-    K_SHIFT,
     cell_grid,
 )
 from frontend.image import check_gray

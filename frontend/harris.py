@@ -61,7 +61,7 @@ Arithmetics:
   (exact in float64) so thresholds and scores share the float units, and the
   threshold test is done in integers (``R_fixed > floor(threshold * 2^20)``).
 
-Approximation errors (measured; ``tests/test_harris.py`` asserts bounds on
+Approximation errors (measured; ``tests/frontend/test_harris.py`` asserts bounds on
 them and ``benchmarks/bench_harris.py`` prints them):
 
 * Gaussian taps: largest tap error 0.0036 of the unit gain (104/256 = 0.40625

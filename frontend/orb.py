@@ -28,7 +28,6 @@ from frontend.features import Features
 from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
 from slamcore.config import bounded, validate, with_overrides
 
-
 #: Per-keypoint attribute readers: ``map`` over an ``attrgetter`` is the
 #: fastest way OpenCV's Python binding offers (it has no array accessor for
 #: response or octave; about 0.14 ms for a KITTI frame's ~4 800 candidates).

@@ -57,12 +57,12 @@ import numpy as np
 
 from frontend.active_search import ActiveSearch, ActiveSearchResult
 from frontend.active_search_config import ActiveSearchConfig
-from frontend.search_matchers import extract_patches
 from frontend.appearance import patch_affines, source_patch_size
 from frontend.features import Features
 from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
+from frontend.search_matchers import extract_patches
 from frontend.tracking_config import TrackerConfig, make_detector
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.records import PixelObservations, PixelPredictions

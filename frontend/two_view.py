@@ -191,7 +191,8 @@ def _scored(chi_b: np.ndarray, chi_a: np.ndarray, threshold: float) -> tuple[flo
     chi2 <= threshold adds 5.991 - chi2; an inlier passes both (NaN, inf: neither)."""
     with np.errstate(invalid="ignore"):
         in_b, in_a = chi_b <= threshold, chi_a <= threshold
-        score = np.sum(np.where(in_b, CHI2_2DOF - chi_b, 0.0)) + np.sum(np.where(in_a, CHI2_2DOF - chi_a, 0.0))
+        score = (np.sum(np.where(in_b, CHI2_2DOF - chi_b, 0.0))
+                 + np.sum(np.where(in_a, CHI2_2DOF - chi_a, 0.0)))
     return float(score), in_a & in_b
 
 
@@ -260,7 +261,7 @@ def _pose_from_homography(H, K, ua, ub, max_reproj_px: float):
     # x_b = R x_a + t, as recoverPose; t is divided by the plane's distance, so normalised here
     _, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
     counts = [int(_triangulate(K, R, _unit(t), ua, ub, max_reproj_px)[1].sum())
-              for R, t in zip(Rs, ts)]
+              for R, t in zip(Rs, ts, strict=True)]
     best = int(np.argmax(counts))  # the first of equals
     second = max(counts[:best] + counts[best + 1:], default=0)
     note = ""

@@ -10,13 +10,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from graphslam.backend_table import (DEFAULT_BACKEND, DEFAULT_POSE_GRAPH_BACKEND, TABLE,
-                                     VISUAL_COMPARE_ENTRIES, BackendDescriptor, Implementation,
-                                     descriptor, load)
-from slamcore.planar.backend import Backend
+from graphslam.backend_table import (
+    DEFAULT_BACKEND,
+    DEFAULT_POSE_GRAPH_BACKEND,
+    TABLE,
+    VISUAL_COMPARE_ENTRIES,
+    BackendDescriptor,
+    Implementation,
+    descriptor,
+    load,
+)
 from slamcore.config import ConfigFile, load_section
 from slamcore.errors import ConfigError, InputError
 from slamcore.input_files import check_input_path
+from slamcore.planar.backend import Backend
 from slamcore.planar.records import Dataset
 
 if TYPE_CHECKING:
@@ -28,7 +35,7 @@ if TYPE_CHECKING:
 #: A parsed config file, a path to one, or None (defaults only).
 ConfigSource = ConfigFile | str | Path | None
 
-#: Every section a config file may hold (``tests/test_config_sections.py`` checks
+#: Every section a config file may hold (``tests/repo/test_config_sections.py`` checks
 #: this list against the ``SECTION`` of every config dataclass in the tree).
 CONFIG_SECTIONS = (
     "synthetic", "isam2", "ekf", "fastslam",  # 2-D worlds and back ends
@@ -197,8 +204,12 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
         return False
     if is_bag_dataset(spec):
         return False
-    from graphslam.sources.posegraph_files import (TAGS, first_tag, has_landmark_lines,
-                                                   is_pose_graph_tag)
+    from graphslam.sources.posegraph_files import (
+        TAGS,
+        first_tag,
+        has_landmark_lines,
+        is_pose_graph_tag,
+    )
 
     tag = first_tag(spec)
     if tag is None or not is_pose_graph_tag(tag):
@@ -331,7 +342,10 @@ def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSou
 
         return read_bag(spec, parse_topics(topics))
     if spec == "synthetic-images":
-        from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+        from graphslam.sources.spatial.synthetic_images import (
+            SyntheticImagesConfig,
+            make_synthetic_images,
+        )
 
         return make_synthetic_images(load_section(SyntheticImagesConfig, config, {"seed": seed}))
     from graphslam.sources.spatial.images import read_image_sequence

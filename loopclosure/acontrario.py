@@ -99,7 +99,7 @@ def hull_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray) -> float:
 def _clip_in_front(rays: np.ndarray, eps: float = 1e-6) -> np.ndarray:
     """A closed polygon of (n, 3) rays clipped to ``z >= eps`` (Sutherland-Hodgman, one plane)."""
     out = []
-    for cur, nxt in zip(rays, np.roll(rays, -1, axis=0)):
+    for cur, nxt in zip(rays, np.roll(rays, -1, axis=0), strict=True):
         if cur[2] >= eps:
             out.append(cur)
         if (cur[2] >= eps) != (nxt[2] >= eps):

@@ -29,7 +29,7 @@ query's own odometry neighbour, never a loop).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

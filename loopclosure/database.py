@@ -120,7 +120,7 @@ class BowVector:
         return int(self.word_ids.size)
 
     @classmethod
-    def empty(cls) -> "BowVector":
+    def empty(cls) -> BowVector:
         return cls(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
 
 
@@ -230,7 +230,7 @@ class BowDatabase:
             self._ids_view[w] = self._wts_view[w] = None  # (stale below) frees the old arrays
             self._capacity[w] = cap
         post_ids, post_wts = self._post_ids, self._post_wts
-        for w, n, x in zip(words.tolist(), slots.tolist(), bow.weights.tolist()):
+        for w, n, x in zip(words.tolist(), slots.tolist(), bow.weights.tolist(), strict=True):
             post_ids[w][n] = image
             post_wts[w][n] = x
         self._count[words] += 1
@@ -396,7 +396,7 @@ class BowDatabase:
         big = int(np.max(np.add.reduceat(lengths, cuts[:-1]))) if len(ns) else 0
         self._reserve(big)
         ids_view, wts_view = self._ids_view, self._wts_view
-        for a, b in zip(cuts[:-1], cuts[1:]):
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
             n = int(starts[b - 1] - starts[a]) + ns[b - 1]
             ids, wts = self._scan_ids[:n], self._scan_wts[:n]
             chunk = words[a:b]
@@ -410,7 +410,7 @@ class BowDatabase:
         w = np.array(words, dtype=np.intp)
         stale = w[self._stale[w]]
         if stale.size:
-            for v, m in zip(stale.tolist(), self._count[stale].tolist()):
+            for v, m in zip(stale.tolist(), self._count[stale].tolist(), strict=True):
                 self._ids_view[v] = self._post_ids[v][:m]
                 self._wts_view[v] = self._post_wts[v][:m]
             self._stale[stale] = False
@@ -448,7 +448,7 @@ class BowDatabase:
         """out[first + r] = exact score of the row [starts[r], ends[r]), n entries in all."""
         self._reserve(n)
         words, contrib = self._scan_ids[:n], self._rescore_wts[:n]
-        spans = [(s, e) for s, e in zip(starts, ends) if e > s]
+        spans = [(s, e) for s, e in zip(starts, ends, strict=True) if e > s]
         np.concatenate([self._row_words[s:e] for s, e in spans], out=words, casting="same_kind")
         np.concatenate([self._row_wts[s:e] for s, e in spans], out=contrib)
         np.minimum(dense_q.take(words), contrib, out=contrib)
@@ -481,4 +481,4 @@ def _best(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]
         keep = scores >= kth
         ids, scores = ids[keep], scores[keep]
     order = np.lexsort((ids, -scores))[:k]
-    return [(int(i), float(min(1.0, s))) for i, s in zip(ids[order], scores[order])]
+    return [(int(i), float(min(1.0, s))) for i, s in zip(ids[order], scores[order], strict=True)]

@@ -45,18 +45,19 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, ClassVar, Iterable
+from typing import ClassVar
 
 import numpy as np
 
 from frontend.orb import OrbConfig, OrbDetector
-from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError
 from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
 from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, PairVerifier, Verification, VerifyConfig
+from slamcore.config import bounded, validate
+from slamcore.errors import ConfigError
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
 

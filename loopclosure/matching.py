@@ -20,7 +20,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-
 __all__ = ["match_descriptors", "match_from_distances", "guided_match", "epipolar_distances",
            "epipolar_residuals"]
 

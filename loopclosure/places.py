@@ -2,7 +2,8 @@
 
 An image resembles the images just before it because they are recent, not
 because the camera came back: those must not answer its query. How many to
-exclude depends on the input (the ``mode`` of :class:`loopclosure.detector.LoopDetectorConfig`; ``"auto"`` picks):
+exclude depends on the input (the ``mode`` of
+:class:`loopclosure.detector.LoopDetectorConfig`; ``"auto"`` picks):
 
 - ``"video"``: consecutive frames overlap heavily. The most recent
   ``exclude_recent_s`` seconds are excluded when the images have timestamps,
@@ -26,8 +27,9 @@ from __future__ import annotations
 
 import re
 import typing
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 

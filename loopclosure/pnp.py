@@ -29,11 +29,11 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from slamcore.spatial.geometry import invert_pose
-from slamcore.spatial.camera import project_jacobians
-from slamcore.config import bounded, validate
-from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED
 from loopclosure.matching import match_descriptors
+from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED
+from slamcore.config import bounded, validate
+from slamcore.spatial.camera import project_jacobians
+from slamcore.spatial.geometry import invert_pose
 
 __all__ = ["PnpConfig", "PnpResult", "relative_pose_pnp"]
 

@@ -255,7 +255,7 @@ class PairVerifier(Protocol):
     uint8 ORB descriptors; ``K`` (3, 3) or None; ``distortion`` OpenCV
     coefficients or None; ``size_*`` (width, height) in pixels or None. The
     answer's ``R``/``t_unit`` (the relative pose of the views) may be None; the
-    detector keeps them for the closure when given. ``tests/test_verifier_contract.py``
+    detector keeps them for the closure when given. ``tests/loopclosure/test_verifier_contract.py``
     holds the contract every implementation passes.
     """
 

@@ -54,11 +54,24 @@ from __future__ import annotations
 import numpy as np
 
 from loopclosure.descriptor_distance import check_query, metric_for, nearest_centre, popcount_sum
-from loopclosure.vocabulary_file import (flat_arrays, read_kind, read_npz, restore_flat,
-                                         restore_tree, save_npz, tree_arrays)
-from loopclosure.vocabulary_training import (as_training_set, centres_from_kmeans, check_int,
-                                             idf_from_images, kmeans_features,
-                                             n_distinct_at_least, one_thread)
+from loopclosure.vocabulary_file import (
+    flat_arrays,
+    read_kind,
+    read_npz,
+    restore_flat,
+    restore_tree,
+    save_npz,
+    tree_arrays,
+)
+from loopclosure.vocabulary_training import (
+    as_training_set,
+    centres_from_kmeans,
+    check_int,
+    idf_from_images,
+    kmeans_features,
+    n_distinct_at_least,
+    one_thread,
+)
 from slamcore.errors import ConfigError, InputError, quote
 
 
@@ -73,7 +86,7 @@ def _kmeans():
     return KMeans, MiniBatchKMeans
 
 
-def load_vocabulary(path) -> "FlatVocabulary | VocabularyTree":
+def load_vocabulary(path) -> FlatVocabulary | VocabularyTree:
     """Load a vocabulary of either kind from ``path`` (InputError when bad)."""
     data = read_npz(path)
     found = {"FlatVocabulary": (FlatVocabulary, restore_flat),
@@ -116,7 +129,7 @@ class FlatVocabulary:
         self.minibatch = minibatch
         self.n_init = n_init
 
-    def fit(self, descriptors) -> "FlatVocabulary":
+    def fit(self, descriptors) -> FlatVocabulary:
         """Learn the words from an (N, D) array or a list of per-image (N_i, D) arrays."""
         _kmeans()  # before one_thread(): see _kmeans
         n_words = check_int("n_words", self.n_words, 1)
@@ -154,7 +167,7 @@ class FlatVocabulary:
         save_npz(path, self.kind, flat_arrays(self))
 
     @classmethod
-    def load(cls, path) -> "FlatVocabulary":
+    def load(cls, path) -> FlatVocabulary:
         """Read a file written by :meth:`save`; InputError naming the file when it is bad."""
         return restore_flat(cls, read_kind(path, cls.kind), path)
 
@@ -238,11 +251,12 @@ class VocabularyTree:
             pts = pts[np.sort(pick)]
         if not n_distinct_at_least(pts, k):
             return None
-        km = _kmeans()[0](n_clusters=k, init=self.init, n_init=int(self.n_init), max_iter=max_iter, random_state=seed)
+        km = _kmeans()[0](n_clusters=k, init=self.init, n_init=int(self.n_init),
+                          max_iter=max_iter, random_state=seed)
         km.fit(kmeans_features(pts, metric))
         return centres_from_kmeans(km.cluster_centers_, metric)
 
-    def fit(self, descriptors) -> "VocabularyTree":
+    def fit(self, descriptors) -> VocabularyTree:
         """Learn the tree from an (N, D) array or a list of per-image (N_i, D) arrays."""
         _kmeans()  # before one_thread(): see _kmeans
         k, depth, seed, max_iter, max_samples = self._check_params()
@@ -338,6 +352,6 @@ class VocabularyTree:
         save_npz(path, self.kind, tree_arrays(self))
 
     @classmethod
-    def load(cls, path) -> "VocabularyTree":
+    def load(cls, path) -> VocabularyTree:
         """Read a file written by :meth:`save`; InputError naming the file when it is bad."""
         return restore_tree(cls, read_kind(path, cls.kind), path)

@@ -17,8 +17,8 @@ this module; the restore functions take the class to build as an argument.
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

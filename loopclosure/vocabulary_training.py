@@ -9,6 +9,7 @@ float32.
 from __future__ import annotations
 
 import numpy as np
+
 # threadpoolctl is a dependency of scikit-learn (installed with it), used here
 # only to pin k-means to one thread: see one_thread.
 from threadpoolctl import threadpool_limits

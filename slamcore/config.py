@@ -263,7 +263,7 @@ class ConfigFile:
     lines: dict = field(default_factory=dict)
 
     @classmethod
-    def read(cls, path: str | Path | None) -> "ConfigFile":
+    def read(cls, path: str | Path | None) -> ConfigFile:
         """Parse ``path`` (TOML or YAML); ``None`` gives an empty config."""
         if path is None:
             return cls()
@@ -342,7 +342,7 @@ def _field_default(cls: type, name: str) -> Any:
     return None
 
 
-def load_section(cls: type[T], source: "ConfigFile | str | Path | None",
+def load_section(cls: type[T], source: ConfigFile | str | Path | None,
                  overrides: dict[str, Any] | None = None) -> T:
     """One section: ``source`` is a :class:`ConfigFile`, a file path, or None (defaults)."""
     config = source if isinstance(source, ConfigFile) else ConfigFile.read(source)

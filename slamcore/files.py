@@ -74,7 +74,7 @@ def replacing_all(paths: list[Path]) -> Iterator[list[Path]]:
             tmps.append(temporary_beside(p))
         yield list(tmps)
         paths[-1].unlink(missing_ok=True)
-        for tmp, p in zip(tmps, paths):
+        for tmp, p in zip(tmps, paths, strict=True):
             move_into_place(tmp, p)
     except BaseException:
         for tmp in tmps:

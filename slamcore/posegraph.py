@@ -102,7 +102,7 @@ class PoseGraph:
         rank = self.index_of(self.edges.ravel()).reshape(-1, 2)
         return np.abs(rank[:, 0] - rank[:, 1]) == 1
 
-    def subgraph(self, keep_rows: np.ndarray) -> "PoseGraph":
+    def subgraph(self, keep_rows: np.ndarray) -> PoseGraph:
         """The poses of ``keep_rows`` ((N,) bool) and the edges among them."""
         from dataclasses import replace
 
@@ -118,7 +118,7 @@ class PoseGraph:
             information_fixed=(None if self.information_fixed is None
                                else self.information_fixed[keep]))
 
-    def with_vertices(self, vertices: np.ndarray) -> "PoseGraph":
+    def with_vertices(self, vertices: np.ndarray) -> PoseGraph:
         """The same graph with other vertex values (e.g. an optimised estimate)."""
         from dataclasses import replace
 

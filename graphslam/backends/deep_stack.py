@@ -18,7 +18,7 @@ from typing import TypeVar
 T = TypeVar("T")
 
 #: Address space of the worker's stack: 100 000 chained poses need well under
-#: this (measured with ``tests/test_posegraph_deep.py``), and an untouched stack
+#: this (measured with ``tests/graphslam/backends/test_posegraph_deep.py``), and an untouched stack
 #: costs no memory.
 DEEP_STACK_BYTES = 2 << 30
 

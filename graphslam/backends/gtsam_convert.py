@@ -15,8 +15,14 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from slamcore.errors import UnsupportedError
-from slamcore.planar.records import Dataset
-from slamcore.planar.records import Estimate, LoopClosure, Observation, ObservationKind, Odometry
+from slamcore.planar.records import (
+    Dataset,
+    Estimate,
+    LoopClosure,
+    Observation,
+    ObservationKind,
+    Odometry,
+)
 
 #: Reorders ``[range, bearing]`` (ours) into ``[bearing, range]`` (gtsam's BearingRange).
 _RB_TO_BR = np.array([[0.0, 1.0], [1.0, 0.0]])
@@ -128,9 +134,9 @@ def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.Nonlinea
 
 def estimate_values(estimate: Estimate) -> gtsam.Values:
     values = gtsam.Values()
-    for pid, p in zip(estimate.pose_ids, estimate.wTb):
+    for pid, p in zip(estimate.pose_ids, estimate.wTb, strict=True):
         values.insert(X(int(pid)), pose2(p))
-    for lid, m in zip(estimate.landmark_ids, estimate.landmarks_w):
+    for lid, m in zip(estimate.landmark_ids, estimate.landmarks_w, strict=True):
         values.insert(L(int(lid)), np.asarray(m, dtype=float))
     return values
 

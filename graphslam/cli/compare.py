@@ -90,9 +90,8 @@ def register(sub) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam import registry
-    from graphslam.pipelines import compare
-
     from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.pipelines import compare
 
     check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
@@ -192,7 +191,12 @@ def _write_comparison(args, entries, header: dict, out_dir: Path, rerun_mode: st
     and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
     of the back ends that have a result (the failed and cut ones marked); the exit status."""
     from graphslam.cli.common import (
-        EXIT_FAILED, EXIT_INTERRUPTED, close_recorder, open_recorder, recoveries_text, warn,
+        EXIT_FAILED,
+        EXIT_INTERRUPTED,
+        close_recorder,
+        open_recorder,
+        recoveries_text,
+        warn,
     )
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard
@@ -286,7 +290,8 @@ def format_table(entries) -> str:
     for r in rows:
         cells.append(["n/a" if r.get(k) is None else format(r[k], f) for k, _, f in cols])
     widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
-    lines = ["  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths)))
+    lines = ["  ".join(c.rjust(w) if i else c.ljust(w)
+                       for i, (c, w) in enumerate(zip(row, widths, strict=True)))
              for row in cells]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)

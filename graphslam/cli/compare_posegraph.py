@@ -9,6 +9,7 @@ from pathlib import Path
 
 from slamcore.errors import GraphSlamError
 
+
 def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
     """Whether ``compare`` compares pose-graph solvers: a pose graph, and ``batch`` or
     ``auto`` named, or a 3-D graph (which only those solvers take)."""
@@ -62,7 +63,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
             fmt(m.ate_rmse_m, ".4f"), fmt(r.rms_to_first_m, ".3g"), fmt(m.wall_s, ".2f"))))
     widths = [max(len(row[c]) for row in rows) for c in range(len(rows[0]))]
     print("\n".join("  ".join(v.rjust(w) if c else v.ljust(w)
-                              for c, (v, w) in enumerate(zip(row, widths))) for row in rows))
+                              for c, (v, w) in enumerate(zip(row, widths, strict=True))) for row in rows))
     writers.write_json(out_dir / "compare.json", {
         "dataset": graph.name, "kind": "pose graph",
         "graph": {"dim": graph.dim, "format": graph.format, "poses": graph.n_poses,
@@ -104,7 +105,8 @@ def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[s
         {r.backend: r.metrics.final_cost for r in done})
     written = ["compare.png"]
     if rerun_mode != "off":
-        log, mode = open_recorder(open_posegraph_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url)
+        log, mode = open_recorder(open_posegraph_recording, rerun_mode, out_dir / "compare.rrd",
+                                  args.rerun_url)
         for r in done:
             log_pose_graph(log, solved_graph(graph, r.result), r.result.params, r.result.rejected,
                            root=f"world/{r.backend}")

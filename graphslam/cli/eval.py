@@ -39,7 +39,10 @@ examples:
 def register(sub) -> None:
     """Add the ``eval`` sub-command to the ``graphslam`` parser."""
     from graphslam.evaluation.trajectory import (
-        ALIGN_METHODS, DEFAULT_MAX_DIFF_S, DEFAULT_OFFSET_S, DELTA_UNITS,
+        ALIGN_METHODS,
+        DEFAULT_MAX_DIFF_S,
+        DEFAULT_OFFSET_S,
+        DELTA_UNITS,
     )
     from graphslam.sources.ground_truth import TRAJECTORY_FORMATS
 
@@ -90,7 +93,7 @@ def format_table(results) -> str:
                                                   "kitti_drift_pct", "kitti_drift_deg_per_100m"))))
     widths = [max(len(row[c]) for row in rows) for c in range(len(head))]
     return "\n".join("  ".join(v.rjust(w) if c else v.ljust(w)
-                               for c, (v, w) in enumerate(zip(row, widths))) for row in rows)
+                               for c, (v, w) in enumerate(zip(row, widths, strict=True))) for row in rows)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -98,9 +101,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_OK, warn
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.pipelines.trajectory_eval import (
-        coverage_warnings, evaluate_files, write_eval_json,
+        coverage_warnings,
+        evaluate_files,
+        write_eval_json,
     )
-
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out)  # refused now, not after scoring

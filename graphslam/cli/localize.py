@@ -15,7 +15,12 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    TOPICS_HELP, close_recorder, fmt, open_recorder, report_outputs, summary_table,
+    TOPICS_HELP,
+    close_recorder,
+    fmt,
+    open_recorder,
+    report_outputs,
+    summary_table,
 )
 
 EPILOG = """\

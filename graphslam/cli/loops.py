@@ -80,12 +80,17 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, detect_all, detect_loops, folder_places, train_vocabulary,
+        check_vocabulary,
+        describe,
+        detect_all,
+        detect_loops,
+        folder_places,
+        train_vocabulary,
     )
     from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
-    from loopclosure.verify import VerifyConfig
     from loopclosure.shipped import SHIPPED_VOCABULARY
+    from loopclosure.verify import VerifyConfig
     from loopclosure.vocabulary import load_vocabulary
 
     t0 = time.perf_counter()

@@ -11,7 +11,11 @@ import argparse
 import sys
 
 from graphslam.cli.common import (
-    EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line,
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    check_path_arguments,
+    os_error_line,
 )
 from slamcore.errors import GraphSlamError
 

@@ -63,10 +63,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
-    from slamcore.files import check_output_file, replacing
+    from graphslam.registry import read_config
     from graphslam.sources.spatial.sequence import expand_images
     from loopclosure.detector import LoopDetectorConfig
-    from graphslam.registry import read_config
+    from slamcore.files import check_output_file, replacing
 
     check_output_file(args.out)  # refused now, not after the training
     paths = expand_images(args.images)

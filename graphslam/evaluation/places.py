@@ -75,7 +75,7 @@ def _image_truth(path: Path, n: int) -> set[tuple[int, int]]:
         raise InputError(f"truth image is {img.shape[1]}x{img.shape[0]}, the folder has {n} "
                          f"images (need {n}x{n})", path)
     i, j = np.nonzero(img)
-    return {(int(max(a, b)), int(min(a, b))) for a, b in zip(i, j) if a != b}
+    return {(int(max(a, b)), int(min(a, b))) for a, b in zip(i, j, strict=True) if a != b}
 
 
 def read_truth(path: str | Path, image_paths: list[Path]) -> set[tuple[int, int]]:

@@ -24,7 +24,6 @@ from slamcore.planar import geometry as se2
 from slamcore.planar.geometry import between, wrap_angle
 from slamcore.planar.records import Dataset, Estimate, ObservationKind
 
-
 #: An estimate whose ATE is more than this many times its own dead reckoning's
 #: is absurd: the back end made the odometry it started from an order of
 #: magnitude worse (measured: iSAM2 at 100x the course's noise, 3.5e9 m against
@@ -249,7 +248,7 @@ def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> 
                            "nees_in_bounds_fraction": None}
     if gt is None:
         return out
-    gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1]))
+    gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1], strict=True))
     keep = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)
     err = errors_against_truth(est.pose_ids[keep], est.wTb[keep], gt_of)
     out["final_pose_error_m"] = float(np.linalg.norm(err[-1, :2]))
@@ -294,7 +293,7 @@ def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> f
         nu = se2.innovation(z[:, None, :], se2.observe(np.asarray(f.wTb_true)[None], lm)[None])
         d2 = np.einsum("mli,mij,mlj->ml", nu, Rinv, nu)
         rows, cols = linear_sum_assignment(d2)
-        got = dict(zip(rows.tolist(), ids[cols].tolist()))
+        got = dict(zip(rows.tolist(), ids[cols].tolist(), strict=True))
         for i, t in enumerate(f.true_landmark_ids):
             n += 1
             correct += int(got.get(i) == int(t))

@@ -24,7 +24,6 @@ import math
 
 import numpy as np
 
-
 from graphslam.evaluation.alignment import umeyama
 from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError

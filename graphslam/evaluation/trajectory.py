@@ -217,14 +217,14 @@ def rpe_pairs(poses: np.ndarray, delta: float, unit: str) -> list[tuple[int, int
     """evo's consecutive pairs ``delta`` frames, or ``delta`` metres of path, apart."""
     if unit == "frames":
         ids = np.arange(0, len(poses), int(delta))
-        return [(int(i), int(j)) for i, j in zip(ids, ids[1:])]
+        return [(int(i), int(j)) for i, j in zip(ids, ids[1:], strict=False)]
     kept, travelled = [0], 0.0
     for i in range(1, len(poses)):
         travelled += float(np.linalg.norm(poses[i, :3, 3] - poses[i - 1, :3, 3]))
         if travelled >= delta:
             kept.append(i)
             travelled = 0.0
-    return list(zip(kept, kept[1:]))
+    return list(zip(kept, kept[1:], strict=False))
 
 
 def rpe(ref: np.ndarray, est: np.ndarray, pairs: list[tuple[int, int]]

@@ -45,7 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS, PlanarMap
+from graphslam.maps.planar_map import ARRAYS as PLANAR_ARRAYS
+from graphslam.maps.planar_map import PlanarMap
 from graphslam.maps.spatial_map import ARRAYS, SpatialMap
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import inside_folder, replacing_all

@@ -19,7 +19,7 @@ from slamcore.spatial.geometry import rotation_to_quaternion
 
 _UPPER = np.triu_indices(6)
 HEADER = ("frame,t,status,x,y,z,qx,qy,qz,qw,"
-          + ",".join(f"c{i}{j}" for i, j in zip(*_UPPER)))
+          + ",".join(f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)))
 
 
 def write_localize_csv(path: Path, frames, stamps, statuses, poses, covariances) -> None:
@@ -28,7 +28,7 @@ def write_localize_csv(path: Path, frames, stamps, statuses, poses, covariances)
     whole = bool(np.all(stamps == np.round(stamps)))  # frame indices, not seconds
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write(HEADER + "\n")
-        for frame, t, status, T, C in zip(frames, stamps, statuses, poses, covariances):
+        for frame, t, status, T, C in zip(frames, stamps, statuses, poses, covariances, strict=True):
             stamp = f"{int(t)}" if whole else f"{t:.6f}"
             row = [str(int(frame)), stamp, status]
             if T is None:

@@ -59,10 +59,10 @@ def graph_lines(graph: pg.PoseGraph) -> list[str]:
     vertex_tag, edge_tag = TAG_NAMES[(graph.format, graph.dim)]
     # poses without a vertex line stay without one, so an edge-only file stays edge-only
     lines = [f"{vertex_tag} {k} " + " ".join(map(_num, row))
-             for k, row, has in zip(graph.ids.tolist(), graph.vertices, graph.has_vertex) if has]
+             for k, row, has in zip(graph.ids.tolist(), graph.vertices, graph.has_vertex, strict=True) if has]
     order = information_order(graph.format, graph.dim)
     sqrt = graph.format == "toro" and graph.noise == "sqrt_information"
-    for (a, b), z, info in zip(graph.edges.tolist(), graph.measurements, graph.information):
+    for (a, b), z, info in zip(graph.edges.tolist(), graph.measurements, graph.information, strict=True):
         if sqrt:  # upper Cholesky factor: read back as R^T R (to rounding, not bit for bit)
             info = np.linalg.cholesky(info).T
         numbers = [info[r, c] for r, c in order]

@@ -58,7 +58,7 @@ def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray
     try:
         with Writer(tmp) as writer:
             conn = writer.add_connection(topic, _POSE, typestore=ts)
-            for k, (t_ns, T, qk) in enumerate(zip(ns.tolist(), wTc, q)):
+            for k, (t_ns, T, qk) in enumerate(zip(ns.tolist(), wTc, q, strict=True)):
                 header = types["std_msgs/msg/Header"](
                     seq=k, stamp=types["builtin_interfaces/msg/Time"](
                         sec=t_ns // 10**9, nanosec=t_ns % 10**9), frame_id=FRAME_ID)

@@ -52,7 +52,7 @@ def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.nd
     dim = landmarks_w.shape[1] if landmarks_w.ndim == 2 else 2
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("id," + ",".join("xyz"[:dim]) + "\n")
-        for lid, p in zip(landmark_ids, landmarks_w.reshape(-1, dim)):
+        for lid, p in zip(landmark_ids, landmarks_w.reshape(-1, dim), strict=True):
             f.write(f"{int(lid)}," + ",".join(f"{v:.9g}" for v in p) + "\n")
 
 
@@ -135,6 +135,6 @@ def write_nees_csv(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:
     """``step,pose_id,nees`` a line: the pose NEES of each step (``graphslam run --nees``)."""
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("step,pose_id,nees\n")
-        for k, (i, v) in enumerate(zip(pose_ids, nees)):
+        for k, (i, v) in enumerate(zip(pose_ids, nees, strict=True)):
             f.write(f"{k},{int(i)},{float(v):.9g}\n")
     return path

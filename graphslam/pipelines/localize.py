@@ -43,8 +43,8 @@ import numpy as np
 
 from frontend.orb import OrbDetector
 from graphslam.maps.spatial_map import SpatialMap
-from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.database import BowDatabase
+from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.pnp import PnpConfig, pnp_covariance, pose_from_rodrigues, relative_pose_pnp
 from slamcore.config import bounded, validate
 from slamcore.errors import GraphSlamError

@@ -35,21 +35,22 @@ and handed to ``on_candidate`` (the Rerun recorder) as it happens.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
+from loopclosure.detector import CandidateRecord, LoopDetector
+from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
 from slamcore.config import bounded, validate
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.files import atomic_open
-from slamcore.spatial.records import PoseClosure
 from slamcore.spatial.backend import VisualBackend
-from loopclosure.detector import CandidateRecord, LoopDetector
-from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
+from slamcore.spatial.records import PoseClosure
 
 #: ``on_candidate(k, record, image, links)`` after each query that left a record;
 #: ``links`` (M, 2, 2) are the PnP inliers ``[query pixel, match pixel]``, or None.

@@ -24,8 +24,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from frontend.search_matchers import extract_patches
 from frontend.orb import OrbDetector
+from frontend.search_matchers import extract_patches
 from graphslam.maps.spatial_map import SpatialMap, bow_csr
 from loopclosure.database import BowDatabase
 from loopclosure.matching import match_descriptors

@@ -15,13 +15,15 @@ import numpy as np
 
 from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines.common import (
-    interrupt_between_frames, progress_bar, signal_hook, stop_requested,
+    interrupt_between_frames,
+    progress_bar,
+    signal_hook,
+    stop_requested,
 )
-from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
-from slamcore.planar.records import Dataset
-from slamcore.planar.records import Estimate, Frame
+from slamcore.planar.backend import Backend
+from slamcore.planar.records import Dataset, Estimate, Frame
 
 #: ``on_step(step_index, frame, backend)`` hook, called after each frame.
 StepHook = Callable[[int, Frame, Backend], None]
@@ -114,7 +116,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
         if frame.observations:
             backend.update(frame.observations)
             if frame.true_landmark_ids is not None:
-                assoc.extend(zip(frame.true_landmark_ids, backend.associations()))
+                assoc.extend(zip(frame.true_landmark_ids, backend.associations(), strict=True))
         for lc in frame.loop_closures:
             if backend.supports_loop_closures:
                 backend.add_loop_closure(lc)

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Sized
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable, Sized
 
 __all__ = ["progress", "ProgressLines", "PROGRESS_LINE_INTERVAL_S"]
 

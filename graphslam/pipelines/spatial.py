@@ -47,18 +47,21 @@ from typing import ClassVar, Literal, get_args
 
 import numpy as np
 
-from slamcore.spatial.geometry import invert_pose, so3_exp
 from frontend.tracking import Tracker, TrackingResult
-from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from graphslam import registry
 from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import (
-    interrupt_between_frames, progress_bar, signal_hook, stop_requested,
+    interrupt_between_frames,
+    progress_bar,
+    signal_hook,
+    stop_requested,
 )
 from graphslam.sources.spatial.sequence import ImageSequence
+from slamcore.config import bounded, validate
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from slamcore.spatial.backend import VisualBackend
+from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
 
 #: Where a visual run's odometry comes from (module docstring).
@@ -238,8 +241,8 @@ def resolve_odometry(sequence: ImageSequence, mode: str,
             raise GraphSlamError(f"sequence {sequence.name!r} has no odometry of its own; "
                                  "use --odometry derived (needs ground truth) or none")
         odo = np.asarray(own, dtype=np.float64)
-        cov = np.broadcast_to(np.asarray(getattr(sequence, "odometry_covariance"),
-                                         dtype=np.float64), (len(odo), 6, 6))
+        own_cov = getattr(sequence, "odometry_covariance")  # noqa: B009 (not on ImageSequence)
+        cov = np.broadcast_to(np.asarray(own_cov, dtype=np.float64), (len(odo), 6, 6))
         st, sr = getattr(sequence, "odometry_sigmas", (None, None))
         stated = None if st is None or sr is None else {"kind": "sequence", "sigma_t_m_per_frame": st,
                                           "sigma_r_deg_per_frame": math.degrees(sr)}

@@ -90,7 +90,7 @@ class SweepSpec:
         for dataset, backend in itertools.product(self.datasets, self.backends):
             sections = run_sections(dataset, backend)
             for combo in itertools.product(*self.set_values):
-                applied = {k: v for k, v in zip(self.set_keys, combo)
+                applied = {k: v for k, v in zip(self.set_keys, combo, strict=True)
                            if k.split(".", 1)[0] in sections}
                 config = merged_config(self.base_config, applied)
                 chash = config_hash(dataset, backend, self.max_steps, self.nees, config)

@@ -42,7 +42,7 @@ def distinct_labels(paths: Sequence[str | Path]) -> list[str]:
     parts = [Path(p).parts or (str(p),) for p in paths]
     depth = [1] * len(parts)
     while True:
-        labels = [str(Path(*pp[-d:])) for pp, d in zip(parts, depth)]
+        labels = [str(Path(*pp[-d:])) for pp, d in zip(parts, depth, strict=True)]
         clash = {lab for lab in labels if labels.count(lab) > 1}
         grow = [i for i, lab in enumerate(labels) if lab in clash and depth[i] < len(parts[i])]
         if not grow:
@@ -72,7 +72,7 @@ def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptio
     """Score every estimate against ``ground_truth`` (same format and times options)."""
     ref = load(ground_truth, fmt, times)
     out = []
-    for path, label in zip(estimates, distinct_labels(estimates)):
+    for path, label in zip(estimates, distinct_labels(estimates), strict=True):
         est = load(path, fmt, times)
         out.append(EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s,
                                                       est.wTc, options), label))

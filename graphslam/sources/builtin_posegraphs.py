@@ -139,7 +139,7 @@ def _city10000_edges(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _city10000_in_bulk(path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`_city10000_edges` of a file whose lines are all well formed, else None
-    (the same arrays: ``tests/test_command_costs.py``)."""
+    (the same arrays: ``tests/graphslam/cli/test_command_costs.py``)."""
     got = rows_by_tag(path)
     if got is None or set(got[0]) != {"EDGE2"}:
         return None
@@ -150,7 +150,7 @@ def _city10000_in_bulk(path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None
     if ids is None:
         return None
     n = np.array(ids[3::4])
-    if (n < 1).any() or any(len(t) != 6 + 3 * k for t, k in zip(rows, n.tolist())):
+    if (n < 1).any() or any(len(t) != 6 + 3 * k for t, k in zip(rows, n.tolist(), strict=True)):
         return None
     first = numbers_in_bulk([t[6:9] for t in rows], 3)
     others = [x for t in rows for x in t[9:]]  # later hypotheses: checked, not kept
@@ -163,7 +163,7 @@ def _city10000_in_bulk(path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None
 def _truth_matrices(truth: np.ndarray) -> np.ndarray:
     """(N, 4, 4) ``wTc`` of (N, 3) planar poses ``[x, y, theta]``."""
     wTc = np.tile(np.eye(4), (len(truth), 1, 1))
-    for T, (x, y, th) in zip(wTc, truth.tolist()):
+    for T, (x, y, th) in zip(wTc, truth.tolist(), strict=True):
         T[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
         T[:2, 3] = x, y
     return wTc

@@ -31,8 +31,14 @@ import numpy as np
 
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from graphslam.sources.spatial.sequence import (
-    ASSOCIATION_MAX_DT_S, ImageSequence, associate, check_increasing, check_rotation,
-    parse_floats, quat_to_rotation, read_lines,
+    ASSOCIATION_MAX_DT_S,
+    ImageSequence,
+    associate,
+    check_increasing,
+    check_rotation,
+    parse_floats,
+    quat_to_rotation,
+    read_lines,
 )
 from slamcore.errors import InputError
 from slamcore.planar.records import Dataset
@@ -193,7 +199,7 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
         if getattr(sequence, "odometry", None) is not None:
             raise InputError(f"{int(np.sum(~keep))} of {len(keep)} frames have no ground truth "
                              f"({how}), and {sequence.name!r} cannot drop frames", truth.path)
-        changes["image_paths"] = [p for p, k in zip(sequence.image_paths, keep) if k]
+        changes["image_paths"] = [p for p, k in zip(sequence.image_paths, keep, strict=True) if k]
         if sequence.stamps_s is not None:
             changes["stamps_s"] = np.asarray(sequence.stamps_s)[keep]
     return dataclasses.replace(sequence, **changes)

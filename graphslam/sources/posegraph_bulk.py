@@ -8,7 +8,7 @@ parsed and checked at once; the reader uses it first and falls back to its
 line loop whenever it declines (returns None: a line the loop would refuse, a
 landmark line, anything the loop has to decide), so every refusal and its
 ``file:line`` still come from the one loop, and a file read either way gives
-the same arrays bit for bit (``tests/test_reader_bulk.py``).
+the same arrays bit for bit (``tests/graphslam/sources/test_reader_bulk.py``).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class Sightings:
 
     @classmethod
     def of_rows(cls, ids: list[tuple[int, int]], numbers: list[list[float]],
-                lines: list[int]) -> "Sightings":
+                lines: list[int]) -> Sightings:
         """From ``(pose, landmark)`` ids and ``[bearing, range, bearing_sigma, range_sigma]``."""
         i = np.array(ids, dtype=np.int64).reshape(-1, 2)
         v = np.array(numbers, dtype=np.float64).reshape(-1, 4)
@@ -125,7 +125,7 @@ def read_in_bulk(path, tags: dict[str, tuple], id_limit: int) -> FileLines | Non
     n_v, n_e, n_f = len(vertex), len(edge), len(fixed_tokens)
     if len(set(ids[:n_v])) != n_v:
         return None  # a pose declared twice: the loop names both lines
-    fixed_lines = [n for r, n in zip(fixes, lines.get("FIX", [])) for _ in r[1:]]
+    fixed_lines = [n for r, n in zip(fixes, lines.get("FIX", []), strict=True) for _ in r[1:]]
     return FileLines(
         kind=kind, vertex_ids=_ints(ids[:n_v]), vertices=v_num,
         vertex_lines=_ints(lines.get(by_role.get("vertex", ""), [])),

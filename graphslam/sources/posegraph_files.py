@@ -42,7 +42,8 @@ deviations 0.10 m and 0.010/0.010/0.040 rad, the inverses of its numbers 10
 and 100/100/25). Nothing in such a file tells the two apart; read as
 information, its optimum (364.49) is neither gtsam's (which takes the numbers
 in its own rotation-first order) nor that of the true noise: pass
-``toro_noise="sqrt_information"`` (``[posegraph] toro_noise``) for such files. Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
+``toro_noise="sqrt_information"`` (``[posegraph] toro_noise``) for such files.
+Blank lines, ``#`` comments and a UTF-8 byte-order mark are skipped.
 
 Information matrices are symmetric by construction: the formats write the upper
 triangle, mirrored here. One that is not positive definite (SE-Sync's
@@ -78,9 +79,8 @@ import numpy as np
 
 from graphslam.sources.posegraph_bulk import FileLines, Sightings, read_in_bulk
 from graphslam.sources.tokens import MAX_ID, check_count, iter_lines, parse_id, parse_numbers
-from slamcore.errors import InputError, quote
 from slamcore import posegraph as pg
-
+from slamcore.errors import InputError, quote
 
 #: tag -> (format, dim, rotation, kind, token count)
 TAGS = {
@@ -378,7 +378,7 @@ def _checked_information(stack: np.ndarray, edge_lines: np.ndarray, dim: int,
     except np.linalg.LinAlgError:
         pass
     bad = np.zeros(len(stack), dtype=bool)
-    for e, (info, line_no) in enumerate(zip(stack, edge_lines.tolist())):
+    for e, (info, line_no) in enumerate(zip(stack, edge_lines.tolist(), strict=True)):
         if not np.isfinite(info).all():
             raise InputError("information matrix is not finite", path, line_no)
         if pg.is_positive_definite(info):

@@ -30,7 +30,8 @@ import pickle
 import queue
 import signal
 import threading
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from slamcore.errors import GraphSlamError
 

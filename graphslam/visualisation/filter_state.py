@@ -161,7 +161,7 @@ class FilterStateLogger:
         """Send the FastSLAM steps held so far (none: nothing)."""
         if not self._rows:
             return
-        steps, stamps, positions, ess = zip(*self._rows)
+        steps, stamps, positions, ess = zip(*self._rows, strict=True)
         timed = all(t is not None for t in stamps)
         self.log.send_particles(self.backend, ParticleSeries(
             np.array(steps, dtype=np.int64), np.array(stamps, dtype=np.float64) if timed else None,

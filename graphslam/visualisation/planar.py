@@ -31,7 +31,9 @@ from slamcore.planar.records import Dataset, Estimate
 if TYPE_CHECKING:  # the recording process needs none of the filters filter_state imports
     from graphslam.visualisation.background import BackgroundLog
     from graphslam.visualisation.filter_state import (
-        CorrelationSnapshot, FilterStateLogger, ParticleSeries,
+        CorrelationSnapshot,
+        FilterStateLogger,
+        ParticleSeries,
     )
 
 
@@ -176,7 +178,7 @@ class RunRecorder:
 
     @classmethod
     def open(cls, mode: str, path: Path, url: str | None = None, *,
-             background: bool = False) -> "RunRecorder":
+             background: bool = False) -> RunRecorder:
         """A recorder; with ``background``, ``save`` records in a second process
         (:mod:`.background`): the run does not wait for Rerun's import and encoding.
         A viewer (``spawn``, ``connect``) is started or reached here, in this process,

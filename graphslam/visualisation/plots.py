@@ -22,7 +22,7 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
               for e in entries]
     errors = []
     if gt is not None:
-        gt_of = dict(zip(gt[0].tolist(), gt[1]))
+        gt_of = dict(zip(gt[0].tolist(), gt[1], strict=True))
         for e in entries:
             est = e.result.estimate
             has = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)  # partial truth
@@ -292,7 +292,7 @@ def plot_pose_graph_comparison(path: Path, title: str, tracks: dict[str, np.ndar
     ax.set_title("estimates seen from above (first pose fixed)")
     names = list(wall_s)
     bars = bx.bar(names, [wall_s[n] for n in names], color=[f"C{i}" for i in range(len(names))])
-    for b, n in zip(bars, names):
+    for b, n in zip(bars, names, strict=True):
         bx.annotate(f"cost {final_cost[n]:.6g}", (b.get_x() + b.get_width() / 2, b.get_height()),
                     ha="center", va="bottom", fontsize=8)
     bx.set_ylabel("wall time [s]")

@@ -65,7 +65,7 @@ class VisualRecorder:
         self._sequence: ImageSequence | None = None
 
     @classmethod
-    def open(cls, mode: str, path: Path | None, url: str | None = None, **kw) -> "VisualRecorder":
+    def open(cls, mode: str, path: Path | None, url: str | None = None, **kw) -> VisualRecorder:
         return cls(RerunLog(mode, path=path, url=url, recording_id="graphslam-visual-run"), **kw)
 
     # ------------------------------------------------------------------ static
@@ -186,7 +186,7 @@ class VisualRecorder:
         color = PALETTE[color_index % len(PALETTE)]
         wTc = np.asarray(est.wTc).reshape(-1, 4, 4)
         ids = np.asarray(est.frame_ids, dtype=np.int64)
-        for j, (k, T) in enumerate(zip(ids, wTc)):
+        for j, (k, T) in enumerate(zip(ids, wTc, strict=True)):
             self._set_time(int(k))
             self._camera(f"world/{backend}/camera", T, K, seq.image_size, color)
             if j % max(1, int(every)) == 0 and j >= 1:
@@ -278,9 +278,9 @@ def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarra
     """The optimised pose graph (2-D views for 2-D graphs, 3-D otherwise):
     ``ROOT/{odometry,closures_kept,closures_rejected}``; rejected
     closures are drawn in red over the kept (translucent green) ones."""
-    from slamcore.posegraph import params_to_matrix
-
     import rerun as rr
+
+    from slamcore.posegraph import params_to_matrix
     T = params_to_matrix(params, graph.rotation)
     xyz = T[:, :graph.dim, -1]
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)

@@ -199,7 +199,7 @@ def odometry_batch(from_ids, to_ids, deltas, covariances) -> list[Odometry]:
     d = _checked_batch(deltas, (3,), "odometry row")
     c = _checked_covariances(covariances, 3, "odometry row")
     return [_bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
-            for k, (a, b) in enumerate(zip(from_ids, to_ids))]
+            for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))]
 
 
 def loop_closure_batch(from_ids, to_ids, deltas, covariances,
@@ -210,7 +210,7 @@ def loop_closure_batch(from_ids, to_ids, deltas, covariances,
     c = _checked_covariances(covariances, 3, "loop closure row")
     return [_bare(LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k],
                   score=None, source=source)
-            for k, (a, b) in enumerate(zip(from_ids, to_ids))]
+            for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))]
 
 
 def range_bearing_batch(pose_ids, landmark_ids, zs, covariances) -> list[Observation]:
@@ -223,7 +223,7 @@ def range_bearing_batch(pose_ids, landmark_ids, zs, covariances) -> list[Observa
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
     return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
                   kind=ObservationKind.RANGE_BEARING, signature=None)
-            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids))]
+            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))]
 
 
 def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
@@ -237,7 +237,7 @@ def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
     return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
                   kind=ObservationKind.RANGE, signature=None)
-            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids))]
+            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -385,6 +385,6 @@ class Dataset:
         ids = np.array([f.pose_id for f in known], dtype=np.int64)
         return ids, np.array([f.wTb_true for f in known], dtype=np.float64)
 
-    def truncated(self, max_frames: int) -> "Dataset":
+    def truncated(self, max_frames: int) -> Dataset:
         """The first ``max_frames`` frames (loop closures to later poses cannot occur)."""
         return replace(self, frames=list(self.frames[:max_frames]))

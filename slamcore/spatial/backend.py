@@ -27,10 +27,16 @@ Pixels are ``[u, v]`` (column, row) with pixel centres at integer coordinates.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+
 import numpy as np
 
 from slamcore.errors import UnsupportedError
-from slamcore.spatial.records import PixelObservations, PixelPredictions, PoseClosure, VisualEstimate
+from slamcore.spatial.records import (
+    PixelObservations,
+    PixelPredictions,
+    PoseClosure,
+    VisualEstimate,
+)
 
 
 class VisualBackend(ABC):

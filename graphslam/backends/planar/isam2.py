@@ -68,16 +68,22 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from graphslam.backends import gtsam_convert as conv
 from graphslam.backends import factorization as fact
+from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.backends.planar.isam2_unknown import MERGE_SIGMA_M, UnknownAssociation
 from graphslam.backends.planar.range_init import RangeLandmarkInitialiser
-from slamcore.planar.backend import Backend
 from slamcore.errors import GraphSlamError, UnsupportedError
-from slamcore.planar.records import (Estimate, LoopClosure, Observation, ObservationKind, Odometry,
-                                     PoseSighting, Prediction)
-
+from slamcore.planar.backend import Backend
+from slamcore.planar.records import (
+    Estimate,
+    LoopClosure,
+    Observation,
+    ObservationKind,
+    Odometry,
+    PoseSighting,
+    Prediction,
+)
 
 #: Median of the chi-square distribution with 3 degrees of freedom.
 CHI2_3DOF_MEDIAN = 2.3660
@@ -192,7 +198,7 @@ class Isam2Backend(Backend):
         decisions = unknown.step(self._isam, pose_id, observations)
         kernel = (self.config.observation_kernel, self.config.observation_kernel_k)
         assoc: list[int | None] = []
-        for obs, d in zip(observations, decisions):
+        for obs, d in zip(observations, decisions, strict=True):
             if d.kind == "confirmed":
                 lid = d.landmark()
                 self._values.insert(L(lid), gtsam.Point2(*d.position()))

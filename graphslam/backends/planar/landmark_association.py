@@ -118,7 +118,7 @@ class LandmarkAssociator:
         hypothesis = self._joint(z, R, wTb, landmarks_w, joint_cov)
         pose_cov = joint_cov[:3, :3]
         decisions = []
-        for obs, j in zip(observations, hypothesis):
+        for obs, j in zip(observations, hypothesis, strict=True):
             if j is not None:
                 decisions.append(Decision("landmark", int(ids[j])))
             else:  # jointly compatible with no landmark: evidence of one not yet mapped

@@ -49,7 +49,7 @@ def params_of(value, rotation: str) -> np.ndarray:
 
 def values_of(graph: PoseGraph, params: np.ndarray) -> gtsam.Values:
     values = gtsam.Values()
-    for k, row in zip(graph.ids.tolist(), params):
+    for k, row in zip(graph.ids.tolist(), params, strict=True):
         values.insert(k, pose(row, graph.rotation))
     return values
 

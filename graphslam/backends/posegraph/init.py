@@ -4,7 +4,7 @@ LAGO (2-D) and the chordal relaxation (3-D) first solve the rotations alone,
 a problem with a unique minimum in practice, then the translations linearly:
 Levenberg-Marquardt from there reaches the global optimum where it stalls from
 the odometry chain (a graph that winds round a torus several times: 2.8x the
-optimum from odometry in ``tests/test_posegraph_solver.py``). Shonan averaging
+optimum from odometry in ``tests/graphslam/backends/test_posegraph_solver.py``). Shonan averaging
 solves the rotations by a convex relaxation lifted to SO(p) and returns a
 certificate: a minimum eigenvalue >= 0 (to numerical tolerance) of its
 certificate matrix proves the **rotation averaging** problem (chordal cost,

@@ -90,7 +90,7 @@ class EdgeErrors:
 
     @classmethod
     def at(cls, graph: PoseGraph, edges: gtsam.NonlinearFactorGraph,
-           values: gtsam.Values) -> "EdgeErrors":
+           values: gtsam.Values) -> EdgeErrors:
         errors = np.array([edges.at(e).error(values) for e in range(edges.size())])
         return cls(errors, ~graph.odometry_mask())
 

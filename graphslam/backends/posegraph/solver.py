@@ -193,7 +193,7 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
     # re-test every closure at the kept-edge optimum under the stated noise (there the
     # kept edges cannot tell its scale: with most closures out the graph is nearly a tree)
     scale = 1.0
-    for rounds in range(1, MAX_RETESTS + 1):
+    for rounds in range(1, MAX_RETESTS + 1):  # noqa: B007 (the count is reported below)
         kept = with_priors(graph, edges, guess, config.prior_sigma, drop=rejected)
         result, iterations = lm(kept, guess, config, recoveries)
         again = rb.EdgeErrors.at(graph, edges, result).failing(threshold)

@@ -44,25 +44,22 @@ sigma_px^2 I`` with ``J = [d uv / d pose, d uv / d point]`` from
 
 - ``"joint"``: iSAM2's exact joint marginal of the current pose and the
   predicted landmarks, one ``jointMarginalCovariance`` call per frame;
-- ``"marginal"``: block-diagonal approximation, the pose marginal (once) and
-  each landmark's own marginal (one ``marginalCovariance`` call each, which is
-  slower than the joint call here), cross-covariance dropped. The current pose is
-  localised *from* those landmarks, so their errors are positively
-  correlated and dropping the cross term mostly over-states S (larger, safe
-  search ellipses), more so as the map drifts away from the prior.
+- ``"marginal"``: block-diagonal approximation, the pose marginal (once) and each landmark's
+  own marginal (one ``marginalCovariance`` call each, which is slower than the joint call
+  here), cross-covariance dropped. The current pose is localised *from* those landmarks, so
+  their errors are positively correlated and dropping the cross term mostly over-states S
+  (larger, safe search ellipses), more so as the map drifts away from the prior.
 
-Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian
-itself; ``max_predictions`` caps how many landmarks are predicted (those seen
-most often first, as the course advises). What the read costs depends on where
-those keys sit in the tree: with gtsam's ordering the landmarks in view share
-one dense clique of hundreds of variables, which each query eliminated again
-(0.1-0.6 s a frame late in the 300-frame benchmark room, more than the update
-itself). ``predicted_in_root`` (default) passes an ordering hint to each update
-so that the previous pose, the landmarks about to be predicted and the newest
-pose are eliminated last and make the root clique by themselves; the query
-then reads a clique of about 50 dimensions (about 1 ms), the same numbers to
-rounding (tests/test_isam2_visual.py compares them with a batch
-``gtsam.Marginals``).
+Both are exact reads of iSAM2's Bayes tree, no approximation of the Gaussian itself;
+``max_predictions`` caps how many landmarks are predicted (those seen most often first, as
+the course advises). What the read costs depends on where those keys sit in the tree: with
+gtsam's ordering the landmarks in view share one dense clique of hundreds of variables,
+which each query eliminated again (0.1-0.6 s a frame late in the 300-frame benchmark room,
+more than the update itself). ``predicted_in_root`` (default) passes an ordering hint to
+each update so that the previous pose, the landmarks about to be predicted and the newest
+pose are eliminated last and make the root clique by themselves; the query then reads a
+clique of about 50 dimensions (about 1 ms), the same numbers to rounding
+(tests/graphslam/backends/test_isam2_visual.py compares them with a batch ``gtsam.Marginals``).
 """
 
 from __future__ import annotations
@@ -73,8 +70,7 @@ from gtsam.symbol_shorthand import L, X
 
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
-from graphslam.backends.spatial.isam2_checks import (checked_covariance, checked_intrinsics,
-                                                     checked_pixels, checked_transform)
+from graphslam.backends.spatial import isam2_checks as chk
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.backends.spatial.isam2_mapping import TrackMapper
 from graphslam.backends.spatial.isam2_ordering import RootOrderingPolicy
@@ -84,10 +80,13 @@ from graphslam.backends.spatial.landmark_slots import LandmarkSlots
 from graphslam.backends.spatial.mono_motion import MonoMotion
 from graphslam.backends.spatial.polish import gnc_polish
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
-from slamcore.spatial.records import (
-    PixelObservations, PixelPredictions, PoseClosure, VisualEstimate,
-)
 from slamcore.spatial.backend import VisualBackend
+from slamcore.spatial.records import (
+    PixelObservations,
+    PixelPredictions,
+    PoseClosure,
+    VisualEstimate,
+)
 
 #: The first pose's prior is floored at this standard deviation (m and rad):
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a
@@ -137,11 +136,11 @@ class VisualIsam2Backend(VisualBackend):
     def initialize(self, frame_id, wTc, covariance, K, image_size):
         if self._frames:
             raise GraphSlamError("isam2 (visual): initialize() called twice")
-        K = checked_intrinsics(K)
+        K = chk.checked_intrinsics(K)
         self._K, self._K_inv = K, np.linalg.inv(K)
         self._cal = conv.cal3_s2(K)
         self._size = (int(image_size[0]), int(image_size[1]))
-        cov = checked_covariance(covariance, "prior", allow_singular=True)
+        cov = chk.checked_covariance(covariance, "prior", allow_singular=True)
         cov = cov + PRIOR_SIGMA_FLOOR**2 * np.eye(6)
         fid = int(frame_id)
         if self.has_motion_model:  # camera alone: no pose until the first map is made
@@ -165,8 +164,8 @@ class VisualIsam2Backend(VisualBackend):
         fid = int(frame_id)
         if fid in self._frame_set:
             raise GraphSlamError(f"isam2 (visual): frame {fid} added twice")
-        odo = checked_transform(odometry, f"odometry to frame {fid}")
-        cov = checked_covariance(covariance, f"odometry to frame {fid}")
+        odo = chk.checked_transform(odometry, f"odometry to frame {fid}")
+        cov = chk.checked_covariance(covariance, f"odometry to frame {fid}")
         prev = self._frames[-1]
         delta = conv.pose3(odo)
         # initialised from the previous pose as estimated before its own
@@ -178,14 +177,14 @@ class VisualIsam2Backend(VisualBackend):
 
     def update(self, observations: PixelObservations) -> None:
         if self._mono is not None and not self._mono.mapped:
-            ids, uv, sigma = checked_pixels(observations)
+            ids, uv, sigma = chk.checked_pixels(observations)
             first = self._mono.bootstrap(ids, uv, sigma)
             if first is not None:
                 self._start_map(self._mono, first, sigma)
             return
         if not self._frames:
             raise GraphSlamError("isam2 (visual): update() before initialize()")
-        ids, uv, sigma = checked_pixels(observations)
+        ids, uv, sigma = chk.checked_pixels(observations)
         fid = self._frames[-1]
         skip_pixels: set[int] = set()
         if self._mono is not None:
@@ -222,7 +221,7 @@ class VisualIsam2Backend(VisualBackend):
         """A triangulated track into the map, with factors for all its pixels."""
         key = L(tid)
         self._values.insert(key, point)
-        for f, u, s in zip(track.frames, track.uv, track.sigma):
+        for f, u, s in zip(track.frames, track.uv, track.sigma, strict=True):
             self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
                 u, self._pixel_noise(s), X(f), key, self._cal))
         self._lms.add(tid, point, len(track.frames), track.sigma[-1], len(self._frames) - 1)
@@ -349,8 +348,8 @@ class VisualIsam2Backend(VisualBackend):
                 raise GraphSlamError(f"isam2 (visual): loop closure names unknown frame {f}")
         if a == b:
             raise MeasurementError(f"isam2 (visual): loop closure from frame {a} to itself")
-        aTb = checked_transform(closure.aTb, f"loop closure {a}-{b} pose")
-        cov = checked_covariance(closure.covariance, f"loop closure {a}-{b}")
+        aTb = chk.checked_transform(closure.aTb, f"loop closure {a}-{b} pose")
+        cov = chk.checked_covariance(closure.covariance, f"loop closure {a}-{b}")
         measured = conv.pose3(aTb)
         noise = conv.robust(conv.pose3_noise(cov), self.config.loop_closure_kernel,
                             self.config.loop_closure_kernel_k)
@@ -432,7 +431,8 @@ class VisualIsam2Backend(VisualBackend):
         est = mono.measure(points, uv[rows], predicted, sigma, ids, uv)
         wTc = est.wTc if est.wTc is not None else est.wTc_coast
         if wTc is None:  # measure() gives a frame it coasts its wTc_coast
-            raise GraphSlamError(f"isam2 (visual): frame {fid} has neither a PnP nor a coasted pose")
+            raise GraphSlamError(f"isam2 (visual): frame {fid} has neither a PnP nor a "
+                                 "coasted pose")
         self._values.update(X(fid), conv.pose3(wTc))
         if est.wTc is None:
             self._add_coasting_factor(mono, fid)

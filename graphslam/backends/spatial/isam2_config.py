@@ -19,7 +19,7 @@ from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 
 #: Robust kernels :func:`graphslam.backends.gtsam_convert.robust` builds (its
-#: ``ROBUST_KERNELS``; tests/test_isam2_visual.py checks the two agree).
+#: ``ROBUST_KERNELS``; tests/graphslam/backends/test_isam2_visual.py checks the two agree).
 RobustKernel = Literal["none", "huber", "cauchy"]
 
 
@@ -47,13 +47,13 @@ class VisualIsam2Config:
             (benchmarks/kitti07_visual.toml). Huber stays the default: with
             Cauchy (not convex) the incremental estimate strays farther from
             the batch optimum between relinearisations (0.13 m against
-            0.07 m in tests/test_isam2_visual.py::test_matches_batch_lm).
+            0.07 m in tests/graphslam/backends/test_isam2_visual.py::test_matches_batch_lm).
         pixel_kernel_k: kernel width in sigmas of the whitened pixel residual.
         min_parallax_deg: angle between the world rays of a track's first and
             latest observations before it is triangulated, degrees. It also
             guards against "parallax" made of pose error alone: a camera
             turning on the spot with drifting odometry passes 1 deg within
-            30 frames in tests/test_isam2_visual.py. In forward motion with
+            30 frames in tests/graphslam/backends/test_isam2_visual.py. In forward motion with
             metric odometry (KITTI 07) 1 deg maps points near the direction of
             travel before they leave the tracker: seeds 0-3 with the Cauchy
             kernel, ATE / odometry 0.61 with 1 deg against 0.72 with 2 deg

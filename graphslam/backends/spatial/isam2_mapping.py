@@ -12,7 +12,7 @@ back the tracks to map; the geometry is :mod:`.landmark_init`'s.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import gtsam
 import numpy as np

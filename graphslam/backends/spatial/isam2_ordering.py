@@ -13,7 +13,7 @@ view), not of the back end's internals.
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import gtsam
 import numpy as np

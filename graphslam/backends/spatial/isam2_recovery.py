@@ -10,7 +10,7 @@ the back end keeps its landmarks.
 
 from __future__ import annotations
 
-from typing import Callable, Container
+from collections.abc import Callable, Container
 
 import gtsam
 from gtsam.symbol_shorthand import L

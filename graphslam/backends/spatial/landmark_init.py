@@ -98,15 +98,15 @@ def first_map_graph(first, wTc0: np.ndarray, prior_noise: gtsam.noiseModel.Base,
     wTref = wTc0 @ np.linalg.inv(first.refTc[0])  # the first frame with a pose at wTc0
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     graph.add(gtsam.PriorFactorPose3(X(frames[0]), conv.pose3(wTc0), prior_noise))
-    for f, refTc in zip(frames, first.refTc):
+    for f, refTc in zip(frames, first.refTc, strict=True):
         values.insert(X(f), conv.pose3(wTref @ refTc))
     graph.add(gtsam.RangeFactorPose3(X(int(first.reference)), X(frames[-1]), 1.0,
                                      gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
     nobs = np.zeros(len(first.track_ids), np.int64)
     for rows, _ in first.pixels:
         nobs[rows] += 1
-    for f, (rows, uvs) in zip(frames, first.pixels):
-        for r, u in zip(rows.tolist(), uvs):
+    for f, (rows, uvs) in zip(frames, first.pixels, strict=True):
+        for r, u in zip(rows.tolist(), uvs, strict=True):
             if nobs[r] >= 2:
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(
                     u, pixel_noise, X(f), L(int(first.track_ids[r])), cal))

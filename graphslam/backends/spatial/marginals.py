@@ -32,9 +32,9 @@ def pose_marginals(backend, estimate: VisualEstimate) -> np.ndarray:
 
 def _marginals(backend, estimate: VisualEstimate, with_landmarks: bool):
     values = gtsam.Values()
-    for f, T in zip(estimate.frame_ids.tolist(), estimate.wTc):
+    for f, T in zip(estimate.frame_ids.tolist(), estimate.wTc, strict=True):
         values.insert(X(f), conv.pose3(T))
-    for t, p in zip(estimate.landmark_ids.tolist(), estimate.landmarks_w):
+    for t, p in zip(estimate.landmark_ids.tolist(), estimate.landmarks_w, strict=True):
         values.insert(L(t), np.asarray(p, dtype=np.float64))
     try:
         marginals = gtsam.Marginals(backend.factor_graph(), values)

@@ -30,7 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontend.two_view import two_view_geometry
-from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig, pnp_pose, reprojects, rng_seed
+from graphslam.backends.spatial.mono_tracking import (
+    MonoTrackingConfig,
+    pnp_pose,
+    reprojects,
+    rng_seed,
+)
 from slamcore.errors import MeasurementError
 from slamcore.spatial.geometry import invert_pose
 
@@ -91,7 +96,7 @@ class MonoBootstrap:
             del self._frames[0]
         need = self.config.two_view.min_points
         best = 0
-        for j, (_, ref_ids, _) in enumerate(self._frames[:-1]):
+        for j, (_, ref_ids, _) in enumerate(self._frames[:-1]):  # noqa: B007 (j: used below)
             shared = np.intersect1d(ref_ids, ids, assume_unique=True)
             best = max(best, len(shared))
             if len(shared) >= need:

@@ -15,8 +15,14 @@ import numpy as np
 
 from graphslam.backends.spatial.mono_init import FirstMap, MonoBootstrap
 from graphslam.backends.spatial.mono_tracking import (
-    MonoTrackingConfig, PnpPose, constant_velocity, frame_rotation, motion_covariance, pnp_pose,
-    reprojects, rng_seed,
+    MonoTrackingConfig,
+    PnpPose,
+    constant_velocity,
+    frame_rotation,
+    motion_covariance,
+    pnp_pose,
+    reprojects,
+    rng_seed,
 )
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose

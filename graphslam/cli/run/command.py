@@ -206,7 +206,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
-
     from slamcore.errors import ConfigError
     from slamcore.files import check_output_dir
 

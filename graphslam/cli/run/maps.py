@@ -23,8 +23,8 @@ def start_map(args, config, sequence, backend, tracker):
     """The :class:`~graphslam.pipelines.mapping.MapRecorder` of ``--save-map``, or None."""
     if getattr(args, "save_map", None) is None:
         return None
-    from graphslam.pipelines.mapping import MapRecorder, require_map_backend
     from frontend.orb import OrbDetector
+    from graphslam.pipelines.mapping import MapRecorder, require_map_backend
     from loopclosure.detector import LoopDetectorConfig
 
     require_map_backend(backend)
@@ -55,11 +55,11 @@ def start_relocaliser(args, config, sequence, backend):
     """The :class:`~graphslam.pipelines.relocalise.RunRelocaliser` of ``--relocalise``, or None."""
     if not getattr(args, "relocalise", False):
         return None
+    from frontend.orb import OrbDetector
     from graphslam.pipelines.loop_closing import require_loop_closures
     from graphslam.pipelines.relocalise import RelocaliseConfig, RunRelocaliser
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
-    from frontend.orb import OrbDetector
 
     require_loop_closures(backend, "--relocalise")  # a relocalised pose joins as a closure
     return RunRelocaliser(sequence.K, config.section(RelocaliseConfig), config.section(PnpConfig),

@@ -9,7 +9,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
-    close_recorder, fmt, open_recorder, recoveries_text, report_outputs, summary_table,
+    close_recorder,
+    fmt,
+    open_recorder,
+    recoveries_text,
+    report_outputs,
+    summary_table,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 

@@ -29,7 +29,11 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    close_recorder, fmt, open_recorder, report_outputs, summary_table,
+    close_recorder,
+    fmt,
+    open_recorder,
+    report_outputs,
+    summary_table,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -160,10 +164,12 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
     and the loop closer around it."""
     import sys
 
-    from graphslam.pipelines import loop_closing as lc
     from frontend.orb import OrbDetector
+    from graphslam.pipelines import loop_closing as lc
     from graphslam.pipelines.place_recognition import (
-        check_vocabulary, describe, train_vocabulary,
+        check_vocabulary,
+        describe,
+        train_vocabulary,
     )
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig

@@ -39,8 +39,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam_motion import (COVARIANCE_FLOOR, MotionModel,
-                                                   held_commands, integrate)
+from graphslam.sources.planar.mrclam_motion import (
+    COVARIANCE_FLOOR,
+    MotionModel,
+    held_commands,
+    integrate,
+)
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, quote
@@ -320,7 +324,7 @@ def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) 
                                               else odometry_s[-1]))
     key = np.unique(np.concatenate([[t0, t1], sighting_s[(sighting_s >= t0) & (sighting_s <= t1)]]))
     out = [key[:1]]
-    for a, b in zip(key[:-1], key[1:]):
+    for a, b in zip(key[:-1], key[1:], strict=True):
         extra = int(math.ceil((b - a) / every_s)) - 1
         if extra > 0:
             out.append(a + (b - a) * np.arange(1, extra + 1) / (extra + 1))
@@ -398,10 +402,11 @@ def robot_track(config: MrclamConfig, n: int, odo, meas, truth, barcodes,
     frame_of = np.searchsorted(times, meas[:, 0]).tolist()
     is_robot = is_robot.tolist()
     zs, stamps = meas[:, 2:4], meas[:, 0].tolist()
-    landmarks = [(k, int(s), zs[i]) for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot))
+    landmarks = [(k, int(s), zs[i])
+                 for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True))
                  if not r]
     robots = [(k, int(s), zs[i], stamps[i])
-              for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot)) if r]
+              for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True)) if r]
     return RobotTrack(times, deltas, covs + COVARIANCE_FLOOR, wTb_true, landmarks, robots, notes)
 
 
@@ -429,7 +434,7 @@ def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of) -
                                        sighting_covariances(config, np.array(
                                            [z for _, _, z in rows]).reshape(-1, 2)))
     by_frame: dict[int, list] = {}
-    for (k, _, _), obs in zip(rows, observations):
+    for (k, _, _), obs in zip(rows, observations, strict=True):
         by_frame.setdefault(k, []).append(obs)
     return by_frame
 

@@ -28,9 +28,16 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam import (PRIOR_VARIANCE, MrclamConfig, landmark_observations,
-                                             read_robot, read_subjects, robot_track, robots_in,
-                                             sighting_covariances)
+from graphslam.sources.planar.mrclam import (
+    PRIOR_VARIANCE,
+    MrclamConfig,
+    landmark_observations,
+    read_robot,
+    read_subjects,
+    robot_track,
+    robots_in,
+    sighting_covariances,
+)
 from slamcore.errors import InputError
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Dataset, Frame, Odometry, PoseSighting, odometry_batch

@@ -27,7 +27,7 @@ specification says information (its README: ``EDGE2 ... inf_ff inf_fs inf_ss
 inf_rr inf_fr inf_sr``, "the information matrix entries of the constraint", and
 gtsam's NoiseFormatTORO reads it so), because the batch solvers always read it
 so, and because it changes nothing on gtsam's TORO files of that pattern (w100,
-w10000, example.graph: identity, its own inverse; ``tests/test_readers.py``
+w10000, example.graph: identity, its own inverse; ``tests/graphslam/sources/test_readers.py``
 still matches load2D on w10000). The one file that changes is gtsam's
 ``w20000.txt`` (``3.16228 0 0 3.16228 0 5``, g2o's diagonal order, which load2D
 took as a covariance): now the information the batch solver reads. g2o files
@@ -61,8 +61,15 @@ from slamcore import posegraph as pg
 from slamcore.errors import InputError, MeasurementError
 from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import (
-    Dataset, Frame, LoopClosure, Observation, ObservationKind, Odometry, loop_closure_batch,
-    odometry_batch, range_bearing_batch,
+    Dataset,
+    Frame,
+    LoopClosure,
+    Observation,
+    ObservationKind,
+    Odometry,
+    loop_closure_batch,
+    odometry_batch,
+    range_bearing_batch,
 )
 
 
@@ -137,14 +144,14 @@ def dataset_of_pose_graph(graph: pg.PoseGraph, sightings: Sightings | None = Non
     covariances = 0.5 * (inverse + inverse.transpose(0, 2, 1))
     odometry, closures = edge_records(graph, deltas, covariances, is_odometry)
     frame_of_edge = rows.max(axis=1)
-    odometry_of = dict(zip(frame_of_edge[is_odometry].tolist(), odometry))
+    odometry_of = dict(zip(frame_of_edge[is_odometry].tolist(), odometry, strict=True))
     closures_of: list[list[LoopClosure]] = [[] for _ in range(graph.n_poses)]
-    for r, lc in zip(frame_of_edge[~is_odometry].tolist(), closures):
+    for r, lc in zip(frame_of_edge[~is_odometry].tolist(), closures, strict=True):
         closures_of[r].append(lc)
     seen_of: list[list[Observation]] = [[] for _ in range(graph.n_poses)]
     if sightings is not None and len(sightings):
         for r, obs in zip(graph.index_of(sightings.pose_ids).tolist(),
-                          _observations(sightings, path)):
+                          _observations(sightings, path), strict=True):
             seen_of[r].append(obs)
     frames = [Frame(pose_id=k, odometry=odometry_of.get(r), observations=tuple(seen_of[r]),
                     loop_closures=tuple(closures_of[r]),
@@ -190,7 +197,7 @@ def edge_records_one_by_one(graph: pg.PoseGraph, deltas: np.ndarray, covariances
     odometry: list[Odometry] = []
     closures: list[LoopClosure] = []
     for (a, b), delta, cov, odo, line_no in zip(graph.edges.tolist(), deltas, covariances,
-                                                 is_odometry, graph.edge_lines.tolist()):
+                                                 is_odometry, graph.edge_lines.tolist(), strict=True):
         try:
             if odo:
                 odometry.append(Odometry(a, b, delta, cov))

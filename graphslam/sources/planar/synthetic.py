@@ -45,12 +45,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from slamcore.planar.geometry import compose, observe
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
-from slamcore.planar.records import Dataset
-from slamcore.planar.records import Frame, Observation, ObservationKind, Odometry
-from slamcore.planar.geometry import wrap_angle
+from slamcore.planar.geometry import compose, observe, wrap_angle
+from slamcore.planar.records import Dataset, Frame, Observation, ObservationKind, Odometry
 
 #: Added to the odometry covariance diagonal: two velocity noises drive three
 #: outputs, so ``J Q J^T`` is rank 2 (singular; on straights ``dy`` and
@@ -189,7 +187,7 @@ class SyntheticConfig:
             raise ConfigError(f"synthetic.dt_s: the route would take {steps:.3g} steps "
                               f"(laps x perimeter / (speed_mps x dt_s)); at most {MAX_STEPS:.0e}")
 
-    def replace(self, **changes) -> "SyntheticConfig":
+    def replace(self, **changes) -> SyntheticConfig:
         """A copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -309,7 +307,7 @@ def make_synthetic(config: SyntheticConfig | None = None) -> Dataset:
         z[:, 1] = wrap_angle(z[:, 1])
         keep = z[:, 0] > 0.0
         obs = tuple(Observation(k, int(j), zj, R, ObservationKind.RANGE_BEARING, int(signatures[j]))
-                    for j, zj in zip(visible[keep], z[keep]))
+                    for j, zj in zip(visible[keep], z[keep], strict=True))
         odometry = None if k == 0 else Odometry(k - 1, k, odo_delta[k - 1], odo_cov[k - 1])
         truth = wTb[k].copy()
         truth.setflags(write=False)

@@ -13,7 +13,7 @@ the ``ODOMETRY`` line that creates pose ``i``; such an observation joins the
 frame of pose ``i`` (even if ``i`` is no longer the latest pose).
 
 Noise follows ``gtsam.load2D`` on purpose, so that graph errors compare with
-published numbers (checked factor by factor in ``tests/test_readers.py``):
+published numbers (checked factor by factor in ``tests/graphslam/sources/test_readers.py``):
 
 - odometry: the six numbers are the g2o-layout covariance
   ``[[c11 c12 c13], [c12 c22 c23], [c13 c23 c33]]`` (load2D's automatic format
@@ -33,14 +33,18 @@ import math
 
 import numpy as np
 
-from slamcore.errors import InputError, MeasurementError, quote
-from slamcore.planar.records import Dataset
 from graphslam.sources.tokens import MAX_KEY_ID, check_count, iter_lines, parse_id, parse_numbers
+from slamcore.errors import InputError, MeasurementError, quote
 from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import (
-    Frame, Observation, ObservationKind, Odometry, odometry_batch, range_bearing_batch,
+    Dataset,
+    Frame,
+    Observation,
+    ObservationKind,
+    Odometry,
+    odometry_batch,
+    range_bearing_batch,
 )
-
 
 #: Variances a measurement of this log may state: standard deviations from
 #: 1 micrometre (microradian) to 1 km (a full turn). Outside, the number says
@@ -70,7 +74,7 @@ def check_distances(values, path, line_no: int) -> None:
 def check_variances(variances, names, path, line_no: int) -> None:
     """InputError when a positive variance is outside :data:`VARIANCE_MIN` ..
     :data:`VARIANCE_MAX` (one <= 0 is the records' "not positive definite")."""
-    for v, name in zip(variances, names):
+    for v, name in zip(variances, names, strict=True):
         if v > 0 and not VARIANCE_MIN <= v <= VARIANCE_MAX[name]:
             raise InputError(f"{name} variance {v:g} is outside {VARIANCE_MIN:g} .. "
                              f"{VARIANCE_MAX[name]:.4g}", path, line_no)
@@ -206,7 +210,7 @@ def read_well_formed(path, name: str = "victoria-park") -> Dataset | None:
         created[j] = n
         order.append(j)
     # a LANDMARK line must come after the ODOMETRY line that creates its pose
-    if any(created.get(i, len(o_ids) + 1) > n for (i, _), n in zip(l_ids, where)):
+    if any(created.get(i, len(o_ids) + 1) > n for (i, _), n in zip(l_ids, where, strict=True)):
         return None
     return _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name)
 

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.errors import ConfigError
 from slamcore.spatial.geometry import invert_pose
-from graphslam.sources.spatial.sequence import ImageSequence
 
 __all__ = ["parse_frames", "select_frames", "FrameSelection", "frame_indices"]
 
@@ -108,7 +108,7 @@ def _composed_odometry(sequence, idx: np.ndarray):
     cov1 = np.broadcast_to(np.asarray(sequence.odometry_covariance, np.float64), (len(odo), 6, 6))
     out = np.empty((max(len(idx) - 1, 0), 4, 4))
     cov = np.empty((len(out), 6, 6))
-    for k, (a, b) in enumerate(zip(idx[:-1], idx[1:])):
+    for k, (a, b) in enumerate(zip(idx[:-1], idx[1:], strict=True)):
         lo, hi = (a, b) if b >= a else (b, a)
         T = np.eye(4)
         for j in range(lo, hi):

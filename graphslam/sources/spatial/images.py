@@ -70,13 +70,28 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.spatial.calibration import (
-    INTRINSICS_FILE_NAMES, TUM_INTRINSICS, find_intrinsics_file, load_yaml, read_intrinsics_file,
-    resolve_intrinsics, yaml_matrix,
+    INTRINSICS_FILE_NAMES,
+    TUM_INTRINSICS,
+    find_intrinsics_file,
+    load_yaml,
+    read_intrinsics_file,
+    resolve_intrinsics,
+    yaml_matrix,
 )
 from graphslam.sources.spatial.kitti import read_kitti
 from graphslam.sources.spatial.sequence import (
-    ASSOCIATION_MAX_DT_S, IMAGE_EXTENSIONS, ImageSequence, associate, check_exist,
-    check_increasing, check_K, image_size, list_images, parse_floats, quat_to_rotation, read_lines,
+    ASSOCIATION_MAX_DT_S,
+    IMAGE_EXTENSIONS,
+    ImageSequence,
+    associate,
+    check_exist,
+    check_increasing,
+    check_K,
+    image_size,
+    list_images,
+    parse_floats,
+    quat_to_rotation,
+    read_lines,
 )
 from slamcore.errors import InputError, quote
 from slamcore.files import inside_folder
@@ -105,7 +120,7 @@ def _keep_matched(paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: 
     keep = idx >= 0
     if not np.any(keep):
         raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
-    return ([p for p, k in zip(paths, keep) if k], stamps[keep],
+    return ([p for p, k in zip(paths, keep, strict=True) if k], stamps[keep],
             np.array(gt_T)[order][idx[keep]])
 
 

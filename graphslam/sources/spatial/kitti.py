@@ -22,10 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.spatial.sequence import (
-    ImageSequence, check_increasing, check_K, check_rotation, image_size, natural_key,
-    parse_floats, read_lines,
+    ImageSequence,
+    check_increasing,
+    check_K,
+    check_rotation,
+    image_size,
+    natural_key,
+    parse_floats,
+    read_lines,
 )
 from slamcore.errors import InputError, quote
+
 
 def read_kitti_calib(path: str | Path, camera: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``(K (3, 3), c0Tck (4, 4))`` of camera ``camera`` from a KITTI ``calib.txt``."""

@@ -322,7 +322,7 @@ def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
         name=f"rosbag-{path.stem if path.is_file() else path.name}", image_paths=paths,
         stamps_s=rm.ns_to_s(index.stamps_ns), K=K, distortion=dist, wTc_true=None,
         image_size=index.size, source_path=str(path), bag=str(path), topics=chosen,
-        image_type=image_type, frames=dict(zip(paths, index.refs)),
+        image_type=image_type, frames=dict(zip(paths, index.refs, strict=True)),
         notes=(f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
                *notes, *index.notes,
                *([] if truth is None else [f"truth: {chosen['truth']} "
@@ -399,7 +399,9 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path,
     """``(K, distortion or None, notes)``: the first CameraInfo of ``topic``, else an
     intrinsics file beside the bag (as a plain image folder's)."""
     from graphslam.sources.spatial.calibration import (
-        INTRINSICS_FILE_NAMES, find_intrinsics_file, read_intrinsics_file,
+        INTRINSICS_FILE_NAMES,
+        find_intrinsics_file,
+        read_intrinsics_file,
     )
 
     if topic is None:

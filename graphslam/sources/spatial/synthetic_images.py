@@ -49,12 +49,18 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError, GraphSlamError
 from graphslam.sources.spatial.sequence import ImageSequence
 from graphslam.sources.spatial.synthetic_render import (
-    Surface, balbianello_photos, clip_polygon_near, mip_levels, photo_texture, procedural_texture,
-    render_surfaces)
+    Surface,
+    balbianello_photos,
+    clip_polygon_near,
+    mip_levels,
+    photo_texture,
+    procedural_texture,
+    render_surfaces,
+)
+from slamcore.config import bounded, validate
+from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.camera import intrinsics_matrix
 
 __all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "Surface", "make_synthetic_images",

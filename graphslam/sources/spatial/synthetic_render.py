@@ -42,7 +42,8 @@ class Surface:
     def texel_to_world(self, uv: np.ndarray) -> np.ndarray:
         """(M, 2) level-0 texel coordinates -> (M, 3) world points."""
         th, tw = self.mips[0].shape
-        o, A, B = self.corners_w[0], self.corners_w[1] - self.corners_w[0], self.corners_w[3] - self.corners_w[0]
+        c = self.corners_w
+        o, A, B = c[0], c[1] - c[0], c[3] - c[0]
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         return o + np.outer((uv[:, 0] + 0.5) / tw, A) + np.outer((uv[:, 1] + 0.5) / th, B)
 
@@ -84,7 +85,8 @@ def procedural_texture(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
         elif kind == 2:
             cv2.circle(img, (x, y), s // 2, g, -1)
         else:
-            cv2.line(img, (x, y), (x + int(rng.integers(-3 * s, 3 * s)), y + int(rng.integers(-3 * s, 3 * s))),
+            end = (x + int(rng.integers(-3 * s, 3 * s)), y + int(rng.integers(-3 * s, 3 * s)))
+            cv2.line(img, (x, y), end,
                      g, int(rng.integers(1, 4)))
     return img
 
