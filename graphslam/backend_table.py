@@ -121,7 +121,7 @@ TABLE: tuple[BackendDescriptor, ...] = (
 
 #: ``graphslam compare`` entries on image sequences -> (back end, its config overrides):
 #: the monocular EKF once per landmark parametrisation.
-VISUAL_COMPARE_ENTRIES: dict[str, tuple[str, dict]] = {
+VISUAL_COMPARE_BACKENDS: dict[str, tuple[str, dict]] = {
     "isam2": ("isam2", {}),
     "ekf-idp": ("ekf", {"landmark_param": "idp"}),
     "ekf-ahp": ("ekf", {"landmark_param": "ahp"}),

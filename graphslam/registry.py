@@ -14,7 +14,7 @@ from graphslam.backend_table import (
     DEFAULT_BACKEND,
     DEFAULT_POSE_GRAPH_BACKEND,
     TABLE,
-    VISUAL_COMPARE_ENTRIES,
+    VISUAL_COMPARE_BACKENDS,
     BackendDescriptor,
     Implementation,
     descriptor,
@@ -72,8 +72,6 @@ LOCALISING_BACKENDS = tuple(d.name for d in TABLE
 SEEDED_BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None and d.landmarks.seeded)
 #: Back ends ``graphslam run`` offers on image sequences.
 VISUAL_BACKENDS = tuple(d.name for d in TABLE if d.images is not None)
-#: ``graphslam compare`` entries on image sequences -> (back end, its config overrides).
-VISUAL_COMPARE_BACKENDS = VISUAL_COMPARE_ENTRIES
 
 
 def backend_row(name: str) -> BackendDescriptor:
@@ -113,9 +111,14 @@ def default_backend(spec: str) -> str:
     return DEFAULT_POSE_GRAPH_BACKEND if whole else DEFAULT_BACKEND
 
 
-def _implementation(name: str, kind: str, data: str) -> Implementation:
+#: What each kind of implementation runs on, in messages.
+_KIND_DATA = {"landmarks": "2-D data", "images": "image sequences"}
+
+
+def _implementation(name: str, kind: str) -> Implementation:
     impl = getattr(backend_row(name), kind)
     if impl is None:
+        data = _KIND_DATA[kind]
         available = [d.name for d in TABLE if getattr(d, kind) is not None]
         raise ConfigError(f"back end {name!r} does not run on {data} "
                           f"(available: {', '.join(available)})")
@@ -247,9 +250,8 @@ def make_backend(name: str, *, config: ConfigSource = None,
                  overrides: dict | None = None) -> Backend:
     """2-D back end by name, configured from the file's section plus ``overrides``
     (plus what the name itself fixes, e.g. FastSLAM's version)."""
-    impl = _implementation(name, "landmarks", "2-D data")
-    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
-    return load(impl.backend)(settings)
+    impl = landmark_implementation(name)
+    return load(impl.backend)(_settings(impl, config, overrides))
 
 
 def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
@@ -257,12 +259,12 @@ def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
                    overrides: dict | None = None) -> Isam2Localiser | EkfLocaliser:
     """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
     positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
-    impl = _implementation(name, "landmarks", "2-D data")
+    impl = landmark_implementation(name)
     if impl.localiser is None:
         raise ConfigError(f"--map: {name} cannot localise against a fixed map "
                           f"(available: {', '.join(LOCALISING_BACKENDS)})")
-    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
-    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov, settings)
+    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov,
+                                _settings(impl, config, overrides))
 
 
 def seed_override(name: str, seed: int | None) -> dict:
@@ -278,7 +280,7 @@ def planar_sections(dataset: str, backend: str) -> dict[str, type]:
     by section name (``graphslam sweep`` checks its overrides against them)."""
     from graphslam.sources.planar.synthetic import SyntheticConfig
 
-    config_class = load(_implementation(backend, "landmarks", "2-D data").config)
+    config_class = load(landmark_implementation(backend).config)
     out: dict[str, type] = {config_class.SECTION: config_class}
     if dataset == "synthetic":
         out[SyntheticConfig.SECTION] = SyntheticConfig
@@ -356,25 +358,30 @@ def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSou
 def visual_backend_config(name: str) -> type[VisualIsam2Config | MonoEkfConfig]:
     """Config class of the visual back end ``name``: ``isam2`` (section
     ``[isam2_visual]``) or ``ekf`` (monocular EKF-SLAM, section ``[mono_ekf]``)."""
-    return load(_implementation(name, "images", "image sequences").config)
+    return load(visual_implementation(name).config)
 
 
 def landmark_implementation(name: str) -> Implementation:
     """The table's 2-D streaming implementation of back end ``name``."""
-    return _implementation(name, "landmarks", "2-D data")
+    return _implementation(name, "landmarks")
 
 
 def visual_implementation(name: str) -> Implementation:
     """The table's image-sequence implementation of back end ``name``."""
-    return _implementation(name, "images", "image sequences")
+    return _implementation(name, "images")
 
 
 def make_visual_backend(name: str, *, config: ConfigSource = None,
                         overrides: dict | None = None):
     """Visual back end by name (:func:`visual_backend_config` names its section)."""
-    impl = _implementation(name, "images", "image sequences")
-    settings = load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
-    return load(impl.backend)(settings)
+    impl = visual_implementation(name)
+    return load(impl.backend)(_settings(impl, config, overrides))
+
+
+def _settings(impl: Implementation, config: ConfigSource, overrides: dict | None):
+    """The implementation's config section from ``config``, ``overrides`` on top, and on
+    top of those what the back end's name fixes (FastSLAM's version)."""
+    return load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
 
 
 def visual_compare_backend(name: str) -> tuple[str, dict]:

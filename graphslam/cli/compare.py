@@ -43,9 +43,10 @@ examples:
 
 def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
+    from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
     from graphslam.cli.common import robot_arg
     from graphslam.pipelines.spatial import ODOMETRY_MODES
-    from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS, VISUAL_COMPARE_BACKENDS
+    from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
 
     names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, *POSEGRAPH_BACKENDS]))
 
@@ -157,13 +158,14 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`)."""
     from frontend.active_search_config import ActiveSearchConfig
     from graphslam import registry
+    from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
     from graphslam.pipelines import compare_spatial as cs
     from graphslam.pipelines.session import VisualSetup
     from graphslam.visualisation.plots import plot_visual_comparison
     from graphslam.visualisation.spatial import VisualRecorder
 
-    names = args.backends or list(registry.VISUAL_COMPARE_BACKENDS)
-    _check_names(names, registry.VISUAL_COMPARE_BACKENDS, "image sequences")
+    names = args.backends or list(VISUAL_COMPARE_BACKENDS)
+    _check_names(names, VISUAL_COMPARE_BACKENDS, "image sequences")
     sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
                                             topics=args.topics)
     setup = VisualSetup.read(sequence, config, odometry=args.odometry, seed=args.seed,

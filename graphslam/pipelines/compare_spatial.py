@@ -1,7 +1,7 @@
 """``graphslam compare`` on image sequences: visual iSAM2 and the monocular EKF
 (IDP and AHP landmarks) on the same frames, detections and active-search budget.
 
-Each entry (:data:`graphslam.registry.VISUAL_COMPARE_BACKENDS`) runs
+Each entry (:data:`graphslam.backend_table.VISUAL_COMPARE_BACKENDS`) runs
 :func:`graphslam.pipelines.spatial.run` in its own forked process
 (:func:`graphslam.pipelines.compare.run_entries`: failures, Ctrl-C and SIGTERM
 as in the 2-D compare) on the same sequence, with the same odometry (resolved

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.tokens import ID_TOKEN, decimal_value
+from graphslam.sources.tokens import ID_TOKEN, decimal_value, iter_lines
+from slamcore.errors import InputError
 
 #: Ids separated by single spaces, each as ``tokens.parse_id`` accepts one.
 _ONE_ID = ID_TOKEN.pattern.removesuffix(r"\Z")
@@ -137,25 +137,17 @@ def read_in_bulk(path, tags: dict[str, tuple], id_limit: int) -> FileLines | Non
 
 
 def rows_by_tag(path) -> tuple[dict[str, list[list[str]]], dict[str, list[int]]] | None:
-    """``({tag: token lists}, {tag: their 1-based lines})`` of the lines of a text file
-    that ``tokens.iter_lines`` yields (same tokens, same line numbers), in file order;
-    None if the file cannot be read as UTF-8 (the line reader says why)."""
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError):
-        return None
+    """``({tag: token lists}, {tag: their 1-based lines})`` of the lines
+    ``tokens.iter_lines`` yields, grouped by tag in file order; None if the file cannot
+    be read as UTF-8 (the line reader says why)."""
     rows: dict[str, list[list[str]]] = {}
     lines: dict[str, list[int]] = {}
-    # read_text translates every newline to "\n", as iterating the file does: same line numbers
-    for line_no, line in enumerate(text.split("\n"), start=1):
-        s = line.strip()
-        if not s or s[0] == "#":
-            continue
-        tok = s.split()
-        if tok[0] not in rows:
-            rows[tok[0]], lines[tok[0]] = [], []
-        rows[tok[0]].append(tok)
-        lines[tok[0]].append(line_no)
+    try:
+        for line_no, tok in iter_lines(path):
+            rows.setdefault(tok[0], []).append(tok)
+            lines.setdefault(tok[0], []).append(line_no)
+    except InputError:  # unreadable or not UTF-8: the line reader says so
+        return None
     return rows, lines
 
 

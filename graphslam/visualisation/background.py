@@ -101,7 +101,10 @@ class BackgroundLog:
         # died importing numpy, their recording lost). Blocked first, so that a signal for
         # this thread meanwhile is held, not ignored, and reaches the restored handler.
         old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-        handlers = {stop: signal.signal(stop, signal.SIG_IGN) for stop in _STOP_SIGNALS}
+        # handlers can be set from the main thread only (elsewhere: the child's own SIG_IGN)
+        main = threading.current_thread() is threading.main_thread()
+        handlers = {stop: signal.signal(stop, signal.SIG_IGN) for stop in _STOP_SIGNALS} \
+            if main else {}
         try:
             self._proc.start()
         finally:

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from graphslam import registry
+from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
 from slamcore.errors import UnsupportedError
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.records import PixelObservations, PoseClosure
@@ -39,7 +40,7 @@ ROTATION_TOL = 1e-6
 
 #: name -> (back end, config overrides): every registered visual back end, the EKF once
 #: per landmark parametrisation; a new back end of the registry must appear here.
-ENTRIES = dict(registry.VISUAL_COMPARE_BACKENDS)
+ENTRIES = dict(VISUAL_COMPARE_BACKENDS)
 
 
 def test_every_registered_visual_backend_runs_the_contract():
