@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from slamcore.errors import MeasurementError
+from slamcore.planar.sighting_correlation import SightingCorrelation
 
 #: Relative tolerance on covariance symmetry (file formats round to ~6 digits).
 COV_SYMMETRY_RTOL = 1e-6
@@ -106,6 +107,11 @@ class Observation:
         kind: :class:`ObservationKind`.
         signature: optional appearance signature (course slides: landmarks
             carry one that data association may use).
+        stamp_s: time of the measurement, s, or ``None``.
+        correlation: how the sensor's errors correlate in time
+            (:class:`~slamcore.planar.sighting_correlation.SightingCorrelation`),
+            or ``None`` (independent); with ``stamp_s``, the back ends weigh a
+            sighting by what it adds to the earlier ones of its landmark.
     """
 
     pose_id: int
@@ -114,6 +120,8 @@ class Observation:
     covariance: np.ndarray
     kind: ObservationKind = ObservationKind.RANGE_BEARING
     signature: int | None = None
+    stamp_s: float | None = None
+    correlation: SightingCorrelation | None = None
 
     def __post_init__(self):
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
@@ -213,17 +221,21 @@ def loop_closure_batch(from_ids, to_ids, deltas, covariances,
             for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))]
 
 
-def range_bearing_batch(pose_ids, landmark_ids, zs, covariances) -> list[Observation]:
+def range_bearing_batch(pose_ids, landmark_ids, zs, covariances, stamps_s=None,
+                        correlation: SightingCorrelation | None = None) -> list[Observation]:
     """Range-bearing :class:`Observation` records of N rows, checked in bulk (see
-    :func:`odometry_batch`): finite, SPD covariances, positive ranges."""
+    :func:`odometry_batch`): finite, SPD covariances, positive ranges; ``stamps_s`` (N,)
+    and ``correlation`` as the fields of that name (None: none)."""
     z = _checked_batch(zs, (2,), "observation row")
     c = _checked_covariances(covariances, 2, "observation row")
     bad = z[:, 0] <= 0.0
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
+    stamps = [None] * len(z) if stamps_s is None else [float(t) for t in stamps_s]
     return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
-                  kind=ObservationKind.RANGE_BEARING, signature=None)
-            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))]
+                  kind=ObservationKind.RANGE_BEARING, signature=None, stamp_s=t,
+                  correlation=correlation)
+            for k, (p, j, t) in enumerate(zip(pose_ids, landmark_ids, stamps, strict=True))]
 
 
 def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
@@ -236,7 +248,7 @@ def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
     return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
-                  kind=ObservationKind.RANGE, signature=None)
+                  kind=ObservationKind.RANGE, signature=None, stamp_s=None, correlation=None)
             for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))]
 
 
