@@ -28,6 +28,14 @@ this script, run on every robot of Dataset 6:
    divided by the model have a robust scale (1.4826 MAD) of 1, as the constant
    sigmas were fitted before. Reported: each model's fraction beyond 3 sigma,
    beside the constant robust sigma's, and the robust sigma per range bin.
+4. The sightings' error correlation in time: the correlation of the normalised
+   range and bearing errors (against the truth, each robot-landmark pair's median
+   removed, clipped at 4 sigma) of every two sightings of one landmark by one
+   robot, by the time between them, and the least-squares fit of ``share
+   exp(-dt / tau)`` (one ``tau``, a share per component; each lag bin's squared
+   residual weighed by its pair count). It is what the back ends need to weigh a
+   burst of sightings as the few independent ones it is
+   (:mod:`slamcore.planar.sighting_correlation`).
 
     python benchmarks/calibrate_mrclam.py [--data ../shared/data/mrclam6] [--quick]
 
@@ -60,6 +68,7 @@ COMMAND = "python benchmarks/calibrate_mrclam.py --out benchmarks/figures/calibr
 #: Length of the windows the noise is fitted on, s (module docstring, step 2).
 FIT_WINDOW_S = 5.0
 SIGHTING_NAMES = ("sigma_range_m", "sigma_range_per_m", "sigma_bearing_rad", "sigma_bearing_m")
+CORRELATION_NAMES = ("correlation_time_s", "range_correlated_share", "bearing_correlated_share")
 NOISE_NAMES = ("a_s_m", "b_s_m2_per_s", "a_y_m", "a_theta_rad", "c_theta_rad2_per_m",
                "b_theta_rad2_per_s")
 
@@ -253,6 +262,65 @@ def sighting_residuals(folder: Path, logs: dict) -> dict:
     return out
 
 
+#: Lag bins of the sightings' error correlation, s (step 4): fine where it falls fast.
+CORRELATION_LAGS_S = (0.0, 0.3, 0.6, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
+#: Normalised residuals are clipped here before the correlation (the tails would rule it).
+CORRELATION_CLIP = 4.0
+
+
+def sighting_correlation(folder: Path, logs: dict, config: MrclamConfig) -> dict:
+    """Step 4 of the module docstring: the correlation of the normalised range and bearing
+    errors of two sightings of one landmark by one robot, by the time between them,
+    and the fit ``c exp(-dt / tau)`` (one ``tau``, a share ``c`` per component)."""
+    from scipy.optimize import least_squares
+
+    from graphslam.sources.planar.mrclam import read_subjects, sighting_covariances
+
+    barcodes, landmarks = read_subjects(folder)
+    edges = np.asarray(CORRELATION_LAGS_S)
+    sums = np.zeros((2, len(edges) - 1, 2))  # component, bin, (sum of products, sum of squares)
+    counts = np.zeros(len(edges) - 1)
+    for log in logs.values():
+        meas, truth = log["meas"], log["truth"]
+        subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]])
+        keep = np.isin(subject, list(landmarks))
+        p = truth_at(truth, meas[keep, 0])
+        ok = np.isfinite(p).all(axis=1)
+        m, sub, p = meas[keep][ok], subject[keep][ok], p[ok]
+        sigma = np.sqrt(np.diagonal(sighting_covariances(config, m[:, 2:4]), axis1=1, axis2=2))
+        lm = np.array([landmarks[s] for s in sub])
+        d = lm - p[:, :2]
+        res = np.stack([m[:, 2] - np.hypot(d[:, 0], d[:, 1]),
+                        wrap_angle(m[:, 3] - (np.arctan2(d[:, 1], d[:, 0]) - p[:, 2]))], axis=1) / sigma
+        for s in np.unique(sub):
+            k = np.flatnonzero(sub == s)
+            e = np.clip(res[k] - np.median(res[k], axis=0), -CORRELATION_CLIP, CORRELATION_CLIP)
+            a, b = np.triu_indices(k.size, 1)
+            dt = np.abs(m[k[a], 0] - m[k[b], 0])
+            where = np.digitize(dt, edges) - 1
+            inside = (where >= 0) & (where < len(counts))
+            a, b, where = a[inside], b[inside], where[inside]
+            counts += np.bincount(where, minlength=len(counts))
+            for c in range(2):
+                sums[c, :, 0] += np.bincount(where, e[a, c] * e[b, c], minlength=len(counts))
+                sums[c, :, 1] += np.bincount(where, 0.5 * (e[a, c] ** 2 + e[b, c] ** 2),
+                                             minlength=len(counts))
+    corr = sums[:, :, 0] / np.maximum(sums[:, :, 1], 1e-300)
+    mids = 0.5 * (edges[:-1] + edges[1:])
+    w = np.sqrt(counts / counts.max())  # a bin's correlation is known to about 1 / sqrt(pairs)
+
+    def residual(q):
+        tau, c_r, c_b = q
+        model = np.exp(-mids / tau)
+        return np.concatenate([w * (corr[0] - c_r * model), w * (corr[1] - c_b * model)])
+
+    fit = least_squares(residual, [5.0, 0.9, 0.5], bounds=([0.1, 0.0, 0.0], [600.0, 1.0, 1.0]))
+    tau, c_r, c_b = (float(v) for v in fit.x)
+    return {"time_constant_s": tau, "range_share": c_r, "bearing_share": c_b,
+            "lags_s": mids.tolist(), "pairs": counts.astype(int).tolist(),
+            "range_correlation": corr[0].tolist(), "bearing_correlation": corr[1].tolist()}
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -271,6 +339,7 @@ def main(argv: list[str] | None = None) -> None:
         checks[f"{every:g} s"] = mean_nees(coef, *windows(logs, model, every))
     sightings = sighting_residuals(args.data, logs)
     default = MrclamConfig()
+    correlation = sighting_correlation(args.data, logs, default)
     report = {
         "robots": robots, "data": str(args.data), "command": COMMAND,
         "odometry": {k: v for k, v in motion.items() if k != "residual"},
@@ -278,15 +347,18 @@ def main(argv: list[str] | None = None) -> None:
         "nees": checks,
         "sightings": {k: {kk: vv for kk, vv in v.items() if kk not in ("residuals", "measured_range")}
                       for k, v in sightings.items()},
+        "correlation": correlation,
         "defaults_in_use": {"lag_s": default.odometry_lag_s,
                             "forward_scale": default.forward_scale,
                             "angular_scale": default.angular_scale,
                             **{n: getattr(default, n) for n in NOISE_NAMES},
-                            **{n: getattr(default, n) for n in SIGHTING_NAMES}},
+                            **{n: getattr(default, n) for n in SIGHTING_NAMES},
+                            **{n: getattr(default, n) for n in CORRELATION_NAMES}},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps({k: report[k] for k in ("odometry", "noise", "nees", "sightings")}, indent=1))
+    print(json.dumps({k: v for k, v in correlation.items() if not isinstance(v, list)}, indent=1))
     model = sightings["model"]
     ranges = model["measured_range"]
     model_sigma = {"range_m": np.hypot(model["sigma_range_m"], model["sigma_range_per_m"] * ranges),
@@ -315,6 +387,14 @@ def main(argv: list[str] | None = None) -> None:
         panels.append(Panel(f"{name} residual / model sigma", "normalised residual", "sightings",
                             {"measured": (centres.tolist(), counts.tolist()),
                              "N(0, 1)": (centres.tolist(), gauss.tolist())}))
+    lags = np.asarray(correlation["lags_s"])
+    fitted = np.exp(-lags / correlation["time_constant_s"])
+    panels.append(Panel("sighting errors: correlation by time apart", "time apart [s]", "correlation",
+                        {"range": (lags.tolist(), correlation["range_correlation"]),
+                         "range fit": (lags.tolist(), (correlation["range_share"] * fitted).tolist()),
+                         "bearing": (lags.tolist(), correlation["bearing_correlation"]),
+                         "bearing fit": (lags.tolist(),
+                                         (correlation["bearing_share"] * fitted).tolist())}))
     names = list(checks)
     panels.append(Panel("odometry consistency (mean NEES, 3 = consistent)", "window", "NEES",
                         {"mean": (names, [checks[n]["mean"] for n in names]),

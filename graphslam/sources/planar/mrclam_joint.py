@@ -74,7 +74,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         notes.extend(tr.notes)
     position = {(n, k): i for i, (_, n, k) in enumerate(order)}
     sightings = _sightings(tracks, config, position)
-    observations = {n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k)
+    observations = {n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k, n)
                     for n, tr in tracks.items()}
     steps = {n: odometry_batch([n * POSE_ID_STRIDE + k for k in range(len(tr.times) - 1)],
                                [n * POSE_ID_STRIDE + k for k in range(1, len(tr.times))],
