@@ -94,6 +94,12 @@ the inverse-observed points (covariances ``G_x P_rr G_x^T + G_z R G_z^T``,
 correlations ignored). Observations held on the list are reported as ``None``
 by :meth:`EkfSlam.associations`.
 
+Sightings whose errors are correlated in time (an observation's ``correlation``
+and ``stamp_s``) update with their covariance inflated by what they add to the
+earlier sightings of the landmark they were associated with
+(:mod:`slamcore.planar.sighting_correlation`); association gates with the
+sighting's own covariance.
+
 :meth:`EkfSlam.predict_observations` uses as ``R`` the covariance of the last
 observation the filter saw, or, before any, ``diag(default_sigma_range_m^2,
 default_sigma_bearing_rad^2)`` from the config (course demo values by default).
@@ -128,6 +134,7 @@ from slamcore.planar.records import (
     as_covariance,
     as_vector,
 )
+from slamcore.planar.sighting_correlation import LastSightings
 
 
 class EkfSlam(Backend):
@@ -164,6 +171,8 @@ class EkfSlam(Backend):
         # unknown-association provisional entries
         self._prov = ProvisionalList(self.config.provisional_sightings, self._gate)
         self._scan = 0
+        # each sighting weighed by what it adds to its landmark's earlier ones
+        self._last_sightings = LastSightings()
         self._last_associations = []
         self.last_jcbb = None
         #: Identified observations rejected by ``known_gate_chi2_prob`` since initialisation.
@@ -292,7 +301,8 @@ class EkfSlam(Backend):
             lid = int(lid)
             slot = self._store.slot.get(lid)
             if slot is not None:
-                if kalman_update(self._store, slot, o.z, o.covariance, self.config, self.recoveries,
+                R = self._last_sightings.covariance(o, lid)
+                if kalman_update(self._store, slot, o.z, R, self.config, self.recoveries,
                                  self._known_gate):
                     assoc[k] = lid
                 else:
@@ -303,7 +313,7 @@ class EkfSlam(Backend):
                 seen_prov.add(lid)
             if self._prov_known[lid] >= self.config.provisional_sightings:
                 del self._prov_known[lid]
-                self._add_landmark(lid, o.z, o.covariance)
+                self._add_landmark(lid, o.z, self._last_sightings.covariance(o, lid))
                 assoc[k] = lid
         if unknown:
             self._update_unknown([obs[k] for k in unknown], unknown, assoc)
@@ -393,7 +403,8 @@ class EkfSlam(Backend):
         # Updates first (slots are stable: new landmarks only append).
         for i, slot in enumerate(hyp):
             if slot is not None:
-                kalman_update(self._store, slot, Z[i], Rs[i], c, self.recoveries)
+                R = self._last_sightings.covariance(obs[i], self._store.ids[slot])
+                kalman_update(self._store, slot, Z[i], R, c, self.recoveries)
                 assoc[where[i]] = self._store.ids[slot]
         # Then new landmarks (or provisional sightings) from the updated pose.
         hit_prov: set[int] = set()
@@ -406,10 +417,12 @@ class EkfSlam(Backend):
                 lid = self._next_id
                 self._add_landmark(lid, Z[i], Rs[i])
                 assoc[where[i]] = lid
+                self._last_sightings.covariance(obs[i], lid)  # its first sighting's time
                 continue
             entered = self._provisional_sighting(Z[i], Rs[i], hit_prov)
             if entered is not None:
                 assoc[where[i]] = entered
+                self._last_sightings.covariance(obs[i], entered)
         self._prov.compact()
 
     def _provisional_sighting(self, z: np.ndarray, R: np.ndarray, hit: set[int]) -> int | None:

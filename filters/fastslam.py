@@ -56,6 +56,10 @@ Per frame:
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.
 
+  Sightings are taken as independent: an observation's ``correlation`` (errors
+  correlated in time, which the EKF and iSAM2 weigh) is not used here, for the
+  reason :mod:`slamcore.planar.sighting_correlation` gives (measured worse).
+
 Cost per observation: known association is O(N) vectorised numpy (plus the
 O(N L) int32 table copy when resampling). Unknown association evaluates every
 (particle, landmark) pair, O(N L), in elementwise arithmetic on (N, L)

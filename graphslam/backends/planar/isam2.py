@@ -3,6 +3,9 @@
 Range-only observations (radio beacons) become ``RangeFactor2D``; a landmark seen
 by ranges alone enters the graph once its buffered ranges determine its position
 (:mod:`graphslam.backends.planar.range_init`), with all those ranges as factors.
+A range-bearing sighting whose errors are correlated in time (an observation's
+``correlation`` and ``stamp_s``) enters with its covariance inflated by what it adds to
+the earlier sightings of its landmark (:mod:`slamcore.planar.sighting_correlation`).
 
 Incremental use, as iSAM2 wants it: the factors and initial values of one
 frame are buffered and handed to ``ISAM2.update`` once, when the next frame
@@ -84,6 +87,7 @@ from slamcore.planar.records import (
     PoseSighting,
     Prediction,
 )
+from slamcore.planar.sighting_correlation import LastSightings
 
 #: Median of the chi-square distribution with 3 degrees of freedom.
 CHI2_3DOF_MEDIAN = 2.3660
@@ -108,6 +112,8 @@ class Isam2Backend(Backend):
         self._landmark_set: set[int] = set()
         self._last_associations = []
         self._measurement_cov: dict[int, np.ndarray] = {}  # last R seen per landmark
+        # each sighting weighed by what it adds to its landmark's earlier ones
+        self._last_sightings = LastSightings()
         self._ranges = RangeLandmarkInitialiser()  # range-only landmarks not yet placed
         self._polished: gtsam.Values | None = None
         self._n_factors = 0  # factors handed to iSAM2 or pending, in insertion order
@@ -177,7 +183,8 @@ class Isam2Backend(Backend):
                 self._values.insert(L(lid), wTb.transformFrom(np.array([r * np.cos(b), r * np.sin(b)])))
                 self._landmark_ids.append(lid)
                 self._landmark_set.add(lid)
-            self._graph.add(conv.bearing_range_factor(obs, lid, self.config.observation_kernel,
+            self._graph.add(conv.bearing_range_factor(self._last_sightings.observation(obs, lid), lid,
+                                                      self.config.observation_kernel,
                                                       self.config.observation_kernel_k))
             self._measurement_cov[lid] = obs.covariance
             assoc.append(lid)
@@ -205,9 +212,11 @@ class Isam2Backend(Backend):
                 self._landmark_ids.append(lid)
                 self._landmark_set.add(lid)
                 for seen in d.sightings:
-                    self._graph.add(conv.bearing_range_factor(seen, lid, *kernel))
+                    self._graph.add(conv.bearing_range_factor(
+                        self._last_sightings.observation(seen, lid), lid, *kernel))
             elif d.kind == "landmark":
-                self._graph.add(conv.bearing_range_factor(obs, d.landmark(), *kernel))
+                self._graph.add(conv.bearing_range_factor(
+                    self._last_sightings.observation(obs, d.landmark()), d.landmark(), *kernel))
             if d.landmark_id is not None:
                 self._measurement_cov[d.landmark_id] = obs.covariance
             assoc.append(d.landmark_id)
@@ -219,6 +228,7 @@ class Isam2Backend(Backend):
                     L(keep), L(drop), gtsam.Point2(0.0, 0.0),
                     gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M)))
                 self._landmark_ids.remove(drop)
+                self._last_sightings.merged(keep, drop)
         return assoc
 
     def add_loop_closure(self, loop_closure: LoopClosure) -> None:
