@@ -15,13 +15,17 @@ import numpy as np
 
 from slamcore.errors import GraphSlamError
 
-__all__ = ["STILL_TOL", "umeyama"]
+__all__ = ["LINE_TOL", "STILL_TOL", "collinear", "rotation_about_line", "umeyama"]
 
 #: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
 #: which a point set "does not move": far below any printed precision (TUM files
 #: carry 4-9 decimals), far above the float64 residue of subtracting the mean
 #: (~1e-16 per metre), so a still trajectory is caught whatever its coordinates.
 STILL_TOL = 1e-9
+#: Positions "lie on one line" when their second principal spread is below this
+#: fraction of the first: a millionth is the precision of 6 printed digits
+#: (KITTI's %e), so a rotation about the line would be fitted to print noise.
+LINE_TOL = 1e-6
 
 
 def umeyama(src, dst, dim: int, with_scale: bool, who: str,
@@ -72,3 +76,31 @@ def umeyama(src, dst, dim: int, with_scale: bool, who: str,
         s = float(np.sum(D * np.diag(S)) / var_s)
     t = mu_d - s * R @ mu_s
     return s, R, t
+
+
+def collinear(points: np.ndarray) -> bool:
+    """Whether ``points`` (k, 3) lie on one line (:data:`LINE_TOL`; always so for two): a
+    fit on their positions leaves the rotation about that line free."""
+    centred = points - points.mean(axis=0)
+    spread = np.linalg.svd(centred, compute_uv=False)
+    return bool(spread[1] <= LINE_TOL * spread[0])
+
+
+def rotation_about_line(ref: np.ndarray, est: np.ndarray) -> np.ndarray:
+    """(4, 4) rotation about the reference's line (through its centroid) that best
+    aligns the estimate's orientations with the reference's (both (k, 4, 4), the
+    estimate already fitted on positions): positions on a line leave that angle
+    free, and Umeyama's arbitrary choice reported up to 180 deg of rotation error
+    for a 2-pose or straight trajectory. Closed form: with R(a) = I + sin a K +
+    (1 - cos a) K^2 about the unit axis u (K = [u]x), sum_i tr(R(a) Q_i P_i^T) is
+    largest at a = atan2(tr(K M), -tr(K^2 M)), M = sum_i Q_i P_i^T."""
+    points = ref[:, :3, 3]
+    centre = points.mean(axis=0)
+    u = np.linalg.svd(points - centre)[2][0]
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    M = np.einsum("kij,klj->il", est[:, :3, :3], ref[:, :3, :3])
+    a = np.arctan2(np.trace(K @ M), -np.trace(K @ K @ M))
+    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, centre - R @ centre
+    return T

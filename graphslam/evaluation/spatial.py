@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from graphslam.evaluation.alignment import umeyama
+from graphslam.evaluation.alignment import collinear, rotation_about_line, umeyama
 from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -183,6 +183,9 @@ def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "n
         est = est.copy()
         est[:, :3, :3] = R @ est[:, :3, :3]
         est[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
+        if collinear(gt[:, :3, 3]) or collinear(est[:, :3, 3]):
+            # positions on a line leave the rotation about it free: fit it on orientations
+            est = rotation_about_line(gt, est) @ est
         D = np.diag([s] * 3 + [1.0] * 3)
         cov = D @ cov @ D
     err = pose_errors(est, gt)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphslam.evaluation.alignment import STILL_TOL
+from graphslam.evaluation.alignment import STILL_TOL, collinear, rotation_about_line
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -125,17 +125,10 @@ def associate(ref_t: np.ndarray, est_t: np.ndarray, max_diff: float = DEFAULT_MA
     return np.asarray(i_ref, dtype=np.int64), np.asarray(i_est, dtype=np.int64)
 
 
-#: Positions "lie on one line" when their second principal spread is below this
-#: fraction of the first: a millionth is the precision of 6 printed digits
-#: (KITTI's %e), so a rotation about the line would be fitted to print noise.
-LINE_TOL = 1e-6
-
-
 def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
-    """Whether an SE(3)/Sim(3) fit on ``points`` (k, 3) leaves a rotation free:
-    positions on one line (always the case for 2 poses) do not fix the rotation
-    about it. GraphSlamError when the positions do not move at all: then there
-    is no rotation to fit (and a Sim(3) scale of 0)."""
+    """Whether an SE(3)/Sim(3) fit on ``points`` (k, 3) leaves a rotation free
+    (:func:`.alignment.collinear`). GraphSlamError when the positions do not move at
+    all: then there is no rotation to fit (and a Sim(3) scale of 0)."""
     centred = points - points.mean(axis=0)
     spread = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
     scale = max(1.0, float(np.max(np.abs(points))))
@@ -144,34 +137,14 @@ def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
                              f"are within {spread[0]:.1e} m of their mean): --align {method} "
                              "has nothing to fit; use --align first (first pose onto first "
                              "pose) or --align none")
-    return bool(spread[1] <= LINE_TOL * spread[0])
-
-
-def _about_line(ref: np.ndarray, est: np.ndarray) -> np.ndarray:
-    """(4, 4) rotation about the reference's line (through its centroid) that best
-    aligns the estimate's orientations with the reference's (both (k, 4, 4), the
-    estimate already fitted on positions): positions on a line leave that angle
-    free, and Umeyama's arbitrary choice reported up to 180 deg of rotation error
-    for a 2-pose or straight trajectory. Closed form: with R(a) = I + sin a K +
-    (1 - cos a) K^2 about the unit axis u (K = [u]x), sum_i tr(R(a) Q_i P_i^T) is
-    largest at a = atan2(tr(K M), -tr(K^2 M)), M = sum_i Q_i P_i^T."""
-    points = ref[:, :3, 3]
-    centre = points.mean(axis=0)
-    u = np.linalg.svd(points - centre)[2][0]
-    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    M = np.einsum("kij,klj->il", est[:, :3, :3], ref[:, :3, :3])
-    a = np.arctan2(np.trace(K @ M), -np.trace(K @ K @ M))
-    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, centre - R @ centre
-    return T
+    return collinear(points)
 
 
 def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
           ) -> tuple[np.ndarray, float]:
     """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first.
     Positions on one line leave the rotation about it free: that angle is then
-    fitted on the orientations (:func:`_about_line`); positions that do not move
+    fitted on the orientations (:func:`.alignment.rotation_about_line`); positions that do not move
     are a GraphSlamError."""
     est = np.array(est, dtype=np.float64)
     if method == "none":
@@ -188,7 +161,7 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
     T[:3, :3], T[:3, 3] = R, t
     aligned = T @ est
     if line:
-        aligned = _about_line(ref[:k], aligned[:k]) @ aligned
+        aligned = rotation_about_line(ref[:k], aligned[:k]) @ aligned
     return aligned, float(s)
 
 

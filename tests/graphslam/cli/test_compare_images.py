@@ -74,6 +74,24 @@ def test_pose_nees_after_a_sim3_fit_undoes_scale_and_frame():
     assert pose_nees(ids, moved, D @ C @ D, ids, gt)["nees_mean"] > 1e3
 
 
+def test_pose_nees_on_a_straight_drive_fits_the_rotation_about_the_line():
+    """Truth on one line (a straight drive, or two frames): the positions leave the
+    rotation about that line free, so the aligned NEES must take it from the
+    orientations; Umeyama's arbitrary angle read as a rotation error of up to 180 deg."""
+    gt_any, est_any, C = _poses_with_errors(seed=5)
+    rel = np.stack([invert_pose(g) @ e for g, e in zip(gt_any, est_any, strict=True)])
+    gt = gt_any.copy()  # the same orientations, the centres on one line
+    gt[:, :3, 3] = np.outer(np.linspace(0.0, 30.0, N_DRAWS), [1.0, 0.5, 0.0])
+    est = gt @ rel  # the same errors, in each pose's frame
+    R = so3_exp([0.2, 0.1, -0.4])
+    moved = est.copy()
+    moved[:, :3, :3] = R @ est[:, :3, :3]
+    moved[:, :3, 3] = est[:, :3, 3] @ R.T + np.array([1.0, 2.0, 3.0])
+    ids = np.arange(N_DRAWS)
+    aligned = pose_nees(ids, moved, C, ids, gt, alignment="se3")["nees_mean"]
+    assert abs(aligned - pose_nees(ids, est, C, ids, gt)["nees_mean"]) < MEAN_TOL
+
+
 def test_compare_on_images_writes_table_json_png_and_recording(tmp_path, small_room):
     done = graphslam(tmp_path, "compare", "--dataset", "synthetic-images", "--config",
                      str(small_room), "--max-steps", "6", "--out", "c", "--rerun", "save")
