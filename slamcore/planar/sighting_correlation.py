@@ -40,14 +40,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from slamcore.errors import ConfigError
-
-if TYPE_CHECKING:  # records imports this module
-    from slamcore.planar.records import Observation
 
 #: Largest inflation factor: two sightings at one time stamp (rho = 1) are one.
 MAX_INFLATION = 1e6
@@ -97,6 +94,21 @@ class SightingCorrelation:
         return np.asarray(covariance, dtype=np.float64) * np.outer(s, s)
 
 
+class TimedSighting(Protocol):
+    """What :class:`LastSightings` reads of a sighting (a
+    :class:`~slamcore.planar.records.Observation`, which imports this module)."""
+
+    @property
+    def covariance(self) -> np.ndarray: ...
+    @property
+    def stamp_s(self) -> float | None: ...
+    @property
+    def correlation(self) -> SightingCorrelation | None: ...
+
+
+Sighting = TypeVar("Sighting", bound=Any)
+
+
 class LastSightings:
     """When each landmark was last sighted by each sensor, and the covariance a new
     sighting gets (a part each back end owns; landmark ids as the back end assigned them)."""
@@ -104,7 +116,7 @@ class LastSightings:
     def __init__(self) -> None:
         self._last: dict[tuple[int, int], float] = {}
 
-    def covariance(self, obs: Observation, landmark_id: int) -> np.ndarray:
+    def covariance(self, obs: TimedSighting, landmark_id: int) -> np.ndarray:
         """The covariance ``obs`` (a sighting of ``landmark_id``) is weighed with, recorded
         as that landmark's latest sighting; its own without a correlation or a time."""
         model = obs.correlation
@@ -115,7 +127,7 @@ class LastSightings:
         self._last[key] = obs.stamp_s if prev is None else max(prev, obs.stamp_s)
         return model.covariance(obs.covariance, math.inf if prev is None else obs.stamp_s - prev)
 
-    def observation(self, obs: Observation, landmark_id: int) -> Observation:
+    def observation(self, obs: Sighting, landmark_id: int) -> Sighting:
         """``obs`` with the covariance of :meth:`covariance`."""
         cov = self.covariance(obs, landmark_id)
         return obs if cov is obs.covariance else replace(obs, covariance=cov)
