@@ -3,9 +3,8 @@
 Range-only observations (radio beacons) become ``RangeFactor2D``; a landmark seen
 by ranges alone enters the graph once its buffered ranges determine its position
 (:mod:`graphslam.backends.planar.range_init`), with all those ranges as factors.
-A range-bearing sighting whose errors are correlated in time (an observation's
-``correlation`` and ``stamp_s``) enters with its covariance inflated by what it adds to
-the earlier sightings of its landmark (:mod:`slamcore.planar.sighting_correlation`).
+A sighting whose errors are correlated in time enters weighed by what it adds to the
+earlier ones of its landmark (:mod:`slamcore.planar.sighting_correlation`).
 
 Incremental use, as iSAM2 wants it: the factors and initial values of one
 frame are buffered and handed to ``ISAM2.update`` once, when the next frame
@@ -74,7 +73,7 @@ from gtsam.symbol_shorthand import L, X
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2_config import Isam2Config
-from graphslam.backends.planar.isam2_unknown import MERGE_SIGMA_M, UnknownAssociation
+from graphslam.backends.planar.isam2_unknown import UnknownAssociation
 from graphslam.backends.planar.range_init import RangeLandmarkInitialiser
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar.backend import Backend
@@ -212,24 +211,29 @@ class Isam2Backend(Backend):
                 self._landmark_ids.append(lid)
                 self._landmark_set.add(lid)
                 for seen in d.sightings:
-                    self._graph.add(conv.bearing_range_factor(
-                        self._last_sightings.observation(seen, lid), lid, *kernel))
+                    self._add_sighting(unknown, seen, lid, kernel)
             elif d.kind == "landmark":
-                self._graph.add(conv.bearing_range_factor(
-                    self._last_sightings.observation(obs, d.landmark()), d.landmark(), *kernel))
+                self._add_sighting(unknown, obs, d.landmark(), kernel)
             if d.landmark_id is not None:
                 self._measurement_cov[d.landmark_id] = obs.covariance
             assoc.append(d.landmark_id)
+        confirmed = [d.landmark() for d in decisions if d.kind == "confirmed"]
+        if confirmed:  # sightings a new landmark explains better move to it (isam2_unknown)
+            self._flush()
+            self._n_factors += unknown.split(self._isam, confirmed, self._n_factors, kernel)
         paired = [d.landmark() for d in decisions if d.kind == "landmark"]
         if paired:
             self._flush()
-            for keep, drop in unknown.merges(self._isam, paired):
-                self._graph.add(gtsam.BetweenFactorPoint2(
-                    L(keep), L(drop), gtsam.Point2(0.0, 0.0),
-                    gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M)))
+            for keep, drop, tie in unknown.merges(self._isam, paired):
+                self._graph.add(tie)
                 self._landmark_ids.remove(drop)
                 self._last_sightings.merged(keep, drop)
         return assoc
+
+    def _add_sighting(self, unknown: UnknownAssociation, obs: Observation, lid: int, kernel) -> None:
+        added = self._last_sightings.observation(obs, lid)  # weighed (sighting_correlation)
+        unknown.record(lid, self._n_factors + self._graph.size(), obs, added)
+        self._graph.add(conv.bearing_range_factor(added, lid, *kernel))
 
     def add_loop_closure(self, loop_closure: LoopClosure) -> None:
         for pid in (loop_closure.from_id, loop_closure.to_id):
