@@ -39,7 +39,9 @@ class AssociationScore:
     """Data association against ground truth (:func:`.planar.association_accuracy`).
 
     Attributes:
-        accuracy: share of observations given the right landmark (unused count wrong).
+        accuracy: share of observations given the right landmark (unused count wrong),
+            as each was decided when it arrived: a later merge or split (iSAM2 with
+            unknown ids) is not counted, so this is a lower bound of the final pairing's.
         observations: observations scored; unused: observations the back end left unused.
         landmarks_created: back-end landmarks; duplicates: extra back-end landmarks
             mapped to an already-taken true landmark.
