@@ -32,7 +32,9 @@ back end gave to a landmark within :data:`MERGE_REACH_M` of the new one is teste
 again at the current estimate: one that the new landmark explains better (a smaller
 squared Mahalanobis distance under the sighting's covariance, and inside the
 association gate) is moved to it: its factor leaves iSAM2 and an equal one on the
-new landmark enters, in one update. A sighting is never split between the two.
+new landmark enters, in one update. A sighting is never split between the two, and a
+landmark still takes at most one sighting of a scan (a sighting from a pose that
+already sees the new landmark stays where it is).
 """
 
 from __future__ import annotations
@@ -102,6 +104,8 @@ class UnknownAssociation:
         """``(factor index, sighting as given, as added, new_id)`` of each sighting of a
         landmark near ``new_id`` that ``new_id`` explains better, taken off its list."""
         pos_new = np.asarray(isam.calculateEstimatePoint2(L(new_id)))
+        # a landmark takes one sighting per scan: not from a pose that already sees it
+        taken = {given.pose_id for _, given, _ in self.sightings.get(new_id, [])}
         moved = []
         for lid in list(self.active):
             if lid == new_id or lid in self.merged:
@@ -113,8 +117,9 @@ class UnknownAssociation:
             for index, given, added in self.sightings.get(lid, []):
                 wTb = conv.pose2_vector(isam.calculateEstimatePose2(X(given.pose_id)))
                 d2 = [_d2(given, wTb, p) for p in (pos, pos_new)]
-                if d2[1] < d2[0] and d2[1] <= self.associator.gate_d2:
+                if given.pose_id not in taken and d2[1] < d2[0] and d2[1] <= self.associator.gate_d2:
                     moved.append((index, given, added, new_id))
+                    taken.add(given.pose_id)
                 else:
                     keep.append((index, given, added))
             self.sightings[lid] = keep
