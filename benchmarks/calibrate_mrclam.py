@@ -232,22 +232,33 @@ def sighting_model(ranges: np.ndarray, r_res: np.ndarray, b_res: np.ndarray) -> 
             "bearing_beyond_3_sigma": beyond(b_res, sig_b), "bins": bins}
 
 
-def sighting_residuals(folder: Path, logs: dict) -> dict:
+def sightings_against_truth(folder: Path, logs: dict) -> list[dict]:
+    """Per robot, every landmark sighting with truth at its time: ``time`` (N,),
+    ``subject`` (N,), ``z`` (N, 2) measured range and bearing, and ``residual`` (N, 2)
+    against the range and bearing the truth gives."""
     from graphslam.sources.planar.mrclam import read_subjects
 
     barcodes, landmarks = read_subjects(folder)
-    r_res, b_res, ranges = [], [], []
+    out = []
     for log in logs.values():
         meas, truth = log["meas"], log["truth"]
         subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]])
         keep = np.isin(subject, list(landmarks))
         p = truth_at(truth, meas[keep, 0])
-        lm = np.array([landmarks[s] for s in subject[keep]])
         ok = np.isfinite(p).all(axis=1)
-        d = lm[ok] - p[ok, :2]
-        ranges.append(meas[keep, 2][ok])
-        r_res.append(ranges[-1] - np.hypot(d[:, 0], d[:, 1]))
-        b_res.append(wrap_angle(meas[keep, 3][ok] - (np.arctan2(d[:, 1], d[:, 0]) - p[ok, 2])))
+        m, sub, p = meas[keep][ok], subject[keep][ok], p[ok]
+        d = np.array([landmarks[s] for s in sub]).reshape(-1, 2) - p[:, :2]
+        residual = np.stack([m[:, 2] - np.hypot(d[:, 0], d[:, 1]),
+                             wrap_angle(m[:, 3] - (np.arctan2(d[:, 1], d[:, 0]) - p[:, 2]))], axis=1)
+        out.append({"time": m[:, 0], "subject": sub, "z": m[:, 2:4], "residual": residual})
+    return out
+
+
+def sighting_residuals(per_robot: list[dict]) -> dict:
+    """Step 3 of the module docstring on :func:`sightings_against_truth`'s sightings."""
+    r_res = [r["residual"][:, 0] for r in per_robot]
+    b_res = [r["residual"][:, 1] for r in per_robot]
+    ranges = [r["z"][:, 0] for r in per_robot]
     out: dict = {}
     for name, res in (("range_m", np.concatenate(r_res)), ("bearing_rad", np.concatenate(b_res))):
         med = float(np.median(res))
@@ -268,36 +279,26 @@ CORRELATION_LAGS_S = (0.0, 0.3, 0.6, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16
 CORRELATION_CLIP = 4.0
 
 
-def sighting_correlation(folder: Path, logs: dict, config: MrclamConfig) -> dict:
+def sighting_correlation(per_robot: list[dict], config: MrclamConfig) -> dict:
     """Step 4 of the module docstring: the correlation of the normalised range and bearing
     errors of two sightings of one landmark by one robot, by the time between them,
     and the fit ``c exp(-dt / tau)`` (one ``tau``, a share ``c`` per component)."""
     from scipy.optimize import least_squares
 
-    from graphslam.sources.planar.mrclam import read_subjects, sighting_covariances
+    from graphslam.sources.planar.mrclam import sighting_covariances
 
-    barcodes, landmarks = read_subjects(folder)
     edges = np.asarray(CORRELATION_LAGS_S)
     sums = np.zeros((2, len(edges) - 1, 2))  # component, bin, (sum of products, sum of squares)
     counts = np.zeros(len(edges) - 1)
-    for log in logs.values():
-        meas, truth = log["meas"], log["truth"]
-        subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]])
-        keep = np.isin(subject, list(landmarks))
-        p = truth_at(truth, meas[keep, 0])
-        ok = np.isfinite(p).all(axis=1)
-        m, sub, p = meas[keep][ok], subject[keep][ok], p[ok]
-        sigma = np.sqrt(np.diagonal(sighting_covariances(config, m[:, 2:4]), axis1=1, axis2=2))
-        lm = np.array([landmarks[s] for s in sub])
-        d = lm - p[:, :2]
-        res = np.stack([m[:, 2] - np.hypot(d[:, 0], d[:, 1]),
-                        wrap_angle(m[:, 3] - (np.arctan2(d[:, 1], d[:, 0]) - p[:, 2]))], axis=1) / sigma
+    for robot in per_robot:
+        sub, t = robot["subject"], robot["time"]
+        sigma = np.sqrt(np.diagonal(sighting_covariances(config, robot["z"]), axis1=1, axis2=2))
+        res = robot["residual"] / sigma
         for s in np.unique(sub):
             k = np.flatnonzero(sub == s)
             e = np.clip(res[k] - np.median(res[k], axis=0), -CORRELATION_CLIP, CORRELATION_CLIP)
             a, b = np.triu_indices(k.size, 1)
-            dt = np.abs(m[k[a], 0] - m[k[b], 0])
-            where = np.digitize(dt, edges) - 1
+            where = np.digitize(np.abs(t[k[a]] - t[k[b]]), edges) - 1
             inside = (where >= 0) & (where < len(counts))
             a, b, where = a[inside], b[inside], where[inside]
             counts += np.bincount(where, minlength=len(counts))
@@ -337,9 +338,10 @@ def main(argv: list[str] | None = None) -> None:
     checks = {"frames": mean_nees(coef, *windows(logs, model, None))}
     for every in (1.0, 5.0, 20.0):
         checks[f"{every:g} s"] = mean_nees(coef, *windows(logs, model, every))
-    sightings = sighting_residuals(args.data, logs)
+    per_robot = sightings_against_truth(args.data, logs)
+    sightings = sighting_residuals(per_robot)
     default = MrclamConfig()
-    correlation = sighting_correlation(args.data, logs, default)
+    correlation = sighting_correlation(per_robot, default)
     report = {
         "robots": robots, "data": str(args.data), "command": COMMAND,
         "odometry": {k: v for k, v in motion.items() if k != "residual"},
