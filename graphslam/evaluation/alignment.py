@@ -15,7 +15,8 @@ import numpy as np
 
 from slamcore.errors import GraphSlamError
 
-__all__ = ["LINE_TOL", "STILL_TOL", "collinear", "rotation_about_line", "umeyama"]
+__all__ = ["LINE_TOL", "STILL_TOL", "collinear", "principal_spreads", "rotation_about_line",
+           "umeyama"]
 
 #: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
 #: which a point set "does not move": far below any printed precision (TUM files
@@ -78,12 +79,18 @@ def umeyama(src, dst, dim: int, with_scale: bool, who: str,
     return s, R, t
 
 
-def collinear(points: np.ndarray) -> bool:
-    """Whether ``points`` (k, 3) lie on one line (:data:`LINE_TOL`; always so for two): a
-    fit on their positions leaves the rotation about that line free."""
+def principal_spreads(points: np.ndarray) -> np.ndarray:
+    """RMS spread (3,) of ``points`` (k, 3) from their mean along their principal axes, largest first."""
     centred = points - points.mean(axis=0)
-    spread = np.linalg.svd(centred, compute_uv=False)
-    return bool(spread[1] <= LINE_TOL * spread[0])
+    return np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
+
+
+def collinear(points: np.ndarray, spreads: np.ndarray | None = None) -> bool:
+    """Whether ``points`` (k, 3) lie on one line (:data:`LINE_TOL`; always so for two): a
+    fit on their positions leaves the rotation about that line free. ``spreads``: their
+    :func:`principal_spreads`, when the caller has them."""
+    s = principal_spreads(points) if spreads is None else spreads
+    return bool(s[1] <= LINE_TOL * s[0])
 
 
 def rotation_about_line(ref: np.ndarray, est: np.ndarray) -> np.ndarray:

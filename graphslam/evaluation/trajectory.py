@@ -27,7 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphslam.evaluation.alignment import STILL_TOL, collinear, rotation_about_line
+from graphslam.evaluation.alignment import (
+    STILL_TOL,
+    collinear,
+    principal_spreads,
+    rotation_about_line,
+)
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -129,15 +134,14 @@ def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
     """Whether an SE(3)/Sim(3) fit on ``points`` (k, 3) leaves a rotation free
     (:func:`.alignment.collinear`). GraphSlamError when the positions do not move at
     all: then there is no rotation to fit (and a Sim(3) scale of 0)."""
-    centred = points - points.mean(axis=0)
-    spread = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
+    spread = principal_spreads(points)
     scale = max(1.0, float(np.max(np.abs(points))))
     if spread[0] <= STILL_TOL * scale:
         raise GraphSlamError(f"the {what} does not move (its {len(points)} matched positions "
                              f"are within {spread[0]:.1e} m of their mean): --align {method} "
                              "has nothing to fit; use --align first (first pose onto first "
                              "pose) or --align none")
-    return collinear(points)
+    return collinear(points, spread)
 
 
 def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None

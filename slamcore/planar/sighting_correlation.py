@@ -5,7 +5,7 @@ A back end that takes every sighting as independent learns a landmark N times
 faster than it should when consecutive sightings repeat the same error. On real
 cameras they do: on UTIAS MRCLAM Dataset 6 (``benchmarks/calibrate_mrclam.py``)
 the range errors of two sightings of one landmark from one robot correlate 0.97
-within 0.3 s, 0.59 at 2-4 s and 0.20 at 8-16 s, whether the robot moved between
+within 0.3 s, 0.54 at 3-4 s and 0.21 at 8-12 s, whether the robot moved between
 them or not (0.16 at the same spot after 16 s): the error lives in time, not in
 the viewpoint. A landmark fused from 50 sightings of one second is then believed
 to 1-2 cm while its estimate is 5 cm off, its gate shrinks below its error, and
@@ -106,6 +106,7 @@ class TimedSighting(Protocol):
     def correlation(self) -> SightingCorrelation | None: ...
 
 
+#: A dataclass sighting (an Observation): ``dataclasses.replace`` cannot be typed on a Protocol.
 Sighting = TypeVar("Sighting", bound=Any)
 
 

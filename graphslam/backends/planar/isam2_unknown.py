@@ -107,8 +107,8 @@ class UnknownAssociation:
         # a landmark takes one sighting per scan: not from a pose that already sees it
         taken = {given.pose_id for _, given, _ in self.sightings.get(new_id, [])}
         moved = []
-        for lid in list(self.active):
-            if lid == new_id or lid in self.merged:
+        for lid in self.active:  # merged landmarks have left it
+            if lid == new_id:
                 continue
             pos = np.asarray(isam.calculateEstimatePoint2(L(lid)))
             if np.linalg.norm(pos - pos_new) > MERGE_REACH_M:
