@@ -65,6 +65,10 @@ class Attack:
     #: seconds after the start at which SIGINT goes to the whole process group (Ctrl-C
     #: in a terminal reaches the run and every process it started), or None
     sigint_group_after_s: float | None = None
+    #: with ``sigint_group_after_s``: counted from when ``sigint_when(folder)`` first
+    #: holds (polled), not from the start, so a slow machine is cut at the same moment
+    #: of the run
+    sigint_when: Callable[[Path], bool] | None = None
 
 
 def _w(folder: Path, name: str, text: str | bytes) -> Path:
@@ -204,7 +208,7 @@ def attacks() -> list[Attack]:
         Attack("Ctrl-C to the process group of a long 2-D run recording in a second process",
                "fail", lambda f: _run("synthetic", "--rerun", "save", "--config",
                                       str(_w(f, "c.toml", "[synthetic]\nlaps = 20\n"))),
-               ("ok",), ok_codes=(130,), sigint_group_after_s=3.0,
+               ("ok",), ok_codes=(130,), sigint_group_after_s=0.5, sigint_when=_recording,
                check=lambda f, o, e: _files("out/trajectory.tum", "out/run.rrd")(f, o, e) or (
                    None if "interrupted" in e else "the interruption is not said")),
         Attack("SIGTERM to a running sweep: finished rows kept, no run left behind", "fail",
@@ -308,16 +312,25 @@ def _sigterm_after(proc: subprocess.Popen, seconds: float) -> None:
     timer.start()
 
 
-def _sigint_group_after(proc: subprocess.Popen, seconds: float) -> None:
+def _sigint_group_after(proc: subprocess.Popen, seconds: float, folder: Path,
+                        when: Callable[[Path], bool] | None) -> None:
     import signal
     import threading
 
     def send():
+        while when is not None and proc.poll() is None and not when(folder):
+            time.sleep(0.05)
+        time.sleep(seconds)
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGINT)
-    timer = threading.Timer(seconds, send)
-    timer.daemon = True
-    timer.start()
+    threading.Thread(target=send, daemon=True).start()
+
+
+def _recording(folder: Path) -> bool:
+    """The recording process has opened its file (it does so after importing Rerun,
+    1-3 s in which the run, started meanwhile, has gone past its first steps)."""
+    out = folder / "out"
+    return out.is_dir() and any(p.name.startswith(".gs-") for p in out.iterdir())
 
 
 def _earlier_run(folder: Path, *extra: str) -> dict[str, bytes]:
@@ -389,7 +402,7 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
             if a.sigterm_after_s is not None:
                 _sigterm_after(proc, a.sigterm_after_s)
             if a.sigint_group_after_s is not None:
-                _sigint_group_after(proc, a.sigint_group_after_s)
+                _sigint_group_after(proc, a.sigint_group_after_s, folder, a.sigint_when)
             if close:
                 proc.stdout.close()
                 out, err = "", proc.communicate(timeout=timeout_s)[1].decode(errors="replace")
@@ -405,7 +418,8 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
         wall = time.perf_counter() - t0
         lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
         if "Traceback" in err or rc < 0:
-            outcome, why = "crash", "traceback" if "Traceback" in err else f"signal {-rc}"
+            outcome = "crash"
+            why = f"traceback: {err.strip()[-400:]}" if "Traceback" in err else f"signal {-rc}"
         elif rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_ERROR_CHARS:
             outcome, why = "error", lines[0][:200]
         elif rc in a.ok_codes:

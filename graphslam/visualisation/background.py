@@ -14,38 +14,54 @@ the run, waiting for the child to exit, would have paid. The child runs at the
 run's priority: niced, it starved on a busy machine and the run waited up to
 20 s at the end for what it had not yet written.
 
-The child ignores SIGINT and SIGTERM (they are blocked while it starts, and it
-inherits the mask; then ignored, which holds for every thread): a Ctrl-C to the
-process group stops the run, whose stop guard then closes the
-recording with what was logged, as in one process. A parent that dies
+The child is started with ``subprocess`` in a session of its own, not with
+``multiprocessing``: a Ctrl-C to the terminal's process group then never reaches
+it (it would die in a KeyboardInterrupt traceback, its file lost) while the run,
+whose stop guard gets the signal, closes the recording with what was logged, as
+in one process. Nothing in the run ignores or blocks a signal meanwhile (the
+earlier way, ignoring SIGINT in the run while the child started, lost a Ctrl-C
+that arrived in that window: the run went on to its end). A parent that dies
 without closing leaves the child an end of file: it deletes the recording (the
-earlier run's, if any, stays whole beside that run's files) and exits.
+earlier run's, if any, stays whole beside that run's files) and exits. A parent
+that exits without closing (a Ctrl-C before the run's first step ends the command
+with nothing written) abandons the child at interpreter exit and waits for it to
+have deleted its file.
 """
 
 from __future__ import annotations
 
-import multiprocessing
+import atexit
 import os
 import pickle
 import queue
-import signal
+import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Callable
+from multiprocessing.connection import Connection
 from typing import Any
 
 from slamcore.errors import GraphSlamError
 
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+#: What the child runs: its end of the socket is descriptor ``argv[1]``; the first
+#: message is the parent's ``sys.path`` (so the factory imports as it did there, a
+#: test module's class included), the second the factory and its arguments. A run
+#: abandoned before sending them leaves an end of file: nothing was recorded, no word.
+_CHILD = ("import pickle, sys\n"
+          "from multiprocessing.connection import Connection\n"
+          "conn = Connection(int(sys.argv[1]))\n"
+          "try:\n"
+          "    sys.path[:] = pickle.loads(conn.recv_bytes())\n"
+          "    start = pickle.loads(conn.recv_bytes())\n"
+          "except EOFError:\n"
+          "    sys.exit(0)\n"
+          "from graphslam.visualisation.background import _serve\n"
+          "_serve(conn, *start)\n")
 
 
 def _serve(conn, factory: Callable[..., Any], args: tuple) -> None:
     """The child: build the log, apply the calls, close on request or end of file."""
-    signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)  # kept whatever the start method
-    # and ignored: a mask is per thread, and a thread the Rerun SDK starts may unblock them
-    # (seen: one thread of the child with no signal blocked took a Ctrl-C sent to the
-    # process group, and the child died in a KeyboardInterrupt traceback, its file lost)
-    for stop in _STOP_SIGNALS:
-        signal.signal(stop, signal.SIG_IGN)
     failure = None
     try:
         log = factory(*args)
@@ -90,35 +106,31 @@ class BackgroundLog:
     """``factory(*args)`` built and driven in a child process (module docstring)."""
 
     def __init__(self, factory: Callable[..., Any], *args: Any):
-        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding gtsam's threads
-        self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, factory, args), daemon=True,
-                                 name="graphslam-recording")
-        # The spawned child starts with no signal blocked (fork_exec resets the mask) but
-        # keeps what is ignored, and Python leaves an ignored SIGINT ignored: so the stop
-        # signals are ignored here while it starts, and the child never sees a Ctrl-C to
-        # the process group, even while it imports (measured: 2 of 6 runs stopped 3 s in
-        # died importing numpy, their recording lost). Blocked first, so that a signal for
-        # this thread meanwhile is held, not ignored, and reaches the restored handler.
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-        # handlers can be set from the main thread only (elsewhere: the child's own SIG_IGN)
-        main = threading.current_thread() is threading.main_thread()
-        handlers = {stop: signal.signal(stop, signal.SIG_IGN) for stop in _STOP_SIGNALS} \
-            if main else {}
+        # pickled first: a factory that cannot be sent fails here, before any child exists
+        start = [pickle.dumps(list(sys.path), pickle.HIGHEST_PROTOCOL),
+                 pickle.dumps((factory, args), pickle.HIGHEST_PROTOCOL)]
+        ours, theirs = socket.socketpair()
         try:
-            self._proc.start()
+            self._proc = subprocess.Popen(
+                [sys.executable, "-c", _CHILD, str(theirs.fileno())], pass_fds=(theirs.fileno(),),
+                stdin=subprocess.DEVNULL, start_new_session=True)  # module docstring
+        except BaseException:
+            ours.close()
+            raise
         finally:
-            for stop, handler in handlers.items():
-                signal.signal(stop, handler)
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        child.close()
+            theirs.close()
+        self._conn = Connection(ours.detach())
         self._closed = False
-        # A pipe holds 64 kB: sent from the run's thread, calls would wait for the child
-        # to finish importing Rerun. A sender thread takes them from an unbounded queue.
+        # A socket holds some 200 kB: sent from the run's thread, calls would wait for the
+        # child to finish importing Rerun. A sender thread takes them from an unbounded
+        # queue, the start messages first.
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        for message in start:
+            self._queue.put(message)
         self._sender = threading.Thread(target=self._send_all, name="graphslam-recording-sender",
                                         daemon=True)
         self._sender.start()
+        atexit.register(self.abandon)
 
     def _send_all(self) -> None:
         while True:
@@ -149,14 +161,44 @@ class BackgroundLog:
         if self._closed:
             return
         self._closed = True
+        atexit.unregister(self.abandon)
         self._queue.put(None)
         self._sender.join()
         try:
             self._conn.send_bytes(pickle.dumps(("close", (), {})))
             failure = self._conn.recv()
         except (OSError, EOFError):
-            failure = f"the recording process exited with status {self._proc.exitcode}"
-        self._proc.join()
+            failure = f"the recording process exited with status {self._proc.wait()}"
+        self._proc.wait()
         self._conn.close()
         if failure is not None:
             raise GraphSlamError(f"recording failed: {failure}")
+
+    #: Seconds an abandoned child has to delete its partial file and exit before it is
+    #: killed (it reads the call being sent, then the end of file).
+    ABANDON_WAIT_S = 30.0
+
+    def abandon(self) -> None:
+        """End the child without a recording: calls not yet sent are dropped, the pipe
+        is closed, and the child, reading its end, deletes the partial file and exits
+        (killed if it has not within :data:`ABANDON_WAIT_S`). Called at interpreter
+        exit for a log never closed."""
+        if self._closed:
+            return
+        self._closed = True
+        atexit.unregister(self.abandon)
+        try:
+            while True:
+                self._queue.get_nowait()
+        except queue.Empty:
+            pass
+        self._queue.put(None)
+        # the sender finishes the message it is writing (the child reads it) and stops;
+        # only then is the pipe closed, so no write can reach a reused descriptor
+        self._sender.join()
+        self._conn.close()
+        try:
+            self._proc.wait(self.ABANDON_WAIT_S)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()

@@ -18,4 +18,4 @@ def test_attack_passes(attack):
     row = hostile.run_attack(attack, timeout_s=600.0)  # a hang guard, not a timing
     if row["verdict"] == "skipped":  # its input could not be built here (no FIFO, no data)
         pytest.skip(row["why"])
-    assert row["verdict"] == "pass", row
+    assert row["verdict"] == "pass", f"{row['verdict']} ({row.get('outcome')}): {row.get('why')}"

@@ -171,10 +171,14 @@ def test_loops_out_and_log_naming_one_file_is_one_line(tmp_path, capsys):
 
 # ------------------------------------------------------------------ a signal after the recorder opens
 
-@pytest.mark.parametrize("steps", ["30", "700"])
+@pytest.mark.parametrize("steps", ["30", "700", "1000"])
 def test_a_signal_after_the_recorder_opens_keeps_the_earlier_run_whole(tmp_path, steps):
+    """1000 steps record in a second process: before, the command cut there never
+    ended (multiprocessing's exit hook waited for a recording process that ignored
+    its SIGTERM)."""
+    (tmp_path / "long.toml").write_text("[synthetic]\nlaps = 2\n")  # 1538 frames
     run = ("run", "--dataset", "synthetic", "--max-steps", steps, "--rerun", "save",
-           "--quiet", "--out", "out")
+           "--quiet", "--out", "out", "--config", "long.toml")
     done = graphslam(tmp_path, *run)
     assert done.returncode == 0, done.stderr
     before = digest(tmp_path / "out")
