@@ -301,9 +301,12 @@ class EkfSlam(Backend):
             lid = int(lid)
             slot = self._store.slot.get(lid)
             if slot is not None:
-                R = self._last_sightings.covariance(o, lid)
+                # the clock is set by sightings used only: one the gate rejects is not
+                # the previous sighting the next one is correlated with
+                R = self._last_sightings.covariance(o, lid, record=False)
                 if kalman_update(self._store, slot, o.z, R, self.config, self.recoveries,
                                  self._known_gate):
+                    self._last_sightings.record(o, lid)
                     assoc[k] = lid
                 else:
                     self.rejected_count += 1
@@ -417,12 +420,12 @@ class EkfSlam(Backend):
                 lid = self._next_id
                 self._add_landmark(lid, Z[i], Rs[i])
                 assoc[where[i]] = lid
-                self._last_sightings.covariance(obs[i], lid)  # its first sighting's time
+                self._last_sightings.record(obs[i], lid)  # its first sighting's time
                 continue
             entered = self._provisional_sighting(Z[i], Rs[i], hit_prov)
             if entered is not None:
                 assoc[where[i]] = entered
-                self._last_sightings.covariance(obs[i], entered)
+                self._last_sightings.record(obs[i], entered)
         self._prov.compact()
 
     def _provisional_sighting(self, z: np.ndarray, R: np.ndarray, hit: set[int]) -> int | None:

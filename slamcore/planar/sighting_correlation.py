@@ -117,16 +117,26 @@ class LastSightings:
     def __init__(self) -> None:
         self._last: dict[tuple[int, int], float] = {}
 
-    def covariance(self, obs: TimedSighting, landmark_id: int) -> np.ndarray:
+    def covariance(self, obs: TimedSighting, landmark_id: int, *, record: bool = True) -> np.ndarray:
         """The covariance ``obs`` (a sighting of ``landmark_id``) is weighed with, recorded
-        as that landmark's latest sighting; its own without a correlation or a time."""
+        as that landmark's latest sighting (with ``record``; else :meth:`record` once the
+        back end has used it); its own without a correlation or a time."""
         model = obs.correlation
         if model is None or obs.stamp_s is None:
             return obs.covariance
+        prev = self._last.get((model.sensor, int(landmark_id)))
+        if record:
+            self.record(obs, landmark_id)
+        return model.covariance(obs.covariance, math.inf if prev is None else obs.stamp_s - prev)
+
+    def record(self, obs: TimedSighting, landmark_id: int) -> None:
+        """``obs`` is the latest sighting of ``landmark_id`` used (no-op without a time)."""
+        model = obs.correlation
+        if model is None or obs.stamp_s is None:
+            return
         key = (model.sensor, int(landmark_id))
         prev = self._last.get(key)
         self._last[key] = obs.stamp_s if prev is None else max(prev, obs.stamp_s)
-        return model.covariance(obs.covariance, math.inf if prev is None else obs.stamp_s - prev)
 
     def observation(self, obs: Sighting, landmark_id: int) -> Sighting:
         """``obs`` with the covariance of :meth:`covariance`."""

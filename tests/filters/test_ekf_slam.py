@@ -18,6 +18,7 @@ from slamcore.errors import ConfigError, GraphSlamError, MeasurementError, Unsup
 from graphslam.evaluation.planar import association_accuracy
 from slamcore.planar.records import LoopClosure, Observation, ObservationKind, Odometry
 from slamcore.planar.geometry import wrap_angle
+from slamcore.planar.sighting_correlation import SightingCorrelation
 
 #: Dense-reference agreement (state units: metres, radians; covariance m^2, rad^2).
 DENSE_TOL = 1e-9
@@ -531,6 +532,35 @@ def test_known_gate_rejects_and_counts_an_inconsistent_observation():
     plain.update([Observation(7, 1, outlier, R)])
     assert plain.rejected_count == 0 and plain.associations() == [1]
     assert not np.allclose(plain.state_vector(), x)
+
+
+
+def test_a_rejected_sighting_does_not_set_the_correlation_clock():
+    """With sightings correlated in time, the next sighting of a landmark is weighed
+    against the previous one *used*: a sighting the known gate rejects leaves no trace,
+    so the filter ends exactly as one that never saw it (before, the rejected one was
+    taken as the previous sighting and the next was weighed 0.5 s after it, not 1.5 s)."""
+    rng = np.random.default_rng(22)
+    _, x, P = _random_filter(rng, 3)
+    R = np.diag([0.04, 0.003])
+    model = SightingCorrelation(5.0, 0.9, 0.5)
+    zhat = models.observe(x[:3], x[5:7])  # landmark id 1 sits in slot 1
+
+    def sighting(z, t):
+        return Observation(7, 1, z, R, stamp_s=t, correlation=model)
+
+    filters = []
+    for with_outlier in (True, False):
+        ekf = EkfSlam(EkfSlamConfig(known_gate_chi2_prob=0.999))
+        ekf.load_state(7, x, P)
+        ekf.update([sighting(zhat + np.array([0.02, 0.0]), 0.0)])
+        if with_outlier:
+            ekf.update([sighting(zhat + np.array([50.0, 0.0]), 1.0)])  # far outside the gate
+            assert ekf.rejected_count == 1
+        ekf.update([sighting(zhat + np.array([0.05, 0.01]), 1.5)])
+        filters.append(ekf)
+    np.testing.assert_array_equal(filters[0].state_vector(), filters[1].state_vector())
+    np.testing.assert_array_equal(filters[0].state_covariance(), filters[1].state_covariance())
 
 
 # ------------------------------------------- unknown association: close landmarks
