@@ -67,10 +67,10 @@ def register(sub) -> None:
 def cmd_localize(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
-    from graphslam.maps.files import check_camera, load_map
+    from graphslam.maps.files import load_map
     from graphslam.outputs.writers import remove_stale_outputs
     from graphslam.pipelines import localize_run
-    from graphslam.pipelines.localize import make_localizer
+    from graphslam.pipelines.session import LocaliseSession
     from graphslam.sources.spatial.frames import parse_frames, select_frames
 
     t0 = time.perf_counter()
@@ -90,8 +90,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     config = registry.read_config(args.config)
     sequence = select_frames(registry.load_image_sequence(args.dataset, config=config,
                                                           topics=args.topics), frames)
-    check_camera(smap, sequence.K, sequence.image_size, args.dataset)
-    localizer = make_localizer(smap, sequence.K, config)
+    session = LocaliseSession.open(sequence, config, smap, args.dataset)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -104,7 +103,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
                                              out_dir / "localize.rrd", args.rerun_url)
         recorder.start_map(smap, sequence, len(sequence))
         hook = recorder.log_placement
-    result = localize_run.run(sequence, localizer, progress=not args.quiet, on_frame=hook)
+    result = session.run(progress=not args.quiet, on_frame=hook)
     map_info = {"path": str(args.map), **smap.counts(), "built_from": smap.meta.get("frames")}
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
     paths = localize_run.write_outputs(result, out_dir, metrics)

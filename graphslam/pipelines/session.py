@@ -9,6 +9,12 @@ overrides the run implies, and its tracker), and call :meth:`VisualSession.run`.
 ``graphslam sweep`` runs ``graphslam run`` for each of its runs, so it goes
 through the same entry. What a back end takes is read from the back-end table
 (:mod:`graphslam.backend_table`), never from its name.
+
+``graphslam localize`` (and ``graphslam run --map``, which places its first frame
+in a saved map) runs no back end: it opens a :class:`LocaliseSession`, the map's
+localiser on the sequence, its camera checked against the map's, then calls
+:meth:`LocaliseSession.run`. It takes no odometry, so it needs none of
+:class:`VisualSetup`'s settings.
 """
 
 from __future__ import annotations
@@ -19,7 +25,11 @@ from typing import Any
 import numpy as np
 
 from graphslam import registry
+from graphslam.maps.files import check_camera
+from graphslam.maps.spatial_map import SpatialMap
+from graphslam.pipelines import localize_run
 from graphslam.pipelines import spatial as vp
+from graphslam.pipelines.localize import Localizer, make_localizer
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.config import ConfigFile
 from slamcore.errors import ConfigError
@@ -109,3 +119,26 @@ class VisualSession:
         return vp.run(s.sequence, self.backend, self.tracker, config=s.run_config,
                       odometry_noise=s.odometry_noise, max_frames=s.max_frames,
                       frontend=self.tracker_config.detector, **kwargs)
+
+
+@dataclass(frozen=True)
+class LocaliseSession:
+    """A saved map's localiser on one image sequence (module docstring)."""
+
+    sequence: ImageSequence
+    smap: SpatialMap
+    localizer: Localizer
+
+    @classmethod
+    def open(cls, sequence: ImageSequence, config: ConfigFile, smap: SpatialMap,
+             where: str) -> LocaliseSession:
+        """The localiser of ``smap`` (``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``
+        of ``config``) on ``sequence``. InputError (naming ``where``) when the sequence's
+        camera is not the map's."""
+        check_camera(smap, sequence.K, sequence.image_size, where)
+        return cls(sequence, smap, make_localizer(smap, sequence.K, config))
+
+    def run(self, **kwargs) -> localize_run.LocalizeResult:
+        """:func:`graphslam.pipelines.localize_run.run` on the sequence; ``kwargs``: its
+        progress, frame hook and frame limit."""
+        return localize_run.run(self.sequence, self.localizer, **kwargs)

@@ -37,13 +37,13 @@ def anchor_on_map(args, config, sequence):
     map, or ``(None, None)`` without the flag. GraphSlamError when it cannot be placed."""
     if getattr(args, "map", None) is None:
         return None, None
-    from graphslam.maps.files import check_camera, load_map
-    from graphslam.pipelines.localize import make_localizer
+    from graphslam.maps.files import load_map
+    from graphslam.pipelines.session import LocaliseSession
     from slamcore.errors import GraphSlamError
 
     smap = load_map(args.map)
-    check_camera(smap, sequence.K, sequence.image_size, args.dataset)
-    placed = make_localizer(smap, sequence.K, config).locate(sequence.load(0))
+    placed = LocaliseSession.open(sequence, config, smap, args.dataset).localizer.locate(
+        sequence.load(0))
     if placed.wTc is None:
         raise GraphSlamError(f"--map: the first frame cannot be relocalised in {args.map} "
                              "(place recognition and PnP found no pose); start the run where "

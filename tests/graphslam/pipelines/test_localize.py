@@ -75,7 +75,7 @@ def test_recovers_after_a_blackout(room):
     from graphslam import registry
     from graphslam.maps.files import load_map
     from graphslam.pipelines import localize_run
-    from graphslam.pipelines.localize import make_localizer
+    from graphslam.pipelines.session import LocaliseSession
     from graphslam.sources.spatial.frames import black_out, parse_frames, select_frames
 
     config_path, folder = room
@@ -85,7 +85,7 @@ def test_recovers_after_a_blackout(room):
     black = range(15, 25)  # ten black frames in the middle
     seq = black_out(sel, black)
     smap = load_map(folder)
-    result = localize_run.run(seq, make_localizer(smap, seq.K, config))
+    result = LocaliseSession.open(seq, config, smap, "synthetic-images").run()
     status = [p.status for p in result.placements]
     assert all(status[i] == "lost" for i in black)  # nothing to see: not placed
     after = status[25:25 + RECOVER_FRAMES]
