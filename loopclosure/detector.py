@@ -189,7 +189,9 @@ class DetectedLoop:
         score: DBoW2 L1 score; normalised_score: score / prior score.
         n_inliers: RANSAC inliers of the geometric verification.
         R: (3, 3) rotation of ``query T match`` (``p_query = R p_match + s t``),
-            or None without intrinsics; t_unit: (3,) unit translation, or None.
+            or None without intrinsics; t_unit: (3,) unit translation, or None
+            (without intrinsics, or views with too little parallax to observe it:
+            :class:`loopclosure.verify.Verification`).
     """
 
     query: int

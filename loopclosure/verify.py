@@ -40,8 +40,9 @@ thresholds that scale with what the images offer:
    drove on into camera b's view, close to b for the scene both see, and
    the inliers explain most of the view the two cameras share:
 
-   - a's centre lies in front of camera b (the query further along b's
-     line of sight; the reverse, a behind b, keeps the plain test);
+   - one camera's centre lies in front of the other (the query further
+     along the older view's line of sight, or the older view further along
+     the query's: a route driven again);
    - the triangulated inliers in front of both cameras are far compared
      with the baseline: the median of ``1 + 1 / rho`` (rho: distance to the
      nearer camera in baselines, a bound on the point's scale change
@@ -179,7 +180,7 @@ class VerifyConfig:
     # inliers. 1.2 = one pyramid level of the loop ORB (OrbConfig.scale_factor):
     # a feature seen at most one level apart is one the descriptor matches
     # reliably (the median inlier at least 5 baselines from the nearer camera).
-    # The false candidates that pass every other forward test (a ahead of b,
+    # The false candidates that pass every other forward test (one camera ahead,
     # shared-view coverage >= 2/3) change scale by >= 1.34 (views of the
     # synthetic room 1-8 m apart that the loop detector verifies) and >= 1.44
     # (KITTI 07 pairs 40-50 m apart, both orders). Not fitted to KITTI's near
@@ -204,8 +205,11 @@ class Verification:
         n_matches: descriptor matches of the first (unguided) matching.
         n_inliers: inliers of the final fit (after guided matching when guided).
         inlier_ratio: inliers / matches of the final fit (0 without matches).
-        R: (3, 3) rotation of ``aTb`` (essential model with K), else None.
-        t_unit: (3,) unit translation of ``aTb``, else None.
+        R: (3, 3) rotation of ``aTb`` (essential model with K), else None; from the
+            inliers' homography when under half of them triangulate in front of both
+            cameras and the essential matrix's pose turns more than 90 degrees from it
+            (too little parallax: that pose was the twisted pair).
+        t_unit: (3,) unit translation of ``aTb``, else None (also None in that case).
         inlier_pairs: (n_inliers, 2) int64 feature indices ``(index in a, index in b)``.
         log10_nfa: a-contrario log10 NFA of the first fit (None before a fit).
         coverage: larger hull coverage of the two images (None before it was
@@ -264,6 +268,22 @@ class PairVerifier(Protocol):
                distortion: np.ndarray | None = None,
                size_a: tuple[float, float] | None = None,
                size_b: tuple[float, float] | None = None) -> Verification: ...
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    """Rotation angle of ``R`` (3, 3), degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def _rotation_from_homography(pa: np.ndarray, pb: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """``R`` of ``aTb`` from the homography ``pa ~ K R K^-1 pb`` fitted to all the inliers
+    (least squares: they are inliers already), projected on SO(3); None if it cannot be fitted."""
+    H, _ = cv2.findHomography(pb.astype(np.float64), pa.astype(np.float64), 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return None
+    U, _, Vt = np.linalg.svd(np.linalg.inv(K) @ H @ K)
+    R = U @ Vt
+    return R if np.linalg.det(R) > 0 else -R
 
 
 class GeometricVerifier:
@@ -376,8 +396,18 @@ class GeometricVerifier:
         if model == "essential" and n_in >= 5:
             # recoverPose(E, p1, p2) returns 2T1; with p1 = b, p2 = a that is aTb.
             # findEssentialMat(pa, pb) gives pb^T E pa = 0, so E.T relates b -> a.
-            _, R, t, _ = cv2.recoverPose(M.T, pb, pa, K)
+            n_front, R, t, _ = cv2.recoverPose(M.T, pb, pa, K)
             t = t.reshape(3) / max(np.linalg.norm(t), 1e-12)
+            if n_front < n_in / 2:
+                # Few inliers decided E's pose by cheirality. With too little parallax
+                # (cameras a few cm apart, the scene metres away) it can be the twisted
+                # pair, 180 deg off: the synthetic room's (220, 20) with 0 of 749 inliers
+                # in front. The views then differ by a rotation, which the inliers'
+                # homography K R K^-1 gives; the translation direction is not observable.
+                # Rotations more than 90 deg apart can only be that flip (halfway to it).
+                R_h = _rotation_from_homography(pa, pb, K)
+                if R_h is not None and _angle_deg(R.T @ R_h) > 90.0:
+                    R, t = R_h, None
         if cov < c.min_coverage:
             fwd, why = self._forward_revisit(K, R, t, ua, ub, pa, pb)
             if fwd is None or fwd < c.min_coverage:
@@ -391,11 +421,14 @@ class GeometricVerifier:
         """Step 6 of the module doc: ``(larger shared-view coverage, None)``, or
         ``(None, why not)`` when the pose is not a forward revisit."""
         c = self.config
-        if c.max_forward_scale <= 0 or R is None:
+        if c.max_forward_scale <= 0 or R is None or t is None:
             return None, "no forward test without a relative pose"
         centre_a = -R.T @ t  # a's centre in b's frame (p_a = R p_b + t), one baseline from b's
-        if centre_a[2] <= 0:
-            return None, "a is not ahead of b"
+        # either order: the query drove on into the older view, or the older view lies
+        # further along the query's line of sight (a route driven again, the older frame
+        # a little ahead); t is b's centre in a's frame
+        if centre_a[2] <= 0 and t[2] <= 0:
+            return None, "neither camera is ahead of the other"
         X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ np.c_[R, t],
                                   pb.T.astype(np.float64), pa.T.astype(np.float64))
         X = (X[:3] / X[3]).T

@@ -180,6 +180,31 @@ def test_synthetic_revisit_pose_and_far_pair_rejected(synthetic_pair):
     assert not far.accepted
 
 
+#: Rotation of a revisit with no parallax (cameras 4.7 cm apart, the walls ~6 m away) from the
+#: homography vs the truth, degrees (measured 0.39).
+NO_PARALLAX_ROT_TOL_DEG = 1.0
+
+
+def test_a_revisit_without_parallax_gets_its_rotation_from_the_homography():
+    """Frames 220 and 20 of the default room: the essential matrix's pose put the rotation
+    180 degrees off (no inlier in front of both cameras decides among its four poses).
+    The rotation now comes from the inliers' homography and the translation direction,
+    unobservable, is None."""
+    from graphslam.sources.spatial.synthetic_images import make_synthetic_images
+    from loopclosure.detector import LoopDetectorConfig
+
+    seq = make_synthetic_images()
+    orb = OrbDetector(LoopDetectorConfig().orb)
+    a, b = orb.detect(seq.load(220)), orb.detect(seq.load(20))
+    v = GeometricVerifier().verify(a.xy_px, a.descriptors, b.xy_px, b.descriptors, seq.K)
+    assert v.accepted, v.reason
+    aTb = invert_pose(seq.wTc_true[220]) @ seq.wTc_true[20]
+    assert np.linalg.norm(aTb[:3, 3]) < 0.05  # the same spot
+    err = math.degrees(math.acos(np.clip((np.trace(v.R.T @ aTb[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    assert err < NO_PARALLAX_ROT_TOL_DEG
+    assert v.t_unit is None
+
+
 def test_homography_model_on_a_warped_texture():
     rng = np.random.default_rng(0)
     small = rng.integers(0, 256, size=(30, 40)).astype(np.uint8)

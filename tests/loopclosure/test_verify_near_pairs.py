@@ -73,7 +73,7 @@ def test_near_pair_refused_by_plain_coverage_is_a_forward_revisit(kitti, i, j):
     (110, 52, "forward coverage"),        # 46 m apart, one far street end: explains little of it
     (117, 63, "forward coverage"),        # 43 m
     (103, 47, "median scale change"),     # 44 m: the shared scene is near for such a baseline
-    (52, 110, "a is not ahead of b"),     # the older frame as image a: the plain test only
+    (52, 110, "in front of both cameras"),  # the older frame as image a: the forward test too
 ])
 def test_far_pair_with_one_geometry_is_not_a_forward_revisit(kitti, a, b, why):
     K, _, features = kitti

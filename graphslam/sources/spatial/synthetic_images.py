@@ -35,6 +35,14 @@ order ``[rho, phi]``, is ``odometry_covariance``.
 Revisit rule (:attr:`SyntheticImageSequence.revisit_pairs`): ``(i, j)`` with
 ``j - i >= revisit_min_gap_frames``, camera centres within
 ``revisit_distance_m`` and headings (yaw) within ``revisit_heading_deg``.
+These are the revisits a detector must find (recall). A closure outside them
+is still not false when its two frames see the same place
+(:meth:`SyntheticImageSequence.same_place`: more than half of the scene points
+one of them sees, occlusion included, are seen by the other): views 0.5-1.2 m
+and 20-40 degrees apart in the room share 65-80 % of one view. This is the
+"hard" and "soft" ground truth of place-recognition evaluation (Schubert et
+al., "Visual Place Recognition: A Tutorial", IEEE RAM 2023): the hard pairs
+must be found, the soft ones may be, and only a closure outside both is false.
 
 Determinism: textures come from ``default_rng([seed, surface index])``; the same
 config renders the same images to the bit.
@@ -423,6 +431,24 @@ class SyntheticImageSequence(ImageSequence):
             uvw = pc @ self.K.T
             uv = uvw[:, :2] / uvw[:, 2:3]
         return uv, pc[:, 2]
+
+    #: :meth:`same_place`: the share of one view's scene points the other must see.
+    SAME_PLACE_SHARE: ClassVar[float] = 0.5
+
+    def shared_view(self, i: int, j: int) -> float:
+        """The larger of the shares of the scene points frame ``i`` sees that frame ``j``
+        also sees, and the reverse (:meth:`visible_points`, occlusion included); 0 when
+        either sees none."""
+        a, b = set(self.visible_points(i).tolist()), set(self.visible_points(j).tolist())
+        if not a or not b:
+            return 0.0
+        both = len(a & b)
+        return max(both / len(a), both / len(b))
+
+    def same_place(self, i: int, j: int) -> bool:
+        """Frames ``i`` and ``j`` see the same place: more than :data:`SAME_PLACE_SHARE` of
+        one view's scene points are seen by the other (the soft truth of the module doc)."""
+        return self.shared_view(i, j) > self.SAME_PLACE_SHARE
 
     def visible_points(self, i: int, depth_map: np.ndarray | None = None,
                        border_px: float = 0.0, depth_tol: float = 0.02) -> np.ndarray:
