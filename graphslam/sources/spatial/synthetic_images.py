@@ -38,8 +38,9 @@ Revisit rule (:attr:`SyntheticImageSequence.revisit_pairs`): ``(i, j)`` with
 These are the revisits a detector must find (recall). A closure outside them
 is still not false when its two frames see the same place
 (:meth:`SyntheticImageSequence.same_place`: more than half of the scene points
-one of them sees, occlusion included, are seen by the other): views 0.5-1.2 m
-and 20-40 degrees apart in the room share 65-80 % of one view. This is the
+one of them sees, occlusion included, are seen by the other): the closures
+the loop benchmarks accept outside the rule, 0.4-1.4 m and 10-42 degrees from
+their match, share 54-92 % of one view. This is the
 "hard" and "soft" ground truth of place-recognition evaluation (Schubert et
 al., "Visual Place Recognition: A Tutorial", IEEE RAM 2023): the hard pairs
 must be found, the soft ones may be, and only a closure outside both is false.
