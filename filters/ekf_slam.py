@@ -316,7 +316,8 @@ class EkfSlam(Backend):
                 seen_prov.add(lid)
             if self._prov_known[lid] >= self.config.provisional_sightings:
                 del self._prov_known[lid]
-                self._add_landmark(lid, o.z, self._last_sightings.covariance(o, lid))
+                self._add_landmark(lid, o.z, o.covariance)  # a first sighting: its own
+                self._last_sightings.record(o, lid)
                 assoc[k] = lid
         if unknown:
             self._update_unknown([obs[k] for k in unknown], unknown, assoc)

@@ -277,11 +277,15 @@ def _angle_deg(R: np.ndarray) -> float:
 
 def _rotation_from_homography(pa: np.ndarray, pb: np.ndarray, K: np.ndarray) -> np.ndarray | None:
     """``R`` of ``aTb`` from the homography ``pa ~ K R K^-1 pb`` fitted to all the inliers
-    (least squares: they are inliers already), projected on SO(3); None if it cannot be fitted."""
+    (least squares: they are inliers already), projected on SO(3); None if it cannot be
+    fitted or is no rotation (``K^-1 H K`` of a rotation has equal singular values; under
+    half the largest, e.g. the rank-1 fit of collinear points, it is none)."""
     H, _ = cv2.findHomography(pb.astype(np.float64), pa.astype(np.float64), 0)
-    if H is None or not np.all(np.isfinite(H)):
+    if H is None or H.shape != (3, 3) or not np.all(np.isfinite(H)):
         return None
-    U, _, Vt = np.linalg.svd(np.linalg.inv(K) @ H @ K)
+    U, S, Vt = np.linalg.svd(np.linalg.inv(K) @ H @ K)
+    if not S[2] >= 0.5 * S[0]:
+        return None
     R = U @ Vt
     return R if np.linalg.det(R) > 0 else -R
 

@@ -89,7 +89,8 @@ class UnknownAssociation:
         their factors leave, equal ones on the new landmark (``kernel``: the back end's
         sighting kernel and its parameter) enter at indices from ``first_index``. Returns
         the number of factors added."""
-        moves = [m for lid in confirmed for m in self._explained_better(isam, lid)]
+        poses: dict[int, np.ndarray] = {}  # estimates read once per split, not per sighting
+        moves = [m for lid in confirmed for m in self._explained_better(isam, lid, poses)]
         if not moves:
             return 0
         graph = gtsam.NonlinearFactorGraph()
@@ -99,10 +100,11 @@ class UnknownAssociation:
         isam.update(graph, gtsam.Values(), [m[0] for m in moves])
         return int(graph.size())
 
-    def _explained_better(self, isam: gtsam.ISAM2, new_id: int
+    def _explained_better(self, isam: gtsam.ISAM2, new_id: int, poses: dict[int, np.ndarray]
                           ) -> list[tuple[int, Observation, Observation, int]]:
         """``(factor index, sighting as given, as added, new_id)`` of each sighting of a
-        landmark near ``new_id`` that ``new_id`` explains better, taken off its list."""
+        landmark near ``new_id`` that ``new_id`` explains better, taken off its list;
+        ``poses``: the pose estimates read so far in this split, by pose id."""
         pos_new = np.asarray(isam.calculateEstimatePoint2(L(new_id)))
         # a landmark takes one sighting per scan: not from a pose that already sees it
         taken = {given.pose_id for _, given, _ in self.sightings.get(new_id, [])}
@@ -115,7 +117,10 @@ class UnknownAssociation:
                 continue
             keep = []
             for index, given, added in self.sightings.get(lid, []):
-                wTb = conv.pose2_vector(isam.calculateEstimatePose2(X(given.pose_id)))
+                wTb = poses.get(given.pose_id)
+                if wTb is None:
+                    wTb = poses[given.pose_id] = conv.pose2_vector(
+                        isam.calculateEstimatePose2(X(given.pose_id)))
                 d2 = [_d2(given, wTb, p) for p in (pos, pos_new)]
                 if given.pose_id not in taken and d2[1] < d2[0] and d2[1] <= self.associator.gate_d2:
                     moved.append((index, given, added, new_id))
