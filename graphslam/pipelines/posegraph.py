@@ -35,7 +35,11 @@ class PoseGraphRunMetrics:
     ``final_cost_kept`` the same over the edges kept when closures were rejected
     (the cost the solve minimised). ``closure_test``: the outlier test of the
     closures (``robust_closures``, the whitened residual norm beyond which a
-    closure fails, the re-test rounds), absent when closures were not tested."""
+    closure fails, the re-test rounds), absent when closures were not tested.
+    ``certificate``: SE-Sync's certificate of the estimate
+    (:meth:`graphslam.backends.posegraph.certificate.Certificate.to_dict`), or
+    ``{"certified": null, "unchecked": why}``; absent when ``certify`` is off or a
+    stop cut the solve."""
 
     dataset: str
     backend: str
@@ -63,6 +67,7 @@ class PoseGraphRunMetrics:
     self_edges_ignored: dict | None = None
     equiv_ignored: int | None = None
     final_cost_kept: float | None = None
+    certificate: dict | None = None
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
     ate_poses: int | None = None
@@ -72,7 +77,7 @@ class PoseGraphRunMetrics:
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
         "numerical_recoveries", "information_fixed", "noise", "closure_test", "final_cost_kept", "route",
-        "self_edges_ignored", "equiv_ignored", "ate_poses"})
+        "self_edges_ignored", "equiv_ignored", "ate_poses", "certificate"})
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
@@ -85,8 +90,10 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
 
     SIGINT or SIGTERM between iSAM2 updates ends the solve with the poses added
     so far (``result.cut``); during the batch LM (C++) it takes effect when the
-    LM ends, the estimate whole.
+    LM ends, the estimate whole. A whole estimate is then certified when
+    ``config.certify`` (``result.optimality``; not after a stop).
     """
+    config = config or PoseGraphConfig()
     with interrupt_between_frames() as stop:
         def should_stop(update: int) -> bool:
             signal_hook("step", update)
@@ -94,7 +101,19 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
 
         result = solve(graph, config, solver, should_stop)
         signal_hook("finalize")  # the batch LM (C++) defers a signal to here
+        if config.certify and result.cut is None and not stop.requested:
+            certify(graph, result)
     return result
+
+
+def certify(graph: pg.PoseGraph, result: SolveResult) -> None:
+    """Fill ``result.optimality`` (or ``optimality_unchecked``) for ``result``'s kept edges."""
+    from graphslam.backends.posegraph import certificate
+
+    keep = ~result.rejected
+    result.optimality_unchecked = certificate.uncheckable(graph, keep)
+    if result.optimality_unchecked is None:
+        result.optimality = certificate.certify(graph, result.params, keep)
 
 
 def solved_graph(graph: pg.PoseGraph, result: SolveResult) -> pg.PoseGraph:
@@ -169,6 +188,9 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
                             if len(graph.self_edge_lines) else None),
         route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
+        certificate=(result.optimality.to_dict() if result.optimality is not None else
+                     {"certified": None, "unchecked": result.optimality_unchecked}
+                     if result.optimality_unchecked is not None else None),
         ate_rmse_m=None if truth is None or not scored else ate_rmse(graph, result.params, truth),
         # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),

@@ -55,6 +55,12 @@ class PoseGraphConfig:
             replaced by the ``nearest`` positive-definite matrix (eigenvalues raised
             to 1e-6 of the largest), or by SE-Sync's ``isotropic`` translation and
             rotation weights, or is ``refuse``d (an error naming file and line).
+        certify: after a whole-file solve, check whether the estimate is the global
+            optimum of SE-Sync's problem (isotropic weights, chordal rotation
+            distance; :mod:`graphslam.backends.posegraph.certificate`) and say so in
+            the summary and ``metrics.json``; it adds a local solve of that problem
+            and one sparse factorisation (gtsam's sphere2500: 1.3 s beside a 1.3 s
+            solve).
     """
 
     SECTION: ClassVar[str] = "posegraph"
@@ -71,6 +77,7 @@ class PoseGraphConfig:
     prior_sigma: float = bounded(1e-3, gt=0.0)
     toro_noise: Literal["auto", "information", "sqrt_information"] = "auto"
     information_fix: Literal["nearest", "isotropic", "refuse"] = "nearest"
+    certify: bool = True
 
     def __post_init__(self):
         validate(self)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple, cast
+from typing import TYPE_CHECKING, NamedTuple, cast
 
 import gtsam
 import numpy as np
@@ -33,6 +33,9 @@ from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.schedule import schedule
 from slamcore.errors import GraphSlamError
 from slamcore.posegraph import PoseGraph
+
+if TYPE_CHECKING:
+    from graphslam.backends.posegraph.certificate import Certificate
 
 #: Back ends of ``graphslam run`` on pose-graph files.
 SOLVERS = ("auto", "isam2", "batch")
@@ -66,6 +69,8 @@ class SolveResult:
         final_cost_kept: the cost over the edges kept (rejected closures out).
         robust_mode: ``robust_closures`` when closures were tested, else None.
         route: for ``auto``, which route was kept and why (:mod:`.route`).
+        optimality: SE-Sync's certificate of the estimate (:mod:`.certificate`),
+            when it was checked; optimality_unchecked: why it was not, when asked.
     """
 
     solver: str
@@ -89,6 +94,8 @@ class SolveResult:
     noise_scale: float = 1.0
     route: dict | None = None
     robust_mode: str | None = None
+    optimality: Certificate | None = None
+    optimality_unchecked: str | None = None
 
 
 #: ``should_stop(update)``: asked before each iSAM2 update; True ends the solve there.

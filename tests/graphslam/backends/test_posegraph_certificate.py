@@ -1,0 +1,184 @@
+"""SE-Sync's certificate of a pose-graph estimate: its data matrix against gtsam's
+Frobenius factors, the dual bound against feasible points, and the verdict on a
+real local minimum against the optimum of the same graph."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from graphslam.backends.posegraph import certificate as cert
+from graphslam.backends.posegraph.config import PoseGraphConfig
+from graphslam.backends.posegraph.solver import solve
+from graphslam.pipelines import posegraph as pipeline
+from graphslam.sources.posegraph_files import read_pose_graph_file
+from slamcore.posegraph import PoseGraph
+from tests.posegraphs import edges_with_closures, graph_lines, square_walk, torus, write
+
+#: ``F = tr(X M X^T)`` agrees with gtsam's Frobenius factor graph error to this, relative.
+COST_REL = 1e-9
+
+
+def _torus_graph(tmp_path) -> PoseGraph:
+    """The torus of test_posegraph_solver: LM from the odometry chain stalls at 3.6x
+    the optimum the chordal start reaches."""
+    T = torus(10, 10)
+    n = len(T)
+    closures = [(k - 10, k) for k in range(10, n)] + [(k, (k + 10) % n) for k in range(n - 10, n)]
+    lines = graph_lines(T, edges_with_closures(n, closures), sigma=0.2, seed=1, vertices=False)
+    return read_pose_graph_file(write(tmp_path / "torus.g2o", lines))
+
+
+def _walk_graph(tmp_path, dim: int, sigma: float = 0.05) -> PoseGraph:
+    truth = square_walk(20, dim)
+    lines = graph_lines(truth, edges_with_closures(20, [(0, 19), (3, 14), (6, 17)]),
+                        sigma=sigma, seed=3)
+    return read_pose_graph_file(write(tmp_path / f"walk{dim}.g2o", lines))
+
+
+def _random_poses(rng, n: int, dim: int) -> np.ndarray:
+    out = np.repeat(np.eye(dim + 1)[None], n, axis=0)
+    for k in range(n):
+        if dim == 2:
+            out[k] = gtsam.Pose2(*rng.normal(0, 2, 3)).matrix()
+        else:
+            out[k] = gtsam.Pose3.Expmap(rng.normal(0, 2, 6)).matrix()
+    return out
+
+
+def _pieces(graph: PoseGraph):
+    keep = np.ones(graph.n_edges, dtype=bool)
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    w = cert.pg.fixed_information(graph.information, "isotropic", graph.dim)
+    Z = np.array([cert.fx.pose(m, graph.rotation).matrix() for m in graph.measurements])
+    return keep, rows, Z, w[:, 0, 0], w[:, graph.dim, graph.dim]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_data_matrix_cost_is_gtsams_frobenius_cost(tmp_path, dim):
+    graph = _walk_graph(tmp_path, dim)
+    _, rows, Z, p_t, p_R = _pieces(graph)
+    T = _random_poses(np.random.default_rng(dim), graph.n_poses, dim)
+    M = cert.data_matrix(graph.n_poses, dim, rows, Z, p_t, p_R)
+    X = cert.stacked(T)
+    F = float(np.einsum("ij,ji->", X, M @ X.T))
+    # gtsam: 0.5 e^T W e of e = vec(T_j - T_i Z), W = p_R / 2 on rotation entries, p_t on
+    # translation ones: p_R/4 ||dR||_F^2 + p_t/2 ||dt||^2, the certificate's F
+    factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    pose = (lambda m: gtsam.Pose2(m[0, 2], m[1, 2], np.arctan2(m[1, 0], m[0, 0]))) if dim == 2 \
+        else gtsam.Pose3
+    for k, m in enumerate(T):
+        values.insert(k, pose(m))
+    between = gtsam.FrobeniusBetweenFactorPose2 if dim == 2 else gtsam.FrobeniusBetweenFactorPose3
+    for (i, j), z, wt, wr in zip(rows.tolist(), Z, p_t, p_R, strict=True):
+        w = np.zeros((dim + 1, dim + 1))
+        w[:dim, :dim], w[:dim, dim] = wr / 2.0, wt
+        sigmas = np.where(w.T.ravel() > 0, 1.0 / np.sqrt(np.maximum(w.T.ravel(), 1e-300)), 1e150)
+        factors.add(between(i, j, pose(z), gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+    assert F == pytest.approx(factors.error(values), rel=COST_REL)
+    # M is symmetric and positive semidefinite, with the translation gauge in its null space
+    assert abs(M - M.T).max() <= 1e-12 * abs(M).max()  # sums in another order
+    ones = np.zeros(M.shape[0])
+    ones[:graph.n_poses] = 1.0
+    assert np.abs(M @ ones).max() <= 1e-9 * abs(M).max()
+
+
+def test_a_real_local_minimum_is_not_certified_and_the_optimum_is(tmp_path):
+    graph = _torus_graph(tmp_path)
+    stalled = solve(graph, PoseGraphConfig(init="odometry"), "batch")
+    optimum = solve(graph, PoseGraphConfig(), "batch")
+    assert stalled.final_cost > 3.0 * optimum.final_cost
+    keep = np.ones(graph.n_edges, dtype=bool)
+    assert cert.uncheckable(graph, keep) is None
+    bad, good = cert.certify(graph, stalled.params, keep), cert.certify(graph, optimum.params, keep)
+    assert not bad.certified and bad.relative_gap is None and bad.negative_pivots > 0
+    assert good.certified and good.relative_gap <= cert.CERTIFIED_REL_GAP
+    assert good.chordal_cost < bad.chordal_cost
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_dual_bound_is_below_every_feasible_point(tmp_path, dim):
+    """Weak duality: the bound holds for any poses, not only near the estimate."""
+    graph = _walk_graph(tmp_path, dim, sigma=0.1)
+    keep, rows, Z, p_t, p_R = _pieces(graph)
+    result = solve(graph, PoseGraphConfig(), "batch")
+    c = cert.certify(graph, result.params, keep)
+    assert c.certified and c.lower_bound is not None
+    M = cert.data_matrix(graph.n_poses, dim, rows, Z, p_t, p_R)
+    rng = np.random.default_rng(7)
+    costs = []
+    for _ in range(50):
+        Y = cert.stacked(_random_poses(rng, graph.n_poses, dim))
+        costs.append(float(np.einsum("ij,ji->", Y, M @ Y.T)))
+    assert min(costs) >= c.lower_bound
+    # and the refined estimate's own cost sits on the bound, to the gap
+    assert c.chordal_cost - c.lower_bound <= cert.CERTIFIED_REL_GAP * c.chordal_cost
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_noise_free_graph_is_certified_at_the_truth(tmp_path, dim):
+    graph = _walk_graph(tmp_path, dim, sigma=0.0)
+    c = cert.certify(graph, graph.vertices, np.ones(graph.n_edges, dtype=bool))
+    assert c.certified
+    assert c.max_translation_change_m <= 1e-6 and c.max_rotation_change_deg <= 1e-6
+
+
+def test_a_twisted_cycle_is_a_critical_point_with_no_dual_bound():
+    """Rotations winding once around a cycle whose edges all say "no motion" are a
+    saddle of the chordal cost: stationary (so LM stays) but not optimal."""
+    n, d = 8, 2
+    rows = np.array([(k, (k + 1) % n) for k in range(n)])
+    Z = np.repeat(np.eye(3)[None], n, axis=0)
+    p = np.ones(n)
+    T = np.repeat(np.eye(3)[None], n, axis=0)
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        T[k, :2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    M, X = cert.data_matrix(n, d, rows, Z, p, p), cert.stacked(T)
+    F = float(np.einsum("ij,ji->", X, M @ X.T))
+    lam = cert.multipliers(M, X, n, d)
+    S = M.toarray() - np.block([[np.zeros((n, n)), np.zeros((n, d * n))],
+                                [np.zeros((d * n, n)), _block_diag(lam)]])
+    assert np.abs(S @ X.T).max() <= 1e-12  # a critical point
+    bound, eta, negative = cert.dual_bound(M, X, n, d, F)
+    assert bound is None and eta is None and negative > 0
+    aligned = cert.stacked(np.repeat(np.eye(3)[None], n, axis=0))  # the global optimum, F = 0
+    assert cert.dual_bound(M, aligned, n, d, 0.0)[0] is not None
+
+
+def _block_diag(blocks: np.ndarray) -> np.ndarray:
+    n, d, _ = blocks.shape
+    out = np.zeros((n * d, n * d))
+    for k in range(n):
+        out[k * d:(k + 1) * d, k * d:(k + 1) * d] = blocks[k]
+    return out
+
+
+def test_the_run_reports_the_certificate_and_can_skip_it(tmp_path):
+    graph = _torus_graph(tmp_path)
+    result = pipeline.run(graph, "auto", PoseGraphConfig())
+    metrics = pipeline.metrics(graph, result, 0.0).to_dict()
+    assert metrics["certificate"]["certified"] is True
+    assert "isotropic" in metrics["certificate"]["covers"]
+    off = pipeline.run(graph, "auto", PoseGraphConfig(certify=False))
+    assert "certificate" not in pipeline.metrics(graph, off, 0.0).to_dict()
+
+
+def test_kept_edges_in_pieces_are_not_checked(tmp_path):
+    graph = _walk_graph(tmp_path, 2)
+    keep = np.ones(graph.n_edges, dtype=bool)
+    keep[5] = keep[-3:] = False  # an odometry edge and every closure: two parts
+    assert "2 parts" in cert.uncheckable(graph, keep)
+
+
+def test_the_summary_says_certified_or_not(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    path = _torus_graph(tmp_path).source_path
+    for flags, said in (([], "certified: SE-Sync's problem"),
+                        (["--backend", "batch", "--init", "odometry"], "NOT certified")):
+        assert main(["run", "--dataset", str(path), "--rerun", "off", "--out",
+                     str(tmp_path / "out"), *flags]) == 0
+        row = next(line for line in capsys.readouterr().out.splitlines() if "optimality" in line)
+        assert said in row
