@@ -182,3 +182,17 @@ def test_the_summary_says_certified_or_not(tmp_path, capsys):
                      str(tmp_path / "out"), *flags]) == 0
         row = next(line for line in capsys.readouterr().out.splitlines() if "optimality" in line)
         assert said in row
+
+
+def test_a_check_that_fails_costs_the_run_nothing(tmp_path, monkeypatch):
+    graph = _walk_graph(tmp_path, 3)
+
+    def indeterminate(*args, **kwargs):
+        raise RuntimeError("Indeterminant linear system detected")
+
+    monkeypatch.setattr(cert, "refine", indeterminate)
+    result = pipeline.run(graph, "batch", PoseGraphConfig())
+    metrics = pipeline.metrics(graph, result, 0.0).to_dict()
+    assert metrics["certificate"] == {
+        "certified": None,
+        "unchecked": "the check failed (RuntimeError: Indeterminant linear system detected)"}
