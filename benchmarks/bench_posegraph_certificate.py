@@ -11,7 +11,8 @@ problem's optimum lies from the file's).
 
     python benchmarks/bench_posegraph_certificate.py [--quick] [--out FILE.json]
 
-``--quick``: the torus and the Manhattan walk only.
+``--quick``: the torus and the Manhattan walk only. The full run adds gtsam's
+sphere2500 and w10000 and a 3-D grid of 8000 poses (about 4 minutes).
 """
 
 from __future__ import annotations
@@ -51,6 +52,29 @@ def torus_file(folder: Path) -> Path:
     return write(folder / "torus100.g2o", lines)
 
 
+def grid_file(folder: Path, side: int = 20) -> Path:
+    """A 3-D grid of ``side**3`` poses (random orientations, 0.3 rad), odometry along
+    rows plus the neighbours in y and z, 0.02 of noise: the kind of graph whose
+    elimination fills most."""
+    from tests.posegraphs import graph_lines, write
+
+    rng = np.random.default_rng(0)
+    truth = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.3, 3)), gtsam.Point3(x, y, z))
+             for z in range(side) for y in range(side) for x in range(side)]
+
+    def index(x, y, z):
+        return (z * side + y) * side + x
+
+    edges = [(k - 1, k) for k in range(1, side ** 3)]
+    for z in range(side):
+        for y in range(side):
+            for x in range(side):
+                edges += [(index(x, y, z), index(x, y + 1, z))] if y + 1 < side else []
+                edges += [(index(x, y, z), index(x, y, z + 1))] if z + 1 < side else []
+    return write(folder / "grid8000.g2o", graph_lines(truth, edges, sigma=0.02, seed=1,
+                                                       vertices=False))
+
+
 def cases(quick: bool, folder: Path) -> list[tuple[str, Path, str, list[tuple[str, PoseGraphConfig, str]]]]:
     """``(name, path, toro noise, [(estimate, config, solver)])``."""
     from tests.posegraphs import manhattan_walk
@@ -63,7 +87,9 @@ def cases(quick: bool, folder: Path) -> list[tuple[str, Path, str, list[tuple[st
     if not quick:
         out += [("sphere2500", Path(gtsam.findExampleDataFile("sphere2500.txt")), "sqrt_information",
                  local),
-                ("w10000", Path(gtsam.findExampleDataFile("w10000.graph")), "information", local)]
+                ("w10000", Path(gtsam.findExampleDataFile("w10000.graph")), "information", local),
+                ("grid8000", grid_file(folder), "information",
+                 [("batch", PoseGraphConfig(), "batch")])]
     return out
 
 

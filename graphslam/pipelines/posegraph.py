@@ -115,7 +115,10 @@ def certify(graph: pg.PoseGraph, result: SolveResult) -> None:
     if result.optimality_unchecked is not None:
         return
     try:
-        result.optimality = certificate.certify(graph, result.params, keep)
+        # the refinement may take as long as the solve did (at least 2 s): from far
+        # off it can take many times the solve (a 3-D grid of 8000 poses: 500 s)
+        result.optimality = certificate.certify(graph, result.params, keep,
+                                                budget_s=max(result.wall_s, 2.0))
     except (RuntimeError, MemoryError) as exc:  # gtsam's indeterminate system, a huge fill
         # the check is a report on a finished solve: it never costs the run its outputs
         result.optimality_unchecked = f"the check failed ({type(exc).__name__}: {exc})"

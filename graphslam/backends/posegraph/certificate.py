@@ -77,7 +77,8 @@ class Certificate:
             none passed (else 0).
         max_translation_change_m, max_rotation_change_deg: from the estimate to
             its refinement (the first pose is held).
-        iterations: the refinement's LM iterations. wall_s: the whole check's time.
+        iterations: the refinement's LM iterations. refine_stopped: its time budget
+            ended it before convergence. wall_s: the whole check's time.
     """
 
     certified: bool
@@ -89,6 +90,7 @@ class Certificate:
     max_translation_change_m: float
     max_rotation_change_deg: float
     iterations: int
+    refine_stopped: bool
     wall_s: float
 
     def to_dict(self) -> dict:
@@ -97,7 +99,8 @@ class Certificate:
                 "eta": self.eta, "negative_pivots": self.negative_pivots,
                 "max_translation_change_m": self.max_translation_change_m,
                 "max_rotation_change_deg": self.max_rotation_change_deg,
-                "iterations": self.iterations, "wall_s": self.wall_s, "covers": CERTIFIES}
+                "iterations": self.iterations, "refine_stopped": self.refine_stopped,
+                "wall_s": self.wall_s, "covers": CERTIFIES}
 
 
 def uncheckable(graph: pg.PoseGraph, keep: np.ndarray) -> str | None:
@@ -111,9 +114,11 @@ def uncheckable(graph: pg.PoseGraph, keep: np.ndarray) -> str | None:
     return None
 
 
-def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray) -> Certificate:
+def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
+            budget_s: float | None = None) -> Certificate:
     """Refine ``params`` ((N, P), the graph's parameters) on SE-Sync's problem over the
-    edges ``keep`` ((M,) bool; see :func:`uncheckable` first) and certify the result."""
+    edges ``keep`` ((M,) bool; see :func:`uncheckable` first) and certify the result;
+    ``budget_s``: seconds the refinement may take (None: no limit)."""
     t0 = time.perf_counter()
     d, n = graph.dim, graph.n_poses
     rows = graph.index_of(graph.edges[keep].ravel()).reshape(-1, 2)
@@ -121,7 +126,7 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray) -> Certif
     p_t, p_R = weights[:, 0, 0], weights[:, d, d]
     Z = np.array([fx.pose(m, graph.rotation).matrix() for m in graph.measurements[keep]])
     T0 = np.array([fx.pose(p, graph.rotation).matrix() for p in params])
-    T, iterations = refine(T0, rows, Z, p_t, p_R)
+    T, iterations, stopped = refine(T0, rows, Z, p_t, p_R, budget_s)
     M = data_matrix(n, d, rows, Z, p_t, p_R)
     X = stacked(T)
     F = float(np.einsum("ij,ji->", X, M @ X.T))
@@ -134,14 +139,17 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray) -> Certif
         lower_bound=bound, relative_gap=gap, eta=eta, negative_pivots=negative,
         max_translation_change_m=float(np.linalg.norm(T[:, :d, d] - T0[:, :d, d], axis=1).max()),
         max_rotation_change_deg=float(np.degrees(np.arccos(cos)).max()),
-        iterations=iterations, wall_s=time.perf_counter() - t0)
+        iterations=iterations, refine_stopped=stopped, wall_s=time.perf_counter() - t0)
 
 
-def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray,
-           p_R: np.ndarray) -> tuple[np.ndarray, int]:
+def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R: np.ndarray,
+           budget_s: float | None = None) -> tuple[np.ndarray, int, bool]:
     """(N, d+1, d+1) poses at a local minimum of ``F`` from ``T0`` (the first pose
-    held, which costs nothing: ``F`` is invariant to a global rigid motion), and
-    the LM's iterations. ``rows`` (K, 2) pose indices, ``Z`` (K, d+1, d+1)."""
+    held, which costs nothing: ``F`` is invariant to a global rigid motion), the
+    LM's iterations, and whether ``budget_s`` (seconds) stopped it first (the
+    bound still holds there; only the gap widens). ``rows`` (K, 2) pose indices,
+    ``Z`` (K, d+1, d+1)."""
+    t0 = time.perf_counter()
     d = T0.shape[1] - 1
     # one body for both dimensions: gtsam's 2-D and 3-D classes, typed loosely
     Pose: Any = _pose2 if d == 2 else gtsam.Pose3
@@ -160,11 +168,21 @@ def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray,
     graph.add(prior(0, Pose(T0[0]), gtsam.noiseModel.Isotropic.Sigma(3 * (d - 1), 1e-6)))
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(REFINE_RELATIVE_TOL)
-    params.setMaxIterations(REFINE_MAX_ITERATIONS)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    out = optimizer.optimize()
+    # gtsam's own loop, written out so that the time budget can end it
+    stopped, error = False, optimizer.error()
+    for _ in range(REFINE_MAX_ITERATIONS):
+        optimizer.iterate()
+        previous, error = error, optimizer.error()
+        if gtsam.checkConvergence(params, previous, error):
+            break
+        if budget_s is not None and time.perf_counter() - t0 > budget_s:
+            stopped = True
+            break
+    out = optimizer.values()
     at = out.atPose2 if d == 2 else out.atPose3
-    return np.array([at(k).matrix() for k in range(len(T0))]), int(optimizer.iterations())
+    return (np.array([at(k).matrix() for k in range(len(T0))]), int(optimizer.iterations()),
+            stopped)
 
 
 def _pose2(T: np.ndarray) -> gtsam.Pose2:

@@ -188,9 +188,11 @@ def optimality_row(certificate: dict) -> str:
     gap = ("no dual bound: " f"{certificate['negative_pivots']} negative eigenvalues"
            if certificate["relative_gap"] is None
            else f"gap {certificate['relative_gap']:.1e} relative")
+    budget = ("; its refinement stopped at its time budget (the solve's time)"
+              if certificate.get("refine_stopped") else "")
     return (f"NOT certified ({gap}): SE-Sync's problem refined from the estimate may not be "
-            f"at its global optimum, nor the estimate at the file's ({near}); --init shonan "
-            "starts from certified rotations")
+            f"at its global optimum, nor the estimate at the file's ({near}){budget}; "
+            "--init shonan starts from certified rotations")
 
 
 def closure_row(metrics) -> str:

@@ -196,3 +196,14 @@ def test_a_check_that_fails_costs_the_run_nothing(tmp_path, monkeypatch):
     assert metrics["certificate"] == {
         "certified": None,
         "unchecked": "the check failed (RuntimeError: Indeterminant linear system detected)"}
+
+
+def test_the_refinement_stops_at_its_time_budget(tmp_path):
+    """From far off (the odometry chain) the refinement needs many iterations; a spent
+    budget ends it after the first, and the check still answers (not certified)."""
+    graph = _torus_graph(tmp_path)
+    keep = np.ones(graph.n_edges, dtype=bool)
+    free = cert.certify(graph, graph.vertices, keep)
+    spent = cert.certify(graph, graph.vertices, keep, budget_s=0.0)
+    assert free.iterations > 1 and not free.refine_stopped
+    assert spent.iterations == 1 and spent.refine_stopped and not spent.certified
