@@ -207,3 +207,16 @@ def test_the_refinement_stops_at_its_time_budget(tmp_path):
     spent = cert.certify(graph, graph.vertices, keep, budget_s=0.0)
     assert free.iterations > 1 and not free.refine_stopped
     assert spent.iterations == 1 and spent.refine_stopped and not spent.certified
+
+
+@pytest.mark.parametrize("sigma, certified", [(0.0, True), (0.3, False)])
+def test_a_tree_is_certified_by_its_zero_cost_alone(tmp_path, sigma, certified):
+    """A chain's optimum composes its edges (cost 0); the vertices of a noisy file do not."""
+    truth = square_walk(20, 3)
+    lines = graph_lines(truth, edges_with_closures(20, []), sigma=sigma, seed=5)
+    graph = read_pose_graph_file(write(tmp_path / "chain.g2o", lines))
+    keep = np.ones(graph.n_edges, dtype=bool)
+    solved = solve(graph, PoseGraphConfig(), "batch").params
+    c = cert.certify(graph, graph.vertices, keep)  # the file's vertices: the truth
+    assert c.iterations == 0 and c.lower_bound == 0.0 and c.certified is certified
+    assert cert.certify(graph, solved, keep).certified
