@@ -8,6 +8,7 @@ the estimate), ``closures.csv`` and ``metrics.json``.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -102,12 +103,14 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
         result = solve(graph, config, solver, should_stop)
         signal_hook("finalize")  # the batch LM (C++) defers a signal to here
         if config.certify and result.cut is None and not stop.requested:
-            certify(graph, result)
+            certify(graph, result, lambda: stop.requested)
     return result
 
 
-def certify(graph: pg.PoseGraph, result: SolveResult) -> None:
-    """Fill ``result.optimality`` (or ``optimality_unchecked``) for ``result``'s kept edges."""
+def certify(graph: pg.PoseGraph, result: SolveResult,
+            should_stop: Callable[[], bool] | None = None) -> None:
+    """Fill ``result.optimality`` (or ``optimality_unchecked``) for ``result``'s kept
+    edges; ``should_stop`` (a signal) ends the check between refinement iterations."""
     from graphslam.backends.posegraph import certificate
 
     keep = ~result.rejected
@@ -118,7 +121,10 @@ def certify(graph: pg.PoseGraph, result: SolveResult) -> None:
         # the refinement may take as long as the solve did (at least 2 s): from far
         # off it can take many times the solve (a 3-D grid of 8000 poses: 500 s)
         result.optimality = certificate.certify(graph, result.params, keep,
-                                                budget_s=max(result.wall_s, 2.0))
+                                                budget_s=max(result.wall_s, 2.0),
+                                                should_stop=should_stop)
+    except certificate.CheckInterrupted as exc:  # the outputs are written at once
+        result.optimality_unchecked = str(exc)
     except (RuntimeError, MemoryError) as exc:  # gtsam's indeterminate system, a huge fill
         # the check is a report on a finished solve: it never costs the run its outputs
         result.optimality_unchecked = f"the check failed ({type(exc).__name__}: {exc})"

@@ -29,6 +29,7 @@ that, and no sparse Cholesky ships with the project's dependencies.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -115,11 +116,17 @@ def uncheckable(graph: pg.PoseGraph, keep: np.ndarray) -> str | None:
     return None
 
 
+class CheckInterrupted(Exception):
+    """``should_stop`` ended the check (a signal): there is no certificate to give."""
+
+
 def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
-            budget_s: float | None = None) -> Certificate:
+            budget_s: float | None = None,
+            should_stop: Callable[[], bool] | None = None) -> Certificate:
     """Refine ``params`` ((N, P), the graph's parameters) on SE-Sync's problem over the
     edges ``keep`` ((M,) bool; see :func:`uncheckable` first) and certify the result;
-    ``budget_s``: seconds the refinement may take (None: no limit)."""
+    ``budget_s``: seconds the refinement may take (None: no limit); ``should_stop``:
+    asked between its iterations, True raises :class:`CheckInterrupted`."""
     t0 = time.perf_counter()
     d, n = graph.dim, graph.n_poses
     rows = graph.index_of(graph.edges[keep].ravel()).reshape(-1, 2)
@@ -130,7 +137,10 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
     tree = len(rows) == n - 1  # connected (see uncheckable) with no loop
     # a tree's optimum costs 0, a bound every estimate meets (F >= 0: M is PSD), so
     # neither the refinement nor the factorisation is needed (a 100 000-pose chain: 7 s)
-    T, iterations, stopped = (T0, 0, False) if tree else refine(T0, rows, Z, p_t, p_R, budget_s)
+    T, iterations, ended = ((T0, 0, None) if tree else
+                            refine(T0, rows, Z, p_t, p_R, budget_s, should_stop))
+    if ended == "signal":
+        raise CheckInterrupted("a signal stopped the check")
     M = data_matrix(n, d, rows, Z, p_t, p_R)
     X = stacked(T)
     F = float(np.einsum("ij,ji->", X, M @ X.T))
@@ -143,15 +153,17 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
         lower_bound=bound, relative_gap=gap, eta=eta, negative_pivots=negative,
         max_translation_change_m=float(np.linalg.norm(T[:, :d, d] - T0[:, :d, d], axis=1).max()),
         max_rotation_change_deg=float(np.degrees(np.arccos(cos)).max()),
-        iterations=iterations, refine_stopped=stopped, wall_s=time.perf_counter() - t0)
+        iterations=iterations, refine_stopped=ended == "budget", wall_s=time.perf_counter() - t0)
 
 
 def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R: np.ndarray,
-           budget_s: float | None = None) -> tuple[np.ndarray, int, bool]:
+           budget_s: float | None = None, should_stop: Callable[[], bool] | None = None
+           ) -> tuple[np.ndarray, int, str | None]:
     """(N, d+1, d+1) poses at a local minimum of ``F`` from ``T0`` (the first pose
     held, which costs nothing: ``F`` is invariant to a global rigid motion), the
-    LM's iterations, and whether ``budget_s`` (seconds) stopped it first (the
-    bound still holds there; only the gap widens). ``rows`` (K, 2) pose indices,
+    LM's iterations, and what ended it before convergence: ``"budget"`` (``budget_s``
+    seconds; the bound still holds there, only the gap widens), ``"signal"``
+    (``should_stop()``), else None. ``rows`` (K, 2) pose indices,
     ``Z`` (K, d+1, d+1)."""
     t0 = time.perf_counter()
     d = T0.shape[1] - 1
@@ -174,26 +186,29 @@ def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R
     params.setRelativeErrorTol(REFINE_RELATIVE_TOL)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     # gtsam eliminates recursively: a long chain needs the deep stack (100 000 poses)
-    stopped = deep_stack.call(_iterate, optimizer, params, t0, budget_s)
+    ended = deep_stack.call(_iterate, optimizer, params, t0, budget_s, should_stop)
     out = optimizer.values()
     at = out.atPose2 if d == 2 else out.atPose3
     return (np.array([at(k).matrix() for k in range(len(T0))]), int(optimizer.iterations()),
-            stopped)
+            ended)
 
 
 def _iterate(optimizer: gtsam.LevenbergMarquardtOptimizer,
-             params: gtsam.LevenbergMarquardtParams, t0: float, budget_s: float | None) -> bool:
-    """gtsam's own LM loop, written out so that the time budget can end it; whether
-    it did."""
+             params: gtsam.LevenbergMarquardtParams, t0: float, budget_s: float | None,
+             should_stop: Callable[[], bool] | None) -> str | None:
+    """gtsam's own LM loop, written out so that the time budget or a signal can end
+    it; what did (see :func:`refine`)."""
     error = optimizer.error()
     for _ in range(REFINE_MAX_ITERATIONS):
+        if should_stop is not None and should_stop():
+            return "signal"
         optimizer.iterate()
         previous, error = error, optimizer.error()
         if gtsam.checkConvergence(params, previous, error):
-            return False
+            return None
         if budget_s is not None and time.perf_counter() - t0 > budget_s:
-            return True
-    return False
+            return "budget"
+    return None
 
 
 def _pose2(T: np.ndarray) -> gtsam.Pose2:

@@ -220,3 +220,15 @@ def test_a_tree_is_certified_by_its_zero_cost_alone(tmp_path, sigma, certified):
     c = cert.certify(graph, graph.vertices, keep)  # the file's vertices: the truth
     assert c.iterations == 0 and c.lower_bound == 0.0 and c.certified is certified
     assert cert.certify(graph, solved, keep).certified
+
+
+def test_a_signal_during_the_check_ends_it_and_says_so(tmp_path):
+    """The pipeline passes its stop guard: the check ends at the next refinement
+    iteration with no certificate, and the run goes on to write its outputs."""
+    graph = _torus_graph(tmp_path)
+    result = solve(graph, PoseGraphConfig(init="odometry"), "batch")
+    pipeline.certify(graph, result, should_stop=lambda: True)
+    assert result.optimality is None
+    assert result.optimality_unchecked == "a signal stopped the check"
+    metrics = pipeline.metrics(graph, result, 0.0).to_dict()
+    assert metrics["certificate"] == {"certified": None, "unchecked": "a signal stopped the check"}
