@@ -308,6 +308,6 @@ def negative_pivots(A: sp.csc_matrix) -> int:
 
 def _floor(M: sp.csc_matrix) -> float:
     """A cost below which ``F`` counts as zero, so that the bound's slack stays above
-    rounding when every edge agrees (``F = 0``): ``1e-8`` of ``tr M``, the cost of
-    about one sigma of residual on every edge."""
+    rounding when every edge agrees (``F = 0``): ``1e-8`` of ``tr M`` (which is about
+    the cost of a 1 m / 1 rad residual on every edge), i.e. residuals of 1e-4."""
     return 1e-8 * float(M.diagonal().sum())
