@@ -104,7 +104,23 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
         signal_hook("finalize")  # the batch LM (C++) defers a signal to here
         if config.certify and result.cut is None and not stop.requested:
             certify(graph, result, lambda: stop.requested)
+            if (solver == "auto" and result.optimality is not None
+                    and not result.optimality.certified and not stop.requested):
+                result = _retried(graph, config, result, lambda: stop.requested)
     return result
+
+
+def _retried(graph: pg.PoseGraph, config: PoseGraphConfig, result: SolveResult,
+             should_stop: Callable[[], bool]) -> SolveResult:
+    """``auto``'s estimate that failed the certificate, or batch from Shonan's
+    rotations where that costs less (:func:`.route.retry_from_certified_rotations`),
+    certified in turn."""
+    from graphslam.backends.posegraph import route
+
+    retried = route.retry_from_certified_rotations(graph, config, solve, result)
+    if retried is not result and not should_stop():
+        certify(graph, retried, should_stop)
+    return retried
 
 
 def certify(graph: pg.PoseGraph, result: SolveResult,

@@ -169,6 +169,8 @@ def route_rows(route: dict | None) -> list[tuple[str, str]]:
     for name, tried in route.items():  # the attempts are the route's entries with a cost
         if isinstance(tried, dict) and "cost" in tried and name != route["kept"]:
             rows.append((f"  {name}", f"cost {tried['cost']:.10g}, {tried['wall_s']:.2f} s"))
+    if "shonan_retry" in route:
+        rows.append(("retry", route["shonan_retry"]))
     if "local_minimum" in route:
         rows.append(("local minimum", route["local_minimum"]))
     return rows

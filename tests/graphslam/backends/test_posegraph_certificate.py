@@ -232,3 +232,23 @@ def test_a_signal_during_the_check_ends_it_and_says_so(tmp_path):
     assert result.optimality_unchecked == "a signal stopped the check"
     metrics = pipeline.metrics(graph, result, 0.0).to_dict()
     assert metrics["certificate"] == {"certified": None, "unchecked": "a signal stopped the check"}
+
+
+@pytest.mark.parametrize("seed, scale, kept", [(2, 1.5, "shonan"), (5, 1.0, "batch")])
+def test_auto_retries_from_shonan_where_its_estimate_is_not_certified(tmp_path, seed, scale, kept):
+    """A noisy Manhattan walk (seed 2, 0.3 rad) passes the chi-square check in a local
+    minimum (158.04) that the certificate refuses; batch from Shonan's rotations reaches
+    141.01 and is kept. Where Shonan's start costs no less (seed 5), the estimate stays."""
+    from tests.posegraphs import MANHATTAN_SIGMA, manhattan_walk
+
+    path = manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA) * scale, seed=seed)
+    graph = read_pose_graph_file(path)
+    first = solve(graph, PoseGraphConfig(), "auto")
+    result = pipeline.run(graph, "auto", PoseGraphConfig())
+    assert result.route["kept"] == kept and "shonan" in result.route
+    if kept == "shonan":
+        assert result.final_cost < 0.95 * first.final_cost
+        assert "local minimum" in result.route["local_minimum"]
+    else:
+        assert result.final_cost == first.final_cost and "local_minimum" not in result.route
+    assert pipeline.run(graph, "auto", PoseGraphConfig(certify=False)).final_cost == first.final_cost
