@@ -54,13 +54,14 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     out_dir = out_dir_of(graph.name)
     runs = compare(graph, names, solver_config, truth,
                    progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
-    rows = [("backend", "status", "final cost", "iterations", "rejected", "ATE [m]",
-             "RMS to first [m]", "wall [s]")]
+    rows = [("backend", "status", "final cost", "iterations", "rejected", "certified",
+             "ATE [m]", "RMS to first [m]", "wall [s]")]
     for r in runs:
         m = r.metrics
-        rows.append((r.backend, r.status) + (("n/a",) * 6 if m is None else (
+        rows.append((r.backend, r.status) + (("n/a",) * 7 if m is None else (
             fmt(m.final_cost, ".10g"), fmt(m.iterations, "d"), str(m.closures_rejected),
-            fmt(m.ate_rmse_m, ".4f"), fmt(r.rms_to_first_m, ".3g"), fmt(m.wall_s, ".2f"))))
+            _certified(m.certificate), fmt(m.ate_rmse_m, ".4f"), fmt(r.rms_to_first_m, ".3g"),
+            fmt(m.wall_s, ".2f"))))
     widths = [max(len(row[c]) for row in rows) for c in range(len(rows[0]))]
     print("\n".join("  ".join(v.rjust(w) if c else v.ljust(w)
                               for c, (v, w) in enumerate(zip(row, widths, strict=True))) for row in rows))
@@ -84,6 +85,13 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
               "solvers that ran", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_FAILED if any(r.error for r in runs) else 0
+
+
+def _certified(certificate: dict | None) -> str:
+    """SE-Sync's certificate in a word (``run``'s summary and ``compare.json`` say more)."""
+    if certificate is None or certificate["certified"] is None:
+        return "n/a"
+    return "yes" if certificate["certified"] else "NO"
 
 
 def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[str]:

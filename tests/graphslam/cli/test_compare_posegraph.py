@@ -32,6 +32,12 @@ def test_a_3d_graph_compares_its_three_solvers_by_default(tmp_path, capsys):
     assert (out / "compare.png").stat().st_size > 5000 and (out / "compare.rrd").is_file()
     table = capsys.readouterr().out
     assert "RMS to first [m]" in table and "batch" in table
+    # pose3example's optimum is certified by every solver, and the table says so
+    assert all(r["certificate"]["certified"] is True for r in runs)
+    assert "certified" in table.splitlines()[0]
+    lines = [t.split() for t in table.splitlines() if t.split()[:1] in (["isam2"], ["batch"], ["auto"])]
+    # backend, status, final cost, iterations, rejected, certified, ...
+    assert [line[5] for line in lines] == ["yes", "yes", "yes"]
 
 
 def test_named_solvers_on_a_2d_graph_and_a_built_in_with_truth(tmp_path, capsys):
