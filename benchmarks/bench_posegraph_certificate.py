@@ -18,6 +18,7 @@ sphere2500 and w10000 and a 3-D grid of 8000 poses (about 4 minutes).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import tempfile
@@ -97,7 +98,7 @@ def bench(name: str, path: Path, noise: str, estimates) -> list[dict]:
     graph = read_pose_graph_file(path, noise)
     rows = []
     for label, config, solver in estimates:
-        config = PoseGraphConfig(**{**config.__dict__, "toro_noise": noise})
+        config = dataclasses.replace(config, toro_noise=noise)
         t0 = time.perf_counter()
         result = solve(graph, config, solver)
         solve_s = time.perf_counter() - t0

@@ -19,7 +19,7 @@ from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import SolveResult, solve
 from graphslam.pipelines.common import interrupt_between_frames, signal_hook, stop_requested
 from slamcore import posegraph as pg
-from slamcore.errors import InputError
+from slamcore.errors import GraphSlamError, InputError
 from slamcore.files import atomic_open
 
 #: What Shonan's certificate covers, written next to it in ``metrics.json``.
@@ -117,7 +117,14 @@ def _retried(graph: pg.PoseGraph, config: PoseGraphConfig, result: SolveResult,
     certified in turn."""
     from graphslam.backends.posegraph import route
 
-    retried = route.retry_from_certified_rotations(graph, config, solve, result)
+    try:
+        retried = route.retry_from_certified_rotations(graph, config, solve, result)
+    except (GraphSlamError, RuntimeError, IndexError, MemoryError) as exc:
+        # a second opinion that fails leaves the first estimate, whole and written
+        result.route = {**(result.route or {}), "shonan_retry": (
+            f"not certified; batch from Shonan's rotations failed ({type(exc).__name__}: "
+            f"{' '.join(str(exc).split())})")}
+        return result
     if retried is not result and not should_stop():
         certify(graph, retried, should_stop)
     return retried
@@ -218,9 +225,7 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
                             if len(graph.self_edge_lines) else None),
         route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
-        certificate=(result.optimality.to_dict() if result.optimality is not None else
-                     {"certified": None, "unchecked": result.optimality_unchecked}
-                     if result.optimality_unchecked is not None else None),
+        certificate=_certificate_of(result),
         ate_rmse_m=None if truth is None or not scored else ate_rmse(graph, result.params, truth),
         # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
@@ -228,6 +233,15 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
             graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),
         converged=not result.lm_capped)
+
+
+def _certificate_of(result: SolveResult) -> dict | None:
+    """``metrics.json``'s ``certificate`` (see :class:`PoseGraphRunMetrics`)."""
+    if result.optimality is not None:
+        return result.optimality.to_dict()
+    if result.optimality_unchecked is not None:
+        return {"certified": None, "unchecked": result.optimality_unchecked}
+    return None
 
 
 def trajectory_matrices(graph: pg.PoseGraph, params: np.ndarray) -> np.ndarray:

@@ -56,6 +56,15 @@ def consistent(graph: PoseGraph, result, alpha: float) -> tuple[bool, str]:
                            f"{bound:.6g} ({dof} degrees of freedom, 1 - {alpha:g})")
 
 
+def shared_threshold(a, b) -> float | None:
+    """The edge error at which two candidates' closures are truncated for the
+    comparison: the looser of their outlier thresholds, or None (plain cost) unless
+    both tested their closures."""
+    if a.closure_threshold is None or b.closure_threshold is None:
+        return None
+    return 0.5 * max(a.closure_threshold, b.closure_threshold) ** 2
+
+
 def comparable_cost(graph: PoseGraph, result, threshold_error: float | None) -> float:
     """The cost both routes are compared on (see the module docstring)."""
     if threshold_error is None:
@@ -80,9 +89,7 @@ def solve_auto(graph: PoseGraph, config: PoseGraphConfig, solve, should_stop=Non
                                 "kept")
         return _named(batch, t0, {"kept": "batch", "reason": reason,
                                   "batch": _summary(batch, batch.final_cost)})
-    threshold = None
-    if batch.closure_threshold is not None and incremental.closure_threshold is not None:
-        threshold = 0.5 * max(batch.closure_threshold, incremental.closure_threshold) ** 2
+    threshold = shared_threshold(batch, incremental)
     costs = {"batch": comparable_cost(graph, batch, threshold),
              "isam2": comparable_cost(graph, incremental, threshold)}
     kept_name = "batch" if costs["batch"] <= costs["isam2"] else "isam2"
@@ -103,9 +110,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
     local minimum). ``solve``: :func:`.solver.solve`."""
     t0 = time.perf_counter()
     shonan = solve(graph, dataclasses.replace(config, init="shonan"), "batch")
-    threshold = None
-    if kept.closure_threshold is not None and shonan.closure_threshold is not None:
-        threshold = 0.5 * max(kept.closure_threshold, shonan.closure_threshold) ** 2
+    threshold = shared_threshold(kept, shonan)
     before, after = comparable_cost(graph, kept, threshold), comparable_cost(graph, shonan, threshold)
     route = dict(kept.route or {})
     route["shonan"] = _summary(shonan, after)

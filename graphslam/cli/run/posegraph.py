@@ -153,7 +153,8 @@ def format_summary(metrics) -> str:
                                       f"(try {tries}, or [posegraph] max_iterations)"))
     rows += route_rows(metrics.route)
     if metrics.certificate is not None:
-        rows.append(("optimality", optimality_row(metrics.certificate)))
+        retried = "shonan_retry" in (metrics.route or {})
+        rows.append(("optimality", optimality_row(metrics.certificate, retried)))
     if metrics.shonan_min_eigenvalue is not None:
         rows.append(("Shonan min eigenvalue", fmt(metrics.shonan_min_eigenvalue, ".3g")))
     for note in metrics.numerical_recoveries or ():
@@ -176,9 +177,10 @@ def route_rows(route: dict | None) -> list[tuple[str, str]]:
     return rows
 
 
-def optimality_row(certificate: dict) -> str:
+def optimality_row(certificate: dict, retried: bool = False) -> str:
     """SE-Sync's certificate in one line (``metrics.json`` has the figures and what
-    the certificate covers)."""
+    the certificate covers); ``retried``: ``auto`` already tried Shonan's start, so
+    the line does not suggest it."""
     if certificate["certified"] is None:
         return f"not checked: {certificate['unchecked']}"
     near = (f"the estimate is {certificate['max_translation_change_m']:.3g} m / "
@@ -193,8 +195,8 @@ def optimality_row(certificate: dict) -> str:
     budget = ("; its refinement stopped at its time budget (the solve's time)"
               if certificate.get("refine_stopped") else "")
     return (f"NOT certified ({gap}): SE-Sync's problem refined from the estimate may not be "
-            f"at its global optimum, nor the estimate at the file's ({near}){budget}; "
-            "--init shonan starts from certified rotations")
+            f"at its global optimum, nor the estimate at the file's ({near}){budget}"
+            + ("" if retried else "; --init shonan starts from certified rotations"))
 
 
 def closure_row(metrics) -> str:

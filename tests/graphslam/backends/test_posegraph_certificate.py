@@ -252,3 +252,20 @@ def test_auto_retries_from_shonan_where_its_estimate_is_not_certified(tmp_path, 
     else:
         assert result.final_cost == first.final_cost and "local_minimum" not in result.route
     assert pipeline.run(graph, "auto", PoseGraphConfig(certify=False)).final_cost == first.final_cost
+
+
+def test_a_retry_that_fails_keeps_the_first_estimate(tmp_path, monkeypatch):
+    from graphslam.backends.posegraph import route
+    from tests.posegraphs import MANHATTAN_SIGMA, manhattan_walk
+
+    graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA) * 1.5,
+                                                seed=2))
+    first = solve(graph, PoseGraphConfig(), "auto")
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("Indeterminant linear system detected")
+
+    monkeypatch.setattr(route, "retry_from_certified_rotations", broken)
+    result = pipeline.run(graph, "auto", PoseGraphConfig())
+    assert result.final_cost == first.final_cost and not result.optimality.certified
+    assert "failed (RuntimeError" in result.route["shonan_retry"]
