@@ -94,12 +94,20 @@ class JcbbResult:
     budget_exhausted: bool
 
 
-def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
-         pair_obs: np.ndarray, pair_landmark: np.ndarray, *, chi2_prob: float = 0.99,
-         max_nodes: int = 2000, individual_d2: np.ndarray | None = None,
-         pair_gain: np.ndarray | None = None,
-         noise_logdet: np.ndarray | None = None,
-         pair_ambiguous: np.ndarray | None = None) -> JcbbResult:
+def jcbb(
+    z: np.ndarray,
+    z_pred: np.ndarray,
+    joint_covariance: np.ndarray,
+    pair_obs: np.ndarray,
+    pair_landmark: np.ndarray,
+    *,
+    chi2_prob: float = 0.99,
+    max_nodes: int = 2000,
+    individual_d2: np.ndarray | None = None,
+    pair_gain: np.ndarray | None = None,
+    noise_logdet: np.ndarray | None = None,
+    pair_ambiguous: np.ndarray | None = None,
+) -> JcbbResult:
     """Joint-compatibility branch and bound over candidate (observation, landmark) pairs.
 
     Args:
@@ -137,11 +145,17 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
     C = np.asarray(joint_covariance, dtype=float)
     if C.shape != (2 * n_pairs, 2 * n_pairs):
         raise ValueError(f"joint_covariance must be {(2 * n_pairs,) * 2}, got {C.shape}")
-    nu = models.innovation(z[pair_obs], np.asarray(z_pred, dtype=float).reshape(-1, 2)) \
-        if n_pairs else np.zeros((0, 2))
+    nu = (
+        models.innovation(z[pair_obs], np.asarray(z_pred, dtype=float).reshape(-1, 2))
+        if n_pairs
+        else np.zeros((0, 2))
+    )
     if individual_d2 is None:
-        blocks = np.stack([C[2 * p:2 * p + 2, 2 * p:2 * p + 2] for p in range(n_pairs)]) \
-            if n_pairs else np.zeros((0, 2, 2))
+        blocks = (
+            np.stack([C[2 * p : 2 * p + 2, 2 * p : 2 * p + 2] for p in range(n_pairs)])
+            if n_pairs
+            else np.zeros((0, 2, 2))
+        )
         individual_d2 = mahalanobis_sq_2d(nu, blocks)
 
     cands: list[list[int]] = [[] for _ in range(m)]
@@ -152,11 +166,22 @@ def jcbb(z: np.ndarray, z_pred: np.ndarray, joint_covariance: np.ndarray,
     else:
         if noise_logdet is None:
             raise ValueError("jcbb: pair_gain needs noise_logdet")
-        ambiguous = np.zeros(n_pairs, dtype=bool) if pair_ambiguous is None \
+        ambiguous = (
+            np.zeros(n_pairs, dtype=bool)
+            if pair_ambiguous is None
             else np.asarray(pair_ambiguous, dtype=bool).reshape(-1)
-        search = _LikelihoodSearch(C, nu.reshape(-1), cands, pair_landmark, chi2_prob,
-                                   max_nodes, np.asarray(pair_gain, dtype=float).reshape(-1),
-                                   np.asarray(noise_logdet, dtype=float).reshape(-1), ambiguous)
+        )
+        search = _LikelihoodSearch(
+            C,
+            nu.reshape(-1),
+            cands,
+            pair_landmark,
+            chi2_prob,
+            max_nodes,
+            np.asarray(pair_gain, dtype=float).reshape(-1),
+            np.asarray(noise_logdet, dtype=float).reshape(-1),
+            ambiguous,
+        )
     best_pairs, best_nis, exhausted = search.run(individual_d2)
 
     per_obs_pair: list[int | None] = [None] * m
@@ -179,8 +204,15 @@ class _JcbbSearch:
     best hypothesis found so far (pair indices) and the pairing tests done.
     """
 
-    def __init__(self, C: np.ndarray, nu_flat: np.ndarray, cands: list[list[int]],
-                 pair_landmark: np.ndarray, chi2_prob: float, max_nodes: int):
+    def __init__(
+        self,
+        C: np.ndarray,
+        nu_flat: np.ndarray,
+        cands: list[list[int]],
+        pair_landmark: np.ndarray,
+        chi2_prob: float,
+        max_nodes: int,
+    ):
         self.C = C
         self.nu_flat = nu_flat
         self.cands = cands
@@ -265,8 +297,9 @@ class _JcbbSearch:
         order = self.order
         if level == len(order):
             nis = self.joint_nis(chosen)
-            if len(chosen) > len(self.best_pairs) or (len(chosen) == len(self.best_pairs)
-                                                      and nis < self.best_nis):
+            if len(chosen) > len(self.best_pairs) or (
+                len(chosen) == len(self.best_pairs) and nis < self.best_nis
+            ):
                 self.best_pairs, self.best_nis = list(chosen), nis
             return
         remaining = len(order) - level - 1  # levels after this one
@@ -317,14 +350,14 @@ class _LikelihoodSearch(_JcbbSearch):
     single one is not a hypothesis to close a loop on).
     """
 
-    def __init__(self, C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes, pair_gain,
-                 noise_logdet, ambiguous):
+    def __init__(
+        self, C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes, pair_gain, noise_logdet, ambiguous
+    ):
         super().__init__(C, nu_flat, cands, pair_landmark, chi2_prob, max_nodes)
         self.gain = pair_gain
         self.ambiguous = ambiguous
         # per observation with candidates, the most one pairing can add
-        bound = [max(0.0, max(pair_gain[p] - 0.5 * noise_logdet[i] for p in cands[i]))
-                 for i in self.order]
+        bound = [max(0.0, max(pair_gain[p] - 0.5 * noise_logdet[i] for p in cands[i])) for i in self.order]
         #: tail[k]: the most the observations order[k:] can still add
         self.tail = np.concatenate([np.cumsum(bound[::-1])[::-1], [0.0]])
         self.best_score = 0.0
@@ -362,8 +395,7 @@ class _LikelihoodSearch(_JcbbSearch):
             return self.best_pairs, self.best_nis, True
         return self.best_pairs, self.best_nis, False
 
-    def search_score(self, level: int, chosen: list[int], used_lm: set[int],
-                     current: float) -> None:
+    def search_score(self, level: int, chosen: list[int], used_lm: set[int], current: float) -> None:
         """Depth-first as :meth:`_JcbbSearch.search`, pruned by the score bound."""
         if current > self.best_score and self.supported(chosen):
             self.best_pairs, self.best_score = list(chosen), current

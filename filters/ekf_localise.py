@@ -75,22 +75,27 @@ class EkfLocaliser(Backend):
     name = "ekf"
     supports_loop_closures = False
 
-    def __init__(self, landmark_ids, landmarks_w, landmark_cov,
-                 config: EkfSlamConfig | None = None):
+    def __init__(self, landmark_ids, landmarks_w, landmark_cov, config: EkfSlamConfig | None = None):
         self.config = config if config is not None else EkfSlamConfig()
         if self.config.association != "known":
-            raise ConfigError("ekf: localisation against a map associates by landmark id; "
-                              "[ekf] association = \"unknown\" is not supported with --map")
+            raise ConfigError(
+                "ekf: localisation against a map associates by landmark id; "
+                '[ekf] association = "unknown" is not supported with --map'
+            )
         self._map_ids = np.asarray(landmark_ids, dtype=np.int64).copy()
         self._m = np.asarray(landmarks_w, dtype=np.float64).reshape(-1, 2).copy()
         self._Pm = np.asarray(landmark_cov, dtype=np.float64).reshape(-1, 2, 2).copy()
         for a in (self._map_ids, self._m, self._Pm):
             a.setflags(write=False)
         self._slot = {int(i): k for k, i in enumerate(self._map_ids)}
-        self._gate = (np.inf if self.config.known_gate_chi2_prob is None
-                      else chi2_quantile(self.config.known_gate_chi2_prob, 2))
-        self._R_typical = np.diag([self.config.default_sigma_range_m ** 2,
-                                   self.config.default_sigma_bearing_rad ** 2])
+        self._gate = (
+            np.inf
+            if self.config.known_gate_chi2_prob is None
+            else chi2_quantile(self.config.known_gate_chi2_prob, 2)
+        )
+        self._R_typical = np.diag(
+            [self.config.default_sigma_range_m**2, self.config.default_sigma_bearing_rad**2]
+        )
         self._x: np.ndarray | None = None
         self._Prr = np.zeros((3, 3))
         self._Prm = np.zeros((3, 2 * len(self._map_ids)))
@@ -162,9 +167,11 @@ class EkfLocaliser(Backend):
         return Estimate(
             pose_ids=np.array(self._hist_ids, dtype=np.int64),
             wTb=np.array(self._hist_wTb).reshape(-1, 3),
-            landmark_ids=self._map_ids.copy(), landmarks_w=self._m.copy(),
+            landmark_ids=self._map_ids.copy(),
+            landmarks_w=self._m.copy(),
             pose_covariances=np.array(self._hist_cov).reshape(-1, 3, 3) if with_covariances else None,
-            landmark_covariances=self._Pm.copy() if with_covariances else None)
+            landmark_covariances=self._Pm.copy() if with_covariances else None,
+        )
 
     def current_pose(self) -> np.ndarray:
         return self._current()[0].copy()
@@ -200,7 +207,7 @@ class EkfLocaliser(Backend):
             return False
         K_r = np.linalg.solve(S, A_r.T).T  # (3, 2): S is symmetric
         HPm = H_x @ self._Prm  # (2, 2M): the landmark columns of H P
-        HPm[:, 2 * slot:2 * slot + 2] += H_m @ self._Pm[slot]
+        HPm[:, 2 * slot : 2 * slot + 2] += H_m @ self._Pm[slot]
         x = self._current()[0] + K_r @ nu
         x[2] = models.wrap_angle(x[2])
         self._x = x

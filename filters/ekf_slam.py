@@ -152,10 +152,14 @@ class EkfSlam(Backend):
         self.config = config if config is not None else EkfSlamConfig()
         self._gate = chi2_quantile(self.config.gate_chi2_prob, 2)
         self._new_gate = chi2_quantile(self.config.new_landmark_chi2_prob, 2)
-        self._known_gate = (math.inf if self.config.known_gate_chi2_prob is None
-                            else chi2_quantile(self.config.known_gate_chi2_prob, 2))
-        self._R_typical = np.diag([self.config.default_sigma_range_m ** 2,
-                                   self.config.default_sigma_bearing_rad ** 2])
+        self._known_gate = (
+            math.inf
+            if self.config.known_gate_chi2_prob is None
+            else chi2_quantile(self.config.known_gate_chi2_prob, 2)
+        )
+        self._R_typical = np.diag(
+            [self.config.default_sigma_range_m**2, self.config.default_sigma_bearing_rad**2]
+        )
         self._reset(self.config.initial_capacity)
 
     # ------------------------------------------------------------------ state
@@ -201,8 +205,9 @@ class EkfSlam(Backend):
         """Landmark ids in state order."""
         return list(self._store.ids)
 
-    def load_state(self, pose_id: int, x: np.ndarray, P: np.ndarray,
-                   landmark_ids: Sequence[int] | None = None) -> None:
+    def load_state(
+        self, pose_id: int, x: np.ndarray, P: np.ndarray, landmark_ids: Sequence[int] | None = None
+    ) -> None:
         """Replace the whole filter state (tests, benchmarks, restoring a run).
 
         Args:
@@ -304,8 +309,7 @@ class EkfSlam(Backend):
                 # the clock is set by sightings used only: one the gate rejects is not
                 # the previous sighting the next one is correlated with
                 R = self._last_sightings.covariance(o, lid, record=False)
-                if kalman_update(self._store, slot, o.z, R, self.config, self.recoveries,
-                                 self._known_gate):
+                if kalman_update(self._store, slot, o.z, R, self.config, self.recoveries, self._known_gate):
                     self._last_sightings.record(o, lid)
                     assoc[k] = lid
                 else:
@@ -341,11 +345,13 @@ class EkfSlam(Backend):
         self._require_init()
         st = self._store
         M = len(st.ids)
-        lms = st.xbuf[3:3 + 2 * M].reshape(M, 2).copy()
-        est = dict(pose_ids=np.array(self._hist_ids, dtype=np.int64),
-                   wTb=np.array(self._hist_wTb).reshape(-1, 3),
-                   landmark_ids=np.array(st.ids, dtype=np.int64).reshape(M),
-                   landmarks_w=lms)
+        lms = st.xbuf[3 : 3 + 2 * M].reshape(M, 2).copy()
+        est = dict(
+            pose_ids=np.array(self._hist_ids, dtype=np.int64),
+            wTb=np.array(self._hist_wTb).reshape(-1, 3),
+            landmark_ids=np.array(st.ids, dtype=np.int64).reshape(M),
+            landmarks_w=lms,
+        )
         if with_covariances:
             est["pose_covariances"] = np.array(self._hist_cov).reshape(-1, 3, 3)
             est["landmark_covariances"] = st.landmark_marginals()
@@ -364,7 +370,7 @@ class EkfSlam(Backend):
     def _predict_one(self, slot: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
         i = 3 + 2 * slot
         xr = self._store.xbuf[:3]
-        m = self._store.xbuf[i:i + 2]
+        m = self._store.xbuf[i : i + 2]
         z = models.observe(xr, m)
         H_x, H_m = models.observe_jacobians(xr, m)
         return z, np.hstack([H_x, H_m]), [0, 1, 2, i, i + 1]
@@ -379,15 +385,14 @@ class EkfSlam(Backend):
         P = st.Pbuf
         Pmx = G_x @ P[0:3, :n]  # (2, n)
         Pmm = G_x @ P[:3, :3] @ G_x.T + G_z @ R @ G_z.T
-        P[n:n + 2, :n] = Pmx
-        P[:n, n:n + 2] = Pmx.T
-        P[n:n + 2, n:n + 2] = 0.5 * (Pmm + Pmm.T)
+        P[n : n + 2, :n] = Pmx
+        P[:n, n : n + 2] = Pmx.T
+        P[n : n + 2, n : n + 2] = 0.5 * (Pmm + Pmm.T)
         st.note_variances(float(P[n, n]), float(P[n + 1, n + 1]))
         self._next_id = max(self._next_id, lid + 1)
         return slot
 
-    def _update_unknown(self, obs: list[Observation], where: list[int],
-                        assoc: list[int | None]) -> None:
+    def _update_unknown(self, obs: list[Observation], where: list[int], assoc: list[int | None]) -> None:
         """Associate the observations ``obs`` (rows ``where`` of the scan) by gating and
         JCBB, update with the pairs, then start landmarks (or provisional
         sightings) from the unpaired ones far from every unpaired landmark."""
@@ -399,9 +404,17 @@ class EkfSlam(Backend):
         if c.jcbb_objective == "likelihood":
             likelihood = (c.new_landmark_density_per_m2, c.detection_prob)
         hyp, novelty, res = associate_scan(
-            self._store.xbuf, self._store.Pbuf, self._store.landmark_marginals(), Z, Rs, gate=self._gate,
-            chi2_prob=c.gate_chi2_prob, max_candidates=c.jcbb_max_candidates,
-            max_nodes=c.jcbb_max_nodes, likelihood=likelihood)
+            self._store.xbuf,
+            self._store.Pbuf,
+            self._store.landmark_marginals(),
+            Z,
+            Rs,
+            gate=self._gate,
+            chi2_prob=c.gate_chi2_prob,
+            max_candidates=c.jcbb_max_candidates,
+            max_nodes=c.jcbb_max_nodes,
+            likelihood=likelihood,
+        )
         if res is not None:
             self.last_jcbb = res
         # Updates first (slots are stable: new landmarks only append).

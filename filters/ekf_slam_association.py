@@ -33,20 +33,25 @@ def predict_landmarks(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray):
     """
     L = len(Pmm)
     xr = x[:3]
-    m = x[3:3 + 2 * L].reshape(L, 2)
+    m = x[3 : 3 + 2 * L].reshape(L, 2)
     zhat = models.observe(xr, m)
     H_x, H_m = models.observe_jacobians(xr, m)
     Prr = P[:3, :3]
-    Prm = P[:3, 3:3 + 2 * L].reshape(3, L, 2).transpose(1, 0, 2)  # (L, 3, 2)
+    Prm = P[:3, 3 : 3 + 2 * L].reshape(3, L, 2).transpose(1, 0, 2)  # (L, 3, 2)
     HxPrm = H_x @ Prm  # (L, 2, 2)
     cross = HxPrm @ H_m.transpose(0, 2, 1)
-    S0 = (H_x @ Prr @ H_x.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
-          + H_m @ Pmm @ H_m.transpose(0, 2, 1))
+    S0 = (
+        H_x @ Prr @ H_x.transpose(0, 2, 1)
+        + cross
+        + cross.transpose(0, 2, 1)
+        + H_m @ Pmm @ H_m.transpose(0, 2, 1)
+    )
     return zhat, H_x, H_m, S0
 
 
-def pair_covariance(P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndarray,
-                    pairs: list[tuple[int, int]]) -> np.ndarray:
+def pair_covariance(
+    P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndarray, pairs: list[tuple[int, int]]
+) -> np.ndarray:
     """Joint covariance (2p, 2p) of the innovations of the candidate ``pairs``
     ``(observation i, landmark l)``: ``A P A^T`` over the robot and the landmarks
     involved, plus each observation's ``R_i`` (``Rs`` (m, 2, 2)) on its own block.
@@ -60,17 +65,27 @@ def pair_covariance(P: np.ndarray, H_x: np.ndarray, H_m: np.ndarray, Rs: np.ndar
     Psub = P[np.ix_(idx, idx)]
     A = np.zeros((2 * len(pairs), len(idx)))
     for p, (_, lm) in enumerate(pairs):
-        A[2 * p:2 * p + 2, :3] = H_x[lm]
-        A[2 * p:2 * p + 2, col[lm]:col[lm] + 2] = H_m[lm]
+        A[2 * p : 2 * p + 2, :3] = H_x[lm]
+        A[2 * p : 2 * p + 2, col[lm] : col[lm] + 2] = H_m[lm]
     C = A @ Psub @ A.T
     for p, (i, _) in enumerate(pairs):
-        C[2 * p:2 * p + 2, 2 * p:2 * p + 2] += Rs[i]
+        C[2 * p : 2 * p + 2, 2 * p : 2 * p + 2] += Rs[i]
     return C
 
 
-def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray, Rs: np.ndarray,
-                   *, gate: float, chi2_prob: float, max_candidates: int, max_nodes: int,
-                   likelihood: tuple[float, float] | None = None):
+def associate_scan(
+    x: np.ndarray,
+    P: np.ndarray,
+    Pmm: np.ndarray,
+    Z: np.ndarray,
+    Rs: np.ndarray,
+    *,
+    gate: float,
+    chi2_prob: float,
+    max_candidates: int,
+    max_nodes: int,
+    likelihood: tuple[float, float] | None = None,
+):
     """Landmark slot (or None) of each observation of one scan, by gating then JCBB.
 
     ``Z`` (m, 2) observations with covariances ``Rs`` (m, 2, 2); ``gate``:
@@ -118,12 +133,21 @@ def associate_scan(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray, Z: np.ndarray,
         # the landmark over a new one: N(nu; S) >= lambda, i.e. a novelty at most
         # -log(P_D / (1 - P_D)); otherwise it needs a second one's support.
         detection_log_odds = math.log(likelihood[1] / (1.0 - likelihood[1]))
-        ambiguous = _ambiguous(Z, det_S, gate, chi2_prob, *likelihood) \
-            & (novelty > -detection_log_odds)
-        extra = dict(pair_gain=gain[pair_obs], noise_logdet=noise_logdet,
-                     pair_ambiguous=ambiguous[pair_obs, pair_lm])
-    res: JcbbResult = jcbb(Z, zhat[pair_lm], C, pair_obs, pair_lm, chi2_prob=chi2_prob,
-                           max_nodes=max_nodes, individual_d2=d2[pair_obs, pair_lm], **extra)
+        ambiguous = _ambiguous(Z, det_S, gate, chi2_prob, *likelihood) & (novelty > -detection_log_odds)
+        extra = dict(
+            pair_gain=gain[pair_obs], noise_logdet=noise_logdet, pair_ambiguous=ambiguous[pair_obs, pair_lm]
+        )
+    res: JcbbResult = jcbb(
+        Z,
+        zhat[pair_lm],
+        C,
+        pair_obs,
+        pair_lm,
+        chi2_prob=chi2_prob,
+        max_nodes=max_nodes,
+        individual_d2=d2[pair_obs, pair_lm],
+        **extra,
+    )
     return res.hypothesis, (d2 if likelihood is None else novelty), res
 
 
@@ -140,13 +164,14 @@ def _likelihood_terms(Z, Rs, det_S, d2, density_per_m2: float, detection_prob: f
     gain = math.log(detection_prob / (1.0 - detection_prob)) - np.log(density_per_m2 * r)
     two_pi = 2.0 * math.pi
     noise_logdet = np.log(np.linalg.det(two_pi * Rs))
-    logdet_S = np.log(two_pi ** 2 * det_S)
+    logdet_S = np.log(two_pi**2 * det_S)
     novelty = -(gain[:, None] - 0.5 * d2 - 0.5 * logdet_S)
     return gain, noise_logdet, novelty
 
 
-def ambiguous_gates(Z, Rs, S0, gate: float, gate_prob: float, density_per_m2: float,
-                    detection_prob: float) -> np.ndarray:
+def ambiguous_gates(
+    Z, Rs, S0, gate: float, gate_prob: float, density_per_m2: float, detection_prob: float
+) -> np.ndarray:
     """(m, L) bool: the gate of observation i on landmark l cannot tell that landmark
     from a new one on its own (:class:`filters.association._LikelihoodSearch`'s support rule).
 
@@ -162,8 +187,7 @@ def ambiguous_gates(Z, Rs, S0, gate: float, gate_prob: float, density_per_m2: fl
     the measurement's own likelihood ratio favours the landmark). The gate
     quantile ``gate`` and its probability ``gate_prob`` are the individual gate's.
     """
-    return _ambiguous(Z, _det2(S0[None] + Rs[:, None]), gate, gate_prob, density_per_m2,
-                      detection_prob)
+    return _ambiguous(Z, _det2(S0[None] + Rs[:, None]), gate, gate_prob, density_per_m2, detection_prob)
 
 
 def _ambiguous(Z, det_S, gate, gate_prob, density_per_m2, detection_prob) -> np.ndarray:

@@ -127,5 +127,7 @@ class EkfSlamConfig:
     def __post_init__(self):
         validate(self)
         if self.new_landmark_chi2_prob < self.gate_chi2_prob:
-            raise ConfigError("ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "
-                              f"({self.new_landmark_chi2_prob} < {self.gate_chi2_prob})")
+            raise ConfigError(
+                "ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "
+                f"({self.new_landmark_chi2_prob} < {self.gate_chi2_prob})"
+            )

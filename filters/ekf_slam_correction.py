@@ -77,12 +77,33 @@ def oc_project(h0, h1, p: list[float], f: list[float]):
     tx, ty = -0.5 * (b0 + b3), -0.5 * (b1 + b4)
     t = -(-ey * b0 + ex * b1 + b2 + ey * b3 - ex * b4) / rr
     d1 = (tx - t * ey, ty + t * ex, t, tx + t * ey, ty - t * ex)
-    return (a0 + d0[0], a1 + d0[1], a2 + d0[2], a3 + d0[3], a4 + d0[4],
-            b0 + d1[0], b1 + d1[1], b2 + d1[2], b3 + d1[3], b4 + d1[4]) + d0 + d1
+    return (
+        (
+            a0 + d0[0],
+            a1 + d0[1],
+            a2 + d0[2],
+            a3 + d0[3],
+            a4 + d0[4],
+            b0 + d1[0],
+            b1 + d1[1],
+            b2 + d1[2],
+            b3 + d1[3],
+            b4 + d1[4],
+        )
+        + d0
+        + d1
+    )
 
 
-def kalman_update(st: SlotStore, slot: int, z: np.ndarray, R: np.ndarray, config: EkfSlamConfig,
-                  recoveries: Recoveries, gate: float = math.inf) -> bool:
+def kalman_update(
+    st: SlotStore,
+    slot: int,
+    z: np.ndarray,
+    R: np.ndarray,
+    config: EkfSlamConfig,
+    recoveries: Recoveries,
+    gate: float = math.inf,
+) -> bool:
     """One sequential EKF update of ``st`` with the landmark in ``slot``
     (:mod:`filters.ekf_slam`'s docstring); ``config`` gives ``jacobians`` and
     ``damped_update_nis``, ``recoveries`` counts the safeguards that act.
@@ -94,7 +115,7 @@ def kalman_update(st: SlotStore, slot: int, z: np.ndarray, R: np.ndarray, config
     (:func:`filters.ekf_slam_update.damped_iterated_step`).
     """
     n, i, x = st.n, 3 + 2 * slot, st.xbuf
-    pred = range_bearing(x[:3].tolist(), x[i:i + 2].tolist())
+    pred = range_bearing(x[:3].tolist(), x[i : i + 2].tolist())
     if pred is None:
         recoveries.add("skipped_update")
         return False
@@ -122,8 +143,7 @@ def kalman_update(st: SlotStore, slot: int, z: np.ndarray, R: np.ndarray, config
     return True
 
 
-def _damped_update(st: SlotStore, slot, J, rows, PJ, z, R, oc, nu, H, S,
-                   recoveries: Recoveries) -> str:
+def _damped_update(st: SlotStore, slot, J, rows, PJ, z, R, oc, nu, H, S, recoveries: Recoveries) -> str:
     """The damped iterated step, then the covariance linearised at its iterate (IEKF);
     the plain correction (``H``, ``S``) when no step decreases the MAP cost."""
     n, x = st.n, st.xbuf
@@ -133,8 +153,9 @@ def _damped_update(st: SlotStore, slot, J, rows, PJ, z, R, oc, nu, H, S,
     x[:n] += a @ rows[:, :n]  # the iterate x0 + P[:, J] a (P symmetric)
     H, HPH = _with_jacobian(_jacobian(st, slot, x[J], oc), PJ)
     recoveries.add("damped_update")
-    return rank2_correction(x, n, rows, H, _innovation_cov(HPH, R.tolist()), nu, st.downdate,
-                            move_state=False)
+    return rank2_correction(
+        x, n, rows, H, _innovation_cov(HPH, R.tolist()), nu, st.downdate, move_state=False
+    )
 
 
 def _with_jacobian(H: np.ndarray, PJ: np.ndarray):
@@ -157,8 +178,7 @@ def _oc_rows(st: SlotStore, slot: int, h):
     return oc_project(h[0], h[1], st.x_pred.tolist(), st.m_first[slot].tolist())
 
 
-def _choose_jacobian(st: SlotStore, slot: int, h, PJ: np.ndarray, Rl: list, oc: bool,
-                     recoveries: Recoveries):
+def _choose_jacobian(st: SlotStore, slot: int, h, PJ: np.ndarray, Rl: list, oc: bool, recoveries: Recoveries):
     """Whether this update uses the OC Jacobian (asked by ``oc``), ``H`` (two rows of
     floats) and ``H P_JJ H^T`` (nested lists); ``Rl`` is R as nested lists.
 

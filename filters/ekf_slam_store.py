@@ -66,17 +66,17 @@ class SlotStore:
     def _bind(self) -> None:
         """The BLAS downdate and the diagonal view bound to the current ``Pbuf``."""
         self.downdate = Rank2Downdate(self.Pbuf)
-        self.diag = self.Pbuf.reshape(-1)[::self.Pbuf.shape[0] + 1]
+        self.diag = self.Pbuf.reshape(-1)[:: self.Pbuf.shape[0] + 1]
 
     @property
     def x(self) -> np.ndarray:
         """The state, a view (n,)."""
-        return self.xbuf[:self.n]
+        return self.xbuf[: self.n]
 
     @property
     def P(self) -> np.ndarray:
         """The covariance, a view (n, n)."""
-        return self.Pbuf[:self.n, :self.n]
+        return self.Pbuf[: self.n, : self.n]
 
     def start(self, wTb: np.ndarray, cov: np.ndarray) -> None:
         """Hold only the robot pose ``wTb`` (3,) with covariance ``cov`` (empty store)."""
@@ -92,11 +92,11 @@ class SlotStore:
         first estimates (OC)."""
         M = len(ids)
         self.n = x.size
-        self.xbuf[:self.n] = x
+        self.xbuf[: self.n] = x
         self.xbuf[2] = wrap_angle(x[2])
-        self.Pbuf[:self.n, :self.n] = P
+        self.Pbuf[: self.n, : self.n] = P
         self.x_pred = self.xbuf[:3].copy()
-        self.m_first = [self.xbuf[3 + 2 * k:5 + 2 * k].copy() for k in range(M)]
+        self.m_first = [self.xbuf[3 + 2 * k : 5 + 2 * k].copy() for k in range(M)]
         self.ids = list(ids)
         self.slot = {lid: k for k, lid in enumerate(self.ids)}
 
@@ -110,8 +110,8 @@ class SlotStore:
         if len(self.ids) >= self.cap:
             self._grow()
         n = self.n
-        self.xbuf[n:n + 2] = m
-        self.m_first.append(self.xbuf[n:n + 2].copy())
+        self.xbuf[n : n + 2] = m
+        self.m_first.append(self.xbuf[n : n + 2].copy())
         slot = len(self.ids)
         self.ids.append(lid)
         self.slot[lid] = slot

@@ -93,8 +93,12 @@ def _blas_threads():
         lib = ctypes.CDLL(cython_blas.__file__)
     except (ImportError, OSError):
         return None
-    for name in ("scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_",
-                 "openblas_get_num_threads", "openblas_get_num_threads64_"):
+    for name in (
+        "scipy_openblas_get_num_threads",
+        "scipy_openblas_get_num_threads64_",
+        "openblas_get_num_threads",
+        "openblas_get_num_threads64_",
+    ):
         get = getattr(lib, name, None)
         if get is not None:
             get.restype, get.argtypes = ctypes.c_int, []
@@ -130,8 +134,14 @@ class Rank2Downdate:
     def _init_calls(self) -> None:
         """The dgemm constants; plans hold raw addresses of ``P`` and ``W``, so they are
         rebuilt lazily (and never copied: see ``__getstate__``)."""
-        self._consts = (ctypes.c_char(b"N"), ctypes.c_char(b"T"), ctypes.c_int(2),
-                        ctypes.c_double(-1.0), ctypes.c_double(1.0), ctypes.c_int(self._P.shape[0]))
+        self._consts = (
+            ctypes.c_char(b"N"),
+            ctypes.c_char(b"T"),
+            ctypes.c_int(2),
+            ctypes.c_double(-1.0),
+            ctypes.c_double(1.0),
+            ctypes.c_int(self._P.shape[0]),
+        )
         self._plans: dict[tuple[int, int], tuple[list[tuple], list[ctypes.c_int]]] = {}
 
     def __getstate__(self) -> dict:
@@ -155,8 +165,23 @@ class Rank2Downdate:
             ints.append(ctypes.c_int(min(rows, m - r0)))
             # column-major: C = P^T, A = W^T (dim x 3), both leading dimension dim;
             # C[:m, r0:r1] += -1 A[:m, :2] A[r0:r1, :2]^T (P's rows r0:r1)
-            calls.append((no, tr, ctypes.addressof(ints[0]), ctypes.addressof(ints[-1]), two, minus,
-                          w, ld, w + 8 * r0, ld, one, p + 8 * dim * r0, ld))
+            calls.append(
+                (
+                    no,
+                    tr,
+                    ctypes.addressof(ints[0]),
+                    ctypes.addressof(ints[-1]),
+                    two,
+                    minus,
+                    w,
+                    ld,
+                    w + 8 * r0,
+                    ld,
+                    one,
+                    p + 8 * dim * r0,
+                    ld,
+                )
+            )
         if len(self._plans) >= 2:
             self._plans.clear()
         self._plans[(m, rows)] = (calls, ints)
@@ -176,8 +201,8 @@ class Rank2Downdate:
         P = self._P
         step = min(64, max(8, ROW_BLOCK_ELEMENTS // m))
         for r0 in range(0, m, step):
-            blk = P[r0:min(r0 + step, m), :m]
-            np.subtract(blk, W[r0:r0 + step] @ Wt, out=blk)
+            blk = P[r0 : min(r0 + step, m), :m]
+            np.subtract(blk, W[r0 : r0 + step] @ Wt, out=blk)
 
 
 def cholesky_2x2(S) -> tuple[float, float, float] | None:
@@ -197,9 +222,17 @@ def cholesky_2x2_floats(s00: float, s10: float, s11: float) -> tuple[float, floa
     return a, b, math.sqrt(c2)
 
 
-def rank2_correction(x: np.ndarray, n: int, rows: np.ndarray, H, S: tuple[float, float, float],
-                     nu: tuple[float, float], downdate: Rank2Downdate, gate: float = math.inf,
-                     move_state: bool = True) -> str:
+def rank2_correction(
+    x: np.ndarray,
+    n: int,
+    rows: np.ndarray,
+    H,
+    S: tuple[float, float, float],
+    nu: tuple[float, float],
+    downdate: Rank2Downdate,
+    gate: float = math.inf,
+    move_state: bool = True,
+) -> str:
     """Correct the state buffer ``x`` and the downdate's ``P`` in place (state size ``n``).
 
     Args:
@@ -228,19 +261,38 @@ def rank2_correction(x: np.ndarray, n: int, rows: np.ndarray, H, S: tuple[float,
     (p0, p1, p2, p3, p4), (q0, q1, q2, q3, q4) = H
     W = downdate.W
     # [M^T; (S^-1 nu)^T H P] = [L^-1 H_J; (S^-1 nu)^T H_J] P[J, :], beyond n zero
-    np.dot(np.array((ia * p0, ia * p1, ia * p2, ia * p3, ia * p4,
-                     l10 * p0 + ic * q0, l10 * p1 + ic * q1, l10 * p2 + ic * q2,
-                     l10 * p3 + ic * q3, l10 * p4 + ic * q4,
-                     u0 * p0 + u1 * q0, u0 * p1 + u1 * q1, u0 * p2 + u1 * q2,
-                     u0 * p3 + u1 * q3, u0 * p4 + u1 * q4)).reshape(3, 5), rows, out=W)
+    np.dot(
+        np.array(
+            (
+                ia * p0,
+                ia * p1,
+                ia * p2,
+                ia * p3,
+                ia * p4,
+                l10 * p0 + ic * q0,
+                l10 * p1 + ic * q1,
+                l10 * p2 + ic * q2,
+                l10 * p3 + ic * q3,
+                l10 * p4 + ic * q4,
+                u0 * p0 + u1 * q0,
+                u0 * p1 + u1 * q1,
+                u0 * p2 + u1 * q2,
+                u0 * p3 + u1 * q3,
+                u0 * p4 + u1 * q4,
+            )
+        ).reshape(3, 5),
+        rows,
+        out=W,
+    )
     if move_state:
         x += W[2]
     downdate(-(-n // PAD) * PAD)
     return APPLIED
 
 
-def map_cost(a: np.ndarray, x0J: np.ndarray, PJ: np.ndarray, z: np.ndarray,
-             Rinv: np.ndarray) -> tuple[float, np.ndarray]:
+def map_cost(
+    a: np.ndarray, x0J: np.ndarray, PJ: np.ndarray, z: np.ndarray, Rinv: np.ndarray
+) -> tuple[float, np.ndarray]:
     """MAP cost ``V`` at ``x_J = x0_J + P_JJ a`` (robot 3 + landmark 2), and that ``x_J``."""
     dx = PJ @ a
     xJ = x0J + dx
@@ -248,8 +300,13 @@ def map_cost(a: np.ndarray, x0J: np.ndarray, PJ: np.ndarray, z: np.ndarray,
     return 0.5 * float(a @ dx) + 0.5 * float(r @ Rinv @ r), xJ
 
 
-def damped_iterated_step(x0J: np.ndarray, PJ: np.ndarray, z: np.ndarray, R: np.ndarray,
-                         jacobian: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
+def damped_iterated_step(
+    x0J: np.ndarray,
+    PJ: np.ndarray,
+    z: np.ndarray,
+    R: np.ndarray,
+    jacobian: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray | None:
     """Damped iterated EKF over the 5 entries ``J`` (robot, landmark): the ``a`` (5,) with
     ``x = x0 + P[:, J] a``, or None when no step decreases the MAP cost.
 

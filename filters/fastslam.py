@@ -157,10 +157,11 @@ class FastSlam(Backend):
         if not obs:
             return
         for o in obs:
-            if self.config.association == "known" and o.landmark_id is None \
-                    and o.signature is None:
-                raise GraphSlamError(f"{self.name}: known association needs a landmark_id or "
-                                     f"a signature (observation from pose {o.pose_id})")
+            if self.config.association == "known" and o.landmark_id is None and o.signature is None:
+                raise GraphSlamError(
+                    f"{self.name}: known association needs a landmark_id or "
+                    f"a signature (observation from pose {o.pose_id})"
+                )
         particles = self._particles
         cols = particles.update(obs)
         self._best = int(np.argmax(particles.logw))

@@ -89,7 +89,7 @@ class ParticleMaps:
         if dropped:
             kept = self._table[:, keep]
             self._table[:, : keep.size] = kept
-            self._table[:, keep.size:] = -1
+            self._table[:, keep.size :] = -1
             self._ids = [self._ids[c] for c in keep]
             self._col_of = {lid: c for c, lid in enumerate(self._ids)}
             self.n_cols = keep.size

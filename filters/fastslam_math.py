@@ -52,8 +52,6 @@ def tr(A: np.ndarray) -> np.ndarray:
     return np.swapaxes(A, -1, -2)
 
 
-
-
 def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Systematic resampling: (N,) parent indices for normalised ``weights`` (N,).
 
@@ -77,8 +75,9 @@ def rotated_xy(Q: np.ndarray, th: np.ndarray) -> np.ndarray:
     return J @ Q @ tr(J)
 
 
-def sample_gaussian(mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator,
-                     recoveries: Recoveries | None = None) -> np.ndarray:
+def sample_gaussian(
+    mean: np.ndarray, cov: np.ndarray, rng: np.random.Generator, recoveries: Recoveries | None = None
+) -> np.ndarray:
     """One draw per row from N(mean (n, 3), cov (n, 3, 3)); a covariance that is
     not positive definite is drawn through its eigen decomposition (negative
     eigenvalues clipped to 0; counted in ``recoveries``)."""
@@ -161,10 +160,8 @@ def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11):
     i00, i01, i11 = inv
     k00, k01 = t00 * i00 + t01 * i01, t00 * i01 + t01 * i11
     k10, k11 = t10 * i00 + t11 * i01, t10 * i01 + t11 * i11
-    P_new = (p00 - (k00 * t00 + k01 * t01), p01 - (k00 * t10 + k01 * t11),
-             p11 - (k10 * t10 + k11 * t11))
-    return (k00 * nu_r + k01 * nu_b, k10 * nu_r + k11 * nu_b, P_new,
-            log_gaussian(nu_r, nu_b, inv, det))
+    P_new = (p00 - (k00 * t00 + k01 * t01), p01 - (k00 * t10 + k01 * t11), p11 - (k10 * t10 + k11 * t11))
+    return (k00 * nu_r + k01 * nu_b, k10 * nu_r + k11 * nu_b, P_new, log_gaussian(nu_r, nu_b, inv, det))
 
 
 def new_landmark(px, py, th, z0, z1, r00, r01, r11):
@@ -199,15 +196,19 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
     u = a_ * S0 + b_ * S1
     v = c_ * S0 + d_ * S1 + Sx[:, 2]
     L00 = a * u[:, 0] + b * u[:, 1] + n00
-    inv, det = inverse_sym2(L00, a * v[:, 0] + b * v[:, 1] + n01,
-                            c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11)
+    inv, det = inverse_sym2(L00, a * v[:, 0] + b * v[:, 1] + n01, c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11)
     i00, i01, i11 = inv
     L_pd = bool(np.minimum.reduce(L00) > 0 and np.minimum.reduce(det) > 0)
     k0 = u * i00[:, None] + v * i01[:, None]  # -K, columns
     k1 = u * i01[:, None] + v * i11[:, None]
     S_new = Sx - (k0[:, :, None] * u[:, None, :] + k1[:, :, None] * v[:, None, :])
-    return (k0 * nu_r[:, None] + k1 * nu_b[:, None], S_new,
-            log_gaussian(nu_r, nu_b, inv, det), (k0, k1), L_pd)
+    return (
+        k0 * nu_r[:, None] + k1 * nu_b[:, None],
+        S_new,
+        log_gaussian(nu_r, nu_b, inv, det),
+        (k0, k1),
+        L_pd,
+    )
 
 
 def all_positive_definite3(S: np.ndarray) -> bool:
@@ -217,5 +218,6 @@ def all_positive_definite3(S: np.ndarray) -> bool:
     a, b, c, d, e, f = F[:, 0], F[:, 1], F[:, 2], F[:, 4], F[:, 5], F[:, 8]
     det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
     low = np.minimum.reduce
-    return bool(low(a) > 0 and low(a * d - b * b) > 0 and low(det) > 0
-                and np.maximum.reduce(a + d + f) < np.inf)
+    return bool(
+        low(a) > 0 and low(a * d - b * b) > 0 and low(det) > 0 and np.maximum.reduce(a + d + f) < np.inf
+    )

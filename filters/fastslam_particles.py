@@ -106,8 +106,7 @@ class ParticleSet:
         w = self.weights if w is None else w
         x = self.poses
         th = x[:, 2]
-        mean = np.array([w @ x[:, 0], w @ x[:, 1],
-                         math.atan2(float(w @ np.sin(th)), float(w @ np.cos(th)))])
+        mean = np.array([w @ x[:, 0], w @ x[:, 1], math.atan2(float(w @ np.sin(th)), float(w @ np.cos(th)))])
         d = x - mean
         d[:, 2] = wrap_angle(d[:, 2])
         cov = (d * w[:, None]).T @ d
@@ -147,8 +146,9 @@ class ParticleSet:
         self._scan_steps(obs, out, self.poses, weigh=False)
         return out
 
-    def _scan_steps(self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray,
-                    weigh: bool) -> None:
+    def _scan_steps(
+        self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray, weigh: bool
+    ) -> None:
         """Landmark steps of a scan: in one pass, or one per observation when a known id
         repeats in the scan (its updates must then follow each other)."""
         if self.config.association == "known" and len({int(c[0]) for c in cols}) < len(cols):
@@ -157,13 +157,21 @@ class ParticleSet:
         else:
             self._landmark_steps(obs, cols, poses, weigh)
 
-    def _landmark_steps(self, obs: list[Observation], cols: list[np.ndarray],
-                        poses: np.ndarray, weigh: bool) -> None:
+    def _landmark_steps(
+        self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray, weigh: bool
+    ) -> None:
         """:func:`~filters.fastslam_update.landmark_steps` on this set (1.0: ``weigh``)."""
         unknown = self.config.association == "unknown"
-        landmark_steps(self.maps, obs, cols, poses, self.recoveries, known=not unknown,
-                       logw=self.logw if weigh else None,
-                       log_p0=self._log_p0 if unknown else None)
+        landmark_steps(
+            self.maps,
+            obs,
+            cols,
+            poses,
+            self.recoveries,
+            known=not unknown,
+            logw=self.logw if weigh else None,
+            log_p0=self._log_p0 if unknown else None,
+        )
 
     def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
         """2.0: the pose proposal N(mu, Sig), from the motion prediction of :meth:`move`,
@@ -197,17 +205,16 @@ class ParticleSet:
             out.append(c)
         return mu, Sig, out, careful or (ok and all_positive_definite3(Sig))
 
-    def _refine(self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray,
-                careful: bool) -> tuple[np.ndarray, np.ndarray, bool]:
+    def _refine(
+        self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray, careful: bool
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
         """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
         landmark records ``p`` (returned; updated in place for a subset), and weighed by it."""
         if isinstance(i, slice):
-            x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu, Sig, careful,
-                                                     self.recoveries)
+            x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu, Sig, careful, self.recoveries)
             self.logw += logl
             return x_new, S_new, ok
-        x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu[i], Sig[i], careful,
-                                                 self.recoveries)
+        x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu[i], Sig[i], careful, self.recoveries)
         self.logw[i] += logl
         mu[i], Sig[i] = x_new, S_new
         return mu, Sig, ok
@@ -223,8 +230,7 @@ class ParticleSet:
         """Log-likelihood of a new landmark seen with noise ``R`` (unknown association)."""
         if self.config.new_landmark_log_likelihood is not None:
             return self.config.new_landmark_log_likelihood
-        return -0.5 * self.config.new_landmark_mahalanobis_sq - _LOG_2PI \
-            - 0.5 * math.log(np.linalg.det(R))
+        return -0.5 * self.config.new_landmark_mahalanobis_sq - _LOG_2PI - 0.5 * math.log(np.linalg.det(R))
 
     def _known_column(self, o: Observation) -> int:
         key = o.landmark_id if o.landmark_id is not None else o.signature
@@ -233,9 +239,9 @@ class ParticleSet:
         self.last_noise[int(key)] = o.covariance
         return self.maps.add_column(int(key))
 
-    def _columns_for(self, o: Observation, poses: np.ndarray,
-                     pose_cov: np.ndarray | None,
-                     taken: list[np.ndarray]) -> np.ndarray:
+    def _columns_for(
+        self, o: Observation, poses: np.ndarray, pose_cov: np.ndarray | None, taken: list[np.ndarray]
+    ) -> np.ndarray:
         """(N,) column of observation ``o`` per particle (created if new).
 
         ``taken``: the columns earlier observations of the same scan got, per
@@ -254,9 +260,14 @@ class ParticleSet:
             self.last_noise[int(ids[int(c)])] = o.covariance
         return cols
 
-    def associate(self, z: np.ndarray, R: np.ndarray, poses: np.ndarray,
-                  pose_cov: np.ndarray | None, taken: list[np.ndarray] | tuple = ()
-                  ) -> tuple[np.ndarray, np.ndarray]:
+    def associate(
+        self,
+        z: np.ndarray,
+        R: np.ndarray,
+        poses: np.ndarray,
+        pose_cov: np.ndarray | None,
+        taken: list[np.ndarray] | tuple = (),
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per-particle maximum likelihood among gated landmarks of the observation ``z``
         with noise ``R`` from ``poses`` (N, 3) (covariances ``pose_cov`` (N, 3, 3) or
         None), landmarks ``taken`` by earlier observations excluded: (cols (N,), new (N,)).
@@ -290,8 +301,7 @@ class ParticleSet:
             X11, X12, X22 = pose_cov[:, 1:2, 1], pose_cov[:, 1:2, 2], pose_cov[:, 2:3, 2]
             s00 = s00 + a * a * X00 + 2 * a * b * X01 + b * b * X11
             s01 = s01 + a * c * X00 + (a * d + b * c) * X01 + b * d * X11 + a * X02 + b * X12
-            s11 = s11 + c * c * X00 + 2 * c * d * X01 + d * d * X11 + 2 * c * X02 \
-                + 2 * d * X12 + X22
+            s11 = s11 + c * c * X00 + 2 * c * d * X01 + d * d * X11 + 2 * c * X02 + 2 * d * X12 + X22
         nu_r = z[0] - r
         nu_b = wrap_angle(z[1] - np.arctan2(dy, dx) + poses[:, 2:3])
         det = s00 * s11 - s01 * s01

@@ -42,14 +42,20 @@ from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from filters.numerics import symmetrise as sym
 from slamcore.planar.records import Observation
 
-__all__ = ["floor_noise", "joseph_where_indefinite", "landmark_joseph", "landmark_steps",
-           "refine_proposal"]
+__all__ = ["floor_noise", "joseph_where_indefinite", "landmark_joseph", "landmark_steps", "refine_proposal"]
 
 
-def landmark_steps(maps: ParticleMaps, obs: list[Observation], cols: list[np.ndarray],
-                   poses: np.ndarray, recoveries: Recoveries, *, known: bool,
-                   logw: np.ndarray | None = None,
-                   log_p0: Callable[[np.ndarray], float] | None = None) -> None:
+def landmark_steps(
+    maps: ParticleMaps,
+    obs: list[Observation],
+    cols: list[np.ndarray],
+    poses: np.ndarray,
+    recoveries: Recoveries,
+    *,
+    known: bool,
+    logw: np.ndarray | None = None,
+    log_p0: Callable[[np.ndarray], float] | None = None,
+) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
     observation ``k``, all (particle, observation) pairs in one elementwise pass.
 
@@ -77,8 +83,9 @@ def landmark_steps(maps: ParticleMaps, obs: list[Observation], cols: list[np.nda
             if update:
                 _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw)
             else:
-                _init_pairs(maps, pairs, Z, R, poses, recoveries,
-                            logw if log_p0 is not None else None, log_p0)
+                _init_pairs(
+                    maps, pairs, Z, R, poses, recoveries, logw if log_p0 is not None else None, log_p0
+                )
 
 
 def _pairs(mask: np.ndarray, col: np.ndarray, rows: np.ndarray):
@@ -101,31 +108,37 @@ def _add_weights(logw: np.ndarray, particles: np.ndarray, logl: np.ndarray) -> N
         logw += np.bincount(particles, logl, minlength=len(logw))
 
 
-def _update_pairs(maps: ParticleMaps, pairs, ptr, Z, R, poses, recoveries: Recoveries,
-                  logw: np.ndarray | None) -> None:
+def _update_pairs(
+    maps: ParticleMaps, pairs, ptr, Z, R, poses, recoveries: Recoveries, logw: np.ndarray | None
+) -> None:
     i, k, c = pairs
     p = ptr[i, k]
     m, P = maps.pool_mean[p], maps.pool_cov[p]
     mx, my = m[..., 0], m[..., 1]
     p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
-    a, b, cc, d, nu_r, nu_b = range_bearing(poses[i, 0], poses[i, 1], poses[i, 2], mx, my,
-                                            Z[k, 0], Z[k, 1])
+    a, b, cc, d, nu_r, nu_b = range_bearing(poses[i, 0], poses[i, 1], poses[i, 2], mx, my, Z[k, 0], Z[k, 1])
     r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
     mv = np.maximum(p00, p11)
     r00, r11 = floor_noise(recoveries, r00, r11, mv * (a * a + b * b), mv * (cc * cc + d * d))
-    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11,
-                                            r00, r01, r11)
+    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11)
     ok = positive_definite2(*P_new)
     if not ok.all():
-        P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d),
-                                (r00, r01, r11), P_new)
+        P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d), (r00, r01, r11), P_new)
     if logw is not None:
         _add_weights(logw, i, logl)
     _write(maps, i, c, (mx + dmx, my + dmy), P_new)
 
 
-def _init_pairs(maps: ParticleMaps, pairs, Z, R, poses, recoveries: Recoveries,
-                logw: np.ndarray | None, log_p0: Callable[[np.ndarray], float] | None) -> None:
+def _init_pairs(
+    maps: ParticleMaps,
+    pairs,
+    Z,
+    R,
+    poses,
+    recoveries: Recoveries,
+    logw: np.ndarray | None,
+    log_p0: Callable[[np.ndarray], float] | None,
+) -> None:
     i, k, c = pairs
     z0, z1 = Z[k, 0], Z[k, 1]
     r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
@@ -167,6 +180,7 @@ def floor_noise(recoveries: Recoveries, r00, r11, pv0, pv1):
 def landmark_joseph(recoveries: Recoveries, bad, P, H, R, P_new):
     """The landmark covariances ``P_new`` (entries) recomputed in Joseph form where
     the short form lost definiteness (:func:`joseph_where_indefinite`)."""
+
     def mats(e):  # (nb, 2, 2) of the bad pairs from upper-triangle or 4 entries
         e = e if len(e) == 4 else (e[0], e[1], e[1], e[2])
         full = [np.broadcast_to(x, bad.shape) for x in e]
@@ -198,9 +212,15 @@ def joseph_where_indefinite(recoveries: Recoveries, P_new, P, K, H, noise):
     return P_new
 
 
-def refine_proposal(maps: ParticleMaps, o: Observation, p: np.ndarray, x: np.ndarray,
-                    Sx: np.ndarray, careful: bool, recoveries: Recoveries
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+def refine_proposal(
+    maps: ParticleMaps,
+    o: Observation,
+    p: np.ndarray,
+    x: np.ndarray,
+    Sx: np.ndarray,
+    careful: bool,
+    recoveries: Recoveries,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """2.0: the proposal N(x, Sx) of some particles refined by observation ``o`` of their
     landmark records ``p``: ``(x_new, S_new, logl, ok)``, ``logl`` the particles' weights.
 
@@ -212,8 +232,7 @@ def refine_proposal(maps: ParticleMaps, o: Observation, p: np.ndarray, x: np.nda
     m, P = maps.pool_mean[p], maps.pool_cov[p]
     Pf = P.reshape(-1, 4)
     p00, p01, p11 = Pf[:, 0], Pf[:, 1], Pf[:, 3]
-    a, b, c, d, nu_r, nu_b = range_bearing(x[:, 0], x[:, 1], x[:, 2], m[:, 0], m[:, 1],
-                                           o.z[0], o.z[1])
+    a, b, c, d, nu_r, nu_b = range_bearing(x[:, 0], x[:, 1], x[:, 2], m[:, 0], m[:, 1], o.z[0], o.z[1])
     (h00, h01, h11), _ = sandwich(a, b, c, d, p00, p01, p11)
     r00, r11 = _proposal_floor(recoveries, R, Pf, Sx, a, b, c, d)
     # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
@@ -227,8 +246,9 @@ def refine_proposal(maps: ParticleMaps, o: Observation, p: np.ndarray, x: np.nda
             H_x[:, 0, 0], H_x[:, 0, 1], H_x[:, 1, 0], H_x[:, 1, 1] = -a, -b, -c, -d
             H_x[:, 1, 2] = -1.0
             n = np.stack(np.broadcast_arrays(noise[0], noise[1], noise[1], noise[2]), -1)
-            S_new = joseph_where_indefinite(recoveries, S_new, Sx, -np.stack(K, -1), H_x,
-                                            lambda: n.reshape(-1, 2, 2))
+            S_new = joseph_where_indefinite(
+                recoveries, S_new, Sx, -np.stack(K, -1), H_x, lambda: n.reshape(-1, 2, 2)
+            )
     return x_new, S_new, logl, ok
 
 
@@ -241,11 +261,12 @@ def _proposal_floor(recoveries: Recoveries, R, Pf, Sx, a, b, c, d):
     big_S = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=None)
     big_cd = np.maximum.reduce(cd)
     slack = 1.0 + 1e-9  # |H_m row 0|^2 = 1 up to round-off
-    if R[0, 0] >= REL_VARIANCE_FLOOR * (big_P + big_S) * slack and \
-            R[1, 1] >= REL_VARIANCE_FLOOR * (big_P * big_cd + big_S * (big_cd + 1.0)) * slack:
+    if (
+        R[0, 0] >= REL_VARIANCE_FLOOR * (big_P + big_S) * slack
+        and R[1, 1] >= REL_VARIANCE_FLOOR * (big_P * big_cd + big_S * (big_cd + 1.0)) * slack
+    ):
         return R[0, 0], R[1, 1]  # NaN variances fail the bound and take the exact test
     mvP = np.maximum(Pf[:, 0], Pf[:, 3])
     mvS = np.maximum.reduce(Sx.reshape(-1, 9)[:, ::4], axis=1)
     ab = a * a + b * b
-    return floor_noise(recoveries, R[0, 0], R[1, 1], (mvP + mvS) * ab,
-                       mvP * cd + mvS * (cd + 1.0))
+    return floor_noise(recoveries, R[0, 0], R[1, 1], (mvP + mvS) * ab, mvP * cd + mvS * (cd + 1.0))

@@ -50,16 +50,38 @@ SIZE = {EUCLIDEAN: 3, IDP: 6, AHP: 7}
 PAD = 7
 
 __all__ = [
-    "EUCLIDEAN", "IDP", "AHP", "KIND_NAMES", "SIZE", "PAD",
-    "q_mul", "q_conj", "q_left", "q_right", "q2R", "R2q", "rot_jac_q", "rotT_jac_q",
-    "v2q", "v2q_jac", "q2v", "right_jacobian_inv",
-    "idp_direction", "idp_direction_jac", "direction_to_idp_angles",
-    "to_euclidean", "init_landmarks", "observe_landmarks", "pose_jacobian_to_tangent",
-    "tangent_to_pose_jacobian", "project_hypotheses",
+    "EUCLIDEAN",
+    "IDP",
+    "AHP",
+    "KIND_NAMES",
+    "SIZE",
+    "PAD",
+    "q_mul",
+    "q_conj",
+    "q_left",
+    "q_right",
+    "q2R",
+    "R2q",
+    "rot_jac_q",
+    "rotT_jac_q",
+    "v2q",
+    "v2q_jac",
+    "q2v",
+    "right_jacobian_inv",
+    "idp_direction",
+    "idp_direction_jac",
+    "direction_to_idp_angles",
+    "to_euclidean",
+    "init_landmarks",
+    "observe_landmarks",
+    "pose_jacobian_to_tangent",
+    "tangent_to_pose_jacobian",
+    "project_hypotheses",
 ]
 
 
 # --------------------------------------------------------------- quaternions
+
 
 def q_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a (x) b`` of (4,) quaternions."""
@@ -95,9 +117,13 @@ def q_right(p: np.ndarray) -> np.ndarray:
 def q2R(q: np.ndarray) -> np.ndarray:
     """(3, 3) rotation of ``q`` (4,) by the quadratic formula (exact for unit q)."""
     w, x, y, z = (float(c) for c in q)
-    return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])
+    return np.array(
+        [
+            [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
+        ]
+    )
 
 
 def R2q(R: np.ndarray) -> np.ndarray:
@@ -108,8 +134,7 @@ def R2q(R: np.ndarray) -> np.ndarray:
     k = int(np.argmax(np.r_[tr, diag]))
     if k == 0:
         s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
-        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s,
-                      (R[1, 0] - R[0, 1]) / s])
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
     else:
         i = k - 1
         j, m = (i + 1) % 3, (i + 2) % 3
@@ -138,10 +163,12 @@ def rotT_jac_q(q: np.ndarray, a: np.ndarray) -> np.ndarray:
     a2 = np.atleast_2d(a)
     J = np.empty((a2.shape[0], 3, 4))
     J[:, :, 0] = 2.0 * w * a2 - 2.0 * np.cross(v, a2)
-    J[:, :, 1:] = (-2.0 * a2[:, :, None] * v[None, None, :]
-                   + 2.0 * (a2 @ v)[:, None, None] * np.eye(3)
-                   + 2.0 * v[None, :, None] * a2[:, None, :]
-                   + 2.0 * w * skew(a2))
+    J[:, :, 1:] = (
+        -2.0 * a2[:, :, None] * v[None, None, :]
+        + 2.0 * (a2 @ v)[:, None, None] * np.eye(3)
+        + 2.0 * v[None, :, None] * a2[:, None, :]
+        + 2.0 * w * skew(a2)
+    )
     return J[0] if np.ndim(a) == 1 else J
 
 
@@ -184,8 +211,7 @@ def right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     W = skew(phi)
     if th < 1e-6:
         return np.eye(3) + 0.5 * W + W @ W / 12.0
-    return (np.eye(3) + 0.5 * W
-            + (1.0 / th**2 - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))) * W @ W)
+    return np.eye(3) + 0.5 * W + (1.0 / th**2 - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))) * W @ W
 
 
 def pose_jacobian_to_tangent(q: np.ndarray) -> np.ndarray:
@@ -212,6 +238,7 @@ def tangent_to_pose_jacobian(q: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------ parametrisations
+
 
 def idp_direction(el: np.ndarray, az: np.ndarray) -> np.ndarray:
     """Unit rays ``m(el, az)`` (k, 3) of elevation/azimuth arrays (k,) rad."""
@@ -293,8 +320,9 @@ def to_euclidean(kinds: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return p, J
 
 
-def init_landmarks(kind: int, K_inv: np.ndarray, p: np.ndarray, q: np.ndarray,
-                   uv_px: np.ndarray, rho0: float):
+def init_landmarks(
+    kind: int, K_inv: np.ndarray, p: np.ndarray, q: np.ndarray, uv_px: np.ndarray, rho0: float
+):
     """Inverse observation model: landmarks from pixels ``uv_px`` (k, 2) seen at pose ``(p, q)``.
 
     Returns ``L`` (k, s) parameters (s = 6 IDP, 7 AHP) and the Jacobians
@@ -325,8 +353,8 @@ def init_landmarks(kind: int, K_inv: np.ndarray, p: np.ndarray, q: np.ndarray,
     else:
         raise ValueError(f"init_landmarks: kind must be IDP or AHP, got {kind!r}")
     d = Jd.shape[1]
-    G_pose[:, 3:3 + d, 3:7] = Jd @ dm_dq
-    G_uv[:, 3:3 + d, :] = Jd @ dm_duv
+    G_pose[:, 3 : 3 + d, 3:7] = Jd @ dm_dq
+    G_uv[:, 3 : 3 + d, :] = Jd @ dm_duv
     G_rho = np.zeros(s)
     G_rho[-1] = 1.0
     return L, G_pose, G_uv, G_rho
@@ -346,8 +374,9 @@ def _dR_dq(q: np.ndarray) -> np.ndarray:
     return D
 
 
-def observe_landmarks(K: np.ndarray, p: np.ndarray, q: np.ndarray, kinds: np.ndarray,
-                      L: np.ndarray, jacobians: bool = True):
+def observe_landmarks(
+    K: np.ndarray, p: np.ndarray, q: np.ndarray, kinds: np.ndarray, L: np.ndarray, jacobians: bool = True
+):
     """Pinhole observation of padded landmarks ``L`` (k, 7) from the camera pose ``(p, q)``.
 
     Returns ``uv`` (k, 2) px, ``h_z`` (k,) (the depth times ``W``: positive
@@ -386,8 +415,9 @@ def observe_landmarks(K: np.ndarray, p: np.ndarray, q: np.ndarray, kinds: np.nda
     return uv, g[:, 2], H_pose, H_lm
 
 
-def project_hypotheses(K: np.ndarray, p: np.ndarray, q: np.ndarray, kinds: np.ndarray,
-                       L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project_hypotheses(
+    K: np.ndarray, p: np.ndarray, q: np.ndarray, kinds: np.ndarray, L: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixels of the same k landmarks under m state hypotheses at once (one-point RANSAC).
 
     ``p`` (m, 3), ``q`` (m, 4) unit quaternions, ``kinds`` (k,), ``L`` (m, k, 7)

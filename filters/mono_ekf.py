@@ -178,8 +178,10 @@ class MonoEkf(VisualBackend):
     def landmark_slots(self) -> list[tuple[int, str, int]]:
         """``(track_id, kind name, first state index)`` of each landmark, in state order."""
         self._require_init()
-        return [(lm.track_id, lp.KIND_NAMES[lm.kind], int(o))
-                for lm, o in zip(self._map.records, self._map.off, strict=True)]
+        return [
+            (lm.track_id, lp.KIND_NAMES[lm.kind], int(o))
+            for lm, o in zip(self._map.records, self._map.off, strict=True)
+        ]
 
     def reparametrise(self, track_ids) -> int:
         """Convert the given landmarks to Euclidean now, whatever their linearity
@@ -216,8 +218,14 @@ class MonoEkf(VisualBackend):
 
     # --------------------------------------------------------------- contract
 
-    def initialize(self, frame_id: int, wTc: np.ndarray, covariance: np.ndarray,
-                   K: np.ndarray, image_size: tuple[int, int]) -> None:
+    def initialize(
+        self,
+        frame_id: int,
+        wTc: np.ndarray,
+        covariance: np.ndarray,
+        K: np.ndarray,
+        image_size: tuple[int, int],
+    ) -> None:
         wTc = np.asarray(wTc, dtype=np.float64)
         cov = np.asarray(covariance, dtype=np.float64)
         K = np.asarray(K, dtype=np.float64)
@@ -235,33 +243,44 @@ class MonoEkf(VisualBackend):
         self._P[:7, :7] = G @ cov @ G.T
         if self.has_motion_model:
             c = self.config
-            self._P[7:10, 7:10] = np.eye(3) * c.cv_initial_sigma_v_mps ** 2
-            self._P[10:13, 10:13] = np.eye(3) * c.cv_initial_sigma_w_radps ** 2
+            self._P[7:10, 7:10] = np.eye(3) * c.cv_initial_sigma_v_mps**2
+            self._P[10:13, 10:13] = np.eye(3) * c.cv_initial_sigma_w_radps**2
         self._map = LandmarkSlots(self._rdim)
         self._version = 0  # bumped by every change of X or P (prediction cache key)
-        self._cache: tuple[tuple[int, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                           np.ndarray] | None = None
+        self._cache: (
+            tuple[tuple[int, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+        ) = None
         self._rng = np.random.default_rng(self.config.seed)
         self._sigma_px = float(self.config.default_sigma_px)
         self._frame_ids: list[int] = [int(frame_id)]
         self._poses: list[np.ndarray] = [self._wTc()]
-        self._stats = {"reparametrised": 0, "ransac_rejected": 0, "initialised": 0,
-                       "forgotten": 0, "deleted": 0, "corrections": 0, "frames": 1}
+        self._stats = {
+            "reparametrised": 0,
+            "ransac_rejected": 0,
+            "initialised": 0,
+            "forgotten": 0,
+            "deleted": 0,
+            "corrections": 0,
+            "frames": 1,
+        }
         self._sequential: dict[int, bool] = {}  # this frame: track id -> accepted (sequential)
 
-    def predict(self, frame_id: int, odometry: np.ndarray | None,
-                covariance: np.ndarray | None) -> None:
+    def predict(self, frame_id: int, odometry: np.ndarray | None, covariance: np.ndarray | None) -> None:
         x, P = self._state()
         if frame_id == self._frame_ids[-1]:
             raise GraphSlamError(f"mono_ekf: frame {frame_id} is already the current frame")
         if odometry is None:
             if not self.has_motion_model:
-                raise UnsupportedError("mono_ekf: the odometry robot model needs odometry "
-                                       "(robot_model = 'constant_velocity' has a motion model)")
+                raise UnsupportedError(
+                    "mono_ekf: the odometry robot model needs odometry "
+                    "(robot_model = 'constant_velocity' has a motion model)"
+                )
             c = self.config
             x[:13], F, G = constant_velocity_motion(x[:13], c.frame_dt_s)
-            Q = np.diag([(c.cv_sigma_accel_mps2 * c.frame_dt_s) ** 2] * 3
-                        + [(c.cv_sigma_alpha_radps2 * c.frame_dt_s) ** 2] * 3)
+            Q = np.diag(
+                [(c.cv_sigma_accel_mps2 * c.frame_dt_s) ** 2] * 3
+                + [(c.cv_sigma_alpha_radps2 * c.frame_dt_s) ** 2] * 3
+            )
         else:
             T, Q = check_odometry(odometry, covariance)
             r = self._rdim
@@ -275,14 +294,21 @@ class MonoEkf(VisualBackend):
 
     def predict_observations(self) -> PixelPredictions:
         x, _ = self._state()
-        uv, hz, _, _, S = self._predicted(self._sigma_px ** 2)
+        uv, hz, _, _, S = self._predicted(self._sigma_px**2)
         vis = np.flatnonzero(self._in_view(uv, hz))
         ids = self._map.ids[vis]
         with np.errstate(invalid="ignore", divide="ignore"):  # rho = 0: at infinity, not finite
             p_w, _ = lp.to_euclidean(self._map.kinds[vis], x[self._map.idx[vis]])
         # pose, K and positions: for the front end's appearance prediction
-        return PixelPredictions(ids, uv[vis], S[vis], max_corrections=self.max_corrections,
-                                wTc=self._wTc(), K=self._K.copy(), landmarks_w=p_w)
+        return PixelPredictions(
+            ids,
+            uv[vis],
+            S[vis],
+            max_corrections=self.max_corrections,
+            wTc=self._wTc(),
+            K=self._K.copy(),
+            landmarks_w=p_w,
+        )
 
     def _predicted(self, var: float) -> _Predicted:
         """Pixels, ``h_z``, Jacobians and ``S_i`` (pixel variance ``var``) of the whole map.
@@ -303,15 +329,16 @@ class MonoEkf(VisualBackend):
         self._require_init()
         ids, uv_px, sigma_px = check_observations(observations)
         self._sigma_px = sigma_px
-        var = sigma_px ** 2
+        var = sigma_px**2
         # the whole map at the predicted state: visibility for map management,
         # predictions and S_i of the known tracks
         predicted = self._predicted(var)
         visible = self._in_view(predicted[0], predicted[1])
         known = np.array([int(t) in self._map.slot for t in ids], dtype=bool)
         # tracks used by correct_and_repredict this frame are not corrected again
-        k_rows = np.array([r for r in np.flatnonzero(known) if int(ids[r]) not in self._sequential],
-                          dtype=np.int64)
+        k_rows = np.array(
+            [r for r in np.flatnonzero(known) if int(ids[r]) not in self._sequential], dtype=np.int64
+        )
         k_slots = np.array([self._map.slot[int(ids[r])] for r in k_rows], dtype=np.int64)
         accepted = np.zeros(len(self._map), dtype=bool)
         rejected = np.zeros(len(self._map), dtype=bool)
@@ -341,8 +368,7 @@ class MonoEkf(VisualBackend):
         self._manage_map(visible, observed, accepted, rejected)
         new_ids = self._initialise(ids, uv_px, known, var)
         self._poses[-1] = self._wTc()
-        self.last_update = {"corrected": corrected_ids, "rejected": rejected_ids,
-                            "initialised": new_ids}
+        self.last_update = {"corrected": corrected_ids, "rejected": rejected_ids, "initialised": new_ids}
 
     def correct_and_repredict(self, track_ids, uv_px, pending_ids) -> tuple[np.ndarray, np.ndarray]:
         """Sequential active search (:meth:`VisualBackend.correct_and_repredict`).
@@ -356,11 +382,11 @@ class MonoEkf(VisualBackend):
         self._require_init()
         ids = np.asarray(track_ids, dtype=np.int64).reshape(-1)
         z = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
-        if len(ids) != len(z) or any(int(t) not in self._map.slot or int(t) in self._sequential
-                                     for t in ids):
-            raise GraphSlamError("mono_ekf: correct_and_repredict needs mapped tracks not yet "
-                                 "used this frame, one pixel each")
-        var = self._sigma_px ** 2
+        if len(ids) != len(z) or any(int(t) not in self._map.slot or int(t) in self._sequential for t in ids):
+            raise GraphSlamError(
+                "mono_ekf: correct_and_repredict needs mapped tracks not yet used this frame, one pixel each"
+            )
+        var = self._sigma_px**2
         predicted = self._predicted(var)
         slots = np.array([self._map.slot[int(t)] for t in ids], dtype=np.int64)
         front = predicted[1][slots] > 0  # behind the camera: dropped, as update() drops them
@@ -379,8 +405,9 @@ class MonoEkf(VisualBackend):
         uv_p[bad], S_p[bad] = np.nan, np.nan
         return uv_p, S_p
 
-    def _correct(self, k_slots: np.ndarray, z_known: np.ndarray, predicted: _Predicted,
-                 var: float) -> tuple[np.ndarray, np.ndarray]:
+    def _correct(
+        self, k_slots: np.ndarray, z_known: np.ndarray, predicted: _Predicted, var: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Correct with the known landmarks ``k_slots`` (in front of the camera) measured at
         ``z_known`` (k, 2) px; ``predicted``: :meth:`_predicted` at this state.
 
@@ -392,15 +419,26 @@ class MonoEkf(VisualBackend):
         uv, Hp, Hl, S = uv_all[k_slots], Hp_all[k_slots], Hl_all[k_slots], S_all[k_slots]
         area = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
         # largest ellipses first (paper 4.4); stable sort for repeatability
-        order = np.argsort(-area, kind="stable")[:c.max_corrections]
+        order = np.argsort(-area, kind="stable")[: c.max_corrections]
         sel, z = k_slots[order], z_known[order]
         nu = z - uv[order]
         PHt, S_sel = self._gain_blocks(sel, Hp[order], Hl[order], var)
         if c.ransac and len(sel) >= 3:
             x, _ = self._state()
-            inl = one_point_ransac(self._rng, self._K, x, self._map.kinds[sel], self._map.idx[sel],
-                                   z, nu, PHt, S_sel, var, max_hypotheses=c.ransac_max_hypotheses,
-                                   inlier_sigmas=c.ransac_inlier_sigmas)
+            inl = one_point_ransac(
+                self._rng,
+                self._K,
+                x,
+                self._map.kinds[sel],
+                self._map.idx[sel],
+                z,
+                nu,
+                PHt,
+                S_sel,
+                var,
+                max_hypotheses=c.ransac_max_hypotheses,
+                inlier_sigmas=c.ransac_inlier_sigmas,
+            )
         else:
             inl = np.zeros(len(sel), dtype=bool)
         if inl.any():
@@ -414,14 +452,12 @@ class MonoEkf(VisualBackend):
         self._stats["corrections"] += int(inl.sum())
         return sel, inl
 
-    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: _Predicted,
-               var: float) -> np.ndarray:
+    def _gated(self, slots: np.ndarray, z: np.ndarray, predicted: _Predicted, var: float) -> np.ndarray:
         """:func:`filters.mono_ekf_correction.gated_correction` of ``slots`` measured at
         ``z`` from ``predicted`` (:meth:`_predicted` at this state); returns the kept mask."""
         uv, _, Hp, Hl, S = (a[slots] for a in predicted)
         x, P = self._state()
-        ok = gated_correction(x, P, self._map.idx[slots], Hp, Hl, z - uv, S, var,
-                              self._rescue_gate)
+        ok = gated_correction(x, P, self._map.idx[slots], Hp, Hl, z - uv, S, var, self._rescue_gate)
         self._version += int(ok.any())
         self._stats["ransac_rejected"] += int((~ok).sum())
         self._stats["corrections"] += int(ok.sum())
@@ -455,10 +491,14 @@ class MonoEkf(VisualBackend):
             stats[f"landmarks_{name}"] = int(np.sum(self._map.kinds == kind))
         stats["landmarks_in_state"] = len(self._map)
         stats["landmarks_retired"] = len(keep)
-        return VisualEstimate(frame_ids=np.array(self._frame_ids, dtype=np.int64),
-                              wTc=np.stack(self._poses), landmark_ids=all_ids,
-                              landmarks_w=all_pts, current_covariance=self._pose_covariance(),
-                              stats=stats)
+        return VisualEstimate(
+            frame_ids=np.array(self._frame_ids, dtype=np.int64),
+            wTc=np.stack(self._poses),
+            landmark_ids=all_ids,
+            landmarks_w=all_pts,
+            current_covariance=self._pose_covariance(),
+            stats=stats,
+        )
 
     # ------------------------------------------------------------ the map
 
@@ -468,13 +508,12 @@ class MonoEkf(VisualBackend):
         c = self.config
         x, P = self._state()
         changes, deleted, forgotten = self._map.count_frame(
-            x, visible, observed, accepted, rejected, c.max_consecutive_misses,
-            c.forget_unseen_frames)
+            x, visible, observed, accepted, rejected, c.max_consecutive_misses, c.forget_unseen_frames
+        )
         self._stats["deleted"] += deleted
         self._stats["forgotten"] += forgotten
         if c.linearity_threshold > 0:
-            conv = self._map.linear_enough(x, P, c.linearity_threshold,
-                                           exclude=changes)
+            conv = self._map.linear_enough(x, P, c.linearity_threshold, exclude=changes)
             self._stats["reparametrised"] += len(conv)
             changes.update(conv)
         if changes:
@@ -486,13 +525,15 @@ class MonoEkf(VisualBackend):
         self._x, self._P = self._map.transform(x, P, changes)
         self._version += 1
 
-    def _initialise(self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray,
-                    var: float) -> np.ndarray:
+    def _initialise(self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray, var: float) -> np.ndarray:
         """Step 3: new landmarks from unknown tracks (undelayed); returns their track ids."""
         c = self.config
         room = min(c.max_init_per_frame, c.max_landmarks - len(self._map))
-        rows = self._map.candidates(ids, uv_px, known, self._image_size, room) if room > 0 \
+        rows = (
+            self._map.candidates(ids, uv_px, known, self._image_size, room)
+            if room > 0
             else np.zeros(0, dtype=np.int64)
+        )
         if not len(rows):  # no room, or no candidate
             return rows
         kind = self._kind0
@@ -523,14 +564,20 @@ class MonoEkf(VisualBackend):
         """Predicted pixels of landmark ``slots`` at state ``x`` (default the current one)."""
         x = self._state()[0] if x is None else x
         idx = self._map.idx[slots]
-        return lp.observe_landmarks(self._K, x[0:3], x[3:7], self._map.kinds[slots], x[idx],
-                                    jacobians=jacobians)
+        return lp.observe_landmarks(
+            self._K, x[0:3], x[3:7], self._map.kinds[slots], x[idx], jacobians=jacobians
+        )
 
     def _in_view(self, uv: np.ndarray, hz: np.ndarray) -> np.ndarray:
         W, H = self._image_size
         with np.errstate(invalid="ignore"):
-            return (hz > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) \
-                & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
+            return (
+                (hz > 0)
+                & (uv[:, 0] >= -0.5)
+                & (uv[:, 0] < W - 0.5)
+                & (uv[:, 1] >= -0.5)
+                & (uv[:, 1] < H - 0.5)
+            )
 
     def _innovation_blocks(self, slots, Hp, Hl, var) -> np.ndarray:
         """Per-landmark ``S_i`` (k, 2, 2) of landmark ``slots``

@@ -23,8 +23,11 @@ def is_int(v) -> bool:
 
 def is_num(v) -> bool:
     """A finite Python or numpy number, not a bool."""
-    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool) \
+    return (
+        isinstance(v, (int, float, np.floating, np.integer))
+        and not isinstance(v, bool)
         and math.isfinite(float(v))
+    )
 
 
 def is_rotation(R: np.ndarray) -> bool:
@@ -51,8 +54,13 @@ def check_initial_pose(wTc: np.ndarray, covariance: np.ndarray) -> None:
 
 def check_camera(K: np.ndarray, image_size) -> tuple[int, int]:
     """Intrinsics ``K`` (3, 3) in pixels and ``image_size`` ``(W, H)`` in pixels; returns ``(W, H)``."""
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0 \
-            or not np.allclose(K[2], [0, 0, 1]):
+    if (
+        K.shape != (3, 3)
+        or not np.all(np.isfinite(K))
+        or K[0, 0] <= 0
+        or K[1, 1] <= 0
+        or not np.allclose(K[2], [0, 0, 1])
+    ):
         raise MeasurementError("mono_ekf: K must be a finite (3, 3) with fx, fy > 0 and last row [0 0 1]")
     W, H = image_size
     if not (is_int(W) and is_int(H) and W > 0 and H > 0):
@@ -77,8 +85,9 @@ def check_observations(obs: PixelObservations) -> tuple[np.ndarray, np.ndarray, 
     ids = np.asarray(obs.track_ids)
     uv = np.asarray(obs.uv_px, dtype=np.float64)
     if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
-        raise MeasurementError("mono_ekf: track_ids must be a 1-D integer array, "
-                               f"got {ids.dtype} {ids.shape}")
+        raise MeasurementError(
+            f"mono_ekf: track_ids must be a 1-D integer array, got {ids.dtype} {ids.shape}"
+        )
     if uv.shape != (len(ids), 2):
         raise MeasurementError(f"mono_ekf: uv_px must be ({len(ids)}, 2), got {uv.shape}")
     if not np.all(np.isfinite(uv)):

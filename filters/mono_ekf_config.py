@@ -128,8 +128,7 @@ class MonoEkfConfig:
         return 0.25 / self.min_depth_m
 
 
-def run_overrides(mode: str, seed: int | None, no_polish: bool,
-                  nearest_depth_m: float | None) -> dict:
+def run_overrides(mode: str, seed: int | None, no_polish: bool, nearest_depth_m: float | None) -> dict:
     """``[mono_ekf]`` overrides a visual run implies (the back-end table's
     ``run_overrides``): the RANSAC seed, the inverse-depth prior from the scene's
     nearest depth (``nearest_depth_m``, None: the file's) and, without odometry

@@ -17,8 +17,9 @@ import numpy as np
 from filters import landmark_params as lp
 
 
-def innovation_blocks(P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray,
-                      var: float) -> np.ndarray:
+def innovation_blocks(
+    P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray, var: float
+) -> np.ndarray:
     """Per-landmark ``S_i = H_i P H_i^T + var I`` (k, 2, 2) from the pose and landmark blocks.
 
     ``idx`` (k, 7) state indices of the landmarks, ``Hp`` (k, 2, 7) and ``Hl``
@@ -33,8 +34,9 @@ def innovation_blocks(P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.nda
     return S
 
 
-def gain_blocks(P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray,
-                var: float) -> tuple[np.ndarray, np.ndarray]:
+def gain_blocks(
+    P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray, var: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``P H^T`` (n, 2k) from the pose and landmark columns, and the joint ``S`` (2k, 2k).
 
     Arguments as :func:`innovation_blocks`; measurement ``i`` owns rows and
@@ -48,8 +50,7 @@ def gain_blocks(P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray,
     return PHt, S
 
 
-def apply_correction(x: np.ndarray, P: np.ndarray, PHt: np.ndarray, S: np.ndarray,
-                     nu: np.ndarray) -> None:
+def apply_correction(x: np.ndarray, P: np.ndarray, PHt: np.ndarray, S: np.ndarray, nu: np.ndarray) -> None:
     """EKF correction in place from ``P H^T`` (n, m), ``S`` (m, m) and the innovation ``nu`` (m,) px.
 
     ``P -= M M^T`` with ``M = P H^T L^-T`` (``S = L L^T``) keeps ``P``
@@ -63,8 +64,17 @@ def apply_correction(x: np.ndarray, P: np.ndarray, PHt: np.ndarray, S: np.ndarra
     normalise_quaternion(x, P)
 
 
-def gated_correction(x: np.ndarray, P: np.ndarray, idx: np.ndarray, Hp: np.ndarray, Hl: np.ndarray,
-                     nu: np.ndarray, S: np.ndarray, var: float, gate: float) -> np.ndarray:
+def gated_correction(
+    x: np.ndarray,
+    P: np.ndarray,
+    idx: np.ndarray,
+    Hp: np.ndarray,
+    Hl: np.ndarray,
+    nu: np.ndarray,
+    S: np.ndarray,
+    var: float,
+    gate: float,
+) -> np.ndarray:
     """Gate each measurement alone, correct with the kept ones in one batch; returns the
     kept mask (k,).
 
@@ -85,16 +95,27 @@ def normalise_quaternion(x: np.ndarray, P: np.ndarray) -> None:
     """``q <- q / |q|`` (``x[3:7]``) in place, ``P`` through the normalisation's Jacobian."""
     q = x[3:7]
     nq = float(np.linalg.norm(q))
-    J = (np.eye(4) - np.outer(q, q) / nq ** 2) / nq
+    J = (np.eye(4) - np.outer(q, q) / nq**2) / nq
     x[3:7] = q / nq
     P[3:7, :] = J @ P[3:7, :]
     P[:, 3:7] = P[:, 3:7] @ J.T
 
 
-def one_point_ransac(rng: np.random.Generator, K: np.ndarray, x: np.ndarray, kinds: np.ndarray,
-                     idx: np.ndarray, z: np.ndarray, nu: np.ndarray, PHt: np.ndarray,
-                     S: np.ndarray, var: float, *, max_hypotheses: int,
-                     inlier_sigmas: float) -> np.ndarray:
+def one_point_ransac(
+    rng: np.random.Generator,
+    K: np.ndarray,
+    x: np.ndarray,
+    kinds: np.ndarray,
+    idx: np.ndarray,
+    z: np.ndarray,
+    nu: np.ndarray,
+    PHt: np.ndarray,
+    S: np.ndarray,
+    var: float,
+    *,
+    max_hypotheses: int,
+    inlier_sigmas: float,
+) -> np.ndarray:
     """Low-innovation inliers (k,) bool of the best single-measurement hypothesis.
 
     One-point RANSAC (Civera et al., JFR 2010). ``K`` (3, 3) intrinsics,
@@ -111,7 +132,7 @@ def one_point_ransac(rng: np.random.Generator, K: np.ndarray, x: np.ndarray, kin
     m = min(max_hypotheses, k)
     hyp = rng.permutation(k)[:m] if m < k else np.arange(k)
     # x_j = x + P H_j^T S_j^-1 nu_j for every hypothesis j at once
-    Sj = np.stack([S[2 * j:2 * j + 2, 2 * j:2 * j + 2] for j in hyp])
+    Sj = np.stack([S[2 * j : 2 * j + 2, 2 * j : 2 * j + 2] for j in hyp])
     g = np.linalg.solve(Sj, nu[hyp][:, :, None])[:, :, 0]  # (m, 2)
     cols = PHt.reshape(len(PHt), k, 2)[:, hyp, :]  # (n, m, 2)
     X = x[:, None] + np.einsum("nmi,mi->nm", cols, g)  # (n, m)
@@ -120,5 +141,5 @@ def one_point_ransac(rng: np.random.Generator, K: np.ndarray, x: np.ndarray, kin
     uv_h, hz_h = lp.project_hypotheses(K, X[0:3].T, q, kinds, X[idx].transpose(2, 0, 1))
     e = z[None] - uv_h
     with np.errstate(invalid="ignore"):
-        sup = (hz_h > 0) & (np.einsum("mki,mki->mk", e, e) < (inlier_sigmas ** 2) * var)
+        sup = (hz_h > 0) & (np.einsum("mki,mki->mk", e, e) < (inlier_sigmas**2) * var)
     return sup[int(np.argmax(sup.sum(axis=1)))]  # first of the best: repeatable

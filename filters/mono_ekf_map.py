@@ -34,9 +34,16 @@ def farthest_candidates(cand_uv: np.ndarray, taken_uv: np.ndarray, count: int) -
     return chosen
 
 
-def augment_with_landmarks(x: np.ndarray, P: np.ndarray, L: np.ndarray, G_pose: np.ndarray,
-                           G_uv: np.ndarray, G_rho: np.ndarray, var: float,
-                           sigma_rho: float) -> tuple[np.ndarray, np.ndarray]:
+def augment_with_landmarks(
+    x: np.ndarray,
+    P: np.ndarray,
+    L: np.ndarray,
+    G_pose: np.ndarray,
+    G_uv: np.ndarray,
+    G_rho: np.ndarray,
+    var: float,
+    sigma_rho: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(x', P')`` with the k new landmarks ``L`` (k, s) appended (undelayed initialisation).
 
     ``G_pose`` (k, s, 7), ``G_uv`` (k, s, 2), ``G_rho`` (s,): the inverse
@@ -51,9 +58,9 @@ def augment_with_landmarks(x: np.ndarray, P: np.ndarray, L: np.ndarray, G_pose: 
     Gr = G_pose.reshape(k * s, 7)
     P_LX = Gr @ P[:7, :]
     P_LL = Gr @ P_LX[:, :7].T
-    own = var * G_uv @ G_uv.transpose(0, 2, 1) + sigma_rho ** 2 * np.outer(G_rho, G_rho)
+    own = var * G_uv @ G_uv.transpose(0, 2, 1) + sigma_rho**2 * np.outer(G_rho, G_rho)
     for j in range(k):
-        P_LL[j * s:(j + 1) * s, j * s:(j + 1) * s] += own[j]
+        P_LL[j * s : (j + 1) * s, j * s : (j + 1) * s] += own[j]
     P_new = np.empty((n + k * s, n + k * s))
     P_new[:n, :n] = P
     P_new[n:, :n] = P_LX
@@ -62,8 +69,9 @@ def augment_with_landmarks(x: np.ndarray, P: np.ndarray, L: np.ndarray, G_pose: 
     return np.concatenate([x, L.reshape(-1)]), P_new
 
 
-def linear_enough(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray,
-                  threshold: float, exclude=()) -> dict:
+def linear_enough(
+    x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray, threshold: float, exclude=()
+) -> dict:
     """``{slot: (p_w (3,) m, J (3, s))}`` of the landmarks linear enough to become Euclidean.
 
     Linearity index (Civera et al. 2008) ``L = 4 sigma_d / d |cos alpha|``
@@ -71,8 +79,7 @@ def linear_enough(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarr
     not in ``exclude``; ``J`` is the conversion's Jacobian w.r.t. the
     landmark's ``s`` parameters. The camera position is ``x[0:3]``.
     """
-    slots = np.array([i for i in np.flatnonzero(kinds != lp.EUCLIDEAN) if i not in exclude],
-                     dtype=np.int64)
+    slots = np.array([i for i in np.flatnonzero(kinds != lp.EUCLIDEAN) if i not in exclude], dtype=np.int64)
     if not len(slots):
         return {}
     idx = idx[slots]
@@ -95,7 +102,7 @@ def linear_enough(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarr
     cos_a = np.einsum("ki,ki->k", ray0, ray) / (d0 * d)
     lin = 4.0 * sigma_d / d * np.abs(cos_a)
     conv = np.flatnonzero(lin < threshold)
-    return {int(slots[j]): (p_w[j], J[j, :, :lp.SIZE[int(kinds[j])]]) for j in conv}
+    return {int(slots[j]): (p_w[j], J[j, :, : lp.SIZE[int(kinds[j])]]) for j in conv}
 
 
 def inverse_distances(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.ndarray:
@@ -117,8 +124,9 @@ def inverse_distances(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.n
         return np.where(n > 0, W / n, 0.0)
 
 
-def euclidean_conversion(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray,
-                         slot: int) -> tuple[np.ndarray, np.ndarray] | None:
+def euclidean_conversion(
+    x: np.ndarray, idx: np.ndarray, kinds: np.ndarray, slot: int
+) -> tuple[np.ndarray, np.ndarray] | None:
     """``(p_w (3,) m, J (3, s))`` converting landmark ``slot`` to Euclidean whatever its
     linearity, or None when it is Euclidean already or has ``rho <= 0``."""
     if kinds[slot] == lp.EUCLIDEAN:
@@ -126,8 +134,8 @@ def euclidean_conversion(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray,
     L = x[idx[slot]][None]
     if L[0, 5 if kinds[slot] == lp.IDP else 6] <= 0:
         return None
-    p_w, J = lp.to_euclidean(kinds[slot:slot + 1], L)
-    return p_w[0], J[0, :, :lp.SIZE[int(kinds[slot])]]
+    p_w, J = lp.to_euclidean(kinds[slot : slot + 1], L)
+    return p_w[0], J[0, :, : lp.SIZE[int(kinds[slot])]]
 
 
 def euclidean_points(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,8 +150,9 @@ def euclidean_points(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> tuple
     return p_w, ok
 
 
-def transform_state(x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.ndarray,
-                    changes: dict) -> tuple[np.ndarray, np.ndarray]:
+def transform_state(
+    x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.ndarray, changes: dict
+) -> tuple[np.ndarray, np.ndarray]:
     """``(x', P')`` with the landmark slots in ``changes`` dropped (value None) or
     converted to Euclidean (value ``(p_w, J)``).
 
@@ -159,7 +168,7 @@ def transform_state(x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.nda
     conv = []
     for i, ch in changes.items():
         o, s = int(off[i]), lp.SIZE[int(kinds[i])]
-        keep[o:o + s] = False
+        keep[o : o + s] = False
         if ch is not None:
             conv.append((np.arange(o, o + s), ch[1], ch[0]))
     kidx = np.flatnonzero(keep)
@@ -173,10 +182,11 @@ def transform_state(x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.nda
         P_new[m:, :m] = Y[:, kidx]
         P_new[:m, m:] = P_new[m:, :m].T
         for b, (_, _, p_w) in enumerate(conv):
-            x_new[m + 3 * b:m + 3 * b + 3] = p_w
+            x_new[m + 3 * b : m + 3 * b + 3] = p_w
             for b2, (src2, J2, _) in enumerate(conv):
-                P_new[m + 3 * b:m + 3 * b + 3, m + 3 * b2:m + 3 * b2 + 3] = \
-                    Y[3 * b:3 * b + 3, src2] @ J2.T
+                P_new[m + 3 * b : m + 3 * b + 3, m + 3 * b2 : m + 3 * b2 + 3] = (
+                    Y[3 * b : 3 * b + 3, src2] @ J2.T
+                )
         Pc = P_new[m:, m:]
         Pc[...] = 0.5 * (Pc + Pc.T)
     return x_new, P_new

@@ -78,8 +78,7 @@ def constant_velocity_motion(x_r: np.ndarray, dt_s: float):
     return x_new, F, G
 
 
-def propagate_covariance(P: np.ndarray, r: int, F: np.ndarray, G: np.ndarray,
-                         Q: np.ndarray) -> None:
+def propagate_covariance(P: np.ndarray, r: int, F: np.ndarray, G: np.ndarray, Q: np.ndarray) -> None:
     """``P <- A P A^T + G Q G^T`` in place, ``A`` = ``F`` on the robot's ``r`` states, identity elsewhere.
 
     ``P`` (n, n): the filter covariance; ``F`` (r, r), ``G`` (r, 6), ``Q``

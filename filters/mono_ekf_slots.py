@@ -70,20 +70,27 @@ class LandmarkSlots:
     def _reindex(self) -> None:
         """Offsets, kinds and padded index rows (k, 7) of the landmarks in state order."""
         sizes = np.array([lp.SIZE[lm.kind] for lm in self.records], dtype=np.int64)
-        self.off = self._rdim + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) \
-            if len(sizes) else np.zeros(0, dtype=np.int64)
+        self.off = (
+            self._rdim + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+            if len(sizes)
+            else np.zeros(0, dtype=np.int64)
+        )
         self.kinds = np.array([lm.kind for lm in self.records], dtype=np.int64)
         cols = np.arange(lp.PAD)
         # padding columns repeat the landmark's first index; their Jacobian columns are zero
-        self.idx = np.where(cols[None, :] < sizes[:, None], self.off[:, None] + cols[None, :],
-                            self.off[:, None]) if len(sizes) else np.zeros((0, lp.PAD), np.int64)
+        self.idx = (
+            np.where(cols[None, :] < sizes[:, None], self.off[:, None] + cols[None, :], self.off[:, None])
+            if len(sizes)
+            else np.zeros((0, lp.PAD), np.int64)
+        )
         self.ids = np.array([lm.track_id for lm in self.records], dtype=np.int64)
         self.slot = {lm.track_id: i for i, lm in enumerate(self.records)}
 
     # ------------------------------------------------------------ lifetime
 
-    def count_frame(self, x: np.ndarray, visible, observed, accepted, rejected,
-                    max_misses: int, forget_frames: int) -> tuple[dict, int, int]:
+    def count_frame(
+        self, x: np.ndarray, visible, observed, accepted, rejected, max_misses: int, forget_frames: int
+    ) -> tuple[dict, int, int]:
         """Update the counters after a frame (step 4 of the filter); returns the slots to
         drop ``{slot: None}`` and how many of them were deleted and forgotten.
 
@@ -111,17 +118,23 @@ class LandmarkSlots:
                 drop[i] = None
                 if lm.kind == lp.EUCLIDEAN:  # converged: keep it in the output map
                     o = self.off[i]
-                    self.retired[lm.track_id] = x[o:o + 3].copy()
+                    self.retired[lm.track_id] = x[o : o + 3].copy()
         return drop, deleted, forgotten
 
-    def candidates(self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray,
-                   image_size: tuple[int, int], room: int) -> np.ndarray:
+    def candidates(
+        self, ids: np.ndarray, uv_px: np.ndarray, known: np.ndarray, image_size: tuple[int, int], room: int
+    ) -> np.ndarray:
         """Rows of ``ids`` (step 3 of the filter) to become landmarks: at most ``room``
         unknown (``~known``), not banned tracks inside the image, chosen greedily
         farthest from the known tracks' pixels and from each other."""
         W, H = image_size
-        cand = [r for r in np.flatnonzero(~known) if int(ids[r]) not in self._banned
-                and -0.5 <= uv_px[r, 0] < W - 0.5 and -0.5 <= uv_px[r, 1] < H - 0.5]
+        cand = [
+            r
+            for r in np.flatnonzero(~known)
+            if int(ids[r]) not in self._banned
+            and -0.5 <= uv_px[r, 0] < W - 0.5
+            and -0.5 <= uv_px[r, 1] < H - 0.5
+        ]
         if not cand:
             return np.zeros(0, dtype=np.int64)
         # greedy farthest-point choice: spread new points away from mapped ones
@@ -130,8 +143,16 @@ class LandmarkSlots:
 
     # ------------------------------------------------------ state layout
 
-    def append(self, x: np.ndarray, P: np.ndarray, track_ids: np.ndarray, kind: int,
-               init: tuple, var: float, sigma_rho: float) -> tuple[np.ndarray, np.ndarray]:
+    def append(
+        self,
+        x: np.ndarray,
+        P: np.ndarray,
+        track_ids: np.ndarray,
+        kind: int,
+        init: tuple,
+        var: float,
+        sigma_rho: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(x', P')`` with new landmarks of parametrisation ``kind`` in new slots at the
         end; ``init``: ``(L, G_pose, G_uv, G_rho)`` of
         :func:`filters.landmark_params.init_landmarks`, ``var`` the pixel variance
@@ -142,23 +163,24 @@ class LandmarkSlots:
         self._reindex()
         return x, P
 
-    def transform(self, x: np.ndarray, P: np.ndarray,
-                  changes: dict) -> tuple[np.ndarray, np.ndarray]:
+    def transform(self, x: np.ndarray, P: np.ndarray, changes: dict) -> tuple[np.ndarray, np.ndarray]:
         """``(x', P')`` with the slots in ``changes`` dropped (value None) or converted to
         Euclidean (value ``(p_w, J)``; :func:`filters.mono_ekf_map.transform_state`);
         converted landmarks move to the end of the state."""
         x, P = transform_state(x, P, self.off, self.kinds, changes)
         recs = self.records
-        moved = [LandmarkRecord(recs[i].track_id, lp.EUCLIDEAN, recs[i].unseen, recs[i].misses)
-                 for i, ch in changes.items() if ch is not None]
+        moved = [
+            LandmarkRecord(recs[i].track_id, lp.EUCLIDEAN, recs[i].unseen, recs[i].misses)
+            for i, ch in changes.items()
+            if ch is not None
+        ]
         self.records = [lm for i, lm in enumerate(recs) if i not in changes] + moved
         self._reindex()
         return x, P
 
     # --------------------------------------------------- reading the state
 
-    def linear_enough(self, x: np.ndarray, P: np.ndarray, threshold: float,
-                      exclude=()) -> dict:
+    def linear_enough(self, x: np.ndarray, P: np.ndarray, threshold: float, exclude=()) -> dict:
         """``{slot: (p_w (3,), J (3, s))}`` of the landmarks linear enough to become
         Euclidean (:func:`filters.mono_ekf_map.linear_enough`)."""
         return linear_enough(x, P, self.idx, self.kinds, threshold, exclude)

@@ -87,8 +87,14 @@ class Recoveries(dict):
     decomposition).
     """
 
-    KINDS = ("noise_floor", "damped_update", "oc_fallback", "skipped_update", "joseph_fallback",
-             "eig_fallback")
+    KINDS = (
+        "noise_floor",
+        "damped_update",
+        "oc_fallback",
+        "skipped_update",
+        "joseph_fallback",
+        "eig_fallback",
+    )
 
     def __init__(self):
         super().__init__({k: 0 for k in self.KINDS})

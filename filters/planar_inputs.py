@@ -19,8 +19,7 @@ from slamcore.planar.records import Observation, ObservationKind, Odometry
 __all__ = ["odometry_step", "checked_scan"]
 
 
-def odometry_step(odometry: Odometry, cur: int, pose_id: int,
-                  who: str) -> tuple[np.ndarray, np.ndarray]:
+def odometry_step(odometry: Odometry, cur: int, pose_id: int, who: str) -> tuple[np.ndarray, np.ndarray]:
     """``(u (3,), Q (3, 3))``: ``odometry`` as the step from the current pose ``cur`` to
     the new pose ``pose_id``, inverted when it was recorded new -> current.
 
@@ -35,14 +34,14 @@ def odometry_step(odometry: Odometry, cur: int, pose_id: int,
     else:
         raise GraphSlamError(
             f"{who}: odometry {odometry.from_id}->{odometry.to_id} does not link the current "
-            f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)")
+            f"pose {cur} to the new pose {pose_id} (a filter only extends the latest pose)"
+        )
     if pose_id == cur:
         raise GraphSlamError(f"{who}: pose {pose_id} is already the current pose")
     return np.asarray(u), np.asarray(Q)
 
 
-def checked_scan(observations: Iterable[Observation], pose_id: int | None,
-                 who: str) -> list[Observation]:
+def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: str) -> list[Observation]:
     """The scan as a list, refused whole before any of it touches a filter's state: each
     item must be a range-bearing :class:`Observation` taken at the current pose ``pose_id``.
 
@@ -55,9 +54,9 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None,
         if not isinstance(o, Observation):
             raise MeasurementError(f"{who}: expected Observation, got {type(o).__name__}")
         if o.kind is not ObservationKind.RANGE_BEARING:
-            raise UnsupportedError(f"{who} handles range-bearing observations only, "
-                                   f"got {o.kind.value}")
+            raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}")
         if o.pose_id != pose_id:
-            raise MeasurementError(f"{who}: observation from pose {o.pose_id} but the current "
-                                   f"pose is {pose_id}")
+            raise MeasurementError(
+                f"{who}: observation from pose {o.pose_id} but the current pose is {pose_id}"
+            )
     return obs

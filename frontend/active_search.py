@@ -126,8 +126,11 @@ def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{n} predictions but {len(S)} covariances")
     finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
     Sf = S[finite]
-    if np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1]))) or \
-            np.any(Sf[:, 0, 0] <= 0) or np.any(np.linalg.det(Sf) <= 0):
+    if (
+        np.any(np.abs(Sf[:, 0, 1] - Sf[:, 1, 0]) > 1e-9 * (1 + np.abs(Sf[:, 0, 1])))
+        or np.any(Sf[:, 0, 0] <= 0)
+        or np.any(np.linalg.det(Sf) <= 0)
+    ):
         raise MeasurementError("innovation covariances must be symmetric positive definite")
     return z, S
 
@@ -163,12 +166,21 @@ class ActiveSearch:
 
     # ------------------------------------------------------------------ search
 
-    def search(self, image: np.ndarray, predictions: np.ndarray, S: np.ndarray, *,
-               patches: np.ndarray | None = None, prev_image: np.ndarray | None = None,
-               prev_xy: np.ndarray | None = None, affine: np.ndarray | None = None,
-               features: Features | None = None, max_found: int | None = None,
-               source_patches: np.ndarray | None = None,
-               repredict: Repredict | None = None) -> ActiveSearchResult:
+    def search(
+        self,
+        image: np.ndarray,
+        predictions: np.ndarray,
+        S: np.ndarray,
+        *,
+        patches: np.ndarray | None = None,
+        prev_image: np.ndarray | None = None,
+        prev_xy: np.ndarray | None = None,
+        affine: np.ndarray | None = None,
+        features: Features | None = None,
+        max_found: int | None = None,
+        source_patches: np.ndarray | None = None,
+        repredict: Repredict | None = None,
+    ) -> ActiveSearchResult:
         """Search the landmarks predicted at ``predictions`` (N, 2) with covariances ``S`` (N, 2, 2).
 
         ``image``: current (H, W) uint8 frame. zncc mode needs ``patches``
@@ -188,16 +200,33 @@ class ActiveSearch:
         z, S = _checked_predictions(predictions, S)
         matcher: ZnccMatcher | NearestMatcher
         if self.config.mode == "zncc":
-            matcher = ZnccMatcher(self.config, image, len(z), patches=patches, prev_image=prev_image,
-                                  prev_xy=prev_xy, affine=affine, source_patches=source_patches)
+            matcher = ZnccMatcher(
+                self.config,
+                image,
+                len(z),
+                patches=patches,
+                prev_image=prev_image,
+                prev_xy=prev_xy,
+                affine=affine,
+                source_patches=source_patches,
+            )
         else:
             matcher = NearestMatcher(self.config, z, features)
-        return self.search_with(image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found,
-                                repredict=repredict)
+        return self.search_with(
+            image.shape, z, S, matcher, margin=matcher.margin, max_found=max_found, repredict=repredict
+        )
 
-    def search_with(self, shape: tuple[int, int], z: np.ndarray, S: np.ndarray, matcher: Matcher, *,
-                    margin: int = 0, max_found: int | None = None,
-                    repredict: Repredict | None = None) -> ActiveSearchResult:
+    def search_with(
+        self,
+        shape: tuple[int, int],
+        z: np.ndarray,
+        S: np.ndarray,
+        matcher: Matcher,
+        *,
+        margin: int = 0,
+        max_found: int | None = None,
+        repredict: Repredict | None = None,
+    ) -> ActiveSearchResult:
         """The search loop shared by every mode: ``matcher`` (see :data:`Matcher`) looks
         inside each ellipse, largest first, within the caps (:meth:`search`).
 
@@ -238,7 +267,7 @@ class ActiveSearch:
             searched[i] = True
             pixels[i] = cnt
             bh, bw = mask.shape
-            union[v0:v0 + bh, u0:u0 + bw] |= mask
+            union[v0 : v0 + bh, u0 : u0 + bw] |= mask
             if not self._match_one(i, z, S, matcher, (u0, v0, mask), uv, score, d2):
                 continue
             found[i] = True
@@ -250,10 +279,18 @@ class ActiveSearch:
         if pending:  # the last matches still correct the back end
             self._corrected(repredict, pending, uv, [], z, S, (H, W))
         npx = float(H * W)
-        return ActiveSearchResult(order=np.asarray(order, dtype=np.int64), searched=searched, found=found,
-                                  uv=uv, score=score, d2=d2, pixels=pixels,
-                                  image_fraction=float(union.sum()) / npx,
-                                  image_fraction_sum=float(pixels.sum()) / npx, skipped=skipped)
+        return ActiveSearchResult(
+            order=np.asarray(order, dtype=np.int64),
+            searched=searched,
+            found=found,
+            uv=uv,
+            score=score,
+            d2=d2,
+            pixels=pixels,
+            image_fraction=float(union.sum()) / npx,
+            image_fraction_sum=float(pixels.sum()) / npx,
+            skipped=skipped,
+        )
 
     @staticmethod
     def _match_one(i, z, S, matcher, box, uv, score, d2) -> bool:

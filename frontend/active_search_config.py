@@ -72,11 +72,14 @@ class ActiveSearchConfig:
     def __post_init__(self):
         validate(self)
         if self.ransac_every == 1 or (self.ransac_every and self.order != "sequential"):
-            raise ConfigError(f"active_search.ransac_every must be 0 or at least 2, with order "
-                              f"'sequential' (got {self.ransac_every!r}, order {self.order!r})")
+            raise ConfigError(
+                f"active_search.ransac_every must be 0 or at least 2, with order "
+                f"'sequential' (got {self.ransac_every!r}, order {self.order!r})"
+            )
         if self.patch_size_px % 2 == 0:  # parity is not a range: checked here
-            raise ConfigError(f"active_search.patch_size_px must be odd (a centre pixel), "
-                              f"got {self.patch_size_px!r}")
+            raise ConfigError(
+                f"active_search.patch_size_px must be odd (a centre pixel), got {self.patch_size_px!r}"
+            )
 
     @property
     def gate(self) -> float:

@@ -59,8 +59,9 @@ def source_patch_size(patch_size_px: int) -> int:
     return SOURCE_PATCH_FACTOR * (patch_size_px // 2) * 2 + 1
 
 
-def patch_affines(K: np.ndarray, wTc: np.ndarray, landmarks_w: np.ndarray,
-                  cut_wTc: np.ndarray, cut_uv: np.ndarray) -> np.ndarray:
+def patch_affines(
+    K: np.ndarray, wTc: np.ndarray, landmarks_w: np.ndarray, cut_wTc: np.ndarray, cut_uv: np.ndarray
+) -> np.ndarray:
     """(N, 2, 2) maps of patch offsets, image the patch was cut in -> current image.
 
     Args:

@@ -124,8 +124,11 @@ class FpgaTiming:
     def ready_s(self, shape: tuple[int, int], t0_s: float) -> float:
         """The frame's stamp: end of write + latency lines + pipeline clocks."""
         h, w = shape
-        return (self.write_end_s(shape, t0_s) + self.latency_lines * self.line_s(w)
-                + self.pipeline_cycles / self.pixel_clock_hz)
+        return (
+            self.write_end_s(shape, t0_s)
+            + self.latency_lines * self.line_s(w)
+            + self.pipeline_cycles / self.pixel_clock_hz
+        )
 
 
 @dataclass
@@ -152,8 +155,7 @@ class FpgaHarrisStream:
 
     SLOT_NAMES = ("Harris_LMK_A", "Harris_LMK_B")
 
-    def __init__(self, config: HarrisConfig | None = None, timing: FpgaTiming | None = None,
-                 **overrides):
+    def __init__(self, config: HarrisConfig | None = None, timing: FpgaTiming | None = None, **overrides):
         self.config = with_overrides(config or HarrisConfig(arithmetic="fixed"), overrides)
         self.timing = timing or FpgaTiming()
         self._frames: deque[_Frame] = deque(maxlen=3)
@@ -171,8 +173,11 @@ class FpgaHarrisStream:
         if not self._frames:
             return 0.0
         last = self._frames[-1]
-        return last.end_s + self.timing.h_blank_px / self.timing.pixel_clock_hz + \
-            self.timing.v_blank_lines * self.timing.line_s(last.width)
+        return (
+            last.end_s
+            + self.timing.h_blank_px / self.timing.pixel_clock_hz
+            + self.timing.v_blank_lines * self.timing.line_s(last.width)
+        )
 
     def readable(self, now_s: float) -> tuple[int, str] | None:
         """``(frame index, memory name)`` readable at ``now_s``, or None."""
@@ -190,8 +195,9 @@ class FpgaHarrisStream:
 
     def _readable_frame(self, now_s: float) -> _Frame | None:
         if self._frames and now_s < self._frames[-1].t0_s:
-            raise ValueError(f"read at {now_s} s precedes the start of the last pushed frame "
-                             f"({self._frames[-1].t0_s} s)")
+            raise ValueError(
+                f"read at {now_s} s precedes the start of the last pushed frame ({self._frames[-1].t0_s} s)"
+            )
         for f in reversed(self._frames):
             if f.ready_s <= now_s:
                 return f
@@ -212,16 +218,23 @@ class FpgaHarrisStream:
         if self._frames:
             earliest = self.next_start_s()
             if t0_s < earliest - 1e-12:
-                raise InputError(f"frame pushed at t0 = {t0_s:.9f} s overlaps the previous frame "
-                                 f"(earliest start {earliest:.9f} s)")
+                raise InputError(
+                    f"frame pushed at t0 = {t0_s:.9f} s overlaps the previous frame "
+                    f"(earliest start {earliest:.9f} s)"
+                )
         shape = image.shape
         features = self._stream(image)
         ready = self.timing.ready_s(shape, t0_s)
-        features = Features(xy_px=features[0], response=features[1], cell=features[2],
-                            ready_time_s=ready)
-        frame = _Frame(index=self._n_frames, slot=self._n_frames % 2, t0_s=t0_s, ready_s=ready,
-                       end_s=self.timing.write_end_s(shape, t0_s), width=shape[1],
-                       features=features)
+        features = Features(xy_px=features[0], response=features[1], cell=features[2], ready_time_s=ready)
+        frame = _Frame(
+            index=self._n_frames,
+            slot=self._n_frames % 2,
+            t0_s=t0_s,
+            ready_s=ready,
+            end_s=self.timing.write_end_s(shape, t0_s),
+            width=shape[1],
+            features=features,
+        )
         self._frames.append(frame)
         self._n_frames += 1
         return ready
@@ -257,7 +270,7 @@ class FpgaHarrisStream:
         # the line in ``slot`` when the newest line is ``y``.
         taps_for = np.zeros((5, 5), dtype=np.float64)
         for newest in range(5):
-            for i in range(5):                      # i = 0: oldest of the five lines
+            for i in range(5):  # i = 0: oldest of the five lines
                 taps_for[newest, (newest - 4 + i) % 5] = GAUSS5_INT[i]
         # Horizontal taps with the normalising shift folded in (exact binary
         # fractions); symmetric, so correlate == convolve.
@@ -270,18 +283,18 @@ class FpgaHarrisStream:
         # results are the integers of harris_response_fixed, bit for bit; the
         # rounding shifts are floor(x / 2^n + 1/2), also exact. The
         # response (up to 2^57 before its shift) is computed in int64.
-        raw = np.zeros((5, w), dtype=np.float64)          # the paper's 5-line circular buffer
-        smooth = np.zeros((3, w - 4), dtype=np.float64)   # S lines (cols 2 .. w-3)
+        raw = np.zeros((5, w), dtype=np.float64)  # the paper's 5-line circular buffer
+        smooth = np.zeros((3, w - 4), dtype=np.float64)  # S lines (cols 2 .. w-3)
         prods = np.zeros((5, 3, w - 6), dtype=np.float64)  # Ix^2, Iy^2, IxIy (cols 3 .. w-4)
         prods_flat = prods.reshape(5, -1)
-        deriv = np.zeros((2, w - 6), dtype=np.float64)    # Ix, Iy of one line
-        hpad = np.zeros(3 * (w - 6), dtype=np.float64)    # horizontal window sums, 3 channels
-        hview = hpad.reshape(3, w - 6)[:, :w - 10]
-        abc = np.zeros((3, w - 10), dtype=np.int64)       # A, B, C of one line (cols 5 .. w-6)
-        ac, bc = abc[0::2], abc[1:]                       # views [A, C] and [B, C]
+        deriv = np.zeros((2, w - 6), dtype=np.float64)  # Ix, Iy of one line
+        hpad = np.zeros(3 * (w - 6), dtype=np.float64)  # horizontal window sums, 3 channels
+        hview = hpad.reshape(3, w - 6)[:, : w - 10]
+        abc = np.zeros((3, w - 10), dtype=np.int64)  # A, B, C of one line (cols 5 .. w-6)
+        ac, bc = abc[0::2], abc[1:]  # views [A, C] and [B, C]
         abcc = np.zeros((2, w - 10), dtype=np.int64)
         n_h = 3 * (w - 6) - 4
-        registers: deque = deque()                        # response lines awaiting output
+        registers: deque = deque()  # response lines awaiting output
 
         # Sort Harris state: a running best per pixel column of the current cell
         # row (value, and the row it came from; strict > keeps the earliest row
@@ -300,7 +313,7 @@ class FpgaHarrisStream:
             # r_line: response of row v for cols 5 .. w-6.
             if not border <= v <= v_last_usable:
                 return
-            seg = r_line[u0 - REACH_PX:u1 - REACH_PX]
+            seg = r_line[u0 - REACH_PX : u1 - REACH_PX]
             np.greater(seg, cb, out=better)
             np.copyto(cb, seg, where=better)
             np.copyto(cr, v, where=better)
@@ -343,12 +356,11 @@ class FpgaHarrisStream:
             # Window sums of line y-5 (product lines y-7 .. y-3): vertical pass,
             # then one horizontal correlation over the three channels laid end
             # to end (the 4 outputs straddling two channels fall outside hview).
-            np.add(np.correlate(taps_for[(y - 3) % 5] @ prods_flat, gauss_w, "valid"), 0.5,
-                   out=hpad[:n_h])
-            np.floor(hview, out=abc, casting="unsafe")        # exact integers -> int64
+            np.add(np.correlate(taps_for[(y - 3) % 5] @ prods_flat, gauss_w, "valid"), 0.5, out=hpad[:n_h])
+            np.floor(hview, out=abc, casting="unsafe")  # exact integers -> int64
             # R = A B - C^2 - ((A + B)^2 k_num >> 10), as response_from_abc_fixed.
-            np.multiply(ac, bc, out=abcc)                   # [A B, C^2]
-            r_line = abcc[0] - abcc[1]                      # a fresh line for the registers
+            np.multiply(ac, bc, out=abcc)  # [A B, C^2]
+            r_line = abcc[0] - abcc[1]  # a fresh line for the registers
             tr = abc[0] + abc[1]
             tr *= tr
             tr *= k_num

@@ -164,8 +164,9 @@ class HarrisConfig:
 
 def smooth_float(image: np.ndarray, kernel: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
     """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders)."""
-    return cv2.sepFilter2D(np.asarray(image, dtype=np.float64), cv2.CV_64F, kernel, kernel,
-                           borderType=cv2.BORDER_REFLECT_101)
+    return cv2.sepFilter2D(
+        np.asarray(image, dtype=np.float64), cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101
+    )
 
 
 _DIFF = np.array([-0.5, 0.0, 0.5])
@@ -201,13 +202,12 @@ def _response_from_derivatives(ix, iy, k, window, work=None):
     cv2.sepFilter2D(cv2.multiply(ix, iy, dst=p), depth, window, window, dst=c, borderType=border)
     cv2.multiply(a, b, dst=r)
     cv2.subtract(r, cv2.multiply(c, c, dst=p), dst=r)
-    cv2.add(a, b, dst=a)                           # trace
+    cv2.add(a, b, dst=a)  # trace
     cv2.subtract(r, cv2.multiply(a, a, dst=p, scale=float(k)), dst=r)
     return r
 
 
-def structure_response_float(smoothed: np.ndarray, k: float,
-                             window: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
+def structure_response_float(smoothed: np.ndarray, k: float, window: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
     """Harris response of an already smoothed float64 image, same shape.
 
     Central-difference derivatives, products, separable ``window`` on the
@@ -222,13 +222,15 @@ def structure_response_float(smoothed: np.ndarray, k: float,
 
 #: Central difference of the Gaussian-smoothed image as one 7-tap correlation
 #: kernel: (S[u+1] - S[u-1]) / 2 with S = G5 * I.
-DGAUSS7_FLOAT = 0.5 * (np.concatenate([[0.0, 0.0], GAUSS5_FLOAT]) -
-                       np.concatenate([GAUSS5_FLOAT, [0.0, 0.0]]))
+DGAUSS7_FLOAT = 0.5 * (
+    np.concatenate([[0.0, 0.0], GAUSS5_FLOAT]) - np.concatenate([GAUSS5_FLOAT, [0.0, 0.0]])
+)
 DGAUSS7_FLOAT.flags.writeable = False
 
 
-def harris_response_float(image: np.ndarray, k: float = 0.04, work: dict | None = None,
-                          dtype=np.float32) -> np.ndarray:
+def harris_response_float(
+    image: np.ndarray, k: float = 0.04, work: dict | None = None, dtype=np.float32
+) -> np.ndarray:
     """(H, W) Harris response of a uint8 image, float arithmetic in ``dtype``.
 
     Smoothing and derivative are fused into derivative-of-Gaussian kernels
@@ -267,8 +269,7 @@ def g5_rows(x: np.ndarray) -> np.ndarray:
 def g5_cols(x: np.ndarray) -> np.ndarray:
     """Same as :func:`g5_rows` along the last axis."""
     t = GAUSS5_INT
-    return (t[0] * (x[..., :-4] + x[..., 4:]) + t[1] * (x[..., 1:-3] + x[..., 3:-1])
-            + t[2] * x[..., 2:-2])
+    return t[0] * (x[..., :-4] + x[..., 4:]) + t[1] * (x[..., 1:-3] + x[..., 3:-1]) + t[2] * x[..., 2:-2]
 
 
 def round_shift(x: np.ndarray, n: int) -> np.ndarray:
@@ -277,7 +278,7 @@ def round_shift(x: np.ndarray, n: int) -> np.ndarray:
 
 
 _S_SHIFT = 2 * GAUSS5_SHIFT - S_FRAC_BITS  # 12
-_W_SHIFT = 2 * GAUSS5_SHIFT                # 16
+_W_SHIFT = 2 * GAUSS5_SHIFT  # 16
 
 
 def response_from_abc_fixed(a: np.ndarray, b: np.ndarray, c: np.ndarray, k_num: int) -> np.ndarray:
@@ -296,13 +297,13 @@ def harris_response_fixed(image: np.ndarray, k_num: int = 41) -> np.ndarray:
     if h <= 2 * REACH_PX or w <= 2 * REACH_PX:
         return out
     raw = image.astype(np.int32)
-    s = round_shift(g5_cols(g5_rows(raw)), _S_SHIFT)            # rows/cols 2 .. n-3
-    ix = (s[1:-1, 2:] - s[1:-1, :-2]).astype(np.int64)         # rows/cols 3 .. n-4
+    s = round_shift(g5_cols(g5_rows(raw)), _S_SHIFT)  # rows/cols 2 .. n-3
+    ix = (s[1:-1, 2:] - s[1:-1, :-2]).astype(np.int64)  # rows/cols 3 .. n-4
     iy = (s[2:, 1:-1] - s[:-2, 1:-1]).astype(np.int64)
-    a = round_shift(g5_cols(g5_rows(ix * ix)), _W_SHIFT)        # rows/cols 5 .. n-6
+    a = round_shift(g5_cols(g5_rows(ix * ix)), _W_SHIFT)  # rows/cols 5 .. n-6
     b = round_shift(g5_cols(g5_rows(iy * iy)), _W_SHIFT)
     c = round_shift(g5_cols(g5_rows(ix * iy)), _W_SHIFT)
-    out[REACH_PX:h - REACH_PX, REACH_PX:w - REACH_PX] = response_from_abc_fixed(a, b, c, k_num)
+    out[REACH_PX : h - REACH_PX, REACH_PX : w - REACH_PX] = response_from_abc_fixed(a, b, c, k_num)
     return out
 
 
@@ -315,8 +316,9 @@ def cell_grid(shape: tuple[int, int], cell_size_px: int) -> tuple[int, int]:
     return -(-h // cell_size_px), -(-w // cell_size_px)
 
 
-def tessellate(response: np.ndarray, cell_size_px: int, border_px: int, threshold,
-               work: dict | None = None) -> tuple:
+def tessellate(
+    response: np.ndarray, cell_size_px: int, border_px: int, threshold, work: dict | None = None
+) -> tuple:
     """Best response per cell, first in raster order on ties, kept if ``> threshold``.
 
     ``response``: (H, W) float or int array; pixels closer than ``border_px``
@@ -336,12 +338,13 @@ def tessellate(response: np.ndarray, cell_size_px: int, border_px: int, threshol
         if work is not None:
             work[key] = padded
     if h > 2 * border_px and w > 2 * border_px:
-        padded[border_px:h - border_px, border_px:w - border_px] = \
-            response[border_px:h - border_px, border_px:w - border_px]
+        padded[border_px : h - border_px, border_px : w - border_px] = response[
+            border_px : h - border_px, border_px : w - border_px
+        ]
     # Max per (cell row, pixel row, cell column), then per cell; the winner is
     # the first pixel row reaching the cell max, then its first such column.
-    row_max = padded.reshape(nr, cs, nc, cs).max(axis=3)          # (nr, cs, nc)
-    best = row_max.max(axis=1)                                    # (nr, nc)
+    row_max = padded.reshape(nr, cs, nc, cs).max(axis=3)  # (nr, cs, nc)
+    best = row_max.max(axis=1)  # (nr, nc)
     keep_r, keep_c = np.nonzero(best > threshold)
     vals = best[keep_r, keep_c]
     first_row = np.argmax(row_max[keep_r, :, keep_c] == vals[:, None], axis=1)
@@ -387,7 +390,6 @@ class HarrisDetector:
             resp = val.astype(np.float64)
         else:
             r = harris_response_fixed(image, cfg.k_num)
-            xy, val, cell = tessellate(r, cfg.cell_size_px, cfg.border_px, cfg.threshold_fixed,
-                                       self._work)
+            xy, val, cell = tessellate(r, cfg.cell_size_px, cfg.border_px, cfg.threshold_fixed, self._work)
             resp = val.astype(np.float64) / 2.0**RESPONSE_SHIFT
         return Features(xy_px=xy, response=resp, cell=cell)

@@ -123,10 +123,16 @@ class OrbDetector:
     def _create(self):
         c = self.config
         return cv2.ORB_create(
-            nfeatures=int(c.n_features), scaleFactor=float(c.scale_factor), nlevels=int(c.n_levels),
-            edgeThreshold=int(c.edge_threshold), firstLevel=0, WTA_K=2,
+            nfeatures=int(c.n_features),
+            scaleFactor=float(c.scale_factor),
+            nlevels=int(c.n_levels),
+            edgeThreshold=int(c.edge_threshold),
+            firstLevel=0,
+            WTA_K=2,
             scoreType=cv2.ORB_HARRIS_SCORE if c.score == "harris" else cv2.ORB_FAST_SCORE,
-            patchSize=int(c.patch_size), fastThreshold=int(c.fast_threshold))
+            patchSize=int(c.patch_size),
+            fastThreshold=int(c.fast_threshold),
+        )
 
     def _too_small(self, image: np.ndarray) -> bool:
         """No point of ``image`` is ``edge_threshold`` px inside every border, so ORB
@@ -185,8 +191,9 @@ class OrbDetector:
         first = np.repeat(start, np.diff(np.r_[start, len(sc)]))
         return order[np.arange(len(sc)) - first < per_cell]  # rank within the cell
 
-    def describe(self, image: np.ndarray, xy_px: np.ndarray,
-                 size_px: float = 31.0) -> tuple[np.ndarray, np.ndarray]:
+    def describe(
+        self, image: np.ndarray, xy_px: np.ndarray, size_px: float = 31.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """ORB descriptors at given pixels (e.g. Harris corners of mapped tracks).
 
         Returns ``(index (M,) int64 into xy_px, descriptors (M, 32) uint8)``:
@@ -198,8 +205,10 @@ class OrbDetector:
         if len(xy) == 0 or self._too_small(image):
             return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
         # class_id carries the input index through compute(), which may drop points
-        kps = [cv2.KeyPoint(float(x), float(y), float(size_px), -1.0, 0.0, 0, int(i))
-               for i, (x, y) in enumerate(xy)]
+        kps = [
+            cv2.KeyPoint(float(x), float(y), float(size_px), -1.0, 0.0, 0, int(i))
+            for i, (x, y) in enumerate(xy)
+        ]
         kept, desc = self._orb().compute(image, kps)
         if desc is None or not kept:
             return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
@@ -219,22 +228,30 @@ class OrbDetector:
         xy, resp = _pixels(kps), _responses(kps)
         if not c.cell_size_px:
             # the cap's order (best response first, ties as _order) is the output order
-            keep = self._order(xy, resp, None, lambda: _octaves(kps))[:c.max_features or None]
+            keep = self._order(xy, resp, None, lambda: _octaves(kps))[: c.max_features or None]
             return keep, xy, resp, None
         cell = self._cells(xy, shape)
         keep = self._cell_best(xy, resp, cell, kps, shape)
         if c.max_features and len(keep) > c.max_features:
             keep = np.sort(keep)
             sub = [kps[i] for i in keep]
-            o = np.lexsort([_octaves(sub), xy[keep, 0], xy[keep, 1], -resp[keep]])[:c.max_features]
-            keep = keep[o[self._order(xy[keep[o]], resp[keep[o]], cell[keep[o]],
-                                      lambda: _octaves([sub[i] for i in o]))]]
+            o = np.lexsort([_octaves(sub), xy[keep, 0], xy[keep, 1], -resp[keep]])[: c.max_features]
+            keep = keep[
+                o[
+                    self._order(
+                        xy[keep[o]], resp[keep[o]], cell[keep[o]], lambda: _octaves([sub[i] for i in o])
+                    )
+                ]
+            ]
         return keep, xy, resp, cell
 
     def _empty(self) -> Features:
-        return Features(xy_px=np.zeros((0, 2)), response=np.zeros(0),
-                        descriptors=np.zeros((0, 32), np.uint8),
-                        cell=np.zeros(0, np.int64) if self.config.cell_size_px else None)
+        return Features(
+            xy_px=np.zeros((0, 2)),
+            response=np.zeros(0),
+            descriptors=np.zeros((0, 32), np.uint8),
+            cell=np.zeros(0, np.int64) if self.config.cell_size_px else None,
+        )
 
     def detect(self, image: np.ndarray) -> Features:
         """``image``: (H, W) uint8. Returns :class:`Features` with (N, 32) uint8 descriptors."""
@@ -258,5 +275,6 @@ class OrbDetector:
         rank = np.fromiter(map(_CLASS_ID, kept_kps), np.int64, len(kept_kps))
         o = np.argsort(rank)
         got = keep[rank[o]]
-        return Features(xy_px=xy[got], response=resp[got], descriptors=desc[o],
-                        cell=None if cell is None else cell[got])
+        return Features(
+            xy_px=xy[got], response=resp[got], descriptors=desc[o], cell=None if cell is None else cell[got]
+        )

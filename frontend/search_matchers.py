@@ -23,8 +23,7 @@ from slamcore.errors import InputError
 __all__ = ["Matcher", "NearestMatcher", "ZnccMatcher", "ellipse_pixels", "extract_patches", "inv2"]
 
 
-def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple[int, int],
-                   margin: int = 0):
+def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple[int, int], margin: int = 0):
     """Integer pixels inside the gate ellipse and at least ``margin`` px from every edge.
 
     Returns ``(u0, v0, mask)``: ``mask`` (h, w) bool over the bounding box whose
@@ -43,8 +42,9 @@ def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple
     Si = inv2(S)
     du = np.arange(u0, u1 + 1, dtype=np.float64) - cu
     dv = np.arange(v0, v1 + 1, dtype=np.float64) - cv
-    d2 = (Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None]
-          + Si[1, 1] * dv[:, None] ** 2)
+    d2 = (
+        Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None] + Si[1, 1] * dv[:, None] ** 2
+    )
     return u0, v0, d2 <= gamma
 
 
@@ -65,8 +65,9 @@ def _warp_patch(image: np.ndarray, xy: np.ndarray, A_inv: np.ndarray, size: int)
     M = np.empty((2, 3))
     M[:, :2] = A_inv
     M[:, 2] = xy - A_inv @ np.array([c, c])
-    return cv2.warpAffine(image, M, (size, size),
-                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.warpAffine(
+        image, M, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+    )
 
 
 #: Flat-window peaks tested one by one before testing every window of the ellipse.
@@ -94,8 +95,9 @@ def inv2(S: np.ndarray) -> np.ndarray:
 #: (:func:`ellipse_pixels`). ``uv`` (2,) is the accepted measurement or None;
 #: ``score`` is recorded even when nothing is accepted (None: no score);
 #: ``d2`` None lets the search compute ``e^T S^-1 e`` from ``uv``.
-Matcher = Callable[[int, np.ndarray, int, int, np.ndarray],
-                   tuple[np.ndarray | None, float | None, float | None]]
+Matcher = Callable[
+    [int, np.ndarray, int, int, np.ndarray], tuple[np.ndarray | None, float | None, float | None]
+]
 
 
 class ZnccMatcher:
@@ -108,10 +110,18 @@ class ZnccMatcher:
     larger, so that the corners of a rotated or shrunk template are image).
     """
 
-    def __init__(self, config: ActiveSearchConfig, image: np.ndarray, n: int, *,
-                 patches: np.ndarray | None, prev_image: np.ndarray | None,
-                 prev_xy: np.ndarray | None, affine: np.ndarray | None,
-                 source_patches: np.ndarray | None = None):
+    def __init__(
+        self,
+        config: ActiveSearchConfig,
+        image: np.ndarray,
+        n: int,
+        *,
+        patches: np.ndarray | None,
+        prev_image: np.ndarray | None,
+        prev_xy: np.ndarray | None,
+        affine: np.ndarray | None,
+        source_patches: np.ndarray | None = None,
+    ):
         p = config.patch_size_px
         self.config, self.image, self.p, self.margin = config, image, p, p // 2
         self.min_var = float(config.min_patch_std) ** 2
@@ -142,8 +152,9 @@ class ZnccMatcher:
             self.sources = np.asarray(source_patches, dtype=np.float32)
             q = self.sources.shape[-1]
             if self.sources.shape != (n, q, q) or q < self.p or q % 2 == 0:
-                raise InputError(f"source_patches must be ({n}, q, q) with q odd >= {self.p}, "
-                                 f"got {self.sources.shape}")
+                raise InputError(
+                    f"source_patches must be ({n}, q, q) with q odd >= {self.p}, got {self.sources.shape}"
+                )
             self.source_xy = np.array([(q - 1) / 2.0, (q - 1) / 2.0])
             return
         if prev_image is None or prev_xy is None:
@@ -174,7 +185,7 @@ class ZnccMatcher:
         h = self.margin
         bh, bw = mask.shape
         # only the ellipse's bounding box (plus the patch margin) is converted
-        region = self.image[v0 - h:v0 + bh + h, u0 - h:u0 + bw + h].astype(np.float32)
+        region = self.image[v0 - h : v0 + bh + h, u0 - h : u0 + bw + h].astype(np.float32)
         res = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
         masked = np.where(mask & np.isfinite(res), res, -np.inf)
         jv, ju = self._peak(region, masked)
@@ -206,14 +217,14 @@ class ZnccMatcher:
             jv, ju = divmod(int(np.argmax(masked)), bw)
             if masked[jv, ju] == -np.inf:
                 return jv, ju
-            _, sd = cv2.meanStdDev(region[jv:jv + p, ju:ju + p])
+            _, sd = cv2.meanStdDev(region[jv : jv + p, ju : ju + p])
             if float(sd[0, 0]) ** 2 >= self.min_var:
                 return jv, ju
             masked[jv, ju] = -np.inf
         k = (p, p)
         m1 = cv2.boxFilter(region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
         m2 = cv2.boxFilter(region * region, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_CONSTANT)
-        var = (m2 - m1 * m1)[h:h + bh, h:h + bw]
+        var = (m2 - m1 * m1)[h : h + bh, h : h + bw]
         masked[var < self.min_var] = -np.inf
         return divmod(int(np.argmax(masked)), bw)
 

@@ -78,15 +78,16 @@ IMAGE_MOTION_WIDTH_PX = 160
 #: a scene of independent motions a flat surface).
 IMAGE_MOTION_MIN_RESPONSE = 0.1
 
+
 @dataclass
 class _Track:
     track_id: int
-    uv: np.ndarray                  # last measured pixel
-    velocity: np.ndarray            # last image motion, px/frame
+    uv: np.ndarray  # last measured pixel
+    velocity: np.ndarray  # last image motion, px/frame
     born: int
     last_seen: int
-    patch: np.ndarray               # (p, p) float32 (cut in every search mode)
-    descriptor: np.ndarray | None   # (32,) uint8, search_mode "descriptor" only
+    patch: np.ndarray  # (p, p) float32 (cut in every search mode)
+    descriptor: np.ndarray | None  # (32,) uint8, search_mode "descriptor" only
     mapped: bool = False
     # appearance prediction only: (q, q) float32 patch around cut_uv, the pixel
     # the patch was cut around, and the predicted (4, 4) wTc of that frame
@@ -97,15 +98,13 @@ class _Track:
     def orb_descriptor(self) -> np.ndarray:
         """The descriptor (search_mode "descriptor" keeps one for every track)."""
         if self.descriptor is None:
-            raise GraphSlamError(f"track {self.track_id} has no descriptor "
-                                 "(search_mode is not \"descriptor\")")
+            raise GraphSlamError(f'track {self.track_id} has no descriptor (search_mode is not "descriptor")')
         return self.descriptor
 
     def cut(self) -> tuple[np.ndarray, np.ndarray]:
         """``(source, cut_uv)`` (appearance prediction keeps them for every track)."""
         if self.source is None or self.cut_uv is None:
-            raise GraphSlamError(f"track {self.track_id} has no source patch "
-                                 "(appearance prediction is off)")
+            raise GraphSlamError(f"track {self.track_id} has no source patch (appearance prediction is off)")
         return self.source, self.cut_uv
 
 
@@ -184,22 +183,29 @@ class Tracker:
             ``fill_first_frame``) are on; else off.
     """
 
-    def __init__(self, config: TrackerConfig | None = None, *,
-                 active_search: ActiveSearchConfig | None = None,
-                 harris: HarrisConfig | None = None, orb: OrbConfig | None = None,
-                 follow_unmapped: bool | None = None, camera_alone: bool = False):
+    def __init__(
+        self,
+        config: TrackerConfig | None = None,
+        *,
+        active_search: ActiveSearchConfig | None = None,
+        harris: HarrisConfig | None = None,
+        orb: OrbConfig | None = None,
+        follow_unmapped: bool | None = None,
+        camera_alone: bool = False,
+    ):
         self.config = config or TrackerConfig()
         self.detector = make_detector(self.config, harris, orb)
         mode = self.config.search_mode
         base = active_search or ActiveSearchConfig()
-        self.search_config = dataclasses.replace(
-            base, mode="nearest" if mode == "nearest" else "zncc")
+        self.search_config = dataclasses.replace(base, mode="nearest" if mode == "nearest" else "zncc")
         self._search = ActiveSearch(self.search_config)
         if follow_unmapped is None:
             follow_unmapped = self.config.follow_unmapped
         self.follow_unmapped = True if follow_unmapped is None else bool(follow_unmapped)
-        aid = {name: bool(camera_alone) if getattr(self.config, name) is None else getattr(self.config, name)
-               for name in ("follow_image_motion", "follow_missed_landmarks", "fill_first_frame")}
+        aid = {
+            name: bool(camera_alone) if getattr(self.config, name) is None else getattr(self.config, name)
+            for name in ("follow_image_motion", "follow_missed_landmarks", "fill_first_frame")
+        }
         self.follow_image_motion = aid["follow_image_motion"]
         self.follow_missed_landmarks = aid["follow_missed_landmarks"]
         self.fill_first_frame = aid["fill_first_frame"]
@@ -228,8 +234,9 @@ class Tracker:
 
     # ------------------------------------------------------------------ one frame
 
-    def track(self, image: np.ndarray, predictions: PixelPredictions | None = None,
-              repredict=None) -> TrackingResult:
+    def track(
+        self, image: np.ndarray, predictions: PixelPredictions | None = None, repredict=None
+    ) -> TrackingResult:
         """Process the next frame (``image`` (H, W) uint8) given the back end's predictions.
 
         ``repredict``: with ``[active_search] order = "sequential"``, the back end's
@@ -258,8 +265,10 @@ class Tracker:
         # not use more: stop searching once m are found (paper 4.4)
         link = None
         if repredict is not None and len(pids):
+
             def link(found, uv, pending):  # indices of the predictions -> track ids
                 return repredict(pids[found], uv, pids[pending])
+
         res = self._active_search(image, feats, pids, puv, pS, predictions.max_corrections, lm_w, link)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []
@@ -296,18 +305,30 @@ class Tracker:
         skipped = res.skipped if res.skipped is not None else np.zeros(len(pids), bool)
         observations = PixelObservations(
             track_ids=np.asarray(obs_ids, dtype=np.int64),
-            uv_px=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2), sigma_px=float(cfg.sigma_px),
-            unsearched_ids=pids[skipped].astype(np.int64))
+            uv_px=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2),
+            sigma_px=float(cfg.sigma_px),
+            unsearched_ids=pids[skipped].astype(np.int64),
+        )
         return TrackingResult(
-            observations=observations, corners=np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2),
-            cell_size_px=self.cell_size_px(), pred_ids=pids, pred_uv=puv, pred_S=pS,
-            searched=res.searched, found=res.found, found_uv=res.uv, gate=self.search_config.gate,
+            observations=observations,
+            corners=np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2),
+            cell_size_px=self.cell_size_px(),
+            pred_ids=pids,
+            pred_uv=puv,
+            pred_S=pS,
+            searched=res.searched,
+            found=res.found,
+            found_uv=res.uv,
+            gate=self.search_config.gate,
             followed_ids=np.asarray(f_ids, dtype=np.int64),
             followed_from=np.asarray(f_from, dtype=np.float64).reshape(-1, 2),
             followed_to=np.asarray(f_to, dtype=np.float64).reshape(-1, 2),
             new_ids=np.asarray(new_ids, dtype=np.int64),
             new_uv=np.asarray(new_uv, dtype=np.float64).reshape(-1, 2),
-            image_fraction=res.image_fraction, follow_fraction=follow_fraction, timings_s=timings)
+            image_fraction=res.image_fraction,
+            follow_fraction=follow_fraction,
+            timings_s=timings,
+        )
 
     # ------------------------------------------------------------------ stages
 
@@ -328,25 +349,35 @@ class Tracker:
             self._tracks[int(tid)].mapped = True
         return pids, puv, pS, lm_w
 
-    def _active_search(self, image, feats, pids, puv, pS, max_found=None, lm_w=None,
-                       repredict=None) -> ActiveSearchResult:
+    def _active_search(
+        self, image, feats, pids, puv, pS, max_found=None, lm_w=None, repredict=None
+    ) -> ActiveSearchResult:
         n = len(pids)
         mode = self.config.search_mode
         if n == 0:
             z = np.zeros(0)
-            return ActiveSearchResult(order=np.zeros(0, np.int64), searched=z.astype(bool),
-                                      found=z.astype(bool), uv=np.zeros((0, 2)), score=z, d2=z,
-                                      pixels=z.astype(np.int64), image_fraction=0.0,
-                                      image_fraction_sum=0.0)
+            return ActiveSearchResult(
+                order=np.zeros(0, np.int64),
+                searched=z.astype(bool),
+                found=z.astype(bool),
+                uv=np.zeros((0, 2)),
+                score=z,
+                d2=z,
+                pixels=z.astype(np.int64),
+                image_fraction=0.0,
+                image_fraction_sum=0.0,
+            )
         if mode == "zncc":
             return self._zncc_search(image, pids, puv, pS, max_found, lm_w, repredict)
         if mode == "nearest":
-            return self._search.search(image, puv, pS, features=feats, max_found=max_found,
-                                       repredict=repredict)
+            return self._search.search(
+                image, puv, pS, features=feats, max_found=max_found, repredict=repredict
+            )
         return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found, repredict)
 
-    def _descriptor_search(self, shape, feats, pids, puv, pS, max_found=None,
-                           repredict=None) -> ActiveSearchResult:
+    def _descriptor_search(
+        self, shape, feats, pids, puv, pS, max_found=None, repredict=None
+    ) -> ActiveSearchResult:
         """ORB: the point inside the ellipse whose descriptor is closest (Hamming)."""
         g = self.search_config.gate
         fxy = np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2)
@@ -366,8 +397,9 @@ class Tracker:
                 return None, float(ham[j]), None
             return fxy[inside[j]], float(ham[j]), float(dd[inside[j]])
 
-        return self._search.search_with(shape, puv, pS, closest_descriptor, max_found=max_found,
-                                        repredict=repredict)
+        return self._search.search_with(
+            shape, puv, pS, closest_descriptor, max_found=max_found, repredict=repredict
+        )
 
     def _zncc_search(self, image, pids, puv, pS, max_found, lm_w, repredict=None) -> ActiveSearchResult:
         """Patch correlation; with appearance prediction, each patch warped by the
@@ -376,15 +408,23 @@ class Tracker:
         patches = np.stack([tr.patch for tr in tracks])
         view = self._view
         if not self._appearance or lm_w is None or view.wTc is None or view.K is None:
-            return self._search.search(image, puv, pS, patches=patches, max_found=max_found,
-                                       repredict=repredict)
+            return self._search.search(
+                image, puv, pS, patches=patches, max_found=max_found, repredict=repredict
+            )
         unknown = np.full((4, 4), np.nan)  # a patch cut without a pose: not warped
         cut_wTc = np.stack([unknown if tr.cut_wTc is None else tr.cut_wTc for tr in tracks])
         cuts = [tr.cut() for tr in tracks]
         affine = patch_affines(view.K, view.wTc, lm_w, cut_wTc, np.stack([uv for _, uv in cuts]))
-        return self._search.search(image, puv, pS, patches=patches, affine=affine, max_found=max_found,
-                                   source_patches=np.stack([source for source, _ in cuts]),
-                                   repredict=repredict)
+        return self._search.search(
+            image,
+            puv,
+            pS,
+            patches=patches,
+            affine=affine,
+            max_found=max_found,
+            source_patches=np.stack([source for source, _ in cuts]),
+            repredict=repredict,
+        )
 
     def _matched(self, tr: _Track, uv: np.ndarray, image, feats, k: int) -> None:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
@@ -432,12 +472,13 @@ class Tracker:
             v0, v1 = max(cv - half, h), min(cv + half, H - 1 - h)
             if u1 < u0 or v1 < v0:
                 continue
-            union[v0:v1 + 1, u0:u1 + 1] = True
+            union[v0 : v1 + 1, u0 : u1 + 1] = True
             if self.config.search_mode == "descriptor":
                 if len(fxy) == 0 or feats.descriptors is None:
                     continue
-                inw = np.flatnonzero((fxy[:, 0] >= u0) & (fxy[:, 0] <= u1)
-                                     & (fxy[:, 1] >= v0) & (fxy[:, 1] <= v1))
+                inw = np.flatnonzero(
+                    (fxy[:, 0] >= u0) & (fxy[:, 0] <= u1) & (fxy[:, 1] >= v0) & (fxy[:, 1] <= v1)
+                )
                 if len(inw) == 0:
                     continue
                 ham = _hamming(tr.orb_descriptor(), feats.descriptors[inw])
@@ -446,7 +487,7 @@ class Tracker:
                     continue
                 cands.append((-float(ham[j]), tr.track_id, fxy[inw[j]].copy()))
                 continue
-            region = imf[v0 - h:v1 + h + 1, u0 - h:u1 + h + 1]
+            region = imf[v0 - h : v1 + h + 1, u0 - h : u1 + h + 1]
             r = cv2.matchTemplate(region, tr.patch, cv2.TM_CCOEFF_NORMED)
             r = np.nan_to_num(r, nan=-1.0, posinf=-1.0, neginf=-1.0)
             jv, ju = np.unravel_index(int(np.argmax(r)), r.shape)
@@ -456,7 +497,7 @@ class Tracker:
             # A second peak almost as good away from the best one means a repeated
             # texture: the match is a guess, and a wrong id is worse than none.
             rr = r.copy()
-            rr[max(jv - 2, 0):jv + 3, max(ju - 2, 0):ju + 3] = -1.0
+            rr[max(jv - 2, 0) : jv + 3, max(ju - 2, 0) : ju + 3] = -1.0
             if rr.size and float(rr.max()) > best - cfg.follow_min_margin:
                 continue
             du = dv = 0.0
@@ -491,8 +532,9 @@ class Tracker:
         correlation peak (a scene that does not move as one) changes nothing."""
         H, W = image.shape
         f = max(1, W // IMAGE_MOTION_WIDTH_PX)
-        small = cv2.GaussianBlur(cv2.resize(image, (W // f, H // f), interpolation=cv2.INTER_AREA)
-                                 .astype(np.float32), (0, 0), 1.0)
+        small = cv2.GaussianBlur(
+            cv2.resize(image, (W // f, H // f), interpolation=cv2.INTER_AREA).astype(np.float32), (0, 0), 1.0
+        )
         prev, self._small = self._small, small
         self._jerk = np.zeros(2)
         if prev is None or prev.shape != small.shape:
@@ -510,8 +552,11 @@ class Tracker:
     def _forget(self, k: int) -> None:
         """Drop unmapped tracks that were lost or stayed unmapped too long."""
         age = self.config.max_unmapped_age
-        for tid in [t.track_id for t in self._tracks.values()
-                    if not t.mapped and (t.last_seen < k or k - t.born >= age)]:
+        for tid in [
+            t.track_id
+            for t in self._tracks.values()
+            if not t.mapped and (t.last_seen < k or k - t.born >= age)
+        ]:
             del self._tracks[tid]
 
     def _start_tracks(self, image, feats, occupied: np.ndarray, n_room: int, k: int):
@@ -540,8 +585,9 @@ class Tracker:
             # pixels getRectSubPix cuts there) and its flatness test in one gather
             off = np.arange(p) - h
             vi, ui = cxy[:, 1].astype(np.intp), cxy[:, 0].astype(np.intp)
-            cand_patches = image[vi[:, None, None] + off[None, :, None],
-                                 ui[:, None, None] + off[None, None, :]].astype(np.float32)
+            cand_patches = image[
+                vi[:, None, None] + off[None, :, None], ui[:, None, None] + off[None, None, :]
+            ].astype(np.float32)
             flat = cand_patches.reshape(len(order), p * p).astype(np.float64).std(axis=1) < min_std
         else:
             cand_patches = None
@@ -565,8 +611,14 @@ class Tracker:
             tid = self._next_id
             self._next_id += 1
             self._tracks[tid] = _Track(
-                track_id=tid, uv=uv.copy(), velocity=np.zeros(2), born=k, last_seen=k,
-                patch=patch, descriptor=None if not orb else np.asarray(feats.descriptors[i]).copy())
+                track_id=tid,
+                uv=uv.copy(),
+                velocity=np.zeros(2),
+                born=k,
+                last_seen=k,
+                patch=patch,
+                descriptor=None if not orb else np.asarray(feats.descriptors[i]).copy(),
+            )
             self._remember_cut(self._tracks[tid], image)
             ids.append(tid)
             uvs.append(uv.copy())

@@ -98,16 +98,17 @@ class TrackerConfig:
         validate(self)
         mode = self.search_mode
         if (mode == "descriptor") != (self.detector == "orb"):
-            raise ConfigError(f"tracker.search {mode!r} does not fit detector {self.detector!r} "
-                              "(descriptor matching needs ORB, ORB needs descriptor matching)")
+            raise ConfigError(
+                f"tracker.search {mode!r} does not fit detector {self.detector!r} "
+                "(descriptor matching needs ORB, ORB needs descriptor matching)"
+            )
 
     @property
     def search_mode(self) -> str:
         return AUTO_SEARCH[self.detector] if self.search == "auto" else self.search
 
 
-def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None,
-                  orb: OrbConfig | None = None):
+def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None, orb: OrbConfig | None = None):
     """The detector named by ``config.detector`` (imports are lazy)."""
     if config.detector == "harris":
         from frontend.harris import HarrisDetector

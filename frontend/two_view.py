@@ -150,17 +150,26 @@ def _checked_inputs(uv_a, uv_b, K, seed) -> tuple[np.ndarray, np.ndarray, np.nda
         raise MeasurementError(f"two-view: {bad} of {len(ua)} correspondences have NaN or inf pixels")
     # USAC reads K's memory as contiguous: a strided view (a slice of P) gives no model
     K = np.ascontiguousarray(K, np.float64)
-    if (K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0
-            or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0])):
-        raise MeasurementError("two-view: K must be a finite pinhole matrix "
-                               "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    if (
+        K.shape != (3, 3)
+        or not np.isfinite(K).all()
+        or K[0, 0] <= 0
+        or K[1, 1] <= 0
+        or K[1, 0] != 0
+        or not np.array_equal(K[2], [0.0, 0.0, 1.0])
+    ):
+        raise MeasurementError(
+            "two-view: K must be a finite pinhole matrix "
+            "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0"
+        )
     if not (isinstance(seed, (int, np.integer)) and 0 <= seed <= MAX_SEED):
         raise ConfigError(f"two-view: seed must be an integer in [0, {MAX_SEED}], got {seed!r}")
     return ua, ub, K
 
 
-def _fit(kind: str, ua: np.ndarray, ub: np.ndarray, K: np.ndarray, c: TwoViewConfig,
-         seed: int) -> np.ndarray | None:
+def _fit(
+    kind: str, ua: np.ndarray, ub: np.ndarray, K: np.ndarray, c: TwoViewConfig, seed: int
+) -> np.ndarray | None:
     """Robust fit of ``p_b ~ H p_a`` or ``p_b^T E p_a = 0``: the 3x3 model, or None."""
     params = cv2.UsacParams()  # MAGSAC++ as the USAC_MAGSAC flag sets it, with our seed
     params.sampler = cv2.SAMPLING_UNIFORM
@@ -191,15 +200,18 @@ def _scored(chi_b: np.ndarray, chi_a: np.ndarray, threshold: float) -> tuple[flo
     chi2 <= threshold adds 5.991 - chi2; an inlier passes both (NaN, inf: neither)."""
     with np.errstate(invalid="ignore"):
         in_b, in_a = chi_b <= threshold, chi_a <= threshold
-        score = (np.sum(np.where(in_b, CHI2_2DOF - chi_b, 0.0))
-                 + np.sum(np.where(in_a, CHI2_2DOF - chi_a, 0.0)))
+        score = np.sum(np.where(in_b, CHI2_2DOF - chi_b, 0.0)) + np.sum(
+            np.where(in_a, CHI2_2DOF - chi_a, 0.0)
+        )
     return float(score), in_a & in_b
 
 
-def _homography_score(H: np.ndarray, ua: np.ndarray, ub: np.ndarray,
-                      sigma_px: float) -> tuple[float, np.ndarray]:
+def _homography_score(
+    H: np.ndarray, ua: np.ndarray, ub: np.ndarray, sigma_px: float
+) -> tuple[float, np.ndarray]:
     """ORB-SLAM's S_H of ``p_b ~ H p_a`` (transfer a -> b and b -> a, truncated at
     5.991) and its (N,) bool inliers."""
+
     def transfer(M, uv):
         x = uv @ M[:, :2].T + M[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):  # w = 0: at infinity, no score
@@ -214,8 +226,9 @@ def _homography_score(H: np.ndarray, ua: np.ndarray, ub: np.ndarray,
     return _scored(chi_b, chi_a, CHI2_2DOF)
 
 
-def _fundamental_score(F: np.ndarray, ua: np.ndarray, ub: np.ndarray,
-                       sigma_px: float) -> tuple[float, np.ndarray]:
+def _fundamental_score(
+    F: np.ndarray, ua: np.ndarray, ub: np.ndarray, sigma_px: float
+) -> tuple[float, np.ndarray]:
     """ORB-SLAM's S_F of ``p_b^T F p_a = 0`` (squared point-line distances in b and in
     a, truncated at 3.841, scored as 5.991 - chi2) and its (N,) bool inliers."""
     line_b = ua @ F[:, :2].T + F[:, 2]  # F p_a, the epipolar line of p_a in image b
@@ -245,8 +258,14 @@ def _triangulate(K, R, t, ua, ub, max_reproj_px):
         ray_b = X_a + R.T @ t
         cos = np.sum(X_a * ray_b, axis=1) / (np.linalg.norm(X_a, axis=1) * np.linalg.norm(ray_b, axis=1))
         parallax = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        good = (np.isfinite(X_a).all(1) & (X_a[:, 2] > 0) & (X_b[:, 2] > 0)
-                & (err_a <= max_reproj_px) & (err_b <= max_reproj_px) & (parallax > 0))
+        good = (
+            np.isfinite(X_a).all(1)
+            & (X_a[:, 2] > 0)
+            & (X_b[:, 2] > 0)
+            & (err_a <= max_reproj_px)
+            & (err_b <= max_reproj_px)
+            & (parallax > 0)
+        )
     return X_a, good, parallax
 
 
@@ -260,10 +279,11 @@ def _pose_from_homography(H, K, ua, ub, max_reproj_px: float):
     # decomposeHomographyMat: (R, t/d) is the change of basis source (a) -> destination (b),
     # x_b = R x_a + t, as recoverPose; t is divided by the plane's distance, so normalised here
     _, Rs, ts, _ = cv2.decomposeHomographyMat(H, K)
-    counts = [int(_triangulate(K, R, _unit(t), ua, ub, max_reproj_px)[1].sum())
-              for R, t in zip(Rs, ts, strict=True)]
+    counts = [
+        int(_triangulate(K, R, _unit(t), ua, ub, max_reproj_px)[1].sum()) for R, t in zip(Rs, ts, strict=True)
+    ]
     best = int(np.argmax(counts))  # the first of equals
-    second = max(counts[:best] + counts[best + 1:], default=0)
+    second = max(counts[:best] + counts[best + 1 :], default=0)
     note = ""
     if counts[best] > 0 and second >= AMBIGUITY_RATIO * counts[best]:
         note = f"homography decomposition ambiguous ({second} vs {counts[best]} points triangulated)"
@@ -278,8 +298,9 @@ def _pose_from_essential(E, K, ua, ub):
     return R, _unit(t)
 
 
-def _result(model, R, t, inliers, K, ua, ub, s_h, s_f, note, c: TwoViewConfig,
-            sigma_px: float) -> TwoViewResult:
+def _result(
+    model, R, t, inliers, K, ua, ub, s_h, s_f, note, c: TwoViewConfig, sigma_px: float
+) -> TwoViewResult:
     """Triangulate the inliers with bTa = (R, t), check them, and judge the initialisation."""
     n = len(ua)
     points = np.full((n, 3), np.nan)
@@ -300,17 +321,25 @@ def _result(model, R, t, inliers, K, ua, ub, s_h, s_f, note, c: TwoViewConfig,
         wide = int(np.count_nonzero(parallax[kept] >= c.min_parallax_deg))
         need = min(c.min_points, -(-n_kept // 2))  # ORB-SLAM's count, at most half the points
         if wide < need:
-            why.append(f"{wide} points with parallax >= {c.min_parallax_deg:g} deg < "
-                       f"{need} (median {median:.2f} deg)")
+            why.append(
+                f"{wide} points with parallax >= {c.min_parallax_deg:g} deg < "
+                f"{need} (median {median:.2f} deg)"
+            )
     bTa = np.eye(4)
     bTa[:3, :3], bTa[:3, 3] = R, t
-    return TwoViewResult(model, invert_pose(bTa), points, kept, parallax, median,
-                         s_h, s_f, not why, "; ".join(why))
+    return TwoViewResult(
+        model, invert_pose(bTa), points, kept, parallax, median, s_h, s_f, not why, "; ".join(why)
+    )
 
 
-def two_view_geometry(uv_a: np.ndarray, uv_b: np.ndarray, K: np.ndarray,
-                      config: TwoViewConfig | None = None, seed: int = 0,
-                      sigma_px: float = SIGMA_PX) -> TwoViewResult | None:
+def two_view_geometry(
+    uv_a: np.ndarray,
+    uv_b: np.ndarray,
+    K: np.ndarray,
+    config: TwoViewConfig | None = None,
+    seed: int = 0,
+    sigma_px: float = SIGMA_PX,
+) -> TwoViewResult | None:
     """Relative pose and initial points of two views of a static scene (ORB-SLAM's initializer).
 
     ``uv_a``, ``uv_b``: (N, 2) float64 corresponding pixels ``[u, v]`` (pixel
@@ -336,8 +365,10 @@ def two_view_geometry(uv_a: np.ndarray, uv_b: np.ndarray, K: np.ndarray,
         # RMS distance of the points from their best-fit line (smallest principal axis)
         off_line = np.linalg.svd(uv - uv.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(uv))
         if off_line < MIN_SPREAD_PX:
-            raise MeasurementError(f"two-view: the {len(uv)} points of view {name} lie on one line "
-                                   f"(RMS {off_line:.2f} px off it < {MIN_SPREAD_PX:g}): degenerate")
+            raise MeasurementError(
+                f"two-view: the {len(uv)} points of view {name} lie on one line "
+                f"(RMS {off_line:.2f} px off it < {MIN_SPREAD_PX:g}): degenerate"
+            )
     H = _fit("homography", ua, ub, K, c, seed)
     E = _fit("essential", ua, ub, K, c, seed)
     K_inv = np.linalg.inv(K)
@@ -352,8 +383,7 @@ def two_view_geometry(uv_a: np.ndarray, uv_b: np.ndarray, K: np.ndarray,
     total = s_h + s_f
     # ORB-SLAM: R_H > 0.45 means a plane or too little parallax for F to be reliable
     if E is None or (H is not None and total > 0 and s_h / total > c.homography_ratio):
-        R, t, note = _pose_from_homography(H, K, ua[inl_h], ub[inl_h],
-                                           c.max_reprojection_sigmas * sigma_px)
+        R, t, note = _pose_from_homography(H, K, ua[inl_h], ub[inl_h], c.max_reprojection_sigmas * sigma_px)
         homography = _result("homography", R, t, inl_h, K, ua, ub, s_h, s_f, note, c, sigma_px)
         if not note or E is None:
             return homography
@@ -363,7 +393,8 @@ def two_view_geometry(uv_a: np.ndarray, uv_b: np.ndarray, K: np.ndarray,
         essential = _result("essential", R, t, inl_e, K, ua, ub, s_h, s_f, "", c, sigma_px)
         if essential.ok:
             return essential
-        return dataclasses.replace(homography, reason=f"{homography.reason}; essential matrix: "
-                                                      f"{essential.reason}")
+        return dataclasses.replace(
+            homography, reason=f"{homography.reason}; essential matrix: {essential.reason}"
+        )
     R, t = _pose_from_essential(E, K, ua[inl_e], ub[inl_e])
     return _result("essential", R, t, inl_e, K, ua, ub, s_h, s_f, "", c, sigma_px)

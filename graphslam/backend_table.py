@@ -94,27 +94,50 @@ _FASTSLAM_CONFIG = "filters.fastslam_config:FastSlamConfig"
 TABLE: tuple[BackendDescriptor, ...] = (
     BackendDescriptor(
         "isam2",
-        landmarks=Implementation("graphslam.backends.planar.isam2:Isam2Backend", _ISAM2_CONFIG,
-                                 several_robots=True,
-                                 localiser="graphslam.backends.planar.isam2_localise:Isam2Localiser"),
-        images=Implementation("graphslam.backends.spatial.isam2:VisualIsam2Backend",
-                              "graphslam.backends.spatial.isam2_config:VisualIsam2Config",
-                              run_overrides="graphslam.backends.spatial.isam2_config:run_overrides"),
-        pose_graph=True, polish=True, reference=True),
+        landmarks=Implementation(
+            "graphslam.backends.planar.isam2:Isam2Backend",
+            _ISAM2_CONFIG,
+            several_robots=True,
+            localiser="graphslam.backends.planar.isam2_localise:Isam2Localiser",
+        ),
+        images=Implementation(
+            "graphslam.backends.spatial.isam2:VisualIsam2Backend",
+            "graphslam.backends.spatial.isam2_config:VisualIsam2Config",
+            run_overrides="graphslam.backends.spatial.isam2_config:run_overrides",
+        ),
+        pose_graph=True,
+        polish=True,
+        reference=True,
+    ),
     BackendDescriptor(
         "ekf",
-        landmarks=Implementation("filters.ekf_slam:EkfSlam", _EKF_CONFIG, filtering=True,
-                                 localiser="filters.ekf_localise:EkfLocaliser"),
+        landmarks=Implementation(
+            "filters.ekf_slam:EkfSlam",
+            _EKF_CONFIG,
+            filtering=True,
+            localiser="filters.ekf_localise:EkfLocaliser",
+        ),
         # the monocular EKF draws its RANSAC samples (two-view bootstrap, relocalisation)
-        images=Implementation("filters.mono_ekf:MonoEkf", "filters.mono_ekf_config:MonoEkfConfig",
-                              seeded=True, filtering=True,
-                              run_overrides="filters.mono_ekf_config:run_overrides")),
-    BackendDescriptor("fastslam1", landmarks=Implementation(_FASTSLAM, _FASTSLAM_CONFIG,
-                                                            fixed={"version": 1}, seeded=True,
-                                                            filtering=True)),
-    BackendDescriptor("fastslam2", landmarks=Implementation(_FASTSLAM, _FASTSLAM_CONFIG,
-                                                            fixed={"version": 2}, seeded=True,
-                                                            filtering=True)),
+        images=Implementation(
+            "filters.mono_ekf:MonoEkf",
+            "filters.mono_ekf_config:MonoEkfConfig",
+            seeded=True,
+            filtering=True,
+            run_overrides="filters.mono_ekf_config:run_overrides",
+        ),
+    ),
+    BackendDescriptor(
+        "fastslam1",
+        landmarks=Implementation(
+            _FASTSLAM, _FASTSLAM_CONFIG, fixed={"version": 1}, seeded=True, filtering=True
+        ),
+    ),
+    BackendDescriptor(
+        "fastslam2",
+        landmarks=Implementation(
+            _FASTSLAM, _FASTSLAM_CONFIG, fixed={"version": 2}, seeded=True, filtering=True
+        ),
+    ),
     BackendDescriptor("batch", pose_graph=True, streams=False),
     BackendDescriptor("auto", pose_graph=True, streams=False),
 )

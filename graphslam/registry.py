@@ -38,13 +38,27 @@ ConfigSource = ConfigFile | str | Path | None
 #: Every section a config file may hold (``tests/repo/test_config_sections.py`` checks
 #: this list against the ``SECTION`` of every config dataclass in the tree).
 CONFIG_SECTIONS = (
-    "synthetic", "isam2", "ekf", "fastslam",  # 2-D worlds and back ends
+    "synthetic",
+    "isam2",
+    "ekf",
+    "fastslam",  # 2-D worlds and back ends
     "mrclam",  # the UTIAS MRCLAM logs (robot, sensor calibration)
-    "synthetic_images", "visual", "odometry_noise", "tracker", "active_search", "harris", "orb",
-    "isam2_visual", "mono_ekf",  # image sequences
-    "loops", "loop_verify", "loop_pnp", "loop_closing",  # place recognition
+    "synthetic_images",
+    "visual",
+    "odometry_noise",
+    "tracker",
+    "active_search",
+    "harris",
+    "orb",
+    "isam2_visual",
+    "mono_ekf",  # image sequences
+    "loops",
+    "loop_verify",
+    "loop_pnp",
+    "loop_closing",  # place recognition
     "posegraph",  # pose-graph files (g2o, TORO; 2-D and 3-D)
-    "localize", "relocalise",  # saved maps, tracking loss
+    "localize",
+    "relocalise",  # saved maps, tracking loss
 )
 
 
@@ -66,8 +80,9 @@ POSEGRAPH_BACKENDS = tuple(d.name for d in TABLE if d.pose_graph)
 #: Solvers that take a whole pose-graph file only (no stream).
 WHOLE_GRAPH_BACKENDS = tuple(d.name for d in TABLE if d.pose_graph and not d.streams)
 #: Back ends that localise against a fixed 2-D map (``graphslam run --map``).
-LOCALISING_BACKENDS = tuple(d.name for d in TABLE
-                            if d.landmarks is not None and d.landmarks.localiser is not None)
+LOCALISING_BACKENDS = tuple(
+    d.name for d in TABLE if d.landmarks is not None and d.landmarks.localiser is not None
+)
 #: 2-D back ends whose configuration takes a ``seed``.
 SEEDED_BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None and d.landmarks.seeded)
 #: Back ends ``graphslam run`` offers on image sequences.
@@ -89,16 +104,20 @@ POLISHED_BACKENDS = tuple(d.name for d in TABLE if d.polish)
 def check_no_polish(name: str) -> None:
     """``--no-polish`` on a back end without a polish is refused, one line."""
     if not backend_row(name).polish:
-        raise ConfigError(f"--no-polish applies to the {' or '.join(POLISHED_BACKENDS)} back "
-                          f"end only (its final batch polish); {name} has none")
+        raise ConfigError(
+            f"--no-polish applies to the {' or '.join(POLISHED_BACKENDS)} back "
+            f"end only (its final batch polish); {name} has none"
+        )
 
 
 def check_several_robots(name: str) -> None:
     """``--robot all`` on a back end that keeps one robot's pose is refused, one line."""
     if not landmark_implementation(name).several_robots:
         several = [d.name for d in TABLE if d.landmarks is not None and d.landmarks.several_robots]
-        raise ConfigError(f"--robot all: {name} keeps one robot's pose; every robot in one "
-                          f"graph needs --backend {' or '.join(several)}")
+        raise ConfigError(
+            f"--robot all: {name} keeps one robot's pose; every robot in one "
+            f"graph needs --backend {' or '.join(several)}"
+        )
 
 
 def default_backend(spec: str) -> str:
@@ -120,13 +139,13 @@ def _implementation(name: str, kind: str) -> Implementation:
     if impl is None:
         data = _KIND_DATA[kind]
         available = [d.name for d in TABLE if getattr(d, kind) is not None]
-        raise ConfigError(f"back end {name!r} does not run on {data} "
-                          f"(available: {', '.join(available)})")
+        raise ConfigError(f"back end {name!r} does not run on {data} (available: {', '.join(available)})")
     return impl
 
 
-def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = None,
-                 robot: int | str | None = None) -> Dataset:
+def load_dataset(
+    spec: str, *, seed: int | None = None, config: ConfigSource = None, robot: int | str | None = None
+) -> Dataset:
     """Dataset by name, pose-graph file path (``.graph`` TORO, ``.g2o``; TORO ``BR`` lines
     are landmark observations), a landmark log in Victoria Park's format, an
     MRCLAM folder (``robot`` overrides ``[mrclam] robot``), or a Plaza range-only log
@@ -137,8 +156,7 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam
 
         check_input_path(Path(spec), "--dataset", folder_ok=True)
-        overrides = ({} if robot is None else {"all_robots": True} if robot == "all"
-                     else {"robot": robot})
+        overrides = {} if robot is None else {"all_robots": True} if robot == "all" else {"robot": robot}
         settings = load_section(MrclamConfig, config, overrides)
         if settings.all_robots:
             from graphslam.sources.planar.mrclam_joint import read_mrclam_all
@@ -173,8 +191,9 @@ def load_dataset(spec: str, *, seed: int | None = None, config: ConfigSource = N
         return read_w10000()
     path = Path(spec)
     if not path.exists():
-        raise InputError(f"no such dataset or file (built-in datasets: "
-                         f"{', '.join(DATASETS + VISUAL_DATASETS)})", path)
+        raise InputError(
+            f"no such dataset or file (built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})", path
+        )
     check_input_path(path, "--dataset")
     from graphslam.sources.planar.posegraph import read_pose_graph
     from graphslam.sources.posegraph_files import TAGS, first_tag
@@ -224,8 +243,7 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
     return whole_only or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
 
 
-def load_pose_graph(spec: str | Path, toro_noise: str = "auto",
-                    information_fix: str = "nearest"):
+def load_pose_graph(spec: str | Path, toro_noise: str = "auto", information_fix: str = "nearest"):
     """A g2o or TORO pose-graph file, 2-D or 3-D, or a built-in pose graph's name
     (``w10000``, ``city10000``), as a :class:`slamcore.posegraph.PoseGraph`
     (``information_fix``: what is done with information that is not positive definite)."""
@@ -246,25 +264,30 @@ def pose_graph_config(config: ConfigSource = None, overrides: dict | None = None
     return load_section(PoseGraphConfig, config, overrides)
 
 
-def make_backend(name: str, *, config: ConfigSource = None,
-                 overrides: dict | None = None) -> Backend:
+def make_backend(name: str, *, config: ConfigSource = None, overrides: dict | None = None) -> Backend:
     """2-D back end by name, configured from the file's section plus ``overrides``
     (plus what the name itself fixes, e.g. FastSLAM's version)."""
     impl = landmark_implementation(name)
     return load(impl.backend)(_settings(impl, config, overrides))
 
 
-def make_localiser(name: str, landmark_ids, landmarks_w, landmark_cov, *,
-                   config: ConfigSource = None,
-                   overrides: dict | None = None) -> Isam2Localiser | EkfLocaliser:
+def make_localiser(
+    name: str,
+    landmark_ids,
+    landmarks_w,
+    landmark_cov,
+    *,
+    config: ConfigSource = None,
+    overrides: dict | None = None,
+) -> Isam2Localiser | EkfLocaliser:
     """Localisation-only back end by name on a fixed landmark map ((M,) ids, (M, 2)
     positions, (M, 2, 2) covariances), configured as :func:`make_backend` does."""
     impl = landmark_implementation(name)
     if impl.localiser is None:
-        raise ConfigError(f"--map: {name} cannot localise against a fixed map "
-                          f"(available: {', '.join(LOCALISING_BACKENDS)})")
-    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov,
-                                _settings(impl, config, overrides))
+        raise ConfigError(
+            f"--map: {name} cannot localise against a fixed map (available: {', '.join(LOCALISING_BACKENDS)})"
+        )
+    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov, _settings(impl, config, overrides))
 
 
 def seed_override(name: str, seed: int | None) -> dict:
@@ -323,19 +346,25 @@ def is_bag_dataset(spec: str) -> bool:
 def is_visual_dataset(spec: str) -> bool:
     """Whether ``--dataset spec`` names an image sequence (built-in, a ROS bag, or a
     folder other than an MRCLAM or Plaza log)."""
-    return spec in VISUAL_DATASETS or is_bag_dataset(spec) or (
-        Path(spec).is_dir() and not is_mrclam_dataset(spec) and not is_plaza_dataset(spec))
+    return (
+        spec in VISUAL_DATASETS
+        or is_bag_dataset(spec)
+        or (Path(spec).is_dir() and not is_mrclam_dataset(spec) and not is_plaza_dataset(spec))
+    )
 
 
 def check_topics_flag(spec: str, topics: str | None) -> None:
     """``--topics`` is refused, one line, for a dataset that is not a ROS bag."""
     if topics is not None and not is_bag_dataset(spec):
-        raise ConfigError(f"--topics applies to ROS bags only; {spec} is not one "
-                          "(a .bag file, or a ROS 2 bag folder with metadata.yaml)")
+        raise ConfigError(
+            f"--topics applies to ROS bags only; {spec} is not one "
+            "(a .bag file, or a ROS 2 bag folder with metadata.yaml)"
+        )
 
 
-def load_image_sequence(spec: str, *, seed: int | None = None, config: ConfigSource = None,
-                        topics: str | None = None):
+def load_image_sequence(
+    spec: str, *, seed: int | None = None, config: ConfigSource = None, topics: str | None = None
+):
     """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``), ROS
     bag (``topics``: the ``--topics`` text, ``role=topic,...``) or folder."""
     check_topics_flag(spec, topics)
@@ -371,8 +400,7 @@ def visual_implementation(name: str) -> Implementation:
     return _implementation(name, "images")
 
 
-def make_visual_backend(name: str, *, config: ConfigSource = None,
-                        overrides: dict | None = None):
+def make_visual_backend(name: str, *, config: ConfigSource = None, overrides: dict | None = None):
     """Visual back end by name (:func:`visual_backend_config` names its section)."""
     impl = visual_implementation(name)
     return load(impl.backend)(_settings(impl, config, overrides))
@@ -387,6 +415,8 @@ def _settings(impl: Implementation, config: ConfigSource, overrides: dict | None
 def visual_compare_backend(name: str) -> tuple[str, dict]:
     """``(back end, overrides)`` of a ``graphslam compare`` entry on image sequences."""
     if name not in VISUAL_COMPARE_BACKENDS:
-        raise ConfigError(f"back end {name!r} is not compared on image sequences "
-                          f"(available: {', '.join(VISUAL_COMPARE_BACKENDS)})")
+        raise ConfigError(
+            f"back end {name!r} is not compared on image sequences "
+            f"(available: {', '.join(VISUAL_COMPARE_BACKENDS)})"
+        )
     return VISUAL_COMPARE_BACKENDS[name]

@@ -63,12 +63,11 @@ def log10_nfa(residuals_px: np.ndarray, model: str, width: float, height: float)
     ek = np.maximum(e[s:], 1e-9)  # the k-th smallest residual (k = s+1 .. n)
     area = width * height
     if model == "homography":
-        alpha = np.pi * ek ** 2 / area
+        alpha = np.pi * ek**2 / area
     else:
         alpha = 2.0 * math.hypot(width, height) * ek / area
     alpha = np.minimum(alpha, 1.0)
-    log_nfa = (math.log10(n_sol * (n - s)) + _log10_comb(n, k) + _log10_comb(k, s)
-               + (k - s) * np.log10(alpha))
+    log_nfa = math.log10(n_sol * (n - s)) + _log10_comb(n, k) + _log10_comb(k, s) + (k - s) * np.log10(alpha)
     i = int(np.argmin(log_nfa))
     return float(log_nfa[i]), int(k[i])
 
@@ -107,8 +106,9 @@ def _clip_in_front(rays: np.ndarray, eps: float = 1e-6) -> np.ndarray:
     return np.asarray(out, float).reshape(-1, 3)
 
 
-def shared_view_coverage(xy_all: np.ndarray, xy_inliers: np.ndarray, xy_other: np.ndarray,
-                         K: np.ndarray, R: np.ndarray) -> float:
+def shared_view_coverage(
+    xy_all: np.ndarray, xy_inliers: np.ndarray, xy_other: np.ndarray, K: np.ndarray, R: np.ndarray
+) -> float:
     """Share of one image's features' hull, within the other camera's view, that the inliers span.
 
     ``xy_all``/``xy_inliers``: this image's features and inliers (pixels of

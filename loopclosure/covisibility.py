@@ -70,8 +70,7 @@ class CovisibilityGraph:
 
     def shared_between(self, a: int, b: int) -> int:
         """Tracks frames ``a`` and ``b`` both observed."""
-        return int(np.intersect1d(self._frame_ids[a], self._frame_ids[b],
-                                  assume_unique=True).size)
+        return int(np.intersect1d(self._frame_ids[a], self._frame_ids[b], assume_unique=True).size)
 
     def covisible(self, i: int, min_shared: int, shared: np.ndarray | None = None) -> np.ndarray:
         """Sorted older frames covisible with ``i`` (module docstring), the previous always;
@@ -118,8 +117,7 @@ class DescriptorTracker:
         """Track ids ((M,) int64) of the strongest ``n_features`` rows of ``descriptors``
         ((N, 32) uint8, M = min(N, n_features)), matched against the tracks last observed
         in ``local_frames`` (frame indices of earlier calls)."""
-        desc = np.ascontiguousarray(np.asarray(descriptors, np.uint8).reshape(-1, 32)
-                                    [:self.n_features])
+        desc = np.ascontiguousarray(np.asarray(descriptors, np.uint8).reshape(-1, 32)[: self.n_features])
         frame = self._n_frames
         self._n_frames += 1
         n = self._n_tracks
@@ -151,9 +149,9 @@ class DescriptorTracker:
             self._last = np.concatenate([self._last, np.full(cap - len(self._last), -1, np.int64)])
             self._seen = np.concatenate([self._seen, np.zeros(cap - len(self._seen), np.int64)])
         ids[~matched] = n + np.arange(n_new)
-        self._desc[n:n + n_new] = desc[~matched]
-        self._last[n:n + n_new] = frame
-        self._seen[n:n + n_new] = 1
+        self._desc[n : n + n_new] = desc[~matched]
+        self._last[n : n + n_new] = frame
+        self._seen[n : n + n_new] = 1
         self._frame_tracks.append(ids)
         self._n_tracks = n + n_new
         return ids

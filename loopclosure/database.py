@@ -83,7 +83,6 @@ _MIN_PRUNE = 400_000
 _RESCORE_COST = 1.0
 
 
-
 @dataclass(frozen=True, eq=False)
 class BowVector:
     """Sparse TF-IDF vector, L1-normalised (weights sum to 1) unless empty.
@@ -208,8 +207,9 @@ class BowDatabase:
         if not isinstance(bow, BowVector):
             raise TypeError(f"expected a BowVector, got {type(bow).__name__}")
         if bow.word_ids.size and bow.word_ids[-1] >= self._n_words:
-            raise ValueError(f"word id {int(bow.word_ids[-1])} outside the vocabulary "
-                             f"({self._n_words} words)")
+            raise ValueError(
+                f"word id {int(bow.word_ids[-1])} outside the vocabulary ({self._n_words} words)"
+            )
 
     def add(self, bow: BowVector) -> int:
         """Insert one image; returns its id (0, 1, 2... in insertion order)."""
@@ -253,8 +253,9 @@ class BowDatabase:
         self._row_wts[start:end] = bow.weights
         self._row_ptr[self._n_images + 1] = end
 
-    def query(self, bow: BowVector, max_results: int = 10,
-              exclude_recent: int = 0) -> list[tuple[int, float]]:
+    def query(
+        self, bow: BowVector, max_results: int = 10, exclude_recent: int = 0
+    ) -> list[tuple[int, float]]:
         """Best matches of ``bow``: [(image id, score)], best first (ties: lower id first).
 
         Only images sharing at least one word with ``bow`` (score > 0) are
@@ -337,8 +338,7 @@ class BowDatabase:
             nxt = int(np.searchsorted(cum, int(cum[end - 1]) + step, side="left")) + 1
             if theta > bound + margin:
                 if not refreshed:  # partial scores are better now: a tighter theta, once
-                    theta, refreshed = max(theta, self._theta(scores[:n_allowed], k, m, dense_q,
-                                                              exact)), True
+                    theta, refreshed = max(theta, self._theta(scores[:n_allowed], k, m, dense_q, exact)), True
                 cand = np.flatnonzero(scores[:n_allowed] >= theta - bound - margin)
                 left = total - int(cum[end - 1])
                 if cand.size * row_len * _RESCORE_COST <= min(left, _STOP_STEPS * step):
@@ -350,11 +350,10 @@ class BowDatabase:
             end = nxt
         return None
 
-    def _theta(self, allowed: np.ndarray, k: int, m: int, dense_q: np.ndarray,
-               exact: np.ndarray) -> float:
+    def _theta(self, allowed: np.ndarray, k: int, m: int, dense_q: np.ndarray, exact: np.ndarray) -> float:
         """A lower bound of the final k-th best score: the k-th best exact score of the
         ``m`` (>= k) images of best partial score."""
-        top = np.sort(np.argpartition(allowed, allowed.size - m)[allowed.size - m:])
+        top = np.sort(np.argpartition(allowed, allowed.size - m)[allowed.size - m :])
         return float(np.partition(self._exact(top, dense_q, exact), m - k)[m - k])
 
     def _exact(self, ids: np.ndarray, dense_q: np.ndarray, exact: np.ndarray) -> np.ndarray:
@@ -367,11 +366,13 @@ class BowDatabase:
 
     def _check_query(self, bow: BowVector, max_results, exclude_recent) -> tuple[int, int]:
         """(k, number of images allowed) after checking the arguments (ConfigError)."""
-        if isinstance(max_results, bool) or not isinstance(max_results, (int, np.integer)) \
-                or max_results < 0:
+        if isinstance(max_results, bool) or not isinstance(max_results, (int, np.integer)) or max_results < 0:
             raise ConfigError(f"max_results must be an integer >= 0, got {max_results!r}")
-        if isinstance(exclude_recent, bool) or not isinstance(exclude_recent, (int, np.integer)) \
-                or exclude_recent < 0:
+        if (
+            isinstance(exclude_recent, bool)
+            or not isinstance(exclude_recent, (int, np.integer))
+            or exclude_recent < 0
+        ):
             raise ConfigError(f"exclude_recent must be an integer >= 0, got {exclude_recent!r}")
         self._check_words(bow)
         return int(max_results), self._n_images - int(exclude_recent)
@@ -461,7 +462,7 @@ def _scan_error(n_words: int) -> float:
     """Largest error of a float32 scan score over ``n_words`` query words: each term
     min(q_w, d_w) <= 1 is rounded once to float32 (weights) and the running sum, <= 1,
     once per addition: at most (n + 2) units of 2**-24, doubled for slack."""
-    return (n_words + 2) * 2.0 ** -23
+    return (n_words + 2) * 2.0**-23
 
 
 def _grown(a: np.ndarray, capacity: int, keep: int) -> np.ndarray:

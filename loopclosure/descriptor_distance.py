@@ -64,14 +64,14 @@ def hamming_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         out = np.zeros((a.shape[0], b.shape[0]), dtype=np.int32)
         step = max(1, _CHUNK * 64 // b.shape[0])
         for i in range(0, a.shape[0], step):
-            block = out[i:i + step]
+            block = out[i : i + step]
             for w in range(a64.shape[1]):
-                block += np.bitwise_count(np.bitwise_xor.outer(a64[i:i + step, w], b64[:, w]))
+                block += np.bitwise_count(np.bitwise_xor.outer(a64[i : i + step, w], b64[:, w]))
         return out
     out = np.empty((a.shape[0], b.shape[0]), dtype=np.int32)
     step = max(1, _CHUNK * 8 // max(1, b.shape[0]))
     for i in range(0, a.shape[0], step):
-        out[i:i + step] = popcount_sum(np.bitwise_xor(a[i:i + step, None, :], b[None, :, :]))
+        out[i : i + step] = popcount_sum(np.bitwise_xor(a[i : i + step, None, :], b[None, :, :]))
     return out
 
 
@@ -84,8 +84,8 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out = np.empty((a.shape[0], b.shape[0]), dtype=np.float32)
     step = max(1, _CHUNK * 8 // max(1, b.shape[0]))
     for i in range(0, a.shape[0], step):
-        diff = a[i:i + step, None, :] - b[None, :, :]
-        out[i:i + step] = np.einsum("nkd,nkd->nk", diff, diff)
+        diff = a[i : i + step, None, :] - b[None, :, :]
+        out[i : i + step] = np.einsum("nkd,nkd->nk", diff, diff)
     return out
 
 

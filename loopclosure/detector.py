@@ -136,17 +136,26 @@ class LoopDetectorConfig:
         for name in sorted(set().union(*_MODE_FIELDS.values()) - used):
             if getattr(self, name) != _DEFAULTS[name]:
                 modes = [m for m, f in _MODE_FIELDS.items() if name in f]
-                raise ConfigError(f"loops.{name} is read only with mode = "
-                                  f"{' or '.join(repr(m) for m in modes)}, not {self.mode!r}; "
-                                  "set [loops] mode to use it")
+                raise ConfigError(
+                    f"loops.{name} is read only with mode = "
+                    f"{' or '.join(repr(m) for m in modes)}, not {self.mode!r}; "
+                    "set [loops] mode to use it"
+                )
 
 
 #: The settings only some modes read (``__post_init__`` refuses the others).
-_MODE_FIELDS = {"covisibility": {"min_shared_tracks"},
-                "video": {"exclude_recent", "exclude_recent_s", "consistency_tolerance"},
-                "keyframes": {"keyframe_overlap"},
-                "auto": {"exclude_recent", "exclude_recent_s", "consistency_tolerance",
-                         "keyframe_overlap", "probe_pairs"}}
+_MODE_FIELDS = {
+    "covisibility": {"min_shared_tracks"},
+    "video": {"exclude_recent", "exclude_recent_s", "consistency_tolerance"},
+    "keyframes": {"keyframe_overlap"},
+    "auto": {
+        "exclude_recent",
+        "exclude_recent_s",
+        "consistency_tolerance",
+        "keyframe_overlap",
+        "probe_pairs",
+    },
+}
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(LoopDetectorConfig)}
 
 
@@ -233,14 +242,20 @@ class LoopDetector:
     ``closures`` (list of :class:`DetectedLoop`).
     """
 
-    def __init__(self, vocabulary, config: LoopDetectorConfig | None = None,
-                 verify_config: VerifyConfig | None = None, K: np.ndarray | None = None,
-                 distortion: np.ndarray | None = None, database=None, mode: str | None = None,
-                 verifier: PairVerifier | None = None):
+    def __init__(
+        self,
+        vocabulary,
+        config: LoopDetectorConfig | None = None,
+        verify_config: VerifyConfig | None = None,
+        K: np.ndarray | None = None,
+        distortion: np.ndarray | None = None,
+        database=None,
+        mode: str | None = None,
+        verifier: PairVerifier | None = None,
+    ):
         self.config = config or LoopDetectorConfig()
         if mode is not None and (self.config.mode != "auto" or mode not in ("video", "keyframes")):
-            raise ValueError(f"a resolved mode ({mode!r}) is for mode 'auto' only, as "
-                             "'video' or 'keyframes'")
+            raise ValueError(f"a resolved mode ({mode!r}) is for mode 'auto' only, as 'video' or 'keyframes'")
         if verifier is not None and verify_config is not None:
             raise ValueError("give a verifier or a verify_config for the built-in one, not both")
         if verifier is not None and not isinstance(verifier, PairVerifier):
@@ -283,20 +298,26 @@ class LoopDetector:
         f = self._features[i]
         return f.xy, f.descriptors
 
-    def process(self, image: np.ndarray, timestamp: float | None = None,
-                track_ids: np.ndarray | None = None) -> DetectedLoop | None:
+    def process(
+        self, image: np.ndarray, timestamp: float | None = None, track_ids: np.ndarray | None = None
+    ) -> DetectedLoop | None:
         """Add the next image ((H, W) uint8, its time in seconds if known, the run's
         track ids observed in it if any); returns the closure it makes, if any."""
         f = self.orb.detect(image)
         if f.descriptors is None:  # ORB describes every point it keeps
             raise RuntimeError("the ORB detector returned no descriptors")
-        return self.process_features(f.xy_px, f.descriptors, timestamp,
-                                     (float(image.shape[1]), float(image.shape[0])), track_ids)
+        return self.process_features(
+            f.xy_px, f.descriptors, timestamp, (float(image.shape[1]), float(image.shape[0])), track_ids
+        )
 
-    def process_features(self, xy_px: np.ndarray, descriptors: np.ndarray,
-                         timestamp: float | None = None,
-                         image_size: tuple[float, float] | None = None,
-                         track_ids: np.ndarray | None = None) -> DetectedLoop | None:
+    def process_features(
+        self,
+        xy_px: np.ndarray,
+        descriptors: np.ndarray,
+        timestamp: float | None = None,
+        image_size: tuple[float, float] | None = None,
+        track_ids: np.ndarray | None = None,
+    ) -> DetectedLoop | None:
         """Like :meth:`process` with precomputed ORB features ((N, 2) px, (N, 32) uint8);
         ``image_size`` (width, height) px, default the features' extent; ``track_ids``
         ((M,) int) the tracks a visual run observed in this image, for covisibility
@@ -306,8 +327,7 @@ class LoopDetector:
         self._track_places(i, descriptors, timestamp)
         if self.mode == "covisibility":
             self._track_covisibility(i, descriptors, track_ids)
-        self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors,
-                                      image_size))
+        self._features.append(_Stored(np.asarray(xy_px, np.float64).reshape(-1, 2), descriptors, image_size))
         bow = self.database.bow(descriptors)
         prev, self._prev_bow = self._prev_bow, bow
         loop = self._query(i, bow, prev)  # before adding: an image never answers itself
@@ -359,7 +379,7 @@ class LoopDetector:
             skip = set(excluded.tolist())
             # ask for enough answers that max_results survive the exclusion
             raw = self.database.query(bow, max_results=c.max_results + len(excluded))
-            return [(m, s) for m, s in raw if m not in skip][:c.max_results]
+            return [(m, s) for m, s in raw if m not in skip][: c.max_results]
         window = self._window(i)
         if window is None or len(self.database) <= window:
             return None
@@ -374,8 +394,8 @@ class LoopDetector:
             q_last, m_last = self._chain[-1]
             if self.mode == "covisibility":
                 agree = bool(np.isin(q_last, self._covisible)) and (
-                    m_last == match or self.covisibility.shared_between(m_last, match)
-                    >= c.min_shared_tracks)
+                    m_last == match or self.covisibility.shared_between(m_last, match) >= c.min_shared_tracks
+                )
             else:
                 agree = q_last == i - 1 and abs(m_last - match) <= c.consistency_tolerance
             if not agree:
@@ -405,23 +425,36 @@ class LoopDetector:
             self._record(i, None, None, 0.0, None, prior, 0, None, "no database answer")
             return None
         # Answers come best first; the first passing both thresholds is the candidate.
-        cand = next(((m, float(s)) for m, s in answers
-                     if s >= c.min_score and s / prior >= c.min_normalised_score), None)
+        cand = next(
+            ((m, float(s)) for m, s in answers if s >= c.min_score and s / prior >= c.min_normalised_score),
+            None,
+        )
         if cand is None:
             self._chain.clear()
-            self._record(i, None, best_match, best_score, best_score / prior, prior, 0, None,
-                         "below threshold")
+            self._record(
+                i, None, best_match, best_score, best_score / prior, prior, 0, None, "below threshold"
+            )
             return None
         match, score = cand
         eta = score / prior
         n_chain, need = self._consistent(i, match)
         if n_chain < need:
-            self._record(i, match, best_match, score, eta, prior, n_chain, None,
-                         f"not temporally consistent ({n_chain}/{need})")
+            self._record(
+                i,
+                match,
+                best_match,
+                score,
+                eta,
+                prior,
+                n_chain,
+                None,
+                f"not temporally consistent ({n_chain}/{need})",
+            )
             return None
         a, b = self._features[i], self._features[match]
-        v: Verification = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors,
-                                               self.K, self.distortion, a.size, b.size)
+        v: Verification = self.verifier.verify(
+            a.xy, a.descriptors, b.xy, b.descriptors, self.K, self.distortion, a.size, b.size
+        )
         if not v.accepted:
             self._record(i, match, best_match, score, eta, prior, n_chain, v, f"geometry: {v.reason}")
             return None
@@ -445,34 +478,51 @@ class LoopDetector:
             if rec.match != m or not (rec.reason or "").startswith("not temporally"):
                 continue
             a, b = self._features[q], self._features[m]
-            v = self.verifier.verify(a.xy, a.descriptors, b.xy, b.descriptors, self.K,
-                                     self.distortion, a.size, b.size)
+            v = self.verifier.verify(
+                a.xy, a.descriptors, b.xy, b.descriptors, self.K, self.distortion, a.size, b.size
+            )
             self.records[at] = dataclasses.replace(
-                rec, consistency=n_chain, n_matches=int(v.n_matches), n_inliers=int(v.n_inliers),
-                accepted=v.accepted, reason=None if v.accepted else f"geometry: {v.reason}")
+                rec,
+                consistency=n_chain,
+                n_matches=int(v.n_matches),
+                n_inliers=int(v.n_inliers),
+                accepted=v.accepted,
+                reason=None if v.accepted else f"geometry: {v.reason}",
+            )
             if v.accepted:
-                self.closures.append(DetectedLoop(q, m, rec.score, rec.normalised_score or 0.0,
-                                                  v.n_inliers, v.R, v.t_unit))
+                self.closures.append(
+                    DetectedLoop(q, m, rec.score, rec.normalised_score or 0.0, v.n_inliers, v.R, v.t_unit)
+                )
 
-    def _record(self, i, match, best_match, score, eta, prior, n_chain, v: Verification | None,
-                reason: str | None) -> None:
+    def _record(
+        self, i, match, best_match, score, eta, prior, n_chain, v: Verification | None, reason: str | None
+    ) -> None:
         self._record_of[int(i)] = len(self.records)
-        self.records.append(CandidateRecord(
-            query=int(i), match=None if match is None else int(match),
-            best_match=None if best_match is None else int(best_match), score=float(score),
-            normalised_score=None if eta is None else float(eta),
-            prior_score=None if prior is None else float(prior), consistency=int(n_chain),
-            n_matches=None if v is None else int(v.n_matches),
-            n_inliers=None if v is None else int(v.n_inliers),
-            accepted=reason is None, reason=reason, excluded=int(self._n_excluded)))
+        self.records.append(
+            CandidateRecord(
+                query=int(i),
+                match=None if match is None else int(match),
+                best_match=None if best_match is None else int(best_match),
+                score=float(score),
+                normalised_score=None if eta is None else float(eta),
+                prior_score=None if prior is None else float(prior),
+                consistency=int(n_chain),
+                n_matches=None if v is None else int(v.n_matches),
+                n_inliers=None if v is None else int(v.n_inliers),
+                accepted=reason is None,
+                reason=reason,
+                excluded=int(self._n_excluded),
+            )
+        )
 
-    def run(self, images: Iterable[np.ndarray],
-            progress: Callable[[Iterable], Iterable] | None = None) -> list[DetectedLoop]:
+    def run(
+        self, images: Iterable[np.ndarray], progress: Callable[[Iterable], Iterable] | None = None
+    ) -> list[DetectedLoop]:
         """Process every image of ``images`` (in time order); returns all accepted closures.
 
         ``progress`` wraps the iterable (e.g. ``tqdm``) when given.
         """
-        for img in (progress(images) if progress else images):
+        for img in progress(images) if progress else images:
             self.process(img)
         return list(self.closures)
 

@@ -20,15 +20,21 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["match_descriptors", "match_from_distances", "guided_match", "epipolar_distances",
-           "epipolar_residuals"]
+__all__ = [
+    "match_descriptors",
+    "match_from_distances",
+    "guided_match",
+    "epipolar_distances",
+    "epipolar_residuals",
+]
 
 #: Distance marking a forbidden entry: above any Hamming distance of 256-bit strings.
 _FORBIDDEN = np.int32(1 << 20)
 
 
-def match_from_distances(D: np.ndarray, ratio: float = 0.8, cross_check: bool = True,
-                         max_hamming: int = 64) -> np.ndarray:
+def match_from_distances(
+    D: np.ndarray, ratio: float = 0.8, cross_check: bool = True, max_hamming: int = 64
+) -> np.ndarray:
     """Matches of an (Na, Nb) int32 distance matrix -> (M, 2) int64 ``(a, b)`` sorted by a.
 
     Entries at or above :data:`_FORBIDDEN` are not candidates. A row with one
@@ -52,8 +58,13 @@ def match_from_distances(D: np.ndarray, ratio: float = 0.8, cross_check: bool = 
     return np.stack([a, b], axis=1).astype(np.int64)
 
 
-def match_descriptors(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8,
-                      cross_check: bool = True, max_hamming: int = 64) -> np.ndarray:
+def match_descriptors(
+    desc_a: np.ndarray,
+    desc_b: np.ndarray,
+    ratio: float = 0.8,
+    cross_check: bool = True,
+    max_hamming: int = 64,
+) -> np.ndarray:
     """Match binary descriptors (N, 32) uint8 -> (M, 2) int64 index pairs ``(a, b)``.
 
     OpenCV's brute-force matcher (two nearest neighbours each way, about 3x
@@ -67,8 +78,11 @@ def match_descriptors(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8
     if len(desc_a) < 2 or len(desc_b) < 2:
         return np.zeros((0, 2), np.int64)
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    good = [(m[0].queryIdx, m[0].trainIdx) for m in bf.knnMatch(desc_a, desc_b, k=2)
-            if len(m) == 2 and m[0].distance <= max_hamming and m[0].distance < ratio * m[1].distance]
+    good = [
+        (m[0].queryIdx, m[0].trainIdx)
+        for m in bf.knnMatch(desc_a, desc_b, k=2)
+        if len(m) == 2 and m[0].distance <= max_hamming and m[0].distance < ratio * m[1].distance
+    ]
     if not good:
         return np.zeros((0, 2), np.int64)
     pairs = np.asarray(good, np.int64)
@@ -88,9 +102,9 @@ def epipolar_distances(F: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray) -> np.
     """
     ha = np.c_[xy_a, np.ones(len(xy_a))]
     hb = np.c_[xy_b, np.ones(len(xy_b))]
-    la = ha @ F.T                      # lines in image b, one per point of a
-    lb = hb @ F                        # lines in image a, one per point of b
-    num = np.abs(la @ hb.T)            # |x_b^T F x_a|, (Na, Nb)
+    la = ha @ F.T  # lines in image b, one per point of a
+    lb = hb @ F  # lines in image a, one per point of b
+    num = np.abs(la @ hb.T)  # |x_b^T F x_a|, (Na, Nb)
     na = np.hypot(la[:, 0], la[:, 1])[:, None]
     nb = np.hypot(lb[:, 0], lb[:, 1])[None, :]
     return num / np.maximum(np.minimum(na, nb), 1e-12)
@@ -107,9 +121,16 @@ def epipolar_residuals(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndar
     return num / np.maximum(den, 1e-12)
 
 
-def guided_match(D: np.ndarray, F: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray,
-                 threshold_px: float, ratio: float = 0.8, cross_check: bool = True,
-                 max_hamming: int = 64) -> np.ndarray:
+def guided_match(
+    D: np.ndarray,
+    F: np.ndarray,
+    xy_a: np.ndarray,
+    xy_b: np.ndarray,
+    threshold_px: float,
+    ratio: float = 0.8,
+    cross_check: bool = True,
+    max_hamming: int = 64,
+) -> np.ndarray:
     """Matches allowed only within ``threshold_px`` of each other's epipolar lines.
 
     The ratio test then compares neighbours on the same line, so a repeated

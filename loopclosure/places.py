@@ -35,8 +35,7 @@ import numpy as np
 
 from loopclosure.matching import match_descriptors
 
-__all__ = ["Mode", "consecutive_overlap", "choose_mode", "recent_window",
-           "timestamps_from_names", "MODES"]
+__all__ = ["Mode", "consecutive_overlap", "choose_mode", "recent_window", "timestamps_from_names", "MODES"]
 
 #: ``[loops] mode`` values (module docstring).
 Mode = Literal["covisibility", "auto", "video", "keyframes"]
@@ -66,8 +65,9 @@ def choose_mode(mode: str, overlaps: Sequence[float], keyframe_overlap: float) -
     return "keyframes" if float(np.median(overlaps)) < keyframe_overlap else "video"
 
 
-def recent_window(i: int, mode: str, config, overlaps: Sequence[float],
-                  timestamps: Sequence[float] | None = None) -> int:
+def recent_window(
+    i: int, mode: str, config, overlaps: Sequence[float], timestamps: Sequence[float] | None = None
+) -> int:
     """How many images just before image ``i`` its query must not return.
 
     ``config``: its ``exclude_recent``, ``exclude_recent_s`` and

@@ -116,12 +116,18 @@ def pnp_covariance(J: np.ndarray, c: PnpConfig) -> np.ndarray | None:
         cov = np.linalg.inv(np.einsum("nij,nik->jk", J, J) / c.sigma_px**2)
     except np.linalg.LinAlgError:
         return None
-    floor = np.r_[[c.min_sigma_t_m**2] * 3, [math.radians(c.min_sigma_r_deg)**2] * 3]
+    floor = np.r_[[c.min_sigma_t_m**2] * 3, [math.radians(c.min_sigma_r_deg) ** 2] * 3]
     return c.covariance_inflation * 0.5 * (cov + cov.T) + np.diag(floor)
 
 
-def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray,
-                      desc_b: np.ndarray, K: np.ndarray, config: PnpConfig | None = None) -> PnpResult:
+def relative_pose_pnp(
+    points_a: np.ndarray,
+    desc_a: np.ndarray,
+    xy_b: np.ndarray,
+    desc_b: np.ndarray,
+    K: np.ndarray,
+    config: PnpConfig | None = None,
+) -> PnpResult:
     """Metric ``aTb`` from map points of frame ``a`` and ORB features of image ``b``.
 
     Args:
@@ -137,8 +143,7 @@ def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray
     n = len(pts)
     if n < c.min_inliers:
         return PnpResult(False, f"{n} map points < {c.min_inliers}", n, 0, 0)
-    pairs = match_descriptors(desc_a, desc_b, ratio=c.ratio, cross_check=True,
-                              max_hamming=c.max_hamming)
+    pairs = match_descriptors(desc_a, desc_b, ratio=c.ratio, cross_check=True, max_hamming=c.max_hamming)
     m = len(pairs)
     if m < c.min_inliers:
         return PnpResult(False, f"{m} matches < {c.min_inliers}", n, m, 0)
@@ -146,17 +151,22 @@ def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray
     img = np.ascontiguousarray(xy_b[pairs[:, 1]])
     cv2.setRNGSeed(int(c.seed))
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        obj, img, K, None, iterationsCount=int(c.max_iters),
-        reprojectionError=float(c.ransac_threshold_px), confidence=float(c.confidence),
-        flags=cv2.SOLVEPNP_EPNP)
+        obj,
+        img,
+        K,
+        None,
+        iterationsCount=int(c.max_iters),
+        reprojectionError=float(c.ransac_threshold_px),
+        confidence=float(c.confidence),
+        flags=cv2.SOLVEPNP_EPNP,
+    )
     if not ok or inl is None:
         return PnpResult(False, "PnP RANSAC found no pose", n, m, 0)
     inl = np.sort(inl.reshape(-1))
     if len(inl) < c.min_inliers:
         return PnpResult(False, f"{len(inl)} inliers < {c.min_inliers}", n, m, len(inl))
     if len(inl) < c.min_inlier_ratio * m:
-        return PnpResult(False, f"inlier ratio {len(inl) / m:.2f} < {c.min_inlier_ratio}",
-                         n, m, len(inl))
+        return PnpResult(False, f"inlier ratio {len(inl) / m:.2f} < {c.min_inlier_ratio}", n, m, len(inl))
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
     bTa = pose_from_rodrigues(rvec, tvec)
     uv, depth, _, J = project_jacobians(K, bTa, obj[inl])
@@ -167,5 +177,14 @@ def relative_pose_pnp(points_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray
     cov = pnp_covariance(J, c)
     if cov is None:
         return PnpResult(False, "PnP pose is degenerate (singular information)", n, m, len(inl))
-    return PnpResult(True, None, n, m, len(inl), aTb=invert_pose(bTa), covariance=cov,
-                     inlier_pairs=pairs[inl], reprojection_rmse_px=rmse)
+    return PnpResult(
+        True,
+        None,
+        n,
+        m,
+        len(inl),
+        aTb=invert_pose(bTa),
+        covariance=cov,
+        inlier_pairs=pairs[inl],
+        reprojection_rmse_px=rmse,
+    )

@@ -263,11 +263,17 @@ class PairVerifier(Protocol):
     holds the contract every implementation passes.
     """
 
-    def verify(self, xy_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray,
-               desc_b: np.ndarray, K: np.ndarray | None = None,
-               distortion: np.ndarray | None = None,
-               size_a: tuple[float, float] | None = None,
-               size_b: tuple[float, float] | None = None) -> Verification: ...
+    def verify(
+        self,
+        xy_a: np.ndarray,
+        desc_a: np.ndarray,
+        xy_b: np.ndarray,
+        desc_b: np.ndarray,
+        K: np.ndarray | None = None,
+        distortion: np.ndarray | None = None,
+        size_a: tuple[float, float] | None = None,
+        size_b: tuple[float, float] | None = None,
+    ) -> Verification: ...
 
 
 def _angle_deg(R: np.ndarray) -> float:
@@ -306,14 +312,21 @@ class GeometricVerifier:
         method = _METHODS[c.method]
         cv2.setRNGSeed(int(c.seed))  # sampling repeats run to run
         if model == "essential":
-            M, mask = cv2.findEssentialMat(pa, pb, K, method=method, prob=c.confidence,
-                                           threshold=c.ransac_threshold_px, maxIters=c.max_iters)
+            M, mask = cv2.findEssentialMat(
+                pa,
+                pb,
+                K,
+                method=method,
+                prob=c.confidence,
+                threshold=c.ransac_threshold_px,
+                maxIters=c.max_iters,
+            )
         elif model == "fundamental":
-            M, mask = cv2.findFundamentalMat(pa, pb, method, c.ransac_threshold_px,
-                                             c.confidence, c.max_iters)
+            M, mask = cv2.findFundamentalMat(pa, pb, method, c.ransac_threshold_px, c.confidence, c.max_iters)
         else:
-            M, mask = cv2.findHomography(pa, pb, method, c.ransac_threshold_px,
-                                         maxIters=c.max_iters, confidence=c.confidence)
+            M, mask = cv2.findHomography(
+                pa, pb, method, c.ransac_threshold_px, maxIters=c.max_iters, confidence=c.confidence
+            )
         # OpenCV may return several stacked 3x3 solutions; the first is its best.
         if M is not None and M.shape[0] > 3:
             M = M[:3]
@@ -321,10 +334,17 @@ class GeometricVerifier:
             return None, None
         return M, mask.reshape(-1).astype(bool)
 
-    def verify(self, xy_a: np.ndarray, desc_a: np.ndarray, xy_b: np.ndarray, desc_b: np.ndarray,
-               K: np.ndarray | None = None, distortion: np.ndarray | None = None,
-               size_a: tuple[float, float] | None = None,
-               size_b: tuple[float, float] | None = None) -> Verification:
+    def verify(
+        self,
+        xy_a: np.ndarray,
+        desc_a: np.ndarray,
+        xy_b: np.ndarray,
+        desc_b: np.ndarray,
+        K: np.ndarray | None = None,
+        distortion: np.ndarray | None = None,
+        size_a: tuple[float, float] | None = None,
+        size_b: tuple[float, float] | None = None,
+    ) -> Verification:
         """Verify images a and b from their features.
 
         ``xy_*``: (N, 2) pixel coordinates (column, row); ``desc_*``: (N, 32)
@@ -369,13 +389,27 @@ class GeometricVerifier:
         size = max(size_a, size_b, key=lambda s: np.hypot(*s) / (s[0] * s[1]))
         lnfa, _ = log10_nfa(res, model, *size)
         if lnfa > c.max_log10_nfa:
-            return self._reject(model, n, n_in, pairs[inl], f"not meaningful (log10 NFA {lnfa:.1f} "
-                                f"> {c.max_log10_nfa:g})", lnfa)
+            return self._reject(
+                model,
+                n,
+                n_in,
+                pairs[inl],
+                f"not meaningful (log10 NFA {lnfa:.1f} > {c.max_log10_nfa:g})",
+                lnfa,
+            )
         n_first = n
         if c.guided and model != "homography":
             D = hamming_distances(desc_a, desc_b)
-            gpairs = guided_match(D, _as_fundamental(model, M, K), ua, ub, c.ransac_threshold_px,
-                                  c.ratio, c.cross_check, c.max_hamming)
+            gpairs = guided_match(
+                D,
+                _as_fundamental(model, M, K),
+                ua,
+                ub,
+                c.ransac_threshold_px,
+                c.ratio,
+                c.cross_check,
+                c.max_hamming,
+            )
             if len(gpairs) >= need:
                 M2, inl2 = self._fit(model, ua[gpairs[:, 0]], ub[gpairs[:, 1]], K)
                 if M2 is not None and inl2.sum() >= n_in:
@@ -388,12 +422,19 @@ class GeometricVerifier:
         ipairs = pairs[inl]
         ratio = n_in / len(pairs)
         if ratio < c.min_inlier_ratio:
-            return self._reject(model, n, n_in, ipairs, f"inlier ratio too low ({ratio:.2f} < "
-                                f"{c.min_inlier_ratio:.2f})", lnfa)
+            return self._reject(
+                model, n, n_in, ipairs, f"inlier ratio too low ({ratio:.2f} < {c.min_inlier_ratio:.2f})", lnfa
+            )
         share = n_in / max(min(len(ua), len(ub)), 1)
         if share < c.min_feature_share:
-            return self._reject(model, n, n_in, ipairs, f"feature share too low ({share:.2f} < "
-                                f"{c.min_feature_share:.2f})", lnfa)
+            return self._reject(
+                model,
+                n,
+                n_in,
+                ipairs,
+                f"feature share too low ({share:.2f} < {c.min_feature_share:.2f})",
+                lnfa,
+            )
         pa, pb = ua[ipairs[:, 0]], ub[ipairs[:, 1]]
         cov = max(hull_coverage(ua, pa), hull_coverage(ub, pb))
         R = t = None
@@ -416,8 +457,15 @@ class GeometricVerifier:
             fwd, why = self._forward_revisit(K, R, t, ua, ub, pa, pb)
             if fwd is None or fwd < c.min_coverage:
                 why = why or f"forward coverage {fwd:.2f} < {c.min_coverage:.2f}"
-                return self._reject(model, n, n_in, ipairs, f"view overlap too small (coverage "
-                                    f"{cov:.2f} < {c.min_coverage:.2f}; {why})", lnfa, cov)
+                return self._reject(
+                    model,
+                    n,
+                    n_in,
+                    ipairs,
+                    f"view overlap too small (coverage {cov:.2f} < {c.min_coverage:.2f}; {why})",
+                    lnfa,
+                    cov,
+                )
             cov = fwd
         return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov)
 
@@ -433,8 +481,9 @@ class GeometricVerifier:
         # a little ahead); t is b's centre in a's frame
         if centre_a[2] <= 0 and t[2] <= 0:
             return None, "neither camera is ahead of the other"
-        X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ np.c_[R, t],
-                                  pb.T.astype(np.float64), pa.T.astype(np.float64))
+        X = cv2.triangulatePoints(
+            K @ np.eye(3, 4), K @ np.c_[R, t], pb.T.astype(np.float64), pa.T.astype(np.float64)
+        )
         X = (X[:3] / X[3]).T
         front = (X[:, 2] > 0) & ((X @ R.T + t)[:, 2] > 0)
         if front.sum() < c.min_inliers:
@@ -452,5 +501,16 @@ class GeometricVerifier:
 
     @staticmethod
     def _reject(model, n, n_in, inlier_pairs, reason, lnfa=None, cov=None) -> Verification:
-        return Verification(False, reason, model, int(n), int(n_in), n_in / n if n else 0.0,
-                            None, None, inlier_pairs, lnfa, cov)
+        return Verification(
+            False,
+            reason,
+            model,
+            int(n),
+            int(n_in),
+            n_in / n if n else 0.0,
+            None,
+            None,
+            inlier_pairs,
+            lnfa,
+            cov,
+        )

@@ -89,8 +89,10 @@ def _kmeans():
 def load_vocabulary(path) -> FlatVocabulary | VocabularyTree:
     """Load a vocabulary of either kind from ``path`` (InputError when bad)."""
     data = read_npz(path)
-    found = {"FlatVocabulary": (FlatVocabulary, restore_flat),
-             "VocabularyTree": (VocabularyTree, restore_tree)}.get(data["kind"])
+    found = {
+        "FlatVocabulary": (FlatVocabulary, restore_flat),
+        "VocabularyTree": (VocabularyTree, restore_tree),
+    }.get(data["kind"])
     if found is None:
         raise InputError(f"unknown vocabulary kind {quote(data['kind'])}", path)
     cls, restore = found
@@ -121,8 +123,9 @@ class FlatVocabulary:
 
     kind = "FlatVocabulary"
 
-    def __init__(self, n_words: int = 1000, seed: int = 0, max_iter: int = 50,
-                 minibatch: bool = True, n_init: int = 1):
+    def __init__(
+        self, n_words: int = 1000, seed: int = 0, max_iter: int = 50, minibatch: bool = True, n_init: int = 1
+    ):
         self.n_words = n_words
         self.seed = seed
         self.max_iter = max_iter
@@ -142,9 +145,13 @@ class FlatVocabulary:
             raise ValueError(f"{x.shape[0]} descriptors hold fewer than {n_words} distinct ones")
         feats = kmeans_features(x, metric)
         if self.minibatch:
-            km = _kmeans()[1](n_clusters=n_words, random_state=seed,
-                                 batch_size=max(1024, 3 * n_words), n_init=n_init,
-                                 max_iter=max_iter)
+            km = _kmeans()[1](
+                n_clusters=n_words,
+                random_state=seed,
+                batch_size=max(1024, 3 * n_words),
+                n_init=n_init,
+                max_iter=max_iter,
+            )
         else:
             km = _kmeans()[0](n_clusters=n_words, random_state=seed, n_init=n_init, max_iter=max_iter)
         with one_thread():
@@ -216,8 +223,16 @@ class VocabularyTree:
 
     kind = "VocabularyTree"
 
-    def __init__(self, branching: int = 10, depth: int = 4, seed: int = 0, max_iter: int = 20,
-                 max_node_samples: int = 5000, init: str = "random", n_init: int = 1):
+    def __init__(
+        self,
+        branching: int = 10,
+        depth: int = 4,
+        seed: int = 0,
+        max_iter: int = 20,
+        max_node_samples: int = 5000,
+        init: str = "random",
+        n_init: int = 1,
+    ):
         # Defaults measured on 200 000 KITTI ORB descriptors, k=10, L=4 (one
         # thread, loaded machine): random init + 5000 samples per node trains in
         # 24 s; k-means++ took 51 s for 0.7 % lower mean Hamming distortion
@@ -243,16 +258,18 @@ class VocabularyTree:
             raise ConfigError(f"init must be 'k-means++' or 'random', got {self.init!r}")
         return k, depth, seed, max_iter, max_samples
 
-    def _node_centres(self, pts: np.ndarray, metric: str, seed: int, k: int, max_iter: int,
-                      max_samples: int) -> np.ndarray | None:
+    def _node_centres(
+        self, pts: np.ndarray, metric: str, seed: int, k: int, max_iter: int, max_samples: int
+    ) -> np.ndarray | None:
         """k centres for one node's descriptors, or None when it must be a leaf."""
         if pts.shape[0] > max_samples:
             pick = np.random.default_rng(seed).choice(pts.shape[0], max_samples, replace=False)
             pts = pts[np.sort(pick)]
         if not n_distinct_at_least(pts, k):
             return None
-        km = _kmeans()[0](n_clusters=k, init=self.init, n_init=int(self.n_init),
-                          max_iter=max_iter, random_state=seed)
+        km = _kmeans()[0](
+            n_clusters=k, init=self.init, n_init=int(self.n_init), max_iter=max_iter, random_state=seed
+        )
         km.fit(kmeans_features(pts, metric))
         return centres_from_kmeans(km.cluster_centers_, metric)
 
@@ -273,8 +290,9 @@ class VocabularyTree:
         self.idf_, self.n_training_images_ = idf_from_images(words, self.n_words_)
         return self
 
-    def _grow(self, x: np.ndarray, metric: str, k: int, depth: int, seed: int, max_iter: int,
-              max_samples: int) -> None:
+    def _grow(
+        self, x: np.ndarray, metric: str, k: int, depth: int, seed: int, max_iter: int, max_samples: int
+    ) -> None:
         """Build the tree breadth first; sets centres_, children_, node_word_, word_node_."""
         rng = np.random.default_rng(seed)
         centres = [np.zeros(x.shape[1], dtype=x.dtype)]
@@ -326,9 +344,9 @@ class VocabularyTree:
         active = np.arange(n)
         big = np.iinfo(np.int32).max if self.metric_ == "hamming" else np.inf
         while active.size:
-            child = self.children_[node[active]]            # (M, k)
+            child = self.children_[node[active]]  # (M, k)
             valid = child >= 0
-            c = self.centres_[np.where(valid, child, 0)]     # (M, k, D)
+            c = self.centres_[np.where(valid, child, 0)]  # (M, k, D)
             x = d[active][:, None, :]
             if self.metric_ == "hamming":
                 dist = popcount_sum(np.bitwise_xor(x, c))

@@ -45,12 +45,12 @@ def read_npz(path) -> dict:
         check_npz_sizes(path, path)  # before np.load allocates what a header declares
         with np.load(path, allow_pickle=False) as z:
             data = {name: z[name] for name in z.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, TypeError,
-            AttributeError) as exc:
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, TypeError, AttributeError) as exc:
         # A plain .npy has no .files and no context manager; other damage surfaces
         # as zip, CRC, header or reshape errors.
-        raise InputError(f"damaged or unreadable vocabulary file ({type(exc).__name__}: {exc})",
-                         path) from exc
+        raise InputError(
+            f"damaged or unreadable vocabulary file ({type(exc).__name__}: {exc})", path
+        ) from exc
     if "format_version" not in data or "kind" not in data:
         raise InputError("not a vocabulary file (no format_version/kind)", path)
     try:
@@ -58,8 +58,9 @@ def read_npz(path) -> dict:
     except (TypeError, ValueError, OverflowError) as exc:  # inf: OverflowError
         raise InputError("bad format_version field", path) from exc
     if version != FORMAT_VERSION:
-        raise InputError(f"vocabulary format version {version}, this code reads "
-                         f"version {FORMAT_VERSION}", path)
+        raise InputError(
+            f"vocabulary format version {version}, this code reads version {FORMAT_VERSION}", path
+        )
     data["kind"] = str(data["kind"])
     return data
 
@@ -82,10 +83,14 @@ def _require(data: dict, names: Sequence[str], path) -> None:
 def _check_centres(v, n_rows: int, path) -> None:
     """Centres dtype/shape agree with the metric and descriptor width; IDF finite, >= 0."""
     want = np.uint8 if v.metric_ == "hamming" else np.float32
-    ok = (v.metric_ in ("hamming", "euclidean") and v.centres_.dtype == want
-          and v.centres_.shape == (n_rows, v.descriptor_dim_)
-          and v.idf_.shape == (v.n_words_,) and bool(np.all(np.isfinite(v.idf_)))
-          and bool(np.all(v.idf_ >= 0.0)))
+    ok = (
+        v.metric_ in ("hamming", "euclidean")
+        and v.centres_.dtype == want
+        and v.centres_.shape == (n_rows, v.descriptor_dim_)
+        and v.idf_.shape == (v.n_words_,)
+        and bool(np.all(np.isfinite(v.idf_)))
+        and bool(np.all(v.idf_ >= 0.0))
+    )
     if not ok:
         raise InputError("inconsistent arrays in vocabulary file", path)
 
@@ -97,20 +102,45 @@ def _check_centres(v, n_rows: int, path) -> None:
 def flat_arrays(v) -> dict:
     """The fields of a fitted :class:`loopclosure.vocabulary.FlatVocabulary` ``v``, in file order."""
     return {
-        "n_words": np.int64(v.n_words), "seed": np.int64(v.seed),
-        "max_iter": np.int64(v.max_iter), "minibatch": np.bool_(v.minibatch),
-        "n_init": np.int64(v.n_init), "centres": v.centres_, "metric": np.str_(v.metric_),
-        "descriptor_dim": np.int64(v.descriptor_dim_), "idf": v.idf_,
-        "n_training_images": np.int64(v.n_training_images_)}
+        "n_words": np.int64(v.n_words),
+        "seed": np.int64(v.seed),
+        "max_iter": np.int64(v.max_iter),
+        "minibatch": np.bool_(v.minibatch),
+        "n_init": np.int64(v.n_init),
+        "centres": v.centres_,
+        "metric": np.str_(v.metric_),
+        "descriptor_dim": np.int64(v.descriptor_dim_),
+        "idf": v.idf_,
+        "n_training_images": np.int64(v.n_training_images_),
+    }
 
 
 def restore_flat(cls, data: dict, path):
     """A ``cls`` (FlatVocabulary) rebuilt from the fields ``data`` of file ``path``, checked."""
-    _require(data, ["n_words", "seed", "max_iter", "minibatch", "n_init", "centres", "metric",
-                    "descriptor_dim", "idf", "n_training_images"], path)
+    _require(
+        data,
+        [
+            "n_words",
+            "seed",
+            "max_iter",
+            "minibatch",
+            "n_init",
+            "centres",
+            "metric",
+            "descriptor_dim",
+            "idf",
+            "n_training_images",
+        ],
+        path,
+    )
     try:
-        v = cls(int(data["n_words"]), int(data["seed"]), int(data["max_iter"]),
-                bool(data["minibatch"]), int(data["n_init"]))
+        v = cls(
+            int(data["n_words"]),
+            int(data["seed"]),
+            int(data["max_iter"]),
+            bool(data["minibatch"]),
+            int(data["n_init"]),
+        )
         v.centres_ = data["centres"]
         v.metric_ = str(data["metric"])
         v.descriptor_dim_ = int(data["descriptor_dim"])
@@ -132,25 +162,57 @@ def restore_flat(cls, data: dict, path):
 def tree_arrays(v) -> dict:
     """The fields of a fitted :class:`loopclosure.vocabulary.VocabularyTree` ``v``, in file order."""
     return {
-        "branching": np.int64(v.branching), "depth": np.int64(v.depth),
-        "seed": np.int64(v.seed), "max_iter": np.int64(v.max_iter),
-        "max_node_samples": np.int64(v.max_node_samples), "init": np.str_(v.init),
+        "branching": np.int64(v.branching),
+        "depth": np.int64(v.depth),
+        "seed": np.int64(v.seed),
+        "max_iter": np.int64(v.max_iter),
+        "max_node_samples": np.int64(v.max_node_samples),
+        "init": np.str_(v.init),
         "n_init": np.int64(v.n_init),
-        "centres": v.centres_, "children": v.children_, "node_word": v.node_word_,
-        "word_node": v.word_node_, "metric": np.str_(v.metric_),
-        "descriptor_dim": np.int64(v.descriptor_dim_), "idf": v.idf_,
-        "n_training_images": np.int64(v.n_training_images_)}
+        "centres": v.centres_,
+        "children": v.children_,
+        "node_word": v.node_word_,
+        "word_node": v.word_node_,
+        "metric": np.str_(v.metric_),
+        "descriptor_dim": np.int64(v.descriptor_dim_),
+        "idf": v.idf_,
+        "n_training_images": np.int64(v.n_training_images_),
+    }
 
 
 def restore_tree(cls, data: dict, path):
     """A ``cls`` (VocabularyTree) rebuilt from the fields ``data`` of file ``path``, checked."""
-    _require(data, ["branching", "depth", "seed", "max_iter", "max_node_samples", "init", "n_init",
-                    "centres", "children", "node_word", "word_node", "metric",
-                    "descriptor_dim", "idf", "n_training_images"], path)
+    _require(
+        data,
+        [
+            "branching",
+            "depth",
+            "seed",
+            "max_iter",
+            "max_node_samples",
+            "init",
+            "n_init",
+            "centres",
+            "children",
+            "node_word",
+            "word_node",
+            "metric",
+            "descriptor_dim",
+            "idf",
+            "n_training_images",
+        ],
+        path,
+    )
     try:
-        v = cls(int(data["branching"]), int(data["depth"]), int(data["seed"]),
-                int(data["max_iter"]), int(data["max_node_samples"]), str(data["init"]),
-                int(data["n_init"]))
+        v = cls(
+            int(data["branching"]),
+            int(data["depth"]),
+            int(data["seed"]),
+            int(data["max_iter"]),
+            int(data["max_node_samples"]),
+            str(data["init"]),
+            int(data["n_init"]),
+        )
         v.centres_ = data["centres"]
         v.children_ = data["children"]
         v.node_word_ = data["node_word"]
@@ -180,15 +242,26 @@ def _check_tree(v, path) -> None:
     """The tree's arrays agree: int32 links within range, words exactly the leaves."""
     ch, nw, wn = v.children_, v.node_word_, v.word_node_
     n_nodes = ch.shape[0] if ch.ndim == 2 else -1
-    ok = (ch.dtype == np.int32 and nw.dtype == np.int32 and wn.dtype == np.int32
-          and v.idf_.dtype == np.float64 and n_nodes >= 1
-          and ch.shape[1] == v.branching and nw.shape == (n_nodes,) and wn.ndim == 1
-          and bool(np.all((ch >= -1) & (ch < n_nodes)))
-          and bool(np.all((wn >= 0) & (wn < n_nodes))))
+    ok = (
+        ch.dtype == np.int32
+        and nw.dtype == np.int32
+        and wn.dtype == np.int32
+        and v.idf_.dtype == np.float64
+        and n_nodes >= 1
+        and ch.shape[1] == v.branching
+        and nw.shape == (n_nodes,)
+        and wn.ndim == 1
+        and bool(np.all((ch >= -1) & (ch < n_nodes)))
+        and bool(np.all((wn >= 0) & (wn < n_nodes)))
+    )
     ok = ok and _is_tree(ch)
     # Every leaf (no child) is a word and every word a leaf, numbered in node order.
-    ok = ok and np.array_equal(np.flatnonzero((ch < 0).all(axis=1)), wn) \
-        and np.array_equal(nw[wn], np.arange(wn.size)) and int((nw >= 0).sum()) == wn.size
+    ok = (
+        ok
+        and np.array_equal(np.flatnonzero((ch < 0).all(axis=1)), wn)
+        and np.array_equal(nw[wn], np.arange(wn.size))
+        and int((nw >= 0).sum()) == wn.size
+    )
     if not ok:
         raise InputError("inconsistent arrays in vocabulary file", path)
     _check_centres(v, n_nodes, path)

@@ -46,9 +46,15 @@ if TYPE_CHECKING:  # _typeshed exists for the type checker only
 INT_LIMIT = 2**62
 
 
-def bounded(default: Any = dataclasses.MISSING, *, min: float | None = None,
-            max: float | None = None, gt: float | None = None, lt: float | None = None,
-            default_factory: Any = dataclasses.MISSING) -> Any:
+def bounded(
+    default: Any = dataclasses.MISSING,
+    *,
+    min: float | None = None,
+    max: float | None = None,
+    gt: float | None = None,
+    lt: float | None = None,
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
     """A dataclass field with range metadata that :func:`validate` checks."""
     meta = {k: v for k, v in (("min", min), ("max", max), ("gt", gt), ("lt", lt)) if v is not None}
     if default_factory is not dataclasses.MISSING:
@@ -71,6 +77,7 @@ def choices_of(cls: type, name: str) -> tuple | None:
 
 
 # --------------------------------------------------------------------------- checking values
+
 
 def _is_config(hint: Any) -> bool:
     return isinstance(hint, type) and dataclasses.is_dataclass(hint)
@@ -112,18 +119,19 @@ def _check_value(value: Any, hint: Any, what: str) -> Any:
 def _check_number(value: Any, hint: type, what: str) -> int | float:
     import numpy as np  # numpy scalars are accepted as numbers
 
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
-                                                                       np.floating)):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ConfigError(f"{what}: expected a number, got {quote(value)}")
     if hint is int:
-        if isinstance(value, (float, np.floating)) and not (math.isfinite(value)
-                                                            and float(value).is_integer()):
+        if isinstance(value, (float, np.floating)) and not (
+            math.isfinite(value) and float(value).is_integer()
+        ):
             raise ConfigError(f"{what}: expected an integer, got {quote(value)}")
         # abs() keeps the operand's numeric type; mypy joins the union's results to object
         magnitude = typing.cast("int | float | np.integer | np.floating", abs(value))
         if magnitude > INT_LIMIT:
-            raise ConfigError(f"{what}: {quote(value)} is beyond what this machine can hold "
-                              f"(|value| <= 2**62)")
+            raise ConfigError(
+                f"{what}: {quote(value)} is beyond what this machine can hold (|value| <= 2**62)"
+            )
         return int(value)
     if not math.isfinite(float(value)):
         raise ConfigError(f"{what}: expected a finite number, got {quote(value)}")
@@ -136,12 +144,19 @@ def _check_range(value: Any, meta: typing.Mapping, what: str) -> None:
     lo, hi, gt, lt = (meta.get(k) for k in ("min", "max", "gt", "lt"))
     vals = value if isinstance(value, tuple) else (value,)
     for v in vals:
-        if ((lo is not None and v < lo) or (hi is not None and v > hi)
-                or (gt is not None and not v > gt) or (lt is not None and not v < lt)):
-            parts = [f">= {lo}" if lo is not None else "", f"> {gt}" if gt is not None else "",
-                     f"<= {hi}" if hi is not None else "", f"< {lt}" if lt is not None else ""]
-            raise ConfigError(f"{what} must be {' and '.join(p for p in parts if p)}, "
-                              f"got {quote(value)}")
+        if (
+            (lo is not None and v < lo)
+            or (hi is not None and v > hi)
+            or (gt is not None and not v > gt)
+            or (lt is not None and not v < lt)
+        ):
+            parts = [
+                f">= {lo}" if lo is not None else "",
+                f"> {gt}" if gt is not None else "",
+                f"<= {hi}" if hi is not None else "",
+                f"< {lt}" if lt is not None else "",
+            ]
+            raise ConfigError(f"{what} must be {' and '.join(p for p in parts if p)}, got {quote(value)}")
 
 
 def validate(config: Any) -> None:
@@ -161,6 +176,7 @@ def validate(config: Any) -> None:
 
 
 # --------------------------------------------------------------------------- files
+
 
 def _toml_lines(text: str) -> dict[tuple[str, ...], int]:
     """1-based line of each ``[table]`` and ``key =`` of a TOML text, by dotted path."""
@@ -210,8 +226,10 @@ def strict_yaml_loader():
         def compose_node(self, parent, index):
             event = self.peek_event()
             if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
-                raise yaml.MarkedYAMLError(problem="anchors and aliases (& and *) are not "
-                                           "allowed in a config", problem_mark=event.start_mark)
+                raise yaml.MarkedYAMLError(
+                    problem="anchors and aliases (& and *) are not allowed in a config",
+                    problem_mark=event.start_mark,
+                )
             return super().compose_node(parent, index)
 
         def construct_mapping(self, node, deep=False):
@@ -219,8 +237,9 @@ def strict_yaml_loader():
             for key, _ in node.value:
                 if isinstance(key, yaml.ScalarNode):
                     if (key.tag, key.value) in seen:
-                        raise yaml.MarkedYAMLError(problem=f"duplicate key {quote(key.value)}",
-                                                   problem_mark=key.start_mark)
+                        raise yaml.MarkedYAMLError(
+                            problem=f"duplicate key {quote(key.value)}", problem_mark=key.start_mark
+                        )
                     seen.add((key.tag, key.value))
             return super().construct_mapping(node, deep)
 
@@ -245,8 +264,11 @@ def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int]]:
         raise ConfigError(str(e), path, int(m.group(1)) if m else None) from None
     except Exception as e:  # yaml.YAMLError carries its own mark
         mark = getattr(e, "problem_mark", None)
-        raise ConfigError(" ".join(str(getattr(e, "problem", None) or e).split()), path,
-                          None if mark is None else mark.line + 1) from None
+        raise ConfigError(
+            " ".join(str(getattr(e, "problem", None) or e).split()),
+            path,
+            None if mark is None else mark.line + 1,
+        ) from None
     raise ConfigError("config must be .toml, .yaml or .yml", path)
 
 
@@ -274,8 +296,9 @@ class ConfigFile:
             raise ConfigError("top level must be a table of sections", path, 1)
         for name, value in data.items():
             if not isinstance(value, dict):
-                raise ConfigError(f"[{name}] must be a table of settings, got {quote(value)}", path,
-                                  lines.get((str(name),)))
+                raise ConfigError(
+                    f"[{name}] must be a table of settings, got {quote(value)}", path, lines.get((str(name),))
+                )
         return cls(path, data, lines)
 
     def line_of(self, *keys: str) -> int | None:
@@ -286,8 +309,11 @@ class ConfigFile:
         known = sorted(set(known))
         for name in self.data:
             if name not in known:
-                raise ConfigError(f"unknown section [{name}]; known sections: "
-                                  f"{', '.join(known)}", self.path, self.line_of(name))
+                raise ConfigError(
+                    f"unknown section [{name}]; known sections: {', '.join(known)}",
+                    self.path,
+                    self.line_of(name),
+                )
 
     def section(self, cls: type[T], overrides: dict[str, Any] | None = None) -> T:
         """Defaults of ``cls``, then the file's section, then non-None ``overrides``."""
@@ -304,8 +330,11 @@ class ConfigFile:
         names = _field_names(cls)
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in [{'.'.join(where)}]; known: "
-                              f"{sorted(names)}", self.path, self.line_of(*where, unknown[0]))
+            raise ConfigError(
+                f"unknown key(s) {unknown} in [{'.'.join(where)}]; known: {sorted(names)}",
+                self.path,
+                self.line_of(*where, unknown[0]),
+            )
         kwargs = {}
         for key, value in data.items():
             hint = hints[key]
@@ -321,8 +350,9 @@ class ConfigFile:
             if self.path is None or e.path is not None:
                 raise
             key = next((k for k in kwargs if re.search(rf"\b{re.escape(k)}\b", str(e))), None)
-            raise ConfigError(str(e), self.path,
-                              self.line_of(*where, key) if key else self.line_of(*where)) from None
+            raise ConfigError(
+                str(e), self.path, self.line_of(*where, key) if key else self.line_of(*where)
+            ) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
 
@@ -342,8 +372,9 @@ def _field_default(cls: type, name: str) -> Any:
     return None
 
 
-def load_section(cls: type[T], source: ConfigFile | str | Path | None,
-                 overrides: dict[str, Any] | None = None) -> T:
+def load_section(
+    cls: type[T], source: ConfigFile | str | Path | None, overrides: dict[str, Any] | None = None
+) -> T:
     """One section: ``source`` is a :class:`ConfigFile`, a file path, or None (defaults)."""
     config = source if isinstance(source, ConfigFile) else ConfigFile.read(source)
     return config.section(cls, overrides)

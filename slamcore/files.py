@@ -158,8 +158,9 @@ def check_name_lengths(path: str | Path, flag: str) -> None:
     for part in Path(path).parts:
         size = len(os.fsencode(part))
         if size > NAME_MAX_BYTES:
-            raise ConfigError(f"{flag}: the name {part[:24]}... is {size} bytes; file "
-                              f"systems take at most {NAME_MAX_BYTES}")
+            raise ConfigError(
+                f"{flag}: the name {part[:24]}... is {size} bytes; file systems take at most {NAME_MAX_BYTES}"
+            )
 
 
 def check_distinct_outputs(outputs: dict[str, str | Path | None]) -> None:
@@ -171,8 +172,7 @@ def check_distinct_outputs(outputs: dict[str, str | Path | None]) -> None:
             continue
         key = Path(path).resolve()
         if key in seen:
-            raise ConfigError(f"{seen[key]} and {flag} name the same file ({path}); "
-                              "give each its own")
+            raise ConfigError(f"{seen[key]} and {flag} name the same file ({path}); give each its own")
         seen[key] = flag
 
 

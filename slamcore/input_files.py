@@ -23,8 +23,9 @@ def _kind(mode: int) -> str:
     return "a special file"
 
 
-def check_input_path(path: str | Path, what: str, folder_ok: bool = False,
-                     error: type[LocatedError] = InputError) -> None:
+def check_input_path(
+    path: str | Path, what: str, folder_ok: bool = False, error: type[LocatedError] = InputError
+) -> None:
     """Raise ``error`` (one line naming ``path``) unless ``path`` is a regular
     file, or a folder when ``folder_ok``; a missing path says "not found"."""
     try:

@@ -37,6 +37,9 @@ def check_npz_sizes(source, path) -> None:
             declared = math.prod(shape) * dtype.itemsize
             bound = min(info.file_size, MAX_DEFLATE_RATIO * info.compress_size)
             if declared > bound:
-                raise InputError(f"array {quote(info.filename[:-4])} declares shape {shape} of "
-                                 f"{dtype} ({declared} bytes), more than its {bound}-byte "
-                                 "zip member can hold", path)
+                raise InputError(
+                    f"array {quote(info.filename[:-4])} declares shape {shape} of "
+                    f"{dtype} ({declared} bytes), more than its {bound}-byte "
+                    "zip member can hold",
+                    path,
+                )

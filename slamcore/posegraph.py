@@ -110,20 +110,28 @@ class PoseGraph:
         keep_ids = self.ids[keep_rows]
         keep = np.isin(self.edges, keep_ids).all(axis=1)
         return replace(
-            self, ids=keep_ids, vertices=self.vertices[keep_rows],
-            has_vertex=self.has_vertex[keep_rows], edges=self.edges[keep],
-            measurements=self.measurements[keep], information=self.information[keep],
-            edge_lines=self.edge_lines[keep], fixed=self.fixed[np.isin(self.fixed, keep_ids)],
+            self,
+            ids=keep_ids,
+            vertices=self.vertices[keep_rows],
+            has_vertex=self.has_vertex[keep_rows],
+            edges=self.edges[keep],
+            measurements=self.measurements[keep],
+            information=self.information[keep],
+            edge_lines=self.edge_lines[keep],
+            fixed=self.fixed[np.isin(self.fixed, keep_ids)],
             equiv=self.equiv[np.isin(self.equiv, keep_ids).all(axis=1)],
-            information_fixed=(None if self.information_fixed is None
-                               else self.information_fixed[keep]))
+            information_fixed=(None if self.information_fixed is None else self.information_fixed[keep]),
+        )
 
     def with_vertices(self, vertices: np.ndarray) -> PoseGraph:
         """The same graph with other vertex values (e.g. an optimised estimate)."""
         from dataclasses import replace
 
-        return replace(self, vertices=np.asarray(vertices, dtype=np.float64),
-                       has_vertex=np.ones(self.n_poses, dtype=bool))
+        return replace(
+            self,
+            vertices=np.asarray(vertices, dtype=np.float64),
+            has_vertex=np.ones(self.n_poses, dtype=bool),
+        )
 
 
 # --------------------------------------------------------------------------- pose maths
@@ -132,30 +140,37 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
     """(..., 3) ``[roll, pitch, yaw]`` -> ``Rz(yaw) Ry(pitch) Rx(roll)`` (..., 3, 3)."""
     r, p, y = np.moveaxis(np.asarray(rpy, dtype=np.float64), -1, 0)
     cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.stack([
-        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
-        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
-        np.stack([-sp, cp * sr, cp * cr], -1),
-    ], -2)
+    return np.stack(
+        [
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+            np.stack([-sp, cp * sr, cp * cr], -1),
+        ],
+        -2,
+    )
 
 
 def matrix_to_rpy(R: np.ndarray) -> np.ndarray:
     """(..., 3, 3) -> (..., 3) ``[roll, pitch, yaw]`` (inverse of :func:`rpy_to_matrix`)."""
     R = np.asarray(R, dtype=np.float64)
     pitch = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
-    return np.stack([np.arctan2(R[..., 2, 1], R[..., 2, 2]), pitch,
-                     np.arctan2(R[..., 1, 0], R[..., 0, 0])], -1)
+    return np.stack(
+        [np.arctan2(R[..., 2, 1], R[..., 2, 2]), pitch, np.arctan2(R[..., 1, 0], R[..., 0, 0])], -1
+    )
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
@@ -301,8 +316,9 @@ INFORMATION_FIXES = ("nearest", "isotropic")
 INFORMATION_FLOOR = 1e-6
 
 
-def fixed_information(info: np.ndarray, method: str, dim: int,
-                      floor: float = INFORMATION_FLOOR) -> np.ndarray:
+def fixed_information(
+    info: np.ndarray, method: str, dim: int, floor: float = INFORMATION_FLOOR
+) -> np.ndarray:
     """(K, D, D) positive-definite replacements of symmetric information matrices
     ``info`` (K, D, D) (finite, each with a positive eigenvalue), order
     ``[translation, rotation]``; eigenvalues below ``floor`` times each matrix's

@@ -45,7 +45,7 @@ def failed_variable(exc: BaseException) -> str:
     start = text.find("Symbol: ")
     if start < 0:
         return ""
-    return text[start + len("Symbol: "):].split(")")[0]
+    return text[start + len("Symbol: ") :].split(")")[0]
 
 
 def rebuild_with_qr(isam: gtsam.ISAM2, params: gtsam.ISAM2Params) -> gtsam.ISAM2:

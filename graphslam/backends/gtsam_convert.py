@@ -64,8 +64,9 @@ def between_factor(edge: Odometry | LoopClosure, noise=None) -> gtsam.BetweenFac
     return gtsam.BetweenFactorPose2(X(edge.from_id), X(edge.to_id), pose2(edge.delta), model)
 
 
-def bearing_range_factor(observation: Observation, landmark_id: int, kernel: str = "none",
-                         kernel_k: float = 1.0) -> gtsam.BearingRangeFactor2D:
+def bearing_range_factor(
+    observation: Observation, landmark_id: int, kernel: str = "none", kernel_k: float = 1.0
+) -> gtsam.BearingRangeFactor2D:
     """gtsam's factor of a range-bearing observation, its noise wrapped in the robust
     ``kernel`` of width ``kernel_k`` (:func:`robust`)."""
     if observation.kind is not ObservationKind.RANGE_BEARING:
@@ -73,39 +74,52 @@ def bearing_range_factor(observation: Observation, landmark_id: int, kernel: str
     range_m, bearing_rad = observation.z
     cov_br = _RB_TO_BR @ observation.covariance @ _RB_TO_BR.T
     return gtsam.BearingRangeFactor2D(
-        X(observation.pose_id), L(landmark_id), gtsam.Rot2(float(bearing_rad)), float(range_m),
-        robust(noise_from_covariance(cov_br), kernel, kernel_k))
+        X(observation.pose_id),
+        L(landmark_id),
+        gtsam.Rot2(float(bearing_rad)),
+        float(range_m),
+        robust(noise_from_covariance(cov_br), kernel, kernel_k),
+    )
 
 
-def range_factor(observation: Observation, landmark_id: int, kernel: str = "none",
-                 kernel_k: float = 1.0) -> gtsam.RangeFactor2D:
+def range_factor(
+    observation: Observation, landmark_id: int, kernel: str = "none", kernel_k: float = 1.0
+) -> gtsam.RangeFactor2D:
     """gtsam's factor of a range-only observation (``z = [range_m]``, (1, 1) covariance)
     from ``X(pose_id)`` to ``L(landmark_id)``, its noise wrapped in the robust
     ``kernel`` of width ``kernel_k`` (:func:`robust`)."""
     if observation.kind is not ObservationKind.RANGE:
-        raise UnsupportedError(f"range factor: expected a range observation, got "
-                               f"{observation.kind.value}")
-    return gtsam.RangeFactor2D(X(observation.pose_id), L(landmark_id), float(observation.z[0]),
-                               robust(noise_from_covariance(observation.covariance), kernel,
-                                      kernel_k))
+        raise UnsupportedError(f"range factor: expected a range observation, got {observation.kind.value}")
+    return gtsam.RangeFactor2D(
+        X(observation.pose_id),
+        L(landmark_id),
+        float(observation.z[0]),
+        robust(noise_from_covariance(observation.covariance), kernel, kernel_k),
+    )
 
 
-def landmark_factor(observation: Observation, landmark_id: int, kernel: str = "none",
-                    kernel_k: float = 1.0) -> gtsam.NonlinearFactor:
+def landmark_factor(
+    observation: Observation, landmark_id: int, kernel: str = "none", kernel_k: float = 1.0
+) -> gtsam.NonlinearFactor:
     """:func:`range_factor` or :func:`bearing_range_factor`, by the observation's kind."""
     if observation.kind is ObservationKind.RANGE:
         return range_factor(observation, landmark_id, kernel, kernel_k)
     return bearing_range_factor(observation, landmark_id, kernel, kernel_k)
 
 
-def pose_sighting_factor(sighting, kernel: str = "none",
-                         kernel_k: float = 1.0) -> gtsam.BearingRangeFactorPose2:
+def pose_sighting_factor(
+    sighting, kernel: str = "none", kernel_k: float = 1.0
+) -> gtsam.BearingRangeFactorPose2:
     """gtsam's factor of one pose's range and bearing to another's position."""
     range_m, bearing_rad = sighting.z
     cov_br = _RB_TO_BR @ sighting.covariance @ _RB_TO_BR.T
     return gtsam.BearingRangeFactorPose2(
-        X(sighting.from_id), X(sighting.to_id), gtsam.Rot2(float(bearing_rad)), float(range_m),
-        robust(noise_from_covariance(cov_br), kernel, kernel_k))
+        X(sighting.from_id),
+        X(sighting.to_id),
+        gtsam.Rot2(float(bearing_rad)),
+        float(range_m),
+        robust(noise_from_covariance(cov_br), kernel, kernel_k),
+    )
 
 
 def dataset_graph(dataset: Dataset, frames: int | None = None) -> gtsam.NonlinearFactorGraph:
@@ -141,8 +155,9 @@ def estimate_values(estimate: Estimate) -> gtsam.Values:
     return values
 
 
-def values_to_estimate(values: gtsam.Values, pose_ids: Iterable[int],
-                       landmark_ids: Iterable[int]) -> Estimate:
+def values_to_estimate(
+    values: gtsam.Values, pose_ids: Iterable[int], landmark_ids: Iterable[int]
+) -> Estimate:
     """Pull the named poses and landmarks out of ``values`` (order kept)."""
     pose_ids = np.fromiter(pose_ids, dtype=np.int64)
     landmark_ids = np.fromiter(landmark_ids, dtype=np.int64)
@@ -247,9 +262,9 @@ def robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseMo
     ``k`` (in sigmas of the whitened residual); "none" returns ``noise`` itself."""
     if kernel == "none":
         return noise
-    estimators: dict[str, type[gtsam.noiseModel.mEstimator.Huber]
-                     | type[gtsam.noiseModel.mEstimator.Cauchy]] = {
-        "huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
+    estimators: dict[
+        str, type[gtsam.noiseModel.mEstimator.Huber] | type[gtsam.noiseModel.mEstimator.Cauchy]
+    ] = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
     estimator = estimators[kernel]
     return gtsam.noiseModel.Robust.Create(estimator.Create(k), noise)
 

@@ -10,9 +10,11 @@ from pathlib import Path
 from slamcore.errors import GraphSlamError
 
 #: Help of ``--topics`` (run, compare, localize): which topics of a ROS bag to read.
-TOPICS_HELP = ("ROS bags: topics to read, e.g. image=/cam0/image_raw,camera_info=/cam0/"
-               "camera_info,truth=/vicon/pose (default: the one topic of each kind; "
-               "refused for other datasets)")
+TOPICS_HELP = (
+    "ROS bags: topics to read, e.g. image=/cam0/image_raw,camera_info=/cam0/"
+    "camera_info,truth=/vicon/pose (default: the one topic of each kind; "
+    "refused for other datasets)"
+)
 
 EXIT_OK = 0
 #: Some of the work failed; what succeeded is written (``compare``).
@@ -80,8 +82,7 @@ def check_rerun_flags(args) -> None:
     every = getattr(args, "rerun_every", None)
     if every is not None:
         if args.rerun == "off":
-            raise ConfigError("--rerun-every applies only when a recording is made "
-                              "(not with --rerun off)")
+            raise ConfigError("--rerun-every applies only when a recording is made (not with --rerun off)")
         if every < 1:
             raise ConfigError("--rerun-every must be at least 1")
 
@@ -129,14 +130,22 @@ def close_recorder(recorder) -> bool:
 
 
 #: Write errors that are the disk's, not ours: one line, no traceback.
-_DISK_FULL = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
-              errno.EFBIG: "file larger than this system allows (a file-size limit)"}
+_DISK_FULL = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file larger than this system allows (a file-size limit)",
+}
 #: Positional arguments holding paths, as ``--help`` names them (by command, dest).
 _POSITIONAL_PATHS: dict[tuple[str | None, str], str] = {
-    ("eval", "ground_truth"): "GT", ("eval", "estimates"): "EST",
-    ("convert", "input"): "IN", ("convert", "output"): "OUT",
-    ("loops", "images_dir"): "IMAGES_DIR", ("vocab", "images"): "IMAGES",
-    ("sweep", "sweep_file"): "SWEEP.toml", ("info", "bag"): "BAG"}
+    ("eval", "ground_truth"): "GT",
+    ("eval", "estimates"): "EST",
+    ("convert", "input"): "IN",
+    ("convert", "output"): "OUT",
+    ("loops", "images_dir"): "IMAGES_DIR",
+    ("vocab", "images"): "IMAGES",
+    ("sweep", "sweep_file"): "SWEEP.toml",
+    ("info", "bag"): "BAG",
+}
 #: Options given as text that may be a path (a data set name or its folder).
 _TEXT_PATHS = ("dataset", "images")
 

@@ -51,42 +51,70 @@ def register(sub) -> None:
     names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, *POSEGRAPH_BACKENDS]))
 
     p = sub.add_parser(
-        "compare", help="run several back ends on the same stream and compare them",
+        "compare",
+        help="run several back ends on the same stream and compare them",
         description="Run several back ends on the same data (same seed, same observations), "
-                    "each in its own process, and write one table, compare.json, "
-                    "compare.png and one Rerun recording with a subtree per back end.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
-                       help="built-in dataset name, pose-graph file or image folder "
-                            "(default: synthetic)")
+        "each in its own process, and write one table, compare.json, "
+        "compare.png and one Rerun recording with a subtree per back end.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--dataset",
+        default="synthetic",
+        metavar="NAME|PATH",
+        help="built-in dataset name, pose-graph file or image folder (default: synthetic)",
+    )
     p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    p.add_argument("--robot", type=robot_arg, default=None, metavar="N|all",
-                       help="MRCLAM folders: which robot's log, or all (default: [mrclam] robot "
-                            "of --config, else 1)")
-    p.add_argument("--backends", nargs="+", default=None, choices=names, metavar="NAME",
-                       help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
-                            f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)}; on a "
-                            "pose graph naming batch or auto, or on any 3-D graph, its "
-                            "solvers isam2, batch, auto)")
-    p.add_argument("--odometry", choices=ODOMETRY_MODES, default=None,
-                       help="image sequences: where odometry comes from, as graphslam run "
-                            "(default: [visual] of --config, else auto)")
-    p.add_argument("--seed", type=int, default=None,
-                       help="seed of simulated data (the synthetic world or room, derived "
-                            "odometry) and of back ends that draw random numbers (particle "
-                            "filters, the EKF's RANSAC); refused when none is in the comparison")
-    p.add_argument("--out", type=Path, default=None,
-                       help="output folder (default: runs/<dataset>-compare)")
+    p.add_argument(
+        "--robot",
+        type=robot_arg,
+        default=None,
+        metavar="N|all",
+        help="MRCLAM folders: which robot's log, or all (default: [mrclam] robot of --config, else 1)",
+    )
+    p.add_argument(
+        "--backends",
+        nargs="+",
+        default=None,
+        choices=names,
+        metavar="NAME",
+        help=f"back ends to run (default: all of {', '.join(BACKENDS)}; on image "
+        f"sequences all of {', '.join(VISUAL_COMPARE_BACKENDS)}; on a "
+        "pose graph naming batch or auto, or on any 3-D graph, its "
+        "solvers isam2, batch, auto)",
+    )
+    p.add_argument(
+        "--odometry",
+        choices=ODOMETRY_MODES,
+        default=None,
+        help="image sequences: where odometry comes from, as graphslam run "
+        "(default: [visual] of --config, else auto)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of simulated data (the synthetic world or room, derived "
+        "odometry) and of back ends that draw random numbers (particle "
+        "filters, the EKF's RANSAC); refused when none is in the comparison",
+    )
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<dataset>-compare)")
     p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
-    p.add_argument("--max-steps", type=int, default=None, metavar="N",
-                       help="stop after N frames")
-    p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
-                       help="save compare.rrd in --out (default), spawn, connect, or off")
+    p.add_argument("--max-steps", type=int, default=None, metavar="N", help="stop after N frames")
+    p.add_argument(
+        "--rerun",
+        choices=("save", "spawn", "connect", "off"),
+        default="save",
+        help="save compare.rrd in --out (default), spawn, connect, or off",
+    )
     p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
-    p.add_argument("--in-process", action="store_true",
-                       help="run back ends in this process (no per-back-end memory figure)")
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="run back ends in this process (no per-back-end memory figure)",
+    )
     p.set_defaults(func=cmd_compare)
-
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -107,38 +135,54 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
 
     if wants_pose_graph_compare(args.dataset, args.backends):
-        return compare_pose_graph(args, config, rerun_mode,
-                                  lambda name: _out_dir(args, name, rerun_mode))
+        return compare_pose_graph(args, config, rerun_mode, lambda name: _out_dir(args, name, rerun_mode))
     if registry.is_visual_dataset(args.dataset):
         return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:
         raise GraphSlamError("--odometry applies to image sequences only")
     args.backends = args.backends or list(registry.BACKENDS)
     _check_names(args.backends, registry.BACKENDS, "2-D datasets")
-    if (args.seed is not None and args.dataset != "synthetic"
-            and not set(args.backends) & set(registry.SEEDED_BACKENDS)):
-        raise GraphSlamError(f"--seed has no effect here: {args.dataset} is not simulated and "
-                             "none of the back ends draws random numbers")
+    if (
+        args.seed is not None
+        and args.dataset != "synthetic"
+        and not set(args.backends) & set(registry.SEEDED_BACKENDS)
+    ):
+        raise GraphSlamError(
+            f"--seed has no effect here: {args.dataset} is not simulated and "
+            "none of the back ends draws random numbers"
+        )
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
-        dataset, args.backends, config=config, overrides=overrides,
-        max_steps=args.max_steps, isolate=not args.in_process, seed=args.seed,
-        progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True))
+        dataset,
+        args.backends,
+        config=config,
+        overrides=overrides,
+        max_steps=args.max_steps,
+        isolate=not args.in_process,
+        seed=args.seed,
+        progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True),
+    )
     from graphslam.visualisation.planar import RunRecorder
     from graphslam.visualisation.plots import plot_comparison
 
-    return _write_comparison(args, entries, {"dataset": dataset.name}, out_dir, rerun_mode,
-                             lambda done, path: plot_comparison(done, dataset, path),
-                             RunRecorder.open, dataset)
+    return _write_comparison(
+        args,
+        entries,
+        {"dataset": dataset.name},
+        out_dir,
+        rerun_mode,
+        lambda done, path: plot_comparison(done, dataset, path),
+        RunRecorder.open,
+        dataset,
+    )
 
 
 def _check_names(names, allowed, where: str) -> None:
     bad = [n for n in names if n not in allowed]
     if bad:
-        raise GraphSlamError(f"--backends {' '.join(bad)}: not on {where} "
-                             f"(available: {', '.join(allowed)})")
+        raise GraphSlamError(f"--backends {' '.join(bad)}: not on {where} (available: {', '.join(allowed)})")
 
 
 def _out_dir(args, name: str, rerun_mode: str) -> Path:
@@ -148,9 +192,11 @@ def _out_dir(args, name: str, rerun_mode: str) -> Path:
 
     out_dir = args.out or Path("runs") / f"{name}-compare"
     out_dir.mkdir(parents=True, exist_ok=True)
-    writers.remove_stale_outputs(out_dir, {"compare.json", "compare.png"}
-                                 | ({"compare.rrd"} if rerun_mode == "save" else set()),
-                                 writers.COMPARE_OUTPUT_NAMES)
+    writers.remove_stale_outputs(
+        out_dir,
+        {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set()),
+        writers.COMPARE_OUTPUT_NAMES,
+    )
     return out_dir
 
 
@@ -166,29 +212,44 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
 
     names = args.backends or list(VISUAL_COMPARE_BACKENDS)
     _check_names(names, VISUAL_COMPARE_BACKENDS, "image sequences")
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
-                                            topics=args.topics)
-    setup = VisualSetup.read(sequence, config, odometry=args.odometry, seed=args.seed,
-                             max_frames=args.max_steps)
-    setup.check_seed([registry.visual_compare_backend(n)[0] for n in names],
-                     simulated=args.dataset == "synthetic-images")
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config, topics=args.topics)
+    setup = VisualSetup.read(
+        sequence, config, odometry=args.odometry, seed=args.seed, max_frames=args.max_steps
+    )
+    setup.check_seed(
+        [registry.visual_compare_backend(n)[0] for n in names], simulated=args.dataset == "synthetic-images"
+    )
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = _out_dir(args, name, rerun_mode)
     entries = cs.compare(
-        setup, names, isolate=not args.in_process,
-        progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
+        setup,
+        names,
+        isolate=not args.in_process,
+        progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True),
+    )
     notes = list(getattr(sequence, "notes", ()))  # a ROS bag's topics
-    header = {"dataset": sequence.name, **({"dataset_notes": notes} if notes else {}),
-              "odometry": setup.mode,
-              "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
-              "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT}}
-    return _write_comparison(args, entries, header, out_dir, rerun_mode,
-                             lambda done, path: plot_visual_comparison(done, sequence, path),
-                             VisualRecorder.open, sequence)
+    header = {
+        "dataset": sequence.name,
+        **({"dataset_notes": notes} if notes else {}),
+        "odometry": setup.mode,
+        "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
+        "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT},
+    }
+    return _write_comparison(
+        args,
+        entries,
+        header,
+        out_dir,
+        rerun_mode,
+        lambda done, path: plot_visual_comparison(done, sequence, path),
+        VisualRecorder.open,
+        sequence,
+    )
 
 
-def _write_comparison(args, entries, header: dict, out_dir: Path, rerun_mode: str, plot,
-                      open_recording, source) -> int:
+def _write_comparison(
+    args, entries, header: dict, out_dir: Path, rerun_mode: str, plot, open_recording, source
+) -> int:
     """Table, compare.json (``header`` and the runs), compare.png (``plot(done, path)``)
     and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
     of the back ends that have a result (the failed and cut ones marked); the exit status."""
@@ -206,22 +267,28 @@ def _write_comparison(args, entries, header: dict, out_dir: Path, rerun_mode: st
 
     done = finished(entries)
     print(format_table(entries))
-    writers.write_json(out_dir / "compare.json", {**header, "runs": [
-        e.metrics if e.status == "ok" else _marked(e) for e in entries]})
+    writers.write_json(
+        out_dir / "compare.json",
+        {**header, "runs": [e.metrics if e.status == "ok" else _marked(e) for e in entries]},
+    )
     outputs = ["compare.json"]
     if done:
         plot(done, out_dir / "compare.png")
         outputs.append("compare.png")
     if rerun_mode != "off" and done:
-        recorder, rerun_mode = open_recorder(open_recording, rerun_mode,
-                                             out_dir / "compare.rrd", args.rerun_url)
+        recorder, rerun_mode = open_recorder(
+            open_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
+        )
         recorder.record_comparison(done, source)
         close_recorder(recorder)
         if rerun_mode == "save":
             outputs.append("compare.rrd")
     writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
-    skipped = {e.backend: e.metrics.loop_closures_skipped for e in done
-               if getattr(e.metrics, "loop_closures_skipped", 0)}
+    skipped = {
+        e.backend: e.metrics.loop_closures_skipped
+        for e in done
+        if getattr(e.metrics, "loop_closures_skipped", 0)
+    }
     for name, n in skipped.items():
         print(f"note: {name} cannot use relative-pose loop closures; skipped {n}")
     for e in done:
@@ -233,8 +300,10 @@ def _write_comparison(args, entries, header: dict, out_dir: Path, rerun_mode: st
             warn(f"{e.backend} failed: {e.error.strip().splitlines()[-1]}")
     guard = active_guard()
     if guard is not None and guard.requested:
-        print(f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results "
-              "so far", file=sys.stderr)
+        print(
+            f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results so far",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     return EXIT_FAILED if any(e.status == "failed" for e in entries) else 0
 
@@ -280,10 +349,12 @@ def format_table(entries) -> str:
         m.update(rpe_trans_rmse_m=rpe.get("trans_rmse_m"), rpe_rot_rmse_deg=rpe.get("rot_rmse_deg"))
         # the oracle's ceiling, observations left unused (counted as wrong) and
         # extra estimated landmarks mapped to an already-taken true landmark
-        m.update(association_accuracy=None if a is None else a.accuracy,
-                 association_oracle=None if a is None else a.oracle_accuracy,
-                 association_unused=None if a is None else a.unused,
-                 association_duplicates=None if a is None else a.duplicates)
+        m.update(
+            association_accuracy=None if a is None else a.accuracy,
+            association_oracle=None if a is None else a.oracle_accuracy,
+            association_unused=None if a is None else a.unused,
+            association_duplicates=None if a is None else a.duplicates,
+        )
         rows.append(m)
     cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
     if any(r["status"] != "ok" for r in rows):  # cut, failed, not run: say which
@@ -292,8 +363,9 @@ def format_table(entries) -> str:
     for r in rows:
         cells.append(["n/a" if r.get(k) is None else format(r[k], f) for k, _, f in cols])
     widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
-    lines = ["  ".join(c.rjust(w) if i else c.ljust(w)
-                       for i, (c, w) in enumerate(zip(row, widths, strict=True)))
-             for row in cells]
+    lines = [
+        "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True)))
+        for row in cells
+    ]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)

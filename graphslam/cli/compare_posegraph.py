@@ -40,36 +40,80 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     names = list(args.backends or registry.POSEGRAPH_BACKENDS)
     others = [n for n in names if n not in registry.POSEGRAPH_BACKENDS]
     if others:
-        raise GraphSlamError(f"--backends {' '.join(others)}: a whole pose graph is compared "
-                             f"across {', '.join(registry.POSEGRAPH_BACKENDS)}; the filters stream "
-                             "a 2-D graph frame by frame: compare them without batch or auto")
+        raise GraphSlamError(
+            f"--backends {' '.join(others)}: a whole pose graph is compared "
+            f"across {', '.join(registry.POSEGRAPH_BACKENDS)}; the filters stream "
+            "a 2-D graph frame by frame: compare them without batch or auto"
+        )
     for flag, value in (("--robot", args.robot), ("--odometry", args.odometry)):
         if value is not None:
             raise GraphSlamError(f"{flag} does not apply to a pose graph")
     if args.seed is not None:
-        raise GraphSlamError("--seed has no effect here: the pose-graph solvers draw no "
-                             "random numbers")
+        raise GraphSlamError("--seed has no effect here: the pose-graph solvers draw no random numbers")
     solver_config = registry.pose_graph_config(config)
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps)
     out_dir = out_dir_of(graph.name)
-    runs = compare(graph, names, solver_config, truth,
-                   progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True))
-    rows = [("backend", "status", "final cost", "iterations", "rejected", "certified",
-             "ATE [m]", "RMS to first [m]", "wall [s]")]
+    runs = compare(
+        graph,
+        names,
+        solver_config,
+        truth,
+        progress=lambda n: print(f"running {n} ...", file=sys.stderr, flush=True),
+    )
+    rows = [
+        (
+            "backend",
+            "status",
+            "final cost",
+            "iterations",
+            "rejected",
+            "certified",
+            "ATE [m]",
+            "RMS to first [m]",
+            "wall [s]",
+        )
+    ]
     for r in runs:
         m = r.metrics
-        rows.append((r.backend, r.status) + (("n/a",) * 7 if m is None else (
-            fmt(m.final_cost, ".10g"), fmt(m.iterations, "d"), str(m.closures_rejected),
-            _certified(m.certificate), fmt(m.ate_rmse_m, ".4f"), fmt(r.rms_to_first_m, ".3g"),
-            fmt(m.wall_s, ".2f"))))
+        rows.append(
+            (r.backend, r.status)
+            + (
+                ("n/a",) * 7
+                if m is None
+                else (
+                    fmt(m.final_cost, ".10g"),
+                    fmt(m.iterations, "d"),
+                    str(m.closures_rejected),
+                    _certified(m.certificate),
+                    fmt(m.ate_rmse_m, ".4f"),
+                    fmt(r.rms_to_first_m, ".3g"),
+                    fmt(m.wall_s, ".2f"),
+                )
+            )
+        )
     widths = [max(len(row[c]) for row in rows) for c in range(len(rows[0]))]
-    print("\n".join("  ".join(v.rjust(w) if c else v.ljust(w)
-                              for c, (v, w) in enumerate(zip(row, widths, strict=True))) for row in rows))
-    writers.write_json(out_dir / "compare.json", {
-        "dataset": graph.name, "kind": "pose graph",
-        "graph": {"dim": graph.dim, "format": graph.format, "poses": graph.n_poses,
-                  "edges": graph.n_edges},
-        "runs": [r.to_dict() for r in runs]})
+    print(
+        "\n".join(
+            "  ".join(
+                v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(row, widths, strict=True))
+            )
+            for row in rows
+        )
+    )
+    writers.write_json(
+        out_dir / "compare.json",
+        {
+            "dataset": graph.name,
+            "kind": "pose graph",
+            "graph": {
+                "dim": graph.dim,
+                "format": graph.format,
+                "poses": graph.n_poses,
+                "edges": graph.n_edges,
+            },
+            "runs": [r.to_dict() for r in runs],
+        },
+    )
     outputs = ["compare.json"]
     done = [r for r in runs if r.result is not None]
     if done:
@@ -81,8 +125,10 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     print(f"outputs in {out_dir}/: {', '.join(outputs)}")
     if stop_requested() or any(r.status == "cut" for r in runs):
         guard = active_guard()
-        print(f"graphslam: interrupted ({guard.signal_name if guard else 'stop'}); wrote the "
-              "solvers that ran", file=sys.stderr)
+        print(
+            f"graphslam: interrupted ({guard.signal_name if guard else 'stop'}); wrote the solvers that ran",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     return EXIT_FAILED if any(r.error for r in runs) else 0
 
@@ -104,20 +150,31 @@ def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[s
     from graphslam.visualisation.plots import plot_pose_graph_comparison
     from graphslam.visualisation.spatial import log_pose_graph
 
-    tracks = {r.backend: trajectory_matrices(solved_graph(graph, r.result), r.result.params)[:, :3, 3]
-              for r in done}
+    tracks = {
+        r.backend: trajectory_matrices(solved_graph(graph, r.result), r.result.params)[:, :3, 3] for r in done
+    }
     truth_xyz = None if truth is None else np.asarray(truth[1])[:, :3, 3]
     plot_pose_graph_comparison(
-        out_dir / "compare.png", f"{graph.name}: {graph.dim}-D, {graph.n_poses} poses, "
-        f"{graph.n_edges} edges", tracks, truth_xyz, {r.backend: r.metrics.wall_s for r in done},
-        {r.backend: r.metrics.final_cost for r in done})
+        out_dir / "compare.png",
+        f"{graph.name}: {graph.dim}-D, {graph.n_poses} poses, {graph.n_edges} edges",
+        tracks,
+        truth_xyz,
+        {r.backend: r.metrics.wall_s for r in done},
+        {r.backend: r.metrics.final_cost for r in done},
+    )
     written = ["compare.png"]
     if rerun_mode != "off":
-        log, mode = open_recorder(open_posegraph_recording, rerun_mode, out_dir / "compare.rrd",
-                                  args.rerun_url)
+        log, mode = open_recorder(
+            open_posegraph_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
+        )
         for r in done:
-            log_pose_graph(log, solved_graph(graph, r.result), r.result.params, r.result.rejected,
-                           root=f"world/{r.backend}")
+            log_pose_graph(
+                log,
+                solved_graph(graph, r.result),
+                r.result.params,
+                r.result.rejected,
+                root=f"world/{r.backend}",
+            )
         close_recorder(log)
         if mode == "save":
             written.append("compare.rrd")

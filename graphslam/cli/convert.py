@@ -13,29 +13,38 @@ FORMAT_OF_SUFFIX = {".g2o": "g2o", ".graph": "toro"}
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "convert", help="convert a pose graph between g2o and TORO (2-D and 3-D)",
+        "convert",
+        help="convert a pose graph between g2o and TORO (2-D and 3-D)",
         description="Read a g2o or TORO pose graph (2-D or 3-D) and write it in the format "
-                    "that OUT's extension names (.g2o or .graph, unless --to), same dimension, "
-                    "numbers unchanged (3-D rotations re-expressed: quaternion <-> roll pitch "
-                    "yaw). g2o has no EQUIV lines: converting TORO to g2o drops them and says "
-                    "so.")
+        "that OUT's extension names (.g2o or .graph, unless --to), same dimension, "
+        "numbers unchanged (3-D rotations re-expressed: quaternion <-> roll pitch "
+        "yaw). g2o has no EQUIV lines: converting TORO to g2o drops them and says "
+        "so.",
+    )
     p.add_argument("input", type=Path, metavar="IN")
     p.add_argument("output", type=Path, metavar="OUT")
-    p.add_argument("--to", choices=("g2o", "toro"), default=None,
-                   help="output format (default: from OUT's extension)")
+    p.add_argument(
+        "--to", choices=("g2o", "toro"), default=None, help="output format (default: from OUT's extension)"
+    )
     # posegraph_files.TORO_NOISE, written out: building the parser imports no numpy
-    p.add_argument("--toro-noise", choices=("auto", "information", "sqrt_information"),
-                   default="auto",
-                   help="how TORO edge numbers are read and written: information (the "
-                        "format), sqrt_information (files written by iSAM), or auto "
-                        "(default: sqrt_information for the files known to hold it, such as "
-                        "gtsam's sphere2500.txt, said on stderr; else information)")
+    p.add_argument(
+        "--toro-noise",
+        choices=("auto", "information", "sqrt_information"),
+        default="auto",
+        help="how TORO edge numbers are read and written: information (the "
+        "format), sqrt_information (files written by iSAM), or auto "
+        "(default: sqrt_information for the files known to hold it, such as "
+        "gtsam's sphere2500.txt, said on stderr; else information)",
+    )
     # posegraph_files.INFORMATION_FIX, written out for the same reason
-    p.add_argument("--information-fix", choices=("nearest", "isotropic", "refuse"),
-                   default="nearest",
-                   help="an information matrix that is not positive definite is written as "
-                        "the nearest positive-definite one (default), as SE-Sync's isotropic "
-                        "weights, or refused")
+    p.add_argument(
+        "--information-fix",
+        choices=("nearest", "isotropic", "refuse"),
+        default="nearest",
+        help="an information matrix that is not positive definite is written as "
+        "the nearest positive-definite one (default), as SE-Sync's isotropic "
+        "weights, or refused",
+    )
     p.set_defaults(func=cmd_convert)
 
 
@@ -46,27 +55,34 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
     fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
     if fmt is None:
-        raise ConfigError(f"cannot tell the output format from {args.output.name!r}: "
-                          "name it .g2o or .graph, or pass --to g2o|toro")
+        raise ConfigError(
+            f"cannot tell the output format from {args.output.name!r}: "
+            "name it .g2o or .graph, or pass --to g2o|toro"
+        )
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
     graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
     converted, notes = convert(graph, fmt)
     if graph.n_information_fixed:  # the numbers are no longer the file's: say so
-        notes.append(f"{graph.n_information_fixed} edges' information matrices were not "
-                     f"positive definite: written as replaced ({graph.information_fix}; "
-                     "--information-fix refuse keeps the refusal)")
+        notes.append(
+            f"{graph.n_information_fixed} edges' information matrices were not "
+            f"positive definite: written as replaced ({graph.information_fix}; "
+            "--information-fix refuse keeps the refusal)"
+        )
     if graph.noise_note:
         notes.append(f"edge numbers read as {graph.noise_note}")
     if fmt == "toro":  # --toro-noise says how TORO numbers are written too (auto: as read)
         converted = dataclasses.replace(
-            converted, noise=graph.noise if args.toro_noise == "auto" else args.toro_noise)
+            converted, noise=graph.noise if args.toro_noise == "auto" else args.toro_noise
+        )
     for note in notes:
         warn(note)
     try:
         write_pose_graph(args.output, converted)
     except OSError as exc:
         raise ConfigError(f"cannot write: {exc.strerror or exc}", args.output) from None
-    print(f"{args.input} ({graph.dim}-D {graph.format}, {graph.n_poses} poses, "
-          f"{graph.n_edges} edges) -> {args.output} ({fmt})")
+    print(
+        f"{args.input} ({graph.dim}-D {graph.format}, {graph.n_poses} poses, "
+        f"{graph.n_edges} edges) -> {args.output} ({fmt})"
+    )
     return 0

@@ -47,32 +47,64 @@ def register(sub) -> None:
     from graphslam.sources.ground_truth import TRAJECTORY_FORMATS
 
     p = sub.add_parser(
-        "eval", help="score trajectory files (TUM, KITTI, EuRoC) against ground truth",
+        "eval",
+        help="score trajectory files (TUM, KITTI, EuRoC) against ground truth",
         description="ATE, RPE and KITTI drift of one or more estimates against a reference "
-                    "trajectory; a table, eval.json and eval.png.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("ground_truth", type=Path, metavar="GT",
-                   help="reference trajectory file, or BAG:TOPIC (see below)")
-    p.add_argument("estimates", type=Path, nargs="+", metavar="EST",
-                   help="estimate file(s), or BAG:TOPIC")
-    p.add_argument("--format", choices=TRAJECTORY_FORMATS, default=None,
-                   help="file format of every file (default: told from the content)")
-    p.add_argument("--times", type=Path, default=None, metavar="FILE",
-                   help="KITTI times file giving the KITTI files' stamps")
-    p.add_argument("--align", choices=ALIGN_METHODS, default="se3",
-                   help="alignment of each estimate to the reference (default: se3)")
-    p.add_argument("--n-align", type=int, default=None, metavar="N",
-                   help="fit se3/sim3 on the first N matched poses only (default: all)")
-    p.add_argument("--max-diff", type=float, default=DEFAULT_MAX_DIFF_S, metavar="S",
-                   help=f"largest time difference of a matched pair (default: {DEFAULT_MAX_DIFF_S} s)")
-    p.add_argument("--offset", type=float, default=DEFAULT_OFFSET_S, metavar="S",
-                   help=f"time added to the estimates' stamps (default: {DEFAULT_OFFSET_S} s)")
-    p.add_argument("--delta", type=float, default=1, metavar="N",
-                   help="RPE step (default: 1)")
-    p.add_argument("--delta-unit", choices=DELTA_UNITS, default="frames",
-                   help="RPE step unit (default: frames)")
-    p.add_argument("--out", type=Path, default=Path("runs") / "eval",
-                   help="output folder (default: runs/eval)")
+        "trajectory; a table, eval.json and eval.png.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "ground_truth", type=Path, metavar="GT", help="reference trajectory file, or BAG:TOPIC (see below)"
+    )
+    p.add_argument("estimates", type=Path, nargs="+", metavar="EST", help="estimate file(s), or BAG:TOPIC")
+    p.add_argument(
+        "--format",
+        choices=TRAJECTORY_FORMATS,
+        default=None,
+        help="file format of every file (default: told from the content)",
+    )
+    p.add_argument(
+        "--times",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="KITTI times file giving the KITTI files' stamps",
+    )
+    p.add_argument(
+        "--align",
+        choices=ALIGN_METHODS,
+        default="se3",
+        help="alignment of each estimate to the reference (default: se3)",
+    )
+    p.add_argument(
+        "--n-align",
+        type=int,
+        default=None,
+        metavar="N",
+        help="fit se3/sim3 on the first N matched poses only (default: all)",
+    )
+    p.add_argument(
+        "--max-diff",
+        type=float,
+        default=DEFAULT_MAX_DIFF_S,
+        metavar="S",
+        help=f"largest time difference of a matched pair (default: {DEFAULT_MAX_DIFF_S} s)",
+    )
+    p.add_argument(
+        "--offset",
+        type=float,
+        default=DEFAULT_OFFSET_S,
+        metavar="S",
+        help=f"time added to the estimates' stamps (default: {DEFAULT_OFFSET_S} s)",
+    )
+    p.add_argument("--delta", type=float, default=1, metavar="N", help="RPE step (default: 1)")
+    p.add_argument(
+        "--delta-unit", choices=DELTA_UNITS, default="frames", help="RPE step unit (default: frames)"
+    )
+    p.add_argument(
+        "--out", type=Path, default=Path("runs") / "eval", help="output folder (default: runs/eval)"
+    )
     p.add_argument("--no-plot", action="store_true", help="do not write eval.png")
     p.set_defaults(func=cmd_eval)
 
@@ -81,19 +113,47 @@ def format_table(results) -> str:
     """One row per estimate: ATE, RPE and drift."""
     from graphslam.cli.common import fmt
 
-    head = ("estimate", "matched", "ATE rmse", "mean", "median", "max [m]", "rot [deg]",
-            "RPE [m]", "RPE [deg]", "drift [%]", "[deg/100m]")
+    head = (
+        "estimate",
+        "matched",
+        "ATE rmse",
+        "mean",
+        "median",
+        "max [m]",
+        "rot [deg]",
+        "RPE [m]",
+        "RPE [deg]",
+        "drift [%]",
+        "[deg/100m]",
+    )
     rows: list[tuple[str, ...]] = [head]
     for r in results:
         s = r.result.summary()
-        rows.append((r.label or Path(r.path).name, f"{s['matched_poses']}/{s['estimate_poses']}",
-                     *(fmt(s[k], ".4f") for k in ("ate_rmse_m", "ate_mean_m", "ate_median_m",
-                                                  "ate_max_m", "ate_rot_rmse_deg",
-                                                  "rpe_trans_rmse_m", "rpe_rot_rmse_deg",
-                                                  "kitti_drift_pct", "kitti_drift_deg_per_100m"))))
+        rows.append(
+            (
+                r.label or Path(r.path).name,
+                f"{s['matched_poses']}/{s['estimate_poses']}",
+                *(
+                    fmt(s[k], ".4f")
+                    for k in (
+                        "ate_rmse_m",
+                        "ate_mean_m",
+                        "ate_median_m",
+                        "ate_max_m",
+                        "ate_rot_rmse_deg",
+                        "rpe_trans_rmse_m",
+                        "rpe_rot_rmse_deg",
+                        "kitti_drift_pct",
+                        "kitti_drift_deg_per_100m",
+                    )
+                ),
+            )
+        )
     widths = [max(len(row[c]) for row in rows) for c in range(len(head))]
-    return "\n".join("  ".join(v.rjust(w) if c else v.ljust(w)
-                               for c, (v, w) in enumerate(zip(row, widths, strict=True))) for row in rows)
+    return "\n".join(
+        "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(row, widths, strict=True)))
+        for row in rows
+    )
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -108,10 +168,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out)  # refused now, not after scoring
-    options = EvalOptions(align=args.align, n_align=args.n_align, max_diff_s=args.max_diff,
-                          offset_s=args.offset, delta=args.delta, delta_unit=args.delta_unit)
-    results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format,
-                             times=args.times)
+    options = EvalOptions(
+        align=args.align,
+        n_align=args.n_align,
+        max_diff_s=args.max_diff,
+        offset_s=args.offset,
+        delta=args.delta,
+        delta_unit=args.delta_unit,
+    )
+    results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
     if not args.no_plot:
         from graphslam.visualisation.plots import plot_trajectory_eval

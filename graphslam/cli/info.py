@@ -8,14 +8,20 @@ from pathlib import Path
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "info", help="list the topics of a ROS bag (type, messages, rate)",
+        "info",
+        help="list the topics of a ROS bag (type, messages, rate)",
         description="List every topic of a ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or "
-                    "mcap) in one table: message type, message count and mean rate (Hz, from "
-                    "the record times), and which topics --dataset BAG would read. Needs the "
-                    "rosbags package: pip install \".[bags]\".")
+        "mcap) in one table: message type, message count and mean rate (Hz, from "
+        "the record times), and which topics --dataset BAG would read. Needs the "
+        'rosbags package: pip install ".[bags]".',
+    )
     p.add_argument("bag", type=Path, metavar="BAG", help="a .bag file or a ROS 2 bag folder")
-    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...",
-                   help="as for graphslam run: check that these names pick the topics")
+    p.add_argument(
+        "--topics",
+        default=None,
+        metavar="ROLE=TOPIC,...",
+        help="as for graphslam run: check that these names pick the topics",
+    )
     p.set_defaults(func=cmd_info)
 
 
@@ -25,17 +31,21 @@ def cmd_info(args: argparse.Namespace) -> int:
     topics = bag_topics(args.bag)
     print(format_topics(topics))
     roles = chosen_roles(args.bag, topics, args.topics)
-    print("read by --dataset: " + (", ".join(f"{r} {t}" for r, t in roles.items())
-                                   if isinstance(roles, dict) else roles))
+    print(
+        "read by --dataset: "
+        + (", ".join(f"{r} {t}" for r, t in roles.items()) if isinstance(roles, dict) else roles)
+    )
     return 0
 
 
 def format_topics(topics) -> str:
     """One row per topic: name, type, messages, rate."""
     rows = [("topic", "type", "messages", "rate [Hz]")]
-    rows += [(t.name, t.msgtype, str(t.count), "n/a" if t.rate_hz is None else f"{t.rate_hz:.2f}")
-             for t in topics]
+    rows += [
+        (t.name, t.msgtype, str(t.count), "n/a" if t.rate_hz is None else f"{t.rate_hz:.2f}") for t in topics
+    ]
     widths = [max(len(r[c]) for r in rows) for c in range(4)]
-    lines = [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:>{widths[2]}}  "
-             f"{r[3]:>{widths[3]}}" for r in rows]
+    lines = [
+        f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:>{widths[2]}}  {r[3]:>{widths[3]}}" for r in rows
+    ]
     return "\n".join(lines)

@@ -42,23 +42,47 @@ examples:
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "localize", help="localise an image sequence against a saved map (map fixed)",
+        "localize",
+        help="localise an image sequence against a saved map (map fixed)",
         description="Place every frame of an image sequence in a map saved by "
-                    "'graphslam run --save-map': place recognition, PnP RANSAC, then "
-                    "tracking against the map's landmarks, relocalising when lost.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--map", type=Path, required=True, metavar="DIR",
-                   help="map folder written by 'graphslam run --save-map'")
-    p.add_argument("--dataset", required=True, metavar="NAME|FOLDER",
-                   help="synthetic-images or an image-sequence folder (same camera as the map)")
+        "'graphslam run --save-map': place recognition, PnP RANSAC, then "
+        "tracking against the map's landmarks, relocalising when lost.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--map",
+        type=Path,
+        required=True,
+        metavar="DIR",
+        help="map folder written by 'graphslam run --save-map'",
+    )
+    p.add_argument(
+        "--dataset",
+        required=True,
+        metavar="NAME|FOLDER",
+        help="synthetic-images or an image-sequence folder (same camera as the map)",
+    )
     p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    p.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
-                   help="localise these frames only (Python slice; 159::-2 plays backwards)")
+    p.add_argument(
+        "--frames",
+        default=None,
+        metavar="START:STOP[:STEP]",
+        help="localise these frames only (Python slice; 159::-2 plays backwards)",
+    )
     p.add_argument("--out", type=Path, default=None, help="output folder")
-    p.add_argument("--config", type=Path, default=None,
-                   help="TOML or YAML file ([localize], [loop_pnp], [harris], [orb], ...)")
-    p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
-                   help="save localize.rrd in --out (default), spawn or connect a viewer, or off")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="TOML or YAML file ([localize], [loop_pnp], [harris], [orb], ...)",
+    )
+    p.add_argument(
+        "--rerun",
+        choices=("save", "spawn", "connect", "off"),
+        default="save",
+        help="save localize.rrd in --out (default), spawn or connect a viewer, or off",
+    )
     p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_localize)
@@ -88,8 +112,9 @@ def cmd_localize(args: argparse.Namespace) -> int:
         check_output_dir(args.out)
     smap = load_map(args.map)
     config = registry.read_config(args.config)
-    sequence = select_frames(registry.load_image_sequence(args.dataset, config=config,
-                                                          topics=args.topics), frames)
+    sequence = select_frames(
+        registry.load_image_sequence(args.dataset, config=config, topics=args.topics), frames
+    )
     session = LocaliseSession.open(sequence, config, smap, args.dataset)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
@@ -99,8 +124,9 @@ def cmd_localize(args: argparse.Namespace) -> int:
     if args.rerun != "off":
         from graphslam.visualisation.spatial import LocalizeRecorder
 
-        recorder, args.rerun = open_recorder(LocalizeRecorder.open, args.rerun,
-                                             out_dir / "localize.rrd", args.rerun_url)
+        recorder, args.rerun = open_recorder(
+            LocalizeRecorder.open, args.rerun, out_dir / "localize.rrd", args.rerun_url
+        )
         recorder.start_map(smap, sequence, len(sequence))
         hook = recorder.log_placement
     result = session.run(progress=not args.quiet, on_frame=hook)
@@ -116,15 +142,20 @@ def cmd_localize(args: argparse.Namespace) -> int:
 
 
 def format_summary(m: dict) -> str:
-    rows = [("dataset", m["dataset"]), ("map keyframes / landmarks",
-                                        f"{m['map']['keyframes']} / {m['map']['landmarks']}"),
-            ("frames", m["frames"]), ("localised", fmt(100 * m["localised_fraction"], ".1f") + " %"),
-            ("tracked / relocalised / lost",
-             f"{m['tracked']} / {m['relocalisations']} / {m['lost_frames']}"),
-            ("ATE RMSE [m], map frame", fmt(m.get("ate_rmse_m"), ".4f")),
-            ("median / max error [m]", f"{fmt(m.get('error_median_m'), '.4f')} / "
-                                       f"{fmt(m.get('error_max_m'), '.4f')}"),
-            ("wall time [s]", fmt(m["wall_s"], ".2f")), ("frames/s", fmt(m["frames_per_s"], ".1f"))]
+    rows = [
+        ("dataset", m["dataset"]),
+        ("map keyframes / landmarks", f"{m['map']['keyframes']} / {m['map']['landmarks']}"),
+        ("frames", m["frames"]),
+        ("localised", fmt(100 * m["localised_fraction"], ".1f") + " %"),
+        ("tracked / relocalised / lost", f"{m['tracked']} / {m['relocalisations']} / {m['lost_frames']}"),
+        ("ATE RMSE [m], map frame", fmt(m.get("ate_rmse_m"), ".4f")),
+        (
+            "median / max error [m]",
+            f"{fmt(m.get('error_median_m'), '.4f')} / {fmt(m.get('error_max_m'), '.4f')}",
+        ),
+        ("wall time [s]", fmt(m["wall_s"], ".2f")),
+        ("frames/s", fmt(m["frames_per_s"], ".1f")),
+    ]
     if m["interrupted"]:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)

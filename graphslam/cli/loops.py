@@ -39,38 +39,79 @@ examples:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "loops", help="detect loop closures in a folder of images (bag of words + RANSAC)",
+        "loops",
+        help="detect loop closures in a folder of images (bag of words + RANSAC)",
         description="Place recognition on a folder of images in file-name order: ORB features, "
-                    "bag-of-words query, temporal consistency and geometric verification. "
-                    "Writes one CSV row per accepted closure.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("images_dir", type=Path, metavar="IMAGES_DIR",
-                   help="folder of images (.png .jpg .jpeg .bmp .tif .tiff .pgm), taken in "
-                        "natural file-name order as a time sequence, or a ROS bag (its image "
-                        "topic in header-stamp order; its camera info as --intrinsics)")
+        "bag-of-words query, temporal consistency and geometric verification. "
+        "Writes one CSV row per accepted closure.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "images_dir",
+        type=Path,
+        metavar="IMAGES_DIR",
+        help="folder of images (.png .jpg .jpeg .bmp .tif .tiff .pgm), taken in "
+        "natural file-name order as a time sequence, or a ROS bag (its image "
+        "topic in header-stamp order; its camera info as --intrinsics)",
+    )
     p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    p.add_argument("--out", type=Path, required=True, metavar="FILE",
-                   help="CSV file to write: query,match,score,inliers")
-    p.add_argument("--vocab", type=Path, default=None, metavar="FILE",
-                   help="vocabulary file from 'graphslam vocab train' (default: the general "
-                        "10 000-word ORB vocabulary shipped with the package)")
-    p.add_argument("--words", type=int, default=None, metavar="N",
-                   help="instead, train a vocabulary of N words on the folder itself "
-                        "(e.g. 1000, a 10-way tree of depth 3)")
-    p.add_argument("--intrinsics", type=Path, default=None, metavar="FILE",
-                   help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
-                        "enables the essential-matrix check (default: fundamental matrix)")
-    p.add_argument("--config", type=Path, default=None, metavar="FILE",
-                   help="TOML or YAML file with [loops] and [loop_verify] sections")
-    p.add_argument("--log", type=Path, default=None, metavar="FILE",
-                   help="write every candidate's fate (scores, inliers, accepted or why "
-                        "rejected) as JSON lines")
-    p.add_argument("--truth", type=Path, default=None, metavar="FILE",
-                   help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
-                        "image whose non-zero pixel (i, j) marks images i and j as one place; "
-                        "prints precision and recall and writes pr.csv and pr.png next to --out")
-    p.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
-                   help="use these images only (Python slice of the file-name order)")
+    p.add_argument(
+        "--out", type=Path, required=True, metavar="FILE", help="CSV file to write: query,match,score,inliers"
+    )
+    p.add_argument(
+        "--vocab",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="vocabulary file from 'graphslam vocab train' (default: the general "
+        "10 000-word ORB vocabulary shipped with the package)",
+    )
+    p.add_argument(
+        "--words",
+        type=int,
+        default=None,
+        metavar="N",
+        help="instead, train a vocabulary of N words on the folder itself "
+        "(e.g. 1000, a 10-way tree of depth 3)",
+    )
+    p.add_argument(
+        "--intrinsics",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
+        "enables the essential-matrix check (default: fundamental matrix)",
+    )
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="TOML or YAML file with [loops] and [loop_verify] sections",
+    )
+    p.add_argument(
+        "--log",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="write every candidate's fate (scores, inliers, accepted or why rejected) as JSON lines",
+    )
+    p.add_argument(
+        "--truth",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
+        "image whose non-zero pixel (i, j) marks images i and j as one place; "
+        "prints precision and recall and writes pr.csv and pr.png next to --out",
+    )
+    p.add_argument(
+        "--frames",
+        default=None,
+        metavar="START:STOP[:STEP]",
+        help="use these images only (Python slice of the file-name order)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_loops)
 
@@ -112,16 +153,26 @@ def cmd_loops(args: argparse.Namespace) -> int:
         vocab = load_vocabulary(vocab_path)
         check_vocabulary(vocab, vocab_path)
     # One ORB pass serves the mode choice, the training (if any) and the detection.
-    features = detect_all(paths, OrbDetector(detector_config.orb), progress=not args.quiet,
-                          load=None if bag is None else _bag_loader(bag))
+    features = detect_all(
+        paths,
+        OrbDetector(detector_config.orb),
+        progress=not args.quiet,
+        load=None if bag is None else _bag_loader(bag),
+    )
     places = folder_places(features, detector_config, times)
     if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
 
-    detector = LoopDetector(vocab, detector_config, verify_config, K=K, distortion=distortion,
-                            mode=places.mode if detector_config.mode == "auto" else None)
+    detector = LoopDetector(
+        vocab,
+        detector_config,
+        verify_config,
+        K=K,
+        distortion=distortion,
+        mode=places.mode if detector_config.mode == "auto" else None,
+    )
     kept = list(features) if args.truth is not None else None  # detect_loops frees its list
     detect_loops(paths, detector, features, progress=not args.quiet, timestamps=places.timestamps)
 
@@ -137,12 +188,16 @@ def cmd_loops(args: argparse.Namespace) -> int:
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
     print(f"places: {places.describe(detector_config, detector.excluded)}")
-    print(f"{seen} images, {len(detector.records)} candidates, "
-          f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
-          f"wrote {', '.join(written)}")
+    print(
+        f"{seen} images, {len(detector.records)} candidates, "
+        f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
+        f"wrote {', '.join(written)}"
+    )
     if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
-        print(f"graphslam: interrupted ({guard.signal_name}); wrote the closures found in "
-              f"the images seen", file=sys.stderr)
+        print(
+            f"graphslam: interrupted ({guard.signal_name}); wrote the closures found in the images seen",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     return 0
 
@@ -161,8 +216,11 @@ def _images(args):
         from graphslam.sources.spatial.rosbag import parse_topics, read_bag
 
         # ground truth poses are not read: the same-place pairs come from --truth
-        bag = read_bag(args.images_dir, {"truth": "none", "odometry": "none",
-                                         **parse_topics(args.topics)}, calibrated=False)
+        bag = read_bag(
+            args.images_dir,
+            {"truth": "none", "odometry": "none", **parse_topics(args.topics)},
+            calibrated=False,
+        )
         paths = [Path(p) for p in bag.image_paths]  # <bag>#<topic>/000042: names 000042
         times = bag.stamps_s
     else:
@@ -209,15 +267,22 @@ def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:
     precision, recall, n_true = score(closures, truth)
     # The sweep: the same detector with no score threshold, every verified candidate kept.
     loose = dataclasses.replace(detector.config, min_normalised_score=0.0, min_score=0.0)
-    sweep = LoopDetector(detector.database.vocabulary, loose, verifier=detector.verifier,
-                         K=detector.K, distortion=detector.distortion,
-                         mode=detector.mode if loose.mode == "auto" else None)
+    sweep = LoopDetector(
+        detector.database.vocabulary,
+        loose,
+        verifier=detector.verifier,
+        K=detector.K,
+        distortion=detector.distortion,
+        mode=detector.mode if loose.mode == "auto" else None,
+    )
     points = pr_curve(sweep_scores(paths, features, sweep, timestamps), truth)
     files = write_pr(points, (precision, recall), args.out.parent)
     n_queries = len({q for q, _ in truth})
     prec = "n/a (no closure)" if precision is None else f"{precision:.3f}"
-    print(f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
-          f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}")
+    print(
+        f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
+        f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}"
+    )
     return [str(f) for f in files]
 
 

@@ -25,7 +25,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="graphslam",
         description="Graph-SLAM toolkit on GTSAM: run SLAM on a sequence and get a trajectory, "
-                    "a map, metrics and a Rerun recording.")
+        "a map, metrics and a Rerun recording.",
+    )
     from graphslam import __version__
 
     parser.add_argument("--version", action="version", version=f"graphslam {__version__}")
@@ -104,8 +105,9 @@ def main(argv: list[str] | None = None) -> int:
         if guard.requested and status in (EXIT_OK, EXIT_INTERRUPTED):
             # the signal came while the outputs were being finished: all written
             if status == EXIT_OK:
-                print(f"graphslam: interrupted ({guard.signal_name}); the outputs are complete",
-                      file=sys.stderr)
+                print(
+                    f"graphslam: interrupted ({guard.signal_name}); the outputs are complete", file=sys.stderr
+                )
             return guard.exit_status()
         return status
 

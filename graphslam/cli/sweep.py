@@ -46,16 +46,28 @@ examples:
 def register(sub) -> None:
     """Add the ``sweep`` sub-command to the ``graphslam`` parser."""
     p = sub.add_parser(
-        "sweep", help="run a grid of datasets x back ends x settings x seeds",
+        "sweep",
+        help="run a grid of datasets x back ends x settings x seeds",
         description="Monte Carlo and parameter sweeps: every run of the grid as its own "
-                    "'graphslam run', one table (sweep.csv) and plots.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        "'graphslam run', one table (sweep.csv) and plots.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("sweep_file", type=Path, metavar="SWEEP.toml", help="the sweep file")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="runs at a time (default: the number of CPU cores)")
-    p.add_argument("--cluster", default=None, metavar="local|ADDRESS",
-                   help="run on Dask distributed: a local cluster, or a scheduler address")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="runs at a time (default: the number of CPU cores)",
+    )
+    p.add_argument(
+        "--cluster",
+        default=None,
+        metavar="local|ADDRESS",
+        help="run on Dask distributed: a local cluster, or a scheduler address",
+    )
     p.add_argument("--no-plots", action="store_true", help="write sweep.csv only")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
@@ -99,8 +111,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if workers < 1:
         raise ConfigError("--workers must be at least 1")
     if args.workers is not None and args.cluster not in (None, "local"):
-        raise ConfigError("--workers sets the local pool or --cluster local; a running "
-                          "cluster has the workers it was started with")
+        raise ConfigError(
+            "--workers sets the local pool or --cluster local; a running "
+            "cluster has the workers it was started with"
+        )
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out)  # refused now, not as each run's error
@@ -124,8 +138,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         rows = with_labels(outcome.rows, spec.set_keys)
         written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out)
     ok = sum(r.get("status") == "ok" for r in outcome.rows)
-    print(f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "
-          f"({outcome.failed} failed); {ok} ok in {outcome.csv_path}")
+    print(
+        f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "
+        f"({outcome.failed} failed); {ok} ok in {outcome.csv_path}"
+    )
     print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)

@@ -21,34 +21,65 @@ examples:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "vocab", help="visual vocabularies for loop closure (train)",
-        description="Visual vocabularies (bag of words) for loop-closure detection.")
+        "vocab",
+        help="visual vocabularies for loop closure (train)",
+        description="Visual vocabularies (bag of words) for loop-closure detection.",
+    )
     sub = p.add_subparsers(dest="vocab_command", metavar="ACTION")
     sub.required = True
     t = sub.add_parser(
-        "train", help="train a vocabulary from images",
+        "train",
+        help="train a vocabulary from images",
         description="Detect ORB features on every image (progress bar), train a vocabulary tree "
-                    "(hierarchical k-means, branching^depth >= --words leaves) or a flat "
-                    "k-means vocabulary, and save it as one file.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    t.add_argument("images", nargs="+", metavar="IMAGES",
-                   help="image files and/or folders (a folder contributes its images, "
-                        "in file-name order, not recursively)")
-    t.add_argument("--words", type=int, default=1000, metavar="N",
-                   help="number of visual words wanted (default: 1000); a tree gets the "
-                        "smallest depth with branching^depth >= N")
-    t.add_argument("--out", type=Path, required=True, metavar="FILE",
-                   help="vocabulary file to write (.npz archive, written under exactly this name)")
-    t.add_argument("--flat", action="store_true",
-                   help="one flat k-means of N words instead of a tree (slower to query)")
-    t.add_argument("--branching", type=int, default=10, metavar="K",
-                   help="branching factor of the tree (default: 10)")
-    t.add_argument("--per-image", type=int, default=300, metavar="M",
-                   help="train on the M strongest descriptors of each image (default: 300; "
-                        "0 = all); bounds training time")
+        "(hierarchical k-means, branching^depth >= --words leaves) or a flat "
+        "k-means vocabulary, and save it as one file.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    t.add_argument(
+        "images",
+        nargs="+",
+        metavar="IMAGES",
+        help="image files and/or folders (a folder contributes its images, "
+        "in file-name order, not recursively)",
+    )
+    t.add_argument(
+        "--words",
+        type=int,
+        default=1000,
+        metavar="N",
+        help="number of visual words wanted (default: 1000); a tree gets the "
+        "smallest depth with branching^depth >= N",
+    )
+    t.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        metavar="FILE",
+        help="vocabulary file to write (.npz archive, written under exactly this name)",
+    )
+    t.add_argument(
+        "--flat", action="store_true", help="one flat k-means of N words instead of a tree (slower to query)"
+    )
+    t.add_argument(
+        "--branching", type=int, default=10, metavar="K", help="branching factor of the tree (default: 10)"
+    )
+    t.add_argument(
+        "--per-image",
+        type=int,
+        default=300,
+        metavar="M",
+        help="train on the M strongest descriptors of each image (default: 300; "
+        "0 = all); bounds training time",
+    )
     t.add_argument("--seed", type=int, default=0, help="k-means seed (default: 0)")
-    t.add_argument("--config", type=Path, default=None, metavar="FILE",
-                   help="TOML or YAML file; ORB settings are read from its [loops.orb] table")
+    t.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="TOML or YAML file; ORB settings are read from its [loops.orb] table",
+    )
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_train)
 
@@ -78,18 +109,29 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
     t0 = time.perf_counter()
     print(f"training on {len(feats)} images ...", file=sys.stderr, flush=True)
-    vocab = train_vocabulary([f.descriptors for f in feats], args.words, flat=args.flat,
-                             branching=args.branching, per_image=args.per_image, seed=args.seed)
+    vocab = train_vocabulary(
+        [f.descriptors for f in feats],
+        args.words,
+        flat=args.flat,
+        branching=args.branching,
+        per_image=args.per_image,
+        seed=args.seed,
+    )
     wall = time.perf_counter() - t0
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with replacing(args.out) as tmp:
         vocab.save(tmp)
     n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
-    print(f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
-          f"images, trained in {wall:.1f} s")
+    print(
+        f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
+        f"images, trained in {wall:.1f} s"
+    )
     guard = active_guard()
     if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
-        print(f"graphslam: interrupted ({guard.signal_name}); the vocabulary is "
-              f"trained on {len(feats)} of {len(paths)} images", file=sys.stderr)
+        print(
+            f"graphslam: interrupted ({guard.signal_name}); the vocabulary is "
+            f"trained on {len(feats)} of {len(paths)} images",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     return 0

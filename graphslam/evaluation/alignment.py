@@ -15,8 +15,7 @@ import numpy as np
 
 from slamcore.errors import GraphSlamError
 
-__all__ = ["LINE_TOL", "STILL_TOL", "collinear", "principal_spreads", "rotation_about_line",
-           "umeyama"]
+__all__ = ["LINE_TOL", "STILL_TOL", "collinear", "principal_spreads", "rotation_about_line", "umeyama"]
 
 #: RMS spread from the mean (metres per metre of coordinate, at least 1 m) under
 #: which a point set "does not move": far below any printed precision (TUM files
@@ -29,8 +28,9 @@ STILL_TOL = 1e-9
 LINE_TOL = 1e-6
 
 
-def umeyama(src, dst, dim: int, with_scale: bool, who: str,
-            min_points: int = 1) -> tuple[float, np.ndarray, np.ndarray]:
+def umeyama(
+    src, dst, dim: int, with_scale: bool, who: str, min_points: int = 1
+) -> tuple[float, np.ndarray, np.ndarray]:
     """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2``.
 
     Args:
@@ -53,8 +53,7 @@ def umeyama(src, dst, dim: int, with_scale: bool, who: str,
     if src.ndim != 2 or src.shape[1] != dim or src.shape != dst.shape:
         raise GraphSlamError(f"{who}: expected two (N, {dim}) arrays, got {src.shape} and {dst.shape}")
     if src.shape[0] < min_points:
-        raise GraphSlamError(f"{who}: need at least {min_points} "
-                             f"{'point' if min_points == 1 else 'points'}")
+        raise GraphSlamError(f"{who}: need at least {min_points} {'point' if min_points == 1 else 'points'}")
     mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
     xs, xd = src - mu_s, dst - mu_d
     cov = xd.T @ xs / len(src)
@@ -72,8 +71,7 @@ def umeyama(src, dst, dim: int, with_scale: bool, who: str,
         # a still target gives s = 0: every point collapses onto it and the error reads 0
         for var, pts, what in ((var_s, src, "estimate"), (var_d, dst, "reference")):
             if math.sqrt(var) <= STILL_TOL * max(1.0, float(np.max(np.abs(pts)))):
-                raise GraphSlamError(f"{who}: the {what} does not move; "
-                                     f"no Sim({dim}) scale to fit")
+                raise GraphSlamError(f"{who}: the {what} does not move; no Sim({dim}) scale to fit")
         s = float(np.sum(D * np.diag(S)) / var_s)
     t = mu_d - s * R @ mu_s
     return s, R, t

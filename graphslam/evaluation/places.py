@@ -72,8 +72,9 @@ def _image_truth(path: Path, n: int) -> set[tuple[int, int]]:
     except InputError as e:
         raise InputError(f"cannot read the truth file as a CSV or an image ({e})", path) from None
     if img.shape != (n, n):
-        raise InputError(f"truth image is {img.shape[1]}x{img.shape[0]}, the folder has {n} "
-                         f"images (need {n}x{n})", path)
+        raise InputError(
+            f"truth image is {img.shape[1]}x{img.shape[0]}, the folder has {n} images (need {n}x{n})", path
+        )
     i, j = np.nonzero(img)
     return {(int(max(a, b)), int(min(a, b))) for a, b in zip(i, j, strict=True) if a != b}
 
@@ -113,7 +114,7 @@ def pr_curve(verified: list[tuple[int, int, float]], truth: set[tuple[int, int]]
     for k, (_, _, t) in enumerate(order):
         if k + 1 < len(order) and order[k + 1][2] == t:
             continue  # ties enter together
-        chosen = [(q, m) for q, m, _ in order[:k + 1]]
+        chosen = [(q, m) for q, m, _ in order[: k + 1]]
         p, r, n_true = score(chosen, truth)
         points.append(PrPoint(float(t), len(chosen), n_true, p, r))
     return points

@@ -34,9 +34,13 @@ ABSURD_ATE_RATIO = 10.0
 ABSURD_ATE_FLOOR_M = 1.0
 
 
-def estimate_warnings(estimate: Estimate, ate_m: float | None,
-                      odometry_ate_m: float | None, ate_poses: int | None = None,
-                      cost: tuple[float, int] | None = None) -> list[str]:
+def estimate_warnings(
+    estimate: Estimate,
+    ate_m: float | None,
+    odometry_ate_m: float | None,
+    ate_poses: int | None = None,
+    cost: tuple[float, int] | None = None,
+) -> list[str]:
     """What makes a finished 2-D estimate absurd or its score partial, one line each
     (empty: nothing): a non-finite value, a position beyond the 1e9 m the readers
     accept, an ATE more than :data:`ABSURD_ATE_RATIO` times the dead reckoning's, an
@@ -47,20 +51,27 @@ def estimate_warnings(estimate: Estimate, ate_m: float | None,
     doubts = [] if cost is None else cost_warning(*cost)
     n_poses = len(estimate.pose_ids)
     if ate_poses is not None and n_poses and ate_poses < LOW_MATCHED_SHARE * n_poses:
-        doubts.append(f"the ATE covers {ate_poses} of {n_poses} poses "
-                      f"({100 * ate_poses / n_poses:.0f} %), under half the run: it scores "
-                      "the part with truth, not the run")
+        doubts.append(
+            f"the ATE covers {ate_poses} of {n_poses} poses "
+            f"({100 * ate_poses / n_poses:.0f} %), under half the run: it scores "
+            "the part with truth, not the run"
+        )
     for name, values in (("pose", estimate.wTb), ("landmark", estimate.landmarks_w)):
         values = np.asarray(values, dtype=np.float64)
         if not np.all(np.isfinite(values)):
             doubts.append(f"the estimate holds non-finite {name} values")
         elif values.size and np.max(np.abs(values[..., :2])) > TRANSLATION_MAX_M:
             doubts.append(f"the estimate puts a {name} beyond {TRANSLATION_MAX_M:.0e} m")
-    if (ate_m is not None and odometry_ate_m is not None
-            and not ate_m <= max(ABSURD_ATE_RATIO * odometry_ate_m, ABSURD_ATE_FLOOR_M)):
-        doubts.append(f"ATE {ate_m:.3g} m is more than {ABSURD_ATE_RATIO:g}x the odometry's "
-                      f"{odometry_ate_m:.3g} m: the estimate is absurd (noise settings, "
-                      "association or data)")
+    if (
+        ate_m is not None
+        and odometry_ate_m is not None
+        and not ate_m <= max(ABSURD_ATE_RATIO * odometry_ate_m, ABSURD_ATE_FLOOR_M)
+    ):
+        doubts.append(
+            f"ATE {ate_m:.3g} m is more than {ABSURD_ATE_RATIO:g}x the odometry's "
+            f"{odometry_ate_m:.3g} m: the estimate is absurd (noise settings, "
+            "association or data)"
+        )
     return doubts
 
 
@@ -83,10 +94,12 @@ def cost_warning(error: float, dof: int) -> list[str]:
     if chi2 <= bound:  # NaN fails this: a non-finite cost is reported too
         return []
     ratio = chi2 / dof
-    return [f"final cost 2E = {chi2:.4g} over {dof} degrees of freedom ({ratio:.3g} per "
-            f"degree) is beyond the chi-square bound {bound:.4g} (p = {COST_TEST_ALPHA:g}): "
-            f"the residuals are larger than the noise settings allow (noise understated by "
-            f"about {ratio ** 0.5:.2g}x in sigma, outliers, or a wrong estimate)"]
+    return [
+        f"final cost 2E = {chi2:.4g} over {dof} degrees of freedom ({ratio:.3g} per "
+        f"degree) is beyond the chi-square bound {bound:.4g} (p = {COST_TEST_ALPHA:g}): "
+        f"the residuals are larger than the noise settings allow (noise understated by "
+        f"about {ratio**0.5:.2g}x in sigma, outliers, or a wrong estimate)"
+    ]
 
 
 def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -140,8 +153,12 @@ def ate(est_ids, est_wTb, gt_ids, gt_wTb, align: bool = True) -> dict:
         R, t = align_se2(xy, gt[:, :2])
         xy = xy @ R.T + t
     e = np.linalg.norm(xy - gt[:, :2], axis=1)
-    return {"rmse_m": float(np.sqrt(np.mean(e**2))), "mean_m": float(np.mean(e)),
-            "max_m": float(np.max(e)), "n": int(common.size)}
+    return {
+        "rmse_m": float(np.sqrt(np.mean(e**2))),
+        "mean_m": float(np.mean(e)),
+        "max_m": float(np.max(e)),
+        "n": int(common.size),
+    }
 
 
 def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
@@ -167,9 +184,11 @@ def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
     rel_gt = between(gt[:-delta], gt[delta:])
     err = between(rel_gt, rel_est)
     t = np.linalg.norm(err[:, :2], axis=1)
-    return {"trans_rmse_m": float(np.sqrt(np.mean(t**2))),
-            "rot_rmse_rad": float(np.sqrt(np.mean(err[:, 2] ** 2))),
-            "n": int(err.shape[0])}
+    return {
+        "trans_rmse_m": float(np.sqrt(np.mean(t**2))),
+        "rot_rmse_rad": float(np.sqrt(np.mean(err[:, 2] ** 2))),
+        "n": int(err.shape[0]),
+    }
 
 
 def pose_errors(est_wTb: np.ndarray, gt_wTb: np.ndarray) -> np.ndarray:
@@ -207,8 +226,9 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
     by ``n_runs``.
     """
     if dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
-        raise GraphSlamError(f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; "
-                             f"got {dof}, {n_runs}, {confidence}")
+        raise GraphSlamError(
+            f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; got {dof}, {n_runs}, {confidence}"
+        )
     from scipy.stats import chi2  # here, not at import: scipy.stats costs every run 0.3-0.6 s
 
     k = int(dof) * int(n_runs)
@@ -244,8 +264,7 @@ def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> 
     ``pose_ids`` and ``nees`` (N,) per pose too when there are covariances."""
     gt = dataset.ground_truth() if ground_truth is None else ground_truth
     est = estimate
-    out: dict[str, Any] = {"final_pose_error_m": None, "nees_mean": None,
-                           "nees_in_bounds_fraction": None}
+    out: dict[str, Any] = {"final_pose_error_m": None, "nees_mean": None, "nees_in_bounds_fraction": None}
     if gt is None:
         return out
     gt_of = dict(zip(np.asarray(gt[0]).tolist(), gt[1], strict=True))
@@ -307,8 +326,9 @@ def oracle_association_accuracy(dataset: Dataset, steps: int | None = None) -> f
 MAP_RECOVERY_RADIUS_M = 0.3
 
 
-def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
-               pairs: list[tuple[int, int | None]]) -> dict:
+def map_errors(
+    estimate: Estimate, ground_truth, landmarks_true: dict, pairs: list[tuple[int, int | None]]
+) -> dict:
     """Map error of an estimate against true landmark positions.
 
     Each estimated landmark is matched to the true landmark its observations were
@@ -320,9 +340,13 @@ def map_errors(estimate: Estimate, ground_truth, landmarks_true: dict,
     with an estimated one within :data:`MAP_RECOVERY_RADIUS_M` after the
     trajectory's alignment) and ``landmarks_true``; values None where not defined.
     """
-    out: dict[str, Any] = {"map_rmse_m": None, "map_rmse_m_map_aligned": None,
-                           "landmarks_matched": 0, "landmarks_recovered": None,
-                           "landmarks_true": len(landmarks_true)}
+    out: dict[str, Any] = {
+        "map_rmse_m": None,
+        "map_rmse_m_map_aligned": None,
+        "landmarks_matched": 0,
+        "landmarks_recovered": None,
+        "landmarks_true": len(landmarks_true),
+    }
     if ground_truth is None or len(estimate.landmark_ids) == 0:
         return out
     common, est, gt = _common(estimate.pose_ids, estimate.wTb, *ground_truth)
@@ -379,6 +403,9 @@ def association_accuracy(pairs: list[tuple[int, int | None]]):
     from graphslam.evaluation.records import AssociationScore
 
     return AssociationScore(
-        accuracy=correct / len(pairs), observations=len(pairs),
-        unused=sum(1 for _, got in pairs if got is None), landmarks_created=len(mapping),
-        duplicates=len(mapped_true) - len(set(mapped_true)))
+        accuracy=correct / len(pairs),
+        observations=len(pairs),
+        unused=sum(1 for _, got in pairs if got is None),
+        landmarks_created=len(mapping),
+        duplicates=len(mapped_true) - len(set(mapped_true)),
+    )

@@ -123,12 +123,30 @@ class PlanarRunMetrics:
     agents: dict | None = None
     ate_poses: int | None = None
 
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
-        "association", "peak_rss_mb", "final_pose_error_m", "nees_mean",
-        "nees_in_bounds_fraction", "rms_to_isam2_m", "numerical_recoveries", "recoveries",
-        "map", "localisation_only", "unmapped_observations", "warnings", "dataset_notes",
-        "map_rmse_m", "map_rmse_m_map_aligned", "landmarks_matched", "landmarks_recovered",
-        "landmarks_true", "agents", "ate_poses"})
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
+        {
+            "association",
+            "peak_rss_mb",
+            "final_pose_error_m",
+            "nees_mean",
+            "nees_in_bounds_fraction",
+            "rms_to_isam2_m",
+            "numerical_recoveries",
+            "recoveries",
+            "map",
+            "localisation_only",
+            "unmapped_observations",
+            "warnings",
+            "dataset_notes",
+            "map_rmse_m",
+            "map_rmse_m_map_aligned",
+            "landmarks_matched",
+            "landmarks_recovered",
+            "landmarks_true",
+            "agents",
+            "ate_poses",
+        }
+    )
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)
@@ -196,10 +214,23 @@ class SpatialRunMetrics:
     warnings: list | None = None
     dataset_notes: list | None = None
 
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
-        "ate_error", "ate", "odometry_rpe", "backend_class", "loops", "tracking_loss",
-        "peak_rss_mb", "nees_mean", "nees_in_bounds_fraction", "nees_alignment",
-        "input_digest", "warnings", "dataset_notes"})
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
+        {
+            "ate_error",
+            "ate",
+            "odometry_rpe",
+            "backend_class",
+            "loops",
+            "tracking_loss",
+            "peak_rss_mb",
+            "nees_mean",
+            "nees_in_bounds_fraction",
+            "nees_alignment",
+            "input_digest",
+            "warnings",
+            "dataset_notes",
+        }
+    )
 
     def to_dict(self) -> dict:
         return _as_dict(self, self.OPTIONAL)

@@ -32,8 +32,9 @@ from slamcore.spatial.geometry import invert_pose
 ALIGNMENTS = ("se3", "sim3", "none")
 
 
-def align_umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False
-                  ) -> tuple[float, np.ndarray, np.ndarray]:
+def align_umeyama(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = False
+) -> tuple[float, np.ndarray, np.ndarray]:
     """``(s, R, t)`` minimising ``sum |s R src_i + t - dst_i|^2`` (:func:`.alignment.umeyama`).
 
     Args:
@@ -76,9 +77,14 @@ def ate(est_ids, est_wTc, gt_ids, gt_wTc, alignment: str = "se3") -> dict:
         s, R, t = align_umeyama(p, q, with_scale=alignment == "sim3")
         p = s * p @ R.T + t
     e = np.linalg.norm(p - q, axis=1)
-    return {"rmse_m": float(np.sqrt(np.mean(e**2))), "mean_m": float(np.mean(e)),
-            "max_m": float(np.max(e)), "n": int(common.size), "alignment": alignment,
-            "scale": float(s)}
+    return {
+        "rmse_m": float(np.sqrt(np.mean(e**2))),
+        "mean_m": float(np.mean(e)),
+        "max_m": float(np.max(e)),
+        "n": int(common.size),
+        "alignment": alignment,
+        "scale": float(s),
+    }
 
 
 def _rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -109,9 +115,14 @@ def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) ->
     err = invert_pose(rel_gt) @ rel_est
     t = np.linalg.norm(err[:, :3, 3], axis=1)
     r = np.degrees(_rotation_angle(err[:, :3, :3]))
-    return {"delta_frames": delta, "trans_rmse_m": float(np.sqrt(np.mean(t**2))),
-            "trans_mean_m": float(np.mean(t)), "rot_rmse_deg": float(np.sqrt(np.mean(r**2))),
-            "rot_mean_deg": float(np.mean(r)), "n": int(len(err))}
+    return {
+        "delta_frames": delta,
+        "trans_rmse_m": float(np.sqrt(np.mean(t**2))),
+        "trans_mean_m": float(np.mean(t)),
+        "rot_rmse_deg": float(np.sqrt(np.mean(r**2))),
+        "rot_mean_deg": float(np.mean(r)),
+        "n": int(len(err)),
+    }
 
 
 def path_length(wTc: np.ndarray) -> float:
@@ -191,7 +202,14 @@ def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "n
     err = pose_errors(est, gt)
     nees_k = nees(err, cov)
     lo, hi = chi2_bounds(POSE_DOF, 1, NEES_CONFIDENCE)
-    return {"frame_ids": common, "errors": err, "covariances": cov, "nees": nees_k,
-            "nees_mean": float(np.mean(nees_k)),
-            "nees_in_bounds_fraction": float(np.mean((nees_k >= lo) & (nees_k <= hi))),
-            "bounds": (lo, hi), "alignment": alignment, "scale": float(s)}
+    return {
+        "frame_ids": common,
+        "errors": err,
+        "covariances": cov,
+        "nees": nees_k,
+        "nees_mean": float(np.mean(nees_k)),
+        "nees_in_bounds_fraction": float(np.mean((nees_k >= lo) & (nees_k <= hi))),
+        "bounds": (lo, hi),
+        "alignment": alignment,
+        "scale": float(s),
+    }

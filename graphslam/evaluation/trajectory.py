@@ -84,8 +84,14 @@ class EvalOptions:
             raise ConfigError(f"--delta in frames must be a whole number, got {self.delta}")
 
     def to_dict(self) -> dict:
-        return {"align": self.align, "n_align": self.n_align, "max_diff_s": self.max_diff_s,
-                "offset_s": self.offset_s, "delta": self.delta, "delta_unit": self.delta_unit}
+        return {
+            "align": self.align,
+            "n_align": self.n_align,
+            "max_diff_s": self.max_diff_s,
+            "offset_s": self.offset_s,
+            "delta": self.delta,
+            "delta_unit": self.delta_unit,
+        }
 
 
 def _nearest(short_t: np.ndarray, long_t: np.ndarray, max_diff: float) -> tuple[list, list]:
@@ -116,8 +122,12 @@ def _nearest(short_t: np.ndarray, long_t: np.ndarray, max_diff: float) -> tuple[
     return i_short, i_long
 
 
-def associate(ref_t: np.ndarray, est_t: np.ndarray, max_diff: float = DEFAULT_MAX_DIFF_S,
-              offset: float = DEFAULT_OFFSET_S) -> tuple[np.ndarray, np.ndarray]:
+def associate(
+    ref_t: np.ndarray,
+    est_t: np.ndarray,
+    max_diff: float = DEFAULT_MAX_DIFF_S,
+    offset: float = DEFAULT_OFFSET_S,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(ref_rows, est_rows)`` of associated poses (module doc); GraphSlamError if none."""
     ref_t = np.asarray(ref_t, dtype=np.float64)
     est_t = np.asarray(est_t, dtype=np.float64)
@@ -137,15 +147,16 @@ def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
     spread = principal_spreads(points)
     scale = max(1.0, float(np.max(np.abs(points))))
     if spread[0] <= STILL_TOL * scale:
-        raise GraphSlamError(f"the {what} does not move (its {len(points)} matched positions "
-                             f"are within {spread[0]:.1e} m of their mean): --align {method} "
-                             "has nothing to fit; use --align first (first pose onto first "
-                             "pose) or --align none")
+        raise GraphSlamError(
+            f"the {what} does not move (its {len(points)} matched positions "
+            f"are within {spread[0]:.1e} m of their mean): --align {method} "
+            "has nothing to fit; use --align first (first pose onto first "
+            "pose) or --align none"
+        )
     return collinear(points, spread)
 
 
-def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None
-          ) -> tuple[np.ndarray, float]:
+def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None) -> tuple[np.ndarray, float]:
     """``(aligned estimate (N, 4, 4), scale)``: ``T @ est`` with positions scaled first.
     Positions on one line leave the rotation about it free: that angle is then
     fitted on the orientations (:func:`.alignment.rotation_about_line`); positions that do not move
@@ -204,8 +215,7 @@ def rpe_pairs(poses: np.ndarray, delta: float, unit: str) -> list[tuple[int, int
     return list(zip(kept, kept[1:], strict=False))
 
 
-def rpe(ref: np.ndarray, est: np.ndarray, pairs: list[tuple[int, int]]
-        ) -> tuple[np.ndarray, np.ndarray]:
+def rpe(ref: np.ndarray, est: np.ndarray, pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
     """Per-pair ``(translation error m, rotation error deg)``."""
     if not pairs:
         return np.zeros(0), np.zeros(0)
@@ -224,8 +234,7 @@ def kitti_drift(ref: np.ndarray, est: np.ndarray) -> tuple[float | None, float |
     and rotation angle (``acos`` of the trace form, the devkit's) divided by
     the length. (None, None) when the path is shorter than 100 m.
     """
-    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0),
-                                                           axis=1))])
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0), axis=1))])
     t_err, r_err = [], []
     for first in range(0, len(ref), KITTI_STEP_FRAMES):
         for length in KITTI_LENGTHS_M:
@@ -282,15 +291,23 @@ class TrajectoryEval:
     def summary(self) -> dict:
         """The numbers of ``eval.json`` (None where not computable)."""
         e = self.ate_trans_m
-        return {"ate_rmse_m": _rmse(e), "ate_mean_m": float(np.mean(e)),
-                "ate_median_m": float(np.median(e)), "ate_max_m": float(np.max(e)),
-                "ate_rot_rmse_deg": _rmse(self.ate_rot_deg),
-                "rpe_trans_rmse_m": _rmse(self.rpe_trans_m),
-                "rpe_rot_rmse_deg": _rmse(self.rpe_rot_deg), "rpe_pairs": int(self.rpe_trans_m.size),
-                "kitti_drift_pct": self.kitti_pct, "kitti_drift_deg_per_100m": self.kitti_deg_per_100m,
-                "matched_poses": int(len(self.ref)), "estimate_poses": self.estimate_poses,
-                "reference_poses": self.reference_poses, "matched_share": self.matched_share,
-                "scale": self.scale}
+        return {
+            "ate_rmse_m": _rmse(e),
+            "ate_mean_m": float(np.mean(e)),
+            "ate_median_m": float(np.median(e)),
+            "ate_max_m": float(np.max(e)),
+            "ate_rot_rmse_deg": _rmse(self.ate_rot_deg),
+            "rpe_trans_rmse_m": _rmse(self.rpe_trans_m),
+            "rpe_rot_rmse_deg": _rmse(self.rpe_rot_deg),
+            "rpe_pairs": int(self.rpe_trans_m.size),
+            "kitti_drift_pct": self.kitti_pct,
+            "kitti_drift_deg_per_100m": self.kitti_deg_per_100m,
+            "matched_poses": int(len(self.ref)),
+            "estimate_poses": self.estimate_poses,
+            "reference_poses": self.reference_poses,
+            "matched_share": self.matched_share,
+            "scale": self.scale,
+        }
 
 
 def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> TrajectoryEval:
@@ -302,8 +319,9 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
         i_ref = i_est = np.arange(n)
         stamps = np.arange(n, dtype=np.float64)
     elif ref_t is None or est_t is None:
-        raise GraphSlamError("one trajectory has timestamps and the other has none "
-                             "(KITTI): give its times file with --times")
+        raise GraphSlamError(
+            "one trajectory has timestamps and the other has none (KITTI): give its times file with --times"
+        )
     else:
         i_ref, i_est = associate(ref_t, est_t, options.max_diff_s, options.offset_s)
         stamps = np.asarray(ref_t, dtype=np.float64)[i_ref]
@@ -314,5 +332,6 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
     ate_t, ate_r = ate(ref, est)
     rpe_t, rpe_r = rpe(ref, est, rpe_pairs(est, options.delta, options.delta_unit))
     pct, deg = kitti_drift(ref, est)
-    return TrajectoryEval(ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg,
-                          len(ref_wTc), len(est_wTc))
+    return TrajectoryEval(
+        ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg, len(ref_wTc), len(est_wTc)
+    )

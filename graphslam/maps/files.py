@@ -80,14 +80,27 @@ def save_map(smap: SpatialMap, folder) -> dict[str, Path]:
             vocab = vocab_tmp.read_bytes()
         else:
             vocab_tmp.write_bytes(vocab)
-        doc = {"camera": {"K": np.asarray(smap.K, float).tolist(),
-                          "image_size": [int(v) for v in smap.image_size]},
-               "vocabulary": {"file": VOCAB_NPZ, "sha256": hashlib.sha256(vocab).hexdigest(),
-                              "kind": type(smap.vocabulary).__name__,
-                              "words": int(smap.vocabulary.n_words_)}}
-        _write_arrays_and_json(npz_tmp, json_tmp, SPATIAL,
-                               {name: getattr(smap, name) for name in _NAMES},
-                               smap.counts(), smap.meta, doc)
+        doc = {
+            "camera": {
+                "K": np.asarray(smap.K, float).tolist(),
+                "image_size": [int(v) for v in smap.image_size],
+            },
+            "vocabulary": {
+                "file": VOCAB_NPZ,
+                "sha256": hashlib.sha256(vocab).hexdigest(),
+                "kind": type(smap.vocabulary).__name__,
+                "words": int(smap.vocabulary.n_words_),
+            },
+        }
+        _write_arrays_and_json(
+            npz_tmp,
+            json_tmp,
+            SPATIAL,
+            {name: getattr(smap, name) for name in _NAMES},
+            smap.counts(),
+            smap.meta,
+            doc,
+        )
     smap.vocabulary_bytes = vocab
     return paths
 
@@ -100,20 +113,31 @@ def save_planar_map(pmap: PlanarMap, folder) -> dict[str, Path]:
     pmap.check(folder)
     paths = {"arrays": folder / MAP_NPZ, "json": folder / MAP_JSON}
     with replacing_all(list(paths.values())) as (npz_tmp, json_tmp):
-        _write_arrays_and_json(npz_tmp, json_tmp, PLANAR, pmap.arrays(), pmap.counts(),
-                               pmap.meta, {})
+        _write_arrays_and_json(npz_tmp, json_tmp, PLANAR, pmap.arrays(), pmap.counts(), pmap.meta, {})
     return paths
 
 
-def _write_arrays_and_json(npz_path: Path, json_path: Path, kind: str,
-                           arrays: dict[str, np.ndarray], counts: dict, meta: dict,
-                           extra: dict) -> None:
+def _write_arrays_and_json(
+    npz_path: Path,
+    json_path: Path,
+    kind: str,
+    arrays: dict[str, np.ndarray],
+    counts: dict,
+    meta: dict,
+    extra: dict,
+) -> None:
     """``map.npz`` of ``arrays`` and ``map.json`` (its presence means complete)."""
     blob = _npz_bytes(arrays)
     _write_synced(npz_path, blob)
-    doc = {"format": FORMAT, "version": FORMAT_VERSION, "kind": kind, "counts": counts,
-           "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
-           "meta": meta, **extra}
+    doc = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "kind": kind,
+        "counts": counts,
+        "arrays": {"file": MAP_NPZ, "sha256": hashlib.sha256(blob).hexdigest()},
+        "meta": meta,
+        **extra,
+    }
     _write_synced(json_path, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode("utf-8"))
 
 
@@ -157,14 +181,16 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
     if not isinstance(version, int) or version < 1:
         raise InputError(f"damaged map.json (version {version!r})", path)
     if version > FORMAT_VERSION:
-        raise InputError(f"map format version {version} is newer than this graphslam reads "
-                         f"({FORMAT_VERSION}); upgrade graphslam", path)
+        raise InputError(
+            f"map format version {version} is newer than this graphslam reads "
+            f"({FORMAT_VERSION}); upgrade graphslam",
+            path,
+        )
     found = doc.get("kind", SPATIAL)  # version-1 maps written before 2-D maps have none
     if not isinstance(found, str) or found not in _TABLES:
         raise InputError(f"damaged map.json (kind {quote(found)})", path)
     if found != kind:
-        raise InputError(f"this is a {_KIND_TEXT[found]}; this run needs a {_KIND_TEXT[kind]}",
-                         path)
+        raise InputError(f"this is a {_KIND_TEXT[found]}; this run needs a {_KIND_TEXT[kind]}", path)
     for key in _TABLES[kind]:
         if not isinstance(doc.get(key), dict):
             raise InputError(f"damaged map.json (no {key!r} table)", path)
@@ -178,14 +204,16 @@ def _checked_bytes(folder: Path, entry: dict, what: str) -> tuple[Path, bytes]:
     name = str(entry.get("file", ""))
     path = inside_folder(folder, name)
     if path is None:  # a map names only its own files, never ../x or /etc/passwd
-        raise InputError(f"damaged map.json ({what} file {quote(name)} is outside the map "
-                         "folder)", folder / MAP_JSON)
+        raise InputError(
+            f"damaged map.json ({what} file {quote(name)} is outside the map folder)", folder / MAP_JSON
+        )
     if not path.is_file():
         raise InputError(f"map {what} file missing", path)
     data = path.read_bytes()
     if hashlib.sha256(data).hexdigest() != entry.get("sha256"):
-        raise InputError(f"map {what} file is damaged, truncated or from another map "
-                         "(SHA-256 differs from map.json)", path)
+        raise InputError(
+            f"map {what} file is damaged, truncated or from another map (SHA-256 differs from map.json)", path
+        )
     return path, data
 
 
@@ -207,8 +235,14 @@ def load_map(folder) -> SpatialMap:
     if not np.all(np.isfinite(K)):
         raise InputError("damaged map.json (camera K not finite)", folder / MAP_JSON)
     _check_detectors(doc["meta"], folder / MAP_JSON)
-    smap = SpatialMap(K=K, image_size=size, vocabulary=load_vocabulary(vocab_path),
-                      meta=doc["meta"], vocabulary_bytes=vocab_bytes, **arrays)
+    smap = SpatialMap(
+        K=K,
+        image_size=size,
+        vocabulary=load_vocabulary(vocab_path),
+        meta=doc["meta"],
+        vocabulary_bytes=vocab_bytes,
+        **arrays,
+    )
     smap.check(npz_path)
     if smap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
@@ -263,9 +297,13 @@ def check_camera(smap: SpatialMap, K: np.ndarray, image_size, where) -> None:
     """InputError unless ``K`` and ``image_size`` are the camera the map was built with."""
     size = tuple(int(v) for v in image_size)
     if size != tuple(smap.image_size):
-        raise InputError(f"map was built with {smap.image_size[0]}x{smap.image_size[1]} images, "
-                         f"this sequence's are {size[0]}x{size[1]}", where)
+        raise InputError(
+            f"map was built with {smap.image_size[0]}x{smap.image_size[1]} images, "
+            f"this sequence's are {size[0]}x{size[1]}",
+            where,
+        )
     diff = float(np.max(np.abs(np.asarray(K, float) - smap.K)))
     if not diff <= CAMERA_TOL_PX:  # NaN intrinsics differ too
-        raise InputError(f"map was built with another camera (intrinsics differ by up to "
-                         f"{diff:.3g} px)", where)
+        raise InputError(
+            f"map was built with another camera (intrinsics differ by up to {diff:.3g} px)", where
+        )

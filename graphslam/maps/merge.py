@@ -23,8 +23,7 @@ from slamcore.errors import InputError
 def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
     """``old`` followed by ``new`` (module docstring); ``meta["sessions"]`` lists both."""
     if old.vocabulary is not new.vocabulary:
-        raise InputError("the two sessions' maps were built with different vocabularies",
-                         "--map")
+        raise InputError("the two sessions' maps were built with different vocabularies", "--map")
     check_camera(old, new.K, new.image_size, "--map")
     ids = new.landmark_ids.copy()
     pos = ids >= 0
@@ -33,25 +32,32 @@ def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
     cat = np.concatenate
     sessions = list(old.meta.get("sessions", [_session(old.meta)])) + [_session(new.meta)]
     return SpatialMap(
-        K=old.K, image_size=old.image_size,
+        K=old.K,
+        image_size=old.image_size,
         keyframe_ids=cat([old.keyframe_ids, new.keyframe_ids]),
         keyframe_wTc=cat([old.keyframe_wTc, new.keyframe_wTc]),
         keyframe_cov=cat([old.keyframe_cov, new.keyframe_cov]),
-        landmark_ids=cat([old.landmark_ids, ids]), landmark_w=cat([old.landmark_w, new.landmark_w]),
+        landmark_ids=cat([old.landmark_ids, ids]),
+        landmark_w=cat([old.landmark_w, new.landmark_w]),
         landmark_cov=cat([old.landmark_cov, new.landmark_cov]),
         landmark_desc=cat([old.landmark_desc, new.landmark_desc]),
         landmark_patch=cat([old.landmark_patch, new.landmark_patch]),
         obs_keyframe=cat([old.obs_keyframe, new.obs_keyframe + old.n_keyframes]),
         obs_landmark=cat([old.obs_landmark, new.obs_landmark + old.n_landmarks]),
-        obs_uv=cat([old.obs_uv, new.obs_uv]), obs_desc=cat([old.obs_desc, new.obs_desc]),
+        obs_uv=cat([old.obs_uv, new.obs_uv]),
+        obs_desc=cat([old.obs_desc, new.obs_desc]),
         bow_indptr=cat([old.bow_indptr, new.bow_indptr[1:] + old.bow_indptr[-1]]),
         bow_words=cat([old.bow_words, new.bow_words]),
         bow_weights=cat([old.bow_weights, new.bow_weights]),
-        vocabulary=old.vocabulary, vocabulary_bytes=old.vocabulary_bytes,
-        meta={**new.meta, "sessions": sessions})
+        vocabulary=old.vocabulary,
+        vocabulary_bytes=old.vocabulary_bytes,
+        meta={**new.meta, "sessions": sessions},
+    )
 
 
 def _session(meta: dict) -> dict:
     """What a session entry of ``meta["sessions"]`` keeps of a map's description."""
-    return {k: meta.get(k) for k in ("dataset", "source", "frames", "n_frames", "backend",
-                                     "frontend", "densified_landmarks")}
+    return {
+        k: meta.get(k)
+        for k in ("dataset", "source", "frames", "n_frames", "backend", "frontend", "densified_landmarks")
+    }

@@ -32,7 +32,7 @@ COV_SYMMETRY_RTOL = 1e-9
 #: Largest landmark variance read, m^2: a standard deviation of the largest
 #: position read (TRANSLATION_MAX_M); beyond it the landmark is no information,
 #: and its inverse (the filter's information) underflows.
-VARIANCE_MAX_M2 = TRANSLATION_MAX_M ** 2
+VARIANCE_MAX_M2 = TRANSLATION_MAX_M**2
 
 
 @dataclass(eq=False)
@@ -68,8 +68,11 @@ class PlanarMap:
         for name, (tail, dtype) in ARRAYS.items():
             a = getattr(self, name)
             if a.dtype != np.dtype(dtype) or a.shape != (n, *tail):
-                raise InputError(f"map array {name} has shape {a.shape} and dtype {a.dtype}, "
-                                 f"expected ({n}, {', '.join(map(str, tail))}) {dtype}", where)
+                raise InputError(
+                    f"map array {name} has shape {a.shape} and dtype {a.dtype}, "
+                    f"expected ({n}, {', '.join(map(str, tail))}) {dtype}",
+                    where,
+                )
         if len(np.unique(self.landmark_ids)) != n:
             raise InputError("map landmark ids are not distinct", where)
         if not (np.all(np.isfinite(self.landmark_xy)) and np.all(np.isfinite(self.landmark_cov))):
@@ -81,8 +84,11 @@ class PlanarMap:
         det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
         bad = np.flatnonzero((asym > COV_SYMMETRY_RTOL) | (C[:, 0, 0] <= 0) | (det <= 0))
         if bad.size:
-            raise InputError(f"map covariance of landmark {int(self.landmark_ids[bad[0]])} is not "
-                             "symmetric positive definite", where)
+            raise InputError(
+                f"map covariance of landmark {int(self.landmark_ids[bad[0]])} is not "
+                "symmetric positive definite",
+                where,
+            )
 
     def _check_ranges(self, where) -> None:
         """Ids and values the readers of pose graphs would accept: a landmark id
@@ -92,16 +98,15 @@ class PlanarMap:
         ids = self.landmark_ids
         bad = np.flatnonzero((ids < 0) | (ids >= MAX_ID))
         if bad.size:
-            raise InputError(f"map landmark id {int(ids[bad[0]])} is outside 0 to 2**62 - 1",
-                             where)
+            raise InputError(f"map landmark id {int(ids[bad[0]])} is outside 0 to 2**62 - 1", where)
         far = np.flatnonzero(np.any(np.abs(self.landmark_xy) > TRANSLATION_MAX_M, axis=1))
         if far.size:
-            raise InputError(f"map landmark {int(ids[far[0]])} lies beyond "
-                             f"{TRANSLATION_MAX_M:.0e} m", where)
+            raise InputError(f"map landmark {int(ids[far[0]])} lies beyond {TRANSLATION_MAX_M:.0e} m", where)
         wide = np.flatnonzero(np.any(np.abs(self.landmark_cov) > VARIANCE_MAX_M2, axis=(1, 2)))
         if wide.size:
-            raise InputError(f"map covariance of landmark {int(ids[wide[0]])} exceeds "
-                             f"{VARIANCE_MAX_M2:.0e} m^2", where)
+            raise InputError(
+                f"map covariance of landmark {int(ids[wide[0]])} exceeds {VARIANCE_MAX_M2:.0e} m^2", where
+            )
 
 
 def map_from_estimate(estimate: Estimate, meta: dict) -> PlanarMap:
@@ -110,6 +115,9 @@ def map_from_estimate(estimate: Estimate, meta: dict) -> PlanarMap:
         raise InputError("the run has no landmark covariances to save", "--save-map")
     order = np.argsort(estimate.landmark_ids, kind="stable")
     cov = np.asarray(estimate.landmark_covariances, dtype=np.float64)[order]
-    return PlanarMap(np.asarray(estimate.landmark_ids, dtype=np.int64)[order].copy(),
-                     np.asarray(estimate.landmarks_w, dtype=np.float64)[order].copy(),
-                     0.5 * (cov + np.swapaxes(cov, 1, 2)), meta)
+    return PlanarMap(
+        np.asarray(estimate.landmark_ids, dtype=np.int64)[order].copy(),
+        np.asarray(estimate.landmarks_w, dtype=np.float64)[order].copy(),
+        0.5 * (cov + np.swapaxes(cov, 1, 2)),
+        meta,
+    )

@@ -101,9 +101,13 @@ class SpatialMap:
         return int(len(self.obs_keyframe))
 
     def counts(self) -> dict:
-        return {"keyframes": self.n_keyframes, "landmarks": self.n_landmarks,
-                "observations": self.n_observations, "bow_entries": int(len(self.bow_words)),
-                "patch_px": int(self.landmark_patch.shape[1]) if self.landmark_patch.ndim == 3 else 0}
+        return {
+            "keyframes": self.n_keyframes,
+            "landmarks": self.n_landmarks,
+            "observations": self.n_observations,
+            "bow_entries": int(len(self.bow_words)),
+            "patch_px": int(self.landmark_patch.shape[1]) if self.landmark_patch.ndim == 3 else 0,
+        }
 
     def bow(self, k: int) -> BowVector:
         """Keyframe ``k``'s bag-of-words vector."""
@@ -119,14 +123,17 @@ class SpatialMap:
         if cache is None:
             order = np.argsort(self.obs_keyframe, kind="stable")
             bounds = np.searchsorted(self.obs_keyframe[order], np.arange(self.n_keyframes + 1))
-            cache = [order[bounds[k]:bounds[k + 1]] for k in range(self.n_keyframes)]
+            cache = [order[bounds[k] : bounds[k + 1]] for k in range(self.n_keyframes)]
             self._obs_cache = cache
         return cache
 
     def check(self, where) -> None:
         """InputError naming ``where`` when arrays disagree in shape, dtype or index range."""
-        n = {"keyframes": self.n_keyframes, "landmarks": self.n_landmarks,
-             "observations": self.n_observations}
+        n = {
+            "keyframes": self.n_keyframes,
+            "landmarks": self.n_landmarks,
+            "observations": self.n_observations,
+        }
         for name, (tail, dtype) in ARRAYS.items():
             a = getattr(self, name)
             rows = n.get(COUNTS.get(name.split("_")[0], ""), None)
@@ -135,22 +142,29 @@ class SpatialMap:
             if name in ("bow_words", "bow_weights"):
                 rows = len(self.bow_words)
             if a.dtype != np.dtype(dtype) or a.shape[1:] != tail or (rows is not None and len(a) != rows):
-                raise InputError(f"map array {name} has shape {a.shape} and dtype {a.dtype}, "
-                                 f"expected ({rows}, {', '.join(map(str, tail))}) {dtype}", where)
+                raise InputError(
+                    f"map array {name} has shape {a.shape} and dtype {a.dtype}, "
+                    f"expected ({rows}, {', '.join(map(str, tail))}) {dtype}",
+                    where,
+                )
         p = self.landmark_patch
         if p.ndim != 3 or len(p) != self.n_landmarks or p.shape[1] != p.shape[2]:
             raise InputError(f"map array landmark_patch has shape {p.shape}", where)
-        if self.n_observations and (self.obs_keyframe.min() < 0 or self.obs_keyframe.max() >= self.n_keyframes
-                                    or self.obs_landmark.min() < 0
-                                    or self.obs_landmark.max() >= self.n_landmarks):
+        if self.n_observations and (
+            self.obs_keyframe.min() < 0
+            or self.obs_keyframe.max() >= self.n_keyframes
+            or self.obs_landmark.min() < 0
+            or self.obs_landmark.max() >= self.n_landmarks
+        ):
             raise InputError("map observations index keyframes or landmarks that do not exist", where)
         ip = self.bow_indptr
         if len(ip) and (ip[0] != 0 or ip[-1] != len(self.bow_words) or np.any(np.diff(ip) < 0)):
             raise InputError("map bag-of-words rows (bow_indptr) are inconsistent", where)
         w = self.bow_words
         if len(w) and (w.min() < 0 or w.max() >= self.vocabulary.n_words_):
-            raise InputError(f"map bag-of-words word ids outside the vocabulary's "
-                             f"{self.vocabulary.n_words_} words", where)
+            raise InputError(
+                f"map bag-of-words word ids outside the vocabulary's {self.vocabulary.n_words_} words", where
+            )
         for name in ("keyframe_wTc", "landmark_w", "bow_weights"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise InputError(f"map array {name} holds non-finite values", where)
@@ -166,10 +180,12 @@ class SpatialMap:
         inside = np.ones(len(w) - 1, dtype=bool)  # consecutive entries of one row
         inside[starts[1:] - 1] = False
         sums = np.add.reduceat(wts, starts)  # empty rows hold nothing: each segment is a row
-        if np.any(wts <= 0) or np.any(np.abs(sums - 1.0) > L1_NORM_TOL) \
-                or np.any(np.diff(w)[inside] <= 0):
-            raise InputError("map bag-of-words rows are not normalised vectors (word ids "
-                             "increasing, weights > 0 summing to 1)", where)
+        if np.any(wts <= 0) or np.any(np.abs(sums - 1.0) > L1_NORM_TOL) or np.any(np.diff(w)[inside] <= 0):
+            raise InputError(
+                "map bag-of-words rows are not normalised vectors (word ids "
+                "increasing, weights > 0 summing to 1)",
+                where,
+            )
 
 
 def bow_csr(vectors: list[BowVector]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -18,8 +18,7 @@ from slamcore.files import atomic_open
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 _UPPER = np.triu_indices(6)
-HEADER = ("frame,t,status,x,y,z,qx,qy,qz,qw,"
-          + ",".join(f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)))
+HEADER = "frame,t,status,x,y,z,qx,qy,qz,qw," + ",".join(f"c{i}{j}" for i, j in zip(*_UPPER, strict=True))
 
 
 def write_localize_csv(path: Path, frames, stamps, statuses, poses, covariances) -> None:

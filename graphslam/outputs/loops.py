@@ -18,8 +18,16 @@ def write_loops(closer, out_dir: Path) -> dict[str, Path]:
         w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
         for r in closer.records:
             if r.accepted:
-                w.writerow([r.query, r.match, f"{r.detector.score:.6f}", r.detector.n_inliers,
-                            r.pnp.n_inliers, f"{r.distance_m:.4f}"])
+                w.writerow(
+                    [
+                        r.query,
+                        r.match,
+                        f"{r.detector.score:.6f}",
+                        r.detector.n_inliers,
+                        r.pnp.n_inliers,
+                        f"{r.distance_m:.4f}",
+                    ]
+                )
     closer.write_log(paths["loops_log"])
     return paths
 

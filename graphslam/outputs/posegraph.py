@@ -37,11 +37,15 @@ def convert(graph: pg.PoseGraph, fmt: str) -> tuple[pg.PoseGraph, list[str]]:
     rotation = "angle" if graph.dim == 2 else ("quat" if fmt == "g2o" else "rpy")
     out = replace(graph, format=fmt, rotation=rotation)
     if rotation != graph.rotation:
-        out = replace(out, vertices=_re_express(graph.vertices, graph.rotation, rotation),
-                      measurements=_re_express(graph.measurements, graph.rotation, rotation))
+        out = replace(
+            out,
+            vertices=_re_express(graph.vertices, graph.rotation, rotation),
+            measurements=_re_express(graph.measurements, graph.rotation, rotation),
+        )
         if not out.has_vertex.all():  # what a reader of the converted file will compute
-            out = replace(out, vertices=np.where(out.has_vertex[:, None], out.vertices,
-                                                 pg.chain_initialisation(out)))
+            out = replace(
+                out, vertices=np.where(out.has_vertex[:, None], out.vertices, pg.chain_initialisation(out))
+            )
     if fmt == "g2o":  # g2o numbers are information
         out = replace(out, noise="information")
     if fmt == "g2o" and len(graph.equiv):
@@ -58,8 +62,11 @@ def graph_lines(graph: pg.PoseGraph) -> list[str]:
     """The lines of ``graph`` as a file of its format (no trailing newlines)."""
     vertex_tag, edge_tag = TAG_NAMES[(graph.format, graph.dim)]
     # poses without a vertex line stay without one, so an edge-only file stays edge-only
-    lines = [f"{vertex_tag} {k} " + " ".join(map(_num, row))
-             for k, row, has in zip(graph.ids.tolist(), graph.vertices, graph.has_vertex, strict=True) if has]
+    lines = [
+        f"{vertex_tag} {k} " + " ".join(map(_num, row))
+        for k, row, has in zip(graph.ids.tolist(), graph.vertices, graph.has_vertex, strict=True)
+        if has
+    ]
     order = information_order(graph.format, graph.dim)
     sqrt = graph.format == "toro" and graph.noise == "sqrt_information"
     for (a, b), z, info in zip(graph.edges.tolist(), graph.measurements, graph.information, strict=True):

@@ -34,8 +34,7 @@ def check_bag_writer() -> None:
         raise ConfigError('--write-bag needs the rosbags package: pip install ".[bags]"') from None
 
 
-def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray,
-                         topic: str = TOPIC) -> Path:
+def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray, topic: str = TOPIC) -> Path:
     """Write ``wTc`` ((N, 4, 4), camera or body to world) at ``stamps_s`` ((N,) seconds,
     >= 0: ROS time is unsigned) as a ROS 1 bag at ``path``; returns ``path``."""
     check_bag_writer()
@@ -60,11 +59,14 @@ def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray
             conn = writer.add_connection(topic, _POSE, typestore=ts)
             for k, (t_ns, T, qk) in enumerate(zip(ns.tolist(), wTc, q, strict=True)):
                 header = types["std_msgs/msg/Header"](
-                    seq=k, stamp=types["builtin_interfaces/msg/Time"](
-                        sec=t_ns // 10**9, nanosec=t_ns % 10**9), frame_id=FRAME_ID)
+                    seq=k,
+                    stamp=types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+                    frame_id=FRAME_ID,
+                )
                 pose = types["geometry_msgs/msg/Pose"](
                     position=types["geometry_msgs/msg/Point"](*map(float, T[:3, 3])),
-                    orientation=types["geometry_msgs/msg/Quaternion"](*map(float, qk)))
+                    orientation=types["geometry_msgs/msg/Quaternion"](*map(float, qk)),
+                )
                 msg = types[_POSE](header=header, pose=pose)
                 writer.write(conn, t_ns, ts.serialize_ros1(msg, _POSE))
         move_into_place(tmp, path)

@@ -36,8 +36,12 @@ def write_tum_planar(path: Path, stamps: np.ndarray, wTb: np.ndarray) -> None:
     """:func:`write_tum` of (N, 3) 2-D poses ``[x, y, theta]``: z = 0, yaw about z."""
     half = 0.5 * wTb[:, 2]
     zeros = np.zeros(len(wTb))
-    write_tum(path, stamps, np.column_stack([wTb[:, 0], wTb[:, 1], zeros]),
-              np.column_stack([zeros, zeros, np.sin(half), np.cos(half)]))
+    write_tum(
+        path,
+        stamps,
+        np.column_stack([wTb[:, 0], wTb[:, 1], zeros]),
+        np.column_stack([zeros, zeros, np.sin(half), np.cos(half)]),
+    )
 
 
 def write_tum_spatial(path: Path, stamps: np.ndarray, wTc: np.ndarray) -> None:
@@ -78,16 +82,26 @@ def write_json(path: Path, data: dict) -> None:
 
 #: Files ``graphslam run`` may write into ``--out``.
 #: Several robots in one run (MRCLAM ``--robot all``) write one trajectory per robot.
-AGENT_OUTPUT_NAMES = tuple(f"{kind}_robot{n}.tum" for n in range(1, 6)
-                           for kind in ("trajectory", "ground_truth"))
-RUN_OUTPUT_NAMES = ("trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json",
-                    "run.rrd", "loops.csv", "loops.jsonl", "nees.csv") + AGENT_OUTPUT_NAMES
+AGENT_OUTPUT_NAMES = tuple(
+    f"{kind}_robot{n}.tum" for n in range(1, 6) for kind in ("trajectory", "ground_truth")
+)
+RUN_OUTPUT_NAMES = (
+    "trajectory.tum",
+    "ground_truth.tum",
+    "landmarks.csv",
+    "metrics.json",
+    "run.rrd",
+    "loops.csv",
+    "loops.jsonl",
+    "nees.csv",
+) + AGENT_OUTPUT_NAMES
 #: Files ``graphslam compare`` may write into ``--out``.
 COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")
 
 
-def remove_stale_outputs(out_dir: Path, will_write: set[str] | frozenset[str],
-                         known: tuple[str, ...] = RUN_OUTPUT_NAMES) -> list[Path]:
+def remove_stale_outputs(
+    out_dir: Path, will_write: set[str] | frozenset[str], known: tuple[str, ...] = RUN_OUTPUT_NAMES
+) -> list[Path]:
     """Delete the files of ``known`` names in ``out_dir`` that this run will not
     write, so a folder never mixes two runs' outputs; return what was removed.
 

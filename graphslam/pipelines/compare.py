@@ -93,8 +93,7 @@ def _child(conn, job, strip):
         conn.close()
 
 
-def run_isolated(job: Callable[[], R], name: str, strip: Callable[[R], R] | None = None
-                 ) -> tuple[R, float]:
+def run_isolated(job: Callable[[], R], name: str, strip: Callable[[R], R] | None = None) -> tuple[R, float]:
     """Run ``job()`` (one back end's run) in a forked child; returns its result and
     peak RSS (MB). ``strip`` lightens the result before it is sent back (drops
     what the parent already holds, e.g. the dataset).
@@ -149,9 +148,17 @@ def _wait_for(proc, conn, name: str):
         return None
 
 
-def compare(dataset: Dataset, backends: list[str], *, config=None,
-            overrides: dict[str, dict] | None = None, max_steps: int | None = None,
-            isolate: bool = True, seed: int | None = None, progress=None) -> list[CompareEntry]:
+def compare(
+    dataset: Dataset,
+    backends: list[str],
+    *,
+    config=None,
+    overrides: dict[str, dict] | None = None,
+    max_steps: int | None = None,
+    isolate: bool = True,
+    seed: int | None = None,
+    progress=None,
+) -> list[CompareEntry]:
     """Run each 2-D back end on ``dataset``; return one entry per back end, in order
     (:func:`run_entries`).
 
@@ -169,14 +176,15 @@ def compare(dataset: Dataset, backends: list[str], *, config=None,
         result.dataset = dataset  # the worker sent it back without (strip)
         return _score(dataset, result, peak_mb, seed)
 
-    entries = run_entries(backends, job, score, isolate=isolate, strip=_without_dataset,
-                          progress=progress)
-    reference = next((e for e in entries if registry.backend_row(e.backend).reference
-                      and e.result is not None), None)
+    entries = run_entries(backends, job, score, isolate=isolate, strip=_without_dataset, progress=progress)
+    reference = next(
+        (e for e in entries if registry.backend_row(e.backend).reference and e.result is not None), None
+    )
     if reference is not None:
         for e in finished(entries):
-            e.metrics.rms_to_isam2_m = metrics.rms_position_distance(e.result.estimate,
-                                                                     reference.result.estimate)
+            e.metrics.rms_to_isam2_m = metrics.rms_position_distance(
+                e.result.estimate, reference.result.estimate
+            )
     return entries
 
 
@@ -186,8 +194,9 @@ def _without_dataset(result: pipeline.RunResult) -> pipeline.RunResult:
     return result
 
 
-def run_entries(names: list[str], job, score, *, isolate: bool = True, strip=None,
-                progress=None) -> list[CompareEntry]:
+def run_entries(
+    names: list[str], job, score, *, isolate: bool = True, strip=None, progress=None
+) -> list[CompareEntry]:
     """One entry per name, in order: ``job(name)()`` runs that back end (in a forked
     child when ``isolate``), ``score(name, result, peak_mb)`` gives its metrics.
 

@@ -54,13 +54,16 @@ class PoseGraphCompareRun:
     def to_dict(self) -> dict:
         if self.metrics is None:
             return {"backend": self.backend, "status": self.status, "error": self.error}
-        return {**self.metrics.to_dict(), "status": self.status,
-                "rms_to_first_m": self.rms_to_first_m}
+        return {**self.metrics.to_dict(), "status": self.status, "rms_to_first_m": self.rms_to_first_m}
 
 
-def compare(graph: pg.PoseGraph, backends: list[str], config=None,
-            truth: tuple[np.ndarray, np.ndarray] | None = None,
-            progress=None) -> list[PoseGraphCompareRun]:
+def compare(
+    graph: pg.PoseGraph,
+    backends: list[str],
+    config=None,
+    truth: tuple[np.ndarray, np.ndarray] | None = None,
+    progress=None,
+) -> list[PoseGraphCompareRun]:
     """Solve ``graph`` with each of ``backends`` in turn (module docstring);
     ``progress(name)`` is called before each."""
     runs: list[PoseGraphCompareRun] = []
@@ -75,8 +78,9 @@ def compare(graph: pg.PoseGraph, backends: list[str], config=None,
         except GraphSlamError as e:
             runs.append(PoseGraphCompareRun(name, error=" ".join(str(e).splitlines())))
             continue
-        runs.append(PoseGraphCompareRun(name, metrics(graph, result, time.perf_counter() - t0,
-                                                      truth), result))
+        runs.append(
+            PoseGraphCompareRun(name, metrics(graph, result, time.perf_counter() - t0, truth), result)
+        )
     first = next((r.result for r in runs if r.result is not None), None)
     for r in runs:
         if r.result is not None and first is not None:

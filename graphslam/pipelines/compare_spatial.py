@@ -42,7 +42,6 @@ from slamcore.errors import GraphSlamError
 NEES_ALIGNMENT = {"se3": "none", "sim3": "sim3"}
 
 
-
 class _Feed:
     """``on_frame`` hook: digests what the back end is fed and, for a filter, keeps
     each frame's pose covariance (the estimate is only read, never changed)."""
@@ -59,8 +58,9 @@ class _Feed:
             self.covariances.append(backend.estimate().current_covariance)
 
 
-def compare(setup: VisualSetup, names: list[str], *, isolate: bool = True,
-            progress=None) -> list[CompareEntry]:
+def compare(
+    setup: VisualSetup, names: list[str], *, isolate: bool = True, progress=None
+) -> list[CompareEntry]:
     """Run each entry of ``names`` on ``setup``'s sequence; one entry each, in order,
     with its metrics (ATE, RPE, frames/s, peak memory, pose NEES)."""
 
@@ -71,8 +71,7 @@ def compare(setup: VisualSetup, names: list[str], *, isolate: bool = True,
         result.sequence = setup.sequence  # the worker sent it back without (strip)
         return _score(setup, name, result, peak_mb)
 
-    entries = run_entries(names, job, score, isolate=isolate, strip=_without_sequence,
-                          progress=progress)
+    entries = run_entries(names, job, score, isolate=isolate, strip=_without_sequence, progress=progress)
     for e in finished(entries):
         e.nees = entry_nees(e.result, e.metrics.alignment)
         if e.nees is not None:
@@ -89,7 +88,7 @@ def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
     feed = _Feed(filtered=registry.visual_implementation(kind).filtering)
     result = session.run(on_frame=feed)
     if setup.odometry is not None:
-        feed.sha.update(np.ascontiguousarray(setup.odometry[:max(result.frames - 1, 0)]).tobytes())
+        feed.sha.update(np.ascontiguousarray(setup.odometry[: max(result.frames - 1, 0)]).tobytes())
     result.input_digest = feed.sha.hexdigest()
     result.pose_covariances = _covariances(feed, session.backend, result)
     return result
@@ -117,10 +116,10 @@ def _without_sequence(result: vp.VisualRunResult) -> vp.VisualRunResult:
     return result
 
 
-def _score(setup: VisualSetup, name: str, result: vp.VisualRunResult,
-           peak_mb: float | None) -> SpatialRunMetrics:
-    m = vp.compute_metrics(result, seed=getattr(getattr(setup.sequence, "config", None),
-                                                "seed", None))
+def _score(
+    setup: VisualSetup, name: str, result: vp.VisualRunResult, peak_mb: float | None
+) -> SpatialRunMetrics:
+    m = vp.compute_metrics(result, seed=getattr(getattr(setup.sequence, "config", None), "seed", None))
     m.backend = name
     m.backend_class = result.backend
     m.peak_rss_mb = peak_mb
@@ -136,5 +135,11 @@ def entry_nees(result: vp.VisualRunResult, alignment: str) -> dict | None:
     if result.pose_covariances is None or truth is None or len(est.frame_ids) < 2:
         return None
     truth = np.asarray(truth)
-    return pose_nees(est.frame_ids, est.wTc, result.pose_covariances, np.arange(len(truth)),
-                     truth, alignment=NEES_ALIGNMENT[alignment])
+    return pose_nees(
+        est.frame_ids,
+        est.wTc,
+        result.pose_covariances,
+        np.arange(len(truth)),
+        truth,
+        alignment=NEES_ALIGNMENT[alignment],
+    )

@@ -109,9 +109,15 @@ class Localizer:
             map by the caller); detector: the corner detector the map was built with.
     """
 
-    def __init__(self, smap: SpatialMap, K: np.ndarray, detector,
-                 config: LocalizeConfig | None = None, pnp: PnpConfig | None = None,
-                 bow_orb: OrbDetector | None = None):
+    def __init__(
+        self,
+        smap: SpatialMap,
+        K: np.ndarray,
+        detector,
+        config: LocalizeConfig | None = None,
+        pnp: PnpConfig | None = None,
+        bow_orb: OrbDetector | None = None,
+    ):
         self.map = smap
         self.K = np.asarray(K, np.float64)
         self.detector = detector
@@ -198,10 +204,18 @@ class Localizer:
         tvec = cTw[:3, 3].reshape(3, 1).copy()
         cv2.setRNGSeed(int(self.pnp.seed))
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            np.ascontiguousarray(pts), np.ascontiguousarray(img), self.K, None, rvec, tvec,
-            useExtrinsicGuess=True, iterationsCount=int(self.pnp.max_iters),
+            np.ascontiguousarray(pts),
+            np.ascontiguousarray(img),
+            self.K,
+            None,
+            rvec,
+            tvec,
+            useExtrinsicGuess=True,
+            iterationsCount=int(self.pnp.max_iters),
             reprojectionError=float(self.config.ransac_threshold_px),
-            confidence=float(self.pnp.confidence), flags=cv2.SOLVEPNP_ITERATIVE)
+            confidence=float(self.pnp.confidence),
+            flags=cv2.SOLVEPNP_ITERATIVE,
+        )
         if not ok or inl is None or len(inl) < self.config.min_inliers:
             return None
         inl = inl.reshape(-1)
@@ -232,13 +246,17 @@ class Localizer:
         # one observation per landmark, from the best-scoring keyframe (obs are in hit order)
         obs = obs[np.sort(np.unique(self.map.obs_landmark[obs], return_index=True)[1])]
         lm = self.map.obs_landmark[obs]
-        res = relative_pose_pnp(self.map.landmark_w[lm], self.map.obs_desc[obs], xy, desc,
-                                self.K, self.pnp)
+        res = relative_pose_pnp(self.map.landmark_w[lm], self.map.obs_desc[obs], xy, desc, self.K, self.pnp)
         if not res.accepted:
             return Placement("lost", None, None, res.n_inliers, hits[0][0])
-        return Placement("relocalised", res.aTb, res.covariance, res.n_inliers, hits[0][0],
-                         uv_px=xy[res.inlier_pairs[:, 1]])
-
+        return Placement(
+            "relocalised",
+            res.aTb,
+            res.covariance,
+            res.n_inliers,
+            hits[0][0],
+            uv_px=xy[res.inlier_pairs[:, 1]],
+        )
 
 
 def make_localizer(smap: SpatialMap, K: np.ndarray, config=None) -> Localizer:
@@ -251,8 +269,13 @@ def make_localizer(smap: SpatialMap, K: np.ndarray, config=None) -> Localizer:
     from slamcore.config import load_section
 
     tracker = TrackerConfig(detector=smap.meta.get("tracker", {}).get("detector", "harris"))
-    detector = make_detector(tracker, load_section(HarrisConfig, config),
-                             load_section(OrbConfig, config))
+    detector = make_detector(tracker, load_section(HarrisConfig, config), load_section(OrbConfig, config))
     bow_orb = OrbDetector(OrbConfig(**smap.meta["bow_orb"])) if "bow_orb" in smap.meta else None
-    return Localizer(smap, K, detector, load_section(LocalizeConfig, config),
-                     load_section(PnpConfig, config), bow_orb=bow_orb)
+    return Localizer(
+        smap,
+        K,
+        detector,
+        load_section(LocalizeConfig, config),
+        load_section(PnpConfig, config),
+        bow_orb=bow_orb,
+    )

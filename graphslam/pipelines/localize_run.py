@@ -59,8 +59,14 @@ class LocalizeResult:
         return np.array([p.wTc is not None for p in self.placements], dtype=bool)
 
 
-def run(sequence, localizer: Localizer, *, progress: bool = False,
-        on_frame: LocalizeHook | None = None, max_frames: int | None = None) -> LocalizeResult:
+def run(
+    sequence,
+    localizer: Localizer,
+    *,
+    progress: bool = False,
+    on_frame: LocalizeHook | None = None,
+    max_frames: int | None = None,
+) -> LocalizeResult:
     """Place every frame of ``sequence`` in ``localizer``'s map."""
     n = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     result = LocalizeResult(sequence)
@@ -111,18 +117,32 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
     n = len(status)
     placed = result.placed()
     whole = result.wall_s + result.load_s if wall_s is None else wall_s
-    m = {"dataset": result.sequence.name, "source": result.sequence.source_path, "map": map_info,
-         "frames": n, "localised_fraction": float(placed.mean()) if n else 0.0,
-         "tracked": status.count("tracked"), "relocalisations": status.count("relocalised"),
-         "lost_frames": status.count("lost"), "ate_rmse_m": None,
-         "wall_s": whole, "processing_s": result.wall_s, "image_load_s": result.load_s,
-         "frames_per_s": n / whole if whole > 0 else None, "interrupted": result.interrupted}
+    m = {
+        "dataset": result.sequence.name,
+        "source": result.sequence.source_path,
+        "map": map_info,
+        "frames": n,
+        "localised_fraction": float(placed.mean()) if n else 0.0,
+        "tracked": status.count("tracked"),
+        "relocalisations": status.count("relocalised"),
+        "lost_frames": status.count("lost"),
+        "ate_rmse_m": None,
+        "wall_s": whole,
+        "processing_s": result.wall_s,
+        "image_load_s": result.load_s,
+        "frames_per_s": n / whole if whole > 0 else None,
+        "interrupted": result.interrupted,
+    }
     err = errors_m(result)
     if err is not None and placed.any():
         e = err[placed]
-        m.update(ate_rmse_m=float(np.sqrt(np.mean(e**2))), error_median_m=float(np.median(e)),
-                 error_max_m=float(np.max(e)), frames_over_0_5m=int(np.sum(e > FAR_M)),
-                 ate_alignment="none (map frame)")
+        m.update(
+            ate_rmse_m=float(np.sqrt(np.mean(e**2))),
+            error_median_m=float(np.median(e)),
+            error_max_m=float(np.max(e)),
+            frames_over_0_5m=int(np.sum(e > FAR_M)),
+            ate_alignment="none (map frame)",
+        )
     return m
 
 
@@ -134,19 +154,25 @@ def write_outputs(result: LocalizeResult, out_dir: Path, metrics: dict) -> dict[
     out_dir.mkdir(parents=True, exist_ok=True)
     seq = result.sequence
     n = len(result.placements)
-    stamps = (result.frame_index.astype(float) if seq.stamps_s is None
-              else np.asarray(seq.stamps_s, float)[:n])
+    stamps = result.frame_index.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, float)[:n]
     placed = result.placed()
-    paths = {"localize": out_dir / "localize.csv", "trajectory": out_dir / "trajectory.tum",
-             "metrics": out_dir / "metrics.json"}
-    write_localize_csv(paths["localize"], result.frame_index, stamps,
-                       [p.status for p in result.placements], [p.wTc for p in result.placements],
-                       [p.covariance for p in result.placements])
+    paths = {
+        "localize": out_dir / "localize.csv",
+        "trajectory": out_dir / "trajectory.tum",
+        "metrics": out_dir / "metrics.json",
+    }
+    write_localize_csv(
+        paths["localize"],
+        result.frame_index,
+        stamps,
+        [p.status for p in result.placements],
+        [p.wTc for p in result.placements],
+        [p.covariance for p in result.placements],
+    )
     wTc = np.array([p.wTc for p in result.placements if p.wTc is not None]).reshape(-1, 4, 4)
     writers.write_tum_spatial(paths["trajectory"], stamps[placed], wTc)
     if seq.wTc_true is not None:
         paths["ground_truth"] = out_dir / "ground_truth.tum"
-        writers.write_tum_spatial(paths["ground_truth"], stamps[placed],
-                                  np.asarray(seq.wTc_true)[:n][placed])
+        writers.write_tum_spatial(paths["ground_truth"], stamps[placed], np.asarray(seq.wTc_true)[:n][placed])
     writers.write_json(paths["metrics"], metrics)
     return paths

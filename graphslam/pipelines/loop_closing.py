@@ -95,13 +95,21 @@ class LoopCandidate:
     def to_dict(self) -> dict:
         """Flat JSON-ready fields: the detector's, then ``stage``, ``pnp_*``, ``distance_m``."""
         d = self.detector.to_dict()
-        d.update(accepted=self.accepted, reason=self.reason, stage=self.stage,
-                 pnp_accepted=None if self.pnp is None else self.pnp.accepted,
-                 shared_tracks=self.shared_tracks)
+        d.update(
+            accepted=self.accepted,
+            reason=self.reason,
+            stage=self.stage,
+            pnp_accepted=None if self.pnp is None else self.pnp.accepted,
+            shared_tracks=self.shared_tracks,
+        )
         if self.pnp is not None:
-            d.update(pnp_reason=self.pnp.reason, pnp_matches=self.pnp.n_matches,
-                     pnp_inliers=self.pnp.n_inliers, pnp_points=self.pnp.n_points,
-                     pnp_rmse_px=self.pnp.reprojection_rmse_px)
+            d.update(
+                pnp_reason=self.pnp.reason,
+                pnp_matches=self.pnp.n_matches,
+                pnp_inliers=self.pnp.n_inliers,
+                pnp_points=self.pnp.n_points,
+                pnp_rmse_px=self.pnp.reprojection_rmse_px,
+            )
         if self.distance_m is not None:
             d["distance_m"] = self.distance_m
         return d
@@ -162,8 +170,10 @@ class VisualLoopCloser:
     def __post_init__(self) -> None:
         K = self.detector.K
         if K is None:
-            raise ValueError("loop closing in a visual run needs the detector to have K "
-                             "(a metric closure is a calibrated PnP)")
+            raise ValueError(
+                "loop closing in a visual run needs the detector to have K "
+                "(a metric closure is a calibrated PnP)"
+            )
         self._K: np.ndarray = K
         self._frames: dict[int, _FrameMap] = {}
         self._describer = OrbDetector(self.detector.orb.config)
@@ -173,13 +183,17 @@ class VisualLoopCloser:
         """Counts over :attr:`records`: candidates (queries with a candidate match),
         verified (passed the detector's geometry), redundant, pnp_rejected, closures."""
         stages = [r.stage for r in self.records]
-        return {"candidates": sum(r.match is not None for r in self.records),
-                "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
-                "redundant": stages.count("redundant"), "pnp_rejected": stages.count("pnp"),
-                "closures": len(self.closures)}
+        return {
+            "candidates": sum(r.match is not None for r in self.records),
+            "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
+            "redundant": stages.count("redundant"),
+            "pnp_rejected": stages.count("pnp"),
+            "closures": len(self.closures),
+        }
 
-    def process(self, k: int, image: np.ndarray, tracking: TrackingResult,
-                backend: VisualBackend) -> PoseClosure | None:
+    def process(
+        self, k: int, image: np.ndarray, tracking: TrackingResult, backend: VisualBackend
+    ) -> PoseClosure | None:
         """Frame ``k`` (its image and the tracker's result, after the back end's update)."""
         obs = tracking.observations
         idx, desc = self._describer.describe(image, obs.uv_px)
@@ -187,8 +201,10 @@ class VisualLoopCloser:
         self._frames[int(k)] = _FrameMap(ids, np.asarray(obs.uv_px, np.float64)[idx], desc)
         n_records = len(self.detector.records)
         if len(self.detector) != k:
-            raise RuntimeError(f"loop detector holds {len(self.detector)} images at frame {k}; "
-                               "frames must be fed in order from 0")
+            raise RuntimeError(
+                f"loop detector holds {len(self.detector)} images at frame {k}; "
+                "frames must be fed in order from 0"
+            )
         features = self.features
         pre = None if features is None else features[k]
         # covisibility from the run's own tracks (landmarks re-found keep their ids)
@@ -200,21 +216,24 @@ class VisualLoopCloser:
             loop = self.detector.process_features(pre.xy_px, pre.descriptors, track_ids=tracked)
         if len(self.detector.records) == n_records:
             return None  # too early for any query: nothing happened
-        record = LoopCandidate(self.detector.records[-1],
-                               "accepted" if loop is not None else "detector",
-                               accepted=self.detector.records[-1].accepted,
-                               reason=self.detector.records[-1].reason)
+        record = LoopCandidate(
+            self.detector.records[-1],
+            "accepted" if loop is not None else "detector",
+            accepted=self.detector.records[-1].accepted,
+            reason=self.detector.records[-1].reason,
+        )
         closure = None
         links = None
         if loop is not None:
-            record.shared_tracks = len(np.intersect1d(self._frames[int(loop.match)].track_ids,
-                                                      np.asarray(obs.track_ids, np.int64)))
+            record.shared_tracks = len(
+                np.intersect1d(self._frames[int(loop.match)].track_ids, np.asarray(obs.track_ids, np.int64))
+            )
         need = self.config.redundant_shared_tracks
-        if (loop is not None and need and record.shared_tracks is not None
-                and record.shared_tracks >= need):
+        if loop is not None and need and record.shared_tracks is not None and record.shared_tracks >= need:
             record.stage, record.accepted = "redundant", False
-            record.reason = (f"redundant: {record.shared_tracks} landmarks of frame {loop.match} "
-                             "already re-observed")
+            record.reason = (
+                f"redundant: {record.shared_tracks} landmarks of frame {loop.match} already re-observed"
+            )
             loop = None
         if loop is not None:
             record.pnp, links = self._metric_pose(loop.match, image, tracking, backend)
@@ -231,8 +250,7 @@ class VisualLoopCloser:
             self.on_candidate(int(k), record, image, links)
         return closure
 
-    def _metric_pose(self, match: int, image: np.ndarray, tracking: TrackingResult,
-                     backend: VisualBackend):
+    def _metric_pose(self, match: int, image: np.ndarray, tracking: TrackingResult, backend: VisualBackend):
         """``(PnpResult, links (M, 2, 2) [query px, match px] of its inliers)``.
 
         The query side is the front end's own corners of this frame, described
@@ -264,8 +282,9 @@ def pnp_closure(frame_a: int, frame_b: int, result: PnpResult) -> PoseClosure:
     """The closure ``frame_a -> frame_b`` of an accepted PnP result (which has its
     ``aTb`` and ``covariance``; a rejected one has neither)."""
     if result.aTb is None or result.covariance is None:
-        raise GraphSlamError(f"PnP result without a pose ({result.reason}): no closure of "
-                             f"frames {frame_a}, {frame_b}")
+        raise GraphSlamError(
+            f"PnP result without a pose ({result.reason}): no closure of frames {frame_a}, {frame_b}"
+        )
     return PoseClosure(frame_a, frame_b, result.aTb, result.covariance)
 
 
@@ -279,14 +298,25 @@ def require_loop_closures(backend: VisualBackend, option: str = "--loops") -> No
     """Raise :class:`UnsupportedError` unless ``backend`` takes relative-pose closures;
     the message names ``option``, the flag the user gave that needs them."""
     if not backend.supports_loop_closures:
-        raise UnsupportedError(f"{option}: back end {backend.name!r} cannot use relative-pose loop "
-                               "closures (it closes loops by re-observing landmarks); use isam2")
+        raise UnsupportedError(
+            f"{option}: back end {backend.name!r} cannot use relative-pose loop "
+            "closures (it closes loops by re-observing landmarks); use isam2"
+        )
 
 
-def make_loop_closer(sequence, backend: VisualBackend, vocab, detector_config, verify_config,
-                     pnp_config: PnpConfig, closing_config: LoopClosingConfig, *,
-                     features: list | None = None, on_candidate: CandidateHook | None = None,
-                     vocabulary_source: str = "") -> VisualLoopCloser:
+def make_loop_closer(
+    sequence,
+    backend: VisualBackend,
+    vocab,
+    detector_config,
+    verify_config,
+    pnp_config: PnpConfig,
+    closing_config: LoopClosingConfig,
+    *,
+    features: list | None = None,
+    on_candidate: CandidateHook | None = None,
+    vocabulary_source: str = "",
+) -> VisualLoopCloser:
     """The :class:`VisualLoopCloser` of ``graphslam run --loops`` for ``sequence``.
 
     ``features``: the ORB features of the frames, if the vocabulary was trained
@@ -296,16 +326,22 @@ def make_loop_closer(sequence, backend: VisualBackend, vocab, detector_config, v
         UnsupportedError: the back end cannot use relative-pose closures.
     """
     require_loop_closures(backend)
-    detector = LoopDetector(vocab, detector_config, verify_config,
-                            K=np.asarray(sequence.K, dtype=np.float64))
-    return VisualLoopCloser(detector, pnp_config, closing_config, on_candidate,
-                            vocabulary_source=vocabulary_source, features=features)
+    detector = LoopDetector(vocab, detector_config, verify_config, K=np.asarray(sequence.K, dtype=np.float64))
+    return VisualLoopCloser(
+        detector,
+        pnp_config,
+        closing_config,
+        on_candidate,
+        vocabulary_source=vocabulary_source,
+        features=features,
+    )
 
 
 def sequence_features(sequence, n_frames: int, orb, progress: bool = False) -> list:
     """ORB features of the first ``n_frames`` images of ``sequence`` (progress on stderr)."""
     from graphslam.pipelines.progress import progress as progress_of
 
-    return [orb.detect(sequence.load(i))
-            for i in progress_of(range(n_frames), desc="vocabulary ORB", unit="img",
-                                 enabled=progress)]
+    return [
+        orb.detect(sequence.load(i))
+        for i in progress_of(range(n_frames), desc="vocabulary ORB", unit="img", enabled=progress)
+    ]

@@ -44,8 +44,9 @@ DENSIFY_MIN_PARALLAX_DEG = 2.0
 def require_map_backend(backend) -> None:
     """Saving a map needs past keyframe poses and their covariances: iSAM2 only."""
     if not backend.supports_loop_closures:
-        raise UnsupportedError(f"--save-map: back end {backend.name!r} keeps no past keyframe "
-                               "poses to save; use --backend isam2")
+        raise UnsupportedError(
+            f"--save-map: back end {backend.name!r} keeps no past keyframe poses to save; use --backend isam2"
+        )
 
 
 class MapRecorder:
@@ -88,8 +89,9 @@ class MapRecorder:
         cidx, cdesc = self.describer.describe(image, corners)
         self.corners[int(k)] = (corners[cidx], cdesc)
 
-    def build(self, estimate, backend, vocabulary=None, meta: dict | None = None,
-              K=None, image_size=None) -> SpatialMap:
+    def build(
+        self, estimate, backend, vocabulary=None, meta: dict | None = None, K=None, image_size=None
+    ) -> SpatialMap:
         """The map of ``estimate`` (a finalised iSAM2 estimate of this run)."""
         from graphslam.backends.spatial.marginals import marginal_covariances
 
@@ -98,8 +100,7 @@ class MapRecorder:
         if vocabulary is None:
             from graphslam.pipelines.place_recognition import train_vocabulary
 
-            vocabulary = train_vocabulary([self.bow_descriptors[int(f)] for f in frames],
-                                          SELF_TRAINED_WORDS)
+            vocabulary = train_vocabulary([self.bow_descriptors[int(f)] for f in frames], SELF_TRAINED_WORDS)
         db = BowDatabase(vocabulary)
         pose_cov, point_cov = marginal_covariances(backend, estimate)
         kf_obs, lm_obs, obs_uv, obs_desc = self._observations(frames, estimate.landmark_ids)
@@ -109,30 +110,50 @@ class MapRecorder:
         lm_ids = np.asarray(estimate.landmark_ids, np.int64)[seen]
         lm_w = np.asarray(estimate.landmarks_w, np.float64)[seen]
         first = np.unique(lm_obs, return_index=True)[1]  # obs are in frame order
-        patches = (np.stack([self.patches[int(t)] for t in lm_ids]).astype(np.float32)
-                   if len(lm_ids) else np.zeros((0, self.patch_px, self.patch_px), np.float32))
+        patches = (
+            np.stack([self.patches[int(t)] for t in lm_ids]).astype(np.float32)
+            if len(lm_ids)
+            else np.zeros((0, self.patch_px, self.patch_px), np.float32)
+        )
         lm_desc, lm_cov, lm_obs = obs_desc[first], point_cov[seen], remap[lm_obs]
         wTc = np.asarray(estimate.wTc, np.float64)
-        d = densify(wTc, [self.corners[int(f)] for f in frames],
-                    np.bincount(kf_obs, minlength=len(frames)), np.asarray(K, np.float64))
+        d = densify(
+            wTc,
+            [self.corners[int(f)] for f in frames],
+            np.bincount(kf_obs, minlength=len(frames)),
+            np.asarray(K, np.float64),
+        )
         if len(d["points"]):
             n0 = len(lm_ids)
             lm_ids = np.r_[lm_ids, -1 - np.arange(len(d["points"]), dtype=np.int64)]
             lm_w, lm_cov = np.r_[lm_w, d["points"]], np.r_[lm_cov, d["covariances"]]
             lm_desc = np.r_[lm_desc, d["obs_desc"][0::2]]
-            patches = np.r_[patches, np.full((len(d["points"]),) + patches.shape[1:], np.nan,
-                                             np.float32)]
+            patches = np.r_[patches, np.full((len(d["points"]),) + patches.shape[1:], np.nan, np.float32)]
             kf_obs, lm_obs = np.r_[kf_obs, d["obs_keyframe"]], np.r_[lm_obs, n0 + d["obs_landmark"]]
             obs_uv, obs_desc = np.r_[obs_uv, d["obs_uv"]], np.r_[obs_desc, d["obs_desc"]]
         indptr, words, weights = bow_csr([db.bow(self.bow_descriptors[int(f)]) for f in frames])
         index = frames if self.frame_index is None else self.frame_index[frames]
         return SpatialMap(
-            K=np.asarray(K, np.float64), image_size=(int(image_size[0]), int(image_size[1])),
-            keyframe_ids=index.astype(np.int64), keyframe_wTc=wTc, keyframe_cov=pose_cov,
-            landmark_ids=lm_ids, landmark_w=lm_w, landmark_cov=lm_cov, landmark_desc=lm_desc,
-            landmark_patch=patches, obs_keyframe=kf_obs, obs_landmark=lm_obs, obs_uv=obs_uv,
-            obs_desc=obs_desc, bow_indptr=indptr, bow_words=words, bow_weights=weights,
-            vocabulary=vocabulary, meta={**(meta or {}), "densified_landmarks": len(d["points"])})
+            K=np.asarray(K, np.float64),
+            image_size=(int(image_size[0]), int(image_size[1])),
+            keyframe_ids=index.astype(np.int64),
+            keyframe_wTc=wTc,
+            keyframe_cov=pose_cov,
+            landmark_ids=lm_ids,
+            landmark_w=lm_w,
+            landmark_cov=lm_cov,
+            landmark_desc=lm_desc,
+            landmark_patch=patches,
+            obs_keyframe=kf_obs,
+            obs_landmark=lm_obs,
+            obs_uv=obs_uv,
+            obs_desc=obs_desc,
+            bow_indptr=indptr,
+            bow_words=words,
+            bow_weights=weights,
+            vocabulary=vocabulary,
+            meta={**(meta or {}), "densified_landmarks": len(d["points"])},
+        )
 
     def _observations(self, frames: np.ndarray, landmark_ids: np.ndarray):
         """``(keyframe index, landmark index, uv, descriptor)`` of every described pixel
@@ -146,8 +167,12 @@ class MapRecorder:
             lm.append(np.array([slot[int(ids[i])] for i in keep], np.int64))
             uv.append(px[keep])
             desc.append(d[keep])
-        return (np.concatenate(kf), np.concatenate(lm), np.concatenate(uv).reshape(-1, 2),
-                np.concatenate(desc).reshape(-1, 32).astype(np.uint8))
+        return (
+            np.concatenate(kf),
+            np.concatenate(lm),
+            np.concatenate(uv).reshape(-1, 2),
+            np.concatenate(desc).reshape(-1, 32).astype(np.uint8),
+        )
 
 
 def densify(wTc: np.ndarray, corners: list, n_obs: np.ndarray, K: np.ndarray) -> dict:
@@ -168,8 +193,14 @@ def densify(wTc: np.ndarray, corners: list, n_obs: np.ndarray, K: np.ndarray) ->
     from slamcore.spatial.camera import project_jacobians
     from slamcore.spatial.geometry import invert_pose
 
-    out: dict[str, list] = {"points": [], "covariances": [], "obs_keyframe": [],
-                            "obs_landmark": [], "obs_uv": [], "obs_desc": []}
+    out: dict[str, list] = {
+        "points": [],
+        "covariances": [],
+        "obs_keyframe": [],
+        "obs_landmark": [],
+        "obs_uv": [],
+        "obs_desc": [],
+    }
     n = len(wTc)
     for a in range(n):
         b = a + DENSIFY_GAP if a + DENSIFY_GAP < n else a - DENSIFY_GAP
@@ -189,9 +220,13 @@ def densify(wTc: np.ndarray, corners: list, n_obs: np.ndarray, K: np.ndarray) ->
         (uva, za, Ja, _), (uvb, zb, Jb, _) = (project_jacobians(K, c, p) for c in cTw)
         ra, rb = p - wTc[a][:3, 3], p - wTc[b][:3, 3]
         cos = np.einsum("ij,ij->i", ra, rb) / (np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1))
-        keep = ((za > 0) & (zb > 0) & (np.linalg.norm(uva - ua, axis=1) <= DENSIFY_MAX_REPROJ_PX)
-                & (np.linalg.norm(uvb - ub, axis=1) <= DENSIFY_MAX_REPROJ_PX)
-                & (cos <= np.cos(np.radians(DENSIFY_MIN_PARALLAX_DEG))))
+        keep = (
+            (za > 0)
+            & (zb > 0)
+            & (np.linalg.norm(uva - ua, axis=1) <= DENSIFY_MAX_REPROJ_PX)
+            & (np.linalg.norm(uvb - ub, axis=1) <= DENSIFY_MAX_REPROJ_PX)
+            & (cos <= np.cos(np.radians(DENSIFY_MIN_PARALLAX_DEG)))
+        )
         info = np.einsum("nji,njk->nik", Ja, Ja) + np.einsum("nji,njk->nik", Jb, Jb)
         keep &= np.linalg.cond(info) < 1e12
         k = np.flatnonzero(keep)

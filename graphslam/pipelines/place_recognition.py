@@ -16,8 +16,9 @@ from graphslam.pipelines.common import interrupt_between_frames, signal_hook
 from slamcore.errors import ConfigError, InputError
 
 
-def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB",
-               stoppable: bool = False, load=None) -> list:
+def detect_all(
+    paths: list[Path], orb, progress: bool = False, desc: str = "ORB", stoppable: bool = False, load=None
+) -> list:
     """ORB :class:`frontend.features.Features` of every image (progress bar on stderr).
 
     ``stoppable``: a stop request (SIGINT, SIGTERM; :mod:`graphslam.pipelines.common`)
@@ -46,13 +47,19 @@ def detect_all(paths: list[Path], orb, progress: bool = False, desc: str = "ORB"
 def tree_depth(n_words: int, branching: int) -> int:
     """Smallest depth L with ``branching ** L >= n_words``."""
     depth = max(1, math.ceil(math.log(n_words) / math.log(branching) - 1e-9))
-    while branching ** depth < n_words:
+    while branching**depth < n_words:
         depth += 1
     return depth
 
 
-def train_vocabulary(descriptors: list[np.ndarray], n_words: int, flat: bool = False,
-                     branching: int = 10, per_image: int = 300, seed: int = 0):
+def train_vocabulary(
+    descriptors: list[np.ndarray],
+    n_words: int,
+    flat: bool = False,
+    branching: int = 10,
+    per_image: int = 300,
+    seed: int = 0,
+):
     """Fit a vocabulary on per-image (N, 32) uint8 descriptor arrays.
 
     Keeps the first ``per_image`` rows of each array (ORB output is sorted by
@@ -73,11 +80,11 @@ def train_vocabulary(descriptors: list[np.ndarray], n_words: int, flat: bool = F
         raise InputError("no ORB features found in the images: cannot train a vocabulary")
     if flat:
         if total < n_words:
-            raise InputError(f"only {total} descriptors for {n_words} words: use fewer --words "
-                             f"or more images")
+            raise InputError(
+                f"only {total} descriptors for {n_words} words: use fewer --words or more images"
+            )
         return FlatVocabulary(n_words=n_words, seed=seed).fit(train)
-    return VocabularyTree(branching=branching, depth=tree_depth(n_words, branching),
-                          seed=seed).fit(train)
+    return VocabularyTree(branching=branching, depth=tree_depth(n_words, branching), seed=seed).fit(train)
 
 
 def describe(vocab) -> str:
@@ -92,9 +99,12 @@ def check_vocabulary(vocab, path: Path) -> None:
     """Refuse (InputError naming ``path``) a vocabulary that cannot quantise ORB descriptors."""
     # ORB descriptors are 32-byte binary strings; a float vocabulary cannot quantise them.
     if getattr(vocab, "metric_", None) != "hamming" or getattr(vocab, "descriptor_dim_", None) != 32:
-        raise InputError(f"vocabulary is not for ORB descriptors (metric "
-                         f"{getattr(vocab, 'metric_', '?')}, dimension "
-                         f"{getattr(vocab, 'descriptor_dim_', '?')}; need hamming, 32)", path)
+        raise InputError(
+            f"vocabulary is not for ORB descriptors (metric "
+            f"{getattr(vocab, 'metric_', '?')}, dimension "
+            f"{getattr(vocab, 'descriptor_dim_', '?')}; need hamming, 32)",
+            path,
+        )
 
 
 @dataclass(frozen=True)
@@ -117,18 +127,20 @@ class FolderPlaces:
         """One line for the summary: the mode, why, and what it excludes (``excluded``:
         the number of older images each query could not return, when known)."""
         if self.mode == "covisibility":
-            line = (f"covisibility: a query never returns the images sharing >= "
-                    f"{config.min_shared_tracks} tracked features with it")
+            line = (
+                f"covisibility: a query never returns the images sharing >= "
+                f"{config.min_shared_tracks} tracked features with it"
+            )
             if excluded:
-                line += (f" (median {np.median(excluded):g}, at most {max(excluded)} images "
-                         f"excluded)")
-            return line + f"; a closure needs {config.consistency_k} agreeing covisible queries, " \
+                line += f" (median {np.median(excluded):g}, at most {max(excluded)} images excluded)"
+            return (
+                line + f"; a closure needs {config.consistency_k} agreeing covisible queries, "
                 "or one where the query has no covisible predecessor"
+            )
         why = ""
         if self.median_overlap is not None:
             rel = "<" if self.mode == "keyframes" else ">="
-            why = (f" (median consecutive overlap {self.median_overlap:.2f} {rel} "
-                   f"{config.keyframe_overlap:g})")
+            why = f" (median consecutive overlap {self.median_overlap:.2f} {rel} {config.keyframe_overlap:g})"
         how = ("auto: " if self.chosen else "") + self.mode + why
         if self.mode == "keyframes":
             return f"{how}: excluding overlapping predecessors, one verified query suffices"
@@ -173,15 +185,20 @@ def folder_places(features: list, config, timestamps: np.ndarray | None) -> Fold
     if config.mode == "auto" and len(features) > 1:
         # at most FOLDER_PROBE_PAIRS evenly spaced pairs: a median needs no more
         starts = np.unique(np.linspace(0, len(features) - 2, FOLDER_PROBE_PAIRS).astype(int))
-        overlaps = [consecutive_overlap(features[k].descriptors, features[k + 1].descriptors)
-                    for k in starts]
+        overlaps = [consecutive_overlap(features[k].descriptors, features[k + 1].descriptors) for k in starts]
     mode = choose_mode(config.mode, overlaps, config.keyframe_overlap)
-    return FolderPlaces(mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None,
-                        timestamps)
+    return FolderPlaces(
+        mode, config.mode == "auto", float(np.median(overlaps)) if overlaps else None, timestamps
+    )
 
 
-def detect_loops(paths: list[Path], detector, features: list | None = None,
-                 progress: bool = False, timestamps: np.ndarray | None = None):
+def detect_loops(
+    paths: list[Path],
+    detector,
+    features: list | None = None,
+    progress: bool = False,
+    timestamps: np.ndarray | None = None,
+):
     """Feed every image (or its precomputed ORB ``features``) to ``detector`` in order.
 
     ``features`` entries are released as they are used; ``timestamps``
@@ -218,4 +235,3 @@ def sweep_scores(paths: list[Path], features: list, detector, timestamps=None) -
     """
     detect_loops(paths, detector, list(features), timestamps=timestamps)
     return [(r.query, r.match, r.normalised_score) for r in detector.records if r.accepted]
-

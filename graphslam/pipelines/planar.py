@@ -60,9 +60,15 @@ class RunResult:
     recoveries: dict[str, int] | None = None
 
 
-def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
-        progress: bool = False, on_step: StepHook | None = None,
-        with_covariances: bool = False) -> RunResult:
+def run(
+    dataset: Dataset,
+    backend: Backend,
+    *,
+    max_steps: int | None = None,
+    progress: bool = False,
+    on_step: StepHook | None = None,
+    with_covariances: bool = False,
+) -> RunResult:
     """Stream ``dataset`` into ``backend`` and finalise.
 
     Ctrl-C or SIGTERM (:mod:`graphslam.pipelines.common`) stops the loop at the
@@ -98,9 +104,18 @@ def run(dataset: Dataset, backend: Backend, *, max_steps: int | None = None,
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
     recoveries = getattr(backend, "recoveries", None)
-    return RunResult(dataset, backend.name, estimate, counters["steps"], wall_s, interrupted,
-                     assoc, counters["skipped"], backend.numerical_recoveries(),
-                     None if recoveries is None else dict(recoveries))
+    return RunResult(
+        dataset,
+        backend.name,
+        estimate,
+        counters["steps"],
+        wall_s,
+        interrupted,
+        assoc,
+        counters["skipped"],
+        backend.numerical_recoveries(),
+        None if recoveries is None else dict(recoveries),
+    )
 
 
 def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
@@ -148,10 +163,14 @@ def dead_reckoning(dataset: Dataset, steps: int | None = None) -> tuple[np.ndarr
     return ids, np.array([poses[i] for i in ids])
 
 
-def compute_metrics(result: RunResult, *, seed: int | None = None,
-                    with_graph_error: bool = True,
-                    ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
-                    wall_s: float | None = None) -> PlanarRunMetrics:
+def compute_metrics(
+    result: RunResult,
+    *,
+    seed: int | None = None,
+    with_graph_error: bool = True,
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
+    wall_s: float | None = None,
+) -> PlanarRunMetrics:
     """The metrics of ``metrics.json`` for one run.
 
     Args:
@@ -187,21 +206,30 @@ def compute_metrics(result: RunResult, *, seed: int | None = None,
         agents = agent_ates(result, gt)
     map_scores = {}
     if result.dataset.landmarks_true and gt is not None:
-        map_scores = metrics.map_errors(est, gt, result.dataset.landmarks_true,
-                                        result.associations)
+        map_scores = metrics.map_errors(est, gt, result.dataset.landmarks_true, result.associations)
     return PlanarRunMetrics(
-        **map_scores, dataset_notes=list(result.dataset.notes) or None, agents=agents,
+        **map_scores,
+        dataset_notes=list(result.dataset.notes) or None,
+        agents=agents,
         ate_poses=ate_poses,
-        dataset=result.dataset.name, backend=result.backend, seed=seed, steps=result.steps,
-        landmarks=int(len(est.landmark_ids)), final_error=final_error, ate_rmse_m=ate,
-        odometry_ate_rmse_m=odo_ate, wall_s=result.wall_s if wall_s is None else wall_s,
+        dataset=result.dataset.name,
+        backend=result.backend,
+        seed=seed,
+        steps=result.steps,
+        landmarks=int(len(est.landmark_ids)),
+        final_error=final_error,
+        ate_rmse_m=ate,
+        odometry_ate_rmse_m=odo_ate,
+        wall_s=result.wall_s if wall_s is None else wall_s,
         backend_s=result.wall_s,
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
-        interrupted=result.interrupted, loop_closures_skipped=result.loop_closures_skipped,
+        interrupted=result.interrupted,
+        loop_closures_skipped=result.loop_closures_skipped,
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
-        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost) or None)
+        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost) or None,
+    )
 
 
 def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
@@ -220,14 +248,18 @@ def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:
         mine = np.isin(odo_ids, ids)
         out[name] = {
             "ate_rmse_m": metrics.ate(est.pose_ids[keep], est.wTb[keep], *ground_truth)["rmse_m"],
-            "odometry_ate_rmse_m": metrics.ate(odo_ids[mine], odo_wTb[mine],
-                                               *ground_truth)["rmse_m"],
-            "poses": int(keep.sum())}
+            "odometry_ate_rmse_m": metrics.ate(odo_ids[mine], odo_wTb[mine], *ground_truth)["rmse_m"],
+            "poses": int(keep.sum()),
+        }
     return out
 
 
-def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetrics,
-                  ground_truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
+def write_outputs(
+    result: RunResult,
+    out_dir: Path,
+    run_metrics: PlanarRunMetrics,
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv``, ``metrics.json`` and, when the
     run has truth (``ground_truth`` or the dataset's), ``ground_truth.tum`` for the
     run's poses with the same time column; return their paths. A run of several
@@ -258,9 +290,11 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetric
         in_run &= np.isin(gt[0], np.asarray(ids, dtype=np.int64))
         if np.any(in_run):
             paths["ground_truth" + suffix] = out_dir / f"ground_truth{suffix}.tum"
-            writers.write_tum_planar(paths["ground_truth" + suffix],
-                                     np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
-                                     np.asarray(gt[1])[in_run])
+            writers.write_tum_planar(
+                paths["ground_truth" + suffix],
+                np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
+                np.asarray(gt[1])[in_run],
+            )
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
@@ -269,9 +303,11 @@ def write_outputs(result: RunResult, out_dir: Path, run_metrics: PlanarRunMetric
     return paths
 
 
-def add_nees(result: RunResult, run_metrics: PlanarRunMetrics,
-             ground_truth: tuple[np.ndarray, np.ndarray] | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+def add_nees(
+    result: RunResult,
+    run_metrics: PlanarRunMetrics,
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Pose NEES of each step against the truth (``ground_truth`` or the dataset's):
     fills the NEES fields of ``run_metrics`` and returns ``(pose_ids, nees)``.
 

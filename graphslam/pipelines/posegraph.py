@@ -23,10 +23,12 @@ from slamcore.errors import GraphSlamError, InputError
 from slamcore.files import atomic_open
 
 #: What Shonan's certificate covers, written next to it in ``metrics.json``.
-SHONAN_CERTIFIES = ("a minimum eigenvalue >= 0 (to numerical tolerance) proves the rotation "
-                    "averaging relaxation tight, i.e. the start's rotations globally optimal for "
-                    "the chordal rotation cost; it does not certify the final pose-graph cost "
-                    "under the file's full information, which LM minimises locally from there")
+SHONAN_CERTIFIES = (
+    "a minimum eigenvalue >= 0 (to numerical tolerance) proves the rotation "
+    "averaging relaxation tight, i.e. the start's rotations globally optimal for "
+    "the chordal rotation cost; it does not certify the final pose-graph cost "
+    "under the file's full information, which LM minimises locally from there"
+)
 
 
 @dataclass
@@ -75,18 +77,34 @@ class PoseGraphRunMetrics:
     interrupted: bool = False
     converged: bool = True
 
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
-        "isam2_cost", "isam2_s", "shonan_min_eigenvalue", "shonan_certifies",
-        "numerical_recoveries", "information_fixed", "noise", "closure_test", "final_cost_kept", "route",
-        "self_edges_ignored", "equiv_ignored", "ate_poses", "certificate"})
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
+        {
+            "isam2_cost",
+            "isam2_s",
+            "shonan_min_eigenvalue",
+            "shonan_certifies",
+            "numerical_recoveries",
+            "information_fixed",
+            "noise",
+            "closure_test",
+            "final_cost_kept",
+            "route",
+            "self_edges_ignored",
+            "equiv_ignored",
+            "ate_poses",
+            "certificate",
+        }
+    )
 
     def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if not (f.name in self.OPTIONAL and getattr(self, f.name) is None)}
+        return {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if not (f.name in self.OPTIONAL and getattr(self, f.name) is None)
+        }
 
 
-def run(graph: pg.PoseGraph, solver: str = "isam2",
-        config: PoseGraphConfig | None = None) -> SolveResult:
+def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | None = None) -> SolveResult:
     """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`.
 
     SIGINT or SIGTERM between iSAM2 updates ends the solve with the poses added
@@ -96,6 +114,7 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
     """
     config = config or PoseGraphConfig()
     with interrupt_between_frames() as stop:
+
         def should_stop(update: int) -> bool:
             signal_hook("step", update)
             return stop.requested
@@ -104,14 +123,19 @@ def run(graph: pg.PoseGraph, solver: str = "isam2",
         signal_hook("finalize")  # the batch LM (C++) defers a signal to here
         if config.certify and result.cut is None and not stop.requested:
             certify(graph, result, lambda: stop.requested)
-            if (solver == "auto" and result.optimality is not None
-                    and not result.optimality.certified and not stop.requested):
+            if (
+                solver == "auto"
+                and result.optimality is not None
+                and not result.optimality.certified
+                and not stop.requested
+            ):
                 result = _retried(graph, config, result, lambda: stop.requested)
     return result
 
 
-def _retried(graph: pg.PoseGraph, config: PoseGraphConfig, result: SolveResult,
-             should_stop: Callable[[], bool]) -> SolveResult:
+def _retried(
+    graph: pg.PoseGraph, config: PoseGraphConfig, result: SolveResult, should_stop: Callable[[], bool]
+) -> SolveResult:
     """``auto``'s estimate that failed the certificate, or batch from Shonan's
     rotations where that costs less (:func:`.route.retry_from_certified_rotations`),
     certified in turn."""
@@ -121,17 +145,20 @@ def _retried(graph: pg.PoseGraph, config: PoseGraphConfig, result: SolveResult,
         retried = route.retry_from_certified_rotations(graph, config, solve, result)
     except (GraphSlamError, RuntimeError, IndexError, MemoryError) as exc:
         # a second opinion that fails leaves the first estimate, whole and written
-        result.route = {**(result.route or {}), "shonan_retry": (
-            f"not certified; batch from Shonan's rotations failed ({type(exc).__name__}: "
-            f"{' '.join(str(exc).split())})")}
+        result.route = {
+            **(result.route or {}),
+            "shonan_retry": (
+                f"not certified; batch from Shonan's rotations failed ({type(exc).__name__}: "
+                f"{' '.join(str(exc).split())})"
+            ),
+        }
         return result
     if retried is not result and not should_stop():
         certify(graph, retried, should_stop)
     return retried
 
 
-def certify(graph: pg.PoseGraph, result: SolveResult,
-            should_stop: Callable[[], bool] | None = None) -> None:
+def certify(graph: pg.PoseGraph, result: SolveResult, should_stop: Callable[[], bool] | None = None) -> None:
     """Fill ``result.optimality`` (or ``optimality_unchecked``) for ``result``'s kept
     edges; ``should_stop`` (a signal) ends the check between refinement iterations."""
     from graphslam.backends.posegraph import certificate
@@ -143,9 +170,9 @@ def certify(graph: pg.PoseGraph, result: SolveResult,
     try:
         # the refinement may take as long as the solve did (at least 2 s): from far
         # off it can take many times the solve (a 3-D grid of 8000 poses: 500 s)
-        result.optimality = certificate.certify(graph, result.params, keep,
-                                                budget_s=max(result.wall_s, 2.0),
-                                                should_stop=should_stop)
+        result.optimality = certificate.certify(
+            graph, result.params, keep, budget_s=max(result.wall_s, 2.0), should_stop=should_stop
+        )
     except certificate.CheckInterrupted as exc:  # the outputs are written at once
         result.optimality_unchecked = str(exc)
     except (RuntimeError, MemoryError) as exc:  # gtsam's indeterminate system, a huge fill
@@ -162,22 +189,22 @@ def ground_truth_of(graph: pg.PoseGraph, truth) -> tuple[np.ndarray, np.ndarray]
     """``(ids (M,), wTc (M, 4, 4))``: the truth of the graph's poses by pose id
     (TUM time column, KITTI line number); InputError when none matches."""
     if truth.format == "euroc":
-        raise InputError("EuRoC ground truth has nanosecond times, not pose ids; give TUM "
-                         "(t = pose id) or KITTI (line = pose id)", truth.path)
+        raise InputError(
+            "EuRoC ground truth has nanosecond times, not pose ids; give TUM "
+            "(t = pose id) or KITTI (line = pose id)",
+            truth.path,
+        )
     if truth.stamps_s is None:
         row_of = {k: k for k in range(len(truth.wTc))}
     else:
-        row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist())
-                  if float(t).is_integer()}
+        row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist()) if float(t).is_integer()}
     rows = np.array([row_of.get(k, -1) for k in graph.ids.tolist()], dtype=np.int64)
     if not np.any(rows >= 0):
-        raise InputError(f"no pose of {graph.name!r} has ground truth (matched by pose id)",
-                         truth.path)
+        raise InputError(f"no pose of {graph.name!r} has ground truth (matched by pose id)", truth.path)
     return graph.ids[rows >= 0], np.asarray(truth.wTc)[rows[rows >= 0]]
 
 
-def ate_rmse(graph: pg.PoseGraph, params: np.ndarray, truth: tuple[np.ndarray, np.ndarray]
-             ) -> float:
+def ate_rmse(graph: pg.PoseGraph, params: np.ndarray, truth: tuple[np.ndarray, np.ndarray]) -> float:
     """Aligned ATE RMSE (SE(2) in 2-D, SE(3) in 3-D) of ``params`` against ``truth``."""
     from graphslam.evaluation import planar, spatial
 
@@ -192,8 +219,12 @@ def _xy_yaw(T: np.ndarray) -> np.ndarray:
     return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
 
 
-def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
-            truth: tuple[np.ndarray, np.ndarray] | None = None) -> PoseGraphRunMetrics:
+def metrics(
+    graph: pg.PoseGraph,
+    result: SolveResult,
+    wall_s: float,
+    truth: tuple[np.ndarray, np.ndarray] | None = None,
+) -> PoseGraphRunMetrics:
     """The run's metrics; ATE of the estimate and of the odometry chain when ``truth``
     (of the poses solved, when a stop cut the solve)."""
     graph = solved_graph(graph, result)
@@ -202,37 +233,58 @@ def metrics(graph: pg.PoseGraph, result: SolveResult, wall_s: float,
     closures = ~graph.odometry_mask()
     shonan = result.certificate
     return PoseGraphRunMetrics(
-        dataset=graph.name, backend=result.solver, dim=graph.dim, format=graph.format,
-        poses=graph.n_poses, edges=graph.n_edges, closures=int(closures.sum()),
-        closures_rejected=int(result.rejected.sum()), init=result.init_method,
-        initial_cost=result.initial_cost, final_cost=result.final_cost,
-        iterations=result.iterations, wall_s=wall_s, backend_s=result.wall_s,
-        isam2_cost=result.isam2_cost, isam2_s=result.isam2_s, shonan_min_eigenvalue=shonan,
+        dataset=graph.name,
+        backend=result.solver,
+        dim=graph.dim,
+        format=graph.format,
+        poses=graph.n_poses,
+        edges=graph.n_edges,
+        closures=int(closures.sum()),
+        closures_rejected=int(result.rejected.sum()),
+        init=result.init_method,
+        initial_cost=result.initial_cost,
+        final_cost=result.final_cost,
+        iterations=result.iterations,
+        wall_s=wall_s,
+        backend_s=result.wall_s,
+        isam2_cost=result.isam2_cost,
+        isam2_s=result.isam2_s,
+        shonan_min_eigenvalue=shonan,
         shonan_certifies=None if shonan is None else SHONAN_CERTIFIES,
         numerical_recoveries=result.recoveries or None,
-        information_fixed=({"method": graph.information_fix, "edges": graph.n_information_fixed}
-                           if graph.n_information_fixed else None),
+        information_fixed=(
+            {"method": graph.information_fix, "edges": graph.n_information_fixed}
+            if graph.n_information_fixed
+            else None
+        ),
         # how a TORO file's edge numbers were read, when a known file decided it
         noise=graph.noise_note,
-        closure_test=None if result.closure_threshold is None else {
+        closure_test=None
+        if result.closure_threshold is None
+        else {
             "robust_closures": result.robust_mode,
             "threshold_whitened": result.closure_threshold,
             "noise_scale_squared": result.noise_scale,
-            "retest_rounds": result.closure_rounds},
+            "retest_rounds": result.closure_rounds,
+        },
         equiv_ignored=len(graph.equiv) or None,
-        self_edges_ignored=({"edges": len(graph.self_edge_lines),
-                             "lines": graph.self_edge_lines[:10].tolist()}
-                            if len(graph.self_edge_lines) else None),
+        self_edges_ignored=(
+            {"edges": len(graph.self_edge_lines), "lines": graph.self_edge_lines[:10].tolist()}
+            if len(graph.self_edge_lines)
+            else None
+        ),
         route=result.route,
         final_cost_kept=result.final_cost_kept if result.rejected.any() else None,
         certificate=_certificate_of(result),
         ate_rmse_m=None if truth is None or not scored else ate_rmse(graph, result.params, truth),
         # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
-        odometry_ate_rmse_m=None if truth is None or not scored else ate_rmse(
-            graph, pg.chain_initialisation(graph), truth),
+        odometry_ate_rmse_m=None
+        if truth is None or not scored
+        else ate_rmse(graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),
-        converged=not result.lm_capped)
+        converged=not result.lm_capped,
+    )
 
 
 def _certificate_of(result: SolveResult) -> dict | None:
@@ -254,9 +306,13 @@ def trajectory_matrices(graph: pg.PoseGraph, params: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_outputs(graph: pg.PoseGraph, result: SolveResult, out_dir: Path,
-                  run_metrics: PoseGraphRunMetrics,
-                  truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Path]:
+def write_outputs(
+    graph: pg.PoseGraph,
+    result: SolveResult,
+    out_dir: Path,
+    run_metrics: PoseGraphRunMetrics,
+    truth: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, Path]:
     """Write trajectory, graph, closures, metrics (and ``ground_truth.tum`` of the
     poses with truth, same time column); return their paths."""
     from graphslam.outputs import posegraph as graph_writer
@@ -265,11 +321,15 @@ def write_outputs(graph: pg.PoseGraph, result: SolveResult, out_dir: Path,
     graph = solved_graph(graph, result)
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {"trajectory": out_dir / "trajectory.tum",
-             "graph": out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format]),
-             "closures": out_dir / "closures.csv", "metrics": out_dir / "metrics.json"}
-    writers.write_tum_spatial(paths["trajectory"], graph.ids.astype(float),
-                              trajectory_matrices(graph, result.params))
+    paths = {
+        "trajectory": out_dir / "trajectory.tum",
+        "graph": out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format]),
+        "closures": out_dir / "closures.csv",
+        "metrics": out_dir / "metrics.json",
+    }
+    writers.write_tum_spatial(
+        paths["trajectory"], graph.ids.astype(float), trajectory_matrices(graph, result.params)
+    )
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
@@ -289,5 +349,7 @@ def write_closures_csv(path: Path, graph: pg.PoseGraph, result: SolveResult) -> 
         f.write("from,to,line,kept,whitened_residual\n")
         for e in closures.tolist():
             a, b = graph.edges[e].tolist()
-            f.write(f"{a},{b},{int(graph.edge_lines[e])},{int(not result.rejected[e])},"
-                    f"{result.residuals[e]:.9g}\n")
+            f.write(
+                f"{a},{b},{int(graph.edge_lines[e])},{int(not result.rejected[e])},"
+                f"{result.residuals[e]:.9g}\n"
+            )

@@ -25,10 +25,16 @@ PROGRESS_LINE_INTERVAL_S = 10.0
 class ProgressLines:
     """tqdm's interface as plain lines (module docstring)."""
 
-    def __init__(self, iterable: Iterable | None = None, total: int | None = None,
-                 desc: str = "", unit: str = "it", file=None,
-                 interval_s: float | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        iterable: Iterable | None = None,
+        total: int | None = None,
+        desc: str = "",
+        unit: str = "it",
+        file=None,
+        interval_s: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         self.iterable = iterable
         if total is None and isinstance(iterable, Sized):
             total = len(iterable)
@@ -91,8 +97,15 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "",
-             unit: str = "it", enabled: bool = True, file=None):
+def progress(
+    iterable: Iterable | None = None,
+    *,
+    total: int | None = None,
+    desc: str = "",
+    unit: str = "it",
+    enabled: bool = True,
+    file=None,
+):
     """A progress object with tqdm's interface: a tqdm bar when ``file`` (default stderr)
     is a terminal, :class:`ProgressLines` when it is not, a silent tqdm when not
     ``enabled``."""

@@ -72,13 +72,17 @@ class RunRelocaliser:
     describer: OrbDetector = field(default_factory=OrbDetector)
 
     def __post_init__(self):
-        self.pnp = dataclasses.replace(self.pnp, min_inliers=self.config.min_inliers,
-                                       ratio=self.config.ratio)
+        self.pnp = dataclasses.replace(self.pnp, min_inliers=self.config.min_inliers, ratio=self.config.ratio)
         self._good: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame, track ids, descriptors)
         self._streak = 0  # lost frames in a row
         self._open: int | None = None  # frame after which recovery is counted
-        self.stats = {"losses": 0, "lost_frames": 0, "relocalisations": 0,
-                      "recovered_by_search": 0, "loss_lengths": []}
+        self.stats = {
+            "losses": 0,
+            "lost_frames": 0,
+            "relocalisations": 0,
+            "recovered_by_search": 0,
+            "loss_lengths": [],
+        }
 
     def __call__(self, k, image, tracking, backend) -> None:
         k = int(k)
@@ -102,7 +106,7 @@ class RunRelocaliser:
         obs = tracking.observations
         idx, desc = self.describer.describe(image, obs.uv_px)
         self._good.append((k, np.asarray(obs.track_ids, np.int64)[idx], desc))
-        del self._good[:-self.config.candidates]
+        del self._good[: -self.config.candidates]
 
     def _close(self, k: int, how: str) -> None:
         if self._open is None:  # on_frame closes only an open loss

@@ -64,10 +64,18 @@ class VisualSetup:
     no_polish: bool = False
 
     @classmethod
-    def read(cls, sequence: ImageSequence, config: ConfigFile, *, odometry: str | None = None,
-             odometry_noise: tuple[float, float] | None = None, seed: int | None = None,
-             max_frames: int | None = None, detector: str | None = None,
-             no_polish: bool = False) -> VisualSetup:
+    def read(
+        cls,
+        sequence: ImageSequence,
+        config: ConfigFile,
+        *,
+        odometry: str | None = None,
+        odometry_noise: tuple[float, float] | None = None,
+        seed: int | None = None,
+        max_frames: int | None = None,
+        detector: str | None = None,
+        no_polish: bool = False,
+    ) -> VisualSetup:
         """The settings from ``config`` with the command line's on top (None: the file's);
         ``odometry_noise`` is ``(sigma_t_per_m, sigma_r_deg)``."""
         run_config = config.section(vp.VisualRunConfig, {"odometry": odometry})
@@ -76,8 +84,7 @@ class VisualSetup:
             noise_over.update(sigma_t_per_m=odometry_noise[0], sigma_r_deg=odometry_noise[1])
         noise = config.section(vp.OdometryNoiseConfig, noise_over)
         mode, odo, _, _ = vp.resolve_odometry(sequence, run_config.odometry, noise)
-        return cls(sequence, config, run_config, noise, mode, odo, seed, max_frames, detector,
-                   no_polish)
+        return cls(sequence, config, run_config, noise, mode, odo, seed, max_frames, detector, no_polish)
 
     def check_seed(self, backends: list[str], simulated: bool) -> None:
         """``--seed`` is refused, one line, where nothing it seeds is in the run: a
@@ -86,18 +93,26 @@ class VisualSetup:
         if self.seed is None or simulated or self.mode in ("derived", "none"):
             return
         if not any(registry.visual_implementation(name).seeded for name in backends):
-            who = (f"{backends[0]} draws" if len(set(backends)) == 1 else "no back end draws")
-            raise ConfigError(f"--seed has no effect here: the images are recorded, the odometry "
-                              f"is not derived and {who} no random numbers")
+            who = f"{backends[0]} draws" if len(set(backends)) == 1 else "no back end draws"
+            raise ConfigError(
+                f"--seed has no effect here: the images are recorded, the odometry "
+                f"is not derived and {who} no random numbers"
+            )
 
     def session(self, backend_name: str, overrides: dict | None = None) -> VisualSession:
         """The back end ``backend_name`` (``overrides`` on its config section) and its
         tracker, set up for this run."""
-        overrides = {**(overrides or {}),
-                     **vp.backend_overrides(backend_name, self.mode, self.seed, self.no_polish,
-                                            vp.scene_nearest_depth(self.sequence, self.config))}
-        backend = registry.make_visual_backend(backend_name, config=self.config,
-                                               overrides=overrides)
+        overrides = {
+            **(overrides or {}),
+            **vp.backend_overrides(
+                backend_name,
+                self.mode,
+                self.seed,
+                self.no_polish,
+                vp.scene_nearest_depth(self.sequence, self.config),
+            ),
+        }
+        backend = registry.make_visual_backend(backend_name, config=self.config, overrides=overrides)
         tracker_config, tracker = vp.make_tracker(self.config, backend, self.detector)
         return VisualSession(self, backend_name, backend, tracker_config, tracker)
 
@@ -116,9 +131,16 @@ class VisualSession:
         """:func:`graphslam.pipelines.spatial.run` on the setup's sequence, settings and
         frame limit; ``kwargs``: its progress, hooks, loop closer and start pose."""
         s = self.setup
-        return vp.run(s.sequence, self.backend, self.tracker, config=s.run_config,
-                      odometry_noise=s.odometry_noise, max_frames=s.max_frames,
-                      frontend=self.tracker_config.detector, **kwargs)
+        return vp.run(
+            s.sequence,
+            self.backend,
+            self.tracker,
+            config=s.run_config,
+            odometry_noise=s.odometry_noise,
+            max_frames=s.max_frames,
+            frontend=self.tracker_config.detector,
+            **kwargs,
+        )
 
 
 @dataclass(frozen=True)
@@ -130,8 +152,9 @@ class LocaliseSession:
     localizer: Localizer
 
     @classmethod
-    def open(cls, sequence: ImageSequence, config: ConfigFile, smap: SpatialMap,
-             where: str) -> LocaliseSession:
+    def open(
+        cls, sequence: ImageSequence, config: ConfigFile, smap: SpatialMap, where: str
+    ) -> LocaliseSession:
         """The localiser of ``smap`` (``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``
         of ``config``) on ``sequence``. InputError (naming ``where``) when the sequence's
         camera is not the map's."""

@@ -154,8 +154,13 @@ class VisualRunResult:
     input_digest: str | None = None
 
 
-def backend_overrides(backend: str, mode: str, seed: int | None = None,
-                      no_polish: bool = False, nearest_depth_m: float | None = None) -> dict:
+def backend_overrides(
+    backend: str,
+    mode: str,
+    seed: int | None = None,
+    no_polish: bool = False,
+    nearest_depth_m: float | None = None,
+) -> dict:
     """Config overrides a visual run hands back end ``backend`` for odometry ``mode``,
     the seed, ``--no-polish`` and the scene's nearest depth
     (:func:`scene_nearest_depth`): each back end's own ``run_overrides`` (the
@@ -190,14 +195,19 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
-    return cfg, Tracker(cfg, active_search=config.section(ActiveSearchConfig),
-                        harris=config.section(HarrisConfig),
-                        orb=config.section(OrbConfig), follow_unmapped=follow,
-                        camera_alone=backend.has_motion_model)
+    return cfg, Tracker(
+        cfg,
+        active_search=config.section(ActiveSearchConfig),
+        harris=config.section(HarrisConfig),
+        orb=config.section(OrbConfig),
+        follow_unmapped=follow,
+        camera_alone=backend.has_motion_model,
+    )
 
 
-def derive_odometry(wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def derive_odometry(
+    wTc_true: np.ndarray, config: OdometryNoiseConfig | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Noisy odometry from ground truth: ``(odometry (N-1, 4, 4), covariances (N-1, 6, 6))``.
 
     ``odometry[k] = c_k T c_{k+1} @ E`` (module docstring), seeded by ``config.seed``.
@@ -229,8 +239,7 @@ def chain(wTc0: np.ndarray, odometry: np.ndarray) -> np.ndarray:
     return out
 
 
-def resolve_odometry(sequence: ImageSequence, mode: str,
-                     noise: OdometryNoiseConfig | None = None):
+def resolve_odometry(sequence: ImageSequence, mode: str, noise: OdometryNoiseConfig | None = None):
     """``(mode, odometry (N-1, 4, 4) or None, covariances (N-1, 6, 6) or None, stated noise)``."""
     # only some sequences (synthetic, a bag's, a frame selection of those) carry odometry
     own = getattr(sequence, "odometry", None)
@@ -238,35 +247,54 @@ def resolve_odometry(sequence: ImageSequence, mode: str,
         mode = "sequence" if own is not None else "derived"
     if mode == "sequence":
         if own is None:
-            raise GraphSlamError(f"sequence {sequence.name!r} has no odometry of its own; "
-                                 "use --odometry derived (needs ground truth) or none")
+            raise GraphSlamError(
+                f"sequence {sequence.name!r} has no odometry of its own; "
+                "use --odometry derived (needs ground truth) or none"
+            )
         odo = np.asarray(own, dtype=np.float64)
         own_cov = getattr(sequence, "odometry_covariance")  # noqa: B009 (not on ImageSequence)
         cov = np.broadcast_to(np.asarray(own_cov, dtype=np.float64), (len(odo), 6, 6))
         st, sr = getattr(sequence, "odometry_sigmas", (None, None))
-        stated = None if st is None or sr is None else {"kind": "sequence", "sigma_t_m_per_frame": st,
-                                          "sigma_r_deg_per_frame": math.degrees(sr)}
+        stated = (
+            None
+            if st is None or sr is None
+            else {"kind": "sequence", "sigma_t_m_per_frame": st, "sigma_r_deg_per_frame": math.degrees(sr)}
+        )
         return mode, odo, cov, stated
     if mode == "derived":
         if sequence.wTc_true is None:
-            raise GraphSlamError(f"sequence {sequence.name!r} has no ground truth to derive "
-                                 "odometry from; use --odometry none")
+            raise GraphSlamError(
+                f"sequence {sequence.name!r} has no ground truth to derive odometry from; use --odometry none"
+            )
         cfg = noise or OdometryNoiseConfig()
         odo, cov = derive_odometry(sequence.wTc_true, cfg)
-        stated = {"kind": "derived from ground truth", "sigma_t_per_m": cfg.sigma_t_per_m,
-                  "min_sigma_t_m": cfg.min_sigma_t_m, "sigma_r_deg_per_frame": cfg.sigma_r_deg,
-                  "seed": cfg.seed}
+        stated = {
+            "kind": "derived from ground truth",
+            "sigma_t_per_m": cfg.sigma_t_per_m,
+            "min_sigma_t_m": cfg.min_sigma_t_m,
+            "sigma_r_deg_per_frame": cfg.sigma_r_deg,
+            "seed": cfg.seed,
+        }
         return mode, odo, cov, stated
     if mode == "none":
         return mode, None, None, None
     raise ConfigError(f"odometry must be one of {', '.join(ODOMETRY_MODES)}, got {mode!r}")
 
 
-def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
-        config: VisualRunConfig | None = None, odometry_noise: OdometryNoiseConfig | None = None,
-        max_frames: int | None = None, progress: bool = False,
-        on_frame: FrameHook | None = None, frontend: str | None = None,
-        loop_closer=None, start_pose=None) -> VisualRunResult:
+def run(
+    sequence: ImageSequence,
+    backend: VisualBackend,
+    tracker: Tracker,
+    *,
+    config: VisualRunConfig | None = None,
+    odometry_noise: OdometryNoiseConfig | None = None,
+    max_frames: int | None = None,
+    progress: bool = False,
+    on_frame: FrameHook | None = None,
+    frontend: str | None = None,
+    loop_closer=None,
+    start_pose=None,
+) -> VisualRunResult:
     """Run ``backend`` over ``sequence`` with ``tracker`` (module docstring).
 
     ``loop_closer``: a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`, fed every
@@ -281,8 +309,9 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
         raise GraphSlamError(f"sequence {sequence.name!r} has no frames")
     mode, odo, odo_cov, stated = resolve_odometry(sequence, cfg.odometry, odometry_noise)
     if mode == "none" and not backend.has_motion_model:
-        raise UnsupportedError(f"back end {backend.name!r} has no motion model of its own; "
-                               "use --odometry sequence or derived")
+        raise UnsupportedError(
+            f"back end {backend.name!r} has no motion model of its own; use --odometry sequence or derived"
+        )
     repredict = _sequential_link(tracker, backend)
     wTc0, P0 = _first_pose(sequence, cfg) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
@@ -304,8 +333,9 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
                     backend.initialize(0, wTc0, P0, K, (sequence.image_size[0], sequence.image_size[1]))
                     pred = PixelPredictions.empty(wTc0, K)  # no landmark, a known camera
                 else:
-                    backend.predict(k, None if odo is None else odo[k - 1],
-                                    None if odo_cov is None else odo_cov[k - 1])
+                    backend.predict(
+                        k, None if odo is None else odo[k - 1], None if odo_cov is None else odo_cov[k - 1]
+                    )
                     pred = backend.predict_observations()
                 tracking = _track(tracker, image, pred, repredict if k else None)
                 t2 = time.perf_counter()
@@ -336,17 +366,37 @@ def run(sequence: ImageSequence, backend: VisualBackend, tracker: Tracker, *,
     finally:
         if bar is not None:
             bar.close()
-    odo_wTc = None if odo is None else chain(wTc0, odo[:done - 1])
-    return VisualRunResult(sequence=sequence, backend=backend.name,
-                           frontend=frontend or tracker.config.detector, estimate=estimate,
-                           frames=done, wall_s=wall, load_s=load, interrupted=interrupted,
-                           odometry=mode, odometry_noise=stated, odometry_wTc=odo_wTc,
-                           tracking=stats)
+    odo_wTc = None if odo is None else chain(wTc0, odo[: done - 1])
+    return VisualRunResult(
+        sequence=sequence,
+        backend=backend.name,
+        frontend=frontend or tracker.config.detector,
+        estimate=estimate,
+        frames=done,
+        wall_s=wall,
+        load_s=load,
+        interrupted=interrupted,
+        odometry=mode,
+        odometry_noise=stated,
+        odometry_wTc=odo_wTc,
+        tracking=stats,
+    )
 
 
 #: Per-frame lists in ``VisualRunResult.tracking``.
-TRACKING_STATS = ("observations", "found", "searched", "predicted", "followed", "new",
-                  "image_fraction", "detect_s", "search_s", "update_s", "loops_s")
+TRACKING_STATS = (
+    "observations",
+    "found",
+    "searched",
+    "predicted",
+    "followed",
+    "new",
+    "image_fraction",
+    "detect_s",
+    "search_s",
+    "update_s",
+    "loops_s",
+)
 
 
 def _sequential_link(tracker: Tracker, backend: VisualBackend):
@@ -355,21 +405,24 @@ def _sequential_link(tracker: Tracker, backend: VisualBackend):
     if tracker.search_config.order != "sequential":
         return None
     if not backend.supports_sequential_search:
-        raise ConfigError(f"active_search.order = 'sequential' needs a back end that corrects one "
-                          f"landmark at a time (mono_ekf); {backend.name!r} does not")
+        raise ConfigError(
+            f"active_search.order = 'sequential' needs a back end that corrects one "
+            f"landmark at a time (mono_ekf); {backend.name!r} does not"
+        )
     return backend.correct_and_repredict
 
 
 def _track(tracker: Tracker, image: np.ndarray, pred: PixelPredictions, repredict) -> TrackingResult:
     """``tracker.track``; the batch order calls it as it always has (wrappers keep working)."""
-    return tracker.track(image, pred) if repredict is None else \
-        tracker.track(image, pred, repredict=repredict)
+    return (
+        tracker.track(image, pred) if repredict is None else tracker.track(image, pred, repredict=repredict)
+    )
 
 
 def _first_pose(sequence: ImageSequence, cfg: VisualRunConfig) -> tuple[np.ndarray, np.ndarray]:
     """``(wTc0 (4, 4), P0 (6, 6))``: the true first pose (else identity) and the prior."""
     wTc0 = np.eye(4) if sequence.wTc_true is None else np.asarray(sequence.wTc_true[0], dtype=np.float64)
-    P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg)**2] * 3)
+    P0 = np.diag([cfg.prior_sigma_t_m**2] * 3 + [math.radians(cfg.prior_sigma_r_deg) ** 2] * 3)
     return wTc0, P0
 
 
@@ -388,8 +441,10 @@ def _count(stats: dict, tr: TrackingResult, update_s: float) -> None:
 
 # --------------------------------------------------------------------------- metrics
 
-def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
-                    wall_s: float | None = None) -> SpatialRunMetrics:
+
+def compute_metrics(
+    result: VisualRunResult, *, seed: int | None = None, wall_s: float | None = None
+) -> SpatialRunMetrics:
     """The metrics of ``metrics.json`` for one visual run.
 
     The ATE alignment is SE(3) when the run had odometry (metric scale), Sim(3)
@@ -404,15 +459,30 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
     n = result.frames
     whole_s = result.wall_s + result.load_s if wall_s is None else wall_s
     m = SpatialRunMetrics(
-        dataset=seq.name, source=seq.source_path, backend=result.backend,
-        frontend=result.frontend, seed=seed, frames=n, landmarks=int(len(est.landmark_ids)),
-        odometry=result.odometry, odometry_noise=result.odometry_noise,
-        alignment="sim3" if result.odometry == "none" else "se3", ate_rmse_m=None,
-        ate_percent_of_path=None, odometry_ate_rmse_m=None, odometry_ate_percent_of_path=None,
-        rpe=None, path_length_m=None, wall_s=whole_s,
-        frames_per_s=n / whole_s if whole_s > 0 else None, processing_s=result.wall_s,
-        image_load_s=result.load_s, interrupted=result.interrupted,
-        backend_stats=dict(est.stats or {}), tracking=_tracking_summary(result.tracking))
+        dataset=seq.name,
+        source=seq.source_path,
+        backend=result.backend,
+        frontend=result.frontend,
+        seed=seed,
+        frames=n,
+        landmarks=int(len(est.landmark_ids)),
+        odometry=result.odometry,
+        odometry_noise=result.odometry_noise,
+        alignment="sim3" if result.odometry == "none" else "se3",
+        ate_rmse_m=None,
+        ate_percent_of_path=None,
+        odometry_ate_rmse_m=None,
+        odometry_ate_percent_of_path=None,
+        rpe=None,
+        path_length_m=None,
+        wall_s=whole_s,
+        frames_per_s=n / whole_s if whole_s > 0 else None,
+        processing_s=result.wall_s,
+        image_load_s=result.load_s,
+        interrupted=result.interrupted,
+        backend_stats=dict(est.stats or {}),
+        tracking=_tracking_summary(result.tracking),
+    )
     m.frames_with_pose = int(len(est.frame_ids))
     m.warnings = _doubts(result) or None
     m.dataset_notes = list(getattr(seq, "notes", ())) or None
@@ -421,7 +491,8 @@ def compute_metrics(result: VisualRunResult, *, seed: int | None = None,
         if m.ate_percent_of_path is not None and m.ate_percent_of_path > DIVERGED_ATE_PERCENT:
             m.warnings = (m.warnings or []) + [
                 f"ATE {m.ate_percent_of_path:.1f} % of the path (> {DIVERGED_ATE_PERCENT:g} %): "
-                "the estimate has most likely diverged"]
+                "the estimate has most likely diverged"
+            ]
     return m
 
 
@@ -443,8 +514,10 @@ def _doubts(result: VisualRunResult) -> list[str]:
     out = []
     n, n_pose = result.frames, len(result.estimate.frame_ids)
     if 0 < n_pose < n:
-        out.append(f"{n - n_pose} of {n} frames have no pose (before the monocular map "
-                   f"started, or not placed by it); the scores are over the other {n_pose}")
+        out.append(
+            f"{n - n_pose} of {n} frames have no pose (before the monocular map "
+            f"started, or not placed by it); the scores are over the other {n_pose}"
+        )
     if result.odometry != "none" or n < 2:
         return out
     mono = (result.estimate.stats or {}).get("camera_alone")
@@ -456,8 +529,10 @@ def _doubts(result: VisualRunResult) -> list[str]:
         unmeasured = int(np.count_nonzero(found < MIN_LANDMARKS_PER_FRAME))
         what = f"fewer than {MIN_LANDMARKS_PER_FRAME} landmarks were found"
     if unmeasured > 0.5 * max(n_pose - 1, 1):
-        out.append(f"in {unmeasured} of {n - 1} frames {what}: the trajectory is mostly the "
-                   "motion model's guess, not a measurement")
+        out.append(
+            f"in {unmeasured} of {n - 1} frames {what}: the trajectory is mostly the "
+            "motion model's guess, not a measurement"
+        )
     return out
 
 
@@ -510,6 +585,7 @@ def _tracking_summary(stats: dict) -> dict:
 
 # --------------------------------------------------------------------------- outputs
 
+
 def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``), ``metrics.json`` and,
     when the sequence has ground truth, ``ground_truth.tum`` of the run's frames
@@ -521,8 +597,11 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
     ids = np.asarray(est.frame_ids, dtype=np.int64)
     seq = result.sequence
     stamps = ids.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, dtype=float)[ids]
-    paths = {"trajectory": out_dir / "trajectory.tum", "landmarks": out_dir / "landmarks.csv",
-             "metrics": out_dir / "metrics.json"}
+    paths = {
+        "trajectory": out_dir / "trajectory.tum",
+        "landmarks": out_dir / "landmarks.csv",
+        "metrics": out_dir / "metrics.json",
+    }
     writers.write_tum_spatial(paths["trajectory"], stamps, est.wTc)
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
@@ -533,8 +612,10 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
         writers.write_tum_spatial(
             paths["ground_truth"],
             frames.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, float)[frames],
-            np.asarray(seq.wTc_true)[frames])
-    writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids,
-                                np.asarray(est.landmarks_w).reshape(-1, 3))
+            np.asarray(seq.wTc_true)[frames],
+        )
+    writers.write_landmarks_csv(
+        paths["landmarks"], est.landmark_ids, np.asarray(est.landmarks_w).reshape(-1, 3)
+    )
     writers.write_json(paths["metrics"], run_metrics.to_dict())
     return paths

@@ -23,19 +23,39 @@ import numpy as np
 from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec
 from slamcore.files import atomic_open
 
-METRIC_COLUMNS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "nees_mean",
-                  "nees_in_bounds_fraction", "association_accuracy", "duplicates")
+METRIC_COLUMNS = (
+    "ate_rmse_m",
+    "rpe_trans_rmse_m",
+    "rpe_rot_rmse_deg",
+    "nees_mean",
+    "nees_in_bounds_fraction",
+    "association_accuracy",
+    "duplicates",
+)
 TAIL_COLUMNS = ("wall_s", "peak_rss_mb", "status", "error")
 
 
 def columns(spec: SweepSpec) -> list[str]:
-    return ["run_id", "dataset", "backend", *spec.set_keys, "config_hash", "seed",
-            *METRIC_COLUMNS, *TAIL_COLUMNS]
+    return [
+        "run_id",
+        "dataset",
+        "backend",
+        *spec.set_keys,
+        "config_hash",
+        "seed",
+        *METRIC_COLUMNS,
+        *TAIL_COLUMNS,
+    ]
 
 
 def base_row(run: RunSpec, spec: SweepSpec) -> dict:
-    row = {"run_id": run.run_id, "dataset": run.dataset, "backend": run.backend,
-           "config_hash": run.config_hash, "seed": "" if run.seed is None else run.seed}
+    row = {
+        "run_id": run.run_id,
+        "dataset": run.dataset,
+        "backend": run.backend,
+        "config_hash": run.config_hash,
+        "seed": "" if run.seed is None else run.seed,
+    }
     for key in spec.set_keys:
         row[key] = run.overrides.get(key, "")
     return row
@@ -76,8 +96,9 @@ def _key(run: RunSpec) -> tuple[str, str]:
     return run.config_hash, "" if run.seed is None else str(run.seed)
 
 
-def run_sweep(spec: SweepSpec, out: Path, executor, *,
-              on_result: Callable[[RunSpec, dict], None] | None = None) -> SweepOutcome:
+def run_sweep(
+    spec: SweepSpec, out: Path, executor, *, on_result: Callable[[RunSpec, dict], None] | None = None
+) -> SweepOutcome:
     """Run every run of ``spec`` not already done in ``out`` on ``executor``.
 
     ``on_result(run, row)`` is called after each finished run (the progress
@@ -89,8 +110,7 @@ def run_sweep(spec: SweepSpec, out: Path, executor, *,
     csv_path = out / "sweep.csv"
     header = columns(spec)
     runs = spec.runs()
-    done = {(r.get("config_hash"), r.get("seed")): r for r in read_rows(csv_path)
-            if r.get("status") == "ok"}
+    done = {(r.get("config_hash"), r.get("seed")): r for r in read_rows(csv_path) if r.get("status") == "ok"}
     rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
     todo = [run for run in runs if _key(run) not in done]
     outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs)
@@ -139,5 +159,4 @@ def nees_series(out: Path, rows: list[dict]) -> dict[str, np.ndarray]:
         if r.get("status") == "ok" and path.is_file():
             values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 2]
             by_backend.setdefault(r["label"], []).append(values)
-    return {b: np.array([v[:min(len(x) for x in vs)] for v in vs])
-            for b, vs in by_backend.items()}
+    return {b: np.array([v[: min(len(x) for x in vs)] for v in vs]) for b, vs in by_backend.items()}

@@ -43,9 +43,23 @@ _STOPPING = threading.Event()
 
 def run_command(run: RunSpec, out_dir: Path) -> list[str]:
     """The ``graphslam run`` command line of ``run``."""
-    cmd = [sys.executable, "-m", "graphslam.cli.main", "run", "--dataset", run.dataset,
-           "--backend", run.backend, "--config", str(out_dir / "config.toml"), "--out",
-           str(out_dir), "--rerun", "off", "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "graphslam.cli.main",
+        "run",
+        "--dataset",
+        run.dataset,
+        "--backend",
+        run.backend,
+        "--config",
+        str(out_dir / "config.toml"),
+        "--out",
+        str(out_dir),
+        "--rerun",
+        "off",
+        "--quiet",
+    ]
     if run.nees:
         cmd.append("--nees")
     if run.seed is not None:
@@ -70,8 +84,13 @@ def _spawn_and_wait(cmd: list[str], out_dir: Path) -> tuple[int, float, float]:
         if _STOPPING.is_set():
             return 130, 0.0, 0.0
         # the child holds its own copy of the stderr file once started
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err,
-                                cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": _pythonpath()})
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            cwd=os.getcwd(),
+            env={**os.environ, "PYTHONPATH": _pythonpath()},
+        )
         _LIVE.add(proc)
     try:
         _, status, usage = os.wait4(proc.pid, 0)
@@ -96,9 +115,13 @@ def _scores(out_dir: Path) -> dict:
 
     m = json.loads((out_dir / "metrics.json").read_text())
     assoc = m.get("association") or {}
-    row = {"ate_rmse_m": m.get("ate_rmse_m"), "nees_mean": m.get("nees_mean"),
-           "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
-           "association_accuracy": assoc.get("accuracy"), "duplicates": assoc.get("duplicates")}
+    row = {
+        "ate_rmse_m": m.get("ate_rmse_m"),
+        "nees_mean": m.get("nees_mean"),
+        "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
+        "association_accuracy": assoc.get("accuracy"),
+        "duplicates": assoc.get("duplicates"),
+    }
     gt = out_dir / "ground_truth.tum"
     if gt.is_file():
         # time column = pose id on both sides: exact association; SE(2) poses as z = 0
@@ -205,8 +228,9 @@ class DaskExecutor:
         self.cluster = None
         if address == "local":
             # one thread a worker: a run is a process of its own, a worker only waits
-            self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                        dashboard_address=None)
+            self.cluster = LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+            )
             self.client = Client(self.cluster)
         else:
             try:

@@ -62,7 +62,7 @@ class RunSpec:
     max_steps: int | None
     nees: bool = True
     overrides: dict = field(default_factory=dict)  # "section.key" -> value, applied ones
-    config: dict = field(default_factory=dict)     # the full config file of the run
+    config: dict = field(default_factory=dict)  # the full config file of the run
     config_hash: str = ""
 
     @property
@@ -90,16 +90,18 @@ class SweepSpec:
         for dataset, backend in itertools.product(self.datasets, self.backends):
             sections = run_sections(dataset, backend)
             for combo in itertools.product(*self.set_values):
-                applied = {k: v for k, v in zip(self.set_keys, combo, strict=True)
-                           if k.split(".", 1)[0] in sections}
+                applied = {
+                    k: v for k, v in zip(self.set_keys, combo, strict=True) if k.split(".", 1)[0] in sections
+                }
                 config = merged_config(self.base_config, applied)
                 chash = config_hash(dataset, backend, self.max_steps, self.nees, config)
                 for seed in self.seeds:
                     if (chash, seed) in seen:
                         continue
                     seen.add((chash, seed))
-                    out.append(RunSpec(dataset, backend, seed, self.max_steps, self.nees,
-                                       applied, config, chash))
+                    out.append(
+                        RunSpec(dataset, backend, seed, self.max_steps, self.nees, applied, config, chash)
+                    )
         return out
 
 
@@ -112,11 +114,12 @@ def merged_config(base: dict, overrides: dict) -> dict:
     return config
 
 
-def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool,
-                config: dict) -> str:
+def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool, config: dict) -> str:
     """12 hex digits naming a run's settings (everything but the seed)."""
-    text = json.dumps({"dataset": dataset, "backend": backend, "max_steps": max_steps,
-                       "nees": nees, "config": config}, sort_keys=True)
+    text = json.dumps(
+        {"dataset": dataset, "backend": backend, "max_steps": max_steps, "nees": nees, "config": config},
+        sort_keys=True,
+    )
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -132,8 +135,15 @@ def visual_sections(dataset: str, backend: str) -> dict[str, type]:
     from graphslam.registry import visual_backend_config
     from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig
 
-    classes = (VisualRunConfig, OdometryNoiseConfig, TrackerConfig, ActiveSearchConfig,
-               HarrisConfig, OrbConfig, visual_backend_config(backend))
+    classes = (
+        VisualRunConfig,
+        OdometryNoiseConfig,
+        TrackerConfig,
+        ActiveSearchConfig,
+        HarrisConfig,
+        OrbConfig,
+        visual_backend_config(backend),
+    )
     out: dict[str, type] = {cls.SECTION: cls for cls in classes}
     if dataset == "synthetic-images":
         out[SyntheticImagesConfig.SECTION] = SyntheticImagesConfig
@@ -180,10 +190,8 @@ def dump_toml(config: dict, prefix: tuple[str, ...] = ()) -> str:
 def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
     value = sweep.get(key)
     line = cfg.line_of("sweep", key)
-    if not isinstance(value, list) or not all(isinstance(v, kind) and not isinstance(v, bool)
-                                               for v in value):
-        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {value!r}",
-                          cfg.path, line)
+    if not isinstance(value, list) or not all(isinstance(v, kind) and not isinstance(v, bool) for v in value):
+        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {value!r}", cfg.path, line)
     if not value:
         raise ConfigError(f"[sweep] {key} is empty: the grid has no run", cfg.path, line)
     return value
@@ -195,13 +203,20 @@ def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     if value is None:
         return (None,)
     if isinstance(value, dict):
-        if set(value) != {"from", "to"} or not all(isinstance(v, int) and not isinstance(v, bool)
-                                                    for v in value.values()):
-            raise ConfigError(f"[sweep] seed must be a list or {{from = A, to = B}} with whole "
-                              f"numbers, got {value!r}", cfg.path, line)
+        if set(value) != {"from", "to"} or not all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value.values()
+        ):
+            raise ConfigError(
+                f"[sweep] seed must be a list or {{from = A, to = B}} with whole numbers, got {value!r}",
+                cfg.path,
+                line,
+            )
         if value["to"] < value["from"]:
-            raise ConfigError(f"[sweep] seed range {value['from']}..{value['to']} is empty: the "
-                              f"grid has no run", cfg.path, line)
+            raise ConfigError(
+                f"[sweep] seed range {value['from']}..{value['to']} is empty: the grid has no run",
+                cfg.path,
+                line,
+            )
         if value["to"] - value["from"] >= MAX_SEEDS:
             raise ConfigError(f"[sweep] seed range holds more than {MAX_SEEDS} seeds", cfg.path, line)
         return tuple(range(value["from"], value["to"] + 1))
@@ -219,11 +234,18 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
         section, _, key = dotted.partition(".")
         cls = grid_sections.get(section)
         if cls is None or not key:
-            raise ConfigError(f"[sweep.set] {dotted!r}: not a section.key that these runs read "
-                              f"(sections: {', '.join(sorted(grid_sections))})", cfg.path, line)
+            raise ConfigError(
+                f"[sweep.set] {dotted!r}: not a section.key that these runs read "
+                f"(sections: {', '.join(sorted(grid_sections))})",
+                cfg.path,
+                line,
+            )
         if not isinstance(options, list) or not options:
-            raise ConfigError(f"[sweep.set] {dotted} must be a non-empty list of values: the grid "
-                              f"has no run", cfg.path, line)
+            raise ConfigError(
+                f"[sweep.set] {dotted} must be a non-empty list of values: the grid has no run",
+                cfg.path,
+                line,
+            )
         for value in options:
             try:
                 from_dict(cls, {key: value})
@@ -238,15 +260,21 @@ def _check_size(sweep: dict, cfg: ConfigFile, outer: int, values: tuple[tuple, .
     """ConfigError when the grid (counted, not listed) exceeds its cap."""
     cap = sweep.get("max_runs", MAX_RUNS)
     if not isinstance(cap, int) or isinstance(cap, bool) or cap < 1:
-        raise ConfigError(f"[sweep] max_runs must be a whole number >= 1, got {cap!r}",
-                          cfg.path, cfg.line_of("sweep", "max_runs"))
+        raise ConfigError(
+            f"[sweep] max_runs must be a whole number >= 1, got {cap!r}",
+            cfg.path,
+            cfg.line_of("sweep", "max_runs"),
+        )
     size = outer
     for v in values:
         size *= len(v)
     if size > cap:
-        raise ConfigError(f"[sweep] the grid has {size} runs, above its cap of {cap}: shrink "
-                          f"the lists, or set [sweep] max_runs = {size} if you mean it",
-                          cfg.path, cfg.line_of("sweep"))
+        raise ConfigError(
+            f"[sweep] the grid has {size} runs, above its cap of {cap}: shrink "
+            f"the lists, or set [sweep] max_runs = {size} if you mean it",
+            cfg.path,
+            cfg.line_of("sweep"),
+        )
 
 
 def parse_sweep(path: str | Path) -> SweepSpec:
@@ -256,38 +284,57 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     cfg = ConfigFile.read(path)
     for name in cfg.data:
         if name != "sweep":
-            raise ConfigError(f"unknown table [{name}]; a sweep file has [sweep] and [sweep.set]",
-                              cfg.path, cfg.line_of(name))
+            raise ConfigError(
+                f"unknown table [{name}]; a sweep file has [sweep] and [sweep.set]",
+                cfg.path,
+                cfg.line_of(name),
+            )
     sweep = cfg.data.get("sweep")
     if sweep is None:
         raise ConfigError("no [sweep] table", cfg.path)
     for key in sweep:
         if key not in SWEEP_KEYS:
-            raise ConfigError(f"unknown key {key!r} in [sweep]; known: {', '.join(SWEEP_KEYS)}",
-                              cfg.path, cfg.line_of("sweep", key))
+            raise ConfigError(
+                f"unknown key {key!r} in [sweep]; known: {', '.join(SWEEP_KEYS)}",
+                cfg.path,
+                cfg.line_of("sweep", key),
+            )
     datasets = _list(sweep, cfg, "dataset", str)
     backends = _list(sweep, cfg, "backend", str)
     visual = [name for name in datasets if is_visual_dataset(name)]
     for b in backends:
         if b not in BACKENDS:
-            raise ConfigError(f"[sweep] unknown back end {b!r} (available: {', '.join(BACKENDS)})",
-                              cfg.path, cfg.line_of("sweep", "backend"))
+            raise ConfigError(
+                f"[sweep] unknown back end {b!r} (available: {', '.join(BACKENDS)})",
+                cfg.path,
+                cfg.line_of("sweep", "backend"),
+            )
         if visual and b not in VISUAL_BACKENDS:
-            raise ConfigError(f"[sweep] back end {b!r} does not run on the image sequence "
-                              f"{visual[0]!r} (available: {', '.join(VISUAL_BACKENDS)})",
-                              cfg.path, cfg.line_of("sweep", "backend"))
+            raise ConfigError(
+                f"[sweep] back end {b!r} does not run on the image sequence "
+                f"{visual[0]!r} (available: {', '.join(VISUAL_BACKENDS)})",
+                cfg.path,
+                cfg.line_of("sweep", "backend"),
+            )
     max_steps = sweep.get("max_steps")
     if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
-        raise ConfigError(f"[sweep] max_steps must be a whole number >= 1, got {max_steps!r}",
-                          cfg.path, cfg.line_of("sweep", "max_steps"))
+        raise ConfigError(
+            f"[sweep] max_steps must be a whole number >= 1, got {max_steps!r}",
+            cfg.path,
+            cfg.line_of("sweep", "max_steps"),
+        )
     nees = sweep.get("nees", all(d == "synthetic" for d in datasets))
     if not isinstance(nees, bool):
-        raise ConfigError(f"[sweep] nees must be true or false, got {nees!r}", cfg.path,
-                          cfg.line_of("sweep", "nees"))
+        raise ConfigError(
+            f"[sweep] nees must be true or false, got {nees!r}", cfg.path, cfg.line_of("sweep", "nees")
+        )
     if nees and visual:
-        raise ConfigError(f"[sweep] nees = true, but {visual[0]!r} is an image sequence, whose "
-                          f"runs write no nees.csv: set nees = false", cfg.path,
-                          cfg.line_of("sweep", "nees"))
+        raise ConfigError(
+            f"[sweep] nees = true, but {visual[0]!r} is an image sequence, whose "
+            f"runs write no nees.csv: set nees = false",
+            cfg.path,
+            cfg.line_of("sweep", "nees"),
+        )
     base = {}
     if "config" in sweep:
         base = dict(read_config(Path(path).parent / str(sweep["config"])).data)
@@ -297,5 +344,4 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     keys, values = _check_set(sweep, cfg, grid_sections)
     seeds = _seeds(sweep, cfg)
     _check_size(sweep, cfg, len(datasets) * len(backends) * len(seeds), values)
-    return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps,
-                     nees, base, keys, values)
+    return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps, nees, base, keys, values)

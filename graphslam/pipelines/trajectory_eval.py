@@ -32,8 +32,12 @@ class EstimateResult:
     label: str = ""
 
     def to_dict(self, options: EvalOptions) -> dict:
-        return {"estimate": self.path, "label": self.label or Path(self.path).name,
-                **self.result.summary(), "options": options.to_dict()}
+        return {
+            "estimate": self.path,
+            "label": self.label or Path(self.path).name,
+            **self.result.summary(),
+            "options": options.to_dict(),
+        }
 
 
 def distinct_labels(paths: Sequence[str | Path]) -> list[str]:
@@ -67,18 +71,23 @@ def load(path: Path, fmt: str | None, times: Path | None) -> Trajectory:
     return trajectory
 
 
-def evaluate_files(ground_truth: Path, estimates: list[Path], options: EvalOptions, *,
-                   fmt: str | None = None, times: Path | None = None) -> list[EstimateResult]:
+def evaluate_files(
+    ground_truth: Path,
+    estimates: list[Path],
+    options: EvalOptions,
+    *,
+    fmt: str | None = None,
+    times: Path | None = None,
+) -> list[EstimateResult]:
     """Score every estimate against ``ground_truth`` (same format and times options)."""
     ref = load(ground_truth, fmt, times)
     out = []
     for path, label in zip(estimates, distinct_labels(estimates), strict=True):
         est = load(path, fmt, times)
-        out.append(EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s,
-                                                      est.wTc, options), label))
+        out.append(
+            EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options), label)
+        )
     return out
-
-
 
 
 def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:
@@ -88,19 +97,28 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
     for r in results:
         e = r.result
         if e.matched_share < LOW_MATCHED_SHARE:
-            out.append(f"{r.label or Path(r.path).name}: only {len(e.ref)} of {e.estimate_poses} poses "
-                       f"({100 * e.matched_share:.0f} %) matched the reference (max diff "
-                       f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
-                       "those alone")
+            out.append(
+                f"{r.label or Path(r.path).name}: only {len(e.ref)} of {e.estimate_poses} poses "
+                f"({100 * e.matched_share:.0f} %) matched the reference (max diff "
+                f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
+                "those alone"
+            )
     return out
 
 
-def write_eval_json(path: Path, ground_truth: Path, results: list[EstimateResult],
-                    options: EvalOptions) -> Path:
+def write_eval_json(
+    path: Path, ground_truth: Path, results: list[EstimateResult], options: EvalOptions
+) -> Path:
     """``eval.json`` (module doc)."""
     from graphslam.outputs.writers import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, {"ground_truth": str(ground_truth), "options": options.to_dict(),
-                      "estimates": [r.to_dict(options) for r in results]})
+    write_json(
+        path,
+        {
+            "ground_truth": str(ground_truth),
+            "options": options.to_dict(),
+            "estimates": [r.to_dict(options) for r in results],
+        },
+    )
     return path

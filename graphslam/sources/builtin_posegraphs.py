@@ -20,8 +20,13 @@ from graphslam.sources.tokens import MAX_KEY_ID, iter_lines, parse_id, parse_num
 from slamcore import posegraph as pg
 from slamcore.errors import InputError, quote
 
-__all__ = ["BUILTIN_POSE_GRAPHS", "CITY10000_SIGMAS", "builtin_pose_graph",
-           "is_builtin_pose_graph", "read_city10000_graph"]
+__all__ = [
+    "BUILTIN_POSE_GRAPHS",
+    "CITY10000_SIGMAS",
+    "builtin_pose_graph",
+    "is_builtin_pose_graph",
+    "read_city10000_graph",
+]
 
 #: Built-in dataset names that are pose graphs -> what they are.
 BUILTIN_POSE_GRAPHS = {
@@ -86,25 +91,34 @@ def read_city10000_graph(path=None, ground_truth_path=None) -> tuple[pg.PoseGrap
     truth = []
     for line_no, tok in iter_lines(ground_truth_path):
         if len(tok) != 3:
-            raise InputError(f"ground-truth line needs 3 numbers (x y theta), got {len(tok)}",
-                             ground_truth_path, line_no)
+            raise InputError(
+                f"ground-truth line needs 3 numbers (x y theta), got {len(tok)}", ground_truth_path, line_no
+            )
         truth.append(parse_numbers(tok, ground_truth_path, line_no))
     ids = np.unique(edges)
     n_poses = int(ids[-1] - ids[0] + 1) if len(ids) else 0
     if len(truth) != n_poses:
-        raise InputError(f"ground truth has {len(truth)} poses, the graph has {n_poses}",
-                         ground_truth_path)
+        raise InputError(f"ground truth has {len(truth)} poses, the graph has {n_poses}", ground_truth_path)
     keep = edges[:, 0] != edges[:, 1]
     if not keep.any():
         raise InputError("no pose-graph edges in the file", path)
-    information = np.linalg.inv(np.diag(CITY10000_SIGMAS ** 2))
+    information = np.linalg.inv(np.diag(CITY10000_SIGMAS**2))
     ids = np.unique(edges[keep])
     graph = pg.PoseGraph(
-        name="city10000", format="g2o", dim=2, rotation="angle", ids=ids,
-        vertices=np.zeros((len(ids), 3)), has_vertex=np.zeros(len(ids), dtype=bool),
-        edges=edges[keep], measurements=measurements[keep],
+        name="city10000",
+        format="g2o",
+        dim=2,
+        rotation="angle",
+        ids=ids,
+        vertices=np.zeros((len(ids), 3)),
+        has_vertex=np.zeros(len(ids), dtype=bool),
+        edges=edges[keep],
+        measurements=measurements[keep],
         information=np.repeat(information[None], int(keep.sum()), axis=0),
-        edge_lines=lines[keep], source_path=str(path), self_edge_lines=lines[~keep])
+        edge_lines=lines[keep],
+        source_path=str(path),
+        self_edge_lines=lines[~keep],
+    )
     check_connected(graph, path)
     return with_chain_start(graph), np.array(truth, dtype=np.float64).reshape(-1, 3)
 
@@ -120,21 +134,23 @@ def _city10000_edges(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if tok[0] != "EDGE2":
             raise InputError(f"unknown tag {quote(tok[0])}", path, line_no)
         if len(tok) < 9:
-            raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}",
-                             path, line_no)
+            raise InputError(f"EDGE2 line needs at least 9 tokens, got {len(tok)}", path, line_no)
         a = parse_id(tok[1], path, line_no, "id", limit=MAX_KEY_ID)
         b = parse_id(tok[3], path, line_no, "id", limit=MAX_KEY_ID)
         parse_id(tok[4], path, line_no, "ambiguity flag", limit=MAX_KEY_ID)
         n = parse_id(tok[5], path, line_no, "hypothesis count", limit=MAX_KEY_ID)
         if n < 1 or len(tok) != 6 + 3 * n:
-            raise InputError(f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, "
-                             f"got {len(tok)}", path, line_no)
+            raise InputError(
+                f"EDGE2 line with {n} hypotheses needs {6 + 3 * n} tokens, got {len(tok)}", path, line_no
+            )
         edges.append((a, b))
         measurements.append(parse_numbers(tok[6:], path, line_no)[:3])
         lines.append(line_no)
-    return (np.array(edges, dtype=np.int64).reshape(-1, 2),
-            np.array(measurements, dtype=np.float64).reshape(-1, 3),
-            np.array(lines, dtype=np.int64))
+    return (
+        np.array(edges, dtype=np.int64).reshape(-1, 2),
+        np.array(measurements, dtype=np.float64).reshape(-1, 3),
+        np.array(lines, dtype=np.int64),
+    )
 
 
 def _city10000_in_bulk(path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

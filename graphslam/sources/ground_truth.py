@@ -89,8 +89,11 @@ def detect_format(path: Path, first_line: str) -> str:
         return "kitti"
     if n == 8:
         return "tum"
-    raise InputError(f"cannot tell the ground-truth format: {n} numbers a line (TUM has 8: "
-                     "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated)", path)
+    raise InputError(
+        f"cannot tell the ground-truth format: {n} numbers a line (TUM has 8: "
+        "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated)",
+        path,
+    )
 
 
 def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
@@ -113,15 +116,13 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         elif fmt == "tum":
             v = parse_floats(text, path, n, 8, "numbers (TUM: t x y z qx qy qz qw)")
             stamps.append(v[0])
-            poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n),
-                               _position(v[1:4], path, n)))
+            poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n), _position(v[1:4], path, n)))
         else:
             v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
             stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
-            poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n),
-                               _position(v[1:4], path, n)))
+            poses.append(_pose(quat_to_rotation(v[4], v[5], v[6], v[7], path, n), _position(v[1:4], path, n)))
     if fmt == "kitti":
         return Trajectory(fmt, None, np.array(poses), str(path))
     order = _time_order(np.array(stamps), [n for n, _ in lines], path)
@@ -137,8 +138,9 @@ def _time_order(stamps: np.ndarray, line_numbers: list[int], path: Path) -> np.n
     same = np.nonzero(np.diff(stamps[order]) == 0)[0]
     if same.size:
         a, b = sorted((int(order[same[0]]), int(order[same[0] + 1])))
-        raise InputError(f"time {float(stamps[b])!r} is duplicated (also on line "
-                         f"{line_numbers[a]})", path, line_numbers[b])
+        raise InputError(
+            f"time {float(stamps[b])!r} is duplicated (also on line {line_numbers[a]})", path, line_numbers[b]
+        )
     return order
 
 
@@ -148,12 +150,10 @@ def read_times(path: str | Path, trajectory: Trajectory) -> Trajectory:
     is pose k, so a file out of order cannot be sorted: it is refused)."""
     path = Path(path)
     lines = read_lines(path, "times file")
-    stamps = np.array([parse_floats(text, path, n, 1, "number (a time in seconds)")[0]
-                       for n, text in lines])
+    stamps = np.array([parse_floats(text, path, n, 1, "number (a time in seconds)")[0] for n, text in lines])
     check_increasing(stamps, [n for n, _ in lines], path)
     if len(stamps) != len(trajectory.wTc):
-        raise InputError(f"{len(stamps)} times for {len(trajectory.wTc)} poses of "
-                         f"{trajectory.path}", path)
+        raise InputError(f"{len(stamps)} times for {len(trajectory.wTc)} poses of {trajectory.path}", path)
     return dataclasses.replace(trajectory, stamps_s=stamps)
 
 
@@ -177,8 +177,9 @@ def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarra
         frame_t = np.arange(len(sequence), dtype=np.float64)
         idx = associate(frame_t, truth.stamps_s[order], 0.5)
     else:
-        idx = associate(np.asarray(sequence.stamps_s, dtype=np.float64),
-                        truth.stamps_s[order], ASSOCIATION_MAX_DT_S)
+        idx = associate(
+            np.asarray(sequence.stamps_s, dtype=np.float64), truth.stamps_s[order], ASSOCIATION_MAX_DT_S
+        )
     return np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
 
 
@@ -197,8 +198,11 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
     changes: dict = {"wTc_true": truth.wTc[rows[keep]]}
     if not np.all(keep):
         if getattr(sequence, "odometry", None) is not None:
-            raise InputError(f"{int(np.sum(~keep))} of {len(keep)} frames have no ground truth "
-                             f"({how}), and {sequence.name!r} cannot drop frames", truth.path)
+            raise InputError(
+                f"{int(np.sum(~keep))} of {len(keep)} frames have no ground truth "
+                f"({how}), and {sequence.name!r} cannot drop frames",
+                truth.path,
+            )
         changes["image_paths"] = [p for p, k in zip(sequence.image_paths, keep, strict=True) if k]
         if sequence.stamps_s is not None:
             changes["stamps_s"] = np.asarray(sequence.stamps_s)[keep]
@@ -213,8 +217,11 @@ def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray
     is taken over the common ids). InputError when no pose matches.
     """
     if truth.format == "euroc":
-        raise InputError("EuRoC ground truth has nanosecond times, not the pose ids of a 2-D "
-                         "dataset; give TUM (t = pose id) or KITTI (line = pose id)", truth.path)
+        raise InputError(
+            "EuRoC ground truth has nanosecond times, not the pose ids of a 2-D "
+            "dataset; give TUM (t = pose id) or KITTI (line = pose id)",
+            truth.path,
+        )
     ids = np.array([f.pose_id for f in dataset.frames], dtype=np.int64)
     if truth.stamps_s is None:
         rows = np.where(ids < len(truth.wTc), ids, -1)
@@ -232,8 +239,10 @@ def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray
     keep = rows >= 0
     if not np.any(keep):
         by_time = dataset.has_timestamps and truth.stamps_s is not None
-        raise InputError(f"no pose of {dataset.name!r} has ground truth (matched by "
-                         f"{'time' if by_time else 'pose id'})", truth.path)
+        raise InputError(
+            f"no pose of {dataset.name!r} has ground truth (matched by {'time' if by_time else 'pose id'})",
+            truth.path,
+        )
     wTc = truth.wTc[rows[keep]]
     yaw = np.arctan2(wTc[:, 1, 0], wTc[:, 0, 0])
     return ids[keep], np.column_stack([wTc[:, 0, 3], wTc[:, 1, 3], yaw])

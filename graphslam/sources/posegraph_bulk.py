@@ -49,8 +49,7 @@ class Sightings:
     lines: np.ndarray
 
     @classmethod
-    def of_rows(cls, ids: list[tuple[int, int]], numbers: list[list[float]],
-                lines: list[int]) -> Sightings:
+    def of_rows(cls, ids: list[tuple[int, int]], numbers: list[list[float]], lines: list[int]) -> Sightings:
         """From ``(pose, landmark)`` ids and ``[bearing, range, bearing_sigma, range_sigma]``."""
         i = np.array(ids, dtype=np.int64).reshape(-1, 2)
         v = np.array(numbers, dtype=np.float64).reshape(-1, 4)
@@ -115,8 +114,13 @@ def read_in_bulk(path, tags: dict[str, tuple], id_limit: int) -> FileLines | Non
     if any(len(t) < 2 for t in fixes) or any(len(t) != 3 for t in equivs):
         return None
     fixed_tokens = [t for r in fixes for t in r[1:]]
-    ids = ids_in_bulk([t[1] for t in vertex] + [t for r in edge for t in r[1:3]] + fixed_tokens
-               + [t for r in equivs for t in r[1:]], id_limit)
+    ids = ids_in_bulk(
+        [t[1] for t in vertex]
+        + [t for r in edge for t in r[1:3]]
+        + fixed_tokens
+        + [t for r in equivs for t in r[1:]],
+        id_limit,
+    )
     size = {"angle": 3, "quat": 7, "rpy": 6}[kind[2]]
     v_num = numbers_in_bulk([t[2:] for t in vertex], size)
     e_num = numbers_in_bulk([t[3:] for t in edge], (len(edge[0]) - 3) if edge else 0)
@@ -127,13 +131,19 @@ def read_in_bulk(path, tags: dict[str, tuple], id_limit: int) -> FileLines | Non
         return None  # a pose declared twice: the loop names both lines
     fixed_lines = [n for r, n in zip(fixes, lines.get("FIX", []), strict=True) for _ in r[1:]]
     return FileLines(
-        kind=kind, vertex_ids=_ints(ids[:n_v]), vertices=v_num,
+        kind=kind,
+        vertex_ids=_ints(ids[:n_v]),
+        vertices=v_num,
         vertex_lines=_ints(lines.get(by_role.get("vertex", ""), [])),
-        edges=_ints(ids[n_v:n_v + 2 * n_e]).reshape(-1, 2), numbers=e_num,
+        edges=_ints(ids[n_v : n_v + 2 * n_e]).reshape(-1, 2),
+        numbers=e_num,
         edge_lines=_ints(lines.get(by_role.get("edge", ""), [])),
-        fixed=_ints(ids[n_v + 2 * n_e:n_v + 2 * n_e + n_f]), fixed_lines=_ints(fixed_lines),
-        equiv=_ints(ids[n_v + 2 * n_e + n_f:]).reshape(-1, 2),
-        equiv_lines=_ints(lines.get("EQUIV", [])), sightings=Sightings.of_rows([], [], []))
+        fixed=_ints(ids[n_v + 2 * n_e : n_v + 2 * n_e + n_f]),
+        fixed_lines=_ints(fixed_lines),
+        equiv=_ints(ids[n_v + 2 * n_e + n_f :]).reshape(-1, 2),
+        equiv_lines=_ints(lines.get("EQUIV", [])),
+        sightings=Sightings.of_rows([], [], []),
+    )
 
 
 def rows_by_tag(path) -> tuple[dict[str, list[list[str]]], dict[str, list[int]]] | None:

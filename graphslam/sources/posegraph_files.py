@@ -94,9 +94,15 @@ TAGS = {
     "EDGE3": ("toro", 3, "rpy", "edge", 30),
 }
 #: Tag names per (format, dim), for the writers.
-TAG_NAMES = {(fmt, dim): (tags[0], tags[1]) for fmt, dim, tags in (
-    ("g2o", 2, ("VERTEX_SE2", "EDGE_SE2")), ("g2o", 3, ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")),
-    ("toro", 2, ("VERTEX2", "EDGE2")), ("toro", 3, ("VERTEX3", "EDGE3")))}
+TAG_NAMES = {
+    (fmt, dim): (tags[0], tags[1])
+    for fmt, dim, tags in (
+        ("g2o", 2, ("VERTEX_SE2", "EDGE_SE2")),
+        ("g2o", 3, ("VERTEX_SE3:QUAT", "EDGE_SE3:QUAT")),
+        ("toro", 2, ("VERTEX2", "EDGE2")),
+        ("toro", 3, ("VERTEX3", "EDGE3")),
+    )
+}
 #: TORO 2-D information order ``ixx ixy iyy ith ixt iyt`` as (row, col) of the matrix.
 TORO2_ORDER = ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))
 
@@ -139,7 +145,10 @@ TORO_NOISE = ("auto", "information", "sqrt_information")
 #: against the ground-truth file have the standard deviations its numbers invert).
 KNOWN_TORO_NOISE = {
     (618297, "4b9418a300e6ec3ec0a4223e13b0febb068d18f9a008ebb59c1b9f262626e552"): (
-        "gtsam's sphere2500.txt", "sqrt_information", "written by iSAM"),
+        "gtsam's sphere2500.txt",
+        "sqrt_information",
+        "written by iSAM",
+    ),
 }
 
 
@@ -164,14 +173,17 @@ def resolve_toro_noise(path, toro_noise: str) -> tuple[str, str | None]:
     if known is None:
         return "information", None
     name, convention, why = known
-    return convention, (f"{convention} (auto: {name}, {why}; [posegraph] toro_noise = "
-                        f"\"information\" reads the numbers as the format defines them)")
+    return convention, (
+        f"{convention} (auto: {name}, {why}; [posegraph] toro_noise = "
+        f'"information" reads the numbers as the format defines them)'
+    )
+
+
 #: What is done with an information matrix that is not positive definite.
 INFORMATION_FIX = (*pg.INFORMATION_FIXES, "refuse")
 
 
-def information_matrices(fmt: str, dim: int, noise: np.ndarray,
-                         sqrt: bool = False) -> np.ndarray:
+def information_matrices(fmt: str, dim: int, noise: np.ndarray, sqrt: bool = False) -> np.ndarray:
     """(M, D, D) information of the (M, K) numbers after the edges' measurements, in
     the file's order (:func:`information_order`; g2o's for the TORO 2-D lines
     :func:`g2o_diagonal_rows` picks); ``sqrt``: the numbers are the upper triangle
@@ -225,8 +237,7 @@ class _LineReader:
             return
         if tag == "EQUIV":
             if len(tok) != 3:
-                raise InputError(f"EQUIV line needs 2 pose ids, got {len(tok) - 1}", self.path,
-                                 line_no)
+                raise InputError(f"EQUIV line needs 2 pose ids, got {len(tok) - 1}", self.path, line_no)
             self.equiv.append((self._id(tok[1], line_no), self._id(tok[2], line_no)))
             self.equiv_lines.append(line_no)
             return
@@ -239,8 +250,11 @@ class _LineReader:
         if self.kind is None:
             self.kind, self.kind_line = (fmt, dim, rotation), line_no
         elif self.kind != (fmt, dim, rotation):
-            raise InputError(f"{tag} in a {self.kind[1]}-D {self.kind[0]} file (see line "
-                             f"{self.kind_line})", self.path, line_no)
+            raise InputError(
+                f"{tag} in a {self.kind[1]}-D {self.kind[0]} file (see line {self.kind_line})",
+                self.path,
+                line_no,
+            )
         check_count(tok, count, self.path, line_no)
         (self._vertex if kind == "vertex" else self._edge)(line_no, tok, dim, rotation)
 
@@ -249,26 +263,34 @@ class _LineReader:
         if rotation == "quat":
             norm = math.hypot(*numbers[3:7])
             if not norm >= QUATERNION_NORM_MIN:
-                raise InputError(f"quaternion of norm {norm:.3g} cannot be normalised into a "
-                                 "rotation (a unit quaternion is expected)", self.path, line_no)
+                raise InputError(
+                    f"quaternion of norm {norm:.3g} cannot be normalised into a "
+                    "rotation (a unit quaternion is expected)",
+                    self.path,
+                    line_no,
+                )
         if not max(abs(v) for v in numbers[:dim]) <= TRANSLATION_MAX_M:
-            raise InputError(f"translation beyond {TRANSLATION_MAX_M:.0e} m: no robot's pose "
-                             "graph spans that (a shifted column?)", self.path, line_no)
+            raise InputError(
+                f"translation beyond {TRANSLATION_MAX_M:.0e} m: no robot's pose "
+                "graph spans that (a shifted column?)",
+                self.path,
+                line_no,
+            )
         return numbers
 
     def _vertex(self, line_no: int, tok: list[str], dim: int, rotation: str) -> None:
         k = self._id(tok[1], line_no)
         if k in self.vertices:
-            raise InputError(f"pose {k} declared twice (first on line {self.vertex_lines[k]})",
-                             self.path, line_no)
-        self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no,
-                                      dim, rotation)
+            raise InputError(
+                f"pose {k} declared twice (first on line {self.vertex_lines[k]})", self.path, line_no
+            )
+        self.vertices[k] = self._pose(parse_numbers(tok[2:], self.path, line_no), line_no, dim, rotation)
         self.vertex_lines[k] = line_no
 
     def _edge(self, line_no: int, tok: list[str], dim: int, rotation: str) -> None:
         ids = (self._id(tok[1], line_no), self._id(tok[2], line_no))
         numbers = parse_numbers(tok[3:], self.path, line_no)
-        self._pose(numbers[:pg.PARAM_SIZE[rotation]], line_no, dim, rotation)
+        self._pose(numbers[: pg.PARAM_SIZE[rotation]], line_no, dim, rotation)
         self.edges.append(ids)  # positive definiteness: checked for all edges at once
         self.numbers.append(numbers)
         self.edge_lines.append(line_no)
@@ -276,11 +298,14 @@ class _LineReader:
     def _sighting(self, line_no: int, tok: list[str]) -> None:
         """A ``BR`` line (gtsam's load2D reading): only where landmarks are read."""
         if not self.landmarks:
-            raise InputError(f"{tok[0]} is a landmark observation (landmark SLAM, not a pose "
-                             "graph): graphslam run takes a 2-D TORO file with BR lines with "
-                             "--backend isam2, ekf, fastslam1 or fastslam2", self.path, line_no)
-        check_count(tok, 7, self.path, line_no,
-                    "BR pose landmark bearing range bearing_sigma range_sigma")
+            raise InputError(
+                f"{tok[0]} is a landmark observation (landmark SLAM, not a pose "
+                "graph): graphslam run takes a 2-D TORO file with BR lines with "
+                "--backend isam2, ekf, fastslam1 or fastslam2",
+                self.path,
+                line_no,
+            )
+        check_count(tok, 7, self.path, line_no, "BR pose landmark bearing range bearing_sigma range_sigma")
         ids = (self._id(tok[1], line_no), self._id(tok[2], line_no, "landmark id"))
         numbers = parse_numbers(tok[3:], self.path, line_no)
         if numbers[2] <= 0.0 or numbers[3] <= 0.0:
@@ -294,13 +319,13 @@ class _LineReader:
     def file_lines(self) -> FileLines:
         size = pg.PARAM_SIZE[self.kind[2]] if self.kind else 0
         ints = np.int64
-        numbers = (np.array(self.numbers, dtype=np.float64) if self.numbers
-                   else np.zeros((0, size)))
+        numbers = np.array(self.numbers, dtype=np.float64) if self.numbers else np.zeros((0, size))
         return FileLines(
             kind=self.kind,
             vertex_ids=np.array(list(self.vertices), dtype=ints),
-            vertices=np.array(list(self.vertices.values()),
-                              dtype=np.float64).reshape(len(self.vertices), size),
+            vertices=np.array(list(self.vertices.values()), dtype=np.float64).reshape(
+                len(self.vertices), size
+            ),
             vertex_lines=np.array(list(self.vertex_lines.values()), dtype=ints),
             edges=np.array(self.edges, dtype=ints).reshape(-1, 2),
             numbers=numbers,
@@ -309,8 +334,8 @@ class _LineReader:
             fixed_lines=np.array([n for _, n in self.fixed], dtype=ints),
             equiv=np.array(self.equiv, dtype=ints).reshape(-1, 2),
             equiv_lines=np.array(self.equiv_lines, dtype=ints),
-            sightings=Sightings.of_rows(self.sightings, self.sighting_numbers,
-                                        self.sighting_lines))
+            sightings=Sightings.of_rows(self.sightings, self.sighting_numbers, self.sighting_lines),
+        )
 
 
 def _in_range(lines: FileLines) -> bool:
@@ -320,22 +345,26 @@ def _in_range(lines: FileLines) -> bool:
     if lines.kind is None:
         return False
     _, dim, rotation = lines.kind
-    poses = np.concatenate([lines.vertices] + ([lines.numbers[:, :pg.PARAM_SIZE[rotation]]]
-                                               if len(lines.edges) else []))
+    poses = np.concatenate(
+        [lines.vertices] + ([lines.numbers[:, : pg.PARAM_SIZE[rotation]]] if len(lines.edges) else [])
+    )
     if not (np.abs(poses[:, :dim]) <= TRANSLATION_MAX_M).all():
         return False
     return rotation != "quat" or bool(
-        (np.sqrt((poses[:, 3:7] ** 2).sum(axis=1)) >= 2 * QUATERNION_NORM_MIN).all())
+        (np.sqrt((poses[:, 3:7] ** 2).sum(axis=1)) >= 2 * QUATERNION_NORM_MIN).all()
+    )
 
 
-def _assembled(lines: FileLines, path: Path, toro_noise: str,
-               information_fix: str) -> pg.PoseGraph:
+def _assembled(lines: FileLines, path: Path, toro_noise: str, information_fix: str) -> pg.PoseGraph:
     """The graph of a file's lines: the checks across lines (module docstring)."""
     self_edge = lines.edges[:, 0] == lines.edges[:, 1]
     if lines.kind is None or self_edge.all():
         if self_edge.any():  # a place recogniser matching a frame to itself, and nothing else
-            raise InputError("no pose-graph edges in the file but edges from a pose to itself, "
-                             "which constrain nothing", path, int(lines.edge_lines[0]))
+            raise InputError(
+                "no pose-graph edges in the file but edges from a pose to itself, which constrain nothing",
+                path,
+                int(lines.edge_lines[0]),
+            )
         raise InputError("no pose-graph edges in the file", path)
     fmt, dim, rotation = lines.kind
     size = pg.PARAM_SIZE[rotation]
@@ -345,26 +374,39 @@ def _assembled(lines: FileLines, path: Path, toro_noise: str,
     edges, numbers, edge_lines = lines.edges[keep], lines.numbers[keep], lines.edge_lines[keep]
     sqrt = fmt == "toro" and toro_noise == "sqrt_information"
     information, fixed = _checked_information(
-        information_matrices(fmt, dim, numbers[:, size:], sqrt), edge_lines, dim,
-        information_fix, path)
+        information_matrices(fmt, dim, numbers[:, size:], sqrt), edge_lines, dim, information_fix, path
+    )
     _check_declared(lines, edges, edge_lines, path)
     ids = np.union1d(lines.vertex_ids, edges.ravel())
     vertices = np.zeros((len(ids), size))
     vertices[np.searchsorted(ids, lines.vertex_ids)] = lines.vertices
     graph = pg.PoseGraph(
-        name=path.stem, format=fmt, dim=dim, rotation=rotation, ids=ids,
-        vertices=vertices, has_vertex=np.isin(ids, lines.vertex_ids), edges=edges,
-        measurements=numbers[:, :size].copy(), information=information, edge_lines=edge_lines,
-        fixed=np.unique(lines.fixed), equiv=lines.equiv, source_path=str(path),
+        name=path.stem,
+        format=fmt,
+        dim=dim,
+        rotation=rotation,
+        ids=ids,
+        vertices=vertices,
+        has_vertex=np.isin(ids, lines.vertex_ids),
+        edges=edges,
+        measurements=numbers[:, :size].copy(),
+        information=information,
+        edge_lines=edge_lines,
+        fixed=np.unique(lines.fixed),
+        equiv=lines.equiv,
+        source_path=str(path),
         noise=toro_noise if fmt == "toro" else "information",
-        information_fix=None if fixed is None else information_fix, information_fixed=fixed,
-        self_edge_lines=lines.edge_lines[self_edge])
+        information_fix=None if fixed is None else information_fix,
+        information_fixed=fixed,
+        self_edge_lines=lines.edge_lines[self_edge],
+    )
     check_connected(graph, path)
     return with_chain_start(graph)
 
 
-def _checked_information(stack: np.ndarray, edge_lines: np.ndarray, dim: int,
-                         information_fix: str, path) -> tuple[np.ndarray, np.ndarray | None]:
+def _checked_information(
+    stack: np.ndarray, edge_lines: np.ndarray, dim: int, information_fix: str, path
+) -> tuple[np.ndarray, np.ndarray | None]:
     """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
 
     One Cholesky of the stack passes a clean file (one by one it was half of
@@ -384,12 +426,19 @@ def _checked_information(stack: np.ndarray, edge_lines: np.ndarray, dim: int,
         if pg.is_positive_definite(info):
             continue
         if information_fix == "refuse":
-            raise InputError("information matrix is not positive definite ([posegraph] "
-                             "information_fix = \"nearest\" or \"isotropic\" replaces "
-                             "it)", path, line_no)
+            raise InputError(
+                "information matrix is not positive definite ([posegraph] "
+                'information_fix = "nearest" or "isotropic" replaces '
+                "it)",
+                path,
+                line_no,
+            )
         if np.linalg.eigvalsh(info)[-1] <= 0.0:
-            raise InputError("information matrix has no positive eigenvalue (the edge "
-                             "carries no information)", path, line_no)
+            raise InputError(
+                "information matrix has no positive eigenvalue (the edge carries no information)",
+                path,
+                line_no,
+            )
         bad[e] = True
     if not bad.any():
         return stack, None
@@ -408,29 +457,30 @@ def _first_unknown(pairs: np.ndarray, known: np.ndarray) -> tuple[int, int] | No
     return row, int(pairs.reshape(len(pairs), -1)[row][bad[row]][0])
 
 
-def _check_declared(lines: FileLines, edges: np.ndarray, edge_lines: np.ndarray,
-                    path) -> None:
+def _check_declared(lines: FileLines, edges: np.ndarray, edge_lines: np.ndarray, path) -> None:
     """With vertex lines present, an edge or FIX naming an undeclared pose is refused;
     an EQUIV naming a pose that is in no edge and no vertex line, always (it was
     copied into the written graph as a pose of nothing)."""
     bad = _first_unknown(lines.equiv, np.union1d(lines.vertex_ids, edges.ravel()))
     if bad is not None:
-        raise InputError(f"EQUIV names pose {bad[1]}, which no vertex or edge has", path,
-                         int(lines.equiv_lines[bad[0]]))
+        raise InputError(
+            f"EQUIV names pose {bad[1]}, which no vertex or edge has", path, int(lines.equiv_lines[bad[0]])
+        )
     if not len(lines.vertex_ids):
         bad = _first_unknown(lines.fixed, edges.ravel())
         if bad is not None:
-            raise InputError(f"FIX names pose {bad[1]}, which no edge uses", path,
-                             int(lines.fixed_lines[bad[0]]))
+            raise InputError(
+                f"FIX names pose {bad[1]}, which no edge uses", path, int(lines.fixed_lines[bad[0]])
+            )
         return
     bad = _first_unknown(edges, lines.vertex_ids)
     if bad is not None:
-        raise InputError(f"edge names pose {bad[1]}, which has no vertex line", path,
-                         int(edge_lines[bad[0]]))
+        raise InputError(f"edge names pose {bad[1]}, which has no vertex line", path, int(edge_lines[bad[0]]))
     bad = _first_unknown(lines.fixed, lines.vertex_ids)
     if bad is not None:
-        raise InputError(f"FIX names pose {bad[1]}, which has no vertex line", path,
-                         int(lines.fixed_lines[bad[0]]))
+        raise InputError(
+            f"FIX names pose {bad[1]}, which has no vertex line", path, int(lines.fixed_lines[bad[0]])
+        )
 
 
 def _checked_sightings(lines: FileLines, graph: pg.PoseGraph, path) -> Sightings:
@@ -439,12 +489,16 @@ def _checked_sightings(lines: FileLines, graph: pg.PoseGraph, path) -> Sightings
     if not len(seen):
         return seen
     if (graph.format, graph.dim) != ("toro", 2):
-        raise InputError(f"BR in a {graph.dim}-D {graph.format} file: landmark lines are "
-                         "read in 2-D TORO files only", path, int(seen.lines[0]))
+        raise InputError(
+            f"BR in a {graph.dim}-D {graph.format} file: landmark lines are read in 2-D TORO files only",
+            path,
+            int(seen.lines[0]),
+        )
     bad = _first_unknown(seen.pose_ids, graph.ids)
     if bad is not None:
-        raise InputError(f"BR seen from pose {bad[1]}, which no edge or vertex names", path,
-                         int(seen.lines[bad[0]]))
+        raise InputError(
+            f"BR seen from pose {bad[1]}, which no edge or vertex names", path, int(seen.lines[bad[0]])
+        )
     return seen
 
 
@@ -457,8 +511,11 @@ def check_connected(graph: pg.PoseGraph, path) -> None:
         return
     parts = pg.components(graph.n_poses, rows)
     if len(parts) > 1:
-        raise InputError(f"the graph is not connected: {len(parts)} components: "
-                         f"{pg.describe_components(graph.ids, parts)}", path)
+        raise InputError(
+            f"the graph is not connected: {len(parts)} components: "
+            f"{pg.describe_components(graph.ids, parts)}",
+            path,
+        )
 
 
 def with_chain_start(graph: pg.PoseGraph) -> pg.PoseGraph:
@@ -477,14 +534,12 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     keep_rows = np.arange(graph.n_poses) < n_poses
     cut = graph.subgraph(keep_rows)
     if not cut.n_edges:
-        raise InputError(f"the first {n_poses} poses have no edge between them",
-                         graph.source_path)
+        raise InputError(f"the first {n_poses} poses have no edge between them", graph.source_path)
     check_connected(cut, graph.source_path)
     return with_chain_start(cut)
 
 
-def read_pose_graph_file(path, toro_noise: str = "auto",
-                         information_fix: str = "nearest") -> pg.PoseGraph:
+def read_pose_graph_file(path, toro_noise: str = "auto", information_fix: str = "nearest") -> pg.PoseGraph:
     """Read a g2o or TORO pose graph, 2-D or 3-D (told from its tags); a landmark
     line (``BR``) is refused: :func:`read_pose_graph_records` reads those.
 
@@ -498,9 +553,14 @@ def read_pose_graph_file(path, toro_noise: str = "auto",
     return read_pose_graph_records(path, toro_noise, information_fix)[0]
 
 
-def read_pose_graph_records(path, toro_noise: str = "auto", information_fix: str = "nearest",
-                            *, landmarks: bool = False,
-                            id_limit: int = MAX_ID) -> tuple[pg.PoseGraph, Sightings]:
+def read_pose_graph_records(
+    path,
+    toro_noise: str = "auto",
+    information_fix: str = "nearest",
+    *,
+    landmarks: bool = False,
+    id_limit: int = MAX_ID,
+) -> tuple[pg.PoseGraph, Sightings]:
     """:func:`read_pose_graph_file`, and with ``landmarks`` the ``BR`` lines of a 2-D
     TORO file beside the graph (else refused); ids above ``id_limit`` are refused
     (``tokens.MAX_KEY_ID`` where they become gtsam symbol keys)."""
@@ -508,8 +568,7 @@ def read_pose_graph_records(path, toro_noise: str = "auto", information_fix: str
     if toro_noise not in TORO_NOISE:
         raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
     if information_fix not in INFORMATION_FIX:
-        raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, "
-                         f"got {information_fix!r}")
+        raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, got {information_fix!r}")
     toro_noise, note = resolve_toro_noise(path, toro_noise)
     lines = read_in_bulk(path, TAGS, id_limit)
     if lines is None or not _in_range(lines):

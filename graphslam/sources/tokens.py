@@ -25,8 +25,11 @@ ID_TOKEN = re.compile(r"\+?[0-9]+\Z")
 #: A decimal number as g2o's C++ stream reads it: optional sign, ASCII digits,
 #: optional fraction and exponent, or inf/nan (refused later as not finite).
 #: float() alone also takes ``1_000`` and full-width digits, which g2o does not.
-NUMBER_TOKEN = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:e[+-]?[0-9]+)?"
-                          r"|inf(?:inity)?|nan)\Z", re.ASCII | re.IGNORECASE)
+NUMBER_TOKEN = re.compile(
+    r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:e[+-]?[0-9]+)?"
+    r"|inf(?:inity)?|nan)\Z",
+    re.ASCII | re.IGNORECASE,
+)
 #: Significant digits beyond any id's (2**62 has 19): such a token is out of range.
 _MAX_ID_DIGITS = 20
 
@@ -39,26 +42,28 @@ def decimal_value(token: str) -> int:
     sign = -1 if token.startswith("-") else 1
     digits = token.lstrip("+-").lstrip("0")
     if len(digits) > _MAX_ID_DIGITS:
-        return sign * 10 ** _MAX_ID_DIGITS
+        return sign * 10**_MAX_ID_DIGITS
     return sign * int(digits or "0")
 
 
-def parse_id(token: str, path, line_no: int, what: str = "pose id", *,
-             limit: int = MAX_ID) -> int:
+def parse_id(token: str, path, line_no: int, what: str = "pose id", *, limit: int = MAX_ID) -> int:
     """A decimal id as a Python int (never through a float, which rounds ids from
     2**53), from 0 to ``limit`` (:data:`MAX_ID`, or :data:`MAX_KEY_ID` for ids that
     become symbol keys), or one-line InputError."""
     if token.startswith("-") and ID_TOKEN.match(token[1:]):
         raise InputError(f"{what} {quote(token)} is out of range: negative", path, line_no)
     if not ID_TOKEN.match(token):
-        raise InputError(f"{what} {quote(token)} is not an integer (decimal digits only)", path,
-                         line_no)
+        raise InputError(f"{what} {quote(token)} is not an integer (decimal digits only)", path, line_no)
     value = decimal_value(token)
     if value > limit:
-        bound = ("2**62" if limit == MAX_ID else "2**56 - 1 (the index a gtsam symbol key holds)"
-                 if limit == MAX_KEY_ID else str(limit))
-        raise InputError(f"{what} {quote(token)} is out of range: larger than {bound}", path,
-                         line_no)
+        bound = (
+            "2**62"
+            if limit == MAX_ID
+            else "2**56 - 1 (the index a gtsam symbol key holds)"
+            if limit == MAX_KEY_ID
+            else str(limit)
+        )
+        raise InputError(f"{what} {quote(token)} is out of range: larger than {bound}", path, line_no)
     return value
 
 
@@ -68,8 +73,7 @@ def parse_numbers(tokens: list[str], path, line_no: int, what: str | None = None
     out = []
     for t in tokens:
         if not NUMBER_TOKEN.match(t):
-            raise InputError(f"{label}{quote(t)} is not a number (decimal ASCII digits)", path,
-                             line_no)
+            raise InputError(f"{label}{quote(t)} is not a number (decimal ASCII digits)", path, line_no)
         v = float(t)
         if not math.isfinite(v):
             raise InputError(f"{label}{quote(t)} is not finite", path, line_no)
@@ -77,14 +81,14 @@ def parse_numbers(tokens: list[str], path, line_no: int, what: str | None = None
     return out
 
 
-def check_count(tokens: list[str], expected: int, path, line_no: int,
-                layout: str | None = None) -> None:
+def check_count(tokens: list[str], expected: int, path, line_no: int, layout: str | None = None) -> None:
     """One-line InputError unless the line has ``expected`` tokens (tag included);
     ``layout`` spells the line out in the message."""
     if len(tokens) != expected:
         spelled = f" ({layout})" if layout else ""
-        raise InputError(f"{tokens[0]} line needs {expected} tokens{spelled}, got {len(tokens)}",
-                         path, line_no)
+        raise InputError(
+            f"{tokens[0]} line needs {expected} tokens{spelled}, got {len(tokens)}", path, line_no
+        )
 
 
 def iter_lines(path):

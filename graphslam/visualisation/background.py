@@ -48,16 +48,18 @@ from slamcore.errors import GraphSlamError
 #: message is the parent's ``sys.path`` (so the factory imports as it did there, a
 #: test module's class included), the second the factory and its arguments. A run
 #: abandoned before sending them leaves an end of file: nothing was recorded, no word.
-_CHILD = ("import pickle, sys\n"
-          "from multiprocessing.connection import Connection\n"
-          "conn = Connection(int(sys.argv[1]))\n"
-          "try:\n"
-          "    sys.path[:] = pickle.loads(conn.recv_bytes())\n"
-          "    start = pickle.loads(conn.recv_bytes())\n"
-          "except EOFError:\n"
-          "    sys.exit(0)\n"
-          "from graphslam.visualisation.background import _serve\n"
-          "_serve(conn, *start)\n")
+_CHILD = (
+    "import pickle, sys\n"
+    "from multiprocessing.connection import Connection\n"
+    "conn = Connection(int(sys.argv[1]))\n"
+    "try:\n"
+    "    sys.path[:] = pickle.loads(conn.recv_bytes())\n"
+    "    start = pickle.loads(conn.recv_bytes())\n"
+    "except EOFError:\n"
+    "    sys.exit(0)\n"
+    "from graphslam.visualisation.background import _serve\n"
+    "_serve(conn, *start)\n"
+)
 
 
 def _serve(conn, factory: Callable[..., Any], args: tuple) -> None:
@@ -107,13 +109,18 @@ class BackgroundLog:
 
     def __init__(self, factory: Callable[..., Any], *args: Any):
         # pickled first: a factory that cannot be sent fails here, before any child exists
-        start = [pickle.dumps(list(sys.path), pickle.HIGHEST_PROTOCOL),
-                 pickle.dumps((factory, args), pickle.HIGHEST_PROTOCOL)]
+        start = [
+            pickle.dumps(list(sys.path), pickle.HIGHEST_PROTOCOL),
+            pickle.dumps((factory, args), pickle.HIGHEST_PROTOCOL),
+        ]
         ours, theirs = socket.socketpair()
         try:
             self._proc = subprocess.Popen(
-                [sys.executable, "-c", _CHILD, str(theirs.fileno())], pass_fds=(theirs.fileno(),),
-                stdin=subprocess.DEVNULL, start_new_session=True)  # module docstring
+                [sys.executable, "-c", _CHILD, str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),),
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+            )  # module docstring
         except BaseException:
             ours.close()
             raise
@@ -127,8 +134,7 @@ class BackgroundLog:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         for message in start:
             self._queue.put(message)
-        self._sender = threading.Thread(target=self._send_all, name="graphslam-recording-sender",
-                                        daemon=True)
+        self._sender = threading.Thread(target=self._send_all, name="graphslam-recording-sender", daemon=True)
         self._sender.start()
         atexit.register(self.abandon)
 

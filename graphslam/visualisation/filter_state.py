@@ -71,8 +71,9 @@ def _merge_pairs(a: np.ndarray, start: int, width: int, axis: int) -> np.ndarray
     return out
 
 
-def entity_image(abs_rho: np.ndarray, pose_dim: int = 3, landmark_dim: int = 2,
-                 max_side: int = MAX_IMAGE_SIDE) -> np.ndarray:
+def entity_image(
+    abs_rho: np.ndarray, pose_dim: int = 3, landmark_dim: int = 2, max_side: int = MAX_IMAGE_SIDE
+) -> np.ndarray:
     """(k, k) float32 image of the largest ``|rho|`` between entities (module docstring).
 
     Args:
@@ -117,8 +118,9 @@ class ParticleSeries:
 def correlation_snapshot(ekf: EkfSlam, max_side: int = MAX_IMAGE_SIDE) -> CorrelationSnapshot:
     """The EKF's correlation image now. O(n^2): the cost of one observation update."""
     abs_rho = np.abs(correlation_matrix(ekf.state_covariance()))
-    return CorrelationSnapshot(entity_image(abs_rho, max_side=max_side),
-                               mean_off_diagonal(abs_rho), ekf.num_landmarks)
+    return CorrelationSnapshot(
+        entity_image(abs_rho, max_side=max_side), mean_off_diagonal(abs_rho), ekf.num_landmarks
+    )
 
 
 class FilterStateLogger:
@@ -152,8 +154,7 @@ class FilterStateLogger:
         ess = fs.step_ess()
         self._rows.append((k, stamp_s, fs.particle_poses[:, :2], ess))
         if fs.resampled_this_step():
-            self._events.append((k, f"resampling {fs.resample_count}: ESS {ess:.1f} "
-                                    f"of {fs.n_particles}"))
+            self._events.append((k, f"resampling {fs.resample_count}: ESS {ess:.1f} of {fs.n_particles}"))
         if len(self._rows) >= self.FLUSH_STEPS:
             self.flush()
 
@@ -163,8 +164,16 @@ class FilterStateLogger:
             return
         steps, stamps, positions, ess = zip(*self._rows, strict=True)
         timed = all(t is not None for t in stamps)
-        self.log.send_particles(self.backend, ParticleSeries(
-            np.array(steps, dtype=np.int64), np.array(stamps, dtype=np.float64) if timed else None,
-            np.stack(positions), np.array(ess), self._events), self.color_index,
-            style=not self._sent)
+        self.log.send_particles(
+            self.backend,
+            ParticleSeries(
+                np.array(steps, dtype=np.int64),
+                np.array(stamps, dtype=np.float64) if timed else None,
+                np.stack(positions),
+                np.array(ess),
+                self._events,
+            ),
+            self.color_index,
+            style=not self._sent,
+        )
         self._rows, self._events, self._sent = [], [], True

@@ -25,8 +25,16 @@ from __future__ import annotations
 from collections import defaultdict
 
 #: Archetypes that make the world a 3-D view.
-_3D = {"Points3D", "LineStrips3D", "Arrows3D", "Boxes3D", "Transform3D", "Pinhole",
-       "ViewCoordinates", "Mesh3D"}
+_3D = {
+    "Points3D",
+    "LineStrips3D",
+    "Arrows3D",
+    "Boxes3D",
+    "Transform3D",
+    "Pinhole",
+    "ViewCoordinates",
+    "Mesh3D",
+}
 _IMAGES = {"Image", "EncodedImage"}
 
 
@@ -71,9 +79,13 @@ def layout_key(logged: LoggedEntities) -> tuple:
     by_leaf: dict[str, list[str]] = defaultdict(list)
     for p in logged.paths("Scalars"):
         by_leaf[p.rsplit("/", 1)[-1]].append(p)
-    return (kind, tuple(logged.paths(*_IMAGES)),
-            tuple((leaf, tuple(paths)) for leaf, paths in by_leaf.items()),
-            tuple(logged.paths("TextLog")), tuple(logged.paths("Tensor")))
+    return (
+        kind,
+        tuple(logged.paths(*_IMAGES)),
+        tuple((leaf, tuple(paths)) for leaf, paths in by_leaf.items()),
+        tuple(logged.paths("TextLog")),
+        tuple(logged.paths("Tensor")),
+    )
 
 
 def blueprint(logged: LoggedEntities):
@@ -87,8 +99,9 @@ def blueprint(logged: LoggedEntities):
         main.append(view(name="world" if world == "3d" else "map", origin="/world"))
     images = [rrb.Spatial2DView(name=_image_name(p), origin=p) for p in image_paths]
     # one TimeSeriesView per plotted quantity (leaf name), its series from every run
-    tabs: list[rrb.View] = [rrb.TimeSeriesView(name=leaf, origin="/", contents=list(paths))
-            for leaf, paths in series]
+    tabs: list[rrb.View] = [
+        rrb.TimeSeriesView(name=leaf, origin="/", contents=list(paths)) for leaf, paths in series
+    ]
     tabs += [rrb.TextLogView(name=_tail(p), origin=p) for p in texts]
     tabs += [rrb.TensorView(name=_tail(p), origin=p) for p in tensors]
     side: list[rrb.Container | rrb.View] = [*images, *([rrb.Tabs(*tabs)] if tabs else [])]

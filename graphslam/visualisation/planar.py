@@ -48,22 +48,29 @@ class PlanarLog(RerunLog):
         if landmarks:
             ids = sorted(landmarks)
             pts = np.array([landmarks[i] for i in ids])
-            self.rec.log("world/ground_truth/landmarks",
-                         rr.Points2D(pts, colors=[GT_COLOR], radii=0.15,
-                                     labels=[str(i) for i in ids], show_labels=False), static=True)
+            self.rec.log(
+                "world/ground_truth/landmarks",
+                rr.Points2D(
+                    pts, colors=[GT_COLOR], radii=0.15, labels=[str(i) for i in ids], show_labels=False
+                ),
+                static=True,
+            )
 
-    def log_pose(self, backend: str, wTb: np.ndarray, covariance: np.ndarray | None,
-                 color_index: int = 0) -> None:
+    def log_pose(
+        self, backend: str, wTb: np.ndarray, covariance: np.ndarray | None, color_index: int = 0
+    ) -> None:
         """Current pose (arrow), its 95 % position ellipse and sigma plot."""
         rr = self._rr
         color = PALETTE[color_index % len(PALETTE)]
         heading = 1.0 * np.array([np.cos(wTb[2]), np.sin(wTb[2])])
-        self.rec.log(f"world/{backend}/pose", rr.Arrows2D(origins=[wTb[:2]], vectors=[heading],
-                                                          colors=[color]))
+        self.rec.log(
+            f"world/{backend}/pose", rr.Arrows2D(origins=[wTb[:2]], vectors=[heading], colors=[color])
+        )
         self.log_pose_uncertainty(backend, wTb, covariance, color_index)
 
-    def log_pose_uncertainty(self, backend: str, wTb: np.ndarray, covariance: np.ndarray | None,
-                             color_index: int = 0) -> None:
+    def log_pose_uncertainty(
+        self, backend: str, wTb: np.ndarray, covariance: np.ndarray | None, color_index: int = 0
+    ) -> None:
         """The 95 % position ellipse of the current pose and its sigma plot (at the set step)."""
         if covariance is None:
             return
@@ -74,8 +81,9 @@ class PlanarLog(RerunLog):
         sigma_m = float(np.sqrt(max(np.trace(covariance[:2, :2]), 0.0)))
         self.rec.log(f"plots/{backend}/pose_sigma_m", rr.Scalars(sigma_m))
 
-    def log_pose_columns(self, backend: str, steps, stamps_s, wTb: np.ndarray,
-                         color_index: int = 0, row_colors=None) -> None:
+    def log_pose_columns(
+        self, backend: str, steps, stamps_s, wTb: np.ndarray, color_index: int = 0, row_colors=None
+    ) -> None:
         """The pose arrows of many steps in one message (Rerun's columnar API): the
         same rows as :meth:`log_pose`'s arrow step by step, at a fraction of the cost
         (a log call is ~0.3 ms, the run's iSAM2 step ~2 ms). ``row_colors``: a palette
@@ -85,18 +93,22 @@ class PlanarLog(RerunLog):
         rr = self._rr
         wTb = np.asarray(wTb, dtype=np.float64).reshape(-1, 3)
         palette = np.array(PALETTE, dtype=np.uint8)
-        color = (np.tile(palette[color_index % len(PALETTE)], (len(wTb), 1)) if row_colors is None
-                 else palette[np.asarray(row_colors, dtype=np.int64) % len(PALETTE)])
+        color = (
+            np.tile(palette[color_index % len(PALETTE)], (len(wTb), 1))
+            if row_colors is None
+            else palette[np.asarray(row_colors, dtype=np.int64) % len(PALETTE)]
+        )
         indexes = [rr.TimeColumn("step", sequence=np.asarray(steps, dtype=np.int64))]
         if stamps_s is not None:
             indexes.append(rr.TimeColumn("time", duration=np.asarray(stamps_s, dtype=np.float64)))
         heading = np.column_stack([np.cos(wTb[:, 2]), np.sin(wTb[:, 2])])
-        self.rec.send_columns(f"world/{backend}/pose", indexes=indexes,
-                              columns=rr.Arrows2D.columns(origins=wTb[:, :2], vectors=heading,
-                                                          colors=color))
+        self.rec.send_columns(
+            f"world/{backend}/pose",
+            indexes=indexes,
+            columns=rr.Arrows2D.columns(origins=wTb[:, :2], vectors=heading, colors=color),
+        )
 
-    def log_estimate(self, backend: str, estimate: Estimate, color_index: int = 0,
-                     pose_groups=None) -> None:
+    def log_estimate(self, backend: str, estimate: Estimate, color_index: int = 0, pose_groups=None) -> None:
         """Trajectory, landmarks and (if present) their 95 % ellipses. ``pose_groups``:
         several robots' poses (index arrays into ``estimate.wTb``), one strip and one
         colour each."""
@@ -107,27 +119,37 @@ class PlanarLog(RerunLog):
             colors = [PALETTE[i % len(PALETTE)] for i in range(len(strips))]
         else:
             strips, colors = [estimate.wTb[:, :2]], [color]
-        self.rec.log(f"world/{backend}/trajectory",
-                     rr.LineStrips2D(strips, colors=colors, radii=0.05))
+        self.rec.log(f"world/{backend}/trajectory", rr.LineStrips2D(strips, colors=colors, radii=0.05))
         if len(estimate.landmark_ids):
-            self.rec.log(f"world/{backend}/landmarks",
-                         rr.Points2D(estimate.landmarks_w, colors=[color], radii=0.2,
-                                     labels=[str(int(i)) for i in estimate.landmark_ids],
-                                     show_labels=False))
+            self.rec.log(
+                f"world/{backend}/landmarks",
+                rr.Points2D(
+                    estimate.landmarks_w,
+                    colors=[color],
+                    radii=0.2,
+                    labels=[str(int(i)) for i in estimate.landmark_ids],
+                    show_labels=False,
+                ),
+            )
             if estimate.landmark_covariances is not None:
                 rings = ellipse_points(estimate.landmarks_w, estimate.landmark_covariances)
-                self.rec.log(f"world/{backend}/landmark_ellipses",
-                             rr.LineStrips2D(list(rings), colors=[color], radii=0.02))
+                self.rec.log(
+                    f"world/{backend}/landmark_ellipses",
+                    rr.LineStrips2D(list(rings), colors=[color], radii=0.02),
+                )
 
     def log_correlation(self, backend: str, snap: CorrelationSnapshot) -> None:
         """The EKF's entity correlation image (viridis in a tensor view) and mean |rho|."""
         rr = self._rr
-        self.rec.log(f"filter/{backend}/correlation",
-                     rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)))
+        self.rec.log(
+            f"filter/{backend}/correlation",
+            rr.Tensor(snap.image, dim_names=("entity", "entity"), value_range=(0.0, 1.0)),
+        )
         self.rec.log(f"plots/{backend}/mean_abs_correlation", rr.Scalars(snap.mean_abs))
 
-    def send_particles(self, backend: str, series: ParticleSeries, color_index: int = 0,
-                       style: bool = True) -> None:
+    def send_particles(
+        self, backend: str, series: ParticleSeries, color_index: int = 0, style: bool = True
+    ) -> None:
         """FastSLAM's particle positions, ESS before resampling and resampling entries
         of several steps, as columns on the step (and time) timelines; with ``style``
         the cloud's colour and size, static (once is enough)."""
@@ -142,18 +164,24 @@ class PlanarLog(RerunLog):
             return out if stamps is None else out + [rr.TimeColumn("time", duration=stamps)]
 
         T, N = series.positions.shape[:2]
-        self.rec.send_columns(entity, indexes(series.steps, series.stamps_s),
-                              rr.Points2D.columns(positions=series.positions.reshape(-1, 2))
-                              .partition(np.full(T, N)))
-        self.rec.send_columns(f"plots/{backend}/ess", indexes(series.steps, series.stamps_s),
-                              rr.Scalars.columns(scalars=series.ess))
+        self.rec.send_columns(
+            entity,
+            indexes(series.steps, series.stamps_s),
+            rr.Points2D.columns(positions=series.positions.reshape(-1, 2)).partition(np.full(T, N)),
+        )
+        self.rec.send_columns(
+            f"plots/{backend}/ess",
+            indexes(series.steps, series.stamps_s),
+            rr.Scalars.columns(scalars=series.ess),
+        )
         if series.events:
             at = np.searchsorted(series.steps, [k for k, _ in series.events])
             stamps = None if series.stamps_s is None else series.stamps_s[at]
-            self.rec.send_columns(f"plots/{backend}/resampling",
-                                  indexes(series.steps[at], stamps),
-                                  rr.TextLog.columns(text=[t for _, t in series.events],
-                                                     level=["INFO"] * len(series.events)))
+            self.rec.send_columns(
+                f"plots/{backend}/resampling",
+                indexes(series.steps[at], stamps),
+                rr.TextLog.columns(text=[t for _, t in series.events], level=["INFO"] * len(series.events)),
+            )
 
 
 class RunRecorder:
@@ -177,8 +205,7 @@ class RunRecorder:
     BACKGROUND_MIN_STEPS = 1000
 
     @classmethod
-    def open(cls, mode: str, path: Path, url: str | None = None, *,
-             background: bool = False) -> RunRecorder:
+    def open(cls, mode: str, path: Path, url: str | None = None, *, background: bool = False) -> RunRecorder:
         """A recorder; with ``background``, ``save`` records in a second process
         (:mod:`.background`): the run does not wait for Rerun's import and encoding.
         A viewer (``spawn``, ``connect``) is started or reached here, in this process,
@@ -220,8 +247,7 @@ class RunRecorder:
             if k % every == 0:
                 self._send_poses(backend)
                 self.log.set_step(k, frame.stamp_s)
-                self.log.log_pose_uncertainty(backend, wTb, backend_obj.current_pose_covariance(),
-                                              color)
+                self.log.log_pose_uncertainty(backend, wTb, backend_obj.current_pose_covariance(), color)
                 est = backend_obj.estimate(with_covariances=False)
                 self.log.log_estimate(backend, est, color, self._groups(est))
             filter_state(k, frame.stamp_s, backend_obj)
@@ -239,9 +265,14 @@ class RunRecorder:
         steps, stamps, poses, robots = self._pending.get(backend, ([], [], [], []))
         if steps:
             timed = stamps if all(s is not None for s in stamps) else None
-            self.log.log_pose_columns(backend, steps, timed, np.array(poses),
-                                      self.color_index(backend),
-                                      list(robots) if self._agent_of else None)
+            self.log.log_pose_columns(
+                backend,
+                steps,
+                timed,
+                np.array(poses),
+                self.color_index(backend),
+                list(robots) if self._agent_of else None,
+            )
             for column in (steps, stamps, poses, robots):
                 column.clear()
 

@@ -16,10 +16,8 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     """PNG of finished runs (``CompareEntry``): trajectories over ground truth, and pose
     errors with 3-sigma bounds over time."""
     gt = dataset.ground_truth()
-    lm = (np.array(list(dataset.landmarks_true.values())).reshape(-1, 2)
-          if dataset.landmarks_true else None)
-    tracks = [(e.backend, e.result.estimate.wTb[:, :2], e.result.estimate.landmarks_w)
-              for e in entries]
+    lm = np.array(list(dataset.landmarks_true.values())).reshape(-1, 2) if dataset.landmarks_true else None
+    tracks = [(e.backend, e.result.estimate.wTb[:, :2], e.result.estimate.landmarks_w) for e in entries]
     errors = []
     if gt is not None:
         gt_of = dict(zip(gt[0].tolist(), gt[1], strict=True))
@@ -27,13 +25,24 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
             est = e.result.estimate
             has = np.array([int(i) in gt_of for i in est.pose_ids], dtype=bool)  # partial truth
             err = errors_against_truth(est.pose_ids[has], est.wTb[has], gt_of)
-            s3 = (None if est.pose_covariances is None else
-                  3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances[has]), 0, None)))
+            s3 = (
+                None
+                if est.pose_covariances is None
+                else 3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances[has]), 0, None))
+            )
             errors.append((e.backend, np.flatnonzero(has), err, s3))
     return _comparison_figure(
-        path, f"{dataset.name}: trajectories", None if gt is None else gt[1][:, :2], lm,
-        tracks, errors, ["x error [m]", "y error [m]", "heading error [rad]"], ("x [m]", "y [m]"),
-        "error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)", "step")
+        path,
+        f"{dataset.name}: trajectories",
+        None if gt is None else gt[1][:, :2],
+        lm,
+        tracks,
+        errors,
+        ["x error [m]", "y error [m]", "heading error [rad]"],
+        ("x [m]", "y [m]"),
+        "error and 3-sigma bounds (filters: filtered; iSAM2: smoothed)",
+        "step",
+    )
 
 
 def plot_visual_comparison(entries, sequence, path: Path) -> Path:
@@ -49,15 +58,29 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
     for e in entries:
         centres, landmarks = as_scored(e, truth)
         tracks.append((e.backend, centres[:, [a, b]], landmarks[:, [a, b]]))
-    errors = [(e.backend, e.nees["frame_ids"], e.nees["errors"][:, :3],
-               3 * np.sqrt(np.clip(np.einsum("nii->ni", e.nees["covariances"])[:, :3], 0, None)))
-              for e in entries if e.nees is not None]
+    errors = [
+        (
+            e.backend,
+            e.nees["frame_ids"],
+            e.nees["errors"][:, :3],
+            3 * np.sqrt(np.clip(np.einsum("nii->ni", e.nees["covariances"])[:, :3], 0, None)),
+        )
+        for e in entries
+        if e.nees is not None
+    ]
     n = max(e.result.frames for e in entries)
     return _comparison_figure(
-        path, f"{sequence.name}: camera centres", None if truth is None else truth[:n, [a, b]],
-        None, tracks, errors, [f"{c} error, camera [m]" for c in "xyz"],
+        path,
+        f"{sequence.name}: camera centres",
+        None if truth is None else truth[:n, [a, b]],
+        None,
+        tracks,
+        errors,
+        [f"{c} error, camera [m]" for c in "xyz"],
         ("xyz"[a] + " [m]", "xyz"[b] + " [m]"),
-        "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)", "frame")
+        "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)",
+        "frame",
+    )
 
 
 def as_scored(entry, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -79,8 +102,18 @@ def as_scored(entry, truth) -> tuple[np.ndarray, np.ndarray]:
     return s * centres @ R.T + t, s * landmarks @ R.T + t
 
 
-def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, errors,
-                       error_labels, axis_labels, error_title: str, step_label: str) -> Path:
+def _comparison_figure(
+    path: Path,
+    title: str,
+    truth_xy,
+    marks_xy,
+    tracks,
+    errors,
+    error_labels,
+    axis_labels,
+    error_title: str,
+    step_label: str,
+) -> Path:
     """Trajectories ``(label, (N, 2) path, (L, 2) landmarks)`` over ``truth_xy`` on the
     left; per error component, ``(label, steps, (N, r) errors, (N, r) 3-sigma or None)``
     on the right (none without truth)."""
@@ -92,8 +125,7 @@ def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, error
     if truth_xy is not None:
         ax.plot(truth_xy[:, 0], truth_xy[:, 1], color="0.6", lw=2, label="ground truth")
     if marks_xy is not None:
-        ax.scatter(marks_xy[:, 0], marks_xy[:, 1], marker="x", color="0.6", s=12,
-                   label="true landmarks")
+        ax.scatter(marks_xy[:, 0], marks_xy[:, 1], marker="x", color="0.6", s=12, label="true landmarks")
     for i, (label, xy, landmarks) in enumerate(tracks):
         ax.plot(xy[:, 0], xy[:, 1], lw=1, color=f"C{i}", label=label)
         if len(landmarks):
@@ -110,8 +142,7 @@ def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, error
             for r in range(n_err):
                 axes[r].plot(steps, err[:, r], color=colour[label], lw=0.8, label=label)
                 if s3 is not None:
-                    axes[r].fill_between(steps, -s3[:, r], s3[:, r], color=colour[label],
-                                         alpha=0.15, lw=0)
+                    axes[r].fill_between(steps, -s3[:, r], s3[:, r], color=colour[label], alpha=0.15, lw=0)
         for r in range(n_err):
             axes[r].set_ylabel(error_labels[r])
             axes[r].axhline(0, color="0.5", lw=0.5)
@@ -121,8 +152,9 @@ def _comparison_figure(path: Path, title: str, truth_xy, marks_xy, tracks, error
     return _save(fig, path)
 
 
-def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarray,
-                    odometry: np.ndarray, rejected: np.ndarray) -> Path:
+def plot_pose_graph(
+    path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarray, odometry: np.ndarray, rejected: np.ndarray
+) -> Path:
     """PNG of an optimised pose graph seen from above (3-D graphs projected on x-y):
     the odometry chain, kept closures (thin, grey) and rejected closures (red)."""
     plt = _pyplot()
@@ -131,14 +163,21 @@ def plot_pose_graph(path: Path, title: str, xyz: np.ndarray, edge_rows: np.ndarr
     xy = np.asarray(xyz)[:, :2]
     fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
     kept = ~odometry & ~rejected
-    for mask, color, width, label in ((kept, "0.75", 0.3, f"closures kept ({kept.sum()})"),
-                                      (odometry, "C0", 0.8, "odometry"),
-                                      (~odometry & rejected, "C3", 1.0,
-                                       f"closures rejected ({(~odometry & rejected).sum()})")):
+    for mask, color, width, label in (
+        (kept, "0.75", 0.3, f"closures kept ({kept.sum()})"),
+        (odometry, "C0", 0.8, "odometry"),
+        (~odometry & rejected, "C3", 1.0, f"closures rejected ({(~odometry & rejected).sum()})"),
+    ):
         segments = np.stack([xy[edge_rows[mask, 0]], xy[edge_rows[mask, 1]]], axis=1)
         # matplotlib's stubs take a Sequence only; its docs also take an (N, 2, 2) array
-        ax.add_collection(LineCollection(segments, colors=color, linewidths=width,  # type: ignore[arg-type]
-                                         label=label))
+        ax.add_collection(
+            LineCollection(
+                segments,  # type: ignore[arg-type]
+                colors=color,
+                linewidths=width,
+                label=label,
+            )
+        )
     ax.autoscale()
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
@@ -155,8 +194,14 @@ def plot_precision_recall(points, operating: tuple[float | None, float], path: P
     fig, ax = plt.subplots(figsize=(5.5, 4.5), constrained_layout=True)
     pts = [p for p in points if p.precision is not None]
     if pts:
-        ax.plot([p.recall for p in pts], [p.precision for p in pts], "-o", ms=3, lw=1,
-                label="swept over the normalised score")
+        ax.plot(
+            [p.recall for p in pts],
+            [p.precision for p in pts],
+            "-o",
+            ms=3,
+            lw=1,
+            label="swept over the normalised score",
+        )
     prec, rec = operating
     if prec is not None:
         ax.plot([rec], [prec], "r*", ms=14, label="operating point (defaults)")
@@ -193,10 +238,8 @@ def plot_trajectory_eval(results, path: Path) -> Path:
         res, name = r.result, r.label or Path(r.path).name
         p = res.est[:, :3, 3]
         axes[0].plot(p[:, a], p[:, b], color=f"C{i}", lw=1, label=name)
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(res.ref[:, :3, 3], axis=0),
-                                                                axis=1))])
-        axes[1].plot(res.stamps_s - res.stamps_s[0], res.ate_trans_m, color=f"C{i}", lw=0.8,
-                     label=name)
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(res.ref[:, :3, 3], axis=0), axis=1))])
+        axes[1].plot(res.stamps_s - res.stamps_s[0], res.ate_trans_m, color=f"C{i}", lw=0.8, label=name)
         axes[2].plot(along, res.ate_trans_m, color=f"C{i}", lw=0.8, label=name)
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[0].set_xlabel(f"{names[a]} [m]")
@@ -232,17 +275,25 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
         fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
         for i, (label, runs) in enumerate(sorted(nees.items())):
             # step 0 is the prior pose, known exactly: no error to score
-            ax.plot(np.arange(1, runs.shape[1]), runs[:, 1:].mean(axis=0), color=f"C{i}", lw=0.8,
-                    label=f"{label} ({len(runs)} runs)")
+            ax.plot(
+                np.arange(1, runs.shape[1]),
+                runs[:, 1:].mean(axis=0),
+                color=f"C{i}",
+                lw=0.8,
+                label=f"{label} ({len(runs)} runs)",
+            )
         for n_runs in sorted({len(r) for r in nees.values()}):
             lo, hi = chi2_bounds(3, n_runs, NEES_CONFIDENCE)
-            ax.axhspan(lo, hi, color="0.5", alpha=0.15, lw=0,
-                       label=f"95 % bounds of the average of {n_runs} runs")
+            ax.axhspan(
+                lo, hi, color="0.5", alpha=0.15, lw=0, label=f"95 % bounds of the average of {n_runs} runs"
+            )
         ax.set_yscale("log")
         ax.set_xlabel("step")
         ax.set_ylabel("average pose NEES (3 dof)")
-        ax.set_title("Monte Carlo consistency: average NEES and 95 % chi-square bounds "
-                     "(filters: filtered; iSAM2: smoothed)")
+        ax.set_title(
+            "Monte Carlo consistency: average NEES and 95 % chi-square bounds "
+            "(filters: filtered; iSAM2: smoothed)"
+        )
         ax.legend(loc="best", fontsize=8)
         written.append(_save(fig, out_dir / "sweep_nees.png"))
     for group, name in [("label", "sweep_ate.png")] + [(k, f"sweep_{k}.png") for k in set_keys]:
@@ -272,19 +323,24 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def plot_pose_graph_comparison(path: Path, title: str, tracks: dict[str, np.ndarray],
-                               truth_xyz: np.ndarray | None, wall_s: dict[str, float],
-                               final_cost: dict[str, float]) -> Path:
+def plot_pose_graph_comparison(
+    path: Path,
+    title: str,
+    tracks: dict[str, np.ndarray],
+    truth_xyz: np.ndarray | None,
+    wall_s: dict[str, float],
+    final_cost: dict[str, float],
+) -> Path:
     """PNG of ``compare`` on a pose graph: each solver's positions ((N, 3), seen from
     above) over the truth's if any, and each solver's wall time labelled with its final cost."""
     plt = _pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), constrained_layout=True,
-                                 gridspec_kw={"width_ratios": [2, 1]})
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(12, 5.5), constrained_layout=True, gridspec_kw={"width_ratios": [2, 1]}
+    )
     if truth_xyz is not None:
         ax.plot(truth_xyz[:, 0], truth_xyz[:, 1], color="0.6", lw=2.5, label="ground truth")
     for i, (name, xyz) in enumerate(tracks.items()):
-        ax.plot(xyz[:, 0], xyz[:, 1], color=f"C{i}", lw=0.9, ls=("-", "--", ":")[i % 3],
-                label=name)
+        ax.plot(xyz[:, 0], xyz[:, 1], color=f"C{i}", lw=0.9, ls=("-", "--", ":")[i % 3], label=name)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -293,8 +349,13 @@ def plot_pose_graph_comparison(path: Path, title: str, tracks: dict[str, np.ndar
     names = list(wall_s)
     bars = bx.bar(names, [wall_s[n] for n in names], color=[f"C{i}" for i in range(len(names))])
     for b, n in zip(bars, names, strict=True):
-        bx.annotate(f"cost {final_cost[n]:.6g}", (b.get_x() + b.get_width() / 2, b.get_height()),
-                    ha="center", va="bottom", fontsize=8)
+        bx.annotate(
+            f"cost {final_cost[n]:.6g}",
+            (b.get_x() + b.get_width() / 2, b.get_height()),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
     bx.set_ylabel("wall time [s]")
     bx.set_title("time to the optimum")
     fig.suptitle(title)

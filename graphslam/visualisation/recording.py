@@ -37,15 +37,15 @@ FLUSH_TIMEOUT_S = 10.0
 #: chi-square 95 % quantile with 2 degrees of freedom.
 CHI2_2DOF_95 = 5.991464547107979
 _ELLIPSE_POINTS = 33
-_CIRCLE = np.stack([np.cos(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS)),
-                    np.sin(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS))])  # (2, P)
+_CIRCLE = np.stack(
+    [np.cos(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS)), np.sin(np.linspace(0, 2 * np.pi, _ELLIPSE_POINTS))]
+)  # (2, P)
 
 GT_COLOR = (160, 160, 160)
 PALETTE = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14)]
 
 
-def ellipse_points(centers: np.ndarray, covariances: np.ndarray,
-                   chi2: float = CHI2_2DOF_95) -> np.ndarray:
+def ellipse_points(centers: np.ndarray, covariances: np.ndarray, chi2: float = CHI2_2DOF_95) -> np.ndarray:
     """(M, P, 2) outline points of the ``chi2`` ellipses of (M, 2) centres, (M, 2, 2) covs."""
     vals, vecs = np.linalg.eigh(covariances)
     axes = vecs * np.sqrt(np.clip(vals, 0.0, None) * chi2)[:, None, :]  # (M, 2, 2)
@@ -69,10 +69,16 @@ def parse_viewer_url(url: str) -> tuple[str, int]:
         port = parts.port
     except ValueError:
         port = -1
-    if (parts.scheme not in VIEWER_URL_SCHEMES or not parts.hostname or port == -1
-            or parts.path.rstrip("/") != "/proxy"):
-        raise ConfigError(f"Rerun viewer URL {url!r} is not like {DEFAULT_VIEWER_URL} "
-                          f"(schemes: {', '.join(VIEWER_URL_SCHEMES)}; path /proxy)")
+    if (
+        parts.scheme not in VIEWER_URL_SCHEMES
+        or not parts.hostname
+        or port == -1
+        or parts.path.rstrip("/") != "/proxy"
+    ):
+        raise ConfigError(
+            f"Rerun viewer URL {url!r} is not like {DEFAULT_VIEWER_URL} "
+            f"(schemes: {', '.join(VIEWER_URL_SCHEMES)}; path /proxy)"
+        )
     return parts.hostname, port or VIEWER_URL_SCHEMES[parts.scheme]
 
 
@@ -109,8 +115,9 @@ def sink_problem(mode: str, url: str | None = None) -> str | None:
     if mode == "spawn":
         if find_viewer() is None:
             return "no Rerun viewer executable ('rerun') on PATH or beside the interpreter"
-        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
-                                                     or os.environ.get("WAYLAND_DISPLAY")):
+        if sys.platform.startswith("linux") and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+        ):
             return "no display to open a Rerun viewer on (DISPLAY and WAYLAND_DISPLAY unset)"
     elif mode == "connect":
         url = url or DEFAULT_VIEWER_URL
@@ -171,9 +178,15 @@ class RerunLog:
             for a live viewer, not for a file, which gets it once, at the close).
     """
 
-    def __init__(self, mode: str, path: Path | None = None, url: str | None = None,
-                 application_id: str = "graphslam", recording_id: str = "graphslam-run",
-                 live_layout: bool | None = None):
+    def __init__(
+        self,
+        mode: str,
+        path: Path | None = None,
+        url: str | None = None,
+        application_id: str = "graphslam",
+        recording_id: str = "graphslam-run",
+        live_layout: bool | None = None,
+    ):
         import rerun as rr  # imported here: no work at import time, and only this module
 
         self._rr = rr
@@ -200,11 +213,12 @@ class RerunLog:
             exe = find_viewer()
             if exe is None:
                 raise ViewerUnavailable("no Rerun viewer executable ('rerun') found")
-            rr.spawn(port=SPAWN_PORT, connect=False, executable_path=exe,
-                     recording=self._stream)
+            rr.spawn(port=SPAWN_PORT, connect=False, executable_path=exe, recording=self._stream)
             if not _wait_for_port("127.0.0.1", SPAWN_PORT, SPAWN_WAIT_S):
-                raise ViewerUnavailable(f"the Rerun viewer started ({exe}) did not open "
-                                        f"port {SPAWN_PORT} within {SPAWN_WAIT_S:.0f} s")
+                raise ViewerUnavailable(
+                    f"the Rerun viewer started ({exe}) did not open "
+                    f"port {SPAWN_PORT} within {SPAWN_WAIT_S:.0f} s"
+                )
             self.rec.connect_grpc(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy")
         elif mode == "connect":
             parse_viewer_url(url or DEFAULT_VIEWER_URL)
@@ -276,8 +290,10 @@ class RerunLog:
                 self._partial.unlink(missing_ok=True)
                 self._partial = None
                 Path(self.path).unlink(missing_ok=True)
-                raise ViewerUnavailable(f"the recording could not be written ({reason}); "
-                                        f"no {Path(self.path).name} is kept") from None
-            raise ViewerUnavailable(f"the Rerun viewer stopped taking the stream; the "
-                                    f"recording is incomplete ({reason})") from None
+                raise ViewerUnavailable(
+                    f"the recording could not be written ({reason}); no {Path(self.path).name} is kept"
+                ) from None
+            raise ViewerUnavailable(
+                f"the Rerun viewer stopped taking the stream; the recording is incomplete ({reason})"
+            ) from None
         self.rec.disconnect()

@@ -77,8 +77,11 @@ class VisualRecorder:
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if sequence.wTc_true is not None:
             p = np.asarray(sequence.wTc_true[:n_frames])[:, :3, 3]
-            self.rec.log("world/ground_truth/trajectory",
-                         rr.LineStrips3D([p], colors=[GT_COLOR], radii=0.01), static=True)
+            self.rec.log(
+                "world/ground_truth/trajectory",
+                rr.LineStrips3D([p], colors=[GT_COLOR], radii=0.01),
+                static=True,
+            )
 
     def _started(self) -> ImageSequence:
         """The sequence :meth:`start` was given (it comes before any frame)."""
@@ -95,13 +98,21 @@ class VisualRecorder:
     def _camera(self, entity: str, wTc: np.ndarray, K: np.ndarray, size, color) -> None:
         rr = self._rr
         self.rec.log(entity, rr.Transform3D(translation=wTc[:3, 3], mat3x3=wTc[:3, :3]))
-        self.rec.log(entity, rr.Pinhole(image_from_camera=K, resolution=[int(size[0]), int(size[1])],
-                                        image_plane_distance=0.3, color=color))
+        self.rec.log(
+            entity,
+            rr.Pinhole(
+                image_from_camera=K,
+                resolution=[int(size[0]), int(size[1])],
+                image_plane_distance=0.3,
+                color=color,
+            ),
+        )
 
     # ------------------------------------------------------------------ per frame
 
-    def log_frame(self, backend: str, k: int, image: np.ndarray, tracking, wTc: np.ndarray | None,
-                  color_index: int = 0) -> None:
+    def log_frame(
+        self, backend: str, k: int, image: np.ndarray, tracking, wTc: np.ndarray | None, color_index: int = 0
+    ) -> None:
         """One frame: frusta, image with its overlays, tracking plots."""
         rr = self._rr
         seq = self._started()
@@ -119,16 +130,21 @@ class VisualRecorder:
             im = rr.Image(image)
             self.rec.log(img, im.compress(jpeg_quality=self.jpeg_quality) if self.jpeg_quality else im)
         if k == 0 and tracking.cell_size_px:
-            self.rec.log(f"{img}/grid", rr.LineStrips2D(grid_lines(size, tracking.cell_size_px),
-                                                        colors=[GRID_COLOR], radii=0.5), static=True)
+            self.rec.log(
+                f"{img}/grid",
+                rr.LineStrips2D(grid_lines(size, tracking.cell_size_px), colors=[GRID_COLOR], radii=0.5),
+                static=True,
+            )
         self.rec.log(f"{img}/corners", rr.Points2D(tracking.corners, colors=[CORNER_COLOR], radii=2.0))
         s = tracking.searched
         if s.any():
             rings = ellipse_points(tracking.pred_uv[s], tracking.pred_S[s], chi2=tracking.gate)
             cols = np.where(tracking.found[s][:, None], FOUND_COLOR, MISSED_COLOR)
             labels = [str(int(i)) for i in tracking.pred_ids[s]]
-            self.rec.log(f"{img}/ellipses", rr.LineStrips2D(list(rings), colors=cols, radii=0.7,
-                                                            labels=labels, show_labels=False))
+            self.rec.log(
+                f"{img}/ellipses",
+                rr.LineStrips2D(list(rings), colors=cols, radii=0.7, labels=labels, show_labels=False),
+            )
         else:
             self.rec.log(f"{img}/ellipses", rr.Clear(recursive=False))
         f = tracking.found
@@ -154,12 +170,20 @@ class VisualRecorder:
         color = PALETTE[color_index % len(PALETTE)]
         wTc = np.asarray(estimate.wTc).reshape(-1, 4, 4)
         if len(wTc) >= 2:
-            self.rec.log(f"world/{backend}/trajectory",
-                         rr.LineStrips3D([wTc[:, :3, 3]], colors=[color], radii=0.01))
+            self.rec.log(
+                f"world/{backend}/trajectory", rr.LineStrips3D([wTc[:, :3, 3]], colors=[color], radii=0.01)
+            )
         pts = np.asarray(estimate.landmarks_w).reshape(-1, 3)
-        self.rec.log(f"world/{backend}/landmarks",
-                     rr.Points3D(pts, colors=[color], radii=0.03,
-                                 labels=[str(int(i)) for i in estimate.landmark_ids], show_labels=False))
+        self.rec.log(
+            f"world/{backend}/landmarks",
+            rr.Points3D(
+                pts,
+                colors=[color],
+                radii=0.03,
+                labels=[str(int(i)) for i in estimate.landmark_ids],
+                show_labels=False,
+            ),
+        )
 
     def hook(self, backend: str, color_index: int = 0):
         """An ``on_frame`` callback for :func:`graphslam.pipelines.spatial.run`.
@@ -190,14 +214,17 @@ class VisualRecorder:
             self._set_time(int(k))
             self._camera(f"world/{backend}/camera", T, K, seq.image_size, color)
             if j % max(1, int(every)) == 0 and j >= 1:
-                self.rec.log(f"world/{backend}/trajectory",
-                             rr.LineStrips3D([wTc[:j + 1, :3, 3]], colors=[color], radii=0.01))
+                self.rec.log(
+                    f"world/{backend}/trajectory",
+                    rr.LineStrips3D([wTc[: j + 1, :3, 3]], colors=[color], radii=0.01),
+                )
         self._set_time(max(result.frames - 1, 0))
         self.log_estimate(backend, est, color_index)
         if result.odometry_wTc is not None and len(result.odometry_wTc) >= 2:
-            self.rec.log("world/odometry/trajectory",
-                         rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)],
-                                         radii=0.01))
+            self.rec.log(
+                "world/odometry/trajectory",
+                rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)], radii=0.01),
+            )
 
     def record_comparison(self, entries, sequence) -> None:
         """Finished image-sequence runs (``CompareEntry``), one entity subtree per back
@@ -222,10 +249,12 @@ class VisualRecorder:
         det = record.detector
         fate = "ACCEPTED" if record.accepted else f"rejected: {record.reason}"
         match = record.match
-        text = (f"query {k} match {match if match is not None else det.best_match} "
-                f"score {det.score:.3f} eta {det.normalised_score or 0.0:.2f} "
-                f"inliers {det.n_inliers} pnp {None if record.pnp is None else record.pnp.n_inliers}"
-                f": {fate}")
+        text = (
+            f"query {k} match {match if match is not None else det.best_match} "
+            f"score {det.score:.3f} eta {det.normalised_score or 0.0:.2f} "
+            f"inliers {det.n_inliers} pnp {None if record.pnp is None else record.pnp.n_inliers}"
+            f": {fate}"
+        )
         level = "INFO" if record.accepted else "DEBUG"
         self.rec.log("loops/candidates", rr.TextLog(text, level=level))
         self.rec.log("plots/loops/score", rr.Scalars(float(det.score or 0.0)))
@@ -237,8 +266,7 @@ class VisualRecorder:
         W = image.shape[1]
         pair = np.hstack([image, other])
         im = rr.Image(pair)
-        self.rec.log("loops/pair", im.compress(jpeg_quality=self.jpeg_quality)
-                     if self.jpeg_quality else im)
+        self.rec.log("loops/pair", im.compress(jpeg_quality=self.jpeg_quality) if self.jpeg_quality else im)
         segs = np.asarray(links, dtype=np.float64).reshape(-1, 2, 2).copy()
         segs[:, 1, 0] += W
         color = FOUND_COLOR if record.accepted else MISSED_COLOR
@@ -249,11 +277,13 @@ class VisualRecorder:
         rr = self._rr
         ids = {int(f): i for i, f in enumerate(np.asarray(estimate.frame_ids))}
         wTc = np.asarray(estimate.wTc).reshape(-1, 4, 4)
-        segs = [np.stack([wTc[ids[c.frame_a], :3, 3], wTc[ids[c.frame_b], :3, 3]])
-                for c in closures if c.frame_a in ids and c.frame_b in ids]
+        segs = [
+            np.stack([wTc[ids[c.frame_a], :3, 3], wTc[ids[c.frame_b], :3, 3]])
+            for c in closures
+            if c.frame_a in ids and c.frame_b in ids
+        ]
         if segs:
-            self.rec.log(f"world/{backend}/loop_closures",
-                         rr.LineStrips3D(segs, colors=[color], radii=0.01))
+            self.rec.log(f"world/{backend}/loop_closures", rr.LineStrips3D(segs, colors=[color], radii=0.01))
 
     def close(self) -> None:
         self.log.close()
@@ -273,26 +303,29 @@ KEPT_CLOSURE_COLOR = (44, 160, 44, 110)
 REJECTED_CLOSURE_COLOR = (214, 39, 40)
 
 
-def log_pose_graph(log: RerunLog, graph, params: np.ndarray, rejected: np.ndarray,
-                   root: str = "world/posegraph") -> None:
+def log_pose_graph(
+    log: RerunLog, graph, params: np.ndarray, rejected: np.ndarray, root: str = "world/posegraph"
+) -> None:
     """The optimised pose graph (2-D views for 2-D graphs, 3-D otherwise):
     ``ROOT/{odometry,closures_kept,closures_rejected}``; rejected
     closures are drawn in red over the kept (translucent green) ones."""
     import rerun as rr
 
     from slamcore.posegraph import params_to_matrix
+
     T = params_to_matrix(params, graph.rotation)
-    xyz = T[:, :graph.dim, -1]
+    xyz = T[:, : graph.dim, -1]
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
     odometry = graph.odometry_mask()
     strips = rr.LineStrips2D if graph.dim == 2 else rr.LineStrips3D
-    parts = {"odometry": (odometry, ODOMETRY_COLOR, 0.02),
-             "closures_kept": (~odometry & ~rejected, KEPT_CLOSURE_COLOR, 0.01),
-             "closures_rejected": (~odometry & rejected, REJECTED_CLOSURE_COLOR, 0.03)}
+    parts = {
+        "odometry": (odometry, ODOMETRY_COLOR, 0.02),
+        "closures_kept": (~odometry & ~rejected, KEPT_CLOSURE_COLOR, 0.01),
+        "closures_rejected": (~odometry & rejected, REJECTED_CLOSURE_COLOR, 0.03),
+    }
     for name, (mask, color, radius) in parts.items():
         segments = np.stack([xyz[rows[mask, 0]], xyz[rows[mask, 1]]], axis=1)
-        log.rec.log(f"{root}/{name}", strips(segments, colors=[color], radii=radius),
-                    static=True)
+        log.rec.log(f"{root}/{name}", strips(segments, colors=[color], radii=radius), static=True)
 
 
 MAP_COLOR = (150, 150, 150)
@@ -308,11 +341,14 @@ class LocalizeRecorder(VisualRecorder):
     def start_map(self, smap, sequence, n_frames: int) -> None:
         rr = self._rr
         self.start(sequence, n_frames)
-        self.rec.log("world/map/landmarks", rr.Points3D(smap.landmark_w, colors=[MAP_COLOR],
-                                                        radii=0.02), static=True)
-        self.rec.log("world/map/keyframes", rr.LineStrips3D([smap.keyframe_wTc[:, :3, 3]],
-                                                            colors=[MAP_COLOR], radii=0.005),
-                     static=True)
+        self.rec.log(
+            "world/map/landmarks", rr.Points3D(smap.landmark_w, colors=[MAP_COLOR], radii=0.02), static=True
+        )
+        self.rec.log(
+            "world/map/keyframes",
+            rr.LineStrips3D([smap.keyframe_wTc[:, :3, 3]], colors=[MAP_COLOR], radii=0.005),
+            static=True,
+        )
         self._path: list[np.ndarray] = []
 
     def log_placement(self, i: int, image: np.ndarray, placement) -> None:
@@ -321,11 +357,16 @@ class LocalizeRecorder(VisualRecorder):
         self._set_time(i)
         K = np.asarray(seq.K, dtype=np.float64)
         if seq.wTc_true is not None:
-            self._camera("world/ground_truth/camera", np.asarray(seq.wTc_true[i]), K,
-                         seq.image_size, GT_COLOR)
-        self.rec.log("localize/status", rr.TextLog(
-            f"frame {i}: {placement.status}, {placement.inliers} inliers",
-            level="WARN" if placement.status == "lost" else "INFO"))
+            self._camera(
+                "world/ground_truth/camera", np.asarray(seq.wTc_true[i]), K, seq.image_size, GT_COLOR
+            )
+        self.rec.log(
+            "localize/status",
+            rr.TextLog(
+                f"frame {i}: {placement.status}, {placement.inliers} inliers",
+                level="WARN" if placement.status == "lost" else "INFO",
+            ),
+        )
         self.rec.log("plots/localize/inliers", rr.Scalars(float(placement.inliers)))
         cam = "world/localize/camera"
         if placement.wTc is None:
@@ -335,11 +376,14 @@ class LocalizeRecorder(VisualRecorder):
         self._camera(cam, placement.wTc, K, seq.image_size, color)
         if i % self.image_every == 0:
             im = rr.Image(image)
-            self.rec.log(f"{cam}/image", im.compress(jpeg_quality=self.jpeg_quality)
-                         if self.jpeg_quality else im)
+            self.rec.log(
+                f"{cam}/image", im.compress(jpeg_quality=self.jpeg_quality) if self.jpeg_quality else im
+            )
         self.rec.log(f"{cam}/image/inliers", rr.Points2D(placement.uv_px, colors=[color], radii=3.0))
         self._path.append(placement.wTc[:3, 3])
         # the whole path each frame would make the recording quadratic in its length
         if len(self._path) >= 2 and i % self.image_every == 0:
-            self.rec.log("world/localize/trajectory",
-                         rr.LineStrips3D([np.array(self._path)], colors=[PALETTE[0]], radii=0.01))
+            self.rec.log(
+                "world/localize/trajectory",
+                rr.LineStrips3D([np.array(self._path)], colors=[PALETTE[0]], radii=0.01),
+            )

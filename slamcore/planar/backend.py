@@ -78,8 +78,7 @@ class Backend(ABC):
                 landmarks (the filters) say so here.
         """
         raise UnsupportedError(
-            f"{self.name} cannot use relative-pose loop closures; "
-            "it closes loops by re-observing landmarks"
+            f"{self.name} cannot use relative-pose loop closures; it closes loops by re-observing landmarks"
         )
 
     def add_pose_sighting(self, sighting: PoseSighting) -> None:
@@ -88,8 +87,9 @@ class Backend(ABC):
         Raises:
             UnsupportedError: back ends that keep one robot's pose (the filters).
         """
-        raise UnsupportedError(f"{self.name} keeps one robot's pose: it cannot use sightings "
-                               "of one robot by another")
+        raise UnsupportedError(
+            f"{self.name} keeps one robot's pose: it cannot use sightings of one robot by another"
+        )
 
     @abstractmethod
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
@@ -137,7 +137,6 @@ class Backend(ABC):
         covariances, which may be slow.
         """
         return self.estimate(with_covariances=True).landmark_covariances
-
 
     def numerical_recoveries(self) -> list[str]:
         """Numerical fallbacks the back end took (e.g. another factorisation), one

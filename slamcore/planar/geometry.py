@@ -50,8 +50,7 @@ def between(wTa: np.ndarray, wTb: np.ndarray) -> np.ndarray:
     """``aTb = wTa^-1 (+) wTb`` of poses (..., 3) (numpy ``Pose2.between``)."""
     c, s = np.cos(wTa[..., 2]), np.sin(wTa[..., 2])
     dx, dy = wTb[..., 0] - wTa[..., 0], wTb[..., 1] - wTa[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(wTb[..., 2] - wTa[..., 2])],
-                    axis=-1)
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(wTb[..., 2] - wTa[..., 2])], axis=-1)
 
 
 def inverse(aTb: np.ndarray) -> np.ndarray:
@@ -70,9 +69,7 @@ def invert(aTb: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndar
     dx, dy, dth = aTb
     c, s = np.cos(dth), np.sin(dth)
     bTa = inverse(aTb)
-    J = np.array([[-c, -s, s * dx - c * dy],
-                  [s, -c, c * dx + s * dy],
-                  [0.0, 0.0, -1.0]])
+    J = np.array([[-c, -s, s * dx - c * dy], [s, -c, c * dx + s * dy], [0.0, 0.0, -1.0]])
     out = J @ covariance @ J.T
     return bTa, 0.5 * (out + out.T)
 

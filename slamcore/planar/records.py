@@ -156,7 +156,6 @@ class LoopClosure:
         object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
 
 
-
 def _checked_batch(values, shape: tuple[int, ...], what: str) -> np.ndarray:
     """(N, *shape) float64, read-only, finite; MeasurementError naming the first bad row."""
     a = np.array(values, dtype=np.float64).reshape((-1,) + shape)
@@ -181,8 +180,7 @@ def _checked_covariances(values, size: int, what: str) -> np.ndarray:
         except np.linalg.LinAlgError:  # which one: row by row, only on this failure
             bad = np.array([not _positive(m) for m in c])
     if bad.any():
-        raise MeasurementError(f"{what} {int(np.argmax(bad))}: covariance is not symmetric "
-                               f"positive definite")
+        raise MeasurementError(f"{what} {int(np.argmax(bad))}: covariance is not symmetric positive definite")
     return c
 
 
@@ -206,23 +204,28 @@ def odometry_batch(from_ids, to_ids, deltas, covariances) -> list[Odometry]:
     names the first bad row; the deltas and covariances are views of read-only arrays."""
     d = _checked_batch(deltas, (3,), "odometry row")
     c = _checked_covariances(covariances, 3, "odometry row")
-    return [_bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
-            for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))]
+    return [
+        _bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
+        for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))
+    ]
 
 
-def loop_closure_batch(from_ids, to_ids, deltas, covariances,
-                       source: str = "dataset") -> list[LoopClosure]:
+def loop_closure_batch(from_ids, to_ids, deltas, covariances, source: str = "dataset") -> list[LoopClosure]:
     """:class:`LoopClosure` records of N edges without a score, checked in bulk (see
     :func:`odometry_batch`)."""
     d = _checked_batch(deltas, (3,), "loop closure row")
     c = _checked_covariances(covariances, 3, "loop closure row")
-    return [_bare(LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k],
-                  score=None, source=source)
-            for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))]
+    return [
+        _bare(
+            LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k], score=None, source=source
+        )
+        for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))
+    ]
 
 
-def range_bearing_batch(pose_ids, landmark_ids, zs, covariances, stamps_s=None,
-                        correlation: SightingCorrelation | None = None) -> list[Observation]:
+def range_bearing_batch(
+    pose_ids, landmark_ids, zs, covariances, stamps_s=None, correlation: SightingCorrelation | None = None
+) -> list[Observation]:
     """Range-bearing :class:`Observation` records of N rows, checked in bulk (see
     :func:`odometry_batch`): finite, SPD covariances, positive ranges; ``stamps_s`` (N,)
     and ``correlation`` as the fields of that name (None: none)."""
@@ -232,10 +235,20 @@ def range_bearing_batch(pose_ids, landmark_ids, zs, covariances, stamps_s=None,
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
     stamps = [None] * len(z) if stamps_s is None else [float(t) for t in stamps_s]
-    return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
-                  kind=ObservationKind.RANGE_BEARING, signature=None, stamp_s=t,
-                  correlation=correlation)
-            for k, (p, j, t) in enumerate(zip(pose_ids, landmark_ids, stamps, strict=True))]
+    return [
+        _bare(
+            Observation,
+            pose_id=int(p),
+            landmark_id=int(j),
+            z=z[k],
+            covariance=c[k],
+            kind=ObservationKind.RANGE_BEARING,
+            signature=None,
+            stamp_s=t,
+            correlation=correlation,
+        )
+        for k, (p, j, t) in enumerate(zip(pose_ids, landmark_ids, stamps, strict=True))
+    ]
 
 
 def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
@@ -247,9 +260,20 @@ def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
     bad = z[:, 0] <= 0.0
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
-    return [_bare(Observation, pose_id=int(p), landmark_id=int(j), z=z[k], covariance=c[k],
-                  kind=ObservationKind.RANGE, signature=None, stamp_s=None, correlation=None)
-            for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))]
+    return [
+        _bare(
+            Observation,
+            pose_id=int(p),
+            landmark_id=int(j),
+            z=z[k],
+            covariance=c[k],
+            kind=ObservationKind.RANGE,
+            signature=None,
+            stamp_s=None,
+            correlation=None,
+        )
+        for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))
+    ]
 
 
 @dataclass(frozen=True, eq=False)

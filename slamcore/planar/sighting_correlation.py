@@ -69,8 +69,9 @@ class SightingCorrelation:
 
     def __post_init__(self):
         if not (math.isfinite(self.time_constant_s) and self.time_constant_s > 0.0):
-            raise ConfigError(f"sighting correlation: time constant must be > 0 s, got "
-                              f"{self.time_constant_s}")
+            raise ConfigError(
+                f"sighting correlation: time constant must be > 0 s, got {self.time_constant_s}"
+            )
         for name in ("range_share", "bearing_share"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
@@ -83,8 +84,10 @@ class SightingCorrelation:
             return 1.0, 1.0
         rho = math.exp(-abs(dt_s) / self.time_constant_s)
         gain = 2.0 * rho / (1.0 - rho) if rho < 1.0 else MAX_INFLATION
-        return (min(1.0 + self.range_share * gain, MAX_INFLATION),
-                min(1.0 + self.bearing_share * gain, MAX_INFLATION))
+        return (
+            min(1.0 + self.range_share * gain, MAX_INFLATION),
+            min(1.0 + self.bearing_share * gain, MAX_INFLATION),
+        )
 
     def covariance(self, covariance: np.ndarray, dt_s: float) -> np.ndarray:
         """``covariance`` (2, 2) ``[range, bearing]`` inflated for a sighting ``dt_s`` from

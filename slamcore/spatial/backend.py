@@ -61,13 +61,18 @@ class VisualBackend(ABC):
     supports_sequential_search: bool = False
 
     @abstractmethod
-    def initialize(self, frame_id: int, wTc: np.ndarray, covariance: np.ndarray,
-                   K: np.ndarray, image_size: tuple[int, int]) -> None:
+    def initialize(
+        self,
+        frame_id: int,
+        wTc: np.ndarray,
+        covariance: np.ndarray,
+        K: np.ndarray,
+        image_size: tuple[int, int],
+    ) -> None:
         """Anchor the first camera pose; ``K`` (3, 3), ``image_size`` ``(W, H)``."""
 
     @abstractmethod
-    def predict(self, frame_id: int, odometry: np.ndarray | None,
-                covariance: np.ndarray | None) -> None:
+    def predict(self, frame_id: int, odometry: np.ndarray | None, covariance: np.ndarray | None) -> None:
         """Add frame ``frame_id``: ``odometry`` (4, 4) is ``c_{k-1} T c_k`` with
         ``covariance`` (6, 6), or ``None`` for the back end's own motion model
         (``UnsupportedError`` if it has none)."""
@@ -97,11 +102,13 @@ class VisualBackend(ABC):
             UnsupportedError: back ends that keep no past poses (they close
                 loops by re-observing landmarks).
         """
-        raise UnsupportedError(f"{self.name} cannot use relative-pose loop closures; "
-                               "it closes loops by re-observing landmarks")
+        raise UnsupportedError(
+            f"{self.name} cannot use relative-pose loop closures; it closes loops by re-observing landmarks"
+        )
 
-    def correct_and_repredict(self, track_ids: np.ndarray, uv_px: np.ndarray,
-                              pending_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def correct_and_repredict(
+        self, track_ids: np.ndarray, uv_px: np.ndarray, pending_ids: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Sequential active search, between :meth:`predict_observations` and
         :meth:`update`: correct now with the landmarks ``track_ids`` (M,) measured
         at ``uv_px`` (M, 2), and return the predicted pixels (P, 2) and innovation
@@ -111,8 +118,9 @@ class VisualBackend(ABC):
         Raises:
             UnsupportedError: back ends that do not correct one landmark at a time.
         """
-        raise UnsupportedError(f"{self.name} cannot correct one landmark at a time "
-                               "(sequential active search)")
+        raise UnsupportedError(
+            f"{self.name} cannot correct one landmark at a time (sequential active search)"
+        )
 
     def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
         """(N, 3) current positions of the landmarks ``track_ids`` in camera

@@ -21,8 +21,12 @@ import numpy as np
 from slamcore.spatial.geometry import skew
 
 __all__ = [
-    "project", "project_jacobians", "innovation_covariance", "pose_covariance",
-    "plane_induced_affine", "intrinsics_matrix",
+    "project",
+    "project_jacobians",
+    "innovation_covariance",
+    "pose_covariance",
+    "plane_induced_affine",
+    "intrinsics_matrix",
 ]
 
 
@@ -75,9 +79,13 @@ def pose_covariance(sigma_t_m: float, sigma_r_rad: float) -> np.ndarray:
     return np.diag([sigma_t_m**2] * 3 + [sigma_r_rad**2] * 3)
 
 
-def innovation_covariance(J_pose: np.ndarray, sigma_pose: np.ndarray, sigma_px: float,
-                          J_point: np.ndarray | None = None,
-                          sigma_point: np.ndarray | None = None) -> np.ndarray:
+def innovation_covariance(
+    J_pose: np.ndarray,
+    sigma_pose: np.ndarray,
+    sigma_px: float,
+    J_point: np.ndarray | None = None,
+    sigma_point: np.ndarray | None = None,
+) -> np.ndarray:
     """``S = J_pose Sigma_pose J_pose^T (+ J_point Sigma_point J_point^T) + sigma_px^2 I`` (N, 2, 2).
 
     ``sigma_point`` may be (3, 3) (shared) or (N, 3, 3). Cross-covariances

@@ -44,8 +44,7 @@ def se3_exp(delta: np.ndarray) -> np.ndarray:
     if th < 1e-8:
         V = np.eye(3) + 0.5 * W + W @ W / 6.0
     else:
-        V = (np.eye(3) + (1 - math.cos(th)) / th**2 * W
-             + (th - math.sin(th)) / th**3 * W @ W)
+        V = np.eye(3) + (1 - math.cos(th)) / th**2 * W + (th - math.sin(th)) / th**3 * W @ W
     T = np.eye(4)
     T[:3, :3] = so3_exp(phi)
     T[:3, 3] = V @ rho

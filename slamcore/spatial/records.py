@@ -75,11 +75,19 @@ class PixelPredictions:
         return len(self.track_ids)
 
     @classmethod
-    def empty(cls, wTc: np.ndarray | None = None, K: np.ndarray | None = None,
-              max_corrections: int | None = None) -> PixelPredictions:
+    def empty(
+        cls, wTc: np.ndarray | None = None, K: np.ndarray | None = None, max_corrections: int | None = None
+    ) -> PixelPredictions:
         """No landmark predicted, from the camera ``wTc`` (4, 4) with ``K`` (3, 3) if known."""
-        return cls(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)), max_corrections,
-                   wTc=wTc, K=K, landmarks_w=None if wTc is None else np.zeros((0, 3)))
+        return cls(
+            np.zeros(0, np.int64),
+            np.zeros((0, 2)),
+            np.zeros((0, 2, 2)),
+            max_corrections,
+            wTc=wTc,
+            K=K,
+            landmarks_w=None if wTc is None else np.zeros((0, 3)),
+        )
 
 
 @dataclass(frozen=True, eq=False)

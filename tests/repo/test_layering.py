@@ -10,7 +10,9 @@ print(*check_tree(Path('OLD_CHECKOUT')), sep='\\n')"``.
 from __future__ import annotations
 
 import ast
+import io
 import textwrap
+import tokenize
 from pathlib import Path
 
 import pytest
@@ -19,9 +21,13 @@ from tests.conftest import ROOT
 from tests.layering import PACKAGES, check_tree, module_files
 
 
-#: Size limits of the architecture issue; the FPGA pixel-rate kernel is one long
+#: Size limits, in logical lines (statements: what ``tokenize`` ends with NEWLINE), so
+#: the formatter's layout (one argument a line in a long call) never moves them. The
+#: style guide's "a module over about 500 lines or a function over 60 is worth a look"
+#: is a smell detector; the test fails only past 500 and 80 (the longest functions,
+#: the run assemblies, hold 61-64 statements). The FPGA pixel-rate kernel is one long
 #: loop on purpose (it mirrors the hardware pipeline stage by stage).
-MAX_MODULE_LINES = 600
+MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
 LONG_FUNCTION_ALLOWED = {("frontend.fpga_stream", "FpgaHarrisStream._stream")}
 
@@ -80,23 +86,40 @@ def test_a_clean_temporary_tree_passes(tmp_path):
     assert check_tree(_tree(tmp_path, files)) == []
 
 
-def _functions(tree: ast.AST, prefix: str = ""):
+def _logical_line_ends(text: str) -> list[int]:
+    """The physical line on which each logical line (statement) of ``text`` ends."""
+    tokens = tokenize.generate_tokens(io.StringIO(text).readline)
+    return [tok.start[0] for tok in tokens if tok.type == tokenize.NEWLINE]
+
+
+def _functions(tree: ast.AST, ends: list[int], prefix: str = ""):
     for node in ast.iter_child_nodes(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            yield f"{prefix}{node.name}", node.end_lineno - node.lineno + 1
-            yield from _functions(node, f"{prefix}{node.name}.")
+            length = sum(node.lineno <= end <= node.end_lineno for end in ends)
+            yield f"{prefix}{node.name}", length
+            yield from _functions(node, ends, f"{prefix}{node.name}.")
         elif isinstance(node, ast.ClassDef):
-            yield from _functions(node, f"{prefix}{node.name}.")
+            yield from _functions(node, ends, f"{prefix}{node.name}.")
 
 
 def test_modules_and_functions_stay_small():
     too_long = []
     for module, path in module_files(ROOT).items():
         text = path.read_text(encoding="utf-8")
-        n = text.count("\n")
-        if n > MAX_MODULE_LINES:
-            too_long.append(f"{module}: {n} lines")
-        for name, length in _functions(ast.parse(text)):
+        ends = _logical_line_ends(text)
+        if len(ends) > MAX_MODULE_LINES:
+            too_long.append(f"{module}: {len(ends)} statements")
+        for name, length in _functions(ast.parse(text), ends):
             if length > MAX_FUNCTION_LINES and (module, name) not in LONG_FUNCTION_ALLOWED:
-                too_long.append(f"{module}.{name}: {length} lines")
+                too_long.append(f"{module}.{name}: {length} statements")
     assert too_long == []
+
+
+def test_sizes_count_statements_not_layout():
+    """A call spread over many lines is one statement; 81 statements are too many."""
+    one_call = "x = f(\n    1,\n    2,\n    3,\n)\n"
+    assert len(_logical_line_ends(one_call)) == 1
+    body = "".join(f"    a{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    text = f"def g():\n{body}"
+    ends = _logical_line_ends(text)
+    assert dict(_functions(ast.parse(text), ends)) == {"g": MAX_FUNCTION_LINES + 1}

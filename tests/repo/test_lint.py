@@ -1,7 +1,8 @@
 """The linter and the type checker run with the suite (issue 36): ruff with the
 rules of ``[tool.ruff.lint]`` in pyproject.toml (pycodestyle, pyflakes, bugbear
 (``zip`` without ``strict=`` among them), import order, pyupgrade) over the library
-packages; pyflakes' checks and syntax errors over the benchmarks and the tests;
+packages, whose layout is ``ruff format``'s (``ruff format --check``); pyflakes'
+checks and syntax errors over the benchmarks and the tests;
 mypy over the library packages. ``ruff`` and ``mypy`` are in the ``test`` extra."""
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ def test_ruff_finds_nothing():
     if ruff is None:
         pytest.fail("ruff is not installed: pip install -e '.[test]'")
     for args in (["check", "--output-format", "concise", *LIBRARY],
-                 ["check", "--select", "E9,F", "--output-format", "concise", *OTHERS]):
+                 ["check", "--select", "E9,F", "--output-format", "concise", *OTHERS],
+                 ["format", "--check", *LIBRARY]):
         proc = subprocess.run([ruff, *args], cwd=ROOT, capture_output=True, text=True)
         assert proc.returncode == 0, proc.stdout + proc.stderr
 

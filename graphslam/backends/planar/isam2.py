@@ -129,8 +129,9 @@ class Isam2Backend(Backend):
         # unknown association: owns its state (isam2_unknown)
         self._unknown: UnknownAssociation | None = None
         if self.config.association == "unknown":
-            self._unknown = UnknownAssociation(self.config.association_gate_prob,
-                                               self.config.confirm_sightings)
+            self._unknown = UnknownAssociation(
+                self.config.association_gate_prob, self.config.confirm_sightings
+            )
 
     # --- the contract -------------------------------------------------------
 
@@ -152,7 +153,8 @@ class Isam2Backend(Backend):
         else:
             raise GraphSlamError(
                 f"isam2: odometry {odometry.from_id}->{odometry.to_id} does not link new pose "
-                f"{pose_id} to a known pose")
+                f"{pose_id} to a known pose"
+            )
         self._graph.add(conv.between_factor(odometry))
         self._values.insert(X(pose_id), wTb)
         if self.config.loop_closure_gate > 0:
@@ -182,21 +184,29 @@ class Isam2Backend(Backend):
                 self._values.insert(L(lid), wTb.transformFrom(np.array([r * np.cos(b), r * np.sin(b)])))
                 self._landmark_ids.append(lid)
                 self._landmark_set.add(lid)
-            self._graph.add(conv.bearing_range_factor(self._last_sightings.observation(obs, lid), lid,
-                                                      self.config.observation_kernel,
-                                                      self.config.observation_kernel_k))
+            self._graph.add(
+                conv.bearing_range_factor(
+                    self._last_sightings.observation(obs, lid),
+                    lid,
+                    self.config.observation_kernel,
+                    self.config.observation_kernel_k,
+                )
+            )
             self._measurement_cov[lid] = obs.covariance
             assoc.append(lid)
         self._last_associations = assoc
 
-    def _update_unknown(self, unknown: UnknownAssociation,
-                        observations: Sequence[Observation]) -> list[int | None]:
+    def _update_unknown(
+        self, unknown: UnknownAssociation, observations: Sequence[Observation]
+    ) -> list[int | None]:
         """Unknown association: :mod:`.isam2_unknown` decides, this adds the factors."""
         if not observations:
             return []
         if any(o.kind is not ObservationKind.RANGE_BEARING for o in observations):
-            raise UnsupportedError("isam2: unknown association needs range-bearing sightings; "
-                                   "range-only beacons carry their ids (association = \"known\")")
+            raise UnsupportedError(
+                "isam2: unknown association needs range-bearing sightings; "
+                'range-only beacons carry their ids (association = "known")'
+            )
         pose_id = observations[0].pose_id
         if any(o.pose_id != pose_id for o in observations) or pose_id not in self._pose_set:
             raise GraphSlamError("isam2: one update takes the observations of one known pose")
@@ -248,8 +258,11 @@ class Isam2Backend(Backend):
         for pid in (sighting.from_id, sighting.to_id):
             if pid not in self._pose_set:
                 raise GraphSlamError(f"isam2: sighting refers to unknown pose {pid}")
-        self._graph.add(conv.pose_sighting_factor(sighting, self.config.observation_kernel,
-                                                  self.config.observation_kernel_k))
+        self._graph.add(
+            conv.pose_sighting_factor(
+                sighting, self.config.observation_kernel, self.config.observation_kernel_k
+            )
+        )
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         """Predicted ``[range, bearing]`` and ``S = H P H^T + R`` for known landmarks.
@@ -307,7 +320,8 @@ class Isam2Backend(Backend):
                 self._polished = self._gated_lm(params, initial)
             else:
                 self._polished = gtsam.LevenbergMarquardtOptimizer(
-                    self.factor_graph(), initial, params).optimize()
+                    self.factor_graph(), initial, params
+                ).optimize()
         return self.estimate(with_covariances=with_covariances)
 
     def current_pose_covariance(self) -> np.ndarray | None:
@@ -320,8 +334,7 @@ class Isam2Backend(Backend):
         """The landmarks' marginals alone (what a recording draws): the pose marginals
         :meth:`estimate` adds are most of its cost on long runs."""
         marginals = self._marginals(self._values_now())
-        return np.array([marginals.marginalCovariance(L(j))
-                         for j in self._landmark_ids]).reshape(-1, 2, 2)
+        return np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(-1, 2, 2)
 
     # --- extras -------------------------------------------------------------
 
@@ -357,8 +370,9 @@ class Isam2Backend(Backend):
 
     def _insert_closure(self, loop_closure: LoopClosure) -> None:
         self._loop_closures[self._n_factors + self._graph.size()] = loop_closure
-        self._graph.add(conv.between_factor(loop_closure,
-                                            self.config.loop_closure_noise(loop_closure.covariance)))
+        self._graph.add(
+            conv.between_factor(loop_closure, self.config.loop_closure_noise(loop_closure.covariance))
+        )
 
     def _gate_passes(self, lc: LoopClosure) -> bool:
         """Tier 1: squared Mahalanobis residual (closure covariance only) within the gate."""
@@ -386,8 +400,12 @@ class Isam2Backend(Backend):
             entry[1] = True
         else:
             w = self.config.gate_window
-            partners = [e for h in range(hi - w, hi + w + 1) for e in self._closures_near.get(h, ())
-                        if abs(min(e[0].from_id, e[0].to_id) - lo) <= w and self._consistent(e[0], lc)]
+            partners = [
+                e
+                for h in range(hi - w, hi + w + 1)
+                for e in self._closures_near.get(h, ())
+                if abs(min(e[0].from_id, e[0].to_id) - lo) <= w and self._consistent(e[0], lc)
+            ]
             if len(partners) >= self.config.gate_min_support:
                 self._insert_closure(lc)
                 entry[1] = True
@@ -436,8 +454,12 @@ class Isam2Backend(Backend):
         Ad_inv_B = B.inverse().AdjointMap()
         cov_Ainv = A.AdjointMap() @ cov_A @ A.AdjointMap().T
         Ad_ZaB = ZaB.inverse().AdjointMap()
-        cov = (cov_B + Ad_inv_B @ np.asarray(la.covariance) @ Ad_inv_B.T
-               + Ad_ZaB @ cov_Ainv @ Ad_ZaB.T + np.asarray(lb.covariance))
+        cov = (
+            cov_B
+            + Ad_inv_B @ np.asarray(la.covariance) @ Ad_inv_B.T
+            + Ad_ZaB @ cov_Ainv @ Ad_ZaB.T
+            + np.asarray(lb.covariance)
+        )
         e = gtsam.Pose2.Logmap(Zb.between(pred))
         return float(e @ np.linalg.solve(cov, e)) <= self._gate_threshold()
 
@@ -458,8 +480,7 @@ class Isam2Backend(Backend):
                 break
             self._flush()
 
-    def _gated_lm(self, params: gtsam.LevenbergMarquardtParams,
-                  initial: gtsam.Values) -> gtsam.Values:
+    def _gated_lm(self, params: gtsam.LevenbergMarquardtParams, initial: gtsam.Values) -> gtsam.Values:
         """LM polish with truncated least squares by removal, closures re-tested every round.
 
         Every round solves with the closures currently kept, then re-tests
@@ -514,8 +535,7 @@ class Isam2Backend(Backend):
             for lc in readmitted:
                 self._insert_closure(lc)
             self._flush()  # iSAM2 gets them too (resets _polished / _dropped)
-        self._dropped = {i for i in self._loop_closures
-                         if i < n_full and i not in kept}
+        self._dropped = {i for i in self._loop_closures if i < n_full and i not in kept}
         return result
 
     def _add_range(self, obs: Observation, lid: int) -> None:
@@ -590,11 +610,13 @@ class Isam2Backend(Backend):
             raise GraphSlamError(
                 f"isam2: indeterminate linear system near {where} with "
                 f"{self.config.factorization} factorization (isam2.factorization = "
-                f"\"auto\" falls back to QR)") from None
+                f'"auto" falls back to QR)'
+            ) from None
         self._isam = fact.rebuild_with_qr(self._isam, self.config.isam2_params())
         self._recoveries.append(
             f"iSAM2 Cholesky found an indeterminate system near {where} at pose "
-            f"{self._pose_ids[-1]}; refactored with QR from there on")
+            f"{self._pose_ids[-1]}; refactored with QR from there on"
+        )
 
     def _marginals(self, values: gtsam.Values) -> gtsam.Marginals:
         return gtsam.Marginals(self.factor_graph(), values)

@@ -144,8 +144,9 @@ class Isam2Config:
 
     def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
         """Gaussian noise of a closure, wrapped in the configured robust kernel."""
-        return conv.robust(conv.noise_from_covariance(covariance), self.loop_closure_kernel,
-                           self.loop_closure_kernel_k)
+        return conv.robust(
+            conv.noise_from_covariance(covariance), self.loop_closure_kernel, self.loop_closure_kernel_k
+        )
 
     def isam2_params(self) -> gtsam.ISAM2Params:
         params = gtsam.ISAM2Params()

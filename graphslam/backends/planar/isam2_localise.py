@@ -81,8 +81,9 @@ class Isam2Localiser(Isam2Backend):
             wTb = conv.pose2_vector(self._pose(obs.pose_id))
             _, H_m = models.observe_jacobians(wTb, point)
             R = obs.covariance + H_m @ self._map_cov[slot] @ H_m.T
-            self._graph.add(conv.bearing_range_factor(
-                dataclasses.replace(obs, covariance=0.5 * (R + R.T)), lid))
+            self._graph.add(
+                conv.bearing_range_factor(dataclasses.replace(obs, covariance=0.5 * (R + R.T)), lid)
+            )
             self._measurement_cov[lid] = obs.covariance
             assoc.append(lid)
         self._last_associations = assoc
@@ -112,7 +113,6 @@ class Isam2Localiser(Isam2Backend):
         pcov = lcov = None
         if with_covariances:
             marginals = self._marginals(values)
-            pcov = np.array([marginals.marginalCovariance(X(i))
-                             for i in self._pose_ids]).reshape(-1, 3, 3)
+            pcov = np.array([marginals.marginalCovariance(X(i)) for i in self._pose_ids]).reshape(-1, 3, 3)
             lcov = self._map_cov.copy()
         return Estimate(est.pose_ids, est.wTb, self._map_ids.copy(), landmarks, pcov, lcov)

@@ -100,8 +100,9 @@ class UnknownAssociation:
         isam.update(graph, gtsam.Values(), [m[0] for m in moves])
         return int(graph.size())
 
-    def _explained_better(self, isam: gtsam.ISAM2, new_id: int, poses: dict[int, np.ndarray]
-                          ) -> list[tuple[int, Observation, Observation, int]]:
+    def _explained_better(
+        self, isam: gtsam.ISAM2, new_id: int, poses: dict[int, np.ndarray]
+    ) -> list[tuple[int, Observation, Observation, int]]:
         """``(factor index, sighting as given, as added, new_id)`` of each sighting of a
         landmark near ``new_id`` that ``new_id`` explains better, taken off its list;
         ``poses``: the pose estimates read so far in this split, by pose id."""
@@ -120,7 +121,8 @@ class UnknownAssociation:
                 wTb = poses.get(given.pose_id)
                 if wTb is None:
                     wTb = poses[given.pose_id] = conv.pose2_vector(
-                        isam.calculateEstimatePose2(X(given.pose_id)))
+                        isam.calculateEstimatePose2(X(given.pose_id))
+                    )
                 d2 = [_d2(given, wTb, p) for p in (pos, pos_new)]
                 if given.pose_id not in taken and d2[1] < d2[0] and d2[1] <= self.associator.gate_d2:
                     moved.append((index, given, added, new_id))
@@ -139,8 +141,11 @@ class UnknownAssociation:
         # reach: five sigmas of the farthest sighting's point, plus 0.5 m for a cached
         # position that has moved since it was read
         r_max = max(float(o.z[0]) for o in observations)
-        sigma = math.sqrt(np.trace(pose_cov[:2, :2]) + r_max**2 * pose_cov[2, 2]
-                          + max(np.trace(o.covariance) * max(1.0, r_max**2) for o in observations))
+        sigma = math.sqrt(
+            np.trace(pose_cov[:2, :2])
+            + r_max**2 * pose_cov[2, 2]
+            + max(np.trace(o.covariance) * max(1.0, r_max**2) for o in observations)
+        )
         near = ids[self.associator.near(observations, wTb, cached, 5.0 * sigma + 0.5)].tolist()
         for j in near:
             self.positions[j] = np.asarray(isam.calculateEstimatePoint2(L(j)))
@@ -149,8 +154,7 @@ class UnknownAssociation:
         if near:  # iSAM2's joint marginal: pose-landmark correlations are what gate well
             keys = gtsam.KeyVector([X(pose_id)] + [L(j) for j in near])
             joint = isam.jointMarginalCovariance(keys).fullMatrix()
-        decisions = self.associator.associate(observations, wTb, np.array(near, dtype=np.int64),
-                                              lm_w, joint)
+        decisions = self.associator.associate(observations, wTb, np.array(near, dtype=np.int64), lm_w, joint)
         paired = sorted({d.landmark_id for d in decisions if d.landmark_id is not None})
         self.together.update((a, b) for a in paired for b in paired if a < b)
         for d in decisions:
@@ -159,8 +163,9 @@ class UnknownAssociation:
                 self.active.append(d.landmark())
         return decisions
 
-    def merges(self, isam: gtsam.ISAM2, paired: list[int]
-               ) -> list[tuple[int, int, gtsam.BetweenFactorPoint2]]:
+    def merges(
+        self, isam: gtsam.ISAM2, paired: list[int]
+    ) -> list[tuple[int, int, gtsam.BetweenFactorPoint2]]:
         """``(keep, drop, tie)`` of each pair of landmarks found to be one (module
         docstring), tested from the landmarks ``paired`` in the scan just added to ``isam``;
         ``tie`` is the factor that makes them one."""
@@ -187,7 +192,16 @@ class UnknownAssociation:
                 self.merged[drop] = keep
                 self.active.remove(drop)
                 self.sightings.setdefault(keep, []).extend(self.sightings.pop(drop, []))
-                out.append((keep, drop, gtsam.BetweenFactorPoint2(
-                    L(keep), L(drop), gtsam.Point2(0.0, 0.0),
-                    gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M))))
+                out.append(
+                    (
+                        keep,
+                        drop,
+                        gtsam.BetweenFactorPoint2(
+                            L(keep),
+                            L(drop),
+                            gtsam.Point2(0.0, 0.0),
+                            gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M),
+                        ),
+                    )
+                )
         return out

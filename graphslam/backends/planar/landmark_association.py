@@ -90,8 +90,7 @@ class LandmarkAssociator:
         self.candidates: list[Candidate] = []
         self._next_id = 0
 
-    def near(self, observations, wTb: np.ndarray, landmarks_w: np.ndarray,
-             reach_m: float) -> np.ndarray:
+    def near(self, observations, wTb: np.ndarray, landmarks_w: np.ndarray, reach_m: float) -> np.ndarray:
         """Indices of the landmarks (M, 2) within ``reach_m`` of any observed point:
         the only ones whose marginals the back end needs to fetch."""
         if len(landmarks_w) == 0 or not observations:
@@ -100,8 +99,9 @@ class LandmarkAssociator:
         dist = np.linalg.norm(pts[:, None, :] - landmarks_w[None, :, :], axis=2)
         return np.flatnonzero(np.min(dist, axis=0) <= reach_m)
 
-    def associate(self, observations, wTb: np.ndarray, ids: np.ndarray,
-                  landmarks_w: np.ndarray, joint_cov: np.ndarray) -> list[Decision]:
+    def associate(
+        self, observations, wTb: np.ndarray, ids: np.ndarray, landmarks_w: np.ndarray, joint_cov: np.ndarray
+    ) -> list[Decision]:
         """Decisions for one scan.
 
         Args:
@@ -142,7 +142,7 @@ class LandmarkAssociator:
         J = np.zeros((k, 2, 3 + 2 * k))  # Jacobian of each landmark's prediction
         J[:, :, :3] = H_x
         for j in range(k):
-            J[j, :, 3 + 2 * j:5 + 2 * j] = H_m[j]
+            J[j, :, 3 + 2 * j : 5 + 2 * j] = H_m[j]
         S0 = np.einsum("jac,cd,jbd->jab", J, joint_cov, J)  # (M, 2, 2)
         nu = se2.innovation(z[:, None, :], z_hat[None])  # (m, M, 2)
         d2 = np.einsum("ija,ijab,ijb->ij", nu, np.linalg.inv(S0[None] + R[:, None]), nu)
@@ -154,9 +154,17 @@ class LandmarkAssociator:
         Jp = J[pair_lm].reshape(-1, 3 + 2 * k)  # (2P, 3 + 2M)
         C = Jp @ joint_cov @ Jp.T
         for p, i in enumerate(pair_obs.tolist()):
-            C[2 * p:2 * p + 2, 2 * p:2 * p + 2] += R[i]
-        result = jcbb(z, z_hat[pair_lm], C, pair_obs, pair_lm, chi2_prob=self.gate_prob,
-                      max_nodes=MAX_JCBB_NODES, individual_d2=d2[pair_obs, pair_lm])
+            C[2 * p : 2 * p + 2, 2 * p : 2 * p + 2] += R[i]
+        result = jcbb(
+            z,
+            z_hat[pair_lm],
+            C,
+            pair_obs,
+            pair_lm,
+            chi2_prob=self.gate_prob,
+            max_nodes=MAX_JCBB_NODES,
+            individual_d2=d2[pair_obs, pair_lm],
+        )
         return result.hypothesis
 
     @staticmethod
@@ -180,8 +188,7 @@ class LandmarkAssociator:
         if open_:  # one sighting per pose: two observations of a scan are two landmarks
             means = np.array([c.mean_w for c in open_])
             covs = np.array([c.covariance for c in open_])
-            d2, nll = self._costs(z[None], np.asarray(obs.covariance)[None], wTb, pose_cov,
-                                  means, covs)
+            d2, nll = self._costs(z[None], np.asarray(obs.covariance)[None], wTb, pose_cov, means, covs)
             ok = np.flatnonzero(d2[0] <= self.gate_d2)
             if ok.size:
                 best = open_[int(ok[np.argmin(nll[0, ok])])]

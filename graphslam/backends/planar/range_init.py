@@ -109,7 +109,8 @@ class RangeLandmarkInitialiser:
         taken at ``pose_id``, whose position is ``position_w`` (2,), metres."""
         xy = np.asarray(position_w, dtype=np.float64).reshape(2).copy()
         self._pending.setdefault(landmark_id, []).append(
-            PendingRange(int(pose_id), xy, float(observation.z[0]), observation))
+            PendingRange(int(pose_id), xy, float(observation.z[0]), observation)
+        )
 
     def try_initialise(self, landmark_id: int) -> tuple[np.ndarray, list] | None:
         """``(position (2,), buffered observations)`` when ``landmark_id``'s ranges

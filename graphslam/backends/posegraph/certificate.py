@@ -56,12 +56,14 @@ REFINE_RELATIVE_TOL = 1e-6
 REFINE_MAX_ITERATIONS = 50
 
 #: What the certificate covers, written beside it in ``metrics.json``.
-CERTIFIES = ("SE-Sync's problem: the kept edges with isotropic weights (SE-Sync's, from each "
-             "information matrix) and the chordal rotation distance; 'certified' means the "
-             "estimate refined on that problem is within relative_gap of its global optimum "
-             "(weak Lagrangian duality). It does not certify the full-information cost the "
-             "solver minimised, whose estimate is max_translation_change_m / "
-             "max_rotation_change_deg from the refined one.")
+CERTIFIES = (
+    "SE-Sync's problem: the kept edges with isotropic weights (SE-Sync's, from each "
+    "information matrix) and the chordal rotation distance; 'certified' means the "
+    "estimate refined on that problem is within relative_gap of its global optimum "
+    "(weak Lagrangian duality). It does not certify the full-information cost the "
+    "solver minimised, whose estimate is max_translation_change_m / "
+    "max_rotation_change_deg from the refined one."
+)
 
 
 @dataclass(frozen=True)
@@ -96,13 +98,20 @@ class Certificate:
     wall_s: float
 
     def to_dict(self) -> dict:
-        return {"certified": self.certified, "relative_gap": self.relative_gap,
-                "chordal_cost": self.chordal_cost, "lower_bound": self.lower_bound,
-                "eta": self.eta, "negative_pivots": self.negative_pivots,
-                "max_translation_change_m": self.max_translation_change_m,
-                "max_rotation_change_deg": self.max_rotation_change_deg,
-                "iterations": self.iterations, "refine_stopped": self.refine_stopped,
-                "wall_s": self.wall_s, "covers": CERTIFIES}
+        return {
+            "certified": self.certified,
+            "relative_gap": self.relative_gap,
+            "chordal_cost": self.chordal_cost,
+            "lower_bound": self.lower_bound,
+            "eta": self.eta,
+            "negative_pivots": self.negative_pivots,
+            "max_translation_change_m": self.max_translation_change_m,
+            "max_rotation_change_deg": self.max_rotation_change_deg,
+            "iterations": self.iterations,
+            "refine_stopped": self.refine_stopped,
+            "wall_s": self.wall_s,
+            "covers": CERTIFIES,
+        }
 
 
 def uncheckable(graph: pg.PoseGraph, keep: np.ndarray) -> str | None:
@@ -120,9 +129,13 @@ class CheckInterrupted(Exception):
     """``should_stop`` ended the check (a signal): there is no certificate to give."""
 
 
-def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
-            budget_s: float | None = None,
-            should_stop: Callable[[], bool] | None = None) -> Certificate:
+def certify(
+    graph: pg.PoseGraph,
+    params: np.ndarray,
+    keep: np.ndarray,
+    budget_s: float | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> Certificate:
     """Refine ``params`` ((N, P), the graph's parameters) on SE-Sync's problem over the
     edges ``keep`` ((M,) bool; see :func:`uncheckable` first) and certify the result;
     ``budget_s``: seconds the refinement may take (None: no limit); ``should_stop``:
@@ -137,8 +150,7 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
     tree = len(rows) == n - 1  # connected (see uncheckable) with no loop
     # a tree's optimum costs 0, a bound every estimate meets (F >= 0: M is PSD), so
     # neither the refinement nor the factorisation is needed (a 100 000-pose chain: 7 s)
-    T, iterations, ended = ((T0, 0, None) if tree else
-                            refine(T0, rows, Z, p_t, p_R, budget_s, should_stop))
+    T, iterations, ended = (T0, 0, None) if tree else refine(T0, rows, Z, p_t, p_R, budget_s, should_stop)
     if ended == "signal":
         raise CheckInterrupted("a signal stopped the check")
     M = data_matrix(n, d, rows, Z, p_t, p_R)
@@ -149,16 +161,29 @@ def certify(graph: pg.PoseGraph, params: np.ndarray, keep: np.ndarray,
     dR = np.einsum("nij,nik->njk", T0[:, :d, :d], T[:, :d, :d])
     cos = np.clip((np.trace(dR, axis1=1, axis2=2) - (d - 2)) / 2.0, -1.0, 1.0)
     return Certificate(
-        certified=gap is not None and gap <= CERTIFIED_REL_GAP, chordal_cost=F,
-        lower_bound=bound, relative_gap=gap, eta=eta, negative_pivots=negative,
+        certified=gap is not None and gap <= CERTIFIED_REL_GAP,
+        chordal_cost=F,
+        lower_bound=bound,
+        relative_gap=gap,
+        eta=eta,
+        negative_pivots=negative,
         max_translation_change_m=float(np.linalg.norm(T[:, :d, d] - T0[:, :d, d], axis=1).max()),
         max_rotation_change_deg=float(np.degrees(np.arccos(cos)).max()),
-        iterations=iterations, refine_stopped=ended == "budget", wall_s=time.perf_counter() - t0)
+        iterations=iterations,
+        refine_stopped=ended == "budget",
+        wall_s=time.perf_counter() - t0,
+    )
 
 
-def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R: np.ndarray,
-           budget_s: float | None = None, should_stop: Callable[[], bool] | None = None
-           ) -> tuple[np.ndarray, int, str | None]:
+def refine(
+    T0: np.ndarray,
+    rows: np.ndarray,
+    Z: np.ndarray,
+    p_t: np.ndarray,
+    p_R: np.ndarray,
+    budget_s: float | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> tuple[np.ndarray, int, str | None]:
     """(N, d+1, d+1) poses at a local minimum of ``F`` from ``T0`` (the first pose
     held, which costs nothing: ``F`` is invariant to a global rigid motion), the
     LM's iterations, and what ended it before convergence: ``"budget"`` (``budget_s``
@@ -189,13 +214,16 @@ def refine(T0: np.ndarray, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R
     ended = deep_stack.call(_iterate, optimizer, params, t0, budget_s, should_stop)
     out = optimizer.values()
     at = out.atPose2 if d == 2 else out.atPose3
-    return (np.array([at(k).matrix() for k in range(len(T0))]), int(optimizer.iterations()),
-            ended)
+    return (np.array([at(k).matrix() for k in range(len(T0))]), int(optimizer.iterations()), ended)
 
 
-def _iterate(optimizer: gtsam.LevenbergMarquardtOptimizer,
-             params: gtsam.LevenbergMarquardtParams, t0: float, budget_s: float | None,
-             should_stop: Callable[[], bool] | None) -> str | None:
+def _iterate(
+    optimizer: gtsam.LevenbergMarquardtOptimizer,
+    params: gtsam.LevenbergMarquardtParams,
+    t0: float,
+    budget_s: float | None,
+    should_stop: Callable[[], bool] | None,
+) -> str | None:
     """gtsam's own LM loop, written out so that the time budget or a signal can end
     it; what did (see :func:`refine`)."""
     error = optimizer.error()
@@ -225,8 +253,9 @@ def stacked(T: np.ndarray) -> np.ndarray:
     return X
 
 
-def data_matrix(n: int, d: int, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray,
-                p_R: np.ndarray) -> sp.csc_matrix:
+def data_matrix(
+    n: int, d: int, rows: np.ndarray, Z: np.ndarray, p_t: np.ndarray, p_R: np.ndarray
+) -> sp.csc_matrix:
     """The sparse PSD ``M`` ((N + dN) square) with ``F(X) = tr(X M X^T)``.
 
     Per edge, the rotation term is ``w ||X A||_F^2`` with ``A``'s rows ``I`` at
@@ -272,8 +301,9 @@ def multipliers(M: sp.csc_matrix, X: np.ndarray, n: int, d: int) -> np.ndarray:
     return 0.5 * (B + B.transpose(0, 2, 1))
 
 
-def dual_bound(M: sp.csc_matrix, X: np.ndarray, n: int, d: int, F: float
-               ) -> tuple[float | None, float | None, int]:
+def dual_bound(
+    M: sp.csc_matrix, X: np.ndarray, n: int, d: int, F: float
+) -> tuple[float | None, float | None, int]:
     """``(lower bound, eta, negative pivots)``: the smallest slack of
     :data:`ETA_LADDER` for which the grounded ``S + eta I_R`` is positive definite,
     and the bound ``sum tr(Lambda_i) - eta d N`` it gives; ``(None, None, k)`` when
@@ -297,8 +327,7 @@ def negative_pivots(A: sp.csc_matrix) -> int:
     pivot (SuperLU: singular) counts as one; an ordering that pivoted rows after all
     (no inertia then) counts as not positive definite."""
     try:
-        lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
+        lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError:
         return 1
     if not np.array_equal(lu.perm_r, lu.perm_c):

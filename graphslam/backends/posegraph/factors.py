@@ -161,7 +161,6 @@ def prior(graph: PoseGraph, pose_id: int, value, sigma: float):
     return gtsam.PriorFactorPose3(int(pose_id), value, model)
 
 
-def cost(graph: PoseGraph, values: gtsam.Values, factors: gtsam.NonlinearFactorGraph | None = None
-         ) -> float:
+def cost(graph: PoseGraph, values: gtsam.Values, factors: gtsam.NonlinearFactorGraph | None = None) -> float:
     """``0.5 * sum ||whitened residual||^2`` over the file's edges."""
     return float((factors or edge_graph(graph)).error(values))

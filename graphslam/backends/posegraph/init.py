@@ -74,17 +74,21 @@ def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
     try:
         start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
-        failure = None if np.isfinite(fx.params_from(graph, start.values)).all() else (
-            "it gave non-finite poses")
+        failure = (
+            None if np.isfinite(fx.params_from(graph, start.values)).all() else ("it gave non-finite poses")
+        )
     # gtsam's C++ exceptions: std::out_of_range (IndexError), IndeterminateLinearSystem
     # and the rest (RuntimeError); anything else is a bug of ours and propagates
     except (RuntimeError, IndexError) as exc:
         failure = _why(graph, exc)
     if failure is None:
         return start
-    return Start("odometry", fx.values_of(graph, chain_initialisation(graph)),
-                 note=f"--init {method}: {NAMES[method]} failed ({failure}); LM started from "
-                      "the odometry start (edges composed along a spanning tree) instead")
+    return Start(
+        "odometry",
+        fx.values_of(graph, chain_initialisation(graph)),
+        note=f"--init {method}: {NAMES[method]} failed ({failure}); LM started from "
+        "the odometry start (edges composed along a spanning tree) instead",
+    )
 
 
 def _why(graph: PoseGraph, exc: BaseException) -> str:
@@ -109,8 +113,12 @@ def has_odometric_path(graph: PoseGraph) -> bool:
 def rank_keyed(graph: PoseGraph) -> PoseGraph:
     """``graph`` with each pose keyed by its rank (0..N-1) instead of its id."""
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
-    return replace(graph, ids=np.arange(graph.n_poses, dtype=np.int64), edges=rows,
-                   fixed=graph.index_of(graph.fixed).astype(np.int64))
+    return replace(
+        graph,
+        ids=np.arange(graph.n_poses, dtype=np.int64),
+        edges=rows,
+        fixed=graph.index_of(graph.fixed).astype(np.int64),
+    )
 
 
 def _relaxation(graph: PoseGraph, method: str, sigma: float) -> Start:
@@ -122,8 +130,7 @@ def _relaxation(graph: PoseGraph, method: str, sigma: float) -> Start:
     for e in range(graph.n_edges):
         pose_graph.add(fx.between(by_rank, e, fx.diagonal_model(graph.information[e])))
     anchor = int(fx.anchors(by_rank)[0])
-    pose_graph.add(fx.prior(by_rank, anchor, fx.pose(graph.vertices[anchor], graph.rotation),
-                            sigma))
+    pose_graph.add(fx.prior(by_rank, anchor, fx.pose(graph.vertices[anchor], graph.rotation), sigma))
     if method == "lago":
         values = deep_stack.call(gtsam.lago.initialize, pose_graph, has_odometric_path(graph))
     else:
@@ -146,19 +153,22 @@ def _shonan(graph: PoseGraph) -> Start:
     Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id.
     """
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
-    ranked = [(int(a), int(b), fx.pose(graph.measurements[e], graph.rotation),
-               fx.noise_model(graph.information[e])) for e, (a, b) in enumerate(rows)]
+    ranked = [
+        (int(a), int(b), fx.pose(graph.measurements[e], graph.rotation), fx.noise_model(graph.information[e]))
+        for e, (a, b) in enumerate(rows)
+    ]
     lm = gtsam.LevenbergMarquardtParams.CeresDefaults()
     shonan: gtsam.ShonanAveraging2 | gtsam.ShonanAveraging3
     if graph.dim == 2:
-        shonan = gtsam.ShonanAveraging2([gtsam.BetweenFactorPose2(*f) for f in ranked],
-                                        gtsam.ShonanAveragingParameters2(lm))
+        shonan = gtsam.ShonanAveraging2(
+            [gtsam.BetweenFactorPose2(*f) for f in ranked], gtsam.ShonanAveragingParameters2(lm)
+        )
     else:
-        shonan = gtsam.ShonanAveraging3([gtsam.BetweenFactorPose3(*f) for f in ranked],
-                                        gtsam.ShonanAveragingParameters3(lm))
+        shonan = gtsam.ShonanAveraging3(
+            [gtsam.BetweenFactorPose3(*f) for f in ranked], gtsam.ShonanAveragingParameters3(lm)
+        )
     p_min = graph.dim
-    rotations, min_eigenvalue = deep_stack.call(shonan.run, shonan.initializeRandomly(), p_min,
-                                                 p_min + 7)
+    rotations, min_eigenvalue = deep_stack.call(shonan.run, shonan.initializeRandomly(), p_min, p_min + 7)
     rot_of = rotations.atRot2 if graph.dim == 2 else rotations.atRot3
     R = np.array([np.asarray(rot_of(r).matrix()) for r in range(graph.n_poses)])
     return Start("shonan", _with_translations(graph, R, rows), float(min_eigenvalue))
@@ -181,7 +191,7 @@ def _with_translations(graph: PoseGraph, R: np.ndarray, rows: np.ndarray) -> gts
                 r_idx += [e * d + i, e * d + i]
                 c_idx += [ib * d + j, ia * d + j]
                 vals += [W[i, j], -W[i, j]]
-        rhs[e * d:e * d + d] = W @ (R[ia] @ graph.measurements[e, :d])
+        rhs[e * d : e * d + d] = W @ (R[ia] @ graph.measurements[e, :d])
     for i in range(d):  # gauge
         r_idx.append(graph.n_edges * d + i)
         c_idx.append(i)
@@ -191,8 +201,7 @@ def _with_translations(graph: PoseGraph, R: np.ndarray, rows: np.ndarray) -> gts
     values = gtsam.Values()
     for row, k in enumerate(graph.ids.tolist()):
         if d == 2:
-            values.insert(k, gtsam.Pose2(gtsam.Rot2.fromCosSin(R[row][0, 0], R[row][1, 0]),
-                                         t[row]))
+            values.insert(k, gtsam.Pose2(gtsam.Rot2.fromCosSin(R[row][0, 0], R[row][1, 0]), t[row]))
         else:
             values.insert(k, gtsam.Pose3(gtsam.Rot3(R[row]), t[row]))
     return values

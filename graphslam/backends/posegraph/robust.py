@@ -89,8 +89,7 @@ class EdgeErrors:
     closures: np.ndarray
 
     @classmethod
-    def at(cls, graph: PoseGraph, edges: gtsam.NonlinearFactorGraph,
-           values: gtsam.Values) -> EdgeErrors:
+    def at(cls, graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> EdgeErrors:
         errors = np.array([edges.at(e).error(values) for e in range(edges.size())])
         return cls(errors, ~graph.odometry_mask())
 
@@ -104,23 +103,27 @@ class EdgeErrors:
         return self.closures & (self.errors > threshold)
 
 
-def gnc(graph: PoseGraph, full: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-        lm_params: gtsam.LevenbergMarquardtParams, threshold: float,
-        failing: np.ndarray | None = None) -> tuple[gtsam.Values, np.ndarray]:
+def gnc(
+    graph: PoseGraph,
+    full: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    lm_params: gtsam.LevenbergMarquardtParams,
+    threshold: float,
+    failing: np.ndarray | None = None,
+) -> tuple[gtsam.Values, np.ndarray]:
     """GNC (truncated least squares) over ``full`` (the edges in file order, then
     the gauge priors), odometry and priors known inliers, every closure's
     threshold ``threshold``. Returns the estimate and (M,) bool rejected
     (closures weighed below 0.5)."""
     closures = ~graph.odometry_mask()
     params = gtsam.GncLMParams(lm_params)
-    params.setKnownInliers([i for i in range(full.size())
-                            if i >= graph.n_edges or not closures[i]])
+    params.setKnownInliers([i for i in range(full.size()) if i >= graph.n_edges or not closures[i]])
     optimizer = gtsam.GncLMOptimizer(full, values, params)
     optimizer.setInlierCostThresholds(float(threshold))
     if failing is not None:
         weights = np.ones(full.size())
-        weights[:graph.n_edges][failing] = 0.0
+        weights[: graph.n_edges][failing] = 0.0
         optimizer.setWeights(weights)
     result = deep_stack.call(optimizer.optimize)
-    weights = np.asarray(optimizer.getWeights())[:graph.n_edges]
+    weights = np.asarray(optimizer.getWeights())[: graph.n_edges]
     return result, closures & (weights < 0.5)

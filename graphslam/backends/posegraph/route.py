@@ -52,8 +52,10 @@ def consistent(graph: PoseGraph, result, alpha: float) -> tuple[bool, str]:
         return True, "the graph is a tree: every start is the optimum"
     bound = float(chi2.isf(alpha, dof))
     verdict = "within" if stat <= bound else "above"
-    return stat <= bound, (f"2 x cost over kept edges {stat:.6g} {verdict} the chi-square bound "
-                           f"{bound:.6g} ({dof} degrees of freedom, 1 - {alpha:g})")
+    return stat <= bound, (
+        f"2 x cost over kept edges {stat:.6g} {verdict} the chi-square bound "
+        f"{bound:.6g} ({dof} degrees of freedom, 1 - {alpha:g})"
+    )
 
 
 def shared_threshold(a, b) -> float | None:
@@ -80,27 +82,33 @@ def solve_auto(graph: PoseGraph, config: PoseGraphConfig, solve, should_stop=Non
     batch = solve(graph, config, "batch")
     ok, why = consistent(graph, batch, config.closure_test_alpha)
     if ok and not batch.rejected.any():
-        return _named(batch, t0, {"kept": "batch", "reason": why,
-                                  "batch": _summary(batch, batch.final_cost)})
+        return _named(batch, t0, {"kept": "batch", "reason": why, "batch": _summary(batch, batch.final_cost)})
     reason = why if not ok else f"batch rejected {int(batch.rejected.sum())} closures"
     incremental = solve(graph, config, "isam2", should_stop)
     if incremental.cut is not None:  # stopped: batch's estimate is whole
-        batch.recoveries.append("stopped while iSAM2 was tried after batch; batch's estimate "
-                                "kept")
-        return _named(batch, t0, {"kept": "batch", "reason": reason,
-                                  "batch": _summary(batch, batch.final_cost)})
+        batch.recoveries.append("stopped while iSAM2 was tried after batch; batch's estimate kept")
+        return _named(
+            batch, t0, {"kept": "batch", "reason": reason, "batch": _summary(batch, batch.final_cost)}
+        )
     threshold = shared_threshold(batch, incremental)
-    costs = {"batch": comparable_cost(graph, batch, threshold),
-             "isam2": comparable_cost(graph, incremental, threshold)}
+    costs = {
+        "batch": comparable_cost(graph, batch, threshold),
+        "isam2": comparable_cost(graph, incremental, threshold),
+    }
     kept_name = "batch" if costs["batch"] <= costs["isam2"] else "isam2"
     kept, other = (batch, "isam2") if kept_name == "batch" else (incremental, "batch")
-    route = {"kept": kept_name, "reason": f"{reason}: iSAM2 tried too",
-             "compared_on": "truncated cost" if threshold is not None else "cost",
-             "batch": _summary(batch, costs["batch"]),
-             "isam2": _summary(incremental, costs["isam2"])}
+    route = {
+        "kept": kept_name,
+        "reason": f"{reason}: iSAM2 tried too",
+        "compared_on": "truncated cost" if threshold is not None else "cost",
+        "batch": _summary(batch, costs["batch"]),
+        "isam2": _summary(incremental, costs["isam2"]),
+    }
     if costs[other] > costs[kept_name] * (1.0 + SAME_OPTIMUM_REL):
-        route["local_minimum"] = (f"{other} stopped in a local minimum ({costs[other]:.10g} "
-                                  f"against {kept_name}'s {costs[kept_name]:.10g})")
+        route["local_minimum"] = (
+            f"{other} stopped in a local minimum ({costs[other]:.10g} "
+            f"against {kept_name}'s {costs[kept_name]:.10g})"
+        )
     return _named(kept, t0, route)
 
 
@@ -119,8 +127,10 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
         route["shonan_retry"] = "not certified: batch from Shonan's rotations reached no lower cost"
         kept.route, kept.wall_s = route, wall_s
         return kept
-    route["local_minimum"] = (f"{route.get('kept', 'the first route')} stopped in a local minimum "
-                              f"({before:.10g} against {after:.10g} from Shonan's rotations)")
+    route["local_minimum"] = (
+        f"{route.get('kept', 'the first route')} stopped in a local minimum "
+        f"({before:.10g} against {after:.10g} from Shonan's rotations)"
+    )
     route["kept"] = "shonan"  # batch from Shonan's rotations
     route["shonan_retry"] = "not certified: batch from Shonan's rotations reached a lower cost"
     shonan.solver, shonan.route, shonan.wall_s = "auto", route, wall_s
@@ -128,8 +138,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
 
 
 def _summary(result, cost: float) -> dict:
-    return {"cost": cost, "closures_rejected": int(result.rejected.sum()),
-            "wall_s": result.wall_s}
+    return {"cost": cost, "closures_rejected": int(result.rejected.sum()), "wall_s": result.wall_s}
 
 
 def _named(result, t0: float, route: dict):

@@ -61,8 +61,7 @@ def schedule(n_poses: int, edge_rows: np.ndarray) -> list[Step]:
     return steps
 
 
-def _join(j: int, edge_rows: np.ndarray, added: list[bool],
-          waiting: dict[int, set[int]]) -> Step | None:
+def _join(j: int, edge_rows: np.ndarray, added: list[bool], waiting: dict[int, set[int]]) -> Step | None:
     """Pose ``j`` with the waiting poses it reaches, if that set touches the graph."""
     rows, edges, frontier = {j}, set(), [j]
     while frontier:

@@ -102,8 +102,12 @@ class SolveResult:
 StopCheck = Callable[[int], bool]
 
 
-def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
-          solver: str = "isam2", should_stop: StopCheck | None = None) -> SolveResult:
+def solve(
+    graph: PoseGraph,
+    config: PoseGraphConfig | None = None,
+    solver: str = "isam2",
+    should_stop: StopCheck | None = None,
+) -> SolveResult:
     """Optimise ``graph`` with ``solver`` (``isam2``, ``batch``, or ``auto``:
     batch, and iSAM2 too where batch's result fails a check, see :mod:`.route`).
 
@@ -113,8 +117,7 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
     """
     config = config or PoseGraphConfig()
     if solver not in SOLVERS:
-        raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: "
-                             f"{', '.join(SOLVERS)})")
+        raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: {', '.join(SOLVERS)})")
     if solver == "auto":
         return route.solve_auto(graph, config, solve, should_stop)
     t0 = time.perf_counter()
@@ -133,19 +136,40 @@ def solve(graph: PoseGraph, config: PoseGraphConfig | None = None,
             return _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
         if not config.polish:
-            return _result(graph, solver, initialisers.Start("isam2", values), values, None,
-                           edges, np.zeros(graph.n_edges, dtype=bool), recoveries, t0,
-                           isam2_s, isam2_cost)
+            return _result(
+                graph,
+                solver,
+                initialisers.Start("isam2", values),
+                values,
+                None,
+                edges,
+                np.zeros(graph.n_edges, dtype=bool),
+                recoveries,
+                t0,
+                isam2_s,
+                isam2_cost,
+            )
         starts.append(initialisers.Start("isam2", values))
     first = initialisers.initial(graph, config.init, config.prior_sigma)
     if first.note:
         recoveries.append(first.note)
     starts.append(first)
     start, at_start = _best_start(graph, edges, starts, robust, threshold)
-    final = _final_solve(graph, edges, start, at_start, first, robust, threshold, config,
-                         recoveries)
-    out = _result(graph, solver, start, final.values, final.iterations, edges, final.rejected,
-                  recoveries, t0, isam2_s, isam2_cost, final.errors)
+    final = _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries)
+    out = _result(
+        graph,
+        solver,
+        start,
+        final.values,
+        final.iterations,
+        edges,
+        final.rejected,
+        recoveries,
+        t0,
+        isam2_s,
+        isam2_cost,
+        final.errors,
+    )
     # LM that used every iteration it was allowed stopped on the cap, not on a tolerance
     out.lm_capped = final.iterations >= config.max_iterations
     out.closure_threshold = float(np.sqrt(2.0 * threshold * final.scale)) if robust else None
@@ -175,8 +199,7 @@ class FinalSolve(NamedTuple):
     errors: np.ndarray | None
 
 
-def _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries
-                 ) -> FinalSolve:
+def _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries) -> FinalSolve:
     """LM over every edge from ``start``; when closures are suspects and one fails
     the test at that least-squares optimum, GNC (the closures failing at ``start``
     weighed 0 at first) and LM over the kept edges, re-tested until the kept set
@@ -194,9 +217,14 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
     # GNC from the initialiser's start: from the iSAM2 estimate it reached the same
     # closures 3-6x slower on the RRR graphs (its first, convex, steps undo that start)
     at_start = at_start or rb.EdgeErrors.at(graph, edges, start.values)
-    guess, rejected = rb.gnc(graph, with_priors(graph, edges, first.values, config.prior_sigma),
-                             first.values, _gnc_lm_params(config), threshold,
-                             at_start.failing(threshold))
+    guess, rejected = rb.gnc(
+        graph,
+        with_priors(graph, edges, first.values, config.prior_sigma),
+        first.values,
+        _gnc_lm_params(config),
+        threshold,
+        at_start.failing(threshold),
+    )
     # re-test every closure at the kept-edge optimum under the stated noise (there the
     # kept edges cannot tell its scale: with most closures out the graph is nearly a tree)
     scale = 1.0
@@ -208,8 +236,10 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
             break
         guess, rejected = result, again
     else:
-        recoveries.append(f"closure re-test: the kept set still changed after {MAX_RETESTS} "
-                          "rounds; the last one is reported")
+        recoveries.append(
+            f"closure re-test: the kept set still changed after {MAX_RETESTS} "
+            "rounds; the last one is reported"
+        )
     return FinalSolve(result, iterations, rejected, rounds, scale, None)
 
 
@@ -228,8 +258,9 @@ def _gnc_lm_params(config: PoseGraphConfig) -> gtsam.LevenbergMarquardtParams:
     return params
 
 
-def _isam2_edges(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, robust: bool,
-                 threshold: float) -> gtsam.NonlinearFactorGraph:
+def _isam2_edges(
+    graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, robust: bool, threshold: float
+) -> gtsam.NonlinearFactorGraph:
     """The factors iSAM2 adds: the file's edges, closures under the Cauchy kernel
     when ``robust`` (see :mod:`.robust`)."""
     if not robust:
@@ -238,14 +269,21 @@ def _isam2_edges(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, robust: bo
     kernel = rb.cauchy_kernel(threshold)
     out = gtsam.NonlinearFactorGraph()
     for e in range(graph.n_edges):
-        out.add(fx.between(graph, e, gtsam.noiseModel.Robust.Create(
-            kernel, fx.noise_model(graph.information[e]))) if closures[e] else edges.at(e))
+        out.add(
+            fx.between(graph, e, gtsam.noiseModel.Robust.Create(kernel, fx.noise_model(graph.information[e])))
+            if closures[e]
+            else edges.at(e)
+        )
     return out
 
 
-def _best_start(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph,
-                starts: list[initialisers.Start], robust: bool, threshold: float
-                ) -> tuple[initialisers.Start, rb.EdgeErrors | None]:
+def _best_start(
+    graph: PoseGraph,
+    edges: gtsam.NonlinearFactorGraph,
+    starts: list[initialisers.Start],
+    robust: bool,
+    threshold: float,
+) -> tuple[initialisers.Start, rb.EdgeErrors | None]:
     """The start of lowest cost (truncated when ``robust``; ties go to the first,
     the iSAM2 estimate) and, when ``robust``, its edge errors (computed on demand
     by the caller for a single start: None)."""
@@ -257,32 +295,71 @@ def _best_start(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph,
     return min(scored, key=lambda pair: pair[1].truncated_cost(threshold))
 
 
-def _result(graph, solver, start, values, iterations, edges, rejected, recoveries, t0,
-            isam2_s, isam2_cost, errors: np.ndarray | None = None) -> SolveResult:
+def _result(
+    graph,
+    solver,
+    start,
+    values,
+    iterations,
+    edges,
+    rejected,
+    recoveries,
+    t0,
+    isam2_s,
+    isam2_cost,
+    errors: np.ndarray | None = None,
+) -> SolveResult:
     if errors is None:
         errors = np.array([edges.at(i).error(values) for i in range(edges.size())])
     residuals = np.sqrt(2.0 * errors)
-    return SolveResult(solver, fx.params_from(graph, values), start.method,
-                       fx.cost(graph, start.values, edges), fx.cost(graph, values, edges),
-                       iterations, residuals, rejected, start.certificate, recoveries,
-                       time.perf_counter() - t0, isam2_s, isam2_cost)
+    return SolveResult(
+        solver,
+        fx.params_from(graph, values),
+        start.method,
+        fx.cost(graph, start.values, edges),
+        fx.cost(graph, values, edges),
+        iterations,
+        residuals,
+        rejected,
+        start.certificate,
+        recoveries,
+        time.perf_counter() - t0,
+        isam2_s,
+        isam2_cost,
+    )
 
 
-def _cut_result(graph: PoseGraph, values: gtsam.Values, recoveries: list[str], t0: float,
-                isam2_s: float) -> SolveResult:
+def _cut_result(
+    graph: PoseGraph, values: gtsam.Values, recoveries: list[str], t0: float, isam2_s: float
+) -> SolveResult:
     """The incremental estimate of the poses added before a stop, on their subgraph."""
     added = np.array([values.exists(k) for k in graph.ids.tolist()], dtype=bool)
     cut = graph.subgraph(added)
     edges = fx.edge_graph(cut)
-    result = _result(cut, "isam2", initialisers.Start("isam2", values), values, None, edges,
-                     np.zeros(cut.n_edges, dtype=bool), recoveries, t0, isam2_s,
-                     fx.cost(cut, values, edges))
+    result = _result(
+        cut,
+        "isam2",
+        initialisers.Start("isam2", values),
+        values,
+        None,
+        edges,
+        np.zeros(cut.n_edges, dtype=bool),
+        recoveries,
+        t0,
+        isam2_s,
+        fx.cost(cut, values, edges),
+    )
     result.cut = cut
     return result
 
 
-def with_priors(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                sigma: float, drop: np.ndarray | None = None) -> gtsam.NonlinearFactorGraph:
+def with_priors(
+    graph: PoseGraph,
+    edges: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    sigma: float,
+    drop: np.ndarray | None = None,
+) -> gtsam.NonlinearFactorGraph:
     """The edges plus the gauge priors (FIX poses at their vertex, else the first
     pose where ``values`` has it). Priors come last: edge ``e`` is factor ``e``,
     unless ``drop`` ((M,) bool) leaves edges out."""
@@ -293,9 +370,11 @@ def with_priors(graph: PoseGraph, edges: gtsam.NonlinearFactorGraph, values: gts
         for e in np.flatnonzero(~drop).tolist():
             full.add(edges.at(e))
     for k in fx.anchors(graph).tolist():
-        held = (fx.pose(graph.vertices[graph.index_of(np.array([k], dtype=np.int64))[0]],
-                        graph.rotation)
-                if len(graph.fixed) else _at(graph, values, k))
+        held = (
+            fx.pose(graph.vertices[graph.index_of(np.array([k], dtype=np.int64))[0]], graph.rotation)
+            if len(graph.fixed)
+            else _at(graph, values, k)
+        )
         full.add(fx.prior(graph, k, held, sigma))
     return full
 
@@ -309,13 +388,13 @@ def lm_params(config: PoseGraphConfig, factorization: str) -> gtsam.LevenbergMar
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_error_tol)
     params.setAbsoluteErrorTol(config.absolute_error_tol)
-    params.setLinearSolverType("MULTIFRONTAL_QR" if factorization == "qr"
-                               else "MULTIFRONTAL_CHOLESKY")
+    params.setLinearSolverType("MULTIFRONTAL_QR" if factorization == "qr" else "MULTIFRONTAL_CHOLESKY")
     return params
 
 
-def lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGraphConfig,
-       recoveries: list[str]) -> tuple[gtsam.Values, int]:
+def lm(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGraphConfig, recoveries: list[str]
+) -> tuple[gtsam.Values, int]:
     """Levenberg-Marquardt; ``auto`` re-runs with QR where Cholesky fails."""
     kinds = ["cholesky", "qr"] if config.factorization == "auto" else [config.factorization]
     for i, kind in enumerate(kinds):
@@ -327,10 +406,12 @@ def lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGrap
                 raise
             where = fact.failed_variable(exc) or "?"
             if i == len(kinds) - 1:
-                raise GraphSlamError(f"batch LM: indeterminate linear system near {where} with "
-                                     f"{kind} factorization") from None
-            recoveries.append(f"batch LM: Cholesky found an indeterminate system near {where}; "
-                              "re-run with QR")
+                raise GraphSlamError(
+                    f"batch LM: indeterminate linear system near {where} with {kind} factorization"
+                ) from None
+            recoveries.append(
+                f"batch LM: Cholesky found an indeterminate system near {where}; re-run with QR"
+            )
             continue
         return result, int(optimizer.iterations())
     raise AssertionError("unreachable")
@@ -339,8 +420,7 @@ def lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGrap
 class Isam2PoseGraph:
     """The incremental solve; :meth:`run` returns the iSAM2 estimate."""
 
-    def __init__(self, graph: PoseGraph, config: PoseGraphConfig,
-                 edges: gtsam.NonlinearFactorGraph):
+    def __init__(self, graph: PoseGraph, config: PoseGraphConfig, edges: gtsam.NonlinearFactorGraph):
         self.graph, self.config, self.edges = graph, config, edges
         self.rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
         self.steps = schedule(graph.n_poses, self.rows)
@@ -352,8 +432,10 @@ class Isam2PoseGraph:
         self.recoveries: list[str] = []
         # the factors' own measurements (the same poses, and 6x cheaper than rebuilding them);
         # the edges are Between factors, which at() returns as such (the stubs: the base class)
-        self.meas = [cast("gtsam.BetweenFactorPose2 | gtsam.BetweenFactorPose3",
-                          edges.at(e)).measured() for e in range(edges.size())]
+        self.meas = [
+            cast("gtsam.BetweenFactorPose2 | gtsam.BetweenFactorPose3", edges.at(e)).measured()
+            for e in range(edges.size())
+        ]
         fixed = set(graph.fixed.tolist())
         self.anchored = fixed or {int(graph.ids[0])}
         self.ids = graph.ids.tolist()
@@ -381,8 +463,7 @@ class Isam2PoseGraph:
                 value = fx.pose(g.vertices[row], g.rotation)
             else:
                 src_key = ids[src]
-                base = (_at(g, values, src_key) if values.exists(src_key)
-                        else self._estimate(src_key))
+                base = _at(g, values, src_key) if values.exists(src_key) else self._estimate(src_key)
                 z = self.meas[e]
                 value = base.compose(z if self.to_row[e] == row else z.inverse())
             values.insert(k, value)
@@ -409,20 +490,26 @@ class Isam2PoseGraph:
                 raise
             where = fact.failed_variable(exc) or "?"
             if self.config.factorization == "cholesky":
-                raise GraphSlamError(f"isam2: indeterminate linear system near {where} with "
-                                     "cholesky factorization (factorization = \"auto\" falls "
-                                     "back to QR)") from None
+                raise GraphSlamError(
+                    f"isam2: indeterminate linear system near {where} with "
+                    'cholesky factorization (factorization = "auto" falls '
+                    "back to QR)"
+                ) from None
             if self.config.factorization == "auto" and not self.recoveries:
-                self.recoveries.append(f"iSAM2 Cholesky found an indeterminate system near "
-                                       f"{where} at update {n}; refactored with QR from there on")
+                self.recoveries.append(
+                    f"iSAM2 Cholesky found an indeterminate system near "
+                    f"{where} at update {n}; refactored with QR from there on"
+                )
                 try:
                     self.isam = fact.rebuild_with_qr(self.isam, self.params)
                     return True
                 except RuntimeError as again:
                     if not fact.is_indeterminate(again):
                         raise
-            self.recoveries.append(f"iSAM2 QR failed too near {where} at update {n}; the "
-                                   "rest of the graph was solved by batch LM")
+            self.recoveries.append(
+                f"iSAM2 QR failed too near {where} at update {n}; the "
+                "rest of the graph was solved by batch LM"
+            )
             return False
 
     def _batch_rest(self, n: int) -> gtsam.Values:

@@ -96,6 +96,7 @@ PRIOR_SIGMA_FLOOR = 1e-4
 #: scale (the bootstrap baseline = 1), in that unit: a gauge, not a measurement.
 SCALE_GAUGE_SIGMA = 1e-3
 
+
 class VisualIsam2Backend(VisualBackend):
     """Smoothing visual back end on ``gtsam.ISAM2``; tracks give the association."""
 
@@ -118,9 +119,9 @@ class VisualIsam2Backend(VisualBackend):
         self._size = (0, 0)
         self._mapper = TrackMapper(self.config)  # tracks not yet mapped
         self._lms = LandmarkSlots()  # mapped landmarks; read epochs are _epoch's
-        self._ordering = RootOrderingPolicy(self.config.predicted_in_root,
-                                            self.config.newest_pose_last,
-                                            self.config.max_predictions)
+        self._ordering = RootOrderingPolicy(
+            self.config.predicted_in_root, self.config.newest_pose_last, self.config.max_predictions
+        )
         self._closures: list[tuple[int, int, gtsam.Pose3, np.ndarray]] = []  # (a, b, aTb, cov)
         self._pose_cache: dict[int, gtsam.Pose3] = {}  # valid until the next isam.update
         self._noise_cache: dict[float, gtsam.noiseModel.Base] = {}
@@ -128,8 +129,12 @@ class VisualIsam2Backend(VisualBackend):
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._epoch = 0  # changes whenever the estimate can: each isam update, a polish
-        self._stats = {"unused_pixels": 0, "loop_closures": 0, "predicted_outside_root": 0,
-                       "landmarks_dropped_indeterminate": 0}  # after the mapper's counts
+        self._stats = {
+            "unused_pixels": 0,
+            "loop_closures": 0,
+            "predicted_outside_root": 0,
+            "landmarks_dropped_indeterminate": 0,
+        }  # after the mapper's counts
 
     # --- the contract -------------------------------------------------------
 
@@ -144,8 +149,9 @@ class VisualIsam2Backend(VisualBackend):
         cov = cov + PRIOR_SIGMA_FLOOR**2 * np.eye(6)
         fid = int(frame_id)
         if self.has_motion_model:  # camera alone: no pose until the first map is made
-            self._mono = MonoMotion(self.config.mono, K, np.asarray(wTc, dtype=np.float64), cov,
-                                    self.config.seed)
+            self._mono = MonoMotion(
+                self.config.mono, K, np.asarray(wTc, dtype=np.float64), cov, self.config.seed
+            )
             self._mono.next_frame(fid)
             return
         self._graph.add(gtsam.PriorFactorPose3(X(fid), conv.pose3(wTc), conv.pose3_noise(cov)))
@@ -157,8 +163,10 @@ class VisualIsam2Backend(VisualBackend):
             self._predict_camera_only(self._mono, int(frame_id), odometry)
             return
         if odometry is None:
-            raise UnsupportedError("isam2 (visual) with robot_model = 'odometry' has no motion "
-                                   "model of its own: predict() needs odometry")
+            raise UnsupportedError(
+                "isam2 (visual) with robot_model = 'odometry' has no motion "
+                "model of its own: predict() needs odometry"
+            )
         if not self._frames:
             raise GraphSlamError("isam2 (visual): predict() before initialize()")
         fid = int(frame_id)
@@ -208,13 +216,11 @@ class VisualIsam2Backend(VisualBackend):
             if slot is None:  # buffered until it has parallax
                 self._mapper.observe(tid, fid, uv[i], sigma, now, rays[i])
                 continue
-            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                uv[i], noise, X(fid), L(tid), self._cal))
+            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(uv[i], noise, X(fid), L(tid), self._cal))
             lms.nobs[slot] += 1
             lms.sigma[slot] = sigma
             lms.last[slot] = now
-        for tid, point, track in self._mapper.map_queued(fid, now, budget, self._pose,
-                                                         self._cal, self._K):
+        for tid, point, track in self._mapper.map_queued(fid, now, budget, self._pose, self._cal, self._K):
             self._map_track(tid, point, track)
 
     def _map_track(self, tid: int, point: np.ndarray, track: Track) -> None:
@@ -222,8 +228,9 @@ class VisualIsam2Backend(VisualBackend):
         key = L(tid)
         self._values.insert(key, point)
         for f, u, s in zip(track.frames, track.uv, track.sigma, strict=True):
-            self._graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                u, self._pixel_noise(s), X(f), key, self._cal))
+            self._graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(u, self._pixel_noise(s), X(f), key, self._cal)
+            )
         self._lms.add(tid, point, len(track.frames), track.sigma[-1], len(self._frames) - 1)
 
     def predict_observations(self) -> PixelPredictions:
@@ -250,7 +257,8 @@ class VisualIsam2Backend(VisualBackend):
             # one call for the pose and all selected landmarks: the Bayes-tree
             # work is shared (one call per landmark costs nearly as much each)
             joint = self._isam.jointMarginalCovariance(
-                [x_key] + [L(self._lms.ids[s]) for s in slots.tolist()])
+                [x_key] + [L(self._lms.ids[s]) for s in slots.tolist()]
+            )
             cov_x = A @ joint.at(x_key, x_key) @ A.T + Q
         else:
             cov_x = A @ self._pose_marginal(x_key) @ A.T + Q
@@ -265,15 +273,16 @@ class VisualIsam2Backend(VisualBackend):
             if joint is not None:
                 l_key = L(tid)
                 cross = D_pose @ A @ joint.at(x_key, l_key) @ D_point.T
-                S_i = (D_pose @ cov_x @ D_pose.T + cross + cross.T
-                       + D_point @ joint.at(l_key, l_key) @ D_point.T)
+                S_i = (
+                    D_pose @ cov_x @ D_pose.T + cross + cross.T + D_point @ joint.at(l_key, l_key) @ D_point.T
+                )
             else:
-                S_i = (D_pose @ cov_x @ D_pose.T
-                       + D_point @ self._point_marginal(L(tid)) @ D_point.T)
+                S_i = D_pose @ cov_x @ D_pose.T + D_point @ self._point_marginal(L(tid)) @ D_point.T
             S[i] = 0.5 * (S_i + S_i.T) + self._lms.sigma[s] ** 2 * np.eye(2)
             ids[i] = tid
-        return PixelPredictions(ids, uvs, S, wTc=empty.wTc, K=empty.K,
-                                landmarks_w=self._lms.pos[slots].copy())
+        return PixelPredictions(
+            ids, uvs, S, wTc=empty.wTc, K=empty.K, landmarks_w=self._lms.pos[slots].copy()
+        )
 
     def _prediction_source(self) -> tuple[int, np.ndarray, np.ndarray]:
         """``(key, A, Q)``: the current pose is ``A`` times the perturbation of pose
@@ -290,24 +299,26 @@ class VisualIsam2Backend(VisualBackend):
         frame_ids = np.asarray(self._frames, dtype=np.int64)
         lm_ids = np.asarray(self._lms.ids, dtype=np.int64)
         if not self._frames:
-            return VisualEstimate(frame_ids, np.zeros((0, 4, 4)), lm_ids, np.zeros((0, 3)),
-                                  None, self.stats())
+            return VisualEstimate(
+                frame_ids, np.zeros((0, 4, 4)), lm_ids, np.zeros((0, 3)), None, self.stats()
+            )
         values = self._polished if self._polished is not None else self._isam.calculateEstimate()
         wTc = np.array([conv.pose3_matrix(values.atPose3(X(f))) for f in self._frames])
         pts = np.array([values.atPoint3(L(t)) for t in self._lms.ids]).reshape(-1, 3)
-        self._lms.pos[:self._lms.n] = pts  # free refresh of the pre-selection cache
-        self._lms.read[:self._lms.n] = self._epoch
+        self._lms.pos[: self._lms.n] = pts  # free refresh of the pre-selection cache
+        self._lms.read[: self._lms.n] = self._epoch
         if self._polished is not None:
             cov = self._current_cov_polished
         else:
-            cov = conv.pose3_covariance_from_gtsam(
-                self._isam.marginalCovariance(X(self._frames[-1])))
+            cov = conv.pose3_covariance_from_gtsam(self._isam.marginalCovariance(X(self._frames[-1])))
         return VisualEstimate(frame_ids, wTc, lm_ids, pts.copy(), cov, self.stats())
 
     def finalize(self) -> VisualEstimate:
         if self._mono is not None and not self._mono.mapped:
-            raise GraphSlamError("isam2 (visual): monocular tracking never started: no two frames "
-                                 f"gave a first map ({self._mono.bootstrap_reason})")
+            raise GraphSlamError(
+                "isam2 (visual): monocular tracking never started: no two frames "
+                f"gave a first map ({self._mono.bootstrap_reason})"
+            )
         self._flush()
         if self.config.polish and self._polished is None and self._frames:
             params = gtsam.LevenbergMarquardtParams()
@@ -315,19 +326,23 @@ class VisualIsam2Backend(VisualBackend):
             graph = self.factor_graph()
             if self.config.polish_method == "gnc" and self._closures:
                 graph, polished, dropped = gnc_polish(
-                    graph, self._isam.calculateEstimate(), self._closures, params)
+                    graph, self._isam.calculateEstimate(), self._closures, params
+                )
                 self._stats["closures_dropped_by_gnc"] = dropped
             else:
                 polished = gtsam.LevenbergMarquardtOptimizer(
-                    graph, self._isam.calculateEstimate(), params).optimize()
+                    graph, self._isam.calculateEstimate(), params
+                ).optimize()
             self._polished = polished
             self._current_cov_polished = conv.pose3_covariance_from_gtsam(
-                self._polished_pose_covariance(graph, polished, X(self._frames[-1])))
+                self._polished_pose_covariance(graph, polished, X(self._frames[-1]))
+            )
             self._epoch += 1
         return self.estimate()
 
-    def _polished_pose_covariance(self, graph: gtsam.NonlinearFactorGraph, polished: gtsam.Values,
-                                  key: int) -> np.ndarray:
+    def _polished_pose_covariance(
+        self, graph: gtsam.NonlinearFactorGraph, polished: gtsam.Values, key: int
+    ) -> np.ndarray:
         """The last pose's covariance from a batch factorisation at the polish; where
         that Cholesky meets an indeterminate system (a landmark the polish left barely
         constrained, e.g. seen from two close frames), iSAM2's own marginal, counted
@@ -351,8 +366,9 @@ class VisualIsam2Backend(VisualBackend):
         aTb = chk.checked_transform(closure.aTb, f"loop closure {a}-{b} pose")
         cov = chk.checked_covariance(closure.covariance, f"loop closure {a}-{b}")
         measured = conv.pose3(aTb)
-        noise = conv.robust(conv.pose3_noise(cov), self.config.loop_closure_kernel,
-                            self.config.loop_closure_kernel_k)
+        noise = conv.robust(
+            conv.pose3_noise(cov), self.config.loop_closure_kernel, self.config.loop_closure_kernel_k
+        )
         self._graph.add(gtsam.BetweenFactorPose3(X(a), X(b), measured, noise))
         self._closures.append((a, b, measured, cov))
         self._stats["loop_closures"] += 1
@@ -364,8 +380,9 @@ class VisualIsam2Backend(VisualBackend):
         ids = np.asarray(track_ids, dtype=np.int64).reshape(-1)
         out = np.full((len(ids), 3), np.nan)
         # reads go through iSAM2's current solution (pending factors stay pending)
-        T = conv.pose3_matrix(self._polished.atPose3(X(fid)) if self._polished is not None
-                              else self._pose(fid))
+        T = conv.pose3_matrix(
+            self._polished.atPose3(X(fid)) if self._polished is not None else self._pose(fid)
+        )
         for i, tid in enumerate(ids.tolist()):
             if tid in self._lms.slot:
                 out[i] = (self._point(tid) - T[:3, 3]) @ T[:3, :3]
@@ -376,9 +393,13 @@ class VisualIsam2Backend(VisualBackend):
     def stats(self) -> dict:
         """Counters: landmarks, tracks waiting, rejected triangulations, ..."""
         out: dict[str, object] = {
-            "frames": len(self._frames), "landmarks": self._lms.n,
-            "tracks_waiting": len(self._mapper.tracks), **self._mapper.counts, **self._stats,
-            "isam2_updates": self._n_updates}
+            "frames": len(self._frames),
+            "landmarks": self._lms.n,
+            "tracks_waiting": len(self._mapper.tracks),
+            **self._mapper.counts,
+            **self._stats,
+            "isam2_updates": self._n_updates,
+        }
         if self._mono is not None:
             out["camera_alone"] = self._mono.stats()
         return out
@@ -405,8 +426,10 @@ class VisualIsam2Backend(VisualBackend):
         """The frame's pose at constant velocity from the last two (pending, without
         factors until :meth:`update` measures it); nothing before the first map."""
         if odometry is not None:
-            raise UnsupportedError("isam2 (visual) with robot_model = 'constant_velocity' tracks "
-                                   "by the camera alone: it takes no odometry")
+            raise UnsupportedError(
+                "isam2 (visual) with robot_model = 'constant_velocity' tracks "
+                "by the camera alone: it takes no odometry"
+            )
         if fid in self._frame_set or fid == mono.frame_id:
             raise GraphSlamError(f"isam2 (visual): frame {fid} added twice")
         mono.next_frame(fid)
@@ -414,13 +437,13 @@ class VisualIsam2Backend(VisualBackend):
             return
         self._flush()
         before, last = self._frames[-2], self._frames[-1]
-        wTc_pred = mono.predict(conv.pose3_matrix(self._pose(before)),
-                                conv.pose3_matrix(self._pose(last)))
+        wTc_pred = mono.predict(conv.pose3_matrix(self._pose(before)), conv.pose3_matrix(self._pose(last)))
         self._values.insert(X(fid), conv.pose3(wTc_pred))
         self._add_frame(fid)
 
-    def _measure_pose(self, mono: MonoMotion, fid: int, ids: np.ndarray, uv: np.ndarray,
-                      sigma: float) -> set[int]:
+    def _measure_pose(
+        self, mono: MonoMotion, fid: int, ids: np.ndarray, uv: np.ndarray, sigma: float
+    ) -> set[int]:
         """PnP on the mapped landmarks among the frame's pixels: the pose then
         replaces the prediction, and the rows of ``ids`` PnP rejects are returned
         (they get no factor). Too few inliers: the frame is coasted on a
@@ -431,23 +454,29 @@ class VisualIsam2Backend(VisualBackend):
         est = mono.measure(points, uv[rows], predicted, sigma, ids, uv)
         wTc = est.wTc if est.wTc is not None else est.wTc_coast
         if wTc is None:  # measure() gives a frame it coasts its wTc_coast
-            raise GraphSlamError(f"isam2 (visual): frame {fid} has neither a PnP nor a "
-                                 "coasted pose")
+            raise GraphSlamError(f"isam2 (visual): frame {fid} has neither a PnP nor a coasted pose")
         self._values.update(X(fid), conv.pose3(wTc))
         if est.wTc is None:
             self._add_coasting_factor(mono, fid)
         return set(rows[~est.inliers].tolist())
 
     def _add_coasting_factor(self, mono: MonoMotion, fid: int) -> None:
-        self._graph.add(gtsam.BetweenFactorPose3(X(self._frames[-2]), X(fid),
-                                                 conv.pose3(mono.delta),
-                                                 conv.pose3_noise(mono.covariance)))
+        self._graph.add(
+            gtsam.BetweenFactorPose3(
+                X(self._frames[-2]), X(fid), conv.pose3(mono.delta), conv.pose3_noise(mono.covariance)
+            )
+        )
 
     def _start_map(self, mono: MonoMotion, first, sigma: float) -> None:
         """The bootstrap's map into the graph (:func:`.landmark_init.first_map_graph`)."""
         graph, values, landmarks = first_map_graph(
-            first, mono.wTc0, conv.pose3_noise(mono.prior_covariance),
-            self._cal, self._pixel_noise(sigma), SCALE_GAUGE_SIGMA)
+            first,
+            mono.wTc0,
+            conv.pose3_noise(mono.prior_covariance),
+            self._cal,
+            self._pixel_noise(sigma),
+            SCALE_GAUGE_SIGMA,
+        )
         self._graph.push_back(graph)
         self._values.insert(values)
         for f in first.frame_ids.tolist():
@@ -509,19 +538,22 @@ class VisualIsam2Backend(VisualBackend):
             u, v = h[:, 0] / h[:, 2], h[:, 1] / h[:, 2]
         W, H = self._size
         mu, mv = margin * W, margin * H
-        return (front & (u >= -0.5 - mu) & (u < W - 0.5 + mu)
-                & (v >= -0.5 - mv) & (v < H - 0.5 + mv))
+        return front & (u >= -0.5 - mu) & (u < W - 0.5 + mu) & (v >= -0.5 - mv) & (v < H - 0.5 + mv)
 
     def _pixel_noise(self, sigma: float) -> gtsam.noiseModel.Base:
         model = self._noise_cache.get(sigma)
         if model is None:
-            model = conv.robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
-                                self.config.pixel_kernel, self.config.pixel_kernel_k)
+            model = conv.robust(
+                gtsam.noiseModel.Isotropic.Sigma(2, sigma),
+                self.config.pixel_kernel,
+                self.config.pixel_kernel_k,
+            )
             self._noise_cache[sigma] = model
         return model
 
-    def _over_budget(self, ids: np.ndarray, budget: int,
-                     rejected: set[int] | frozenset[int] = frozenset()) -> tuple[set[int], int]:
+    def _over_budget(
+        self, ids: np.ndarray, budget: int, rejected: set[int] | frozenset[int] = frozenset()
+    ) -> tuple[set[int], int]:
         """Rows of ``ids`` whose landmark gets no factor this frame (``rejected`` ones,
         then those beyond ``budget``), and how many mapped landmarks do get one."""
         skip = set(rejected)
@@ -540,7 +572,7 @@ class VisualIsam2Backend(VisualBackend):
         image grown by ``margin`` of its size each side), at most ``count`` of them (0:
         all), the most observed first, then the oldest, in that order."""
         # pre-select on cached positions, with a margin: they may be stale
-        slots = np.flatnonzero(self._in_view(wTc, self._lms.pos[:self._lms.n], margin=0.25))
+        slots = np.flatnonzero(self._in_view(wTc, self._lms.pos[: self._lms.n], margin=0.25))
         if self.config.predict_window_frames:  # before the reads: it needs no position
             age = len(self._frames) - 1 - self._lms.last[slots]
             recent = age <= self.config.predict_window_frames
@@ -565,8 +597,7 @@ class VisualIsam2Backend(VisualBackend):
         if self._graph.size() == 0 and self._values.size() == 0:
             return
         # before the swap: it reads the pending values
-        groups, reelim = self._ordering.hint(self._frames, self._graph, self._lms.ids,
-                                             self._select_for_root)
+        groups, reelim = self._ordering.hint(self._frames, self._graph, self._lms.ids, self._select_for_root)
         # swap first: a Ctrl-C raised as update() returns must not leave the
         # factors pending, or the next flush would add them twice
         graph, values = self._graph, self._values
@@ -582,8 +613,9 @@ class VisualIsam2Backend(VisualBackend):
             else:
                 self._isam.update(graph, values)
         except RuntimeError as exc:
-            self._isam = recover_dropping_landmarks(exc, self._isam, self.config, self._lms,
-                                                    self._drop_landmark, self._frames[-1])
+            self._isam = recover_dropping_landmarks(
+                exc, self._isam, self.config, self._lms, self._drop_landmark, self._frames[-1]
+            )
 
     def _select_for_root(self, count: int, margin: float) -> np.ndarray:
         """:meth:`_select_in_view` at the newest pose (the ordering hint's candidates)."""
@@ -596,4 +628,3 @@ class VisualIsam2Backend(VisualBackend):
         self._ordering.forget_root()
         self._mapper.reject(tid)
         self._stats["landmarks_dropped_indeterminate"] += 1
-

@@ -143,11 +143,15 @@ class VisualIsam2Config:
     def __post_init__(self):
         validate(self)
         if self.newest_pose_last and self.predicted_in_root:
-            raise ConfigError("isam2_visual.newest_pose_last and isam2_visual.predicted_in_root are "
-                              "two elimination orderings: set one of them to false")
+            raise ConfigError(
+                "isam2_visual.newest_pose_last and isam2_visual.predicted_in_root are "
+                "two elimination orderings: set one of them to false"
+            )
         if self.max_track_observations < self.min_observations:
-            raise ConfigError("isam2_visual.max_track_observations must be >= min_observations "
-                              f"({self.max_track_observations} < {self.min_observations})")
+            raise ConfigError(
+                "isam2_visual.max_track_observations must be >= min_observations "
+                f"({self.max_track_observations} < {self.min_observations})"
+            )
 
     def isam2_params(self) -> gtsam.ISAM2Params:
         """gtsam's ISAM2 parameters for these settings."""
@@ -157,8 +161,7 @@ class VisualIsam2Config:
         return params
 
 
-def run_overrides(mode: str, seed: int | None, no_polish: bool,
-                  nearest_depth_m: float | None) -> dict:
+def run_overrides(mode: str, seed: int | None, no_polish: bool, nearest_depth_m: float | None) -> dict:
     """``[isam2_visual]`` overrides a visual run implies (the back-end table's
     ``run_overrides``): the polish off with ``--no-polish`` and, without odometry
     (``mode`` ``"none"``), the camera-alone tracking (a monocular bootstrap, then

@@ -48,8 +48,7 @@ class TrackMapper:
         """Tracks qualified at the previous frame, waiting to be triangulated."""
         return len(self._queued)
 
-    def observe(self, tid: int, fid: int, uv: np.ndarray, sigma: float, now: int,
-                ray_w: np.ndarray) -> None:
+    def observe(self, tid: int, fid: int, uv: np.ndarray, sigma: float, now: int, ray_w: np.ndarray) -> None:
         """A pixel of track ``tid`` (not mapped) in frame ``fid``, the ``now``-th frame,
         with its world ray direction ``ray_w``: buffered, the track queued for the
         next frame once it has the parallax and the pixels."""
@@ -62,18 +61,31 @@ class TrackMapper:
         elif track.last_index == now:  # same track twice in a frame: keep the first
             self.counts["ignored_pixels"] += 1
             return
-        if track.add(fid, uv, sigma, now, ray_w,
-                     max_observations=self.config.max_track_observations,
-                     min_observations=self.config.min_observations,
-                     cos_parallax=float(np.cos(np.deg2rad(self.config.min_parallax_deg)))):
+        if track.add(
+            fid,
+            uv,
+            sigma,
+            now,
+            ray_w,
+            max_observations=self.config.max_track_observations,
+            min_observations=self.config.min_observations,
+            cos_parallax=float(np.cos(np.deg2rad(self.config.min_parallax_deg))),
+        ):
             self._qualified.append(tid)
 
     def reject(self, tid: int) -> None:
         """Ignore track ``tid`` from now on (its landmark left the map)."""
         self.rejected.add(tid)
 
-    def map_queued(self, fid: int, now: int, budget: int, pose: Callable[[int], gtsam.Pose3],
-                   cal: gtsam.Cal3_S2, K: np.ndarray) -> list[tuple[int, np.ndarray, Track]]:
+    def map_queued(
+        self,
+        fid: int,
+        now: int,
+        budget: int,
+        pose: Callable[[int], gtsam.Pose3],
+        cal: gtsam.Cal3_S2,
+        K: np.ndarray,
+    ) -> list[tuple[int, np.ndarray, Track]]:
         """End of frame ``fid`` (the ``now``-th): triangulate the tracks queued at the
         previous frame, at most ``budget`` of them mapped, with the poses ``pose(frame)``
         and camera ``cal`` (``K``); returns ``(track id, point, track)`` of each to map,
@@ -103,9 +115,15 @@ class TrackMapper:
             self._forget_stale_tracks(now)
         return mapped
 
-    def _triangulate(self, tid: int, track: Track, current: int,
-                     pose: Callable[[int], gtsam.Pose3], cal: gtsam.Cal3_S2,
-                     K: np.ndarray) -> np.ndarray | None:
+    def _triangulate(
+        self,
+        tid: int,
+        track: Track,
+        current: int,
+        pose: Callable[[int], gtsam.Pose3],
+        cal: gtsam.Cal3_S2,
+        K: np.ndarray,
+    ) -> np.ndarray | None:
         """A track's point from its pixels of frames other than ``current``, or None:
         rejected for good."""
         used = [i for i, f in enumerate(track.frames) if f != current]
@@ -113,10 +131,19 @@ class TrackMapper:
         uv = np.array([track.uv[i] for i in used])
         sigma = np.array([track.sigma[i] for i in used])
         point = triangulate(poses, cal, uv, sigma)
-        if (point is None or not np.all(np.isfinite(point))
-                or not consistent(poses, K, uv, sigma, point,
-                                  min_depth_m=self.config.min_depth_m,
-                                  max_sigmas=self.config.max_reprojection_sigmas)):
+        if (
+            point is None
+            or not np.all(np.isfinite(point))
+            or not consistent(
+                poses,
+                K,
+                uv,
+                sigma,
+                point,
+                min_depth_m=self.config.min_depth_m,
+                max_sigmas=self.config.max_reprojection_sigmas,
+            )
+        ):
             self.rejected.add(tid)
             self.counts["rejected_triangulations"] += 1
             return None
@@ -124,8 +151,9 @@ class TrackMapper:
 
     def _forget_stale_tracks(self, now: int) -> None:
         """Drop waiting tracks unseen for more than ``track_timeout_frames`` frames."""
-        stale = [tid for tid, t in self.tracks.items()
-                 if now - t.last_index > self.config.track_timeout_frames]
+        stale = [
+            tid for tid, t in self.tracks.items() if now - t.last_index > self.config.track_timeout_frames
+        ]
         for tid in stale:
             del self.tracks[tid]
         self.counts["dropped_tracks"] += len(stale)

@@ -42,8 +42,7 @@ class RootOrderingPolicy:
             slots have shifted since: :meth:`forget_root`).
     """
 
-    def __init__(self, predicted_in_root: bool, newest_pose_last: bool,
-                 max_predictions: int) -> None:
+    def __init__(self, predicted_in_root: bool, newest_pose_last: bool, max_predictions: int) -> None:
         self.predicted_in_root = predicted_in_root
         self.newest_pose_last = newest_pose_last
         self.max_predictions = max_predictions
@@ -57,9 +56,13 @@ class RootOrderingPolicy:
         """How many of ``slots`` the last hint did not put in the root."""
         return int(np.count_nonzero(~np.isin(slots, self.root_slots)))
 
-    def hint(self, frames: Sequence[int], graph: gtsam.NonlinearFactorGraph,
-             landmark_ids: Sequence[int], select: Callable[[int, float], np.ndarray],
-             ) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
+    def hint(
+        self,
+        frames: Sequence[int],
+        graph: gtsam.NonlinearFactorGraph,
+        landmark_ids: Sequence[int],
+        select: Callable[[int, float], np.ndarray],
+    ) -> tuple[gtsam.KeyGroupMap | None, gtsam.KeyList]:
         """Keys the next ``ISAM2.update`` eliminates last (None: gtsam's default
         ordering), and keys it re-eliminates though no new factor touches them, for
         the pending factors ``graph`` after ``frames`` (the newest last).

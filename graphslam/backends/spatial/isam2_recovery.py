@@ -26,9 +26,14 @@ __all__ = ["recover_dropping_landmarks", "MAX_DROPS_PER_UPDATE"]
 MAX_DROPS_PER_UPDATE = 5
 
 
-def recover_dropping_landmarks(exc: RuntimeError, failed: gtsam.ISAM2, config: VisualIsam2Config,
-                               mapped: Container[int], drop: Callable[[int], None],
-                               frame: int) -> gtsam.ISAM2:
+def recover_dropping_landmarks(
+    exc: RuntimeError,
+    failed: gtsam.ISAM2,
+    config: VisualIsam2Config,
+    mapped: Container[int],
+    drop: Callable[[int], None],
+    frame: int,
+) -> gtsam.ISAM2:
     """Cholesky met an indeterminate system near a landmark: the landmark goes.
 
     ``exc`` is what ``failed.update`` raised at frame ``frame``; ``mapped`` holds the
@@ -58,5 +63,7 @@ def recover_dropping_landmarks(exc: RuntimeError, failed: gtsam.ISAM2, config: V
             return fact.rebuild_without(failed, config.isam2_params(), dropped)
         except RuntimeError as again:
             exc = again
-    raise GraphSlamError(f"isam2 (visual): indeterminate linear system near "
-                         f"{fact.failed_variable(exc) or '?'} at frame {frame}") from None
+    raise GraphSlamError(
+        f"isam2 (visual): indeterminate linear system near "
+        f"{fact.failed_variable(exc) or '?'} at frame {frame}"
+    ) from None

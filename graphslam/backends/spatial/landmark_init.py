@@ -32,8 +32,18 @@ class Track:
     last_index: int = -1  # position in the frame list of the latest pixel
     queued: bool = False  # qualified: triangulated at the next frame
 
-    def add(self, fid: int, uv: np.ndarray, sigma: float, now: int, ray_w: np.ndarray, *,
-            max_observations: int, min_observations: int, cos_parallax: float) -> bool:
+    def add(
+        self,
+        fid: int,
+        uv: np.ndarray,
+        sigma: float,
+        now: int,
+        ray_w: np.ndarray,
+        *,
+        max_observations: int,
+        min_observations: int,
+        cos_parallax: float,
+    ) -> bool:
         """Buffer the pixel ``uv`` (2,) px of frame ``fid`` (frame index ``now``), seen
         along the unit world ray ``ray_w`` (3,); True when the track has just
         qualified for triangulation (enough pixels and parallax, not queued before).
@@ -47,15 +57,19 @@ class Track:
         self.last_index = now
         if len(self.frames) > max_observations:
             del self.frames[1], self.uv[1], self.sigma[1]
-        if (not self.queued and len(self.frames) >= min_observations
-                and self.first_ray_w @ ray_w <= cos_parallax):
+        if (
+            not self.queued
+            and len(self.frames) >= min_observations
+            and self.first_ray_w @ ray_w <= cos_parallax
+        ):
             self.queued = True
             return True
         return False
 
 
-def triangulate(poses: list[gtsam.Pose3], cal: gtsam.Cal3_S2, uv: np.ndarray,
-                sigma: np.ndarray) -> np.ndarray | None:
+def triangulate(
+    poses: list[gtsam.Pose3], cal: gtsam.Cal3_S2, uv: np.ndarray, sigma: np.ndarray
+) -> np.ndarray | None:
     """Point (3,) m in the world seen at pixels ``uv`` (m, 2) from ``poses`` (``wTc``),
     or None when gtsam finds it underconstrained or behind a camera.
 
@@ -63,15 +77,30 @@ def triangulate(poses: list[gtsam.Pose3], cal: gtsam.Cal3_S2, uv: np.ndarray,
     (m,) px: the pixels of one track come from one front end.
     """
     try:
-        return np.asarray(gtsam.triangulatePoint3(
-            poses, cal, [u.reshape(2, 1) for u in uv], 1e-9, True,
-            gtsam.noiseModel.Isotropic.Sigma(2, float(sigma.min())))).reshape(3)
+        return np.asarray(
+            gtsam.triangulatePoint3(
+                poses,
+                cal,
+                [u.reshape(2, 1) for u in uv],
+                1e-9,
+                True,
+                gtsam.noiseModel.Isotropic.Sigma(2, float(sigma.min())),
+            )
+        ).reshape(3)
     except RuntimeError:  # gtsam's underconstrained / cheirality exceptions
         return None
 
 
-def consistent(poses: list[gtsam.Pose3], K: np.ndarray, uv: np.ndarray, sigma: np.ndarray,
-               point: np.ndarray, *, min_depth_m: float, max_sigmas: float) -> bool:
+def consistent(
+    poses: list[gtsam.Pose3],
+    K: np.ndarray,
+    uv: np.ndarray,
+    sigma: np.ndarray,
+    point: np.ndarray,
+    *,
+    min_depth_m: float,
+    max_sigmas: float,
+) -> bool:
     """``point`` (3,) m is in front of every camera by ``min_depth_m`` and every pixel
     ``uv`` (m, 2) reprojects within ``max_sigmas`` times its ``sigma`` (m,) px."""
     T = np.array([conv.pose3_matrix(p) for p in poses])
@@ -83,8 +112,14 @@ def consistent(poses: list[gtsam.Pose3], K: np.ndarray, uv: np.ndarray, sigma: n
     return bool(np.all(err <= max_sigmas * sigma))
 
 
-def first_map_graph(first, wTc0: np.ndarray, prior_noise: gtsam.noiseModel.Base, cal: gtsam.Cal3_S2,
-                    pixel_noise: gtsam.noiseModel.Base, scale_sigma: float):
+def first_map_graph(
+    first,
+    wTc0: np.ndarray,
+    prior_noise: gtsam.noiseModel.Base,
+    cal: gtsam.Cal3_S2,
+    pixel_noise: gtsam.noiseModel.Base,
+    scale_sigma: float,
+):
     """Factors and values of a monocular first map (:class:`.mono_init.FirstMap`):
     its first frame at ``wTc0`` (4, 4) under ``prior_noise``, the scale fixed by a
     ``RangeFactorPose3`` of 1 (sigma ``scale_sigma``) from the reference frame to
@@ -100,16 +135,22 @@ def first_map_graph(first, wTc0: np.ndarray, prior_noise: gtsam.noiseModel.Base,
     graph.add(gtsam.PriorFactorPose3(X(frames[0]), conv.pose3(wTc0), prior_noise))
     for f, refTc in zip(frames, first.refTc, strict=True):
         values.insert(X(f), conv.pose3(wTref @ refTc))
-    graph.add(gtsam.RangeFactorPose3(X(int(first.reference)), X(frames[-1]), 1.0,
-                                     gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
+    graph.add(
+        gtsam.RangeFactorPose3(
+            X(int(first.reference)), X(frames[-1]), 1.0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)
+        )
+    )
     nobs = np.zeros(len(first.track_ids), np.int64)
     for rows, _ in first.pixels:
         nobs[rows] += 1
     for f, (rows, uvs) in zip(frames, first.pixels, strict=True):
         for r, u in zip(rows.tolist(), uvs, strict=True):
             if nobs[r] >= 2:
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    u, pixel_noise, X(f), L(int(first.track_ids[r])), cal))
+                graph.add(
+                    gtsam.GenericProjectionFactorCal3_S2(
+                        u, pixel_noise, X(f), L(int(first.track_ids[r])), cal
+                    )
+                )
     landmarks = []
     for r, tid in enumerate(first.track_ids.tolist()):
         if nobs[r] >= 2:

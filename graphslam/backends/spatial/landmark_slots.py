@@ -69,7 +69,7 @@ class LandmarkSlots:
         """Forget landmark ``tid``: its slot is removed and the later ones shift down."""
         s, n = self.slot.pop(tid), self.n
         for arr in (self.pos, self.nobs, self.sigma, self.last, self.read):
-            arr[s:n - 1] = arr[s + 1:n].copy()
+            arr[s : n - 1] = arr[s + 1 : n].copy()
         del self.ids[s]
         for t in self.ids[s:]:
             self.slot[t] -= 1

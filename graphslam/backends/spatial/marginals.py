@@ -38,11 +38,18 @@ def _marginals(backend, estimate: VisualEstimate, with_landmarks: bool):
         values.insert(L(t), np.asarray(p, dtype=np.float64))
     try:
         marginals = gtsam.Marginals(backend.factor_graph(), values)
-        poses = np.array([conv.pose3_covariance_from_gtsam(marginals.marginalCovariance(X(f)))
-                          for f in estimate.frame_ids.tolist()]).reshape(-1, 6, 6)
-        points = np.array([marginals.marginalCovariance(L(t))
-                           for t in (estimate.landmark_ids.tolist() if with_landmarks else [])]
-                          ).reshape(-1, 3, 3)
+        poses = np.array(
+            [
+                conv.pose3_covariance_from_gtsam(marginals.marginalCovariance(X(f)))
+                for f in estimate.frame_ids.tolist()
+            ]
+        ).reshape(-1, 6, 6)
+        points = np.array(
+            [
+                marginals.marginalCovariance(L(t))
+                for t in (estimate.landmark_ids.tolist() if with_landmarks else [])
+            ]
+        ).reshape(-1, 3, 3)
     except RuntimeError as e:  # an indeterminate system: a variable the graph does not pin
         raise GraphSlamError(f"cannot compute the map's covariances: {e}") from None
     return poses, points

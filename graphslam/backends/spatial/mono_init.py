@@ -71,8 +71,7 @@ class FirstMap:
 class MonoBootstrap:
     """The latest frames, and the two-view test at each new one (module doc)."""
 
-    def __init__(self, config: MonoTrackingConfig, K: np.ndarray, sigma_px: float = 1.0,
-                 seed: int = 0):
+    def __init__(self, config: MonoTrackingConfig, K: np.ndarray, sigma_px: float = 1.0, seed: int = 0):
         self.config = config
         self._K = np.asarray(K, dtype=np.float64)
         self._seed = int(seed)
@@ -102,15 +101,24 @@ class MonoBootstrap:
             if len(shared) >= need:
                 break
         else:
-            self.reason = (f"{best} tracks shared with an earlier frame < {need}"
-                           if len(self._frames) > 1 else "one frame: no second view yet")
+            self.reason = (
+                f"{best} tracks shared with an earlier frame < {need}"
+                if len(self._frames) > 1
+                else "one frame: no second view yet"
+            )
             return None
         _, ref_ids, ref_uv = self._frames[j]
         common, ia, ib = np.intersect1d(ref_ids, ids, assume_unique=True, return_indices=True)
         self.attempts += 1
         try:
-            geo = two_view_geometry(ref_uv[ia], uv[ib], self._K, self.config.two_view,
-                                    seed=rng_seed(self._seed, self.attempts), sigma_px=self._sigma_px)
+            geo = two_view_geometry(
+                ref_uv[ia],
+                uv[ib],
+                self._K,
+                self.config.two_view,
+                seed=rng_seed(self._seed, self.attempts),
+                sigma_px=self._sigma_px,
+            )
         except MeasurementError as exc:  # degenerate pixels (on one line): wait for better
             self.reason = str(exc)
             return None
@@ -118,14 +126,26 @@ class MonoBootstrap:
             self.reason = "two-view geometry found no model" if geo is None else geo.reason
             return None
         kept = np.asarray(geo.kept, dtype=bool)
-        first = self._build(j, common[kept], np.asarray(geo.points_a)[kept],
-                            np.asarray(geo.aTb, dtype=np.float64), geo.model,
-                            float(geo.median_parallax_deg))
+        first = self._build(
+            j,
+            common[kept],
+            np.asarray(geo.points_a)[kept],
+            np.asarray(geo.aTb, dtype=np.float64),
+            geo.model,
+            float(geo.median_parallax_deg),
+        )
         self._frames = []
         return first
 
-    def _build(self, ref: int, track_ids: np.ndarray, points_ref: np.ndarray, refTlast: np.ndarray,
-               model: str, parallax: float) -> FirstMap:
+    def _build(
+        self,
+        ref: int,
+        track_ids: np.ndarray,
+        points_ref: np.ndarray,
+        refTlast: np.ndarray,
+        model: str,
+        parallax: float,
+    ) -> FirstMap:
         """Poses of the kept frames (the reference ``ref``: identity, the last: the
         two-view pose, the others: PnP) and each frame's pixels of the triangulated tracks."""
         c = self.config
@@ -135,23 +155,39 @@ class MonoBootstrap:
         frame_ids, poses, pixels = [], [], []
         n = len(self._frames)
         for j, (fid, ids, uv) in enumerate(self._frames):
-            _, rows_in_map, rows_in_frame = np.intersect1d(track_ids, ids, assume_unique=True,
-                                                           return_indices=True)
+            _, rows_in_map, rows_in_frame = np.intersect1d(
+                track_ids, ids, assume_unique=True, return_indices=True
+            )
             if j == ref:
                 refTc = np.eye(4)
             elif j == n - 1:
                 refTc = refTlast
             else:
-                est = pnp_pose(points_ref[rows_in_map], uv[rows_in_frame], self._K, refTlast,
-                               threshold_px=threshold, min_inliers=c.min_pnp_inliers,
-                               seed=rng_seed(self._seed, j))
+                est = pnp_pose(
+                    points_ref[rows_in_map],
+                    uv[rows_in_frame],
+                    self._K,
+                    refTlast,
+                    threshold_px=threshold,
+                    min_inliers=c.min_pnp_inliers,
+                    seed=rng_seed(self._seed, j),
+                )
                 if est.wTc is None:  # left without a pose (counted by the caller)
                     continue
                 refTc = est.wTc
-            ok = reprojects(invert_pose(refTc), points_ref[rows_in_map], uv[rows_in_frame],
-                            self._K, threshold)
+            ok = reprojects(
+                invert_pose(refTc), points_ref[rows_in_map], uv[rows_in_frame], self._K, threshold
+            )
             frame_ids.append(fid)
             poses.append(refTc)
             pixels.append((rows_in_map[ok], uv[rows_in_frame][ok]))
-        return FirstMap(np.asarray(frame_ids, np.int64), self._frames[ref][0], np.asarray(poses),
-                        track_ids, points_ref, pixels, model, parallax)
+        return FirstMap(
+            np.asarray(frame_ids, np.int64),
+            self._frames[ref][0],
+            np.asarray(poses),
+            track_ids,
+            points_ref,
+            pixels,
+            model,
+            parallax,
+        )

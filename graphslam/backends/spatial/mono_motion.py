@@ -42,8 +42,14 @@ class MonoMotion:
         seed: RANSAC seed (each call adds the frame id: repeatable, not repeated).
     """
 
-    def __init__(self, config: MonoTrackingConfig, K: np.ndarray, wTc0: np.ndarray,
-                 prior_covariance: np.ndarray, seed: int = 0):
+    def __init__(
+        self,
+        config: MonoTrackingConfig,
+        K: np.ndarray,
+        wTc0: np.ndarray,
+        prior_covariance: np.ndarray,
+        seed: int = 0,
+    ):
         self.config = config
         self.K = np.asarray(K, dtype=np.float64)
         self.wTc0 = np.asarray(wTc0, dtype=np.float64)
@@ -59,8 +65,12 @@ class MonoMotion:
         self.sigma_px = 1.0  # the pixel sigma of the latest frame's observations
         self._coasting = 0
         self.losses: list[dict] = []
-        self.counts = {"pnp_tracked_frames": 0, "coasted_frames": 0,
-                       "coasted_on_measured_rotation": 0, "pnp_outlier_pixels": 0}
+        self.counts = {
+            "pnp_tracked_frames": 0,
+            "coasted_frames": 0,
+            "coasted_on_measured_rotation": 0,
+            "pnp_outlier_pixels": 0,
+        }
         self.first_map: dict | None = None
         self._frames_seen = 0
         self._before: tuple[np.ndarray, np.ndarray] | None = None  # last frame's (ids, uv)
@@ -88,12 +98,14 @@ class MonoMotion:
         depth = (first.points_ref - last[:3, 3]) @ last[:3, :3]
         self.median_depth = float(np.median(depth[:, 2])) if len(depth) else 1.0
         self.first_map = {
-            "reference_frame": int(first.reference), "frame": int(first.frame_ids[-1]),
-            "model": first.model, "median_parallax_deg": first.median_parallax_deg,
+            "reference_frame": int(first.reference),
+            "frame": int(first.frame_ids[-1]),
+            "model": first.model,
+            "median_parallax_deg": first.median_parallax_deg,
             "points": int(len(first.track_ids)),
             "frames_without_pose": self._frames_seen - len(first.frame_ids),
             "scale_gauge": f"distance from frame {int(first.reference)} to frame "
-                           f"{int(first.frame_ids[-1])} = 1 (the map's unit of length)",
+            f"{int(first.frame_ids[-1])} = 1 (the map's unit of length)",
         }
         return first
 
@@ -114,8 +126,15 @@ class MonoMotion:
         self.awaiting = True
         return wTc_pred
 
-    def measure(self, points_w: np.ndarray, uv_px: np.ndarray, wTc_pred: np.ndarray,
-                sigma_px: float, frame_ids: np.ndarray, frame_uv: np.ndarray) -> PnpPose:
+    def measure(
+        self,
+        points_w: np.ndarray,
+        uv_px: np.ndarray,
+        wTc_pred: np.ndarray,
+        sigma_px: float,
+        frame_ids: np.ndarray,
+        frame_uv: np.ndarray,
+    ) -> PnpPose:
         """The current frame's pose by PnP on the re-found landmarks ``points_w`` (N, 3)
         at ``uv_px`` (N, 2); ``frame_ids`` (M,) and ``frame_uv`` (M, 2) are all the
         frame's pixels (kept for the next frame's rotation). Without a PnP pose the
@@ -126,8 +145,15 @@ class MonoMotion:
         c = self.config
         self.sigma_px = float(sigma_px)
         threshold = c.pnp_threshold_sigmas * sigma_px
-        est = pnp_pose(points_w, uv_px, self.K, wTc_pred, threshold_px=threshold,
-                       min_inliers=c.min_pnp_inliers, seed=rng_seed(self.seed, self._current()))
+        est = pnp_pose(
+            points_w,
+            uv_px,
+            self.K,
+            wTc_pred,
+            threshold_px=threshold,
+            min_inliers=c.min_pnp_inliers,
+            seed=rng_seed(self.seed, self._current()),
+        )
         before, self._before = self._before, (np.asarray(frame_ids), np.asarray(frame_uv))
         self.awaiting = False
         if est.wTc is not None:
@@ -146,8 +172,13 @@ class MonoMotion:
             wTc_coast = wTc_last @ self.delta
             self.counts["coasted_on_measured_rotation"] += 1
         self.coast(est.reason)
-        gated = reprojects(invert_pose(wTc_coast), np.asarray(points_w, dtype=np.float64).reshape(-1, 3),
-                           np.asarray(uv_px, dtype=np.float64).reshape(-1, 2), self.K, threshold)
+        gated = reprojects(
+            invert_pose(wTc_coast),
+            np.asarray(points_w, dtype=np.float64).reshape(-1, 3),
+            np.asarray(uv_px, dtype=np.float64).reshape(-1, 2),
+            self.K,
+            threshold,
+        )
         return PnpPose(None, gated, est.reason, wTc_coast=wTc_coast)
 
     def _rotate(self, before, frame_ids, frame_uv, sigma_px: float) -> bool:
@@ -155,15 +186,19 @@ class MonoMotion:
         in :attr:`delta` with a rotation noise of the fit's pixel sigma; False when
         too few tracks agree."""
         ids_b, uv_b = before
-        _, ib, iu = np.intersect1d(ids_b, np.asarray(frame_ids), assume_unique=True,
-                                   return_indices=True)
+        _, ib, iu = np.intersect1d(ids_b, np.asarray(frame_ids), assume_unique=True, return_indices=True)
         f = float(self.K[0, 0])
         step = float(np.linalg.norm(self.delta[:3, 3]))
         # the parallax the predicted step can make at the median depth, and the pixel noise
         threshold = step / max(self.median_depth, 1e-12) + self.config.pnp_threshold_sigmas * sigma_px / f
-        R, _ = frame_rotation(uv_b[ib], np.asarray(frame_uv)[iu], self.K, threshold_rad=threshold,
-                              min_inliers=self.config.min_pnp_inliers,
-                              seed=rng_seed(self.seed, self._current()))
+        R, _ = frame_rotation(
+            uv_b[ib],
+            np.asarray(frame_uv)[iu],
+            self.K,
+            threshold_rad=threshold,
+            min_inliers=self.config.min_pnp_inliers,
+            seed=rng_seed(self.seed, self._current()),
+        )
         if R is None:
             return False
         self.delta = self.delta.copy()
@@ -178,16 +213,25 @@ class MonoMotion:
         self.awaiting = False
         self.counts["coasted_frames"] += 1
         if self._coasting == 0:
-            self.losses.append({"frame": self._current(), "reason": reason, "frames": 1,
-                                "ended": "still lost at the end of the run"})
+            self.losses.append(
+                {
+                    "frame": self._current(),
+                    "reason": reason,
+                    "frames": 1,
+                    "ended": "still lost at the end of the run",
+                }
+            )
         self._coasting += 1
         self.losses[-1]["frames"] = self._coasting
 
     def stats(self) -> dict:
         """What ``metrics.json`` states of the camera-alone run."""
-        out = {"motion": "camera alone: constant-velocity prediction, PnP measurement",
-               **self.counts, "tracking_losses": len(self.losses),
-               "losses": list(self.losses)}
+        out = {
+            "motion": "camera alone: constant-velocity prediction, PnP measurement",
+            **self.counts,
+            "tracking_losses": len(self.losses),
+            "losses": list(self.losses),
+        }
         if self.first_map is not None:
             out["first_map"] = dict(self.first_map)
         else:

@@ -39,8 +39,16 @@ from slamcore.config import bounded, validate
 from slamcore.spatial.camera import project
 from slamcore.spatial.geometry import invert_pose
 
-__all__ = ["MonoTrackingConfig", "PnpPose", "constant_velocity", "motion_covariance", "pnp_pose",
-           "reprojects", "frame_rotation", "rng_seed"]
+__all__ = [
+    "MonoTrackingConfig",
+    "PnpPose",
+    "constant_velocity",
+    "motion_covariance",
+    "pnp_pose",
+    "reprojects",
+    "frame_rotation",
+    "rng_seed",
+]
 
 
 @dataclass(frozen=True)
@@ -125,8 +133,16 @@ class PnpPose:
     wTc_coast: np.ndarray | None = None
 
 
-def pnp_pose(points_w: np.ndarray, uv_px: np.ndarray, K: np.ndarray, wTc_guess: np.ndarray, *,
-             threshold_px: float, min_inliers: int, seed: int) -> PnpPose:
+def pnp_pose(
+    points_w: np.ndarray,
+    uv_px: np.ndarray,
+    K: np.ndarray,
+    wTc_guess: np.ndarray,
+    *,
+    threshold_px: float,
+    min_inliers: int,
+    seed: int,
+) -> PnpPose:
     """Camera pose from (N, 3) world points seen at (N, 2) pixels, PnP RANSAC started
     at ``wTc_guess`` (4, 4) then refined by Levenberg-Marquardt on the inliers.
 
@@ -146,9 +162,18 @@ def pnp_pose(points_w: np.ndarray, uv_px: np.ndarray, K: np.ndarray, wTc_guess: 
     tvec0 = cTw[:3, 3].reshape(3, 1).copy()
     cv2.setRNGSeed(int(seed))
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        pts, uv, K, None, rvec0.copy(), tvec0.copy(), useExtrinsicGuess=False,
-        iterationsCount=200, reprojectionError=float(threshold_px), confidence=0.999,
-        flags=cv2.SOLVEPNP_AP3P)
+        pts,
+        uv,
+        K,
+        None,
+        rvec0.copy(),
+        tvec0.copy(),
+        useExtrinsicGuess=False,
+        iterationsCount=200,
+        reprojectionError=float(threshold_px),
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_AP3P,
+    )
     inliers = np.zeros(n, bool)
     if ok and inl is not None:
         inliers[inl.reshape(-1)] = True
@@ -165,8 +190,9 @@ def pnp_pose(points_w: np.ndarray, uv_px: np.ndarray, K: np.ndarray, wTc_guess: 
     return PnpPose(invert_pose(cTw), inliers)
 
 
-def reprojects(cTw: np.ndarray, pts: np.ndarray, uv: np.ndarray, K: np.ndarray,
-               threshold_px: float) -> np.ndarray:
+def reprojects(
+    cTw: np.ndarray, pts: np.ndarray, uv: np.ndarray, K: np.ndarray, threshold_px: float
+) -> np.ndarray:
     """(N,) bool: world points ``pts`` (N, 3) in front of the camera ``cTw`` (4, 4) and
     reprojected within ``threshold_px`` of ``uv`` (N, 2)."""
     uv_hat, depth = project(K, cTw, pts)
@@ -174,9 +200,16 @@ def reprojects(cTw: np.ndarray, pts: np.ndarray, uv: np.ndarray, K: np.ndarray,
     return (depth > 0) & (err <= threshold_px)
 
 
-def frame_rotation(uv_before: np.ndarray, uv_now: np.ndarray, K: np.ndarray, *,
-                   threshold_rad: float, min_inliers: int, seed: int,
-                   iterations: int = 100) -> tuple[np.ndarray | None, np.ndarray]:
+def frame_rotation(
+    uv_before: np.ndarray,
+    uv_now: np.ndarray,
+    K: np.ndarray,
+    *,
+    threshold_rad: float,
+    min_inliers: int,
+    seed: int,
+    iterations: int = 100,
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Rotation ``R`` (3, 3) of camera ``before`` to camera ``now`` (``c_before R c_now``:
     rays of ``now`` rotated into ``before``) from (N, 2) pixels of the same points in
     both frames, translation neglected; and the (N,) bool inliers (ray angle within

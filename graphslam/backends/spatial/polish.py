@@ -15,9 +15,12 @@ from gtsam.symbol_shorthand import X
 from graphslam.backends import gtsam_convert as conv
 
 
-def gnc_polish(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
-               closures: list[tuple[int, int, gtsam.Pose3, np.ndarray]],
-               lm_params: gtsam.LevenbergMarquardtParams):
+def gnc_polish(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    closures: list[tuple[int, int, gtsam.Pose3, np.ndarray]],
+    lm_params: gtsam.LevenbergMarquardtParams,
+):
     """GNC over ``graph`` from ``initial``, loop closures Gaussian and the only suspects.
 
     ``closures``: ``(frame a, frame b, aTb, covariance (6, 6) in the
@@ -34,8 +37,7 @@ def gnc_polish(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
         k = tuple(f.keys())
         if k in keys:  # GNC wants plain Gaussian factors: its own weights are the kernel
             measured, cov = keys[k]
-            graph.replace(i, gtsam.BetweenFactorPose3(k[0], k[1], measured,
-                                                      conv.pose3_noise(cov)))
+            graph.replace(i, gtsam.BetweenFactorPose3(k[0], k[1], measured, conv.pose3_noise(cov)))
             suspects.append(i)
     params = gtsam.GncLMParams(lm_params)
     suspect = set(suspects)

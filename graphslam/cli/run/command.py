@@ -93,113 +93,191 @@ examples:
 """
 
 
-
 def register(sub) -> None:
     """Add the ``run`` sub-command to the ``graphslam`` parser."""
     from graphslam.cli.common import robot_arg
     from graphslam.registry import BACKEND_NAMES
 
     p = sub.add_parser(
-        "run", help="run SLAM on a dataset and write trajectory, map, metrics, recording",
-        description="Run one back end over a dataset, print a summary table and write the "
-                    "outputs to --out.",
-        epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--dataset", default="synthetic", metavar="NAME|PATH",
-                       help="built-in dataset name, pose-graph file, image-sequence folder "
-                            "or ROS bag (default: synthetic)")
-    p.add_argument("--backend", default=None,
-                   choices=BACKEND_NAMES,
-                   help="estimator (default: auto on a pose-graph file, isam2 otherwise; "
-                        "batch and auto: pose-graph files only)")
-    p.add_argument("--seed", type=int, default=None,
-                       help="seed of the synthetic worlds, derived odometry, FastSLAM's "
-                            "particles, the visual EKF's RANSAC and, with --odometry none, "
-                            "visual iSAM2's two-view and PnP RANSACs (default: config file, "
-                            "else 0); refused where nothing is random")
-    p.add_argument("--out", type=Path, default=None,
-                       help="output folder (default: runs/<dataset>-<backend>)")
-    p.add_argument("--write-bag", action="store_true",
-                   help="also write the estimate as trajectory.bag (ROS 1, geometry_msgs/"
-                        "PoseStamped on /graphslam/trajectory; rosbag and evo read it; needs "
-                        "pip install \".[bags]\")")
-    p.add_argument("--config", type=Path, default=None,
-                       help="TOML or YAML file with [synthetic], [isam2] sections")
-    p.add_argument("--max-steps", type=int, default=None, metavar="N",
-                       help="stop after N frames")
-    p.add_argument("--ground-truth", type=Path, default=None, metavar="FILE",
-                       help="trajectory to score against: TUM, KITTI or EuRoC (see below)")
-    p.add_argument("--no-polish", action="store_true",
-                       help="skip the final batch Levenberg-Marquardt polish (isam2 only)")
-    p.add_argument("--rerun", choices=("save", "spawn", "connect", "off"), default="save",
-                       help="save run.rrd in --out (default), spawn a viewer, connect to a "
-                            "running one, or log nothing")
-    p.add_argument("--rerun-url", default=None,
-                       help="viewer gRPC URL for --rerun connect "
-                            "(default: rerun+http://127.0.0.1:9876/proxy)")
-    p.add_argument("--rerun-every", type=int, default=None, metavar="N",
-                       help="log the full estimate and the EKF's correlation image every N "
-                            "steps (default: about 50 snapshots; image sequences: every 5 "
-                            "frames)")
+        "run",
+        help="run SLAM on a dataset and write trajectory, map, metrics, recording",
+        description="Run one back end over a dataset, print a summary table and write the outputs to --out.",
+        epilog=RUN_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--dataset",
+        default="synthetic",
+        metavar="NAME|PATH",
+        help="built-in dataset name, pose-graph file, image-sequence folder or ROS bag (default: synthetic)",
+    )
+    p.add_argument(
+        "--backend",
+        default=None,
+        choices=BACKEND_NAMES,
+        help="estimator (default: auto on a pose-graph file, isam2 otherwise; "
+        "batch and auto: pose-graph files only)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the synthetic worlds, derived odometry, FastSLAM's "
+        "particles, the visual EKF's RANSAC and, with --odometry none, "
+        "visual iSAM2's two-view and PnP RANSACs (default: config file, "
+        "else 0); refused where nothing is random",
+    )
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<dataset>-<backend>)")
+    p.add_argument(
+        "--write-bag",
+        action="store_true",
+        help="also write the estimate as trajectory.bag (ROS 1, geometry_msgs/"
+        "PoseStamped on /graphslam/trajectory; rosbag and evo read it; needs "
+        'pip install ".[bags]")',
+    )
+    p.add_argument(
+        "--config", type=Path, default=None, help="TOML or YAML file with [synthetic], [isam2] sections"
+    )
+    p.add_argument("--max-steps", type=int, default=None, metavar="N", help="stop after N frames")
+    p.add_argument(
+        "--ground-truth",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="trajectory to score against: TUM, KITTI or EuRoC (see below)",
+    )
+    p.add_argument(
+        "--no-polish",
+        action="store_true",
+        help="skip the final batch Levenberg-Marquardt polish (isam2 only)",
+    )
+    p.add_argument(
+        "--rerun",
+        choices=("save", "spawn", "connect", "off"),
+        default="save",
+        help="save run.rrd in --out (default), spawn a viewer, connect to a running one, or log nothing",
+    )
+    p.add_argument(
+        "--rerun-url",
+        default=None,
+        help="viewer gRPC URL for --rerun connect (default: rerun+http://127.0.0.1:9876/proxy)",
+    )
+    p.add_argument(
+        "--rerun-every",
+        type=int,
+        default=None,
+        metavar="N",
+        help="log the full estimate and the EKF's correlation image every N "
+        "steps (default: about 50 snapshots; image sequences: every 5 "
+        "frames)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--nees", action="store_true",
-                   help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
-                        "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)")
+    p.add_argument(
+        "--nees",
+        action="store_true",
+        help="2-D runs with ground truth: write nees.csv (pose NEES per step) and "
+        "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)",
+    )
     logs = p.add_argument_group("landmark logs")
-    logs.add_argument("--robot", type=robot_arg, default=None, metavar="N|all",
-                      help="MRCLAM folders: which robot's log to run, or all: every robot in one "
-                           "graph (isam2) (default: [mrclam] robot of --config, else 1)")
+    logs.add_argument(
+        "--robot",
+        type=robot_arg,
+        default=None,
+        metavar="N|all",
+        help="MRCLAM folders: which robot's log to run, or all: every robot in one "
+        "graph (isam2) (default: [mrclam] robot of --config, else 1)",
+    )
     _add_posegraph_options(p.add_argument_group("pose-graph files"))
     _add_image_options(p.add_argument_group("image sequences"))
     p.set_defaults(func=cmd_run)
 
 
 def _add_posegraph_options(graphs) -> None:
-    graphs.add_argument("--init", default=None,
-                        choices=("auto", "odometry", "vertices", "lago", "chordal", "shonan"),
-                        help="start of the batch solve (and candidate start of isam2's polish): "
-                             "auto = lago in 2-D, chordal in 3-D (default: [posegraph] of "
-                             "--config, else auto)")
+    graphs.add_argument(
+        "--init",
+        default=None,
+        choices=("auto", "odometry", "vertices", "lago", "chordal", "shonan"),
+        help="start of the batch solve (and candidate start of isam2's polish): "
+        "auto = lago in 2-D, chordal in 3-D (default: [posegraph] of "
+        "--config, else auto)",
+    )
 
 
 def _add_image_options(vis) -> None:
-    vis.add_argument("--frontend", choices=("harris", "orb", "fpga"), default=None,
-                     help="corner detector and matching (default: [tracker] of --config, else harris)")
-    vis.add_argument("--odometry", choices=("auto", "sequence", "derived", "none"), default=None,
-                     help="sequence's own odometry, noisy odometry derived from ground truth, or "
-                          "none (the camera alone: iSAM2 starts a monocular map and tracks by "
-                          "PnP, the EKF runs its constant-velocity model); default auto: "
-                          "sequence if it has odometry, else derived")
-    vis.add_argument("--odometry-noise", type=float, nargs=2, default=None,
-                     metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
-                     help="derived odometry noise: translation sigma per metre travelled and "
-                          "rotation sigma per frame in degrees (default 0.02 0.1); refused "
-                          "when the odometry is not derived")
-    vis.add_argument("--loops", action="store_true",
-                     help="detect loop closures (bag of words, RANSAC, metric pose by PnP on the "
-                          "map) and add them to the back end as robust factors (isam2 only); "
-                          "writes loops.csv and loops.jsonl. Without --vocab a vocabulary is "
-                          "first trained on the sequence's own images (an extra pass)")
-    vis.add_argument("--vocab", type=Path, default=None, metavar="FILE",
-                     help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)")
-    vis.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...",
-                     help=TOPICS_HELP)
-    vis.add_argument("--frames", default=None, metavar="START:STOP[:STEP]",
-                     help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
-                          "backwards); ground truth and odometry follow")
-    vis.add_argument("--save-map", type=Path, default=None, metavar="DIR",
-                     help="save the map (keyframes, landmarks with covariances, descriptors and "
-                          "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
-                          "(isam2 only); 2-D runs: the landmarks with their 2x2 covariances")
-    vis.add_argument("--map", type=Path, default=None, metavar="DIR",
-                     help="continue mapping from a saved map: the first frame is relocalised in "
-                          "it (its pose and covariance start the run); with --save-map the "
-                          "joint map of both sessions is saved. 2-D runs (isam2, ekf): "
-                          "localisation only, the map's landmarks held fixed, associated by id")
-    vis.add_argument("--relocalise", action="store_true",
-                     help="when active search loses the track, relocalise against the run's own "
-                          "map (PnP, added as a closure; isam2 only); metrics.json counts the "
-                          "losses and recoveries ([relocalise] of --config)")
-
+    vis.add_argument(
+        "--frontend",
+        choices=("harris", "orb", "fpga"),
+        default=None,
+        help="corner detector and matching (default: [tracker] of --config, else harris)",
+    )
+    vis.add_argument(
+        "--odometry",
+        choices=("auto", "sequence", "derived", "none"),
+        default=None,
+        help="sequence's own odometry, noisy odometry derived from ground truth, or "
+        "none (the camera alone: iSAM2 starts a monocular map and tracks by "
+        "PnP, the EKF runs its constant-velocity model); default auto: "
+        "sequence if it has odometry, else derived",
+    )
+    vis.add_argument(
+        "--odometry-noise",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("SIGMA_T_PER_M", "SIGMA_R_DEG"),
+        help="derived odometry noise: translation sigma per metre travelled and "
+        "rotation sigma per frame in degrees (default 0.02 0.1); refused "
+        "when the odometry is not derived",
+    )
+    vis.add_argument(
+        "--loops",
+        action="store_true",
+        help="detect loop closures (bag of words, RANSAC, metric pose by PnP on the "
+        "map) and add them to the back end as robust factors (isam2 only); "
+        "writes loops.csv and loops.jsonl. Without --vocab a vocabulary is "
+        "first trained on the sequence's own images (an extra pass)",
+    )
+    vis.add_argument(
+        "--vocab",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)",
+    )
+    vis.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
+    vis.add_argument(
+        "--frames",
+        default=None,
+        metavar="START:STOP[:STEP]",
+        help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
+        "backwards); ground truth and odometry follow",
+    )
+    vis.add_argument(
+        "--save-map",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="save the map (keyframes, landmarks with covariances, descriptors and "
+        "patches, bag of words, vocabulary) to DIR for 'graphslam localize' "
+        "(isam2 only); 2-D runs: the landmarks with their 2x2 covariances",
+    )
+    vis.add_argument(
+        "--map",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="continue mapping from a saved map: the first frame is relocalised in "
+        "it (its pose and covariance start the run); with --save-map the "
+        "joint map of both sessions is saved. 2-D runs (isam2, ekf): "
+        "localisation only, the map's landmarks held fixed, associated by id",
+    )
+    vis.add_argument(
+        "--relocalise",
+        action="store_true",
+        help="when active search loses the track, relocalise against the run's own "
+        "map (PnP, added as a closure; isam2 only); metrics.json counts the "
+        "losses and recoveries ([relocalise] of --config)",
+    )
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -225,8 +303,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
     if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
-        args.backend = (registry.DEFAULT_BACKEND if args.no_polish
-                        else registry.default_backend(args.dataset))
+        args.backend = registry.DEFAULT_BACKEND if args.no_polish else registry.default_backend(args.dataset)
     status = _dispatch(args)
     if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
         if args.write_bag:  # a finished or stopped run's estimate

@@ -15,8 +15,12 @@ def session_extras(args, config, sequence, backend, tracker):
     """``(prior map, start pose, map recorder, relocaliser)`` of ``--map``, ``--save-map``
     and ``--relocalise`` (None for each flag not given)."""
     prior_map, start_pose = anchor_on_map(args, config, sequence)
-    return (prior_map, start_pose, start_map(args, config, sequence, backend, tracker),
-            start_relocaliser(args, config, sequence, backend))
+    return (
+        prior_map,
+        start_pose,
+        start_map(args, config, sequence, backend, tracker),
+        start_relocaliser(args, config, sequence, backend),
+    )
 
 
 def start_map(args, config, sequence, backend, tracker):
@@ -42,12 +46,13 @@ def anchor_on_map(args, config, sequence):
     from slamcore.errors import GraphSlamError
 
     smap = load_map(args.map)
-    placed = LocaliseSession.open(sequence, config, smap, args.dataset).localizer.locate(
-        sequence.load(0))
+    placed = LocaliseSession.open(sequence, config, smap, args.dataset).localizer.locate(sequence.load(0))
     if placed.wTc is None:
-        raise GraphSlamError(f"--map: the first frame cannot be relocalised in {args.map} "
-                             "(place recognition and PnP found no pose); start the run where "
-                             "the map was seen (--frames)")
+        raise GraphSlamError(
+            f"--map: the first frame cannot be relocalised in {args.map} "
+            "(place recognition and PnP found no pose); start the run where "
+            "the map was seen (--frames)"
+        )
     return smap, (placed.wTc, placed.covariance)
 
 
@@ -62,8 +67,12 @@ def start_relocaliser(args, config, sequence, backend):
     from loopclosure.pnp import PnpConfig
 
     require_loop_closures(backend, "--relocalise")  # a relocalised pose joins as a closure
-    return RunRelocaliser(sequence.K, config.section(RelocaliseConfig), config.section(PnpConfig),
-                          OrbDetector(config.section(LoopDetectorConfig).orb))
+    return RunRelocaliser(
+        sequence.K,
+        config.section(RelocaliseConfig),
+        config.section(PnpConfig),
+        OrbDetector(config.section(LoopDetectorConfig).orb),
+    )
 
 
 def chain_hooks(*hooks):
@@ -77,11 +86,11 @@ def chain_hooks(*hooks):
     def hook(*a):
         for h in live:
             h(*a)
+
     return hook
 
 
-def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool,
-                 prior_map=None) -> None:
+def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool, prior_map=None) -> None:
     """Build the map of the finished run (joined after ``prior_map``, the ``--map`` of
     this session, when given), write it to ``--save-map`` and say so on stdout."""
     import sys
@@ -96,21 +105,30 @@ def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool,
     seq = result.sequence
     if not quiet and closer is None and prior_map is None:
         print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
-    meta = {"dataset": seq.name, "source": seq.source_path, "frames": args.frames,
-            "n_frames": result.frames, "backend": result.backend, "frontend": result.frontend,
-            "odometry": result.odometry,
-            "tracker": dataclasses.asdict(tracker.config),
-            "bow_orb": dataclasses.asdict(recorder.bow_orb.config)}
+    meta = {
+        "dataset": seq.name,
+        "source": seq.source_path,
+        "frames": args.frames,
+        "n_frames": result.frames,
+        "backend": result.backend,
+        "frontend": result.frontend,
+        "odometry": result.odometry,
+        "tracker": dataclasses.asdict(tracker.config),
+        "bow_orb": dataclasses.asdict(recorder.bow_orb.config),
+    }
     vocabulary = None if closer is None else closer.detector.database.vocabulary
     if prior_map is not None:
         vocabulary = prior_map.vocabulary  # one vocabulary for the joint map's BoW vectors
-    smap = recorder.build(result.estimate, backend, vocabulary=vocabulary,
-                          meta=meta, K=seq.K, image_size=seq.image_size)
+    smap = recorder.build(
+        result.estimate, backend, vocabulary=vocabulary, meta=meta, K=seq.K, image_size=seq.image_size
+    )
     if prior_map is not None:
         from graphslam.maps.merge import merge_maps
 
         smap = merge_maps(prior_map, smap)
     save_map(smap, args.save_map)
     c = smap.counts()
-    print(f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
-          f"{c['observations']} observations")
+    print(
+        f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
+        f"{c['observations']} observations"
+    )

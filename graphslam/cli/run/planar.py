@@ -35,25 +35,29 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
     if getattr(args, "map", None) is not None:
         if args.backend not in registry.LOCALISING_BACKENDS:
-            raise ConfigError(f"--map: {args.backend} cannot localise against a fixed map "
-                              f"(2-D: {' or '.join(registry.LOCALISING_BACKENDS)})")
+            raise ConfigError(
+                f"--map: {args.backend} cannot localise against a fixed map "
+                f"(2-D: {' or '.join(registry.LOCALISING_BACKENDS)})"
+            )
         if getattr(args, "save_map", None) is not None:
-            raise ConfigError("--save-map with --map: a 2-D localisation run keeps the map "
-                              "fixed and adds no landmark, so there is no new map to save")
+            raise ConfigError(
+                "--save-map with --map: a 2-D localisation run keeps the map "
+                "fixed and adds no landmark, so there is no new map to save"
+            )
     if getattr(args, "relocalise", False):
         raise GraphSlamError("--relocalise applies to image sequences only")
     if args.loops:
-        raise GraphSlamError("--loops applies to image sequences only (pose graphs bring "
-                             "their own closures)")
+        raise GraphSlamError("--loops applies to image sequences only (pose graphs bring their own closures)")
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
     if args.no_polish:
         registry.check_no_polish(args.backend)
-    if (args.seed is not None and args.dataset != "synthetic"
-            and args.backend not in registry.SEEDED_BACKENDS):
-        raise ConfigError(f"--seed has no effect here: {args.dataset} is not simulated and "
-                          f"{args.backend} draws no random numbers (it seeds the synthetic "
-                          f"worlds and FastSLAM's particles)")
+    if args.seed is not None and args.dataset != "synthetic" and args.backend not in registry.SEEDED_BACKENDS:
+        raise ConfigError(
+            f"--seed has no effect here: {args.dataset} is not simulated and "
+            f"{args.backend} draws no random numbers (it seeds the synthetic "
+            f"worlds and FastSLAM's particles)"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,8 +69,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     refuse_ignored_flags(args)
     config = registry.read_config(args.config)
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config,
-                                    robot=getattr(args, "robot", None))
+    dataset = registry.load_dataset(
+        args.dataset, seed=args.seed, config=config, robot=getattr(args, "robot", None)
+    )
     truth = None
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
@@ -86,32 +91,34 @@ def run(args: argparse.Namespace) -> int:
         backend = planar_maps.localiser(args.backend, pmap, config, overrides)
     else:
         backend = registry.make_backend(args.backend, config=config, overrides=overrides)
-    out_dir = args.resolved_out = (args.out
-                                   or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}")
+    out_dir = args.resolved_out = args.out or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum",
-                  "nees.csv"}
+    will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum", "nees.csv"}
     remove_stale_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
 
-    n_steps = len(dataset.frames) if args.max_steps is None else min(args.max_steps,
-                                                                     len(dataset.frames))
+    n_steps = len(dataset.frames) if args.max_steps is None else min(args.max_steps, len(dataset.frames))
     log = hook = None
     mode = args.rerun
     if mode != "off":
         from graphslam.visualisation.planar import RunRecorder
 
-        opener = functools.partial(RunRecorder.open,
-                                   background=n_steps >= RunRecorder.BACKGROUND_MIN_STEPS)
+        opener = functools.partial(RunRecorder.open, background=n_steps >= RunRecorder.BACKGROUND_MIN_STEPS)
         log, mode = open_recorder(opener, mode, out_dir / "run.rrd", args.rerun_url)
         log.start(dataset, n_steps)
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
     save_map = getattr(args, "save_map", None)
-    result = pipeline.run(dataset, backend, max_steps=args.max_steps, progress=not args.quiet,
-                          on_step=hook,  # the recorder asks for its own covariances (finish)
-                          with_covariances=args.nees or save_map is not None)
-    metrics = pipeline.compute_metrics(result, seed=dataset.seed, ground_truth=truth,
-                                       wall_s=time.perf_counter() - t0)
+    result = pipeline.run(
+        dataset,
+        backend,
+        max_steps=args.max_steps,
+        progress=not args.quiet,
+        on_step=hook,  # the recorder asks for its own covariances (finish)
+        with_covariances=args.nees or save_map is not None,
+    )
+    metrics = pipeline.compute_metrics(
+        result, seed=dataset.seed, ground_truth=truth, wall_s=time.perf_counter() - t0
+    )
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
@@ -149,8 +156,10 @@ def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> Non
         return
     pmap = build_run_map(result, backend, config, max_steps)
     save_planar_map(pmap, folder)
-    print(f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "
-          f"({result.steps} steps of {result.dataset.name}, {result.backend})")
+    print(
+        f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "
+        f"({result.steps} steps of {result.dataset.name}, {result.backend})"
+    )
 
 
 def format_summary(metrics) -> str:
@@ -161,23 +170,38 @@ def format_summary(metrics) -> str:
         ("steps", metrics.steps),
         ("landmarks", metrics.landmarks),
         ("final error", fmt(metrics.final_error, ".6g")),
-        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f") + (
-            f" (over the {metrics.ate_poses} of {metrics.steps} poses with truth)"
-            if metrics.ate_poses is not None and metrics.ate_poses < metrics.steps else "")),
+        (
+            "ATE RMSE [m]",
+            fmt(metrics.ate_rmse_m, ".4f")
+            + (
+                f" (over the {metrics.ate_poses} of {metrics.steps} poses with truth)"
+                if metrics.ate_poses is not None and metrics.ate_poses < metrics.steps
+                else ""
+            ),
+        ),
         ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
         ("back end steps/s", fmt(metrics.steps_per_s, ".1f")),
     ]
     if metrics.map_rmse_m is not None:
-        rows.append(("map RMSE [m]", f"{metrics.map_rmse_m:.4f} ({metrics.landmarks_matched} "
-                     "landmarks, trajectory-aligned)"))
+        rows.append(
+            (
+                "map RMSE [m]",
+                f"{metrics.map_rmse_m:.4f} ({metrics.landmarks_matched} landmarks, trajectory-aligned)",
+            )
+        )
         rows.append(("map RMSE, map-aligned [m]", fmt(metrics.map_rmse_m_map_aligned, ".4f")))
-        rows.append(("landmarks recovered", f"{metrics.landmarks_recovered} of "
-                     f"{metrics.landmarks_true} within 0.3 m"))
+        rows.append(
+            ("landmarks recovered", f"{metrics.landmarks_recovered} of {metrics.landmarks_true} within 0.3 m")
+        )
     for name, a in (metrics.agents or {}).items():
-        rows.append((f"ATE RMSE {name} [m]", f"{a['ate_rmse_m']:.4f} (odometry "
-                     f"{a['odometry_ate_rmse_m']:.4f}, {a['poses']} poses)"))
+        rows.append(
+            (
+                f"ATE RMSE {name} [m]",
+                f"{a['ate_rmse_m']:.4f} (odometry {a['odometry_ate_rmse_m']:.4f}, {a['poses']} poses)",
+            )
+        )
     for note in metrics.dataset_notes or ():
         rows.append(("data", note))
     if metrics.loop_closures_skipped:

@@ -13,25 +13,27 @@ from graphslam.cli.common import fmt, report_outputs, summary_table
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
-OUTPUTS = {"trajectory.tum", "graph.g2o", "graph.graph", "closures.csv", "metrics.json",
-           "ground_truth.tum"}
+OUTPUTS = {"trajectory.tum", "graph.g2o", "graph.graph", "closures.csv", "metrics.json", "ground_truth.tum"}
 
 
 def refuse_ignored_flags(args: argparse.Namespace) -> None:
     """Flags a pose-graph solve cannot use are refused, one line each."""
     for flag in ("frontend", "odometry", "odometry_noise", "vocab", "rerun_every", "seed"):
         if getattr(args, flag, None) is not None:
-            raise ConfigError(f"--{flag.replace('_', '-')} does not apply to a pose-graph "
-                              "solve (nothing is random or streamed)")
+            raise ConfigError(
+                f"--{flag.replace('_', '-')} does not apply to a pose-graph "
+                "solve (nothing is random or streamed)"
+            )
     for flag in ("save_map", "map"):
         if getattr(args, flag, None) is not None:
-            raise ConfigError(f"--{flag.replace('_', '-')} applies to landmark runs and image "
-                              "sequences, not to a pose-graph solve")
+            raise ConfigError(
+                f"--{flag.replace('_', '-')} applies to landmark runs and image "
+                "sequences, not to a pose-graph solve"
+            )
     if args.max_steps is not None and args.max_steps < 2:
         raise ConfigError("--max-steps must be at least 2 for a pose graph (one edge)")
     if args.loops:
-        raise ConfigError("--loops applies to image sequences only (pose graphs bring "
-                          "their own closures)")
+        raise ConfigError("--loops applies to image sequences only (pose graphs bring their own closures)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,8 +67,7 @@ def run(args: argparse.Namespace) -> int:
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 
-def load_graph(dataset: str, solver_config, max_steps: int | None = None,
-               ground_truth: Path | None = None):
+def load_graph(dataset: str, solver_config, max_steps: int | None = None, ground_truth: Path | None = None):
     """``(graph, truth or None)`` of ``--dataset`` (a file or a built-in pose graph, whose
     truth comes with it), cut to ``max_steps`` poses; ``ground_truth``: a trajectory file
     matched by pose id."""
@@ -78,8 +79,7 @@ def load_graph(dataset: str, solver_config, max_steps: int | None = None,
     if is_builtin_pose_graph(dataset):
         graph, truth = builtin_pose_graph(dataset)  # city10000's truth comes with it
     else:
-        graph = registry.load_pose_graph(dataset, solver_config.toro_noise,
-                                         solver_config.information_fix)
+        graph = registry.load_pose_graph(dataset, solver_config.toro_noise, solver_config.information_fix)
     if max_steps is not None:
         from graphslam.sources.posegraph_files import truncated
 
@@ -118,27 +118,56 @@ def format_summary(metrics) -> str:
     rows = [
         ("dataset", metrics.dataset),
         ("backend", metrics.backend),
-        ("graph", f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
-                  f"{metrics.edges} edges ({metrics.closures} closures)"),
+        (
+            "graph",
+            f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
+            f"{metrics.edges} edges ({metrics.closures} closures)",
+        ),
         *information_rows(metrics.information_fixed),
         *([("edge numbers read as", metrics.noise)] if metrics.noise else []),
-        *([("self-edges ignored", f"{metrics.self_edges_ignored['edges']} edges from a pose "
-            f"to itself (lines {', '.join(map(str, metrics.self_edges_ignored['lines']))}"
-            f"{', ...' if metrics.self_edges_ignored['edges'] > 10 else ''}): they constrain "
-            "nothing")] if metrics.self_edges_ignored else []),
-        *([("EQUIV pairs ignored", f"{metrics.equiv_ignored} (same-place marks: the solver "
-            "does not merge them, as gtsam; kept in the written graph)")]
-          if metrics.equiv_ignored else []),
+        *(
+            [
+                (
+                    "self-edges ignored",
+                    f"{metrics.self_edges_ignored['edges']} edges from a pose "
+                    f"to itself (lines {', '.join(map(str, metrics.self_edges_ignored['lines']))}"
+                    f"{', ...' if metrics.self_edges_ignored['edges'] > 10 else ''}): they constrain "
+                    "nothing",
+                )
+            ]
+            if metrics.self_edges_ignored
+            else []
+        ),
+        *(
+            [
+                (
+                    "EQUIV pairs ignored",
+                    f"{metrics.equiv_ignored} (same-place marks: the solver "
+                    "does not merge them, as gtsam; kept in the written graph)",
+                )
+            ]
+            if metrics.equiv_ignored
+            else []
+        ),
         ("initialisation", metrics.init),
         ("initial cost", fmt(metrics.initial_cost, ".10g")),
         ("final cost", fmt(metrics.final_cost, ".10g")),
-        *([("final cost, kept edges", fmt(metrics.final_cost_kept, ".10g"))]
-          if metrics.final_cost_kept is not None else []),
+        *(
+            [("final cost, kept edges", fmt(metrics.final_cost_kept, ".10g"))]
+            if metrics.final_cost_kept is not None
+            else []
+        ),
         ("LM iterations", fmt(metrics.iterations, "d")),
         ("closures rejected", closure_row(metrics)),
-        ("ATE RMSE [m]", fmt(metrics.ate_rmse_m, ".4f") + (
-            "" if metrics.ate_poses is None or metrics.ate_rmse_m is None
-            else f" (over the {metrics.ate_poses} of {metrics.poses} poses with truth)")),
+        (
+            "ATE RMSE [m]",
+            fmt(metrics.ate_rmse_m, ".4f")
+            + (
+                ""
+                if metrics.ate_poses is None or metrics.ate_rmse_m is None
+                else f" (over the {metrics.ate_poses} of {metrics.poses} poses with truth)"
+            ),
+        ),
         ("odometry ATE RMSE [m]", fmt(metrics.odometry_ate_rmse_m, ".4f")),
         ("wall time [s]", fmt(metrics.wall_s, ".2f")),
         ("back end [s]", fmt(metrics.backend_s, ".2f")),
@@ -146,11 +175,19 @@ def format_summary(metrics) -> str:
     if metrics.interrupted:
         rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
     if not metrics.converged:
-        tries = ("--backend isam2, another --init"
-                 if not registry.backend_row(metrics.backend).streams else "--no-polish")
-        rows.append(("NOT CONVERGED", f"LM stopped at its cap of {metrics.iterations} "
-                                      "iterations; the cost may be far from the optimum "
-                                      f"(try {tries}, or [posegraph] max_iterations)"))
+        tries = (
+            "--backend isam2, another --init"
+            if not registry.backend_row(metrics.backend).streams
+            else "--no-polish"
+        )
+        rows.append(
+            (
+                "NOT CONVERGED",
+                f"LM stopped at its cap of {metrics.iterations} "
+                "iterations; the cost may be far from the optimum "
+                f"(try {tries}, or [posegraph] max_iterations)",
+            )
+        )
     rows += route_rows(metrics.route)
     if metrics.certificate is not None:
         retried = "shonan_retry" in (metrics.route or {})
@@ -183,45 +220,65 @@ def optimality_row(certificate: dict, retried: bool = False) -> str:
     the line does not suggest it."""
     if certificate["certified"] is None:
         return f"not checked: {certificate['unchecked']}"
-    near = (f"the estimate is {certificate['max_translation_change_m']:.3g} m / "
-            f"{certificate['max_rotation_change_deg']:.3g} deg from it")
+    near = (
+        f"the estimate is {certificate['max_translation_change_m']:.3g} m / "
+        f"{certificate['max_rotation_change_deg']:.3g} deg from it"
+    )
     if certificate["certified"]:
-        return (f"certified: SE-Sync's problem (isotropic weights, chordal rotations) refined "
-                f"from the estimate is its global optimum within {certificate['relative_gap']:.1e} "
-                f"relative; {near} (checked in {certificate['wall_s']:.2f} s)")
-    gap = ("no dual bound: " f"{certificate['negative_pivots']} negative eigenvalues"
-           if certificate["relative_gap"] is None
-           else f"gap {certificate['relative_gap']:.1e} relative")
-    budget = ("; its refinement stopped at its time budget (the solve's time)"
-              if certificate.get("refine_stopped") else "")
-    return (f"NOT certified ({gap}): SE-Sync's problem refined from the estimate may not be "
-            f"at its global optimum, nor the estimate at the file's ({near}){budget}"
-            + ("" if retried else "; --init shonan starts from certified rotations"))
+        return (
+            f"certified: SE-Sync's problem (isotropic weights, chordal rotations) refined "
+            f"from the estimate is its global optimum within {certificate['relative_gap']:.1e} "
+            f"relative; {near} (checked in {certificate['wall_s']:.2f} s)"
+        )
+    gap = (
+        f"no dual bound: {certificate['negative_pivots']} negative eigenvalues"
+        if certificate["relative_gap"] is None
+        else f"gap {certificate['relative_gap']:.1e} relative"
+    )
+    budget = (
+        "; its refinement stopped at its time budget (the solve's time)"
+        if certificate.get("refine_stopped")
+        else ""
+    )
+    return (
+        f"NOT certified ({gap}): SE-Sync's problem refined from the estimate may not be "
+        f"at its global optimum, nor the estimate at the file's ({near}){budget}"
+        + ("" if retried else "; --init shonan starts from certified rotations")
+    )
 
 
 def closure_row(metrics) -> str:
     """How many closures were rejected, and by which test."""
     test = metrics.closure_test
     if test is None:
-        why = ("[posegraph] robust_closures = \"none\": every closure kept"
-               if metrics.closures else "no closures")
+        why = (
+            '[posegraph] robust_closures = "none": every closure kept' if metrics.closures else "no closures"
+        )
         return f"{metrics.closures_rejected} ({why})"
-    return (f"{metrics.closures_rejected} of {metrics.closures} (outlier test: whitened "
-            f"residual > {test['threshold_whitened']:.2f} at the kept-edge optimum; "
-            f"robust_closures = \"{test['robust_closures']}\")")
+    return (
+        f"{metrics.closures_rejected} of {metrics.closures} (outlier test: whitened "
+        f"residual > {test['threshold_whitened']:.2f} at the kept-edge optimum; "
+        f'robust_closures = "{test["robust_closures"]}")'
+    )
 
 
 #: What each ``[posegraph] information_fix`` put in place of the file's matrix.
-INFORMATION_FIXES = {"nearest": "the nearest positive-definite matrix",
-                     "isotropic": "SE-Sync's isotropic translation and rotation weights"}
+INFORMATION_FIXES = {
+    "nearest": "the nearest positive-definite matrix",
+    "isotropic": "SE-Sync's isotropic translation and rotation weights",
+}
 
 
 def information_rows(fixed: dict | None) -> list[tuple[str, str]]:
     """The summary row saying how many edges' information the reader replaced, and how."""
     if not fixed:
         return []
-    return [("information fixed", f"{fixed['edges']} edges not positive definite, replaced by "
-                                  f"{INFORMATION_FIXES[fixed['method']]}")]
+    return [
+        (
+            "information fixed",
+            f"{fixed['edges']} edges not positive definite, replaced by {INFORMATION_FIXES[fixed['method']]}",
+        )
+    ]
 
 
 def check_backend(args: argparse.Namespace) -> None:
@@ -229,12 +286,14 @@ def check_backend(args: argparse.Namespace) -> None:
     from graphslam import registry
 
     if not registry.backend_row(args.backend).streams:
-        raise GraphSlamError(f"--backend {args.backend} solves pose-graph files only (g2o or "
-                             "TORO)")
+        raise GraphSlamError(f"--backend {args.backend} solves pose-graph files only (g2o or TORO)")
     if args.init is not None:
         from graphslam.sources.posegraph_files import has_landmark_lines
 
-        why = (f" ({args.dataset} has landmark lines: it runs as landmark SLAM, whose poses "
-               "start from the odometry)" if Path(args.dataset).is_file()
-               and has_landmark_lines(args.dataset) else "")
+        why = (
+            f" ({args.dataset} has landmark lines: it runs as landmark SLAM, whose poses "
+            "start from the odometry)"
+            if Path(args.dataset).is_file() and has_landmark_lines(args.dataset)
+            else ""
+        )
         raise GraphSlamError(f"--init applies to pose-graph files only (g2o or TORO){why}")

@@ -50,25 +50,27 @@ def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
 
     if args.odometry_noise is not None and mode != "derived":
         used = "the sequence's own odometry" if mode == "sequence" else "no odometry"
-        raise ConfigError(f"--odometry-noise sets the noise of derived odometry; this run uses "
-                          f"{used} (--odometry {mode})")
+        raise ConfigError(
+            f"--odometry-noise sets the noise of derived odometry; this run uses {used} (--odometry {mode})"
+        )
     if args.no_polish:
         registry.check_no_polish(args.backend)
     if args.nees:
         raise ConfigError("--nees applies to 2-D runs only")
     if getattr(args, "map", None) is not None and mode == "none":
         # the saved map would give the first pose only: the run's lengths would be its own
-        raise ConfigError("--map anchors the run's first pose in the saved map's metric frame; "
-                          "without odometry the run has a scale of its own (its first baseline), "
-                          "not the map's: give it odometry, or place frames with graphslam localize")
+        raise ConfigError(
+            "--map anchors the run's first pose in the saved map's metric frame; "
+            "without odometry the run has a scale of its own (its first baseline), "
+            "not the map's: give it odometry, or place frames with graphslam localize"
+        )
 
 
 def _load_sequence(args, config):
     """The image sequence of ``--dataset``, with ``--ground-truth`` if given."""
     from graphslam import registry
 
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config,
-                                            topics=args.topics)
+    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config, topics=args.topics)
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
@@ -92,14 +94,22 @@ def run(args: argparse.Namespace) -> int:
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
     if args.backend not in registry.VISUAL_BACKENDS:
-        raise GraphSlamError(f"back end {args.backend!r} does not run on image sequences "
-                             f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})")
+        raise GraphSlamError(
+            f"back end {args.backend!r} does not run on image sequences "
+            f"(use one of: {', '.join(registry.VISUAL_BACKENDS)})"
+        )
     config = registry.read_config(args.config)
     sequence = _load_sequence(args, config)
-    setup = VisualSetup.read(sequence, config, odometry=args.odometry,
-                             odometry_noise=args.odometry_noise, seed=args.seed,
-                             max_frames=args.max_steps, detector=args.frontend,
-                             no_polish=args.no_polish)
+    setup = VisualSetup.read(
+        sequence,
+        config,
+        odometry=args.odometry,
+        odometry_noise=args.odometry_noise,
+        seed=args.seed,
+        max_frames=args.max_steps,
+        detector=args.frontend,
+        no_polish=args.no_polish,
+    )
     refuse_ignored_flags(args, setup.mode)
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
     session = setup.session(args.backend)
@@ -109,33 +119,42 @@ def run(args: argparse.Namespace) -> int:
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     loops = args.loops or args.vocab is not None
-    remove_stale_outputs(out_dir, {"trajectory.tum", "landmarks.csv", "metrics.json"}
-                         | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
-                         | ({"run.rrd"} if args.rerun == "save" else set())
-                         | ({"loops.csv", "loops.jsonl"} if loops else set()))
+    remove_stale_outputs(
+        out_dir,
+        {"trajectory.tum", "landmarks.csv", "metrics.json"}
+        | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
+        | ({"run.rrd"} if args.rerun == "save" else set())
+        | ({"loops.csv", "loops.jsonl"} if loops else set()),
+    )
     recorder = hook = None
     rerun_mode = args.rerun
     if rerun_mode != "off":
         from graphslam.visualisation.spatial import VisualRecorder
 
-        recorder, rerun_mode = open_recorder(VisualRecorder.open, rerun_mode,
-                                             out_dir / "run.rrd", args.rerun_url)
+        recorder, rerun_mode = open_recorder(
+            VisualRecorder.open, rerun_mode, out_dir / "run.rrd", args.rerun_url
+        )
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
     from graphslam.cli.run.maps import chain_hooks, save_run_map, session_extras
 
-    prior_map, start_pose, mapper, relocaliser = session_extras(args, config, sequence, backend,
-                                                                tracker)
+    prior_map, start_pose, mapper, relocaliser = session_extras(args, config, sequence, backend, tracker)
     hook = chain_hooks(hook, mapper, relocaliser)
     closer = None
     if loops:
-        closer = _loop_closer(args, config, sequence, backend, n_frames,
-                              None if recorder is None else recorder.loop_hook(sequence))
-    result = session.run(progress=not args.quiet, on_frame=hook, loop_closer=closer,
-                         start_pose=start_pose)
-    metrics = vp.compute_metrics(result, seed=getattr(getattr(sequence, "config", None), "seed", None),
-                                 wall_s=time.perf_counter() - t0)
+        closer = _loop_closer(
+            args,
+            config,
+            sequence,
+            backend,
+            n_frames,
+            None if recorder is None else recorder.loop_hook(sequence),
+        )
+    result = session.run(progress=not args.quiet, on_frame=hook, loop_closer=closer, start_pose=start_pose)
+    metrics = vp.compute_metrics(
+        result, seed=getattr(getattr(sequence, "config", None), "seed", None), wall_s=time.perf_counter() - t0
+    )
     metrics.backend = args.backend
     metrics.backend_class = result.backend
     if closer is not None:
@@ -184,18 +203,25 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
         check_vocabulary(vocab, args.vocab)
         source = str(args.vocab)
     else:
-        features = lc.sequence_features(sequence, n_frames, OrbDetector(detector_config.orb),
-                                        progress=not args.quiet)
+        features = lc.sequence_features(
+            sequence, n_frames, OrbDetector(detector_config.orb), progress=not args.quiet
+        )
         vocab = train_vocabulary([f.descriptors for f in features], SELF_TRAINED_WORDS)
         source = f"trained on the sequence ({n_frames} frames)"
         if not args.quiet:
             print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
-    return lc.make_loop_closer(sequence, backend, vocab, detector_config,
-                               config.section(VerifyConfig),
-                               config.section(PnpConfig),
-                               config.section(lc.LoopClosingConfig),
-                               features=features, on_candidate=on_candidate,
-                               vocabulary_source=source)
+    return lc.make_loop_closer(
+        sequence,
+        backend,
+        vocab,
+        detector_config,
+        config.section(VerifyConfig),
+        config.section(PnpConfig),
+        config.section(lc.LoopClosingConfig),
+        features=features,
+        on_candidate=on_candidate,
+        vocabulary_source=source,
+    )
 
 
 def format_summary(m) -> str:
@@ -213,8 +239,10 @@ def format_summary(m) -> str:
         ("ATE [% of path]", fmt(m.ate_percent_of_path, ".2f")),
         ("odometry ATE RMSE [m]", fmt(m.odometry_ate_rmse_m, ".4f")),
         ("odometry ATE [% of path]", fmt(m.odometry_ate_percent_of_path, ".2f")),
-        ("RPE per frame [m / deg]", "n/a" if not rpe else
-         f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}"),
+        (
+            "RPE per frame [m / deg]",
+            "n/a" if not rpe else f"{rpe['trans_rmse_m']:.4f} / {rpe['rot_rmse_deg']:.3f}",
+        ),
         ("path length [m]", fmt(m.path_length_m, ".2f")),
         ("wall time [s]", fmt(m.wall_s, ".2f")),
         ("tracking + back end [s]", fmt(m.processing_s, ".2f")),
@@ -222,28 +250,42 @@ def format_summary(m) -> str:
     ]
     stats = m.backend_stats or {}
     if stats.get("pose_covariance_from_isam2"):
-        rows.append(("numerical recovery", "polished marginals indeterminate; last pose "
-                                           "covariance from iSAM2"))
+        rows.append(
+            ("numerical recovery", "polished marginals indeterminate; last pose covariance from iSAM2")
+        )
     if "reparametrised" in stats:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
     if m.loops:
         lp = m.loops
-        rows.append(("loop closures added / verified / candidates",
-                     f"{lp['closures']} / {lp['verified']} / {lp['candidates']}"))
+        rows.append(
+            (
+                "loop closures added / verified / candidates",
+                f"{lp['closures']} / {lp['verified']} / {lp['candidates']}",
+            )
+        )
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.tracking_loss:
         tl = m.tracking_loss
-        rows.append(("tracking losses / relocalised / found again",
-                     f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}"))
+        rows.append(
+            (
+                "tracking losses / relocalised / found again",
+                f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}",
+            )
+        )
     mono = stats.get("camera_alone")
     if mono is not None:
         first = mono.get("first_map")
         rows.append(("frames with a pose", f"{m.frames_with_pose} of {m.frames}"))
-        rows.append(("monocular map started", "never: " + mono.get("no_first_map_because", "")
-                     if first is None else
-                     f"frame {first['frame']} ({first['model']}, {first['points']} points; "
-                     f"scale: {first['scale_gauge']})"))
+        rows.append(
+            (
+                "monocular map started",
+                "never: " + mono.get("no_first_map_because", "")
+                if first is None
+                else f"frame {first['frame']} ({first['model']}, {first['points']} points; "
+                f"scale: {first['scale_gauge']})",
+            )
+        )
         rows.append(("frames by PnP / coasted", f"{mono['pnp_tracked_frames']} / {mono['coasted_frames']}"))
     for note in m.dataset_notes or ():
         rows.append(("data", note))

@@ -164,24 +164,37 @@ class MrclamConfig:
     def __post_init__(self):
         validate(self)
         if self.sigma_range_m == 0.0 and self.sigma_range_per_m == 0.0:
-            raise ConfigError("mrclam.sigma_range_m and mrclam.sigma_range_per_m are both 0 "
-                              "(a range measured without error)")
+            raise ConfigError(
+                "mrclam.sigma_range_m and mrclam.sigma_range_per_m are both 0 "
+                "(a range measured without error)"
+            )
         if self.sigma_bearing_rad == 0.0 and self.sigma_bearing_m == 0.0:
-            raise ConfigError("mrclam.sigma_bearing_rad and mrclam.sigma_bearing_m are both 0 "
-                              "(a bearing measured without error)")
+            raise ConfigError(
+                "mrclam.sigma_bearing_rad and mrclam.sigma_bearing_m are both 0 "
+                "(a bearing measured without error)"
+            )
 
     def sighting_correlation(self, robot: int) -> SightingCorrelation | None:
         """The time correlation of ``robot``'s camera errors, None when
         ``correlation_time_s`` is 0 (sightings independent)."""
         if self.correlation_time_s == 0.0:
             return None
-        return SightingCorrelation(self.correlation_time_s, self.range_correlated_share,
-                                   self.bearing_correlated_share, sensor=robot)
+        return SightingCorrelation(
+            self.correlation_time_s, self.range_correlated_share, self.bearing_correlated_share, sensor=robot
+        )
 
     def motion_model(self) -> MotionModel:
-        return MotionModel(self.odometry_lag_s, self.forward_scale, self.angular_scale,
-                           self.a_s_m, self.b_s_m2_per_s, self.a_y_m, self.a_theta_rad,
-                           self.c_theta_rad2_per_m, self.b_theta_rad2_per_s)
+        return MotionModel(
+            self.odometry_lag_s,
+            self.forward_scale,
+            self.angular_scale,
+            self.a_s_m,
+            self.b_s_m2_per_s,
+            self.a_y_m,
+            self.a_theta_rad,
+            self.c_theta_rad2_per_m,
+            self.b_theta_rad2_per_s,
+        )
 
 
 def is_mrclam_folder(path) -> bool:
@@ -212,8 +225,7 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
                 if not tok or tok[0].startswith("#"):
                     continue
                 if len(tok) != columns:
-                    raise InputError(f"needs {columns} numbers ({what}), got {len(tok)}",
-                                     path, line_no)
+                    raise InputError(f"needs {columns} numbers ({what}), got {len(tok)}", path, line_no)
                 for t in tok:
                     if not NUMBER_TOKEN.fullmatch(t):
                         raise InputError(f"{quote(t)} is not a number", path, line_no)
@@ -236,8 +248,9 @@ def check_times(table, lines, path: Path, strictly: bool = False) -> None:
     bad = (step <= 0) if strictly else (step < 0)
     if bad.any():
         k = int(np.argmax(bad)) + 1
-        raise InputError(f"time {t[k]:.3f} s comes after {t[k - 1]:.3f} s: the log must be "
-                         "in time order", path, lines[k])
+        raise InputError(
+            f"time {t[k]:.3f} s comes after {t[k - 1]:.3f} s: the log must be in time order", path, lines[k]
+        )
 
 
 def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
@@ -247,8 +260,7 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
     barcodes: dict[int, int] = {}
     for row, (subject, code) in enumerate(table):
         if subject != int(subject) or code != int(code) or subject < 1 or code < 0:
-            raise InputError("subject and barcode must be whole numbers >= 1 and >= 0",
-                             path, lines[row])
+            raise InputError("subject and barcode must be whole numbers >= 1 and >= 0", path, lines[row])
         if int(code) in barcodes:
             raise InputError(f"barcode {int(code)} is given to two subjects", path, lines[row])
         barcodes[int(code)] = int(subject)
@@ -275,8 +287,9 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
     track = robot_track(config, config.robot, odo, meas, truth, barcodes)
     track.notes.insert(0, f"robot {config.robot}")
     if track.robot_sightings:
-        track.notes.append(f"{len(track.robot_sightings)} sightings of other robots left out "
-                           "(single-robot run)")
+        track.notes.append(
+            f"{len(track.robot_sightings)} sightings of other robots left out (single-robot run)"
+        )
     return _dataset(folder, config, track, landmarks_true)
 
 
@@ -284,7 +297,7 @@ def robots_in(folder: Path) -> list[int]:
     """Robot numbers N with a ``RobotN_Odometry.dat`` in ``folder``, in order."""
     out = []
     for p in folder.glob("Robot*_Odometry.dat"):
-        digits = p.name[len("Robot"):-len("_Odometry.dat")]
+        digits = p.name[len("Robot") : -len("_Odometry.dat")]
         if digits.isascii() and digits.isdigit():
             out.append(int(digits))
     return sorted(out)
@@ -324,28 +337,32 @@ def _check_speeds(odo, lines, path: Path) -> None:
     bad = (np.abs(odo[:, 1]) > SPEED_MAX_MPS) | (np.abs(odo[:, 2]) > TURN_RATE_MAX_RADPS)
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(f"commanded velocity {odo[k, 1]:g} m/s, {odo[k, 2]:g} rad/s is beyond "
-                         f"{SPEED_MAX_MPS:g} m/s or {TURN_RATE_MAX_RADPS:.3g} rad/s", path, lines[k])
+        raise InputError(
+            f"commanded velocity {odo[k, 1]:g} m/s, {odo[k, 2]:g} rad/s is beyond "
+            f"{SPEED_MAX_MPS:g} m/s or {TURN_RATE_MAX_RADPS:.3g} rad/s",
+            path,
+            lines[k],
+        )
 
 
 def _check_sightings(meas, lines, path: Path) -> None:
     for row in range(len(meas)):
         _, code, rng, bearing = meas[row]
         if code != int(code) or code < 0:
-            raise InputError(f"barcode {code:g} is not a whole number >= 0", path,
-                             lines[row])
+            raise InputError(f"barcode {code:g} is not a whole number >= 0", path, lines[row])
         if not 0.0 < rng < 1e3:
             raise InputError(f"range {rng:g} m is not in (0, 1000)", path, lines[row])
         if not abs(bearing) <= 2 * math.pi:
-            raise InputError(f"bearing {bearing:g} rad is not within +-2 pi", path,
-                             lines[row])
+            raise InputError(f"bearing {bearing:g} rad is not within +-2 pi", path, lines[row])
 
 
 def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) -> np.ndarray:
     """Frame times: each distinct sighting time in the odometry's span, and more
     where sightings are further apart than ``every_s``; (F,) increasing."""
-    t0, t1 = float(odometry_s[0]), float(max(odometry_s[-1], sighting_s[-1] if len(sighting_s)
-                                              else odometry_s[-1]))
+    t0, t1 = (
+        float(odometry_s[0]),
+        float(max(odometry_s[-1], sighting_s[-1] if len(sighting_s) else odometry_s[-1])),
+    )
     key = np.unique(np.concatenate([[t0, t1], sighting_s[(sighting_s >= t0) & (sighting_s <= t1)]]))
     out = [key[:1]]
     for a, b in zip(key[:-1], key[1:], strict=True):
@@ -361,8 +378,13 @@ def truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     NaN rows outside the truth's span or inside a gap longer than :data:`TRUTH_MAX_GAP_S`."""
     t = truth[:, 0]
     heading = np.unwrap(truth[:, 3])
-    out = np.column_stack([np.interp(times_s, t, truth[:, 1]), np.interp(times_s, t, truth[:, 2]),
-                           np.interp(times_s, t, heading)])
+    out = np.column_stack(
+        [
+            np.interp(times_s, t, truth[:, 1]),
+            np.interp(times_s, t, truth[:, 2]),
+            np.interp(times_s, t, heading),
+        ]
+    )
     out[:, 2] = np.remainder(out[:, 2] + np.pi, 2 * np.pi) - np.pi
     k = np.searchsorted(t, times_s, side="right")
     inside = (k > 0) & (k < len(t))
@@ -392,8 +414,9 @@ class RobotTrack:
     notes: list
 
 
-def robot_track(config: MrclamConfig, n: int, odo, meas, truth, barcodes,
-                extra_times: np.ndarray | None = None) -> RobotTrack:
+def robot_track(
+    config: MrclamConfig, n: int, odo, meas, truth, barcodes, extra_times: np.ndarray | None = None
+) -> RobotTrack:
     """Frames at the landmark sightings, at least every ``frame_every_s``; odometry
     integrated between them. With ``extra_times`` (several robots in one graph), also
     at this robot's sightings of the others and at ``extra_times`` (when they see it)."""
@@ -402,35 +425,41 @@ def robot_track(config: MrclamConfig, n: int, odo, meas, truth, barcodes,
     unknown = subject == 0
     if unknown.any():
         codes = sorted({int(c) for c in meas[unknown, 1]})
-        notes.append(f"robot {n}: {int(unknown.sum())} sightings of barcodes Barcodes.dat does "
-                     f"not list ({', '.join(map(str, codes))}) dropped")
+        notes.append(
+            f"robot {n}: {int(unknown.sum())} sightings of barcodes Barcodes.dat does "
+            f"not list ({', '.join(map(str, codes))}) dropped"
+        )
     keep = ~unknown & (subject != n) & (meas[:, 0] >= odo[0, 0])
     early = int((~unknown & (meas[:, 0] < odo[0, 0])).sum())
     if early:
         notes.append(f"robot {n}: {early} sightings before the first odometry dropped")
     meas, subject = meas[keep], subject[keep]
     is_robot = np.isin(subject, list(ROBOT_SUBJECTS))
-    wanted = (meas[~is_robot, 0] if extra_times is None
-              else np.concatenate([meas[:, 0], extra_times]))
+    wanted = meas[~is_robot, 0] if extra_times is None else np.concatenate([meas[:, 0], extra_times])
     times = frame_times(odo[:, 0], np.sort(wanted), config.frame_every_s)
     model = config.motion_model()
-    deltas, covs = integrate(*held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model), times,
-                             model.coefficients())
+    deltas, covs = integrate(
+        *held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model), times, model.coefficients()
+    )
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
         notes.append(f"robot {n}: no ground truth")
     elif not has_truth.all():
-        notes.append(f"robot {n}: truth on {int(has_truth.sum())} of {len(times)} frames "
-                     "(scored there only)")
+        notes.append(f"robot {n}: truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
     frame_of = np.searchsorted(times, meas[:, 0]).tolist()
     is_robot = is_robot.tolist()
     zs, stamps = meas[:, 2:4], meas[:, 0].tolist()
-    landmarks = [(k, int(s), zs[i])
-                 for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True))
-                 if not r]
-    robots = [(k, int(s), zs[i], stamps[i])
-              for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True)) if r]
+    landmarks = [
+        (k, int(s), zs[i])
+        for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True))
+        if not r
+    ]
+    robots = [
+        (k, int(s), zs[i], stamps[i])
+        for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True))
+        if r
+    ]
     return RobotTrack(times, deltas, covs + COVARIANCE_FLOOR, wTb_true, landmarks, robots, notes)
 
 
@@ -449,18 +478,19 @@ def sighting_covariances(config: MrclamConfig, z: np.ndarray) -> np.ndarray:
     return out
 
 
-def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of,
-                          robot: int) -> dict:
+def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of, robot: int) -> dict:
     """``{frame: [Observation]}`` of the track's landmark sightings (by ``robot``'s
     camera), pose ids by ``pose_id_of(frame)``, time stamped, with the sensor's
     error correlation (:meth:`MrclamConfig.sighting_correlation`)."""
     rows = track.landmark_sightings
-    observations = range_bearing_batch([pose_id_of(k) for k, _, _ in rows], [s for _, s, _ in rows],
-                                       [z for _, _, z in rows],
-                                       sighting_covariances(config, np.array(
-                                           [z for _, _, z in rows]).reshape(-1, 2)),
-                                       stamps_s=[track.times[k] for k, _, _ in rows],
-                                       correlation=config.sighting_correlation(robot))
+    observations = range_bearing_batch(
+        [pose_id_of(k) for k, _, _ in rows],
+        [s for _, s, _ in rows],
+        [z for _, _, z in rows],
+        sighting_covariances(config, np.array([z for _, _, z in rows]).reshape(-1, 2)),
+        stamps_s=[track.times[k] for k, _, _ in rows],
+        correlation=config.sighting_correlation(robot),
+    )
     by_frame: dict[int, list] = {}
     for (k, _, _), obs in zip(rows, observations, strict=True):
         by_frame.setdefault(k, []).append(obs)
@@ -470,19 +500,34 @@ def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of,
 def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_true) -> Dataset:
     has_truth = np.isfinite(track.wTb_true).all(axis=1)
     prior = track.wTb_true[0] if has_truth[0] else np.zeros(3)
-    track.notes.append("start pose from the truth" if has_truth[0] else
-                       "start pose at the origin (no truth at the first frame)")
+    track.notes.append(
+        "start pose from the truth"
+        if has_truth[0]
+        else "start pose at the origin (no truth at the first frame)"
+    )
     ids = list(range(len(track.times)))
     odometry = odometry_batch(ids[:-1], ids[1:], track.deltas, track.covariances)
     by_frame = landmark_observations(track, config, int, config.robot)
     frames = []
     for k, t in enumerate(track.times.tolist()):
         seen = tuple(by_frame.get(k, ()))
-        frames.append(Frame(pose_id=k, stamp_s=t, odometry=odometry[k - 1] if k else None,
-                            observations=seen,
-                            true_landmark_ids=tuple(o.landmark_id for o in seen),
-                            wTb_true=track.wTb_true[k].copy() if has_truth[k] else None))
-    return Dataset(name=f"{folder.name}-robot{config.robot}", frames=frames, prior_wTb=prior,
-                   prior_covariance=np.eye(3) * PRIOR_VARIANCE,
-                   landmarks_true=landmarks_true or None, has_timestamps=True,
-                   source_path=str(folder), notes=tuple(track.notes))
+        frames.append(
+            Frame(
+                pose_id=k,
+                stamp_s=t,
+                odometry=odometry[k - 1] if k else None,
+                observations=seen,
+                true_landmark_ids=tuple(o.landmark_id for o in seen),
+                wTb_true=track.wTb_true[k].copy() if has_truth[k] else None,
+            )
+        )
+    return Dataset(
+        name=f"{folder.name}-robot{config.robot}",
+        frames=frames,
+        prior_wTb=prior,
+        prior_covariance=np.eye(3) * PRIOR_VARIANCE,
+        landmarks_true=landmarks_true or None,
+        has_timestamps=True,
+        source_path=str(folder),
+        notes=tuple(track.notes),
+    )

@@ -60,25 +60,35 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
             subject = barcodes.get(int(code), 0)
             if subject in seen_at and subject != n and t >= odo[0, 0]:
                 seen_at[subject].append(t)
-    tracks = {n: robot_track(config, n, *logs[n], barcodes, np.array(seen_at[n]))
-              for n in robots}
+    tracks = {n: robot_track(config, n, *logs[n], barcodes, np.array(seen_at[n])) for n in robots}
     order = sorted(((t, n, k) for n, tr in tracks.items() for k, t in enumerate(tr.times.tolist())))
     _, anchor_n, _ = order[0]
     notes = [f"robots {', '.join(map(str, robots))} in one graph; all starts from the truth"]
     starts = {}
     for n, tr in tracks.items():
         if not np.isfinite(tr.wTb_true[0]).all():
-            raise InputError(f"robot {n} has no truth at its first frame: --robot all takes "
-                             "every robot's start from the truth", folder)
+            raise InputError(
+                f"robot {n} has no truth at its first frame: --robot all takes "
+                "every robot's start from the truth",
+                folder,
+            )
         starts[n] = tr.wTb_true[0]
         notes.extend(tr.notes)
     position = {(n, k): i for i, (_, n, k) in enumerate(order)}
     sightings = _sightings(tracks, config, position)
-    observations = {n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k, n)
-                    for n, tr in tracks.items()}
-    steps = {n: odometry_batch([n * POSE_ID_STRIDE + k for k in range(len(tr.times) - 1)],
-                               [n * POSE_ID_STRIDE + k for k in range(1, len(tr.times))],
-                               tr.deltas, tr.covariances) for n, tr in tracks.items()}
+    observations = {
+        n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k, n)
+        for n, tr in tracks.items()
+    }
+    steps = {
+        n: odometry_batch(
+            [n * POSE_ID_STRIDE + k for k in range(len(tr.times) - 1)],
+            [n * POSE_ID_STRIDE + k for k in range(1, len(tr.times))],
+            tr.deltas,
+            tr.covariances,
+        )
+        for n, tr in tracks.items()
+    }
     frames = []
     for _, n, k in order:
         tr = tracks[n]
@@ -86,24 +96,43 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         if k > 0:
             odometry = steps[n][k - 1]
         elif n != anchor_n:
-            odometry = Odometry(anchor_n * POSE_ID_STRIDE, pid, between(starts[anchor_n], starts[n]),
-                                np.eye(3) * PRIOR_VARIANCE)
+            odometry = Odometry(
+                anchor_n * POSE_ID_STRIDE,
+                pid,
+                between(starts[anchor_n], starts[n]),
+                np.eye(3) * PRIOR_VARIANCE,
+            )
         else:
             odometry = None
         seen = tuple(observations[n].get(k, ()))
         has_truth = np.isfinite(tr.wTb_true[k]).all()
-        frames.append(Frame(pose_id=pid, stamp_s=float(tr.times[k]), odometry=odometry,
-                            observations=seen,
-                            true_landmark_ids=tuple(o.landmark_id for o in seen),
-                            wTb_true=tr.wTb_true[k].copy() if has_truth else None,
-                            pose_sightings=tuple(sightings.get(position[(n, k)], ()))))
-    agents = tuple((f"robot {n}", tuple(n * POSE_ID_STRIDE + k for k in range(len(tr.times))))
-                   for n, tr in tracks.items())
+        frames.append(
+            Frame(
+                pose_id=pid,
+                stamp_s=float(tr.times[k]),
+                odometry=odometry,
+                observations=seen,
+                true_landmark_ids=tuple(o.landmark_id for o in seen),
+                wTb_true=tr.wTb_true[k].copy() if has_truth else None,
+                pose_sightings=tuple(sightings.get(position[(n, k)], ())),
+            )
+        )
+    agents = tuple(
+        (f"robot {n}", tuple(n * POSE_ID_STRIDE + k for k in range(len(tr.times))))
+        for n, tr in tracks.items()
+    )
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
-    return Dataset(name=f"{folder.name}-all", frames=frames, prior_wTb=starts[anchor_n],
-                   prior_covariance=np.eye(3) * PRIOR_VARIANCE,
-                   landmarks_true=landmarks_true or None, has_timestamps=True,
-                   source_path=str(folder), notes=tuple(notes), agents=agents)
+    return Dataset(
+        name=f"{folder.name}-all",
+        frames=frames,
+        prior_wTb=starts[anchor_n],
+        prior_covariance=np.eye(3) * PRIOR_VARIANCE,
+        landmarks_true=landmarks_true or None,
+        has_timestamps=True,
+        source_path=str(folder),
+        notes=tuple(notes),
+        agents=agents,
+    )
 
 
 def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> dict[int, list]:
@@ -117,8 +146,9 @@ def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> dict[int, 
             j = int(np.searchsorted(other, t))
             if j >= len(other) or other[j] != t:
                 continue  # outside the other robot's log (before its odometry)
-            sighting = PoseSighting(n * POSE_ID_STRIDE + k, subject * POSE_ID_STRIDE + j, z,
-                                    sighting_covariances(config, z)[0])
+            sighting = PoseSighting(
+                n * POSE_ID_STRIDE + k, subject * POSE_ID_STRIDE + j, z, sighting_covariances(config, z)[0]
+            )
             later = max(position[(n, k)], position[(subject, j)])
             out.setdefault(later, []).append(sighting)
     return out

@@ -65,20 +65,28 @@ class MotionModel:
         return (self.a_s, self.b_s, self.a_y, self.a_theta, self.c_theta, self.b_theta)
 
 
-def held_commands(times_s: np.ndarray, v_mps: np.ndarray, w_radps: np.ndarray,
-                  model: MotionModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def held_commands(
+    times_s: np.ndarray, v_mps: np.ndarray, w_radps: np.ndarray, model: MotionModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The commands as the robot executed them: times shifted by the lag, speeds scaled.
 
     Returns ``(start_s (N,), v (N,), w (N,))``; command ``i`` holds from
     ``start_s[i]`` to ``start_s[i + 1]`` (the last one until the end of the log).
     """
-    return (np.asarray(times_s, dtype=np.float64) + model.lag_s,
-            np.asarray(v_mps, dtype=np.float64) * model.forward_scale,
-            np.asarray(w_radps, dtype=np.float64) * model.angular_scale)
+    return (
+        np.asarray(times_s, dtype=np.float64) + model.lag_s,
+        np.asarray(v_mps, dtype=np.float64) * model.forward_scale,
+        np.asarray(w_radps, dtype=np.float64) * model.angular_scale,
+    )
 
 
-def integrate(start_s: np.ndarray, v: np.ndarray, w: np.ndarray, frame_times_s: np.ndarray,
-              coefficients: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+def integrate(
+    start_s: np.ndarray,
+    v: np.ndarray,
+    w: np.ndarray,
+    frame_times_s: np.ndarray,
+    coefficients: tuple[float, ...],
+) -> tuple[np.ndarray, np.ndarray]:
     """Relative motion and its covariance between consecutive frame times.
 
     Args:
@@ -126,11 +134,13 @@ def integrate(start_s: np.ndarray, v: np.ndarray, w: np.ndarray, frame_times_s: 
             c, s = math.cos(th), math.sin(th)
             mx, my = c * lx - s * ly, s * lx + c * ly
             # F Sigma F^T with F = [[1, 0, -my], [0, 1, mx], [0, 0, 1]]
-            sxx, sxy, sxt, syy, syt = (sxx - 2 * my * sxt + my * my * stt,
-                                       sxy + mx * sxt - my * syt - my * mx * stt,
-                                       sxt - my * stt,
-                                       syy + 2 * mx * syt + mx * mx * stt,
-                                       syt + mx * stt)
+            sxx, sxy, sxt, syy, syt = (
+                sxx - 2 * my * sxt + my * my * stt,
+                sxy + mx * sxt - my * syt - my * mx * stt,
+                sxt - my * stt,
+                syy + 2 * mx * syt + mx * mx * stt,
+                syt + mx * stt,
+            )
             # + G Q G^T, Q diagonal in the interval's mid-heading frame
             q_al = a_s * abs(ds) + b_s * dt
             q_la = a_y * abs(ds)

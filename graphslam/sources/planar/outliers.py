@@ -72,8 +72,9 @@ def is_injected(lc: LoopClosure) -> bool:
     return lc.source == INJECTED_SOURCE
 
 
-def _template(rng: np.random.Generator, true_closures: list[LoopClosure],
-              covariance: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _template(
+    rng: np.random.Generator, true_closures: list[LoopClosure], covariance: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """``(delta, covariance)`` of the next injected closure: a true closure's, drawn
     with ``rng``, its covariance replaced by ``covariance`` when given; without true
     closures, a zero delta and ``covariance``."""
@@ -81,16 +82,20 @@ def _template(rng: np.random.Generator, true_closures: list[LoopClosure],
         template = true_closures[int(rng.integers(len(true_closures)))]
         return template.delta, (covariance if covariance is not None else template.covariance)
     if covariance is None:
-        raise GraphSlamError("dataset has no loop closure to copy a covariance from; "
-                             "pass covariance=")
+        raise GraphSlamError("dataset has no loop closure to copy a covariance from; pass covariance=")
     return np.zeros(3), covariance
 
 
-def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
-                          covariance: np.ndarray | None = None,
-                          min_index_gap: int = DEFAULT_MIN_INDEX_GAP,
-                          reference: tuple[np.ndarray, np.ndarray] | None = None,
-                          min_mahalanobis: float = DEFAULT_MIN_MAHALANOBIS) -> Dataset:
+def inject_false_closures(
+    dataset: Dataset,
+    fraction: float,
+    seed: int,
+    *,
+    covariance: np.ndarray | None = None,
+    min_index_gap: int = DEFAULT_MIN_INDEX_GAP,
+    reference: tuple[np.ndarray, np.ndarray] | None = None,
+    min_mahalanobis: float = DEFAULT_MIN_MAHALANOBIS,
+) -> Dataset:
     """A copy of ``dataset`` with ``round(fraction * closures)`` false closures added.
 
     See the module docstring for how they are drawn.
@@ -119,11 +124,9 @@ def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
     if n_inject == 0:
         return dataclasses.replace(dataset, frames=frames)
     if n_frames <= min_index_gap:
-        raise GraphSlamError(f"cannot inject closures {min_index_gap} poses apart "
-                             f"into {n_frames} frames")
+        raise GraphSlamError(f"cannot inject closures {min_index_gap} poses apart into {n_frames} frames")
     if not true_closures and covariance is None:
-        raise GraphSlamError("dataset has no loop closure to copy a covariance from; "
-                             "pass covariance=")
+        raise GraphSlamError("dataset has no loop closure to copy a covariance from; pass covariance=")
     if reference is None:
         reference = dataset.ground_truth()
     ref_pose = None
@@ -152,9 +155,12 @@ def inject_false_closures(dataset: Dataset, fraction: float, seed: int, *,
             added.setdefault(kj, []).append(lc)
             break
         else:
-            raise GraphSlamError(f"no false closure found in {MAX_DRAWS_PER_CLOSURE} draws "
-                                 f"(min_mahalanobis={min_mahalanobis} too large?)")
+            raise GraphSlamError(
+                f"no false closure found in {MAX_DRAWS_PER_CLOSURE} draws "
+                f"(min_mahalanobis={min_mahalanobis} too large?)"
+            )
     for kj, lcs in added.items():
-        frames[kj] = dataclasses.replace(frames[kj],
-                                         loop_closures=tuple(frames[kj].loop_closures) + tuple(lcs))
+        frames[kj] = dataclasses.replace(
+            frames[kj], loop_closures=tuple(frames[kj].loop_closures) + tuple(lcs)
+        )
     return dataclasses.replace(dataset, frames=frames)

@@ -132,8 +132,11 @@ def _check_steps(dr, lines, path: Path) -> None:
     bad = (np.abs(dr[:, 1]) > STEP_MAX_M) | (np.abs(dr[:, 2]) > math.pi)
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(f"step of {dr[k, 1]:g} m turning {dr[k, 2]:g} rad is beyond "
-                         f"{STEP_MAX_M:g} m or pi rad", path, lines[k])
+        raise InputError(
+            f"step of {dr[k, 1]:g} m turning {dr[k, 2]:g} rad is beyond {STEP_MAX_M:g} m or pi rad",
+            path,
+            lines[k],
+        )
 
 
 def _check_ranges(td, lines, path: Path) -> None:
@@ -141,8 +144,11 @@ def _check_ranges(td, lines, path: Path) -> None:
     bad_id = ((ids != np.round(ids)) | (ids < 0)).any(axis=1)
     if bad_id.any():
         k = int(np.argmax(bad_id))
-        raise InputError(f"sender and receiver ids must be whole numbers >= 0, got "
-                         f"{td[k, 1]:g} and {td[k, 2]:g}", path, lines[k])
+        raise InputError(
+            f"sender and receiver ids must be whole numbers >= 0, got {td[k, 1]:g} and {td[k, 2]:g}",
+            path,
+            lines[k],
+        )
     bad = ~((td[:, 3] > 0) & (td[:, 3] < RANGE_MAX_M))
     if bad.any():
         k = int(np.argmax(bad))
@@ -160,8 +166,7 @@ def _read_mat(path: Path) -> tuple[np.ndarray | None, dict[int, np.ndarray] | No
         raise InputError(f"not a readable MATLAB file: {exc}", path) from None
     gt = np.asarray(mat.get("GT", np.zeros((0, 4))), dtype=np.float64)
     if gt.ndim != 2 or gt.shape[1] != 4 or not np.isfinite(gt).all():
-        raise InputError(f"GT must be finite rows of time, x, y, heading (got shape {gt.shape})",
-                         path)
+        raise InputError(f"GT must be finite rows of time, x, y, heading (got shape {gt.shape})", path)
     if len(gt) >= 2 and not (np.diff(gt[:, 0]) > 0).all():
         raise InputError("GT times must increase", path)
     tl = np.asarray(mat.get("TL", np.zeros((0, 3))), dtype=np.float64)
@@ -197,8 +202,9 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
         if reversed_:
             truth = truth.copy()
             truth[:, 3] = truth[:, 3] + math.pi
-            notes.append(f"truth heading turned by pi (it pointed against the travel: "
-                         f"median angle {median:.2f} rad)")
+            notes.append(
+                f"truth heading turned by pi (it pointed against the travel: median angle {median:.2f} rad)"
+            )
         wTb_true = truth_at(truth, times)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
@@ -220,8 +226,9 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
         notes.append(f"ranges out of time order at {unordered} places (each assigned by its time)")
     frame_of = _nearest(times, td[:, 0])
     beacon_ids = td[:, 2].astype(np.int64)
-    ranges = range_batch(frame_of.tolist(), beacon_ids.tolist(), td[:, 3:4],
-                         np.full(len(td), RANGE_SIGMA_M**2))
+    ranges = range_batch(
+        frame_of.tolist(), beacon_ids.tolist(), td[:, 3:4], np.full(len(td), RANGE_SIGMA_M**2)
+    )
     ids = sorted(set(beacon_ids.tolist()))
     notes.append(f"{len(td)} ranges to {len(ids)} beacons ({', '.join(map(str, ids))})")
     by_frame: dict[int, list] = {}
@@ -230,13 +237,27 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
     frames = []
     for k, t in enumerate(times.tolist()):
         seen = tuple(by_frame.get(k, ()))
-        frames.append(Frame(pose_id=k, stamp_s=t, odometry=odometry[k - 1] if k else None,
-                            observations=seen, true_landmark_ids=tuple(o.landmark_id for o in seen),
-                            wTb_true=wTb_true[k].copy() if has_truth[k] else None))
+        frames.append(
+            Frame(
+                pose_id=k,
+                stamp_s=t,
+                odometry=odometry[k - 1] if k else None,
+                observations=seen,
+                true_landmark_ids=tuple(o.landmark_id for o in seen),
+                wTb_true=wTb_true[k].copy() if has_truth[k] else None,
+            )
+        )
     name = dr_path.name[: -len("_DR.txt")].lower() if is_plaza_dr_file(dr_path) else dr_path.stem
-    return Dataset(name=name, frames=frames, prior_wTb=prior,
-                   prior_covariance=np.eye(3) * PRIOR_VARIANCE, landmarks_true=beacons,
-                   has_timestamps=True, source_path=str(dr_path), notes=tuple(notes))
+    return Dataset(
+        name=name,
+        frames=frames,
+        prior_wTb=prior,
+        prior_covariance=np.eye(3) * PRIOR_VARIANCE,
+        landmarks_true=beacons,
+        has_timestamps=True,
+        source_path=str(dr_path),
+        notes=tuple(notes),
+    )
 
 
 def _nearest(times: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -74,17 +74,18 @@ from slamcore.planar.records import (
 
 
 # --------------------------------------------------------------------------- public
-def read_pose_graph(path, toro_noise: str = "auto", information_fix: str = "nearest",
-                    fmt: str | None = None) -> Dataset:
+def read_pose_graph(
+    path, toro_noise: str = "auto", information_fix: str = "nearest", fmt: str | None = None
+) -> Dataset:
     """A 2-D TORO or g2o file (told from its tags) as frames; ``BR`` lines become
     observations. ``toro_noise``, ``information_fix``: as for
     :func:`~graphslam.sources.posegraph_files.read_pose_graph_file`. ``fmt``
     (``"toro"``, ``"g2o"``): refuse a file of the other format. Name: the file stem."""
-    graph, sightings = read_pose_graph_records(path, toro_noise, information_fix,
-                                               landmarks=True, id_limit=MAX_KEY_ID)
+    graph, sightings = read_pose_graph_records(
+        path, toro_noise, information_fix, landmarks=True, id_limit=MAX_KEY_ID
+    )
     if fmt is not None and graph.format != fmt:
-        raise InputError(f"a {graph.format} file, read here as {fmt}", path,
-                         int(graph.edge_lines[0]))
+        raise InputError(f"a {graph.format} file, read here as {fmt}", path, int(graph.edge_lines[0]))
     return dataset_of_pose_graph(graph, sightings)
 
 
@@ -118,16 +119,20 @@ def read_city10000(path=None, ground_truth_path=None) -> Dataset:
 
 
 # --------------------------------------------------------------------------- frames
-def dataset_of_pose_graph(graph: pg.PoseGraph, sightings: Sightings | None = None,
-                          truth: np.ndarray | None = None) -> Dataset:
+def dataset_of_pose_graph(
+    graph: pg.PoseGraph, sightings: Sightings | None = None, truth: np.ndarray | None = None
+) -> Dataset:
     """The frames of a 2-D pose graph (module docstring), named as the graph.
 
     ``sightings``: ``BR`` lines, each an observation in its pose's frame;
     ``truth``: (N, 3) true poses in id order."""
     path = graph.source_path
     if graph.dim != 2:
-        raise InputError(f"a {graph.dim}-D pose graph: frame by frame, only 2-D ones run "
-                         "(run it with --backend isam2 or batch)", path)
+        raise InputError(
+            f"a {graph.dim}-D pose graph: frame by frame, only 2-D ones run "
+            "(run it with --backend isam2 or batch)",
+            path,
+        )
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
     first_line = np.full(graph.n_poses, np.iinfo(np.int64).max)
     for side in (0, 1):
@@ -135,8 +140,9 @@ def dataset_of_pose_graph(graph: pg.PoseGraph, sightings: Sightings | None = Non
     gaps = np.flatnonzero(np.diff(graph.ids) != 1)
     if len(gaps):
         g = int(gaps[0])
-        raise InputError(f"pose {int(graph.ids[g]) + 1} is missing (gap in pose ids)", path,
-                         int(first_line[g + 1]))
+        raise InputError(
+            f"pose {int(graph.ids[g]) + 1} is missing (gap in pose ids)", path, int(first_line[g + 1])
+        )
     is_odometry = _odometry_edges(graph, rows, first_line)
     deltas = graph.measurements.copy()
     deltas[:, 2] = wrap_angle(deltas[:, 2])
@@ -150,16 +156,30 @@ def dataset_of_pose_graph(graph: pg.PoseGraph, sightings: Sightings | None = Non
         closures_of[r].append(lc)
     seen_of: list[list[Observation]] = [[] for _ in range(graph.n_poses)]
     if sightings is not None and len(sightings):
-        for r, obs in zip(graph.index_of(sightings.pose_ids).tolist(),
-                          _observations(sightings, path), strict=True):
+        for r, obs in zip(
+            graph.index_of(sightings.pose_ids).tolist(), _observations(sightings, path), strict=True
+        ):
             seen_of[r].append(obs)
-    frames = [Frame(pose_id=k, odometry=odometry_of.get(r), observations=tuple(seen_of[r]),
-                    loop_closures=tuple(closures_of[r]),
-                    wTb_true=None if truth is None else truth[r])
-              for r, k in enumerate(graph.ids.tolist())]
-    return Dataset(name=graph.name, frames=frames, prior_wTb=np.zeros(3),
-                   prior_covariance=np.eye(3) * 1e-6, landmarks_true=None,
-                   has_timestamps=False, source_path=path, notes=_notes(graph))
+    frames = [
+        Frame(
+            pose_id=k,
+            odometry=odometry_of.get(r),
+            observations=tuple(seen_of[r]),
+            loop_closures=tuple(closures_of[r]),
+            wTb_true=None if truth is None else truth[r],
+        )
+        for r, k in enumerate(graph.ids.tolist())
+    ]
+    return Dataset(
+        name=graph.name,
+        frames=frames,
+        prior_wTb=np.zeros(3),
+        prior_covariance=np.eye(3) * 1e-6,
+        landmarks_true=None,
+        has_timestamps=False,
+        source_path=path,
+        notes=_notes(graph),
+    )
 
 
 def _odometry_edges(graph: pg.PoseGraph, rows: np.ndarray, first_line: np.ndarray) -> np.ndarray:
@@ -170,34 +190,42 @@ def _odometry_edges(graph: pg.PoseGraph, rows: np.ndarray, first_line: np.ndarra
     missing = np.setdiff1d(np.arange(1, graph.n_poses), frame)
     if len(missing):
         r = int(missing[0])
-        raise InputError(f"pose {int(graph.ids[r])} has no edge to pose {int(graph.ids[r - 1])}",
-                         graph.source_path, int(first_line[r]))
+        raise InputError(
+            f"pose {int(graph.ids[r])} has no edge to pose {int(graph.ids[r - 1])}",
+            graph.source_path,
+            int(first_line[r]),
+        )
     is_odometry = np.zeros(graph.n_edges, dtype=bool)
     is_odometry[chain[first]] = True
     return is_odometry
 
 
-def edge_records(graph: pg.PoseGraph, deltas: np.ndarray, covariances: np.ndarray,
-                 is_odometry: np.ndarray) -> tuple[list[Odometry], list[LoopClosure]]:
+def edge_records(
+    graph: pg.PoseGraph, deltas: np.ndarray, covariances: np.ndarray, is_odometry: np.ndarray
+) -> tuple[list[Odometry], list[LoopClosure]]:
     """Odometry and loop-closure records of the edges (file order), checked in bulk
     (64 000 edges of w10000: 0.1 s, not 3 s one by one); when anything is off,
     :func:`edge_records_one_by_one` names the line."""
     a, b = graph.edges[:, 0], graph.edges[:, 1]
     odo, loop = is_odometry, ~is_odometry
     try:
-        return (odometry_batch(a[odo], b[odo], deltas[odo], covariances[odo]),
-                loop_closure_batch(a[loop], b[loop], deltas[loop], covariances[loop]))
+        return (
+            odometry_batch(a[odo], b[odo], deltas[odo], covariances[odo]),
+            loop_closure_batch(a[loop], b[loop], deltas[loop], covariances[loop]),
+        )
     except MeasurementError:
         return edge_records_one_by_one(graph, deltas, covariances, is_odometry)
 
 
-def edge_records_one_by_one(graph: pg.PoseGraph, deltas: np.ndarray, covariances: np.ndarray,
-                            is_odometry: np.ndarray) -> tuple[list[Odometry], list[LoopClosure]]:
+def edge_records_one_by_one(
+    graph: pg.PoseGraph, deltas: np.ndarray, covariances: np.ndarray, is_odometry: np.ndarray
+) -> tuple[list[Odometry], list[LoopClosure]]:
     """:func:`edge_records` record by record: InputError at the first bad edge's line."""
     odometry: list[Odometry] = []
     closures: list[LoopClosure] = []
-    for (a, b), delta, cov, odo, line_no in zip(graph.edges.tolist(), deltas, covariances,
-                                                 is_odometry, graph.edge_lines.tolist(), strict=True):
+    for (a, b), delta, cov, odo, line_no in zip(
+        graph.edges.tolist(), deltas, covariances, is_odometry, graph.edge_lines.tolist(), strict=True
+    ):
         try:
             if odo:
                 odometry.append(Odometry(a, b, delta, cov))
@@ -220,8 +248,15 @@ def _observations(seen: Sightings, path) -> list[Observation]:
     out = []
     for k, line_no in enumerate(seen.lines.tolist()):
         try:
-            out.append(Observation(int(seen.pose_ids[k]), int(seen.landmark_ids[k]), z[k],
-                                   cov[k], ObservationKind.RANGE_BEARING))
+            out.append(
+                Observation(
+                    int(seen.pose_ids[k]),
+                    int(seen.landmark_ids[k]),
+                    z[k],
+                    cov[k],
+                    ObservationKind.RANGE_BEARING,
+                )
+            )
         except MeasurementError as exc:
             raise InputError(str(exc), path, line_no) from None
     return out
@@ -233,11 +268,14 @@ def _notes(graph: pg.PoseGraph) -> tuple[str, ...]:
     if graph.noise_note:
         notes.append(f"edge numbers read as {graph.noise_note}")
     if graph.n_information_fixed:
-        notes.append(f"{graph.n_information_fixed} edges' information not positive definite, "
-                     f"replaced ({graph.information_fix}, as a batch run of the file does)")
+        notes.append(
+            f"{graph.n_information_fixed} edges' information not positive definite, "
+            f"replaced ({graph.information_fix}, as a batch run of the file does)"
+        )
     lines = graph.self_edge_lines.tolist()
     if lines:
         listed = ", ".join(map(str, lines[:10])) + (", ..." if len(lines) > 10 else "")
-        notes.append(f"{len(lines)} edges from a pose to itself left out (lines {listed}): "
-                     "they constrain nothing")
+        notes.append(
+            f"{len(lines)} edges from a pose to itself left out (lines {listed}): they constrain nothing"
+        )
     return tuple(notes)

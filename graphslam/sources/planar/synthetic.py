@@ -175,17 +175,21 @@ class SyntheticConfig:
     def __post_init__(self):
         validate(self)
         if 2.0 * self.corner_radius_m >= min(self.route_length_m, self.route_width_m):
-            raise ConfigError("synthetic.corner_radius_m must be less than half of "
-                              "route_length_m and route_width_m")
-        if self.landmark_clearance_m >= self.world_margin_m + min(self.route_length_m,
-                                                                 self.route_width_m) / 2:
+            raise ConfigError(
+                "synthetic.corner_radius_m must be less than half of route_length_m and route_width_m"
+            )
+        if (
+            self.landmark_clearance_m
+            >= self.world_margin_m + min(self.route_length_m, self.route_width_m) / 2
+        ):
             raise ConfigError("synthetic.landmark_clearance_m leaves no room for landmarks")
-        perimeter = (2 * (self.route_length_m + self.route_width_m)
-                     - (8 - 2 * np.pi) * self.corner_radius_m)
+        perimeter = 2 * (self.route_length_m + self.route_width_m) - (8 - 2 * np.pi) * self.corner_radius_m
         steps = self.laps * perimeter / (self.speed_mps * self.dt_s)
         if steps > MAX_STEPS:
-            raise ConfigError(f"synthetic.dt_s: the route would take {steps:.3g} steps "
-                              f"(laps x perimeter / (speed_mps x dt_s)); at most {MAX_STEPS:.0e}")
+            raise ConfigError(
+                f"synthetic.dt_s: the route would take {steps:.3g} steps "
+                f"(laps x perimeter / (speed_mps x dt_s)); at most {MAX_STEPS:.0e}"
+            )
 
     def replace(self, **changes) -> SyntheticConfig:
         """A copy with ``changes`` applied (validated again)."""
@@ -231,8 +235,7 @@ def unicycle_delta(v: np.ndarray, w: np.ndarray, dt_s: float) -> tuple[np.ndarra
     f = np.where(small, 1.0 - a2 / 6.0, np.sin(a_safe) / a_safe)
     g = np.where(small, a / 2.0 - a * a2 / 24.0, (1.0 - np.cos(a_safe)) / a_safe)
     df = np.where(small, -a / 3.0, (a_safe * np.cos(a_safe) - np.sin(a_safe)) / a_safe**2)
-    dg = np.where(small, 0.5 - a2 / 8.0,
-                  (a_safe * np.sin(a_safe) - (1.0 - np.cos(a_safe))) / a_safe**2)
+    dg = np.where(small, 0.5 - a2 / 8.0, (a_safe * np.sin(a_safe) - (1.0 - np.cos(a_safe))) / a_safe**2)
     s = v * dt_s
     delta = np.stack([s * f, s * g, a], axis=-1)
     J = np.zeros(np.shape(a) + (3, 2))
@@ -244,8 +247,7 @@ def unicycle_delta(v: np.ndarray, w: np.ndarray, dt_s: float) -> tuple[np.ndarra
     return delta, J
 
 
-def _place_landmarks(config: SyntheticConfig, route_xy: np.ndarray,
-                     rng: np.random.Generator) -> np.ndarray:
+def _place_landmarks(config: SyntheticConfig, route_xy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(n_landmarks, 2) landmark positions by seeded rejection sampling."""
     lo = route_xy.min(axis=0) - config.world_margin_m
     hi = route_xy.max(axis=0) + config.world_margin_m
@@ -301,20 +303,33 @@ def make_synthetic(config: SyntheticConfig | None = None) -> Dataset:
     frames = []
     for k in range(n_steps + 1):
         z_true = observe(wTb[k][None, :], landmarks)
-        visible = np.flatnonzero((z_true[:, 0] <= config.sensor_range_m)
-                                 & (np.abs(z_true[:, 1]) <= half_fov))
+        visible = np.flatnonzero((z_true[:, 0] <= config.sensor_range_m) & (np.abs(z_true[:, 1]) <= half_fov))
         z = z_true[visible] + rng.standard_normal((visible.size, 2)) * sig_z
         z[:, 1] = wrap_angle(z[:, 1])
         keep = z[:, 0] > 0.0
-        obs = tuple(Observation(k, int(j), zj, R, ObservationKind.RANGE_BEARING, int(signatures[j]))
-                    for j, zj in zip(visible[keep], z[keep], strict=True))
+        obs = tuple(
+            Observation(k, int(j), zj, R, ObservationKind.RANGE_BEARING, int(signatures[j]))
+            for j, zj in zip(visible[keep], z[keep], strict=True)
+        )
         odometry = None if k == 0 else Odometry(k - 1, k, odo_delta[k - 1], odo_cov[k - 1])
         truth = wTb[k].copy()
         truth.setflags(write=False)
-        frames.append(Frame(pose_id=k, stamp_s=k * dt, odometry=odometry, observations=obs,
-                            wTb_true=truth,
-                            true_landmark_ids=tuple(int(j) for j in visible[keep])))
-    return Dataset(name="synthetic", frames=frames, prior_wTb=wTb[0].copy(),
-                   prior_covariance=PRIOR_VARIANCE * np.eye(3),
-                   landmarks_true={i: landmarks[i].copy() for i in range(config.n_landmarks)},
-                   has_timestamps=True, seed=config.seed)
+        frames.append(
+            Frame(
+                pose_id=k,
+                stamp_s=k * dt,
+                odometry=odometry,
+                observations=obs,
+                wTb_true=truth,
+                true_landmark_ids=tuple(int(j) for j in visible[keep]),
+            )
+        )
+    return Dataset(
+        name="synthetic",
+        frames=frames,
+        prior_wTb=wTb[0].copy(),
+        prior_covariance=PRIOR_VARIANCE * np.eye(3),
+        landmarks_true={i: landmarks[i].copy() for i in range(config.n_landmarks)},
+        has_timestamps=True,
+        seed=config.seed,
+    )

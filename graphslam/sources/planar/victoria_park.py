@@ -51,8 +51,13 @@ from slamcore.planar.records import (
 #: nothing physical, and its information (1 / variance) leaves the range in
 #: which a solver can weigh it against the others in double precision.
 VARIANCE_MIN = 1e-12
-VARIANCE_MAX = {"x": 1e6, "y": 1e6, "range": 1e6, "heading": (2 * math.pi) ** 2,
-                "bearing": (2 * math.pi) ** 2}
+VARIANCE_MAX = {
+    "x": 1e6,
+    "y": 1e6,
+    "range": 1e6,
+    "heading": (2 * math.pi) ** 2,
+    "bearing": (2 * math.pi) ** 2,
+}
 
 
 #: ``c11 c12 c13 c22 c23 c33`` (an ODOMETRY line's upper triangle, g2o's order) -> the
@@ -76,8 +81,11 @@ def check_variances(variances, names, path, line_no: int) -> None:
     :data:`VARIANCE_MAX` (one <= 0 is the records' "not positive definite")."""
     for v, name in zip(variances, names, strict=True):
         if v > 0 and not VARIANCE_MIN <= v <= VARIANCE_MAX[name]:
-            raise InputError(f"{name} variance {v:g} is outside {VARIANCE_MIN:g} .. "
-                             f"{VARIANCE_MAX[name]:.4g}", path, line_no)
+            raise InputError(
+                f"{name} variance {v:g} is outside {VARIANCE_MIN:g} .. {VARIANCE_MAX[name]:.4g}",
+                path,
+                line_no,
+            )
 
 
 def victoria_park_path() -> str:
@@ -123,11 +131,9 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                     order.append(i)
                     observations[i] = []
                 elif i not in observations:
-                    raise InputError(f"ODOMETRY from pose {i}, which does not exist yet",
-                                     path, line_no)
+                    raise InputError(f"ODOMETRY from pose {i}, which does not exist yet", path, line_no)
                 if j in observations:
-                    raise InputError(f"ODOMETRY creates pose {j}, which already exists",
-                                     path, line_no)
+                    raise InputError(f"ODOMETRY creates pose {j}, which already exists", path, line_no)
                 cov = np.array(nums[3:])[G2O_UPPER].reshape(3, 3)
                 check_variances(np.diag(cov), ("x", "y", "heading"), path, line_no)
                 delta = np.array(nums[:3])
@@ -142,8 +148,7 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                 lx, ly, v1, _v2, _v3 = parse_numbers(tok[3:], path, line_no)
                 check_distances((lx, ly), path, line_no)
                 if i not in observations:
-                    raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet",
-                                     path, line_no)
+                    raise InputError(f"LANDMARK seen from pose {i}, which does not exist yet", path, line_no)
                 z = np.array([math.hypot(lx, ly), math.atan2(ly, lx)])
                 cov = np.diag([v1, v1 / 10.0])
                 check_variances(np.diag(cov), ("range", "bearing"), path, line_no)
@@ -158,11 +163,16 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
 
 
 def _dataset(path, order, odometry, observations, name: str) -> Dataset:
-    frames = [Frame(pose_id=k, odometry=odometry.get(k),
-                    observations=tuple(observations[k])) for k in order]
-    return Dataset(name=name, frames=frames, prior_wTb=np.zeros(3),
-                   prior_covariance=np.eye(3) * 1e-6, landmarks_true=None,
-                   has_timestamps=False, source_path=str(path))
+    frames = [Frame(pose_id=k, odometry=odometry.get(k), observations=tuple(observations[k])) for k in order]
+    return Dataset(
+        name=name,
+        frames=frames,
+        prior_wTb=np.zeros(3),
+        prior_covariance=np.eye(3) * 1e-6,
+        landmarks_true=None,
+        has_timestamps=False,
+        source_path=str(path),
+    )
 
 
 def _plain_ids(tokens) -> bool:
@@ -191,8 +201,11 @@ def read_well_formed(path, name: str = "victoria-park") -> Dataset | None:
                     where.append(len(odo))
                 else:
                     return None
-        if not odo or not _plain_ids(t for r in odo for t in r[1:3]) \
-                or not _plain_ids(t for r in lms for t in r[1:3]):
+        if (
+            not odo
+            or not _plain_ids(t for r in odo for t in r[1:3])
+            or not _plain_ids(t for r in lms for t in r[1:3])
+        ):
             return None
         o_ids = [(int(r[1]), int(r[2])) for r in odo]
         l_ids = [(int(r[1]), int(r[2])) for r in lms]
@@ -225,8 +238,10 @@ def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name) -> Datas
     l_cov = np.zeros((len(l_num), 2, 2))
     l_cov[:, 0, 0], l_cov[:, 1, 1] = l_num[:, 2], l_num[:, 2] / 10.0
     upper = [VARIANCE_MAX[k] for k in ("x", "y", "heading", "range", "bearing")]
-    if not (_variances_ok(o_cov[:, [0, 1, 2], [0, 1, 2]], upper[:3])
-            and _variances_ok(l_cov[:, [0, 1], [0, 1]], upper[3:])):
+    if not (
+        _variances_ok(o_cov[:, [0, 1, 2], [0, 1, 2]], upper[:3])
+        and _variances_ok(l_cov[:, [0, 1], [0, 1]], upper[3:])
+    ):
         return None
     deltas = o_num[:, :3].copy()
     deltas[:, 2] = wrap_angle(deltas[:, 2])  # as the line reader

@@ -22,8 +22,15 @@ from slamcore.errors import InputError
 from slamcore.spatial.camera import intrinsics_matrix
 
 #: Intrinsics files looked for in a folder, in this order.
-INTRINSICS_FILE_NAMES = ("intrinsics.txt", "camera.txt", "intrinsics.yaml", "intrinsics.yml",
-                         "camera.yaml", "camera.yml", "calibration.txt")
+INTRINSICS_FILE_NAMES = (
+    "intrinsics.txt",
+    "camera.txt",
+    "intrinsics.yaml",
+    "intrinsics.yml",
+    "camera.yaml",
+    "camera.yml",
+    "calibration.txt",
+)
 
 #: TUM RGB-D colour-camera calibrations (fx, fy, cx, cy) and distortion
 #: (k1, k2, p1, p2, k3), from the dataset's "file formats" page. "ros" is the
@@ -115,8 +122,9 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
                 raise InputError(f"intrinsics: expected [fu, fv, cu, cv], got {arr.size} numbers", path)
             K = intrinsics_matrix(*arr)
         else:
-            raise InputError("no intrinsics found: expected fx/fy/cx/cy, K, camera_matrix "
-                             "or intrinsics", path)
+            raise InputError(
+                "no intrinsics found: expected fx/fy/cx/cy, K, camera_matrix or intrinsics", path
+            )
         dist = None
         for key in ("distortion", "distortion_coefficients", "dist_coeffs"):
             if key in data and data[key] is not None:
@@ -136,16 +144,16 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
         rows = [v] + [parse_floats(t, path, n, 3, "numbers (row of K)") for n, t in lines[1:3]]
         K, rest = np.array(rows), lines[3:]
     else:
-        raise InputError(f"expected 'fx fy cx cy' (4 numbers) or a row of K (3), got {v.size}",
-                         path, first_no)
+        raise InputError(
+            f"expected 'fx fy cx cy' (4 numbers) or a row of K (3), got {v.size}", path, first_no
+        )
     K = check_K(K, path, first_no)
     dist = None
     if rest:
         n, t = rest[0]
         dist = parse_floats(t, path, n, what="distortion coefficients")
         if dist.size not in (4, 5, 8, 12, 14):
-            raise InputError(f"expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}",
-                             path, n)
+            raise InputError(f"expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}", path, n)
         if len(rest) > 1:
             raise InputError("unexpected extra line after the distortion coefficients", path, rest[1][0])
     return K, dist
@@ -166,8 +174,10 @@ def resolve_intrinsics(intrinsics, folder: Path, presets: dict | None = None):
         return check_K(intrinsics_matrix(*arr), "intrinsics argument"), None
     if arr.shape == (3, 3):
         return check_K(arr, "intrinsics argument"), None
-    raise InputError(f"intrinsics must be (fx, fy, cx, cy), a 3x3 K, a file or a preset, "
-                     f"got shape {arr.shape}", "intrinsics argument")
+    raise InputError(
+        f"intrinsics must be (fx, fy, cx, cy), a 3x3 K, a file or a preset, got shape {arr.shape}",
+        "intrinsics argument",
+    )
 
 
 def find_intrinsics_file(folder: Path) -> Path | None:

@@ -89,13 +89,21 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
     idx = frame_indices(frames, len(sequence))
     odo, cov, sig = _composed_odometry(sequence, idx)
     return FrameSelection(
-        name=sequence.name, image_paths=[sequence.image_paths[i] for i in idx],
+        name=sequence.name,
+        image_paths=[sequence.image_paths[i] for i in idx],
         stamps_s=None if sequence.stamps_s is None else np.asarray(sequence.stamps_s)[idx],
-        K=sequence.K, distortion=sequence.distortion,
+        K=sequence.K,
+        distortion=sequence.distortion,
         wTc_true=None if sequence.wTc_true is None else np.asarray(sequence.wTc_true)[idx],
-        image_size=sequence.image_size, source_path=sequence.source_path,
-        base=sequence, indices=idx, odometry=odo, odometry_covariance=cov,
-        odometry_sigmas=sig, config=getattr(sequence, "config", None))
+        image_size=sequence.image_size,
+        source_path=sequence.source_path,
+        base=sequence,
+        indices=idx,
+        odometry=odo,
+        odometry_covariance=cov,
+        odometry_sigmas=sig,
+        config=getattr(sequence, "config", None),
+    )
 
 
 def _composed_odometry(sequence, idx: np.ndarray):

@@ -104,15 +104,16 @@ def listed_file(folder: Path, name: str, listing: Path, line: int) -> Path:
     own files, and a list from elsewhere must not make a run read any file."""
     path = inside_folder(folder, name)
     if path is None:
-        raise InputError(f"image {quote(name)} is outside the sequence folder {folder}",
-                         listing, line)
+        raise InputError(f"image {quote(name)} is outside the sequence folder {folder}", listing, line)
     return path
 
 
 # --------------------------------------------------------------------------- TUM RGB-D
 
-def _keep_matched(paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: list,
-                  max_dt_s: float, gpath: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
+
+def _keep_matched(
+    paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: list, max_dt_s: float, gpath: Path
+) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Images with a ground-truth stamp within ``max_dt_s`` and their ``wTc`` (N, 4, 4);
     the others are dropped (TUM and EuRoC truth often starts after the first images)."""
     order = np.argsort(gt_t, kind="stable")
@@ -120,12 +121,16 @@ def _keep_matched(paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: 
     keep = idx >= 0
     if not np.any(keep):
         raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
-    return ([p for p, k in zip(paths, keep, strict=True) if k], stamps[keep],
-            np.array(gt_T)[order][idx[keep]])
+    return (
+        [p for p, k in zip(paths, keep, strict=True) if k],
+        stamps[keep],
+        np.array(gt_T)[order][idx[keep]],
+    )
 
 
-def read_tum_rgbd(folder: str | Path, intrinsics=None,
-                  max_dt_s: float = ASSOCIATION_MAX_DT_S) -> ImageSequence:
+def read_tum_rgbd(
+    folder: str | Path, intrinsics=None, max_dt_s: float = ASSOCIATION_MAX_DT_S
+) -> ImageSequence:
     """A TUM RGB-D sequence folder (``rgb.txt``, ``rgb/``, ``groundtruth.txt``).
 
     ``intrinsics``: ``(fx, fy, cx, cy)``, a (3, 3) K, an intrinsics file path,
@@ -157,8 +162,11 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
     else:
         m = re.search(r"freiburg([123])", folder.resolve().name)
         if m is None:
-            raise InputError("no intrinsics: pass intrinsics=(fx, fy, cx, cy) or 'fr1'/'fr2'/'fr3', "
-                             f"or add one of {', '.join(INTRINSICS_FILE_NAMES)}", folder)
+            raise InputError(
+                "no intrinsics: pass intrinsics=(fx, fy, cx, cy) or 'fr1'/'fr2'/'fr3', "
+                f"or add one of {', '.join(INTRINSICS_FILE_NAMES)}",
+                folder,
+            )
         fxy, d = TUM_INTRINSICS["fr" + m.group(1)]
         K, dist = intrinsics_matrix(*fxy), None if d is None else np.array(d)
 
@@ -177,14 +185,15 @@ def read_tum_rgbd(folder: str | Path, intrinsics=None,
         # a repeated stamp gives one image two truths (association picks one silently)
         check_increasing(gt_t, gt_lines, gpath, "groundtruth timestamps")
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
-    return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc,
-                         image_size(paths[0]), str(folder))
+    return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc, image_size(paths[0]), str(folder))
 
 
 # --------------------------------------------------------------------------- EuRoC
 
-def read_euroc(folder: str | Path, camera: str = "cam0",
-               max_dt_s: float = ASSOCIATION_MAX_DT_S) -> ImageSequence:
+
+def read_euroc(
+    folder: str | Path, camera: str = "cam0", max_dt_s: float = ASSOCIATION_MAX_DT_S
+) -> ImageSequence:
     """A EuRoC MAV sequence folder (the one holding ``mav0/``, or ``mav0`` itself)."""
     folder = Path(folder)
     mav = folder if (folder / camera).is_dir() and not (folder / "mav0").is_dir() else folder / "mav0"
@@ -243,14 +252,17 @@ def read_euroc(folder: str | Path, camera: str = "cam0",
             gt_t.append(v[0] * 1e-9)
             gt_T.append(T @ T_BS)
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
-    return ImageSequence(f"euroc-{folder.name}", paths, stamps, K, dist, wTc,
-                         image_size(paths[0]), str(folder))
+    return ImageSequence(
+        f"euroc-{folder.name}", paths, stamps, K, dist, wTc, image_size(paths[0]), str(folder)
+    )
 
 
 # --------------------------------------------------------------------------- plain folder
 
-def read_image_folder(folder: str | Path, intrinsics_file: str | Path | None = None,
-                      intrinsics=None) -> ImageSequence:
+
+def read_image_folder(
+    folder: str | Path, intrinsics_file: str | Path | None = None, intrinsics=None
+) -> ImageSequence:
     """Images of a folder in natural file-name order, intrinsics from a file (or ``intrinsics``)."""
     folder = Path(folder)
     if not folder.is_dir():
@@ -265,13 +277,16 @@ def read_image_folder(folder: str | Path, intrinsics_file: str | Path | None = N
     elif (f := find_intrinsics_file(folder)) is not None:
         K, dist = read_intrinsics_file(f)
     else:
-        raise InputError(f"no intrinsics: pass intrinsics_file or add one of "
-                         f"{', '.join(INTRINSICS_FILE_NAMES)}", folder)
-    return ImageSequence(f"folder-{folder.name}", paths, None, K, dist, None,
-                         image_size(paths[0]), str(folder))
+        raise InputError(
+            f"no intrinsics: pass intrinsics_file or add one of {', '.join(INTRINSICS_FILE_NAMES)}", folder
+        )
+    return ImageSequence(
+        f"folder-{folder.name}", paths, None, K, dist, None, image_size(paths[0]), str(folder)
+    )
 
 
 # --------------------------------------------------------------------------- detection
+
 
 def read_image_sequence(path: str | Path, **kw) -> ImageSequence:
     """Detect the layout of ``path`` and read it.

@@ -81,8 +81,7 @@ def kitti_poses_path(folder: Path) -> Path | None:
     return None
 
 
-def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path,
-               source: Path) -> np.ndarray:
+def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path, source: Path) -> np.ndarray:
     """``rows`` (one per frame of the sequence) for the images present: all of
     them when the counts agree, else those of the frame numbers in the names."""
     if len(rows) == len(paths):
@@ -92,8 +91,11 @@ def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path,
         numbers = np.array([int(s) for s in stems])
         same = np.flatnonzero(np.diff(numbers) == 0)  # 000010.png and 0000010.png
         if same.size:
-            raise InputError(f"two images of frame {numbers[same[0]]}: {Path(paths[same[0]]).name} "
-                             f"and {Path(paths[same[0] + 1]).name}", img_dir)
+            raise InputError(
+                f"two images of frame {numbers[same[0]]}: {Path(paths[same[0]]).name} "
+                f"and {Path(paths[same[0] + 1]).name}",
+                img_dir,
+            )
         if numbers.max() < len(rows):
             return rows[numbers]
     raise InputError(f"{len(rows)} {what} but {len(paths)} images in {img_dir}", source)
@@ -123,5 +125,6 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
         wTc = _per_image(read_kitti_poses(ppath), paths, "poses", img_dir, ppath)
         if camera != 0:
             wTc = wTc @ c0Tck
-    return ImageSequence(f"kitti-{folder.name}", paths, stamps, K, None, wTc,
-                         image_size(paths[0]), str(folder))
+    return ImageSequence(
+        f"kitti-{folder.name}", paths, stamps, K, None, wTc, image_size(paths[0]), str(folder)
+    )

@@ -53,8 +53,7 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
     "truth": (rm.POSE_STAMPED, rm.TRANSFORM_STAMPED, rm.ODOMETRY),
     "odometry": (rm.ODOMETRY,),
 }
-AUTO_TYPES: dict[str, tuple[str, ...]] = {**ROLE_TYPES,
-                                          "truth": (rm.POSE_STAMPED, rm.TRANSFORM_STAMPED)}
+AUTO_TYPES: dict[str, tuple[str, ...]] = {**ROLE_TYPES, "truth": (rm.POSE_STAMPED, rm.TRANSFORM_STAMPED)}
 #: ``--topics ROLE=none``: do not read that role (say, odometry without a usable covariance).
 NO_TOPIC = "none"
 INSTALL_HINT = 'reading ROS bags needs the rosbags package: pip install ".[bags]"'
@@ -95,12 +94,10 @@ def parse_topics(text: str | None) -> dict[str, str]:
     for item in [] if text is None else str(text).split(","):
         role, eq, topic = item.strip().partition("=")
         if not eq or not topic.strip():
-            raise ConfigError(f"--topics takes ROLE=TOPIC items separated by commas, got "
-                              f"{quote(item)}")
+            raise ConfigError(f"--topics takes ROLE=TOPIC items separated by commas, got {quote(item)}")
         role = role.strip()
         if role not in ROLE_TYPES:
-            raise ConfigError(f"--topics: unknown role {quote(role)} (roles: "
-                              f"{', '.join(ROLE_TYPES)})")
+            raise ConfigError(f"--topics: unknown role {quote(role)} (roles: {', '.join(ROLE_TYPES)})")
         if role == "image" and topic.strip() == NO_TOPIC:
             raise ConfigError("--topics image=none: a run needs images")
         if role in out:
@@ -140,8 +137,18 @@ def bag_errors(path: Path) -> tuple[type[BaseException], ...]:
         from rosbags.serde import SerdeError
     except ImportError:
         raise InputError(INSTALL_HINT, path) from None
-    return (AnyReaderError, Reader1Error, Reader2Error, SerdeError, OSError, ValueError,
-            KeyError, IndexError, EOFError, struct.error)
+    return (
+        AnyReaderError,
+        Reader1Error,
+        Reader2Error,
+        SerdeError,
+        OSError,
+        ValueError,
+        KeyError,
+        IndexError,
+        EOFError,
+        struct.error,
+    )
 
 
 def _reason(e: BaseException) -> str:
@@ -171,8 +178,11 @@ def bag_topics(spec: str | Path) -> list[TopicSummary]:
         out = []
         for name, info in sorted(reader.topics.items()):
             n, span = info.msgcount, (last.get(name, 0) - first.get(name, 0)) / 1e9
-            out.append(TopicSummary(name, info.msgtype or "(mixed types)", n,
-                                    (n - 1) / span if n > 1 and span > 0 else None))
+            out.append(
+                TopicSummary(
+                    name, info.msgtype or "(mixed types)", n, (n - 1) / span if n > 1 and span > 0 else None
+                )
+            )
     return out
 
 
@@ -180,8 +190,7 @@ def chosen_roles(spec: str | Path, topics: list[TopicSummary], named: str | None
     """``{role: topic}`` ``--dataset`` would read (``graphslam info``), or why none: the
     error line of a missing or ambiguous topic (a listing is not refused for it)."""
     try:
-        return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named),
-                             _require_bag(spec))
+        return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named), _require_bag(spec))
     except InputError as e:
         return f"nothing ({e.reason})"
 
@@ -195,8 +204,7 @@ def _require_bag(spec: str | Path) -> Path:
     return path
 
 
-def choose_topics(topics: dict[str, str | None], named: dict[str, str],
-                  where: Path) -> dict[str, str]:
+def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: Path) -> dict[str, str]:
     """``{role: topic}`` from the bag's ``{topic: type}`` and the ``--topics`` names."""
     chosen: dict[str, str] = {}
     for role, types in ROLE_TYPES.items():
@@ -205,27 +213,30 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str],
         if role in named:
             topic = named[role]
             if topic not in topics:
-                raise InputError(f"--topics {role}={topic}: no such topic (topics: "
-                                 f"{', '.join(sorted(topics))})", where)
+                raise InputError(
+                    f"--topics {role}={topic}: no such topic (topics: {', '.join(sorted(topics))})", where
+                )
             if topics[topic] not in types:
-                raise InputError(f"--topics {role}={topic}: {topics[topic]} is not one of "
-                                 f"{', '.join(types)}", where)
+                raise InputError(
+                    f"--topics {role}={topic}: {topics[topic]} is not one of {', '.join(types)}", where
+                )
             chosen[role] = topic
             continue
-        found = sorted(t for t, ty in topics.items()
-                       if ty in AUTO_TYPES[role] and t not in chosen.values())
+        found = sorted(t for t, ty in topics.items() if ty in AUTO_TYPES[role] and t not in chosen.values())
         if role == "camera_info" and len(found) > 1 and "image" in chosen:
             # the camera's own: /cam0/camera_info beside /cam0/image_raw
             ns = chosen["image"].rsplit("/", 1)[0] + "/"
             found = [t for t in found if t.startswith(ns)] or found
         if len(found) > 1:
-            raise InputError(f"{len(found)} {role} topics ({', '.join(found)}): name one with "
-                             f"--topics {role}=TOPIC", where)
+            raise InputError(
+                f"{len(found)} {role} topics ({', '.join(found)}): name one with --topics {role}=TOPIC", where
+            )
         if found:
             chosen[role] = found[0]
         elif role == "image":
-            raise InputError(f"no image topic ({', '.join(types)}); topics: "
-                             f"{', '.join(sorted(topics)) or 'none'}", where)
+            raise InputError(
+                f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}", where
+            )
     return chosen
 
 
@@ -271,8 +282,7 @@ class BagSequence(ImageSequence):
         reader = self._reader()
         conn = reader.connections[ref.connection]
         try:
-            got = [raw for _, _, raw in reader.messages([conn], start=ref.record_ns,
-                                                        stop=ref.record_ns + 1)]
+            got = [raw for _, _, raw in reader.messages([conn], start=ref.record_ns, stop=ref.record_ns + 1)]
             if len(got) <= ref.rank:
                 raise InputError("image message not found again in the bag", name)
             msg = reader.deserialize(got[ref.rank], conn.msgtype)
@@ -280,8 +290,11 @@ class BagSequence(ImageSequence):
             raise InputError(f"cannot read the image: {_reason(e)}", name) from None
         img = rm.image_gray(msg, self.image_type, name)
         if (img.shape[1], img.shape[0]) != tuple(self.image_size):
-            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
-                             f"are {self.image_size[0]}x{self.image_size[1]}", name)
+            raise InputError(
+                f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
+                f"are {self.image_size[0]}x{self.image_size[1]}",
+                name,
+            )
         return img
 
     def _reader(self):
@@ -300,8 +313,10 @@ class BagSequence(ImageSequence):
 
 # --------------------------------------------------------------------------- reading
 
-def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
-             calibrated: bool = True) -> ImageSequence:
+
+def read_bag(
+    spec: str | Path, topics: dict[str, str] | None = None, *, calibrated: bool = True
+) -> ImageSequence:
     """The image sequence of the bag ``spec`` (module doc); ``topics``: ``--topics`` names.
     ``calibrated=False`` (``graphslam loops``): without a camera, ``K`` is None."""
     path = _require_bag(spec)
@@ -310,8 +325,7 @@ def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
         chosen = choose_topics(types, topics or {}, path)
         image_type = types[chosen["image"]]
         index = _index_images(reader, chosen["image"], image_type, path)
-        K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path,
-                                      calibrated)
+        K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path, calibrated)
         truth = odometry = None
         if "truth" in chosen:
             truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)
@@ -319,14 +333,29 @@ def read_bag(spec: str | Path, topics: dict[str, str] | None = None, *,
             odometry = _poses(reader, chosen["odometry"], rm.ODOMETRY, path)
     paths = [f"{path}#{chosen['image']}/{k:06d}" for k in range(len(index.refs))]
     seq = BagSequence(
-        name=f"rosbag-{path.stem if path.is_file() else path.name}", image_paths=paths,
-        stamps_s=rm.ns_to_s(index.stamps_ns), K=K, distortion=dist, wTc_true=None,
-        image_size=index.size, source_path=str(path), bag=str(path), topics=chosen,
-        image_type=image_type, frames=dict(zip(paths, index.refs, strict=True)),
-        notes=(f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
-               *notes, *index.notes,
-               *([] if truth is None else [f"truth: {chosen['truth']} "
-                                           f"({types[chosen['truth']]}, {len(truth.wTc)} poses)"])))
+        name=f"rosbag-{path.stem if path.is_file() else path.name}",
+        image_paths=paths,
+        stamps_s=rm.ns_to_s(index.stamps_ns),
+        K=K,
+        distortion=dist,
+        wTc_true=None,
+        image_size=index.size,
+        source_path=str(path),
+        bag=str(path),
+        topics=chosen,
+        image_type=image_type,
+        frames=dict(zip(paths, index.refs, strict=True)),
+        notes=(
+            f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
+            *notes,
+            *index.notes,
+            *(
+                []
+                if truth is None
+                else [f"truth: {chosen['truth']} ({types[chosen['truth']]}, {len(truth.wTc)} poses)"]
+            ),
+        ),
+    )
     if truth is not None:
         from graphslam.sources.ground_truth import with_ground_truth
 
@@ -358,13 +387,21 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
     for conn, t, raw in reader.messages(conns):
         msg = reader.deserialize(raw, conn.msgtype)
         where = f"{path}#{topic}/{len(refs):06d}"
-        wh = (rm.image_size(msg, msgtype, where) if msgtype == rm.IMAGE
-              else _decoded_size(msg, msgtype, where) if size is None else None)
+        wh = (
+            rm.image_size(msg, msgtype, where)
+            if msgtype == rm.IMAGE
+            else _decoded_size(msg, msgtype, where)
+            if size is None
+            else None
+        )
         if size is None:
             size = wh
         elif wh is not None and wh != size:
-            raise InputError(f"image is {wh[0]}x{wh[1]} px, the topic's first is "
-                             f"{size[0]}x{size[1]}: images of changing size", where)
+            raise InputError(
+                f"image is {wh[0]}x{wh[1]} px, the topic's first is "
+                f"{size[0]}x{size[1]}: images of changing size",
+                where,
+            )
         key = (position[id(conn)], t)
         seen[key] = seen.get(key, -1) + 1
         refs.append(FrameRef(key[0], t, seen[key]))
@@ -379,13 +416,13 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     if np.any(order != np.arange(len(order))):
         late = int(np.sum(np.diff(np.array(stamps, dtype=np.int64)) < 0))
-        notes.append(f"{topic}: {late} images recorded out of header-stamp order: sorted "
-                     "by header stamp")
+        notes.append(f"{topic}: {late} images recorded out of header-stamp order: sorted by header stamp")
     stamps = [stamps[k] for k in order]
     dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
     if dup:
-        raise InputError(f"two images on {topic} have the header stamp "
-                         f"{float(rm.ns_to_s([stamps[dup[0]]])[0])!r} s", path)
+        raise InputError(
+            f"two images on {topic} have the header stamp {float(rm.ns_to_s([stamps[dup[0]]])[0])!r} s", path
+        )
     return ImageIndex([refs[k] for k in order], stamps, size, tuple(notes))
 
 
@@ -394,8 +431,7 @@ def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
-def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path,
-                 calibrated: bool = True):
+def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, calibrated: bool = True):
     """``(K, distortion or None, notes)``: the first CameraInfo of ``topic``, else an
     intrinsics file beside the bag (as a plain image folder's)."""
     from graphslam.sources.spatial.calibration import (
@@ -411,8 +447,11 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path,
         if found is None and not calibrated:
             return None, None, ("no camera calibration",)
         if found is None:
-            raise InputError(f"no camera_info topic ({rm.CAMERA_INFO}) and no intrinsics file "
-                             f"({', '.join(INTRINSICS_FILE_NAMES)}) in or beside the bag", path)
+            raise InputError(
+                f"no camera_info topic ({rm.CAMERA_INFO}) and no intrinsics file "
+                f"({', '.join(INTRINSICS_FILE_NAMES)}) in or beside the bag",
+                path,
+            )
         K, dist = read_intrinsics_file(found)
         return K, dist, (f"intrinsics: {found}",)
     where = f"{path}#{topic}"
@@ -420,8 +459,9 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path,
     for conn, _, raw in reader.messages(conns):
         K, dist, wh = rm.camera_calibration(reader.deserialize(raw, conn.msgtype), where)
         if wh != (0, 0) and wh != tuple(size):
-            raise InputError(f"camera info is for {wh[0]}x{wh[1]} px images, the images are "
-                             f"{size[0]}x{size[1]}", where)
+            raise InputError(
+                f"camera info is for {wh[0]}x{wh[1]} px images, the images are {size[0]}x{size[1]}", where
+            )
         return K, dist, (f"camera_info: {topic} (first message)",)
     raise InputError("camera info topic has no messages", where)
 
@@ -458,8 +498,9 @@ def _poses(reader, topic: str, msgtype: str, path: Path):
     return stamps_s, np.array(poses)[order], (np.array(covs)[order] if covs else None)
 
 
-def with_odometry(seq: BagSequence, topic: str, stamps_s: np.ndarray, poses: np.ndarray,
-                  covs: np.ndarray) -> BagSequence:
+def with_odometry(
+    seq: BagSequence, topic: str, stamps_s: np.ndarray, poses: np.ndarray, covs: np.ndarray
+) -> BagSequence:
     """``seq`` with the odometry of an Odometry topic: ``c_k T c_{k+1}`` between the
     messages nearest each image (within 0.02 s), the message pose taken as the
     camera's (no TF is applied). Per step the covariance is the later message's
@@ -475,8 +516,7 @@ def with_odometry(seq: BagSequence, topic: str, stamps_s: np.ndarray, poses: np.
     idx = associate(np.asarray(seq.stamps_s, dtype=np.float64), stamps_s, ASSOCIATION_MAX_DT_S)
     why = None
     if np.any(idx < 0):
-        why = (f"{int(np.sum(idx < 0))} of {len(idx)} images have no message within "
-               f"{ASSOCIATION_MAX_DT_S} s")
+        why = f"{int(np.sum(idx < 0))} of {len(idx)} images have no message within {ASSOCIATION_MAX_DT_S} s"
     else:
         T, P = poses[idx], covs[idx]
         step = np.linalg.inv(T[:-1]) @ T[1:]
@@ -489,8 +529,12 @@ def with_odometry(seq: BagSequence, topic: str, stamps_s: np.ndarray, poses: np.
     if why is not None:
         return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {topic} not used: {why}"))
     return dataclasses.replace(
-        seq, odometry=step, odometry_covariance=cov, odometry_sigmas=(None, None),
-        notes=(*seq.notes, f"odometry: {topic} ({len(idx)} poses, taken as the camera's)"))
+        seq,
+        odometry=step,
+        odometry_covariance=cov,
+        odometry_sigmas=(None, None),
+        notes=(*seq.notes, f"odometry: {topic} ({len(idx)} poses, taken as the camera's)"),
+    )
 
 
 def read_bag_trajectory(spec: str | Path, topic: str | None):
@@ -502,10 +546,14 @@ def read_bag_trajectory(spec: str | Path, topic: str | None):
         if topic is None:
             found = sorted(t for t, ty in types.items() if ty in ROLE_TYPES["truth"])
             if len(found) != 1:
-                raise InputError(f"{len(found)} pose topics ({', '.join(found) or 'none'}): "
-                                 "name one as BAG:TOPIC", path)
+                raise InputError(
+                    f"{len(found)} pose topics ({', '.join(found) or 'none'}): name one as BAG:TOPIC", path
+                )
             topic = found[0]
         if types.get(topic) not in ROLE_TYPES["truth"]:
-            raise InputError(f"topic {topic} is {types.get(topic) or 'not in the bag'}, not one "
-                             f"of {', '.join(ROLE_TYPES['truth'])}", path)
+            raise InputError(
+                f"topic {topic} is {types.get(topic) or 'not in the bag'}, not one "
+                f"of {', '.join(ROLE_TYPES['truth'])}",
+                path,
+            )
         return _trajectory(reader, topic, types[topic], path)

@@ -24,10 +24,14 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 
 #: Raw encodings read: (channels, bytes per channel, conversion to grey or None).
 ENCODINGS: dict[str, tuple[int, int, int | None]] = {
-    "mono8": (1, 1, None), "8UC1": (1, 1, None),
-    "mono16": (1, 2, None), "16UC1": (1, 2, None),
-    "bgr8": (3, 1, cv2.COLOR_BGR2GRAY), "rgb8": (3, 1, cv2.COLOR_RGB2GRAY),
-    "bgra8": (4, 1, cv2.COLOR_BGRA2GRAY), "rgba8": (4, 1, cv2.COLOR_RGBA2GRAY),
+    "mono8": (1, 1, None),
+    "8UC1": (1, 1, None),
+    "mono16": (1, 2, None),
+    "16UC1": (1, 2, None),
+    "bgr8": (3, 1, cv2.COLOR_BGR2GRAY),
+    "rgb8": (3, 1, cv2.COLOR_RGB2GRAY),
+    "bgra8": (4, 1, cv2.COLOR_BGRA2GRAY),
+    "rgba8": (4, 1, cv2.COLOR_RGBA2GRAY),
 }
 #: Distortion models whose ``D`` OpenCV's undistortion takes as it is.
 OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
@@ -52,13 +56,17 @@ def image_size(msg, msgtype: str, where: str) -> tuple[int, int] | None:
         return None
     enc = str(msg.encoding)
     if enc not in ENCODINGS:
-        raise InputError(f"image encoding {quote(enc)} is not supported (supported: "
-                         f"{', '.join(ENCODINGS)}; or a sensor_msgs/CompressedImage)", where)
+        raise InputError(
+            f"image encoding {quote(enc)} is not supported (supported: "
+            f"{', '.join(ENCODINGS)}; or a sensor_msgs/CompressedImage)",
+            where,
+        )
     channels, depth, _ = ENCODINGS[enc]
     w, h, step = int(msg.width), int(msg.height), int(msg.step)
     if w < 1 or h < 1 or step < w * channels * depth or len(msg.data) < step * h:
-        raise InputError(f"{w}x{h} {enc} image with row step {step} holds {len(msg.data)} "
-                         "bytes: not a whole image", where)
+        raise InputError(
+            f"{w}x{h} {enc} image with row step {step} holds {len(msg.data)} bytes: not a whole image", where
+        )
     return w, h
 
 
@@ -68,19 +76,17 @@ def image_gray(msg, msgtype: str, where: str) -> np.ndarray:
         return decode_gray(np.asarray(msg.data, dtype=np.uint8).tobytes(), where)
     size = image_size(msg, msgtype, where)
     if size is None:
-        raise InputError(f"{msgtype} is not an image message (expected {IMAGE} or "
-                         f"{COMPRESSED_IMAGE})", where)
+        raise InputError(f"{msgtype} is not an image message (expected {IMAGE} or {COMPRESSED_IMAGE})", where)
     w, h = size
     channels, depth, code = ENCODINGS[str(msg.encoding)]
-    rows = np.asarray(msg.data, dtype=np.uint8)[:int(msg.step) * h].reshape(h, int(msg.step))
-    pixels = rows[:, :w * channels * depth]
+    rows = np.asarray(msg.data, dtype=np.uint8)[: int(msg.step) * h].reshape(h, int(msg.step))
+    pixels = rows[:, : w * channels * depth]
     if depth == 2:
         order = ">" if msg.is_bigendian else "<"
         wide = pixels.copy().view(np.dtype(f"{order}u2")).reshape(h, w)
         # cv_bridge's mono16 -> mono8 (scale 1/256, rounded): what a ROS user sees
         return cv2.convertScaleAbs(wide.astype(np.float32), alpha=1.0 / 256.0)
-    img = np.ascontiguousarray(pixels.reshape(h, w, channels) if channels > 1
-                               else pixels.reshape(h, w))
+    img = np.ascontiguousarray(pixels.reshape(h, w, channels) if channels > 1 else pixels.reshape(h, w))
     return img if code is None else cv2.cvtColor(img, code)
 
 
@@ -88,8 +94,10 @@ def camera_calibration(msg, where: str) -> tuple[np.ndarray, np.ndarray | None, 
     """``(K (3, 3), distortion or None, (W, H))`` of a CameraInfo message."""
     model = str(msg.distortion_model)
     if model not in OPENCV_DISTORTION_MODELS:
-        raise InputError(f"distortion model {quote(model)} is not supported (supported: "
-                         "plumb_bob, rational_polynomial)", where)
+        raise InputError(
+            f"distortion model {quote(model)} is not supported (supported: plumb_bob, rational_polynomial)",
+            where,
+        )
     # ROS 1 spells the fields K and D, ROS 2 k and d
     K = check_K(np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3), where)
     D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
@@ -112,8 +120,9 @@ def pose_matrix(msg, msgtype: str, where: str) -> np.ndarray:
     elif msgtype == TRANSFORM_STAMPED:
         p, q = msg.transform.translation, msg.transform.rotation
     else:
-        raise InputError(f"{msgtype} holds no pose (expected {POSE_STAMPED}, "
-                         f"{TRANSFORM_STAMPED} or {ODOMETRY})", where)
+        raise InputError(
+            f"{msgtype} holds no pose (expected {POSE_STAMPED}, {TRANSFORM_STAMPED} or {ODOMETRY})", where
+        )
     t = np.array([p.x, p.y, p.z], dtype=np.float64)
     if not np.all(np.isfinite(t)):
         raise InputError("non-finite position", where)

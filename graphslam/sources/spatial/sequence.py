@@ -66,8 +66,7 @@ class ImageSequence:
     source_path: str | None = None
     #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
     #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
-    _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False,
-                                                  compare=False)
+    _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -93,9 +92,11 @@ class ImageSequence:
         img = load_gray(self.image_paths[i])
         if (img.shape[1], img.shape[0]) != tuple(self.image_size):
             # the intrinsics are the first image's: another size is another camera
-            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
-                             f"are {self.image_size[0]}x{self.image_size[1]}",
-                             self.image_paths[i])
+            raise InputError(
+                f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
+                f"are {self.image_size[0]}x{self.image_size[1]}",
+                self.image_paths[i],
+            )
         return img
 
     def load(self, i: int) -> np.ndarray:
@@ -118,10 +119,12 @@ class ImageSequence:
         if not maps:
             return img
         if maps[0].shape[:2] != img.shape[:2]:
-            raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, the sequence's first "
-                             f"is {maps[0].shape[1]}x{maps[0].shape[0]}", self.image_paths[i])
-        return cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE)
+            raise InputError(
+                f"image is {img.shape[1]}x{img.shape[0]}, the sequence's first "
+                f"is {maps[0].shape[1]}x{maps[0].shape[0]}",
+                self.image_paths[i],
+            )
+        return cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _maps(self, shape_hw: tuple[int, ...]):
         """The undistortion maps for (H, W) images, or ``False`` when there is no distortion."""
@@ -131,8 +134,13 @@ class ImageSequence:
                 size_wh = (int(shape_hw[1]), int(shape_hw[0]))
                 K = np.asarray(self.K, dtype=np.float64)
                 maps = cv2.initUndistortRectifyMap(
-                    K, np.asarray(self.distortion, dtype=np.float64).reshape(-1), None, K,
-                    size_wh, cv2.CV_16SC2)
+                    K,
+                    np.asarray(self.distortion, dtype=np.float64).reshape(-1),
+                    None,
+                    K,
+                    size_wh,
+                    cv2.CV_16SC2,
+                )
             # frozen record: the cache is the one field written after construction
             object.__setattr__(self, "_undistort_maps", maps)
         return self._undistort_maps
@@ -153,8 +161,9 @@ def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
     return out
 
 
-def parse_floats(text: str, path: Path, line: int, count: int | None = None,
-            what: str = "numbers") -> np.ndarray:
+def parse_floats(
+    text: str, path: Path, line: int, count: int | None = None, what: str = "numbers"
+) -> np.ndarray:
     parts = [p for p in re.split(r"[\s,]+", text.strip()) if p]
     try:
         if not all(NUMBER_TOKEN.match(p) for p in parts):  # float() takes 1_000, full-width
@@ -169,17 +178,20 @@ def parse_floats(text: str, path: Path, line: int, count: int | None = None,
     return vals
 
 
-def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, path: str | Path | None,
-                     line: int | None) -> np.ndarray:
+def quat_to_rotation(
+    qw: float, qx: float, qy: float, qz: float, path: str | Path | None, line: int | None
+) -> np.ndarray:
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     if not 0.9 < n < 1.1:
         raise InputError(f"quaternion norm {n:.4f} is not 1", path, line)
     w, x, y, z = qw / n, qx / n, qy / n, qz / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 #: Largest ``|R^T R - I|`` entry and ``|det R - 1|`` of a rotation read from a file.
@@ -194,8 +206,12 @@ def check_rotation(R: np.ndarray, path: str | Path | None, line: int | None) -> 
     off = float(np.max(np.abs(R.T @ R - np.eye(3))))
     det = float(np.linalg.det(R))
     if off > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
-        raise InputError(f"the 3x3 block is not a rotation (|R^T R - I| = {off:.2g}, det R = "
-                         f"{det:.4g}; tolerance {ROTATION_TOL:g})", path, line)
+        raise InputError(
+            f"the 3x3 block is not a rotation (|R^T R - I| = {off:.2g}, det R = "
+            f"{det:.4g}; tolerance {ROTATION_TOL:g})",
+            path,
+            line,
+        )
     return R
 
 
@@ -206,9 +222,12 @@ def check_increasing(stamps, line_numbers, path: Path, what: str = "timestamps")
     bad = np.nonzero(np.diff(stamps) <= 0)[0]
     if bad.size:
         k = int(bad[0]) + 1
-        raise InputError(f"{what} must increase strictly: {stamps[k]!r} is not after "
-                         f"{stamps[k - 1]!r} of line {line_numbers[k - 1]}", path,
-                         line_numbers[k])
+        raise InputError(
+            f"{what} must increase strictly: {stamps[k]!r} is not after "
+            f"{stamps[k - 1]!r} of line {line_numbers[k - 1]}",
+            path,
+            line_numbers[k],
+        )
 
 
 def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
@@ -216,15 +235,24 @@ def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
         raise InputError("intrinsics must be a finite 3x3 matrix", path, line)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
-        raise InputError("intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0",
-                         path, line)
+        raise InputError(
+            "intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0", path, line
+        )
     fx, fy = K[0, 0], K[1, 1]
     if not (FOCAL_MIN_PX <= min(fx, fy) and max(fx, fy) <= FOCAL_MAX_PX):
-        raise InputError(f"focal lengths fx = {fx:.6g}, fy = {fy:.6g} px are outside "
-                         f"{FOCAL_MIN_PX:g} to {FOCAL_MAX_PX:.0e} px: no camera's", path, line)
+        raise InputError(
+            f"focal lengths fx = {fx:.6g}, fy = {fy:.6g} px are outside "
+            f"{FOCAL_MIN_PX:g} to {FOCAL_MAX_PX:.0e} px: no camera's",
+            path,
+            line,
+        )
     if np.max(np.abs([K[0, 1], K[0, 2], K[1, 2]])) > PRINCIPAL_POINT_MAX_PX:
-        raise InputError(f"principal point ({K[0, 2]:.6g}, {K[1, 2]:.6g}) or skew {K[0, 1]:.6g} "
-                         f"beyond {PRINCIPAL_POINT_MAX_PX:.0e} px: no camera's", path, line)
+        raise InputError(
+            f"principal point ({K[0, 2]:.6g}, {K[1, 2]:.6g}) or skew {K[0, 1]:.6g} "
+            f"beyond {PRINCIPAL_POINT_MAX_PX:.0e} px: no camera's",
+            path,
+            line,
+        )
     return K
 
 
@@ -236,8 +264,9 @@ def image_size(path: str) -> tuple[int, int]:
 def check_exist(paths: Sequence[str], where: Path) -> None:
     missing = [p for p in paths if not Path(p).is_file()]
     if missing:
-        raise InputError(f"{len(missing)} of {len(paths)} listed images are missing "
-                         f"(first: {missing[0]})", where)
+        raise InputError(
+            f"{len(missing)} of {len(paths)} listed images are missing (first: {missing[0]})", where
+        )
 
 
 #: Runs of ASCII digits only: ``\d`` and ``str.isdigit`` also take ``²`` or
@@ -263,12 +292,12 @@ def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarra
     return np.where(np.abs(gt_t[pick] - img_t) <= max_dt_s, pick, -1)
 
 
-
 def list_images(folder: Path) -> list[str]:
     """Image files of ``folder`` (:data:`IMAGE_EXTENSIONS`) in natural file-name order."""
-    return sorted((str(p) for p in Path(folder).iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-                  key=lambda s: natural_key(Path(s).name))
+    return sorted(
+        (str(p) for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
+        key=lambda s: natural_key(Path(s).name),
+    )
 
 
 def folder_images(folder: Path) -> list[Path]:

@@ -72,8 +72,13 @@ from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.camera import intrinsics_matrix
 
-__all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "Surface", "make_synthetic_images",
-           "clip_polygon_near"]
+__all__ = [
+    "SyntheticImagesConfig",
+    "SyntheticImageSequence",
+    "Surface",
+    "make_synthetic_images",
+    "clip_polygon_near",
+]
 
 #: Largest image side, pixels: 8K video (7680 x 4320) is about the most a video
 #: camera delivers. Each frame is rendered into an (H, W) uint8 image and a
@@ -194,26 +199,37 @@ class SyntheticImagesConfig:
         validate(self)
         s = f"{self.SECTION}."
         if self.corner_radius_m > min(self.path_length_m, self.path_width_m) / 2:
-            raise ConfigError(f"{s}corner_radius_m must be <= half of path_length_m and "
-                              f"path_width_m, got {self.corner_radius_m!r}")
+            raise ConfigError(
+                f"{s}corner_radius_m must be <= half of path_length_m and "
+                f"path_width_m, got {self.corner_radius_m!r}"
+            )
         margin = 0.5 + self.wobble_lateral_m
         if self.path_length_m / 2 + margin > self.room_length_m / 2:
-            raise ConfigError(f"{s}path_length_m must fit in room_length_m with 0.5 m + "
-                              f"wobble_lateral_m to spare at each end, got {self.path_length_m!r}")
+            raise ConfigError(
+                f"{s}path_length_m must fit in room_length_m with 0.5 m + "
+                f"wobble_lateral_m to spare at each end, got {self.path_length_m!r}"
+            )
         if self.path_width_m / 2 + margin > self.room_width_m / 2:
-            raise ConfigError(f"{s}path_width_m must fit in room_width_m with 0.5 m + "
-                              f"wobble_lateral_m to spare at each side, got {self.path_width_m!r}")
+            raise ConfigError(
+                f"{s}path_width_m must fit in room_width_m with 0.5 m + "
+                f"wobble_lateral_m to spare at each side, got {self.path_width_m!r}"
+            )
         if not self.camera_height_m < self.room_height_m:
-            raise ConfigError(f"{s}camera_height_m must be < room_height_m "
-                              f"({self.room_height_m!r}), got {self.camera_height_m!r}")
+            raise ConfigError(
+                f"{s}camera_height_m must be < room_height_m "
+                f"({self.room_height_m!r}), got {self.camera_height_m!r}"
+            )
         L, W, H = self.room_length_m, self.room_width_m, self.room_height_m
-        texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m ** 2
+        texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m**2
         if texels > MAX_TEXELS:
-            raise ConfigError(f"{s}texture_px_per_m: the room's textures would take {texels:.3g} "
-                              f"texels; at most {MAX_TEXELS:.0e} (memory)")
+            raise ConfigError(
+                f"{s}texture_px_per_m: the room's textures would take {texels:.3g} "
+                f"texels; at most {MAX_TEXELS:.0e} (memory)"
+            )
 
 
 # ------------------------------------------------------------------------- scene
+
 
 def _quads(cfg: SyntheticImagesConfig) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(name, corners (4, 3), normal) of every surface, room first then boxes."""
@@ -286,10 +302,15 @@ def _path(cfg: SyntheticImagesConfig, s: np.ndarray) -> tuple[np.ndarray, np.nda
     arc = 0.5 * math.pi * r
     # (kind, start or centre, direction or start angle, length)
     segs: list[tuple[str, tuple[float, float], tuple[float, float] | float, float]] = [
-            ("line", (-a + r, -b), (1, 0), lx), ("arc", (a - r, -b + r), -0.5 * math.pi, arc),
-            ("line", (a, -b + r), (0, 1), ly), ("arc", (a - r, b - r), 0.0, arc),
-            ("line", (a - r, b), (-1, 0), lx), ("arc", (-a + r, b - r), 0.5 * math.pi, arc),
-            ("line", (-a, b - r), (0, -1), ly), ("arc", (-a + r, -b + r), math.pi, arc)]
+        ("line", (-a + r, -b), (1, 0), lx),
+        ("arc", (a - r, -b + r), -0.5 * math.pi, arc),
+        ("line", (a, -b + r), (0, 1), ly),
+        ("arc", (a - r, b - r), 0.0, arc),
+        ("line", (a - r, b), (-1, 0), lx),
+        ("arc", (-a + r, b - r), 0.5 * math.pi, arc),
+        ("line", (-a, b - r), (0, -1), ly),
+        ("arc", (-a + r, -b + r), math.pi, arc),
+    ]
     total = sum(sg[3] for sg in segs)
     s = np.mod(s, total)
     x, y, h = np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
@@ -327,8 +348,9 @@ def _trajectory(cfg: SyntheticImagesConfig) -> np.ndarray:
     pitch = np.deg2rad(cfg.wobble_pitch_deg) * np.sin(2 * np.pi * k / 37.0)
     wTc = np.tile(np.eye(4), (n, 1, 1))
     for i in range(n):
-        fwd = np.array([math.cos(yaw[i]) * math.cos(pitch[i]), math.sin(yaw[i]) * math.cos(pitch[i]),
-                        math.sin(pitch[i])])
+        fwd = np.array(
+            [math.cos(yaw[i]) * math.cos(pitch[i]), math.sin(yaw[i]) * math.cos(pitch[i]), math.sin(pitch[i])]
+        )
         right = np.array([math.sin(yaw[i]), -math.cos(yaw[i]), 0.0])
         down = np.cross(fwd, right)
         wTc[i, :3, :3] = np.column_stack([right, down, fwd])
@@ -354,6 +376,7 @@ def _yaw(wTc: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------- sequence
+
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class SyntheticImageSequence(ImageSequence):
@@ -402,8 +425,15 @@ class SyntheticImageSequence(ImageSequence):
         (W, H), depths = self.image_size, [np.zeros(0)]
         for i in range(len(self)):
             uv, z = self.project(i)
-            depths.append(z[(z > self.config.near_m) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1)
-                            & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)])
+            depths.append(
+                z[
+                    (z > self.config.near_m)
+                    & (uv[:, 0] >= 0)
+                    & (uv[:, 0] <= W - 1)
+                    & (uv[:, 1] >= 0)
+                    & (uv[:, 1] <= H - 1)
+                ]
+            )
         d = np.concatenate(depths)
         return float(np.percentile(d, 1.0)) if len(d) else None
 
@@ -413,8 +443,9 @@ class SyntheticImageSequence(ImageSequence):
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range [0, {n})")
         i %= n
-        img, invz = render_surfaces(self.surfaces, self.K, _invert(self._true_wTc(i)), self.image_size,
-                            self.config.near_m)
+        img, invz = render_surfaces(
+            self.surfaces, self.K, _invert(self._true_wTc(i)), self.image_size, self.config.near_m
+        )
         if self.config.pixel_noise_sigma > 0:
             rng = np.random.default_rng([self.config.seed, 1, i])
             noisy = img.astype(np.float32) + rng.normal(0, self.config.pixel_noise_sigma, img.shape)
@@ -451,8 +482,9 @@ class SyntheticImageSequence(ImageSequence):
         one view's scene points are seen by the other (the soft truth of the module doc)."""
         return self.shared_view(i, j) > self.SAME_PLACE_SHARE
 
-    def visible_points(self, i: int, depth_map: np.ndarray | None = None,
-                       border_px: float = 0.0, depth_tol: float = 0.02) -> np.ndarray:
+    def visible_points(
+        self, i: int, depth_map: np.ndarray | None = None, border_px: float = 0.0, depth_tol: float = 0.02
+    ) -> np.ndarray:
         """Indices of ``points_w`` seen in frame ``i``: in front, inside the image
         (``border_px`` margin) and not occluded (depth within ``depth_tol`` relative)."""
         if depth_map is None:
@@ -486,11 +518,12 @@ def make_synthetic_images(config: SyntheticImagesConfig | None = None) -> Synthe
             tex = photo_texture(rng, photos, tw, th)
         surf = Surface(name, corners, normal, mip_levels(tex))
         surfaces.append(surf)
-        corners_uv = cv2.goodFeaturesToTrack(tex, maxCorners=max(4, int(tw * th / 4000)),
-                                             qualityLevel=0.05, minDistance=10, blockSize=5)
+        corners_uv = cv2.goodFeaturesToTrack(
+            tex, maxCorners=max(4, int(tw * th / 4000)), qualityLevel=0.05, minDistance=10, blockSize=5
+        )
         if corners_uv is not None:
             uv = corners_uv.reshape(-1, 2)
-            inner = ((uv[:, 0] >= 8) & (uv[:, 0] <= tw - 9) & (uv[:, 1] >= 8) & (uv[:, 1] <= th - 9))
+            inner = (uv[:, 0] >= 8) & (uv[:, 0] <= tw - 9) & (uv[:, 1] >= 8) & (uv[:, 1] <= th - 9)
             pts.append(surf.texel_to_world(uv[inner]))
             owner.append(np.full(int(inner.sum()), si))
     points_w = np.concatenate(pts) if pts else np.zeros((0, 3))
@@ -505,7 +538,7 @@ def make_synthetic_images(config: SyntheticImagesConfig | None = None) -> Synthe
         E[:3, 3] = rng.normal(0.0, cfg.odometry_sigma_t_m, 3)
         E[:3, :3] = _so3_exp(rng.normal(0.0, cfg.odometry_sigma_r_rad, 3))
         odo[k] = _invert(wTc[k]) @ wTc[k + 1] @ E
-    cov = np.diag([cfg.odometry_sigma_t_m ** 2] * 3 + [cfg.odometry_sigma_r_rad ** 2] * 3)
+    cov = np.diag([cfg.odometry_sigma_t_m**2] * 3 + [cfg.odometry_sigma_r_rad**2] * 3)
 
     pos = wTc[:, :3, 3]
     yaw = _yaw(wTc)
@@ -522,8 +555,20 @@ def make_synthetic_images(config: SyntheticImagesConfig | None = None) -> Synthe
     K = intrinsics_matrix(cfg.fx, cfg.fy, cfg.cx, cfg.cy)
     paths = [f"synthetic:seed={cfg.seed}:frame={k:05d}" for k in range(n)]
     return SyntheticImageSequence(
-        name="synthetic-images", image_paths=paths, stamps_s=np.arange(n, dtype=np.float64) * 0.1,
-        K=K, distortion=None, wTc_true=wTc, image_size=(cfg.width, cfg.height), source_path=None,
-        config=cfg, odometry=odo, odometry_sigmas=(cfg.odometry_sigma_t_m, cfg.odometry_sigma_r_rad),
-        odometry_covariance=cov, points_w=points_w, point_surface=point_surface,
-        surfaces=tuple(surfaces), revisit_pairs=pairs)
+        name="synthetic-images",
+        image_paths=paths,
+        stamps_s=np.arange(n, dtype=np.float64) * 0.1,
+        K=K,
+        distortion=None,
+        wTc_true=wTc,
+        image_size=(cfg.width, cfg.height),
+        source_path=None,
+        config=cfg,
+        odometry=odo,
+        odometry_sigmas=(cfg.odometry_sigma_t_m, cfg.odometry_sigma_r_rad),
+        odometry_covariance=cov,
+        points_w=points_w,
+        point_surface=point_surface,
+        surfaces=tuple(surfaces),
+        revisit_pairs=pairs,
+    )

@@ -20,8 +20,15 @@ import numpy as np
 
 from slamcore.errors import ConfigError
 
-__all__ = ["Surface", "clip_polygon_near", "procedural_texture", "balbianello_photos",
-           "photo_texture", "mip_levels", "render_surfaces"]
+__all__ = [
+    "Surface",
+    "clip_polygon_near",
+    "procedural_texture",
+    "balbianello_photos",
+    "photo_texture",
+    "mip_levels",
+    "render_surfaces",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,8 +70,6 @@ def clip_polygon_near(poly_c: np.ndarray, near: float) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
-
-
 def procedural_texture(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
     """Distinct, corner-rich greyscale texture: blotchy background + random shapes."""
     small = rng.uniform(60, 190, size=(max(2, h // 40), max(2, w // 40))).astype(np.float32)
@@ -79,15 +84,16 @@ def procedural_texture(rng: np.random.Generator, w: int, h: int) -> np.ndarray:
         if kind == 0:
             cv2.rectangle(img, (x, y), (x + s, y + int(rng.integers(6, 28))), g, -1)
         elif kind == 1:
-            pts = np.array([[x, y], [x + s, y + int(rng.integers(-s, s))],
-                            [x + int(rng.integers(-s, s)), y + s]], np.int32)
+            pts = np.array(
+                [[x, y], [x + s, y + int(rng.integers(-s, s))], [x + int(rng.integers(-s, s)), y + s]],
+                np.int32,
+            )
             cv2.fillConvexPoly(img, pts, g)
         elif kind == 2:
             cv2.circle(img, (x, y), s // 2, g, -1)
         else:
             end = (x + int(rng.integers(-3 * s, 3 * s)), y + int(rng.integers(-3 * s, 3 * s)))
-            cv2.line(img, (x, y), end,
-                     g, int(rng.integers(1, 4)))
+            cv2.line(img, (x, y), end, g, int(rng.integers(1, 4)))
     return img
 
 
@@ -120,9 +126,9 @@ def photo_texture(rng: np.random.Generator, photos: list[np.ndarray], w: int, h:
     cw = int(ch * w / h)
     x0, y0 = int(rng.integers(0, W - cw + 1)), int(rng.integers(0, H - ch + 1))
     if rng.random() < 0.5:
-        crop = ph[y0:y0 + ch, x0:x0 + cw][:, ::-1]
+        crop = ph[y0 : y0 + ch, x0 : x0 + cw][:, ::-1]
     else:
-        crop = ph[y0:y0 + ch, x0:x0 + cw]
+        crop = ph[y0 : y0 + ch, x0 : x0 + cw]
     return cv2.resize(np.ascontiguousarray(crop), (w, h), interpolation=cv2.INTER_AREA)
 
 
@@ -133,8 +139,9 @@ def mip_levels(tex: np.ndarray, levels: int = 5) -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
-def render_surfaces(surfaces, K: np.ndarray, cTw: np.ndarray, size: tuple[int, int],
-                    near: float) -> tuple[np.ndarray, np.ndarray]:
+def render_surfaces(
+    surfaces, K: np.ndarray, cTw: np.ndarray, size: tuple[int, int], near: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``(image (H, W) uint8, inverse depth (H, W) float32, 0 where empty)`` of ``surfaces``
     seen from ``cTw`` through ``K`` (module docstring of :mod:`.synthetic_images`)."""
     W, H = size
@@ -175,14 +182,15 @@ def render_surfaces(surfaces, K: np.ndarray, cTw: np.ndarray, size: tuple[int, i
         ratio = math.sqrt(area_tex / max(area_img, 1e-9))
         level = int(min(len(surf.mips) - 1, max(0, math.floor(math.log2(max(ratio, 1.0)) + 0.5))))
         tex = surf.mips[level]
-        s = 2.0 ** level
+        s = 2.0**level
         a_l = A / tw0 * s
         b_l = B / th0 * s
         o_l = c[0] + 0.5 * a_l + 0.5 * b_l
         Hm = K @ np.column_stack([R @ a_l, R @ b_l, R @ o_l + t])
         T = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]])
-        patch = cv2.warpPerspective(tex, T @ Hm, (w, h), flags=cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REFLECT)
+        patch = cv2.warpPerspective(
+            tex, T @ Hm, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+        )
         mask = np.zeros((h, w), np.uint8)
         pts = np.rint((uv - [x0, y0]) * 16).astype(np.int64)
         pts = np.clip(pts, -(1 << 26), 1 << 26).astype(np.int32)
@@ -193,11 +201,9 @@ def render_surfaces(surfaces, K: np.ndarray, cTw: np.ndarray, size: tuple[int, i
         g = (Kinv.T @ n_c) / d_c
         xs = np.arange(x0, x1 + 1, dtype=np.float32)
         ys = np.arange(y0, y1 + 1, dtype=np.float32)
-        iz = (np.float32(g[0]) * xs[None, :] + np.float32(g[1]) * ys[:, None] + np.float32(g[2]))
-        zroi = invz[y0:y1 + 1, x0:x1 + 1]
+        iz = np.float32(g[0]) * xs[None, :] + np.float32(g[1]) * ys[:, None] + np.float32(g[2])
+        zroi = invz[y0 : y1 + 1, x0 : x1 + 1]
         write = (mask > 0) & (iz > zroi)
-        np.copyto(img[y0:y1 + 1, x0:x1 + 1], patch, where=write)
+        np.copyto(img[y0 : y1 + 1, x0 : x1 + 1], patch, where=write)
         np.copyto(zroi, iz, where=write)
     return img, invz
-
-
