@@ -213,7 +213,8 @@ def attacks() -> list[Attack]:
                    None if "interrupted" in e else "the interruption is not said")),
         Attack("SIGTERM to a running sweep: finished rows kept, no run left behind", "fail",
                lambda f: ["sweep", str(_w(f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\n"
-                                              "backend = [\"isam2\", \"ekf\"]\nseed = [0, 1, 2, 3]\n"
+                                              "backend = [\"isam2\", \"ekf\"]\n"
+                                              "seed = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]\n"
                                               "max_steps = 400\n")),
                           "--out", "sw", "--workers", "2", "--quiet", "--no-plots"],
                ("ok",), ok_codes=(143,), sigterm_after_s=8.0, check=_orphans("sw")),

@@ -1,8 +1,6 @@
 """``python -m graphslam``: the same command as the ``graphslam`` console script."""
 
-import sys
-
-from graphslam.cli.main import main
+from graphslam.cli.main import entry
 
 if __name__ == "__main__":  # not when multiprocessing re-imports the main module
-    sys.exit(main())
+    entry()

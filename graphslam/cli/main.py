@@ -112,5 +112,34 @@ def main(argv: list[str] | None = None) -> int:
         return status
 
 
-if __name__ == "__main__":  # pragma: no cover
+def _late_stop(signum, frame) -> None:
+    """A stop signal after the command returned, while the interpreter tears down
+    (the sweep engine's exit handlers, thread joins: about 0.1 s): everything is
+    written, so exit at once with the signal's status instead of dying by it."""
+    import os
+
+    from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
+
+    try:
+        sys.stdout.flush()
+        sys.stderr.write("graphslam: interrupted while exiting; the outputs are complete\n")
+        sys.stderr.flush()
+    finally:
+        os._exit(EXIT_STATUS_OF_SIGNAL.get(signum, 130))
+
+
+def entry() -> None:
+    """The ``graphslam`` console script: :func:`main` between handlers for a late
+    signal (installed first, so the command's guard restores them when it ends and
+    no moment of the exit is left to the default action)."""
+    import signal
+
+    from graphslam.pipelines.common import STOP_SIGNALS
+
+    for s in STOP_SIGNALS:
+        signal.signal(s, _late_stop)
     sys.exit(main())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    entry()

@@ -177,6 +177,26 @@ def test_signal_before_the_run_is_one_line(tmp_path):
     assert one_line(done.stderr) == "graphslam: interrupted (SIGTERM)"
 
 
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_while_the_interpreter_exits_is_its_status_not_a_death(sig):
+    """A stop signal after the command returned (an exit handler sends it, as a user's
+    kill lands while a sweep's engine tears down) ends with the signal's exit status
+    and one line, never by the signal (returncode -15 before the console script's
+    late handlers)."""
+    script = (
+        "import atexit, os, signal, sys\n"
+        "import graphslam.cli.main as m\n"
+        f"atexit.register(lambda: os.kill(os.getpid(), {int(sig)}))\n"
+        "sys.argv = ['graphslam', '--help']\n"
+        "m.entry()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == {signal.SIGTERM: 143, signal.SIGINT: 130}[sig], proc.stderr
+    assert proc.stderr.strip() == "graphslam: interrupted while exiting; the outputs are complete"
+    assert "usage: graphslam" in proc.stdout
+
+
 def test_one_step_writes_everything_with_null_ate(tmp_path):
     done = graphslam(tmp_path, "run", "--max-steps", "1", "--out", "o", "--quiet")
     assert done.returncode == 0, done.stderr
