@@ -46,21 +46,13 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from filters.association import chi2_quantile
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.numerics import symmetrise
-from filters.planar_inputs import checked_scan, odometry_step
+from filters.planar_inputs import checked_scan, initial_pose, mapped_predictions, odometry_step
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import (
-    Estimate,
-    Observation,
-    Odometry,
-    Prediction,
-    as_covariance,
-    as_vector,
-)
+from slamcore.planar.records import Estimate, Observation, Odometry, Prediction
 
 
 class EkfLocaliser(Backend):
@@ -88,14 +80,8 @@ class EkfLocaliser(Backend):
         for a in (self._map_ids, self._m, self._Pm):
             a.setflags(write=False)
         self._slot = {int(i): k for k, i in enumerate(self._map_ids)}
-        self._gate = (
-            np.inf
-            if self.config.known_gate_chi2_prob is None
-            else chi2_quantile(self.config.known_gate_chi2_prob, 2)
-        )
-        self._R_typical = np.diag(
-            [self.config.default_sigma_range_m**2, self.config.default_sigma_bearing_rad**2]
-        )
+        self._gate = self.config.known_gate()
+        self._R_typical = self.config.default_noise()
         self._x: np.ndarray | None = None
         self._Prr = np.zeros((3, 3))
         self._Prm = np.zeros((3, 2 * len(self._map_ids)))
@@ -112,10 +98,10 @@ class EkfLocaliser(Backend):
     # --------------------------------------------------------------- contract
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        wTb = as_vector(wTb, 3, "ekf initial pose")
+        wTb, cov = initial_pose(wTb, covariance, "ekf initial pose")
         self._x = wTb.copy()
         self._x[2] = models.wrap_angle(wTb[2])
-        self._Prr = as_covariance(covariance, 3, "ekf initial pose").copy()
+        self._Prr = cov.copy()
         self._Prm[:] = 0.0  # the map's frame is the run's: pose and map start uncorrelated
         self._pose_id = int(pose_id)
         self._record(new=True)
@@ -153,13 +139,7 @@ class EkfLocaliser(Backend):
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
-        out = []
-        for lid in landmark_ids:
-            slot = self._slot.get(int(lid))
-            if slot is not None:
-                z, _, _, _, S = self._innovation_terms(slot, self._R_typical)
-                out.append(Prediction(int(lid), z, S))
-        return out
+        return mapped_predictions(landmark_ids, self._slot, self._predicted)
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
         """The filtered poses; the landmarks are the map's, unchanged (with its covariances)."""
@@ -181,6 +161,12 @@ class EkfLocaliser(Backend):
         return self._Prr.copy()
 
     # ------------------------------------------------------------- internals
+
+    def _predicted(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(z_pred, S)`` of landmark ``slot``, ``R`` the last observation's covariance (the
+        config's default before any)."""
+        z, _, _, _, S = self._innovation_terms(slot, self._R_typical)
+        return z, S
 
     def _innovation_terms(self, slot: int, R: np.ndarray):
         """``(z_pred, H_x, H_m, A_r, S)`` of landmark ``slot`` at the current pose."""

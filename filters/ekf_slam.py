@@ -111,7 +111,6 @@ covariances; earlier poses are never revised.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -122,18 +121,11 @@ from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_correction import kalman_update
 from filters.ekf_slam_store import SlotStore
 from filters.numerics import Recoveries
-from filters.planar_inputs import checked_scan, odometry_step
+from filters.planar_inputs import checked_scan, initial_pose, mapped_predictions, odometry_step
 from slamcore.errors import GraphSlamError, MeasurementError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import (
-    Estimate,
-    Observation,
-    Odometry,
-    Prediction,
-    as_covariance,
-    as_vector,
-)
+from slamcore.planar.records import Estimate, Observation, Odometry, Prediction
 from slamcore.planar.sighting_correlation import LastSightings
 
 
@@ -152,14 +144,8 @@ class EkfSlam(Backend):
         self.config = config if config is not None else EkfSlamConfig()
         self._gate = chi2_quantile(self.config.gate_chi2_prob, 2)
         self._new_gate = chi2_quantile(self.config.new_landmark_chi2_prob, 2)
-        self._known_gate = (
-            math.inf
-            if self.config.known_gate_chi2_prob is None
-            else chi2_quantile(self.config.known_gate_chi2_prob, 2)
-        )
-        self._R_typical = np.diag(
-            [self.config.default_sigma_range_m**2, self.config.default_sigma_bearing_rad**2]
-        )
+        self._known_gate = self.config.known_gate()
+        self._R_typical = self.config.default_noise()
         self._reset(self.config.initial_capacity)
 
     # ------------------------------------------------------------------ state
@@ -255,8 +241,7 @@ class EkfSlam(Backend):
     # --------------------------------------------------------------- contract
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        wTb = as_vector(wTb, 3, "ekf initial pose")
-        cov = as_covariance(covariance, 3, "ekf initial pose")
+        wTb, cov = initial_pose(wTb, covariance, "ekf initial pose")
         self._reset(self.config.initial_capacity)
         self._store.start(wTb, cov)
         self._pose_id = int(pose_id)
@@ -330,16 +315,7 @@ class EkfSlam(Backend):
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
-        out = []
-        for lid in landmark_ids:
-            slot = self._store.slot.get(int(lid))
-            if slot is None:
-                continue
-            z, H_s, idx = self._predict_one(slot)
-            Psub = self._store.P[np.ix_(idx, idx)]
-            S = H_s @ Psub @ H_s.T + self._R_typical
-            out.append(Prediction(int(lid), z, 0.5 * (S + S.T)))
-        return out
+        return mapped_predictions(landmark_ids, self._store.slot, self._predicted)
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
@@ -367,13 +343,18 @@ class EkfSlam(Backend):
 
     # ------------------------------------------------------------- internals
 
-    def _predict_one(self, slot: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    def _predicted(self, slot: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(z_pred, S)`` of landmark ``slot``, ``R`` the last observation's covariance (the
+        config's default before any)."""
         i = 3 + 2 * slot
         xr = self._store.xbuf[:3]
         m = self._store.xbuf[i : i + 2]
         z = models.observe(xr, m)
         H_x, H_m = models.observe_jacobians(xr, m)
-        return z, np.hstack([H_x, H_m]), [0, 1, 2, i, i + 1]
+        H_s = np.hstack([H_x, H_m])
+        idx = [0, 1, 2, i, i + 1]
+        S = H_s @ self._store.P[np.ix_(idx, idx)] @ H_s.T + self._R_typical
+        return z, 0.5 * (S + S.T)
 
     def _add_landmark(self, lid: int, z: np.ndarray, R: np.ndarray) -> int:
         """Insert landmark ``lid`` from observation ``z`` (inverse observation model)."""

@@ -11,6 +11,9 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
+import numpy as np
+
+from filters.association import chi2_quantile
 from filters.numerics import CHI2_2DOF_999, MAX_ODOMETRY_COVARIANCE_SCALE
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
@@ -131,3 +134,15 @@ class EkfSlamConfig:
                 "ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "
                 f"({self.new_landmark_chi2_prob} < {self.gate_chi2_prob})"
             )
+
+    def known_gate(self) -> float:
+        """The squared Mahalanobis distance (2 dof) beyond which ``known_gate_chi2_prob``
+        rejects an identified observation; inf when that key is None (no gate)."""
+        if self.known_gate_chi2_prob is None:
+            return math.inf
+        return chi2_quantile(self.known_gate_chi2_prob, 2)
+
+    def default_noise(self) -> np.ndarray:
+        """``diag(default_sigma_range_m^2, default_sigma_bearing_rad^2)`` (2, 2): the
+        measurement covariance ``predict_observations`` uses before any observation."""
+        return np.diag([self.default_sigma_range_m**2, self.default_sigma_bearing_rad**2])

@@ -88,18 +88,11 @@ from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
-from filters.planar_inputs import checked_scan, odometry_step
+from filters.planar_inputs import checked_scan, initial_pose, odometry_step
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import (
-    Estimate,
-    Observation,
-    Odometry,
-    Prediction,
-    as_covariance,
-    as_vector,
-)
+from slamcore.planar.records import Estimate, Observation, Odometry, Prediction
 
 __all__ = ["FastSlam"]
 
@@ -131,8 +124,7 @@ class FastSlam(Backend):
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
         if self._pose_ids:
             raise GraphSlamError(f"{self.name}: initialize() called twice")
-        wTb = as_vector(wTb, 3, "initial pose")
-        cov = as_covariance(covariance, 3, "initial pose")
+        wTb, cov = initial_pose(wTb, covariance, "initial pose")
         self._particles.draw_initial(wTb, cov)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))

@@ -1,22 +1,42 @@
 """What the 2-D filters (EKF-SLAM, FastSLAM, EKF localisation) accept from a run.
 
+The initial pose is a finite 3-vector with a positive-definite 3x3 covariance.
 A filter keeps only its latest pose: an odometry step must link that pose to the
 new one (either way round), and a scan must be range-bearing and taken at the
 latest pose. The checks are here once so that every filter refuses the same
-input with the same message.
+input with the same message. :func:`mapped_predictions` answers
+``predict_observations`` for the EKFs, whose landmarks sit in slots.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar import geometry
-from slamcore.planar.records import Observation, ObservationKind, Odometry
+from slamcore.planar.records import (
+    Observation,
+    ObservationKind,
+    Odometry,
+    Prediction,
+    as_covariance,
+    as_vector,
+)
 
-__all__ = ["odometry_step", "checked_scan"]
+__all__ = ["initial_pose", "odometry_step", "checked_scan", "mapped_predictions"]
+
+
+def initial_pose(wTb: np.ndarray, covariance: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(wTb (3,), covariance (3, 3))`` given to
+    :meth:`slamcore.planar.backend.Backend.initialize`, as read-only float64 arrays.
+
+    Raises:
+        MeasurementError: not 3 finite values, or not a symmetric positive-definite
+            3x3 (messages start with ``what``).
+    """
+    return as_vector(wTb, 3, what), as_covariance(covariance, 3, what)
 
 
 def odometry_step(odometry: Odometry, cur: int, pose_id: int, who: str) -> tuple[np.ndarray, np.ndarray]:
@@ -60,3 +80,20 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
                 f"{who}: observation from pose {o.pose_id} but the current pose is {pose_id}"
             )
     return obs
+
+
+def mapped_predictions(
+    landmark_ids: Iterable[int],
+    slots: Mapping[int, int],
+    predict: Callable[[int], tuple[np.ndarray, np.ndarray]],
+) -> list[Prediction]:
+    """``predict_observations`` of a filter whose landmarks sit in slots: for each of
+    ``landmark_ids`` (in that order) that ``slots`` maps to a slot,
+    ``Prediction(id, z, S)`` with ``(z, S) = predict(slot)``; ids not mapped are left out."""
+    out = []
+    for lid in landmark_ids:
+        slot = slots.get(int(lid))
+        if slot is not None:
+            z, S = predict(slot)
+            out.append(Prediction(int(lid), z, S))
+    return out
