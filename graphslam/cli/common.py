@@ -1,8 +1,10 @@
-"""What every command shares: exit statuses, the summary-table formatting and the
-Rerun sink checks (a viewer that cannot be used becomes a saved recording)."""
+"""What every command shares: the sub-command registration and the options several
+commands take, exit statuses, the summary-table formatting and the Rerun sink checks
+(a viewer that cannot be used becomes a saved recording)."""
 
 from __future__ import annotations
 
+import argparse
 import errno
 import sys
 from pathlib import Path
@@ -16,6 +18,9 @@ TOPICS_HELP = (
     "refused for other datasets)"
 )
 
+#: ``--rerun``: where the recording goes; the first (save) is the default.
+RERUN_MODES = ("save", "spawn", "connect", "off")
+
 EXIT_OK = 0
 #: Some of the work failed; what succeeded is written (``compare``).
 EXIT_FAILED = 1
@@ -23,10 +28,68 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def add_command(sub, name: str, func, *, help: str, description: str, epilog: str | None = None):
+    """Register the sub-command ``graphslam NAME`` (``func(args)`` runs it; None for a
+    command with sub-commands of its own) and return its parser. With an ``epilog``
+    (tables, examples) the description and the epilog are printed as written."""
+    layout: dict = {}
+    if epilog is not None:
+        layout = {"epilog": epilog, "formatter_class": argparse.RawDescriptionHelpFormatter}
+    parser = sub.add_parser(name, help=help, description=description, **layout)
+    if func is not None:
+        parser.set_defaults(func=func)
+    return parser
+
+
+def add_choice_option(parser, flag: str, choices: tuple[str, ...], help: str) -> None:
+    """An option taking one of ``choices``, the first the default."""
+    parser.add_argument(flag, choices=choices, default=choices[0], help=help)
+
+
+def add_dataset_option(parser, help: str) -> None:
+    """``--dataset`` of run and compare: a name or a path, the synthetic world by default."""
+    parser.add_argument("--dataset", default="synthetic", metavar="NAME|PATH", help=help)
+
+
+def add_topics_option(parser, help: str = TOPICS_HELP) -> None:
+    """``--topics ROLE=TOPIC,...``: the topics of a ROS bag to read."""
+    parser.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=help)
+
+
+def add_frames_option(parser, help: str) -> None:
+    """``--frames START:STOP[:STEP]``: a Python slice of an image sequence."""
+    parser.add_argument("--frames", default=None, metavar="START:STOP[:STEP]", help=help)
+
+
+def add_out_dir_option(parser, help: str = "output folder", *, required: bool = False, default=None) -> None:
+    """``--out``: the output folder."""
+    parser.add_argument("--out", type=Path, required=required, default=default, help=help)
+
+
+def add_config_option(parser, help: str, metavar: str | None = None) -> None:
+    """``--config``: a TOML or YAML configuration file."""
+    parser.add_argument("--config", type=Path, default=None, metavar=metavar, help=help)
+
+
+def add_max_steps_option(parser) -> None:
+    """``--max-steps N`` of run and compare."""
+    parser.add_argument("--max-steps", type=int, default=None, metavar="N", help="stop after N frames")
+
+
+def add_rerun_options(parser, help: str, url_help: str = "viewer gRPC URL for --rerun connect") -> None:
+    """``--rerun`` (:data:`RERUN_MODES`) and ``--rerun-url``, checked by
+    :func:`check_rerun_flags`."""
+    add_choice_option(parser, "--rerun", RERUN_MODES, help)
+    parser.add_argument("--rerun-url", default=None, help=url_help)
+
+
+def add_quiet_option(parser) -> None:
+    """``--quiet``: no progress bar."""
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def robot_arg(text: str) -> int | str:
     """``--robot``: a robot number (1-5 in the MRCLAM sets) or ``all``."""
-    import argparse
-
     if text == "all":
         return text
     if text.isascii() and text.isdigit() and 1 <= int(text) <= 5:
@@ -34,10 +97,21 @@ def robot_arg(text: str) -> int | str:
     raise argparse.ArgumentTypeError(f"expected a robot number 1-5 or all, got {text[:40]!r}")
 
 
+def add_robot_option(parser, help: str) -> None:
+    """``--robot N|all`` of run and compare (:func:`robot_arg`)."""
+    parser.add_argument("--robot", type=robot_arg, default=None, metavar="N|all", help=help)
+
+
 def summary_table(rows: list[tuple[str, object]]) -> str:
     """``(label, value)`` rows as an indented two-column table."""
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
+
+
+def counts_row(label: str, counts: dict, *keys: str) -> tuple[str, str]:
+    """A summary row of several counts, ``"a / b / c"`` (``counts[key]`` of each key);
+    the label names them in the same way."""
+    return label, " / ".join(str(counts[k]) for k in keys)
 
 
 def fmt(value, spec: str) -> str:

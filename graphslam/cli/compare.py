@@ -7,7 +7,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from graphslam.cli.common import TOPICS_HELP
+from graphslam.cli.common import (
+    add_command,
+    add_config_option,
+    add_dataset_option,
+    add_max_steps_option,
+    add_out_dir_option,
+    add_rerun_options,
+    add_robot_option,
+    add_topics_option,
+)
 from slamcore.errors import GraphSlamError
 from slamcore.files import check_output_dir
 
@@ -44,34 +53,25 @@ examples:
 def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
     from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
-    from graphslam.cli.common import robot_arg
     from graphslam.pipelines.spatial import ODOMETRY_MODES
     from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
 
     names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, *POSEGRAPH_BACKENDS]))
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "compare",
+        cmd_compare,
         help="run several back ends on the same stream and compare them",
         description="Run several back ends on the same data (same seed, same observations), "
         "each in its own process, and write one table, compare.json, "
         "compare.png and one Rerun recording with a subtree per back end.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
-        "--dataset",
-        default="synthetic",
-        metavar="NAME|PATH",
-        help="built-in dataset name, pose-graph file or image folder (default: synthetic)",
-    )
-    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    p.add_argument(
-        "--robot",
-        type=robot_arg,
-        default=None,
-        metavar="N|all",
-        help="MRCLAM folders: which robot's log, or all (default: [mrclam] robot of --config, else 1)",
+    add_dataset_option(p, "built-in dataset name, pose-graph file or image folder (default: synthetic)")
+    add_topics_option(p)
+    add_robot_option(
+        p, "MRCLAM folders: which robot's log, or all (default: [mrclam] robot of --config, else 1)"
     )
     p.add_argument(
         "--backends",
@@ -99,22 +99,15 @@ def register(sub) -> None:
         "odometry) and of back ends that draw random numbers (particle "
         "filters, the EKF's RANSAC); refused when none is in the comparison",
     )
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<dataset>-compare)")
-    p.add_argument("--config", type=Path, default=None, help="TOML or YAML config file")
-    p.add_argument("--max-steps", type=int, default=None, metavar="N", help="stop after N frames")
-    p.add_argument(
-        "--rerun",
-        choices=("save", "spawn", "connect", "off"),
-        default="save",
-        help="save compare.rrd in --out (default), spawn, connect, or off",
-    )
-    p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
+    add_out_dir_option(p, "output folder (default: runs/<dataset>-compare)")
+    add_config_option(p, "TOML or YAML config file")
+    add_max_steps_option(p)
+    add_rerun_options(p, "save compare.rrd in --out (default), spawn, connect, or off")
     p.add_argument(
         "--in-process",
         action="store_true",
         help="run back ends in this process (no per-back-end memory figure)",
     )
-    p.set_defaults(func=cmd_compare)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

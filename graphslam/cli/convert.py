@@ -6,14 +6,33 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from graphslam.cli.common import add_choice_option, add_command
 from slamcore.errors import ConfigError
 
 FORMAT_OF_SUFFIX = {".g2o": "g2o", ".graph": "toro"}
 
+#: ``--toro-noise`` and ``--information-fix``: posegraph_files.TORO_NOISE and
+#: INFORMATION_FIX written out (building the parser imports no numpy), the first the default.
+TORO_NOISE = ("auto", "information", "sqrt_information")
+INFORMATION_FIX = ("nearest", "isotropic", "refuse")
+TORO_NOISE_HELP = (
+    "how TORO edge numbers are read and written: information (the "
+    "format), sqrt_information (files written by iSAM), or auto "
+    "(default: sqrt_information for the files known to hold it, such as "
+    "gtsam's sphere2500.txt, said on stderr; else information)"
+)
+INFORMATION_FIX_HELP = (
+    "an information matrix that is not positive definite is written as "
+    "the nearest positive-definite one (default), as SE-Sync's isotropic "
+    "weights, or refused"
+)
+
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "convert",
+        cmd_convert,
         help="convert a pose graph between g2o and TORO (2-D and 3-D)",
         description="Read a g2o or TORO pose graph (2-D or 3-D) and write it in the format "
         "that OUT's extension names (.g2o or .graph, unless --to), same dimension, "
@@ -26,26 +45,8 @@ def register(sub) -> None:
     p.add_argument(
         "--to", choices=("g2o", "toro"), default=None, help="output format (default: from OUT's extension)"
     )
-    # posegraph_files.TORO_NOISE, written out: building the parser imports no numpy
-    p.add_argument(
-        "--toro-noise",
-        choices=("auto", "information", "sqrt_information"),
-        default="auto",
-        help="how TORO edge numbers are read and written: information (the "
-        "format), sqrt_information (files written by iSAM), or auto "
-        "(default: sqrt_information for the files known to hold it, such as "
-        "gtsam's sphere2500.txt, said on stderr; else information)",
-    )
-    # posegraph_files.INFORMATION_FIX, written out for the same reason
-    p.add_argument(
-        "--information-fix",
-        choices=("nearest", "isotropic", "refuse"),
-        default="nearest",
-        help="an information matrix that is not positive definite is written as "
-        "the nearest positive-definite one (default), as SE-Sync's isotropic "
-        "weights, or refused",
-    )
-    p.set_defaults(func=cmd_convert)
+    add_choice_option(p, "--toro-noise", TORO_NOISE, TORO_NOISE_HELP)
+    add_choice_option(p, "--information-fix", INFORMATION_FIX, INFORMATION_FIX_HELP)
 
 
 def cmd_convert(args: argparse.Namespace) -> int:

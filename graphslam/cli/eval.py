@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
+
+from graphslam.cli.common import add_command, add_out_dir_option
 
 EPILOG = """\
 formats (told from the content unless --format is given):
@@ -46,13 +49,14 @@ def register(sub) -> None:
     )
     from graphslam.sources.ground_truth import TRAJECTORY_FORMATS
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "eval",
+        cmd_eval,
         help="score trajectory files (TUM, KITTI, EuRoC) against ground truth",
         description="ATE, RPE and KITTI drift of one or more estimates against a reference "
         "trajectory; a table, eval.json and eval.png.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "ground_truth", type=Path, metavar="GT", help="reference trajectory file, or BAG:TOPIC (see below)"
@@ -84,8 +88,10 @@ def register(sub) -> None:
         metavar="N",
         help="fit se3/sim3 on the first N matched poses only (default: all)",
     )
+    # Each option of EvalOptions has its field's name as dest: cmd_eval passes them on by name.
     p.add_argument(
         "--max-diff",
+        dest="max_diff_s",
         type=float,
         default=DEFAULT_MAX_DIFF_S,
         metavar="S",
@@ -93,6 +99,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--offset",
+        dest="offset_s",
         type=float,
         default=DEFAULT_OFFSET_S,
         metavar="S",
@@ -102,11 +109,8 @@ def register(sub) -> None:
     p.add_argument(
         "--delta-unit", choices=DELTA_UNITS, default="frames", help="RPE step unit (default: frames)"
     )
-    p.add_argument(
-        "--out", type=Path, default=Path("runs") / "eval", help="output folder (default: runs/eval)"
-    )
+    add_out_dir_option(p, "output folder (default: runs/eval)", default=Path("runs") / "eval")
     p.add_argument("--no-plot", action="store_true", help="do not write eval.png")
-    p.set_defaults(func=cmd_eval)
 
 
 def format_table(results) -> str:
@@ -168,14 +172,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out)  # refused now, not after scoring
-    options = EvalOptions(
-        align=args.align,
-        n_align=args.n_align,
-        max_diff_s=args.max_diff,
-        offset_s=args.offset,
-        delta=args.delta,
-        delta_unit=args.delta_unit,
-    )
+    options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
     if not args.no_plot:

@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from graphslam.cli.common import add_command, add_topics_option
+
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "info",
+        cmd_info,
         help="list the topics of a ROS bag (type, messages, rate)",
         description="List every topic of a ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or "
         "mcap) in one table: message type, message count and mean rate (Hz, from "
@@ -16,13 +20,7 @@ def register(sub) -> None:
         'rosbags package: pip install ".[bags]".',
     )
     p.add_argument("bag", type=Path, metavar="BAG", help="a .bag file or a ROS 2 bag folder")
-    p.add_argument(
-        "--topics",
-        default=None,
-        metavar="ROLE=TOPIC,...",
-        help="as for graphslam run: check that these names pick the topics",
-    )
-    p.set_defaults(func=cmd_info)
+    add_topics_option(p, "as for graphslam run: check that these names pick the topics")
 
 
 def cmd_info(args: argparse.Namespace) -> int:

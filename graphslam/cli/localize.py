@@ -15,7 +15,13 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    TOPICS_HELP,
+    add_command,
+    add_config_option,
+    add_frames_option,
+    add_out_dir_option,
+    add_quiet_option,
+    add_rerun_options,
+    add_topics_option,
     close_recorder,
     fmt,
     open_recorder,
@@ -41,14 +47,15 @@ examples:
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "localize",
+        cmd_localize,
         help="localise an image sequence against a saved map (map fixed)",
         description="Place every frame of an image sequence in a map saved by "
         "'graphslam run --save-map': place recognition, PnP RANSAC, then "
         "tracking against the map's landmarks, relocalising when lost.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "--map",
@@ -63,29 +70,12 @@ def register(sub) -> None:
         metavar="NAME|FOLDER",
         help="synthetic-images or an image-sequence folder (same camera as the map)",
     )
-    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    p.add_argument(
-        "--frames",
-        default=None,
-        metavar="START:STOP[:STEP]",
-        help="localise these frames only (Python slice; 159::-2 plays backwards)",
-    )
-    p.add_argument("--out", type=Path, default=None, help="output folder")
-    p.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        help="TOML or YAML file ([localize], [loop_pnp], [harris], [orb], ...)",
-    )
-    p.add_argument(
-        "--rerun",
-        choices=("save", "spawn", "connect", "off"),
-        default="save",
-        help="save localize.rrd in --out (default), spawn or connect a viewer, or off",
-    )
-    p.add_argument("--rerun-url", default=None, help="viewer gRPC URL for --rerun connect")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_localize)
+    add_topics_option(p)
+    add_frames_option(p, "localise these frames only (Python slice; 159::-2 plays backwards)")
+    add_out_dir_option(p)
+    add_config_option(p, "TOML or YAML file ([localize], [loop_pnp], [harris], [orb], ...)")
+    add_rerun_options(p, "save localize.rrd in --out (default), spawn or connect a viewer, or off")
+    add_quiet_option(p)
 
 
 def cmd_localize(args: argparse.Namespace) -> int:

@@ -16,7 +16,13 @@ import sys
 import time
 from pathlib import Path
 
-from graphslam.cli.common import TOPICS_HELP
+from graphslam.cli.common import (
+    add_command,
+    add_config_option,
+    add_frames_option,
+    add_quiet_option,
+    add_topics_option,
+)
 from slamcore.errors import ConfigError
 from slamcore.files import check_distinct_outputs, check_output_file
 
@@ -38,14 +44,15 @@ examples:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
+    p = add_command(
+        subparsers,
         "loops",
+        cmd_loops,
         help="detect loop closures in a folder of images (bag of words + RANSAC)",
         description="Place recognition on a folder of images in file-name order: ORB features, "
         "bag-of-words query, temporal consistency and geometric verification. "
         "Writes one CSV row per accepted closure.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "images_dir",
@@ -55,7 +62,7 @@ def register(subparsers) -> None:
         "natural file-name order as a time sequence, or a ROS bag (its image "
         "topic in header-stamp order; its camera info as --intrinsics)",
     )
-    p.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
+    add_topics_option(p)
     p.add_argument(
         "--out", type=Path, required=True, metavar="FILE", help="CSV file to write: query,match,score,inliers"
     )
@@ -83,13 +90,7 @@ def register(subparsers) -> None:
         help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
         "enables the essential-matrix check (default: fundamental matrix)",
     )
-    p.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="TOML or YAML file with [loops] and [loop_verify] sections",
-    )
+    add_config_option(p, "TOML or YAML file with [loops] and [loop_verify] sections", metavar="FILE")
     p.add_argument(
         "--log",
         type=Path,
@@ -106,14 +107,8 @@ def register(subparsers) -> None:
         "image whose non-zero pixel (i, j) marks images i and j as one place; "
         "prints precision and recall and writes pr.csv and pr.png next to --out",
     )
-    p.add_argument(
-        "--frames",
-        default=None,
-        metavar="START:STOP[:STEP]",
-        help="use these images only (Python slice of the file-name order)",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_loops)
+    add_frames_option(p, "use these images only (Python slice of the file-name order)")
+    add_quiet_option(p)
 
 
 def cmd_loops(args: argparse.Namespace) -> int:

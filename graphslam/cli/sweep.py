@@ -8,6 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option
+
 EPILOG = """\
 sweep file (TOML):
   [sweep]
@@ -45,16 +47,17 @@ examples:
 
 def register(sub) -> None:
     """Add the ``sweep`` sub-command to the ``graphslam`` parser."""
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "sweep",
+        cmd_sweep,
         help="run a grid of datasets x back ends x settings x seeds",
         description="Monte Carlo and parameter sweeps: every run of the grid as its own "
         "'graphslam run', one table (sweep.csv) and plots.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("sweep_file", type=Path, metavar="SWEEP.toml", help="the sweep file")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    add_out_dir_option(p, required=True)
     p.add_argument(
         "--workers",
         type=int,
@@ -69,8 +72,7 @@ def register(sub) -> None:
         help="run on Dask distributed: a local cluster, or a scheduler address",
     )
     p.add_argument("--no-plots", action="store_true", help="write sweep.csv only")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_sweep)
+    add_quiet_option(p)
 
 
 def make_executor(workers: int, cluster: str | None):

@@ -12,6 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from graphslam.cli.common import add_command, add_config_option, add_quiet_option
+
 EPILOG = """\
 examples:
   graphslam vocab train ../shared/data/kitti07/image_0 --words 1000 --out kitti.voc
@@ -20,21 +22,24 @@ examples:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
+    p = add_command(
+        subparsers,
         "vocab",
+        None,
         help="visual vocabularies for loop closure (train)",
         description="Visual vocabularies (bag of words) for loop-closure detection.",
     )
     sub = p.add_subparsers(dest="vocab_command", metavar="ACTION")
     sub.required = True
-    t = sub.add_parser(
+    t = add_command(
+        sub,
         "train",
+        cmd_train,
         help="train a vocabulary from images",
         description="Detect ORB features on every image (progress bar), train a vocabulary tree "
         "(hierarchical k-means, branching^depth >= --words leaves) or a flat "
         "k-means vocabulary, and save it as one file.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     t.add_argument(
         "images",
@@ -73,15 +78,10 @@ def register(subparsers) -> None:
         "0 = all); bounds training time",
     )
     t.add_argument("--seed", type=int, default=0, help="k-means seed (default: 0)")
-    t.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="TOML or YAML file; ORB settings are read from its [loops.orb] table",
+    add_config_option(
+        t, "TOML or YAML file; ORB settings are read from its [loops.orb] table", metavar="FILE"
     )
-    t.add_argument("--quiet", action="store_true", help="no progress bar")
-    t.set_defaults(func=cmd_train)
+    add_quiet_option(t)
 
 
 # ----------------------------------------------------------------------------- command

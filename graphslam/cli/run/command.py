@@ -10,7 +10,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from graphslam.cli.common import TOPICS_HELP
+from graphslam.cli.common import (
+    add_command,
+    add_config_option,
+    add_dataset_option,
+    add_frames_option,
+    add_max_steps_option,
+    add_out_dir_option,
+    add_quiet_option,
+    add_rerun_options,
+    add_robot_option,
+    add_topics_option,
+)
 
 RUN_EPILOG = """\
 datasets:
@@ -95,21 +106,18 @@ examples:
 
 def register(sub) -> None:
     """Add the ``run`` sub-command to the ``graphslam`` parser."""
-    from graphslam.cli.common import robot_arg
     from graphslam.registry import BACKEND_NAMES
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "run",
+        cmd_run,
         help="run SLAM on a dataset and write trajectory, map, metrics, recording",
         description="Run one back end over a dataset, print a summary table and write the outputs to --out.",
         epilog=RUN_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
-        "--dataset",
-        default="synthetic",
-        metavar="NAME|PATH",
-        help="built-in dataset name, pose-graph file, image-sequence folder or ROS bag (default: synthetic)",
+    add_dataset_option(
+        p, "built-in dataset name, pose-graph file, image-sequence folder or ROS bag (default: synthetic)"
     )
     p.add_argument(
         "--backend",
@@ -127,7 +135,7 @@ def register(sub) -> None:
         "visual iSAM2's two-view and PnP RANSACs (default: config file, "
         "else 0); refused where nothing is random",
     )
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<dataset>-<backend>)")
+    add_out_dir_option(p, "output folder (default: runs/<dataset>-<backend>)")
     p.add_argument(
         "--write-bag",
         action="store_true",
@@ -135,10 +143,8 @@ def register(sub) -> None:
         "PoseStamped on /graphslam/trajectory; rosbag and evo read it; needs "
         'pip install ".[bags]")',
     )
-    p.add_argument(
-        "--config", type=Path, default=None, help="TOML or YAML file with [synthetic], [isam2] sections"
-    )
-    p.add_argument("--max-steps", type=int, default=None, metavar="N", help="stop after N frames")
+    add_config_option(p, "TOML or YAML file with [synthetic], [isam2] sections")
+    add_max_steps_option(p)
     p.add_argument(
         "--ground-truth",
         type=Path,
@@ -151,16 +157,10 @@ def register(sub) -> None:
         action="store_true",
         help="skip the final batch Levenberg-Marquardt polish (isam2 only)",
     )
-    p.add_argument(
-        "--rerun",
-        choices=("save", "spawn", "connect", "off"),
-        default="save",
-        help="save run.rrd in --out (default), spawn a viewer, connect to a running one, or log nothing",
-    )
-    p.add_argument(
-        "--rerun-url",
-        default=None,
-        help="viewer gRPC URL for --rerun connect (default: rerun+http://127.0.0.1:9876/proxy)",
+    add_rerun_options(
+        p,
+        "save run.rrd in --out (default), spawn a viewer, connect to a running one, or log nothing",
+        url_help="viewer gRPC URL for --rerun connect (default: rerun+http://127.0.0.1:9876/proxy)",
     )
     p.add_argument(
         "--rerun-every",
@@ -171,7 +171,7 @@ def register(sub) -> None:
         "steps (default: about 50 snapshots; image sequences: every 5 "
         "frames)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p)
     p.add_argument(
         "--nees",
         action="store_true",
@@ -179,17 +179,13 @@ def register(sub) -> None:
         "NEES statistics in metrics.json (Monte Carlo consistency in sweeps)",
     )
     logs = p.add_argument_group("landmark logs")
-    logs.add_argument(
-        "--robot",
-        type=robot_arg,
-        default=None,
-        metavar="N|all",
-        help="MRCLAM folders: which robot's log to run, or all: every robot in one "
+    add_robot_option(
+        logs,
+        "MRCLAM folders: which robot's log to run, or all: every robot in one "
         "graph (isam2) (default: [mrclam] robot of --config, else 1)",
     )
     _add_posegraph_options(p.add_argument_group("pose-graph files"))
     _add_image_options(p.add_argument_group("image sequences"))
-    p.set_defaults(func=cmd_run)
 
 
 def _add_posegraph_options(graphs) -> None:
@@ -244,12 +240,10 @@ def _add_image_options(vis) -> None:
         metavar="FILE",
         help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)",
     )
-    vis.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=TOPICS_HELP)
-    vis.add_argument(
-        "--frames",
-        default=None,
-        metavar="START:STOP[:STEP]",
-        help="run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
+    add_topics_option(vis)
+    add_frames_option(
+        vis,
+        "run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "
         "backwards); ground truth and odometry follow",
     )
     vis.add_argument(

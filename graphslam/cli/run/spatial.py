@@ -30,6 +30,7 @@ from pathlib import Path
 
 from graphslam.cli.common import (
     close_recorder,
+    counts_row,
     fmt,
     open_recorder,
     report_outputs,
@@ -39,6 +40,9 @@ from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
 SELF_TRAINED_WORDS = 1000
+#: The summary's counts of the loop closures and of the tracking losses, in its labels' order.
+LOOP_COUNTS = ("closures", "verified", "candidates")
+TRACKING_LOSS_COUNTS = ("losses", "relocalisations", "recovered_by_search")
 
 
 def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
@@ -257,22 +261,12 @@ def format_summary(m) -> str:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
     if m.loops:
         lp = m.loops
-        rows.append(
-            (
-                "loop closures added / verified / candidates",
-                f"{lp['closures']} / {lp['verified']} / {lp['candidates']}",
-            )
-        )
+        rows.append(counts_row("loop closures added / verified / candidates", lp, *LOOP_COUNTS))
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.tracking_loss:
         tl = m.tracking_loss
-        rows.append(
-            (
-                "tracking losses / relocalised / found again",
-                f"{tl['losses']} / {tl['relocalisations']} / {tl['recovered_by_search']}",
-            )
-        )
+        rows.append(counts_row("tracking losses / relocalised / found again", tl, *TRACKING_LOSS_COUNTS))
     mono = stats.get("camera_alone")
     if mono is not None:
         first = mono.get("first_map")
