@@ -80,6 +80,28 @@ def _require(data: dict, names: Sequence[str], path) -> None:
         raise InputError(f"vocabulary file lacks field(s) {', '.join(missing)}", path)
 
 
+#: The learned fields both kinds end with, in file order.
+COMMON_FIELDS = ("metric", "descriptor_dim", "idf", "n_training_images")
+
+
+def _common_arrays(v) -> dict:
+    """The fields of :data:`COMMON_FIELDS` of a fitted vocabulary ``v``."""
+    return {
+        "metric": np.str_(v.metric_),
+        "descriptor_dim": np.int64(v.descriptor_dim_),
+        "idf": v.idf_,
+        "n_training_images": np.int64(v.n_training_images_),
+    }
+
+
+def _restore_common(v, data: dict) -> None:
+    """Set the fields of :data:`COMMON_FIELDS` of ``v`` from ``data`` (their checks follow)."""
+    v.metric_ = str(data["metric"])
+    v.descriptor_dim_ = int(data["descriptor_dim"])
+    v.idf_ = data["idf"]
+    v.n_training_images_ = int(data["n_training_images"])
+
+
 def _check_centres(v, n_rows: int, path) -> None:
     """Centres dtype/shape agree with the metric and descriptor width; IDF finite, >= 0."""
     want = np.uint8 if v.metric_ == "hamming" else np.float32
@@ -108,31 +130,13 @@ def flat_arrays(v) -> dict:
         "minibatch": np.bool_(v.minibatch),
         "n_init": np.int64(v.n_init),
         "centres": v.centres_,
-        "metric": np.str_(v.metric_),
-        "descriptor_dim": np.int64(v.descriptor_dim_),
-        "idf": v.idf_,
-        "n_training_images": np.int64(v.n_training_images_),
+        **_common_arrays(v),
     }
 
 
 def restore_flat(cls, data: dict, path):
     """A ``cls`` (FlatVocabulary) rebuilt from the fields ``data`` of file ``path``, checked."""
-    _require(
-        data,
-        [
-            "n_words",
-            "seed",
-            "max_iter",
-            "minibatch",
-            "n_init",
-            "centres",
-            "metric",
-            "descriptor_dim",
-            "idf",
-            "n_training_images",
-        ],
-        path,
-    )
+    _require(data, ["n_words", "seed", "max_iter", "minibatch", "n_init", "centres", *COMMON_FIELDS], path)
     try:
         v = cls(
             int(data["n_words"]),
@@ -142,11 +146,8 @@ def restore_flat(cls, data: dict, path):
             int(data["n_init"]),
         )
         v.centres_ = data["centres"]
-        v.metric_ = str(data["metric"])
-        v.descriptor_dim_ = int(data["descriptor_dim"])
         v.n_words_ = int(data["n_words"])
-        v.idf_ = data["idf"]
-        v.n_training_images_ = int(data["n_training_images"])
+        _restore_common(v, data)
     except (TypeError, ValueError, OverflowError) as exc:  # int(inf): OverflowError
         raise InputError(f"bad vocabulary field ({exc})", path) from exc
     if v.idf_.dtype != np.float64:
@@ -173,36 +174,14 @@ def tree_arrays(v) -> dict:
         "children": v.children_,
         "node_word": v.node_word_,
         "word_node": v.word_node_,
-        "metric": np.str_(v.metric_),
-        "descriptor_dim": np.int64(v.descriptor_dim_),
-        "idf": v.idf_,
-        "n_training_images": np.int64(v.n_training_images_),
+        **_common_arrays(v),
     }
 
 
 def restore_tree(cls, data: dict, path):
     """A ``cls`` (VocabularyTree) rebuilt from the fields ``data`` of file ``path``, checked."""
-    _require(
-        data,
-        [
-            "branching",
-            "depth",
-            "seed",
-            "max_iter",
-            "max_node_samples",
-            "init",
-            "n_init",
-            "centres",
-            "children",
-            "node_word",
-            "word_node",
-            "metric",
-            "descriptor_dim",
-            "idf",
-            "n_training_images",
-        ],
-        path,
-    )
+    params = ["branching", "depth", "seed", "max_iter", "max_node_samples", "init", "n_init"]
+    _require(data, [*params, "centres", "children", "node_word", "word_node", *COMMON_FIELDS], path)
     try:
         v = cls(
             int(data["branching"]),
@@ -217,11 +196,8 @@ def restore_tree(cls, data: dict, path):
         v.children_ = data["children"]
         v.node_word_ = data["node_word"]
         v.word_node_ = data["word_node"]
-        v.metric_ = str(data["metric"])
-        v.descriptor_dim_ = int(data["descriptor_dim"])
         v.n_words_ = int(v.word_node_.size)
-        v.idf_ = data["idf"]
-        v.n_training_images_ = int(data["n_training_images"])
+        _restore_common(v, data)
     except (TypeError, ValueError, OverflowError) as exc:  # int(inf): OverflowError
         raise InputError(f"bad vocabulary field ({exc})", path) from exc
     _check_tree(v, path)

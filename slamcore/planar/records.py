@@ -231,6 +231,13 @@ def range_bearing_batch(
     and ``correlation`` as the fields of that name (None: none)."""
     z = _checked_batch(zs, (2,), "observation row")
     c = _checked_covariances(covariances, 2, "observation row")
+    kind = ObservationKind.RANGE_BEARING
+    return _observations(pose_ids, landmark_ids, z, c, kind, stamps_s, correlation)
+
+
+def _observations(pose_ids, landmark_ids, z, c, kind, stamps_s, correlation) -> list[Observation]:
+    """The records of the checked rows ``z`` (N, k) and ``c`` (N, k, k), once every
+    range (column 0) is positive."""
     bad = z[:, 0] <= 0.0
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
@@ -242,7 +249,7 @@ def range_bearing_batch(
             landmark_id=int(j),
             z=z[k],
             covariance=c[k],
-            kind=ObservationKind.RANGE_BEARING,
+            kind=kind,
             signature=None,
             stamp_s=t,
             correlation=correlation,
@@ -257,23 +264,7 @@ def range_batch(pose_ids, landmark_ids, ranges, variances) -> list[Observation]:
     (m) and positive variances (m^2); z is (1,), the covariance (1, 1)."""
     z = _checked_batch(ranges, (1,), "observation row")
     c = _checked_covariances(np.reshape(variances, (-1, 1, 1)), 1, "observation row")
-    bad = z[:, 0] <= 0.0
-    if bad.any():
-        raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
-    return [
-        _bare(
-            Observation,
-            pose_id=int(p),
-            landmark_id=int(j),
-            z=z[k],
-            covariance=c[k],
-            kind=ObservationKind.RANGE,
-            signature=None,
-            stamp_s=None,
-            correlation=None,
-        )
-        for k, (p, j) in enumerate(zip(pose_ids, landmark_ids, strict=True))
-    ]
+    return _observations(pose_ids, landmark_ids, z, c, ObservationKind.RANGE, None, None)
 
 
 @dataclass(frozen=True, eq=False)

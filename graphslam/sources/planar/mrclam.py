@@ -497,6 +497,27 @@ def landmark_observations(track: RobotTrack, config: MrclamConfig, pose_id_of, r
     return by_frame
 
 
+def timed_frames(times: np.ndarray, odometry: list, by_frame: dict, wTb_true: np.ndarray) -> list[Frame]:
+    """One :class:`Frame` a time of ``times`` (N,): pose k, the odometry ``odometry[k-1]``
+    into it, its observations ``by_frame[k]`` (their ids the true ones: the data's
+    barcodes or beacon ids) and the truth row ``wTb_true[k]`` (N, 3) where finite."""
+    has_truth = np.isfinite(wTb_true).all(axis=1)
+    frames = []
+    for k, t in enumerate(times.tolist()):
+        seen = tuple(by_frame.get(k, ()))
+        frames.append(
+            Frame(
+                pose_id=k,
+                stamp_s=t,
+                odometry=odometry[k - 1] if k else None,
+                observations=seen,
+                true_landmark_ids=tuple(o.landmark_id for o in seen),
+                wTb_true=wTb_true[k].copy() if has_truth[k] else None,
+            )
+        )
+    return frames
+
+
 def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_true) -> Dataset:
     has_truth = np.isfinite(track.wTb_true).all(axis=1)
     prior = track.wTb_true[0] if has_truth[0] else np.zeros(3)
@@ -508,19 +529,7 @@ def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_tr
     ids = list(range(len(track.times)))
     odometry = odometry_batch(ids[:-1], ids[1:], track.deltas, track.covariances)
     by_frame = landmark_observations(track, config, int, config.robot)
-    frames = []
-    for k, t in enumerate(track.times.tolist()):
-        seen = tuple(by_frame.get(k, ()))
-        frames.append(
-            Frame(
-                pose_id=k,
-                stamp_s=t,
-                odometry=odometry[k - 1] if k else None,
-                observations=seen,
-                true_landmark_ids=tuple(o.landmark_id for o in seen),
-                wTb_true=track.wTb_true[k].copy() if has_truth[k] else None,
-            )
-        )
+    frames = timed_frames(track.times, odometry, by_frame, track.wTb_true)
     return Dataset(
         name=f"{folder.name}-robot{config.robot}",
         frames=frames,

@@ -47,10 +47,10 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam import check_times, read_table, truth_at
+from graphslam.sources.planar.mrclam import check_times, read_table, timed_frames, truth_at
 from slamcore.errors import InputError
 from slamcore.input_files import check_input_path
-from slamcore.planar.records import Dataset, Frame, odometry_batch, range_batch
+from slamcore.planar.records import Dataset, odometry_batch, range_batch
 
 #: Noise from gtsam's ``examples/RangeISAMExample_plaza2.cpp`` (borglab/gtsam,
 #: current version): odometry sigmas (0.05 m along, 0.01 m across, 0.1 rad) per DR
@@ -234,19 +234,7 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
     by_frame: dict[int, list] = {}
     for obs in ranges:
         by_frame.setdefault(obs.pose_id, []).append(obs)
-    frames = []
-    for k, t in enumerate(times.tolist()):
-        seen = tuple(by_frame.get(k, ()))
-        frames.append(
-            Frame(
-                pose_id=k,
-                stamp_s=t,
-                odometry=odometry[k - 1] if k else None,
-                observations=seen,
-                true_landmark_ids=tuple(o.landmark_id for o in seen),
-                wTb_true=wTb_true[k].copy() if has_truth[k] else None,
-            )
-        )
+    frames = timed_frames(times, odometry, by_frame, wTb_true)
     name = dr_path.name[: -len("_DR.txt")].lower() if is_plaza_dr_file(dr_path) else dr_path.stem
     return Dataset(
         name=name,
