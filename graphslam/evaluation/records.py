@@ -1,15 +1,16 @@
 """Typed run metrics: what ``metrics.json`` holds, as dataclasses.
 
 Pipelines fill these; the CLI reads their attributes for the summary table;
-:meth:`to_dict` gives the JSON layout (fields in declaration order; optional
-fields left out while they are None, so files keep their familiar shape).
+:meth:`MetricsRecord.to_dict` gives the JSON layout (fields in declaration order;
+fields declared :func:`optional` left out while they are None, so files keep their
+familiar shape).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
-from typing import ClassVar, Protocol, cast
+from dataclasses import dataclass, field
+from typing import Any
 
 #: Below this share of the estimate's poses matched, the ATE describes a minority of
 #: the trajectory (``graphslam eval``, and a 2-D run's own score): said in a warning,
@@ -17,25 +18,34 @@ from typing import ClassVar, Protocol, cast
 #: 20 Hz) matches a tenth of its poses and is still scored correctly.
 LOW_MATCHED_SHARE = 0.5
 
+#: Field metadata key of :func:`optional`.
+OMITTED_WHILE_NONE = "omitted_while_none"
 
-class _Record(Protocol):
-    def to_dict(self) -> dict: ...
 
-
-def _as_dict(record, optional: frozenset[str]) -> dict:
-    out = {}
-    for f in dataclasses.fields(record):
-        value = getattr(record, f.name)
-        if f.name in optional and value is None:
-            continue
-        if dataclasses.is_dataclass(value):  # a nested record of this module: has to_dict
-            value = cast(_Record, value).to_dict()
-        out[f.name] = value
-    return out
+def optional() -> Any:
+    """A metrics field that defaults to None and is left out of :meth:`MetricsRecord.to_dict`
+    while it is None (a field that defaults to None without it is written as null)."""
+    return field(default=None, metadata={OMITTED_WHILE_NONE: True})
 
 
 @dataclass
-class AssociationScore:
+class MetricsRecord:
+    """Base of the metrics records: :meth:`to_dict` gives their JSON layout."""
+
+    def to_dict(self) -> dict:
+        """The fields in declaration order, nested records as their own dicts;
+        :func:`optional` fields left out while they are None."""
+        out = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if value is None and f.metadata.get(OMITTED_WHILE_NONE):
+                continue
+            out[f.name] = value.to_dict() if isinstance(value, MetricsRecord) else value
+        return out
+
+
+@dataclass
+class AssociationScore(MetricsRecord):
     """Data association against ground truth (:func:`.planar.association_accuracy`).
 
     Attributes:
@@ -53,16 +63,11 @@ class AssociationScore:
     unused: int
     landmarks_created: int
     duplicates: int
-    oracle_accuracy: float | None = None
-
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"oracle_accuracy"})
-
-    def to_dict(self) -> dict:
-        return _as_dict(self, self.OPTIONAL)
+    oracle_accuracy: float | None = optional()
 
 
 @dataclass
-class PlanarRunMetrics:
+class PlanarRunMetrics(MetricsRecord):
     """Metrics of a 2-D run (``metrics.json``; one entry of ``compare.json``).
 
     Attributes:
@@ -102,58 +107,30 @@ class PlanarRunMetrics:
     steps_per_s: float | None
     interrupted: bool
     loop_closures_skipped: int
-    association: AssociationScore | None = None
-    peak_rss_mb: float | None = None
-    final_pose_error_m: float | None = None
-    nees_mean: float | None = None
-    nees_in_bounds_fraction: float | None = None
-    rms_to_isam2_m: float | None = None
-    numerical_recoveries: list[str] | None = None
-    recoveries: dict[str, int] | None = None
-    map: str | None = None
-    localisation_only: bool | None = None
-    unmapped_observations: int | None = None
-    warnings: list[str] | None = None
-    dataset_notes: list[str] | None = None
-    map_rmse_m: float | None = None
-    map_rmse_m_map_aligned: float | None = None
-    landmarks_matched: int | None = None
-    landmarks_recovered: int | None = None
-    landmarks_true: int | None = None
-    agents: dict | None = None
-    ate_poses: int | None = None
-
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
-        {
-            "association",
-            "peak_rss_mb",
-            "final_pose_error_m",
-            "nees_mean",
-            "nees_in_bounds_fraction",
-            "rms_to_isam2_m",
-            "numerical_recoveries",
-            "recoveries",
-            "map",
-            "localisation_only",
-            "unmapped_observations",
-            "warnings",
-            "dataset_notes",
-            "map_rmse_m",
-            "map_rmse_m_map_aligned",
-            "landmarks_matched",
-            "landmarks_recovered",
-            "landmarks_true",
-            "agents",
-            "ate_poses",
-        }
-    )
-
-    def to_dict(self) -> dict:
-        return _as_dict(self, self.OPTIONAL)
+    association: AssociationScore | None = optional()
+    peak_rss_mb: float | None = optional()
+    final_pose_error_m: float | None = optional()
+    nees_mean: float | None = optional()
+    nees_in_bounds_fraction: float | None = optional()
+    rms_to_isam2_m: float | None = optional()
+    numerical_recoveries: list[str] | None = optional()
+    recoveries: dict[str, int] | None = optional()
+    map: str | None = optional()
+    localisation_only: bool | None = optional()
+    unmapped_observations: int | None = optional()
+    warnings: list[str] | None = optional()
+    dataset_notes: list[str] | None = optional()
+    map_rmse_m: float | None = optional()
+    map_rmse_m_map_aligned: float | None = optional()
+    landmarks_matched: int | None = optional()
+    landmarks_recovered: int | None = optional()
+    landmarks_true: int | None = optional()
+    agents: dict | None = optional()
+    ate_poses: int | None = optional()
 
 
 @dataclass
-class SpatialRunMetrics:
+class SpatialRunMetrics(MetricsRecord):
     """Metrics of a visual run (``metrics.json``).
 
     Attributes:
@@ -199,38 +176,17 @@ class SpatialRunMetrics:
     interrupted: bool
     backend_stats: dict
     tracking: dict
-    ate_error: str | None = None
-    ate: dict | None = None
-    odometry_rpe: dict | None = None
-    backend_class: str | None = None
-    loops: dict | None = None
-    tracking_loss: dict | None = None
-    peak_rss_mb: float | None = None
-    nees_mean: float | None = None
-    nees_in_bounds_fraction: float | None = None
-    nees_alignment: str | None = None
-    input_digest: str | None = None
+    ate_error: str | None = optional()
+    ate: dict | None = optional()
+    odometry_rpe: dict | None = optional()
+    backend_class: str | None = optional()
+    loops: dict | None = optional()
+    tracking_loss: dict | None = optional()
+    peak_rss_mb: float | None = optional()
+    nees_mean: float | None = optional()
+    nees_in_bounds_fraction: float | None = optional()
+    nees_alignment: str | None = optional()
+    input_digest: str | None = optional()
     frames_with_pose: int | None = None
-    warnings: list | None = None
-    dataset_notes: list | None = None
-
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
-        {
-            "ate_error",
-            "ate",
-            "odometry_rpe",
-            "backend_class",
-            "loops",
-            "tracking_loss",
-            "peak_rss_mb",
-            "nees_mean",
-            "nees_in_bounds_fraction",
-            "nees_alignment",
-            "input_digest",
-            "warnings",
-            "dataset_notes",
-        }
-    )
-
-    def to_dict(self) -> dict:
-        return _as_dict(self, self.OPTIONAL)
+    warnings: list | None = optional()
+    dataset_notes: list | None = optional()

@@ -7,16 +7,15 @@ the estimate), ``closures.csv`` and ``metrics.json``.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import SolveResult, solve
+from graphslam.evaluation.records import MetricsRecord, optional
 from graphslam.pipelines.common import interrupt_between_frames, signal_hook, stop_requested
 from slamcore import posegraph as pg
 from slamcore.errors import GraphSlamError, InputError
@@ -32,7 +31,7 @@ SHONAN_CERTIFIES = (
 
 
 @dataclass
-class PoseGraphRunMetrics:
+class PoseGraphRunMetrics(MetricsRecord):
     """``metrics.json`` of a pose-graph run; costs are ``0.5 sum ||whitened
     residual||^2`` over the file's edges (the gtsam graph error), and
     ``final_cost_kept`` the same over the edges kept when closures were rejected
@@ -58,50 +57,24 @@ class PoseGraphRunMetrics:
     iterations: int | None
     wall_s: float
     backend_s: float
-    isam2_cost: float | None = None
-    isam2_s: float | None = None
-    shonan_min_eigenvalue: float | None = None
-    shonan_certifies: str | None = None
-    numerical_recoveries: list[str] | None = None
-    information_fixed: dict | None = None
-    noise: str | None = None
-    closure_test: dict | None = None
-    route: dict | None = None
-    self_edges_ignored: dict | None = None
-    equiv_ignored: int | None = None
-    final_cost_kept: float | None = None
-    certificate: dict | None = None
+    isam2_cost: float | None = optional()
+    isam2_s: float | None = optional()
+    shonan_min_eigenvalue: float | None = optional()
+    shonan_certifies: str | None = optional()
+    numerical_recoveries: list[str] | None = optional()
+    information_fixed: dict | None = optional()
+    noise: str | None = optional()
+    closure_test: dict | None = optional()
+    route: dict | None = optional()
+    self_edges_ignored: dict | None = optional()
+    equiv_ignored: int | None = optional()
+    final_cost_kept: float | None = optional()
+    certificate: dict | None = optional()
     ate_rmse_m: float | None = None
     odometry_ate_rmse_m: float | None = None
-    ate_poses: int | None = None
+    ate_poses: int | None = optional()
     interrupted: bool = False
     converged: bool = True
-
-    OPTIONAL: ClassVar[frozenset[str]] = frozenset(
-        {
-            "isam2_cost",
-            "isam2_s",
-            "shonan_min_eigenvalue",
-            "shonan_certifies",
-            "numerical_recoveries",
-            "information_fixed",
-            "noise",
-            "closure_test",
-            "final_cost_kept",
-            "route",
-            "self_edges_ignored",
-            "equiv_ignored",
-            "ate_poses",
-            "certificate",
-        }
-    )
-
-    def to_dict(self) -> dict:
-        return {
-            f.name: getattr(self, f.name)
-            for f in dataclasses.fields(self)
-            if not (f.name in self.OPTIONAL and getattr(self, f.name) is None)
-        }
 
 
 def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | None = None) -> SolveResult:
