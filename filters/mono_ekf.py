@@ -107,12 +107,7 @@ from typing import TypeAlias
 import numpy as np
 
 from filters import landmark_params as lp
-from filters.mono_ekf_checks import (
-    check_camera,
-    check_initial_pose,
-    check_observations,
-    check_odometry,
-)
+from filters.mono_ekf_checks import check_camera, check_initial_pose, check_observations, check_odometry
 from filters.mono_ekf_config import MonoEkfConfig, chi2_2dof
 from filters.mono_ekf_correction import (
     apply_correction,

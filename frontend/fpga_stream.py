@@ -60,14 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from frontend.features import Features
-from frontend.harris import (
-    GAUSS5_INT,
-    K_SHIFT,
-    REACH_PX,
-    RESPONSE_SHIFT,
-    HarrisConfig,
-    cell_grid,
-)
+from frontend.harris import GAUSS5_INT, K_SHIFT, REACH_PX, RESPONSE_SHIFT, HarrisConfig, cell_grid
 from frontend.image import check_gray
 from slamcore.config import bounded, validate, with_overrides
 from slamcore.errors import GraphSlamError, InputError

@@ -226,12 +226,7 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
         return False
     if is_bag_dataset(spec):
         return False
-    from graphslam.sources.posegraph_files import (
-        TAGS,
-        first_tag,
-        has_landmark_lines,
-        is_pose_graph_tag,
-    )
+    from graphslam.sources.posegraph_files import TAGS, first_tag, has_landmark_lines, is_pose_graph_tag
 
     tag = first_tag(spec)
     if tag is None or not is_pose_graph_tag(tag):
@@ -373,10 +368,7 @@ def load_image_sequence(
 
         return read_bag(spec, parse_topics(topics))
     if spec == "synthetic-images":
-        from graphslam.sources.spatial.synthetic_images import (
-            SyntheticImagesConfig,
-            make_synthetic_images,
-        )
+        from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 
         return make_synthetic_images(load_section(SyntheticImagesConfig, config, {"seed": seed}))
     from graphslam.sources.spatial.images import read_image_sequence

@@ -81,12 +81,7 @@ from typing import ClassVar, Literal, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from loopclosure.acontrario import (
-    hull_coverage,
-    image_extent,
-    log10_nfa,
-    shared_view_coverage,
-)
+from loopclosure.acontrario import hull_coverage, image_extent, log10_nfa, shared_view_coverage
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.matching import epipolar_residuals, guided_match, match_descriptors
 from slamcore.config import bounded, validate, with_overrides

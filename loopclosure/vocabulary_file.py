@@ -80,6 +80,20 @@ def _require(data: dict, names: Sequence[str], path) -> None:
         raise InputError(f"vocabulary file lacks field(s) {', '.join(missing)}", path)
 
 
+#: Each kind's estimator parameters, in file order, with the type each is read back as
+#: (written as the numpy scalar of :data:`_STORED_AS`).
+FLAT_PARAMS = (("n_words", int), ("seed", int), ("max_iter", int), ("minibatch", bool), ("n_init", int))
+TREE_PARAMS = (
+    ("branching", int),
+    ("depth", int),
+    ("seed", int),
+    ("max_iter", int),
+    ("max_node_samples", int),
+    ("init", str),
+    ("n_init", int),
+)
+_STORED_AS = {int: np.int64, bool: np.bool_, str: np.str_}
+
 #: The learned fields both kinds end with, in file order.
 COMMON_FIELDS = ("metric", "descriptor_dim", "idf", "n_training_images")
 
@@ -92,6 +106,16 @@ def _common_arrays(v) -> dict:
         "idf": v.idf_,
         "n_training_images": np.int64(v.n_training_images_),
     }
+
+
+def _param_arrays(v, params) -> dict:
+    """The parameters ``params`` (name, type) of estimator ``v`` as numpy scalars."""
+    return {name: _STORED_AS[kind](getattr(v, name)) for name, kind in params}
+
+
+def _built(cls, data: dict, params):
+    """A ``cls`` made with the parameters ``params`` (name, type) read from ``data``."""
+    return cls(**{name: kind(data[name]) for name, kind in params})
 
 
 def _restore_common(v, data: dict) -> None:
@@ -123,28 +147,14 @@ def _check_centres(v, n_rows: int, path) -> None:
 
 def flat_arrays(v) -> dict:
     """The fields of a fitted :class:`loopclosure.vocabulary.FlatVocabulary` ``v``, in file order."""
-    return {
-        "n_words": np.int64(v.n_words),
-        "seed": np.int64(v.seed),
-        "max_iter": np.int64(v.max_iter),
-        "minibatch": np.bool_(v.minibatch),
-        "n_init": np.int64(v.n_init),
-        "centres": v.centres_,
-        **_common_arrays(v),
-    }
+    return {**_param_arrays(v, FLAT_PARAMS), "centres": v.centres_, **_common_arrays(v)}
 
 
 def restore_flat(cls, data: dict, path):
     """A ``cls`` (FlatVocabulary) rebuilt from the fields ``data`` of file ``path``, checked."""
-    _require(data, ["n_words", "seed", "max_iter", "minibatch", "n_init", "centres", *COMMON_FIELDS], path)
+    _require(data, [*(name for name, _ in FLAT_PARAMS), "centres", *COMMON_FIELDS], path)
     try:
-        v = cls(
-            int(data["n_words"]),
-            int(data["seed"]),
-            int(data["max_iter"]),
-            bool(data["minibatch"]),
-            int(data["n_init"]),
-        )
+        v = _built(cls, data, FLAT_PARAMS)
         v.centres_ = data["centres"]
         v.n_words_ = int(data["n_words"])
         _restore_common(v, data)
@@ -163,13 +173,7 @@ def restore_flat(cls, data: dict, path):
 def tree_arrays(v) -> dict:
     """The fields of a fitted :class:`loopclosure.vocabulary.VocabularyTree` ``v``, in file order."""
     return {
-        "branching": np.int64(v.branching),
-        "depth": np.int64(v.depth),
-        "seed": np.int64(v.seed),
-        "max_iter": np.int64(v.max_iter),
-        "max_node_samples": np.int64(v.max_node_samples),
-        "init": np.str_(v.init),
-        "n_init": np.int64(v.n_init),
+        **_param_arrays(v, TREE_PARAMS),
         "centres": v.centres_,
         "children": v.children_,
         "node_word": v.node_word_,
@@ -180,18 +184,10 @@ def tree_arrays(v) -> dict:
 
 def restore_tree(cls, data: dict, path):
     """A ``cls`` (VocabularyTree) rebuilt from the fields ``data`` of file ``path``, checked."""
-    params = ["branching", "depth", "seed", "max_iter", "max_node_samples", "init", "n_init"]
-    _require(data, [*params, "centres", "children", "node_word", "word_node", *COMMON_FIELDS], path)
+    learned = ["centres", "children", "node_word", "word_node", *COMMON_FIELDS]
+    _require(data, [*(name for name, _ in TREE_PARAMS), *learned], path)
     try:
-        v = cls(
-            int(data["branching"]),
-            int(data["depth"]),
-            int(data["seed"]),
-            int(data["max_iter"]),
-            int(data["max_node_samples"]),
-            str(data["init"]),
-            int(data["n_init"]),
-        )
+        v = _built(cls, data, TREE_PARAMS)
         v.centres_ = data["centres"]
         v.children_ = data["children"]
         v.node_word_ = data["node_word"]

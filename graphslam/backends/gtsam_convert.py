@@ -15,14 +15,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from slamcore.errors import UnsupportedError
-from slamcore.planar.records import (
-    Dataset,
-    Estimate,
-    LoopClosure,
-    Observation,
-    ObservationKind,
-    Odometry,
-)
+from slamcore.planar.records import Dataset, Estimate, LoopClosure, Observation, ObservationKind, Odometry
 
 #: Reorders ``[range, bearing]`` (ours) into ``[bearing, range]`` (gtsam's BearingRange).
 _RB_TO_BR = np.array([[0.0, 1.0], [1.0, 0.0]])

@@ -164,11 +164,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
     from graphslam.cli.common import EXIT_OK, warn
     from graphslam.evaluation.trajectory import EvalOptions
-    from graphslam.pipelines.trajectory_eval import (
-        coverage_warnings,
-        evaluate_files,
-        write_eval_json,
-    )
+    from graphslam.pipelines.trajectory_eval import coverage_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out)  # refused now, not after scoring

@@ -10,13 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from graphslam.cli.common import (
-    EXIT_ERROR,
-    EXIT_INTERRUPTED,
-    EXIT_OK,
-    check_path_arguments,
-    os_error_line,
-)
+from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line
 from slamcore.errors import GraphSlamError
 
 

@@ -23,16 +23,11 @@ Poses are (N, 4, 4) ``wTc``; the reference comes first in every call.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from graphslam.evaluation.alignment import (
-    STILL_TOL,
-    collinear,
-    principal_spreads,
-    rotation_about_line,
-)
+from graphslam.evaluation.alignment import STILL_TOL, collinear, principal_spreads, rotation_about_line
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -84,14 +79,7 @@ class EvalOptions:
             raise ConfigError(f"--delta in frames must be a whole number, got {self.delta}")
 
     def to_dict(self) -> dict:
-        return {
-            "align": self.align,
-            "n_align": self.n_align,
-            "max_diff_s": self.max_diff_s,
-            "offset_s": self.offset_s,
-            "delta": self.delta,
-            "delta_unit": self.delta_unit,
-        }
+        return asdict(self)
 
 
 def _nearest(short_t: np.ndarray, long_t: np.ndarray, max_diff: float) -> tuple[list, list]:

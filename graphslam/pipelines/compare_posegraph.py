@@ -19,13 +19,7 @@ import numpy as np
 
 from graphslam.backends.posegraph.solver import SolveResult
 from graphslam.pipelines.common import stop_requested
-from graphslam.pipelines.posegraph import (
-    PoseGraphRunMetrics,
-    metrics,
-    run,
-    solved_graph,
-    trajectory_matrices,
-)
+from graphslam.pipelines.posegraph import PoseGraphRunMetrics, metrics, run, solved_graph, trajectory_matrices
 from slamcore import posegraph as pg
 from slamcore.errors import GraphSlamError
 

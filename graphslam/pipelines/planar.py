@@ -14,12 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.records import PlanarRunMetrics
-from graphslam.pipelines.common import (
-    interrupt_between_frames,
-    progress_bar,
-    signal_hook,
-    stop_requested,
-)
+from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 from slamcore.planar.backend import Backend

@@ -51,12 +51,7 @@ from frontend.tracking import Tracker, TrackingResult
 from graphslam import registry
 from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
-from graphslam.pipelines.common import (
-    interrupt_between_frames,
-    progress_bar,
-    signal_hook,
-    stop_requested,
-)
+from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook, stop_requested
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError

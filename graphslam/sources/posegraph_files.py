@@ -148,7 +148,7 @@ KNOWN_TORO_NOISE = {
         "gtsam's sphere2500.txt",
         "sqrt_information",
         "written by iSAM",
-    ),
+    )
 }
 
 

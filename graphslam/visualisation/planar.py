@@ -30,11 +30,7 @@ from slamcore.planar.records import Dataset, Estimate
 
 if TYPE_CHECKING:  # the recording process needs none of the filters filter_state imports
     from graphslam.visualisation.background import BackgroundLog
-    from graphslam.visualisation.filter_state import (
-        CorrelationSnapshot,
-        FilterStateLogger,
-        ParticleSeries,
-    )
+    from graphslam.visualisation.filter_state import CorrelationSnapshot, FilterStateLogger, ParticleSeries
 
 
 class PlanarLog(RerunLog):

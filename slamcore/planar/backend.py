@@ -25,14 +25,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from slamcore.errors import UnsupportedError
-from slamcore.planar.records import (
-    Estimate,
-    LoopClosure,
-    Observation,
-    Odometry,
-    PoseSighting,
-    Prediction,
-)
+from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, PoseSighting, Prediction
 
 
 class Backend(ABC):

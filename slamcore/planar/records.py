@@ -74,6 +74,14 @@ class ObservationKind(enum.Enum):
         return 1 if self is ObservationKind.RANGE else 2
 
 
+def _check_mean_and_covariance(record, field: str, n: int, what: str) -> None:
+    """In a frozen record's ``__post_init__``: ``record.<field>`` as a finite (n,) vector
+    and ``record.covariance`` as an SPD (n, n) matrix, both read-only float64
+    (MeasurementError naming ``what`` otherwise)."""
+    object.__setattr__(record, field, as_vector(getattr(record, field), n, what))
+    object.__setattr__(record, "covariance", as_covariance(record.covariance, n, what))
+
+
 @dataclass(frozen=True, eq=False)
 class Odometry:
     """A relative-pose measurement ``fromTto`` between two poses.
@@ -91,8 +99,7 @@ class Odometry:
 
     def __post_init__(self):
         what = f"odometry {self.from_id}->{self.to_id}"
-        object.__setattr__(self, "delta", as_vector(self.delta, 3, what))
-        object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
+        _check_mean_and_covariance(self, "delta", 3, what)
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,8 +133,7 @@ class Observation:
     def __post_init__(self):
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
         size = self.kind.size
-        object.__setattr__(self, "z", as_vector(self.z, size, what))
-        object.__setattr__(self, "covariance", as_covariance(self.covariance, size, what))
+        _check_mean_and_covariance(self, "z", size, what)
         if self.kind in (ObservationKind.RANGE_BEARING, ObservationKind.RANGE) and self.z[0] <= 0.0:
             raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")
 
@@ -152,8 +158,7 @@ class LoopClosure:
 
     def __post_init__(self):
         what = f"loop closure {self.from_id}->{self.to_id}"
-        object.__setattr__(self, "delta", as_vector(self.delta, 3, what))
-        object.__setattr__(self, "covariance", as_covariance(self.covariance, 3, what))
+        _check_mean_and_covariance(self, "delta", 3, what)
 
 
 def _checked_batch(values, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -285,8 +290,7 @@ class PoseSighting:
 
     def __post_init__(self):
         what = f"sighting of pose {self.to_id} from pose {self.from_id}"
-        object.__setattr__(self, "z", as_vector(self.z, 2, what))
-        object.__setattr__(self, "covariance", as_covariance(self.covariance, 2, what))
+        _check_mean_and_covariance(self, "z", 2, what)
         if self.z[0] <= 0.0:
             raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")
 

@@ -31,12 +31,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from slamcore.errors import UnsupportedError
-from slamcore.spatial.records import (
-    PixelObservations,
-    PixelPredictions,
-    PoseClosure,
-    VisualEstimate,
-)
+from slamcore.spatial.records import PixelObservations, PixelPredictions, PoseClosure, VisualEstimate
 
 
 class VisualBackend(ABC):

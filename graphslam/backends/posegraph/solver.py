@@ -136,19 +136,7 @@ def solve(
             return _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
         if not config.polish:
-            return _result(
-                graph,
-                solver,
-                initialisers.Start("isam2", values),
-                values,
-                None,
-                edges,
-                np.zeros(graph.n_edges, dtype=bool),
-                recoveries,
-                t0,
-                isam2_s,
-                isam2_cost,
-            )
+            return _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost)
         starts.append(initialisers.Start("isam2", values))
     first = initialisers.initial(graph, config.init, config.prior_sigma)
     if first.note:
@@ -336,21 +324,17 @@ def _cut_result(
     added = np.array([values.exists(k) for k in graph.ids.tolist()], dtype=bool)
     cut = graph.subgraph(added)
     edges = fx.edge_graph(cut)
-    result = _result(
-        cut,
-        "isam2",
-        initialisers.Start("isam2", values),
-        values,
-        None,
-        edges,
-        np.zeros(cut.n_edges, dtype=bool),
-        recoveries,
-        t0,
-        isam2_s,
-        fx.cost(cut, values, edges),
-    )
+    result = _isam2_result(cut, values, edges, recoveries, t0, isam2_s, fx.cost(cut, values, edges))
     result.cut = cut
     return result
+
+
+def _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost) -> SolveResult:
+    """iSAM2's estimate ``values`` of ``graph`` as the answer (no batch after it): it is its
+    own start, no iteration count, no edge rejected."""
+    start = initialisers.Start("isam2", values)
+    rejected = np.zeros(graph.n_edges, dtype=bool)
+    return _result(graph, "isam2", start, values, None, edges, rejected, recoveries, t0, isam2_s, isam2_cost)
 
 
 def with_priors(

@@ -81,12 +81,7 @@ from graphslam.backends.spatial.mono_motion import MonoMotion
 from graphslam.backends.spatial.polish import gnc_polish
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.spatial.backend import VisualBackend
-from slamcore.spatial.records import (
-    PixelObservations,
-    PixelPredictions,
-    PoseClosure,
-    VisualEstimate,
-)
+from slamcore.spatial.records import PixelObservations, PixelPredictions, PoseClosure, VisualEstimate
 
 #: The first pose's prior is floored at this standard deviation (m and rad):
 #: a caller may anchor it with a zero covariance, and iSAM2's Cholesky needs a

@@ -13,6 +13,7 @@ back the tracks to map; the geometry is :mod:`.landmark_init`'s.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -42,6 +43,13 @@ class TrackMapper:
         self.counts = {"rejected_triangulations": 0, "dropped_tracks": 0, "ignored_pixels": 0}
         self._queued: list[int] = []  # qualified at the previous frame, see map_queued()
         self._qualified: list[int] = []  # qualified at this frame
+        # the config's limits in the form Track.add and consistent() take, set once
+        self._track_limits: dict[str, Any] = {
+            "max_observations": config.max_track_observations,
+            "min_observations": config.min_observations,
+            "cos_parallax": float(np.cos(np.deg2rad(config.min_parallax_deg))),
+        }
+        self._point_limits = {"min_depth_m": config.min_depth_m, "max_sigmas": config.max_reprojection_sigmas}
 
     @property
     def n_queued(self) -> int:
@@ -61,16 +69,7 @@ class TrackMapper:
         elif track.last_index == now:  # same track twice in a frame: keep the first
             self.counts["ignored_pixels"] += 1
             return
-        if track.add(
-            fid,
-            uv,
-            sigma,
-            now,
-            ray_w,
-            max_observations=self.config.max_track_observations,
-            min_observations=self.config.min_observations,
-            cos_parallax=float(np.cos(np.deg2rad(self.config.min_parallax_deg))),
-        ):
+        if track.add(fid, uv, sigma, now, ray_w, **self._track_limits):
             self._qualified.append(tid)
 
     def reject(self, tid: int) -> None:
@@ -134,15 +133,7 @@ class TrackMapper:
         if (
             point is None
             or not np.all(np.isfinite(point))
-            or not consistent(
-                poses,
-                K,
-                uv,
-                sigma,
-                point,
-                min_depth_m=self.config.min_depth_m,
-                max_sigmas=self.config.max_reprojection_sigmas,
-            )
+            or not consistent(poses, K, uv, sigma, point, **self._point_limits)
         ):
             self.rejected.add(tid)
             self.counts["rejected_triangulations"] += 1

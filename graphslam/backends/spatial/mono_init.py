@@ -30,12 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontend.two_view import two_view_geometry
-from graphslam.backends.spatial.mono_tracking import (
-    MonoTrackingConfig,
-    pnp_pose,
-    reprojects,
-    rng_seed,
-)
+from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig, pnp_pose, reprojects, rng_seed
 from slamcore.errors import MeasurementError
 from slamcore.spatial.geometry import invert_pose
 

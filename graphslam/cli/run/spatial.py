@@ -28,14 +28,7 @@ import argparse
 import time
 from pathlib import Path
 
-from graphslam.cli.common import (
-    close_recorder,
-    counts_row,
-    fmt,
-    open_recorder,
-    report_outputs,
-    summary_table,
-)
+from graphslam.cli.common import close_recorder, counts_row, fmt, open_recorder, report_outputs, summary_table
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
@@ -189,11 +182,7 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
 
     from frontend.orb import OrbDetector
     from graphslam.pipelines import loop_closing as lc
-    from graphslam.pipelines.place_recognition import (
-        check_vocabulary,
-        describe,
-        train_vocabulary,
-    )
+    from graphslam.pipelines.place_recognition import check_vocabulary, describe, train_vocabulary
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
     from loopclosure.verify import VerifyConfig

@@ -39,12 +39,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam_motion import (
-    COVARIANCE_FLOOR,
-    MotionModel,
-    held_commands,
-    integrate,
-)
+from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel, held_commands, integrate
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, quote

@@ -43,6 +43,7 @@ Every refusal names the file and, for a bad line, the line.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -128,31 +129,34 @@ def _read(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:
     return read_table(path, columns, what)
 
 
-def _check_steps(dr, lines, path: Path) -> None:
-    bad = (np.abs(dr[:, 1]) > STEP_MAX_M) | (np.abs(dr[:, 2]) > math.pi)
+def _refuse_first(bad: np.ndarray, lines: list[int], path: Path, message: Callable[[int], str]) -> None:
+    """InputError at the first row ``k`` that ``bad`` (N,) marks, saying ``message(k)``."""
     if bad.any():
         k = int(np.argmax(bad))
-        raise InputError(
-            f"step of {dr[k, 1]:g} m turning {dr[k, 2]:g} rad is beyond {STEP_MAX_M:g} m or pi rad",
-            path,
-            lines[k],
-        )
+        raise InputError(message(k), path, lines[k])
+
+
+def _check_steps(dr, lines, path: Path) -> None:
+    bad = (np.abs(dr[:, 1]) > STEP_MAX_M) | (np.abs(dr[:, 2]) > math.pi)
+    _refuse_first(
+        bad,
+        lines,
+        path,
+        lambda k: f"step of {dr[k, 1]:g} m turning {dr[k, 2]:g} rad is beyond {STEP_MAX_M:g} m or pi rad",
+    )
 
 
 def _check_ranges(td, lines, path: Path) -> None:
     ids = td[:, 1:3]
     bad_id = ((ids != np.round(ids)) | (ids < 0)).any(axis=1)
-    if bad_id.any():
-        k = int(np.argmax(bad_id))
-        raise InputError(
-            f"sender and receiver ids must be whole numbers >= 0, got {td[k, 1]:g} and {td[k, 2]:g}",
-            path,
-            lines[k],
-        )
+    _refuse_first(
+        bad_id,
+        lines,
+        path,
+        lambda k: f"sender and receiver ids must be whole numbers >= 0, got {td[k, 1]:g} and {td[k, 2]:g}",
+    )
     bad = ~((td[:, 3] > 0) & (td[:, 3] < RANGE_MAX_M))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(f"range {td[k, 3]:g} m is not in (0, {RANGE_MAX_M:g})", path, lines[k])
+    _refuse_first(bad, lines, path, lambda k: f"range {td[k, 3]:g} m is not in (0, {RANGE_MAX_M:g})")
 
 
 def _read_mat(path: Path) -> tuple[np.ndarray | None, dict[int, np.ndarray] | None]:
