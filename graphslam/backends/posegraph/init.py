@@ -72,16 +72,8 @@ def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
         return Start(method, fx.values_of(graph, graph.vertices))
     if method == "odometry":
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
-    try:
-        start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
-        failure = (
-            None if np.isfinite(fx.params_from(graph, start.values)).all() else ("it gave non-finite poses")
-        )
-    # gtsam's C++ exceptions: std::out_of_range (IndexError), IndeterminateLinearSystem
-    # and the rest (RuntimeError); anything else is a bug of ours and propagates
-    except (RuntimeError, IndexError) as exc:
-        failure = _why(graph, exc)
-    if failure is None:
+    start, failure = relaxed(graph, method, sigma)
+    if start is not None:
         return start
     return Start(
         "odometry",
@@ -89,6 +81,20 @@ def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
         note=f"--init {method}: {NAMES[method]} failed ({failure}); LM started from "
         "the odometry start (edges composed along a spanning tree) instead",
     )
+
+
+def relaxed(graph: PoseGraph, method: str, sigma: float) -> tuple[Start | None, str]:
+    """The relaxation ``method`` (``lago``, ``chordal`` or ``shonan``) of ``graph``, or
+    None and why it failed (no fallback: :func:`initial` chooses one)."""
+    try:
+        start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
+    # gtsam's C++ exceptions: std::out_of_range (IndexError), IndeterminateLinearSystem
+    # and the rest (RuntimeError); anything else is a bug of ours and propagates
+    except (RuntimeError, IndexError) as exc:
+        return None, _why(graph, exc)
+    if not np.isfinite(fx.params_from(graph, start.values)).all():
+        return None, "it gave non-finite poses"
+    return start, ""
 
 
 def _why(graph: PoseGraph, exc: BaseException) -> str:

@@ -33,6 +33,8 @@ import time
 import numpy as np
 from scipy.stats import chi2
 
+from graphslam.backends.posegraph import factors as fx
+from graphslam.backends.posegraph import init
 from graphslam.backends.posegraph import robust as rb
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from slamcore.posegraph import PoseGraph
@@ -117,7 +119,18 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
     (compared as :func:`solve_auto` compares; the route says which, and names the
     local minimum). ``solve``: :func:`.solver.solve`."""
     t0 = time.perf_counter()
-    shonan = solve(graph, dataclasses.replace(config, init="shonan"), "batch")
+    start, failure = init.relaxed(graph, "shonan", config.prior_sigma)
+    if start is None:  # its fallback (the odometry start) would be no second opinion
+        kept.route = {
+            **(kept.route or {}),
+            "shonan_retry": f"not certified; no retry: Shonan averaging failed ({failure})",
+        }
+        kept.wall_s += time.perf_counter() - t0
+        return kept
+    # batch from Shonan's poses, computed once: the graph's vertices replaced by them
+    seeded = dataclasses.replace(graph, vertices=fx.params_from(graph, start.values))
+    shonan = solve(seeded, dataclasses.replace(config, init="vertices"), "batch")
+    shonan.init_method = "shonan"
     threshold = shared_threshold(kept, shonan)
     before, after = comparable_cost(graph, kept, threshold), comparable_cost(graph, shonan, threshold)
     route = dict(kept.route or {})

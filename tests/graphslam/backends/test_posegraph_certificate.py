@@ -248,6 +248,7 @@ def test_auto_retries_from_shonan_where_its_estimate_is_not_certified(tmp_path, 
     assert result.route["kept"] == kept and "shonan" in result.route
     if kept == "shonan":
         assert result.final_cost < 0.95 * first.final_cost
+        assert result.init_method == "shonan"  # from Shonan's poses, computed once
         assert "local minimum" in result.route["local_minimum"]
     else:
         assert result.final_cost == first.final_cost and "local_minimum" not in result.route
@@ -269,3 +270,27 @@ def test_a_retry_that_fails_keeps_the_first_estimate(tmp_path, monkeypatch):
     result = pipeline.run(graph, "auto", PoseGraphConfig())
     assert result.final_cost == first.final_cost and not result.optimality.certified
     assert "failed (RuntimeError" in result.route["shonan_retry"]
+
+
+def test_no_retry_where_shonan_fails_and_the_summary_says_so(tmp_path, monkeypatch):
+    """Shonan's eigensolver fails on large walks (a 3000-pose Manhattan walk:
+    "SparseMinimumEigenValue failed"): the retry must not run batch from the odometry
+    start that ``--init shonan`` falls back to (219 s there, and then reported as
+    "from Shonan's rotations"); the first estimate stays and the route says why."""
+    from graphslam.backends.posegraph import init
+    from tests.posegraphs import MANHATTAN_SIGMA, manhattan_walk
+
+    graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA) * 1.5, seed=2))
+    first = solve(graph, PoseGraphConfig(), "auto")
+
+    def failing(graph):
+        raise RuntimeError("SparseMinimumEigenValue failed to compute minimum eigenvalue.")
+
+    monkeypatch.setattr(init, "_shonan", failing)
+    result = pipeline.run(graph, "auto", PoseGraphConfig())
+    assert result.final_cost == first.final_cost and not result.optimality.certified
+    assert "shonan" not in result.route and "local_minimum" not in result.route
+    assert result.route["shonan_retry"] == (
+        "not certified; no retry: Shonan averaging failed "
+        "(RuntimeError: SparseMinimumEigenValue failed to compute minimum eigenvalue.)"
+    )
