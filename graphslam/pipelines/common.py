@@ -7,8 +7,11 @@ KeyboardInterrupt at once: nothing is estimated yet, nothing is lost. From then
 on, to the end of the command (the loop, finalisation, metrics, writing), the
 first signal is only recorded: loops stop at their next step boundary, optional
 work (covariances) is skipped, and every output is still written. A second
-signal raises KeyboardInterrupt at once; the writers replace files atomically,
-so even then each file is the old complete one or the new complete one.
+signal raises KeyboardInterrupt at once while the loop still runs (a step that
+does not end), but not once a stop has ended the loop: what follows is the save
+the stop asked for, and further signals are only recorded. The writers replace
+files atomically, so a cut write leaves each file the old complete one or the
+new complete one.
 
 Test hook: ``GRAPHSLAM_SIGNAL_AT=POINT[:N]`` makes the process send itself a
 signal the first time the code reaches ``POINT`` (with ``N``: step ``N``,
@@ -20,7 +23,8 @@ open, its run not yet started). ``GRAPHSLAM_SIGNAL`` names the
 signal (``INT``, ``TERM``, ``KILL``; default ``INT``); ``GRAPHSLAM_SIGNAL_TO``
 its target: ``main`` (the command's process, default; from a ``compare``
 worker that is the parent), ``self`` or ``group`` (the process group, as a
-terminal's Ctrl-C).
+terminal's Ctrl-C); ``GRAPHSLAM_SIGNAL_REPEAT=N`` sends it N times
+(:data:`REPEAT_GAP_S` apart), as a user who presses Ctrl-C again.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -143,11 +148,27 @@ def interrupt_between_frames() -> Iterator[StopGuard]:
     guard = active_guard()
     if guard is not None:
         guard.defer()
-        yield guard
+        try:
+            yield guard
+        finally:
+            saving_after_stop(guard)
         return
     with stop_guard() as guard:
         guard.defer()
-        yield guard
+        try:
+            yield guard
+        finally:
+            saving_after_stop(guard)
+
+
+def saving_after_stop(guard: StopGuard | None = None) -> None:
+    """Once a stop has been asked for, the rest of the command is a save (the estimate
+    so far fetched or received from a worker, the files written): a repeated signal is
+    then recorded, not raised, so a second Ctrl-C cannot lose what the first one stopped
+    the run to keep. ``guard``: the command's (:func:`active_guard`) by default."""
+    guard = guard or active_guard()
+    if guard is not None and guard.requested:
+        guard.escalate = False
 
 
 def whole(result):
@@ -169,12 +190,20 @@ def signal_hook(point: str, step: int | None = None) -> None:
     _fired.add((os.getpid(), spec))
     signum = getattr(signal, "SIG" + os.environ.get("GRAPHSLAM_SIGNAL", "INT").upper())
     target = os.environ.get("GRAPHSLAM_SIGNAL_TO", "main")
-    if target == "group":
-        os.killpg(os.getpgrp(), signum)
-        return
     guard = active_guard()
     pid = guard.owner_pid if target == "main" and guard is not None else os.getpid()
-    os.kill(pid, signum)
+    for k in range(int(os.environ.get("GRAPHSLAM_SIGNAL_REPEAT", "1"))):
+        if k:
+            time.sleep(REPEAT_GAP_S)
+        if target == "group":
+            os.killpg(os.getpgrp(), signum)
+        else:
+            os.kill(pid, signum)
+
+
+#: ``GRAPHSLAM_SIGNAL_REPEAT=N``: the hook's signals come this far apart (a user's
+#: second Ctrl-C, faster than any hand).
+REPEAT_GAP_S = 0.05
 
 
 _fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worker too)

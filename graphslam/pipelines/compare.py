@@ -28,7 +28,12 @@ from graphslam import registry
 from graphslam.evaluation import planar as metrics
 from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines import planar as pipeline
-from graphslam.pipelines.common import active_guard, interrupt_between_frames, stop_requested
+from graphslam.pipelines.common import (
+    active_guard,
+    interrupt_between_frames,
+    saving_after_stop,
+    stop_requested,
+)
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
 
@@ -133,6 +138,21 @@ class BackendCrash(RuntimeError):
 def _wait_for(proc, conn, name: str):
     """The worker's message, or None if it died without one; forwards a stop
     request to it and kills it when it does not answer in time."""
+    # No escalation while waiting: a repeated signal would drop the estimate the worker
+    # is sending; the worker is stopped by the signal passed on, or killed after the grace.
+    guard = active_guard()
+    escalate = guard is not None and guard.escalate
+    if guard is not None:
+        guard.escalate = False
+    try:
+        return _poll(proc, conn, name)
+    finally:
+        if guard is not None and not guard.requested:
+            guard.escalate = escalate
+        saving_after_stop(guard)
+
+
+def _poll(proc, conn, name: str):
     deadline = None
     while not conn.poll(POLL_S):  # True on a message and on the pipe's end (child gone)
         if not proc.is_alive():
@@ -232,8 +252,10 @@ def _compare_one(name, job, score, isolate, strip) -> CompareEntry:
         else:
             result, peak_mb = job(), None
         scored = score(name, result, peak_mb)
-    except KeyboardInterrupt:  # a second signal: this one is lost, the others are kept
-        return CompareEntry(name, None, None, "cut", "stopped before its first step")
+    except KeyboardInterrupt:  # a second signal while it ran: this one is lost, the others kept
+        return CompareEntry(
+            name, None, None, "cut", "a second signal cut it before it could stop; no estimate"
+        )
     except GraphSlamError as e:  # a worker asked to stop and killed for not stopping is cut
         return CompareEntry(name, None, None, "cut" if stop_requested() else "failed", str(e))
     except NUMERIC_FAILURES as e:

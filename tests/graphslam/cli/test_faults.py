@@ -413,6 +413,47 @@ def test_a_worker_that_does_not_stop_is_killed(monkeypatch):
     assert "did not stop" in entries[0].error
 
 
+def test_a_second_signal_cuts_a_running_loop_but_not_the_save_after_a_stop():
+    """Escalation (a second Ctrl-C raises at once) holds while the loop runs (a step
+    that does not end can be cut); once a stop ended the loop, what follows is the
+    save that stop asked for, and a repeated signal is only recorded (a 2-D run lost
+    every file when the second Ctrl-C met iSAM2's last flush)."""
+    import time as _time
+
+    from graphslam.pipelines.common import interrupt_between_frames, stop_guard
+
+    def ctrl_c():
+        os.kill(os.getpid(), signal.SIGINT)
+        _time.sleep(0.05)  # the handler runs at the next bytecode
+
+    with stop_guard() as guard:
+        with pytest.raises(KeyboardInterrupt):
+            with interrupt_between_frames() as stop:
+                ctrl_c()
+                assert stop.requested  # the first: recorded
+                ctrl_c()  # the second, inside the loop: raised
+        ctrl_c()  # after the stop: recorded, the save goes on
+        ctrl_c()
+        assert guard.signal_name == "SIGINT"
+
+
+def test_compare_keeps_the_cut_estimate_when_ctrl_c_comes_twice(monkeypatch):
+    """Two signals to ``compare`` (the command, 0.05 s apart) while a worker runs:
+    the worker stops and sends its estimate, which is kept and scored; before, the
+    second signal dropped it and its row said "stopped before its first step"."""
+    from graphslam.pipelines import compare
+    from graphslam.pipelines.common import stop_guard
+    from graphslam.sources.planar.synthetic import make_synthetic
+
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_AT", "step:5")  # in the worker, to this process
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_REPEAT", "2")
+    with stop_guard():
+        entries = compare.compare(make_synthetic(), ["isam2", "ekf"])
+    first, second = entries
+    assert (first.backend, first.status, second.status) == ("isam2", "cut", "not run")
+    assert first.result is not None and first.result.interrupted and first.metrics.ate_rmse_m is not None
+
+
 def test_ctrl_c_inside_an_import_is_one_line(monkeypatch, capsys):
     """Ctrl-C while a C extension initialises (numpy, gtsam: the first second of a
     command) surfaces as "ImportError: initialization failed", not as
