@@ -110,9 +110,14 @@ def check_no_polish(name: str) -> None:
         )
 
 
+def holds_several_robots(name: str) -> bool:
+    """Whether 2-D back end ``name`` can hold every robot of ``--robot all`` in one graph."""
+    return bool(landmark_implementation(name).several_robots)
+
+
 def check_several_robots(name: str) -> None:
     """``--robot all`` on a back end that keeps one robot's pose is refused, one line."""
-    if not landmark_implementation(name).several_robots:
+    if not holds_several_robots(name):
         several = [d.name for d in TABLE if d.landmarks is not None and d.landmarks.several_robots]
         raise ConfigError(
             f"--robot all: {name} keeps one robot's pose; every robot in one "
@@ -189,11 +194,8 @@ def load_dataset(
         from graphslam.sources.planar.posegraph import read_w10000
 
         return read_w10000()
+    check_dataset_named(spec)
     path = Path(spec)
-    if not path.exists():
-        raise InputError(
-            f"no such dataset or file (built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})", path
-        )
     check_input_path(path, "--dataset")
     from graphslam.sources.planar.posegraph import read_pose_graph
     from graphslam.sources.posegraph_files import TAGS, first_tag
@@ -208,6 +210,16 @@ def load_dataset(
     # the [posegraph] reading of the file's numbers holds for every back end
     settings = pose_graph_config(config)
     return read_pose_graph(path, settings.toro_noise, settings.information_fix)
+
+
+def check_dataset_named(spec: str) -> None:
+    """InputError when ``spec`` is neither a built-in dataset nor an existing path (checked
+    before the options that depend on the dataset, so a typo is named as one)."""
+    if spec in DATASETS or spec in VISUAL_DATASETS or Path(spec).exists():
+        return
+    raise InputError(
+        f"no such dataset or file (built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})", Path(spec)
+    )
 
 
 def is_pose_graph_run(spec: str, backend: str) -> bool:

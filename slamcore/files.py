@@ -19,6 +19,8 @@ from slamcore.errors import ConfigError
 
 #: Longest file or folder name most file systems take (ext4, XFS, Btrfs, tmpfs, APFS), bytes.
 NAME_MAX_BYTES = 255
+#: Longest path Linux takes (PATH_MAX, 4096 with its terminating zero), bytes.
+PATH_MAX_BYTES = 4095
 #: Longest suffix a temporary file keeps (".npz", ".png"); a longer one is not a format.
 MAX_SUFFIX_BYTES = 16
 
@@ -153,8 +155,15 @@ def _check_writable(folder: Path, flag: str, shown: Path) -> None:
 
 
 def check_name_lengths(path: str | Path, flag: str) -> None:
-    """Refuse, before any work, a path with a name over :data:`NAME_MAX_BYTES`
-    (the system's answer, ENAMETOOLONG, would come as a traceback, or after the work)."""
+    """Refuse, before any work, an empty path (an unset shell variable: ``Path("")`` is
+    the current folder), a path over :data:`PATH_MAX_BYTES` or with a name over
+    :data:`NAME_MAX_BYTES` (the system's answer, ENAMETOOLONG, would come as a
+    traceback, or after the work)."""
+    if isinstance(path, str) and not path.strip():
+        raise ConfigError(f"{flag}: an empty path (an unset shell variable?); name a file or folder")
+    size = len(os.fsencode(str(path)))
+    if size > PATH_MAX_BYTES:
+        raise ConfigError(f"{flag}: the path is {size} bytes; systems take at most {PATH_MAX_BYTES}")
     for part in Path(path).parts:
         size = len(os.fsencode(part))
         if size > NAME_MAX_BYTES:

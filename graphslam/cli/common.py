@@ -28,6 +28,14 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def path_arg(text: str) -> Path:
+    """argparse ``type`` of every path argument: an empty one is refused (an unset shell
+    variable would otherwise name the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path (an unset shell variable?)")
+    return Path(text)
+
+
 def add_command(sub, name: str, func, *, help: str, description: str, epilog: str | None = None):
     """Register the sub-command ``graphslam NAME`` (``func(args)`` runs it; None for a
     command with sub-commands of its own) and return its parser. With an ``epilog``
@@ -63,12 +71,12 @@ def add_frames_option(parser, help: str) -> None:
 
 def add_out_dir_option(parser, help: str = "output folder", *, required: bool = False, default=None) -> None:
     """``--out``: the output folder."""
-    parser.add_argument("--out", type=Path, required=required, default=default, help=help)
+    parser.add_argument("--out", type=path_arg, required=required, default=default, help=help)
 
 
 def add_config_option(parser, help: str, metavar: str | None = None) -> None:
     """``--config``: a TOML or YAML configuration file."""
-    parser.add_argument("--config", type=Path, default=None, metavar=metavar, help=help)
+    parser.add_argument("--config", type=path_arg, default=None, metavar=metavar, help=help)
 
 
 def add_max_steps_option(parser) -> None:

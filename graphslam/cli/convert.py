@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from pathlib import Path
 
-from graphslam.cli.common import add_choice_option, add_command
+from graphslam.cli.common import add_choice_option, add_command, path_arg
 from slamcore.errors import ConfigError
 
 FORMAT_OF_SUFFIX = {".g2o": "g2o", ".graph": "toro"}
@@ -40,8 +39,8 @@ def register(sub) -> None:
         "yaw). g2o has no EQUIV lines: converting TORO to g2o drops them and says "
         "so.",
     )
-    p.add_argument("input", type=Path, metavar="IN")
-    p.add_argument("output", type=Path, metavar="OUT")
+    p.add_argument("input", type=path_arg, metavar="IN")
+    p.add_argument("output", type=path_arg, metavar="OUT")
     p.add_argument(
         "--to", choices=("g2o", "toro"), default=None, help="output format (default: from OUT's extension)"
     )
@@ -53,6 +52,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.cli.common import warn
     from graphslam.outputs.posegraph import convert, write_pose_graph
+    from graphslam.sources.planar.posegraph import self_edges_note
 
     fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
     if fmt is None:
@@ -72,6 +72,9 @@ def cmd_convert(args: argparse.Namespace) -> int:
         )
     if graph.noise_note:
         notes.append(f"edge numbers read as {graph.noise_note}")
+    self_edges = self_edges_note(graph)
+    if self_edges:  # not written: the output holds every other edge, numbers unchanged
+        notes.append(self_edges)
     if fmt == "toro":  # --toro-noise says how TORO numbers are written too (auto: as read)
         converted = dataclasses.replace(
             converted, noise=graph.noise if args.toro_noise == "auto" else args.toro_noise

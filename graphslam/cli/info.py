@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from graphslam.cli.common import add_command, add_topics_option
+from graphslam.cli.common import add_command, add_topics_option, path_arg
 
 
 def register(sub) -> None:
@@ -19,7 +18,7 @@ def register(sub) -> None:
         "the record times), and which topics --dataset BAG would read. Needs the "
         'rosbags package: pip install ".[bags]".',
     )
-    p.add_argument("bag", type=Path, metavar="BAG", help="a .bag file or a ROS 2 bag folder")
+    p.add_argument("bag", type=path_arg, metavar="BAG", help="a .bag file or a ROS 2 bag folder")
     add_topics_option(p, "as for graphslam run: check that these names pick the topics")
 
 

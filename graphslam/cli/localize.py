@@ -25,6 +25,7 @@ from graphslam.cli.common import (
     close_recorder,
     fmt,
     open_recorder,
+    path_arg,
     report_outputs,
     summary_table,
 )
@@ -59,7 +60,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--map",
-        type=Path,
+        type=path_arg,
         required=True,
         metavar="DIR",
         help="map folder written by 'graphslam run --save-map'",

@@ -8,15 +8,43 @@ exits with 130 or 143 (:mod:`graphslam.pipelines.common`).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line
 from slamcore.errors import GraphSlamError
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's parser whose errors are one line, as every other error of the
+    command (argparse prints the usage block first); sub-commands inherit it."""
+
+    def error(self, message: str):  # type: ignore[override]
+        command = self.prog.removeprefix("graphslam").strip()
+        where = f"{command}: " if command else ""
+        self.exit(2, f"graphslam: error: {where}{one_line(message)} (see {self.prog} --help)\n")
+
+
+#: ``--frames -1:``: argparse takes a value that starts with "-" (and is no plain
+#: negative number) for an option; a slice is glued to its flag before parsing.
+_SLICE = re.compile(r"-?\d*(:-?\d*){0,2}")
+
+
+def glued_slices(argv: list[str]) -> list[str]:
+    """``argv`` with ``--frames VALUE`` written ``--frames=VALUE`` where VALUE is a
+    slice starting with "-" (``-1:``, ``-10:-2``)."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] == "--frames" and arg.startswith("-") and _SLICE.fullmatch(arg):
+            out[-1] = f"--frames={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``graphslam`` parser with every sub-command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="graphslam",
         description="Graph-SLAM toolkit on GTSAM: run SLAM on a sequence and get a trajectory, "
         "a map, metrics and a Rerun recording.",
@@ -63,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     with stop_guard() as guard:
         try:
             parser = build_parser()
-            args = parser.parse_args(argv)
+            args = parser.parse_args(glued_slices(sys.argv[1:] if argv is None else list(argv)))
             check_path_arguments(args)
             signal_hook("start")
             status = args.func(args)

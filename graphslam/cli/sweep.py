@@ -6,9 +6,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
-from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option
+from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
 
 EPILOG = """\
 sweep file (TOML):
@@ -56,7 +55,7 @@ def register(sub) -> None:
         "'graphslam run', one table (sweep.csv) and plots.",
         epilog=EPILOG,
     )
-    p.add_argument("sweep_file", type=Path, metavar="SWEEP.toml", help="the sweep file")
+    p.add_argument("sweep_file", type=path_arg, metavar="SWEEP.toml", help="the sweep file")
     add_out_dir_option(p, required=True)
     p.add_argument(
         "--workers",

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from graphslam.cli.common import add_command, add_config_option, add_quiet_option
+from graphslam.cli.common import add_command, add_config_option, add_quiet_option, path_arg
 
 EPILOG = """\
 examples:
@@ -58,7 +57,7 @@ def register(subparsers) -> None:
     )
     t.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         required=True,
         metavar="FILE",
         help="vocabulary file to write (.npz archive, written under exactly this name)",

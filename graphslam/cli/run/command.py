@@ -21,6 +21,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    path_arg,
 )
 
 RUN_EPILOG = """\
@@ -147,7 +148,7 @@ def register(sub) -> None:
     add_max_steps_option(p)
     p.add_argument(
         "--ground-truth",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="trajectory to score against: TUM, KITTI or EuRoC (see below)",
@@ -235,7 +236,7 @@ def _add_image_options(vis) -> None:
     )
     vis.add_argument(
         "--vocab",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)",
@@ -248,7 +249,7 @@ def _add_image_options(vis) -> None:
     )
     vis.add_argument(
         "--save-map",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="DIR",
         help="save the map (keyframes, landmarks with covariances, descriptors and "
@@ -257,7 +258,7 @@ def _add_image_options(vis) -> None:
     )
     vis.add_argument(
         "--map",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="DIR",
         help="continue mapping from a saved map: the first frame is relocalised in "

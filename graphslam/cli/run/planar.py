@@ -52,6 +52,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
         raise GraphSlamError("--max-steps must be at least 1")
     if args.no_polish:
         registry.check_no_polish(args.backend)
+    registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
     if args.seed is not None and args.dataset != "synthetic" and args.backend not in registry.SEEDED_BACKENDS:
         raise ConfigError(
             f"--seed has no effect here: {args.dataset} is not simulated and "

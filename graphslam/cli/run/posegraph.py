@@ -30,6 +30,15 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
                 f"--{flag.replace('_', '-')} applies to landmark runs and image "
                 "sequences, not to a pose-graph solve"
             )
+    if getattr(args, "frames", None) is not None:
+        raise ConfigError(
+            "--frames applies to image sequences only (--max-steps N keeps a pose graph's first N poses)"
+        )
+    if getattr(args, "nees", False):
+        raise ConfigError(
+            "--nees applies to streamed 2-D runs: a pose-graph solve computes no per-pose "
+            "covariance to score (a filter, --backend ekf, streams a 2-D graph and scores it)"
+        )
     if args.max_steps is not None and args.max_steps < 2:
         raise ConfigError("--max-steps must be at least 2 for a pose graph (one edge)")
     if args.loops:

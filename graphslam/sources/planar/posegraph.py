@@ -272,10 +272,16 @@ def _notes(graph: pg.PoseGraph) -> tuple[str, ...]:
             f"{graph.n_information_fixed} edges' information not positive definite, "
             f"replaced ({graph.information_fix}, as a batch run of the file does)"
         )
-    lines = graph.self_edge_lines.tolist()
-    if lines:
-        listed = ", ".join(map(str, lines[:10])) + (", ..." if len(lines) > 10 else "")
-        notes.append(
-            f"{len(lines)} edges from a pose to itself left out (lines {listed}): they constrain nothing"
-        )
+    self_edges = self_edges_note(graph)
+    if self_edges:
+        notes.append(self_edges)
     return tuple(notes)
+
+
+def self_edges_note(graph: pg.PoseGraph) -> str | None:
+    """The sentence for the edges from a pose to itself the reader left out, or None."""
+    lines = graph.self_edge_lines.tolist()
+    if not lines:
+        return None
+    listed = ", ".join(map(str, lines[:10])) + (", ..." if len(lines) > 10 else "")
+    return f"{len(lines)} edges from a pose to itself left out (lines {listed}): they constrain nothing"

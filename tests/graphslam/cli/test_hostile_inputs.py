@@ -143,3 +143,80 @@ def test_npz_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
     path.write_bytes(npz_declaring((10**9,)))
     with pytest.raises(InputError, match="declares shape"):
         read_npz(path)
+
+
+# ---- a second hostile pass (2026-11-29): flags that did nothing, errors that
+# blamed the wrong option or came as a usage block
+
+GOOD_G2O = ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
+            "EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 1000\n")
+
+
+@pytest.mark.parametrize("flags, says", [
+    (["--frames", "0:2"], "--frames applies to image sequences only"),
+    (["--nees"], "--nees applies to streamed 2-D runs"),
+])
+def test_pose_graph_solve_refuses_flags_it_would_ignore(tmp_path, capsys, flags, says):
+    graph = tmp_path / "g.g2o"
+    graph.write_text(GOOD_G2O)
+    line = one_error_line(capsys, ["run", "--dataset", graph, *flags, "--out", tmp_path / "o",
+                                   "--rerun", "off", "--quiet"])
+    assert says in line and not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "compare"])
+def test_a_missing_dataset_is_named_before_seed_is_blamed(tmp_path, capsys, command):
+    line = one_error_line(capsys, [command, "--dataset", tmp_path / "nosuch", "--seed", "0",
+                                   "--out", tmp_path / "o", "--rerun", "off"])
+    assert "no such dataset or file" in line and "--seed" not in line
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["run", "--seed", "1.5"], "run: argument --seed: invalid int value"),
+    (["compare", "--backends", "isam2", "foo"], "compare: argument --backends: invalid choice"),
+    (["run", "--robot", "99"], "run: argument --robot"),
+    (["run", "--out", ""], "run: argument --out: an empty path"),
+    (["frobnicate"], "argument COMMAND: invalid choice"),
+])
+def test_parser_errors_are_one_line(capsys, argv, says):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("graphslam: error: ") and "usage:" not in err
+    assert says in err
+
+
+def test_a_slice_starting_with_minus_is_read_as_frames(tmp_path, capsys):
+    assert main(["run", "--dataset", "synthetic-images", "--frames", "-3:", "--max-steps", "2",
+                 "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 0
+    assert "frames                       2" in capsys.readouterr().out
+
+
+def test_a_path_over_the_system_limit_is_one_short_line(tmp_path, capsys):
+    deep = "/".join(["y" * 200] * 25)  # 5024 bytes, every name within NAME_MAX
+    line = one_error_line(capsys, ["run", "--dataset", "synthetic", "--max-steps", "3",
+                                   "--rerun", "off", "--out", deep])
+    assert "the path is 5024 bytes" in line and len(line) < SHORT_ERROR_CHARS
+
+
+def test_convert_says_which_self_edges_it_left_out(tmp_path, capsys):
+    src = tmp_path / "s.g2o"
+    src.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
+                   "EDGE_SE2 1 1 0.5 0 0 1 0 0 1 0 1\n")
+    assert main(["convert", str(src), str(tmp_path / "s.graph")]) == 0
+    assert "1 edges from a pose to itself left out (lines 4)" in capsys.readouterr().err
+
+
+MRCLAM = Path("/work/shared/data/mrclam6")
+
+
+@pytest.mark.skipif(not MRCLAM.is_dir(), reason="MRCLAM Dataset 6 not available")
+def test_compare_every_robot_runs_only_what_holds_them(tmp_path, capsys):
+    line = one_error_line(capsys, ["compare", "--dataset", MRCLAM, "--robot", "all", "--backends",
+                                   "isam2", "ekf", "--max-steps", "5", "--rerun", "off",
+                                   "--out", tmp_path / "o"])
+    assert "--robot all: ekf keeps one robot's pose" in line
+    assert main(["compare", "--dataset", str(MRCLAM), "--robot", "all", "--max-steps", "5",
+                 "--rerun", "off", "--out", str(tmp_path / "d")]) == 0
+    assert "comparing isam2 only" in capsys.readouterr().err
