@@ -12,7 +12,7 @@ from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_opti
 EPILOG = """\
 sweep file (TOML):
   [sweep]
-  dataset = ["synthetic"]
+  dataset = ["synthetic"]             # names, or paths read beside the sweep file
   backend = ["isam2", "ekf", "fastslam1", "fastslam2"]
   seed = {from = 0, to = 49}          # or a list; absent: no --seed
   max_steps = 200                     # optional

@@ -3,7 +3,8 @@
 ```toml
 [sweep]
 dataset = ["synthetic"]                 # 2-D datasets (names or pose-graph files) or
-                                        # image sequences (synthetic-images, a folder)
+                                        # image sequences (synthetic-images, a folder);
+                                        # a path is read beside the sweep file
 backend = ["isam2", "ekf"]
 seed = {from = 0, to = 49}              # or a list; absent: runs get no --seed
 max_steps = 200                         # optional: --max-steps of every run
@@ -197,6 +198,28 @@ def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
     return value
 
 
+def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
+    """The ``dataset`` list: built-in names as they are, paths read beside the sweep file
+    (as ``config`` is; an absolute path as it is), each checked to exist before any run."""
+    from graphslam.registry import DATASETS, VISUAL_DATASETS
+
+    out = []
+    for name in _list(sweep, cfg, "dataset", str):
+        if name in DATASETS or name in VISUAL_DATASETS:
+            out.append(name)
+            continue
+        where = path.parent / name
+        if not where.exists():
+            raise ConfigError(
+                f"[sweep] no such dataset or file {name!r} (a path is read beside the sweep file: "
+                f"{where}; built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})",
+                cfg.path,
+                cfg.line_of("sweep", "dataset"),
+            )
+        out.append(str(where))
+    return out
+
+
 def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     value = sweep.get("seed")
     line = cfg.line_of("sweep", "seed")
@@ -299,7 +322,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
                 cfg.path,
                 cfg.line_of("sweep", key),
             )
-    datasets = _list(sweep, cfg, "dataset", str)
+    datasets = _datasets(sweep, cfg, Path(path))
     backends = _list(sweep, cfg, "backend", str)
     visual = [name for name in datasets if is_visual_dataset(name)]
     for b in backends:

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -128,20 +129,26 @@ def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, li
     assert not (tmp_path / "o").exists()  # refused before any run
 
 
+#: A dataset that exists (a sweep checks that first) and fails in its run.
+BAD_GRAPH = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 oops 0 0\n"
+
+
 def test_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
-    spec = parse_sweep(_file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "missing.g2o"]')
+    (tmp_path / "bad.g2o").write_text(BAD_GRAPH)
+    spec = parse_sweep(_file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "bad.g2o"]')
                              .replace("seed = [0, 1]\n", "")))
     outcome = run_sweep(spec, tmp_path / "o", PoolExecutor(2))
-    rows = {r["dataset"]: r for r in _csv(tmp_path / "o" / "sweep.csv")}
+    rows = {Path(r["dataset"]).name: r for r in _csv(tmp_path / "o" / "sweep.csv")}
     assert outcome.ran == 4 and outcome.failed == 2
     assert rows["synthetic"]["status"] == "ok" and float(rows["synthetic"]["ate_rmse_m"]) > 0
-    bad = rows["missing.g2o"]
-    assert bad["status"] == "failed" and bad["error"].startswith("missing.g2o: no such dataset")
+    bad = rows["bad.g2o"]
+    assert bad["status"] == "failed" and "bad.g2o:2:" in bad["error"]
     assert "\n" not in bad["error"]
 
 
 def test_a_sweep_with_a_failed_run_exits_1(tmp_path, capsys):
-    path = _file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "missing.g2o"]')
+    (tmp_path / "bad.g2o").write_text(BAD_GRAPH)
+    path = _file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "bad.g2o"]')
                  .replace("seed = [0, 1]\n", ""))
     assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "2",
                  "--quiet", "--no-plots"]) == 1
@@ -343,7 +350,8 @@ def test_progress_bar_counts_runs_and_failures(tmp_path, monkeypatch, capsys):
 
     fake = Tty()
     monkeypatch.setattr("sys.stderr", fake)
-    path = _file(tmp_path, '[sweep]\ndataset = ["missing.g2o"]\nbackend = ["ekf"]\n')
+    (tmp_path / "bad.g2o").write_text("not a pose graph\n")  # exists, so the run starts and fails
+    path = _file(tmp_path, '[sweep]\ndataset = ["bad.g2o"]\nbackend = ["ekf"]\n')
     assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"]) == 1
     bar = fake.getvalue()
     assert "1/1" in bar and "failed=1" in bar
@@ -369,3 +377,21 @@ def test_the_documented_visual_sweep_examples_run_clean(tmp_path, capsys):
         with open(out / "sweep.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
         assert rows and all(r["status"] == "ok" for r in rows)
+
+
+def test_a_dataset_path_is_read_beside_the_sweep_file_and_checked_first(tmp_path, monkeypatch):
+    """Like ``config``, a dataset path is the sweep file's (the hostile pass ran one from
+    another folder: every row failed "no such dataset"); a missing one is refused with the
+    file and line before any run."""
+    from graphslam.pipelines.sweep_spec import parse_sweep
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "g.g2o").write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    sweep = tmp_path / "in" / "s.toml"
+    sweep.write_text('[sweep]\ndataset = ["../g.g2o", "synthetic"]\nbackend = ["ekf"]\n')
+    monkeypatch.chdir(tmp_path / "in")
+    assert parse_sweep(sweep).datasets == (str(tmp_path / "in" / ".." / "g.g2o"), "synthetic")
+    sweep.write_text('[sweep]\ndataset = ["g.g2o"]\nbackend = ["ekf"]\n')
+    monkeypatch.chdir(tmp_path)  # g.g2o is here, not beside the sweep file
+    with pytest.raises(ConfigError, match=r"s.toml:2: \[sweep\] no such dataset or file 'g.g2o'"):
+        parse_sweep(sweep)
