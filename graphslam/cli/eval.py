@@ -6,14 +6,17 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from graphslam.cli.common import add_command, add_out_dir_option
+from graphslam.cli.common import add_command, add_out_dir_option, path_arg
 
 EPILOG = """\
-formats (told from the content unless --format is given):
-  tum     t x y z qx qy qz qw a line (seconds)
-  kitti   12 numbers a line (row-major 3x4 wTc), one per frame; paired by line
-          number, or by time with --times FILE (one time a line, KITTI times.txt)
+formats (told from the content unless --format is given; a line not of the
+  format's form is refused, told or given):
+  tum     t x y z qx qy qz qw a line (seconds), separated by spaces
+  kitti   12 numbers a line (row-major 3x4 wTc), one per frame, separated by
+          spaces; paired by line number, or by time with --times FILE (one
+          time a line, KITTI times.txt)
   euroc   EuRoC ground-truth CSV: timestamp [ns], px, py, pz, qw, qx, qy, qz, ...
+          separated by commas, the timestamp an integer (nanoseconds)
   BAG:TOPIC  a ROS bag's PoseStamped, TransformStamped or Odometry messages at
           their header stamps (a ROS 1 .bag or a ROS 2 bag folder; BAG alone
           when it has one such topic; pip install ".[bags]")
@@ -59,9 +62,14 @@ def register(sub) -> None:
         epilog=EPILOG,
     )
     p.add_argument(
-        "ground_truth", type=Path, metavar="GT", help="reference trajectory file, or BAG:TOPIC (see below)"
+        "ground_truth",
+        type=path_arg,
+        metavar="GT",
+        help="reference trajectory file, or BAG:TOPIC (see below)",
     )
-    p.add_argument("estimates", type=Path, nargs="+", metavar="EST", help="estimate file(s), or BAG:TOPIC")
+    p.add_argument(
+        "estimates", type=path_arg, nargs="+", metavar="EST", help="estimate file(s), or BAG:TOPIC"
+    )
     p.add_argument(
         "--format",
         choices=TRAJECTORY_FORMATS,
@@ -70,7 +78,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--times",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="KITTI times file giving the KITTI files' stamps",

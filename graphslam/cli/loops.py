@@ -22,6 +22,7 @@ from graphslam.cli.common import (
     add_frames_option,
     add_quiet_option,
     add_topics_option,
+    path_arg,
 )
 from slamcore.errors import ConfigError
 from slamcore.files import check_distinct_outputs, check_output_file
@@ -56,7 +57,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "images_dir",
-        type=Path,
+        type=path_arg,
         metavar="IMAGES_DIR",
         help="folder of images (.png .jpg .jpeg .bmp .tif .tiff .pgm), taken in "
         "natural file-name order as a time sequence, or a ROS bag (its image "
@@ -64,11 +65,15 @@ def register(subparsers) -> None:
     )
     add_topics_option(p)
     p.add_argument(
-        "--out", type=Path, required=True, metavar="FILE", help="CSV file to write: query,match,score,inliers"
+        "--out",
+        type=path_arg,
+        required=True,
+        metavar="FILE",
+        help="CSV file to write: query,match,score,inliers",
     )
     p.add_argument(
         "--vocab",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="vocabulary file from 'graphslam vocab train' (default: the general "
@@ -84,7 +89,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--intrinsics",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="camera intrinsics file (fx fy cx cy, or K; see graphslam.sources.spatial.images); "
@@ -93,14 +98,14 @@ def register(subparsers) -> None:
     add_config_option(p, "TOML or YAML file with [loops] and [loop_verify] sections", metavar="FILE")
     p.add_argument(
         "--log",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="write every candidate's fate (scores, inliers, accepted or why rejected) as JSON lines",
     )
     p.add_argument(
         "--truth",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="FILE",
         help="true same-place pairs: a CSV 'query,match' of file names, or an N x N "
@@ -120,6 +125,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         describe,
         detect_all,
         detect_loops,
+        featureless_images,
         folder_places,
         train_vocabulary,
     )
@@ -154,6 +160,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         load=None if bag is None else _bag_loader(bag),
     )
+    featureless = featureless_images(features, args.images_dir)  # all of them: refused
     places = folder_places(features, detector_config, times)
     if vocab is None:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
@@ -183,6 +190,11 @@ def cmd_loops(args: argparse.Namespace) -> int:
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
     print(f"places: {places.describe(detector_config, detector.excluded)}")
+    if featureless:
+        print(
+            f"{featureless} of {len(paths)} images gave no ORB feature (blank, flat or too small): "
+            "they can close no loop"
+        )
     print(
         f"{seen} images, {len(detector.records)} candidates, "
         f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
@@ -274,15 +286,24 @@ def _evaluate(args, truth, paths, features, detector, timestamps) -> list[str]:
     files = write_pr(points, (precision, recall), args.out.parent)
     n_queries = len({q for q, _ in truth})
     prec = "n/a (no closure)" if precision is None else f"{precision:.3f}"
+    rec = "n/a (no true pair)" if recall is None else f"{recall:.3f}"
     print(
         f"truth: {len(truth)} same-place pairs, {n_queries} queries with a true match; "
-        f"precision {prec} ({n_true}/{len(closures)}), recall {recall:.3f}"
+        f"precision {prec} ({n_true}/{len(closures)}), recall {rec}"
     )
     return [str(f) for f in files]
 
 
-def write_pr(points, operating: tuple[float | None, float], out_dir: Path) -> list[Path]:
-    """``pr.csv`` (threshold,closures,true,precision,recall) and ``pr.png`` in ``out_dir``."""
+def _csv_number(value: float | None) -> str:
+    """A pr.csv field: six decimals, or ``n/a`` where the figure is undefined."""
+    return "n/a" if value is None else f"{value:.6f}"
+
+
+def write_pr(points, operating: tuple[float | None, float | None], out_dir: Path) -> list[Path]:
+    """``pr.csv`` (threshold,closures,true,precision,recall; ``n/a`` where undefined) and
+    ``pr.png`` in ``out_dir``. Without a true pair recall is undefined: the plot is
+    written all the same (an empty frame, no stale curve of an earlier run left beside
+    the new pr.csv), with no operating point."""
     from graphslam.visualisation.plots import plot_precision_recall
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -290,6 +311,9 @@ def write_pr(points, operating: tuple[float | None, float], out_dir: Path) -> li
     with csv_path.open("w", encoding="utf-8") as fh:
         fh.write("threshold,closures,true,precision,recall\n")
         for p in points:
-            prec = "" if p.precision is None else f"{p.precision:.6f}"
-            fh.write(f"{p.threshold:.6f},{p.closures},{p.true},{prec},{p.recall:.6f}\n")
-    return [csv_path, plot_precision_recall(points, operating, out_dir / "pr.png")]
+            fh.write(
+                f"{p.threshold:.6f},{p.closures},{p.true},{_csv_number(p.precision)},{_csv_number(p.recall)}\n"
+            )
+    precision, recall = operating
+    marked = (None, 0.0) if recall is None else (precision, recall)  # precision None: no marker
+    return [csv_path, plot_precision_recall(points, marked, out_dir / "pr.png")]

@@ -12,7 +12,8 @@ Definitions (:func:`score`): a closure ``(q, m)`` is true when ``{q, m}`` is
 a true pair; precision = true closures / closures (None without closures);
 recall = the share of *queries with a true match* (images q with a true
 pair ``{q, m}``, ``m < q``: an older image of the same place) that got a true
-closure.
+closure (None when the truth has no pair: there is nothing to recall, and 0
+would read as every revisit missed).
 
 The curve (:func:`pr_curve`) sweeps a threshold on the candidates' normalised
 score over every verified candidate of a run made with no score threshold.
@@ -40,7 +41,7 @@ class PrPoint:
     closures: int
     true: int
     precision: float | None
-    recall: float
+    recall: float | None
 
 
 def _csv_truth(path: Path, names: dict[str, int]) -> set[tuple[int, int]]:
@@ -94,12 +95,15 @@ def read_truth(path: str | Path, image_paths: list[Path]) -> set[tuple[int, int]
     return _image_truth(path, len(image_paths))
 
 
-def score(closures: list[tuple[int, int]], truth: set[tuple[int, int]]) -> tuple[float | None, float, int]:
-    """``(precision, recall, true closures)`` of ``(query, match)`` closures."""
+def score(
+    closures: list[tuple[int, int]], truth: set[tuple[int, int]]
+) -> tuple[float | None, float | None, int]:
+    """``(precision, recall, true closures)`` of ``(query, match)`` closures; precision
+    None without closures, recall None without true pairs (module doc)."""
     queries = {q for q, _ in truth}
     true = [(q, m) for q, m in closures if (max(q, m), min(q, m)) in truth]
     precision = len(true) / len(closures) if closures else None
-    recall = len({q for q, _ in true} & queries) / len(queries) if queries else 0.0
+    recall = len({q for q, _ in true} & queries) / len(queries) if queries else None
     return precision, recall, len(true)
 
 

@@ -44,6 +44,21 @@ def detect_all(
     return features
 
 
+def featureless_images(features: list, where: str | Path) -> int:
+    """How many of the images' ORB ``features`` hold none (a blank, flat or tiny image):
+    such an image can neither find an older one nor be found. InputError naming
+    ``where`` (the folder) when every image is featureless: no closure can be found,
+    and a run that says "0 closures" would not say why."""
+    n = sum(len(f) == 0 for f in features)
+    if features and n == len(features):
+        raise InputError(
+            f"no ORB features found in the images ({n} of {n} blank, flat or too small): "
+            "no closure can be found",
+            where,
+        )
+    return n
+
+
 def tree_depth(n_words: int, branching: int) -> int:
     """Smallest depth L with ``branching ** L >= n_words``."""
     depth = max(1, math.ceil(math.log(n_words) / math.log(branching) - 1e-9))

@@ -12,6 +12,11 @@ Formats, told apart by the content (the ``.csv`` extension also says EuRoC):
   py, pz, qw, qx, qy, qz, ...`` separated by commas (the body pose; the
   camera extrinsics of ``sensor.yaml`` are not applied here).
 
+A line that does not have its format's form is refused, the format told or
+given: a comma in a TUM or KITTI line; in an EuRoC line no comma, an empty
+field, or a time that is not integer nanoseconds (a TUM file given as EuRoC
+read its seconds as nanoseconds and its columns shifted, without a word).
+
 Association: an image sequence takes, per frame, the truth with the nearest
 timestamp within :data:`~graphslam.sources.spatial.sequence.ASSOCIATION_MAX_DT_S`
 (TUM, EuRoC) or the line of its frame number (KITTI: the number in the image
@@ -36,6 +41,7 @@ from graphslam.sources.spatial.sequence import (
     associate,
     check_increasing,
     check_rotation,
+    parse_euroc_line,
     parse_floats,
     quat_to_rotation,
     read_lines,
@@ -109,6 +115,13 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         raise InputError(f"unknown trajectory format {fmt!r} (one of {TRAJECTORY_FORMATS})", path)
     stamps, poses = [], []
     for n, text in lines:
+        if fmt != "euroc" and "," in text:
+            raise InputError(
+                f"a comma in a {fmt.upper()} line: {fmt.upper()} is space-separated "
+                "(the comma-separated format is EuRoC)",
+                path,
+                n,
+            )
         if fmt == "kitti":
             v = parse_floats(text, path, n, 12, "numbers (KITTI: row-major 3x4 pose)")
             R = check_rotation(v.reshape(3, 4)[:, :3], path, n)
@@ -118,7 +131,7 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
             stamps.append(v[0])
             poses.append(_pose(quat_to_rotation(v[7], v[4], v[5], v[6], path, n), _position(v[1:4], path, n)))
         else:
-            v = parse_floats(text, path, n, what="numbers (EuRoC: t_ns, p xyz, q wxyz, ...)")
+            v = parse_euroc_line(text, path, n, "t_ns,px,py,pz,qw,qx,qy,qz,...")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", path, n)
             stamps.append(v[0] / 1e9)  # as evo: 1e9 is exact, 1e-9 is not
@@ -139,7 +152,7 @@ def _time_order(stamps: np.ndarray, line_numbers: list[int], path: Path) -> np.n
     if same.size:
         a, b = sorted((int(order[same[0]]), int(order[same[0] + 1])))
         raise InputError(
-            f"time {float(stamps[b])!r} is duplicated (also on line {line_numbers[a]})", path, line_numbers[b]
+            f"time {float(stamps[b])} is duplicated (also on line {line_numbers[a]})", path, line_numbers[b]
         )
     return order
 

@@ -89,6 +89,7 @@ from graphslam.sources.spatial.sequence import (
     check_K,
     image_size,
     list_images,
+    parse_euroc_line,
     parse_floats,
     quat_to_rotation,
     read_lines,
@@ -243,7 +244,7 @@ def read_euroc(
     if gpath.is_file():
         gt_t, gt_T = [], []
         for n, t in read_lines(gpath, "EuRoC ground truth"):
-            v = parse_floats(t, gpath, n, what="numbers (timestamp, p xyz, q wxyz, ...)")
+            v = parse_euroc_line(t, gpath, n, "t_ns,px,py,pz,qw,qx,qy,qz,...")
             if v.size < 8:
                 raise InputError(f"expected at least 8 numbers, got {v.size}", gpath, n)
             T = np.eye(4)

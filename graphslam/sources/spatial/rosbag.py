@@ -421,7 +421,7 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
     dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
     if dup:
         raise InputError(
-            f"two images on {topic} have the header stamp {float(rm.ns_to_s([stamps[dup[0]]])[0])!r} s", path
+            f"two images on {topic} have the header stamp {float(rm.ns_to_s([stamps[dup[0]]])[0])} s", path
         )
     return ImageIndex([refs[k] for k in order], stamps, size, tuple(notes))
 
@@ -494,7 +494,7 @@ def _poses(reader, topic: str, msgtype: str, path: Path):
     stamps_s = rm.ns_to_s([stamps[k] for k in order])
     same = np.nonzero(np.diff(stamps_s) == 0)[0]
     if same.size:
-        raise InputError(f"two poses have the header stamp {float(stamps_s[same[0]])!r} s", where)
+        raise InputError(f"two poses have the header stamp {float(stamps_s[same[0]])} s", where)
     return stamps_s, np.array(poses)[order], (np.array(covs)[order] if covs else None)
 
 

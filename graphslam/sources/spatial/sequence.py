@@ -9,6 +9,7 @@ rendered :mod:`.synthetic_images`.
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -178,6 +179,34 @@ def parse_floats(
     return vals
 
 
+#: An EuRoC time stamp: integer nanoseconds (``1403636579758555392``).
+_EUROC_STAMP = re.compile(r"[0-9]+")
+
+
+def parse_euroc_line(text: str, path: Path, line: int, what: str) -> np.ndarray:
+    """The numbers of one line of an EuRoC CSV (``timestamp [ns],v1,v2,...``).
+
+    InputError when the line is not one, rather than misread: no comma (a
+    space-separated TUM or KITTI line), an empty field or one holding two
+    numbers (the columns after it would shift), or a time that is not integer
+    nanoseconds (seconds, as TUM writes them, would be read as 1e-9 times less).
+    """
+    fields = [f.strip() for f in text.split(",")]
+    if len(fields) < 2:
+        raise InputError(f"no comma: EuRoC lines are comma-separated ({what}): {quote(text)}", path, line)
+    if not all(f and len(f.split()) == 1 for f in fields):
+        raise InputError(
+            f"an empty field or one of two numbers: EuRoC lines are comma-separated ({what}): {quote(text)}",
+            path,
+            line,
+        )
+    if not _EUROC_STAMP.fullmatch(fields[0]):
+        raise InputError(
+            f"EuRoC times are integer nanoseconds, got {quote(fields[0])} (seconds: a TUM file?)", path, line
+        )
+    return parse_floats(",".join(fields), path, line, what=what)
+
+
 def quat_to_rotation(
     qw: float, qx: float, qy: float, qz: float, path: str | Path | None, line: int | None
 ) -> np.ndarray:
@@ -223,8 +252,8 @@ def check_increasing(stamps, line_numbers, path: Path, what: str = "timestamps")
     if bad.size:
         k = int(bad[0]) + 1
         raise InputError(
-            f"{what} must increase strictly: {stamps[k]!r} is not after "
-            f"{stamps[k - 1]!r} of line {line_numbers[k - 1]}",
+            f"{what} must increase strictly: {float(stamps[k])} is not after "
+            f"{float(stamps[k - 1])} of line {line_numbers[k - 1]}",
             path,
             line_numbers[k],
         )
@@ -293,11 +322,29 @@ def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarra
 
 
 def list_images(folder: Path) -> list[str]:
-    """Image files of ``folder`` (:data:`IMAGE_EXTENSIONS`) in natural file-name order."""
-    return sorted(
-        (str(p) for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-        key=lambda s: natural_key(Path(s).name),
-    )
+    """Image files of ``folder`` (:data:`IMAGE_EXTENSIONS`) in natural file-name order.
+
+    A symbolic link with an image's name that leads to no file is refused
+    (InputError naming it), as a corrupt image is when read: skipped, it made
+    the folder one image shorter without a word.
+    """
+    found, dangling = [], []
+    for p in Path(folder).iterdir():
+        if p.suffix.lower() not in IMAGE_EXTENSIONS:
+            continue
+        if p.is_file():
+            found.append(str(p))
+        elif p.is_symlink() and not p.exists():
+            dangling.append(p)
+    if dangling:
+        first = min(dangling, key=lambda q: natural_key(q.name))
+        more = f" ({len(dangling) - 1} more such links in the folder)" if len(dangling) > 1 else ""
+        raise InputError(
+            f"image file not found: a symbolic link to {quote(os.readlink(first))}, which leads to no file"
+            + more,
+            first,
+        )
+    return sorted(found, key=lambda s: natural_key(Path(s).name))
 
 
 def folder_images(folder: Path) -> list[Path]:

@@ -201,23 +201,23 @@ class SyntheticImagesConfig:
         if self.corner_radius_m > min(self.path_length_m, self.path_width_m) / 2:
             raise ConfigError(
                 f"{s}corner_radius_m must be <= half of path_length_m and "
-                f"path_width_m, got {self.corner_radius_m!r}"
+                f"path_width_m, got {float(self.corner_radius_m)}"
             )
         margin = 0.5 + self.wobble_lateral_m
         if self.path_length_m / 2 + margin > self.room_length_m / 2:
             raise ConfigError(
                 f"{s}path_length_m must fit in room_length_m with 0.5 m + "
-                f"wobble_lateral_m to spare at each end, got {self.path_length_m!r}"
+                f"wobble_lateral_m to spare at each end, got {float(self.path_length_m)}"
             )
         if self.path_width_m / 2 + margin > self.room_width_m / 2:
             raise ConfigError(
                 f"{s}path_width_m must fit in room_width_m with 0.5 m + "
-                f"wobble_lateral_m to spare at each side, got {self.path_width_m!r}"
+                f"wobble_lateral_m to spare at each side, got {float(self.path_width_m)}"
             )
         if not self.camera_height_m < self.room_height_m:
             raise ConfigError(
                 f"{s}camera_height_m must be < room_height_m "
-                f"({self.room_height_m!r}), got {self.camera_height_m!r}"
+                f"({float(self.room_height_m)}), got {float(self.camera_height_m)}"
             )
         L, W, H = self.room_length_m, self.room_width_m, self.room_height_m
         texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m**2

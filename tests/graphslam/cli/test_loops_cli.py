@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 
 import cv2
+import numpy as np
 import pytest
 
 from graphslam.cli.main import build_parser, main
@@ -134,3 +136,70 @@ def test_help_explains_every_option(capsys):
     text = capsys.readouterr().out
     for opt in ("--out", "--vocab", "--config", "--log", "--words", "--intrinsics"):
         assert opt in text
+
+
+# ------------------------------------------------------------------ hostile pass (findings 2, 4, 5)
+
+@pytest.fixture
+def desk(shared_data):
+    folder = shared_data / "slambook2_desk" / "images"
+    if not folder.is_dir():
+        pytest.skip("slambook2_desk not present")
+    return folder
+
+
+def test_truth_without_pairs_says_recall_is_undefined(desk, tmp_path, capsys):
+    """A truth of no pair has nothing to recall: recall n/a, not 0.000 (every revisit missed)."""
+    truth = tmp_path / "t.csv"
+    truth.write_text("query,match\n")
+    out = tmp_path / "l.csv"
+    assert main(["loops", str(desk), "--out", str(out), "--truth", str(truth), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "truth: 0 same-place pairs" in text and "recall n/a (no true pair)" in text, text
+    assert "recall 0.000" not in text
+    rows = list(csv.reader((tmp_path / "pr.csv").open()))
+    assert rows[0] == ["threshold", "closures", "true", "precision", "recall"]
+    assert len(rows) > 1 and all(r[4] == "n/a" for r in rows[1:]), rows
+    assert (tmp_path / "pr.png").is_file()
+
+
+def _blank_pngs(folder, names, size=(640, 480)):
+    folder.mkdir(exist_ok=True)
+    for name in names:
+        assert cv2.imwrite(str(folder / name), np.zeros((size[1], size[0]), np.uint8))
+
+
+@pytest.mark.parametrize("size", [(640, 480), (1, 1)])
+def test_no_orb_feature_in_any_image_is_refused(tmp_path, capsys, size):
+    """All-black or 1x1 images: '0 closures accepted' and exit 0 did not say why."""
+    folder = tmp_path / "black"
+    _blank_pngs(folder, [f"{i:02d}.png" for i in range(1, 7)], size)
+    err = _one_line_error(capsys, ["loops", str(folder), "--out", str(tmp_path / "l.csv"), "--quiet"])
+    assert "black" in err and "no ORB features found in the images (6 of 6" in err, err
+    assert "no closure can be found" in err
+
+
+def test_images_without_orb_features_are_counted(desk, tmp_path, capsys):
+    folder = tmp_path / "mixed"
+    shutil.copytree(desk, folder)
+    _blank_pngs(folder, ["11.png", "12.png"])
+    assert main(["loops", str(folder), "--out", str(tmp_path / "l.csv"), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "2 of 12 images gave no ORB feature" in text, text
+    assert main(["loops", str(desk), "--out", str(tmp_path / "d.csv"), "--quiet"]) == 0
+    assert "no ORB feature" not in capsys.readouterr().out
+
+
+def test_dangling_image_link_is_refused_as_a_corrupt_image_is(desk, tmp_path, capsys):
+    """Skipped without a word, the folder counted 2 images of 3 files."""
+    folder = tmp_path / "dang"
+    folder.mkdir()
+    for name in ("01.png", "02.png"):
+        shutil.copy(desk / name, folder / name)
+    (folder / "03.png").symlink_to(tmp_path / "nowhere" / "x.png")
+    out = str(tmp_path / "l.csv")
+    err = _one_line_error(capsys, ["loops", str(folder), "--out", out, "--quiet"])
+    assert "03.png: image file not found" in err, err
+    (folder / "03.png").unlink()
+    (folder / "03.png").write_bytes(b"not a png")  # what loops did with a corrupt file
+    assert "03.png" in _one_line_error(capsys, ["loops", str(folder), "--out", out, "--quiet"])

@@ -1,0 +1,18 @@
+"""Precision and recall of place recognition (:mod:`graphslam.evaluation.places`) when a
+figure is undefined: recall with no true pair was 0.0, read as every revisit missed."""
+
+from __future__ import annotations
+
+from graphslam.evaluation.places import pr_curve, score
+
+
+def test_recall_is_none_without_true_pairs():
+    assert score([(5, 1)], set()) == (0.0, None, 0)
+    assert score([], set()) == (None, None, 0)
+    assert score([], {(5, 1)}) == (None, 0.0, 0)  # a pair missed: recall 0 is right
+    assert score([(5, 1)], {(5, 1)}) == (1.0, 1.0, 1)
+
+
+def test_curve_without_true_pairs_has_no_recall():
+    curve = pr_curve([(4, 0, 2.0), (3, 0, 1.0)], set())
+    assert [(p.closures, p.precision, p.recall) for p in curve] == [(1, 0.0, None), (2, 0.0, None)]
