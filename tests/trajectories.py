@@ -29,6 +29,22 @@ CASES = [
 FORMATS = ("tum", "kitti", "euroc")
 
 
+def run_eval(tmp_path: Path, capsys, *argv) -> tuple[int, str, str]:
+    """``graphslam eval ARGV --no-plot --out TMP/o`` in this process: exit status, stdout, stderr."""
+    from graphslam.cli.main import main as graphslam
+
+    code = graphslam(["eval", *map(str, argv), "--no-plot", "--out", str(tmp_path / "o")])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def one_error(err: str, *words: str) -> None:
+    """``err`` is one ``graphslam: error:`` line holding each of ``words``."""
+    assert err.count("\n") == 1 and err.startswith("graphslam: error:"), err
+    for w in words:
+        assert w in err, err
+
+
 def trajectory(n: int, estimate: bool) -> tuple[np.ndarray, np.ndarray]:
     """``(stamps (n,), wTc (n, 4, 4))``: an oval at 10 Hz; the estimate is scaled,
     shifted and wobbled, and its stamps jitter by up to 12 ms (some beyond evo's 10 ms)."""

@@ -11,22 +11,9 @@ import shutil
 import numpy as np
 import pytest
 
-from graphslam.cli.main import main
 from graphslam.sources.ground_truth import read_trajectory
 from slamcore.errors import InputError
 from tests import trajectories as tr
-
-
-def _eval(tmp_path, capsys, *argv) -> tuple[int, str, str]:
-    code = main(["eval", *map(str, argv), "--no-plot", "--out", str(tmp_path / "o")])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-def _one_error(err: str, *words: str) -> None:
-    assert err.count("\n") == 1 and err.startswith("graphslam: error:"), err
-    for w in words:
-        assert w in err, err
 
 
 def _circles(tmp_path):
@@ -43,27 +30,27 @@ def _circles(tmp_path):
 
 def test_tum_forced_as_euroc_is_refused_with_file_and_line(tmp_path, capsys):
     a, b = _circles(tmp_path)
-    assert _eval(tmp_path, capsys, a, b)[0] == 0  # told from the content: TUM, scored
-    code, out, err = _eval(tmp_path, capsys, a, b, "--format", "euroc")
+    assert tr.run_eval(tmp_path, capsys, a, b)[0] == 0  # told from the content: TUM, scored
+    code, out, err = tr.run_eval(tmp_path, capsys, a, b, "--format", "euroc")
     assert code == 2 and "circ_shift" not in out
-    _one_error(err, "circ.tum:1", "comma-separated")
+    tr.one_error(err, "circ.tum:1", "comma-separated")
 
 
 def test_tum_named_csv_is_refused_not_read_as_euroc(tmp_path, capsys):
     a, b = _circles(tmp_path)
     shutil.copy(a, tmp_path / "circ.csv")  # the .csv extension says EuRoC
-    code, _, err = _eval(tmp_path, capsys, tmp_path / "circ.csv", b)
+    code, _, err = tr.run_eval(tmp_path, capsys, tmp_path / "circ.csv", b)
     assert code == 2
-    _one_error(err, "circ.csv:1", "comma-separated")
+    tr.one_error(err, "circ.csv:1", "comma-separated")
 
 
 def test_euroc_with_seconds_is_refused(tmp_path, capsys):
     a, b = _circles(tmp_path)
     commas = tmp_path / "commas.csv"
     commas.write_text(a.read_text().replace(" ", ","))  # commas, but TUM's seconds
-    code, _, err = _eval(tmp_path, capsys, commas, b)
+    code, _, err = tr.run_eval(tmp_path, capsys, commas, b)
     assert code == 2
-    _one_error(err, "commas.csv:1", "integer nanoseconds", "1305031102.175304")
+    tr.one_error(err, "commas.csv:1", "integer nanoseconds", "1305031102.175304")
 
 
 def test_comma_in_a_forced_tum_or_kitti_line_is_refused(tmp_path):
@@ -97,7 +84,7 @@ def test_times_out_of_order_names_plain_numbers(tmp_path, capsys, shared_data):
     times = tmp_path / "times.txt"
     times.write_text("\n".join(lines) + "\n")
     poses = kitti / "poses.txt"
-    code, _, err = _eval(tmp_path, capsys, poses, poses, "--format", "kitti", "--times", times)
+    code, _, err = tr.run_eval(tmp_path, capsys, poses, poses, "--format", "kitti", "--times", times)
     assert code == 2
-    _one_error(err, "times.txt:51", f"{float(lines[50])} is not after {float(lines[49])} of line 50")
+    tr.one_error(err, "times.txt:51", f"{float(lines[50])} is not after {float(lines[49])} of line 50")
     assert "np." not in err

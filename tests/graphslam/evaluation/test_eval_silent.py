@@ -9,7 +9,6 @@ import json
 import numpy as np
 import pytest
 
-from graphslam.cli.main import main
 from graphslam.evaluation.spatial import align_umeyama
 from graphslam.evaluation.trajectory import EvalOptions, evaluate
 from graphslam.sources.ground_truth import read_trajectory
@@ -17,18 +16,6 @@ from graphslam.sources.spatial.images import read_tum_rgbd
 from graphslam.sources.spatial.kitti import read_kitti, read_kitti_poses
 from slamcore.errors import GraphSlamError, InputError
 from tests import trajectories as tr
-
-
-def _eval(tmp_path, capsys, *argv) -> tuple[int, str, str]:
-    code = main(["eval", *map(str, argv), "--no-plot", "--out", str(tmp_path / "o")])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-def _one_error(err: str, *words: str) -> None:
-    assert err.count("\n") == 1 and err.startswith("graphslam: error:"), err
-    for w in words:
-        assert w in err, err
 
 
 def _tum(path, stamps, wTc):
@@ -43,21 +30,21 @@ def test_duplicated_timestamp_is_refused_with_file_and_lines(tmp_path, capsys):
     stamp = lines[9].split()[0]
     lines[10] = " ".join([stamp, *lines[10].split()[1:]])
     est.write_text("\n".join(lines) + "\n")
-    code, _, err = _eval(tmp_path, capsys, gt, est)
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, est)
     assert code == 2
-    _one_error(err, "est_tum.txt:11", "line 10", "duplicated")
+    tr.one_error(err, "est_tum.txt:11", "line 10", "duplicated")
 
 
 def test_unsorted_timestamps_are_sorted_same_answer(tmp_path, capsys):
     gt, est = tr.write_pair(tmp_path, "tum")
-    assert _eval(tmp_path, capsys, gt, est)[0] == 0
+    assert tr.run_eval(tmp_path, capsys, gt, est)[0] == 0
     before = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
     lines = est.read_text().splitlines()
     lines[5], lines[200] = lines[200], lines[5]
     est.write_text("\n".join(lines) + "\n")
     traj = read_trajectory(est)
     assert np.all(np.diff(traj.stamps_s) > 0)
-    assert _eval(tmp_path, capsys, gt, est)[0] == 0
+    assert tr.run_eval(tmp_path, capsys, gt, est)[0] == 0
     after = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
     assert after["ate_rmse_m"] == pytest.approx(before["ate_rmse_m"], rel=1e-12)
 
@@ -71,7 +58,7 @@ SELF_ROT_TOL_DEG = 1e-3
 def test_two_poses_se3_scores_a_file_against_itself_at_zero_not_180_degrees(tmp_path, capsys):
     t, wTc = tr.trajectory(2, False)
     gt = _tum(tmp_path / "gt.txt", t, wTc)
-    code, _, _ = _eval(tmp_path, capsys, gt, gt)
+    code, _, _ = tr.run_eval(tmp_path, capsys, gt, gt)
     assert code == 0
     s = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
     assert s["ate_rot_rmse_deg"] < SELF_ROT_TOL_DEG
@@ -121,9 +108,9 @@ def test_kitti_non_rotation_refused_with_line(tmp_path, capsys, block):
     assert "k.txt:3" in str(e.value)
     with pytest.raises(InputError, match="not a rotation"):
         read_kitti_poses(path)
-    code, _, err = _eval(tmp_path, capsys, path, path)
+    code, _, err = tr.run_eval(tmp_path, capsys, path, path)
     assert code == 2
-    _one_error(err, "k.txt:3")
+    tr.one_error(err, "k.txt:3")
 
 
 # 4. a times file that does not increase
@@ -133,9 +120,9 @@ def test_times_all_zero_refused_with_line(tmp_path, capsys):
     kitti = tr.write(tmp_path / "k.txt", "kitti", t, wTc)
     times = tmp_path / "times.txt"
     times.write_text("0.0\n" * 50)
-    code, _, err = _eval(tmp_path, capsys, kitti, kitti, "--times", times)
+    code, _, err = tr.run_eval(tmp_path, capsys, kitti, kitti, "--times", times)
     assert code == 2
-    _one_error(err, "times.txt:2", "increase")
+    tr.one_error(err, "times.txt:2", "increase")
 
 
 # 5. a reference (or estimate) that never moves
@@ -147,9 +134,9 @@ def test_static_reference_refused(tmp_path, capsys, align):
     still[:, :3, 3] = [1.0, 2.0, 3.0]
     gt = _tum(tmp_path / "gt.txt", t, still)
     est = _tum(tmp_path / "est.txt", t, wTc)
-    code, _, err = _eval(tmp_path, capsys, gt, est, "--align", align)
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, est, "--align", align)
     assert code == 2
-    _one_error(err, "reference", "does not move")
+    tr.one_error(err, "reference", "does not move")
 
 
 def test_umeyama_sim3_onto_a_point_refused():
@@ -164,7 +151,7 @@ def test_partial_truth_counts_and_warns(tmp_path, capsys):
     t, wTc = tr.trajectory(400, False)
     est = _tum(tmp_path / "est.txt", t, wTc)
     gt = _tum(tmp_path / "gt.txt", t[:50], wTc[:50])
-    code, out, err = _eval(tmp_path, capsys, gt, est)
+    code, out, err = tr.run_eval(tmp_path, capsys, gt, est)
     assert code == 0
     s = json.loads((tmp_path / "o" / "eval.json").read_text())["estimates"][0]
     assert s["matched_poses"] == 50 and s["estimate_poses"] == 400
