@@ -37,6 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 DATA = ROOT.parent / "shared" / "data"
@@ -243,7 +245,33 @@ def attacks() -> list[Attack]:
                lambda f: _run(DATA / "kitti07", "--relocalise", "--backend", "ekf",
                               "--max-steps", "5"),
                check=lambda f, o, e: None if "--relocalise" in e else "the error names another option"),
+        # ---- the second pass (2026-11-29): flags a run ignored, errors that blamed the
+        # wrong thing or came as a usage block, files read in the wrong form
+        Attack("--frames on a pose-graph file", "silent",
+               lambda f: _run(_w(f, "g.g2o", _chain_g2o(3)), "--frames", "0:2")),
+        Attack("--nees on a pose-graph solve", "silent", lambda f: _run(_w(f, "g.g2o", _chain_g2o(3)), "--nees")),
+        Attack("a missing dataset with --seed names the dataset", "silent",
+               lambda f: _run(f / "nosuch.g2o", "--seed", "0"), check=_says("no such dataset")),
+        Attack("--out '' (an unset shell variable)", "silent",
+               lambda f: ["run", "--dataset", "synthetic", "--max-steps", "3", "--rerun", "off", "--out", ""]),
+        Attack("a parser error (--seed 1.5) is one line", "fail", lambda f: _run("synthetic", "--seed", "1.5")),
+        Attack("a TUM file forced as EuRoC", "silent",
+               lambda f: ["eval", *map(str, _tum_pair(f)), "--format", "euroc", "--out", "ev", "--no-plot"]),
+        Attack("loops on images without one ORB feature", "silent", lambda f: ["loops", str(_blank_images(f)),
+                                                                               "--out", "l.csv", "--quiet"]),
+        Attack("convert of a graph with a self-edge says so", "silent",
+               lambda f: ["convert", str(_w(f, "s.g2o", _chain_g2o(2) + "EDGE_SE2 1 1 0.5 0 0 1 0 0 1 0 1\n")),
+                          "s.graph"], ("ok",), check=_says("left out")),
     ]
+
+
+def _blank_images(folder: Path) -> Path:
+    import cv2
+
+    for k in range(1, 7):
+        (folder / "blank").mkdir(exist_ok=True)
+        cv2.imwrite(str(folder / "blank" / f"{k:02d}.png"), np.zeros((480, 640), np.uint8))
+    return folder / "blank"
 
 
 def _stash(folder: Path, files: dict[str, bytes]) -> None:
