@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from typing import NoReturn
 
 from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line
 from slamcore.errors import GraphSlamError
@@ -19,7 +20,7 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse's parser whose errors are one line, as every other error of the
     command (argparse prints the usage block first); sub-commands inherit it."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         command = self.prog.removeprefix("graphslam").strip()
         where = f"{command}: " if command else ""
         self.exit(2, f"graphslam: error: {where}{one_line(message)} (see {self.prog} --help)\n")
@@ -134,17 +135,22 @@ def main(argv: list[str] | None = None) -> int:
         return status
 
 
+_returned: list[bool] = []  # set once main() has returned in the console script
+
+
 def _late_stop(signum, frame) -> None:
-    """A stop signal after the command returned, while the interpreter tears down
-    (the sweep engine's exit handlers, thread joins: about 0.1 s): everything is
-    written, so exit at once with the signal's status instead of dying by it."""
+    """A stop signal outside the command's guard: after the command returned, while the
+    interpreter tears down (the sweep engine's exit handlers, thread joins: about
+    0.1 s), everything is written; before the guard (microseconds) nothing ran. Either
+    way exit at once with the signal's status instead of dying by it."""
     import os
 
     from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
 
     try:
         sys.stdout.flush()
-        sys.stderr.write("graphslam: interrupted while exiting; the outputs are complete\n")
+        done = "; the outputs are complete" if _returned else ""
+        sys.stderr.write(f"graphslam: interrupted{' while exiting' if _returned else ''}{done}\n")
         sys.stderr.flush()
     finally:
         os._exit(EXIT_STATUS_OF_SIGNAL.get(signum, 130))
@@ -160,7 +166,11 @@ def entry() -> None:
 
     for s in STOP_SIGNALS:
         signal.signal(s, _late_stop)
-    sys.exit(main())
+    try:
+        status = main()
+    finally:  # a SystemExit of the parser (--help, an error) too
+        _returned.append(True)
+    sys.exit(status)
 
 
 if __name__ == "__main__":  # pragma: no cover
