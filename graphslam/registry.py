@@ -212,14 +212,23 @@ def load_dataset(
     return read_pose_graph(path, settings.toro_noise, settings.information_fix)
 
 
+def is_builtin_dataset(spec: str) -> bool:
+    """Whether ``spec`` names a built-in dataset (not a path)."""
+    return spec in DATASETS or spec in VISUAL_DATASETS
+
+
+def no_such_dataset(shown: str = "") -> str:
+    """The sentence for a dataset that is neither built in nor a file or folder
+    (``shown``: its name, where the error does not already say it)."""
+    named = f" {shown}" if shown else ""
+    return f"no such dataset or file{named} (built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})"
+
+
 def check_dataset_named(spec: str) -> None:
     """InputError when ``spec`` is neither a built-in dataset nor an existing path (checked
     before the options that depend on the dataset, so a typo is named as one)."""
-    if spec in DATASETS or spec in VISUAL_DATASETS or Path(spec).exists():
-        return
-    raise InputError(
-        f"no such dataset or file (built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})", Path(spec)
-    )
+    if not (is_builtin_dataset(spec) or Path(spec).exists()):
+        raise InputError(no_such_dataset(), Path(spec))
 
 
 def is_pose_graph_run(spec: str, backend: str) -> bool:

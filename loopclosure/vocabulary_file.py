@@ -94,17 +94,17 @@ TREE_PARAMS = (
 )
 _STORED_AS = {int: np.int64, bool: np.bool_, str: np.str_}
 
-#: The learned fields both kinds end with, in file order.
-COMMON_FIELDS = ("metric", "descriptor_dim", "idf", "n_training_images")
+#: The learned fields both kinds end with, in file order, with the type each is read
+#: back as (None: an array kept as it is); the estimator holds each as ``name_``.
+COMMON_LEARNED = (("metric", str), ("descriptor_dim", int), ("idf", None), ("n_training_images", int))
+COMMON_FIELDS = tuple(name for name, _ in COMMON_LEARNED)
 
 
 def _common_arrays(v) -> dict:
-    """The fields of :data:`COMMON_FIELDS` of a fitted vocabulary ``v``."""
+    """The fields of :data:`COMMON_LEARNED` of a fitted vocabulary ``v``."""
     return {
-        "metric": np.str_(v.metric_),
-        "descriptor_dim": np.int64(v.descriptor_dim_),
-        "idf": v.idf_,
-        "n_training_images": np.int64(v.n_training_images_),
+        name: getattr(v, name + "_") if kind is None else _STORED_AS[kind](getattr(v, name + "_"))
+        for name, kind in COMMON_LEARNED
     }
 
 
@@ -119,11 +119,9 @@ def _built(cls, data: dict, params):
 
 
 def _restore_common(v, data: dict) -> None:
-    """Set the fields of :data:`COMMON_FIELDS` of ``v`` from ``data`` (their checks follow)."""
-    v.metric_ = str(data["metric"])
-    v.descriptor_dim_ = int(data["descriptor_dim"])
-    v.idf_ = data["idf"]
-    v.n_training_images_ = int(data["n_training_images"])
+    """Set the fields of :data:`COMMON_LEARNED` of ``v`` from ``data`` (their checks follow)."""
+    for name, kind in COMMON_LEARNED:
+        setattr(v, name + "_", data[name] if kind is None else kind(data[name]))
 
 
 def _check_centres(v, n_rows: int, path) -> None:

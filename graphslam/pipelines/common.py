@@ -34,7 +34,7 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 
 #: Exit status of a command stopped by each signal (128 + the signal number).
 EXIT_STATUS_OF_SIGNAL: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -87,6 +87,26 @@ class StopGuard:
         the worker mid-step."""
         self.signum = None
         self.escalate = False
+
+    def begin_save(self) -> None:
+        """Once a stop has been asked for, the rest of the command is a save (the
+        estimate so far fetched or received from a worker, the files written): a
+        repeated signal is then recorded, not raised, so a second Ctrl-C cannot lose
+        what the first one stopped the run to keep."""
+        if self.requested:
+            self.escalate = False
+
+    @contextmanager
+    def waiting(self) -> Iterator[None]:
+        """No escalation while the command waits for a worker's estimate (the worker is
+        stopped by the signal passed on, or killed after a grace); a stop asked for
+        meanwhile makes the rest a save (:meth:`begin_save`)."""
+        escalate, self.escalate = self.escalate, False
+        try:
+            yield
+        finally:
+            self.escalate = escalate
+            self.begin_save()
 
     def _handle(self, signum, frame) -> None:
         first = self.signum is None
@@ -146,29 +166,12 @@ def interrupt_between_frames() -> Iterator[StopGuard]:
     of its own for the loop only, so a first Ctrl-C still cuts the loop cleanly.
     """
     guard = active_guard()
-    if guard is not None:
+    with nullcontext(guard) if guard is not None else stop_guard() as guard:
         guard.defer()
         try:
             yield guard
         finally:
-            saving_after_stop(guard)
-        return
-    with stop_guard() as guard:
-        guard.defer()
-        try:
-            yield guard
-        finally:
-            saving_after_stop(guard)
-
-
-def saving_after_stop(guard: StopGuard | None = None) -> None:
-    """Once a stop has been asked for, the rest of the command is a save (the estimate
-    so far fetched or received from a worker, the files written): a repeated signal is
-    then recorded, not raised, so a second Ctrl-C cannot lose what the first one stopped
-    the run to keep. ``guard``: the command's (:func:`active_guard`) by default."""
-    guard = guard or active_guard()
-    if guard is not None and guard.requested:
-        guard.escalate = False
+            guard.begin_save()
 
 
 def whole(result):
@@ -177,6 +180,11 @@ def whole(result):
     if result.interrupted:
         raise KeyboardInterrupt
     return result
+
+
+#: ``GRAPHSLAM_SIGNAL_REPEAT=N``: the hook's signals come this far apart (a user's
+#: second Ctrl-C, faster than any hand).
+REPEAT_GAP_S = 0.05
 
 
 def signal_hook(point: str, step: int | None = None) -> None:
@@ -199,11 +207,6 @@ def signal_hook(point: str, step: int | None = None) -> None:
             os.killpg(os.getpgrp(), signum)
         else:
             os.kill(pid, signum)
-
-
-#: ``GRAPHSLAM_SIGNAL_REPEAT=N``: the hook's signals come this far apart (a user's
-#: second Ctrl-C, faster than any hand).
-REPEAT_GAP_S = 0.05
 
 
 _fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worker too)

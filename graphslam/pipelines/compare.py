@@ -19,6 +19,7 @@ import signal
 import time
 import traceback
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
@@ -28,12 +29,7 @@ from graphslam import registry
 from graphslam.evaluation import planar as metrics
 from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines import planar as pipeline
-from graphslam.pipelines.common import (
-    active_guard,
-    interrupt_between_frames,
-    saving_after_stop,
-    stop_requested,
-)
+from graphslam.pipelines.common import active_guard, interrupt_between_frames, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
 
@@ -138,18 +134,10 @@ class BackendCrash(RuntimeError):
 def _wait_for(proc, conn, name: str):
     """The worker's message, or None if it died without one; forwards a stop
     request to it and kills it when it does not answer in time."""
-    # No escalation while waiting: a repeated signal would drop the estimate the worker
-    # is sending; the worker is stopped by the signal passed on, or killed after the grace.
+    # a repeated signal must not drop the estimate the worker is sending
     guard = active_guard()
-    escalate = guard is not None and guard.escalate
-    if guard is not None:
-        guard.escalate = False
-    try:
+    with guard.waiting() if guard is not None else nullcontext():
         return _poll(proc, conn, name)
-    finally:
-        if guard is not None and not guard.requested:
-            guard.escalate = escalate
-        saving_after_stop(guard)
 
 
 def _poll(proc, conn, name: str):

@@ -201,18 +201,17 @@ def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
 def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
     """The ``dataset`` list: built-in names as they are, paths read beside the sweep file
     (as ``config`` is; an absolute path as it is), each checked to exist before any run."""
-    from graphslam.registry import DATASETS, VISUAL_DATASETS
+    from graphslam.registry import is_builtin_dataset, no_such_dataset
 
     out = []
     for name in _list(sweep, cfg, "dataset", str):
-        if name in DATASETS or name in VISUAL_DATASETS:
+        if is_builtin_dataset(name):
             out.append(name)
             continue
         where = path.parent / name
         if not where.exists():
             raise ConfigError(
-                f"[sweep] no such dataset or file {name!r} (a path is read beside the sweep file: "
-                f"{where}; built-in datasets: {', '.join(DATASETS + VISUAL_DATASETS)})",
+                f"[sweep] {no_such_dataset(repr(name))}; a path is read beside the sweep file ({where})",
                 cfg.path,
                 cfg.line_of("sweep", "dataset"),
             )

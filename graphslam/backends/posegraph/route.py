@@ -19,8 +19,8 @@ while LM says it converged. So batch runs first and its result is tested:
 
 Where the kept estimate then fails SE-Sync's certificate (:mod:`.certificate`;
 the pipeline checks it), :func:`retry_from_certified_rotations` runs batch once
-more from Shonan's rotations (``init = "shonan"``) and keeps it when it costs
-less: a noisy Manhattan walk (0.3 rad of heading noise, seed 2) passes the
+more from Shonan's poses (:func:`.init.relaxed`, computed once; no retry when Shonan
+fails) and keeps it when it costs less: a noisy Manhattan walk (0.3 rad of heading noise, seed 2) passes the
 chi-square check at cost 158.045, a local minimum the certificate refuses, and
 the Shonan start reaches 141.006.
 """

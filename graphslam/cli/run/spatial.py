@@ -33,9 +33,6 @@ from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
 SELF_TRAINED_WORDS = 1000
-#: The summary's counts of the loop closures and of the tracking losses, in its labels' order.
-LOOP_COUNTS = ("closures", "verified", "candidates")
-TRACKING_LOSS_COUNTS = ("losses", "relocalisations", "recovered_by_search")
 
 
 def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
@@ -250,12 +247,24 @@ def format_summary(m) -> str:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
     if m.loops:
         lp = m.loops
-        rows.append(counts_row("loop closures added / verified / candidates", lp, *LOOP_COUNTS))
+        rows.append(
+            counts_row(
+                "loop closures added / verified / candidates", lp, "closures", "verified", "candidates"
+            )
+        )
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.tracking_loss:
         tl = m.tracking_loss
-        rows.append(counts_row("tracking losses / relocalised / found again", tl, *TRACKING_LOSS_COUNTS))
+        rows.append(
+            counts_row(
+                "tracking losses / relocalised / found again",
+                tl,
+                "losses",
+                "relocalisations",
+                "recovered_by_search",
+            )
+        )
     mono = stats.get("camera_alone")
     if mono is not None:
         first = mono.get("first_map")

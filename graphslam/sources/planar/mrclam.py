@@ -33,6 +33,7 @@ Every refusal names the file and line.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -229,10 +230,18 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
         except UnicodeDecodeError as exc:
             raise InputError(f"not a text file: {exc}", path) from None
     table = np.array(toks, dtype=np.float64).reshape(-1, columns)
-    bad = ~np.isfinite(table).all(axis=1)
-    if bad.any():  # 1e999: a decimal number that is not a finite double
-        raise InputError("a value is not finite", path, lines[int(np.argmax(bad))])
+    # 1e999: a decimal number that is not a finite double
+    finite = np.isfinite(table).all(axis=1)
+    refuse_first_row(~finite, lines, path, lambda k: "a value is not finite")
     return table, lines
+
+
+def refuse_first_row(bad, lines: list[int], path: Path, message: Callable[[int], str]) -> None:
+    """InputError at the file line of the first row ``k`` that ``bad`` (N,) marks,
+    saying ``message(k)`` (the log readers' row checks: MRCLAM's, Plaza's)."""
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(message(k), path, lines[k])
 
 
 def check_times(table, lines, path: Path, strictly: bool = False) -> None:
@@ -330,14 +339,15 @@ SPEED_MAX_MPS, TURN_RATE_MAX_RADPS = 10.0, 20 * math.pi
 
 def _check_speeds(odo, lines, path: Path) -> None:
     bad = (np.abs(odo[:, 1]) > SPEED_MAX_MPS) | (np.abs(odo[:, 2]) > TURN_RATE_MAX_RADPS)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(
+    refuse_first_row(
+        bad,
+        lines,
+        path,
+        lambda k: (
             f"commanded velocity {odo[k, 1]:g} m/s, {odo[k, 2]:g} rad/s is beyond "
-            f"{SPEED_MAX_MPS:g} m/s or {TURN_RATE_MAX_RADPS:.3g} rad/s",
-            path,
-            lines[k],
-        )
+            f"{SPEED_MAX_MPS:g} m/s or {TURN_RATE_MAX_RADPS:.3g} rad/s"
+        ),
+    )
 
 
 def _check_sightings(meas, lines, path: Path) -> None:

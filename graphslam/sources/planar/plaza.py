@@ -43,12 +43,11 @@ Every refusal names the file and, for a bad line, the line.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.planar.mrclam import check_times, read_table, timed_frames, truth_at
+from graphslam.sources.planar.mrclam import check_times, read_table, refuse_first_row, timed_frames, truth_at
 from slamcore.errors import InputError
 from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset, odometry_batch, range_batch
@@ -129,16 +128,9 @@ def _read(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:
     return read_table(path, columns, what)
 
 
-def _refuse_first(bad: np.ndarray, lines: list[int], path: Path, message: Callable[[int], str]) -> None:
-    """InputError at the first row ``k`` that ``bad`` (N,) marks, saying ``message(k)``."""
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(message(k), path, lines[k])
-
-
 def _check_steps(dr, lines, path: Path) -> None:
     bad = (np.abs(dr[:, 1]) > STEP_MAX_M) | (np.abs(dr[:, 2]) > math.pi)
-    _refuse_first(
+    refuse_first_row(
         bad,
         lines,
         path,
@@ -149,14 +141,14 @@ def _check_steps(dr, lines, path: Path) -> None:
 def _check_ranges(td, lines, path: Path) -> None:
     ids = td[:, 1:3]
     bad_id = ((ids != np.round(ids)) | (ids < 0)).any(axis=1)
-    _refuse_first(
+    refuse_first_row(
         bad_id,
         lines,
         path,
         lambda k: f"sender and receiver ids must be whole numbers >= 0, got {td[k, 1]:g} and {td[k, 2]:g}",
     )
     bad = ~((td[:, 3] > 0) & (td[:, 3] < RANGE_MAX_M))
-    _refuse_first(bad, lines, path, lambda k: f"range {td[k, 3]:g} m is not in (0, {RANGE_MAX_M:g})")
+    refuse_first_row(bad, lines, path, lambda k: f"range {td[k, 3]:g} m is not in (0, {RANGE_MAX_M:g})")
 
 
 def _read_mat(path: Path) -> tuple[np.ndarray | None, dict[int, np.ndarray] | None]:
