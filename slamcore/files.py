@@ -11,7 +11,7 @@ from __future__ import annotations
 import functools
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -112,9 +112,10 @@ def _umask() -> int:
     return mask
 
 
-def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
+def check_output_dir(path: str | Path, flag: str = "--out", files: Iterable[str] = ()) -> Path:
     """Refuse, before any work, an output folder that cannot be written: an
-    existing file, a folder without write permission, or a parent that is a file.
+    existing file, a folder without write permission, a parent that is a file,
+    or a folder in it under the name of one of the ``files`` the command writes.
 
     Creates nothing (a refused run leaves no trace); raises ConfigError.
     """
@@ -126,7 +127,18 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
     if not existing.is_dir():
         raise ConfigError(f"{flag} {path}: {existing} is a file, not a folder")
     _check_writable(existing, flag, path)
+    check_no_folder_at(path, files, flag)
     return path
+
+
+def check_no_folder_at(folder: str | Path, names: Iterable[str], flag: str = "--out") -> None:
+    """Refuse a folder in ``folder`` under the name of a file the command will write
+    there (the final rename onto it fails with EISDIR, after the work)."""
+    for name in sorted(names):
+        if (Path(folder) / name).is_dir():
+            raise ConfigError(
+                f"{flag} {folder}: {name} there is a folder; this command writes a file of that name"
+            )
 
 
 def check_output_file(path: str | Path, flag: str = "--out") -> Path:

@@ -240,6 +240,11 @@ def os_error_line(e: OSError) -> str | None:
         return f"{_DISK_FULL[e.errno]} writing {where}: {e.strerror}"
     if e.errno == errno.ENAMETOOLONG:
         return f"{where}: a file or folder name is too long ({e.strerror})"
+    if e.errno == errno.EISDIR:
+        # a folder under an output's name: the rename of the finished file onto it
+        # names the temporary file first and the output second
+        target = e.filename2 if getattr(e, "filename2", None) is not None else where
+        return f"{target} is a folder; an output file of that name cannot be written"
     return None
 
 

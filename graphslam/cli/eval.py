@@ -175,7 +175,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from graphslam.pipelines.trajectory_eval import coverage_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_output_dir
 
-    check_output_dir(args.out)  # refused now, not after scoring
+    # refused now, not after scoring
+    check_output_dir(args.out, files=("eval.json",) if args.no_plot else ("eval.json", "eval.png"))
     options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]

@@ -87,6 +87,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     from graphslam.pipelines import localize_run
     from graphslam.pipelines.session import LocaliseSession
     from graphslam.sources.spatial.frames import parse_frames, select_frames
+    from slamcore.files import check_no_folder_at
 
     t0 = time.perf_counter()
     check_rerun_flags(args)
@@ -111,6 +112,8 @@ def cmd_localize(args: argparse.Namespace) -> int:
     out_dir = args.out or Path("runs") / f"{name}-localize"
     out_dir.mkdir(parents=True, exist_ok=True)
     names = {"localize.csv", "trajectory.tum", "metrics.json", "ground_truth.tum", "localize.rrd"}
+    # refused now, not after the frames are placed
+    check_no_folder_at(out_dir, names - ({"localize.rrd"} if args.rerun == "off" else set()))
     recorder = hook = None
     if args.rerun != "off":
         from graphslam.visualisation.spatial import LocalizeRecorder

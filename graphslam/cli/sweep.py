@@ -118,7 +118,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         )
     from slamcore.files import check_output_dir
 
-    check_output_dir(args.out)  # refused now, not as each run's error
+    check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
     spec = parse_sweep(args.sweep_file)
     n_runs = len(spec.runs())
     executor = make_executor(workers, args.cluster)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamcore.files import atomic_open
+from slamcore.files import atomic_open, check_no_folder_at
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 
@@ -106,8 +106,10 @@ def remove_stale_outputs(
     write, so a folder never mixes two runs' outputs; return what was removed.
 
     Only our own output names are touched, never other files, and only plain
-    files (a folder of that name is left alone).
+    files (a folder of that name is left alone; a folder under a name this run
+    writes is refused, ConfigError, before the run's work).
     """
+    check_no_folder_at(out_dir, will_write)
     removed = []
     for name in known:
         p = Path(out_dir) / name

@@ -291,9 +291,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise ConfigError("--robot applies to MRCLAM folders only")
     if args.out is not None:  # refused now, not after the run
-        check_output_dir(args.out)
+        check_output_dir(args.out, files=("trajectory.bag",) if args.write_bag else ())
     if getattr(args, "save_map", None) is not None:
-        check_output_dir(args.save_map, "--save-map")
+        from graphslam.maps.files import MAP_JSON, MAP_NPZ, VOCAB_NPZ
+
+        check_output_dir(args.save_map, "--save-map", files=(MAP_JSON, MAP_NPZ, VOCAB_NPZ))
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
@@ -303,8 +305,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
         if args.write_bag:  # a finished or stopped run's estimate
             _write_bag(args)
-        else:  # an earlier run's bag is not this run's: the folder holds one run
-            (Path(args.resolved_out) / "trajectory.bag").unlink(missing_ok=True)
+        elif (bag := Path(args.resolved_out) / "trajectory.bag").is_file():
+            bag.unlink()  # an earlier run's bag is not this run's: the folder holds one run
     return status
 
 

@@ -21,7 +21,7 @@ import pytest
 from graphslam.cli.main import main
 from graphslam.maps.files import load_planar_map, save_planar_map
 from graphslam.outputs import writers
-from slamcore.errors import InputError
+from slamcore.errors import ConfigError, InputError
 from slamcore.files import atomic_open, replacing
 from tests.conftest import ROOT
 from tests.graphslam.cli.test_faults import graphslam
@@ -212,3 +212,52 @@ def test_a_recording_process_left_without_close_deletes_its_recording(tmp_path):
     assert old.read_bytes() == b"an earlier run's recording"
     assert [p.name for p in tmp_path.iterdir()] == ["run.rrd"]
 
+
+
+# ------------------------------------------------------------------ a folder under an output's name
+# (third hostile pass: the final rename onto it failed with IsADirectoryError, a traceback
+# after the work, in every command)
+
+def test_stale_output_removal_refuses_a_folder_under_a_name_the_run_writes(tmp_path):
+    (tmp_path / "metrics.json").mkdir()
+    (tmp_path / "run.rrd").mkdir()  # not written by this run: left alone, as before
+    with pytest.raises(ConfigError, match="metrics.json there is a folder"):
+        writers.remove_stale_outputs(tmp_path, {"metrics.json", "trajectory.tum"})
+    assert writers.remove_stale_outputs(tmp_path, {"trajectory.tum"}) == []
+    assert (tmp_path / "run.rrd").is_dir()
+
+
+TUM2 = "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n"
+
+
+@pytest.mark.parametrize("argv, folder, name", [
+    ((*SMALL_RUN, "--out", "TMP/o"), "o", "trajectory.tum"),
+    (("run", "--dataset", "synthetic", "--max-steps", "5", "--quiet", "--out", "TMP/o"), "o", "run.rrd"),
+    ((*SMALL_RUN, "--out", "TMP/o", "--save-map", "TMP/m"), "m", "map.json"),
+    (("eval", "TMP/a.tum", "TMP/a.tum", "--out", "TMP/o"), "o", "eval.png"),
+    (("eval", "TMP/a.tum", "TMP/a.tum", "--out", "TMP/o", "--no-plot"), "o", "eval.json"),
+    (("compare", "--max-steps", "5", "--backends", "isam2", "--rerun", "off", "--in-process",
+      "--out", "TMP/o"), "o", "compare.json"),
+    (("sweep", "TMP/s.toml", "--out", "TMP/o", "--quiet"), "o", "sweep.csv"),
+])
+def test_a_folder_under_an_output_name_is_one_line_before_the_work(tmp_path, capsys, argv, folder,
+                                                                   name):
+    (tmp_path / folder / name).mkdir(parents=True)
+    (tmp_path / "a.tum").write_text(TUM2)
+    (tmp_path / "s.toml").write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\n'
+                                     'max_steps = 3\n')
+    line = one_error_line(capsys, *[a.replace("TMP", str(tmp_path)) for a in argv])
+    assert f"{name} there is a folder" in line
+    assert [p.name for p in (tmp_path / folder).iterdir()] == [name]  # nothing written beside it
+
+
+def test_a_folder_met_while_writing_is_one_line_naming_the_output(tmp_path, capsys, monkeypatch):
+    """The net under the checks: EISDIR from a rename names its target, not the temporary."""
+    target = tmp_path / "o" / "landmarks.csv"
+
+    def rename_onto_a_folder(*args, **kwargs):
+        raise IsADirectoryError(errno.EISDIR, "Is a directory", str(tmp_path / "o" / ".gs-x.part.csv"),
+                                None, str(target))
+    monkeypatch.setattr(writers, "write_landmarks_csv", rename_onto_a_folder)
+    line = one_error_line(capsys, *SMALL_RUN, "--out", tmp_path / "o")
+    assert line == f"graphslam: error: {target} is a folder; an output file of that name cannot be written"
