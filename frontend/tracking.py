@@ -531,7 +531,10 @@ class Tracker:
         placed by each track's last motion; the windows move by this change. A weak
         correlation peak (a scene that does not move as one) changes nothing."""
         H, W = image.shape
-        f = max(1, W // IMAGE_MOTION_WIDTH_PX)
+        f = max(1, min(W // IMAGE_MOTION_WIDTH_PX, H // 2))  # a strip keeps 2 rows
+        if W // f < 2 or H // f < 2:  # a Hanning window needs 2 pixels a side
+            self._small, self._jerk = None, np.zeros(2)
+            return
         small = cv2.GaussianBlur(
             cv2.resize(image, (W // f, H // f), interpolation=cv2.INTER_AREA).astype(np.float32), (0, 0), 1.0
         )

@@ -212,3 +212,16 @@ def test_bad_configuration_is_refused():
 def test_config_refuses_a_bad_value_naming_it(field, value):
     with pytest.raises(ConfigError, match=rf"^tracker\.{field}\b"):
         TrackerConfig(**{field: value})
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 640), (640, 1), (2, 2), (3, 2000)])
+@pytest.mark.parametrize("detector", ["harris", "orb", "fpga"])
+def test_images_too_small_to_correlate_are_tracked_without_an_opencv_error(shape, detector):
+    """Third hostile pass: a folder of 1x1 (or 1x640) images crashed the image-motion
+    measure (OpenCV's Hanning window needs 2 pixels a side; a strip reduced to 0 rows);
+    such images now give no motion measure and, having no corner, no track."""
+    rng = np.random.default_rng(0)
+    tracker = Tracker(TrackerConfig(detector=detector))
+    for _ in range(3):
+        r = tracker.track(rng.integers(0, 256, shape).astype(np.uint8))
+    assert len(r.observations.track_ids) == 0
