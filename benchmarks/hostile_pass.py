@@ -262,7 +262,145 @@ def attacks() -> list[Attack]:
         Attack("convert of a graph with a self-edge says so", "silent",
                lambda f: ["convert", str(_w(f, "s.g2o", _chain_g2o(2) + "EDGE_SE2 1 1 0.5 0 0 1 0 0 1 0 1\n")),
                           "s.graph"], ("ok",), check=_says("left out")),
+        # ---- the third pass (2026-11-29): localize, vocab, info, eval, config files, MRCLAM,
+        # Plaza, image folders, compare, sweep, output paths (about 200 attacks; these failed)
+        Attack("--rerun-url with an unclosed IPv6 bracket", "fail",
+               lambda f: ["run", "--max-steps", "3", "--quiet", "--out", "out", "--rerun", "connect",
+                          "--rerun-url", "rerun+http://[::1/proxy"]),
+        Attack("--out where trajectory.tum is a folder", "fail",
+               lambda f: (_folder_at(f, "out/trajectory.tum"), _run("synthetic", "--max-steps", "5"))[1]),
+        Attack("--out where run.rrd is a folder (the recording)", "fail",
+               lambda f: (_folder_at(f, "out/run.rrd"),
+                          ["run", "--max-steps", "5", "--quiet", "--out", "out"])[1]),
+        Attack("--save-map where map.json is a folder", "fail",
+               lambda f: (_folder_at(f, "m/map.json"), _run("synthetic", "--max-steps", "5", "--save-map", "m"))[1]),
+        Attack("--write-bag where trajectory.bag is a folder", "fail",
+               lambda f: (_folder_at(f, "out/trajectory.bag"),
+                          _run("synthetic", "--max-steps", "5", "--write-bag"))[1]),
+        Attack("eval --out where eval.json is a folder", "fail",
+               lambda f: (_folder_at(f, "ev/eval.json"), ["eval", *map(str, _tum_pair(f)), "--out", "ev",
+                                                          "--no-plot"])[1]),
+        Attack("compare --out where compare.json is a folder", "fail",
+               lambda f: (_folder_at(f, "cmp/compare.json"),
+                          ["compare", "--max-steps", "5", "--backends", "isam2", "--rerun", "off",
+                           "--out", "cmp"])[1]),
+        Attack("sweep --out where sweep.csv is a folder", "fail",
+               lambda f: (_folder_at(f, "sw/sweep.csv"), ["sweep", str(_w(
+                   f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\nmax_steps = 3\n")),
+                   "--out", "sw", "--quiet"])[1]),
+        Attack("localize --out where localize.csv is a folder", "fail",
+               lambda f: (_folder_at(f, "loc/localize.csv"),
+                          ["localize", "--map", str(_room_map(f)), "--dataset", "synthetic-images",
+                           "--frames", "20:23", "--rerun", "off", "--quiet", "--out", "loc"])[1]),
+        Attack("a folder of 1x1 images", "fail",
+               lambda f: _images_run(_tiny_images(f, (1, 1)), "--odometry", "none")),
+        Attack("a folder of 1x640 images", "fail",
+               lambda f: _images_run(_tiny_images(f, (1, 640)), "--odometry", "none")),
+        Attack("--odometry-noise 1e308 1e308", "fail",
+               lambda f: _images_run(DATA / "kitti07", "--odometry", "derived", "--odometry-noise",
+                                     "1e308", "1e308")),
+        Attack("compare --backends isam2 isam2", "silent",
+               lambda f: ["compare", "--max-steps", "5", "--rerun", "off", "--out", "cmp",
+                          "--backends", "isam2", "isam2"]),
+        Attack("sweep seed = [0, 0]", "silent", lambda f: ["sweep", str(_w(
+            f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\nmax_steps = 3\n"
+            "seed = [0, 0]\n")), "--out", "sw", "--quiet", "--no-plots"]),
+        Attack("sweep [sweep.set] with a value listed twice", "silent", lambda f: ["sweep", str(_w(
+            f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\nmax_steps = 3\n"
+            "[sweep.set]\n\"synthetic.sigma_r_m\" = [0.2, 0.2]\n")), "--out", "sw", "--quiet", "--no-plots"]),
+        Attack("eval --align sim3 on 2 poses (any estimate fits)", "silent",
+               lambda f: ["eval", str(_w(f, "gt.tum", "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")),
+                          str(_w(f, "est.tum", "0 0 0 0 0 0 0 1\n1 0 70 9 0 0 0 1\n")),
+                          "--align", "sim3", "--out", "ev", "--no-plot"]),
+        Attack("a 2-frame EKF run without odometry: no Sim(3) ATE of 0", "silent",
+               lambda f: _images_run("synthetic-images", "--backend", "ekf", "--odometry", "none",
+                                     "--frames", "0:2"), ("ok",), check=_ate_not_zero),
+        Attack("eval --times with TUM files (read by none)", "silent",
+               lambda f: ["eval", *map(str, _tum_pair(f)), "--times", str(_w(f, "t.txt", "0\n1\n")),
+                          "--out", "ev", "--no-plot"]),
+        Attack("MRCLAM measurement file of its header only", "silent",
+               lambda f: _run(_mrclam(f, header_only="Robot1_Measurement.dat"), "--max-steps", "20"),
+               ("ok",), check=_says("no sighting")),
+        Attack("MRCLAM without Landmark_Groundtruth.dat", "silent",
+               lambda f: _run(_mrclam(f, drop="Landmark_Groundtruth.dat"), "--max-steps", "20"),
+               ("ok",), check=_says("the map is not scored")),
+        Attack("MRCLAM without Barcodes.dat names it", "silent",
+               lambda f: _run(_mrclam(f, drop="Barcodes.dat"), "--max-steps", "20"),
+               check=_says("Barcodes.dat")),
+        Attack("a KITTI folder without calib.txt names it", "silent",
+               lambda f: _images_run(_kitti_without_calib(f)), check=_says("calib.txt")),
+        Attack("a --ground-truth shorter than the sequence says what it drops", "silent",
+               lambda f: _images_run(DATA / "kitti07", "--backend", "ekf", "--ground-truth", str(_w(
+                   f, "gt.txt", "".join((DATA / "kitti07" / "poses.txt").read_text().splitlines(True)[:3]))),
+                   max_steps=None), ("ok",), check=_says("left out of the run")),
+        Attack("vocab train --branching 10**9 names the option", "silent",
+               lambda f: ["vocab", "train", str(_desk_copy(f, {"01.png": "01.png"})), "--out", "v.npz",
+                          "--branching", str(10**9), "--quiet"], check=_says("--branching")),
+        Attack("vocab train --words 10**12 on one image says the tree is short", "silent",
+               lambda f: ["vocab", "train", str(_desk_copy(f, {"01.png": "01.png"})), "--out", "v.npz",
+                          "--words", str(10**12), "--quiet"], ("ok",), check=_says("the tree has")),
     ]
+
+
+def _folder_at(folder: Path, name: str) -> None:
+    """A folder where a command writes a file of that name."""
+    (folder / name).mkdir(parents=True)
+
+
+def _images_run(dataset, *extra, max_steps: int | None = 5) -> list[str]:
+    """``run`` on an image sequence (``--max-steps``, unless None)."""
+    steps = [] if max_steps is None else ["--max-steps", str(max_steps)]
+    return ["run", "--dataset", str(dataset), "--rerun", "off", "--quiet", "--out", "out", *steps, *extra]
+
+
+def _tiny_images(folder: Path, shape: tuple[int, int]) -> Path:
+    import cv2
+
+    rng = np.random.default_rng(0)
+    (folder / "tiny").mkdir()
+    for k in range(4):
+        cv2.imwrite(str(folder / "tiny" / f"{k:02d}.png"), rng.integers(0, 256, shape).astype(np.uint8))
+    _w(folder, "tiny/intrinsics.txt", f"500 500 {shape[1] / 2} {shape[0] / 2}\n")
+    return folder / "tiny"
+
+
+def _room_map(folder: Path) -> Path:
+    """A map of the first 20 frames of the rendered room (graphslam run --save-map)."""
+    subprocess.run([sys.executable, "-m", "graphslam", "run", "--dataset", "synthetic-images",
+                    "--frames", "0:20", "--save-map", "map", "--rerun", "off", "--quiet", "--out", "r"],
+                   cwd=folder, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True,
+                   capture_output=True, timeout=300)
+    return folder / "map"
+
+
+def _ate_not_zero(folder, out, err):
+    """The Sim(3) ATE row of a 2-frame run is n/a (a 2-point fit is exact), not 0."""
+    row = next((ln for ln in out.splitlines() if ln.strip().startswith("ATE RMSE")), "")
+    return None if row.endswith("n/a") else f"the ATE row reads {row.split()[-1:] or row!r}"
+
+
+def _mrclam(folder: Path, drop: str | None = None, header_only: str | None = None) -> Path:
+    """A copy of MRCLAM Dataset 6 (robot 1), without ``drop`` or with ``header_only``
+    cut to its four header lines."""
+    mr = folder / "mr"
+    mr.mkdir()
+    for name in ("Barcodes.dat", "Landmark_Groundtruth.dat", "Robot1_Odometry.dat",
+                 "Robot1_Measurement.dat", "Robot1_Groundtruth.dat"):
+        if name != drop:
+            (mr / name).write_bytes((DATA / "mrclam6" / name).read_bytes())
+    if header_only is not None:
+        (mr / header_only).write_text("".join((mr / header_only).read_text().splitlines(True)[:4]))
+    return mr
+
+
+def _kitti_without_calib(folder: Path) -> Path:
+    kit = folder / "kit"
+    (kit / "image_0").mkdir(parents=True)
+    for k in range(3):
+        name = f"{k:06d}.png"
+        (kit / "image_0" / name).write_bytes((DATA / "kitti07" / "image_0" / name).read_bytes())
+    _w(kit, "times.txt", "0.0\n0.1\n0.2\n")
+    return kit
 
 
 def _blank_images(folder: Path) -> Path:

@@ -118,6 +118,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     check_rerun_flags(args)
     if args.max_steps is not None and args.max_steps < 1:
         raise GraphSlamError("--max-steps must be at least 1")
+    twice = sorted({name for name in args.backends or () if args.backends.count(name) > 1})
+    if twice:  # two rows of one name, the same run made twice
+        raise GraphSlamError(f"--backends names {', '.join(twice)} more than once; name each back end once")
     if args.out is not None:  # refused now, not after the runs
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")

@@ -90,7 +90,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     import time
 
     from frontend.orb import OrbDetector
-    from graphslam.cli.common import EXIT_INTERRUPTED
+    from graphslam.cli.common import EXIT_INTERRUPTED, warn
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
     from graphslam.registry import read_config
@@ -125,6 +125,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
         f"images, trained in {wall:.1f} s"
     )
+    if n_desc < args.words:  # a flat k-means refuses this; a tree stops where nodes run dry
+        warn(
+            f"--words {args.words}: only {n_desc} descriptors, the tree has {vocab.n_words_} "
+            "words; more images, or a larger --per-image, give it more"
+        )
     guard = active_guard()
     if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
         print(

@@ -71,6 +71,8 @@ def ate(est_ids, est_wTc, gt_ids, gt_wTc, alignment: str = "se3") -> dict:
     common, est, gt = _common(est_ids, est_wTc, gt_ids, gt_wTc)
     if common.size < 2:
         raise GraphSlamError(f"ATE needs at least 2 common frame ids, got {common.size}")
+    if alignment == "sim3" and common.size < 3:  # 2 points: a Sim(3) fit is exact, the ATE 0
+        raise GraphSlamError("a Sim(3)-aligned ATE needs at least 3 common frames (on 2 the fit is exact)")
     p, q = est[:, :3, 3], gt[:, :3, 3]
     s = 1.0
     if alignment != "none":

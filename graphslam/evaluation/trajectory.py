@@ -156,6 +156,12 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None) -
         T = ref[0] @ invert_pose(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
+    if method == "sim3" and k < 3:
+        # two points and a Sim(3) (7 parameters) always fit exactly: the error would read 0
+        raise GraphSlamError(
+            f"--align sim3 on {k} matched poses fits them exactly (an ATE of 0 whatever the "
+            "estimate); it needs at least 3: use --align se3 or first"
+        )
     line = on_one_line(ref[:k, :3, 3], "reference", method)
     line = on_one_line(est[:k, :3, 3], "estimate", method) or line
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")

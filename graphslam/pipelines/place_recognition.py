@@ -67,6 +67,14 @@ def tree_depth(n_words: int, branching: int) -> int:
     return depth
 
 
+#: Largest ``--branching`` of a vocabulary tree: each node runs a k-means of that many
+#: centres on at most ``VocabularyTree.max_node_samples`` (5000) descriptors, so past a
+#: thousand a node has a handful of descriptors a centre (DBoW's trees use 10); 10^9
+#: was refused by the tree as "max_node_samples must be ... >= 1000000000", an option
+#: the command does not have.
+MAX_BRANCHING = 1000
+
+
 def train_vocabulary(
     descriptors: list[np.ndarray],
     n_words: int,
@@ -84,8 +92,8 @@ def train_vocabulary(
 
     if n_words < 2:
         raise ConfigError(f"--words must be at least 2, got {n_words}")
-    if branching < 2:
-        raise ConfigError(f"--branching must be at least 2, got {branching}")
+    if not 2 <= branching <= MAX_BRANCHING:
+        raise ConfigError(f"--branching must be at least 2 and at most {MAX_BRANCHING}, got {branching}")
     if per_image < 0:
         raise ConfigError(f"--per-image must be >= 0, got {per_image}")
     train = [d[:per_image] if per_image else d for d in descriptors]

@@ -82,10 +82,12 @@ class OdometryNoiseConfig:
 
     SECTION: ClassVar[str] = "odometry_noise"
 
-    # the floor and the rotation sigma must be > 0: a zero covariance cannot weigh a factor
-    sigma_t_per_m: float = bounded(0.02, min=0.0)
-    min_sigma_t_m: float = bounded(0.001, gt=0.0)
-    sigma_r_deg: float = bounded(0.1, gt=0.0)
+    # the floor and the rotation sigma must be > 0: a zero covariance cannot weigh a factor;
+    # above: 100 times the distance, a kilometre, half a turn a frame are no odometry
+    # (1e308 drew an infinite rotation, a traceback in the exponential map)
+    sigma_t_per_m: float = bounded(0.02, min=0.0, max=100.0)
+    min_sigma_t_m: float = bounded(0.001, gt=0.0, max=1000.0)
+    sigma_r_deg: float = bounded(0.1, gt=0.0, max=180.0)
     seed: int = bounded(0, min=0)
 
     def __post_init__(self):

@@ -195,7 +195,18 @@ def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
         raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {value!r}", cfg.path, line)
     if not value:
         raise ConfigError(f"[sweep] {key} is empty: the grid has no run", cfg.path, line)
+    _refuse_repeats(value, f"[sweep] {key}", cfg, line)
     return value
+
+
+def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) -> None:
+    """ConfigError naming the first value ``values`` holds twice: the grid runs it once,
+    so a list of n values would give fewer than n runs without a word."""
+    seen: list = []
+    for v in values:
+        if v in seen:
+            raise ConfigError(f"{what} lists {v!r} twice; each value is run once", cfg.path, line)
+        seen.append(v)
 
 
 def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
@@ -268,6 +279,7 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
                 cfg.path,
                 line,
             )
+        _refuse_repeats(options, f"[sweep.set] {dotted}", cfg, line)
         for value in options:
             try:
                 from_dict(cls, {key: value})

@@ -19,6 +19,7 @@ from pathlib import Path
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.evaluation.trajectory import EvalOptions, TrajectoryEval, evaluate
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
+from slamcore.errors import ConfigError
 
 
 @dataclass
@@ -81,13 +82,17 @@ def evaluate_files(
 ) -> list[EstimateResult]:
     """Score every estimate against ``ground_truth`` (same format and times options)."""
     ref = load(ground_truth, fmt, times)
-    out = []
-    for path, label in zip(estimates, distinct_labels(estimates), strict=True):
-        est = load(path, fmt, times)
-        out.append(
-            EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options), label)
-        )
-    return out
+    loaded = [
+        (path, label, load(path, fmt, times))
+        for path, label in zip(estimates, distinct_labels(estimates), strict=True)
+    ]
+    if times is not None and all(t.format != "kitti" for t in [ref] + [t for _, _, t in loaded]):
+        # the files have their own stamps: a times file that changes nothing is refused
+        raise ConfigError("--times gives KITTI files their stamps; none of these files is KITTI", times)
+    return [
+        EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options), label)
+        for path, label, est in loaded
+    ]
 
 
 def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:

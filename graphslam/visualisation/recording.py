@@ -64,11 +64,11 @@ def parse_viewer_url(url: str) -> tuple[str, int]:
             URL with a host and the ``/proxy`` path (what the SDK would refuse
             only after the run).
     """
-    parts = urlsplit(url.strip())
     try:
+        parts = urlsplit(url.strip())
         port = parts.port
-    except ValueError:
-        port = -1
+    except ValueError:  # "Invalid IPv6 URL" (an unclosed '['), a port out of range
+        parts, port = urlsplit(""), -1
     if (
         parts.scheme not in VIEWER_URL_SCHEMES
         or not parts.hostname

@@ -66,9 +66,16 @@ def _load_sequence(args, config):
 
     sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config, topics=args.topics)
     if args.ground_truth is not None:
+        from graphslam.cli.common import warn
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
+        n_frames = len(sequence)
         sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
+        if len(sequence) < n_frames:  # the frames without truth are dropped: said, not only counted
+            warn(
+                f"--ground-truth {args.ground_truth}: {n_frames - len(sequence)} of {n_frames} "
+                "frames have no ground truth and are left out of the run"
+            )
     if getattr(args, "frames", None) is not None:
         from graphslam.sources.spatial.frames import parse_frames, select_frames
 

@@ -56,6 +56,8 @@ ROBOT_SUBJECTS = range(1, 6)
 TRUTH_MAX_GAP_S = 0.5
 #: Prior on the first pose (variance, m^2 and rad^2): the start is known.
 PRIOR_VARIANCE = 1e-6
+#: The note of a data set without ``Landmark_Groundtruth.dat`` (the file is optional).
+NO_LANDMARK_TRUTH = "no Landmark_Groundtruth.dat: the map is not scored"
 
 
 @dataclass(frozen=True)
@@ -196,7 +198,9 @@ class MrclamConfig:
 def is_mrclam_folder(path) -> bool:
     """Whether ``path`` is a folder holding an MRCLAM data set."""
     p = Path(path)
-    return p.is_dir() and (p / "Barcodes.dat").is_file() and any(p.glob("Robot*_Odometry.dat"))
+    # either file says MRCLAM: a folder missing the other is read as one, and refused
+    # naming what it lacks (not as an image folder "without images")
+    return p.is_dir() and ((p / "Barcodes.dat").is_file() or any(p.glob("Robot*_Odometry.dat")))
 
 
 def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:
@@ -290,6 +294,8 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
     odo, meas, truth = read_robot(folder, config.robot)
     track = robot_track(config, config.robot, odo, meas, truth, barcodes)
     track.notes.insert(0, f"robot {config.robot}")
+    if not landmarks_true:
+        track.notes.append(NO_LANDMARK_TRUTH)
     if track.robot_sightings:
         track.notes.append(
             f"{len(track.robot_sightings)} sightings of other robots left out (single-robot run)"
@@ -426,6 +432,8 @@ def robot_track(
     integrated between them. With ``extra_times`` (several robots in one graph), also
     at this robot's sightings of the others and at ``extra_times`` (when they see it)."""
     notes = []
+    if len(meas) == 0:  # a landmark-SLAM run on odometry alone: said, not only as 0 landmarks
+        notes.append(f"robot {n}: Robot{n}_Measurement.dat holds no sighting (odometry only)")
     subject = np.array([barcodes.get(int(c), 0) for c in meas[:, 1]], dtype=np.int64)
     unknown = subject == 0
     if unknown.any():

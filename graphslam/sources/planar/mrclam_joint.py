@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.planar.mrclam import (
+    NO_LANDMARK_TRUTH,
     PRIOR_VARIANCE,
     MrclamConfig,
     landmark_observations,
@@ -122,6 +123,8 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         for n, tr in tracks.items()
     )
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
+    if not landmarks_true:
+        notes.append(NO_LANDMARK_TRUTH)
     return Dataset(
         name=f"{folder.name}-all",
         frames=frames,

@@ -305,4 +305,11 @@ def read_image_sequence(path: str | Path, **kw) -> ImageSequence:
         return read_tum_rgbd(path, **kw)
     if (path / "calib.txt").is_file() and any(path.glob("image_[0-9]")):
         return read_kitti(path, **kw)
+    kitti_images = [p for p in sorted(path.glob("image_[0-9]")) if p.is_dir()]
+    if kitti_images and not list_images(path):  # said as what it is, not "no images"
+        raise InputError(
+            f"a KITTI sequence ({kitti_images[0].name}/) without calib.txt: its camera "
+            "matrices (lines P0: ... P3:) are needed",
+            path / "calib.txt",
+        )
     return read_image_folder(path, **kw)

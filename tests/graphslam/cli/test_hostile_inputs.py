@@ -220,3 +220,37 @@ def test_compare_every_robot_runs_only_what_holds_them(tmp_path, capsys):
     assert main(["compare", "--dataset", str(MRCLAM), "--robot", "all", "--max-steps", "5",
                  "--rerun", "off", "--out", str(tmp_path / "d")]) == 0
     assert "comparing isam2 only" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ third hostile pass
+
+@pytest.mark.parametrize("backends", [["isam2", "isam2"], ["isam2", "ekf", "isam2"]])
+def test_compare_refuses_a_back_end_named_twice(tmp_path, capsys, backends):
+    """It ran the same back end twice, two identical rows under one name."""
+    line = one_error_line(capsys, ["compare", "--max-steps", "5", "--rerun", "off",
+                                   "--out", tmp_path / "o", "--backends", *backends])
+    assert "--backends names isam2 more than once" in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.skipif(not DESK.is_dir(), reason="desk photos not available")
+def test_vocab_branching_beyond_its_bound_names_the_option(tmp_path, capsys):
+    """--branching 10^9 was refused as "max_node_samples must be ... >= 1000000000", an
+    option the command does not have."""
+    line = one_error_line(capsys, ["vocab", "train", DESK / "01.png", "--out", tmp_path / "v.npz",
+                                   "--branching", str(10**9), "--quiet"])
+    assert "--branching must be at least 2 and at most 1000" in line
+
+
+@pytest.mark.skipif(not DESK.is_dir(), reason="desk photos not available")
+def test_vocab_tree_with_fewer_words_than_asked_warns(tmp_path, capsys):
+    """A flat vocabulary refuses more words than descriptors; a tree gave 253 of 10^12 with
+    the number in the summary only. A tree a little short of its words (928 of 1000 on
+    3000 descriptors) is no warning."""
+    assert main(["vocab", "train", str(DESK / "01.png"), "--out", str(tmp_path / "v.npz"),
+                 "--words", str(10**12), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "graphslam: warning: --words 1000000000000: only 300 descriptors, the tree has" in err
+    assert main(["vocab", "train", str(DESK / "01.png"), "--out", str(tmp_path / "w.npz"),
+                 "--words", "20", "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -109,6 +109,15 @@ def test_malformed_url_is_refused_before_any_work(tmp_path):
     assert recording.parse_viewer_url(recording.DEFAULT_VIEWER_URL) == ("127.0.0.1", 9876)
 
 
+@pytest.mark.parametrize("url", ["rerun+http://[::1/proxy", "rerun+http://[::1]:99999/proxy",
+                                 "rerun+http://127.0.0.1:-1/proxy"])
+def test_url_urllib_refuses_is_a_config_error(url):
+    """Third hostile pass: an unclosed IPv6 bracket made urlsplit raise ValueError (a
+    traceback); every URL urllib cannot split is the same one-line refusal."""
+    with pytest.raises(ConfigError, match="is not like"):
+        recording.parse_viewer_url(url)
+
+
 # --------------------------------------------------------------------------- ground truth
 
 def _kitti_layout(tmp_path: Path, with_poses: bool = True) -> Path:
@@ -142,6 +151,22 @@ def test_kitti_frames_copied_out_take_their_own_rows(tmp_path):
     full = read_image_sequence(KITTI07)
     np.testing.assert_allclose(seq.wTc_true, full.wTc_true[3:6])
     np.testing.assert_allclose(seq.stamps_s, full.stamps_s[3:6])
+
+
+@needs_kitti
+def test_ground_truth_that_drops_frames_says_so(tmp_path, capsys):
+    """Third hostile pass: a --ground-truth of 3 lines cut a 160-frame KITTI run to 3
+    frames, the summary's frame count the only trace."""
+    (tmp_path / "gt.txt").write_text("".join((KITTI07 / "poses.txt").read_text().splitlines(True)[:3]))
+    assert main(["run", "--dataset", str(KITTI07), "--backend", "ekf", "--rerun", "off", "--quiet",
+                 "--out", str(tmp_path / "o"), "--ground-truth", str(tmp_path / "gt.txt")]) == 0
+    err = capsys.readouterr().err
+    assert (f"graphslam: warning: --ground-truth {tmp_path / 'gt.txt'}: 157 of 160 frames have no "
+            "ground truth and are left out of the run") in err
+    assert main(["run", "--dataset", str(KITTI07), "--backend", "ekf", "--rerun", "off", "--quiet",
+                 "--max-steps", "3", "--out", str(tmp_path / "p"), "--ground-truth",
+                 str(KITTI07 / "poses.txt")]) == 0
+    assert "warning" not in capsys.readouterr().err  # a whole truth drops nothing
 
 
 @needs_kitti

@@ -88,3 +88,13 @@ def test_times_out_of_order_names_plain_numbers(tmp_path, capsys, shared_data):
     assert code == 2
     tr.one_error(err, "times.txt:51", f"{float(lines[50])} is not after {float(lines[49])} of line 50")
     assert "np." not in err
+
+
+def test_a_times_file_no_kitti_file_takes_is_refused(tmp_path, capsys):
+    """Third hostile pass: --times with TUM files was read by nobody (exit 0, no word)."""
+    gt, est = tr.write_pair(tmp_path, "tum")
+    times = tmp_path / "times.txt"
+    times.write_text("".join(f"{k}\n" for k in range(len(gt.read_text().splitlines()))))
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, est, "--times", times)
+    assert code == 2
+    tr.one_error(err, str(times), "--times gives KITTI files their stamps; none of these files is KITTI")

@@ -139,6 +139,20 @@ def test_static_reference_refused(tmp_path, capsys, align):
     tr.one_error(err, "reference", "does not move")
 
 
+def test_sim3_on_two_matched_poses_is_refused(tmp_path, capsys):
+    """Third hostile pass: a Sim(3) fit of 2 positions is exact, so any estimate of two
+    poses scored an ATE of 0.0000 (exit 0, no word)."""
+    t, wTc = tr.trajectory(2, estimate=False)
+    far = wTc.copy()
+    far[:, :3, 3] *= 100.0  # 100 times the reference's path: still "0" before
+    gt = _tum(tmp_path / "gt.txt", t, wTc)
+    est = _tum(tmp_path / "est.txt", t, far)
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, est, "--align", "sim3")
+    assert code == 2
+    tr.one_error(err, "--align sim3 on 2 matched poses", "at least 3")
+    assert tr.run_eval(tmp_path, capsys, gt, est, "--align", "se3")[0] == 0  # se3 keeps the distance
+
+
 def test_umeyama_sim3_onto_a_point_refused():
     src = np.random.default_rng(0).normal(size=(10, 3))
     with pytest.raises(GraphSlamError, match="does not move"):

@@ -132,3 +132,16 @@ def test_path_length_of_a_unit_square():
     assert metrics3d.path_length(T[:1]) == 0.0
     assert metrics3d.percent_of(0.04, 4.0) == pytest.approx(1.0)
     assert metrics3d.percent_of(None, 4.0) is None
+
+
+def test_sim3_ate_of_two_frames_is_refused_not_zero():
+    """Third hostile pass: a visual run placing 2 frames (EKF, --odometry none) printed a
+    Sim(3)-aligned ATE of 0 whatever its estimate; the pipeline now says n/a."""
+    ids = np.arange(2)
+    gt = np.stack([np.eye(4), np.eye(4)])
+    gt[1, 0, 3] = 1.0
+    est = gt.copy()
+    est[1, :3, 3] = [0.0, 50.0, 3.0]
+    with pytest.raises(GraphSlamError, match="at least 3 common frames"):
+        metrics3d.ate(ids, est, ids, gt, alignment="sim3")
+    assert metrics3d.ate(ids, est, ids, gt, alignment="se3")["rmse_m"] > 1.0

@@ -117,6 +117,12 @@ max_steps = 7
      5, "not a section.key that these runs read"),
     ('[sweep]\ndataset = ["synthetic-images"]\nbackend = ["ekf"]\n[sweep.set]\n"active_search.order" = ["random"]\n',
      5, "active_search.order"),
+    # third hostile pass: a value listed twice ran once, the grid smaller than written
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseed = [0, 1, 0]\n', 4, "seed lists 0 twice"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf", "ekf"]\n', 3, "backend lists 'ekf' twice"),
+    ('[sweep]\ndataset = ["synthetic", "synthetic"]\nbackend = ["ekf"]\n', 2, "lists 'synthetic' twice"),
+    ('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\n[sweep.set]\n"synthetic.sigma_r_m" = [0.2, 0.2]\n',
+     5, "synthetic.sigma_r_m lists 0.2 twice"),
 ])
 def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, line, words):
     path = _file(tmp_path, text)

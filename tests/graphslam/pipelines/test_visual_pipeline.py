@@ -204,6 +204,10 @@ def _refused(cls, key, value, words):
     ("min_sigma_t_m", 0.0, "must be > 0.0"),  # a zero covariance cannot weigh a factor
     ("sigma_r_deg", 0, "must be > 0.0"),
     ("sigma_r_deg", float("inf"), "finite"),
+    # third hostile pass: --odometry-noise 1e308 1e308 drew an infinite rotation (a traceback)
+    ("sigma_r_deg", 1e308, "<= 180.0"),
+    ("sigma_t_per_m", 1e308, "<= 100.0"),
+    ("min_sigma_t_m", 1e308, "<= 1000.0"),
     ("seed", -1, "must be >= 0"),
     ("seed", 1.5, "expected an integer"),
 ])

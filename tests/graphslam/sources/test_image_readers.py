@@ -79,6 +79,15 @@ def test_kitti_fake_camera1_and_mismatch(tmp_path):
         read_kitti(folder)
 
 
+def test_kitti_without_calib_is_refused_as_kitti(tmp_path):
+    """Third hostile pass: a KITTI folder without calib.txt was read as a plain folder
+    and refused as one "without images"; the line names the missing calib.txt."""
+    folder = _fake_kitti(tmp_path)
+    (folder / "calib.txt").unlink()
+    with pytest.raises(InputError, match=r"calib.txt: a KITTI sequence \(image_0/\) without calib.txt"):
+        read_image_sequence(folder)
+
+
 def test_kitti_malformed_line(tmp_path):
     folder = _fake_kitti(tmp_path)
     (folder / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 x 0 0 0 1 0\n")

@@ -282,6 +282,29 @@ def test_a_robot_the_folder_does_not_hold_is_named(mrclam, tmp_path):
         MrclamConfig(robot=6)
 
 
+def test_a_log_without_sightings_or_landmark_truth_says_so(mrclam, tmp_path):
+    """Third hostile pass: a Measurement file of its header only ran landmark SLAM on
+    odometry alone, and a folder without Landmark_Groundtruth.dat left the map unscored,
+    each without a word (0 landmarks, no map rows)."""
+    folder = _copy(mrclam, tmp_path)
+    meas = folder / "Robot1_Measurement.dat"
+    meas.write_text("".join(meas.read_text().splitlines(True)[:4]))  # the 4 header lines
+    (folder / "Landmark_Groundtruth.dat").unlink()
+    notes = read_mrclam(folder, MrclamConfig(robot=1)).notes
+    assert "robot 1: Robot1_Measurement.dat holds no sighting (odometry only)" in notes
+    assert "no Landmark_Groundtruth.dat: the map is not scored" in notes
+
+
+def test_a_folder_without_barcodes_is_refused_as_mrclam(mrclam, tmp_path, capsys):
+    """Third hostile pass: without Barcodes.dat the folder was taken for an image folder
+    and refused as one "without images"; the line now names the missing file."""
+    folder = _copy(mrclam, tmp_path)
+    (folder / "Barcodes.dat").unlink()
+    line = _one_line_error(capsys, "run", "--dataset", str(folder), "--rerun", "off",
+                           "--out", str(tmp_path / "o"))
+    assert "Barcodes.dat" in line and "no images" not in line
+
+
 def _one_line_error(capsys, *argv) -> str:
     rc = main(list(argv))
     err = capsys.readouterr().err.strip().splitlines()
