@@ -333,6 +333,10 @@ def attacks() -> list[Attack]:
                lambda f: _images_run(DATA / "kitti07", "--backend", "ekf", "--ground-truth", str(_w(
                    f, "gt.txt", "".join((DATA / "kitti07" / "poses.txt").read_text().splitlines(True)[:3]))),
                    max_steps=None), ("ok",), check=_says("left out of the run")),
+        Attack("sweep with seeds over a pose-graph solve is refused before any run", "silent",
+               lambda f: (_w(f, "g.g2o", _chain_g2o(3)), ["sweep", str(_w(
+                   f, "s.toml", "[sweep]\ndataset = [\"g.g2o\"]\nbackend = [\"isam2\"]\nseed = [0, 1]\n")),
+                   "--out", "sw", "--quiet"])[1], check=_says("pose-graph solve")),
         Attack("vocab train --branching 10**9 names the option", "silent",
                lambda f: ["vocab", "train", str(_desk_copy(f, {"01.png": "01.png"})), "--out", "v.npz",
                           "--branching", str(10**9), "--quiet"], check=_says("--branching")),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from graphslam.cli.common import add_command, add_topics_option, path_arg
+from slamcore.errors import ConfigError
 
 
 def register(sub) -> None:
@@ -32,6 +33,9 @@ def cmd_info(args: argparse.Namespace) -> int:
         "read by --dataset: "
         + (", ".join(f"{r} {t}" for r, t in roles.items()) if isinstance(roles, dict) else roles)
     )
+    if args.topics is not None and not isinstance(roles, dict):
+        # the listing is printed; the check the --topics asked for failed: a script sees it
+        raise ConfigError(f"--topics {args.topics}: {roles.removeprefix('nothing (').removesuffix(')')}")
     return 0
 
 

@@ -234,6 +234,8 @@ def load_map(folder) -> SpatialMap:
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
     if not np.all(np.isfinite(K)):
         raise InputError("damaged map.json (camera K not finite)", folder / MAP_JSON)
+    if min(size) < 1:  # else blamed on the images a localisation compares with it
+        raise InputError(f"damaged map.json (camera image_size {width}x{height})", folder / MAP_JSON)
     _check_detectors(doc["meta"], folder / MAP_JSON)
     smap = SpatialMap(
         K=K,

@@ -230,6 +230,24 @@ def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
     return out
 
 
+def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[str], cfg: ConfigFile) -> None:
+    """ConfigError when seeds are listed and a run of the grid is a pose-graph solve: it
+    draws no random numbers, so each of its runs would fail on ``--seed`` (as ``graphslam
+    run`` refuses it), after the sweep had started."""
+    from graphslam.registry import is_pose_graph_run
+
+    if seeds == (None,):
+        return
+    for dataset, backend in itertools.product(datasets, backends):
+        if is_pose_graph_run(dataset, backend):
+            raise ConfigError(
+                f"[sweep] seed: {backend} on {dataset} is a pose-graph solve, which draws no "
+                "random numbers; sweep such files without seed (or in a sweep of their own)",
+                cfg.path,
+                cfg.line_of("sweep", "seed"),
+            )
+
+
 def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     value = sweep.get("seed")
     line = cfg.line_of("sweep", "seed")
@@ -377,5 +395,6 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         grid_sections.update(run_sections(d, b))
     keys, values = _check_set(sweep, cfg, grid_sections)
     seeds = _seeds(sweep, cfg)
+    _refuse_seeds_of_solves(seeds, datasets, backends, cfg)
     _check_size(sweep, cfg, len(datasets) * len(backends) * len(seeds), values)
     return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps, nees, base, keys, values)

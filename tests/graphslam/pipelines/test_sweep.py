@@ -135,6 +135,21 @@ def test_bad_sweep_file_is_refused_with_file_and_line(tmp_path, capsys, text, li
     assert not (tmp_path / "o").exists()  # refused before any run
 
 
+def test_seeds_on_a_pose_graph_solve_are_refused_before_any_run(tmp_path, capsys):
+    """A pose-graph solve draws no random numbers (run refuses --seed on it): seeds in a sweep
+    of one were every run's failure; a filter streaming the same file takes them."""
+    (tmp_path / "g.g2o").write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+                                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    path = _file(tmp_path, '[sweep]\ndataset = ["g.g2o"]\nbackend = ["isam2"]\nseed = [0, 1]\n')
+    with pytest.raises(ConfigError) as e:
+        parse_sweep(path)
+    assert e.value.line == 4 and "isam2 on" in str(e.value) and "pose-graph solve" in str(e.value)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    streamed = _file(tmp_path, '[sweep]\ndataset = ["g.g2o"]\nbackend = ["fastslam1"]\nseed = [0, 1]\n')
+    assert [r.seed for r in parse_sweep(streamed).runs()] == [0, 1]
+
+
 #: A dataset that exists (a sweep checks that first) and fails in its run.
 BAD_GRAPH = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 oops 0 0\n"
 

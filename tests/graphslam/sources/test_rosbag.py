@@ -245,6 +245,17 @@ def test_info_lists_topics(tmp_path, capsys, kind):
                       "truth /ground_truth/pose")
 
 
+def test_info_with_topics_that_pick_nothing_lists_then_fails(tmp_path, capsys):
+    """Without --topics a listing is never refused; with it, the check it asks for fails
+    with exit 2 and one error line after the table (a script checking a bag sees it)."""
+    bag = write_kitti_bag(bag_path(tmp_path, "ros1"), "ros1")
+    assert main(["info", str(bag), "--topics", "image=/nosuch"]) == 2
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].split()[0] == "topic" and "no such topic" in out
+    (line,) = err.strip().splitlines()
+    assert line.startswith("graphslam: error: --topics image=/nosuch: ") and "no such topic" in line
+
+
 def test_info_refuses_what_is_not_a_bag(tmp_path, capsys):
     line = one_error_line(capsys, ["info", KITTI07])
     assert "not a ROS bag" in line
