@@ -379,11 +379,24 @@ def check_topics_flag(spec: str, topics: str | None) -> None:
 
 
 def load_image_sequence(
-    spec: str, *, seed: int | None = None, config: ConfigSource = None, topics: str | None = None
+    spec: str,
+    *,
+    seed: int | None = None,
+    config: ConfigSource = None,
+    topics: str | None = None,
+    intrinsics: str | Path | None = None,
 ):
     """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``), ROS
-    bag (``topics``: the ``--topics`` text, ``role=topic,...``) or folder."""
+    bag (``topics``: the ``--topics`` text, ``role=topic,...``) or folder (``intrinsics``:
+    an intrinsics file for a plain or TUM folder, ``--intrinsics``)."""
     check_topics_flag(spec, topics)
+    if intrinsics is not None and (spec == "synthetic-images" or is_bag_dataset(spec)):
+        where = (
+            "the synthetic sequence renders with its own camera"
+            if spec == "synthetic-images"
+            else "a bag's camera is its camera_info topic, or an intrinsics file beside the bag"
+        )
+        raise ConfigError(f"--intrinsics applies to image folders: {where}")
     if is_bag_dataset(spec):
         from graphslam.sources.spatial.rosbag import parse_topics, read_bag
 
@@ -394,7 +407,7 @@ def load_image_sequence(
         return make_synthetic_images(load_section(SyntheticImagesConfig, config, {"seed": seed}))
     from graphslam.sources.spatial.images import read_image_sequence
 
-    return read_image_sequence(Path(spec))
+    return read_image_sequence(Path(spec), intrinsics_file=intrinsics)
 
 
 def visual_backend_config(name: str) -> type[VisualIsam2Config | MonoEkfConfig]:

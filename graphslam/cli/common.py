@@ -64,6 +64,20 @@ def add_topics_option(parser, help: str = TOPICS_HELP) -> None:
     parser.add_argument("--topics", default=None, metavar="ROLE=TOPIC,...", help=help)
 
 
+#: Help of ``--intrinsics`` where it names an image sequence's camera (run, compare, localize).
+INTRINSICS_HELP = (
+    "camera intrinsics of a plain image folder or a TUM RGB-D folder without its own "
+    "(a file of 'fx fy cx cy', or the 3x3 K, optionally with distortion: see "
+    "graphslam.sources.spatial.calibration); KITTI, EuRoC, bags and the synthetic "
+    "sequence carry their own camera"
+)
+
+
+def add_intrinsics_option(parser, help: str = INTRINSICS_HELP) -> None:
+    """``--intrinsics FILE``: the camera of an image folder."""
+    parser.add_argument("--intrinsics", type=path_arg, default=None, metavar="FILE", help=help)
+
+
 def add_frames_option(parser, help: str) -> None:
     """``--frames START:STOP[:STEP]``: a Python slice of an image sequence."""
     parser.add_argument("--frames", default=None, metavar="START:STOP[:STEP]", help=help)

@@ -11,6 +11,7 @@ from graphslam.cli.common import (
     add_command,
     add_config_option,
     add_dataset_option,
+    add_intrinsics_option,
     add_max_steps_option,
     add_out_dir_option,
     add_rerun_options,
@@ -70,6 +71,7 @@ def register(sub) -> None:
     )
     add_dataset_option(p, "built-in dataset name, pose-graph file or image folder (default: synthetic)")
     add_topics_option(p)
+    add_intrinsics_option(p)
     add_robot_option(
         p, "MRCLAM folders: which robot's log, or all (default: [mrclam] robot of --config, else 1)"
     )
@@ -128,6 +130,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
+    if args.intrinsics is not None and not registry.is_visual_dataset(args.dataset):
+        raise GraphSlamError("--intrinsics applies to image sequences only")
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
 
     if wants_pose_graph_compare(args.dataset, args.backends):
@@ -217,7 +221,9 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
 
     names = args.backends or list(VISUAL_COMPARE_BACKENDS)
     _check_names(names, VISUAL_COMPARE_BACKENDS, "image sequences")
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config, topics=args.topics)
+    sequence = registry.load_image_sequence(
+        args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
+    )
     setup = VisualSetup.read(
         sequence, config, odometry=args.odometry, seed=args.seed, max_frames=args.max_steps
     )

@@ -18,6 +18,7 @@ from graphslam.cli.common import (
     add_command,
     add_config_option,
     add_frames_option,
+    add_intrinsics_option,
     add_out_dir_option,
     add_quiet_option,
     add_rerun_options,
@@ -72,6 +73,7 @@ def register(sub) -> None:
         help="synthetic-images or an image-sequence folder (same camera as the map)",
     )
     add_topics_option(p)
+    add_intrinsics_option(p)
     add_frames_option(p, "localise these frames only (Python slice; 159::-2 plays backwards)")
     add_out_dir_option(p)
     add_config_option(p, "TOML or YAML file ([localize], [loop_pnp], [harris], [orb], ...)")
@@ -105,7 +107,10 @@ def cmd_localize(args: argparse.Namespace) -> int:
     smap = load_map(args.map)
     config = registry.read_config(args.config)
     sequence = select_frames(
-        registry.load_image_sequence(args.dataset, config=config, topics=args.topics), frames
+        registry.load_image_sequence(
+            args.dataset, config=config, topics=args.topics, intrinsics=args.intrinsics
+        ),
+        frames,
     )
     session = LocaliseSession.open(sequence, config, smap, args.dataset)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name

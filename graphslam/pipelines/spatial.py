@@ -30,7 +30,8 @@ Odometry (``VisualRunConfig.odometry``):
 * ``"none"``: the back end's own motion model (constant velocity); only for
   back ends with ``has_motion_model``. Such a monocular run has no metric
   scale: its ATE is Sim(3)-aligned.
-* ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"``.
+* ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"`` when it
+  has ground truth, else ``"none"`` (a folder of photos: the camera alone).
 
 Ctrl-C and SIGTERM are honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
 result then holds what was estimated so far with ``interrupted=True``.
@@ -240,8 +241,8 @@ def resolve_odometry(sequence: ImageSequence, mode: str, noise: OdometryNoiseCon
     """``(mode, odometry (N-1, 4, 4) or None, covariances (N-1, 6, 6) or None, stated noise)``."""
     # only some sequences (synthetic, a bag's, a frame selection of those) carry odometry
     own = getattr(sequence, "odometry", None)
-    if mode == "auto":
-        mode = "sequence" if own is not None else "derived"
+    if mode == "auto":  # a sequence with neither (a folder of photos) runs on the camera alone
+        mode = "sequence" if own is not None else "derived" if sequence.wTc_true is not None else "none"
     if mode == "sequence":
         if own is None:
             raise GraphSlamError(

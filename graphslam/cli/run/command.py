@@ -15,6 +15,7 @@ from graphslam.cli.common import (
     add_config_option,
     add_dataset_option,
     add_frames_option,
+    add_intrinsics_option,
     add_max_steps_option,
     add_out_dir_option,
     add_quiet_option,
@@ -214,7 +215,8 @@ def _add_image_options(vis) -> None:
         help="sequence's own odometry, noisy odometry derived from ground truth, or "
         "none (the camera alone: iSAM2 starts a monocular map and tracks by "
         "PnP, the EKF runs its constant-velocity model); default auto: "
-        "sequence if it has odometry, else derived",
+        "sequence if it has odometry, else derived if it has ground truth, "
+        "else none",
     )
     vis.add_argument(
         "--odometry-noise",
@@ -242,6 +244,7 @@ def _add_image_options(vis) -> None:
         help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)",
     )
     add_topics_option(vis)
+    add_intrinsics_option(vis)
     add_frames_option(
         vis,
         "run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "

@@ -30,7 +30,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
     """Flags that would have no effect on this 2-D run are refused, one line each."""
     from graphslam import registry
 
-    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "frames"):
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "frames", "intrinsics"):
         if getattr(args, flag, None) is not None:
             raise GraphSlamError(f"--{flag.replace('_', '-')} applies to image sequences only")
     if getattr(args, "map", None) is not None:

@@ -18,7 +18,7 @@ OUTPUTS = {"trajectory.tum", "graph.g2o", "graph.graph", "closures.csv", "metric
 
 def refuse_ignored_flags(args: argparse.Namespace) -> None:
     """Flags a pose-graph solve cannot use are refused, one line each."""
-    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "rerun_every", "seed"):
+    for flag in ("frontend", "odometry", "odometry_noise", "vocab", "rerun_every", "seed", "intrinsics"):
         if getattr(args, flag, None) is not None:
             raise ConfigError(
                 f"--{flag.replace('_', '-')} does not apply to a pose-graph "

@@ -64,7 +64,9 @@ def _load_sequence(args, config):
     """The image sequence of ``--dataset``, with ``--ground-truth`` if given."""
     from graphslam import registry
 
-    sequence = registry.load_image_sequence(args.dataset, seed=args.seed, config=config, topics=args.topics)
+    sequence = registry.load_image_sequence(
+        args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
+    )
     if args.ground_truth is not None:
         from graphslam.cli.common import warn
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth

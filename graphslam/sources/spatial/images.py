@@ -94,7 +94,7 @@ from graphslam.sources.spatial.sequence import (
     quat_to_rotation,
     read_lines,
 )
-from slamcore.errors import InputError, quote
+from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import inside_folder
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -164,8 +164,8 @@ def read_tum_rgbd(
         m = re.search(r"freiburg([123])", folder.resolve().name)
         if m is None:
             raise InputError(
-                "no intrinsics: pass intrinsics=(fx, fy, cx, cy) or 'fr1'/'fr2'/'fr3', "
-                f"or add one of {', '.join(INTRINSICS_FILE_NAMES)}",
+                f"no intrinsics: {NO_INTRINSICS_HINT}, or name the folder after its "
+                "camera (rgbd_dataset_freiburg1_..., 2 or 3: TUM's calibrations)",
                 folder,
             )
         fxy, d = TUM_INTRINSICS["fr" + m.group(1)]
@@ -261,6 +261,27 @@ def read_euroc(
 # --------------------------------------------------------------------------- plain folder
 
 
+#: What a folder without a camera needs (said by the plain and the TUM readers).
+NO_INTRINSICS_HINT = (
+    f"pass --intrinsics FILE ('fx fy cx cy', or the 3x3 K) or add one of "
+    f"{', '.join(INTRINSICS_FILE_NAMES)} beside the images"
+)
+
+
+def _images_below(folder: Path) -> str:
+    """``"; its folder X/ holds N: pass that folder"`` for the first subfolder holding
+    images (a data set whose images sit one level down), else ``""``."""
+    try:
+        below = sorted(p for p in folder.iterdir() if p.is_dir())
+    except OSError:
+        return ""
+    for sub in below:
+        n = len(list_images(sub))
+        if n:
+            return f"; its folder {sub.name}/ holds {n}: pass that folder"
+    return ""
+
+
 def read_image_folder(
     folder: str | Path, intrinsics_file: str | Path | None = None, intrinsics=None
 ) -> ImageSequence:
@@ -270,7 +291,7 @@ def read_image_folder(
         raise InputError("image folder not found", folder)
     paths = list_images(folder)
     if not paths:
-        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)})", folder)
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}){_images_below(folder)}", folder)
     if intrinsics is not None:
         K, dist = resolve_intrinsics(intrinsics, folder)
     elif intrinsics_file is not None:
@@ -278,9 +299,7 @@ def read_image_folder(
     elif (f := find_intrinsics_file(folder)) is not None:
         K, dist = read_intrinsics_file(f)
     else:
-        raise InputError(
-            f"no intrinsics: pass intrinsics_file or add one of {', '.join(INTRINSICS_FILE_NAMES)}", folder
-        )
+        raise InputError(f"no intrinsics: {NO_INTRINSICS_HINT}", folder)
     return ImageSequence(
         f"folder-{folder.name}", paths, None, K, dist, None, image_size(paths[0]), str(folder)
     )
@@ -289,21 +308,33 @@ def read_image_folder(
 # --------------------------------------------------------------------------- detection
 
 
-def read_image_sequence(path: str | Path, **kw) -> ImageSequence:
+def read_image_sequence(path: str | Path, intrinsics_file: str | Path | None = None, **kw) -> ImageSequence:
     """Detect the layout of ``path`` and read it.
 
     EuRoC if ``mav0/cam0/data.csv`` (or ``cam0/data.csv``) exists; TUM if
     ``rgb.txt``; KITTI if ``calib.txt`` and an ``image_<c>/`` folder; otherwise
-    a plain image folder. ``kw`` goes to the chosen reader.
+    a plain image folder. ``intrinsics_file`` (``--intrinsics``): the camera of a
+    plain or TUM folder (refused for EuRoC and KITTI, which carry theirs). ``kw``
+    goes to the chosen reader.
     """
     path = Path(path)
     if not path.is_dir():
         raise InputError("image sequence folder not found", path)
-    if (path / "mav0" / "cam0" / "data.csv").is_file() or (path / "cam0" / "data.csv").is_file():
+    euroc = (path / "mav0" / "cam0" / "data.csv").is_file() or (path / "cam0" / "data.csv").is_file()
+    kitti = (path / "calib.txt").is_file() and any(path.glob("image_[0-9]"))
+    if intrinsics_file is not None and (euroc or kitti):
+        # two cameras for one run: the data set's own is the one its poses were made with
+        raise ConfigError(
+            f"--intrinsics: a {'EuRoC' if euroc else 'KITTI'} sequence carries its own camera "
+            f"({'sensor.yaml' if euroc else 'calib.txt'}); it applies to plain and TUM folders"
+        )
+    if euroc:
         return read_euroc(path, **kw)
     if (path / "rgb.txt").is_file():
+        if intrinsics_file is not None:
+            kw["intrinsics"] = Path(intrinsics_file)
         return read_tum_rgbd(path, **kw)
-    if (path / "calib.txt").is_file() and any(path.glob("image_[0-9]")):
+    if kitti:
         return read_kitti(path, **kw)
     kitti_images = [p for p in sorted(path.glob("image_[0-9]")) if p.is_dir()]
     if kitti_images and not list_images(path):  # said as what it is, not "no images"
@@ -312,4 +343,6 @@ def read_image_sequence(path: str | Path, **kw) -> ImageSequence:
             "matrices (lines P0: ... P3:) are needed",
             path / "calib.txt",
         )
+    if intrinsics_file is not None:
+        kw["intrinsics_file"] = intrinsics_file
     return read_image_folder(path, **kw)

@@ -228,6 +228,25 @@ def _topics(cli, key):
             "--topics applies to ROS bags only")
 
 
+@row("run --intrinsics", "compare --intrinsics")
+def _intrinsics(cli, key):
+    photos = SHARED_DATA / "lund_door" / "images"  # photos without a camera file
+    if not photos.is_dir():
+        pytest.skip("Lund door photos missing")
+    f1, f2 = cli.path("f1.txt"), cli.path("f2.txt")
+    f1.write_text("2435.38 2435.38 648 968\n")
+    f2.write_text("2200 2200 648 968\n")
+    if key.startswith("run"):
+        base, name = ["run", "--dataset", str(photos), "--rerun", "off", "--quiet"], "trajectory.tum"
+    else:
+        base, name = ["compare", "--dataset", str(photos), "--backends", "isam2", "--in-process",
+                      "--rerun", "off"], "compare.json"
+    differ(cli(*base, "--intrinsics", str(f1)), cli(*base, "--intrinsics", str(f2)), name)
+    refused(cli(*base), "no intrinsics: pass --intrinsics FILE")
+    refused(cli(*(RUN_2D if key.startswith("run") else COMPARE), "--intrinsics", str(f1)),
+            "--intrinsics applies to image sequences only")
+
+
 @row("run --backend")
 def _run_backend(cli, key):
     differ(cli(*RUN_2D), cli(*RUN_2D, "--backend", "ekf"))

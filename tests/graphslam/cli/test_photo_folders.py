@@ -1,0 +1,140 @@
+"""A folder of photos, as a user brings one: its camera from ``--intrinsics``, the
+camera alone by default (no odometry, no truth to derive one from), and the Lund
+door set from the camera alone against its COLMAP reconstruction."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.sources.spatial.calibration import INTRINSICS_FILE_NAMES
+from slamcore.spatial.geometry import invert_pose, rotation_to_quaternion
+
+#: Lund door from the camera alone against COLMAP, Sim(3)-aligned ATE as a share of the
+#: path: 0.08 % measured (0.011 units over 13.7); 1 % is a loose bound that still fails
+#: a map that lost its scale or a frame (one frame misplaced by a step alone is ~3 %).
+LUND_ATE_SHARE_OF_PATH = 0.01
+
+
+def _one_error_line(capsys, argv) -> str:
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("graphslam: error: "), err
+    return err[0]
+
+
+@pytest.fixture
+def desk_photos(shared_data, tmp_path):
+    src = shared_data / "slambook2_desk" / "images"
+    if not src.is_dir():
+        pytest.skip("desk photos missing")
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for name in ("01.png", "02.png", "03.png"):
+        shutil.copy(src / name, folder / name)
+    return folder
+
+
+def test_a_folder_without_a_camera_names_the_option_and_the_files(capsys, desk_photos, tmp_path):
+    line = _one_error_line(capsys, ["run", "--dataset", desk_photos, "--rerun", "off", "--out", tmp_path / "o"])
+    assert "no intrinsics: pass --intrinsics FILE" in line and INTRINSICS_FILE_NAMES[0] in line
+
+
+def test_a_data_set_whose_images_sit_one_level_down_is_pointed_there(capsys, shared_data, tmp_path):
+    if not (shared_data / "slambook2_desk" / "images").is_dir():
+        pytest.skip("desk photos missing")
+    line = _one_error_line(capsys, ["run", "--dataset", shared_data / "slambook2_desk", "--rerun", "off"])
+    assert line.endswith("its folder images/ holds 10: pass that folder")
+
+
+@pytest.mark.parametrize("dataset, words", [
+    ("kitti07", "a KITTI sequence carries its own camera (calib.txt)"),
+    ("synthetic-images", "the synthetic sequence renders with its own camera"),
+    ("synthetic", "--intrinsics applies to image sequences only"),
+])
+def test_intrinsics_where_the_data_has_its_own_camera_is_refused(capsys, shared_data, tmp_path, dataset, words):
+    spec = shared_data / dataset if dataset == "kitti07" else dataset
+    if dataset == "kitti07" and not spec.is_dir():
+        pytest.skip("KITTI 07 missing")
+    (tmp_path / "K.txt").write_text("500 500 320 240\n")
+    for command in (["run"], ["compare"]):
+        line = _one_error_line(capsys, [*command, "--dataset", spec, "--intrinsics", tmp_path / "K.txt",
+                                        "--rerun", "off", "--out", tmp_path / "o"])
+        assert words in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture
+def lund_colmap(shared_data, tmp_path):
+    """(images folder, intrinsics file, truth TUM file) from the Lund door's COLMAP model."""
+    root = shared_data / "lund_door"
+    if not (root / "colmap_ground_truth" / "images.txt").is_file():
+        pytest.skip("Lund door data missing")
+    cam = [ln.split() for ln in (root / "colmap_ground_truth" / "cameras.txt").read_text().splitlines()
+           if ln.strip() and not ln.startswith("#")][0]
+    assert cam[1] == "SIMPLE_RADIAL"  # f cx cy k: OpenCV's k1 = k
+    f, cx, cy, k = map(float, cam[4:8])
+    (tmp_path / "K.txt").write_text(f"{f} {f} {cx} {cy}\n{k} 0 0 0\n")
+    rows = []
+    lines = [ln for ln in (root / "colmap_ground_truth" / "images.txt").read_text().splitlines()
+             if not ln.startswith("#")]
+    for ln in lines[0::2]:  # image lines alternate with their 2-D point lines
+        p = ln.split()
+        qw, qx, qy, qz, tx, ty, tz = map(float, p[1:8])
+        cTw = np.eye(4)
+        cTw[:3, :3] = _rotation(qw, qx, qy, qz)
+        cTw[:3, 3] = tx, ty, tz
+        wTc = invert_pose(cTw)
+        q = rotation_to_quaternion(wTc[None, :3, :3])[0]  # (qx, qy, qz, qw), TUM's order
+        frame = int(p[9][4:8]) - 1  # DSC_0001.JPG is the folder's frame 0
+        rows.append((frame, *wTc[:3, 3], *q))
+    truth = tmp_path / "colmap.tum"
+    truth.write_text("".join(" ".join(f"{v:.12g}" for v in r) + "\n" for r in sorted(rows)))
+    return root / "images", tmp_path / "K.txt", truth
+
+
+def _rotation(qw, qx, qy, qz) -> np.ndarray:
+    return np.array([
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)]])
+
+
+def test_lund_door_from_the_camera_alone_matches_colmap(lund_colmap, tmp_path, capsys):
+    """No odometry and no truth to derive one: the default run is the camera alone, every
+    frame placed, within 1 % of the path of COLMAP's cameras after a Sim(3) fit."""
+    images, intrinsics, truth = lund_colmap
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", str(images), "--intrinsics", str(intrinsics), "--rerun", "off",
+                 "--quiet", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["odometry"] == "none" and metrics["frames"] == 12
+    assert "WARNING" not in capsys.readouterr().out
+    assert main(["eval", str(truth), str(out / "trajectory.tum"), "--align", "sim3", "--no-plot",
+                 "--out", str(tmp_path / "eval")]) == 0
+    (row,) = json.loads((tmp_path / "eval" / "eval.json").read_text())["estimates"]
+    xyz = np.loadtxt(truth)[:, 1:4]
+    path = np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()
+    assert row["matched_poses"] == 12 and row["ate_rmse_m"] <= LUND_ATE_SHARE_OF_PATH * path
+
+
+def test_intrinsics_give_a_tum_folder_and_a_plain_folder_their_camera(tmp_path):
+    import cv2
+
+    from graphslam.sources.spatial.images import read_image_sequence
+
+    (tmp_path / "K.txt").write_text("400 410 4 3\n")
+    tum, plain = tmp_path / "tum", tmp_path / "plain"
+    (tum / "rgb").mkdir(parents=True)
+    plain.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(tum / "rgb" / f"{k}.png"), np.full((6, 8), 10 * k, np.uint8))
+        cv2.imwrite(str(plain / f"{k}.png"), np.full((6, 8), 10 * k, np.uint8))
+    (tum / "rgb.txt").write_text("".join(f"{100 + 0.1 * k:.1f} rgb/{k}.png\n" for k in range(3)))
+    for folder in (tum, plain):
+        seq = read_image_sequence(folder, intrinsics_file=tmp_path / "K.txt")
+        np.testing.assert_array_equal(seq.K, [[400, 0, 4], [0, 410, 3], [0, 0, 1]])
