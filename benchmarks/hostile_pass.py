@@ -343,7 +343,127 @@ def attacks() -> list[Attack]:
         Attack("vocab train --words 10**12 on one image says the tree is short", "silent",
                lambda f: ["vocab", "train", str(_desk_copy(f, {"01.png": "01.png"})), "--out", "v.npz",
                           "--words", str(10**12), "--quiet"], ("ok",), check=_says("the tree has")),
+        # ---- the fourth pass (silent wrong answers of eval and --ground-truth): a unit,
+        # convention or clock mix-up scored a plausible number, exit 0, without a word
+        Attack("eval of an estimate identical to the truth: ATE 0 exactly", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum")), ("ok",),
+               check=lambda f, o, e: None if json.loads((f / "ev" / "eval.json").read_text())[
+                   "estimates"][0]["ate_rmse_m"] == 0.0 else "the ATE of the truth itself is not 0"),
+        Attack("eval of a TUM estimate written t x y z qw qx qy qz", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", est=True, w_first=True)),
+               ("ok",), check=_says("quaternions read as w x y z")),
+        Attack("eval of a EuRoC CSV estimate with its quaternion x y z w", "silent",
+               lambda f: _eval(_oval(f, "gt.csv", fmt="euroc"), _oval(f, "est.csv", est=True, fmt="euroc",
+                                                                        w_first=True)),
+               ("ok",), check=_says("quaternions read as x y z w")),
+        Attack("eval of KITTI poses inverted (world-to-camera)", "silent",
+               lambda f: _eval(DATA / "kitti07" / "poses.txt", _kitti(f, "inv.txt", lambda T: np.linalg.inv(T))),
+               ("ok",), check=_says("poses inverted")),
+        Attack("eval of a KITTI estimate in millimetres (--align se3)", "silent",
+               lambda f: _eval(DATA / "kitti07" / "poses.txt", _kitti(f, "mm.txt", _times(1000.0))),
+               ("ok",), check=_says("millimetres")),
+        Attack("eval of a KITTI estimate in millimetres (--align sim3 hides it)", "silent",
+               lambda f: _eval(DATA / "kitti07" / "poses.txt", _kitti(f, "mm.txt", _times(1000.0)),
+                               "--align", "sim3"), ("ok",), check=_says("millimetres")),
+        Attack("eval of an estimate at half the size (--align se3, a monocular run)", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", est=True, scale=0.5)),
+               ("ok",), check=_says("--align sim3")),
+        Attack("eval of KITTI keyframes (every other frame) paired by line", "silent",
+               lambda f: _eval(DATA / "kitti07" / "poses.txt", _kitti(f, "key.txt", lambda T: T[::2])),
+               ("ok",), check=_says("pair by line")),
+        Attack("eval of frame indices (0, 1, 2, ...) against times in seconds", "silent",
+               lambda f: _eval(_oval(f, "gt.tum", t0=0.0), _oval(f, "est.tum", est=True, n=40, stamps="index")),
+               ("ok",), check=_says("frame indices")),
+        Attack("eval of TUM files with nanosecond stamps", "silent",
+               lambda f: _eval(_oval(f, "gt.tum", stamps="ns"), _oval(f, "est.tum", est=True, stamps="ns")),
+               ("ok",), check=_says("not seconds")),
+        Attack("eval of nanoseconds against seconds names both spans", "silent",
+               lambda f: _eval(_oval(f, "gt.tum", stamps="ns"), _oval(f, "est.tum", est=True)),
+               check=_says("nanoseconds")),
+        Attack("eval --max-diff 1000 pairing poses twice", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", est=True, t0=1020.0), "--max-diff", "1000"),
+               ("ok",), check=_says("reuse a pose")),
+        Attack("eval --align none of an estimate that never moves", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", scale=0.0), "--align", "none"),
+               ("ok",), check=_says("does not move")),
+        Attack("--ground-truth in seconds for an image folder without times", "silent",
+               lambda f: _images_run(_plain_kitti_folder(f), "--backend", "ekf", "--ground-truth",
+                                     str(_kitti(f, "gt.tum", lambda T: T, tum=True)), max_steps=None),
+               check=_says("not a whole number")),
+        Attack("--ground-truth in seconds for a 2-D pose graph (pose ids)", "silent",
+               lambda f: _run(_w(f, "g.g2o", _chain_g2o(20)), "--ground-truth", str(_oval(f, "gt.tum", t0=0.0))),
+               check=_says("not a whole number")),
+        Attack("--ground-truth in seconds for a 2-D dataset without timestamps", "silent",
+               lambda f: _run(_w(f, "e.g2o", "".join(f"EDGE_SE2 {k} {k + 1} 1 0 0 100 0 0 100 0 1000\n"
+                                                     for k in range(19))),
+                              "--ground-truth", str(_oval(f, "gt.tum", t0=0.0))),
+               check=_says("not a whole number")),
     ]
+
+
+def _eval(gt, est, *extra) -> list[str]:
+    return ["eval", str(gt), str(est), "--out", "ev", "--no-plot", *extra]
+
+
+def _oval(folder: Path, name: str, est: bool = False, n: int = 400, fmt: str = "tum",
+          w_first: bool = False, scale: float = 1.0, t0: float = 1000.0, stamps: str = "s") -> Path:
+    """An oval at 10 Hz from ``t0`` s (the estimate: moved and wobbled) as TUM or EuRoC;
+    ``w_first`` writes the quaternion in the other order than the format's, ``scale``
+    multiplies the positions, ``stamps`` "ns" writes nanoseconds, "index" 0, 1, 2, ..."""
+    from scipy.spatial.transform import Rotation
+
+    k = np.arange(n, dtype=np.float64)
+    a = 2 * np.pi * k / 400
+    p = np.column_stack([60 * np.cos(a), 40 * np.sin(a), 2 * np.sin(3 * a)])
+    rv = np.column_stack([0.05 * np.sin(5 * a), 0.03 * np.cos(7 * a), a + np.pi / 2])
+    if est:
+        p = p + np.column_stack([0.3 * np.sin(1.7 * k), 0.2 * np.cos(2.3 * k), 0.1 * np.sin(k)]) + [5, -3, 1]
+        rv = rv + 0.01 * np.sin(1.3 * k)[:, None]
+    q = Rotation.from_rotvec(rv).as_quat()  # x y z w
+    if (fmt == "tum") == w_first:
+        q = np.roll(q, 1, axis=1)  # w x y z
+    t = {"s": t0 + 0.1 * k, "ns": np.round((t0 + 0.1 * k) * 1e9), "index": k}[stamps]
+    sep = "," if fmt == "euroc" else " "
+    rows = [sep.join([f"{round(ti * 1e9) if fmt == 'euroc' else ti:.{0 if fmt == 'euroc' else 6}f}",
+                      *(f"{v:.9f}" for v in (*(scale * pi), *qi))]) for ti, pi, qi in zip(t, p, q)]
+    return _w(folder, name, "\n".join(rows) + "\n")
+
+
+def _times(factor: float):
+    """Poses with their positions multiplied by ``factor`` (units)."""
+    def scaled(T):
+        T = T.copy()
+        T[:, :3, 3] *= factor
+        return T
+    return scaled
+
+
+def _kitti(folder: Path, name: str, change, tum: bool = False) -> Path:
+    """KITTI 07's truth through ``change`` ((N, 4, 4) -> (M, 4, 4)), as KITTI, or TUM at
+    times.txt's stamps (seconds)."""
+    from scipy.spatial.transform import Rotation
+
+    g = np.loadtxt(DATA / "kitti07" / "poses.txt").reshape(-1, 3, 4)
+    T = np.tile(np.eye(4), (len(g), 1, 1))
+    T[:, :3] = g
+    T = change(T)
+    if not tum:
+        return _w(folder, name, "".join(" ".join(f"{v:.9e}" for v in M[:3].ravel()) + "\n" for M in T))
+    t = np.loadtxt(DATA / "kitti07" / "times.txt")
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+    return _w(folder, name, "".join(f"{ti:.6f} " + " ".join(f"{v:.9f}" for v in (*M[:3, 3], *qi)) + "\n"
+                                    for ti, M, qi in zip(t, T, q)))
+
+
+def _plain_kitti_folder(folder: Path) -> Path:
+    """KITTI 07's first 16 images in a folder of their own: no times.txt, only intrinsics."""
+    imgs = folder / "imgs"
+    imgs.mkdir()
+    for k in range(16):
+        name = f"{k:06d}.png"
+        (imgs / name).write_bytes((DATA / "kitti07" / "image_0" / name).read_bytes())
+    _w(imgs, "intrinsics.txt", "707.0912 707.0912 601.8873 183.1104\n")
+    return imgs
 
 
 def _folder_at(folder: Path, name: str) -> None:

@@ -32,6 +32,10 @@ as evo: association by nearest timestamp within --max-diff (default 0.01 s)
 the "matched" column is matched poses / the estimate's poses; under half
   matched, a warning says the ATE covers those alone. Duplicated stamps are
   refused, unsorted TUM/EuRoC rows sorted, a --times file must increase.
+  Warnings (also in eval.json) say a likely mix-up: another size (units, a
+  monocular estimate under se3), inverted poses, the quaternion order, stamps
+  not in seconds or frame indices, KITTI files of different lengths, poses
+  paired twice by a wide --max-diff.
 
 outputs (in --out): eval.json (one entry per estimate), eval.png
 
@@ -172,7 +176,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
     from graphslam.cli.common import EXIT_OK, warn
     from graphslam.evaluation.trajectory import EvalOptions
-    from graphslam.pipelines.trajectory_eval import coverage_warnings, evaluate_files, write_eval_json
+    from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_output_dir
 
     # refused now, not after scoring
@@ -185,7 +189,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         written.append(plot_trajectory_eval(results, args.out / "eval.png"))
     print(format_table(results))
-    for message in coverage_warnings(results, options):
+    for message in eval_warnings(results, options):
         warn(message)
     print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
     return EXIT_OK

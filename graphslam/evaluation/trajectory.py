@@ -124,8 +124,31 @@ def associate(
     else:
         i_est, i_ref = _nearest(est_t, ref_t - offset, max_diff)
     if not i_ref:
-        raise GraphSlamError(f"no timestamps match within {max_diff} s (offset {offset} s)")
+        raise GraphSlamError(
+            f"no timestamps match within {max_diff} s (offset {offset} s): the reference's stamps run "
+            f"from {_span(ref_t)}, the estimate's from {_span(est_t)}{_unit_hint(ref_t, est_t)}"
+        )
     return np.asarray(i_ref, dtype=np.int64), np.asarray(i_est, dtype=np.int64)
+
+
+#: Stamps beyond this many seconds (3 000 years) are not seconds: milliseconds,
+#: microseconds or nanoseconds since 1970 (1.7e12, 1.7e15, 1.7e18) read as seconds.
+STAMP_MAX_S = 1e11
+
+
+def _span(t: np.ndarray) -> str:
+    return f"{float(np.min(t)):.12g} to {float(np.max(t)):.12g}" if t.size else "(none)"
+
+
+def _unit_hint(*stamps: np.ndarray) -> str:
+    """A clause naming stamps too large to be seconds, or ''."""
+    big = [t for t in stamps if t.size and float(np.max(np.abs(t))) > STAMP_MAX_S]
+    if not big:
+        return ""
+    return (
+        f" (stamps over {STAMP_MAX_S:.0e} are not seconds: nanoseconds, as EuRoC writes them, "
+        "belong in an EuRoC CSV or divided by 1e9 in a TUM file)"
+    )
 
 
 def on_one_line(points: np.ndarray, what: str, method: str) -> bool:
@@ -153,6 +176,8 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None) -
     if method == "none":
         return est, 1.0
     if method == "first":
+        if np.array_equal(est, ref):  # the reference itself: no rounding residue, an ATE of 0
+            return est, 1.0
         T = ref[0] @ invert_pose(est[0])
         return T @ est, 1.0
     k = len(est) if n is None else min(int(n), len(est))
@@ -164,6 +189,8 @@ def align(ref: np.ndarray, est: np.ndarray, method: str, n: int | None = None) -
         )
     line = on_one_line(ref[:k, :3, 3], "reference", method)
     line = on_one_line(est[:k, :3, 3], "estimate", method) or line
+    if np.array_equal(est[:k], ref[:k]):  # the fit is the identity: an ATE of 0, not 1e-15
+        return est, 1.0
     s, R, t = align_umeyama(est[:k, :3, 3], ref[:k, :3, 3], with_scale=method == "sim3")
     est[:, :3, 3] *= s
     T = np.eye(4)
@@ -262,6 +289,10 @@ class TrajectoryEval:
         rpe_trans_m, rpe_rot_deg: per-pair errors.
         reference_poses, estimate_poses: poses in each trajectory before association
             (the matched count is ``len(ref)``).
+        est_matched: (N, 4, 4) the matched estimate poses before alignment (None when
+            not kept), for :mod:`.trajectory_doubts`.
+        shared_matches: matched pairs whose reference or estimate pose is also in
+            another pair (evo's association allows it; a wide ``--max-diff`` does it).
     """
 
     ref: np.ndarray
@@ -276,6 +307,8 @@ class TrajectoryEval:
     kitti_deg_per_100m: float | None
     reference_poses: int
     estimate_poses: int
+    est_matched: np.ndarray | None = None
+    shared_matches: int = 0
 
     @property
     def matched_share(self) -> float:
@@ -321,11 +354,28 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
         stamps = np.asarray(ref_t, dtype=np.float64)[i_ref]
     ref, est = ref_wTc[i_ref], est_wTc[i_est]
     if len(ref) < 2:
-        raise GraphSlamError(f"only {len(ref)} matched pose(s); at least 2 are needed")
+        hint = "" if ref_t is None or est_t is None else _unit_hint(np.asarray(ref_t), np.asarray(est_t))
+        raise GraphSlamError(f"only {len(ref)} matched pose(s); at least 2 are needed{hint}")
+    matched = est
     est, scale = align(ref, est, options.align, options.n_align)
     ate_t, ate_r = ate(ref, est)
     rpe_t, rpe_r = rpe(ref, est, rpe_pairs(est, options.delta, options.delta_unit))
     pct, deg = kitti_drift(ref, est)
+    # a pose of either side paired twice (a --max-diff wider than the gaps between stamps)
+    shared = len(i_ref) - min(np.unique(i_ref).size, np.unique(i_est).size)
     return TrajectoryEval(
-        ref, est, stamps, scale, ate_t, ate_r, rpe_t, rpe_r, pct, deg, len(ref_wTc), len(est_wTc)
+        ref,
+        est,
+        stamps,
+        scale,
+        ate_t,
+        ate_r,
+        rpe_t,
+        rpe_r,
+        pct,
+        deg,
+        len(ref_wTc),
+        len(est_wTc),
+        est_matched=matched,
+        shared_matches=int(shared),
     )

@@ -170,6 +170,9 @@ def ground_truth_of(graph: pg.PoseGraph, truth) -> tuple[np.ndarray, np.ndarray]
     if truth.stamps_s is None:
         row_of = {k: k for k in range(len(truth.wTc))}
     else:
+        from graphslam.sources.ground_truth import check_whole_stamps
+
+        check_whole_stamps(truth, "pose ids", "give TUM with t = pose id, or KITTI (line = pose id)")
         row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist()) if float(t).is_integer()}
     rows = np.array([row_of.get(k, -1) for k in graph.ids.tolist()], dtype=np.int64)
     if not np.any(rows >= 0):

@@ -8,16 +8,22 @@ with the metric keys of :meth:`TrajectoryEval.summary` (null where not
 computable, e.g. the KITTI drift of a path under 100 m), among them
 ``matched_poses``, ``estimate_poses`` and ``matched_share``: the ATE covers the
 matched poses only, and :func:`coverage_warnings` says so when they are few.
+:func:`eval_warnings` adds what makes a score doubtful (a unit, convention or clock
+mix-up: :func:`stamp_doubts` and :mod:`graphslam.evaluation.trajectory_doubts`),
+also kept in ``eval.json`` as the estimate's ``warnings``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
-from graphslam.evaluation.trajectory import EvalOptions, TrajectoryEval, evaluate
+from graphslam.evaluation.trajectory import STAMP_MAX_S, EvalOptions, TrajectoryEval, evaluate
+from graphslam.evaluation.trajectory_doubts import doubts
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
 from slamcore.errors import ConfigError
 
@@ -31,12 +37,15 @@ class EstimateResult:
     #: the shortest end of ``path`` that no other estimate of the same call shares
     #: (``a/trajectory.tum`` and ``b/trajectory.tum``, not two ``trajectory.tum``)
     label: str = ""
+    #: what makes the score doubtful, one sentence each (:func:`eval_warnings`)
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self, options: EvalOptions) -> dict:
         return {
             "estimate": self.path,
             "label": self.label or Path(self.path).name,
             **self.result.summary(),
+            **({"warnings": self.warnings} if self.warnings else {}),
             "options": options.to_dict(),
         }
 
@@ -89,10 +98,50 @@ def evaluate_files(
     if times is not None and all(t.format != "kitti" for t in [ref] + [t for _, _, t in loaded]):
         # the files have their own stamps: a times file that changes nothing is refused
         raise ConfigError("--times gives KITTI files their stamps; none of these files is KITTI", times)
-    return [
-        EstimateResult(str(path), evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options), label)
-        for path, label, est in loaded
-    ]
+    results = []
+    for path, label, est in loaded:
+        result = evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options)
+        said = stamp_doubts(ref, est) + doubts(result, options)
+        results.append(EstimateResult(str(path), result, label, said))
+    return results
+
+
+def _frame_indices(t: np.ndarray | None) -> bool:
+    """Stamps 0, 1, 2, ... (a graphslam trajectory of a sequence without times)."""
+    return t is not None and t.size > 1 and bool(np.array_equal(t, np.arange(t.size, dtype=np.float64)))
+
+
+def stamp_doubts(ref: Trajectory, est: Trajectory) -> list[str]:
+    """Sentences on stamps that pair the wrong poses without failing: KITTI files of
+    different lengths paired by line, stamps too large to be seconds, frame indices
+    against times."""
+    out = []
+    if ref.stamps_s is None and est.stamps_s is None and len(ref.wTc) != len(est.wTc):
+        n = min(len(ref.wTc), len(est.wTc))
+        out.append(
+            f"KITTI files pair by line: the estimate has {len(est.wTc)} poses, the reference "
+            f"{len(ref.wTc)}, so the first {n} of each are taken as the same frames (an estimate "
+            "of some frames only, keyframes, is scored against the wrong poses; give both "
+            "files' times with TUM files, or --times)"
+        )
+    for who, t in (("reference", ref.stamps_s), ("estimate", est.stamps_s)):
+        if t is not None and t.size and float(np.max(np.abs(t))) > STAMP_MAX_S:
+            out.append(
+                f"the {who}'s times reach {float(np.max(np.abs(t))):.4g}: not seconds "
+                "(nanoseconds, milliseconds?); --max-diff and --offset are compared with "
+                "them as seconds"
+            )
+    for who, t, other in (
+        ("estimate", est.stamps_s, ref.stamps_s),
+        ("reference", ref.stamps_s, est.stamps_s),
+    ):
+        if _frame_indices(t) and other is not None and not np.all(np.mod(other, 1.0) == 0):
+            out.append(
+                f"the {who}'s times are 0, 1, 2, ... (frame indices, as graphslam writes a "
+                "sequence without times) and the other file's are not whole numbers: paired "
+                "by time, frame k took the pose at k s"
+            )
+    return out
 
 
 def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:
@@ -109,6 +158,13 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
                 "those alone"
             )
     return out
+
+
+def eval_warnings(results: list[EstimateResult], options: EvalOptions) -> list[str]:
+    """:func:`coverage_warnings`, then each estimate's doubts, named by its label."""
+    return coverage_warnings(results, options) + [
+        f"{r.label or Path(r.path).name}: {w}" for r in results for w in r.warnings
+    ]
 
 
 def write_eval_json(

@@ -170,6 +170,22 @@ def read_times(path: str | Path, trajectory: Trajectory) -> Trajectory:
     return dataclasses.replace(trajectory, stamps_s=stamps)
 
 
+def check_whole_stamps(truth: Trajectory, what: str, hint: str) -> None:
+    """InputError when ``truth``'s time column, read as ``what`` (pose ids, frame
+    indices), holds a number that is not whole: times in seconds were read as ids
+    (truth at 10 Hz from 0 s gave pose k the truth of k s, row 10 k, without a word)."""
+    t = truth.stamps_s
+    if t is None:
+        return
+    bad = np.nonzero(np.mod(t, 1.0) != 0)[0]
+    if bad.size:
+        raise InputError(
+            f"its time column is read as {what}, and {float(t[bad[0]])!r} is not a whole "
+            f"number (times in seconds?); {hint}",
+            truth.path,
+        )
+
+
 def _frame_numbers(sequence: ImageSequence) -> np.ndarray:
     """(N,) frame number per image: the file name's number (KITTI's 000042.png),
     else the position in the sequence."""
@@ -187,6 +203,11 @@ def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarra
     order = np.argsort(truth.stamps_s, kind="stable")
     if sequence.stamps_s is None:
         # no image times: the time column is the frame index (our trajectory.tum)
+        check_whole_stamps(
+            truth,
+            f"frame indices ({sequence.name!r} has no image times)",
+            "give the truth with t = frame index, or the sequence its times",
+        )
         frame_t = np.arange(len(sequence), dtype=np.float64)
         idx = associate(frame_t, truth.stamps_s[order], 0.5)
     else:
@@ -244,6 +265,11 @@ def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray
         idx = associate(t, truth.stamps_s[order], ASSOCIATION_MAX_DT_S)
         rows = np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
     else:
+        check_whole_stamps(
+            truth,
+            f"pose ids ({dataset.name!r} has no timestamps)",
+            "give TUM with t = pose id, or KITTI (line = pose id)",
+        )
         row_of = {}
         for r, s in enumerate(truth.stamps_s):
             if float(s).is_integer():
