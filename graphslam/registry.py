@@ -388,19 +388,16 @@ def load_image_sequence(
 ):
     """Image sequence by name (``synthetic-images``, section ``[synthetic_images]``), ROS
     bag (``topics``: the ``--topics`` text, ``role=topic,...``) or folder (``intrinsics``:
-    an intrinsics file for a plain or TUM folder, ``--intrinsics``)."""
+    an intrinsics file for a plain or TUM folder or a bag without camera_info, ``--intrinsics``)."""
     check_topics_flag(spec, topics)
-    if intrinsics is not None and (spec == "synthetic-images" or is_bag_dataset(spec)):
-        where = (
-            "the synthetic sequence renders with its own camera"
-            if spec == "synthetic-images"
-            else "a bag's camera is its camera_info topic, or an intrinsics file beside the bag"
-        )
-        raise ConfigError(f"--intrinsics applies to image folders: {where}")
     if is_bag_dataset(spec):
         from graphslam.sources.spatial.rosbag import parse_topics, read_bag
 
-        return read_bag(spec, parse_topics(topics))
+        return read_bag(spec, parse_topics(topics), intrinsics_file=intrinsics)
+    if intrinsics is not None and spec == "synthetic-images":
+        raise ConfigError(
+            "--intrinsics applies to image folders and bags: the synthetic sequence has its own camera"
+        )
     if spec == "synthetic-images":
         from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 

@@ -66,10 +66,10 @@ def add_topics_option(parser, help: str = TOPICS_HELP) -> None:
 
 #: Help of ``--intrinsics`` where it names an image sequence's camera (run, compare, localize).
 INTRINSICS_HELP = (
-    "camera intrinsics of a plain image folder or a TUM RGB-D folder without its own "
-    "(a file of 'fx fy cx cy', or the 3x3 K, optionally with distortion: see "
-    "graphslam.sources.spatial.calibration); KITTI, EuRoC, bags and the synthetic "
-    "sequence carry their own camera"
+    "camera intrinsics of a plain image folder, a TUM RGB-D folder or a ROS bag "
+    "without its own (a file of 'fx fy cx cy', or the 3x3 K, optionally with "
+    "distortion: see graphslam.sources.spatial.calibration); KITTI, EuRoC, a bag's "
+    "camera_info and the synthetic sequence carry their own camera"
 )
 
 

@@ -315,17 +315,34 @@ class BagSequence(ImageSequence):
 
 
 def read_bag(
-    spec: str | Path, topics: dict[str, str] | None = None, *, calibrated: bool = True
+    spec: str | Path,
+    topics: dict[str, str] | None = None,
+    *,
+    calibrated: bool = True,
+    intrinsics_file: str | Path | None = None,
 ) -> ImageSequence:
     """The image sequence of the bag ``spec`` (module doc); ``topics``: ``--topics`` names.
-    ``calibrated=False`` (``graphslam loops``): without a camera, ``K`` is None."""
+    ``calibrated=False`` (``graphslam loops``): without a camera, ``K`` is None.
+    ``intrinsics_file`` (``--intrinsics``): the camera of a bag without a camera_info
+    topic (refused beside one: the bag's own camera is the one its images were taken with)."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
         types = {name: info.msgtype for name, info in reader.topics.items()}
         chosen = choose_topics(types, topics or {}, path)
         image_type = types[chosen["image"]]
         index = _index_images(reader, chosen["image"], image_type, path)
-        K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path, calibrated)
+        if intrinsics_file is not None:
+            if "camera_info" in chosen:
+                raise ConfigError(
+                    f"--intrinsics: the bag has a camera_info topic ({chosen['camera_info']}), "
+                    "its images' own camera; --intrinsics is for a bag without one"
+                )
+            from graphslam.sources.spatial.calibration import read_intrinsics_file
+
+            K, dist = read_intrinsics_file(intrinsics_file)
+            notes: tuple = (f"intrinsics: {intrinsics_file} (--intrinsics)",)
+        else:
+            K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path, calibrated)
         truth = odometry = None
         if "truth" in chosen:
             truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)

@@ -53,7 +53,7 @@ def test_a_data_set_whose_images_sit_one_level_down_is_pointed_there(capsys, sha
 
 @pytest.mark.parametrize("dataset, words", [
     ("kitti07", "a KITTI sequence carries its own camera (calib.txt)"),
-    ("synthetic-images", "the synthetic sequence renders with its own camera"),
+    ("synthetic-images", "the synthetic sequence has its own camera"),
     ("synthetic", "--intrinsics applies to image sequences only"),
 ])
 def test_intrinsics_where_the_data_has_its_own_camera_is_refused(capsys, shared_data, tmp_path, dataset, words):

@@ -103,6 +103,29 @@ def test_desk_bag_run_equals_folder_run(tmp_path, capsys, kind):
     assert "intrinsics: " in capsys.readouterr().out
 
 
+def test_intrinsics_give_a_bag_without_camera_info_its_camera(tmp_path, capsys):
+    """--intrinsics FILE from anywhere equals the file beside the bag; beside a
+    camera_info topic (the images' own camera) it is refused in one line."""
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    bag = bag_path(bags, "ros1")
+    photos = sorted(DESK.glob("*.png"))[:4]
+    with BagWriter(bag, "ros1") as w:
+        for k, p in enumerate(photos):
+            w.write("/camera/image/compressed", k * 10**9, w.compressed(k * 10**9, p.read_bytes()))
+    elsewhere = tmp_path / "cam.txt"
+    elsewhere.write_text(DESK_INTRINSICS)
+    flags = ["run", "--rerun", "off", "--quiet", "--backend", "ekf", "--odometry", "none", "--dataset", bag]
+    given = run_files([*flags, "--intrinsics", elsewhere], tmp_path / "a")
+    assert "(--intrinsics)" in capsys.readouterr().out
+    (bags / "intrinsics.txt").write_text(DESK_INTRINSICS)
+    assert run_files(flags, tmp_path / "b") == given
+    with_info = small_bag(bag_path(tmp_path, "ros1"), "ros1")
+    line = one_error_line(capsys, ["run", "--dataset", with_info, "--intrinsics", elsewhere, "--rerun", "off",
+                                   "--out", tmp_path / "c"])
+    assert "the bag has a camera_info topic (/cam/camera_info)" in line
+
+
 # --------------------------------------------------------------------------- bad input
 
 def one_error_line(capsys, argv) -> str:
