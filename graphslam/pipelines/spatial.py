@@ -584,6 +584,17 @@ def _tracking_summary(stats: dict) -> dict:
 # --------------------------------------------------------------------------- outputs
 
 
+def _frame_times(seq: ImageSequence, frames: np.ndarray) -> np.ndarray:
+    """Time column of ``frames`` (positions in ``seq``): their stamps, else their index in
+    the sequence as read. A ``--frames`` selection keeps the folder's numbering (as
+    ``graphslam localize`` writes it), so its trajectory pairs with a truth of the whole
+    folder by time; numbered from 0 it paired frame 6 with the truth of frame 0."""
+    if seq.stamps_s is not None:
+        return np.asarray(seq.stamps_s, dtype=float)[frames]
+    source = getattr(seq, "indices", None)  # a frame selection's (graphslam.sources.spatial.frames)
+    return (frames if source is None else np.asarray(source)[frames]).astype(float)
+
+
 def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``), ``metrics.json`` and,
     when the sequence has ground truth, ``ground_truth.tum`` of the run's frames
@@ -594,7 +605,7 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
     est = result.estimate
     ids = np.asarray(est.frame_ids, dtype=np.int64)
     seq = result.sequence
-    stamps = ids.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, dtype=float)[ids]
+    stamps = _frame_times(seq, ids)
     paths = {
         "trajectory": out_dir / "trajectory.tum",
         "landmarks": out_dir / "landmarks.csv",
@@ -608,9 +619,7 @@ def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRu
         frames = np.arange(result.frames)
         paths["ground_truth"] = out_dir / "ground_truth.tum"
         writers.write_tum_spatial(
-            paths["ground_truth"],
-            frames.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, float)[frames],
-            np.asarray(seq.wTc_true)[frames],
+            paths["ground_truth"], _frame_times(seq, frames), np.asarray(seq.wTc_true)[frames]
         )
     writers.write_landmarks_csv(
         paths["landmarks"], est.landmark_ids, np.asarray(est.landmarks_w).reshape(-1, 3)
