@@ -31,11 +31,15 @@ def cmd_info(args: argparse.Namespace) -> int:
     roles = chosen_roles(args.bag, topics, args.topics)
     print(
         "read by --dataset: "
-        + (", ".join(f"{r} {t}" for r, t in roles.items()) if isinstance(roles, dict) else roles)
+        + (
+            ", ".join(f"{r} {t}" for r, t in roles.items())
+            if isinstance(roles, dict)
+            else f"nothing ({roles})"
+        )
     )
     if args.topics is not None and not isinstance(roles, dict):
         # the listing is printed; the check the --topics asked for failed: a script sees it
-        raise ConfigError(f"--topics {args.topics}: {roles.removeprefix('nothing (').removesuffix(')')}")
+        raise ConfigError(f"--topics {args.topics}: {roles}")
     return 0
 
 

@@ -161,20 +161,9 @@ def solved_graph(graph: pg.PoseGraph, result: SolveResult) -> pg.PoseGraph:
 def ground_truth_of(graph: pg.PoseGraph, truth) -> tuple[np.ndarray, np.ndarray]:
     """``(ids (M,), wTc (M, 4, 4))``: the truth of the graph's poses by pose id
     (TUM time column, KITTI line number); InputError when none matches."""
-    if truth.format == "euroc":
-        raise InputError(
-            "EuRoC ground truth has nanosecond times, not pose ids; give TUM "
-            "(t = pose id) or KITTI (line = pose id)",
-            truth.path,
-        )
-    if truth.stamps_s is None:
-        row_of = {k: k for k in range(len(truth.wTc))}
-    else:
-        from graphslam.sources.ground_truth import check_whole_stamps
+    from graphslam.sources.ground_truth import rows_by_pose_id
 
-        check_whole_stamps(truth, "pose ids", "give TUM with t = pose id, or KITTI (line = pose id)")
-        row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist()) if float(t).is_integer()}
-    rows = np.array([row_of.get(k, -1) for k in graph.ids.tolist()], dtype=np.int64)
+    rows = rows_by_pose_id(truth, graph.ids)
     if not np.any(rows >= 0):
         raise InputError(f"no pose of {graph.name!r} has ground truth (matched by pose id)", truth.path)
     return graph.ids[rows >= 0], np.asarray(truth.wTc)[rows[rows >= 0]]

@@ -170,6 +170,27 @@ def read_times(path: str | Path, trajectory: Trajectory) -> Trajectory:
     return dataclasses.replace(trajectory, stamps_s=stamps)
 
 
+#: How a truth file names pose ids: what a refusal of another time column says to give.
+POSE_ID_TRUTH = "give TUM with t = pose id, or KITTI (line = pose id)"
+
+
+def rows_by_pose_id(truth: Trajectory, ids: np.ndarray, what: str = "pose ids") -> np.ndarray:
+    """(N,) row of ``truth`` holding each pose id of ``ids`` (N,), -1 where none: the
+    KITTI line number, or the TUM time column read as pose ids (``what`` names them in
+    the refusal of a time that is not a whole number). EuRoC's nanosecond times are
+    never pose ids: InputError. Shared by the 2-D datasets and the pose-graph files."""
+    if truth.format == "euroc":
+        raise InputError(
+            f"EuRoC ground truth has nanosecond times, not pose ids; {POSE_ID_TRUTH}", truth.path
+        )
+    ids = np.asarray(ids, dtype=np.int64)
+    if truth.stamps_s is None:
+        return np.where((ids >= 0) & (ids < len(truth.wTc)), ids, -1)
+    check_whole_stamps(truth, what, POSE_ID_TRUTH)
+    row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist())}
+    return np.array([row_of.get(int(i), -1) for i in ids.tolist()], dtype=np.int64)
+
+
 def check_whole_stamps(truth: Trajectory, what: str, hint: str) -> None:
     """InputError when ``truth``'s time column, read as ``what`` (pose ids, frame
     indices), holds a number that is not whole: times in seconds were read as ids
@@ -250,31 +271,14 @@ def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray
     real timestamps, by nearest time; poses without truth are left out (ATE
     is taken over the common ids). InputError when no pose matches.
     """
-    if truth.format == "euroc":
-        raise InputError(
-            "EuRoC ground truth has nanosecond times, not the pose ids of a 2-D "
-            "dataset; give TUM (t = pose id) or KITTI (line = pose id)",
-            truth.path,
-        )
     ids = np.array([f.pose_id for f in dataset.frames], dtype=np.int64)
-    if truth.stamps_s is None:
-        rows = np.where(ids < len(truth.wTc), ids, -1)
-    elif dataset.has_timestamps:
+    if truth.format != "euroc" and truth.stamps_s is not None and dataset.has_timestamps:
         order = np.argsort(truth.stamps_s, kind="stable")
         t = np.array([f.stamp_s for f in dataset.frames], dtype=np.float64)
         idx = associate(t, truth.stamps_s[order], ASSOCIATION_MAX_DT_S)
         rows = np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
     else:
-        check_whole_stamps(
-            truth,
-            f"pose ids ({dataset.name!r} has no timestamps)",
-            "give TUM with t = pose id, or KITTI (line = pose id)",
-        )
-        row_of = {}
-        for r, s in enumerate(truth.stamps_s):
-            if float(s).is_integer():
-                row_of[int(s)] = r
-        rows = np.array([row_of.get(int(i), -1) for i in ids], dtype=np.int64)
+        rows = rows_by_pose_id(truth, ids, f"pose ids ({dataset.name!r} has no timestamps)")
     keep = rows >= 0
     if not np.any(keep):
         by_time = dataset.has_timestamps and truth.stamps_s is not None

@@ -276,7 +276,10 @@ def _images_below(folder: Path) -> str:
     except OSError:
         return ""
     for sub in below:
-        n = len(list_images(sub))
+        try:
+            n = len(list_images(sub))
+        except (OSError, InputError):  # an unreadable folder, a dangling link: not the one to name
+            continue
         if n:
             return f"; its folder {sub.name}/ holds {n}: pass that folder"
     return ""

@@ -188,11 +188,11 @@ def bag_topics(spec: str | Path) -> list[TopicSummary]:
 
 def chosen_roles(spec: str | Path, topics: list[TopicSummary], named: str | None) -> dict | str:
     """``{role: topic}`` ``--dataset`` would read (``graphslam info``), or why none: the
-    error line of a missing or ambiguous topic (a listing is not refused for it)."""
+    reason of a missing or ambiguous topic (a listing is not refused for it)."""
     try:
         return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named), _require_bag(spec))
     except InputError as e:
-        return f"nothing ({e.reason})"
+        return e.reason
 
 
 def _require_bag(spec: str | Path) -> Path:
