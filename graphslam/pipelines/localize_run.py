@@ -51,9 +51,9 @@ class LocalizeResult:
     @property
     def frame_index(self) -> np.ndarray:
         """(N,) original frame index of each processed frame (``--frames`` aware)."""
-        idx = getattr(self.sequence, "indices", None)
-        n = len(self.placements)
-        return np.arange(n, dtype=np.int64) if idx is None else np.asarray(idx[:n], np.int64)
+        from graphslam.sources.spatial.frames import source_indices
+
+        return source_indices(self.sequence)[: len(self.placements)]
 
     def placed(self) -> np.ndarray:
         return np.array([p.wTc is not None for p in self.placements], dtype=bool)

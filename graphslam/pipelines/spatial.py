@@ -591,8 +591,9 @@ def _frame_times(seq: ImageSequence, frames: np.ndarray) -> np.ndarray:
     folder by time; numbered from 0 it paired frame 6 with the truth of frame 0."""
     if seq.stamps_s is not None:
         return np.asarray(seq.stamps_s, dtype=float)[frames]
-    source = getattr(seq, "indices", None)  # a frame selection's (graphslam.sources.spatial.frames)
-    return (frames if source is None else np.asarray(source)[frames]).astype(float)
+    from graphslam.sources.spatial.frames import source_indices
+
+    return source_indices(seq)[frames].astype(float)
 
 
 def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics) -> dict[str, Path]:

@@ -82,6 +82,14 @@ class FrameSelection(ImageSequence):
         return self.base.load_raw(int(self.indices[i]))
 
 
+def source_indices(sequence: ImageSequence) -> np.ndarray:
+    """(N,) int64 index of each frame in the sequence as read: a selection's picks, else
+    0..N-1 (the time column of a sequence without times, in run and localize outputs)."""
+    if isinstance(sequence, FrameSelection):
+        return np.asarray(sequence.indices, dtype=np.int64)
+    return np.arange(len(sequence), dtype=np.int64)
+
+
 def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequence:
     """``sequence`` restricted to ``frames`` (None: unchanged)."""
     if frames is None:
