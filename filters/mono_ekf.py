@@ -213,14 +213,8 @@ class MonoEkf(VisualBackend):
 
     # --------------------------------------------------------------- contract
 
-    def initialize(
-        self,
-        frame_id: int,
-        wTc: np.ndarray,
-        covariance: np.ndarray,
-        K: np.ndarray,
-        image_size: tuple[int, int],
-    ) -> None:
+    def initialize(self, frame_id, wTc, covariance, K, image_size) -> None:
+        # types: VisualBackend.initialize (the contract; mypy checks this body too)
         wTc = np.asarray(wTc, dtype=np.float64)
         cov = np.asarray(covariance, dtype=np.float64)
         K = np.asarray(K, dtype=np.float64)

@@ -71,7 +71,7 @@ class OrbConfig:
 
     Attributes:
         n_features: candidates ORB retains before the cell selection
-            (``cv2.ORB_create(nfeatures=...)``).
+            (``cv2.ORB.create(nfeatures=...)``).
         cell_size_px: side of the square cells; 0 disables the tessellation.
         per_cell: keypoints kept per cell (best responses).
         max_features: cap after the cell selection (best responses overall), 0 = none.
@@ -122,7 +122,7 @@ class OrbDetector:
 
     def _create(self):
         c = self.config
-        return cv2.ORB_create(
+        return cv2.ORB.create(
             nfeatures=int(c.n_features),
             scaleFactor=float(c.scale_factor),
             nlevels=int(c.n_levels),

@@ -49,6 +49,8 @@ class ProgressLines:
         self._closed = False
 
     def __iter__(self):
+        if self.iterable is None:
+            raise TypeError("Progress made without an iterable cannot be iterated; call update()")
         for item in self.iterable:
             yield item
             self.update(1)

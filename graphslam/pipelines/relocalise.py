@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class RunRelocaliser:
         self._good: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame, track ids, descriptors)
         self._streak = 0  # lost frames in a row
         self._open: int | None = None  # frame after which recovery is counted
-        self.stats = {
+        self.stats: dict[str, Any] = {
             "losses": 0,
             "lost_frames": 0,
             "relocalisations": 0,
