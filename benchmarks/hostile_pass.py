@@ -386,6 +386,13 @@ def attacks() -> list[Attack]:
         Attack("eval --align none of an estimate that never moves", "silent",
                lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", scale=0.0), "--align", "none"),
                ("ok",), check=_says("does not move")),
+        # fifth pass (the fourth's leftovers): two clocks, two units, a sweep's warnings
+        Attack("eval of an estimate whose clock runs 19 s late (52 % paired)", "silent",
+               lambda f: _eval(_oval(f, "gt.tum"), _oval(f, "est.tum", est=True, t0=1019.0)),
+               ("ok",), check=_says("clocks may differ")),
+        Attack("eval of milliseconds from the start against seconds from the start", "silent",
+               lambda f: _eval(_oval(f, "gt.tum", t0=0.0), _oval(f, "est.tum", est=True, stamps="ms")),
+               check=_says("milliseconds?")),
         Attack("--ground-truth in seconds for an image folder without times", "silent",
                lambda f: _images_run(_plain_kitti_folder(f), "--backend", "ekf", "--ground-truth",
                                      str(_kitti(f, "gt.tum", lambda T: T, tum=True)), max_steps=None),
@@ -409,7 +416,7 @@ def _oval(folder: Path, name: str, est: bool = False, n: int = 400, fmt: str = "
           w_first: bool = False, scale: float = 1.0, t0: float = 1000.0, stamps: str = "s") -> Path:
     """An oval at 10 Hz from ``t0`` s (the estimate: moved and wobbled) as TUM or EuRoC;
     ``w_first`` writes the quaternion in the other order than the format's, ``scale``
-    multiplies the positions, ``stamps`` "ns" writes nanoseconds, "index" 0, 1, 2, ..."""
+    multiplies the positions, ``stamps`` "ns" writes nanoseconds, "ms" milliseconds from 0, "index" 0, 1, 2, ..."""
     from scipy.spatial.transform import Rotation
 
     k = np.arange(n, dtype=np.float64)
@@ -422,7 +429,7 @@ def _oval(folder: Path, name: str, est: bool = False, n: int = 400, fmt: str = "
     q = Rotation.from_rotvec(rv).as_quat()  # x y z w
     if (fmt == "tum") == w_first:
         q = np.roll(q, 1, axis=1)  # w x y z
-    t = {"s": t0 + 0.1 * k, "ns": np.round((t0 + 0.1 * k) * 1e9), "index": k}[stamps]
+    t = {"s": t0 + 0.1 * k, "ns": np.round((t0 + 0.1 * k) * 1e9), "index": k, "ms": 100.0 * k}[stamps]
     sep = "," if fmt == "euroc" else " "
     rows = [sep.join([f"{round(ti * 1e9) if fmt == 'euroc' else ti:.{0 if fmt == 'euroc' else 6}f}",
                       *(f"{v:.9f}" for v in (*(scale * pi), *qi))]) for ti, pi, qi in zip(t, p, q)]

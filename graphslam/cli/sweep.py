@@ -147,6 +147,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
         return EXIT_INTERRUPTED
+    doubtful = sum(r.get("status") == "ok" and bool(r.get("warnings")) for r in outcome.rows)
+    if doubtful:  # an ok row can still hold an absurd estimate; say so where it is seen
+        warn(f"{doubtful} of {ok} finished runs carry warnings (the warnings column of sweep.csv)")
     failed = len(outcome.rows) - ok
     if failed:  # the table is whole, but a script must not take the sweep for a clean one
         warn(f"{failed} of {len(outcome.rows)} runs failed; their errors are in sweep.csv")

@@ -140,11 +140,35 @@ def _span(t: np.ndarray) -> str:
     return f"{float(np.min(t)):.12g} to {float(np.max(t)):.12g}" if t.size else "(none)"
 
 
+#: Ratios of two files' time spans read as a unit mix-up (within :data:`SPAN_UNIT_TOL`):
+#: seconds against milliseconds, microseconds or nanoseconds counted from a start.
+SPAN_UNITS = {1e3: "milliseconds", 1e6: "microseconds", 1e9: "nanoseconds"}
+SPAN_UNIT_TOL = 0.02
+
+
+def span_unit_doubt(ref_t: np.ndarray, est_t: np.ndarray) -> str:
+    """A sentence when one file's stamps span about 1e3, 1e6 or 1e9 times the other's
+    (both cover the same run, one not in seconds), else ''."""
+    spans = {"reference": float(np.ptp(ref_t)) if ref_t.size else 0.0}
+    spans["estimate"] = float(np.ptp(est_t)) if est_t.size else 0.0
+    if min(spans.values()) <= 0:
+        return ""
+    (who, big), (_, small) = sorted(spans.items(), key=lambda kv: -kv[1])
+    for ratio, unit in SPAN_UNITS.items():
+        if abs(big / small / ratio - 1.0) < SPAN_UNIT_TOL:
+            return (
+                f"the {who}'s stamps span {big:.4g}, {big / small:.4g} times the other file's "
+                f"{small:.4g}: {unit}? Both are read as seconds"
+            )
+    return ""
+
+
 def _unit_hint(*stamps: np.ndarray) -> str:
-    """A clause naming stamps too large to be seconds, or ''."""
+    """A clause naming stamps too large to be seconds, or spans in another unit, or ''."""
     big = [t for t in stamps if t.size and float(np.max(np.abs(t))) > STAMP_MAX_S]
     if not big:
-        return ""
+        said = span_unit_doubt(*stamps) if len(stamps) == 2 else ""
+        return f" ({said})" if said else ""
     return (
         f" (stamps over {STAMP_MAX_S:.0e} are not seconds: nanoseconds, as EuRoC writes them, "
         "belong in an EuRoC CSV or divided by 1e9 in a TUM file)"

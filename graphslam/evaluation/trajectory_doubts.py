@@ -15,7 +15,12 @@ reference, metric (``--align se3``) or monocular (``--align sim3``):
   that a quaternion read in the other order (``w x y z`` for ``x y z w``) removes;
 - :func:`still_doubt` -- an estimate that does not move, scored without a fit;
 - :func:`shared_doubt` -- pairs sharing a pose (a ``--max-diff`` wider than the
-  gaps between stamps: a pose is scored against one at another time).
+  gaps between stamps: a pose is scored against one at another time);
+- :func:`clock_doubts` -- stamps on two clocks: the files' time spans differ by
+  about 1e3, 1e6 or 1e9 (:func:`.trajectory.span_unit_doubt`: one file in
+  milliseconds, microseconds or nanoseconds since its start), or a constant
+  shift (start to start, or end to end) pairs :data:`CLOCK_GAIN_SHARE` more
+  of the estimate's poses than ``--offset`` does.
 """
 
 from __future__ import annotations
@@ -23,7 +28,14 @@ from __future__ import annotations
 import numpy as np
 
 from graphslam.evaluation.alignment import STILL_TOL, principal_spreads
-from graphslam.evaluation.trajectory import EvalOptions, TrajectoryEval, align, ate
+from graphslam.evaluation.trajectory import (
+    EvalOptions,
+    TrajectoryEval,
+    align,
+    associate,
+    ate,
+    span_unit_doubt,
+)
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
 
@@ -45,6 +57,11 @@ ROTATION_DOUBT_DEG = 20.0
 EXPLAINED_ROTATION_DEG = 10.0
 #: An inversion is said when the inverted poses' ATE is under this share of the spread.
 EXPLAINED_ATE_SHARE = 0.1
+#: A clock offset is said when shifting the estimate's stamps (start to start or end
+#: to end) pairs this share of its poses more than ``--offset`` does. A reference that
+#: covers part of the estimate gains nothing from a shift; an offset clock gains what it
+#: lost.
+CLOCK_GAIN_SHARE = 0.25
 
 
 def _spread(points: np.ndarray) -> float:
@@ -178,6 +195,40 @@ def shared_doubt(r: TrajectoryEval, options: EvalOptions) -> list[str]:
         f"{r.shared_matches} of {len(r.ref)} matched pairs reuse a pose already paired "
         f"(--max-diff {options.max_diff_s:g} s is wider than the gaps between stamps): "
         "those poses are scored against a pose of another time; lower --max-diff"
+    ]
+
+
+def _paired(ref_t: np.ndarray, est_t: np.ndarray, options: EvalOptions, offset_s: float) -> int:
+    try:
+        return len(associate(ref_t, est_t, options.max_diff_s, offset_s)[0])
+    except GraphSlamError:  # nothing pairs at this shift
+        return 0
+
+
+def clock_doubts(ref_t: np.ndarray | None, est_t: np.ndarray | None, options: EvalOptions) -> list[str]:
+    """Stamps of two clocks or two units (module doc); ``*_t`` (N,) seconds or None."""
+    if ref_t is None or est_t is None or len(ref_t) < 2 or len(est_t) < 2:
+        return []
+    ref_t, est_t = np.asarray(ref_t, np.float64), np.asarray(est_t, np.float64)
+    said = span_unit_doubt(ref_t, est_t)
+    if said:
+        return [said]
+    now = _paired(ref_t, est_t, options, options.offset_s)
+    shifts = {float(ref_t.min() - est_t.min()), float(ref_t.max() - est_t.max())}
+    tried = [
+        (s, _paired(ref_t, est_t, options, s))
+        for s in shifts
+        if abs(s - options.offset_s) > options.max_diff_s
+    ]
+    if not tried:
+        return []
+    shift, best = max(tried, key=lambda sp: sp[1])
+    if best - now < CLOCK_GAIN_SHARE * len(est_t):
+        return []
+    return [
+        f"the clocks may differ: shifting the estimate's stamps by {shift:.6g} s pairs {best} of its "
+        f"{len(est_t)} poses, against {now} at --offset {options.offset_s:g} s (give --offset if "
+        "the shift is right)"
     ]
 
 

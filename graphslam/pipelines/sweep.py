@@ -3,8 +3,9 @@
 ``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset``,
 ``backend``, every swept ``section.key`` (empty where the run does not read
 that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
-``wall_s``, ``peak_rss_mb``, ``status`` (ok, failed, interrupted) and
-``error`` (the failed run's one-line error). The file is rewritten after
+``wall_s``, ``peak_rss_mb``, ``status`` (ok, failed, interrupted),
+``error`` (the failed run's one-line error) and ``warnings`` (what the run's
+metrics.json says makes its estimate doubtful, joined by " | "; empty: nothing). The file is rewritten after
 every finished run, so Ctrl-C keeps them all; a sweep run again into the same
 folder skips the runs whose ``(config_hash, seed)`` has status ok.
 Each run's own files are in ``runs/<run_id>/`` (its config.toml, metrics.json,
@@ -32,7 +33,9 @@ METRIC_COLUMNS = (
     "association_accuracy",
     "duplicates",
 )
-TAIL_COLUMNS = ("wall_s", "peak_rss_mb", "status", "error")
+TAIL_COLUMNS = ("wall_s", "peak_rss_mb", "status", "error", "warnings")
+#: Between two of a run's warnings in the ``warnings`` column.
+WARNING_SEPARATOR = " | "
 
 
 def columns(spec: SweepSpec) -> list[str]:

@@ -31,6 +31,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
+from graphslam.pipelines.sweep import WARNING_SEPARATOR
 from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -121,6 +122,7 @@ def _scores(out_dir: Path) -> dict:
         "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
         "association_accuracy": assoc.get("accuracy"),
         "duplicates": assoc.get("duplicates"),
+        "warnings": WARNING_SEPARATOR.join(m.get("warnings") or []),
     }
     gt = out_dir / "ground_truth.tum"
     if gt.is_file():

@@ -23,7 +23,7 @@ import numpy as np
 
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.evaluation.trajectory import STAMP_MAX_S, EvalOptions, TrajectoryEval, evaluate
-from graphslam.evaluation.trajectory_doubts import doubts
+from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
 from slamcore.errors import ConfigError
 
@@ -101,7 +101,8 @@ def evaluate_files(
     results = []
     for path, label, est in loaded:
         result = evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options)
-        said = stamp_doubts(ref, est) + doubts(result, options)
+        said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options)
+        said += doubts(result, options)
         results.append(EstimateResult(str(path), result, label, said))
     return results
 

@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from graphslam.evaluation.trajectory import EvalOptions, evaluate
+from graphslam.evaluation.trajectory_doubts import clock_doubts
 from tests import trajectories as tr
 from tests.conftest import SHARED_DATA
 
@@ -158,6 +159,40 @@ def test_a_wide_max_diff_pairing_poses_twice_is_said(tmp_path, capsys):
     _, err = _scored(tmp_path, capsys, _tum(tmp_path / "gt.txt", t, wTc),
                      _tum(tmp_path / "e.txt", t + 20.0, wTc), "--max-diff", "1000")
     _warned(err, "200 of 400 matched pairs reuse a pose", "--max-diff 1000")
+
+
+def test_a_clock_19_s_off_with_half_the_poses_paired_is_said(tmp_path, capsys):
+    # the hostile pass's case: 52 % paired, above the coverage line's 50 %, and silent
+    t, wTc = tr.trajectory(400, False)
+    _, est = tr.trajectory(400, True)
+    got, err = _scored(tmp_path, capsys, _tum(tmp_path / "gt.txt", t, wTc), _tum(tmp_path / "e.txt", t + 19.0, est))
+    assert got["matched_share"] == pytest.approx(210 / 400)
+    _warned(err, "e.txt", "clocks may differ", "by -19 s pairs 400 of its 400 poses", "against 210")
+
+
+def test_a_reference_over_part_of_the_estimate_is_no_clock_doubt(tmp_path, capsys):
+    # a shift cannot pair more than the reference covers: only the coverage line
+    t, wTc = tr.trajectory(400, False)
+    _, est = tr.trajectory(400, True)
+    _, err = _scored(tmp_path, capsys, _tum(tmp_path / "gt.txt", t[:150], wTc[:150]),
+                     _tum(tmp_path / "e.txt", t, est))
+    assert "clocks" not in err
+    _warned(err, "only 150 of 400 poses")
+
+
+def test_milliseconds_from_the_start_against_seconds_are_named(tmp_path, capsys):
+    t, wTc = tr.trajectory(400, False)
+    gt = _tum(tmp_path / "gt.txt", t - t[0], wTc)
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, _tum(tmp_path / "e.txt", (t - t[0]) * 1e3, wTc))
+    assert code == 2
+    tr.one_error(err, "estimate's stamps span 3.99e+04, 1000 times the other file's 39.9", "milliseconds?")
+
+
+def test_clock_doubts_name_a_span_in_microseconds_before_any_shift():
+    t = np.arange(0.0, 10.0, 0.1)
+    said = clock_doubts(t * 1e6, t, EvalOptions())
+    assert len(said) == 1 and "reference's stamps span" in said[0] and "microseconds?" in said[0]
+    assert clock_doubts(t, t + 0.004, EvalOptions()) == []  # within --max-diff: one clock
 
 
 @pytest.mark.parametrize("align", ["none", "first"])

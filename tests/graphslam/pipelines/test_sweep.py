@@ -416,3 +416,30 @@ def test_a_dataset_path_is_read_beside_the_sweep_file_and_checked_first(tmp_path
     monkeypatch.chdir(tmp_path)  # g.g2o is here, not beside the sweep file
     with pytest.raises(ConfigError, match=r"s.toml:2: \[sweep\] no such dataset or file 'g.g2o'"):
         parse_sweep(sweep)
+
+
+def test_a_runs_warnings_reach_its_row(tmp_path):
+    # an ok row can hold a doubtful estimate: metrics.json's warnings go in the table
+    from graphslam.pipelines.sweep_exec import _scores
+
+    (tmp_path / "metrics.json").write_text('{"ate_rmse_m": 9.0, "warnings": ["ATE absurd", "half scored"]}')
+    assert _scores(tmp_path)["warnings"] == "ATE absurd | half scored"
+    (tmp_path / "metrics.json").write_text('{"ate_rmse_m": 0.1, "warnings": null}')
+    assert _scores(tmp_path)["warnings"] == ""
+
+
+def test_a_sweep_says_how_many_finished_runs_carry_warnings(tmp_path, monkeypatch, capsys):
+    from graphslam.pipelines import sweep_exec
+
+    def fake(run, root):  # the first run's estimate is doubtful, the second's is not
+        said = "ATE 40 m is more than 10x the odometry's" if run.seed == 0 else ""
+        return {"run_id": run.run_id, "status": "ok", "error": "", "warnings": said}
+
+    monkeypatch.setattr(sweep_exec, "execute_run", fake)
+    path = _file(tmp_path, '[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0, 1]\n')
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1",
+                 "--quiet", "--no-plots"]) == 0
+    err = capsys.readouterr().err
+    assert "graphslam: warning: 1 of 2 finished runs carry warnings" in err
+    rows = _csv(tmp_path / "o" / "sweep.csv")
+    assert sorted(r["warnings"] for r in rows) == ["", "ATE 40 m is more than 10x the odometry's"]
