@@ -405,7 +405,202 @@ def attacks() -> list[Attack]:
                                                      for k in range(19))),
                               "--ground-truth", str(_oval(f, "gt.tum", t0=0.0))),
                check=_says("not a whole number")),
+        # fifth pass: image inputs
+        Attack("portrait photos turned by EXIF, intrinsics of the stored landscape pixels", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, exif=6), "--ground-truth", str(_kitti_gt(f, 10)),
+                                     max_steps=None), check=_says("EXIF orientation")),
+        Attack("4:3 photos turned by EXIF, landscape intrinsics: warned", "silent",
+               lambda f: _images_run(_desk_exif(f, 6, "520 520 320 240"), "--backend", "ekf",
+                                     max_steps=None), expect=("ok",), check=_says("EXIF orientation")),
+        Attack("loops --intrinsics on 4:3 photos turned by EXIF: warned", "silent",
+               lambda f: ["loops", str(_desk_exif(f, 10, None)), "--out", "l.csv", "--quiet",
+                          "--intrinsics", str(_w(f, "K.txt", "520 520 320 240\n"))],
+               expect=("ok",), check=_says("EXIF orientation")),
+        Attack("intrinsics whose principal point is outside the image", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, intrinsics="707 707 2000 900\n"),
+                                     "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None),
+               check=_says("outside the 1226x370")),
+        Attack("intrinsics written 'cx cy fx fy'", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, intrinsics="601.8873 183.1104 707.0912 707.0912\n"),
+                                     "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None)),
+        Attack("normalised intrinsics (fx = 1.15: divided by the image size)", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, intrinsics="1.15 1.91 0.49 0.49\n"),
+                                     "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None),
+               check=_says("degrees off the axis")),
+        Attack("intrinsics of twice the image's resolution: warned", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, intrinsics="1414.18 1414.18 1203.77 366.22\n"),
+                                     "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None),
+               expect=("ok",), check=_warned("principal point")),
+        Attack("a KITTI calib.txt of a 640x480 camera: warned", "silent",
+               lambda f: _images_run(_kitti_seq(f, 10, calib="P0: 500 0 320 0 0 500 240 0 0 0 1 0\n"),
+                                     max_steps=None), expect=("ok",), check=_warned("principal point")),
+        Attack("a camera.yaml stating 640x480 beside 1226x370 images", "silent",
+               lambda f: _images_run(_kitti_folder(f, 6, intrinsics=None, extra={"camera.yaml": YAML_640}),
+                                     "--backend", "ekf", max_steps=None), check=_says("calibrated for 640x480")),
+        Attack("loops --intrinsics of another resolution", "silent",
+               lambda f: ["loops", str(_desk_copy(f, {f"{k:02d}.png": f"{k:02d}.png" for k in range(1, 11)})),
+                          "--out", "l.csv", "--quiet", "--intrinsics",
+                          str(_w(f, "K.txt", "1040 1040 640 480\n"))]),
+        Attack("loops on photos with Latin-1 (not UTF-8) file names", "fail",
+               lambda f: ["loops", str(_latin1_names(f)), "--out", "l.csv", "--quiet"],
+               check=_says("not UTF-8")),
+        Attack("every frame the same image, odometry moving: warned", "silent",
+               lambda f: _images_run(_kitti_seq(f, 10, frames=[0] * 10), max_steps=None),
+               expect=("ok",), check=_warned("same image twice")),
+        Attack("each frame stored twice: warned", "silent",
+               lambda f: _images_run(_kitti_seq(f, 12, frames=[k // 2 for k in range(12)]), max_steps=None),
+               expect=("ok",), check=_warned("same image twice")),
+        Attack("a run whose images gave no landmark says the odometry is alone", "silent",
+               lambda f: _images_run(_kitti_seq(f, 4), max_steps=None),
+               expect=("ok",), check=_warned("odometry alone", summary=True)),
+        Attack("16-bit PNGs of 12-bit values (near black as 8 bits)", "silent",
+               lambda f: _images_run(_kitti_folder(f, 6, scale16=16), "--backend", "ekf", max_steps=None),
+               check=_says("16-bit")),
+        Attack("a TUM depth/ folder given as the images", "silent",
+               lambda f: _images_run(_depth_folder(f), "--backend", "ekf", max_steps=None),
+               check=_says("depth map")),
+        Attack("frame_1.png beside frame_01.png (order unknown)", "silent",
+               lambda f: _images_run(_kitti_folder(f, 4, names=lambda k: f"frame_{k}.png",
+                                                   extra={"frame_1.png": "frame_01.png"}),
+                                     "--backend", "ekf", max_steps=None), check=_says("the same frame")),
+        Attack("000003.png beside 000003.jpg (one frame twice)", "silent",
+               lambda f: _images_run(_kitti_folder(f, 6, extra={"000003.png": "000003.jpg"}),
+                                     "--backend", "ekf", max_steps=None), check=_says("the same frame")),
+        Attack("time-stamp names 1.25.png ... 1.5.png taken in time order", "silent",
+               lambda f: _images_run(_kitti_folder(f, 10, names=lambda k: f"{STAMP_NAMES[k]}.png"),
+                                     "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None),
+               expect=("ok",), check=_landmarks_found),
     ]
+
+
+#: An OpenCV/ROS camera file of a 640x480 camera (its images' size stated).
+YAML_640 = ("image_width: 640\nimage_height: 480\n"
+            "camera_matrix: {rows: 3, cols: 3, data: [500, 0, 320, 0, 500, 240, 0, 0, 1]}\n")
+
+#: Frame times written as shortest decimals: in text order 1.5 would come before 1.25.
+STAMP_NAMES = ("1.0", "1.25", "1.5", "1.75", "2.0", "2.125", "2.25", "2.5", "2.75", "3.0")
+
+
+def _warned(word: str, summary: bool = False):
+    """A ``graphslam: warning:`` line (``summary``: a ``WARNING:`` line of the summary, where
+    a run's own doubts go) and metrics.json ``warnings`` both say ``word``."""
+    def check(folder, out, err):
+        where, start = (out, "WARNING:") if summary else (err, "graphslam: warning:")
+        said = any(ln.startswith(start) and word in ln for ln in where.splitlines())
+        m = folder / "out" / "metrics.json"
+        kept = m.is_file() and any(word in w for w in json.loads(m.read_text()).get("warnings") or [])
+        if not said:
+            return f"no warning line says {word!r}"
+        return None if kept else f"metrics.json warnings do not say {word!r}"
+    return check
+
+
+def _landmarks_found(folder, out, err):
+    """The run measured landmarks (the frames in time order: out of order, none)."""
+    m = json.loads((folder / "out" / "metrics.json").read_text())
+    return None if m.get("landmarks") else f"{m.get('landmarks')} landmarks: frames out of order?"
+
+
+def _kitti_gt(folder: Path, n: int) -> Path:
+    """KITTI 07's poses of its first ``n`` frames (a --ground-truth by frame number)."""
+    rows = (DATA / "kitti07" / "poses.txt").read_text().splitlines()[:n]
+    return _w(folder, "gt.txt", "\n".join(rows) + "\n")
+
+
+def _kitti_folder(folder: Path, n: int, intrinsics: str | None = "707.0912 707.0912 601.8873 183.1104\n",
+                  exif: int | None = None, names=None, scale16: int | None = None,
+                  extra: dict[str, str] | None = None) -> Path:
+    """KITTI 07's first ``n`` images in a plain folder with ``intrinsics``: as JPEGs
+    turned by EXIF orientation ``exif``, named ``names(k)``, as 16-bit PNGs of the
+    values times ``scale16``; ``extra`` copies a file to another name, or writes a new
+    file (a name that is no file yet: its text)."""
+    import cv2
+
+    imgs = folder / "imgs"
+    imgs.mkdir()
+    for k in range(n):
+        src = DATA / "kitti07" / "image_0" / f"{k:06d}.png"
+        name = names(k) if names else f"{k:06d}.png"
+        if exif is not None:
+            (imgs / name).with_suffix(".jpg").write_bytes(_jpeg_turned(cv2.imread(str(src), 0), exif))
+        elif scale16 is not None:
+            cv2.imwrite(str(imgs / name), cv2.imread(str(src), 0).astype(np.uint16) * scale16)
+        else:
+            (imgs / name).write_bytes(src.read_bytes())
+    for a, b in (extra or {}).items():  # a copy, or (a file name: its text) a new file
+        if (imgs / a).is_file():
+            (imgs / b).write_bytes((imgs / a).read_bytes())
+        else:
+            _w(imgs, a, b)
+    if intrinsics is not None:
+        _w(imgs, "intrinsics.txt", intrinsics)
+    return imgs
+
+
+def _jpeg_turned(gray: np.ndarray, orientation: int) -> bytes:
+    """``gray`` as a JPEG whose EXIF orientation is ``orientation`` (6: turn 90 degrees)."""
+    import io
+
+    from PIL import Image
+
+    im = Image.fromarray(gray)
+    exif = im.getexif()
+    exif[0x0112] = orientation
+    buf = io.BytesIO()
+    im.save(buf, "JPEG", exif=exif.tobytes(), quality=92)
+    return buf.getvalue()
+
+
+def _desk_exif(folder: Path, n: int, intrinsics: str | None) -> Path:
+    """The desk's first ``n`` photos as JPEGs stored 640x480 and turned by EXIF (portrait)."""
+    import cv2
+
+    imgs = folder / "imgs"
+    imgs.mkdir()
+    for k in range(n):
+        gray = cv2.imread(str(DATA / "slambook2_desk" / "images" / f"{k + 1:02d}.png"), 0)
+        (imgs / f"IMG_{k:04d}.JPG").write_bytes(_jpeg_turned(gray, 6))
+    if intrinsics is not None:
+        _w(imgs, "intrinsics.txt", intrinsics + "\n")
+    return imgs
+
+
+def _kitti_seq(folder: Path, n: int, calib: str | None = None, frames: list[int] | None = None) -> Path:
+    """A KITTI folder of ``n`` images, frame k holding KITTI 07's ``frames[k]`` (default k)
+    with the truth and times of frames 0..n-1, and ``calib`` (default KITTI 07's)."""
+    kit = folder / "kit"
+    (kit / "image_0").mkdir(parents=True)
+    frames = list(range(n)) if frames is None else frames
+    for j, k in enumerate(frames):
+        (kit / "image_0" / f"{j:06d}.png").write_bytes((DATA / "kitti07" / "image_0" / f"{k:06d}.png").read_bytes())
+    _w(kit, "calib.txt", calib or (DATA / "kitti07" / "calib.txt").read_text())
+    _w(kit, "times.txt", "".join(ln + "\n" for ln in (DATA / "kitti07" / "times.txt").read_text().splitlines()[:n]))
+    _w(kit, "poses.txt", "".join(ln + "\n" for ln in (DATA / "kitti07" / "poses.txt").read_text().splitlines()[:n]))
+    return kit
+
+
+def _latin1_names(folder: Path) -> Path:
+    """The desk's ten photos under Latin-1 names (``01\xe9.png``: bytes no UTF-8 decodes)."""
+    imgs = folder / "imgs"
+    imgs.mkdir()
+    for k in range(1, 11):
+        name = os.fsdecode(bytes(imgs) + f"/{k:02d}".encode() + b"\xe9.png")
+        Path(name).write_bytes((DATA / "slambook2_desk" / "images" / f"{k:02d}.png").read_bytes())
+    return imgs
+
+
+def _depth_folder(folder: Path) -> Path:
+    """A TUM RGB-D style depth/ folder: 16-bit PNGs of depth x 5000 (1-1.3 m), named by time."""
+    import cv2
+
+    depth = folder / "depth"
+    depth.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        z = (5000 * (1.0 + 0.3 * rng.random((480, 640)))).astype(np.uint16)
+        cv2.imwrite(str(depth / f"{1305031102.0 + 0.033 * k:.6f}.png"), z)
+    _w(depth, "intrinsics.txt", "525 525 319.5 239.5\n")
+    return depth
 
 
 def _eval(gt, est, *extra) -> list[str]:

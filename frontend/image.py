@@ -76,8 +76,9 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
 
     A PNG without its ``IEND`` chunk or a JPEG without its end-of-image marker
     (a truncated file) is refused before decoding: OpenCV would decode the part
-    it has, fill the rest with grey and name no file. Raises :class:`InputError`
-    naming ``path``.
+    it has, fill the rest with grey and name no file. A 16-bit image whose values
+    sit in its low bits (near black as 8 bits: :func:`_check_sixteen_bit`) is refused
+    too. Raises :class:`InputError` naming ``path``.
     """
     if data.startswith(_PNG_SIGNATURE) and _PNG_IEND not in data:
         raise InputError("truncated PNG (no IEND chunk)", path)
@@ -88,7 +89,38 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None or image.size == 0:
         raise InputError("cannot read image (not an image file, or an unsupported format)", path)
+    if _levels(image) <= MAX_LEVELS_OF_LOW_16_BIT:  # near flat: 16-bit values in the low bits?
+        _check_sixteen_bit(data, image, path)
     return check_gray(image, what=str(path))
+
+
+#: Most grey levels (of 256) a 16-bit image may span once read as 8 bits and still be
+#: refused: 16 levels are 4 bits, all that is left of a 12-bit camera's raw values
+#: stored in the low bits of 16 (of 10-bit values: 1 bit), or of a depth map in
+#: millimetres or TUM's fifths of one; no corner detector works on so few.
+MAX_LEVELS_OF_LOW_16_BIT = 16
+
+
+def _levels(image: np.ndarray) -> int:
+    """Grey levels from the darkest pixel to the brightest, both counted."""
+    return int(image.max()) - int(image.min()) + 1
+
+
+def _check_sixteen_bit(data: bytes, image: np.ndarray, path: str | Path) -> None:
+    """InputError when the file holds 16-bit values and ``image`` (its 8-bit reading:
+    OpenCV keeps the top 8 of the 16) spans at most :data:`MAX_LEVELS_OF_LOW_16_BIT`
+    grey levels: the values sit in the low bits (a depth map, a 12-bit camera's raw
+    data), and the image is near black. Decoded again only for such a flat image."""
+    deep = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+    if deep is None or deep.dtype != np.uint16:
+        return  # an 8-bit image that is flat: a blank frame, said where features are counted
+    lo, hi = int(image.min()), int(image.max())
+    raise InputError(
+        f"16-bit image whose values sit in the low bits: read as 8 bits (the top 8 of 16) "
+        f"it spans {hi - lo + 1} grey levels ({lo} to {hi}); a depth map, or a camera's "
+        "raw 10- or 12-bit values? give 8-bit images (scaled to 0-255)",
+        path,
+    )
 
 
 def load_gray(path: str | Path) -> np.ndarray:

@@ -29,6 +29,7 @@ from graphslam.cli.common import (
     path_arg,
     report_outputs,
     summary_table,
+    warn,
 )
 
 EPILOG = """\
@@ -113,6 +114,8 @@ def cmd_localize(args: argparse.Namespace) -> int:
         frames,
     )
     session = LocaliseSession.open(sequence, config, smap, args.dataset)
+    for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
+        warn(doubt)
     name = Path(sequence.source_path).name if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -144,7 +144,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
-    K, distortion = _camera(args, bag)
+    K, distortion = _camera(args, bag, paths)
 
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
@@ -215,7 +215,7 @@ def _images(args):
     the long ORB pass."""
     from graphslam.pipelines.place_recognition import folder_timestamps
     from graphslam.registry import check_topics_flag, is_bag_dataset
-    from graphslam.sources.spatial.sequence import folder_images
+    from graphslam.sources.spatial.sequence import check_utf8_names, folder_images
 
     check_topics_flag(str(args.images_dir), args.topics)
     bag = None
@@ -232,6 +232,7 @@ def _images(args):
         times = bag.stamps_s
     else:
         paths = folder_images(args.images_dir)
+        check_utf8_names(paths, "the closures name images by file name (UTF-8 text)")
         times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
     if args.frames is not None:
         from graphslam.sources.spatial.frames import frame_indices, parse_frames
@@ -247,9 +248,18 @@ def _images(args):
     return paths, times, truth, bag
 
 
-def _camera(args, bag):
-    """``(K, distortion)`` of ``--intrinsics``, else of the bag (a calibrated
-    essential-matrix check), else ``(None, None)`` (the fundamental matrix)."""
+def _camera(args, bag, paths):
+    """``(K, distortion)`` of ``--intrinsics`` (checked against the first image; its
+    doubts said as warnings), else of the bag (a calibrated essential-matrix check),
+    else ``(None, None)`` (the fundamental matrix)."""
+    if args.intrinsics is not None and bag is None:
+        from graphslam.cli.common import warn
+        from graphslam.sources.spatial.calibration import read_camera_of
+
+        K, dist, doubts = read_camera_of(args.intrinsics, paths[0])
+        for doubt in doubts:
+            warn(doubt)
+        return K, dist
     if args.intrinsics is not None:
         from graphslam.sources.spatial.calibration import read_intrinsics_file
 

@@ -117,7 +117,7 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
     n = len(status)
     placed = result.placed()
     whole = result.wall_s + result.load_s if wall_s is None else wall_s
-    m = {
+    m: dict[str, object] = {
         "dataset": result.sequence.name,
         "source": result.sequence.source_path,
         "map": map_info,
@@ -133,6 +133,8 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
         "frames_per_s": n / whole if whole > 0 else None,
         "interrupted": result.interrupted,
     }
+    if getattr(result.sequence, "warnings", ()):  # the reader's doubts about the images
+        m["warnings"] = list(result.sequence.warnings)
     err = errors_m(result)
     if err is not None and placed.any():
         e = err[placed]

@@ -482,7 +482,7 @@ def compute_metrics(
         tracking=_tracking_summary(result.tracking),
     )
     m.frames_with_pose = int(len(est.frame_ids))
-    m.warnings = _doubts(result) or None
+    m.warnings = [*getattr(seq, "warnings", ()), *_doubts(result)] or None
     m.dataset_notes = list(getattr(seq, "notes", ())) or None
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
         _score_against_truth(m, result)
@@ -507,14 +507,20 @@ MIN_LANDMARKS_PER_FRAME = 4
 
 
 def _doubts(result: VisualRunResult) -> list[str]:
-    """One line per reason to doubt the estimate: frames left without a pose, and a
-    camera-alone run whose frames were mostly not measured (the motion model's guess)."""
+    """One line per reason to doubt the estimate: frames left without a pose, a run with
+    odometry whose images gave no landmark (the odometry alone), and a camera-alone run
+    whose frames were mostly not measured (the motion model's guess)."""
     out = []
     n, n_pose = result.frames, len(result.estimate.frame_ids)
     if 0 < n_pose < n:
         out.append(
             f"{n - n_pose} of {n} frames have no pose (before the monocular map "
             f"started, or not placed by it); the scores are over the other {n_pose}"
+        )
+    if result.odometry != "none" and n >= 2 and len(result.estimate.landmark_ids) == 0:
+        out.append(
+            f"no landmark entered the map in {n} frames ({sum(result.tracking.get('observations', []))} "
+            "corners matched in all): the trajectory is the odometry alone, the images corrected nothing"
         )
     if result.odometry != "none" or n < 2:
         return out

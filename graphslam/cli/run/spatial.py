@@ -82,6 +82,10 @@ def _load_sequence(args, config):
         from graphslam.sources.spatial.frames import parse_frames, select_frames
 
         sequence = select_frames(sequence, parse_frames(args.frames))
+    from graphslam.cli.common import warn
+
+    for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
+        warn(doubt)
     return sequence
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from graphslam.sources.spatial.sequence import check_K, parse_floats, read_lines
+from graphslam.sources.spatial.sequence import camera_doubts, check_K, image_size, parse_floats, read_lines
 from slamcore.errors import InputError
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -185,3 +185,43 @@ def find_intrinsics_file(folder: Path) -> Path | None:
         if (folder / name).is_file():
             return folder / name
     return None
+
+
+def read_camera_of(
+    path: str | Path, first_image: str | Path
+) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+    """``(K, distortion, warnings)`` of an intrinsics file for images like ``first_image``:
+    :func:`read_intrinsics_file`, then :func:`~.sequence.camera_doubts` against that
+    image's size (InputError when ``K`` cannot be its camera)."""
+    K, dist = read_intrinsics_file(path)
+    size, stated = image_size(str(first_image)), stated_image_size(path)
+    if stated is not None and stated != size:
+        raise InputError(
+            f"the camera is calibrated for {stated[0]}x{stated[1]} px images (the size the file "
+            f"states), these are {size[0]}x{size[1]} px ({Path(first_image).name})",
+            path,
+        )
+    return K, dist, camera_doubts(K, size, Path(path), str(first_image))
+
+
+def stated_image_size(path: str | Path) -> tuple[int, int] | None:
+    """``(W, H)`` a YAML camera file states its images to be (ROS and OpenCV
+    ``image_width``/``image_height``, EuRoC and Kalibr ``resolution: [W, H]``), else None
+    (a text file, no such keys, or keys that are not two whole numbers)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
+        return None
+    data = load_yaml(path)
+    return yaml_image_size(data) if isinstance(data, dict) else None
+
+
+def yaml_image_size(data: dict) -> tuple[int, int] | None:
+    """``(W, H)`` of the ``image_width``/``image_height`` or ``resolution`` keys, else None."""
+    value = data.get("resolution")
+    if value is None and "image_width" in data and "image_height" in data:
+        value = [data["image_width"], data["image_height"]]
+    try:
+        w, h = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        return None
+    return (int(w), int(h)) if w.is_integer() and h.is_integer() and w > 0 and h > 0 else None

@@ -11,7 +11,11 @@ the calibration states (TUM fr1/fr2 presets, EuRoC
 
 Bad input raises :class:`~slamcore.errors.InputError` naming the file and, for
 a malformed line, its 1-based line number; a missing file or a count mismatch
-gives a one-line message.
+gives a one-line message. Every reader checks its camera against the first image
+(:func:`~.sequence.image_doubts`): intrinsics that cannot be its camera (a
+principal point outside it, a view wider than a pinhole's, a YAML file stating
+another image size) are refused; a principal point far from the centre and
+frames stored twice are kept as ``ImageSequence.warnings``.
 
 Formats accepted
 ----------------
@@ -45,7 +49,10 @@ unmatched images are dropped, as for TUM.
 
 Plain folder (:func:`read_image_folder`): files ending in ``.png .jpg .jpeg
 .bmp .tif .tiff`` (any case) in natural file-name order (``img2`` before
-``img10``); no timestamps, no ground truth. Intrinsics from a file:
+``img10``; a name that is one decimal number by its value: ``1.25.png`` before
+``1.5.png``); two names of one place in that order (``frame_1.png`` and
+``frame_01.png``, ``3.png`` and ``3.jpg``) are refused. No timestamps, no ground
+truth. Intrinsics from a file:
 
 * text (any name not ending in ``.yaml``/``.yml``), ``#`` comments, numbers
   separated by spaces or commas, either ``fx fy cx cy`` on one line, or the
@@ -76,6 +83,8 @@ from graphslam.sources.spatial.calibration import (
     load_yaml,
     read_intrinsics_file,
     resolve_intrinsics,
+    stated_image_size,
+    yaml_image_size,
     yaml_matrix,
 )
 from graphslam.sources.spatial.kitti import read_kitti
@@ -87,7 +96,7 @@ from graphslam.sources.spatial.sequence import (
     check_exist,
     check_increasing,
     check_K,
-    image_size,
+    image_doubts,
     list_images,
     parse_euroc_line,
     parse_floats,
@@ -156,10 +165,15 @@ def read_tum_rgbd(
     check_increasing(stamps, numbers, rgb)
     check_exist(paths, rgb)
 
+    camera_from: Path | str = folder
     if intrinsics is not None:
         K, dist = resolve_intrinsics(intrinsics, folder, TUM_INTRINSICS)
+        camera_from = Path(intrinsics) if isinstance(intrinsics, (str, Path)) else "intrinsics argument"
+        if isinstance(intrinsics, str) and intrinsics.lower() in TUM_INTRINSICS:
+            camera_from = f"the TUM camera {intrinsics}"
     elif (f := find_intrinsics_file(folder)) is not None:
         K, dist = read_intrinsics_file(f)
+        camera_from = f
     else:
         m = re.search(r"freiburg([123])", folder.resolve().name)
         if m is None:
@@ -186,7 +200,9 @@ def read_tum_rgbd(
         # a repeated stamp gives one image two truths (association picks one silently)
         check_increasing(gt_t, gt_lines, gpath, "groundtruth timestamps")
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
-    return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc, image_size(paths[0]), str(folder))
+    stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
+    size, doubts = image_doubts(K, paths, camera_from, stated)
+    return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
 
 
 # --------------------------------------------------------------------------- EuRoC
@@ -253,9 +269,8 @@ def read_euroc(
             gt_t.append(v[0] * 1e-9)
             gt_T.append(T @ T_BS)
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
-    return ImageSequence(
-        f"euroc-{folder.name}", paths, stamps, K, dist, wTc, image_size(paths[0]), str(folder)
-    )
+    size, doubts = image_doubts(K, paths, ypath, yaml_image_size(data))
+    return ImageSequence(f"euroc-{folder.name}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
 
 
 # --------------------------------------------------------------------------- plain folder
@@ -295,17 +310,21 @@ def read_image_folder(
     paths = list_images(folder)
     if not paths:
         raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}){_images_below(folder)}", folder)
+    camera_from: Path | str
     if intrinsics is not None:
         K, dist = resolve_intrinsics(intrinsics, folder)
+        camera_from = Path(intrinsics) if isinstance(intrinsics, (str, Path)) else "intrinsics argument"
     elif intrinsics_file is not None:
         K, dist = read_intrinsics_file(intrinsics_file)
+        camera_from = Path(intrinsics_file)
     elif (f := find_intrinsics_file(folder)) is not None:
         K, dist = read_intrinsics_file(f)
+        camera_from = f
     else:
         raise InputError(f"no intrinsics: {NO_INTRINSICS_HINT}", folder)
-    return ImageSequence(
-        f"folder-{folder.name}", paths, None, K, dist, None, image_size(paths[0]), str(folder)
-    )
+    stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
+    size, doubts = image_doubts(K, paths, camera_from, stated)
+    return ImageSequence(f"folder-{folder.name}", paths, None, K, dist, None, size, str(folder), doubts)
 
 
 # --------------------------------------------------------------------------- detection

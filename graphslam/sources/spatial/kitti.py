@@ -26,7 +26,7 @@ from graphslam.sources.spatial.sequence import (
     check_increasing,
     check_K,
     check_rotation,
-    image_size,
+    image_doubts,
     natural_key,
     parse_floats,
     read_lines,
@@ -125,6 +125,5 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
         wTc = _per_image(read_kitti_poses(ppath), paths, "poses", img_dir, ppath)
         if camera != 0:
             wTc = wTc @ c0Tck
-    return ImageSequence(
-        f"kitti-{folder.name}", paths, stamps, K, None, wTc, image_size(paths[0]), str(folder)
-    )
+    size, doubts = image_doubts(K, paths, folder / "calib.txt")
+    return ImageSequence(f"kitti-{folder.name}", paths, stamps, K, None, wTc, size, str(folder), doubts)

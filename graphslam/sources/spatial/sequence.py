@@ -8,6 +8,7 @@ rendered :mod:`.synthetic_images`.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
@@ -55,6 +56,7 @@ class ImageSequence:
         wTc_true: (N, 4, 4) camera-to-world ground truth, or ``None``.
         image_size: ``(W, H)`` in pixels.
         source_path: the folder the sequence came from, if any.
+        warnings: the reader's reasons to doubt a run on these images, one line each.
     """
 
     name: str
@@ -65,6 +67,10 @@ class ImageSequence:
     wTc_true: np.ndarray | None
     image_size: tuple[int, int]
     source_path: str | None = None
+    #: reasons to doubt a run on these images that the reader found (intrinsics that
+    #: do not fit the image, a frame stored twice), one line each: the run says them
+    #: as ``graphslam: warning:`` lines and keeps them in metrics.json ``warnings``
+    warnings: tuple[str, ...] = ()
     #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
     #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
     _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False, compare=False)
@@ -93,9 +99,11 @@ class ImageSequence:
         img = load_gray(self.image_paths[i])
         if (img.shape[1], img.shape[0]) != tuple(self.image_size):
             # the intrinsics are the first image's: another size is another camera
+            turned = (img.shape[0], img.shape[1]) == tuple(self.image_size)
             raise InputError(
                 f"image is {img.shape[1]}x{img.shape[0]} px, the sequence's "
-                f"are {self.image_size[0]}x{self.image_size[1]}",
+                f"are {self.image_size[0]}x{self.image_size[1]}"
+                + (" (turned by 90 degrees: a photo with another EXIF orientation?)" if turned else ""),
                 self.image_paths[i],
             )
         return img
@@ -285,6 +293,158 @@ def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
     return K
 
 
+#: Farthest a pinhole ``K`` may put an image edge from the optical axis, degrees.
+#: The widest rectilinear lenses made see about 120-130 degrees across (60-65
+#: from the axis); past 80 degrees a pixel at the edge covers over 30 times the
+#: angle of one at the centre (``1 / cos^2``). Beyond it the numbers are not a
+#: pinhole camera's: a fisheye, or intrinsics divided by the image size.
+MAX_HALF_VIEW_DEG = 80.0
+#: How far from the image centre the principal point may be before a run is
+#: doubted, as a share of the way to the edge (an ellipse through the middles of
+#: the half-widths). A lens is centred on its sensor to a few percent, and
+#: rectification or a crop moves the point by a few percent more (KITTI: 2 %,
+#: EuRoC: 4 %, TUM fr1: 6 %); intrinsics of another resolution or of the image
+#: turned by 90 degrees put it 50 % or more away (at a corner: 100 %).
+PRINCIPAL_POINT_DOUBT = 0.5
+
+
+def _offset(cx: float, cy: float, w: int, h: int) -> float:
+    """Distance of ``(cx, cy)`` from the centre of a ``w`` x ``h`` image, 1 at an edge's middle."""
+    return math.hypot((cx - (w - 1) / 2) / (w / 2), (cy - (h - 1) / 2) / (h / 2))
+
+
+def camera_doubts(K: np.ndarray, size: tuple[int, int], where, first_image: str | None = None) -> list[str]:
+    """Check that ``K`` is a camera of ``size`` ``(W, H)`` images; InputError (naming
+    ``where``) when it cannot be, else the reasons to doubt it (warning lines).
+
+    Refused: a principal point outside the image (intrinsics of another resolution,
+    or ``cx cy`` in another place of the line) and a focal length that puts an image
+    edge more than :data:`MAX_HALF_VIEW_DEG` off the axis (normalised intrinsics).
+    Doubted: a principal point more than :data:`PRINCIPAL_POINT_DOUBT` of the way to
+    the edge, or half that when ``first_image`` is turned by its EXIF orientation
+    (OpenCV reads it turned) and ``K`` fits the image as stored better (the line
+    says so).
+    """
+    K = np.asarray(K, dtype=np.float64)
+    w, h = int(size[0]), int(size[1])
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
+        raise InputError(
+            f"principal point (cx, cy) = ({cx:.6g}, {cy:.6g}) px is outside the {w}x{h} px "
+            "images: "
+            + (
+                _exif_turned(cx, cy, w, h, first_image)
+                or "intrinsics of another resolution, or the numbers in another order "
+                "(expected 'fx fy cx cy')"
+            ),
+            where,
+        )
+    half_x = math.degrees(math.atan(max(cx + 0.5, w - 0.5 - cx) / fx))
+    half_y = math.degrees(math.atan(max(cy + 0.5, h - 0.5 - cy) / fy))
+    if max(half_x, half_y) > MAX_HALF_VIEW_DEG:
+        raise InputError(
+            f"fx = {fx:.6g}, fy = {fy:.6g} px put the edge of the {w}x{h} px images "
+            f"{max(half_x, half_y):.1f} degrees off the axis (a pinhole camera sees at most "
+            f"{MAX_HALF_VIEW_DEG:g}): intrinsics divided by the image size? they are in pixels",
+            where,
+        )
+    off = _offset(cx, cy, w, h)
+    # half the doubt when the photos are turned on reading and K fits them as stored:
+    # a 4:3 photo's landscape K on the portrait image is 42 % off, beyond any lens too
+    exif = _exif_turned(cx, cy, w, h, first_image) if off > PRINCIPAL_POINT_DOUBT / 2 else ""
+    if off <= PRINCIPAL_POINT_DOUBT and not exif:
+        return []
+    why = exif or "intrinsics of another resolution or orientation?"
+    return [
+        f"{where}: principal point ({cx:.6g}, {cy:.6g}) px is {100 * off:.0f} % of the way from "
+        f"the centre of the {w}x{h} px images to their edge (a lens: a few %): {why}; "
+        "the estimate is doubtful"
+    ]
+
+
+def _exif_turned(cx: float, cy: float, w: int, h: int, first_image: str | None) -> str:
+    """What to say when ``first_image`` is stored ``h`` x ``w`` and turned by its EXIF
+    orientation when read, and ``(cx, cy)`` fit the stored pixels; else ``""``."""
+    if first_image is None or w == h or _offset(cx, cy, h, w) >= _offset(cx, cy, w, h):
+        return ""
+    if stored_size(first_image) != (h, w):
+        return ""
+    return (
+        f"the photos are stored {h}x{w} px and turned by their EXIF orientation when read, "
+        "and these intrinsics fit the stored pixels: give those of the turned images"
+    )
+
+
+def image_doubts(
+    K: np.ndarray, paths: Sequence[str], camera_from, stated: tuple[int, int] | None = None
+) -> tuple[tuple[int, int], tuple[str, ...]]:
+    """``(image size (W, H), warnings)`` of a sequence read from ``paths`` with ``K``:
+    :func:`camera_doubts` (InputError naming ``camera_from``, the file the camera came
+    from) and :func:`repeated_frames`. ``stated``: the size the camera file gives its
+    images, if it does; another size than the images' is refused."""
+    size = image_size(paths[0])
+    if stated is not None and tuple(stated) != size:
+        raise InputError(
+            f"the camera is calibrated for {stated[0]}x{stated[1]} px images (the size the file "
+            f"states), these are {size[0]}x{size[1]} px ({Path(paths[0]).name})",
+            camera_from,
+        )
+    return size, (*camera_doubts(K, size, camera_from, paths[0]), *repeated_frames(paths))
+
+
+def stored_size(path: str) -> tuple[int, int] | None:
+    """``(W, H)`` of an image as stored, its EXIF orientation ignored (None: unreadable)."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError:
+        return None
+    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    return None if img is None else (int(img.shape[1]), int(img.shape[0]))
+
+
+def repeated_frames(paths: Sequence[str]) -> list[str]:
+    """A warning line when consecutive frames are one file or byte-identical files, else [].
+
+    A camera's two exposures always differ (sensor noise, at least), so two equal
+    files in a row are one frame stored twice: the run takes them as two instants,
+    between which the camera did not move whatever its odometry or truth says.
+    Only files of the size of a neighbour are read, each once (a BLAKE2b
+    digest compared, not the bytes).
+    """
+    sizes = []
+    for p in paths:
+        try:
+            sizes.append(os.stat(p).st_size)
+        except OSError:
+            sizes.append(-1)
+    digests: dict[int, bytes | None] = {}  # each file read once (an uncompressed
+    # sequence has every file of one size)
+
+    def digest(k: int) -> bytes | None:
+        if k not in digests:
+            try:
+                digests[k] = hashlib.blake2b(Path(paths[k]).read_bytes()).digest()
+            except OSError:
+                digests[k] = None
+        return digests[k]
+
+    pairs = []
+    for k in range(1, len(paths)):
+        a, b = paths[k - 1], paths[k]
+        if sizes[k] < 0 or sizes[k] != sizes[k - 1]:
+            continue
+        if a == b or (digest(k - 1) is not None and digest(k - 1) == digest(k)):
+            pairs.append((a, b))
+    if not pairs:
+        return []
+    a, b = pairs[0]
+    return [
+        f"{len(pairs)} of {len(paths) - 1} consecutive frames are the same image twice "
+        f"(first: {Path(a).name}, {Path(b).name}): two exposures of a camera always differ, "
+        "so these are frames stored twice, taken as instants at which the camera did not move"
+    ]
+
+
 def image_size(path: str) -> tuple[int, int]:
     img = load_gray(path)
     return int(img.shape[1]), int(img.shape[0])
@@ -301,13 +461,22 @@ def check_exist(paths: Sequence[str], where: Path) -> None:
 #: Runs of ASCII digits only: ``\d`` and ``str.isdigit`` also take ``²`` or
 #: ``١``, which ``int`` refuses or which no file-name order means as a number.
 _ASCII_DIGITS = re.compile(r"([0-9]+)")
+#: A file name whose stem is one decimal number: a time stamp (``1.25.png``,
+#: ``1305031102.175304.png``), ordered by its value (``1.5`` after ``1.25``), not as
+#: two digit runs (``5`` before ``25``).
+_DECIMAL_STEM = re.compile(r"([0-9]+)\.([0-9]+)(\.[^.]*)?")
 
 
 def natural_key(name: str):
-    """Sort key of a file name: ``img2`` before ``img10`` (ASCII digit runs as numbers)."""
+    """Sort key of a file name: ``img2`` before ``img10`` (ASCII digit runs as numbers),
+    ``1.25.png`` before ``1.5.png`` (a stem that is one decimal number, by its value)."""
+    m = _DECIMAL_STEM.fullmatch(name)
+    if m is not None:
+        # (integer part, fraction digits): fractions compare as text ("25" < "5")
+        return ["", (int(m.group(1)), m.group(2).rstrip("0")), (m.group(3) or "").lower()]
     parts = _ASCII_DIGITS.split(name)
     # split with a group alternates text and digit runs: odd places are digits
-    return [int(t) if i % 2 else t.lower() for i, t in enumerate(parts)]
+    return [(int(t), "") if i % 2 else t.lower() for i, t in enumerate(parts)]
 
 
 def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarray:
@@ -344,7 +513,25 @@ def list_images(folder: Path) -> list[str]:
             + more,
             first,
         )
-    return sorted(found, key=lambda s: natural_key(Path(s).name))
+    ordered = sorted(found, key=lambda s: natural_key(Path(s).name))
+    _check_one_place_each(ordered)
+    return ordered
+
+
+def _check_one_place_each(paths: list[str]) -> None:
+    """InputError when two files take one place in the order: the same number under two
+    spellings (``frame_1.png``, ``frame_01.png``: their order would be the file
+    system's) or one frame stored twice (``000003.png`` and ``000003.jpg``)."""
+    keys = [natural_key(Path(p).stem) for p in paths]
+    seen: dict[str, str] = {}
+    for p, k in zip(paths, keys, strict=True):
+        first = seen.setdefault(repr(k), p)
+        if first != p:
+            raise InputError(
+                f"{Path(first).name} and {Path(p).name} name the same frame: which comes first "
+                "is not known; keep one of them (or number them apart)",
+                Path(p).parent,
+            )
 
 
 def folder_images(folder: Path) -> list[Path]:
@@ -356,6 +543,22 @@ def folder_images(folder: Path) -> list[Path]:
     if not paths:
         raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in folder", folder)
     return paths
+
+
+def check_utf8_names(paths: Sequence[str | Path], why: str) -> None:
+    """InputError naming the first file whose name is not UTF-8 (a Latin-1 name from an
+    old archive reads as undecodable bytes), for outputs that name images by file name
+    in UTF-8 text (``why``: which)."""
+    for p in paths:
+        name = Path(p).name
+        try:
+            name.encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputError(
+                f"file name {os.fsencode(name)!r} is not UTF-8: {why}; rename the file "
+                "(e.g. convmv -f latin1 -t utf8)",
+                Path(p).parent,
+            ) from None
 
 
 def expand_images(items: list[str | Path]) -> list[Path]:

@@ -212,7 +212,7 @@ def test_tum_ground_truth_is_matched_by_timestamp(tmp_path):
     (folder / "rgb").mkdir(parents=True)
     lines = []
     for k in range(4):
-        cv2.imwrite(str(folder / "rgb" / f"{k}.png"), np.full((6, 8), 10 * k, np.uint8))
+        cv2.imwrite(str(folder / "rgb" / f"{k}.png"), np.full((480, 640), 10 * k, np.uint8))  # fr3's size
         lines.append(f"{100 + 0.1 * k:.4f} rgb/{k}.png\n")
     (folder / "rgb.txt").write_text("".join(lines))
     seq = read_image_sequence(folder, intrinsics="fr3")

@@ -106,7 +106,7 @@ def _fake_tum(tmp_path: Path) -> Path:
     lines = ["# color images", "# timestamp filename"]
     for k in range(4):
         t = 100.0 + 0.1 * k
-        _png(folder / "rgb" / f"{t:.6f}.png", 20 * k)
+        _png(folder / "rgb" / f"{t:.6f}.png", 20 * k, size=(640, 480))  # the fr1 camera's
         lines.append(f"{t:.6f} rgb/{t:.6f}.png")
     (folder / "rgb.txt").write_text("\n".join(lines) + "\n")
     # Ground truth starts after the first image (as in TUM), every 0.01 s.
@@ -126,8 +126,8 @@ def test_tum_good(tmp_path):
     np.testing.assert_allclose(seq.stamps_s, [100.1, 100.2, 100.3])
     np.testing.assert_allclose(seq.wTc_true[:, 0, 3], [0.103, 0.203, 0.303], atol=1e-9)
     np.testing.assert_allclose(seq.K[0], [500, 0, 320])
-    assert seq.image_size == (8, 6)
-    assert seq.load(0).shape == (6, 8)
+    assert seq.image_size == (640, 480)
+    assert seq.load(0).shape == (480, 640)
     # freiburg1 in the folder name selects the fr1 preset (with distortion).
     auto = read_image_sequence(folder)
     assert auto.name.startswith("tum") and auto.K[0, 0] == pytest.approx(517.3)
@@ -186,7 +186,7 @@ T_BS:
          0.0, 1.0, 0.0, 0.0,
          0.0, 0.0, 1.0, 0.0,
          0.0, 0.0, 0.0, 1.0]
-resolution: [8, 6]
+resolution: [752, 480]
 camera_model: pinhole
 intrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv
 distortion_model: radial-tangential
@@ -199,7 +199,7 @@ def _fake_euroc(tmp_path: Path) -> Path:
     lines = ["#timestamp [ns],filename"]
     for k in range(3):
         ns = 1_000_000_000 + 50_000_000 * k
-        _png(cam / "data" / f"{ns}.png", 30 * k)
+        _png(cam / "data" / f"{ns}.png", 30 * k, size=(752, 480))  # the intrinsics' camera
         lines.append(f"{ns},{ns}.png")
     (cam / "data.csv").write_text("\n".join(lines) + "\n")
     (cam / "sensor.yaml").write_text(SENSOR_YAML)
