@@ -74,6 +74,8 @@ class FrameSelection(ImageSequence):
     odometry_covariance: np.ndarray | None = None
     odometry_sigmas: tuple[float, float] | None = None
     config: object = field(default=None)
+    #: what the reader made of the source (a ROS bag's topics), as the base says it
+    notes: tuple[str, ...] = ()
 
     def load(self, i: int) -> np.ndarray:
         return self.base.load(int(self.indices[i]))
@@ -112,6 +114,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         odometry_covariance=cov,
         odometry_sigmas=sig,
         config=getattr(sequence, "config", None),
+        notes=tuple(getattr(sequence, "notes", ())),
     )
 
 

@@ -495,11 +495,13 @@ def list_images(folder: Path) -> list[str]:
 
     A symbolic link with an image's name that leads to no file is refused
     (InputError naming it), as a corrupt image is when read: skipped, it made
-    the folder one image shorter without a word.
+    the folder one image shorter without a word. Hidden files (a name starting with
+    ``.``: macOS's ``._0001.png`` AppleDouble companions on a copied drive) are no
+    frames and are passed over, as ``ls`` does.
     """
     found, dangling = [], []
     for p in Path(folder).iterdir():
-        if p.suffix.lower() not in IMAGE_EXTENSIONS:
+        if p.suffix.lower() not in IMAGE_EXTENSIONS or p.name.startswith("."):
             continue
         if p.is_file():
             found.append(str(p))

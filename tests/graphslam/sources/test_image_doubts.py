@@ -58,6 +58,36 @@ def test_two_spellings_of_one_frame_are_refused(tmp_path):
             list_images(folder)
 
 
+def test_hidden_files_are_no_frames(tmp_path):
+    # macOS leaves ._name AppleDouble companions on a copied drive: not images
+    for name in ("000000.png", "000001.png"):
+        cv2.imwrite(str(tmp_path / name), _texture(4, 4))
+    (tmp_path / "._000000.png").write_bytes(b"\x00\x05\x16\x07" + bytes(80))
+    assert [p.rsplit("/", 1)[1] for p in list_images(tmp_path)] == ["000000.png", "000001.png"]
+
+
+def test_a_selection_keeps_the_readers_notes(tmp_path):
+    # a ROS bag's notes (which topics were read) survive --frames
+    from dataclasses import dataclass, fields
+
+    from graphslam.sources.spatial.sequence import ImageSequence
+
+    @dataclass(frozen=True, eq=False, kw_only=True)
+    class Noted(ImageSequence):  # the notes as BagSequence holds them
+        notes: tuple[str, ...] = ()
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(folder / f"{k:02d}.png"), _texture(48, 64, k))
+    (folder / "intrinsics.txt").write_text("60 60 31.5 23.5\n")
+    seq = read_image_folder(folder)
+    given = {f.name: getattr(seq, f.name) for f in fields(seq) if f.init}
+    noted = Noted(**given, notes=("images: /cam0/image_raw (3 messages)",))
+    assert select_frames(noted, slice(0, 2)).notes == noted.notes
+    assert select_frames(seq, slice(0, 2)).notes == ()
+
+
 def test_honest_kitti_camera_has_no_doubt():
     assert camera_doubts(KITTI_K, (1226, 370), "calib.txt") == []
 
