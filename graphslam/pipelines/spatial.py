@@ -489,7 +489,7 @@ def compute_metrics(
         if m.ate_percent_of_path is not None and m.ate_percent_of_path > DIVERGED_ATE_PERCENT:
             m.warnings = (m.warnings or []) + [
                 f"ATE {m.ate_percent_of_path:.1f} % of the path (> {DIVERGED_ATE_PERCENT:g} %): "
-                "the estimate has most likely diverged"
+                + (_inverted_truth(result, m) or "the estimate has most likely diverged")
             ]
     return m
 
@@ -538,6 +538,37 @@ def _doubts(result: VisualRunResult) -> list[str]:
             "motion model's guess, not a measurement"
         )
     return out
+
+
+#: The truth read inverted explains a divergence when it scores the estimate within
+#: :data:`DIVERGED_ATE_PERCENT` of its path (no divergence) and at most this share of
+#: the ATE against the truth as given.
+INVERTED_TRUTH_ATE_SHARE = 0.5
+
+
+def _inverted_truth(result: VisualRunResult, m: SpatialRunMetrics) -> str:
+    """The sentence for a truth of world-to-camera poses read as camera-to-world (a
+    ``--ground-truth`` file of the other convention), when its inverse explains the
+    divergence (:data:`INVERTED_TRUTH_ATE_SHARE`), else ''."""
+    from graphslam.evaluation import spatial as metrics3d
+
+    est, n, truth = result.estimate, result.frames, result.sequence.wTc_true
+    if truth is None or m.ate_rmse_m is None:
+        return ""
+    gt = invert_pose(np.asarray(truth[:n], dtype=np.float64))
+    try:
+        a = metrics3d.ate(est.frame_ids, est.wTc, np.arange(n, dtype=np.int64), gt, alignment=m.alignment)
+    except GraphSlamError:
+        return ""
+    pct = metrics3d.percent_of(a["rmse_m"], metrics3d.path_length(gt))
+    if pct is None or not (
+        pct <= DIVERGED_ATE_PERCENT and a["rmse_m"] <= INVERTED_TRUTH_ATE_SHARE * m.ate_rmse_m
+    ):
+        return ""
+    return (
+        f"against the truth's poses inverted it is {pct:.2f} %: the truth holds world-to-camera "
+        "poses read as camera-to-world (invert the --ground-truth file)"
+    )
 
 
 def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:

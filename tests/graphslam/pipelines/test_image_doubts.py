@@ -44,3 +44,35 @@ def test_no_landmark_with_odometry_is_said():
     assert "no landmark entered the map in 5 frames" in line and "odometry alone" in line
     assert vp._doubts(_result("derived", 3)) == []
     assert vp._doubts(_result("derived", 0, frames=1)) == []  # one frame: nothing to correct
+
+
+def _kitti07(shared_data, n: int) -> np.ndarray:
+    """(n, 4, 4) camera-to-world truth of KITTI 07's first frames."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3] = np.loadtxt(shared_data / "kitti07" / "poses.txt")[:n].reshape(-1, 3, 4)
+    return T
+
+
+def _scored(truth: np.ndarray, estimate: np.ndarray):
+    from graphslam.evaluation import spatial as metrics3d
+
+    n = len(truth)
+    result = SimpleNamespace(estimate=SimpleNamespace(frame_ids=np.arange(n), wTc=estimate), frames=n,
+                             sequence=SimpleNamespace(wTc_true=truth))
+    a = metrics3d.ate(np.arange(n), estimate, np.arange(n), truth, alignment="sim3")
+    return result, SimpleNamespace(alignment="sim3", ate_rmse_m=a["rmse_m"])
+
+
+def test_a_truth_of_world_to_camera_poses_is_named_in_the_divergence_warning(shared_data):
+    from slamcore.spatial.geometry import invert_pose
+
+    T = _kitti07(shared_data, 60)
+    wobble = T.copy()
+    wobble[:, :3, 3] += 0.05 * np.sin(np.arange(60))[:, None]  # an honest estimate, 5 cm off
+    said = vp._inverted_truth(*_scored(invert_pose(T), wobble))
+    assert "truth holds world-to-camera poses" in said
+    # the truth as it should be: nothing to explain; an estimate lost anyway: not blamed on the truth
+    assert vp._inverted_truth(*_scored(T, wobble)) == ""
+    lost = np.tile(np.eye(4), (60, 1, 1))
+    lost[:, :3, 3] = np.random.default_rng(0).normal(0.0, 20.0, (60, 3))
+    assert vp._inverted_truth(*_scored(invert_pose(T), lost)) == ""
