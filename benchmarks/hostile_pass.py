@@ -476,7 +476,105 @@ def attacks() -> list[Attack]:
                lambda f: _images_run(_kitti_folder(f, 10, names=lambda k: f"{STAMP_NAMES[k]}.png"),
                                      "--ground-truth", str(_kitti_gt(f, 10)), max_steps=None),
                expect=("ok",), check=_landmarks_found),
+        # sixth pass: pose graphs and range-bearing logs
+        Attack("EDGE_SE2 turns written in degrees: warned", "silent",
+               lambda f: _run(_w(f, "d.g2o", _square_g2o("90"))), ("ok",), check=_warned("degrees?")),
+        Attack("TORO EDGE3 roll pitch yaw in degrees: warned", "silent",
+               lambda f: _run(_w(f, "d.graph", _chain_toro3("0 0 30"))), ("ok",), check=_warned("degrees?")),
+        Attack("EDGE_SE2 turns in degrees streamed (--backend ekf): said", "silent",
+               lambda f: _run(_w(f, "d.g2o", _square_g2o("90")), "--backend", "ekf"), ("ok",),
+               check=_says("degrees?")),
+        Attack("3-D quaternions written w x y z: warned", "silent",
+               lambda f: _run(_w(f, "w.g2o", _chain_se3("1 0 0 0"))), ("ok",), check=_warned("w x y z?")),
+        Attack("3-D quaternions of norm 2: warned", "silent",
+               lambda f: _run(_w(f, "n.g2o", _chain_se3("0 0 0 2"))), ("ok",), check=_warned("not unit")),
+        Attack("a g2o file with an edge written twice: warned", "silent",
+               lambda f: _run(_w(f, "t.g2o", _square_g2o("1.5707963", twice=True))), ("ok",),
+               check=_warned("weighs double")),
+        Attack("convert of a file in degrees says so", "silent",
+               lambda f: ["convert", str(_w(f, "d.g2o", _square_g2o("90"))), "d.graph"], ("ok",),
+               check=_says("degrees?")),
+        Attack("a pose graph in radians says no doubt", "silent",
+               lambda f: _run(_w(f, "r.g2o", _square_g2o("1.5707963"))), ("ok",),
+               check=lambda f, o, e: "a warning on an honest file" if "warning" in e else None),
+        Attack("TORO BR bearings in degrees", "silent",
+               lambda f: _run(_w(f, "b.graph", _example_graph(degrees=True))), check=_says("degrees?")),
+        Attack("MRCLAM times in milliseconds", "silent",
+               lambda f: _run(_mrclam_edited(f, "Robot1_Odometry.dat",
+                                             lambda t: [f"{float(t[0]) * 1000:.0f}", *t[1:]]),
+                              "--max-steps", "20"), check=_says("milliseconds?")),
+        Attack("MRCLAM bearings in degrees name the unit", "silent",
+               lambda f: _run(_mrclam_edited(f, "Robot1_Measurement.dat",
+                                             lambda t: [*t[:3], f"{np.degrees(float(t[3])):.4f}"]),
+                              "--max-steps", "20"), check=_says("degrees?")),
+        Attack("MRCLAM folder with robot 2's Groundtruth as robot 1's: warned", "silent",
+               lambda f: _run(_mrclam_edited(f, "Robot1_Groundtruth.dat", None, DATA / "mrclam6" /
+                                             "Robot2_Groundtruth.dat"), "--max-steps", "200"),
+               ("ok",), check=_warned("not of one robot", summary=True)),
+        Attack("Victoria Park heading changes in degrees", "silent",
+               lambda f: _run(_vp_degrees(f), "--max-steps", "50"), check=_says("degrees?")),
     ]
+
+
+#: The information of the sixth pass's 3-D edges (diagonal 100).
+INFO_6X6 = " ".join("100" if r == c else "0" for r in range(6) for c in range(r, 6))
+
+
+def _square_g2o(turn: str, twice: bool = False) -> str:
+    """A 2-D square of four poses, each edge turning by ``turn`` (as written); ``twice``:
+    the last edge line written again."""
+    lines = [f"VERTEX_SE2 {k} 0 0 0" for k in range(4)]
+    lines += [f"EDGE_SE2 {k} {(k + 1) % 4} 1 0 {turn} 100 0 0 100 0 1000" for k in range(4)]
+    return "\n".join(lines + lines[-1:] * twice) + "\n"
+
+
+def _chain_se3(quat: str) -> str:
+    """Three 3-D poses, two odometry edges and a closure, each edge's quaternion ``quat``."""
+    lines = [f"VERTEX_SE3:QUAT {k} {k} 0 0 0 0 0 1" for k in range(3)]
+    lines += [f"EDGE_SE3:QUAT {a} {b} {b - a} 0 0 {quat} {INFO_6X6}" for a, b in ((0, 1), (1, 2), (0, 2))]
+    return "\n".join(lines) + "\n"
+
+
+def _chain_toro3(rpy: str) -> str:
+    lines = [f"VERTEX3 {k} {k} 0 0 0 0 0" for k in range(3)]
+    lines += [f"EDGE3 {k} {k + 1} 1 0 0 {rpy} {INFO_6X6}" for k in range(2)]
+    return "\n".join(lines) + "\n"
+
+
+def _example_graph(degrees: bool) -> str:
+    """gtsam's example.graph (TORO with BR lines), its bearings in degrees if ``degrees``."""
+    out = []
+    for line in Path(_gtsam("example.graph")).read_text().splitlines():
+        t = line.split()
+        if degrees and t and t[0] == "BR":
+            t[3] = f"{np.degrees(float(t[3])):.6f}"
+        out.append(" ".join(t))
+    return "\n".join(out) + "\n"
+
+
+def _vp_degrees(folder: Path) -> Path:
+    """The first 3000 lines of gtsam's victoria_park.txt, heading changes in degrees."""
+    out = []
+    for line in Path(_gtsam("victoria_park.txt")).read_text().splitlines()[:3000]:
+        t = line.split()
+        if t and t[0] == "ODOMETRY":
+            t[5] = f"{np.degrees(float(t[5])):.6g}"
+        out.append(" ".join(t))
+    return _w(folder, "vp.txt", "\n".join(out) + "\n")
+
+
+def _mrclam_edited(folder: Path, name: str, edit, source: Path | None = None) -> Path:
+    """:func:`_mrclam` with every data row of ``name`` (its tokens) passed through ``edit``
+    (None: kept), ``name`` first replaced by a copy of ``source`` if given."""
+    mr = _mrclam(folder)
+    if source is not None:
+        (mr / name).write_bytes(source.read_bytes())
+    if edit is None:
+        return mr
+    lines = (mr / name).read_text().splitlines()
+    rows = ["\t".join(edit(ln.split())) for ln in lines[4:] if ln.strip()]
+    (mr / name).write_text("\n".join(lines[:4] + rows) + "\n")
+    return mr
 
 
 #: An OpenCV/ROS camera file of a 640x480 camera (its images' size stated).

@@ -56,6 +56,8 @@ class PoseGraph:
             (such a factor is constant: it constrains nothing).
         information_fixed: (M,) bool, the edges whose :attr:`information` is such a
             replacement, not the file's numbers; None when none is.
+        warnings: what the reader doubts in the file (angles in degrees, quaternions
+            that are not unit, edges written twice), one line each; empty when none.
     """
 
     name: str
@@ -78,6 +80,7 @@ class PoseGraph:
     information_fix: str | None = None
     information_fixed: np.ndarray | None = None
     self_edge_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    warnings: tuple[str, ...] = ()
 
     @property
     def n_poses(self) -> int:

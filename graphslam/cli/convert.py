@@ -64,6 +64,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         raise ConfigError("is a folder, not a file", args.output)
     graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
     converted, notes = convert(graph, fmt)
+    notes[:0] = graph.warnings  # the reader's doubts: the output carries them on
     if graph.n_information_fixed:  # the numbers are no longer the file's: say so
         notes.append(
             f"{graph.n_information_fixed} edges' information matrices were not "

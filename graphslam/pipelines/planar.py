@@ -223,7 +223,9 @@ def compute_metrics(
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
-        warnings=metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost) or None,
+        # the reader's doubts about the input first, then the estimate's
+        warnings=[*result.dataset.warnings, *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost)]
+        or None,
     )
 
 

@@ -41,7 +41,8 @@ class PoseGraphRunMetrics(MetricsRecord):
     ``certificate``: SE-Sync's certificate of the estimate
     (:meth:`graphslam.backends.posegraph.certificate.Certificate.to_dict`), or
     ``{"certified": null, "unchecked": why}``; absent when ``certify`` is off or a
-    stop cut the solve."""
+    stop cut the solve. ``warnings``: the reader's doubts about the file
+    (:attr:`slamcore.posegraph.PoseGraph.warnings`), absent when none."""
 
     dataset: str
     backend: str
@@ -75,6 +76,7 @@ class PoseGraphRunMetrics(MetricsRecord):
     ate_poses: int | None = optional()
     interrupted: bool = False
     converged: bool = True
+    warnings: list[str] | None = optional()
 
 
 def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | None = None) -> SolveResult:
@@ -249,6 +251,8 @@ def metrics(
         else ate_rmse(graph, pg.chain_initialisation(graph), truth),
         interrupted=result.cut is not None or stop_requested(),
         converged=not result.lm_capped,
+        # the reader's doubts about the file (degrees, non-unit quaternions, repeats)
+        warnings=list(graph.warnings) or None,
     )
 
 

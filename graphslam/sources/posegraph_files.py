@@ -62,10 +62,16 @@ Python ints (never through a float), from 0 to 2**62 (or ``id_limit``); numbers 
 quaternions of norm >= 1e-6; translations within 1e9 m; information finite and
 positive definite (or replaced, above); an edge from a pose to itself is left out and counted
 (:attr:`PoseGraph.self_edge_lines`); no vertex twice; ``BR`` sigmas and ranges
-positive, in a 2-D TORO file, from a pose of the graph; when the file has vertex
+positive, bearings within one turn, in a 2-D TORO file, from a pose of the graph; when the file has vertex
 lines, every edge and ``FIX`` names a declared pose. Edge-only files are initialised by composing edges
 along a spanning tree that prefers the odometry chain. The graph must be
 connected: otherwise its components are named.
+
+Doubts, one line each in :attr:`PoseGraph.warnings` (the run says them and keeps
+them in ``metrics.json``; ``convert`` says them), when every line reads but the
+numbers are unlikely as written (:func:`file_doubts`): edge angles beyond one turn
+(degrees?), quaternions that are not unit or that turn every odometry step by
+over 150 degrees (written w first?), an edge repeated to the last digit.
 """
 
 from __future__ import annotations
@@ -114,6 +120,22 @@ QUATERNION_NORM_MIN = 1e-6
 #: no robot's motion, and least squares on it overflows (a 1e300 m step: the solve
 #: ended in an indeterminate system, or silently far away).
 TRANSLATION_MAX_M = 1e9
+
+
+#: An edge turning by more than one full turn (rad) is no radian measurement: g2o and
+#: TORO writers give relative angles wrapped to +-pi (the gtsam examples and the RRR
+#: graphs stay within 3.3); a file in degrees turns past it at its first 7 degree edge.
+ONE_TURN_RAD = 2 * math.pi
+#: Largest distance of a quaternion's norm from 1 read without a word: unit
+#: quaternions written to 6 digits are within 1e-5 of it (the gtsam examples: 1.2e-6);
+#: beyond, the four numbers are not a unit quaternion as written (another column?).
+QUATERNION_UNIT_TOL = 1e-3
+#: Smallest turn of every odometry edge (between neighbouring ids), degrees, at which
+#: the quaternions are doubted: ``w x y z`` read as ``qx qy qz qw`` makes a step that
+#: turns by ``t`` a turn of at least ``180 - t``, so a chain of steps under 30 degrees
+#: turns by over 150 at every step, which no robot's odometry does (the gtsam examples'
+#: steps: at most 63 degrees in the least turning of them).
+HALF_TURN_STEPS_DEG = 150.0
 
 
 def upper_order(side: int) -> tuple[tuple[int, int], ...]:
@@ -312,6 +334,12 @@ class _LineReader:
             raise InputError("BR sigmas must be positive", self.path, line_no)
         if numbers[1] <= 0.0:
             raise InputError("BR range must be positive", self.path, line_no)
+        if not abs(numbers[0]) <= ONE_TURN_RAD:
+            raise InputError(
+                f"BR bearing {numbers[0]:g} rad is beyond one turn (2 pi): degrees? TORO angles are radians",
+                self.path,
+                line_no,
+            )
         self.sightings.append(ids)
         self.sighting_numbers.append(numbers)
         self.sighting_lines.append(line_no)
@@ -401,7 +429,70 @@ def _assembled(lines: FileLines, path: Path, toro_noise: str, information_fix: s
         self_edge_lines=lines.edge_lines[self_edge],
     )
     check_connected(graph, path)
-    return with_chain_start(graph)
+    doubts = file_doubts(lines, keep, rotation)
+    return with_chain_start(replace(graph, warnings=doubts) if doubts else graph)
+
+
+def _first_lines(line_numbers: np.ndarray) -> str:
+    shown = ", ".join(map(str, line_numbers[:3].tolist()))
+    return f"line{'s' if len(line_numbers) > 1 else ''} {shown}{', ...' if len(line_numbers) > 3 else ''}"
+
+
+def file_doubts(lines: FileLines, keep: np.ndarray, rotation: str) -> tuple[str, ...]:
+    """What makes a file's numbers doubtful though each line reads, one line each:
+    edge angles beyond one turn (:data:`ONE_TURN_RAD`: degrees?), quaternions that
+    are not unit (:data:`QUATERNION_UNIT_TOL`: normalised, but not as written) or
+    half turns at every odometry step (:data:`HALF_TURN_STEPS_DEG`: w first?),
+    edges written twice to the last digit (each counts: the measurement weighs
+    double). ``keep``: the edges kept (not self-edges)."""
+    doubts = []
+    numbers, edge_lines = lines.numbers[keep], lines.edge_lines[keep]
+    if rotation in ("angle", "rpy"):
+        angles = numbers[:, 2:3] if rotation == "angle" else numbers[:, 3:6]
+        over = (np.abs(angles) > ONE_TURN_RAD).any(axis=1)
+        if over.any():
+            first = int(np.argmax(over))
+            doubts.append(
+                f"{int(over.sum())} of {len(over)} edges turn by more than 2 pi rad "
+                f"({_first_lines(edge_lines[over])}: {np.abs(angles[first]).max():g}): "
+                "angles in degrees? g2o and TORO angles are radians"
+            )
+    if rotation == "quat":
+        for what, quats, at in (
+            ("vertex", lines.vertices[:, 3:7], lines.vertex_lines),
+            ("edge", numbers[:, 3:7], edge_lines),
+        ):
+            norms = np.sqrt((quats**2).sum(axis=1))
+            off = np.abs(norms - 1.0) > QUATERNION_UNIT_TOL
+            if off.any():
+                doubts.append(
+                    f"{int(off.sum())} {what} quaternions are not unit (norms "
+                    f"{norms[off].min():.4g} to {norms[off].max():.4g}, {_first_lines(at[off])}): "
+                    "normalised, but four numbers of another meaning (a shifted column?) "
+                    "read as qx qy qz qw"
+                )
+        edges = lines.edges[keep]
+        rank = np.searchsorted(np.union1d(lines.vertex_ids, edges.ravel()), edges)
+        odometry = np.abs(rank[:, 0] - rank[:, 1]) == 1
+        q = numbers[odometry, 3:7]
+        turn = np.degrees(2 * np.arccos(np.clip(np.abs(q[:, 3]) / np.sqrt((q**2).sum(axis=1)), 0.0, 1.0)))
+        if len(turn) >= 2 and (turn > HALF_TURN_STEPS_DEG).all():
+            doubts.append(
+                f"every odometry edge turns by more than {HALF_TURN_STEPS_DEG:g} degrees "
+                f"({turn.min():.0f} to {turn.max():.0f}): quaternions written w x y z? "
+                "g2o's order is qx qy qz qw"
+            )
+    if len(numbers) > 1:
+        rows = np.column_stack([lines.edges[keep].astype(np.float64), numbers])
+        _, originals, counts = np.unique(rows, axis=0, return_index=True, return_counts=True)
+        if (counts > 1).any():
+            again = np.setdiff1d(np.arange(len(rows)), originals)
+            doubts.append(
+                f"{len(again)} edges repeat an earlier edge to the last digit "
+                f"({_first_lines(np.sort(edge_lines[again]))}): each copy is a factor, so "
+                "the measurement weighs double (a file concatenated twice?)"
+            )
+    return tuple(doubts)
 
 
 def _checked_information(

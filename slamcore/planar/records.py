@@ -390,6 +390,9 @@ class Dataset:
             summary and ``metrics.json`` (sightings dropped, truth coverage, ...).
         agents: several robots in one run: ``(name, pose_ids)`` of each robot's
             trajectory, scored one by one; empty for one robot.
+        warnings: what the reader doubts in the input (angles in degrees, another
+            robot's truth), one line each: the run says them as warnings and keeps
+            them in ``metrics.json`` ``warnings``, before the estimate's own.
     """
 
     name: str
@@ -402,6 +405,7 @@ class Dataset:
     seed: int | None = None
     notes: tuple[str, ...] = ()
     agents: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def has_ground_truth(self) -> bool:

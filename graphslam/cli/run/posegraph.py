@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import fmt, report_outputs, summary_table
+from graphslam.cli.common import fmt, report_outputs, summary_table, warn
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
+    for doubt in graph.warnings:  # the reader's; metrics.json keeps them too
+        warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))

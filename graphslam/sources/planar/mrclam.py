@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -300,7 +300,49 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
         track.notes.append(
             f"{len(track.robot_sightings)} sightings of other robots left out (single-robot run)"
         )
-    return _dataset(folder, config, track, landmarks_true)
+    doubt = truth_sightings_doubt(config, track, landmarks_true)
+    dataset = _dataset(folder, config, track, landmarks_true)
+    return replace(dataset, warnings=(doubt,)) if doubt else dataset
+
+
+#: Whitened error (model sigmas) beyond which a sighting misses its landmark as seen
+#: from the truth, and the share of such sightings past which the truth and the
+#: sightings are doubted: a Gaussian leaves 0.27 % beyond 3 sigma, Dataset 6's robots
+#: 4-18 % (heavy tails), another robot's truth 99.8-100 %; beyond half of them, the
+#: median sighting is no measurement from where the truth puts the robot.
+SIGHTING_MISS_SIGMA, SIGHTING_MISS_SHARE = 3.0, 0.5
+
+
+def truth_sightings_doubt(config: MrclamConfig, track, landmarks_true: dict) -> str | None:
+    """A doubt when most sightings of known landmarks at frames with truth miss the
+    landmark, as seen from the true pose, by more than :data:`SIGHTING_MISS_SIGMA`
+    sigmas of the sighting model (range or bearing): the truth or the sightings are
+    another robot's (another data set's) file. None otherwise (or too few to tell)."""
+    rows = [
+        (k, s, z)
+        for k, s, z in track.landmark_sightings
+        if s in landmarks_true and np.isfinite(track.wTb_true[k]).all()
+    ]
+    if len(rows) < 10:
+        return None
+    pose = track.wTb_true[[k for k, _, _ in rows]]
+    z = np.array([z for _, _, z in rows], dtype=np.float64)
+    d = np.array([landmarks_true[s][:2] for _, s, _ in rows]) - pose[:, :2]
+    bearing = np.remainder(z[:, 1] - np.arctan2(d[:, 1], d[:, 0]) + pose[:, 2] + np.pi, 2 * np.pi) - np.pi
+    cov = sighting_covariances(config, z)
+    whitened = np.column_stack(
+        [(z[:, 0] - np.hypot(d[:, 0], d[:, 1])) / np.sqrt(cov[:, 0, 0]), bearing / np.sqrt(cov[:, 1, 1])]
+    )
+    miss = float((np.abs(whitened) > SIGHTING_MISS_SIGMA).any(axis=1).mean())
+    if miss <= SIGHTING_MISS_SHARE:
+        return None
+    n = config.robot
+    return (
+        f"{100 * miss:.0f} % of robot {n}'s {len(rows)} sightings with truth miss their landmark, "
+        f"seen from the truth's pose, by more than {SIGHTING_MISS_SIGMA:g} sigma: "
+        f"Robot{n}_Groundtruth.dat and Robot{n}_Measurement.dat are not of one robot "
+        "(another robot's or data set's file?); the ATE and map scores are meaningless"
+    )
 
 
 def robots_in(folder: Path) -> list[int]:
@@ -323,6 +365,7 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if len(odo) == 0:
         raise InputError("no odometry line", odo_path)
     check_times(odo, lines, odo_path)
+    _check_time_unit(odo, odo_path)
     _check_speeds(odo, lines, odo_path)
     meas_path = folder / f"Robot{n}_Measurement.dat"
     meas, lines = read_table(meas_path, 4, "time, barcode, range, bearing")
@@ -341,6 +384,25 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
 #: Fastest commanded speeds a log may hold: 10 m/s and 10 turns a second are far
 #: beyond these 0.3 m/s robots; past them a number is a corrupt line.
 SPEED_MAX_MPS, TURN_RATE_MAX_RADPS = 10.0, 20 * math.pi
+
+
+#: Longest median interval between odometry lines, s: MRCLAM's robots log them a
+#: median 0.01 s apart (Dataset 6, all five); a median over a second is 100 times
+#: slower, and the format's times are seconds: in milliseconds (a median 10 "s")
+#: every step is integrated 1000 times too long and the truth lies in its gaps.
+ODOMETRY_STEP_MAX_S = 1.0
+
+
+def _check_time_unit(odo, path: Path) -> None:
+    if len(odo) < 2:
+        return
+    step = float(np.median(np.diff(odo[:, 0])))
+    if step > ODOMETRY_STEP_MAX_S:
+        raise InputError(
+            f"odometry lines are a median {step:g} s apart (MRCLAM's robots: 0.01 s; "
+            "the format's times are seconds): times in milliseconds?",
+            path,
+        )
 
 
 def _check_speeds(odo, lines, path: Path) -> None:
@@ -364,7 +426,7 @@ def _check_sightings(meas, lines, path: Path) -> None:
         if not 0.0 < rng < 1e3:
             raise InputError(f"range {rng:g} m is not in (0, 1000)", path, lines[row])
         if not abs(bearing) <= 2 * math.pi:
-            raise InputError(f"bearing {bearing:g} rad is not within +-2 pi", path, lines[row])
+            raise InputError(f"bearing {bearing:g} rad is not within +-2 pi (degrees?)", path, lines[row])
 
 
 def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) -> np.ndarray:

@@ -179,6 +179,7 @@ def dataset_of_pose_graph(
         has_timestamps=False,
         source_path=path,
         notes=_notes(graph),
+        warnings=graph.warnings,
     )
 
 

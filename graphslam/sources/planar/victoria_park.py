@@ -76,6 +76,23 @@ def check_distances(values, path, line_no: int) -> None:
             raise InputError(f"offset {v:g} m is beyond {DISTANCE_MAX_M:g} m", path, line_no)
 
 
+#: Largest heading change of one ODOMETRY line, rad: one full turn. A relative pose
+#: is written wrapped (victoria_park.txt: within 0.13 rad a step); past a turn the
+#: number is no angle in radians (degrees: the wrap made 90 a turn of -1.1 rad).
+TURN_MAX_RAD = 2 * math.pi
+
+
+def check_turn(dtheta: float, path, line_no: int) -> None:
+    """InputError when an odometry heading change is beyond :data:`TURN_MAX_RAD`."""
+    if not abs(dtheta) <= TURN_MAX_RAD:
+        raise InputError(
+            f"heading change {dtheta:g} rad is beyond one turn (2 pi): degrees? "
+            "the format's angles are radians",
+            path,
+            line_no,
+        )
+
+
 def check_variances(variances, names, path, line_no: int) -> None:
     """InputError when a positive variance is outside :data:`VARIANCE_MIN` ..
     :data:`VARIANCE_MAX` (one <= 0 is the records' "not positive definite")."""
@@ -136,6 +153,7 @@ def read_victoria_park(path=None, name: str = "victoria-park") -> Dataset:
                     raise InputError(f"ODOMETRY creates pose {j}, which already exists", path, line_no)
                 cov = np.array(nums[3:])[G2O_UPPER].reshape(3, 3)
                 check_variances(np.diag(cov), ("x", "y", "heading"), path, line_no)
+                check_turn(nums[2], path, line_no)
                 delta = np.array(nums[:3])
                 delta[2] = wrap_angle(delta[2])  # gtsam's Pose2 wraps too
                 odometry[j] = Odometry(i, j, delta, cov)
@@ -233,6 +251,8 @@ def _well_formed_records(path, order, o_ids, o_num, l_ids, l_num, name) -> Datas
     if not (np.isfinite(o_num).all() and np.isfinite(l_num).all()):
         return None
     if (np.abs(o_num[:, :2]) > DISTANCE_MAX_M).any() or (np.abs(l_num[:, :2]) > DISTANCE_MAX_M).any():
+        return None
+    if not (np.abs(o_num[:, 2]) <= TURN_MAX_RAD).all():  # the line reader names the line
         return None
     o_cov = o_num[:, 3:][:, G2O_UPPER].reshape(-1, 3, 3)
     l_cov = np.zeros((len(l_num), 2, 2))
