@@ -300,7 +300,7 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
         track.notes.append(
             f"{len(track.robot_sightings)} sightings of other robots left out (single-robot run)"
         )
-    doubt = truth_sightings_doubt(config, track, landmarks_true)
+    doubt = truth_sightings_doubt(config, config.robot, track, landmarks_true)
     dataset = _dataset(folder, config, track, landmarks_true)
     return replace(dataset, warnings=(doubt,)) if doubt else dataset
 
@@ -313,11 +313,12 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
 SIGHTING_MISS_SIGMA, SIGHTING_MISS_SHARE = 3.0, 0.5
 
 
-def truth_sightings_doubt(config: MrclamConfig, track, landmarks_true: dict) -> str | None:
+def truth_sightings_doubt(config: MrclamConfig, robot: int, track, landmarks_true: dict) -> str | None:
     """A doubt when most sightings of known landmarks at frames with truth miss the
     landmark, as seen from the true pose, by more than :data:`SIGHTING_MISS_SIGMA`
     sigmas of the sighting model (range or bearing): the truth or the sightings are
-    another robot's (another data set's) file. None otherwise (or too few to tell)."""
+    another robot's (another data set's) file. ``robot``: the number the files carry.
+    None otherwise (or too few to tell)."""
     rows = [
         (k, s, z)
         for k, s, z in track.landmark_sightings
@@ -336,7 +337,7 @@ def truth_sightings_doubt(config: MrclamConfig, track, landmarks_true: dict) -> 
     miss = float((np.abs(whitened) > SIGHTING_MISS_SIGMA).any(axis=1).mean())
     if miss <= SIGHTING_MISS_SHARE:
         return None
-    n = config.robot
+    n = robot
     return (
         f"{100 * miss:.0f} % of robot {n}'s {len(rows)} sightings with truth miss their landmark, "
         f"seen from the truth's pose, by more than {SIGHTING_MISS_SIGMA:g} sigma: "

@@ -38,6 +38,7 @@ from graphslam.sources.planar.mrclam import (
     robot_track,
     robots_in,
     sighting_covariances,
+    truth_sightings_doubt,
 )
 from slamcore.errors import InputError
 from slamcore.planar.geometry import between
@@ -123,6 +124,9 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         for n, tr in tracks.items()
     )
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
+    # one robot's files that are not of one robot spoil the joint graph as much
+    doubts = (truth_sightings_doubt(config, n, tr, landmarks_true) for n, tr in tracks.items())
+    warnings = tuple(d for d in doubts if d)
     if not landmarks_true:
         notes.append(NO_LANDMARK_TRUTH)
     return Dataset(
@@ -135,6 +139,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         source_path=str(folder),
         notes=tuple(notes),
         agents=agents,
+        warnings=warnings,
     )
 
 

@@ -92,3 +92,15 @@ def test_another_robots_truth_is_doubted_and_the_run_warns(mrclam, tmp_path, cap
 def test_each_robots_own_truth_raises_no_doubt(mrclam, robot):
 
     assert read_mrclam(mrclam, MrclamConfig(robot=robot)).warnings == ()
+
+
+def test_all_robots_in_one_graph_doubt_the_robot_whose_files_disagree(mrclam, tmp_path):
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    config = MrclamConfig(all_robots=True)
+    assert read_mrclam_all(mrclam, config).warnings == ()
+    folder = tmp_path / "mr"
+    shutil.copytree(mrclam, folder)
+    shutil.copy(mrclam / "Robot2_Groundtruth.dat", folder / "Robot3_Groundtruth.dat")
+    doubts = read_mrclam_all(folder, config).warnings
+    assert len(doubts) == 1 and "robot 3's" in doubts[0] and "Robot3_Groundtruth.dat" in doubts[0]
