@@ -107,7 +107,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         wTc_true=None if sequence.wTc_true is None else np.asarray(sequence.wTc_true)[idx],
         image_size=sequence.image_size,
         source_path=sequence.source_path,
-        warnings=sequence.warnings,
+        camera_warnings=sequence.camera_warnings,
         base=sequence,
         indices=idx,
         odometry=odo,

@@ -14,8 +14,9 @@ a malformed line, its 1-based line number; a missing file or a count mismatch
 gives a one-line message. Every reader checks its camera against the first image
 (:func:`~.sequence.image_doubts`): intrinsics that cannot be its camera (a
 principal point outside it, a view wider than a pinhole's, a YAML file stating
-another image size) are refused; a principal point far from the centre and
-frames stored twice are kept as ``ImageSequence.warnings``.
+another image size) are refused; a principal point far from the centre is kept in
+``ImageSequence.camera_warnings``, and ``ImageSequence.warnings`` adds frames
+stored twice.
 
 Formats accepted
 ----------------

@@ -14,6 +14,7 @@ import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -56,7 +57,8 @@ class ImageSequence:
         wTc_true: (N, 4, 4) camera-to-world ground truth, or ``None``.
         image_size: ``(W, H)`` in pixels.
         source_path: the folder the sequence came from, if any.
-        warnings: the reader's reasons to doubt a run on these images, one line each.
+        camera_warnings: the reader's reasons to doubt the camera (intrinsics that do
+            not fit the images), one line each; :attr:`warnings` adds the frames.
     """
 
     name: str
@@ -67,16 +69,23 @@ class ImageSequence:
     wTc_true: np.ndarray | None
     image_size: tuple[int, int]
     source_path: str | None = None
-    #: reasons to doubt a run on these images that the reader found (intrinsics that
-    #: do not fit the image, a frame stored twice), one line each: the run says them
-    #: as ``graphslam: warning:`` lines and keeps them in metrics.json ``warnings``
-    warnings: tuple[str, ...] = ()
+    #: reasons to doubt the camera that the reader found (intrinsics that do not fit
+    #: the images), one line each
+    camera_warnings: tuple[str, ...] = ()
     #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
     #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
     _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.image_paths)
+
+    @cached_property
+    def warnings(self) -> tuple[str, ...]:
+        """Reasons to doubt a run on these frames, one line each: the camera's, then
+        frames stored twice among these (:func:`repeated_frames`, so a selection of
+        frames is judged on its own). The run says them as ``graphslam: warning:``
+        lines and keeps them in metrics.json ``warnings``."""
+        return (*self.camera_warnings, *repeated_frames(self.image_paths))
 
     @property
     def has_ground_truth(self) -> bool:
@@ -380,7 +389,7 @@ def image_doubts(
 ) -> tuple[tuple[int, int], tuple[str, ...]]:
     """``(image size (W, H), warnings)`` of a sequence read from ``paths`` with ``K``:
     :func:`camera_doubts` (InputError naming ``camera_from``, the file the camera came
-    from) and :func:`repeated_frames`. ``stated``: the size the camera file gives its
+    from). ``stated``: the size the camera file gives its
     images, if it does; another size than the images' is refused."""
     size = image_size(paths[0])
     if stated is not None and tuple(stated) != size:
@@ -389,7 +398,7 @@ def image_doubts(
             f"states), these are {size[0]}x{size[1]} px ({Path(paths[0]).name})",
             camera_from,
         )
-    return size, (*camera_doubts(K, size, camera_from, paths[0]), *repeated_frames(paths))
+    return size, tuple(camera_doubts(K, size, camera_from, paths[0]))
 
 
 def stored_size(path: str) -> tuple[int, int] | None:

@@ -24,12 +24,12 @@ def seq():
 
 
 def test_the_readers_doubts_reach_the_metrics(seq):
-    doubted = dataclasses.replace(seq, warnings=("a frame stored twice",))
+    doubted = dataclasses.replace(seq, camera_warnings=("a camera of another size",))
     result = vp.run(doubted, TruthBackend(doubted), Tracker(TrackerConfig(), follow_unmapped=False),
                     max_frames=6)
-    assert vp.compute_metrics(result).to_dict()["warnings"][0] == "a frame stored twice"
+    assert vp.compute_metrics(result).to_dict()["warnings"][0] == "a camera of another size"
     placed = localize_run.LocalizeResult(doubted)
-    assert localize_run.compute_metrics(placed, {})["warnings"] == ["a frame stored twice"]
+    assert localize_run.compute_metrics(placed, {})["warnings"] == ["a camera of another size"]
     assert "warnings" not in localize_run.compute_metrics(localize_run.LocalizeResult(seq), {})
 
 
