@@ -72,6 +72,7 @@ def test_near_pair_refused_by_plain_coverage_is_a_forward_revisit(kitti, i, j):
 @pytest.mark.parametrize("a,b,why", [
     (110, 52, "forward coverage"),        # 46 m apart, one far street end: explains little of it
     (117, 63, "forward coverage"),        # 43 m
+    (117, 65, "median scale change"),     # 41.6 m: iterated guided matching grew its coverage to 0.68
     (103, 47, "median scale change"),     # 44 m: the shared scene is near for such a baseline
     (52, 110, "in front of both cameras"),  # the older frame as image a: the forward test too
 ])
