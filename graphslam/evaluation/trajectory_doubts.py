@@ -205,15 +205,18 @@ def _paired(ref_t: np.ndarray, est_t: np.ndarray, options: EvalOptions, offset_s
         return 0
 
 
-def clock_doubts(ref_t: np.ndarray | None, est_t: np.ndarray | None, options: EvalOptions) -> list[str]:
-    """Stamps of two clocks or two units (module doc); ``*_t`` (N,) seconds or None."""
+def clock_doubts(
+    ref_t: np.ndarray | None, est_t: np.ndarray | None, options: EvalOptions, paired: int
+) -> list[str]:
+    """Stamps of two clocks or two units (module doc); ``*_t`` (N,) seconds or None;
+    ``paired``: the poses the evaluation paired at ``--offset`` (not associated again)."""
     if ref_t is None or est_t is None or len(ref_t) < 2 or len(est_t) < 2:
         return []
     ref_t, est_t = np.asarray(ref_t, np.float64), np.asarray(est_t, np.float64)
     said = span_unit_doubt(ref_t, est_t)
     if said:
         return [said]
-    now = _paired(ref_t, est_t, options, options.offset_s)
+    now = paired
     shifts = {float(ref_t.min() - est_t.min()), float(ref_t.max() - est_t.max())}
     tried = [
         (s, _paired(ref_t, est_t, options, s))

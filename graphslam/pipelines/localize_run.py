@@ -133,7 +133,7 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
         "frames_per_s": n / whole if whole > 0 else None,
         "interrupted": result.interrupted,
     }
-    if getattr(result.sequence, "warnings", ()):  # the reader's doubts about the images
+    if result.sequence.warnings:  # the reader's doubts about the images
         m["warnings"] = list(result.sequence.warnings)
     err = errors_m(result)
     if err is not None and placed.any():

@@ -482,7 +482,7 @@ def compute_metrics(
         tracking=_tracking_summary(result.tracking),
     )
     m.frames_with_pose = int(len(est.frame_ids))
-    m.warnings = [*getattr(seq, "warnings", ()), *_doubts(result)] or None
+    m.warnings = [*seq.warnings, *_doubts(result)] or None
     m.dataset_notes = list(getattr(seq, "notes", ())) or None
     if seq.wTc_true is not None and n >= 2 and len(est.frame_ids) >= 2:
         _score_against_truth(m, result)

@@ -101,7 +101,7 @@ def evaluate_files(
     results = []
     for path, label, est in loaded:
         result = evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options)
-        said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options)
+        said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options, len(result.ref))
         said += doubts(result, options)
         results.append(EstimateResult(str(path), result, label, said))
     return results

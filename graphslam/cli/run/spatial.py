@@ -28,7 +28,15 @@ import argparse
 import time
 from pathlib import Path
 
-from graphslam.cli.common import close_recorder, counts_row, fmt, open_recorder, report_outputs, summary_table
+from graphslam.cli.common import (
+    close_recorder,
+    counts_row,
+    fmt,
+    open_recorder,
+    report_outputs,
+    summary_table,
+    warn,
+)
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
@@ -68,7 +76,6 @@ def _load_sequence(args, config):
         args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
     )
     if args.ground_truth is not None:
-        from graphslam.cli.common import warn
         from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
 
         n_frames = len(sequence)
@@ -82,8 +89,6 @@ def _load_sequence(args, config):
         from graphslam.sources.spatial.frames import parse_frames, select_frames
 
         sequence = select_frames(sequence, parse_frames(args.frames))
-    from graphslam.cli.common import warn
-
     for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     return sequence
