@@ -104,7 +104,8 @@ def _progress(total: int, quiet: bool):
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
-    from graphslam.pipelines.sweep import run_sweep
+    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.pipelines.sweep import plot_files, read_rows, run_sweep
     from graphslam.pipelines.sweep_spec import parse_sweep
     from slamcore.errors import ConfigError
 
@@ -120,6 +121,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
     spec = parse_sweep(args.sweep_file)
+    read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
     executor = make_executor(workers, args.cluster)
     try:
@@ -138,6 +140,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
         rows = with_labels(outcome.rows, spec.set_keys)
         written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out)
+    # an earlier sweep's plots (other settings swept, or --no-plots now) would disagree
+    # with this sweep.csv
+    remove_stale_outputs(args.out, {p.name for p in written}, plot_files(args.out))
+    if outcome.dropped:
+        warn(
+            f"{args.out / 'sweep.csv'} held {outcome.dropped} rows of runs that are not in this "
+            "sweep (another sweep file?); sweep.csv now lists this sweep's runs only (their "
+            f"folders stay in {args.out / 'runs'})"
+        )
     ok = sum(r.get("status") == "ok" for r in outcome.rows)
     print(
         f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "

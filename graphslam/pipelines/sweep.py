@@ -15,6 +15,7 @@ trajectories, nees.csv, stderr.txt).
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec
+from slamcore.errors import InputError
 from slamcore.files import atomic_open
 
 METRIC_COLUMNS = (
@@ -64,12 +66,32 @@ def base_row(run: RunSpec, spec: SweepSpec) -> dict:
     return row
 
 
+#: Columns of every ``sweep.csv``: a file without them is not a sweep's table.
+KEY_COLUMNS = ("run_id", "config_hash", "seed", "status")
+
+
 def read_rows(path: Path) -> list[dict]:
-    """Rows of an existing ``sweep.csv`` (empty when there is none)."""
+    """Rows of an existing ``sweep.csv`` (empty when there is none, or it is empty).
+
+    Raises:
+        InputError: the file is not a sweep's table (another file of that name, bytes
+            no CSV reader takes): the sweep would write over it.
+    """
     if not path.is_file():
         return []
-    with open(path, newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
+    advice = "move it away or choose another --out"
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            header = reader.fieldnames or []
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise InputError(f"not a sweep table that can be read ({e}); {advice}", path) from None
+    if header and not set(KEY_COLUMNS) <= set(header):
+        raise InputError(
+            f"not a table of graphslam sweep (no {', '.join(KEY_COLUMNS)} columns); {advice}", path
+        )
+    return rows
 
 
 def write_rows(path: Path, header: list[str], rows: list[dict]) -> None:
@@ -90,6 +112,9 @@ class SweepOutcome:
     ran: int = 0
     failed: int = 0
     skipped: int = 0
+    #: rows of an earlier sweep.csv whose runs are not in this grid (another sweep
+    #: file into the same folder): not in the new table, their folders kept
+    dropped: int = 0
     interrupted: bool = False
     runs: list[RunSpec] = field(default_factory=list)
 
@@ -113,10 +138,13 @@ def run_sweep(
     csv_path = out / "sweep.csv"
     header = columns(spec)
     runs = spec.runs()
-    done = {(r.get("config_hash"), r.get("seed")): r for r in read_rows(csv_path) if r.get("status") == "ok"}
+    earlier = read_rows(csv_path)
+    done = {(r.get("config_hash"), r.get("seed")): r for r in earlier if r.get("status") == "ok"}
     rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
     todo = [run for run in runs if _key(run) not in done]
+    ours = {_key(run) for run in runs}
     outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs)
+    outcome.dropped = sum((r.get("config_hash"), r.get("seed")) not in ours for r in earlier)
     order = {run.run_id: i for i, run in enumerate(runs)}
 
     def flush():
@@ -141,6 +169,16 @@ def run_sweep(
         results.close()  # stops the runs still in flight
     flush()
     return outcome
+
+
+#: Names of the sweep's plots: ``sweep_nees.png``, ``sweep_ate.png`` and one
+#: ``sweep_<section.key>.png`` per swept setting.
+PLOT_NAME = re.compile(r"sweep_(nees|ate|[A-Za-z0-9_]+\.[A-Za-z0-9_.]+)\.png")
+
+
+def plot_files(out: Path) -> tuple[str, ...]:
+    """Names of the sweep plots in ``out`` (this sweep's or an earlier one's)."""
+    return tuple(sorted(p.name for p in out.glob("sweep_*.png") if PLOT_NAME.fullmatch(p.name)))
 
 
 def with_labels(rows: list[dict], set_keys) -> list[dict]:

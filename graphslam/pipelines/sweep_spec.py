@@ -40,7 +40,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from slamcore.config import ConfigFile, from_dict
+from slamcore.config import INT_LIMIT, ConfigFile, from_dict
 from slamcore.errors import ConfigError
 
 SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set", "max_runs")
@@ -227,6 +227,9 @@ def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
                 cfg.line_of("sweep", "dataset"),
             )
         out.append(str(where))
+    # two spellings of one file ("g.g2o", "./g.g2o") are one dataset: its runs would be
+    # made once, and the grid would have fewer runs than its lists say
+    _refuse_repeats(out, "[sweep] dataset", cfg, cfg.line_of("sweep", "dataset"))
     return out
 
 
@@ -270,8 +273,15 @@ def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
             )
         if value["to"] - value["from"] >= MAX_SEEDS:
             raise ConfigError(f"[sweep] seed range holds more than {MAX_SEEDS} seeds", cfg.path, line)
-        return tuple(range(value["from"], value["to"] + 1))
-    return tuple(_list(sweep, cfg, "seed", int))
+        seeds = tuple(range(value["from"], value["to"] + 1))
+    else:
+        seeds = tuple(_list(sweep, cfg, "seed", int))
+    bad = next((s for s in seeds if not 0 <= s <= INT_LIMIT), None)
+    if bad is not None:  # each run would fail on it, after the sweep had started
+        raise ConfigError(
+            f"[sweep] seed {bad} is outside 0 to 2**62 (what graphslam run --seed takes)", cfg.path, line
+        )
+    return seeds
 
 
 def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple, tuple]:
@@ -369,7 +379,9 @@ def parse_sweep(path: str | Path) -> SweepSpec:
                 cfg.line_of("sweep", "backend"),
             )
     max_steps = sweep.get("max_steps")
-    if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
+    if max_steps is not None and (
+        not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1
+    ):
         raise ConfigError(
             f"[sweep] max_steps must be a whole number >= 1, got {max_steps!r}",
             cfg.path,
