@@ -115,12 +115,18 @@ def _umask() -> int:
 def check_output_dir(path: str | Path, flag: str = "--out", files: Iterable[str] = ()) -> Path:
     """Refuse, before any work, an output folder that cannot be written: an
     existing file, a folder without write permission, a parent that is a file,
-    or a folder in it under the name of one of the ``files`` the command writes.
+    a symbolic link (it or a parent) to nothing, or a folder in it under the name
+    of one of the ``files`` the command writes.
 
     Creates nothing (a refused run leaves no trace); raises ConfigError.
     """
     path = Path(path)
     check_name_lengths(path, flag)
+    for p in (path, *path.parents):  # a link to nothing cannot be made into a folder
+        if p.is_symlink() and not p.exists():
+            raise ConfigError(
+                f"{flag} {path}: {p} is a symbolic link to {os.readlink(p)}, which does not exist"
+            )
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{flag} {path} is an existing file, not a folder")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())
@@ -195,6 +201,25 @@ def check_distinct_outputs(outputs: dict[str, str | Path | None]) -> None:
         if key in seen:
             raise ConfigError(f"{seen[key]} and {flag} name the same file ({path}); give each its own")
         seen[key] = flag
+
+
+def check_not_inputs(
+    outputs: list[tuple[str, str | Path | None]], inputs: dict[str, str | Path | None]
+) -> None:
+    """Refuse, before any work, an output file that is one of the command's input files
+    (``(what, path)`` pairs and ``{what: path}``, None skipped; links followed): writing
+    it, or removing it as an earlier run's output, would destroy the input."""
+    files: dict[Path, str] = {}
+    for what, path in inputs.items():
+        if path is not None and Path(path).is_file():
+            files.setdefault(Path(path).resolve(), what)
+    for what, path in outputs:
+        source = None if path is None else files.get(Path(path).resolve())
+        if source is not None:
+            raise ConfigError(
+                f"{what} {path} is the input {source}: this command would write over it or remove "
+                "it; move the input or choose another output"
+            )
 
 
 def inside_folder(folder: str | Path, name: str | Path) -> Path | None:

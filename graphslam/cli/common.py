@@ -165,6 +165,20 @@ def warn(message: str) -> None:
     print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
 
 
+def warn_doubts(doubts: dict[str, list[str] | None]) -> None:
+    """``graphslam: warning:`` lines for what each back end's metrics say makes its
+    estimate doubtful (``{backend: warnings}``, as ``run`` says its own): a doubt every
+    back end of several shares (the input's) once, each other one with its back end."""
+    lists = [list(ws or ()) for ws in doubts.values()]
+    shared = [w for w in lists[0] if all(w in ws for ws in lists[1:])] if len(lists) > 1 else []
+    for w in shared:
+        warn(w)
+    for name, ws in doubts.items():
+        for w in ws or ():
+            if w not in shared:
+                warn(f"{name}: {w}")
+
+
 def check_rerun_flags(args) -> None:
     """Refuse Rerun flags that would do nothing, and a malformed ``--rerun-url``,
     before any work."""

@@ -271,6 +271,7 @@ def _write_comparison(
         open_recorder,
         recoveries_text,
         warn,
+        warn_doubts,
     )
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard
@@ -306,6 +307,8 @@ def _write_comparison(
         if getattr(e.metrics, "recoveries", None) and any(e.metrics.recoveries.values()):
             print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
     print(f"outputs in {out_dir}/: " + ", ".join(outputs))
+    # what makes an estimate doubtful (compare.json keeps it too), said as run says it
+    warn_doubts({e.backend: getattr(e.metrics, "warnings", None) for e in done})
     for e in entries:
         if e.status == "failed":
             warn(f"{e.backend} failed: {e.error.strip().splitlines()[-1]}")

@@ -31,7 +31,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     """Run, print, write (compare.json, compare.png, compare.rrd); the exit status.
     ``out_dir_of(name)`` makes the output folder."""
     from graphslam import registry
-    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, fmt, warn
+    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, fmt, warn, warn_doubts
     from graphslam.cli.run.posegraph import load_graph
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard, stop_requested
@@ -119,6 +119,8 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     if done:
         outputs += _figures(args, graph, truth, done, out_dir, rerun_mode)
     writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
+    # what makes an estimate doubtful (compare.json keeps it too), said as run says it
+    warn_doubts({r.backend: getattr(r.metrics, "warnings", None) for r in done})
     for r in runs:
         if r.error is not None:
             warn(f"{r.backend} failed: {r.error}")

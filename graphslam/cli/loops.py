@@ -25,7 +25,7 @@ from graphslam.cli.common import (
     path_arg,
 )
 from slamcore.errors import ConfigError
-from slamcore.files import check_distinct_outputs, check_output_file
+from slamcore.files import check_distinct_outputs, check_not_inputs, check_output_file
 
 EPILOG = """\
 output:
@@ -140,7 +140,17 @@ def cmd_loops(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_output_file(args.log, "--log")
     check_distinct_outputs({"--out": args.out, "--log": args.log})
+    from graphslam.sources.spatial.sequence import folder_images
+
     paths, times, truth, bag = _images(args)
+    check_not_inputs(  # an image or the bag written over (--out IMAGES/01.png)
+        [("--out", args.out), ("--log", args.log)],
+        {
+            "IMAGES_DIR": args.images_dir,
+            **{"--" + flag: getattr(args, flag, None) for flag in ("truth", "vocab", "config", "intrinsics")},
+            **{f"image {p}": p for p in (paths if bag is not None else folder_images(args.images_dir))},
+        },
+    )
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)

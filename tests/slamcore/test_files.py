@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from slamcore.errors import ConfigError
-from slamcore.files import check_no_folder_at, check_output_dir
+from slamcore.files import check_no_folder_at, check_not_inputs, check_output_dir, check_output_file
 
 
 def test_an_output_folder_holding_a_folder_under_a_written_name_is_refused(tmp_path):
@@ -18,3 +18,29 @@ def test_an_output_folder_holding_a_folder_under_a_written_name_is_refused(tmp_p
     check_output_dir(tmp_path / "new", files=("eval.json",))  # a folder yet to make: fine
     with pytest.raises(ConfigError, match="--save-map"):
         check_no_folder_at(tmp_path / "o", ["eval.json"], "--save-map")
+
+
+def test_an_output_folder_through_a_link_to_nothing_is_refused(tmp_path):
+    """Seventh hostile pass: ``--out`` a dangling symbolic link (or a folder under one)
+    passed the checks and failed in mkdir with a FileExistsError traceback."""
+    (tmp_path / "link").symlink_to(tmp_path / "gone")
+    for out in (tmp_path / "link", tmp_path / "link" / "sub"):
+        with pytest.raises(ConfigError, match=r"link is a symbolic link to .*gone, which does not exist"):
+            check_output_dir(out)
+    with pytest.raises(ConfigError, match="which does not exist"):
+        check_output_file(tmp_path / "link" / "loops.csv")
+    (tmp_path / "gone").mkdir()  # the link leads somewhere now: fine
+    assert check_output_dir(tmp_path / "link" / "sub") == tmp_path / "link" / "sub"
+
+
+def test_an_output_that_is_an_input_is_refused(tmp_path):
+    """Seventh hostile pass: a run wrote over (or removed as stale) its own input."""
+    data = tmp_path / "o" / "trajectory.bag"
+    data.parent.mkdir()
+    data.write_bytes(b"a bag")
+    (tmp_path / "alias").symlink_to(tmp_path / "o")
+    outputs = [("the output (in --out)", tmp_path / "alias" / "trajectory.bag")]
+    with pytest.raises(ConfigError, match=r"trajectory.bag is the input --dataset: .*would write over it"):
+        check_not_inputs(outputs, {"--dataset": data, "--config": None})
+    check_not_inputs(outputs, {"--dataset": tmp_path / "o", "--config": None})  # a folder: no file of it
+    check_not_inputs([("--out", tmp_path / "new.csv")], {"--dataset": data})

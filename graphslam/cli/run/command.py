@@ -295,6 +295,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("--robot applies to MRCLAM folders only")
     if args.out is not None:  # refused now, not after the run
         check_output_dir(args.out, files=("trajectory.bag",) if args.write_bag else ())
+        _check_outputs_are_not_inputs(args)
     if getattr(args, "save_map", None) is not None:
         from graphslam.maps.files import MAP_JSON, MAP_NPZ, VOCAB_NPZ
 
@@ -311,6 +312,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         elif (bag := Path(args.resolved_out) / "trajectory.bag").is_file():
             bag.unlink()  # an earlier run's bag is not this run's: the folder holds one run
     return status
+
+
+def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
+    """Refuse an input file under the name of a file the run writes in ``--out``, or
+    removes there as an earlier run's (a bag named trajectory.bag, a
+    ``--ground-truth`` that is an earlier run's ground_truth.tum)."""
+    from graphslam.outputs.writers import RUN_OUTPUT_NAMES
+    from slamcore.files import check_not_inputs
+
+    names = (*RUN_OUTPUT_NAMES, "trajectory.bag")
+    check_not_inputs(
+        [("the output (in --out)", Path(args.out) / name) for name in names],
+        {
+            f"--{flag.replace('_', '-')}": getattr(args, flag, None)
+            for flag in ("dataset", "ground_truth", "config", "intrinsics")
+        },
+    )
 
 
 def _dispatch(args: argparse.Namespace) -> int:

@@ -1,0 +1,89 @@
+"""Seventh hostile pass: commands that wrote over, or removed as an earlier run's
+output, one of their own input files, and ``compare`` that kept its back ends' doubts
+to compare.json without a word."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+
+
+def _one_error(capsys, argv) -> str:
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_a_run_does_not_replace_the_ground_truth_it_reads(tmp_path, capsys):
+    out = tmp_path / "o"
+    argv = ["run", "--max-steps", "5", "--rerun", "off", "--quiet", "--out", out]
+    assert main([str(a) for a in argv]) == 0
+    truth = (out / "ground_truth.tum").read_bytes()
+    line = _one_error(capsys, [*argv, "--ground-truth", out / "ground_truth.tum"])
+    assert "ground_truth.tum is the input --ground-truth" in line
+    assert (out / "ground_truth.tum").read_bytes() == truth
+
+
+@pytest.mark.parametrize("write_bag", [False, True])
+def test_a_run_neither_removes_nor_overwrites_the_bag_it_reads(tmp_path, capsys, write_bag):
+    pytest.importorskip("rosbags")
+    from tests.graphslam.sources.test_rosbag import small_bag
+
+    out = tmp_path / "o"
+    out.mkdir()
+    bag = small_bag(out / "trajectory.bag", "ros1")  # named as the bag --write-bag writes
+    data = bag.read_bytes()
+    argv = ["run", "--dataset", bag, "--rerun", "off", "--quiet", "--out", out]
+    line = _one_error(capsys, argv + ["--write-bag"] * write_bag)
+    assert "trajectory.bag is the input --dataset" in line
+    assert bag.read_bytes() == data
+
+
+@pytest.mark.parametrize("flag", ["--out", "--log"])
+def test_loops_does_not_write_over_one_of_its_images(tmp_path, capsys, flag):
+    import cv2
+
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        cv2.imwrite(str(imgs / f"{k:02d}.png"), rng.integers(0, 255, (48, 64), dtype=np.uint8))
+    before = (imgs / "01.png").read_bytes()
+    other = tmp_path / ("l.csv" if flag == "--log" else "l.jsonl")
+    argv = ["loops", imgs, flag, imgs / "01.png", "--log" if flag == "--out" else "--out", other, "--quiet"]
+    # --frames leaves 01.png out of the detection: it is still the folder's image
+    line = _one_error(capsys, [*argv, "--frames", "1:3" if flag == "--out" else "0:1"])
+    assert f"{flag} {imgs / '01.png'} is the input image" in line
+    assert (imgs / "01.png").read_bytes() == before
+
+
+def _degrees_square(tmp_path):
+    lines = [f"VERTEX_SE2 {k} 0 0 0" for k in range(4)]
+    lines += [f"EDGE_SE2 {k} {(k + 1) % 4} 1 0 90 100 0 0 100 0 1000" for k in range(4)]
+    path = tmp_path / "deg.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("backends", [["isam2", "ekf"], ["batch", "auto"]])
+def test_compare_says_the_doubts_its_runs_carry(tmp_path, capsys, backends):
+    """A file in degrees: run warns; compare kept the warning to compare.json alone.
+    A doubt every back end shares is said once; one back end's with its name."""
+    out = tmp_path / "c"
+    argv = ["compare", "--dataset", _degrees_square(tmp_path), "--rerun", "off", "--in-process",
+            "--out", out, "--backends", *backends]
+    assert main([str(a) for a in argv]) == 0
+    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("graphslam: warning:")]
+    degrees = [ln for ln in warnings if "angles in degrees?" in ln]
+    assert len(degrees) == 1 and not any(f" {b}: 4 of 4" in degrees[0] for b in backends), warnings
+    runs = json.loads((out / "compare.json").read_text())["runs"]
+    said = {w for r in runs for w in r.get("warnings") or []}
+    assert all(any(w in ln for ln in warnings) for w in said)
+    if "isam2" in backends:  # its own doubt (the chi-square bound) named by back end
+        assert any(ln.startswith("graphslam: warning: isam2: final cost") for ln in warnings), warnings
