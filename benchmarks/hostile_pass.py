@@ -513,7 +513,112 @@ def attacks() -> list[Attack]:
                ("ok",), check=_warned("not of one robot", summary=True)),
         Attack("Victoria Park heading changes in degrees", "silent",
                lambda f: _run(_vp_degrees(f), "--max-steps", "50"), check=_says("degrees?")),
+        # seventh pass: compare, sweep, outputs
+        Attack("7th: compare of a pose graph in degrees says so (isam2, ekf)", "silent",
+               lambda f: ["compare", "--dataset", str(_w(f, "d.g2o", _square_g2o("90"))), "--rerun", "off",
+                          "--out", "cmp", "--backends", "isam2", "ekf"], ("ok",), check=_says("degrees?")),
+        Attack("7th: compare of a pose graph in degrees says so (batch, auto)", "silent",
+               lambda f: ["compare", "--dataset", str(_w(f, "d.g2o", _square_g2o("90"))), "--rerun", "off",
+                          "--out", "cmp", "--backends", "batch", "auto"], ("ok",), check=_says("degrees?")),
+        Attack("7th: compare says iSAM2's cost beyond its chi-square bound (MRCLAM robot 2)", "silent",
+               lambda f: ["compare", "--dataset", str(DATA / "mrclam6"), "--robot", "2", "--max-steps", "300",
+                          "--rerun", "off", "--out", "cmp", "--backends", "isam2", "ekf"], ("ok",),
+               check=_says("isam2: final cost")),
+        Attack("7th: sweep max_steps = true (each run failed)", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + "max_steps = true\n")), "--out", "sw",
+                          "--quiet", "--no-plots"]),
+        Attack("7th: sweep seed = [-1] (each run failed)", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + "seed = [-1]\n")), "--out", "sw",
+                          "--quiet", "--no-plots"]),
+        Attack("7th: sweep dataset = [\"g.g2o\", \"./g.g2o\"] (one run of two)", "silent",
+               lambda f: (_w(f, "g.g2o", _chain_g2o(3)), ["sweep", str(_w(
+                   f, "s.toml", '[sweep]\ndataset = ["g.g2o", "./g.g2o"]\nbackend = ["isam2"]\n')),
+                   "--out", "sw", "--quiet", "--no-plots"])[1]),
+        Attack("7th: sweep into a folder whose sweep.csv is not UTF-8", "fail",
+               lambda f: (_w(f, "sw/sweep.csv", b"\xff\xfe\x00junk\n"), _sweep_1(f))[1]),
+        Attack("7th: sweep into a folder whose sweep.csv has a 200 kB field", "fail",
+               lambda f: (_w(f, "sw/sweep.csv", "run_id,status\n" + "x" * 200_000 + ",ok\n"), _sweep_1(f))[1]),
+        Attack("7th: sweep into a folder whose sweep.csv is the user's table", "silent",
+               lambda f: (_w(f, "sw/sweep.csv", "name,score\nalice,3\n"), _sweep_1(f))[1],
+               check=lambda f, o, e: None if (f / "sw" / "sweep.csv").read_text().startswith("name,score")
+               else "the user's sweep.csv was overwritten"),
+        Attack("7th: another sweep into a sweep's folder says what left sweep.csv", "silent",
+               lambda f: (_w(f, "sw/sweep.csv", "run_id,config_hash,seed,status\nisam2-abc-s0,abc,0,ok\n"),
+                          _sweep_1(f))[1], ("ok",), check=_says("not in this sweep")),
+        Attack("7th: sweep --no-plots over an earlier sweep's plots removes them", "silent",
+               lambda f: (_w(f, "sw/sweep_ekf.association.png", b"old"), _w(f, "sw/sweep_ate.png", b"old"),
+                          _sweep_1(f))[2], ("ok",),
+               check=lambda f, o, e: None if not list((f / "sw").glob("sweep_*.png"))
+               else "an earlier sweep's plots are left beside the new sweep.csv"),
+        Attack("7th: run --out a symbolic link to nothing", "fail",
+               lambda f: ((f / "o").symlink_to(f / "gone"), ["run", "--max-steps", "3", "--rerun", "off",
+                                                           "--out", "o"])[1]),
+        Attack("7th: compare --out a symbolic link to nothing", "fail",
+               lambda f: ((f / "o").symlink_to(f / "gone"), ["compare", "--max-steps", "3", "--rerun", "off",
+                                                           "--out", "o", "--backends", "isam2"])[1]),
+        Attack("7th: sweep --out a folder under a symbolic link to nothing", "fail",
+               lambda f: ((f / "o").symlink_to(f / "gone"), _sweep_1(f, "o/sw"))[1]),
+        Attack("7th: run --dataset OUT/trajectory.bag --out OUT removed its input bag", "fail",
+               lambda f: _run(_bag_at(f, "out/trajectory.bag"), "--backend", "ekf"),  # a run that ends
+               check=lambda f, o, e: None if (f / "out" / "trajectory.bag").stat().st_size > 1000
+               else "the input bag is gone"),
+        Attack("7th: run --ground-truth OUT/ground_truth.tum --out OUT replaced it", "silent",
+               lambda f: (subprocess.run([sys.executable, "-m", "graphslam", *_run("synthetic", "--max-steps", "30")],
+                                         cwd=f, check=True, capture_output=True,
+                                         env={**os.environ, "PYTHONPATH": str(ROOT)}),
+                          _run("synthetic", "--max-steps", "10", "--ground-truth", "out/ground_truth.tum"))[1],
+               check=lambda f, o, e: None if len((f / "out" / "ground_truth.tum").read_text().splitlines()) == 31
+               else "the input truth was cut"),
+        Attack("7th: loops --out IMAGES/02.png wrote over an image", "fail",
+               lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png", "03.png": "03.png"})),
+                          "--out", "imgs/02.png", "--quiet"],
+               check=lambda f, o, e: None if (f / "imgs" / "02.png").read_bytes()[:4] == b"\x89PNG"
+               else "the image was overwritten"),
     ]
+
+
+#: The seventh pass's one-run sweep (iSAM2 on 3 steps of the synthetic world), without seeds.
+_SWEEP_1 = '[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\n'
+
+
+def _sweep_1(folder: Path, out: str = "sw") -> list[str]:
+    """``graphslam sweep`` of one 3-step run into ``out`` (its sweep file written in ``folder``)."""
+    return ["sweep", str(_w(folder, "s.toml", _SWEEP_1 + "max_steps = 3\n")), "--out", out, "--quiet",
+            "--no-plots", "--workers", "1"]
+
+
+def _bag_at(folder: Path, name: str) -> Path:
+    """A ROS 1 bag of 3 textured 64x48 frames with CameraInfo at ``folder / name``
+    (OSError, so the attack is skipped, without the rosbags package)."""
+    try:
+        from rosbags.rosbag1 import Writer
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as e:
+        raise OSError(f"no rosbags: {e}") from None
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    path = folder / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    def header(k):
+        return T["std_msgs/msg/Header"](seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=k, nanosec=0),
+                                        frame_id="cam")
+    rng = np.random.default_rng(0)
+    with Writer(path) as w:
+        info = w.add_connection("/cam/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        image = w.add_connection("/cam/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        msg = T["sensor_msgs/msg/CameraInfo"](
+            header=header(0), height=48, width=64, distortion_model="plumb_bob", D=np.zeros(5),
+            K=np.array([50.0, 0, 32, 0, 50, 24, 0, 0, 1]), R=np.eye(3).reshape(9), P=np.zeros(12),
+            binning_x=0, binning_y=0, roi=roi)
+        w.write(info, 0, ts.serialize_ros1(msg, "sensor_msgs/msg/CameraInfo"))
+        for k in range(3):
+            data = rng.integers(0, 255, 48 * 64, dtype=np.uint8)
+            msg = T["sensor_msgs/msg/Image"](header=header(k), height=48, width=64, encoding="mono8",
+                                             is_bigendian=0, step=64, data=data)
+            w.write(image, k * 10**9, ts.serialize_ros1(msg, "sensor_msgs/msg/Image"))
+    return path
 
 
 #: The information of the sixth pass's 3-D edges (diagonal 100).
