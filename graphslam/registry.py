@@ -121,7 +121,7 @@ def check_several_robots(name: str) -> None:
         several = [d.name for d in TABLE if d.landmarks is not None and d.landmarks.several_robots]
         raise ConfigError(
             f"--robot all: {name} keeps one robot's pose; every robot in one "
-            f"graph needs --backend {' or '.join(several)}"
+            f"graph needs the {' or '.join(several)} back end"
         )
 
 

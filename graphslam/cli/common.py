@@ -119,6 +119,20 @@ def robot_arg(text: str) -> int | str:
     raise argparse.ArgumentTypeError(f"expected a robot number 1-5 or all, got {text[:40]!r}")
 
 
+def seed_arg(text: str) -> int:
+    """``--seed``: a whole number from 0 to 2**62 (:data:`slamcore.config.INT_LIMIT`),
+    said as the flag's error rather than as the config field it ends up in."""
+    from slamcore.config import INT_LIMIT
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text[:40]!r}") from None
+    if not 0 <= value <= INT_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0 to 2**62, got {value}")
+    return value
+
+
 def add_robot_option(parser, help: str) -> None:
     """``--robot N|all`` of run and compare (:func:`robot_arg`)."""
     parser.add_argument("--robot", type=robot_arg, default=None, metavar="N|all", help=help)

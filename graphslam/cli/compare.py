@@ -17,6 +17,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    seed_arg,
 )
 from slamcore.errors import GraphSlamError
 from slamcore.files import check_output_dir
@@ -95,7 +96,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="seed of simulated data (the synthetic world or room, derived "
         "odometry) and of back ends that draw random numbers (particle "
@@ -142,7 +143,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise GraphSlamError("--odometry applies to image sequences only")
     chosen = args.backends is not None
     args.backends = args.backends or list(registry.BACKENDS)
-    _check_names(args.backends, registry.BACKENDS, "2-D datasets")
+    _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets")
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
     if (
         args.seed is not None
@@ -191,7 +192,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def _check_names(names, allowed, where: str) -> None:
     bad = [n for n in names if n not in allowed]
     if bad:
-        raise GraphSlamError(f"--backends {' '.join(bad)}: not on {where} (available: {', '.join(allowed)})")
+        # batch and auto exist for 2-D data too, for pose-graph files only
+        graph_only = [n for n in bad if n in ("batch", "auto") and "landmark" in where]
+        hint = f"; {' and '.join(graph_only)}: pose-graph files only" if graph_only else ""
+        raise GraphSlamError(
+            f"--backends {' '.join(bad)}: not on {where}{hint} (available: {', '.join(allowed)})"
+        )
 
 
 def _out_dir(args, name: str, rerun_mode: str) -> Path:

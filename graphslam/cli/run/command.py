@@ -23,6 +23,7 @@ from graphslam.cli.common import (
     add_robot_option,
     add_topics_option,
     path_arg,
+    seed_arg,
 )
 
 RUN_EPILOG = """\
@@ -130,7 +131,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="seed of the synthetic worlds, derived odometry, FastSLAM's "
         "particles, the visual EKF's RANSAC and, with --odometry none, "

@@ -42,7 +42,7 @@ from typing import cast
 import numpy as np
 
 from graphslam.sources.spatial import rosbag_messages as rm
-from graphslam.sources.spatial.sequence import ImageSequence
+from graphslam.sources.spatial.sequence import IMAGE_EXTENSIONS, ImageSequence
 from slamcore.errors import ConfigError, InputError, quote
 
 #: Message types of each ``--topics`` role; a role is chosen automatically from
@@ -69,7 +69,30 @@ def bag_path(spec: str | Path) -> Path | None:
         return path.parent
     if path.is_dir() and (path / "metadata.yaml").is_file():
         return path
+    _refuse_bag_without_metadata(path)
     return None
+
+
+#: Files of a ROS 2 bag's storage (SQLite, MCAP): unreadable without the bag's metadata.yaml.
+ROS2_STORAGE = (".db3", ".mcap")
+
+
+def _refuse_bag_without_metadata(path: Path) -> None:
+    """A ROS 2 bag's storage file, or a folder of them with no image, lacking the
+    ``metadata.yaml`` beside it: said as that, not as "no images" or "not a text file"."""
+    folder = path.parent if path.is_file() and path.suffix in ROS2_STORAGE else path
+    if folder is path:
+        try:  # an unreadable folder is left to the reader that opens it, with its own line
+            suffixes = {p.suffix.lower() for p in path.iterdir()} if path.is_dir() else set()
+        except OSError:
+            return
+        if not suffixes & set(ROS2_STORAGE) or suffixes & set(IMAGE_EXTENSIONS):
+            return
+    raise InputError(
+        f"a ROS 2 bag needs the metadata.yaml that ros2 bag record writes beside its storage, "
+        f"and {folder} has none (copy the bag's whole folder)",
+        path,
+    )
 
 
 def is_bag(spec: str | Path) -> bool:

@@ -172,7 +172,7 @@ def test_a_missing_dataset_is_named_before_seed_is_blamed(tmp_path, capsys, comm
 
 
 @pytest.mark.parametrize("argv, says", [
-    (["run", "--seed", "1.5"], "run: argument --seed: invalid int value"),
+    (["run", "--seed", "1.5"], "run: argument --seed: expected a whole number"),
     (["compare", "--backends", "isam2", "foo"], "compare: argument --backends: invalid choice"),
     (["run", "--robot", "99"], "run: argument --robot"),
     (["run", "--out", ""], "run: argument --out: an empty path"),

@@ -10,14 +10,7 @@ import numpy as np
 import pytest
 
 from graphslam.cli.main import main
-
-
-def _one_error(capsys, argv) -> str:
-    assert main([str(a) for a in argv]) == 2
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
+from tests.graphslam.cli.test_hostile_inputs import one_error_line as _one_error
 
 
 def test_a_run_does_not_replace_the_ground_truth_it_reads(tmp_path, capsys):
