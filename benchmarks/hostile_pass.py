@@ -569,6 +569,12 @@ def attacks() -> list[Attack]:
                           _run("synthetic", "--max-steps", "10", "--ground-truth", "out/ground_truth.tum"))[1],
                check=lambda f, o, e: None if len((f / "out" / "ground_truth.tum").read_text().splitlines()) == 31
                else "the input truth was cut"),
+        Attack("7th: compare's recording cut by a full disk: said, neither kept nor listed", "silent",
+               lambda f: ["compare", "--max-steps", "300", "--backends", "isam2", "ekf", "--rerun", "save",
+                          "--out", "cmp"], ("ok",), file_size_limit=300_000,
+               check=lambda f, o, e: None if "recording could not be written" in e
+               and not (f / "cmp" / "compare.rrd").exists() and "compare.rrd" not in o
+               else "a cut compare.rrd is kept or listed without a word"),
         Attack("7th: loops --out IMAGES/02.png wrote over an image", "fail",
                lambda f: ["loops", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png", "03.png": "03.png"})),
                           "--out", "imgs/02.png", "--quiet"],

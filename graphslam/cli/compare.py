@@ -298,8 +298,7 @@ def _write_comparison(
             open_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
         )
         recorder.record_comparison(done, source)
-        close_recorder(recorder)
-        if rerun_mode == "save":
+        if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
             outputs.append("compare.rrd")
     writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
     skipped = {

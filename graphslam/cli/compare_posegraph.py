@@ -177,7 +177,6 @@ def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[s
                 r.result.rejected,
                 root=f"world/{r.backend}",
             )
-        close_recorder(log)
-        if mode == "save":
+        if close_recorder(log) and mode == "save":  # not listed when not kept
             written.append("compare.rrd")
     return written

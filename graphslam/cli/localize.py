@@ -136,8 +136,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
     paths = localize_run.write_outputs(result, out_dir, metrics)
     if recorder is not None:
-        close_recorder(recorder)
-        if args.rerun == "save":
+        if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
             paths["recording"] = out_dir / "localize.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()}, tuple(sorted(names)))
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)

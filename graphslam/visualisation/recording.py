@@ -138,6 +138,24 @@ def _wait_for_port(host: str, port: int, wait_s: float) -> bool:
         time.sleep(0.1)
 
 
+def write_limit_reached(path: Path) -> str | None:
+    """Why a file just written may have been cut, or None: it reached this process's
+    file-size limit, or its file system has no free block left (what root may use,
+    reserved blocks included, or what others may)."""
+    try:
+        import resource  # POSIX only
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+        if soft != resource.RLIM_INFINITY and path.stat().st_size >= soft:
+            return "file larger than this system allows (a file-size limit)"
+        st = os.statvfs(path)
+    except (ImportError, AttributeError, OSError):
+        return None
+    if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
+        return "no space left on device"
+    return None
+
+
 class _NotingStream:
     """A RecordingStream that notes what each ``log`` and ``send_columns`` wrote
     (:class:`graphslam.visualisation.layout.LoggedEntities`), for the layout, and
@@ -284,16 +302,26 @@ class RerunLog:
             self.rec.disconnect()
             reason = str(e).splitlines()[0]
             if self._partial is not None and self.path is not None:
-                # A file that could not be written (a full disk): nothing of it is kept,
-                # and an earlier run's recording at its name goes too, so the folder
-                # never shows that recording beside this run's files.
-                self._partial.unlink(missing_ok=True)
-                self._partial = None
-                Path(self.path).unlink(missing_ok=True)
-                raise ViewerUnavailable(
-                    f"the recording could not be written ({reason}); no {Path(self.path).name} is kept"
-                ) from None
+                self._not_written(reason)
             raise ViewerUnavailable(
                 f"the Rerun viewer stopped taking the stream; the recording is incomplete ({reason})"
             ) from None
         self.rec.disconnect()
+        if self._partial is not None and self.path is not None:
+            # Rerun's file sink can meet a full disk, log it and still flush "fine",
+            # leaving a recording cut at the disk's end
+            reason = write_limit_reached(self._partial)
+            if reason is not None:
+                self._not_written(reason)
+
+    def _not_written(self, reason: str) -> None:
+        """A recording file that could not be written whole: nothing of it is kept, and
+        an earlier run's recording at its name goes too, so the folder never shows that
+        recording beside this run's files. Raises ViewerUnavailable saying so."""
+        assert self._partial is not None and self.path is not None  # save mode
+        self._partial.unlink(missing_ok=True)
+        self._partial = None
+        Path(self.path).unlink(missing_ok=True)
+        raise ViewerUnavailable(
+            f"the recording could not be written ({reason}); no {Path(self.path).name} is kept"
+        )

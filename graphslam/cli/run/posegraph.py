@@ -113,8 +113,8 @@ def record(args, graph, result, out_dir: Path) -> dict[str, Path]:
 
     log, mode = open_recorder(open_posegraph_recording, args.rerun, out_dir / "run.rrd", args.rerun_url)
     log_pose_graph(log, solved_graph(graph, result), result.params, result.rejected)
-    close_recorder(log)
-    return {"recording": out_dir / "run.rrd"} if mode == "save" else {}
+    kept = close_recorder(log)  # a recording that could not be written is not listed
+    return {"recording": out_dir / "run.rrd"} if kept and mode == "save" else {}
 
 
 def open_posegraph_recording(mode: str, path: Path, url: str | None):

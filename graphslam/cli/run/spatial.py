@@ -181,8 +181,7 @@ def run(args: argparse.Namespace) -> int:
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:
                 recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
-            close_recorder(recorder)
-            if rerun_mode == "save":
+            if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
                 paths["recording"] = out_dir / "run.rrd"
     if mapper is not None:  # last: a map that cannot be built costs no other file
         save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)

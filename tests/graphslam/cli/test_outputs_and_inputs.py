@@ -80,3 +80,48 @@ def test_compare_says_the_doubts_its_runs_carry(tmp_path, capsys, backends):
     assert all(any(w in ln for ln in warnings) for w in said)
     if "isam2" in backends:  # its own doubt (the chi-square bound) named by back end
         assert any(ln.startswith("graphslam: warning: isam2: final cost") for ln in warnings), warnings
+
+
+@pytest.mark.parametrize("argv, name", [
+    (["compare", "--max-steps", "20", "--backends", "isam2", "ekf"], "compare.rrd"),
+    (["run", "--dataset", "synthetic-images", "--max-steps", "8"], "run.rrd"),
+    (["run", "--dataset", "w100.graph"], "run.rrd"),
+])
+def test_a_recording_that_could_not_be_written_is_not_listed(tmp_path, capsys, monkeypatch, argv, name):
+    """A full disk while Rerun writes the recording: the warning says none is kept,
+    and the outputs line does not name it (compare, the visual and pose-graph runs
+    listed it all the same)."""
+    from graphslam.visualisation import recording
+
+    def full_disk(self):
+        self.discard()
+        raise recording.ViewerUnavailable(f"the recording could not be written (test); no {name} is kept")
+
+    monkeypatch.setattr(recording.RerunLog, "close", full_disk)
+    if "w100.graph" in argv:
+        gtsam = pytest.importorskip("gtsam")
+        argv = [a if a != "w100.graph" else gtsam.findExampleDataFile("w100.graph") for a in argv]
+    out = tmp_path / "o"
+    quiet = [] if argv[0] == "compare" else ["--quiet"]
+    assert main([str(a) for a in [*argv, "--rerun", "save", *quiet, "--out", out]]) == 0
+    captured = capsys.readouterr()
+    assert f"no {name} is kept" in captured.err
+    listed = [ln for ln in captured.out.splitlines() if ln.startswith("outputs in")]
+    assert listed and name not in listed[-1] and not (out / name).exists()
+
+
+def test_write_limit_reached_names_a_file_size_limit_and_a_full_file_system(tmp_path, monkeypatch):
+    resource = pytest.importorskip("resource")
+    import os
+    from types import SimpleNamespace
+
+    from graphslam.visualisation.recording import write_limit_reached
+
+    f = tmp_path / "r.rrd"
+    f.write_bytes(b"x" * 4096)
+    assert write_limit_reached(f) is None  # this disk has room, no limit set
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (4096, resource.RLIM_INFINITY))
+    assert "file-size limit" in write_limit_reached(f)
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (resource.RLIM_INFINITY,) * 2)
+    monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bfree=0, f_bavail=0))
+    assert write_limit_reached(f) == "no space left on device"
