@@ -12,6 +12,7 @@ import sys
 import time
 import weakref
 from pathlib import Path
+from typing import NoReturn
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -310,11 +311,11 @@ class RerunLog:
         if self._partial is not None and self.path is not None:
             # Rerun's file sink can meet a full disk, log it and still flush "fine",
             # leaving a recording cut at the disk's end
-            reason = write_limit_reached(self._partial)
-            if reason is not None:
-                self._not_written(reason)
+            cut = write_limit_reached(self._partial)
+            if cut is not None:
+                self._not_written(cut)
 
-    def _not_written(self, reason: str) -> None:
+    def _not_written(self, reason: str) -> NoReturn:
         """A recording file that could not be written whole: nothing of it is kept, and
         an earlier run's recording at its name goes too, so the folder never shows that
         recording beside this run's files. Raises ViewerUnavailable saying so."""
