@@ -8,6 +8,7 @@ exits with 130 or 143 (:mod:`graphslam.pipelines.common`).
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 from typing import NoReturn
@@ -170,6 +171,13 @@ def entry() -> None:
         status = main()
     finally:  # a SystemExit of the parser (--help, an error) too
         _returned.append(True)
+    recording = sys.modules.get("graphslam.visualisation.recording")
+    if recording is not None and recording.wedged():
+        # a recording's flush was given up on a full disk: Python's exit would wait
+        # for Rerun's stopped writer forever (its exit hook, the stream's drop)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
     sys.exit(status)
 
 

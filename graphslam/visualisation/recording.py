@@ -9,6 +9,7 @@ import os
 import shutil
 import socket
 import sys
+import threading
 import time
 import weakref
 from pathlib import Path
@@ -137,6 +138,22 @@ def _wait_for_port(host: str, port: int, wait_s: float) -> bool:
         if time.monotonic() >= deadline:
             return False
         time.sleep(0.1)
+
+
+#: How often a save-mode flush looks at its file, and how long after the file met the
+#: disk's end a flush still waiting is given up (s): writing what is buffered takes
+#: well under a second once the disk is full.
+WATCH_S, WEDGED_AFTER_S = 0.5, 5.0
+#: Streams whose flush was given up (:meth:`RerunLog._flush_watched`): held so that no
+#: drop, disconnect or exit hook waits on them. Process state, not a setting: a Rust
+#: thread that never returns.
+_WEDGED: list = []
+
+
+def wedged() -> bool:
+    """Whether a recording's flush was given up in this process: the process must then
+    end without exit hooks (:func:`os._exit`), which would wait for it forever."""
+    return bool(_WEDGED)
 
 
 def write_limit_reached(path: Path) -> str | None:
@@ -298,7 +315,10 @@ class RerunLog:
 
     def _flush_and_disconnect(self) -> None:
         try:
-            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S if self.mode != "save" else 1e38)
+            if self._partial is not None and self.path is not None:
+                self._flush_watched(self._partial)
+            else:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except RuntimeError as e:
             self.rec.disconnect()
             reason = str(e).splitlines()[0]
@@ -314,6 +334,38 @@ class RerunLog:
             cut = write_limit_reached(self._partial)
             if cut is not None:
                 self._not_written(cut)
+
+    def _flush_watched(self, partial: Path) -> None:
+        """Flush a save-mode stream while watching its file. When Rerun's file writer dies
+        on a full disk in the middle of a flush, rerun-sdk 0.41 can wait for it forever
+        (about one flush in three on a full tmpfs); a flush still waiting
+        :data:`WEDGED_AFTER_S` after the file reached the disk's end (or the process's
+        file-size limit) is given up: the recording is not kept, and the stream is held
+        in :data:`_WEDGED` so that nothing waits on it again (see :func:`wedged`)."""
+        done = threading.Event()
+        failed: list[BaseException] = []
+
+        def flush() -> None:
+            try:
+                self.rec.flush(timeout_sec=1e38)
+            except BaseException as e:  # handed to the caller's thread below
+                failed.append(e)
+            finally:
+                done.set()
+
+        threading.Thread(target=flush, name="rerun-flush", daemon=True).start()
+        full_since: float | None = None
+        while not done.wait(WATCH_S):
+            if write_limit_reached(partial) is None:
+                full_since = None
+            elif full_since is None:
+                full_since = time.monotonic()
+            elif time.monotonic() - full_since >= WEDGED_AFTER_S:
+                _WEDGED.append(self._stream)
+                self._rr.unregister_shutdown()  # rerun's exit hook would flush it again
+                self._not_written(f"{write_limit_reached(partial)}; Rerun's writer stopped")
+        if failed:
+            raise failed[0]
 
     def _not_written(self, reason: str) -> NoReturn:
         """A recording file that could not be written whole: nothing of it is kept, and
