@@ -143,7 +143,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise GraphSlamError("--odometry applies to image sequences only")
     chosen = args.backends is not None
     args.backends = args.backends or list(registry.BACKENDS)
-    _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets")
+    _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets", graphs_hint=True)
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
     if (
         args.seed is not None
@@ -189,11 +189,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
 
 
-def _check_names(names, allowed, where: str) -> None:
+def _check_names(names, allowed, where: str, graphs_hint: bool = False) -> None:
+    """Refuse back ends not in ``allowed`` on ``where``; with ``graphs_hint``, name those
+    that solve 2-D pose-graph files (batch, auto) as such rather than as unknown."""
+    from graphslam import registry
+
     bad = [n for n in names if n not in allowed]
     if bad:
-        # batch and auto exist for 2-D data too, for pose-graph files only
-        graph_only = [n for n in bad if n in ("batch", "auto") and "landmark" in where]
+        graph_only = [n for n in bad if graphs_hint and n in registry.WHOLE_GRAPH_BACKENDS]
         hint = f"; {' and '.join(graph_only)}: pose-graph files only" if graph_only else ""
         raise GraphSlamError(
             f"--backends {' '.join(bad)}: not on {where}{hint} (available: {', '.join(allowed)})"
