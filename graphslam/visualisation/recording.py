@@ -338,7 +338,7 @@ class RerunLog:
     def _flush_watched(self, partial: Path) -> None:
         """Flush a save-mode stream while watching its file. When Rerun's file writer dies
         on a full disk in the middle of a flush, rerun-sdk 0.41 can wait for it forever
-        (about one flush in three on a full tmpfs); a flush still waiting
+        (1 of 12 runs of ``compare --rerun save`` under a 300 kB file-size limit); a flush still waiting
         :data:`WEDGED_AFTER_S` after the file reached the disk's end (or the process's
         file-size limit) is given up: the recording is not kept, and the stream is held
         in :data:`_WEDGED` so that nothing waits on it again (see :func:`wedged`)."""
