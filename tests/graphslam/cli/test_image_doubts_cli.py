@@ -13,15 +13,8 @@ from graphslam.cli.main import main
 
 
 @pytest.fixture
-def desk(shared_data, tmp_path):
-    src = shared_data / "slambook2_desk" / "images"
-    if not src.is_dir():
-        pytest.skip("desk photos missing")
-    folder = tmp_path / "photos"
-    folder.mkdir()
-    for k in range(1, 7):
-        shutil.copy(src / f"{k:02d}.png", folder / f"{k:02d}.png")
-    return folder
+def desk(desk_copy):
+    return desk_copy(6)
 
 
 def test_run_says_frames_stored_twice_and_keeps_it(desk, tmp_path, capsys):

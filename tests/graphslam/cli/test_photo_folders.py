@@ -5,7 +5,6 @@ door set from the camera alone against its COLMAP reconstruction."""
 from __future__ import annotations
 
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -28,15 +27,8 @@ def _one_error_line(capsys, argv) -> str:
 
 
 @pytest.fixture
-def desk_photos(shared_data, tmp_path):
-    src = shared_data / "slambook2_desk" / "images"
-    if not src.is_dir():
-        pytest.skip("desk photos missing")
-    folder = tmp_path / "photos"
-    folder.mkdir()
-    for name in ("01.png", "02.png", "03.png"):
-        shutil.copy(src / name, folder / name)
-    return folder
+def desk_photos(desk_copy):
+    return desk_copy(3)
 
 
 def test_a_folder_without_a_camera_names_the_option_and_the_files(capsys, desk_photos, tmp_path):
