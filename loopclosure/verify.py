@@ -330,10 +330,17 @@ class GeometricVerifier:
         return M, mask.reshape(-1).astype(bool)
 
     def verify(
-        self, xy_a, desc_a, xy_b, desc_b, K=None, distortion=None, size_a=None, size_b=None
+        self,
+        xy_a: np.ndarray,
+        desc_a: np.ndarray,
+        xy_b: np.ndarray,
+        desc_b: np.ndarray,
+        K: np.ndarray | None = None,
+        distortion: np.ndarray | None = None,
+        size_a: tuple[float, float] | None = None,
+        size_b: tuple[float, float] | None = None,
     ) -> Verification:
-        """Verify images a and b from their features (argument types: the
-        :class:`PairVerifier` protocol's).
+        """Verify images a and b from their features.
 
         ``xy_*``: (N, 2) pixel coordinates (column, row); ``desc_*``: (N, 32)
         uint8 ORB descriptors; ``K`` (3, 3) intrinsics (both images), or None;

@@ -45,6 +45,7 @@ from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.input_files import check_input_path
+from slamcore.planar import geometry as se2
 from slamcore.planar.records import Dataset, Frame, odometry_batch, range_bearing_batch
 from slamcore.planar.sighting_correlation import SightingCorrelation
 
@@ -328,20 +329,17 @@ def truth_sightings_doubt(config: MrclamConfig, robot: int, track, landmarks_tru
         return None
     pose = track.wTb_true[[k for k, _, _ in rows]]
     z = np.array([z for _, _, z in rows], dtype=np.float64)
-    d = np.array([landmarks_true[s][:2] for _, s, _ in rows]) - pose[:, :2]
-    bearing = np.remainder(z[:, 1] - np.arctan2(d[:, 1], d[:, 0]) + pose[:, 2] + np.pi, 2 * np.pi) - np.pi
+    landmarks = np.array([landmarks_true[s][:2] for _, s, _ in rows], dtype=np.float64)
+    nu = se2.innovation(z, se2.observe(pose, landmarks))
     cov = sighting_covariances(config, z)
-    whitened = np.column_stack(
-        [(z[:, 0] - np.hypot(d[:, 0], d[:, 1])) / np.sqrt(cov[:, 0, 0]), bearing / np.sqrt(cov[:, 1, 1])]
-    )
+    whitened = nu / np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
     miss = float((np.abs(whitened) > SIGHTING_MISS_SIGMA).any(axis=1).mean())
     if miss <= SIGHTING_MISS_SHARE:
         return None
-    n = robot
     return (
-        f"{100 * miss:.0f} % of robot {n}'s {len(rows)} sightings with truth miss their landmark, "
+        f"{100 * miss:.0f} % of robot {robot}'s {len(rows)} sightings with truth miss their landmark, "
         f"seen from the truth's pose, by more than {SIGHTING_MISS_SIGMA:g} sigma: "
-        f"Robot{n}_Groundtruth.dat and Robot{n}_Measurement.dat are not of one robot "
+        f"Robot{robot}_Groundtruth.dat and Robot{robot}_Measurement.dat are not of one robot "
         "(another robot's or data set's file?); the ATE and map scores are meaningless"
     )
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from graphslam.sources.spatial.sequence import camera_doubts, check_K, image_size, parse_floats, read_lines
+from graphslam.sources.spatial.sequence import check_K, image_doubts, parse_floats, read_lines
 from slamcore.errors import InputError
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -194,14 +194,8 @@ def read_camera_of(
     :func:`read_intrinsics_file`, then :func:`~.sequence.camera_doubts` against that
     image's size (InputError when ``K`` cannot be its camera)."""
     K, dist = read_intrinsics_file(path)
-    size, stated = image_size(str(first_image)), stated_image_size(path)
-    if stated is not None and stated != size:
-        raise InputError(
-            f"the camera is calibrated for {stated[0]}x{stated[1]} px images (the size the file "
-            f"states), these are {size[0]}x{size[1]} px ({Path(first_image).name})",
-            path,
-        )
-    return K, dist, camera_doubts(K, size, Path(path), str(first_image))
+    _, doubts = image_doubts(K, [str(first_image)], Path(path), stated_image_size(path))
+    return K, dist, list(doubts)
 
 
 def stated_image_size(path: str | Path) -> tuple[int, int] | None:
