@@ -181,18 +181,9 @@ def _rows_of(keys: np.ndarray, rows: np.ndarray, char: str, ids: np.ndarray) -> 
     return np.asarray(rows, dtype=np.float64).reshape(-1, width)[at]
 
 
-def graph_error(dataset: Dataset, estimate: Estimate) -> float | None:
-    """GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate`` under the dataset's noise.
-
-    Returns None when the estimate lacks a variable the graph needs (e.g. a
-    filter's own landmark ids under unknown association).
-    """
-    cost = graph_cost(dataset, estimate)
-    return None if cost is None else cost[0]
-
-
 def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int] | None:
-    """``(error, dof)``: :func:`graph_error` and the graph's degrees of freedom (the
+    """``(error, dof)``: GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate`` under
+    the dataset's noise, and the graph's degrees of freedom (the
     measurements' dimensions less the variables'), or None as there."""
     graph = dataset_graph(dataset, frames=len(estimate.pose_ids))
     values = estimate_values(estimate)

@@ -54,16 +54,12 @@ DEFAULT_MIN_MAHALANOBIS = 10.0
 MAX_DRAWS_PER_CLOSURE = 1000
 
 
-def closure_mahalanobis(lc: LoopClosure, pose_ids: np.ndarray, wTb: np.ndarray) -> float:
-    """Mahalanobis distance (unitless) of ``lc``'s claim from trajectory ``wTb``.
-
-    ``pose_ids`` (N,) and ``wTb`` (N, 3) give the trajectory; the error is
-    ``[dx, dy, wrap(dtheta)]`` of claimed minus trajectory relative pose,
-    whitened by ``lc.covariance``.
-    """
-    index = {int(p): k for k, p in enumerate(pose_ids)}
-    rel = between(wTb[index[lc.from_id]], wTb[index[lc.to_id]])
-    e = np.asarray(lc.delta) - rel
+def closure_mahalanobis(lc: LoopClosure, wTi: np.ndarray, wTj: np.ndarray) -> float:
+    """Mahalanobis distance (unitless) of ``lc``'s claim from the relative pose of
+    ``wTi`` (its ``from_id`` pose) and ``wTj`` (its ``to_id`` pose), each (3,)
+    ``[x, y, theta]``: ``[dx, dy, wrap(dtheta)]`` of claimed minus reference
+    relative pose, whitened by ``lc.covariance``."""
+    e = np.asarray(lc.delta, dtype=np.float64) - between(wTi, wTj)
     e[2] = float(wrap_angle(e[2]))
     return float(np.sqrt(e @ np.linalg.solve(lc.covariance, e)))
 
@@ -147,11 +143,12 @@ def inject_false_closures(
             lc = LoopClosure(pose_ids[ki], pose_ids[kj], delta, cov, source=INJECTED_SOURCE)
             if ref_pose is not None:
                 wTi, wTj = ref_pose(lc.from_id), ref_pose(lc.to_id)
-                if wTi is not None and wTj is not None:
-                    e = np.asarray(lc.delta) - between(wTi, wTj)
-                    e[2] = float(wrap_angle(e[2]))
-                    if np.sqrt(e @ np.linalg.solve(lc.covariance, e)) < min_mahalanobis:
-                        continue  # nearly true: not a false closure, draw again
+                if (
+                    wTi is not None
+                    and wTj is not None
+                    and closure_mahalanobis(lc, wTi, wTj) < min_mahalanobis
+                ):
+                    continue  # nearly true: not a false closure, draw again
             added.setdefault(kj, []).append(lc)
             break
         else:

@@ -89,19 +89,6 @@ def read_pose_graph(
     return dataset_of_pose_graph(graph, sightings)
 
 
-def read_toro(path, toro_noise: str = "auto", information_fix: str = "nearest") -> Dataset:
-    """:func:`read_pose_graph` of a TORO ``.graph`` file (``VERTEX2``, ``EDGE2``, ``BR``,
-    ``EQUIV``, ``FIX``); a g2o file is refused."""
-    return read_pose_graph(path, toro_noise, information_fix, fmt="toro")
-
-
-def read_g2o(path, information_fix: str = "nearest") -> Dataset:
-    """:func:`read_pose_graph` of a 2-D g2o file (``VERTEX_SE2``, ``EDGE_SE2``, ``FIX``);
-    a TORO file is refused. (gtsam's ``readG2o`` stops silently at the first line it
-    does not know, e.g. ``FIX``; this reads on.)"""
-    return read_pose_graph(path, information_fix=information_fix, fmt="g2o")
-
-
 def read_w10000() -> Dataset:
     """gtsam's w10000 Manhattan pose graph (``w10000.graph``, TORO, in the gtsam wheel)."""
     import gtsam  # only to find the wheel's example data

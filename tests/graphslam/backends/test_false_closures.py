@@ -21,6 +21,7 @@ from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.sources.planar.outliers import (INJECTED_SOURCE, closure_mahalanobis,
                                         inject_false_closures, is_injected)
 from tests.conftest import ROOT
+from slamcore.planar.records import LoopClosure
 
 ROBUST_TOML = ROOT / "benchmarks" / "robust_isam2.toml"
 #: Robust run on city10000 with false closures: ATE at most this times the clean ATE.
@@ -88,7 +89,8 @@ def test_injection_count_placement_and_falsity(city):
         assert lc.source == INJECTED_SOURCE
         assert lc.to_id - lc.from_id >= 50
         assert lc.delta.tobytes() in true_deltas  # looks like a real closure
-        assert closure_mahalanobis(lc, ids, gt) >= 10.0  # but is false
+        at = {int(p): k for k, p in enumerate(ids)}
+        assert closure_mahalanobis(lc, gt[at[lc.from_id]], gt[at[lc.to_id]]) >= 10.0  # but is false
     # attached to the frame of the later pose, so a back end can add it at once
     for frame in bad.frames:
         assert all(max(lc.from_id, lc.to_id) == frame.pose_id for lc in frame.loop_closures)
@@ -165,3 +167,12 @@ def test_gate_config_validation():
                 {"polish_absolute_error_tol": -1.0}):
         with pytest.raises(ConfigError):
             Isam2Config(**bad)
+
+
+def test_closure_mahalanobis_whitens_the_wrapped_difference():
+    # claim (1, 0, pi - 0.1) against a reference relative pose (1, 0, -pi + 0.1):
+    # the heading differs by 0.2 rad across the wrap, not 2 pi - 0.2
+    cov = np.diag([0.1**2, 0.1**2, 0.05**2])
+    lc = LoopClosure(0, 1, np.array([1.0, 0.3, np.pi - 0.1]), cov)
+    wTi, wTj = np.zeros(3), np.array([1.0, 0.0, -np.pi + 0.1])
+    assert closure_mahalanobis(lc, wTi, wTj) == pytest.approx(np.hypot(0.3 / 0.1, -0.2 / 0.05))

@@ -187,13 +187,14 @@ def _strict_pose_graph_ids() -> bool:
 
 @pytest.mark.skipif(not _strict_pose_graph_ids(),
                     reason="pose-graph id checks not merged yet (graphslam.sources.posegraph_files)")
-@pytest.mark.parametrize("name, n_lines, reader", [("w100.graph", 120, "read_toro"),
-                                                   ("noisyToyGraph.txt", 40, "read_g2o")])
+@pytest.mark.parametrize("name, n_lines, reader", [("w100.graph", 120, "toro"),
+                                                   ("noisyToyGraph.txt", 40, "g2o")])
 def test_fuzz_pose_graph_reader(tmp_path, name, n_lines, reader):
     from graphslam.sources.planar import posegraph
 
     base = head(gtsam_data(name), n_lines)
     t0 = time.perf_counter()
-    findings = fuzz(base, tmp_path / "g.txt", getattr(posegraph, reader), N_MUTANTS // 2, seed=0,
+    read = functools.partial(posegraph.read_pose_graph, fmt=reader)
+    findings = fuzz(base, tmp_path / "g.txt", read, N_MUTANTS // 2, seed=0,
                     check=check_landmark_log)
     assert_clean(findings, t0)

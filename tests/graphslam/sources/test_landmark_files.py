@@ -11,7 +11,7 @@ import pytest
 
 from graphslam import registry
 from graphslam.cli.main import main
-from graphslam.sources.planar.posegraph import read_toro
+from graphslam.sources.planar.posegraph import read_pose_graph
 from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 from slamcore.errors import InputError
 
@@ -40,7 +40,7 @@ def _gtsam_bearing_ranges(path):
 
 
 def test_example_graph_observations_match_load2d():
-    ds = read_toro(_example_graph())
+    ds = read_pose_graph(_example_graph(), fmt="toro")
     ours = [o for f in ds.frames for o in f.observations]
     theirs = _gtsam_bearing_ranges(_example_graph())
     assert len(ds.frames) == 95 and len(ours) == len(theirs) == 422
@@ -102,7 +102,7 @@ def test_bad_br_lines_are_named(tmp_path, capsys, line, fragment):
     path = tmp_path / "bad.graph"
     path.write_text("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\n" + EDGE.format(a=0, b=1) + line + "\n")
     with pytest.raises(InputError) as info:
-        read_toro(path)
+        read_pose_graph(path, fmt="toro")
     assert info.value.line == 4 and fragment in str(info.value)
     rc = main(["run", "--dataset", str(path), "--out", str(tmp_path / "r"), "--rerun", "off",
                "--quiet"])
@@ -114,7 +114,7 @@ def test_bearing_is_wrapped_and_observations_join_their_pose(tmp_path):
     path = tmp_path / "w.graph"
     path.write_text(EDGE.format(a=0, b=1) + EDGE.format(a=1, b=2)
                     + "BR 2 7 4.0 3 0.01 0.1\nBR 0 7 -0.5 2 0.01 0.1\n")
-    ds = read_toro(path)
+    ds = read_pose_graph(path, fmt="toro")
     seen = {f.pose_id: f.observations for f in ds.frames}
     assert [len(seen[k]) for k in (0, 1, 2)] == [1, 0, 1]
     assert seen[2][0].z[1] == pytest.approx(4.0 - 2 * np.pi, abs=MEASUREMENT_TOL)

@@ -191,20 +191,20 @@ def test_bad_line_is_one_line_with_file_and_line(tmp_path, capsys, text, line, f
      "EDGE2 1 2 1 0 0 1 0 1 1 0 0\n", 4, "no vertex line"),
 ])
 def test_frame_reader_id_checks(tmp_path, text, line, fragment):
-    from graphslam.sources.planar.posegraph import read_toro
+    from graphslam.sources.planar.posegraph import read_pose_graph
 
     with pytest.raises(InputError, match=re.escape(fragment)) as err:
-        read_toro(_file(tmp_path, text, "f.graph"))
+        read_pose_graph(_file(tmp_path, text, "f.graph"), fmt="toro")
     assert err.value.line == line
 
 
 def test_frame_reader_gap_of_2_40_is_refused_at_once(tmp_path):
-    from graphslam.sources.planar.posegraph import read_toro
+    from graphslam.sources.planar.posegraph import read_pose_graph
 
     text = f"EDGE2 0 1 1 0 0 1 0 1 1 0 0\nEDGE2 1 {2**40} 1 0 0 1 0 1 1 0 0\n"
     t0 = time.perf_counter()
     with pytest.raises(InputError, match="gap"):
-        read_toro(_file(tmp_path, text, "f.graph"))
+        read_pose_graph(_file(tmp_path, text, "f.graph"), fmt="toro")
     assert time.perf_counter() - t0 < GAP_READ_S
 
 

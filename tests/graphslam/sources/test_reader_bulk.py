@@ -138,7 +138,7 @@ def test_refusals_after_reading_keep_their_line(tmp_path, monkeypatch):
             if not bulk_path:
                 m.setattr(posegraph_files, "read_in_bulk", lambda *a, **k: None)
             with pytest.raises(InputError) as info:
-                posegraph.read_toro(p)
+                posegraph.read_pose_graph(p, fmt="toro")
             errors.append(str(info.value))
     assert errors[0] == errors[1] and f"{Path(p).name}:4:" in errors[0]
 

@@ -6,6 +6,7 @@ noise as gtsam's NoiseFormatTORO reads it: information, the one reader's reading
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 
@@ -14,8 +15,7 @@ import numpy as np
 import pytest
 
 from slamcore.errors import InputError
-from graphslam.sources.planar.posegraph import (read_city10000, read_g2o, read_pose_graph,
-                                                read_toro)
+from graphslam.sources.planar.posegraph import read_city10000, read_pose_graph
 from graphslam.sources.posegraph_files import read_pose_graph_file, read_pose_graph_records
 from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 from slamcore.planar.records import ObservationKind
@@ -183,7 +183,7 @@ def w10000_path():
 
 @pytest.fixture(scope="module")
 def w10000(w10000_path):
-    return read_toro(w10000_path)
+    return read_pose_graph(w10000_path, fmt="toro")
 
 
 def test_w10000_counts(w10000, w10000_path):
@@ -244,7 +244,7 @@ def test_toro_noise_is_information_as_load2d_reads_it_with_noise_format_toro(tmp
     # numbers as the format defines them (information), whatever the back end (issue 36)
     p = _write_graph(tmp_path, "EDGE2", ".graph", _TORO_NOISE)
     graph, _ = gtsam.load2D(str(p), None, 0, False, True, gtsam.NoiseFormat.NoiseFormatTORO)
-    _assert_edges_match_gtsam(read_toro(p), graph)
+    _assert_edges_match_gtsam(read_pose_graph(p, fmt="toro"), graph)
 
 
 def test_g2o_matches_readg2o(tmp_path):
@@ -253,7 +253,7 @@ def test_g2o_matches_readg2o(tmp_path):
     p.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
                  + p.read_text() + "FIX 0\n")
     graph, _ = gtsam.readG2o(str(p), False)
-    ds = read_g2o(p)
+    ds = read_pose_graph(p, fmt="g2o")
     assert [f.pose_id for f in ds.frames] == [0, 1, 2]
     assert len(ds.frames[2].loop_closures) == 1
     _assert_edges_match_gtsam(ds, graph)
@@ -270,7 +270,7 @@ def test_toro_numbers_load2d_refuses_are_read_as_the_batch_reader_reads_them(tmp
     np.testing.assert_allclose([np.linalg.inv(e.covariance) for e in _edges(ds)],
                                batch.information, rtol=1e-9)
     with pytest.raises(InputError, match="not positive definite") as info:
-        read_toro(p, information_fix="refuse")
+        read_pose_graph(p, information_fix="refuse", fmt="toro")
     assert info.value.line == 1
 
 
@@ -335,7 +335,7 @@ def test_toro_bad_lines(tmp_path, text, line, words):
     p = tmp_path / "bad.graph"
     p.write_text(text)
     with pytest.raises(InputError) as info:
-        read_toro(p)
+        read_pose_graph(p, fmt="toro")
     assert info.value.line == line and info.value.path == str(p)
     assert f"bad.graph:{line}" in str(info.value) and words in str(info.value)
 
@@ -345,13 +345,14 @@ def test_an_edge_from_a_pose_to_itself_is_left_out_and_said(tmp_path):
     # solvers always did (issue 36); leading zeros past int()'s 4300 digits: the id is 1
     p = tmp_path / "self.graph"
     p.write_text("EDGE2 1 0 1 0 0 1 0 1 1 0 0\nEDGE2 1 " + "0" * 4999 + "1 1 0 0 1 0 1 1 0 0\n")
-    ds = read_toro(p)
+    ds = read_pose_graph(p, fmt="toro")
     assert len(ds.frames) == 2 and not ds.frames[1].loop_closures
     assert ds.notes == ("1 edges from a pose to itself left out (lines 2): they constrain "
                         "nothing",)
 
 
-@pytest.mark.parametrize("reader", [read_victoria_park, read_toro, read_g2o, read_pose_graph])
+@pytest.mark.parametrize("reader", [read_victoria_park, functools.partial(read_pose_graph, fmt="toro"),
+                                    functools.partial(read_pose_graph, fmt="g2o"), read_pose_graph])
 def test_missing_file(tmp_path, reader):
     p = tmp_path / "nope.txt"
     with pytest.raises(InputError) as info:
