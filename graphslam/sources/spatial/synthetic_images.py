@@ -62,7 +62,6 @@ from graphslam.sources.spatial.sequence import ImageSequence
 from graphslam.sources.spatial.synthetic_render import (
     Surface,
     balbianello_photos,
-    clip_polygon_near,
     mip_levels,
     photo_texture,
     procedural_texture,
@@ -72,13 +71,7 @@ from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.camera import intrinsics_matrix
 
-__all__ = [
-    "SyntheticImagesConfig",
-    "SyntheticImageSequence",
-    "Surface",
-    "make_synthetic_images",
-    "clip_polygon_near",
-]
+__all__ = ["SyntheticImagesConfig", "SyntheticImageSequence", "make_synthetic_images"]
 
 #: Largest image side, pixels: 8K video (7680 x 4320) is about the most a video
 #: camera delivers. Each frame is rendered into an (H, W) uint8 image and a
