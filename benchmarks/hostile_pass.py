@@ -64,6 +64,8 @@ class Attack:
     file_size_limit: int | None = None
     #: seconds after the start at which SIGTERM is sent (a user's kill), or None
     sigterm_after_s: float | None = None
+    #: the signal ``sigterm_after_s`` sends (SIGHUP: the terminal closed)
+    stop_signal: str = "SIGTERM"
     #: seconds after the start at which SIGINT goes to the whole process group (Ctrl-C
     #: in a terminal reaches the run and every process it started), or None
     sigint_group_after_s: float | None = None
@@ -580,7 +582,103 @@ def attacks() -> list[Attack]:
                           "--out", "imgs/02.png", "--quiet"],
                check=lambda f, o, e: None if (f / "imgs" / "02.png").read_bytes()[:4] == b"\x89PNG"
                else "the image was overwritten"),
+        # eighth pass: other signals, files written over, non-UTF-8 names, byte-order marks
+        Attack("8th: SIGHUP (the terminal closed) to a run: the estimate so far written", "fail",
+               lambda f: _run("synthetic", "--max-steps", "300"), ("ok",), ok_codes=(129,), env=_HUP_AT_STEP,
+               check=lambda f, o, e: _files("out/trajectory.tum", "out/metrics.json")(f, o, e) or _hup_said(e)),
+        Attack("8th: SIGHUP to loops: the closures found kept", "fail",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_10)), "--out", "l.csv", "--quiet"], ("ok",),
+               ok_codes=(129,), env={**_HUP_AT_STEP, "GRAPHSLAM_SIGNAL_AT": "step:4"},
+               check=lambda f, o, e: _files("l.csv")(f, o, e) or _hup_said(e)),
+        Attack("8th: SIGHUP to compare: the cut back end's result kept", "fail",
+               lambda f: ["compare", "--max-steps", "300", "--rerun", "off", "--out", "cmp", "--backends", "isam2",
+                          "ekf"], ("ok",), ok_codes=(129,), env=_HUP_AT_STEP,
+               check=lambda f, o, e: _files("cmp/compare.json")(f, o, e) or _hup_said(e)),
+        Attack("8th: SIGHUP to a running sweep: finished rows kept, no run left behind", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", "[sweep]\ndataset = [\"synthetic\"]\nbackend = [\"isam2\"]\n"
+                                              "seed = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]\nmax_steps = 400\n")),
+                          "--out", "sw", "--workers", "2", "--quiet", "--no-plots"],
+               ("ok",), ok_codes=(129,), sigterm_after_s=3.0, stop_signal="SIGHUP", check=_orphans("sw")),
+        Attack("8th: vocab train --out IMAGES/01.png wrote over an image", "fail",
+               lambda f: ["vocab", "train", str(_desk_copy(f, {"01.png": "01.png", "02.png": "02.png"})),
+                          "--out", "imgs/01.png", "--quiet"],
+               check=lambda f, o, e: None if (f / "imgs" / "01.png").read_bytes()[:4] == b"\x89PNG"
+               else "the image was overwritten"),
+        Attack("8th: convert g.g2o ./g.g2o --to toro wrote TORO over its input", "fail",
+               lambda f: ["convert", str(_w(f, "g.g2o", _chain_g2o(3))), "./g.g2o", "--to", "toro"],
+               check=lambda f, o, e: None if (f / "g.g2o").read_text() == _chain_g2o(3)
+               else "the input was overwritten"),
+        Attack("8th: loops --out pr.csv --truth: the closures lost under the PR table", "silent",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_10)), "--out", "pr.csv", "--quiet", "--truth",
+                          str(_w(f, "t.csv", "query,match\n10.png,01.png\n"))]),
+        Attack("8th: loops --truth pr.csv beside --out: the truth replaced by the PR table", "fail",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_3)), "--out", "l.csv", "--quiet", "--truth",
+                          str(_w(f, "pr.csv", "query,match\n03.png,01.png\n"))],
+               check=lambda f, o, e: None if (f / "pr.csv").read_text().startswith("query,match")
+               else "the truth was overwritten"),
+        Attack("8th: eval --out . beside a reference named eval.json", "fail",
+               lambda f: ["eval", str(_oval(f, "eval.json")), str(_oval(f, "est.tum", est=True)), "--format", "tum",
+                          "--out", ".", "--no-plot"],
+               check=lambda f, o, e: None if (f / "eval.json").read_text()[0].isdigit()
+               else "the reference was overwritten"),
+        Attack("8th: a run extending a map whose map.json sessions is 5 (a traceback after the run)", "fail",
+               lambda f: _images_run("synthetic-images", "--frames", "20:23", "--map", str(_map_sessions(f, 5)),
+                                     "--save-map", "m2", max_steps=None)),
+        Attack("8th: run --out in a folder named in Latin-1, recording saved (Rerun's UTF-8 paths)", "fail",
+               lambda f: ["run", "--max-steps", "5", "--quiet", "--out", os.fsdecode(b"sortie_\xe9")]),
+        Attack("8th: eval of an estimate whose file name is Latin-1 (the plot's legend)", "fail",
+               lambda f: ["eval", str(_oval(f, "gt.tum")), str(_oval(f, os.fsdecode(b"est_\xe9.tum"), est=True)),
+                          "--out", "ev"], ("ok",), check=_files("ev/eval.png")),
+        Attack("8th: compare of a pose graph whose file name is Latin-1 (the plot's title)", "fail",
+               lambda f: ["compare", "--dataset", str(_w(f, os.fsdecode(b"g\xe9.g2o"), _chain_g2o(5))), "--rerun",
+                          "off", "--out", "cmp", "--backends", "batch", "isam2"], ("ok",)),
+        Attack("8th: a ROS 2 bag folder whose storage file is a FIFO (a hang SIGTERM could not end)", "fail",
+               lambda f: ["info", str(_fifo_bag(f))]),
+        Attack("8th: a truth CSV with a byte-order mark (a spreadsheet's export)", "fail",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_3)), "--out", "l.csv", "--quiet", "--truth",
+                          str(_w(f, "t.csv", "\ufeffquery,match\n03.png,01.png\n"))], ("ok",),
+               check=_says("1 same-place pairs")),
+        Attack("8th: a TUM estimate with a byte-order mark", "fail",
+               lambda f: _eval(_oval(f, "gt.tum"), _w(f, "bom.tum", "\ufeff" + _oval(f, "est.tum", est=True).read_text())),
+               ("ok",)),
+        Attack("8th: --frames with a 5000-digit bound: a short error line", "fail",
+               lambda f: _images_run("synthetic-images", "--frames", "0:1" + "0" * 5000)),
+        Attack("8th: loops --truth without a closure: no Python warning on stderr", "silent",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_3)), "--out", "l.csv", "--quiet", "--truth",
+                          str(_w(f, "t.csv", "query,match\n"))], ("ok",),
+               check=lambda f, o, e: "a Python warning on stderr" if "Warning" in e else None),
     ]
+
+
+#: The eighth pass's SIGHUP: sent by the run itself at its step 30 (the terminal closed).
+_HUP_AT_STEP = {"GRAPHSLAM_SIGNAL_AT": "step:30", "GRAPHSLAM_SIGNAL": "HUP"}
+_DESK_3 = {f"{k:02d}.png": f"{k:02d}.png" for k in range(1, 4)}
+_DESK_10 = {f"{k:02d}.png": f"{k:02d}.png" for k in range(1, 11)}
+
+
+def _hup_said(err: str) -> str | None:
+    return None if "interrupted (SIGHUP)" in err else "the hang-up is not said"
+
+
+def _map_sessions(folder: Path, sessions) -> Path:
+    """:func:`_room_map` with its map.json's ``meta.sessions`` set to ``sessions``."""
+    path = _room_map(folder)
+    doc = json.loads((path / "map.json").read_text())
+    doc["meta"]["sessions"] = sessions
+    (path / "map.json").write_text(json.dumps(doc))
+    return path
+
+
+def _fifo_bag(folder: Path) -> Path:
+    """A ROS 2 bag folder (metadata.yaml) whose SQLite storage file is a FIFO."""
+    bag = folder / "bag"
+    bag.mkdir()
+    os.mkfifo(bag / "x.db3")
+    _w(bag, "metadata.yaml", "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: sqlite3\n"
+       "  relative_file_paths: [x.db3]\n  duration: {nanoseconds: 0}\n"
+       "  starting_time: {nanoseconds_since_epoch: 0}\n  message_count: 0\n"
+       "  topics_with_message_count: []\n  compression_format: ''\n  compression_mode: ''\n")
+    return bag
 
 
 #: The seventh pass's one-run sweep (iSAM2 on 3 steps of the synthetic world), without seeds.
@@ -1008,13 +1106,13 @@ def _limits(file_size_limit: int | None):
     return apply
 
 
-def _sigterm_after(proc: subprocess.Popen, seconds: float) -> None:
+def _sigterm_after(proc: subprocess.Popen, seconds: float, name: str = "SIGTERM") -> None:
     import signal
     import threading
 
     def send():
         if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
+            proc.send_signal(getattr(signal, name))
     timer = threading.Timer(seconds, send)
     timer.daemon = True
     timer.start()
@@ -1108,7 +1206,7 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
                                     preexec_fn=_limits(a.file_size_limit),
                                     start_new_session=a.sigint_group_after_s is not None)
             if a.sigterm_after_s is not None:
-                _sigterm_after(proc, a.sigterm_after_s)
+                _sigterm_after(proc, a.sigterm_after_s, a.stop_signal)
             if a.sigint_group_after_s is not None:
                 _sigint_group_after(proc, a.sigint_group_after_s, folder, a.sigint_when)
             if close:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import sys
 from pathlib import Path
 
@@ -30,10 +31,12 @@ EXIT_INTERRUPTED = 130
 
 def path_arg(text: str) -> Path:
     """argparse ``type`` of every path argument: an empty one is refused (an unset shell
-    variable would otherwise name the current folder)."""
+    variable would otherwise name the current folder); a leading ``~`` is the home
+    folder, as the shell would have made it (it does not after ``--out=``: a folder
+    named ``~`` was written while the summary said ``~/...``)."""
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path (an unset shell variable?)")
-    return Path(text)
+    return Path(os.path.expanduser(text))
 
 
 def add_command(sub, name: str, func, *, help: str, description: str, epilog: str | None = None):
@@ -196,9 +199,11 @@ def warn_doubts(doubts: dict[str, list[str] | None]) -> None:
 def check_rerun_flags(args) -> None:
     """Refuse Rerun flags that would do nothing, and a malformed ``--rerun-url``,
     before any work."""
-    from graphslam.visualisation.recording import parse_viewer_url
+    from graphslam.visualisation.recording import check_recording_path, parse_viewer_url
     from slamcore.errors import ConfigError
 
+    if args.rerun == "save" and getattr(args, "out", None) is not None:
+        check_recording_path(args.out, "--out")
     if args.rerun_url is not None:
         if args.rerun != "connect":
             raise ConfigError("--rerun-url applies to --rerun connect only")
@@ -232,6 +237,8 @@ def open_recorder(open_fn, mode: str, path: Path, url: str | None):
     try:
         opened = open_fn(mode, path, url), mode
     except (ViewerUnavailable, GraphSlamError) as e:
+        if mode == "save":  # saving is the fallback: it failing is the command's error
+            raise
         warn(f"{e}; saving {path.name} instead")
         opened = open_fn("save", path, None), "save"
     signal_hook("recorder")

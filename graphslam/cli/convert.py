@@ -53,6 +53,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from graphslam.cli.common import warn
     from graphslam.outputs.posegraph import convert, write_pose_graph
     from graphslam.sources.planar.posegraph import self_edges_note
+    from slamcore.files import check_not_inputs
 
     fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
     if fmt is None:
@@ -62,6 +63,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         )
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
+    check_not_inputs([("OUT", args.output)], {"IN": args.input})
     graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
     converted, notes = convert(graph, fmt)
     notes[:0] = graph.warnings  # the reader's doubts: the output carries them on

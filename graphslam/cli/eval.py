@@ -177,10 +177,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_OK, warn
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
-    from slamcore.files import check_output_dir
+    from slamcore.files import check_not_inputs, check_output_dir
 
     # refused now, not after scoring
-    check_output_dir(args.out, files=("eval.json",) if args.no_plot else ("eval.json", "eval.png"))
+    names = ("eval.json",) if args.no_plot else ("eval.json", "eval.png")
+    check_output_dir(args.out, files=names)
+    check_not_inputs(  # --out . beside a trajectory named eval.json
+        [(f"the output (in --out) {name}", args.out / name) for name in names],
+        {"GT": args.ground_truth, "--times": args.times, **{f"EST {e}": e for e in args.estimates}},
+    )
     options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]

@@ -139,12 +139,16 @@ def cmd_loops(args: argparse.Namespace) -> int:
     check_output_file(args.out)  # refused now, not after the detection
     if args.log is not None:
         check_output_file(args.log, "--log")
-    check_distinct_outputs({"--out": args.out, "--log": args.log})
+    pr_files = {}
+    if args.truth is not None:  # pr.csv and pr.png beside --out: --out pr.csv would be lost
+        beside = "(written beside --out with --truth)"
+        pr_files = {f"{name} {beside}": args.out.parent / name for name in ("pr.csv", "pr.png")}
+    check_distinct_outputs({"--out": args.out, "--log": args.log, **pr_files})
     from graphslam.sources.spatial.sequence import folder_images
 
     paths, times, truth, bag = _images(args)
     check_not_inputs(  # an image or the bag written over (--out IMAGES/01.png)
-        [("--out", args.out), ("--log", args.log)],
+        [("--out", args.out), ("--log", args.log), *pr_files.items()],
         {
             "IMAGES_DIR": args.images_dir,
             **{"--" + flag: getattr(args, flag, None) for flag in ("truth", "vocab", "config", "intrinsics")},

@@ -1,13 +1,14 @@
 """``graphslam`` command line: parses, calls the library, prints.
 
 Any :class:`~slamcore.errors.GraphSlamError` becomes one line on stderr and
-exit status 2; Ctrl-C (SIGINT) or SIGTERM writes what was estimated so far and
-exits with 130 or 143 (:mod:`graphslam.pipelines.common`).
+exit status 2; Ctrl-C (SIGINT), SIGTERM or SIGHUP (the terminal closed) writes what
+was estimated so far and exits with 130, 143 or 129 (:mod:`graphslam.pipelines.common`).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import re
 import sys
@@ -104,11 +105,14 @@ def main(argv: list[str] | None = None) -> int:
             # the reader of our output left (``graphslam run ... | head``): the files are
             # written before the summary is printed; exit quietly, as a shell's SIGPIPE
             # does, and keep Python's exit-time flush of stdout from raising again
-            import os
-
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            _to_devnull(sys.stdout)
             return EXIT_BROKEN_PIPE
         except OSError as e:
+            if e.errno == errno.EIO and guard.requested and guard.signal_name == "SIGHUP":
+                # the terminal closed (SIGHUP, then EIO on each write to it): the files
+                # are written before the summary is printed; nothing can be said
+                _to_devnull(sys.stdout, sys.stderr)
+                return guard.exit_status()
             # a full disk or an over-long name met while writing: the user's to fix
             line = os_error_line(e)
             if line is None:
@@ -134,6 +138,14 @@ def main(argv: list[str] | None = None) -> int:
                 )
             return guard.exit_status()
         return status
+
+
+def _to_devnull(*streams) -> None:
+    """Point ``streams`` (sys.stdout, sys.stderr) at /dev/null, so that Python's
+    exit-time flush of what they hold cannot fail again."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for stream in streams:
+        os.dup2(devnull, stream.fileno())
 
 
 _returned: list[bool] = []  # set once main() has returned in the console script
@@ -163,9 +175,9 @@ def entry() -> None:
     no moment of the exit is left to the default action)."""
     import signal
 
-    from graphslam.pipelines.common import STOP_SIGNALS
+    from graphslam.pipelines.common import stop_signals
 
-    for s in STOP_SIGNALS:
+    for s in stop_signals():
         signal.signal(s, _late_stop)
     try:
         status = main()

@@ -96,10 +96,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     from graphslam.registry import read_config
     from graphslam.sources.spatial.sequence import expand_images
     from loopclosure.detector import LoopDetectorConfig
-    from slamcore.files import check_output_file, replacing
+    from slamcore.files import check_not_inputs, check_output_file, replacing
 
     check_output_file(args.out)  # refused now, not after the training
     paths = expand_images(args.images)
+    check_not_inputs(  # an image written over (--out IMAGES/01.png)
+        [("--out", args.out)], {"--config": args.config, **{f"image {p}": p for p in paths}}
+    )
     orb = OrbDetector(read_config(args.config).section(LoopDetectorConfig).orb)
     # A stop during the ORB pass trains on the images described so far; one
     # during the training lets it finish (a second one aborts, the old file kept).

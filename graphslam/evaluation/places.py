@@ -46,7 +46,7 @@ class PrPoint:
 
 def _csv_truth(path: Path, names: dict[str, int]) -> set[tuple[int, int]]:
     pairs = set()
-    with path.open(newline="", encoding="utf-8") as fh:
+    with path.open(newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark
         rows = csv.reader(fh)
         header = next(rows, None)
         if header is None or [h.strip() for h in header[:2]] != ["query", "match"]:

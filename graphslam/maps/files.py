@@ -165,6 +165,8 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 def read_map_json(folder, kind: str = SPATIAL) -> dict:
     """``map.json`` of ``folder``, checked for format, version and ``kind``."""
     path = Path(folder) / MAP_JSON
+    if Path(folder).is_file():
+        raise InputError("is a file; a map is the folder that holds map.json", folder)
     if not Path(folder).is_dir():
         raise InputError("map folder not found", folder)
     if not path.is_file():
@@ -197,6 +199,9 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
     doc.setdefault("meta", {})
     if not isinstance(doc["meta"], dict):  # no checksum covers map.json itself
         raise InputError("damaged map.json (meta)", path)
+    sessions = doc["meta"].get("sessions", [])  # extended by a run with --map and --save-map
+    if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
+        raise InputError("damaged map.json (meta 'sessions' is not a list of tables)", path)
     return doc
 
 

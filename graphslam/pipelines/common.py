@@ -1,8 +1,8 @@
-"""What the pipelines share: the stop guard (SIGINT, SIGTERM), its test hook, and
-the progress bar.
+"""What the pipelines share: the stop guard (SIGINT, SIGTERM, SIGHUP), its test hook,
+and the progress bar.
 
 A command runs inside one :func:`stop_guard` (``graphslam.cli.main`` opens it).
-Until a run starts (:meth:`StopGuard.defer`), SIGINT or SIGTERM raises
+Until a run starts (:meth:`StopGuard.defer`), SIGINT, SIGTERM or SIGHUP raises
 KeyboardInterrupt at once: nothing is estimated yet, nothing is lost. From then
 on, to the end of the command (the loop, finalisation, metrics, writing), the
 first signal is only recorded: loops stop at their next step boundary, optional
@@ -29,6 +29,7 @@ terminal's Ctrl-C); ``GRAPHSLAM_SIGNAL_REPEAT=N`` sends it N times
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import threading
@@ -36,13 +37,25 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 
-#: Exit status of a command stopped by each signal (128 + the signal number).
+#: Exit status of a command stopped by each signal (128 + the signal number). SIGHUP
+#: (the terminal closed) stops a command as SIGTERM does: what was estimated is written.
 EXIT_STATUS_OF_SIGNAL: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+if hasattr(signal, "SIGHUP"):  # not on Windows
+    EXIT_STATUS_OF_SIGNAL[signal.SIGHUP] = 129
+STOP_SIGNALS = tuple(EXIT_STATUS_OF_SIGNAL)
+
+
+def stop_signals() -> list[int]:
+    """The stop signals this process catches: SIGINT and SIGTERM always, SIGHUP unless
+    it was ignored at the start (``nohup``: a handler would undo the user's choice).
+    A shell's background job also starts with SIGINT ignored; a command stops on
+    ``kill -INT`` all the same, as it always did (scripts and test runners send it)."""
+    hup = getattr(signal, "SIGHUP", None)
+    return [s for s in STOP_SIGNALS if s != hup or signal.getsignal(s) is not signal.SIG_IGN]
 
 
 class StopGuard:
-    """SIGINT and SIGTERM of one command (module docstring).
+    """The stop signals of one command (module docstring).
 
     Attributes:
         signum: the first stop signal received, or None.
@@ -109,6 +122,8 @@ class StopGuard:
             self.begin_save()
 
     def _handle(self, signum, frame) -> None:
+        if signum == getattr(signal, "SIGHUP", None):
+            silence_closed_terminal()
         first = self.signum is None
         if first:
             self.signum = signum
@@ -119,7 +134,7 @@ class StopGuard:
         """Install the handlers (main thread only); False where signals cannot be caught."""
         if threading.current_thread() is not threading.main_thread():
             return False
-        for s in STOP_SIGNALS:
+        for s in stop_signals():
             self._previous[s] = signal.signal(s, self._handle)
         return True
 
@@ -127,6 +142,20 @@ class StopGuard:
         for s, previous in self._previous.items():
             signal.signal(s, previous)
         self._previous.clear()
+
+
+def silence_closed_terminal() -> None:
+    """After SIGHUP: a stdout or stderr on the terminal that closed fails every write
+    (EIO), which would stop the command before its files are written; point it at
+    /dev/null (a pipe or a file is left as it is)."""
+    for fd in (1, 2):
+        try:
+            os.write(fd, b"")
+        except OSError as e:
+            if e.errno == errno.EIO:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, fd)
+                os.close(devnull)
 
 
 _active: list[StopGuard] = []  # the guard of the command running in this process

@@ -73,23 +73,35 @@ def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipel
     return result
 
 
-def _child(conn, job, strip):
+def _child(conn, job, strip, parents_end=None):
+    # the parent's end, inherited by the fork, closed: a parent that died (SIGKILL)
+    # then makes the send below fail instead of blocking on a pipe nobody reads
+    if parents_end is not None:
+        parents_end.close()
     guard = active_guard()
     if guard is not None:
         guard.become_worker()
+    message: tuple[str, Any, float | None]
     try:
-        start_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        result = job()
-        peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        conn.send(("ok", result if strip is None else strip(result), (peak_kb - start_kb) / 1024.0))
-    except GraphSlamError as e:
-        conn.send(("error", str(e), None))
-    except NUMERIC_FAILURES as e:
-        conn.send(("error", numeric_failure_line(e), None))
-    except KeyboardInterrupt:  # stopped before its first step: nothing to send
-        conn.send(("error", "stopped before its first step", None))
-    except BaseException:  # report anything else with its traceback to the parent
-        conn.send(("crash", traceback.format_exc(), None))
+        try:
+            start_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            result = job()
+            peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            message = ("ok", result if strip is None else strip(result), (peak_kb - start_kb) / 1024.0)
+        except GraphSlamError as e:
+            message = ("error", str(e), None)
+        except NUMERIC_FAILURES as e:
+            message = ("error", numeric_failure_line(e), None)
+        except KeyboardInterrupt:  # stopped before its first step: nothing to send
+            message = ("error", "stopped before its first step", None)
+        except BaseException:  # report anything else with its traceback to the parent
+            message = ("crash", traceback.format_exc(), None)
+        try:
+            conn.send(message)
+        except OSError:  # the parent is gone (BrokenPipeError): no one to tell
+            pass
+        except BaseException:  # a result that cannot be sent: a bug, reported as one
+            conn.send(("crash", traceback.format_exc(), None))
     finally:
         conn.close()
 
@@ -106,7 +118,7 @@ def run_isolated(job: Callable[[], R], name: str, strip: Callable[[R], R] | None
     """
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, job, strip))
+    proc = ctx.Process(target=_child, args=(child, job, strip, parent))
     proc.start()
     child.close()
     try:

@@ -211,7 +211,8 @@ def plot_precision_recall(points, operating: tuple[float | None, float], path: P
     ax.set_ylabel("precision")
     ax.set_title("place recognition: precision-recall")
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower left", fontsize=8)
+    if pts or prec is not None:  # else matplotlib warns of an empty legend on stderr
+        ax.legend(loc="lower left", fontsize=8)
     return _save(fig, path)
 
 
@@ -316,11 +317,24 @@ def _save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     try:
+        _drawable_texts(fig)
         with replacing(path) as tmp:
             fig.savefig(tmp, dpi=110)
     finally:
         plt.close(fig)
     return path
+
+
+def _drawable_texts(fig) -> None:
+    """Every text of ``fig`` drawable: a file name that is not UTF-8 (Latin-1 bytes,
+    held by Python as lone surrogates) in a title or a legend makes matplotlib's font
+    code raise; such characters are drawn as U+FFFD instead."""
+    from matplotlib.text import Text
+
+    for t in fig.findobj(Text):
+        text = t.get_text()
+        if any("\udc80" <= c <= "\udcff" for c in text):
+            t.set_text(text.encode("utf-8", "surrogateescape").decode("utf-8", "replace"))
 
 
 def plot_pose_graph_comparison(
@@ -359,6 +373,4 @@ def plot_pose_graph_comparison(
     bx.set_ylabel("wall time [s]")
     bx.set_title("time to the optimum")
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)

@@ -104,6 +104,20 @@ def _port_answers(host: str, port: int, timeout_s: float) -> str | None:
         return e.strerror or type(e).__name__
 
 
+def check_recording_path(path: str | Path, flag: str | None = None) -> None:
+    """ConfigError unless Rerun can save a recording at ``path``: it takes UTF-8 paths
+    only, and a folder named in another encoding (Latin-1 bytes) would fail it after
+    the run's work, as a traceback. ``flag`` names the option that gave the path."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        where = f"{flag} {path}" if flag else str(path)
+        raise ConfigError(
+            f"{where}: not a UTF-8 path, and Rerun saves recordings under UTF-8 paths only; "
+            "rename the folder, or pass --rerun off"
+        ) from None
+
+
 def sink_problem(mode: str, url: str | None = None) -> str | None:
     """Why the stream of ``mode`` cannot be used on this machine, or None.
 
@@ -236,6 +250,7 @@ class RerunLog:
         if mode == "save":
             if path is None:
                 raise ConfigError("rerun: mode 'save' needs a path")
+            check_recording_path(path)
             # Recorded under a temporary name and moved over ``path`` by close():
             # an earlier run's recording stays whole beside its other files until
             # this run ends, and a run that dies leaves no stub (the finalizer).

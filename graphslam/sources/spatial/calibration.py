@@ -62,7 +62,7 @@ def load_yaml(path: Path):
     ``%YAML`` directives and OpenCV's ``!!opencv-matrix`` tags are ignored, so
     OpenCV/Kalibr/EuRoC files read the same way as plain YAML.
     """
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = path.read_text(encoding="utf-8-sig", errors="replace")
     text = "\n".join("" if ln.lstrip().startswith("%") else ln for ln in text.splitlines())
     text = text.replace("!!opencv-matrix", "")
     try:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from graphslam.sources.spatial.sequence import ImageSequence
-from slamcore.errors import ConfigError
+from slamcore.errors import QUOTE_CHARS, ConfigError, quote
 from slamcore.spatial.geometry import invert_pose
 
 __all__ = ["parse_frames", "select_frames", "FrameSelection", "frame_indices"]
@@ -32,11 +32,13 @@ def parse_frames(text: str) -> slice:
     """``"START:STOP[:STEP]"`` -> slice; each part may be empty, STEP may be negative."""
     parts = str(text).split(":")
     if len(parts) not in (2, 3):
-        raise ConfigError(f"--frames must be START:STOP[:STEP], got {text!r}")
+        raise ConfigError(f"--frames must be START:STOP[:STEP], got {quote(str(text))}")
     try:
         vals = [int(p) if p.strip() else None for p in parts]
     except ValueError:
-        raise ConfigError(f"--frames must be START:STOP[:STEP] with integers, got {text!r}") from None
+        raise ConfigError(
+            f"--frames must be START:STOP[:STEP] with integers, got {quote(str(text))}"
+        ) from None
     step = vals[2] if len(vals) == 3 else None
     if step == 0:
         raise ConfigError("--frames step must not be 0")
@@ -47,7 +49,9 @@ def frame_indices(frames: slice, n: int) -> np.ndarray:
     """The original frame indices ``frames`` picks out of ``n`` (ConfigError when none)."""
     idx = np.arange(n)[frames]
     if len(idx) == 0:
-        raise ConfigError(f"--frames {_text(frames)} selects no frame of a {n}-frame sequence")
+        shown = _text(frames)  # a 4000-digit bound is quoted by its start
+        shown = shown if len(shown) <= QUOTE_CHARS else quote(shown)
+        raise ConfigError(f"--frames {shown} selects no frame of a {n}-frame sequence")
     return idx.astype(np.int64)
 
 

@@ -44,6 +44,7 @@ import numpy as np
 from graphslam.sources.spatial import rosbag_messages as rm
 from graphslam.sources.spatial.sequence import IMAGE_EXTENSIONS, ImageSequence
 from slamcore.errors import ConfigError, InputError, quote
+from slamcore.input_files import check_input_path
 
 #: Message types of each ``--topics`` role; a role is chosen automatically from
 #: :data:`AUTO_TYPES` only (an Odometry topic is truth only when named).
@@ -133,6 +134,9 @@ def parse_topics(text: str | None) -> dict[str, str]:
 def open_bag(path: Path) -> Iterator:
     """An open ``rosbags`` AnyReader on ``path``; a damaged bag is one InputError."""
     errors = bag_errors(path)
+    if path.is_dir():  # a FIFO among a ROS 2 bag's files blocks SQLite's open for good
+        for entry in sorted(path.iterdir()):
+            check_input_path(entry, "file of the bag", folder_ok=True)
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 

@@ -168,7 +168,7 @@ def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
     """(line_no, stripped text) of non-empty, non-comment lines; missing file -> InputError."""
     check_input_path(path, what)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")  # a byte-order mark is no number
     except OSError as e:
         raise InputError(f"cannot read {what}: {e.strerror}", path) from None
     out = []

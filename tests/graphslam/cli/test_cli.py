@@ -111,3 +111,15 @@ def test_ctrl_c_writes_what_was_estimated(tmp_path):
     rows = [r for r in (tmp_path / "vp" / "trajectory.tum").read_text().splitlines()
             if not r.startswith("#")]
     assert len(rows) == m["steps"]
+
+
+def test_a_path_option_starting_with_a_tilde_is_in_the_home_folder(monkeypatch, tmp_path):
+    # "--out=~/runs": the shell leaves the ~ (it expands one only at a word's start);
+    # a folder named ~ was made in the current one while the summary said ~/runs
+    from pathlib import Path
+
+    from graphslam.cli.common import path_arg
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert path_arg("~/runs") == tmp_path / "runs"
+    assert path_arg("a/~b") == Path("a/~b")

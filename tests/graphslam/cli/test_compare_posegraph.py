@@ -66,3 +66,17 @@ def test_what_a_pose_graph_comparison_cannot_do_is_one_line(tmp_path, capsys, ex
                  *extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
+
+
+def test_a_graph_whose_file_name_is_not_utf8_is_drawn(tmp_path, capsys):
+    # the plot's title names the graph: a Latin-1 file name (lone surrogates in Python)
+    # made matplotlib's font code raise, a traceback after both solves
+    import os
+
+    path = tmp_path / os.fsdecode(b"g\xe9.g2o")
+    path.write_text("".join(f"VERTEX_SE2 {k} {k} 0 0\n" for k in range(4))
+                    + "".join(f"EDGE_SE2 {k} {k + 1} 1 0 0 100 0 0 100 0 1000\n" for k in range(3)))
+    out = tmp_path / "c"
+    assert main(["compare", "--dataset", str(path), "--out", str(out), "--rerun", "off",
+                 "--backends", "batch", "isam2"]) == 0, capsys.readouterr().err
+    assert (out / "compare.png").stat().st_size > 5000

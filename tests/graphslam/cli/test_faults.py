@@ -15,6 +15,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from graphslam.visualisation.recording import find_viewer
 from tests.conftest import ROOT
 
 RUN_FILES = {"trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json", "run.rrd"}
-STATUS = {"INT": 130, "TERM": 143}
+STATUS = {"INT": 130, "TERM": 143, "HUP": 129}
 #: Longest a small command may take here, seconds (a hang fails, not blocks CI).
 TIMEOUT_S = 120
 
@@ -101,7 +102,7 @@ def test_nees_run_cut_keeps_every_file(tmp_path):
     assert metrics.get("nees_mean") is None
 
 
-@pytest.mark.parametrize("at, sig", [("step:3", "INT"), ("step:3", "TERM"),
+@pytest.mark.parametrize("at, sig", [("step:3", "INT"), ("step:3", "TERM"), ("step:3", "HUP"),
                                      ("finalize", "TERM"), ("write", "INT")])
 def test_run_signal_keeps_every_file(tmp_path, at, sig):
     done = graphslam(tmp_path, "run", "--max-steps", "40", "--out", "o", "--quiet",
@@ -177,7 +178,7 @@ def test_signal_before_the_run_is_one_line(tmp_path):
     assert one_line(done.stderr) == "graphslam: interrupted (SIGTERM)"
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_signal_while_the_interpreter_exits_is_its_status_not_a_death(sig):
     """A stop signal after the command returned (an exit handler sends it, as a user's
     kill lands while a sweep's engine tears down) ends with the signal's exit status
@@ -192,9 +193,79 @@ def test_a_signal_while_the_interpreter_exits_is_its_status_not_a_death(sig):
     )
     proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
-    assert proc.returncode == {signal.SIGTERM: 143, signal.SIGINT: 130}[sig], proc.stderr
+    assert proc.returncode == {signal.SIGTERM: 143, signal.SIGINT: 130, signal.SIGHUP: 129}[sig], proc.stderr
     assert proc.stderr.strip() == "graphslam: interrupted while exiting; the outputs are complete"
     assert "usage: graphslam" in proc.stdout
+
+
+def test_a_closed_terminal_keeps_the_run_files(tmp_path):
+    """The terminal a run prints to closes (SIGHUP, then EIO on every write to it): the
+    estimate so far is written, exit 129. The run was killed by SIGHUP, nothing written;
+    then, once caught, its progress and summary writes raised EIO as a traceback."""
+    import pty
+    import select
+
+    (tmp_path / "c.toml").write_text("[synthetic]\nlaps = 20\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHSLAM_SIGNAL")}
+    env["PYTHONPATH"] = str(ROOT)
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: a session of its own on the terminal, as a shell's job
+        try:
+            os.chdir(tmp_path)
+            os.execve(sys.executable, [sys.executable, "-m", "graphslam.cli.main", "run", "--out", "o",
+                                       "--rerun", "off", "--config", "c.toml"], env)
+        finally:
+            os._exit(127)
+    import fcntl
+    import struct
+    import termios
+
+    fcntl.ioctl(fd, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # 0 columns: no bar
+    seen = b""
+    try:
+        while b"step/s" not in seen:  # the progress bar: the run's loop has started
+            ready, _, _ = select.select([fd], [], [], TIMEOUT_S)
+            assert ready, "no progress within the time limit"
+            seen += os.read(fd, 4096)
+    finally:
+        os.close(fd)  # the terminal closes: SIGHUP to the run
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 129, seen[-500:]
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    assert len((tmp_path / "o" / "trajectory.tum").read_text().splitlines()) == metrics["steps"] + 1
+
+
+def test_a_hang_up_ignored_by_nohup_does_not_stop_a_run(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHSLAM_SIGNAL")}
+    env.update(PYTHONPATH=str(ROOT), GRAPHSLAM_SIGNAL_AT="step:3", GRAPHSLAM_SIGNAL="HUP")
+    done = subprocess.run([sys.executable, "-m", "graphslam.cli.main", "run", "--max-steps", "20", "--out",
+                           "o", "--quiet", "--rerun", "off"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=TIMEOUT_S,
+                          preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["steps"] == 20
+
+
+def test_a_compare_worker_whose_parent_was_killed_ends(tmp_path):
+    # the parent killed (SIGKILL: no word to its worker), the worker blocked for good
+    # writing its result into a pipe it held both ends of
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHSLAM_SIGNAL")}
+    env.update(PYTHONPATH=str(ROOT), GRAPHSLAM_SIGNAL_AT="step:5", GRAPHSLAM_SIGNAL="KILL")
+    proc = subprocess.Popen([sys.executable, "-m", "graphslam.cli.main", "compare", "--max-steps", "60",
+                             "--out", "c", "--rerun", "off", "--backends", "isam2", "ekf"], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        proc.communicate(timeout=TIMEOUT_S)  # its output ends when the worker has gone too
+        for _ in range(100):  # the orphan's reaping by init
+            if not _session_alive(proc.pid):
+                break
+            time.sleep(0.05)
+        assert not _session_alive(proc.pid), "the worker outlived its parent"
+    finally:
+        if _session_alive(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == -signal.SIGKILL
 
 
 def test_one_step_writes_everything_with_null_ate(tmp_path):

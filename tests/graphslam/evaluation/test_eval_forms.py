@@ -98,3 +98,15 @@ def test_a_times_file_no_kitti_file_takes_is_refused(tmp_path, capsys):
     code, _, err = tr.run_eval(tmp_path, capsys, gt, est, "--times", times)
     assert code == 2
     tr.one_error(err, str(times), "--times gives KITTI files their stamps; none of these files is KITTI")
+
+
+@pytest.mark.parametrize("rows, fmt", [
+    ("# t x y z qx qy qz qw\n0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n", "tum"),
+    ("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n", "kitti"),
+])
+def test_a_byte_order_mark_is_no_number(tmp_path, rows, fmt):
+    # an editor's byte-order mark before the first line: the TUM header was read as
+    # data ("1 numbers a line"), a KITTI first row refused as malformed
+    (tmp_path / "t.txt").write_text("\ufeff" + rows, encoding="utf-8")
+    traj = read_trajectory(tmp_path / "t.txt")
+    assert traj.format == fmt and len(traj.wTc) == 2

@@ -16,3 +16,15 @@ def test_recall_is_none_without_true_pairs():
 def test_curve_without_true_pairs_has_no_recall():
     curve = pr_curve([(4, 0, 2.0), (3, 0, 1.0)], set())
     assert [(p.closures, p.precision, p.recall) for p in curve] == [(1, 0.0, None), (2, 0.0, None)]
+
+
+def test_a_truth_csv_with_a_byte_order_mark_is_read(tmp_path):
+    # a spreadsheet's "CSV UTF-8" export starts with one: it was refused as a file
+    # without the header query,match, which it has
+    from pathlib import Path
+
+    from graphslam.evaluation.places import read_truth
+
+    (tmp_path / "t.csv").write_text("\ufeffquery,match\n03.png,01.png\n", encoding="utf-8")
+    paths = [Path(f"{k:02d}.png") for k in range(1, 4)]
+    assert read_truth(tmp_path / "t.csv", paths) == {(2, 0)}

@@ -127,6 +127,24 @@ def _edit_json(folder: Path, **changes) -> None:
     (folder / "map.json").write_text(json.dumps(doc))
 
 
+@pytest.mark.parametrize("sessions", [5, "abc", [1, 2]])
+def test_sessions_not_a_list_of_tables_is_refused(saved, sessions):
+    # a run extending the map (--map, --save-map) lists them: 5 was a TypeError after
+    # the run, "abc" three sessions named by letters
+    doc = json.loads((saved / "map.json").read_text())
+    doc["meta"]["sessions"] = sessions
+    (saved / "map.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError) as e:
+        load_map(saved)
+    assert "sessions" in one_line(e) and "map.json" in one_line(e)
+
+
+def test_map_json_given_for_the_folder_says_so(saved):
+    with pytest.raises(InputError) as e:
+        load_map(saved / "map.json")
+    assert "is a file; a map is the folder" in one_line(e)
+
+
 def test_newer_version_is_refused(saved):
     _edit_json(saved, version=2)
     with pytest.raises(InputError) as e:

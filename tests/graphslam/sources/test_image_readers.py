@@ -323,3 +323,22 @@ def test_euroc_list_naming_a_file_outside_the_folder_is_refused(tmp_path):
     csv.write_text(csv.read_text() + "1150000000,../../../../outside.png\n")
     with pytest.raises(InputError, match="outside the sequence folder"):
         read_image_sequence(folder)
+
+
+def test_a_frame_range_of_huge_numbers_is_a_short_error():
+    # the bound was quoted whole: a 5000-character error line
+    from graphslam.sources.spatial.frames import frame_indices, parse_frames
+    from slamcore.errors import ConfigError
+
+    with pytest.raises(ConfigError) as e:
+        parse_frames("0:1" + "0" * 5000)
+    assert len(str(e.value)) < 200 and "5003 characters" in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        frame_indices(parse_frames("1" + "0" * 4000 + ":"), 10)
+    assert len(str(e.value)) < 200 and "selects no frame" in str(e.value)
+
+
+def test_intrinsics_with_a_byte_order_mark(tmp_path):
+    (tmp_path / "K.txt").write_text("\ufeff520 520 320 240\n", encoding="utf-8")
+    K = read_intrinsics_file(tmp_path / "K.txt")[0]
+    assert K[0, 0] == 520 and K[1, 2] == 240

@@ -6,6 +6,7 @@ bit; damaged input is one error line and exit 2; ``graphslam info`` lists topics
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 from pathlib import Path
@@ -277,6 +278,17 @@ def test_info_with_topics_that_pick_nothing_lists_then_fails(tmp_path, capsys):
     assert out.splitlines()[0].split()[0] == "topic" and "no such topic" in out
     (line,) = err.strip().splitlines()
     assert line.startswith("graphslam: error: --topics image=/nosuch: ") and "no such topic" in line
+
+
+def test_a_fifo_among_a_ros2_bags_files_is_refused(tmp_path, capsys):
+    # SQLite's open of a FIFO waits for a writer for good, retrying through every
+    # signal: the command hung and SIGTERM could not end it
+    bag = small_bag(bag_path(tmp_path, "sqlite3"), "sqlite3")
+    db = next(bag.glob("*.db3"))
+    db.unlink()
+    os.mkfifo(db)
+    line = one_error_line(capsys, ["info", bag])
+    assert f"{db.name}: file of the bag is a FIFO" in line
 
 
 def test_info_refuses_what_is_not_a_bag(tmp_path, capsys):

@@ -46,3 +46,19 @@ def test_a_recording_on_a_disk_with_room_is_kept(tmp_path):
     log = _log(tmp_path)
     log.close()
     assert (tmp_path / "run.rrd").stat().st_size > 0 and not recording.wedged()
+
+
+def test_a_recording_path_that_is_not_utf8_is_one_error(tmp_path):
+    # Rerun takes UTF-8 paths only: a folder named in Latin-1 raised UnicodeEncodeError
+    # from its save(), a traceback (after a pose graph's solve, or a comparison)
+    import os
+
+    from slamcore.errors import ConfigError
+
+    folder = tmp_path / os.fsdecode(b"sortie_\xe9")
+    folder.mkdir()
+    with pytest.raises(ConfigError, match="not a UTF-8 path") as e:
+        recording.RerunLog("save", folder / "run.rrd")
+    assert "--rerun off" in str(e.value)
+    assert not list(folder.iterdir())  # no temporary file left
+    recording.check_recording_path(tmp_path / "run.rrd")  # a UTF-8 path passes
