@@ -8,6 +8,7 @@ with :func:`os.replace`, which is atomic on POSIX and Windows.
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import tempfile
@@ -17,6 +18,12 @@ from pathlib import Path
 
 from slamcore.errors import ConfigError
 
+#: Write failures that are the disk's, not ours, by errno: what the one line says.
+DISK_FULL_REASONS = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file larger than this system allows (a file-size limit)",
+}
 #: Longest file or folder name most file systems take (ext4, XFS, Btrfs, tmpfs, APFS), bytes.
 NAME_MAX_BYTES = 255
 #: Longest path Linux takes (PATH_MAX, 4096 with its terminating zero), bytes.

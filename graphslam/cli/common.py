@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from slamcore.errors import GraphSlamError
+from slamcore.files import DISK_FULL_REASONS
 
 #: Help of ``--topics`` (run, compare, localize): which topics of a ROS bag to read.
 TOPICS_HELP = (
@@ -260,12 +261,6 @@ def close_recorder(recorder) -> bool:
     return True
 
 
-#: Write errors that are the disk's, not ours: one line, no traceback.
-_DISK_FULL = {
-    errno.ENOSPC: "no space left on device",
-    errno.EDQUOT: "disk quota exceeded",
-    errno.EFBIG: "file larger than this system allows (a file-size limit)",
-}
 #: Positional arguments holding paths, as ``--help`` names them (by command, dest).
 _POSITIONAL_PATHS: dict[tuple[str | None, str], str] = {
     ("eval", "ground_truth"): "GT",
@@ -285,8 +280,8 @@ def os_error_line(e: OSError) -> str | None:
     """The one line for an OSError the user can act on (a full disk, a name too long),
     or None for any other (a bug: the traceback is wanted)."""
     where = e.filename if e.filename is not None else "an output file"
-    if e.errno in _DISK_FULL:
-        return f"{_DISK_FULL[e.errno]} writing {where}: {e.strerror}"
+    if e.errno in DISK_FULL_REASONS:
+        return f"{DISK_FULL_REASONS[e.errno]} writing {where}: {e.strerror}"
     if e.errno == errno.ENAMETOOLONG:
         return f"{where}: a file or folder name is too long ({e.strerror})"
     if e.errno == errno.EISDIR:

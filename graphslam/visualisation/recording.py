@@ -5,6 +5,7 @@ only modules that import rerun.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import socket
@@ -20,7 +21,7 @@ import numpy as np
 
 from graphslam.visualisation.layout import LoggedEntities, blueprint, layout_key
 from slamcore.errors import ConfigError, GraphSlamError
-from slamcore.files import move_into_place, temporary_beside
+from slamcore.files import DISK_FULL_REASONS, move_into_place, temporary_beside
 
 #: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
@@ -179,12 +180,12 @@ def write_limit_reached(path: Path) -> str | None:
 
         soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
         if soft != resource.RLIM_INFINITY and path.stat().st_size >= soft:
-            return "file larger than this system allows (a file-size limit)"
+            return DISK_FULL_REASONS[errno.EFBIG]
         st = os.statvfs(path)
     except (ImportError, AttributeError, OSError):
         return None
     if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
-        return "no space left on device"
+        return DISK_FULL_REASONS[errno.ENOSPC]
     return None
 
 
