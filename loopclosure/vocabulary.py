@@ -64,6 +64,7 @@ from loopclosure.vocabulary_file import (
     tree_arrays,
 )
 from loopclosure.vocabulary_training import (
+    KMEANS_SEED_MAX,
     as_training_set,
     centres_from_kmeans,
     check_int,
@@ -137,7 +138,7 @@ class FlatVocabulary:
         _kmeans()  # before one_thread(): see _kmeans
         n_words = check_int("n_words", self.n_words, 1)
         max_iter = check_int("max_iter", self.max_iter, 1)
-        seed = check_int("seed", self.seed, 0)
+        seed = check_int("seed", self.seed, 0, KMEANS_SEED_MAX)
         n_init = check_int("n_init", self.n_init, 1)
         x, images = as_training_set(descriptors)
         metric = metric_for(x.dtype)

@@ -31,10 +31,16 @@ def one_thread():
     return threadpool_limits(limits=1)
 
 
-def check_int(name: str, value, lo: int) -> int:
-    """``value`` as an int >= ``lo`` (ConfigError naming the parameter otherwise)."""
+#: Largest k-means seed: scikit-learn's ``random_state`` (numpy's RandomState) takes 0 to 2**32 - 1.
+KMEANS_SEED_MAX = 2**32 - 1
+
+
+def check_int(name: str, value, lo: int, hi: int | None = None) -> int:
+    """``value`` as an int in ``[lo, hi]`` (ConfigError naming the parameter otherwise)."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
         raise ConfigError(f"{name} must be an integer >= {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{name} must be an integer <= {hi}, got {value!r}")
     return int(value)
 
 

@@ -128,12 +128,24 @@ def seed_arg(text: str) -> int:
     said as the flag's error rather than as the config field it ends up in."""
     from slamcore.config import INT_LIMIT
 
+    return _whole_number(text, INT_LIMIT, "2**62")
+
+
+def kmeans_seed_arg(text: str) -> int:
+    """``vocab train --seed``: a whole number from 0 to 2**32 - 1, what scikit-learn's
+    k-means takes as its ``random_state`` (:data:`loopclosure.vocabulary_training.KMEANS_SEED_MAX`)."""
+    from loopclosure.vocabulary_training import KMEANS_SEED_MAX
+
+    return _whole_number(text, KMEANS_SEED_MAX, "2**32 - 1")
+
+
+def _whole_number(text: str, limit: int, limit_text: str) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text[:40]!r}") from None
-    if not 0 <= value <= INT_LIMIT:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 0 to 2**62, got {value}")
+    if not 0 <= value <= limit:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 0 to {limit_text}, got {value}")
     return value
 
 

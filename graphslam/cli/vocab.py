@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from graphslam.cli.common import add_command, add_config_option, add_quiet_option, path_arg
+from graphslam.cli.common import add_command, add_config_option, add_quiet_option, kmeans_seed_arg, path_arg
 
 EPILOG = """\
 examples:
@@ -76,7 +76,9 @@ def register(subparsers) -> None:
         help="train on the M strongest descriptors of each image (default: 300; "
         "0 = all); bounds training time",
     )
-    t.add_argument("--seed", type=int, default=0, help="k-means seed (default: 0)")
+    t.add_argument(
+        "--seed", type=kmeans_seed_arg, default=0, help="k-means seed, 0 to 2**32 - 1 (default: 0)"
+    )
     add_config_option(
         t, "TOML or YAML file; ORB settings are read from its [loops.orb] table", metavar="FILE"
     )

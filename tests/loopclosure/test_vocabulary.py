@@ -242,3 +242,11 @@ def test_bad_files_raise_input_error_naming_the_file(tmp_path):
     p = write("child.npz", children=data["children"] + 100)
     with pytest.raises(InputError, match="inconsistent"):
         load_vocabulary(p)
+
+
+def test_flat_seed_beyond_kmeans_range_is_refused_by_name():
+    # scikit-learn's random_state takes 0 to 2**32 - 1: its own error was a traceback
+    x = np.random.default_rng(0).integers(0, 256, (200, 32), dtype=np.uint8)
+    with pytest.raises(ConfigError, match="seed must be an integer <= 4294967295"):
+        FlatVocabulary(n_words=4, seed=2**32).fit(x)
+    assert FlatVocabulary(n_words=4, seed=2**32 - 1).fit(x).n_words_ == 4

@@ -254,3 +254,14 @@ def test_vocab_tree_with_fewer_words_than_asked_warns(tmp_path, capsys):
     assert main(["vocab", "train", str(DESK / "01.png"), "--out", str(tmp_path / "w.npz"),
                  "--words", "20", "--quiet"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("seed", ["5000000000", "-1"])
+def test_vocab_seed_outside_kmeans_range_is_the_flags_error(tmp_path, capsys, seed):
+    """--flat --seed 5000000000 was a scikit-learn traceback after the image pass
+    (random_state takes 0 to 2**32 - 1); -1 was refused after it, as 'seed'."""
+    with pytest.raises(SystemExit) as e:
+        main(["vocab", "train", str(tmp_path), "--flat", "--seed", seed, "--out", str(tmp_path / "v.npz")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --seed: expected a whole number from 0 to 2**32 - 1" in err and "Traceback" not in err
