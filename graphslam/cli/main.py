@@ -87,7 +87,7 @@ def one_line(message: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from graphslam.pipelines.common import signal_hook, stop_guard
+    from graphslam.pipelines.common import signal_hook, stop_guard, to_devnull
 
     # The guard first: a signal while the parser and the libraries load is
     # one line and its exit status, never a traceback.
@@ -105,13 +105,13 @@ def main(argv: list[str] | None = None) -> int:
             # the reader of our output left (``graphslam run ... | head``): the files are
             # written before the summary is printed; exit quietly, as a shell's SIGPIPE
             # does, and keep Python's exit-time flush of stdout from raising again
-            _to_devnull(sys.stdout)
+            to_devnull(sys.stdout.fileno())
             return EXIT_BROKEN_PIPE
         except OSError as e:
             if e.errno == errno.EIO and guard.requested and guard.signal_name == "SIGHUP":
                 # the terminal closed (SIGHUP, then EIO on each write to it): the files
                 # are written before the summary is printed; nothing can be said
-                _to_devnull(sys.stdout, sys.stderr)
+                to_devnull(sys.stdout.fileno(), sys.stderr.fileno())
                 return guard.exit_status()
             # a full disk or an over-long name met while writing: the user's to fix
             line = os_error_line(e)
@@ -138,14 +138,6 @@ def main(argv: list[str] | None = None) -> int:
                 )
             return guard.exit_status()
         return status
-
-
-def _to_devnull(*streams) -> None:
-    """Point ``streams`` (sys.stdout, sys.stderr) at /dev/null, so that Python's
-    exit-time flush of what they hold cannot fail again."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    for stream in streams:
-        os.dup2(devnull, stream.fileno())
 
 
 _returned: list[bool] = []  # set once main() has returned in the console script

@@ -153,9 +153,18 @@ def silence_closed_terminal() -> None:
             os.write(fd, b"")
         except OSError as e:
             if e.errno == errno.EIO:
-                devnull = os.open(os.devnull, os.O_WRONLY)
-                os.dup2(devnull, fd)
-                os.close(devnull)
+                to_devnull(fd)
+
+
+def to_devnull(*fds: int) -> None:
+    """Point the file descriptors ``fds`` at /dev/null: nothing written to them can
+    fail again (a reader gone, a terminal closed), Python's exit-time flush included."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in fds:
+            os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
 
 
 _active: list[StopGuard] = []  # the guard of the command running in this process
