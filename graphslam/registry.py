@@ -21,7 +21,7 @@ from graphslam.backend_table import (
     load,
 )
 from slamcore.config import ConfigFile, load_section
-from slamcore.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, InputError, quote
 from slamcore.input_files import check_input_path
 from slamcore.planar.backend import Backend
 from slamcore.planar.records import Dataset
@@ -93,7 +93,7 @@ def backend_row(name: str) -> BackendDescriptor:
     """The table's row of back end ``name``; ConfigError naming the known ones."""
     row = descriptor(name)
     if row is None:
-        raise ConfigError(f"unknown back end {name!r} (available: {', '.join(BACKEND_NAMES)})")
+        raise ConfigError(f"unknown back end {quote(name)} (available: {', '.join(BACKEND_NAMES)})")
     return row
 
 

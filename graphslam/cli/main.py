@@ -15,17 +15,35 @@ import sys
 from typing import NoReturn
 
 from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line
-from slamcore.errors import GraphSlamError
+from slamcore.errors import QUOTE_CHARS, GraphSlamError, quote
 
 
 class OneLineParser(argparse.ArgumentParser):
     """argparse's parser whose errors are one line, as every other error of the
     command (argparse prints the usage block first); sub-commands inherit it."""
 
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        # argparse's own version joins the unknown tokens whole into the message
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            self.error(f"unrecognized arguments: {' '.join(quote(a) for a in extra)}")
+        return parsed
+
     def error(self, message: str) -> NoReturn:
         command = self.prog.removeprefix("graphslam").strip()
         where = f"{command}: " if command else ""
-        self.exit(2, f"graphslam: error: {where}{one_line(message)} (see {self.prog} --help)\n")
+        message = one_line(_ARGPARSE_VALUE.sub(_short_value, message))
+        self.exit(2, f"graphslam: error: {where}{message} (see {self.prog} --help)\n")
+
+
+#: A value argparse quotes whole in its own messages ("invalid choice: 'x...'",
+#: "invalid int value: 'x...'", as ``repr``): longer than :data:`QUOTE_CHARS`.
+_ARGPARSE_VALUE = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % (QUOTE_CHARS + 1, QUOTE_CHARS + 1))
+
+
+def _short_value(match: re.Match) -> str:
+    """A long quoted value shortened as every other message quotes it (:func:`quote`)."""
+    return quote(match.group(0)[1:-1])
 
 
 #: ``--frames -1:``: argparse takes a value that starts with "-" (and is no plain

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from slamcore.config import INT_LIMIT, ConfigFile, from_dict
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, quote
 
 SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set", "max_runs")
 #: Runs a grid may hold unless ``[sweep] max_runs`` says more: a sweep of 10 000 runs
@@ -192,7 +192,7 @@ def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
     value = sweep.get(key)
     line = cfg.line_of("sweep", key)
     if not isinstance(value, list) or not all(isinstance(v, kind) and not isinstance(v, bool) for v in value):
-        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {value!r}", cfg.path, line)
+        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {quote(value)}", cfg.path, line)
     if not value:
         raise ConfigError(f"[sweep] {key} is empty: the grid has no run", cfg.path, line)
     _refuse_repeats(value, f"[sweep] {key}", cfg, line)
@@ -205,7 +205,7 @@ def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) 
     seen: list = []
     for v in values:
         if v in seen:
-            raise ConfigError(f"{what} lists {v!r} twice; each value is run once", cfg.path, line)
+            raise ConfigError(f"{what} lists {quote(v)} twice; each value is run once", cfg.path, line)
         seen.append(v)
 
 
@@ -312,7 +312,7 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
             try:
                 from_dict(cls, {key: value})
             except ConfigError as e:
-                raise ConfigError(f"[sweep.set] {dotted} = {value!r}: {e}", cfg.path, line) from None
+                raise ConfigError(f"[sweep.set] {dotted} = {quote(value)}: {e}", cfg.path, line) from None
         keys.append(dotted)
         values.append(tuple(options))
     return tuple(keys), tuple(values)

@@ -20,7 +20,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from graphslam.visualisation.layout import LoggedEntities, blueprint, layout_key
-from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.errors import ConfigError, GraphSlamError, quote
 from slamcore.files import DISK_FULL_REASONS, move_into_place, temporary_beside
 
 #: Where ``connect`` sends the stream without ``--rerun-url`` (the viewer's own default).
@@ -79,7 +79,7 @@ def parse_viewer_url(url: str) -> tuple[str, int]:
         or parts.path.rstrip("/") != "/proxy"
     ):
         raise ConfigError(
-            f"Rerun viewer URL {url!r} is not like {DEFAULT_VIEWER_URL} "
+            f"Rerun viewer URL {quote(url)} is not like {DEFAULT_VIEWER_URL} "
             f"(schemes: {', '.join(VIEWER_URL_SCHEMES)}; path /proxy)"
         )
     return parts.hostname, port or VIEWER_URL_SCHEMES[parts.scheme]

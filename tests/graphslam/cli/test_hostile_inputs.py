@@ -265,3 +265,31 @@ def test_vocab_seed_outside_kmeans_range_is_the_flags_error(tmp_path, capsys, se
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "argument --seed: expected a whole number from 0 to 2**32 - 1" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ ninth hostile pass
+
+HUGE = "x" * 5000
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--backend", HUGE],  # argparse: invalid choice 'x...'
+    ["run", "--max-steps", HUGE],  # argparse: invalid int value 'x...'
+    [HUGE],  # argument COMMAND: invalid choice
+    ["run", "--rerun", "off", HUGE],  # unrecognized arguments
+    ["run", "--" + HUGE],
+])
+def test_a_huge_option_value_is_quoted_short(capsys, argv):
+    """argparse quoted the whole value: a 5000-character value gave a 5 kB error line."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < SHORT_ERROR_CHARS, err[:300]
+    assert "(5000 characters)" in err or "(5002 characters)" in err
+
+
+def test_a_huge_viewer_url_is_quoted_short(tmp_path, capsys):
+    line = one_error_line(capsys, ["run", "--rerun", "connect", "--rerun-url", HUGE,
+                                   "--out", tmp_path / "o", "--max-steps", "2"])
+    assert "Rerun viewer URL" in line and len(line) < SHORT_ERROR_CHARS
