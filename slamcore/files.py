@@ -32,6 +32,17 @@ PATH_MAX_BYTES = 4095
 MAX_SUFFIX_BYTES = 16
 
 
+def folder_name(path: str | Path) -> str:
+    """The name of the file or folder ``path`` stands for: ``.`` and ``..`` (whose
+    ``Path.name`` is empty or ``..``) are named after the folder they resolve to
+    (``/`` itself: ``"root"``). Dataset names and default output folders take it, so
+    ``--dataset .`` is never written ``runs/-isam2``."""
+    path = Path(path)
+    if path.name not in ("", ".."):
+        return path.name
+    return Path(os.path.abspath(path)).name or "root"
+
+
 @contextmanager
 def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path``; moved over ``path`` when the block ends

@@ -20,7 +20,7 @@ from graphslam.cli.common import (
     seed_arg,
 )
 from slamcore.errors import GraphSlamError
-from slamcore.files import check_output_dir
+from slamcore.files import check_output_dir, folder_name
 
 EPILOG = """\
 datasets:
@@ -239,7 +239,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
     setup.check_seed(
         [registry.visual_compare_backend(n)[0] for n in names], simulated=args.dataset == "synthetic-images"
     )
-    name = Path(sequence.source_path).name if sequence.source_path else sequence.name
+    name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = _out_dir(args, name, rerun_mode)
     entries = cs.compare(
         setup,

@@ -31,6 +31,7 @@ from graphslam.cli.common import (
     summary_table,
     warn,
 )
+from slamcore.files import folder_name
 
 EPILOG = """\
 outputs (in --out, default runs/<dataset>-localize):
@@ -116,7 +117,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     session = LocaliseSession.open(sequence, config, smap, args.dataset)
     for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
-    name = Path(sequence.source_path).name if sequence.source_path else sequence.name
+    name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
     out_dir.mkdir(parents=True, exist_ok=True)
     names = {"localize.csv", "trajectory.tum", "metrics.json", "ground_truth.tum", "localize.rrd"}

@@ -38,7 +38,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 #: A value argparse quotes whole in its own messages ("invalid choice: 'x...'",
 #: "invalid int value: 'x...'", as ``repr``): longer than :data:`QUOTE_CHARS`.
-_ARGPARSE_VALUE = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % (QUOTE_CHARS + 1, QUOTE_CHARS + 1))
+_ARGPARSE_VALUE = re.compile(rf"'[^'\n]{{{QUOTE_CHARS + 1},}}'|\"[^\"\n]{{{QUOTE_CHARS + 1},}}\"")
 
 
 def _short_value(match: re.Match) -> str:

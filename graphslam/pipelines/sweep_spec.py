@@ -192,7 +192,9 @@ def _list(sweep: dict, cfg: ConfigFile, key: str, kind: type) -> list:
     value = sweep.get(key)
     line = cfg.line_of("sweep", key)
     if not isinstance(value, list) or not all(isinstance(v, kind) and not isinstance(v, bool) for v in value):
-        raise ConfigError(f"[sweep] {key} must be a list of {kind.__name__}, got {quote(value)}", cfg.path, line)
+        raise ConfigError(
+            f"[sweep] {key} must be a list of {kind.__name__}, got {quote(value)}", cfg.path, line
+        )
     if not value:
         raise ConfigError(f"[sweep] {key} is empty: the grid has no run", cfg.path, line)
     _refuse_repeats(value, f"[sweep] {key}", cfg, line)

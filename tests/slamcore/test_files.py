@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from slamcore.errors import ConfigError
@@ -44,3 +46,27 @@ def test_an_output_that_is_an_input_is_refused(tmp_path):
         check_not_inputs(outputs, {"--dataset": data, "--config": None})
     check_not_inputs(outputs, {"--dataset": tmp_path / "o", "--config": None})  # a folder: no file of it
     check_not_inputs([("--out", tmp_path / "new.csv")], {"--dataset": data})
+
+
+def test_folder_name_names_dot_and_dot_dot_after_the_folder(tmp_path, monkeypatch):
+    """``--dataset .`` gave the default output folder ``runs/-robot1-isam2``."""
+    from slamcore.files import folder_name
+
+    (tmp_path / "seq" / "sub").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "seq" / "sub")
+    assert folder_name(".") == "sub"
+    assert folder_name("..") == "seq"
+    assert folder_name("../sub/.") == "sub"
+    assert folder_name("x.g2o") == "x.g2o"
+    assert folder_name("/") == "root"
+
+
+MRCLAM = Path("/work/shared/data/mrclam6")
+
+
+@pytest.mark.skipif(not MRCLAM.is_dir(), reason="MRCLAM Dataset 6 not available")
+def test_a_dataset_read_as_dot_is_named_after_its_folder(monkeypatch):
+    from graphslam.sources.planar.mrclam import read_mrclam
+
+    monkeypatch.chdir(MRCLAM)
+    assert read_mrclam(".").name == "mrclam6-robot1"

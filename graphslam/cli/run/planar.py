@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         backend = planar_maps.localiser(args.backend, pmap, config, overrides)
     else:
         backend = registry.make_backend(args.backend, config=config, overrides=overrides)
-    out_dir = args.resolved_out = args.out or Path("runs") / f"{Path(dataset.name).stem}-{backend.name}"
+    out_dir = args.resolved_out = args.out or Path("runs") / f"{dataset.name}-{backend.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum", "nees.csv"}
     remove_stale_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))

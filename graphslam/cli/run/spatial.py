@@ -38,6 +38,7 @@ from graphslam.cli.common import (
     warn,
 )
 from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.files import folder_name
 
 #: Words of the vocabulary trained on the sequence itself (a 10-way tree of depth 3).
 SELF_TRAINED_WORDS = 1000
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     session = setup.session(args.backend)
     backend, tracker = session.backend, session.tracker
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
-    name = Path(sequence.source_path).name if sequence.source_path else sequence.name
+    name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
     out_dir.mkdir(parents=True, exist_ok=True)
     loops = args.loops or args.vocab is not None

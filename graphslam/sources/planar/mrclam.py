@@ -44,6 +44,7 @@ from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, quote
+from slamcore.files import folder_name
 from slamcore.input_files import check_input_path
 from slamcore.planar import geometry as se2
 from slamcore.planar.records import Dataset, Frame, odometry_batch, range_bearing_batch
@@ -606,7 +607,7 @@ def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_tr
     by_frame = landmark_observations(track, config, int, config.robot)
     frames = timed_frames(track.times, odometry, by_frame, track.wTb_true)
     return Dataset(
-        name=f"{folder.name}-robot{config.robot}",
+        name=f"{folder_name(folder)}-robot{config.robot}",
         frames=frames,
         prior_wTb=prior,
         prior_covariance=np.eye(3) * PRIOR_VARIANCE,

@@ -41,6 +41,7 @@ from graphslam.sources.planar.mrclam import (
     truth_sightings_doubt,
 )
 from slamcore.errors import InputError
+from slamcore.files import folder_name
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Dataset, Frame, Odometry, PoseSighting, odometry_batch
 
@@ -130,7 +131,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     if not landmarks_true:
         notes.append(NO_LANDMARK_TRUTH)
     return Dataset(
-        name=f"{folder.name}-all",
+        name=f"{folder_name(folder)}-all",
         frames=frames,
         prior_wTb=starts[anchor_n],
         prior_covariance=np.eye(3) * PRIOR_VARIANCE,

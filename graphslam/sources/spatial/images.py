@@ -105,7 +105,7 @@ from graphslam.sources.spatial.sequence import (
     read_lines,
 )
 from slamcore.errors import ConfigError, InputError, quote
-from slamcore.files import inside_folder
+from slamcore.files import folder_name, inside_folder
 from slamcore.spatial.camera import intrinsics_matrix
 
 
@@ -203,7 +203,7 @@ def read_tum_rgbd(
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
     size, doubts = image_doubts(K, paths, camera_from, stated)
-    return ImageSequence(f"tum-{folder.name}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
+    return ImageSequence(f"tum-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
 
 
 # --------------------------------------------------------------------------- EuRoC
@@ -271,7 +271,9 @@ def read_euroc(
             gt_T.append(T @ T_BS)
         paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     size, doubts = image_doubts(K, paths, ypath, yaml_image_size(data))
-    return ImageSequence(f"euroc-{folder.name}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
+    return ImageSequence(
+        f"euroc-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts
+    )
 
 
 # --------------------------------------------------------------------------- plain folder
@@ -325,7 +327,9 @@ def read_image_folder(
         raise InputError(f"no intrinsics: {NO_INTRINSICS_HINT}", folder)
     stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
     size, doubts = image_doubts(K, paths, camera_from, stated)
-    return ImageSequence(f"folder-{folder.name}", paths, None, K, dist, None, size, str(folder), doubts)
+    return ImageSequence(
+        f"folder-{folder_name(folder)}", paths, None, K, dist, None, size, str(folder), doubts
+    )
 
 
 # --------------------------------------------------------------------------- detection

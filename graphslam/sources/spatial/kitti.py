@@ -32,6 +32,7 @@ from graphslam.sources.spatial.sequence import (
     read_lines,
 )
 from slamcore.errors import InputError, quote
+from slamcore.files import folder_name
 
 
 def read_kitti_calib(path: str | Path, camera: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -126,4 +127,6 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
         if camera != 0:
             wTc = wTc @ c0Tck
     size, doubts = image_doubts(K, paths, folder / "calib.txt")
-    return ImageSequence(f"kitti-{folder.name}", paths, stamps, K, None, wTc, size, str(folder), doubts)
+    return ImageSequence(
+        f"kitti-{folder_name(folder)}", paths, stamps, K, None, wTc, size, str(folder), doubts
+    )

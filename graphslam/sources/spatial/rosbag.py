@@ -44,6 +44,7 @@ import numpy as np
 from graphslam.sources.spatial import rosbag_messages as rm
 from graphslam.sources.spatial.sequence import IMAGE_EXTENSIONS, ImageSequence
 from slamcore.errors import ConfigError, InputError, quote
+from slamcore.files import folder_name
 from slamcore.input_files import check_input_path
 
 #: Message types of each ``--topics`` role; a role is chosen automatically from
@@ -377,7 +378,7 @@ def read_bag(
             odometry = _poses(reader, chosen["odometry"], rm.ODOMETRY, path)
     paths = [f"{path}#{chosen['image']}/{k:06d}" for k in range(len(index.refs))]
     seq = BagSequence(
-        name=f"rosbag-{path.stem if path.is_file() else path.name}",
+        name=f"rosbag-{path.stem if path.is_file() else folder_name(path)}",
         image_paths=paths,
         stamps_s=rm.ns_to_s(index.stamps_ns),
         K=K,
