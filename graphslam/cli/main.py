@@ -104,7 +104,47 @@ def one_line(message: str) -> str:
     return message
 
 
+class _NamedStdout:
+    """``sys.stdout`` while a command runs. An error writing it names it (the system's
+    names no file, and was reported as one of the outputs') and is kept: argparse
+    swallows the error of writing ``--help``, and the stream drops what it held."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.error: OSError | None = None
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except OSError as e:
+            raise self._named(e) from None
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError as e:
+            raise self._named(e) from None
+
+    def _named(self, e: OSError) -> OSError:
+        if e.filename is None:
+            e.filename = "standard output"
+        self.error = self.error or e
+        return e
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
+    stdout = sys.stdout = _NamedStdout(sys.stdout)
+    try:
+        return _main(argv, stdout)
+    finally:
+        if sys.stdout is stdout:
+            sys.stdout = stdout.stream
+
+
+def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
     from graphslam.pipelines.common import signal_hook, stop_guard, to_devnull
 
     # The guard first: a signal while the parser and the libraries load is
@@ -112,10 +152,18 @@ def main(argv: list[str] | None = None) -> int:
     with stop_guard() as guard:
         try:
             parser = build_parser()
-            args = parser.parse_args(glued_slices(sys.argv[1:] if argv is None else list(argv)))
+            try:
+                args = parser.parse_args(glued_slices(sys.argv[1:] if argv is None else list(argv)))
+            except SystemExit as stop:
+                if stop.code == 0:  # --help, --version: said, not lost with status 0
+                    sys.stdout.flush()
+                    if stdout.error is not None:
+                        raise stdout.error from None
+                raise
             check_path_arguments(args)
             signal_hook("start")
             status = args.func(args)
+            sys.stdout.flush()  # the summary's write error is this command's, not the exit's
         except GraphSlamError as e:
             print(f"graphslam: error: {one_line(str(e))}", file=sys.stderr)
             return EXIT_ERROR

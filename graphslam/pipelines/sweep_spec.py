@@ -207,7 +207,7 @@ def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) 
     seen: list = []
     for v in values:
         if v in seen:
-            raise ConfigError(f"{what} lists {quote(v)} twice; each value is run once", cfg.path, line)
+            raise ConfigError(f"{what} lists {v!r} twice; each value is run once", cfg.path, line)
         seen.append(v)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -223,7 +224,9 @@ def test_a_closed_terminal_keeps_the_run_files(tmp_path):
     fcntl.ioctl(fd, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))  # 0 columns: no bar
     seen = b""
     try:
-        while b"step/s" not in seen:  # the progress bar: the run's loop has started
+        # the progress bar past step 0: the run has estimated something (a stop during
+        # the setup, the bar's first "0/2000 ... step/s" included, writes nothing)
+        while not re.search(rb"[1-9][0-9]*/[0-9]+ \[", seen):
             ready, _, _ = select.select([fd], [], [], TIMEOUT_S)
             assert ready, "no progress within the time limit"
             seen += os.read(fd, 4096)

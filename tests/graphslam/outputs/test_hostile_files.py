@@ -261,3 +261,25 @@ def test_a_folder_met_while_writing_is_one_line_naming_the_output(tmp_path, caps
     monkeypatch.setattr(writers, "write_landmarks_csv", rename_onto_a_folder)
     line = one_error_line(capsys, *SMALL_RUN, "--out", tmp_path / "o")
     assert line == f"graphslam: error: {target} is a folder; an output file of that name cannot be written"
+
+
+# ------------------------------------------------------------------ stdout on a full disk
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full here")
+@pytest.mark.parametrize("argv, writes", [
+    (["--version"], False),
+    (["run", "--help"], False),  # over the stream's buffer: argparse swallowed the error
+    (["run", "--max-steps", "3", "--rerun", "off", "--quiet", "--out", "o"], True),
+])
+def test_stdout_on_a_full_disk_is_named_and_the_outputs_kept(tmp_path, argv, writes):
+    """--help and --version into /dev/full exited 0 with nothing said; a run's summary
+    was blamed on "an output file"."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "graphslam.cli.main", *argv], cwd=tmp_path,
+                              env=env, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == ("graphslam: error: no space left on device writing standard output: "
+                           "No space left on device\n")
+    if writes:
+        assert {p.name for p in (tmp_path / "o").iterdir()} >= {"trajectory.tum", "metrics.json"}
