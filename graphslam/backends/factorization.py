@@ -21,7 +21,12 @@ it fails, by handing every factor to a fresh QR iSAM2 at the current values.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import gtsam
+
+from slamcore.errors import GraphSlamError
 
 FACTORIZATIONS = ("auto", "cholesky", "qr")
 
@@ -46,6 +51,23 @@ def failed_variable(exc: BaseException) -> str:
     if start < 0:
         return ""
     return text[start + len("Symbol: ") :].split(")")[0]
+
+
+@contextmanager
+def indeterminate_as_error(who: str) -> Iterator[None]:
+    """gtsam's indeterminate-system exception met outside an update (iSAM2 reading its
+    estimate) as one :class:`GraphSlamError` line naming the variable; any other
+    RuntimeError passes unchanged (a bug: the traceback is wanted)."""
+    try:
+        yield
+    except RuntimeError as exc:
+        if not is_indeterminate(exc):
+            raise
+        raise GraphSlamError(
+            f"{who}: indeterminate linear system near {failed_variable(exc) or '?'}: a variable "
+            "no measurement pins, or information too large beside the rest for float64 "
+            "(check the noise settings)"
+        ) from None
 
 
 def rebuild_with_qr(isam: gtsam.ISAM2, params: gtsam.ISAM2Params) -> gtsam.ISAM2:

@@ -313,7 +313,7 @@ class Isam2Backend(Backend):
             params.setMaxIterations(self.config.polish_max_iterations)
             params.setRelativeErrorTol(self.config.polish_relative_error_tol)
             params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
-            initial = self._isam.calculateEstimate()
+            initial = self._values_now()
             if self.config.polish_method == "gnc" and self._loop_closures:
                 self._polished = self._gnc(params, initial)
             elif self.config.loop_closure_gate > 0:
@@ -354,7 +354,7 @@ class Isam2Backend(Backend):
         key = X(self._pose_ids[-1])
         if self._polished is not None:
             return conv.pose2_vector(self._polished.atPose2(key))
-        return conv.pose2_vector(self._isam.calculateEstimatePose2(key))
+        return conv.pose2_vector(self._pose(self._pose_ids[-1]))
 
     def rejected_loop_closures(self) -> list[LoopClosure]:
         """Closures the current estimate does not use: held back by the gate,
@@ -466,7 +466,8 @@ class Isam2Backend(Backend):
     def _readmit_held_back(self) -> None:
         """Add held-back closures consistent with the estimate (tier 1), until none is."""
         while self._held_back:
-            values = self._isam.calculateEstimate()
+            with fact.indeterminate_as_error("isam2"):
+                values = self._isam.calculateEstimate()
             keep = []
             for lc in self._held_back:
                 r2 = 2.0 * conv.between_factor(lc).error(values)
@@ -566,7 +567,8 @@ class Isam2Backend(Backend):
         key = X(pose_id)
         if self._values.exists(key):
             return self._values.atPose2(key)
-        return self._isam.calculateEstimatePose2(key)
+        with fact.indeterminate_as_error("isam2"):
+            return self._isam.calculateEstimatePose2(key)
 
     def _gnc(self, lm_params: gtsam.LevenbergMarquardtParams, initial: gtsam.Values) -> gtsam.Values:
         """GNC over the graph with Gaussian closures; all other factors are known inliers."""
@@ -584,7 +586,10 @@ class Isam2Backend(Backend):
     def _values_now(self) -> gtsam.Values:
         """The estimate answers are given from: the polish if current, else iSAM2's."""
         self._flush()
-        return self._polished if self._polished is not None else self._isam.calculateEstimate()
+        if self._polished is not None:
+            return self._polished
+        with fact.indeterminate_as_error("isam2"):
+            return self._isam.calculateEstimate()
 
     def _flush(self) -> None:
         if self._graph.size() == 0 and self._values.size() == 0:

@@ -79,6 +79,12 @@ MAX_SPEED_MPS = 1e3
 #: Largest range noise std, m: 10 km is worse than any range sensor (lidar is
 #: cm, radar m); near 1e154 its square (the covariance) overflows.
 MAX_SIGMA_RANGE_M = 1e4
+#: Smallest noise std of every measurement (range m, bearing deg, speed m/s, yaw
+#: rate deg/s): a micro-unit is finer than any robot sensor (lidar ranges are mm,
+#: a navigation-grade gyro drifts 0.01 deg/h), and it keeps the information
+#: (1e12) within float64's reach beside the others: at 1e-30 m iSAM2's system was
+#: indeterminate, and at 1e-320 the covariance underflowed to zero.
+MIN_SIGMA = 1e-6
 #: Largest angular noise std, degrees (bearing per sighting, yaw rate per
 #: second): a wrapped normal of std 180 degrees is already nearly uniform on
 #: the circle, so a larger value carries no more meaning, only overflow.
@@ -167,10 +173,10 @@ class SyntheticConfig:
     dt_s: float = bounded(1.0, gt=0.0)
     sensor_range_m: float = bounded(8.0, gt=0.0, max=MAX_WORLD_M)
     fov_deg: float = bounded(180.0, gt=0.0, max=360.0)
-    sigma_v_mps: float = bounded(0.05, gt=0.0, max=MAX_SPEED_MPS)
-    sigma_w_degps: float = bounded(0.1, gt=0.0, max=MAX_SIGMA_ANGLE_DEG)
-    sigma_r_m: float = bounded(0.2, gt=0.0, max=MAX_SIGMA_RANGE_M)
-    sigma_phi_deg: float = bounded(10.0, gt=0.0, max=MAX_SIGMA_ANGLE_DEG)
+    sigma_v_mps: float = bounded(0.05, min=MIN_SIGMA, max=MAX_SPEED_MPS)
+    sigma_w_degps: float = bounded(0.1, min=MIN_SIGMA, max=MAX_SIGMA_ANGLE_DEG)
+    sigma_r_m: float = bounded(0.2, min=MIN_SIGMA, max=MAX_SIGMA_RANGE_M)
+    sigma_phi_deg: float = bounded(10.0, min=MIN_SIGMA, max=MAX_SIGMA_ANGLE_DEG)
 
     def __post_init__(self):
         validate(self)

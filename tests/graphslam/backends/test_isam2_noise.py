@@ -74,3 +74,31 @@ def test_noise_grid_runs_to_the_end(world, seed):
     ds = make_synthetic(SyntheticConfig(seed=seed, **world))
     result = pipeline.run(ds, Isam2Backend())
     assert result.steps == len(ds.frames) and not result.interrupted
+
+
+def test_information_too_large_for_float64_is_one_line():
+    """1e-30 m ranges (a setting now refused by [synthetic]; a file may still carry them)
+    made iSAM2's system indeterminate where it reads its estimate, not in the update the
+    QR fallback guards: a gtsam RuntimeError traceback."""
+    import dataclasses
+
+    import numpy as np
+
+    ds = make_synthetic(SyntheticConfig(seed=0, sigma_r_m=1e-6))
+    frames = [dataclasses.replace(f, observations=tuple(
+        dataclasses.replace(o, covariance=np.diag([1e-60, 1e-4])) for o in f.observations))
+        for f in ds.frames]
+    ds = dataclasses.replace(ds, frames=frames)
+    backend = Isam2Backend(Isam2Config())  # the default Cauchy kernel on sightings
+    with pytest.raises(GraphSlamError, match="isam2: indeterminate linear system near x"):
+        pipeline.run(ds, backend, max_steps=60)
+
+
+def test_the_smallest_synthetic_noise_runs():
+    """[synthetic] noise floors (MIN_SIGMA): a setting at the floor runs to the end."""
+    from graphslam.sources.planar.synthetic import MIN_SIGMA
+
+    with pytest.raises(ConfigError, match="sigma_r_m must be >= 1e-06"):
+        SyntheticConfig(sigma_r_m=1e-320)
+    result = _run({"sigma_r_m": MIN_SIGMA}, 0, "auto", max_steps=100)
+    assert result.steps == 100
