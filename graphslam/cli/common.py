@@ -30,6 +30,47 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+#: Output folders this command has locked (:func:`claim_out_dir`): path -> descriptor.
+_claimed: dict[Path, int] = {}
+
+
+def claim_out_dir(out_dir: Path, flag: str = "--out") -> Path:
+    """Create ``out_dir`` and lock it for this command: two commands writing one folder
+    at the same time left a mix of both runs' files, each one whole, with nothing said.
+    The second is refused in one line instead. The lock is an ``flock`` on the folder
+    itself: no lock file is left behind, and the system drops it when the process ends,
+    however it ends. A file system without ``flock`` (some network mounts) runs unlocked,
+    as before. :func:`release_out_dirs` (main, as the command returns) unlocks."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    key = Path(os.path.realpath(out_dir))
+    if key in _claimed:
+        return out_dir
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no advisory locks
+        return out_dir
+    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise GraphSlamError(
+            f"{flag} {out_dir}: another graphslam command is writing this folder now; "
+            f"wait for it to end, or choose another {flag}"
+        ) from None
+    except OSError:
+        os.close(fd)
+        return out_dir
+    _claimed[key] = fd
+    return out_dir
+
+
+def release_out_dirs() -> None:
+    """Unlock every folder :func:`claim_out_dir` locked (the command has returned)."""
+    while _claimed:
+        os.close(_claimed.popitem()[1])
+
+
 def path_arg(text: str) -> Path:
     """argparse ``type`` of every path argument: an empty one is refused (an unset shell
     variable would otherwise name the current folder); a leading ``~`` is the home

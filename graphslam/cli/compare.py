@@ -17,6 +17,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    claim_out_dir,
     seed_arg,
 )
 from slamcore.errors import GraphSlamError
@@ -209,7 +210,7 @@ def _out_dir(args, name: str, rerun_mode: str) -> Path:
     from graphslam.outputs import writers
 
     out_dir = args.out or Path("runs") / f"{name}-compare"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    claim_out_dir(out_dir)
     writers.remove_stale_outputs(
         out_dir,
         {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set()),

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from graphslam.cli.common import add_command, add_out_dir_option, path_arg
+from graphslam.cli.common import add_command, add_out_dir_option, claim_out_dir, path_arg
 
 EPILOG = """\
 formats (told from the content unless --format is given; a line not of the
@@ -188,6 +188,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
+    claim_out_dir(args.out)
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
     if not args.no_plot:
         from graphslam.visualisation.plots import plot_trajectory_eval

@@ -23,6 +23,7 @@ from graphslam.cli.common import (
     add_quiet_option,
     add_rerun_options,
     add_topics_option,
+    claim_out_dir,
     close_recorder,
     fmt,
     open_recorder,
@@ -119,7 +120,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         warn(doubt)
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    claim_out_dir(out_dir)
     names = {"localize.csv", "trajectory.tum", "metrics.json", "ground_truth.tum", "localize.rrd"}
     # refused now, not after the frames are placed
     check_no_folder_at(out_dir, names - ({"localize.rrd"} if args.rerun == "off" else set()))

@@ -136,10 +136,13 @@ class _NamedStdout:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from graphslam.cli.common import release_out_dirs
+
     stdout = sys.stdout = _NamedStdout(sys.stdout)
     try:
         return _main(argv, stdout)
     finally:
+        release_out_dirs()
         if sys.stdout is stdout:
             sys.stdout = stdout.stream
 

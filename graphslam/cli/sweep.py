@@ -7,7 +7,7 @@ import argparse
 import os
 import sys
 
-from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
+from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, claim_out_dir, path_arg
 
 EPILOG = """\
 sweep file (TOML):
@@ -123,6 +123,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = parse_sweep(args.sweep_file)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
+    claim_out_dir(args.out)
     executor = make_executor(workers, args.cluster)
     try:
         update, bar = _progress(n_runs, args.quiet)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
+    claim_out_dir,
     close_recorder,
     fmt,
     open_recorder,
@@ -93,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{dataset.name}-{backend.name}"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    claim_out_dir(out_dir)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum", "nees.csv"}
     remove_stale_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import fmt, report_outputs, summary_table, warn
+from graphslam.cli.common import claim_out_dir, fmt, report_outputs, summary_table, warn
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     for doubt in graph.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    claim_out_dir(out_dir)
     remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)
     metrics = pipeline.metrics(graph, result, time.perf_counter() - t0, truth)

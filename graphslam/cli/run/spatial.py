@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
+    claim_out_dir,
     close_recorder,
     counts_row,
     fmt,
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    claim_out_dir(out_dir)
     loops = args.loops or args.vocab is not None
     remove_stale_outputs(
         out_dir,

@@ -283,3 +283,38 @@ def test_stdout_on_a_full_disk_is_named_and_the_outputs_kept(tmp_path, argv, wri
                            "No space left on device\n")
     if writes:
         assert {p.name for p in (tmp_path / "o").iterdir()} >= {"trajectory.tum", "metrics.json"}
+
+
+# ------------------------------------------------------------------ two commands, one folder
+
+HOLD_FOLDER = """
+import fcntl, os, sys, time
+fd = os.open(sys.argv[1], os.O_RDONLY)
+fcntl.flock(fd, fcntl.LOCK_EX)
+print("held", flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--max-steps", "3", "--rerun", "off", "--quiet"],
+    ["compare", "--max-steps", "3", "--rerun", "off", "--backends", "isam2"],
+])
+def test_a_folder_another_command_is_writing_is_refused(tmp_path, capsys, argv):
+    """Two runs into one --out at once left a mix of both runs' files, each whole."""
+    from tests.graphslam.cli.test_hostile_inputs import one_error_line
+
+    out = tmp_path / "o"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_FOLDER, str(out)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        line = one_error_line(capsys, [*argv, "--out", out])
+        assert "another graphslam command is writing this folder now" in line
+        assert not any(out.iterdir())
+    finally:
+        holder.kill()
+        holder.wait()
+    assert main([*argv, "--out", str(out)]) == 0  # the lock went with the process
+    assert main([*argv, "--out", str(out)]) == 0  # and a command's own lock with its return
