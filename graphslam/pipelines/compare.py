@@ -16,6 +16,7 @@ import multiprocessing as mp
 import os
 import resource
 import signal
+import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -73,7 +74,31 @@ def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipel
     return result
 
 
-def _child(conn, job, strip, parents_end=None):
+def _die_with(parent_pid: int) -> None:
+    """End this worker when its parent dies: a SIGKILLed ``compare`` left its worker
+    running to the end of its back end's run, for no one (the result goes to the parent
+    only). Linux: the system sends SIGKILL on the parent's death (``PR_SET_PDEATHSIG``);
+    a parent gone before that was set is seen in ``getppid``. Elsewhere the worker ends
+    with its run, as before."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+#: prctl(2) option: the signal sent to this process when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def _child(conn, job, strip, parents_end=None, parent_pid: int | None = None):
+    if parent_pid is not None:
+        _die_with(parent_pid)
     # the parent's end, inherited by the fork, closed: a parent that died (SIGKILL)
     # then makes the send below fail instead of blocking on a pipe nobody reads
     if parents_end is not None:
@@ -118,7 +143,7 @@ def run_isolated(job: Callable[[], R], name: str, strip: Callable[[R], R] | None
     """
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, job, strip, parent))
+    proc = ctx.Process(target=_child, args=(child, job, strip, parent, os.getpid()))
     proc.start()
     child.close()
     try:

@@ -271,6 +271,47 @@ def test_a_compare_worker_whose_parent_was_killed_ends(tmp_path):
     assert proc.returncode == -signal.SIGKILL
 
 
+SLOW_WORKER = """
+import os, time
+from graphslam.pipelines.compare import run_isolated
+
+def job():
+    print(os.getpid(), flush=True)
+    time.sleep(60)
+
+run_isolated(job, "slow")
+"""
+
+
+def _ended(pid: int) -> bool:
+    """Gone, or a zombie waiting for a reaper (no init reaps in some containers)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_compare_worker_ends_as_soon_as_its_parent_is_killed(tmp_path):
+    """A SIGKILLed compare left its worker running to the end of its back end's run
+    (here 60 s of work), for no one."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    parent = subprocess.Popen([sys.executable, "-c", SLOW_WORKER], env=env, stdout=subprocess.PIPE,
+                              text=True, start_new_session=True)
+    try:
+        worker = int(parent.stdout.readline())
+        parent.kill()
+        parent.wait()
+        for _ in range(200):
+            if _ended(worker):
+                break
+            time.sleep(0.05)
+        assert _ended(worker), "the worker outlived its parent"
+    finally:
+        if _session_alive(parent.pid):
+            os.killpg(parent.pid, signal.SIGKILL)
+
+
 def test_one_step_writes_everything_with_null_ate(tmp_path):
     done = graphslam(tmp_path, "run", "--max-steps", "1", "--out", "o", "--quiet")
     assert done.returncode == 0, done.stderr
