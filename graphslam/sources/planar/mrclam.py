@@ -430,6 +430,11 @@ def _check_sightings(meas, lines, path: Path) -> None:
             raise InputError(f"bearing {bearing:g} rad is not within +-2 pi (degrees?)", path, lines[row])
 
 
+#: Most frames a robot's log may become: the synthetic world's step limit; at
+#: ``frame_every_s = 1e-12`` a 40-minute log asked for 17.8 TiB of frame times.
+MAX_FRAMES = 1_000_000
+
+
 def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) -> np.ndarray:
     """Frame times: each distinct sighting time in the odometry's span, and more
     where sightings are further apart than ``every_s``; (F,) increasing."""
@@ -438,6 +443,12 @@ def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) 
         float(max(odometry_s[-1], sighting_s[-1] if len(sighting_s) else odometry_s[-1])),
     )
     key = np.unique(np.concatenate([[t0, t1], sighting_s[(sighting_s >= t0) & (sighting_s <= t1)]]))
+    frames = len(key) + float(np.maximum(np.ceil(np.diff(key) / every_s) - 1, 0).sum())
+    if frames > MAX_FRAMES:  # counted before any array of them is made
+        raise ConfigError(
+            f"mrclam.frame_every_s = {every_s:g} would put {frames:.3g} frames on "
+            f"{t1 - t0:.0f} s of data; at most {MAX_FRAMES:.0e}"
+        )
     out = [key[:1]]
     for a, b in zip(key[:-1], key[1:], strict=True):
         extra = int(math.ceil((b - a) / every_s)) - 1

@@ -534,3 +534,15 @@ def test_isam2_unknown_association_within_the_issues_bound(mrclam, robot):
         with_graph_error=False)
     assert unknown.landmarks_recovered == 15
     assert unknown.ate_rmse_m <= 1.3 * known.ate_rmse_m
+
+
+def test_frames_finer_than_any_log_needs_are_refused_before_allocating():
+    """frame_every_s = 1e-12 asked numpy for 17.8 TiB of frame times (a MemoryError
+    traceback); the count is now checked first."""
+    from graphslam.sources.planar.mrclam import MAX_FRAMES, frame_times
+    from slamcore.errors import ConfigError
+
+    odometry_s = np.array([0.0, 900.0])
+    with pytest.raises(ConfigError, match=r"frame_every_s = 1e-12 would put 9e\+14 frames"):
+        frame_times(odometry_s, np.array([10.0, 20.0]), 1e-12)
+    assert len(frame_times(odometry_s, np.array([10.0, 20.0]), 900.0 / MAX_FRAMES * 2)) < MAX_FRAMES
