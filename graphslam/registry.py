@@ -20,7 +20,7 @@ from graphslam.backend_table import (
     descriptor,
     load,
 )
-from slamcore.config import ConfigFile, load_section
+from slamcore.config import ConfigFile, load_section, section_name
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.input_files import check_input_path
 from slamcore.planar.backend import Backend
@@ -284,7 +284,7 @@ def make_backend(name: str, *, config: ConfigSource = None, overrides: dict | No
     """2-D back end by name, configured from the file's section plus ``overrides``
     (plus what the name itself fixes, e.g. FastSLAM's version)."""
     impl = landmark_implementation(name)
-    return load(impl.backend)(_settings(impl, config, overrides))
+    return load(impl.backend)(_settings(name, impl, config, overrides))
 
 
 def make_localiser(
@@ -303,7 +303,9 @@ def make_localiser(
         raise ConfigError(
             f"--map: {name} cannot localise against a fixed map (available: {', '.join(LOCALISING_BACKENDS)})"
         )
-    return load(impl.localiser)(landmark_ids, landmarks_w, landmark_cov, _settings(impl, config, overrides))
+    return load(impl.localiser)(
+        landmark_ids, landmarks_w, landmark_cov, _settings(name, impl, config, overrides)
+    )
 
 
 def seed_override(name: str, seed: int | None) -> dict:
@@ -426,13 +428,29 @@ def visual_implementation(name: str) -> Implementation:
 def make_visual_backend(name: str, *, config: ConfigSource = None, overrides: dict | None = None):
     """Visual back end by name (:func:`visual_backend_config` names its section)."""
     impl = visual_implementation(name)
-    return load(impl.backend)(_settings(impl, config, overrides))
+    return load(impl.backend)(_settings(name, impl, config, overrides))
 
 
-def _settings(impl: Implementation, config: ConfigSource, overrides: dict | None):
+def _settings(name: str, impl: Implementation, config: ConfigSource, overrides: dict | None):
     """The implementation's config section from ``config``, ``overrides`` on top, and on
-    top of those what the back end's name fixes (FastSLAM's version)."""
-    return load_section(load(impl.config), config, {**(overrides or {}), **impl.fixed})
+    top of those what the back end's name fixes (FastSLAM's version). A file or an
+    override setting such a key otherwise is refused: ``[fastslam] version = 1`` under
+    ``--backend fastslam2`` ran FastSLAM 2.0 with nothing said."""
+    cls = load(impl.config)
+    file = config if isinstance(config, ConfigFile) else ConfigFile.read(config)
+    section = section_name(cls)
+    in_file = file.data.get(section) or {}
+    given = {**in_file, **{k: v for k, v in (overrides or {}).items() if v is not None}}
+    for key, value in impl.fixed.items():
+        if key in given and given[key] != value:
+            line = file.line_of(section, key) if key in in_file else None
+            raise ConfigError(
+                f"[{section}] {key} = {quote(given[key])} contradicts the back end {name} "
+                f"({key} = {value}); the back end's name chooses it: remove the setting",
+                file.path if line is not None else None,
+                line,
+            )
+    return file.section(cls, {**(overrides or {}), **impl.fixed})
 
 
 def visual_compare_backend(name: str) -> tuple[str, dict]:

@@ -106,3 +106,19 @@ def test_every_whole_graph_solver_takes_a_builtin_graph(name):
     the row's (a whole-graph solver), not one name's."""
     assert registry.is_pose_graph_run("w10000", name)
     assert not registry.is_pose_graph_run("w10000", "isam2")  # streamed by default
+
+
+def test_a_setting_the_back_end_name_fixes_is_not_overridden_silently(tmp_path):
+    """``[fastslam] version = 1`` under fastslam2 ran FastSLAM 2.0 with nothing said."""
+    from graphslam import registry
+    from slamcore.errors import ConfigError
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[fastslam]\nn_particles = 5\nversion = 1\n")
+    with pytest.raises(ConfigError, match=r"c.toml:3: \[fastslam\] version = 1 contradicts the back end fastslam2"):
+        registry.make_backend("fastslam2", config=cfg)
+    with pytest.raises(ConfigError, match="version = 2 contradicts the back end fastslam1"):
+        registry.make_backend("fastslam1", overrides={"version": 2})
+    assert registry.make_backend("fastslam1", config=cfg).config.version == 1  # it agrees
+    cfg.write_text("[fastslam]\nversion = 2\n")
+    assert registry.make_backend("fastslam2", config=cfg).config.version == 2
