@@ -651,6 +651,19 @@ def attacks() -> list[Attack]:
                lambda f: ["loops", str(_desk_copy(f, _DESK_3)), "--out", "l.csv", "--quiet", "--truth",
                           str(_w(f, "t.csv", "query,match\n"))], ("ok",),
                check=lambda f, o, e: "a Python warning on stderr" if "Warning" in e else None),
+        Attack("9th: a truncated PNG late in a run: the frames before it written", "fail",
+               lambda f: _run(_cut_desk(f), "--backend", "ekf", "--odometry", "none"),
+               check=_files("out/trajectory.tum", "out/metrics.json")),
+        Attack("9th: localize with a truncated PNG late in the folder: the placements kept", "fail",
+               lambda f: ["localize", "--map", str(_room_map(f)), "--dataset", str(_cut_desk(f)),
+                          "--rerun", "off", "--quiet", "--out", "out"],
+               check=_files("out/localize.csv", "out/metrics.json"), slow=True),
+        Attack("9th: sweep config = 5 names the sweep file's line", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + "config = 5\n")), "--out", "sw", "--quiet"],
+               check=_says("s.toml:4: [sweep] config")),
+        Attack("9th: sweep config naming a missing file names the sweep file's line", "fail",
+               lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + 'config = "base.toml"\n')), "--out", "sw",
+                          "--quiet"], check=_says("s.toml:4: [sweep] config 'base.toml' does not exist")),
     ]
 
 
@@ -671,6 +684,16 @@ def _map_sessions(folder: Path, sessions) -> Path:
     doc["meta"]["sessions"] = sessions
     (path / "map.json").write_text(json.dumps(doc))
     return path
+
+
+def _cut_desk(folder: Path) -> Path:
+    """Four desk photos with intrinsics of the rendered room's camera (500 px, 640x480),
+    the last cut in half (a copy that stopped)."""
+    imgs = _desk_copy(folder, {f"{k:02d}.png": f"{k:02d}.png" for k in range(1, 5)})
+    _w(imgs, "intrinsics.txt", "500 500 319.5 239.5\n")
+    last = imgs / "04.png"
+    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
+    return imgs
 
 
 def _fifo_bag(folder: Path) -> Path:

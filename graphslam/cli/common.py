@@ -217,10 +217,23 @@ def recoveries_text(recoveries: dict[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in recoveries.items() if v)
 
 
-def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool) -> int:
-    """Print a run's summary table and where its outputs went; the exit status."""
+def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, cut=None) -> int:
+    """Print a run's summary table and where its outputs went; the exit status.
+
+    ``cut``: the :class:`~graphslam.pipelines.common.FrameUnreadable` that stopped the
+    run, raised again once its estimate so far is written and listed (exit 2, its file).
+    """
     print(summary)
     print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
+    if cut is not None:
+        from slamcore.errors import InputError
+
+        raise InputError(
+            f"{cut.reason}; the run stopped at this frame: {out_dir}/ holds what it "
+            f"estimated from the frames before it",
+            cut.path,
+            cut.line,
+        )
     if interrupted:
         from graphslam.pipelines.common import active_guard
 

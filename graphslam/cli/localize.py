@@ -133,7 +133,13 @@ def cmd_localize(args: argparse.Namespace) -> int:
         )
         recorder.start_map(smap, sequence, len(sequence))
         hook = recorder.log_placement
-    result = session.run(progress=not args.quiet, on_frame=hook)
+    from graphslam.pipelines.common import FrameUnreadable
+
+    cut = None
+    try:
+        result = session.run(progress=not args.quiet, on_frame=hook)
+    except FrameUnreadable as e:  # the frames placed before it are written, then the error said
+        result, cut = e.result, e
     map_info = {"path": str(args.map), **smap.counts(), "built_from": smap.meta.get("frames")}
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
     paths = localize_run.write_outputs(result, out_dir, metrics)
@@ -141,7 +147,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
             paths["recording"] = out_dir / "localize.rrd"
     remove_stale_outputs(out_dir, {p.name for p in paths.values()}, tuple(sorted(names)))
-    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
 
 
 def format_summary(m: dict) -> str:

@@ -37,6 +37,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 
+from slamcore.errors import InputError
+
 #: Exit status of a command stopped by each signal (128 + the signal number). SIGHUP
 #: (the terminal closed) stops a command as SIGTERM does: what was estimated is written.
 EXIT_STATUS_OF_SIGNAL: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -210,6 +212,23 @@ def interrupt_between_frames() -> Iterator[StopGuard]:
             yield guard
         finally:
             guard.begin_save()
+
+
+class FrameUnreadable(InputError):
+    """A frame that cannot be read cut a run after ``result`` processed some frames.
+
+    Raised in place of the reader's :class:`InputError` (same file, line and reason)
+    with ``result``, what was estimated before that frame (``interrupted``), so the
+    command writes it before it reports the error: one bad file near the end of a long
+    sequence stopped the run with nothing written.
+    """
+
+    def __init__(self, cause: InputError, result):
+        super().__init__(cause.reason, cause.path, cause.line)
+        self.result = result
+
+    def __reduce__(self):  # from a compare worker: rebuilt from its parts, not its message
+        return FrameUnreadable, (InputError(self.reason, self.path, self.line), self.result)
 
 
 def whole(result):

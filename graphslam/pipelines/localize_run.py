@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook
+from graphslam.pipelines.common import FrameUnreadable, interrupt_between_frames, progress_bar, signal_hook
 from graphslam.pipelines.localize import Localizer, Placement
+from slamcore.errors import InputError
 
 if TYPE_CHECKING:
     from graphslam.sources.spatial.sequence import ImageSequence
@@ -67,9 +68,11 @@ def run(
     on_frame: LocalizeHook | None = None,
     max_frames: int | None = None,
 ) -> LocalizeResult:
-    """Place every frame of ``sequence`` in ``localizer``'s map."""
+    """Place every frame of ``sequence`` in ``localizer``'s map. A frame that cannot be
+    read after others were placed raises :class:`FrameUnreadable` holding those."""
     n = len(sequence) if max_frames is None else min(max_frames, len(sequence))
     result = LocalizeResult(sequence)
+    unreadable: InputError | None = None
     bar = progress_bar(n, sequence.name, "localize", progress)
     try:
         with interrupt_between_frames() as stop:
@@ -78,7 +81,14 @@ def run(
                     result.interrupted = True
                     break
                 t = time.perf_counter()
-                image = sequence.load(i)
+                try:
+                    image = sequence.load(i)
+                except InputError as e:
+                    if not result.placements:
+                        raise
+                    unreadable = e
+                    result.interrupted = True
+                    break
                 t1 = time.perf_counter()
                 placement = localizer.locate(image)
                 result.wall_s += time.perf_counter() - t1
@@ -96,6 +106,8 @@ def run(
     finally:
         if bar is not None:
             bar.close()
+    if unreadable is not None:
+        raise FrameUnreadable(unreadable, result)
     return result
 
 

@@ -34,7 +34,9 @@ Odometry (``VisualRunConfig.odometry``):
   has ground truth, else ``"none"`` (a folder of photos: the camera alone).
 
 Ctrl-C and SIGTERM are honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
-result then holds what was estimated so far with ``interrupted=True``.
+result then holds what was estimated so far with ``interrupted=True``. A frame that
+cannot be read after the first raises :class:`~graphslam.pipelines.common.FrameUnreadable`
+carrying such a result.
 """
 
 from __future__ import annotations
@@ -52,10 +54,16 @@ from frontend.tracking import Tracker, TrackingResult
 from graphslam import registry
 from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
-from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook, stop_requested
+from graphslam.pipelines.common import (
+    FrameUnreadable,
+    interrupt_between_frames,
+    progress_bar,
+    signal_hook,
+    stop_requested,
+)
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError, InputError, UnsupportedError
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
@@ -319,12 +327,19 @@ def run(
     wall = 0.0
     load = 0.0
     interrupted = False
+    unreadable: InputError | None = None  # the frame that cut the run, read after others
     try:
         with interrupt_between_frames() as stop:
             for k in range(n):
                 stop.check()
                 t = time.perf_counter()
-                image = sequence.load(k)
+                try:
+                    image = sequence.load(k)
+                except InputError as e:
+                    if done == 0:
+                        raise
+                    unreadable = e
+                    break
                 t1 = time.perf_counter()
                 load += t1 - t
                 if k == 0:
@@ -352,10 +367,14 @@ def run(
                     bar.update(1)
                 signal_hook("step", k)
             signal_hook("finalize")
-        t = time.perf_counter()
-        estimate = backend.finalize()
-        wall += time.perf_counter() - t
-        interrupted = stop.requested  # asked during finalisation: the estimate is whole
+        if unreadable is None:
+            t = time.perf_counter()
+            estimate = backend.finalize()
+            wall += time.perf_counter() - t
+            interrupted = stop.requested  # asked during finalisation: the estimate is whole
+        else:  # cut as a stop cuts it: the estimate so far, not finalised
+            interrupted = True
+            estimate = backend.estimate()
     except KeyboardInterrupt:
         interrupted = True
         if done == 0:
@@ -365,7 +384,7 @@ def run(
         if bar is not None:
             bar.close()
     odo_wTc = None if odo is None else chain(wTc0, odo[: done - 1])
-    return VisualRunResult(
+    result = VisualRunResult(
         sequence=sequence,
         backend=backend.name,
         frontend=frontend or tracker.config.detector,
@@ -379,6 +398,9 @@ def run(
         odometry_wTc=odo_wTc,
         tracking=stats,
     )
+    if unreadable is not None:
+        raise FrameUnreadable(unreadable, result)
+    return result
 
 
 #: Per-frame lists in ``VisualRunResult.tracking``.

@@ -235,6 +235,28 @@ def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
     return out
 
 
+def _base_config(value, cfg: ConfigFile, path: Path) -> Path:
+    """``[sweep] config``, read beside the sweep file; a value that names no file is
+    refused at its line (it was taken as a path whatever it was: ``config = 5`` was
+    "5: config file not found", ``config = ""`` the sweep's own folder)."""
+    line = cfg.line_of("sweep", "config")
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(
+            f"[sweep] config must name a config file (.toml, .yaml or .yml), got {quote(value)}",
+            cfg.path,
+            line,
+        )
+    where = path.parent / value
+    if not where.is_file():
+        what = "is a folder" if where.is_dir() else "is not a file" if where.exists() else "does not exist"
+        raise ConfigError(
+            f"[sweep] config {quote(value)} {what}; a path is read beside the sweep file ({where})",
+            cfg.path,
+            line,
+        )
+    return where
+
+
 def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[str], cfg: ConfigFile) -> None:
     """ConfigError when seeds are listed and a run of the grid is a pose-graph solve: it
     draws no random numbers, so each of its runs would fail on ``--seed`` (as ``graphslam
@@ -403,7 +425,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         )
     base = {}
     if "config" in sweep:
-        base = dict(read_config(Path(path).parent / str(sweep["config"])).data)
+        base = dict(read_config(_base_config(sweep["config"], cfg, Path(path))).data)
     grid_sections = {}
     for d, b in itertools.product(datasets, backends):
         grid_sections.update(run_sections(d, b))

@@ -165,7 +165,15 @@ def run(args: argparse.Namespace) -> int:
             n_frames,
             None if recorder is None else recorder.loop_hook(sequence),
         )
-    result = session.run(progress=not args.quiet, on_frame=hook, loop_closer=closer, start_pose=start_pose)
+    from graphslam.pipelines.common import FrameUnreadable
+
+    cut = None
+    try:
+        result = session.run(
+            progress=not args.quiet, on_frame=hook, loop_closer=closer, start_pose=start_pose
+        )
+    except FrameUnreadable as e:  # the frames before it are written, then the error said
+        result, cut = e.result, e
     metrics = vp.compute_metrics(
         result, seed=getattr(getattr(sequence, "config", None), "seed", None), wall_s=time.perf_counter() - t0
     )
@@ -188,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     if mapper is not None:  # last: a map that cannot be built costs no other file
         save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
-    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
 
 
 def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
