@@ -115,8 +115,12 @@ class VisualRunConfig:
     SECTION: ClassVar[str] = "visual"
 
     odometry: OdometryMode = "auto"
-    prior_sigma_t_m: float = bounded(0.001, gt=0.0)
-    prior_sigma_r_deg: float = bounded(0.01, gt=0.0)
+    # The first pose is the world frame (nothing a camera measures is absolute), so its
+    # prior only fixes the gauge: a weak one buys nothing and leaves iSAM2's system
+    # indeterminate (synthetic images: at 10 m from the camera alone, at 360 deg; a
+    # traceback-free error naming x0 or x1). Bounds with margin below what failed.
+    prior_sigma_t_m: float = bounded(0.001, gt=0.0, max=1.0)
+    prior_sigma_r_deg: float = bounded(0.01, gt=0.0, max=90.0)
 
     def __post_init__(self):
         validate(self)

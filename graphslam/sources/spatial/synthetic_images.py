@@ -58,7 +58,7 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from graphslam.sources.spatial.sequence import ImageSequence
+from graphslam.sources.spatial.sequence import FOCAL_MAX_PX, FOCAL_MIN_PX, ImageSequence
 from graphslam.sources.spatial.synthetic_render import (
     Surface,
     balbianello_photos,
@@ -162,8 +162,9 @@ class SyntheticImagesConfig:
     seed: int = bounded(0, min=0)
     width: int = bounded(640, min=16, max=MAX_IMAGE_SIDE_PX)
     height: int = bounded(480, min=16, max=MAX_IMAGE_SIDE_PX)
-    fx: float = bounded(500.0, gt=0.0)
-    fy: float = bounded(500.0, gt=0.0)
+    # the focal lengths an intrinsics file may give; fx = 1e-12 hung the renderer
+    fx: float = bounded(500.0, min=FOCAL_MIN_PX, max=FOCAL_MAX_PX)
+    fy: float = bounded(500.0, min=FOCAL_MIN_PX, max=FOCAL_MAX_PX)
     cx: float = 319.5
     cy: float = 239.5
     n_frames: int = bounded(300, min=2, max=MAX_FRAMES)

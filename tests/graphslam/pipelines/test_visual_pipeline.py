@@ -220,6 +220,8 @@ def test_odometry_noise_config_refuses_bad_values(key, value, words):
     ("odometry", None, "must be one of"),
     ("prior_sigma_t_m", 0.0, "must be > 0.0"),
     ("prior_sigma_r_deg", "tiny", "expected a number"),
+    ("prior_sigma_t_m", 100.0, "<= 1.0"),  # iSAM2's system was indeterminate at frame 1
+    ("prior_sigma_r_deg", 1e4, "<= 90.0"),
 ])
 def test_visual_run_config_refuses_bad_values(key, value, words):
     _refused(vp.VisualRunConfig, key, value, words)
@@ -233,7 +235,9 @@ def test_visual_run_config_refuses_bad_values(key, value, words):
     ("n_frames", 1, "must be >= 2"),
     ("n_frames", si.MAX_FRAMES + 1, f"<= {si.MAX_FRAMES}"),  # O(n^2) revisit search, render time
     ("n_frames", "300", "expected a number"),
-    ("fx", 0.0, "must be > 0.0"),
+    ("fx", 1e-12, ">= 1.0"),  # hung the renderer: the bounds of an intrinsics file
+    ("fy", 2e6, "<= 1000000.0"),
+    ("fx", 0.0, "must be >= 1.0"),
     ("laps", -1.0, "must be > 0.0"),
     ("room_length_m", si.MAX_ROOM_M * 10, f"<= {si.MAX_ROOM_M}"),  # surfaces per frame
     ("texture", "marble", "must be one of ['procedural', 'balbianello']"),
