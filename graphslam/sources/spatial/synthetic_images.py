@@ -58,7 +58,12 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from graphslam.sources.spatial.sequence import FOCAL_MAX_PX, FOCAL_MIN_PX, ImageSequence
+from graphslam.sources.spatial.sequence import (
+    FOCAL_MAX_PX,
+    FOCAL_MIN_PX,
+    PRINCIPAL_POINT_MAX_PX,
+    ImageSequence,
+)
 from graphslam.sources.spatial.synthetic_render import (
     Surface,
     balbianello_photos,
@@ -165,8 +170,8 @@ class SyntheticImagesConfig:
     # the focal lengths an intrinsics file may give; fx = 1e-12 hung the renderer
     fx: float = bounded(500.0, min=FOCAL_MIN_PX, max=FOCAL_MAX_PX)
     fy: float = bounded(500.0, min=FOCAL_MIN_PX, max=FOCAL_MAX_PX)
-    cx: float = 319.5
-    cy: float = 239.5
+    cx: float = bounded(319.5, min=-PRINCIPAL_POINT_MAX_PX, max=PRINCIPAL_POINT_MAX_PX)
+    cy: float = bounded(239.5, min=-PRINCIPAL_POINT_MAX_PX, max=PRINCIPAL_POINT_MAX_PX)
     n_frames: int = bounded(300, min=2, max=MAX_FRAMES)
     laps: float = bounded(1.5, gt=0.0)
     room_length_m: float = bounded(16.0, gt=0.0, max=MAX_ROOM_M)

@@ -237,6 +237,7 @@ def test_visual_run_config_refuses_bad_values(key, value, words):
     ("n_frames", "300", "expected a number"),
     ("fx", 1e-12, ">= 1.0"),  # hung the renderer: the bounds of an intrinsics file
     ("fy", 2e6, "<= 1000000.0"),
+    ("cx", -1e12, ">= -100000.0"),  # as an intrinsics file's principal point
     ("fx", 0.0, "must be >= 1.0"),
     ("laps", -1.0, "must be > 0.0"),
     ("room_length_m", si.MAX_ROOM_M * 10, f"<= {si.MAX_ROOM_M}"),  # surfaces per frame
