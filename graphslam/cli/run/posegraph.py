@@ -43,6 +43,8 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
         raise ConfigError("--max-steps must be at least 2 for a pose graph (one edge)")
     if args.loops:
         raise ConfigError("--loops applies to image sequences only (pose graphs bring their own closures)")
+    if getattr(args, "relocalise", False):
+        raise ConfigError("--relocalise applies to image sequences only")
 
 
 def run(args: argparse.Namespace) -> int:

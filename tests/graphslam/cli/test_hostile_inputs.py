@@ -155,6 +155,7 @@ GOOD_G2O = ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
 @pytest.mark.parametrize("flags, says", [
     (["--frames", "0:2"], "--frames applies to image sequences only"),
     (["--nees"], "--nees applies to streamed 2-D runs"),
+    (["--relocalise"], "--relocalise applies to image sequences only"),  # was ignored, exit 0
 ])
 def test_pose_graph_solve_refuses_flags_it_would_ignore(tmp_path, capsys, flags, says):
     graph = tmp_path / "g.g2o"
