@@ -80,11 +80,12 @@ MAX_SPEED_MPS = 1e3
 #: cm, radar m); near 1e154 its square (the covariance) overflows.
 MAX_SIGMA_RANGE_M = 1e4
 #: Smallest noise std of every measurement (range m, bearing deg, speed m/s, yaw
-#: rate deg/s): a micro-unit is finer than any robot sensor (lidar ranges are mm,
-#: a navigation-grade gyro drifts 0.01 deg/h), and it keeps the information
-#: (1e12) within float64's reach beside the others: at 1e-30 m iSAM2's system was
-#: indeterminate, and at 1e-320 the covariance underflowed to zero.
-MIN_SIGMA = 1e-6
+#: rate deg/s): a nano-unit is finer than any robot sensor (lidar ranges are mm,
+#: a navigation-grade gyro drifts 0.01 deg/h), and it is the smallest noise the
+#: filters' float64 safeguards are tested at (tests/filters/test_filter_robustness.py;
+#: iSAM2 there falls back to QR). At 1e-30 m iSAM2's system was indeterminate where
+#: it reads its estimate, and at 1e-320 the covariance underflowed to zero.
+MIN_SIGMA = 1e-9
 #: Largest angular noise std, degrees (bearing per sighting, yaw rate per
 #: second): a wrapped normal of std 180 degrees is already nearly uniform on
 #: the circle, so a larger value carries no more meaning, only overflow.

@@ -84,7 +84,7 @@ def test_information_too_large_for_float64_is_one_line():
 
     import numpy as np
 
-    ds = make_synthetic(SyntheticConfig(seed=0, sigma_r_m=1e-6))
+    ds = make_synthetic(SyntheticConfig(seed=0, sigma_r_m=1e-9))
     frames = [dataclasses.replace(f, observations=tuple(
         dataclasses.replace(o, covariance=np.diag([1e-60, 1e-4])) for o in f.observations))
         for f in ds.frames]
@@ -98,7 +98,7 @@ def test_the_smallest_synthetic_noise_runs():
     """[synthetic] noise floors (MIN_SIGMA): a setting at the floor runs to the end."""
     from graphslam.sources.planar.synthetic import MIN_SIGMA
 
-    with pytest.raises(ConfigError, match="sigma_r_m must be >= 1e-06"):
+    with pytest.raises(ConfigError, match="sigma_r_m must be >= 1e-09"):
         SyntheticConfig(sigma_r_m=1e-320)
     result = _run({"sigma_r_m": MIN_SIGMA}, 0, "auto", max_steps=100)
     assert result.steps == 100
