@@ -72,6 +72,17 @@ def estimate_warnings(
             f"{odometry_ate_m:.3g} m: the estimate is absurd (noise settings, "
             "association or data)"
         )
+    elif (
+        ate_m is not None
+        and odometry_ate_m is not None
+        and not ate_m <= max(odometry_ate_m, ABSURD_ATE_FLOOR_M)
+    ):
+        # below the absurd but no better than the odometry the run started from: the
+        # EKF with 5 cm ranges and 10 deg bearings (4.85 m against 2.27 m) said nothing
+        doubts.append(
+            f"ATE {ate_m:.3g} m is above the odometry's {odometry_ate_m:.3g} m: the estimate "
+            "is worse than dead reckoning alone (noise settings, association or data)"
+        )
     return doubts
 
 

@@ -196,6 +196,33 @@ def test_an_absurd_2d_estimate_says_so(tmp_path, capsys):
     assert "WARNING: ATE" in stdout
 
 
+def test_a_2d_estimate_worse_than_its_dead_reckoning_says_so(tmp_path, capsys):
+    """The EKF with 5 cm ranges against the course's 10 deg bearings ends at 4.85 m ATE
+    against 2.27 m of dead reckoning: under the absurd tier, and it said nothing."""
+    cfg = toml(tmp_path, "[synthetic]\nsigma_r_m = 0.05\n")
+    out = tmp_path / "o"
+    assert main(["run", "--backend", "ekf", "--config", str(cfg), "--out", str(out), *QUIET]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["odometry_ate_rmse_m"] < m["ate_rmse_m"] < 10 * m["odometry_ate_rmse_m"]
+    assert any("worse than dead reckoning alone" in w for w in m["warnings"])
+    assert "WARNING: ATE" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("ate_m, odometry_ate_m, says", [
+    (0.5, 0.1, None),  # under the 1 m floor: near-perfect odometry
+    (2.0, 2.5, None),
+    (3.0, 2.5, "worse than dead reckoning alone"),
+    (30.0, 2.5, "absurd"),
+])
+def test_ate_against_dead_reckoning_tiers(ate_m, odometry_ate_m, says):
+    from graphslam.evaluation.planar import estimate_warnings
+
+    est = Estimate(pose_ids=np.arange(3), wTb=np.zeros((3, 3)), landmark_ids=np.zeros(0, dtype=np.int64),
+                   landmarks_w=np.zeros((0, 2)))
+    doubts = estimate_warnings(est, ate_m, odometry_ate_m)
+    assert (doubts == []) if says is None else (len(doubts) == 1 and says in doubts[0])
+
+
 def test_a_good_2d_estimate_has_no_warning(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", "--max-steps", "100", "--out", str(out), *QUIET]) == 0
