@@ -29,6 +29,13 @@ from slamcore.planar.records import Dataset, Estimate, ObservationKind
 #: magnitude worse (measured: iSAM2 at 100x the course's noise, 3.5e9 m against
 #: 49.6 m of odometry), which no working SLAM run does.
 ABSURD_ATE_RATIO = 10.0
+#: An estimate whose ATE is more than this many times its own dead reckoning's is
+#: worse than the odometry alone. Not 1: a filter's poses are causal (each estimated
+#: before later sightings correct it), and on the default synthetic world (seeds 0-9)
+#: the EKF and FastSLAM end at up to 1.56x of the globally aligned dead reckoning while
+#: working as designed; twice it is beyond what that lag explains (the EKF with 5 cm
+#: ranges against 10 deg bearings: 2.14x, printed without a word before).
+WORSE_ATE_RATIO = 2.0
 #: No ATE below this is called absurd, metres: against near-perfect odometry
 #: (a few mm) a ten-fold ratio is still a good estimate.
 ABSURD_ATE_FLOOR_M = 1.0
@@ -75,13 +82,12 @@ def estimate_warnings(
     elif (
         ate_m is not None
         and odometry_ate_m is not None
-        and not ate_m <= max(odometry_ate_m, ABSURD_ATE_FLOOR_M)
+        and not ate_m <= max(WORSE_ATE_RATIO * odometry_ate_m, ABSURD_ATE_FLOOR_M)
     ):
-        # below the absurd but no better than the odometry the run started from: the
-        # EKF with 5 cm ranges and 10 deg bearings (4.85 m against 2.27 m) said nothing
         doubts.append(
-            f"ATE {ate_m:.3g} m is above the odometry's {odometry_ate_m:.3g} m: the estimate "
-            "is worse than dead reckoning alone (noise settings, association or data)"
+            f"ATE {ate_m:.3g} m is more than {WORSE_ATE_RATIO:g}x the odometry's "
+            f"{odometry_ate_m:.3g} m: the estimate is worse than dead reckoning alone "
+            "(noise settings, association or data)"
         )
     return doubts
 

@@ -203,7 +203,7 @@ def test_a_2d_estimate_worse_than_its_dead_reckoning_says_so(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", "--backend", "ekf", "--config", str(cfg), "--out", str(out), *QUIET]) == 0
     m = json.loads((out / "metrics.json").read_text())
-    assert m["odometry_ate_rmse_m"] < m["ate_rmse_m"] < 10 * m["odometry_ate_rmse_m"]
+    assert 2 * m["odometry_ate_rmse_m"] < m["ate_rmse_m"] < 10 * m["odometry_ate_rmse_m"]
     assert any("worse than dead reckoning alone" in w for w in m["warnings"])
     assert "WARNING: ATE" in capsys.readouterr().out
 
@@ -211,7 +211,8 @@ def test_a_2d_estimate_worse_than_its_dead_reckoning_says_so(tmp_path, capsys):
 @pytest.mark.parametrize("ate_m, odometry_ate_m, says", [
     (0.5, 0.1, None),  # under the 1 m floor: near-perfect odometry
     (2.0, 2.5, None),
-    (3.0, 2.5, "worse than dead reckoning alone"),
+    (3.0, 2.5, None),  # a filter's causal poses lag: up to 1.56x on the default world
+    (6.0, 2.5, "worse than dead reckoning alone"),
     (30.0, 2.5, "absurd"),
 ])
 def test_ate_against_dead_reckoning_tiers(ate_m, odometry_ate_m, says):
@@ -221,6 +222,16 @@ def test_ate_against_dead_reckoning_tiers(ate_m, odometry_ate_m, says):
                    landmarks_w=np.zeros((0, 2)))
     doubts = estimate_warnings(est, ate_m, odometry_ate_m)
     assert (doubts == []) if says is None else (len(doubts) == 1 and says in doubts[0])
+
+
+@pytest.mark.parametrize("backend", ["ekf", "fastslam1"])
+def test_a_filter_lagging_lucky_odometry_is_no_warning(tmp_path, backend):
+    """Seed 2 of the default world: dead reckoning 1.15 m, the EKF 1.79 m, FastSLAM 1.0
+    1.57 m, all working as designed (their poses are causal)."""
+    out = tmp_path / "o"
+    assert main(["run", "--backend", backend, "--seed", "2", "--out", str(out), *QUIET]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ate_rmse_m"] > m["odometry_ate_rmse_m"] and "warnings" not in m
 
 
 def test_a_good_2d_estimate_has_no_warning(tmp_path, capsys):
