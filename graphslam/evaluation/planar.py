@@ -69,26 +69,18 @@ def estimate_warnings(
             doubts.append(f"the estimate holds non-finite {name} values")
         elif values.size and np.max(np.abs(values[..., :2])) > TRANSLATION_MAX_M:
             doubts.append(f"the estimate puts a {name} beyond {TRANSLATION_MAX_M:.0e} m")
-    if (
-        ate_m is not None
-        and odometry_ate_m is not None
-        and not ate_m <= max(ABSURD_ATE_RATIO * odometry_ate_m, ABSURD_ATE_FLOOR_M)
+    if ate_m is None or odometry_ate_m is None:
+        return doubts
+    for ratio, verdict in (
+        (ABSURD_ATE_RATIO, "is absurd"),
+        (WORSE_ATE_RATIO, "is worse than dead reckoning alone"),
     ):
-        doubts.append(
-            f"ATE {ate_m:.3g} m is more than {ABSURD_ATE_RATIO:g}x the odometry's "
-            f"{odometry_ate_m:.3g} m: the estimate is absurd (noise settings, "
-            "association or data)"
-        )
-    elif (
-        ate_m is not None
-        and odometry_ate_m is not None
-        and not ate_m <= max(WORSE_ATE_RATIO * odometry_ate_m, ABSURD_ATE_FLOOR_M)
-    ):
-        doubts.append(
-            f"ATE {ate_m:.3g} m is more than {WORSE_ATE_RATIO:g}x the odometry's "
-            f"{odometry_ate_m:.3g} m: the estimate is worse than dead reckoning alone "
-            "(noise settings, association or data)"
-        )
+        if not ate_m <= max(ratio * odometry_ate_m, ABSURD_ATE_FLOOR_M):  # NaN fails too
+            doubts.append(
+                f"ATE {ate_m:.3g} m is more than {ratio:g}x the odometry's {odometry_ate_m:.3g} m: "
+                f"the estimate {verdict} (noise settings, association or data)"
+            )
+            break  # the more severe tier only
     return doubts
 
 
