@@ -227,9 +227,6 @@ class FrameUnreadable(InputError):
         super().__init__(cause.reason, cause.path, cause.line)
         self.result = result
 
-    def __reduce__(self):  # from a compare worker: rebuilt from its parts, not its message
-        return FrameUnreadable, (InputError(self.reason, self.path, self.line), self.result)
-
 
 def whole(result):
     """``result`` of a run, or KeyboardInterrupt when Ctrl-C cut it: for callers

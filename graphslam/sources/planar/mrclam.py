@@ -41,6 +41,7 @@ from typing import ClassVar
 import numpy as np
 
 from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel, held_commands, integrate
+from graphslam.sources.planar.synthetic import MAX_STEPS
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError, InputError, quote
@@ -432,7 +433,7 @@ def _check_sightings(meas, lines, path: Path) -> None:
 
 #: Most frames a robot's log may become: the synthetic world's step limit; at
 #: ``frame_every_s = 1e-12`` a 40-minute log asked for 17.8 TiB of frame times.
-MAX_FRAMES = 1_000_000
+MAX_FRAMES = MAX_STEPS
 
 
 def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) -> np.ndarray:

@@ -131,9 +131,8 @@ def _edit_json(folder: Path, **changes) -> None:
 def test_sessions_not_a_list_of_tables_is_refused(saved, sessions):
     # a run extending the map (--map, --save-map) lists them: 5 was a TypeError after
     # the run, "abc" three sessions named by letters
-    doc = json.loads((saved / "map.json").read_text())
-    doc["meta"]["sessions"] = sessions
-    (saved / "map.json").write_text(json.dumps(doc))
+    meta = json.loads((saved / "map.json").read_text())["meta"]
+    _edit_json(saved, meta={**meta, "sessions": sessions})
     with pytest.raises(InputError) as e:
         load_map(saved)
     assert "sessions" in one_line(e) and "map.json" in one_line(e)

@@ -536,13 +536,18 @@ def test_isam2_unknown_association_within_the_issues_bound(mrclam, robot):
     assert unknown.ate_rmse_m <= 1.3 * known.ate_rmse_m
 
 
-def test_frames_finer_than_any_log_needs_are_refused_before_allocating():
+def test_frames_finer_than_any_log_needs_are_refused_before_allocating(monkeypatch):
     """frame_every_s = 1e-12 asked numpy for 17.8 TiB of frame times (a MemoryError
-    traceback); the count is now checked first."""
-    from graphslam.sources.planar.mrclam import MAX_FRAMES, frame_times
+    traceback); the count is now checked first, and it is the count the frames get."""
+    from graphslam.sources.planar import mrclam
     from slamcore.errors import ConfigError
 
-    odometry_s = np.array([0.0, 900.0])
+    odometry_s, sightings_s = np.array([0.0, 900.0]), np.array([10.0, 20.0])
     with pytest.raises(ConfigError, match=r"frame_every_s = 1e-12 would put 9e\+14 frames"):
-        frame_times(odometry_s, np.array([10.0, 20.0]), 1e-12)
-    assert len(frame_times(odometry_s, np.array([10.0, 20.0]), 900.0 / MAX_FRAMES * 2)) < MAX_FRAMES
+        mrclam.frame_times(odometry_s, sightings_s, 1e-12)
+    n = len(mrclam.frame_times(odometry_s, sightings_s, 7.0))
+    monkeypatch.setattr(mrclam, "MAX_FRAMES", n)  # exactly the limit: accepted
+    assert len(mrclam.frame_times(odometry_s, sightings_s, 7.0)) == n
+    monkeypatch.setattr(mrclam, "MAX_FRAMES", n - 1)  # one over: refused
+    with pytest.raises(ConfigError, match=f"would put {n} frames"):
+        mrclam.frame_times(odometry_s, sightings_s, 7.0)
