@@ -115,17 +115,18 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from filters.association import chi2_quantile
+from filters.association import chi2_quantile, mahalanobis_sq_2d
 from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_correction import kalman_update
 from filters.ekf_slam_store import SlotStore
+from filters.landmark_existence import MissedSightings
 from filters.numerics import Recoveries
 from filters.planar_inputs import checked_scan, initial_pose, mapped_predictions, odometry_step
 from slamcore.errors import GraphSlamError, MeasurementError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import Estimate, Observation, Odometry, Prediction
+from slamcore.planar.records import Estimate, Observation, Odometry, Prediction, SensorField
 from slamcore.planar.sighting_correlation import LastSightings
 
 
@@ -146,6 +147,7 @@ class EkfSlam(Backend):
         self._new_gate = chi2_quantile(self.config.new_landmark_chi2_prob, 2)
         self._known_gate = self.config.known_gate()
         self._R_typical = self.config.default_noise()
+        self._sensor_field: SensorField | None = None
         self._reset(self.config.initial_capacity)
 
     # ------------------------------------------------------------------ state
@@ -169,6 +171,10 @@ class EkfSlam(Backend):
         self.rejected_count = 0
         #: Numerical recoveries since initialisation (:class:`filters.numerics.Recoveries`).
         self.recoveries = Recoveries()
+        self._missed = self._missed_sightings()
+        #: Landmark ids removed as missed in view since initialisation
+        #: (``prune_missed_alpha``, :mod:`filters.landmark_existence`).
+        self.pruned_ids: list[int] = []
 
     @property
     def num_landmarks(self) -> int:
@@ -310,8 +316,16 @@ class EkfSlam(Backend):
                 assoc[k] = lid
         if unknown:
             self._update_unknown([obs[k] for k in unknown], unknown, assoc)
+            self._prune_missed({a for a in assoc if a is not None}, [obs[k] for k in unknown])
         self._last_associations = assoc
         self._record_pose(new=False)
+
+    def pruned_landmark_ids(self) -> list[int]:
+        return list(self.pruned_ids)
+
+    def set_sensor_field(self, sensor_field: SensorField | None) -> None:
+        self._sensor_field = sensor_field
+        self._missed = self._missed_sightings()
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
@@ -355,6 +369,41 @@ class EkfSlam(Backend):
         idx = [0, 1, 2, i, i + 1]
         S = H_s @ self._store.P[np.ix_(idx, idx)] @ H_s.T + self._R_typical
         return z, 0.5 * (S + S.T)
+
+    def _missed_sightings(self) -> MissedSightings | None:
+        """The pruning's scores (module :mod:`filters.landmark_existence`), None when it is off."""
+        alpha = self.config.prune_missed_alpha
+        if self._sensor_field is None or alpha is None or self.config.association != "unknown":
+            return None
+        return MissedSightings(self._sensor_field.detection_prob, alpha)
+
+    def _prune_missed(self, seen: set[int], obs: list[Observation]) -> None:
+        """Remove the landmarks that lay surely in the sensor's field this scan, that
+        no observation of the scan ``obs`` may be of, and that have been missed too
+        often since their last sighting."""
+        if self._missed is None or self._sensor_field is None:
+            return
+        field = self._sensor_field
+        in_field = []
+        for slot, lid in enumerate(self._store.ids):
+            if lid in seen:
+                continue
+            z, S = self._predicted(slot)
+            # surely inside: three sigmas of the predicted measurement to spare
+            sr, sb = 3.0 * np.sqrt(np.maximum(np.diag(S), 0.0))
+            if not (z[0] + sr <= field.max_range_m and abs(z[1]) + sb <= field.half_fov_rad):
+                continue
+            # an observation inside its gate that association left unpaired (an
+            # ambiguous one) may be its sighting: not evidence that it is absent
+            S_obs = S - self._R_typical
+            Z = np.array([o.z for o in obs]).reshape(-1, 2)
+            Rs = np.array([o.covariance for o in obs]).reshape(-1, 2, 2)
+            if not np.any(mahalanobis_sq_2d(models.innovation(Z, z), S_obs + Rs) <= self._gate):
+                in_field.append(lid)
+        gone = self._missed.frame(seen, in_field)
+        if gone:
+            self._store.remove_slots([self._store.slot[lid] for lid in gone])
+            self.pruned_ids.extend(gone)
 
     def _add_landmark(self, lid: int, z: np.ndarray, R: np.ndarray) -> int:
         """Insert landmark ``lid`` from observation ``z`` (inverse observation model)."""

@@ -118,6 +118,27 @@ class SlotStore:
         self.n = n + 2
         return slot
 
+    def remove_slots(self, slots: Sequence[int]) -> None:
+        """Drop the landmarks of ``slots`` from the state: marginalise them out of the
+        Gaussian, which is deleting their rows and columns of ``x`` and ``P``. The
+        remaining landmarks keep their order and move down to fill the gaps; the
+        freed entries of the buffers are zeroed. O(n^2)."""
+        drop = set(slots)
+        if not drop:
+            return
+        keep = [k for k in range(len(self.ids)) if k not in drop]
+        idx = np.array([0, 1, 2] + [3 + 2 * k + j for k in keep for j in (0, 1)])
+        x = self.xbuf[idx]
+        P = self.Pbuf[np.ix_(idx, idx)]
+        n_old, self.n = self.n, idx.size
+        self.xbuf[:n_old] = 0.0
+        self.Pbuf[:n_old, :n_old] = 0.0
+        self.xbuf[: self.n] = x
+        self.Pbuf[: self.n, : self.n] = P
+        self.ids = [self.ids[k] for k in keep]
+        self.m_first = [self.m_first[k] for k in keep]
+        self.slot = {lid: k for k, lid in enumerate(self.ids)}
+
     def _grow(self) -> None:
         new_cap = 2 * self.cap
         dim = padded(3 + 2 * new_cap)

@@ -81,6 +81,8 @@ class PlanarRunMetrics(MetricsRecord):
             the step (iSAM2's factorisation fallbacks); left out when none.
         recoveries: per-update safeguards counted by kind (filters only; see
             :class:`filters.numerics.Recoveries`), or None.
+        landmarks_pruned: landmarks the back end removed from its map as missed
+            in the sensor's field (the EKF's ``prune_missed_alpha``); left out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
             folder, True, and the observations of landmarks not in the map (not used).
         warnings: what makes the estimate absurd, one line each
@@ -115,6 +117,7 @@ class PlanarRunMetrics(MetricsRecord):
     rms_to_isam2_m: float | None = optional()
     numerical_recoveries: list[str] | None = optional()
     recoveries: dict[str, int] | None = optional()
+    landmarks_pruned: int | None = optional()
     map: str | None = optional()
     localisation_only: bool | None = optional()
     unmapped_observations: int | None = optional()

@@ -41,6 +41,8 @@ class RunResult:
         numerical_recoveries: switches the back end made (another factorisation).
         recoveries: the back end's per-update safeguards counted by kind (the
             filters' ``recoveries``; None for back ends that keep none).
+        landmarks_pruned: landmarks the back end removed from its map as missed
+            in the sensor's field (:meth:`~slamcore.planar.backend.Backend.pruned_landmark_ids`).
     """
 
     dataset: Dataset
@@ -53,6 +55,7 @@ class RunResult:
     loop_closures_skipped: int = 0
     numerical_recoveries: list[str] = field(default_factory=list)
     recoveries: dict[str, int] | None = None
+    landmarks_pruned: int = 0
 
 
 def run(
@@ -110,6 +113,7 @@ def run(
         counters["skipped"],
         backend.numerical_recoveries(),
         None if recoveries is None else dict(recoveries),
+        len(backend.pruned_landmark_ids()),
     )
 
 
@@ -119,6 +123,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
         stop.check()
         if k == 0:
             backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
+            backend.set_sensor_field(dataset.sensor_field)
         else:
             if frame.odometry is None:
                 raise GraphSlamError(f"frame {k} (pose {frame.pose_id}) has no odometry")
@@ -223,6 +228,7 @@ def compute_metrics(
         association=metrics.association_accuracy(result.associations),
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
+        landmarks_pruned=result.landmarks_pruned or None,
         # the reader's doubts about the input first, then the estimate's
         warnings=[*result.dataset.warnings, *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost)]
         or None,

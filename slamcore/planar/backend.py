@@ -25,7 +25,15 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from slamcore.errors import UnsupportedError
-from slamcore.planar.records import Estimate, LoopClosure, Observation, Odometry, PoseSighting, Prediction
+from slamcore.planar.records import (
+    Estimate,
+    LoopClosure,
+    Observation,
+    Odometry,
+    PoseSighting,
+    Prediction,
+    SensorField,
+)
 
 
 class Backend(ABC):
@@ -61,6 +69,16 @@ class Backend(ABC):
         """Apply landmark observations taken at the current pose.
 
         Unknown landmarks are initialised from their first observation.
+        """
+
+    def set_sensor_field(self, sensor_field: SensorField | None) -> None:  # noqa: B027
+        """Where the sensor reports landmarks and how reliably (the data's
+        :class:`~slamcore.planar.records.SensorField`, None when unknown); kept across
+        :meth:`initialize`.
+
+        Only a back end that uses missed sightings (the EKF's pruning of landmarks
+        it should have seen) keeps it; the others estimate from what was seen and
+        need nothing from it.
         """
 
     def add_loop_closure(self, loop_closure: LoopClosure) -> None:
@@ -106,6 +124,11 @@ class Backend(ABC):
         return list(self._last_associations)
 
     _last_associations: list[int | None] = []
+
+    def pruned_landmark_ids(self) -> list[int]:
+        """Ids of the landmarks removed from the map during the run (the EKF's pruning
+        of landmarks missed in the sensor's field); none by default."""
+        return []
 
     def finalize(self, with_covariances: bool = False) -> Estimate:
         """End of the run (e.g. a final batch polish); returns the final estimate."""

@@ -339,6 +339,34 @@ class Prediction:
     innovation_covariance: np.ndarray
 
 
+@dataclass(frozen=True)
+class SensorField:
+    """Where a range-bearing sensor reports landmarks, and how reliably: what a
+    missed sighting means (negative information).
+
+    Attributes:
+        max_range_m: a landmark further than this is not reported, m.
+        half_fov_rad: a landmark whose bearing is further than this from the
+            heading is not reported, rad (pi: all round).
+        detection_prob: probability that a landmark inside the field is reported
+            in a frame that reports something (0 < p <= 1; 1 for a simulated
+            sensor that sees everything in its field).
+    """
+
+    max_range_m: float
+    half_fov_rad: float
+    detection_prob: float
+
+    def __post_init__(self):
+        values = (self.max_range_m, self.half_fov_rad, self.detection_prob)
+        if not all(np.isfinite(values)) or self.max_range_m <= 0.0:
+            raise MeasurementError(f"sensor field: max_range_m must be finite and > 0 ({self.max_range_m})")
+        if not 0.0 < self.half_fov_rad <= np.pi:
+            raise MeasurementError(f"sensor field: half_fov_rad must be in (0, pi] ({self.half_fov_rad})")
+        if not 0.0 < self.detection_prob <= 1.0:
+            raise MeasurementError(f"sensor field: detection_prob must be in (0, 1] ({self.detection_prob})")
+
+
 @dataclass(frozen=True, eq=False)
 class Estimate:
     """A back end's current belief, all numpy.
@@ -393,6 +421,9 @@ class Dataset:
         warnings: what the reader doubts in the input (angles in degrees, another
             robot's truth), one line each: the run says them as warnings and keeps
             them in ``metrics.json`` ``warnings``, before the estimate's own.
+        sensor_field: where the sensor reports landmarks and how reliably
+            (:class:`SensorField`), when the source knows it; back ends that use
+            negative information read it (:meth:`~slamcore.planar.backend.Backend.set_sensor_field`).
     """
 
     name: str
@@ -406,6 +437,7 @@ class Dataset:
     notes: tuple[str, ...] = ()
     agents: tuple[tuple[str, tuple[int, ...]], ...] = ()
     warnings: tuple[str, ...] = ()
+    sensor_field: SensorField | None = None
 
     @property
     def has_ground_truth(self) -> bool:

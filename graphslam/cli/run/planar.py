@@ -206,6 +206,8 @@ def format_summary(metrics) -> str:
         )
     for note in metrics.dataset_notes or ():
         rows.append(("data", note))
+    if metrics.landmarks_pruned:
+        rows.append(("landmarks pruned", f"{metrics.landmarks_pruned} (missed in the sensor's field)"))
     if metrics.loop_closures_skipped:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
     for note in metrics.numerical_recoveries or ():

@@ -48,7 +48,7 @@ from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import folder_name
 from slamcore.input_files import check_input_path
 from slamcore.planar import geometry as se2
-from slamcore.planar.records import Dataset, Frame, odometry_batch, range_bearing_batch
+from slamcore.planar.records import Dataset, Frame, SensorField, odometry_batch, range_bearing_batch
 from slamcore.planar.sighting_correlation import SightingCorrelation
 
 #: Subjects 1-5 are robots in every MRCLAM data set; the rest are landmarks.
@@ -77,6 +77,9 @@ class MrclamConfig:
     - the six noise coefficients (:mod:`~graphslam.sources.planar.mrclam_motion`):
       Student-t maximum likelihood of the relative motions over 5 s windows (the
       errors are correlated in time; the script's docstring says why 5 s);
+    - the camera's field (percentiles of the sightings) and its detection
+      probability there, matched to the runs of frames in which a landmark in the
+      field by the truth is not reported;
     - the sightings' error correlation in time (``correlation_time_s`` and the two
       shares): least squares of ``share exp(-dt / tau)`` on the correlation of the
       normalised errors of two sightings of one landmark by one robot, by the time
@@ -137,6 +140,17 @@ class MrclamConfig:
             (:mod:`slamcore.planar.sighting_correlation`). 0: independent.
         range_correlated_share: the correlated share of the range error's variance.
         bearing_correlated_share: the correlated share of the bearing error's variance.
+        field_range_m, field_half_fov_deg: the camera's field, the 99th
+            percentile of the sightings' ranges (m) and absolute bearings (deg).
+        detection_prob: per-frame probability that a landmark inside that field is
+            reported, as a model of independent frames sees it: a landmark in the
+            field is reported in 30-36 % of the frames that report some landmark,
+            but its misses come in runs, so the value stored is the one whose
+            independent model matches the measured runs where the EKF's pruning
+            acts (``benchmarks/calibrate_mrclam.py``, step 5). With the field,
+            what the back ends that use missed sightings read
+            (:class:`~slamcore.planar.records.SensorField`: the EKF's pruning of
+            landmarks it should have seen).
     """
 
     SECTION: ClassVar[str] = "mrclam"
@@ -161,6 +175,9 @@ class MrclamConfig:
     correlation_time_s: float = bounded(7.32, min=0.0, max=3600.0)
     range_correlated_share: float = bounded(0.91, min=0.0, max=1.0)
     bearing_correlated_share: float = bounded(0.53, min=0.0, max=1.0)
+    field_range_m: float = bounded(7.05, gt=0.0, max=1000.0)
+    field_half_fov_deg: float = bounded(32.4, gt=0.0, max=180.0)
+    detection_prob: float = bounded(0.0689, gt=0.0, max=1.0)
 
     def __post_init__(self):
         validate(self)
@@ -183,6 +200,10 @@ class MrclamConfig:
         return SightingCorrelation(
             self.correlation_time_s, self.range_correlated_share, self.bearing_correlated_share, sensor=robot
         )
+
+    def sensor_field(self) -> SensorField:
+        """The camera's field and detection probability (``field_*``, ``detection_prob``)."""
+        return SensorField(self.field_range_m, math.radians(self.field_half_fov_deg), self.detection_prob)
 
     def motion_model(self) -> MotionModel:
         return MotionModel(
@@ -627,4 +648,5 @@ def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_tr
         has_timestamps=True,
         source_path=str(folder),
         notes=tuple(track.notes),
+        sensor_field=config.sensor_field(),
     )

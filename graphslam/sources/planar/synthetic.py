@@ -48,7 +48,7 @@ import numpy as np
 from slamcore.config import bounded, validate
 from slamcore.errors import ConfigError
 from slamcore.planar.geometry import compose, observe, wrap_angle
-from slamcore.planar.records import Dataset, Frame, Observation, ObservationKind, Odometry
+from slamcore.planar.records import Dataset, Frame, Observation, ObservationKind, Odometry, SensorField
 
 #: Added to the odometry covariance diagonal: two velocity noises drive three
 #: outputs, so ``J Q J^T`` is rank 2 (singular; on straights ``dy`` and
@@ -339,4 +339,6 @@ def make_synthetic(config: SyntheticConfig | None = None) -> Dataset:
         landmarks_true={i: landmarks[i].copy() for i in range(config.n_landmarks)},
         has_timestamps=True,
         seed=config.seed,
+        # the simulated sensor reports every landmark of its field (before the noise)
+        sensor_field=SensorField(config.sensor_range_m, min(half_fov, np.pi), 1.0),
     )
