@@ -384,6 +384,8 @@ class EkfSlam(Backend):
         if self._missed is None or self._sensor_field is None:
             return
         field = self._sensor_field
+        Z = np.array([o.z for o in obs]).reshape(-1, 2)
+        Rs = np.array([o.covariance for o in obs]).reshape(-1, 2, 2)
         in_field = []
         for slot, lid in enumerate(self._store.ids):
             if lid in seen:
@@ -396,8 +398,6 @@ class EkfSlam(Backend):
             # an observation inside its gate that association left unpaired (an
             # ambiguous one) may be its sighting: not evidence that it is absent
             S_obs = S - self._R_typical
-            Z = np.array([o.z for o in obs]).reshape(-1, 2)
-            Rs = np.array([o.covariance for o in obs]).reshape(-1, 2, 2)
             if not np.any(mahalanobis_sq_2d(models.innovation(Z, z), S_obs + Rs) <= self._gate):
                 in_field.append(lid)
         gone = self._missed.frame(seen, in_field)
