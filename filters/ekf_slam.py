@@ -116,7 +116,12 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from filters.association import chi2_quantile, mahalanobis_sq_2d
-from filters.ekf_slam_association import ProvisionalList, associate_scan, unpaired_distances
+from filters.ekf_slam_association import (
+    ProvisionalList,
+    associate_scan,
+    predict_landmarks,
+    unpaired_distances,
+)
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_correction import kalman_update
 from filters.ekf_slam_store import SlotStore
@@ -384,22 +389,23 @@ class EkfSlam(Backend):
         if self._missed is None or self._sensor_field is None:
             return
         field = self._sensor_field
+        st = self._store
+        if not st.ids:
+            return
+        # every landmark at once: predicted measurement and H P H^T (L, 2), (L, 2, 2)
+        zhat, _, _, S0 = predict_landmarks(st.xbuf, st.Pbuf, st.landmark_marginals())
+        # surely inside: three sigmas of the predicted measurement to spare
+        sd = 3.0 * np.sqrt(np.maximum(np.diagonal(S0 + self._R_typical, axis1=1, axis2=2), 0.0))
+        inside = (zhat[:, 0] + sd[:, 0] <= field.max_range_m) & (
+            np.abs(zhat[:, 1]) + sd[:, 1] <= field.half_fov_rad
+        )
+        # an observation inside its gate that association left unpaired (an
+        # ambiguous one) may be its sighting: not evidence that it is absent
         Z = np.array([o.z for o in obs]).reshape(-1, 2)
         Rs = np.array([o.covariance for o in obs]).reshape(-1, 2, 2)
-        in_field = []
-        for slot, lid in enumerate(self._store.ids):
-            if lid in seen:
-                continue
-            z, S = self._predicted(slot)
-            # surely inside: three sigmas of the predicted measurement to spare
-            sr, sb = 3.0 * np.sqrt(np.maximum(np.diag(S), 0.0))
-            if not (z[0] + sr <= field.max_range_m and abs(z[1]) + sb <= field.half_fov_rad):
-                continue
-            # an observation inside its gate that association left unpaired (an
-            # ambiguous one) may be its sighting: not evidence that it is absent
-            S_obs = S - self._R_typical
-            if not np.any(mahalanobis_sq_2d(models.innovation(Z, z), S_obs + Rs) <= self._gate):
-                in_field.append(lid)
+        d2 = mahalanobis_sq_2d(models.innovation(Z[:, None, :], zhat[None]), S0[None] + Rs[:, None])
+        gated = np.asarray(d2 <= self._gate).any(axis=0)
+        in_field = [lid for k, lid in enumerate(st.ids) if inside[k] and not gated[k] and lid not in seen]
         gone = self._missed.frame(seen, in_field)
         if gone:
             self._store.remove_slots([self._store.slot[lid] for lid in gone])
