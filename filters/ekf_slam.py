@@ -404,8 +404,8 @@ class EkfSlam(Backend):
         Z = np.array([o.z for o in obs]).reshape(-1, 2)
         Rs = np.array([o.covariance for o in obs]).reshape(-1, 2, 2)
         d2 = mahalanobis_sq_2d(models.innovation(Z[:, None, :], zhat[None]), S0[None] + Rs[:, None])
-        gated = np.asarray(d2 <= self._gate).any(axis=0)
-        in_field = [lid for k, lid in enumerate(st.ids) if inside[k] and not gated[k] and lid not in seen]
+        gated = np.any(d2 <= self._gate, axis=0)
+        in_field = [st.ids[k] for k in np.flatnonzero(inside & ~gated) if st.ids[k] not in seen]
         gone = self._missed.frame(seen, in_field)
         if gone:
             self._store.remove_slots([self._store.slot[lid] for lid in gone])
