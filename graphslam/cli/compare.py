@@ -359,6 +359,22 @@ COLUMNS = [
 ]
 
 
+#: Fixed-point cells at or beyond this magnitude are printed with 3 significant
+#: digits and an exponent: a depleted particle filter's NEES (1e71 on MRCLAM robot 3)
+#: would otherwise print 72 digits and push every column off the screen.
+FIXED_POINT_LIMIT = 1e6
+
+
+def _cell(value, fmt: str) -> str:
+    """One table cell: ``value`` in ``fmt``, or with an exponent where a fixed-point
+    number would be too long (:data:`FIXED_POINT_LIMIT`)."""
+    if value is None:
+        return "n/a"
+    if fmt.endswith("f") and abs(value) >= FIXED_POINT_LIMIT:
+        return format(value, ".3g")
+    return format(value, fmt)
+
+
 def format_table(entries) -> str:
     """Plain-text table of the comparison; columns with no value anywhere are left out."""
     rows = []
@@ -384,7 +400,7 @@ def format_table(entries) -> str:
         cols.insert(1, ("status", "status", "s"))
     cells = [[h for _, h, _ in cols]]
     for r in rows:
-        cells.append(["n/a" if r.get(k) is None else format(r[k], f) for k, _, f in cols])
+        cells.append([_cell(r.get(k), f) for k, _, f in cols])
     widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
     lines = [
         "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True)))

@@ -303,3 +303,19 @@ def test_relocalise_refusal_names_relocalise(tmp_path, capsys):
                           "--relocalise", "--max-steps", "2", "--out", str(tmp_path / "o"),
                           *QUIET)
     assert "--relocalise:" in line and "--loops" not in line
+
+
+def test_compare_table_prints_a_huge_nees_with_an_exponent():
+    # a depleted particle filter's NEES reached 2e71 on MRCLAM robot 3 and printed
+    # as 72 digits, pushing every column of the table off the screen
+    from graphslam.cli.compare import format_table
+    from graphslam.pipelines.compare import CompareEntry
+
+    def entry(name, nees):
+        metrics = SimpleNamespace(association=None,
+                                  to_dict=lambda: {"backend": name, "ate_rmse_m": 0.25, "nees_mean": nees})
+        return CompareEntry(name, result=None, metrics=metrics)
+
+    table = format_table([entry("ekf", 70.23), entry("fastslam2", 2.1682e71)])
+    assert "2.17e+71" in table and "70.23" in table
+    assert max(len(line) for line in table.splitlines()) < 60
