@@ -97,10 +97,10 @@ def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool, 
 
     from graphslam.maps.files import save_map
 
-    if result.interrupted:  # not finalised: no map from half an estimate
+    if result.interrupted:  # a signal or an unreadable frame: no map from half an estimate
         from graphslam.cli.common import warn
 
-        warn(f"run interrupted: no map saved in {args.save_map}")
+        warn(f"run stopped before its end: no map saved in {args.save_map}")
         return
     seq = result.sequence
     if not quiet and closer is None and prior_map is None:

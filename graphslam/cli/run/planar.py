@@ -154,7 +154,7 @@ def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> Non
     if result.interrupted:  # no covariances, not finalised: no map from half an estimate
         from graphslam.cli.common import warn
 
-        warn(f"run interrupted: no map saved in {folder}")
+        warn(f"run stopped before its end: no map saved in {folder}")
         return
     pmap = build_run_map(result, backend, config, max_steps)
     save_planar_map(pmap, folder)

@@ -59,6 +59,19 @@ def test_an_unreadable_frame_late_in_a_run_keeps_the_frames_before_it(tmp_path, 
     assert json.loads((out / "metrics.json").read_text())["interrupted"] is True
 
 
+def test_a_map_asked_of_a_run_cut_by_an_unreadable_frame_says_why_none_is_saved(tmp_path, capsys, frames):
+    # it said "run interrupted", as if a signal had stopped it
+    folder = image_folder(tmp_path / "seq", frames)
+    cut = folder / "f3.png"
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
+    argv = ["run", "--dataset", folder, "--backend", "isam2", "--odometry", "none", "--quiet",
+            "--rerun", "off", "--out", tmp_path / "o", "--save-map", tmp_path / "m"]
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert "run stopped before its end: no map saved in" in err and "interrupted" not in err
+    assert not (tmp_path / "m").exists()
+
+
 def test_an_unreadable_first_frame_is_the_plain_error(tmp_path, capsys, frames):
     folder = image_folder(tmp_path / "seq", frames)
     (folder / "f0.png").write_bytes(b"not a png")
