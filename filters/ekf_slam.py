@@ -177,9 +177,9 @@ class EkfSlam(Backend):
         #: Numerical recoveries since initialisation (:class:`filters.numerics.Recoveries`).
         self.recoveries = Recoveries()
         self._missed = self._missed_sightings()
-        #: Landmark ids removed as missed in view since initialisation
-        #: (``prune_missed_alpha``, :mod:`filters.landmark_existence`).
-        self.pruned_ids: list[int] = []
+        # landmark ids removed as missed in view since initialisation
+        # (``prune_missed_alpha``, :mod:`filters.landmark_existence`)
+        self._pruned_ids: list[int] = []
 
     @property
     def num_landmarks(self) -> int:
@@ -320,13 +320,14 @@ class EkfSlam(Backend):
                 self._last_sightings.record(o, lid)
                 assoc[k] = lid
         if unknown:
-            self._update_unknown([obs[k] for k in unknown], unknown, assoc)
-            self._prune_missed({a for a in assoc if a is not None}, [obs[k] for k in unknown])
+            scan = [obs[k] for k in unknown]
+            self._update_unknown(scan, unknown, assoc)
+            self._prune_missed({a for a in assoc if a is not None}, scan)
         self._last_associations = assoc
         self._record_pose(new=False)
 
     def pruned_landmark_ids(self) -> list[int]:
-        return list(self.pruned_ids)
+        return list(self._pruned_ids)
 
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:
         self._sensor_field = sensor_field
@@ -409,7 +410,7 @@ class EkfSlam(Backend):
         gone = self._missed.frame(seen, in_field)
         if gone:
             self._store.remove_slots([self._store.slot[lid] for lid in gone])
-            self.pruned_ids.extend(gone)
+            self._pruned_ids.extend(gone)
 
     def _add_landmark(self, lid: int, z: np.ndarray, R: np.ndarray) -> int:
         """Insert landmark ``lid`` from observation ``z`` (inverse observation model)."""

@@ -358,8 +358,8 @@ class SensorField:
     detection_prob: float
 
     def __post_init__(self):
-        values = (self.max_range_m, self.half_fov_rad, self.detection_prob)
-        if not all(np.isfinite(values)) or self.max_range_m <= 0.0:
+        # each test fails for NaN too, so the message names the value at fault
+        if not (0.0 < self.max_range_m < np.inf):
             raise MeasurementError(f"sensor field: max_range_m must be finite and > 0 ({self.max_range_m})")
         if not 0.0 < self.half_fov_rad <= np.pi:
             raise MeasurementError(f"sensor field: half_fov_rad must be in (0, pi] ({self.half_fov_rad})")

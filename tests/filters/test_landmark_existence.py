@@ -49,6 +49,13 @@ def test_sensor_field_refuses_bad_values(args):
         SensorField(*args)
 
 
+@pytest.mark.parametrize("args, names", [((math.nan, 1.0, 0.5), "max_range_m"), ((5.0, math.nan, 0.5), "half_fov_rad"),
+                                         ((5.0, 1.0, math.nan), "detection_prob")])
+def test_sensor_field_names_the_value_that_is_not_a_number(args, names):
+    with pytest.raises(MeasurementError, match=names):
+        SensorField(*args)
+
+
 def test_removing_slots_marginalises_the_gaussian():
     rng = np.random.default_rng(3)
     M = 6
@@ -149,7 +156,7 @@ def test_pipeline_hands_the_field_to_the_back_end_and_reports_pruning():
     result = pipeline.run(ds, ekf)
     assert ekf._sensor_field == ds.sensor_field
     # seed 2's unknown-association run leaves duplicates that the sensor, which sees
-    # all of its field, then misses (measured: 15 of them)
+    # all of its field, then misses (measured: 12 of them)
     assert result.landmarks_pruned == len(ekf.pruned_landmark_ids()) > 0
     metrics = pipeline.compute_metrics(result, with_graph_error=False)
     assert metrics.landmarks_pruned == result.landmarks_pruned
