@@ -105,8 +105,22 @@ observation the filter saw, or, before any, ``diag(default_sigma_range_m^2,
 default_sigma_bearing_rad^2)`` from the config (course demo values by default).
 
 Estimates are filtering estimates: the trajectory is the history of filtered
-poses (each step's pose after that step's observations) with their 3x3
-covariances; earlier poses are never revised.
+poses (each pose as it was when the filter replaced it by the next, or now for
+the latest) with their 3x3 covariances; earlier poses are never revised.
+
+Several robots (``graphslam run --robot all``, issue 31 item 4), as a
+centralised filter: the state holds the latest pose of every robot beside the
+shared landmarks (:class:`filters.ekf_slam_store.SlotStore` parks the robots
+that are not moving). An odometry step may extend any robot's latest pose,
+which becomes the active one, or start a robot from the first pose of the run
+(the joint reader links every robot's start to it); a sighting of one robot by
+another (:meth:`EkfSlam.add_pose_sighting`) updates both latest poses and,
+through their correlations, the whole state, with the standard Jacobian. A
+start from the first pose takes that pose's filtered estimate and covariance
+without its correlations with the rest of the state (the filter keeps only
+each robot's latest pose): exact when the first pose is known, as the joint
+reader's starts from the truth (prior variance 1e-6), an approximation
+otherwise.
 """
 
 from __future__ import annotations
@@ -123,15 +137,15 @@ from filters.ekf_slam_association import (
     unpaired_distances,
 )
 from filters.ekf_slam_config import EkfSlamConfig
-from filters.ekf_slam_correction import kalman_update
+from filters.ekf_slam_correction import kalman_update, pose_sighting_update
 from filters.ekf_slam_store import SlotStore
 from filters.landmark_existence import MissedSightings
 from filters.numerics import Recoveries
 from filters.planar_inputs import checked_scan, initial_pose, mapped_predictions, odometry_step
-from slamcore.errors import GraphSlamError, MeasurementError
+from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import Estimate, Observation, Odometry, Prediction, SensorField
+from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction, SensorField
 from slamcore.planar.sighting_correlation import LastSightings
 
 
@@ -145,6 +159,7 @@ class EkfSlam(Backend):
 
     name = "ekf"
     supports_loop_closures = False
+    supports_pose_sightings = True
 
     def __init__(self, config: EkfSlamConfig | None = None):
         self.config = config if config is not None else EkfSlamConfig()
@@ -164,6 +179,7 @@ class EkfSlam(Backend):
         self._hist_ids: list[int] = []
         self._hist_wTb: list[np.ndarray] = []
         self._hist_cov: list[np.ndarray] = []
+        self._hist_index: dict[int, int] = {}  # pose id -> its row of the history
         self._prov_known: dict[int, int] = {}  # known-association provisional counts
         # unknown-association provisional entries
         self._prov = ProvisionalList(self.config.provisional_sightings, self._gate)
@@ -174,6 +190,10 @@ class EkfSlam(Backend):
         self.last_jcbb = None
         #: Identified observations rejected by ``known_gate_chi2_prob`` since initialisation.
         self.rejected_count = 0
+        #: Sightings of one robot by another since initialisation: used, and rejected
+        #: by the same gate as identified landmarks.
+        self.pose_sightings_used = 0
+        self.pose_sightings_rejected = 0
         #: Numerical recoveries since initialisation (:class:`filters.numerics.Recoveries`).
         self.recoveries = Recoveries()
         self._missed = self._missed_sightings()
@@ -230,15 +250,28 @@ class EkfSlam(Backend):
         self._record_pose(new=True)
 
     def _record_pose(self, new: bool) -> None:
-        pose = self._store.xbuf[:3].copy()
-        cov = self._store.Pbuf[:3, :3].copy()
+        """Append the active pose to the history (``new``), or refresh its row."""
+        self._record(self._current_pose_id(), 0, new)
+
+    def _record(self, pose_id: int, i: int, new: bool) -> None:
+        """The pose at state index ``i`` as history row of ``pose_id`` (appended if ``new``)."""
+        pose = self._store.xbuf[i : i + 3].copy()
+        cov = self._store.Pbuf[i : i + 3, i : i + 3].copy()
         if new:
-            self._hist_ids.append(self._current_pose_id())
+            self._hist_index[pose_id] = len(self._hist_ids)
+            self._hist_ids.append(pose_id)
             self._hist_wTb.append(pose)
             self._hist_cov.append(cov)
         else:
-            self._hist_wTb[-1] = pose
-            self._hist_cov[-1] = cov
+            row = self._hist_index[pose_id]
+            self._hist_wTb[row] = pose
+            self._hist_cov[row] = cov
+
+    def _record_parked(self) -> None:
+        """Refresh the history rows of the parked poses (corrections move them too)."""
+        st = self._store
+        for k, pid in enumerate(st.parked_ids):
+            self._record(pid, st.parked_index(k), new=False)
 
     def _require_init(self) -> None:
         if self._store.n == 0:
@@ -260,8 +293,13 @@ class EkfSlam(Backend):
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
+        start = self._another_robot(odometry, pose_id)
+        if start is not None:
+            self._start_robot(start, odometry, pose_id)
+            return
         u, Q = odometry_step(odometry, self._current_pose_id(), pose_id, "ekf")
         Q = Q * self.config.odometry_covariance_scale
+        self._record_pose(new=False)  # the pose as the filter leaves it
         st = self._store
         n = st.n
         x = st.xbuf
@@ -283,6 +321,68 @@ class EkfSlam(Backend):
             P[3:n, :3] = Prm.T
         self._pose_id = int(pose_id)
         self._record_pose(new=True)
+
+    def _another_robot(self, odometry: Odometry, pose_id: int) -> int | None:
+        """For odometry that extends a parked robot's latest pose: activate it (None
+        returned, the step then extends it). For odometry that starts a new robot from
+        the run's first pose: that pose's id. None for the active robot's step, and
+        for odometry that links other poses (refused by the step)."""
+        cur = self._current_pose_id()
+        other = odometry.from_id if odometry.to_id == pose_id else odometry.to_id
+        if pose_id not in (odometry.from_id, odometry.to_id) or other == cur:
+            return None
+        st = self._store
+        if other in st.parked_ids:
+            self._record_pose(new=False)  # the active pose as it is when it is parked
+            self._pose_id = st.activate(st.parked_ids.index(other), cur)
+            return None
+        if self._hist_ids and other == self._hist_ids[0] and pose_id not in self._hist_index:
+            return other
+        return None
+
+    def _start_robot(self, first_id: int, odometry: Odometry, pose_id: int) -> None:
+        """Start a robot at pose ``pose_id`` from the run's first pose (module docstring)."""
+        u, Q = odometry_step(odometry, first_id, pose_id, "ekf")
+        row = self._hist_index[first_id]
+        x0, P0 = self._hist_wTb[row], self._hist_cov[row]
+        F, G = models.compose_jacobians(x0, u)
+        cov = F @ P0 @ F.T + G @ (Q * self.config.odometry_covariance_scale) @ G.T
+        self._record_pose(new=False)
+        self._store.park_and_start(self._current_pose_id(), models.compose(x0, u), 0.5 * (cov + cov.T))
+        self._pose_id = int(pose_id)
+        self._record_pose(new=True)
+
+    def add_pose_sighting(self, sighting: PoseSighting) -> None:
+        """Range and bearing from one robot's latest pose to another's (both in the
+        state): one EKF correction of the whole state, gated as an identified landmark.
+
+        Raises:
+            UnsupportedError: a pose that is not a robot's latest (the filter keeps
+                no other).
+        """
+        self._require_init()
+        st = self._store
+        live = {self._current_pose_id(): 0}
+        live.update((pid, st.parked_index(k)) for k, pid in enumerate(st.parked_ids))
+        missing = [p for p in (sighting.from_id, sighting.to_id) if p not in live]
+        if missing or sighting.from_id == sighting.to_id:
+            raise UnsupportedError(
+                f"ekf keeps each robot's latest pose only: it cannot use a sighting of pose "
+                f"{sighting.to_id} from pose {sighting.from_id}"
+            )
+        if pose_sighting_update(
+            st,
+            live[sighting.from_id],
+            live[sighting.to_id],
+            sighting.z,
+            sighting.covariance,
+            self._known_gate,
+        ):
+            self.pose_sightings_used += 1
+        else:
+            self.pose_sightings_rejected += 1
+        self._record_pose(new=False)
+        self._record_parked()
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
@@ -339,6 +439,7 @@ class EkfSlam(Backend):
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
+        self._record_parked()
         st = self._store
         M = len(st.ids)
         lms = st.xbuf[3 : 3 + 2 * M].reshape(M, 2).copy()
@@ -424,6 +525,10 @@ class EkfSlam(Backend):
         Pmm = G_x @ P[:3, :3] @ G_x.T + G_z @ R @ G_z.T
         P[n : n + 2, :n] = Pmx
         P[:n, n : n + 2] = Pmx.T
+        if st.n > n + 2:  # the parked poses of other robots, after the landmarks
+            Pmp = G_x @ P[0:3, n + 2 : st.n]
+            P[n : n + 2, n + 2 : st.n] = Pmp
+            P[n + 2 : st.n, n : n + 2] = Pmp.T
         P[n : n + 2, n : n + 2] = 0.5 * (Pmm + Pmm.T)
         st.note_variances(float(P[n, n]), float(P[n + 1, n + 1]))
         self._next_id = max(self._next_id, lid + 1)

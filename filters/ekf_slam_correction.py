@@ -263,3 +263,42 @@ def _innovation_cov(HPH, Rl: list) -> tuple[float, float, float]:
     """``H P H^T + R`` symmetrised, as ``(s00, s01, s11)``."""
     (r00, r01), (r10, r11) = Rl
     return HPH[0][0] + r00, 0.5 * ((HPH[0][1] + r01) + (HPH[1][0] + r10)), HPH[1][1] + r11
+
+
+def pose_sighting_update(st: SlotStore, i: int, j: int, z: np.ndarray, R: np.ndarray, gate: float) -> bool:
+    """One EKF correction of ``st`` by the range and bearing ``z`` (2,) (covariance ``R``)
+    of the pose at state index ``j`` seen from the pose at index ``i`` (several robots,
+    :mod:`filters.ekf_slam`), with the standard Jacobian.
+
+    Written plainly (O(n^2) numpy over the whole ``P``): robots see each other a few
+    hundred times a run, against the landmark correction's thousands, which
+    :func:`kalman_update` makes fast. The OC projection is not applied: it is made
+    for the robot-landmark pair of that update. Returns False, leaving the state
+    untouched, when the squared Mahalanobis distance of the innovation exceeds
+    ``gate`` or its covariance is not positive definite.
+    """
+    n, x, P = st.n, st.xbuf, st.Pbuf
+    pred = range_bearing(x[i : i + 3].tolist(), x[j : j + 2].tolist())
+    if pred is None:
+        return False
+    h = np.array(pred[2])  # (2, 5) over (x_i, y_i, theta_i, x_j, y_j)
+    J = np.array((i, i + 1, i + 2, j, j + 1))
+    PJ = P[J, :n]  # (5, n): P[:, J] transposed (P is symmetric)
+    HP = h @ PJ  # (2, n)
+    S = HP[:, J] @ h.T + np.asarray(R, float)
+    S = 0.5 * (S + S.T)
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return False
+    nu = np.array((z[0] - pred[0], _wrap(float(z[1]) - pred[1])))
+    w = np.linalg.solve(L, nu)
+    if float(w @ w) > gate:
+        return False
+    M = np.linalg.solve(L, HP)  # (2, n): P -= M^T M, x += M^T w
+    x[:n] += M.T @ w
+    for k in (i + 2, j + 2):  # both headings move (the seen one through P)
+        x[k] = _wrap(float(x[k]))
+    P[:n, :n] -= M.T @ M
+    P[:n, :n] = 0.5 * (P[:n, :n] + P[:n, :n].T)
+    return True

@@ -18,6 +18,16 @@ landmark does not fit, :meth:`SlotStore.open_slot` doubles the capacity and
 copies the used ``n x n`` block once (amortised O(1) copies per landmark). The
 working ``x`` and ``P`` are the views ``xbuf[:n]`` and ``Pbuf[:n, :n]``;
 entries beyond ``n`` are zero.
+
+Several robots (``--robot all``): the state holds one pose per robot, the
+latest of each. The robot that moves now is *active*, its pose at ``x[:3]``
+where every step of the filter reads it; the others are *parked* after the
+landmarks, ``x = [active, m1, ..., mM, parked_1, ..., parked_R]``
+(:meth:`SlotStore.park_and_start`, :meth:`SlotStore.activate`). A parked pose
+is a state entry like any other: every correction moves it through its
+correlations, and nothing else touches it. The landmarks keep indices
+``3 + 2 k`` (every step's indexing); a new landmark moves the parked poses
+down by two entries.
 """
 
 from __future__ import annotations
@@ -48,10 +58,13 @@ class SlotStore:
         ids: landmark id of each slot; slot: slot of each landmark id.
         m_first: first estimate (2,) of each slot's landmark (OC).
         x_pred: robot pose predicted for this step (OC).
+        parked_ids: pose id of each parked pose, in state order (several robots).
+        parked_pred: ``x_pred`` of each parked pose, restored when it is activated.
     """
 
     def __init__(self, capacity: int):
         self.cap = int(capacity)
+        self._pose_cap = 0  # parked poses the buffers hold
         dim = padded(3 + 2 * self.cap)  # the downdate's padding fits (filters.ekf_slam_update)
         self.xbuf = np.zeros(dim)
         self.Pbuf = np.zeros((dim, dim))
@@ -62,6 +75,8 @@ class SlotStore:
         self.slot: dict[int, int] = {}
         self.m_first: list[np.ndarray] = []
         self.x_pred = np.zeros(3)
+        self.parked_ids: list[int] = []
+        self.parked_pred: list[np.ndarray] = []
 
     def _bind(self) -> None:
         """The BLAS downdate and the diagonal view bound to the current ``Pbuf``."""
@@ -108,15 +123,69 @@ class SlotStore:
         :attr:`pmax_ub` with their variances.
         """
         if len(self.ids) >= self.cap:
-            self._grow()
-        n = self.n
+            self._grow(2 * self.cap, self._pose_cap)
+        n = 3 + 2 * len(self.ids)
+        if self.parked_ids:
+            self._move_parked(n, n + 2)
         self.xbuf[n : n + 2] = m
         self.m_first.append(self.xbuf[n : n + 2].copy())
         slot = len(self.ids)
         self.ids.append(lid)
         self.slot[lid] = slot
-        self.n = n + 2
+        self.n += 2
         return slot
+
+    def _move_parked(self, start: int, to: int) -> None:
+        """Move the parked poses' entries (from ``start`` to ``n``) of ``x`` and ``P`` to
+        begin at ``to`` instead; the entries between are left zero. O(n^2)."""
+        n, shift = self.n, to - start
+        idx = np.r_[0:start, to : n + shift]
+        x = self.xbuf[:n].copy()
+        P = self.Pbuf[:n, :n].copy()
+        size = max(n, n + shift)
+        self.xbuf[:size] = 0.0
+        self.Pbuf[:size, :size] = 0.0
+        self.xbuf[idx] = x
+        self.Pbuf[np.ix_(idx, idx)] = P
+
+    def parked_index(self, k: int) -> int:
+        """State index of parked pose ``k``'s first entry."""
+        return 3 + 2 * len(self.ids) + 3 * k
+
+    def park_and_start(self, active_id: int, wTb: np.ndarray, cov: np.ndarray) -> None:
+        """Park the active pose (id ``active_id``) after the others and make ``wTb`` (3,)
+        the active pose, with covariance ``cov`` (3, 3) and no correlation with the
+        rest of the state (a robot's start, known independently of it)."""
+        if len(self.parked_ids) >= self._pose_cap:
+            self._grow(self.cap, max(2, 2 * self._pose_cap))
+        n, x, P = self.n, self.xbuf, self.Pbuf
+        P[n : n + 3, :n] = P[:3, :n]
+        P[:n, n : n + 3] = P[:n, :3]
+        P[n : n + 3, n : n + 3] = P[:3, :3]
+        x[n : n + 3] = x[:3]
+        self.parked_ids.append(int(active_id))
+        self.parked_pred.append(self.x_pred.copy())
+        self.n = n + 3
+        P[:3, : self.n] = 0.0
+        P[: self.n, :3] = 0.0
+        P[:3, :3] = cov
+        x[:3] = wTb
+        x[2] = wrap_angle(float(wTb[2]))
+        self.x_pred = x[:3].copy()
+        self.note_variances(*np.diagonal(cov).tolist())
+
+    def activate(self, k: int, active_id: int) -> int:
+        """Swap parked pose ``k`` with the active pose (id ``active_id``, parked in its
+        place); returns the id of the pose now active. O(n^2)."""
+        n, j = self.n, self.parked_index(k)
+        perm = np.arange(n)
+        perm[0:3], perm[j : j + 3] = np.arange(j, j + 3), np.arange(3)
+        self.xbuf[:n] = self.xbuf[perm]
+        self.Pbuf[:n, :n] = self.Pbuf[np.ix_(perm, perm)]
+        now = self.parked_ids[k]
+        self.parked_ids[k] = int(active_id)
+        self.x_pred, self.parked_pred[k] = self.parked_pred[k], self.x_pred
+        return now
 
     def remove_slots(self, slots: Sequence[int]) -> None:
         """Drop the landmarks of ``slots`` from the state: marginalise them out of the
@@ -127,7 +196,8 @@ class SlotStore:
         if not drop:
             return
         keep = [k for k in range(len(self.ids)) if k not in drop]
-        idx = np.array([0, 1, 2] + [3 + 2 * k + j for k in keep for j in (0, 1)])
+        parked = list(range(3 + 2 * len(self.ids), self.n))
+        idx = np.array([0, 1, 2] + [3 + 2 * k + j for k in keep for j in (0, 1)] + parked)
         x = self.xbuf[idx]
         P = self.Pbuf[np.ix_(idx, idx)]
         n_old, self.n = self.n, idx.size
@@ -139,15 +209,14 @@ class SlotStore:
         self.m_first = [self.m_first[k] for k in keep]
         self.slot = {lid: k for k, lid in enumerate(self.ids)}
 
-    def _grow(self) -> None:
-        new_cap = 2 * self.cap
-        dim = padded(3 + 2 * new_cap)
+    def _grow(self, cap: int, pose_cap: int) -> None:
+        dim = padded(3 + 2 * cap + 3 * pose_cap)
         n = self.n
         xbuf = np.zeros(dim)
         xbuf[:n] = self.xbuf[:n]
         Pbuf = np.zeros((dim, dim))
         Pbuf[:n, :n] = self.Pbuf[:n, :n]
-        self.xbuf, self.Pbuf, self.cap = xbuf, Pbuf, new_cap
+        self.xbuf, self.Pbuf, self.cap, self._pose_cap = xbuf, Pbuf, cap, pose_cap
         self._bind()
 
     def note_variances(self, *variances: float) -> None:

@@ -114,6 +114,7 @@ TABLE: tuple[BackendDescriptor, ...] = (
         landmarks=Implementation(
             "filters.ekf_slam:EkfSlam",
             _EKF_CONFIG,
+            several_robots=True,
             filtering=True,
             localiser="filters.ekf_localise:EkfLocaliser",
         ),

@@ -18,8 +18,9 @@ then merged in time order into one stream:
   within the landmark calibration, which is used for both;
 - ``Dataset.agents`` names each robot's poses so that each is scored on its own.
 
-Only back ends that keep every robot's pose can run it (iSAM2); the filters keep
-one robot's pose and say so.
+Only back ends that keep every robot's pose can run it: iSAM2, and the EKF as a
+centralised filter (every robot's latest pose in its state, :mod:`filters.ekf_slam`);
+FastSLAM keeps one robot's pose and says so.
 """
 
 from __future__ import annotations
