@@ -206,6 +206,11 @@ class EkfSlam(Backend):
         return len(self._store.ids)
 
     @property
+    def num_parked_poses(self) -> int:
+        """Other robots' latest poses held after the landmarks (several robots)."""
+        return len(self._store.parked_ids)
+
+    @property
     def capacity(self) -> int:
         """Landmarks the buffers hold before the next doubling."""
         return self._store.cap

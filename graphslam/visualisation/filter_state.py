@@ -7,7 +7,8 @@ functions compute, so the arithmetic can be tested without a recording.
 The EKF image is the covariance as correlation coefficients,
 ``rho_ij = P_ij / sqrt(P_ii P_jj)``, one row and column per *entity*: the pose
 (its 3 state rows) then each landmark (2 rows) in state order, which is the
-order landmarks entered the map. Each cell is the largest ``|rho|`` between the
+order landmarks entered the map, and, with several robots, the other robots'
+poses last. Each cell is the largest ``|rho|`` between the
 two entities' coordinates, so the image is ``(1 + M) x (1 + M)`` in ``[0, 1]``
 with ones on the diagonal. Beyond :data:`MAX_IMAGE_SIDE` entities, blocks of
 consecutive entities are merged by the same maximum (the image stays small in
@@ -59,38 +60,36 @@ def _block_max(a: np.ndarray, block: int) -> np.ndarray:
     return rows.reshape(k, k, block).max(axis=2)
 
 
-def _merge_pairs(a: np.ndarray, start: int, width: int, axis: int) -> np.ndarray:
-    """Elementwise maximum of the ``width`` interleaved slices from ``start`` on ``axis``
-    (one landmark's coordinates into one row or column); strided views, no copy."""
-    pick = [slice(None)] * a.ndim
-    pick[axis] = slice(start, None, width)
-    out = a[tuple(pick)]
-    for j in range(1, width):
-        pick[axis] = slice(start + j, None, width)
-        out = np.maximum(out, a[tuple(pick)])
-    return out
-
-
 def entity_image(
-    abs_rho: np.ndarray, pose_dim: int = 3, landmark_dim: int = 2, max_side: int = MAX_IMAGE_SIDE
+    abs_rho: np.ndarray,
+    pose_dim: int = 3,
+    landmark_dim: int = 2,
+    max_side: int = MAX_IMAGE_SIDE,
+    parked_poses: int = 0,
 ) -> np.ndarray:
     """(k, k) float32 image of the largest ``|rho|`` between entities (module docstring).
 
     Args:
-        abs_rho: (n, n) ``|correlation|`` of the state ``[pose, m1, m2, ...]``.
+        abs_rho: (n, n) ``|correlation|`` of the state ``[pose, m1, m2, ...]``, or
+            ``[pose, m1, ..., mM, parked_1, ..., parked_R]`` with ``parked_poses = R``
+            other robots' poses after the landmarks (the EKF with several robots):
+            they are the image's last entities.
         max_side: at most this many rows; above it, ``ceil(entities / max_side)``
             consecutive entities share a cell.
     """
     n = len(abs_rho)
-    if n < pose_dim or (n - pose_dim) % landmark_dim:
-        raise ValueError(f"state of size {n} is not {pose_dim} + {landmark_dim} x landmarks")
-    m = (n - pose_dim) // landmark_dim
-    rows = np.empty((1 + m, n), dtype=np.float32)  # entity rows, state columns
-    rows[0] = abs_rho[:pose_dim].max(axis=0)
-    rows[1:] = _merge_pairs(abs_rho, pose_dim, landmark_dim, axis=0)
-    image = np.empty((1 + m, 1 + m), dtype=np.float32)
-    image[:, 0] = rows[:, :pose_dim].max(axis=1)
-    image[:, 1:] = _merge_pairs(rows, pose_dim, landmark_dim, axis=1)
+    rest = n - pose_dim * (1 + parked_poses)
+    if rest < 0 or rest % landmark_dim:
+        what = f"{pose_dim} + {landmark_dim} x landmarks" + (
+            f" + {parked_poses} x {pose_dim}" if parked_poses else ""
+        )
+        raise ValueError(f"state of size {n} is not {what}")
+    m = rest // landmark_dim
+    end = pose_dim + landmark_dim * m
+    starts = np.r_[0, pose_dim + landmark_dim * np.arange(m), end + pose_dim * np.arange(parked_poses)]
+    # the largest |rho| over each entity's rows, then over each entity's columns
+    rows = np.maximum.reduceat(abs_rho, starts.astype(np.intp), axis=0)
+    image = np.maximum.reduceat(rows, starts.astype(np.intp), axis=1).astype(np.float32)
     block = -(-len(image) // max_side)
     return _block_max(image, block) if block > 1 else image
 
@@ -119,7 +118,9 @@ def correlation_snapshot(ekf: EkfSlam, max_side: int = MAX_IMAGE_SIDE) -> Correl
     """The EKF's correlation image now. O(n^2): the cost of one observation update."""
     abs_rho = np.abs(correlation_matrix(ekf.state_covariance()))
     return CorrelationSnapshot(
-        entity_image(abs_rho, max_side=max_side), mean_off_diagonal(abs_rho), ekf.num_landmarks
+        entity_image(abs_rho, max_side=max_side, parked_poses=ekf.num_parked_poses),
+        mean_off_diagonal(abs_rho),
+        ekf.num_landmarks,
     )
 
 

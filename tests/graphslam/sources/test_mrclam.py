@@ -433,14 +433,16 @@ def test_all_robots_in_one_ekf_beat_each_robots_own_ekf_run(mrclam):
         assert joint.agents[f"robot {robot}"]["ate_rmse_m"] < alone.ate_rmse_m, robot
 
 
-def test_all_robots_recording_draws_one_colour_per_robot(mrclam, tmp_path):
+@pytest.mark.parametrize("backend", ["isam2", "ekf"])
+def test_all_robots_recording_draws_one_colour_per_robot(mrclam, tmp_path, backend):
+    """The EKF's recording also holds its correlation image, other robots' poses last."""
     from tests.recordings import entity_rows
 
     out = tmp_path / "rec"
     assert main(["run", "--dataset", str(mrclam), "--robot", "all", "--max-steps", "300",
-                 "--quiet", "--out", str(out)]) == 0
-    strips = entity_rows(out / "run.rrd", "/world/isam2/trajectory", "LineStrips2D:strips")
-    colors = entity_rows(out / "run.rrd", "/world/isam2/trajectory", "LineStrips2D:colors")
+                 "--backend", backend, "--quiet", "--out", str(out)]) == 0
+    strips = entity_rows(out / "run.rrd", f"/world/{backend}/trajectory", "LineStrips2D:strips")
+    colors = entity_rows(out / "run.rrd", f"/world/{backend}/trajectory", "LineStrips2D:colors")
     assert len(strips[-1][1]) == 5 and len(set(colors[-1][1])) == 5
 
 

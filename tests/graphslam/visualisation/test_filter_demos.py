@@ -81,6 +81,18 @@ def test_correlation_matrix_and_entity_image_by_brute_force():
         entity_image(a[:8, :8])
 
 
+def test_entity_image_puts_other_robots_poses_last():
+    """The EKF with several robots: ``[pose, m1, m2, parked pose]``, four entities."""
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((10, 10))
+    a = np.abs(correlation_matrix(A @ A.T + 0.1 * np.eye(10)))
+    blocks = [range(0, 3), range(3, 5), range(5, 7), range(7, 10)]
+    expect = np.array([[max(a[i, j] for i in ra for j in rb) for rb in blocks] for ra in blocks])
+    assert np.allclose(entity_image(a, parked_poses=1), expect, atol=FLOAT32_TOL)
+    with pytest.raises(ValueError, match="not 3 \\+ 2 x landmarks \\+ 2 x 3"):
+        entity_image(a, parked_poses=2)
+
+
 def test_ekf_recording_has_the_correlation_image(tmp_path):
     steps, every = 61, 15  # the last step (60) is a logged one
     path, ekf, _ = _record(tmp_path, "ekf", steps, every)
