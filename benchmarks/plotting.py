@@ -81,9 +81,12 @@ def _bars(ax, panel: Panel) -> None:
         cats += [str(c) for c in xs if str(c) not in cats]
     n = max(len(panel.series), 1)
     width = 0.8 / n
+    # past the default cycle's 10 colours, 20 distinct ones: no two series look alike
+    palette = _pyplot().get_cmap("tab20") if n > 10 else None
     for i, (label, (xs, ys)) in enumerate(panel.series.items()):
         pos = [cats.index(str(c)) - 0.4 + width * (i + 0.5) for c in xs]
-        ax.bar(pos, [_finite(y) for y in ys], width, label=label)
+        colour = None if palette is None else palette(i % 20)
+        ax.bar(pos, [_finite(y) for y in ys], width, label=label, color=colour)
     ax.set_xticks(range(len(cats)))
     ax.set_xticklabels(cats, rotation=20 if sum(len(c) for c in cats) > 40 else 0,
                        ha="right" if sum(len(c) for c in cats) > 40 else "center", fontsize=8)
