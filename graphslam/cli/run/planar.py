@@ -91,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
 
         pmap = planar_maps.load_run_map(args.map, dataset.name, dataset.seed, config)
         backend = planar_maps.localiser(args.backend, pmap, config, overrides)
+        if dataset.agents and not backend.supports_pose_sightings:
+            raise GraphSlamError(
+                f"--map with --robot all: the {args.backend} localiser keeps one robot's pose; "
+                "localising every robot on a map needs the isam2 back end"
+            )
     else:
         backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{dataset.name}-{backend.name}"

@@ -433,6 +433,21 @@ def test_all_robots_in_one_ekf_beat_each_robots_own_ekf_run(mrclam):
         assert joint.agents[f"robot {robot}"]["ate_rmse_m"] < alone.ate_rmse_m, robot
 
 
+def test_a_joint_ekf_map_is_saved_and_its_single_robot_localiser_refused(mrclam, tmp_path, capsys):
+    """The EKF's map of every robot is a map like any other; localising on it keeps one
+    robot's pose in the EKF localiser, so --robot all with --map says so (it ran into the
+    odometry check of another robot's start, a line that named no cause)."""
+    saved = tmp_path / "map"
+    assert main(["run", "--dataset", str(mrclam), "--robot", "all", "--backend", "ekf",
+                 "--max-steps", "300", "--rerun", "off", "--quiet", "--save-map", str(saved),
+                 "--out", str(tmp_path / "run")]) == 0
+    capsys.readouterr()
+    line = _one_line_error(capsys, "run", "--dataset", str(mrclam), "--robot", "all",
+                           "--backend", "ekf", "--map", str(saved), "--rerun", "off",
+                           "--out", str(tmp_path / "loc"))
+    assert "--map with --robot all: the ekf localiser keeps one robot's pose" in line
+
+
 @pytest.mark.parametrize("backend", ["isam2", "ekf"])
 def test_all_robots_recording_draws_one_colour_per_robot(mrclam, tmp_path, backend):
     """The EKF's recording also holds its correlation image, other robots' poses last."""
