@@ -415,6 +415,30 @@ def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
     assert "keeps one robot's pose" in line
 
 
+#: Largest change of a robot's joint iSAM2 ATE that seeding another robot's new pose
+#: from its linearisation point may make, metres (measured 3e-5 over 1200 frames).
+SEED_ATE_TOL_M = 1e-4
+
+
+def test_joint_isam2_seeds_another_robots_pose_from_its_linearisation_point(mrclam):
+    """Starting another robot's new pose from iSAM2's linearisation point instead of its
+    estimate (a back-substitution deep in the tree, half the joint run) leaves each
+    robot's ATE within SEED_ATE_TOL_M."""
+    from graphslam.backends.planar.isam2 import Isam2Backend
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    class EstimateSeeded(Isam2Backend):
+        def _seed(self, pose_id):
+            return self._pose(pose_id)
+
+    ds = read_mrclam_all(mrclam, MrclamConfig(all_robots=True))
+    ours, base = (pipeline.compute_metrics(pipeline.run(ds, b, max_steps=1200), with_graph_error=False)
+                  for b in (registry.make_backend("isam2"),
+                            EstimateSeeded(registry.make_backend("isam2").config)))
+    for name, a in ours.agents.items():
+        assert a["ate_rmse_m"] == pytest.approx(base.agents[name]["ate_rmse_m"], abs=SEED_ATE_TOL_M)
+
+
 def test_all_robots_in_one_ekf_beat_each_robots_own_ekf_run(mrclam):
     """Issue 31 item 4, the EKF as a centralised filter: with the shared landmarks and the
     3981 sightings of one robot by another, every robot's ATE is below its own run's
