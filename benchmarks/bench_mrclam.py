@@ -43,6 +43,7 @@ from plotting import Panel, save_figure  # noqa: E402
 from graphslam import registry  # noqa: E402
 from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
+from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam  # noqa: E402
 from graphslam.sources.planar.mrclam_joint import read_mrclam_all  # noqa: E402
 
@@ -54,8 +55,8 @@ BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 def one_run(dataset, backend: str, association: str, max_steps: int | None) -> dict:
     overrides = {"association": association}
     t0 = time.perf_counter()
-    result = pipeline.run(dataset, registry.make_backend(backend, overrides=overrides),
-                          max_steps=max_steps)
+    result = whole(pipeline.run(dataset, registry.make_backend(backend, overrides=overrides),
+                                max_steps=max_steps))  # a cut run is no row
     m = pipeline.compute_metrics(result, with_graph_error=False)
     est = result.estimate
     return {"backend": backend, "association": association, "ate_m": m.ate_rmse_m,
@@ -85,7 +86,7 @@ def seed_spread(data: Path, robots: list[int], seeds: list[int]) -> dict:
             for seed in seeds:
                 backend = registry.make_backend("fastslam2", overrides={"association": association,
                                                                          "seed": seed})
-                result = pipeline.run(dataset, backend)
+                result = whole(pipeline.run(dataset, backend))
                 ates.append(pipeline.compute_metrics(result, with_graph_error=False).ate_rmse_m)
             per[association] = {"ate_m": ates, "median_m": float(np.median(ates)),
                                 "min_m": float(np.min(ates)), "max_m": float(np.max(ates))}
@@ -102,7 +103,7 @@ def seed_spread(data: Path, robots: list[int], seeds: list[int]) -> dict:
 def joint_run(dataset, backend: str, rows: list[dict]) -> dict:
     """Every robot in one estimate (known ids), each robot's ATE printed beside its own run's."""
     t0 = time.perf_counter()
-    result = pipeline.run(dataset, registry.make_backend(backend))
+    result = whole(pipeline.run(dataset, registry.make_backend(backend)))
     m = pipeline.compute_metrics(result, with_graph_error=False)
     out = {"agents": m.agents, "map_rmse_m": m.map_rmse_m,
            "landmarks_recovered": m.landmarks_recovered, "wall_s": time.perf_counter() - t0}
