@@ -17,9 +17,10 @@ included), their ratio, the final cost over the whole graph (the one that
 reaches the lower optimum) and each robot's ATE for both, in the JSON. One robot's runs take the first branch only, so
 they are unchanged (``benchmarks/check_digests.py``).
 
-    python benchmarks/bench_isam2_joint.py [--frames 4000] [--repeats 1] [--out FILE.json]
+    python benchmarks/bench_isam2_joint.py [--frames 4000] [--repeats 1] [--quick] [--out FILE.json]
 
-``--frames 0``: the whole stream (15 745 frames, about 6 min for the baseline).
+``--frames 0``: the whole stream (15 745 frames, about 5 min in all); ``--quick``: the
+first 300 frames.
 """
 
 from __future__ import annotations
@@ -71,10 +72,11 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--frames", type=int, default=4000, help="frames of the joint stream (0: all)")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--quick", action="store_true", help="the first 300 frames (a smoke run)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "isam2_joint.json")
     args = ap.parse_args(argv)
     dataset = read_mrclam_all(args.data, MrclamConfig(all_robots=True))
-    steps = args.frames or None
+    steps = 300 if args.quick else (args.frames or None)
     routes = {
         "ours": lambda: registry.make_backend("isam2"),
         "estimate": lambda: EstimateSeeded(registry.make_backend("isam2").config),

@@ -73,6 +73,19 @@ weighted-mean particle pose at each step (after that step's observations, before
 resampling), with the weighted particle covariance of each step; earlier poses
 are never revised. Landmarks are those of the highest-weight particle.
 
+Several robots (``graphslam run --robot all``): every particle holds every
+robot's latest pose beside its landmark map (the robots that do not move are
+parked in :attr:`filters.fastslam_particles.ParticleSet.parked`), so the map a
+particle builds from all robots' sightings is conditioned on all their paths, as
+in one robot's FastSLAM. An odometry step may extend any robot's latest pose, or
+start a robot from the run's first pose: its poses are then drawn around that
+pose's weighted mean, moved by the odometry, with that pose's cloud covariance
+propagated (the joint reader starts every robot there, from the truth). A
+sighting of one robot by another weighs each particle by its likelihood under the
+particle's two poses (no gate, as known landmarks have none) and may resample.
+A parked robot's history entry is refreshed when it moves again and at
+:meth:`FastSlam.estimate`: its weighted mean changes with the weights.
+
 All randomness comes from ``np.random.default_rng(seed)``: same seed and
 inputs, same bits.
 """
@@ -89,10 +102,10 @@ from filters.fastslam_particles import ParticleSet
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
 from filters.planar_inputs import checked_scan, initial_pose, odometry_step
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import Estimate, Observation, Odometry, Prediction
+from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction
 
 __all__ = ["FastSlam"]
 
@@ -101,6 +114,7 @@ class FastSlam(Backend):
     """FastSLAM 1.0 / 2.0 back end (``name`` "fastslam1" / "fastslam2")."""
 
     supports_loop_closures = False
+    supports_pose_sightings = True
 
     def __init__(self, config: FastSlamConfig | None = None):
         self.config = config if config is not None else FastSlamConfig()
@@ -111,6 +125,7 @@ class FastSlam(Backend):
         self._pose_set: set[int] = set()
         self._hist_mean: list[np.ndarray] = []
         self._hist_cov: list[np.ndarray] = []
+        self._hist_row: dict[int, int] = {}  # pose id -> its row of the history
         self._dirty = False
         self._best = 0
         self._last_associations: list[int | None] = []
@@ -135,12 +150,69 @@ class FastSlam(Backend):
         cur = self._pose_ids[-1]
         if pose_id in self._pose_set:
             raise GraphSlamError(f"{self.name}: pose {pose_id} added twice")
+        other = odometry.from_id if odometry.to_id == pose_id else odometry.to_id
+        particles = self._particles
+        if pose_id in (odometry.from_id, odometry.to_id) and other != cur:
+            if other in particles.parked:  # another robot moves: its poses become the moving ones
+                self._close_step()
+                particles.activate(other, cur)
+                self._append_pose(pose_id, odometry, other)
+                return
+            if other == self._pose_ids[0]:  # a robot starts from the run's first pose
+                self._start_robot(odometry, pose_id)
+                return
         u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._close_step()
+        particles.move(u, cov)
+        self._pose_ids.append(int(pose_id))
+        self._pose_set.add(int(pose_id))
+        self._dirty = True
+
+    def _append_pose(self, pose_id: int, odometry: Odometry, cur: int) -> None:
+        """The motion step from ``cur``, the moving robot's latest pose, to ``pose_id``."""
+        u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._particles.move(u, cov)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
         self._dirty = True
+
+    def _start_robot(self, odometry: Odometry, pose_id: int) -> None:
+        """Several robots: a robot starting at ``pose_id``, linked to the run's first pose."""
+        first = self._pose_ids[0]
+        u, Q = odometry_step(odometry, first, pose_id, self.name)
+        self._close_step()  # the first pose's entry exists from here on
+        mean0, cov0 = self._hist_mean[0], self._hist_cov[0]
+        F, G = models.compose_jacobians(mean0, u)
+        Q = Q * self.config.odometry_covariance_scale
+        self._particles.park_and_start(
+            self._pose_ids[-1], models.compose(mean0, u), sym(F @ cov0 @ F.T + G @ Q @ G.T)
+        )
+        self._pose_ids.append(int(pose_id))
+        self._pose_set.add(int(pose_id))
+        self._dirty = True
+
+    def add_pose_sighting(self, sighting: PoseSighting) -> None:
+        """Several robots: weigh the particles by a sighting of one robot's latest pose
+        from another's (module docstring), then resample if the weights call for it.
+
+        Raises:
+            UnsupportedError: a pose that is not a robot's latest (no particle holds it).
+        """
+        self._require_init()
+        particles = self._particles
+        live = {self._pose_ids[-1]: particles.poses, **particles.parked}
+        a, b = live.get(sighting.from_id), live.get(sighting.to_id)
+        if a is None or b is None or sighting.from_id == sighting.to_id:
+            raise UnsupportedError(
+                f"{self.name} keeps each robot's latest pose only: it cannot use a sighting of "
+                f"pose {sighting.to_id} from pose {sighting.from_id}"
+            )
+        particles.weigh_sighting(a, b, sighting.z, sighting.covariance)
+        self._best = int(np.argmax(particles.logw))
+        w = particles.weights
+        self._close_step(force=True, w=w)
+        self._refresh_parked(w)
+        self._maybe_resample(w)
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
@@ -190,6 +262,7 @@ class FastSlam(Backend):
     def estimate(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
         self._close_step()
+        self._refresh_parked()
         ids, means, covs = self._particles.maps.landmarks_of(self._best)
         return Estimate(
             pose_ids=np.array(self._pose_ids, dtype=np.int64),
@@ -270,9 +343,16 @@ class FastSlam(Backend):
         if len(self._hist_mean) == k:
             self._hist_mean[-1], self._hist_cov[-1] = mean, cov
         else:
+            self._hist_row[self._pose_ids[-1]] = len(self._hist_mean)
             self._hist_mean.append(mean)
             self._hist_cov.append(cov)
         self._dirty = False
+
+    def _refresh_parked(self, w: np.ndarray | None = None) -> None:
+        """History entries of the parked robots' latest poses, at the current weights."""
+        for pid, poses in self._particles.parked.items():
+            row = self._hist_row[pid]
+            self._hist_mean[row], self._hist_cov[row] = self._particles.cloud_stats(w, poses)
 
     def _maybe_resample(self, w: np.ndarray) -> None:
         ess = 1.0 / float(np.sum(w * w))

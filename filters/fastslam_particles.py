@@ -66,6 +66,9 @@ class ParticleSet:
         self._rows = np.arange(self.n_particles)
         self._prior: tuple[np.ndarray, np.ndarray] | None = None  # 2.0: (x_hat, Q)
         self._next_id = 0  # unknown association: ids handed out
+        #: Several robots: each other robot's latest pose id -> its (N, 3) particle poses
+        #: (every particle holds every robot's latest pose; :attr:`poses` is the one moving).
+        self.parked: dict[int, np.ndarray] = {}
 
     # ------------------------------------------------------------- draws
     def draw_initial(self, wTb: np.ndarray, cov: np.ndarray) -> None:
@@ -85,11 +88,41 @@ class ParticleSet:
             self._prior = (models.compose(self.poses, u), rotated_xy(cov, self.poses[:, 2]))
         self.poses = models.compose(self.poses, u + eps)
 
+    def park_and_start(self, active_id: int, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Several robots: park the moving robot's poses under ``active_id`` and draw the
+        poses of a robot that starts at ``mean`` (3,) with covariance ``cov`` (3, 3)."""
+        self.parked[int(active_id)] = self.poses
+        N = self.n_particles
+        self.poses = sample_gaussian(np.broadcast_to(mean, (N, 3)), np.broadcast_to(cov, (N, 3, 3)), self.rng)
+        self._prior = None
+
+    def activate(self, pose_id: int, active_id: int) -> None:
+        """Several robots: the parked poses of ``pose_id`` move now; the moving robot's
+        are parked under ``active_id``."""
+        moving = self.parked.pop(int(pose_id))
+        self.parked[int(active_id)] = self.poses
+        self.poses = moving
+        self._prior = None
+
+    def weigh_sighting(
+        self, from_poses: np.ndarray, to_poses: np.ndarray, z: np.ndarray, R: np.ndarray
+    ) -> None:
+        """Several robots: weigh each particle by the likelihood of the range and bearing
+        ``z`` (2,) (covariance ``R``) of its ``to_poses`` (N, 3) seen from its
+        ``from_poses`` (N, 3); the log-weights are normalised after."""
+        nu = models.innovation(z, models.observe(from_poses, to_poses[:, :2]))
+        L = np.linalg.cholesky(sym(R))
+        w = np.linalg.solve(L, nu.T)  # (2, N)
+        self.logw += -0.5 * np.sum(w * w, axis=0) - math.log(L[0, 0] * L[1, 1]) - _LOG_2PI
+        self.logw -= logsumexp(self.logw)
+
     def resample(self, w: np.ndarray) -> np.ndarray:
         """Low-variance resampling by the weights ``w``; uniform weights after. Returns
         the parent of each new particle (N,)."""
         parents = low_variance_resample(w, self.rng)
         self.poses = self.poses[parents]
+        for pid, poses in self.parked.items():
+            self.parked[pid] = poses[parents]
         self.maps.resample(parents)
         self.logw = np.full(self.n_particles, -math.log(self.n_particles))
         return parents
@@ -101,10 +134,13 @@ class ParticleSet:
         w = np.exp(self.logw - self.logw.max())
         return w / w.sum()
 
-    def cloud_stats(self, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean pose (3,) and covariance (3, 3) of the poses (weights ``w``)."""
+    def cloud_stats(
+        self, w: np.ndarray | None = None, poses: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean pose (3,) and covariance (3, 3) of the moving robot's poses, or
+        of ``poses`` (N, 3) (a parked robot's) (weights ``w``)."""
         w = self.weights if w is None else w
-        x = self.poses
+        x = self.poses if poses is None else poses
         th = x[:, 2]
         mean = np.array([w @ x[:, 0], w @ x[:, 1], math.atan2(float(w @ np.sin(th)), float(w @ np.cos(th)))])
         d = x - mean

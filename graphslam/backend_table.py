@@ -41,8 +41,6 @@ class Implementation:
         localiser: ``"module:Class"`` of its localisation-only variant on a fixed
             2-D map (``graphslam run --map``), built as
             ``Class(ids, landmarks_w, landmark_cov, config)``; None when it has none.
-        several_robots: it takes sightings between poses of different robots
-            (``--robot all``: every robot in one estimate).
         filtering: a filter: its pose covariance exists only at the time and is
             kept frame by frame; a smoother's comes from its marginals afterwards.
         run_overrides: ``"module:function"`` turning a visual run's situation
@@ -55,7 +53,6 @@ class Implementation:
     fixed: dict = field(default_factory=dict)
     seeded: bool = False
     localiser: str | None = None
-    several_robots: bool = False
     filtering: bool = False
     run_overrides: str | None = None
 
@@ -97,7 +94,6 @@ TABLE: tuple[BackendDescriptor, ...] = (
         landmarks=Implementation(
             "graphslam.backends.planar.isam2:Isam2Backend",
             _ISAM2_CONFIG,
-            several_robots=True,
             localiser="graphslam.backends.planar.isam2_localise:Isam2Localiser",
         ),
         images=Implementation(
@@ -114,7 +110,6 @@ TABLE: tuple[BackendDescriptor, ...] = (
         landmarks=Implementation(
             "filters.ekf_slam:EkfSlam",
             _EKF_CONFIG,
-            several_robots=True,
             filtering=True,
             localiser="filters.ekf_localise:EkfLocaliser",
         ),

@@ -110,21 +110,6 @@ def check_no_polish(name: str) -> None:
         )
 
 
-def holds_several_robots(name: str) -> bool:
-    """Whether 2-D back end ``name`` can hold every robot of ``--robot all`` in one graph."""
-    return bool(landmark_implementation(name).several_robots)
-
-
-def check_several_robots(name: str) -> None:
-    """``--robot all`` on a back end that keeps one robot's pose is refused, one line."""
-    if not holds_several_robots(name):
-        several = [d.name for d in TABLE if d.landmarks is not None and d.landmarks.several_robots]
-        raise ConfigError(
-            f"--robot all: {name} keeps one robot's pose; every robot in one "
-            f"graph needs the {' or '.join(several)} back end"
-        )
-
-
 def default_backend(spec: str) -> str:
     """``graphslam run --dataset spec`` without ``--backend``: the checked route for a
     pose-graph file (one a streaming back end also solves whole: no landmark lines),

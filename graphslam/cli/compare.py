@@ -142,7 +142,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:
         raise GraphSlamError("--odometry applies to image sequences only")
-    chosen = args.backends is not None
     args.backends = args.backends or list(registry.BACKENDS)
     _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets", graphs_hint=True)
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
@@ -156,13 +155,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "none of the back ends draws random numbers"
         )
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
-    if dataset.agents:  # every robot in one graph: only back ends that hold several poses
-        if chosen:
-            for name in args.backends:
-                registry.check_several_robots(name)
-        else:
-            args.backends = [name for name in args.backends if registry.holds_several_robots(name)]
-            print(f"every robot in one graph: comparing {', '.join(args.backends)} only", file=sys.stderr)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(

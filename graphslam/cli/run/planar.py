@@ -81,8 +81,6 @@ def run(args: argparse.Namespace) -> int:
         truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
     if args.nees and truth is None and not dataset.has_ground_truth:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
-    if dataset.agents:
-        registry.check_several_robots(args.backend)
     overrides = {"polish": False} if args.no_polish else {}
     overrides.update(registry.seed_override(args.backend, args.seed))
     pmap = None

@@ -101,7 +101,7 @@ class MrclamConfig:
         robot: which robot's log is read (``RobotN_*.dat``, N in 1-5); ``--robot N``
             overrides it. Unused with ``all_robots``.
         all_robots: every robot of the folder in one graph
-            (:mod:`graphslam.sources.planar.mrclam_joint`, iSAM2 or the EKF), all starts
+            (:mod:`graphslam.sources.planar.mrclam_joint`), all starts
             from the truth; ``--robot all`` sets it.
         frame_every_s: longest time between consecutive frames, s. Frames are put
             at every distinct landmark-sighting time; where two are further apart,

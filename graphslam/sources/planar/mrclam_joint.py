@@ -18,9 +18,9 @@ then merged in time order into one stream:
   within the landmark calibration, which is used for both;
 - ``Dataset.agents`` names each robot's poses so that each is scored on its own.
 
-Only back ends that keep every robot's pose can run it: iSAM2, and the EKF as a
-centralised filter (every robot's latest pose in its state, :mod:`filters.ekf_slam`);
-FastSLAM keeps one robot's pose and says so.
+Every 2-D back end runs it: iSAM2 (every pose), the EKF as a centralised filter
+(every robot's latest pose in its state, :mod:`filters.ekf_slam`) and FastSLAM
+(every robot's latest pose in every particle, :mod:`filters.fastslam`).
 """
 
 from __future__ import annotations

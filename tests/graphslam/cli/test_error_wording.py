@@ -30,14 +30,6 @@ def test_compare_names_batch_as_pose_graph_only_not_as_unknown(tmp_path, capsys)
     assert "pose-graph" not in line  # the hint only where it applies
 
 
-def test_robot_all_with_a_filter_names_no_flag_compare_lacks(tmp_path, capsys):
-    if not (DATA / "mrclam6").is_dir():
-        pytest.skip("no ../shared/data/mrclam6")
-    line = _one_error(capsys, ["compare", "--dataset", DATA / "mrclam6", "--robot", "all", "--backends",
-                               "fastslam2", "--out", tmp_path / "o", "--rerun", "off"])
-    assert "needs the isam2 or ekf back end" in line and "--backend " not in line
-
-
 @pytest.mark.parametrize("given", ["folder", "storage file"])
 def test_a_ros2_bag_without_its_metadata_is_said_as_that(tmp_path, capsys, given):
     bag = tmp_path / "bag"

@@ -409,10 +409,29 @@ def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
         assert a["ate_rmse_m"] < 0.2, name
         assert (out / f"trajectory_{name.replace(' ', '')}.tum").is_file()
     assert not (out / "trajectory.tum").exists()  # five robots' stamps interleave
-    capsys.readouterr()
-    line = _one_line_error(capsys, "run", "--dataset", str(mrclam), "--robot", "all",
-                           "--backend", "fastslam2", "--rerun", "off", "--out", str(tmp_path / "e"))
-    assert "keeps one robot's pose" in line
+
+
+@pytest.mark.slow
+def test_all_robots_in_every_fastslam2_particle_beat_each_robots_own_runs(mrclam):
+    """Issue 31 item 4 on FastSLAM 2.0: every particle holds every robot's latest pose.
+    Over seeds 0-2, each robot's median joint ATE is below the median of its own runs
+    (measured 0.156/0.177/0.155/0.151/0.215 m against 0.199/0.192/0.174/0.261/0.273 m), and all
+    15 landmarks are recovered (about 45 s)."""
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    seeds = (0, 1, 2)
+    joint = read_mrclam_all(mrclam, MrclamConfig(all_robots=True))
+    runs = [pipeline.compute_metrics(
+        pipeline.run(joint, registry.make_backend("fastslam2", overrides={"seed": s})),
+        with_graph_error=False) for s in seeds]
+    assert all(m.landmarks_recovered == 15 for m in runs)
+    for robot in range(1, 6):
+        ds = read_mrclam(mrclam, MrclamConfig(robot=robot))
+        alone = [pipeline.compute_metrics(
+            pipeline.run(ds, registry.make_backend("fastslam2", overrides={"seed": s})),
+            with_graph_error=False).ate_rmse_m for s in seeds]
+        together = [m.agents[f"robot {robot}"]["ate_rmse_m"] for m in runs]
+        assert np.median(together) < np.median(alone), (robot, together, alone)
 
 
 #: Largest change of a robot's joint iSAM2 ATE that seeding another robot's new pose
