@@ -135,22 +135,27 @@ def _stream(seed: int):
     return out
 
 
-def _run(stream):
-    ekf = EkfSlam(EkfSlamConfig(jacobians="standard", damped_update_nis=None))
+def feed(backend, stream) -> DenseJointEkf:
+    """Drive ``backend`` and a dense joint EKF through ``stream``; returns the reference."""
     ref = DenseJointEkf(STRIDE, np.zeros(3), PRIOR)
-    ekf.initialize(STRIDE, np.zeros(3), PRIOR)
+    backend.initialize(STRIDE, np.zeros(3), PRIOR)
     live = {1: STRIDE}
     for robot, pid, odo, seen, others in stream[1:]:
-        ekf.predict(odo, pid)
+        backend.predict(odo, pid)
         ref.predict(robot, pid, odo.delta)
         live[robot] = pid
-        ekf.update([Observation(pid, k, z, R) for k, z in seen])
+        backend.update([Observation(pid, k, z, R) for k, z in seen])
         for k, z in seen:
             ref.observe(robot, k, z)
         for a, b, z in others:
-            ekf.add_pose_sighting(PoseSighting(live[a], live[b], z, R))
+            backend.add_pose_sighting(PoseSighting(live[a], live[b], z, R))
             ref.sight(a, b, z)
-    return ekf, ref
+    return ref
+
+
+def _run(stream):
+    ekf = EkfSlam(EkfSlamConfig(jacobians="standard", damped_update_nis=None))
+    return ekf, feed(ekf, stream)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -18,8 +18,8 @@ from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_particles import ParticleSet
 from slamcore.errors import UnsupportedError
 from slamcore.planar import geometry as models
-from slamcore.planar.records import Observation, PoseSighting
-from tests.filters.test_ekf_several_robots import PRIOR, R, STRIDE, DenseJointEkf, _stream
+from slamcore.planar.records import PoseSighting
+from tests.filters.test_ekf_several_robots import PRIOR, R, STRIDE, _stream, feed
 
 #: Weighted-mean position of 2000 particles against the joint EKF's estimate on the
 #: three-robot world, metres: the largest over the poses (measured 0.016-0.022 m over
@@ -62,21 +62,8 @@ def test_a_sighting_weighs_each_particle_by_its_gaussian_likelihood():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_several_robots_agree_with_the_joint_ekf(seed):
-    stream = _stream(seed)
     fs = FastSlam(FastSlamConfig(n_particles=2000, seed=seed))
-    ref = DenseJointEkf(STRIDE, np.zeros(3), PRIOR)
-    fs.initialize(STRIDE, np.zeros(3), PRIOR)
-    live = {1: STRIDE}
-    for robot, pid, odo, seen, others in stream[1:]:
-        fs.predict(odo, pid)
-        ref.predict(robot, pid, odo.delta)
-        live[robot] = pid
-        fs.update([Observation(pid, k, z, R) for k, z in seen])
-        for k, z in seen:
-            ref.observe(robot, k, z)
-        for a, b, z in others:
-            fs.add_pose_sighting(PoseSighting(live[a], live[b], z, R))
-            ref.sight(a, b, z)
+    ref = feed(fs, _stream(seed))
     est = fs.estimate()
     want = ref.trajectory()
     assert sorted(int(i) for i in est.pose_ids) == sorted(want)
