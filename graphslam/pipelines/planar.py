@@ -138,7 +138,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
             else:
                 counters["skipped"] += 1
         for ps in frame.pose_sightings:
-            backend.add_pose_sighting(ps)  # FastSLAM refuses: one robot's pose
+            backend.add_pose_sighting(ps)  # the EKF localiser refuses: one robot's pose
         counters["steps"] = k + 1
         if on_step is not None:
             on_step(k, frame, backend)

@@ -96,7 +96,7 @@ class Backend(ABC):
         """Add a range and bearing from one known pose to another (several robots).
 
         Raises:
-            UnsupportedError: back ends that keep one robot's pose (the filters).
+            UnsupportedError: back ends that keep one robot's pose (the EKF localiser on a saved map).
         """
         raise UnsupportedError(
             f"{self.name} keeps one robot's pose: it cannot use sightings of one robot by another"
