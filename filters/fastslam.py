@@ -155,6 +155,7 @@ class FastSlam(Backend):
         if pose_id in (odometry.from_id, odometry.to_id) and other != cur:
             if other in particles.parked:  # another robot moves: its poses become the moving ones
                 self._close_step()
+                self._refresh_parked()  # its latest pose as the filter leaves it
                 particles.activate(other, cur)
                 self._append_pose(pose_id, odometry, other)
                 return

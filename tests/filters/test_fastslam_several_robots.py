@@ -22,9 +22,9 @@ from slamcore.planar.records import PoseSighting
 from tests.filters.test_ekf_several_robots import PRIOR, R, STRIDE, _stream, feed
 
 #: Weighted-mean position of 2000 particles against the joint EKF's estimate on the
-#: three-robot world, metres: the largest over the poses (measured 0.016-0.022 m over
-#: seeds 0-2) and the mean (measured 0.0072-0.0081 m; without the robots' sightings
-#: of each other the particles drift to 0.016-0.024 m).
+#: three-robot world, metres: the largest over the poses (measured 0.016-0.020 m over
+#: seeds 0-2) and the mean (measured 0.0057-0.0068 m; without the robots' sightings
+#: of each other the particles drift to 0.015-0.024 m).
 EKF_AGREEMENT_MAX_M = 0.05
 EKF_AGREEMENT_MEAN_M = 0.012
 #: Log-likelihood agreement, nats.

@@ -415,7 +415,7 @@ def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
 def test_all_robots_in_every_fastslam2_particle_beat_each_robots_own_runs(mrclam):
     """Issue 31 item 4 on FastSLAM 2.0: every particle holds every robot's latest pose.
     Over seeds 0-2, each robot's median joint ATE is below the median of its own runs
-    (measured 0.156/0.177/0.155/0.151/0.215 m against 0.199/0.192/0.174/0.261/0.273 m), and all
+    (measured 0.156/0.177/0.156/0.151/0.215 m against 0.199/0.192/0.174/0.261/0.273 m), and all
     15 landmarks are recovered (about 45 s)."""
     from graphslam.sources.planar.mrclam_joint import read_mrclam_all
 
