@@ -141,7 +141,7 @@ from filters.ekf_slam_correction import kalman_update, pose_sighting_update
 from filters.ekf_slam_store import SlotStore
 from filters.landmark_existence import MissedSightings
 from filters.numerics import Recoveries
-from filters.planar_inputs import checked_scan, initial_pose, mapped_predictions, odometry_step
+from filters.planar_inputs import checked_scan, initial_pose, linked_pose, mapped_predictions, odometry_step
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
@@ -298,14 +298,18 @@ class EkfSlam(Backend):
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
-        start = self._another_robot(odometry, pose_id)
-        if start is not None:
-            self._start_robot(start, odometry, pose_id)
-            return
+        st = self._store
+        other, cur = linked_pose(odometry, pose_id), self._current_pose_id()
+        if other is not None and other != cur:  # another robot's step (module docstring)
+            if other in st.parked_ids:  # it moves now: its latest pose becomes the active one
+                self._record_pose(new=False)  # the active pose as it is when it is parked
+                self._pose_id = st.activate(st.parked_ids.index(other), cur)
+            elif other == self._hist_ids[0] and pose_id not in self._hist_index:
+                self._start_robot(other, odometry, pose_id)
+                return
         u, Q = odometry_step(odometry, self._current_pose_id(), pose_id, "ekf")
         Q = Q * self.config.odometry_covariance_scale
         self._record_pose(new=False)  # the pose as the filter leaves it
-        st = self._store
         n = st.n
         x = st.xbuf
         P = st.Pbuf
@@ -326,24 +330,6 @@ class EkfSlam(Backend):
             P[3:n, :3] = Prm.T
         self._pose_id = int(pose_id)
         self._record_pose(new=True)
-
-    def _another_robot(self, odometry: Odometry, pose_id: int) -> int | None:
-        """For odometry that extends a parked robot's latest pose: activate it (None
-        returned, the step then extends it). For odometry that starts a new robot from
-        the run's first pose: that pose's id. None for the active robot's step, and
-        for odometry that links other poses (refused by the step)."""
-        cur = self._current_pose_id()
-        other = odometry.from_id if odometry.to_id == pose_id else odometry.to_id
-        if pose_id not in (odometry.from_id, odometry.to_id) or other == cur:
-            return None
-        st = self._store
-        if other in st.parked_ids:
-            self._record_pose(new=False)  # the active pose as it is when it is parked
-            self._pose_id = st.activate(st.parked_ids.index(other), cur)
-            return None
-        if self._hist_ids and other == self._hist_ids[0] and pose_id not in self._hist_index:
-            return other
-        return None
 
     def _start_robot(self, first_id: int, odometry: Odometry, pose_id: int) -> None:
         """Start a robot at pose ``pose_id`` from the run's first pose (module docstring)."""

@@ -101,7 +101,7 @@ from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
-from filters.planar_inputs import checked_scan, initial_pose, odometry_step
+from filters.planar_inputs import checked_scan, initial_pose, linked_pose, odometry_step
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
@@ -150,29 +150,24 @@ class FastSlam(Backend):
         cur = self._pose_ids[-1]
         if pose_id in self._pose_set:
             raise GraphSlamError(f"{self.name}: pose {pose_id} added twice")
-        other = odometry.from_id if odometry.to_id == pose_id else odometry.to_id
+        other = linked_pose(odometry, pose_id)
         particles = self._particles
-        if pose_id in (odometry.from_id, odometry.to_id) and other != cur:
-            if other in particles.parked:  # another robot moves: its poses become the moving ones
+        if other is not None and other != cur:  # another robot's step (module docstring)
+            if other == self._pose_ids[0] and other not in particles.parked:
+                self._start_robot(odometry, pose_id)
+                return
+            if other in particles.parked:  # it moves now: its poses become the moving ones
                 self._close_step()
                 self._refresh_parked()  # its latest pose as the filter leaves it
                 particles.activate(other, cur)
-                self._append_pose(pose_id, odometry, other)
-                return
-            if other == self._pose_ids[0]:  # a robot starts from the run's first pose
-                self._start_robot(odometry, pose_id)
-                return
+                cur = other
         u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._close_step()
         particles.move(u, cov)
-        self._pose_ids.append(int(pose_id))
-        self._pose_set.add(int(pose_id))
-        self._dirty = True
+        self._add_pose_id(pose_id)
 
-    def _append_pose(self, pose_id: int, odometry: Odometry, cur: int) -> None:
-        """The motion step from ``cur``, the moving robot's latest pose, to ``pose_id``."""
-        u, cov = odometry_step(odometry, cur, pose_id, self.name)
-        self._particles.move(u, cov)
+    def _add_pose_id(self, pose_id: int) -> None:
+        """``pose_id`` becomes the moving robot's latest pose (its history entry follows)."""
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
         self._dirty = True
@@ -188,9 +183,7 @@ class FastSlam(Backend):
         self._particles.park_and_start(
             self._pose_ids[-1], models.compose(mean0, u), sym(F @ cov0 @ F.T + G @ Q @ G.T)
         )
-        self._pose_ids.append(int(pose_id))
-        self._pose_set.add(int(pose_id))
-        self._dirty = True
+        self._add_pose_id(pose_id)
 
     def add_pose_sighting(self, sighting: PoseSighting) -> None:
         """Several robots: weigh the particles by a sighting of one robot's latest pose

@@ -25,7 +25,7 @@ from slamcore.planar.records import (
     as_vector,
 )
 
-__all__ = ["initial_pose", "odometry_step", "checked_scan", "mapped_predictions"]
+__all__ = ["initial_pose", "linked_pose", "odometry_step", "checked_scan", "mapped_predictions"]
 
 
 def initial_pose(wTb: np.ndarray, covariance: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -37,6 +37,17 @@ def initial_pose(wTb: np.ndarray, covariance: np.ndarray, what: str) -> tuple[np
             3x3 (messages start with ``what``).
     """
     return as_vector(wTb, 3, what), as_covariance(covariance, 3, what)
+
+
+def linked_pose(odometry: Odometry, pose_id: int) -> int | None:
+    """The pose ``odometry`` links the new pose ``pose_id`` to (either way round), or
+    None when it does not touch ``pose_id``. With several robots the filters keep each
+    robot's latest pose and read from this which one a step extends."""
+    if odometry.to_id == pose_id:
+        return odometry.from_id
+    if odometry.from_id == pose_id:
+        return odometry.to_id
+    return None
 
 
 def odometry_step(odometry: Odometry, cur: int, pose_id: int, who: str) -> tuple[np.ndarray, np.ndarray]:

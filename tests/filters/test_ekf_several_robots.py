@@ -34,7 +34,7 @@ class DenseJointEkf:
         self.P = np.array(cov, float)
         self.index = {("pose", pid // STRIDE): 0}
         self.live = {pid // STRIDE: pid}
-        self.first = (pid, self.x.copy(), self.P.copy())
+        self.first = (self.x.copy(), self.P.copy())  # the run's first pose, where robots start
         self.hist: dict[int, np.ndarray] = {}
 
     def _grow(self, key, x_new, P_new, cross):
@@ -51,7 +51,7 @@ class DenseJointEkf:
 
     def predict(self, robot: int, pid: int, u: np.ndarray) -> None:
         if robot not in self.live:  # a start from the first pose, uncorrelated
-            _, x0, P0 = self.first
+            x0, P0 = self.first
             F, G = models.compose_jacobians(x0, u)
             self._grow(("pose", robot), models.compose(x0, u), F @ P0 @ F.T + G @ Q @ G.T,
                        np.zeros((3, self.x.size)))
