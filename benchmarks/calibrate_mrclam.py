@@ -343,6 +343,33 @@ def sighting_residuals(per_robot: list[dict]) -> dict:
     return out
 
 
+#: Probability at which the sightings' error tail is matched (step 6): the association
+#: gate's (``[isam2] association_gate_prob``, ``[ekf] gate_prob``); the second is a check.
+TAIL_PROBS = (0.999, 0.99)
+
+
+def sighting_tail(sightings: dict) -> dict:
+    """Step 6 of the module docstring: the measured ``d2`` quantiles of the sightings'
+    errors under the fitted model, the Student-t dof that matches the first of
+    :data:`TAIL_PROBS`, and that t's and the Gaussian's quantiles beside the measured."""
+    from scipy.optimize import brentq
+
+    from filters.association import t2_quantile
+
+    model = sightings["model"]
+    r = np.maximum(model["measured_range"], MIN_MODEL_RANGE_M)
+    var_r = model["sigma_range_m"] ** 2 + (model["sigma_range_per_m"] * r) ** 2
+    var_b = model["sigma_bearing_rad"] ** 2 + (model["sigma_bearing_m"] / r) ** 2
+    e_r = sightings["range_m"]["residuals"] - sightings["range_m"]["median"]
+    e_b = sightings["bearing_rad"]["residuals"] - sightings["bearing_rad"]["median"]
+    d2 = e_r**2 / var_r + e_b**2 / var_b
+    measured = {p: float(np.quantile(d2, p)) for p in TAIL_PROBS}
+    dof = brentq(lambda n: t2_quantile(TAIL_PROBS[0], n) - measured[TAIL_PROBS[0]], 1.0, 1e6)
+    return {"dof": float(dof), "n": int(d2.size),
+            "quantiles": [{"prob": p, "measured_d2": measured[p], "student_t_d2": t2_quantile(p, dof),
+                           "gaussian_d2": t2_quantile(p, math.inf)} for p in TAIL_PROBS]}
+
+
 #: Lag bins of the sightings' error correlation, s (step 4): fine where it falls fast.
 CORRELATION_LAGS_S = (0.0, 0.3, 0.6, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
 #: Normalised residuals are clipped here before the correlation (the tails would rule it).
@@ -413,6 +440,7 @@ def main(argv: list[str] | None = None) -> None:
     default = MrclamConfig()
     correlation = sighting_correlation(per_robot, default)
     field = sensor_field(args.data, logs, per_robot)
+    tail = sighting_tail(sightings)
     report = {
         "robots": robots, "data": str(args.data), "command": COMMAND,
         "odometry": {k: v for k, v in motion.items() if k != "residual"},
@@ -422,7 +450,8 @@ def main(argv: list[str] | None = None) -> None:
                       for k, v in sightings.items()},
         "correlation": correlation,
         "sensor_field": field,
-        "defaults_in_use": {"lag_s": default.odometry_lag_s,
+        "sighting_tail": tail,
+        "defaults_in_use": {"sighting_error_dof": default.sighting_error_dof,"lag_s": default.odometry_lag_s,
                             "forward_scale": default.forward_scale,
                             "angular_scale": default.angular_scale,
                             **{n: getattr(default, n) for n in NOISE_NAMES},
@@ -434,7 +463,7 @@ def main(argv: list[str] | None = None) -> None:
     args.out.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps({k: report[k] for k in ("odometry", "noise", "nees", "sightings")}, indent=1))
     print(json.dumps({k: v for k, v in correlation.items() if not isinstance(v, list)}, indent=1))
-    print(json.dumps({"sensor_field": field}, indent=1))
+    print(json.dumps({"sensor_field": field, "sighting_tail": tail}, indent=1))
     model = sightings["model"]
     ranges = model["measured_range"]
     model_sigma = {"range_m": np.hypot(model["sigma_range_m"], model["sigma_range_per_m"] * ranges),

@@ -52,6 +52,22 @@ def chi2_quantile(prob: float, dof: int) -> float:
     return float(chi2.ppf(prob, dof))
 
 
+def t2_quantile(prob: float, dof: float) -> float:
+    """Quantile of the squared Mahalanobis distance of a 2-D Student-t error with ``dof``
+    degrees of freedom (``inf``: Gaussian, the chi-square quantile with 2 dof).
+
+    Closed form: for the bivariate t, ``P(d2 <= x) = 1 - (1 + x / dof)^(-dof / 2)``
+    (``d2 / 2`` is F(2, dof)); the Gaussian's ``1 - exp(-x / 2)`` is its limit.
+    """
+    if not 0.0 < prob < 1.0:
+        raise ValueError(f"prob must be in (0, 1), got {prob}")
+    if not dof > 0.0:
+        raise ValueError(f"dof must be positive, got {dof}")
+    if math.isinf(dof):
+        return -2.0 * math.log1p(-prob)
+    return dof * math.expm1(-2.0 / dof * math.log1p(-prob))
+
+
 def mahalanobis_sq_2d(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``nu^T S^-1 nu`` for batches of 2-vectors (..., 2) and 2x2 matrices (..., 2, 2)."""
     a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]

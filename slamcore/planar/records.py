@@ -351,11 +351,15 @@ class SensorField:
         detection_prob: probability that a landmark inside the field is reported
             in a frame that reports something (0 < p <= 1; 1 for a simulated
             sensor that sees everything in its field).
+        error_dof: the sightings' errors about their stated covariance are
+            Student-t with these degrees of freedom (``inf``, the default: Gaussian);
+            what tells one landmark from another in data association.
     """
 
     max_range_m: float
     half_fov_rad: float
     detection_prob: float
+    error_dof: float = float("inf")
 
     def __post_init__(self):
         # each test fails for NaN too, so the message names the value at fault
@@ -365,6 +369,8 @@ class SensorField:
             raise MeasurementError(f"sensor field: half_fov_rad must be in (0, pi] ({self.half_fov_rad})")
         if not 0.0 < self.detection_prob <= 1.0:
             raise MeasurementError(f"sensor field: detection_prob must be in (0, 1] ({self.detection_prob})")
+        if not self.error_dof > 0.0:
+            raise MeasurementError(f"sensor field: error_dof must be > 0 ({self.error_dof})")
 
 
 @dataclass(frozen=True, eq=False)

@@ -43,14 +43,16 @@ def test_cusum_refuses_bad_probabilities(p, alpha):
 
 
 @pytest.mark.parametrize("args", [(0.0, 1.0, 0.5), (5.0, 0.0, 0.5), (5.0, 4.0, 0.5), (5.0, 1.0, 0.0),
-                                  (5.0, 1.0, 1.1), (math.nan, 1.0, 0.5)])
+                                  (5.0, 1.0, 1.1), (math.nan, 1.0, 0.5), (5.0, 1.0, 0.5, 0.0),
+                                  (5.0, 1.0, 0.5, -math.inf)])
 def test_sensor_field_refuses_bad_values(args):
     with pytest.raises(MeasurementError):
         SensorField(*args)
 
 
 @pytest.mark.parametrize("args, names", [((math.nan, 1.0, 0.5), "max_range_m"), ((5.0, math.nan, 0.5), "half_fov_rad"),
-                                         ((5.0, 1.0, math.nan), "detection_prob")])
+                                         ((5.0, 1.0, math.nan), "detection_prob"),
+                                         ((5.0, 1.0, 0.5, math.nan), "error_dof")])
 def test_sensor_field_names_the_value_that_is_not_a_number(args, names):
     with pytest.raises(MeasurementError, match=names):
         SensorField(*args)
@@ -143,8 +145,11 @@ def test_sources_state_their_field():
 
     ds = make_synthetic(SyntheticConfig(n_landmarks=20, laps=1, fov_deg=90.0, sensor_range_m=6.0))
     assert ds.sensor_field == SensorField(6.0, math.radians(45.0), 1.0)
-    field = MrclamConfig(field_range_m=5.0, field_half_fov_deg=30.0, detection_prob=0.2).sensor_field()
-    assert field == SensorField(5.0, math.radians(30.0), 0.2)
+    field = MrclamConfig(
+        field_range_m=5.0, field_half_fov_deg=30.0, detection_prob=0.2, sighting_error_dof=4.0
+    ).sensor_field()
+    assert field == SensorField(5.0, math.radians(30.0), 0.2, 4.0)
+    assert ds.sensor_field.error_dof == math.inf  # simulated noise is Gaussian
 
 
 def test_pipeline_hands_the_field_to_the_back_end_and_reports_pruning():

@@ -64,6 +64,7 @@ not use.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 
 import gtsam
@@ -85,6 +86,7 @@ from slamcore.planar.records import (
     Odometry,
     PoseSighting,
     Prediction,
+    SensorField,
 )
 from slamcore.planar.sighting_correlation import LastSightings
 
@@ -141,6 +143,13 @@ class Isam2Backend(Backend):
         self._graph.add(conv.prior_factor(pose_id, wTb, covariance))
         self._values.insert(X(pose_id), conv.pose2(wTb))
         self._add_pose_id(pose_id)
+
+    def set_sensor_field(self, sensor_field: SensorField | None) -> None:
+        """Unknown association reads the sightings' error tail from it (what tells two
+        landmarks apart, :mod:`.landmark_association`); None: Gaussian errors."""
+        if self._unknown is not None:
+            dof = math.inf if sensor_field is None else sensor_field.error_dof
+            self._unknown.associator.set_error_dof(dof)
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._flush()

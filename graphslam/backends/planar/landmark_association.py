@@ -10,7 +10,8 @@ of gtsam. Per scan:
    with the exact joint marginal ``P`` of pose and landmark (cross terms
    included: a landmark seen a moment ago is known relative to the pose far
    better than either alone), against the chi-square (2 dof) quantile
-   ``gate_prob``; at most :data:`MAX_CANDIDATES` landmarks per observation.
+   ``gate_prob``; the :data:`MAX_CANDIDATES` closest per observation go to JCBB,
+   every compatible one to the ambiguity test (step 3).
 2. **Joint compatibility** (JCBB, Neira and Tardos 2001; the EKF's
    :func:`filters.association.jcbb`): the largest set of pairings whose stacked
    innovation is jointly compatible under its joint covariance. The innovations
@@ -18,7 +19,22 @@ of gtsam. Per scan:
    landmarks a range sigma apart (MRCLAM: 0.18-0.26 m against 0.13 m) when the
    pose's heading is less certain than the bearings. Each landmark takes at most
    one observation of a scan.
-3. **Provisional landmarks**: an observation JCBB leaves unpaired starts or
+3. **Ambiguity**: JCBB picks one hypothesis even when another pairs the same
+   observations as well. Where the two give an observation landmarks the sensor
+   tells apart, the choice was made by the pose prior, not by the sighting, and the
+   observation is *held* (no factor, no candidate). The sensor tells two landmarks
+   apart when their predicted measurements differ, with the pose known (the map's
+   uncertainty and the sighting's noise), beyond the ``gate_prob`` quantile of its
+   error: Gaussian unless the data's sensor field says its errors are Student-t
+   (:meth:`LandmarkAssociator.set_error_dof`; MRCLAM: 5.1 dof, a 0.999 quantile of
+   71 against the Gaussian's 13.8). Landmarks closer than that are a choice no
+   sighting can make, and the pairing stands, as before. Why: after a long turn
+   without sightings (MRCLAM robot 3, heading sigma 11 deg), one sighting fits
+   landmarks a metre apart; pairing it to the nearest under the prior turned the
+   heading 15 deg the wrong way with a sigma of 5 deg, and every later scan paired
+   to that (ATE 0.74 m against 0.10 m with ids). Held, the next scan of four
+   sightings pins the heading (ATE 0.12 m; ``benchmarks/bench_mrclam.py``).
+4. **Provisional landmarks**: an observation JCBB leaves unpaired starts or
    extends a *candidate* (its position and covariance from the observation, the
    measurement noise and the pose marginal). A candidate takes one sighting per
    pose and enters the map after ``confirm_sightings`` sightings each compatible
@@ -35,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.association import chi2_quantile, individual_candidates, jcbb
+from filters.association import chi2_quantile, individual_candidates, jcbb, t2_quantile
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 
@@ -60,7 +76,8 @@ class Candidate:
 class Decision:
     """What to do with one observation: ``kind`` is ``"landmark"`` (factor to
     ``landmark_id``), ``"confirmed"`` (new landmark ``landmark_id`` at ``mean_w``
-    with the factors of ``sightings``) or ``"candidate"`` (held on the list)."""
+    with the factors of ``sightings``), ``"candidate"`` (kept on the provisional
+    list) or ``"held"`` (ambiguous: left out, module docstring step 3)."""
 
     kind: str
     landmark_id: int | None = None
@@ -86,9 +103,18 @@ class LandmarkAssociator:
     def __init__(self, gate_prob: float, confirm_sightings: int):
         self.gate_prob = gate_prob
         self.gate_d2 = chi2_quantile(gate_prob, 2)
+        # two landmarks the sensor tells apart (step 3): Gaussian errors until the data's
+        # sensor says otherwise (set_error_dof)
+        self.distinct_d2 = self.gate_d2
         self.confirm_sightings = confirm_sightings
         self.candidates: list[Candidate] = []
         self._next_id = 0
+
+    def set_error_dof(self, dof: float) -> None:
+        """The sightings' errors are Student-t with ``dof`` degrees of freedom about their
+        stated covariance (``inf``: Gaussian): two landmarks are told apart beyond that
+        error's ``gate_prob`` quantile (module docstring, step 3)."""
+        self.distinct_d2 = t2_quantile(self.gate_prob, dof)
 
     def near(self, observations, wTb: np.ndarray, landmarks_w: np.ndarray, reach_m: float) -> np.ndarray:
         """Indices of the landmarks (M, 2) within ``reach_m`` of any observed point:
@@ -115,17 +141,19 @@ class LandmarkAssociator:
         m = len(observations)
         z = np.array([o.z for o in observations]).reshape(m, 2)
         R = np.array([o.covariance for o in observations]).reshape(m, 2, 2)
-        hypothesis = self._joint(z, R, wTb, landmarks_w, joint_cov)
+        hypothesis, held = self._joint(z, R, wTb, landmarks_w, joint_cov)
         pose_cov = joint_cov[:3, :3]
         decisions = []
-        for obs, j in zip(observations, hypothesis, strict=True):
-            if j is not None:
+        for obs, j, hold in zip(observations, hypothesis, held, strict=True):
+            if hold:
+                decisions.append(Decision("held"))
+            elif j is not None:
                 decisions.append(Decision("landmark", int(ids[j])))
             else:  # jointly compatible with no landmark: evidence of one not yet mapped
                 decisions.append(self._provisional(obs, wTb, pose_cov))
         return decisions
 
-    def _joint(self, z, R, wTb, landmarks_w, joint_cov) -> list[int | None]:
+    def _joint(self, z, R, wTb, landmarks_w, joint_cov) -> tuple[list[int | None], list[bool]]:
         """Per observation, the landmark column JCBB pairs it with, or None.
 
         The innovations of one scan share the pose's error, and a landmark seen a
@@ -136,7 +164,7 @@ class LandmarkAssociator:
         """
         m, k = len(z), len(landmarks_w)
         if k == 0:
-            return [None] * m
+            return [None] * m, [False] * m
         z_hat = se2.observe(wTb[None], landmarks_w)  # (M, 2)
         H_x, H_m = se2.observe_jacobians(wTb[None], landmarks_w)
         J = np.zeros((k, 2, 3 + 2 * k))  # Jacobian of each landmark's prediction
@@ -146,26 +174,93 @@ class LandmarkAssociator:
         S0 = np.einsum("jac,cd,jbd->jab", J, joint_cov, J)  # (M, 2, 2)
         nu = se2.innovation(z[:, None, :], z_hat[None])  # (m, M, 2)
         d2 = np.einsum("ija,ijab,ijb->ij", nu, np.linalg.inv(S0[None] + R[:, None]), nu)
-        cands = individual_candidates(d2, self.gate_d2, MAX_CANDIDATES)
+        # every compatible landmark for the ambiguity test; the closest few for JCBB
+        cands = individual_candidates(d2, self.gate_d2, k)
         pair_obs = np.array([i for i, c in enumerate(cands) for _ in c], dtype=np.int64)
         pair_lm = np.array([j for c in cands for j in c], dtype=np.int64)
         if pair_obs.size == 0:
-            return [None] * m
+            return [None] * m, [False] * m
+        rank = np.array([r for c in cands for r in range(len(c))], dtype=np.int64)
         Jp = J[pair_lm].reshape(-1, 3 + 2 * k)  # (2P, 3 + 2M)
         C = Jp @ joint_cov @ Jp.T
         for p, i in enumerate(pair_obs.tolist()):
             C[2 * p : 2 * p + 2, 2 * p : 2 * p + 2] += R[i]
+        few = np.flatnonzero(rank < MAX_CANDIDATES)
+        rows = np.stack([2 * few, 2 * few + 1], axis=1).reshape(-1)
         result = jcbb(
             z,
-            z_hat[pair_lm],
-            C,
-            pair_obs,
-            pair_lm,
+            z_hat[pair_lm[few]],
+            C[np.ix_(rows, rows)],
+            pair_obs[few],
+            pair_lm[few],
             chi2_prob=self.gate_prob,
             max_nodes=MAX_JCBB_NODES,
-            individual_d2=d2[pair_obs, pair_lm],
+            individual_d2=d2[pair_obs[few], pair_lm[few]],
         )
-        return result.hypothesis
+        chosen = [None if p is None else int(few[p]) for p in result.pairs]
+        Jm = J.copy()
+        Jm[:, :, :3] = 0.0  # the predictions' dependence on the map alone (pose known)
+        held = self._ambiguous(chosen, pair_obs, pair_lm, C, z, z_hat, R, Jm, joint_cov)
+        return result.hypothesis, held
+
+    def _ambiguous(self, chosen, pair_obs, pair_lm, C, z, z_hat, R, Jm, joint_cov) -> list[bool]:
+        """Per observation, whether its pairing is left to the pose prior (module
+        docstring, step 3): another jointly compatible hypothesis pairs the same
+        observations and gives this one a landmark the sensor tells apart from the
+        chosen one.
+
+        ``chosen``: per observation the index of JCBB's pair or None; ``pair_obs``,
+        ``pair_lm`` (P,): every individually compatible pair; ``C`` (2P, 2P): their
+        innovations' joint covariance; ``Jm`` (M, 2, 3 + 2M): the predictions' Jacobians
+        with the pose columns zeroed; ``joint_cov``: the joint marginal. A search that
+        runs out of its budget (:data:`MAX_JCBB_NODES` tests) holds every pairing it has
+        not shown to be the only one.
+        """
+        held = [False] * len(chosen)
+        obs = [i for i, p in enumerate(chosen) if p is not None]
+        if not obs:
+            return held
+        nu = se2.innovation(z[pair_obs], z_hat[pair_lm])  # (P, 2)
+        options = {i: np.flatnonzero(pair_obs == i).tolist() for i in obs}
+        apart: dict[int, bool] = {}  # alternative pair -> the sensor tells it from the chosen one
+
+        def distinct(i: int, q: int) -> bool:
+            if q not in apart:
+                j, jq = int(pair_lm[chosen[i]]), int(pair_lm[q])
+                delta = se2.innovation(z_hat[j], z_hat[jq])
+                Jd = Jm[j] - Jm[jq]  # pose known: the map's uncertainty and the sensor's
+                D = Jd @ joint_cov @ Jd.T + R[i]
+                apart[q] = j != jq and float(delta @ np.linalg.solve(D, delta)) > self.distinct_d2
+            return apart[q]
+
+        def compatible(pairs: list[int]) -> bool:
+            rows = np.array([[2 * x, 2 * x + 1] for x in pairs]).reshape(-1)
+            v = nu[pairs].reshape(-1)
+            d2 = float(v @ np.linalg.solve(C[np.ix_(rows, rows)], v))
+            return d2 <= chi2_quantile(self.gate_prob, 2 * len(pairs))
+
+        budget = MAX_JCBB_NODES
+
+        def visit(pairs: list[int], used: set[int]) -> bool:
+            """Depth-first over the hypotheses pairing ``obs``; False when out of budget."""
+            nonlocal budget
+            if len(pairs) == len(obs):
+                for i, q in zip(obs, pairs, strict=True):
+                    held[i] = held[i] or distinct(i, q)
+                return True
+            for q in options[obs[len(pairs)]]:
+                if int(pair_lm[q]) in used:
+                    continue
+                if budget == 0:
+                    return False
+                budget -= 1
+                if compatible(pairs + [q]) and not visit(pairs + [q], used | {int(pair_lm[q])}):
+                    return False
+            return True
+
+        if not visit([], set()):
+            return [p is not None for p in chosen]
+        return held
 
     @staticmethod
     def _costs(z, R, wTb, pose_cov, means_w, covs):

@@ -151,6 +151,12 @@ class MrclamConfig:
             what the back ends that use missed sightings read
             (:class:`~slamcore.planar.records.SensorField`: the EKF's pruning of
             landmarks it should have seen).
+        sighting_error_dof: the sightings' errors are heavier-tailed than a
+            Gaussian: their squared Mahalanobis distance under the model above has
+            its 0.999 quantile at 70.7 (a Gaussian's: 13.8), as a Student-t with
+            these degrees of freedom has (``benchmarks/calibrate_mrclam.py``, step 6;
+            at 0.99 measured 24.6, this t 25.9, the Gaussian 9.2). In the sensor's
+            field record: what tells a landmark from another one in data association.
     """
 
     SECTION: ClassVar[str] = "mrclam"
@@ -178,6 +184,7 @@ class MrclamConfig:
     field_range_m: float = bounded(7.05, gt=0.0, max=1000.0)
     field_half_fov_deg: float = bounded(32.4, gt=0.0, max=180.0)
     detection_prob: float = bounded(0.0689, gt=0.0, max=1.0)
+    sighting_error_dof: float = bounded(5.1, gt=0.0)
 
     def __post_init__(self):
         validate(self)
@@ -202,8 +209,14 @@ class MrclamConfig:
         )
 
     def sensor_field(self) -> SensorField:
-        """The camera's field and detection probability (``field_*``, ``detection_prob``)."""
-        return SensorField(self.field_range_m, math.radians(self.field_half_fov_deg), self.detection_prob)
+        """The camera's field, detection probability and error tail (``field_*``,
+        ``detection_prob``, ``sighting_error_dof``)."""
+        return SensorField(
+            self.field_range_m,
+            math.radians(self.field_half_fov_deg),
+            self.detection_prob,
+            self.sighting_error_dof,
+        )
 
     def motion_model(self) -> MotionModel:
         return MotionModel(
