@@ -68,6 +68,70 @@ def t2_quantile(prob: float, dof: float) -> float:
     return dof * math.expm1(-2.0 / dof * math.log1p(-prob))
 
 
+def ambiguous_pairings(
+    chosen: list[int | None],
+    pair_obs: np.ndarray,
+    pair_landmark: np.ndarray,
+    joint_covariance: np.ndarray,
+    nu: np.ndarray,
+    apart: np.ndarray,
+    *,
+    chi2_prob: float,
+    max_nodes: int,
+) -> list[bool]:
+    """Per observation, whether its pairing in ``chosen`` was left to the pose prior:
+    another jointly compatible hypothesis pairs the same observations and gives this one
+    a landmark the sensor tells apart from the chosen one.
+
+    Args:
+        chosen: per observation, the index of its chosen pair or None.
+        pair_obs, pair_landmark: (P,) every individually compatible pair.
+        joint_covariance: (2P, 2P) the pairs' innovations' joint covariance.
+        nu: (P, 2) the pairs' innovations.
+        apart: (P,) whether pair p's landmark is told apart from the landmark chosen
+            for p's observation (False for an unpaired observation's pairs).
+        chi2_prob: the joint test's probability (chi-square, 2k dof).
+        max_nodes: budget of joint tests; a search that runs out of it has not shown
+            any pairing to be the only one, and every chosen pairing is held.
+
+    Depth-first over the hypotheses that pair exactly the chosen observations, each
+    landmark at most once, pruned by joint compatibility as JCBB prunes.
+    """
+    held = [False] * len(chosen)
+    obs = [i for i, p in enumerate(chosen) if p is not None]
+    if not obs or not np.any(apart):
+        return held
+    options = {i: np.flatnonzero(pair_obs == i).tolist() for i in obs}
+    budget = max_nodes
+
+    def compatible(pairs: list[int]) -> bool:
+        rows = np.array([[2 * x, 2 * x + 1] for x in pairs]).reshape(-1)
+        v = nu[pairs].reshape(-1)
+        d2 = float(v @ np.linalg.solve(joint_covariance[np.ix_(rows, rows)], v))
+        return d2 <= chi2_quantile(chi2_prob, 2 * len(pairs))
+
+    def visit(pairs: list[int], used: set[int]) -> bool:
+        """False when the budget ran out."""
+        nonlocal budget
+        if len(pairs) == len(obs):
+            for i, q in zip(obs, pairs, strict=True):
+                held[i] = held[i] or bool(apart[q])
+            return True
+        for q in options[obs[len(pairs)]]:
+            if int(pair_landmark[q]) in used:
+                continue
+            if budget == 0:
+                return False
+            budget -= 1
+            if compatible(pairs + [q]) and not visit(pairs + [q], used | {int(pair_landmark[q])}):
+                return False
+        return True
+
+    if not visit([], set()):
+        return [p is not None for p in chosen]
+    return held
+
+
 def mahalanobis_sq_2d(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``nu^T S^-1 nu`` for batches of 2-vectors (..., 2) and 2x2 matrices (..., 2, 2)."""
     a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]

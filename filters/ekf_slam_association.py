@@ -8,8 +8,9 @@ the candidate pairs (:func:`pair_covariance`). An unpaired observation is
 judged new by its distance to the landmarks *not* paired in the scan
 (:func:`unpaired_distances`: mutual exclusion). A pairing inside a gate that
 cannot tell its landmark from a new one (:func:`ambiguous_gates`) needs
-support. With ``provisional_sightings
-> 1`` a new one waits on a :class:`ProvisionalList` first.
+support. A pairing that only the pose prior chose among landmarks the sensor
+tells apart is held (``distinct_d2``). With ``provisional_sightings > 1`` a new
+one waits on a :class:`ProvisionalList` first.
 
 Observations are ``z = [range_m, bearing_rad]``; ``P`` is the filter's
 covariance buffer (state ``[x, y, theta, m1x, m1y, ...]``).
@@ -18,11 +19,32 @@ covariance buffer (state ``[x, y, theta, m1x, m1y, ...]``).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from filters.association import JcbbResult, individual_candidates, jcbb, mahalanobis_sq_2d
+from filters.association import JcbbResult, ambiguous_pairings, individual_candidates, jcbb, mahalanobis_sq_2d
 from slamcore.planar import geometry as models
+
+
+class ScanAssociation(NamedTuple):
+    """What :func:`associate_scan` decides for one scan of ``m`` observations.
+
+    Attributes:
+        hypothesis: (m,) landmark slot of each observation, or None.
+        novelty: (m, L) of each observation against each landmark (None without
+            landmarks): the log-likelihood ratio of a new landmark over this one
+            with the likelihood objective, else the squared Mahalanobis distance.
+        jcbb: the search's :class:`~filters.association.JcbbResult` (None when no
+            pair passed the gate).
+        held: (m,) observations whose pairing only the pose prior chose
+            (:func:`filters.association.ambiguous_pairings`): neither paired nor new.
+    """
+
+    hypothesis: list[int | None]
+    novelty: np.ndarray | None
+    jcbb: JcbbResult | None
+    held: list[bool]
 
 
 def predict_landmarks(x: np.ndarray, P: np.ndarray, Pmm: np.ndarray):
@@ -85,16 +107,20 @@ def associate_scan(
     max_candidates: int,
     max_nodes: int,
     likelihood: tuple[float, float] | None = None,
-):
+    distinct_d2: float | None = None,
+) -> ScanAssociation:
     """Landmark slot (or None) of each observation of one scan, by gating then JCBB.
 
     ``Z`` (m, 2) observations with covariances ``Rs`` (m, 2, 2); ``gate``:
     the individual chi-square gate (2 dof) of ``chi2_prob``, the joint
     test's probability; at most ``max_candidates`` landmarks per observation
-    and ``max_nodes`` pairing tests. Returns the hypothesis (m,), the novelty
-    (m, L) of each observation against each landmark (None without landmarks)
-    and the :class:`filters.association.JcbbResult` (None when no pair passed
-    the gate).
+    and ``max_nodes`` pairing tests. Returns a :class:`ScanAssociation`.
+
+    ``distinct_d2``: when given, a pairing that another jointly compatible
+    hypothesis gives to a landmark the sensor tells apart (their predicted
+    measurements differ by more than ``distinct_d2`` under the two landmarks'
+    covariance and the sighting's noise) is held, searched over every compatible
+    landmark (:func:`filters.association.ambiguous_pairings`).
 
     ``likelihood = (new_landmark_density_per_m2, detection_prob)`` makes JCBB
     maximise the likelihood objective (:func:`filters.association.jcbb` with
@@ -110,22 +136,29 @@ def associate_scan(
     m = len(Z)
     hyp: list[int | None] = [None] * m
     if not len(Pmm):
-        return hyp, None, None
+        return ScanAssociation(hyp, None, None, [False] * m)
     zhat, H_x, H_m, S0 = predict_landmarks(x, P, Pmm)
     nu = models.innovation(Z[:, None, :], zhat[None, :, :])  # (m, L, 2)
     S = S0[None] + Rs[:, None]  # (m, L, 2, 2), built once for d2 and the likelihood terms
     d2 = mahalanobis_sq_2d(nu, S)  # (m, L)
     det_S = _det2(S) if likelihood is not None else None
-    cands = individual_candidates(d2, gate, max_candidates)
+    # every compatible landmark for the ambiguity test; the closest few for JCBB
+    cands = individual_candidates(d2, gate, len(Pmm) if distinct_d2 is not None else max_candidates)
     pairs = [(i, lm) for i, cl in enumerate(cands) for lm in cl]
     if not pairs:
         if likelihood is not None:
-            return hyp, _likelihood_terms(Z, Rs, det_S, d2, *likelihood)[2], None
-        return hyp, d2, None
+            return ScanAssociation(
+                hyp, _likelihood_terms(Z, Rs, det_S, d2, *likelihood)[2], None, [False] * m
+            )
+        return ScanAssociation(hyp, d2, None, [False] * m)
     pair_obs = np.array([p[0] for p in pairs])
     pair_lm = np.array([p[1] for p in pairs])
+    rank = np.array([r for cl in cands for r in range(len(cl))])
+    few = np.flatnonzero(rank < max_candidates)
+    rows = np.stack([2 * few, 2 * few + 1], axis=1).reshape(-1)
     C = pair_covariance(P, H_x, H_m, Rs, pairs)
     extra = {}
+    novelty = d2
     if likelihood is not None:
         gain, noise_logdet, novelty = _likelihood_terms(Z, Rs, det_S, d2, *likelihood)
         # A wide-gate pairing stands alone only where the measurement itself,
@@ -135,20 +168,50 @@ def associate_scan(
         detection_log_odds = math.log(likelihood[1] / (1.0 - likelihood[1]))
         ambiguous = _ambiguous(Z, det_S, gate, chi2_prob, *likelihood) & (novelty > -detection_log_odds)
         extra = dict(
-            pair_gain=gain[pair_obs], noise_logdet=noise_logdet, pair_ambiguous=ambiguous[pair_obs, pair_lm]
+            pair_gain=gain[pair_obs[few]],
+            noise_logdet=noise_logdet,
+            pair_ambiguous=ambiguous[pair_obs[few], pair_lm[few]],
         )
     res: JcbbResult = jcbb(
         Z,
-        zhat[pair_lm],
-        C,
-        pair_obs,
-        pair_lm,
+        zhat[pair_lm[few]],
+        C[np.ix_(rows, rows)],
+        pair_obs[few],
+        pair_lm[few],
         chi2_prob=chi2_prob,
         max_nodes=max_nodes,
-        individual_d2=d2[pair_obs, pair_lm],
+        individual_d2=d2[pair_obs[few], pair_lm[few]],
         **extra,
     )
-    return res.hypothesis, (d2 if likelihood is None else novelty), res
+    held = [False] * m
+    if distinct_d2 is not None:
+        chosen = [None if q is None else int(few[q]) for q in res.pairs]
+        apart = _apart(chosen, pair_obs, pair_lm, zhat, H_m, P, Rs, distinct_d2)
+        pair_nu = nu[pair_obs, pair_lm]
+        held = ambiguous_pairings(
+            chosen, pair_obs, pair_lm, C, pair_nu, apart, chi2_prob=chi2_prob, max_nodes=max_nodes
+        )
+    hyp = [None if h else lm for lm, h in zip(res.hypothesis, held, strict=True)]
+    return ScanAssociation(hyp, novelty, res, held)
+
+
+def _apart(chosen, pair_obs, pair_lm, zhat, H_m, P, Rs, distinct_d2: float) -> np.ndarray:
+    """(P,) whether each pair's landmark is told apart by the sensor from the landmark
+    chosen for its observation: the two predicted measurements' difference under the
+    two landmarks' joint covariance (the pose known) and the sighting's noise, beyond
+    ``distinct_d2`` (:func:`filters.association.ambiguous_pairings`)."""
+    apart = np.zeros(len(pair_obs), dtype=bool)
+    for q, (i, lq) in enumerate(zip(pair_obs.tolist(), pair_lm.tolist(), strict=True)):
+        if chosen[i] is None or int(pair_lm[chosen[i]]) == lq:
+            continue
+        lj = int(pair_lm[chosen[i]])
+        a, b = 3 + 2 * lj, 3 + 2 * lq
+        A = np.hstack([H_m[lj], -H_m[lq]])  # (2, 4): d(zhat_j - zhat_q) / d(m_j, m_q)
+        idx = [a, a + 1, b, b + 1]
+        D = A @ P[np.ix_(idx, idx)] @ A.T + Rs[i]
+        delta = models.innovation(zhat[lj], zhat[lq])
+        apart[q] = float(delta @ np.linalg.solve(D, delta)) > distinct_d2
+    return apart
 
 
 def _det2(S: np.ndarray) -> np.ndarray:

@@ -140,7 +140,7 @@ def _marginals(x, P):
 
 
 def _associate(x, P, Z):
-    hyp, novelty, _ = associate_scan(x, P, _marginals(x, P), Z, np.stack([R] * len(Z)), gate=GATE,
+    hyp, novelty, _, _ = associate_scan(x, P, _marginals(x, P), Z, np.stack([R] * len(Z)), gate=GATE,
                                      chi2_prob=0.999, max_candidates=3, max_nodes=2000,
                                      likelihood=LIKELIHOOD)
     return hyp, novelty

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.association import chi2_quantile, individual_candidates, jcbb, t2_quantile
+from filters.association import ambiguous_pairings, chi2_quantile, individual_candidates, jcbb, t2_quantile
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 
@@ -200,67 +200,29 @@ class LandmarkAssociator:
         chosen = [None if p is None else int(few[p]) for p in result.pairs]
         Jm = J.copy()
         Jm[:, :, :3] = 0.0  # the predictions' dependence on the map alone (pose known)
-        held = self._ambiguous(chosen, pair_obs, pair_lm, C, z, z_hat, R, Jm, joint_cov)
+        apart = self._apart(chosen, pair_obs, pair_lm, z_hat, R, Jm, joint_cov)
+        nu = se2.innovation(z[pair_obs], z_hat[pair_lm])
+        held = ambiguous_pairings(
+            chosen, pair_obs, pair_lm, C, nu, apart, chi2_prob=self.gate_prob, max_nodes=MAX_JCBB_NODES
+        )
         return result.hypothesis, held
 
-    def _ambiguous(self, chosen, pair_obs, pair_lm, C, z, z_hat, R, Jm, joint_cov) -> list[bool]:
-        """Per observation, whether its pairing is left to the pose prior (module
-        docstring, step 3): another jointly compatible hypothesis pairs the same
-        observations and gives this one a landmark the sensor tells apart from the
-        chosen one.
-
-        ``chosen``: per observation the index of JCBB's pair or None; ``pair_obs``,
-        ``pair_lm`` (P,): every individually compatible pair; ``C`` (2P, 2P): their
-        innovations' joint covariance; ``Jm`` (M, 2, 3 + 2M): the predictions' Jacobians
-        with the pose columns zeroed; ``joint_cov``: the joint marginal. A search that
-        runs out of its budget (:data:`MAX_JCBB_NODES` tests) holds every pairing it has
-        not shown to be the only one.
-        """
-        held = [False] * len(chosen)
-        obs = [i for i, p in enumerate(chosen) if p is not None]
-        if not obs:
-            return held
-        nu = se2.innovation(z[pair_obs], z_hat[pair_lm])  # (P, 2)
-        options = {i: np.flatnonzero(pair_obs == i).tolist() for i in obs}
-        apart: dict[int, bool] = {}  # alternative pair -> the sensor tells it from the chosen one
-
-        def distinct(i: int, q: int) -> bool:
-            if q not in apart:
-                j, jq = int(pair_lm[chosen[i]]), int(pair_lm[q])
-                delta = se2.innovation(z_hat[j], z_hat[jq])
-                Jd = Jm[j] - Jm[jq]  # pose known: the map's uncertainty and the sensor's
-                D = Jd @ joint_cov @ Jd.T + R[i]
-                apart[q] = j != jq and float(delta @ np.linalg.solve(D, delta)) > self.distinct_d2
-            return apart[q]
-
-        def compatible(pairs: list[int]) -> bool:
-            rows = np.array([[2 * x, 2 * x + 1] for x in pairs]).reshape(-1)
-            v = nu[pairs].reshape(-1)
-            d2 = float(v @ np.linalg.solve(C[np.ix_(rows, rows)], v))
-            return d2 <= chi2_quantile(self.gate_prob, 2 * len(pairs))
-
-        budget = MAX_JCBB_NODES
-
-        def visit(pairs: list[int], used: set[int]) -> bool:
-            """Depth-first over the hypotheses pairing ``obs``; False when out of budget."""
-            nonlocal budget
-            if len(pairs) == len(obs):
-                for i, q in zip(obs, pairs, strict=True):
-                    held[i] = held[i] or distinct(i, q)
-                return True
-            for q in options[obs[len(pairs)]]:
-                if int(pair_lm[q]) in used:
-                    continue
-                if budget == 0:
-                    return False
-                budget -= 1
-                if compatible(pairs + [q]) and not visit(pairs + [q], used | {int(pair_lm[q])}):
-                    return False
-            return True
-
-        if not visit([], set()):
-            return [p is not None for p in chosen]
-        return held
+    def _apart(self, chosen, pair_obs, pair_lm, z_hat, R, Jm, joint_cov) -> np.ndarray:
+        """(P,) whether each pair's landmark is told apart by the sensor from the one
+        chosen for its observation (module docstring, step 3): their predicted
+        measurements' difference under the map's uncertainty (``Jm``: the
+        predictions' Jacobians with the pose columns zeroed) and the sighting's noise,
+        beyond ``distinct_d2``."""
+        apart = np.zeros(len(pair_obs), dtype=bool)
+        for q, (i, jq) in enumerate(zip(pair_obs.tolist(), pair_lm.tolist(), strict=True)):
+            if chosen[i] is None or int(pair_lm[chosen[i]]) == jq:
+                continue
+            j = int(pair_lm[chosen[i]])
+            delta = se2.innovation(z_hat[j], z_hat[jq])
+            Jd = Jm[j] - Jm[jq]
+            D = Jd @ joint_cov @ Jd.T + R[i]
+            apart[q] = float(delta @ np.linalg.solve(D, delta)) > self.distinct_d2
+        return apart
 
     @staticmethod
     def _costs(z, R, wTb, pose_cov, means_w, covs):
