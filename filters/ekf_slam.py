@@ -136,7 +136,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from filters.association import chi2_quantile, mahalanobis_sq_2d, t2_quantile
+from filters.association import JcbbResult, chi2_quantile, mahalanobis_sq_2d, t2_quantile
 from filters.ekf_slam_association import (
     ProvisionalList,
     associate_scan,
@@ -194,7 +194,7 @@ class EkfSlam(Backend):
         # each sighting weighed by what it adds to its landmark's earlier ones
         self._last_sightings = LastSightings()
         self._last_associations = []
-        self.last_jcbb = None
+        self.last_jcbb: JcbbResult | None = None
         #: Identified observations rejected by ``known_gate_chi2_prob`` since initialisation.
         self.rejected_count = 0
         #: Sightings of one robot by another since initialisation: used, and rejected
