@@ -154,7 +154,8 @@ class LandmarkAssociator:
         return decisions
 
     def _joint(self, z, R, wTb, landmarks_w, joint_cov) -> tuple[list[int | None], list[bool]]:
-        """Per observation, the landmark column JCBB pairs it with, or None.
+        """Per observation, the landmark column JCBB pairs it with (or None), and whether
+        that pairing is held as ambiguous (step 3 of the module docstring).
 
         The innovations of one scan share the pose's error, and a landmark seen a
         moment ago is known relative to the pose far better than either alone:
