@@ -141,6 +141,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         source_path=str(folder),
         notes=tuple(notes),
         agents=agents,
+        sensor_field=config.sensor_field(),
         warnings=warnings,
     )
 

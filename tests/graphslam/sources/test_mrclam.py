@@ -396,6 +396,8 @@ def test_all_robots_share_one_stream_with_truth_starts_and_sightings(mrclam):
                                        atol=1e-12)
     assert sum(len(f.pose_sightings) for f in ds.frames) == 3981
     assert "all starts from the truth" in ds.notes[0]
+    # the cameras are the single-robot reader's: the back ends read their field and tail
+    assert ds.sensor_field == MrclamConfig().sensor_field()
 
 
 def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
