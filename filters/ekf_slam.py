@@ -136,7 +136,13 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from filters.association import JcbbResult, chi2_quantile, mahalanobis_sq_2d, t2_quantile
+from filters.association import (
+    JcbbResult,
+    chi2_quantile,
+    confirming_sightings,
+    mahalanobis_sq_2d,
+    t2_quantile,
+)
 from filters.ekf_slam_association import (
     ProvisionalList,
     associate_scan,
@@ -189,7 +195,7 @@ class EkfSlam(Backend):
         self._hist_index: dict[int, int] = {}  # pose id -> its row of the history
         self._prov_known: dict[int, int] = {}  # known-association provisional counts
         # unknown-association provisional entries
-        self._prov = ProvisionalList(self.config.provisional_sightings, self._gate)
+        self._prov = ProvisionalList(self._provisional_sightings(), self._gate)
         self._scan = 0
         # each sighting weighed by what it adds to its landmark's earlier ones
         self._last_sightings = LastSightings()
@@ -412,7 +418,7 @@ class EkfSlam(Backend):
             if lid not in seen_prov:
                 self._prov_known[lid] = self._prov_known.get(lid, 0) + 1
                 seen_prov.add(lid)
-            if self._prov_known[lid] >= self.config.provisional_sightings:
+            if self._prov_known[lid] >= self._prov.sightings:
                 del self._prov_known[lid]
                 self._add_landmark(lid, o.z, o.covariance)  # a first sighting: its own
                 self._last_sightings.record(o, lid)
@@ -430,6 +436,18 @@ class EkfSlam(Backend):
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:
         self._sensor_field = sensor_field
         self._missed = self._missed_sightings()
+        self._prov.sightings = self._provisional_sightings()
+
+    def _provisional_sightings(self) -> int:
+        """``provisional_sightings``, or when unset: 1 with known ids, else as many as the
+        sensor's error tail needs (:func:`filters.association.confirming_sightings`)."""
+        n = self.config.provisional_sightings
+        if n is not None:
+            return n
+        if self.config.association == "known":
+            return 1
+        dof = math.inf if self._sensor_field is None else self._sensor_field.error_dof
+        return confirming_sightings(self.config.gate_chi2_prob, dof)
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
@@ -572,7 +590,7 @@ class EkfSlam(Backend):
         for i in range(m):
             if hyp[i] is not None or held[i] or not least[i] > threshold:
                 continue
-            if c.provisional_sightings <= 1:
+            if self._prov.sightings <= 1:
                 lid = self._next_id
                 self._add_landmark(lid, Z[i], Rs[i])
                 assoc[where[i]] = lid

@@ -52,7 +52,12 @@ class EkfSlamConfig:
             0-4): 96.9/89.3/97.6/91.5/97.8 % accuracy, against
             96.9/86.4/97.1/90.4/97.7 % with 0.9999.
         provisional_sightings: sightings before a landmark enters the map
-            (1 = at first sighting).
+            (1 = at first sighting). Unset (the default): 1 with known ids; with
+            unknown ids, as many as make a run of sightings outside a mapped
+            landmark's gate as rare as the gate's own error, for the sensor's error
+            tail (:func:`filters.association.confirming_sightings`: 1 for a
+            Gaussian sensor, 3 for MRCLAM's camera, as iSAM2's
+            ``confirm_sightings``).
         initial_capacity: landmarks the buffers hold before the first doubling.
         jcbb_max_candidates: individually compatible landmarks kept per observation.
         jcbb_max_nodes: pairing tests JCBB may do per scan.
@@ -134,7 +139,7 @@ class EkfSlamConfig:
     association: Literal["known", "unknown"] = "known"
     gate_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)
     new_landmark_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)
-    provisional_sightings: int = bounded(1, min=1)
+    provisional_sightings: int | None = bounded(None, min=1)
     initial_capacity: int = bounded(64, min=1, max=MAX_INITIAL_CAPACITY)
     jcbb_max_candidates: int = bounded(3, min=1)
     jcbb_max_nodes: int = bounded(2000, min=0, max=MAX_JCBB_NODES)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from filters.association import chi2_quantile, t2_quantile
+from filters.association import chi2_quantile, confirming_sightings, t2_quantile
 from filters.ekf_slam import EkfSlam
 from filters.ekf_slam_association import associate_scan
 from filters.ekf_slam_config import EkfSlamConfig
@@ -59,7 +59,8 @@ def test_the_filter_neither_updates_nor_maps_a_held_sighting():
     """Through the filter: the sighting is reported unpaired, no landmark is added, and
     the state is the prediction's; a sensor field with a wide tail lets it pair."""
     def run(field):
-        ekf = EkfSlam(EkfSlamConfig(association="unknown"))
+        # landmarks at their first sighting whatever the tail: the hold alone is tested
+        ekf = EkfSlam(EkfSlamConfig(association="unknown", provisional_sightings=1))
         ekf.initialize(0, np.zeros(3), np.diag([1e-4, 1e-4, 1e-8]))
         ekf.set_sensor_field(field)
         for lm in LANDMARKS:  # map both from the known pose
@@ -82,3 +83,50 @@ def test_without_a_distinct_gate_the_search_is_the_old_one(heading_sigma_rad):
     """``distinct_d2=None`` gives JCBB's closest candidates only, as before the rule."""
     res = _associate(heading_sigma_rad, None)
     assert res.held == [False]
+
+
+# ------------------------------------------------ confirming a new landmark (provisional list)
+
+@pytest.mark.parametrize("dof", [1.0, 2.0, 3.0, 5.1, 10.0, 100.0])
+@pytest.mark.parametrize("prob", [0.99, 0.999])
+def test_confirming_sightings_is_the_fewest_that_make_outliers_as_rare_as_the_gate(prob, dof):
+    """q^n <= 1 - p < q^(n - 1), q the t error's chance to fall beyond the Gaussian gate
+    (from its distribution, 1 - (1 + x / dof)^(-dof / 2))."""
+    n = confirming_sightings(prob, dof)
+    q = (1.0 + chi2_quantile(prob, 2) / dof) ** (-dof / 2.0)
+    assert q**n <= 1.0 - prob < q ** (n - 1)
+
+
+def test_confirming_sightings_for_a_gaussian_and_for_mrclams_camera():
+    assert confirming_sightings(0.999, math.inf) == 1
+    assert confirming_sightings(0.999, 5.1) == 3  # as iSAM2's confirm_sightings
+    with pytest.raises(ValueError):
+        confirming_sightings(1.0, 5.0)
+    with pytest.raises(ValueError):
+        confirming_sightings(0.999, 0.0)
+
+
+def _first_sightings(config: EkfSlamConfig, field: SensorField | None) -> list[int]:
+    """Landmarks in the map after each of three sightings of one landmark."""
+    ekf = EkfSlam(config)
+    ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-8)
+    ekf.set_sensor_field(field)
+    out = []
+    for k in range(3):
+        if k:
+            ekf.predict(Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8), k)
+        ekf.update([Observation(k, 7, models.observe(np.zeros(3), LANDMARKS[0]), R)])
+        out.append(ekf.num_landmarks)
+    return out
+
+
+def test_a_heavy_tailed_sensor_confirms_a_new_landmark_on_its_third_sighting():
+    unknown = EkfSlamConfig(association="unknown")
+    assert _first_sightings(unknown, SensorField(8.0, 1.0, 0.5, 5.1)) == [0, 0, 1]
+    assert _first_sightings(unknown, SensorField(8.0, 1.0, 0.5)) == [1, 1, 1]  # Gaussian
+    assert _first_sightings(unknown, None) == [1, 1, 1]
+    # a set count wins; known ids enter at their first sighting, whatever the sensor
+    fixed = EkfSlamConfig(association="unknown", provisional_sightings=2)
+    assert _first_sightings(fixed, SensorField(8.0, 1.0, 0.5, 5.1)) == [0, 1, 1]
+    known = EkfSlamConfig(association="known")
+    assert _first_sightings(known, SensorField(8.0, 1.0, 0.5, 5.1)) == [1, 1, 1]
