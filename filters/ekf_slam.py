@@ -98,7 +98,12 @@ observation; earlier sightings are not used. With unknown association a new
 sighting is matched to a provisional entry by a world-frame Mahalanobis gate on
 the inverse-observed points (covariances ``G_x P_rr G_x^T + G_z R G_z^T``,
 correlations ignored). Observations held on the list are reported as ``None``
-by :meth:`EkfSlam.associations`.
+by :meth:`EkfSlam.associations`. ``provisional_sightings`` unset (the default):
+N = 1 with known ids; with unknown ids, the N that makes N sightings outside a
+mapped landmark's gate as rare as the gate's own error under the sensor field's
+error tail (:func:`filters.association.confirming_sightings`: 1 for a Gaussian
+sensor, 3 for MRCLAM's camera; MRCLAM's robots then build 15-18 landmarks for 15
+instead of 15-24).
 
 Sightings whose errors are correlated in time (an observation's ``correlation``
 and ``stamp_s``) update with their covariance inflated by what they add to the
