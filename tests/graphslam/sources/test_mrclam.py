@@ -631,3 +631,20 @@ def test_frames_finer_than_any_log_needs_are_refused_before_allocating(monkeypat
     monkeypatch.setattr(mrclam, "MAX_FRAMES", n - 1)  # one over: refused
     with pytest.raises(ConfigError, match=f"would put {n} frames"):
         mrclam.frame_times(odometry_s, sightings_s, 7.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", [1, 2, 3, 4, 5])
+def test_ekf_unknown_association_within_the_issues_bound(mrclam, robot):
+    """Issue 31: without ids the EKF within 2x of its known-id ATE and no more than 20
+    landmarks. Needs the hold of ambiguous pairings (robot 3: 2.95x before) and three
+    sightings to confirm a landmark under the camera's error tail (robot 1 built 24 with
+    one; filters/ekf_slam.py). Measured 1.66/0.79/0.94/1.09/1.14x and 17/16/17/15/18
+    landmarks."""
+    ds = read_mrclam(mrclam, MrclamConfig(robot=robot))
+    known = pipeline.compute_metrics(pipeline.run(ds, registry.make_backend("ekf")),
+                                     with_graph_error=False)
+    run = pipeline.run(ds, registry.make_backend("ekf", overrides={"association": "unknown"}))
+    unknown = pipeline.compute_metrics(run, with_graph_error=False)
+    assert unknown.ate_rmse_m <= 2.0 * known.ate_rmse_m
+    assert len(run.estimate.landmark_ids) <= 20
