@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from filters.association import t2_quantile
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
@@ -35,6 +36,9 @@ from slamcore.planar.geometry import wrap_angle
 from slamcore.planar.records import Observation
 
 _LOG_2PI = math.log(2.0 * math.pi)
+#: Probability of the new-landmark gate when ``new_landmark_mahalanobis_sq`` is unset:
+#: the association gate of the EKF and iSAM2 (``gate_chi2_prob``, ``association_gate_prob``).
+NEW_LANDMARK_PROB = 0.999
 
 __all__ = ["ParticleSet"]
 
@@ -66,6 +70,9 @@ class ParticleSet:
         self._rows = np.arange(self.n_particles)
         self._prior: tuple[np.ndarray, np.ndarray] | None = None  # 2.0: (x_hat, Q)
         self._next_id = 0  # unknown association: ids handed out
+        #: Unknown association: the squared Mahalanobis gate of a new landmark
+        #: (``new_landmark_mahalanobis_sq``, or the sensor's error quantile: :meth:`set_error_dof`).
+        self.new_gate_d2 = self._new_gate(math.inf)
         #: Several robots: each other robot's latest pose id -> its (N, 3) particle poses
         #: (every particle holds every robot's latest pose; :attr:`poses` is the one moving).
         self.parked: dict[int, np.ndarray] = {}
@@ -262,11 +269,21 @@ class ParticleSet:
         return self.maps.table[self._rows, cols]
 
     # -------------------------------------------------------- association
+    def _new_gate(self, dof: float) -> float:
+        gate = self.config.new_landmark_mahalanobis_sq
+        return t2_quantile(NEW_LANDMARK_PROB, dof) if gate is None else gate
+
+    def set_error_dof(self, dof: float) -> None:
+        """The sensor's errors are Student-t with ``dof`` degrees of freedom (``inf``:
+        Gaussian): an unset ``new_landmark_mahalanobis_sq`` becomes their
+        :data:`NEW_LANDMARK_PROB` quantile."""
+        self.new_gate_d2 = self._new_gate(dof)
+
     def _log_p0(self, R: np.ndarray) -> float:
         """Log-likelihood of a new landmark seen with noise ``R`` (unknown association)."""
         if self.config.new_landmark_log_likelihood is not None:
             return self.config.new_landmark_log_likelihood
-        return -0.5 * self.config.new_landmark_mahalanobis_sq - _LOG_2PI - 0.5 * math.log(np.linalg.det(R))
+        return -0.5 * self.new_gate_d2 - _LOG_2PI - 0.5 * math.log(np.linalg.det(R))
 
     def _known_column(self, o: Observation) -> int:
         key = o.landmark_id if o.landmark_id is not None else o.signature
@@ -342,7 +359,7 @@ class ParticleSet:
         nu_b = wrap_angle(z[1] - np.arctan2(dy, dx) + poses[:, 2:3])
         det = s00 * s11 - s01 * s01
         d2 = (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) / det
-        ok = valid & (d2 <= self.config.new_landmark_mahalanobis_sq)
+        ok = valid & (d2 <= self.new_gate_d2)
         for prev in taken:  # two landmarks 0.3 m apart otherwise merge into one
             ok[self._rows, prev] = False
         ll = np.where(ok, -0.5 * d2 - 0.5 * np.log(det), -np.inf)
