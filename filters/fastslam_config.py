@@ -40,9 +40,10 @@ class FastSlamConfig:
             (:func:`filters.association.t2_quantile`): the chi-square's 13.8 for a
             Gaussian sensor, 71.5 for MRCLAM's camera (Student-t, 5.1 dof), whose
             sightings fall beyond 13.8 3.5 % of the time and then made landmarks
-            that are not there (31-56 for 15 with seed 0; 19-29 with its own
+            that are not there (31-56 for 15 with seed 0; 19-30 with its own
             quantile, and FastSLAM 2.0's median unknown-id ATE over seeds 0-4 fell
-            from 0.261/0.262/0.590/0.540/0.254 m to 0.175/0.251/0.171/0.359/0.207 m).
+            from 0.261/0.262/0.590/0.540/0.254 m to 0.174/0.251/0.169/0.389/0.207 m;
+            ``benchmarks/bench_mrclam.py``).
         new_landmark_log_likelihood: unknown association: log-likelihood
             weight factor of starting a new landmark; None uses the Gaussian
             density of the measurement noise R at the gate.

