@@ -451,7 +451,7 @@ def main(argv: list[str] | None = None) -> None:
         "correlation": correlation,
         "sensor_field": field,
         "sighting_tail": tail,
-        "defaults_in_use": {"sighting_error_dof": default.sighting_error_dof,"lag_s": default.odometry_lag_s,
+        "defaults_in_use": {"sighting_error_dof": default.sighting_error_dof, "lag_s": default.odometry_lag_s,
                             "forward_scale": default.forward_scale,
                             "angular_scale": default.angular_scale,
                             **{n: getattr(default, n) for n in NOISE_NAMES},

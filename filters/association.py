@@ -65,7 +65,10 @@ def t2_quantile(prob: float, dof: float) -> float:
         raise ValueError(f"dof must be positive, got {dof}")
     if math.isinf(dof):
         return -2.0 * math.log1p(-prob)
-    return dof * math.expm1(-2.0 / dof * math.log1p(-prob))
+    try:
+        return dof * math.expm1(-2.0 / dof * math.log1p(-prob))
+    except OverflowError:  # dof far below 1: beyond float64, as good as no gate
+        return math.inf
 
 
 def confirming_sightings(gate_prob: float, dof: float) -> int:

@@ -136,7 +136,6 @@ otherwise.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -163,7 +162,15 @@ from filters.planar_inputs import checked_scan, initial_pose, linked_pose, mappe
 from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction, SensorField
+from slamcore.planar.records import (
+    Estimate,
+    Observation,
+    Odometry,
+    PoseSighting,
+    Prediction,
+    SensorField,
+    error_dof,
+)
 from slamcore.planar.sighting_correlation import LastSightings
 
 
@@ -186,6 +193,7 @@ class EkfSlam(Backend):
         self._known_gate = self.config.known_gate()
         self._R_typical = self.config.default_noise()
         self._sensor_field: SensorField | None = None
+        self._distinct_d2 = self._distinct_gate()
         self._reset(self.config.initial_capacity)
 
     # ------------------------------------------------------------------ state
@@ -442,6 +450,12 @@ class EkfSlam(Backend):
         self._sensor_field = sensor_field
         self._missed = self._missed_sightings()
         self._prov.sightings = self._provisional_sightings()
+        self._distinct_d2 = self._distinct_gate()
+
+    def _distinct_gate(self) -> float:
+        """Squared distance beyond which the sensor tells two landmarks apart: the
+        ``gate_chi2_prob`` quantile of its error (unknown association's hold)."""
+        return t2_quantile(self.config.gate_chi2_prob, error_dof(self._sensor_field))
 
     def _provisional_sightings(self) -> int:
         """``provisional_sightings``, or when unset: 1 with known ids, else as many as the
@@ -451,8 +465,7 @@ class EkfSlam(Backend):
             return n
         if self.config.association == "known":
             return 1
-        dof = math.inf if self._sensor_field is None else self._sensor_field.error_dof
-        return confirming_sightings(self.config.gate_chi2_prob, dof)
+        return confirming_sightings(self.config.gate_chi2_prob, error_dof(self._sensor_field))
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
@@ -566,7 +579,6 @@ class EkfSlam(Backend):
         likelihood = None
         if c.jcbb_objective == "likelihood":
             likelihood = (c.new_landmark_density_per_m2, c.detection_prob)
-        dof = math.inf if self._sensor_field is None else self._sensor_field.error_dof
         hyp, novelty, res, held = associate_scan(
             self._store.xbuf,
             self._store.Pbuf,
@@ -578,7 +590,7 @@ class EkfSlam(Backend):
             max_candidates=c.jcbb_max_candidates,
             max_nodes=c.jcbb_max_nodes,
             likelihood=likelihood,
-            distinct_d2=t2_quantile(c.gate_chi2_prob, dof),
+            distinct_d2=self._distinct_d2,
         )
         if res is not None:
             self.last_jcbb = res

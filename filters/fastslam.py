@@ -92,7 +92,6 @@ inputs, same bits.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -106,7 +105,15 @@ from filters.planar_inputs import checked_scan, initial_pose, linked_pose, odome
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction, SensorField
+from slamcore.planar.records import (
+    Estimate,
+    Observation,
+    Odometry,
+    PoseSighting,
+    Prediction,
+    SensorField,
+    error_dof,
+)
 
 __all__ = ["FastSlam"]
 
@@ -140,7 +147,7 @@ class FastSlam(Backend):
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:
         """Unknown association reads the sensor's error tail from it (the gate of a new
         landmark, ``new_landmark_mahalanobis_sq`` unset); None: Gaussian errors."""
-        self._particles.set_error_dof(math.inf if sensor_field is None else sensor_field.error_dof)
+        self._particles.set_error_dof(error_dof(sensor_field))
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
         if self._pose_ids:

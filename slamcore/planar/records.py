@@ -17,6 +17,7 @@ covariances that are not symmetric positive definite are refused with a
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -339,6 +340,11 @@ class Prediction:
     innovation_covariance: np.ndarray
 
 
+#: Fewest degrees of freedom a sensor's Student-t errors may have: below 1 the t has no
+#: mean, and its quantiles at an association gate's probability overflow float64.
+MIN_ERROR_DOF = 1.0
+
+
 @dataclass(frozen=True)
 class SensorField:
     """Where a range-bearing sensor reports landmarks, and how reliably: what a
@@ -352,8 +358,9 @@ class SensorField:
             in a frame that reports something (0 < p <= 1; 1 for a simulated
             sensor that sees everything in its field).
         error_dof: the sightings' errors about their stated covariance are
-            Student-t with these degrees of freedom (``inf``, the default: Gaussian);
-            what tells one landmark from another in data association.
+            Student-t with these degrees of freedom (``inf``, the default: Gaussian;
+            at least :data:`MIN_ERROR_DOF`); what tells one landmark from another in
+            data association.
     """
 
     max_range_m: float
@@ -369,8 +376,14 @@ class SensorField:
             raise MeasurementError(f"sensor field: half_fov_rad must be in (0, pi] ({self.half_fov_rad})")
         if not 0.0 < self.detection_prob <= 1.0:
             raise MeasurementError(f"sensor field: detection_prob must be in (0, 1] ({self.detection_prob})")
-        if not self.error_dof > 0.0:
-            raise MeasurementError(f"sensor field: error_dof must be > 0 ({self.error_dof})")
+        if not self.error_dof >= MIN_ERROR_DOF:
+            raise MeasurementError(f"sensor field: error_dof must be >= {MIN_ERROR_DOF:g} ({self.error_dof})")
+
+
+def error_dof(sensor_field: SensorField | None) -> float:
+    """Degrees of freedom of the sightings' Student-t errors: ``sensor_field``'s, or
+    ``inf`` (Gaussian) when the data states no sensor field."""
+    return math.inf if sensor_field is None else sensor_field.error_dof
 
 
 @dataclass(frozen=True, eq=False)

@@ -83,6 +83,7 @@ def test_without_a_distinct_gate_the_search_is_the_old_one(heading_sigma_rad):
     """``distinct_d2=None`` gives JCBB's closest candidates only, as before the rule."""
     res = _associate(heading_sigma_rad, None)
     assert res.held == [False]
+    assert res.hypothesis == [0]  # the nearest under the prior, as JCBB alone pairs it
 
 
 # ------------------------------------------------ confirming a new landmark (provisional list)

@@ -44,7 +44,7 @@ def test_cusum_refuses_bad_probabilities(p, alpha):
 
 @pytest.mark.parametrize("args", [(0.0, 1.0, 0.5), (5.0, 0.0, 0.5), (5.0, 4.0, 0.5), (5.0, 1.0, 0.0),
                                   (5.0, 1.0, 1.1), (math.nan, 1.0, 0.5), (5.0, 1.0, 0.5, 0.0),
-                                  (5.0, 1.0, 0.5, -math.inf)])
+                                  (5.0, 1.0, 0.5, -math.inf), (5.0, 1.0, 0.5, 0.999)])
 def test_sensor_field_refuses_bad_values(args):
     with pytest.raises(MeasurementError):
         SensorField(*args)

@@ -64,7 +64,6 @@ not use.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 
 import gtsam
@@ -87,6 +86,7 @@ from slamcore.planar.records import (
     PoseSighting,
     Prediction,
     SensorField,
+    error_dof,
 )
 from slamcore.planar.sighting_correlation import LastSightings
 
@@ -148,8 +148,7 @@ class Isam2Backend(Backend):
         """Unknown association reads the sightings' error tail from it (what tells two
         landmarks apart, :mod:`.landmark_association`); None: Gaussian errors."""
         if self._unknown is not None:
-            dof = math.inf if sensor_field is None else sensor_field.error_dof
-            self._unknown.associator.set_error_dof(dof)
+            self._unknown.associator.set_error_dof(error_dof(sensor_field))
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._flush()
@@ -587,8 +586,7 @@ class Isam2Backend(Backend):
         """
         if pose_id == self._pose_ids[-1]:
             return self._pose(pose_id)
-        with fact.indeterminate_as_error("isam2"):
-            return self._isam.getLinearizationPoint().atPose2(X(pose_id))
+        return self._isam.getLinearizationPoint().atPose2(X(pose_id))  # no solve: nothing to fail
 
     def _pose(self, pose_id: int) -> gtsam.Pose2:
         """Best current value of a known pose: pending initial value, else iSAM2's."""

@@ -48,7 +48,14 @@ from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import folder_name
 from slamcore.input_files import check_input_path
 from slamcore.planar import geometry as se2
-from slamcore.planar.records import Dataset, Frame, SensorField, odometry_batch, range_bearing_batch
+from slamcore.planar.records import (
+    MIN_ERROR_DOF,
+    Dataset,
+    Frame,
+    SensorField,
+    odometry_batch,
+    range_bearing_batch,
+)
 from slamcore.planar.sighting_correlation import SightingCorrelation
 
 #: Subjects 1-5 are robots in every MRCLAM data set; the rest are landmarks.
@@ -184,7 +191,7 @@ class MrclamConfig:
     field_range_m: float = bounded(7.05, gt=0.0, max=1000.0)
     field_half_fov_deg: float = bounded(32.4, gt=0.0, max=180.0)
     detection_prob: float = bounded(0.0689, gt=0.0, max=1.0)
-    sighting_error_dof: float = bounded(5.1, gt=0.0)
+    sighting_error_dof: float = bounded(5.1, min=MIN_ERROR_DOF)
 
     def __post_init__(self):
         validate(self)

@@ -60,6 +60,20 @@ def test_the_t_quantile_refuses_what_is_no_distribution(bad):
         t2_quantile(*bad)
 
 
+def test_a_tail_too_wide_for_float64_is_no_gate_and_no_traceback():
+    """dof far below 1 puts the 0.999 quantile beyond float64 (SensorField and the
+    readers refuse dof < 1; the function itself says inf rather than overflowing)."""
+    assert t2_quantile(0.999, 0.001) == math.inf
+
+
+def test_a_sensor_tail_below_one_dof_is_refused_in_one_line():
+    from graphslam.sources.planar.mrclam import MrclamConfig
+    from slamcore.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="sighting_error_dof"):
+        MrclamConfig(sighting_error_dof=0.001)
+
+
 def test_a_lone_sighting_that_the_heading_prior_decides_is_held():
     """Two landmarks 0.25 rad apart in bearing (30 bearing sigmas): with the heading
     known to 0.2 rad, one sighting fits either and nothing but the prior picks one, so
