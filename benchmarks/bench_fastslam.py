@@ -146,8 +146,10 @@ class FloorFastSlam:
 
     Known association, forward odometry. Poses ``x (N, 3)``, landmark means
     ``mu (N, L, 2)`` and covariances ``P (N, L, 2, 2)`` (L grows by doubling),
-    log weights ``(N,)``. Draws come from one ``default_rng(seed)`` in the same
-    order as ours (initial cloud, motion noise, 2.0's pose draw, resampling).
+    log weights ``(N,)``, every particle's path ``(N, T, 3)`` (copied whole at each
+    resampling, as the maps are; the estimate is the best particle's path, as ours).
+    Draws come from one ``default_rng(seed)`` in the same order as ours (initial
+    cloud, motion noise, 2.0's pose draw, resampling).
     """
 
     def __init__(self, version: int, n_particles: int, seed: int, ess_fraction: float = 0.5):
@@ -160,6 +162,8 @@ class FloorFastSlam:
         self.x = self.proposal = None
         self.means: list[np.ndarray] = []
         self.covs: list[np.ndarray] = []
+        self.path = np.zeros((n_particles, 16, 3))
+        self.t = 0
 
     def initialize(self, x0: np.ndarray, cov: np.ndarray) -> None:
         self.x = x0 + self.rng.standard_normal((self.n, 3)) @ np.linalg.cholesky(cov).T
@@ -267,6 +271,10 @@ class FloorFastSlam:
         self.means.append(mean)
         self.covs.append((d * w[:, None]).T @ d)
         self.best = int(np.argmax(w))
+        if self.t == self.path.shape[1]:  # grow T by doubling
+            self.path = np.concatenate([self.path, np.zeros_like(self.path)], axis=1)
+        self.path[:, self.t] = self.x
+        self.t += 1
 
     def _resample(self, w: np.ndarray) -> None:
         """Systematic resampling; every particle's map is copied (dense arrays)."""
@@ -278,8 +286,13 @@ class FloorFastSlam:
         self.x = self.x[parents]
         self.mu[:, :L] = self.mu[parents, :L]
         self.P[:, :L] = self.P[parents, :L]
+        self.path[:, : self.t] = self.path[parents, : self.t]
         self.best = int(np.flatnonzero(parents == self.best)[0])
         self.logw = np.full(self.n, -math.log(self.n))
+
+    def trajectory(self) -> np.ndarray:
+        """(T, 3) the best particle's path."""
+        return self.path[self.best, : self.t]
 
     def landmarks(self) -> dict[int, np.ndarray]:
         """The best particle's landmark means by id."""
@@ -334,7 +347,7 @@ def against_floor(ds: Dataset, version: int, n: int, seed: int, repeats: int) ->
 def floor_agreement_m(ours: FastSlam, floor: FloorFastSlam) -> float:
     """Largest distance between ours' and the floor's trajectory points and best-map landmarks."""
     est = ours.estimate()
-    d_traj = np.linalg.norm(est.wTb[:, :2] - np.array(floor.means)[:, :2], axis=1)
+    d_traj = np.linalg.norm(est.wTb[:, :2] - floor.trajectory()[:, :2], axis=1)
     lms = floor.landmarks()
     d_lm = [np.linalg.norm(m - lms[int(i)]) for i, m in zip(est.landmark_ids, est.landmarks_w)]
     return float(max(d_traj.max(), max(d_lm, default=0.0)))

@@ -68,10 +68,12 @@ ignored; the back end's ids count up from 0 (one new id per observation that
 starts a landmark in at least one particle; ids only dead particles knew are
 dropped after resampling).
 
-Estimates are filtering estimates: the trajectory is the history of the
-weighted-mean particle pose at each step (after that step's observations, before
-resampling), with the weighted particle covariance of each step; earlier poses
-are never revised. Landmarks are those of the highest-weight particle.
+Estimates: the landmarks are those of the highest-weight particle, and the trajectory
+is that particle's path (``trajectory = "path"``, :mod:`filters.fastslam_paths`: the
+path its map is conditioned on, revised by every resampling) or, with ``"filtered"``,
+the weighted-mean particle pose of each step (after that step's observations, before
+resampling), never revised. The pose covariances are the weighted particle covariance
+of each step in both; :meth:`FastSlam.current_pose` is the current step's weighted mean.
 
 Several robots (``graphslam run --robot all``): every particle holds every
 robot's latest pose beside its landmark map (the robots that do not move are
@@ -99,6 +101,7 @@ import numpy as np
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
+from filters.fastslam_paths import MAX_PATH_BYTES, ParticlePaths
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
 from filters.planar_inputs import checked_scan, initial_pose, linked_pose, odometry_step
@@ -129,6 +132,7 @@ class FastSlam(Backend):
         self.name = f"fastslam{self.config.version}"
         self.n_particles = self.config.n_particles
         self._particles = ParticleSet(self.config)
+        self._paths = ParticlePaths(self.n_particles) if self.config.trajectory == "path" else None
         self._pose_ids: list[int] = []
         self._pose_set: set[int] = set()
         self._hist_mean: list[np.ndarray] = []
@@ -246,8 +250,8 @@ class FastSlam(Backend):
 
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
-        # the pose and landmarks estimate() reports: the weighted mean pose with
-        # its cloud covariance, and the best particle's landmark EKFs
+        # the pose and landmarks estimate() reports: its latest pose with the
+        # cloud covariance, and the best particle's landmark EKFs
         b = self._best
         x = self.current_pose()
         P_x = self.current_pose_covariance()
@@ -271,19 +275,39 @@ class FastSlam(Backend):
         self._close_step()
         self._refresh_parked()
         ids, means, covs = self._particles.maps.landmarks_of(self._best)
+        wTb = (
+            self._paths.path(self._best, len(self._hist_mean))
+            if self._paths is not None and self._tracks_paths()
+            else np.array(self._hist_mean)
+        )
         return Estimate(
             pose_ids=np.array(self._pose_ids, dtype=np.int64),
-            wTb=np.array(self._hist_mean),
+            wTb=wTb,
             landmark_ids=ids,
             landmarks_w=means,
             pose_covariances=np.array(self._hist_cov) if with_covariances else None,
             landmark_covariances=covs if with_covariances else None,
         )
 
+    def numerical_recoveries(self) -> list[str]:
+        if self._paths is not None and self._paths.given_up:
+            return [
+                f"{self.name}: the particles' paths outgrew {MAX_PATH_BYTES >> 20} MiB without "
+                "coalescing (no resampling): the trajectory is each step's weighted mean"
+            ]
+        return []
+
     def current_pose(self) -> np.ndarray:
+        """The estimate's latest pose: the highest-weight particle's (``trajectory =
+        "path"``, the pose its landmarks are predicted from) or the weighted mean."""
         self._require_init()
         self._close_step()
+        if self._tracks_paths():
+            return self._particles.poses[self._best].copy()
         return self._hist_mean[-1].copy()
+
+    def _tracks_paths(self) -> bool:
+        return self._paths is not None and not self._paths.given_up
 
     def current_pose_covariance(self) -> np.ndarray | None:
         self._require_init()
@@ -353,6 +377,8 @@ class FastSlam(Backend):
             self._hist_row[self._pose_ids[-1]] = len(self._hist_mean)
             self._hist_mean.append(mean)
             self._hist_cov.append(cov)
+        if self._paths is not None:
+            self._paths.record(len(self._hist_mean) - 1, self._particles.poses)
         self._dirty = False
 
     def _refresh_parked(self, w: np.ndarray | None = None) -> None:
@@ -360,6 +386,8 @@ class FastSlam(Backend):
         for pid, poses in self._particles.parked.items():
             row = self._hist_row[pid]
             self._hist_mean[row], self._hist_cov[row] = self._particles.cloud_stats(w, poses)
+            if self._paths is not None:
+                self._paths.record(row, poses)
 
     def _maybe_resample(self, w: np.ndarray) -> None:
         ess = 1.0 / float(np.sum(w * w))
@@ -367,5 +395,7 @@ class FastSlam(Backend):
         if ess >= self.config.resample_ess_fraction * self.n_particles:
             return
         parents = self._particles.resample(w)
+        if self._paths is not None:
+            self._paths.resampled(parents)
         self._best = int(np.flatnonzero(parents == self._best)[0])
         self.resample_count += 1

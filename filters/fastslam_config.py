@@ -47,6 +47,14 @@ class FastSlamConfig:
         new_landmark_log_likelihood: unknown association: log-likelihood
             weight factor of starting a new landmark; None uses the Gaussian
             density of the measurement noise R at the gate.
+        trajectory: what the estimate's poses are. "path" (the default): the path of
+            the highest-weight particle, the one its map (the estimate's landmarks) is
+            conditioned on, revised by every resampling that keeps it
+            (:mod:`filters.fastslam_paths`; on the default synthetic world, FastSLAM
+            2.0 with known ids, seeds 0-4, ATE 0.30-0.75 m against 0.75-1.66 m).
+            "filtered": the weighted mean of each step's particles, as that step left
+            them, never revised. The pose covariances are each step's particle spread
+            in both.
         odometry_covariance_scale: the odometry covariance is multiplied by
             this before sampling (> 0, at most
             :data:`~filters.numerics.MAX_ODOMETRY_COVARIANCE_SCALE`). Particle filters need motion noise
@@ -64,6 +72,7 @@ class FastSlamConfig:
     new_landmark_mahalanobis_sq: float | None = bounded(None, gt=0.0)
     new_landmark_log_likelihood: float | None = None
     odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
+    trajectory: Literal["path", "filtered"] = "path"
 
     def __post_init__(self):
         validate(self)

@@ -194,8 +194,9 @@ def test_one_step_posterior_agrees_between_versions():
     z1 = models.observe(np.broadcast_to(x1, (3, 3)), lms) + np.array([0.03, -0.01])
     post = {}
     for version in (1, 2):
+        # the posterior mean: each step's weighted mean, not one particle's path
         b = FastSlam(FastSlamConfig(version=version, n_particles=20000, seed=1,
-                                    resample_ess_fraction=0.0))
+                                    resample_ess_fraction=0.0, trajectory="filtered"))
         b.initialize(0, np.zeros(3), np.eye(3) * 1e-12)
         b.update([Observation(0, i, z0[i], R) for i in range(3)])
         b.predict(Odometry(0, 1, u, Q), 1)

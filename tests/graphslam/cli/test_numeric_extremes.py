@@ -224,10 +224,11 @@ def test_ate_against_dead_reckoning_tiers(ate_m, odometry_ate_m, says):
     assert (doubts == []) if says is None else (len(doubts) == 1 and says in doubts[0])
 
 
-@pytest.mark.parametrize("backend", ["ekf", "fastslam1"])
+@pytest.mark.parametrize("backend", ["ekf"])
 def test_a_filter_lagging_lucky_odometry_is_no_warning(tmp_path, backend):
-    """Seed 2 of the default world: dead reckoning 1.15 m, the EKF 1.79 m, FastSLAM 1.0
-    1.57 m, all working as designed (their poses are causal)."""
+    """Seed 2 of the default world: dead reckoning 1.15 m, the EKF 1.79 m, working as
+    designed (its poses are causal). (FastSLAM 1.0 lagged too, 1.57 m, while its
+    trajectory was each step's mean; its best particle's path is 0.80 m.)"""
     out = tmp_path / "o"
     assert main(["run", "--backend", backend, "--seed", "2", "--out", str(out), *QUIET]) == 0
     m = json.loads((out / "metrics.json").read_text())
