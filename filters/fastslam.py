@@ -73,7 +73,7 @@ is that particle's path (``trajectory = "path"``, :mod:`filters.fastslam_paths`:
 path its map is conditioned on, revised by every resampling) or, with ``"filtered"``,
 the weighted-mean particle pose of each step (after that step's observations, before
 resampling), never revised. The pose covariances are the weighted particle covariance
-of each step in both; :meth:`FastSlam.current_pose` is the current step's weighted mean.
+of each step in both; :meth:`FastSlam.current_pose` is the trajectory's latest pose.
 
 Several robots (``graphslam run --robot all``): every particle holds every
 robot's latest pose beside its landmark map (the robots that do not move are

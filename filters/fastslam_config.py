@@ -42,8 +42,8 @@ class FastSlamConfig:
             sightings fall beyond 13.8 3.5 % of the time and then made landmarks
             that are not there (31-56 for 15 with seed 0; 19-30 with its own
             quantile, and FastSLAM 2.0's median unknown-id ATE over seeds 0-4 fell
-            from 0.261/0.262/0.590/0.540/0.254 m to 0.174/0.251/0.169/0.389/0.207 m;
-            ``benchmarks/bench_mrclam.py``).
+            from 0.261/0.262/0.590/0.540/0.254 m to 0.174/0.251/0.169/0.389/0.207 m,
+            each step's mean as the trajectory; ``benchmarks/bench_mrclam.py``).
         new_landmark_log_likelihood: unknown association: log-likelihood
             weight factor of starting a new landmark; None uses the Gaussian
             density of the measurement noise R at the gate.
@@ -51,7 +51,7 @@ class FastSlamConfig:
             the highest-weight particle, the one its map (the estimate's landmarks) is
             conditioned on, revised by every resampling that keeps it
             (:mod:`filters.fastslam_paths`; on the default synthetic world, FastSLAM
-            2.0 with known ids, seeds 0-4, ATE 0.30-0.75 m against 0.75-1.66 m).
+            2.0 with known ids, seeds 0-4, ATE 0.36-0.65 m against 0.93-1.46 m).
             "filtered": the weighted mean of each step's particles, as that step left
             them, never revised. The pose covariances are each step's particle spread
             in both.
