@@ -275,11 +275,11 @@ class FastSlam(Backend):
         self._close_step()
         self._refresh_parked()
         ids, means, covs = self._particles.maps.landmarks_of(self._best)
-        wTb = (
-            self._paths.path(self._best, len(self._hist_mean))
-            if self._paths is not None and self._tracks_paths()
-            else np.array(self._hist_mean)
-        )
+        paths = self._paths
+        if paths is not None and not paths.given_up:
+            wTb = paths.path(self._best, len(self._hist_mean))
+        else:
+            wTb = np.array(self._hist_mean)
         return Estimate(
             pose_ids=np.array(self._pose_ids, dtype=np.int64),
             wTb=wTb,

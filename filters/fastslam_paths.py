@@ -17,20 +17,23 @@ particle's path is read backwards through the parents (its ancestor in every old
 generation). Resampling makes the lineages coalesce: once every living particle descends
 from one particle of a generation, the rows of that generation and older ones hold one
 pose each for all living particles, and :meth:`ParticlePaths.compact` keeps only that
-pose and drops the parents behind it. Memory is then N x 3 floats per row since the last
-coalescence, not per row of the run. A filter that never resamples never coalesces:
-past :data:`MAX_PATH_BYTES` the store gives up (:attr:`ParticlePaths.given_up`) and the
-filter reports the weighted means instead, and says so.
+pose and drops the parents behind it. Memory is then N x 3 floats per row (and N indices
+per resampling) since the last coalescence, not per row of the run. A filter that never
+resamples never coalesces: past :data:`MAX_PATH_BYTES` the store gives up
+(:attr:`ParticlePaths.given_up`) and the filter reports the weighted means instead, and
+says so.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from slamcore.errors import GraphSlamError
+
 __all__ = ["MAX_PATH_BYTES", "ParticlePaths"]
 
-#: Most bytes the rows not yet coalesced may take (1 GiB: 100 particles over 450 000
-#: steps without a resampling, 10 000 particles over 4 500).
+#: Most bytes the rows not yet coalesced and their parents may take (1 GiB: 100 particles
+#: over 450 000 steps without a resampling, 10 000 particles over 4 500).
 MAX_PATH_BYTES = 1 << 30
 #: Rows recorded between two attempts to coalesce (amortises the walk through the parents).
 _COMPACT_EVERY = 64
@@ -52,10 +55,10 @@ class ParticlePaths:
         # parents of resampling g + 1 at index g - _base (older ones dropped by compact)
         self._parents: list[np.ndarray] = []
         self._base = 0
-        self._full_bytes = 0
+        self._bytes = 0  # the full rows' and the kept parents'
         self._since_compact = 0
-        #: True once the rows not yet coalesced outgrew :data:`MAX_PATH_BYTES`: the
-        #: store then holds nothing and :meth:`path` refuses.
+        #: True once the rows not yet coalesced and their parents outgrew
+        #: :data:`MAX_PATH_BYTES`: the store then holds nothing and :meth:`path` refuses.
         self.given_up = False
 
     def record(self, row: int, poses: np.ndarray) -> None:
@@ -63,72 +66,75 @@ class ParticlePaths:
         if self.given_up:
             return
         if row in self._full:
-            self._full_bytes -= self._rows[row][0].nbytes
+            self._bytes -= self._rows[row][0].nbytes
         arr = np.array(poses, dtype=np.float64)
         self._rows[row] = (arr, self.generation)
         self._full.add(row)
-        self._full_bytes += arr.nbytes
+        self._bytes += arr.nbytes
         self._since_compact += 1
-        if self._since_compact >= _COMPACT_EVERY or self._full_bytes > MAX_PATH_BYTES:
+        if self._since_compact >= _COMPACT_EVERY or self._bytes > MAX_PATH_BYTES:
             self.compact()
 
     def resampled(self, parents: np.ndarray) -> None:
         """A resampling made particle ``i`` a copy of ``parents[i]``."""
         if self.given_up:
             return
-        self._parents.append(np.asarray(parents, dtype=np.intp).copy())
+        kept = np.asarray(parents, dtype=np.intp).copy()
+        self._parents.append(kept)
+        self._bytes += kept.nbytes
         self.generation += 1
 
-    def _lineage(self, idx: np.ndarray) -> list[np.ndarray]:
-        """Ancestors of the current generation's particles ``idx`` in every kept
-        generation: element ``g - base`` holds their indices in generation ``g``."""
-        out = [idx]
-        for g in range(self.generation, self._base, -1):
-            idx = self._parents[g - 1 - self._base][idx]
-            out.append(idx)
-        return out[::-1]
+    def _ancestors(self, particle: int, newest: int) -> dict[int, int]:
+        """Generation -> index of the ancestor of ``particle`` (an index of generation
+        ``newest``), for ``newest`` and every older kept generation."""
+        out = {newest: int(particle)}
+        for g in range(newest, self._base, -1):
+            out[g - 1] = int(self._parents[g - 1 - self._base][out[g]])
+        return out
 
     def path(self, particle: int, n_rows: int) -> np.ndarray:
         """(n_rows, 3) the poses of ``particle``'s path at rows ``0 .. n_rows - 1``."""
         if self.given_up:
-            raise RuntimeError("particle paths were given up (MAX_PATH_BYTES)")
-        lineage = self._lineage(np.array([particle], dtype=np.intp))
+            raise GraphSlamError("particle paths were given up (MAX_PATH_BYTES)")
+        ancestor = self._ancestors(particle, self.generation)
         out = np.empty((n_rows, 3))
         for row in range(n_rows):
             poses, g = self._rows[row]
-            out[row] = poses if poses.ndim == 1 else poses[lineage[g - self._base][0]]
+            out[row] = poses if poses.ndim == 1 else poses[ancestor[g]]
         return out
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by rows not yet coalesced."""
-        return self._full_bytes
+        """Bytes held by rows not yet coalesced and the parents kept for them."""
+        return self._bytes
 
     def compact(self) -> None:
         """Coalesce: the rows of the newest generation whose living lineages all meet in
         one particle, and older rows, keep that particle's pose; the parents before that
         generation go. Gives up past :data:`MAX_PATH_BYTES`."""
         self._since_compact = 0
-        lineage = self._lineage(np.arange(self.n_particles, dtype=np.intp))
-        meet = next(
-            (
-                g
-                for g in range(self.generation, self._base - 1, -1)
-                if np.all(lineage[g - self._base] == lineage[g - self._base][0])
-            ),
-            None,
-        )
+        idx = np.arange(self.n_particles, dtype=np.intp)  # the living lineages, walked back
+        meet = None
+        for g in range(self.generation, self._base - 1, -1):
+            if np.all(idx == idx[0]):
+                meet = g
+                break
+            if g > self._base:
+                idx = self._parents[g - 1 - self._base][idx]
         if meet is not None:
+            ancestor = self._ancestors(int(idx[0]), meet)
             for row in [r for r in self._full if self._rows[r][1] <= meet]:
                 poses, g = self._rows[row]
-                self._rows[row] = (poses[lineage[g - self._base][0]].copy(), g)
-                self._full_bytes -= poses.nbytes
+                self._rows[row] = (poses[ancestor[g]].copy(), g)
+                self._bytes -= poses.nbytes
                 self._full.discard(row)
+            for dropped in self._parents[: meet - self._base]:
+                self._bytes -= dropped.nbytes
             self._parents = self._parents[meet - self._base :]
             self._base = meet
-        if self._full_bytes > MAX_PATH_BYTES:
+        if self._bytes > MAX_PATH_BYTES:
             self.given_up = True
             self._rows.clear()
             self._full.clear()
             self._parents.clear()
-            self._full_bytes = 0
+            self._bytes = 0

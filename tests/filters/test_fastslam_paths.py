@@ -14,6 +14,7 @@ from filters.fastslam_paths import ParticlePaths
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
+from slamcore.errors import GraphSlamError
 from tests.filters.test_fastslam import loop_world
 
 #: Paths are copies of recorded poses: they must come back to the bit.
@@ -66,7 +67,7 @@ def test_a_store_that_outgrows_its_bound_gives_up(monkeypatch):
     for row in range(64):  # no resampling: nothing coalesces
         store.record(row, np.zeros((4, 3)))
     assert store.given_up and store.nbytes == 0
-    with pytest.raises(RuntimeError, match="given up"):
+    with pytest.raises(GraphSlamError, match="given up"):
         store.path(0, 64)
 
 
