@@ -319,9 +319,21 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
     path = folder / "Landmark_Groundtruth.dat"
     truth: dict[int, np.ndarray] = {}
     if path.exists():
-        table, _ = read_table(path, 5, "subject, x, y, std x, std y")
-        for values in table:
-            truth[int(values[0])] = values[1:3].copy()
+        table, lines = read_table(path, 5, "subject, x, y, std x, std y")
+        first_line: dict[int, int] = {}
+        for row, values in enumerate(table):
+            subject = values[0]
+            if subject != int(subject) or subject < 1:
+                raise InputError("a landmark's subject must be a whole number >= 1", path, lines[row])
+            first = first_line.get(int(subject))
+            if first is not None:  # which is the truth? A map scored against either would be wrong
+                raise InputError(
+                    f"landmark {int(subject)} is given a second position (first on line {first})",
+                    path,
+                    lines[row],
+                )
+            first_line[int(subject)] = lines[row]
+            truth[int(subject)] = values[1:3].copy()
     return barcodes, truth
 
 
