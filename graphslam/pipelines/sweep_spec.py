@@ -275,6 +275,36 @@ def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[st
             )
 
 
+#: The settings ``graphslam run --seed`` sets (the data's generators, the derived
+#: odometry's noise, the back ends that draw random numbers): a sweep with ``[sweep]
+#: seed`` hands ``--seed`` to every run, which overrides these whatever ``[sweep.set]``
+#: says.
+SET_BY_RUN_SEED = (
+    "synthetic.seed",
+    "synthetic_images.seed",
+    "odometry_noise.seed",
+    "fastslam.seed",
+    "mono_ekf.seed",
+    "isam2_visual.seed",
+)
+
+
+def _refuse_keys_seed_sets(seeds: tuple, keys: tuple, cfg: ConfigFile) -> None:
+    """ConfigError when ``[sweep] seed`` is given and ``[sweep.set]`` sweeps a key that
+    ``--seed`` sets: every run would get ``--seed``'s value, the swept one silently
+    lost (fourth hostile pass: three runs labelled synthetic.seed 1, 2, 3, one result)."""
+    if seeds == (None,):
+        return
+    for dotted in keys:
+        if dotted in SET_BY_RUN_SEED:
+            raise ConfigError(
+                f"[sweep.set] {dotted}: [sweep] seed gives every run --seed, which sets "
+                f"{dotted}; sweep the seeds in one place ([sweep] seed, or {dotted} without it)",
+                cfg.path,
+                cfg.line_of("sweep", "set", *dotted.split(".")),
+            )
+
+
 def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     value = sweep.get("seed")
     line = cfg.line_of("sweep", "seed")
@@ -432,5 +462,6 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     keys, values = _check_set(sweep, cfg, grid_sections)
     seeds = _seeds(sweep, cfg)
     _refuse_seeds_of_solves(seeds, datasets, backends, cfg)
+    _refuse_keys_seed_sets(seeds, keys, cfg)
     _check_size(sweep, cfg, len(datasets) * len(backends) * len(seeds), values)
     return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps, nees, base, keys, values)

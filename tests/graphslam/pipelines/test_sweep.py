@@ -150,6 +150,23 @@ def test_seeds_on_a_pose_graph_solve_are_refused_before_any_run(tmp_path, capsys
     assert [r.seed for r in parse_sweep(streamed).runs()] == [0, 1]
 
 
+@pytest.mark.parametrize("key", ["synthetic.seed", "fastslam.seed"])
+def test_a_swept_key_that_seed_sets_is_refused_beside_sweep_seed(tmp_path, capsys, key):
+    """Fourth hostile pass: with [sweep] seed every run gets --seed, which set
+    synthetic.seed whatever [sweep.set] said: three runs labelled 1, 2, 3 gave one ATE."""
+    text = ('[sweep]\ndataset = ["synthetic"]\nbackend = ["fastslam1"]\nseed = [0]\n'
+            f'[sweep.set]\n"{key}" = [1, 2, 3]\n')
+    path = _file(tmp_path, text)
+    with pytest.raises(ConfigError) as e:
+        parse_sweep(path)
+    assert e.value.line == 6 and f"[sweep] seed gives every run --seed, which sets {key}" in str(e.value)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    # without [sweep] seed the key is the one seed of the runs, and is swept
+    alone = _file(tmp_path, text.replace("seed = [0]\n", ""))
+    assert len(parse_sweep(alone).runs()) == 3
+
+
 #: A dataset that exists (a sweep checks that first) and fails in its run.
 BAD_GRAPH = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 oops 0 0\n"
 
