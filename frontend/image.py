@@ -8,6 +8,8 @@ confusing OpenCV assertion deep inside a filter.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -71,6 +73,19 @@ _PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 _JPEG_START = b"\xff\xd8"
 
 
+@contextlib.contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """OpenCV's own log silenced for the block: a decoder that cannot read a file
+    (a float TIFF, say) prints a ``[ WARN ]`` line of its own before returning None,
+    and the caller's one-line error then comes second."""
+    old = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(old)
+
+
 def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     """Decode the bytes of an image file as ``(H, W)`` ``uint8`` greyscale.
 
@@ -86,7 +101,8 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
         raise InputError("truncated JPEG (no end-of-image marker)", path)
     image = None
     if data:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+        with quiet_opencv():
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None or image.size == 0:
         raise InputError("cannot read image (not an image file, or an unsupported format)", path)
     if _levels(image) <= MAX_LEVELS_OF_LOW_16_BIT:  # near flat: 16-bit values in the low bits?
@@ -111,7 +127,8 @@ def _check_sixteen_bit(data: bytes, image: np.ndarray, path: str | Path) -> None
     OpenCV keeps the top 8 of the 16) spans at most :data:`MAX_LEVELS_OF_LOW_16_BIT`
     grey levels: the values sit in the low bits (a depth map, a 12-bit camera's raw
     data), and the image is near black. Decoded again only for such a flat image."""
-    deep = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+    with quiet_opencv():
+        deep = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
     if deep is None or deep.dtype != np.uint16:
         return  # an 8-bit image that is flat: a blank frame, said where features are counted
     lo, hi = int(image.min()), int(image.max())

@@ -42,3 +42,15 @@ def test_other_sixteen_bit_formats_are_refused_too(tmp_path, suffix):
 def test_a_flat_eight_bit_image_is_read(tmp_path):
     assert cv2.imwrite(str(tmp_path / "blank.png"), np.zeros((40, 60), np.uint8))  # a lens cap
     assert load_gray(tmp_path / "blank.png").max() == 0
+
+
+def test_an_image_opencv_cannot_decode_gives_our_line_only(tmp_path, capfd):
+    """Fourth hostile pass: a float TIFF printed OpenCV's own ``[ WARN ]`` line on stderr
+    before the one-line error."""
+    path = tmp_path / "frame.tiff"
+    cv2.imwrite(str(path), np.random.default_rng(0).random((40, 50)).astype(np.float32))
+    level = cv2.utils.logging.getLogLevel()
+    with pytest.raises(InputError, match="cannot read image"):
+        load_gray(path)
+    assert capfd.readouterr().err == ""
+    assert cv2.utils.logging.getLogLevel() == level  # OpenCV's own setting is left as it was

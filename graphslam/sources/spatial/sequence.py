@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from frontend.image import load_gray
+from frontend.image import load_gray, quiet_opencv
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.errors import InputError, quote
 from slamcore.input_files import check_input_path
@@ -407,7 +407,8 @@ def stored_size(path: str) -> tuple[int, int] | None:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError:
         return None
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    with quiet_opencv():
+        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     return None if img is None else (int(img.shape[1]), int(img.shape[0]))
 
 
