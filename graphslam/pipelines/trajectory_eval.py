@@ -25,7 +25,7 @@ from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.evaluation.trajectory import STAMP_MAX_S, EvalOptions, TrajectoryEval, evaluate
 from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError
 
 
 @dataclass
@@ -100,7 +100,12 @@ def evaluate_files(
         raise ConfigError("--times gives KITTI files their stamps; none of these files is KITTI", times)
     results = []
     for path, label, est in loaded:
-        result = evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options)
+        try:
+            result = evaluate(ref.stamps_s, ref.wTc, est.stamps_s, est.wTc, options)
+        except LocatedError:
+            raise
+        except GraphSlamError as e:  # which estimate of several, scored against which file
+            raise InputError(f"{e} (scored against {ground_truth})", path) from None
         said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options, len(result.ref))
         said += doubts(result, options)
         results.append(EstimateResult(str(path), result, label, said))

@@ -217,3 +217,14 @@ def test_a_run_scored_on_under_half_its_poses_says_so(tmp_path, capsys):
     assert m["ate_poses"] < 0.5 * 400
     assert any("under half the run" in w for w in m["warnings"])
     assert "WARNING" in capsys.readouterr().out
+
+
+def test_an_estimate_that_pairs_too_few_poses_is_named(tmp_path, capsys):
+    """Fourth hostile pass: "only 1 matched pose(s)" named no file, with several estimates
+    on the command line."""
+    gt, est = tr.write_pair(tmp_path, "tum")
+    one = tmp_path / "one.tum"
+    one.write_text(est.read_text().splitlines()[0] + "\n")
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, one)
+    assert code == 2
+    tr.one_error(err, f"{one}:", "only 1 matched pose(s)", f"scored against {gt}")
