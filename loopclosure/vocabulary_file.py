@@ -41,6 +41,7 @@ def read_npz(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError("vocabulary file not found", path)
+    _refuse_other_formats(path)
     try:
         check_npz_sizes(path, path)  # before np.load allocates what a header declares
         with np.load(path, allow_pickle=False) as z:
@@ -63,6 +64,32 @@ def read_npz(path) -> dict:
         )
     data["kind"] = str(data["kind"])
     return data
+
+
+#: First bytes of the files other vocabulary tools write: a user who has DBoW2/DBoW3 or
+#: ORB-SLAM's vocabulary tries it first (the slambook2 desk data ships a DBoW3 .yml.gz).
+_OTHER_FORMATS = ((b"\x1f\x8b", "gzip-compressed"), (b"%YAML", "YAML text"), (b"vocabulary:", "YAML text"))
+
+
+def _refuse_other_formats(path: Path) -> None:
+    """InputError naming what the file is, when it is no zip (every .npz is one) and starts
+    like another tool's vocabulary or like text; a damaged .npz is left to the reader."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError as e:
+        raise InputError(f"cannot read vocabulary file ({e.strerror})", path) from None
+    if head.startswith(b"PK"):
+        return
+    what = next((name for magic, name in _OTHER_FORMATS if head.startswith(magic)), None)
+    if what is None and head and all(32 <= b < 127 or b in b"\t\r\n" for b in head):
+        what = "text"
+    if what is not None:
+        raise InputError(
+            f"not a graphslam vocabulary: the file is {what}; graphslam reads the .npz files "
+            "'graphslam vocab train' writes (DBoW2/DBoW3 and ORB-SLAM vocabularies are not read)",
+            path,
+        )
 
 
 def read_kind(path, kind: str) -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import gzip
+
 import numpy as np
 import pytest
 
@@ -250,3 +252,20 @@ def test_flat_seed_beyond_kmeans_range_is_refused_by_name():
     with pytest.raises(ConfigError, match="seed must be an integer <= 4294967295"):
         FlatVocabulary(n_words=4, seed=2**32).fit(x)
     assert FlatVocabulary(n_words=4, seed=2**32 - 1).fit(x).n_words_ == 4
+
+
+@pytest.mark.parametrize("name, content, what", [
+    ("dbow3.yml.gz", gzip.compress(b"%YAML:1.0\nvocabulary:\n   k: 10\n"), "gzip-compressed"),
+    ("dbow3.yml", b"%YAML:1.0\nvocabulary:\n   k: 10\n", "YAML text"),
+    ("ORBvoc.txt", b"10 6  0 0\n0 0 252 188 188 242 169 109 85 143 187 171\n", "text"),
+])
+def test_another_tools_vocabulary_is_named_not_called_damaged(tmp_path, name, content, what):
+    """Fourth hostile pass: the DBoW3 vocabulary the desk data ships was "damaged or
+    unreadable (BadZipFile)": a user learns nothing of what to do."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(InputError) as err:
+        load_vocabulary(path)
+    message = str(err.value)
+    assert f"not a graphslam vocabulary: the file is {what}" in message and "vocab train" in message
+    assert "damaged" not in message
