@@ -248,17 +248,27 @@ def _images(args):
         paths = folder_images(args.images_dir)
         check_utf8_names(paths, "the closures name images by file name (UTF-8 text)")
         times = folder_timestamps(paths)  # of the whole folder: a times.txt matches it only
+    truth = None
+    if args.truth is not None:  # of the whole folder: --frames may leave some of its images out
+        from graphslam.evaluation.places import read_truth
+
+        truth = read_truth(args.truth, paths)
     if args.frames is not None:
+        from graphslam.evaluation.places import restrict_truth
         from graphslam.sources.spatial.frames import frame_indices, parse_frames
 
         index = frame_indices(parse_frames(args.frames), len(paths))
         paths = [paths[i] for i in index]
         times = None if times is None else times[index]
-    truth = None
-    if args.truth is not None:
-        from graphslam.evaluation.places import read_truth
+        if truth is not None:
+            truth, outside = restrict_truth(truth, index)
+            if outside:
+                from graphslam.cli.common import warn
 
-        truth = read_truth(args.truth, paths)
+                warn(
+                    f"{args.truth}: {outside} of its same-place pairs name an image --frames "
+                    f"{args.frames} leaves out; scored on the other {len(truth)}"
+                )
     return paths, times, truth, bag
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from slamcore.errors import InputError, quote
 from slamcore.input_files import check_input_path
 
-__all__ = ["read_truth", "score", "pr_curve", "PrPoint"]
+__all__ = ["read_truth", "restrict_truth", "score", "pr_curve", "PrPoint"]
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,15 @@ def _image_truth(path: Path, n: int) -> set[tuple[int, int]]:
         )
     i, j = np.nonzero(img)
     return {(int(max(a, b)), int(min(a, b))) for a, b in zip(i, j, strict=True) if a != b}
+
+
+def restrict_truth(pairs: set[tuple[int, int]], index) -> tuple[set[tuple[int, int]], int]:
+    """The pairs of a folder's truth among the images ``index`` (the folder's indices
+    of a selection, in its order), as indices of the selection, and how many pairs were
+    left out (an image of theirs not selected)."""
+    at = {int(i): k for k, i in enumerate(index)}
+    kept = {(max(at[a], at[b]), min(at[a], at[b])) for a, b in pairs if a in at and b in at}
+    return kept, len(pairs) - len(kept)
 
 
 def read_truth(path: str | Path, image_paths: list[Path]) -> set[tuple[int, int]]:

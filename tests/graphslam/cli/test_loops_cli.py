@@ -203,3 +203,21 @@ def test_dangling_image_link_is_refused_as_a_corrupt_image_is(desk, tmp_path, ca
     (folder / "03.png").unlink()
     (folder / "03.png").write_bytes(b"not a png")  # what loops did with a corrupt file
     assert "03.png" in _one_line_error(capsys, ["loops", str(folder), "--out", out, "--quiet"])
+
+
+def test_truth_pairs_outside_frames_are_left_out_and_said(desk, tmp_path, capsys):
+    """Fourth hostile pass: with --frames 0:5, the desk's true pair (10, 01) was refused as
+    "'10.png' is not an image of the folder"; it is one, left out by --frames."""
+    truth = tmp_path / "t.csv"
+    truth.write_text("query,match\n10.png,01.png\n02.png,01.png\n")
+    out = tmp_path / "l.csv"
+    assert main(["loops", str(desk), "--out", str(out), "--truth", str(truth), "--quiet",
+                 "--frames", "0:5"]) == 0
+    captured = capsys.readouterr()
+    assert "1 of its same-place pairs name an image --frames 0:5 leaves out; scored on the other 1" \
+        in captured.err
+    assert "truth: 1 same-place pairs" in captured.out
+    truth.write_text("query,match\n11.png,01.png\n")  # not in the folder at all: still refused
+    assert main(["loops", str(desk), "--out", str(out), "--truth", str(truth), "--quiet",
+                 "--frames", "0:5"]) == 2
+    assert "'11.png' is not an image of the folder" in capsys.readouterr().err
