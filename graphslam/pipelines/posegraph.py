@@ -83,19 +83,20 @@ def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | No
     """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`.
 
     SIGINT or SIGTERM between iSAM2 updates ends the solve with the poses added
-    so far (``result.cut``); during the batch LM (C++) it takes effect when the
-    LM ends, the estimate whole. A whole estimate is then certified when
-    ``config.certify`` (``result.optimality``; not after a stop).
+    so far (``result.cut``); during the batch part (LM, GNC) it ends it after the
+    iteration it came in, the estimate in hand then whole (``result.stopped``). A
+    whole estimate is then certified when ``config.certify`` (``result.optimality``;
+    not after a stop).
     """
     config = config or PoseGraphConfig()
     with interrupt_between_frames() as stop:
 
-        def should_stop(update: int) -> bool:
-            signal_hook("step", update)
+        def should_stop(point: str, step: int) -> bool:
+            signal_hook(point, step)
             return stop.requested
 
         result = solve(graph, config, solver, should_stop)
-        signal_hook("finalize")  # the batch LM (C++) defers a signal to here
+        signal_hook("finalize")
         if config.certify and result.cut is None and not stop.requested:
             certify(graph, result, lambda: stop.requested)
             if (
@@ -233,6 +234,8 @@ def metrics(
             "threshold_whitened": result.closure_threshold,
             "noise_scale_squared": result.noise_scale,
             "retest_rounds": result.closure_rounds,
+            # only after a stop: which part of the solve it ended (the test may not have run)
+            **({"stopped": result.stopped} if result.stopped is not None else {}),
         },
         equiv_ignored=len(graph.equiv) or None,
         self_edges_ignored=(

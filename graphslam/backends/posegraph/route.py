@@ -81,13 +81,18 @@ def solve_auto(graph: PoseGraph, config: PoseGraphConfig, solve, should_stop=Non
     """Batch, then iSAM2 where batch's result is not consistent; the better kept.
     ``solve``: :func:`.solver.solve` (passed in: the solver dispatches here)."""
     t0 = time.perf_counter()
-    batch = solve(graph, config, "batch")
+    batch = solve(graph, config, "batch", should_stop)
+    if batch.stopped is not None:  # the estimate in hand; no second route after a stop
+        reason = f"a signal stopped its {batch.stopped}"
+        return _named(
+            batch, t0, {"kept": "batch", "reason": reason, "batch": _summary(batch, batch.final_cost)}
+        )
     ok, why = consistent(graph, batch, config.closure_test_alpha)
     if ok and not batch.rejected.any():
         return _named(batch, t0, {"kept": "batch", "reason": why, "batch": _summary(batch, batch.final_cost)})
     reason = why if not ok else f"batch rejected {int(batch.rejected.sum())} closures"
     incremental = solve(graph, config, "isam2", should_stop)
-    if incremental.cut is not None:  # stopped: batch's estimate is whole
+    if incremental.cut is not None or incremental.stopped is not None:  # batch's estimate is whole
         batch.recoveries.append("stopped while iSAM2 was tried after batch; batch's estimate kept")
         return _named(
             batch, t0, {"kept": "batch", "reason": reason, "batch": _summary(batch, batch.final_cost)}

@@ -71,6 +71,9 @@ class SolveResult:
         route: for ``auto``, which route was kept and why (:mod:`.route`).
         optimality: SE-Sync's certificate of the estimate (:mod:`.certificate`),
             when it was checked; optimality_unchecked: why it was not, when asked.
+        stopped: a stop (signal) ended the batch part between two LM or GNC
+            iterations: ``params`` is the estimate in hand then, whole but not an
+            optimum (``recoveries`` says which), else None.
     """
 
     solver: str
@@ -96,10 +99,39 @@ class SolveResult:
     robust_mode: str | None = None
     optimality: Certificate | None = None
     optimality_unchecked: str | None = None
+    stopped: str | None = None
 
 
-#: ``should_stop(update)``: asked before each iSAM2 update; True ends the solve there.
-StopCheck = Callable[[int], bool]
+#: ``should_stop(point, step)``: asked before each iSAM2 update (``"step"``, the update)
+#: and after each batch LM or GNC iteration (``"lm"``, ``"gnc"``, the iteration); True
+#: ends the solve there.
+StopCheck = Callable[[str, int], bool]
+
+#: How long a batch iteration's stop check lets the main thread run, s: gtsam keeps
+#: Python's lock for a whole LM or GNC solve, so a signal's handler (main thread) runs
+#: only while the solve's worker thread waits here. 1 ms an iteration is nothing
+#: beside an iteration of a graph worth stopping.
+STOP_POLL_S = 1e-3
+
+
+class SolveStopped(Exception):
+    """A stop ended a batch LM or GNC between two iterations (raised from gtsam's
+    iteration hook, through the C++ solve, to the caller that knows what is in hand)."""
+
+
+def stop_hook(should_stop: StopCheck | None, point: str):
+    """An ``iterationHook`` for gtsam's optimizer params that raises :class:`SolveStopped`
+    when ``should_stop(point, iteration)`` says so; None without ``should_stop``. The hook
+    changes nothing else: the solve is the same to the bit with or without it."""
+    if should_stop is None:
+        return None
+
+    def hook(iteration: int, error_before: float, error_after: float) -> None:
+        time.sleep(STOP_POLL_S)  # the main thread takes a pending signal now
+        if should_stop(point, int(iteration)):
+            raise SolveStopped(point)
+
+    return hook
 
 
 def solve(
@@ -112,8 +144,9 @@ def solve(
     batch, and iSAM2 too where batch's result fails a check, see :mod:`.route`).
 
     ``should_stop``: a stop between iSAM2 updates returns the estimate of the
-    poses added so far (:attr:`SolveResult.cut`), with no polish. The batch LM
-    runs in C++ to its end.
+    poses added so far (:attr:`SolveResult.cut`), with no polish; a stop during
+    the batch part (LM, GNC, the closures' re-test) returns the estimate in hand
+    after the iteration it came in (:attr:`SolveResult.stopped`).
     """
     config = config or PoseGraphConfig()
     if solver not in SOLVERS:
@@ -143,7 +176,9 @@ def solve(
         recoveries.append(first.note)
     starts.append(first)
     start, at_start = _best_start(graph, edges, starts, robust, threshold)
-    final = _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries)
+    final = _final_solve(
+        graph, edges, start, at_start, first, robust, threshold, config, recoveries, should_stop
+    )
     out = _result(
         graph,
         solver,
@@ -165,6 +200,7 @@ def solve(
     out.closure_rounds = final.rounds
     out.final_cost_kept = float(np.sum(np.square(out.residuals[~final.rejected])) / 2.0)
     out.robust_mode = config.robust_closures if robust else None
+    out.stopped = final.stopped
     return out
 
 
@@ -177,6 +213,7 @@ class FinalSolve(NamedTuple):
         rounds: LM solves over the kept edges (0: all closures passed at once).
         scale: the squared noise scale the test's threshold was multiplied by.
         errors: (M,) edge errors at ``values`` where they were computed anyway, else None.
+        stopped: what a stop ended (``"lm"``, ``"gnc"``, ``"retest"``), else None.
     """
 
     values: gtsam.Values
@@ -185,16 +222,26 @@ class FinalSolve(NamedTuple):
     rounds: int
     scale: float
     errors: np.ndarray | None
+    stopped: str | None = None
 
 
-def _final_solve(graph, edges, start, at_start, first, robust, threshold, config, recoveries) -> FinalSolve:
+def _final_solve(
+    graph, edges, start, at_start, first, robust, threshold, config, recoveries, should_stop=None
+) -> FinalSolve:
     """LM over every edge from ``start``; when closures are suspects and one fails
     the test at that least-squares optimum, GNC (the closures failing at ``start``
     weighed 0 at first) and LM over the kept edges, re-tested until the kept set
-    is stable (:mod:`.robust`)."""
+    is stable (:mod:`.robust`). A stop (``should_stop``) returns what is in hand,
+    said in ``recoveries``."""
     full = with_priors(graph, edges, start.values, config.prior_sigma)
-    result, iterations = lm(full, start.values, config, recoveries)
     none = np.zeros(graph.n_edges, dtype=bool)
+    result, iterations, stopped = lm(full, start.values, config, recoveries, should_stop)
+    if stopped:
+        recoveries.append(
+            f"stopped after {iterations} iterations of the batch LM: the estimate is where "
+            "it was then, not an optimum" + (" (closures untested)" if robust else "")
+        )
+        return FinalSolve(result, iterations, none, 0, 1.0, None, "lm")
     if not robust:
         return FinalSolve(result, iterations, none, 0, 1.0, None)
     at_optimum = rb.EdgeErrors.at(graph, edges, result)
@@ -205,20 +252,38 @@ def _final_solve(graph, edges, start, at_start, first, robust, threshold, config
     # GNC from the initialiser's start: from the iSAM2 estimate it reached the same
     # closures 3-6x slower on the RRR graphs (its first, convex, steps undo that start)
     at_start = at_start or rb.EdgeErrors.at(graph, edges, start.values)
-    guess, rejected = rb.gnc(
-        graph,
-        with_priors(graph, edges, first.values, config.prior_sigma),
-        first.values,
-        _gnc_lm_params(config),
-        threshold,
-        at_start.failing(threshold),
-    )
+    gnc_params = _gnc_lm_params(config)
+    hook = stop_hook(should_stop, "gnc")
+    if hook is not None:
+        gnc_params.iterationHook = hook
+    try:
+        guess, rejected = rb.gnc(
+            graph,
+            with_priors(graph, edges, first.values, config.prior_sigma),
+            first.values,
+            gnc_params,
+            threshold,
+            at_start.failing(threshold),
+        )
+    except SolveStopped:
+        recoveries.append(
+            "stopped during GNC: the estimate is the least-squares optimum over every closure, "
+            f"{int(at_optimum.failing(threshold * scale).sum())} of which failed the outlier test "
+            "there (a wrong closure bends it)"
+        )
+        return FinalSolve(result, iterations, none, 0, scale, at_optimum.errors, "gnc")
     # re-test every closure at the kept-edge optimum under the stated noise (there the
     # kept edges cannot tell its scale: with most closures out the graph is nearly a tree)
     scale = 1.0
     for rounds in range(1, MAX_RETESTS + 1):  # noqa: B007 (the count is reported below)
         kept = with_priors(graph, edges, guess, config.prior_sigma, drop=rejected)
-        result, iterations = lm(kept, guess, config, recoveries)
+        result, iterations, stopped = lm(kept, guess, config, recoveries, should_stop)
+        if stopped:
+            recoveries.append(
+                f"stopped in the closures' re-test (round {rounds}): the estimate is LM over the "
+                f"edges kept then, after {iterations} iterations, not an optimum"
+            )
+            return FinalSolve(result, iterations, rejected, rounds, scale, None, "retest")
         again = rb.EdgeErrors.at(graph, edges, result).failing(threshold)
         if np.array_equal(again, rejected):
             break
@@ -377,14 +442,26 @@ def lm_params(config: PoseGraphConfig, factorization: str) -> gtsam.LevenbergMar
 
 
 def lm(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, config: PoseGraphConfig, recoveries: list[str]
-) -> tuple[gtsam.Values, int]:
-    """Levenberg-Marquardt; ``auto`` re-runs with QR where Cholesky fails."""
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    config: PoseGraphConfig,
+    recoveries: list[str],
+    should_stop: StopCheck | None = None,
+) -> tuple[gtsam.Values, int, bool]:
+    """Levenberg-Marquardt; ``auto`` re-runs with QR where Cholesky fails. Returns the
+    estimate, the iterations and whether a stop (``should_stop``, asked after each
+    iteration) ended it, the estimate then that of the last iteration."""
     kinds = ["cholesky", "qr"] if config.factorization == "auto" else [config.factorization]
+    hook = stop_hook(should_stop, "lm")
     for i, kind in enumerate(kinds):
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(config, kind))
+        params = lm_params(config, kind)
+        if hook is not None:
+            params.iterationHook = hook
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
         try:
             result = deep_stack.call(optimizer.optimize)
+        except SolveStopped:
+            return optimizer.values(), int(optimizer.iterations()), True
         except RuntimeError as exc:
             if not fact.is_indeterminate(exc):
                 raise
@@ -397,7 +474,7 @@ def lm(
                 f"batch LM: Cholesky found an indeterminate system near {where}; re-run with QR"
             )
             continue
-        return result, int(optimizer.iterations())
+        return result, int(optimizer.iterations()), False
     raise AssertionError("unreachable")
 
 
@@ -430,7 +507,7 @@ class Isam2PoseGraph:
         """The estimate; when ``should_stop`` says so, that of the poses added so far
         (:attr:`stopped` set; at least the first update is made)."""
         for n in range(len(self.steps)):
-            if n > 0 and should_stop is not None and should_stop(n):
+            if n > 0 and should_stop is not None and should_stop("step", n):
                 self.stopped = True
                 break
             if not self.step(n):
@@ -504,5 +581,5 @@ class Isam2PoseGraph:
             if not values.exists(k):
                 values.insert(k, _at(self.graph, chain, k))
         full = with_priors(self.graph, self.edges, values, self.config.prior_sigma)
-        result, _ = lm(full, values, self.config, self.recoveries)
+        result, _, _ = lm(full, values, self.config, self.recoveries)
         return result

@@ -268,6 +268,8 @@ def closure_row(metrics) -> str:
             '[posegraph] robust_closures = "none": every closure kept' if metrics.closures else "no closures"
         )
         return f"{metrics.closures_rejected} ({why})"
+    if test.get("stopped") in ("lm", "gnc"):
+        return f"none tested of {metrics.closures} (a signal stopped the solve before the outlier test)"
     return (
         f"{metrics.closures_rejected} of {metrics.closures} (outlier test: whitened "
         f"residual > {test['threshold_whitened']:.2f} at the kept-edge optimum; "

@@ -142,6 +142,30 @@ def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
     verify_rrd(out / "run.rrd")
 
 
+@pytest.mark.parametrize("at, stopped", [("lm:2", "lm"), ("gnc:1", "gnc")])
+def test_pose_graph_signal_in_the_batch_solve_ends_it_there(tmp_path, at, stopped):
+    """Fourth hostile pass: SIGINT during the batch solve of a real graph waited 70 s for
+    GNC to end. Now the solve stops after the iteration the signal came in, and every file
+    is written with the estimate in hand, said to be such."""
+    from tests.graphslam.backends.test_posegraph_robust_closures import _world
+
+    path, _, _ = _world(tmp_path, wrong_runs=3)
+    done = graphslam(tmp_path, "run", "--dataset", str(path), "--out", "o", "--quiet",
+                     "--rerun", "off", at=at)
+    assert done.returncode == STATUS["INT"]
+    assert "interrupted (SIGINT)" in one_line(done.stderr)
+    assert "none tested of" in done.stdout and f"a signal stopped its {stopped}" in done.stdout
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] is True and metrics["closure_test"]["stopped"] == stopped
+    said = " ".join(metrics["numerical_recoveries"])
+    # the hook's signal (sent at iteration 2) reaches the main thread's handler while the
+    # solve's thread pauses after that iteration or the next
+    assert re.search(r"stopped after [23] iterations of the batch LM" if stopped == "lm"
+                     else "stopped during GNC", said), said
+    traj = np.loadtxt(tmp_path / "o" / "trajectory.tum", ndmin=2)
+    assert len(traj) == metrics["poses"] and np.all(np.isfinite(traj))
+
+
 def test_pose_graph_cut_after_one_pose_keeps_its_files(tmp_path):
     """Stopped after the first update, with ground truth: one pose solved, ATE null
     (it needs two), every file still written."""
