@@ -101,7 +101,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     from slamcore.files import check_not_inputs, check_output_file, replacing
 
     check_output_file(args.out)  # refused now, not after the training
-    paths = expand_images(args.images)
+    paths, repeats = expand_images(args.images)
+    if repeats:  # a repeat would count twice in the k-means and in the IDF
+        warn(
+            f"{repeats} image(s) given more than once (a file and its folder, or a file "
+            "twice): each trained on once"
+        )
     check_not_inputs(  # an image written over (--out IMAGES/01.png)
         [("--out", args.out)], {"--config": args.config, **{f"image {p}": p for p in paths}}
     )

@@ -573,15 +573,26 @@ def check_utf8_names(paths: Sequence[str | Path], why: str) -> None:
             ) from None
 
 
-def expand_images(items: list[str | Path]) -> list[Path]:
-    """Image files and folders (each in natural order) as one list of paths."""
+def expand_images(items: list[str | Path]) -> tuple[list[Path], int]:
+    """Image files and folders (each in natural order) as one list of paths, each file
+    once (the first time it comes: a file and its folder, a file given twice, a link to
+    it), and how many repeats were left out."""
     out: list[Path] = []
+    seen: set[str] = set()
+    repeats = 0
     for item in items:
         p = Path(item)
         if p.is_dir():
-            out.extend(folder_images(p))
+            found = folder_images(p)
         elif p.is_file():
-            out.append(p)
+            found = [p]
         else:
             raise InputError("no such image file or folder", p)
-    return out
+        for q in found:
+            key = os.path.realpath(q)
+            if key in seen:
+                repeats += 1
+                continue
+            seen.add(key)
+            out.append(q)
+    return out, repeats

@@ -292,3 +292,17 @@ def test_a_huge_viewer_url_is_quoted_short(tmp_path, capsys):
     line = one_error_line(capsys, ["run", "--rerun", "connect", "--rerun-url", HUGE,
                                    "--out", tmp_path / "o", "--max-steps", "2"])
     assert "Rerun viewer URL" in line and len(line) < SHORT_ERROR_CHARS
+
+
+@pytest.mark.skipif(not DESK.is_dir(), reason="desk photos not available")
+def test_vocab_an_image_given_twice_is_trained_on_once_and_said(tmp_path, capsys):
+    """Fourth hostile pass: ``vocab train a.png a.png`` trained on "2 images", the one image's
+    descriptors counted twice in the k-means and the IDF, without a word."""
+    assert main(["vocab", "train", str(DESK / "01.png"), str(DESK / "01.png"), "--out",
+                 str(tmp_path / "twice.npz"), "--words", "20", "--quiet"]) == 0
+    assert "1 image(s) given more than once" in capsys.readouterr().err
+    assert main(["vocab", "train", str(DESK / "01.png"), "--out", str(tmp_path / "once.npz"),
+                 "--words", "20", "--quiet"]) == 0
+    with np.load(tmp_path / "twice.npz") as a, np.load(tmp_path / "once.npz") as b:
+        assert a.files == b.files
+        assert all(np.array_equal(a[k], b[k]) for k in a.files)  # the same vocabulary
