@@ -60,8 +60,9 @@ def _csv_truth(path: Path, names: dict[str, int]) -> set[tuple[int, int]]:
             for name in (q, m):
                 if name not in names:
                     raise InputError(f"{quote(name)} is not an image of the folder", path, line)
-            if names[q] != names[m]:
-                pairs.add((max(names[q], names[m]), min(names[q], names[m])))
+            if names[q] == names[m]:  # a typo for another image, most likely: it scored nothing
+                raise InputError(f"the row pairs {quote(q)} with itself (a pair is two images)", path, line)
+            pairs.add((max(names[q], names[m]), min(names[q], names[m])))
     return pairs
 
 

@@ -28,3 +28,22 @@ def test_a_truth_csv_with_a_byte_order_mark_is_read(tmp_path):
     (tmp_path / "t.csv").write_text("\ufeffquery,match\n03.png,01.png\n", encoding="utf-8")
     paths = [Path(f"{k:02d}.png") for k in range(1, 4)]
     assert read_truth(tmp_path / "t.csv", paths) == {(2, 0)}
+
+
+def test_a_truth_row_pairing_an_image_with_itself_is_refused_at_its_line(tmp_path):
+    """Fourth hostile pass: a row ``10.png,10.png`` (a typo for another image) was dropped
+    without a word, the true pair it meant never scored."""
+    from pathlib import Path
+
+    import pytest
+
+    from graphslam.evaluation.places import read_truth, restrict_truth
+    from slamcore.errors import InputError
+
+    (tmp_path / "t.csv").write_text("query,match\n03.png,01.png\n03.png,03.png\n")
+    paths = [Path(f"{k:02d}.png") for k in range(1, 4)]
+    with pytest.raises(InputError, match="pairs '03.png' with itself") as e:
+        read_truth(tmp_path / "t.csv", paths)
+    assert e.value.line == 3
+    # a selection keeps its pairs, re-indexed, and counts the others
+    assert restrict_truth({(2, 0), (1, 0)}, [0, 2]) == ({(1, 0)}, 1)
