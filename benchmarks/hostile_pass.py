@@ -664,7 +664,62 @@ def attacks() -> list[Attack]:
         Attack("9th: sweep config naming a missing file names the sweep file's line", "fail",
                lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + 'config = "base.toml"\n')), "--out", "sw",
                           "--quiet"], check=_says("s.toml:4: [sweep] config 'base.toml' does not exist")),
+        # ---- the 10th pass (a helper's, 2026-11-30)
+        Attack("10th: SIGTERM during the batch solve of Bovisa04 stops it there, not 70 s on", "fail",
+               lambda f: _run(DATA / "rrr_posegraphs" / "Bovisa04_odometry_bow_tr.g2o"), ("ok",),
+               ok_codes=(143,), sigterm_after_s=3.0, check=_says("a signal stopped its")),
+        Attack("10th: [sweep.set] synthetic.seed beside [sweep] seed", "silent",
+               lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + 'seed = [0]\n[sweep.set]\n'
+                                                        '"synthetic.seed" = [1, 2, 3]\n')), "--out", "sw",
+                          "--quiet"], check=_says("which sets synthetic.seed")),
+        Attack("10th: an MRCLAM landmark given two true positions", "silent",
+               lambda f: _run(_mrclam_landmark_twice(f), "--max-steps", "30"),
+               check=_says("landmark 15 is given a second position")),
+        Attack("10th: loops --truth naming an image --frames leaves out", "fail",
+               lambda f: ["loops", str(DATA / "slambook2_desk" / "images"), "--out", "l.csv", "--quiet",
+                          "--frames", "0:5", "--truth", str(_w(f, "t.csv", "query,match\n10.png,01.png\n"))],
+               ("ok",), check=_says("leaves out")),
+        Attack("10th: a float TIFF frame: our one line only on stderr", "fail",
+               lambda f: _images_run(_float_tiffs(f), "--odometry", "none"),
+               check=lambda f, o, e: None if len(e.strip().splitlines()) == 1 else f"stderr: {e.strip()[:200]}"),
+        Attack("10th: eval of a one-pose estimate names the file", "fail",
+               lambda f: _eval(_oval(f, "gt.tum"), _w(f, "one.tum", _oval(f, "est.tum", est=True)
+                                                       .read_text().splitlines()[0] + "\n")),
+               check=_says("one.tum")),
+        Attack("10th: a DBoW3 vocabulary (the desk data's own) is named as such", "fail",
+               lambda f: ["loops", str(DATA / "slambook2_desk" / "images"), "--out", "l.csv", "--quiet",
+                          "--vocab", str(DATA / "slambook2_desk" / "dbow3_vocabulary_k10L5_from_these_images.yml.gz")],
+               check=_says("not a graphslam vocabulary")),
+        Attack("10th: vocab train of one image given twice", "silent",
+               lambda f: ["vocab", "train", str(DATA / "slambook2_desk" / "images" / "01.png"),
+                          str(DATA / "slambook2_desk" / "images" / "01.png"), "--words", "20", "--out", "v.npz",
+                          "--quiet"], ("ok",), check=_says("given more than once")),
+        Attack("10th: a truth row pairing an image with itself", "silent",
+               lambda f: ["loops", str(DATA / "slambook2_desk" / "images"), "--out", "l.csv", "--quiet",
+                          "--truth", str(_w(f, "t.csv", "query,match\n10.png,10.png\n"))],
+               check=_says("with itself")),
     ]
+
+
+def _mrclam_landmark_twice(folder: Path) -> Path:
+    """The MRCLAM copy with landmark 15's truth listed again, elsewhere."""
+    mr = _mrclam(folder)
+    with open(mr / "Landmark_Groundtruth.dat", "a") as fh:
+        fh.write("15 4.0 -3.0 0.0001 0.0002\n")
+    return mr
+
+
+def _float_tiffs(folder: Path) -> Path:
+    """A folder of three float32 TIFF frames (OpenCV's decoder prints its own warning)."""
+    import cv2
+
+    imgs = folder / "tiff"
+    imgs.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        cv2.imwrite(str(imgs / f"{k:06d}.tiff"), rng.random((120, 160)).astype(np.float32))
+    _w(imgs, "intrinsics.txt", "100 0 80\n0 100 60\n0 0 1\n")
+    return imgs
 
 
 #: The eighth pass's SIGHUP: sent by the run itself at its step 30 (the terminal closed).
