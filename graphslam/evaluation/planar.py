@@ -218,13 +218,29 @@ def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
         err: (N, d) errors; cov: (N, d, d) covariances (SPD), same units.
 
     Returns:
-        (N,) NEES values; for a consistent estimator each is chi-square(d).
+        (N,) NEES values; for a consistent estimator each is chi-square(d). NaN where
+        ``P_i`` is not positive definite (a particle cloud collapsed to one pose, a robot
+        started exactly at its truth): the estimator claims no uncertainty in some
+        direction, and no finite figure says how wrong that is.
     """
     e = np.asarray(err, dtype=np.float64)
     P = np.asarray(cov, dtype=np.float64)
     if e.ndim != 2 or P.shape != e.shape + (e.shape[1],):
         raise GraphSlamError(f"nees: expected (N, d) and (N, d, d), got {e.shape} and {P.shape}")
-    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])
+    out = np.full(len(e), np.nan)
+    # positive definite where the symmetric part's smallest eigenvalue is above round-off
+    sym = 0.5 * (P + np.swapaxes(P, 1, 2))
+    w = np.linalg.eigvalsh(sym) if len(e) else np.zeros((0, e.shape[1]))
+    ok = np.all(np.isfinite(sym), axis=(1, 2)) & (w[:, 0] > NEES_MIN_EIGEN_RATIO * np.abs(w[:, -1]))
+    if ok.any():
+        out[ok] = np.einsum("ni,ni->n", e[ok], np.linalg.solve(P[ok], e[ok][..., None])[..., 0])
+    return out
+
+
+#: Smallest eigenvalue of a covariance, relative to its largest, for its NEES to be
+#: computed: below it the matrix is singular to double precision (1e-15 would be round-off
+#: of its largest eigenvalue, 1e-12 leaves a margin), and its inverse is noise.
+NEES_MIN_EIGEN_RATIO = 1e-12
 
 
 def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[float, float]:
@@ -283,9 +299,12 @@ def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> 
     if est.pose_covariances is not None:
         nees_k = nees(err, est.pose_covariances[keep])
         lo, hi = chi2_bounds(3, 1, NEES_CONFIDENCE)
-        out["nees_mean"] = float(np.mean(nees_k))
-        out["nees_in_bounds_fraction"] = float(np.mean((nees_k >= lo) & (nees_k <= hi)))
+        defined = np.isfinite(nees_k)
+        if defined.any():
+            out["nees_mean"] = float(np.mean(nees_k[defined]))
+            out["nees_in_bounds_fraction"] = float(np.mean((nees_k[defined] >= lo) & (nees_k[defined] <= hi)))
         out["pose_ids"], out["nees"] = est.pose_ids[keep], nees_k
+        out["nees_undefined"] = int((~defined).sum())
     return out
 
 

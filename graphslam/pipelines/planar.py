@@ -310,9 +310,11 @@ def add_nees(
     result: RunResult,
     run_metrics: PlanarRunMetrics,
     ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Pose NEES of each step against the truth (``ground_truth`` or the dataset's):
-    fills the NEES fields of ``run_metrics`` and returns ``(pose_ids, nees)``.
+    fills the NEES fields of ``run_metrics`` and returns ``(pose_ids, nees, undefined)``,
+    ``nees`` NaN and counted in ``undefined`` where the pose's covariance is singular
+    (:func:`graphslam.evaluation.planar.nees`; the mean is over the others).
 
     Filters give each step's filtered covariance, iSAM2 the smoothed marginals.
     GraphSlamError when the run has no truth or no covariances (interrupted).
@@ -329,7 +331,7 @@ def add_nees(
     run_metrics.final_pose_error_m = stats["final_pose_error_m"]
     run_metrics.nees_mean = stats["nees_mean"]
     run_metrics.nees_in_bounds_fraction = stats["nees_in_bounds_fraction"]
-    return stats["pose_ids"], stats["nees"]
+    return stats["pose_ids"], stats["nees"], stats["nees_undefined"]
 
 
 def write_nees(path: Path, pose_ids: np.ndarray, nees: np.ndarray) -> Path:

@@ -16,6 +16,7 @@ from graphslam.cli.common import (
     recoveries_text,
     report_outputs,
     summary_table,
+    warn,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -129,11 +130,16 @@ def run(args: argparse.Namespace) -> int:
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
     nees = None
     if args.nees and result.interrupted:  # no covariances: NEES null, the files still written
-        from graphslam.cli.common import warn
-
         warn("run interrupted before its covariances: no nees.csv")
     elif args.nees:
-        nees = pipeline.add_nees(result, metrics, truth)
+        pose_ids, nees_k, undefined = pipeline.add_nees(result, metrics, truth)
+        nees = (pose_ids, nees_k)
+        if undefined:
+            warn(
+                f"NEES undefined at {undefined} of {len(nees_k)} poses: their covariance is singular "
+                "(a particle cloud collapsed to one pose, or a start known exactly); "
+                "nees.csv gives them nan, the mean is over the others"
+            )
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
         if nees is not None:
@@ -155,8 +161,6 @@ def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> Non
     from graphslam.pipelines.planar_maps import build_run_map
 
     if result.interrupted:  # no covariances, not finalised: no map from half an estimate
-        from graphslam.cli.common import warn
-
         warn(f"run stopped before its end: no map saved in {folder}")
         return
     pmap = build_run_map(result, backend, config, max_steps)

@@ -147,3 +147,22 @@ def test_chi2_bounds():
     assert lo < lo50 < 3 < hi50 < hi
     with pytest.raises(GraphSlamError):
         metrics.chi2_bounds(0, 1)
+
+
+def test_nees_of_a_singular_covariance_is_nan_not_a_crash():
+    """Tenth hostile pass: FastSLAM with every robot started at its truth (a collapsed
+    cloud: zero covariance) ended ``run --nees`` in LinAlgError, nothing written, and
+    ``compare`` dropped the back end. The NEES of such a pose is undefined: NaN; the others
+    are the same numbers as before."""
+    rng = np.random.default_rng(0)
+    err = rng.normal(size=(4, 3))
+    A = rng.normal(size=(4, 3, 3))
+    P = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(3)
+    full = metrics.nees(err, P)
+    P[1] = 0.0  # a cloud of one pose
+    P[2] = np.diag([1.0, 1.0, 0.0])  # singular in heading only
+    got = metrics.nees(err, P)
+    assert np.isnan(got[1]) and np.isnan(got[2])
+    assert got[0] == full[0] and got[3] == full[3]
+    expected = err[0] @ np.linalg.solve(P[0], err[0])
+    assert got[0] == pytest.approx(expected, rel=1e-12)

@@ -673,3 +673,17 @@ def test_fastslam2_unknown_association_on_robot_3_within_the_issues_bound(mrclam
         return float(np.median(ates))
 
     assert median_ate("unknown") <= 1.3 * median_ate("known")
+
+
+def test_fastslam_of_every_robot_with_nees_writes_its_files(mrclam, tmp_path, capsys):
+    """Tenth hostile pass: every robot starts at its truth, so FastSLAM's first poses have
+    a cloud of zero spread; ``--nees`` inverted it (LinAlgError, a traceback, nothing
+    written). Their NEES is undefined, said, and the run is whole."""
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(mrclam), "--robot", "all", "--backend", "fastslam1",
+                 "--max-steps", "300", "--nees", "--rerun", "off", "--quiet", "--out", str(out)]) == 0
+    assert "NEES undefined at" in capsys.readouterr().err
+    rows = (out / "nees.csv").read_text().splitlines()[1:]
+    assert len(rows) == 300 and any(r.endswith(",nan") for r in rows)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert math.isfinite(metrics["nees_mean"])
