@@ -46,6 +46,8 @@ class Implementation:
         run_overrides: ``"module:function"`` turning a visual run's situation
             ``(odometry mode, seed, no_polish, nearest_depth_m)`` into overrides of
             its config section; None when a run implies none.
+        ranges: it takes range-only observations (beacons: the Plaza logs) beside
+            range and bearing.
     """
 
     backend: str
@@ -55,6 +57,7 @@ class Implementation:
     localiser: str | None = None
     filtering: bool = False
     run_overrides: str | None = None
+    ranges: bool = False
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,7 @@ TABLE: tuple[BackendDescriptor, ...] = (
             "graphslam.backends.planar.isam2:Isam2Backend",
             _ISAM2_CONFIG,
             localiser="graphslam.backends.planar.isam2_localise:Isam2Localiser",
+            ranges=True,
         ),
         images=Implementation(
             "graphslam.backends.spatial.isam2:VisualIsam2Backend",

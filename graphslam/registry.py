@@ -84,6 +84,8 @@ LOCALISING_BACKENDS = tuple(
     d.name for d in TABLE if d.landmarks is not None and d.landmarks.localiser is not None
 )
 #: 2-D back ends whose configuration takes a ``seed``.
+#: 2-D back ends that take range-only observations (the Plaza logs).
+RANGE_BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None and d.landmarks.ranges)
 SEEDED_BACKENDS = tuple(d.name for d in TABLE if d.landmarks is not None and d.landmarks.seeded)
 #: Back ends ``graphslam run`` offers on image sequences.
 VISUAL_BACKENDS = tuple(d.name for d in TABLE if d.images is not None)
@@ -214,6 +216,22 @@ def check_dataset_named(spec: str) -> None:
     before the options that depend on the dataset, so a typo is named as one)."""
     if not (is_builtin_dataset(spec) or Path(spec).exists()):
         raise InputError(no_such_dataset(), Path(spec))
+    refuse_part_of_a_log(spec)
+
+
+def refuse_part_of_a_log(spec: str) -> None:
+    """InputError when ``spec`` is one of a Plaza log's other files (``*_TD.txt``, ``*_.mat``):
+    read as a file of its own it was "not a text file" or a Victoria Park line's "unknown
+    tag" (tenth hostile pass)."""
+    from graphslam.sources.planar.plaza import dr_of_part
+
+    dr = dr_of_part(spec)
+    if dr is not None:
+        raise InputError(
+            f"a file of the Plaza range-only log {dr.name}: give --dataset {dr.name} (or its folder), "
+            "which reads it with the others",
+            Path(spec),
+        )
 
 
 def is_pose_graph_run(spec: str, backend: str) -> bool:
@@ -230,6 +248,7 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
         return True  # a built-in graph solved whole (streamed by the other back ends)
     if spec in DATASETS or backend not in POSEGRAPH_BACKENDS or not Path(spec).is_file():
         return False
+    refuse_part_of_a_log(spec)
     if is_bag_dataset(spec):
         return False
     from graphslam.sources.posegraph_files import TAGS, first_tag, has_landmark_lines, is_pose_graph_tag

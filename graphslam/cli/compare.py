@@ -142,6 +142,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:
         raise GraphSlamError("--odometry applies to image sequences only")
+    explicit = bool(args.backends)
     args.backends = args.backends or list(registry.BACKENDS)
     _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets", graphs_hint=True)
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
@@ -155,6 +156,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "none of the back ends draws random numbers"
         )
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
+    _range_backends(args, dataset, explicit)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
@@ -179,6 +181,32 @@ def cmd_compare(args: argparse.Namespace) -> int:
         lambda done, path: plot_comparison(done, dataset, path),
         RunRecorder.open,
         dataset,
+    )
+
+
+def _range_backends(args, dataset, explicit: bool) -> None:
+    """On a log of range-only observations (Plaza), the back ends that take them: all of
+    them by default (said on stderr), and a named one that does not is refused before any
+    runs (each failed in its run, tenth hostile pass)."""
+    from graphslam import registry
+    from slamcore.planar.records import ObservationKind
+
+    if not any(o.kind is ObservationKind.RANGE for f in dataset.frames for o in f.observations):
+        return
+    if explicit:
+        others = [name for name in args.backends if name not in registry.RANGE_BACKENDS]
+        if others:
+            raise GraphSlamError(
+                f"{dataset.name} holds range-only observations, which {', '.join(others)} "
+                f"cannot take (back ends that do: {', '.join(registry.RANGE_BACKENDS)})"
+            )
+        return
+    args.backends = list(registry.RANGE_BACKENDS)
+    print(
+        f"{dataset.name} holds range-only observations: comparing the back ends that take them "
+        f"({', '.join(args.backends)})",
+        file=sys.stderr,
+        flush=True,
     )
 
 

@@ -95,6 +95,21 @@ def plaza_files(path) -> tuple[Path, Path, Path] | None:
     return p, _sibling(p, "_TD.txt"), _sibling(p, "_.mat")
 
 
+#: The other files of a Plaza log, beside its ``*_DR.txt``.
+PART_SUFFIXES = ("_TD.txt", "_.mat")
+
+
+def dr_of_part(path) -> Path | None:
+    """The ``*_DR.txt`` of the Plaza log ``path`` is another file of (its ``_TD.txt`` or
+    ``_.mat``, the ``_DR.txt`` beside it), else None."""
+    p = Path(path)
+    for suffix in PART_SUFFIXES:
+        if p.name.endswith(suffix):
+            dr = p.with_name(p.name[: -len(suffix)] + "_DR.txt")
+            return dr if dr.is_file() else None
+    return None
+
+
 def _sibling(dr_path: Path, suffix: str) -> Path:
     return dr_path.with_name(dr_path.name[: -len("_DR.txt")] + suffix)
 
