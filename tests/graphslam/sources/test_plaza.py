@@ -243,3 +243,18 @@ def test_compare_on_ranges_runs_the_back_ends_that_take_them(tmp_path, capsys):
                  "--out", str(tmp_path / "d")]) == 2
     assert "which ekf cannot take (back ends that do: isam2)" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("backend", registry.BACKENDS)
+def test_the_table_says_which_back_ends_take_ranges(backend):
+    """``ranges`` in the back-end table is what each back end does with range-only data."""
+    from graphslam.pipelines import planar as pipeline
+    from slamcore.errors import UnsupportedError
+
+    ds = read_plaza(_plaza("Plaza2")).truncated(200)
+    be = registry.make_backend(backend)
+    if backend in registry.RANGE_BACKENDS:
+        assert len(pipeline.run(ds, be).estimate.pose_ids) == 200
+    else:
+        with pytest.raises(UnsupportedError, match="range-bearing observations only"):
+            pipeline.run(ds, be)
