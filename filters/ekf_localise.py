@@ -137,6 +137,9 @@ class EkfLocaliser(Backend):
         self._last_associations = assoc
         self._record(new=False)
 
+    def rejected_observations(self) -> int:
+        return self.rejected_count
+
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
         return mapped_predictions(landmark_ids, self._slot, self._predicted)

@@ -443,6 +443,9 @@ class EkfSlam(Backend):
         self._last_associations = assoc
         self._record_pose(new=False)
 
+    def rejected_observations(self) -> int:
+        return self.rejected_count
+
     def pruned_landmark_ids(self) -> list[int]:
         return list(self._pruned_ids)
 

@@ -43,6 +43,9 @@ class RunResult:
             filters' ``recoveries``; None for back ends that keep none).
         landmarks_pruned: landmarks the back end removed from its map as missed
             in the sensor's field (:meth:`~slamcore.planar.backend.Backend.pruned_landmark_ids`).
+        observations: landmark observations streamed into the back end.
+        observations_rejected: of those, identified ones its gate rejected
+            (:meth:`~slamcore.planar.backend.Backend.rejected_observations`).
     """
 
     dataset: Dataset
@@ -56,6 +59,8 @@ class RunResult:
     numerical_recoveries: list[str] = field(default_factory=list)
     recoveries: dict[str, int] | None = None
     landmarks_pruned: int = 0
+    observations: int = 0
+    observations_rejected: int = 0
 
 
 def run(
@@ -78,7 +83,7 @@ def run(
         raise GraphSlamError(f"dataset {dataset.name!r} has no frames")
     bar = progress_bar(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
-    counters = {"steps": 0, "skipped": 0}
+    counters = {"steps": 0, "skipped": 0, "observations": 0}
     interrupted = False
     t0 = time.perf_counter()
     try:
@@ -114,6 +119,8 @@ def run(
         backend.numerical_recoveries(),
         None if recoveries is None else dict(recoveries),
         len(backend.pruned_landmark_ids()),
+        counters["observations"],
+        backend.rejected_observations(),
     )
 
 
@@ -130,6 +137,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
             backend.predict(frame.odometry, frame.pose_id)
         if frame.observations:
             backend.update(frame.observations)
+            counters["observations"] += len(frame.observations)
             if frame.true_landmark_ids is not None:
                 assoc.extend(zip(frame.true_landmark_ids, backend.associations(), strict=True))
         for lc in frame.loop_closures:
@@ -230,7 +238,11 @@ def compute_metrics(
         recoveries=result.recoveries,
         landmarks_pruned=result.landmarks_pruned or None,
         # the reader's doubts about the input first, then the estimate's
-        warnings=[*result.dataset.warnings, *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost)]
+        warnings=[
+            *result.dataset.warnings,
+            *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost),
+            *metrics.rejected_warning(result.observations, result.observations_rejected),
+        ]
         or None,
     )
 

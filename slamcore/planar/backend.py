@@ -125,6 +125,12 @@ class Backend(ABC):
 
     _last_associations: list[int | None] = []
 
+    def rejected_observations(self) -> int:
+        """Observations of identified landmarks a gate rejected since initialisation (their
+        innovation beyond what the estimate's covariance allows: not absorbed); 0 for
+        back ends that gate none."""
+        return 0
+
     def pruned_landmark_ids(self) -> list[int]:
         """Ids of the landmarks removed from the map during the run (the EKF's pruning
         of landmarks missed in the sensor's field); none by default."""
