@@ -308,6 +308,15 @@ def _write_comparison(
     from graphslam.pipelines.compare import finished
 
     done = finished(entries)
+    guard = active_guard()
+    # a stop that cut the runs has acted: what they left is written whole, recording too;
+    # one that came after every back end had finished ends the recording where it is
+    runs_over = all(e.status in ("ok", "failed") for e in entries)
+
+    def stopping() -> bool:
+        return runs_over and guard is not None and guard.requested
+
+    recording_cut = None
     print(format_table(entries))
     writers.write_json(
         out_dir / "compare.json",
@@ -317,11 +326,15 @@ def _write_comparison(
     if done:
         plot(done, out_dir / "compare.png")
         outputs.append("compare.png")
-    if rerun_mode != "off" and done:
+    if rerun_mode != "off" and done and stopping():
+        recording_cut = "the recording was skipped"
+    elif rerun_mode != "off" and done:
         recorder, rerun_mode = open_recorder(
             open_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
         )
-        recorder.record_comparison(done, source)
+        # a recording of thousands of poses takes seconds: a stop ends it where it is
+        if recorder.record_comparison(done, source, should_stop=stopping):
+            recording_cut = "the recording holds what was logged before the signal"
         if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
             outputs.append("compare.rrd")
     writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
@@ -341,12 +354,20 @@ def _write_comparison(
     for e in entries:
         if e.status == "failed":
             warn(f"{e.backend} failed: {e.error.strip().splitlines()[-1]}")
-    guard = active_guard()
     if guard is not None and guard.requested:
-        print(
-            f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results so far",
-            file=sys.stderr,
-        )
+        if runs_over:
+            what = f"; {recording_cut}" if recording_cut else ""
+            print(
+                f"graphslam: interrupted ({guard.signal_name}) while writing the outputs: every "
+                f"back end had finished, {', '.join(o for o in outputs if o != 'compare.rrd')} "
+                f"whole{what}",
+                file=sys.stderr,
+            )
+        else:
+            print(
+                f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results so far",
+                file=sys.stderr,
+            )
         return EXIT_INTERRUPTED
     return EXIT_FAILED if any(e.status == "failed" for e in entries) else 0
 

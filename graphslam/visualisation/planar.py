@@ -295,15 +295,19 @@ class RunRecorder:
     def close(self) -> None:
         self.log.close()
 
-    def record_comparison(self, entries, dataset: Dataset) -> None:
+    def record_comparison(self, entries, dataset: Dataset, should_stop=None) -> bool:
         """Finished runs (:class:`graphslam.pipelines.compare.CompareEntry`), one entity
-        subtree per back end, on the step timeline."""
+        subtree per back end, on the step timeline; True when ``should_stop()`` (asked at
+        every pose) cut it, what was logged before kept."""
         n = max(e.result.steps for e in entries)
         self.start(dataset, n)
         for e in entries:
             est = e.result.estimate
             for k in range(len(est.pose_ids)):
+                if should_stop is not None and should_stop():
+                    return True
                 self.log.set_step(k)
                 cov = None if est.pose_covariances is None else est.pose_covariances[k]
                 self.log.log_pose(e.backend, est.wTb[k], cov, self.color_index(e.backend))
             self.finish(e.backend, e.result)
+        return False

@@ -226,12 +226,16 @@ class VisualRecorder:
                 rr.LineStrips3D([result.odometry_wTc[:, :3, 3]], colors=[(255, 127, 14)], radii=0.01),
             )
 
-    def record_comparison(self, entries, sequence) -> None:
+    def record_comparison(self, entries, sequence, should_stop=None) -> bool:
         """Finished image-sequence runs (``CompareEntry``), one entity subtree per back
-        end, on the frame timeline."""
+        end, on the frame timeline; True when ``should_stop()`` (asked before each back
+        end) cut it, what was logged before kept."""
         self.start(sequence, max(e.result.frames for e in entries))
         for i, e in enumerate(entries):
+            if should_stop is not None and should_stop():
+                return True
             self.finish(e.backend, e.result, color_index=i)
+        return False
 
     def loop_hook(self, sequence):
         """An ``on_candidate`` callback for :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""

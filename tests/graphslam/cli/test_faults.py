@@ -403,6 +403,20 @@ def test_compare_sigterm_to_the_parent_stops_its_worker(tmp_path):
     assert runs["ekf"]["status"] == "not run"
 
 
+def test_compare_signal_while_recording_ends_the_recording_there(tmp_path):
+    """Tenth hostile pass: a Ctrl-C after every back end had finished was held 12 s while
+    compare.rrd was recorded to its end, then said "wrote the back ends' results so far".
+    The recording stops where it is (closed, readable) and the line says what is whole."""
+    done = graphslam(tmp_path, *COMPARE, "--max-steps", "50", at="recorder", sig="INT")
+    assert done.returncode == 130
+    line = one_line(done.stderr)
+    assert "while writing the outputs: every back end had finished, compare.json, compare.png whole; " \
+        "the recording holds what was logged before the signal" in line
+    runs = compare_runs(tmp_path)
+    assert all(r.get("status", "ok") == "ok" for r in runs.values())
+    verify_rrd(tmp_path / "c" / "compare.rrd")
+
+
 def test_compare_in_process_honours_ctrl_c(tmp_path):
     done = graphslam(tmp_path, *COMPARE, "--in-process", at="step:5", sig="INT")
     assert done.returncode == 130
