@@ -698,7 +698,38 @@ def attacks() -> list[Attack]:
                lambda f: ["loops", str(DATA / "slambook2_desk" / "images"), "--out", "l.csv", "--quiet",
                           "--truth", str(_w(f, "t.csv", "query,match\n10.png,10.png\n"))],
                check=_says("with itself")),
+        Attack("10th: FastSLAM of every MRCLAM robot with --nees (starts at the truth)", "fail",
+               lambda f: _run(DATA / "mrclam6", "--robot", "all", "--backend", "fastslam1", "--max-steps", "300",
+                              "--nees"), ("ok",), check=_says("NEES undefined at")),
+        Attack("10th: [ekf] known_gate_chi2_prob = 0.5 gates out most sightings", "silent",
+               lambda f: _run("synthetic", "--backend", "ekf", "--config",
+                              str(_w(f, "g.toml", "[ekf]\nknown_gate_chi2_prob = 0.5\n"))), ("ok",),
+               check=_says("rejected by the back end's gate")),
+        Attack("10th: Victoria Park's EKF at its defaults (most sightings gated out)", "silent",
+               lambda f: _run("victoria-park", "--backend", "ekf", "--max-steps", "3000"), ("ok",),
+               check=_says("rejected by the back end's gate")),
+        Attack("10th: a Plaza log's _TD.txt as the dataset", "fail",
+               lambda f: _run(_plaza_copy(f) / "Plaza2_TD.txt"), check=_says("Plaza range-only log Plaza2_DR.txt")),
+        Attack("10th: compare on Plaza2 runs the back ends that take ranges", "fail",
+               lambda f: ["compare", "--dataset", "plaza2", "--max-steps", "300", "--rerun", "off", "--out", "c"],
+               ("ok",), check=_says("comparing the back ends that take them")),
+        Attack("10th: Ctrl-C while compare records: the recording ends there", "fail",
+               lambda f: ["compare", "--max-steps", "50", "--rerun", "save", "--out", "c"], ("ok",),
+               ok_codes=(130,), env={"GRAPHSLAM_SIGNAL_AT": "recorder", "GRAPHSLAM_SIGNAL": "INT"},
+               check=_says("while writing the outputs: every back end had finished")),
     ]
+
+
+def _plaza_copy(folder: Path) -> Path:
+    """A copy of gtsam's Plaza2 log (its three files) in ``folder / "plaza"``."""
+    import gtsam
+
+    dr = Path(gtsam.findExampleDataFile("Plaza2_DR.txt"))
+    out = folder / "plaza"
+    out.mkdir()
+    for suffix in ("_DR.txt", "_TD.txt", "_.mat"):
+        (out / f"Plaza2{suffix}").write_bytes(dr.with_name(f"Plaza2{suffix}").read_bytes())
+    return out
 
 
 def _mrclam_landmark_twice(folder: Path) -> Path:
