@@ -124,7 +124,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
     claim_out_dir(args.out)
-    executor = make_executor(workers, args.cluster)
+    # more workers than runs would only wait (a local cluster of a million never starts)
+    executor = make_executor(min(workers, max(n_runs, 1)), args.cluster)
     try:
         update, bar = _progress(n_runs, args.quiet)
         try:

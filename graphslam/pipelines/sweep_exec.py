@@ -217,6 +217,39 @@ class PoolExecutor:
         pass
 
 
+#: Longest wait for a scheduler's answer, s: Dask's own ``timeout`` covers the
+#: connection, not a server that accepts it and never speaks Dask (an HTTP server).
+CONNECT_TIMEOUT_S = 20.0
+
+
+def _connect(Client, address: str):
+    """A Dask ``Client`` of the scheduler at ``address``, or one ConfigError: no answer
+    within :data:`CONNECT_TIMEOUT_S`, or any failure of the handshake (a server that is
+    no scheduler answered 'SSH-2.0...' and Dask read it as a 3 EiB frame: MemoryError)."""
+    box: dict = {}
+
+    def connect() -> None:
+        try:
+            box["client"] = Client(address, timeout="10s")
+        except Exception as e:  # noqa: BLE001 - every failure is the address's: one line
+            box["error"] = e
+
+    # a thread of its own: a handshake that never ends must not hold the command
+    worker = threading.Thread(target=connect, name="dask-connect", daemon=True)
+    worker.start()
+    worker.join(CONNECT_TIMEOUT_S)
+    if worker.is_alive():
+        raise ConfigError(
+            f"--cluster {address}: cannot connect (no answer in {CONNECT_TIMEOUT_S:g} s: "
+            "not a Dask scheduler?)"
+        )
+    if "error" in box:
+        e = box["error"]
+        what = " ".join(str(e).split())[:200]
+        raise ConfigError(f"--cluster {address}: cannot connect ({type(e).__name__}: {what})")
+    return box["client"]
+
+
 class DaskExecutor:
     """Runs on Dask distributed: ``address`` ``"local"`` starts a LocalCluster."""
 
@@ -235,11 +268,7 @@ class DaskExecutor:
             )
             self.client = Client(self.cluster)
         else:
-            try:
-                self.client = Client(address, timeout="10s")
-            except (OSError, TimeoutError, ValueError, TypeError) as e:
-                # ValueError/TypeError: not an address at all ('not a url')
-                raise ConfigError(f"--cluster {address}: cannot connect ({e})") from None
+            self.client = _connect(Client, address)
         self.client.run(allow_runs)  # a Ctrl-C'd sweep before this one left them stopped
 
     def map_unordered(self, runs: list[RunSpec], root: Path):

@@ -460,3 +460,70 @@ def test_a_sweep_says_how_many_finished_runs_carry_warnings(tmp_path, monkeypatc
     assert "graphslam: warning: 1 of 2 finished runs carry warnings" in err
     rows = _csv(tmp_path / "o" / "sweep.csv")
     assert sorted(r["warnings"] for r in rows) == ["", "ATE 40 m is more than 10x the odometry's"]
+
+
+def _server(reply: bytes | None):
+    """A TCP server on a free local port that accepts and sends ``reply`` (None: says
+    nothing, holds the connection); ``(address, stop)``."""
+    import socket
+    import threading
+
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(8)
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = sock.accept()
+            except OSError:
+                return
+            if reply is None:
+                held.append(conn)
+            else:
+                conn.sendall(reply)
+                conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return f"tcp://127.0.0.1:{sock.getsockname()[1]}", sock.close
+
+
+@pytest.mark.parametrize("reply, words", [
+    (b"SSH-2.0-OpenSSH_9.6\r\n" * 4, "cannot connect (MemoryError"),
+    (None, "cannot connect (no answer in 2 s: not a Dask scheduler?)"),
+])
+def test_a_server_that_is_no_scheduler_is_one_line(tmp_path, capsys, monkeypatch, reply, words):
+    """Tenth hostile pass: a server answering SSH's banner ended --cluster in a 3 EiB
+    MemoryError traceback; an HTTP server (never answering Dask's handshake) hung it."""
+    pytest.importorskip("distributed")
+    from graphslam.pipelines import sweep_exec
+
+    monkeypatch.setattr(sweep_exec, "CONNECT_TIMEOUT_S", 2.0)
+    address, stop = _server(reply)
+    try:
+        assert main(["sweep", str(_file(tmp_path, SMALL)), "--out", str(tmp_path / "o"),
+                     "--cluster", address]) == 2
+    finally:
+        stop()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--cluster {address}: {words}" in err[0], err
+
+
+def test_workers_beyond_the_runs_are_not_started(tmp_path, monkeypatch):
+    """Tenth hostile pass: ``--workers 1000000 --cluster local`` started a LocalCluster of a
+    million workers (memory grew, no run began); the pool already capped them at the runs."""
+    from graphslam.pipelines import sweep_exec
+
+    asked = []
+
+    class Fake:
+        def __init__(self, address, workers):
+            asked.append(workers)
+            raise ConfigError("stop here")
+
+    monkeypatch.setattr(sweep_exec, "DaskExecutor", Fake)
+    path = _file(tmp_path, SMALL)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1000000",
+                 "--cluster", "local"]) == 2
+    assert asked == [len(parse_sweep(path).runs())] == [4]
