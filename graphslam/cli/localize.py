@@ -140,8 +140,16 @@ def cmd_localize(args: argparse.Namespace) -> int:
         result = session.run(progress=not args.quiet, on_frame=hook)
     except FrameUnreadable as e:  # the frames placed before it are written, then the error said
         result, cut = e.result, e
-    map_info = {"path": str(args.map), **smap.counts(), "built_from": smap.meta.get("frames")}
+    map_info = {
+        "path": str(args.map),
+        **smap.counts(),
+        "built_from": smap.meta.get("frames"),
+        # a map built from the camera alone is in a scale of its own (its first baseline)
+        "metric": smap.meta.get("odometry") != "none",
+    }
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
+    if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
+        warn(metrics["warnings"][-1])
     paths = localize_run.write_outputs(result, out_dir, metrics)
     if recorder is not None:
         if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
@@ -157,7 +165,12 @@ def format_summary(m: dict) -> str:
         ("frames", m["frames"]),
         ("localised", fmt(100 * m["localised_fraction"], ".1f") + " %"),
         ("tracked / relocalised / lost", f"{m['tracked']} / {m['relocalisations']} / {m['lost_frames']}"),
-        ("ATE RMSE [m], map frame", fmt(m.get("ate_rmse_m"), ".4f")),
+        (
+            "ATE RMSE [m], map frame"
+            if m.get("ate_alignment", "none").startswith("none")
+            else "ATE RMSE [m], Sim(3)-aligned",
+            fmt(m.get("ate_rmse_m"), ".4f"),
+        ),
         (
             "median / max error [m]",
             f"{fmt(m.get('error_median_m'), '.4f')} / {fmt(m.get('error_max_m'), '.4f')}",

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -147,7 +147,8 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
     }
     if result.sequence.warnings:  # the reader's doubts about the images
         m["warnings"] = list(result.sequence.warnings)
-    err = errors_m(result)
+    metric = map_info.get("metric", True)
+    err = errors_m(result) if metric else sim3_errors_m(result)
     if err is not None and placed.any():
         e = err[placed]
         m.update(
@@ -155,9 +156,37 @@ def compute_metrics(result: LocalizeResult, map_info: dict, wall_s: float | None
             error_median_m=float(np.median(e)),
             error_max_m=float(np.max(e)),
             frames_over_0_5m=int(np.sum(e > FAR_M)),
-            ate_alignment="none (map frame)",
+            ate_alignment="none (map frame)" if metric else "sim3 (a camera-alone map has no metric scale)",
         )
+    if not metric:  # tenth hostile pass: map units were scored as metres, unaligned
+        m["warnings"] = [
+            *cast("list[str]", m.get("warnings", [])),
+            "the map was built from the camera alone: its unit is its first baseline, not a metre; "
+            + (
+                "the placements are scored after a Sim(3) fit to the truth"
+                if m["ate_rmse_m"] is not None
+                else "the placements' positions are in that unit"
+            ),
+        ]
     return m
+
+
+def sim3_errors_m(result: LocalizeResult) -> np.ndarray | None:
+    """:func:`errors_m` after the Sim(3) fit of the placed camera centres to the truth (a map
+    without metric scale: :func:`graphslam.evaluation.spatial.align_umeyama`); None without
+    truth or with fewer than 3 placed frames (a scale needs them)."""
+    from graphslam.evaluation.spatial import align_umeyama
+
+    truth = getattr(result.sequence, "wTc_true", None)
+    placed = result.placed()
+    if truth is None or placed.sum() < 3:
+        return None
+    est = np.array([p.wTc[:3, 3] for p in result.placements if p.wTc is not None])
+    ref = np.asarray(truth)[: len(result.placements)][placed][:, :3, 3]
+    s, R, t = align_umeyama(est, ref, with_scale=True)
+    out = np.full(len(result.placements), np.nan)
+    out[placed] = np.linalg.norm(est * s @ R.T + t - ref, axis=1)
+    return out
 
 
 def write_outputs(result: LocalizeResult, out_dir: Path, metrics: dict) -> dict[str, Path]:

@@ -46,6 +46,12 @@ def anchor_on_map(args, config, sequence):
     from slamcore.errors import GraphSlamError
 
     smap = load_map(args.map)
+    if smap.meta.get("odometry") == "none":  # this run has odometry (run refuses it without)
+        raise GraphSlamError(
+            f"--map: {args.map} was built from the camera alone, in a scale of its own (its "
+            "first baseline), not in metres: a run with odometry would join it at another "
+            "scale; place frames with graphslam localize, or build the map with odometry"
+        )
     placed = LocaliseSession.open(sequence, config, smap, args.dataset).localizer.locate(sequence.load(0))
     if placed.wTc is None:
         raise GraphSlamError(

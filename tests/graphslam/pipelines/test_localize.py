@@ -130,3 +130,26 @@ def test_signal_keeps_the_frames_placed_so_far(room, tmp_path, sig, status):
     m = json.loads((out / "metrics.json").read_text())
     assert m["interrupted"] is True and m["frames"] == 6  # frames 0-5, stopped before 6
     assert len((out / "localize.csv").read_text().splitlines()) == 1 + m["frames"]
+
+
+def test_a_camera_alone_map_is_scored_in_its_own_scale_and_joined_by_no_metric_run(tmp_path, capsys):
+    """Tenth hostile pass: a map built with ``--odometry none`` is in units of its first
+    baseline; ``localize`` scored its placements against metric truth unaligned (KITTI:
+    "ATE 7.69 m" for placements 0.016 units from the map's own trajectory), and ``run --map``
+    with odometry joined it at another scale (a saved map at two scales), each in silence."""
+    folder = tmp_path / "map"
+    assert main(["run", "--dataset", "synthetic-images", "--odometry", "none", "--frames", "0:120",
+                 "--save-map", str(folder), "--out", str(tmp_path / "run"), "--rerun", "off",
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "loc"
+    assert main(["localize", "--map", str(folder), "--dataset", "synthetic-images", "--frames",
+                 "20:60", "--out", str(out), "--rerun", "off", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "its unit is its first baseline, not a metre" in err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ate_alignment"].startswith("sim3") and m["map"]["metric"] is False
+    assert m["localised_fraction"] >= MIN_LOCALISED and m["ate_rmse_m"] <= ATE_TOL_M, m
+    assert main(["run", "--dataset", "synthetic-images", "--frames", "20:60", "--map", str(folder),
+                 "--out", str(tmp_path / "joined"), "--rerun", "off", "--quiet"]) == 2
+    assert "was built from the camera alone, in a scale of its own" in capsys.readouterr().err
