@@ -21,6 +21,7 @@ nothing with the others):
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -250,6 +251,10 @@ def _connect(Client, address: str):
     return box["client"]
 
 
+#: Dask's setting of the ``distributed`` loggers' level, read from the environment.
+_DASK_LOG_ENV = "DASK_LOGGING__DISTRIBUTED"
+
+
 class DaskExecutor:
     """Runs on Dask distributed: ``address`` ``"local"`` starts a LocalCluster."""
 
@@ -262,10 +267,28 @@ class DaskExecutor:
             raise ConfigError("--cluster needs Dask: pip install 'graphslam-toolkit[cluster]'") from None
         self.cluster = None
         if address == "local":
-            # one thread a worker: a run is a process of its own, a worker only waits
-            self.cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-            )
+            # Ctrl-C in a terminal reaches the whole process group: the worker processes
+            # died of it with tracebacks of their own, while this process already stops
+            # the runs in flight (stop_live_runs). They are started ignoring SIGINT (a
+            # disposition a spawned process keeps; a run they start sets its own).
+            # Dask's WARNING lines of a cancelled run or a removed worker are its own
+            # bookkeeping, said as noise on the command's stderr: errors only, here and
+            # in the workers (which read the level from their environment at start)
+            logging.getLogger("distributed").setLevel(logging.ERROR)
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            env = os.environ.get(_DASK_LOG_ENV)
+            os.environ[_DASK_LOG_ENV] = "error"
+            try:
+                # one thread a worker: a run is a process of its own, a worker only waits
+                self.cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+                )
+            finally:
+                signal.signal(signal.SIGINT, old)
+                if env is None:
+                    os.environ.pop(_DASK_LOG_ENV, None)
+                else:
+                    os.environ[_DASK_LOG_ENV] = env
             self.client = Client(self.cluster)
         else:
             self.client = _connect(Client, address)

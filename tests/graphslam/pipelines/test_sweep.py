@@ -218,6 +218,29 @@ def test_ctrl_c_keeps_finished_runs_and_a_rerun_resumes(tmp_path):
     assert third.ran == 0 and third.skipped == 4
 
 
+@pytest.mark.slow
+def test_ctrl_c_to_a_local_dask_sweep_is_one_line(tmp_path):
+    """Tenth hostile pass: Ctrl-C in a terminal (SIGINT to the whole process group) during
+    a ``--cluster local`` sweep printed the Dask worker processes' two tracebacks and
+    Dask's WARNING lines before the sweep's own line. The rows were and are kept."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(_file(tmp_path, SMALL)),
+         "--out", str(out), "--cluster", "local", "--workers", "1", "--quiet", "--no-plots"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    deadline = time.monotonic() + 120  # s: generous on a loaded machine
+    while not ((out / "sweep.csv").is_file() and _csv(out / "sweep.csv")):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["graphslam: interrupted; sweep.csv keeps every finished run"], err
+    assert all(r["status"] == "ok" for r in _csv(out / "sweep.csv"))
+
+
 def test_sigint_to_the_sweep_process_keeps_finished_runs(tmp_path):
     """The real signal: SIGINT to a ``graphslam sweep`` process once its first run is
     in sweep.csv; it stops the run in flight and exits 130 with the finished rows."""
