@@ -117,7 +117,14 @@ def cmd_train(args: argparse.Namespace) -> int:
     if stop_requested() and not feats:
         raise KeyboardInterrupt
     t0 = time.perf_counter()
-    print(f"training on {len(feats)} images ...", file=sys.stderr, flush=True)
+    # said now: a first stop is held until the k-means ends (tens of seconds on 160 KITTI
+    # frames), and nothing can be said while it runs
+    print(
+        f"training on {len(feats)} images ... (Ctrl-C lets the training finish and writes it; "
+        "a second Ctrl-C aborts, any old file kept)",
+        file=sys.stderr,
+        flush=True,
+    )
     vocab = train_vocabulary(
         [f.descriptors for f in feats],
         args.words,
