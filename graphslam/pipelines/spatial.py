@@ -63,7 +63,7 @@ from graphslam.pipelines.common import (
 )
 from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.config import bounded, validate
-from slamcore.errors import ConfigError, GraphSlamError, InputError, UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError, UnsupportedError
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
@@ -373,7 +373,14 @@ def run(
             signal_hook("finalize")
         if unreadable is None:
             t = time.perf_counter()
-            estimate = backend.finalize()
+            try:
+                estimate = backend.finalize()
+            except LocatedError:
+                raise
+            except GraphSlamError as e:  # "tracking never started": say of which images
+                if sequence.source_path is None:
+                    raise
+                raise InputError(str(e), sequence.source_path) from None
             wall += time.perf_counter() - t
             interrupted = stop.requested  # asked during finalisation: the estimate is whole
         else:  # cut as a stop cuts it: the estimate so far, not finalised

@@ -372,3 +372,17 @@ def test_run_seeds_stay_within_opencvs_generators():
     assert rng_seed(0, 5) == 5 and rng_seed(top, 1) == 0 and rng_seed(top - 2, 1) == top - 1
     with pytest.raises(ConfigError, match="seed"):
         VisualIsam2Config(seed=top + 1)
+
+
+def test_a_map_that_never_starts_is_said_of_its_images(tmp_path, capsys):
+    """Tenth hostile pass: "monocular tracking never started" named no dataset. KITTI 07's
+    first 60 frames (the car starting slowly) give no first map at the default settings."""
+    from graphslam.cli.main import main
+
+    if not KITTI07.is_dir():
+        pytest.skip("kitti07 not present")
+    assert main(["run", "--dataset", str(KITTI07), "--frames", "0:60", "--odometry", "none",
+                 "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"graphslam: error: {KITTI07}: ")
+    assert "monocular tracking never started" in err[0]
