@@ -373,14 +373,7 @@ def run(
             signal_hook("finalize")
         if unreadable is None:
             t = time.perf_counter()
-            try:
-                estimate = backend.finalize()
-            except LocatedError:
-                raise
-            except GraphSlamError as e:  # "tracking never started": say of which images
-                if sequence.source_path is None:
-                    raise
-                raise InputError(str(e), sequence.source_path) from None
+            estimate = _finalize(backend, sequence)
             wall += time.perf_counter() - t
             interrupted = stop.requested  # asked during finalisation: the estimate is whole
         else:  # cut as a stop cuts it: the estimate so far, not finalised
@@ -537,6 +530,19 @@ DIVERGED_ATE_PERCENT = 5.0
 #: six degrees of freedom and a pixel gives two, and three points leave up to four
 #: poses (P3P); the fourth point picks one.
 MIN_LANDMARKS_PER_FRAME = 4
+
+
+def _finalize(backend, sequence):
+    """``backend.finalize()``; an error that names no file (the camera-alone map never
+    started) is said of the images it was given."""
+    try:
+        return backend.finalize()
+    except LocatedError:
+        raise
+    except GraphSlamError as e:
+        if sequence.source_path is None:
+            raise
+        raise InputError(str(e), sequence.source_path) from None
 
 
 def _doubts(result: VisualRunResult) -> list[str]:
