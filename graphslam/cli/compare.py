@@ -146,6 +146,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     args.backends = args.backends or list(registry.BACKENDS)
     _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets", graphs_hint=True)
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
+    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
+    narrowed = _range_backends(args, dataset, explicit)
+    # after the back ends are known: on ranges only iSAM2 runs, which draws no numbers
     if (
         args.seed is not None
         and args.dataset != "synthetic"
@@ -155,8 +158,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"--seed has no effect here: {args.dataset} is not simulated and "
             "none of the back ends draws random numbers"
         )
-    dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
-    _range_backends(args, dataset, explicit)
+    if narrowed:  # said once nothing refuses the command
+        print(narrowed, file=sys.stderr, flush=True)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     entries = compare.compare(
@@ -184,15 +187,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
 
 
-def _range_backends(args, dataset, explicit: bool) -> None:
+def _range_backends(args, dataset, explicit: bool) -> str | None:
     """On a log of range-only observations (Plaza), the back ends that take them: all of
-    them by default (said on stderr), and a named one that does not is refused before any
-    runs (each failed in its run, tenth hostile pass)."""
+    them by default (``args.backends`` narrowed, and the sentence that says so returned),
+    and a named one that does not is refused before any runs (each failed in its run,
+    tenth hostile pass)."""
     from graphslam import registry
     from slamcore.planar.records import ObservationKind
 
     if not any(o.kind is ObservationKind.RANGE for f in dataset.frames for o in f.observations):
-        return
+        return None
     if explicit:
         others = [name for name in args.backends if name not in registry.RANGE_BACKENDS]
         if others:
@@ -200,13 +204,11 @@ def _range_backends(args, dataset, explicit: bool) -> None:
                 f"{dataset.name} holds range-only observations, which {', '.join(others)} "
                 f"cannot take (back ends that do: {', '.join(registry.RANGE_BACKENDS)})"
             )
-        return
+        return None
     args.backends = list(registry.RANGE_BACKENDS)
-    print(
+    return (
         f"{dataset.name} holds range-only observations: comparing the back ends that take them "
-        f"({', '.join(args.backends)})",
-        file=sys.stderr,
-        flush=True,
+        f"({', '.join(args.backends)})"
     )
 
 

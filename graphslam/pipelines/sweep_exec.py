@@ -266,6 +266,7 @@ class DaskExecutor:
         except ImportError:
             raise ConfigError("--cluster needs Dask: pip install 'graphslam-toolkit[cluster]'") from None
         self.cluster = None
+        self._log_level: int | None = None  # the distributed loggers' level before (local)
         if address == "local":
             # Ctrl-C in a terminal reaches the whole process group: the worker processes
             # died of it with tracebacks of their own, while this process already stops
@@ -274,6 +275,7 @@ class DaskExecutor:
             # Dask's WARNING lines of a cancelled run or a removed worker are its own
             # bookkeeping, said as noise on the command's stderr: errors only, here and
             # in the workers (which read the level from their environment at start)
+            self._log_level = logging.getLogger("distributed").level
             logging.getLogger("distributed").setLevel(logging.ERROR)
             old = signal.signal(signal.SIGINT, signal.SIG_IGN)
             env = os.environ.get(_DASK_LOG_ENV)
@@ -315,3 +317,5 @@ class DaskExecutor:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+        if self._log_level is not None:  # after the shutdown, whose warnings were noise too
+            logging.getLogger("distributed").setLevel(self._log_level)

@@ -275,28 +275,37 @@ def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[st
             )
 
 
-#: The settings ``graphslam run --seed`` sets (the data's generators, the derived
-#: odometry's noise, the back ends that draw random numbers): a sweep with ``[sweep]
-#: seed`` hands ``--seed`` to every run, which overrides these whatever ``[sweep.set]``
-#: says.
-SET_BY_RUN_SEED = (
-    "synthetic.seed",
-    "synthetic_images.seed",
-    "odometry_noise.seed",
-    "fastslam.seed",
-    "mono_ekf.seed",
-    "isam2_visual.seed",
-)
+#: The data's settings ``graphslam run --seed`` sets: the simulated worlds' generators
+#: and the derived odometry's noise (the back ends' come from the table:
+#: :func:`keys_seed_sets`).
+DATA_KEYS_SEED_SETS = ("synthetic.seed", "synthetic_images.seed", "odometry_noise.seed")
+
+
+def keys_seed_sets() -> set[str]:
+    """Every ``section.seed`` that ``graphslam run --seed`` sets: the data's, and the
+    ``seed`` of each back end that draws random numbers or whose run overrides take the
+    seed (the visual iSAM2's RANSACs), read from the back-end table so that a new one is
+    covered. A sweep with ``[sweep] seed`` hands ``--seed`` to every run, which overrides
+    these whatever ``[sweep.set]`` says."""
+    from graphslam.backend_table import TABLE, load
+
+    keys = set(DATA_KEYS_SEED_SETS)
+    for row in TABLE:
+        for impl in (row.landmarks, row.images):
+            if impl is not None and (impl.seeded or impl.run_overrides is not None):
+                keys.add(f"{load(impl.config).SECTION}.seed")
+    return keys
 
 
 def _refuse_keys_seed_sets(seeds: tuple, keys: tuple, cfg: ConfigFile) -> None:
     """ConfigError when ``[sweep] seed`` is given and ``[sweep.set]`` sweeps a key that
     ``--seed`` sets: every run would get ``--seed``'s value, the swept one silently
-    lost (fourth hostile pass: three runs labelled synthetic.seed 1, 2, 3, one result)."""
+    lost (tenth hostile pass: three runs labelled synthetic.seed 1, 2, 3, one result)."""
     if seeds == (None,):
         return
+    set_by_seed = keys_seed_sets()
     for dotted in keys:
-        if dotted in SET_BY_RUN_SEED:
+        if dotted in set_by_seed:
             raise ConfigError(
                 f"[sweep.set] {dotted}: [sweep] seed gives every run --seed, which sets "
                 f"{dotted}; sweep the seeds in one place ([sweep] seed, or {dotted} without it)",

@@ -45,7 +45,7 @@ def test_a_flat_eight_bit_image_is_read(tmp_path):
 
 
 def test_an_image_opencv_cannot_decode_gives_our_line_only(tmp_path, capfd):
-    """Fourth hostile pass: a float TIFF printed OpenCV's own ``[ WARN ]`` line on stderr
+    """Tenth hostile pass: a float TIFF printed OpenCV's own ``[ WARN ]`` line on stderr
     before the one-line error."""
     path = tmp_path / "frame.tiff"
     cv2.imwrite(str(path), np.random.default_rng(0).random((40, 50)).astype(np.float32))

@@ -260,7 +260,7 @@ def test_flat_seed_beyond_kmeans_range_is_refused_by_name():
     ("ORBvoc.txt", b"10 6  0 0\n0 0 252 188 188 242 169 109 85 143 187 171\n", "text"),
 ])
 def test_another_tools_vocabulary_is_named_not_called_damaged(tmp_path, name, content, what):
-    """Fourth hostile pass: the DBoW3 vocabulary the desk data ships was "damaged or
+    """Tenth hostile pass: the DBoW3 vocabulary the desk data ships was "damaged or
     unreadable (BadZipFile)": a user learns nothing of what to do."""
     path = tmp_path / name
     path.write_bytes(content)

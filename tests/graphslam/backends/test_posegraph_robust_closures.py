@@ -210,7 +210,7 @@ def test_a_stop_check_that_never_stops_changes_nothing(tmp_path):
 
 @pytest.mark.parametrize("point", ["lm", "gnc"])
 def test_a_stop_in_the_batch_solve_returns_what_is_in_hand(tmp_path, point):
-    """Fourth hostile pass: Ctrl-C on a real 11 393-pose graph took 70 s to act (gtsam's
+    """Tenth hostile pass: Ctrl-C on a real 11 393-pose graph took 70 s to act (gtsam's
     GNC holds Python's lock to its end). Stopped after an LM iteration: that iteration's
     estimate, exactly; during GNC: the least-squares optimum, its closures untested."""
     path, _, _ = _world(tmp_path, wrong_runs=3)

@@ -144,7 +144,7 @@ def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
 
 @pytest.mark.parametrize("at, stopped", [("lm:2", "lm"), ("gnc:1", "gnc")])
 def test_pose_graph_signal_in_the_batch_solve_ends_it_there(tmp_path, at, stopped):
-    """Fourth hostile pass: SIGINT during the batch solve of a real graph waited 70 s for
+    """Tenth hostile pass: SIGINT during the batch solve of a real graph waited 70 s for
     GNC to end. Now the solve stops after the iteration the signal came in, and every file
     is written with the estimate in hand, said to be such."""
     from tests.graphslam.backends.test_posegraph_robust_closures import _world

@@ -296,7 +296,7 @@ def test_a_huge_viewer_url_is_quoted_short(tmp_path, capsys):
 
 @pytest.mark.skipif(not DESK.is_dir(), reason="desk photos not available")
 def test_vocab_an_image_given_twice_is_trained_on_once_and_said(tmp_path, capsys):
-    """Fourth hostile pass: ``vocab train a.png a.png`` trained on "2 images", the one image's
+    """Tenth hostile pass: ``vocab train a.png a.png`` trained on "2 images", the one image's
     descriptors counted twice in the k-means and the IDF, without a word."""
     assert main(["vocab", "train", str(DESK / "01.png"), str(DESK / "01.png"), "--out",
                  str(tmp_path / "twice.npz"), "--words", "20", "--quiet"]) == 0

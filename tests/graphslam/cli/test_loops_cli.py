@@ -206,7 +206,7 @@ def test_dangling_image_link_is_refused_as_a_corrupt_image_is(desk, tmp_path, ca
 
 
 def test_truth_pairs_outside_frames_are_left_out_and_said(desk, tmp_path, capsys):
-    """Fourth hostile pass: with --frames 0:5, the desk's true pair (10, 01) was refused as
+    """Tenth hostile pass: with --frames 0:5, the desk's true pair (10, 01) was refused as
     "'10.png' is not an image of the folder"; it is one, left out by --frames."""
     truth = tmp_path / "t.csv"
     truth.write_text("query,match\n10.png,01.png\n02.png,01.png\n")

@@ -220,7 +220,7 @@ def test_a_run_scored_on_under_half_its_poses_says_so(tmp_path, capsys):
 
 
 def test_an_estimate_that_pairs_too_few_poses_is_named(tmp_path, capsys):
-    """Fourth hostile pass: "only 1 matched pose(s)" named no file, with several estimates
+    """Tenth hostile pass: "only 1 matched pose(s)" named no file, with several estimates
     on the command line."""
     gt, est = tr.write_pair(tmp_path, "tum")
     one = tmp_path / "one.tum"

@@ -31,7 +31,7 @@ def test_a_truth_csv_with_a_byte_order_mark_is_read(tmp_path):
 
 
 def test_a_truth_row_pairing_an_image_with_itself_is_refused_at_its_line(tmp_path):
-    """Fourth hostile pass: a row ``10.png,10.png`` (a typo for another image) was dropped
+    """Tenth hostile pass: a row ``10.png,10.png`` (a typo for another image) was dropped
     without a word, the true pair it meant never scored."""
     from pathlib import Path
 

@@ -152,7 +152,7 @@ def test_seeds_on_a_pose_graph_solve_are_refused_before_any_run(tmp_path, capsys
 
 @pytest.mark.parametrize("key", ["synthetic.seed", "fastslam.seed"])
 def test_a_swept_key_that_seed_sets_is_refused_beside_sweep_seed(tmp_path, capsys, key):
-    """Fourth hostile pass: with [sweep] seed every run gets --seed, which set
+    """Tenth hostile pass: with [sweep] seed every run gets --seed, which set
     synthetic.seed whatever [sweep.set] said: three runs labelled 1, 2, 3 gave one ATE."""
     text = ('[sweep]\ndataset = ["synthetic"]\nbackend = ["fastslam1"]\nseed = [0]\n'
             f'[sweep.set]\n"{key}" = [1, 2, 3]\n')

@@ -263,7 +263,7 @@ def _corrupt(path: Path, line_no: int, text: str) -> None:
     ("Robot1_Measurement.dat", 8, "1248444190.0 14.5 3.0 0.1", "barcode 14.5"),
     ("Robot1_Measurement.dat", 8, "1248444190.0 14 3.0 9.0", "bearing 9 rad"),
     ("Barcodes.dat", 6, "  2 \t   5", "barcode 5 is given to two subjects"),
-    # fourth hostile pass: the later of two positions silently won (map RMSE 0.23 -> 2.4 m)
+    # tenth hostile pass: the later of two positions silently won (map RMSE 0.23 -> 2.4 m)
     ("Landmark_Groundtruth.dat", 6, "6 1.0 2.0 0.0001 0.0001",
      "landmark 6 is given a second position (first on line 5)"),
     ("Landmark_Groundtruth.dat", 6, "7.5 1.0 2.0 0.0001 0.0001", "subject must be a whole number"),

@@ -243,6 +243,11 @@ def test_compare_on_ranges_runs_the_back_ends_that_take_them(tmp_path, capsys):
                  "--out", str(tmp_path / "d")]) == 2
     assert "which ekf cannot take (back ends that do: isam2)" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+    # narrowed to iSAM2, --seed has nothing to seed: refused in one line, as elsewhere
+    assert main(["compare", "--dataset", "plaza2", "--seed", "3", "--rerun", "off",
+                 "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--seed has no effect here" in err[0]
 
 
 @pytest.mark.parametrize("backend", registry.BACKENDS)
