@@ -133,6 +133,10 @@ class VisualRunResult:
     Attributes:
         estimate: final estimate (``finalize``'d unless interrupted).
         frames: frames processed.
+        interrupted: a stop was asked for (or a frame was unreadable) during the run.
+        finalised: every frame was processed and the back end finished
+            (``finalize``): the estimate is whole even if ``interrupted`` (a stop
+            asked for during the final polish).
         wall_s: seconds in the tracker, the back end and the loop closer
             (detection, search, update, finalisation); image loading and logging
             are not counted (``processing_s`` of the metrics).
@@ -162,6 +166,7 @@ class VisualRunResult:
     tracking: dict = field(default_factory=dict)
     pose_covariances: np.ndarray | None = None
     input_digest: str | None = None
+    finalised: bool = False
 
 
 def backend_overrides(
@@ -331,6 +336,7 @@ def run(
     wall = 0.0
     load = 0.0
     interrupted = False
+    finalised = False
     unreadable: InputError | None = None  # the frame that cut the run, read after others
     try:
         with interrupt_between_frames() as stop:
@@ -376,6 +382,7 @@ def run(
             estimate = _finalize(backend, sequence)
             wall += time.perf_counter() - t
             interrupted = stop.requested  # asked during finalisation: the estimate is whole
+            finalised = True
         else:  # cut as a stop cuts it: the estimate so far, not finalised
             interrupted = True
             estimate = backend.estimate()
@@ -401,6 +408,7 @@ def run(
         odometry_noise=stated,
         odometry_wTc=odo_wTc,
         tracking=stats,
+        finalised=finalised,
     )
     if unreadable is not None:
         raise FrameUnreadable(unreadable, result)
@@ -504,7 +512,7 @@ def compute_metrics(
         processing_s=result.wall_s,
         image_load_s=result.load_s,
         interrupted=result.interrupted,
-        backend_stats=dict(est.stats or {}),
+        backend_stats=_with_file_frames(est.stats, seq),
         tracking=_tracking_summary(result.tracking),
     )
     m.frames_with_pose = int(len(est.frame_ids))
@@ -543,6 +551,21 @@ def _finalize(backend, sequence):
         if sequence.source_path is None:
             raise
         raise InputError(str(e), sequence.source_path) from None
+
+
+def _with_file_frames(stats: dict | None, seq) -> dict:
+    """The back end's stats, with the camera-alone first map's frame also as the file's
+    frame number (``file_frame``): under ``--frames 100:`` the run's frame 5 is file
+    frame 105, and a user reads the file's."""
+    out = dict(stats or {})
+    mono = out.get("camera_alone")
+    first = None if mono is None else mono.get("first_map")
+    if mono is not None and first is not None:
+        from graphslam.sources.spatial.frames import source_indices
+
+        file_frame = int(source_indices(seq)[int(first["frame"])])
+        out["camera_alone"] = {**mono, "first_map": {**first, "file_frame": file_frame}}
+    return out
 
 
 def _doubts(result: VisualRunResult) -> list[str]:

@@ -99,15 +99,29 @@ def chain_hooks(*hooks):
 def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool, prior_map=None) -> None:
     """Build the map of the finished run (joined after ``prior_map``, the ``--map`` of
     this session, when given), write it to ``--save-map`` and say so on stdout."""
+    from graphslam.cli.common import warn
+
+    if result.interrupted and not result.finalised:  # no map from half an estimate
+        warn(f"run stopped before its end: no map saved in {args.save_map}")
+        return
+    if result.interrupted:  # asked during the final polish: the estimate is whole
+        warn(
+            f"stop asked after the last frame: the estimate is whole, so its map is saved in "
+            f"{args.save_map} (a second Ctrl-C skips the map)"
+        )
+        try:
+            _save(args, recorder, result, backend, closer, tracker, quiet, prior_map)
+        except KeyboardInterrupt:
+            warn(f"map not saved in {args.save_map}: stopped again")
+        return
+    _save(args, recorder, result, backend, closer, tracker, quiet, prior_map)
+
+
+def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_map) -> None:
     import sys
 
     from graphslam.maps.files import save_map
 
-    if result.interrupted:  # a signal or an unreadable frame: no map from half an estimate
-        from graphslam.cli.common import warn
-
-        warn(f"run stopped before its end: no map saved in {args.save_map}")
-        return
     seq = result.sequence
     if not quiet and closer is None and prior_map is None:
         print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)

@@ -241,6 +241,12 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
     )
 
 
+def _frame_named(first: dict) -> str:
+    """The first map's frame: the run's, and the file's where ``--frames`` moved it."""
+    k, f = first["frame"], first.get("file_frame", first["frame"])
+    return f"frame {k}" if k == f else f"frame {k} of the run (file frame {f})"
+
+
 def format_summary(m) -> str:
     """A two-column table of the headline numbers of a visual run."""
     align = "Sim(3)" if m.alignment == "sim3" else "SE(3)"
@@ -301,7 +307,7 @@ def format_summary(m) -> str:
                 "monocular map started",
                 "never: " + mono.get("no_first_map_because", "")
                 if first is None
-                else f"frame {first['frame']} ({first['model']}, {first['points']} points; "
+                else f"{_frame_named(first)} ({first['model']}, {first['points']} points; "
                 f"scale: {first['scale_gauge']})",
             )
         )

@@ -369,6 +369,27 @@ def test_camera_alone_signal_keeps_every_file(tmp_path, at):
     assert metrics["frames_with_pose"] == (0 if at == "step:1" else 10)
 
 
+@pytest.mark.parametrize("at, saved", [("finalize", True), ("step:3", False)])
+def test_image_run_signal_and_its_map(tmp_path, at, saved):
+    """Eleventh hostile pass: a signal during the final polish, after every frame, lost
+    the --save-map map of a whole estimate. It is saved now (and said); a signal before
+    the last frame still saves none."""
+    done = graphslam(tmp_path, "run", "--dataset", "synthetic-images", "--max-steps", "6",
+                     "--out", "o", "--quiet", "--rerun", "off", "--save-map", "m", at=at)
+    assert done.returncode == 130, done.stderr
+    assert "Traceback" not in done.stderr
+    said = [ln for ln in done.stderr.splitlines() if ln.startswith("graphslam:")]
+    assert said[-1].startswith("graphslam: interrupted (SIGINT)"), done.stderr
+    if saved:
+        assert "the estimate is whole, so its map is saved in m" in said[0], done.stderr
+        assert (tmp_path / "m" / "map.json").is_file() and "map in m/" in done.stdout
+    else:
+        assert "run stopped before its end: no map saved in m" in said[0], done.stderr
+        assert not (tmp_path / "m").exists()
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["interrupted"] is True and metrics["frames"] == (6 if saved else 4)
+
+
 # ------------------------------------------------------------------------------ compare
 
 COMPARE = ("compare", "--max-steps", "60", "--out", "c", "--rerun", "save")
