@@ -283,6 +283,8 @@ class ConfigFile:
     path: Path | None = None
     data: dict = field(default_factory=dict)
     lines: dict = field(default_factory=dict)
+    #: the sections :meth:`section` was asked for (:meth:`unread_sections`)
+    read_sections: set = field(default_factory=set, compare=False, repr=False)
 
     @classmethod
     def read(cls, path: str | Path | None) -> ConfigFile:
@@ -315,12 +317,31 @@ class ConfigFile:
                     self.line_of(name),
                 )
 
+    def unread_sections(self) -> list[str]:
+        """The file's sections that no :meth:`section` call has read so far: a command
+        that ends with some says so (their settings did nothing, and were not checked)."""
+        return [name for name in self.data if name not in self.read_sections]
+
     def section(self, cls: type[T], overrides: dict[str, Any] | None = None) -> T:
         """Defaults of ``cls``, then the file's section, then non-None ``overrides``."""
         name = section_name(cls)
+        self.read_sections.add(name)
         data = dict(self.data.get(name, {}) or {})
-        data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+        given = {k: v for k, v in (overrides or {}).items() if v is not None}
+        self._check_overridden(cls, name, {k: data[k] for k in data.keys() & given.keys()})
+        data.update(given)
         return self._build(cls, data, (name,))
+
+    def _check_overridden(self, cls: type, name: str, data: dict) -> None:
+        """The file's values that an override replaces still have their field's type:
+        ``robot_model = "banana"`` ran silently under ``--odometry none`` (which sets it)."""
+        hints = typing.get_type_hints(cls)
+        for key, value in data.items():
+            if key in hints and not _is_config(hints[key]):
+                try:
+                    _check_value(value, hints[key], f"{name}.{key}")
+                except ConfigError as e:
+                    raise ConfigError(str(e), self.path, self.line_of(name, key)) from None
 
     def _build(self, cls: type[T], data: dict, where: tuple[str, ...], base: Any = None) -> T:
         """``cls`` from ``data``; a nested table starts from its field's own default

@@ -204,12 +204,23 @@ def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int] | None
 _POSE3_SWAP = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
 
 
+#: Frobenius norm of ``R^T R - I`` beyond which a rotation matrix is projected on SO(3)
+#: before it enters gtsam. Products of float64 rotations stay within 1e-14; gtsam's
+#: ``Rot3(matrix)`` keeps whatever it is given, and a camera coasting on products of
+#: products drifted from SO(3) until its rotation matrix was zero (an 11th-pass find).
+ORTHONORMAL_TOL = 1e-9
+
+
 def pose3(wTc: np.ndarray) -> gtsam.Pose3:
-    """(4, 4) rigid transform -> ``gtsam.Pose3``."""
+    """(4, 4) rigid transform -> ``gtsam.Pose3``; a rotation block off SO(3) by more
+    than :data:`ORTHONORMAL_TOL` is replaced by the nearest rotation."""
     T = np.asarray(wTc, dtype=np.float64)
     if T.shape != (4, 4):
         raise ValueError(f"expected a (4, 4) pose, got {T.shape}")
-    return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), T[:3, 3].copy())
+    R = T[:3, :3]
+    if not np.linalg.norm(R.T @ R - np.eye(3)) <= ORTHONORMAL_TOL:
+        return gtsam.Pose3(gtsam.Rot3.ClosestTo(R), T[:3, 3].copy())
+    return gtsam.Pose3(gtsam.Rot3(R), T[:3, 3].copy())
 
 
 def pose3_matrix(p: gtsam.Pose3) -> np.ndarray:

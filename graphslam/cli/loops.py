@@ -172,7 +172,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         paths,
         OrbDetector(detector_config.orb),
         progress=not args.quiet,
-        load=None if bag is None else _bag_loader(bag),
+        load=_bag_loader(bag) if bag is not None else (_one_camera_loader() if K is not None else None),
     )
     featureless = featureless_images(features, args.images_dir)  # all of them: refused
     places = folder_places(features, detector_config, times)
@@ -289,6 +289,31 @@ def _camera(args, bag, paths):
 
         return read_intrinsics_file(args.intrinsics)
     return (None, None) if bag is None else (bag.K, bag.distortion)
+
+
+def _one_camera_loader():
+    """``load(path)`` that refuses an image of another size than the first: ``--intrinsics``
+    is one camera at one resolution, and a photo of another size matched under its K
+    lost its true closure without a word (``run`` refuses it as well)."""
+    from frontend.image import load_gray
+    from slamcore.errors import InputError
+
+    first: list = []
+
+    def load(path):
+        image = load_gray(path)
+        if not first:
+            first.append((Path(path).name, image.shape))
+        elif image.shape != first[0][1]:
+            (name, (h, w)) = first[0]
+            raise InputError(
+                f"image is {image.shape[1]}x{image.shape[0]} px, {name} is {w}x{h}: --intrinsics "
+                "describes one camera at one resolution (without it, images of any size are matched)",
+                path,
+            )
+        return image
+
+    return load
 
 
 def _bag_loader(bag):

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+from graphslam.sources.spatial.frames import FrameSelection, source_indices
 from graphslam.sources.spatial.sequence import (
     ASSOCIATION_MAX_DT_S,
     ImageSequence,
@@ -209,11 +210,11 @@ def check_whole_stamps(truth: Trajectory, what: str, hint: str) -> None:
 
 def _frame_numbers(sequence: ImageSequence) -> np.ndarray:
     """(N,) frame number per image: the file name's number (KITTI's 000042.png),
-    else the position in the sequence."""
+    else the position in the sequence as read (a ``--frames`` selection's picks)."""
     stems = [Path(p).stem for p in sequence.image_paths]
     if all(s.isascii() and s.isdigit() for s in stems):
         return np.array([int(s) for s in stems], dtype=np.int64)
-    return np.arange(len(stems), dtype=np.int64)
+    return source_indices(sequence)
 
 
 def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarray:
@@ -229,7 +230,7 @@ def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarra
             f"frame indices ({sequence.name!r} has no image times)",
             "give the truth with t = frame index, or the sequence its times",
         )
-        frame_t = np.arange(len(sequence), dtype=np.float64)
+        frame_t = source_indices(sequence).astype(np.float64)
         idx = associate(frame_t, truth.stamps_s[order], 0.5)
     else:
         idx = associate(
@@ -261,6 +262,14 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
         changes["image_paths"] = [p for p, k in zip(sequence.image_paths, keep, strict=True) if k]
         if sequence.stamps_s is not None:
             changes["stamps_s"] = np.asarray(sequence.stamps_s)[keep]
+        if isinstance(sequence, FrameSelection):  # it loads by its indices, not its paths
+            changes["indices"] = np.asarray(sequence.indices)[keep]
+        which = "frames selected" if isinstance(sequence, FrameSelection) else "frames"
+        changes["frame_warnings"] = (
+            *sequence.frame_warnings,
+            f"{truth.path}: {int(np.sum(~keep))} of {len(keep)} {which} have no ground truth "
+            f"({how}) and are left out of the run",
+        )
     return dataclasses.replace(sequence, **changes)
 
 

@@ -77,20 +77,14 @@ def _load_sequence(args, config):
     sequence = registry.load_image_sequence(
         args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
     )
-    if args.ground_truth is not None:
-        from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
-
-        n_frames = len(sequence)
-        sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
-        if len(sequence) < n_frames:  # the frames without truth are dropped: said, not only counted
-            warn(
-                f"--ground-truth {args.ground_truth}: {n_frames - len(sequence)} of {n_frames} "
-                "frames have no ground truth and are left out of the run"
-            )
-    if getattr(args, "frames", None) is not None:
+    if getattr(args, "frames", None) is not None:  # first: --frames counts the files' frames
         from graphslam.sources.spatial.frames import parse_frames, select_frames
 
         sequence = select_frames(sequence, parse_frames(args.frames))
+    if args.ground_truth is not None:  # frames without truth are dropped and said (warnings)
+        from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
+
+        sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
     for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     return sequence

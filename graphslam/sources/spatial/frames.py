@@ -112,6 +112,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         image_size=sequence.image_size,
         source_path=sequence.source_path,
         camera_warnings=sequence.camera_warnings,
+        frame_warnings=sequence.frame_warnings,
         base=sequence,
         indices=idx,
         odometry=odo,

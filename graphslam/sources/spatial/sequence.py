@@ -59,6 +59,8 @@ class ImageSequence:
         source_path: the folder the sequence came from, if any.
         camera_warnings: the reader's reasons to doubt the camera (intrinsics that do
             not fit the images), one line each; :attr:`warnings` adds the frames.
+        frame_warnings: what was done to the frames after reading (frames left out
+            for want of ground truth), one line each.
     """
 
     name: str
@@ -72,6 +74,7 @@ class ImageSequence:
     #: reasons to doubt the camera that the reader found (intrinsics that do not fit
     #: the images), one line each
     camera_warnings: tuple[str, ...] = ()
+    frame_warnings: tuple[str, ...] = ()
     #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
     #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
     _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False, compare=False)
@@ -85,7 +88,7 @@ class ImageSequence:
         frames stored twice among these (:func:`repeated_frames`, so a selection of
         frames is judged on its own). The run says them as ``graphslam: warning:``
         lines and keeps them in metrics.json ``warnings``."""
-        return (*self.camera_warnings, *repeated_frames(self.image_paths))
+        return (*self.camera_warnings, *self.frame_warnings, *repeated_frames(self.image_paths))
 
     @property
     def has_ground_truth(self) -> bool:

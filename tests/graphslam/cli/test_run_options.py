@@ -161,8 +161,8 @@ def test_ground_truth_that_drops_frames_says_so(tmp_path, capsys):
     assert main(["run", "--dataset", str(KITTI07), "--backend", "ekf", "--rerun", "off", "--quiet",
                  "--out", str(tmp_path / "o"), "--ground-truth", str(tmp_path / "gt.txt")]) == 0
     err = capsys.readouterr().err
-    assert (f"graphslam: warning: --ground-truth {tmp_path / 'gt.txt'}: 157 of 160 frames have no "
-            "ground truth and are left out of the run") in err
+    assert (f"graphslam: warning: {tmp_path / 'gt.txt'}: 157 of 160 frames have no "
+            "ground truth (by frame index) and are left out of the run") in err
     assert main(["run", "--dataset", str(KITTI07), "--backend", "ekf", "--rerun", "off", "--quiet",
                  "--max-steps", "3", "--out", str(tmp_path / "p"), "--ground-truth",
                  str(KITTI07 / "poses.txt")]) == 0
