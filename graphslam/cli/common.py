@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, InputError
 from slamcore.files import DISK_FULL_REASONS
 
 #: Help of ``--topics`` (run, compare, localize): which topics of a ROS bag to read.
@@ -220,14 +220,18 @@ def recoveries_text(recoveries: dict[str, int]) -> str:
 def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, cut=None) -> int:
     """Print a run's summary table and where its outputs went; the exit status.
 
-    ``cut``: the :class:`~graphslam.pipelines.common.FrameUnreadable` that stopped the
-    run, raised again once its estimate so far is written and listed (exit 2, its file).
+    ``cut``: the :class:`~graphslam.pipelines.common.FrameUnreadable` (or
+    ``BackendFailed``) that stopped the run, raised again once its estimate so far is
+    written and listed (exit 2, its file).
     """
     print(summary)
     print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
+    if cut is not None and not isinstance(cut, InputError):  # the back end failed
+        raise GraphSlamError(
+            f"{cut}; the run stopped at frame {cut.frame}: {out_dir}/ holds what it estimated "
+            "from the frames before it"
+        )
     if cut is not None:
-        from slamcore.errors import InputError
-
         raise InputError(
             f"{cut.reason}; the run stopped at this frame: {out_dir}/ holds what it "
             f"estimated from the frames before it",

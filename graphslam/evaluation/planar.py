@@ -105,6 +105,30 @@ def rejected_warning(observations: int, rejected: int) -> list[str]:
     ]
 
 
+def map_warning(observations: int, rejected: int, landmarks: int) -> list[str]:
+    """One line when the map cannot have corrected the trajectory: the observations the
+    gate let in made no landmark, or fewer than two sightings each (a landmark seen once
+    is placed by that sighting and constrains no pose). Eleventh hostile pass:
+    ``provisional_sightings = 1000`` (no landmark ever confirmed) and
+    ``new_landmark_density_per_m2 = 1e9`` (each sighting a landmark) both gave the dead
+    reckoning to the last digit as a quiet run."""
+    used = observations - rejected
+    if used <= 0:
+        return []  # nothing came in, or the gate's line (rejected_warning) says it
+    if landmarks == 0:
+        return [
+            f"none of the {used} observations let in made a landmark (candidates never "
+            "confirmed?): the trajectory is the odometry alone"
+        ]
+    if used >= 2 * landmarks:
+        return []
+    return [
+        f"{landmarks} landmarks from {used} observations (under two sightings each): a landmark "
+        "seen once constrains no pose, so the trajectory is mostly the odometry (new landmarks "
+        "made too readily?)"
+    ]
+
+
 #: Tail probability of the final-cost test: a consistent run exceeds the bound once
 #: in 1e9 (measured 2E/dof: 0.99 synthetic, 0.59 MRCLAM, 0.68 Victoria Park, iSAM2).
 COST_TEST_ALPHA = 1e-9

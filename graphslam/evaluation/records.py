@@ -115,6 +115,8 @@ class PlanarRunMetrics(MetricsRecord):
     nees_mean: float | None = optional()
     nees_in_bounds_fraction: float | None = optional()
     rms_to_isam2_m: float | None = optional()
+    #: the back end's own seed (FastSLAM's particles), beside ``seed`` (the world's)
+    backend_seed: int | None = optional()
     numerical_recoveries: list[str] | None = optional()
     recoveries: dict[str, int] | None = optional()
     landmarks_pruned: int | None = optional()

@@ -37,7 +37,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 
-from slamcore.errors import InputError
+from slamcore.errors import GraphSlamError, InputError
 
 #: Exit status of a command stopped by each signal (128 + the signal number). SIGHUP
 #: (the terminal closed) stops a command as SIGTERM does: what was estimated is written.
@@ -226,6 +226,17 @@ class FrameUnreadable(InputError):
     def __init__(self, cause: InputError, result):
         super().__init__(cause.reason, cause.path, cause.line)
         self.result = result
+
+
+class BackendFailed(GraphSlamError):
+    """The back end failed at frame ``frame`` after ``result`` held some frames'
+    estimate (``interrupted``): the command writes it, then reports the failure.
+    A numerical failure 100 frames into a run wrote nothing (eleventh hostile pass)."""
+
+    def __init__(self, cause: GraphSlamError, result, frame: int):
+        super().__init__(str(cause))
+        self.result = result
+        self.frame = frame
 
 
 def whole(result):

@@ -242,6 +242,7 @@ def compute_metrics(
             *result.dataset.warnings,
             *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost),
             *metrics.rejected_warning(result.observations, result.observations_rejected),
+            *metrics.map_warning(result.observations, result.observations_rejected, len(est.landmark_ids)),
         ]
         or None,
     )

@@ -55,6 +55,7 @@ from graphslam import registry
 from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.pipelines.common import (
+    BackendFailed,
     FrameUnreadable,
     interrupt_between_frames,
     progress_bar,
@@ -330,6 +331,8 @@ def run(
     repredict = _sequential_link(tracker, backend)
     wTc0, P0 = _first_pose(sequence, cfg) if start_pose is None else start_pose
     K = np.asarray(sequence.K, dtype=np.float64)
+    start = (wTc0, P0, K, (sequence.image_size[0], sequence.image_size[1]))
+    odo_model = (odo, odo_cov, repredict)
     stats: dict[str, list] = {name: [] for name in TRACKING_STATS}
     bar = progress_bar(n, sequence.name, backend.name, progress)
     done = 0
@@ -338,6 +341,7 @@ def run(
     interrupted = False
     finalised = False
     unreadable: InputError | None = None  # the frame that cut the run, read after others
+    failed: GraphSlamError | None = None  # the back end's failure after some frames
     try:
         with interrupt_between_frames() as stop:
             for k in range(n):
@@ -352,21 +356,13 @@ def run(
                     break
                 t1 = time.perf_counter()
                 load += t1 - t
-                if k == 0:
-                    backend.initialize(0, wTc0, P0, K, (sequence.image_size[0], sequence.image_size[1]))
-                    pred = PixelPredictions.empty(wTc0, K)  # no landmark, a known camera
-                else:
-                    backend.predict(
-                        k, None if odo is None else odo[k - 1], None if odo_cov is None else odo_cov[k - 1]
-                    )
-                    pred = backend.predict_observations()
-                tracking = _track(tracker, image, pred, repredict if k else None)
-                t2 = time.perf_counter()
-                backend.update(tracking.observations)
-                t3 = time.perf_counter()
-                if loop_closer is not None:
-                    loop_closer.process(k, image, tracking, backend)
-                t4 = time.perf_counter()
+                try:
+                    tracking, (t2, t3, t4) = _step(backend, tracker, loop_closer, k, image, start, odo_model)
+                except GraphSlamError as e:
+                    if done == 0:
+                        raise
+                    failed = e
+                    break
                 wall += t4 - t1
                 done = k + 1
                 _count(stats, tracking, t3 - t2)
@@ -377,7 +373,7 @@ def run(
                     bar.update(1)
                 signal_hook("step", k)
             signal_hook("finalize")
-        if unreadable is None:
+        if unreadable is None and failed is None:
             t = time.perf_counter()
             estimate = _finalize(backend, sequence)
             wall += time.perf_counter() - t
@@ -385,7 +381,7 @@ def run(
             finalised = True
         else:  # cut as a stop cuts it: the estimate so far, not finalised
             interrupted = True
-            estimate = backend.estimate()
+            estimate = _estimate_so_far(backend, failed)
     except KeyboardInterrupt:
         interrupted = True
         if done == 0:
@@ -412,7 +408,42 @@ def run(
     )
     if unreadable is not None:
         raise FrameUnreadable(unreadable, result)
+    if failed is not None:
+        raise BackendFailed(failed, result, done)
     return result
+
+
+def _step(backend, tracker, loop_closer, k: int, image, start, odo_model):
+    """Frame ``k`` through the back end: its prediction, the front end's search, the
+    update, then the loop closer. ``start``: ``(wTc0, P0, K, (W, H))`` of the first
+    frame; ``odo_model``: ``(odometry, its covariances, repredict)``. Returns
+    ``(tracking, (time after the search, after the update, after the loop closer))``."""
+    wTc0, P0, K, size = start
+    odo, odo_cov, repredict = odo_model
+    if k == 0:
+        backend.initialize(0, wTc0, P0, K, size)
+        pred = PixelPredictions.empty(wTc0, K)  # no landmark, a known camera
+    else:
+        backend.predict(k, None if odo is None else odo[k - 1], None if odo_cov is None else odo_cov[k - 1])
+        pred = backend.predict_observations()
+    tracking = _track(tracker, image, pred, repredict if k else None)
+    t2 = time.perf_counter()
+    backend.update(tracking.observations)
+    t3 = time.perf_counter()
+    if loop_closer is not None:
+        loop_closer.process(k, image, tracking, backend)
+    return tracking, (t2, t3, time.perf_counter())
+
+
+def _estimate_so_far(backend, failed: GraphSlamError | None):
+    """The back end's estimate of the frames done; after its own failure, that failure
+    again if it cannot give one (nothing then to write)."""
+    if failed is None:
+        return backend.estimate()
+    try:
+        return backend.estimate()
+    except GraphSlamError:
+        raise failed from None
 
 
 #: Per-frame lists in ``VisualRunResult.tracking``.

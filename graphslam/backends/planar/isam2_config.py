@@ -85,6 +85,17 @@ class Isam2Config:
     """
 
     SECTION: ClassVar[str] = "isam2"
+    #: settings that act on loop closures only: a run without any says they did nothing
+    LOOP_CLOSURE_KEYS: ClassVar[tuple[str, ...]] = (
+        "loop_closure_kernel",
+        "loop_closure_kernel_k",
+        "polish_method",
+        "loop_closure_gate",
+        "gate_window",
+        "gate_min_support",
+        "gate_scale_from_data",
+        "gate_polish_rounds",
+    )
     relinearize_threshold: float = 0.1
     relinearize_skip: int = 10
     polish: bool = True

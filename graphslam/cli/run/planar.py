@@ -125,6 +125,11 @@ def run(args: argparse.Namespace) -> int:
     metrics = pipeline.compute_metrics(
         result, seed=dataset.seed, ground_truth=truth, wall_s=time.perf_counter() - t0
     )
+    if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
+        metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
+    unused = _unused_closure_settings(backend, config, result)
+    if unused:
+        metrics.warnings = [*(metrics.warnings or []), unused]
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
@@ -153,6 +158,23 @@ def run(args: argparse.Namespace) -> int:
     if save_map is not None:
         save_planar_run_map(save_map, result, backend, config, args.max_steps)
     return status
+
+
+def _unused_closure_settings(backend, config, result) -> str | None:
+    """A line naming the file's loop-closure settings of the back end (its config's
+    ``LOOP_CLOSURE_KEYS``) when the run had no loop closure: they did nothing (eleventh
+    hostile pass: ``polish_method = "gnc"`` on a landmark world, bit-identical, silent)."""
+    from slamcore.config import section_name
+
+    cls = type(getattr(backend, "config", None))
+    keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
+    section = section_name(cls) if keys else ""
+    given = [k for k in (config.data.get(section) or {}) if k in keys]
+    if not given or any(f.loop_closures for f in result.dataset.frames[: result.steps]):
+        return None
+    return (
+        f"[{section}] {', '.join(given)}: settings of loop closures, and this run had none; they did nothing"
+    )
 
 
 def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> None:

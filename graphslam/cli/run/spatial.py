@@ -159,14 +159,14 @@ def run(args: argparse.Namespace) -> int:
             n_frames,
             None if recorder is None else recorder.loop_hook(sequence),
         )
-    from graphslam.pipelines.common import FrameUnreadable
+    from graphslam.pipelines.common import BackendFailed, FrameUnreadable
 
     cut = None
     try:
         result = session.run(
             progress=not args.quiet, on_frame=hook, loop_closer=closer, start_pose=start_pose
         )
-    except FrameUnreadable as e:  # the frames before it are written, then the error said
+    except (FrameUnreadable, BackendFailed) as e:  # the frames before it written, then the error
         result, cut = e.result, e
     metrics = vp.compute_metrics(
         result, seed=getattr(getattr(sequence, "config", None), "seed", None), wall_s=time.perf_counter() - t0

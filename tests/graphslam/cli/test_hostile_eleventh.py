@@ -140,3 +140,97 @@ def test_loops_with_intrinsics_refuses_an_image_of_another_size(tmp_path, capsys
     assert err == (f"graphslam: error: {folder / '02.png'}: image is 320x240 px, 00.png is 160x120: "
                    "--intrinsics describes one camera at one resolution (without it, images of any "
                    "size are matched)")
+
+
+def _run_2d(tmp_path, capsys, *args, config: str | None = None) -> dict:
+    argv = ["run", "--quiet", "--rerun", "off", "--out", str(tmp_path / "o"), *args]
+    if config is not None:
+        (tmp_path / "c.toml").write_text(config)
+        argv += ["--config", str(tmp_path / "c.toml")]
+    assert main(argv) == 0
+    capsys.readouterr()
+    return json.loads((tmp_path / "o" / "metrics.json").read_text())
+
+
+def test_a_map_that_corrected_nothing_is_said(tmp_path, capsys):
+    """Unknown ids where no candidate is ever confirmed: the dead reckoning to the last
+    digit, as a quiet run."""
+    m = _run_2d(tmp_path, capsys, "--backend", "ekf",
+                config="[ekf]\nassociation = 'unknown'\nprovisional_sightings = 1000\n")
+    assert m["landmarks"] == 0
+    assert any(w.startswith("none of the 866 observations let in made a landmark") for w in m["warnings"])
+
+
+def test_a_map_of_landmarks_seen_once_is_said(tmp_path, capsys):
+    """Each sighting its own landmark: 864 landmarks from 866 sightings, the dead reckoning."""
+    m = _run_2d(tmp_path, capsys, "--backend", "ekf",
+                config="[ekf]\nassociation = 'unknown'\nnew_landmark_density_per_m2 = 1e9\n")
+    said = [w for w in m["warnings"] if "under two sightings each" in w]
+    assert said and said[0].startswith(f"{m['landmarks']} landmarks from 866 observations"), m["warnings"]
+
+
+def test_a_sound_map_says_nothing_of_its_landmarks(tmp_path, capsys):
+    m = _run_2d(tmp_path, capsys, "--backend", "ekf", config="[ekf]\nassociation = 'unknown'\n")
+    assert not any("sightings" in w or "made a landmark" in w for w in m.get("warnings") or [])
+
+
+def test_fastslam_records_its_particles_seed(tmp_path, capsys):
+    """``--seed 3`` on a real log changed the answer, and metrics.json said ``"seed": null``."""
+    m = _run_2d(tmp_path, capsys, "--backend", "fastslam2", "--max-steps", "30",
+                config="[fastslam]\nseed = 7\n")
+    assert m["seed"] == 0 and m["backend_seed"] == 7  # the world's, the particles'
+
+
+def test_loop_closure_settings_on_a_run_without_closures_are_said(tmp_path, capsys):
+    """``[isam2] polish_method = "gnc"`` on a landmark world: bit-identical to the default,
+    without a word."""
+    from graphslam.backends.planar.isam2_config import Isam2Config
+
+    assert set(Isam2Config.LOOP_CLOSURE_KEYS) <= set(Isam2Config.__dataclass_fields__)
+    m = _run_2d(tmp_path, capsys, "--max-steps", "40",
+                config="[isam2]\npolish_method = 'gnc'\nrelinearize_skip = 5\n")
+    assert ("[isam2] polish_method: settings of loop closures, and this run had none; they did "
+            "nothing") in m["warnings"]
+
+
+def test_a_back_end_failure_late_in_a_visual_run_keeps_the_frames_before_it(tmp_path, capsys, monkeypatch):
+    """iSAM2 failing 100 frames into a run ("indeterminate linear system near x100") wrote
+    nothing: every frame's work was lost to one numerical failure."""
+    import numpy as np
+
+    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+    from slamcore.errors import GraphSlamError
+
+    update = VisualIsam2Backend.update
+
+    def failing(self, observations):
+        if len(self._frames) == 4:
+            raise GraphSlamError("isam2 (visual): indeterminate linear system near x3 at frame 3")
+        return update(self, observations)
+
+    monkeypatch.setattr(VisualIsam2Backend, "update", failing)
+    out = tmp_path / "o"
+    argv = ["run", "--dataset", "synthetic-images", "--max-steps", "8", "--quiet", "--rerun", "off",
+            "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"graphslam: error: isam2 (visual): indeterminate linear system near x3 at frame 3; "
+                   f"the run stopped at frame 3: {out}/ holds what it estimated from the frames before it"]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["interrupted"] is True and metrics["frames"] == 3
+    assert len(np.loadtxt(out / "trajectory.tum", ndmin=2)) >= 3
+
+
+def test_a_back_end_failure_at_the_first_frame_is_the_plain_error(tmp_path, capsys, monkeypatch):
+    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+    from slamcore.errors import GraphSlamError
+
+    def failing(self, observations):
+        raise GraphSlamError("isam2 (visual): broken")
+
+    monkeypatch.setattr(VisualIsam2Backend, "update", failing)
+    argv = ["run", "--dataset", "synthetic-images", "--max-steps", "8", "--quiet", "--rerun", "off",
+            "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == "graphslam: error: isam2 (visual): broken"
+    assert not (tmp_path / "o" / "trajectory.tum").exists()
