@@ -187,6 +187,8 @@ class SpatialRunMetrics(MetricsRecord):
     backend_class: str | None = optional()
     loops: dict | None = optional()
     tracking_loss: dict | None = optional()
+    #: ``run --map``: the map, how the run started in it, the ATE in its frame
+    map: dict | None = optional()
     peak_rss_mb: float | None = optional()
     nees_mean: float | None = optional()
     nees_in_bounds_fraction: float | None = optional()

@@ -442,7 +442,7 @@ def _estimate_so_far(backend, failed: GraphSlamError | None):
         return backend.estimate()
     try:
         return backend.estimate()
-    except GraphSlamError:
+    except Exception:  # a back end broken by its failure (gtsam's IndexError): none to write
         raise failed from None
 
 
@@ -690,6 +690,25 @@ def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:
         m.odometry_ate_rmse_m = o["rmse_m"]
         m.odometry_ate_percent_of_path = metrics3d.percent_of(o["rmse_m"], length)
         m.odometry_rpe = metrics3d.rpe(gt_ids, result.odometry_wTc, gt_ids, gt, delta=1)
+
+
+def map_frame_ate(result: VisualRunResult) -> dict | None:
+    """ATE of a ``run --map`` estimate with no alignment (``ate``'s record), or None
+    without truth: the run starts relocalised in the map, so its poses are in the map's
+    frame, the truth's when the map's run started at its truth. An aligned ATE hides
+    an offset from the map, which is what ``--map`` is for."""
+    from graphslam.evaluation import spatial as metrics3d
+
+    truth, n = result.sequence.wTc_true, result.frames
+    if truth is None:
+        return None
+    est = result.estimate
+    try:
+        return metrics3d.ate(
+            est.frame_ids, est.wTc, np.arange(n, dtype=np.int64), np.asarray(truth[:n]), alignment="none"
+        )
+    except GraphSlamError:  # fewer than two frames with a pose
+        return None
 
 
 def _tracking_summary(stats: dict) -> dict:

@@ -177,6 +177,13 @@ def run(args: argparse.Namespace) -> int:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     if relocaliser is not None:
         metrics.tracking_loss = relocaliser.stats
+    if prior_map is not None:  # what the run joined, and its error in the map's frame
+        in_map = vp.map_frame_ate(result)
+        metrics.map = {
+            "path": str(args.map),
+            "start": "the first frame relocalised in the map",
+            "ate_in_map_frame": in_map,
+        }
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = vp.write_outputs(result, out_dir, metrics)
         if closer is not None:
@@ -265,6 +272,10 @@ def format_summary(m) -> str:
         ("tracking + back end [s]", fmt(m.processing_s, ".2f")),
         ("frames/s", fmt(m.frames_per_s, ".1f")),
     ]
+    if m.map is not None:
+        in_map = m.map.get("ate_in_map_frame")
+        rows.append(("map (--map)", m.map["path"]))
+        rows.append(("ATE in the map's frame [m]", "n/a" if in_map is None else f"{in_map['rmse_m']:.4f}"))
     stats = m.backend_stats or {}
     if stats.get("pose_covariance_from_isam2"):
         rows.append(

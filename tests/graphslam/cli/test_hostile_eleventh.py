@@ -234,3 +234,50 @@ def test_a_back_end_failure_at_the_first_frame_is_the_plain_error(tmp_path, caps
     assert main(argv) == 2
     assert capsys.readouterr().err.strip() == "graphslam: error: isam2 (visual): broken"
     assert not (tmp_path / "o" / "trajectory.tum").exists()
+
+
+def test_run_with_a_map_records_it_and_scores_in_its_frame(tmp_path, capsys):
+    """``run --map``: nothing in the outputs said a map was used, and the SE(3)-aligned
+    ATE hid the run's offset from the map (what --map is for)."""
+    import numpy as np
+
+    m = tmp_path / "m"
+    base = ["run", "--dataset", "synthetic-images", "--quiet", "--rerun", "off"]
+    assert main([*base, "--frames", "0:14", "--out", str(tmp_path / "a"), "--save-map", str(m)]) == 0
+    assert main([*base, "--frames", "8:20", "--out", str(tmp_path / "b"), "--map", str(m)]) == 0
+    said = capsys.readouterr().out
+    rec = json.loads((tmp_path / "b" / "metrics.json").read_text())["map"]
+    assert rec["path"] == str(m) and "relocalised" in rec["start"]
+    est = np.loadtxt(tmp_path / "b" / "trajectory.tum", ndmin=2)
+    gt = np.loadtxt(tmp_path / "b" / "ground_truth.tum", ndmin=2)
+    rows = np.searchsorted(gt[:, 0], est[:, 0])  # the truth at the estimate's stamps
+    assert np.allclose(gt[rows, 0], est[:, 0])
+    e = np.linalg.norm(est[:, 1:4] - gt[rows, 1:4], axis=1)  # no alignment: the map's frame
+    assert rec["ate_in_map_frame"]["alignment"] == "none"
+    assert abs(rec["ate_in_map_frame"]["rmse_m"] - float(np.sqrt(np.mean(e**2)))) < 1e-6
+    assert f"{rec['ate_in_map_frame']['rmse_m']:.4f}" in said
+
+
+def test_a_back_end_broken_by_its_failure_is_one_line(tmp_path, capsys, monkeypatch):
+    """After iSAM2's failure its estimate() raised gtsam's IndexError ("Requested the
+    BayesTree clique for a key that is not in the BayesTree"): a traceback."""
+    from graphslam.backends.spatial.isam2 import VisualIsam2Backend
+    from slamcore.errors import GraphSlamError
+
+    update = VisualIsam2Backend.update
+
+    def failing(self, observations):
+        if len(self._frames) == 4:
+            raise GraphSlamError("isam2 (visual): indeterminate linear system near x3 at frame 3")
+        return update(self, observations)
+
+    def broken(self):
+        raise IndexError("Requested the BayesTree clique for a key that is not in the BayesTree")
+
+    monkeypatch.setattr(VisualIsam2Backend, "update", failing)
+    monkeypatch.setattr(VisualIsam2Backend, "estimate", broken)
+    argv = ["run", "--dataset", "synthetic-images", "--max-steps", "8", "--quiet", "--rerun", "off",
+            "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == (
+        "graphslam: error: isam2 (visual): indeterminate linear system near x3 at frame 3")
