@@ -170,10 +170,16 @@ def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
 def matrix_to_rpy(R: np.ndarray) -> np.ndarray:
     """(..., 3, 3) -> (..., 3) ``[roll, pitch, yaw]`` (inverse of :func:`rpy_to_matrix`)."""
     R = np.asarray(R, dtype=np.float64)
-    pitch = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
-    return np.stack(
-        [np.arctan2(R[..., 2, 1], R[..., 2, 2]), pitch, np.arctan2(R[..., 1, 0], R[..., 0, 0])], -1
-    )
+    # Eigen's eulerAngles route: near 90 deg pitch roll and yaw each come from a column
+    # that is only rounding noise, and arcsin loses half the digits of the pitch (a
+    # rotation written 2 deg off at pitch 90 deg, the 11th pass). atan2 over the column's
+    # norm keeps the pitch, and roll taken against the yaw found (from entries of order
+    # one) makes the three angles rebuild R whatever yaw the noise gave.
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    pitch = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
+    s, c = np.sin(yaw), np.cos(yaw)
+    roll = np.arctan2(s * R[..., 0, 2] - c * R[..., 1, 2], c * R[..., 1, 1] - s * R[..., 0, 1])
+    return np.stack([roll, pitch, yaw], -1)
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:

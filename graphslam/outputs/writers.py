@@ -15,21 +15,34 @@ from slamcore.files import atomic_open, check_no_folder_at
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 
+def metres(v: float) -> str:
+    """A coordinate to the nanometre, shortest form: 9 significant digits (as before)
+    rounded a UTM easting of 4 500 000.123456 m to 4 500 000.12 (the 11th pass)."""
+    return np.format_float_positional(float(v), precision=9, unique=True, trim="-")
+
+
 def write_tum(path: Path, stamps: np.ndarray, t_w: np.ndarray, q_xyzw: np.ndarray) -> None:
-    """TUM format ``t x y z qx qy qz qw``, one pose a line, 9 significant digits.
+    """TUM format ``t x y z qx qy qz qw``, one pose a line: positions to the nanometre
+    (:func:`metres`), quaternions to 9 significant digits.
 
     Args:
         stamps: (N,) seconds, or pose ids where the data has no timestamps
-            (written as integers).
+            (an integer array: written exactly, as ids up to 2**62 are read).
         t_w: (N, 3) positions in the world, metres.
         q_xyzw: (N, 4) unit quaternions of the body-to-world rotation.
     """
-    rows = np.column_stack([np.asarray(stamps, dtype=float), t_w, q_xyzw])
+    stamps = np.asarray(stamps)
+    ids = np.issubdtype(stamps.dtype, np.integer)
+    t_w = np.asarray(t_w, dtype=np.float64).reshape(-1, 3)
+    q_xyzw = np.asarray(q_xyzw, dtype=np.float64).reshape(-1, 4)
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
-        for r in rows:
-            stamp = f"{int(r[0])}" if float(r[0]).is_integer() else f"{r[0]:.6f}"
-            f.write(stamp + " " + " ".join(f"{v:.9g}" for v in r[1:]) + "\n")
+        for t, p, q in zip(stamps.tolist(), t_w, q_xyzw, strict=True):
+            if ids:
+                stamp = str(t)
+            else:
+                stamp = f"{int(t)}" if float(t).is_integer() else f"{t:.6f}"
+            f.write(f"{stamp} {' '.join(metres(v) for v in p)} {' '.join(f'{v:.9g}' for v in q)}\n")
 
 
 def write_tum_planar(path: Path, stamps: np.ndarray, wTb: np.ndarray) -> None:
@@ -57,7 +70,7 @@ def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.nd
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("id," + ",".join("xyz"[:dim]) + "\n")
         for lid, p in zip(landmark_ids, landmarks_w.reshape(-1, dim), strict=True):
-            f.write(f"{int(lid)}," + ",".join(f"{v:.9g}" for v in p) + "\n")
+            f.write(f"{int(lid)}," + ",".join(metres(v) for v in p) + "\n")
 
 
 def _jsonable(value):

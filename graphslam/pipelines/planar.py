@@ -289,8 +289,8 @@ def write_outputs(
         stamp_of = {f.pose_id: f.stamp_s for f in run_frames}
         stamps = np.array([stamp_of[int(i)] for i in est.pose_ids], dtype=float)
     else:
-        stamp_of = {f.pose_id: float(f.pose_id) for f in run_frames}
-        stamps = est.pose_ids.astype(float)
+        stamp_of = {f.pose_id: f.pose_id for f in run_frames}  # ids exact, up to 2**62
+        stamps = np.asarray(est.pose_ids, dtype=np.int64)
     paths = {"landmarks": out_dir / "landmarks.csv", "metrics": out_dir / "metrics.json"}
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     # one trajectory per robot where a run holds several (their stamps interleave)

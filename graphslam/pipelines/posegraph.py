@@ -300,7 +300,7 @@ def write_outputs(
         "metrics": out_dir / "metrics.json",
     }
     writers.write_tum_spatial(
-        paths["trajectory"], graph.ids.astype(float), trajectory_matrices(graph, result.params)
+        paths["trajectory"], np.asarray(graph.ids, dtype=np.int64), trajectory_matrices(graph, result.params)
     )
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
@@ -310,7 +310,7 @@ def write_outputs(
     writers.write_json(paths["metrics"], run_metrics.to_dict())
     if truth is not None:
         paths["ground_truth"] = out_dir / "ground_truth.tum"
-        writers.write_tum_spatial(paths["ground_truth"], truth[0].astype(float), truth[1])
+        writers.write_tum_spatial(paths["ground_truth"], np.asarray(truth[0], dtype=np.int64), truth[1])
     return paths
 
 

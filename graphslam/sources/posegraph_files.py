@@ -483,7 +483,9 @@ def file_doubts(lines: FileLines, keep: np.ndarray, rotation: str) -> tuple[str,
                 "g2o's order is qx qy qz qw"
             )
     if len(numbers) > 1:
-        rows = np.column_stack([lines.edges[keep].astype(np.float64), numbers])
+        # ids as integers (beyond 2**53 a float merges neighbours), numbers by their bits
+        bits = np.ascontiguousarray(numbers, dtype=np.float64).view(np.int64)
+        rows = np.column_stack([np.asarray(lines.edges[keep], dtype=np.int64), bits])
         _, originals, counts = np.unique(rows, axis=0, return_index=True, return_counts=True)
         if (counts > 1).any():
             again = np.setdiff1d(np.arange(len(rows)), originals)

@@ -281,3 +281,43 @@ def test_a_back_end_broken_by_its_failure_is_one_line(tmp_path, capsys, monkeypa
     assert main(argv) == 2
     assert capsys.readouterr().err.strip() == (
         "graphslam: error: isam2 (visual): indeterminate linear system near x3 at frame 3")
+
+
+def test_rpy_of_a_rotation_at_90_degrees_pitch_rebuilds_it():
+    """g2o -> TORO at pitch 90 deg wrote a rotation 63 deg off (arcsin and two atan2 of
+    rounding noise); 1e-12 below it, 9e-5 rad off."""
+    import numpy as np
+
+    from slamcore.posegraph import matrix_to_rpy, rpy_to_matrix
+
+    rng = np.random.default_rng(3)
+    rpy = np.column_stack([rng.uniform(-np.pi, np.pi, 60), rng.uniform(-1.5, 1.5, 60),
+                           rng.uniform(-np.pi, np.pi, 60)])
+    rpy[:6, 1] = np.pi / 2 - np.array([0.0, 1e-12, 1e-10, 1e-9, 1e-8, 1e-7])
+    rpy[6:9, 1] = -np.pi / 2 + np.array([0.0, 1e-12, 1e-9])
+    R = rpy_to_matrix(rpy)
+    back = rpy_to_matrix(matrix_to_rpy(R))
+    assert np.max(np.abs(back - R)) < 1e-14  # the same rotation, to rounding
+    away = np.abs(np.abs(rpy[:, 1]) - np.pi / 2) > 1e-3  # away from the lock: the same angles
+    np.testing.assert_allclose(matrix_to_rpy(R)[away], rpy[away], atol=1e-12)
+
+
+def test_trajectory_tum_keeps_large_ids_and_coordinates_exact(tmp_path, capsys):
+    """Pose ids past 2**53 (the readers take up to 2**62) became equal timestamps, and a
+    UTM easting of 4500000.123456 m was written 4500000.12 (9 significant digits)."""
+    b = 2**53
+    g = tmp_path / "g.g2o"
+    g.write_text(f"VERTEX_SE2 {b} 4500000.123456 5300000.654321 0.1\n"
+                 f"VERTEX_SE2 {b + 1} 4500001.123456 5300000.754321 0.2\n"
+                 f"VERTEX_SE2 {b + 2} 4500002.103456 5300000.954321 0.3\n"
+                 f"EDGE_SE2 {b} {b + 1} 1.0 0.0 0.1 100 0 0 100 0 100\n"
+                 f"EDGE_SE2 {b + 1} {b + 2} 1.0 0.1 0.1 100 0 0 100 0 100\n")
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(g), "--backend", "batch", "--init", "vertices", "--quiet",
+                 "--rerun", "off", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "repeat an earlier edge" not in err  # two different edges, ids apart by one
+    rows = [ln.split() for ln in (out / "trajectory.tum").read_text().splitlines()[1:]]
+    assert [r[0] for r in rows] == [str(b), str(b + 1), str(b + 2)]
+    assert rows[0][1:3] == ["4500000.123456", "5300000.654321"]  # the fixed first pose, exact
+    assert abs(float(rows[2][1]) - 4500002.07865981) < 1e-6
