@@ -717,7 +717,96 @@ def attacks() -> list[Attack]:
                lambda f: ["compare", "--max-steps", "50", "--rerun", "save", "--out", "c"], ("ok",),
                ok_codes=(130,), env={"GRAPHSLAM_SIGNAL_AT": "recorder", "GRAPHSLAM_SIGNAL": "INT"},
                check=_says("while writing the outputs: every back end had finished")),
+        # ---- the 11th pass (three helpers', 2026-11-30)
+        Attack("11th: --ground-truth starting at frame 20 with --frames 0:40", "silent",
+               lambda f: _images_run(DATA / "kitti07", "--frames", "0:40", "--odometry", "derived",
+                                     "--ground-truth", str(_kitti_gt_from(f, 20)), max_steps=None),
+               ("ok",), check=_says("20 of 40 frames selected have no ground truth")),
+        Attack("11th: a SIGINT during a visual run's final polish with --save-map", "fail",
+               lambda f: ["run", "--dataset", "synthetic-images", "--max-steps", "6", "--rerun", "off",
+                          "--quiet", "--out", "out", "--save-map", "m"], ("ok",), ok_codes=(130,),
+               env={"GRAPHSLAM_SIGNAL_AT": "finalize", "GRAPHSLAM_SIGNAL": "INT"},
+               check=_files("m/map.json", "out/metrics.json")),
+        Attack("11th: [isam2_visual] robot_model = 'banana' under --odometry none", "silent",
+               lambda f: _images_run("synthetic-images", "--odometry", "none", "--config",
+                                     str(_w(f, "c.toml", '[isam2_visual]\nrobot_model = "banana"\n'))),
+               check=_says("c.toml:2: isam2_visual.robot_model must be one of")),
+        Attack("11th: loops --intrinsics on a folder with one photo resized", "silent",
+               lambda f: ["loops", str(_desk_resized(f)), "--intrinsics",
+                          str(_w(f, "k.txt", "520.9 521.0 325.1 249.7\n")), "--out", "l.csv", "--quiet"],
+               check=_says("describes one camera at one resolution")),
+        Attack("11th: [ekf] provisional_sightings = 1000 (no landmark ever confirmed)", "silent",
+               lambda f: _run("synthetic", "--backend", "ekf", "--config",
+                              str(_w(f, "c.toml", "[ekf]\nassociation = 'unknown'\nprovisional_sightings = 1000\n"))),
+               ("ok",), check=_says("the trajectory is the odometry alone")),
+        Attack("11th: [ekf] new_landmark_density_per_m2 = 1e9 (each sighting a landmark)", "silent",
+               lambda f: _run("synthetic", "--backend", "ekf", "--config",
+                              str(_w(f, "c.toml", "[ekf]\nassociation = 'unknown'\n"
+                                                  "new_landmark_density_per_m2 = 1e9\n"))),
+               ("ok",), check=_says("under two sightings each")),
+        Attack("11th: [isam2] polish_method = 'gnc' on a world without loop closures", "silent",
+               lambda f: _run("synthetic", "--max-steps", "40", "--config",
+                              str(_w(f, "c.toml", "[isam2]\npolish_method = 'gnc'\n"))),
+               ("ok",), check=_says("settings of loop closures, and this run had none")),
+        Attack("11th: g2o -> TORO of a pose at 90 deg pitch", "silent",
+               lambda f: ["convert", str(_w(f, "p.g2o", _pitch90_g2o())), "p.graph"], ("ok",),
+               check=_pitch90_kept),
+        Attack("11th: pose ids past 2**53 as trajectory stamps", "silent",
+               lambda f: _run(_w(f, "big.g2o", _big_ids_g2o()), "--backend", "batch"), ("ok",),
+               check=lambda f, o, e: None if (f / "out" / "trajectory.tum").read_text().splitlines()[2]
+               .startswith(str(2**53 + 1)) else "the second id is not written exactly"),
     ]
+
+
+def _kitti_gt_from(folder: Path, first: int) -> Path:
+    """KITTI 07's truth as TUM from frame ``first`` on (a truth that starts late)."""
+    from scipy.spatial.transform import Rotation
+
+    poses = np.loadtxt(DATA / "kitti07" / "poses.txt").reshape(-1, 3, 4)
+    times = np.loadtxt(DATA / "kitti07" / "times.txt")
+    rows = [f"{times[i]:.6f} " + " ".join(f"{v:.9f}" for v in (*poses[i][:, 3],
+                                                               *Rotation.from_matrix(poses[i][:, :3]).as_quat()))
+            for i in range(first, len(poses))]
+    return _w(folder, "gt_late.tum", "\n".join(rows) + "\n")
+
+
+def _desk_resized(folder: Path) -> Path:
+    """The desk photos with 10.png at twice their size."""
+    import cv2
+
+    out = folder / "desk"
+    out.mkdir()
+    for p in sorted((DATA / "slambook2_desk" / "images").glob("*.png")):
+        image = cv2.imread(str(p))
+        if p.name == "10.png":
+            image = cv2.resize(image, (image.shape[1] * 2, image.shape[0] * 2))
+        cv2.imwrite(str(out / p.name), image)
+    return out
+
+
+def _pitch90_g2o() -> str:
+    return ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n"
+            "VERTEX_SE3:QUAT 1 1 0 0 -0.035340609509366946 0.7062230818371107 0.03534060950936695 "
+            "0.7062230818371108\n"
+            "EDGE_SE3:QUAT 0 1 1 0 0 -0.035340609509366946 0.7062230818371107 0.03534060950936695 "
+            "0.7062230818371108 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n")
+
+
+def _pitch90_kept(folder, out, err):
+    """The TORO vertex's roll-pitch-yaw rebuild the g2o vertex's rotation."""
+    import gtsam
+
+    line = next(ln for ln in (folder / "p.graph").read_text().splitlines() if ln.startswith("VERTEX3 1"))
+    roll, pitch, yaw = map(float, line.split()[5:8])
+    q = gtsam.Rot3.Quaternion(0.7062230818371108, -0.035340609509366946, 0.7062230818371107, 0.03534060950936695)
+    off = float(np.max(np.abs(q.localCoordinates(gtsam.Rot3.Ypr(yaw, pitch, roll)))))
+    return None if off < 1e-9 else f"the written rotation is {off:.3g} rad off"
+
+
+def _big_ids_g2o() -> str:
+    b = 2**53
+    return (f"VERTEX_SE2 {b} 0 0 0\nVERTEX_SE2 {b + 1} 1 0 0.1\nVERTEX_SE2 {b + 2} 2 0.1 0.2\n"
+            f"EDGE_SE2 {b} {b + 1} 1 0 0.1 1 0 0 1 0 1\nEDGE_SE2 {b + 1} {b + 2} 1 0.1 0.1 1 0 0 1 0 1\n")
 
 
 def _plaza_copy(folder: Path) -> Path:
