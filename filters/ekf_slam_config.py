@@ -135,6 +135,9 @@ class EkfSlamConfig:
     """
 
     SECTION: ClassVar[str] = "ekf"
+    #: settings no run reads: every streamed observation brings its own covariance, so
+    #: the default is only ``predict_observations``' before the first one (library use)
+    UNREAD_IN_RUNS: ClassVar[tuple[str, ...]] = ("default_sigma_range_m", "default_sigma_bearing_rad")
 
     association: Literal["known", "unknown"] = "known"
     gate_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)

@@ -127,9 +127,9 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
-    unused = _unused_closure_settings(backend, config, result)
+    unused = _unused_settings(backend, config, result)
     if unused:
-        metrics.warnings = [*(metrics.warnings or []), unused]
+        metrics.warnings = [*(metrics.warnings or []), *unused]
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
@@ -160,21 +160,34 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def _unused_closure_settings(backend, config, result) -> str | None:
-    """A line naming the file's loop-closure settings of the back end (its config's
-    ``LOOP_CLOSURE_KEYS``) when the run had no loop closure: they did nothing (eleventh
-    hostile pass: ``polish_method = "gnc"`` on a landmark world, bit-identical, silent)."""
+def _unused_settings(backend, config, result) -> list[str]:
+    """Lines naming the file's settings of the back end that did nothing in this run
+    (eleventh hostile pass: ``polish_method = "gnc"`` on a landmark world and the EKF's
+    ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
+    ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always."""
     from slamcore.config import section_name
 
     cls = type(getattr(backend, "config", None))
-    keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
-    section = section_name(cls) if keys else ""
-    given = [k for k in (config.data.get(section) or {}) if k in keys]
-    if not given or any(f.loop_closures for f in result.dataset.frames[: result.steps]):
-        return None
-    return (
-        f"[{section}] {', '.join(given)}: settings of loop closures, and this run had none; they did nothing"
-    )
+    closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
+    unread_keys = getattr(cls, "UNREAD_IN_RUNS", ())
+    if not closure_keys and not unread_keys:
+        return []
+    section = section_name(cls)
+    given = list(config.data.get(section) or {})
+    out = []
+    closures = [k for k in given if k in closure_keys]
+    if closures and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
+        out.append(
+            f"[{section}] {', '.join(closures)}: settings of loop closures, and this run had none; "
+            "they did nothing"
+        )
+    unread = [k for k in given if k in unread_keys]
+    if unread:
+        out.append(
+            f"[{section}] {', '.join(unread)}: read only before a first observation outside a run "
+            "(every observation of a run brings its own covariance); they did nothing"
+        )
+    return out
 
 
 def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> None:

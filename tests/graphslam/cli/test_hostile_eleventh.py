@@ -321,3 +321,14 @@ def test_trajectory_tum_keeps_large_ids_and_coordinates_exact(tmp_path, capsys):
     assert [r[0] for r in rows] == [str(b), str(b + 1), str(b + 2)]
     assert rows[0][1:3] == ["4500000.123456", "5300000.654321"]  # the fixed first pose, exact
     assert abs(float(rows[2][1]) - 4500002.07865981) < 1e-6
+
+
+def test_ekf_default_sigmas_in_a_run_are_said_to_do_nothing(tmp_path, capsys):
+    """``[ekf] default_sigma_range_m = 1e-12`` gave the default run to the last bit."""
+    from filters.ekf_slam_config import EkfSlamConfig
+
+    assert set(EkfSlamConfig.UNREAD_IN_RUNS) <= set(EkfSlamConfig.__dataclass_fields__)
+    m = _run_2d(tmp_path, capsys, "--backend", "ekf", "--max-steps", "30",
+                config="[ekf]\ndefault_sigma_range_m = 1e-12\n")
+    assert any(w.startswith("[ekf] default_sigma_range_m: read only before a first observation")
+               for w in m["warnings"])
