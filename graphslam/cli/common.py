@@ -99,7 +99,14 @@ def add_choice_option(parser, flag: str, choices: tuple[str, ...], help: str) ->
     parser.add_argument(flag, choices=choices, default=choices[0], help=help)
 
 
-def add_dataset_option(parser, help: str) -> None:
+#: What ``--dataset`` of run and compare takes (one text: compare's named no landmark log).
+DATASET_HELP = (
+    "built-in dataset name, a landmark log (Victoria Park's format, TORO with BR lines, an "
+    "MRCLAM folder), a pose-graph file, an image-sequence folder or a ROS bag (default: synthetic)"
+)
+
+
+def add_dataset_option(parser, help: str = DATASET_HELP) -> None:
     """``--dataset`` of run and compare: a name or a path, the synthetic world by default."""
     parser.add_argument("--dataset", default="synthetic", metavar="NAME|PATH", help=help)
 

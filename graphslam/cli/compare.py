@@ -71,7 +71,7 @@ def register(sub) -> None:
         "compare.png and one Rerun recording with a subtree per back end.",
         epilog=EPILOG,
     )
-    add_dataset_option(p, "built-in dataset name, pose-graph file or image folder (default: synthetic)")
+    add_dataset_option(p)
     add_topics_option(p)
     add_intrinsics_option(p)
     add_robot_option(

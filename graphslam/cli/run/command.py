@@ -119,9 +119,7 @@ def register(sub) -> None:
         description="Run one back end over a dataset, print a summary table and write the outputs to --out.",
         epilog=RUN_EPILOG,
     )
-    add_dataset_option(
-        p, "built-in dataset name, pose-graph file, image-sequence folder or ROS bag (default: synthetic)"
-    )
+    add_dataset_option(p)
     p.add_argument(
         "--backend",
         default=None,
