@@ -467,7 +467,7 @@ class MonoEkf(VisualBackend):
         return ok
 
     def estimate(self) -> VisualEstimate:
-        x, _ = self._state()
+        x, P = self._state()
         ids, pts = self._map.euclidean_landmarks(x)
         lm_ids = list(self._map.retired.keys())
         lm_pts = list(self._map.retired.values())
@@ -479,6 +479,7 @@ class MonoEkf(VisualBackend):
         for kind, name in lp.KIND_NAMES.items():
             stats[f"landmarks_{name}"] = int(np.sum(self._map.kinds == kind))
         stats["landmarks_in_state"] = len(self._map)
+        stats["landmarks_depth_undetermined"] = self._map.undetermined_count(x, P)
         stats["landmarks_retired"] = len(keep)
         return VisualEstimate(
             frame_ids=np.array(self._frame_ids, dtype=np.int64),

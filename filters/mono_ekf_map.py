@@ -150,6 +150,21 @@ def euclidean_points(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> tuple
     return p_w, ok
 
 
+#: Standard deviations of the inverse distance that must separate it from zero for a
+#: landmark's depth to count as measured: within two, its 95 % interval reaches
+#: infinity (no parallax yet), and its point is the initial guess's depth.
+DEPTH_BOUND_SIGMAS = 2.0
+
+
+def undetermined_depths(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.ndarray:
+    """(k,) bool: inverse-depth landmarks whose ``rho`` is within
+    :data:`DEPTH_BOUND_SIGMAS` of zero (Euclidean ones are measured by construction)."""
+    col = np.where(kinds == lp.IDP, 5, 6)
+    rows = idx[np.arange(len(kinds)), col]
+    rho, var = x[rows], P[rows, rows]
+    return (kinds != lp.EUCLIDEAN) & (rho <= DEPTH_BOUND_SIGMAS * np.sqrt(np.maximum(var, 0.0)))
+
+
 def transform_state(
     x: np.ndarray, P: np.ndarray, off: np.ndarray, kinds: np.ndarray, changes: dict
 ) -> tuple[np.ndarray, np.ndarray]:

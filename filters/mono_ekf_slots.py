@@ -30,6 +30,7 @@ from filters.mono_ekf_map import (
     inverse_distances,
     linear_enough,
     transform_state,
+    undetermined_depths,
 )
 
 __all__ = ["LandmarkRecord", "LandmarkSlots"]
@@ -206,3 +207,11 @@ class LandmarkSlots:
             return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
         p_w, ok = euclidean_points(x, self.idx, self.kinds)
         return self.ids[ok], p_w[ok]
+
+    def undetermined_count(self, x: np.ndarray, P: np.ndarray) -> int:
+        """How many of :meth:`euclidean_landmarks` have a depth not yet measured
+        (:func:`~filters.mono_ekf_map.undetermined_depths`)."""
+        if not self.records:
+            return 0
+        _, ok = euclidean_points(x, self.idx, self.kinds)
+        return int(np.sum(undetermined_depths(x, P, self.idx, self.kinds) & ok))

@@ -283,6 +283,14 @@ def format_summary(m) -> str:
         )
     if "reparametrised" in stats:
         rows.append(("landmarks reparametrised", stats["reparametrised"]))
+    if stats.get("landmarks_depth_undetermined"):  # points at a depth no parallax measured
+        rows.append(
+            (
+                "landmarks of unmeasured depth",
+                f"{stats['landmarks_depth_undetermined']} of {m.landmarks} (inverse depth within 2 sigma "
+                "of 0; landmarks.csv gives their current guess)",
+            )
+        )
     if m.loops:
         lp = m.loops
         rows.append(

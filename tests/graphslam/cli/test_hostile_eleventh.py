@@ -332,3 +332,21 @@ def test_ekf_default_sigmas_in_a_run_are_said_to_do_nothing(tmp_path, capsys):
                 config="[ekf]\ndefault_sigma_range_m = 1e-12\n")
     assert any(w.startswith("[ekf] default_sigma_range_m: read only before a first observation")
                for w in m["warnings"])
+
+
+def test_inverse_depth_landmarks_without_parallax_are_counted():
+    """The monocular EKF's landmarks.csv held points at the initial depth guess (15-17 m
+    for KITTI points 73-6500 m away) with nothing telling them apart."""
+    import numpy as np
+
+    from filters import landmark_params as lp
+    from filters.mono_ekf_map import undetermined_depths
+
+    kinds = np.array([lp.IDP, lp.IDP, lp.EUCLIDEAN])
+    idx = np.array([[0, 1, 2, 3, 4, 5, 5], [6, 7, 8, 9, 10, 11, 11], [12, 13, 14, 14, 14, 14, 14]])
+    x = np.zeros(15)
+    x[5], x[11] = 0.06, 0.06  # both at 1/0.06 = 16.7 m
+    P = np.eye(15) * 1e-4
+    P[5, 5] = 0.04**2  # 0.06 within two sigma (0.08) of zero: depth unbounded
+    P[11, 11] = 0.01**2  # six sigma from zero: measured
+    assert undetermined_depths(x, P, idx, kinds).tolist() == [True, False, False]
