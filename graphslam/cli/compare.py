@@ -387,6 +387,7 @@ COLUMNS = [
     ("ate_rmse_m", "ATE [m]", ".3f"),
     ("final_pose_error_m", "final err [m]", ".3f"),
     ("rms_to_isam2_m", "RMS to iSAM2 [m]", ".3f"),
+    ("sigmas_to_isam2", "in own sigmas", ".3g"),
     ("nees_mean", "mean NEES", ".2f"),
     ("nees_in_bounds_fraction", "NEES in 95%", ".2f"),
     ("association_accuracy", "assoc acc", ".4f"),

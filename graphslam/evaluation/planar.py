@@ -328,6 +328,41 @@ def rms_position_distance(a, b) -> float | None:
     return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
 
 
+def sigmas_to_reference(estimate, reference) -> float | None:
+    """How many of its own standard deviations ``estimate``'s poses lie from
+    ``reference``'s (iSAM2's smoothed poses), RMS over the poses with a positive
+    definite covariance: ``sqrt(mean(d^T P^-1 d) / 3)``, ``P`` the estimate's pose
+    covariance. The smoother's poses differ from a consistent filter's by its smoothing
+    correction, whose covariance is below the filter's, so this is at most about 1 for
+    a consistent filter; None without covariances or common poses."""
+    if estimate.pose_covariances is None:
+        return None
+    common, ia, ib = np.intersect1d(estimate.pose_ids, reference.pose_ids, return_indices=True)
+    if len(common) == 0:
+        return None
+    d = estimate.wTb[ia] - reference.wTb[ib]
+    d[:, 2] = wrap_angle(d[:, 2])
+    d2 = nees(d, np.asarray(estimate.pose_covariances)[ia])
+    d2 = d2[np.isfinite(d2)]
+    return float(np.sqrt(np.mean(d2) / 3.0)) if len(d2) else None
+
+
+def reference_warning(sigmas: float | None, rms_m: float | None) -> list[str]:
+    """One line when a back end's poses lie more than :data:`ABSURD_ATE_RATIO` of its
+    own standard deviations from the reference smoother's (``sigmas``,
+    :func:`sigmas_to_reference`), farther than :data:`ABSURD_ATE_FLOOR_M` (``rms_m``):
+    an order of magnitude beyond the uncertainty it claims, as the ATE ratio calls an
+    estimate absurd. Measured in compare: sound EKF runs 0.6-2.7 (synthetic, MRCLAM 1-5,
+    Victoria Park with its filter settings); Victoria Park's first 1896 steps at the
+    defaults 26.9 (56 m from iSAM2), with unknown ids 36.1 (202 m). Eleventh pass."""
+    if sigmas is None or rms_m is None or not (sigmas > ABSURD_ATE_RATIO and rms_m > ABSURD_ATE_FLOOR_M):
+        return []
+    return [
+        f"its poses are {sigmas:.3g} of its own sigmas ({rms_m:.3g} m RMS) from iSAM2's: "
+        "the estimate is absurd, or its covariance claims a certainty it does not have"
+    ]
+
+
 def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> dict:
     """Final pose error and pose NEES against ground truth (``ground_truth`` ``(ids,
     (N, 3))`` or the dataset's; poses without truth left out), where both exist;

@@ -115,6 +115,8 @@ class PlanarRunMetrics(MetricsRecord):
     nees_mean: float | None = optional()
     nees_in_bounds_fraction: float | None = optional()
     rms_to_isam2_m: float | None = optional()
+    #: RMS distance to iSAM2's poses in the back end's own pose sigmas (compare)
+    sigmas_to_isam2: float | None = optional()
     #: the back end's own seed (FastSLAM's particles), beside ``seed`` (the world's)
     backend_seed: int | None = optional()
     numerical_recoveries: list[str] | None = optional()

@@ -230,7 +230,21 @@ def compare(
             e.metrics.rms_to_isam2_m = metrics.rms_position_distance(
                 e.result.estimate, reference.result.estimate
             )
+            if e is not reference:
+                _against_reference(e, reference)
     return entries
+
+
+def _against_reference(e: CompareEntry, reference: CompareEntry) -> None:
+    """``sigmas_to_isam2`` of ``e``, and the line saying an estimate an order of
+    magnitude beyond its own covariance (not for a particle filter's sample covariance,
+    which no such test holds for: the table's ``sample_covariance``)."""
+    m = e.metrics
+    m.sigmas_to_isam2 = metrics.sigmas_to_reference(e.result.estimate, reference.result.estimate)
+    row = registry.backend_row(e.backend).landmarks
+    if row is not None and not row.sample_covariance:
+        said = metrics.reference_warning(m.sigmas_to_isam2, m.rms_to_isam2_m)
+        m.warnings = [*(m.warnings or []), *said] or None
 
 
 def _without_dataset(result: pipeline.RunResult) -> pipeline.RunResult:

@@ -350,3 +350,33 @@ def test_inverse_depth_landmarks_without_parallax_are_counted():
     P[5, 5] = 0.04**2  # 0.06 within two sigma (0.08) of zero: depth unbounded
     P[11, 11] = 0.01**2  # six sigma from zero: measured
     assert undetermined_depths(x, P, idx, kinds).tolist() == [True, False, False]
+
+
+def test_a_filter_far_beyond_its_own_covariance_from_isam2_is_said():
+    """Victoria Park's first 1896 steps: the EKF 56 m from iSAM2 (26.9 of its own sigmas),
+    with unknown ids 202 m (36.1), printed in compare's table without a word."""
+    import numpy as np
+
+    from graphslam.evaluation.planar import reference_warning, sigmas_to_reference
+    from slamcore.planar.records import Estimate
+
+    rng = np.random.default_rng(0)
+    n = 50
+    ref_wTb = np.column_stack([np.arange(n, dtype=float), np.zeros(n), np.zeros(n)])
+    cov = np.tile(np.diag([0.1**2, 0.1**2, 0.01**2]), (n, 1, 1))
+
+    def estimate(offset_sigmas: float) -> Estimate:
+        err = rng.normal(size=(n, 3)) * [0.1, 0.1, 0.01] * offset_sigmas
+        return Estimate(pose_ids=np.arange(n), wTb=ref_wTb + err, landmark_ids=np.zeros(0, np.int64),
+                        landmarks_w=np.zeros((0, 2)), pose_covariances=cov)
+
+    ref = Estimate(pose_ids=np.arange(n), wTb=ref_wTb, landmark_ids=np.zeros(0, np.int64),
+                   landmarks_w=np.zeros((0, 2)))
+    sound = sigmas_to_reference(estimate(1.0), ref)
+    assert 0.7 < sound < 1.3  # its own sigmas: about one
+    far = sigmas_to_reference(estimate(30.0), ref)
+    assert 20 < far < 40
+    assert reference_warning(sound, 0.1) == []
+    assert reference_warning(far, 0.5) == []  # within a metre: the ATE rule's floor
+    said = reference_warning(far, 56.0)
+    assert len(said) == 1 and said[0].startswith(f"its poses are {far:.3g} of its own sigmas (56 m RMS)")
