@@ -199,7 +199,7 @@ class ActiveSearch:
         image = check_gray(image)
         z, S = _checked_predictions(predictions, S)
         matcher: ZnccMatcher | NearestMatcher
-        if self.config.mode == "zncc":
+        if self.config.mode != "nearest":  # None: zncc
             matcher = ZnccMatcher(
                 self.config,
                 image,

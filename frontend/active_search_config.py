@@ -30,7 +30,9 @@ class ActiveSearchConfig:
 
     Attributes:
         mode: ``"zncc"`` (software patch correlation) or ``"nearest"`` (hardware:
-            nearest Harris point inside the ellipse).
+            nearest Harris point inside the ellipse); None: ``"zncc"``, or in a
+            tracked run what ``[tracker] search`` chooses (which decides there: a
+            different mode set here is refused, it did nothing).
         gate_probability: probability mass of the search ellipse (chi-square, 2 dof).
         max_corrections: landmarks searched per frame at most (largest
             ellipses first); 0 = no cap.
@@ -56,7 +58,7 @@ class ActiveSearchConfig:
 
     SECTION: ClassVar[str] = "active_search"
 
-    mode: Literal["zncc", "nearest"] = "zncc"
+    mode: Literal["zncc", "nearest"] | None = None
     gate_probability: float = bounded(0.99, gt=0.0, lt=1.0)
     max_corrections: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
     patch_size_px: int = bounded(11, min=3, max=MAX_PATCH_PX)

@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -64,7 +65,7 @@ from frontend.image import check_gray
 from frontend.orb import OrbConfig
 from frontend.search_matchers import extract_patches
 from frontend.tracking_config import TrackerConfig, make_detector
-from slamcore.errors import GraphSlamError
+from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
 __all__ = ["Tracker", "TrackingResult"]
@@ -195,9 +196,14 @@ class Tracker:
     ):
         self.config = config or TrackerConfig()
         self.detector = make_detector(self.config, harris, orb)
-        mode = self.config.search_mode
+        mode: Literal["zncc", "nearest"] = "nearest" if self.config.search_mode == "nearest" else "zncc"
         base = active_search or ActiveSearchConfig()
-        self.search_config = dataclasses.replace(base, mode="nearest" if mode == "nearest" else "zncc")
+        if base.mode is not None and base.mode != mode:
+            raise ConfigError(
+                f"active_search.mode = {base.mode!r}: the tracker's search ({self.config.search_mode!r}, "
+                "[tracker] search) decides the mode here; set that instead"
+            )
+        self.search_config = dataclasses.replace(base, mode=mode)
         self._search = ActiveSearch(self.search_config)
         if follow_unmapped is None:
             follow_unmapped = self.config.follow_unmapped

@@ -260,6 +260,18 @@ def warn(message: str) -> None:
     print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
 
 
+def warn_unread_sections(config, path, command: str) -> None:
+    """A warning naming the ``--config`` sections ``command`` never read (a file shared
+    with other back ends or commands): their settings did nothing and were not checked
+    (eleventh hostile pass: ``[ekf] zzz = 1`` under the default back end ran silently)."""
+    unread = config.unread_sections()
+    if unread:
+        warn(
+            f"--config {path}: {', '.join(f'[{s}]' for s in unread)} not read by {command}; "
+            "those settings did nothing and were not checked"
+        )
+
+
 def warn_doubts(doubts: dict[str, list[str] | None]) -> None:
     """``graphslam: warning:`` lines for what each back end's metrics say makes its
     estimate doubtful (``{backend: warnings}``, as ``run`` says its own): a doubt every

@@ -201,6 +201,9 @@ def cmd_loops(args: argparse.Namespace) -> int:
         written.append(str(args.log))
     if args.truth is not None and not stop_requested():  # a cut run has no whole PR curve
         written += _evaluate(args, truth, paths, kept, detector, places.timestamps)
+    from graphslam.cli.common import warn_unread_sections
+
+    warn_unread_sections(config, args.config, "loops")
     guard = active_guard()
     seen = f"{len(detector)} of {len(paths)}" if stop_requested() else f"{len(paths)}"
     print(f"places: {places.describe(detector_config, detector.excluded)}")

@@ -66,7 +66,11 @@ def register(subparsers) -> None:
         "--flat", action="store_true", help="one flat k-means of N words instead of a tree (slower to query)"
     )
     t.add_argument(
-        "--branching", type=int, default=10, metavar="K", help="branching factor of the tree (default: 10)"
+        "--branching",
+        type=int,
+        default=None,
+        metavar="K",
+        help="branching factor of the tree (default: 10; refused with --flat, which builds none)",
     )
     t.add_argument(
         "--per-image",
@@ -92,7 +96,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     import time
 
     from frontend.orb import OrbDetector
-    from graphslam.cli.common import EXIT_INTERRUPTED, warn
+    from graphslam.cli.common import EXIT_INTERRUPTED, warn, warn_unread_sections
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
     from graphslam.registry import read_config
@@ -101,6 +105,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from slamcore.files import check_not_inputs, check_output_file, replacing
 
     check_output_file(args.out)  # refused now, not after the training
+    if args.flat and args.branching is not None:
+        from slamcore.errors import ConfigError
+
+        raise ConfigError("--branching is the tree's; --flat trains one flat k-means, no tree")
     paths, repeats = expand_images(args.images)
     if repeats:  # a repeat would count twice in the k-means and in the IDF
         warn(
@@ -110,7 +118,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     check_not_inputs(  # an image written over (--out IMAGES/01.png)
         [("--out", args.out)], {"--config": args.config, **{f"image {p}": p for p in paths}}
     )
-    orb = OrbDetector(read_config(args.config).section(LoopDetectorConfig).orb)
+    config = read_config(args.config)
+    orb = OrbDetector(config.section(LoopDetectorConfig).orb)
+    warn_unread_sections(config, args.config, "vocab train (it reads the loop detector's [loops.orb])")
     # A stop during the ORB pass trains on the images described so far; one
     # during the training lets it finish (a second one aborts, the old file kept).
     feats = detect_all(paths, orb, progress=not args.quiet, stoppable=True)
@@ -129,7 +139,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         [f.descriptors for f in feats],
         args.words,
         flat=args.flat,
-        branching=args.branching,
+        branching=10 if args.branching is None else args.branching,
         per_image=args.per_image,
         seed=args.seed,
     )

@@ -22,7 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
-from graphslam.evaluation.trajectory import STAMP_MAX_S, EvalOptions, TrajectoryEval, evaluate
+from graphslam.evaluation.trajectory import (
+    DEFAULT_MAX_DIFF_S,
+    DEFAULT_OFFSET_S,
+    STAMP_MAX_S,
+    EvalOptions,
+    TrajectoryEval,
+    evaluate,
+)
 from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
 from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
 from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError
@@ -98,6 +105,21 @@ def evaluate_files(
     if times is not None and all(t.format != "kitti" for t in [ref] + [t for _, _, t in loaded]):
         # the files have their own stamps: a times file that changes nothing is refused
         raise ConfigError("--times gives KITTI files their stamps; none of these files is KITTI", times)
+    unstamped = ref.stamps_s is None and all(t.stamps_s is None for _, _, t in loaded)
+    moved = [
+        flag
+        for flag, value, default in (
+            ("--max-diff", options.max_diff_s, DEFAULT_MAX_DIFF_S),
+            ("--offset", options.offset_s, DEFAULT_OFFSET_S),
+        )
+        if value != default
+    ]
+    if unstamped and moved:  # paired by line: the flags would be recorded as if applied
+        raise ConfigError(
+            f"{' and '.join(moved)} act{'' if len(moved) > 1 else 's'} on timestamps, and these files "
+            "have none (KITTI: paired by "
+            "line); give them times with --times"
+        )
     results = []
     for path, label, est in loaded:
         try:

@@ -17,6 +17,7 @@ from graphslam.cli.common import (
     report_outputs,
     summary_table,
     warn,
+    warn_unread_sections,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -157,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
     if save_map is not None:
         save_planar_run_map(save_map, result, backend, config, args.max_steps)
+    warn_unread_sections(config, args.config, f"this run ({backend.name} on {dataset.name})")
     return status
 
 

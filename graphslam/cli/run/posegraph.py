@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import claim_out_dir, fmt, report_outputs, summary_table, warn
+from graphslam.cli.common import claim_out_dir, fmt, report_outputs, summary_table, warn, warn_unread_sections
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         if args.rerun != "off":
             paths.update(record(args, graph, result, out_dir))
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    warn_unread_sections(config, args.config, "this pose-graph run")
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 

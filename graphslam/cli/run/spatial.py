@@ -37,6 +37,7 @@ from graphslam.cli.common import (
     report_outputs,
     summary_table,
     warn,
+    warn_unread_sections,
 )
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.files import folder_name
@@ -197,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
     if mapper is not None:  # last: a map that cannot be built costs no other file
         save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
     remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
 
 

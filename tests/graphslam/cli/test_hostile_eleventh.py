@@ -380,3 +380,48 @@ def test_a_filter_far_beyond_its_own_covariance_from_isam2_is_said():
     assert reference_warning(far, 0.5) == []  # within a metre: the ATE rule's floor
     said = reference_warning(far, 56.0)
     assert len(said) == 1 and said[0].startswith(f"its poses are {far:.3g} of its own sigmas (56 m RMS)")
+
+
+def test_active_search_mode_against_the_trackers_search_is_refused(tmp_path, capsys):
+    """``[active_search] mode = "nearest"`` was overwritten by the tracker's search: no effect."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[active_search]\nmode = "nearest"\n')
+    argv = ["run", "--dataset", "synthetic-images", "--max-steps", "5", "--config", str(cfg), "--quiet",
+            "--rerun", "off", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert "[tracker] search) decides the mode here" in capsys.readouterr().err
+    assert main([*argv[:-1], str(tmp_path / "o2"), "--frontend", "fpga"]) == 0  # the same mode: fine
+
+
+def test_a_run_names_the_config_sections_it_never_read(tmp_path, capsys):
+    """``[ekf] zzz = 1`` under the default back end ran silently (an unknown key, never checked)."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[ekf]\nzzz = 1\n[isam2]\npolish = true\n")
+    argv = ["run", "--max-steps", "20", "--config", str(cfg), "--quiet", "--rerun", "off",
+            "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert (f"--config {cfg}: [ekf] not read by this run (isam2 on synthetic); those settings did "
+            "nothing and were not checked") in err
+    assert "[isam2]" not in err
+
+
+def test_eval_refuses_time_flags_on_files_paired_by_line(tmp_path, capsys):
+    """``--max-diff 5 --offset 3`` on KITTI files changed nothing and eval.json recorded them."""
+    import numpy as np
+
+    poses = np.tile(np.eye(4)[:3].reshape(1, 12), (5, 1))
+    poses[:, 3] = np.arange(5)
+    gt = tmp_path / "gt.txt"
+    np.savetxt(gt, poses)
+    assert main(["eval", str(gt), str(gt), "--max-diff", "5", "--offset", "3", "--no-plot",
+                 "--out", str(tmp_path / "e")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "graphslam: error: --max-diff and --offset act on timestamps, and these files have none "
+        "(KITTI: paired by line); give them times with --times")
+
+
+def test_vocab_flat_refuses_a_branching(tmp_path, capsys):
+    argv = ["vocab", "train", str(tmp_path), "--flat", "--branching", "3", "--out", str(tmp_path / "v.npz")]
+    assert main(argv) == 2
+    assert "--flat trains one flat k-means, no tree" in capsys.readouterr().err
