@@ -187,6 +187,14 @@ def _xy_yaw(T: np.ndarray) -> np.ndarray:
     return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
 
 
+def _untested(result) -> dict | None:
+    """``closure_test`` of a solve whose closures were suspects but never tested (iSAM2
+    without its polish: they went in under the Cauchy kernel), else None (none suspect)."""
+    if result.robust_mode is None:
+        return None
+    return {"robust_closures": result.robust_mode, "tested": False}
+
+
 def metrics(
     graph: pg.PoseGraph,
     result: SolveResult,
@@ -227,7 +235,7 @@ def metrics(
         ),
         # how a TORO file's edge numbers were read, when a known file decided it
         noise=graph.noise_note,
-        closure_test=None
+        closure_test=_untested(result)
         if result.closure_threshold is None
         else {
             "robust_closures": result.robust_mode,

@@ -67,7 +67,8 @@ class SolveResult:
         noise_scale: squared scale the closure threshold was loosened by
             (:func:`.robust.noise_scale`; 1: the stated noise held).
         final_cost_kept: the cost over the edges kept (rejected closures out).
-        robust_mode: ``robust_closures`` when closures were tested, else None.
+        robust_mode: ``robust_closures`` when closures were treated as suspects (tested,
+            or, iSAM2 without its polish, only under the Cauchy kernel), else None.
         route: for ``auto``, which route was kept and why (:mod:`.route`).
         optimality: SE-Sync's certificate of the estimate (:mod:`.certificate`),
             when it was checked; optimality_unchecked: why it was not, when asked.
@@ -169,7 +170,10 @@ def solve(
             return _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
         if not config.polish:
-            return _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost)
+            out = _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost)
+            # the closures went in under the Cauchy kernel, untested: said as such, not as "none"
+            out.robust_mode = config.robust_closures if robust else None
+            return out
         starts.append(initialisers.Start("isam2", values))
     first = initialisers.initial(graph, config.init, config.prior_sigma)
     if first.note:

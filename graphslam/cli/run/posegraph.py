@@ -269,6 +269,11 @@ def closure_row(metrics) -> str:
             '[posegraph] robust_closures = "none": every closure kept' if metrics.closures else "no closures"
         )
         return f"{metrics.closures_rejected} ({why})"
+    if test.get("tested") is False:
+        return (
+            f"none tested of {metrics.closures} (no polish: iSAM2 kept them under a Cauchy kernel; "
+            f'the robust_closures = "{test["robust_closures"]}" test runs in the polish)'
+        )
     if test.get("stopped") in ("lm", "gnc"):
         return f"none tested of {metrics.closures} (a signal stopped the solve before the outlier test)"
     return (

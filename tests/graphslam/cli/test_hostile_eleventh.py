@@ -425,3 +425,21 @@ def test_vocab_flat_refuses_a_branching(tmp_path, capsys):
     argv = ["vocab", "train", str(tmp_path), "--flat", "--branching", "3", "--out", str(tmp_path / "v.npz")]
     assert main(argv) == 2
     assert "--flat trains one flat k-means, no tree" in capsys.readouterr().err
+
+
+def test_isam2_without_its_polish_does_not_call_its_closures_kept_by_setting(tmp_path, capsys):
+    """``--backend isam2 --no-polish`` with ``robust_closures = "gnc"``: the summary said
+    'robust_closures = "none": every closure kept'. The closures went in under iSAM2's
+    Cauchy kernel and were never tested (the test runs in the polish)."""
+    import gtsam
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[posegraph]\nrobust_closures = "gnc"\n')
+    out = tmp_path / "o"
+    argv = ["run", "--dataset", gtsam.findExampleDataFile("w100.graph"), "--backend", "isam2", "--no-polish",
+            "--config", str(cfg), "--quiet", "--rerun", "off", "--out", str(out)]
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["closures"] > 0 and m["closure_test"] == {"robust_closures": "gnc", "tested": False}
+    assert f"none tested of {m['closures']} (no polish" in said and 'robust_closures = "none"' not in said
