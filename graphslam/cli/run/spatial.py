@@ -120,6 +120,12 @@ def run(args: argparse.Namespace) -> int:
         no_polish=args.no_polish,
     )
     refuse_ignored_flags(args, setup.mode)
+    if setup.mode != "derived" and "odometry_noise" in config.data:  # the flag is refused, the file said
+        warn(
+            f"--config {args.config}: [odometry_noise] sets the noise of derived odometry; this run uses "
+            f"{'the sequence' if setup.mode == 'sequence' else 'no'} odometry (--odometry {setup.mode}): "
+            "it did nothing"
+        )
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
     session = setup.session(args.backend)
     backend, tracker = session.backend, session.tracker

@@ -443,3 +443,15 @@ def test_isam2_without_its_polish_does_not_call_its_closures_kept_by_setting(tmp
     m = json.loads((out / "metrics.json").read_text())
     assert m["closures"] > 0 and m["closure_test"] == {"robust_closures": "gnc", "tested": False}
     assert f"none tested of {m['closures']} (no polish" in said and 'robust_closures = "none"' not in said
+
+
+def test_odometry_noise_in_a_file_for_a_run_without_derived_odometry_is_said(tmp_path, capsys):
+    """``--odometry-noise`` is refused where the sequence brings its odometry; the same
+    numbers in ``[odometry_noise]`` gave a byte-identical run without a word."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[odometry_noise]\nsigma_t_per_m = 0.2\nsigma_r_deg = 1.0\n")
+    argv = ["run", "--dataset", "synthetic-images", "--max-steps", "5", "--config", str(cfg), "--quiet",
+            "--rerun", "off", "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    assert (f"--config {cfg}: [odometry_noise] sets the noise of derived odometry; this run uses the "
+            "sequence odometry (--odometry sequence): it did nothing") in capsys.readouterr().err
