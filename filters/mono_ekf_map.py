@@ -157,12 +157,14 @@ DEPTH_BOUND_SIGMAS = 2.0
 
 
 def undetermined_depths(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.ndarray:
-    """(k,) bool: inverse-depth landmarks whose ``rho`` is within
-    :data:`DEPTH_BOUND_SIGMAS` of zero (Euclidean ones are measured by construction)."""
+    """(k,) bool: inverse-depth landmarks with a point (``rho > 0``, as
+    :func:`euclidean_points`) whose ``rho`` is within :data:`DEPTH_BOUND_SIGMAS` of zero
+    (Euclidean ones are measured by construction)."""
     col = np.where(kinds == lp.IDP, 5, 6)
     rows = idx[np.arange(len(kinds)), col]
     rho, var = x[rows], P[rows, rows]
-    return (kinds != lp.EUCLIDEAN) & (rho <= DEPTH_BOUND_SIGMAS * np.sqrt(np.maximum(var, 0.0)))
+    bound = DEPTH_BOUND_SIGMAS * np.sqrt(np.maximum(var, 0.0))
+    return (kinds != lp.EUCLIDEAN) & (rho > 0) & (rho <= bound)
 
 
 def transform_state(

@@ -213,5 +213,4 @@ class LandmarkSlots:
         (:func:`~filters.mono_ekf_map.undetermined_depths`)."""
         if not self.records:
             return 0
-        _, ok = euclidean_points(x, self.idx, self.kinds)
-        return int(np.sum(undetermined_depths(x, P, self.idx, self.kinds) & ok))
+        return int(np.sum(undetermined_depths(x, P, self.idx, self.kinds)))

@@ -31,6 +31,7 @@ from graphslam.cli.common import (
     report_outputs,
     summary_table,
     warn,
+    warn_unread_sections,
 )
 from slamcore.files import folder_name
 
@@ -116,12 +117,8 @@ def cmd_localize(args: argparse.Namespace) -> int:
         frames,
     )
     session = LocaliseSession.open(sequence, config, smap, args.dataset)
-    unread = config.unread_sections()
-    if unread:  # a run's config reused: its tracker and back end are the map's business
-        warn(
-            f"--config {args.config}: {', '.join(f'[{s}]' for s in unread)} not read by localize "
-            "(the map fixes its tracker and back end); those settings do nothing and are not checked"
-        )
+    # a run's config reused: its tracker and back end are the map's business
+    warn_unread_sections(config, args.config, "localize (the map fixes its tracker and back end)")
     for doubt in sequence.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name

@@ -139,7 +139,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         [f.descriptors for f in feats],
         args.words,
         flat=args.flat,
-        branching=10 if args.branching is None else args.branching,
+        **({} if args.branching is None else {"branching": args.branching}),
         per_image=args.per_image,
         seed=args.seed,
     )

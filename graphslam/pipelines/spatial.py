@@ -438,11 +438,11 @@ def _step(backend, tracker, loop_closer, k: int, image, start, odo_model):
 def _estimate_so_far(backend, failed: GraphSlamError | None):
     """The back end's estimate of the frames done; after its own failure, that failure
     again if it cannot give one (nothing then to write)."""
-    if failed is None:
-        return backend.estimate()
     try:
         return backend.estimate()
     except Exception:  # a back end broken by its failure (gtsam's IndexError): none to write
+        if failed is None:
+            raise
         raise failed from None
 
 

@@ -46,17 +46,23 @@ from slamcore.files import folder_name
 SELF_TRAINED_WORDS = 1000
 
 
-def refuse_ignored_flags(args: argparse.Namespace, mode: str) -> None:
-    """Flags that would have no effect on this visual run are refused, one line each.
+def refuse_ignored_flags(args: argparse.Namespace, mode: str, config=None) -> None:
+    """Flags that would have no effect on this visual run are refused, one line each;
+    the same settings in ``config`` (the file) are said to do nothing.
 
     ``mode`` is the odometry the run uses (``auto`` resolved).
     """
     from graphslam import registry
 
+    used = "the sequence's own odometry" if mode == "sequence" else "no odometry"
     if args.odometry_noise is not None and mode != "derived":
-        used = "the sequence's own odometry" if mode == "sequence" else "no odometry"
         raise ConfigError(
             f"--odometry-noise sets the noise of derived odometry; this run uses {used} (--odometry {mode})"
+        )
+    if config is not None and mode != "derived" and "odometry_noise" in config.data:
+        warn(
+            f"--config {args.config}: [odometry_noise] sets the noise of derived odometry; this run "
+            f"uses {used} (--odometry {mode}): it did nothing"
         )
     if args.no_polish:
         registry.check_no_polish(args.backend)
@@ -119,13 +125,7 @@ def run(args: argparse.Namespace) -> int:
         detector=args.frontend,
         no_polish=args.no_polish,
     )
-    refuse_ignored_flags(args, setup.mode)
-    if setup.mode != "derived" and "odometry_noise" in config.data:  # the flag is refused, the file said
-        warn(
-            f"--config {args.config}: [odometry_noise] sets the noise of derived odometry; this run uses "
-            f"{'the sequence' if setup.mode == 'sequence' else 'no'} odometry (--odometry {setup.mode}): "
-            "it did nothing"
-        )
+    refuse_ignored_flags(args, setup.mode, config)
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
     session = setup.session(args.backend)
     backend, tracker = session.backend, session.tracker

@@ -116,7 +116,7 @@ def test_localize_says_which_config_sections_it_does_not_read(tmp_path, capsys):
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert (f"--config {cfg}: [tracker], [isam2_visual] not read by localize (the map fixes its "
-            "tracker and back end); those settings do nothing and are not checked") in err
+            "tracker and back end); those settings did nothing and were not checked") in err
 
 
 def test_loops_with_intrinsics_refuses_an_image_of_another_size(tmp_path, capsys):
@@ -454,4 +454,4 @@ def test_odometry_noise_in_a_file_for_a_run_without_derived_odometry_is_said(tmp
             "--rerun", "off", "--out", str(tmp_path / "o")]
     assert main(argv) == 0
     assert (f"--config {cfg}: [odometry_noise] sets the noise of derived odometry; this run uses the "
-            "sequence odometry (--odometry sequence): it did nothing") in capsys.readouterr().err
+            "sequence's own odometry (--odometry sequence): it did nothing") in capsys.readouterr().err
