@@ -15,7 +15,7 @@ import numpy as np
 
 from filters.association import chi2_quantile
 from filters.numerics import CHI2_2DOF_999, MAX_ODOMETRY_COVARIANCE_SCALE
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
 
 #: Most landmark slots the buffers may hold before the first doubling: the
@@ -33,7 +33,7 @@ DAMPED_UPDATE_NIS = CHI2_2DOF_999
 
 
 @dataclass(frozen=True)
-class EkfSlamConfig:
+class EkfSlamConfig(Validated):
     """EKF-SLAM settings (config file section ``[ekf]``).
 
     Attributes:
@@ -158,7 +158,7 @@ class EkfSlamConfig:
     prune_missed_alpha: float | None = bounded(1e-3, gt=0.0, lt=1.0)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         if self.new_landmark_chi2_prob < self.gate_chi2_prob:
             raise ConfigError(
                 "ekf.new_landmark_chi2_prob must be >= ekf.gate_chi2_prob "

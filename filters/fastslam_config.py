@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 from filters.numerics import MAX_ODOMETRY_COVARIANCE_SCALE
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 
 #: Most particles a filter may have. Every particle carries its own 2-D EKF per
 #: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
@@ -22,7 +22,7 @@ MAX_PARTICLES = 1_000_000
 
 
 @dataclass(frozen=True)
-class FastSlamConfig:
+class FastSlamConfig(Validated):
     """FastSLAM settings (config file section ``[fastslam]``).
 
     Attributes:
@@ -73,6 +73,3 @@ class FastSlamConfig:
     new_landmark_log_likelihood: float | None = None
     odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
     trajectory: Literal["path", "filtered"] = "path"
-
-    def __post_init__(self):
-        validate(self)

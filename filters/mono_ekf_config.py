@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 
 #: Most landmarks the state may hold. The covariance is dense, up to
 #: (13 + 7 L)^2 float64 (constant-velocity model, AHP landmarks), and every
@@ -27,7 +27,7 @@ def chi2_2dof(prob: float) -> float:
 
 
 @dataclass(frozen=True)
-class MonoEkfConfig:
+class MonoEkfConfig(Validated):
     """Monocular EKF-SLAM settings (config file section ``[mono_ekf]``).
 
     Attributes:
@@ -113,9 +113,6 @@ class MonoEkfConfig:
     cv_initial_sigma_w_radps: float = bounded(1.0, gt=0.0)
     default_sigma_px: float = bounded(1.0, gt=0.0)
     seed: int = bounded(0, min=0)
-
-    def __post_init__(self):
-        validate(self)
 
     @property
     def rho0(self) -> float:

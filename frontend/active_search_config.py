@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
 
 __all__ = ["ActiveSearchConfig", "chi2_2dof"]
@@ -25,7 +25,7 @@ def chi2_2dof(probability: float) -> float:
 
 
 @dataclass(frozen=True)
-class ActiveSearchConfig:
+class ActiveSearchConfig(Validated):
     """Active search settings (config section ``[active_search]``).
 
     Attributes:
@@ -72,7 +72,7 @@ class ActiveSearchConfig:
     ransac_every: int = bounded(0, min=0, max=MAX_POINTS_PER_FRAME)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         if self.ransac_every == 1 or (self.ransac_every and self.order != "sequential"):
             raise ConfigError(
                 f"active_search.ransac_every must be 0 or at least 2, with order "

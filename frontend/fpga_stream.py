@@ -62,7 +62,7 @@ import numpy as np
 from frontend.features import Features
 from frontend.harris import GAUSS5_INT, K_SHIFT, REACH_PX, RESPONSE_SHIFT, HarrisConfig, cell_grid
 from frontend.image import check_gray
-from slamcore.config import bounded, validate, with_overrides
+from slamcore.config import Validated, bounded, with_overrides
 from slamcore.errors import GraphSlamError, InputError
 
 _S_SHIFT = 12
@@ -71,7 +71,7 @@ _SENTINEL = np.iinfo(np.int64).min
 
 
 @dataclass(frozen=True)
-class FpgaTiming:
+class FpgaTiming(Validated):
     """Pixel-clock timing of the camera link and the Harris pipeline.
 
     The paper gives no clock; the defaults are the VESA 640x480@60 Hz timing
@@ -96,9 +96,6 @@ class FpgaTiming:
     v_blank_lines: int = bounded(45, min=0)
     latency_lines: int = bounded(6, min=REACH_PX)
     pipeline_cycles: int = bounded(13, min=0)
-
-    def __post_init__(self):
-        validate(self)
 
     def line_s(self, width: int) -> float:
         """Duration of one line (pixels + horizontal blanking), seconds."""

@@ -93,7 +93,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import MAX_SIDE_PX, check_gray
-from slamcore.config import bounded, validate, with_overrides
+from slamcore.config import Validated, bounded, with_overrides
 
 #: Pixels of look-ahead of one response on each side (2 smoothing + 1 derivative + 2 window).
 REACH_PX = 5
@@ -117,7 +117,7 @@ _INT_SENTINEL = np.iinfo(np.int64).min
 
 
 @dataclass(frozen=True)
-class HarrisConfig:
+class HarrisConfig(Validated):
     """Harris detector settings (config section ``[harris]``).
 
     Attributes:
@@ -144,9 +144,6 @@ class HarrisConfig:
     threshold: float = bounded(1.0e4, min=0.0, lt=2.0 ** (62 - RESPONSE_SHIFT))
     arithmetic: Literal["float", "fixed"] = "float"
     border_px: int = bounded(8, min=REACH_PX, max=MAX_SIDE_PX)
-
-    def __post_init__(self):
-        validate(self)
 
     @property
     def k_num(self) -> int:

@@ -26,7 +26,7 @@ import numpy as np
 
 from frontend.features import Features
 from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
-from slamcore.config import bounded, validate, with_overrides
+from slamcore.config import Validated, bounded, with_overrides
 
 #: Per-keypoint attribute readers: ``map`` over an ``attrgetter`` is the
 #: fastest way OpenCV's Python binding offers (it has no array accessor for
@@ -66,7 +66,7 @@ def _sort_key(resp: np.ndarray, cell: np.ndarray | None) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class OrbConfig:
+class OrbConfig(Validated):
     """ORB settings (config section ``[orb]``).
 
     Attributes:
@@ -97,9 +97,6 @@ class OrbConfig:
     edge_threshold: int = bounded(31, min=0, max=MAX_PATCH_PX)
     patch_size: int = bounded(31, min=2, max=MAX_PATCH_PX)
     score: Literal["harris", "fast"] = "harris"
-
-    def __post_init__(self):
-        validate(self)
 
 
 class OrbDetector:

@@ -14,7 +14,7 @@ from typing import ClassVar, Literal
 from frontend.harris import HarrisConfig
 from frontend.image import MAX_POINTS_PER_FRAME, MAX_SIDE_PX
 from frontend.orb import OrbConfig
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
 
 __all__ = ["TrackerConfig", "DETECTORS", "SEARCH_MODES", "AUTO_SEARCH", "make_detector"]
@@ -27,7 +27,7 @@ AUTO_SEARCH = {"harris": "zncc", "fpga": "nearest", "orb": "descriptor"}
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(Validated):
     """Front-end tracking settings (config section ``[tracker]``).
 
     Attributes:
@@ -95,7 +95,7 @@ class TrackerConfig:
     sigma_px: float = bounded(1.0, gt=0.0)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         mode = self.search_mode
         if (mode == "descriptor") != (self.detector == "orb"):
             raise ConfigError(

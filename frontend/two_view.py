@@ -50,7 +50,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError, MeasurementError
 from slamcore.spatial.geometry import invert_pose
 
@@ -80,7 +80,7 @@ AMBIGUITY_RATIO = 0.75
 
 
 @dataclass(frozen=True)
-class TwoViewConfig:
+class TwoViewConfig(Validated):
     """Two-view initialisation settings (a nested table: ``[isam2_visual.mono.two_view]``).
 
     Attributes:
@@ -104,9 +104,6 @@ class TwoViewConfig:
     confidence: float = bounded(0.999, gt=0.0, lt=1.0)
     homography_ratio: float = bounded(0.45, min=0.0, max=1.0)
     max_reprojection_sigmas: float = bounded(2.0, gt=0.0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass(frozen=True, eq=False)

@@ -56,7 +56,7 @@ from frontend.orb import OrbConfig, OrbDetector
 from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
 from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, PairVerifier, Verification, VerifyConfig
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
@@ -66,7 +66,7 @@ LOOP_ORB = OrbConfig(n_features=1000, cell_size_px=0, per_cell=1, fast_threshold
 
 
 @dataclass(frozen=True)
-class LoopDetectorConfig:
+class LoopDetectorConfig(Validated):
     """Loop detector settings (config section ``[loops]``).
 
     Attributes:
@@ -130,7 +130,7 @@ class LoopDetectorConfig:
     orb: OrbConfig = LOOP_ORB
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         # a setting the chosen mode does not read is refused, not silently ignored
         used = _MODE_FIELDS[self.mode]
         for name in sorted(set().union(*_MODE_FIELDS.values()) - used):

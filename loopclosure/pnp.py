@@ -31,7 +31,7 @@ import numpy as np
 
 from loopclosure.matching import match_descriptors
 from loopclosure.verify import MAX_RANSAC_ITERS, MAX_SEED
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.spatial.camera import project_jacobians
 from slamcore.spatial.geometry import invert_pose
 
@@ -39,7 +39,7 @@ __all__ = ["PnpConfig", "PnpResult", "relative_pose_pnp"]
 
 
 @dataclass(frozen=True)
-class PnpConfig:
+class PnpConfig(Validated):
     """Metric closure settings (config section ``[loop_pnp]``).
 
     Attributes:
@@ -71,9 +71,6 @@ class PnpConfig:
     min_sigma_t_m: float = bounded(0.005, gt=0.0)
     min_sigma_r_deg: float = bounded(0.05, gt=0.0)
     seed: int = bounded(0, min=0, max=MAX_SEED)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass(frozen=True, eq=False)

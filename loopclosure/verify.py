@@ -84,7 +84,7 @@ import numpy as np
 from loopclosure.acontrario import hull_coverage, image_extent, log10_nfa, shared_view_coverage
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.matching import epipolar_residuals, guided_match, match_descriptors
-from slamcore.config import bounded, validate, with_overrides
+from slamcore.config import Validated, bounded, with_overrides
 from slamcore.errors import ConfigError
 
 __all__ = ["VerifyConfig", "Verification", "PairVerifier", "GeometricVerifier", "MODELS"]
@@ -110,7 +110,7 @@ _METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC}
 
 
 @dataclass(frozen=True)
-class VerifyConfig:
+class VerifyConfig(Validated):
     """Geometric verification settings (config section ``[loop_verify]``).
 
     Attributes:
@@ -184,9 +184,6 @@ class VerifyConfig:
     min_inlier_ratio: float = bounded(0.0, min=0.0, max=1.0)
     min_feature_share: float = bounded(0.0, min=0.0, max=1.0)
     seed: int = bounded(0, min=0, max=MAX_SEED)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass(frozen=True, eq=False)

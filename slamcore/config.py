@@ -8,9 +8,9 @@ once per run into a :class:`ConfigFile`; every section is taken from it with
 overrides). Unknown sections and keys are refused naming the file and line, so
 a typo never silently does nothing.
 
-Values are checked by :func:`validate`, which every config dataclass calls from
-its ``__post_init__``, so a config built in code is held to the same rules as
-one read from a file:
+Values are checked by :func:`validate`, which every config dataclass runs when
+it is built (they derive from :class:`Validated`), so a config built in code is
+held to the same rules as one read from a file:
 
 - the type hint: ``int``, ``float``, ``bool``, ``str``, tuples of those, an
   optional (``X | None``) or a nested config;
@@ -162,8 +162,8 @@ def _check_range(value: Any, meta: typing.Mapping, what: str) -> None:
 def validate(config: Any) -> None:
     """Check every field of a config dataclass against its hint and range metadata.
 
-    Call from ``__post_init__``; values are normalised in place (an integer
-    given for a float field becomes a float).
+    :class:`Validated` calls it when a config is built; values are normalised in
+    place (an integer given for a float field becomes a float).
     """
     cls = type(config)
     hints = typing.get_type_hints(cls)
@@ -173,6 +173,15 @@ def validate(config: Any) -> None:
         value = _check_value(getattr(config, f.name), hints[f.name], what)
         _check_range(value, f.metadata, what)
         object.__setattr__(config, f.name, value)
+
+
+class Validated:
+    """Base of the config dataclasses: :func:`validate` runs whenever one is built, so
+    no config can forget its checks. A subclass with checks of its own (between
+    fields) defines ``__post_init__`` and calls ``super().__post_init__()`` first."""
+
+    def __post_init__(self) -> None:
+        validate(self)
 
 
 # --------------------------------------------------------------------------- files

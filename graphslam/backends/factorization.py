@@ -21,14 +21,18 @@ it fails, by handing every factor to a fresh QR iSAM2 at the current values.
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Literal
 
 import gtsam
 
 from slamcore.errors import GraphSlamError
 
-FACTORIZATIONS = ("auto", "cholesky", "qr")
+#: The type of the config fields that choose a factorisation, and its values.
+Factorization = Literal["auto", "cholesky", "qr"]
+FACTORIZATIONS: tuple[str, ...] = typing.get_args(Factorization)
 
 
 def isam2_factorization(params: gtsam.ISAM2Params, name: str) -> gtsam.ISAM2Params:

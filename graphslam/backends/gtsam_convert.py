@@ -7,8 +7,10 @@ the ids as in the input data.
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Iterable
 from functools import lru_cache
+from typing import Literal
 
 import gtsam
 import numpy as np
@@ -248,8 +250,10 @@ def pose3_covariance_from_gtsam(covariance: np.ndarray) -> np.ndarray:
     return _POSE3_SWAP @ cov @ _POSE3_SWAP
 
 
-#: Robust kernels by configuration name ("none" keeps the Gaussian).
-ROBUST_KERNELS = ("none", "huber", "cauchy")
+#: Robust kernels by configuration name ("none" keeps the Gaussian): the type of the
+#: config fields that choose one, and its values.
+RobustKernel = Literal["none", "huber", "cauchy"]
+ROBUST_KERNELS: tuple[str, ...] = typing.get_args(RobustKernel)
 
 
 def robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseModel.Base:

@@ -46,7 +46,7 @@ from graphslam.maps.spatial_map import SpatialMap
 from loopclosure.database import BowDatabase
 from loopclosure.descriptor_distance import popcount_sum
 from loopclosure.pnp import PnpConfig, pnp_covariance, pose_from_rodrigues, relative_pose_pnp
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.camera import project, project_jacobians
 from slamcore.spatial.geometry import invert_pose
@@ -55,7 +55,7 @@ Status = Literal["tracked", "relocalised", "lost"]
 
 
 @dataclass(frozen=True)
-class LocalizeConfig:
+class LocalizeConfig(Validated):
     """Localisation settings (config section ``[localize]``), module docstring.
 
     Attributes:
@@ -77,9 +77,6 @@ class LocalizeConfig:
     # EPnP needs 4 points
     min_inliers: int = bounded(15, min=4)
     ransac_threshold_px: float = bounded(3.0, gt=0.0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass(frozen=True, eq=False)

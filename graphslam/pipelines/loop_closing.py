@@ -46,7 +46,7 @@ from frontend.orb import OrbDetector
 from frontend.tracking import TrackingResult
 from loopclosure.detector import CandidateRecord, LoopDetector
 from loopclosure.pnp import PnpConfig, PnpResult, relative_pose_pnp
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.files import atomic_open
 from slamcore.spatial.backend import VisualBackend
@@ -116,7 +116,7 @@ class LoopCandidate:
 
 
 @dataclass(frozen=True)
-class LoopClosingConfig:
+class LoopClosingConfig(Validated):
     """Loop closing in visual runs (config section ``[loop_closing]``).
 
     Attributes:
@@ -128,9 +128,6 @@ class LoopClosingConfig:
     SECTION: ClassVar[str] = "loop_closing"
 
     redundant_shared_tracks: int = bounded(5, min=0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass

@@ -30,12 +30,12 @@ import numpy as np
 from frontend.orb import OrbDetector
 from graphslam.pipelines.loop_closing import pnp_closure
 from loopclosure.pnp import PnpConfig, relative_pose_pnp
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import GraphSlamError
 
 
 @dataclass(frozen=True)
-class RelocaliseConfig:
+class RelocaliseConfig(Validated):
     """Relocalisation in a SLAM run (config section ``[relocalise]``), module docstring.
 
     Attributes:
@@ -57,9 +57,6 @@ class RelocaliseConfig:
     # EPnP needs 4 points
     min_inliers: int = bounded(10, min=4)
     ratio: float = bounded(0.9, gt=0.0, max=1.0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass

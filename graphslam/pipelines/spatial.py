@@ -63,7 +63,7 @@ from graphslam.pipelines.common import (
     stop_requested,
 )
 from graphslam.sources.spatial.sequence import ImageSequence
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError, UnsupportedError
 from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.geometry import invert_pose, so3_exp
@@ -78,7 +78,7 @@ FrameHook = Callable[[int, np.ndarray, TrackingResult, VisualBackend], None]
 
 
 @dataclass(frozen=True)
-class OdometryNoiseConfig:
+class OdometryNoiseConfig(Validated):
     """Noise of derived odometry (config section ``[odometry_noise]``).
 
     Attributes:
@@ -100,12 +100,9 @@ class OdometryNoiseConfig:
     sigma_r_deg: float = bounded(0.1, gt=0.0, max=180.0)
     seed: int = bounded(0, min=0)
 
-    def __post_init__(self):
-        validate(self)
-
 
 @dataclass(frozen=True)
-class VisualRunConfig:
+class VisualRunConfig(Validated):
     """Visual run settings (config section ``[visual]``).
 
     Attributes:
@@ -122,9 +119,6 @@ class VisualRunConfig:
     # traceback-free error naming x0 or x1). Bounds with margin below what failed.
     prior_sigma_t_m: float = bounded(0.001, gt=0.0, max=1.0)
     prior_sigma_r_deg: float = bounded(0.01, gt=0.0, max=90.0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 @dataclass

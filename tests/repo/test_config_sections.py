@@ -63,3 +63,34 @@ def test_absurd_particle_count_is_one_line_with_file_and_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert err.startswith(f"graphslam: error: {cfg}:3: fastslam.n_particles must be"), err
     assert not out.exists()
+
+
+#: The field metadata of :func:`slamcore.config.bounded`.
+RANGE_KEYS = {"min", "max", "gt", "lt"}
+
+
+def _config_classes() -> list[type]:
+    """Every dataclass of the library that a config file or ``bounded`` fields make a
+    config: it has a ``SECTION`` or ``TABLE``, or a field with range metadata."""
+    import dataclasses
+    import importlib
+
+    found = []
+    for name in module_files(ROOT):
+        module = importlib.import_module(name)
+        for cls in vars(module).values():
+            if (isinstance(cls, type) and cls.__module__ == name and dataclasses.is_dataclass(cls)
+                    and ("SECTION" in vars(cls) or "TABLE" in vars(cls)
+                         or any(RANGE_KEYS & set(f.metadata) for f in dataclasses.fields(cls)))):
+                found.append(cls)
+    return found
+
+
+def test_every_config_is_checked_when_built():
+    """A config built in code is held to the file's rules only if it validates itself:
+    the base class makes that structural (a new config cannot forget it)."""
+    from slamcore.config import Validated
+
+    classes = _config_classes()
+    assert len(classes) >= 20
+    assert [c.__qualname__ for c in classes if not issubclass(c, Validated)] == []

@@ -7,17 +7,14 @@ from typing import ClassVar, Literal
 
 import pytest
 
-from slamcore.config import ConfigFile, bounded, choices_of, from_dict, load_section, validate
+from slamcore.config import ConfigFile, Validated, bounded, choices_of, from_dict, load_section
 from slamcore.errors import ConfigError
 
 
 @dataclass(frozen=True)
-class Inner:
+class Inner(Validated):
     SECTION: ClassVar[str] = "inner"
     n_features: int = bounded(100, min=1)
-
-    def __post_init__(self):
-        validate(self)
 
 
 #: A nested default that differs from Inner's own defaults.
@@ -25,7 +22,7 @@ SPECIAL_INNER = Inner(42)
 
 
 @dataclass(frozen=True)
-class Outer:
+class Outer(Validated):
     SECTION: ClassVar[str] = "outer"
     mode: Literal["fast", "exact"] = "fast"
     sigma_m: float = bounded(0.1, gt=0.0)
@@ -34,9 +31,6 @@ class Outer:
     name: str | None = None
     inner: Inner = field(default_factory=Inner)
     special: Inner = SPECIAL_INNER
-
-    def __post_init__(self):
-        validate(self)
 
 
 def _write(tmp_path, name, text):
@@ -115,22 +109,16 @@ def test_missing_file_is_one_line(tmp_path):
 
 
 @dataclass(frozen=True)
-class Wide:
+class Wide(Validated):
     SECTION: ClassVar[str] = "wide"
     n_features: int = bounded(100, min=1)
     cell_px: int = bounded(32, min=0)
 
-    def __post_init__(self):
-        validate(self)
-
 
 @dataclass(frozen=True)
-class Holder:
+class Holder(Validated):
     SECTION: ClassVar[str] = "holder"
     wide: Wide = Wide(n_features=1000, cell_px=0)
-
-    def __post_init__(self):
-        validate(self)
 
 
 def test_a_partial_nested_table_keeps_the_fields_own_default(tmp_path):

@@ -7,20 +7,20 @@ the settings are read without importing the back end.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import gtsam
 import numpy as np
 
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
-from slamcore.errors import ConfigError
+from slamcore.config import Validated, bounded
 
 __all__ = ["Isam2Config"]
 
 
 @dataclass(frozen=True)
-class Isam2Config:
+class Isam2Config(Validated):
     """iSAM2 settings.
 
     Attributes:
@@ -96,62 +96,27 @@ class Isam2Config:
         "gate_scale_from_data",
         "gate_polish_rounds",
     )
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
+    relinearize_threshold: float = bounded(0.1, gt=0.0)
+    relinearize_skip: int = bounded(10, min=1)
     polish: bool = True
-    polish_max_iterations: int = 100
-    polish_relative_error_tol: float = 1e-5
-    polish_absolute_error_tol: float = 1e-5
-    loop_closure_kernel: str = "none"
-    loop_closure_kernel_k: float = 1.0
-    polish_method: str = "lm"
-    loop_closure_gate: float = 0.0
-    gate_window: int = 5
-    gate_min_support: int = 2
+    polish_max_iterations: int = bounded(100, min=1)
+    polish_relative_error_tol: float = bounded(1e-5, gt=0.0)
+    polish_absolute_error_tol: float = bounded(1e-5, gt=0.0)
+    loop_closure_kernel: conv.RobustKernel = "none"
+    loop_closure_kernel_k: float = bounded(1.0, gt=0.0)
+    polish_method: Literal["lm", "gnc"] = "lm"
+    #: 0 disables the gate
+    loop_closure_gate: float = bounded(0.0, min=0.0)
+    gate_window: int = bounded(5, min=1)
+    gate_min_support: int = bounded(2, min=1)
     gate_scale_from_data: bool = True
-    gate_polish_rounds: int = 3
-    factorization: str = "auto"
-    observation_kernel: str = "cauchy"
-    observation_kernel_k: float = 2.385
-    association: str = "known"
-    association_gate_prob: float = 0.999
-    confirm_sightings: int = 3
-
-    def __post_init__(self):
-        if self.loop_closure_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2.loop_closure_kernel must be none, huber or cauchy")
-        if self.loop_closure_kernel_k <= 0:
-            raise ConfigError("isam2.loop_closure_kernel_k must be > 0")
-        if self.polish_method not in ("lm", "gnc"):
-            raise ConfigError("isam2.polish_method must be lm or gnc")
-        if self.relinearize_threshold <= 0:
-            raise ConfigError("isam2.relinearize_threshold must be > 0")
-        if self.relinearize_skip < 1:
-            raise ConfigError("isam2.relinearize_skip must be >= 1")
-        if self.polish_max_iterations < 1:
-            raise ConfigError("isam2.polish_max_iterations must be >= 1")
-        if not (self.polish_relative_error_tol > 0 and self.polish_absolute_error_tol > 0):
-            raise ConfigError("isam2.polish_relative_error_tol and _absolute_error_tol must be > 0")
-        if not self.loop_closure_gate >= 0:
-            raise ConfigError("isam2.loop_closure_gate must be >= 0 (0: no gate)")
-        if self.gate_min_support < 1:
-            raise ConfigError("isam2.gate_min_support must be >= 1")
-        if self.gate_window < 1:
-            raise ConfigError("isam2.gate_window must be >= 1")
-        if self.gate_polish_rounds < 0:
-            raise ConfigError("isam2.gate_polish_rounds must be >= 0")
-        if self.association not in ("known", "unknown"):
-            raise ConfigError("isam2.association must be known or unknown")
-        if not 0.0 < self.association_gate_prob < 1.0:
-            raise ConfigError("isam2.association_gate_prob must be > 0 and < 1")
-        if self.confirm_sightings < 1:
-            raise ConfigError("isam2.confirm_sightings must be >= 1")
-        if self.observation_kernel not in conv.ROBUST_KERNELS:
-            raise ConfigError("isam2.observation_kernel must be none, huber or cauchy")
-        if not self.observation_kernel_k > 0:
-            raise ConfigError("isam2.observation_kernel_k must be > 0")
-        if self.factorization not in fact.FACTORIZATIONS:
-            raise ConfigError("isam2.factorization must be auto, cholesky or qr")
+    gate_polish_rounds: int = bounded(3, min=0)
+    factorization: fact.Factorization = "auto"
+    observation_kernel: conv.RobustKernel = "cauchy"
+    observation_kernel_k: float = bounded(2.385, gt=0.0)
+    association: Literal["known", "unknown"] = "known"
+    association_gate_prob: float = bounded(0.999, gt=0.0, lt=1.0)
+    confirm_sightings: int = bounded(3, min=1)
 
     def loop_closure_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
         """Gaussian noise of a closure, wrapped in the configured robust kernel."""

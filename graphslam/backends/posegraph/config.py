@@ -5,14 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from slamcore.config import bounded, validate
+from graphslam.backends.factorization import Factorization
+from slamcore.config import Validated, bounded
 
 #: How the batch solve is started (``--init``).
 INIT_METHODS = ("auto", "odometry", "vertices", "lago", "chordal", "shonan")
 
 
 @dataclass(frozen=True)
-class PoseGraphConfig:
+class PoseGraphConfig(Validated):
     """Pose-graph solver settings.
 
     Attributes:
@@ -65,7 +66,7 @@ class PoseGraphConfig:
 
     SECTION: ClassVar[str] = "posegraph"
     init: Literal["auto", "odometry", "vertices", "lago", "chordal", "shonan"] = "auto"
-    factorization: Literal["auto", "cholesky", "qr"] = "auto"
+    factorization: Factorization = "auto"
     max_iterations: int = bounded(200, min=1, max=100_000)
     relative_error_tol: float = bounded(1e-10, gt=0.0, lt=1.0)
     absolute_error_tol: float = bounded(1e-10, gt=0.0)
@@ -78,6 +79,3 @@ class PoseGraphConfig:
     toro_noise: Literal["auto", "information", "sqrt_information"] = "auto"
     information_fix: Literal["nearest", "isotropic", "refuse"] = "nearest"
     certify: bool = True
-
-    def __post_init__(self):
-        validate(self)

@@ -14,17 +14,14 @@ from typing import ClassVar, Literal
 import gtsam
 
 from frontend.two_view import MAX_SEED
+from graphslam.backends.gtsam_convert import RobustKernel
 from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
-
-#: Robust kernels :func:`graphslam.backends.gtsam_convert.robust` builds (its
-#: ``ROBUST_KERNELS``; tests/graphslam/backends/test_isam2_visual.py checks the two agree).
-RobustKernel = Literal["none", "huber", "cauchy"]
 
 
 @dataclass(frozen=True)
-class VisualIsam2Config:
+class VisualIsam2Config(Validated):
     """Visual iSAM2 settings.
 
     Attributes:
@@ -141,7 +138,7 @@ class VisualIsam2Config:
     polish_max_iterations: int = bounded(50, min=1)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         if self.newest_pose_last and self.predicted_in_root:
             raise ConfigError(
                 "isam2_visual.newest_pose_last and isam2_visual.predicted_in_root are "

@@ -35,7 +35,7 @@ import numpy as np
 
 from frontend.two_view import MAX_SEED, TwoViewConfig
 from loopclosure.pnp import pose_from_rodrigues
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.spatial.camera import project
 from slamcore.spatial.geometry import invert_pose
 
@@ -52,7 +52,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class MonoTrackingConfig:
+class MonoTrackingConfig(Validated):
     """Camera-only tracking settings (``[isam2_visual.mono]``; used with ``--odometry none``).
 
     Attributes:
@@ -88,9 +88,6 @@ class MonoTrackingConfig:
     pnp_threshold_sigmas: float = bounded(3.03, gt=0.0)
     two_view: TwoViewConfig = field(default_factory=TwoViewConfig)
     max_bootstrap_frames: int = bounded(30, min=1)
-
-    def __post_init__(self):
-        validate(self)
 
 
 def rng_seed(base: int, k: int) -> int:

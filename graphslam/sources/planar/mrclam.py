@@ -43,7 +43,7 @@ import numpy as np
 from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel, held_commands, integrate
 from graphslam.sources.planar.synthetic import MAX_STEPS
 from graphslam.sources.tokens import NUMBER_TOKEN
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import folder_name
 from slamcore.input_files import check_input_path
@@ -71,7 +71,7 @@ NO_LANDMARK_TRUTH = "no Landmark_Groundtruth.dat: the map is not scored"
 
 
 @dataclass(frozen=True)
-class MrclamConfig:
+class MrclamConfig(Validated):
     """``[mrclam]``: which robot, and its sensors' calibration.
 
     The defaults are fitted on MRCLAM Dataset 6 (all five robots) against its
@@ -194,7 +194,7 @@ class MrclamConfig:
     sighting_error_dof: float = bounded(5.1, min=MIN_ERROR_DOF)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         if self.sigma_range_m == 0.0 and self.sigma_range_per_m == 0.0:
             raise ConfigError(
                 "mrclam.sigma_range_m and mrclam.sigma_range_per_m are both 0 "

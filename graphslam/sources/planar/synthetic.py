@@ -45,7 +45,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError
 from slamcore.planar.geometry import compose, observe, wrap_angle
 from slamcore.planar.records import Dataset, Frame, Observation, ObservationKind, Odometry, SensorField
@@ -96,7 +96,7 @@ _SMALL_ANGLE = 1e-4
 
 
 @dataclass(frozen=True)
-class SyntheticConfig:
+class SyntheticConfig(Validated):
     """Parameters of the synthetic world (section ``[synthetic]``).
 
     Route: a rounded rectangle ``route_length_m`` x ``route_width_m`` with
@@ -180,7 +180,7 @@ class SyntheticConfig:
     sigma_phi_deg: float = bounded(10.0, min=MIN_SIGMA, max=MAX_SIGMA_ANGLE_DEG)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         if 2.0 * self.corner_radius_m >= min(self.route_length_m, self.route_width_m):
             raise ConfigError(
                 "synthetic.corner_radius_m must be less than half of route_length_m and route_width_m"

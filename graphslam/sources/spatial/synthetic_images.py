@@ -72,7 +72,7 @@ from graphslam.sources.spatial.synthetic_render import (
     procedural_texture,
     render_surfaces,
 )
-from slamcore.config import bounded, validate
+from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -98,7 +98,7 @@ MAX_TEXELS = 1_000_000_000
 
 
 @dataclass(frozen=True)
-class SyntheticImagesConfig:
+class SyntheticImagesConfig(Validated):
     """Parameters of the synthetic image sequence (section ``[synthetic_images]``).
 
     Units: metres, radians for noise sigmas, degrees where the name says so,
@@ -195,7 +195,7 @@ class SyntheticImagesConfig:
     revisit_min_gap_frames: int = bounded(50, min=1)
 
     def __post_init__(self):
-        validate(self)
+        super().__post_init__()
         s = f"{self.SECTION}."
         if self.corner_radius_m > min(self.path_length_m, self.path_width_m) / 2:
             raise ConfigError(
