@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from graphslam.evaluation.alignment import umeyama
+from graphslam.evaluation.matching import checked_delta, common_poses
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
 from slamcore.errors import GraphSlamError
@@ -175,14 +176,7 @@ def align_se2(src_xy: np.ndarray, dst_xy: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def _common(est_ids, est_wTb, gt_ids, gt_wTb) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sorted common ids and the matching (K, 3) rows of both trajectories."""
-    est_ids = np.asarray(est_ids).astype(np.int64).reshape(-1)
-    gt_ids = np.asarray(gt_ids).astype(np.int64).reshape(-1)
-    est = np.asarray(est_wTb, dtype=np.float64).reshape(-1, 3)
-    gt = np.asarray(gt_wTb, dtype=np.float64).reshape(-1, 3)
-    if est.shape[0] != est_ids.size or gt.shape[0] != gt_ids.size:
-        raise GraphSlamError("trajectory ids and poses differ in length")
-    common, i_est, i_gt = np.intersect1d(est_ids, gt_ids, assume_unique=False, return_indices=True)
-    return common, est[i_est], gt[i_gt]
+    return common_poses(est_ids, est_wTb, gt_ids, gt_wTb, (3,))
 
 
 def ate(est_ids, est_wTb, gt_ids, gt_wTb, align: bool = True) -> dict:
@@ -228,9 +222,7 @@ def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
     Raises:
         GraphSlamError: ``delta < 1`` or no pair available.
     """
-    if int(delta) < 1:
-        raise GraphSlamError(f"RPE delta must be >= 1, got {delta}")
-    delta = int(delta)
+    delta = checked_delta(delta)
     common, est, gt = _common(est_ids, est_wTb, gt_ids, gt_wTb)
     if common.size <= delta:
         raise GraphSlamError(f"RPE needs more than {delta} common pose ids, got {common.size}")

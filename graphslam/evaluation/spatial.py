@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from graphslam.evaluation.alignment import collinear, rotation_about_line, umeyama
+from graphslam.evaluation.matching import checked_delta, common_poses
 from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds, nees
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -50,14 +51,7 @@ def align_umeyama(
 
 
 def _common(est_ids, est_wTc, gt_ids, gt_wTc):
-    est_ids = np.asarray(est_ids).astype(np.int64).reshape(-1)
-    gt_ids = np.asarray(gt_ids).astype(np.int64).reshape(-1)
-    est = np.asarray(est_wTc, dtype=np.float64).reshape(-1, 4, 4)
-    gt = np.asarray(gt_wTc, dtype=np.float64).reshape(-1, 4, 4)
-    if len(est) != est_ids.size or len(gt) != gt_ids.size:
-        raise GraphSlamError("trajectory ids and poses differ in length")
-    common, i_est, i_gt = np.intersect1d(est_ids, gt_ids, return_indices=True)
-    return common, est[i_est], gt[i_gt]
+    return common_poses(est_ids, est_wTc, gt_ids, gt_wTc, (4, 4))
 
 
 def ate(est_ids, est_wTc, gt_ids, gt_wTc, alignment: str = "se3") -> dict:
@@ -105,9 +99,9 @@ def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) ->
     Returns ``{"delta_frames", "trans_rmse_m", "trans_mean_m", "rot_rmse_deg",
     "rot_mean_deg", "n"}``.
     """
-    delta = int(delta)
-    if delta < 1:
-        raise GraphSlamError(f"RPE delta must be >= 1, got {delta}")
+    delta = checked_delta(delta)
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise GraphSlamError(f"RPE scale must be a finite number > 0, got {scale}")
     common, est, gt = _common(est_ids, est_wTc, gt_ids, gt_wTc)
     if common.size <= delta:
         raise GraphSlamError(f"RPE needs more than {delta} common frame ids, got {common.size}")
