@@ -34,6 +34,21 @@ EXIT_INTERRUPTED = 130
 _claimed: dict[Path, int] = {}
 
 
+def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | None = None) -> None:
+    """Remove from ``out_dir`` the earlier outputs this command will not write
+    (:func:`graphslam.outputs.writers.remove_stale_outputs`, by default every
+    command's names) and say which: a file the user may have wanted (a ``loops.csv``
+    of the loops command) is never deleted without a word."""
+    from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES, remove_stale_outputs
+
+    removed = remove_stale_outputs(out_dir, will_write, FOLDER_OUTPUT_NAMES if known is None else known)
+    if removed:
+        print(
+            f"removed from {out_dir}/ an earlier command's {', '.join(p.name for p in removed)} "
+            "(this one writes no such file: they would read as its own)"
+        )
+
+
 def claim_out_dir(out_dir: Path, flag: str = "--out") -> Path:
     """Create ``out_dir`` and lock it for this command: two commands writing one folder
     at the same time left a mix of both runs' files, each one whole, with nothing said.

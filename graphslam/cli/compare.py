@@ -18,6 +18,7 @@ from graphslam.cli.common import (
     add_robot_option,
     add_topics_option,
     claim_out_dir,
+    clear_earlier_outputs,
     seed_arg,
 )
 from slamcore.errors import GraphSlamError
@@ -229,14 +230,11 @@ def _check_names(names, allowed, where: str, graphs_hint: bool = False) -> None:
 def _out_dir(args, name: str, rerun_mode: str) -> Path:
     """``--out`` (default ``runs/<name>-compare``), created, without the stale outputs
     this comparison will not write."""
-    from graphslam.outputs import writers
 
     out_dir = args.out or Path("runs") / f"{name}-compare"
     claim_out_dir(out_dir)
-    writers.remove_stale_outputs(
-        out_dir,
-        {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set()),
-        writers.COMPARE_OUTPUT_NAMES,
+    clear_earlier_outputs(
+        out_dir, {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set())
     )
     return out_dir
 
@@ -339,7 +337,7 @@ def _write_comparison(
             recording_cut = "the recording holds what was logged before the signal"
         if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
             outputs.append("compare.rrd")
-    writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
+    clear_earlier_outputs(out_dir, set(outputs))
     skipped = {
         e.backend: e.metrics.loop_closures_skipped
         for e in done

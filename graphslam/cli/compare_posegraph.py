@@ -31,7 +31,14 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     """Run, print, write (compare.json, compare.png, compare.rrd); the exit status.
     ``out_dir_of(name)`` makes the output folder."""
     from graphslam import registry
-    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, fmt, warn, warn_doubts
+    from graphslam.cli.common import (
+        EXIT_FAILED,
+        EXIT_INTERRUPTED,
+        clear_earlier_outputs,
+        fmt,
+        warn,
+        warn_doubts,
+    )
     from graphslam.cli.run.posegraph import load_graph
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard, stop_requested
@@ -118,7 +125,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     done = [r for r in runs if r.result is not None]
     if done:
         outputs += _figures(args, graph, truth, done, out_dir, rerun_mode)
-    writers.remove_stale_outputs(out_dir, set(outputs), writers.COMPARE_OUTPUT_NAMES)
+    clear_earlier_outputs(out_dir, set(outputs))
     # what makes an estimate doubtful (compare.json keeps it too), said as run says it
     warn_doubts({r.backend: getattr(r.metrics, "warnings", None) for r in done})
     for r in runs:

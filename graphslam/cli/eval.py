@@ -174,8 +174,9 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_OK, warn
+    from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, warn
     from graphslam.evaluation.trajectory import EvalOptions
+    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_not_inputs, check_output_dir
 
@@ -189,6 +190,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     claim_out_dir(args.out)
+    clear_earlier_outputs(args.out, set(names), EVAL_OUTPUT_NAMES)  # --no-plot: no earlier eval.png
     written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
     if not args.no_plot:
         from graphslam.visualisation.plots import plot_trajectory_eval

@@ -24,6 +24,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_topics_option,
     claim_out_dir,
+    clear_earlier_outputs,
     close_recorder,
     fmt,
     open_recorder,
@@ -89,7 +90,6 @@ def cmd_localize(args: argparse.Namespace) -> int:
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
     from graphslam.maps.files import load_map
-    from graphslam.outputs.writers import remove_stale_outputs
     from graphslam.pipelines import localize_run
     from graphslam.pipelines.session import LocaliseSession
     from graphslam.sources.spatial.frames import parse_frames, select_frames
@@ -157,7 +157,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     if recorder is not None:
         if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
             paths["recording"] = out_dir / "localize.rrd"
-    remove_stale_outputs(out_dir, {p.name for p in paths.values()}, tuple(sorted(names)))
+    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
 
 

@@ -22,6 +22,8 @@ from graphslam.cli.common import (
     add_frames_option,
     add_quiet_option,
     add_topics_option,
+    claim_out_dir,
+    clear_earlier_outputs,
     path_arg,
 )
 from slamcore.errors import ConfigError
@@ -155,6 +157,14 @@ def cmd_loops(args: argparse.Namespace) -> int:
             **{f"image {p}": p for p in (paths if bag is not None else folder_images(args.images_dir))},
         },
     )
+    # pr.png in the image folder becomes a frame of the next run on that folder
+    in_images = bag is None and args.out.parent.resolve() == Path(args.images_dir).resolve()
+    if args.truth is not None and in_images:
+        raise ConfigError(
+            f"--truth writes pr.csv and pr.png beside --out, here in IMAGES_DIR {args.images_dir} "
+            "itself, where the next run on the folder would read pr.png as an image; choose --out "
+            "in another folder"
+        )
     config = read_config(args.config)
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
@@ -194,12 +204,16 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
     from graphslam.outputs.loops import write_candidates_jsonl, write_folder_loops_csv
 
+    claim_out_dir(args.out.parent)
+    evaluated = args.truth is not None and not stop_requested()  # a cut run has no whole PR curve
+    if not evaluated and not in_images:  # an earlier --truth run's curve is not this run's
+        clear_earlier_outputs(args.out.parent, set(), ("pr.csv", "pr.png"))
     write_folder_loops_csv(args.out, detector.closures, paths)
     written = [str(args.out)]
     if args.log is not None:
         write_candidates_jsonl(args.log, detector.records, paths)
         written.append(str(args.log))
-    if args.truth is not None and not stop_requested():  # a cut run has no whole PR curve
+    if evaluated:
         written += _evaluate(args, truth, paths, kept, detector, places.timestamps)
     from graphslam.cli.common import warn_unread_sections
 

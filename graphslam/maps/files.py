@@ -114,6 +114,8 @@ def save_planar_map(pmap: PlanarMap, folder) -> dict[str, Path]:
     paths = {"arrays": folder / MAP_NPZ, "json": folder / MAP_JSON}
     with replacing_all(list(paths.values())) as (npz_tmp, json_tmp):
         _write_arrays_and_json(npz_tmp, json_tmp, PLANAR, pmap.arrays(), pmap.counts(), pmap.meta, {})
+    # a 3-D map's vocabulary saved here before is no part of this map
+    (folder / VOCAB_NPZ).unlink(missing_ok=True)
     return paths
 
 

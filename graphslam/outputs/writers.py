@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import stat
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slamcore.errors import GraphSlamError
 from slamcore.files import atomic_open, check_no_folder_at
 from slamcore.spatial.geometry import rotation_to_quaternion
 
@@ -107,13 +109,27 @@ RUN_OUTPUT_NAMES = (
     "loops.csv",
     "loops.jsonl",
     "nees.csv",
+    "graph.g2o",  # a pose-graph run's graph at the estimate, in its input's format
+    "graph.graph",
+    "closures.csv",
+    "trajectory.bag",  # --write-bag, written from trajectory.tum after the run
 ) + AGENT_OUTPUT_NAMES
 #: Files ``graphslam compare`` may write into ``--out``.
 COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")
+#: Files ``graphslam localize`` may write into ``--out``.
+LOCALIZE_OUTPUT_NAMES = ("localize.csv", "trajectory.tum", "metrics.json", "ground_truth.tum", "localize.rrd")
+#: Files ``graphslam eval`` may write into ``--out`` (often a run's folder).
+EVAL_OUTPUT_NAMES = ("eval.json", "eval.png")
+#: What a run, a comparison or a localisation clears from its ``--out``: every
+#: command's outputs, as an earlier command's files beside this one's would read as
+#: this one's (an eval.json of the trajectory before, a localize.csv beside a run's).
+FOLDER_OUTPUT_NAMES = tuple(
+    dict.fromkeys(RUN_OUTPUT_NAMES + COMPARE_OUTPUT_NAMES + LOCALIZE_OUTPUT_NAMES + EVAL_OUTPUT_NAMES)
+)
 
 
 def remove_stale_outputs(
-    out_dir: Path, will_write: set[str] | frozenset[str], known: tuple[str, ...] = RUN_OUTPUT_NAMES
+    out_dir: Path, will_write: set[str] | frozenset[str], known: tuple[str, ...] = FOLDER_OUTPUT_NAMES
 ) -> list[Path]:
     """Delete the files of ``known`` names in ``out_dir`` that this run will not
     write, so a folder never mixes two runs' outputs; return what was removed.
@@ -121,13 +137,23 @@ def remove_stale_outputs(
     Only our own output names are touched, never other files, and only plain
     files (a folder of that name is left alone; a folder under a name this run
     writes is refused, ConfigError, before the run's work).
+
+    Raises:
+        GraphSlamError: a file that cannot be removed (another user's, in a shared
+            folder), so it would stand beside this run's as if it were one of them.
     """
     check_no_folder_at(out_dir, will_write)
     removed = []
     for name in known:
         p = Path(out_dir) / name
         if name not in will_write and p.is_file():
-            p.unlink()
+            try:
+                p.unlink()
+            except OSError as e:
+                raise GraphSlamError(
+                    f"{p}: cannot remove this earlier output ({e.strerror}); it would stand beside "
+                    "this run's as one of them: remove it, or choose another --out"
+                ) from None
             removed.append(p)
     return removed
 
@@ -147,7 +173,8 @@ def one_run_or_the_other(out_dir: Path, known: tuple[str, ...] = RUN_OUTPUT_NAME
         for name, seen in before.items():
             p = Path(out_dir) / name
             if seen is not None and _identity(p) == seen:
-                p.unlink(missing_ok=True)
+                with contextlib.suppress(OSError):  # the failure in flight is the one to report
+                    p.unlink(missing_ok=True)
         raise
 
 

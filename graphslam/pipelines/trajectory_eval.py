@@ -15,6 +15,7 @@ also kept in ``eval.json`` as the estimate's ``warnings``.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -129,9 +130,21 @@ def evaluate_files(
         except GraphSlamError as e:  # which estimate of several, scored against which file
             raise InputError(f"{e} (scored against {ground_truth})", path) from None
         said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options, len(result.ref))
-        said += doubts(result, options)
+        said += doubts(result, options) + same_file_doubts(ground_truth, path, estimates)
         results.append(EstimateResult(str(path), result, label, said))
     return results
+
+
+def same_file_doubts(ground_truth: Path, path: Path, estimates: list[Path]) -> list[str]:
+    """The estimate is the ground-truth file itself (its errors are 0 by construction),
+    or an earlier estimate of the call again: said, never scored silently."""
+    out = []
+    if os.path.samefile(path, ground_truth):
+        out.append("this is the ground-truth file itself: its errors are 0 by construction")
+    earlier = next((e for e in estimates if os.path.samefile(e, path)), path)
+    if earlier is not path:
+        out.append(f"this is {earlier} again: the same estimate scored twice")
+    return out
 
 
 def _frame_indices(t: np.ndarray | None) -> bool:

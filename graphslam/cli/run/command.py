@@ -8,6 +8,7 @@ log, a pose-graph file) runs :mod:`graphslam.cli.run.planar`.
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from graphslam.cli.common import (
@@ -281,7 +282,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
-    from slamcore.errors import ConfigError
+    from slamcore.errors import ConfigError, GraphSlamError
     from slamcore.files import check_output_dir
 
     check_rerun_flags(args)
@@ -304,25 +305,43 @@ def cmd_run(args: argparse.Namespace) -> int:
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
     if args.backend is None:  # a whole file takes the checked fast route; streams take iSAM2
         args.backend = registry.DEFAULT_BACKEND if args.no_polish else registry.default_backend(args.dataset)
-    status = _dispatch(args)
-    if status in (0, 130, 143) and getattr(args, "resolved_out", None) is not None:
-        if args.write_bag:  # a finished or stopped run's estimate
-            _write_bag(args)
-        elif (bag := Path(args.resolved_out) / "trajectory.bag").is_file():
-            bag.unlink()  # an earlier run's bag is not this run's: the folder holds one run
+    # file times lag the clock by up to a kernel tick (a few ms): 50 ms is far beyond it
+    started_ns = time.time_ns() - 50_000_000
+    try:
+        status = _dispatch(args)
+    except GraphSlamError as cut:  # a run cut by a bad frame or a failed back end keeps its estimate
+        if args.write_bag and _trajectory_written_since(args, started_ns):
+            try:
+                _write_bag(args)
+            except GraphSlamError as e:  # the cut is the error to report; say this one too
+                raise GraphSlamError(f"{cut} (and trajectory.bag not written: {e})") from None
+        raise
+    # an earlier run's bag went with its other files (remove_stale_outputs)
+    if args.write_bag and status in (0, 130, 143) and _trajectory_written_since(args, started_ns):
+        _write_bag(args)  # a finished or stopped run's estimate
     return status
+
+
+def _trajectory_written_since(args: argparse.Namespace, started_ns: int) -> bool:
+    """This run wrote ``trajectory.tum`` (an earlier run's is never made a bag)."""
+    out = getattr(args, "resolved_out", None)
+    if out is None:
+        return False
+    try:
+        return (Path(out) / "trajectory.tum").stat().st_mtime_ns >= started_ns
+    except OSError:
+        return False
 
 
 def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:
     """Refuse an input file under the name of a file the run writes in ``--out``, or
     removes there as an earlier run's (a bag named trajectory.bag, a
     ``--ground-truth`` that is an earlier run's ground_truth.tum)."""
-    from graphslam.outputs.writers import RUN_OUTPUT_NAMES
+    from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES
     from slamcore.files import check_not_inputs
 
-    names = (*RUN_OUTPUT_NAMES, "trajectory.bag")
     check_not_inputs(
-        [("the output (in --out)", Path(args.out) / name) for name in names],
+        [("the output (in --out)", Path(args.out) / name) for name in FOLDER_OUTPUT_NAMES],
         {
             f"--{flag.replace('_', '-')}": getattr(args, flag, None)
             for flag in ("dataset", "ground_truth", "config", "intrinsics")
@@ -357,7 +376,9 @@ def _write_bag(args: argparse.Namespace) -> None:
     from slamcore.errors import GraphSlamError
 
     tum = Path(args.resolved_out) / "trajectory.tum"
-    if not tum.is_file():
+    if not tum.is_file() or not any(
+        line.strip() and not line.startswith("#") for line in tum.read_text(encoding="utf-8").splitlines()
+    ):
         return  # nothing estimated (a stop before the first pose)
     trajectory = read_trajectory(tum, "tum")
     if trajectory.stamps_s is None:  # TUM has a time column: read_trajectory broke its word

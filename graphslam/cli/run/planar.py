@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
     claim_out_dir,
+    clear_earlier_outputs,
     close_recorder,
     fmt,
     open_recorder,
@@ -67,7 +68,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """The 2-D ``graphslam run``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
+    from graphslam.outputs.writers import one_run_or_the_other
     from graphslam.pipelines import planar as pipeline
 
     t0 = time.perf_counter()
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     out_dir = args.resolved_out = args.out or Path("runs") / f"{dataset.name}-{backend.name}"
     claim_out_dir(out_dir)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum", "nees.csv"}
-    remove_stale_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
+    clear_earlier_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
 
     n_steps = len(dataset.frames) if args.max_steps is None else min(args.max_steps, len(dataset.frames))
     log = hook = None
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             log.finish(backend.name, result, backend)
             if close_recorder(log) and mode == "save":
                 paths["recording"] = out_dir / "run.rrd"
-    remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
     if save_map is not None:
         save_planar_run_map(save_map, result, backend, config, args.max_steps)

@@ -9,7 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import claim_out_dir, fmt, report_outputs, summary_table, warn, warn_unread_sections
+from graphslam.cli.common import (
+    claim_out_dir,
+    clear_earlier_outputs,
+    fmt,
+    report_outputs,
+    summary_table,
+    warn,
+    warn_unread_sections,
+)
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
@@ -50,7 +58,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve the pose graph named by ``--dataset``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
+    from graphslam.outputs.writers import one_run_or_the_other
     from graphslam.pipelines import posegraph as pipeline
 
     t0 = time.perf_counter()
@@ -68,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
     claim_out_dir(out_dir)
-    remove_stale_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
+    clear_earlier_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)
     metrics = pipeline.metrics(graph, result, time.perf_counter() - t0, truth)
     # a full disk part way: no earlier run's file left beside this run's
@@ -76,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
         if args.rerun != "off":
             paths.update(record(args, graph, result, out_dir))
-    remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     warn_unread_sections(config, args.config, "this pose-graph run")
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from graphslam.cli.common import (
     claim_out_dir,
+    clear_earlier_outputs,
     close_recorder,
     counts_row,
     fmt,
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     """The visual ``graphslam run``; returns the exit status."""
     from graphslam import registry
     from graphslam.outputs.loops import write_loops  # stdlib only: cheap
-    from graphslam.outputs.writers import one_run_or_the_other, remove_stale_outputs
+    from graphslam.outputs.writers import one_run_or_the_other
     from graphslam.pipelines import spatial as vp
     from graphslam.pipelines.session import VisualSetup
 
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
     claim_out_dir(out_dir)
     loops = args.loops or args.vocab is not None
-    remove_stale_outputs(
+    clear_earlier_outputs(
         out_dir,
         {"trajectory.tum", "landmarks.csv", "metrics.json"}
         | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
@@ -203,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
                 paths["recording"] = out_dir / "run.rrd"
     if mapper is not None:  # last: a map that cannot be built costs no other file
         save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
-    remove_stale_outputs(out_dir, {p.name for p in paths.values()})
+    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
     return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
 

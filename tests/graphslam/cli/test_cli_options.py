@@ -644,7 +644,9 @@ def _loops_truth(cli, key):
     assert "precision 1.000 (1/1), recall 1.000" in outs[1]
     assert "precision 0.000 (0/1), recall 0.000" in outs[2]
     assert "pr.csv" in outs[0] and "pr.png" in outs[0]
-    assert "pr.csv" not in _loops(cli, words=None).out
+    plain = _loops(cli, words=None).out  # writes none, and removes the earlier run's
+    assert "pr.csv" not in plain.split("; wrote ")[-1] and "removed from" in plain
+    assert not cli.path("pr.csv").exists()
 
 
 @row("loops --log")

@@ -1,0 +1,166 @@
+"""Twelfth hostile pass (2026-11-30): what an output folder holds after a command, and
+the library's public functions on input that is not what they say. One test a fix.
+
+Run in process through :func:`graphslam.cli.main.main`, which turns errors into one
+``graphslam: error:`` line and exit status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from graphslam.cli.main import main
+
+RUN = ["--rerun", "off", "--quiet"]
+
+
+def _example(name: str) -> str:
+    import gtsam
+
+    return gtsam.findExampleDataFile(name)
+
+
+def test_a_run_into_a_pose_graph_folder_clears_the_graph_files_and_says_so(tmp_path, capsys):
+    """graph.g2o, graph.graph and closures.csv were no run output name: a synthetic run
+    into a pose-graph run's folder left them beside its landmarks.csv, said nothing."""
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", _example("w100.graph"), "--backend", "batch", *RUN,
+                 "--out", str(out)]) == 0
+    assert (out / "graph.graph").is_file() and (out / "closures.csv").is_file()
+    capsys.readouterr()
+    assert main(["run", "--max-steps", "10", *RUN, "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert not (out / "graph.graph").exists() and not (out / "closures.csv").exists()
+    assert "removed from" in said and "graph.graph" in said and "closures.csv" in said
+
+
+def test_a_pose_graph_run_does_not_write_over_its_input_graph(tmp_path, capsys):
+    """``run --dataset OUT/graph.g2o --out OUT`` replaced the input's vertices by the
+    estimate: the dead-reckoned start was lost."""
+    out = tmp_path / "o"
+    out.mkdir()
+    graph = out / "graph.g2o"
+    shutil.copy(_example("noisyToyGraph.txt"), graph)
+    before = graph.read_bytes()
+    assert main(["run", "--dataset", str(graph), *RUN, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "is the input --dataset" in err and len(err.strip().splitlines()) == 1
+    assert graph.read_bytes() == before
+
+
+def test_a_run_into_a_localize_folder_clears_localize_csv(tmp_path, capsys):
+    """Each command cleared its own names only: a run into a folder of localize's
+    outputs left localize.csv (and eval.json of an earlier trajectory) beside its own."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "localize.csv").write_text("frame,status\n")
+    (out / "eval.json").write_text("{}\n")
+    (out / "notes.txt").write_text("mine\n")
+    assert main(["run", "--max-steps", "10", *RUN, "--out", str(out)]) == 0
+    assert not (out / "localize.csv").exists() and not (out / "eval.json").exists()
+    assert (out / "notes.txt").read_text() == "mine\n"  # never a file of another name
+    assert "localize.csv" in capsys.readouterr().out
+
+
+def test_an_earlier_output_that_cannot_be_removed_is_one_line(tmp_path, capsys, monkeypatch):
+    """A file another user owns in a shared folder raised PermissionError (a traceback)."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "run.rrd").write_bytes(b"old")
+    real_unlink = Path.unlink
+
+    def unlink(self, missing_ok=False):
+        if self.name == "run.rrd":
+            raise PermissionError(1, "Operation not permitted")
+        return real_unlink(self, missing_ok=missing_ok)
+
+    monkeypatch.setattr(Path, "unlink", unlink)
+    assert main(["run", "--max-steps", "10", *RUN, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot remove this earlier output" in err, err
+
+
+def test_eval_without_a_plot_removes_the_earlier_plot(tmp_path, capsys):
+    run, ev = tmp_path / "r", tmp_path / "ev"
+    assert main(["run", "--max-steps", "20", *RUN, "--out", str(run)]) == 0
+    args = [str(run / "ground_truth.tum"), str(run / "trajectory.tum"), "--out", str(ev)]
+    assert main(["eval", *args]) == 0 and (ev / "eval.png").is_file()
+    assert main(["eval", *args, "--no-plot"]) == 0
+    assert not (ev / "eval.png").exists()
+
+
+def test_eval_says_an_estimate_that_is_the_truth_itself_or_given_twice(tmp_path, capsys):
+    """``eval X X`` scored ATE 0 without a word; the same estimate twice gave two rows."""
+    run, ev = tmp_path / "r", tmp_path / "ev"
+    assert main(["run", "--max-steps", "20", *RUN, "--out", str(run)]) == 0
+    gt, est = run / "ground_truth.tum", run / "trajectory.tum"
+    assert main(["eval", str(gt), str(gt), str(est), str(est), "--out", str(ev), "--no-plot"]) == 0
+    err = capsys.readouterr().err
+    assert "the ground-truth file itself" in err and "scored twice" in err
+    estimates = json.loads((ev / "eval.json").read_text())["estimates"]
+    assert "ground-truth file itself" in estimates[0]["warnings"][0]
+    assert "scored twice" in estimates[2]["warnings"][-1] and "warnings" not in estimates[1]
+
+
+def test_loops_removes_an_earlier_precision_recall_and_keeps_it_out_of_the_images(
+        tmp_path, capsys, desk_copy):
+    """Without --truth, an earlier run's pr.csv (1 closure, precision 1) stayed beside the
+    new closures; and --truth wrote pr.png into the image folder, a frame of the next run."""
+    photos = desk_copy(10)
+    truth = tmp_path / "truth.csv"
+    truth.write_text("query,match\n10.png,01.png\n")
+    out = tmp_path / "L" / "l.csv"
+    assert main(["loops", str(photos), "--out", str(out), "--truth", str(truth), "--quiet"]) == 0
+    assert (out.parent / "pr.csv").is_file()
+    assert main(["loops", str(photos), "--frames", "0:5", "--out", str(out), "--quiet"]) == 0
+    assert not (out.parent / "pr.csv").exists() and not (out.parent / "pr.png").exists()
+    capsys.readouterr()
+    assert main(["loops", str(photos), "--out", str(photos / "l.csv"), "--truth", str(truth),
+                 "--quiet"]) == 2
+    assert "would read pr.png as an image" in capsys.readouterr().err
+    assert not (photos / "pr.png").exists()
+
+
+def test_a_planar_map_saved_over_a_visual_one_drops_its_vocabulary(tmp_path):
+    maps = tmp_path / "m"
+    maps.mkdir()
+    (maps / "vocabulary.npz").write_bytes(b"a visual map's")
+    assert main(["run", "--max-steps", "30", *RUN, "--out", str(tmp_path / "o"),
+                 "--save-map", str(maps)]) == 0
+    assert (maps / "map.json").is_file() and not (maps / "vocabulary.npz").exists()
+
+
+@pytest.mark.parametrize("cut_at", [24])
+def test_a_run_cut_by_a_bad_frame_writes_its_own_bag(tmp_path, capsys, cut_at):
+    """A cut run (exit 2) kept an earlier run's trajectory.bag beside its own
+    trajectory.tum and wrote none of its own."""
+    pytest.importorskip("rosbags")
+    from tests.graphslam.cli.test_hostile_eleventh import _kitti_like
+
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    seq = _kitti_like(tmp_path / "k", 30)
+    truth = tmp_path / "gt.tum"
+    rows = []
+    for i in range(30):
+        wTc = np.asarray(seq.wTc_true[i])
+        q = Rotation.from_matrix(wTc[:3, :3]).as_quat()  # x y z w, TUM's order
+        rows.append(" ".join(f"{v:.9f}" for v in (0.1 * i, *wTc[:3, 3], *q)) + "\n")
+    truth.write_text("".join(rows))
+    frame = tmp_path / "k" / "image_0" / f"{cut_at:06d}.png"
+    frame.write_bytes(frame.read_bytes()[:300])  # truncated: the run stops there
+    out = tmp_path / "o"
+    assert main(["run", "--max-steps", "10", *RUN, "--out", str(out), "--write-bag"]) == 0
+    old = (out / "trajectory.bag").read_bytes()
+    assert main(["run", "--dataset", str(tmp_path / "k"), "--ground-truth", str(truth), *RUN,
+                 "--out", str(out), "--write-bag"]) == 2
+    assert "the run stopped at this frame" in capsys.readouterr().err
+    assert (out / "trajectory.bag").read_bytes() != old
+    from graphslam.sources.spatial.rosbag import read_bag_trajectory
+
+    assert len(read_bag_trajectory(out / "trajectory.bag", None).stamps_s) == cut_at
