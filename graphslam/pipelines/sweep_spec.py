@@ -26,9 +26,10 @@ world), so ``fastslam.n_particles = [10, 100]`` does not run iSAM2 twice.
 Everything is checked before any run: unknown keys and sections, values out
 of range, an empty list (empty grid), each refused with file and line.
 
-A run's *config hash* is the hash of its dataset, back end, step limit, NEES
-switch and full config (base plus overrides), without the seed: ``(config_hash, seed)``
-names a run, and a sweep that is run again skips the ones already done.
+A run's *config hash* is the hash of its dataset (its name and what it holds:
+:func:`dataset_fingerprint`), back end, step limit, NEES switch and full config
+(base plus overrides), without the seed: ``(config_hash, seed)`` names a run, and a
+sweep that is run again skips the ones already done.
 """
 
 from __future__ import annotations
@@ -88,6 +89,7 @@ class SweepSpec:
     def runs(self) -> list[RunSpec]:
         """Every run of the grid, in a fixed order, without repeats."""
         out, seen = [], set()
+        prints = {dataset: dataset_fingerprint(dataset) for dataset in self.datasets}
         for dataset, backend in itertools.product(self.datasets, self.backends):
             sections = run_sections(dataset, backend)
             for combo in itertools.product(*self.set_values):
@@ -95,7 +97,7 @@ class SweepSpec:
                     k: v for k, v in zip(self.set_keys, combo, strict=True) if k.split(".", 1)[0] in sections
                 }
                 config = merged_config(self.base_config, applied)
-                chash = config_hash(dataset, backend, self.max_steps, self.nees, config)
+                chash = config_hash(dataset, backend, self.max_steps, self.nees, config, prints[dataset])
                 for seed in self.seeds:
                     if (chash, seed) in seen:
                         continue
@@ -115,13 +117,46 @@ def merged_config(base: dict, overrides: dict) -> dict:
     return config
 
 
-def config_hash(dataset: str, backend: str, max_steps: int | None, nees: bool, config: dict) -> str:
-    """12 hex digits naming a run's settings (everything but the seed)."""
+def config_hash(
+    dataset: str, backend: str, max_steps: int | None, nees: bool, config: dict, data: str | None = None
+) -> str:
+    """12 hex digits naming a run's settings (everything but the seed); ``data``: the
+    dataset's :func:`dataset_fingerprint`, so a file changed under the same name is a
+    new run, not one already done."""
     text = json.dumps(
-        {"dataset": dataset, "backend": backend, "max_steps": max_steps, "nees": nees, "config": config},
+        {
+            "dataset": dataset,
+            "backend": backend,
+            "max_steps": max_steps,
+            "nees": nees,
+            "config": config,
+            "data": data,
+        },
         sort_keys=True,
     )
     return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def dataset_fingerprint(dataset: str) -> str | None:
+    """What a dataset path holds, as a hash: a file's bytes; a folder's files by
+    relative name, size and modification time (an image folder of gigabytes is not
+    read twice); None for a built-in name. Two folders of the same name (run from
+    two places, or a file changed in place) give two fingerprints."""
+    path = Path(dataset)
+    if path.is_file():
+        digest = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+        return digest.hexdigest()
+    if path.is_dir():
+        entries = sorted(
+            (str(p.relative_to(path)), st.st_size, st.st_mtime_ns)
+            for p in path.rglob("*")
+            if p.is_file() and (st := p.stat())
+        )
+        return hashlib.sha256(json.dumps(entries).encode()).hexdigest()
+    return None
 
 
 def visual_sections(dataset: str, backend: str) -> dict[str, type]:

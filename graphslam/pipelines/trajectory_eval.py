@@ -135,13 +135,21 @@ def evaluate_files(
     return results
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    """One file under two names (a bag's ``FILE:/topic`` is no file name: never)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
 def same_file_doubts(ground_truth: Path, path: Path, estimates: list[Path]) -> list[str]:
     """The estimate is the ground-truth file itself (its errors are 0 by construction),
     or an earlier estimate of the call again: said, never scored silently."""
     out = []
-    if os.path.samefile(path, ground_truth):
+    if _same_file(path, ground_truth):
         out.append("this is the ground-truth file itself: its errors are 0 by construction")
-    earlier = next((e for e in estimates if os.path.samefile(e, path)), path)
+    earlier = next((e for e in estimates if e is path or _same_file(e, path)), path)
     if earlier is not path:
         out.append(f"this is {earlier} again: the same estimate scored twice")
     return out

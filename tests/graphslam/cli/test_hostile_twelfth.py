@@ -164,3 +164,24 @@ def test_a_run_cut_by_a_bad_frame_writes_its_own_bag(tmp_path, capsys, cut_at):
     from graphslam.sources.spatial.rosbag import read_bag_trajectory
 
     assert len(read_bag_trajectory(out / "trajectory.bag", None).stamps_s) == cut_at
+
+
+def test_a_sweep_runs_again_a_dataset_changed_under_the_same_name(tmp_path, capsys):
+    """The hash named the dataset's path only: a sweep from another folder holding another
+    g.g2o (or the file changed in place) took the earlier graph's result as done."""
+    lines = Path(_example("noisyToyGraph.txt")).read_text().splitlines(keepends=True)
+    spec = '[sweep]\ndataset = ["g.g2o"]\nbackend = ["isam2"]\n'
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "s.toml").write_text(spec)
+    (tmp_path / "a" / "g.g2o").write_text("".join(lines))
+    # the same graph with its last edge moved 0.5 m: another dataset under the same name
+    last = lines[-1].split()
+    last[3] = str(float(last[3]) + 0.5)
+    (tmp_path / "b" / "g.g2o").write_text("".join(lines[:-1]) + " ".join(last) + "\n")
+    out = tmp_path / "sw"
+    for name in ("a", "b"):
+        assert main(["sweep", str(tmp_path / name / "s.toml"), "--out", str(out), "--workers", "1",
+                     "--quiet", "--no-plots"]) == 0
+    said = capsys.readouterr().out
+    assert said.count("1 runs, 0 already done, 1 run now") == 2, said
