@@ -124,6 +124,20 @@ class MonoEkfConfig(Validated):
         """Prior std of the inverse distance, 1/m."""
         return 0.25 / self.min_depth_m
 
+    @property
+    def why_no_draws(self) -> str:
+        """Why the filter draws no random number with these settings ("" when it does):
+        its one RANSAC samples hypotheses only among more measurements than it tries."""
+        if not self.ransac:
+            return "the monocular EKF draws no random numbers (ransac = false)"
+        if self.max_corrections <= self.ransac_max_hypotheses:
+            return (
+                f"the monocular EKF's one-point RANSAC tries every measurement it uses "
+                f"(max_corrections {self.max_corrections} <= ransac_max_hypotheses "
+                f"{self.ransac_max_hypotheses}) and draws no random numbers"
+            )
+        return ""
+
 
 def run_overrides(mode: str, seed: int | None, no_polish: bool, nearest_depth_m: float | None) -> dict:
     """``[mono_ekf]`` overrides a visual run implies (the back-end table's

@@ -135,7 +135,8 @@ TABLE: tuple[BackendDescriptor, ...] = (
             filtering=True,
             localiser="filters.ekf_localise:EkfLocaliser",
         ),
-        # the monocular EKF draws its RANSAC samples (two-view bootstrap, relocalisation)
+        # the monocular EKF draws its one-point RANSAC's hypotheses (when it has more
+        # measurements than it tries: MonoEkfConfig.why_no_draws)
         images=Implementation(
             "filters.mono_ekf:MonoEkf",
             "filters.mono_ekf_config:MonoEkfConfig",

@@ -9,6 +9,7 @@ of N words.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from graphslam.cli.common import add_command, add_config_option, add_quiet_option, kmeans_seed_arg, path_arg
@@ -100,7 +101,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
     from graphslam.registry import read_config
-    from graphslam.sources.spatial.sequence import expand_images
+    from graphslam.sources.spatial.sequence import expand_images, natural_key
     from loopclosure.detector import LoopDetectorConfig
     from slamcore.files import check_not_inputs, check_output_file, replacing
 
@@ -110,6 +111,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
         raise ConfigError("--branching is the tree's; --flat trains one flat k-means, no tree")
     paths, repeats = expand_images(args.images)
+    # k-means starts from the descriptors' order: the same images listed in another
+    # order (a shell's glob under another locale) must give the same vocabulary
+    # (natural order of the real paths: a folder trains as loops --words trains on it)
+    paths = sorted(paths, key=lambda p: natural_key(os.path.realpath(p)))
     if repeats:  # a repeat would count twice in the k-means and in the IDF
         warn(
             f"{repeats} image(s) given more than once (a file and its folder, or a file "

@@ -196,6 +196,8 @@ class SpatialRunMetrics(MetricsRecord):
     nees_in_bounds_fraction: float | None = optional()
     nees_alignment: str | None = optional()
     input_digest: str | None = optional()
+    #: the back end's own seed (its RANSAC draws), beside ``seed`` (the synthetic world's)
+    backend_seed: int | None = optional()
     frames_with_pose: int | None = None
     warnings: list | None = optional()
     dataset_notes: list | None = optional()

@@ -90,7 +90,12 @@ class VisualSetup:
         """``--seed`` is refused, one line, where nothing it seeds is in the run: a
         recorded sequence (``simulated`` False), odometry not derived, and no back end
         of ``backends`` that draws random numbers."""
-        if self.seed is None or simulated or self.mode in ("derived", "none"):
+        if self.seed is None or simulated or self.mode == "derived":
+            return
+        if self.mode == "none":  # camera alone: iSAM2's bootstrap and PnP RANSACs draw
+            silent = [self._draws_nothing(name) for name in backends]
+            if all(silent):
+                raise ConfigError(f"--seed has no effect here: {silent[0]}")
             return
         if not any(registry.visual_implementation(name).seeded for name in backends):
             who = f"{backends[0]} draws" if len(set(backends)) == 1 else "no back end draws"
@@ -98,6 +103,11 @@ class VisualSetup:
                 f"--seed has no effect here: the images are recorded, the odometry "
                 f"is not derived and {who} no random numbers"
             )
+
+    def _draws_nothing(self, name: str) -> str:
+        """Why back end ``name``, as configured, draws no random number ("" if it does)."""
+        config = self.config.section(registry.visual_backend_config(name))
+        return getattr(config, "why_no_draws", "")
 
     def session(self, backend_name: str, overrides: dict | None = None) -> VisualSession:
         """The back end ``backend_name`` (``overrides`` on its config section) and its

@@ -143,6 +143,7 @@ class VisualRunResult:
         tracking: per-frame front-end counters (lists).
         pose_covariances: (frames, 6, 6) ``[rho, phi]`` covariances of
             ``estimate.wTc`` (``graphslam compare`` fills it), else None.
+        backend_seed: the back end's own seed (its RANSAC draws), None if it has none.
         input_digest: SHA-256 of what the back end was fed (images, detected
             corners, odometry), filled by ``graphslam compare``, else None.
     """
@@ -162,6 +163,7 @@ class VisualRunResult:
     pose_covariances: np.ndarray | None = None
     input_digest: str | None = None
     finalised: bool = False
+    backend_seed: int | None = None
 
 
 def backend_overrides(
@@ -399,6 +401,7 @@ def run(
         odometry_wTc=odo_wTc,
         tracking=stats,
         finalised=finalised,
+        backend_seed=getattr(getattr(backend, "config", None), "seed", None),
     )
     if unreadable is not None:
         raise FrameUnreadable(unreadable, result)
@@ -521,6 +524,7 @@ def compute_metrics(
         backend=result.backend,
         frontend=result.frontend,
         seed=seed,
+        backend_seed=result.backend_seed,
         frames=n,
         landmarks=int(len(est.landmark_ids)),
         odometry=result.odometry,

@@ -88,9 +88,10 @@ def relaxed(graph: PoseGraph, method: str, sigma: float) -> tuple[Start | None, 
     None and why it failed (no fallback: :func:`initial` chooses one)."""
     try:
         start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
-    # gtsam's C++ exceptions: std::out_of_range (IndexError), IndeterminateLinearSystem
-    # and the rest (RuntimeError); anything else is a bug of ours and propagates
-    except (RuntimeError, IndexError) as exc:
+    # gtsam's C++ exceptions: std::out_of_range (IndexError), std::invalid_argument
+    # (ValueError: Shonan takes isotropic noise only), IndeterminateLinearSystem and the
+    # rest (RuntimeError); anything else is a bug of ours and propagates
+    except (RuntimeError, IndexError, ValueError) as exc:
         return None, _why(graph, exc)
     if not np.isfinite(fx.params_from(graph, start.values)).all():
         return None, "it gave non-finite poses"
