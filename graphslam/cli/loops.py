@@ -79,7 +79,7 @@ def register(subparsers) -> None:
         default=None,
         metavar="FILE",
         help="vocabulary file from 'graphslam vocab train' (default: the general "
-        "10 000-word ORB vocabulary shipped with the package)",
+        "9 991-word ORB vocabulary shipped with the package)",
     )
     p.add_argument(
         "--words",
@@ -123,6 +123,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_INTERRUPTED
     from graphslam.pipelines.common import active_guard, stop_requested
     from graphslam.pipelines.place_recognition import (
+        check_training_settings,
         check_vocabulary,
         describe,
         detect_all,
@@ -172,6 +173,8 @@ def cmd_loops(args: argparse.Namespace) -> int:
 
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
+    if args.words is not None:  # refused now, not after the ORB pass
+        check_training_settings(args.words)
     vocab = None
     if args.words is None:  # a bad file fails before the long ORB pass
         vocab_path = SHIPPED_VOCABULARY if args.vocab is None else args.vocab

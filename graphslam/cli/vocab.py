@@ -71,7 +71,7 @@ def register(subparsers) -> None:
         type=int,
         default=None,
         metavar="K",
-        help="branching factor of the tree (default: 10; refused with --flat, which builds none)",
+        help="branching factor of the tree, 2 to 1000 (default: 10; refused with --flat, which builds none)",
     )
     t.add_argument(
         "--per-image",
@@ -99,7 +99,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     from frontend.orb import OrbDetector
     from graphslam.cli.common import EXIT_INTERRUPTED, warn, warn_unread_sections
     from graphslam.pipelines.common import active_guard, stop_requested
-    from graphslam.pipelines.place_recognition import describe, detect_all, train_vocabulary
+    from graphslam.pipelines.place_recognition import (
+        check_training_settings,
+        describe,
+        detect_all,
+        train_vocabulary,
+    )
     from graphslam.registry import read_config
     from graphslam.sources.spatial.sequence import expand_images, natural_key
     from loopclosure.detector import LoopDetectorConfig
@@ -122,6 +127,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
     check_not_inputs(  # an image written over (--out IMAGES/01.png)
         [("--out", args.out)], {"--config": args.config, **{f"image {p}": p for p in paths}}
+    )
+    check_training_settings(  # before the ORB pass
+        args.words,
+        per_image=args.per_image,
+        **({} if args.branching is None else {"branching": args.branching}),
     )
     config = read_config(args.config)
     orb = OrbDetector(config.section(LoopDetectorConfig).orb)

@@ -75,6 +75,17 @@ def tree_depth(n_words: int, branching: int) -> int:
 MAX_BRANCHING = 1000
 
 
+def check_training_settings(n_words: int, branching: int = 10, per_image: int = 300) -> None:
+    """ConfigError (one line) for settings no vocabulary is trained with: checked by the
+    commands before their ORB pass, not after it."""
+    if n_words < 2:
+        raise ConfigError(f"--words must be at least 2, got {n_words}")
+    if not 2 <= branching <= MAX_BRANCHING:
+        raise ConfigError(f"--branching must be at least 2 and at most {MAX_BRANCHING}, got {branching}")
+    if per_image < 0:
+        raise ConfigError(f"--per-image must be >= 0, got {per_image}")
+
+
 def train_vocabulary(
     descriptors: list[np.ndarray],
     n_words: int,
@@ -90,12 +101,7 @@ def train_vocabulary(
     """
     from loopclosure.vocabulary import FlatVocabulary, VocabularyTree
 
-    if n_words < 2:
-        raise ConfigError(f"--words must be at least 2, got {n_words}")
-    if not 2 <= branching <= MAX_BRANCHING:
-        raise ConfigError(f"--branching must be at least 2 and at most {MAX_BRANCHING}, got {branching}")
-    if per_image < 0:
-        raise ConfigError(f"--per-image must be >= 0, got {per_image}")
+    check_training_settings(n_words, branching, per_image)
     train = [d[:per_image] if per_image else d for d in descriptors]
     train = [d for d in train if len(d)]
     total = sum(len(d) for d in train)

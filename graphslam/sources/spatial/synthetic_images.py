@@ -182,8 +182,9 @@ class SyntheticImagesConfig(Validated):
     corner_radius_m: float = bounded(1.5, gt=0.0)
     camera_height_m: float = bounded(1.4, gt=0.0)
     wobble_lateral_m: float = bounded(0.15, min=0.0)
-    wobble_height_m: float = 0.05
-    wobble_pitch_deg: float = 2.0
+    wobble_height_m: float = bounded(0.05, min=0.0)
+    #: a pitch of 90 degrees or more looks at the floor or beyond: no walk through a room
+    wobble_pitch_deg: float = bounded(2.0, min=0.0, lt=90.0)
     odometry_sigma_t_m: float = bounded(0.01, min=0.0)
     odometry_sigma_r_rad: float = bounded(0.002, min=0.0)
     texture: Literal["procedural", "balbianello"] = "procedural"
@@ -217,6 +218,17 @@ class SyntheticImagesConfig(Validated):
             raise ConfigError(
                 f"{s}camera_height_m must be < room_height_m "
                 f"({float(self.room_height_m)}), got {float(self.camera_height_m)}"
+            )
+        if (
+            not 0.0
+            < self.camera_height_m - self.wobble_height_m
+            <= (self.camera_height_m + self.wobble_height_m)
+            < self.room_height_m
+        ):
+            raise ConfigError(
+                f"{s}wobble_height_m ({float(self.wobble_height_m)}) would take the camera "
+                f"through the floor or the ceiling (camera_height_m {float(self.camera_height_m)}, "
+                f"room_height_m {float(self.room_height_m)})"
             )
         L, W, H = self.room_length_m, self.room_width_m, self.room_height_m
         texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m**2

@@ -221,3 +221,23 @@ def test_vocab_train_does_not_depend_on_the_order_the_images_are_given(tmp_path,
     assert main(["vocab", "train", *names, "--words", "20", "--out", str(a), "--quiet"]) == 0
     assert main(["vocab", "train", *reversed(names), "--words", "20", "--out", str(b), "--quiet"]) == 0
     assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("wobble_height_m = 2.0", "through the floor or the ceiling"),
+    ("wobble_pitch_deg = 1e9", "wobble_pitch_deg must be"),
+])
+def test_synthetic_image_wobbles_beyond_the_room_are_refused(tmp_path, capsys, text, words):
+    """A 5 m height wobble in a 3 m room and a 1e9-degree pitch ran (exit 0)."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f"[synthetic_images]\n{text}\n")
+    assert main(["run", "--dataset", "synthetic-images", "--config", str(cfg), "--max-steps", "5",
+                 *RUN, "--out", str(tmp_path / "o")]) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_vocab_train_refuses_its_settings_before_the_orb_pass(tmp_path, capsys, desk_copy):
+    photos = desk_copy(3)
+    assert main(["vocab", "train", str(photos), "--words", "1", "--out", str(tmp_path / "v.npz")]) == 2
+    captured = capsys.readouterr()
+    assert "--words must be at least 2" in captured.err and "training on" not in captured.err
