@@ -217,7 +217,7 @@ class MonoEkf(VisualBackend):
         # types: VisualBackend.initialize (the contract; mypy checks this body too)
         wTc = np.asarray(wTc, dtype=np.float64)
         cov = np.asarray(covariance, dtype=np.float64)
-        K = np.asarray(K, dtype=np.float64)
+        K = np.array(K, dtype=np.float64)  # a copy: the caller's K may change after
         check_initial_pose(wTc, cov)
         self._image_size = check_camera(K, image_size)
         self._K = K

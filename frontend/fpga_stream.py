@@ -53,6 +53,7 @@ previous one's last pixel.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -180,12 +181,24 @@ class FpgaHarrisStream:
         ``now_s`` must not precede the start of the last pushed frame (the
         simulation keeps only what the two memories can hold from then on).
         """
+        if not math.isfinite(now_s):
+            raise InputError(f"read time must be finite, got {now_s}")
         f = self._readable_frame(now_s)
-        return None if f is None else f.features
+        if f is None:
+            return None
+        # copies: the stream keeps its memories; a caller changing its points changes its own
+        feats = f.features
+        return dataclasses.replace(
+            feats,
+            xy_px=feats.xy_px.copy(),
+            response=feats.response.copy(),
+            descriptors=None if feats.descriptors is None else feats.descriptors.copy(),
+            cell=None if feats.cell is None else feats.cell.copy(),
+        )
 
     def _readable_frame(self, now_s: float) -> _Frame | None:
         if self._frames and now_s < self._frames[-1].t0_s:
-            raise ValueError(
+            raise InputError(
                 f"read at {now_s} s precedes the start of the last pushed frame ({self._frames[-1].t0_s} s)"
             )
         for f in reversed(self._frames):

@@ -110,6 +110,10 @@ class OrbDetector:
         self.config = with_overrides(config or OrbConfig(), overrides)
         self._cv_orb = None
 
+    def __getstate__(self) -> dict:
+        # OpenCV's ORB does not pickle (a sweep's workers, a saved detector): made anew
+        return {**self.__dict__, "_cv_orb": None}
+
     def _orb(self):
         # One OpenCV ORB per detector: a new one reallocates its pyramid buffers on
         # first use (about 2 ms of a 9 ms KITTI frame). The config is frozen.

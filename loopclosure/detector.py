@@ -57,7 +57,7 @@ from loopclosure.covisibility import CovisibilityGraph, DescriptorTracker
 from loopclosure.places import Mode, choose_mode, consecutive_overlap, recent_window
 from loopclosure.verify import GeometricVerifier, PairVerifier, Verification, VerifyConfig
 from slamcore.config import Validated, bounded
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, InputError
 
 __all__ = ["LoopDetectorConfig", "CandidateRecord", "DetectedLoop", "LoopDetector", "LOOP_ORB"]
 
@@ -323,7 +323,16 @@ class LoopDetector:
         ((M,) int) the tracks a visual run observed in this image, for covisibility
         (default: the detector tracks its own features)."""
         i = len(self._features)
-        descriptors = np.asarray(descriptors, np.uint8).reshape(-1, 32)
+        descriptors = np.asarray(descriptors)
+        if descriptors.dtype != np.uint8 or descriptors.ndim != 2 or descriptors.shape[1] != 32:
+            raise InputError(
+                f"descriptors must be (N, 32) uint8 (ORB), got {descriptors.dtype} "
+                f"of shape {descriptors.shape}"
+            )
+        if np.shape(xy_px) != (len(descriptors), 2):
+            raise InputError(
+                f"xy_px must be ({len(descriptors)}, 2), one point a descriptor, got {np.shape(xy_px)}"
+            )
         self._track_places(i, descriptors, timestamp)
         if self.mode == "covisibility":
             self._track_covisibility(i, descriptors, track_ids)

@@ -178,7 +178,7 @@ def test_push_and_read_order_is_checked(three_frames):
     with pytest.raises(InputError, match="overlaps"):
         stream.push_frame(imgs[1], stream.next_start_s() - 1e-6)
     stream.push_frame(imgs[1], 1.0)
-    with pytest.raises(ValueError, match="precedes"):
+    with pytest.raises(InputError, match="precedes"):
         stream.read(0.5)
     with pytest.raises(InputError):
         stream.push_frame(np.zeros((10, 10, 3), np.uint8), 2.0)

@@ -241,3 +241,48 @@ def test_vocab_train_refuses_its_settings_before_the_orb_pass(tmp_path, capsys, 
     assert main(["vocab", "train", str(photos), "--words", "1", "--out", str(tmp_path / "v.npz")]) == 2
     captured = capsys.readouterr()
     assert "--words must be at least 2" in captured.err and "training on" not in captured.err
+
+
+def test_library_objects_keep_their_state_from_the_callers_arrays(tmp_path):
+    """The FPGA stream handed out its memories (a caller's edit corrupted later reads),
+    the monocular EKF kept the caller's K, an ORB detector that had run did not pickle,
+    and the loop detector turned float SIFT rows into 4N zero ORB rows."""
+    import pickle
+
+    import numpy as np
+
+    from filters.mono_ekf import MonoEkf
+    from frontend.fpga_stream import FpgaHarrisStream
+    from frontend.orb import OrbDetector
+    from loopclosure.detector import LoopDetector
+    from loopclosure.shipped import SHIPPED_VOCABULARY
+    from loopclosure.vocabulary import load_vocabulary
+    from slamcore.errors import InputError
+
+    rng = np.random.default_rng(0)
+    image = (rng.random((120, 160)) * 255).astype(np.uint8)
+    stream = FpgaHarrisStream()
+    stream.push_frame(image, 0.0)
+    t = 1.0
+    first = stream.read(t)
+    assert first is not None and len(first) > 0
+    first.xy_px[:] = -1.0
+    assert np.all(stream.read(t).xy_px >= 0.0)
+    with pytest.raises(InputError):
+        stream.read(float("nan"))
+
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    ekf = MonoEkf()
+    ekf.initialize(0, np.eye(4), np.eye(6) * 1e-6, K, (320, 240))
+    K[:2, 2] = 0.0
+    assert ekf._K[0, 2] == 160.0
+
+    orb = OrbDetector()
+    orb.detect(image)
+    assert pickle.loads(pickle.dumps(orb)).detect(image) is not None
+
+    det = LoopDetector(load_vocabulary(SHIPPED_VOCABULARY))
+    with pytest.raises(InputError, match=r"\(N, 32\) uint8"):
+        det.process_features(rng.random((10, 2)) * 100, rng.random((10, 128)).astype(np.float32))
+    with pytest.raises(InputError, match="one point a descriptor"):
+        det.process_features(rng.random((9, 2)) * 100, rng.integers(0, 255, (10, 32), dtype=np.uint8))
