@@ -324,6 +324,10 @@ class EkfSlam(Backend):
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
+        if pose_id in self._hist_index:  # the trajectory would hold one id twice
+            raise GraphSlamError(
+                f"ekf: pose {pose_id} is already in the trajectory; a new pose needs a new id"
+            )
         st = self._store
         other, cur = linked_pose(odometry, pose_id), self._current_pose_id()
         if other is not None and other != cur:  # another robot's step (module docstring)

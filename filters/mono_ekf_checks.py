@@ -35,12 +35,26 @@ def is_rotation(R: np.ndarray) -> bool:
     return bool(np.abs(R.T @ R - np.eye(3)).max() < 1e-6 and np.linalg.det(R) > 0)
 
 
+#: Most negative eigenvalue of a covariance taken as zero, relative to its largest
+#: entry: float64 rounding of a matrix built from products, far above 1e-16, far below
+#: any real negative variance (one made by hand, or a correlation above 1).
+PSD_RTOL = 1e-9
+
+
 def check_covariance(C: np.ndarray, what: str) -> None:
-    """``C`` must be a finite, symmetric (6, 6) with a non-negative diagonal."""
+    """``C`` must be a finite, symmetric, positive semi-definite (6, 6): an indefinite one
+    (a correlation above 1) made the state covariance indefinite and a later update
+    failed in numpy's Cholesky."""
     if C.shape != (6, 6) or not np.all(np.isfinite(C)):
         raise MeasurementError(f"mono_ekf: {what} must be a finite (6, 6), got shape {C.shape}")
-    if np.abs(C - C.T).max() > 1e-12 + 1e-9 * np.abs(C).max() or np.any(np.diag(C) < 0):
+    scale = float(np.abs(C).max())
+    if np.abs(C - C.T).max() > 1e-12 + 1e-9 * scale or np.any(np.diag(C) < 0):
         raise MeasurementError(f"mono_ekf: {what} must be symmetric with a non-negative diagonal")
+    lowest = float(np.linalg.eigvalsh(0.5 * (C + C.T))[0])
+    if lowest < -PSD_RTOL * max(scale, 1e-300):
+        raise MeasurementError(
+            f"mono_ekf: {what} must be positive semi-definite, its smallest eigenvalue is {lowest:.3g}"
+        )
 
 
 def check_initial_pose(wTc: np.ndarray, covariance: np.ndarray) -> None:

@@ -80,7 +80,14 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
         MeasurementError: not an Observation, or taken at another pose.
         UnsupportedError: another kind of measurement (pixels, ranges only).
     """
-    obs = list(observations)
+    if isinstance(observations, Observation):  # not iterable: Python's TypeError said less
+        raise MeasurementError(f"{who}: update takes a list of observations (a scan), got one Observation")
+    try:
+        obs = list(observations)
+    except TypeError:
+        raise MeasurementError(
+            f"{who}: update takes a list of observations, got {type(observations).__name__}"
+        ) from None
     for o in obs:
         if not isinstance(o, Observation):
             raise MeasurementError(f"{who}: expected Observation, got {type(o).__name__}")

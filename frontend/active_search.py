@@ -118,12 +118,17 @@ Repredict = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.
 
 
 def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
-    """``(z (N, 2), S (N, 2, 2))`` as float64; InputError / MeasurementError if malformed."""
-    z = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
-    S = np.asarray(S, dtype=np.float64).reshape(-1, 2, 2)
+    """``(z (N, 2), S (N, 2, 2))`` as float64 copies (the sequential order re-predicts them
+    in place, and the caller's arrays are the caller's); InputError / MeasurementError
+    if malformed. An array of another shape is refused, not reshaped: (2, N) read as
+    (N, 2) scrambles the points."""
+    z = np.array(predictions, dtype=np.float64)
+    S = np.array(S, dtype=np.float64)
+    if z.ndim != 2 or z.shape[1] != 2:
+        raise InputError(f"predictions must be (N, 2) pixels, got shape {z.shape}")
     n = len(z)
-    if len(S) != n:
-        raise InputError(f"{n} predictions but {len(S)} covariances")
+    if S.shape != (n, 2, 2):
+        raise InputError(f"{n} predictions need ({n}, 2, 2) covariances, got shape {S.shape}")
     finite = np.all(np.isfinite(S.reshape(n, 4)), axis=1)
     Sf = S[finite]
     if (
@@ -198,6 +203,10 @@ class ActiveSearch:
         """
         image = check_gray(image)
         z, S = _checked_predictions(predictions, S)
+        if max_found is not None and (
+            isinstance(max_found, bool) or not isinstance(max_found, (int, np.integer)) or max_found < 0
+        ):  # -1 searched nothing, without a word
+            raise InputError(f"max_found must be None or an integer >= 0, got {max_found!r}")
         matcher: ZnccMatcher | NearestMatcher
         if self.config.mode != "nearest":  # None: zncc
             matcher = ZnccMatcher(

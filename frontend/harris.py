@@ -94,6 +94,7 @@ import numpy as np
 from frontend.features import Features
 from frontend.image import MAX_SIDE_PX, check_gray
 from slamcore.config import Validated, bounded, with_overrides
+from slamcore.errors import InputError
 
 #: Pixels of look-ahead of one response on each side (2 smoothing + 1 derivative + 2 window).
 REACH_PX = 5
@@ -161,9 +162,13 @@ class HarrisConfig(Validated):
 
 def smooth_float(image: np.ndarray, kernel: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
     """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders)."""
-    return cv2.sepFilter2D(
-        np.asarray(image, dtype=np.float64), cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101
-    )
+    a = np.asarray(image)
+    if a.ndim != 2 or a.size == 0 or a.dtype.kind not in "uif":
+        raise InputError(f"image: expected a non-empty (H, W) array of numbers, got {a.dtype} {a.shape}")
+    a = a.astype(np.float64, copy=False)
+    if not np.all(np.isfinite(a)):
+        raise InputError("image: non-finite pixel values")
+    return cv2.sepFilter2D(a, cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101)
 
 
 _DIFF = np.array([-0.5, 0.0, 0.5])
@@ -240,10 +245,11 @@ def harris_response_float(
     ``work``: a dict of reusable buffers (the result is one of them: copy it
     to keep it).
     """
+    image = check_gray(image)  # a uint16 or float frame is refused, not misread
     border = cv2.BORDER_REFLECT_101
     dtype = np.dtype(dtype)
     if dtype not in (np.float32, np.float64):
-        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+        raise InputError(f"dtype must be float32 or float64, got {dtype}")
     depth = cv2.CV_32F if dtype == np.float32 else cv2.CV_64F
     ix, iy = _buffers(work, image.shape, "ix iy", dtype)
     cv2.sepFilter2D(image, depth, DGAUSS7_FLOAT, GAUSS5_FLOAT, dst=ix, borderType=border)
@@ -287,8 +293,11 @@ def response_from_abc_fixed(a: np.ndarray, b: np.ndarray, c: np.ndarray, k_num: 
 def harris_response_fixed(image: np.ndarray, k_num: int = 41) -> np.ndarray:
     """(H, W) int64 fixed-point Harris response (``~2^20 R_float``).
 
-    Pixels within :data:`REACH_PX` of an edge hold ``iinfo(int64).min``.
+    Pixels within :data:`REACH_PX` of an edge hold ``iinfo(int64).min``. The image
+    must be uint8: the int32 stages are sized for 8-bit pixels (a uint16 frame
+    overflowed them silently).
     """
+    image = check_gray(image)
     h, w = image.shape
     out = np.full((h, w), _INT_SENTINEL, dtype=np.int64)
     if h <= 2 * REACH_PX or w <= 2 * REACH_PX:
@@ -323,6 +332,10 @@ def tessellate(
     dtype as response, cell (N,) int64)`` sorted by cell index. ``work``: a
     dict of reusable buffers.
     """
+    if not (isinstance(cell_size_px, (int, np.integer)) and cell_size_px >= 1):
+        raise InputError(f"cell_size_px must be an integer >= 1, got {cell_size_px!r}")
+    if not (isinstance(border_px, (int, np.integer)) and border_px >= 0):
+        raise InputError(f"border_px must be an integer >= 0, got {border_px!r}")
     h, w = response.shape
     cs = cell_size_px
     nr, nc = cell_grid((h, w), cs)

@@ -177,7 +177,10 @@ class BowDatabase:
     def bow_from_words(self, words: np.ndarray) -> BowVector:
         """(N,) word ids of one image's descriptors (as ``vocabulary.transform`` gives
         them) -> its L1-normalised TF-IDF BowVector; N = 0 gives the empty vector."""
-        words = np.asarray(words, dtype=np.int64).reshape(-1)
+        raw = np.asarray(words).reshape(-1)
+        if raw.size and raw.dtype.kind not in "iu":  # 1.7 was truncated to word 1
+            raise ValueError(f"word ids must be integers, got {raw.dtype}")
+        words = raw.astype(np.int64)
         if words.size == 0:
             return BowVector.empty()
         if words.min() < 0 or words.max() >= self._n_words:

@@ -85,7 +85,7 @@ from loopclosure.acontrario import hull_coverage, image_extent, log10_nfa, share
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.matching import epipolar_residuals, guided_match, match_descriptors
 from slamcore.config import Validated, bounded, with_overrides
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, InputError
 
 __all__ = ["VerifyConfig", "Verification", "PairVerifier", "GeometricVerifier", "MODELS"]
 
@@ -268,6 +268,31 @@ class PairVerifier(Protocol):
     ) -> Verification: ...
 
 
+def _checked_view(xy, desc, which: str) -> tuple[np.ndarray, np.ndarray]:
+    """One view's ``(xy (N, 2) float64, desc (N, 32) uint8)``, contiguous; InputError
+    for other shapes or types (float descriptors were cast to uint8 without a word, and
+    a count that differs from the points' indexed past them)."""
+    # np.ndarray, not NDArray[float64]: cv2's stubs type undistortPoints' result loosely
+    xy_px: np.ndarray = np.asarray(xy, np.float64)
+    d = np.asarray(desc)
+    if d.dtype != np.uint8 or d.ndim != 2 or d.shape[1] != 32:
+        raise InputError(f"view {which}: descriptors must be (N, 32) uint8 (ORB), got {d.dtype} {d.shape}")
+    if xy_px.shape != (len(d), 2):
+        raise InputError(f"view {which}: {len(d)} descriptors need ({len(d)}, 2) points, got {xy_px.shape}")
+    return xy_px, np.ascontiguousarray(d)
+
+
+def _checked_camera(K, distortion) -> np.ndarray:
+    """``K`` as a contiguous finite (3, 3) float64 and a distortion OpenCV takes, or InputError."""
+    K = np.ascontiguousarray(K, np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise InputError(f"K must be a finite (3, 3) matrix, got shape {K.shape}")
+    n_dist = None if distortion is None else np.asarray(distortion).size
+    if n_dist is not None and n_dist not in (4, 5, 8, 12, 14):
+        raise InputError(f"distortion must hold 4, 5, 8, 12 or 14 coefficients (OpenCV's), got {n_dist}")
+    return K
+
+
 def _angle_deg(R: np.ndarray) -> float:
     """Rotation angle of ``R`` (3, 3), degrees."""
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
@@ -352,14 +377,11 @@ class GeometricVerifier:
         if model == "essential" and K is None:
             raise ConfigError("loop_verify.model 'essential' needs the intrinsics K")
         # USAC reads K's memory as contiguous: a strided view (a slice of P) gives no model
-        K = None if K is None else np.ascontiguousarray(K, np.float64)
-        # np.ndarray, not NDArray[float64]: cv2's stubs type undistortPoints' result loosely
-        ua: np.ndarray = np.asarray(xy_a, np.float64).reshape(-1, 2)
-        ub: np.ndarray = np.asarray(xy_b, np.float64).reshape(-1, 2)
+        K = None if K is None else _checked_camera(K, distortion)
+        ua, desc_a = _checked_view(xy_a, desc_a, "a")
+        ub, desc_b = _checked_view(xy_b, desc_b, "b")
         size_a = size_a or image_extent(ua)
         size_b = size_b or image_extent(ub)
-        desc_a = np.ascontiguousarray(desc_a, np.uint8)
-        desc_b = np.ascontiguousarray(desc_b, np.uint8)
         pairs = match_descriptors(desc_a, desc_b, c.ratio, c.cross_check, c.max_hamming)
         n = len(pairs)
         need = max(_MIN_POINTS[model], c.min_inliers)

@@ -418,5 +418,11 @@ def from_dict(cls: type[T], data: dict[str, Any] | None) -> T:
 def with_overrides(config: D, overrides: dict[str, Any]) -> D:
     """``config`` with the named fields replaced (checked again by its ``__post_init__``),
     or ``config`` itself without overrides: what ``Part(config, **overrides)`` makes of
-    its arguments, for the parts that take their settings either way."""
-    return dataclasses.replace(config, **overrides) if overrides else config
+    its arguments, for the parts that take their settings either way. A name that is
+    no setting of ``config`` is a ConfigError, not Python's TypeError."""
+    if not overrides:
+        return config
+    unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(config)})
+    if unknown:
+        raise ConfigError(f"{section_name(type(config))}: unknown setting(s) {unknown}")
+    return dataclasses.replace(config, **overrides)

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from slamcore.errors import GraphSlamError
+
 #: Pose parameter count per rotation kind.
 PARAM_SIZE = {"angle": 3, "quat": 7, "rpy": 6}
 #: Tangent dimension (information matrix side) per graph dimension.
@@ -96,8 +98,16 @@ class PoseGraph:
         return 0 if self.information_fixed is None else int(self.information_fixed.sum())
 
     def index_of(self, pose_ids: np.ndarray) -> np.ndarray:
-        """Row of each id in :attr:`ids` (ids must be in the graph)."""
-        return np.searchsorted(self.ids, np.asarray(pose_ids, dtype=np.int64))
+        """Row of each id in :attr:`ids`; GraphSlamError for an id not in the graph
+        (searchsorted alone gave it the row of another pose, or one past the end)."""
+        wanted = np.asarray(pose_ids, dtype=np.int64)
+        rows = np.searchsorted(self.ids, wanted)
+        found = rows < self.ids.size
+        found[found] = self.ids[rows[found]] == wanted[found]
+        if not np.all(found):
+            missing = wanted[~found].ravel()
+            raise GraphSlamError(f"pose id {int(missing[0])} is not in the graph ({missing.size} such ids)")
+        return rows
 
     def odometry_mask(self) -> np.ndarray:
         """(M,) bool: edges between neighbours in id order (the odometry chain);
@@ -127,14 +137,16 @@ class PoseGraph:
         )
 
     def with_vertices(self, vertices: np.ndarray) -> PoseGraph:
-        """The same graph with other vertex values (e.g. an optimised estimate)."""
+        """The same graph with other vertex values (e.g. an optimised estimate): one
+        finite row a pose, of the graph's width (a writer took any other as given)."""
         from dataclasses import replace
 
-        return replace(
-            self,
-            vertices=np.asarray(vertices, dtype=np.float64),
-            has_vertex=np.ones(self.n_poses, dtype=bool),
-        )
+        values = np.array(vertices, dtype=np.float64)
+        if values.shape != self.vertices.shape:
+            raise GraphSlamError(f"vertices must have shape {self.vertices.shape}, got {values.shape}")
+        if not np.all(np.isfinite(values)):
+            raise GraphSlamError("vertices must be finite")
+        return replace(self, vertices=values, has_vertex=np.ones(self.n_poses, dtype=bool))
 
 
 # --------------------------------------------------------------------------- pose maths

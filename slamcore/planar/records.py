@@ -75,6 +75,27 @@ class ObservationKind(enum.Enum):
         return 1 if self is ObservationKind.RANGE else 2
 
 
+#: Ids are int64 everywhere downstream (estimates, files): beyond it an id cannot be held.
+ID_LIMIT = 2**63
+
+
+def _check_ids(record, names: tuple[str, ...], what: str, optional: tuple[str, ...] = ()) -> None:
+    """In a frozen record's ``__post_init__``: each id field an integer (a whole float is
+    taken as one) within int64, or None where ``optional``; MeasurementError otherwise.
+    A fractional id silently became another landmark's, a string "7" landmark 7."""
+    for name in names:
+        value = getattr(record, name)
+        if value is None and name in optional:
+            continue
+        if isinstance(value, (bool, np.bool_)) or not isinstance(
+            value, (int, np.integer, float, np.floating)
+        ):
+            raise MeasurementError(f"{what}: {name} must be an integer, got {value!r}")
+        if not (math.isfinite(value) and value == int(value) and -ID_LIMIT <= int(value) < ID_LIMIT):
+            raise MeasurementError(f"{what}: {name} must be an integer within int64, got {value!r}")
+        object.__setattr__(record, name, int(value))
+
+
 def _check_mean_and_covariance(record, field: str, n: int, what: str) -> None:
     """In a frozen record's ``__post_init__``: ``record.<field>`` as a finite (n,) vector
     and ``record.covariance`` as an SPD (n, n) matrix, both read-only float64
@@ -100,6 +121,7 @@ class Odometry:
 
     def __post_init__(self):
         what = f"odometry {self.from_id}->{self.to_id}"
+        _check_ids(self, ("from_id", "to_id"), what)
         _check_mean_and_covariance(self, "delta", 3, what)
 
 
@@ -133,6 +155,7 @@ class Observation:
 
     def __post_init__(self):
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
+        _check_ids(self, ("pose_id", "landmark_id"), what, optional=("landmark_id",))
         size = self.kind.size
         _check_mean_and_covariance(self, "z", size, what)
         if self.kind in (ObservationKind.RANGE_BEARING, ObservationKind.RANGE) and self.z[0] <= 0.0:
@@ -159,6 +182,7 @@ class LoopClosure:
 
     def __post_init__(self):
         what = f"loop closure {self.from_id}->{self.to_id}"
+        _check_ids(self, ("from_id", "to_id"), what)
         _check_mean_and_covariance(self, "delta", 3, what)
 
 
@@ -291,6 +315,7 @@ class PoseSighting:
 
     def __post_init__(self):
         what = f"sighting of pose {self.to_id} from pose {self.from_id}"
+        _check_ids(self, ("from_id", "to_id"), what)
         _check_mean_and_covariance(self, "z", 2, what)
         if self.z[0] <= 0.0:
             raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")

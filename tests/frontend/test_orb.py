@@ -97,7 +97,7 @@ def test_config_normalises_and_keeps_defaults():
     c = OrbConfig(n_features=np.int64(300), scale_factor=2)
     assert type(c.n_features) is int and type(c.scale_factor) is float
     assert OrbDetector(cell_size_px=64).config == OrbConfig(cell_size_px=64)
-    with pytest.raises(TypeError):
+    with pytest.raises(ConfigError, match="n_feature"):
         OrbDetector(n_feature=10)  # a typo in an override is not ignored
 
 

@@ -286,3 +286,150 @@ def test_library_objects_keep_their_state_from_the_callers_arrays(tmp_path):
         det.process_features(rng.random((10, 2)) * 100, rng.random((10, 128)).astype(np.float32))
     with pytest.raises(InputError, match="one point a descriptor"):
         det.process_features(rng.random((9, 2)) * 100, rng.integers(0, 255, (10, 32), dtype=np.uint8))
+
+
+# --------------------------------------------------------------------------- library inputs
+
+
+def _R2():
+    import numpy as np
+
+    return np.diag([0.01, 0.001])
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda np, rec: rec.Observation(0, 1.9, np.array([5.0, 0.3]), _R2()), "landmark_id must be an integer"),
+    (lambda np, rec: rec.Observation(0, "7", np.array([5.0, 0.3]), _R2()), "landmark_id must be an integer"),
+    (lambda np, rec: rec.Observation(0, 2**70, np.array([5.0, 0.3]), _R2()), "within int64"),
+    (lambda np, rec: rec.Odometry("2", 3, np.zeros(3), np.eye(3)), "from_id must be an integer"),
+    (lambda np, rec: rec.LoopClosure(0, 2.5, np.zeros(3), np.eye(3)), "to_id must be an integer"),
+])
+def test_records_take_integer_ids_only(make, words):
+    """A landmark id of 1.9 was used as landmark 1, "7" as 7, and 2**70 broke every later
+    estimate() of the EKF with an OverflowError."""
+    import numpy as np
+
+    from slamcore.errors import MeasurementError
+    from slamcore.planar import records as rec
+
+    with pytest.raises(MeasurementError, match=words):
+        make(np, rec)
+    assert rec.Observation(np.int64(0), 7.0, np.array([5.0, 0.3]), _R2()).landmark_id == 7
+
+
+def test_the_ekf_refuses_a_pose_id_it_already_holds():
+    import numpy as np
+
+    from filters.ekf_slam import EkfSlam
+    from slamcore.errors import GraphSlamError
+    from slamcore.planar.records import Odometry
+
+    ekf = EkfSlam()
+    ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    step = np.array([1.0, 0.0, 0.0])
+    ekf.predict(Odometry(0, 1, step, np.eye(3) * 1e-3), 1)
+    with pytest.raises(GraphSlamError, match="already in the trajectory"):
+        ekf.predict(Odometry(1, 0, step, np.eye(3) * 1e-3), 0)
+    assert list(ekf.estimate().pose_ids) == [0, 1]
+
+
+def test_the_monocular_ekf_refuses_an_indefinite_covariance():
+    """A correlation above 1 made the state covariance indefinite; the next update died
+    in numpy's Cholesky (LinAlgError)."""
+    import numpy as np
+
+    from filters.mono_ekf import MonoEkf
+    from slamcore.errors import MeasurementError
+
+    ekf = MonoEkf()
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    ekf.initialize(0, np.eye(4), np.eye(6) * 1e-6, K, (320, 240))
+    Q = np.eye(6)
+    Q[0, 1] = Q[1, 0] = 5.0
+    with pytest.raises(MeasurementError, match="positive semi-definite"):
+        ekf.predict(1, np.eye(4), Q)
+
+
+def test_active_search_refuses_what_it_reshaped_and_leaves_the_callers_arrays():
+    import numpy as np
+
+    from frontend.active_search import ActiveSearch
+    from frontend.features import Features
+    from slamcore.errors import InputError
+
+    image = np.zeros((120, 160), np.uint8)
+    feats = Features(np.array([[10.0, 20.0]]), np.ones(1))
+    search = ActiveSearch(mode="nearest")
+    with pytest.raises(InputError, match=r"\(4, 2, 2\)"):
+        search.search(image, np.ones((4, 2)), np.tile(np.eye(2), (6, 1, 1)), features=feats)
+    with pytest.raises(InputError, match=r"\(N, 2\)"):
+        search.search(image, np.ones((2, 4)), np.tile(np.eye(2), (4, 1, 1)), features=feats)
+    with pytest.raises(InputError, match="max_found"):
+        search.search(image, np.ones((1, 2)), np.eye(2)[None], features=feats, max_found=-1)
+
+
+def test_harris_and_vocabulary_functions_refuse_what_they_would_misread():
+    import numpy as np
+
+    from frontend.harris import harris_response_fixed, harris_response_float, smooth_float, tessellate
+    from loopclosure.database import BowDatabase
+    from loopclosure.vocabulary import FlatVocabulary
+    from slamcore.errors import InputError
+
+    with pytest.raises(InputError, match="uint8"):
+        harris_response_fixed(np.full((20, 20), 65535, np.uint16))  # int32 stages overflowed
+    with pytest.raises(InputError, match="greyscale"):
+        harris_response_float(np.zeros((20, 20, 3), np.uint8))
+    with pytest.raises(InputError, match="non-empty"):
+        smooth_float(np.zeros((0, 0)))
+    with pytest.raises(InputError, match="cell_size_px"):
+        tessellate(np.zeros((20, 20)), 0, 5, 0.0)
+    rng = np.random.default_rng(0)
+    vocab = FlatVocabulary(n_words=4, seed=0).fit(rng.random((50, 4)).astype(np.float32))
+    with pytest.raises(ValueError, match="finite"):
+        vocab.transform(np.full((2, 4), np.nan))  # NaN became word 0
+    with pytest.raises(ValueError, match=r"\(N, 4\)"):
+        vocab.transform(np.zeros((0, 2), np.float32))
+    db = BowDatabase(vocab)
+    with pytest.raises(ValueError, match="integers"):
+        db.bow_from_words([1.7, 2.2])  # truncated to words 1 and 2
+
+
+def test_pose_graph_rows_and_vertices_are_checked(tmp_path):
+    import numpy as np
+
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+    from slamcore.errors import GraphSlamError
+
+    graph = read_pose_graph_file(_example("noisyToyGraph.txt"))
+    with pytest.raises(GraphSlamError, match="not in the graph"):
+        graph.index_of([10**9])  # gave one past the end
+    with pytest.raises(GraphSlamError, match="finite"):
+        graph.with_vertices(np.full_like(graph.vertices, np.nan))
+    with pytest.raises(GraphSlamError, match="shape"):
+        graph.with_vertices(graph.vertices[:, :2])
+
+
+def test_keyword_overrides_that_are_no_setting_are_config_errors():
+    from frontend.harris import HarrisDetector
+    from slamcore.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"unknown setting\(s\) \['foo'\]"):
+        HarrisDetector(foo=1)
+
+
+def test_the_verifier_refuses_views_it_would_misread():
+    import numpy as np
+
+    from loopclosure.verify import GeometricVerifier
+    from slamcore.errors import InputError
+
+    rng = np.random.default_rng(0)
+    xy, d = rng.random((30, 2)) * 100, rng.integers(0, 255, (30, 32), dtype=np.uint8)
+    v = GeometricVerifier()
+    with pytest.raises(InputError, match="30 descriptors need"):
+        v.verify(xy[:20], d, xy, d)
+    with pytest.raises(InputError, match=r"\(N, 32\) uint8"):
+        v.verify(xy, d.astype(np.float32), xy, d)
+    with pytest.raises(InputError, match=r"\(3, 3\)"):
+        v.verify(xy, d, xy, d, K=np.eye(2))
