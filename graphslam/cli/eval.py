@@ -176,7 +176,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
     from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, warn
     from graphslam.evaluation.trajectory import EvalOptions
-    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES
+    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, one_run_or_the_other
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_not_inputs, check_output_dir
 
@@ -191,11 +191,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
     claim_out_dir(args.out)
     clear_earlier_outputs(args.out, set(names), EVAL_OUTPUT_NAMES)  # --no-plot: no earlier eval.png
-    written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
-    if not args.no_plot:
-        from graphslam.visualisation.plots import plot_trajectory_eval
+    # a stop while plotting: the earlier eval.png goes, not left beside the new eval.json
+    with one_run_or_the_other(args.out, EVAL_OUTPUT_NAMES):
+        written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
+        if not args.no_plot:
+            from graphslam.visualisation.plots import plot_trajectory_eval
 
-        written.append(plot_trajectory_eval(results, args.out / "eval.png"))
+            written.append(plot_trajectory_eval(results, args.out / "eval.png"))
     print(format_table(results))
     for message in eval_warnings(results, options):
         warn(message)

@@ -142,6 +142,9 @@ class SpatialRunMetrics(MetricsRecord):
 
     Attributes:
         alignment: ``"se3"`` with metric odometry, ``"sim3"`` without (monocular).
+        path_length_m: the truth's path over the frames the estimate has a pose for,
+            which ``ate_percent_of_path`` is a share of (the odometry's percentage is
+            of the whole run's path: it covers every frame).
         ate: the ATE record of :func:`.spatial.ate` (rmse, mean, max, scale...);
             ate_error: why it could not be computed, if so.
         rpe, odometry_rpe: per-frame RPE records; tracking: front-end counters;

@@ -243,6 +243,8 @@ def compute_metrics(
             *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost),
             *metrics.rejected_warning(result.observations, result.observations_rejected),
             *metrics.map_warning(result.observations, result.observations_rejected, len(est.landmark_ids)),
+            *metrics.truth_map_warning(len(est.landmark_ids), map_scores),
+            *metrics.skipped_closures_warning(result.loop_closures_skipped, result.backend),
         ]
         or None,
     )

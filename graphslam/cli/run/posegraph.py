@@ -78,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
     claim_out_dir(out_dir)
     clear_earlier_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)
-    metrics = pipeline.metrics(graph, result, time.perf_counter() - t0, truth)
+    metrics = pipeline.metrics(
+        graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
+    )
     # a full disk part way: no earlier run's file left beside this run's
     with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
         paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
@@ -86,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
             paths.update(record(args, graph, result, out_dir))
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     warn_unread_sections(config, args.config, "this pose-graph run")
+    for doubt in (metrics.warnings or [])[len(graph.warnings) :]:  # the estimate's, said once
+        warn(doubt)
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 

@@ -433,3 +433,73 @@ def test_the_verifier_refuses_views_it_would_misread():
         v.verify(xy, d.astype(np.float32), xy, d)
     with pytest.raises(InputError, match=r"\(3, 3\)"):
         v.verify(xy, d, xy, d, K=np.eye(2))
+
+
+# --------------------------------------------------------------------------- real data said
+
+
+def test_eval_stopped_while_plotting_keeps_no_earlier_plot(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C during the plot left the earlier eval's eval.png beside the new eval.json."""
+    import graphslam.visualisation.plots as plots
+
+    run, ev = tmp_path / "r", tmp_path / "ev"
+    assert main(["run", "--max-steps", "20", *RUN, "--out", str(run)]) == 0
+    args = [str(run / "ground_truth.tum"), str(run / "trajectory.tum"), "--out", str(ev)]
+    assert main(["eval", *args]) == 0 and (ev / "eval.png").is_file()
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plots, "plot_trajectory_eval", stopped)
+    assert main(["eval", *args]) == 130
+    assert (ev / "eval.json").is_file() and not (ev / "eval.png").exists()
+
+
+def test_a_filter_that_skips_every_closure_says_its_estimate_is_dead_reckoning(tmp_path):
+    """city10000 with the EKF: ATE 15.2 m, the odometry's to the digit (iSAM2 0.11 m),
+    and only "loop closures skipped" in the table."""
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", "city10000", "--backend", "ekf", "--max-steps", "500", *RUN,
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["loop_closures_skipped"] > 0
+    assert any("cannot use loop closures" in w for w in m["warnings"])
+
+
+def test_a_map_of_copies_is_said_against_the_true_map():
+    from graphslam.evaluation.planar import truth_map_warning
+
+    scores = {"landmarks_true": 15, "landmarks_recovered": 1}
+    assert "83 landmarks for 15" in truth_map_warning(83, scores)[0]
+    assert truth_map_warning(24, scores) == []  # MRCLAM's unknown-id EKF on robot 1: 1.6x
+    assert truth_map_warning(83, {}) == []  # no true map: nothing to say
+
+
+def test_a_monocular_score_is_a_share_of_the_path_it_covers(tmp_path, shared_data):
+    """KITTI 07 camera alone at the defaults has poses for frames 103-159 only: the ATE
+    was a share of the whole 90.6 m route, not of the 33 m it scored."""
+    kitti = shared_data / "kitti07"
+    if not kitti.is_dir():
+        pytest.skip("KITTI 07 missing")
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(kitti), "--odometry", "none", *RUN, "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames_with_pose"] < m["frames"]
+    assert m["path_length_m"] < 60.0  # the whole route is 90.6 m
+    assert m["ate_percent_of_path"] == pytest.approx(100 * m["ate_rmse_m"] / m["path_length_m"])
+
+
+@pytest.mark.slow
+def test_closures_trusted_untested_beyond_the_chi_square_bound_are_said(tmp_path, shared_data, capsys):
+    """RRR's Bovisa04 with robust_closures = "none": 84 m from GPS, no warning."""
+    graph = shared_data / "rrr_posegraphs" / "Bovisa04_odometry_bow_tr.g2o"
+    if not graph.is_file():
+        pytest.skip("RRR pose graphs missing")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[posegraph]\nrobust_closures = "none"\n')
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(graph), "--backend", "batch", "--config", str(cfg), *RUN,
+                 "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert any("trusted untested" in w and "above the chi-square bound" in w for w in m["warnings"])
+    assert "trusted untested" in capsys.readouterr().err
