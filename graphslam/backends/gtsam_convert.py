@@ -183,17 +183,38 @@ def _rows_of(keys: np.ndarray, rows: np.ndarray, char: str, ids: np.ndarray) -> 
     return np.asarray(rows, dtype=np.float64).reshape(-1, width)[at]
 
 
-def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int] | None:
-    """``(error, dof)``: GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate`` under
-    the dataset's noise, and the graph's degrees of freedom (the
-    measurements' dimensions less the variables'), or None as there."""
+def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int, float] | None:
+    """``(error, dof, bulk)``: GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate``
+    under the dataset's noise, the graph's degrees of freedom (the measurements'
+    dimensions less the variables'), and the median of each factor's ``2 error`` over
+    the median a chi-square of its dimension has (about 1 when most residuals are as
+    the noise says, whatever a few outliers do); or None as there."""
     graph = dataset_graph(dataset, frames=len(estimate.pose_ids))
     values = estimate_values(estimate)
     keys = graph.keyVector()
     if not all(values.exists(key) for key in keys):
         return None
-    dof = sum(graph.at(i).dim() for i in range(graph.size()) if graph.at(i) is not None)
-    return float(graph.error(values)), int(dof - values.dim())
+    factors = [graph.at(i) for i in range(graph.size()) if graph.at(i) is not None]
+    dof = sum(f.dim() for f in factors)
+    return float(graph.error(values)), int(dof - values.dim()), _bulk_ratio(factors, values)
+
+
+#: Factors of one kind a median is taken over (fewer say nothing of their kind's bulk).
+BULK_MIN_FACTORS = 10
+
+
+def _bulk_ratio(factors: list, values: gtsam.Values) -> float:
+    """The largest, over the kinds of factor (sightings, odometry, priors), of the
+    median ``2 error`` of that kind over the median of a chi-square of its dimension
+    (NaN when no kind has :data:`BULK_MIN_FACTORS`). By kind: the odometry's priors sit
+    near 0 and would otherwise outvote the sightings."""
+    from scipy.stats import chi2
+
+    kinds: dict[str, list[float]] = {}
+    for f in factors:
+        kinds.setdefault(type(f).__name__, []).append(2.0 * f.error(values) / chi2.median(max(f.dim(), 1)))
+    medians = [float(np.median(v)) for v in kinds.values() if len(v) >= BULK_MIN_FACTORS]
+    return max(medians) if medians else float("nan")
 
 
 # --- 3-D (visual back ends) -------------------------------------------------
