@@ -526,10 +526,16 @@ def attacks() -> list[Attack]:
         Attack("7th: compare of a pose graph in degrees says so (batch, auto)", "silent",
                lambda f: ["compare", "--dataset", str(_w(f, "d.g2o", _square_g2o("90"))), "--rerun", "off",
                           "--out", "cmp", "--backends", "batch", "auto"], ("ok",), check=_says("degrees?")),
-        Attack("7th: compare says iSAM2's cost beyond its chi-square bound (MRCLAM robot 2)", "silent",
+        # (12th pass: at the calibrated noise this run is sound, its few gross outliers set
+        # aside by the robust kernel; the test needs the bulk beyond the noise, so the
+        # sightings are told 10x too precise here)
+        Attack("7th: compare says iSAM2's cost beyond its chi-square bound (MRCLAM robot 2, noise 10x "
+               "understated)", "silent",
                lambda f: ["compare", "--dataset", str(DATA / "mrclam6"), "--robot", "2", "--max-steps", "300",
-                          "--rerun", "off", "--out", "cmp", "--backends", "isam2", "ekf"], ("ok",),
-               check=_says("isam2: final cost")),
+                          "--rerun", "off", "--out", "cmp", "--backends", "isam2", "ekf", "--config",
+                          str(_w(f, "c.toml", "[mrclam]\nsigma_range_m = 0.00371\nsigma_range_per_m = 0.00372\n"
+                                              "sigma_bearing_rad = 0.00067\nsigma_bearing_m = 0.00156\n"))],
+               ("ok",), check=_says("isam2: final cost")),
         Attack("7th: sweep max_steps = true (each run failed)", "fail",
                lambda f: ["sweep", str(_w(f, "s.toml", _SWEEP_1 + "max_steps = true\n")), "--out", "sw",
                           "--quiet", "--no-plots"]),

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,10 +36,12 @@ if TYPE_CHECKING:  # the recording process needs none of the filters filter_stat
 class PlanarLog(RerunLog):
     """A :class:`RerunLog` with the 2-D entities: ground truth, poses, landmarks."""
 
-    def log_ground_truth(self, wTb: np.ndarray | None, landmarks: dict | None) -> None:
+    def log_ground_truth(self, wTb: np.ndarray | list | None, landmarks: dict | None) -> None:
+        """Static truth: ``wTb`` (N, 3) one strip, or a list of them (one per robot)."""
         rr = self._rr
-        if wTb is not None and len(wTb):
-            rr_strip = rr.LineStrips2D([wTb[:, :2]], colors=[GT_COLOR], radii=0.05)
+        strips = [s for s in ([wTb] if isinstance(wTb, np.ndarray) else wTb or []) if len(s)]
+        if strips:
+            rr_strip = rr.LineStrips2D([s[:, :2] for s in strips], colors=[GT_COLOR], radii=0.05)
             self.rec.log("world/ground_truth/trajectory", rr_strip, static=True)
         if landmarks:
             ids = sorted(landmarks)
@@ -194,6 +196,8 @@ class RunRecorder:
         self._filters: dict[str, FilterStateLogger] = {}
         self._pending: dict[str, tuple[list, list, list, list]] = {}  # steps, stamps, poses, robots
         self._agent_of: dict[int, int] = {}  # pose id -> robot index, several robots in one run
+        self._dataset: Any = None  # what start() logged the truth of, and for how many steps
+        self._truth_steps = 0
 
     #: Runs of at least this many steps record in a second process with ``save``: it
     #: costs an interpreter and Rerun's import (1-3 s of the other core's time), which a
@@ -214,10 +218,25 @@ class RunRecorder:
 
     def start(self, dataset, n_steps: int) -> None:
         self._agent_of = {int(pid): i for i, (_, ids) in enumerate(dataset.agents) for pid in ids}
+        self._dataset, self._truth_steps = dataset, n_steps
+        self._log_truth(n_steps)
+
+    def _log_truth(self, n_steps: int) -> None:
+        """The true poses of the first ``n_steps`` frames (a real log's truth may cover
+        only some), one strip per robot: five robots' truth in frame order was one
+        zig-zag line across the room."""
+        dataset = self._dataset
         gt = dataset.ground_truth()
-        # the true poses of the frames run (a real log's truth may cover only some)
-        true_xy = None if gt is None else gt[1][np.isin(gt[0], [f.pose_id for f in dataset.frames[:n_steps]])]
-        self.log.log_ground_truth(true_xy, dataset.landmarks_true)
+        strips = None
+        if gt is not None:
+            run = np.isin(gt[0], [f.pose_id for f in dataset.frames[:n_steps]])
+            ids, xy = gt[0][run], gt[1][run]
+            if self._agent_of:
+                robot = np.array([self._agent_of.get(int(i), -1) for i in ids])
+                strips = [xy[robot == r] for r in sorted(set(robot.tolist()))]
+            else:
+                strips = [xy]
+        self.log.log_ground_truth(strips, dataset.landmarks_true)
 
     def color_index(self, backend: str) -> int:
         return self._colors.setdefault(backend, len(self._colors))
@@ -282,7 +301,13 @@ class RunRecorder:
         self._send_poses(backend)
         if backend in self._filters:
             self._filters[backend].flush()
-        self.log.set_step(max(result.steps - 1, 0))
+        last = max(result.steps - 1, 0)
+        frames = result.dataset.frames
+        # the last frame's time: the time line ended at the last snapshot's before
+        self.log.set_step(last, frames[last].stamp_s if last < len(frames) else None)
+        if result.interrupted and result.steps < self._truth_steps:  # the truth of the steps run
+            self._truth_steps = result.steps
+            self._log_truth(result.steps)
         est = result.estimate
         cov = est.current_covariance
         if source is not None and est.pose_covariances is None and not result.interrupted:

@@ -223,7 +223,8 @@ class RerunLog:
     Args:
         mode: "save" (write ``path``), "spawn" (start a local viewer) or
             "connect" (gRPC to ``url``, default the viewer's own default).
-        recording_id: fixed id so the same run gives the same recording.
+        recording_id: fixed id so the same run gives the same recording (with the
+            file's name and folder appended when saving: two files, two recordings).
         live_layout: also send the layout during the run, at the first
             ``rec.set_time`` (a new step or frame) after it changed (default:
             for a live viewer, not for a file, which gets it once, at the close).
@@ -241,6 +242,12 @@ class RerunLog:
         import rerun as rr  # imported here: no work at import time, and only this module
 
         self._rr = rr
+        # one id a file: recordings of one id opened together are merged into one by the
+        # viewer (a run's beside its localisation's); still the same id run to run
+        if path is not None:  # (a name that is not UTF-8 is refused below, with its file)
+            where = f"{Path(path).name}:{Path(path).parent.name}"
+            where = where.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+            recording_id = f"{recording_id}:{where}"
         self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self._partial: Path | None = None
         self.logged = LoggedEntities()

@@ -526,3 +526,24 @@ def test_mrclam_isam2_with_a_few_gross_outliers_is_not_called_wrong(tmp_path, sh
     m = json.loads((out / "metrics.json").read_text())
     assert m["ate_rmse_m"] < 0.15
     assert not any("chi-square" in w for w in m.get("warnings") or [])
+
+
+def test_several_robots_truth_is_one_line_per_robot_in_the_recording(tmp_path, shared_data):
+    """--robot all drew the five robots' truth as one strip in frame order: a zig-zag
+    switching robot 1363 times across the room."""
+    import numpy as np
+    from rerun.chunk import RrdReader
+
+    folder = shared_data / "mrclam6"
+    if not folder.is_dir():
+        pytest.skip("MRCLAM missing")
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(folder), "--robot", "all", "--max-steps", "300", "--rerun", "save",
+                 "--quiet", "--out", str(out)]) == 0
+    strips = [batch for chunk in RrdReader(str(out / "run.rrd")).stream()
+              if chunk.entity_path == "/world/ground_truth/trajectory" and chunk.is_static
+              for batch in chunk.to_record_batch().column("LineStrips2D:strips").to_pylist()][-1]
+    assert len(strips) == 5
+    for strip in strips:  # each robot's own path: no jump across the room between points
+        xy = np.asarray(strip, dtype=np.float64).reshape(-1, 2)
+        assert np.linalg.norm(np.diff(xy, axis=0), axis=1).max() < 0.5
