@@ -159,6 +159,12 @@ class FilterStateLogger:
         if len(self._rows) >= self.FLUSH_STEPS:
             self.flush()
 
+    def final(self, backend_obj) -> None:
+        """At the run's last step: the EKF's correlation image as the run ends (the
+        last snapshot was up to ``every - 1`` steps before it, or only step 0)."""
+        if isinstance(backend_obj, EkfSlam):
+            self.log.log_correlation(self.backend, correlation_snapshot(backend_obj))
+
     def flush(self) -> None:
         """Send the FastSLAM steps held so far (none: nothing)."""
         if not self._rows:

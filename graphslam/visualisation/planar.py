@@ -305,6 +305,8 @@ class RunRecorder:
         frames = result.dataset.frames
         # the last frame's time: the time line ended at the last snapshot's before
         self.log.set_step(last, frames[last].stamp_s if last < len(frames) else None)
+        if source is not None and backend in self._filters:
+            self._filters[backend].final(source)
         if result.interrupted and result.steps < self._truth_steps:  # the truth of the steps run
             self._truth_steps = result.steps
             self._log_truth(result.steps)

@@ -89,8 +89,14 @@ class VisualRecorder:
             raise GraphSlamError("VisualRecorder: start() must come before the frames")
         return self._sequence
 
+    def _file_frame(self, k: int) -> int:
+        """Frame ``k`` of the run as the files number it (``--frames 10:40``: frame 10 is
+        the run's first; localize.csv and the summaries say so too)."""
+        indices = getattr(self._sequence, "indices", None)
+        return int(indices[k]) if indices is not None and 0 <= k < len(indices) else int(k)
+
     def _set_time(self, k: int) -> None:
-        self.rec.set_time("frame", sequence=int(k))
+        self.rec.set_time("frame", sequence=self._file_frame(k))
         stamps = None if self._sequence is None else self._sequence.stamps_s
         if stamps is not None:
             self.rec.set_time("time", duration=float(stamps[k]))
@@ -367,7 +373,7 @@ class LocalizeRecorder(VisualRecorder):
         self.rec.log(
             "localize/status",
             rr.TextLog(
-                f"frame {i}: {placement.status}, {placement.inliers} inliers",
+                f"frame {self._file_frame(i)}: {placement.status}, {placement.inliers} inliers",
                 level="WARN" if placement.status == "lost" else "INFO",
             ),
         )

@@ -547,3 +547,34 @@ def test_several_robots_truth_is_one_line_per_robot_in_the_recording(tmp_path, s
     for strip in strips:  # each robot's own path: no jump across the room between points
         xy = np.asarray(strip, dtype=np.float64).reshape(-1, 2)
         assert np.linalg.norm(np.diff(xy, axis=0), axis=1).max() < 0.5
+
+
+def test_the_ekf_correlation_image_is_logged_at_the_last_step(tmp_path):
+    """With --rerun-every 7 over 60 steps the last image was step 56's (with 1000, step 0's)."""
+    from tests.recordings import tensors
+
+    out = tmp_path / "o"
+    assert main(["run", "--backend", "ekf", "--max-steps", "60", "--rerun-every", "7", "--rerun", "save",
+                 "--quiet", "--out", str(out)]) == 0
+    assert tensors(out / "run.rrd", "/filter/ekf/correlation")[-1][0] == 59
+
+
+def test_localize_puts_frames_on_the_timeline_by_their_file_number(tmp_path):
+    """localize --frames 4:8 logged its first frame as frame 0 ("frame 0: relocalised")
+    while localize.csv called it frame 4."""
+    from rerun.chunk import RrdReader
+
+    m = tmp_path / "m"
+    assert main(["run", "--dataset", "synthetic-images", "--max-steps", "12", *RUN,
+                 "--out", str(tmp_path / "o"), "--save-map", str(m)]) == 0
+    out = tmp_path / "l"
+    assert main(["localize", "--map", str(m), "--dataset", "synthetic-images", "--frames", "4:8",
+                 "--quiet", "--rerun", "save", "--out", str(out)]) == 0
+    frames, texts = [], []
+    for chunk in RrdReader(str(out / "localize.rrd")).stream():
+        if chunk.entity_path == "/localize/status" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            frames += batch.column("frame").to_pylist()
+            texts += [t[0] for t in batch.column("TextLog:text").to_pylist()]
+    assert sorted(frames) == [4, 5, 6, 7]
+    assert any(t.startswith("frame 4:") for t in texts), texts
