@@ -183,20 +183,24 @@ def _rows_of(keys: np.ndarray, rows: np.ndarray, char: str, ids: np.ndarray) -> 
     return np.asarray(rows, dtype=np.float64).reshape(-1, width)[at]
 
 
-def graph_cost(dataset: Dataset, estimate: Estimate) -> tuple[float, int, float] | None:
-    """``(error, dof, bulk)``: GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate``
-    under the dataset's noise, the graph's degrees of freedom (the measurements'
-    dimensions less the variables'), and the median of each factor's ``2 error`` over
-    the median a chi-square of its dimension has (about 1 when most residuals are as
-    the noise says, whatever a few outliers do); or None as there."""
+def graph_cost(
+    dataset: Dataset, estimate: Estimate, bulk: bool = False
+) -> tuple[float, int] | tuple[float, int, float] | None:
+    """``(error, dof)``: GTSAM's ``0.5 * sum ||whitened residual||^2`` of ``estimate``
+    under the dataset's noise and the graph's degrees of freedom (the measurements'
+    dimensions less the variables'), or None as there. With ``bulk``, a third figure:
+    :func:`_bulk_ratio` (about 1 when most residuals are as the noise says, whatever a
+    few outliers do; one Python call a factor, so only for the smoothers' cost test)."""
     graph = dataset_graph(dataset, frames=len(estimate.pose_ids))
     values = estimate_values(estimate)
     keys = graph.keyVector()
     if not all(values.exists(key) for key in keys):
         return None
     factors = [graph.at(i) for i in range(graph.size()) if graph.at(i) is not None]
-    dof = sum(f.dim() for f in factors)
-    return float(graph.error(values)), int(dof - values.dim()), _bulk_ratio(factors, values)
+    dof = int(sum(f.dim() for f in factors) - values.dim())
+    if not bulk:
+        return float(graph.error(values)), dof
+    return float(graph.error(values)), dof, _bulk_ratio(factors, values)
 
 
 #: Factors of one kind a median is taken over (fewer say nothing of their kind's bulk).
@@ -210,9 +214,13 @@ def _bulk_ratio(factors: list, values: gtsam.Values) -> float:
     near 0 and would otherwise outvote the sightings."""
     from scipy.stats import chi2
 
+    median_of: dict[int, float] = {}  # one scipy call a dimension, not a factor
     kinds: dict[str, list[float]] = {}
     for f in factors:
-        kinds.setdefault(type(f).__name__, []).append(2.0 * f.error(values) / chi2.median(max(f.dim(), 1)))
+        d = max(f.dim(), 1)
+        if d not in median_of:
+            median_of[d] = float(chi2.median(d))
+        kinds.setdefault(type(f).__name__, []).append(2.0 * f.error(values) / median_of[d])
     medians = [float(np.median(v)) for v in kinds.values() if len(v) >= BULK_MIN_FACTORS]
     return max(medians) if medians else float("nan")
 

@@ -128,11 +128,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     check_not_inputs(  # an image written over (--out IMAGES/01.png)
         [("--out", args.out)], {"--config": args.config, **{f"image {p}": p for p in paths}}
     )
-    check_training_settings(  # before the ORB pass
-        args.words,
-        per_image=args.per_image,
-        **({} if args.branching is None else {"branching": args.branching}),
-    )
+    tree = {} if args.branching is None else {"branching": args.branching}  # else the library's
+    check_training_settings(args.words, per_image=args.per_image, **tree)  # before the ORB pass
     config = read_config(args.config)
     orb = OrbDetector(config.section(LoopDetectorConfig).orb)
     warn_unread_sections(config, args.config, "vocab train (it reads the loop detector's [loops.orb])")
@@ -154,7 +151,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         [f.descriptors for f in feats],
         args.words,
         flat=args.flat,
-        **({} if args.branching is None else {"branching": args.branching}),
+        **tree,
         per_image=args.per_image,
         seed=args.seed,
     )

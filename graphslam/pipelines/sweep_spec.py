@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from slamcore.config import INT_LIMIT, ConfigFile, from_dict
-from slamcore.errors import ConfigError, quote
+from slamcore.errors import ConfigError, InputError, quote
 
 SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set", "max_runs")
 #: Runs a grid may hold unless ``[sweep] max_runs`` says more: a sweep of 10 000 runs
@@ -143,19 +143,22 @@ def dataset_fingerprint(dataset: str) -> str | None:
     read twice); None for a built-in name. Two folders of the same name (run from
     two places, or a file changed in place) give two fingerprints."""
     path = Path(dataset)
-    if path.is_file():
-        digest = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                digest.update(block)
-        return digest.hexdigest()
-    if path.is_dir():
-        entries = sorted(
-            (str(p.relative_to(path)), st.st_size, st.st_mtime_ns)
-            for p in path.rglob("*")
-            if p.is_file() and (st := p.stat())
-        )
-        return hashlib.sha256(json.dumps(entries).encode()).hexdigest()
+    try:
+        if path.is_file():
+            digest = hashlib.sha256()
+            with open(path, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    digest.update(block)
+            return digest.hexdigest()
+        if path.is_dir():
+            entries = sorted(
+                (str(p.relative_to(path)), st.st_size, st.st_mtime_ns)
+                for p in path.rglob("*")
+                if p.is_file() and (st := p.stat())
+            )
+            return hashlib.sha256(json.dumps(entries).encode()).hexdigest()
+    except OSError as e:  # unreadable: one line before any run, not a traceback
+        raise InputError(f"cannot read this dataset to tell it from another: {e.strerror}", path) from None
     return None
 
 

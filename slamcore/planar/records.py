@@ -87,6 +87,8 @@ def _check_ids(record, names: tuple[str, ...], what: str, optional: tuple[str, .
         value = getattr(record, name)
         if value is None and name in optional:
             continue
+        if type(value) is int and -ID_LIMIT <= value < ID_LIMIT:  # the common case, per sighting
+            continue
         if isinstance(value, (bool, np.bool_)) or not isinstance(
             value, (int, np.integer, float, np.floating)
         ):

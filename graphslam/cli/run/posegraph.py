@@ -88,8 +88,9 @@ def run(args: argparse.Namespace) -> int:
             paths.update(record(args, graph, result, out_dir))
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     warn_unread_sections(config, args.config, "this pose-graph run")
-    for doubt in (metrics.warnings or [])[len(graph.warnings) :]:  # the estimate's, said once
-        warn(doubt)
+    for doubt in metrics.warnings or []:  # the estimate's; the reader's were said above
+        if doubt not in graph.warnings:
+            warn(doubt)
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
 
 

@@ -475,15 +475,20 @@ def test_a_map_of_copies_is_said_against_the_true_map():
     assert truth_map_warning(83, {}) == []  # no true map: nothing to say
 
 
+def _run_on(shared_data, tmp_path, name: str, *argv: str) -> dict:
+    """``graphslam run`` on the shared data set ``name`` (skipped without it); its metrics."""
+    source = shared_data / name
+    if not source.exists():
+        pytest.skip(f"{name} missing")
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(source), *argv, *RUN, "--out", str(out)]) == 0
+    return json.loads((out / "metrics.json").read_text())
+
+
 def test_a_monocular_score_is_a_share_of_the_path_it_covers(tmp_path, shared_data):
     """KITTI 07 camera alone at the defaults has poses for frames 103-159 only: the ATE
     was a share of the whole 90.6 m route, not of the 33 m it scored."""
-    kitti = shared_data / "kitti07"
-    if not kitti.is_dir():
-        pytest.skip("KITTI 07 missing")
-    out = tmp_path / "o"
-    assert main(["run", "--dataset", str(kitti), "--odometry", "none", *RUN, "--out", str(out)]) == 0
-    m = json.loads((out / "metrics.json").read_text())
+    m = _run_on(shared_data, tmp_path, "kitti07", "--odometry", "none")
     assert m["frames_with_pose"] < m["frames"]
     assert m["path_length_m"] < 60.0  # the whole route is 90.6 m
     assert m["ate_percent_of_path"] == pytest.approx(100 * m["ate_rmse_m"] / m["path_length_m"])
@@ -492,15 +497,10 @@ def test_a_monocular_score_is_a_share_of_the_path_it_covers(tmp_path, shared_dat
 @pytest.mark.slow
 def test_closures_trusted_untested_beyond_the_chi_square_bound_are_said(tmp_path, shared_data, capsys):
     """RRR's Bovisa04 with robust_closures = "none": 84 m from GPS, no warning."""
-    graph = shared_data / "rrr_posegraphs" / "Bovisa04_odometry_bow_tr.g2o"
-    if not graph.is_file():
-        pytest.skip("RRR pose graphs missing")
     cfg = tmp_path / "c.toml"
     cfg.write_text('[posegraph]\nrobust_closures = "none"\n')
-    out = tmp_path / "o"
-    assert main(["run", "--dataset", str(graph), "--backend", "batch", "--config", str(cfg), *RUN,
-                 "--out", str(out)]) == 0
-    m = json.loads((out / "metrics.json").read_text())
+    m = _run_on(shared_data, tmp_path, "rrr_posegraphs/Bovisa04_odometry_bow_tr.g2o", "--backend", "batch",
+                "--config", str(cfg))
     assert any("trusted untested" in w and "above the chi-square bound" in w for w in m["warnings"])
     assert "trusted untested" in capsys.readouterr().err
 
@@ -518,12 +518,7 @@ def test_the_cost_test_needs_the_bulk_of_the_residuals_beyond_the_noise():
 
 @pytest.mark.slow
 def test_mrclam_isam2_with_a_few_gross_outliers_is_not_called_wrong(tmp_path, shared_data):
-    folder = shared_data / "mrclam6"
-    if not folder.is_dir():
-        pytest.skip("MRCLAM missing")
-    out = tmp_path / "o"
-    assert main(["run", "--dataset", str(folder), "--robot", "3", *RUN, "--out", str(out)]) == 0
-    m = json.loads((out / "metrics.json").read_text())
+    m = _run_on(shared_data, tmp_path, "mrclam6", "--robot", "3")
     assert m["ate_rmse_m"] < 0.15
     assert not any("chi-square" in w for w in m.get("warnings") or [])
 
@@ -578,3 +573,23 @@ def test_localize_puts_frames_on_the_timeline_by_their_file_number(tmp_path):
             texts += [t[0] for t in batch.column("TextLog:text").to_pylist()]
     assert sorted(frames) == [4, 5, 6, 7]
     assert any(t.startswith("frame 4:") for t in texts), texts
+
+
+def test_a_sweep_dataset_that_cannot_be_read_is_one_error(tmp_path, monkeypatch):
+    import builtins
+
+    from graphslam.pipelines import sweep_spec
+    from slamcore.errors import InputError
+
+    graph = tmp_path / "g.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\n")
+    real_open = builtins.open
+
+    def refused(file, *a, **k):
+        if str(file) == str(graph):
+            raise PermissionError(13, "Permission denied")
+        return real_open(file, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", refused)
+    with pytest.raises(InputError, match="Permission denied"):
+        sweep_spec.dataset_fingerprint(str(graph))
