@@ -15,7 +15,7 @@ import numpy as np
 
 from filters.association import chi2_quantile
 from filters.numerics import CHI2_2DOF_999, MAX_ODOMETRY_COVARIANCE_SCALE
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError
 
 #: Most landmark slots the buffers may hold before the first doubling: the
@@ -135,6 +135,16 @@ class EkfSlamConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "ekf"
+    # Only the certain ones: under known ids an observation without an id still goes
+    # through the unknown association (gate, JCBB), so those keys may act there.
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            ("new_landmark_density_per_m2", "detection_prob"),
+            'jcbb_objective = "likelihood"',
+            lambda c: c.jcbb_objective == "likelihood",
+        ),
+        Gate(("prune_missed_alpha",), 'association = "unknown"', lambda c: c.association == "unknown"),
+    )
     #: settings no run reads: every streamed observation brings its own covariance, so
     #: the default is only ``predict_observations``' before the first one (library use)
     UNREAD_IN_RUNS: ClassVar[tuple[str, ...]] = ("default_sigma_range_m", "default_sigma_bearing_rad")

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 from filters.numerics import MAX_ODOMETRY_COVARIANCE_SCALE
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 
 #: Most particles a filter may have. Every particle carries its own 2-D EKF per
 #: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
@@ -63,6 +63,14 @@ class FastSlamConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "fastslam"
+    # known ids: an observation without one is refused, never associated
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            ("new_landmark_mahalanobis_sq", "new_landmark_log_likelihood"),
+            'association = "unknown"',
+            lambda c: c.association == "unknown",
+        ),
+    )
 
     version: int = bounded(2, min=1, max=2)
     n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)

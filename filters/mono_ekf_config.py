@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 
 #: Most landmarks the state may hold. The covariance is dense, up to
 #: (13 + 7 L)^2 float64 (constant-velocity model, AHP landmarks), and every
@@ -91,6 +91,19 @@ class MonoEkfConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "mono_ekf"
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            (
+                "cv_sigma_accel_mps2",
+                "cv_sigma_alpha_radps2",
+                "cv_initial_sigma_v_mps",
+                "cv_initial_sigma_w_radps",
+            ),
+            'robot_model = "constant_velocity" (a run without odometry)',
+            lambda c: c.robot_model == "constant_velocity",
+        ),
+        Gate(("ransac_inlier_sigmas", "ransac_max_hypotheses", "seed"), "ransac = true", lambda c: c.ransac),
+    )
 
     robot_model: Literal["odometry", "constant_velocity"] = "odometry"
     landmark_param: Literal["idp", "ahp"] = "idp"

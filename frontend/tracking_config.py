@@ -14,7 +14,7 @@ from typing import ClassVar, Literal
 from frontend.harris import HarrisConfig
 from frontend.image import MAX_POINTS_PER_FRAME, MAX_SIDE_PX
 from frontend.orb import OrbConfig
-from slamcore.config import Validated, bounded
+from slamcore.config import ConfigFile, Gate, Validated, bounded
 from slamcore.errors import ConfigError
 
 __all__ = ["TrackerConfig", "DETECTORS", "SEARCH_MODES", "AUTO_SEARCH", "make_detector"]
@@ -74,6 +74,18 @@ class TrackerConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "tracker"
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            ("max_hamming",),
+            'the descriptor search (search = "descriptor", or "auto" with detector = "orb")',
+            lambda c: c.search_mode == "descriptor",
+        ),
+        Gate(
+            ("follow_min_score", "follow_min_margin"),
+            "a ZNCC follow (a search other than the descriptor one)",
+            lambda c: c.search_mode != "descriptor",
+        ),
+    )
 
     detector: DetectorName = "harris"
     search: SearchMode = "auto"
@@ -106,6 +118,22 @@ class TrackerConfig(Validated):
     @property
     def search_mode(self) -> str:
         return AUTO_SEARCH[self.detector] if self.search == "auto" else self.search
+
+
+def mark_unread_detector_sections(config: ConfigFile | None, detector: str) -> None:
+    """Tell ``config`` which of its detector sections ``detector`` leaves unread, for the
+    warning at the command's end (eleventh hostile pass: ``[orb]`` under Harris ran
+    silently)."""
+    if config is None:
+        return
+    if detector != "orb":
+        config.mark_inert("orb", None, f'[tracker] detector = "orb" (this one is "{detector}")')
+    if detector == "orb":
+        config.mark_inert("harris", None, '[tracker] detector = "harris" or "fpga" (this one is "orb")')
+    elif detector == "fpga":  # the stream is always fixed point: no float unit in the hardware
+        config.mark_inert(
+            "harris", ["arithmetic"], '[tracker] detector = "harris" (the FPGA stream is fixed point)'
+        )
 
 
 def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None, orb: OrbConfig | None = None):

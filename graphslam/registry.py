@@ -291,6 +291,11 @@ def make_backend(name: str, *, config: ConfigSource = None, overrides: dict | No
     return load(impl.backend)(_settings(name, impl, config, overrides))
 
 
+def backend_settings(name: str, config: ConfigSource = None, overrides: dict | None = None):
+    """The settings :func:`make_backend` gives the 2-D back end ``name``."""
+    return _settings(name, landmark_implementation(name), config, overrides)
+
+
 def make_localiser(
     name: str,
     landmark_ids,

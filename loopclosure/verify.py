@@ -84,7 +84,7 @@ import numpy as np
 from loopclosure.acontrario import hull_coverage, image_extent, log10_nfa, shared_view_coverage
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.matching import epipolar_residuals, guided_match, match_descriptors
-from slamcore.config import Validated, bounded, with_overrides
+from slamcore.config import Gate, Validated, bounded, with_overrides
 from slamcore.errors import ConfigError, InputError
 
 __all__ = ["VerifyConfig", "Verification", "PairVerifier", "GeometricVerifier", "MODELS"]
@@ -140,6 +140,14 @@ class VerifyConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "loop_verify"
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        # step 6 recovers a pose (essential only) for pairs below min_coverage
+        Gate(
+            ("max_forward_scale",),
+            'min_coverage > 0 and model = "essential" or "auto" (with intrinsics)',
+            lambda c: c.min_coverage > 0 and c.model in ("essential", "auto"),
+        ),
+    )
 
     model: Model = "auto"
     method: Literal["magsac", "ransac"] = "magsac"

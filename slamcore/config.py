@@ -18,6 +18,13 @@ held to the same rules as one read from a file:
 - ranges: field metadata ``{"min": a, "max": b}`` (inclusive) or
   ``{"gt": a, "lt": b}`` (exclusive), via :func:`bounded`; integers must also
   fit what the machine can index (:data:`INT_LIMIT`).
+
+A setting that acts only in some modes of the others (``polish_method`` with
+``polish = false``) is declared by its config's :attr:`Validated.GATES`; a file
+that sets it where it does nothing is told so when the command ends
+(:meth:`ConfigFile.inert_lines`), as is a whole section the run's other
+settings leave unread (:meth:`ConfigFile.mark_inert`). A warning, not a
+refusal: a command-line flag may switch the mode of a file written for another.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from slamcore.errors import ConfigError, quote
 from slamcore.input_files import check_input_path
@@ -175,13 +182,37 @@ def validate(config: Any) -> None:
         object.__setattr__(config, f.name, value)
 
 
+@dataclass(frozen=True)
+class Gate:
+    """Settings ``fields`` of a config act only when ``acts(config)`` holds, which
+    ``when`` says in the file's words (``"polish = true"``)."""
+
+    fields: tuple[str, ...]
+    when: str
+    acts: typing.Callable[[Any], bool]
+
+
 class Validated:
     """Base of the config dataclasses: :func:`validate` runs whenever one is built, so
     no config can forget its checks. A subclass with checks of its own (between
     fields) defines ``__post_init__`` and calls ``super().__post_init__()`` first."""
 
+    #: settings read only in some modes of the others (:meth:`inert_settings`)
+    GATES: ClassVar[tuple[Gate, ...]] = ()
+
     def __post_init__(self) -> None:
         validate(self)
+
+    def inert_settings(self) -> dict[str, str]:
+        """``{field: when it acts}`` for the fields these settings leave unread (helper
+        E of the eleventh hostile pass: ``polish_method`` with the polish off, the
+        association gate under known ids, ... ran bit-identical and silent)."""
+        out: dict[str, str] = {}
+        for gate in self.GATES:
+            if not gate.acts(self):
+                for name in gate.fields:
+                    out.setdefault(name, gate.when)
+        return out
 
 
 # --------------------------------------------------------------------------- files
@@ -294,6 +325,8 @@ class ConfigFile:
     lines: dict = field(default_factory=dict)
     #: the sections :meth:`section` was asked for (:meth:`unread_sections`)
     read_sections: set = field(default_factory=set, compare=False, repr=False)
+    #: the file's settings that did nothing: key path -> when they act (:meth:`inert_lines`)
+    inert: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def read(cls, path: str | Path | None) -> ConfigFile:
@@ -338,8 +371,61 @@ class ConfigFile:
         data = dict(self.data.get(name, {}) or {})
         given = {k: v for k, v in (overrides or {}).items() if v is not None}
         self._check_overridden(cls, name, {k: data[k] for k in data.keys() & given.keys()})
+        file_data = dict(data)
         data.update(given)
-        return self._build(cls, data, (name,))
+        built = self._build(cls, data, (name,))
+        if issubclass(cls, Validated):
+            # a flag that turned a mode off is named: "--no-polish" under "polish = true"
+            by_file = built
+            if given:
+                try:
+                    by_file = self._build(cls, file_data, (name,))
+                except ConfigError:
+                    pass
+            self._note_inert(built, by_file, self.data.get(name) or {}, (name,))
+        return built
+
+    def _note_inert(self, config: Any, by_file: Any, table: dict, where: tuple[str, ...]) -> None:
+        """Record the keys of the file's ``table`` that ``config`` (built with the
+        overrides) leaves unread, and those of its sub-tables; ``by_file``: the same
+        built without the overrides (those that were not unread there, a flag made so)."""
+        inert = config.inert_settings() if isinstance(config, Validated) else {}
+        if not inert and not any(isinstance(v, dict) for v in table.values()):
+            return
+        file_inert = by_file.inert_settings() if isinstance(by_file, Validated) else {}
+        for key, value in table.items():
+            if key in inert:
+                flag = "" if key in file_inert else " (a command-line option set it otherwise)"
+                self.inert[where + (key,)] = inert[key] + flag
+            elif isinstance(value, dict):
+                self._note_inert(
+                    getattr(config, key, None), getattr(by_file, key, None), value, where + (key,)
+                )
+
+    def mark_inert(self, section: str, keys: typing.Iterable[str] | None, when: str) -> None:
+        """The file's ``keys`` of ``section`` (None: all of them) did nothing in this
+        command, where the settings that decide it are in another section or a flag
+        (``[harris]`` under ``[tracker] detector = "orb"``); ``when``: when they act."""
+        table = self.data.get(section) or {}
+        for key in table if keys is None else keys:
+            if key in table:
+                self.inert[(section, key)] = when
+
+    def inert_lines(self) -> list[str]:
+        """One line per group of the file's settings that did nothing, with the line
+        of the first and when they act."""
+        groups: dict[tuple[tuple[str, ...], str], list[str]] = {}
+        for path, when in self.inert.items():
+            groups.setdefault((path[:-1], when), []).append(path[-1])
+        out = []
+        for (where, when), keys in groups.items():
+            line = self.line_of(*where, keys[0])
+            at = f"{self.path}" + (f" line {line}" if line is not None else "")
+            out.append(
+                f"--config {at}: [{'.'.join(where)}] {', '.join(keys)} did nothing: "
+                f"{'it acts' if len(keys) == 1 else 'they act'} only with {when}"
+            )
+        return out
 
     def _check_overridden(self, cls: type, name: str, data: dict) -> None:
         """The file's values that an override replaces still have their field's type:

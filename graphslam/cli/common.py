@@ -278,13 +278,17 @@ def warn(message: str) -> None:
 def warn_unread_sections(config, path, command: str) -> None:
     """A warning naming the ``--config`` sections ``command`` never read (a file shared
     with other back ends or commands): their settings did nothing and were not checked
-    (eleventh hostile pass: ``[ekf] zzz = 1`` under the default back end ran silently)."""
+    (eleventh hostile pass: ``[ekf] zzz = 1`` under the default back end ran silently);
+    and one for each group of settings the others' modes left unread
+    (:meth:`slamcore.config.ConfigFile.inert_lines`)."""
     unread = config.unread_sections()
     if unread:
         warn(
             f"--config {path}: {', '.join(f'[{s}]' for s in unread)} not read by {command}; "
             "those settings did nothing and were not checked"
         )
+    for line in config.inert_lines():  # read, but left unread by the others' modes
+        warn(line)
 
 
 def warn_doubts(doubts: dict[str, list[str] | None]) -> None:

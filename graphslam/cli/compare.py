@@ -117,6 +117,17 @@ def register(sub) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam import registry
+    from graphslam.cli.common import warn
+
+    config = registry.read_config(args.config)
+    status = _compare(args, config)
+    for line in config.inert_lines():  # settings the back ends' own modes left unread
+        warn(line)
+    return status
+
+
+def _compare(args: argparse.Namespace, config) -> int:
+    from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
     from graphslam.pipelines import compare
 
@@ -129,7 +140,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.out is not None:  # refused now, not after the runs
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
-    config = registry.read_config(args.config)
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
@@ -163,6 +173,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(narrowed, file=sys.stderr, flush=True)
     out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
+    for name in args.backends:  # built here too (the runs are in child processes): their gates
+        try:
+            registry.backend_settings(name, config, overrides[name])
+        except GraphSlamError:  # said by its run, which fails alone (the others are kept)
+            pass
     entries = compare.compare(
         dataset,
         args.backends,

@@ -262,10 +262,12 @@ def make_localizer(smap: SpatialMap, K: np.ndarray, config=None) -> Localizer:
     ``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``), defaults without."""
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
-    from frontend.tracking_config import TrackerConfig, make_detector
-    from slamcore.config import load_section
+    from frontend.tracking_config import TrackerConfig, make_detector, mark_unread_detector_sections
+    from slamcore.config import ConfigFile, load_section
 
     tracker = TrackerConfig(detector=smap.meta.get("tracker", {}).get("detector", "harris"))
+    if isinstance(config, ConfigFile):
+        mark_unread_detector_sections(config, tracker.detector)
     detector = make_detector(tracker, load_section(HarrisConfig, config), load_section(OrbConfig, config))
     bow_orb = OrbDetector(OrbConfig(**smap.meta["bow_orb"])) if "bow_orb" in smap.meta else None
     return Localizer(

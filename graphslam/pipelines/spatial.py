@@ -203,9 +203,10 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     from frontend.active_search_config import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
-    from frontend.tracking_config import TrackerConfig
+    from frontend.tracking_config import TrackerConfig, mark_unread_detector_sections
 
     cfg = config.section(TrackerConfig, {"detector": detector})
+    mark_unread_detector_sections(config, cfg.detector)
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
     return cfg, Tracker(
         cfg,

@@ -94,3 +94,16 @@ def test_every_config_is_checked_when_built():
     classes = _config_classes()
     assert len(classes) >= 20
     assert [c.__qualname__ for c in classes if not issubclass(c, Validated)] == []
+
+
+def test_every_gate_names_fields_of_its_config():
+    """A gate naming a field that was renamed would silently never say anything."""
+    import dataclasses
+
+    gated = [c for c in _config_classes() if getattr(c, "GATES", ())]
+    assert len(gated) >= 7
+    for cls in gated:
+        names = {f.name for f in dataclasses.fields(cls)}
+        for gate in cls.GATES:
+            assert set(gate.fields) <= names, (cls.__qualname__, gate.fields)
+            cls().inert_settings()  # every condition evaluates on the defaults

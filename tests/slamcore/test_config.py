@@ -7,7 +7,7 @@ from typing import ClassVar, Literal
 
 import pytest
 
-from slamcore.config import ConfigFile, Validated, bounded, choices_of, from_dict, load_section
+from slamcore.config import ConfigFile, Gate, Validated, bounded, choices_of, from_dict, load_section
 from slamcore.errors import ConfigError
 
 
@@ -125,3 +125,80 @@ def test_a_partial_nested_table_keeps_the_fields_own_default(tmp_path):
     p = _write(tmp_path, "c.toml", "[holder.wide]\nn_features = 500\n")
     assert load_section(Holder, p).wide == Wide(n_features=500, cell_px=0)
     assert load_section(Holder, None).wide == Wide(n_features=1000, cell_px=0)
+
+
+# --------------------------------------------------------------------------- gates
+
+
+@dataclass(frozen=True)
+class Gated(Validated):
+    SECTION: ClassVar[str] = "gated"
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(("polish_iterations",), "polish = true", lambda c: c.polish),
+        Gate(("kernel_k", "inner"), 'kernel other than "none"', lambda c: c.kernel != "none"),
+    )
+    polish: bool = True
+    polish_iterations: int = bounded(10, min=1)
+    kernel: Literal["none", "huber"] = "none"
+    kernel_k: float = bounded(1.0, gt=0.0)
+    inner: Inner = field(default_factory=Inner)
+
+
+def test_gated_settings_the_file_sets_are_said_with_their_line(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[gated]\npolish = false\npolish_iterations = 3\nkernel_k = 2.0\n[gated.inner]\nn_features = 7\n")
+    config = ConfigFile.read(path)
+    config.section(Gated)
+    lines = config.inert_lines()
+    assert lines == [
+        f"--config {path} line 3: [gated] polish_iterations did nothing: it acts only with polish = true",
+        f'--config {path} line 4: [gated] kernel_k, inner did nothing: they act only with kernel other than "none"',
+    ]
+
+
+def test_gates_judge_the_settings_after_the_flags(tmp_path):
+    """A flag may switch a mode on or off: the gate reads the built config."""
+    path = tmp_path / "c.toml"
+    path.write_text("[gated]\npolish_iterations = 3\n")
+    config = ConfigFile.read(path)
+    config.section(Gated)
+    assert config.inert_lines() == []
+    config.section(Gated, {"polish": False})
+    assert len(config.inert_lines()) == 1
+
+
+def test_defaults_and_flags_alone_are_never_said(tmp_path):
+    """Only the file's keys: a default, or a value a command sets itself, is no user's."""
+    config = ConfigFile.read(None)
+    config.section(Gated, {"polish": False, "polish_iterations": 4})
+    assert config.inert_lines() == []
+    assert Gated(polish=False).inert_settings() == {
+        "polish_iterations": "polish = true",
+        "kernel_k": 'kernel other than "none"',
+        "inner": 'kernel other than "none"',
+    }
+
+
+def test_marked_sections_are_said_for_the_keys_the_file_has(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[inner]\nn_features = 5\n")
+    config = ConfigFile.read(path)
+    config.mark_inert("inner", None, "detector = 1")
+    config.mark_inert("absent", None, "never")
+    config.mark_inert("inner", ["other"], "never")
+    assert config.inert_lines() == [
+        f"--config {path} line 2: [inner] n_features did nothing: it acts only with detector = 1"
+    ]
+
+
+def test_a_flag_that_turned_the_mode_off_is_named(tmp_path):
+    """``--no-polish`` under ``polish = true``: the line said "acts only with polish =
+    true" beside a file that says so (thirteenth hostile pass)."""
+    path = tmp_path / "c.toml"
+    path.write_text("[gated]\npolish = true\npolish_iterations = 3\n")
+    config = ConfigFile.read(path)
+    config.section(Gated, {"polish": False})
+    assert config.inert_lines() == [
+        f"--config {path} line 3: [gated] polish_iterations did nothing: it acts only with polish = true "
+        "(a command-line option set it otherwise)"
+    ]

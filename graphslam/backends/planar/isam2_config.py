@@ -14,7 +14,7 @@ import numpy as np
 
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 
 __all__ = ["Isam2Config"]
 
@@ -95,6 +95,41 @@ class Isam2Config(Validated):
         "gate_min_support",
         "gate_scale_from_data",
         "gate_polish_rounds",
+    )
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            (
+                "polish_max_iterations",
+                "polish_relative_error_tol",
+                "polish_absolute_error_tol",
+                "polish_method",
+                "gate_polish_rounds",
+            ),
+            "polish = true",
+            lambda c: c.polish,
+        ),
+        Gate(
+            ("gate_window", "gate_min_support", "gate_scale_from_data", "gate_polish_rounds"),
+            "loop_closure_gate > 0",
+            lambda c: c.loop_closure_gate > 0,
+        ),
+        Gate(("gate_polish_rounds",), 'polish_method = "lm"', lambda c: c.polish_method == "lm"),
+        Gate(
+            ("loop_closure_kernel_k",),
+            'loop_closure_kernel other than "none"',
+            lambda c: c.loop_closure_kernel != "none",
+        ),
+        Gate(
+            ("observation_kernel_k",),
+            'observation_kernel other than "none"',
+            lambda c: c.observation_kernel != "none",
+        ),
+        # known ids: an observation without one is skipped, never associated
+        Gate(
+            ("association_gate_prob", "confirm_sightings"),
+            'association = "unknown"',
+            lambda c: c.association == "unknown",
+        ),
     )
     relinearize_threshold: float = bounded(0.1, gt=0.0)
     relinearize_skip: int = bounded(10, min=1)

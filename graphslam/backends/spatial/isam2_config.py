@@ -16,7 +16,7 @@ import gtsam
 from frontend.two_view import MAX_SEED
 from graphslam.backends.gtsam_convert import RobustKernel
 from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError
 
 
@@ -108,6 +108,21 @@ class VisualIsam2Config(Validated):
     """
 
     SECTION: ClassVar[str] = "isam2_visual"
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        # the RANSACs seeded are the camera-alone ones (two-view start, PnP)
+        Gate(
+            ("seed", "mono"),
+            'robot_model = "constant_velocity" (a run without odometry)',
+            lambda c: c.robot_model == "constant_velocity",
+        ),
+        Gate(("pixel_kernel_k",), 'pixel_kernel other than "none"', lambda c: c.pixel_kernel != "none"),
+        Gate(
+            ("loop_closure_kernel_k",),
+            'loop_closure_kernel other than "none"',
+            lambda c: c.loop_closure_kernel != "none",
+        ),
+        Gate(("polish_method", "polish_max_iterations"), "polish = true", lambda c: c.polish),
+    )
     robot_model: Literal["odometry", "constant_velocity"] = "odometry"
     seed: int = bounded(0, min=0, max=MAX_SEED)  # OpenCV's generators take a C int
     mono: MonoTrackingConfig = field(default_factory=MonoTrackingConfig)

@@ -176,7 +176,8 @@ def _unused_settings(backend, config, result) -> list[str]:
     if not closure_keys and not unread_keys:
         return []
     section = section_name(cls)
-    given = list(config.data.get(section) or {})
+    # those the gates of the config already name (ConfigFile.inert_lines) once only
+    given = [k for k in config.data.get(section) or {} if (section, k) not in config.inert]
     out = []
     closures = [k for k in given if k in closure_keys]
     if closures and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
