@@ -3,7 +3,7 @@
 ``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset``,
 ``backend``, every swept ``section.key`` (empty where the run does not read
 that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
-``wall_s``, ``peak_rss_mb``, ``status`` (ok, failed, interrupted),
+``run_wall_s``, ``wall_s``, ``peak_rss_mb`` (:data:`TAIL_COLUMNS`), ``status`` (ok, failed, interrupted),
 ``error`` (the failed run's one-line error) and ``warnings`` (what the run's
 metrics.json says makes its estimate doubtful, joined by " | "; empty: nothing). The file is rewritten after
 every finished run, so Ctrl-C keeps them all; a sweep run again into the same
@@ -28,6 +28,7 @@ from slamcore.files import atomic_open
 
 METRIC_COLUMNS = (
     "ate_rmse_m",
+    "ate_alignment",
     "rpe_trans_rmse_m",
     "rpe_rot_rmse_deg",
     "nees_mean",
@@ -35,7 +36,10 @@ METRIC_COLUMNS = (
     "association_accuracy",
     "duplicates",
 )
-TAIL_COLUMNS = ("wall_s", "peak_rss_mb", "status", "error", "warnings")
+#: ``run_wall_s``: the run's own time (its metrics.json's ``wall_s``: reading the data,
+#: the run, its outputs); ``wall_s`` and ``peak_rss_mb``: the whole child process's,
+#: with the interpreter's start, the imports (about 120 MB) and the sweep's scoring.
+TAIL_COLUMNS = ("run_wall_s", "wall_s", "peak_rss_mb", "status", "error", "warnings")
 #: Between two of a run's warnings in the ``warnings`` column.
 WARNING_SEPARATOR = " | "
 
@@ -182,12 +186,16 @@ def plot_files(out: Path) -> tuple[str, ...]:
 
 
 def with_labels(rows: list[dict], set_keys) -> list[dict]:
-    """Rows with a ``label``: the back end and the swept values it ran with (the
-    group a plot puts it in; seeds are the Monte Carlo runs of a group)."""
+    """Rows with a ``label``: the back end and the swept values it ran with, and its
+    dataset when the sweep has several (the group a plot puts it in; seeds are the
+    Monte Carlo runs of a group: a synthetic run and a real robot's pooled as two
+    repeats of one "ekf", thirteenth hostile pass)."""
+    several = len({r.get("dataset") for r in rows}) > 1
     out = []
     for r in rows:
         parts = [f"{k.split('.', 1)[1]}={r[k]}" for k in set_keys if r.get(k) not in (None, "")]
-        out.append({**r, "label": " ".join([r["backend"], *parts])})
+        where = [Path(str(r.get("dataset"))).name or str(r.get("dataset"))] if several else []
+        out.append({**r, "label": " ".join([r["backend"], *parts, *where])})
     return out
 
 

@@ -111,7 +111,9 @@ def _pythonpath() -> str:
 
 
 def _scores(out_dir: Path) -> dict:
-    """Metrics of a finished run: metrics.json, and the frame-delta RPE of its files."""
+    """Metrics of a finished run: metrics.json, with its RPE where it has one (image runs:
+    a monocular run's at the scale of its Sim(3) fit; scored from the files, unscaled, it
+    was 4.5x the run's own, thirteenth hostile pass), else the frame-delta RPE of its files."""
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.pipelines.trajectory_eval import evaluate_files
 
@@ -119,12 +121,23 @@ def _scores(out_dir: Path) -> dict:
     assoc = m.get("association") or {}
     row = {
         "ate_rmse_m": m.get("ate_rmse_m"),
+        # image runs say theirs (a monocular one's is Sim(3)); 2-D runs align in SE(2)
+        "ate_alignment": m.get("alignment")
+        or ("se2" if "steps" in m and m.get("ate_rmse_m") is not None else ""),
+        "run_wall_s": m.get("wall_s"),
         "nees_mean": m.get("nees_mean"),
         "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
         "association_accuracy": assoc.get("accuracy"),
         "duplicates": assoc.get("duplicates"),
         "warnings": WARNING_SEPARATOR.join(m.get("warnings") or []),
     }
+    own = m.get("rpe")
+    if isinstance(own, dict):  # an image run's own RPE: a monocular one's at its Sim(3) scale
+        return {
+            **row,
+            "rpe_trans_rmse_m": own.get("trans_rmse_m"),
+            "rpe_rot_rmse_deg": own.get("rot_rmse_deg"),
+        }
     gt = out_dir / "ground_truth.tum"
     if gt.is_file():
         # time column = pose id on both sides: exact association; SE(2) poses as z = 0

@@ -297,19 +297,40 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
         )
         ax.legend(loc="best", fontsize=8)
         written.append(_save(fig, out_dir / "sweep_nees.png"))
+    several = len({r.get("dataset") for r in rows}) > 1
     for group, name in [("label", "sweep_ate.png")] + [(k, f"sweep_{k}.png") for k in set_keys]:
-        data = _metric_by(rows, group)
-        if not data or (group != "label" and len(data) < 2):
+        if group != "label" and len({str(r.get(group)) for r in rows if r.get(group) != ""}) < 2:
+            continue
+        # a swept value's box holds one back end (and dataset): pooled, iSAM2 and the
+        # EKF made one box, and a value where one of them failed another mix
+        data = _metric_by(
+            [
+                r if group == "label" else {**r, "group": _setting_group(r, group, several)}
+                for r in rows
+                if group == "label" or r.get(group) != ""
+            ],
+            "label" if group == "label" else "group",
+        )
+        if not data:
             continue
         fig, ax = plt.subplots(figsize=(max(5, 1.4 * len(data) + 2), 4.5), constrained_layout=True)
         labels = sorted(data)
         ax.boxplot([data[k] for k in labels])
-        ax.set_xticks(np.arange(1, len(labels) + 1), labels, rotation=20 if group == "label" else 0)
-        ax.set_xlabel("back end and swept settings" if group == "label" else group)
+        ax.set_xticks(np.arange(1, len(labels) + 1), labels, rotation=20)
+        ax.set_xlabel("back end and swept settings" if group == "label" else f"{group}, back end")
         ax.set_ylabel("ATE RMSE [m]")
-        ax.set_title(f"ATE over {sum(len(v) for v in data.values())} runs")
+        n_in = sum(len(v) for v in data.values())
+        n_all = sum(1 for r in rows if group == "label" or r.get(group) != "")
+        missing = f" of {n_all} (the others failed or have no ATE)" if n_in < n_all else ""
+        ax.set_title(f"ATE over {n_in} runs{missing}")
         written.append(_save(fig, out_dir / name))
     return written
+
+
+def _setting_group(row: dict, key: str, several_datasets: bool) -> str:
+    """The box of ``row`` in the plot of the swept ``key``: its value, back end, dataset."""
+    where = f" {Path(str(row.get('dataset'))).name}" if several_datasets else ""
+    return f"{row.get(key)}\n{row['backend']}{where}"
 
 
 def _save(fig, path: Path) -> Path:
