@@ -148,7 +148,13 @@ def load_dataset(
         from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam
 
         check_input_path(Path(spec), "--dataset", folder_ok=True)
-        overrides = {} if robot is None else {"all_robots": True} if robot == "all" else {"robot": robot}
+        overrides = (
+            {}
+            if robot is None
+            else {"all_robots": True}
+            if robot == "all"
+            else {"robot": robot, "all_robots": False}
+        )
         settings = load_section(MrclamConfig, config, overrides)
         if settings.all_robots:
             from graphslam.sources.planar.mrclam_joint import read_mrclam_all

@@ -140,9 +140,13 @@ def _check_number(value: Any, hint: type, what: str) -> int | float:
                 f"{what}: {quote(value)} is beyond what this machine can hold (|value| <= 2**62)"
             )
         return int(value)
-    if not math.isfinite(float(value)):
+    try:
+        as_float = float(value)
+    except OverflowError:  # an integer past 1.8e308 (thirteenth hostile pass: a traceback)
+        as_float = math.inf
+    if not math.isfinite(as_float):
         raise ConfigError(f"{what}: expected a finite number, got {quote(value)}")
-    return float(value)
+    return as_float
 
 
 def _check_range(value: Any, meta: typing.Mapping, what: str) -> None:
@@ -218,21 +222,39 @@ class Validated:
 # --------------------------------------------------------------------------- files
 
 
+#: A TOML key: bare, "basic" or 'literal' parts joined by dots.
+_TOML_KEY = r"""(?:[A-Za-z0-9_\-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_\-]+|"[^"]*"|'[^']*'))*"""
+
+
+def _toml_key(text: str) -> tuple[str, ...]:
+    return tuple(
+        m.group(0).strip().strip("\"'")
+        for m in re.finditer(r"""[^."']+|"[^"]*"|'[^']*'""", text)
+        if m.group(0).strip()
+    )
+
+
 def _toml_lines(text: str) -> dict[tuple[str, ...], int]:
-    """1-based line of each ``[table]`` and ``key =`` of a TOML text, by dotted path."""
+    """1-based line of each ``[table]`` and ``key =`` of a TOML text, by dotted path;
+    quoted keys and the keys of a one-line inline table (``t = {k = 1}``) too (thirteenth
+    hostile pass: ``'min_depth_m' = 0.3`` had no line, and what looked for it missed it)."""
     lines: dict[tuple[str, ...], int] = {}
     table: tuple[str, ...] = ()
     for n, raw in enumerate(text.splitlines(), start=1):
         s = raw.split("#", 1)[0].strip()
-        m = re.fullmatch(r"\[\[?\s*([^\]]+?)\s*\]\]?", s)
+        m = re.fullmatch(rf"\[\[?\s*({_TOML_KEY})\s*\]\]?", s)
         if m:
-            table = tuple(p.strip().strip('"') for p in m.group(1).split("."))
+            table = _toml_key(m.group(1))
             lines.setdefault(table, n)
             continue
-        m = re.match(r"([A-Za-z0-9_\-.\"]+)\s*=", s)
+        m = re.match(rf"({_TOML_KEY})\s*=\s*(.*)", s)
         if m:
-            key = tuple(p.strip().strip('"') for p in m.group(1).split("."))
-            lines.setdefault(table + key, n)
+            key = table + _toml_key(m.group(1))
+            lines.setdefault(key, n)
+            inline = re.fullmatch(r"\{(.*)\}", m.group(2).strip())
+            if inline:
+                for k in re.finditer(rf"(?:^|,)\s*({_TOML_KEY})\s*=", inline.group(1)):
+                    lines.setdefault(key + _toml_key(k.group(1)), n)
     return lines
 
 
@@ -372,6 +394,9 @@ class ConfigFile:
         given = {k: v for k, v in (overrides or {}).items() if v is not None}
         self._check_overridden(cls, name, {k: data[k] for k in data.keys() & given.keys()})
         file_data = dict(data)
+        for key in data.keys() & given.keys():  # the command line wins, and says so
+            if data[key] != given[key] or type(data[key]) is not type(given[key]):
+                self.inert[(name, key)] = f"the command line's {_toml_value(given[key])}, which replaced it"
         data.update(given)
         built = self._build(cls, data, (name,))
         if issubclass(cls, Validated):
@@ -421,10 +446,11 @@ class ConfigFile:
         for (where, when), keys in groups.items():
             line = self.line_of(*where, keys[0])
             at = f"{self.path}" + (f" line {line}" if line is not None else "")
-            out.append(
-                f"--config {at}: [{'.'.join(where)}] {', '.join(keys)} did nothing: "
-                f"{'it acts' if len(keys) == 1 else 'they act'} only with {when}"
-            )
+            head = f"--config {at}: [{'.'.join(where)}] {', '.join(keys)} did nothing"
+            if when.startswith("the command line's "):
+                out.append(f"{head}: {when}")
+            else:
+                out.append(f"{head}: {'it acts' if len(keys) == 1 else 'they act'} only with {when}")
         return out
 
     def _check_overridden(self, cls: type, name: str, data: dict) -> None:
@@ -471,6 +497,15 @@ class ConfigFile:
             ) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
+
+
+def _toml_value(value: Any) -> str:
+    """``value`` as a config file writes it (``true``, ``"text"``, ``0.5``)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return str(value)
 
 
 def _field_names(cls: type) -> set[str]:

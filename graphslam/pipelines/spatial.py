@@ -189,7 +189,8 @@ def scene_nearest_depth(sequence: ImageSequence, config) -> float | None:
     file (the file wins). A prior meant for a nearer scene biases every new
     landmark's first corrections the same way, and the filter becomes
     overconfident (measured in README.md, "compare on image sequences")."""
-    if config is not None and config.line_of("mono_ekf", "min_depth_m") is not None:
+    # what the file holds, not where: a line scanner misses legal TOML forms
+    if config is not None and "min_depth_m" in (config.data.get("mono_ekf") or {}):
         return None
     return sequence.nearest_depth_m
 

@@ -199,6 +199,42 @@ def test_a_flag_that_turned_the_mode_off_is_named(tmp_path):
     config = ConfigFile.read(path)
     config.section(Gated, {"polish": False})
     assert config.inert_lines() == [
+        f"--config {path} line 2: [gated] polish did nothing: the command line's false, which replaced it",
         f"--config {path} line 3: [gated] polish_iterations did nothing: it acts only with polish = true "
-        "(a command-line option set it otherwise)"
+        "(a command-line option set it otherwise)",
     ]
+
+
+def test_a_file_value_the_command_line_replaced_is_said(tmp_path):
+    """``--robot 2`` under ``[mrclam] all_robots = true`` ran all five robots, silent, and
+    ``robot_model = "odometry"`` under ``--odometry none`` was replaced, silent
+    (thirteenth hostile pass; the first is now refused by the reader's override)."""
+    path = tmp_path / "c.toml"
+    path.write_text('[gated]\npolish = true\nkernel = "none"\n')
+    config = ConfigFile.read(path)
+    config.section(Gated, {"polish": False, "kernel": "none"})
+    assert config.inert_lines() == [
+        f"--config {path} line 2: [gated] polish did nothing: the command line's false, which replaced it"
+    ]
+
+
+def test_an_integer_past_the_largest_float_is_one_error(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[outer]\nsigma_m = 1" + "0" * 400 + "\n")
+    with pytest.raises(ConfigError, match="finite number"):
+        load_section(Outer, path)
+
+
+def test_quoted_keys_and_inline_tables_have_their_lines(tmp_path):
+    """``'min_depth_m' = 0.3`` and ``mono_ekf = {min_depth_m = 0.3}`` had no line: errors
+    lost it, and a check for the key by its line missed the setting (thirteenth pass)."""
+    path = tmp_path / "c.toml"
+    path.write_text("[outer]\n'sigma_m' = -1\n")
+    with pytest.raises(ConfigError) as e:
+        load_section(Outer, path)
+    assert e.value.line == 2
+    path.write_text('outer = {mode = "fast", count = -1}\n')
+    with pytest.raises(ConfigError) as e:
+        load_section(Outer, path)
+    assert e.value.line == 1
+
