@@ -238,3 +238,25 @@ def test_quoted_keys_and_inline_tables_have_their_lines(tmp_path):
         load_section(Outer, path)
     assert e.value.line == 1
 
+
+
+@pytest.mark.parametrize("value,words", [("010", "reads it as 8"), ("1:30", "reads it as 90"),
+                                         ("1_000", "not a plain integer")])
+def test_yaml_1_1_integers_are_refused_with_their_line(tmp_path, value, words):
+    """``seed: 010`` ran seed 8 and ``seed: 1:30`` seed 90, silent (thirteenth pass)."""
+    path = tmp_path / "c.yaml"
+    path.write_text(f"outer:\n  count: {value}\n")
+    with pytest.raises(ConfigError, match=words) as e:
+        load_section(Outer, path)
+    assert e.value.line == 2
+
+
+def test_yaml_words_are_not_booleans_and_exponents_are_floats(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("outer:\n  mode: off\n")
+    with pytest.raises(ConfigError, match="write true or false"):
+        load_section(Outer, path)
+    path.write_text("outer:\n  sigma_m: 1e-3\n  count: 7\n")
+    assert load_section(Outer, path).sigma_m == 1e-3
+    path.write_text("outer:\n  # every key commented out\n")
+    assert load_section(Outer, path) == Outer()
