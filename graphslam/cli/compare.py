@@ -185,7 +185,7 @@ def _compare(args: argparse.Namespace, config) -> int:
         overrides=overrides,
         max_steps=args.max_steps,
         isolate=not args.in_process,
-        seed=args.seed,
+        seed=dataset.seed,  # the data's, as run records it (--seed, or the file's [synthetic] seed)
         progress=lambda name: print(f"running {name} ...", file=sys.stderr, flush=True),
     )
     from graphslam.visualisation.planar import RunRecorder
