@@ -24,7 +24,7 @@ def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
     """``old`` followed by ``new`` (module docstring); ``meta["sessions"]`` lists both."""
     if old.vocabulary is not new.vocabulary:
         raise InputError("the two sessions' maps were built with different vocabularies", "--map")
-    check_camera(old, new.K, new.image_size, "--map")
+    check_camera(old, new.K, new.image_size, "--map", new.meta.get("distortion"))
     ids = new.landmark_ids.copy()
     pos = ids >= 0
     ids[pos] += int(max(old.landmark_ids.max(initial=-1), -1)) + 1

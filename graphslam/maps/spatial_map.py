@@ -165,10 +165,40 @@ class SpatialMap:
             raise InputError(
                 f"map bag-of-words word ids outside the vocabulary's {self.vocabulary.n_words_} words", where
             )
-        for name in ("keyframe_wTc", "landmark_w", "bow_weights"):
+        for name in ("keyframe_wTc", "landmark_w", "bow_weights", "keyframe_cov", "landmark_cov"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise InputError(f"map array {name} holds non-finite values", where)
+        self._check_geometry(where)
         self._check_bow_rows(where)
+
+    def _check_geometry(self, where) -> None:
+        """InputError unless keyframe poses are rigid, positions within
+        ``TRANSLATION_MAX_M`` and covariances symmetric with no negative variance
+        (thirteenth hostile pass: rotations scaled by 2, a bottom row [1 2 3 0] and
+        positions times 1e160 loaded, and a joined map carried them on)."""
+        from graphslam.evaluation.matching import RIGID_TOL
+        from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+
+        T = self.keyframe_wTc
+        if len(T):
+            R = T[:, :3, :3]
+            off = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+            bottom = np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1)
+            bad = np.flatnonzero((off > RIGID_TOL) | (bottom > RIGID_TOL) | (np.linalg.det(R) < 0.0))
+            if bad.size:
+                raise InputError(f"map keyframe {int(self.keyframe_ids[bad[0]])} is not a rigid pose", where)
+        for name, xyz in (("keyframe", T[:, :3, 3]), ("landmark", self.landmark_w)):
+            far = np.flatnonzero(np.any(np.abs(xyz) > TRANSLATION_MAX_M, axis=1))
+            if far.size:
+                raise InputError(f"map {name} {int(far[0])} lies beyond {TRANSLATION_MAX_M:.0e} m", where)
+        for name in ("keyframe_cov", "landmark_cov"):
+            C = getattr(self, name)
+            diag = np.diagonal(C, axis1=1, axis2=2)
+            if np.any(diag < 0.0) or np.any(np.abs(C - np.swapaxes(C, 1, 2)) > 1e-9 * (1.0 + np.abs(C))):
+                raise InputError(
+                    f"map array {name} holds a covariance that is not symmetric or has a negative variance",
+                    where,
+                )
 
     def _check_bow_rows(self, where) -> None:
         """InputError unless every keyframe's row is a :class:`BowVector` (word ids

@@ -168,7 +168,7 @@ class LocaliseSession:
         """The localiser of ``smap`` (``[localize]``, ``[loop_pnp]``, ``[harris]``, ``[orb]``
         of ``config``) on ``sequence``. InputError (naming ``where``) when the sequence's
         camera is not the map's."""
-        check_camera(smap, sequence.K, sequence.image_size, where)
+        check_camera(smap, sequence.K, sequence.image_size, where, getattr(sequence, "distortion", None))
         return cls(sequence, smap, make_localizer(smap, sequence.K, config))
 
     def run(self, **kwargs) -> localize_run.LocalizeResult:

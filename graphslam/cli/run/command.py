@@ -281,7 +281,7 @@ def _add_image_options(vis) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
-    from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.cli.common import check_rerun_flags, claim_out_dir, rerun_sink
     from slamcore.errors import ConfigError, GraphSlamError
     from slamcore.files import check_output_dir
 
@@ -300,6 +300,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         from graphslam.maps.files import MAP_JSON, MAP_NPZ, VOCAB_NPZ
 
         check_output_dir(args.save_map, "--save-map", files=(MAP_JSON, MAP_NPZ, VOCAB_NPZ))
+        _check_not_a_foreign_map(Path(args.save_map) / MAP_JSON)
+        # two runs saving one map: the second was refused nowhere and its map replaced the
+        # first's, both saying "map in ..." (thirteenth hostile pass)
+        made = None if Path(args.save_map).exists() else Path(args.save_map)
+        claim_out_dir(Path(args.save_map), "--save-map")
+    else:
+        made = None
     # Decided before any work: a viewer that cannot be used costs one warning
     # line and a saved recording, not the run.
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "run.rrd")
@@ -316,6 +323,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             except GraphSlamError as e:  # the cut is the error to report; say this one too
                 raise GraphSlamError(f"{cut} (and trajectory.bag not written: {e})") from None
         raise
+    finally:
+        _remove_if_empty(made)
     # an earlier run's bag went with its other files (remove_stale_outputs)
     if args.write_bag and status in (0, 130, 143) and _trajectory_written_since(args, started_ns):
         _write_bag(args)  # a finished or stopped run's estimate
@@ -331,6 +340,37 @@ def _trajectory_written_since(args: argparse.Namespace, started_ns: int) -> bool
         return (Path(out) / "trajectory.tum").stat().st_mtime_ns >= started_ns
     except OSError:
         return False
+
+
+def _remove_if_empty(folder: Path | None) -> None:
+    """Remove ``folder`` (one this run made to lock it) if no map went into it."""
+    if folder is not None:
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (the map is in it), or gone
+            pass
+
+
+def _check_not_a_foreign_map(path: Path) -> None:
+    """Refuse ``--save-map`` over a ``map.json`` that is no graphslam map (a GeoJSON of the
+    user's was replaced without a word)."""
+    import json
+
+    from graphslam.maps.files import FORMAT
+    from slamcore.errors import InputError
+
+    if not path.is_file():
+        return
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        doc = None
+    if not (isinstance(doc, dict) and doc.get("format") == FORMAT):
+        raise InputError(
+            "--save-map: this map.json is not a graphslam map, and saving would replace it; "
+            "choose another folder",
+            path,
+        )
 
 
 def _check_outputs_are_not_inputs(args: argparse.Namespace) -> None:

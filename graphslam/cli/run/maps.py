@@ -135,6 +135,8 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         "odometry": result.odometry,
         "tracker": dataclasses.asdict(tracker.config),
         "bow_orb": dataclasses.asdict(recorder.bow_orb.config),
+        # the lens model the keyframes' pixels were read with (check_camera compares it)
+        "distortion": [] if seq.distortion is None else [float(d) for d in seq.distortion],
     }
     vocabulary = None if closer is None else closer.detector.database.vocabulary
     if prior_map is not None:
@@ -152,3 +154,10 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
         f"{c['observations']} observations"
     )
+    if c["landmarks"] == 0:  # saved in silence, then localize placed nothing, also silent
+        from graphslam.cli.common import warn
+
+        warn(
+            f"the map in {args.save_map} has no landmark: nothing can be placed against it "
+            "(a run of more frames, with parallax, makes one)"
+        )

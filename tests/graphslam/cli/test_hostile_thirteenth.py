@@ -8,7 +8,6 @@ Run in process through :func:`graphslam.cli.main.main`, which turns errors into 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 
@@ -37,3 +36,74 @@ def test_robot_flag_wins_over_a_file_running_all_robots(tmp_path, capsys, shared
                  "--max-steps", "30", *RUN, "--out", str(out)]) == 0
     assert json.loads((out / "metrics.json").read_text())["dataset"] == "mrclam6-robot2"
     assert "[mrclam] all_robots did nothing: the command line's false" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def kitti_plain_map(tmp_path_factory, shared_data):
+    """KITTI 07 frames 0-29 as a plain image folder with KITTI's intrinsics (no
+    distortion), its derived odometry, and the map of a run on it."""
+    root = tmp_path_factory.mktemp("plain")
+    images = root / "images"
+    images.mkdir()
+    for i in range(30):
+        (images / f"{i:06d}.png").symlink_to(shared_data / "kitti07" / "image_0" / f"{i:06d}.png")
+    (root / "k.txt").write_text("707.0912 707.0912 601.8873 183.1104\n")
+    assert main(["run", "--dataset", str(shared_data / "kitti07"), "--frames", "0:30", *RUN,
+                 "--save-map", str(root / "map"), "--out", str(root / "run")]) == 0
+    return root
+
+
+def test_the_same_camera_written_to_three_decimals_is_the_maps(kitti_plain_map, tmp_path, capsys):
+    """707.091 for 707.0912 moved no pixel by 0.001 px and was refused as another camera."""
+    k3 = tmp_path / "k3.txt"
+    k3.write_text("707.091 707.091 601.887 183.110\n")
+    assert main(["localize", "--map", str(kitti_plain_map / "map"), "--dataset", str(kitti_plain_map / "images"),
+                 "--intrinsics", str(k3), *RUN, "--out", str(tmp_path / "l")]) == 0
+
+
+def test_a_map_of_one_lens_model_is_refused_with_another(kitti_plain_map, tmp_path, capsys):
+    """map.json held no distortion: a map read with k1 = -0.2 was used without it, silent."""
+    kd = tmp_path / "kd.txt"
+    kd.write_text("707.0912 707.0912 601.8873 183.1104\n-0.2 0 0 0\n")
+    assert main(["localize", "--map", str(kitti_plain_map / "map"), "--dataset", str(kitti_plain_map / "images"),
+                 "--intrinsics", str(kd), *RUN, "--out", str(tmp_path / "l")]) == 2
+    assert "another camera" in capsys.readouterr().err
+
+
+def test_save_map_refuses_a_folder_holding_someone_elses_map_json(tmp_path, capsys, shared_data):
+    folder = tmp_path / "project"
+    folder.mkdir()
+    (folder / "map.json").write_text('{"type": "FeatureCollection", "features": []}')
+    assert main(["run", "--dataset", str(shared_data / "kitti07"), "--frames", "0:5", *RUN,
+                 "--save-map", str(folder), "--out", str(tmp_path / "o")]) == 2
+    assert "not a graphslam map" in capsys.readouterr().err
+    assert "FeatureCollection" in (folder / "map.json").read_text()
+
+
+def test_a_map_without_landmarks_says_so(tmp_path, capsys, shared_data):
+    assert main(["run", "--dataset", str(shared_data / "kitti07"), "--frames", "0:1", *RUN,
+                 "--save-map", str(tmp_path / "m"), "--out", str(tmp_path / "o")]) == 0
+    assert "has no landmark" in capsys.readouterr().err
+
+
+def test_a_map_with_nan_covariances_or_a_scaled_rotation_is_refused(kitti_plain_map, tmp_path):
+    import shutil
+
+    import numpy as np
+
+    from graphslam.maps.files import load_map, save_map
+    from slamcore.errors import InputError
+
+    smap = load_map(kitti_plain_map / "map")
+    for name, spoil in (("keyframe_cov", lambda a: a.__setitem__((0, 0, 0), np.nan)),
+                        ("keyframe_wTc", lambda a: a.__setitem__((1, slice(0, 3), slice(0, 3)), 2 * a[1, :3, :3])),
+                        ("landmark_w", lambda a: a.__imul__(1e160))):
+        folder = tmp_path / name
+        shutil.copytree(kitti_plain_map / "map", folder)
+        bad = load_map(folder)
+        arr = getattr(bad, name).copy()
+        spoil(arr)
+        setattr(bad, name, arr)
+        with pytest.raises(InputError):
+            save_map(bad, folder)  # the same checks guard loading
+    assert smap.n_keyframes == 30
