@@ -29,11 +29,17 @@ map's observations were; the BoW vector uses the map's own ORB settings.
 Covariance of a placed pose (``[rho, phi]``, right perturbation): the
 Gauss-Newton ``sigma_px^2 (J^T J)^-1`` of the inlier reprojections, as for a
 metric loop closure (:mod:`loopclosure.pnp`), inflated for the map points' own
-error and floored (``[loop_pnp]`` settings).
+error and floored (``[loop_pnp]`` settings), plus the map's own uncertainty
+where the frame is: the covariance of the keyframe nearest the placed pose,
+carried to the camera by the adjoint of ``cTk`` (the landmarks a keyframe
+mapped move with its error, and a camera placed on them moves with them).
+Without it, a map of KITTI 07's even frames placed the odd ones with a mean
+NEES of 110 against the truth (6 if consistent; thirteenth hostile pass).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
@@ -49,7 +55,7 @@ from loopclosure.pnp import PnpConfig, pnp_covariance, pose_from_rodrigues, rela
 from slamcore.config import Validated, bounded
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.camera import project, project_jacobians
-from slamcore.spatial.geometry import invert_pose
+from slamcore.spatial.geometry import invert_pose, se3_adjoint
 
 Status = Literal["tracked", "relocalised", "lost"]
 
@@ -145,7 +151,18 @@ class Localizer:
             self.timings_s["relocalise"] += time.perf_counter() - t2
         # the velocity comes from two consecutive placed frames; a lost frame forgets it
         self._last = [] if placed.wTc is None else [*self._last[-1:], placed.wTc]
+        if placed.wTc is not None and placed.covariance is not None:
+            placed = dataclasses.replace(
+                placed, covariance=placed.covariance + self._map_covariance(placed.wTc)
+            )
         return placed
+
+    def _map_covariance(self, wTc: np.ndarray) -> np.ndarray:
+        """(6, 6) the nearest keyframe's covariance carried to camera ``wTc`` (module doc)."""
+        k = int(np.argmin(np.linalg.norm(self._centres - wTc[:3, 3], axis=1)))
+        A = se3_adjoint(invert_pose(wTc) @ self.map.keyframe_wTc[k])
+        C = A @ self.map.keyframe_cov[k] @ A.T
+        return 0.5 * (C + C.T)
 
     # ------------------------------------------------------------------ tracking
 

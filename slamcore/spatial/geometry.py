@@ -51,6 +51,18 @@ def se3_exp(delta: np.ndarray) -> np.ndarray:
     return T
 
 
+def se3_adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint of the rigid transform ``T`` for ``[rho, phi]`` (translation
+    first): ``T exp(xi) = exp(Ad_T xi) T``; gtsam's ``Pose3.AdjointMap`` with its
+    ``[phi, rho]`` blocks swapped."""
+    T = np.asarray(T, dtype=np.float64).reshape(4, 4)
+    R, t = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = A[3:, 3:] = R
+    A[:3, 3:] = skew(t) @ R
+    return A
+
+
 def invert_pose(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (4, 4) or a stack (N, 4, 4)."""
     T = np.asarray(T, dtype=np.float64)
