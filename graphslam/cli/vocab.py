@@ -132,6 +132,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     check_training_settings(args.words, per_image=args.per_image, **tree)  # before the ORB pass
     config = read_config(args.config)
     orb = OrbDetector(config.section(LoopDetectorConfig).orb)
+    loops_keys = [k for k in config.data.get("loops") or {} if k != "orb"]
+    config.mark_inert("loops", loops_keys, "loops and run --loops (vocab train reads [loops.orb] only)")
     warn_unread_sections(config, args.config, "vocab train (it reads the loop detector's [loops.orb])")
     # A stop during the ORB pass trains on the images described so far; one
     # during the training lets it finish (a second one aborts, the old file kept).

@@ -280,21 +280,23 @@ def kitti_drift(ref: np.ndarray, est: np.ndarray) -> tuple[float | None, float |
     the length. (None, None) when the path is shorter than 100 m.
     """
     dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0), axis=1))])
-    t_err, r_err = [], []
-    for first in range(0, len(ref), KITTI_STEP_FRAMES):
-        for length in KITTI_LENGTHS_M:
-            beyond = np.nonzero(dist[first:] > dist[first] + length)[0]
-            if beyond.size == 0:
-                continue
-            last = first + int(beyond[0])
-            # the devkit inverts with a general matrix inverse
-            inv = np.linalg.inv
-            e = inv(inv(est[first]) @ est[last]) @ (inv(ref[first]) @ ref[last])
-            d = 0.5 * (e[0, 0] + e[1, 1] + e[2, 2] - 1.0)
-            r_err.append(np.arccos(max(min(d, 1.0), -1.0)) / length)
-            t_err.append(np.linalg.norm(e[:3, 3]) / length)
-    if not t_err:
+    # every (start, length) segment in the devkit's order; the path distance never
+    # decreases, so each end is a binary search (a scan of the rest of the path per
+    # segment made a 250 000-pose file take 28 s here and a million poses, hours)
+    lengths = np.asarray(KITTI_LENGTHS_M, dtype=np.float64)
+    first = np.repeat(np.arange(0, len(ref), KITTI_STEP_FRAMES), len(lengths))
+    length = np.tile(lengths, len(first) // len(lengths))
+    last = np.searchsorted(dist, dist[first] + length, side="right")
+    keep = last < len(ref)
+    first, last, length = first[keep], last[keep], length[keep]
+    if not len(first):
         return None, None
+    # the devkit inverts with a general matrix inverse
+    inv = np.linalg.inv
+    e = inv(inv(est[first]) @ est[last]) @ (inv(ref[first]) @ ref[last])
+    d = 0.5 * (e[:, 0, 0] + e[:, 1, 1] + e[:, 2, 2] - 1.0)
+    r_err = np.arccos(np.clip(d, -1.0, 1.0)) / length
+    t_err = np.linalg.norm(e[:, :3, 3], axis=1) / length
     return 100.0 * float(np.mean(t_err)), float(np.degrees(np.mean(r_err)) * 100.0)
 
 

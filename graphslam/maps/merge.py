@@ -51,8 +51,25 @@ def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
         bow_weights=cat([old.bow_weights, new.bow_weights]),
         vocabulary=old.vocabulary,
         vocabulary_bytes=old.vocabulary_bytes,
-        meta={**new.meta, "sessions": sessions},
+        # the joined map's frames are its sessions' (a joined map said the last one's only,
+        # and localize reported it as what the map was built from)
+        meta={
+            **new.meta,
+            "sessions": sessions,
+            "frames": " + ".join(str(s.get("frames") or "all") for s in sessions),
+            "n_frames": sum(int(s.get("n_frames") or 0) for s in sessions),
+        },
     )
+
+
+def repeated_session(old: SpatialMap, meta: dict) -> int | None:
+    """Index of the session of ``old`` that ran the same frames of the same source as the
+    session ``meta`` describes (joining it again adds its keyframes twice), or None."""
+    new = _session(meta)
+    for i, s in enumerate(old.meta.get("sessions", [_session(old.meta)])):
+        if (s.get("source"), s.get("dataset"), s.get("frames")) == (new["source"], new["dataset"], new["frames"]):
+            return i
+    return None
 
 
 def _session(meta: dict) -> dict:

@@ -145,8 +145,15 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         result.estimate, backend, vocabulary=vocabulary, meta=meta, K=seq.K, image_size=seq.image_size
     )
     if prior_map is not None:
-        from graphslam.maps.merge import merge_maps
+        from graphslam.cli.common import warn
+        from graphslam.maps.merge import merge_maps, repeated_session
 
+        again = repeated_session(prior_map, meta)
+        if again is not None:
+            warn(
+                f"the map's session {again + 1} ran the same frames ({meta['frames'] or 'all'}) of "
+                f"{seq.name}: their keyframes are in the joined map twice"
+            )
         smap = merge_maps(prior_map, smap)
     save_map(smap, args.save_map)
     c = smap.counts()

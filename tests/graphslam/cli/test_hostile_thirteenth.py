@@ -158,3 +158,27 @@ def test_localize_covariance_holds_the_maps_own_uncertainty(tmp_path):
             nees.append(float(e @ np.linalg.solve(C, e)))
     assert len(nees) > 100
     assert np.mean(nees) < NEES_6DOF_99, np.mean(nees)
+
+
+def test_vocab_train_says_the_loop_settings_it_does_not_read(tmp_path, capsys, shared_data):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[loops]\nmin_score = 0.05\n[loops.orb]\nn_features = 300\n")
+    assert main(["vocab", "train", str(shared_data / "slambook2_desk" / "images"), "--words", "20",
+                 "--out", str(tmp_path / "v.npz"), "--config", str(cfg), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "[loops] min_score did nothing" in err and "n_features" not in err
+
+
+def test_a_joined_map_names_all_its_frames_and_a_repeated_session(kitti_plain_map, tmp_path, capsys, shared_data):
+    """A joined map said the last session's frames only, and the same session joined
+    twice doubled its keyframes, silent."""
+    import shutil
+
+    folder = tmp_path / "m"
+    shutil.copytree(kitti_plain_map / "map", folder)
+    for _ in range(2):
+        assert main(["run", "--dataset", str(shared_data / "kitti07"), "--frames", "10:30", *RUN,
+                     "--map", str(folder), "--save-map", str(folder), "--out", str(tmp_path / "o")]) == 0
+    assert "ran the same frames (10:30)" in capsys.readouterr().err
+    meta = json.loads((folder / "map.json").read_text())["meta"]
+    assert (meta["frames"], meta["n_frames"]) == ("0:30 + 10:30 + 10:30", 70)
