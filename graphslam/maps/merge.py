@@ -67,7 +67,11 @@ def repeated_session(old: SpatialMap, meta: dict) -> int | None:
     session ``meta`` describes (joining it again adds its keyframes twice), or None."""
     new = _session(meta)
     for i, s in enumerate(old.meta.get("sessions", [_session(old.meta)])):
-        if (s.get("source"), s.get("dataset"), s.get("frames")) == (new["source"], new["dataset"], new["frames"]):
+        if (s.get("source"), s.get("dataset"), s.get("frames")) == (
+            new["source"],
+            new["dataset"],
+            new["frames"],
+        ):
             return i
     return None
 

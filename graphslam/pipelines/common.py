@@ -68,6 +68,11 @@ class StopGuard:
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        #: the latest stop signal: the one that ended the command when a second one did
+        self.latest: int | None = None
+        #: said on stderr when a first signal is held (a long step that cannot stop),
+        #: so the user knows it was heard: None says nothing
+        self.held_note: str | None = None
         self.deferring = False
         self.escalate = True
         self.owner_pid = os.getpid()
@@ -79,12 +84,15 @@ class StopGuard:
 
     @property
     def signal_name(self) -> str:
-        return signal.Signals(self.signum or signal.SIGINT).name
+        """The latest stop signal's name (a SIGTERM after a held Ctrl-C ended the command:
+        "interrupted (SIGINT)" named the wrong one, thirteenth hostile pass)."""
+        return signal.Signals(self.latest or self.signum or signal.SIGINT).name
 
     def exit_status(self) -> int:
-        if self.signum is None:
+        latest = self.latest or self.signum
+        if latest is None:
             return 130
-        return EXIT_STATUS_OF_SIGNAL.get(self.signum, 130)
+        return EXIT_STATUS_OF_SIGNAL.get(latest, 130)
 
     def check(self) -> None:
         """Raise KeyboardInterrupt when a stop was asked for (call between steps)."""
@@ -100,7 +108,7 @@ class StopGuard:
         no escalation: the parent passes on every signal it gets and kills a
         worker that does not stop in time, so a repeated signal must not cut
         the worker mid-step."""
-        self.signum = None
+        self.signum = self.latest = None
         self.escalate = False
 
     def begin_save(self) -> None:
@@ -129,8 +137,15 @@ class StopGuard:
         first = self.signum is None
         if first:
             self.signum = signum
+        self.latest = signum
         if first and not self.deferring or not first and self.escalate:
             raise KeyboardInterrupt
+        if first and self.held_note:
+            # os.write: a print here could re-enter a print the signal cut (a RuntimeError)
+            try:
+                os.write(2, f"graphslam: {signal.Signals(signum).name}: {self.held_note}\n".encode())
+            except OSError:
+                pass
 
     def install(self) -> bool:
         """Install the handlers (main thread only); False where signals cannot be caught."""

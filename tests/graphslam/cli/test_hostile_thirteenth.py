@@ -182,3 +182,22 @@ def test_a_joined_map_names_all_its_frames_and_a_repeated_session(kitti_plain_ma
     assert "ran the same frames (10:30)" in capsys.readouterr().err
     meta = json.loads((folder / "map.json").read_text())["meta"]
     assert (meta["frames"], meta["n_frames"]) == ("0:30 + 10:30 + 10:30", 70)
+
+
+def test_a_held_stop_is_acknowledged_and_the_signal_that_ends_is_named(capfd):
+    """A Ctrl-C during vocab training was held for minutes with nothing said, and the
+    SIGTERM that then ended it was reported as "interrupted (SIGINT)", status 130."""
+    import os
+    import signal
+
+    from graphslam.pipelines.common import stop_guard
+
+    with stop_guard() as guard:
+        guard.defer()
+        guard.held_note = "stop asked: the training ends first"
+        os.kill(os.getpid(), signal.SIGINT)
+        assert guard.requested
+        assert "graphslam: SIGINT: stop asked: the training ends first" in capfd.readouterr().err
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert (guard.signal_name, guard.exit_status()) == ("SIGTERM", 143)
