@@ -117,16 +117,23 @@ def register(sub) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from graphslam import registry
-    from graphslam.cli.common import warn
+    from graphslam.cli.common import warn, warn_unread_sections
 
     config = registry.read_config(args.config)
-    status = _compare(args, config)
-    for line in config.inert_lines():  # settings the back ends' own modes left unread
-        warn(line)
+    status, all_read_here = _compare(args, config)
+    if all_read_here:
+        # a 2-D comparison reads every section its runs do in this process (the runs'
+        # own are built here too): the file's other sections did nothing
+        warn_unread_sections(config, args.config, "this comparison")
+    else:  # image and pose-graph runs read theirs in their own processes: gates only
+        for line in config.inert_lines():
+            warn(line)
     return status
 
 
-def _compare(args: argparse.Namespace, config) -> int:
+def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
+    """The comparison's exit status, and whether this process read every config section
+    its runs read (the 2-D one: :func:`cmd_compare` then names the others)."""
     from graphslam import registry
     from graphslam.cli.common import check_rerun_flags, rerun_sink
     from graphslam.pipelines import compare
@@ -148,9 +155,11 @@ def _compare(args: argparse.Namespace, config) -> int:
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
 
     if wants_pose_graph_compare(args.dataset, args.backends):
-        return compare_pose_graph(args, config, rerun_mode, lambda name: _out_dir(args, name, rerun_mode))
+        return compare_pose_graph(
+            args, config, rerun_mode, lambda name: _out_dir(args, name, rerun_mode)
+        ), False
     if registry.is_visual_dataset(args.dataset):
-        return _compare_images(args, config, rerun_mode)
+        return _compare_images(args, config, rerun_mode), False
     if args.odometry is not None:
         raise GraphSlamError("--odometry applies to image sequences only")
     explicit = bool(args.backends)
@@ -191,7 +200,7 @@ def _compare(args: argparse.Namespace, config) -> int:
     from graphslam.visualisation.planar import RunRecorder
     from graphslam.visualisation.plots import plot_comparison
 
-    return _write_comparison(
+    status = _write_comparison(
         args,
         entries,
         {"dataset": dataset.name},
@@ -201,6 +210,7 @@ def _compare(args: argparse.Namespace, config) -> int:
         RunRecorder.open,
         dataset,
     )
+    return status, True
 
 
 def _range_backends(args, dataset, explicit: bool) -> str | None:
@@ -416,6 +426,9 @@ COLUMNS = [
 ]
 
 
+#: How the ATE column's fit is named in the table header.
+_FIT_NAMES = {"se2": "SE(2)", "se3": "SE(3)", "sim3": "Sim(3)", "none": "no"}
+
 #: Fixed-point cells at or beyond this magnitude are printed with 3 significant
 #: digits and an exponent: a depleted particle filter's NEES (1e71 on MRCLAM robot 3)
 #: would otherwise print 72 digits and push every column off the screen.
@@ -452,7 +465,17 @@ def format_table(entries) -> str:
             association_duplicates=None if a is None else a.duplicates,
         )
         rows.append(m)
-    cols = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
+    # which columns are fitted to the truth first, and how (an SE(2)-fitted ATE beside the
+    # unaligned final error read as one ranking: thirteenth hostile pass)
+    fits = {str(r.get("alignment") or "se2") for r in rows if r.get("ate_rmse_m") is not None}
+    fit = _FIT_NAMES.get(next(iter(fits)), next(iter(fits))) + " fit" if len(fits) == 1 else "fit per row"
+    columns = [
+        (k, f"{h} ({fit})" if k == "ate_rmse_m" else f"{h} (no fit)" if k == "final_pose_error_m" else h, f)
+        for k, h, f in COLUMNS
+    ]
+    if len(fits) > 1:  # a monocular run's Sim(3) beside metric SE(3) ones
+        columns.insert(2, ("alignment", "fit", "s"))
+    cols = [c for c in columns if any(r.get(c[0]) is not None for r in rows)]
     if any(r["status"] != "ok" for r in rows):  # cut, failed, not run: say which
         cols.insert(1, ("status", "status", "s"))
     cells = [[h for _, h, _ in cols]]

@@ -201,3 +201,15 @@ def test_a_held_stop_is_acknowledged_and_the_signal_that_ends_is_named(capfd):
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGTERM)
         assert (guard.signal_name, guard.exit_status()) == ("SIGTERM", 143)
+
+
+def test_compare_names_unread_sections_and_each_columns_fit(tmp_path, capsys):
+    """[posegraph] and [fastslam] under --backends isam2 ekf ran silent (run says so), and
+    an SE(2)-fitted ATE stood beside the unaligned final error with nothing said."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[posegraph]\ninit = "lago"\n[fastslam]\nn_particles = 10\n')
+    assert main(["compare", "--config", str(cfg), "--backends", "isam2", "ekf", "--max-steps", "30",
+                 "--rerun", "off", "--out", str(tmp_path / "o")]) == 0
+    out, err = capsys.readouterr()
+    assert "[posegraph], [fastslam] not read by this comparison" in err
+    assert "ATE [m] (SE(2) fit)" in out and "final err [m] (no fit)" in out
