@@ -251,6 +251,9 @@ def _toml_lines(text: str) -> dict[tuple[str, ...], int]:
         if m:
             key = table + _toml_key(m.group(1))
             lines.setdefault(key, n)
+            # a quoted key holding dots ("ekf.association" = ... in [sweep.set]) is also
+            # found by its parts, as the sweep file names its swept settings
+            lines.setdefault(table + tuple(p for part in _toml_key(m.group(1)) for p in part.split(".")), n)
             inline = re.fullmatch(r"\{(.*)\}", m.group(2).strip())
             if inline:
                 for k in re.finditer(rf"(?:^|,)\s*({_TOML_KEY})\s*=", inline.group(1)):
@@ -379,6 +382,8 @@ class ConfigFile:
     read_sections: set = field(default_factory=set, compare=False, repr=False)
     #: the file's settings that did nothing: key path -> when they act (:meth:`inert_lines`)
     inert: dict = field(default_factory=dict, compare=False, repr=False)
+    #: every section as :meth:`section` last built it (defaults, file, overrides): what ran
+    settings: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def read(cls, path: str | Path | None) -> ConfigFile:
@@ -431,6 +436,7 @@ class ConfigFile:
                 self.inert[(name, key)] = f"the command line's {_toml_value(given[key])}, which replaced it"
         data.update(given)
         built = self._build(cls, data, (name,))
+        self.settings[name] = dataclasses.asdict(typing.cast("DataclassInstance", built))
         if issubclass(cls, Validated):
             # a flag that turned a mode off is named: "--no-polish" under "polish = true"
             by_file = built

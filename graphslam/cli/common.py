@@ -275,6 +275,27 @@ def warn(message: str) -> None:
     print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
 
 
+def provenance(args, config) -> dict:
+    """What a run's metrics.json records of how it was asked for: the command line, the
+    config file (path and SHA-256 of its bytes) and every section's settings as built
+    (thirteenth hostile pass: a run's outputs said nothing of its settings, so it could
+    not be made again from them)."""
+    import hashlib
+
+    digest = None
+    if config.path is not None:
+        try:
+            digest = hashlib.sha256(Path(config.path).read_bytes()).hexdigest()
+        except OSError:  # gone since it was read: the settings below still say what ran
+            digest = None
+    return {
+        "command": list(getattr(args, "command_line", None) or []),
+        "config_file": None if config.path is None else str(config.path),
+        "config_sha256": digest,
+        "settings": dict(config.settings),
+    }
+
+
 def warn_unread_sections(config, path, command: str) -> None:
     """A warning naming the ``--config`` sections ``command`` never read (a file shared
     with other back ends or commands): their settings did nothing and were not checked

@@ -164,6 +164,7 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
                         raise stdout.error from None
                 raise
             check_path_arguments(args)
+            args.command_line = ["graphslam", *(sys.argv[1:] if argv is None else list(argv))]
             signal_hook("start")
             status = args.func(args)
             sys.stdout.flush()  # the summary's write error is this command's, not the exit's

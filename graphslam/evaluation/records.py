@@ -134,6 +134,9 @@ class PlanarRunMetrics(MetricsRecord):
     landmarks_true: int | None = optional()
     agents: dict | None = optional()
     ate_poses: int | None = optional()
+    #: what ran: the command line, the config file's path and SHA-256, every section's
+    #: settings as built (defaults, file, flags) -- :func:`graphslam.cli.common.provenance`
+    provenance: dict | None = optional()
 
 
 @dataclass
@@ -204,3 +207,5 @@ class SpatialRunMetrics(MetricsRecord):
     frames_with_pose: int | None = None
     warnings: list | None = optional()
     dataset_notes: list | None = optional()
+    #: what ran (as :class:`PlanarRunMetrics`)
+    provenance: dict | None = optional()

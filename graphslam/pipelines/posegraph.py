@@ -77,6 +77,8 @@ class PoseGraphRunMetrics(MetricsRecord):
     interrupted: bool = False
     converged: bool = True
     warnings: list[str] | None = optional()
+    #: what ran (as :class:`~graphslam.evaluation.records.PlanarRunMetrics`)
+    provenance: dict | None = optional()
 
 
 def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | None = None) -> SolveResult:

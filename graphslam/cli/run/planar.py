@@ -14,6 +14,7 @@ from graphslam.cli.common import (
     close_recorder,
     fmt,
     open_recorder,
+    provenance,
     recoveries_text,
     report_outputs,
     summary_table,
@@ -129,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
+    metrics.provenance = provenance(args, config)
     unused = _unused_settings(backend, config, result)
     if unused:
         metrics.warnings = [*(metrics.warnings or []), *unused]

@@ -13,6 +13,7 @@ from graphslam.cli.common import (
     claim_out_dir,
     clear_earlier_outputs,
     fmt,
+    provenance,
     report_outputs,
     summary_table,
     warn,
@@ -81,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     metrics = pipeline.metrics(
         graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
     )
+    metrics.provenance = provenance(args, config)
     # a full disk part way: no earlier run's file left beside this run's
     with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
         paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)

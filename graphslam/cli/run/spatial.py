@@ -35,6 +35,7 @@ from graphslam.cli.common import (
     counts_row,
     fmt,
     open_recorder,
+    provenance,
     report_outputs,
     summary_table,
     warn,
@@ -181,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
     )
     metrics.backend = args.backend
     metrics.backend_class = result.backend
+    metrics.provenance = provenance(args, config)
     if closer is not None:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     if relocaliser is not None:

@@ -15,7 +15,6 @@ from graphslam.cli.main import main
 
 RUN = ["--rerun", "off", "--quiet"]
 
-
 def test_compare_records_the_seed_the_config_file_gave(tmp_path):
     """``[synthetic] seed = 2`` ran seed 2 and compare.json said ``"seed": null``."""
     cfg = tmp_path / "c.toml"
@@ -26,7 +25,6 @@ def test_compare_records_the_seed_the_config_file_gave(tmp_path):
     runs = json.loads((out / "compare.json").read_text())["runs"]
     assert runs[0]["seed"] == 2
 
-
 def test_robot_flag_wins_over_a_file_running_all_robots(tmp_path, capsys, shared_data):
     """``--robot 2`` under ``[mrclam] all_robots = true`` ran the five robots, silent."""
     cfg = tmp_path / "c.toml"
@@ -36,7 +34,6 @@ def test_robot_flag_wins_over_a_file_running_all_robots(tmp_path, capsys, shared
                  "--max-steps", "30", *RUN, "--out", str(out)]) == 0
     assert json.loads((out / "metrics.json").read_text())["dataset"] == "mrclam6-robot2"
     assert "[mrclam] all_robots did nothing: the command line's false" in capsys.readouterr().err
-
 
 @pytest.fixture(scope="module")
 def kitti_plain_map(tmp_path_factory, shared_data):
@@ -52,14 +49,12 @@ def kitti_plain_map(tmp_path_factory, shared_data):
                  "--save-map", str(root / "map"), "--out", str(root / "run")]) == 0
     return root
 
-
 def test_the_same_camera_written_to_three_decimals_is_the_maps(kitti_plain_map, tmp_path, capsys):
     """707.091 for 707.0912 moved no pixel by 0.001 px and was refused as another camera."""
     k3 = tmp_path / "k3.txt"
     k3.write_text("707.091 707.091 601.887 183.110\n")
     assert main(["localize", "--map", str(kitti_plain_map / "map"), "--dataset", str(kitti_plain_map / "images"),
                  "--intrinsics", str(k3), *RUN, "--out", str(tmp_path / "l")]) == 0
-
 
 def test_a_map_of_one_lens_model_is_refused_with_another(kitti_plain_map, tmp_path, capsys):
     """map.json held no distortion: a map read with k1 = -0.2 was used without it, silent."""
@@ -68,7 +63,6 @@ def test_a_map_of_one_lens_model_is_refused_with_another(kitti_plain_map, tmp_pa
     assert main(["localize", "--map", str(kitti_plain_map / "map"), "--dataset", str(kitti_plain_map / "images"),
                  "--intrinsics", str(kd), *RUN, "--out", str(tmp_path / "l")]) == 2
     assert "another camera" in capsys.readouterr().err
-
 
 def test_save_map_refuses_a_folder_holding_someone_elses_map_json(tmp_path, capsys, shared_data):
     folder = tmp_path / "project"
@@ -79,12 +73,10 @@ def test_save_map_refuses_a_folder_holding_someone_elses_map_json(tmp_path, caps
     assert "not a graphslam map" in capsys.readouterr().err
     assert "FeatureCollection" in (folder / "map.json").read_text()
 
-
 def test_a_map_without_landmarks_says_so(tmp_path, capsys, shared_data):
     assert main(["run", "--dataset", str(shared_data / "kitti07"), "--frames", "0:1", *RUN,
                  "--save-map", str(tmp_path / "m"), "--out", str(tmp_path / "o")]) == 0
     assert "has no landmark" in capsys.readouterr().err
-
 
 def test_a_map_with_nan_covariances_or_a_scaled_rotation_is_refused(kitti_plain_map, tmp_path):
     import shutil
@@ -108,11 +100,9 @@ def test_a_map_with_nan_covariances_or_a_scaled_rotation_is_refused(kitti_plain_
             save_map(bad, folder)  # the same checks guard loading
     assert smap.n_keyframes == 30
 
-
 #: chi-square 99 % quantile of 6 degrees of freedom: the mean pose NEES of a placement
 #: that knows its error stays below what one pose exceeds 1 % of the time.
 NEES_6DOF_99 = 16.81
-
 
 @pytest.mark.slow
 def test_localize_covariance_holds_the_maps_own_uncertainty(tmp_path):
@@ -159,7 +149,6 @@ def test_localize_covariance_holds_the_maps_own_uncertainty(tmp_path):
     assert len(nees) > 100
     assert np.mean(nees) < NEES_6DOF_99, np.mean(nees)
 
-
 def test_vocab_train_says_the_loop_settings_it_does_not_read(tmp_path, capsys, shared_data):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[loops]\nmin_score = 0.05\n[loops.orb]\nn_features = 300\n")
@@ -167,7 +156,6 @@ def test_vocab_train_says_the_loop_settings_it_does_not_read(tmp_path, capsys, s
                  "--out", str(tmp_path / "v.npz"), "--config", str(cfg), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "[loops] min_score did nothing" in err and "n_features" not in err
-
 
 def test_a_joined_map_names_all_its_frames_and_a_repeated_session(kitti_plain_map, tmp_path, capsys, shared_data):
     """A joined map said the last session's frames only, and the same session joined
@@ -182,7 +170,6 @@ def test_a_joined_map_names_all_its_frames_and_a_repeated_session(kitti_plain_ma
     assert "ran the same frames (10:30)" in capsys.readouterr().err
     meta = json.loads((folder / "map.json").read_text())["meta"]
     assert (meta["frames"], meta["n_frames"]) == ("0:30 + 10:30 + 10:30", 70)
-
 
 def test_a_held_stop_is_acknowledged_and_the_signal_that_ends_is_named(capfd):
     """A Ctrl-C during vocab training was held for minutes with nothing said, and the
@@ -202,7 +189,6 @@ def test_a_held_stop_is_acknowledged_and_the_signal_that_ends_is_named(capfd):
             os.kill(os.getpid(), signal.SIGTERM)
         assert (guard.signal_name, guard.exit_status()) == ("SIGTERM", 143)
 
-
 def test_compare_names_unread_sections_and_each_columns_fit(tmp_path, capsys):
     """[posegraph] and [fastslam] under --backends isam2 ekf ran silent (run says so), and
     an SE(2)-fitted ATE stood beside the unaligned final error with nothing said."""
@@ -213,3 +199,24 @@ def test_compare_names_unread_sections_and_each_columns_fit(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert "[posegraph], [fastslam] not read by this comparison" in err
     assert "ATE [m] (SE(2) fit)" in out and "final err [m] (no fit)" in out
+
+def test_a_runs_metrics_say_what_ran(tmp_path):
+    """metrics.json held no command, config or settings: a run could not be made again
+    from its outputs. Rerun from the recorded settings: the same trajectory bytes."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[isam2]\nrelinearize_threshold = 0.2\n")
+    out = tmp_path / "a"
+    assert main(["run", "--max-steps", "40", "--no-polish", "--config", str(cfg), *RUN, "--out", str(out)]) == 0
+    prov = json.loads((out / "metrics.json").read_text())["provenance"]
+    assert prov["command"][:2] == ["graphslam", "run"] and prov["config_file"] == str(cfg)
+    assert prov["settings"]["isam2"]["polish"] is False
+    assert prov["settings"]["isam2"]["relinearize_threshold"] == 0.2
+
+    lines = []
+    for section, values in prov["settings"].items():
+        lines.append(f"[{section}]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in values.items() if v is not None]
+    (tmp_path / "again.toml").write_text("\n".join(lines) + "\n")
+    again = tmp_path / "b"
+    assert main(["run", "--max-steps", "40", "--config", str(tmp_path / "again.toml"), *RUN, "--out", str(again)]) == 0
+    assert (out / "trajectory.tum").read_bytes() == (again / "trajectory.tum").read_bytes()
