@@ -101,6 +101,30 @@ def _progress(total: int, quiet: bool):
     return update, bar
 
 
+#: The start of a run's warning about its config file (:func:`warn_unread_sections`).
+_CONFIG_WARNING = "graphslam: warning: --config "
+
+
+def _config_warnings(out: Path, rows: list[dict]) -> dict[str, int]:
+    """Each distinct warning the runs said about their config file (a section no run
+    reads, a setting its mode leaves unread), with how many runs said it: they were in
+    each run's stderr.txt only (thirteenth hostile pass). The run's own folder is
+    dropped from the line, so one setting is one line."""
+    counts: dict[str, int] = {}
+    for r in rows:
+        path = out / "runs" / str(r.get("run_id")) / "stderr.txt"
+        try:
+            text = path.read_text(errors="replace")
+        except OSError:
+            continue
+        for line in dict.fromkeys(text.splitlines()):
+            if line.startswith(_CONFIG_WARNING):
+                said = line[len(_CONFIG_WARNING) :]
+                said = said.replace(str(out / "runs" / str(r.get("run_id"))) + "/", "")
+                counts[said] = counts.get(said, 0) + 1
+    return counts
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
@@ -160,6 +184,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
         return EXIT_INTERRUPTED
+    for line, count in _config_warnings(args.out, outcome.rows).items():
+        warn(f"{count} of {len(outcome.rows)} runs, in their runs/*/{line}")
     doubtful = sum(r.get("status") == "ok" and bool(r.get("warnings")) for r in outcome.rows)
     if doubtful:  # an ok row can still hold an absurd estimate; say so where it is seen
         warn(f"{doubtful} of {ok} finished runs carry warnings (the warnings column of sweep.csv)")

@@ -220,3 +220,14 @@ def test_a_runs_metrics_say_what_ran(tmp_path):
     again = tmp_path / "b"
     assert main(["run", "--max-steps", "40", "--config", str(tmp_path / "again.toml"), *RUN, "--out", str(again)]) == 0
     assert (out / "trajectory.tum").read_bytes() == (again / "trajectory.tum").read_bytes()
+
+
+def test_a_sweep_says_once_what_its_runs_said_of_their_config(tmp_path, capsys):
+    """Each run's "[fastslam] not read" was in its stderr.txt only: the sweep said "1 ok"."""
+    (tmp_path / "base.toml").write_text('[fastslam]\nn_particles = 5\n')
+    (tmp_path / "sweep.toml").write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\n'
+                                         'seed = [0, 1]\nmax_steps = 20\nconfig = "base.toml"\n')
+    assert main(["sweep", str(tmp_path / "sweep.toml"), "--out", str(tmp_path / "o"), "--workers", "1",
+                 "--no-plots", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("[fastslam] not read by this run") == 1 and "2 of 2 runs" in err
