@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, claim_out_dir, path_arg
 
