@@ -231,3 +231,11 @@ def test_a_sweep_says_once_what_its_runs_said_of_their_config(tmp_path, capsys):
                  "--no-plots", "--quiet"]) == 0
     err = capsys.readouterr().err
     assert err.count("[fastslam] not read by this run") == 1 and "2 of 2 runs" in err
+
+
+def test_a_sweep_of_seeds_over_runs_that_draw_nothing_is_refused_before_it_starts(tmp_path, capsys, shared_data):
+    """Every isam2 run on MRCLAM failed on --seed one by one, then "6 of 12 runs failed"."""
+    (tmp_path / "s.toml").write_text(f'[sweep]\ndataset = ["{shared_data / "mrclam6"}"]\n'
+                                     'backend = ["isam2", "fastslam2"]\nseed = [0, 1]\nmax_steps = 20\n')
+    assert main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "isam2 on" in capsys.readouterr().err and not (tmp_path / "o" / "runs").exists()
