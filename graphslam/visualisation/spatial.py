@@ -47,6 +47,20 @@ FOLLOW_COLOR = (200, 80, 255)
 GRID_COLOR = (90, 90, 90, 120)
 
 
+def world_up(wTc0: np.ndarray | None) -> str:
+    """The ``rr.ViewCoordinates`` name of the world of a sequence whose first camera pose
+    is ``wTc0`` (None: the world is the first camera's frame, as a run from the camera
+    alone makes it), on the premise that the first camera is held upright: its image's
+    down (the camera's +y) points down in the world, and the world axis nearest to it
+    is the viewer's "down". KITTI's world is its first camera's frame (y down, z
+    forward): declared z-up, the viewer drew the car climbing (twelfth hostile pass).
+    The synthetic room's world is z-up."""
+    down = np.array([0.0, 1.0, 0.0]) if wTc0 is None else np.asarray(wTc0, float)[:3, :3] @ [0.0, 1.0, 0.0]
+    axis = int(np.argmax(np.abs(down)))
+    name = "XYZ"[axis]
+    return f"RIGHT_HAND_{name}_{'DOWN' if down[axis] > 0 else 'UP'}"
+
+
 class VisualRecorder:
     """Records one visual run. ``open(mode, path, url)``, ``start``, ``hook``, ``finish``, ``close``.
 
@@ -74,7 +88,8 @@ class VisualRecorder:
         """Static ground truth, if the sequence has it."""
         rr = self._rr
         self._sequence = sequence
-        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        first = None if sequence.wTc_true is None or not len(sequence.wTc_true) else sequence.wTc_true[0]
+        self.rec.log("world", getattr(rr.ViewCoordinates, world_up(first)), static=True)
         if sequence.wTc_true is not None:
             p = np.asarray(sequence.wTc_true[:n_frames])[:, :3, 3]
             self.rec.log(

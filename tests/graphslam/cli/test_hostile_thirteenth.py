@@ -239,3 +239,18 @@ def test_a_sweep_of_seeds_over_runs_that_draw_nothing_is_refused_before_it_start
                                      'backend = ["isam2", "fastslam2"]\nseed = [0, 1]\nmax_steps = 20\n')
     assert main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert "isam2 on" in capsys.readouterr().err and not (tmp_path / "o" / "runs").exists()
+
+
+@pytest.mark.parametrize("dataset,xyz", [("kitti07", [3, 2, 5]), ("synthetic-images", [3, 5, 1])])
+def test_a_recordings_world_is_declared_the_way_its_first_camera_stands(tmp_path, shared_data, dataset, xyz):
+    """KITTI's world is its first camera's frame (right, down, forward): declared z-up,
+    the viewer drew the car climbing. The synthetic room is z-up. (ViewDir codes: Up 1,
+    Down 2, Right 3, Forward 5.)"""
+    from rerun.chunk import RrdReader
+
+    source = str(shared_data / dataset) if dataset == "kitti07" else dataset
+    assert main(["run", "--dataset", source, "--max-steps", "3", "--quiet", "--out", str(tmp_path / "o")]) == 0
+    found = [c.to_record_batch().column("ViewCoordinates:xyz").to_pylist()
+             for c in RrdReader(str(tmp_path / "o" / "run.rrd")).stream()
+             if c.entity_path == "/world" and c.is_static]
+    assert found == [[[xyz]]]
