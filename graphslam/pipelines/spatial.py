@@ -599,6 +599,27 @@ def _with_file_frames(stats: dict | None, seq) -> dict:
     return out
 
 
+#: Image width (pixels) past which the tracker's pixel-sized windows are small for the
+#: motion: its defaults were measured on 640-1241 px images (the synthetic room, KITTI).
+LARGE_IMAGE_WIDTH_PX = 2000
+
+
+def _large_image_hint(result: VisualRunResult) -> str:
+    """What to try when the images are large (thirteenth hostile pass: KITTI upscaled 3x,
+    3678 px wide, mapped nothing with either front end; it maps at 1x and 2x). The
+    settings in pixels were measured on smaller images; which of them fails depends on
+    the camera (an upscaled image localises corners to ~3 px, a sharp one to ~1 px but
+    moves 3x farther a frame), so the hint names them and the tested route."""
+    width = int(getattr(result.sequence, "image_size", (0, 0))[0])
+    if width <= LARGE_IMAGE_WIDTH_PX:
+        return ""
+    return (
+        f"; the front end's settings in pixels ([tracker] sigma_px and follow_window_px, "
+        f"[active_search] patch_size_px) were measured on images up to {LARGE_IMAGE_WIDTH_PX} "
+        f"px wide, these are {width}: images resized under that width are the tested route"
+    )
+
+
 def _doubts(result: VisualRunResult) -> list[str]:
     """One line per reason to doubt the estimate: frames left without a pose, a run with
     odometry whose images gave no landmark (the odometry alone), and a camera-alone run
@@ -614,6 +635,7 @@ def _doubts(result: VisualRunResult) -> list[str]:
         out.append(
             f"no landmark entered the map in {n} frames ({sum(result.tracking.get('observations', []))} "
             "corners matched in all): the trajectory is the odometry alone, the images corrected nothing"
+            + _large_image_hint(result)
         )
     if result.odometry != "none" or n < 2:
         return out
