@@ -29,6 +29,7 @@ timestamp when the dataset has real ones, keeping x, y and the yaw.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,6 +115,11 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         fmt = detect_format(path, lines[0][1])
     elif fmt not in TRAJECTORY_FORMATS:
         raise InputError(f"unknown trajectory format {fmt!r} (one of {TRAJECTORY_FORMATS})", path)
+    if fmt == "tum":
+        fast = _tum_at_once(lines)
+        if fast is not None:
+            order = _time_order(fast[0], [n for n, _ in lines], path)
+            return Trajectory(fmt, fast[0][order], fast[1][order], str(path))
     stamps, poses = [], []
     for n, text in lines:
         if fmt != "euroc" and "," in text:
@@ -141,6 +147,40 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         return Trajectory(fmt, None, np.array(poses), str(path))
     order = _time_order(np.array(stamps), [n for n, _ in lines], path)
     return Trajectory(fmt, np.array(stamps)[order], np.array(poses)[order], str(path))
+
+
+#: What a TUM file of plain numbers holds (no letter but the exponent's, no comma).
+_PLAIN_NUMBERS = re.compile(r"[0-9eE+\-. \t]*")
+
+
+def _tum_at_once(lines: list[tuple[int, str]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(stamps (N,), wTc (N, 4, 4))`` of TUM lines parsed as one array, the same numbers
+    as the line-by-line reader (the same formulas, element by element), or None when any
+    line is not plain (that reader then names the line). The line-by-line read took
+    17 s of a 20 s eval of two 250 000-pose files (thirteenth hostile pass)."""
+    if not all(_PLAIN_NUMBERS.fullmatch(text) for _, text in lines):
+        return None
+    tokens = [text.split() for _, text in lines]
+    if any(len(t) != 8 for t in tokens):
+        return None
+    try:
+        v = np.array(tokens, dtype=np.float64)
+    except ValueError:  # "1.2.3", "e5": the line reader names it
+        return None
+    if not np.all(np.isfinite(v)) or not np.max(np.abs(v[:, 1:4]), initial=0.0) <= TRANSLATION_MAX_M:
+        return None
+    qx, qy, qz, qw = v[:, 4], v[:, 5], v[:, 6], v[:, 7]
+    norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if not np.all((norm > 0.9) & (norm < 1.1)):
+        return None
+    w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
+    T = np.zeros((len(v), 4, 4))
+    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    T[:, 2, 0], T[:, 2, 1], T[:, 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    T[:, :3, 3] = v[:, 1:4]
+    T[:, 3, 3] = 1.0
+    return v[:, 0].copy(), T
 
 
 def _time_order(stamps: np.ndarray, line_numbers: list[int], path: Path) -> np.ndarray:
