@@ -138,8 +138,15 @@ def run(args: argparse.Namespace) -> int:
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
     nees = None
-    if args.nees and result.interrupted:  # no covariances: NEES null, the files still written
-        warn("run interrupted before its covariances: no nees.csv")
+    if args.nees and result.interrupted and registry.landmark_implementation(args.backend).filtering:
+        # a filter keeps each step's covariance as it goes: the steps run are scored
+        # (an interrupted --nees wrote no nees.csv at all, stop 56)
+        result.estimate = backend.estimate(with_covariances=True)
+    if args.nees and result.interrupted and result.estimate.pose_covariances is None:
+        warn(
+            "run interrupted before its covariances (a smoother's come from its marginals at "
+            "the end): no nees.csv"
+        )
     elif args.nees:
         pose_ids, nees_k, undefined = pipeline.add_nees(result, metrics, truth)
         nees = (pose_ids, nees_k)

@@ -292,3 +292,21 @@ def test_a_tum_file_read_at_once_is_the_line_readers_to_the_bit(tmp_path, monkey
         with pytest.raises(InputError) as e:
             gt.read_trajectory(path)
         assert e.value.line == line
+
+
+@pytest.mark.parametrize("backend,written,step", [("ekf", True, 40), ("isam2", False, 41)])
+def test_an_interrupted_nees_run_of_a_filter_writes_the_steps_it_ran(tmp_path, monkeypatch, capsys, backend,
+                                                                     written, step):
+    """An interrupted --nees wrote no nees.csv, though a filter keeps each step's
+    covariance as it goes; a smoother's come from its marginals at the end (none).
+    (The hook fires once per process and spec: one step each.)"""
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_AT", f"step:{step}")
+    out = tmp_path / "o"
+    assert main(["run", "--backend", backend, "--max-steps", "200", "--nees", *RUN, "--out", str(out)]) == 130
+    assert (out / "nees.csv").is_file() == written
+    if written:
+        rows = (out / "nees.csv").read_text().splitlines()
+        assert 30 < len(rows) - 1 < 60
+        assert json.loads((out / "metrics.json").read_text())["nees_mean"] is not None
+    else:
+        assert "no nees.csv" in capsys.readouterr().err
