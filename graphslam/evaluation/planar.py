@@ -489,7 +489,8 @@ def map_errors(
     :func:`association_accuracy` maps them; with known association that is its
     own id). Returns ``map_rmse_m`` (matched landmarks, after the SE(2) alignment of
     the trajectory onto its truth), ``map_rmse_m_map_aligned`` (after the map's own
-    best SE(2) fit), ``landmarks_matched``, ``landmarks_recovered`` (true landmarks
+    best SE(2) fit), ``landmarks_matched`` (estimated landmarks matched) and
+    ``landmarks_matched_true`` (the distinct true ones they are), ``landmarks_recovered`` (true landmarks
     with an estimated one within :data:`MAP_RECOVERY_RADIUS_M` after the
     trajectory's alignment) and ``landmarks_true``; values None where not defined.
     """
@@ -521,6 +522,8 @@ def map_errors(
     matched_xy = np.array(matched, dtype=np.float64).reshape(-1, 2)
     err = np.linalg.norm(lm_w[rows] - matched_xy, axis=1)
     out["landmarks_matched"] = len(rows)
+    # several estimated landmarks can be one true one (duplicates): how many true ones
+    out["landmarks_matched_true"] = len({true_of[int(estimate.landmark_ids[k])] for k in rows})
     out["map_rmse_m"] = float(np.sqrt(np.mean(err**2)))
     if len(rows) >= 2:
         Rm, tm = align_se2(lm_w[rows], matched_xy)

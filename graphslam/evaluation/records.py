@@ -130,6 +130,8 @@ class PlanarRunMetrics(MetricsRecord):
     map_rmse_m: float | None = optional()
     map_rmse_m_map_aligned: float | None = optional()
     landmarks_matched: int | None = optional()
+    #: the distinct true landmarks the matched ones are (duplicates share one)
+    landmarks_matched_true: int | None = optional()
     landmarks_recovered: int | None = optional()
     landmarks_true: int | None = optional()
     agents: dict | None = optional()

@@ -186,3 +186,19 @@ def test_a_run_whose_gate_rejects_most_sightings_says_so():
         said[prob] = [w for w in m.warnings or [] if "rejected by the back end's gate" in w]
     assert len(said[0.5]) == 1 and said[0.9999] == []
     assert metrics.rejected_warning(10, 5) == [] and len(metrics.rejected_warning(10, 6)) == 1
+
+
+def test_map_errors_count_the_true_landmarks_copies_share():
+    """83 estimated landmarks matched on MRCLAM robot 3 were 15 true ones; the summary
+    said "83 landmarks" (twelfth hostile pass)."""
+    import numpy as np
+
+    from graphslam.evaluation.planar import map_errors
+    from slamcore.planar.records import Estimate
+
+    ids = np.arange(3)
+    wTb = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    est = Estimate(ids, wTb, np.array([10, 11, 12]), np.array([[0.0, 1.0], [0.1, 1.0], [5.0, 1.0]]))
+    pairs = [(1, 10), (1, 11), (2, 12)]  # 10 and 11 are both true landmark 1
+    out = map_errors(est, (ids, wTb), {1: (0.0, 1.0), 2: (5.0, 1.0)}, pairs)
+    assert (out["landmarks_matched"], out["landmarks_matched_true"]) == (3, 2)
