@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from graphslam.sources.spatial.sequence import check_K, image_doubts, parse_floats, read_lines
-from slamcore.errors import InputError
+from slamcore.errors import InputError, quote
 from slamcore.spatial.camera import intrinsics_matrix
 
 #: Intrinsics files looked for in a folder, in this order.
@@ -96,6 +96,43 @@ def yaml_matrix(value, path: Path, key: str) -> np.ndarray:
     return arr
 
 
+#: Lens models whose coefficients are OpenCV's radial-tangential (``k1 k2 p1 p2 [k3 ...]``),
+#: as calibration files name them (ROS camera_info, Kalibr and EuRoC sensor.yaml). Any
+#: other (Kalibr's ``equidistant``, OpenCV's ``fisheye``, ``omni``, Kannala-Brandt,
+#: double sphere) maps pixels otherwise: read as these, a corner moved by thousands of
+#: pixels, silent (thirteenth hostile pass).
+RADTAN_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "radial_tangential", "")
+#: Coefficient counts OpenCV's distortion model takes.
+DISTORTION_COUNTS = (4, 5, 8, 12, 14)
+
+
+def yaml_distortion(data: dict, path: Path, keys=("distortion", "distortion_coefficients", "dist_coeffs")):
+    """The distortion coefficients of a calibration YAML mapping ``data`` (the first of
+    ``keys`` present), None without; InputError naming ``path`` for a lens model that is
+    not OpenCV's radial-tangential, a count OpenCV does not take (an OpenCV traceback
+    before), or a non-finite coefficient."""
+    for key, allowed in (("camera_model", ("pinhole",)), ("distortion_model", RADTAN_MODELS)):
+        model = data.get(key)
+        if model is not None and str(model).strip().lower() not in allowed:
+            raise InputError(
+                f"{key} {quote(str(model))} is not supported: the camera must be a pinhole with "
+                "radial-tangential distortion (plumb_bob, radtan); undistort the images first",
+                path,
+            )
+    found = next((k for k in keys if data.get(k) is not None), None)
+    if found is None:
+        return None
+    key = found
+    dist = yaml_matrix(data[key], path, key)
+    if dist.size == 0:
+        return None
+    if dist.size not in DISTORTION_COUNTS:
+        raise InputError(f"{key}: expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}", path)
+    if not np.all(np.isfinite(dist)):
+        raise InputError(f"{key}: non-finite distortion coefficient", path)
+    return dist
+
+
 def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """``(K (3, 3), distortion or None)`` from a text or YAML file (formats in the module doc)."""
     path = Path(path)
@@ -125,12 +162,7 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
             raise InputError(
                 "no intrinsics found: expected fx/fy/cx/cy, K, camera_matrix or intrinsics", path
             )
-        dist = None
-        for key in ("distortion", "distortion_coefficients", "dist_coeffs"):
-            if key in data and data[key] is not None:
-                dist = yaml_matrix(data[key], path, key)
-                break
-        return check_K(K, path), dist
+        return check_K(K, path), yaml_distortion(data, path)
     lines = read_lines(path, "intrinsics file")
     if not lines:
         raise InputError("intrinsics file is empty", path)

@@ -85,6 +85,7 @@ from graphslam.sources.spatial.calibration import (
     read_intrinsics_file,
     resolve_intrinsics,
     stated_image_size,
+    yaml_distortion,
     yaml_image_size,
     yaml_matrix,
 )
@@ -97,6 +98,7 @@ from graphslam.sources.spatial.sequence import (
     check_exist,
     check_increasing,
     check_K,
+    check_rotation,
     image_doubts,
     list_images,
     parse_euroc_line,
@@ -124,18 +126,35 @@ def listed_file(folder: Path, name: str, listing: Path, line: int) -> Path:
 
 def _keep_matched(
     paths: list[str], stamps: np.ndarray, gt_t: np.ndarray, gt_T: list, max_dt_s: float, gpath: Path
-) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Images with a ground-truth stamp within ``max_dt_s`` and their ``wTc`` (N, 4, 4);
-    the others are dropped (TUM and EuRoC truth often starts after the first images)."""
+) -> tuple[list[str], np.ndarray, np.ndarray, list[str]]:
+    """Images with a ground-truth stamp within ``max_dt_s``, their ``wTc`` (N, 4, 4), and
+    a doubt naming the others, which are dropped (TUM and EuRoC truth often starts after
+    the first images; a gap in it drops images in the middle, which the run then jumps
+    as one step: it was silent, thirteenth hostile pass)."""
     order = np.argsort(gt_t, kind="stable")
     idx = associate(stamps, gt_t[order], max_dt_s)
     keep = idx >= 0
     if not np.any(keep):
         raise InputError(f"no image has ground truth within {max_dt_s} s", gpath)
+    doubts = []
+    dropped = int(np.count_nonzero(~keep))
+    if dropped:
+        kept = np.flatnonzero(keep)
+        inside = int(np.count_nonzero(~keep[kept[0] : kept[-1] + 1]))
+        where = (
+            f", {inside} of them between images that have it (the run steps over them at once)"
+            if inside
+            else " (before the truth starts or after it ends)"
+        )
+        doubts.append(
+            f"{dropped} of {len(paths)} images have no ground truth within {max_dt_s} s in "
+            f"{gpath.name} and are left out of the run{where}"
+        )
     return (
         [p for p, k in zip(paths, keep, strict=True) if k],
         stamps[keep],
         np.array(gt_T)[order][idx[keep]],
+        doubts,
     )
 
 
@@ -187,6 +206,7 @@ def read_tum_rgbd(
         K, dist = intrinsics_matrix(*fxy), None if d is None else np.array(d)
 
     wTc = None
+    dropped: list[str] = []  # images left out for want of truth (none without a truth file)
     gpath = folder / "groundtruth.txt"
     if gpath.is_file():
         gt_t, gt_T, gt_lines = [], [], []
@@ -200,10 +220,12 @@ def read_tum_rgbd(
             gt_lines.append(n)
         # a repeated stamp gives one image two truths (association picks one silently)
         check_increasing(gt_t, gt_lines, gpath, "groundtruth timestamps")
-        paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
+        paths, stamps, wTc, dropped = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
     size, doubts = image_doubts(K, paths, camera_from, stated)
-    return ImageSequence(f"tum-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts)
+    return ImageSequence(
+        f"tum-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts, tuple(dropped)
+    )
 
 
 # --------------------------------------------------------------------------- EuRoC
@@ -246,17 +268,22 @@ def read_euroc(
     if intr.size != 4:
         raise InputError(f"intrinsics: expected 4 numbers, got {intr.size}", ypath)
     K = check_K(intrinsics_matrix(*intr), ypath)
-    dist = None
-    if data.get("distortion_coefficients") is not None:
-        dist = yaml_matrix(data["distortion_coefficients"], ypath, "distortion_coefficients")
+    dist = yaml_distortion(data, ypath, ("distortion_coefficients",))
     T_BS = np.eye(4)
     if data.get("T_BS") is not None:
         arr = yaml_matrix(data["T_BS"], ypath, "T_BS")
         if arr.size != 16:
             raise InputError(f"T_BS: expected 16 numbers, got {arr.size}", ypath)
         T_BS = arr.reshape(4, 4)
+        # said here, not as "estimate poses must be rigid" from the scoring, with no file
+        if not np.allclose(T_BS[3], [0.0, 0.0, 0.0, 1.0]):
+            raise InputError(
+                f"T_BS: the bottom row is {T_BS[3].tolist()}, not [0, 0, 0, 1] (written column-major?)", ypath
+            )
+        check_rotation(T_BS[:3, :3], ypath, None)
 
     wTc = None
+    dropped: list[str] = []  # images left out for want of truth (none without a truth file)
     gpath = mav / "state_groundtruth_estimate0" / "data.csv"
     if gpath.is_file():
         gt_t, gt_T = [], []
@@ -269,10 +296,10 @@ def read_euroc(
             T[:3, 3] = v[1:4]
             gt_t.append(v[0] * 1e-9)
             gt_T.append(T @ T_BS)
-        paths, stamps, wTc = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
+        paths, stamps, wTc, dropped = _keep_matched(paths, stamps, np.array(gt_t), gt_T, max_dt_s, gpath)
     size, doubts = image_doubts(K, paths, ypath, yaml_image_size(data))
     return ImageSequence(
-        f"euroc-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts
+        f"euroc-{folder_name(folder)}", paths, stamps, K, dist, wTc, size, str(folder), doubts, tuple(dropped)
     )
 
 

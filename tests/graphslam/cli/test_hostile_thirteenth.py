@@ -310,3 +310,47 @@ def test_an_interrupted_nees_run_of_a_filter_writes_the_steps_it_ran(tmp_path, m
         assert json.loads((out / "metrics.json").read_text())["nees_mean"] is not None
     else:
         assert "no nees.csv" in capsys.readouterr().err
+
+
+def _plain_kitti(folder, shared_data, n=5):
+    folder.mkdir()
+    for i in range(n):
+        (folder / f"{i:06d}.png").symlink_to(shared_data / "kitti07" / "image_0" / f"{i:06d}.png")
+    return folder
+
+
+@pytest.mark.parametrize("yaml,words", [
+    ("distortion_model: equidistant\ndistortion: [0.003, 0.0007, -0.002, 0.0002]\n", "equidistant' is not supported"),
+    ("camera_model: omni\n", "omni' is not supported"),
+    ("distortion: [0.1, 0.01, 0.001]\n", "got 3"),
+    ("distortion: [.nan, 0.01, 0.001, 0.0]\n", "non-finite"),
+])
+def test_calibration_yaml_that_opencv_cannot_take_is_refused_naming_the_file(tmp_path, capsys, shared_data,
+                                                                               yaml, words):
+    """A fisheye model was read as radial-tangential (a corner thousands of pixels off,
+    silent), three coefficients were an OpenCV traceback, a NaN a failed start."""
+    images = _plain_kitti(tmp_path / "imgs", shared_data)
+    (images / "camera.yaml").write_text("fx: 707.0912\nfy: 707.0912\ncx: 601.8873\ncy: 183.1104\n" + yaml)
+    assert main(["run", "--dataset", str(images), *RUN, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "camera.yaml" in err and "Traceback" not in err
+
+
+def test_tum_images_without_truth_in_the_middle_are_said(tmp_path, shared_data):
+    """Ten images of a motion-capture dropout were left out silently; the run stepped
+    over them as one frame."""
+    from graphslam.sources.spatial.images import read_tum_rgbd
+
+    folder = tmp_path / "tum"
+    (folder / "rgb").mkdir(parents=True)
+    rgb, gt = [], []
+    for i in range(30):
+        (folder / "rgb" / f"{i}.png").symlink_to(shared_data / "kitti07" / "image_0" / f"{i:06d}.png")
+        rgb.append(f"{i * 0.1:.4f} rgb/{i}.png")
+        if not 10 <= i < 15:
+            gt.append(f"{i * 0.1:.4f} {i * 0.5} 0 0 0 0 0 1")
+    (folder / "rgb.txt").write_text("\n".join(rgb) + "\n")
+    (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    seq = read_tum_rgbd(folder, intrinsics=(500.0, 500.0, 600.0, 180.0))
+    assert len(seq.image_paths) == 25
+    assert any("5 of 30 images have no ground truth" in w and "5 of them between" in w for w in seq.warnings)
