@@ -39,3 +39,21 @@ def check_input_path(
     kind = "a folder" if stat.S_ISDIR(mode) else _kind(mode)
     expected = "a file or a folder" if folder_ok else "a file"
     raise error(f"{what} is {kind}, not {expected}", path)
+
+
+def check_plain_text(path, error=InputError) -> None:
+    """``error`` naming ``path`` when its first bytes say it is text the readers cannot
+    take as it is: UTF-16 (PowerShell's ``>`` writes it; it was "unknown tag
+    'V\\x00E\\x00...'" or a decoding error) or gzip-compressed (a ``.g2o.gz``). Nothing
+    for an unreadable file: the reader says that itself."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError:
+        return
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") or (
+        len(head) >= 8 and head[1::2].count(0) >= len(head[1::2]) // 2 and head[0::2].count(0) == 0
+    ):
+        raise error("UTF-16 text (as Windows tools write it): save it as UTF-8", path)
+    if head[:2] == b"\x1f\x8b":
+        raise error("gzip-compressed: decompress it first (gunzip)", path)

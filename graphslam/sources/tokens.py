@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 
 from slamcore.errors import InputError, quote
+from slamcore.input_files import check_plain_text
 
 #: Largest id a pose graph may use: ids are int64 and gtsam keys; 2**62 leaves room.
 MAX_ID = 2**62
@@ -96,6 +97,7 @@ def iter_lines(path):
     a byte-order mark is not a token. InputError when the file cannot be read or is not
     UTF-8 text."""
     path = Path(path)
+    check_plain_text(path)
     try:
         fh = open(path, encoding="utf-8-sig")
     except OSError as exc:

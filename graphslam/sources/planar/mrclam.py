@@ -46,7 +46,7 @@ from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.config import Validated, bounded
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import folder_name
-from slamcore.input_files import check_input_path
+from slamcore.input_files import check_input_path, check_plain_text
 from slamcore.planar import geometry as se2
 from slamcore.planar.records import (
     MIN_ERROR_DOF,
@@ -257,6 +257,7 @@ def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[in
     if not path.exists():
         raise InputError(f"the MRCLAM folder has no {path.name} ({what})", path)
     check_input_path(path, path.name)  # a FIFO or a device is refused, not read forever
+    check_plain_text(path)
     try:
         fh = open(path, encoding="utf-8-sig")
     except OSError as exc:

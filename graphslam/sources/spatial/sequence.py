@@ -23,7 +23,7 @@ import numpy as np
 from frontend.image import load_gray, quiet_opencv
 from graphslam.sources.tokens import NUMBER_TOKEN
 from slamcore.errors import InputError, quote
-from slamcore.input_files import check_input_path
+from slamcore.input_files import check_input_path, check_plain_text
 
 #: Extensions :func:`read_image_folder` accepts (compared lower-case).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm")
@@ -170,6 +170,7 @@ class ImageSequence:
 def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
     """(line_no, stripped text) of non-empty, non-comment lines; missing file -> InputError."""
     check_input_path(path, what)
+    check_plain_text(path)
     try:
         text = path.read_text(encoding="utf-8-sig", errors="replace")  # a byte-order mark is no number
     except OSError as e:
@@ -212,6 +213,9 @@ def parse_euroc_line(text: str, path: Path, line: int, what: str) -> np.ndarray:
     nanoseconds (seconds, as TUM writes them, would be read as 1e-9 times less).
     """
     fields = [f.strip() for f in text.split(",")]
+    if re.match(r"[A-Za-z_]", fields[0]) and fields[0].lower() not in ("nan", "inf", "infinity"):
+        # pandas' to_csv writes its header without EuRoC's '#' (it was blamed on the time)
+        raise InputError(f"a header line ({quote(text)}): start it with '#', as EuRoC's files do", path, line)
     if len(fields) < 2:
         raise InputError(f"no comma: EuRoC lines are comma-separated ({what}): {quote(text)}", path, line)
     if not all(f and len(f.split()) == 1 for f in fields):

@@ -354,3 +354,24 @@ def test_tum_images_without_truth_in_the_middle_are_said(tmp_path, shared_data):
     seq = read_tum_rgbd(folder, intrinsics=(500.0, 500.0, 600.0, 180.0))
     assert len(seq.image_paths) == 25
     assert any("5 of 30 images have no ground truth" in w and "5 of them between" in w for w in seq.warnings)
+
+
+@pytest.mark.parametrize("content,words", [
+    ("VERTEX_SE2 0 0 0 0\n".encode("utf-16"), "UTF-16"),
+    ("VERTEX_SE2 0 0 0 0\n".encode("utf-16-le"), "UTF-16"),
+    (__import__("gzip").compress(b"VERTEX_SE2 0 0 0 0\n"), "gzip"),
+])
+def test_utf16_and_gzip_files_are_named_as_such(tmp_path, capsys, content, words):
+    """Refused before, but as "unknown tag 'V\\x00E\\x00...'" or a codec error."""
+    path = tmp_path / "g.g2o"
+    path.write_bytes(content)
+    assert main(["run", "--dataset", str(path), *RUN, "--out", str(tmp_path / "o")]) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_a_csv_header_without_a_hash_is_named_a_header(tmp_path, capsys):
+    (tmp_path / "gt.csv").write_text("#t,x,y,z,qw,qx,qy,qz\n1000,0,0,0,1,0,0,0\n2000,1,0,0,1,0,0,0\n")
+    (tmp_path / "est.csv").write_text("timestamp,x,y,z,qw,qx,qy,qz\n1000,0,0,0,1,0,0,0\n2000,1,0,0,1,0,0,0\n")
+    assert main(["eval", str(tmp_path / "gt.csv"), str(tmp_path / "est.csv"), "--no-plot",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "a header line" in capsys.readouterr().err
