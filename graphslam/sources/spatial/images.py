@@ -72,6 +72,7 @@ Without ``intrinsics_file`` the folder is searched for
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -315,9 +316,20 @@ NO_INTRINSICS_HINT = (
 
 def _images_below(folder: Path) -> str:
     """``"; its folder X/ holds N: pass that folder"`` for the first subfolder holding
-    images (a data set whose images sit one level down), else ``""``."""
+    images (a data set whose images sit one level down), else ``""``. A TUM RGB-D
+    folder without its ``rgb.txt`` (ORB-SLAM's ``associations.txt`` in its place) is
+    said as that: its ``depth/`` sorts first and was offered as the images."""
+    if (
+        (folder / "rgb").is_dir()
+        and not (folder / "rgb.txt").is_file()
+        and ((folder / "groundtruth.txt").is_file() or (folder / "associations.txt").is_file())
+    ):
+        return (
+            "; a TUM RGB-D folder without its rgb.txt (the list 'timestamp rgb/file.png' that "
+            "graphslam reads; associations.txt is ORB-SLAM's): add rgb.txt"
+        )
     try:
-        below = sorted(p for p in folder.iterdir() if p.is_dir())
+        below = sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: (p.name == "depth", p.name))
     except OSError:
         return ""
     for sub in below:
@@ -389,7 +401,18 @@ def read_image_sequence(path: str | Path, intrinsics_file: str | Path | None = N
             kw["intrinsics"] = Path(intrinsics_file)
         return read_tum_rgbd(path, **kw)
     if kitti:
-        return read_kitti(path, **kw)
+        if (path / "image_0").is_dir() or "camera" in kw:
+            return read_kitti(path, **kw)
+        # a colour download holds image_2/ (and image_3/) only: refused before, though
+        # the reader takes any camera of calib.txt, its truth moved to that camera
+        cams = sorted(p for p in path.glob("image_[0-9]") if p.is_dir())
+        camera = int(cams[0].name[-1])
+        seq = read_kitti(path, camera=camera, **kw)
+        note = (
+            f"image_0/ is absent: camera {camera} ({cams[0].name}/) is read, with P{camera} of "
+            f"calib.txt and the ground truth moved to it"
+        )
+        return dataclasses.replace(seq, frame_warnings=(note, *seq.frame_warnings))
     kitti_images = [p for p in sorted(path.glob("image_[0-9]")) if p.is_dir()]
     if kitti_images and not list_images(path):  # said as what it is, not "no images"
         raise InputError(

@@ -375,3 +375,28 @@ def test_a_csv_header_without_a_hash_is_named_a_header(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "gt.csv"), str(tmp_path / "est.csv"), "--no-plot",
                  "--out", str(tmp_path / "o")]) == 2
     assert "a header line" in capsys.readouterr().err
+
+
+def test_a_kitti_colour_download_reads_its_camera(tmp_path, capsys, shared_data):
+    """image_2/ only (a colour download) was "image_0/ not found", though the reader
+    takes any camera of calib.txt."""
+    folder = tmp_path / "k"
+    (folder / "image_2").mkdir(parents=True)
+    for i in range(8):
+        (folder / "image_2" / f"{i:06d}.png").symlink_to(shared_data / "kitti07" / "image_0" / f"{i:06d}.png")
+    for name in ("calib.txt", "times.txt", "poses.txt"):
+        (folder / name).symlink_to(shared_data / "kitti07" / name)
+    assert main(["run", "--dataset", str(folder), *RUN, "--out", str(tmp_path / "o")]) == 0
+    assert "camera 2 (image_2/) is read" in capsys.readouterr().err
+
+
+def test_a_tum_folder_without_rgb_txt_is_said_not_pointed_at_depth(tmp_path, capsys, shared_data):
+    folder = tmp_path / "tum"
+    for sub in ("depth", "rgb"):
+        (folder / sub).mkdir(parents=True)
+        for i in range(3):
+            (folder / sub / f"{i}.png").symlink_to(shared_data / "kitti07" / "image_0" / f"{i:06d}.png")
+    (folder / "associations.txt").write_text("0.0 rgb/0.png 0.0 depth/0.png\n")
+    assert main(["run", "--dataset", str(folder), *RUN, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "without its rgb.txt" in err and "depth/" not in err
