@@ -610,7 +610,7 @@ def _large_image_hint(result: VisualRunResult) -> str:
     settings in pixels were measured on smaller images; which of them fails depends on
     the camera (an upscaled image localises corners to ~3 px, a sharp one to ~1 px but
     moves 3x farther a frame), so the hint names them and the tested route."""
-    width = int(getattr(result.sequence, "image_size", (0, 0))[0])
+    width = int(getattr(getattr(result, "sequence", None), "image_size", (0, 0))[0])
     if width <= LARGE_IMAGE_WIDTH_PX:
         return ""
     return (
@@ -618,6 +618,29 @@ def _large_image_hint(result: VisualRunResult) -> str:
         f"[active_search] patch_size_px) were measured on images up to {LARGE_IMAGE_WIDTH_PX} "
         f"px wide, these are {width}: images resized under that width are the tested route"
     )
+
+
+#: Consecutive frames the camera-alone motion model may bridge without a doubt said: one
+#: weak frame (a turn's end; the synthetic room's two coasted frames are single ones).
+BRIDGED_FRAMES = 1
+
+
+def _loss_doubts(losses: list[dict]) -> list[str]:
+    """A doubt for the camera-alone tracking losses longer than :data:`BRIDGED_FRAMES`:
+    their poses are the constant-velocity guess, and landmarks mapped from them may hold
+    another scale (thirteenth hostile pass: a cut to another place 55 m away was bridged
+    as 0.65 m of motion, and a blurred stretch came back at 1.8x the scale, with nothing
+    said but "found again by PnP" in metrics.json)."""
+    long = [x for x in losses if int(x.get("frames", 0)) > BRIDGED_FRAMES]
+    if not long:
+        return []
+    spans = ", ".join(f"{int(x['frame'])}-{int(x['frame']) + int(x['frames']) - 1}" for x in long[:5])
+    more = f" and {len(long) - 5} more" if len(long) > 5 else ""
+    return [
+        f"tracking was lost {len(long)} time(s) for more than {BRIDGED_FRAMES} frame (frames {spans}{more}): "
+        "the poses there are the motion model's guess, and what was mapped after a loss may hold "
+        "another scale than the map before it (a cut to another place is bridged as motion)"
+    ]
 
 
 def _doubts(result: VisualRunResult) -> list[str]:
@@ -641,6 +664,7 @@ def _doubts(result: VisualRunResult) -> list[str]:
         return out
     mono = (result.estimate.stats or {}).get("camera_alone")
     if mono is not None:
+        out += _loss_doubts(mono.get("losses") or [])
         unmeasured = int(mono.get("coasted_frames", 0))
         what = "PnP could not measure the pose"
     else:

@@ -400,3 +400,14 @@ def test_a_tum_folder_without_rgb_txt_is_said_not_pointed_at_depth(tmp_path, cap
     assert main(["run", "--dataset", str(folder), *RUN, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "without its rgb.txt" in err and "depth/" not in err
+
+
+def test_camera_alone_losses_longer_than_a_frame_are_said():
+    """A cut to another place was bridged as 0.65 m of motion and a blurred stretch came
+    back at 1.8x the scale: "found again by PnP" in metrics.json only."""
+    from graphslam.pipelines.spatial import _loss_doubts
+
+    assert _loss_doubts([{"frame": 101, "frames": 1, "ended": "found again by PnP"}]) == []
+    said = _loss_doubts([{"frame": 50, "frames": 6, "ended": "found again by PnP"},
+                         {"frame": 101, "frames": 1, "ended": "found again by PnP"}])
+    assert len(said) == 1 and "frames 50-55" in said[0] and "another scale" in said[0]
