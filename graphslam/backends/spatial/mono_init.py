@@ -96,8 +96,15 @@ class MonoBootstrap:
             if len(shared) >= need:
                 break
         else:
+            most = max(len(f[1]) for f in self._frames)
+            # a frame that tracks nothing is said as that (dark frames read "0 shared")
+            why = (
+                "; no frame kept had a tracked corner (images too dark, blurred or bare?)"
+                if most == 0
+                else f"; at most {most} tracked in one frame"
+            )
             self.reason = (
-                f"{best} tracks shared with an earlier frame < {need}"
+                f"{best} tracks shared with an earlier frame < {need}{why}"
                 if len(self._frames) > 1
                 else "one frame: no second view yet"
             )
