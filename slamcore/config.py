@@ -380,8 +380,11 @@ class ConfigFile:
     lines: dict = field(default_factory=dict)
     #: the sections :meth:`section` was asked for (:meth:`unread_sections`)
     read_sections: set = field(default_factory=set, compare=False, repr=False)
-    #: the file's settings that did nothing: key path -> when they act (:meth:`inert_lines`)
+    #: the file's settings that did nothing: key path -> when they act (:meth:`inert_lines`),
+    #: by the last build of their section (its gates, the flags that replaced them)
     inert: dict = field(default_factory=dict, compare=False, repr=False)
+    #: the same, marked by the command where another section decides (:meth:`mark_inert`)
+    marked: dict = field(default_factory=dict, compare=False, repr=False)
     #: every section as :meth:`section` last built it (defaults, file, overrides): what ran
     settings: dict = field(default_factory=dict, compare=False, repr=False)
 
@@ -431,8 +434,11 @@ class ConfigFile:
         given = {k: v for k, v in (overrides or {}).items() if v is not None}
         self._check_overridden(cls, name, {k: data[k] for k in data.keys() & given.keys()})
         file_data = dict(data)
+        # the section's last build is what ran: an earlier build's notes go
+        for stale in [k for k in self.inert if k[0] == name]:
+            del self.inert[stale]
         for key in data.keys() & given.keys():  # the command line wins, and says so
-            if data[key] != given[key] or type(data[key]) is not type(given[key]):
+            if data[key] != given[key] or isinstance(data[key], bool) != isinstance(given[key], bool):
                 self.inert[(name, key)] = f"the command line's {_toml_value(given[key])}, which replaced it"
         data.update(given)
         built = self._build(cls, data, (name,))
@@ -472,13 +478,17 @@ class ConfigFile:
         table = self.data.get(section) or {}
         for key in table if keys is None else keys:
             if key in table:
-                self.inert[(section, key)] = when
+                self.marked[(section, key)] = when
+
+    def is_inert(self, section: str, key: str) -> bool:
+        """The file's ``[section] key`` is said to have done nothing (:meth:`inert_lines`)."""
+        return (section, key) in self.inert or (section, key) in self.marked
 
     def inert_lines(self) -> list[str]:
         """One line per group of the file's settings that did nothing, with the line
         of the first and when they act."""
         groups: dict[tuple[tuple[str, ...], str], list[str]] = {}
-        for path, when in self.inert.items():
+        for path, when in {**self.inert, **self.marked}.items():
             groups.setdefault((path[:-1], when), []).append(path[-1])
         out = []
         for (where, when), keys in groups.items():

@@ -260,3 +260,17 @@ def test_yaml_words_are_not_booleans_and_exponents_are_floats(tmp_path):
     assert load_section(Outer, path).sigma_m == 1e-3
     path.write_text("outer:\n  # every key commented out\n")
     assert load_section(Outer, path) == Outer()
+
+
+def test_the_last_build_of_a_section_decides_what_is_said(tmp_path):
+    """A section built twice (a comparison builds each back end's in the parent too):
+    the notes are those of its last build, not a union."""
+    path = tmp_path / "c.toml"
+    path.write_text("[gated]\npolish_iterations = 3\n")
+    config = ConfigFile.read(path)
+    config.section(Gated, {"polish": False})
+    config.section(Gated)
+    assert config.inert_lines() == []
+    config.mark_inert("gated", ["polish_iterations"], "a mark")
+    config.section(Gated)  # a build does not erase what another section marked
+    assert len(config.inert_lines()) == 1

@@ -186,7 +186,7 @@ def _unused_settings(backend, config, result) -> list[str]:
         return []
     section = section_name(cls)
     # those the gates of the config already name (ConfigFile.inert_lines) once only
-    given = [k for k in config.data.get(section) or {} if (section, k) not in config.inert]
+    given = [k for k in config.data.get(section) or {} if not config.is_inert(section, k)]
     out = []
     closures = [k for k in given if k in closure_keys]
     if closures and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
