@@ -411,3 +411,46 @@ def test_camera_alone_losses_longer_than_a_frame_are_said():
     said = _loss_doubts([{"frame": 50, "frames": 6, "ended": "found again by PnP"},
                          {"frame": 101, "frames": 1, "ended": "found again by PnP"}])
     assert len(said) == 1 and "frames 50-55" in said[0] and "another scale" in said[0]
+
+
+def test_a_start_on_frames_without_corners_says_so():
+    """Dark frames read "0 tracks shared with an earlier frame < 50", not why."""
+    import numpy as np
+
+    from graphslam.backends.spatial.mono_init import MonoBootstrap
+    from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
+
+    boot = MonoBootstrap(MonoTrackingConfig(), np.diag([500.0, 500.0, 1.0]))
+    none = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    assert boot.add(0, *none) is None and boot.add(1, *none) is None
+    assert "no frame kept had a tracked corner" in boot.reason
+    ids = np.arange(5)
+    assert boot.add(2, ids, np.zeros((5, 2))) is None
+    assert "at most 5 tracked in one frame" in boot.reason
+
+
+def test_a_non_rigid_euroc_t_bs_is_named_in_sensor_yaml(tmp_path, capsys, shared_data):
+    """A transposed T_BS read "estimate poses must be rigid transforms", no file named."""
+    cam = tmp_path / "mav0" / "cam0"
+    (cam / "data").mkdir(parents=True)
+    (cam / "data" / "1000.png").symlink_to(shared_data / "kitti07" / "image_0" / "000000.png")
+    (cam / "data.csv").write_text("#timestamp [ns],filename\n1000,1000.png\n")
+    (cam / "sensor.yaml").write_text(
+        "intrinsics: [458.6, 457.3, 367.2, 248.4]\ndistortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n"
+        "T_BS:\n  rows: 4\n  cols: 4\n  data: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,"
+        " -0.02, 0.06, 0.01, 1.0]\n")
+    from graphslam.sources.spatial.images import read_euroc
+    from slamcore.errors import InputError
+
+    with pytest.raises(InputError) as e:
+        read_euroc(tmp_path)
+    assert "T_BS" in str(e.value) and "sensor.yaml" in str(e.value.path)
+
+
+def test_a_flat_vocabulary_of_minutes_says_so_before_it_starts(tmp_path, capsys, monkeypatch, shared_data):
+    import graphslam.cli.vocab as vocab
+
+    monkeypatch.setattr(vocab, "FLAT_SLOW_PRODUCT", 1.0)  # the desk is small: say it at any size
+    assert main(["vocab", "train", str(shared_data / "slambook2_desk" / "images"), "--flat", "--words", "8",
+                 "--out", str(tmp_path / "v.npz"), "--quiet"]) == 0
+    assert "a flat k-means of 8 words" in capsys.readouterr().err
