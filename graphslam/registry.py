@@ -323,6 +323,13 @@ def make_localiser(
     )
 
 
+def seed_draws_nothing(dataset: str, backend: str) -> bool:
+    """``--seed`` changes nothing in a 2-D run of ``backend`` on ``dataset``: the data is
+    not simulated and the back end draws no random numbers (run, compare and sweep
+    refuse it by this one rule)."""
+    return dataset != "synthetic" and backend not in SEEDED_BACKENDS
+
+
 def seed_override(name: str, seed: int | None) -> dict:
     """Config override that hands ``--seed`` to 2-D back ends that draw random numbers."""
     row = descriptor(name)

@@ -169,10 +169,8 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
     narrowed = _range_backends(args, dataset, explicit)
     # after the back ends are known: on ranges only iSAM2 runs, which draws no numbers
-    if (
-        args.seed is not None
-        and args.dataset != "synthetic"
-        and not set(args.backends) & set(registry.SEEDED_BACKENDS)
+    if args.seed is not None and all(
+        registry.seed_draws_nothing(args.dataset, name) for name in args.backends
     ):
         raise GraphSlamError(
             f"--seed has no effect here: {args.dataset} is not simulated and "
@@ -468,7 +466,8 @@ def format_table(entries) -> str:
     # which columns are fitted to the truth first, and how (an SE(2)-fitted ATE beside the
     # unaligned final error read as one ranking: thirteenth hostile pass)
     fits = {str(r.get("alignment") or "se2") for r in rows if r.get("ate_rmse_m") is not None}
-    fit = _FIT_NAMES.get(next(iter(fits)), next(iter(fits))) + " fit" if len(fits) == 1 else "fit per row"
+    only = next(iter(fits)) if len(fits) == 1 else None
+    fit = "fit per row" if only is None else f"{_FIT_NAMES.get(only, only)} fit"
     columns = [
         (k, f"{h} ({fit})" if k == "ate_rmse_m" else f"{h} (no fit)" if k == "final_pose_error_m" else h, f)
         for k, h, f in COLUMNS

@@ -155,8 +155,9 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
     with stop_guard() as guard:
         try:
             parser = build_parser()
+            words = sys.argv[1:] if argv is None else list(argv)
             try:
-                args = parser.parse_args(glued_slices(sys.argv[1:] if argv is None else list(argv)))
+                args = parser.parse_args(glued_slices(words))
             except SystemExit as stop:
                 if stop.code == 0:  # --help, --version: said, not lost with status 0
                     sys.stdout.flush()
@@ -164,7 +165,7 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
                         raise stdout.error from None
                 raise
             check_path_arguments(args)
-            args.command_line = ["graphslam", *(sys.argv[1:] if argv is None else list(argv))]
+            args.command_line = ["graphslam", *words]
             signal_hook("start")
             status = args.func(args)
             sys.stdout.flush()  # the summary's write error is this command's, not the exit's

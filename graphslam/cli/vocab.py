@@ -154,11 +154,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         file=sys.stderr,
         flush=True,
     )
-    n_train = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
-    if args.flat and n_train * args.words > FLAT_SLOW_PRODUCT:
+    n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
+    if args.flat and n_desc * args.words > FLAT_SLOW_PRODUCT:
         warn(
-            f"a flat k-means of {args.words} words on {n_train} descriptors computes "
-            f"{n_train * args.words:.1e} distances an iteration: minutes, with no progress to show; "
+            f"a flat k-means of {args.words} words on {n_desc} descriptors computes "
+            f"{n_desc * args.words:.1e} distances an iteration: minutes, with no progress to show; "
             "the tree (without --flat) trains this size in seconds"
         )
     guard = active_guard()
@@ -176,7 +176,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with replacing(args.out) as tmp:
         vocab.save(tmp)
-    n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
     print(
         f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
         f"images, trained in {wall:.1f} s"

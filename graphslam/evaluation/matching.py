@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from slamcore.errors import GraphSlamError
+from slamcore.spatial.geometry import non_rigid_rows
 
 __all__ = ["RIGID_TOL", "checked_delta", "common_poses"]
 
@@ -56,12 +57,8 @@ def _poses(poses, pose_shape: tuple[int, ...], n: int, what: str) -> np.ndarray:
         )
     if not np.all(np.isfinite(p)):
         raise GraphSlamError(f"{what} poses must be finite")
-    if pose_shape == (4, 4):
-        R = p[:, :3, :3]
-        off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(initial=0.0)
-        bottom = np.abs(p[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(initial=0.0)
-        if off > RIGID_TOL or bottom > RIGID_TOL or np.any(np.linalg.det(R) < 0.0):
-            raise GraphSlamError(f"{what} poses must be rigid transforms (rotation and translation)")
+    if pose_shape == (4, 4) and np.any(non_rigid_rows(p, RIGID_TOL)):
+        raise GraphSlamError(f"{what} poses must be rigid transforms (rotation and translation)")
     return p
 
 

@@ -178,15 +178,12 @@ class SpatialMap:
         positions times 1e160 loaded, and a joined map carried them on)."""
         from graphslam.evaluation.matching import RIGID_TOL
         from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+        from slamcore.spatial.geometry import non_rigid_rows
 
         T = self.keyframe_wTc
-        if len(T):
-            R = T[:, :3, :3]
-            off = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
-            bottom = np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1)
-            bad = np.flatnonzero((off > RIGID_TOL) | (bottom > RIGID_TOL) | (np.linalg.det(R) < 0.0))
-            if bad.size:
-                raise InputError(f"map keyframe {int(self.keyframe_ids[bad[0]])} is not a rigid pose", where)
+        bad = np.flatnonzero(non_rigid_rows(T, RIGID_TOL))
+        if bad.size:
+            raise InputError(f"map keyframe {int(self.keyframe_ids[bad[0]])} is not a rigid pose", where)
         for name, xyz in (("keyframe", T[:, :3, 3]), ("landmark", self.landmark_w)):
             far = np.flatnonzero(np.any(np.abs(xyz) > TRANSLATION_MAX_M, axis=1))
             if far.size:

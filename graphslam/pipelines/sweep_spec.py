@@ -299,7 +299,7 @@ def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[st
     """ConfigError when seeds are listed and a run of the grid is a pose-graph solve: it
     draws no random numbers, so each of its runs would fail on ``--seed`` (as ``graphslam
     run`` refuses it), after the sweep had started."""
-    from graphslam.registry import SEEDED_BACKENDS, is_pose_graph_run, is_visual_dataset
+    from graphslam.registry import is_pose_graph_run, is_visual_dataset, seed_draws_nothing
 
     if seeds == (None,):
         return
@@ -312,7 +312,7 @@ def _refuse_seeds_of_solves(seeds: tuple, datasets: list[str], backends: list[st
                 cfg.line_of("sweep", "seed"),
             )
         # a 2-D landmark run refuses --seed as run does (each run failed, after the start)
-        if not is_visual_dataset(dataset) and dataset != "synthetic" and backend not in SEEDED_BACKENDS:
+        if not is_visual_dataset(dataset) and seed_draws_nothing(dataset, backend):
             raise ConfigError(
                 f"[sweep] seed: {backend} on {dataset} draws no random numbers and the data is "
                 "not simulated, so every seed would be the same run; sweep seeds over synthetic "

@@ -47,6 +47,7 @@ from graphslam.sources.spatial.sequence import (
     parse_floats,
     quat_to_rotation,
     read_lines,
+    rotation_entries,
 )
 from slamcore.errors import InputError
 from slamcore.planar.records import Dataset
@@ -173,11 +174,8 @@ def _tum_at_once(lines: list[tuple[int, str]]) -> tuple[np.ndarray, np.ndarray] 
     norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     if not np.all((norm > 0.9) & (norm < 1.1)):
         return None
-    w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
     T = np.zeros((len(v), 4, 4))
-    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    T[:, 2, 0], T[:, 2, 1], T[:, 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    T[:, :3, :3] = np.moveaxis(np.array(rotation_entries(qw / norm, qx / norm, qy / norm, qz / norm)), -1, 0)
     T[:, :3, 3] = v[:, 1:4]
     T[:, 3, 3] = 1.0
     return v[:, 0].copy(), T

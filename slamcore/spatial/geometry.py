@@ -63,6 +63,17 @@ def se3_adjoint(T: np.ndarray) -> np.ndarray:
     return A
 
 
+def non_rigid_rows(T: np.ndarray, tol: float) -> np.ndarray:
+    """(N,) True where the (N, 4, 4) ``T[k]`` is not a rigid transform to ``tol``: its
+    ``R^T R`` off the identity or its bottom row off ``[0, 0, 0, 1]`` by more, or a
+    reflection."""
+    T = np.asarray(T, dtype=np.float64).reshape(-1, 4, 4)
+    R = T[:, :3, :3]
+    off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2), initial=0.0)
+    bottom = np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1, initial=0.0)
+    return (off > tol) | (bottom > tol) | (np.linalg.det(R) < 0.0)
+
+
 def invert_pose(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (4, 4) or a stack (N, 4, 4)."""
     T = np.asarray(T, dtype=np.float64)

@@ -120,6 +120,7 @@ def save_run_map(args, recorder, result, backend, closer, tracker, quiet: bool, 
 def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_map) -> None:
     import sys
 
+    from graphslam.cli.common import warn
     from graphslam.maps.files import save_map
 
     seq = result.sequence
@@ -145,7 +146,6 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         result.estimate, backend, vocabulary=vocabulary, meta=meta, K=seq.K, image_size=seq.image_size
     )
     if prior_map is not None:
-        from graphslam.cli.common import warn
         from graphslam.maps.merge import merge_maps, repeated_session
 
         again = repeated_session(prior_map, meta)
@@ -162,8 +162,6 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         f"{c['observations']} observations"
     )
     if c["landmarks"] == 0:  # saved in silence, then localize placed nothing, also silent
-        from graphslam.cli.common import warn
-
         warn(
             f"the map in {args.save_map} has no landmark: nothing can be placed against it "
             "(a run of more frames, with parallax, makes one)"

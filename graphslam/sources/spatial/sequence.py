@@ -237,13 +237,17 @@ def quat_to_rotation(
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     if not 0.9 < n < 1.1:
         raise InputError(f"quaternion norm {n:.4f} is not 1", path, line)
-    w, x, y, z = qw / n, qx / n, qy / n, qz / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
+    return np.array(rotation_entries(qw / n, qx / n, qy / n, qz / n))
+
+
+def rotation_entries(w, x, y, z) -> tuple:
+    """The 3 x 3 entries (rows of tuples) of the rotation of the unit quaternion
+    ``w + xi + yj + zk``; numbers or arrays alike, so a file read line by line and one
+    read as a whole array give the same bits."""
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
     )
 
 
