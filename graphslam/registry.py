@@ -164,7 +164,14 @@ def load_dataset(
     if spec == "synthetic":
         from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
 
-        return make_synthetic(load_section(SyntheticConfig, config, {"seed": seed}))
+        world = make_synthetic(load_section(SyntheticConfig, config, {"seed": seed}))
+        if isinstance(config, ConfigFile):  # the signatures are drawn, but no run reads one
+            config.mark_inert(
+                "synthetic",
+                ("signature_count",),
+                "observations without a landmark id (the Python API: every synthetic observation has one)",
+            )
+        return world
     if spec == "victoria-park":
         from graphslam.sources.planar.victoria_park import read_victoria_park, victoria_park_path
 

@@ -477,12 +477,8 @@ class ConfigFile:
         (``[harris]`` under ``[tracker] detector = "orb"``); ``when``: when they act."""
         table = self.data.get(section) or {}
         for key in table if keys is None else keys:
-            if key in table:
+            if key in table and (section, key) not in self.inert:  # a gate's note said it already
                 self.marked[(section, key)] = when
-
-    def is_inert(self, section: str, key: str) -> bool:
-        """The file's ``[section] key`` is said to have done nothing (:meth:`inert_lines`)."""
-        return (section, key) in self.inert or (section, key) in self.marked
 
     def inert_lines(self) -> list[str]:
         """One line per group of the file's settings that did nothing, with the line

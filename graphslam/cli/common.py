@@ -293,6 +293,8 @@ def provenance(args, config) -> dict:
         "config_file": None if config.path is None else str(config.path),
         "config_sha256": digest,
         "settings": dict(config.settings),
+        # the file's settings that did nothing, as said on stderr (GATES and marks so far)
+        "did_nothing": config.inert_lines(),
     }
 
 

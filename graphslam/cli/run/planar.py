@@ -130,10 +130,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
+    _mark_unused_settings(backend, config, result)  # before provenance, which lists them
     metrics.provenance = provenance(args, config)
-    unused = _unused_settings(backend, config, result)
-    if unused:
-        metrics.warnings = [*(metrics.warnings or []), *unused]
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
@@ -172,35 +170,28 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def _unused_settings(backend, config, result) -> list[str]:
-    """Lines naming the file's settings of the back end that did nothing in this run
+def _mark_unused_settings(backend, config, result) -> None:
+    """Mark the file's settings of the back end that did nothing in this run
     (eleventh hostile pass: ``polish_method = "gnc"`` on a landmark world and the EKF's
     ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
-    ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always."""
+    ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always.
+    They are said with the gates' (:meth:`slamcore.config.ConfigFile.inert_lines`), with
+    their file line, and listed in metrics.json's provenance."""
     from slamcore.config import section_name
 
     cls = type(getattr(backend, "config", None))
     closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
-    unread_keys = getattr(cls, "UNREAD_IN_RUNS", ())
-    if not closure_keys and not unread_keys:
-        return []
+    if not closure_keys and not getattr(cls, "UNREAD_IN_RUNS", ()):
+        return
     section = section_name(cls)
-    # those the gates of the config already name (ConfigFile.inert_lines) once only
-    given = [k for k in config.data.get(section) or {} if not config.is_inert(section, k)]
-    out = []
-    closures = [k for k in given if k in closure_keys]
-    if closures and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
-        out.append(
-            f"[{section}] {', '.join(closures)}: settings of loop closures, and this run had none; "
-            "they did nothing"
-        )
-    unread = [k for k in given if k in unread_keys]
-    if unread:
-        out.append(
-            f"[{section}] {', '.join(unread)}: read only before a first observation outside a run "
-            "(every observation of a run brings its own covariance); they did nothing"
-        )
-    return out
+    if closure_keys and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
+        config.mark_inert(section, closure_keys, "loop closures (this run had none)")
+    config.mark_inert(
+        section,
+        getattr(cls, "UNREAD_IN_RUNS", ()),
+        "observations without a covariance of their own (the Python API; every "
+        "observation of a run brings one)",
+    )
 
 
 def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> None:

@@ -72,7 +72,17 @@ def run(args: argparse.Namespace) -> int:
         registry.check_no_polish(args.backend)
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
+    if args.init is not None and args.backend == "isam2" and not solver_config.polish:
+        raise ConfigError(
+            "--init starts the batch polish after iSAM2, and the polish is off (--no-polish or "
+            "[posegraph] polish = false): iSAM2's estimate is the answer"
+        )
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
+    from graphslam.sources.builtin_posegraphs import is_builtin_pose_graph
+
+    # a built-in graph is read by its own reader, a g2o file has no TORO convention
+    toro_read = graph.format == "toro" and not is_builtin_pose_graph(args.dataset)
+    mark_unread_settings(config, args.backend, solver_config, toro_read)
     for doubt in graph.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
@@ -94,6 +104,24 @@ def run(args: argparse.Namespace) -> int:
         if doubt not in graph.warnings:
             warn(doubt)
     return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
+
+
+def mark_unread_settings(config, solver: str, settings, toro_read: bool) -> None:
+    """Mark the file's ``[posegraph]`` settings that this solve does not read (said with
+    the gates', :meth:`slamcore.config.ConfigFile.inert_lines`): iSAM2's under the batch
+    solver, the polish's start with iSAM2 unpolished, the TORO convention on a g2o file.
+    ``auto`` may run either solver, so it marks none of theirs."""
+    if solver == "batch":
+        config.mark_inert(
+            "posegraph",
+            ("relinearize_threshold", "relinearize_skip", "polish"),
+            "the isam2 or auto solver (--backend isam2)",
+        )
+    if solver == "isam2" and not settings.polish:
+        # the certificate's retry starts from the certified rotations, never from `init`
+        config.mark_inert("posegraph", ("init",), "polish = true (the start of the batch polish)")
+    if not toro_read:
+        config.mark_inert("posegraph", ("toro_noise",), "TORO files (.graph)")
 
 
 def load_graph(dataset: str, solver_config, max_steps: int | None = None, ground_truth: Path | None = None):

@@ -128,6 +128,14 @@ def run(args: argparse.Namespace) -> int:
         no_polish=args.no_polish,
     )
     refuse_ignored_flags(args, setup.mode, config)
+    loops = args.loops or args.vocab is not None
+    if args.backend == "isam2" and not (loops or getattr(args, "relocalise", False)):
+        # closures come from --loops and --relocalise only (a relocalised pose joins as one)
+        config.mark_inert(
+            "isam2_visual",
+            ("loop_closure_kernel", "loop_closure_kernel_k"),
+            "--loops or --relocalise (the loop-closure factors)",
+        )
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
     session = setup.session(args.backend)
     backend, tracker = session.backend, session.tracker
@@ -135,7 +143,6 @@ def run(args: argparse.Namespace) -> int:
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
     claim_out_dir(out_dir)
-    loops = args.loops or args.vocab is not None
     clear_earlier_outputs(
         out_dir,
         {"trajectory.tum", "landmarks.csv", "metrics.json"}

@@ -4,6 +4,8 @@ a new silent wrong answer). Run on the 2-D back ends and the loop verifier."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -76,8 +78,10 @@ def test_the_forward_scale_changes_nothing_without_the_coverage_test():
 #: (back end, the file's settings, those of them said to do nothing): visual runs of
 #: 20 synthetic frames with and without the settings said unread, the same bytes.
 VISUAL = [
-    ("isam2", '[tracker]\nmax_hamming = 3\n[isam2_visual]\nseed = 77\n[isam2_visual.mono]\nmin_pnp_inliers = 50\n',
-     "[tracker]\n", ["[tracker] max_hamming", "[isam2_visual] seed, mono"]),
+    ("isam2", '[tracker]\nmax_hamming = 3\n[isam2_visual]\nseed = 77\nloop_closure_kernel = "huber"\n'
+     'loop_closure_kernel_k = 0.1\n[isam2_visual.mono]\nmin_pnp_inliers = 50\n',
+     "[tracker]\n", ["[tracker] max_hamming", "[isam2_visual] seed, mono",
+                     "[isam2_visual] loop_closure_kernel, loop_closure_kernel_k"]),
     ("ekf", '[mono_ekf]\nrobot_model = "odometry"\ncv_sigma_accel_mps2 = 9.0\nransac = false\n'
      'ransac_inlier_sigmas = 0.5\nseed = 4\n[tracker]\ndetector = "orb"\nfollow_min_score = 0.1\n[harris]\nk = 0.2\n',
      '[mono_ekf]\nrobot_model = "odometry"\nransac = false\n[tracker]\ndetector = "orb"\n',
@@ -101,3 +105,59 @@ def test_visual_settings_said_unread_change_no_byte(tmp_path, capsys, backend, w
     lines = [line for line in out["with"].splitlines() if "did nothing" in line]
     assert len(lines) == len(said) and all(any(s in line for line in lines) for s in said), out["with"]
     assert "did nothing" not in out["without"]
+
+
+GRAPH = "noisyToyGraph.txt"  # gtsam's 2-D g2o example: 4 poses, a closure
+
+#: (solver flags, the file's [posegraph] settings that solver does not read, what is said)
+POSEGRAPH = [
+    (["--backend", "batch"], 'relinearize_threshold = 0.9\nrelinearize_skip = 3\npolish = false\n',
+     "[posegraph] relinearize_threshold, relinearize_skip, polish"),
+    (["--backend", "isam2", "--no-polish"], 'init = "odometry"\n', "[posegraph] init"),
+    (["--backend", "batch"], 'toro_noise = "sqrt_information"\n', "[posegraph] toro_noise"),
+]
+
+
+@pytest.mark.parametrize("flags,text,said", POSEGRAPH, ids=["batch", "isam2-unpolished", "g2o"])
+def test_pose_graph_settings_said_unread_change_no_byte(tmp_path, capsys, flags, text, said):
+    """The [posegraph] settings a solve does not read (iSAM2's under batch, the polish's
+    start with no polish, the TORO convention on a g2o file) ran silent; now they are
+    said, and the trajectory is the same bytes without them."""
+    from graphslam.cli.main import main
+    import gtsam
+
+    err = {}
+    for name, body in (("with", text), ("without", "")):
+        (tmp_path / f"{name}.toml").write_text("[posegraph]\n" + body)
+        assert main(["run", "--dataset", gtsam.findExampleDataFile(GRAPH), *flags, "--rerun", "off", "--quiet",
+                     "--config", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / name)]) == 0
+        err[name] = capsys.readouterr().err
+    assert (tmp_path / "with" / "trajectory.tum").read_bytes() == (tmp_path / "without" / "trajectory.tum").read_bytes()
+    assert f"{said} did nothing" in err["with"] and "did nothing" not in err["without"]
+    said_in_file = json.loads((tmp_path / "with" / "metrics.json").read_text())["provenance"]["did_nothing"]
+    assert any(f"{said} did nothing" in line for line in said_in_file)
+
+
+def test_init_with_an_unpolished_isam2_solve_is_refused(tmp_path, capsys):
+    from graphslam.cli.main import main
+    import gtsam
+
+    assert main(["run", "--dataset", gtsam.findExampleDataFile(GRAPH), "--backend", "isam2", "--no-polish",
+                 "--init", "lago", "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 2
+    assert "--init starts the batch polish" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "trajectory.tum").exists()
+
+
+def test_synthetic_signatures_are_said_to_do_nothing_in_a_run(tmp_path, capsys):
+    """Every synthetic observation has its landmark id, so no back end reads a signature:
+    ``signature_count = 3`` (many landmarks sharing one) ran the same bits, silent."""
+    from graphslam.cli.main import main
+
+    out = {}
+    for name, body in (("with", "[synthetic]\nsignature_count = 3\n"), ("without", "[synthetic]\n")):
+        (tmp_path / f"{name}.toml").write_text(body)
+        assert main(["run", "--dataset", "synthetic", "--backend", "ekf", "--max-steps", "30", "--rerun", "off",
+                     "--quiet", "--config", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / name)]) == 0
+        out[name] = capsys.readouterr().err
+    assert (tmp_path / "with" / "trajectory.tum").read_bytes() == (tmp_path / "without" / "trajectory.tum").read_bytes()
+    assert "[synthetic] signature_count did nothing" in out["with"] and "did nothing" not in out["without"]

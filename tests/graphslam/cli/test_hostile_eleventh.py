@@ -189,8 +189,8 @@ def test_loop_closure_settings_on_a_run_without_closures_are_said(tmp_path, caps
     assert set(Isam2Config.LOOP_CLOSURE_KEYS) <= set(Isam2Config.__dataclass_fields__)
     m = _run_2d(tmp_path, capsys, "--max-steps", "40",
                 config="[isam2]\npolish_method = 'gnc'\nrelinearize_skip = 5\n")
-    assert ("[isam2] polish_method: settings of loop closures, and this run had none; they did "
-            "nothing") in m["warnings"]
+    said = "[isam2] polish_method did nothing: it acts only with loop closures (this run had none)"
+    assert any(said in w for w in m["provenance"]["did_nothing"])  # and on stderr
 
 
 def test_a_back_end_failure_late_in_a_visual_run_keeps_the_frames_before_it(tmp_path, capsys, monkeypatch):
@@ -330,8 +330,8 @@ def test_ekf_default_sigmas_in_a_run_are_said_to_do_nothing(tmp_path, capsys):
     assert set(EkfSlamConfig.UNREAD_IN_RUNS) <= set(EkfSlamConfig.__dataclass_fields__)
     m = _run_2d(tmp_path, capsys, "--backend", "ekf", "--max-steps", "30",
                 config="[ekf]\ndefault_sigma_range_m = 1e-12\n")
-    assert any(w.startswith("[ekf] default_sigma_range_m: read only before a first observation")
-               for w in m["warnings"])
+    said = "[ekf] default_sigma_range_m did nothing: it acts only with observations without a covariance"
+    assert any(said in w for w in m["provenance"]["did_nothing"])  # and on stderr
 
 
 def test_inverse_depth_landmarks_without_parallax_are_counted():
