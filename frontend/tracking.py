@@ -51,7 +51,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Literal
 
 import cv2
 import numpy as np
@@ -64,7 +63,7 @@ from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
 from frontend.search_matchers import extract_patches
-from frontend.tracking_config import TrackerConfig, make_detector
+from frontend.tracking_config import TrackerConfig, make_detector, search_matcher, search_mode_conflict
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
@@ -196,13 +195,11 @@ class Tracker:
     ):
         self.config = config or TrackerConfig()
         self.detector = make_detector(self.config, harris, orb)
-        mode: Literal["zncc", "nearest"] = "nearest" if self.config.search_mode == "nearest" else "zncc"
+        mode = search_matcher(self.config)
         base = active_search or ActiveSearchConfig()
-        if base.mode is not None and base.mode != mode:
-            raise ConfigError(
-                f"active_search.mode = {base.mode!r}: the tracker's search ({self.config.search_mode!r}, "
-                "[tracker] search) decides the mode here; set that instead"
-            )
+        why = search_mode_conflict(self.config, base)
+        if why:
+            raise ConfigError(why)
         self.search_config = dataclasses.replace(base, mode=mode)
         self._search = ActiveSearch(self.search_config)
         if follow_unmapped is None:

@@ -11,6 +11,7 @@ import typing
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
+from frontend.active_search_config import ActiveSearchConfig
 from frontend.harris import HarrisConfig
 from frontend.image import MAX_POINTS_PER_FRAME, MAX_SIDE_PX
 from frontend.orb import OrbConfig
@@ -134,6 +135,41 @@ def mark_unread_detector_sections(config: ConfigFile | None, detector: str) -> N
         config.mark_inert(
             "harris", ["arithmetic"], '[tracker] detector = "harris" (the FPGA stream is fixed point)'
         )
+
+
+def search_matcher(config: TrackerConfig) -> Literal["zncc", "nearest"]:
+    """The active search's matcher under the tracker's search mode (the descriptor search
+    correlates the patches it follows: zncc)."""
+    return "nearest" if config.search_mode == "nearest" else "zncc"
+
+
+def search_mode_conflict(config: TrackerConfig, search: ActiveSearchConfig) -> str | None:
+    """Why ``[active_search] mode`` contradicts the tracker's search, or None: the tracker
+    decides the mode, so a different one set there would do nothing."""
+    if search.mode is None or search.mode == search_matcher(config):
+        return None
+    return (
+        f"active_search.mode = {search.mode!r}: the tracker's search ({config.search_mode!r}, "
+        "[tracker] search) decides the mode here; set that instead"
+    )
+
+
+#: ``[active_search]`` keys only the ZNCC matcher reads (``frontend.search_matchers``)
+ZNCC_SEARCH_KEYS = ("min_score", "subpixel", "predict_appearance")
+
+
+def mark_unread_search_settings(config: ConfigFile | None, search_mode: str) -> None:
+    """Tell ``config`` which ``[active_search]`` keys the tracker's search mode leaves
+    unread (hostile pass 14: ``min_score = 0.99`` under the FPGA's nearest-point search
+    ran the same bits, silent). The descriptor search never tests a patch's flatness."""
+    if config is None or search_mode == "zncc":
+        return
+    keys = ZNCC_SEARCH_KEYS + (("min_patch_std",) if search_mode == "descriptor" else ())
+    config.mark_inert(
+        "active_search",
+        keys,
+        f'the ZNCC search ([tracker] search = "zncc", the Harris default; this one is "{search_mode}")',
+    )
 
 
 def make_detector(config: TrackerConfig, harris: HarrisConfig | None = None, orb: OrbConfig | None = None):

@@ -204,14 +204,27 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     from frontend.active_search_config import ActiveSearchConfig
     from frontend.harris import HarrisConfig
     from frontend.orb import OrbConfig
-    from frontend.tracking_config import TrackerConfig, mark_unread_detector_sections
+    from frontend.tracking_config import (
+        TrackerConfig,
+        mark_unread_detector_sections,
+        mark_unread_search_settings,
+        search_mode_conflict,
+    )
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     mark_unread_detector_sections(config, cfg.detector)
+    mark_unread_search_settings(config, cfg.search_mode)
+    search = config.section(ActiveSearchConfig)
+    # the two settings the tracker and the back end decide, refused with their file line
+    why = search_mode_conflict(cfg, search)
+    if why:
+        raise ConfigError(why, config.path, config.line_of("active_search", "mode"))
+    if search.order == "sequential" and not backend.supports_sequential_search:
+        raise ConfigError(_sequential_refusal(backend), config.path, config.line_of("active_search", "order"))
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
     return cfg, Tracker(
         cfg,
-        active_search=config.section(ActiveSearchConfig),
+        active_search=search,
         harris=config.section(HarrisConfig),
         orb=config.section(OrbConfig),
         follow_unmapped=follow,
@@ -447,6 +460,7 @@ def _estimate_so_far(backend, failed: GraphSlamError | None):
 
 #: Per-frame lists in ``VisualRunResult.tracking``.
 TRACKING_STATS = (
+    "corners",
     "observations",
     "found",
     "searched",
@@ -467,11 +481,15 @@ def _sequential_link(tracker: Tracker, backend: VisualBackend):
     if tracker.search_config.order != "sequential":
         return None
     if not backend.supports_sequential_search:
-        raise ConfigError(
-            f"active_search.order = 'sequential' needs a back end that corrects one "
-            f"landmark at a time (mono_ekf); {backend.name!r} does not"
-        )
+        raise ConfigError(_sequential_refusal(backend))
     return backend.correct_and_repredict
+
+
+def _sequential_refusal(backend: VisualBackend) -> str:
+    return (
+        f"active_search.order = 'sequential' needs a back end that corrects one "
+        f"landmark at a time (mono_ekf); {backend.name!r} does not"
+    )
 
 
 def _track(tracker: Tracker, image: np.ndarray, pred: PixelPredictions, repredict) -> TrackingResult:
@@ -489,6 +507,7 @@ def _first_pose(sequence: ImageSequence, cfg: VisualRunConfig) -> tuple[np.ndarr
 
 
 def _count(stats: dict, tr: TrackingResult, update_s: float) -> None:
+    stats["corners"].append(len(tr.corners))
     stats["observations"].append(len(tr.observations))
     stats["found"].append(tr.n_found)
     stats["searched"].append(tr.n_searched)
@@ -620,6 +639,18 @@ def _large_image_hint(result: VisualRunResult) -> str:
     )
 
 
+def _no_corner_hint(result: VisualRunResult) -> str:
+    """What to look at when the detector found no corner in any frame (hostile pass 14:
+    ``[harris] border_px = 200`` on 370-row images, or a threshold above any response,
+    was said as "0 corners matched")."""
+    width, height = (int(v) for v in getattr(getattr(result, "sequence", None), "image_size", (0, 0)))
+    return (
+        f"; the detector found no corner in {width}x{height} images: look at [harris] threshold "
+        "and border_px (Harris and FPGA; a border of half the image or more leaves no pixel) "
+        "or [orb] (ORB)"
+    )
+
+
 #: Consecutive frames the camera-alone motion model may bridge without a doubt said: one
 #: weak frame (a turn's end; the synthetic room's two coasted frames are single ones).
 BRIDGED_FRAMES = 1
@@ -655,11 +686,15 @@ def _doubts(result: VisualRunResult) -> list[str]:
             f"started, or not placed by it); the scores are over the other {n_pose}"
         )
     if result.odometry != "none" and n >= 2 and len(result.estimate.landmark_ids) == 0:
+        corners = int(np.sum(result.tracking.get("corners", [])))
         out.append(
-            f"no landmark entered the map in {n} frames ({sum(result.tracking.get('observations', []))} "
-            "corners matched in all): the trajectory is the odometry alone, the images corrected nothing"
-            + _large_image_hint(result)
+            f"no landmark entered the map in {n} frames ({corners} corners detected, "
+            f"{sum(result.tracking.get('observations', []))} matched in all): the trajectory is the "
+            "odometry alone, the images corrected nothing"
+            + (_no_corner_hint(result) if corners == 0 else _large_image_hint(result))
         )
+    if result.odometry != "none" and n >= 2 and len(result.estimate.landmark_ids) > 0:
+        out += _never_found_again(result)
     if result.odometry != "none" or n < 2:
         return out
     mono = (result.estimate.stats or {}).get("camera_alone")
@@ -677,6 +712,24 @@ def _doubts(result: VisualRunResult) -> list[str]:
             "motion model's guess, not a measurement"
         )
     return out
+
+
+def _never_found_again(result: VisualRunResult) -> list[str]:
+    """The doubt of a run with odometry whose landmarks were never found again in a later
+    frame (a search gate or score no match passes): each landmark was seen once, so the
+    images corrected nothing (hostile pass 14: ``gate_probability = 0.01`` gave the
+    odometry to the last digit, silent)."""
+    tr = result.tracking
+    searched = int(np.sum(tr.get("searched", [])[1:]))
+    again = int(np.sum(tr.get("found", [])[1:])) + int(np.sum(tr.get("followed", [])[1:]))
+    if again > 0 or searched == 0:
+        return []
+    return [
+        f"no landmark was found again in {result.frames - 1} frames ({searched} searches): the "
+        "images corrected nothing, the trajectory is the odometry alone (the search's "
+        "settings: [active_search] gate_probability, min_score, max_half_extent_px; "
+        "[tracker] sigma_px)"
+    ]
 
 
 #: The truth read inverted explains a divergence when it scores the estimate within
@@ -766,6 +819,7 @@ def _tracking_summary(stats: dict) -> dict:
         return {}
     mean = {k: float(np.mean(v)) for k, v in stats.items() if v}
     return {
+        "corners_per_frame": mean.get("corners", 0.0),
         "observations_per_frame": mean["observations"],
         "predicted_per_frame": mean["predicted"],
         "searched_per_frame": mean["searched"],

@@ -87,10 +87,15 @@ VISUAL = [
      '[mono_ekf]\nrobot_model = "odometry"\nransac = false\n[tracker]\ndetector = "orb"\n',
      ["[mono_ekf] cv_sigma_accel_mps2", "[mono_ekf] ransac_inlier_sigmas, seed",
       "[tracker] follow_min_score", "[harris] k"]),
+    ("ekf", '[tracker]\ndetector = "fpga"\n[active_search]\nmin_score = 0.99\nsubpixel = false\n'
+     'predict_appearance = true\n', '[tracker]\ndetector = "fpga"\n',
+     ["[active_search] min_score, subpixel, predict_appearance"]),
+    ("ekf", '[tracker]\ndetector = "orb"\n[active_search]\nmin_score = 0.99\nmin_patch_std = 50.0\n',
+     '[tracker]\ndetector = "orb"\n', ["[active_search] min_score, min_patch_std"]),
 ]
 
 
-@pytest.mark.parametrize("backend,with_text,without_text,said", VISUAL, ids=["isam2", "mono_ekf"])
+@pytest.mark.parametrize("backend,with_text,without_text,said", VISUAL, ids=["isam2", "mono_ekf", "fpga_search", "orb_search"])
 def test_visual_settings_said_unread_change_no_byte(tmp_path, capsys, backend, with_text, without_text, said):
     from graphslam.cli.main import main
 

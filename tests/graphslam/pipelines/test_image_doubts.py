@@ -35,7 +35,7 @@ def test_the_readers_doubts_reach_the_metrics(seq):
 
 def _result(odometry: str, landmarks: int, frames: int = 5):
     estimate = SimpleNamespace(frame_ids=np.arange(frames), landmark_ids=np.arange(landmarks), stats={})
-    tracking = {"observations": [0] * frames, "found": [0] * frames}
+    tracking = {"corners": [40] * frames, "observations": [0] * frames, "found": [0] * frames}
     return SimpleNamespace(frames=frames, estimate=estimate, odometry=odometry, tracking=tracking)
 
 
@@ -44,6 +44,11 @@ def test_no_landmark_with_odometry_is_said():
     assert "no landmark entered the map in 5 frames" in line and "odometry alone" in line
     assert vp._doubts(_result("derived", 3)) == []
     assert vp._doubts(_result("derived", 0, frames=1)) == []  # one frame: nothing to correct
+    assert "found no corner" not in line
+    no_corner = _result("derived", 0)
+    no_corner.tracking["corners"] = [0] * 5
+    (line,) = vp._doubts(no_corner)
+    assert "(0 corners detected, 0 matched in all)" in line and "the detector found no corner" in line
 
 
 def _kitti07(shared_data, n: int) -> np.ndarray:

@@ -1,0 +1,48 @@
+"""The fourteenth hostile pass (helpers V-Y: ROS bags, the Python API, two processes and
+the file system, the paper's front end): each test reproduces a finding that was silent
+or unclear, then checks what the command says now."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from graphslam.cli.main import main
+
+
+def _visual(tmp_path, capsys, config: str, *args, name: str = "o") -> tuple[int, str, dict | None]:
+    (tmp_path / f"{name}.toml").write_text(config)
+    out = tmp_path / name
+    rc = main(["run", "--dataset", "synthetic-images", "--max-steps", "8", "--rerun", "off", "--quiet",
+               "--config", str(tmp_path / f"{name}.toml"), "--out", str(out), *args])
+    captured = capsys.readouterr()
+    metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else None
+    return rc, captured.out + captured.err, metrics
+
+
+def test_landmarks_never_found_again_say_the_images_corrected_nothing(tmp_path, capsys):
+    """``gate_probability = 1e-6`` (read as a significance level): every landmark seen once,
+    the EKF's trajectory the odometry to the last digit, and no word of it."""
+    rc, text, m = _visual(tmp_path, capsys, "[active_search]\ngate_probability = 1e-6\n", "--backend", "ekf")
+    assert rc == 0 and m["backend_stats"]["corrections"] == 0
+    assert "no landmark was found again in 7 frames" in text
+    rc, text, m = _visual(tmp_path, capsys, "", "--backend", "ekf", name="default")
+    assert rc == 0 and m["backend_stats"]["corrections"] > 0 and "found again" not in text
+
+
+def test_a_detector_that_finds_no_corner_is_named(tmp_path, capsys):
+    """``[harris] border_px = 300`` on 480-row images (200 on KITTI's 370): "0 corners matched", no cause."""
+    rc, text, m = _visual(tmp_path, capsys, "[harris]\nborder_px = 300\n", "--backend", "ekf")
+    assert rc == 0 and m["tracking"]["corners_per_frame"] == 0
+    assert "(0 corners detected, 0 matched in all)" in text
+    assert "the detector found no corner in 640x480 images: look at [harris] threshold and border_px" in text
+
+
+@pytest.mark.parametrize("text,backend,line", [
+    ('# a comment\n\n[active_search]\nmode = "nearest"\n', "ekf", 4),
+    ('# a comment\n\n[active_search]\norder = "sequential"\n', "isam2", 4),
+])
+def test_search_settings_the_run_refuses_name_their_file_line(tmp_path, capsys, text, backend, line):
+    rc, said, _ = _visual(tmp_path, capsys, text, "--backend", backend)
+    assert rc == 2 and f"o.toml:{line}: active_search." in said
