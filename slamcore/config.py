@@ -30,6 +30,7 @@ refusal: a command-line flag may switch the mode of a file written for another.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import re
 import tomllib
@@ -341,19 +342,24 @@ def strict_yaml_loader():
     return StrictLoader
 
 
-def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int]]:
+def _parse(path: Path) -> tuple[dict, dict[tuple[str, ...], int], str]:
+    """``(data, lines, SHA-256 of the bytes parsed)``: the digest of what was read, not of
+    the file as it is when the run ends (a file edited during a run was recorded by the
+    edited file's digest beside the old file's settings, hostile pass 14)."""
     suffix = path.suffix.lower()
     try:
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not a key
+        raw = path.read_bytes()
+        text = raw.decode("utf-8-sig")  # a byte-order mark is not a key
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read config file: {e}", path) from None
+    sha256 = hashlib.sha256(raw).hexdigest()
     try:
         if suffix == ".toml":
-            return tomllib.loads(text), _toml_lines(text)
+            return tomllib.loads(text), _toml_lines(text), sha256
         if suffix in (".yaml", ".yml"):
             import yaml  # imported here: only YAML users pay for it
 
-            return yaml.load(text, Loader=strict_yaml_loader()) or {}, _yaml_lines(text)
+            return yaml.load(text, Loader=strict_yaml_loader()) or {}, _yaml_lines(text), sha256
     except tomllib.TOMLDecodeError as e:
         m = re.search(r"at line (\d+)", str(e))
         raise ConfigError(str(e), path, int(m.group(1)) if m else None) from None
@@ -378,6 +384,8 @@ class ConfigFile:
     path: Path | None = None
     data: dict = field(default_factory=dict)
     lines: dict = field(default_factory=dict)
+    #: SHA-256 of the file's bytes as parsed (None without a file)
+    sha256: str | None = field(default=None, compare=False)
     #: the sections :meth:`section` was asked for (:meth:`unread_sections`)
     read_sections: set = field(default_factory=set, compare=False, repr=False)
     #: the file's settings that did nothing: key path -> when they act (:meth:`inert_lines`),
@@ -395,7 +403,7 @@ class ConfigFile:
             return cls()
         path = Path(path)
         check_input_path(path, "config file", error=ConfigError)
-        data, lines = _parse(path)
+        data, lines, sha256 = _parse(path)
         if not isinstance(data, dict):
             raise ConfigError("top level must be a table of sections", path, 1)
         for name, value in list(data.items()):
@@ -405,7 +413,7 @@ class ConfigFile:
                 raise ConfigError(
                     f"[{name}] must be a table of settings, got {quote(value)}", path, lines.get((str(name),))
                 )
-        return cls(path, data, lines)
+        return cls(path, data, lines, sha256=sha256)
 
     def line_of(self, *keys: str) -> int | None:
         return self.lines.get(tuple(keys))

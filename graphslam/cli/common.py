@@ -56,7 +56,11 @@ def claim_out_dir(out_dir: Path, flag: str = "--out") -> Path:
     itself: no lock file is left behind, and the system drops it when the process ends,
     however it ends. A file system without ``flock`` (some network mounts) runs unlocked,
     as before. :func:`release_out_dirs` (main, as the command returns) unlocks."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # the default runs/... in a read-only folder was a traceback
+        where = "" if out_dir.is_absolute() else f" in {os.getcwd()}"
+        raise GraphSlamError(f"{flag} {out_dir}: cannot create it{where} ({e.strerror or e})") from None
     key = Path(os.path.realpath(out_dir))
     if key in _claimed:
         return out_dir
@@ -282,16 +286,20 @@ def provenance(args, config) -> dict:
     not be made again from them)."""
     import hashlib
 
-    digest = None
-    if config.path is not None:
+    if config.path is not None and config.sha256 is not None:
         try:
-            digest = hashlib.sha256(Path(config.path).read_bytes()).hexdigest()
+            now = hashlib.sha256(Path(config.path).read_bytes()).hexdigest()
         except OSError:  # gone since it was read: the settings below still say what ran
-            digest = None
+            now = config.sha256
+        if now != config.sha256:
+            warn(
+                f"--config {config.path} changed during the run: metrics.json gives the SHA-256 "
+                "of the file as it was read, and the settings that ran"
+            )
     return {
         "command": list(getattr(args, "command_line", None) or []),
         "config_file": None if config.path is None else str(config.path),
-        "config_sha256": digest,
+        "config_sha256": config.sha256,
         "settings": dict(config.settings),
         # the file's settings that did nothing, as said on stderr (GATES and marks so far)
         "did_nothing": config.inert_lines(),

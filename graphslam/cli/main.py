@@ -11,6 +11,7 @@ import argparse
 import errno
 import os
 import re
+import signal
 import sys
 from typing import NoReturn
 
@@ -148,11 +149,20 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
-    from graphslam.pipelines.common import signal_hook, stop_guard, to_devnull
+    from graphslam.pipelines.common import (
+        PARENT_PID_ENV,
+        die_with_parent,
+        signal_hook,
+        stop_guard,
+        to_devnull,
+    )
 
     # The guard first: a signal while the parser and the libraries load is
     # one line and its exit status, never a traceback.
     with stop_guard() as guard:
+        parent = os.environ.pop(PARENT_PID_ENV, "")
+        if parent.isdigit():  # a sweep's run: stopped, outputs kept, when the sweep dies
+            die_with_parent(int(parent), signal.SIGTERM)
         try:
             parser = build_parser()
             words = sys.argv[1:] if argv is None else list(argv)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import errno
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -300,3 +301,29 @@ def progress_bar(total: int, dataset: str, backend: str, enabled: bool):
     from graphslam.pipelines.progress import progress
 
     return progress(total=total, desc=f"{backend} on {dataset}", unit="step")
+
+
+#: Environment variable by which a sweep tells the ``graphslam run`` it starts to end
+#: with it (:func:`die_with_parent`, read by the command line's main).
+PARENT_PID_ENV = "GRAPHSLAM_END_WITH_PID"
+
+#: prctl(2) option: the signal sent to this process when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int, sig: int) -> None:
+    """Have the system send ``sig`` to this process when its parent dies: a SIGKILLed
+    ``compare`` left its worker running for no one, a SIGKILLed ``sweep`` its runs (as
+    orphans that a re-run sweep then found writing their folders). Linux only
+    (``PR_SET_PDEATHSIG``); a parent gone before it was set is seen in ``getppid``.
+    Elsewhere the process ends with its work, as before."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:
+        os.kill(os.getpid(), sig)

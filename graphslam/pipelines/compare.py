@@ -16,7 +16,6 @@ import multiprocessing as mp
 import os
 import resource
 import signal
-import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -30,7 +29,7 @@ from graphslam import registry
 from graphslam.evaluation import planar as metrics
 from graphslam.evaluation.records import PlanarRunMetrics
 from graphslam.pipelines import planar as pipeline
-from graphslam.pipelines.common import active_guard, interrupt_between_frames, stop_requested
+from graphslam.pipelines.common import active_guard, die_with_parent, interrupt_between_frames, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar.records import Dataset
 
@@ -74,31 +73,9 @@ def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipel
     return result
 
 
-def _die_with(parent_pid: int) -> None:
-    """End this worker when its parent dies: a SIGKILLed ``compare`` left its worker
-    running to the end of its back end's run, for no one (the result goes to the parent
-    only). Linux: the system sends SIGKILL on the parent's death (``PR_SET_PDEATHSIG``);
-    a parent gone before that was set is seen in ``getppid``. Elsewhere the worker ends
-    with its run, as before."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):
-        return
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-
-#: prctl(2) option: the signal sent to this process when its parent dies.
-_PR_SET_PDEATHSIG = 1
-
-
 def _child(conn, job, strip, parents_end=None, parent_pid: int | None = None):
     if parent_pid is not None:
-        _die_with(parent_pid)
+        die_with_parent(parent_pid, signal.SIGKILL)  # its result goes to the parent only
     # the parent's end, inherited by the fork, closed: a parent that died (SIGKILL)
     # then makes the send below fail instead of blocking on a pipe nobody reads
     if parents_end is not None:

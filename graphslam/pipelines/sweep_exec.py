@@ -31,7 +31,7 @@ import time
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
-from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL
+from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL, PARENT_PID_ENV
 from graphslam.pipelines.sweep import WARNING_SEPARATOR
 from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
 from slamcore.errors import ConfigError, GraphSlamError
@@ -91,7 +91,9 @@ def _spawn_and_wait(cmd: list[str], out_dir: Path) -> tuple[int, float, float]:
             stdout=subprocess.DEVNULL,
             stderr=err,
             cwd=os.getcwd(),
-            env={**os.environ, "PYTHONPATH": _pythonpath()},
+            # the run ends (SIGTERM: its outputs so far written) when the sweep dies, even
+            # by SIGKILL: orphans went on writing folders a re-run sweep then refused
+            env={**os.environ, "PYTHONPATH": _pythonpath(), PARENT_PID_ENV: str(os.getpid())},
         )
         _LIVE.add(proc)
     try:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -218,12 +220,39 @@ def plot_precision_recall(points, operating: tuple[float | None, float], path: P
 
 def _pyplot():
     """pyplot on the file-only Agg back end (no display on servers or CI)."""
+    if "matplotlib" not in sys.modules:
+        _private_config_dir_if_needed()
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _private_config_dir_if_needed() -> None:
+    """Give matplotlib a private temporary folder (removed at exit) when its default
+    config or cache folder cannot be written (a read-only HOME): it makes one itself
+    then, but says so in a paragraph on stderr each command (hostile pass 14)."""
+    import atexit
+    import shutil
+    import tempfile
+
+    if os.environ.get("MPLCONFIGDIR"):
+        return
+    home = Path(os.path.expanduser("~"))
+    for variable, default in (("XDG_CONFIG_HOME", home / ".config"), ("XDG_CACHE_HOME", home / ".cache")):
+        folder = Path(os.environ.get(variable) or default) / "matplotlib"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            writable = os.access(folder, os.W_OK)
+        except OSError:
+            writable = False
+        if not writable:
+            private = tempfile.mkdtemp(prefix="graphslam-matplotlib-")
+            atexit.register(shutil.rmtree, private, True)
+            os.environ["MPLCONFIGDIR"] = private
+            return
 
 
 def plot_trajectory_eval(results, path: Path) -> Path:

@@ -315,6 +315,16 @@ def _ended(pid: int) -> bool:
         return True
 
 
+def _within(seconds: float, condition) -> bool:
+    """Poll ``condition`` every 50 ms for up to ``seconds`` (a hang guard, not a timing)."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
 def test_a_compare_worker_ends_as_soon_as_its_parent_is_killed(tmp_path):
     """A SIGKILLed compare left its worker running to the end of its back end's run
@@ -326,11 +336,40 @@ def test_a_compare_worker_ends_as_soon_as_its_parent_is_killed(tmp_path):
         worker = int(parent.stdout.readline())
         parent.kill()
         parent.wait()
-        for _ in range(200):
-            if _ended(worker):
-                break
-            time.sleep(0.05)
-        assert _ended(worker), "the worker outlived its parent"
+        assert _within(10.0, lambda: _ended(worker)), "the worker outlived its parent"
+    finally:
+        if _session_alive(parent.pid):
+            os.killpg(parent.pid, signal.SIGKILL)
+
+
+SWEEP_PARENT = """
+import os, subprocess, sys, time
+from graphslam.pipelines.common import PARENT_PID_ENV
+
+child = subprocess.Popen([sys.executable, "-m", "graphslam.cli.main", "run", "--dataset", "city10000",
+                          "--max-steps", "9000", "--out", sys.argv[1], "--quiet", "--rerun", "off"],
+                         env={**os.environ, PARENT_PID_ENV: str(os.getpid())})
+print(child.pid, flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_sweeps_run_stops_and_keeps_its_outputs_when_the_sweep_is_killed(tmp_path):
+    """A SIGKILLed sweep (the OOM killer, a scheduler) left its runs going on as orphans;
+    a re-run sweep then found them writing their folders and marked them failed. A run
+    started by a sweep now ends with it as on SIGTERM: the estimate so far written."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "o"
+    parent = subprocess.Popen([sys.executable, "-c", SWEEP_PARENT, str(out)], env=env, stdout=subprocess.PIPE,
+                              text=True, start_new_session=True)
+    try:
+        run = int(parent.stdout.readline())
+        _within(60.0, out.is_dir)  # the run has claimed its folder: it is past its start
+        parent.kill()
+        parent.wait()
+        assert _within(60.0, lambda: _ended(run)), "the run outlived the sweep"
+        assert json.loads((out / "metrics.json").read_text())["interrupted"] is True
     finally:
         if _session_alive(parent.pid):
             os.killpg(parent.pid, signal.SIGKILL)

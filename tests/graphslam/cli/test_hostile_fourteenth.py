@@ -46,3 +46,32 @@ def test_a_detector_that_finds_no_corner_is_named(tmp_path, capsys):
 def test_search_settings_the_run_refuses_name_their_file_line(tmp_path, capsys, text, backend, line):
     rc, said, _ = _visual(tmp_path, capsys, text, "--backend", backend)
     assert rc == 2 and f"o.toml:{line}: active_search." in said
+
+
+def test_a_config_edited_during_the_run_keeps_the_digest_of_what_was_read(tmp_path, capsys):
+    """The SHA-256 was taken when metrics.json was written: a file edited during the run was
+    recorded by the new file's digest beside the old file's settings."""
+    import hashlib
+    from types import SimpleNamespace
+
+    from graphslam.cli.common import provenance
+    from slamcore.config import ConfigFile
+
+    path = tmp_path / "c.toml"
+    path.write_text("[isam2]\nrelinearize_skip = 5\n")
+    read = hashlib.sha256(path.read_bytes()).hexdigest()
+    config = ConfigFile.read(path)
+    path.write_text("[isam2]\nrelinearize_skip = 50\n")
+    record = provenance(SimpleNamespace(command_line=["graphslam", "run"]), config)
+    assert record["config_sha256"] == read
+    assert "changed during the run" in capsys.readouterr().err
+
+
+def test_the_default_out_folder_in_a_folder_that_cannot_be_written_is_one_line(tmp_path, capsys, monkeypatch):
+    """``graphslam run`` from a read-only folder (its default ``runs/...``): a traceback."""
+    blocker = tmp_path / "runs"
+    blocker.write_text("a file where the folder would go\n")  # refused even to root
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--max-steps", "5", "--quiet", "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert "--out runs/synthetic-isam2: cannot create it in " in err and "Traceback" not in err
