@@ -122,10 +122,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     config = registry.read_config(args.config)
     status, all_read_here = _compare(args, config)
     if all_read_here:
-        # a 2-D comparison reads every section its runs do in this process (the runs'
-        # own are built here too): the file's other sections did nothing
+        # every section the runs read is known here (2-D and pose-graph runs build theirs
+        # in this process, image runs send theirs back): the others did nothing
         warn_unread_sections(config, args.config, "this comparison")
-    else:  # image and pose-graph runs read theirs in their own processes: gates only
+    else:  # a run that did not finish sent nothing back: gates only
         for line in config.inert_lines():
             warn(line)
     return status
@@ -157,9 +157,9 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     if wants_pose_graph_compare(args.dataset, args.backends):
         return compare_pose_graph(
             args, config, rerun_mode, lambda name: _out_dir(args, name, rerun_mode)
-        ), False
+        ), True
     if registry.is_visual_dataset(args.dataset):
-        return _compare_images(args, config, rerun_mode), False
+        return _compare_images(args, config, rerun_mode)
     if args.odometry is not None:
         raise GraphSlamError("--odometry applies to image sequences only")
     explicit = bool(args.backends)
@@ -262,8 +262,9 @@ def _out_dir(args, name: str, rerun_mode: str) -> Path:
     return out_dir
 
 
-def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
-    """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`)."""
+def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[int, bool]:
+    """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`): the
+    exit status, and whether every run sent back the config sections it read."""
     from frontend.active_search_config import ActiveSearchConfig
     from graphslam import registry
     from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
@@ -299,7 +300,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
         "active_search_max_corrections": config.section(ActiveSearchConfig).max_corrections,
         "nees": {"dof": 6, "confidence": 0.95, "alignment": cs.NEES_ALIGNMENT},
     }
-    return _write_comparison(
+    status = _write_comparison(
         args,
         entries,
         header,
@@ -309,6 +310,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> int:
         VisualRecorder.open,
         sequence,
     )
+    return status, all(e.result is not None for e in entries)
 
 
 def _write_comparison(

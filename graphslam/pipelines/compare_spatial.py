@@ -72,7 +72,8 @@ def compare(
         return _score(setup, name, result, peak_mb)
 
     entries = run_entries(names, job, score, isolate=isolate, strip=_without_sequence, progress=progress)
-    for e in finished(entries):
+    for e in finished(entries):  # what the workers read is read (the others did nothing)
+        setup.config.read_sections.update(e.result.config_sections_read)
         e.nees = entry_nees(e.result, e.metrics.alignment)
         if e.nees is not None:
             e.metrics.nees_mean = e.nees["nees_mean"]
@@ -91,6 +92,7 @@ def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
         feed.sha.update(np.ascontiguousarray(setup.odometry[: max(result.frames - 1, 0)]).tobytes())
     result.input_digest = feed.sha.hexdigest()
     result.pose_covariances = _covariances(feed, session.backend, result)
+    result.config_sections_read = tuple(sorted(setup.config.read_sections))
     return result
 
 

@@ -146,6 +146,8 @@ class VisualRunResult:
         backend_seed: the back end's own seed (its RANSAC draws), None if it has none.
         input_digest: SHA-256 of what the back end was fed (images, detected
             corners, odometry), filled by ``graphslam compare``, else None.
+        config_sections_read: the config sections the run read (``graphslam compare``
+            fills it in a worker process, for the sections no run read).
     """
 
     sequence: ImageSequence
@@ -164,6 +166,7 @@ class VisualRunResult:
     input_digest: str | None = None
     finalised: bool = False
     backend_seed: int | None = None
+    config_sections_read: tuple[str, ...] = ()
 
 
 def backend_overrides(

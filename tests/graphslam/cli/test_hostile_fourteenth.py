@@ -75,3 +75,19 @@ def test_the_default_out_folder_in_a_folder_that_cannot_be_written_is_one_line(t
     assert main(["run", "--max-steps", "5", "--quiet", "--rerun", "off"]) == 2
     err = capsys.readouterr().err
     assert "--out runs/synthetic-isam2: cannot create it in " in err and "Traceback" not in err
+
+
+def test_compare_on_images_and_pose_graphs_names_the_sections_no_run_read(tmp_path, capsys):
+    """Image and pose-graph comparisons named no unread section (their runs read theirs in
+    worker processes): ``[ekf]`` in a file shared with 2-D runs did nothing, silent."""
+    import gtsam
+
+    (tmp_path / "c.toml").write_text("[ekf]\ngate_chi2_prob = 0.9\n[mono_ekf]\nseed = 3\n[posegraph]\nprior_sigma = 0.01\n")
+    assert main(["compare", "--dataset", "synthetic-images", "--max-steps", "6", "--config", str(tmp_path / "c.toml"),
+                 "--out", str(tmp_path / "i"), "--rerun", "off"]) == 0
+    said = [ln for ln in capsys.readouterr().err.splitlines() if "not read by this comparison" in ln]
+    assert len(said) == 1 and "[ekf], [posegraph] not read" in said[0]  # [mono_ekf]: a worker read it
+    assert main(["compare", "--dataset", gtsam.findExampleDataFile("noisyToyGraph.txt"), "--backends", "isam2",
+                 "batch", "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "p"), "--rerun", "off"]) == 0
+    said = [ln for ln in capsys.readouterr().err.splitlines() if "not read by this comparison" in ln]
+    assert len(said) == 1 and "[ekf], [mono_ekf] not read" in said[0]
