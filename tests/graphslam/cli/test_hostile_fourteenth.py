@@ -91,3 +91,14 @@ def test_compare_on_images_and_pose_graphs_names_the_sections_no_run_read(tmp_pa
                  "batch", "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "p"), "--rerun", "off"]) == 0
     said = [ln for ln in capsys.readouterr().err.splitlines() if "not read by this comparison" in ln]
     assert len(said) == 1 and "[ekf], [mono_ekf] not read" in said[0]
+
+
+@pytest.mark.parametrize("values,said", [(["-1", "0.1"], "--odometry-noise SIGMA_T_PER_M must be >= 0"),
+                                         (["0.1", "inf"], "--odometry-noise SIGMA_R_DEG: expected a finite")])
+def test_a_refused_odometry_noise_flag_is_named_as_the_flag(tmp_path, capsys, values, said):
+    """``--odometry-noise -1 0.1`` was refused as ``odometry_noise.sigma_t_per_m``, a key
+    the user never wrote."""
+    assert main(["run", "--dataset", "synthetic-images", "--odometry-noise", *values, "--max-steps", "3",
+                 "--out", str(tmp_path / "o"), "--rerun", "off", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "odometry_noise." not in err
