@@ -156,15 +156,25 @@ def euclidean_points(x: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> tuple
 DEPTH_BOUND_SIGMAS = 2.0
 
 
-def undetermined_depths(x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray) -> np.ndarray:
+def undetermined_depths(
+    x: np.ndarray, P: np.ndarray, idx: np.ndarray, kinds: np.ndarray, prior_var: np.ndarray | None = None
+) -> np.ndarray:
     """(k,) bool: inverse-depth landmarks with a point (``rho > 0``, as
-    :func:`euclidean_points`) whose ``rho`` is within :data:`DEPTH_BOUND_SIGMAS` of zero
-    (Euclidean ones are measured by construction)."""
+    :func:`euclidean_points`) whose ``rho`` is within :data:`DEPTH_BOUND_SIGMAS` of zero,
+    or, given each landmark's prior variance of ``rho`` (k,), whose variance is above half
+    of it: the sightings told less of the depth than the prior did (information adds, so
+    that is posterior information below twice the prior's). The priors put ``rho0`` at
+    exactly two sigmas, so a camera that only turned left every landmark a hair inside
+    the first test's bound, counted as measured at the guessed depth (hostile pass 13).
+    Euclidean landmarks are measured by construction."""
     col = np.where(kinds == lp.IDP, 5, 6)
     rows = idx[np.arange(len(kinds)), col]
     rho, var = x[rows], P[rows, rows]
     bound = DEPTH_BOUND_SIGMAS * np.sqrt(np.maximum(var, 0.0))
-    return (kinds != lp.EUCLIDEAN) & (rho > 0) & (rho <= bound)
+    unmeasured = rho <= bound
+    if prior_var is not None:
+        unmeasured |= var > 0.5 * np.asarray(prior_var, dtype=np.float64)
+    return (kinds != lp.EUCLIDEAN) & (rho > 0) & unmeasured
 
 
 def transform_state(

@@ -44,6 +44,7 @@ class LandmarkRecord:
     kind: int
     unseen: int = 0  # consecutive frames out of view
     misses: int = 0  # consecutive frames in view but not found or rejected
+    prior_var_rho: float = 0.0  # the inverse distance's prior variance, 1/m^2 (0: Euclidean)
 
 
 class LandmarkSlots:
@@ -160,7 +161,8 @@ class LandmarkSlots:
         (:func:`filters.mono_ekf_map.augment_with_landmarks`)."""
         L, G_pose, G_uv, G_rho = init
         x, P = augment_with_landmarks(x, P, L, G_pose, G_uv, G_rho, var, sigma_rho)
-        self.records.extend(LandmarkRecord(int(t), kind) for t in track_ids)
+        prior = float(sigma_rho) ** 2 if kind != lp.EUCLIDEAN else 0.0
+        self.records.extend(LandmarkRecord(int(t), kind, prior_var_rho=prior) for t in track_ids)
         self._reindex()
         return x, P
 
@@ -210,7 +212,8 @@ class LandmarkSlots:
 
     def undetermined_count(self, x: np.ndarray, P: np.ndarray) -> int:
         """How many of :meth:`euclidean_landmarks` have a depth not yet measured
-        (:func:`~filters.mono_ekf_map.undetermined_depths`)."""
+        (:func:`~filters.mono_ekf_map.undetermined_depths`, against their priors)."""
         if not self.records:
             return 0
-        return int(np.sum(undetermined_depths(x, P, self.idx, self.kinds)))
+        prior = np.array([lm.prior_var_rho for lm in self.records])
+        return int(np.sum(undetermined_depths(x, P, self.idx, self.kinds, prior)))

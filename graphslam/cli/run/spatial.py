@@ -306,7 +306,8 @@ def format_summary(m) -> str:
             (
                 "landmarks of unmeasured depth",
                 f"{stats['landmarks_depth_undetermined']} of {m.landmarks} (inverse depth within 2 sigma "
-                "of 0; landmarks.csv gives their current guess)",
+                "of 0, or known more from its prior than from the images; landmarks.csv gives "
+                "their current guess)",
             )
         )
     if m.loops:

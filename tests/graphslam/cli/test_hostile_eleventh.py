@@ -350,6 +350,15 @@ def test_inverse_depth_landmarks_without_parallax_are_counted():
     P[5, 5] = 0.04**2  # 0.06 within two sigma (0.08) of zero: depth unbounded
     P[11, 11] = 0.01**2  # six sigma from zero: measured
     assert undetermined_depths(x, P, idx, kinds).tolist() == [True, False, False]
+    # A camera that only turned: the priors put rho0 at two sigmas, and the sightings
+    # shrank the variance by 2 % (through the pose): a hair inside the bound, counted
+    # as measured at the guessed depth. Against the prior it is the prior's depth.
+    prior_var = np.array([0.03**2, 0.03**2, 0.0])
+    x[11], P[11, 11] = 0.06, 0.98 * 0.03**2
+    assert undetermined_depths(x, P, idx, kinds).tolist() == [True, False, False]
+    assert undetermined_depths(x, P, idx, kinds, prior_var).tolist() == [True, True, False]
+    P[11, 11] = 0.4 * 0.03**2  # the images gave more than the prior: measured
+    assert undetermined_depths(x, P, idx, kinds, prior_var).tolist() == [True, False, False]
 
 
 def test_a_filter_far_beyond_its_own_covariance_from_isam2_is_said():
