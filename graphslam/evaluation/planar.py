@@ -70,19 +70,27 @@ def estimate_warnings(
             doubts.append(f"the estimate holds non-finite {name} values")
         elif values.size and np.max(np.abs(values[..., :2])) > TRANSLATION_MAX_M:
             doubts.append(f"the estimate puts a {name} beyond {TRANSLATION_MAX_M:.0e} m")
+    return doubts + ate_ratio_warning(ate_m, odometry_ate_m)
+
+
+def ate_ratio_warning(ate_m: float | None, odometry_ate_m: float | None) -> list[str]:
+    """One line when the ATE is more than :data:`ABSURD_ATE_RATIO` (absurd) or
+    :data:`WORSE_ATE_RATIO` (worse than dead reckoning) times the odometry's, above
+    :data:`ABSURD_ATE_FLOOR_M`; none without both figures. Shared by landmark runs and
+    pose-graph solves (a pose graph 11.5x its dead reckoning ended quietly, hostile
+    pass 14)."""
     if ate_m is None or odometry_ate_m is None:
-        return doubts
+        return []
     for ratio, verdict in (
         (ABSURD_ATE_RATIO, "is absurd"),
         (WORSE_ATE_RATIO, "is worse than dead reckoning alone"),
     ):
         if not ate_m <= max(ratio * odometry_ate_m, ABSURD_ATE_FLOOR_M):  # NaN fails too
-            doubts.append(
+            return [
                 f"ATE {ate_m:.3g} m is more than {ratio:g}x the odometry's {odometry_ate_m:.3g} m: "
                 f"the estimate {verdict} (noise settings, association or data)"
-            )
-            break  # the more severe tier only
-    return doubts
+            ]  # the more severe tier only
+    return []
 
 
 #: Share of a run's observations a back end's gate may reject before the run says so:

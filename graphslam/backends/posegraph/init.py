@@ -95,7 +95,23 @@ def relaxed(graph: PoseGraph, method: str, sigma: float) -> tuple[Start | None, 
         return None, _why(graph, exc)
     if not np.isfinite(fx.params_from(graph, start.values)).all():
         return None, "it gave non-finite poses"
-    return start, ""
+    return at_anchor(graph, start), ""
+
+
+def at_anchor(graph: PoseGraph, start: Start) -> Start:
+    """``start`` moved rigidly so that the gauge's pose (the first ``FIX`` pose, else the
+    first pose) stands at its vertex, as the vertices' and the odometry start leave it.
+    The gauge prior holds that pose where the start puts it, and a relaxation may put it
+    elsewhere: LAGO moved a graph in UTM coordinates 14.7 m off its first vertex, whole
+    (hostile pass 14). A rigid motion changes no edge's error."""
+    k = int(fx.anchors(graph)[0])
+    vertex = fx.pose(graph.vertices[graph.index_of(np.array([k], dtype=np.int64))[0]], graph.rotation)
+    at = start.values.atPose2 if graph.dim == 2 else start.values.atPose3
+    T = vertex.compose(at(k).inverse())
+    moved = gtsam.Values()
+    for key in start.values.keys():
+        moved.insert(key, T.compose(at(key)))
+    return replace(start, values=moved)
 
 
 def _why(graph: PoseGraph, exc: BaseException) -> str:

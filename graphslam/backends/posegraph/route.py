@@ -49,7 +49,8 @@ def consistent(graph: PoseGraph, result, alpha: float) -> tuple[bool, str]:
     d = 3 if graph.dim == 2 else 6
     kept = int(graph.n_edges - result.rejected.sum())
     dof = d * (kept - graph.n_poses + 1)
-    stat = 2.0 * result.final_cost_kept
+    # nothing rejected (an unpolished iSAM2 solve keeps every edge): the kept cost is the cost
+    stat = 2.0 * (result.final_cost if result.final_cost_kept is None else result.final_cost_kept)
     if dof <= 0:
         return True, "the graph is a tree: every start is the optimum"
     bound = float(chi2.isf(alpha, dof))

@@ -102,3 +102,93 @@ def test_a_refused_odometry_noise_flag_is_named_as_the_flag(tmp_path, capsys, va
                  "--out", str(tmp_path / "o"), "--rerun", "off", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert said in err and "odometry_noise." not in err
+
+
+def _grid_graph(tmp_path, offset=(0.0, 0.0), wrong: bool = False):
+    """A 2-D walk of 120 one-metre steps on a grid (a turn every 6th step), 25 true
+    closures between poses within 1.1 m, sigmas 5 cm / 5 cm / 0.02 rad, vertices composed
+    from the odometry, in g2o; its truth in TUM (stamps are pose ids). ``offset`` moves
+    every vertex and the truth (a georeferenced file); ``wrong`` adds a closure 10^4 times
+    too confident between poses 10 and 90, 28 m apart, said to be 2.5 m apart (the
+    fourteenth hostile pass's graph, seeds 11 and 12)."""
+    import numpy as np
+
+    def wrap(a):
+        return (a + np.pi) % (2 * np.pi) - np.pi
+
+    def comp(a, b):
+        c, s = np.cos(a[2]), np.sin(a[2])
+        return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap(a[2] + b[2])])
+
+    def rel(a, b):
+        c, s = np.cos(a[2]), np.sin(a[2])
+        d = b[:2] - a[:2]
+        return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], wrap(b[2] - a[2])])
+
+    rng = np.random.default_rng(11)
+    P = [np.zeros(3)]
+    for k in range(1, 120):
+        step = np.array([1.0, 0.0, 0.0])
+        if k % 6 == 0:
+            step[2] = rng.choice([np.pi / 2, -np.pi / 2, 0])
+        P.append(comp(P[-1], step))
+    P = np.array(P)
+    near = [(i, j) for j in range(len(P)) for i in range(j - 3) if np.linalg.norm(P[i, :2] - P[j, :2]) < 1.1]
+    rng.shuffle(near)
+    edges = [(k, k + 1) for k in range(119)] + near[:25]
+    info = np.diag(1 / np.array([0.05, 0.05, 0.02]) ** 2)
+    L = np.linalg.cholesky(np.linalg.inv(info))
+    noise = np.random.default_rng(12)
+    meas = []
+    for a, b in edges:
+        z = rel(P[a], P[b]) + L @ noise.standard_normal(3)
+        z[2] = wrap(z[2])
+        meas.append((a, b, z))
+    V = np.zeros_like(P)
+    odo = {(a, b): z for a, b, z in meas if b == a + 1}
+    for k in range(1, len(P)):
+        V[k] = comp(V[k - 1], odo[(k - 1, k)])
+    lines = [f"VERTEX_SE2 {k} {V[k, 0] + offset[0]:.9f} {V[k, 1] + offset[1]:.9f} {V[k, 2]:.9f}" for k in range(len(P))]
+    text = f"{info[0, 0]:.9g} 0 0 {info[1, 1]:.9g} 0 {info[2, 2]:.9g}"
+    lines += [f"EDGE_SE2 {a} {b} {z[0]:.9f} {z[1]:.9f} {z[2]:.9f} {text}" for a, b, z in meas]
+    if wrong:
+        lines.append(f"EDGE_SE2 10 90 2.0 1.5 0.8 {1e4 * info[0, 0]:.9g} 0 0 {1e4 * info[1, 1]:.9g} 0 "
+                     f"{1e4 * info[2, 2]:.9g}")
+    (tmp_path / "g.g2o").write_text("\n".join(lines) + "\n")
+    (tmp_path / "t.tum").write_text("".join(
+        f"{k} {P[k, 0] + offset[0]:.9f} {P[k, 1] + offset[1]:.9f} 0 0 0 {np.sin(P[k, 2] / 2):.12f} "
+        f"{np.cos(P[k, 2] / 2):.12f}\n" for k in range(len(P))))
+    return tmp_path / "g.g2o", tmp_path / "t.tum"
+
+
+def test_a_wrong_closure_too_confident_for_the_test_is_said(tmp_path, capsys):
+    """A wrong closure 10^4 times too confident bent the odometry until its own residual was
+    small: kept, ATE many times the dead reckoning's, and no warning."""
+    graph, truth = _grid_graph(tmp_path, wrong=True)
+    assert main(["run", "--dataset", str(graph), "--ground-truth", str(truth), "--out", str(tmp_path / "o"),
+                 "--rerun", "off", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    warnings = json.loads((tmp_path / "o" / "metrics.json").read_text())["warnings"]
+    assert any("after the closure test" in w and "above the chi-square bound" in w for w in warnings), warnings
+    assert "after the closure test" in err
+    assert any("the estimate is absurd" in w for w in warnings), warnings  # 15.1 m against 1.3 m
+    clean = tmp_path / "clean"
+    clean.mkdir()
+    graph, truth = _grid_graph(clean)
+    assert main(["run", "--dataset", str(graph), "--ground-truth", str(truth), "--out", str(clean / "o"),
+                 "--rerun", "off", "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_relaxed_start_leaves_a_georeferenced_graph_at_its_first_vertex(tmp_path):
+    """LAGO put a graph in UTM coordinates 14.7 m off its first vertex, the whole estimate
+    with it, silently (the odometry start kept it in place)."""
+    import numpy as np
+
+    east, north = 512345.0, 5034567.0
+    graph, _ = _grid_graph(tmp_path, offset=(east, north))
+    first = [ln.split() for ln in graph.read_text().splitlines() if ln.startswith("VERTEX_SE2 0 ")][0]
+    assert main(["run", "--dataset", str(graph), "--backend", "batch", "--init", "lago", "--out",
+                 str(tmp_path / "o"), "--rerun", "off", "--quiet"]) == 0
+    row = (tmp_path / "o" / "trajectory.tum").read_text().splitlines()[1].split()
+    assert np.allclose([float(row[1]), float(row[2])], [float(first[2]), float(first[3])], atol=1e-6)
