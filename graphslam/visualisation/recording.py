@@ -328,6 +328,14 @@ class RerunLog:
                 move_into_place(self._partial, Path(self.path))
                 self._partial = None
 
+    def relocate(self, folder: Path) -> None:
+        """The output folder was moved during the run (:func:`graphslam.cli.common.claimed_folder`):
+        the recording, written through its open file, moved with it; close() moves it
+        into place there."""
+        if self._partial is not None and self.path is not None:
+            self._partial = Path(folder) / self._partial.name
+            self.path = Path(folder) / Path(self.path).name
+
     def discard(self) -> None:
         """Stop recording and delete what was recorded: the run ended without its
         outputs, and ``path`` keeps the earlier run's recording, if any."""

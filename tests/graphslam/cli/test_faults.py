@@ -647,3 +647,52 @@ def test_ctrl_c_inside_an_import_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(command, "cmd_run", importing)
     assert cli.main(["run"]) == 130
     assert capsys.readouterr().err == "graphslam: interrupted (SIGINT)\n"
+
+
+@pytest.mark.parametrize("replaced", [False, True])
+def test_an_out_folder_moved_during_the_run_gets_its_outputs(tmp_path, monkeypatch, capsys, replaced):
+    """--out renamed while the run works (and, ``replaced``, another folder made at its
+    path, as another run would): the outputs, recording too, go into the folder the run
+    locked, where it now is; the folder at the path is left as it was."""
+    from graphslam.cli.main import main
+    from graphslam.pipelines import planar
+
+    out, moved = tmp_path / "out", tmp_path / "moved"
+    real = planar.run
+
+    def run_and_move(*a, **kw):
+        out.rename(moved)
+        if replaced:
+            out.mkdir()
+            (out / "README").write_text("another run's folder")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planar, "run", run_and_move)
+    assert main(["run", "--max-steps", "20", "--out", str(out), "--quiet", "--rerun", "save"]) == 0
+    assert RUN_FILES <= {p.name for p in moved.iterdir()}
+    assert not list(moved.glob(".gs-*"))
+    if replaced:
+        assert sorted(p.name for p in out.iterdir()) == ["README"]
+    else:
+        assert not out.exists()  # not made again, unlocked, to hold the outputs
+    assert "its outputs go" in capsys.readouterr().err
+
+
+def test_an_out_folder_deleted_during_the_run_is_one_error(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from graphslam.cli.main import main
+    from graphslam.pipelines import planar
+
+    out = tmp_path / "out"
+    real = planar.run
+
+    def run_and_delete(*a, **kw):
+        shutil.rmtree(out)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planar, "run", run_and_delete)
+    assert main(["run", "--max-steps", "20", "--out", str(out), "--quiet", "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "was deleted while it ran" in err
+    assert not out.exists()
