@@ -44,11 +44,27 @@ def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | No
     of the loops command) is never deleted without a word."""
     from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES, remove_stale_outputs
 
+    if known is None:  # run, compare, localize: a sweep's table and runs are not theirs to remove
+        from graphslam.pipelines.sweep import sweep_output_names
+
+        refuse_other_outputs(out_dir, sweep_output_names(out_dir), "graphslam sweep")
     removed = remove_stale_outputs(out_dir, will_write, FOLDER_OUTPUT_NAMES if known is None else known)
     if removed:
         print(
             f"removed from {out_dir}/ an earlier command's {', '.join(p.name for p in removed)} "
             "(this one writes no such file: they would read as its own)"
+        )
+
+
+def refuse_other_outputs(out_dir: Path, names, command: str, flag: str = "--out") -> None:
+    """Refuse a folder holding another command's outputs (``names``) that this one neither
+    writes nor may remove: a run into a sweep's folder, or a sweep into a run's, left both
+    commands' files side by side, read as one set, with nothing said."""
+    found = [name for name in names if (Path(out_dir) / name).is_file()]
+    if found:
+        raise GraphSlamError(
+            f"{flag} {out_dir} holds the outputs of {command} ({', '.join(found)}); this command's "
+            f"would stand beside them as one set: choose another {flag}, or move them away"
         )
 
 

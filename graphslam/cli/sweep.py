@@ -145,6 +145,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
+    from graphslam.cli.common import refuse_other_outputs
+    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, FOLDER_OUTPUT_NAMES
+
+    # an eval beside the table reads the sweep's runs, as one beside a run's files reads them
+    theirs = [name for name in FOLDER_OUTPUT_NAMES if name not in EVAL_OUTPUT_NAMES]
+    refuse_other_outputs(args.out, theirs, "another graphslam command (run, compare or localize)")
     spec = parse_sweep(args.sweep_file)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())

@@ -185,6 +185,11 @@ def plot_files(out: Path) -> tuple[str, ...]:
     return tuple(sorted(p.name for p in out.glob("sweep_*.png") if PLOT_NAME.fullmatch(p.name)))
 
 
+def sweep_output_names(out: Path) -> tuple[str, ...]:
+    """What a sweep wrote at the top of ``out``: ``sweep.csv`` and its plots."""
+    return ("sweep.csv", *plot_files(out))
+
+
 def with_labels(rows: list[dict], set_keys) -> list[dict]:
     """Rows with a ``label``: the back end and the swept values it ran with, and its
     dataset when the sweep has several (the group a plot puts it in; seeds are the

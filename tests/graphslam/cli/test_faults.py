@@ -696,3 +696,31 @@ def test_an_out_folder_deleted_during_the_run_is_one_error(tmp_path, monkeypatch
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "was deleted while it ran" in err
     assert not out.exists()
+
+
+def test_a_run_into_a_sweeps_folder_is_refused(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / "sweep.csv").write_text("run_id,config_hash,seed,status\n")
+    (out / "sweep_ate.png").write_bytes(b"")
+    assert main(["run", "--max-steps", "5", "--out", str(out), "--quiet", "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds the outputs of graphslam sweep (sweep.csv, sweep_ate.png)" in err
+    assert sorted(p.name for p in out.iterdir()) == ["sweep.csv", "sweep_ate.png"]
+
+
+def test_a_sweep_into_a_runs_folder_is_refused(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "trajectory.tum").write_text("# timestamp tx ty tz qx qy qz qw\n")
+    (out / "eval.json").write_text("{}")  # an eval beside it is no refusal of its own
+    sweep = tmp_path / "s.toml"
+    sweep.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nmax_steps = 5\n')
+    assert main(["sweep", str(sweep), "--out", str(out), "--quiet", "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "(run, compare or localize) (trajectory.tum)" in err
+    assert sorted(p.name for p in out.iterdir()) == ["eval.json", "trajectory.tum"]
