@@ -581,3 +581,24 @@ def test_plot_groups_keep_datasets_and_back_ends_apart():
     assert labels == ["ekf k=1 synthetic", "ekf k=1 mrclam6"]
     assert with_labels(rows[:1], ["x.k"])[0]["label"] == "ekf k=1"
     assert _setting_group({**rows[0], "backend": "isam2"}, "x.k", False) != _setting_group(rows[0], "x.k", False)
+
+
+def test_a_local_cluster_without_file_descriptors_is_one_line(tmp_path):
+    """``ulimit -n 20``: Dask's LocalCluster cannot start; its event loop's some 170
+    lines of tracebacks became one line naming the limit."""
+    pytest.importorskip("distributed")
+    import resource
+
+    def low_limit():
+        resource.setrlimit(resource.RLIMIT_NOFILE, (20, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    done = subprocess.run(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(_file(tmp_path, SMALL)),
+         "--out", str(tmp_path / "o"), "--cluster", "local", "--workers", "2", "--quiet"],
+        capture_output=True, text=True, timeout=120, preexec_fn=low_limit,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "graphslam: error: --cluster local: cannot start the local cluster "
+        "(too many open files; ulimit -n is 20)"
+    ], done.stderr
