@@ -602,3 +602,31 @@ def test_a_local_cluster_without_file_descriptors_is_one_line(tmp_path):
         "graphslam: error: --cluster local: cannot start the local cluster "
         "(too many open files; ulimit -n is 20)"
     ], done.stderr
+
+
+def test_a_done_run_whose_folder_is_gone_or_foreign_is_run_again(tmp_path):
+    """sweep.csv's word is not the run's files: a run folder deleted, or written over by
+    another run (another seed), was skipped as done and its files plotted."""
+    import json
+    import shutil
+
+    from graphslam.pipelines.sweep import folder_mismatch
+
+    spec = parse_sweep(_file(tmp_path, SMALL))
+    out = tmp_path / "o"
+    run_sweep(spec, out, PoolExecutor(2))
+    gone, foreign, *kept = spec.runs()
+    shutil.rmtree(out / "runs" / gone.run_id)
+    metrics_path = out / "runs" / foreign.run_id / "metrics.json"
+    metrics = json.loads(metrics_path.read_text())
+    command = metrics["provenance"]["command"]
+    command[command.index("--seed") + 1] = "9"
+    metrics_path.write_text(json.dumps(metrics))
+
+    again = run_sweep(spec, out, PoolExecutor(2))
+    assert again.ran == 2 and again.skipped == 2
+    assert dict(again.stale) == {
+        gone.run_id: "no metrics.json in its folder",
+        foreign.run_id: "its folder holds another run (other --seed)",
+    }
+    assert all(folder_mismatch(run, out / "runs" / run.run_id) is None for run in spec.runs())
