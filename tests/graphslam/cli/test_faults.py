@@ -724,3 +724,25 @@ def test_a_sweep_into_a_runs_folder_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "(run, compare or localize) (trajectory.tum)" in err
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "trajectory.tum"]
+
+
+def test_a_recording_cut_by_a_file_size_limit_is_one_warning_with_its_cause(tmp_path):
+    """A quota met while recording: Rerun's own coloured ERROR/WARN lines spilled onto
+    stderr, then a warning without the cause (the writer thread's death)."""
+    import resource
+
+    def limit():  # 150 kB: the run's files fit, its recording does not
+        resource.setrlimit(resource.RLIMIT_FSIZE, (150 * 1024, resource.RLIM_INFINITY))
+
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}
+    env["PYTHONPATH"] = str(ROOT)
+    done = subprocess.run([sys.executable, "-m", "graphslam.cli.main", "run", "--out", str(tmp_path / "o"),
+                           "--quiet"], capture_output=True, text=True, timeout=TIMEOUT_S, env=env,
+                          preexec_fn=limit)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(  # "; Rerun's writer stopped" may follow
+        "graphslam: warning: the recording could not be written (file larger than this system "
+        "allows (a file-size limit)"
+    ), done.stderr
+    assert RUN_FILES - {"run.rrd"} == {p.name for p in (tmp_path / "o").iterdir()}
