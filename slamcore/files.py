@@ -54,6 +54,11 @@ def replacing(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp_path
         move_into_place(tmp_path, path)
+    except OSError as e:
+        tmp_path.unlink(missing_ok=True)
+        if e.filename is None:  # a write's (a full disk, a size limit): the output it was for
+            e.filename = str(path)
+        raise
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise

@@ -32,6 +32,9 @@ EXIT_INTERRUPTED = 130
 
 #: Output folders this command has locked (:func:`claim_out_dir`): path -> descriptor.
 _claimed: dict[Path, int] = {}
+#: The same descriptors by the path the command was given (absolute, links kept):
+#: :func:`claimed_folder` looks there for the folder it locked.
+_claimed_as: dict[Path, int] = {}
 
 
 def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | None = None) -> None:
@@ -41,11 +44,27 @@ def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | No
     of the loops command) is never deleted without a word."""
     from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES, remove_stale_outputs
 
+    if known is None:  # run, compare, localize: a sweep's table and runs are not theirs to remove
+        from graphslam.pipelines.sweep import sweep_output_names
+
+        refuse_other_outputs(out_dir, sweep_output_names(out_dir), "graphslam sweep")
     removed = remove_stale_outputs(out_dir, will_write, FOLDER_OUTPUT_NAMES if known is None else known)
     if removed:
         print(
             f"removed from {out_dir}/ an earlier command's {', '.join(p.name for p in removed)} "
             "(this one writes no such file: they would read as its own)"
+        )
+
+
+def refuse_other_outputs(out_dir: Path, names, command: str, flag: str = "--out") -> None:
+    """Refuse a folder holding another command's outputs (``names``) that this one neither
+    writes nor may remove: a run into a sweep's folder, or a sweep into a run's, left both
+    commands' files side by side, read as one set, with nothing said."""
+    found = [name for name in names if (Path(out_dir) / name).is_file()]
+    if found:
+        raise GraphSlamError(
+            f"{flag} {out_dir} holds the outputs of {command} ({', '.join(found)}); this command's "
+            f"would stand beside them as one set: choose another {flag}, or move them away"
         )
 
 
@@ -81,11 +100,79 @@ def claim_out_dir(out_dir: Path, flag: str = "--out") -> Path:
         os.close(fd)
         return out_dir
     _claimed[key] = fd
+    _claimed_as[Path(os.path.abspath(out_dir))] = fd
+    remove_stale_partials(out_dir)
     return out_dir
+
+
+def remove_stale_partials(out_dir: Path) -> None:
+    """Remove the temporary files (``.gs-*.part*``, :func:`slamcore.files.temporary_beside`)
+    a killed command left in ``out_dir``, and say so: a SIGKILL'd run's 10 MB hidden
+    partial recording stayed forever. Called with the folder's lock held, so no live
+    command of ours is writing them."""
+    removed = []
+    for p in sorted(Path(out_dir).glob(".gs-*.part*")):
+        try:
+            if p.is_file() and not p.is_symlink():
+                p.unlink()
+                removed.append(p.name)
+        except OSError:  # another user's: left, as any file not ours to remove
+            continue
+    if removed:
+        print(
+            f"removed from {out_dir}/ {len(removed)} partial file(s) of a command that was killed: "
+            + ", ".join(removed)
+        )
+
+
+def claimed_folder(out_dir: Path, recorder=None, flag: str = "--out") -> Path:
+    """Where the folder :func:`claim_out_dir` locked is now, checked just before the
+    outputs are written: renamed, deleted or replaced (a symbolic link re-pointed) during
+    the run, the path named another folder, possibly one another run has locked, and the
+    outputs went there.
+
+    Moved (still there under another name): its new path, after one warning line -- the
+    folder is the one this command locked, so writing there keeps the run's work and
+    never touches another command's folder (what is now at ``out_dir`` is left alone).
+    Deleted: GraphSlamError, nothing can be written into it. Unlocked (no ``flock``):
+    ``out_dir``, unchecked. ``recorder``: the run's open recording, told where it is."""
+    fd = _claimed_as.get(Path(os.path.abspath(out_dir)))
+    if fd is None:
+        return out_dir
+    held = os.fstat(fd)
+    try:
+        now = os.stat(out_dir)
+    except OSError:
+        now = None
+    if now is not None and (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
+        return out_dir
+    try:
+        where = os.readlink(f"/proc/self/fd/{fd}")  # Linux: a moved folder's new path
+    except OSError:
+        where = None
+    if held.st_nlink == 0 or where is None or where.endswith(" (deleted)") or not os.path.isdir(where):
+        gone = (
+            "was deleted" if held.st_nlink == 0 else "was moved or deleted (where to, this system cannot say)"
+        )
+        raise GraphSlamError(
+            f"{flag} {out_dir}: the folder this command locked {gone} while it ran; its outputs are not "
+            "written" + ("" if now is None else f" (nor into the other folder now at {out_dir})")
+        )
+    if now is None:
+        warn(f"{flag} {out_dir} was moved to {where} while this command ran; its outputs go there")
+    else:
+        warn(
+            f"{flag} {out_dir} names another folder since this command began (renamed, or a link "
+            f"re-pointed); its outputs go into the folder it locked, now {where}; the other is left untouched"
+        )
+    if recorder is not None:
+        recorder.relocate(Path(where))
+    return Path(where)
 
 
 def release_out_dirs() -> None:
     """Unlock every folder :func:`claim_out_dir` locked (the command has returned)."""
+    _claimed_as.clear()
     while _claimed:
         os.close(_claimed.popitem()[1])
 

@@ -24,6 +24,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_topics_option,
     claim_out_dir,
+    claimed_folder,
     clear_earlier_outputs,
     close_recorder,
     fmt,
@@ -153,6 +154,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
     if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
         warn(metrics["warnings"][-1])
+    out_dir = claimed_folder(out_dir, recorder)
     paths = localize_run.write_outputs(result, out_dir, metrics)
     if recorder is not None:
         if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept

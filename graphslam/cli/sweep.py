@@ -25,7 +25,8 @@ sweep file (TOML):
 
 every run is `graphslam run ... [--nees]` in its own process, outputs in
 OUT/runs/<backend>-<config hash>-s<seed>/. Re-running a sweep into the same
---out skips the runs already done (same config hash and seed); Ctrl-C keeps
+--out skips the runs already done (same config hash and seed, and their folder's
+metrics.json says so: a folder deleted or overwritten is run again); Ctrl-C keeps
 every finished run (exit 130); a failed run is a row with its error (exit 1).
 
 outputs (in --out): sweep.csv, sweep_nees.png (average pose NEES over the runs
@@ -145,6 +146,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
+    from graphslam.cli.common import refuse_other_outputs
+    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, FOLDER_OUTPUT_NAMES
+
+    # an eval beside the table reads the sweep's runs, as one beside a run's files reads them
+    theirs = [name for name in FOLDER_OUTPUT_NAMES if name not in EVAL_OUTPUT_NAMES]
+    refuse_other_outputs(args.out, theirs, "another graphslam command (run, compare or localize)")
     spec = parse_sweep(args.sweep_file)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
@@ -170,6 +177,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     # an earlier sweep's plots (other settings swept, or --no-plots now) would disagree
     # with this sweep.csv
     remove_stale_outputs(args.out, {p.name for p in written}, plot_files(args.out))
+    if outcome.stale:
+        warn(
+            f"{len(outcome.stale)} runs sweep.csv listed as done were run again: "
+            + "; ".join(f"{run_id}: {why}" for run_id, why in outcome.stale)
+        )
     if outcome.dropped:
         warn(
             f"{args.out / 'sweep.csv'} held {outcome.dropped} rows of runs that are not in this "

@@ -7,7 +7,8 @@ that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
 ``error`` (the failed run's one-line error) and ``warnings`` (what the run's
 metrics.json says makes its estimate doubtful, joined by " | "; empty: nothing). The file is rewritten after
 every finished run, so Ctrl-C keeps them all; a sweep run again into the same
-folder skips the runs whose ``(config_hash, seed)`` has status ok.
+folder skips the runs whose ``(config_hash, seed)`` has status ok and whose folder
+still holds them (:func:`folder_mismatch`).
 Each run's own files are in ``runs/<run_id>/`` (its config.toml, metrics.json,
 trajectories, nees.csv, stderr.txt).
 """
@@ -15,6 +16,8 @@ trajectories, nees.csv, stderr.txt).
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec
+from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec, dump_toml
 from slamcore.errors import InputError
 from slamcore.files import atomic_open
 
@@ -121,11 +124,50 @@ class SweepOutcome:
     dropped: int = 0
     interrupted: bool = False
     runs: list[RunSpec] = field(default_factory=list)
+    #: ``(run_id, why)`` of runs sweep.csv says are done whose folder does not hold them
+    #: (:func:`folder_mismatch`): run again
+    stale: list[tuple[str, str]] = field(default_factory=list)
 
 
 def _key(run: RunSpec) -> tuple[str, str]:
     """``(config_hash, seed)`` as sweep.csv spells them."""
     return run.config_hash, "" if run.seed is None else str(run.seed)
+
+
+def _flag_value(command: list, flag: str) -> str | None:
+    """The value given to ``flag`` in a recorded command line, None when absent."""
+    return str(command[command.index(flag) + 1]) if flag in command[:-1] else None
+
+
+def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
+    """Why ``folder`` does not hold ``run`` finished, or None when it does: its metrics.json
+    is there and records the run's dataset, back end, seed, steps, NEES flag and config
+    file bytes (provenance). A folder deleted, or written over by another run, still
+    counted as done, and the plots were redrawn from its files (hostile pass)."""
+    try:
+        metrics = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return "no metrics.json in its folder"
+    except (OSError, ValueError):
+        return "its metrics.json cannot be read"
+    prov = metrics.get("provenance") if isinstance(metrics, dict) else None
+    if not isinstance(prov, dict) or not isinstance(prov.get("command"), list):
+        return "its metrics.json does not say how it was run"
+    command = prov["command"]
+    want = {
+        "--dataset": run.dataset,
+        "--backend": run.backend,
+        "--seed": None if run.seed is None else str(run.seed),
+        "--max-steps": None if run.max_steps is None else str(run.max_steps),
+    }
+    differ = [flag for flag, value in want.items() if _flag_value(command, flag) != value]
+    if ("--nees" in command) != run.nees:
+        differ.append("--nees")
+    if prov.get("config_sha256") != hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest():
+        differ.append("config")
+    if differ:
+        return f"its folder holds another run (other {', '.join(differ)})"
+    return None
 
 
 def run_sweep(
@@ -144,10 +186,16 @@ def run_sweep(
     runs = spec.runs()
     earlier = read_rows(csv_path)
     done = {(r.get("config_hash"), r.get("seed")): r for r in earlier if r.get("status") == "ok"}
+    stale = []
+    for run in runs:
+        why = folder_mismatch(run, out / "runs" / run.run_id) if _key(run) in done else None
+        if why is not None:  # sweep.csv's word alone is not the run's files
+            stale.append((run.run_id, why))
+            del done[_key(run)]
     rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
     todo = [run for run in runs if _key(run) not in done]
     ours = {_key(run) for run in runs}
-    outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs)
+    outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs, stale=stale)
     outcome.dropped = sum((r.get("config_hash"), r.get("seed")) not in ours for r in earlier)
     order = {run.run_id: i for i, run in enumerate(runs)}
 
@@ -183,6 +231,11 @@ PLOT_NAME = re.compile(r"sweep_(nees|ate|[A-Za-z0-9_]+\.[A-Za-z0-9_.]+)\.png")
 def plot_files(out: Path) -> tuple[str, ...]:
     """Names of the sweep plots in ``out`` (this sweep's or an earlier one's)."""
     return tuple(sorted(p.name for p in out.glob("sweep_*.png") if PLOT_NAME.fullmatch(p.name)))
+
+
+def sweep_output_names(out: Path) -> tuple[str, ...]:
+    """What a sweep wrote at the top of ``out``: ``sweep.csv`` and its plots."""
+    return ("sweep.csv", *plot_files(out))
 
 
 def with_labels(rows: list[dict], set_keys) -> list[dict]:

@@ -20,6 +20,7 @@ nothing with the others):
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -270,6 +271,24 @@ def _connect(Client, address: str):
 _DASK_LOG_ENV = "DASK_LOGGING__DISTRIBUTED"
 
 
+#: Loggers of the event loop a local cluster starts on (a failed accept is an ERROR there).
+_START_LOGGERS = ("asyncio", "tornado", "distributed")
+
+
+def _start_failure(e: BaseException) -> str:
+    """Why a local cluster did not start, in words: too few file descriptors (somewhere
+    in the chain of causes), with the limit to raise; else the last error, on one line."""
+    seen: BaseException | None = e
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno == errno.EMFILE:
+            import resource  # POSIX: where EMFILE is
+
+            soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+            return f"too many open files; ulimit -n is {soft}"
+        seen = seen.__cause__ or seen.__context__
+    return f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"
+
+
 class DaskExecutor:
     """Runs on Dask distributed: ``address`` ``"local"`` starts a LocalCluster."""
 
@@ -295,12 +314,23 @@ class DaskExecutor:
             old = signal.signal(signal.SIGINT, signal.SIG_IGN)
             env = os.environ.get(_DASK_LOG_ENV)
             os.environ[_DASK_LOG_ENV] = "error"
+            # a cluster that fails to start (too few file descriptors) printed some 170
+            # lines of its event loop's tracebacks before its own: the one line below says it
+            quiet = {name: logging.getLogger(name).level for name in _START_LOGGERS}
+            for name in _START_LOGGERS:
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
             try:
                 # one thread a worker: a run is a process of its own, a worker only waits
                 self.cluster = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
                 )
+            except Exception as e:  # noqa: BLE001 - every failure to start is said in one line
+                raise ConfigError(
+                    f"--cluster local: cannot start the local cluster ({_start_failure(e)})"
+                ) from None
             finally:
+                for name, level in quiet.items():
+                    logging.getLogger(name).setLevel(level)
                 signal.signal(signal.SIGINT, old)
                 if env is None:
                     os.environ.pop(_DASK_LOG_ENV, None)

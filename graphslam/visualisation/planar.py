@@ -319,6 +319,10 @@ class RunRecorder:
         self.log.log_pose(backend, est.current_pose, cov, self.color_index(backend))
         self.log.log_estimate(backend, est, self.color_index(backend), self._groups(est))
 
+    def relocate(self, folder: Path) -> None:
+        """The output folder moved during the run: the recording is finished there."""
+        self.log.relocate(folder)
+
     def close(self) -> None:
         self.log.close()
 

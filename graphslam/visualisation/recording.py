@@ -239,6 +239,10 @@ class RerunLog:
         recording_id: str = "graphslam-run",
         live_layout: bool | None = None,
     ):
+        # Rerun's Rust side reads RUST_LOG once, at import: unset, its coloured ERROR/WARN
+        # lines (a full disk under the file writer) spilled onto stderr before our one
+        # warning, which says the same with its cause. A user's own RUST_LOG is kept.
+        os.environ.setdefault("RUST_LOG", "off")
         import rerun as rr  # imported here: no work at import time, and only this module
 
         self._rr = rr
@@ -328,6 +332,14 @@ class RerunLog:
                 move_into_place(self._partial, Path(self.path))
                 self._partial = None
 
+    def relocate(self, folder: Path) -> None:
+        """The output folder was moved during the run (:func:`graphslam.cli.common.claimed_folder`):
+        the recording, written through its open file, moved with it; close() moves it
+        into place there."""
+        if self._partial is not None and self.path is not None:
+            self._partial = Path(folder) / self._partial.name
+            self.path = Path(folder) / Path(self.path).name
+
     def discard(self) -> None:
         """Stop recording and delete what was recorded: the run ended without its
         outputs, and ``path`` keeps the earlier run's recording, if any."""
@@ -346,7 +358,9 @@ class RerunLog:
             self.rec.disconnect()
             reason = str(e).splitlines()[0]
             if self._partial is not None and self.path is not None:
-                self._not_written(reason)
+                # the writer's death ("File-writer thread shut down prematurely") says no
+                # cause; a file at the disk's end or the size limit is that cause
+                self._not_written(write_limit_reached(self._partial) or reason)
             raise ViewerUnavailable(
                 f"the Rerun viewer stopped taking the stream; the recording is incomplete ({reason})"
             ) from None

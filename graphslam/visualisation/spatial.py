@@ -310,6 +310,10 @@ class VisualRecorder:
         if segs:
             self.rec.log(f"world/{backend}/loop_closures", rr.LineStrips3D(segs, colors=[color], radii=0.01))
 
+    def relocate(self, folder: Path) -> None:
+        """The output folder moved during the run: the recording is finished there."""
+        self.log.relocate(folder)
+
     def close(self) -> None:
         self.log.close()
 

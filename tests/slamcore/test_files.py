@@ -70,3 +70,29 @@ def test_a_dataset_read_as_dot_is_named_after_its_folder(monkeypatch):
 
     monkeypatch.chdir(MRCLAM)
     assert read_mrclam(".").name == "mrclam6-robot1"
+
+
+def test_a_write_cut_by_a_size_limit_names_its_output(tmp_path):
+    """A file-size limit (or a full disk) met while writing: the system's error names no
+    file, and the one line said "an output file"; it names the output now."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    code = (
+        "import resource, sys\n"
+        "from slamcore.files import atomic_open\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY))\n"
+        "try:\n"
+        "    with atomic_open(sys.argv[1]) as f:\n"
+        "        f.write('x' * 100_000)\n"
+        "except OSError as e:\n"
+        "    print(e.errno, e.filename)\n"
+    )
+    target = tmp_path / "trajectory.tum"
+    done = subprocess.run([sys.executable, "-c", code, str(target)], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.stdout.split() == ["27", str(target)], done.stderr  # EFBIG
+    assert not list(tmp_path.iterdir())  # no partial file left

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
     claim_out_dir,
+    claimed_folder,
     clear_earlier_outputs,
     close_recorder,
     fmt,
@@ -154,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
                 "(a particle cloud collapsed to one pose, or a start known exactly); "
                 "nees.csv gives them nan, the mean is over the others"
             )
+    out_dir = args.resolved_out = claimed_folder(out_dir, log)
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
         if nees is not None:

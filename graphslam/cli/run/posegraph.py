@@ -11,6 +11,7 @@ import numpy as np
 
 from graphslam.cli.common import (
     claim_out_dir,
+    claimed_folder,
     clear_earlier_outputs,
     fmt,
     provenance,
@@ -93,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
     )
     metrics.provenance = provenance(args, config)
+    out_dir = args.resolved_out = claimed_folder(out_dir)
     # a full disk part way: no earlier run's file left beside this run's
     with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
         paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)

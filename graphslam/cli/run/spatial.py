@@ -30,6 +30,7 @@ from pathlib import Path
 
 from graphslam.cli.common import (
     claim_out_dir,
+    claimed_folder,
     clear_earlier_outputs,
     close_recorder,
     counts_row,
@@ -201,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
             "start": "the first frame relocalised in the map",
             "ate_in_map_frame": in_map,
         }
+    out_dir = args.resolved_out = claimed_folder(out_dir, recorder)
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = vp.write_outputs(result, out_dir, metrics)
         if closer is not None:

@@ -686,3 +686,102 @@ def test_ctrl_c_inside_an_import_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(command, "cmd_run", importing)
     assert cli.main(["run"]) == 130
     assert capsys.readouterr().err == "graphslam: interrupted (SIGINT)\n"
+
+
+@pytest.mark.parametrize("replaced", [False, True])
+def test_an_out_folder_moved_during_the_run_gets_its_outputs(tmp_path, monkeypatch, capsys, replaced):
+    """--out renamed while the run works (and, ``replaced``, another folder made at its
+    path, as another run would): the outputs, recording too, go into the folder the run
+    locked, where it now is; the folder at the path is left as it was."""
+    from graphslam.cli.main import main
+    from graphslam.pipelines import planar
+
+    out, moved = tmp_path / "out", tmp_path / "moved"
+    real = planar.run
+
+    def run_and_move(*a, **kw):
+        out.rename(moved)
+        if replaced:
+            out.mkdir()
+            (out / "README").write_text("another run's folder")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planar, "run", run_and_move)
+    assert main(["run", "--max-steps", "20", "--out", str(out), "--quiet", "--rerun", "save"]) == 0
+    assert RUN_FILES <= {p.name for p in moved.iterdir()}
+    assert not list(moved.glob(".gs-*"))
+    if replaced:
+        assert sorted(p.name for p in out.iterdir()) == ["README"]
+    else:
+        assert not out.exists()  # not made again, unlocked, to hold the outputs
+    assert "its outputs go" in capsys.readouterr().err
+
+
+def test_an_out_folder_deleted_during_the_run_is_one_error(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from graphslam.cli.main import main
+    from graphslam.pipelines import planar
+
+    out = tmp_path / "out"
+    real = planar.run
+
+    def run_and_delete(*a, **kw):
+        shutil.rmtree(out)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planar, "run", run_and_delete)
+    assert main(["run", "--max-steps", "20", "--out", str(out), "--quiet", "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "was deleted while it ran" in err
+    assert not out.exists()
+
+
+def test_a_run_into_a_sweeps_folder_is_refused(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / "sweep.csv").write_text("run_id,config_hash,seed,status\n")
+    (out / "sweep_ate.png").write_bytes(b"")
+    assert main(["run", "--max-steps", "5", "--out", str(out), "--quiet", "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds the outputs of graphslam sweep (sweep.csv, sweep_ate.png)" in err
+    assert sorted(p.name for p in out.iterdir()) == ["sweep.csv", "sweep_ate.png"]
+
+
+def test_a_sweep_into_a_runs_folder_is_refused(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "trajectory.tum").write_text("# timestamp tx ty tz qx qy qz qw\n")
+    (out / "eval.json").write_text("{}")  # an eval beside it is no refusal of its own
+    sweep = tmp_path / "s.toml"
+    sweep.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nmax_steps = 5\n')
+    assert main(["sweep", str(sweep), "--out", str(out), "--quiet", "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "(run, compare or localize) (trajectory.tum)" in err
+    assert sorted(p.name for p in out.iterdir()) == ["eval.json", "trajectory.tum"]
+
+
+def test_a_recording_cut_by_a_file_size_limit_is_one_warning_with_its_cause(tmp_path):
+    """A quota met while recording: Rerun's own coloured ERROR/WARN lines spilled onto
+    stderr, then a warning without the cause (the writer thread's death)."""
+    import resource
+
+    def limit():  # 150 kB: the run's files fit, its recording does not
+        resource.setrlimit(resource.RLIMIT_FSIZE, (150 * 1024, resource.RLIM_INFINITY))
+
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}
+    env["PYTHONPATH"] = str(ROOT)
+    done = subprocess.run([sys.executable, "-m", "graphslam.cli.main", "run", "--out", str(tmp_path / "o"),
+                           "--quiet"], capture_output=True, text=True, timeout=TIMEOUT_S, env=env,
+                          preexec_fn=limit)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(  # "; Rerun's writer stopped" may follow
+        "graphslam: warning: the recording could not be written (file larger than this system "
+        "allows (a file-size limit)"
+    ), done.stderr
+    assert RUN_FILES - {"run.rrd"} == {p.name for p in (tmp_path / "o").iterdir()}

@@ -581,3 +581,52 @@ def test_plot_groups_keep_datasets_and_back_ends_apart():
     assert labels == ["ekf k=1 synthetic", "ekf k=1 mrclam6"]
     assert with_labels(rows[:1], ["x.k"])[0]["label"] == "ekf k=1"
     assert _setting_group({**rows[0], "backend": "isam2"}, "x.k", False) != _setting_group(rows[0], "x.k", False)
+
+
+def test_a_local_cluster_without_file_descriptors_is_one_line(tmp_path):
+    """``ulimit -n 20``: Dask's LocalCluster cannot start; its event loop's some 170
+    lines of tracebacks became one line naming the limit."""
+    pytest.importorskip("distributed")
+    import resource
+
+    def low_limit():
+        resource.setrlimit(resource.RLIMIT_NOFILE, (20, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    done = subprocess.run(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(_file(tmp_path, SMALL)),
+         "--out", str(tmp_path / "o"), "--cluster", "local", "--workers", "2", "--quiet"],
+        capture_output=True, text=True, timeout=120, preexec_fn=low_limit,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "graphslam: error: --cluster local: cannot start the local cluster "
+        "(too many open files; ulimit -n is 20)"
+    ], done.stderr
+
+
+def test_a_done_run_whose_folder_is_gone_or_foreign_is_run_again(tmp_path):
+    """sweep.csv's word is not the run's files: a run folder deleted, or written over by
+    another run (another seed), was skipped as done and its files plotted."""
+    import json
+    import shutil
+
+    from graphslam.pipelines.sweep import folder_mismatch
+
+    spec = parse_sweep(_file(tmp_path, SMALL))
+    out = tmp_path / "o"
+    run_sweep(spec, out, PoolExecutor(2))
+    gone, foreign, *kept = spec.runs()
+    shutil.rmtree(out / "runs" / gone.run_id)
+    metrics_path = out / "runs" / foreign.run_id / "metrics.json"
+    metrics = json.loads(metrics_path.read_text())
+    command = metrics["provenance"]["command"]
+    command[command.index("--seed") + 1] = "9"
+    metrics_path.write_text(json.dumps(metrics))
+
+    again = run_sweep(spec, out, PoolExecutor(2))
+    assert again.ran == 2 and again.skipped == 2
+    assert dict(again.stale) == {
+        gone.run_id: "no metrics.json in its folder",
+        foreign.run_id: "its folder holds another run (other --seed)",
+    }
+    assert all(folder_mismatch(run, out / "runs" / run.run_id) is None for run in spec.runs())

@@ -27,10 +27,23 @@ def _file(tmp_path, text, name="sweep.toml"):
 
 @pytest.fixture
 def fake_runs(monkeypatch):
-    """Every run "ok" at once, without a process."""
+    """Every run "ok" at once, without a process; its folder holds the metrics.json a run
+    writes, as much of it as says which run it was (a re-run sweep checks it)."""
+    import hashlib
+    import json
+    from pathlib import Path
+
     from graphslam.pipelines import sweep_exec
+    from graphslam.pipelines.sweep_spec import dump_toml
 
     def fake(run, root):
+        folder = Path(root) / "runs" / run.run_id
+        folder.mkdir(parents=True, exist_ok=True)
+        provenance = {
+            "command": ["graphslam", *sweep_exec.run_command(run, folder)[3:]],
+            "config_sha256": hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest(),
+        }
+        (folder / "metrics.json").write_text(json.dumps({"provenance": provenance}))
         return {"run_id": run.run_id, "status": "ok", "error": "", "warnings": "", "ate_rmse_m": 0.1}
 
     monkeypatch.setattr(sweep_exec, "execute_run", fake)

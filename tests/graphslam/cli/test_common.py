@@ -1,0 +1,78 @@
+"""The output folder's lock (:func:`graphslam.cli.common.claim_out_dir`): what a command
+finds at its ``--out`` when it writes, and what a killed one left there."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from graphslam.cli.common import claim_out_dir, claimed_folder, release_out_dirs
+from slamcore.errors import GraphSlamError
+
+
+@pytest.fixture
+def claimed(tmp_path):
+    out = tmp_path / "out"
+    claim_out_dir(out)
+    yield out
+    release_out_dirs()
+
+
+def test_an_unmoved_folder_is_written_where_it_was(claimed, capsys):
+    assert claimed_folder(claimed) == claimed
+    assert capsys.readouterr().err == ""
+
+
+def test_a_renamed_folder_is_written_where_it_now_is(claimed, capsys):
+    moved = claimed.with_name("moved")
+    claimed.rename(moved)
+    assert claimed_folder(claimed).resolve() == moved.resolve()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"was moved to {moved}" in err
+
+
+def test_a_folder_replaced_at_its_path_is_left_to_its_owner(claimed, capsys):
+    # another run made a folder of that name (and may hold its lock): never written into
+    moved = claimed.with_name("moved")
+    claimed.rename(moved)
+    claimed.mkdir()
+    assert claimed_folder(claimed).resolve() == moved.resolve()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "names another folder" in err and "left untouched" in err
+
+
+def test_a_relinked_path_is_not_followed(tmp_path, capsys):
+    first, second, link = tmp_path / "first", tmp_path / "second", tmp_path / "out"
+    first.mkdir()
+    second.mkdir()
+    link.symlink_to(first)
+    try:
+        claim_out_dir(link)
+        link.unlink()
+        link.symlink_to(second)
+        assert claimed_folder(link).resolve() == first.resolve()
+    finally:
+        release_out_dirs()
+    assert "names another folder" in capsys.readouterr().err
+
+
+def test_a_deleted_folder_is_one_error(claimed):
+    shutil.rmtree(claimed)
+    with pytest.raises(GraphSlamError, match="was deleted while it ran; its outputs are not written"):
+        claimed_folder(claimed)
+
+
+def test_a_killed_commands_partial_files_are_removed_and_said(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".gs-k1ll3d.part.rrd").write_bytes(b"x" * 100)
+    (out / ".gs-other.part").write_bytes(b"")
+    (out / "notes.part.txt").write_text("the user's")
+    try:
+        claim_out_dir(out)
+    finally:
+        release_out_dirs()
+    assert sorted(p.name for p in out.iterdir()) == ["notes.part.txt"]
+    said = capsys.readouterr().out
+    assert said.count("\n") == 1 and ".gs-k1ll3d.part.rrd" in said and "killed" in said
