@@ -316,7 +316,7 @@ class EkfSlam(Backend):
     # --------------------------------------------------------------- contract
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        wTb, cov = initial_pose(wTb, covariance, "ekf initial pose")
+        pose_id, wTb, cov = initial_pose(pose_id, wTb, covariance, "ekf initial pose")
         self._reset(self.config.initial_capacity)
         self._store.start(wTb, cov)
         self._pose_id = int(pose_id)
