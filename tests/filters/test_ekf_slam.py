@@ -410,7 +410,7 @@ def test_bad_input_is_refused():
         ekf.update([Observation(0, 1, [2.0, 0.1], R, kind=ObservationKind.PIXEL)])
     assert ekf.num_landmarks == 0  # nothing applied from a refused scan
     with pytest.raises(UnsupportedError):
-        ekf.add_loop_closure(LoopClosure(0, 0, np.zeros(3), np.eye(3) * 1e-2))
+        ekf.add_loop_closure(LoopClosure(0, 1, np.zeros(3), np.eye(3) * 1e-2))
     assert not EkfSlam.supports_loop_closures and EkfSlam.name == "ekf"
 
 
