@@ -98,7 +98,7 @@ class EkfLocaliser(Backend):
     # --------------------------------------------------------------- contract
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        wTb, cov = initial_pose(wTb, covariance, "ekf initial pose")
+        pose_id, wTb, cov = initial_pose(pose_id, wTb, covariance, "ekf initial pose")
         self._x = wTb.copy()
         self._x[2] = models.wrap_angle(wTb[2])
         self._Prr = cov.copy()

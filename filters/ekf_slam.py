@@ -57,8 +57,9 @@ Data association:
 
 - known: by ``Observation.landmark_id``; if that is None but ``signature`` is
   set, by signature (the landmark is then given the signature as its id);
-- unknown (``association = "unknown"``, which ignores the given ids, or an
-  observation with neither id nor signature): individual compatibility
+- unknown (``association = "unknown"``, which ignores the given ids, or a run
+  whose sightings carry neither id nor signature; a run mixing sightings with
+  and without is refused): individual compatibility
   (Mahalanobis gate at ``gate_chi2_prob``, 2 dof) against every landmark, then
   JCBB over the scan (:mod:`filters.association`, bounded by
   ``jcbb_max_candidates`` and ``jcbb_max_nodes``), maximising the scan's
@@ -207,6 +208,7 @@ class EkfSlam(Backend):
         self._hist_cov: list[np.ndarray] = []
         self._hist_index: dict[int, int] = {}  # pose id -> its row of the history
         self._prov_known: dict[int, int] = {}  # known-association provisional counts
+        self._id_kinds: set[str] = set()  # "given" / "own" landmark ids so far (known association)
         # unknown-association provisional entries
         self._prov = ProvisionalList(self._provisional_sightings(), self._gate)
         self._scan = 0
@@ -316,7 +318,7 @@ class EkfSlam(Backend):
     # --------------------------------------------------------------- contract
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
-        wTb, cov = initial_pose(wTb, covariance, "ekf initial pose")
+        pose_id, wTb, cov = initial_pose(pose_id, wTb, covariance, "ekf initial pose")
         self._reset(self.config.initial_capacity)
         self._store.start(wTb, cov)
         self._pose_id = int(pose_id)
@@ -408,6 +410,8 @@ class EkfSlam(Backend):
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
         obs = checked_scan(observations, self._pose_id, "ekf")
+        if self.config.association == "known":
+            self._check_one_id_space(obs)
         self._scan += 1
         assoc: list[int | None] = [None] * len(obs)
         unknown: list[int] = []
@@ -574,6 +578,21 @@ class EkfSlam(Backend):
         st.note_variances(float(P[n, n]), float(P[n + 1, n + 1]))
         self._next_id = max(self._next_id, lid + 1)
         return slot
+
+    def _check_one_id_space(self, obs: list[Observation]) -> None:
+        """Known association: every sighting of a run carries its landmark's id (or a
+        signature), or none does. The filter names a landmark of an anonymous sighting
+        with the next free id, which a given id arriving later can equal: that landmark
+        was then gated as a re-sighting of the anonymous one and never entered the map.
+        Refused rather than given ids of a separate space: a given id may be any int64,
+        so no space is the filter's alone."""
+        kinds = {"given" if o.landmark_id is not None or o.signature is not None else "own" for o in obs}
+        if len(kinds | self._id_kinds) > 1:
+            raise MeasurementError(
+                'ekf: association = "known" with sightings both with and without landmark ids '
+                '(the filter\'s ids for the latter could equal given ones); give every id, or use "unknown"'
+            )
+        self._id_kinds |= kinds
 
     def _update_unknown(self, obs: list[Observation], where: list[int], assoc: list[int | None]) -> None:
         """Associate the observations ``obs`` (rows ``where`` of the scan) by gating and

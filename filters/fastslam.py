@@ -156,7 +156,7 @@ class FastSlam(Backend):
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
         if self._pose_ids:
             raise GraphSlamError(f"{self.name}: initialize() called twice")
-        wTb, cov = initial_pose(wTb, covariance, "initial pose")
+        pose_id, wTb, cov = initial_pose(pose_id, wTb, covariance, f"{self.name} initial pose")
         self._particles.draw_initial(wTb, cov)
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))

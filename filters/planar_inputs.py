@@ -23,20 +23,26 @@ from slamcore.planar.records import (
     Prediction,
     as_covariance,
     as_vector,
+    checked_id,
 )
 
-__all__ = ["initial_pose", "linked_pose", "odometry_step", "checked_scan", "mapped_predictions"]
+__all__ = ["initial_pose", "linked_pose", "odometry_step", "checked_scan", "scan_list", "mapped_predictions"]
 
 
-def initial_pose(wTb: np.ndarray, covariance: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """``(wTb (3,), covariance (3, 3))`` given to
-    :meth:`slamcore.planar.backend.Backend.initialize`, as read-only float64 arrays.
+def initial_pose(
+    pose_id: int, wTb: np.ndarray, covariance: np.ndarray, what: str
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(pose_id, wTb (3,), covariance (3, 3))`` given to
+    :meth:`slamcore.planar.backend.Backend.initialize`: the id as an int (the records'
+    id rule, :func:`~slamcore.planar.records.checked_id`), the pose and covariance as
+    read-only float64 arrays.
 
     Raises:
-        MeasurementError: not 3 finite values, or not a symmetric positive-definite
-            3x3 (messages start with ``what``).
+        MeasurementError: an id that is not an integer (2.7 became pose 2, "5" pose 5),
+            not 3 finite values, or not a symmetric positive-definite 3x3 (messages
+            start with ``what``).
     """
-    return as_vector(wTb, 3, what), as_covariance(covariance, 3, what)
+    return checked_id(pose_id, what, "pose_id"), as_vector(wTb, 3, what), as_covariance(covariance, 3, what)
 
 
 def linked_pose(odometry: Odometry, pose_id: int) -> int | None:
@@ -80,7 +86,26 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
         MeasurementError: not an Observation, or taken at another pose.
         UnsupportedError: another kind of measurement (pixels, ranges only).
     """
-    if isinstance(observations, Observation):  # not iterable: Python's TypeError said less
+    obs = scan_list(observations, who)
+    for o in obs:
+        if o.kind is not ObservationKind.RANGE_BEARING:
+            raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}")
+        if o.pose_id != pose_id:
+            raise MeasurementError(
+                f"{who}: observation from pose {o.pose_id} but the current pose is {pose_id}"
+            )
+    return obs
+
+
+def scan_list(observations: Iterable[Observation], who: str) -> list[Observation]:
+    """``observations`` as a list of :class:`Observation` (what every back end's
+    ``update`` takes first).
+
+    Raises:
+        MeasurementError: one Observation instead of a list (Python's TypeError said
+            less), not iterable, or an item that is not an Observation.
+    """
+    if isinstance(observations, Observation):
         raise MeasurementError(f"{who}: update takes a list of observations (a scan), got one Observation")
     try:
         obs = list(observations)
@@ -91,12 +116,6 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
     for o in obs:
         if not isinstance(o, Observation):
             raise MeasurementError(f"{who}: expected Observation, got {type(o).__name__}")
-        if o.kind is not ObservationKind.RANGE_BEARING:
-            raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}")
-        if o.pose_id != pose_id:
-            raise MeasurementError(
-                f"{who}: observation from pose {o.pose_id} but the current pose is {pose_id}"
-            )
     return obs
 
 

@@ -65,7 +65,14 @@ import numpy as np
 from frontend.active_search_config import ActiveSearchConfig
 from frontend.features import Features
 from frontend.image import check_gray
-from frontend.search_matchers import Matcher, NearestMatcher, ZnccMatcher, ellipse_pixels, inv2
+from frontend.search_matchers import (
+    Matcher,
+    NearestMatcher,
+    ZnccMatcher,
+    checked_points,
+    ellipse_pixels,
+    inv2,
+)
 from slamcore.config import with_overrides
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
@@ -122,10 +129,8 @@ def _checked_predictions(predictions, S) -> tuple[np.ndarray, np.ndarray]:
     in place, and the caller's arrays are the caller's); InputError / MeasurementError
     if malformed. An array of another shape is refused, not reshaped: (2, N) read as
     (N, 2) scrambles the points."""
-    z = np.array(predictions, dtype=np.float64)
+    z = checked_points(predictions, "predictions")
     S = np.array(S, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] != 2:
-        raise InputError(f"predictions must be (N, 2) pixels, got shape {z.shape}")
     n = len(z)
     if S.shape != (n, 2, 2):
         raise InputError(f"{n} predictions need ({n}, 2, 2) covariances, got shape {S.shape}")
@@ -327,7 +332,10 @@ class ActiveSearch:
         z_new, S_new = repredict(p, uv[p].copy(), c)
         if not len(c):
             return []
-        z[c] = np.asarray(z_new, dtype=np.float64).reshape(-1, 2)
-        S_new = np.asarray(S_new, dtype=np.float64).reshape(-1, 2, 2)
+        # checked as the caller's predictions: one row for 9 asked was broadcast to all 9
+        z_new, S_new = _checked_predictions(z_new, S_new)
+        if len(z_new) != len(c):
+            raise InputError(f"repredict returned {len(z_new)} predictions for the {len(c)} landmarks asked")
+        z[c] = z_new
         S[c] = 0.5 * (S_new + np.swapaxes(S_new, 1, 2))  # exactly symmetric, as the tracker's
         return c[self.search_order(z[c], S[c], shape)].tolist()

@@ -161,14 +161,21 @@ class HarrisConfig(Validated):
 # --------------------------------------------------------------------------- float
 
 
-def smooth_float(image: np.ndarray, kernel: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
-    """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders)."""
+def _float_image(image) -> np.ndarray:
+    """``image`` as float64 (H, W), non-empty and finite; InputError otherwise (OpenCV's
+    own errors, or a colour image filtered per channel, or NaN spreading, before)."""
     a = np.asarray(image)
     if a.ndim != 2 or a.size == 0 or a.dtype.kind not in "uif":
         raise InputError(f"image: expected a non-empty (H, W) array of numbers, got {a.dtype} {a.shape}")
     a = a.astype(np.float64, copy=False)
     if not np.all(np.isfinite(a)):
         raise InputError("image: non-finite pixel values")
+    return a
+
+
+def smooth_float(image: np.ndarray, kernel: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
+    """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders)."""
+    a = _float_image(image)
     return cv2.sepFilter2D(a, cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101)
 
 
@@ -217,6 +224,7 @@ def structure_response_float(smoothed: np.ndarray, k: float, window: np.ndarray 
     products, ``R = AB - C^2 - k (A+B)^2``. Values within 5 px of an edge use
     reflected borders and are not used by the detector.
     """
+    smoothed = _float_image(smoothed)  # the check smooth_float applies
     border = cv2.BORDER_REFLECT_101
     ix = cv2.sepFilter2D(smoothed, cv2.CV_64F, _DIFF, _ONE, borderType=border)
     iy = cv2.sepFilter2D(smoothed, cv2.CV_64F, _ONE, _DIFF, borderType=border)

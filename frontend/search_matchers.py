@@ -20,7 +20,15 @@ from frontend.features import Features
 from frontend.image import check_gray
 from slamcore.errors import InputError
 
-__all__ = ["Matcher", "NearestMatcher", "ZnccMatcher", "ellipse_pixels", "extract_patches", "inv2"]
+__all__ = [
+    "Matcher",
+    "NearestMatcher",
+    "ZnccMatcher",
+    "checked_points",
+    "ellipse_pixels",
+    "extract_patches",
+    "inv2",
+]
 
 
 def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple[int, int], margin: int = 0):
@@ -46,6 +54,21 @@ def ellipse_pixels(center: np.ndarray, S: np.ndarray, gamma: float, shape: tuple
         Si[0, 0] * du[None, :] ** 2 + 2.0 * Si[0, 1] * du[None, :] * dv[:, None] + Si[1, 1] * dv[:, None] ** 2
     )
     return u0, v0, d2 <= gamma
+
+
+def checked_points(values, what: str, n: int | None = None) -> np.ndarray:
+    """``values`` as a float64 (N, 2) copy, N = ``n`` when given; InputError otherwise.
+    An array of another shape is refused, not reshaped: (2, N) read as (N, 2) scrambles
+    the points."""
+    try:
+        a = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{what} must be (N, 2) pixels, got {type(values).__name__} of other values"
+        ) from None
+    if a.ndim != 2 or a.shape[1] != 2 or (n is not None and len(a) != n):
+        raise InputError(f"{what} must be ({'N' if n is None else n}, 2) pixels, got shape {a.shape}")
+    return a
 
 
 def extract_patches(image: np.ndarray, xy: np.ndarray, size: int) -> np.ndarray:
@@ -131,8 +154,12 @@ class ZnccMatcher:
         elif patches is None:
             if prev_image is None or prev_xy is None:
                 raise InputError("zncc mode needs patches, or prev_image and prev_xy")
-            patches = extract_patches(prev_image, prev_xy, p)
+            patches = extract_patches(prev_image, checked_points(prev_xy, "prev_xy", n), p)
         if patches is not None:  # always, unless warping
+            try:  # a list of (p, p) arrays is one
+                patches = np.asarray(patches)
+            except ValueError:
+                raise InputError(f"patches must be ({n}, {p}, {p}), got arrays of several shapes") from None
             if patches.ndim != 3 or patches.shape[1:] != (p, p) or len(patches) != n:
                 raise InputError(f"patches must be ({n}, {p}, {p}), got {patches.shape}")
             if not self.warp:
@@ -161,7 +188,7 @@ class ZnccMatcher:
             raise InputError("appearance prediction needs prev_image and prev_xy, or source_patches")
         # converted once here, not once per landmark searched
         self.prev_image = check_gray(prev_image, "prev_image").astype(np.float32)
-        self.prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+        self.prev_xy = checked_points(prev_xy, "prev_xy", n)  # too few rows: IndexError when searched
 
     def template(self, i: int) -> np.ndarray | None:
         """(p, p) float32 template of landmark ``i``, None if flat (ZNCC undefined)."""

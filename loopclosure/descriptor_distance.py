@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamcore.errors import VocabularyError
+
 #: popcount of every byte value (fallback when numpy has no ``bitwise_count``, numpy < 2).
 POPCOUNT_LUT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
 
@@ -24,27 +26,27 @@ def metric_for(dtype: np.dtype) -> str:
         return "hamming"
     if np.issubdtype(dtype, np.floating):
         return "euclidean"
-    raise ValueError(f"descriptors must be uint8 (binary) or float, got {dtype}")
+    raise VocabularyError(f"descriptors must be uint8 (binary) or float, got {dtype}")
 
 
 def check_query(descriptors: np.ndarray, metric: str, dim: int) -> np.ndarray:
     """Query descriptors (N, ``dim``) as a contiguous array of the vocabulary's type
-    (uint8 for "hamming", float32 for "euclidean"); ValueError when they do not fit."""
+    (uint8 for "hamming", float32 for "euclidean"); VocabularyError when they do not fit."""
     d = np.asarray(descriptors)
     if d.size == 0 and d.ndim == 1:  # np.array([]): no descriptor, whatever its width
         return np.zeros((0, dim), dtype=np.uint8 if metric == "hamming" else np.float32)
     if d.ndim != 2 or d.shape[1] != dim:
-        raise ValueError(f"descriptors must be (N, {dim}), got shape {d.shape}")
+        raise VocabularyError(f"descriptors must be (N, {dim}), got shape {d.shape}")
     if d.size == 0:
         return np.zeros((0, dim), dtype=np.uint8 if metric == "hamming" else np.float32)
     if metric == "hamming":
         if d.dtype != np.uint8:
-            raise ValueError(f"vocabulary is binary (uint8), got {d.dtype}")
+            raise VocabularyError(f"vocabulary is binary (uint8), got {d.dtype}")
         return np.ascontiguousarray(d)
     if not np.issubdtype(d.dtype, np.floating):
-        raise ValueError(f"vocabulary is float, got {d.dtype}")
+        raise VocabularyError(f"vocabulary is float, got {d.dtype}")
     if not np.all(np.isfinite(d)):  # NaN is nearest to no centre: it became word 0
-        raise ValueError("descriptors must be finite")
+        raise VocabularyError("descriptors must be finite")
     return np.ascontiguousarray(d, dtype=np.float32)
 
 

@@ -73,7 +73,7 @@ from loopclosure.vocabulary_training import (
     n_distinct_at_least,
     one_thread,
 )
-from slamcore.errors import ConfigError, InputError, quote
+from slamcore.errors import ConfigError, InputError, NotFittedError, VocabularyError, quote
 
 
 def _kmeans():
@@ -85,6 +85,13 @@ def _kmeans():
     from sklearn.cluster import KMeans, MiniBatchKMeans
 
     return KMeans, MiniBatchKMeans
+
+
+def _require_fitted(vocabulary) -> None:
+    """NotFittedError (scikit-learn's kind) instead of the AttributeError of a learned
+    attribute not yet there."""
+    if not hasattr(vocabulary, "metric_"):
+        raise NotFittedError(f"{type(vocabulary).__name__} is not fitted: call fit() or load() first")
 
 
 def load_vocabulary(path) -> FlatVocabulary | VocabularyTree:
@@ -143,7 +150,7 @@ class FlatVocabulary:
         x, images = as_training_set(descriptors)
         metric = metric_for(x.dtype)
         if not n_distinct_at_least(x, n_words):
-            raise ValueError(f"{x.shape[0]} descriptors hold fewer than {n_words} distinct ones")
+            raise VocabularyError(f"{x.shape[0]} descriptors hold fewer than {n_words} distinct ones")
         feats = kmeans_features(x, metric)
         if self.minibatch:
             km = _kmeans()[1](
@@ -167,11 +174,13 @@ class FlatVocabulary:
 
     def transform(self, descriptors: np.ndarray) -> np.ndarray:
         """(N, D) descriptors -> (N,) int64 word ids (nearest centre, lowest id on ties)."""
+        _require_fitted(self)
         d = check_query(descriptors, self.metric_, self.descriptor_dim_)
         return nearest_centre(d, self.centres_, self.metric_)
 
     def save(self, path) -> None:
         """Write one .npz file at exactly ``path`` (:mod:`loopclosure.vocabulary_file`)."""
+        _require_fitted(self)
         save_npz(path, self.kind, flat_arrays(self))
 
     @classmethod
@@ -337,6 +346,7 @@ class VocabularyTree:
         the nearest (lowest child index on ties); O(branching * depth)
         distances each.
         """
+        _require_fitted(self)
         d = check_query(descriptors, self.metric_, self.descriptor_dim_)
         n = d.shape[0]
         node = np.zeros(n, dtype=np.int64)
@@ -362,12 +372,14 @@ class VocabularyTree:
 
     def leaf_centres(self) -> np.ndarray:
         """(n_words, D) centre of every word, in word id order."""
+        _require_fitted(self)
         return self.centres_[self.word_node_]
 
     # -- persistence -------------------------------------------------------------
 
     def save(self, path) -> None:
         """Write one .npz file at exactly ``path`` (:mod:`loopclosure.vocabulary_file`)."""
+        _require_fitted(self)
         save_npz(path, self.kind, tree_arrays(self))
 
     @classmethod

@@ -14,7 +14,7 @@ import numpy as np
 # only to pin k-means to one thread: see one_thread.
 from threadpoolctl import threadpool_limits
 
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, VocabularyError
 
 
 def one_thread():
@@ -48,20 +48,30 @@ def as_training_set(descriptors) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Return (all descriptors stacked (N, D), per-image list or None)."""
     if isinstance(descriptors, np.ndarray):
         if descriptors.ndim != 2 or descriptors.shape[0] == 0:
-            raise ValueError(f"descriptors must be a non-empty (N, D) array, got shape {descriptors.shape}")
-        return descriptors, None
+            raise VocabularyError(
+                f"descriptors must be a non-empty (N, D) array, got shape {descriptors.shape}"
+            )
+        return _finite(descriptors), None
     images = [np.asarray(d) for d in descriptors]
     if not images:
-        raise ValueError("no images to fit")
+        raise VocabularyError("no images to fit")
     if any(d.ndim != 2 for d in images if d.size > 0):
-        raise ValueError("every image must hold an (N, D) array")
+        raise VocabularyError("every image must hold an (N, D) array")
     # An image without descriptors still counts in N_images for the IDF.
     full = [d for d in images if d.size > 0]
     if not full:
-        raise ValueError("no descriptors to fit")
+        raise VocabularyError("no descriptors to fit")
     if len({d.shape[1] for d in full}) != 1 or len({d.dtype for d in full}) != 1:
-        raise ValueError("every image must hold descriptors of one width D and one dtype")
-    return np.concatenate(full, axis=0), images
+        raise VocabularyError("every image must hold descriptors of one width D and one dtype")
+    return _finite(np.concatenate(full, axis=0)), images
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    """``x`` unless float with NaN or inf: scikit-learn refused those with its own words,
+    and all-NaN rows made one word (NaN rows are all 'the same')."""
+    if x.dtype.kind == "f" and not np.isfinite(x).all():
+        raise VocabularyError("training descriptors must be finite (NaN or inf found)")
+    return x
 
 
 def kmeans_features(x: np.ndarray, metric: str) -> np.ndarray:

@@ -39,6 +39,16 @@ class MeasurementError(GraphSlamError):
     """A measurement that must not enter an estimator (NaN, inf, bad covariance)."""
 
 
+class VocabularyError(GraphSlamError, ValueError):
+    """Descriptors a visual vocabulary cannot train on or quantise. A ValueError too, as
+    scikit-learn's estimators raise for bad data (and as these errors were before)."""
+
+
+class NotFittedError(VocabularyError, AttributeError):
+    """A vocabulary used before ``fit``: a ValueError and an AttributeError too, as
+    scikit-learn's NotFittedError (an unfitted estimator lacks its learned attributes)."""
+
+
 class UnsupportedError(GraphSlamError):
     """A capability a component does not have (e.g. a filter offered a loop closure)."""
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, InputError, MeasurementError
 
 #: Pose parameter count per rotation kind.
 PARAM_SIZE = {"angle": 3, "quat": 7, "rpy": 6}
@@ -374,3 +374,73 @@ def fixed_information(
         idx = np.arange(info.shape[-1])[block]
         out[:, idx, idx] = weight[:, None]
     return out
+
+
+def checked_information(
+    stack: np.ndarray, edge_lines: np.ndarray, dim: int, information_fix: str, path
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
+
+    One Cholesky of the stack passes a clean file (one by one it was half of
+    reading w10000); otherwise the edges are looked at one by one: a matrix
+    not finite, or without a positive eigenvalue, is an InputError at its
+    line (``edge k`` when ``edge_lines`` says 0, not from a file), and so is any that
+    is not positive definite under ``refuse``."""
+    try:
+        np.linalg.cholesky(stack)
+        if np.isfinite(stack).all():
+            return stack, None
+    except np.linalg.LinAlgError:
+        pass
+    bad = np.zeros(len(stack), dtype=bool)
+    for e, (info, line_no) in enumerate(zip(stack, edge_lines.tolist(), strict=True)):
+        where = "" if line_no else f"edge {e}: "  # built in Python, not read
+        line_no = line_no or None
+        if not np.isfinite(info).all():
+            raise InputError(f"{where}information matrix is not finite", path, line_no)
+        if is_positive_definite(info):
+            continue
+        if information_fix == "refuse":
+            raise InputError(
+                f"{where}information matrix is not positive definite ([posegraph] "
+                'information_fix = "nearest" or "isotropic" replaces '
+                "it)",
+                path,
+                line_no,
+            )
+        if np.linalg.eigvalsh(info)[-1] <= 0.0:
+            raise InputError(
+                f"{where}information matrix has no positive eigenvalue (the edge carries no information)",
+                path,
+                line_no,
+            )
+        bad[e] = True
+    if not bad.any():
+        return stack, None
+    stack[bad] = fixed_information(stack[bad], information_fix, dim)
+    return stack, bad
+
+
+def check_numbers(graph: PoseGraph) -> None:
+    """What the file readers refuse, for a graph built or edited in Python: vertices
+    and measurements must be finite and every information matrix finite and positive
+    definite (the readers' :func:`checked_information`; their replacements pass). gtsam
+    met NaN with a NaN cost or a bare RuntimeError, a negated matrix with ValueError.
+
+    Raises:
+        MeasurementError: naming the vertex, measurement or edge (row of the graph).
+    """
+    for what, rows in (("vertex", graph.vertices), ("measurement", graph.measurements)):
+        a = np.asarray(rows, dtype=np.float64)
+        bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1)
+        if bad.any():
+            raise MeasurementError(f"pose graph: {what} {int(np.argmax(bad))} is not finite")
+    info = np.array(graph.information, dtype=np.float64)
+    try:  # rows, not file lines: the graph may differ from its file
+        _, replaced = checked_information(info, np.zeros(len(info), np.int64), graph.dim, "nearest", None)
+    except InputError as exc:
+        raise MeasurementError(f"pose graph: {exc.reason}") from None
+    if replaced is not None:  # a reader replaces such a matrix and says so; solve does not
+        raise MeasurementError(
+            f"pose graph: edge {int(np.argmax(replaced))}: information matrix is not positive definite"
+        )

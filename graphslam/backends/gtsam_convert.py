@@ -16,11 +16,25 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from slamcore.errors import UnsupportedError
+from slamcore.errors import MeasurementError, UnsupportedError
 from slamcore.planar.records import Dataset, Estimate, LoopClosure, Observation, ObservationKind, Odometry
 
 #: Reorders ``[range, bearing]`` (ours) into ``[bearing, range]`` (gtsam's BearingRange).
 _RB_TO_BR = np.array([[0.0, 1.0], [1.0, 0.0]])
+
+
+#: gtsam's Symbol keeps its index in a key's low 56 bits (the top 8 hold the letter).
+SYMBOL_INDEX_LIMIT = 2**56
+
+
+def key_index(value: int, what: str) -> int:
+    """``value``, an int id (the records' rule), if a Symbol ``X(value)`` / ``L(value)``
+    can hold it: ``0 <= value < 2**56``. Else MeasurementError naming it: gtsam raised a
+    bare TypeError for a negative id and ValueError beyond. The records take any int64
+    (the filters and the pose-graph solver, which keys poses by row, take those)."""
+    if not 0 <= value < SYMBOL_INDEX_LIMIT:
+        raise MeasurementError(f"{what} {value}: this back end keys ids as gtsam symbols, 0 to 2**56 - 1")
+    return value
 
 
 def pose2(wTb: np.ndarray) -> gtsam.Pose2:

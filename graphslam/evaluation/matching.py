@@ -17,7 +17,7 @@ import numpy as np
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import non_rigid_rows
 
-__all__ = ["RIGID_TOL", "checked_delta", "common_poses"]
+__all__ = ["RIGID_TOL", "checked_delta", "checked_poses", "common_poses"]
 
 #: Largest deviation of a 3-D pose from a rigid transform (``R^T R - I`` and the
 #: bottom row, elementwise) accepted. Poses of files of 9 printed digits are rigid to
@@ -45,14 +45,16 @@ def _ids(ids, what: str) -> np.ndarray:
     return out
 
 
-def _poses(poses, pose_shape: tuple[int, ...], n: int, what: str) -> np.ndarray:
+def checked_poses(poses, pose_shape: tuple[int, ...], n: int, what: str, per: str = "ids") -> np.ndarray:
+    """``poses`` as float64 (n, *pose_shape), one per id (or stamp: ``per``); GraphSlamError
+    when not numbers, of another shape, not finite, or (4 x 4) not rigid."""
     try:
         p = np.asarray(poses, dtype=np.float64)
     except (TypeError, ValueError) as e:
         raise GraphSlamError(f"{what} poses must be numbers: {e}") from None
     if p.shape != (n, *pose_shape):
         raise GraphSlamError(
-            f"{what} poses must have shape ({n}, {', '.join(map(str, pose_shape))}) for {n} ids, "
+            f"{what} poses must have shape ({n}, {', '.join(map(str, pose_shape))}) for {n} {per}, "
             f"got {p.shape}"
         )
     if not np.all(np.isfinite(p)):
@@ -72,8 +74,8 @@ def common_poses(
             not of shape ``(len(ids), *pose_shape)``, not finite, or (4 x 4) not rigid.
     """
     e_ids, g_ids = _ids(est_ids, "estimate"), _ids(gt_ids, "truth")
-    est = _poses(est_poses, pose_shape, e_ids.size, "estimate")
-    gt = _poses(gt_poses, pose_shape, g_ids.size, "truth")
+    est = checked_poses(est_poses, pose_shape, e_ids.size, "estimate")
+    gt = checked_poses(gt_poses, pose_shape, g_ids.size, "truth")
     common, i_est, i_gt = np.intersect1d(e_ids, g_ids, assume_unique=True, return_indices=True)
     return common, est[i_est], gt[i_gt]
 

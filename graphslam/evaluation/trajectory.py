@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from graphslam.evaluation.alignment import STILL_TOL, collinear, principal_spreads, rotation_about_line
+from graphslam.evaluation.matching import checked_poses
 from graphslam.evaluation.spatial import align_umeyama
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.geometry import invert_pose
@@ -64,8 +65,11 @@ class EvalOptions:
     def __post_init__(self):
         if self.align not in ALIGN_METHODS:
             raise ConfigError(f"--align must be one of {', '.join(ALIGN_METHODS)}, got {self.align!r}")
+        n_align = self.n_align
+        if n_align is not None and (isinstance(n_align, bool) or not isinstance(n_align, (int, np.integer))):
+            raise ConfigError(f"--n-align must be a whole number of poses, got {n_align!r}")  # 3.5 was taken
         # 2 positions always lie on one line: the rotation about it is not determined
-        if self.n_align is not None and (self.n_align < 3 or self.align not in ("se3", "sim3")):
+        if n_align is not None and (n_align < 3 or self.align not in ("se3", "sim3")):
             raise ConfigError("--n-align needs --align se3 or sim3 and at least 3 poses")
         if not (np.isfinite(self.max_diff_s) and self.max_diff_s >= 0):
             raise ConfigError(f"--max-diff must be >= 0 seconds, got {self.max_diff_s}")
@@ -363,10 +367,21 @@ class TrajectoryEval:
         }
 
 
+def _count(stamps, poses) -> int:
+    """How many poses ``stamps`` stand for (all of ``poses`` when there are none)."""
+    return len(poses) if stamps is None else int(np.size(stamps))
+
+
 def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> TrajectoryEval:
-    """Associate, align and score (module doc). A stamp array of None pairs by index."""
-    ref_wTc = np.asarray(ref_wTc, dtype=np.float64)
-    est_wTc = np.asarray(est_wTc, dtype=np.float64)
+    """Associate, align and score (module doc). A stamp array of None pairs by index.
+
+    Raises:
+        GraphSlamError: poses not one per stamp, not finite (a NaN failed the SVD of the
+            fit), or not rigid (a scaled rotation was scored); no stamps matched.
+    """
+    # the checks the planar and spatial ATE/RPE apply (common_poses), one pose per stamp
+    ref_wTc = checked_poses(ref_wTc, (4, 4), _count(ref_t, ref_wTc), "reference", "stamps")
+    est_wTc = checked_poses(est_wTc, (4, 4), _count(est_t, est_wTc), "estimate", "stamps")
     if ref_t is None and est_t is None:
         n = min(len(ref_wTc), len(est_wTc))
         i_ref = i_est = np.arange(n)

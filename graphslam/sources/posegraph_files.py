@@ -401,7 +401,7 @@ def _assembled(lines: FileLines, path: Path, toro_noise: str, information_fix: s
     keep = ~self_edge
     edges, numbers, edge_lines = lines.edges[keep], lines.numbers[keep], lines.edge_lines[keep]
     sqrt = fmt == "toro" and toro_noise == "sqrt_information"
-    information, fixed = _checked_information(
+    information, fixed = pg.checked_information(
         information_matrices(fmt, dim, numbers[:, size:], sqrt), edge_lines, dim, information_fix, path
     )
     _check_declared(lines, edges, edge_lines, path)
@@ -495,48 +495,6 @@ def file_doubts(lines: FileLines, keep: np.ndarray, rotation: str) -> tuple[str,
                 "the measurement weighs double (a file concatenated twice?)"
             )
     return tuple(doubts)
-
-
-def _checked_information(
-    stack: np.ndarray, edge_lines: np.ndarray, dim: int, information_fix: str, path
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(M, D, D) information and the (M,) mask of the edges replaced (None if none).
-
-    One Cholesky of the stack passes a clean file (one by one it was half of
-    reading w10000); otherwise the edges are looked at one by one: a matrix
-    not finite, or without a positive eigenvalue, is an InputError at its
-    line, and so is any that is not positive definite under ``refuse``."""
-    try:
-        np.linalg.cholesky(stack)
-        if np.isfinite(stack).all():
-            return stack, None
-    except np.linalg.LinAlgError:
-        pass
-    bad = np.zeros(len(stack), dtype=bool)
-    for e, (info, line_no) in enumerate(zip(stack, edge_lines.tolist(), strict=True)):
-        if not np.isfinite(info).all():
-            raise InputError("information matrix is not finite", path, line_no)
-        if pg.is_positive_definite(info):
-            continue
-        if information_fix == "refuse":
-            raise InputError(
-                "information matrix is not positive definite ([posegraph] "
-                'information_fix = "nearest" or "isotropic" replaces '
-                "it)",
-                path,
-                line_no,
-            )
-        if np.linalg.eigvalsh(info)[-1] <= 0.0:
-            raise InputError(
-                "information matrix has no positive eigenvalue (the edge carries no information)",
-                path,
-                line_no,
-            )
-        bad[e] = True
-    if not bad.any():
-        return stack, None
-    stack[bad] = pg.fixed_information(stack[bad], information_fix, dim)
-    return stack, bad
 
 
 def _first_unknown(pairs: np.ndarray, known: np.ndarray) -> tuple[int, int] | None:

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import enum
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from slamcore.errors import MeasurementError
+from slamcore.errors import MeasurementError, quote
 from slamcore.planar.sighting_correlation import SightingCorrelation
 
 #: Relative tolerance on covariance symmetry (file formats round to ~6 digits).
@@ -79,23 +80,47 @@ class ObservationKind(enum.Enum):
 ID_LIMIT = 2**63
 
 
+def checked_id(value, what: str, name: str = "id") -> int:
+    """``value`` as an int id: an integer (a whole float is taken as one) within int64;
+    MeasurementError naming ``what`` and ``name`` otherwise. A fractional id silently
+    became another landmark's, a string "7" landmark 7."""
+    if type(value) is int and -ID_LIMIT <= value < ID_LIMIT:  # the common case, per sighting
+        return value
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float, np.floating)):
+        raise MeasurementError(f"{what}: {name} must be an integer, got {quote(value)}")
+    if not (math.isfinite(value) and value == int(value) and -ID_LIMIT <= int(value) < ID_LIMIT):
+        raise MeasurementError(f"{what}: {name} must be an integer within int64, got {quote(value)}")
+    return int(value)
+
+
+def checked_stamp(value, what: str) -> float | None:
+    """A time stamp, s: None, or a finite real number as a float; MeasurementError
+    naming ``what`` otherwise (a NaN first stamp turned the sighting-correlation model
+    off, a string failed later inside a filter)."""
+    if value is None or (type(value) is float and math.isfinite(value)):  # the common case
+        return value
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise MeasurementError(
+            f"{what}: stamp_s must be None or a finite number of seconds, got {quote(value)}"
+        )
+    return float(value)
+
+
 def _check_ids(record, names: tuple[str, ...], what: str, optional: tuple[str, ...] = ()) -> None:
-    """In a frozen record's ``__post_init__``: each id field an integer (a whole float is
-    taken as one) within int64, or None where ``optional``; MeasurementError otherwise.
-    A fractional id silently became another landmark's, a string "7" landmark 7."""
+    """In a frozen record's ``__post_init__``: each id field through :func:`checked_id`,
+    or None where ``optional``."""
     for name in names:
         value = getattr(record, name)
         if value is None and name in optional:
             continue
-        if type(value) is int and -ID_LIMIT <= value < ID_LIMIT:  # the common case, per sighting
-            continue
-        if isinstance(value, (bool, np.bool_)) or not isinstance(
-            value, (int, np.integer, float, np.floating)
-        ):
-            raise MeasurementError(f"{what}: {name} must be an integer, got {value!r}")
-        if not (math.isfinite(value) and value == int(value) and -ID_LIMIT <= int(value) < ID_LIMIT):
-            raise MeasurementError(f"{what}: {name} must be an integer within int64, got {value!r}")
-        object.__setattr__(record, name, int(value))
+        object.__setattr__(record, name, checked_id(value, what, name))
+
+
+def _check_distinct(record, what: str) -> None:
+    """A relative constraint of a pose on itself constrains nothing (its factor is
+    constant) and no filter can take it: refused (MeasurementError) where it is made."""
+    if record.from_id == record.to_id:
+        raise MeasurementError(f"{what}: links pose {record.from_id} to itself, which constrains nothing")
 
 
 def _check_mean_and_covariance(record, field: str, n: int, what: str) -> None:
@@ -158,6 +183,7 @@ class Observation:
     def __post_init__(self):
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
         _check_ids(self, ("pose_id", "landmark_id"), what, optional=("landmark_id",))
+        object.__setattr__(self, "stamp_s", checked_stamp(self.stamp_s, what))
         size = self.kind.size
         _check_mean_and_covariance(self, "z", size, what)
         if self.kind in (ObservationKind.RANGE_BEARING, ObservationKind.RANGE) and self.z[0] <= 0.0:
@@ -185,12 +211,16 @@ class LoopClosure:
     def __post_init__(self):
         what = f"loop closure {self.from_id}->{self.to_id}"
         _check_ids(self, ("from_id", "to_id"), what)
+        _check_distinct(self, what)
         _check_mean_and_covariance(self, "delta", 3, what)
 
 
 def _checked_batch(values, shape: tuple[int, ...], what: str) -> np.ndarray:
     """(N, *shape) float64, read-only, finite; MeasurementError naming the first bad row."""
-    a = np.array(values, dtype=np.float64).reshape((-1,) + shape)
+    try:
+        a = np.array(values, dtype=np.float64).reshape((-1,) + shape)
+    except (TypeError, ValueError) as exc:  # "x", ragged rows: numpy's words, one line
+        raise MeasurementError(f"{what}s: not an array of numbers of shape (N, {shape}): {exc}") from None
     bad = ~np.isfinite(a).reshape(len(a), -1).all(axis=1) if len(a) else np.zeros(0, bool)
     if bad.any():
         raise MeasurementError(f"{what} {int(np.argmax(bad))}: non-finite value")
@@ -223,6 +253,20 @@ def _positive(m: np.ndarray) -> bool:
         return False
 
 
+def _batch_ids(values, n: int, what: str, name: str) -> list[int]:
+    """The ids of ``n`` rows as ints, by :func:`checked_id`'s rule: at numpy speed when
+    they are an integer array within int64, else row by row (MeasurementError naming the
+    row, or the count when it is not ``n``)."""
+    a = np.asarray(values)
+    if a.ndim == 1 and a.dtype.kind in "iu" and (a.dtype.kind == "i" or not a.size or a.max() < ID_LIMIT):
+        ids = a.tolist()
+    else:
+        ids = [checked_id(v, f"{what} {k}", name) for k, v in enumerate(values)]
+    if len(ids) != n:
+        raise MeasurementError(f"{what}s: {len(ids)} values of {name} for {n} rows")
+    return ids
+
+
 def _bare(cls, **fields):
     """A record whose fields were checked in bulk (no second check per record)."""
     obj = object.__new__(cls)
@@ -236,9 +280,11 @@ def odometry_batch(from_ids, to_ids, deltas, covariances) -> list[Odometry]:
     names the first bad row; the deltas and covariances are views of read-only arrays."""
     d = _checked_batch(deltas, (3,), "odometry row")
     c = _checked_covariances(covariances, 3, "odometry row")
+    a = _batch_ids(from_ids, len(d), "odometry row", "from_id")
+    b = _batch_ids(to_ids, len(d), "odometry row", "to_id")
     return [
-        _bare(Odometry, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k])
-        for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))
+        _bare(Odometry, from_id=i, to_id=j, delta=d[k], covariance=c[k])
+        for k, (i, j) in enumerate(zip(a, b, strict=True))
     ]
 
 
@@ -247,11 +293,14 @@ def loop_closure_batch(from_ids, to_ids, deltas, covariances, source: str = "dat
     :func:`odometry_batch`)."""
     d = _checked_batch(deltas, (3,), "loop closure row")
     c = _checked_covariances(covariances, 3, "loop closure row")
+    a = _batch_ids(from_ids, len(d), "loop closure row", "from_id")
+    b = _batch_ids(to_ids, len(d), "loop closure row", "to_id")
+    same = [k for k, (i, j) in enumerate(zip(a, b, strict=True)) if i == j]
+    if same:  # as the constructor: a pose tied to itself constrains nothing
+        raise MeasurementError(f"loop closure row {same[0]}: links pose {a[same[0]]} to itself")
     return [
-        _bare(
-            LoopClosure, from_id=int(a), to_id=int(b), delta=d[k], covariance=c[k], score=None, source=source
-        )
-        for k, (a, b) in enumerate(zip(from_ids, to_ids, strict=True))
+        _bare(LoopClosure, from_id=i, to_id=j, delta=d[k], covariance=c[k], score=None, source=source)
+        for k, (i, j) in enumerate(zip(a, b, strict=True))
     ]
 
 
@@ -273,12 +322,16 @@ def _observations(pose_ids, landmark_ids, z, c, kind, stamps_s, correlation) -> 
     bad = z[:, 0] <= 0.0
     if bad.any():
         raise MeasurementError(f"observation row {int(np.argmax(bad))}: range must be positive")
-    stamps = [None] * len(z) if stamps_s is None else [float(t) for t in stamps_s]
+    stamps = [None] * len(z) if stamps_s is None else _checked_batch(stamps_s, (), "observation row").tolist()
+    if len(stamps) != len(z):
+        raise MeasurementError(f"observation rows: {len(stamps)} stamps for {len(z)} rows")
+    pose_ids = _batch_ids(pose_ids, len(z), "observation row", "pose_id")
+    landmark_ids = _batch_ids(landmark_ids, len(z), "observation row", "landmark_id")
     return [
         _bare(
             Observation,
-            pose_id=int(p),
-            landmark_id=int(j),
+            pose_id=p,
+            landmark_id=j,
             z=z[k],
             covariance=c[k],
             kind=kind,
@@ -318,6 +371,7 @@ class PoseSighting:
     def __post_init__(self):
         what = f"sighting of pose {self.to_id} from pose {self.from_id}"
         _check_ids(self, ("from_id", "to_id"), what)
+        _check_distinct(self, what)
         _check_mean_and_covariance(self, "z", 2, what)
         if self.z[0] <= 0.0:
             raise MeasurementError(f"{what}: range must be positive, got {self.z[0]}")

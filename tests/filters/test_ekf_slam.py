@@ -336,20 +336,36 @@ def test_provisional_list_delays_entry_known_and_unknown():
         assert ekf.associations() == [want]  # entered at the 3rd sighting, updated at the 4th
 
 
-def test_known_association_by_signature_then_unknown_fallback():
+def test_known_association_by_signature():
     R = np.diag(Z_SIGMA**2)
     ekf = EkfSlam()
     ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
-    m_sig, m_anon = np.array([3.0, 1.0]), np.array([-2.0, 4.0])
-    z_sig, z_anon = models.observe(np.zeros(3), m_sig), models.observe(np.zeros(3), m_anon)
-    ekf.update([Observation(0, None, z_sig, R, signature=40), Observation(0, None, z_anon, R)])
-    # the signature becomes the id; the anonymous one goes through gating/JCBB and gets a fresh id
-    assert ekf.associations() == [40, 41]
+    m_sig = np.array([3.0, 1.0])
+    ekf.update([Observation(0, None, models.observe(np.zeros(3), m_sig), R, signature=40)])
+    assert ekf.associations() == [40]  # the signature becomes the id
     ekf.predict(Odometry(0, 1, np.array([0.2, 0.0, 0.0]), np.eye(3) * 1e-4), 1)
-    p = models.observe(ekf.current_pose(), m_anon)
-    ekf.update([Observation(1, None, models.observe(np.array([0.2, 0, 0]), m_sig), R, signature=40),
-                Observation(1, None, p, R)])
-    assert ekf.associations() == [40, 41] and ekf.num_landmarks == 2
+    ekf.update([Observation(1, None, models.observe(np.array([0.2, 0, 0]), m_sig), R, signature=40)])
+    assert ekf.associations() == [40] and ekf.num_landmarks == 1
+
+
+@pytest.mark.parametrize("anonymous_first", [True, False])
+def test_known_association_refuses_sightings_with_and_without_ids(anonymous_first):
+    # the anonymous landmark took the next free id (2), and a later given landmark 2 was
+    # gated as a re-sighting of it: it never entered the map
+    R = np.diag(Z_SIGMA**2)
+    given, anonymous = Observation(0, 1, [5.0, 0.0], R), Observation(0, None, [5.0, np.pi / 2], R)
+    ekf = EkfSlam()
+    ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    with pytest.raises(MeasurementError, match="with and without landmark ids"):
+        ekf.update([given, anonymous])
+    ekf.update([anonymous] if anonymous_first else [given])
+    with pytest.raises(MeasurementError, match="with and without landmark ids"):
+        ekf.update([given] if anonymous_first else [anonymous])
+    # all anonymous is unknown association, as with association = "unknown"
+    ekf = EkfSlam()
+    ekf.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    ekf.update([anonymous, Observation(0, None, [5.0, 0.0], R)])
+    assert ekf.num_landmarks == 2
 
 
 # ---------------------------------------------------------------- JCBB
@@ -410,7 +426,7 @@ def test_bad_input_is_refused():
         ekf.update([Observation(0, 1, [2.0, 0.1], R, kind=ObservationKind.PIXEL)])
     assert ekf.num_landmarks == 0  # nothing applied from a refused scan
     with pytest.raises(UnsupportedError):
-        ekf.add_loop_closure(LoopClosure(0, 0, np.zeros(3), np.eye(3) * 1e-2))
+        ekf.add_loop_closure(LoopClosure(0, 1, np.zeros(3), np.eye(3) * 1e-2))
     assert not EkfSlam.supports_loop_closures and EkfSlam.name == "ekf"
 
 

@@ -125,7 +125,7 @@ def test_names_and_loop_closures_refused():
         assert not b.supports_loop_closures
         b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
         with pytest.raises(UnsupportedError):
-            b.add_loop_closure(LoopClosure(0, 0, np.zeros(3), np.eye(3)))
+            b.add_loop_closure(LoopClosure(0, 1, np.zeros(3), np.eye(3)))
 
 
 def test_odometry_must_touch_current_pose():

@@ -308,3 +308,39 @@ def test_no_landmarks_and_nan_predictions():
     z = np.array([[np.nan, 10.0], [50.0, 50.0]])
     r = ActiveSearch().search(img, z, np.array([np.eye(2)] * 2), prev_image=img, prev_xy=np.nan_to_num(z))
     assert r.searched.tolist() == [False, True] and r.found[1]
+
+
+def _shifted_pair(n=9):
+    """A textured frame, the next one shifted by (3, 2) px, ``n`` points on a grid in both."""
+    prev = noise_image(11, (200, 300))
+    cur = np.roll(prev, (2, 3), axis=(0, 1))
+    xy = np.array([[60.0 + 30 * (k % 5), 60.0 + 40 * (k // 5)] for k in range(n)])
+    return prev, cur, xy, xy + [3.0, 2.0], np.array([np.eye(2) * 16.0] * n)
+
+
+def test_search_refuses_points_and_patches_it_cannot_use():
+    prev, cur, xy, truth, S = _shifted_pair()
+    with pytest.raises(InputError, match="prev_xy"):  # (2, N): was reshaped into scrambled points
+        ActiveSearch().search(cur, truth, S, prev_image=prev, prev_xy=xy.T)
+    with pytest.raises(InputError, match="prev_xy"):  # was an IndexError once searched
+        ActiveSearch(predict_appearance=True).search(
+            cur, truth, S, prev_image=prev, prev_xy=xy[:3], affine=np.array([np.eye(2)] * len(xy))
+        )
+    with pytest.raises(InputError, match="patches"):
+        ActiveSearch().search(cur, truth, S, patches=[np.zeros((11, 11)), np.zeros((9, 9))])
+    # a list of patches is the array it lists (was an AttributeError)
+    listed = ActiveSearch().search(cur, truth, S, patches=list(extract_patches(prev, xy, 11)))
+    assert listed.found.all()
+
+
+def test_a_repredict_answer_of_another_length_is_refused():
+    prev, cur, xy, truth, S = _shifted_pair()
+    asked = []
+
+    def one_row(found, uv, pending):
+        asked.append(len(pending))
+        return np.array([[150.0, 100.0]]), np.array([np.eye(2) * 16.0])
+
+    with pytest.raises(InputError, match="repredict returned 1 predictions"):  # was broadcast
+        ActiveSearch(order="sequential").search(cur, truth, S, prev_image=prev, prev_xy=xy, repredict=one_row)
+    assert asked and asked[0] > 1

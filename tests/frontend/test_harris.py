@@ -278,3 +278,16 @@ def test_fixed_vs_float_on_noise_texture():
                                   HarrisDetector(cfg, arithmetic="fixed").detect(img))
     assert total > 100
     assert same / total >= MIN_IDENTICAL_SHARE
+
+
+def test_structure_response_float_checks_its_input_as_smooth_float_does():
+    img = np.random.default_rng(2).uniform(0, 255, size=(40, 50))
+    nan = img.copy()
+    nan[20, 25] = np.nan  # spread over 45 pixels of the response before
+    for bad in (np.dstack([img] * 3), nan, np.zeros((0, 10))):  # colour came back (H, W, 3)
+        with pytest.raises(InputError, match="image"):
+            structure_response_float(bad, 0.04)
+    # an int64 or a nested list was OpenCV's error; they are numbers like any image
+    as_int = structure_response_float(img.astype(np.int64), 0.04)
+    np.testing.assert_array_equal(as_int, structure_response_float(img.astype(np.int64).astype(float), 0.04))
+    assert structure_response_float(img.tolist(), 0.04).shape == img.shape

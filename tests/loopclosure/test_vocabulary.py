@@ -7,7 +7,7 @@ import gzip
 import numpy as np
 import pytest
 
-from slamcore.errors import ConfigError, InputError
+from slamcore.errors import ConfigError, GraphSlamError, InputError, NotFittedError, VocabularyError
 from loopclosure.descriptor_distance import hamming_distances
 from loopclosure.vocabulary import FlatVocabulary, VocabularyTree, load_vocabulary
 from loopclosure.vocabulary_file import FORMAT_VERSION
@@ -269,3 +269,28 @@ def test_another_tools_vocabulary_is_named_not_called_damaged(tmp_path, name, co
     message = str(err.value)
     assert f"not a graphslam vocabulary: the file is {what}" in message and "vocab train" in message
     assert "damaged" not in message
+
+
+@pytest.mark.parametrize("make", [FlatVocabulary, VocabularyTree])
+def test_unfitted_vocabulary_says_so_in_the_family_and_as_sklearn_does(make):
+    with pytest.raises(NotFittedError, match="not fitted") as err:
+        make().transform(np.zeros((2, 32), np.uint8))
+    # scikit-learn's NotFittedError is both; code that caught those keeps working
+    assert isinstance(err.value, GraphSlamError) and isinstance(err.value, ValueError)
+    assert isinstance(err.value, AttributeError)
+
+
+@pytest.mark.parametrize("make", [lambda: FlatVocabulary(n_words=3), lambda: VocabularyTree(branching=2, depth=2)])
+def test_fit_refuses_nan_and_inf_descriptors(make):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(50, 8)).astype(np.float32)
+    for bad in (np.full_like(x, np.nan), np.vstack([x, np.full((1, 8), np.inf, np.float32)])):
+        # the tree fitted all-NaN descriptors into one word; sklearn's own ValueError otherwise
+        with pytest.raises(VocabularyError, match="finite"):
+            make().fit(bad)
+
+
+def test_fit_errors_are_of_the_family_and_value_errors():
+    with pytest.raises(VocabularyError) as err:
+        FlatVocabulary(n_words=10).fit(np.zeros((3, 32), np.uint8))
+    assert isinstance(err.value, GraphSlamError) and isinstance(err.value, ValueError)

@@ -70,6 +70,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from filters.planar_inputs import initial_pose, scan_list
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2_config import Isam2Config
@@ -140,6 +141,9 @@ class Isam2Backend(Backend):
     def initialize(self, pose_id, wTb, covariance):
         if self._pose_ids:
             raise GraphSlamError("isam2: initialize() called twice")
+        # the filters' checks: a (4,) pose lost its 4th value, a 2x2 covariance was gtsam's RuntimeError
+        pose_id, wTb, covariance = initial_pose(pose_id, wTb, covariance, "isam2 initial pose")
+        conv.key_index(pose_id, "isam2: pose")
         self._graph.add(conv.prior_factor(pose_id, wTb, covariance))
         self._values.insert(X(pose_id), conv.pose2(wTb))
         self._add_pose_id(pose_id)
@@ -151,6 +155,7 @@ class Isam2Backend(Backend):
             self._unknown.associator.set_error_dof(error_dof(sensor_field))
 
     def predict(self, odometry: Odometry, pose_id: int) -> None:
+        self._require_init()
         self._flush()
         if pose_id in self._pose_set:
             raise GraphSlamError(f"isam2: pose {pose_id} added twice")
@@ -163,6 +168,7 @@ class Isam2Backend(Backend):
                 f"isam2: odometry {odometry.from_id}->{odometry.to_id} does not link new pose "
                 f"{pose_id} to a known pose"
             )
+        conv.key_index(pose_id, "isam2: pose")
         self._graph.add(conv.between_factor(odometry))
         self._values.insert(X(pose_id), wTb)
         if self.config.loop_closure_gate > 0:
@@ -170,6 +176,8 @@ class Isam2Backend(Backend):
         self._add_pose_id(pose_id)
 
     def update(self, observations: Sequence[Observation]) -> None:
+        self._require_init()
+        observations = scan_list(observations, "isam2")
         if self._unknown is not None:
             self._last_associations = self._update_unknown(self._unknown, observations)
             return
@@ -181,7 +189,7 @@ class Isam2Backend(Backend):
                 continue
             if obs.pose_id not in self._pose_set:
                 raise GraphSlamError(f"isam2: observation from unknown pose {obs.pose_id}")
-            lid = obs.landmark_id
+            lid = conv.key_index(obs.landmark_id, "isam2: landmark")
             if obs.kind is ObservationKind.RANGE:
                 self._add_range(obs, lid)
                 assoc.append(lid)
@@ -303,6 +311,7 @@ class Isam2Backend(Backend):
         return out
 
     def estimate(self, with_covariances: bool = False) -> Estimate:
+        self._require_init()
         values = self._values_now()
         est = conv.values_to_estimate(values, self._pose_ids, self._landmark_ids)
         if not with_covariances:
@@ -313,6 +322,7 @@ class Isam2Backend(Backend):
         return Estimate(est.pose_ids, est.wTb, est.landmark_ids, est.landmarks_w, pcov, lcov)
 
     def finalize(self, with_covariances: bool = False) -> Estimate:
+        self._require_init()
         self._flush()
         if self._held_back and self._polished is None:
             self._readmit_held_back()
@@ -333,9 +343,8 @@ class Isam2Backend(Backend):
         return self.estimate(with_covariances=with_covariances)
 
     def current_pose_covariance(self) -> np.ndarray | None:
+        self._require_init()
         self._flush()
-        if not self._pose_ids:
-            return None
         return np.asarray(self._isam.marginalCovariance(X(self._pose_ids[-1])))
 
     def landmark_covariances(self) -> np.ndarray:
@@ -358,6 +367,7 @@ class Isam2Backend(Backend):
 
     def current_pose(self) -> np.ndarray:
         """(3,) latest pose, read cheaply (no full estimate)."""
+        self._require_init()
         self._flush()
         key = X(self._pose_ids[-1])
         if self._polished is not None:
@@ -565,6 +575,11 @@ class Isam2Backend(Backend):
         self._landmark_set.add(lid)
         for o in buffered:
             self._graph.add(conv.range_factor(o, lid, kernel, k))
+
+    def _require_init(self) -> None:
+        """As the filters: an empty estimate's current pose was a bare IndexError."""
+        if not self._pose_ids:
+            raise GraphSlamError("isam2: initialize() must be called first")
 
     def _add_pose_id(self, pose_id: int) -> None:
         self._pose_ids.append(pose_id)

@@ -32,7 +32,7 @@ from graphslam.backends.posegraph import route
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.schedule import schedule
 from slamcore.errors import GraphSlamError
-from slamcore.posegraph import PoseGraph
+from slamcore.posegraph import PoseGraph, check_numbers
 
 if TYPE_CHECKING:
     from graphslam.backends.posegraph.certificate import Certificate
@@ -150,6 +150,7 @@ def solve(
     after the iteration it came in (:attr:`SolveResult.stopped`).
     """
     config = config or PoseGraphConfig()
+    check_numbers(graph)  # a graph built in Python was trusted: NaN cost, bare gtsam errors
     if solver not in SOLVERS:
         raise GraphSlamError(f"unknown pose-graph solver {solver!r} (available: {', '.join(SOLVERS)})")
     if solver == "auto":

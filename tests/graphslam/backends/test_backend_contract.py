@@ -8,8 +8,10 @@ import pytest
 from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from slamcore.planar.backend import Backend
-from slamcore.errors import GraphSlamError, UnsupportedError
-from slamcore.planar.records import LoopClosure, Odometry
+from dataclasses import replace
+
+from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
+from slamcore.planar.records import LoopClosure, Observation, Odometry
 from tests.worlds import assert_poses_close, square_world
 
 #: Noise-free data must be reproduced to this by deterministic back ends, m / rad.
@@ -23,8 +25,12 @@ NOISY_POSE_TOL_M = 0.3
 
 #: name -> tolerance of the noise-free reproduction test; every back end of the
 #: registry must appear here, so that a new one cannot skip the contract.
-EXACT = {"isam2": EXACT_TOL, "ekf": EXACT_TOL,
-         "fastslam1": PARTICLE_EXACT_TOL, "fastslam2": PARTICLE_EXACT_TOL}
+EXACT = {
+    "isam2": EXACT_TOL,
+    "ekf": EXACT_TOL,
+    "fastslam1": PARTICLE_EXACT_TOL,
+    "fastslam2": PARTICLE_EXACT_TOL,
+}
 
 
 def test_every_registered_backend_runs_the_contract():
@@ -138,3 +144,40 @@ def test_loop_closure_reduces_error_when_supported(make_backend):
     e_with = np.linalg.norm(with_lc.wTb[-1, :2] - truth[-1, :2])
     e_without = np.linalg.norm(without.wTb[-1, :2] - truth[-1, :2])
     assert e_with < e_without
+
+
+def test_calls_before_initialize_are_refused(make_backend):
+    b = make_backend()
+    for call in (b.estimate, b.finalize, b.current_pose):
+        with pytest.raises(GraphSlamError, match=r"initialize\(\) must"):
+            call()
+
+
+def test_update_takes_a_list_of_observations(make_backend):
+    b = make_backend()
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    with pytest.raises(MeasurementError, match="update takes a list of observations"):
+        b.update(Observation(0, 1, [2.0, 0.1], np.eye(2) * 0.01))
+
+
+#: what initialize() refuses, all back ends alike (filters.planar_inputs.initial_pose)
+BAD_PRIORS = {
+    "pose of 4 values": (0, [1.0, 2.0, 0.1, 9.0], np.eye(3) * 1e-6),
+    "NaN in the pose": (0, [np.nan, 0.0, 0.0], np.eye(3) * 1e-6),
+    "2x2 covariance": (0, np.zeros(3), np.eye(2) * 1e-6),
+    "indefinite covariance": (0, np.zeros(3), np.diag([1e-6, -1e-6, 1e-6])),
+    "fractional pose id": (2.7, np.zeros(3), np.eye(3) * 1e-6),
+    "pose id as text": ("5", np.zeros(3), np.eye(3) * 1e-6),
+}
+
+
+@pytest.mark.parametrize("bad", sorted(BAD_PRIORS))
+def test_initialize_refuses_a_bad_prior(make_backend, bad):
+    with pytest.raises(MeasurementError, match="initial pose"):
+        make_backend().initialize(*BAD_PRIORS[bad])
+
+
+def test_run_refuses_a_dataset_with_a_bad_prior(make_backend):
+    ds = square_world(noise=False, loop_closure=False).truncated(3)
+    with pytest.raises(MeasurementError, match="covariance is not positive definite"):
+        pipeline.run(replace(ds, prior_covariance=-np.eye(3)), make_backend())

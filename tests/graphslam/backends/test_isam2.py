@@ -9,10 +9,10 @@ import pytest
 from slamcore.planar.geometry import observe_jacobians
 from graphslam.backends import gtsam_convert as conv
 from graphslam.pipelines import planar as pipeline
-from slamcore.errors import ConfigError
+from slamcore.errors import ConfigError, MeasurementError
 from graphslam.backends.planar.isam2 import Isam2Backend
 from graphslam.backends.planar.isam2_config import Isam2Config
-from slamcore.planar.records import Estimate
+from slamcore.planar.records import Estimate, Observation, Odometry
 from tests.worlds import assert_poses_close, square_world
 
 #: Incremental with default relinearisation (threshold 0.1) vs batch optimum:
@@ -30,8 +30,13 @@ def batch_lm(ds):
     ids, _ = ds.ground_truth()
     _, odo = pipeline.dead_reckoning(ds)
     init = conv.estimate_values(
-        Estimate(ids, odo, np.array(sorted(ds.landmarks_true)),
-                          np.array([ds.landmarks_true[j] for j in sorted(ds.landmarks_true)])))
+        Estimate(
+            ids,
+            odo,
+            np.array(sorted(ds.landmarks_true)),
+            np.array([ds.landmarks_true[j] for j in sorted(ds.landmarks_true)]),
+        )
+    )
     return graph, gtsam.LevenbergMarquardtOptimizer(graph, init).optimize()
 
 
@@ -42,8 +47,9 @@ def test_matches_batch_lm(seed):
     graph, optimum = batch_lm(ds)
     gauss = {"observation_kernel": "none"}
     inc = pipeline.run(ds, Isam2Backend(Isam2Config(polish=False, **gauss))).estimate
-    full = pipeline.run(ds, Isam2Backend(Isam2Config(polish=False, relinearize_threshold=1e-9,
-                                                     relinearize_skip=1, **gauss))).estimate
+    full = pipeline.run(
+        ds, Isam2Backend(Isam2Config(polish=False, relinearize_threshold=1e-9, relinearize_skip=1, **gauss))
+    ).estimate
     pol_backend = Isam2Backend(Isam2Config(polish=True, **gauss))
     pol = pipeline.run(ds, pol_backend).estimate
     ref = conv.values_to_estimate(optimum, inc.pose_ids, inc.landmark_ids)
@@ -95,7 +101,8 @@ def test_prediction_jacobian_matches_filter_model():
         from gtsam.symbol_shorthand import L, X
 
         P = marg.jointMarginalCovariance(
-            gtsam.KeyVector([X(int(est.pose_ids[-1])), L(int(pred.landmark_id))])).fullMatrix()
+            gtsam.KeyVector([X(int(est.pose_ids[-1])), L(int(pred.landmark_id))])
+        ).fullMatrix()
         R = next(o.covariance for f in ds.frames for o in f.observations)
         np.testing.assert_allclose(pred.innovation_covariance, H @ P @ H.T + R, rtol=1e-6, atol=1e-12)
 
@@ -105,3 +112,17 @@ def test_config_validation():
         Isam2Config(relinearize_threshold=0)
     with pytest.raises(ConfigError):
         Isam2Config(relinearize_skip=0)
+
+
+def test_ids_a_gtsam_symbol_cannot_hold_are_refused_by_name():
+    # the records take any int64 (the filters use them); gtsam's X()/L() raised bare
+    # TypeError (negative) and ValueError (2**56 and beyond)
+    with pytest.raises(MeasurementError, match="pose -1"):
+        Isam2Backend().initialize(-1, np.zeros(3), np.eye(3) * 1e-6)
+    b = Isam2Backend()
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-6)
+    with pytest.raises(MeasurementError, match=f"pose {2**56}"):
+        b.predict(Odometry(0, 2**56, [1.0, 0, 0], np.eye(3) * 0.01), 2**56)
+    for lid in (-5, 2**60):
+        with pytest.raises(MeasurementError, match=f"landmark {lid}"):
+            b.update([Observation(0, lid, [2.0, 0.1], np.eye(2) * 0.01)])

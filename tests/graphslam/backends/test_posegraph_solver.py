@@ -3,6 +3,8 @@ the registry, the GTSAM optimum, initialisers, and the factorisation fallback.""
 
 from __future__ import annotations
 
+import dataclasses
+
 import gtsam
 import numpy as np
 import pytest
@@ -12,7 +14,7 @@ from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import solve
 from graphslam.sources.posegraph_files import read_pose_graph_file
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, MeasurementError
 from slamcore.posegraph import params_to_matrix
 from tests.posegraphs import edges_with_closures, graph_lines, square_walk, torus, write
 
@@ -173,3 +175,25 @@ def test_gnc_rejects_a_false_closure(tmp_path):
     assert res.rejected[closures].tolist() == [False, False, False, True]
     T = params_to_matrix(res.params, "angle")
     assert np.abs(T[:, :2, 2] - np.array([p.translation() for p in truth])).max() < 0.1
+
+
+def _edited(graph, field, row, value):
+    """``graph`` with one row of ``field`` replaced, as a caller editing it in Python would."""
+    a = getattr(graph, field).copy()
+    a[row] = value
+    return dataclasses.replace(graph, **{field: a})
+
+
+@pytest.mark.parametrize("solver", ["isam2", "batch", "auto"])
+def test_solve_refuses_a_graph_edited_into_numbers_no_file_reader_takes(tmp_path, solver):
+    g, _ = _graph(tmp_path, 2)
+    cases = {  # before: a NaN final cost, bare RuntimeError or ValueError, non-finite params
+        "edge 5: information matrix is not finite": _edited(g, "information", 5, np.nan),
+        "edge 5: information matrix has no positive eigenvalue": _edited(g, "information", 5, -g.information[5]),
+        "edge 5: information matrix is not positive definite": _edited(g, "information", 5, np.diag([1.0, -1, 1])),
+        "measurement 3 is not finite": _edited(g, "measurements", 3, np.inf),
+        "vertex 2 is not finite": _edited(g, "vertices", 2, np.nan),
+    }
+    for message, bad in cases.items():
+        with pytest.raises(MeasurementError, match=message):
+            solve(bad, PoseGraphConfig(), solver)

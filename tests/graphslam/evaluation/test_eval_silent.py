@@ -24,6 +24,7 @@ def _tum(path, stamps, wTc):
 
 # 1. duplicated / unsorted timestamps
 
+
 def test_duplicated_timestamp_is_refused_with_file_and_lines(tmp_path, capsys):
     gt, est = tr.write_pair(tmp_path, "tum")
     lines = est.read_text().splitlines()
@@ -94,6 +95,7 @@ def test_positions_that_never_move_are_refused():
 
 # 3. a rotation block that is not a rotation
 
+
 @pytest.mark.parametrize("block", [2 * np.eye(3), np.diag([1.0, 1.0, -1.0])])
 def test_kitti_non_rotation_refused_with_line(tmp_path, capsys, block):
     t, wTc = tr.trajectory(5, False)
@@ -115,6 +117,7 @@ def test_kitti_non_rotation_refused_with_line(tmp_path, capsys, block):
 
 # 4. a times file that does not increase
 
+
 def test_times_all_zero_refused_with_line(tmp_path, capsys):
     t, wTc = tr.trajectory(50, False)
     kitti = tr.write(tmp_path / "k.txt", "kitti", t, wTc)
@@ -126,6 +129,7 @@ def test_times_all_zero_refused_with_line(tmp_path, capsys):
 
 
 # 5. a reference (or estimate) that never moves
+
 
 @pytest.mark.parametrize("align", ["sim3", "se3"])
 def test_static_reference_refused(tmp_path, capsys, align):
@@ -161,6 +165,7 @@ def test_umeyama_sim3_onto_a_point_refused():
 
 # 6. matched poses: counted, shared and warned about
 
+
 def test_partial_truth_counts_and_warns(tmp_path, capsys):
     t, wTc = tr.trajectory(400, False)
     est = _tum(tmp_path / "est.txt", t, wTc)
@@ -175,6 +180,7 @@ def test_partial_truth_counts_and_warns(tmp_path, capsys):
 
 
 # 7. sequence folders whose stamps do not increase
+
 
 def _kitti_folder(tmp_path, times: str):
     folder = tmp_path / "07"
@@ -211,8 +217,10 @@ def test_a_run_scored_on_under_half_its_poses_says_so(tmp_path, capsys):
     part = tmp_path / "part.tum"
     part.write_text("\n".join(lines[:50]) + "\n")
     out = tmp_path / "o"
-    assert main(["run", "--max-steps", "400", "--rerun", "off", "--ground-truth", str(part),
-                 "--out", str(out)]) == 0
+    assert (
+        main(["run", "--max-steps", "400", "--rerun", "off", "--ground-truth", str(part), "--out", str(out)])
+        == 0
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert m["ate_poses"] < 0.5 * 400
     assert any("under half the run" in w for w in m["warnings"])
@@ -228,3 +236,34 @@ def test_an_estimate_that_pairs_too_few_poses_is_named(tmp_path, capsys):
     code, _, err = tr.run_eval(tmp_path, capsys, gt, one)
     assert code == 2
     tr.one_error(err, f"{one}:", "only 1 matched pose(s)", f"scored against {gt}")
+
+
+def _line_of_poses(n: int) -> np.ndarray:
+    """(n, 4, 4) rigid poses along a wavy line (an se3 fit is determined)."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3], T[:, 1, 3] = np.arange(n), np.sin(np.arange(n))
+    return T
+
+
+def _not_scored(ref_t, ref, est_t, est, options=None):
+    with pytest.raises(GraphSlamError):
+        evaluate(ref_t, ref, est_t, est, options or EvalOptions())
+
+
+def test_evaluate_refuses_what_is_no_trajectory_instead_of_scoring_it():
+    ref, t = _line_of_poses(20), np.arange(20) * 0.1
+    nan = ref.copy()
+    nan[3, 0, 3] = np.nan  # raw LinAlgError (SVD did not converge) before
+    _not_scored(t, ref, t, nan)
+    _not_scored(t, ref, t, nan, EvalOptions(align="none"))
+    _not_scored(t[:10], ref, t, ref)  # 10 stamps for 20 poses: 10 were scored
+    scaled = ref.copy()
+    scaled[:, :3, :3] *= 2.0  # no rotation: scored as one
+    _not_scored(t, ref, t, scaled)
+    assert evaluate(t, ref, t, ref, EvalOptions()).summary()["matched_poses"] == 20
+
+
+def test_n_align_must_be_a_whole_number():
+    with pytest.raises(GraphSlamError, match="n-align"):
+        EvalOptions(n_align=3.5)
+    assert EvalOptions(n_align=np.int64(4)).n_align == 4
