@@ -63,7 +63,13 @@ from frontend.harris import HarrisConfig
 from frontend.image import check_gray
 from frontend.orb import OrbConfig
 from frontend.search_matchers import extract_patches
-from frontend.tracking_config import TrackerConfig, make_detector, search_matcher, search_mode_conflict
+from frontend.tracking_config import (
+    CAMERA_ALONE_AIDS,
+    TrackerConfig,
+    make_detector,
+    search_matcher,
+    search_mode_conflict,
+)
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.records import PixelObservations, PixelPredictions
 
@@ -207,11 +213,12 @@ class Tracker:
         self.follow_unmapped = True if follow_unmapped is None else bool(follow_unmapped)
         aid = {
             name: bool(camera_alone) if getattr(self.config, name) is None else getattr(self.config, name)
-            for name in ("follow_image_motion", "follow_missed_landmarks", "fill_first_frame")
+            for name in CAMERA_ALONE_AIDS
         }
         self.follow_image_motion = aid["follow_image_motion"]
         self.follow_missed_landmarks = aid["follow_missed_landmarks"]
         self.fill_first_frame = aid["fill_first_frame"]
+        self.follow_recuts_patch = aid["follow_recuts_patch"]
         self._tracks: dict[int, _Track] = {}
         self._next_id = 0
         self._frame = -1
@@ -433,7 +440,8 @@ class Tracker:
         tr.velocity = uv - tr.uv if tr.last_seen == k - 1 else np.zeros(2)
         tr.uv = np.asarray(uv, dtype=np.float64).copy()
         tr.last_seen = k
-        if self.config.patch_update == "last" and tr.patch is not None:
+        recut = self.config.patch_update == "last" or (self.follow_recuts_patch and not tr.mapped)
+        if recut and tr.patch is not None:
             tr.patch = extract_patches(image, tr.uv[None], self.patch_size)[0]
             self._remember_cut(tr, image)
 

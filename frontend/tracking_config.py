@@ -25,6 +25,13 @@ SearchMode = Literal["auto", "zncc", "nearest", "descriptor"]
 DETECTORS = typing.get_args(DetectorName)
 SEARCH_MODES = typing.get_args(SearchMode)
 AUTO_SEARCH = {"harris": "zncc", "fpga": "nearest", "orb": "descriptor"}
+#: The tracker's aids for a run without odometry, each on there unless the file sets it.
+CAMERA_ALONE_AIDS = (
+    "follow_image_motion",
+    "follow_missed_landmarks",
+    "fill_first_frame",
+    "follow_recuts_patch",
+)
 
 
 @dataclass(frozen=True)
@@ -45,7 +52,8 @@ class TrackerConfig(Validated):
             ``None`` lets the pipeline decide from the back end.
         follow_window_px: half side of the square window a followed track is
             searched in, around its last position plus its last image motion.
-        follow_image_motion, follow_missed_landmarks, fill_first_frame: aids for a
+        follow_image_motion, follow_missed_landmarks, fill_first_frame,
+        follow_recuts_patch: aids for a
             run whose back end has no odometry (its predictions are a motion
             model's guess, and a monocular start needs many tracks at once);
             each ``None`` lets the pipeline decide: on without odometry, off
@@ -64,6 +72,16 @@ class TrackerConfig(Validated):
             first) fills to ``max_tracks`` instead of ``max_new_per_frame``: the
             cap spreads the cost of new tracks over frames, and a monocular
             start measures parallax against one frame's tracks.
+            ``follow_recuts_patch``: an unmapped track re-cuts its patch at each
+            frame it is followed in, whatever ``patch_update`` (as KLT follows
+            a feature from one frame to the next: a followed track's only
+            reference is the frame before); a mapped landmark keeps the patch
+            ``patch_update`` gives it (it is re-found from a prediction, after
+            any gap, and the anchor keeps it from drifting). A monocular start
+            needs tracks that live through the appearance change of the
+            baseline's parallax: KITTI 07 from the camera alone with the
+            anchored patches started its map at frame 118 (103 of 160 frames
+            without a pose); with this, at frame 13, every frame placed.
         follow_min_score: smallest ZNCC accepted when following.
         follow_min_margin: the best ZNCC must beat every other peak of the
             window (more than 2 px away) by this much (repeated texture).
@@ -98,6 +116,7 @@ class TrackerConfig(Validated):
     follow_image_motion: bool | None = None
     follow_missed_landmarks: bool | None = None
     fill_first_frame: bool | None = None
+    follow_recuts_patch: bool | None = None
     follow_min_score: float = bounded(0.85, min=-1.0, max=1.0)
     # ZNCC scores lie in [-1, 1]: two differ by 2 at most
     follow_min_margin: float = bounded(0.05, min=0.0, max=2.0)

@@ -269,8 +269,34 @@ def test_tracker_aids_follow_the_config_when_it_sets_them():
 
     t = Tracker(TrackerConfig(follow_image_motion=False, fill_first_frame=True), camera_alone=True)
     assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, True)
+    assert t.follow_recuts_patch
     t = Tracker(TrackerConfig(follow_missed_landmarks=True))
     assert (t.follow_image_motion, t.follow_missed_landmarks, t.fill_first_frame) == (False, True, False)
+    assert not t.follow_recuts_patch
+    assert not Tracker(TrackerConfig(follow_recuts_patch=False), camera_alone=True).follow_recuts_patch
+
+
+def test_unmapped_tracks_that_recut_their_patch_live_through_a_real_drive():
+    """KITTI 07's first 20 frames from the camera alone: anchored patches lost the first
+    frame's tracks as the car drove on (35 of 80 left at frame 19), too few shared tracks
+    for a monocular start until frame 118; re-cut at each frame they are followed in, 51
+    are left, and the map starts at frame 13."""
+    import cv2
+
+    from frontend.tracking import Tracker
+    from frontend.tracking_config import TrackerConfig
+
+    if not KITTI07.is_dir():
+        pytest.skip("kitti07 not present")
+    images = [cv2.imread(str(KITTI07 / "image_0" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE) for k in range(20)]
+    alive = {}
+    for recut in (False, True):
+        tracker = Tracker(TrackerConfig(follow_recuts_patch=recut), follow_unmapped=True, camera_alone=True)
+        born = set(map(int, tracker.track(images[0]).new_ids))
+        for image in images[1:]:
+            last = tracker.track(image)
+        alive[recut] = len(born & set(map(int, last.observations.track_ids)))
+    assert alive[True] >= alive[False] + 10, alive
 
 
 def test_a_blackout_is_coasted_counted_and_found_again():
@@ -320,10 +346,10 @@ def _lap_ates(out) -> tuple[float, float]:
 @pytest.mark.slow
 def test_closures_bring_a_local_map_back_to_its_first_lap(tmp_path):
     """Camera alone with a local map (landmarks unseen for 10 frames are not predicted:
-    the second lap cannot re-find the first's): the drift, scale included, grows
-    without closures; with them (PnP against the old map, in its scale) the second
-    lap ends better than the first. Measured: 0.095 / 0.151 m without, 0.013 / 0.010 m
-    with 101 closures."""
+    the second lap cannot re-find the first's): with closures (PnP against the old map,
+    in its scale) the second lap ends better than the first, and far better than
+    without them. Measured: 0.076 / 0.061 m without, 0.013 / 0.0125 m with 105 closures
+    (before unmapped tracks re-cut their patches: 0.095 / 0.151 m, 0.014 / 0.010 m)."""
     from graphslam.cli.main import main
 
     config = tmp_path / "local.toml"
@@ -335,7 +361,6 @@ def test_closures_bring_a_local_map_back_to_its_first_lap(tmp_path):
                 "--rerun", "off", "--quiet", "--out", str(out)] + (["--loops"] if loops else [])
         assert main(argv) == 0
         laps[loops] = _lap_ates(out)
-    assert laps[False][1] > laps[False][0]  # drift: the second lap is worse alone
     assert laps[True][1] < laps[True][0]  # closed: better than the first
     assert laps[True][1] < 0.25 * laps[False][1]
 
@@ -376,12 +401,13 @@ def test_run_seeds_stay_within_opencvs_generators():
 
 def test_a_map_that_never_starts_is_said_of_its_images(tmp_path, capsys):
     """Tenth hostile pass: "monocular tracking never started" named no dataset. KITTI 07's
-    first 60 frames (the car starting slowly) give no first map at the default settings."""
+    first 12 frames (the car starting slowly) give no first map at the default settings
+    (the map starts at frame 13; before unmapped tracks re-cut their patches, at 118)."""
     from graphslam.cli.main import main
 
     if not KITTI07.is_dir():
         pytest.skip("kitti07 not present")
-    assert main(["run", "--dataset", str(KITTI07), "--frames", "0:60", "--odometry", "none",
+    assert main(["run", "--dataset", str(KITTI07), "--frames", "0:12", "--odometry", "none",
                  "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"graphslam: error: {KITTI07}: ")
