@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from frontend.image import decode_gray
-from graphslam.sources.spatial.sequence import check_K, check_rotation, quat_to_rotation
+from graphslam.sources.spatial.sequence import check_distortion, check_K, check_rotation, quat_to_rotation
 from slamcore.errors import InputError, quote
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -100,10 +100,9 @@ def camera_calibration(msg, where: str) -> tuple[np.ndarray, np.ndarray | None, 
         )
     # ROS 1 spells the fields K and D, ROS 2 k and d
     K = check_K(np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3), where)
-    D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
-    if not np.all(np.isfinite(D)):
-        raise InputError("non-finite distortion coefficient", where)
-    return K, (D if D.size else None), (int(msg.width), int(msg.height))
+    # a D of 3 or 6 coefficients crashed OpenCV's undistortion at the first image
+    D = check_distortion(np.asarray(_field(msg, "d"), dtype=np.float64), where, what="camera_info D")
+    return K, D, (int(msg.width), int(msg.height))
 
 
 def _field(msg, name: str):
