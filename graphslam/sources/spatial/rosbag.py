@@ -252,9 +252,8 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
             continue
         found = sorted(t for t, ty in topics.items() if ty in AUTO_TYPES[role] and t not in chosen.values())
         if role == "camera_info" and len(found) > 1 and "image" in chosen:
-            # the camera's own: /cam0/camera_info beside /cam0/image_raw
-            ns = chosen["image"].rsplit("/", 1)[0] + "/"
-            found = [t for t in found if t.startswith(ns)] or found
+            # the camera's own: /cam0/camera_info beside /cam0/image_raw(/compressed)
+            found = [t for t in found if in_camera_namespace(t, chosen["image"])] or found
         if len(found) > 1:
             raise InputError(
                 f"{len(found)} {role} topics ({', '.join(found)}): name one with --topics {role}=TOPIC", where
@@ -266,6 +265,45 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
                 f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}", where
             )
     return chosen
+
+
+#: image_transport's topics of one image stream: ``/cam0/image_raw/compressed`` is
+#: ``/cam0/image_raw`` compressed, in namespace ``/cam0`` (not ``/cam0/image_raw``).
+TRANSPORT_SUFFIXES = ("/compressed", "/compressedDepth", "/theora")
+
+
+def raw_image_topic(topic: str) -> str:
+    """``topic`` without its image_transport suffix (:data:`TRANSPORT_SUFFIXES`)."""
+    for suffix in TRANSPORT_SUFFIXES:
+        if topic.endswith(suffix):
+            return topic[: -len(suffix)]
+    return topic
+
+
+def in_camera_namespace(info_topic: str, image_topic: str) -> bool:
+    """Whether a camera_info topic is in the namespace of an image topic, or above it
+    (``/camera_info`` for ``/cam0/image_raw``): the camera the ROS conventions pair."""
+    info_ns = info_topic.rsplit("/", 1)[0] + "/"
+    return (raw_image_topic(image_topic).rsplit("/", 1)[0] + "/").startswith(info_ns)
+
+
+def is_rectified(image_topic: str) -> bool:
+    """Whether ``image_topic`` holds rectified images: ROS image_pipeline's names
+    (``image_rect``, ``image_rect_color``, ``image_rect_raw``)."""
+    return "image_rect" in raw_image_topic(image_topic).rsplit("/", 1)[-1]
+
+
+def foreign_camera_warnings(chosen: dict[str, str], named: dict[str, str]) -> tuple[str, ...]:
+    """A warning when the bag's only camera_info, taken without being named, is in
+    another camera's namespace (``/cam1/image_raw`` given ``/cam0/camera_info``)."""
+    info, image = chosen.get("camera_info"), chosen["image"]
+    if info is None or "camera_info" in named or in_camera_namespace(info, image):
+        return ()
+    return (
+        f"images {image} take {info}, the bag's only camera_info, of another namespace: if it is "
+        "not their camera, name theirs with --topics camera_info=TOPIC, or give --intrinsics FILE "
+        "with --topics camera_info=none",
+    )
 
 
 @dataclass(frozen=True)
@@ -369,8 +407,12 @@ def read_bag(
 
             K, dist = read_intrinsics_file(intrinsics_file)
             notes: tuple = (f"intrinsics: {intrinsics_file} (--intrinsics)",)
+            camera_warnings: tuple = ()
         else:
-            K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path, calibrated)
+            K, dist, notes, camera_warnings = _calibration(
+                reader, chosen.get("camera_info"), index.size, path, calibrated, chosen["image"]
+            )
+            camera_warnings += foreign_camera_warnings(chosen, topics or {})
         truth = odometry = None
         if "truth" in chosen:
             truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)
@@ -386,6 +428,7 @@ def read_bag(
         wTc_true=None,
         image_size=index.size,
         source_path=str(path),
+        camera_warnings=camera_warnings,
         bag=str(path),
         topics=chosen,
         image_type=image_type,
@@ -476,9 +519,12 @@ def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
-def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, calibrated: bool = True):
-    """``(K, distortion or None, notes)``: the first CameraInfo of ``topic``, else an
-    intrinsics file beside the bag (as a plain image folder's)."""
+def _calibration(
+    reader, topic: str | None, size: tuple[int, int], path: Path, calibrated: bool, image_topic: str
+):
+    """``(K, distortion or None, notes, warnings)``: the first CameraInfo of ``topic``, else
+    an intrinsics file beside the bag (as a plain image folder's). Rectified images
+    (:func:`is_rectified`) take the CameraInfo's ``P`` and no distortion."""
     from graphslam.sources.spatial.calibration import (
         INTRINSICS_FILE_NAMES,
         find_intrinsics_file,
@@ -490,7 +536,7 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, c
         folders = ([path] if path.is_dir() else []) + [path.parent]
         found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
         if found is None and not calibrated:
-            return None, None, ("no camera calibration",)
+            return None, None, ("no camera calibration",), ()
         if found is None:
             raise InputError(
                 f"no camera_info topic ({rm.CAMERA_INFO}) and no intrinsics file "
@@ -498,16 +544,33 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, c
                 path,
             )
         K, dist = read_intrinsics_file(found)
-        return K, dist, (f"intrinsics: {found}",)
+        return K, dist, (f"intrinsics: {found}",), ()
     where = f"{path}#{topic}"
     conns = [c for c in reader.connections if c.topic == topic]
     for conn, _, raw in reader.messages(conns):
-        K, dist, wh = rm.camera_calibration(reader.deserialize(raw, conn.msgtype), where)
+        msg = reader.deserialize(raw, conn.msgtype)
+        K, dist, wh = rm.camera_calibration(msg, where)
         if wh != (0, 0) and wh != tuple(size):
             raise InputError(
                 f"camera info is for {wh[0]}x{wh[1]} px images, the images are {size[0]}x{size[1]}", where
             )
-        return K, dist, (f"camera_info: {topic} (first message)",)
+        note = f"camera_info: {topic} (first message)"
+        if not is_rectified(image_topic):
+            return K, dist, (note,), ()
+        # K and D are the raw camera's: undistorting rectified images with them distorts them
+        # again; the rectified camera is P's left 3x3, with no distortion (sensor_msgs/CameraInfo)
+        K_rect = rm.rectified_K(msg, where)
+        if K_rect is None:
+            return (
+                K,
+                None,
+                (f"{note}: K, no distortion, for the rectified {image_topic}",),
+                (
+                    f"{where}: P is all zeros: the rectified images {image_topic} are taken with K "
+                    "and no distortion",
+                ),
+            )
+        return K_rect, None, (f"{note}: P's 3x3, no distortion, for the rectified {image_topic}",), ()
     raise InputError("camera info topic has no messages", where)
 
 

@@ -105,6 +105,17 @@ def camera_calibration(msg, where: str) -> tuple[np.ndarray, np.ndarray | None, 
     return K, D, (int(msg.width), int(msg.height))
 
 
+def rectified_K(msg, where: str) -> np.ndarray | None:
+    """The camera of the rectified images of a CameraInfo: its projection ``P``'s left
+    (3, 3); None when ``P`` is all zeros (not filled in by the driver)."""
+    P = np.asarray(_field(msg, "p"), dtype=np.float64).reshape(-1)
+    if P.size != 12:
+        raise InputError(f"camera_info P has {P.size} numbers, not 12", where)
+    if not np.any(P):
+        return None
+    return check_K(P.reshape(3, 4)[:, :3], where)
+
+
 def _field(msg, name: str):
     return getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper())
 

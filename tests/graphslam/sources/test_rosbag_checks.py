@@ -84,3 +84,55 @@ def test_distortion_count_of_an_intrinsics_file_is_one_line(tmp_path):
     yaml.write_text("fx: 50\nfy: 50\ncx: 32\ncy: 24\ndistortion: [0.1, 0.01, 0, 0, 0, 0]\n")
     with pytest.raises(InputError, match=r"distortion: expected 4, 5, 8, 12 or 14 .* got 6"):
         read_intrinsics_file(yaml)
+
+
+def test_compressed_images_take_their_namespaces_camera_info(tmp_path):
+    """/cam0/image_raw/compressed is in /cam0: it takes /cam0/camera_info, as the raw
+    topic does, not "2 camera_info topics" (image_transport's suffix was the namespace)."""
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    for suffix in ("/compressed", ""):
+        bag = tiny_bag(
+            tmp_path / f"c{len(suffix)}.bag",
+            image="/cam0/image_raw" + suffix,
+            infos=("/cam0/camera_info", "/cam1/camera_info"),
+        )
+        assert read_bag(bag).topics["camera_info"] == "/cam0/camera_info"
+
+
+def test_another_cameras_only_camera_info_is_a_warning(tmp_path):
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    bag = tiny_bag(tmp_path / "b.bag", image="/cam1/image_raw", infos=("/cam0/camera_info",))
+    (warning,) = read_bag(bag).warnings
+    assert warning.startswith("images /cam1/image_raw take /cam0/camera_info, the bag's only camera_info")
+    assert "--topics camera_info=TOPIC" in warning and "--intrinsics" in warning
+    assert read_bag(bag, {"camera_info": "/cam0/camera_info"}).warnings == ()  # named: chosen
+    # its own namespace, or one above it, is the convention's pairing
+    for info in ("/cam1/camera_info", "/camera_info"):
+        bag = tiny_bag(tmp_path / f"{len(info)}.bag", image="/cam1/image_raw", infos=(info,))
+        assert read_bag(bag).warnings == ()
+
+
+def test_rectified_images_take_p_and_no_distortion(tmp_path):
+    """image_rect holds rectified images: undistorting them with the raw camera's K and D
+    distorted them again; their camera is P's 3x3 (sensor_msgs/CameraInfo)."""
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    P = np.hstack([K_PX + np.diag([5.0, 5.0, 0.0]), np.zeros((3, 1))])
+    d = (-0.3, 0.1, 0.0, 0.0, 0.0)
+    raw = read_bag(tiny_bag(tmp_path / "raw.bag", d=d, p=P))
+    assert np.array_equal(raw.K, K_PX) and np.array_equal(raw.distortion, d)
+    seq = read_bag(tiny_bag(tmp_path / "rect.bag", image="/cam/image_rect", d=d, p=P))
+    assert np.array_equal(seq.K, P[:, :3]) and seq.distortion is None and seq.warnings == ()
+    assert (
+        "camera_info: /cam/camera_info (first message): P's 3x3, no distortion, for the "
+        "rectified /cam/image_rect" in seq.notes
+    )
+    zero = read_bag(tiny_bag(tmp_path / "zero.bag", image="/cam/image_rect/compressed", d=d))
+    assert np.array_equal(zero.K, K_PX) and zero.distortion is None
+    (warning,) = zero.warnings
+    assert warning.endswith(
+        "zero.bag#/cam/camera_info: P is all zeros: the rectified images "
+        "/cam/image_rect/compressed are taken with K and no distortion"
+    )
