@@ -23,7 +23,8 @@ Topics, per role (``image``, ``camera_info``, ``truth``, ``odometry``): the
 one topic of the role's types, or the one named by ``--topics
 image=/cam0/image_raw,...`` (``odometry=none``: do not read one); two
 candidates and no name is an error listing them; no image topic too.
-Times are the header stamps (all zero: the bag's record times, said in the
+Times are the header stamps; when every header stamp of the images, the truth
+or the odometry is zero, the record times of all three (one clock: said in the
 notes). Images out of order by header stamp are sorted (said in the notes);
 a repeated stamp is refused. The notes (``BagSequence.notes``) list the
 topics used; the run summary prints them.
@@ -415,9 +416,24 @@ def read_bag(
             camera_warnings += foreign_camera_warnings(chosen, topics or {})
         truth = odometry = None
         if "truth" in chosen:
-            truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)
+            truth = _pose_messages(reader, chosen["truth"], types[chosen["truth"]], path)
         if "odometry" in chosen:
-            odometry = _poses(reader, chosen["odometry"], rm.ODOMETRY, path)
+            odometry = _pose_messages(reader, chosen["odometry"], rm.ODOMETRY, path)
+    # one clock for every topic: images on record times matched to truth by header
+    # stamps (another clock) paired each image with another frame's truth, silently
+    roles = (("image", index), ("truth", truth), ("odometry", odometry))
+    read = {chosen[role]: got.stamps for role, got in roles if got is not None}
+    zero = [where for where, stamps in read.items() if not any(stamps.header_ns)]
+    record_clock = bool(zero)
+    clock_notes = (
+        (
+            f"every header stamp of {', '.join(zero)} is 0: the bag's record times are used for "
+            f"{', '.join(read)}",
+        )
+        if zero
+        else ()
+    )
+    index = _in_stamp_order(index, chosen["image"], path, record_clock)
     paths = [f"{path}#{chosen['image']}/{k:06d}" for k in range(len(index.refs))]
     seq = BagSequence(
         name=f"rosbag-{path.stem if path.is_file() else folder_name(path)}",
@@ -436,11 +452,12 @@ def read_bag(
         notes=(
             f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
             *notes,
+            *clock_notes,
             *index.notes,
             *(
                 []
                 if truth is None
-                else [f"truth: {chosen['truth']} ({types[chosen['truth']]}, {len(truth.wTc)} poses)"]
+                else [f"truth: {chosen['truth']} ({types[chosen['truth']]}, {len(truth.poses)} poses)"]
             ),
         ),
     )
@@ -448,23 +465,42 @@ def read_bag(
         from graphslam.sources.ground_truth import with_ground_truth
 
         # first: frames without truth are dropped (dataclasses.replace keeps the class)
-        seq = cast(BagSequence, with_ground_truth(seq, truth))
-    return seq if odometry is None else with_odometry(seq, chosen["odometry"], *odometry)
+        seq = cast(BagSequence, with_ground_truth(seq, _trajectory(truth, record_clock)))
+    if odometry is None:
+        return seq
+    return with_odometry(seq, chosen["odometry"], *_on_clock(odometry, record_clock))
+
+
+def clock_name(record_clock: bool) -> str:
+    return "record time" if record_clock else "header stamp"
+
+
+@dataclass(frozen=True)
+class Stamps:
+    """The header stamps and record times (ns) of a topic's messages, in one order."""
+
+    header_ns: list[int]
+    record_ns: list[int]
+
+    def on(self, record_clock: bool) -> list[int]:
+        return self.record_ns if record_clock else self.header_ns
 
 
 @dataclass(frozen=True)
 class ImageIndex:
-    """The image messages of a topic in header-stamp order (:func:`_index_images`)."""
+    """The image messages of a topic (:func:`_index_images`): as read, or in stamp
+    order on the bag's clock (:func:`_in_stamp_order`, then ``stamps_ns`` is set)."""
 
     refs: list[FrameRef]
-    stamps_ns: list[int]
+    stamps: Stamps
     size: tuple[int, int]
-    notes: tuple[str, ...]
+    stamps_ns: list[int] = field(default_factory=list)
+    notes: tuple[str, ...] = ()
 
 
 def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
-    """Every image message of ``topic``: where it is, its stamp; sizes of raw images
-    checked (a compressed one's when it is loaded), order by header stamp."""
+    """Every image message of ``topic``, as read: where it is, its stamps; sizes of raw
+    images checked (a compressed one's when it is loaded)."""
     conns = [c for c in reader.connections if c.topic == topic]
     position = {id(c): k for k, c in enumerate(reader.connections)}
     refs: list[FrameRef] = []
@@ -497,10 +533,14 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
         record.append(t)
     if not refs or size is None:  # (the first message gives the size)
         raise InputError(f"topic {topic} has no messages", path)
+    return ImageIndex(refs, Stamps(stamps, record), size)
+
+
+def _in_stamp_order(index: ImageIndex, topic: str, path: Path, record_clock: bool) -> ImageIndex:
+    """``index`` sorted by stamp on the bag's clock (header stamps, or record times);
+    a repeated stamp refused."""
+    stamps = index.stamps.on(record_clock)
     notes = []
-    if not any(stamps):
-        notes.append(f"{topic}: every header stamp is 0: the bag's record times are used")
-        stamps = record
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     if np.any(order != np.arange(len(order))):
         late = int(np.sum(np.diff(np.array(stamps, dtype=np.int64)) < 0))
@@ -509,9 +549,11 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
     dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
     if dup:
         raise InputError(
-            f"two images on {topic} have the header stamp {float(rm.ns_to_s([stamps[dup[0]]])[0])} s", path
+            f"two images on {topic} have the {clock_name(record_clock)} "
+            f"{float(rm.ns_to_s([stamps[dup[0]]])[0])} s",
+            path,
         )
-    return ImageIndex([refs[k] for k in order], stamps, size, tuple(notes))
+    return ImageIndex([index.refs[k] for k in order], index.stamps, index.size, stamps, tuple(notes))
 
 
 def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
@@ -574,36 +616,58 @@ def _calibration(
     raise InputError("camera info topic has no messages", where)
 
 
-def _trajectory(reader, topic: str, msgtype: str, path: Path):
-    """The poses of ``topic`` as a :class:`~graphslam.sources.ground_truth.Trajectory`."""
+@dataclass(frozen=True)
+class PoseMessages:
+    """The pose messages of a topic, as read (:func:`_pose_messages`)."""
+
+    where: str
+    stamps: Stamps
+    poses: np.ndarray
+    covariances: np.ndarray | None
+
+
+def _trajectory(messages: PoseMessages, record_clock: bool):
+    """``messages`` as a :class:`~graphslam.sources.ground_truth.Trajectory` on the bag's clock."""
     from graphslam.sources.ground_truth import Trajectory
 
-    stamps_s, poses, _ = _poses(reader, topic, msgtype, path)
-    return Trajectory("tum", stamps_s, poses, f"{path}#{topic}")
+    stamps_s, poses, _ = _on_clock(messages, record_clock)
+    return Trajectory("tum", stamps_s, poses, messages.where)
 
 
-def _poses(reader, topic: str, msgtype: str, path: Path):
-    """``(stamps (N,) s, poses (N, 4, 4), covariances (N, 6, 6) or None)`` of ``topic``
-    in header-stamp order (covariances of Odometry only); a repeated stamp refused."""
+def _pose_messages(reader, topic: str, msgtype: str, path: Path) -> PoseMessages:
+    """Poses ``(N, 4, 4)``, stamps and covariances ``(N, 6, 6)`` (of Odometry, else None)
+    of ``topic``, as read."""
     where = f"{path}#{topic}"
     conns = [c for c in reader.connections if c.topic == topic]
     stamps: list[int] = []
+    record: list[int] = []
     poses: list[np.ndarray] = []
     covs: list[np.ndarray] = []
-    for conn, _, raw in reader.messages(conns):
+    for conn, t, raw in reader.messages(conns):
         msg = reader.deserialize(raw, conn.msgtype)
         poses.append(rm.pose_matrix(msg, msgtype, f"{where}/{len(poses)}"))
         stamps.append(rm.stamp_ns(msg.header))
+        record.append(t)
         if msgtype == rm.ODOMETRY:
             covs.append(np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6))
     if not poses:
         raise InputError("pose topic has no messages", where)
+    return PoseMessages(where, Stamps(stamps, record), np.array(poses), np.array(covs) if covs else None)
+
+
+def _on_clock(messages: PoseMessages, record_clock: bool):
+    """``(stamps (N,) s, poses (N, 4, 4), covariances or None)`` of ``messages`` in stamp
+    order on the bag's clock (header stamps, or record times); a repeated stamp refused."""
+    stamps = messages.stamps.on(record_clock)
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     stamps_s = rm.ns_to_s([stamps[k] for k in order])
     same = np.nonzero(np.diff(stamps_s) == 0)[0]
     if same.size:
-        raise InputError(f"two poses have the header stamp {float(stamps_s[same[0]])} s", where)
-    return stamps_s, np.array(poses)[order], (np.array(covs)[order] if covs else None)
+        raise InputError(
+            f"two poses have the {clock_name(record_clock)} {float(stamps_s[same[0]])} s", messages.where
+        )
+    covs = messages.covariances
+    return stamps_s, messages.poses[order], (None if covs is None else covs[order])
 
 
 def with_odometry(
@@ -664,4 +728,6 @@ def read_bag_trajectory(spec: str | Path, topic: str | None):
                 f"of {', '.join(ROLE_TYPES['truth'])}",
                 path,
             )
-        return _trajectory(reader, topic, types[topic], path)
+        messages = _pose_messages(reader, topic, types[topic], path)
+    # header stamps all 0: the record times, as for a run's topics
+    return _trajectory(messages, not any(messages.stamps.header_ns))

@@ -136,3 +136,51 @@ def test_rectified_images_take_p_and_no_distortion(tmp_path):
         "zero.bag#/cam/camera_info: P is all zeros: the rectified images "
         "/cam/image_rect/compressed are taken with K and no distortion"
     )
+
+
+# --------------------------------------------------------------------------- clocks
+
+
+def truth_poses(w, stamp_ns, record_ns, frames=3, topic="/truth"):
+    """PoseStamped k at x = k m, header ``stamp_ns(k)``, recorded at ``record_ns(k)``."""
+    for k in range(frames):
+        w.write(
+            topic, 0, w.pose(stamp_ns(k), (float(k), 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), record_ns=record_ns(k)
+        )
+
+
+def test_zero_image_stamps_put_truth_on_record_times_too(tmp_path):
+    """Images of zero header stamps fall back to record times: truth matched by its
+    header stamps (another clock) gave each image another frame's pose, silently.
+    Image k and truth k are recorded together; their header clock is 1 frame off."""
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    record = lambda k: 10**9 + k * FRAME_NS  # noqa: E731
+    bag = tiny_bag(
+        tmp_path / "z.bag",
+        frames=4,
+        stamp_ns=lambda k: 0,
+        record_ns=record,
+        extra=lambda w: truth_poses(w, lambda k: record(k + 1), record, frames=4),
+    )
+    seq = read_bag(bag)
+    assert np.array_equal(seq.wTc_true[:, 0, 3], [0.0, 1.0, 2.0, 3.0])
+    assert (
+        "every header stamp of /cam/image_raw is 0: the bag's record times are used for "
+        "/cam/image_raw, /truth" in seq.notes
+    )
+
+
+def test_zero_truth_stamps_fall_back_to_record_times_as_images_do(tmp_path):
+    """All-zero truth stamps were "two poses have the header stamp 0.0 s"."""
+    from graphslam.sources.spatial.rosbag import read_bag, read_bag_trajectory
+
+    record = lambda k: 10**9 + k * FRAME_NS  # noqa: E731
+    bag = tiny_bag(
+        tmp_path / "z.bag", frames=3, record_ns=record, extra=lambda w: truth_poses(w, lambda k: 0, record)
+    )
+    seq = read_bag(bag)
+    assert np.array_equal(seq.wTc_true[:, 0, 3], [0.0, 1.0, 2.0])
+    assert np.array_equal(seq.stamps_s, [1.0, 1.1, 1.2])  # the images' record times too
+    assert "every header stamp of /truth is 0" in " ".join(seq.notes)
+    assert np.array_equal(read_bag_trajectory(bag, "/truth").stamps_s, [1.0, 1.1, 1.2])
