@@ -329,6 +329,8 @@ class BagSequence(ImageSequence):
         notes: what was read from where, one line each (the run summary prints them).
         odometry, odometry_covariance, odometry_sigmas: of an Odometry topic
             (:func:`with_odometry`), else None.
+        odometry_unused: why the bag's Odometry topic was left out ("/odom not used:
+            ..."), else None: ``--odometry sequence`` says it.
     """
 
     bag: str
@@ -339,6 +341,7 @@ class BagSequence(ImageSequence):
     odometry: np.ndarray | None = None
     odometry_covariance: np.ndarray | None = None
     odometry_sigmas: tuple | None = None
+    odometry_unused: str | None = None
     #: ``(pid, reader, context)`` of the open bag: opened on the first load, again in a
     #: forked child (``graphslam compare``), whose file offsets must not be the parent's.
     _open_reader: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -699,7 +702,8 @@ def with_odometry(
         if len(cov) and not np.all(np.linalg.eigvalsh(cov)[:, 0] > 0):
             why = "its pose covariance is not positive definite"
     if why is not None:
-        return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {topic} not used: {why}"))
+        unused = f"{topic} not used: {why}"
+        return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {unused}"), odometry_unused=unused)
     return dataclasses.replace(
         seq,
         odometry=step,

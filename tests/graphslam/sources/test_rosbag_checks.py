@@ -184,3 +184,33 @@ def test_zero_truth_stamps_fall_back_to_record_times_as_images_do(tmp_path):
     assert np.array_equal(seq.stamps_s, [1.0, 1.1, 1.2])  # the images' record times too
     assert "every header stamp of /truth is 0" in " ".join(seq.notes)
     assert np.array_equal(read_bag_trajectory(bag, "/truth").stamps_s, [1.0, 1.1, 1.2])
+
+
+# --------------------------------------------------------------------------- odometry
+
+
+def odometry_messages(w, stamps_ns, cov):
+    from tests.graphslam.sources.test_rosbag import write_odometry
+
+    for k, ns in enumerate(stamps_ns):
+        T = np.eye(4)
+        T[0, 3] = 0.1 * k
+        write_odometry(w, "/odom", ns, T, cov)
+
+
+@pytest.mark.parametrize(
+    "why,stamps,cov",
+    [
+        ("its pose covariance is not positive definite", range(0, 4 * FRAME_NS, FRAME_NS), np.zeros((6, 6))),
+        ("2 of 4 images have no message within 0.02 s", range(0, 4 * FRAME_NS, 2 * FRAME_NS), np.eye(6)),
+    ],
+)
+def test_odometry_sequence_names_the_topic_it_left_out(tmp_path, capsys, why, stamps, cov):
+    """--odometry sequence said "has no odometry of its own" of a bag whose /odom was
+    read and dropped (all-zero covariance, half the image rate)."""
+    bag = tiny_bag(tmp_path / "o.bag", frames=4, extra=lambda w: odometry_messages(w, stamps, cov))
+    for frames in ([], ["--frames", "0:3"]):
+        line = one_error_line(
+            capsys, [*RUN, "--dataset", bag, "--odometry", "sequence", *frames, "--out", tmp_path / "o"]
+        )
+        assert f"has no odometry of its own (odometry topic /odom not used: {why})" in line
