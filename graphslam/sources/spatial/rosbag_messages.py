@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from frontend.image import decode_gray
+from frontend.image import check_sixteen_bit_levels, decode_gray
 from graphslam.sources.spatial.sequence import check_distortion, check_K, check_rotation, quat_to_rotation
 from slamcore.errors import InputError, quote
 
@@ -84,6 +84,9 @@ def image_gray(msg, msgtype: str, where: str) -> np.ndarray:
     if depth == 2:
         order = ">" if msg.is_bigendian else "<"
         wide = pixels.copy().view(np.dtype(f"{order}u2")).reshape(h, w)
+        # 12-bit values in mono16 are near black as 8 bits: refused as image files of them
+        # are, on the same 8-bit reading (the top 8 bits, as OpenCV reads a 16-bit PNG)
+        check_sixteen_bit_levels((wide >> 8).astype(np.uint8), where)
         # cv_bridge's mono16 -> mono8 (scale 1/256, rounded): what a ROS user sees
         return cv2.convertScaleAbs(wide.astype(np.float32), alpha=1.0 / 256.0)
     img = np.ascontiguousarray(pixels.reshape(h, w, channels) if channels > 1 else pixels.reshape(h, w))

@@ -214,3 +214,26 @@ def test_odometry_sequence_names_the_topic_it_left_out(tmp_path, capsys, why, st
             capsys, [*RUN, "--dataset", bag, "--odometry", "sequence", *frames, "--out", tmp_path / "o"]
         )
         assert f"has no odometry of its own (odometry topic /odom not used: {why})" in line
+
+
+def test_mono16_of_12_bit_values_is_refused_as_png_files_of_them_are(tmp_path, capsys):
+    """12-bit values in mono16 read as near-black 8-bit frames ("no landmark entered the
+    map"); a folder of 16-bit PNGs of them is refused by the same rule and message."""
+    import cv2
+
+    from frontend.image import load_gray
+    from slamcore.errors import InputError
+
+    twelve = np.random.default_rng(1).integers(0, 4096, (SIZE_PX[1], SIZE_PX[0]), dtype=np.uint16)
+    bag = tmp_path / "m.bag"
+    with BagWriter(bag, "ros1") as w:
+        w.write("/cam/camera_info", 0, w.camera_info(0, K_PX, SIZE_PX))
+        for k in range(3):
+            w.write("/cam/image_raw", k * FRAME_NS, w.image(k * FRAME_NS, twelve, "mono16"))
+    line = one_error_line(capsys, [*RUN, "--dataset", bag, "--odometry", "none", "--out", tmp_path / "o"])
+    assert "m.bag#/cam/image_raw/000000: 16-bit image whose values sit in the low bits" in line
+    png = tmp_path / "twelve.png"
+    cv2.imwrite(str(png), twelve)
+    with pytest.raises(InputError) as e:
+        load_gray(png)
+    assert e.value.reason == line.split(": ", 3)[-1]
