@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import os
 import struct
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -66,7 +67,13 @@ def bag_path(spec: str | Path) -> Path | None:
     """The path the bag reader opens for ``spec`` (a ``.bag`` file, a ROS 2 bag folder,
     or a ``.db3``/``.mcap`` file of one), or None when ``spec`` is not a bag."""
     path = Path(spec)
-    if path.is_file() and path.suffix == ".bag":
+    if path.is_file() and (path.suffix == ".bag" or _starts_as_ros1_bag(path)):
+        if path.suffix == ".active":
+            raise InputError(
+                "a ROS 1 bag that rosbag record did not close (.active: the recording was cut): "
+                "run 'rosbag reindex' on it, then name it .bag",
+                path,
+            )
         return path
     if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
         return path.parent
@@ -74,6 +81,20 @@ def bag_path(spec: str | Path) -> Path | None:
         return path
     _refuse_bag_without_metadata(path)
     return None
+
+
+#: The first bytes of a ROS 1 bag (format 2.0, what rosbag record writes).
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+
+
+def _starts_as_ros1_bag(path: Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag by its content, whatever its name (``REC.BAG``,
+    ``x.bag.active``: read as text files before)."""
+    try:
+        with path.open("rb") as f:
+            return f.read(len(ROS1_MAGIC)) == ROS1_MAGIC
+    except OSError:  # unreadable: left to the reader that opens it, with its own line
+        return False
 
 
 #: Files of a ROS 2 bag's storage (SQLite, MCAP): unreadable without the bag's metadata.yaml.
@@ -142,18 +163,32 @@ def open_bag(path: Path) -> Iterator:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    try:
-        # bags without message definitions (early ROS 2 ones) are read with Humble's
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.open()
-    except errors as e:
-        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
-    try:
-        yield reader
-    except errors as e:  # a chunk damaged past the index, met while reading
-        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
-    finally:
-        reader.close()
+    with _named_dot_bag(path) as readable:
+        try:
+            # bags without message definitions (early ROS 2 ones) are read with Humble's
+            reader = AnyReader([readable], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            reader.open()
+        except errors as e:
+            raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+        try:
+            yield reader
+        except errors as e:  # a chunk damaged past the index, met while reading
+            raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+        finally:
+            reader.close()
+
+
+@contextmanager
+def _named_dot_bag(path: Path) -> Iterator[Path]:
+    """``path``, or for a ROS 1 bag file named otherwise (``REC.BAG``) a link to it named
+    ``.bag`` in a temporary folder, for the block: rosbags tells ROS 1 from 2 by the suffix."""
+    if path.is_dir() or path.suffix == ".bag":
+        yield path
+        return
+    with tempfile.TemporaryDirectory(prefix="graphslam-bag-") as folder:
+        link = Path(folder) / "bag.bag"
+        link.symlink_to(path.resolve())
+        yield link
 
 
 def bag_errors(path: Path) -> tuple[type[BaseException], ...]:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from graphslam.cli.main import main
 from tests.bags import BagWriter
 from tests.graphslam.sources.test_rosbag import one_error_line
 
@@ -237,3 +238,33 @@ def test_mono16_of_12_bit_values_is_refused_as_png_files_of_them_are(tmp_path, c
     with pytest.raises(InputError) as e:
         load_gray(png)
     assert e.value.reason == line.split(": ", 3)[-1]
+
+
+# --------------------------------------------------------------------------- paths
+
+
+def test_a_ros1_bag_is_known_by_its_content_not_its_name(tmp_path, capsys):
+    """REC.BAG and x.bag.active were "not a text file: 'utf-8' codec can't decode"."""
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    bag = tiny_bag(tmp_path / "rec.bag")
+    upper = tmp_path / "REC.BAG"
+    upper.write_bytes(bag.read_bytes())
+    assert read_bag(upper).topics == read_bag(bag).topics
+    assert main(["info", str(upper)]) == 0
+    assert "read by --dataset: image /cam/image_raw" in capsys.readouterr().out
+    active = tmp_path / "rec.bag.active"
+    active.write_bytes(bag.read_bytes())
+    line = one_error_line(capsys, [*RUN, "--dataset", active, "--out", tmp_path / "o"])
+    assert "rec.bag.active: a ROS 1 bag that rosbag record did not close" in line
+    assert "rosbag reindex" in line
+
+
+@pytest.mark.parametrize("command", ["run", "compare"])
+@pytest.mark.parametrize("flag", [["--odometry", "derived"], ["--topics", "image=/cam0/image_raw"]])
+def test_a_missing_bag_is_said_before_the_flags_that_need_one(tmp_path, capsys, command, flag):
+    line = one_error_line(
+        capsys,
+        [command, "--rerun", "off", "--dataset", tmp_path / "no_such.bag", *flag, "--out", tmp_path / "o"],
+    )
+    assert "no_such.bag: no such dataset or file" in line
