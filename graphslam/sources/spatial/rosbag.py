@@ -22,7 +22,8 @@ folder). :func:`read_bag` returns a :class:`BagSequence`, an
 Topics, per role (``image``, ``camera_info``, ``truth``, ``odometry``): the
 one topic of the role's types, or the one named by ``--topics
 image=/cam0/image_raw,...`` (``odometry=none``: do not read one); two
-candidates and no name is an error listing them; no image topic too.
+candidates and no name is an error listing them; no image topic too. A topic
+of no message is no candidate; a topic of several message types is not read.
 Times are the header stamps; when every header stamp of the images, the truth
 or the odometry is zero, the record times of all three (one clock: said in the
 notes). Images out of order by header stamp are sorted (said in the notes);
@@ -222,39 +223,60 @@ def _reason(e: BaseException) -> str:
 
 @dataclass(frozen=True)
 class TopicSummary:
-    """One topic of a bag (``graphslam info``): type, message count, mean rate."""
+    """One topic of a bag (``graphslam info``): type, message count and mean rate of the
+    messages read, and the count the bag's index (a ROS 2 bag's metadata.yaml) states."""
 
     name: str
     msgtype: str
     count: int
     rate_hz: float | None
+    stated_count: int
+
+
+#: What :func:`topic_types` says of a topic holding messages of several types.
+MIXED_TYPES = "mixed types"
+
+
+def topic_types(reader) -> dict[str, str]:
+    """``{topic: message type}`` of an open bag; a topic of several types maps to
+    ``"mixed types (A, B)"``, which no role takes (rosbags gives None for it)."""
+    found: dict[str, set[str]] = {}
+    for conn in reader.connections:
+        found.setdefault(conn.topic, set()).add(conn.msgtype)
+    return {
+        topic: next(iter(types)) if len(types) == 1 else f"{MIXED_TYPES} ({', '.join(sorted(types))})"
+        for topic, types in found.items()
+    }
 
 
 def bag_topics(spec: str | Path) -> list[TopicSummary]:
-    """Every topic of the bag ``spec`` with its type, count and rate (from record times)."""
+    """Every topic of the bag ``spec`` with its type, and the count and rate (from record
+    times) of the messages read: a ROS 2 bag's metadata.yaml may state other counts."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
         first: dict[str, int] = {}
         last: dict[str, int] = {}
+        counts: dict[str, int] = {}
         for conn, t, _ in reader.messages():
             first.setdefault(conn.topic, t)
             last[conn.topic] = t
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+        types = topic_types(reader)
         out = []
         for name, info in sorted(reader.topics.items()):
-            n, span = info.msgcount, (last.get(name, 0) - first.get(name, 0)) / 1e9
-            out.append(
-                TopicSummary(
-                    name, info.msgtype or "(mixed types)", n, (n - 1) / span if n > 1 and span > 0 else None
-                )
-            )
+            n, span = counts.get(name, 0), (last.get(name, 0) - first.get(name, 0)) / 1e9
+            rate_hz = (n - 1) / span if n > 1 and span > 0 else None
+            out.append(TopicSummary(name, types.get(name, str(info.msgtype)), n, rate_hz, info.msgcount))
     return out
 
 
 def chosen_roles(spec: str | Path, topics: list[TopicSummary], named: str | None) -> dict | str:
     """``{role: topic}`` ``--dataset`` would read (``graphslam info``), or why none: the
     reason of a missing or ambiguous topic (a listing is not refused for it)."""
+    types = {t.name: t.msgtype for t in topics}
+    empty = {t.name for t in topics if t.count == 0}
     try:
-        return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named), _require_bag(spec))
+        return choose_topics(types, parse_topics(named), _require_bag(spec), empty)
     except InputError as e:
         return e.reason
 
@@ -268,8 +290,12 @@ def _require_bag(spec: str | Path) -> Path:
     return path
 
 
-def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: Path) -> dict[str, str]:
-    """``{role: topic}`` from the bag's ``{topic: type}`` and the ``--topics`` names."""
+def choose_topics(
+    topics: dict[str, str], named: dict[str, str], where: Path, empty: set[str] | frozenset = frozenset()
+) -> dict[str, str]:
+    """``{role: topic}`` from the bag's ``{topic: type}`` (:func:`topic_types`) and the
+    ``--topics`` names; topics of no message (``empty``) are not chosen automatically."""
+    mixed = [f"{t} holds {ty}, not read" for t, ty in sorted(topics.items()) if ty.startswith(MIXED_TYPES)]
     chosen: dict[str, str] = {}
     for role, types in ROLE_TYPES.items():
         if named.get(role) == NO_TOPIC:
@@ -280,13 +306,24 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
                 raise InputError(
                     f"--topics {role}={topic}: no such topic (topics: {', '.join(sorted(topics))})", where
                 )
+            if topics[topic].startswith(MIXED_TYPES):
+                raise InputError(
+                    f"--topics {role}={topic}: the topic holds {topics[topic]}, not read: "
+                    "record each type on a topic of its own",
+                    where,
+                )
             if topics[topic] not in types:
                 raise InputError(
                     f"--topics {role}={topic}: {topics[topic]} is not one of {', '.join(types)}", where
                 )
             chosen[role] = topic
             continue
-        found = sorted(t for t, ty in topics.items() if ty in AUTO_TYPES[role] and t not in chosen.values())
+        # an empty topic (declared, never published) is no candidate: it made the choice ambiguous
+        found = sorted(
+            t
+            for t, ty in topics.items()
+            if ty in AUTO_TYPES[role] and t not in chosen.values() and t not in empty
+        )
         if role == "camera_info" and len(found) > 1 and "image" in chosen:
             # the camera's own: /cam0/camera_info beside /cam0/image_raw(/compressed)
             found = [t for t in found if in_camera_namespace(t, chosen["image"])] or found
@@ -298,7 +335,9 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
             chosen[role] = found[0]
         elif role == "image":
             raise InputError(
-                f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}", where
+                f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}"
+                + "".join(f"; {m}" for m in mixed),
+                where,
             )
     return chosen
 
@@ -432,8 +471,9 @@ def read_bag(
     topic (refused beside one: the bag's own camera is the one its images were taken with)."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
-        types = {name: info.msgtype for name, info in reader.topics.items()}
-        chosen = choose_topics(types, topics or {}, path)
+        types = topic_types(reader)
+        empty = {name for name, info in reader.topics.items() if info.msgcount == 0}
+        chosen = choose_topics(types, topics or {}, path, empty)
         image_type = types[chosen["image"]]
         index = _index_images(reader, chosen["image"], image_type, path)
         if intrinsics_file is not None:
@@ -753,7 +793,7 @@ def read_bag_trajectory(spec: str | Path, topic: str | None):
     BAG:TOPIC``); without a topic, the bag's one pose topic (any of the truth types)."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
-        types = {name: info.msgtype for name, info in reader.topics.items()}
+        types = topic_types(reader)
         if topic is None:
             found = sorted(t for t, ty in types.items() if ty in ROLE_TYPES["truth"])
             if len(found) != 1:

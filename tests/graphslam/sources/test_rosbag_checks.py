@@ -268,3 +268,61 @@ def test_a_missing_bag_is_said_before_the_flags_that_need_one(tmp_path, capsys, 
         [command, "--rerun", "off", "--dataset", tmp_path / "no_such.bag", *flag, "--out", tmp_path / "o"],
     )
     assert "no_such.bag: no such dataset or file" in line
+
+
+# --------------------------------------------------------------------------- topics
+
+
+def test_info_prints_the_messages_it_counted_and_warns_of_metadata_that_differ(tmp_path, capsys):
+    """info printed metadata.yaml's count (and a rate from it) unchecked, though it reads
+    every message."""
+    import re
+
+    bag = tiny_bag(tmp_path / "seq", "sqlite3")
+    meta = bag / "metadata.yaml"
+    text, n = re.subn(
+        r"message_count: 3(\s+topic_metadata:\s+name: /cam/image_raw)",
+        r"message_count: 99\1",
+        meta.read_text(),
+    )
+    assert n == 1
+    meta.write_text(text)
+    assert main(["info", str(bag)]) == 0
+    out, err = capsys.readouterr()
+    (row,) = [ln.split() for ln in out.splitlines() if ln.startswith("/cam/image_raw")]
+    assert row[2:] == ["3", "10.00"]
+    assert err.strip() == f"graphslam: warning: {bag}: /cam/image_raw: the bag states 99 messages, it holds 3"
+
+
+def test_a_topic_of_two_message_types_is_said_as_one(tmp_path, capsys):
+    """It was "no image topic (...)" listing that very topic, and "None is not one of"."""
+
+    def poses_on_the_image_topic(w):  # a second connection: BagWriter.write keeps one a topic
+        msg = w.pose(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+        conn = w.writer.add_connection("/cam/image_raw", msg.__msgtype__, typestore=w.ts)
+        w.writer.write(conn, 2 * 10**9, w.ts.serialize_ros1(msg, msg.__msgtype__))
+
+    bag = tiny_bag(tmp_path / "m.bag", extra=poses_on_the_image_topic)
+    mixed = "/cam/image_raw holds mixed types (geometry_msgs/msg/PoseStamped, sensor_msgs/msg/Image)"
+    line = one_error_line(capsys, [*RUN, "--dataset", bag, "--out", tmp_path / "o"])
+    assert line.endswith(f"; {mixed}, not read")
+    line = one_error_line(
+        capsys, [*RUN, "--dataset", bag, "--topics", "image=/cam/image_raw", "--out", tmp_path / "o"]
+    )
+    assert "--topics image=/cam/image_raw: the topic holds mixed types (" in line and "None" not in line
+
+
+def test_an_empty_topic_is_no_candidate(tmp_path, capsys):
+    """A declared topic of no message made the choice "2 truth topics"."""
+    from graphslam.sources.spatial.rosbag import read_bag
+
+    def truth_and_an_empty_topic(w):
+        truth_poses(w, lambda k: k * FRAME_NS, lambda k: 10**9 + k * FRAME_NS)
+        w.conns["/empty/pose"] = w.writer.add_connection(
+            "/empty/pose", "geometry_msgs/msg/PoseStamped", typestore=w.ts
+        )
+
+    bag = tiny_bag(tmp_path / "e.bag", extra=truth_and_an_empty_topic)
+    assert read_bag(bag).topics["truth"] == "/truth"
+    assert main(["info", str(bag)]) == 0
+    assert "truth /truth" in capsys.readouterr().out
