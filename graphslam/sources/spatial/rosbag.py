@@ -501,7 +501,7 @@ def read_bag(
     # stamps (another clock) paired each image with another frame's truth, silently
     roles = (("image", index), ("truth", truth), ("odometry", odometry))
     read = {chosen[role]: got.stamps for role, got in roles if got is not None}
-    zero = [where for where, stamps in read.items() if not any(stamps.header_ns)]
+    zero = [topic for topic, stamps in read.items() if not any(stamps.header_ns)]
     record_clock = bool(zero)
     clock_notes = (
         (
@@ -622,7 +622,8 @@ def _in_stamp_order(index: ImageIndex, topic: str, path: Path, record_clock: boo
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     if np.any(order != np.arange(len(order))):
         late = int(np.sum(np.diff(np.array(stamps, dtype=np.int64)) < 0))
-        notes.append(f"{topic}: {late} images recorded out of header-stamp order: sorted by header stamp")
+        clock = clock_name(record_clock)
+        notes.append(f"{topic}: {late} images recorded out of {clock} order: sorted by {clock}")
     stamps = [stamps[k] for k in order]
     dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
     if dup:
