@@ -92,7 +92,7 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     A PNG without its ``IEND`` chunk or a JPEG without its end-of-image marker
     (a truncated file) is refused before decoding: OpenCV would decode the part
     it has, fill the rest with grey and name no file. A 16-bit image whose values
-    sit in its low bits (near black as 8 bits: :func:`_check_sixteen_bit`) is refused
+    sit in its low bits (near black as 8 bits: :func:`check_sixteen_bit_levels`) is refused
     too. Raises :class:`InputError` naming ``path``.
     """
     if data.startswith(_PNG_SIGNATURE) and _PNG_IEND not in data:
@@ -105,8 +105,8 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
             image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None or image.size == 0:
         raise InputError("cannot read image (not an image file, or an unsupported format)", path)
-    if _levels(image) <= MAX_LEVELS_OF_LOW_16_BIT:  # near flat: 16-bit values in the low bits?
-        _check_sixteen_bit(data, image, path)
+    if _levels(image) <= MAX_LEVELS_OF_LOW_16_BIT and _is_sixteen_bit(data):
+        check_sixteen_bit_levels(image, path)  # near flat: 16-bit values in the low bits
     return check_gray(image, what=str(path))
 
 
@@ -122,15 +122,22 @@ def _levels(image: np.ndarray) -> int:
     return int(image.max()) - int(image.min()) + 1
 
 
-def _check_sixteen_bit(data: bytes, image: np.ndarray, path: str | Path) -> None:
-    """InputError when the file holds 16-bit values and ``image`` (its 8-bit reading:
-    OpenCV keeps the top 8 of the 16) spans at most :data:`MAX_LEVELS_OF_LOW_16_BIT`
-    grey levels: the values sit in the low bits (a depth map, a 12-bit camera's raw
-    data), and the image is near black. Decoded again only for such a flat image."""
+def _is_sixteen_bit(data: bytes) -> bool:
+    """Whether the image file ``data`` holds 16-bit values (decoded again: called only
+    for a flat image; a flat 8-bit one is a blank frame, said where features are counted)."""
     with quiet_opencv():
         deep = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
-    if deep is None or deep.dtype != np.uint16:
-        return  # an 8-bit image that is flat: a blank frame, said where features are counted
+    return deep is not None and deep.dtype == np.uint16
+
+
+def check_sixteen_bit_levels(image: np.ndarray, path: str | Path) -> None:
+    """InputError when ``image``, the 8-bit reading of a 16-bit image (its top 8 bits:
+    OpenCV's, and cv_bridge's scale by 1/256), spans at most
+    :data:`MAX_LEVELS_OF_LOW_16_BIT` grey levels: the values sit in the low bits (a
+    depth map, a 12-bit camera's raw data), and the image is near black. One rule for
+    image files and ROS bags' mono16 images."""
+    if _levels(image) > MAX_LEVELS_OF_LOW_16_BIT:
+        return
     lo, hi = int(image.min()), int(image.max())
     raise InputError(
         f"16-bit image whose values sit in the low bits: read as 8 bits (the top 8 of 16) "

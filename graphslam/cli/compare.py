@@ -147,6 +147,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     if args.out is not None:  # refused now, not after the runs
         check_output_dir(args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
+    registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused flag
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
@@ -165,7 +166,6 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     explicit = bool(args.backends)
     args.backends = args.backends or list(registry.BACKENDS)
     _check_names(args.backends, registry.BACKENDS, "2-D landmark datasets", graphs_hint=True)
-    registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
     dataset = registry.load_dataset(args.dataset, seed=args.seed, config=config, robot=args.robot)
     narrowed = _range_backends(args, dataset, explicit)
     # after the back ends are known: on ranges only iSAM2 runs, which draws no numbers

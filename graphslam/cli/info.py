@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from graphslam.cli.common import add_command, add_topics_option, path_arg
+from graphslam.cli.common import add_command, add_topics_option, path_arg, warn
 from slamcore.errors import ConfigError
 
 
@@ -28,6 +28,9 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     topics = bag_topics(args.bag)
     print(format_topics(topics))
+    for t in topics:
+        if t.count != t.stated_count:  # a ROS 2 bag's metadata.yaml edited or left stale
+            warn(f"{args.bag}: {t.name}: the bag states {t.stated_count} messages, it holds {t.count}")
     roles = chosen_roles(args.bag, topics, args.topics)
     print(
         "read by --dataset: "

@@ -100,6 +100,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     check_rerun_flags(args)
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "localize.rrd")
     frames = None if args.frames is None else parse_frames(args.frames)
+    registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --topics
     registry.check_topics_flag(args.dataset, args.topics)
     if not registry.is_visual_dataset(args.dataset):
         from slamcore.errors import InputError

@@ -277,9 +277,12 @@ def resolve_odometry(sequence: ImageSequence, mode: str, noise: OdometryNoiseCon
         mode = "sequence" if own is not None else "derived" if sequence.wTc_true is not None else "none"
     if mode == "sequence":
         if own is None:
+            # a bag's odometry topic that was read and left out says why, not "none of its own"
+            unused = getattr(sequence, "odometry_unused", None)
             raise GraphSlamError(
-                f"sequence {sequence.name!r} has no odometry of its own; "
-                "use --odometry derived (needs ground truth) or none"
+                f"sequence {sequence.name!r} has no odometry of its own"
+                + ("" if unused is None else f" (odometry topic {unused})")
+                + "; use --odometry derived (needs ground truth) or none"
             )
         odo = np.asarray(own, dtype=np.float64)
         own_cov = getattr(sequence, "odometry_covariance")  # noqa: B009 (not on ImageSequence)

@@ -286,6 +286,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_rerun_flags(args)
+    # a mistyped path is said as one, not as a flag that does not apply to it
+    registry.check_dataset_named(args.dataset)
     registry.check_topics_flag(args.dataset, args.topics)
     if args.write_bag:  # refused now, not after the run
         from graphslam.outputs.trajectory_bag import check_bag_writer

@@ -58,7 +58,6 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
         raise GraphSlamError("--max-steps must be at least 1")
     if args.no_polish:
         registry.check_no_polish(args.backend)
-    registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --seed
     if args.seed is not None and registry.seed_draws_nothing(args.dataset, args.backend):
         raise ConfigError(
             f"--seed has no effect here: {args.dataset} is not simulated and "

@@ -17,7 +17,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from graphslam.sources.spatial.sequence import check_K, image_doubts, parse_floats, read_lines
+from graphslam.sources.spatial.sequence import (
+    check_distortion,
+    check_K,
+    image_doubts,
+    parse_floats,
+    read_lines,
+)
 from slamcore.errors import InputError, quote
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -102,8 +108,6 @@ def yaml_matrix(value, path: Path, key: str) -> np.ndarray:
 #: double sphere) maps pixels otherwise: read as these, a corner moved by thousands of
 #: pixels, silent (thirteenth hostile pass).
 RADTAN_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "radial_tangential", "")
-#: Coefficient counts OpenCV's distortion model takes.
-DISTORTION_COUNTS = (4, 5, 8, 12, 14)
 
 
 def yaml_distortion(data: dict, path: Path, keys=("distortion", "distortion_coefficients", "dist_coeffs")):
@@ -123,14 +127,7 @@ def yaml_distortion(data: dict, path: Path, keys=("distortion", "distortion_coef
     if found is None:
         return None
     key = found
-    dist = yaml_matrix(data[key], path, key)
-    if dist.size == 0:
-        return None
-    if dist.size not in DISTORTION_COUNTS:
-        raise InputError(f"{key}: expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}", path)
-    if not np.all(np.isfinite(dist)):
-        raise InputError(f"{key}: non-finite distortion coefficient", path)
-    return dist
+    return check_distortion(yaml_matrix(data[key], path, key), path, what=key)
 
 
 def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -183,9 +180,7 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     dist = None
     if rest:
         n, t = rest[0]
-        dist = parse_floats(t, path, n, what="distortion coefficients")
-        if dist.size not in (4, 5, 8, 12, 14):
-            raise InputError(f"expected 4, 5, 8, 12 or 14 distortion coefficients, got {dist.size}", path, n)
+        dist = check_distortion(parse_floats(t, path, n, what="distortion coefficients"), path, n)
         if len(rest) > 1:
             raise InputError("unexpected extra line after the distortion coefficients", path, rest[1][0])
     return K, dist

@@ -77,6 +77,8 @@ class FrameSelection(ImageSequence):
     odometry: np.ndarray | None = None
     odometry_covariance: np.ndarray | None = None
     odometry_sigmas: tuple[float, float] | None = None
+    #: why the base's own odometry source was left out (a ROS bag's), or None
+    odometry_unused: str | None = None
     config: object = field(default=None)
     #: what the reader made of the source (a ROS bag's topics), as the base says it
     notes: tuple[str, ...] = ()
@@ -118,6 +120,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         odometry=odo,
         odometry_covariance=cov,
         odometry_sigmas=sig,
+        odometry_unused=getattr(sequence, "odometry_unused", None),
         config=getattr(sequence, "config", None),
         notes=tuple(getattr(sequence, "notes", ())),
     )

@@ -22,8 +22,10 @@ folder). :func:`read_bag` returns a :class:`BagSequence`, an
 Topics, per role (``image``, ``camera_info``, ``truth``, ``odometry``): the
 one topic of the role's types, or the one named by ``--topics
 image=/cam0/image_raw,...`` (``odometry=none``: do not read one); two
-candidates and no name is an error listing them; no image topic too.
-Times are the header stamps (all zero: the bag's record times, said in the
+candidates and no name is an error listing them; no image topic too. A topic
+of no message is no candidate; a topic of several message types is not read.
+Times are the header stamps; when every header stamp of the images, the truth
+or the odometry is zero, the record times of all three (one clock: said in the
 notes). Images out of order by header stamp are sorted (said in the notes);
 a repeated stamp is refused. The notes (``BagSequence.notes``) list the
 topics used; the run summary prints them.
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import os
 import struct
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -65,7 +68,13 @@ def bag_path(spec: str | Path) -> Path | None:
     """The path the bag reader opens for ``spec`` (a ``.bag`` file, a ROS 2 bag folder,
     or a ``.db3``/``.mcap`` file of one), or None when ``spec`` is not a bag."""
     path = Path(spec)
-    if path.is_file() and path.suffix == ".bag":
+    if path.is_file() and (path.suffix == ".bag" or _starts_as_ros1_bag(path)):
+        if path.suffix == ".active":
+            raise InputError(
+                "a ROS 1 bag that rosbag record did not close (.active: the recording was cut): "
+                "run 'rosbag reindex' on it, then name it .bag",
+                path,
+            )
         return path
     if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
         return path.parent
@@ -73,6 +82,20 @@ def bag_path(spec: str | Path) -> Path | None:
         return path
     _refuse_bag_without_metadata(path)
     return None
+
+
+#: The first bytes of a ROS 1 bag (format 2.0, what rosbag record writes).
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+
+
+def _starts_as_ros1_bag(path: Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag by its content, whatever its name (``REC.BAG``,
+    ``x.bag.active``: read as text files before)."""
+    try:
+        with path.open("rb") as f:
+            return f.read(len(ROS1_MAGIC)) == ROS1_MAGIC
+    except OSError:  # unreadable: left to the reader that opens it, with its own line
+        return False
 
 
 #: Files of a ROS 2 bag's storage (SQLite, MCAP): unreadable without the bag's metadata.yaml.
@@ -141,18 +164,32 @@ def open_bag(path: Path) -> Iterator:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    try:
-        # bags without message definitions (early ROS 2 ones) are read with Humble's
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.open()
-    except errors as e:
-        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
-    try:
-        yield reader
-    except errors as e:  # a chunk damaged past the index, met while reading
-        raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
-    finally:
-        reader.close()
+    with _named_dot_bag(path) as readable:
+        try:
+            # bags without message definitions (early ROS 2 ones) are read with Humble's
+            reader = AnyReader([readable], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            reader.open()
+        except errors as e:
+            raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+        try:
+            yield reader
+        except errors as e:  # a chunk damaged past the index, met while reading
+            raise InputError(f"cannot read the bag: {_reason(e)}", path) from None
+        finally:
+            reader.close()
+
+
+@contextmanager
+def _named_dot_bag(path: Path) -> Iterator[Path]:
+    """``path``, or for a ROS 1 bag file named otherwise (``REC.BAG``) a link to it named
+    ``.bag`` in a temporary folder, for the block: rosbags tells ROS 1 from 2 by the suffix."""
+    if path.is_dir() or path.suffix == ".bag":
+        yield path
+        return
+    with tempfile.TemporaryDirectory(prefix="graphslam-bag-") as folder:
+        link = Path(folder) / "bag.bag"
+        link.symlink_to(path.resolve())
+        yield link
 
 
 def bag_errors(path: Path) -> tuple[type[BaseException], ...]:
@@ -186,39 +223,60 @@ def _reason(e: BaseException) -> str:
 
 @dataclass(frozen=True)
 class TopicSummary:
-    """One topic of a bag (``graphslam info``): type, message count, mean rate."""
+    """One topic of a bag (``graphslam info``): type, message count and mean rate of the
+    messages read, and the count the bag's index (a ROS 2 bag's metadata.yaml) states."""
 
     name: str
     msgtype: str
     count: int
     rate_hz: float | None
+    stated_count: int
+
+
+#: What :func:`topic_types` says of a topic holding messages of several types.
+MIXED_TYPES = "mixed types"
+
+
+def topic_types(reader) -> dict[str, str]:
+    """``{topic: message type}`` of an open bag; a topic of several types maps to
+    ``"mixed types (A, B)"``, which no role takes (rosbags gives None for it)."""
+    found: dict[str, set[str]] = {}
+    for conn in reader.connections:
+        found.setdefault(conn.topic, set()).add(conn.msgtype)
+    return {
+        topic: next(iter(types)) if len(types) == 1 else f"{MIXED_TYPES} ({', '.join(sorted(types))})"
+        for topic, types in found.items()
+    }
 
 
 def bag_topics(spec: str | Path) -> list[TopicSummary]:
-    """Every topic of the bag ``spec`` with its type, count and rate (from record times)."""
+    """Every topic of the bag ``spec`` with its type, and the count and rate (from record
+    times) of the messages read: a ROS 2 bag's metadata.yaml may state other counts."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
         first: dict[str, int] = {}
         last: dict[str, int] = {}
+        counts: dict[str, int] = {}
         for conn, t, _ in reader.messages():
             first.setdefault(conn.topic, t)
             last[conn.topic] = t
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+        types = topic_types(reader)
         out = []
         for name, info in sorted(reader.topics.items()):
-            n, span = info.msgcount, (last.get(name, 0) - first.get(name, 0)) / 1e9
-            out.append(
-                TopicSummary(
-                    name, info.msgtype or "(mixed types)", n, (n - 1) / span if n > 1 and span > 0 else None
-                )
-            )
+            n, span = counts.get(name, 0), (last.get(name, 0) - first.get(name, 0)) / 1e9
+            rate_hz = (n - 1) / span if n > 1 and span > 0 else None
+            out.append(TopicSummary(name, types.get(name, str(info.msgtype)), n, rate_hz, info.msgcount))
     return out
 
 
 def chosen_roles(spec: str | Path, topics: list[TopicSummary], named: str | None) -> dict | str:
     """``{role: topic}`` ``--dataset`` would read (``graphslam info``), or why none: the
     reason of a missing or ambiguous topic (a listing is not refused for it)."""
+    types = {t.name: t.msgtype for t in topics}
+    empty = {t.name for t in topics if t.count == 0}
     try:
-        return choose_topics({t.name: t.msgtype for t in topics}, parse_topics(named), _require_bag(spec))
+        return choose_topics(types, parse_topics(named), _require_bag(spec), empty)
     except InputError as e:
         return e.reason
 
@@ -232,8 +290,12 @@ def _require_bag(spec: str | Path) -> Path:
     return path
 
 
-def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: Path) -> dict[str, str]:
-    """``{role: topic}`` from the bag's ``{topic: type}`` and the ``--topics`` names."""
+def choose_topics(
+    topics: dict[str, str], named: dict[str, str], where: Path, empty: set[str] | frozenset = frozenset()
+) -> dict[str, str]:
+    """``{role: topic}`` from the bag's ``{topic: type}`` (:func:`topic_types`) and the
+    ``--topics`` names; topics of no message (``empty``) are not chosen automatically."""
+    mixed = [f"{t} holds {ty}, not read" for t, ty in sorted(topics.items()) if ty.startswith(MIXED_TYPES)]
     chosen: dict[str, str] = {}
     for role, types in ROLE_TYPES.items():
         if named.get(role) == NO_TOPIC:
@@ -244,17 +306,27 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
                 raise InputError(
                     f"--topics {role}={topic}: no such topic (topics: {', '.join(sorted(topics))})", where
                 )
+            if topics[topic].startswith(MIXED_TYPES):
+                raise InputError(
+                    f"--topics {role}={topic}: the topic holds {topics[topic]}, not read: "
+                    "record each type on a topic of its own",
+                    where,
+                )
             if topics[topic] not in types:
                 raise InputError(
                     f"--topics {role}={topic}: {topics[topic]} is not one of {', '.join(types)}", where
                 )
             chosen[role] = topic
             continue
-        found = sorted(t for t, ty in topics.items() if ty in AUTO_TYPES[role] and t not in chosen.values())
+        # an empty topic (declared, never published) is no candidate: it made the choice ambiguous
+        found = sorted(
+            t
+            for t, ty in topics.items()
+            if ty in AUTO_TYPES[role] and t not in chosen.values() and t not in empty
+        )
         if role == "camera_info" and len(found) > 1 and "image" in chosen:
-            # the camera's own: /cam0/camera_info beside /cam0/image_raw
-            ns = chosen["image"].rsplit("/", 1)[0] + "/"
-            found = [t for t in found if t.startswith(ns)] or found
+            # the camera's own: /cam0/camera_info beside /cam0/image_raw(/compressed)
+            found = [t for t in found if in_camera_namespace(t, chosen["image"])] or found
         if len(found) > 1:
             raise InputError(
                 f"{len(found)} {role} topics ({', '.join(found)}): name one with --topics {role}=TOPIC", where
@@ -263,9 +335,50 @@ def choose_topics(topics: dict[str, str | None], named: dict[str, str], where: P
             chosen[role] = found[0]
         elif role == "image":
             raise InputError(
-                f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}", where
+                f"no image topic ({', '.join(types)}); topics: {', '.join(sorted(topics)) or 'none'}"
+                + "".join(f"; {m}" for m in mixed),
+                where,
             )
     return chosen
+
+
+#: image_transport's topics of one image stream: ``/cam0/image_raw/compressed`` is
+#: ``/cam0/image_raw`` compressed, in namespace ``/cam0`` (not ``/cam0/image_raw``).
+TRANSPORT_SUFFIXES = ("/compressed", "/compressedDepth", "/theora")
+
+
+def raw_image_topic(topic: str) -> str:
+    """``topic`` without its image_transport suffix (:data:`TRANSPORT_SUFFIXES`)."""
+    for suffix in TRANSPORT_SUFFIXES:
+        if topic.endswith(suffix):
+            return topic[: -len(suffix)]
+    return topic
+
+
+def in_camera_namespace(info_topic: str, image_topic: str) -> bool:
+    """Whether a camera_info topic is in the namespace of an image topic, or above it
+    (``/camera_info`` for ``/cam0/image_raw``): the camera the ROS conventions pair."""
+    info_ns = info_topic.rsplit("/", 1)[0] + "/"
+    return (raw_image_topic(image_topic).rsplit("/", 1)[0] + "/").startswith(info_ns)
+
+
+def is_rectified(image_topic: str) -> bool:
+    """Whether ``image_topic`` holds rectified images: ROS image_pipeline's names
+    (``image_rect``, ``image_rect_color``, ``image_rect_raw``)."""
+    return "image_rect" in raw_image_topic(image_topic).rsplit("/", 1)[-1]
+
+
+def foreign_camera_warnings(chosen: dict[str, str], named: dict[str, str]) -> tuple[str, ...]:
+    """A warning when the bag's only camera_info, taken without being named, is in
+    another camera's namespace (``/cam1/image_raw`` given ``/cam0/camera_info``)."""
+    info, image = chosen.get("camera_info"), chosen["image"]
+    if info is None or "camera_info" in named or in_camera_namespace(info, image):
+        return ()
+    return (
+        f"images {image} take {info}, the bag's only camera_info, of another namespace: if it is "
+        "not their camera, name theirs with --topics camera_info=TOPIC, or give --intrinsics FILE "
+        "with --topics camera_info=none",
+    )
 
 
 @dataclass(frozen=True)
@@ -290,6 +403,8 @@ class BagSequence(ImageSequence):
         notes: what was read from where, one line each (the run summary prints them).
         odometry, odometry_covariance, odometry_sigmas: of an Odometry topic
             (:func:`with_odometry`), else None.
+        odometry_unused: why the bag's Odometry topic was left out ("/odom not used:
+            ..."), else None: ``--odometry sequence`` says it.
     """
 
     bag: str
@@ -300,6 +415,7 @@ class BagSequence(ImageSequence):
     odometry: np.ndarray | None = None
     odometry_covariance: np.ndarray | None = None
     odometry_sigmas: tuple | None = None
+    odometry_unused: str | None = None
     #: ``(pid, reader, context)`` of the open bag: opened on the first load, again in a
     #: forked child (``graphslam compare``), whose file offsets must not be the parent's.
     _open_reader: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -355,8 +471,9 @@ def read_bag(
     topic (refused beside one: the bag's own camera is the one its images were taken with)."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
-        types = {name: info.msgtype for name, info in reader.topics.items()}
-        chosen = choose_topics(types, topics or {}, path)
+        types = topic_types(reader)
+        empty = {name for name, info in reader.topics.items() if info.msgcount == 0}
+        chosen = choose_topics(types, topics or {}, path, empty)
         image_type = types[chosen["image"]]
         index = _index_images(reader, chosen["image"], image_type, path)
         if intrinsics_file is not None:
@@ -369,13 +486,32 @@ def read_bag(
 
             K, dist = read_intrinsics_file(intrinsics_file)
             notes: tuple = (f"intrinsics: {intrinsics_file} (--intrinsics)",)
+            camera_warnings: tuple = ()
         else:
-            K, dist, notes = _calibration(reader, chosen.get("camera_info"), index.size, path, calibrated)
+            K, dist, notes, camera_warnings = _calibration(
+                reader, chosen.get("camera_info"), index.size, path, calibrated, chosen["image"]
+            )
+            camera_warnings += foreign_camera_warnings(chosen, topics or {})
         truth = odometry = None
         if "truth" in chosen:
-            truth = _trajectory(reader, chosen["truth"], types[chosen["truth"]], path)
+            truth = _pose_messages(reader, chosen["truth"], types[chosen["truth"]], path)
         if "odometry" in chosen:
-            odometry = _poses(reader, chosen["odometry"], rm.ODOMETRY, path)
+            odometry = _pose_messages(reader, chosen["odometry"], rm.ODOMETRY, path)
+    # one clock for every topic: images on record times matched to truth by header
+    # stamps (another clock) paired each image with another frame's truth, silently
+    roles = (("image", index), ("truth", truth), ("odometry", odometry))
+    read = {chosen[role]: got.stamps for role, got in roles if got is not None}
+    zero = [topic for topic, stamps in read.items() if not any(stamps.header_ns)]
+    record_clock = bool(zero)
+    clock_notes = (
+        (
+            f"every header stamp of {', '.join(zero)} is 0: the bag's record times are used for "
+            f"{', '.join(read)}",
+        )
+        if zero
+        else ()
+    )
+    index = _in_stamp_order(index, chosen["image"], path, record_clock)
     paths = [f"{path}#{chosen['image']}/{k:06d}" for k in range(len(index.refs))]
     seq = BagSequence(
         name=f"rosbag-{path.stem if path.is_file() else folder_name(path)}",
@@ -386,6 +522,7 @@ def read_bag(
         wTc_true=None,
         image_size=index.size,
         source_path=str(path),
+        camera_warnings=camera_warnings,
         bag=str(path),
         topics=chosen,
         image_type=image_type,
@@ -393,11 +530,12 @@ def read_bag(
         notes=(
             f"image: {chosen['image']} ({image_type}, {len(paths)} messages)",
             *notes,
+            *clock_notes,
             *index.notes,
             *(
                 []
                 if truth is None
-                else [f"truth: {chosen['truth']} ({types[chosen['truth']]}, {len(truth.wTc)} poses)"]
+                else [f"truth: {chosen['truth']} ({types[chosen['truth']]}, {len(truth.poses)} poses)"]
             ),
         ),
     )
@@ -405,23 +543,42 @@ def read_bag(
         from graphslam.sources.ground_truth import with_ground_truth
 
         # first: frames without truth are dropped (dataclasses.replace keeps the class)
-        seq = cast(BagSequence, with_ground_truth(seq, truth))
-    return seq if odometry is None else with_odometry(seq, chosen["odometry"], *odometry)
+        seq = cast(BagSequence, with_ground_truth(seq, _trajectory(truth, record_clock)))
+    if odometry is None:
+        return seq
+    return with_odometry(seq, chosen["odometry"], *_on_clock(odometry, record_clock))
+
+
+def clock_name(record_clock: bool) -> str:
+    return "record time" if record_clock else "header stamp"
+
+
+@dataclass(frozen=True)
+class Stamps:
+    """The header stamps and record times (ns) of a topic's messages, in one order."""
+
+    header_ns: list[int]
+    record_ns: list[int]
+
+    def on(self, record_clock: bool) -> list[int]:
+        return self.record_ns if record_clock else self.header_ns
 
 
 @dataclass(frozen=True)
 class ImageIndex:
-    """The image messages of a topic in header-stamp order (:func:`_index_images`)."""
+    """The image messages of a topic (:func:`_index_images`): as read, or in stamp
+    order on the bag's clock (:func:`_in_stamp_order`, then ``stamps_ns`` is set)."""
 
     refs: list[FrameRef]
-    stamps_ns: list[int]
+    stamps: Stamps
     size: tuple[int, int]
-    notes: tuple[str, ...]
+    stamps_ns: list[int] = field(default_factory=list)
+    notes: tuple[str, ...] = ()
 
 
 def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
-    """Every image message of ``topic``: where it is, its stamp; sizes of raw images
-    checked (a compressed one's when it is loaded), order by header stamp."""
+    """Every image message of ``topic``, as read: where it is, its stamps; sizes of raw
+    images checked (a compressed one's when it is loaded)."""
     conns = [c for c in reader.connections if c.topic == topic]
     position = {id(c): k for k, c in enumerate(reader.connections)}
     refs: list[FrameRef] = []
@@ -454,21 +611,28 @@ def _index_images(reader, topic: str, msgtype: str, path: Path) -> ImageIndex:
         record.append(t)
     if not refs or size is None:  # (the first message gives the size)
         raise InputError(f"topic {topic} has no messages", path)
+    return ImageIndex(refs, Stamps(stamps, record), size)
+
+
+def _in_stamp_order(index: ImageIndex, topic: str, path: Path, record_clock: bool) -> ImageIndex:
+    """``index`` sorted by stamp on the bag's clock (header stamps, or record times);
+    a repeated stamp refused."""
+    stamps = index.stamps.on(record_clock)
     notes = []
-    if not any(stamps):
-        notes.append(f"{topic}: every header stamp is 0: the bag's record times are used")
-        stamps = record
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     if np.any(order != np.arange(len(order))):
         late = int(np.sum(np.diff(np.array(stamps, dtype=np.int64)) < 0))
-        notes.append(f"{topic}: {late} images recorded out of header-stamp order: sorted by header stamp")
+        clock = clock_name(record_clock)
+        notes.append(f"{topic}: {late} images recorded out of {clock} order: sorted by {clock}")
     stamps = [stamps[k] for k in order]
     dup = [k for k in range(1, len(stamps)) if stamps[k] == stamps[k - 1]]
     if dup:
         raise InputError(
-            f"two images on {topic} have the header stamp {float(rm.ns_to_s([stamps[dup[0]]])[0])} s", path
+            f"two images on {topic} have the {clock_name(record_clock)} "
+            f"{float(rm.ns_to_s([stamps[dup[0]]])[0])} s",
+            path,
         )
-    return ImageIndex([refs[k] for k in order], stamps, size, tuple(notes))
+    return ImageIndex([index.refs[k] for k in order], index.stamps, index.size, stamps, tuple(notes))
 
 
 def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
@@ -476,9 +640,12 @@ def _decoded_size(msg, msgtype: str, where: str) -> tuple[int, int]:
     return int(img.shape[1]), int(img.shape[0])
 
 
-def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, calibrated: bool = True):
-    """``(K, distortion or None, notes)``: the first CameraInfo of ``topic``, else an
-    intrinsics file beside the bag (as a plain image folder's)."""
+def _calibration(
+    reader, topic: str | None, size: tuple[int, int], path: Path, calibrated: bool, image_topic: str
+):
+    """``(K, distortion or None, notes, warnings)``: the first CameraInfo of ``topic``, else
+    an intrinsics file beside the bag (as a plain image folder's). Rectified images
+    (:func:`is_rectified`) take the CameraInfo's ``P`` and no distortion."""
     from graphslam.sources.spatial.calibration import (
         INTRINSICS_FILE_NAMES,
         find_intrinsics_file,
@@ -490,7 +657,7 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, c
         folders = ([path] if path.is_dir() else []) + [path.parent]
         found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
         if found is None and not calibrated:
-            return None, None, ("no camera calibration",)
+            return None, None, ("no camera calibration",), ()
         if found is None:
             raise InputError(
                 f"no camera_info topic ({rm.CAMERA_INFO}) and no intrinsics file "
@@ -498,49 +665,88 @@ def _calibration(reader, topic: str | None, size: tuple[int, int], path: Path, c
                 path,
             )
         K, dist = read_intrinsics_file(found)
-        return K, dist, (f"intrinsics: {found}",)
+        return K, dist, (f"intrinsics: {found}",), ()
     where = f"{path}#{topic}"
     conns = [c for c in reader.connections if c.topic == topic]
     for conn, _, raw in reader.messages(conns):
-        K, dist, wh = rm.camera_calibration(reader.deserialize(raw, conn.msgtype), where)
+        msg = reader.deserialize(raw, conn.msgtype)
+        K, dist, wh = rm.camera_calibration(msg, where)
         if wh != (0, 0) and wh != tuple(size):
             raise InputError(
                 f"camera info is for {wh[0]}x{wh[1]} px images, the images are {size[0]}x{size[1]}", where
             )
-        return K, dist, (f"camera_info: {topic} (first message)",)
+        note = f"camera_info: {topic} (first message)"
+        if not is_rectified(image_topic):
+            return K, dist, (note,), ()
+        # K and D are the raw camera's: undistorting rectified images with them distorts them
+        # again; the rectified camera is P's left 3x3, with no distortion (sensor_msgs/CameraInfo)
+        K_rect = rm.rectified_K(msg, where)
+        if K_rect is None:
+            return (
+                K,
+                None,
+                (f"{note}: K, no distortion, for the rectified {image_topic}",),
+                (
+                    f"{where}: P is all zeros: the rectified images {image_topic} are taken with K "
+                    "and no distortion",
+                ),
+            )
+        return K_rect, None, (f"{note}: P's 3x3, no distortion, for the rectified {image_topic}",), ()
     raise InputError("camera info topic has no messages", where)
 
 
-def _trajectory(reader, topic: str, msgtype: str, path: Path):
-    """The poses of ``topic`` as a :class:`~graphslam.sources.ground_truth.Trajectory`."""
+@dataclass(frozen=True)
+class PoseMessages:
+    """The pose messages of a topic, as read (:func:`_pose_messages`)."""
+
+    where: str
+    stamps: Stamps
+    poses: np.ndarray
+    covariances: np.ndarray | None
+
+
+def _trajectory(messages: PoseMessages, record_clock: bool):
+    """``messages`` as a :class:`~graphslam.sources.ground_truth.Trajectory` on the bag's clock."""
     from graphslam.sources.ground_truth import Trajectory
 
-    stamps_s, poses, _ = _poses(reader, topic, msgtype, path)
-    return Trajectory("tum", stamps_s, poses, f"{path}#{topic}")
+    stamps_s, poses, _ = _on_clock(messages, record_clock)
+    return Trajectory("tum", stamps_s, poses, messages.where)
 
 
-def _poses(reader, topic: str, msgtype: str, path: Path):
-    """``(stamps (N,) s, poses (N, 4, 4), covariances (N, 6, 6) or None)`` of ``topic``
-    in header-stamp order (covariances of Odometry only); a repeated stamp refused."""
+def _pose_messages(reader, topic: str, msgtype: str, path: Path) -> PoseMessages:
+    """Poses ``(N, 4, 4)``, stamps and covariances ``(N, 6, 6)`` (of Odometry, else None)
+    of ``topic``, as read."""
     where = f"{path}#{topic}"
     conns = [c for c in reader.connections if c.topic == topic]
     stamps: list[int] = []
+    record: list[int] = []
     poses: list[np.ndarray] = []
     covs: list[np.ndarray] = []
-    for conn, _, raw in reader.messages(conns):
+    for conn, t, raw in reader.messages(conns):
         msg = reader.deserialize(raw, conn.msgtype)
         poses.append(rm.pose_matrix(msg, msgtype, f"{where}/{len(poses)}"))
         stamps.append(rm.stamp_ns(msg.header))
+        record.append(t)
         if msgtype == rm.ODOMETRY:
             covs.append(np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6))
     if not poses:
         raise InputError("pose topic has no messages", where)
+    return PoseMessages(where, Stamps(stamps, record), np.array(poses), np.array(covs) if covs else None)
+
+
+def _on_clock(messages: PoseMessages, record_clock: bool):
+    """``(stamps (N,) s, poses (N, 4, 4), covariances or None)`` of ``messages`` in stamp
+    order on the bag's clock (header stamps, or record times); a repeated stamp refused."""
+    stamps = messages.stamps.on(record_clock)
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
     stamps_s = rm.ns_to_s([stamps[k] for k in order])
     same = np.nonzero(np.diff(stamps_s) == 0)[0]
     if same.size:
-        raise InputError(f"two poses have the header stamp {float(stamps_s[same[0]])} s", where)
-    return stamps_s, np.array(poses)[order], (np.array(covs)[order] if covs else None)
+        raise InputError(
+            f"two poses have the {clock_name(record_clock)} {float(stamps_s[same[0]])} s", messages.where
+        )
+    covs = messages.covariances
+    return stamps_s, messages.poses[order], (None if covs is None else covs[order])
 
 
 def with_odometry(
@@ -572,7 +778,8 @@ def with_odometry(
         if len(cov) and not np.all(np.linalg.eigvalsh(cov)[:, 0] > 0):
             why = "its pose covariance is not positive definite"
     if why is not None:
-        return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {topic} not used: {why}"))
+        unused = f"{topic} not used: {why}"
+        return dataclasses.replace(seq, notes=(*seq.notes, f"odometry: {unused}"), odometry_unused=unused)
     return dataclasses.replace(
         seq,
         odometry=step,
@@ -587,7 +794,7 @@ def read_bag_trajectory(spec: str | Path, topic: str | None):
     BAG:TOPIC``); without a topic, the bag's one pose topic (any of the truth types)."""
     path = _require_bag(spec)
     with open_bag(path) as reader:
-        types = {name: info.msgtype for name, info in reader.topics.items()}
+        types = topic_types(reader)
         if topic is None:
             found = sorted(t for t, ty in types.items() if ty in ROLE_TYPES["truth"])
             if len(found) != 1:
@@ -601,4 +808,6 @@ def read_bag_trajectory(spec: str | Path, topic: str | None):
                 f"of {', '.join(ROLE_TYPES['truth'])}",
                 path,
             )
-        return _trajectory(reader, topic, types[topic], path)
+        messages = _pose_messages(reader, topic, types[topic], path)
+    # header stamps all 0: the record times, as for a run's topics
+    return _trajectory(messages, not any(messages.stamps.header_ns))

@@ -11,8 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from frontend.image import decode_gray
-from graphslam.sources.spatial.sequence import check_K, check_rotation, quat_to_rotation
+from frontend.image import check_sixteen_bit_levels, decode_gray
+from graphslam.sources.spatial.sequence import check_distortion, check_K, check_rotation, quat_to_rotation
 from slamcore.errors import InputError, quote
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -84,6 +84,9 @@ def image_gray(msg, msgtype: str, where: str) -> np.ndarray:
     if depth == 2:
         order = ">" if msg.is_bigendian else "<"
         wide = pixels.copy().view(np.dtype(f"{order}u2")).reshape(h, w)
+        # 12-bit values in mono16 are near black as 8 bits: refused as image files of them
+        # are, on the same 8-bit reading (the top 8 bits, as OpenCV reads a 16-bit PNG)
+        check_sixteen_bit_levels((wide >> 8).astype(np.uint8), where)
         # cv_bridge's mono16 -> mono8 (scale 1/256, rounded): what a ROS user sees
         return cv2.convertScaleAbs(wide.astype(np.float32), alpha=1.0 / 256.0)
     img = np.ascontiguousarray(pixels.reshape(h, w, channels) if channels > 1 else pixels.reshape(h, w))
@@ -100,10 +103,20 @@ def camera_calibration(msg, where: str) -> tuple[np.ndarray, np.ndarray | None, 
         )
     # ROS 1 spells the fields K and D, ROS 2 k and d
     K = check_K(np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3), where)
-    D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
-    if not np.all(np.isfinite(D)):
-        raise InputError("non-finite distortion coefficient", where)
-    return K, (D if D.size else None), (int(msg.width), int(msg.height))
+    # a D of 3 or 6 coefficients crashed OpenCV's undistortion at the first image
+    D = check_distortion(np.asarray(_field(msg, "d"), dtype=np.float64), where, what="camera_info D")
+    return K, D, (int(msg.width), int(msg.height))
+
+
+def rectified_K(msg, where: str) -> np.ndarray | None:
+    """The camera of the rectified images of a CameraInfo: its projection ``P``'s left
+    (3, 3); None when ``P`` is all zeros (not filled in by the driver)."""
+    P = np.asarray(_field(msg, "p"), dtype=np.float64).reshape(-1)
+    if P.size != 12:
+        raise InputError(f"camera_info P has {P.size} numbers, not 12", where)
+    if not np.any(P):
+        return None
+    return check_K(P.reshape(3, 4)[:, :3], where)
 
 
 def _field(msg, name: str):

@@ -287,6 +287,31 @@ def check_increasing(stamps, line_numbers, path: Path, what: str = "timestamps")
         )
 
 
+#: Coefficient counts OpenCV's distortion model takes (``cv2.initUndistortRectifyMap``
+#: asserts on any other, a traceback naming no file).
+DISTORTION_COUNTS = (4, 5, 8, 12, 14)
+
+
+def check_distortion(dist: np.ndarray, path, line=None, what: str = "") -> np.ndarray | None:
+    """``dist`` as a flat float64 array, None when empty; InputError naming ``path`` (and
+    ``what``, the key or topic holding it) for a count OpenCV does not take or a
+    non-finite coefficient. Every calibration reader (files, bags) checks here."""
+    dist = np.asarray(dist, dtype=np.float64).reshape(-1)
+    if dist.size == 0:
+        return None
+    where = f"{what}: " if what else ""
+    if dist.size not in DISTORTION_COUNTS:
+        raise InputError(
+            f"{where}expected {', '.join(map(str, DISTORTION_COUNTS[:-1]))} or {DISTORTION_COUNTS[-1]} "
+            f"distortion coefficients, got {dist.size}",
+            path,
+            line,
+        )
+    if not np.all(np.isfinite(dist)):
+        raise InputError(f"{where}non-finite distortion coefficient", path, line)
+    return dist
+
+
 def check_K(K: np.ndarray, path, line=None) -> np.ndarray:
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
