@@ -52,8 +52,7 @@ class TrackerConfig(Validated):
             ``None`` lets the pipeline decide from the back end.
         follow_window_px: half side of the square window a followed track is
             searched in, around its last position plus its last image motion.
-        follow_image_motion, follow_missed_landmarks, fill_first_frame,
-        follow_recuts_patch: aids for a
+        follow_image_motion, follow_missed_landmarks, fill_first_frame, follow_recuts_patch: aids for a
             run whose back end has no odometry (its predictions are a motion
             model's guess, and a monocular start needs many tracks at once);
             each ``None`` lets the pipeline decide: on without odometry, off

@@ -79,6 +79,8 @@ class BackendDescriptor:
         polish: it ends with a batch polish that ``--no-polish`` turns off (on
             every kind of data it runs on).
         reference: ``graphslam compare`` measures the others' distance to it.
+        pose_graph_unread: the ``[posegraph]`` keys its whole-file solve never reads
+            (iSAM2's under ``batch``), said as doing nothing when a file sets them.
     """
 
     name: str
@@ -88,6 +90,7 @@ class BackendDescriptor:
     streams: bool = True
     polish: bool = False
     reference: bool = False
+    pose_graph_unread: tuple[str, ...] = ()
 
 
 _ISAM2_CONFIG = "graphslam.backends.planar.isam2_config:Isam2Config"
@@ -147,7 +150,12 @@ TABLE: tuple[BackendDescriptor, ...] = (
     ),
     BackendDescriptor("fastslam1", landmarks=_fastslam(1)),
     BackendDescriptor("fastslam2", landmarks=_fastslam(2)),
-    BackendDescriptor("batch", pose_graph=True, streams=False),
+    BackendDescriptor(
+        "batch",
+        pose_graph=True,
+        streams=False,
+        pose_graph_unread=("relinearize_threshold", "relinearize_skip", "polish"),
+    ),
     BackendDescriptor("auto", pose_graph=True, streams=False),
 )
 

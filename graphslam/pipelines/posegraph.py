@@ -207,8 +207,8 @@ def closures_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> 
     reckoning, quietly, hostile pass 14). Nothing without closures or after a stop."""
     from graphslam.backends.posegraph.route import consistent
 
-    if not (~graph.odometry_mask()).any() or result.cut is not None:
-        return []
+    if not (~graph.odometry_mask()).any() or result.cut is not None or result.stopped is not None:
+        return []  # a solve a signal stopped is at no optimum: the test does not apply
     ok, sentence = consistent(graph, result, alpha)
     if ok:
         return []

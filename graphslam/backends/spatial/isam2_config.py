@@ -108,6 +108,8 @@ class VisualIsam2Config(Validated):
     """
 
     SECTION: ClassVar[str] = "isam2_visual"
+    #: settings of loop-closure factors (``--loops``, ``--relocalise``), unread without them
+    LOOP_CLOSURE_KEYS: ClassVar[tuple[str, ...]] = ("loop_closure_kernel", "loop_closure_kernel_k")
     GATES: ClassVar[tuple[Gate, ...]] = (
         # the RANSACs seeded are the camera-alone ones (two-view start, PnP)
         Gate(

@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         registry.check_no_polish(args.backend)
         overrides["polish"] = False
     solver_config = registry.pose_graph_config(config, overrides)
-    if args.init is not None and args.backend == "isam2" and not solver_config.polish:
+    polished = registry.backend_row(args.backend).polish  # iSAM2, then a batch polish
+    if args.init is not None and polished and not solver_config.polish:
         raise ConfigError(
             "--init starts the batch polish after iSAM2, and the polish is off (--no-polish or "
             "[posegraph] polish = false): iSAM2's estimate is the answer"
@@ -113,13 +114,11 @@ def mark_unread_settings(config, solver: str, settings, toro_read: bool) -> None
     the gates', :meth:`slamcore.config.ConfigFile.inert_lines`): iSAM2's under the batch
     solver, the polish's start with iSAM2 unpolished, the TORO convention on a g2o file.
     ``auto`` may run either solver, so it marks none of theirs."""
-    if solver == "batch":
-        config.mark_inert(
-            "posegraph",
-            ("relinearize_threshold", "relinearize_skip", "polish"),
-            "the isam2 or auto solver (--backend isam2)",
-        )
-    if solver == "isam2" and not settings.polish:
+    from graphslam import registry
+
+    row = registry.backend_row(solver)
+    config.mark_inert("posegraph", row.pose_graph_unread, "the isam2 or auto solver (--backend isam2)")
+    if row.polish and not settings.polish:
         # the certificate's retry starts from the certified rotations, never from `init`
         config.mark_inert("posegraph", ("init",), "polish = true (the start of the batch polish)")
     if not toro_read:

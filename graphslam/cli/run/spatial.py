@@ -130,11 +130,15 @@ def run(args: argparse.Namespace) -> int:
     )
     refuse_ignored_flags(args, setup.mode, config)
     loops = args.loops or args.vocab is not None
-    if args.backend == "isam2" and not (loops or getattr(args, "relocalise", False)):
+    if not (loops or getattr(args, "relocalise", False)):
         # closures come from --loops and --relocalise only (a relocalised pose joins as one)
+        from graphslam.backend_table import load
+        from slamcore.config import section_name
+
+        cls = load(registry.visual_implementation(args.backend).config)
         config.mark_inert(
-            "isam2_visual",
-            ("loop_closure_kernel", "loop_closure_kernel_k"),
+            section_name(cls),
+            getattr(cls, "LOOP_CLOSURE_KEYS", ()),
             "--loops or --relocalise (the loop-closure factors)",
         )
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
