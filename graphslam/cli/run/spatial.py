@@ -329,13 +329,15 @@ def format_summary(m) -> str:
         tl = m.tracking_loss
         rows.append(
             counts_row(
-                "tracking losses / relocalised / found again",
+                "search losses / relocalised / found again",
                 tl,
                 "losses",
                 "relocalisations",
                 "recovered_by_search",
             )
         )
+        if tl.get("loss_rule"):  # not the camera-alone back end's losses, said apart
+            rows.append(("search loss", tl["loss_rule"]))
     mono = stats.get("camera_alone")
     if mono is not None:
         first = mono.get("first_map")
