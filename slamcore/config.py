@@ -434,8 +434,13 @@ class ConfigFile:
         that ends with some says so (their settings did nothing, and were not checked)."""
         return [name for name in self.data if name not in self.read_sections]
 
-    def section(self, cls: type[T], overrides: dict[str, Any] | None = None) -> T:
-        """Defaults of ``cls``, then the file's section, then non-None ``overrides``."""
+    def section(
+        self, cls: type[T], overrides: dict[str, Any] | None = None, flags: dict[str, str] | None = None
+    ) -> T:
+        """Defaults of ``cls``, then the file's section, then non-None ``overrides``. A value
+        of ``overrides`` refused is said as the command line's, under its ``flags`` name
+        (``{"sigma_t_per_m": "--odometry-noise SIGMA_T_PER_M"}``), never with the file's
+        line: ``--odometry-noise -1 0.1`` beside a config file was blamed on the file."""
         name = section_name(cls)
         self.read_sections.add(name)
         data = dict(self.data.get(name, {}) or {})
@@ -449,7 +454,14 @@ class ConfigFile:
             if data[key] != given[key] or isinstance(data[key], bool) != isinstance(given[key], bool):
                 self.inert[(name, key)] = f"the command line's {_toml_value(given[key])}, which replaced it"
         data.update(given)
-        built = self._build(cls, data, (name,))
+        try:
+            built = self._build(cls, data, (name,))
+        except ConfigError as e:
+            key = next((k for k in given if re.search(rf"\b{name}\.{re.escape(k)}\b", e.reason)), None)
+            if key is None:
+                raise
+            flag = (flags or {}).get(key, f"the command line's {name}.{key}")
+            raise ConfigError(e.reason.replace(f"{name}.{key}", flag)) from None
         self.settings[name] = dataclasses.asdict(typing.cast("DataclassInstance", built))
         if issubclass(cls, Validated):
             # a flag that turned a mode off is named: "--no-polish" under "polish = true"

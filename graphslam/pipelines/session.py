@@ -82,21 +82,15 @@ class VisualSetup:
         noise_over: dict[str, Any] = {"seed": seed}
         if odometry_noise is not None:
             noise_over.update(sigma_t_per_m=odometry_noise[0], sigma_r_deg=odometry_noise[1])
-        try:
-            noise = config.section(vp.OdometryNoiseConfig, noise_over)
-        except ConfigError as e:
-            if e.path is not None:  # the file's value: its line said
-                raise
-            # a flag's value was refused under the key it sets: named as the flag instead
-            flags = {
+        noise = config.section(
+            vp.OdometryNoiseConfig,
+            noise_over,
+            flags={
                 "sigma_t_per_m": "--odometry-noise SIGMA_T_PER_M",
                 "sigma_r_deg": "--odometry-noise SIGMA_R_DEG",
                 "seed": "--seed",
-            }
-            reason = e.reason
-            for key, flag in flags.items():
-                reason = reason.replace(f"odometry_noise.{key}", flag)
-            raise ConfigError(reason) from None
+            },
+        )
         mode, odo, _, _ = vp.resolve_odometry(sequence, run_config.odometry, noise)
         return cls(sequence, config, run_config, noise, mode, odo, seed, max_frames, detector, no_polish)
 

@@ -635,7 +635,7 @@ def _large_image_hint(result: VisualRunResult) -> str:
     settings in pixels were measured on smaller images; which of them fails depends on
     the camera (an upscaled image localises corners to ~3 px, a sharp one to ~1 px but
     moves 3x farther a frame), so the hint names them and the tested route."""
-    width = int(getattr(getattr(result, "sequence", None), "image_size", (0, 0))[0])
+    width = _image_size(result)[0]
     if width <= LARGE_IMAGE_WIDTH_PX:
         return ""
     return (
@@ -645,11 +645,17 @@ def _large_image_hint(result: VisualRunResult) -> str:
     )
 
 
+def _image_size(result: VisualRunResult) -> tuple[int, int]:
+    """(width, height) of the run's images, (0, 0) when its sequence does not say."""
+    width, height = getattr(getattr(result, "sequence", None), "image_size", (0, 0))
+    return int(width), int(height)
+
+
 def _no_corner_hint(result: VisualRunResult) -> str:
     """What to look at when the detector found no corner in any frame (hostile pass 14:
     ``[harris] border_px = 200`` on 370-row images, or a threshold above any response,
     was said as "0 corners matched")."""
-    width, height = (int(v) for v in getattr(getattr(result, "sequence", None), "image_size", (0, 0)))
+    width, height = _image_size(result)
     return (
         f"; the detector found no corner in {width}x{height} images: look at [harris] threshold "
         "and border_px (Harris and FPGA; a border of half the image or more leaves no pixel) "
@@ -682,8 +688,9 @@ def _loss_doubts(losses: list[dict]) -> list[str]:
 
 def _doubts(result: VisualRunResult) -> list[str]:
     """One line per reason to doubt the estimate: frames left without a pose, a run with
-    odometry whose images gave no landmark (the odometry alone), and a camera-alone run
-    whose frames were mostly not measured (the motion model's guess)."""
+    odometry whose images gave no landmark or never found one again (the odometry alone),
+    and a camera-alone run lost for stretches or mostly not measured (the motion model's
+    guess)."""
     out = []
     n, n_pose = result.frames, len(result.estimate.frame_ids)
     if 0 < n_pose < n:
@@ -691,18 +698,18 @@ def _doubts(result: VisualRunResult) -> list[str]:
             f"{n - n_pose} of {n} frames have no pose (before the monocular map "
             f"started, or not placed by it); the scores are over the other {n_pose}"
         )
-    if result.odometry != "none" and n >= 2 and len(result.estimate.landmark_ids) == 0:
+    if n < 2:
+        return out
+    if result.odometry != "none":
+        if len(result.estimate.landmark_ids) > 0:
+            return out + _never_found_again(result)
         corners = int(np.sum(result.tracking.get("corners", [])))
-        out.append(
+        return out + [
             f"no landmark entered the map in {n} frames ({corners} corners detected, "
             f"{sum(result.tracking.get('observations', []))} matched in all): the trajectory is the "
             "odometry alone, the images corrected nothing"
             + (_no_corner_hint(result) if corners == 0 else _large_image_hint(result))
-        )
-    if result.odometry != "none" and n >= 2 and len(result.estimate.landmark_ids) > 0:
-        out += _never_found_again(result)
-    if result.odometry != "none" or n < 2:
-        return out
+        ]
     mono = (result.estimate.stats or {}).get("camera_alone")
     if mono is not None:
         out += _loss_doubts(mono.get("losses") or [])

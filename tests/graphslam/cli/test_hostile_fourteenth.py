@@ -102,6 +102,13 @@ def test_a_refused_odometry_noise_flag_is_named_as_the_flag(tmp_path, capsys, va
                  "--out", str(tmp_path / "o"), "--rerun", "off", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert said in err and "odometry_noise." not in err
+    # beside a config file the flag's value was blamed on the file ("c.toml: odometry_noise...")
+    (tmp_path / "c.toml").write_text("[visual]\n")
+    assert main(["run", "--dataset", "synthetic-images", "--odometry-noise", *values, "--max-steps", "3",
+                 "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "o"), "--rerun", "off",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "c.toml" not in err
 
 
 def _grid_graph(tmp_path, offset=(0.0, 0.0), wrong: bool = False):
