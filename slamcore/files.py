@@ -32,6 +32,23 @@ PATH_MAX_BYTES = 4095
 MAX_SUFFIX_BYTES = 16
 
 
+def write_error_line(e: OSError) -> str | None:
+    """The one line for an OSError met writing that the user can act on (a full disk,
+    a file-size limit, a name too long, a folder in an output's place), or None for any
+    other (a bug: the traceback is wanted)."""
+    where = e.filename if e.filename is not None else "an output file"
+    if e.errno in DISK_FULL_REASONS:
+        return f"{DISK_FULL_REASONS[e.errno]} writing {where}: {e.strerror}"
+    if e.errno == errno.ENAMETOOLONG:
+        return f"{where}: a file or folder name is too long ({e.strerror})"
+    if e.errno == errno.EISDIR:
+        # a folder under an output's name: the rename of the finished file onto it
+        # names the temporary file first and the output second
+        target = e.filename2 if getattr(e, "filename2", None) is not None else where
+        return f"{target} is a folder; an output file of that name cannot be written"
+    return None
+
+
 def folder_name(path: str | Path) -> str:
     """The name of the file or folder ``path`` stands for: ``.`` and ``..`` (whose
     ``Path.name`` is empty or ``..``) are named after the folder they resolve to

@@ -5,13 +5,11 @@ commands take, exit statuses, the summary-table formatting and the Rerun sink ch
 from __future__ import annotations
 
 import argparse
-import errno
 import os
 import sys
 from pathlib import Path
 
 from slamcore.errors import GraphSlamError, InputError
-from slamcore.files import DISK_FULL_REASONS
 
 #: Help of ``--topics`` (run, compare, localize): which topics of a ROS bag to read.
 TOPICS_HELP = (
@@ -330,15 +328,22 @@ def recoveries_text(recoveries: dict[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in recoveries.items() if v)
 
 
-def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, cut=None) -> int:
+def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, cut=None, writes=None) -> int:
     """Print a run's summary table and where its outputs went; the exit status.
 
     ``cut``: the :class:`~graphslam.pipelines.common.FrameUnreadable` (or
     ``BackendFailed``) that stopped the run, raised again once its estimate so far is
-    written and listed (exit 2, its file).
+    written and listed (exit 2, its file). ``writes``: the run's
+    :class:`~graphslam.outputs.writers.OutputWrites`, whose refused files are named
+    here; its caller checks it once every output was tried.
     """
     print(summary)
-    print(f"outputs in {out_dir}/: " + ", ".join(p.name for p in paths.values()))
+    refused = writes.names() if writes is not None else []
+    print(
+        f"outputs in {out_dir}/: "
+        + ", ".join(p.name for p in paths.values())
+        + (f" (not written: {', '.join(refused)})" if refused else "")
+    )
     if cut is not None and not isinstance(cut, InputError):  # the back end failed
         raise GraphSlamError(
             f"{cut}; the run stopped at frame {cut.frame}: {out_dir}/ holds what it estimated "
@@ -500,22 +505,6 @@ _POSITIONAL_PATHS: dict[tuple[str | None, str], str] = {
 }
 #: Options given as text that may be a path (a data set name or its folder).
 _TEXT_PATHS = ("dataset", "images")
-
-
-def os_error_line(e: OSError) -> str | None:
-    """The one line for an OSError the user can act on (a full disk, a name too long),
-    or None for any other (a bug: the traceback is wanted)."""
-    where = e.filename if e.filename is not None else "an output file"
-    if e.errno in DISK_FULL_REASONS:
-        return f"{DISK_FULL_REASONS[e.errno]} writing {where}: {e.strerror}"
-    if e.errno == errno.ENAMETOOLONG:
-        return f"{where}: a file or folder name is too long ({e.strerror})"
-    if e.errno == errno.EISDIR:
-        # a folder under an output's name: the rename of the finished file onto it
-        # names the temporary file first and the output second
-        target = e.filename2 if getattr(e, "filename2", None) is not None else where
-        return f"{target} is a folder; an output file of that name cannot be written"
-    return None
 
 
 def check_path_arguments(args) -> None:

@@ -343,14 +343,13 @@ def _write_comparison(
 
     recording_cut = None
     print(format_table(entries))
-    writers.write_json(
-        out_dir / "compare.json",
-        {**header, "runs": [e.metrics if e.status == "ok" else _marked(e) for e in entries]},
-    )
-    outputs = ["compare.json"]
+    writes = writers.OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
+    paths: dict[str, Path] = {}
+    runs = [e.metrics if e.status == "ok" else _marked(e) for e in entries]
+    writes(paths, "json", out_dir / "compare.json", writers.write_json, {**header, "runs": runs})
     if done:
-        plot(done, out_dir / "compare.png")
-        outputs.append("compare.png")
+        writes(paths, "png", out_dir / "compare.png", lambda path: plot(done, path))
+    outputs = [p.name for p in paths.values()]
     if rerun_mode != "off" and done and stopping():
         recording_cut = "the recording was skipped"
     elif rerun_mode != "off" and done:
@@ -373,7 +372,8 @@ def _write_comparison(
     for e in done:
         if getattr(e.metrics, "recoveries", None) and any(e.metrics.recoveries.values()):
             print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
-    print(f"outputs in {out_dir}/: " + ", ".join(outputs))
+    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
+    print(f"outputs in {out_dir}/: " + ", ".join(outputs) + refused)
     # what makes an estimate doubtful (compare.json keeps it too), said as run says it
     warn_doubts({e.backend: getattr(e.metrics, "warnings", None) for e in done})
     for e in entries:
@@ -393,7 +393,9 @@ def _write_comparison(
                 f"graphslam: interrupted ({guard.signal_name}); wrote the back ends' results so far",
                 file=sys.stderr,
             )
+        writes.check(out_dir / o for o in outputs)
         return EXIT_INTERRUPTED
+    writes.check(out_dir / o for o in outputs)
     return EXIT_FAILED if any(e.status == "failed" for e in entries) else 0
 
 

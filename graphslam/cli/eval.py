@@ -176,7 +176,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
     from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, warn
     from graphslam.evaluation.trajectory import EvalOptions
-    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, one_run_or_the_other
+    from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, OutputWrites, one_run_or_the_other
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
     from slamcore.files import check_not_inputs, check_output_dir
 
@@ -192,14 +192,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
     claim_out_dir(args.out)
     clear_earlier_outputs(args.out, set(names), EVAL_OUTPUT_NAMES)  # --no-plot: no earlier eval.png
     # a stop while plotting: the earlier eval.png goes, not left beside the new eval.json
+    writes = OutputWrites(args.out)  # a file the disk refuses costs no other: each is tried
+    paths: dict[str, Path] = {}
     with one_run_or_the_other(args.out, EVAL_OUTPUT_NAMES):
-        written = [write_eval_json(args.out / "eval.json", args.ground_truth, results, options)]
+        writes(paths, "json", args.out / "eval.json", write_eval_json, args.ground_truth, results, options)
         if not args.no_plot:
             from graphslam.visualisation.plots import plot_trajectory_eval
 
-            written.append(plot_trajectory_eval(results, args.out / "eval.png"))
+            writes(paths, "png", args.out / "eval.png", lambda path: plot_trajectory_eval(results, path))
     print(format_table(results))
     for message in eval_warnings(results, options):
         warn(message)
-    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
+    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
+    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in paths.values()) + refused)
+    writes.check(paths.values())
     return EXIT_OK

@@ -35,6 +35,7 @@ from graphslam.cli.common import (
     warn,
     warn_unread_sections,
 )
+from graphslam.outputs.writers import OutputWrites
 from slamcore.files import folder_name
 
 EPILOG = """\
@@ -156,12 +157,15 @@ def cmd_localize(args: argparse.Namespace) -> int:
     if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
         warn(metrics["warnings"][-1])
     out_dir = claimed_folder(out_dir, recorder)
-    paths = localize_run.write_outputs(result, out_dir, metrics)
+    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
+    paths = localize_run.write_outputs(result, out_dir, metrics, writes)
     if recorder is not None:
         if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
             paths["recording"] = out_dir / "localize.rrd"
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
-    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
+    status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
+    writes.check(paths.values())
+    return status
 
 
 def format_summary(m: dict) -> str:

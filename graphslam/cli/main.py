@@ -15,8 +15,9 @@ import signal
 import sys
 from typing import NoReturn
 
-from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, os_error_line
+from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments
 from slamcore.errors import QUOTE_CHARS, GraphSlamError, quote
+from slamcore.files import write_error_line
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -195,7 +196,7 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
                 to_devnull(sys.stdout.fileno(), sys.stderr.fileno())
                 return guard.exit_status()
             # a full disk or an over-long name met while writing: the user's to fix
-            line = os_error_line(e)
+            line = write_error_line(e)
             if line is None:
                 raise
             print(f"graphslam: error: {one_line(line)}", file=sys.stderr)

@@ -130,7 +130,7 @@ def _config_warnings(out: Path, rows: list[dict]) -> dict[str, int]:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
-    from graphslam.outputs.writers import remove_stale_outputs
+    from graphslam.outputs.writers import OutputWrites, remove_stale_outputs
     from graphslam.pipelines.sweep import plot_files, read_rows, run_sweep
     from graphslam.pipelines.sweep_spec import parse_sweep
     from slamcore.errors import ConfigError
@@ -168,12 +168,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     finally:
         executor.close()
     written = [outcome.csv_path]
+    writes = OutputWrites(args.out)  # a plot the disk refuses costs no other: each is tried
     if not args.no_plots and outcome.rows:
         from graphslam.pipelines.sweep import nees_series, with_labels
         from graphslam.visualisation.plots import plot_sweep
 
         rows = with_labels(outcome.rows, spec.set_keys)
-        written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out)
+        written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out, writes)
     # an earlier sweep's plots (other settings swept, or --no-plots now) would disagree
     # with this sweep.csv
     remove_stale_outputs(args.out, {p.name for p in written}, plot_files(args.out))
@@ -193,15 +194,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "
         f"({outcome.failed} failed); {ok} ok in {outcome.csv_path}"
     )
-    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written))
+    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
+    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written) + refused)
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
+        writes.check(written)
         return EXIT_INTERRUPTED
     for line, count in _config_warnings(args.out, outcome.rows).items():
         warn(f"{count} of {len(outcome.rows)} runs, in their runs/*/{line}")
     doubtful = sum(r.get("status") == "ok" and bool(r.get("warnings")) for r in outcome.rows)
     if doubtful:  # an ok row can still hold an absurd estimate; say so where it is seen
         warn(f"{doubtful} of {ok} finished runs carry warnings (the warnings column of sweep.csv)")
+    writes.check(written)
     failed = len(outcome.rows) - ok
     if failed:  # the table is whole, but a script must not take the sweep for a clean one
         warn(f"{failed} of {len(outcome.rows)} runs failed; their errors are in sweep.csv")

@@ -9,14 +9,21 @@ from pathlib import Path
 from slamcore.files import atomic_open
 
 
-def write_loops(closer, out_dir: Path) -> dict[str, Path]:
+def write_loops(closer, out_dir: Path, writes) -> dict[str, Path]:
     """``loops.csv`` (one row per closure added) and ``loops.jsonl`` (every candidate)
-    of a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`."""
-    paths = {"loops": out_dir / "loops.csv", "loops_log": out_dir / "loops.jsonl"}
-    with atomic_open(paths["loops"], "w", newline="", encoding="utf-8") as fh:
+    of a :class:`graphslam.pipelines.loop_closing.VisualLoopCloser`, each through
+    ``writes`` (:class:`graphslam.outputs.writers.OutputWrites`); the paths written."""
+    paths: dict[str, Path] = {}
+    writes(paths, "loops", out_dir / "loops.csv", _write_closures_csv, closer.records)
+    writes(paths, "loops_log", out_dir / "loops.jsonl", closer.write_log)
+    return paths
+
+
+def _write_closures_csv(path: Path, records) -> None:
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["query", "match", "score", "inliers", "pnp_inliers", "distance_m"])
-        for r in closer.records:
+        for r in records:
             if r.accepted:
                 w.writerow(
                     [
@@ -28,8 +35,6 @@ def write_loops(closer, out_dir: Path) -> dict[str, Path]:
                         f"{r.distance_m:.4f}",
                     ]
                 )
-    closer.write_log(paths["loops_log"])
-    return paths
 
 
 def write_folder_loops_csv(path: Path, closures, paths: list[Path]) -> None:

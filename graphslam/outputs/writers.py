@@ -6,14 +6,14 @@ import contextlib
 import json
 import math
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from slamcore.errors import GraphSlamError
-from slamcore.files import atomic_open, check_no_folder_at
+from slamcore.files import atomic_open, check_no_folder_at, write_error_line
 from slamcore.spatial.geometry import rotation_to_quaternion
 
 
@@ -176,6 +176,67 @@ def one_run_or_the_other(out_dir: Path, known: tuple[str, ...] = RUN_OUTPUT_NAME
                 with contextlib.suppress(OSError):  # the failure in flight is the one to report
                     p.unlink(missing_ok=True)
         raise
+
+
+class OutputWrites:
+    """A command's output files written one by one: a file the file system refuses (a
+    full disk, a file-size limit, a name too long, a folder in its place) is noted and
+    the next is still tried, so every output that can be kept is written (fifteenth
+    hostile pass: the first refused file cost every file after it, and nothing said
+    which were written). :meth:`check` then raises one error for them all.
+
+    ``writes(paths, key, path, writer, *args)`` calls ``writer(path, *args)`` and sets
+    ``paths[key] = path`` once it is written; a file the file system refuses is noted
+    instead (False) and an earlier command's file of its name removed, so the folder
+    never holds it beside this command's outputs (as :func:`one_run_or_the_other`
+    does); any other error is raised at once.
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = Path(out_dir)
+        #: (path, error) of each refused file, in the order tried
+        self.refused: list[tuple[Path, OSError]] = []
+
+    def __call__(
+        self, paths: dict[str, Path], key: str, path: Path, writer: Callable[..., object], *args, **kwargs
+    ) -> bool:
+        if not self.attempt(path, writer, path, *args, **kwargs):
+            with contextlib.suppress(OSError):  # the refusal is the error to report
+                if Path(path).is_file():
+                    Path(path).unlink()
+            return False
+        paths[key] = Path(path)
+        return True
+
+    def attempt(self, what: Path, action: Callable[..., object], *args, **kwargs) -> bool:
+        """``action(*args)``, which writes ``what`` (a file or a folder: ``--save-map``);
+        False, noted, when the file system refused it."""
+        try:
+            action(*args, **kwargs)
+        except OSError as e:
+            if write_error_line(e) is None:
+                raise
+            self.refused.append((Path(what), e))
+            return False
+        return True
+
+    def names(self) -> list[str]:
+        """The refused files: a name in the output folder, a path elsewhere."""
+        return [p.name if p.parent == self.out_dir else str(p) for p, _ in self.refused]
+
+    def check(self, written: Iterable[Path]) -> None:
+        """Raise GraphSlamError when a file was refused: the first refusal's reason, the
+        other refused files, and the files this command did write to its folder."""
+        if not self.refused:
+            return
+        first = self.refused[0][1]
+        line = write_error_line(first) or str(first)
+        others = self.names()[1:]
+        if others:
+            line += f"; not written either: {', '.join(others)}"
+        kept = [Path(p).name for p in written]
+        held = ", ".join(kept) if kept else "none of this command's outputs"
+        raise GraphSlamError(f"{line}; {self.out_dir}/ holds {held}")
 
 
 def _identity(path: Path) -> tuple[int, int, int] | None:

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
+from graphslam.outputs.writers import OutputWrites
 from graphslam.pipelines.common import FrameUnreadable, interrupt_between_frames, progress_bar, signal_hook
 from graphslam.pipelines.localize import Localizer, Placement
 from slamcore.errors import InputError
@@ -189,23 +190,28 @@ def sim3_errors_m(result: LocalizeResult) -> np.ndarray | None:
     return out
 
 
-def write_outputs(result: LocalizeResult, out_dir: Path, metrics: dict) -> dict[str, Path]:
-    """``localize.csv``, ``trajectory.tum``, ``ground_truth.tum`` (with truth), ``metrics.json``."""
+def write_outputs(
+    result: LocalizeResult, out_dir: Path, metrics: dict, writes: OutputWrites | None = None
+) -> dict[str, Path]:
+    """``localize.csv``, ``trajectory.tum``, ``ground_truth.tum`` (with truth),
+    ``metrics.json``; the paths written. ``writes``: as
+    :func:`graphslam.pipelines.spatial.write_outputs` takes it."""
     from graphslam.outputs import writers
     from graphslam.outputs.localize import write_localize_csv
 
+    own = writes is None
+    writes = writers.OutputWrites(out_dir) if writes is None else writes
     out_dir.mkdir(parents=True, exist_ok=True)
     seq = result.sequence
     n = len(result.placements)
     stamps = result.frame_index.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, float)[:n]
     placed = result.placed()
-    paths = {
-        "localize": out_dir / "localize.csv",
-        "trajectory": out_dir / "trajectory.tum",
-        "metrics": out_dir / "metrics.json",
-    }
-    write_localize_csv(
-        paths["localize"],
+    paths: dict[str, Path] = {}
+    writes(
+        paths,
+        "localize",
+        out_dir / "localize.csv",
+        write_localize_csv,
         result.frame_index,
         stamps,
         [p.status for p in result.placements],
@@ -213,9 +219,18 @@ def write_outputs(result: LocalizeResult, out_dir: Path, metrics: dict) -> dict[
         [p.covariance for p in result.placements],
     )
     wTc = np.array([p.wTc for p in result.placements if p.wTc is not None]).reshape(-1, 4, 4)
-    writers.write_tum_spatial(paths["trajectory"], stamps[placed], wTc)
+    writes(paths, "trajectory", out_dir / "trajectory.tum", writers.write_tum_spatial, stamps[placed], wTc)
     if seq.wTc_true is not None:
-        paths["ground_truth"] = out_dir / "ground_truth.tum"
-        writers.write_tum_spatial(paths["ground_truth"], stamps[placed], np.asarray(seq.wTc_true)[:n][placed])
-    writers.write_json(paths["metrics"], metrics)
+        truth = np.asarray(seq.wTc_true)[:n][placed]
+        writes(
+            paths,
+            "ground_truth",
+            out_dir / "ground_truth.tum",
+            writers.write_tum_spatial,
+            stamps[placed],
+            truth,
+        )
+    writes(paths, "metrics", out_dir / "metrics.json", writers.write_json, metrics)
+    if own:
+        writes.check(paths.values())
     return paths

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.evaluation.records import PlanarRunMetrics
+from graphslam.outputs.writers import OutputWrites
 from graphslam.pipelines.common import interrupt_between_frames, progress_bar, signal_hook, stop_requested
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
@@ -280,12 +281,20 @@ def write_outputs(
     out_dir: Path,
     run_metrics: PlanarRunMetrics,
     ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
+    writes: OutputWrites | None = None,
 ) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv``, ``metrics.json`` and, when the
     run has truth (``ground_truth`` or the dataset's), ``ground_truth.tum`` for the
-    run's poses with the same time column; return their paths. A run of several
-    robots writes ``trajectory_robotN.tum`` and ``ground_truth_robotN.tum`` instead."""
+    run's poses with the same time column; return the paths written. A run of several
+    robots writes ``trajectory_robotN.tum`` and ``ground_truth_robotN.tum`` instead.
+
+    ``writes``: the command's :class:`~graphslam.outputs.writers.OutputWrites`, which
+    notes a file the file system refuses and goes on (its caller checks it once every
+    output was tried); without it, GraphSlamError once all were tried."""
     from graphslam.outputs import writers
+
+    own = writes is None
+    writes = writers.OutputWrites(out_dir) if writes is None else writes
 
     out_dir.mkdir(parents=True, exist_ok=True)
     est = result.estimate
@@ -296,31 +305,36 @@ def write_outputs(
     else:
         stamp_of = {f.pose_id: f.pose_id for f in run_frames}  # ids exact, up to 2**62
         stamps = np.asarray(est.pose_ids, dtype=np.int64)
-    paths = {"landmarks": out_dir / "landmarks.csv", "metrics": out_dir / "metrics.json"}
+    paths: dict[str, Path] = {}
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     # one trajectory per robot where a run holds several (their stamps interleave)
     agents = result.dataset.agents or (("", tuple(int(i) for i in est.pose_ids)),)
     for name, ids in agents:
         suffix = "_" + name.replace(" ", "") if name else ""
         mine = np.isin(est.pose_ids, np.asarray(ids, dtype=np.int64))
-        paths["trajectory" + suffix] = out_dir / f"trajectory{suffix}.tum"
-        writers.write_tum_planar(paths["trajectory" + suffix], stamps[mine], est.wTb[mine])
+        path = out_dir / f"trajectory{suffix}.tum"
+        writes(paths, "trajectory" + suffix, path, writers.write_tum_planar, stamps[mine], est.wTb[mine])
         if gt is None:
             continue
         in_run = np.array([int(i) in stamp_of for i in gt[0]], dtype=bool)
         in_run &= np.isin(gt[0], np.asarray(ids, dtype=np.int64))
         if np.any(in_run):
-            paths["ground_truth" + suffix] = out_dir / f"ground_truth{suffix}.tum"
-            writers.write_tum_planar(
-                paths["ground_truth" + suffix],
+            writes(
+                paths,
+                "ground_truth" + suffix,
+                out_dir / f"ground_truth{suffix}.tum",
+                writers.write_tum_planar,
                 np.array([stamp_of[int(i)] for i in gt[0][in_run]]),
                 np.asarray(gt[1])[in_run],
             )
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
-    writers.write_landmarks_csv(paths["landmarks"], est.landmark_ids, est.landmarks_w)
-    writers.write_json(paths["metrics"], run_metrics.to_dict())
+    landmarks = (est.landmark_ids, est.landmarks_w)
+    writes(paths, "landmarks", out_dir / "landmarks.csv", writers.write_landmarks_csv, *landmarks)
+    writes(paths, "metrics", out_dir / "metrics.json", writers.write_json, run_metrics.to_dict())
+    if own:
+        writes.check(paths.values())
     return paths
 
 

@@ -17,6 +17,7 @@ from graphslam.backends.posegraph.config import PoseGraphConfig
 from graphslam.backends.posegraph.solver import SolveResult, solve
 from graphslam.evaluation.planar import ate_ratio_warning
 from graphslam.evaluation.records import MetricsRecord, optional
+from graphslam.outputs.writers import OutputWrites
 from graphslam.pipelines.common import interrupt_between_frames, signal_hook, stop_requested
 from slamcore import posegraph as pg
 from slamcore.errors import GraphSlamError, InputError
@@ -336,33 +337,43 @@ def write_outputs(
     out_dir: Path,
     run_metrics: PoseGraphRunMetrics,
     truth: tuple[np.ndarray, np.ndarray] | None = None,
+    writes: OutputWrites | None = None,
 ) -> dict[str, Path]:
     """Write trajectory, graph, closures, metrics (and ``ground_truth.tum`` of the
-    poses with truth, same time column); return their paths."""
+    poses with truth, same time column); return the paths written.
+
+    ``writes``: the command's :class:`~graphslam.outputs.writers.OutputWrites`, which
+    notes a file the file system refuses and goes on (its caller checks it once every
+    output was tried); without it, GraphSlamError once all were tried."""
     from graphslam.outputs import posegraph as graph_writer
     from graphslam.outputs import writers
 
     graph = solved_graph(graph, result)
 
+    own = writes is None
+    writes = writers.OutputWrites(out_dir) if writes is None else writes
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "trajectory": out_dir / "trajectory.tum",
-        "graph": out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format]),
-        "closures": out_dir / "closures.csv",
-        "metrics": out_dir / "metrics.json",
-    }
-    writers.write_tum_spatial(
-        paths["trajectory"], np.asarray(graph.ids, dtype=np.int64), trajectory_matrices(graph, result.params)
+    paths: dict[str, Path] = {}
+    writes(
+        paths,
+        "trajectory",
+        out_dir / "trajectory.tum",
+        writers.write_tum_spatial,
+        np.asarray(graph.ids, dtype=np.int64),
+        trajectory_matrices(graph, result.params),
     )
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
-    graph_writer.write_pose_graph(paths["graph"], graph.with_vertices(result.params))
-    write_closures_csv(paths["closures"], graph, result)
-    writers.write_json(paths["metrics"], run_metrics.to_dict())
+    graph_path = out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format])
+    writes(paths, "graph", graph_path, graph_writer.write_pose_graph, graph.with_vertices(result.params))
+    writes(paths, "closures", out_dir / "closures.csv", write_closures_csv, graph, result)
+    writes(paths, "metrics", out_dir / "metrics.json", writers.write_json, run_metrics.to_dict())
     if truth is not None:
-        paths["ground_truth"] = out_dir / "ground_truth.tum"
-        writers.write_tum_spatial(paths["ground_truth"], np.asarray(truth[0], dtype=np.int64), truth[1])
+        ids = np.asarray(truth[0], dtype=np.int64)
+        writes(paths, "ground_truth", out_dir / "ground_truth.tum", writers.write_tum_spatial, ids, truth[1])
+    if own:
+        writes.check(paths.values())
     return paths
 
 

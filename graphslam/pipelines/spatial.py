@@ -54,6 +54,7 @@ from frontend.tracking import Tracker, TrackingResult
 from graphslam import registry
 from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
+from graphslam.outputs.writers import OutputWrites
 from graphslam.pipelines.common import (
     BackendFailed,
     FrameUnreadable,
@@ -862,34 +863,44 @@ def _frame_times(seq: ImageSequence, frames: np.ndarray) -> np.ndarray:
     return source_indices(seq)[frames].astype(float)
 
 
-def write_outputs(result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics) -> dict[str, Path]:
+def write_outputs(
+    result: VisualRunResult, out_dir: Path, run_metrics: SpatialRunMetrics, writes: OutputWrites | None = None
+) -> dict[str, Path]:
     """Write ``trajectory.tum``, ``landmarks.csv`` (``id,x,y,z``), ``metrics.json`` and,
     when the sequence has ground truth, ``ground_truth.tum`` of the run's frames
-    (same time column as the trajectory)."""
+    (same time column as the trajectory); return the paths written.
+
+    ``writes``: the command's :class:`~graphslam.outputs.writers.OutputWrites`, which
+    notes a file the file system refuses and goes on (its caller checks it once every
+    output was tried); without it, GraphSlamError once all were tried."""
     from graphslam.outputs import writers
 
+    own = writes is None
+    writes = writers.OutputWrites(out_dir) if writes is None else writes
     out_dir.mkdir(parents=True, exist_ok=True)
     est = result.estimate
     ids = np.asarray(est.frame_ids, dtype=np.int64)
     seq = result.sequence
     stamps = _frame_times(seq, ids)
-    paths = {
-        "trajectory": out_dir / "trajectory.tum",
-        "landmarks": out_dir / "landmarks.csv",
-        "metrics": out_dir / "metrics.json",
-    }
-    writers.write_tum_spatial(paths["trajectory"], stamps, est.wTc)
+    paths: dict[str, Path] = {}
+    writes(paths, "trajectory", out_dir / "trajectory.tum", writers.write_tum_spatial, stamps, est.wTc)
     signal_hook("write")
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
     if seq.wTc_true is not None and result.frames > 0:
         frames = np.arange(result.frames)
-        paths["ground_truth"] = out_dir / "ground_truth.tum"
-        writers.write_tum_spatial(
-            paths["ground_truth"], _frame_times(seq, frames), np.asarray(seq.wTc_true)[frames]
+        writes(
+            paths,
+            "ground_truth",
+            out_dir / "ground_truth.tum",
+            writers.write_tum_spatial,
+            _frame_times(seq, frames),
+            np.asarray(seq.wTc_true)[frames],
         )
-    writers.write_landmarks_csv(
-        paths["landmarks"], est.landmark_ids, np.asarray(est.landmarks_w).reshape(-1, 3)
-    )
-    writers.write_json(paths["metrics"], run_metrics.to_dict())
+    landmarks_w = np.asarray(est.landmarks_w).reshape(-1, 3)
+    landmarks = (est.landmark_ids, landmarks_w)
+    writes(paths, "landmarks", out_dir / "landmarks.csv", writers.write_landmarks_csv, *landmarks)
+    writes(paths, "metrics", out_dir / "metrics.json", writers.write_json, run_metrics.to_dict())
+    if own:
+        writes.check(paths.values())
     return paths

@@ -294,13 +294,22 @@ def _metric_by(rows, group: str, metric: str = "ate_rmse_m") -> dict[str, list[f
     return out
 
 
-def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Path]:
+def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path, writes=None) -> list[Path]:
     """The PNGs of ``graphslam sweep``: Monte Carlo NEES, ATE per back end, ATE per
-    swept value; returns the files written."""
+    swept value; returns the files written. ``writes``: an
+    :class:`~graphslam.outputs.writers.OutputWrites` that notes a plot the file system
+    refuses and goes on to the next (without it the refusal is raised)."""
     from graphslam.evaluation.planar import NEES_CONFIDENCE, chi2_bounds
 
     plt = _pyplot()
-    written = []
+    written: list[Path] = []
+
+    def keep(fig, path: Path) -> None:
+        if writes is None:
+            written.append(_save(fig, path))
+        elif writes({}, path.name, path, lambda p: _save(fig, p)):
+            written.append(path)
+
     if nees:
         fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
         for i, (label, runs) in enumerate(sorted(nees.items())):
@@ -325,7 +334,7 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
             "(filters: filtered; iSAM2: smoothed)"
         )
         ax.legend(loc="best", fontsize=8)
-        written.append(_save(fig, out_dir / "sweep_nees.png"))
+        keep(fig, out_dir / "sweep_nees.png")
     several = len({r.get("dataset") for r in rows}) > 1
     for group, name in [("label", "sweep_ate.png")] + [(k, f"sweep_{k}.png") for k in set_keys]:
         if group != "label" and len({str(r.get(group)) for r in rows if r.get(group) != ""}) < 2:
@@ -352,7 +361,7 @@ def plot_sweep(rows: list[dict], nees: dict, set_keys, out_dir: Path) -> list[Pa
         n_all = sum(1 for r in rows if group == "label" or r.get(group) != "")
         missing = f" of {n_all} (the others failed or have no ATE)" if n_in < n_all else ""
         ax.set_title(f"ATE over {n_in} runs{missing}")
-        written.append(_save(fig, out_dir / name))
+        keep(fig, out_dir / name)
     return written
 
 

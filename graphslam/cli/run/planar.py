@@ -69,7 +69,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """The 2-D ``graphslam run``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import one_run_or_the_other
+    from graphslam.outputs.writers import OutputWrites, one_run_or_the_other
     from graphslam.pipelines import planar as pipeline
 
     t0 = time.perf_counter()
@@ -155,19 +155,21 @@ def run(args: argparse.Namespace) -> int:
                 "nees.csv gives them nan, the mean is over the others"
             )
     out_dir = args.resolved_out = claimed_folder(out_dir, log)
+    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
-        paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth)
+        paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth, writes=writes)
         if nees is not None:
-            paths["nees"] = pipeline.write_nees(out_dir / "nees.csv", *nees)
+            writes(paths, "nees", out_dir / "nees.csv", pipeline.write_nees, *nees)
         if log is not None:
             log.finish(backend.name, result, backend)
             if close_recorder(log) and mode == "save":
                 paths["recording"] = out_dir / "run.rrd"
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
-    status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted)
+    status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
-        save_planar_run_map(save_map, result, backend, config, args.max_steps)
+        writes.attempt(save_map, save_planar_run_map, save_map, result, backend, config, args.max_steps)
     warn_unread_sections(config, args.config, f"this run ({backend.name} on {dataset.name})")
+    writes.check(paths.values())
     return status
 
 

@@ -60,7 +60,7 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve the pose graph named by ``--dataset``; returns the exit status."""
     from graphslam import registry
-    from graphslam.outputs.writers import one_run_or_the_other
+    from graphslam.outputs.writers import OutputWrites, one_run_or_the_other
     from graphslam.pipelines import posegraph as pipeline
 
     t0 = time.perf_counter()
@@ -97,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     metrics.provenance = provenance(args, config)
     out_dir = args.resolved_out = claimed_folder(out_dir)
     # a full disk part way: no earlier run's file left beside this run's
+    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
-        paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth)
+        paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth, writes)
         if args.rerun != "off":
             paths.update(record(args, graph, result, out_dir))
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
@@ -106,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
     for doubt in metrics.warnings or []:  # the estimate's; the reader's were said above
         if doubt not in graph.warnings:
             warn(doubt)
-    return report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted)
+    status = report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted, writes=writes)
+    writes.check(paths.values())
+    return status
 
 
 def mark_unread_settings(config, solver: str, settings, toro_read: bool) -> None:

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     """The visual ``graphslam run``; returns the exit status."""
     from graphslam import registry
     from graphslam.outputs.loops import write_loops  # stdlib only: cheap
-    from graphslam.outputs.writers import one_run_or_the_other
+    from graphslam.outputs.writers import OutputWrites, one_run_or_the_other
     from graphslam.pipelines import spatial as vp
     from graphslam.pipelines.session import VisualSetup
 
@@ -207,10 +207,11 @@ def run(args: argparse.Namespace) -> int:
             "ate_in_map_frame": in_map,
         }
     out_dir = args.resolved_out = claimed_folder(out_dir, recorder)
+    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
-        paths = vp.write_outputs(result, out_dir, metrics)
+        paths = vp.write_outputs(result, out_dir, metrics, writes)
         if closer is not None:
-            paths.update(write_loops(closer, out_dir))
+            paths.update(write_loops(closer, out_dir, writes))
         if recorder is not None:
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:
@@ -218,10 +219,14 @@ def run(args: argparse.Namespace) -> int:
             if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
                 paths["recording"] = out_dir / "run.rrd"
     if mapper is not None:  # last: a map that cannot be built costs no other file
-        save_run_map(args, mapper, result, backend, closer, tracker, args.quiet, prior_map)
+        writes.attempt(
+            args.save_map, save_run_map, args, mapper, result, backend, closer, tracker, args.quiet, prior_map
+        )
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
-    return report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut)
+    status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
+    writes.check(paths.values())
+    return status
 
 
 def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):

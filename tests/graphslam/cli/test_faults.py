@@ -785,3 +785,58 @@ def test_a_recording_cut_by_a_file_size_limit_is_one_warning_with_its_cause(tmp_
         "allows (a file-size limit)"
     ), done.stderr
     assert RUN_FILES - {"run.rrd"} == {p.name for p in (tmp_path / "o").iterdir()}
+
+
+def test_a_file_refused_by_the_disk_costs_no_other_output(tmp_path):
+    """A file-size limit met by the trajectory: the files after it were not tried and
+    nothing said which were written (fifteenth hostile pass). Every output is tried; the
+    one error line names the refused ones and what the folder holds; the earlier run's
+    trajectory is not left beside the new run's files."""
+    import resource
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = tmp_path / "o"
+    argv = [sys.executable, "-m", "graphslam.cli.main", "run", "--out", str(out), "--quiet", "--rerun", "off"]
+    first = subprocess.run([*argv, "--max-steps", "20"], capture_output=True, text=True, timeout=TIMEOUT_S, env=env)
+    assert first.returncode == 0, first.stderr
+
+    def limit():  # 20 kB: the full run's landmarks and metrics fit, its trajectories do not
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, resource.RLIM_INFINITY))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S, env=env, preexec_fn=limit)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert lines[0].startswith("graphslam: error: file larger than this system allows"), lines[0]
+    assert "trajectory.tum" in lines[0] and "not written either: ground_truth.tum" in lines[0], lines[0]
+    assert lines[0].endswith("/ holds landmarks.csv, metrics.json"), lines[0]
+    assert {p.name for p in out.iterdir()} == {"landmarks.csv", "metrics.json"}
+    assert json.loads((out / "metrics.json").read_text())["steps"] > 20  # this run's, whole
+    assert "(not written: trajectory.tum, ground_truth.tum)" in done.stdout
+
+
+def test_a_sweep_plot_refused_by_the_disk_costs_no_other_plot(tmp_path):
+    """The sweep's NEES plot over a file-size limit: the ATE plot after it was not
+    written (fifteenth hostile pass); now it is, and the error names the lost one."""
+    import resource
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nmax_steps = 30\nseed = [0, 1]\nnees = true\n')
+
+    def limit():  # 40 kB: the NEES plot (about 70 kB) does not fit, the ATE plot (20 kB) does
+        resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, resource.RLIM_INFINITY))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    out = tmp_path / "sw"
+    done = subprocess.run(
+        [sys.executable, "-m", "graphslam.cli.main", "sweep", str(spec), "--out", str(out), "--quiet", "--workers", "1"],
+        capture_output=True, text=True, timeout=TIMEOUT_S, env={**os.environ, "PYTHONPATH": str(ROOT)},
+        preexec_fn=limit,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and "writing " + str(out / "sweep_nees.png") in lines[0], done.stderr
+    assert lines[0].endswith("/ holds sweep.csv, sweep_ate.png"), lines[0]
+    assert {"sweep.csv", "sweep_ate.png"} <= {p.name for p in out.iterdir()}
+    assert not (out / "sweep_nees.png").exists()
