@@ -145,6 +145,18 @@ class EkfSlamConfig(Validated):
         ),
         Gate(("prune_missed_alpha",), 'association = "unknown"', lambda c: c.association == "unknown"),
     )
+    #: settings of the unknown association (gate, JCBB, new landmarks) that under known
+    #: ids act only on sightings without an id: a run whose every sighting had one never
+    #: read them (fifteenth hostile pass: five of them changed nothing, silently)
+    ANONYMOUS_SIGHTING_KEYS: ClassVar[tuple[str, ...]] = (
+        "gate_chi2_prob",
+        "new_landmark_chi2_prob",
+        "jcbb_max_candidates",
+        "jcbb_max_nodes",
+        "jcbb_objective",
+        "new_landmark_density_per_m2",
+        "detection_prob",
+    )
     #: settings no run reads: every streamed observation brings its own covariance, so
     #: the default is only ``predict_observations``' before the first one (library use)
     UNREAD_IN_RUNS: ClassVar[tuple[str, ...]] = ("default_sigma_range_m", "default_sigma_bearing_rad")

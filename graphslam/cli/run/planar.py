@@ -177,17 +177,28 @@ def _mark_unused_settings(backend, config, result) -> None:
     """Mark the file's settings of the back end that did nothing in this run
     (eleventh hostile pass: ``polish_method = "gnc"`` on a landmark world and the EKF's
     ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
-    ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always.
+    ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always,
+    ``ANONYMOUS_SIGHTING_KEYS`` under known ids when every sighting had an id.
     They are said with the gates' (:meth:`slamcore.config.ConfigFile.inert_lines`), with
     their file line, and listed in metrics.json's provenance."""
     from slamcore.config import section_name
 
-    cls = type(getattr(backend, "config", None))
+    settings = getattr(backend, "config", None)
+    cls = type(settings)
     closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
     if not closure_keys and not getattr(cls, "UNREAD_IN_RUNS", ()):
         return
     section = section_name(cls)
-    if closure_keys and not any(f.loop_closures for f in result.dataset.frames[: result.steps]):
+    frames = result.dataset.frames[: result.steps]
+    anonymous = getattr(cls, "ANONYMOUS_SIGHTING_KEYS", ())
+    if anonymous and getattr(settings, "association", None) == "known":
+        if all(o.landmark_id is not None or o.signature is not None for f in frames for o in f.observations):
+            config.mark_inert(
+                section,
+                anonymous,
+                'association = "unknown" (under known ids, sightings without an id; this run had none)',
+            )
+    if closure_keys and not any(f.loop_closures for f in frames):
         config.mark_inert(section, closure_keys, "loop closures (this run had none)")
     config.mark_inert(
         section,

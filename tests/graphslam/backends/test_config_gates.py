@@ -166,3 +166,21 @@ def test_synthetic_signatures_are_said_to_do_nothing_in_a_run(tmp_path, capsys):
         out[name] = capsys.readouterr().err
     assert (tmp_path / "with" / "trajectory.tum").read_bytes() == (tmp_path / "without" / "trajectory.tum").read_bytes()
     assert "[synthetic] signature_count did nothing" in out["with"] and "did nothing" not in out["without"]
+
+
+def test_the_ekfs_unknown_association_keys_are_said_to_do_nothing_under_known_ids(tmp_path, capsys):
+    """Under known ids the EKF's gate and JCBB act only on sightings without an id; every
+    sighting of a run had one, and ``gate_chi2_prob = 0.5`` ran the same bits, silent
+    (fifteenth hostile pass). Under unknown ids the same key acts and is not marked."""
+    from graphslam.cli.main import main
+
+    key = "[ekf]\ngate_chi2_prob = 0.5\njcbb_max_nodes = 0\n"
+    out = {}
+    for name, body in (("with", key), ("without", "[ekf]\n"), ("unknown", key + 'association = "unknown"\n')):
+        (tmp_path / f"{name}.toml").write_text(body)
+        assert main(["run", "--dataset", "synthetic", "--backend", "ekf", "--max-steps", "40", "--rerun", "off",
+                     "--quiet", "--config", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / name)]) == 0
+        out[name] = capsys.readouterr().err
+    assert (tmp_path / "with" / "trajectory.tum").read_bytes() == (tmp_path / "without" / "trajectory.tum").read_bytes()
+    assert "[ekf] gate_chi2_prob, jcbb_max_nodes did nothing" in out["with"]
+    assert "did nothing" not in out["without"] and "gate_chi2_prob" not in out["unknown"]
