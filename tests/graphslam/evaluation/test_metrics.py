@@ -202,3 +202,24 @@ def test_map_errors_count_the_true_landmarks_copies_share():
     pairs = [(1, 10), (1, 11), (2, 12)]  # 10 and 11 are both true landmark 1
     out = map_errors(est, (ids, wTb), {1: (0.0, 1.0), 2: (5.0, 1.0)}, pairs)
     assert (out["landmarks_matched"], out["landmarks_matched_true"]) == (3, 2)
+
+
+def test_a_landmark_is_recovered_only_by_an_estimate_of_its_own():
+    """MRCLAM's landmarks lie 0.18-0.26 m apart: a landmark never seen was counted as
+    recovered by its neighbour's estimate, 0.27 m away (fifteenth hostile pass)."""
+    import numpy as np
+
+    from graphslam.evaluation.planar import MAP_RECOVERY_RADIUS_M, map_errors
+    from slamcore.planar.records import Estimate
+
+    ids = np.arange(3)
+    wTb = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    apart_m = 0.8 * MAP_RECOVERY_RADIUS_M  # closer than the radius, as MRCLAM's pairs are
+    truth = {1: (0.0, 1.0), 2: (apart_m, 1.0), 3: (5.0, 1.0)}
+    est = Estimate(ids, wTb, np.array([10, 12]), np.array([[0.0, 1.0], [5.0, 1.0]]))  # 2 never seen
+    out = map_errors(est, (ids, wTb), truth, [(1, 10), (3, 12)])
+    assert out["landmarks_recovered"] == 2
+    # without labels (no association pairs): one estimate recovers one landmark at most
+    assert map_errors(est, (ids, wTb), truth, [])["landmarks_recovered"] == 2
+    # an estimate labelled with another landmark recovers neither
+    assert map_errors(est, (ids, wTb), truth, [(2, 10), (3, 12)])["landmarks_recovered"] == 1
