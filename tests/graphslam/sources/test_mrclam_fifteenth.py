@@ -98,3 +98,35 @@ def test_another_robots_truth_on_a_cut_is_still_doubted(mrclam, tmp_path):
     (folder / "Robot2_Groundtruth.dat").replace(folder / "Robot1_Groundtruth.dat")
     (doubt,) = read_mrclam(folder, MrclamConfig(robot=1)).warnings
     assert "not of one robot" in doubt and "no range unit and no exchange of landmark labels" in doubt
+
+
+# -- 2. NEES and the unaligned final error need the run in the truth's frame -----------
+
+
+def test_truth_starting_after_the_log_leaves_nees_out_and_says_why(mrclam, tmp_path, capsys):
+    """Robot 3's Vicon cut to start 10 s in: the run starts at the origin, and its NEES
+    (6746 against 1.61 on the whole cut) and unaligned final error (2.3 m) compared the
+    origin's frame with the Vicon's."""
+    import json
+
+    from graphslam import registry
+    from graphslam.cli.main import main
+    from graphslam.evaluation.planar import pose_statistics
+    from graphslam.pipelines import planar as pipeline
+
+    whole = cut(mrclam, tmp_path / "whole", robots=(3,), end_s=60)
+    late = cut(mrclam, tmp_path / "late", robots=(3,), end_s=60, edits={"Robot3_Groundtruth.dat": after(10)})
+    for folder, frames_match in ((whole, True), (late, False)):
+        ds = read_mrclam(folder, MrclamConfig(robot=3))
+        stats = pose_statistics(ds, pipeline.run(ds, registry.make_backend("ekf"), with_covariances=True).estimate)
+        assert (stats["nees_mean"] is not None) is frames_match
+        assert (stats["final_pose_error_m"] is not None) is frames_match
+        assert (stats["frame_doubt"] is None) is frames_match
+    out = tmp_path / "out"
+    argv = ["run", "--dataset", str(late), "--robot", "3", "--backend", "ekf", "--nees", "--rerun", "off"]
+    assert main([*argv, "--quiet", "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "the run's first pose has no truth" in said.out + said.err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m.get("nees_mean") is None and not (out / "nees.csv").exists()
+    assert any("not in the truth's frame" in w for w in m["warnings"])
