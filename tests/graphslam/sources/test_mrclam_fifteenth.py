@@ -130,3 +130,69 @@ def test_truth_starting_after_the_log_leaves_nees_out_and_says_why(mrclam, tmp_p
     m = json.loads((out / "metrics.json").read_text())
     assert m.get("nees_mean") is None and not (out / "nees.csv").exists()
     assert any("not in the truth's frame" in w for w in m["warnings"])
+
+
+# -- 3. gaps in the odometry, and odometry that ends before the sightings --------------
+
+
+def test_a_gap_in_the_odometry_is_warned_and_sightings_past_its_end_dropped(mrclam, tmp_path):
+    """A 60-s hole in robot 1's odometry held the command before it across the hole, and
+    robot 3's odometry ending at 100 s with sightings to 150 s held its last command for
+    50 s (map RMSE 3.97 m), both without a word."""
+    gap = cut(mrclam, tmp_path / "gap", edits={
+        "Robot1_Odometry.dat": lambda rows: [r for r in rows if not T0 + 53.5 < float(r[0]) < T0 + 113.5]})
+    (warning,) = read_mrclam(gap, MrclamConfig(robot=1)).warnings
+    assert "Robot1_Odometry.dat has no line for 60.0 s from 53." in warning and "held" in warning
+    short = cut(mrclam, tmp_path / "short", robots=(3,), edits={
+        "Robot3_Odometry.dat": lambda rows: [r for r in rows if float(r[0]) < T0 + 100]})
+    ds = read_mrclam(short, MrclamConfig(robot=3))
+    assert ds.frames[-1].stamp_s < T0 + 100 + 2.0  # the last command held no longer than between lines
+    assert any("sightings after its odometry ends dropped (odometry to 99." in n for n in ds.notes)
+    assert read_mrclam(cut(mrclam, tmp_path / "whole", robots=(3,)), MrclamConfig(robot=3)).warnings == ()
+
+
+# -- 5. what the notes count ------------------------------------------------------------
+
+
+def test_notes_say_they_count_the_whole_log(mrclam, tmp_path, capsys):
+    """``--max-steps 300`` printed the whole log's counts as if of the steps that ran."""
+    from graphslam.cli.main import main
+
+    folder = cut(mrclam, tmp_path / "r3", robots=(3,))
+    assert main(["run", "--dataset", str(folder), "--robot", "3", "--max-steps", "30", "--rerun", "off",
+                 "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "sightings of other robots in the whole log left out" in out
+
+
+def test_all_robots_count_the_sightings_of_a_robot_without_a_log(mrclam, tmp_path):
+    """Robot 4's files removed: the others' sightings of it went without a word."""
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    folder = cut(mrclam, tmp_path / "no4", robots=(1, 2, 3, 5))
+    notes = read_mrclam_all(folder, MrclamConfig(all_robots=True)).notes
+    assert any(n.endswith("sightings of robot 4 left out: no Robot4_Odometry.dat here") for n in notes), notes
+
+
+# -- 4. a repeated Vicon line ------------------------------------------------------------
+
+
+def test_a_repeated_truth_line_is_dropped_and_a_contradicting_one_refused(mrclam, tmp_path):
+    """One Vicon line written twice refused the data set: "time 1248444195.954 s comes
+    after 1248444195.954 s: the log must be in time order"."""
+    from slamcore.errors import InputError
+
+    def twice(rows):
+        return rows[:1000] + [rows[999]] + rows[1000:]
+
+    def other_pose(rows):
+        return rows[:1000] + [[rows[999][0], "0.5", *rows[999][2:]]] + rows[1000:]
+
+    plain = read_mrclam(cut(mrclam, tmp_path / "plain"), MrclamConfig(robot=1))
+    dup = read_mrclam(cut(mrclam, tmp_path / "dup", edits={"Robot1_Groundtruth.dat": twice}), MrclamConfig(robot=1))
+    assert "robot 1: 1 repeated lines of Robot1_Groundtruth.dat dropped" in dup.notes
+    assert [f.wTb_true is None for f in dup.frames] == [f.wTb_true is None for f in plain.frames]
+    folder = cut(mrclam, tmp_path / "other", edits={"Robot1_Groundtruth.dat": other_pose})
+    with pytest.raises(InputError, match=r"Robot1_Groundtruth\.dat:1005: time \d+\.\d+ s repeats line 1004's "
+                                         r"with other values"):
+        read_mrclam(folder, MrclamConfig(robot=1))
