@@ -290,4 +290,6 @@ def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:
     stats = metrics.pose_statistics(dataset, result.estimate)
     for key in ("final_pose_error_m", "nees_mean", "nees_in_bounds_fraction"):
         setattr(m, key, stats[key])
+    if stats["frame_doubt"] is not None:  # every back end shares it: said once (warn_doubts)
+        m.warnings = [*(m.warnings or []), stats["frame_doubt"]]
     return m

@@ -342,11 +342,13 @@ def add_nees(
     result: RunResult,
     run_metrics: PlanarRunMetrics,
     ground_truth: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, int] | None:
     """Pose NEES of each step against the truth (``ground_truth`` or the dataset's):
     fills the NEES fields of ``run_metrics`` and returns ``(pose_ids, nees, undefined)``,
     ``nees`` NaN and counted in ``undefined`` where the pose's covariance is singular
-    (:func:`graphslam.evaluation.planar.nees`; the mean is over the others).
+    (:func:`graphslam.evaluation.planar.nees`; the mean is over the others). None, the
+    reason added to the metrics' warnings, when the run's poses are not in the truth's
+    frame (:func:`graphslam.evaluation.planar.truth_frame_doubt`).
 
     Filters give each step's filtered covariance, iSAM2 the smoothed marginals.
     GraphSlamError when the run has no truth or no covariances (interrupted).
@@ -363,6 +365,9 @@ def add_nees(
     run_metrics.final_pose_error_m = stats["final_pose_error_m"]
     run_metrics.nees_mean = stats["nees_mean"]
     run_metrics.nees_in_bounds_fraction = stats["nees_in_bounds_fraction"]
+    if stats["frame_doubt"] is not None:
+        run_metrics.warnings = [*(run_metrics.warnings or []), stats["frame_doubt"]]
+        return None
     return stats["pose_ids"], stats["nees"], stats["nees_undefined"]
 
 

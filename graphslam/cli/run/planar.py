@@ -145,8 +145,8 @@ def run(args: argparse.Namespace) -> int:
             "run interrupted before its covariances (a smoother's come from its marginals at "
             "the end): no nees.csv"
         )
-    elif args.nees:
-        pose_ids, nees_k, undefined = pipeline.add_nees(result, metrics, truth)
+    elif args.nees and (scored := pipeline.add_nees(result, metrics, truth)) is not None:
+        pose_ids, nees_k, undefined = scored
         nees = (pose_ids, nees_k)
         if undefined:
             warn(

@@ -79,7 +79,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         starts[n] = tr.wTb_true[0]
         notes.extend(tr.notes)
     position = {(n, k): i for i, (_, n, k) in enumerate(order)}
-    sightings = _sightings(tracks, config, position)
+    sightings, unmatched = _sightings(tracks, config, position)
     observations = {
         n: landmark_observations(tr, config, lambda k, n=n: n * POSE_ID_STRIDE + k, n)
         for n, tr in tracks.items()
@@ -126,9 +126,10 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
         for n, tr in tracks.items()
     )
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
+    notes.extend(unmatched)
     # one robot's files that are not of one robot spoil the joint graph as much
     doubts = (truth_sightings_doubt(config, n, tr, landmarks_true) for n, tr in tracks.items())
-    warnings = tuple(d for d in doubts if d)
+    warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(d for d in doubts if d)
     if not landmarks_true:
         notes.append(NO_LANDMARK_TRUTH)
     return Dataset(
@@ -146,20 +147,34 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     )
 
 
-def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> dict[int, list]:
-    """Robot-to-robot sightings by the stream position of the later of their two frames."""
+def _sightings(tracks: dict, config: MrclamConfig, position: dict) -> tuple[dict[int, list], list[str]]:
+    """Robot-to-robot sightings by the stream position of the later of their two frames,
+    and a note on those left out: of a robot without a log here, or outside the seen
+    robot's odometry (no pose of it then)."""
     out: dict[int, list] = {}
+    no_log: dict[int, int] = {}
+    outside = 0
     for n, tr in tracks.items():
         for k, subject, z, t in tr.robot_sightings:
             if subject not in tracks:
+                no_log[subject] = no_log.get(subject, 0) + 1
                 continue
             other = tracks[subject].times
             j = int(np.searchsorted(other, t))
             if j >= len(other) or other[j] != t:
-                continue  # outside the other robot's log (before its odometry)
+                outside += 1
+                continue
             sighting = PoseSighting(
                 n * POSE_ID_STRIDE + k, subject * POSE_ID_STRIDE + j, z, sighting_covariances(config, z)[0]
             )
             later = max(position[(n, k)], position[(subject, j)])
             out.setdefault(later, []).append(sighting)
-    return out
+    notes = [
+        f"{count} sightings of robot {r} left out: no Robot{r}_Odometry.dat here"
+        for r, count in sorted(no_log.items())
+    ]
+    if outside:
+        notes.append(
+            f"{outside} sightings of a robot outside its odometry's span left out (no pose of it then)"
+        )
+    return out, notes

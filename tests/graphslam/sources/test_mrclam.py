@@ -213,9 +213,9 @@ def test_robot_1_is_read_as_the_data_set_is(mrclam):
     ds = read_mrclam(mrclam, MrclamConfig(robot=1))
     assert ds.name == "mrclam6-robot1" and ds.has_timestamps
     notes = " / ".join(ds.notes)
-    assert "1 sightings of barcodes Barcodes.dat does not list (43) dropped" in notes
-    assert "407 sightings of other robots left out" in notes
-    assert "truth on 1416 of 1545 frames" in notes
+    assert "1 sightings of barcodes Barcodes.dat does not list (43) in the whole log dropped" in notes
+    assert "407 sightings of other robots in the whole log left out" in notes
+    assert "truth on 1416 of the whole log's 1545 frames" in notes
     assert sorted(ds.landmarks_true) == list(range(6, 21))
     seen = [o.landmark_id for f in ds.frames for o in f.observations]
     assert len(seen) == 1534 and set(seen) <= set(range(6, 21))
@@ -328,7 +328,7 @@ def test_run_writes_map_error_and_the_readers_notes(mrclam, tmp_path, capsys):
     # SLAM at least halves dead reckoning's error, and the map is within the recovery radius
     assert metrics["ate_rmse_m"] < 0.5 * metrics["odometry_ate_rmse_m"]
     assert metrics["map_rmse_m"] < MAP_RECOVERY_RADIUS_M
-    assert "3 sightings of barcodes Barcodes.dat does not list (50) dropped" in \
+    assert "3 sightings of barcodes Barcodes.dat does not list (50) in the whole log dropped" in \
         " / ".join(metrics["dataset_notes"])
     assert "landmarks recovered" in printed and "map RMSE" in printed
     assert (out / "ground_truth.tum").is_file()
