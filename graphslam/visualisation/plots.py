@@ -255,9 +255,27 @@ def _private_config_dir_if_needed() -> None:
             return
 
 
-def plot_trajectory_eval(results, path: Path) -> Path:
+#: ``--align`` as eval.png's first panel names it.
+ALIGN_TITLES = {
+    "none": "trajectories (not aligned)",
+    "se3": "trajectories aligned (SE(3))",
+    "sim3": "trajectories aligned (Sim(3), scale fitted)",
+    "first": "trajectories aligned (first pose onto first pose)",
+}
+#: The time axis of eval.png per kind of reference stamps
+#: (:func:`graphslam.pipelines.trajectory_eval.stamp_kind`).
+STAMP_AXES = {
+    "s": "time since first match [s]",
+    "index": "stamp since first match (0, 1, 2, ...: frame indices or seconds)",
+    "line": "pose since first match (no stamps: paired by line)",
+}
+
+
+def plot_trajectory_eval(results, path: Path, options=None) -> Path:
     """PNG of ``graphslam eval`` (``EstimateResult`` list): the aligned estimates over the
-    reference (seen along its least-spread axis), ATE over time and along the path."""
+    reference (seen along its least-spread axis), ATE over time and along the path;
+    ``options`` (:class:`~graphslam.evaluation.trajectory.EvalOptions`, None: eval's
+    defaults) gives the alignment the title names."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
     ref = results[0].result.ref[:, :3, 3]
@@ -274,9 +292,11 @@ def plot_trajectory_eval(results, path: Path) -> Path:
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[0].set_xlabel(f"{names[a]} [m]")
     axes[0].set_ylabel(f"{names[b]} [m]")
-    axes[0].set_title("aligned trajectories")
+    align = "se3" if options is None else options.align
+    n_align = None if options is None else options.n_align
+    axes[0].set_title(ALIGN_TITLES[align] + (f" on the first {n_align} matched poses" if n_align else ""))
     axes[0].legend(loc="best", fontsize=8)
-    axes[1].set_xlabel("time since first match [s] (frames without stamps)")
+    axes[1].set_xlabel(STAMP_AXES[results[0].stamps])
     axes[2].set_xlabel("distance along the reference [m]")
     for ax in axes[1:]:
         ax.set_ylabel("ATE [m]")

@@ -33,3 +33,49 @@ def test_compare_recording_logs_each_back_ends_poses_at_their_own_time(tmp_path,
         assert {s for s, _ in rows} == set(range(12)), entity
         # the synthetic stream's dt is 1 s from 0: step k is at k seconds
         assert all(t is not None and abs(t - s) < 1e-6 for s, t in rows), (entity, rows)
+
+
+def _eval_figure_texts(tmp_path, monkeypatch, files: tuple[str, str], *options: str) -> tuple[str, str]:
+    """(first panel's title, middle panel's x label) of the eval.png ``graphslam eval`` draws."""
+    import graphslam.visualisation.plots as plots
+
+    seen = {}
+
+    def save(fig, path):
+        seen["title"] = fig.axes[0].get_title()
+        seen["xlabel"] = fig.axes[1].get_xlabel()
+        return path
+
+    monkeypatch.setattr(plots, "_save", save)
+    gt, est = tmp_path / files[0], tmp_path / files[1]
+    assert main(["eval", str(gt), str(est), *options, "--out", str(tmp_path / "ev")]) == 0
+    return seen["title"], seen["xlabel"]
+
+
+def _write_tum(path, stamps) -> None:
+    path.write_text("".join(f"{t} {0.3 * i} {0.1 * i * i} 0 0 0 0 1\n" for i, t in enumerate(stamps)))
+
+
+def test_eval_plot_names_the_alignment_and_the_stamps_the_files_hold(tmp_path, capsys, monkeypatch):
+    """eval.png titled its first panel "aligned trajectories" under --align none, and its time
+    axis read "time since first match [s] (frames without stamps)" whatever the files held."""
+    stamps = [100.0 + 0.1 * i for i in range(10)]
+    _write_tum(tmp_path / "gt.tum", stamps)
+    _write_tum(tmp_path / "est.tum", stamps)
+    title, xlabel = _eval_figure_texts(tmp_path, monkeypatch, ("gt.tum", "est.tum"), "--align", "none")
+    assert title == "trajectories (not aligned)" and xlabel == "time since first match [s]"
+    title, _ = _eval_figure_texts(tmp_path, monkeypatch, ("gt.tum", "est.tum"), "--align", "sim3")
+    assert "Sim(3)" in title
+    title, _ = _eval_figure_texts(tmp_path, monkeypatch, ("gt.tum", "est.tum"), "--n-align", "5")
+    assert "SE(3)" in title and "first 5 matched poses" in title
+    # pose ids as stamps (graphslam's files of a sequence without times)
+    _write_tum(tmp_path / "ids.tum", range(10))
+    _, xlabel = _eval_figure_texts(tmp_path, monkeypatch, ("ids.tum", "ids.tum"))
+    assert "frame indices" in xlabel
+    # KITTI: no stamps at all, paired by line
+    kitti = "".join(f"1 0 0 {0.3 * i} 0 1 0 {0.1 * i * i} 0 0 1 0\n" for i in range(10))
+    (tmp_path / "gt.txt").write_text(kitti)
+    (tmp_path / "est.txt").write_text(kitti)
+    _, xlabel = _eval_figure_texts(tmp_path, monkeypatch, ("gt.txt", "est.txt"), "--format", "kitti")
+    assert "paired by line" in xlabel
+    capsys.readouterr()
