@@ -3,7 +3,10 @@ finding that was silent or wrong, then checks what the output holds now."""
 
 from __future__ import annotations
 
+import pytest
+
 from graphslam.cli.main import main
+from slamcore.errors import ConfigError
 
 
 def _pose_times(path, entity: str) -> list[tuple[int, float | None]]:
@@ -79,3 +82,25 @@ def test_eval_plot_names_the_alignment_and_the_stamps_the_files_hold(tmp_path, c
     _, xlabel = _eval_figure_texts(tmp_path, monkeypatch, ("gt.txt", "est.txt"), "--format", "kitti")
     assert "paired by line" in xlabel
     capsys.readouterr()
+
+
+def _help(capsys, command: str) -> str:
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    return " ".join(capsys.readouterr().out.split())  # argparse's wrapping undone
+
+
+def test_help_texts_say_what_the_options_do(capsys):
+    """``run --help``: ``--robot all`` ran "every robot in one graph (isam2)", though every 2-D
+    back end runs it; ``loops --help`` offered exclude_recent first among [loops] keys, which
+    the default mode ('covisibility') refuses."""
+    text = _help(capsys, "run")
+    assert "(isam2)" not in text and "every robot in one estimate, on any 2-D back end" in text
+    text = _help(capsys, "loops")
+    assert "[loops] mode (covisibility, the default; video, keyframes, auto)" in text
+    assert 'exclude_recent(_s) with mode = "video" or "auto"' in text
+    from loopclosure.detector import LoopDetectorConfig
+
+    with pytest.raises(ConfigError, match="read only with mode"):
+        LoopDetectorConfig(exclude_recent=10)  # why the key needs the mode named
+    assert LoopDetectorConfig(mode="video", exclude_recent=10).exclude_recent == 10
