@@ -71,10 +71,15 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
         if e.nees is not None
     ]
     n = max(e.result.frames for e in entries)
+    truth_xy = None if truth is None else truth[:n, [a, b]]
+    # image landmarks lie at any depth (KITTI's reach 260 m from a 2 m path): the
+    # view is the paths', and the landmarks beyond it are counted, not drawn
+    tracks, beyond, total = _within_view(tracks, truth_xy)
+    said = f" ({beyond} of {total} landmarks of the runs beyond the view)" if beyond else ""
     return _comparison_figure(
         path,
-        f"{sequence.name}: camera centres",
-        None if truth is None else truth[:n, [a, b]],
+        f"{sequence.name}: camera centres{said}",
+        truth_xy,
         None,
         tracks,
         errors,
@@ -83,6 +88,35 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
         "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)",
         "frame",
     )
+
+
+#: The view around the camera paths: a quarter of their larger extent on each side
+#: (the paths fill two thirds of it), ...
+VIEW_MARGIN = 0.25
+#: ... and at least a metre, so that a camera that hardly moved is seen with what it
+#: saw at arm's length (a desk scene's depths).
+VIEW_MARGIN_MIN_M = 1.0
+
+
+def _within_view(tracks, truth_xy) -> tuple[list, int, int]:
+    """``tracks`` (label, (N, 2) path, (L, 2) landmarks) with only the landmarks inside
+    the box of the paths and ``truth_xy`` grown by the view margin; how many were left
+    out, of how many."""
+    paths = [xy for _, xy, _ in tracks] + ([] if truth_xy is None else [truth_xy])
+    xy = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in paths])
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    if not len(xy):
+        return tracks, 0, 0
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    margin = max(VIEW_MARGIN * float(np.max(hi - lo)), VIEW_MARGIN_MIN_M)
+    lo, hi = lo - margin, hi + margin
+    kept, beyond, total = [], 0, 0
+    for label, path_xy, landmarks in tracks:
+        inside = np.all((landmarks >= lo) & (landmarks <= hi), axis=1)
+        kept.append((label, path_xy, landmarks[inside]))
+        beyond += int(np.count_nonzero(~inside))
+        total += len(landmarks)
+    return kept, beyond, total
 
 
 def as_scored(entry, truth) -> tuple[np.ndarray, np.ndarray]:

@@ -104,3 +104,35 @@ def test_help_texts_say_what_the_options_do(capsys):
     with pytest.raises(ConfigError, match="read only with mode"):
         LoopDetectorConfig(exclude_recent=10)  # why the key needs the mode named
     assert LoopDetectorConfig(mode="video", exclude_recent=10).exclude_recent == 10
+
+
+def test_image_comparison_plot_shows_the_camera_path_not_the_farthest_landmark(monkeypatch):
+    """compare.png on KITTI 07 (20 frames): landmarks 260 m away set the camera-centre
+    panel to ~150 x 260 m, and the 2 m path was a dot; now the view is the paths' and the
+    landmarks beyond it are counted in the title."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    import graphslam.visualisation.plots as plots
+
+    seen = {}
+
+    def save(fig, path):
+        ax = fig.axes[0]
+        seen.update(title=ax.get_title(), x=ax.get_xlim(), y=ax.get_ylim())
+        return path
+
+    monkeypatch.setattr(plots, "_save", save)
+    n = 20
+    wTc = np.tile(np.eye(4), (n, 1, 1))
+    wTc[:, 2, 3] = np.linspace(0.0, 2.0, n)  # 2 m forward along z, KITTI's camera axis
+    wTc[:, 0, 3] = 0.1 * np.sin(np.arange(n))
+    landmarks = np.array([[1.0, 0.5, 2.5], [-0.5, 0.0, 1.0], [-30.0, 2.0, 260.0], [5.0, 1.0, 40.0]])
+    est = SimpleNamespace(wTc=wTc, landmarks_w=landmarks, frame_ids=np.arange(n))
+    entry = SimpleNamespace(backend="isam2", result=SimpleNamespace(estimate=est, frames=n),
+                            metrics=SimpleNamespace(alignment="se3"), nees=None)
+    plots.plot_visual_comparison([entry], SimpleNamespace(name="kitti07", wTc_true=wTc), None)
+    assert seen["title"] == "kitti07: camera centres (2 of 4 landmarks of the runs beyond the view)"
+    # the panel is about the path's size (its 2 m plus margins), not 260 m
+    assert np.ptp(seen["x"]) < 10 and np.ptp(seen["y"]) < 10 and seen["y"][1] > 2.0
