@@ -199,7 +199,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         if not args.no_plot:
             from graphslam.visualisation.plots import plot_trajectory_eval
 
-            writes(paths, "png", args.out / "eval.png", lambda path: plot_trajectory_eval(results, path))
+            writes(
+                paths, "png", args.out / "eval.png", lambda path: plot_trajectory_eval(results, path, options)
+            )
     print(format_table(results))
     for message in eval_warnings(results, options):
         warn(message)

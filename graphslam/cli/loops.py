@@ -36,7 +36,9 @@ output:
   L1 similarity in [0, 1], inliers = RANSAC inliers of the geometric check.
 
 detector (config sections, see loopclosure/detector.py and verify.py):
-  [loops]        exclude_recent, min_normalised_score, consistency_k ...
+  [loops]        mode (covisibility, the default; video, keyframes, auto),
+                 min_shared_tracks, min_normalised_score, consistency_k ...;
+                 exclude_recent(_s) with mode = "video" or "auto"
   [loops.orb]    the detector's ORB: n_features, cell_size_px, fast_threshold ...
   [loop_verify]  model, ratio, ransac_threshold_px, min_inliers, min_feature_share ...
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.outputs.writers import seconds, stamp_texts
 from slamcore.files import atomic_open
 from slamcore.spatial.geometry import rotation_to_quaternion
 
@@ -25,10 +26,10 @@ def write_localize_csv(path: Path, frames, stamps, statuses, poses, covariances)
     """One row per frame (module docstring); ``poses``/``covariances`` entries may be None."""
     stamps = np.asarray(stamps, dtype=float)
     whole = bool(np.all(stamps == np.round(stamps)))  # frame indices, not seconds
+    texts = [f"{int(t)}" for t in stamps] if whole else stamp_texts(stamps, seconds)
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write(HEADER + "\n")
-        for frame, t, status, T, C in zip(frames, stamps, statuses, poses, covariances, strict=True):
-            stamp = f"{int(t)}" if whole else f"{t:.6f}"
+        for frame, stamp, status, T, C in zip(frames, texts, statuses, poses, covariances, strict=True):
             row = [str(int(frame)), stamp, status]
             if T is None:
                 row += [""] * (7 + len(_UPPER[0]))

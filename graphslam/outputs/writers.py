@@ -23,9 +23,41 @@ def metres(v: float) -> str:
     return np.format_float_positional(float(v), precision=9, unique=True, trim="-")
 
 
+#: Stamps are written to the nanosecond: ROS and bag clocks count nanoseconds, and no
+#: data read here is finer (6 decimals, as before, wrote 300 synthetic stamps 0.1 us
+#: apart as 31 values, which ``graphslam eval`` refuses as duplicated times).
+STAMP_DECIMALS = 9
+#: ... and with at least 6 decimals, as before: KITTI's and MRCLAM's stamps (microseconds,
+#: milliseconds) and whatever rounds to them are written as they were.
+STAMP_MIN_DECIMALS = 6
+
+
+def seconds(t: float, decimals: int | None = STAMP_DECIMALS) -> str:
+    """A time in seconds to ``decimals`` places (None: the shortest form that reads back
+    as the same float), trailing zeros trimmed down to :data:`STAMP_MIN_DECIMALS` places."""
+    t = float(t)
+    if not math.isfinite(t):
+        return str(t)
+    text = np.format_float_positional(t, precision=decimals, unique=True, trim="-")
+    whole, _, fraction = text.partition(".")
+    return f"{whole}.{fraction.ljust(STAMP_MIN_DECIMALS, '0')}"
+
+
+def stamp_texts(stamps: Iterable[float], text: Callable[[float, int | None], str]) -> list[str]:
+    """``text(t, STAMP_DECIMALS)`` of each stamp; where that writes two different stamps
+    alike (less than a nanosecond apart), every stamp's shortest exact form: a file's
+    distinct stamps are read back distinct."""
+    values = [float(t) for t in stamps]
+    texts = [text(t, STAMP_DECIMALS) for t in values]
+    if len(set(texts)) < len(set(values)):
+        texts = [text(t, None) for t in values]
+    return texts
+
+
 def write_tum(path: Path, stamps: np.ndarray, t_w: np.ndarray, q_xyzw: np.ndarray) -> None:
-    """TUM format ``t x y z qx qy qz qw``, one pose a line: positions to the nanometre
-    (:func:`metres`), quaternions to 9 significant digits.
+    """TUM format ``t x y z qx qy qz qw``, one pose a line: stamps to the nanosecond
+    (:func:`stamp_texts`), positions to the nanometre (:func:`metres`), quaternions to 9
+    significant digits.
 
     Args:
         stamps: (N,) seconds, or pose ids where the data has no timestamps
@@ -34,16 +66,15 @@ def write_tum(path: Path, stamps: np.ndarray, t_w: np.ndarray, q_xyzw: np.ndarra
         q_xyzw: (N, 4) unit quaternions of the body-to-world rotation.
     """
     stamps = np.asarray(stamps)
-    ids = np.issubdtype(stamps.dtype, np.integer)
+    if np.issubdtype(stamps.dtype, np.integer):
+        texts = [str(t) for t in stamps.tolist()]
+    else:
+        texts = stamp_texts(stamps.tolist(), lambda t, d: f"{int(t)}" if t.is_integer() else seconds(t, d))
     t_w = np.asarray(t_w, dtype=np.float64).reshape(-1, 3)
     q_xyzw = np.asarray(q_xyzw, dtype=np.float64).reshape(-1, 4)
     with atomic_open(path, "w", encoding="utf-8") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")
-        for t, p, q in zip(stamps.tolist(), t_w, q_xyzw, strict=True):
-            if ids:
-                stamp = str(t)
-            else:
-                stamp = f"{int(t)}" if float(t).is_integer() else f"{t:.6f}"
+        for stamp, p, q in zip(texts, t_w, q_xyzw, strict=True):
             f.write(f"{stamp} {' '.join(metres(v) for v in p)} {' '.join(f'{v:.9g}' for v in q)}\n")
 
 

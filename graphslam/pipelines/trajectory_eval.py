@@ -47,6 +47,8 @@ class EstimateResult:
     label: str = ""
     #: what makes the score doubtful, one sentence each (:func:`eval_warnings`)
     warnings: list[str] = field(default_factory=list)
+    #: what the reference's stamps are (:func:`stamp_kind`), for the plot's time axis
+    stamps: str = "s"
 
     def to_dict(self, options: EvalOptions) -> dict:
         return {
@@ -131,7 +133,7 @@ def evaluate_files(
             raise InputError(f"{e} (scored against {ground_truth})", path) from None
         said = stamp_doubts(ref, est) + clock_doubts(ref.stamps_s, est.stamps_s, options, len(result.ref))
         said += doubts(result, options) + same_file_doubts(ground_truth, path, estimates)
-        results.append(EstimateResult(str(path), result, label, said))
+        results.append(EstimateResult(str(path), result, label, said, stamp_kind(ref.stamps_s)))
     return results
 
 
@@ -158,6 +160,15 @@ def same_file_doubts(ground_truth: Path, path: Path, estimates: list[Path]) -> l
 def _frame_indices(t: np.ndarray | None) -> bool:
     """Stamps 0, 1, 2, ... (a graphslam trajectory of a sequence without times)."""
     return t is not None and t.size > 1 and bool(np.array_equal(t, np.arange(t.size, dtype=np.float64)))
+
+
+def stamp_kind(t: np.ndarray | None) -> str:
+    """What stamps ``t`` are: "line" (none, KITTI: poses paired by line), "index"
+    (0, 1, 2, ...: frame indices as graphslam writes a sequence without times, or
+    whole seconds; the file cannot tell) or "s" (seconds)."""
+    if t is None:
+        return "line"
+    return "index" if _frame_indices(t) else "s"
 
 
 def stamp_doubts(ref: Trajectory, est: Trajectory) -> list[str]:

@@ -332,12 +332,14 @@ class RunRecorder:
         every pose) cut it, what was logged before kept."""
         n = max(e.result.steps for e in entries)
         self.start(dataset, n)
+        # each pose at its frame's step and time, as the run's own recording has it
+        frame_of = {f.pose_id: (k, f.stamp_s) for k, f in enumerate(dataset.frames)}
         for e in entries:
             est = e.result.estimate
             for k in range(len(est.pose_ids)):
                 if should_stop is not None and should_stop():
                     return True
-                self.log.set_step(k)
+                self.log.set_step(*frame_of.get(int(est.pose_ids[k]), (k, None)))
                 cov = None if est.pose_covariances is None else est.pose_covariances[k]
                 self.log.log_pose(e.backend, est.wTb[k], cov, self.color_index(e.backend))
             self.finish(e.backend, e.result)

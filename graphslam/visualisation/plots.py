@@ -71,10 +71,15 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
         if e.nees is not None
     ]
     n = max(e.result.frames for e in entries)
+    truth_xy = None if truth is None else truth[:n, [a, b]]
+    # image landmarks lie at any depth (KITTI's reach 260 m from a 2 m path): the
+    # view is the paths', and the landmarks beyond it are counted, not drawn
+    tracks, beyond, total = _within_view(tracks, truth_xy)
+    said = f" ({beyond} of {total} landmarks of the runs beyond the view)" if beyond else ""
     return _comparison_figure(
         path,
-        f"{sequence.name}: camera centres",
-        None if truth is None else truth[:n, [a, b]],
+        f"{sequence.name}: camera centres{said}",
+        truth_xy,
         None,
         tracks,
         errors,
@@ -83,6 +88,35 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
         "error and 3-sigma bounds (EKF: filtered; iSAM2: smoothed)",
         "frame",
     )
+
+
+#: The view around the camera paths: a quarter of their larger extent on each side
+#: (the paths fill two thirds of it), ...
+VIEW_MARGIN = 0.25
+#: ... and at least a metre, so that a camera that hardly moved is seen with what it
+#: saw at arm's length (a desk scene's depths).
+VIEW_MARGIN_MIN_M = 1.0
+
+
+def _within_view(tracks, truth_xy) -> tuple[list, int, int]:
+    """``tracks`` (label, (N, 2) path, (L, 2) landmarks) with only the landmarks inside
+    the box of the paths and ``truth_xy`` grown by the view margin; how many were left
+    out, of how many."""
+    paths = [xy for _, xy, _ in tracks] + ([] if truth_xy is None else [truth_xy])
+    xy = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in paths])
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    if not len(xy):
+        return tracks, 0, 0
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    margin = max(VIEW_MARGIN * float(np.max(hi - lo)), VIEW_MARGIN_MIN_M)
+    lo, hi = lo - margin, hi + margin
+    kept, beyond, total = [], 0, 0
+    for label, path_xy, landmarks in tracks:
+        inside = np.all((landmarks >= lo) & (landmarks <= hi), axis=1)
+        kept.append((label, path_xy, landmarks[inside]))
+        beyond += int(np.count_nonzero(~inside))
+        total += len(landmarks)
+    return kept, beyond, total
 
 
 def as_scored(entry, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -255,9 +289,27 @@ def _private_config_dir_if_needed() -> None:
             return
 
 
-def plot_trajectory_eval(results, path: Path) -> Path:
+#: ``--align`` as eval.png's first panel names it.
+ALIGN_TITLES = {
+    "none": "trajectories (not aligned)",
+    "se3": "trajectories aligned (SE(3))",
+    "sim3": "trajectories aligned (Sim(3), scale fitted)",
+    "first": "trajectories aligned (first pose onto first pose)",
+}
+#: The time axis of eval.png per kind of reference stamps
+#: (:func:`graphslam.pipelines.trajectory_eval.stamp_kind`).
+STAMP_AXES = {
+    "s": "time since first match [s]",
+    "index": "stamp since first match (0, 1, 2, ...: frame indices or seconds)",
+    "line": "pose since first match (no stamps: paired by line)",
+}
+
+
+def plot_trajectory_eval(results, path: Path, options=None) -> Path:
     """PNG of ``graphslam eval`` (``EstimateResult`` list): the aligned estimates over the
-    reference (seen along its least-spread axis), ATE over time and along the path."""
+    reference (seen along its least-spread axis), ATE over time and along the path;
+    ``options`` (:class:`~graphslam.evaluation.trajectory.EvalOptions`, None: eval's
+    defaults) gives the alignment the title names."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
     ref = results[0].result.ref[:, :3, 3]
@@ -274,9 +326,11 @@ def plot_trajectory_eval(results, path: Path) -> Path:
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[0].set_xlabel(f"{names[a]} [m]")
     axes[0].set_ylabel(f"{names[b]} [m]")
-    axes[0].set_title("aligned trajectories")
+    align = "se3" if options is None else options.align
+    n_align = None if options is None else options.n_align
+    axes[0].set_title(ALIGN_TITLES[align] + (f" on the first {n_align} matched poses" if n_align else ""))
     axes[0].legend(loc="best", fontsize=8)
-    axes[1].set_xlabel("time since first match [s] (frames without stamps)")
+    axes[1].set_xlabel(STAMP_AXES[results[0].stamps])
     axes[2].set_xlabel("distance along the reference [m]")
     for ax in axes[1:]:
         ax.set_ylabel("ATE [m]")

@@ -292,9 +292,14 @@ class RerunLog:
         self.path = path
 
     def set_step(self, step: int, stamp_s: float | None = None) -> None:
+        """What follows is logged at ``step`` and, with a stamp, at that time; without
+        one, on no time at all: Rerun keeps a timeline's last value, so a step without
+        a stamp was logged at whatever time an earlier row had set."""
         self.rec.set_time("step", sequence=int(step))
         if stamp_s is not None:
             self.rec.set_time("time", duration=float(stamp_s))
+        else:
+            self.rec.disable_timeline("time")
 
     def _live_check(self) -> None:
         """Before each ``set_time``: send the layout if its views changed since the last

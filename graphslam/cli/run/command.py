@@ -184,7 +184,7 @@ def register(sub) -> None:
     add_robot_option(
         logs,
         "MRCLAM folders: which robot's log to run, or all: every robot in one "
-        "graph (isam2) (default: [mrclam] robot of --config, else 1)",
+        "estimate, on any 2-D back end (default: [mrclam] robot of --config, else 1)",
     )
     _add_posegraph_options(p.add_argument_group("pose-graph files"))
     _add_image_options(p.add_argument_group("image sequences"))
