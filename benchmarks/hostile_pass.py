@@ -846,6 +846,20 @@ def attacks() -> list[Attack]:
                lambda f: (_w(f, "runs", "a file where the folder would go\n"),
                           ["run", "--max-steps", "5", "--quiet", "--rerun", "off"])[1],
                check=_says("cannot create it")),
+        Attack("15th: a file-size limit on the trajectory: the other outputs are still written", "fail",
+               lambda f: _run("synthetic"), file_size_limit=20_000,
+               check=lambda f, o, e: _files("out/landmarks.csv", "out/metrics.json")(f, o, e)
+               or _says("holds landmarks.csv, metrics.json")(f, o, e)),
+        Attack("15th: [ekf] gate_chi2_prob under known ids (the same bits, silent)", "silent",
+               lambda f: _run("synthetic", "--backend", "ekf", "--max-steps", "30", "--config",
+                              str(_w(f, "c.toml", "[ekf]\ngate_chi2_prob = 0.5\n"))),
+               ("ok",), check=_says("gate_chi2_prob did nothing")),
+        Attack("15th: MRCLAM with one Vicon line written twice (the data set refused)", "fail",
+               lambda f: _run(_mrclam_truth_line_twice(f), "--max-steps", "200"),
+               ("ok",), check=_says("1 repeated lines of Robot1_Groundtruth.dat dropped")),
+        Attack("15th: MRCLAM with another data set's barcodes (the ATE called meaningless)", "silent",
+               lambda f: _run(_mrclam_barcodes_rotated(f), "--max-steps", "1500"),
+               ("ok",), check=_says("labels are exchanged")),
     ]
 
 
@@ -1322,6 +1336,26 @@ def _mrclam(folder: Path, drop: str | None = None, header_only: str | None = Non
             (mr / name).write_bytes((DATA / "mrclam6" / name).read_bytes())
     if header_only is not None:
         (mr / header_only).write_text("".join((mr / header_only).read_text().splitlines(True)[:4]))
+    return mr
+
+
+def _mrclam_truth_line_twice(folder: Path) -> Path:
+    """:func:`_mrclam` with the 1000th Vicon line written twice (a logger's repeat)."""
+    mr = _mrclam(folder)
+    lines = (mr / "Robot1_Groundtruth.dat").read_text().splitlines(True)
+    (mr / "Robot1_Groundtruth.dat").write_text("".join(lines[:1000] + lines[999:]))
+    return mr
+
+
+def _mrclam_barcodes_rotated(folder: Path) -> Path:
+    """:func:`_mrclam` with the landmarks' barcodes (subjects 6-20) moved on by three
+    subjects: another data set's Barcodes.dat."""
+    mr = _mrclam(folder)
+    lines = (mr / "Barcodes.dat").read_text().splitlines()
+    rows = [ln.split() for ln in lines[4:] if ln.strip()]
+    codes = [r[1] for r in rows[5:]]
+    rows[5:] = [[r[0], c] for r, c in zip(rows[5:], codes[3:] + codes[:3], strict=True)]
+    (mr / "Barcodes.dat").write_text("\n".join(lines[:4] + ["\t".join(r) for r in rows]) + "\n")
     return mr
 
 
