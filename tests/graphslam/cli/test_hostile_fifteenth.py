@@ -128,3 +128,70 @@ def test_the_run_says_an_estimate_worse_than_one_point_and_not_a_sound_one():
     shuffled = wTb[np.random.default_rng(0).permutation(len(ids))]
     other = pipeline.compute_metrics(result, ground_truth=(ids, shuffled))
     assert any("is more than the truth's own spread" in w for w in other.warnings), other.warnings
+
+
+def _kitti_truth(tmp_path, shared_data, name: str, change) -> str:
+    """KITTI 07's truth (3 x 4 rows) changed by ``change`` ((N, 4, 4) -> (N, 4, 4)), as a file."""
+    from tests.kitti import kitti07
+
+    _, _, wTc = kitti07(shared_data)
+    path = tmp_path / name
+    np.savetxt(path, change(wTc.copy())[:, :3, :].reshape(-1, 12), fmt="%.9g")
+    return str(path)
+
+
+def _kitti_run(tmp_path, capsys, shared_data, truth: str, frames: str, name: str) -> tuple[str, dict]:
+    rc, text = _run(capsys, "--dataset", str(shared_data / "kitti07"), "--ground-truth", truth,
+                    "--frames", frames, "--out", str(tmp_path / name))
+    assert rc == 0, text
+    return text, json.loads((tmp_path / name / "metrics.json").read_text())
+
+
+def test_a_truth_in_millimetres_is_said_by_its_speed(tmp_path, capsys, shared_data):
+    """KITTI 07 with its truth in millimetres: odometry derived from it, 21.5 km in 6.1 s,
+    exit 0, no word."""
+    def mm(wTc):
+        wTc[:, :3, 3] *= 1000.0
+        return wTc
+
+    text, m = _kitti_run(tmp_path, capsys, shared_data, _kitti_truth(tmp_path, shared_data, "mm.txt", mm),
+                         "0:6", "mm")
+    assert any("beyond any vehicle's 100 m/s: is it in millimetres or centimetres?" in w for w in m["warnings"])
+    assert "millimetres or centimetres" in text
+    text, m = _kitti_run(tmp_path, capsys, shared_data, str(shared_data / "kitti07" / "poses.txt"), "0:6", "m")
+    assert not any("vehicle's" in w for w in m.get("warnings") or [])
+
+
+def test_a_truth_in_the_body_convention_is_said_by_its_rejected_tracks(tmp_path, capsys, shared_data):
+    """KITTI 07 with a body-frame truth (x forward): the odometry derived from it could not
+    triangulate the images' tracks (5 landmarks against 154), the ATE small because the
+    odometry is that truth's, exit 0, no word."""
+    cRb = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+    T = np.eye(4)
+    T[:3, :3] = cRb
+
+    def body(wTc):
+        return np.linalg.inv(T) @ wTc @ T
+
+    text, m = _kitti_run(tmp_path, capsys, shared_data, _kitti_truth(tmp_path, shared_data, "b.txt", body),
+                         "0:30", "body")
+    assert any("failed triangulation against the odometry's poses" in w for w in m["warnings"]), m["warnings"]
+    assert "camera-to-world, in time order?" in text
+    text, m = _kitti_run(tmp_path, capsys, shared_data, str(shared_data / "kitti07" / "poses.txt"), "0:30", "own")
+    assert not any("failed triangulation" in w for w in m.get("warnings") or [])
+
+
+def test_the_rejected_share_is_counted_over_the_tracks_tried():
+    from types import SimpleNamespace
+
+    from graphslam.pipelines.spatial import _rejected_triangulations
+
+    def result(rejected, landmarks, odometry="derived"):
+        est = SimpleNamespace(stats={"rejected_triangulations": rejected}, landmark_ids=np.arange(landmarks))
+        return SimpleNamespace(estimate=est, odometry=odometry)
+
+    assert _rejected_triangulations(result(21, 542)) == []  # KITTI 07 0:160 with its truth
+    (doubt,) = _rejected_triangulations(result(353, 5))
+    assert doubt.startswith("353 of 358 tracks (99 %) failed triangulation")
+    assert "is the odometry in the camera's frame" in _rejected_triangulations(result(10, 2, "sequence"))[0]
+    assert _rejected_triangulations(SimpleNamespace(estimate=SimpleNamespace(stats={}, landmark_ids=[]))) == []
