@@ -195,3 +195,20 @@ def test_the_rejected_share_is_counted_over_the_tracks_tried():
     assert doubt.startswith("353 of 358 tracks (99 %) failed triangulation")
     assert "is the odometry in the camera's frame" in _rejected_triangulations(result(10, 2, "sequence"))[0]
     assert _rejected_triangulations(SimpleNamespace(estimate=SimpleNamespace(stats={}, landmark_ids=[]))) == []
+
+
+def test_a_low_cost_after_closures_were_rejected_is_not_doubted(tmp_path):
+    """Rejecting the largest residuals leaves the kept cost low by construction: the
+    lower-tail doubt holds only where every closure was kept."""
+    from types import SimpleNamespace
+
+    from graphslam.backends.posegraph.route import noise_overstated
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+
+    g = read_pose_graph_file(manhattan_walk(tmp_path, seed=1))
+    kept = np.zeros(g.n_edges, dtype=bool)
+    low = SimpleNamespace(final_cost=1e-6, final_cost_kept=None, rejected=kept)
+    assert noise_overstated(g, low) is not None
+    closure = int(np.flatnonzero(~g.odometry_mask())[0])
+    kept[closure] = True
+    assert noise_overstated(g, SimpleNamespace(final_cost=1.0, final_cost_kept=1e-6, rejected=kept)) is None
