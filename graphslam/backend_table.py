@@ -42,7 +42,9 @@ class Implementation:
             2-D map (``graphslam run --map``), built as
             ``Class(ids, landmarks_w, landmark_cov, config)``; None when it has none.
         filtering: a filter: its pose covariance exists only at the time and is
-            kept frame by frame; a smoother's comes from its marginals afterwards.
+            kept frame by frame; a smoother's comes from its marginals afterwards. It
+            keeps only each robot's latest pose, so every odometry step must extend
+            one: a run checks the whole chain first (``planar.run(chained=)``).
         run_overrides: ``"module:function"`` turning a visual run's situation
             ``(odometry mode, seed, no_polish, nearest_depth_m)`` into overrides of
             its config section; None when a run implies none.

@@ -69,8 +69,8 @@ def finished(entries: list[CompareEntry]) -> list[CompareEntry]:
 
 def _run_one(dataset: Dataset, name: str, config, overrides, max_steps) -> pipeline.RunResult:
     backend = registry.make_backend(name, config=config, overrides=overrides)
-    result = pipeline.run(dataset, backend, max_steps=max_steps, with_covariances=True)
-    return result
+    chained = registry.landmark_implementation(name).filtering  # refused before, not part way
+    return pipeline.run(dataset, backend, max_steps=max_steps, with_covariances=True, chained=chained)
 
 
 def _child(conn, job, strip, parents_end=None, parent_pid: int | None = None):

@@ -72,8 +72,12 @@ def run(
     progress: bool = False,
     on_step: StepHook | None = None,
     with_covariances: bool = False,
+    chained: bool = False,
 ) -> RunResult:
-    """Stream ``dataset`` into ``backend`` and finalise.
+    """Stream ``dataset`` into ``backend`` and finalise. ``chained``: the back end is a
+    filter (:attr:`graphslam.backend_table.Implementation.filtering`), which keeps only
+    each robot's latest pose: an odometry step it would refuse part way is refused
+    before the first frame (:func:`filters.planar_inputs.chain_break`).
 
     Ctrl-C or SIGTERM (:mod:`graphslam.pipelines.common`) stops the loop at the
     next frame; the estimate so far is still returned (without the final
@@ -82,6 +86,12 @@ def run(
     frames = dataset.frames if max_steps is None else dataset.frames[:max_steps]
     if not frames:
         raise GraphSlamError(f"dataset {dataset.name!r} has no frames")
+    if chained:
+        from filters.planar_inputs import chain_break
+
+        broken = chain_break(frames[0].pose_id, ((f.odometry, f.pose_id) for f in frames[1:]), backend.name)
+        if broken is not None:
+            raise GraphSlamError(broken)
     bar = progress_bar(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
     counters = {"steps": 0, "skipped": 0, "observations": 0}
@@ -207,10 +217,11 @@ def compute_metrics(
             cost = None
     gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
     # ATE needs two common poses: a run cut after its first step has none (null)
-    ate_poses = None
+    ate_poses = spread = None
     if gt is not None and np.intersect1d(est.pose_ids, gt[0]).size >= 2:
         scored = metrics.ate(est.pose_ids, est.wTb, *gt)
         ate, ate_poses = scored["rmse_m"], scored["n"]
+        spread = metrics.truth_spread_m(est.pose_ids, *gt)
         odo_ids, odo_wTb = dead_reckoning(result.dataset, result.steps)
         odo_ate = metrics.ate(odo_ids, odo_wTb, *gt)["rmse_m"]
     agents = None
@@ -244,10 +255,12 @@ def compute_metrics(
         # the reader's doubts about the input first, then the estimate's
         warnings=[
             *result.dataset.warnings,
-            *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost),
+            *metrics.estimate_warnings(est, ate, odo_ate, ate_poses, cost, spread),
             *metrics.rejected_warning(result.observations, result.observations_rejected),
             *metrics.map_warning(result.observations, result.observations_rejected, len(est.landmark_ids)),
-            *metrics.truth_map_warning(len(est.landmark_ids), map_scores),
+            *metrics.truth_map_warning(
+                len(est.landmark_ids), map_scores, metrics.landmark_spread_m(result.dataset.landmarks_true)
+            ),
             *metrics.skipped_closures_warning(result.loop_closures_skipped, result.backend),
         ]
         or None,

@@ -205,11 +205,29 @@ def closures_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> 
     trusted untested (``robust_closures = "none"``: RRR's Bovisa04 ended 84 m from GPS,
     quietly) or kept by the closure test (a wrong closure 10^4 times too confident bends
     the odometry until its own residual is small: 15.1 m ATE against 1.3 m of dead
-    reckoning, quietly, hostile pass 14). Nothing without closures or after a stop."""
-    from graphslam.backends.posegraph.route import consistent
+    reckoning, quietly, hostile pass 14). Also one line when that cost lies below the
+    chi-square lower tail: the noise is stated larger than the data's and the closure
+    test cannot reject a wrong closure within the excess (information x 1e-6: 0 of 57
+    closures rejected against 45, quietly, hostile pass 15). Nothing without
+    closures or after a stop."""
+    from graphslam.backends.posegraph.route import consistent, noise_overstated
 
     if not (~graph.odometry_mask()).any() or result.cut is not None or result.stopped is not None:
         return []  # a solve a signal stopped is at no optimum: the test does not apply
+    low = noise_overstated(graph, result)
+    if low is not None:
+        # sigmas stated f times the data's: a closure e data-sigmas off reads e / f
+        factor, sentence = low
+        said = (
+            f"{sentence}: the noise is stated about {factor:.3g}x larger in sigma than the "
+            "residuals show (sqrt(degrees of freedom / (2 x cost)))"
+        )
+        if result.closure_threshold is None:
+            return [f"{said}; a wrong closure would not stand out of it"]
+        return [
+            f"{said}, so the closure test, which measures in stated sigmas, passes a wrong "
+            f"closure up to about {factor:.3g}x its threshold off in the data's own noise"
+        ]
     ok, sentence = consistent(graph, result, alpha)
     if ok:
         return []

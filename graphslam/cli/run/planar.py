@@ -124,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         on_step=hook,  # the recorder asks for its own covariances (finish)
         with_covariances=args.nees or save_map is not None,
+        chained=registry.landmark_implementation(args.backend).filtering,
     )
     metrics = pipeline.compute_metrics(
         result, seed=dataset.seed, ground_truth=truth, wall_s=time.perf_counter() - t0
