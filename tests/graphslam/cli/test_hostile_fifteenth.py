@@ -8,12 +8,41 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from graphslam.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[3]
+
+
+def test_a_session_joined_twice_is_said_however_it_is_spelled(tmp_path, monkeypatch):
+    """The same frames via a relative path, a linked folder, ``0:40:1`` or ``:40`` gave no
+    warning, and the joined map held them twice."""
+    from graphslam.maps.merge import repeated_session
+
+    data = tmp_path / "data" / "kitti07"
+    data.mkdir(parents=True)
+    (tmp_path / "link").symlink_to(data)
+    # a map saved before the fix: the source and --frames as typed
+    old = SimpleNamespace(meta={"dataset": "kitti-kitti07", "source": str(data), "frames": "0:40", "n_frames": 40})
+    monkeypatch.chdir(tmp_path / "data")
+
+    def again(source: str, frames: str | None, ran: list[int]) -> int | None:
+        meta = {"dataset": "kitti-x", "source": source, "source_path": os.path.realpath(source),
+                "frames": frames, "frame_range": ran, "n_frames": ran[1] - ran[0] + 1}
+        return repeated_session(old, meta, 160)
+
+    assert again("kitti07", "0:40", [0, 39, 1]) == 0
+    assert again(str(tmp_path / "link"), "0:40", [0, 39, 1]) == 0
+    assert again(str(data), "0:40:1", [0, 39, 1]) == 0
+    assert again(str(data), ":40", [0, 39, 1]) == 0
+    assert again(str(data), "0:20", [0, 19, 1]) is None
+    assert again(str(data), "0:40:2", [0, 38, 2]) is None
+    # an old map's own relative spelling is read from here
+    old.meta["source"] = "kitti07"
+    assert again(str(tmp_path / "link"), ":40", [0, 39, 1]) == 0
 
 
 def test_a_run_records_where_and_with_what_it_ran(tmp_path):
