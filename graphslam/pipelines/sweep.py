@@ -1,6 +1,7 @@
 """``graphslam sweep``: every run of a sweep file, its table, and what the plots need.
 
-``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset``,
+``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset`` (as the sweep
+file lists it),
 ``backend``, every swept ``section.key`` (empty where the run does not read
 that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
 ``run_wall_s``, ``wall_s``, ``peak_rss_mb`` (:data:`TAIL_COLUMNS`), ``status`` (ok, failed, interrupted),
@@ -18,6 +19,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -63,7 +65,7 @@ def columns(spec: SweepSpec) -> list[str]:
 def base_row(run: RunSpec, spec: SweepSpec) -> dict:
     row = {
         "run_id": run.run_id,
-        "dataset": run.dataset,
+        "dataset": run.entry or run.dataset,  # as the sweep file lists it, from any folder
         "backend": run.backend,
         "config_hash": run.config_hash,
         "seed": "" if run.seed is None else run.seed,
@@ -139,6 +141,18 @@ def _flag_value(command: list, flag: str) -> str | None:
     return str(command[command.index(flag) + 1]) if flag in command[:-1] else None
 
 
+def _same_dataset(recorded: str | None, run: RunSpec, cwd) -> bool:
+    """Whether a recorded ``--dataset`` is the run's: the same built-in name, or a path
+    (a relative one read from the run's recorded working directory, else this one) that
+    resolves to the same file or folder."""
+    from graphslam.registry import is_builtin_dataset
+
+    if recorded is None or is_builtin_dataset(recorded) or is_builtin_dataset(run.dataset):
+        return recorded == run.dataset
+    where = os.path.join(cwd if isinstance(cwd, str) else os.getcwd(), recorded)
+    return os.path.realpath(where) == os.path.realpath(run.dataset)
+
+
 def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
     """Why ``folder`` does not hold ``run`` finished, or None when it does: its metrics.json
     is there and records the run's dataset, back end, seed, steps, NEES flag and config
@@ -155,12 +169,13 @@ def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
         return "its metrics.json does not say how it was run"
     command = prov["command"]
     want = {
-        "--dataset": run.dataset,
         "--backend": run.backend,
         "--seed": None if run.seed is None else str(run.seed),
         "--max-steps": None if run.max_steps is None else str(run.max_steps),
     }
     differ = [flag for flag, value in want.items() if _flag_value(command, flag) != value]
+    if not _same_dataset(_flag_value(command, "--dataset"), run, prov.get("cwd")):
+        differ.insert(0, "--dataset")
     if ("--nees" in command) != run.nees:
         differ.append("--nees")
     if prov.get("config_sha256") != hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest():
@@ -192,7 +207,8 @@ def run_sweep(
         if why is not None:  # sweep.csv's word alone is not the run's files
             stale.append((run.run_id, why))
             del done[_key(run)]
-    rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
+    # a done row in this sweep's spelling (its dataset as the sweep file lists it)
+    rows = {run.run_id: {**done[_key(run)], **base_row(run, spec)} for run in runs if _key(run) in done}
     todo = [run for run in runs if _key(run) not in done]
     ours = {_key(run) for run in runs}
     outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs, stale=stale)

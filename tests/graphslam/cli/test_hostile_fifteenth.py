@@ -13,8 +13,99 @@ from types import SimpleNamespace
 import pytest
 
 from graphslam.cli.main import main
+from graphslam.pipelines.sweep import folder_mismatch
+from graphslam.pipelines.sweep_spec import dataset_fingerprint, parse_sweep
 
 ROOT = Path(__file__).resolve().parents[3]
+
+
+def _kitti_layout(root: Path) -> tuple[Path, Path]:
+    """A KITTI download's layout: ``dataset/sequences/07`` and its truth in ``dataset/poses``."""
+    seq = root / "dataset" / "sequences" / "07"
+    (seq / "image_0").mkdir(parents=True)
+    (seq / "image_0" / "000000.png").write_bytes(b"png")
+    (seq / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    truth = root / "dataset" / "poses" / "07.txt"
+    truth.parent.mkdir(parents=True)
+    truth.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    return seq, truth
+
+
+def test_a_sweep_sees_the_kitti_truth_outside_the_swept_folder(tmp_path):
+    """A corrected ``dataset/poses/07.txt`` kept the sweep's old runs ("1 already done")."""
+    seq, truth = _kitti_layout(tmp_path)
+    before = dataset_fingerprint(str(seq))
+    truth.write_text("1 0 0 0.5 0 1 0 0 0 0 1 0\n")  # the truth corrected
+    assert dataset_fingerprint(str(seq)) != before
+
+
+def test_a_sweep_sees_the_plaza_range_file_beside_the_log(tmp_path):
+    """A new ``Plaza2_TD.txt`` beside ``Plaza2_DR.txt`` kept the sweep's old runs."""
+    dr, td = tmp_path / "Plaza2_DR.txt", tmp_path / "Plaza2_TD.txt"
+    dr.write_text("0.0 0.1 0.0 0\n")
+    td.write_text("0.0 0 1 5.0\n")
+    before = dataset_fingerprint(str(dr))
+    td.write_text("0.0 0 1 6.5\n")  # ranges of a mis-calibrated radio
+    assert dataset_fingerprint(str(dr)) != before
+
+
+def test_a_sweep_follows_a_linked_image_folder(tmp_path):
+    """``image_0`` a link repointed to other images kept the sweep's old runs: ``rglob``
+    does not follow linked folders."""
+    for name, size in (("a", 3), ("b", 5)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "000000.png").write_bytes(b"x" * size)
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "image_0").symlink_to("../a")
+    before = dataset_fingerprint(str(ds))
+    (ds / "image_0").unlink()
+    (ds / "image_0").symlink_to("../b")
+    assert dataset_fingerprint(str(ds)) != before
+
+
+def test_a_link_back_up_the_tree_is_walked_once(tmp_path):
+    from slamcore.input_files import files_below
+
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "f.txt").write_text("1")
+    (tmp_path / "d" / "up").symlink_to("..")
+    assert files_below(tmp_path) == [tmp_path / "d" / "f.txt"]
+
+
+def test_one_sweep_file_is_one_set_of_runs_from_any_working_directory(tmp_path, monkeypatch):
+    """s.toml, swg/s.toml and the absolute path gave three config hashes, three run folders,
+    every run made again, a false "another sweep file?" warning and three spellings."""
+    swg = tmp_path / "swg"
+    swg.mkdir()
+    (swg / "w.g2o").write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    (swg / "s.toml").write_text('[sweep]\ndataset = ["w.g2o"]\nbackend = ["isam2"]\n')
+    runs = []
+    for cwd, path in ((swg, "s.toml"), (tmp_path, "swg/s.toml"), (Path("/"), str(swg / "s.toml"))):
+        monkeypatch.chdir(cwd)
+        runs.append(parse_sweep(path).runs())
+    assert [r.config_hash for (r,) in runs] == [runs[0][0].config_hash] * 3
+    assert {r.entry for (r,) in runs} == {"w.g2o"}  # sweep.csv's dataset column
+    assert {r.dataset for (r,) in runs} == {str(swg / "w.g2o")}  # the same command from anywhere
+
+    # a run recorded with a relative --dataset from another folder is the same run
+    (run,) = runs[0]
+    folder = tmp_path / "run"
+    folder.mkdir()
+    from graphslam.pipelines.sweep_spec import dump_toml
+    from graphslam.pipelines.provenance import code_identity
+
+    prov = {
+        "command": ["graphslam", "run", "--dataset", "w.g2o", "--backend", "isam2"],
+        "cwd": str(swg),
+        "config_sha256": __import__("hashlib").sha256(dump_toml(run.config).encode()).hexdigest(),
+        **code_identity(),
+    }
+    (folder / "metrics.json").write_text(json.dumps({"provenance": prov}))
+    assert folder_mismatch(run, folder) is None
+    prov["cwd"] = str(tmp_path)  # w.g2o read from elsewhere: another file
+    (folder / "metrics.json").write_text(json.dumps({"provenance": prov}))
+    assert folder_mismatch(run, folder) == "its folder holds another run (other --dataset)"
 
 
 def test_a_session_joined_twice_is_said_however_it_is_spelled(tmp_path, monkeypatch):
