@@ -153,11 +153,34 @@ def _same_dataset(recorded: str | None, run: RunSpec, cwd) -> bool:
     return os.path.realpath(where) == os.path.realpath(run.dataset)
 
 
+def _other_code(prov: dict) -> str | None:
+    """How the code that made a run differs from this one's, or None when it is the same
+    (:func:`graphslam.pipelines.provenance.code_identity`): a sweep re-run after an upgrade kept the
+    old version's results (fifteenth hostile pass)."""
+    from graphslam.pipelines.provenance import code_identity
+
+    now = code_identity()
+    then = {"versions": prov.get("versions"), "code_sha256": prov.get("code_sha256")}
+    if then == now:
+        return None
+    if not isinstance(then["versions"], dict) or then["code_sha256"] is None:
+        return "made by other code (its metrics.json names no code version)"
+    differ = [
+        f"{name} {then['versions'].get(name)} -> {version}"
+        for name, version in now["versions"].items()
+        if then["versions"].get(name) != version
+    ]
+    if then["code_sha256"] != now["code_sha256"]:
+        differ.append(f"graphslam source {str(then['code_sha256'])[:12]} -> {now['code_sha256'][:12]}")
+    return f"made by other code ({', '.join(differ)})"
+
+
 def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
     """Why ``folder`` does not hold ``run`` finished, or None when it does: its metrics.json
     is there and records the run's dataset, back end, seed, steps, NEES flag and config
-    file bytes (provenance). A folder deleted, or written over by another run, still
-    counted as done, and the plots were redrawn from its files (hostile pass)."""
+    file bytes (provenance), and this code (:func:`_other_code`). A folder deleted, or
+    written over by another run, still counted as done, and the plots were redrawn from
+    its files (hostile pass)."""
     try:
         metrics = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -182,7 +205,7 @@ def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
         differ.append("config")
     if differ:
         return f"its folder holds another run (other {', '.join(differ)})"
-    return None
+    return _other_code(prov)
 
 
 def run_sweep(

@@ -108,6 +108,56 @@ def test_one_sweep_file_is_one_set_of_runs_from_any_working_directory(tmp_path, 
     assert folder_mismatch(run, folder) == "its folder holds another run (other --dataset)"
 
 
+def test_a_run_folder_made_by_other_code_is_run_again(tmp_path):
+    """A sweep re-run after an upgrade kept the old version's results: the run identity
+    had no code version."""
+    from graphslam.pipelines.sweep_spec import dump_toml
+    from graphslam.pipelines.provenance import code_identity
+
+    (tmp_path / "s.toml").write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0]\n')
+    (run,) = parse_sweep(tmp_path / "s.toml").runs()
+    folder = tmp_path / "run"
+    folder.mkdir()
+    from graphslam.pipelines.sweep_exec import run_command
+
+    prov = {
+        "command": ["graphslam", *run_command(run, folder)[3:]],
+        "config_sha256": __import__("hashlib").sha256(dump_toml(run.config).encode()).hexdigest(),
+        **code_identity(),
+    }
+
+    def mismatch(**change):
+        (folder / "metrics.json").write_text(json.dumps({"provenance": {**prov, **change}}))
+        return folder_mismatch(run, folder)
+
+    assert mismatch() is None
+    assert mismatch(code_sha256="0" * 64) == (
+        f"made by other code (graphslam source 000000000000 -> {prov['code_sha256'][:12]})"
+    )
+    versions = {**prov["versions"], "gtsam": "4.2"}
+    assert mismatch(versions=versions) == f"made by other code (gtsam 4.2 -> {prov['versions']['gtsam']})"
+    assert mismatch(versions=None, code_sha256=None) == "made by other code (its metrics.json names no code version)"
+
+
+def test_the_code_digest_changes_with_any_source_file(tmp_path, monkeypatch):
+    from graphslam.pipelines import provenance
+
+    pkg = tmp_path / "fifteenth_pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "m.py").write_text("X = 0.2\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(provenance, "PACKAGES", ("fifteenth_pkg",))
+    provenance.code_sha256.cache_clear()
+    try:
+        before = provenance.code_sha256()
+        provenance.code_sha256.cache_clear()
+        (pkg / "sub" / "m.py").write_text("X = 0.5\n")  # the synthetic range noise, say
+        assert provenance.code_sha256() != before
+    finally:
+        provenance.code_sha256.cache_clear()
+
+
 def test_a_session_joined_twice_is_said_however_it_is_spelled(tmp_path, monkeypatch):
     """The same frames via a relative path, a linked folder, ``0:40:1`` or ``:40`` gave no
     warning, and the joined map held them twice."""
