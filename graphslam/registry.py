@@ -400,6 +400,37 @@ def is_visual_dataset(spec: str) -> bool:
     )
 
 
+def dataset_files(spec: str) -> list[Path]:
+    """Every file a run of ``--dataset spec`` may read, as each reader knows its own: a
+    pose-graph or log file; a Plaza log's ``_DR.txt``, ``_TD.txt`` and ``.mat``; an MRCLAM
+    folder's files; an image folder's files through symbolic links, with a KITTI
+    sequence's truth outside it; a bag with the intrinsics file beside it. Empty for a
+    built-in dataset (its data comes with the code and gtsam: their versions name it).
+
+    Raises:
+        OSError: a file or folder that cannot be listed.
+    """
+    from slamcore.input_files import files_below
+
+    if spec in DATASETS or spec in VISUAL_DATASETS:
+        return []
+    if is_bag_dataset(spec):
+        from graphslam.sources.spatial.rosbag import bag_files
+
+        return bag_files(spec)
+    if is_plaza_dataset(spec):
+        from graphslam.sources.planar.plaza import plaza_files
+
+        return [p for p in plaza_files(spec) or () if p.is_file()]
+    if is_mrclam_dataset(spec):
+        return files_below(spec)
+    if Path(spec).is_dir():
+        from graphslam.sources.spatial.images import sequence_files
+
+        return sequence_files(spec)
+    return [Path(spec)] if Path(spec).is_file() else []
+
+
 def check_topics_flag(spec: str, topics: str | None) -> None:
     """``--topics`` is refused, one line, for a dataset that is not a ROS bag."""
     if topics is not None and not is_bag_dataset(spec):

@@ -57,3 +57,27 @@ def check_plain_text(path, error=InputError) -> None:
         raise error("UTF-16 text (as Windows tools write it): save it as UTF-8", path)
     if head[:2] == b"\x1f\x8b":
         raise error("gzip-compressed: decompress it first (gunzip)", path)
+
+
+def files_below(folder: str | Path) -> list[Path]:
+    """Every regular file in ``folder`` and its sub-folders, following symbolic links (an
+    image folder linked in from elsewhere is read through its link; ``Path.rglob`` does not
+    follow linked folders before Python 3.13), each linked folder once (a link back up the
+    tree would never end), sorted.
+
+    Raises:
+        OSError: a sub-folder or file that cannot be read.
+    """
+
+    def refused(e: OSError) -> None:
+        raise e
+
+    out, seen = [], set()
+    for root, dirs, names in os.walk(folder, followlinks=True, onerror=refused):
+        here = os.path.realpath(root)
+        if here in seen:
+            dirs[:] = []
+            continue
+        seen.add(here)
+        out += [p for p in (Path(root) / n for n in names) if p.is_file()]
+    return sorted(out)

@@ -371,11 +371,36 @@ def warn(message: str) -> None:
     print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
 
 
+def invocation(args) -> dict:
+    """Where and with what a command ran: its command line as typed (relative paths and
+    all), the working directory they are read from, its ``--config`` as typed and
+    resolved, the interpreter, the versions of the
+    toolkit and its libraries and the digest of the toolkit's source
+    (:func:`graphslam.pipelines.provenance.code_identity`). Without them an output could not be
+    made again from another folder or told from another version's (fifteenth hostile
+    pass)."""
+    from graphslam.pipelines.provenance import code_identity
+
+    try:
+        cwd: str | None = os.getcwd()
+    except OSError:  # the folder was removed under the command: nothing to name
+        cwd = None
+    config = getattr(args, "config", None)
+    return {
+        "command": list(getattr(args, "command_line", None) or []),
+        "cwd": cwd,
+        "config_file": None if config is None else str(config),
+        "config_file_resolved": None if config is None else os.path.realpath(config),
+        "python_executable": sys.executable,
+        **code_identity(),
+    }
+
+
 def provenance(args, config) -> dict:
-    """What a run's metrics.json records of how it was asked for: the command line, the
-    config file (path and SHA-256 of its bytes) and every section's settings as built
-    (thirteenth hostile pass: a run's outputs said nothing of its settings, so it could
-    not be made again from them)."""
+    """What a run's metrics.json records of how it was asked for: :func:`invocation`, the
+    config file (path as typed and resolved, SHA-256 of its bytes) and every section's
+    settings as built (thirteenth hostile pass: a run's outputs said nothing of its
+    settings, so it could not be made again from them)."""
     import hashlib
 
     if config.path is not None and config.sha256 is not None:
@@ -389,8 +414,9 @@ def provenance(args, config) -> dict:
                 "of the file as it was read, and the settings that ran"
             )
     return {
-        "command": list(getattr(args, "command_line", None) or []),
+        **invocation(args),
         "config_file": None if config.path is None else str(config.path),
+        "config_file_resolved": None if config.path is None else os.path.realpath(config.path),
         "config_sha256": config.sha256,
         "settings": dict(config.settings),
         # the file's settings that did nothing, as said on stderr (GATES and marks so far)

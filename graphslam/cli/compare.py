@@ -323,6 +323,7 @@ def _write_comparison(
         EXIT_FAILED,
         EXIT_INTERRUPTED,
         close_recorder,
+        invocation,
         open_recorder,
         recoveries_text,
         warn,
@@ -346,7 +347,8 @@ def _write_comparison(
     writes = writers.OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     paths: dict[str, Path] = {}
     runs = [e.metrics if e.status == "ok" else _marked(e) for e in entries]
-    writes(paths, "json", out_dir / "compare.json", writers.write_json, {**header, "runs": runs})
+    record = {**header, "runs": runs, "provenance": invocation(args)}
+    writes(paths, "json", out_dir / "compare.json", writers.write_json, record)
     if done:
         writes(paths, "png", out_dir / "compare.png", lambda path: plot(done, path))
     outputs = [p.name for p in paths.values()]

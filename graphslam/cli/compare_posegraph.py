@@ -36,6 +36,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
         EXIT_INTERRUPTED,
         clear_earlier_outputs,
         fmt,
+        invocation,
         warn,
         warn_doubts,
     )
@@ -119,6 +120,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
                 "edges": graph.n_edges,
             },
             "runs": [r.to_dict() for r in runs],
+            "provenance": invocation(args),
         },
     )
     outputs = ["compare.json"]

@@ -174,7 +174,7 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, warn
+    from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, invocation, warn
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, OutputWrites, one_run_or_the_other
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json
@@ -195,7 +195,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
     writes = OutputWrites(args.out)  # a file the disk refuses costs no other: each is tried
     paths: dict[str, Path] = {}
     with one_run_or_the_other(args.out, EVAL_OUTPUT_NAMES):
-        writes(paths, "json", args.out / "eval.json", write_eval_json, args.ground_truth, results, options)
+        writes(
+            paths,
+            "json",
+            args.out / "eval.json",
+            write_eval_json,
+            args.ground_truth,
+            results,
+            options,
+            invocation(args),
+        )
         if not args.no_plot:
             from graphslam.visualisation.plots import plot_trajectory_eval
 

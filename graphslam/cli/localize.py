@@ -28,6 +28,7 @@ from graphslam.cli.common import (
     clear_earlier_outputs,
     close_recorder,
     fmt,
+    invocation,
     open_recorder,
     path_arg,
     report_outputs,
@@ -154,6 +155,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         "metric": smap.meta.get("odometry") != "none",
     }
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
+    metrics["provenance"] = invocation(args)
     if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
         warn(metrics["warnings"][-1])
     out_dir = claimed_folder(out_dir, recorder)

@@ -157,6 +157,7 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
         stop_guard,
         to_devnull,
     )
+    from graphslam.pipelines.provenance import invoked_as
 
     # The guard first: a signal while the parser and the libraries load is
     # one line and its exit status, never a traceback.
@@ -176,7 +177,10 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
                         raise stdout.error from None
                 raise
             check_path_arguments(args)
-            args.command_line = ["graphslam", *words]
+            # how it was started, honestly: "python3 -m graphslam" is not the console script
+            # (a sweep's runs are "-m graphslam.cli.main"); main(argv) from Python stands
+            # for the command
+            args.command_line = [*(invoked_as() if argv is None else ["graphslam"]), *words]
             signal_hook("start")
             status = args.func(args)
             sys.stdout.flush()  # the summary's write error is this command's, not the exit's

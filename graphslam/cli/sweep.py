@@ -186,8 +186,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if outcome.dropped:
         warn(
             f"{args.out / 'sweep.csv'} held {outcome.dropped} rows of runs that are not in this "
-            "sweep (another sweep file?); sweep.csv now lists this sweep's runs only (their "
-            f"folders stay in {args.out / 'runs'})"
+            "sweep (another sweep file, or data its runs read changed since); sweep.csv now lists "
+            f"this sweep's runs only (their folders stay in {args.out / 'runs'})"
         )
     ok = sum(r.get("status") == "ok" for r in outcome.rows)
     print(

@@ -13,11 +13,13 @@ not by a joint adjustment.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from graphslam.maps.files import check_camera
 from graphslam.maps.spatial_map import SpatialMap
-from slamcore.errors import InputError
+from slamcore.errors import ConfigError, InputError
 
 
 def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
@@ -62,15 +64,55 @@ def merge_maps(old: SpatialMap, new: SpatialMap) -> SpatialMap:
     )
 
 
-def repeated_session(old: SpatialMap, meta: dict) -> int | None:
+def frame_range(indices) -> list[int] | None:
+    """``[first, last, step]`` of the source frame indices a session ran (``--frames``
+    picks an arithmetic run of them), None when it ran none: one spelling for
+    ``0:40``, ``:40`` and ``0:40:1``."""
+    idx = np.asarray(indices, dtype=np.int64)
+    if len(idx) == 0:
+        return None
+    step = int(idx[1] - idx[0]) if len(idx) > 1 else 1
+    return [int(idx[0]), int(idx[-1]), step]
+
+
+def _ran(session: dict, n_source: int | None) -> list[int] | None:
+    """A session's :func:`frame_range`: as recorded, else (a map saved before it was)
+    from its ``--frames`` text and frame count, on a source of ``n_source`` frames."""
+    if session.get("frame_range") is not None:
+        return [int(v) for v in session["frame_range"]]
+    if n_source is None:
+        return None
+    from graphslam.sources.spatial.frames import frame_indices, parse_frames
+
+    try:
+        text = session.get("frames")
+        idx = frame_indices(parse_frames(text) if text else slice(None), n_source)
+    except (ConfigError, ValueError, TypeError):  # not a range this source has
+        return None
+    n = session.get("n_frames")
+    return frame_range(idx[: int(n)] if isinstance(n, int) and n > 0 else idx)
+
+
+def _where(session: dict) -> str | None:
+    """A session's source resolved (absolute, links followed): an old map's path as
+    typed is read from here, the best that can be done with it."""
+    path = session.get("source_path") or session.get("source")
+    return None if path is None else os.path.realpath(str(path))
+
+
+def repeated_session(old: SpatialMap, meta: dict, n_source: int | None = None) -> int | None:
     """Index of the session of ``old`` that ran the same frames of the same source as the
-    session ``meta`` describes (joining it again adds its keyframes twice), or None."""
+    session ``meta`` describes (joining it again adds its keyframes twice), or None. The
+    source is compared resolved and the frames as the indices run (:func:`frame_range`;
+    ``n_source``: the source's frame count, to read an old map's ``--frames`` text): a
+    relative path, a linked folder, ``0:40:1`` or ``:40`` hid a repeat before (fifteenth
+    hostile pass)."""
     new = _session(meta)
+    mine = (_where(new), new["dataset"] if _where(new) is None else None, _ran(new, n_source))
     for i, s in enumerate(old.meta.get("sessions", [_session(old.meta)])):
-        if (s.get("source"), s.get("dataset"), s.get("frames")) == (
-            new["source"],
-            new["dataset"],
-            new["frames"],
+        if (
+            mine[2] is not None
+            and (_where(s), s.get("dataset") if _where(s) is None else None, _ran(s, n_source)) == mine
         ):
             return i
     return None
@@ -80,5 +122,15 @@ def _session(meta: dict) -> dict:
     """What a session entry of ``meta["sessions"]`` keeps of a map's description."""
     return {
         k: meta.get(k)
-        for k in ("dataset", "source", "frames", "n_frames", "backend", "frontend", "densified_landmarks")
+        for k in (
+            "dataset",
+            "source",
+            "source_path",
+            "frames",
+            "frame_range",
+            "n_frames",
+            "backend",
+            "frontend",
+            "densified_landmarks",
+        )
     }

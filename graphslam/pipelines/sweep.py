@@ -1,6 +1,7 @@
 """``graphslam sweep``: every run of a sweep file, its table, and what the plots need.
 
-``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset``,
+``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset`` (as the sweep
+file lists it),
 ``backend``, every swept ``section.key`` (empty where the run does not read
 that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
 ``run_wall_s``, ``wall_s``, ``peak_rss_mb`` (:data:`TAIL_COLUMNS`), ``status`` (ok, failed, interrupted),
@@ -18,6 +19,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -63,7 +65,7 @@ def columns(spec: SweepSpec) -> list[str]:
 def base_row(run: RunSpec, spec: SweepSpec) -> dict:
     row = {
         "run_id": run.run_id,
-        "dataset": run.dataset,
+        "dataset": run.entry or run.dataset,  # as the sweep file lists it, from any folder
         "backend": run.backend,
         "config_hash": run.config_hash,
         "seed": "" if run.seed is None else run.seed,
@@ -139,11 +141,46 @@ def _flag_value(command: list, flag: str) -> str | None:
     return str(command[command.index(flag) + 1]) if flag in command[:-1] else None
 
 
+def _same_dataset(recorded: str | None, run: RunSpec, cwd) -> bool:
+    """Whether a recorded ``--dataset`` is the run's: the same built-in name, or a path
+    (a relative one read from the run's recorded working directory, else this one) that
+    resolves to the same file or folder."""
+    from graphslam.registry import is_builtin_dataset
+
+    if recorded is None or is_builtin_dataset(recorded) or is_builtin_dataset(run.dataset):
+        return recorded == run.dataset
+    where = os.path.join(cwd if isinstance(cwd, str) else os.getcwd(), recorded)
+    return os.path.realpath(where) == os.path.realpath(run.dataset)
+
+
+def _other_code(prov: dict) -> str | None:
+    """How the code that made a run differs from this one's, or None when it is the same
+    (:func:`graphslam.pipelines.provenance.code_identity`): a sweep re-run after an upgrade kept the
+    old version's results (fifteenth hostile pass)."""
+    from graphslam.pipelines.provenance import code_identity
+
+    now = code_identity()
+    then = {"versions": prov.get("versions"), "code_sha256": prov.get("code_sha256")}
+    if then == now:
+        return None
+    if not isinstance(then["versions"], dict) or then["code_sha256"] is None:
+        return "made by other code (its metrics.json names no code version)"
+    differ = [
+        f"{name} {then['versions'].get(name)} -> {version}"
+        for name, version in now["versions"].items()
+        if then["versions"].get(name) != version
+    ]
+    if then["code_sha256"] != now["code_sha256"]:
+        differ.append(f"graphslam source {str(then['code_sha256'])[:12]} -> {now['code_sha256'][:12]}")
+    return f"made by other code ({', '.join(differ)})"
+
+
 def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
     """Why ``folder`` does not hold ``run`` finished, or None when it does: its metrics.json
     is there and records the run's dataset, back end, seed, steps, NEES flag and config
-    file bytes (provenance). A folder deleted, or written over by another run, still
-    counted as done, and the plots were redrawn from its files (hostile pass)."""
+    file bytes (provenance), and this code (:func:`_other_code`). A folder deleted, or
+    written over by another run, still counted as done, and the plots were redrawn from
+    its files (hostile pass)."""
     try:
         metrics = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -155,19 +192,20 @@ def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
         return "its metrics.json does not say how it was run"
     command = prov["command"]
     want = {
-        "--dataset": run.dataset,
         "--backend": run.backend,
         "--seed": None if run.seed is None else str(run.seed),
         "--max-steps": None if run.max_steps is None else str(run.max_steps),
     }
     differ = [flag for flag, value in want.items() if _flag_value(command, flag) != value]
+    if not _same_dataset(_flag_value(command, "--dataset"), run, prov.get("cwd")):
+        differ.insert(0, "--dataset")
     if ("--nees" in command) != run.nees:
         differ.append("--nees")
     if prov.get("config_sha256") != hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest():
         differ.append("config")
     if differ:
         return f"its folder holds another run (other {', '.join(differ)})"
-    return None
+    return _other_code(prov)
 
 
 def run_sweep(
@@ -192,7 +230,8 @@ def run_sweep(
         if why is not None:  # sweep.csv's word alone is not the run's files
             stale.append((run.run_id, why))
             del done[_key(run)]
-    rows = {run.run_id: done[_key(run)] for run in runs if _key(run) in done}
+    # a done row in this sweep's spelling (its dataset as the sweep file lists it)
+    rows = {run.run_id: {**done[_key(run)], **base_row(run, spec)} for run in runs if _key(run) in done}
     todo = [run for run in runs if _key(run) not in done]
     ours = {_key(run) for run in runs}
     outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs, stale=stale)

@@ -26,10 +26,13 @@ world), so ``fastslam.n_particles = [10, 100]`` does not run iSAM2 twice.
 Everything is checked before any run: unknown keys and sections, values out
 of range, an empty list (empty grid), each refused with file and line.
 
-A run's *config hash* is the hash of its dataset (its name and what it holds:
-:func:`dataset_fingerprint`), back end, step limit, NEES switch and full config
+A run's *config hash* is the hash of its dataset (a built-in name, or the resolved
+path of a file or folder, whichever working directory the sweep is started from and
+however the path is spelled: :func:`dataset_key`; and what every file the run reads
+holds: :func:`dataset_fingerprint`), back end, step limit, NEES switch and full config
 (base plus overrides), without the seed: ``(config_hash, seed)`` names a run, and a
-sweep that is run again skips the ones already done.
+sweep that is run again skips the ones already done (and made by this code:
+:func:`graphslam.pipelines.sweep.folder_mismatch`).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import copy
 import hashlib
 import itertools
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,7 +62,7 @@ MAX_SEEDS = 100_000
 class RunSpec:
     """One run of a sweep: ``graphslam run`` with these arguments and config."""
 
-    dataset: str
+    dataset: str  # as the run is given it: a built-in name or an absolute path
     backend: str
     seed: int | None
     max_steps: int | None
@@ -66,6 +70,8 @@ class RunSpec:
     overrides: dict = field(default_factory=dict)  # "section.key" -> value, applied ones
     config: dict = field(default_factory=dict)  # the full config file of the run
     config_hash: str = ""
+    #: the dataset as the sweep file lists it (sweep.csv's dataset column), "": ``dataset``
+    entry: str = ""
 
     @property
     def run_id(self) -> str:
@@ -77,7 +83,7 @@ class SweepSpec:
     """A parsed sweep file."""
 
     path: Path
-    datasets: tuple[str, ...]
+    datasets: tuple[str, ...]  # built-in names and absolute paths (:func:`_datasets`)
     backends: tuple[str, ...]
     seeds: tuple[int | None, ...]
     max_steps: int | None
@@ -85,11 +91,14 @@ class SweepSpec:
     base_config: dict
     set_keys: tuple[str, ...]
     set_values: tuple[tuple, ...]
+    #: each of ``datasets`` as the sweep file lists it; empty: as ``datasets``
+    entries: tuple[str, ...] = ()
 
     def runs(self) -> list[RunSpec]:
         """Every run of the grid, in a fixed order, without repeats."""
         out, seen = [], set()
         prints = {dataset: dataset_fingerprint(dataset) for dataset in self.datasets}
+        entries = dict(zip(self.datasets, self.entries or self.datasets, strict=True))
         for dataset, backend in itertools.product(self.datasets, self.backends):
             sections = run_sections(dataset, backend)
             for combo in itertools.product(*self.set_values):
@@ -97,13 +106,25 @@ class SweepSpec:
                     k: v for k, v in zip(self.set_keys, combo, strict=True) if k.split(".", 1)[0] in sections
                 }
                 config = merged_config(self.base_config, applied)
-                chash = config_hash(dataset, backend, self.max_steps, self.nees, config, prints[dataset])
+                chash = config_hash(
+                    dataset_key(dataset), backend, self.max_steps, self.nees, config, prints[dataset]
+                )
                 for seed in self.seeds:
                     if (chash, seed) in seen:
                         continue
                     seen.add((chash, seed))
                     out.append(
-                        RunSpec(dataset, backend, seed, self.max_steps, self.nees, applied, config, chash)
+                        RunSpec(
+                            dataset,
+                            backend,
+                            seed,
+                            self.max_steps,
+                            self.nees,
+                            applied,
+                            config,
+                            chash,
+                            entries[dataset],
+                        )
                     )
         return out
 
@@ -137,29 +158,44 @@ def config_hash(
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
+def dataset_key(dataset: str) -> str:
+    """A dataset's name in the config hash: a built-in name as it is, a path resolved
+    (absolute, symbolic links followed). The path as typed made one sweep file three
+    sets of runs from three working directories (fifteenth hostile pass)."""
+    from graphslam.registry import is_builtin_dataset
+
+    return dataset if is_builtin_dataset(dataset) else os.path.realpath(dataset)
+
+
 def dataset_fingerprint(dataset: str) -> str | None:
-    """What a dataset path holds, as a hash: a file's bytes; a folder's files by
-    relative name, size and modification time (an image folder of gigabytes is not
-    read twice); None for a built-in name. Two folders of the same name (run from
-    two places, or a file changed in place) give two fingerprints."""
+    """What a run of ``dataset`` reads, as a hash; None for a built-in name. Every file its
+    reader names (:func:`graphslam.registry.dataset_files`: a Plaza log's range file
+    beside it, a KITTI sequence's truth outside its folder, images through a symbolic
+    link), each by resolved path, size and modification time (an image folder of
+    gigabytes is not read twice), and the named file itself by its bytes. A sweep's
+    fingerprint of the named file or folder alone kept old results when such a file
+    changed (fifteenth hostile pass)."""
+    from graphslam.registry import dataset_files, is_builtin_dataset
+
+    if is_builtin_dataset(dataset):
+        return None
     path = Path(dataset)
     try:
+        entries: list = []
         if path.is_file():
             digest = hashlib.sha256()
             with open(path, "rb") as fh:
                 for block in iter(lambda: fh.read(1 << 20), b""):
                     digest.update(block)
-            return digest.hexdigest()
-        if path.is_dir():
-            entries = sorted(
-                (str(p.relative_to(path)), st.st_size, st.st_mtime_ns)
-                for p in path.rglob("*")
-                if p.is_file() and (st := p.stat())
-            )
-            return hashlib.sha256(json.dumps(entries).encode()).hexdigest()
+            entries.append(digest.hexdigest())
+        for p in dataset_files(dataset):
+            if p != path:
+                st = p.stat()
+                entries.append((os.path.realpath(p), st.st_size, st.st_mtime_ns))
     except OSError as e:  # unreadable: one line before any run, not a traceback
-        raise InputError(f"cannot read this dataset to tell it from another: {e.strerror}", path) from None
-    return None
+        where = Path(e.filename) if e.filename else path
+        raise InputError(f"cannot read this dataset to tell it from another: {e.strerror}", where) from None
+    return hashlib.sha256(json.dumps(entries).encode()).hexdigest()
 
 
 def visual_sections(dataset: str, backend: str) -> dict[str, type]:
@@ -249,13 +285,15 @@ def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) 
         seen.append(v)
 
 
-def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
-    """The ``dataset`` list: built-in names as they are, paths read beside the sweep file
-    (as ``config`` is; an absolute path as it is), each checked to exist before any run."""
+def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> tuple[list[str], list[str]]:
+    """``(datasets, entries)``: the ``dataset`` list as the runs are given it (built-in
+    names as they are, paths read beside the sweep file as ``config`` is, made absolute:
+    a run's command is the same from any working directory) and as the file lists it,
+    each checked to exist before any run."""
     from graphslam.registry import is_builtin_dataset, no_such_dataset
 
-    out = []
-    for name in _list(sweep, cfg, "dataset", str):
+    out, entries = [], _list(sweep, cfg, "dataset", str)
+    for name in entries:
         if is_builtin_dataset(name):
             out.append(name)
             continue
@@ -266,11 +304,11 @@ def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> list[str]:
                 cfg.path,
                 cfg.line_of("sweep", "dataset"),
             )
-        out.append(str(where))
-    # two spellings of one file ("g.g2o", "./g.g2o") are one dataset: its runs would be
-    # made once, and the grid would have fewer runs than its lists say
-    _refuse_repeats(out, "[sweep] dataset", cfg, cfg.line_of("sweep", "dataset"))
-    return out
+        out.append(str(where.absolute()))
+    # two spellings of one file ("g.g2o", "./g.g2o", a link to it) are one dataset: its
+    # runs would be made once, and the grid would have fewer runs than its lists say
+    _refuse_repeats([dataset_key(d) for d in out], "[sweep] dataset", cfg, cfg.line_of("sweep", "dataset"))
+    return out, entries
 
 
 def _base_config(value, cfg: ConfigFile, path: Path) -> Path:
@@ -471,7 +509,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
                 cfg.path,
                 cfg.line_of("sweep", key),
             )
-    datasets = _datasets(sweep, cfg, Path(path))
+    datasets, entries = _datasets(sweep, cfg, Path(path))
     backends = _list(sweep, cfg, "backend", str)
     visual = [name for name in datasets if is_visual_dataset(name)]
     for b in backends:
@@ -520,4 +558,15 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     _refuse_seeds_of_solves(seeds, datasets, backends, cfg)
     _refuse_keys_seed_sets(seeds, keys, cfg)
     _check_size(sweep, cfg, len(datasets) * len(backends) * len(seeds), values)
-    return SweepSpec(Path(path), tuple(datasets), tuple(backends), seeds, max_steps, nees, base, keys, values)
+    return SweepSpec(
+        Path(path),
+        tuple(datasets),
+        tuple(backends),
+        seeds,
+        max_steps,
+        nees,
+        base,
+        keys,
+        values,
+        tuple(entries),
+    )

@@ -228,9 +228,14 @@ def eval_warnings(results: list[EstimateResult], options: EvalOptions) -> list[s
 
 
 def write_eval_json(
-    path: Path, ground_truth: Path, results: list[EstimateResult], options: EvalOptions
+    path: Path,
+    ground_truth: Path,
+    results: list[EstimateResult],
+    options: EvalOptions,
+    provenance: dict | None = None,
 ) -> Path:
-    """``eval.json`` (module doc)."""
+    """``eval.json`` (module doc); ``provenance``: where and with what it was made
+    (:func:`graphslam.cli.common.invocation`), when given."""
     from graphslam.outputs.writers import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -240,6 +245,7 @@ def write_eval_json(
             "ground_truth": str(ground_truth),
             "options": options.to_dict(),
             "estimates": [r.to_dict(options) for r in results],
+            **({} if provenance is None else {"provenance": provenance}),
         },
     )
     return path

@@ -9,6 +9,7 @@ and :func:`save_run_map`.
 from __future__ import annotations
 
 import dataclasses
+import os
 
 
 def session_extras(args, config, sequence, backend, tracker):
@@ -126,10 +127,18 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
     seq = result.sequence
     if not quiet and closer is None and prior_map is None:
         print("map: training a vocabulary on the run's frames ...", file=sys.stderr, flush=True)
+    from graphslam.cli.common import invocation
+    from graphslam.maps.merge import frame_range
+    from graphslam.sources.spatial.frames import FrameSelection, source_indices
+
     meta = {
         "dataset": seq.name,
         "source": seq.source_path,
+        # resolved, and the frames as the indices run: what tells a session joined twice
+        # (and says where the map came from, from any folder)
+        "source_path": None if seq.source_path is None else os.path.realpath(seq.source_path),
         "frames": args.frames,
+        "frame_range": frame_range(source_indices(seq)[: result.frames]),
         "n_frames": result.frames,
         "backend": result.backend,
         "frontend": result.frontend,
@@ -138,6 +147,7 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
         "bow_orb": dataclasses.asdict(recorder.bow_orb.config),
         # the lens model the keyframes' pixels were read with (check_camera compares it)
         "distortion": [] if seq.distortion is None else [float(d) for d in seq.distortion],
+        "provenance": invocation(args),
     }
     vocabulary = None if closer is None else closer.detector.database.vocabulary
     if prior_map is not None:
@@ -148,11 +158,15 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
     if prior_map is not None:
         from graphslam.maps.merge import merge_maps, repeated_session
 
-        again = repeated_session(prior_map, meta)
+        whole = seq.base if isinstance(seq, FrameSelection) else seq
+        again = repeated_session(prior_map, meta, len(whole))
         if again is not None:
+            first, last, step = meta["frame_range"]
+            every = "" if step == 1 else f" every {step}"
             warn(
                 f"the map's session {again + 1} ran the same frames ({meta['frames'] or 'all'}) of "
-                f"{seq.name}: their keyframes are in the joined map twice"
+                f"{seq.name} (its frames {first} to {last}{every}): their keyframes are in the "
+                "joined map twice"
             )
         smap = merge_maps(prior_map, smap)
     save_map(smap, args.save_map)

@@ -14,6 +14,7 @@ from graphslam.cli.common import (
     clear_earlier_outputs,
     close_recorder,
     fmt,
+    invocation,
     open_recorder,
     provenance,
     recoveries_text,
@@ -168,7 +169,9 @@ def run(args: argparse.Namespace) -> int:
     clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
-        writes.attempt(save_map, save_planar_run_map, save_map, result, backend, config, args.max_steps)
+        writes.attempt(
+            save_map, save_planar_run_map, save_map, result, backend, config, args.max_steps, invocation(args)
+        )
     warn_unread_sections(config, args.config, f"this run ({backend.name} on {dataset.name})")
     writes.check(paths.values())
     return status
@@ -209,8 +212,12 @@ def _mark_unused_settings(backend, config, result) -> None:
     )
 
 
-def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> None:
-    """``--save-map``: the run's landmarks and covariances to ``folder``; say so on stdout."""
+def save_planar_run_map(
+    folder: Path, result, backend, config, max_steps, provenance: dict | None = None
+) -> None:
+    """``--save-map``: the run's landmarks and covariances to ``folder``; say so on stdout.
+    ``provenance``: where and with what the run ran (:func:`~graphslam.cli.common.invocation`),
+    kept in map.json."""
     from graphslam.maps.files import save_planar_map
     from graphslam.pipelines.planar_maps import build_run_map
 
@@ -218,6 +225,8 @@ def save_planar_run_map(folder: Path, result, backend, config, max_steps) -> Non
         warn(f"run stopped before its end: no map saved in {folder}")
         return
     pmap = build_run_map(result, backend, config, max_steps)
+    if provenance is not None:
+        pmap.meta["provenance"] = provenance
     save_planar_map(pmap, folder)
     print(
         f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "

@@ -374,6 +374,21 @@ def read_image_folder(
 # --------------------------------------------------------------------------- detection
 
 
+def sequence_files(path: str | Path) -> list[Path]:
+    """Every file a run of the image folder ``path`` may read: the folder's files through
+    symbolic links (:func:`~slamcore.input_files.files_below`), and a KITTI sequence's
+    ground truth outside it (``dataset/poses/07.txt`` beside ``dataset/sequences/07``,
+    :func:`~graphslam.sources.spatial.kitti.kitti_poses_path`). A sweep's fingerprint of
+    the data (a truth corrected there left the sweep's old results standing)."""
+    from graphslam.sources.spatial.kitti import kitti_poses_path
+    from slamcore.input_files import files_below
+
+    path = Path(path)
+    files = files_below(path)
+    truth = kitti_poses_path(path) if (path / "calib.txt").is_file() else None
+    return files if truth is None or truth in files else [*files, truth]
+
+
 def read_image_sequence(path: str | Path, intrinsics_file: str | Path | None = None, **kw) -> ImageSequence:
     """Detect the layout of ``path`` and read it.
 

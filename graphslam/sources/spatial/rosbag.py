@@ -84,6 +84,22 @@ def bag_path(spec: str | Path) -> Path | None:
     return None
 
 
+def bag_files(spec: str | Path) -> list[Path]:
+    """Every file a run of the bag ``spec`` may read: the bag (a ROS 2 bag's folder, every
+    file), and the intrinsics file in or beside it that a bag without camera_info takes
+    (as :func:`_calibration` looks for it). A sweep's fingerprint of the data."""
+    from graphslam.sources.spatial.calibration import find_intrinsics_file
+    from slamcore.input_files import files_below
+
+    path = bag_path(spec)
+    if path is None:
+        return []
+    files = files_below(path) if path.is_dir() else [path]
+    folders = ([path] if path.is_dir() else []) + [path.parent]
+    found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+    return files if found is None or found in files else [*files, found]
+
+
 #: The first bytes of a ROS 1 bag (format 2.0, what rosbag record writes).
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 

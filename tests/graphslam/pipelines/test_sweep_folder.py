@@ -35,6 +35,7 @@ def fake_runs(monkeypatch):
 
     from graphslam.pipelines import sweep_exec
     from graphslam.pipelines.sweep_spec import dump_toml
+    from graphslam.pipelines.provenance import code_identity
 
     def fake(run, root):
         folder = Path(root) / "runs" / run.run_id
@@ -42,6 +43,7 @@ def fake_runs(monkeypatch):
         provenance = {
             "command": ["graphslam", *sweep_exec.run_command(run, folder)[3:]],
             "config_sha256": hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest(),
+            **code_identity(),  # the code that made it, as a run records it
         }
         (folder / "metrics.json").write_text(json.dumps({"provenance": provenance}))
         return {"run_id": run.run_id, "status": "ok", "error": "", "warnings": "", "ate_rmse_m": 0.1}
