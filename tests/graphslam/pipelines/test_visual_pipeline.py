@@ -358,7 +358,7 @@ def test_cli_kitti_with_derived_odometry(tmp_path, capsys):
     assert noise["sigma_t_per_m"] == 0.05 and noise["sigma_r_deg_per_frame"] == 0.2
     assert m["ate_rmse_m"] is not None
     second = (out / "trajectory.tum").read_text().splitlines()[2]
-    assert second.split()[0] == "0.103875"  # KITTI's own times.txt stamp, not the frame id
+    assert second.split()[0] == "0.1038752"  # KITTI's own times.txt stamp (1.038752e-01), not the frame id
     _ = capsys.readouterr()
 
 
