@@ -502,7 +502,8 @@ def attacks() -> list[Attack]:
                check=_says("degrees?")),
         Attack("a pose graph in radians says no doubt", "silent",
                lambda f: _run(_w(f, "r.g2o", _square_g2o("1.5707963"))), ("ok",),
-               check=lambda f, o, e: "a warning on an honest file" if "warning" in e else None),
+               # a noise-free square's cost lies below the chi-square's lower tail, said as such
+               check=lambda f, o, e: "a degrees doubt on a file in radians" if "degrees?" in e else None),
         Attack("TORO BR bearings in degrees", "silent",
                lambda f: _run(_w(f, "b.graph", _example_graph(degrees=True))), check=_says("degrees?")),
         Attack("MRCLAM times in milliseconds", "silent",

@@ -59,6 +59,11 @@ def _session_alive(pgid: int) -> bool:
     return True
 
 
+#: gtsam's w100 states its noise 23x larger than its residuals: its runs warn so (the
+#: fifteenth hostile pass), beside the line a signal test looks for.
+W100_NOISE = "graphslam: warning: 2 x cost over kept edges"
+
+
 def one_line(stderr: str, *, allowed_prefix=("running ", "training ", "vocabulary: ")) -> str:
     """The single ``graphslam:`` line of ``stderr`` (progress lines aside); no traceback."""
     assert "Traceback" not in stderr, stderr
@@ -127,7 +132,7 @@ def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
     done = graphslam(tmp_path, "run", "--dataset", w100, "--backend", backend, "--out", "o",
                      "--quiet", at=at, sig=sig)
     assert done.returncode == STATUS[sig]
-    assert f"interrupted (SIG{sig})" in one_line(done.stderr)
+    assert f"interrupted (SIG{sig})" in one_line(done.stderr, allowed_prefix=(W100_NOISE,))
     out = tmp_path / "o"
     assert {p.name for p in out.iterdir()} == {"trajectory.tum", "graph.graph", "closures.csv",
                                                "metrics.json", "run.rrd"}

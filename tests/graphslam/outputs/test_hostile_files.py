@@ -33,9 +33,13 @@ NEAR_LIMIT = "v" * 244 + ".npz"
 SMALL_RUN = ("run", "--dataset", "synthetic", "--max-steps", "15", "--rerun", "off", "--quiet")
 
 
-def one_error_line(capsys, *argv) -> str:
+def one_error_line(capsys, *argv, warned: str | None = None) -> str:
+    """The one error line of a command that exits 2; ``warned``: the start of warnings
+    the run may give beside it (a doubt of its estimate, not of the failure)."""
     rc = main([str(a) for a in argv])
     err = capsys.readouterr().err.strip().splitlines()
+    if warned is not None:
+        err = [ln for ln in err if not ln.startswith(warned)]
     assert rc == 2 and len(err) == 1 and err[0].startswith("graphslam: error:"), err
     return err[0]
 
@@ -120,7 +124,8 @@ def test_a_pose_graph_run_on_a_full_disk_leaves_no_earlier_run_beside_the_new(
         raise OSError(errno.ENOSPC, "No space left on device", "closures.csv")
 
     monkeypatch.setattr(pipeline, "write_closures_csv", full)
-    line = one_error_line(capsys, *argv)
+    # w100 states its noise 23x larger than its residuals, and its runs say so
+    line = one_error_line(capsys, *argv, warned="graphslam: warning: 2 x cost over kept edges")
     assert "no space left on device writing closures.csv" in line
     now = {p.name: p.stat().st_ino for p in out.iterdir()}
     assert "trajectory.tum" in now and all(now[n] != old.get(n) for n in now), (old, now)
