@@ -297,7 +297,8 @@ def optimality_row(certificate: dict, retried: bool = False) -> str:
         else f"gap {certificate['relative_gap']:.1e} relative"
     )
     budget = (
-        "; its refinement stopped at its time budget (the solve's time)"
+        "; its refinement stopped at its time budget (three times the solve's, at least 10 s: the "
+        "machine was loaded, or the estimate far from the relaxation's optimum)"
         if certificate.get("refine_stopped")
         else ""
     )

@@ -209,6 +209,24 @@ def test_the_refinement_stops_at_its_time_budget(tmp_path):
     assert spent.iterations == 1 and spent.refine_stopped and not spent.certified
 
 
+def test_the_refinement_budget_leaves_room_for_a_loaded_machine(tmp_path, monkeypatch):
+    """A budget of one solve's time (at least 2 s) stopped sphere2500's refinement at 11 of
+    its 12 iterations under load, and the certificate changed with the load (fifteenth
+    hostile pass): the budget is three solves' time, at least 10 s."""
+    graph = _walk_graph(tmp_path, 3)
+    seen = []
+    real = cert.certify
+
+    def spy(*args, budget_s=None, **kwargs):
+        seen.append(budget_s)
+        return real(*args, budget_s=budget_s, **kwargs)
+
+    monkeypatch.setattr(cert, "certify", spy)
+    result = pipeline.run(graph, "batch", PoseGraphConfig())
+    assert seen == [max(pipeline.REFINE_BUDGET_SOLVES * result.wall_s, pipeline.REFINE_BUDGET_MIN_S)]
+    assert pipeline.REFINE_BUDGET_SOLVES >= 3.0 and pipeline.REFINE_BUDGET_MIN_S >= 10.0
+
+
 @pytest.mark.parametrize("sigma, certified", [(0.0, True), (0.3, False)])
 def test_a_tree_is_certified_by_its_zero_cost_alone(tmp_path, sigma, certified):
     """A chain's optimum composes its edges (cost 0); the vertices of a noisy file do not."""
