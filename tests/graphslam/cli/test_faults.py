@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -347,13 +348,19 @@ def test_a_compare_worker_ends_as_soon_as_its_parent_is_killed(tmp_path):
             os.killpg(parent.pid, signal.SIGKILL)
 
 
+# The run says it is stepping by the test hook's harmless SIGCONT to the process group
+# at its 100th step, which the sweep stand-in prints: a folder claimed is not yet a run
+# under way (city10000 is still being read then), and a kill in that window leaves
+# nothing to write (the test failed so in CI, under load).
 SWEEP_PARENT = """
-import os, subprocess, sys, time
+import os, signal, subprocess, sys, time
 from graphslam.pipelines.common import PARENT_PID_ENV
 
+signal.signal(signal.SIGCONT, lambda *args: print("stepping", flush=True))
+hook = {"GRAPHSLAM_SIGNAL_AT": "step:100", "GRAPHSLAM_SIGNAL": "CONT", "GRAPHSLAM_SIGNAL_TO": "group"}
 child = subprocess.Popen([sys.executable, "-m", "graphslam.cli.main", "run", "--dataset", "city10000",
                           "--max-steps", "9000", "--out", sys.argv[1], "--quiet", "--rerun", "off"],
-                         env={**os.environ, PARENT_PID_ENV: str(os.getpid())})
+                         env={**os.environ, PARENT_PID_ENV: str(os.getpid()), **hook})
 print(child.pid, flush=True)
 time.sleep(600)
 """
@@ -366,11 +373,13 @@ def test_a_sweeps_run_stops_and_keeps_its_outputs_when_the_sweep_is_killed(tmp_p
     started by a sweep now ends with it as on SIGTERM: the estimate so far written."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = tmp_path / "o"
+    # unbuffered: a line read takes no byte of the next, which select then waits for
     parent = subprocess.Popen([sys.executable, "-c", SWEEP_PARENT, str(out)], env=env, stdout=subprocess.PIPE,
-                              text=True, start_new_session=True)
+                              bufsize=0, start_new_session=True)
     try:
         run = int(parent.stdout.readline())
-        _within(60.0, out.is_dir)  # the run has claimed its folder: it is past its start
+        ready, _, _ = select.select([parent.stdout], [], [], 120.0)  # a hang guard, not a timing
+        assert ready and parent.stdout.readline().strip() == b"stepping", "the run never stepped"
         parent.kill()
         parent.wait()
         assert _within(60.0, lambda: _ended(run)), "the run outlived the sweep"
