@@ -80,7 +80,11 @@ def truth_spread_m(est_ids, gt_ids, gt_wTb) -> float:
     from their centroid: the ATE of an estimate that puts every pose at one point,
     since the alignment then moves that point onto the centroid."""
     _, _, gt = _common(est_ids, np.zeros((len(est_ids), 3)), gt_ids, gt_wTb)
-    xy = gt[:, :2]
+    return _rms_spread(gt[:, :2])
+
+
+def _rms_spread(xy: np.ndarray) -> float:
+    """RMS distance of the points ``xy`` (N, 2) from their centroid, m."""
     return float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1))))
 
 
@@ -178,8 +182,7 @@ def landmark_spread_m(landmarks_true: dict | None) -> float | None:
     the map's own alignment, of a map that puts every landmark at one point."""
     if not landmarks_true:
         return None
-    xy = np.array(list(landmarks_true.values()), dtype=np.float64).reshape(-1, 2)
-    return float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1))))
+    return _rms_spread(np.array(list(landmarks_true.values()), dtype=np.float64).reshape(-1, 2))
 
 
 def truth_map_warning(landmarks: int, map_scores: dict, spread_m: float | None = None) -> list[str]:
@@ -643,8 +646,11 @@ def _recovered(landmark_ids, lm_w: np.ndarray, landmarks_true: dict, true_of: di
     truth_xy = np.array([landmarks_true[k] for k in truth_ids], dtype=np.float64).reshape(-1, 2)
     dist = np.linalg.norm(truth_xy[:, None, :] - lm_w[None, :, :], axis=2)  # (true, estimated)
     if true_of:
-        own = np.array([[true_of.get(int(lid)) == t for lid in landmark_ids] for t in truth_ids], dtype=bool)
-        return int(np.sum(np.any(own.reshape(dist.shape) & (dist <= MAP_RECOVERY_RADIUS_M), axis=1)))
+        ids = [int(lid) for lid in landmark_ids]
+        labelled = np.array([lid in true_of for lid in ids], dtype=bool)
+        label = np.array([true_of.get(lid, 0) for lid in ids], dtype=np.int64)
+        own = labelled[None, :] & (label[None, :] == np.array(truth_ids, dtype=np.int64)[:, None])
+        return int(np.sum(np.any(own & (dist <= MAP_RECOVERY_RADIUS_M), axis=1)))
     rows, cols = linear_sum_assignment(dist)
     return int(np.sum(dist[rows, cols] <= MAP_RECOVERY_RADIUS_M))
 
