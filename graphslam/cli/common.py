@@ -337,13 +337,10 @@ def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, 
     :class:`~graphslam.outputs.writers.OutputWrites`, whose refused files are named
     here; its caller checks it once every output was tried.
     """
+    from graphslam.outputs.writers import OutputWrites
+
     print(summary)
-    refused = writes.names() if writes is not None else []
-    print(
-        f"outputs in {out_dir}/: "
-        + ", ".join(p.name for p in paths.values())
-        + (f" (not written: {', '.join(refused)})" if refused else "")
-    )
+    print((writes or OutputWrites(out_dir)).outputs_line(paths.values()))
     if cut is not None and not isinstance(cut, InputError):  # the back end failed
         raise GraphSlamError(
             f"{cut}; the run stopped at frame {cut.frame}: {out_dir}/ holds what it estimated "

@@ -374,8 +374,7 @@ def _write_comparison(
     for e in done:
         if getattr(e.metrics, "recoveries", None) and any(e.metrics.recoveries.values()):
             print(f"note: {e.backend} numerical recoveries: {recoveries_text(e.metrics.recoveries)}")
-    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
-    print(f"outputs in {out_dir}/: " + ", ".join(outputs) + refused)
+    print(writes.outputs_line(outputs))
     # what makes an estimate doubtful (compare.json keeps it too), said as run says it
     warn_doubts({e.backend: getattr(e.metrics, "warnings", None) for e in done})
     for e in entries:

@@ -214,7 +214,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(format_table(results))
     for message in eval_warnings(results, options):
         warn(message)
-    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
-    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in paths.values()) + refused)
+    print(writes.outputs_line(paths.values()))
     writes.check(paths.values())
     return EXIT_OK

@@ -194,8 +194,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"sweep: {n_runs} runs, {outcome.skipped} already done, {outcome.ran} run now "
         f"({outcome.failed} failed); {ok} ok in {outcome.csv_path}"
     )
-    refused = f" (not written: {', '.join(writes.names())})" if writes.refused else ""
-    print(f"outputs in {args.out}/: " + ", ".join(p.name for p in written) + refused)
+    print(writes.outputs_line(written))
     if outcome.interrupted:
         print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
         writes.check(written)

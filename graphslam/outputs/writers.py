@@ -255,6 +255,12 @@ class OutputWrites:
         """The refused files: a name in the output folder, a path elsewhere."""
         return [p.name if p.parent == self.out_dir else str(p) for p, _ in self.refused]
 
+    def outputs_line(self, written: Iterable[str | Path]) -> str:
+        """``outputs in DIR/: a, b (not written: c)``: what a command prints of its files."""
+        names = ", ".join(Path(p).name for p in written)
+        refused = f" (not written: {', '.join(self.names())})" if self.refused else ""
+        return f"outputs in {self.out_dir}/: {names}{refused}"
+
     def check(self, written: Iterable[Path]) -> None:
         """Raise GraphSlamError when a file was refused: the first refusal's reason, the
         other refused files, and the files this command did write to its folder."""
