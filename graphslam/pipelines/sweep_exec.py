@@ -279,7 +279,9 @@ def _start_failure(e: BaseException) -> str:
     """Why a local cluster did not start, in words: too few file descriptors (somewhere
     in the chain of causes), with the limit to raise; else the last error, on one line."""
     seen: BaseException | None = e
-    while seen is not None:
+    visited: set[int] = set()  # a chain of causes may loop back on itself
+    while seen is not None and id(seen) not in visited:
+        visited.add(id(seen))
         if isinstance(seen, OSError) and seen.errno == errno.EMFILE:
             import resource  # POSIX: where EMFILE is
 

@@ -132,3 +132,15 @@ def test_an_earlier_sweeps_plots_do_not_outlive_it(tmp_path, fake_runs):
     assert _sweep(_file(tmp_path, BASE, "b.toml"), out, "--no-plots") == 0
     assert not {n for n in (p.name for p in out.iterdir()) if n != "sweep_notes.png" and n.endswith(".png")}
     assert (out / "sweep_notes.png").read_bytes() == b"the user's"
+
+
+def test_a_cluster_start_failure_whose_causes_loop_is_still_one_line():
+    """The chain of causes is walked for EMFILE; a chain that loops back ends the walk."""
+    from graphslam.pipelines.sweep_exec import _start_failure
+
+    first, second = RuntimeError("first"), RuntimeError("second")
+    first.__context__, second.__context__ = second, first
+    assert _start_failure(first) == "RuntimeError: first"
+    caught = RuntimeError("wrapped")
+    caught.__cause__ = OSError(24, "Too many open files")
+    assert _start_failure(caught).startswith("too many open files; ulimit -n is ")
