@@ -50,8 +50,9 @@ class AssociationScore(MetricsRecord):
 
     Attributes:
         accuracy: share of observations given the right landmark (unused count wrong),
-            as each was decided when it arrived: a later merge or split (iSAM2 with
-            unknown ids) is not counted, so this is a lower bound of the final pairing's.
+            as the final estimate pairs them where the back end revises its pairings
+            (iSAM2 with unknown ids: merges, splits, re-association), else as each was
+            decided when it arrived.
         observations: observations scored; unused: observations the back end left unused.
         landmarks_created: back-end landmarks; duplicates: extra back-end landmarks
             mapped to an already-taken true landmark.
@@ -81,6 +82,9 @@ class PlanarRunMetrics(MetricsRecord):
             the step (iSAM2's factorisation fallbacks); left out when none.
         recoveries: per-update safeguards counted by kind (filters only; see
             :class:`filters.numerics.Recoveries`), or None.
+        sightings_reassociated: sightings the back end's re-association moved to
+            another landmark at the end of the run; reassociation_settled: False when
+            its last pass still moved some (iSAM2 with unknown ids; left out otherwise).
         landmarks_pruned: landmarks the back end removed from its map as missed
             in the sensor's field (the EKF's ``prune_missed_alpha``); left out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
@@ -122,6 +126,8 @@ class PlanarRunMetrics(MetricsRecord):
     numerical_recoveries: list[str] | None = optional()
     recoveries: dict[str, int] | None = optional()
     landmarks_pruned: int | None = optional()
+    sightings_reassociated: int | None = optional()
+    reassociation_settled: bool | None = optional()
     map: str | None = optional()
     localisation_only: bool | None = optional()
     unmapped_observations: int | None = optional()

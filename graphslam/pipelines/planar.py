@@ -47,6 +47,9 @@ class RunResult:
         observations: landmark observations streamed into the back end.
         observations_rejected: of those, identified ones its gate rejected
             (:meth:`~slamcore.planar.backend.Backend.rejected_observations`).
+        reassociation: ``(sightings moved, settled)`` of the back end's re-association at
+            the end of the run (iSAM2 with unknown ids): ``settled`` False when its last
+            pass still moved sightings; None where the back end has none.
     """
 
     dataset: Dataset
@@ -62,6 +65,7 @@ class RunResult:
     landmarks_pruned: int = 0
     observations: int = 0
     observations_rejected: int = 0
+    reassociation: tuple[int, bool] | None = None
 
 
 def run(
@@ -94,12 +98,13 @@ def run(
             raise GraphSlamError(broken)
     bar = progress_bar(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
+    slots: list[tuple[int, int]] = []  # (pose id, place in its update) of each of assoc
     counters = {"steps": 0, "skipped": 0, "observations": 0}
     interrupted = False
     t0 = time.perf_counter()
     try:
         with interrupt_between_frames() as stop:
-            _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters)
+            _feed(frames, dataset, backend, stop, (assoc, slots), on_step, bar, counters)
             signal_hook("finalize")
         estimate = backend.finalize()
         # a stop asked for during finalisation: the estimate is whole, the
@@ -118,6 +123,10 @@ def run(
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
     recoveries = getattr(backend, "recoveries", None)
+    revised = backend.final_associations()
+    if revised is not None:  # scored as the estimate pairs them, not as first decided
+        assoc = [(true_id, revised.get(slot)) for (true_id, _), slot in zip(assoc, slots, strict=True)]
+    reassociation = getattr(backend, "reassociation", None)
     return RunResult(
         dataset,
         backend.name,
@@ -132,11 +141,15 @@ def run(
         len(backend.pruned_landmark_ids()),
         counters["observations"],
         backend.rejected_observations(),
+        reassociation,
     )
 
 
-def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None:
-    """Stream frames into the back end; a pending Ctrl-C is honoured between frames."""
+def _feed(frames, dataset, backend, stop, scored, on_step, bar, counters) -> None:
+    """Stream frames into the back end; a pending Ctrl-C is honoured between frames.
+    ``scored``: the lists ``(true id, id given)`` and ``(pose id, place)`` of the
+    observations with a true id, filled in step."""
+    assoc, slots = scored
     for k, frame in enumerate(frames):
         stop.check()
         if k == 0:
@@ -151,6 +164,7 @@ def _feed(frames, dataset, backend, stop, assoc, on_step, bar, counters) -> None
             counters["observations"] += len(frame.observations)
             if frame.true_landmark_ids is not None:
                 assoc.extend(zip(frame.true_landmark_ids, backend.associations(), strict=True))
+                slots.extend((o.pose_id, i) for i, o in enumerate(frame.observations))
         for lc in frame.loop_closures:
             if backend.supports_loop_closures:
                 backend.add_loop_closure(lc)
@@ -227,6 +241,8 @@ def compute_metrics(
     agents = None
     if result.dataset.agents and gt is not None and ate is not None:
         agents = agent_ates(result, gt)
+    association = metrics.association_accuracy(result.associations)
+    moved, settled = result.reassociation or (None, None)
     map_scores = {}
     if result.dataset.landmarks_true and gt is not None:
         map_scores = metrics.map_errors(est, gt, result.dataset.landmarks_true, result.associations)
@@ -248,7 +264,9 @@ def compute_metrics(
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
         interrupted=result.interrupted,
         loop_closures_skipped=result.loop_closures_skipped,
-        association=metrics.association_accuracy(result.associations),
+        association=association,
+        sightings_reassociated=moved,
+        reassociation_settled=settled,
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
         landmarks_pruned=result.landmarks_pruned or None,

@@ -125,6 +125,15 @@ class Backend(ABC):
 
     _last_associations: list[int | None] = []
 
+    def final_associations(self) -> dict[tuple[int, int], int] | None:
+        """The pairings the final estimate rests on, where the back end revised them
+        after they were decided (merges, splits, re-association):
+        ``(pose id, the observation's place in that update) -> landmark id`` of every
+        observation in the estimate, in the estimate's own ids; observations absent
+        were left unused. None (the default): the pairings stand as :meth:`associations`
+        gave them."""
+        return None
+
     def rejected_observations(self) -> int:
         """Observations of identified landmarks a gate rejected since initialisation (their
         innovation beyond what the estimate's covariance allows: not absorbed); 0 for

@@ -256,6 +256,40 @@ class Isam2Backend(Backend):
                 self._last_sightings.merged(keep, drop)
         return assoc
 
+    def _reassociate(self, unknown: UnknownAssociation) -> None:
+        """Re-association at the end of the run (:mod:`.isam2_unknown`): pass after pass
+        at the batch estimate until nothing moves or the passes are spent."""
+        kernel = (self.config.observation_kernel, self.config.observation_kernel_k)
+        unknown.ran = True
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.polish_max_iterations)
+        params.setRelativeErrorTol(self.config.polish_relative_error_tol)
+        params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
+        for _ in range(self.config.reassociation_passes):
+            graph = self.factor_graph()  # flushes
+            values = gtsam.LevenbergMarquardtOptimizer(graph, self._values_now(), params).optimize()
+            added, ties = unknown.reassociate(self._isam, values, self._n_factors, kernel)
+            self._n_factors += added
+            for keep, drop, _ in ties:
+                self._landmark_ids.remove(drop)
+                self._last_sightings.merged(keep, drop)
+            if not added:
+                return
+        unknown.settled = False
+
+    @property
+    def reassociation(self) -> tuple[int, bool] | None:
+        """``(sightings moved, settled)`` by the re-association at the end of the run
+        (:mod:`.isam2_unknown`); None with known ids or before it ran."""
+        if self._unknown is None or not self._unknown.ran:
+            return None
+        return self._unknown.moved, self._unknown.settled
+
+    def final_associations(self) -> dict[tuple[int, int], int] | None:
+        if self._unknown is None:
+            return None
+        return self._unknown.pairings()
+
     def _add_sighting(self, unknown: UnknownAssociation, obs: Observation, lid: int, kernel) -> None:
         added = self._last_sightings.observation(obs, lid)  # weighed (sighting_correlation)
         unknown.record(lid, self._n_factors + self._graph.size(), obs, added)
@@ -326,6 +360,8 @@ class Isam2Backend(Backend):
         self._flush()
         if self._held_back and self._polished is None:
             self._readmit_held_back()
+        if self._unknown is not None and self._polished is None and self.config.reassociation_passes:
+            self._reassociate(self._unknown)
         if self.config.polish and self._polished is None and self._pose_ids:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(self.config.polish_max_iterations)

@@ -35,6 +35,25 @@ association gate) is moved to it: its factor leaves iSAM2 and an equal one on th
 new landmark enters, in one update. A sighting is never split between the two, and a
 landmark still takes at most one sighting of a scan (a sighting from a pose that
 already sees the new landmark stays where it is).
+
+**Re-association** (the way back from every other wrong pairing, at the end of the
+run): a pairing was decided at the estimate of its time, before the sightings that
+followed corrected the pose and the landmarks. Lazy data association (Haehnel,
+Burgard, Wegbreit and Thrun 2003) revisits such decisions with what is known later;
+here, at the end, by coordinate descent on the joint posterior: at the batch
+(Levenberg-Marquardt) estimate, every sighting in the graph is tested again against
+every landmark, scan by scan, and the scan's sightings are given the landmarks that
+explain them best jointly (least total squared Mahalanobis distance under each
+sighting's covariance, one sighting per landmark, a move only inside the association
+gate: :func:`reassign_scan`); the moves enter iSAM2 in one update, the estimate is
+solved again and the pass repeated until nothing moves or ``reassociation_passes``
+are spent. A landmark left without a sighting is tied to the one most of its
+sightings went to, as a merge. On MRCLAM Dataset 6 without ids the association
+accuracy rises from 0.68-0.81 (as decided) to 0.84-0.89 (as the estimate pairs them)
+and every robot's 15 landmarks are recovered by their own estimates, 14 on four robots
+before (``benchmarks/bench_mrclam.py``). The distance leaves out the pose's marginal
+on purpose: it is mostly the drift since the start, common to the scan's candidates,
+and with it the pass paired worse (accuracy 0.73-0.88).
 """
 
 from __future__ import annotations
@@ -77,6 +96,12 @@ class UnknownAssociation:
         self.merged: dict[int, int] = {}  # younger id -> the id it was merged into
         # landmark id -> its sightings in iSAM2: (factor index, sighting as given, as added)
         self.sightings: dict[int, list[tuple[int, Observation, Observation]]] = {}
+        # id(observation) -> (pose id, its place in its scan), for the final pairings;
+        # ids of observations not kept may be reused, but only kept ones are looked up
+        self.slots: dict[int, tuple[int, int]] = {}
+        self.moved = 0  # sightings re-association moved
+        self.settled = True  # False: its last pass still moved sightings
+        self.ran = False  # re-association has run
 
     def record(self, landmark_id: int, index: int, given: Observation, added: Observation) -> None:
         """The back end added sighting ``given`` (as ``added``: its weighed covariance) of
@@ -134,6 +159,8 @@ class UnknownAssociation:
 
     def step(self, isam: gtsam.ISAM2, pose_id: int, observations) -> list[Decision]:
         """Decisions for the observations of ``pose_id`` (iSAM2 already holds the pose)."""
+        for k, obs in enumerate(observations):
+            self.slots[id(obs)] = (pose_id, k)
         wTb = conv.pose2_vector(isam.calculateEstimatePose2(X(pose_id)))
         pose_cov = np.asarray(isam.marginalCovariance(X(pose_id)))
         ids = np.array(self.active, dtype=np.int64)
@@ -162,6 +189,57 @@ class UnknownAssociation:
                 self.positions[d.landmark()] = d.position()
                 self.active.append(d.landmark())
         return decisions
+
+    def pairings(self) -> dict[tuple[int, int], int]:
+        """``(pose id, place in its scan) -> landmark id`` of every sighting in the graph
+        now (a sighting of a merged landmark under the id it was merged into)."""
+        return {
+            self.slots[id(given)]: lid for lid in self.active for _, given, _ in self.sightings.get(lid, [])
+        }
+
+    def reassociate(
+        self, isam: gtsam.ISAM2, values: gtsam.Values, first_index: int, kernel
+    ) -> tuple[int, list[tuple[int, int, gtsam.BetweenFactorPoint2]]]:
+        """One pass of re-association at the estimate ``values`` (module docstring): the
+        sightings that move leave ``isam`` and enter again on their new landmarks, in one
+        update, at factor indices from ``first_index`` (``kernel``: the back end's
+        sighting kernel and its parameter). Returns ``(factors added, ties)``, ``ties``
+        as :meth:`merges` gives them, for the landmarks left without a sighting (already
+        in ``isam``)."""
+        positions = {lid: np.asarray(values.atPoint2(L(lid))) for lid in self.active}
+        by_pose: dict[int, list[tuple[int, int, Observation, Observation]]] = {}
+        for lid in self.active:
+            for index, given, added in self.sightings.get(lid, []):
+                by_pose.setdefault(given.pose_id, []).append((lid, index, given, added))
+        moves = []
+        for pid in sorted(by_pose):
+            sights = by_pose[pid]
+            wTb = conv.pose2_vector(values.atPose2(X(pid)))
+            moves += [
+                (sights[k], to) for k, to in reassign_scan(sights, wTb, positions, self.associator.gate_d2)
+            ]
+        if not moves:
+            return 0, []
+        gone = {index for (_, index, _, _), _ in moves}
+        for lid in self.active:
+            self.sightings[lid] = [r for r in self.sightings.get(lid, []) if r[0] not in gone]
+        graph = gtsam.NonlinearFactorGraph()
+        went: dict[int, dict[int, int]] = {}  # landmark -> where its moved sightings went
+        for (lid, _, given, added), to in moves:
+            self.record(to, first_index + graph.size(), given, added)
+            graph.add(conv.bearing_range_factor(added, to, *kernel))
+            went.setdefault(lid, {}).setdefault(to, 0)
+            went[lid][to] += 1
+        ties = []
+        for lid in [j for j in self.active if not self.sightings.get(j) and j in went]:
+            keep = max(went[lid].items(), key=lambda kv: (kv[1], -kv[0]))[0]
+            self.merged[lid] = keep
+            self.active.remove(lid)
+            ties.append((keep, lid, _tie(keep, lid)))
+            graph.add(ties[-1][2])
+        isam.update(graph, gtsam.Values(), sorted(gone))
+        self.moved += len(moves)
+        return int(graph.size()), ties
 
     def merges(
         self, isam: gtsam.ISAM2, paired: list[int]
@@ -192,16 +270,49 @@ class UnknownAssociation:
                 self.merged[drop] = keep
                 self.active.remove(drop)
                 self.sightings.setdefault(keep, []).extend(self.sightings.pop(drop, []))
-                out.append(
-                    (
-                        keep,
-                        drop,
-                        gtsam.BetweenFactorPoint2(
-                            L(keep),
-                            L(drop),
-                            gtsam.Point2(0.0, 0.0),
-                            gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M),
-                        ),
-                    )
-                )
+                out.append((keep, drop, _tie(keep, drop)))
         return out
+
+
+def _tie(keep: int, drop: int) -> gtsam.BetweenFactorPoint2:
+    """The factor that makes landmark ``drop`` one with ``keep``."""
+    return gtsam.BetweenFactorPoint2(
+        L(keep), L(drop), gtsam.Point2(0.0, 0.0), gtsam.noiseModel.Isotropic.Sigma(2, MERGE_SIGMA_M)
+    )
+
+
+def reassign_scan(
+    sights: list[tuple[int, int, Observation, Observation]],
+    wTb: np.ndarray,
+    positions: dict[int, np.ndarray],
+    gate_d2: float,
+) -> list[tuple[int, int]]:
+    """``(k, landmark id)`` for each sighting ``sights[k]`` of one scan that the
+    landmarks at ``positions`` (id -> (2,) world point) seen from ``wTb`` (3,)
+    explain better elsewhere: the assignment of the scan's sightings to distinct
+    landmarks with the least total squared Mahalanobis distance under each
+    sighting's covariance (``sights``: ``(landmark id now, factor index, sighting
+    as given, as added)``). A sighting may always stay where it is; it moves only to
+    a landmark within ``gate_d2``."""
+    from scipy.optimize import linear_sum_assignment
+
+    ids = sorted({s[0] for s in sights} | set(positions))
+    column = {lid: c for c, lid in enumerate(ids)}
+    points = np.array([positions[lid] for lid in ids], dtype=np.float64).reshape(-1, 2)
+    predicted = se2.observe(np.repeat(wTb[None], len(ids), axis=0), points)  # (L, 2)
+    barred = np.inf
+    cost = np.full((len(sights), len(ids)), barred)
+    for k, (lid, _, given, _) in enumerate(sights):
+        nu = se2.innovation(np.asarray(given.z)[None], predicted)
+        d2 = np.einsum("li,ij,lj->l", nu, np.linalg.inv(given.covariance), nu)
+        allowed = d2 <= gate_d2
+        allowed[column[lid]] = True
+        cost[k, allowed] = d2[allowed]
+    # a finite stand-in for barred pairs: the solver needs a feasible full matching
+    finite = np.where(np.isfinite(cost), cost, 1e12)
+    rows, cols = linear_sum_assignment(finite)
+    return [
+        (k, ids[c])
+        for k, c in zip(rows.tolist(), cols.tolist(), strict=True)
+        if ids[c] != sights[k][0] and np.isfinite(cost[k, c])
+    ]

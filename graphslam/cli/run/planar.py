@@ -282,6 +282,15 @@ def format_summary(metrics) -> str:
         rows.append(("data", note))
     if metrics.landmarks_pruned:
         rows.append(("landmarks pruned", f"{metrics.landmarks_pruned} (missed in the sensor's field)"))
+    if metrics.sightings_reassociated:
+        settled = (
+            ""
+            if metrics.reassociation_settled
+            else "; its last pass still moved some (isam2.reassociation_passes)"
+        )
+        rows.append(
+            ("sightings re-associated", f"{metrics.sightings_reassociated} at the end of the run{settled}")
+        )
     if metrics.loop_closures_skipped:
         rows.append(("loop closures skipped", metrics.loop_closures_skipped))
     for note in metrics.numerical_recoveries or ():

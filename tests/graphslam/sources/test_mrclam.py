@@ -532,7 +532,7 @@ def test_a_candidate_enters_the_map_after_three_compatible_sightings():
     assert len(d[0].sightings) == 3
 
 
-def _cluster_run():
+def _cluster_run(**overrides):
     """A robot sees landmarks A and C (far apart) three times, turns 0.3 rad on an
     odometry of heading sigma 0.02 rad, sees A's neighbour B (0.25 m from A, 0.05 rad
     apart in bearing) alone twice, then A, B and C together. B's lone sightings are
@@ -544,7 +544,7 @@ def _cluster_run():
 
     truth = {0: np.array([5.0, 0.0]), 1: np.array([4.99, 0.25]), 2: np.array([-1.0, 5.0])}
     R = np.diag([0.04**2, 0.008**2])
-    backend = registry.make_backend("isam2", overrides={"association": "unknown"})
+    backend = registry.make_backend("isam2", overrides={"association": "unknown", **overrides})
     backend.initialize(0, np.zeros(3), np.eye(3) * 1e-8)
     seen = [[0, 2]] * 3 + [[1]] * 2 + [[0, 1, 2]] * 4
     for k, which in enumerate(seen, start=1):
@@ -565,18 +565,33 @@ CLUSTER_TOL_M = 1e-3
 
 def test_a_new_neighbour_takes_back_the_sightings_it_explains_better(monkeypatch):
     """Splitting (isam2_unknown): when B is confirmed, its lone sightings that A had
-    taken move to it, and every landmark ends where it is; without the move, A keeps
-    them and both are pulled toward each other."""
+    taken move to it, and every landmark ends where it is; without the move (and
+    without the re-association at the end, which would make it), A keeps them and both
+    are pulled toward each other."""
     truth = [np.array([5.0, 0.0]), np.array([4.99, 0.25]), np.array([-1.0, 5.0])]
-    lms = _cluster_run()
+    lms = _cluster_run(reassociation_passes=0)
     assert len(lms) == 3
     for t in truth:
         assert min(np.linalg.norm(p - t) for p in lms.values()) < CLUSTER_TOL_M
     from graphslam.backends.planar import isam2_unknown
 
     monkeypatch.setattr(isam2_unknown.UnknownAssociation, "split", lambda *args: 0)
-    lms = _cluster_run()
+    lms = _cluster_run(reassociation_passes=0)
     assert max(min(np.linalg.norm(p - t) for p in lms.values()) for t in truth) > CLUSTER_TOL_M
+
+
+def test_reassociation_at_the_end_gives_back_what_a_decision_got_wrong(monkeypatch):
+    """Re-association (isam2_unknown): with the split at confirmation turned off, A
+    keeps B's lone sightings until the end; the pass at the batch estimate moves them to
+    B, and every landmark ends where it is."""
+    truth = [np.array([5.0, 0.0]), np.array([4.99, 0.25]), np.array([-1.0, 5.0])]
+    from graphslam.backends.planar import isam2_unknown
+
+    monkeypatch.setattr(isam2_unknown.UnknownAssociation, "split", lambda *args: 0)
+    lms = _cluster_run()
+    assert len(lms) == 3
+    for t in truth:
+        assert min(np.linalg.norm(p - t) for p in lms.values()) < CLUSTER_TOL_M
 
 
 def test_jcbb_pairs_a_scan_with_two_close_landmarks_despite_a_heading_error():
@@ -603,29 +618,25 @@ def test_jcbb_pairs_a_scan_with_two_close_landmarks_despite_a_heading_error():
     assert [x.landmark_id for x in d] == [10, 11]
 
 
-#: Landmarks iSAM2 without ids recovers by an estimate of its own (within 0.3 m) on
-#: robots 2-5: issue 31 asks for 15. On robots 2, 4 and 5 one landmark's sightings went
-#: to a neighbour's estimate (0.18-0.26 m apart) and a duplicate was made; the count by
-#: the nearest estimate of any label said 15 (fifteenth hostile pass).
-ISAM2_UNKNOWN_RECOVERED = {2: 14, 3: 15, 4: 14, 5: 14}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("robot", [2, 3, 4, 5])
+@pytest.mark.parametrize("robot", [1, 2, 3, 4, 5])
 def test_isam2_unknown_association_within_the_issues_bound(mrclam, robot):
-    """Issue 31: without ids, ATE within 1.3x of the known-id run. Holds on robots 2-5
-    (0.95x, 1.15x, 1.08x, 1.06x), not on robot 1 (1.40x; docs/data/landmark-logs.md).
-    Robot 3 (7.3x before) needs the ambiguous sightings held (landmark_association,
-    step 3). The landmarks recovered fall short of 15 on three robots
-    (:data:`ISAM2_UNKNOWN_RECOVERED`)."""
+    """Issue 31: without ids, all 15 landmarks recovered by an estimate of their own
+    (within 0.3 m) and ATE within 1.3x of the known-id run (1.25x, 1.04x, 1.06x, 1.06x,
+    1.03x; docs/data/landmark-logs.md). Robot 3 (7.3x before) needs the ambiguous
+    sightings held (landmark_association, step 3); robots 1, 2, 4 and 5 (1.40x on robot
+    1, 14 landmarks on 1, 2, 4, 5 before) need the re-association at the end
+    (isam2_unknown)."""
     ds = read_mrclam(mrclam, MrclamConfig(robot=robot))
     known = pipeline.compute_metrics(pipeline.run(ds, registry.make_backend("isam2")),
                                      with_graph_error=False)
     unknown = pipeline.compute_metrics(
         pipeline.run(ds, registry.make_backend("isam2", overrides={"association": "unknown"})),
         with_graph_error=False)
-    assert unknown.landmarks_recovered == ISAM2_UNKNOWN_RECOVERED[robot]
+    assert unknown.landmarks_recovered == 15
     assert unknown.ate_rmse_m <= 1.3 * known.ate_rmse_m
+    assert unknown.reassociation_settled is True
+    assert unknown.sightings_reassociated > 0
 
 
 def test_frames_finer_than_any_log_needs_are_refused_before_allocating(monkeypatch):
