@@ -51,8 +51,8 @@ class AssociationScore(MetricsRecord):
     Attributes:
         accuracy: share of observations given the right landmark (unused count wrong),
             as the final estimate pairs them where the back end revises its pairings
-            (iSAM2 with unknown ids: merges, splits, re-association), else as each was
-            decided when it arrived.
+            (iSAM2 with unknown ids: merges, splits, re-association), else (and in an
+            interrupted run) as each was decided when it arrived.
         observations: observations scored; unused: observations the back end left unused.
         landmarks_created: back-end landmarks; duplicates: extra back-end landmarks
             mapped to an already-taken true landmark.

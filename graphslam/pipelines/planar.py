@@ -123,7 +123,8 @@ def run(
         # fetched after the clock stops: reporting, not estimation
         estimate = backend.estimate(with_covariances=True)
     recoveries = getattr(backend, "recoveries", None)
-    revised = backend.final_associations()
+    # an interrupt may have cut a revision short: then score the pairings as decided
+    revised = None if interrupted else backend.final_associations()
     if revised is not None:  # scored as the estimate pairs them, not as first decided
         assoc = [(true_id, revised.get(slot)) for (true_id, _), slot in zip(assoc, slots, strict=True)]
     reassociation = getattr(backend, "reassociation", None)
