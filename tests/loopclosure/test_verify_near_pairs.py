@@ -102,6 +102,7 @@ def test_shared_view_coverage_follows_the_rotation():
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_kitti_near_pairs_verified_far_pairs_refused(kitti, shared_data):
     """The figure of ``bench_loop_pr.py --real``: 424 of the 612 pairs 1-5 m apart
     (69 %; 289 before the forward revisit), asked here at 65 % with room for the
