@@ -345,6 +345,7 @@ LOOP_ATE_RATIO_MAX = 0.5
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     """Default synthetic sequence (300 VGA frames, 1.5 laps). With a local map
     (landmarks predicted only within 30 frames) old places are recognised only
