@@ -242,7 +242,6 @@ def compute_metrics(
     agents = None
     if result.dataset.agents and gt is not None and ate is not None:
         agents = agent_ates(result, gt)
-    association = metrics.association_accuracy(result.associations)
     moved, settled = result.reassociation or (None, None)
     map_scores = {}
     if result.dataset.landmarks_true and gt is not None:
@@ -265,7 +264,7 @@ def compute_metrics(
         steps_per_s=result.steps / result.wall_s if result.wall_s > 0 else None,
         interrupted=result.interrupted,
         loop_closures_skipped=result.loop_closures_skipped,
-        association=association,
+        association=metrics.association_accuracy(result.associations),
         sightings_reassociated=moved,
         reassociation_settled=settled,
         numerical_recoveries=result.numerical_recoveries or None,

@@ -261,10 +261,7 @@ class Isam2Backend(Backend):
         at the batch estimate until nothing moves or the passes are spent."""
         kernel = (self.config.observation_kernel, self.config.observation_kernel_k)
         unknown.ran = True
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.config.polish_max_iterations)
-        params.setRelativeErrorTol(self.config.polish_relative_error_tol)
-        params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
+        params = self._polish_params()
         for _ in range(self.config.reassociation_passes):
             graph = self.factor_graph()  # flushes
             values = gtsam.LevenbergMarquardtOptimizer(graph, self._values_now(), params).optimize()
@@ -276,6 +273,14 @@ class Isam2Backend(Backend):
             if not added:
                 return
         unknown.settled = False
+
+    def _polish_params(self) -> gtsam.LevenbergMarquardtParams:
+        """Levenberg-Marquardt with the polish's limits (the polish, the re-association)."""
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.polish_max_iterations)
+        params.setRelativeErrorTol(self.config.polish_relative_error_tol)
+        params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
+        return params
 
     @property
     def reassociation(self) -> tuple[int, bool] | None:
@@ -363,10 +368,7 @@ class Isam2Backend(Backend):
         if self._unknown is not None and self._polished is None and self.config.reassociation_passes:
             self._reassociate(self._unknown)
         if self.config.polish and self._polished is None and self._pose_ids:
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(self.config.polish_max_iterations)
-            params.setRelativeErrorTol(self.config.polish_relative_error_tol)
-            params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
+            params = self._polish_params()
             initial = self._values_now()
             if self.config.polish_method == "gnc" and self._loop_closures:
                 self._polished = self._gnc(params, initial)

@@ -78,11 +78,12 @@ MERGE_REACH_M = 2.0
 MERGE_SIGMA_M = 1e-3
 
 
-def _d2(obs: Observation, wTb: np.ndarray, landmark_w: np.ndarray) -> float:
-    """Squared Mahalanobis distance of sighting ``obs`` from ``landmark_w`` seen from
-    ``wTb`` under the sighting's own covariance."""
-    nu = se2.innovation(np.asarray(obs.z), se2.observe(wTb[None], landmark_w[None])[0])
-    return float(nu @ np.linalg.solve(obs.covariance, nu))
+def _d2(obs: Observation, wTb: np.ndarray, landmarks_w: np.ndarray) -> np.ndarray:
+    """(L,) squared Mahalanobis distances of sighting ``obs`` from each of
+    ``landmarks_w`` (L, 2) seen from ``wTb`` (3,), under the sighting's own covariance."""
+    predicted = se2.observe(np.broadcast_to(wTb, (len(landmarks_w), 3)), landmarks_w)
+    nu = se2.innovation(np.asarray(obs.z)[None], predicted)
+    return np.einsum("li,li->l", nu, np.linalg.solve(obs.covariance, nu.T).T)
 
 
 class UnknownAssociation:
@@ -148,7 +149,7 @@ class UnknownAssociation:
                     wTb = poses[given.pose_id] = conv.pose2_vector(
                         isam.calculateEstimatePose2(X(given.pose_id))
                     )
-                d2 = [_d2(given, wTb, p) for p in (pos, pos_new)]
+                d2 = _d2(given, wTb, np.array([pos, pos_new]))
                 if given.pose_id not in taken and d2[1] < d2[0] and d2[1] <= self.associator.gate_d2:
                     moved.append((index, given, added, new_id))
                     taken.add(given.pose_id)
@@ -299,12 +300,9 @@ def reassign_scan(
     ids = sorted({s[0] for s in sights} | set(positions))
     column = {lid: c for c, lid in enumerate(ids)}
     points = np.array([positions[lid] for lid in ids], dtype=np.float64).reshape(-1, 2)
-    predicted = se2.observe(np.repeat(wTb[None], len(ids), axis=0), points)  # (L, 2)
-    barred = np.inf
-    cost = np.full((len(sights), len(ids)), barred)
+    cost = np.full((len(sights), len(ids)), np.inf)  # inf: a move outside the gate
     for k, (lid, _, given, _) in enumerate(sights):
-        nu = se2.innovation(np.asarray(given.z)[None], predicted)
-        d2 = np.einsum("li,ij,lj->l", nu, np.linalg.inv(given.covariance), nu)
+        d2 = _d2(given, wTb, points)
         allowed = d2 <= gate_d2
         allowed[column[lid]] = True
         cost[k, allowed] = d2[allowed]
