@@ -276,6 +276,16 @@ class OutputWrites:
         raise GraphSlamError(f"{line}; {self.out_dir}/ holds {held}")
 
 
+def writes_for(out_dir: Path, writes: OutputWrites | None) -> tuple[OutputWrites, bool]:
+    """``(writes, own)`` for a ``write_outputs`` that may be given its command's
+    :class:`OutputWrites`: the one given, or one of its own (``own``: the caller then
+    checks it once every output was tried, and raises for a refused file); makes
+    ``out_dir``."""
+    own = writes is None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return (OutputWrites(out_dir) if writes is None else writes), own
+
+
 def _identity(path: Path) -> tuple[int, int, int] | None:
     """(device, inode, mtime in ns) of a plain file, None when there is none."""
     try:

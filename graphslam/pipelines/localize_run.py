@@ -199,9 +199,7 @@ def write_outputs(
     from graphslam.outputs import writers
     from graphslam.outputs.localize import write_localize_csv
 
-    own = writes is None
-    writes = writers.OutputWrites(out_dir) if writes is None else writes
-    out_dir.mkdir(parents=True, exist_ok=True)
+    writes, own = writers.writes_for(out_dir, writes)
     seq = result.sequence
     n = len(result.placements)
     stamps = result.frame_index.astype(float) if seq.stamps_s is None else np.asarray(seq.stamps_s, float)[:n]

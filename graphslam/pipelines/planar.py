@@ -324,10 +324,7 @@ def write_outputs(
     output was tried); without it, GraphSlamError once all were tried."""
     from graphslam.outputs import writers
 
-    own = writes is None
-    writes = writers.OutputWrites(out_dir) if writes is None else writes
-
-    out_dir.mkdir(parents=True, exist_ok=True)
+    writes, own = writers.writes_for(out_dir, writes)
     est = result.estimate
     run_frames = result.dataset.frames[: result.steps]
     if result.dataset.has_timestamps:

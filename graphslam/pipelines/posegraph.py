@@ -377,9 +377,7 @@ def write_outputs(
 
     graph = solved_graph(graph, result)
 
-    own = writes is None
-    writes = writers.OutputWrites(out_dir) if writes is None else writes
-    out_dir.mkdir(parents=True, exist_ok=True)
+    writes, own = writers.writes_for(out_dir, writes)
     paths: dict[str, Path] = {}
     writes(
         paths,
