@@ -6,7 +6,8 @@ visual back ends and from the camera alone, the monocular EKF on KITTI 07 withou
 odometry, and ``graphslam loops`` on KITTI 07,
 each with ``--rerun off`` into a temporary folder, and compares the trajectory,
 landmark and loop files byte for byte with ``digests.json`` (recorded by
-``--record``; the file says which commit and machine the digests came from).
+``--record``, or ``--record --only CASE ...`` for some cases, the others kept; the file
+says which commit and machine each case's digests came from).
 
 Floating-point results are only bit-identical on the same BLAS and CPU
 features, so this is a script to run on the team's machine around a
@@ -88,8 +89,18 @@ def run_case(name: str, workdir: Path) -> dict[str, str]:
 
 
 def git_head() -> str:
+    """HEAD's hash, ``+changes`` when the library's files differ from it (the digests are
+    then of the change about to be committed on it)."""
     proc = subprocess.run(["git", "rev-parse", "HEAD"], cwd=HERE, capture_output=True, text=True)
-    return proc.stdout.strip() or "unknown"
+    dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "graphslam", "filters", "slamcore",
+                            "frontend", "loopclosure", "datasets"], cwd=HERE.parent).returncode != 0
+    return (proc.stdout.strip() or "unknown") + (" +changes" if dirty else "")
+
+
+def origin_of(stored: dict, name: str) -> dict:
+    """Commit, machine and Python a case's digests were recorded with (a file from before
+    per-case origins names one for all)."""
+    return stored.get("recorded", {}).get(name) or {k: stored.get(k, "?") for k in ("commit", "machine", "python")}
 
 
 def main() -> int:
@@ -104,10 +115,15 @@ def main() -> int:
             print(f"running {name} ...", file=sys.stderr, flush=True)
             got[name] = run_case(name, Path(tmp))
     if args.record:
-        DIGESTS.write_text(json.dumps({
-            "commit": git_head(), "machine": f"{platform.machine()} {platform.processor()}",
-            "python": platform.python_version(), "digests": got}, indent=2) + "\n")
-        print(f"recorded {DIGESTS}")
+        # --only records those cases and keeps every other case's digests and origin
+        old = json.loads(DIGESTS.read_text()) if args.only and DIGESTS.is_file() else {"digests": {}}
+        origin = {"commit": git_head(), "machine": f"{platform.machine()} {platform.processor()}",
+                  "python": platform.python_version()}
+        recorded = {n: origin_of(old, n) for n in old["digests"]}
+        recorded.update({n: origin for n in got})
+        DIGESTS.write_text(json.dumps({"digests": {**old["digests"], **got}, "recorded": recorded},
+                                      indent=2) + "\n")
+        print(f"recorded {', '.join(got)} in {DIGESTS}")
         return 0
     stored = json.loads(DIGESTS.read_text())
     bad = 0
@@ -115,9 +131,9 @@ def main() -> int:
         for f, digest in got[name].items():
             same = stored["digests"][name][f] == digest
             bad += not same
-            print(f"{'same' if same else 'DIFFERENT':9s} {name}/{f}")
-    print(f"against digests from commit {stored['commit'][:10]}: "
-          f"{'all identical' if not bad else f'{bad} file(s) differ'}")
+            print(f"{'same' if same else 'DIFFERENT':9s} {name}/{f} "
+                  f"(recorded at {origin_of(stored, name)['commit'][:10]})")
+    print(f"{'all identical' if not bad else f'{bad} file(s) differ'}")
     return 1 if bad else 0
 
 
