@@ -108,15 +108,7 @@ from filters.planar_inputs import checked_scan, initial_pose, linked_pose, odome
 from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
-from slamcore.planar.records import (
-    Estimate,
-    Observation,
-    Odometry,
-    PoseSighting,
-    Prediction,
-    SensorField,
-    error_dof,
-)
+from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction, SensorField
 
 __all__ = ["FastSlam"]
 
@@ -150,8 +142,9 @@ class FastSlam(Backend):
     # ------------------------------------------------------------- contract
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:
         """Unknown association reads the sensor's error tail from it (the gate of a new
-        landmark, ``new_landmark_mahalanobis_sq`` unset); None: Gaussian errors."""
-        self._particles.set_error_dof(error_dof(sensor_field))
+        landmark, ``new_landmark_mahalanobis_sq`` unset; None: Gaussian errors) and its
+        field, to prune the landmarks each particle misses (``prune_missed_alpha``)."""
+        self._particles.set_sensor_field(sensor_field)
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:
         if self._pose_ids:

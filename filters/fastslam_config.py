@@ -55,6 +55,16 @@ class FastSlamConfig(Validated):
             "filtered": the weighted mean of each step's particles, as that step left
             them, never revised. The pose covariances are each step's particle spread
             in both.
+        prune_missed_alpha: unknown association, on data that states its sensor's
+            field (:class:`slamcore.planar.records.SensorField`): a landmark of a particle
+            that lies in the field as that particle sees it (three sigmas of its predicted
+            measurement to spare) in scans that report other things, none of them inside its
+            gate, leaves that particle's map once those misses since its last sighting have
+            probability at most this if it were there (:mod:`filters.landmark_existence`;
+            Montemerlo et al., FastSLAM, AAAI 2002, Sec. 5: the duplicate a wrong
+            association or a drifted pose leaves behind goes). Default 1e-3, the new-landmark
+            gate's own error rate (1 - its 0.999 quantile), as the EKF's. 0: off (no run of
+            misses is that unlikely).
         odometry_covariance_scale: the odometry covariance is multiplied by
             this before sampling (> 0, at most
             :data:`~filters.numerics.MAX_ODOMETRY_COVARIANCE_SCALE`). Particle filters need motion noise
@@ -66,7 +76,7 @@ class FastSlamConfig(Validated):
     # known ids: an observation without one is refused, never associated
     GATES: ClassVar[tuple[Gate, ...]] = (
         Gate(
-            ("new_landmark_mahalanobis_sq", "new_landmark_log_likelihood"),
+            ("new_landmark_mahalanobis_sq", "new_landmark_log_likelihood", "prune_missed_alpha"),
             'association = "unknown"',
             lambda c: c.association == "unknown",
         ),
@@ -79,5 +89,6 @@ class FastSlamConfig(Validated):
     association: Literal["known", "unknown"] = "known"
     new_landmark_mahalanobis_sq: float | None = bounded(None, gt=0.0)
     new_landmark_log_likelihood: float | None = None
+    prune_missed_alpha: float = bounded(1e-3, min=0.0, lt=1.0)
     odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
     trajectory: Literal["path", "filtered"] = "path"

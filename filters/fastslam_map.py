@@ -25,6 +25,11 @@ Costs:
   memory stays within ~4x the live records.
 - columns no particle points to any more (landmarks only dead particles had)
   can be dropped with :meth:`ParticleMaps.drop_empty_columns`.
+
+Beside each pointer the table keeps a float: the landmark's missed-sighting score in
+that particle (:mod:`filters.landmark_existence`, ``[fastslam] prune_missed_alpha``),
+resampled and dropped with it; :meth:`ParticleMaps.forget` removes a landmark from some
+particles.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ class ParticleMaps:
         self.pool_cov = np.zeros((max(pool_capacity, 1), 2, 2))
         self.pool_size = 0
         self._table = np.full((self.n_particles, max(column_capacity, 1)), -1, dtype=np.int32)
+        self._score = np.zeros(self._table.shape)
         self.n_cols = 0
         self._ids: list[int] = []
         self._col_of: dict[int, int] = {}
@@ -57,6 +63,11 @@ class ParticleMaps:
     def table(self) -> np.ndarray:
         """(N, L) int32 pointers into the pool (a view; -1 = unknown landmark)."""
         return self._table[:, : self.n_cols]
+
+    @property
+    def score(self) -> np.ndarray:
+        """(N, L) missed-sighting score of each particle's landmark (a view; module docstring)."""
+        return self._score[:, : self.n_cols]
 
     @property
     def ids(self) -> np.ndarray:
@@ -76,6 +87,9 @@ class ParticleMaps:
             grown = np.full((self.n_particles, 2 * self._table.shape[1]), -1, dtype=np.int32)
             grown[:, : self.n_cols] = self._table[:, : self.n_cols]
             self._table = grown
+            score = np.zeros(grown.shape)
+            score[:, : self.n_cols] = self._score[:, : self.n_cols]
+            self._score = score
         c = self.n_cols
         self.n_cols += 1
         self._ids.append(int(landmark_id))
@@ -90,6 +104,9 @@ class ParticleMaps:
             kept = self._table[:, keep]
             self._table[:, : keep.size] = kept
             self._table[:, keep.size :] = -1
+            kept_score = self._score[:, keep]
+            self._score[:, : keep.size] = kept_score
+            self._score[:, keep.size :] = 0.0
             self._ids = [self._ids[c] for c in keep]
             self._col_of = {lid: c for c, lid in enumerate(self._ids)}
             self.n_cols = keep.size
@@ -130,6 +147,14 @@ class ParticleMaps:
     def resample(self, parents: np.ndarray) -> None:
         """Particle ``i`` becomes a copy of ``parents[i]``: copies table rows only."""
         self._table[:, : self.n_cols] = self._table[parents, : self.n_cols]
+        self._score[:, : self.n_cols] = self._score[parents, : self.n_cols]
+
+    def forget(self, mask: np.ndarray) -> None:
+        """The particles lose the landmarks where ``mask`` (N, L) is True (their records stay
+        in the pool for the particles that share them; compaction reclaims the rest)."""
+        t = self._table[:, : self.n_cols]
+        t[mask] = -1
+        self._score[:, : self.n_cols][mask] = 0.0
 
     def landmarks_of(self, particle: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(ids (M,), means (M, 2), covs (M, 2, 2))`` known to one particle."""

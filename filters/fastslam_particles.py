@@ -28,12 +28,13 @@ from filters.fastslam_math import (
     sample_gaussian,
 )
 from filters.fastslam_update import landmark_steps, refine_proposal
+from filters.landmark_existence import cusum_steps
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as models
 from slamcore.planar.geometry import wrap_angle
-from slamcore.planar.records import Observation
+from slamcore.planar.records import Observation, SensorField
 
 _LOG_2PI = math.log(2.0 * math.pi)
 #: Probability of the new-landmark gate when ``new_landmark_mahalanobis_sq`` is unset:
@@ -76,6 +77,12 @@ class ParticleSet:
         #: Several robots: each other robot's latest pose id -> its (N, 3) particle poses
         #: (every particle holds every robot's latest pose; :attr:`poses` is the one moving).
         self.parked: dict[int, np.ndarray] = {}
+        #: Unknown association: the sensor's field and the pruning's ``(miss, limit)``
+        #: (:meth:`set_sensor_field`); None: no pruning.
+        self.field: SensorField | None = None
+        self._cusum: tuple[float, float] | None = None
+        #: (particle, landmark) pairs the pruning removed
+        self.pruned = 0
 
     # ------------------------------------------------------------- draws
     def draw_initial(self, wTb: np.ndarray, cov: np.ndarray) -> None:
@@ -166,6 +173,8 @@ class ParticleSet:
             cols = self._update_v1(obs)
         self._prior = None
         self.logw -= logsumexp(self.logw)
+        if self._cusum is not None:
+            self._prune_missed(obs, cols)
         return cols
 
     def _update_v1(self, obs: list[Observation]) -> list[np.ndarray]:
@@ -272,6 +281,75 @@ class ParticleSet:
     def _new_gate(self, dof: float) -> float:
         gate = self.config.new_landmark_mahalanobis_sq
         return t2_quantile(NEW_LANDMARK_PROB, dof) if gate is None else gate
+
+    def set_sensor_field(self, field: SensorField | None) -> None:
+        """The sensor's field (None: unknown): its error tail sets the new-landmark gate
+        (:meth:`set_error_dof`), and with unknown association and ``prune_missed_alpha``
+        its field and detection probability prune the landmarks each particle misses
+        (:meth:`_prune_missed`)."""
+        self.set_error_dof(math.inf if field is None else field.error_dof)
+        alpha = self.config.prune_missed_alpha
+        self.field, self._cusum = None, None
+        if field is not None and alpha > 0.0 and self.config.association == "unknown":
+            self.field, self._cusum = field, cusum_steps(field.detection_prob, alpha)
+
+    def _prune_missed(self, obs: list[Observation], cols: list[np.ndarray]) -> None:
+        """Missed sightings, per particle (``[fastslam] prune_missed_alpha``): each
+        particle's landmarks that lay surely in the sensor's field this scan as its pose
+        sees them (three sigmas of the predicted measurement to spare), that it paired with
+        no observation of the scan and that no observation of the scan gates (an
+        unpaired one may be its sighting), add one miss to their scores; a paired one
+        resets its score; a landmark whose score reaches the limit leaves that particle
+        (:mod:`filters.landmark_existence`, as the EKF prunes its one map). Vectorised over
+        (particle, landmark) pairs like :meth:`associate`."""
+        field, cusum = self.field, self._cusum
+        maps = self.maps
+        if field is None or cusum is None or maps.n_cols == 0:
+            return
+        T = maps.table
+        valid = T >= 0
+        ptr = np.where(valid, T, 0)
+        m, P = maps.pool_mean[ptr], maps.pool_cov[ptr]
+        poses = self.poses
+        dx = m[..., 0] - poses[:, 0:1]
+        dy = m[..., 1] - poses[:, 1:2]
+        q = np.maximum(dx * dx + dy * dy, 1e-300)
+        r = np.sqrt(q)
+        bearing = wrap_angle(np.arctan2(dy, dx) - poses[:, 2:3])
+        a, b, c, d = dx / r, dy / r, -dy / q, dx / q
+        p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
+        h00 = a * a * p00 + 2 * a * b * p01 + b * b * p11
+        h01 = a * c * p00 + (a * d + b * c) * p01 + b * d * p11
+        h11 = c * c * p00 + 2 * c * d * p01 + d * d * p11
+        R = obs[-1].covariance  # the scan's noise, as the EKF's pruning takes it
+        # the cloud's pose spread widens the margin and the gates as the EKF's pose
+        # covariance does (a particle a little off must not count its own landmark missed)
+        X = self.cloud_stats()[1]
+        h00 = h00 + a * a * X[0, 0] + 2 * a * b * X[0, 1] + b * b * X[1, 1]
+        h01 = h01 + a * c * X[0, 0] + (a * d + b * c) * X[0, 1] + b * d * X[1, 1] + a * X[0, 2] + b * X[1, 2]
+        h11 = h11 + c * c * X[0, 0] + 2 * c * d * X[0, 1] + d * d * X[1, 1] + 2 * (c * X[0, 2] + d * X[1, 2])
+        h11 = h11 + X[2, 2]
+        sd_r = 3.0 * np.sqrt(np.maximum(h00 + R[0, 0], 0.0))
+        sd_b = 3.0 * np.sqrt(np.maximum(h11 + R[1, 1], 0.0))
+        inside = valid & (r + sd_r <= field.max_range_m) & (np.abs(bearing) + sd_b <= field.half_fov_rad)
+        seen = np.zeros_like(valid)
+        for col in cols:
+            seen[self._rows, col] = True
+        gated = np.zeros_like(valid)
+        for o in obs:  # an observation inside a landmark's gate may be its sighting
+            s00, s01, s11 = h00 + o.covariance[0, 0], h01 + o.covariance[0, 1], h11 + o.covariance[1, 1]
+            nu_r = o.z[0] - r
+            nu_b = wrap_angle(o.z[1] - bearing)
+            det = s00 * s11 - s01 * s01
+            gated |= (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) <= self.new_gate_d2 * det
+        score = maps.score
+        score[seen] = 0.0
+        missed = inside & ~seen & ~gated
+        score[missed] += cusum[0]
+        gone = missed & (score >= cusum[1])
+        if gone.any():
+            self.pruned += int(np.count_nonzero(gone))
+            maps.forget(gone)
 
     def set_error_dof(self, dof: float) -> None:
         """The sensor's errors are Student-t with ``dof`` degrees of freedom (``inf``:

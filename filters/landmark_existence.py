@@ -20,7 +20,9 @@ does) lets a duplicate that was fed for a while go once it stops being fed;
 a real landmark is removed with probability ``alpha`` per run of misses.
 
 Which landmarks lie in the field is the owning filter's business (it knows
-its pose and its uncertainty); this module keeps the scores.
+its pose and its uncertainty); this module keeps the scores (FastSLAM keeps one per
+particle and landmark beside its map, :mod:`filters.fastslam_map`, with the steps of
+:func:`cusum_steps`).
 """
 
 from __future__ import annotations
@@ -29,6 +31,23 @@ import math
 from collections.abc import Iterable
 
 from slamcore.errors import GraphSlamError
+
+
+def cusum_steps(detection_prob: float, alpha: float) -> tuple[float, float]:
+    """``(miss, limit)`` of the test (module docstring): what one miss in the field adds to
+    a landmark's score, and the score at which it is removed.
+
+    Args:
+        detection_prob: probability that a landmark in the field is reported in a
+            frame that reports something, in (0, 1].
+        alpha: probability of removing a landmark that is there, per run of
+            misses, in (0, 1).
+    """
+    if not 0.0 < detection_prob <= 1.0 or not 0.0 < alpha < 1.0:
+        raise GraphSlamError(f"missed sightings: detection_prob {detection_prob}, alpha {alpha}")
+    # log(0) for a sensor that sees everything in its field: one miss is enough
+    miss = math.inf if detection_prob >= 1.0 else -math.log1p(-detection_prob)
+    return miss, -math.log(alpha)
 
 
 class MissedSightings:
@@ -42,11 +61,7 @@ class MissedSightings:
     """
 
     def __init__(self, detection_prob: float, alpha: float):
-        if not 0.0 < detection_prob <= 1.0 or not 0.0 < alpha < 1.0:
-            raise GraphSlamError(f"missed sightings: detection_prob {detection_prob}, alpha {alpha}")
-        # log(0) for a sensor that sees everything in its field: one miss is enough
-        self._miss = math.inf if detection_prob >= 1.0 else -math.log1p(-detection_prob)
-        self._limit = -math.log(alpha)
+        self._miss, self._limit = cusum_steps(detection_prob, alpha)
         self._score: dict[int, float] = {}
 
     def frame(self, seen: Iterable[int], missed: Iterable[int]) -> list[int]:

@@ -1,4 +1,5 @@
-"""Pruning of landmarks missed in the sensor's field (filters.landmark_existence, the EKF's use of it)."""
+"""Pruning of landmarks missed in the sensor's field (filters.landmark_existence, the EKF's and
+FastSLAM's use of it)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ import pytest
 from filters.ekf_slam import EkfSlam
 from filters.ekf_slam_config import EkfSlamConfig
 from filters.ekf_slam_store import SlotStore
+from filters.fastslam import FastSlam
+from filters.fastslam_config import FastSlamConfig
+from filters.fastslam_map import ParticleMaps
 from filters.landmark_existence import MissedSightings
 from slamcore.errors import GraphSlamError, MeasurementError
 from slamcore.planar import geometry as models
@@ -166,3 +170,93 @@ def test_pipeline_hands_the_field_to_the_back_end_and_reports_pruning():
     metrics = pipeline.compute_metrics(result, with_graph_error=False)
     assert metrics.landmarks_pruned == result.landmarks_pruned
     assert not set(ekf.pruned_landmark_ids()) & set(result.estimate.landmark_ids.tolist())
+
+
+# --- FastSLAM: one score per particle and landmark (filters.fastslam_particles) ----------
+
+
+def _fastslam(field: SensorField | None, association: str = "unknown", alpha: float = 0.1) -> FastSlam:
+    """FastSLAM 2.0 at the origin facing +x, having mapped from it a landmark ahead
+    (4, 0) and one behind (-4, 0) in every particle; then a duplicate of the one ahead,
+    (4, 2), sighted once."""
+    fs = FastSlam(FastSlamConfig(association=association, prune_missed_alpha=alpha, n_particles=20, seed=1))
+    fs.set_sensor_field(field)
+    fs.initialize(0, np.zeros(3), np.diag([1e-8, 1e-8, 1e-10]))
+    ahead, behind, dup = (models.observe(np.zeros(3), np.array(p)) for p in ([4.0, 0.0], [-4.0, 0.0], [4.0, 2.0]))
+    ids = (0, 1) if association == "known" else (None, None)
+    fs.update([Observation(0, ids[0], ahead, R), Observation(0, ids[1], behind, R)])
+    fs.predict(Odometry(0, 1, np.zeros(3), np.diag([1e-8, 1e-8, 1e-10])), 1)
+    fs.update([Observation(1, 2 if association == "known" else None, dup, R)])
+    return fs
+
+
+def _fs_drive(fs: FastSlam, steps: int, known: bool = False) -> None:
+    """``steps`` frames standing still, each sighting the landmark ahead only."""
+    first = int(fs.estimate().pose_ids[-1]) + 1
+    for k in range(first, first + steps):
+        fs.predict(Odometry(k - 1, k, np.zeros(3), np.diag([1e-8, 1e-8, 1e-10])), k)
+        z = models.observe(np.zeros(3), np.array([4.0, 0.0]))
+        fs.update([Observation(k, 0 if known else None, z, R)])
+
+
+def _fs_map(fs: FastSlam) -> np.ndarray:
+    """(M, 2) landmarks of the estimate, sorted by x then y."""
+    m = np.asarray(fs.estimate().landmarks_w).reshape(-1, 2)
+    return m[np.lexsort((m[:, 1], m[:, 0]))]
+
+
+def test_fastslam_prunes_the_landmark_missed_in_view_only():
+    fs = _fastslam(FIELD)
+    assert len(_fs_map(fs)) == 3
+    _fs_drive(fs, 3)
+    assert len(_fs_map(fs)) == 3  # three misses: 0.125 > alpha
+    _fs_drive(fs, 1)
+    np.testing.assert_allclose(_fs_map(fs), [[-4.0, 0.0], [4.0, 0.0]], atol=0.05)
+    assert fs.particles.pruned == fs.n_particles  # the duplicate, in every particle
+    _fs_drive(fs, 20)
+    assert len(_fs_map(fs)) == 2  # behind the robot: never evidence against it
+
+
+def test_fastslam_an_unpaired_observation_in_its_gate_is_not_a_miss():
+    # a sighting of (4, 0.06) falls in the gates of both (4, 0) and the duplicate moved
+    # there: whichever a particle leaves unpaired may have been seen
+    fs = FastSlam(FastSlamConfig(association="unknown", prune_missed_alpha=0.1, n_particles=20, seed=1))
+    fs.set_sensor_field(FIELD)
+    fs.initialize(0, np.zeros(3), np.diag([1e-8, 1e-8, 1e-10]))
+    near = [models.observe(np.zeros(3), np.array(p)) for p in ([4.0, 0.0], [4.0, 0.06])]
+    fs.update([Observation(0, None, z, R) for z in near])
+    _fs_drive(fs, 10)
+    assert len(_fs_map(fs)) == 2 and fs.particles.pruned == 0
+
+
+def test_fastslam_field_edge_needs_three_sigmas_to_spare():
+    # the duplicate sits 26.6 deg off the heading; a 27 deg field leaves no 3-sigma margin
+    fs = _fastslam(SensorField(8.0, math.radians(27.0), 0.5))
+    _fs_drive(fs, 10)
+    assert len(_fs_map(fs)) == 3 and fs.particles.pruned == 0
+
+
+@pytest.mark.parametrize("field, association, alpha", [(None, "unknown", 0.1), (FIELD, "known", 0.1),
+                                                       (FIELD, "unknown", 0.0)])
+def test_fastslam_never_prunes_without_a_field_with_known_ids_or_when_off(field, association, alpha):
+    fs = _fastslam(field, association, alpha)
+    _fs_drive(fs, 10, known=association == "known")
+    assert len(_fs_map(fs)) == 3 and fs.particles.pruned == 0
+
+
+def test_fastslam_scores_follow_resampling_and_dropped_columns():
+    maps = ParticleMaps(3, column_capacity=1)
+    for lid in (10, 11, 12):  # the second and third columns grow the table
+        c = maps.add_column(lid)
+        maps.write(np.arange(3), c, np.zeros((3, 2)), np.broadcast_to(np.eye(2), (3, 2, 2)))
+    maps.score[:] = [[0.0, 1.0, 2.0], [3.0, 4.0, 5.0], [6.0, 7.0, 8.0]]
+    maps.resample(np.array([2, 2, 0]))
+    np.testing.assert_array_equal(maps.score, [[6.0, 7.0, 8.0], [6.0, 7.0, 8.0], [0.0, 1.0, 2.0]])
+    gone = np.zeros((3, 3), dtype=bool)
+    gone[:, 1] = True  # landmark 11 leaves every particle: its column goes
+    maps.forget(gone)
+    assert maps.drop_empty_columns() == 1
+    assert maps.ids.tolist() == [10, 12]
+    np.testing.assert_array_equal(maps.score, [[6.0, 8.0], [6.0, 8.0], [0.0, 2.0]])
+    c = maps.add_column(13)  # a new column starts at score 0
+    assert (maps.score[:, c] == 0.0).all()

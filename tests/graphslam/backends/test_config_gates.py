@@ -30,7 +30,8 @@ PLANAR = [
     ("ekf", {"association": "unknown", "jcbb_objective": "count"},
      {"new_landmark_density_per_m2": 0.9, "detection_prob": 0.1}, False),
     ("ekf", {}, {"prune_missed_alpha": 0.5}, True),
-    ("fastslam2", {}, {"new_landmark_mahalanobis_sq": 1.0, "new_landmark_log_likelihood": -50.0}, True),
+    ("fastslam2", {}, {"new_landmark_mahalanobis_sq": 1.0, "new_landmark_log_likelihood": -50.0,
+                       "prune_missed_alpha": 0.5}, True),
 ]
 
 
