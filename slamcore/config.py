@@ -76,6 +76,14 @@ def section_name(cls: type) -> str:
     return getattr(cls, "SECTION", "") or getattr(cls, "TABLE", cls.__name__.lower())
 
 
+def choices_of(cls: type, name: str) -> tuple | None:
+    """Allowed values of a ``Literal``-typed field, or None."""
+    hint = typing.get_type_hints(cls)[name]
+    if typing.get_origin(hint) is typing.Literal:
+        return typing.get_args(hint)
+    return None
+
+
 # --------------------------------------------------------------------------- checking values
 
 

@@ -7,7 +7,7 @@ from typing import ClassVar, Literal
 
 import pytest
 
-from slamcore.config import ConfigFile, Gate, Validated, bounded, from_dict, load_section
+from slamcore.config import ConfigFile, Gate, Validated, bounded, choices_of, from_dict, load_section
 from slamcore.errors import ConfigError
 
 
@@ -95,6 +95,7 @@ def test_code_built_configs_are_checked_the_same_way():
         Inner(0)
     with pytest.raises(ConfigError, match="expected true/false|expected a number"):
         Outer(count=True)
+    assert choices_of(Outer, "mode") == ("fast", "exact")
     assert from_dict(Outer, {"count": 2}).count == 2
     with pytest.raises(ConfigError, match="unknown key"):
         from_dict(Outer, {"bogus": 2})
