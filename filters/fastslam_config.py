@@ -14,9 +14,9 @@ from slamcore.config import Gate, Validated, bounded
 
 #: Most particles a filter may have. Every particle carries its own 2-D EKF per
 #: landmark it knows (mean 2 + covariance 2x2 float64, 48 bytes, written anew
-#: for each particle an update touches) and an int32 pointer per landmark column,
-#: so N particles x L landmarks take up to about 52 N L bytes: 1e6 particles are 5 GB
-#: for a map of only 100 landmarks, and the per-observation (N, 2, 2)
+#: for each particle an update touches), an int32 pointer and a float64 missed-sighting
+#: score per landmark column, so N particles x L landmarks take up to about 60 N L bytes:
+#: 1e6 particles are 6 GB for a map of only 100 landmarks, and the per-observation (N, 2, 2)
 #: temporaries grow alike. 1e11 would need terabytes for the poses alone.
 MAX_PARTICLES = 1_000_000
 
