@@ -309,46 +309,56 @@ class ParticleSet:
         T = maps.table
         valid = T >= 0
         ptr = np.where(valid, T, 0)
-        m, P = maps.pool_mean[ptr], maps.pool_cov[ptr]
+        m = maps.pool_mean[ptr]
         poses = self.poses
         dx = m[..., 0] - poses[:, 0:1]
         dy = m[..., 1] - poses[:, 1:2]
         q = np.maximum(dx * dx + dy * dy, 1e-300)
         r = np.sqrt(q)
         bearing = wrap_angle(np.arctan2(dy, dx) - poses[:, 2:3])
+        seen = np.zeros_like(valid)
+        for col in cols:
+            seen[self._rows, col] = True
+        score = maps.score
+        score[seen] = 0.0
+        # the pairs that may be inside (the margins only shrink the field): the rest of the
+        # arithmetic runs on them alone, a few of the map's landmarks per particle
+        i, j = np.nonzero(valid & ~seen & (r <= field.max_range_m) & (np.abs(bearing) <= field.half_fov_rad))
+        if i.size == 0:
+            return
+        P = maps.pool_cov[ptr[i, j]]
+        dx, dy, q, r, bearing = dx[i, j], dy[i, j], q[i, j], r[i, j], bearing[i, j]
         a, b, c, d = dx / r, dy / r, -dy / q, dx / q
-        p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
-        h00 = a * a * p00 + 2 * a * b * p01 + b * b * p11
-        h01 = a * c * p00 + (a * d + b * c) * p01 + b * d * p11
-        h11 = c * c * p00 + 2 * c * d * p01 + d * d * p11
-        R = obs[-1].covariance  # the scan's noise, as the EKF's pruning takes it
+        p00, p01, p11 = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
         # the cloud's pose spread widens the margin and the gates as the EKF's pose
         # covariance does (a particle a little off must not count its own landmark missed)
         X = self.cloud_stats()[1]
+        h00 = a * a * p00 + 2 * a * b * p01 + b * b * p11
+        h01 = a * c * p00 + (a * d + b * c) * p01 + b * d * p11
+        h11 = c * c * p00 + 2 * c * d * p01 + d * d * p11
         h00 = h00 + a * a * X[0, 0] + 2 * a * b * X[0, 1] + b * b * X[1, 1]
         h01 = h01 + a * c * X[0, 0] + (a * d + b * c) * X[0, 1] + b * d * X[1, 1] + a * X[0, 2] + b * X[1, 2]
         h11 = h11 + c * c * X[0, 0] + 2 * c * d * X[0, 1] + d * d * X[1, 1] + 2 * (c * X[0, 2] + d * X[1, 2])
         h11 = h11 + X[2, 2]
+        R = obs[-1].covariance  # the scan's noise, as the EKF's pruning takes it
         sd_r = 3.0 * np.sqrt(np.maximum(h00 + R[0, 0], 0.0))
         sd_b = 3.0 * np.sqrt(np.maximum(h11 + R[1, 1], 0.0))
-        inside = valid & (r + sd_r <= field.max_range_m) & (np.abs(bearing) + sd_b <= field.half_fov_rad)
-        seen = np.zeros_like(valid)
-        for col in cols:
-            seen[self._rows, col] = True
-        gated = np.zeros_like(valid)
+        missed = (r + sd_r <= field.max_range_m) & (np.abs(bearing) + sd_b <= field.half_fov_rad)
         for o in obs:  # an observation inside a landmark's gate may be its sighting
             s00, s01, s11 = h00 + o.covariance[0, 0], h01 + o.covariance[0, 1], h11 + o.covariance[1, 1]
             nu_r = o.z[0] - r
             nu_b = wrap_angle(o.z[1] - bearing)
             det = s00 * s11 - s01 * s01
-            gated |= (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) <= self.new_gate_d2 * det
-        score = maps.score
-        score[seen] = 0.0
-        missed = inside & ~seen & ~gated
-        score[missed] += cusum[0]
-        gone = missed & (score >= cusum[1])
-        if gone.any():
-            self.pruned += int(np.count_nonzero(gone))
+            missed &= ~(
+                (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) <= self.new_gate_d2 * det
+            )
+        i, j = i[missed], j[missed]
+        score[i, j] += cusum[0]
+        out = score[i, j] >= cusum[1]
+        if out.any():
+            gone = np.zeros_like(valid)
+            gone[i[out], j[out]] = True
+            self.pruned += int(np.count_nonzero(out))
             maps.forget(gone)
 
     def set_error_dof(self, dof: float) -> None:
