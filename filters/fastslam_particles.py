@@ -26,6 +26,7 @@ from filters.fastslam_math import (
     low_variance_resample,
     rotated_xy,
     sample_gaussian,
+    sandwich,
 )
 from filters.fastslam_update import landmark_steps, refine_proposal
 from filters.landmark_existence import cusum_steps
@@ -329,17 +330,15 @@ class ParticleSet:
         P = maps.pool_cov[ptr[i, j]]
         dx, dy, q, r, bearing = dx[i, j], dy[i, j], q[i, j], r[i, j], bearing[i, j]
         a, b, c, d = dx / r, dy / r, -dy / q, dx / q
-        p00, p01, p11 = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
         # the cloud's pose spread widens the margin and the gates as the EKF's pose
         # covariance does (a particle a little off must not count its own landmark missed)
         X = self.cloud_stats()[1]
-        h00 = a * a * p00 + 2 * a * b * p01 + b * b * p11
-        h01 = a * c * p00 + (a * d + b * c) * p01 + b * d * p11
-        h11 = c * c * p00 + 2 * c * d * p01 + d * d * p11
-        h00 = h00 + a * a * X[0, 0] + 2 * a * b * X[0, 1] + b * b * X[1, 1]
-        h01 = h01 + a * c * X[0, 0] + (a * d + b * c) * X[0, 1] + b * d * X[1, 1] + a * X[0, 2] + b * X[1, 2]
-        h11 = h11 + c * c * X[0, 0] + 2 * c * d * X[0, 1] + d * d * X[1, 1] + 2 * (c * X[0, 2] + d * X[1, 2])
-        h11 = h11 + X[2, 2]
+        # H_m P H_m^T + H_x X H_x^T: the xy block of X enters as P does (H_x = -[H_m | 0, 1])
+        (h00, h01, h11), _ = sandwich(
+            a, b, c, d, P[:, 0, 0] + X[0, 0], P[:, 0, 1] + X[0, 1], P[:, 1, 1] + X[1, 1]
+        )
+        h01 = h01 + a * X[0, 2] + b * X[1, 2]
+        h11 = h11 + 2 * (c * X[0, 2] + d * X[1, 2]) + X[2, 2]
         R = obs[-1].covariance  # the scan's noise, as the EKF's pruning takes it
         sd_r = 3.0 * np.sqrt(np.maximum(h00 + R[0, 0], 0.0))
         sd_b = 3.0 * np.sqrt(np.maximum(h11 + R[1, 1], 0.0))
