@@ -160,6 +160,9 @@ class EkfSlamConfig(Validated):
     #: settings no run reads: every streamed observation brings its own covariance, so
     #: the default is only ``predict_observations``' before the first one (library use)
     UNREAD_IN_RUNS: ClassVar[tuple[str, ...]] = ("default_sigma_range_m", "default_sigma_bearing_rad")
+    #: settings that act only on data stating its sensor's field (``Dataset.sensor_field``):
+    #: without one the pruning has no field to miss a landmark in and does nothing
+    SENSOR_FIELD_KEYS: ClassVar[tuple[str, ...]] = ("prune_missed_alpha",)
 
     association: Literal["known", "unknown"] = "known"
     gate_chi2_prob: float = bounded(0.999, gt=0.0, lt=1.0)

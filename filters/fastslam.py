@@ -241,6 +241,12 @@ class FastSlam(Backend):
         if self.config.association == "unknown":
             particles.maps.drop_empty_columns()
 
+    def pruned_landmark_ids(self) -> list[int]:
+        """Ids of the landmarks the pruning (``prune_missed_alpha``) removed from every
+        particle that held them: gone from the filter's map. A landmark pruned from some
+        particles only is not listed (the others still hold it)."""
+        return list(self._particles.pruned_ids)
+
     def predict_observations(self, landmark_ids: Iterable[int]) -> list[Prediction]:
         self._require_init()
         # the pose and landmarks estimate() reports: its latest pose with the

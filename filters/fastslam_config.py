@@ -82,6 +82,10 @@ class FastSlamConfig(Validated):
         ),
     )
 
+    #: settings that act only on data stating its sensor's field (``Dataset.sensor_field``):
+    #: without one the pruning has no field to miss a landmark in and does nothing
+    SENSOR_FIELD_KEYS: ClassVar[tuple[str, ...]] = ("prune_missed_alpha",)
+
     version: int = bounded(2, min=1, max=2)
     n_particles: int = bounded(100, min=1, max=MAX_PARTICLES)
     seed: int = bounded(0, min=0)

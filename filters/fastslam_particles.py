@@ -84,6 +84,9 @@ class ParticleSet:
         self._cusum: tuple[float, float] | None = None
         #: (particle, landmark) pairs the pruning removed
         self.pruned = 0
+        #: ids of the landmarks the pruning removed from the last particle that held them
+        #: (gone from the filter's map, as the EKF's pruned landmarks are from its one map)
+        self.pruned_ids: list[int] = []
 
     # ------------------------------------------------------------- draws
     def draw_initial(self, wTb: np.ndarray, cov: np.ndarray) -> None:
@@ -359,6 +362,9 @@ class ParticleSet:
             gone[i[out], j[out]] = True
             self.pruned += int(np.count_nonzero(out))
             maps.forget(gone)
+            cols_out = np.unique(j[out])
+            emptied = cols_out[(maps.table[:, cols_out] < 0).all(axis=0)]
+            self.pruned_ids.extend(int(lid) for lid in maps.ids[emptied])
 
     def set_error_dof(self, dof: float) -> None:
         """The sensor's errors are Student-t with ``dof`` degrees of freedom (``inf``:

@@ -86,7 +86,8 @@ class PlanarRunMetrics(MetricsRecord):
             another landmark at the end of the run; reassociation_settled: False when
             its last pass still moved some (iSAM2 with unknown ids; left out otherwise).
         landmarks_pruned: landmarks the back end removed from its map as missed
-            in the sensor's field (the EKF's ``prune_missed_alpha``); left out when none.
+            in the sensor's field (``prune_missed_alpha`` of the EKF and FastSLAM; for
+            FastSLAM, those gone from every particle); left out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
             folder, True, and the observations of landmarks not in the map (not used).
         warnings: what makes the estimate absurd, one line each

@@ -175,6 +175,18 @@ def test_pipeline_hands_the_field_to_the_back_end_and_reports_pruning():
 # --- FastSLAM: one score per particle and landmark (filters.fastslam_particles) ----------
 
 
+def test_pipeline_reports_the_landmarks_fastslam_pruned_from_every_particle():
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
+
+    fs = FastSlam(FastSlamConfig(association="unknown", n_particles=30, seed=0))
+    result = pipeline.run(make_synthetic(SyntheticConfig(seed=2)), fs)
+    # only landmarks gone from every particle count, a subset of the pairs pruned
+    assert 0 < result.landmarks_pruned == len(fs.pruned_landmark_ids()) <= fs.particles.pruned
+    assert pipeline.compute_metrics(result, with_graph_error=False).landmarks_pruned == result.landmarks_pruned
+    assert not set(fs.pruned_landmark_ids()) & set(result.estimate.landmark_ids.tolist())
+
+
 def _fastslam(field: SensorField | None, association: str = "unknown", alpha: float = 0.1) -> FastSlam:
     """FastSLAM 2.0 at the origin facing +x, having mapped from it a landmark ahead
     (4, 0) and one behind (-4, 0) in every particle; then a duplicate of the one ahead,
@@ -213,8 +225,11 @@ def test_fastslam_prunes_the_landmark_missed_in_view_only():
     _fs_drive(fs, 1)
     np.testing.assert_allclose(_fs_map(fs), [[-4.0, 0.0], [4.0, 0.0]], atol=0.05)
     assert fs.particles.pruned == fs.n_particles  # the duplicate, in every particle
+    dup = fs.pruned_landmark_ids()
+    assert len(dup) == 1 and dup[0] not in fs.estimate().landmark_ids.tolist()
     _fs_drive(fs, 20)
     assert len(_fs_map(fs)) == 2  # behind the robot: never evidence against it
+    assert fs.pruned_landmark_ids() == dup
 
 
 def test_fastslam_an_unpaired_observation_in_its_gate_is_not_a_miss():
@@ -241,7 +256,7 @@ def test_fastslam_field_edge_needs_three_sigmas_to_spare():
 def test_fastslam_never_prunes_without_a_field_with_known_ids_or_when_off(field, association, alpha):
     fs = _fastslam(field, association, alpha)
     _fs_drive(fs, 10, known=association == "known")
-    assert len(_fs_map(fs)) == 3 and fs.particles.pruned == 0
+    assert len(_fs_map(fs)) == 3 and fs.particles.pruned == 0 and fs.pruned_landmark_ids() == []
 
 
 def test_fastslam_scores_follow_resampling_and_dropped_columns():

@@ -182,7 +182,8 @@ def _mark_unused_settings(backend, config, result) -> None:
     (eleventh hostile pass: ``polish_method = "gnc"`` on a landmark world and the EKF's
     ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
     ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always,
-    ``ANONYMOUS_SIGHTING_KEYS`` under known ids when every sighting had an id.
+    ``ANONYMOUS_SIGHTING_KEYS`` under known ids when every sighting had an id,
+    ``SENSOR_FIELD_KEYS`` under unknown ids when the data states no sensor field.
     They are said with the gates' (:meth:`slamcore.config.ConfigFile.inert_lines`), with
     their file line, and listed in metrics.json's provenance."""
     from slamcore.config import section_name
@@ -190,9 +191,20 @@ def _mark_unused_settings(backend, config, result) -> None:
     settings = getattr(backend, "config", None)
     cls = type(settings)
     closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
-    if not closure_keys and not getattr(cls, "UNREAD_IN_RUNS", ()):
+    field_keys = getattr(cls, "SENSOR_FIELD_KEYS", ())
+    if not closure_keys and not getattr(cls, "UNREAD_IN_RUNS", ()) and not field_keys:
         return
     section = section_name(cls)
+    if (
+        field_keys
+        and result.dataset.sensor_field is None
+        and getattr(settings, "association", None) == "unknown"
+    ):
+        # the pruning needs the field the sensor sees and its detection probability:
+        # Victoria Park and the g2o/TORO logs state neither (nothing was pruned)
+        config.mark_inert(
+            section, field_keys, "data that states its sensor's field (MRCLAM logs, the synthetic world)"
+        )
     frames = result.dataset.frames[: result.steps]
     anonymous = getattr(cls, "ANONYMOUS_SIGHTING_KEYS", ())
     if anonymous and getattr(settings, "association", None) == "known":

@@ -166,3 +166,28 @@ def test_a_g2o_file_with_a_br_line_is_refused_at_that_line(tmp_path, capsys):
                "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "b.g2o:4:" in err and "2-D TORO" in err
+
+
+@pytest.mark.parametrize("backend, section", [("ekf", "ekf"), ("fastslam2", "fastslam")])
+def test_pruning_on_a_file_without_a_sensor_field_is_said_to_do_nothing(tmp_path, capsys, backend, section):
+    """``prune_missed_alpha`` needs the field the sensor sees: a TORO file states none,
+    and the setting changed nothing without a word."""
+    config = tmp_path / "c.toml"
+    config.write_text(f"[{section}]\nassociation = 'unknown'\nprune_missed_alpha = 0.01\n")
+    rc = main(["run", "--dataset", _example_graph(), "--backend", backend, "--config", str(config),
+               "--out", str(tmp_path / "r"), "--rerun", "off", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    said = f"[{section}] prune_missed_alpha did nothing: it acts only with data that states its sensor's field"
+    assert said in err
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert any(said in w for w in m["provenance"]["did_nothing"])
+    assert "landmarks_pruned" not in m
+
+
+def test_pruning_on_data_with_a_sensor_field_is_not_said_to_do_nothing(tmp_path, capsys):
+    config = tmp_path / "c.toml"
+    config.write_text("[ekf]\nassociation = 'unknown'\nprune_missed_alpha = 0.01\n")
+    assert main(["run", "--backend", "ekf", "--max-steps", "60", "--config", str(config),
+                 "--out", str(tmp_path / "r"), "--rerun", "off", "--quiet"]) == 0
+    assert "prune_missed_alpha did nothing" not in capsys.readouterr().err
