@@ -127,7 +127,7 @@ def run(
     revised = None if interrupted else backend.final_associations()
     if revised is not None:  # scored as the estimate pairs them, not as first decided
         assoc = [(true_id, revised.get(slot)) for (true_id, _), slot in zip(assoc, slots, strict=True)]
-    reassociation = getattr(backend, "reassociation", None)
+    reassociation = backend.reassociation()
     return RunResult(
         dataset,
         backend.name,

@@ -141,9 +141,16 @@ class Backend(ABC):
         return 0
 
     def pruned_landmark_ids(self) -> list[int]:
-        """Ids of the landmarks removed from the map during the run (the EKF's pruning
-        of landmarks missed in the sensor's field); none by default."""
+        """Ids of the landmarks removed from the map during the run (the pruning of
+        landmarks missed in the sensor's field: the EKF's map, or every FastSLAM particle
+        that held one); none by default."""
         return []
+
+    def reassociation(self) -> tuple[int, bool] | None:
+        """``(sightings moved, settled)`` of a re-association of the sightings at the end
+        of the run (``settled`` False when its last pass still moved some); None (the
+        default) where the back end has none or it did not run."""
+        return None
 
     def finalize(self, with_covariances: bool = False) -> Estimate:
         """End of the run (e.g. a final batch polish); returns the final estimate."""

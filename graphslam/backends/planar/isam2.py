@@ -282,7 +282,6 @@ class Isam2Backend(Backend):
         params.setAbsoluteErrorTol(self.config.polish_absolute_error_tol)
         return params
 
-    @property
     def reassociation(self) -> tuple[int, bool] | None:
         """``(sightings moved, settled)`` by the re-association at the end of the run
         (:mod:`.isam2_unknown`); None with known ids or before it ran."""

@@ -181,3 +181,18 @@ def test_run_refuses_a_dataset_with_a_bad_prior(make_backend):
     ds = square_world(noise=False, loop_closure=False).truncated(3)
     with pytest.raises(MeasurementError, match="covariance is not positive definite"):
         pipeline.run(replace(ds, prior_covariance=-np.eye(3)), make_backend())
+
+
+@pytest.mark.parametrize("association", ["known", "unknown"])
+def test_end_of_run_reports_have_the_contracts_types(make_backend, association):
+    """What the pipeline reads of a finished run, through the contract only (the
+    re-association was read with getattr, so a back end could drop it silently)."""
+    ds = square_world(seed=2, loop_closure=False)
+    if association == "unknown":
+        ds = replace(ds, frames=[replace(f, observations=[replace(o, landmark_id=None) for o in f.observations])
+                                 for f in ds.frames])
+    name = make_backend().name  # the registry key
+    res = pipeline.run(ds, registry.make_backend(name, overrides={"association": association}))
+    b_re = res.reassociation
+    assert b_re is None or (isinstance(b_re[0], int) and b_re[0] >= 0 and isinstance(b_re[1], bool))
+    assert res.landmarks_pruned >= 0

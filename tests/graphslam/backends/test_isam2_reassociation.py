@@ -83,12 +83,12 @@ def test_the_run_scores_the_pairings_the_estimate_rests_on():
 
 def test_no_passes_leave_the_pairings_as_decided():
     backend, res = _unknown_run(reassociation_passes=0)
-    assert backend.reassociation is None
+    assert backend.reassociation() is None
     m = pipeline.compute_metrics(res, with_graph_error=False)
     assert m.sightings_reassociated is None and m.reassociation_settled is None
 
 
 def test_known_ids_have_no_final_pairings_to_report():
     backend = registry.make_backend("isam2")
-    assert backend.final_associations() is None and backend.reassociation is None
+    assert backend.final_associations() is None and backend.reassociation() is None
 
