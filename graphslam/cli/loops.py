@@ -231,10 +231,13 @@ def cmd_loops(args: argparse.Namespace) -> int:
             f"{featureless} of {len(paths)} images gave no ORB feature (blank, flat or too small): "
             "they can close no loop"
         )
+    # closures verified from a second view of the candidate's place ([loops] second_views)
+    second = sum(r.accepted and r.second_view_of is not None for r in detector.records)
     print(
         f"{seen} images, {len(detector.records)} candidates, "
-        f"{len(detector.closures)} closures accepted, {time.perf_counter() - t0:.1f} s; "
-        f"wrote {', '.join(written)}"
+        f"{len(detector.closures)} closures accepted"
+        + (f" ({second} from a second view of the candidate's place)" if second else "")
+        + f", {time.perf_counter() - t0:.1f} s; wrote {', '.join(written)}"
     )
     if guard is not None and guard.requested:  # stop_requested(), the guard narrowed
         print(
