@@ -489,6 +489,7 @@ class LoopDetector:
         return loop
 
     def _verify(self, i: int, m: int) -> Verification:
+        """Image ``i`` (the query) against the older image ``m``."""
         a, b = self._features[i], self._features[m]
         return self.verifier.verify(
             a.xy, a.descriptors, b.xy, b.descriptors, self.K, self.distortion, a.size, b.size
@@ -532,10 +533,7 @@ class LoopDetector:
             rec = self.records[at]
             if rec.match != m or not (rec.reason or "").startswith("not temporally"):
                 continue
-            a, b = self._features[q], self._features[m]
-            v = self.verifier.verify(
-                a.xy, a.descriptors, b.xy, b.descriptors, self.K, self.distortion, a.size, b.size
-            )
+            v = self._verify(q, m)
             self.records[at] = dataclasses.replace(
                 rec,
                 consistency=n_chain,
