@@ -116,12 +116,22 @@ def test_the_dual_bound_is_below_every_feasible_point(tmp_path, dim):
     assert c.chordal_cost - c.lower_bound <= cert.CERTIFIED_REL_GAP * c.chordal_cost
 
 
+#: How far the refinement may move a noise-free graph's truth. A least-squares minimum is
+#: located only to about sqrt(machine epsilon) of its variables (the cost is flat to
+#: rounding within that): 1.5e-8 rad. Measured 2.1e-8 rad (1.2e-6 deg) of rotation in 3-D
+#: on one machine, less on another; ten times sqrt(eps), in degrees and in metres for
+#: the walk's 1-10 m.
+AT_TRUTH_ROTATION_TOL_DEG = 10 * float(np.degrees(np.sqrt(np.finfo(float).eps)))
+AT_TRUTH_TRANSLATION_TOL_M = 10 * float(np.sqrt(np.finfo(float).eps)) * 10.0
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_a_noise_free_graph_is_certified_at_the_truth(tmp_path, dim):
     graph = _walk_graph(tmp_path, dim, sigma=0.0)
     c = cert.certify(graph, graph.vertices, np.ones(graph.n_edges, dtype=bool))
     assert c.certified
-    assert c.max_translation_change_m <= 1e-6 and c.max_rotation_change_deg <= 1e-6
+    assert c.max_translation_change_m <= AT_TRUTH_TRANSLATION_TOL_M
+    assert c.max_rotation_change_deg <= AT_TRUTH_ROTATION_TOL_DEG
 
 
 def test_a_twisted_cycle_is_a_critical_point_with_no_dual_bound():
