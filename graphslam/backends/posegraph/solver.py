@@ -65,7 +65,9 @@ class SolveResult:
         closure_rounds: LM solves over the kept edges until the kept set was
             stable (0: every closure passed at the least-squares optimum).
         noise_scale: squared scale the closure threshold was loosened by
-            (:func:`.robust.noise_scale`; 1: the stated noise held).
+            (:func:`.robust.noise_scale` at the least-squares optimum, or
+            :func:`.robust.kept_noise_scale` at the kept-edge one after GNC; 1: the
+            stated noise held).
         final_cost_kept: the cost over the edges kept (rejected closures out).
         robust_mode: ``robust_closures`` when closures were treated as suspects (tested,
             or, iSAM2 without its polish, only under the Cauchy kernel), else None.
@@ -277,8 +279,12 @@ def _final_solve(
             "there (a wrong closure bends it)"
         )
         return FinalSolve(result, iterations, none, 0, scale, at_optimum.errors, "gnc")
-    # re-test every closure at the kept-edge optimum under the stated noise (there the
-    # kept edges cannot tell its scale: with most closures out the graph is nearly a tree)
+    # re-test every closure at the kept-edge optimum, under the noise scale the kept edges
+    # show there (their a posteriori variance factor: only what the edges say beyond a
+    # spanning tree counts, so a nearly-tree graph loosens nothing), measured in the
+    # first round only: closures let back in must not loosen the test further.
+    # Bovisa04 (RRR): 117 closures rejected instead of 131, recall 0.712 instead of 0.587
+    # at precision 0.925 (0.924), ATE 3.76 m (3.71; 3.76 with only the labelled-true ones)
     scale = 1.0
     for rounds in range(1, MAX_RETESTS + 1):  # noqa: B007 (the count is reported below)
         kept = with_priors(graph, edges, guess, config.prior_sigma, drop=rejected)
@@ -289,7 +295,10 @@ def _final_solve(
                 f"edges kept then, after {iterations} iterations, not an optimum"
             )
             return FinalSolve(result, iterations, rejected, rounds, scale, None, "retest")
-        again = rb.EdgeErrors.at(graph, edges, result).failing(threshold)
+        at_kept = rb.EdgeErrors.at(graph, edges, result)
+        if rounds == 1:
+            scale = rb.kept_noise_scale(graph, at_kept.errors, rejected)
+        again = at_kept.failing(threshold * scale)
         if np.array_equal(again, rejected):
             break
         guess, rejected = result, again

@@ -231,3 +231,56 @@ def test_a_stop_in_the_batch_solve_returns_what_is_in_hand(tmp_path, point):
     else:  # the least-squares optimum over every closure, GNC's work dropped
         assert np.array_equal(result.params, plain.params)
         assert any(r.startswith("stopped during GNC") for r in result.recoveries)
+
+
+def _loud_world_with_wrong_runs(tmp_path, loud: float):
+    """``_world`` with 3 wrong runs, every edge's noise ``loud`` times the stated sigma."""
+    truth = _laps()
+    n = len(truth)
+    true = [(k, k % LAP) for k in range(LAP, n) if k % 2 == 0]
+    wrong = [(2 * LAP + 3 + 11 * r + i, (2 * LAP + 3 + 11 * r + i + LAP // 2) % LAP)
+             for r in range(3) for i in range(6)]
+    lines = graph_lines(truth, [(k - 1, k) for k in range(1, n)] + true + wrong,
+                        sigma=loud * SIGMA, seed=5, info=lambda e: INFO)
+    rng = np.random.default_rng(5)
+    for i, (a, b) in enumerate(wrong):
+        z = truth[a].between(truth[a % LAP]).compose(gtsam.Pose2(*rng.normal(0, loud * SIGMA, 3)))
+        lines[n + n - 1 + len(true) + i] = (
+            f"EDGE_SE2 {a} {b} {z.x()} {z.y()} {z.theta()} "
+            f"{INFO[0, 0]} 0 0 {INFO[1, 1]} 0 {INFO[2, 2]}")
+    g = read_pose_graph_file(write(tmp_path / "loud_wrong.g2o", lines))
+    return g, np.array([False] * len(true) + [True] * len(wrong))
+
+
+@pytest.mark.parametrize("solver", ["isam2", "batch"])
+def test_after_gnc_the_retest_takes_the_kept_edges_noise_scale(tmp_path, solver, monkeypatch):
+    """Wrong runs and noise 2.5x the stated sigma: GNC (at the stated threshold) leaves the
+    wrong closures out and true ones with them; the re-test under the stated noise kept
+    them out (batch: 70 % of the true closures kept), under the kept edges' own variance
+    factor it lets some back (75 %), every wrong one still out."""
+    from graphslam.backends.posegraph import robust as rb
+
+    g, wrong = _loud_world_with_wrong_runs(tmp_path, 2.5)
+    closures = ~g.odometry_mask()
+    res = solve(g, PoseGraphConfig(), solver)
+    rejected = res.rejected[closures]
+    assert rejected[wrong].all()
+    assert res.noise_scale > 2.0 and res.closure_rounds >= 1  # (2.5)^2 stated, less at an optimum
+    monkeypatch.setattr(rb, "kept_noise_scale", lambda *a: 1.0)  # the stated noise, as before
+    stated = solve(g, PoseGraphConfig(), solver).rejected[closures]
+    assert stated[~wrong].sum() > rejected[~wrong].sum()
+
+
+def test_kept_noise_scale_counts_only_what_the_edges_say_beyond_a_tree(tmp_path):
+    from graphslam.backends.posegraph import robust as rb
+
+    g, _ = _loud_world_with_wrong_runs(tmp_path, 1.0)
+    n_closures = int((~g.odometry_mask()).sum())
+    errors = np.full(g.n_edges, 2.0)  # 0.5 r^2 = 2: r^2 = 4 per edge
+    none = np.zeros(g.n_edges, dtype=bool)
+    # redundancy 3 x closures (one component): 2E / r = 4 x edges / (3 x closures)
+    assert rb.kept_noise_scale(g, errors, none) == pytest.approx(4.0 * g.n_edges / (3 * n_closures))
+    # every closure left out: a tree, nothing to measure the noise by
+    assert rb.kept_noise_scale(g, errors, ~g.odometry_mask()) == 1.0
+    # residuals smaller than stated never tighten the test
+    assert rb.kept_noise_scale(g, np.full(g.n_edges, 1e-3), none) == 1.0
