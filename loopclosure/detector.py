@@ -437,7 +437,9 @@ class LoopDetector:
         self.excluded.append(self._n_excluded)
         prior = None if prev is None else float(self.database.score(bow, prev))
         best_match, best_score = (answers[0][0], float(answers[0][1])) if answers else (None, 0.0)
-        if prior is None or prior < c.min_prior_score:
+        # a zero prior (the previous image shares no word) normalises nothing, whatever
+        # min_prior_score allows (0 divided every score by it)
+        if prior is None or prior < c.min_prior_score or prior <= 0.0:
             self._chain.clear()
             self._record(i, None, best_match, best_score, None, prior, 0, None, "low prior score")
             return None
@@ -446,10 +448,7 @@ class LoopDetector:
             self._record(i, None, None, 0.0, None, prior, 0, None, "no database answer")
             return None
         # Answers come best first; the first passing both thresholds is the candidate.
-        cand = next(
-            ((m, float(s)) for m, s in answers if s >= c.min_score and s / prior >= c.min_normalised_score),
-            None,
-        )
+        cand = next(((m, float(s)) for m, s in answers if self._passes(s, prior)), None)
         if cand is None:
             self._chain.clear()
             self._record(
@@ -488,6 +487,10 @@ class LoopDetector:
         self.closures.append(loop)
         return loop
 
+    def _passes(self, score: float, prior: float) -> bool:
+        """An answer's raw and normalised scores meet the candidate thresholds (prior > 0)."""
+        return score >= self.config.min_score and score / prior >= self.config.min_normalised_score
+
     def _verify(self, i: int, m: int) -> Verification:
         """Image ``i`` (the query) against the older image ``m``."""
         a, b = self._features[i], self._features[m]
@@ -514,7 +517,7 @@ class LoopDetector:
         if self.mode != "covisibility" or not c.second_views:
             return None
         for m, s in answers:  # best first
-            if m == match or s < c.min_score or s / prior < c.min_normalised_score:
+            if m == match or not self._passes(s, prior):
                 continue
             if self.covisibility.shared_between(m, match) >= c.min_shared_tracks:
                 v = self._verify(i, m)

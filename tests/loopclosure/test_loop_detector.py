@@ -301,3 +301,13 @@ def test_default_sequence_meets_issue_targets():
                                          same_place=seq.same_place)
     assert precision >= TARGET_PRECISION
     assert recall >= TARGET_RECALL
+
+
+def test_a_zero_prior_score_is_a_low_prior_even_with_the_floor_off():
+    """``min_prior_score = 0``: a query whose previous image shares no word divided every
+    answer's score by 0 (ZeroDivisionError); it proposes nothing and says why."""
+    det, _ = run_scripted({3: [(0, 0.4)], 4: [(0, 0.4)]}, {3: 0.0}, accept={(4, 0)}, n=5,
+                          exclude_recent=1, consistency_k=1, min_prior_score=0.0)
+    fates = {r.query: r for r in det.records}
+    assert fates[3].reason == "low prior score" and fates[3].match is None
+    assert [(c.query, c.match) for c in det.closures] == [(4, 0)]
