@@ -75,6 +75,9 @@ def test_the_forward_scale_changes_nothing_without_the_coverage_test():
             a.xy_px, a.descriptors, b.xy_px, b.descriptors, None if "model" in mode else K) for s in (1.2, 5.0))
         assert (one.accepted, one.reason, one.n_inliers, one.coverage) == (
             two.accepted, two.reason, two.n_inliers, two.coverage)
+    # the decisive share waives the coverage tests: nothing to waive without them
+    assert "decisive_share" in VerifyConfig(min_coverage=0.0, decisive_share=0.5).inert_settings()
+    assert "decisive_share" not in VerifyConfig(decisive_share=0.5).inert_settings()
 
 
 #: (back end, the file's settings, those of them said to do nothing): visual runs of
