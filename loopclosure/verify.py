@@ -61,7 +61,7 @@ thresholds that scale with what the images offer:
 
 7. Decisive share (``decisive_share``): a pair below both coverage tests is
    still accepted when its inliers are at least a quarter of the features of
-   the image with fewer. Another place seen from afar fits a geometry with a
+   each image (of the one with more). Another place seen from afar fits a geometry with a
    few per cent of the features (KITTI 07 pairs over 40 m apart: at most
    0.057); a street seen again after a turn or from nearer explains a large
    share of them while its inliers' hull misses what left the view.
@@ -142,7 +142,7 @@ class VerifyConfig(Validated):
             (0 turns the forward revisit off).
         decisive_share: a pair below both coverage tests (steps 5 and 6) is
             still accepted when its inliers are at least this share of the
-            features of the image with fewer (step 7); 0 turns it off.
+            features of each image (step 7); 0 turns it off.
         min_inlier_ratio: smallest inliers / matches (0 turns the test off).
         min_feature_share: smallest inliers / features of the image with fewer
             features (0 turns the test off).
@@ -509,10 +509,13 @@ class GeometricVerifier:
             fwd, why = self._forward_revisit(K, R, t, ua, ub, pa, pb)
             if fwd is None or fwd < c.min_coverage:
                 why = why or f"forward coverage {fwd:.2f} < {c.min_coverage:.2f}"
-                if c.decisive_share > 0 and share >= c.decisive_share:
+                # of each image: a view with few features (low texture) does not make
+                # a far facade's inliers a large share
+                both = n_in / max(len(ua), len(ub), 1)
+                if c.decisive_share > 0 and both >= c.decisive_share:
                     return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov)
                 if c.decisive_share > 0:
-                    why = f"{why}; feature share {share:.2f} < {c.decisive_share:.2f}"
+                    why = f"{why}; feature share {both:.2f} < {c.decisive_share:.2f}"
                 return self._reject(
                     model,
                     n,
