@@ -178,7 +178,9 @@ class VisualLoopCloser:
     @property
     def stats(self) -> dict:
         """Counts over :attr:`records`: candidates (queries with a candidate match),
-        verified (passed the detector's geometry), redundant, pnp_rejected, closures."""
+        verified (passed the detector's geometry), redundant, pnp_rejected, closures,
+        second_views (closures verified from a second view of the candidate's place,
+        ``[loops] second_views``)."""
         stages = [r.stage for r in self.records]
         return {
             "candidates": sum(r.match is not None for r in self.records),
@@ -186,6 +188,7 @@ class VisualLoopCloser:
             "redundant": stages.count("redundant"),
             "pnp_rejected": stages.count("pnp"),
             "closures": len(self.closures),
+            "second_views": sum(r.accepted and r.detector.second_view_of is not None for r in self.records),
         }
 
     def process(

@@ -328,6 +328,8 @@ def format_summary(m) -> str:
                 "loop closures added / verified / candidates", lp, "closures", "verified", "candidates"
             )
         )
+        if lp.get("second_views"):
+            rows.append(("closures from a second view of the candidate's place", lp["second_views"]))
         if lp.get("redundant"):
             rows.append(("closures skipped (map already re-observed)", lp["redundant"]))
     if m.tracking_loss:

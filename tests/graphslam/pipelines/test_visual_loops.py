@@ -415,3 +415,18 @@ def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
     for entity in (b"loops/pair", b"loops/pair/inliers", b"loops/candidates",
                    b"plots/loops/score", b"world/isam2/loop_closures"):
         assert entity in data, entity
+
+
+def test_stats_count_the_closures_from_a_second_view():
+    """A closure verified from a second view of the candidate's place is counted
+    (the summary's row); one refused by PnP after its second view is not."""
+    from graphslam.pipelines.loop_closing import LoopCandidate, VisualLoopCloser
+    from loopclosure.detector import CandidateRecord
+
+    def rec(second_view_of):
+        return CandidateRecord(5, 1, 1, 0.6, 1.0, 0.6, 3, 300, 250, True, None, second_view_of=second_view_of)
+
+    closer = VisualLoopCloser(_StubDetector())
+    closer.records = [LoopCandidate(rec(3), "accepted", True, None), LoopCandidate(rec(None), "accepted", True, None),
+                      LoopCandidate(rec(2), "pnp", False, "pnp: too few inliers")]
+    assert closer.stats["second_views"] == 1
