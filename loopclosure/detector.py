@@ -193,11 +193,15 @@ class CandidateRecord:
     #: the candidate whose geometry failed when ``match`` is its second view
     #: (:attr:`LoopDetectorConfig.second_views`); None otherwise
     second_view_of: int | None = None
+    #: which test accepted the views' overlap (:attr:`Verification.accepted_by`) when
+    #: ``accepted``; None otherwise
+    accepted_by: str | None = None
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        if d["second_view_of"] is None:  # the log's lines keep their keys unless it was used
-            del d["second_view_of"]
+        for key in ("second_view_of", "accepted_by"):  # the log's lines keep their keys unless used
+            if d[key] is None:
+                del d[key]
         return d
 
 
@@ -579,6 +583,7 @@ class LoopDetector:
                 reason=reason,
                 excluded=int(self._n_excluded),
                 second_view_of=second_view_of,
+                accepted_by=None if v is None or reason is not None else v.accepted_by,
             )
         )
 

@@ -245,6 +245,9 @@ class Verification:
         coverage: larger hull coverage of the two images (None before it was
             measured); for a pair accepted as a forward revisit (step 6 of the
             module doc), the larger coverage of the view the two cameras share.
+        accepted_by: which test accepted the view overlap of an accepted pair:
+            ``"coverage"`` (step 5, also when that test is off), ``"forward revisit"``
+            (step 6) or ``"decisive share"`` (step 7); None when rejected.
     """
 
     accepted: bool
@@ -258,6 +261,7 @@ class Verification:
     inlier_pairs: np.ndarray
     log10_nfa: float | None = None
     coverage: float | None = None
+    accepted_by: str | None = None
 
 
 def _as_fundamental(model: str, M: np.ndarray, K: np.ndarray | None) -> np.ndarray:
@@ -513,7 +517,9 @@ class GeometricVerifier:
                 # a far facade's inliers a large share
                 both = n_in / max(len(ua), len(ub), 1)
                 if c.decisive_share > 0 and both >= c.decisive_share:
-                    return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov)
+                    return Verification(
+                        True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov, "decisive share"
+                    )
                 if c.decisive_share > 0:
                     why = f"{why}; feature share {both:.2f} < {c.decisive_share:.2f}"
                 return self._reject(
@@ -525,8 +531,8 @@ class GeometricVerifier:
                     lnfa,
                     cov,
                 )
-            cov = fwd
-        return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov)
+            return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, fwd, "forward revisit")
+        return Verification(True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov, "coverage")
 
     def _forward_revisit(self, K, R, t, ua, ub, pa, pb) -> tuple[float | None, str | None]:
         """Step 6 of the module doc: ``(larger shared-view coverage, None)``, or

@@ -169,8 +169,10 @@ def test_a_failed_candidate_is_verified_from_a_second_view_of_its_place():
     rec = det.records[-1]
     assert rec.accepted and rec.match == 2 and rec.second_view_of == 1 and rec.best_match == 1
     assert rec.score == pytest.approx(0.35) and rec.to_dict()["second_view_of"] == 1
+    assert rec.to_dict()["accepted_by"] == "coverage"  # the verifier's test that accepted it
     # the log's other lines keep the keys they had before second views
     assert len(det.records) > 1 and all("second_view_of" not in r.to_dict() for r in det.records[:-1])
+    assert all("accepted_by" not in r.to_dict() for r in det.records[:-1])  # none accepted
 
 
 def test_only_one_second_view_and_only_one_covisible_with_the_candidate():

@@ -62,7 +62,8 @@ class StubVerifier:
         self.calls.append((q, m))
         ok = (q, m) in self.accept
         return Verification(ok, None if ok else "too few inliers (3 < 40)", "fundamental", 50,
-                            45 if ok else 3, 0.9 if ok else 0.06, None, None, np.zeros((0, 2), np.int64))
+                            45 if ok else 3, 0.9 if ok else 0.06, None, None, np.zeros((0, 2), np.int64),
+                            accepted_by="coverage" if ok else None)
 
 
 def run_scripted(answers, prior, accept, n=12, **cfg):

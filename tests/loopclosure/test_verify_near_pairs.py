@@ -63,7 +63,7 @@ def test_near_pair_refused_by_plain_coverage_is_a_forward_revisit(kitti, i, j):
     verifier = GeometricVerifier()
     v = _verify(verifier, features(j), features(i), K)
     assert v.accepted, v.reason
-    assert v.coverage >= verifier.config.min_coverage
+    assert v.coverage >= verifier.config.min_coverage and v.accepted_by == "forward revisit"
     aTb = invert_pose(wTc[j]) @ wTc[i]
     assert _angle_deg(v.R.T @ aTb[:3, :3]) < ROT_TOL_DEG
     t_true = aTb[:3, 3] / np.linalg.norm(aTb[:3, 3])
@@ -80,7 +80,7 @@ def test_near_pair_below_both_coverages_is_the_same_place_by_its_share(kitti, i,
     verifier = GeometricVerifier()
     v = _verify(verifier, features(j), features(i), K)
     assert v.accepted, v.reason
-    assert v.coverage < verifier.config.min_coverage
+    assert v.coverage < verifier.config.min_coverage and v.accepted_by == "decisive share"
     assert v.n_inliers >= verifier.config.decisive_share * 1000  # the loop ORB's 1000 features
     aTb = invert_pose(wTc[j]) @ wTc[i]
     assert _angle_deg(v.R.T @ aTb[:3, :3]) < ROT_TOL_DEG
@@ -103,7 +103,7 @@ def test_near_pair_below_both_coverages_is_the_same_place_by_its_share(kitti, i,
 def test_far_pair_with_one_geometry_is_not_a_forward_revisit(kitti, a, b, why):
     K, _, features = kitti
     v = _verify(GeometricVerifier(), features(a), features(b), K)
-    assert not v.accepted
+    assert not v.accepted and v.accepted_by is None
     assert v.reason.startswith("view overlap too small") and why in v.reason
 
 
