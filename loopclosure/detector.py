@@ -11,8 +11,11 @@ Per image (DBoW2's scheme, Gálvez-López & Tardós, T-RO 2012):
 3. Database query, excluding the images the query is *covisible* with
    (``mode = "covisibility"``, the default; :mod:`loopclosure.covisibility`):
    those sharing at least ``min_shared_tracks`` tracked features with it,
-   the tracks being the run's own (``track_ids``) or, for a folder, ORB
-   features followed over a local map. They resemble the query because the
+   the tracks being, for a folder, ORB features followed over a local map,
+   and for a run (``track_ids``) its own tracks or those followed features,
+   whichever count is larger (a tracker that keeps 3-7 tracks through a weak
+   stretch left frames 4 apart uncovisible: one closed a "loop" between
+   them on the synthetic room). They resemble the query because the
    camera still sees what they saw; no window of frames or seconds is
    assumed. The older rules remain as overrides (:mod:`loopclosure.places`):
    ``"video"`` (a window in seconds or frames), ``"keyframes"`` (the
@@ -295,8 +298,12 @@ class LoopDetector:
         self.mode: str | None = mode if self.config.mode == "auto" else self.config.mode
         self._overlaps: list[float] = []  # overlap of images k and k+1
         self._times: list[float] | None = None
+        #: the tracks of each image: the run's own, or for a folder its ORB features followed
         self.covisibility = CovisibilityGraph()
         self._tracker = DescriptorTracker()
+        # beside a run's tracks, its images' features followed as for a folder: a tracker
+        # that loses its tracks (a weak stretch) leaves images covisible that still overlap
+        self._feature_covisibility = CovisibilityGraph()
         self._own_tracks: bool | None = None  # True: the caller gives track ids
         self._covisible = np.zeros(0, np.int64)  # images the current query is covisible with
         self._linked = np.zeros(0, np.int64)  # the same without the forced previous image
@@ -377,14 +384,23 @@ class LoopDetector:
         if i > 0 and (track_ids is not None) != self._own_tracks:
             raise ValueError("give track ids for every image or for none")
         self._own_tracks = track_ids is not None
-        if track_ids is None:  # the local map: tracks the previous image's covisible ones saw
-            local = np.zeros(0, np.int64) if i == 0 else np.append(self._direct[-1], i - 1)
-            track_ids = self._tracker.track(descriptors, local)
-        self.covisibility.add(track_ids)
+        # the local map: tracks the previous image's covisible ones saw
+        local = np.zeros(0, np.int64) if i == 0 else np.append(self._direct[-1], i - 1)
+        followed = self._tracker.track(descriptors, local)
+        self.covisibility.add(followed if track_ids is None else track_ids)
         shared = self.covisibility.shared(i)  # once a frame: the covisible sets follow from it
+        if track_ids is not None:
+            # covisible by either measure (the larger count, not the sum: the same features)
+            self._feature_covisibility.add(followed)
+            shared = np.maximum(shared, self._feature_covisibility.shared(i))
         self._linked = np.flatnonzero(shared >= self.config.min_shared_tracks)
         self._direct.append(self.covisibility.covisible(i, self.config.min_shared_tracks, shared))
         self._covisible = self.covisibility.local_map(self._direct[-1], self._direct)
+
+    def _shared_between(self, a: int, b: int) -> int:
+        """Features images ``a`` and ``b`` both saw: tracks, or followed features for a run."""
+        n = self.covisibility.shared_between(a, b)
+        return max(n, self._feature_covisibility.shared_between(a, b)) if self._own_tracks else n
 
     def _window(self, i: int) -> int | None:
         """Recent images excluded from image i's query; None while the mode is undecided."""
@@ -419,7 +435,7 @@ class LoopDetector:
             q_last, m_last = self._chain[-1]
             if self.mode == "covisibility":
                 agree = bool(np.isin(q_last, self._covisible)) and (
-                    m_last == match or self.covisibility.shared_between(m_last, match) >= c.min_shared_tracks
+                    m_last == match or self._shared_between(m_last, match) >= c.min_shared_tracks
                 )
             else:
                 agree = q_last == i - 1 and abs(m_last - match) <= c.consistency_tolerance
@@ -523,7 +539,7 @@ class LoopDetector:
         for m, s in answers:  # best first
             if m == match or not self._passes(s, prior):
                 continue
-            if self.covisibility.shared_between(m, match) >= c.min_shared_tracks:
+            if self._shared_between(m, match) >= c.min_shared_tracks:
                 v = self._verify(i, m)
                 return (m, float(s), v) if v.accepted else None
         return None

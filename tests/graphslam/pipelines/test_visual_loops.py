@@ -303,16 +303,18 @@ def test_filters_say_plainly_they_cannot_use_closures():
 QVGA = dict(width=320, height=240, fx=250.0, fy=250.0, cx=159.5, cy=119.5)
 
 
-def _qvga_config(tmp_path):
+def _qvga_config(tmp_path, **extra):
     cfg = tmp_path / "qvga.toml"
-    cfg.write_text("[synthetic_images]\n" + "\n".join(f"{k} = {v}" for k, v in QVGA.items()) + "\n")
+    cfg.write_text("[synthetic_images]\n" + "\n".join(f"{k} = {v}" for k, v in {**QVGA, **extra}.items()) + "\n")
     return cfg
 
 
 def test_cli_loops_writes_csv_log_and_counts(tmp_path, capsys):
+    """1.5 laps of the room in 60 frames: the second lap's queries have candidates (in 60
+    frames of the default 300 every older frame is covisible: nothing to log)."""
     out = tmp_path / "run"
-    code = main(["run", "--dataset", "synthetic-images", "--config", str(_qvga_config(tmp_path)),
-                 "--max-steps", "60", "--loops", "--rerun", "off", "--quiet", "--out", str(out)])
+    code = main(["run", "--dataset", "synthetic-images", "--config", str(_qvga_config(tmp_path, n_frames=60)),
+                 "--loops", "--rerun", "off", "--quiet", "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     assert (out / "loops.csv").read_text().splitlines()[0] == \
         "query,match,score,inliers,pnp_inliers,distance_m"
@@ -379,9 +381,13 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     partners = {}
     for i, j in seq.revisit_pairs:
         partners.setdefault(j, []).append(i)
-    for c in closer.closures:  # precision 100 %, within 2 frames of a true revisit pair
+    gap = seq.config.revisit_min_gap_frames  # the sequence's own bound between two visits
+    for c in closer.closures:  # precision 100 %: within 2 frames of a true revisit pair, or a
+        # later visit of the same place (benchmarks/bench_loop_revisit.py's soft truth); not
+        # a recent frame that a weak stretch of tracking left uncovisible, such as (54, 50)
         assert any(abs(c.frame_a - i) <= 2 for j in range(c.frame_b - 2, c.frame_b + 3)
-                   for i in partners.get(j, [])), (c.frame_a, c.frame_b)
+                   for i in partners.get(j, [])) or (
+            c.frame_b - c.frame_a >= gap and seq.same_place(c.frame_b, c.frame_a)), (c.frame_a, c.frame_b)
 
 
 def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):
