@@ -513,14 +513,14 @@ class GeometricVerifier:
             fwd, why = self._forward_revisit(K, R, t, ua, ub, pa, pb)
             if fwd is None or fwd < c.min_coverage:
                 why = why or f"forward coverage {fwd:.2f} < {c.min_coverage:.2f}"
-                # of each image: a view with few features (low texture) does not make
-                # a far facade's inliers a large share
-                both = n_in / max(len(ua), len(ub), 1)
-                if c.decisive_share > 0 and both >= c.decisive_share:
-                    return Verification(
-                        True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov, "decisive share"
-                    )
                 if c.decisive_share > 0:
+                    # of each image: a view with few features (low texture) does not make
+                    # a far facade's inliers a large share
+                    both = n_in / max(len(ua), len(ub), 1)
+                    if both >= c.decisive_share:
+                        return Verification(
+                            True, None, model, n, n_in, ratio, R, t, ipairs, lnfa, cov, "decisive share"
+                        )
                     why = f"{why}; feature share {both:.2f} < {c.decisive_share:.2f}"
                 return self._reject(
                     model,

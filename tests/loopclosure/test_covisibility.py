@@ -237,3 +237,26 @@ def test_kitti_driven_twice_at_every_8th_frame_second_views_recall_without_a_fal
         recalled[run] = {c.query - len(first) for c in det.closures} & set(np.flatnonzero(near))
     assert len(recalled[True]) >= MIN_RECALLED_OF_20 > len(recalled[False])
     assert len(recalled["defaults"]) >= MIN_RECALLED_OF_20_DEFAULTS
+
+
+@pytest.mark.parametrize("same_view", [True, False])
+def test_a_run_whose_tracker_lost_its_tracks_still_excludes_the_frames_its_images_share(same_view):
+    """A run's tracks (``track_ids``) new in every frame, as through a weak stretch of
+    tracking: images that still show the same features stay covisible by the features
+    followed as for a folder, so the query's old neighbour is no answer; images that share
+    nothing are answers, verified (synthetic room, local map: frame 54 closed a "loop" with
+    frame 50 by the run's 3-7 tracks alone)."""
+    from tests.loopclosure.test_loop_detector import ScriptedDatabase, StubVerifier
+
+    rng = np.random.default_rng(3)
+    view = rng.integers(0, 256, (60, 32), dtype=np.uint8)
+    det = LoopDetector(None, LoopDetectorConfig(consistency_k=1),
+                       database=ScriptedDatabase({5: [(0, 0.9)]}, {}), verifier=StubVerifier({(5, 0)}))
+    for i in range(6):
+        desc = view if same_view else rng.integers(0, 256, (60, 32), dtype=np.uint8)
+        det.process_features(np.c_[np.full(60, float(i)), np.arange(60.0)], desc,
+                             track_ids=np.arange(100 * i, 100 * i + 60))
+    if same_view:
+        assert det.closures == [] and det.verifier.calls == []
+    else:
+        assert [(c.query, c.match) for c in det.closures] == [(5, 0)]
