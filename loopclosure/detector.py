@@ -479,17 +479,8 @@ class LoopDetector:
         eta = score / prior
         n_chain, need = self._consistent(i, match)
         if n_chain < need:
-            self._record(
-                i,
-                match,
-                best_match,
-                score,
-                eta,
-                prior,
-                n_chain,
-                None,
-                f"not temporally consistent ({n_chain}/{need})",
-            )
+            reason = f"not temporally consistent ({n_chain}/{need})"
+            self._record(i, match, best_match, score, eta, prior, n_chain, None, reason)
             return None
         v: Verification = self._verify(i, match)
         first = None

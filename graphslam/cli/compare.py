@@ -17,10 +17,9 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
-    claim_out_dir,
-    clear_earlier_outputs,
     seed_arg,
 )
+from graphslam.cli.out_folder import OutputFolder
 from slamcore.errors import GraphSlamError
 from slamcore.files import check_output_dir, folder_name
 
@@ -178,7 +177,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         )
     if narrowed:  # said once nothing refuses the command
         print(narrowed, file=sys.stderr, flush=True)
-    out_dir = _out_dir(args, Path(dataset.name).stem, rerun_mode)
+    folder = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
     for name in args.backends:  # built here too (the runs are in child processes): their gates
         try:
@@ -202,7 +201,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         args,
         entries,
         {"dataset": dataset.name},
-        out_dir,
+        folder,
         rerun_mode,
         lambda done, path: plot_comparison(done, dataset, path),
         RunRecorder.open,
@@ -250,16 +249,13 @@ def _check_names(names, allowed, where: str, graphs_hint: bool = False) -> None:
         )
 
 
-def _out_dir(args, name: str, rerun_mode: str) -> Path:
-    """``--out`` (default ``runs/<name>-compare``), created, without the stale outputs
+def _out_dir(args, name: str, rerun_mode: str) -> OutputFolder:
+    """``--out`` (default ``runs/<name>-compare``), claimed, without the stale outputs
     this comparison will not write."""
-
-    out_dir = args.out or Path("runs") / f"{name}-compare"
-    claim_out_dir(out_dir)
-    clear_earlier_outputs(
-        out_dir, {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set())
+    return OutputFolder(
+        args.out or Path("runs") / f"{name}-compare",
+        {"compare.json", "compare.png"} | ({"compare.rrd"} if rerun_mode == "save" else set()),
     )
-    return out_dir
 
 
 def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[int, bool]:
@@ -285,7 +281,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
         [registry.visual_compare_backend(n)[0] for n in names], simulated=args.dataset == "synthetic-images"
     )
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
-    out_dir = _out_dir(args, name, rerun_mode)
+    folder = _out_dir(args, name, rerun_mode)
     entries = cs.compare(
         setup,
         names,
@@ -304,7 +300,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
         args,
         entries,
         header,
-        out_dir,
+        folder,
         rerun_mode,
         lambda done, path: plot_visual_comparison(done, sequence, path),
         VisualRecorder.open,
@@ -314,7 +310,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
 
 
 def _write_comparison(
-    args, entries, header: dict, out_dir: Path, rerun_mode: str, plot, open_recording, source
+    args, entries, header: dict, folder: OutputFolder, rerun_mode: str, plot, open_recording, source
 ) -> int:
     """Table, compare.json (``header`` and the runs), compare.png (``plot(done, path)``)
     and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
@@ -322,9 +318,7 @@ def _write_comparison(
     from graphslam.cli.common import (
         EXIT_FAILED,
         EXIT_INTERRUPTED,
-        close_recorder,
         invocation,
-        open_recorder,
         recoveries_text,
         warn,
         warn_doubts,
@@ -344,6 +338,7 @@ def _write_comparison(
 
     recording_cut = None
     print(format_table(entries))
+    out_dir = folder.resolve()
     writes = writers.OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     paths: dict[str, Path] = {}
     runs = [e.metrics if e.status == "ok" else _marked(e) for e in entries]
@@ -351,19 +346,16 @@ def _write_comparison(
     writes(paths, "json", out_dir / "compare.json", writers.write_json, record)
     if done:
         writes(paths, "png", out_dir / "compare.png", lambda path: plot(done, path))
-    outputs = [p.name for p in paths.values()]
     if rerun_mode != "off" and done and stopping():
         recording_cut = "the recording was skipped"
     elif rerun_mode != "off" and done:
-        recorder, rerun_mode = open_recorder(
-            open_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
-        )
+        recorder = folder.open_recorder(open_recording, rerun_mode, "compare.rrd", args.rerun_url)
         # a recording of thousands of poses takes seconds: a stop ends it where it is
         if recorder.record_comparison(done, source, should_stop=stopping):
             recording_cut = "the recording holds what was logged before the signal"
-        if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
-            outputs.append("compare.rrd")
-    clear_earlier_outputs(out_dir, set(outputs))
+        folder.close_recorder(paths)
+    folder.finish(paths)
+    outputs = [p.name for p in paths.values()]
     skipped = {
         e.backend: e.metrics.loop_closures_skipped
         for e in done

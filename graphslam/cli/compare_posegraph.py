@@ -6,8 +6,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamcore.errors import GraphSlamError
+
+if TYPE_CHECKING:
+    from graphslam.cli.out_folder import OutputFolder
 
 
 def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
@@ -29,17 +33,9 @@ def wants_pose_graph_compare(dataset: str, backends: list[str] | None) -> bool:
 
 def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_dir_of) -> int:
     """Run, print, write (compare.json, compare.png, compare.rrd); the exit status.
-    ``out_dir_of(name)`` makes the output folder."""
+    ``out_dir_of(name)`` claims the output folder (an :class:`OutputFolder`)."""
     from graphslam import registry
-    from graphslam.cli.common import (
-        EXIT_FAILED,
-        EXIT_INTERRUPTED,
-        clear_earlier_outputs,
-        fmt,
-        invocation,
-        warn,
-        warn_doubts,
-    )
+    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, fmt, invocation, warn, warn_doubts
     from graphslam.cli.run.posegraph import load_graph
     from graphslam.outputs import writers
     from graphslam.pipelines.common import active_guard, stop_requested
@@ -60,7 +56,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
         raise GraphSlamError("--seed has no effect here: the pose-graph solvers draw no random numbers")
     solver_config = registry.pose_graph_config(config)
     graph, truth = load_graph(args.dataset, solver_config, args.max_steps)
-    out_dir = out_dir_of(graph.name)
+    folder = out_dir_of(graph.name)
     runs = compare(
         graph,
         names,
@@ -108,8 +104,10 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
             for row in rows
         )
     )
+    out_dir = folder.resolve()
+    paths = {"json": out_dir / "compare.json"}
     writers.write_json(
-        out_dir / "compare.json",
+        paths["json"],
         {
             "dataset": graph.name,
             "kind": "pose graph",
@@ -123,11 +121,11 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
             "provenance": invocation(args),
         },
     )
-    outputs = ["compare.json"]
     done = [r for r in runs if r.result is not None]
     if done:
-        outputs += _figures(args, graph, truth, done, out_dir, rerun_mode)
-    clear_earlier_outputs(out_dir, set(outputs))
+        _figures(args, graph, truth, done, folder, rerun_mode, paths)
+    folder.finish(paths)
+    outputs = [p.name for p in paths.values()]
     # what makes an estimate doubtful (compare.json keeps it too), said as run says it
     warn_doubts({r.backend: getattr(r.metrics, "warnings", None) for r in done})
     for r in runs:
@@ -151,11 +149,11 @@ def _certified(certificate: dict | None) -> str:
     return "yes" if certificate["certified"] else "NO"
 
 
-def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[str]:
-    """compare.png, and compare.rrd (one subtree per solver) unless ``--rerun off``."""
+def _figures(args, graph, truth, done, folder: OutputFolder, rerun_mode: str, paths: dict[str, Path]) -> None:
+    """compare.png, and compare.rrd (one subtree per solver) unless ``--rerun off``,
+    added to ``paths``."""
     import numpy as np
 
-    from graphslam.cli.common import close_recorder, open_recorder
     from graphslam.cli.run.posegraph import open_posegraph_recording
     from graphslam.pipelines.posegraph import solved_graph, trajectory_matrices
     from graphslam.visualisation.plots import plot_pose_graph_comparison
@@ -166,18 +164,16 @@ def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[s
     }
     truth_xyz = None if truth is None else np.asarray(truth[1])[:, :3, 3]
     plot_pose_graph_comparison(
-        out_dir / "compare.png",
+        folder.path / "compare.png",
         f"{graph.name}: {graph.dim}-D, {graph.n_poses} poses, {graph.n_edges} edges",
         tracks,
         truth_xyz,
         {r.backend: r.metrics.wall_s for r in done},
         {r.backend: r.metrics.final_cost for r in done},
     )
-    written = ["compare.png"]
+    paths["png"] = folder.path / "compare.png"
     if rerun_mode != "off":
-        log, mode = open_recorder(
-            open_posegraph_recording, rerun_mode, out_dir / "compare.rrd", args.rerun_url
-        )
+        log = folder.open_recorder(open_posegraph_recording, rerun_mode, "compare.rrd", args.rerun_url)
         for r in done:
             log_pose_graph(
                 log,
@@ -186,6 +182,4 @@ def _figures(args, graph, truth, done, out_dir: Path, rerun_mode: str) -> list[s
                 r.result.rejected,
                 root=f"world/{r.backend}",
             )
-        if close_recorder(log) and mode == "save":  # not listed when not kept
-            written.append("compare.rrd")
-    return written
+        folder.close_recorder(paths)  # not listed when not kept

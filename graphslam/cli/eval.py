@@ -6,7 +6,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from graphslam.cli.common import add_command, add_out_dir_option, claim_out_dir, path_arg
+from graphslam.cli.common import add_command, add_out_dir_option, path_arg
+from graphslam.cli.out_folder import claim_out_dir
 
 EPILOG = """\
 formats (told from the content unless --format is given; a line not of the
@@ -174,7 +175,8 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_OK, clear_earlier_outputs, invocation, warn
+    from graphslam.cli.common import EXIT_OK, invocation, warn
+    from graphslam.cli.out_folder import clear_earlier_outputs
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, OutputWrites, one_run_or_the_other
     from graphslam.pipelines.trajectory_eval import eval_warnings, evaluate_files, write_eval_json

@@ -23,19 +23,15 @@ from graphslam.cli.common import (
     add_quiet_option,
     add_rerun_options,
     add_topics_option,
-    claim_out_dir,
-    claimed_folder,
-    clear_earlier_outputs,
-    close_recorder,
     fmt,
     invocation,
-    open_recorder,
     path_arg,
     report_outputs,
     summary_table,
     warn,
     warn_unread_sections,
 )
+from graphslam.cli.out_folder import OutputFolder
 from graphslam.outputs.writers import OutputWrites
 from slamcore.files import folder_name
 
@@ -127,7 +123,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         warn(doubt)
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.out or Path("runs") / f"{name}-localize"
-    claim_out_dir(out_dir)
+    folder = OutputFolder(out_dir)
     names = {"localize.csv", "trajectory.tum", "metrics.json", "ground_truth.tum", "localize.rrd"}
     # refused now, not after the frames are placed
     check_no_folder_at(out_dir, names - ({"localize.rrd"} if args.rerun == "off" else set()))
@@ -135,9 +131,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     if args.rerun != "off":
         from graphslam.visualisation.spatial import LocalizeRecorder
 
-        recorder, args.rerun = open_recorder(
-            LocalizeRecorder.open, args.rerun, out_dir / "localize.rrd", args.rerun_url
-        )
+        recorder = folder.open_recorder(LocalizeRecorder.open, args.rerun, "localize.rrd", args.rerun_url)
         recorder.start_map(smap, sequence, len(sequence))
         hook = recorder.log_placement
     from graphslam.pipelines.common import FrameUnreadable
@@ -158,13 +152,11 @@ def cmd_localize(args: argparse.Namespace) -> int:
     metrics["provenance"] = invocation(args)
     if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
         warn(metrics["warnings"][-1])
-    out_dir = claimed_folder(out_dir, recorder)
+    out_dir = folder.resolve()
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     paths = localize_run.write_outputs(result, out_dir, metrics, writes)
-    if recorder is not None:
-        if close_recorder(recorder) and args.rerun == "save":  # not listed when not kept
-            paths["recording"] = out_dir / "localize.rrd"
-    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
+    folder.close_recorder(paths)
+    folder.finish(paths)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
     writes.check(paths.values())
     return status

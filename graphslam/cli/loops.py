@@ -22,10 +22,9 @@ from graphslam.cli.common import (
     add_frames_option,
     add_quiet_option,
     add_topics_option,
-    claim_out_dir,
-    clear_earlier_outputs,
     path_arg,
 )
+from graphslam.cli.out_folder import claim_out_dir, clear_earlier_outputs
 from slamcore.errors import ConfigError
 from slamcore.files import check_distinct_outputs, check_not_inputs, check_output_file
 
@@ -233,9 +232,10 @@ def cmd_loops(args: argparse.Namespace) -> int:
         )
     # closures verified from a second view of the candidate's place ([loops] second_views)
     second = sum(r.accepted and r.second_view_of is not None for r in detector.records)
+    n_records, n_closures = len(detector.records), len(detector.closures)
     print(
-        f"{seen} images, {len(detector.records)} candidates, "
-        f"{len(detector.closures)} closures accepted"
+        f"{seen} image{'s' * (seen != 1)}, {n_records} candidate{'s' * (n_records != 1)}, "
+        f"{n_closures} closure{'s' * (n_closures != 1)} accepted"
         + (f" ({second} from a second view of the candidate's place)" if second else "")
         + f", {time.perf_counter() - t0:.1f} s; wrote {', '.join(written)}"
     )

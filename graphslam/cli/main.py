@@ -138,7 +138,7 @@ class _NamedStdout:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from graphslam.cli.common import release_out_dirs
+    from graphslam.cli.out_folder import release_out_dirs
 
     stdout = sys.stdout = _NamedStdout(sys.stdout)
     try:

@@ -8,7 +8,8 @@ import os
 import sys
 from pathlib import Path
 
-from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, claim_out_dir, path_arg
+from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
+from graphslam.cli.out_folder import claim_out_dir
 
 EPILOG = """\
 sweep file (TOML):
@@ -146,7 +147,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
-    from graphslam.cli.common import refuse_other_outputs
+    from graphslam.cli.out_folder import refuse_other_outputs
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, FOLDER_OUTPUT_NAMES
 
     # an eval beside the table reads the sweep's runs, as one beside a run's files reads them

@@ -338,7 +338,7 @@ class RerunLog:
                 self._partial = None
 
     def relocate(self, folder: Path) -> None:
-        """The output folder was moved during the run (:func:`graphslam.cli.common.claimed_folder`):
+        """The output folder was moved during the run (:func:`graphslam.cli.out_folder.claimed_folder`):
         the recording, written through its open file, moved with it; close() moves it
         into place there."""
         if self._partial is not None and self.path is not None:

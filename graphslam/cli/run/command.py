@@ -281,7 +281,8 @@ def _add_image_options(vis) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
-    from graphslam.cli.common import check_rerun_flags, claim_out_dir, rerun_sink
+    from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.cli.out_folder import claim_out_dir
     from slamcore.errors import ConfigError, GraphSlamError
     from slamcore.files import check_output_dir
 

@@ -9,13 +9,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 from graphslam.cli.common import (
-    claim_out_dir,
-    claimed_folder,
-    clear_earlier_outputs,
-    close_recorder,
     fmt,
     invocation,
-    open_recorder,
     provenance,
     recoveries_text,
     report_outputs,
@@ -23,6 +18,7 @@ from graphslam.cli.common import (
     warn,
     warn_unread_sections,
 )
+from graphslam.cli.out_folder import OutputFolder
 from slamcore.errors import ConfigError, GraphSlamError
 
 if TYPE_CHECKING:
@@ -102,18 +98,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         backend = registry.make_backend(args.backend, config=config, overrides=overrides)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{dataset.name}-{backend.name}"
-    claim_out_dir(out_dir)
     will_write = {"trajectory.tum", "landmarks.csv", "metrics.json", "ground_truth.tum", "nees.csv"}
-    clear_earlier_outputs(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
+    folder = OutputFolder(out_dir, will_write | ({"run.rrd"} if args.rerun == "save" else set()))
 
     n_steps = len(dataset.frames) if args.max_steps is None else min(args.max_steps, len(dataset.frames))
     log = hook = None
-    mode = args.rerun
-    if mode != "off":
+    if args.rerun != "off":
         from graphslam.visualisation.planar import RunRecorder
 
         opener = functools.partial(RunRecorder.open, background=n_steps >= RunRecorder.BACKGROUND_MIN_STEPS)
-        log, mode = open_recorder(opener, mode, out_dir / "run.rrd", args.rerun_url)
+        log = folder.open_recorder(opener, args.rerun, "run.rrd", args.rerun_url)
         log.start(dataset, n_steps)
         hook = log.hook(backend.name, every=args.rerun_every or max(1, n_steps // 50))
 
@@ -156,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
                 "(a particle cloud collapsed to one pose, or a start known exactly); "
                 "nees.csv gives them nan, the mean is over the others"
             )
-    out_dir = args.resolved_out = claimed_folder(out_dir, log)
+    out_dir = args.resolved_out = folder.resolve()
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth, writes=writes)
@@ -164,9 +158,8 @@ def run(args: argparse.Namespace) -> int:
             writes(paths, "nees", out_dir / "nees.csv", pipeline.write_nees, *nees)
         if log is not None:
             log.finish(backend.name, result, backend)
-            if close_recorder(log) and mode == "save":
-                paths["recording"] = out_dir / "run.rrd"
-    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
+            folder.close_recorder(paths)
+    folder.finish(paths)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
         writes.attempt(

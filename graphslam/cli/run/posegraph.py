@@ -9,17 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import (
-    claim_out_dir,
-    claimed_folder,
-    clear_earlier_outputs,
-    fmt,
-    provenance,
-    report_outputs,
-    summary_table,
-    warn,
-    warn_unread_sections,
-)
+from graphslam.cli.common import fmt, provenance, report_outputs, summary_table, warn, warn_unread_sections
+from graphslam.cli.out_folder import OutputFolder
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Outputs of a pose-graph run (an earlier run's files of these names are removed).
@@ -88,21 +79,20 @@ def run(args: argparse.Namespace) -> int:
     for doubt in graph.warnings:  # the reader's; metrics.json keeps them too
         warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
-    claim_out_dir(out_dir)
-    clear_earlier_outputs(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
+    folder = OutputFolder(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
     result = pipeline.run(graph, args.backend, solver_config)
     metrics = pipeline.metrics(
         graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
     )
     metrics.provenance = provenance(args, config)
-    out_dir = args.resolved_out = claimed_folder(out_dir)
+    out_dir = args.resolved_out = folder.resolve()
     # a full disk part way: no earlier run's file left beside this run's
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir, tuple(sorted(OUTPUTS | {"run.rrd"}))):
         paths = pipeline.write_outputs(graph, result, out_dir, metrics, truth, writes)
         if args.rerun != "off":
-            paths.update(record(args, graph, result, out_dir))
-    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
+            record(args, graph, result, folder, paths)
+    folder.finish(paths)
     warn_unread_sections(config, args.config, "this pose-graph run")
     for doubt in metrics.warnings or []:  # the estimate's; the reader's were said above
         if doubt not in graph.warnings:
@@ -155,16 +145,15 @@ def load_graph(dataset: str, solver_config, max_steps: int | None = None, ground
     return graph, truth
 
 
-def record(args, graph, result, out_dir: Path) -> dict[str, Path]:
-    """Rerun recording of the optimised graph, rejected closures in their own colour."""
-    from graphslam.cli.common import close_recorder, open_recorder
+def record(args, graph, result, folder: OutputFolder, paths: dict[str, Path]) -> None:
+    """Rerun recording of the optimised graph, rejected closures in their own colour
+    (listed in ``paths`` when it was kept)."""
     from graphslam.pipelines.posegraph import solved_graph
     from graphslam.visualisation.spatial import log_pose_graph
 
-    log, mode = open_recorder(open_posegraph_recording, args.rerun, out_dir / "run.rrd", args.rerun_url)
+    log = folder.open_recorder(open_posegraph_recording, args.rerun, "run.rrd", args.rerun_url)
     log_pose_graph(log, solved_graph(graph, result), result.params, result.rejected)
-    kept = close_recorder(log)  # a recording that could not be written is not listed
-    return {"recording": out_dir / "run.rrd"} if kept and mode == "save" else {}
+    folder.close_recorder(paths)
 
 
 def open_posegraph_recording(mode: str, path: Path, url: str | None):

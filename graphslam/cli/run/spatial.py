@@ -29,19 +29,15 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
-    claim_out_dir,
-    claimed_folder,
-    clear_earlier_outputs,
-    close_recorder,
     counts_row,
     fmt,
-    open_recorder,
     provenance,
     report_outputs,
     summary_table,
     warn,
     warn_unread_sections,
 )
+from graphslam.cli.out_folder import OutputFolder
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.files import folder_name
 
@@ -147,8 +143,7 @@ def run(args: argparse.Namespace) -> int:
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))
     name = folder_name(sequence.source_path) if sequence.source_path else sequence.name
     out_dir = args.resolved_out = args.out or Path("runs") / f"{name}-{args.backend}"
-    claim_out_dir(out_dir)
-    clear_earlier_outputs(
+    folder = OutputFolder(
         out_dir,
         {"trajectory.tum", "landmarks.csv", "metrics.json"}
         | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
@@ -156,13 +151,10 @@ def run(args: argparse.Namespace) -> int:
         | ({"loops.csv", "loops.jsonl"} if loops else set()),
     )
     recorder = hook = None
-    rerun_mode = args.rerun
-    if rerun_mode != "off":
+    if args.rerun != "off":
         from graphslam.visualisation.spatial import VisualRecorder
 
-        recorder, rerun_mode = open_recorder(
-            VisualRecorder.open, rerun_mode, out_dir / "run.rrd", args.rerun_url
-        )
+        recorder = folder.open_recorder(VisualRecorder.open, args.rerun, "run.rrd", args.rerun_url)
         recorder.start(sequence, n_frames)
         hook = recorder.hook(args.backend)
 
@@ -206,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
             "start": "the first frame relocalised in the map",
             "ate_in_map_frame": in_map,
         }
-    out_dir = args.resolved_out = claimed_folder(out_dir, recorder)
+    out_dir = args.resolved_out = folder.resolve()
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = vp.write_outputs(result, out_dir, metrics, writes)
@@ -216,13 +208,12 @@ def run(args: argparse.Namespace) -> int:
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:
                 recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
-            if close_recorder(recorder) and rerun_mode == "save":  # not listed when not kept
-                paths["recording"] = out_dir / "run.rrd"
+            folder.close_recorder(paths)
     if mapper is not None:  # last: a map that cannot be built costs no other file
         writes.attempt(
             args.save_map, save_run_map, args, mapper, result, backend, closer, tracker, args.quiet, prior_map
         )
-    clear_earlier_outputs(out_dir, {p.name for p in paths.values()})
+    folder.finish(paths)
     warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
     writes.check(paths.values())

@@ -229,7 +229,7 @@ def test_failed_background_recording_is_a_warning_not_a_lost_run(capsys):
     """A recording process that fails (here: its log cannot be built) is reported at
     close as one warning line; close_recorder returns False so the run goes on to its
     map and summary instead of ending in an error after its files were written."""
-    from graphslam.cli.common import close_recorder
+    from graphslam.cli.out_folder import close_recorder
     from graphslam.visualisation.background import BackgroundLog
 
     log = BackgroundLog(int, "not a number")   # int("not a number") raises in the child

@@ -1,13 +1,14 @@
-"""The output folder's lock (:func:`graphslam.cli.common.claim_out_dir`): what a command
+"""The output folder's lock (:func:`graphslam.cli.out_folder.claim_out_dir`): what a command
 finds at its ``--out`` when it writes, and what a killed one left there."""
 
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import pytest
 
-from graphslam.cli.common import claim_out_dir, claimed_folder, release_out_dirs
+from graphslam.cli.out_folder import OutputFolder, claim_out_dir, claimed_folder, release_out_dirs
 from slamcore.errors import GraphSlamError
 
 
@@ -76,3 +77,53 @@ def test_a_killed_commands_partial_files_are_removed_and_said(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["notes.part.txt"]
     said = capsys.readouterr().out
     assert said.count("\n") == 1 and ".gs-k1ll3d.part.rrd" in said and "killed" in said
+
+
+class _Recorder:
+    """A recording whose close succeeds or fails as told (a viewer that went away)."""
+
+    def __init__(self, closes: bool):
+        self.closes, self.where = closes, None
+
+    def close(self):
+        if not self.closes:
+            raise GraphSlamError("the viewer stopped taking the stream")
+
+    def relocate(self, where):
+        self.where = where
+
+
+@pytest.mark.parametrize(
+    ("mode", "closes", "listed"), [("save", True, True), ("save", False, False), ("spawn", True, False)]
+)
+def test_output_folder_lists_a_recording_only_when_it_was_saved_whole(tmp_path, capsys, mode, closes, listed):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")  # an earlier run's, which this one rewrites
+    (out / "run.rrd").write_bytes(b"old")  # an earlier run's recording
+    folder = OutputFolder(out, {"metrics.json"} | ({"run.rrd"} if mode == "save" else set()))
+    try:
+        recorder = folder.open_recorder(lambda m, path, url: _Recorder(closes), mode, "run.rrd", None)
+        assert folder.rerun_mode == mode and folder.resolve() == out
+        paths = {"metrics": out / "metrics.json"}
+        folder.close_recorder(paths)
+        folder.finish(paths)
+    finally:
+        release_out_dirs()
+    assert ("recording" in paths) == listed and recorder.where is None
+    # an earlier run's recording that this run did not replace whole is not left to read as its own
+    assert (out / "run.rrd").exists() == listed
+    assert ("the viewer stopped" in capsys.readouterr().err) == (not closes)
+
+
+def test_output_folder_tells_the_recorder_where_a_moved_folder_went(tmp_path, capsys):
+    out = tmp_path / "out"
+    folder = OutputFolder(out, set())
+    try:
+        recorder = folder.open_recorder(lambda m, path, url: _Recorder(True), "save", "run.rrd", None)
+        out.rename(tmp_path / "moved")
+        assert folder.resolve().resolve() == (tmp_path / "moved").resolve()
+        assert recorder.where is not None and Path(recorder.where).resolve() == (tmp_path / "moved").resolve()
+    finally:
+        release_out_dirs()
+    assert "was moved to" in capsys.readouterr().err
