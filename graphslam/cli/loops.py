@@ -234,7 +234,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     second = sum(r.accepted and r.second_view_of is not None for r in detector.records)
     n_records, n_closures = len(detector.records), len(detector.closures)
     print(
-        f"{seen} image{'s' * (seen != 1)}, {n_records} candidate{'s' * (n_records != 1)}, "
+        f"{seen} image{'s' * (len(paths) != 1)}, {n_records} candidate{'s' * (n_records != 1)}, "
         f"{n_closures} closure{'s' * (n_closures != 1)} accepted"
         + (f" ({second} from a second view of the candidate's place)" if second else "")
         + f", {time.perf_counter() - t0:.1f} s; wrote {', '.join(written)}"
