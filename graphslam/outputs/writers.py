@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import stat
@@ -245,11 +246,21 @@ class OutputWrites:
         try:
             action(*args, **kwargs)
         except OSError as e:
-            if write_error_line(e) is None:
+            if self._reason(e) is None:
                 raise
             self.refused.append((Path(what), e))
             return False
         return True
+
+    def _reason(self, e: OSError) -> str | None:
+        """The one line for a refused write (:func:`write_error_line`), or for the output
+        folder gone while the files were written (moved or deleted after the command
+        last found it: the files after that have nowhere to go); None for any other
+        error (a bug: the traceback is wanted)."""
+        line = write_error_line(e)
+        if line is None and e.errno == errno.ENOENT and not self.out_dir.is_dir():
+            line = f"{self.out_dir} was moved or deleted while this command wrote its outputs into it"
+        return line
 
     def names(self) -> list[str]:
         """The refused files: a name in the output folder, a path elsewhere."""
@@ -267,12 +278,14 @@ class OutputWrites:
         if not self.refused:
             return
         first = self.refused[0][1]
-        line = write_error_line(first) or str(first)
+        line = self._reason(first) or str(first)
         others = self.names()[1:]
         if others:
             line += f"; not written either: {', '.join(others)}"
         kept = [Path(p).name for p in written]
         held = ", ".join(kept) if kept else "none of this command's outputs"
+        if write_error_line(first) is None:  # the folder went, and what was written with it
+            raise GraphSlamError(f"{line}; written before it went: {held}")
         raise GraphSlamError(f"{line}; {self.out_dir}/ holds {held}")
 
 

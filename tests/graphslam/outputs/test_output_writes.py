@@ -49,3 +49,30 @@ def test_a_folder_elsewhere_is_named_by_its_path(tmp_path):
     assert writes.names() == [str(tmp_path / "map")]
     with pytest.raises(GraphSlamError, match="disk quota exceeded .* holds none of this command's outputs"):
         writes.check([])
+
+
+def test_a_folder_moved_while_the_outputs_are_written_is_one_line(tmp_path):
+    """The folder moved between two outputs (after the command last found it): the
+    next file has nowhere to go, a FileNotFoundError that was a traceback."""
+    out = tmp_path / "out"
+    out.mkdir()
+    writes, paths = OutputWrites(out), {}
+    assert writes(paths, "a", out / "a.json", _text, "a")
+    out.rename(tmp_path / "moved")
+    assert not writes(paths, "b", out / "b.png", _text, "b")
+    assert not writes(paths, "c", out / "c.csv", _text, "c")
+    with pytest.raises(GraphSlamError) as e:
+        writes.check(paths.values())
+    assert str(e.value) == (
+        f"{out} was moved or deleted while this command wrote its outputs into it; not written either: "
+        "c.csv; written before it went: a.json"
+    )
+    assert (tmp_path / "moved" / "a.json").read_text() == "a"
+
+
+def test_a_missing_file_in_a_folder_still_there_is_not_taken_for_a_moved_folder(tmp_path):
+    def reads_a_missing_input(path):
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(tmp_path / "gone" / "input"))
+
+    with pytest.raises(FileNotFoundError):
+        OutputWrites(tmp_path)({}, "a", tmp_path / "a.json", reads_a_missing_input)
