@@ -123,16 +123,35 @@ def claimed_folder(out_dir: Path, recorder=None, flag: str = "--out") -> Path:
     never touches another command's folder (what is now at ``out_dir`` is left alone).
     Deleted: GraphSlamError, nothing can be written into it. Unlocked (no ``flock``):
     ``out_dir``, unchecked. ``recorder``: the run's open recording, told where it is."""
+    where = moved_to(out_dir, flag)
+    if where is None:
+        return out_dir
+    if not os.path.exists(out_dir):  # nothing (stat fails) at the path now
+        warn(f"{flag} {out_dir} was moved to {where} while this command ran; its outputs go there")
+    else:
+        warn(
+            f"{flag} {out_dir} names another folder since this command began (renamed, or a link "
+            f"re-pointed); its outputs go into the folder it locked, now {where}; the other is left untouched"
+        )
+    if recorder is not None:
+        recorder.relocate(where)
+    return where
+
+
+def moved_to(out_dir: Path, flag: str = "--out") -> Path | None:
+    """The path the folder :func:`claim_out_dir` locked has now when ``out_dir`` no longer
+    names it (renamed, or a link re-pointed), else None (also unlocked: unchecked).
+    Deleted, or moved where this system cannot say: GraphSlamError."""
     fd = _claimed_as.get(Path(os.path.abspath(out_dir)))
     if fd is None:
-        return out_dir
+        return None
     held = os.fstat(fd)
     try:
         now = os.stat(out_dir)
     except OSError:
         now = None
     if now is not None and (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
-        return out_dir
+        return None
     try:
         where = os.readlink(f"/proc/self/fd/{fd}")  # Linux: a moved folder's new path
     except OSError:
@@ -145,15 +164,6 @@ def claimed_folder(out_dir: Path, recorder=None, flag: str = "--out") -> Path:
             f"{flag} {out_dir}: the folder this command locked {gone} while it ran; its outputs are not "
             "written" + ("" if now is None else f" (nor into the other folder now at {out_dir})")
         )
-    if now is None:
-        warn(f"{flag} {out_dir} was moved to {where} while this command ran; its outputs go there")
-    else:
-        warn(
-            f"{flag} {out_dir} names another folder since this command began (renamed, or a link "
-            f"re-pointed); its outputs go into the folder it locked, now {where}; the other is left untouched"
-        )
-    if recorder is not None:
-        recorder.relocate(Path(where))
     return Path(where)
 
 

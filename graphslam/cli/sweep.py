@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
-from graphslam.cli.out_folder import claim_out_dir
+from graphslam.cli.out_folder import claim_out_dir, moved_to
+from slamcore.errors import GraphSlamError
 
 EPILOG = """\
 sweep file (TOML):
@@ -128,6 +129,21 @@ def _config_warnings(out: Path, rows: list[dict]) -> dict[str, int]:
     return counts
 
 
+def _still_there(out: Path) -> None:
+    """Refuse to go on when ``--out`` no longer names the folder the sweep locked: the
+    next runs and sweep.csv would go into a new folder at the old path, the sweep split
+    in two without a word. The finished runs are where the folder went, and a sweep
+    resumes from its table."""
+    where = moved_to(out)
+    if where is not None:
+        # a run started after the move made its folder anew at the old path
+        stray = f"; the new {out}/ holds only what runs started after the move wrote" if out.exists() else ""
+        raise GraphSlamError(
+            f"--out {out} was moved to {where} while the sweep ran; its finished runs and sweep.csv "
+            f"are there: run the sweep again with --out {where} to finish it (the done runs are kept)" + stray
+        )
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
@@ -162,7 +178,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         update, bar = _progress(n_runs, args.quiet)
         try:
-            outcome = run_sweep(spec, args.out, executor, on_result=update)
+            outcome = run_sweep(
+                spec, args.out, executor, on_result=update, check_out=lambda: _still_there(args.out)
+            )
         finally:
             if bar is not None:
                 bar.close()

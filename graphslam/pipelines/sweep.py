@@ -209,14 +209,22 @@ def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
 
 
 def run_sweep(
-    spec: SweepSpec, out: Path, executor, *, on_result: Callable[[RunSpec, dict], None] | None = None
+    spec: SweepSpec,
+    out: Path,
+    executor,
+    *,
+    on_result: Callable[[RunSpec, dict], None] | None = None,
+    check_out: Callable[[], None] | None = None,
 ) -> SweepOutcome:
     """Run every run of ``spec`` not already done in ``out`` on ``executor``.
 
     ``on_result(run, row)`` is called after each finished run (the progress
     bar). A KeyboardInterrupt (Ctrl-C) stops the sweep: runs in flight are
     stopped and left out, finished ones stay in sweep.csv, and the outcome
-    says ``interrupted``.
+    says ``interrupted``. ``check_out()`` is called as each run finishes, before
+    sweep.csv is written again: an error it raises (the folder moved away, and
+    the table would be written into a new folder at the old path) stops the runs
+    in flight and is raised.
     """
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "sweep.csv"
@@ -246,6 +254,8 @@ def run_sweep(
     results = executor.map_unordered(todo, out)
     try:
         for run, result in results:
+            if check_out is not None:
+                check_out()
             row = {**base_row(run, spec), **result}
             outcome.ran += 1
             outcome.failed += row["status"] != "ok"

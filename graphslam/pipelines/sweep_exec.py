@@ -162,7 +162,10 @@ def execute_run(run: RunSpec, root: str) -> dict:
     rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
     row = {"run_id": run.run_id, "wall_s": wall, "peak_rss_mb": peak}
     if rc != 0:
-        err = _last_error_line((out_dir / "stderr.txt").read_text(errors="replace"))
+        try:
+            err = _last_error_line((out_dir / "stderr.txt").read_text(errors="replace"))
+        except OSError:  # the sweep's folder moved away while the run went on (the sweep says so)
+            err = f"{out_dir / 'stderr.txt'} cannot be read: its folder was moved or deleted during the run"
         # stopped by SIGINT or SIGTERM (ours via stop_live_runs, or a batch system's)
         stopped = {*EXIT_STATUS_OF_SIGNAL.values(), *(-s for s in EXIT_STATUS_OF_SIGNAL)}
         status = "interrupted" if rc in stopped else "failed"

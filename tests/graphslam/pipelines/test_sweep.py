@@ -630,3 +630,30 @@ def test_a_done_run_whose_folder_is_gone_or_foreign_is_run_again(tmp_path):
         foreign.run_id: "its folder holds another run (other --seed)",
     }
     assert all(folder_mismatch(run, out / "runs" / run.run_id) is None for run in spec.runs())
+
+
+def test_a_sweep_whose_folder_is_moved_stops_in_one_line_and_resumes_there(tmp_path, monkeypatch, capsys):
+    """The folder moved while the sweep ran: the next runs and sweep.csv went into a new
+    folder at the old path, the sweep split in two without a word."""
+    from graphslam.pipelines import sweep_exec
+
+    out, moved = tmp_path / "o", tmp_path / "moved"
+
+    def fake(run, root):  # the user moves the folder as the first run ends
+        (Path(root) / "runs" / run.run_id).mkdir(parents=True, exist_ok=True)
+        if run.seed == 0:
+            out.rename(moved)
+        return {"run_id": run.run_id, "status": "ok", "error": ""}
+
+    monkeypatch.setattr(sweep_exec, "execute_run", fake)
+    path = _file(tmp_path, '[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0, 1, 2]\n')
+    argv = ["sweep", str(path), "--workers", "1", "--quiet", "--no-plots"]
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"was moved to {moved} while the sweep ran" in err[0]
+    assert f"run the sweep again with --out {moved}" in err[0]
+    assert not (out / "sweep.csv").exists()  # nothing of the table at the old path
+    monkeypatch.setattr(sweep_exec, "execute_run",
+                        lambda run, root: {"run_id": run.run_id, "status": "ok", "error": ""})
+    assert main([*argv, "--out", str(moved)]) == 0
+    assert len(_csv(moved / "sweep.csv")) == 3
