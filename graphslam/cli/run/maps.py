@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from pathlib import Path
 
 
 def session_extras(args, config, sequence, backend, tracker):
@@ -169,14 +170,18 @@ def _save(args, recorder, result, backend, closer, tracker, quiet: bool, prior_m
                 "joined map twice"
             )
         smap = merge_maps(prior_map, smap)
-    save_map(smap, args.save_map)
+    from graphslam.cli.out_folder import claimed_folder
+
+    # the folder --save-map locked, wherever it was moved while the run went on
+    folder = claimed_folder(Path(args.save_map), flag="--save-map")
+    save_map(smap, folder)
     c = smap.counts()
     print(
-        f"map in {args.save_map}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
+        f"map in {folder}/: {c['keyframes']} keyframes, {c['landmarks']} landmarks, "
         f"{c['observations']} observations"
     )
     if c["landmarks"] == 0:  # saved in silence, then localize placed nothing, also silent
         warn(
-            f"the map in {args.save_map} has no landmark: nothing can be placed against it "
+            f"the map in {folder} has no landmark: nothing can be placed against it "
             "(a run of more frames, with parallax, makes one)"
         )

@@ -18,7 +18,7 @@ from graphslam.cli.common import (
     warn,
     warn_unread_sections,
 )
-from graphslam.cli.out_folder import OutputFolder
+from graphslam.cli.out_folder import OutputFolder, claimed_folder
 from slamcore.errors import ConfigError, GraphSlamError
 
 if TYPE_CHECKING:
@@ -162,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
     folder.finish(paths)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
+        # the folder --save-map locked, wherever it was moved while the run went on
+        save_map = claimed_folder(Path(save_map), flag="--save-map")
         writes.attempt(
             save_map, save_planar_run_map, save_map, result, backend, config, args.max_steps, invocation(args)
         )

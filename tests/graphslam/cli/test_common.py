@@ -127,3 +127,38 @@ def test_output_folder_tells_the_recorder_where_a_moved_folder_went(tmp_path, ca
     finally:
         release_out_dirs()
     assert "was moved to" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("dataset", ["synthetic", "synthetic-images"])
+def test_a_map_folder_moved_during_the_run_gets_the_map(tmp_path, monkeypatch, capsys, dataset):
+    """--save-map's folder renamed while the run went on: the map went into a new folder
+    at the old path, the locked one left empty, and 'map in m/' named the wrong one."""
+    from graphslam.cli.main import main
+    from graphslam.pipelines import planar, session
+
+    maps, moved = tmp_path / "m", tmp_path / "moved"
+    if dataset == "synthetic":
+        real = planar.run
+
+        def run_then_move(*args, **kwargs):
+            result = real(*args, **kwargs)
+            maps.rename(moved)
+            return result
+
+        monkeypatch.setattr(planar, "run", run_then_move)
+    else:
+        real = session.VisualSession.run
+
+        def run_then_move(self, *args, **kwargs):
+            result = real(self, *args, **kwargs)
+            maps.rename(moved)
+            return result
+
+        monkeypatch.setattr(session.VisualSession, "run", run_then_move)
+    argv = ["run", "--dataset", dataset, "--max-steps", "30", "--rerun", "off", "--quiet",
+            "--out", str(tmp_path / "run"), "--save-map", str(maps)]
+    assert main(argv) == 0
+    said = capsys.readouterr()
+    assert f"--save-map {maps} was moved to {moved}" in said.err
+    assert f"map in {moved}/" in said.out
+    assert (moved / "map.json").is_file() and not maps.exists()
