@@ -32,7 +32,7 @@ from graphslam.evaluation.trajectory import (
     evaluate,
 )
 from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
-from graphslam.sources.ground_truth import Trajectory, read_times, read_trajectory
+from graphslam.sources.ground_truth import Trajectory, check_not_colmap, read_times, read_trajectory
 from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError
 
 
@@ -86,6 +86,7 @@ def load(path: Path, fmt: str | None, times: Path | None) -> Trajectory:
     if bag is not None:
         return read_bag_trajectory(*bag)
     trajectory = read_trajectory(path, fmt)
+    check_not_colmap(trajectory, "eval pairs poses by time or line")
     if times is not None and trajectory.stamps_s is None:
         trajectory = read_times(times, trajectory)
     return trajectory

@@ -10,7 +10,12 @@ Formats, told apart by the content (the ``.csv`` extension also says EuRoC):
   k (no times: associated by frame index);
 * **EuRoC** ``state_groundtruth_estimate0/data.csv``: ``timestamp [ns], px,
   py, pz, qw, qx, qy, qz, ...`` separated by commas (the body pose; the
-  camera extrinsics of ``sensor.yaml`` are not applied here).
+  camera extrinsics of ``sensor.yaml`` are not applied here);
+* **COLMAP** ``images.txt`` (a text model): two lines an image, ``IMAGE_ID QW QX QY
+  QZ TX TY TZ CAMERA_ID NAME`` (the world-to-camera pose) then its 2-D points (read
+  for nothing, possibly empty); the truth of an image folder, associated by file name
+  (``--ground-truth`` only: ``graphslam eval`` pairs poses by time or line, and
+  refuses it). Its unit of length is the reconstruction's: the run says so.
 
 A line that does not have its format's form is refused, the format told or
 given: a comma in a TUM or KITTI line; in an EuRoC line no comma, an empty
@@ -20,7 +25,8 @@ read its seconds as nanoseconds and its columns shifted, without a word).
 Association: an image sequence takes, per frame, the truth with the nearest
 timestamp within :data:`~graphslam.sources.spatial.sequence.ASSOCIATION_MAX_DT_S`
 (TUM, EuRoC) or the line of its frame number (KITTI: the number in the image
-file name when every name is one, else the position); frames without truth
+file name when every name is one, else the position), or COLMAP's image of the
+frame's file name (a NAME with folders matches the end of the path); frames without truth
 are dropped, as the TUM and EuRoC readers do. A 2-D dataset takes the truth
 of each pose by its pose id (TUM time column, KITTI line number), or by its
 timestamp when the dataset has real ones, keeping x, y and the yaw.
@@ -52,7 +58,7 @@ from graphslam.sources.spatial.sequence import (
 from slamcore.errors import InputError
 from slamcore.planar.records import Dataset
 
-TRAJECTORY_FORMATS = ("tum", "kitti", "euroc")
+TRAJECTORY_FORMATS = ("tum", "kitti", "euroc", "colmap")
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,18 +66,21 @@ class Trajectory:
     """Poses read from a ground-truth file.
 
     Attributes:
-        format: ``"tum"``, ``"kitti"`` or ``"euroc"``.
+        format: ``"tum"``, ``"kitti"``, ``"euroc"`` or ``"colmap"``.
         stamps_s: (N,) time column in seconds (TUM as written, EuRoC ns / 1e9),
             strictly increasing (rows sorted by time, a repeated time refused);
-            None for KITTI.
-        wTc: (N, 4, 4) camera- (or body-) to-world poses, in time order (KITTI: file order).
+            None for KITTI and COLMAP.
+        wTc: (N, 4, 4) camera- (or body-) to-world poses, in time order (KITTI, COLMAP:
+            file order).
         path: the file.
+        names: COLMAP: (N,) the image file name of each pose, else None.
     """
 
     format: str
     stamps_s: np.ndarray | None
     wTc: np.ndarray
     path: str
+    names: tuple[str, ...] | None = None
 
 
 def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -90,7 +99,10 @@ def _position(t: np.ndarray, path: Path, line: int) -> np.ndarray:
 
 
 def detect_format(path: Path, first_line: str) -> str:
-    """``"euroc"`` (commas or ``.csv``), ``"kitti"`` (12 numbers) or ``"tum"`` (8)."""
+    """``"euroc"`` (commas or ``.csv``), ``"kitti"`` (12 numbers), ``"tum"`` (8) or
+    ``"colmap"`` (9 numbers and a name)."""
+    if _is_colmap_image_line(first_line):
+        return "colmap"
     if path.suffix.lower() == ".csv" or "," in first_line:
         return "euroc"
     n = len(first_line.split())
@@ -100,7 +112,8 @@ def detect_format(path: Path, first_line: str) -> str:
         return "tum"
     raise InputError(
         f"cannot tell the ground-truth format: {n} numbers a line (TUM has 8: "
-        "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated)",
+        "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated; COLMAP's images.txt "
+        "9 and an image name)",
         path,
     )
 
@@ -116,6 +129,8 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         fmt = detect_format(path, lines[0][1])
     elif fmt not in TRAJECTORY_FORMATS:
         raise InputError(f"unknown trajectory format {fmt!r} (one of {TRAJECTORY_FORMATS})", path)
+    if fmt == "colmap":
+        return _read_colmap_images(path)
     if fmt == "tum":
         fast = _tum_at_once(lines)
         if fast is not None:
@@ -148,6 +163,50 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
         return Trajectory(fmt, None, np.array(poses), str(path))
     order = _time_order(np.array(stamps), [n for n, _ in lines], path)
     return Trajectory(fmt, np.array(stamps)[order], np.array(poses)[order], str(path))
+
+
+def _is_colmap_image_line(text: str) -> bool:
+    """Whether a line is an image line of COLMAP's ``images.txt``: an id, seven numbers,
+    a camera id and a name that is not a number."""
+    tokens = text.split()
+    if len(tokens) < 10 or not (tokens[0].isdigit() and tokens[8].isdigit()):
+        return False
+    try:
+        float(tokens[9])
+    except ValueError:
+        return True
+    return False
+
+
+def _read_colmap_images(path: Path) -> Trajectory:
+    """COLMAP's ``images.txt`` (module doc): camera-to-world poses in file order and
+    their image names. Its lines come in pairs and a point line may be empty, so the
+    file is read whole rather than as non-empty lines."""
+    text = path.read_text(encoding="utf-8-sig", errors="replace")
+    numbered = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if not line.startswith("#")]
+    poses, names = [], []
+    for n, line in numbered[0::2]:  # each image line is followed by its 2-D point line
+        if not line.strip():
+            continue  # a blank line at the end
+        if not _is_colmap_image_line(line):
+            raise InputError(
+                f"expected a COLMAP image line (IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME): "
+                f"{line.strip()[:60]!r}",
+                path,
+                n,
+            )
+        tokens = line.split()
+        v = parse_floats(" ".join(tokens[1:8]), path, n, 7, "numbers (QW QX QY QZ TX TY TZ)")
+        R_cw = quat_to_rotation(v[0], v[1], v[2], v[3], path, n)
+        t_cw = _position(v[4:7], path, n)
+        poses.append(_pose(R_cw.T, -R_cw.T @ t_cw))  # COLMAP stores world-to-camera
+        names.append(" ".join(tokens[9:]))
+    if not poses:
+        raise InputError("no images in the COLMAP images.txt", path)
+    repeated = sorted({m for m in names if names.count(m) > 1})
+    if repeated:
+        raise InputError(f"image {repeated[0]!r} is listed twice", path)
+    return Trajectory("colmap", None, np.array(poses), str(path), tuple(names))
 
 
 #: What a TUM file of plain numbers holds (no letter but the exponent's, no comma).
@@ -222,12 +281,25 @@ def rows_by_pose_id(truth: Trajectory, ids: np.ndarray, what: str = "pose ids") 
         raise InputError(
             f"EuRoC ground truth has nanosecond times, not pose ids; {POSE_ID_TRUTH}", truth.path
         )
+    check_not_colmap(truth, POSE_ID_TRUTH)
     ids = np.asarray(ids, dtype=np.int64)
     if truth.stamps_s is None:
         return np.where((ids >= 0) & (ids < len(truth.wTc)), ids, -1)
     check_whole_stamps(truth, what, POSE_ID_TRUTH)
     row_of = {int(t): r for r, t in enumerate(truth.stamps_s.tolist())}
     return np.array([row_of.get(int(i), -1) for i in ids.tolist()], dtype=np.int64)
+
+
+def check_not_colmap(truth: Trajectory, hint: str) -> None:
+    """InputError for COLMAP truth where poses are matched by id or time: it names image
+    files, and its order is COLMAP's image ids, not the frames' (taken by line, the poses
+    of other images were scored in silence)."""
+    if truth.format == "colmap":
+        raise InputError(
+            "COLMAP's images.txt names image files, not times or pose ids: it is the truth of "
+            f"an image folder (graphslam run --dataset FOLDER --ground-truth images.txt); {hint}",
+            truth.path,
+        )
 
 
 def check_whole_stamps(truth: Trajectory, what: str, hint: str) -> None:
@@ -257,6 +329,8 @@ def _frame_numbers(sequence: ImageSequence) -> np.ndarray:
 
 def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarray:
     """(N,) row of ``truth`` per frame of ``sequence``, -1 where it has none."""
+    if truth.names is not None:  # COLMAP: by the image's file name
+        return _rows_by_name(truth, sequence)
     if truth.stamps_s is None:
         rows = _frame_numbers(sequence)
         return np.where(rows < len(truth.wTc), rows, -1)
@@ -277,6 +351,20 @@ def _indices_for_frames(truth: Trajectory, sequence: ImageSequence) -> np.ndarra
     return np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
 
 
+def _rows_by_name(truth: Trajectory, sequence: ImageSequence) -> np.ndarray:
+    """(N,) row of COLMAP ``truth`` whose name is each frame's file (a name with folders,
+    ``sub/a.jpg``, matches the end of the frame's path), -1 where none is."""
+    names = truth.names or ()
+    row_of = {name.replace("\\", "/"): r for r, name in enumerate(names)}
+    rows = []
+    for p in sequence.image_paths:
+        parts = Path(p).as_posix().split("/")
+        # the longest tail of the path that COLMAP names (its NAME is relative to its image root)
+        row = next((row_of[t] for k in range(len(parts)) if (t := "/".join(parts[k:])) in row_of), -1)
+        rows.append(row)
+    return np.array(rows, dtype=np.int64)
+
+
 def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequence:
     """``sequence`` with ``wTc_true`` from ``truth`` (replacing any it had).
 
@@ -286,10 +374,23 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
     """
     rows = _indices_for_frames(truth, sequence)
     keep = rows >= 0
-    how = "by frame index" if truth.stamps_s is None else "by timestamp"
+    how = (
+        "by file name"
+        if truth.names is not None
+        else "by frame index"
+        if truth.stamps_s is None
+        else "by timestamp"
+    )
     if not np.any(keep):
         raise InputError(f"no frame of {sequence.name!r} has ground truth ({how})", truth.path)
     changes: dict = {"wTc_true": truth.wTc[rows[keep]]}
+    if truth.format == "colmap":  # said with the frames' doubts; metrics.json keeps it
+        changes["frame_warnings"] = (
+            *sequence.frame_warnings,
+            f"{truth.path}: COLMAP's poses are in its reconstruction's unit of length (metres only "
+            "if the model was scaled to them): the ATE and RPE 'in m' are in that unit",
+        )
+        sequence = dataclasses.replace(sequence, frame_warnings=changes["frame_warnings"])
     if not np.all(keep):
         if getattr(sequence, "odometry", None) is not None:
             raise InputError(

@@ -78,10 +78,10 @@ visual SLAM (image sequences): --backend isam2|ekf, --frontend harris|orb|fpga,
 ground truth: built in for synthetic, synthetic-images, city10000, KITTI
   (poses.txt, or dataset/poses/NN.txt of the KITTI odometry layout), TUM and
   EuRoC folders; --ground-truth FILE gives (or replaces) it: TUM (t x y z qx
-  qy qz qw), KITTI (12 numbers a line, one per frame) or EuRoC CSV, told from
-  the content; images match by timestamp (TUM, EuRoC; frame index for
-  sequences without times) or frame number (KITTI), 2-D poses by pose id
-  (TUM time column; x, y and yaw)
+  qy qz qw), KITTI (12 numbers a line, one per frame), EuRoC CSV or COLMAP's
+  images.txt, told from the content; images match by timestamp (TUM, EuRoC;
+  frame index for sequences without times), frame number (KITTI) or file
+  name (COLMAP), 2-D poses by pose id (TUM time column; x, y and yaw)
 
 outputs (in --out):
   trajectory.tum    TUM format; time column = pose id where the data has no stamps
@@ -152,7 +152,7 @@ def register(sub) -> None:
         type=path_arg,
         default=None,
         metavar="FILE",
-        help="trajectory to score against: TUM, KITTI or EuRoC (see below)",
+        help="trajectory to score against: TUM, KITTI, EuRoC or COLMAP images.txt (see below)",
     )
     p.add_argument(
         "--no-polish",

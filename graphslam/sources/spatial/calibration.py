@@ -7,6 +7,9 @@ optionally one more line with the OpenCV distortion coefficients ``k1 k2 p1 p2
 nested list, 9-list or OpenCV ``{rows, cols, data}``), or EuRoC's
 ``intrinsics: [fu, fv, cu, cv]``; optional ``distortion`` /
 ``distortion_coefficients`` / ``dist_coeffs``. ``%YAML`` directives are ignored.
+COLMAP's ``cameras.txt`` (``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``, text model
+export) is read for its pinhole models with radial-tangential distortion, its pixel
+centres moved to OpenCV's (:func:`colmap_camera`).
 """
 
 from __future__ import annotations
@@ -130,6 +133,78 @@ def yaml_distortion(data: dict, path: Path, keys=("distortion", "distortion_coef
     return check_distortion(yaml_matrix(data[key], path, key), path, what=key)
 
 
+#: COLMAP camera models read as a pinhole with OpenCV distortion -> their parameter count
+#: (``colmap/src/colmap/sensor/models.h``). The fisheye and FOV models map pixels
+#: otherwise and are refused (as a YAML file's fisheye model is).
+COLMAP_MODELS = {
+    "SIMPLE_PINHOLE": 3,
+    "PINHOLE": 4,
+    "SIMPLE_RADIAL": 4,
+    "RADIAL": 5,
+    "OPENCV": 8,
+    "FULL_OPENCV": 12,
+}
+
+
+def is_colmap_camera_line(text: str) -> bool:
+    """Whether a text line is one of COLMAP's ``cameras.txt`` (an id, then a model name)."""
+    tokens = text.split()
+    return len(tokens) >= 4 and tokens[0].isdigit() and re.fullmatch(r"[A-Z][A-Z_]*", tokens[1]) is not None
+
+
+def colmap_camera(text: str, path: Path, line: int) -> tuple[np.ndarray, np.ndarray | None, tuple[int, int]]:
+    """``(K, distortion or None, (W, H))`` of one ``cameras.txt`` line. COLMAP puts the
+    centre of the top-left pixel at (0.5, 0.5), OpenCV at (0, 0) (COLMAP's "Cameras"
+    documentation): the principal point moves by half a pixel."""
+    tokens = text.split()
+    model = tokens[1]
+    if model not in COLMAP_MODELS:
+        raise InputError(
+            f"COLMAP camera model {model} is not supported: the camera must be a pinhole with "
+            f"radial-tangential distortion ({', '.join(COLMAP_MODELS)}); undistort the images "
+            "first (colmap image_undistorter)",
+            path,
+            line,
+        )
+    v = parse_floats(
+        " ".join(tokens[2:]), path, line, 2 + COLMAP_MODELS[model], f"numbers (WIDTH HEIGHT, {model})"
+    )
+    size = (int(v[0]), int(v[1]))
+    if not (v[0] == size[0] >= 1 and v[1] == size[1] >= 1):
+        raise InputError(
+            f"COLMAP camera: WIDTH and HEIGHT must be whole pixels, got {v[0]:g} {v[1]:g}", path, line
+        )
+    p = v[2:]
+    if model.startswith("SIMPLE") or model == "RADIAL":  # one focal length: f cx cy [k1 [k2]]
+        f, cx, cy, ks = p[0], p[1], p[2], p[3:]
+        fx = fy = f
+        dist = None if not ks.size else np.r_[ks, np.zeros(4 - ks.size)]  # k1 [k2] p1 p2 = 0
+    else:  # fx fy cx cy [k1 k2 p1 p2 [k3 k4 k5 k6]]: OpenCV's order
+        fx, fy, cx, cy = p[:4]
+        dist = p[4:] if p.size > 4 else None
+    K = check_K(intrinsics_matrix(fx, fy, cx - 0.5, cy - 0.5), path, line)
+    return K, None if dist is None else check_distortion(dist, path, line), size
+
+
+def _colmap_cameras(lines: list[tuple[int, str]], path: Path):
+    """The one camera of a ``cameras.txt`` (:func:`colmap_camera`); a file of several
+    different cameras is refused: the images of one folder are taken with one."""
+    cameras = [colmap_camera(t, path, n) for n, t in lines]
+    K, dist, size = cameras[0]
+    for (n, _), (K2, dist2, size2) in zip(lines[1:], cameras[1:], strict=True):
+        same_dist = (dist is None and dist2 is None) or (
+            dist is not None and dist2 is not None and np.array_equal(dist, dist2)
+        )
+        if not (np.array_equal(K, K2) and same_dist and size == size2):
+            raise InputError(
+                f"{len(cameras)} different COLMAP cameras; a folder's images are read with one: "
+                "keep the line of their camera",
+                path,
+                n,
+            )
+    return K, dist, size
+
+
 def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """``(K (3, 3), distortion or None)`` from a text or YAML file (formats in the module doc)."""
     path = Path(path)
@@ -164,6 +239,9 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     if not lines:
         raise InputError("intrinsics file is empty", path)
     first_no, first = lines[0]
+    if is_colmap_camera_line(first):
+        K, dist, _ = _colmap_cameras(lines, path)
+        return K, dist
     v = parse_floats(first, path, first_no, what="intrinsics numbers")
     if v.size == 4:
         K, rest = intrinsics_matrix(*v), lines[1:]
@@ -226,11 +304,17 @@ def read_camera_of(
 
 
 def stated_image_size(path: str | Path) -> tuple[int, int] | None:
-    """``(W, H)`` a YAML camera file states its images to be (ROS and OpenCV
-    ``image_width``/``image_height``, EuRoC and Kalibr ``resolution: [W, H]``), else None
-    (a text file, no such keys, or keys that are not two whole numbers)."""
+    """``(W, H)`` a camera file states its images to be (YAML: ROS and OpenCV
+    ``image_width``/``image_height``, EuRoC and Kalibr ``resolution: [W, H]``; COLMAP's
+    ``cameras.txt``: WIDTH HEIGHT), else None (a plain text file, no such keys, or keys
+    that are not two whole numbers)."""
     path = Path(path)
-    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
+    if not path.is_file():
+        return None
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        lines = read_lines(path, "intrinsics file")
+        if lines and is_colmap_camera_line(lines[0][1]):
+            return _colmap_cameras(lines, path)[2]
         return None
     data = load_yaml(path)
     return yaml_image_size(data) if isinstance(data, dict) else None

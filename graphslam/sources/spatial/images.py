@@ -62,7 +62,11 @@ truth. Intrinsics from a file:
 * YAML: ``fx, fy, cx, cy`` keys, or ``K``/``camera_matrix`` (3x3 nested list,
   9-list or OpenCV ``{rows, cols, data}``), or EuRoC's ``intrinsics: [fu, fv,
   cu, cv]``; optional ``distortion`` / ``distortion_coefficients`` /
-  ``dist_coeffs`` (list or ``{data}``). ``%YAML`` directives are ignored.
+  ``dist_coeffs`` (list or ``{data}``). ``%YAML`` directives are ignored;
+* COLMAP's ``cameras.txt`` (text model): ``SIMPLE_PINHOLE``, ``PINHOLE``,
+  ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` or ``FULL_OPENCV``, one camera (a
+  fisheye model is refused: undistort the images first); the principal point moved
+  half a pixel to OpenCV's convention, the images checked to be WIDTH x HEIGHT.
 
 Without ``intrinsics_file`` the folder is searched for
 :data:`INTRINSICS_FILE_NAMES`; if none is found an InputError says so.

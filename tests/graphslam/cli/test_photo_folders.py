@@ -17,6 +17,8 @@ from slamcore.spatial.geometry import invert_pose, rotation_to_quaternion
 #: path: 0.08 % measured (0.011 units over 13.7); 1 % is a loose bound that still fails
 #: a map that lost its scale or a frame (one frame misplaced by a step alone is ~3 %).
 LUND_ATE_SHARE_OF_PATH = 0.01
+#: Two conversions of one COLMAP pose agree to this (its units; the path is 13.7 of them).
+SAME_POSE_UNITS = 1e-5
 
 
 def _one_error_line(capsys, argv) -> str:
@@ -149,3 +151,60 @@ def test_a_frame_selection_keeps_the_folders_numbering(lund_colmap, tmp_path, ca
     xyz = np.loadtxt(truth)[np.sort(stamps).astype(int), 1:4]
     path = np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()
     assert row["matched_poses"] == len(stamps) and row["ate_rmse_m"] <= LUND_ATE_SHARE_OF_PATH * path
+
+
+def test_colmap_cameras_txt_is_read_with_opencvs_pixel_centres(tmp_path, shared_data):
+    """COLMAP puts the top-left pixel's centre at (0.5, 0.5), OpenCV at (0, 0)."""
+    from graphslam.sources.spatial.calibration import read_intrinsics_file, stated_image_size
+
+    cams = tmp_path / "cameras.txt"
+    cams.write_text("# Camera list with one line of data per camera:\n"
+                    "1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 -0.0123\n")
+    K, dist = read_intrinsics_file(cams)
+    np.testing.assert_array_equal(K, [[2435.38, 0, 647.5], [0, 2435.38, 967.5], [0, 0, 1]])
+    np.testing.assert_array_equal(dist, [-0.0123, 0, 0, 0])
+    assert stated_image_size(cams) == (1296, 1936)
+    cams.write_text("3 OPENCV 640 480 500 510 320 240 0.1 -0.2 0.001 0.002\n")
+    K, dist = read_intrinsics_file(cams)
+    np.testing.assert_array_equal(K, [[500, 0, 319.5], [0, 510, 239.5], [0, 0, 1]])
+    np.testing.assert_array_equal(dist, [0.1, -0.2, 0.001, 0.002])
+    cams.write_text("1 PINHOLE 640 480 500 510 320 240\n1 PINHOLE 640 480 500 510 320 240\n")
+    assert read_intrinsics_file(cams)[1] is None  # one camera listed twice is one camera
+
+
+@pytest.mark.parametrize("text, words", [
+    ("1 OPENCV_FISHEYE 640 480 500 500 320 240 0 0 0 0\n", "COLMAP camera model OPENCV_FISHEYE is not supported"),
+    ("1 PINHOLE 640 480 500 500 320 240\n2 PINHOLE 640 480 600 600 320 240\n", "2 different COLMAP cameras"),
+    ("1 PINHOLE 640 480 500 500 320\n", "expected 6 numbers (WIDTH HEIGHT, PINHOLE), got 5"),
+])
+def test_a_colmap_camera_the_run_cannot_use_is_one_line(capsys, desk_photos, tmp_path, text, words):
+    (tmp_path / "cameras.txt").write_text(text)
+    line = _one_error_line(capsys, ["run", "--dataset", desk_photos, "--intrinsics", tmp_path / "cameras.txt",
+                                    "--rerun", "off", "--out", tmp_path / "o"])
+    assert words in line and "cameras.txt" in line
+
+
+def test_colmap_images_txt_is_the_truth_of_its_photo_folder(lund_colmap, shared_data, tmp_path, capsys):
+    """The Lund door's COLMAP model as it is: cameras.txt the camera, images.txt the truth
+    (matched by file name), equal to the fixture's own conversion of the same files."""
+    from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
+    from graphslam.sources.spatial.images import read_image_sequence
+
+    images, _, tum = lund_colmap
+    model = shared_data / "lund_door" / "colmap_ground_truth"
+    seq = with_ground_truth(read_image_sequence(images, intrinsics_file=model / "cameras.txt"),
+                            read_trajectory(model / "images.txt"))
+    by_hand = np.loadtxt(tum)
+    assert len(seq.wTc_true) == 12 and np.array_equal(by_hand[:, 0], np.arange(12))
+    # the fixture's rotation takes COLMAP's quaternion as unit; ours normalises it (3e-6 units apart)
+    np.testing.assert_allclose(seq.wTc_true[:, :3, 3], by_hand[:, 1:4], atol=SAME_POSE_UNITS)
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", str(images), "--intrinsics", str(model / "cameras.txt"),
+                 "--ground-truth", str(model / "images.txt"), "--odometry", "none", "--rerun", "off",
+                 "--quiet", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["ate_rmse_m"] <= LUND_ATE_SHARE_OF_PATH * metrics["path_length_m"]
+    assert any("reconstruction's unit of length" in w for w in metrics["warnings"])
+    capsys.readouterr()  # the run's own lines
+    line = _one_error_line(capsys, ["eval", model / "images.txt", out / "trajectory.tum", "--out", tmp_path / "e"])
+    assert "COLMAP's images.txt names image files" in line
