@@ -13,9 +13,11 @@ Formats, told apart by the content (the ``.csv`` extension also says EuRoC):
   camera extrinsics of ``sensor.yaml`` are not applied here);
 * **COLMAP** ``images.txt`` (a text model): two lines an image, ``IMAGE_ID QW QX QY
   QZ TX TY TZ CAMERA_ID NAME`` (the world-to-camera pose) then its 2-D points (read
-  for nothing, possibly empty); the truth of an image folder, associated by file name
-  (``--ground-truth`` only: ``graphslam eval`` pairs poses by time or line, and
-  refuses it). Its unit of length is the reconstruction's: the run says so.
+  for nothing, possibly empty), or the same in ``images.bin`` (COLMAP's default
+  output, :mod:`graphslam.sources.spatial.colmap_binary`); the truth of an image
+  folder, associated by file name (``--ground-truth`` only: ``graphslam eval``
+  pairs poses by time or line, and refuses it). Its unit of length is the
+  reconstruction's: the run says so.
 
 A line that does not have its format's form is refused, the format told or
 given: a comma in a TUM or KITTI line; in an EuRoC line no comma, an empty
@@ -56,6 +58,7 @@ from graphslam.sources.spatial.sequence import (
     rotation_entries,
 )
 from slamcore.errors import InputError
+from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset
 
 TRAJECTORY_FORMATS = ("tum", "kitti", "euroc", "colmap")
@@ -90,7 +93,7 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def _position(t: np.ndarray, path: Path, line: int) -> np.ndarray:
+def _position(t: np.ndarray, path: Path, line: int | None) -> np.ndarray:
     """``t`` when within :data:`TRANSLATION_MAX_M` (as the pose-graph readers), else
     InputError: beyond it the alignment's sums overflow (LAPACK hung on the inf)."""
     if not np.max(np.abs(t)) <= TRANSLATION_MAX_M:
@@ -122,6 +125,11 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> Trajectory:
     """A trajectory file in any of :data:`TRAJECTORY_FORMATS` (module doc); ``fmt``
     None tells the format from the content."""
     path = Path(path)
+    from graphslam.sources.spatial.colmap_binary import is_colmap_binary
+
+    if is_colmap_binary(path) and fmt in (None, "colmap"):  # COLMAP's default model output
+        check_input_path(path, "trajectory file")
+        return _read_colmap_images(path)
     lines = read_lines(path, "trajectory file")
     if not lines:
         raise InputError("no poses in the trajectory file", path)
@@ -178,31 +186,39 @@ def _is_colmap_image_line(text: str) -> bool:
     return False
 
 
-def _read_colmap_images(path: Path) -> Trajectory:
-    """COLMAP's ``images.txt`` (module doc): camera-to-world poses in file order and
-    their image names. Its lines come in pairs and a point line may be empty, so the
-    file is read whole rather than as non-empty lines."""
+def _colmap_image_lines(path: Path) -> list[tuple[int, str]]:
+    """The image lines of COLMAP's ``images.txt``. Its lines come in pairs and a point
+    line may be empty, so the file is read whole rather than as non-empty lines."""
     text = path.read_text(encoding="utf-8-sig", errors="replace")
     numbered = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if not line.startswith("#")]
+    return [(n, line) for n, line in numbered[0::2] if line.strip()]  # a blank line at the end
+
+
+def _read_colmap_images(path: Path) -> Trajectory:
+    """COLMAP's ``images.txt`` or ``images.bin`` (module doc): camera-to-world poses in
+    file order and their image names."""
+    from graphslam.sources.spatial.colmap_binary import image_lines, is_colmap_binary
+
+    binary = is_colmap_binary(path)
     poses, names = [], []
-    for n, line in numbered[0::2]:  # each image line is followed by its 2-D point line
-        if not line.strip():
-            continue  # a blank line at the end
+    for n, line in image_lines(path) if binary else _colmap_image_lines(path):
+        at = None if binary else n  # a binary file's errors name its record instead
+        record = f"image record {n}: " if binary else ""
         if not _is_colmap_image_line(line):
             raise InputError(
-                f"expected a COLMAP image line (IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME): "
+                f"{record}expected a COLMAP image line (IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME): "
                 f"{line.strip()[:60]!r}",
                 path,
-                n,
+                at,
             )
         tokens = line.split()
-        v = parse_floats(" ".join(tokens[1:8]), path, n, 7, "numbers (QW QX QY QZ TX TY TZ)")
-        R_cw = quat_to_rotation(v[0], v[1], v[2], v[3], path, n)
-        t_cw = _position(v[4:7], path, n)
+        v = parse_floats(" ".join(tokens[1:8]), path, at, 7, f"{record}numbers (QW QX QY QZ TX TY TZ)")
+        R_cw = quat_to_rotation(v[0], v[1], v[2], v[3], path, at)
+        t_cw = _position(v[4:7], path, at)
         poses.append(_pose(R_cw.T, -R_cw.T @ t_cw))  # COLMAP stores world-to-camera
         names.append(" ".join(tokens[9:]))
     if not poses:
-        raise InputError("no images in the COLMAP images.txt", path)
+        raise InputError("no images in the COLMAP model", path)
     repeated = sorted({m for m in names if names.count(m) > 1})
     if repeated:
         raise InputError(f"image {repeated[0]!r} is listed twice", path)

@@ -79,7 +79,7 @@ ground truth: built in for synthetic, synthetic-images, city10000, KITTI
   (poses.txt, or dataset/poses/NN.txt of the KITTI odometry layout), TUM and
   EuRoC folders; --ground-truth FILE gives (or replaces) it: TUM (t x y z qx
   qy qz qw), KITTI (12 numbers a line, one per frame), EuRoC CSV or COLMAP's
-  images.txt, told from the content; images match by timestamp (TUM, EuRoC;
+  images.txt/.bin, told from the content; images match by timestamp (TUM, EuRoC;
   frame index for sequences without times), frame number (KITTI) or file
   name (COLMAP), 2-D poses by pose id (TUM time column; x, y and yaw)
 

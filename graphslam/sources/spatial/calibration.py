@@ -8,8 +8,8 @@ nested list, 9-list or OpenCV ``{rows, cols, data}``), or EuRoC's
 ``intrinsics: [fu, fv, cu, cv]``; optional ``distortion`` /
 ``distortion_coefficients`` / ``dist_coeffs``. ``%YAML`` directives are ignored.
 COLMAP's ``cameras.txt`` (``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``, text model
-export) is read for its pinhole models with radial-tangential distortion, its pixel
-centres moved to OpenCV's (:func:`colmap_camera`).
+export) or ``cameras.bin`` (:mod:`.colmap_binary`) is read for its pinhole models with
+radial-tangential distortion, its pixel centres moved to OpenCV's (:func:`colmap_camera`).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from graphslam.sources.spatial.colmap_binary import camera_lines, is_colmap_binary
 from graphslam.sources.spatial.sequence import (
     check_distortion,
     check_K,
@@ -210,6 +211,9 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     path = Path(path)
     if not path.is_file():
         raise InputError("intrinsics file not found", path)
+    if is_colmap_binary(path):  # COLMAP's default model output
+        K, dist, _ = _colmap_cameras(camera_lines(path), path)
+        return K, dist
     if path.suffix.lower() in (".yaml", ".yml"):
         data = load_yaml(path)
         if not isinstance(data, dict):
@@ -311,6 +315,8 @@ def stated_image_size(path: str | Path) -> tuple[int, int] | None:
     path = Path(path)
     if not path.is_file():
         return None
+    if is_colmap_binary(path):
+        return _colmap_cameras(camera_lines(path), path)[2]
     if path.suffix.lower() not in (".yaml", ".yml"):
         lines = read_lines(path, "intrinsics file")
         if lines and is_colmap_camera_line(lines[0][1]):

@@ -63,7 +63,7 @@ truth. Intrinsics from a file:
   9-list or OpenCV ``{rows, cols, data}``), or EuRoC's ``intrinsics: [fu, fv,
   cu, cv]``; optional ``distortion`` / ``distortion_coefficients`` /
   ``dist_coeffs`` (list or ``{data}``). ``%YAML`` directives are ignored;
-* COLMAP's ``cameras.txt`` (text model): ``SIMPLE_PINHOLE``, ``PINHOLE``,
+* COLMAP's ``cameras.txt`` or ``cameras.bin``: ``SIMPLE_PINHOLE``, ``PINHOLE``,
   ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` or ``FULL_OPENCV``, one camera (a
   fisheye model is refused: undistort the images first); the principal point moved
   half a pixel to OpenCV's convention, the images checked to be WIDTH x HEIGHT.

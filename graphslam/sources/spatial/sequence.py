@@ -184,7 +184,7 @@ def read_lines(path: Path, what: str) -> list[tuple[int, str]]:
 
 
 def parse_floats(
-    text: str, path: Path, line: int, count: int | None = None, what: str = "numbers"
+    text: str, path: Path, line: int | None, count: int | None = None, what: str = "numbers"
 ) -> np.ndarray:
     parts = [p for p in re.split(r"[\s,]+", text.strip()) if p]
     try:

@@ -208,3 +208,46 @@ def test_colmap_images_txt_is_the_truth_of_its_photo_folder(lund_colmap, shared_
     capsys.readouterr()  # the run's own lines
     line = _one_error_line(capsys, ["eval", model / "images.txt", out / "trajectory.tum", "--out", tmp_path / "e"])
     assert "COLMAP's images.txt names image files" in line
+
+
+def _colmap_binary_model(model_dir, out_dir) -> tuple:
+    """The text model written as COLMAP's binary one (its "Output Format" page), with a
+    2-D point per image to skip: ``(cameras.bin, images.bin)``."""
+    import struct
+
+    ids = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4}
+    cams = [ln.split() for ln in (model_dir / "cameras.txt").read_text().splitlines()
+            if ln.strip() and not ln.startswith("#")]
+    blob = struct.pack("<Q", len(cams))
+    for c in cams:
+        blob += struct.pack("<iiQQ", int(c[0]), ids[c[1]], int(c[2]), int(c[3]))
+        blob += struct.pack(f"<{len(c) - 4}d", *map(float, c[4:]))
+    (out_dir / "cameras.bin").write_bytes(blob)
+    lines = [ln for ln in (model_dir / "images.txt").read_text().splitlines() if not ln.startswith("#")]
+    blob = struct.pack("<Q", len(lines[0::2]))
+    for ln in lines[0::2]:
+        p = ln.split()
+        blob += struct.pack("<i7di", int(p[0]), *map(float, p[1:8]), int(p[8]))
+        blob += p[9].encode() + b"\x00" + struct.pack("<Q", 1) + struct.pack("<ddq", 1.5, 2.5, -1)
+    (out_dir / "images.bin").write_bytes(blob)
+    return out_dir / "cameras.bin", out_dir / "images.bin"
+
+
+def test_colmap_binary_model_reads_as_its_text_export(lund_colmap, shared_data, tmp_path, capsys):
+    """cameras.bin and images.bin (COLMAP's default output) give what the .txt give; a
+    cut file is one line."""
+    from graphslam.sources.ground_truth import read_trajectory
+    from graphslam.sources.spatial.calibration import read_intrinsics_file, stated_image_size
+
+    model = shared_data / "lund_door" / "colmap_ground_truth"
+    cams_bin, images_bin = _colmap_binary_model(model, tmp_path)
+    for a, b in zip(read_intrinsics_file(cams_bin), read_intrinsics_file(model / "cameras.txt"), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert stated_image_size(cams_bin) == stated_image_size(model / "cameras.txt") == (1296, 1936)
+    from_bin, from_txt = read_trajectory(images_bin), read_trajectory(model / "images.txt")
+    assert from_bin.names == from_txt.names and len(from_bin.names) == 12
+    np.testing.assert_array_equal(from_bin.wTc, from_txt.wTc)
+    images_bin.write_bytes(images_bin.read_bytes()[:-30])
+    line = _one_error_line(capsys, ["run", "--dataset", lund_colmap[0], "--intrinsics", cams_bin,
+                                    "--ground-truth", images_bin, "--rerun", "off", "--out", tmp_path / "o"])
+    assert "images.bin: COLMAP binary file ends inside" in line
