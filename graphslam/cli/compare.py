@@ -17,6 +17,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    path_arg,
     seed_arg,
 )
 from graphslam.cli.out_folder import OutputFolder
@@ -103,6 +104,14 @@ def register(sub) -> None:
         "odometry) and of back ends that draw random numbers (particle "
         "filters, the EKF's RANSAC); refused when none is in the comparison",
     )
+    p.add_argument(
+        "--ground-truth",
+        type=path_arg,
+        default=None,
+        metavar="FILE",
+        help="image sequences: the truth to score every back end against, as graphslam run "
+        "reads it (TUM, KITTI, EuRoC or COLMAP images.txt/.bin)",
+    )
     add_out_dir_option(p, "output folder (default: runs/<dataset>-compare)")
     add_config_option(p, "TOML or YAML config file")
     add_max_steps_option(p)
@@ -150,8 +159,9 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
-    if args.intrinsics is not None and not registry.is_visual_dataset(args.dataset):
-        raise GraphSlamError("--intrinsics applies to image sequences only")
+    for flag, value in (("--intrinsics", args.intrinsics), ("--ground-truth", args.ground_truth)):
+        if value is not None and not registry.is_visual_dataset(args.dataset):
+            raise GraphSlamError(f"{flag} applies to image sequences only")
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
 
     if wants_pose_graph_compare(args.dataset, args.backends):
@@ -274,6 +284,10 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
     sequence = registry.load_image_sequence(
         args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
     )
+    if args.ground_truth is not None:  # frames without truth are dropped (said with the table)
+        from graphslam.sources.ground_truth import read_trajectory, with_ground_truth
+
+        sequence = with_ground_truth(sequence, read_trajectory(args.ground_truth))
     setup = VisualSetup.read(
         sequence, config, odometry=args.odometry, seed=args.seed, max_frames=args.max_steps
     )

@@ -320,6 +320,21 @@ def _run_ground_truth(cli, key):
     assert "ground_truth.tum" in scored.files and "ground_truth.tum" not in plain.files
 
 
+@row("compare --ground-truth")
+def _compare_ground_truth(cli, key):
+    model = SHARED_DATA / "lund_door" / "colmap_ground_truth"
+    if not (model / "images.txt").is_file():
+        pytest.skip("Lund door COLMAP model missing")
+    base = ["compare", "--dataset", str(SHARED_DATA / "lund_door" / "images"), "--intrinsics",
+            str(model / "cameras.txt"), "--odometry", "none", "--backends", "isam2", "--in-process",
+            "--rerun", "off"]
+    plain = json.loads(cli(*base).files["compare.json"])["runs"][0]
+    scored = json.loads(cli(*base, "--ground-truth", str(model / "images.txt")).files["compare.json"])["runs"][0]
+    assert plain["ate_rmse_m"] is None and scored["ate_rmse_m"] is not None
+    refused(cli(*COMPARE, "--ground-truth", str(model / "images.txt")),
+            "--ground-truth applies to image sequences only")
+
+
 @row("run --no-polish")
 def _run_no_polish(cli, key):
     polished = cli(*RUN_2D, "--max-steps", "40")

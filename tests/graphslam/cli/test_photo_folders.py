@@ -251,3 +251,18 @@ def test_colmap_binary_model_reads_as_its_text_export(lund_colmap, shared_data, 
     line = _one_error_line(capsys, ["run", "--dataset", lund_colmap[0], "--intrinsics", cams_bin,
                                     "--ground-truth", images_bin, "--rerun", "off", "--out", tmp_path / "o"])
     assert "images.bin: COLMAP binary file ends inside" in line
+
+
+def test_compare_scores_every_back_end_against_a_colmap_truth(lund_colmap, shared_data, tmp_path, capsys):
+    """compare --ground-truth: iSAM2 scored as run scores it; the EKFs, whose estimates on
+    these photos never move (too few landmarks found), have no Sim(3) fit and no NEES,
+    which ended the whole comparison in an error."""
+    model = shared_data / "lund_door" / "colmap_ground_truth"
+    out = tmp_path / "cmp"
+    assert main(["compare", "--dataset", str(lund_colmap[0]), "--intrinsics", str(model / "cameras.txt"),
+                 "--ground-truth", str(model / "images.txt"), "--odometry", "none", "--in-process",
+                 "--rerun", "off", "--out", str(out)]) == 0
+    runs = {r["backend"]: r for r in json.loads((out / "compare.json").read_text())["runs"]}
+    assert runs["isam2"]["ate_rmse_m"] <= LUND_ATE_SHARE_OF_PATH * runs["isam2"]["path_length_m"]
+    assert runs["ekf-idp"]["ate_rmse_m"] is None and runs["ekf-idp"].get("nees_mean") is None
+    assert "does not move" in runs["ekf-idp"]["ate_error"]
