@@ -39,9 +39,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
+from loop_real import _features, _verify  # noqa: E402
 from plotting import Panel, save_figure  # noqa: E402
 
-from frontend.image import load_gray  # noqa: E402
 from frontend.orb import OrbDetector  # noqa: E402
 from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses  # noqa: E402
 from graphslam.sources.spatial.sequence import folder_images  # noqa: E402
@@ -53,21 +53,12 @@ DATA = HERE.parent.parent / "shared" / "data"
 FAR_M, NEAR_M = 40.0, (1.0, 5.0)
 
 
-def _features(orb: OrbDetector, paths: list[Path]) -> list:
-    out = []
-    for p in paths:
-        img = load_gray(p)
-        out.append((orb.detect(img), (float(img.shape[1]), float(img.shape[0]))))
-    return out
-
-
 def _shares(verifier: GeometricVerifier, pairs, feats, K=None) -> np.ndarray:
     """Inliers / features of the image with more, for each pair ``(i, j)`` (j verified against i)."""
     out = []
     for i, j in pairs:
-        (a, sa), (b, sb) = feats[j], feats[i]
-        v = verifier.verify(a.xy_px, a.descriptors, b.xy_px, b.descriptors, K, size_a=sa, size_b=sb)
-        out.append(v.n_inliers / max(len(a), len(b), 1))
+        (a, _), (b, _) = feats[j], feats[i]
+        out.append(_verify(verifier, feats[j], feats[i], K).n_inliers / max(len(a), len(b), 1))
     return np.asarray(out, dtype=np.float64)
 
 
@@ -79,8 +70,8 @@ def measure(data: Path, n_features: int, thin: int = 1) -> dict:
     xyz = read_kitti_poses(kitti_dir / "poses.txt")[:, :3, 3]
     dist = np.linalg.norm(xyz[:, None] - xyz[None], axis=2)
     orb = OrbDetector(dataclasses.replace(LoopDetectorConfig().orb, n_features=n_features))
-    kitti = _features(orb, folder_images(kitti_dir / "image_0"))
-    desk = _features(orb, folder_images(data / "slambook2_desk" / "images"))
+    kitti = _features(folder_images(kitti_dir / "image_0"), orb)
+    desk = _features(folder_images(data / "slambook2_desk" / "images"), orb)
     verifier = GeometricVerifier(VerifyConfig(decisive_share=0.0))
     n = len(kitti)
     far = [(i, j) for i in range(0, n, 4) for j in range(i + 1, n, 2) if dist[i, j] > FAR_M][::thin]

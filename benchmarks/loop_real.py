@@ -56,8 +56,9 @@ def folder_run(folder: Path, vocab) -> dict:
             "candidates": len(det.records), "seconds": time.perf_counter() - t0}
 
 
-def _features(paths) -> list:
-    orb = OrbDetector(LoopDetectorConfig().orb)
+def _features(paths, orb: OrbDetector | None = None) -> list:
+    """``(features, (W, H))`` of each image, by ``orb`` (default: the loop detector's)."""
+    orb = orb or OrbDetector(LoopDetectorConfig().orb)
     out = []
     for p in paths:
         img = load_gray(p)

@@ -278,15 +278,15 @@ class OutputWrites:
         if not self.refused:
             return
         first = self.refused[0][1]
+        gone = write_error_line(first) is None  # refused only because the folder went (_reason)
         line = self._reason(first) or str(first)
         others = self.names()[1:]
         if others:
             line += f"; not written either: {', '.join(others)}"
         kept = [Path(p).name for p in written]
         held = ", ".join(kept) if kept else "none of this command's outputs"
-        if write_error_line(first) is None:  # the folder went, and what was written with it
-            raise GraphSlamError(f"{line}; written before it went: {held}")
-        raise GraphSlamError(f"{line}; {self.out_dir}/ holds {held}")
+        where = "written before it went:" if gone else f"{self.out_dir}/ holds"
+        raise GraphSlamError(f"{line}; {where} {held}")
 
 
 def writes_for(out_dir: Path, writes: OutputWrites | None) -> tuple[OutputWrites, bool]:

@@ -390,23 +390,19 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
     """
     rows = _indices_for_frames(truth, sequence)
     keep = rows >= 0
-    how = (
-        "by file name"
-        if truth.names is not None
-        else "by frame index"
-        if truth.stamps_s is None
-        else "by timestamp"
-    )
+    if truth.names is not None:
+        how = "by file name"
+    else:
+        how = "by frame index" if truth.stamps_s is None else "by timestamp"
     if not np.any(keep):
         raise InputError(f"no frame of {sequence.name!r} has ground truth ({how})", truth.path)
     changes: dict = {"wTc_true": truth.wTc[rows[keep]]}
-    if truth.format == "colmap":  # said with the frames' doubts; metrics.json keeps it
-        changes["frame_warnings"] = (
-            *sequence.frame_warnings,
+    warnings = list(sequence.frame_warnings)  # said with the frames' doubts; metrics.json keeps them
+    if truth.format == "colmap":
+        warnings.append(
             f"{truth.path}: COLMAP's poses are in its reconstruction's unit of length (metres only "
-            "if the model was scaled to them): the ATE and RPE 'in m' are in that unit",
+            "if the model was scaled to them): the ATE and RPE 'in m' are in that unit"
         )
-        sequence = dataclasses.replace(sequence, frame_warnings=changes["frame_warnings"])
     if not np.all(keep):
         if getattr(sequence, "odometry", None) is not None:
             raise InputError(
@@ -420,11 +416,12 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
         if isinstance(sequence, FrameSelection):  # it loads by its indices, not its paths
             changes["indices"] = np.asarray(sequence.indices)[keep]
         which = "frames selected" if isinstance(sequence, FrameSelection) else "frames"
-        changes["frame_warnings"] = (
-            *sequence.frame_warnings,
+        warnings.append(
             f"{truth.path}: {int(np.sum(~keep))} of {len(keep)} {which} have no ground truth "
-            f"({how}) and are left out of the run",
+            f"({how}) and are left out of the run"
         )
+    if len(warnings) > len(sequence.frame_warnings):
+        changes["frame_warnings"] = tuple(warnings)
     return dataclasses.replace(sequence, **changes)
 
 

@@ -60,6 +60,13 @@ class _Reader:
         self.at += size
         return values
 
+    def skip(self, n_bytes: int, what: str) -> None:
+        # checked before any struct format is built: a damaged count of 2**62 points made
+        # one too long for struct ("total struct size too long", a traceback)
+        if n_bytes > len(self.data) - self.at:
+            raise InputError(f"COLMAP binary file ends inside {what} (byte {self.at})", self.path)
+        self.at += n_bytes
+
     def count(self, what: str) -> int:
         (n,) = self.take("<Q", f"the count of {what}")
         if n > MAX_RECORDS:
@@ -104,7 +111,7 @@ def image_lines(path: Path) -> list[tuple[int, str]]:
         image_id, *pose, cam_id = r.take("<i7di", f"image record {k}")
         name = r.name()
         (n_points,) = r.take("<Q", f"image record {k}")
-        r.take(f"<{24 * n_points}x", f"the 2-D points of image record {k}")
+        r.skip(24 * n_points, f"the 2-D points of image record {k}")
         lines.append((k, " ".join([str(image_id), *map(repr, pose), str(cam_id), name])))
     r.done()
     return lines

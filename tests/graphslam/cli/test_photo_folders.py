@@ -153,7 +153,7 @@ def test_a_frame_selection_keeps_the_folders_numbering(lund_colmap, tmp_path, ca
     assert row["matched_poses"] == len(stamps) and row["ate_rmse_m"] <= LUND_ATE_SHARE_OF_PATH * path
 
 
-def test_colmap_cameras_txt_is_read_with_opencvs_pixel_centres(tmp_path, shared_data):
+def test_colmap_cameras_txt_is_read_with_opencvs_pixel_centres(tmp_path):
     """COLMAP puts the top-left pixel's centre at (0.5, 0.5), OpenCV at (0, 0)."""
     from graphslam.sources.spatial.calibration import read_intrinsics_file, stated_image_size
 
@@ -196,7 +196,8 @@ def test_colmap_images_txt_is_the_truth_of_its_photo_folder(lund_colmap, shared_
                             read_trajectory(model / "images.txt"))
     by_hand = np.loadtxt(tum)
     assert len(seq.wTc_true) == 12 and np.array_equal(by_hand[:, 0], np.arange(12))
-    # the fixture's rotation takes COLMAP's quaternion as unit; ours normalises it (3e-6 units apart)
+    # the fixture's rotation takes COLMAP's quaternion as unit, ours normalises it: written to 6
+    # digits, the Lund quaternions are unit to 5e-7, which moves a centre 8 units out by 3e-6
     np.testing.assert_allclose(seq.wTc_true[:, :3, 3], by_hand[:, 1:4], atol=SAME_POSE_UNITS)
     out = tmp_path / "run"
     assert main(["run", "--dataset", str(images), "--intrinsics", str(model / "cameras.txt"),
@@ -251,6 +252,12 @@ def test_colmap_binary_model_reads_as_its_text_export(lund_colmap, shared_data, 
     line = _one_error_line(capsys, ["run", "--dataset", lund_colmap[0], "--intrinsics", cams_bin,
                                     "--ground-truth", images_bin, "--rerun", "off", "--out", tmp_path / "o"])
     assert "images.bin: COLMAP binary file ends inside" in line
+    import struct  # a damaged count of 2-D points: 2**62 of them (struct's own traceback before)
+    images_bin.write_bytes(struct.pack("<Q", 1) + struct.pack("<i7di", 1, 1, 0, 0, 0, 0, 0, 0, 1)
+                           + b"DSC_0001.JPG\x00" + struct.pack("<Q", 2**62))
+    line = _one_error_line(capsys, ["run", "--dataset", lund_colmap[0], "--intrinsics", cams_bin,
+                                    "--ground-truth", images_bin, "--rerun", "off", "--out", tmp_path / "o"])
+    assert "ends inside the 2-D points of image record 1" in line
 
 
 def test_compare_scores_every_back_end_against_a_colmap_truth(lund_colmap, shared_data, tmp_path, capsys):
