@@ -14,9 +14,10 @@ the sequence's noisy odometry), the default Harris front end, and four runs of
 each without and with :class:`graphslam.pipelines.loop_closing.VisualLoopCloser` (the
 detector with its defaults and a 1000-word tree trained on the sequence, the
 metric PnP pose, the redundancy rule). Closures are checked against the
-sequence's revisit pairs (within 2 frames: ``revisit_pair_closures``) and as
-``bench_loop_revisit.py`` does, a later visit of the same place counting as true
-too (``true_closures``; ``outside_rule`` lists the others as (query, match)).
+sequence's revisit pairs (within 2 frames: ``revisit_pair_closures``) and, as
+``bench_loop_revisit.py`` counts frames that see the same place, a later visit of it
+(``SyntheticImageSequence.later_visit``) counting as true too (``true_closures``;
+``outside_rule`` lists the others as (query, match)).
 
     python benchmarks/bench_loop_ate.py [--window 30] [--quick] [--out FILE]
 
@@ -104,8 +105,7 @@ def main(argv=None) -> int:
                               for i in partners.get(j, [])) for c in closer.closures]
                 # outside the revisit rule, a later visit of the same place still counts as true
                 # (bench_loop_revisit.py's soft truth); a recent frame does not
-                gap = seq.config.revisit_min_gap_frames
-                same = [t or (c.frame_b - c.frame_a >= gap and seq.same_place(c.frame_b, c.frame_a))
+                same = [t or seq.later_visit(c.frame_b, c.frame_a)
                         for c, t in zip(closer.closures, strict, strict=True)]
                 row.update(closer.stats, true_closures=sum(same), revisit_pair_closures=sum(strict),
                            outside_rule=[(c.frame_b, c.frame_a) for c, t in zip(closer.closures, strict,

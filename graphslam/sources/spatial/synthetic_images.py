@@ -493,6 +493,12 @@ class SyntheticImageSequence(ImageSequence):
         one view's scene points are seen by the other (the soft truth of the module doc)."""
         return self.shared_view(i, j) > self.SAME_PLACE_SHARE
 
+    def later_visit(self, i: int, j: int) -> bool:
+        """Frame ``i`` sees the place of the earlier frame ``j`` again: :meth:`same_place`,
+        at least ``revisit_min_gap_frames`` later (a recent frame sees the same place
+        because the camera has not left it: no loop)."""
+        return i - j >= self.config.revisit_min_gap_frames and self.same_place(i, j)
+
     def visible_points(
         self, i: int, depth_map: np.ndarray | None = None, border_px: float = 0.0, depth_tol: float = 0.02
     ) -> np.ndarray:

@@ -381,13 +381,11 @@ def test_closures_halve_the_ate_of_a_local_map_run_with_full_precision():
     partners = {}
     for i, j in seq.revisit_pairs:
         partners.setdefault(j, []).append(i)
-    gap = seq.config.revisit_min_gap_frames  # the sequence's own bound between two visits
     for c in closer.closures:  # precision 100 %: within 2 frames of a true revisit pair, or a
-        # later visit of the same place (benchmarks/bench_loop_revisit.py's soft truth); not
-        # a recent frame that a weak stretch of tracking left uncovisible, such as (54, 50)
+        # later visit of the same place (the sequence's later_visit); not a recent frame that
+        # a weak stretch of tracking left uncovisible, such as (54, 50)
         assert any(abs(c.frame_a - i) <= 2 for j in range(c.frame_b - 2, c.frame_b + 3)
-                   for i in partners.get(j, [])) or (
-            c.frame_b - c.frame_a >= gap and seq.same_place(c.frame_b, c.frame_a)), (c.frame_a, c.frame_b)
+                   for i in partners.get(j, [])) or seq.later_visit(c.frame_b, c.frame_a), (c.frame_a, c.frame_b)
 
 
 def test_rerun_logs_candidates_side_by_side_and_closures(tmp_path):

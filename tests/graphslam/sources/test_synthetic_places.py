@@ -32,3 +32,10 @@ def test_a_view_turned_from_a_revisit_still_sees_the_same_place(room):
     assert (0, 196) not in set(room.revisit_pairs)
     assert room.shared_view(196, 0) == pytest.approx(0.81, abs=0.02)
     assert room.same_place(196, 0)
+
+
+def test_a_later_visit_is_the_same_place_seen_after_the_sequences_gap(room):
+    """(54, 50): a neighbour sees the same place because the camera has not left it."""
+    assert room.same_place(54, 50) and not room.later_visit(54, 50)
+    assert room.later_visit(196, 0)  # the turned view of the revisit, 196 frames on
+    assert not room.later_visit(100, 0)  # far enough apart, another wall
