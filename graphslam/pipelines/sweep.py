@@ -221,8 +221,8 @@ def run_sweep(
     ``on_result(run, row)`` is called after each finished run (the progress
     bar). A KeyboardInterrupt (Ctrl-C) stops the sweep: runs in flight are
     stopped and left out, finished ones stay in sweep.csv, and the outcome
-    says ``interrupted``. ``check_out()`` is called as each run finishes, before
-    sweep.csv is written again: an error it raises (the folder moved away, and
+    says ``interrupted``. ``check_out()`` is called before each write of sweep.csv
+    (as each run finishes, and at the end): an error it raises (the folder moved away, and
     the table would be written into a new folder at the old path) stops the runs
     in flight and is raised.
     """
@@ -247,6 +247,8 @@ def run_sweep(
     order = {run.run_id: i for i, run in enumerate(runs)}
 
     def flush():
+        if check_out is not None:  # before every write of the table, the last one too
+            check_out()
         outcome.rows = sorted(rows.values(), key=lambda r: order.get(r["run_id"], len(order)))
         write_rows(csv_path, header, outcome.rows)
 
@@ -254,8 +256,6 @@ def run_sweep(
     results = executor.map_unordered(todo, out)
     try:
         for run, result in results:
-            if check_out is not None:
-                check_out()
             row = {**base_row(run, spec), **result}
             outcome.ran += 1
             outcome.failed += row["status"] != "ok"
