@@ -453,7 +453,14 @@ def load_image_sequence(
     an intrinsics file for a plain or TUM folder or a bag without camera_info, ``--intrinsics``)."""
     check_topics_flag(spec, topics)
     if is_bag_dataset(spec):
+        from graphslam.sources.spatial.calibration import is_estimate
         from graphslam.sources.spatial.rosbag import parse_topics, read_bag
+
+        if is_estimate(intrinsics):
+            raise ConfigError(
+                "--intrinsics estimate applies to plain image folders; a bag's camera comes "
+                "from its camera_info topic or an intrinsics file"
+            )
 
         return read_bag(spec, parse_topics(topics), intrinsics_file=intrinsics)
     if intrinsics is not None and spec == "synthetic-images":

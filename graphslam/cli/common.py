@@ -81,10 +81,34 @@ INTRINSICS_HELP = (
     "camera_info and the synthetic sequence carry their own camera"
 )
 
+#: What ``run`` adds: the camera of a plain folder estimated from its photos.
+INTRINSICS_ESTIMATE_HELP = (
+    "; 'estimate' (a plain image folder, run only): the focal length estimated from the "
+    "images by bundle adjustment, from 1.2 times the longer side, principal point at the "
+    "centre, no distortion; written to intrinsics.txt in the output folder"
+)
+
+
+def intrinsics_arg(text: str) -> Path | str:
+    """argparse ``type`` of ``--intrinsics``: the word ``estimate`` as that ``str``
+    (:data:`~graphslam.sources.spatial.calibration.ESTIMATE`), anything else a path
+    (:func:`path_arg`; a file named ``estimate`` is ``./estimate``)."""
+    return text if text == "estimate" else path_arg(text)
+
+
+def refuse_intrinsics_estimate(intrinsics, command: str) -> None:
+    """``--intrinsics estimate`` outside ``run``: one line naming what to pass instead."""
+    if isinstance(intrinsics, str) and intrinsics == "estimate":
+        raise GraphSlamError(
+            f"--intrinsics estimate: graphslam {command} does not estimate a camera; pass the "
+            "intrinsics.txt that 'graphslam run --intrinsics estimate' wrote in its output folder"
+        )
+
 
 def add_intrinsics_option(parser, help: str = INTRINSICS_HELP) -> None:
-    """``--intrinsics FILE``: the camera of an image folder."""
-    parser.add_argument("--intrinsics", type=path_arg, default=None, metavar="FILE", help=help)
+    """``--intrinsics FILE``: the camera of an image folder (``estimate``: see
+    :func:`intrinsics_arg`; only ``run`` takes it, the others refuse it in one line)."""
+    parser.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="FILE", help=help)
 
 
 def add_frames_option(parser, help: str) -> None:

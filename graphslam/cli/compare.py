@@ -18,6 +18,7 @@ from graphslam.cli.common import (
     add_robot_option,
     add_topics_option,
     path_arg,
+    refuse_intrinsics_estimate,
     seed_arg,
 )
 from graphslam.cli.out_folder import OutputFolder
@@ -281,6 +282,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
 
     names = args.backends or list(VISUAL_COMPARE_BACKENDS)
     _check_names(names, VISUAL_COMPARE_BACKENDS, "image sequences")
+    refuse_intrinsics_estimate(args.intrinsics, "compare")
     sequence = registry.load_image_sequence(
         args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics
     )

@@ -26,6 +26,7 @@ from graphslam.cli.common import (
     fmt,
     invocation,
     path_arg,
+    refuse_intrinsics_estimate,
     report_outputs,
     summary_table,
     warn,
@@ -108,6 +109,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         from slamcore.files import check_output_dir
 
         check_output_dir(args.out)
+    refuse_intrinsics_estimate(args.intrinsics, "localize")
     smap = load_map(args.map)
     config = registry.read_config(args.config)
     sequence = select_frames(

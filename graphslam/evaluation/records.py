@@ -206,6 +206,8 @@ class SpatialRunMetrics(MetricsRecord):
     tracking_loss: dict | None = optional()
     #: ``run --map``: the map, how the run started in it, the ATE in its frame
     map: dict | None = optional()
+    #: ``run --intrinsics estimate``: the camera estimated from the images and its rounds
+    camera_estimate: dict | None = optional()
     peak_rss_mb: float | None = optional()
     nees_mean: float | None = optional()
     nees_in_bounds_fraction: float | None = optional()

@@ -107,6 +107,12 @@ def write_landmarks_csv(path: Path, landmark_ids: np.ndarray, landmarks_w: np.nd
             f.write(f"{int(lid)}," + ",".join(metres(v) for v in p) + "\n")
 
 
+def write_text(path: Path, text: str) -> None:
+    """``text`` as the file ``path`` (UTF-8, replaced atomically)."""
+    with atomic_open(path, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
 def _jsonable(value):
     if hasattr(value, "to_dict"):  # typed records (run metrics, scores)
         return _jsonable(value.to_dict())
@@ -145,6 +151,7 @@ RUN_OUTPUT_NAMES = (
     "graph.graph",
     "closures.csv",
     "trajectory.bag",  # --write-bag, written from trajectory.tum after the run
+    "intrinsics.txt",  # --intrinsics estimate: the camera estimated from the images
 ) + AGENT_OUTPUT_NAMES
 #: Files ``graphslam compare`` may write into ``--out``.
 COMPARE_OUTPUT_NAMES = ("compare.json", "compare.png", "compare.rrd")

@@ -404,6 +404,13 @@ class VisualIsam2Backend(VisualBackend):
         self._flush()
         return gtsam.NonlinearFactorGraph(self._isam.getFactorsUnsafe())
 
+    def bundle(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """All factors added so far and the estimate (polished once polished) they are
+        read at: the bundle adjustment a calibration refines
+        (:mod:`~graphslam.backends.spatial.self_calibration`)."""
+        graph = self.factor_graph()
+        return graph, self._polished if self._polished is not None else self._isam.calculateEstimate()
+
     def error(self) -> float:
         """GTSAM graph error (robust) of the current or polished estimate."""
         self._flush()

@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 
 from graphslam.cli.common import (
+    INTRINSICS_ESTIMATE_HELP,
+    INTRINSICS_HELP,
     add_command,
     add_config_option,
     add_dataset_option,
@@ -244,7 +246,7 @@ def _add_image_options(vis) -> None:
         help="vocabulary for --loops, from 'graphslam vocab train' (implies --loops)",
     )
     add_topics_option(vis)
-    add_intrinsics_option(vis)
+    add_intrinsics_option(vis, INTRINSICS_HELP + INTRINSICS_ESTIMATE_HELP)
     add_frames_option(
         vis,
         "run on these frames only (Python slice: 0:200, 1:160:2, 159::-2 "

@@ -25,6 +25,7 @@ features of the frames the run will see (as ``graphslam loops`` does).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -96,11 +97,39 @@ def _load_sequence(args, config):
     return sequence
 
 
+def _estimate_camera(args, config, sequence):
+    """``--intrinsics estimate``: ``(sequence at the estimated camera, CameraEstimate)``,
+    the rounds said on stderr unless ``--quiet``; ``(sequence, None)`` otherwise."""
+    from graphslam.sources.spatial.calibration import is_estimate
+
+    if not is_estimate(args.intrinsics):
+        return sequence, None
+    from graphslam.pipelines.self_calibration import estimate_camera, with_camera
+
+    def said(k: int, f_in: float, f_out: float, frames: int) -> None:
+        if not args.quiet:
+            print(
+                f"estimating the focal length: round {k}: {f_in:.1f} -> {f_out:.1f} px ({frames} frames)",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    camera = estimate_camera(
+        sequence, config, max_frames=args.max_steps, detector=args.frontend, on_round=said
+    )
+    warn(
+        f"focal length estimated from the images: {camera.f_px:.1f} +- {camera.sigma_px:.1f} px "
+        f"({len(camera.rounds)} rounds from {camera.start_f_px:.1f} px; principal point at the "
+        "centre, no distortion); intrinsics.txt in the output folder holds it"
+    )
+    return with_camera(sequence, camera.K), camera
+
+
 def run(args: argparse.Namespace) -> int:
     """The visual ``graphslam run``; returns the exit status."""
     from graphslam import registry
     from graphslam.outputs.loops import write_loops  # stdlib only: cheap
-    from graphslam.outputs.writers import OutputWrites, one_run_or_the_other
+    from graphslam.outputs.writers import OutputWrites, one_run_or_the_other, write_text
     from graphslam.pipelines import spatial as vp
     from graphslam.pipelines.session import VisualSetup
 
@@ -114,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         )
     config = registry.read_config(args.config)
     sequence = _load_sequence(args, config)
+    sequence, camera = _estimate_camera(args, config, sequence)
     setup = VisualSetup.read(
         sequence,
         config,
@@ -148,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
         {"trajectory.tum", "landmarks.csv", "metrics.json"}
         | ({"ground_truth.tum"} if sequence.has_ground_truth else set())
         | ({"run.rrd"} if args.rerun == "save" else set())
-        | ({"loops.csv", "loops.jsonl"} if loops else set()),
+        | ({"loops.csv", "loops.jsonl"} if loops else set())
+        | ({"intrinsics.txt"} if camera is not None else set()),
     )
     recorder = hook = None
     if args.rerun != "off":
@@ -191,6 +222,7 @@ def run(args: argparse.Namespace) -> int:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     if relocaliser is not None:
         metrics.tracking_loss = relocaliser.stats
+    metrics.camera_estimate = None if camera is None else camera.to_dict()
     if prior_map is not None:  # what the run joined, and its error in the map's frame
         in_map = vp.map_frame_ate(result)
         metrics.map = {
@@ -202,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = vp.write_outputs(result, out_dir, metrics, writes)
+        if camera is not None:
+            writes(paths, "intrinsics", out_dir / "intrinsics.txt", write_text, camera.file_text())
         if closer is not None:
             paths.update(write_loops(closer, out_dir, writes))
         if recorder is not None:

@@ -42,6 +42,32 @@ INTRINSICS_FILE_NAMES = (
     "calibration.txt",
 )
 
+#: ``--intrinsics estimate``: the camera of a plain image folder is estimated from its
+#: images (:mod:`graphslam.pipelines.self_calibration`). A word, not a path: the option's
+#: parser gives it as this ``str`` (a file named so is passed as ``./estimate``, a Path).
+ESTIMATE = "estimate"
+
+#: The estimate's start: a focal length of this times the image's longer side, the
+#: principal point at the image centre. COLMAP's default for a camera whose photos state
+#: no focal length (``ImageReaderOptions.default_focal_length_factor = 1.2``, a field of
+#: view of about 45 deg across the longer side).
+START_FOCAL_PER_LONG_SIDE = 1.2
+
+
+def is_estimate(intrinsics) -> bool:
+    """True for ``--intrinsics estimate`` (:data:`ESTIMATE`, never a Path)."""
+    return isinstance(intrinsics, str) and not isinstance(intrinsics, Path) and intrinsics == ESTIMATE
+
+
+def start_camera(size: tuple[int, int], f_px: float | None = None) -> np.ndarray:
+    """(3, 3) ``K`` of images ``size`` ``(W, H)`` px: focal length ``f_px`` (None: the
+    start, :data:`START_FOCAL_PER_LONG_SIDE` times the longer side) and the principal
+    point at the centre (OpenCV's pixel centres: ``((W - 1) / 2, (H - 1) / 2)``)."""
+    w, h = size
+    f = START_FOCAL_PER_LONG_SIDE * max(w, h) if f_px is None else float(f_px)
+    return intrinsics_matrix(f, f, (w - 1) / 2.0, (h - 1) / 2.0)
+
+
 #: TUM RGB-D colour-camera calibrations (fx, fy, cx, cy) and distortion
 #: (k1, k2, p1, p2, k3), from the dataset's "file formats" page. "ros" is the
 #: ROS default used for the uncalibrated/undistorted case.

@@ -86,9 +86,11 @@ from graphslam.sources.spatial.calibration import (
     INTRINSICS_FILE_NAMES,
     TUM_INTRINSICS,
     find_intrinsics_file,
+    is_estimate,
     load_yaml,
     read_intrinsics_file,
     resolve_intrinsics,
+    start_camera,
     stated_image_size,
     yaml_distortion,
     yaml_image_size,
@@ -105,6 +107,7 @@ from graphslam.sources.spatial.sequence import (
     check_K,
     check_rotation,
     image_doubts,
+    image_size,
     list_images,
     parse_euroc_line,
     parse_floats,
@@ -357,7 +360,10 @@ def read_image_folder(
     if not paths:
         raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}){_images_below(folder)}", folder)
     camera_from: Path | str
-    if intrinsics is not None:
+    if is_estimate(intrinsics):  # the start of the estimate: the images' own size
+        K, dist = start_camera(image_size(str(paths[0]))), None
+        camera_from = "--intrinsics estimate"
+    elif intrinsics is not None:
         K, dist = resolve_intrinsics(intrinsics, folder)
         camera_from = Path(intrinsics) if isinstance(intrinsics, (str, Path)) else "intrinsics argument"
     elif intrinsics_file is not None:
@@ -416,6 +422,11 @@ def read_image_sequence(path: str | Path, intrinsics_file: str | Path | None = N
     if euroc:
         return read_euroc(path, **kw)
     if (path / "rgb.txt").is_file():
+        if is_estimate(intrinsics_file):
+            raise ConfigError(
+                "--intrinsics estimate applies to plain image folders; a TUM RGB-D folder's "
+                "camera is named by the folder (rgbd_dataset_freiburg1_...) or given by a file"
+            )
         if intrinsics_file is not None:
             kw["intrinsics"] = Path(intrinsics_file)
         return read_tum_rgbd(path, **kw)
@@ -439,6 +450,8 @@ def read_image_sequence(path: str | Path, intrinsics_file: str | Path | None = N
             "matrices (lines P0: ... P3:) are needed",
             path / "calib.txt",
         )
-    if intrinsics_file is not None:
+    if is_estimate(intrinsics_file):
+        kw["intrinsics"] = intrinsics_file
+    elif intrinsics_file is not None:
         kw["intrinsics_file"] = intrinsics_file
     return read_image_folder(path, **kw)

@@ -854,3 +854,17 @@ def test_a_sweep_plot_refused_by_the_disk_costs_no_other_plot(tmp_path):
     assert lines[0].endswith("/ holds sweep.csv, sweep_ate.png"), lines[0]
     assert {"sweep.csv", "sweep_ate.png"} <= {p.name for p in out.iterdir()}
     assert not (out / "sweep_nees.png").exists()
+
+
+@pytest.mark.parametrize("sig", ["INT", "TERM"])
+def test_a_signal_while_the_camera_is_estimated_ends_before_anything_is_written(tmp_path, shared_data, sig):
+    """``--intrinsics estimate``'s rounds come before the run: a stop there has no camera
+    and no estimate to keep, so the command ends at once, one line, no folder."""
+    images = shared_data / "lund_door" / "images"
+    if not images.is_dir():
+        pytest.skip("Lund door photos missing")
+    done = graphslam(tmp_path, "run", "--dataset", str(images), "--intrinsics", "estimate", "--out", "o",
+                     "--rerun", "off", "--quiet", at="step:3", sig=sig)
+    assert done.returncode == STATUS[sig], done.stderr
+    assert one_line(done.stderr) == f"graphslam: interrupted (SIG{sig})"
+    assert not (tmp_path / "o").exists()
