@@ -2,10 +2,10 @@
 
 Photos from a phone or a camera nobody calibrated come without ``fx fy cx cy``. Structure
 from motion starts such a camera at a guess and refines it with the scene (COLMAP does so
-by default); this does the same on top of the visual iSAM2:
+by default); this does the same on top of the visual iSAM2 (:func:`settle`):
 
-1. start at :data:`~graphslam.sources.spatial.calibration.START_FOCAL_PER_LONG_SIDE` times
-   the image's longer side, the principal point at the centre, no distortion;
+1. start at a focal length of the image's longer side times a factor, the principal
+   point at the centre, no distortion;
 2. run the camera alone (no odometry) on the first :data:`CALIBRATION_MAX_FRAMES` frames
    at the current focal length, with the run's own configuration;
 3. solve that run's bundle again with the focal length free
@@ -15,10 +15,16 @@ by default); this does the same on top of the visual iSAM2:
    triangulations all depend on the focal length, so a start far off (KITTI's wide
    images: 2.1 times the truth) needs a few rounds, each tracking further.
 
+:func:`estimate_camera` settles from two starts (:data:`STARTS_PER_LONG_SIDE`) and
+takes the estimate only when both settle at one focal length: a bundle's standard
+deviation says how well it holds its own minimum, not whether the images hold only
+that one.
+
 A run cut partway (a frame the back end could not place at a poor guess) still gives the
 bundle of the frames before the cut. The estimate is refused, one line, when the images
-do not determine it (:data:`MAX_SIGMA_SHARE`) or the rounds do not settle
-(:data:`MAX_ROUNDS`). Every round is a seeded run: the same images give the same bits.
+do not determine it (:data:`MAX_SIGMA_SHARE`, or the starts settle apart) or the rounds
+do not settle (:data:`MAX_ROUNDS`). Every round is a seeded run: the same images give
+the same bits.
 """
 
 from __future__ import annotations
@@ -37,8 +43,19 @@ from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.config import ConfigFile
 from slamcore.errors import GraphSlamError
 
-__all__ = ["CameraEstimate", "estimate_camera"]
+__all__ = ["CameraEstimate", "Settled", "estimate_camera", "settle", "with_camera"]
 
+#: The starts, times the image's longer side: COLMAP's default (1.2, about 45 deg across
+#: the longer side) and a phone's wide camera (0.7: 26 mm equivalent, 69 deg). Both must
+#: settle at one focal length: a bundle built at a focal length can hold it as a local
+#: minimum when the motion does not determine it (the synthetic room's first 60 frames,
+#: driven in a plane, settle at 444.9 +- 1.9 px from 0.7 and at 746.8 +- 7.2 from 1.2,
+#: its camera 500), so one start alone can be confidently wrong. The Lund door
+#: settles at 2464.7 px from 0.7, 0.9, 1.2 and 1.5; KITTI 07 at 689.6 from 0.7 and 1.2.
+STARTS_PER_LONG_SIDE = (START_FOCAL_PER_LONG_SIDE, 0.7)
+#: Two starts agree when they settle within this many of their combined standard
+#: deviations (and the rounds' own convergence, :data:`CONVERGED_SHARE`, twice).
+AGREE_SIGMAS = 3.0
 #: Frames each round runs on: KITTI 07's 160 frames determine the focal length to 0.35 %
 #: (2.4 px of 690); more only cost time, round after round.
 CALIBRATION_MAX_FRAMES = 200
@@ -60,25 +77,55 @@ CALIBRATION_BACKEND = "isam2"
 
 
 @dataclass(frozen=True)
+class Settled:
+    """Where the rounds from one start settled.
+
+    Attributes:
+        start_f_px: the first round's focal length, pixels.
+        f_px, sigma_px: the settled focal length and its standard deviation, pixels.
+        rounds: ``(f_px in, f_px out, frames placed)`` of every round.
+        frames: frames of the last round's bundle; projections: its pixels.
+    """
+
+    start_f_px: float
+    f_px: float
+    sigma_px: float
+    rounds: tuple[tuple[float, float, int], ...]
+    frames: int
+    projections: int
+
+    def to_dict(self) -> dict:
+        return {
+            "start_f_px": self.start_f_px,
+            "f_px": self.f_px,
+            "sigma_f_px": self.sigma_px,
+            "rounds": [{"f_in_px": a, "f_out_px": b, "frames": n} for a, b, n in self.rounds],
+            "frames": self.frames,
+            "projections": self.projections,
+        }
+
+
+@dataclass(frozen=True)
 class CameraEstimate:
     """The outcome of :func:`estimate_camera`.
 
     Attributes:
         K: (3, 3) the estimated intrinsic matrix, pixels (``fx = fy``, principal point at
             the image centre).
-        f_px, sigma_px: the focal length and its standard deviation, pixels.
-        start_f_px: the first round's focal length, pixels.
-        rounds: ``(f_px in, f_px out, frames placed)`` of every round.
-        frames: frames of the last round's bundle; projections: its pixels.
+        settled: where the rounds from each start of :data:`STARTS_PER_LONG_SIDE`
+            settled; the first is the estimate, the others agreed with it.
     """
 
     K: np.ndarray
-    f_px: float
-    sigma_px: float
-    start_f_px: float
-    rounds: tuple[tuple[float, float, int], ...]
-    frames: int
-    projections: int
+    settled: tuple[Settled, ...]
+
+    @property
+    def f_px(self) -> float:
+        return self.settled[0].f_px
+
+    @property
+    def sigma_px(self) -> float:
+        return self.settled[0].sigma_px
 
     def to_dict(self) -> dict:
         """``metrics.json``'s ``camera_estimate``."""
@@ -88,18 +135,15 @@ class CameraEstimate:
             "cx_px": float(self.K[0, 2]),
             "cy_px": float(self.K[1, 2]),
             "sigma_f_px": self.sigma_px,
-            "start_f_px": self.start_f_px,
-            "rounds": [{"f_in_px": a, "f_out_px": b, "frames": n} for a, b, n in self.rounds],
-            "frames": self.frames,
-            "projections": self.projections,
             "model": "pinhole, fx = fy, principal point at the image centre, no distortion",
+            "starts": [s.to_dict() for s in self.settled],
         }
 
     def file_text(self) -> str:
         """The camera as an intrinsics file (``fx fy cx cy``), for ``--intrinsics FILE``."""
         return (
             f"# estimated by graphslam run --intrinsics estimate: f = {self.f_px:.2f} +- "
-            f"{self.sigma_px:.2f} px over {self.frames} frames\n"
+            f"{self.sigma_px:.2f} px over {self.settled[0].frames} frames\n"
             f"{self.f_px!r} {self.f_px!r} {float(self.K[0, 2])!r} {float(self.K[1, 2])!r}\n"
         )
 
@@ -110,26 +154,56 @@ def estimate_camera(
     *,
     max_frames: int | None = None,
     detector: str | None = None,
-    on_round: Callable[[int, float, float, int], None] | None = None,
+    on_round: Callable[[float, int, float, float, int], None] | None = None,
 ) -> CameraEstimate:
     """The focal length of ``sequence``'s camera (module docstring); ``sequence.K``'s
     principal point is held. ``max_frames``: the run's own frame limit, if any;
-    ``on_round(round, f_in, f_out, frames)`` after each round (progress).
+    ``on_round(start_f, round, f_in, f_out, frames)`` after each round (progress).
 
     Raises GraphSlamError (one line) when no bundle can be built, the images do not
-    determine the focal length or the rounds do not settle; KeyboardInterrupt when a
-    stop signal came during a round (nothing is estimated yet to write).
+    determine the focal length (too wide, or the starts settle apart) or the rounds do
+    not settle; KeyboardInterrupt when a stop signal came during a round (nothing is
+    estimated yet to write).
     """
     size = sequence.image_size
-    f = START_FOCAL_PER_LONG_SIDE * max(size)
-    cx, cy = float(sequence.K[0, 2]), float(sequence.K[1, 2])
     n = min(len(sequence), CALIBRATION_MAX_FRAMES, max_frames or CALIBRATION_MAX_FRAMES)
+    settled = [
+        settle(sequence, config, factor * max(size), n, detector, on_round) for factor in STARTS_PER_LONG_SIDE
+    ]
+    first = settled[0]
+    for other in settled[1:]:
+        slack = AGREE_SIGMAS * float(np.hypot(first.sigma_px, other.sigma_px))
+        if abs(other.f_px - first.f_px) > slack + 2.0 * CONVERGED_SHARE * max(first.f_px, other.f_px):
+            raise GraphSlamError(
+                f"--intrinsics estimate: these images do not determine the focal length: from "
+                f"{first.start_f_px:.1f} px it settles at {first.f_px:.1f} +- {first.sigma_px:.1f} px, "
+                f"from {other.start_f_px:.1f} px at {other.f_px:.1f} +- {other.sigma_px:.1f} px (a motion "
+                "that does not fix it, as driving in a plane can be): pass the camera's intrinsics"
+            )
+    K = np.array(start_camera(size, first.f_px))
+    K[0, 2], K[1, 2] = float(sequence.K[0, 2]), float(sequence.K[1, 2])
+    return CameraEstimate(K, tuple(settled))
+
+
+def settle(
+    sequence: ImageSequence,
+    config: ConfigFile,
+    f: float,
+    n: int,
+    detector: str | None = None,
+    on_round: Callable[[float, int, float, float, int], None] | None = None,
+) -> Settled:
+    """Rounds from the focal length ``f`` (pixels) on the first ``n`` frames until it
+    moves by less than :data:`CONVERGED_SHARE` (module docstring); GraphSlamError when
+    they do not settle or the settled bundle does not determine it."""
+    start = f
+    size = sequence.image_size
     rounds: list[tuple[float, float, int]] = []
     for k in range(MAX_ROUNDS):
         fit, frames = _round(sequence, start_camera(size, f), config, n, detector)
         rounds.append((f, fit.f_px, frames))
         if on_round is not None:
-            on_round(k + 1, f, fit.f_px, frames)
+            on_round(start, k + 1, f, fit.f_px, frames)
         if not (np.isfinite(fit.f_px) and fit.f_px > 0.0):
             raise GraphSlamError(
                 f"--intrinsics estimate: the bundle adjustment gave no focal length ({fit.f_px} px "
@@ -141,8 +215,8 @@ def estimate_camera(
             break
     else:
         raise GraphSlamError(
-            f"--intrinsics estimate: the focal length did not settle in {MAX_ROUNDS} rounds "
-            f"({', '.join(f'{r[1]:.1f}' for r in rounds[-3:])} px last): pass the camera's intrinsics"
+            f"--intrinsics estimate: from {start:.1f} px the focal length did not settle in {MAX_ROUNDS} "
+            f"rounds ({', '.join(f'{r[1]:.1f}' for r in rounds[-3:])} px last): pass the camera's intrinsics"
         )
     if fit.sigma_px is None or fit.sigma_px > MAX_SIGMA_SHARE * f:
         spread = "undetermined" if fit.sigma_px is None else f"+- {fit.sigma_px:.1f} px"
@@ -151,9 +225,7 @@ def estimate_camera(
             f"{spread} from {frames} frames; at most {MAX_SIGMA_SHARE:.0%} is taken): "
             "pass the camera's intrinsics (a calibration, or photos that turn more)"
         )
-    K = np.array(start_camera(size, f))
-    K[0, 2], K[1, 2] = cx, cy
-    return CameraEstimate(K, f, fit.sigma_px, rounds[0][0], tuple(rounds), frames, fit.projections)
+    return Settled(start, f, fit.sigma_px, tuple(rounds), frames, fit.projections)
 
 
 def with_camera(sequence: ImageSequence, K: np.ndarray) -> ImageSequence:

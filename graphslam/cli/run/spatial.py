@@ -106,10 +106,11 @@ def _estimate_camera(args, config, sequence):
         return sequence, None
     from graphslam.pipelines.self_calibration import estimate_camera, with_camera
 
-    def said(k: int, f_in: float, f_out: float, frames: int) -> None:
+    def said(start: float, k: int, f_in: float, f_out: float, frames: int) -> None:
         if not args.quiet:
             print(
-                f"estimating the focal length: round {k}: {f_in:.1f} -> {f_out:.1f} px ({frames} frames)",
+                f"estimating the focal length from {start:.1f} px: round {k}: {f_in:.1f} -> {f_out:.1f} px "
+                f"({frames} frames)",
                 file=sys.stderr,
                 flush=True,
             )
@@ -117,10 +118,11 @@ def _estimate_camera(args, config, sequence):
     camera = estimate_camera(
         sequence, config, max_frames=args.max_steps, detector=args.frontend, on_round=said
     )
+    starts = " and ".join(f"{s.start_f_px:.1f}" for s in camera.settled)
     warn(
         f"focal length estimated from the images: {camera.f_px:.1f} +- {camera.sigma_px:.1f} px "
-        f"({len(camera.rounds)} rounds from {camera.start_f_px:.1f} px; principal point at the "
-        "centre, no distortion); intrinsics.txt in the output folder holds it"
+        f"(settled there from {starts} px; principal point at the centre, no distortion); "
+        "intrinsics.txt in the output folder holds it"
     )
     return with_camera(sequence, camera.K), camera
 

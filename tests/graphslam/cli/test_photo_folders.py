@@ -298,10 +298,12 @@ def test_lund_door_camera_estimated_from_its_photos(lund_colmap, tmp_path, capsy
     assert main(["run", "--dataset", str(images), "--intrinsics", "estimate", "--rerun", "off",
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "estimating the focal length: round 1: 2323.2 -> " in err
+    assert "estimating the focal length from 2323.2 px: round 1: 2323.2 -> " in err
     assert "focal length estimated from the images" in err
     camera = json.loads((out / "metrics.json").read_text())["camera_estimate"]
-    assert camera["start_f_px"] == pytest.approx(1.2 * 1936)
+    starts = camera["starts"]  # COLMAP's start and a wide camera's, settled at one focal length
+    assert [s["start_f_px"] for s in starts] == pytest.approx([1.2 * 1936, 0.7 * 1936])
+    assert abs(starts[1]["f_px"] - starts[0]["f_px"]) <= starts[0]["sigma_f_px"]
     assert abs(camera["fx_px"] - colmap_f) <= LUND_FOCAL_SIGMAS * camera["sigma_f_px"]
     assert (camera["cx_px"], camera["cy_px"]) == ((1296 - 1) / 2, (1936 - 1) / 2)
     K, dist = read_intrinsics_file(out / "intrinsics.txt")
