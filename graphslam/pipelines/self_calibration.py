@@ -39,7 +39,7 @@ from graphslam.backends.spatial.self_calibration import FocalFit, refine_focal
 from graphslam.pipelines.common import BackendFailed, FrameUnreadable, stop_requested
 from graphslam.pipelines.session import VisualSetup
 from graphslam.sources.spatial.calibration import START_FOCAL_PER_LONG_SIDE, start_camera
-from graphslam.sources.spatial.sequence import ImageSequence
+from graphslam.sources.spatial.sequence import ImageSequence, camera_doubts
 from slamcore.config import ConfigFile
 from slamcore.errors import GraphSlamError
 
@@ -229,8 +229,11 @@ def settle(
 
 
 def with_camera(sequence: ImageSequence, K: np.ndarray) -> ImageSequence:
-    """``sequence`` read with the intrinsic matrix ``K`` (no distortion)."""
-    return dataclasses.replace(sequence, K=np.asarray(K, dtype=np.float64), distortion=None)
+    """``sequence`` read with the intrinsic matrix ``K`` (no distortion), its camera
+    doubts those of ``K`` (InputError when ``K`` cannot be a camera of its images)."""
+    K = np.asarray(K, dtype=np.float64)
+    doubts = camera_doubts(K, sequence.image_size, "--intrinsics estimate", sequence.image_paths[0])
+    return dataclasses.replace(sequence, K=K, distortion=None, camera_warnings=tuple(doubts))
 
 
 def _round(

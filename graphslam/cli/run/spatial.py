@@ -97,13 +97,17 @@ def _load_sequence(args, config):
     return sequence
 
 
-def _estimate_camera(args, config, sequence):
-    """``--intrinsics estimate``: ``(sequence at the estimated camera, CameraEstimate)``,
-    the rounds said on stderr unless ``--quiet``; ``(sequence, None)`` otherwise."""
+def _estimate_camera(args, config, setup):
+    """``--intrinsics estimate``: ``(setup, sequence, CameraEstimate)`` at the estimated
+    camera, the rounds said on stderr unless ``--quiet``; ``(setup, its sequence, None)``
+    otherwise."""
+    import dataclasses
+
     from graphslam.sources.spatial.calibration import is_estimate
 
+    sequence = setup.sequence
     if not is_estimate(args.intrinsics):
-        return sequence, None
+        return setup, sequence, None
     from graphslam.pipelines.self_calibration import estimate_camera, with_camera
 
     def said(start: float, k: int, f_in: float, f_out: float, frames: int) -> None:
@@ -124,7 +128,10 @@ def _estimate_camera(args, config, sequence):
         f"(settled there from {starts} px; principal point at the centre, no distortion); "
         "intrinsics.txt in the output folder holds it"
     )
-    return with_camera(sequence, camera.K), camera
+    sequence = with_camera(sequence, camera.K)
+    for doubt in sequence.camera_warnings:  # of the estimated camera (the start's were said)
+        warn(doubt)
+    return dataclasses.replace(setup, sequence=sequence), sequence, camera
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,7 +152,6 @@ def run(args: argparse.Namespace) -> int:
         )
     config = registry.read_config(args.config)
     sequence = _load_sequence(args, config)
-    sequence, camera = _estimate_camera(args, config, sequence)
     setup = VisualSetup.read(
         sequence,
         config,
@@ -170,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
             "--loops or --relocalise (the loop-closure factors)",
         )
     setup.check_seed([args.backend], simulated=args.dataset == "synthetic-images")
+    setup, sequence, camera = _estimate_camera(args, config, setup)  # after every refusal: it takes a while
     session = setup.session(args.backend)
     backend, tracker = session.backend, session.tracker
     n_frames = len(sequence) if args.max_steps is None else min(args.max_steps, len(sequence))

@@ -56,7 +56,7 @@ START_FOCAL_PER_LONG_SIDE = 1.2
 
 def is_estimate(intrinsics) -> bool:
     """True for ``--intrinsics estimate`` (:data:`ESTIMATE`, never a Path)."""
-    return isinstance(intrinsics, str) and not isinstance(intrinsics, Path) and intrinsics == ESTIMATE
+    return isinstance(intrinsics, str) and intrinsics == ESTIMATE
 
 
 def start_camera(size: tuple[int, int], f_px: float | None = None) -> np.ndarray:
