@@ -154,10 +154,12 @@ def estimate_camera(
     *,
     max_frames: int | None = None,
     detector: str | None = None,
+    seed: int | None = None,
     on_round: Callable[[float, int, float, float, int], None] | None = None,
 ) -> CameraEstimate:
     """The focal length of ``sequence``'s camera (module docstring); ``sequence.K``'s
-    principal point is held. ``max_frames``: the run's own frame limit, if any;
+    principal point is held. ``max_frames``, ``detector``, ``seed``: the run's own frame
+    limit, corner detector and seed (its RANSACs' draws), if any;
     ``on_round(start_f, round, f_in, f_out, frames)`` after each round (progress).
 
     Raises GraphSlamError (one line) when no bundle can be built, the images do not
@@ -168,7 +170,8 @@ def estimate_camera(
     size = sequence.image_size
     n = min(len(sequence), CALIBRATION_MAX_FRAMES, max_frames or CALIBRATION_MAX_FRAMES)
     settled = [
-        settle(sequence, config, factor * max(size), n, detector, on_round) for factor in STARTS_PER_LONG_SIDE
+        settle(sequence, config, factor * max(size), n, detector, seed, on_round)
+        for factor in STARTS_PER_LONG_SIDE
     ]
     first = settled[0]
     for other in settled[1:]:
@@ -191,6 +194,7 @@ def settle(
     f: float,
     n: int,
     detector: str | None = None,
+    seed: int | None = None,
     on_round: Callable[[float, int, float, float, int], None] | None = None,
 ) -> Settled:
     """Rounds from the focal length ``f`` (pixels) on the first ``n`` frames until it
@@ -200,7 +204,7 @@ def settle(
     size = sequence.image_size
     rounds: list[tuple[float, float, int]] = []
     for k in range(MAX_ROUNDS):
-        fit, frames = _round(sequence, start_camera(size, f), config, n, detector)
+        fit, frames = _round(sequence, start_camera(size, f), config, n, detector, seed)
         rounds.append((f, fit.f_px, frames))
         if on_round is not None:
             on_round(start, k + 1, f, fit.f_px, frames)
@@ -242,6 +246,7 @@ def _round(
     config: ConfigFile,
     n: int,
     detector: str | None,
+    seed: int | None,
     retries: int = RETRIES,
 ) -> tuple[FocalFit, int]:
     """One camera-alone run of ``n`` frames at ``K`` and its bundle refined: ``(fit,
@@ -265,7 +270,7 @@ def _round(
         shorter = min(done[0], n - 1)
         if shorter < MIN_FRAMES or retries == 0:
             raise GraphSlamError(f"--intrinsics estimate: at f = {K[0, 0]:.1f} px, {e}") from None
-        return _round(sequence, K, config, shorter, detector, retries - 1)
+        return _round(sequence, K, config, shorter, detector, seed, retries - 1)
     if stop_requested():
         raise KeyboardInterrupt  # a stop during a round: no camera, nothing to write
     placed = len(session.backend.estimate().frame_ids)

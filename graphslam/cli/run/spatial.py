@@ -120,7 +120,7 @@ def _estimate_camera(args, config, setup):
             )
 
     camera = estimate_camera(
-        sequence, config, max_frames=args.max_steps, detector=args.frontend, on_round=said
+        sequence, config, max_frames=args.max_steps, detector=args.frontend, seed=args.seed, on_round=said
     )
     starts = " and ".join(f"{s.start_f_px:.1f}" for s in camera.settled)
     warn(
