@@ -83,9 +83,9 @@ INTRINSICS_HELP = (
 
 #: What ``run`` adds: the camera of a plain folder estimated from its photos.
 INTRINSICS_ESTIMATE_HELP = (
-    "; 'estimate' (a plain image folder, run only): the focal length estimated from the "
-    "images by bundle adjustment, from 1.2 times the longer side, principal point at the "
-    "centre, no distortion; written to intrinsics.txt in the output folder"
+    "; 'estimate' (a plain image folder, run only): the focal length and radial distortion "
+    "(COLMAP's SIMPLE_RADIAL, principal point at the centre) estimated from the images by "
+    "bundle adjustment; written to intrinsics.txt in the output folder"
 )
 
 

@@ -110,11 +110,11 @@ def _estimate_camera(args, config, setup):
         return setup, sequence, None
     from graphslam.pipelines.self_calibration import estimate_camera, with_camera
 
-    def said(start: float, k: int, f_in: float, f_out: float, frames: int) -> None:
+    def said(start: float, k: int, f_in: float, f_out: float, k1: float, frames: int) -> None:
         if not args.quiet:
             print(
-                f"estimating the focal length from {start:.1f} px: round {k}: {f_in:.1f} -> {f_out:.1f} px "
-                f"({frames} frames)",
+                f"estimating the camera from {start:.1f} px: round {k}: f {f_in:.1f} -> {f_out:.1f} px, "
+                f"k1 {k1:.4f} ({frames} frames)",
                 file=sys.stderr,
                 flush=True,
             )
@@ -122,13 +122,14 @@ def _estimate_camera(args, config, setup):
     camera = estimate_camera(
         sequence, config, max_frames=args.max_steps, detector=args.frontend, seed=args.seed, on_round=said
     )
+    first = camera.settled[0]
     starts = " and ".join(f"{s.start_f_px:.1f}" for s in camera.settled)
     warn(
-        f"focal length estimated from the images: {camera.f_px:.1f} +- {camera.sigma_px:.1f} px "
-        f"(settled there from {starts} px; principal point at the centre, no distortion); "
-        "intrinsics.txt in the output folder holds it"
+        f"camera estimated from the images: f = {first.f_px:.1f} +- {first.sigma_f_px:.1f} px, k1 = "
+        f"{first.k1:.4f} +- {first.sigma_k1:.4f} (settled there from {starts} px; principal point at "
+        "the centre); intrinsics.txt in the output folder holds it"
     )
-    sequence = with_camera(sequence, camera.K)
+    sequence = with_camera(sequence, camera.K, float(camera.distortion[0]))
     for doubt in sequence.camera_warnings:  # of the estimated camera (the start's were said)
         warn(doubt)
     return dataclasses.replace(setup, sequence=sequence), sequence, camera

@@ -279,11 +279,11 @@ def test_compare_scores_every_back_end_against_a_colmap_truth(lund_colmap, share
     assert "does not move" in runs["ekf-idp"]["ate_error"]
 
 
-#: The Lund door's focal length estimated from its photos against COLMAP's, in the
-#: estimate's own standard deviations: COLMAP models radial distortion besides (k =
-#: -0.034), the estimate none, so they are not one quantity; measured 1.6 (2464.7 +- 18.6
-#: px against 2435.4 px).
-LUND_FOCAL_SIGMAS = 3.0
+#: The Lund door's camera estimated from its photos against COLMAP's, in the estimate's
+#: own standard deviations: both are SIMPLE_RADIAL (f, k1, the principal point at the
+#: centre); measured 0.27 for f (2441.7 +- 23.2 px against 2435.4) and 0.04 for k1
+#: (-0.0330 +- 0.0151 against -0.0336).
+LUND_CAMERA_SIGMAS = 3.0
 
 
 def test_lund_door_camera_estimated_from_its_photos(lund_colmap, tmp_path, capsys):
@@ -293,21 +293,23 @@ def test_lund_door_camera_estimated_from_its_photos(lund_colmap, tmp_path, capsy
     from graphslam.sources.spatial.calibration import read_intrinsics_file
 
     images, intrinsics, truth = lund_colmap
-    colmap_f = float(intrinsics.read_text().split()[0])
+    colmap_f, colmap_k1 = (float(v) for v in intrinsics.read_text().split()[0::4][:2])
     out = tmp_path / "run"
     assert main(["run", "--dataset", str(images), "--intrinsics", "estimate", "--rerun", "off",
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "estimating the focal length from 2323.2 px: round 1: 2323.2 -> " in err
-    assert "focal length estimated from the images" in err
+    assert "estimating the camera from 2323.2 px: round 1: f 2323.2 -> " in err
+    assert "camera estimated from the images" in err
     camera = json.loads((out / "metrics.json").read_text())["camera_estimate"]
-    starts = camera["starts"]  # COLMAP's start and a wide camera's, settled at one focal length
+    starts = camera["starts"]  # COLMAP's start and a wide camera's, settled at one camera
     assert [s["start_f_px"] for s in starts] == pytest.approx([1.2 * 1936, 0.7 * 1936])
     assert abs(starts[1]["f_px"] - starts[0]["f_px"]) <= starts[0]["sigma_f_px"]
-    assert abs(camera["fx_px"] - colmap_f) <= LUND_FOCAL_SIGMAS * camera["sigma_f_px"]
+    assert abs(camera["fx_px"] - colmap_f) <= LUND_CAMERA_SIGMAS * camera["sigma_f_px"]
+    assert abs(camera["k1"] - colmap_k1) <= LUND_CAMERA_SIGMAS * camera["sigma_k1"]
     assert (camera["cx_px"], camera["cy_px"]) == ((1296 - 1) / 2, (1936 - 1) / 2)
     K, dist = read_intrinsics_file(out / "intrinsics.txt")
-    assert dist is None and K[0, 0] == K[1, 1] == camera["fx_px"] and K[0, 2] == camera["cx_px"]
+    assert K[0, 0] == K[1, 1] == camera["fx_px"] and K[0, 2] == camera["cx_px"]
+    assert list(dist) == [camera["k1"], 0.0, 0.0, 0.0]
     _check_lund_ate(truth, out / "trajectory.tum", tmp_path / "eval")
     # the file it wrote is a camera the next run takes, and the same bits come out
     again = tmp_path / "again"

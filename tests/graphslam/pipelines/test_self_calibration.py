@@ -9,7 +9,7 @@ import re
 import pytest
 
 from graphslam import registry
-from graphslam.pipelines.self_calibration import estimate_camera
+from graphslam.pipelines.self_calibration import MAX_SIGMA_SHARE, estimate_camera
 from slamcore.errors import GraphSlamError
 
 #: Frames of the room each round runs on: a third of a lap is enough to show it.
@@ -25,11 +25,12 @@ def room():
 @pytest.mark.slow
 def test_the_room_camera_is_refused_not_guessed(room):
     sequence, config = room
-    """Each start alone settles with a standard deviation under 1 %, far from the other and
+    """Each start alone settles with a standard deviation under 2 %, far from the other and
     from the room's camera (500 px): the two disagree, and the run is refused in one line."""
     with pytest.raises(GraphSlamError) as info:
         estimate_camera(sequence, config, max_frames=ROOM_FRAMES)
     words = str(info.value)
-    assert words.startswith("--intrinsics estimate: these images do not determine the focal length: from 768.0 px")
+    assert words.startswith("--intrinsics estimate: these images do not determine the camera: from 768.0 px")
     (f1, s1), (f2, s2) = [tuple(map(float, m)) for m in re.findall(r"at ([0-9.]+) \+- ([0-9.]+) px", words)]
-    assert s1 < 0.01 * f1 and s2 < 0.01 * f2 and abs(f1 - f2) > 10 * (s1 + s2)
+    # each passes the one-start test (a standard deviation under MAX_SIGMA_SHARE)
+    assert s1 < MAX_SIGMA_SHARE * f1 and s2 < MAX_SIGMA_SHARE * f2 and abs(f1 - f2) > 10 * (s1 + s2)
