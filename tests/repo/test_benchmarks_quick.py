@@ -35,6 +35,7 @@ SLOW = {
     # under a load average of 10 (about 5 s of CPU each)
     "bench_sequential_search": 21, "bench_paper_figures": 45,
     "bench_loop_revisit": 21, "hostile_pass": 9,
+    "bench_self_calibration": 12,
 }
 
 #: Arguments besides ``--quick`` (scripts whose quick mode predates this test keep their
