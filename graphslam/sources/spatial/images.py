@@ -373,7 +373,11 @@ def read_image_folder(
         K, dist = read_intrinsics_file(f)
         camera_from = f
     else:
-        raise InputError(f"no intrinsics: {NO_INTRINSICS_HINT}", folder)
+        raise InputError(
+            f"no intrinsics: {NO_INTRINSICS_HINT}; or let graphslam run estimate them from the "
+            "photos (--intrinsics estimate)",
+            folder,
+        )
     stated = stated_image_size(camera_from) if isinstance(camera_from, Path) else None
     size, doubts = image_doubts(K, paths, camera_from, stated)
     return ImageSequence(

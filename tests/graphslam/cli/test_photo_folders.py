@@ -36,6 +36,7 @@ def desk_photos(desk_copy):
 def test_a_folder_without_a_camera_names_the_option_and_the_files(capsys, desk_photos, tmp_path):
     line = _one_error_line(capsys, ["run", "--dataset", desk_photos, "--rerun", "off", "--out", tmp_path / "o"])
     assert "no intrinsics: pass --intrinsics FILE" in line and INTRINSICS_FILE_NAMES[0] in line
+    assert line.endswith("or let graphslam run estimate them from the photos (--intrinsics estimate)")
 
 
 def test_a_data_set_whose_images_sit_one_level_down_is_pointed_there(capsys, shared_data, tmp_path):
