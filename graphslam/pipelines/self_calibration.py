@@ -241,7 +241,9 @@ def settle(
     rounds: list[tuple[float, float, float, int]] = []
     for free_k1 in (False, True):  # the focal length first: k1 far from it absorbs its error
         for _ in range(MAX_ROUNDS):
-            fit, frames = _round(sequence, (start_camera(size, f), k1, free_k1), config, n, detector, seed)
+            fit, frames, cut = _round(
+                sequence, (start_camera(size, f), k1, free_k1), config, n, detector, seed
+            )
             rounds.append((f, fit.f_px, fit.k1, frames))
             if on_round is not None:
                 on_round(start, len(rounds), f, fit.f_px, fit.k1, frames)
@@ -269,6 +271,7 @@ def settle(
             f"--intrinsics estimate: these images do not determine the focal length ({f:.1f} px, "
             f"{spread} from {frames} frames; at most {MAX_SIGMA_SHARE:.0%} is taken): "
             "pass the camera's intrinsics (a calibration, or photos that turn more)"
+            + ("" if cut is None else f"; the rounds' runs stopped early: {cut}")
         )
     return Settled(start, f, fit.sigma_f_px, k1, fit.sigma_k1, tuple(rounds), frames, fit.projections)
 
@@ -291,11 +294,12 @@ def _round(
     detector: str | None,
     seed: int | None,
     retries: int = RETRIES,
-) -> tuple[CameraFit, int]:
+) -> tuple[CameraFit, int, str | None]:
     """One camera-alone run of ``n`` frames at ``camera`` (``K``, ``k1``, whether ``k1`` is
-    refined too) and its bundle refined: ``(fit, frames placed)``. A run the back end
-    cannot continue (a frame it cannot place at a poor guess) is run again, up to
-    ``retries`` times, on the frames before."""
+    refined too) and its bundle refined: ``(fit, frames placed, why the run stopped
+    early or None)``. A run the back end cannot continue (a frame it cannot place at a
+    poor guess, a frame that cannot be read) is run again, up to ``retries`` times, on
+    the frames before."""
     K, k1, free_k1 = camera
     done = [0]
 
@@ -315,7 +319,8 @@ def _round(
         shorter = min(done[0], n - 1)
         if shorter < MIN_FRAMES or retries == 0:
             raise GraphSlamError(f"--intrinsics estimate: at f = {K[0, 0]:.1f} px, {e}") from None
-        return _round(sequence, camera, config, shorter, detector, seed, retries - 1)
+        fit, placed, _ = _round(sequence, camera, config, shorter, detector, seed, retries - 1)
+        return fit, placed, " ".join(str(e).split())
     if stop_requested():
         raise KeyboardInterrupt  # a stop during a round: no camera, nothing to write
     placed = len(session.backend.estimate().frame_ids)
@@ -326,7 +331,7 @@ def _round(
         )
     graph, values = session.backend.bundle()
     try:
-        return refine_camera(graph, values, K[0, 0], k1, K[0, 2], K[1, 2], free_k1), placed
+        return refine_camera(graph, values, K[0, 0], k1, K[0, 2], K[1, 2], free_k1), placed, None
     except (RuntimeError, ValueError) as e:  # gtsam's indeterminate system, no projection
         raise GraphSlamError(
             f"--intrinsics estimate: the bundle adjustment at f = {K[0, 0]:.1f} px failed ({e}): "

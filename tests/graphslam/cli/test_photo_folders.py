@@ -344,3 +344,23 @@ def test_a_file_named_estimate_is_still_a_file(tmp_path, monkeypatch):
 
     assert is_estimate(intrinsics_arg("estimate"))
     assert not is_estimate(intrinsics_arg("./estimate")) and intrinsics_arg("./estimate").name == "estimate"
+
+
+def test_an_unreadable_photo_that_cuts_the_estimate_short_is_named(lund_colmap, tmp_path, capsys):
+    """The rounds use the frames before an unreadable photo; three frames do not determine
+    the camera, and the one line says which file cut them short."""
+    import shutil
+
+    images, _, _ = lund_colmap
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for p in sorted(images.iterdir())[:6]:
+        shutil.copy(p, folder / p.name)
+    bad = sorted(folder.iterdir())[3]
+    bad.write_text("not a photo\n")
+    line = _one_error_line(capsys, ["run", "--dataset", folder, "--intrinsics", "estimate", "--rerun", "off",
+                                    "--quiet", "--out", tmp_path / "o"])
+    assert "these images do not determine the focal length" in line and "from 3 frames" in line
+    assert line.endswith(f"the rounds' runs stopped early: {bad}: cannot read image "
+                         "(not an image file, or an unsupported format)")
+    assert not (tmp_path / "o").exists()
