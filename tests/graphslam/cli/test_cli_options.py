@@ -243,6 +243,10 @@ def _intrinsics(cli, key):
                       "--rerun", "off"], "compare.json"
     differ(cli(*base, "--intrinsics", str(f1)), cli(*base, "--intrinsics", str(f2)), name)
     refused(cli(*base), "no intrinsics: pass --intrinsics FILE")
+    if key.startswith("run"):  # the camera from the photos: not COLMAP's, nor the run's at f2
+        differ(cli(*base, "--intrinsics", str(f1)), cli(*base, "--intrinsics", "estimate"), name)
+    else:
+        refused(cli(*base, "--intrinsics", "estimate"), "graphslam compare does not estimate a camera")
     refused(cli(*(RUN_2D if key.startswith("run") else COMPARE), "--intrinsics", str(f1)),
             "--intrinsics applies to image sequences only")
 
