@@ -83,9 +83,9 @@ class FrameSelection(ImageSequence):
     #: what the reader made of the source (a ROS bag's topics), as the base says it
     notes: tuple[str, ...] = ()
 
-    def load(self, i: int) -> np.ndarray:
-        return self.base.load(int(self.indices[i]))
-
+    # ``load`` is ImageSequence's: the base's stored image undistorted at this selection's
+    # own ``K`` and distortion, which a camera estimated after the selection replaces
+    # (``--frames`` with ``--intrinsics estimate``); the base's would keep the guess.
     def load_raw(self, i: int) -> np.ndarray:
         return self.base.load_raw(int(self.indices[i]))
 
@@ -157,11 +157,9 @@ class BlackedOut(FrameSelection):
 
     black: frozenset = frozenset()
 
-    def load(self, i: int) -> np.ndarray:
-        image = super().load(i)
+    def load_raw(self, i: int) -> np.ndarray:  # ``load`` undistorts it: black stays black
+        image = super().load_raw(i)
         return np.zeros_like(image) if i in self.black else image
-
-    load_raw = load
 
 
 def black_out(sequence: ImageSequence, black) -> BlackedOut:

@@ -107,3 +107,23 @@ def test_no_or_zero_distortion_leaves_the_pixels_alone(tmp_path):
     seq = read_image_sequence(tmp_path)
     assert not seq.is_distorted
     np.testing.assert_array_equal(seq.load(0), img)
+
+
+def test_a_frame_selection_undistorts_at_its_own_camera(tmp_path):
+    """``--frames`` with ``--intrinsics estimate``: the camera is set on the selection
+    after it is made (``with_camera``); its images must be undistorted at that camera,
+    not loaded as the base (read without distortion) would."""
+    import dataclasses
+
+    from graphslam.sources.spatial.frames import select_frames
+
+    board = _distort(_pinhole_board())
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"frame_{k:03d}.png"), board)
+    (tmp_path / "intrinsics.txt").write_text(f"{FX} {FY} {CX} {CY}\n")
+    base = read_image_sequence(tmp_path)
+    assert not base.is_distorted
+    picked = dataclasses.replace(select_frames(base, slice(0, 3, 2)), distortion=DIST)
+    assert picked.is_distorted
+    undistorted = np.linalg.norm(_corners(picked.load(1)) - _true_corners(), axis=1)
+    assert undistorted.max() < UNDISTORTED_TOL_PX, undistorted.max()
