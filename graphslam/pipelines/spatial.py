@@ -31,7 +31,10 @@ Odometry (``VisualRunConfig.odometry``):
   back ends with ``has_motion_model``. Such a monocular run has no metric
   scale: its ATE is Sim(3)-aligned.
 * ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"`` when it
-  has ground truth, else ``"none"`` (a folder of photos: the camera alone).
+  came with ground truth (KITTI, EuRoC, TUM RGB-D, a bag's truth topic), else ``"none"``
+  (a folder of photos: the camera alone). Truth given only to score the run
+  (``--ground-truth`` on a folder of photos) derives nothing: scoring a run never
+  changes what it estimates.
 
 Ctrl-C and SIGTERM are honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
 result then holds what was estimated so far with ``interrupted=True``. A frame that
@@ -275,7 +278,8 @@ def resolve_odometry(sequence: ImageSequence, mode: str, noise: OdometryNoiseCon
     # only some sequences (synthetic, a bag's, a frame selection of those) carry odometry
     own = getattr(sequence, "odometry", None)
     if mode == "auto":  # a sequence with neither (a folder of photos) runs on the camera alone
-        mode = "sequence" if own is not None else "derived" if sequence.wTc_true is not None else "none"
+        derivable = sequence.wTc_true is not None and sequence.truth_from_reader
+        mode = "sequence" if own is not None else "derived" if derivable else "none"
     if mode == "sequence":
         if own is None:
             # a bag's odometry topic that was read and left out says why, not "none of its own"

@@ -217,8 +217,9 @@ def _add_image_options(vis) -> None:
         help="sequence's own odometry, noisy odometry derived from ground truth, or "
         "none (the camera alone: iSAM2 starts a monocular map and tracks by "
         "PnP, the EKF runs its constant-velocity model); default auto: "
-        "sequence if it has odometry, else derived if it has ground truth, "
-        "else none",
+        "sequence if it has odometry, else derived if it comes with ground "
+        "truth (KITTI, EuRoC, TUM), else none; truth given by --ground-truth "
+        "only scores the run, it derives nothing",
     )
     vis.add_argument(
         "--odometry-noise",

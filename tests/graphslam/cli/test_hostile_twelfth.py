@@ -158,7 +158,7 @@ def test_a_run_cut_by_a_bad_frame_writes_its_own_bag(tmp_path, capsys, cut_at):
     assert main(["run", "--max-steps", "10", *RUN, "--out", str(out), "--write-bag"]) == 0
     old = (out / "trajectory.bag").read_bytes()
     assert main(["run", "--dataset", str(tmp_path / "k"), "--ground-truth", str(truth), *RUN,
-                 "--out", str(out), "--write-bag"]) == 2
+                 "--odometry", "derived", "--out", str(out), "--write-bag"]) == 2
     assert "the run stopped at this frame" in capsys.readouterr().err
     assert (out / "trajectory.bag").read_bytes() != old
     from graphslam.sources.spatial.rosbag import read_bag_trajectory
