@@ -431,6 +431,23 @@ def dataset_files(spec: str) -> list[Path]:
     return [Path(spec)] if Path(spec).is_file() else []
 
 
+def camera_file(spec: str) -> Path | None:
+    """The intrinsics file a run of ``--dataset spec`` finds on its own: an image folder's
+    (:data:`~graphslam.sources.spatial.calibration.INTRINSICS_FILE_NAMES`), the one in or
+    beside a bag; None for other datasets or where there is none. A command whose
+    ``--out`` holds it must neither replace nor remove it as an earlier output."""
+    from graphslam.sources.spatial.calibration import find_intrinsics_file
+
+    if spec in DATASETS or spec in VISUAL_DATASETS or is_mrclam_dataset(spec):
+        return None
+    path = Path(spec)
+    if is_bag_dataset(spec):
+        folders = ([path] if path.is_dir() else []) + [path.parent]
+    else:
+        folders = [path] if path.is_dir() else []
+    return next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+
+
 def check_topics_flag(spec: str, topics: str | None) -> None:
     """``--topics`` is refused, one line, for a dataset that is not a ROS bag."""
     if topics is not None and not is_bag_dataset(spec):

@@ -105,6 +105,32 @@ def refuse_intrinsics_estimate(intrinsics, command: str) -> None:
         )
 
 
+def check_out_keeps_the_camera(dataset: str, out: Path | None, intrinsics=None) -> None:
+    """Refuse, before any work, an ``--out`` that holds the data set's own camera file
+    (a photo folder run into itself): every command clears the outputs it will not write
+    there, ``intrinsics.txt`` among them, and ``--intrinsics estimate`` writes its own,
+    so the folder's calibration would be lost; an estimate written into the photo
+    folder would be read as its calibration by the next run on it."""
+    if out is None:
+        return
+    from graphslam import registry
+    from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES
+    from graphslam.sources.spatial.calibration import is_estimate
+    from slamcore.errors import ConfigError
+    from slamcore.files import check_not_inputs
+
+    check_not_inputs(
+        [("the output (in --out)", Path(out) / name) for name in FOLDER_OUTPUT_NAMES],
+        {"--dataset's camera file": registry.camera_file(dataset)},
+    )
+    if is_estimate(intrinsics) and Path(dataset).is_dir() and Path(out).resolve() == Path(dataset).resolve():
+        raise ConfigError(
+            f"--intrinsics estimate writes intrinsics.txt in --out, here the image folder {dataset} "
+            "itself, where the next run on the folder would read it as the folder's calibration; "
+            "choose --out in another folder"
+        )
+
+
 def add_intrinsics_option(parser, help: str = INTRINSICS_HELP) -> None:
     """``--intrinsics FILE``: the camera of an image folder (``estimate``: see
     :func:`intrinsics_arg`; only ``run`` takes it, the others refuse it in one line)."""

@@ -17,6 +17,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    check_out_keeps_the_camera,
     path_arg,
     refuse_intrinsics_estimate,
     seed_arg,
@@ -155,6 +156,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         raise GraphSlamError(f"--backends names {', '.join(twice)} more than once; name each back end once")
     if args.out is not None:  # refused now, not after the runs
         check_output_dir(args.out)
+        check_out_keeps_the_camera(args.dataset, args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused flag
     registry.check_topics_flag(args.dataset, args.topics)

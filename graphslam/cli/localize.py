@@ -23,6 +23,7 @@ from graphslam.cli.common import (
     add_quiet_option,
     add_rerun_options,
     add_topics_option,
+    check_out_keeps_the_camera,
     fmt,
     invocation,
     path_arg,
@@ -109,6 +110,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
         from slamcore.files import check_output_dir
 
         check_output_dir(args.out)
+        check_out_keeps_the_camera(args.dataset, args.out)
     refuse_intrinsics_estimate(args.intrinsics, "localize")
     smap = load_map(args.map)
     config = registry.read_config(args.config)

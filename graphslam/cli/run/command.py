@@ -25,6 +25,7 @@ from graphslam.cli.common import (
     add_rerun_options,
     add_robot_option,
     add_topics_option,
+    check_out_keeps_the_camera,
     path_arg,
     seed_arg,
 )
@@ -302,6 +303,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.out is not None:  # refused now, not after the run
         check_output_dir(args.out, files=("trajectory.bag",) if args.write_bag else ())
         _check_outputs_are_not_inputs(args)
+        check_out_keeps_the_camera(args.dataset, args.out, args.intrinsics)
     if getattr(args, "save_map", None) is not None:
         from graphslam.maps.files import MAP_JSON, MAP_NPZ, VOCAB_NPZ
 

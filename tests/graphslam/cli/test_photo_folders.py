@@ -390,3 +390,25 @@ def test_an_unreadable_photo_that_cuts_the_estimate_short_is_named(lund_colmap, 
     assert line.endswith(f"the rounds' runs stopped early: {bad}: cannot read image "
                          "(not an image file, or an unsupported format)")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", [["run"], ["run", "--intrinsics", "estimate"], ["compare"],
+                                     ["localize", "--map", "m"]])
+def test_a_photo_folder_run_into_itself_keeps_its_camera_file(capsys, desk_photos, command):
+    """--out the photo folder itself: every command clears the outputs it does not write
+    there, intrinsics.txt among them (a run deleted the folder's calibration, a run with
+    --intrinsics estimate replaced it): refused before any work, the file as it was."""
+    calibration = "520.9 521.0 325.1 249.7\n"
+    (desk_photos / "intrinsics.txt").write_text(calibration)
+    line = _one_error_line(capsys, [*command, "--dataset", desk_photos, "--rerun", "off", "--out", desk_photos])
+    assert "intrinsics.txt is the input --dataset's camera file" in line
+    assert (desk_photos / "intrinsics.txt").read_text() == calibration
+
+
+def test_an_estimate_is_not_written_into_its_photo_folder(capsys, desk_photos):
+    """The estimate's intrinsics.txt in the photo folder would be the folder's calibration
+    on the next run on it, unasked: refused, nothing written."""
+    line = _one_error_line(capsys, ["run", "--dataset", desk_photos, "--intrinsics", "estimate",
+                                    "--rerun", "off", "--out", desk_photos])
+    assert "where the next run on the folder would read it" in line
+    assert sorted(p.name for p in desk_photos.iterdir()) == ["01.png", "02.png", "03.png"]
