@@ -241,9 +241,20 @@ def settle(
     rounds: list[tuple[float, float, float, int]] = []
     for free_k1 in (False, True):  # the focal length first: k1 far from it absorbs its error
         for _ in range(MAX_ROUNDS):
-            fit, frames, cut = _round(
-                sequence, (start_camera(size, f), k1, free_k1), config, n, detector, seed
-            )
+            try:
+                fit, frames, cut = _round(
+                    sequence, (start_camera(size, f), k1, free_k1), config, n, detector, seed
+                )
+            except GraphSlamError as e:
+                if not rounds:
+                    raise
+                # a run that placed frames a round ago fails at a camera close by: say so
+                # (KITTI's first 40 frames, median parallax 0.5 deg, start or not by chance)
+                raise GraphSlamError(
+                    f"{e} (the {len(rounds)} round(s) before, from {start:.1f} px, placed up to "
+                    f"{max(r[3] for r in rounds)} frames: these frames hold a camera-alone run by a "
+                    "thread; more frames or more motion, or the camera's intrinsics)"
+                ) from None
             rounds.append((f, fit.f_px, fit.k1, frames))
             if on_round is not None:
                 on_round(start, len(rounds), f, fit.f_px, fit.k1, frames)
