@@ -437,15 +437,14 @@ def camera_file(spec: str) -> Path | None:
     beside a bag; None for other datasets or where there is none. A command whose
     ``--out`` holds it must neither replace nor remove it as an earlier output."""
     from graphslam.sources.spatial.calibration import find_intrinsics_file
+    from graphslam.sources.spatial.rosbag import bag_camera_file, bag_path
 
     if spec in DATASETS or spec in VISUAL_DATASETS or is_mrclam_dataset(spec):
         return None
-    path = Path(spec)
-    if is_bag_dataset(spec):
-        folders = ([path] if path.is_dir() else []) + [path.parent]
-    else:
-        folders = [path] if path.is_dir() else []
-    return next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+    bag = bag_path(spec)
+    if bag is not None:
+        return bag_camera_file(bag)
+    return find_intrinsics_file(Path(spec)) if Path(spec).is_dir() else None
 
 
 def check_topics_flag(spec: str, topics: str | None) -> None:

@@ -105,14 +105,12 @@ def refuse_intrinsics_estimate(intrinsics, command: str) -> None:
         )
 
 
-def check_out_keeps_the_camera(dataset: str, out: Path | None, intrinsics=None) -> None:
+def check_out_keeps_the_camera(dataset: str, out: Path, intrinsics=None) -> None:
     """Refuse, before any work, an ``--out`` that holds the data set's own camera file
     (a photo folder run into itself): every command clears the outputs it will not write
     there, ``intrinsics.txt`` among them, and ``--intrinsics estimate`` writes its own,
     so the folder's calibration would be lost; an estimate written into the photo
     folder would be read as its calibration by the next run on it."""
-    if out is None:
-        return
     from graphslam import registry
     from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES
     from graphslam.sources.spatial.calibration import is_estimate

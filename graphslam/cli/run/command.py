@@ -219,7 +219,7 @@ def _add_image_options(vis) -> None:
         "none (the camera alone: iSAM2 starts a monocular map and tracks by "
         "PnP, the EKF runs its constant-velocity model); default auto: "
         "sequence if it has odometry, else derived if it comes with ground "
-        "truth (KITTI, EuRoC, TUM), else none; truth given by --ground-truth "
+        "truth (KITTI, EuRoC, TUM, a bag's truth topic), else none; truth given by --ground-truth "
         "only scores the run, it derives nothing",
     )
     vis.add_argument(

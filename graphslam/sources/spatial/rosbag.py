@@ -84,19 +84,26 @@ def bag_path(spec: str | Path) -> Path | None:
     return None
 
 
+def bag_camera_file(path: Path) -> Path | None:
+    """The intrinsics file a bag without camera_info takes (``path`` as :func:`bag_path`
+    gives it): in a ROS 2 bag's folder, else in the folder holding the bag; or None."""
+    from graphslam.sources.spatial.calibration import find_intrinsics_file
+
+    folders = ([path] if path.is_dir() else []) + [path.parent]
+    return next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+
+
 def bag_files(spec: str | Path) -> list[Path]:
     """Every file a run of the bag ``spec`` may read: the bag (a ROS 2 bag's folder, every
     file), and the intrinsics file in or beside it that a bag without camera_info takes
-    (as :func:`_calibration` looks for it). A sweep's fingerprint of the data."""
-    from graphslam.sources.spatial.calibration import find_intrinsics_file
+    (:func:`bag_camera_file`). A sweep's fingerprint of the data."""
     from slamcore.input_files import files_below
 
     path = bag_path(spec)
     if path is None:
         return []
     files = files_below(path) if path.is_dir() else [path]
-    folders = ([path] if path.is_dir() else []) + [path.parent]
-    found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+    found = bag_camera_file(path)
     return files if found is None or found in files else [*files, found]
 
 
@@ -662,16 +669,10 @@ def _calibration(
     """``(K, distortion or None, notes, warnings)``: the first CameraInfo of ``topic``, else
     an intrinsics file beside the bag (as a plain image folder's). Rectified images
     (:func:`is_rectified`) take the CameraInfo's ``P`` and no distortion."""
-    from graphslam.sources.spatial.calibration import (
-        INTRINSICS_FILE_NAMES,
-        find_intrinsics_file,
-        read_intrinsics_file,
-    )
+    from graphslam.sources.spatial.calibration import INTRINSICS_FILE_NAMES, read_intrinsics_file
 
     if topic is None:
-        # a ROS 2 bag folder may hold the file; else the folder holding the bag
-        folders = ([path] if path.is_dir() else []) + [path.parent]
-        found = next((f for f in map(find_intrinsics_file, folders) if f is not None), None)
+        found = bag_camera_file(path)
         if found is None and not calibrated:
             return None, None, ("no camera calibration",), ()
         if found is None:

@@ -412,3 +412,27 @@ def test_an_estimate_is_not_written_into_its_photo_folder(capsys, desk_photos):
                                     "--rerun", "off", "--out", desk_photos])
     assert "where the next run on the folder would read it" in line
     assert sorted(p.name for p in desk_photos.iterdir()) == ["01.png", "02.png", "03.png"]
+
+
+def test_the_camera_file_a_data_set_finds_on_its_own(tmp_path):
+    """registry.camera_file: a photo folder's, the one in a ROS 2 bag's folder (named by
+    the folder or by its .db3), the one beside it; none for built-in data or a folder
+    without one."""
+    from graphslam import registry
+
+    photos, bag, outer = tmp_path / "photos", tmp_path / "rec" / "bag", tmp_path / "rec"
+    photos.mkdir()
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (bag / "bag_0.db3").write_bytes(b"")
+    assert registry.camera_file(str(photos)) is None
+    assert registry.camera_file(str(bag)) is None
+    (outer / "intrinsics.txt").write_text("500 500 320 240\n")
+    for spec in (bag, bag / "bag_0.db3"):  # the reader opens the folder either way
+        assert registry.camera_file(str(spec)) == outer / "intrinsics.txt"
+    (bag / "intrinsics.txt").write_text("500 500 320 240\n")
+    for spec in (bag, bag / "bag_0.db3"):
+        assert registry.camera_file(str(spec)) == bag / "intrinsics.txt"
+    (photos / "intrinsics.txt").write_text("500 500 320 240\n")
+    assert registry.camera_file(str(photos)) == photos / "intrinsics.txt"
+    assert registry.camera_file("synthetic-images") is None
