@@ -55,7 +55,8 @@ def kitti_folder_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("kitti_folder")
     folder, truth = kitti_folder(tmp)
     # a bag's truth topic comes with its data, as KITTI's poses.txt does, and derives the
-    # odometry under auto; truth given to score a folder only scores it: derived, said
+    # odometry under auto; truth given to score a folder only scores it, so the folder's
+    # run asks for the derived odometry
     return run_files([*RUN, "--dataset", folder, "--ground-truth", truth, "--odometry", "derived"], tmp / "out")
 
 
