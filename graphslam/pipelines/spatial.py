@@ -30,11 +30,11 @@ Odometry (``VisualRunConfig.odometry``):
 * ``"none"``: the back end's own motion model (constant velocity); only for
   back ends with ``has_motion_model``. Such a monocular run has no metric
   scale: its ATE is Sim(3)-aligned.
-* ``"auto"``: ``"sequence"`` when the sequence has odometry, else ``"derived"`` when it
-  came with ground truth (KITTI, EuRoC, TUM RGB-D, a bag's truth topic), else ``"none"``
-  (a folder of photos: the camera alone). Truth given only to score the run
-  (``--ground-truth`` on a folder of photos) derives nothing: scoring a run never
-  changes what it estimates.
+* ``"auto"``: ``"sequence"`` when the sequence has odometry (the synthetic one, a bag's
+  odometry topic), else ``"none"``: the camera alone. Odometry is never derived from
+  ground truth unless asked for: no user's camera has it, and a default that used
+  the truth the run is scored against would report the truth's own noise as the
+  run's accuracy.
 
 Ctrl-C and SIGTERM are honoured between frames (as in :mod:`graphslam.pipelines.planar`); the
 result then holds what was estimated so far with ``interrupted=True``. A frame that
@@ -277,9 +277,8 @@ def resolve_odometry(sequence: ImageSequence, mode: str, noise: OdometryNoiseCon
     """``(mode, odometry (N-1, 4, 4) or None, covariances (N-1, 6, 6) or None, stated noise)``."""
     # only some sequences (synthetic, a bag's, a frame selection of those) carry odometry
     own = getattr(sequence, "odometry", None)
-    if mode == "auto":  # a sequence with neither (a folder of photos) runs on the camera alone
-        derivable = sequence.wTc_true is not None and sequence.truth_from_reader
-        mode = "sequence" if own is not None else "derived" if derivable else "none"
+    if mode == "auto":  # odometry from truth is a test of the back end, never a default
+        mode = "sequence" if own is not None else "none"
     if mode == "sequence":
         if own is None:
             # a bag's odometry topic that was read and left out says why, not "none of its own"

@@ -381,15 +381,8 @@ def _rows_by_name(truth: Trajectory, sequence: ImageSequence) -> np.ndarray:
     return np.array(rows, dtype=np.int64)
 
 
-def with_ground_truth(
-    sequence: ImageSequence, truth: Trajectory, *, from_reader: bool = False
-) -> ImageSequence:
+def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequence:
     """``sequence`` with ``wTc_true`` from ``truth`` (replacing any it had).
-
-    ``from_reader``: the truth is part of the data set as read (a bag's truth topic), not
-    only given to score the run; only such truth (or truth the sequence had already)
-    derives odometry under ``--odometry auto``
-    (:attr:`~graphslam.sources.spatial.sequence.ImageSequence.truth_from_reader`).
 
     Frames without truth are dropped (module doc); a sequence that brings its
     own per-frame odometry (the synthetic one) cannot lose frames, so there a
@@ -403,10 +396,7 @@ def with_ground_truth(
         how = "by frame index" if truth.stamps_s is None else "by timestamp"
     if not np.any(keep):
         raise InputError(f"no frame of {sequence.name!r} has ground truth ({how})", truth.path)
-    changes: dict = {
-        "wTc_true": truth.wTc[rows[keep]],
-        "truth_from_reader": from_reader or (sequence.wTc_true is not None and sequence.truth_from_reader),
-    }
+    changes: dict = {"wTc_true": truth.wTc[rows[keep]]}
     warnings = list(sequence.frame_warnings)  # said with the frames' doubts; metrics.json keeps them
     if truth.format == "colmap":
         warnings.append(

@@ -218,9 +218,8 @@ def _add_image_options(vis) -> None:
         help="sequence's own odometry, noisy odometry derived from ground truth, or "
         "none (the camera alone: iSAM2 starts a monocular map and tracks by "
         "PnP, the EKF runs its constant-velocity model); default auto: "
-        "sequence if it has odometry, else derived if it comes with ground "
-        "truth (KITTI, EuRoC, TUM, a bag's truth topic), else none; truth given by --ground-truth "
-        "only scores the run, it derives nothing",
+        "sequence if it has odometry (synthetic-images, a bag's odometry topic), "
+        "else none; ground truth only scores a run unless --odometry derived",
     )
     vis.add_argument(
         "--odometry-noise",

@@ -115,7 +115,6 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         source_path=sequence.source_path,
         camera_warnings=sequence.camera_warnings,
         frame_warnings=sequence.frame_warnings,
-        truth_from_reader=sequence.truth_from_reader,
         base=sequence,
         indices=idx,
         odometry=odo,

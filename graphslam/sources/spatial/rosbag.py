@@ -566,7 +566,7 @@ def read_bag(
         from graphslam.sources.ground_truth import with_ground_truth
 
         # first: frames without truth are dropped (dataclasses.replace keeps the class)
-        seq = cast(BagSequence, with_ground_truth(seq, _trajectory(truth, record_clock), from_reader=True))
+        seq = cast(BagSequence, with_ground_truth(seq, _trajectory(truth, record_clock)))
     if odometry is None:
         return seq
     return with_odometry(seq, chosen["odometry"], *_on_clock(odometry, record_clock))

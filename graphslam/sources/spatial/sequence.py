@@ -61,10 +61,6 @@ class ImageSequence:
             not fit the images), one line each; :attr:`warnings` adds the frames.
         frame_warnings: what was done to the frames after reading (frames left out
             for want of ground truth), one line each.
-        truth_from_reader: False when ``wTc_true`` is only the truth given to score the
-            run (``--ground-truth`` on a sequence read without any): scoring never
-            changes what a run estimates, so ``--odometry auto`` derives no odometry
-            from it (:func:`graphslam.pipelines.spatial.resolve_odometry`).
     """
 
     name: str
@@ -79,7 +75,6 @@ class ImageSequence:
     #: the images), one line each
     camera_warnings: tuple[str, ...] = ()
     frame_warnings: tuple[str, ...] = ()
-    truth_from_reader: bool = True
     #: (map_xy, map_interp) of :func:`cv2.initUndistortRectifyMap`, built on the
     #: first :meth:`load` of a distorted sequence; ``False`` once found unneeded.
     _undistort_maps: tuple | bool | None = field(default=None, init=False, repr=False, compare=False)

@@ -142,7 +142,7 @@ def _kitti_truth(tmp_path, shared_data, name: str, change) -> str:
 
 def _kitti_run(tmp_path, capsys, shared_data, truth: str, frames: str, name: str) -> tuple[str, dict]:
     rc, text = _run(capsys, "--dataset", str(shared_data / "kitti07"), "--ground-truth", truth,
-                    "--frames", frames, "--out", str(tmp_path / name))
+                    "--frames", frames, "--odometry", "derived", "--out", str(tmp_path / name))
     assert rc == 0, text
     return text, json.loads((tmp_path / name / "metrics.json").read_text())
 

@@ -156,6 +156,15 @@ def test_sequence_odometry_missing_is_a_clear_error(seq):
     assert vp.resolve_odometry(seq, "auto")[0] == "sequence"
 
 
+def test_auto_never_derives_odometry_from_the_truth(seq):
+    """A sequence read with its truth (KITTI's poses.txt, EuRoC, TUM) ran by default on
+    odometry made from the very truth it was scored against: the camera alone now."""
+    kitti_like = ImageSequence("kitti", seq.image_paths, None, seq.K, None, seq.wTc_true, seq.image_size)
+    assert kitti_like.wTc_true is not None
+    assert vp.resolve_odometry(kitti_like, "auto")[:2] == ("none", None)
+    assert vp.resolve_odometry(kitti_like, "derived")[0] == "derived"  # when asked for
+
+
 def _straight(n, step_m=1.0):
     T = np.tile(np.eye(4), (n, 1, 1))
     T[:, 2, 3] = step_m * np.arange(n)
