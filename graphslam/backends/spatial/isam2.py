@@ -312,7 +312,8 @@ class VisualIsam2Backend(VisualBackend):
         if self._mono is not None and not self._mono.mapped:
             raise GraphSlamError(
                 "isam2 (visual): monocular tracking never started: no two frames "
-                f"gave a first map ({self._mono.bootstrap_reason})"
+                f"gave a first map ({self._mono.bootstrap_reason}); the camera alone needs "
+                "frames seen from places far enough apart: more frames, or odometry"
             )
         self._flush()
         if self.config.polish and self._polished is None and self._frames:
