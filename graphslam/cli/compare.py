@@ -37,7 +37,9 @@ datasets:
                   an image sequence (as graphslam run): back ends isam2 (visual),
                   ekf-idp and ekf-ahp (monocular EKF, inverse-depth or anchored
                   homogeneous landmarks) on the same frames, detections and
-                  active-search budget; NEES is the 6-DoF pose NEES
+                  active-search budget; NEES is the 6-DoF pose NEES (a
+                  camera-alone run's in its own gauge: first pose held, scale of
+                  iSAM2's first-map baseline or the EKF's fitted about that pose)
 
 outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
   spawn/connect, when no viewer can be started or reached: a warning and

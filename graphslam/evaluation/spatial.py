@@ -15,7 +15,8 @@ matched by integer frame id, never by position in the array.
 - :func:`path_length` -- distance travelled along a trajectory;
 - :func:`pose_errors` / :func:`pose_nees` -- 6-DoF pose errors in the contract's
   right perturbation ``[rho, phi]`` and their NEES against the back end's
-  (6, 6) pose covariances, with the 95 % chi-square bounds of the 2-D NEES.
+  (6, 6) pose covariances, with the 95 % chi-square bounds of the 2-D NEES;
+  a camera-alone estimate is scored in its own gauge (:func:`gauge_sim3`).
 """
 
 from __future__ import annotations
@@ -158,18 +159,73 @@ def pose_errors(est_wTc: np.ndarray, gt_wTc: np.ndarray) -> np.ndarray:
     return np.concatenate([rho, phi], axis=1)
 
 
-def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "none") -> dict:
+#: NEES alignments: :data:`ALIGNMENTS` and ``"gauge"`` (:func:`gauge_sim3`).
+NEES_ALIGNMENTS = (*ALIGNMENTS, "gauge")
+
+
+def gauge_sim3(
+    est: np.ndarray, gt: np.ndarray, anchor: int, baseline: tuple[int, int] | None = None
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(s, R, t)`` taking an estimate into the truth's frame in the estimator's own gauge.
+
+    A camera-alone estimator fixes its gauge itself: a prior holds one pose (the
+    anchor) and, in iSAM2, a range factor of 1 between two frames fixes the scale.
+    Its covariances are relative to that gauge, so its NEES is scored after the
+    similarity that puts the anchor pose exactly on the truth's and, with
+    ``baseline``, makes that baseline the truth's length. Without one (a filter whose
+    scale comes from a depth prior) the scale is the least-squares fit of the camera
+    centres about the anchor. Umeyama's fit (``"sim3"``) would instead spread the
+    error over every frame, and move the anchor, whose covariance is the prior's.
+
+    Args:
+        est, gt: (N, 4, 4) ``wTc``, rows matched.
+        anchor: row of the anchored pose.
+        baseline: rows ``(i, j)`` whose distance the estimator fixed, or None.
+    """
+    R = gt[anchor, :3, :3] @ est[anchor, :3, :3].T
+    if baseline is not None:
+        i, j = baseline
+        d_est = float(np.linalg.norm(est[j, :3, 3] - est[i, :3, 3]))
+        if d_est <= 0.0:
+            raise GraphSlamError("pose_nees: the gauge's baseline has zero length in the estimate")
+        s = float(np.linalg.norm(gt[j, :3, 3] - gt[i, :3, 3])) / d_est
+    else:
+        e = (est[:, :3, 3] - est[anchor, :3, 3]) @ R.T
+        g = gt[:, :3, 3] - gt[anchor, :3, 3]
+        den = float(np.sum(e * e))
+        if den <= 0.0:
+            raise GraphSlamError("pose_nees: the estimate never moved from its anchor")
+        s = float(np.sum(e * g)) / den
+    t = gt[anchor, :3, 3] - s * R @ est[anchor, :3, 3]
+    return s, R, t
+
+
+def pose_nees(
+    est_ids,
+    est_wTc,
+    covariances,
+    gt_ids,
+    gt_wTc,
+    alignment: str = "none",
+    *,
+    anchor_id: int | None = None,
+    baseline_ids: tuple[int, int] | None = None,
+) -> dict:
     """Per-frame 6-DoF pose NEES of an estimate against the truth, over common frame ids.
 
     ``alignment`` ``"none"``: the estimate is in the truth's frame (a run that starts
     at the true first pose, whose covariance grows from that prior). ``"se3"`` /
     ``"sim3"``: the estimate is first mapped by the Umeyama fit of :func:`ate`,
-    ``wTc' = [R_a R, s R_a t + t_a]``. In the right perturbation the fit's rotation
+    ``wTc' = [R_a R, s R_a t + t_a]``. ``"gauge"``: by :func:`gauge_sim3` instead,
+    anchored at frame ``anchor_id`` (default: the first estimated frame) with the
+    scale of ``baseline_ids`` when given. In the right perturbation the fit's rotation
     cancels (``R'^T R_a = R^T``) and its scale multiplies ``rho``, so the covariance
     becomes ``D C D`` with ``D = diag(s, s, s, 1, 1, 1)``.
 
     Args:
         covariances: (N, 6, 6) pose covariances ``[rho, phi]``, rows as ``est_wTc``.
+        anchor_id, baseline_ids: frame ids of the ``"gauge"`` alignment; both must
+            have truth.
 
     Returns:
         ``{"frame_ids" (K,), "errors" (K, 6), "covariances" (K, 6, 6) (scaled),
@@ -177,8 +233,8 @@ def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "n
         "alignment", "scale"}``; the bounds are the two-sided 95 % chi-square(6)
         quantiles of one run.
     """
-    if alignment not in ALIGNMENTS:
-        raise GraphSlamError(f"NEES alignment must be one of {ALIGNMENTS}, got {alignment!r}")
+    if alignment not in NEES_ALIGNMENTS:
+        raise GraphSlamError(f"NEES alignment must be one of {NEES_ALIGNMENTS}, got {alignment!r}")
     cov = np.asarray(covariances, dtype=np.float64).reshape(-1, 6, 6)
     if len(cov) != len(np.asarray(est_ids).reshape(-1)):
         raise GraphSlamError("pose_nees: one covariance per estimated pose is needed")
@@ -190,11 +246,14 @@ def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "n
     cov = cov[order[np.searchsorted(ids[order], common)]]
     s = 1.0
     if alignment != "none":
-        s, R, t = align_umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=alignment == "sim3")
+        if alignment == "gauge":
+            s, R, t = gauge_sim3(est, gt, *_gauge_rows(common, ids, anchor_id, baseline_ids))
+        else:
+            s, R, t = align_umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=alignment == "sim3")
         est = est.copy()
         est[:, :3, :3] = R @ est[:, :3, :3]
         est[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
-        if collinear(gt[:, :3, 3]) or collinear(est[:, :3, 3]):
+        if alignment != "gauge" and (collinear(gt[:, :3, 3]) or collinear(est[:, :3, 3])):
             # positions on a line leave the rotation about it free: fit it on orientations
             est = rotation_about_line(gt, est) @ est
         D = np.diag([s] * 3 + [1.0] * 3)
@@ -213,3 +272,14 @@ def pose_nees(est_ids, est_wTc, covariances, gt_ids, gt_wTc, alignment: str = "n
         "alignment": alignment,
         "scale": float(s),
     }
+
+
+def _gauge_rows(common: np.ndarray, ids: np.ndarray, anchor_id, baseline_ids) -> tuple[int, tuple | None]:
+    """Rows in ``common`` of the gauge's anchor and baseline frames (:func:`pose_nees`)."""
+    anchor = int(ids[0]) if anchor_id is None else int(anchor_id)
+    wanted = [anchor] + ([] if baseline_ids is None else [int(f) for f in baseline_ids])
+    rows = np.searchsorted(common, wanted)
+    for f, r in zip(wanted, rows.tolist(), strict=True):
+        if r >= len(common) or int(common[r]) != f:
+            raise GraphSlamError(f"pose_nees: the gauge's frame {f} has no estimate or no truth")
+    return int(rows[0]), (None if baseline_ids is None else (int(rows[1]), int(rows[2])))

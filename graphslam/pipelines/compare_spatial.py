@@ -18,8 +18,13 @@ frame's update (off the clock). iSAM2's is smoothed: the marginals of every
 pose at the final estimate (one ``gtsam.Marginals``; skipped when the run was
 cut, as the 2-D compare skips its covariances). Metric runs (odometry) start at
 the true first pose and are scored unaligned, in the truth's frame, as the 2-D
-NEES is; runs without odometry (monocular, no scale) after the Sim(3) fit of
-their ATE, the covariance scaled with it.
+NEES is. Runs without odometry (monocular, no scale) are scored in the
+estimator's own gauge (:func:`graphslam.evaluation.spatial.gauge_sim3`): the
+first estimated pose, which the back end's prior holds, put on the truth's, and
+the scale of iSAM2's first-map baseline (its range factor of 1), or for the EKF
+the least-squares scale about that pose; the covariance is scaled with it. The
+Sim(3) fit of the ATE would move the anchored pose, whose covariance is the
+prior's, and make the NEES meaningless.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ from graphslam.sources.spatial.sequence import ImageSequence
 from slamcore.errors import GraphSlamError
 
 #: NEES alignment by the run's ATE alignment (module docstring).
-NEES_ALIGNMENT = {"se3": "none", "sim3": "sim3"}
+NEES_ALIGNMENT = {"se3": "none", "sim3": "gauge"}
 
 
 class _Feed:
@@ -145,6 +150,17 @@ def entry_nees(result: vp.VisualRunResult, alignment: str) -> dict | None:
             np.arange(len(truth)),
             truth,
             alignment=NEES_ALIGNMENT[alignment],
+            baseline_ids=scale_baseline(est.stats),
         )
     except GraphSlamError:  # no fit (a camera-alone estimate that never moved): no NEES,
         return None  # as it has no ATE; the comparison keeps the other back ends'
+
+
+def scale_baseline(stats: dict | None) -> tuple[int, int] | None:
+    """The two frames whose distance a camera-alone iSAM2 run fixed as its unit of
+    length (its first map's reference and initialising frames), or None (a filter:
+    its scale comes from its depth prior, and the NEES fits it)."""
+    first = ((stats or {}).get("camera_alone") or {}).get("first_map")
+    if not first:
+        return None
+    return int(first["reference_frame"]), int(first["frame"])

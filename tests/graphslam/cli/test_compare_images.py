@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from graphslam.evaluation.spatial import pose_nees
+from graphslam.pipelines.compare_spatial import scale_baseline
+from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
 from tests.graphslam.cli.test_faults import graphslam, one_line, verify_rrd
 from tests.graphslam.pipelines.test_localize import HALF
@@ -72,6 +74,75 @@ def test_pose_nees_after_a_sim3_fit_undoes_scale_and_frame():
     assert abs(out["nees_mean"] - pose_nees(ids, est, C, ids, gt)["nees_mean"]) < MEAN_TOL
     # unaligned, the same estimate is nowhere near its truth
     assert pose_nees(ids, moved, D @ C @ D, ids, gt)["nees_mean"] > 1e3
+
+
+def _in_a_gauge(seed: int):
+    """Draws as :func:`_poses_with_errors` in the gauge a camera-alone estimator holds:
+    row 0 exactly on the truth (its prior) and the distance of rows 0 to 7 exactly
+    the truth's (iSAM2's range factor of 1, here in metres)."""
+    gt, est, C = _poses_with_errors(seed)
+    est[0] = gt[0]
+    d = est[7, :3, 3] - est[0, :3, 3]
+    est[7, :3, 3] = est[0, :3, 3] + d * np.linalg.norm(gt[7, :3, 3] - gt[0, :3, 3]) / np.linalg.norm(d)
+    return gt, est, C
+
+
+def _similarity(est, s, R, t):
+    moved = est.copy()
+    moved[:, :3, :3] = R @ est[:, :3, :3]
+    moved[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
+    return moved
+
+
+def test_pose_nees_in_the_estimators_gauge_is_its_nees_in_the_truths_frame():
+    """A camera-alone estimate in its own frame and unit (first pose at the origin,
+    baseline 1): the gauge alignment undoes exactly that similarity, so every frame's
+    NEES is the one the estimate has in the truth's frame; Umeyama's Sim(3) instead
+    moves the held first pose, whose covariance is the prior's."""
+    gt, est, C = _in_a_gauge(seed=6)
+    ids = np.arange(N_DRAWS) + 100
+    s = 1.0 / np.linalg.norm(gt[7, :3, 3] - gt[0, :3, 3])
+    R = so3_exp([-0.7, 0.2, 1.1])
+    moved = _similarity(est, s, R, np.array([3.0, 1.0, -4.0]))
+    D = np.diag([s] * 3 + [1.0] * 3)
+    truth = pose_nees(ids, est, C, ids, gt)
+    out = pose_nees(ids, moved, D @ C @ D, ids, gt, alignment="gauge", baseline_ids=(100, 107))
+    assert out["alignment"] == "gauge" and abs(out["scale"] * s - 1.0) < 1e-9
+    np.testing.assert_allclose(out["nees"], truth["nees"], rtol=1e-6, atol=1e-9)
+    C0 = np.diag([1e-8] * 3 + [1e-10] * 3)  # the prior's covariance on the held pose
+    covs = np.concatenate([C0[None], (D @ C @ D)[1:]])
+    assert pose_nees(ids, moved, covs, ids, gt, alignment="gauge", baseline_ids=(100, 107))["nees"][0] < 1e-6
+    hi = out["bounds"][1]
+    assert pose_nees(ids, moved, covs, ids, gt, alignment="sim3")["nees"][0] > 5 * hi
+
+
+def test_pose_nees_gauge_without_a_baseline_fits_the_scale_about_the_anchor():
+    """A filter fixes no baseline (its scale comes from a depth prior): the gauge's
+    scale is then the least-squares one about the held pose, 0.1 % on 4000 draws."""
+    gt, est, C = _in_a_gauge(seed=7)
+    ids = np.arange(N_DRAWS)
+    s = 0.25
+    moved = _similarity(est, s, so3_exp([0.1, 0.9, -0.3]), np.array([-1.0, 0.0, 2.0]))
+    D = np.diag([s] * 3 + [1.0] * 3)
+    out = pose_nees(ids, moved, D @ C @ D, ids, gt, alignment="gauge")
+    assert abs(out["scale"] * s - 1.0) < 1e-3
+    assert abs(out["nees_mean"] - pose_nees(ids, est, C, ids, gt)["nees_mean"]) < MEAN_TOL
+    assert out["errors"][0] == pytest.approx(np.zeros(6), abs=1e-9)
+
+
+@pytest.mark.parametrize("anchor, baseline", [(5000, None), (0, (0, 5000)), (3, (2, 2))])
+def test_pose_nees_gauge_frames_must_be_estimated_distinct_and_true(anchor, baseline):
+    gt, est, C = _poses_with_errors(seed=8)
+    ids = np.arange(N_DRAWS)
+    with pytest.raises(GraphSlamError, match="gauge"):
+        pose_nees(ids, est, C, ids, gt, alignment="gauge", anchor_id=anchor, baseline_ids=baseline)
+
+
+def test_compare_scores_isam2_camera_alone_on_its_first_map_baseline():
+    stats = {"camera_alone": {"first_map": {"reference_frame": 4, "frame": 17}}}
+    assert scale_baseline(stats) == (4, 17)
+    assert scale_baseline({"camera_alone": {"first_map": None}}) is None
+    assert scale_baseline({}) is None and scale_baseline(None) is None
 
 
 def test_pose_nees_on_a_straight_drive_fits_the_rotation_about_the_line():
