@@ -281,9 +281,11 @@ TARGET_PRECISION = 1.0
 TARGET_RECALL = 0.8
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_default_sequence_meets_issue_targets():
-    """Default detector and sequence, vocabulary trained on the sequence (as `graphslam loops`)."""
+    """Default detector and sequence, vocabulary trained on the sequence (as `graphslam loops`).
+    The figure of ``python benchmarks/bench_loop_pr.py`` (its default variant); `heavy`:
+    about a minute of the suite."""
     from graphslam.pipelines.place_recognition import train_vocabulary
     from graphslam.sources.spatial.synthetic_images import make_synthetic_images
 

@@ -245,9 +245,9 @@ def _intrinsics(cli, key):
                       "--rerun", "off"], "compare.json"
     differ(cli(*base, "--intrinsics", str(f1)), cli(*base, "--intrinsics", str(f2)), name)
     refused(cli(*base), "no intrinsics: pass --intrinsics FILE")
-    if key.startswith("run"):  # the camera from the photos: not COLMAP's, nor the run's at f2
-        differ(cli(*base, "--intrinsics", str(f1)), cli(*base, "--intrinsics", "estimate"), name)
-    else:
+    # run's --intrinsics estimate: test_photo_folders.py's test_lund_door_camera_estimated_from_its_photos
+    # (the camera estimated, used and written; a second estimate here cost half a minute)
+    if not key.startswith("run"):
         refused(cli(*base, "--intrinsics", "estimate"), "graphslam compare does not estimate a camera")
     refused(cli(*(RUN_2D if key.startswith("run") else COMPARE), "--intrinsics", str(f1)),
             "--intrinsics applies to image sequences only")

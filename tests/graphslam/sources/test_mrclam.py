@@ -608,8 +608,15 @@ def test_jcbb_pairs_a_scan_with_two_close_landmarks_despite_a_heading_error():
     assert [x.landmark_id for x in d] == [10, 11]
 
 
+#: Robots 1 (re-association at the end) and 3 (ambiguous sightings held) run in CI;
+#: 2, 4 and 5 (about 2 min of the suite) are `heavy`: benchmarks/bench_mrclam.py
+#: measures every robot's iSAM2 with and without ids (docs/data/landmark-logs.md).
+ISAM2_ROBOTS = [1, pytest.param(2, marks=pytest.mark.heavy), 3,
+                pytest.param(4, marks=pytest.mark.heavy), pytest.param(5, marks=pytest.mark.heavy)]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("robot", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("robot", ISAM2_ROBOTS)
 def test_isam2_within_the_issues_bounds_with_and_without_ids(mrclam, robot):
     """Issue 31: with known ids, iSAM2 at most 0.12 m ATE and all 15 landmarks
     recovered on every robot of Dataset 6. Without ids, all 15 landmarks recovered by an estimate of their own
