@@ -12,6 +12,7 @@ integers and trajectories are matched by id, never by position in the array.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -419,6 +420,33 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
 
 #: 95 % two-sided chi-square bounds are taken at this confidence.
 NEES_CONFIDENCE = 0.95
+
+
+def nees_doubt(nees_mean: float | None, dof: int) -> str | None:
+    """One line when a run's mean NEES lies outside the 95 % bounds of a single step's
+    chi-square(``dof``), else None (no NEES, or a NaN one, says nothing).
+
+    The bounds of one step, not the far tighter ones of the mean over the run:
+    successive steps' errors are correlated (a smoothed trajectory's nearly fully,
+    when its mean is about one draw: a consistent run then crosses either bound
+    2.5 % of the time), so only a covariance off by a clear factor is said, with
+    that factor in sigma (``sqrt(mean / dof)``).
+    """
+    if nees_mean is None or math.isnan(nees_mean):
+        return None
+    lo, hi = chi2_bounds(dof, 1, NEES_CONFIDENCE)
+    head = f"mean NEES {nees_mean:.3g} for {dof} degrees of freedom"
+    if nees_mean > hi:
+        factor = math.sqrt(nees_mean / dof)
+        return f"{head}, above the 95 % bound of one step ({hi:.3g}): its covariances understate " + (
+            f"its errors, about {factor:.3g}x in sigma" if math.isfinite(factor) else "its errors"
+        )
+    if nees_mean < lo:
+        return (
+            f"{head}, below the 95 % bound of one step ({lo:.3g}): its covariances overstate "
+            f"its errors, about {math.sqrt(dof / max(nees_mean, 1e-300)):.3g}x in sigma"
+        )
+    return None
 
 
 def errors_against_truth(pose_ids: np.ndarray, wTb: np.ndarray, gt_of: dict) -> np.ndarray:

@@ -35,8 +35,9 @@ from typing import cast
 import numpy as np
 
 from graphslam import registry
+from graphslam.evaluation.planar import nees_doubt
 from graphslam.evaluation.records import SpatialRunMetrics
-from graphslam.evaluation.spatial import pose_nees
+from graphslam.evaluation.spatial import POSE_DOF, pose_nees
 from graphslam.pipelines import spatial as vp
 from graphslam.pipelines.compare import CompareEntry, finished, run_entries
 from graphslam.pipelines.session import VisualSetup
@@ -84,6 +85,8 @@ def compare(
             e.metrics.nees_mean = e.nees["nees_mean"]
             e.metrics.nees_in_bounds_fraction = e.nees["nees_in_bounds_fraction"]
             e.metrics.nees_alignment = e.nees["alignment"]
+            if (doubt := nees_doubt(e.metrics.nees_mean, POSE_DOF)) is not None:
+                e.metrics.warnings = [*(e.metrics.warnings or []), doubt]
     return entries
 
 

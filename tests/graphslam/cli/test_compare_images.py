@@ -25,6 +25,8 @@ FIELDS = {"ate_rmse_m", "nees_mean", "nees_in_bounds_fraction", "frames_per_s", 
 #: Tolerance of a mean of N chi-square(6) draws: 5 standard deviations (sqrt(12 / N)).
 N_DRAWS = 4000
 MEAN_TOL = 5 * np.sqrt(12 / N_DRAWS)
+#: The 2.5 % and 97.5 % quantiles of chi-square(6) (scipy.stats.chi2.ppf).
+CHI2_6_LO, CHI2_6_HI = 1.2373442457, 14.4493753454
 #: Tolerance of the share inside the 95 % bounds: 5 binomial standard deviations.
 SHARE_TOL = 5 * np.sqrt(0.95 * 0.05 / N_DRAWS)
 
@@ -138,6 +140,19 @@ def test_pose_nees_gauge_frames_must_be_estimated_distinct_and_true(anchor, base
         pose_nees(ids, est, C, ids, gt, alignment="gauge", anchor_id=anchor, baseline_ids=baseline)
 
 
+def test_a_mean_nees_outside_one_steps_bounds_is_said_with_its_factor_in_sigma():
+    from graphslam.evaluation.planar import nees_doubt
+
+    high = nees_doubt(149.0, 6)
+    assert "understate" in high and "4.98x in sigma" in high and "(14.4)" in high
+    low = nees_doubt(0.1, 3)
+    assert "overstate" in low and "5.48x in sigma" in low and "(0.216)" in low
+    assert nees_doubt(6.0, 6) is None and nees_doubt(CHI2_6_HI * 0.999, 6) is None
+    assert nees_doubt(CHI2_6_LO * 1.001, 6) is None and nees_doubt(CHI2_6_HI * 1.001, 6) is not None
+    assert nees_doubt(None, 6) is None and nees_doubt(float("nan"), 6) is None
+    assert "infx" not in (nees_doubt(float("inf"), 3) or "understate")
+
+
 def test_compare_scores_isam2_camera_alone_on_its_first_map_baseline():
     stats = {"camera_alone": {"first_map": {"reference_frame": 4, "frame": 17}}}
     assert scale_baseline(stats) == (4, 17)
@@ -175,6 +190,10 @@ def test_compare_on_images_writes_table_json_png_and_recording(tmp_path, small_r
     for r in runs:
         assert FIELDS <= set(r) and r["frames"] == 6 and r["alignment"] == "se3"
         assert 0.0 <= r["nees_in_bounds_fraction"] <= 1.0 and r["nees_mean"] > 0
+        # a mean NEES outside one step's chi-square(6) 95 % bounds is said, in the JSON and on stderr
+        doubt = [w for w in r.get("warnings") or [] if w.startswith("mean NEES")]
+        assert bool(doubt) == (not CHI2_6_LO <= r["nees_mean"] <= CHI2_6_HI), (r["nees_mean"], doubt)
+        assert all(f"{r['backend']}: {w}" in done.stderr for w in doubt)
     # the same frames, corners and odometry fed to every back end
     assert len({r["input_digest"] for r in runs}) == 1
     assert data["nees"]["dof"] == 6 and data["odometry"] == "sequence"
