@@ -313,7 +313,9 @@ class VisualIsam2Backend(VisualBackend):
             raise GraphSlamError(
                 "isam2 (visual): monocular tracking never started: no two frames "
                 f"gave a first map ({self._mono.bootstrap_reason}); the camera alone needs "
-                "frames seen from places far enough apart: more frames, or odometry"
+                "tracks that last from one place to another far enough away: more frames, "
+                "a front end whose tracks last longer (Harris's, the default, outlast ORB's), "
+                "or odometry"
             )
         self._flush()
         if self.config.polish and self._polished is None and self._frames:

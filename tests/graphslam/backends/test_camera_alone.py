@@ -415,3 +415,22 @@ def test_a_map_that_never_starts_is_said_of_its_images(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"graphslam: error: {KITTI07}: ")
     assert "monocular tracking never started" in err[0]
+
+
+@pytest.mark.slow
+def test_orb_tracks_too_short_for_a_first_map_on_kitti_is_one_line_with_the_way_out(tmp_path, capsys):
+    """With the camera alone the default (stop 69), ``--frontend orb`` on KITTI 07 ends
+    in one line: its descriptor tracks (one point a 32 px cell) never share 50 over the
+    first map's parallax (docs/camera-alone.md). The line names the longer-lived front
+    end, not only more frames; the Harris run of the same frames starts at frame 13
+    (test_kitti07_from_the_camera_alone)."""
+    from graphslam.cli.main import main
+
+    if not KITTI07.is_dir():
+        pytest.skip("kitti07 not present")
+    assert main(["run", "--dataset", str(KITTI07), "--frontend", "orb", "--rerun", "off", "--quiet",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"graphslam: error: {KITTI07}: ")
+    assert "tracks shared with an earlier frame < 50" in err[0]
+    assert "Harris's, the default, outlast ORB's" in err[0] and "or odometry" in err[0]
