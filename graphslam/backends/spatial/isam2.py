@@ -312,10 +312,7 @@ class VisualIsam2Backend(VisualBackend):
         if self._mono is not None and not self._mono.mapped:
             raise GraphSlamError(
                 "isam2 (visual): monocular tracking never started: no two frames "
-                f"gave a first map ({self._mono.bootstrap_reason}); the camera alone needs "
-                "tracks that last from one place to another far enough away: more frames, "
-                "a front end whose tracks last longer (Harris's, the default, outlast ORB's), "
-                "or odometry"
+                f"gave a first map ({self._mono.bootstrap_reason}); {self._mono.bootstrap_remedy}"
             )
         self._flush()
         if self.config.polish and self._polished is None and self._frames:

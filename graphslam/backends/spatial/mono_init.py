@@ -73,6 +73,9 @@ class MonoBootstrap:
         self._sigma_px = float(sigma_px)
         self._frames: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame id, ids, uv)
         self.reason = "no frame seen yet"
+        #: the latest frame shared too few tracks with every frame kept (the front
+        #: end's tracks die before the baseline), not too little parallax
+        self.short_tracks = False
         self.attempts = 0
 
     def add(self, frame_id: int, track_ids: np.ndarray, uv_px: np.ndarray) -> FirstMap | None:
@@ -108,7 +111,9 @@ class MonoBootstrap:
                 if len(self._frames) > 1
                 else "one frame: no second view yet"
             )
+            self.short_tracks = len(self._frames) > 1
             return None
+        self.short_tracks = False
         _, ref_ids, ref_uv = self._frames[j]
         common, ia, ib = np.intersect1d(ref_ids, ids, assume_unique=True, return_indices=True)
         self.attempts += 1

@@ -114,6 +114,17 @@ class MonoMotion:
         """Why no first map has been made yet (one line)."""
         return "no frame seen" if self._boot is None else self._boot.reason
 
+    @property
+    def bootstrap_remedy(self) -> str:
+        """What would start the first map, for :attr:`bootstrap_reason` (one line)."""
+        if self._boot is not None and self._boot.short_tracks:
+            return (
+                "the camera alone needs tracks that last from one place to another far enough "
+                "away: a front end whose tracks last longer (Harris's, the default, outlast "
+                "ORB's), or odometry"
+            )
+        return "the camera alone needs frames seen from places far enough apart: more frames, or odometry"
+
     def predict(self, wTc_before: np.ndarray, wTc_last: np.ndarray) -> np.ndarray:
         """(4, 4) predicted pose of the current frame; keeps the step and its noise.
 
