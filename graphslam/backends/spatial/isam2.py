@@ -121,6 +121,8 @@ class VisualIsam2Backend(VisualBackend):
         self._pose_cache: dict[int, gtsam.Pose3] = {}  # valid until the next isam.update
         self._noise_cache: dict[float, gtsam.noiseModel.Base] = {}
         self._polished: gtsam.Values | None = None
+        #: the linearisation point of an iSAM2 whose update failed beyond recovery
+        self._failed_values: gtsam.Values | None = None
         self._current_cov_polished: np.ndarray | None = None
         self._n_updates = 0
         self._epoch = 0  # changes whenever the estimate can: each isam update, a polish
@@ -290,13 +292,19 @@ class VisualIsam2Backend(VisualBackend):
         return (X(self._frames[-2]), A, conv.pose3_covariance_to_gtsam(self._mono.covariance))
 
     def estimate(self) -> VisualEstimate:
-        self._flush()
+        if self._failed_values is None:  # a failed iSAM2 takes no more updates
+            self._flush()
         frame_ids = np.asarray(self._frames, dtype=np.int64)
         lm_ids = np.asarray(self._lms.ids, dtype=np.int64)
         if not self._frames:
             return VisualEstimate(
                 frame_ids, np.zeros((0, 4, 4)), lm_ids, np.zeros((0, 3)), None, self.stats()
             )
+        if self._failed_values is not None:  # an update failed for good: no solve, no covariance
+            values = self._failed_values
+            wTc = np.array([conv.pose3_matrix(values.atPose3(X(f))) for f in self._frames])
+            pts = np.array([values.atPoint3(L(t)) for t in self._lms.ids]).reshape(-1, 3)
+            return VisualEstimate(frame_ids, wTc, lm_ids, pts, None, self.stats())
         values = self._polished if self._polished is not None else self._isam.calculateEstimate()
         wTc = np.array([conv.pose3_matrix(values.atPose3(X(f))) for f in self._frames])
         pts = np.array([values.atPoint3(L(t)) for t in self._lms.ids]).reshape(-1, 3)
@@ -615,9 +623,20 @@ class VisualIsam2Backend(VisualBackend):
             else:
                 self._isam.update(graph, values)
         except RuntimeError as exc:
-            self._isam = recover_dropping_landmarks(
-                exc, self._isam, self.config, self._lms, self._drop_landmark, self._frames[-1]
-            )
+            failed = self._isam
+            try:
+                self._isam = recover_dropping_landmarks(
+                    exc, failed, self.config, self._lms, self._drop_landmark, self._frames[-1]
+                )
+            except GraphSlamError:
+                # The run ends here (the pipeline's BackendFailed); what it estimated so
+                # far is kept for its files: the values iSAM2 last linearised at (every
+                # frame's pose, the new one at its prediction), since the failed iSAM2
+                # can no longer solve.
+                self._failed_values = gtsam.Values(failed.getLinearizationPoint())
+                if values.exists(X(self._frames[-1])):  # the frame this update added is not done
+                    self._frame_set.discard(self._frames.pop())
+                raise
 
     def _select_for_root(self, count: int, margin: float) -> np.ndarray:
         """:meth:`_select_in_view` at the newest pose (the ordering hint's candidates)."""
