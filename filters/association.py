@@ -36,6 +36,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from slamcore import chi2
 from slamcore.planar import geometry as models
 
 
@@ -46,10 +47,7 @@ def chi2_quantile(prob: float, dof: int) -> float:
         raise ValueError(f"dof must be positive, got {dof}")
     if not 0.0 < prob < 1.0:
         raise ValueError(f"prob must be in (0, 1), got {prob}")
-    from scipy.stats import chi2  # here, not at import: scipy.stats costs 0.6-1.4 s, and a
-    # recording imports the filters (filter_state) for runs that never associate
-
-    return float(chi2.ppf(prob, dof))
+    return chi2.ppf(prob, dof)
 
 
 def t2_quantile(prob: float, dof: float) -> float:

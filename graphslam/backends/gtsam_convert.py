@@ -16,6 +16,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from slamcore import chi2
 from slamcore.errors import MeasurementError, UnsupportedError
 from slamcore.planar.records import Dataset, Estimate, LoopClosure, Observation, ObservationKind, Odometry
 
@@ -226,14 +227,12 @@ def _bulk_ratio(factors: list, values: gtsam.Values) -> float:
     median ``2 error`` of that kind over the median of a chi-square of its dimension
     (NaN when no kind has :data:`BULK_MIN_FACTORS`). By kind: the odometry's priors sit
     near 0 and would otherwise outvote the sightings."""
-    from scipy.stats import chi2
-
     median_of: dict[int, float] = {}  # one scipy call a dimension, not a factor
     kinds: dict[str, list[float]] = {}
     for f in factors:
         d = max(f.dim(), 1)
         if d not in median_of:
-            median_of[d] = float(chi2.median(d))
+            median_of[d] = chi2.median(d)
         kinds.setdefault(type(f).__name__, []).append(2.0 * f.error(values) / median_of[d])
     medians = [float(np.median(v)) for v in kinds.values() if len(v) >= BULK_MIN_FACTORS]
     return max(medians) if medians else float("nan")

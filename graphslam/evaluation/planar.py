@@ -21,6 +21,7 @@ from graphslam.evaluation.alignment import umeyama
 from graphslam.evaluation.matching import checked_delta, common_poses
 from graphslam.evaluation.records import LOW_MATCHED_SHARE
 from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+from slamcore import chi2
 from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as se2
 from slamcore.planar.geometry import between, wrap_angle
@@ -261,15 +262,15 @@ def cost_warning(error: float, dof: int, bulk: float | None = None) -> list[str]
 
     if dof < 1:
         return []
-    chi2 = 2.0 * error
+    twice = 2.0 * error
     bound = chi2_quantile(1.0 - COST_TEST_ALPHA, dof)
-    if chi2 <= bound:  # NaN fails this: a non-finite cost is reported too
+    if twice <= bound:  # NaN fails this: a non-finite cost is reported too
         return []
     if bulk is not None and bulk <= BULK_RATIO_LIMIT:  # NaN passes on: said
         return []
-    ratio = chi2 / dof
+    ratio = twice / dof
     return [
-        f"final cost 2E = {chi2:.4g} over {dof} degrees of freedom ({ratio:.3g} per "
+        f"final cost 2E = {twice:.4g} over {dof} degrees of freedom ({ratio:.3g} per "
         f"degree) is beyond the chi-square bound {bound:.4g} (p = {COST_TEST_ALPHA:g}): "
         f"the residuals are larger than the noise settings allow (noise understated by "
         f"about {ratio**0.5:.2g}x in sigma, outliers, or a wrong estimate)"
@@ -410,11 +411,9 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
         raise GraphSlamError(
             f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; got {dof}, {n_runs}, {confidence}"
         )
-    from scipy.stats import chi2  # here, not at import: scipy.stats costs every run 0.3-0.6 s
-
     k = int(dof) * int(n_runs)
     q = ((1.0 - confidence) / 2.0, (1.0 + confidence) / 2.0)
-    lo, hi = (float(chi2.ppf(p, k)) for p in q)
+    lo, hi = (chi2.ppf(p, k) for p in q)
     return lo / n_runs, hi / n_runs
 
 

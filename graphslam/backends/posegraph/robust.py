@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
 from graphslam.backends import deep_stack
+from slamcore import chi2
 from slamcore.posegraph import PoseGraph, components
 
 
@@ -57,7 +57,7 @@ def threshold_error(graph: PoseGraph, alpha: float) -> float:
     quantile at ``1 - alpha / M`` with the edge's dimension (3 in 2-D, 6 in 3-D)."""
     n_closures = max(int((~graph.odometry_mask()).sum()), 1)
     dof = 3 if graph.dim == 2 else 6
-    return 0.5 * float(chi2.isf(alpha / n_closures, dof))
+    return 0.5 * chi2.isf(alpha / n_closures, dof)
 
 
 def cauchy_kernel(threshold: float):

@@ -31,12 +31,12 @@ import dataclasses
 import time
 
 import numpy as np
-from scipy.stats import chi2
 
 from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph import init
 from graphslam.backends.posegraph import robust as rb
 from graphslam.backends.posegraph.config import PoseGraphConfig
+from slamcore import chi2
 from slamcore.posegraph import PoseGraph
 
 #: Two routes whose costs agree to this, relative, reached the same optimum.
@@ -68,7 +68,7 @@ def noise_overstated(graph: PoseGraph, result) -> tuple[float, str] | None:
     stat, dof = cost_statistic(graph, result)
     if dof <= 0 or result.rejected.any():
         return None
-    low = float(chi2.ppf(NOISE_OVERSTATED_ALPHA, dof))
+    low = chi2.ppf(NOISE_OVERSTATED_ALPHA, dof)
     if stat >= low:
         return None
     factor = float(np.sqrt(dof / max(stat, np.finfo(float).tiny)))
@@ -86,7 +86,7 @@ def consistent(graph: PoseGraph, result, alpha: float) -> tuple[bool, str]:
     stat, dof = cost_statistic(graph, result)
     if dof <= 0:
         return True, "the graph is a tree: every start is the optimum"
-    bound = float(chi2.isf(alpha, dof))
+    bound = chi2.isf(alpha, dof)
     low = noise_overstated(graph, result)
     if low is not None:
         return True, f"{low[1]}, the stated noise larger than the data's"
