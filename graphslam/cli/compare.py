@@ -61,7 +61,7 @@ examples:
 def register(sub) -> None:
     """Add the ``compare`` sub-command to the ``graphslam`` parser."""
     from graphslam.backend_table import VISUAL_COMPARE_BACKENDS
-    from graphslam.pipelines.spatial import ODOMETRY_MODES
+    from graphslam.pipelines.common import ODOMETRY_MODES
     from graphslam.registry import BACKENDS, POSEGRAPH_BACKENDS
 
     names = list(dict.fromkeys([*BACKENDS, *VISUAL_COMPARE_BACKENDS, *POSEGRAPH_BACKENDS]))

@@ -37,8 +37,16 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
+from typing import Literal, get_args
 
 from slamcore.errors import GraphSlamError, InputError
+
+#: Where a visual run's odometry comes from (``[visual] odometry``, ``--odometry``):
+#: here, not in :mod:`graphslam.pipelines.spatial`, so that the command line's parser
+#: can offer them without importing the visual pipeline (OpenCV and the tracker,
+#: 0.2 s of every command).
+OdometryMode = Literal["auto", "sequence", "derived", "none"]
+ODOMETRY_MODES: tuple[str, ...] = get_args(OdometryMode)
 
 #: Exit status of a command stopped by each signal (128 + the signal number). SIGHUP
 #: (the terminal closed) stops a command as SIGTERM does: what was estimated is written.

@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar, Literal, get_args
+from typing import ClassVar
 
 import numpy as np
 
@@ -59,8 +59,10 @@ from graphslam.backend_table import load
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.outputs.writers import OutputWrites
 from graphslam.pipelines.common import (
+    ODOMETRY_MODES,
     BackendFailed,
     FrameUnreadable,
+    OdometryMode,
     interrupt_between_frames,
     progress_bar,
     signal_hook,
@@ -74,8 +76,6 @@ from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
 
 #: Where a visual run's odometry comes from (module docstring).
-OdometryMode = Literal["auto", "sequence", "derived", "none"]
-ODOMETRY_MODES: tuple[str, ...] = get_args(OdometryMode)
 
 #: ``on_frame(k, image, tracking, backend)``, called after each frame's update.
 FrameHook = Callable[[int, np.ndarray, TrackingResult, VisualBackend], None]

@@ -1,5 +1,6 @@
 """``slamcore.chi2``: the quantiles ``scipy.stats.chi2`` gives, bit for bit, and a plain
-run that no longer imports ``scipy.stats`` (about 0.8 s of every process)."""
+run that no longer imports ``scipy.stats`` (about 0.8 s of every process) nor the
+visual pipeline."""
 
 from __future__ import annotations
 
@@ -24,9 +25,12 @@ def test_the_same_bits_as_scipy_stats(dof):
     assert chi2.median(dof) == float(reference.median(dof))
 
 
-def test_a_plain_2d_run_imports_no_scipy_stats(tmp_path):
+def test_a_plain_2d_run_imports_neither_scipy_stats_nor_the_visual_pipeline(tmp_path):
+    """Import costs of every command: ``scipy.stats`` (0.8 s) and, through the
+    ``compare`` parser's odometry choices, the visual pipeline and its tracker (0.2 s)."""
+    heavy = ["scipy.stats", "graphslam.pipelines.spatial", "frontend.tracking"]
     code = ("import sys; from graphslam.cli.main import main; "
             f"rc = main(['run', '--max-steps', '20', '--rerun', 'off', '--quiet', '--out', {str(tmp_path)!r}]); "
-            "print(rc, 'scipy.stats' in sys.modules)")
+            f"print(rc, *[m in sys.modules for m in {heavy!r}])")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    assert done.stdout.split()[-2:] == ["0", "False"], done.stdout + done.stderr
+    assert done.stdout.split()[-4:] == ["0", "False", "False", "False"], done.stdout + done.stderr

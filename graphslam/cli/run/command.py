@@ -29,6 +29,7 @@ from graphslam.cli.common import (
     path_arg,
     seed_arg,
 )
+from graphslam.pipelines.common import ODOMETRY_MODES
 
 RUN_EPILOG = """\
 datasets:
@@ -213,7 +214,7 @@ def _add_image_options(vis) -> None:
     )
     vis.add_argument(
         "--odometry",
-        choices=("auto", "sequence", "derived", "none"),
+        choices=ODOMETRY_MODES,
         default=None,
         help="sequence's own odometry, noisy odometry derived from ground truth, or "
         "none (the camera alone: iSAM2 starts a monocular map and tracks by "
