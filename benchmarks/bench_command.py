@@ -26,7 +26,7 @@ less than wall time.
         [--repeats 3] [--max-steps N] [--quick] [--out FILE.json]
 
 ``--max-steps N``: the first N poses of each data set (both sides). ``--quick``:
-Victoria Park's first 300 poses, 2 repeats.
+Victoria Park's first 300 poses, 1 repeat (a smoke run of the code path).
 """
 
 from __future__ import annotations
@@ -160,12 +160,12 @@ def main(argv=None) -> int:
     ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=None, help="first N poses only")
-    ap.add_argument("--quick", action="store_true", help="Victoria Park, 300 poses, 2 repeats")
+    ap.add_argument("--quick", action="store_true", help="Victoria Park, 300 poses, 1 repeat (a smoke run)")
     ap.add_argument("--out", default="benchmarks/results/bench_command.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.datasets, args.max_steps, args.repeats = ["victoria-park"], 300, 2
+        args.datasets, args.max_steps, args.repeats = ["victoria-park"], 300, 1
     command = "python benchmarks/bench_command.py " + " ".join(argv if argv is not None
                                                                else sys.argv[1:])
     rows = []
