@@ -16,6 +16,7 @@ from graphslam.pipelines.compare_spatial import scale_baseline
 from slamcore.errors import GraphSlamError
 from slamcore.spatial.geometry import invert_pose, se3_exp, so3_exp
 from tests.graphslam.cli.test_faults import graphslam, one_line, verify_rrd
+from tests.graphslam.evaluation.test_metrics3d import _apply
 from tests.graphslam.pipelines.test_localize import HALF
 
 #: A small, fast room: QVGA images, 30 frames of which a few are run.
@@ -89,13 +90,6 @@ def _in_a_gauge(seed: int):
     return gt, est, C
 
 
-def _similarity(est, s, R, t):
-    moved = est.copy()
-    moved[:, :3, :3] = R @ est[:, :3, :3]
-    moved[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
-    return moved
-
-
 def test_pose_nees_in_the_estimators_gauge_is_its_nees_in_the_truths_frame():
     """A camera-alone estimate in its own frame and unit (first pose at the origin,
     baseline 1): the gauge alignment undoes exactly that similarity, so every frame's
@@ -105,7 +99,7 @@ def test_pose_nees_in_the_estimators_gauge_is_its_nees_in_the_truths_frame():
     ids = np.arange(N_DRAWS) + 100
     s = 1.0 / np.linalg.norm(gt[7, :3, 3] - gt[0, :3, 3])
     R = so3_exp([-0.7, 0.2, 1.1])
-    moved = _similarity(est, s, R, np.array([3.0, 1.0, -4.0]))
+    moved = _apply(s, R, np.array([3.0, 1.0, -4.0]), est)
     D = np.diag([s] * 3 + [1.0] * 3)
     truth = pose_nees(ids, est, C, ids, gt)
     out = pose_nees(ids, moved, D @ C @ D, ids, gt, alignment="gauge", baseline_ids=(100, 107))
@@ -124,7 +118,7 @@ def test_pose_nees_gauge_without_a_baseline_fits_the_scale_about_the_anchor():
     gt, est, C = _in_a_gauge(seed=7)
     ids = np.arange(N_DRAWS)
     s = 0.25
-    moved = _similarity(est, s, so3_exp([0.1, 0.9, -0.3]), np.array([-1.0, 0.0, 2.0]))
+    moved = _apply(s, so3_exp([0.1, 0.9, -0.3]), np.array([-1.0, 0.0, 2.0]), est)
     D = np.diag([s] * 3 + [1.0] * 3)
     out = pose_nees(ids, moved, D @ C @ D, ids, gt, alignment="gauge")
     assert abs(out["scale"] * s - 1.0) < 1e-3
