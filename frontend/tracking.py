@@ -24,13 +24,15 @@ Per frame (:meth:`Tracker.track`), given the image and the back end's
    same id on the same point over several frames before it predicts it. Each
    such track is searched in a fixed window (``follow_window_px``) around its
    last position plus its last image velocity, by ZNCC of its patch (Harris,
-   FPGA) or by descriptor among the ORB points in the window. A back end that
+   FPGA, and ORB with ``follow_by_patch``, on without odometry) or by
+   descriptor among the ORB points in the window. A back end that
    initialises undelayed (the EKF) does not need this: unmapped tracks then
    live one frame, as candidates.
 4. **New tracks**: detected corners at least ``min_distance_px`` from every
    tracked or predicted point, best response first, at most
    ``max_new_per_frame`` and only while fewer than ``max_tracks`` points are
-   tracked, each with a fresh integer id.
+   tracked (unset: 80, or 120 for a map started from two views without
+   odometry), each with a fresh integer id.
 
 Patches are cut where a track was born and kept (no drift along the track;
 ``patch_update = "last"`` re-cuts them at each match instead, which follows
@@ -65,6 +67,8 @@ from frontend.orb import OrbConfig
 from frontend.search_matchers import extract_patches
 from frontend.tracking_config import (
     CAMERA_ALONE_AIDS,
+    MAX_TRACKS,
+    TWO_VIEW_START_MAX_TRACKS,
     TrackerConfig,
     make_detector,
     search_matcher,
@@ -185,8 +189,10 @@ class Tracker:
             passes what the back end needs); ``None`` keeps the config, and an
             unset config means True.
         camera_alone: the back end has no odometry: the aids the config leaves
-            unset (``follow_image_motion``, ``follow_missed_landmarks``,
-            ``fill_first_frame``) are on; else off.
+            unset (:data:`~frontend.tracking_config.CAMERA_ALONE_AIDS`) are on;
+            else off. With ``follow_unmapped`` too (a back end that starts its
+            map from two views), an unset ``max_tracks`` is
+            :data:`~frontend.tracking_config.TWO_VIEW_START_MAX_TRACKS`.
     """
 
     def __init__(
@@ -219,6 +225,16 @@ class Tracker:
         self.follow_missed_landmarks = aid["follow_missed_landmarks"]
         self.fill_first_frame = aid["fill_first_frame"]
         self.follow_recuts_patch = aid["follow_recuts_patch"]
+        # Harris and the FPGA stream have no descriptor to follow by: always their patch
+        self.follow_by_patch = self.config.search_mode != "descriptor" or aid["follow_by_patch"]
+        two_view_start = bool(camera_alone) and self.follow_unmapped
+        self.max_tracks = (
+            self.config.max_tracks
+            if self.config.max_tracks is not None
+            else TWO_VIEW_START_MAX_TRACKS
+            if two_view_start
+            else MAX_TRACKS
+        )
         self._tracks: dict[int, _Track] = {}
         self._next_id = 0
         self._frame = -1
@@ -305,8 +321,8 @@ class Tracker:
         occupied.extend(puv[unfound & inside])
         # the per-frame cap spreads the cost of new tracks over frames; a frame with no
         # track at all (the first) has nothing to spread it against (fill_first_frame)
-        per_frame = cfg.max_tracks if self.fill_first_frame and not self._tracks else cfg.max_new_per_frame
-        n_room = min(per_frame, max(0, cfg.max_tracks - len(obs_ids)))
+        per_frame = self.max_tracks if self.fill_first_frame and not self._tracks else cfg.max_new_per_frame
+        n_room = min(per_frame, max(0, self.max_tracks - len(obs_ids)))
         new_ids, new_uv = self._start_tracks(image, feats, np.array(occupied).reshape(-1, 2), n_room, k)
         obs_ids.extend(new_ids)
         obs_uv.extend(new_uv)
@@ -484,7 +500,7 @@ class Tracker:
             if u1 < u0 or v1 < v0:
                 continue
             union[v0 : v1 + 1, u0 : u1 + 1] = True
-            if self.config.search_mode == "descriptor":
+            if not self.follow_by_patch:
                 if len(fxy) == 0 or feats.descriptors is None:
                     continue
                 inw = np.flatnonzero(
@@ -592,9 +608,10 @@ class Tracker:
         # blocked by the occupied points, then by every candidate accepted before it.
         cxy = xy[order]
         orb = self.config.search_mode == "descriptor"
+        by_patch = self.follow_by_patch  # a patch ZNCC could never find again is not started
         min_std = self.search_config.min_patch_std
         flat = np.zeros(len(order), bool)
-        if not orb and len(order) and np.array_equal(cxy, np.round(cxy)):
+        if by_patch and len(order) and np.array_equal(cxy, np.round(cxy)):
             # Harris points sit on integer pixels: every candidate's patch (the very
             # pixels getRectSubPix cuts there) and its flatness test in one gather
             off = np.arange(p) - h
@@ -620,7 +637,7 @@ class Tracker:
                 patch = cand_patches[c].copy()  # a view would keep the whole batch alive
             else:
                 patch = extract_patches(image, uv[None], p)[0]
-                if not orb and float(patch.std()) < min_std:
+                if by_patch and float(patch.std()) < min_std:
                     continue  # flat: ZNCC could never find it again
             tid = self._next_id
             self._next_id += 1

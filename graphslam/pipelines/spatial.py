@@ -220,7 +220,6 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
 
     cfg = config.section(TrackerConfig, {"detector": detector})
     mark_unread_detector_sections(config, cfg.detector)
-    mark_unread_search_settings(config, cfg.search_mode)
     search = config.section(ActiveSearchConfig)
     # the two settings the tracker and the back end decide, refused with their file line
     why = search_mode_conflict(cfg, search)
@@ -229,7 +228,7 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     if search.order == "sequential" and not backend.supports_sequential_search:
         raise ConfigError(_sequential_refusal(backend), config.path, config.line_of("active_search", "order"))
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
-    return cfg, Tracker(
+    tracker = Tracker(
         cfg,
         active_search=search,
         harris=config.section(HarrisConfig),
@@ -237,6 +236,8 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
         follow_unmapped=follow,
         camera_alone=backend.has_motion_model,
     )
+    mark_unread_search_settings(config, cfg.search_mode, tracker.follow_by_patch)
+    return cfg, tracker
 
 
 def derive_odometry(

@@ -120,8 +120,8 @@ class MonoMotion:
         if self._boot is not None and self._boot.short_tracks:
             return (
                 "the camera alone needs tracks that last from one place to another far enough "
-                "away: a front end whose tracks last longer (Harris's, the default, outlast "
-                "ORB's), or odometry"
+                "away: tracks that last longer (followed by their patch: Harris's, or ORB's with "
+                "[tracker] follow_by_patch), more of them ([tracker] max_tracks), or odometry"
             )
         return "the camera alone needs frames seen from places far enough apart: more frames, or odometry"
 

@@ -218,8 +218,9 @@ def test_colmap_images_txt_is_the_truth_of_its_photo_folder(lund_colmap, shared_
 
 #: Two runs of the same photos whose estimates differ only in the gauge (where the first
 #: pose is put) agree on every pose relative to their first to this, in the map's units
-#: (floating point through iSAM2 from another linearisation point; measured 5e-9).
-SAME_ESTIMATE_UNITS = 1e-6
+#: (iSAM2 from another linearisation point: measured 5e-9 with 80 tracks, 2.7e-5 with the
+#: 120 of a camera-alone start since stop 71; 7 ppm of the 13.7-unit path).
+SAME_ESTIMATE_UNITS = 1e-4
 
 
 def test_truth_given_to_score_a_photo_folder_does_not_change_its_run(lund_colmap, shared_data, tmp_path):
