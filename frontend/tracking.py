@@ -31,8 +31,8 @@ Per frame (:meth:`Tracker.track`), given the image and the back end's
 4. **New tracks**: detected corners at least ``min_distance_px`` from every
    tracked or predicted point, best response first, at most
    ``max_new_per_frame`` and only while fewer than ``max_tracks`` points are
-   tracked (unset: 80, or 120 for a map started from two views without
-   odometry), each with a fresh integer id.
+   tracked (twice as many until the map starts, for a map started from two
+   views without odometry), each with a fresh integer id.
 
 Patches are cut where a track was born and kept (no drift along the track;
 ``patch_update = "last"`` re-cuts them at each match instead, which follows
@@ -67,8 +67,7 @@ from frontend.orb import OrbConfig
 from frontend.search_matchers import extract_patches
 from frontend.tracking_config import (
     CAMERA_ALONE_AIDS,
-    MAX_TRACKS,
-    TWO_VIEW_START_MAX_TRACKS,
+    TWO_VIEW_START_TRACKS_FACTOR,
     TrackerConfig,
     make_detector,
     search_matcher,
@@ -191,8 +190,9 @@ class Tracker:
         camera_alone: the back end has no odometry: the aids the config leaves
             unset (:data:`~frontend.tracking_config.CAMERA_ALONE_AIDS`) are on;
             else off. With ``follow_unmapped`` too (a back end that starts its
-            map from two views), an unset ``max_tracks`` is
-            :data:`~frontend.tracking_config.TWO_VIEW_START_MAX_TRACKS`.
+            map from two views), up to
+            :data:`~frontend.tracking_config.TWO_VIEW_START_TRACKS_FACTOR` times
+            ``max_tracks`` are kept until the back end predicts a landmark.
     """
 
     def __init__(
@@ -227,13 +227,9 @@ class Tracker:
         self.follow_recuts_patch = aid["follow_recuts_patch"]
         # Harris and the FPGA stream have no descriptor to follow by: always their patch
         self.follow_by_patch = self.config.search_mode != "descriptor" or aid["follow_by_patch"]
-        two_view_start = bool(camera_alone) and self.follow_unmapped
-        self.max_tracks = (
-            self.config.max_tracks
-            if self.config.max_tracks is not None
-            else TWO_VIEW_START_MAX_TRACKS
-            if two_view_start
-            else MAX_TRACKS
+        # a two-view start keeps more tracks until the map starts (predictions come)
+        self._start_tracks_factor = (
+            TWO_VIEW_START_TRACKS_FACTOR if camera_alone and self.follow_unmapped else 1
         )
         self._tracks: dict[int, _Track] = {}
         self._next_id = 0
@@ -249,6 +245,12 @@ class Tracker:
     @property
     def patch_size(self) -> int:
         return self.search_config.patch_size_px
+
+    @property
+    def max_tracks(self) -> int:
+        """Tracks kept at most this frame: ``max_tracks``, times the two-view start's
+        factor until the back end predicts a landmark."""
+        return int(self.config.max_tracks) * self._start_tracks_factor
 
     @property
     def n_tracks(self) -> int:
@@ -286,6 +288,8 @@ class Tracker:
         # ---- active search of mapped landmarks
         t = time.perf_counter()
         self._view = predictions = predictions if predictions is not None else PixelPredictions.empty()
+        if len(predictions.track_ids):
+            self._start_tracks_factor = 1  # the map has started
         pids, puv, pS, lm_w = self._searchable(predictions)
         # a back end that corrects at most m landmarks (largest ellipses first) would
         # not use more: stop searching once m are found (paper 4.4)

@@ -33,16 +33,17 @@ CAMERA_ALONE_AIDS = (
     "follow_recuts_patch",
     "follow_by_patch",
 )
-#: Tracks a frame keeps by default (``max_tracks`` unset): the front end's first
-#: budget, which every run with odometry and every EKF run is measured with.
-MAX_TRACKS = 80
-#: The default budget of a back end that starts its map from two views without
-#: odometry (iSAM2 camera alone). Its start needs ``two_view.min_points`` (50) tracks
-#: shared across a 1-degree baseline; on KITTI 07 a third of the tracks die before
-#: that baseline (frame 13: 55 of 80 Harris tracks left, 52 of 80 ORB ones), so 80
-#: leaves the start at the threshold's mercy (ORB started at frame 66, not 15).
-#: 50 / (2/3), with half again as margin: 120.
-TWO_VIEW_START_MAX_TRACKS = 120
+
+
+#: Until its map starts, a back end that starts it from two views without odometry
+#: (iSAM2 camera alone) keeps up to this many times ``max_tracks``, as ORB-SLAM's
+#: monocular initialiser extracts twice its features. The start needs
+#: ``two_view.min_points`` (50) tracks shared across a 1-degree baseline, and a third
+#: die before it (KITTI 07, frame 13: 55 of 80 Harris tracks left, 52 of 80 ORB ones):
+#: 80 leave it at the threshold (ORB, followed by patch, started at frame 66 on 3 of
+#: seeds 0-4 and from a wrong homography at frame 32 on the other 2; with 160, at 15 on
+#: all 5).
+TWO_VIEW_START_TRACKS_FACTOR = 2
 
 
 @dataclass(frozen=True)
@@ -55,9 +56,9 @@ class TrackerConfig(Validated):
             doc), ``"zncc"``, ``"nearest"`` (Harris/FPGA only) or
             ``"descriptor"`` (ORB only).
         max_tracks: new corners are started only while fewer points than this
-            are tracked in the frame; unset, :data:`MAX_TRACKS` (80), or
-            :data:`TWO_VIEW_START_MAX_TRACKS` (120) for a back end that starts its
-            map from two views without odometry (iSAM2 camera alone).
+            are tracked in the frame (until the map starts, a back end that starts
+            it from two views without odometry, iSAM2 camera alone, keeps
+            :data:`TWO_VIEW_START_TRACKS_FACTOR` times as many).
         max_new_per_frame: new tracks started per frame at most (see ``fill_first_frame``).
         min_distance_px: a new corner is at least this far from every tracked
             or predicted point (no two ids on one physical point).
@@ -136,7 +137,7 @@ class TrackerConfig(Validated):
 
     detector: DetectorName = "harris"
     search: SearchMode = "auto"
-    max_tracks: int | None = bounded(None, min=1, max=MAX_POINTS_PER_FRAME)
+    max_tracks: int = bounded(80, min=1, max=MAX_POINTS_PER_FRAME)
     max_new_per_frame: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
     min_distance_px: float = bounded(16.0, min=0.0)
     follow_unmapped: bool | None = None
