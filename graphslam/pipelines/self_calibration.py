@@ -54,15 +54,16 @@ __all__ = ["CameraEstimate", "Settled", "estimate_camera", "settle", "with_camer
 #: when the motion does not determine it (the synthetic room's first 60 frames, driven
 #: in a plane, settle at 444.0 +- 3.9 px from 0.7 and at 750.4 +- 10.5 from 1.2, its
 #: camera 500), so one start alone can be confidently wrong. The Lund door settles at
-#: 2441.7 px from both (the focal length alone: 2464.7 px from 0.7, 0.9, 1.2 and 1.5);
-#: KITTI 07 at 695.2 and 695.9.
+#: 2454.3 px from both (2441.7 before stop 71's larger camera-alone start; the focal
+#: length alone: 2464.7 px from 0.7, 0.9, 1.2 and 1.5); KITTI 07 at 695.2 and 695.9
+#: before stop 71, refused since (docs/data/images.md).
 STARTS_PER_LONG_SIDE = (START_FOCAL_PER_LONG_SIDE, 0.7)
 #: Two starts agree when they settle within this many of their combined standard
 #: deviations (and the rounds' own convergence, :data:`CONVERGED_SHARE` and
 #: :data:`CONVERGED_K1`, twice).
 AGREE_SIGMAS = 3.0
-#: Frames each round runs on: KITTI 07's 160 frames determine the focal length to 1.1 %
-#: (7.8 px of 695; 0.35 % with k1 held); more only cost time, round after round.
+#: Frames each round runs on: KITTI 07's 160 frames determined the focal length to 1.1 %
+#: (7.8 px of 695; 0.35 % with k1 held; before stop 71); more only cost time, round after round.
 CALIBRATION_MAX_FRAMES = 200
 #: Rounds stop once the focal length moves by less than this share of itself (0.1 %:
 #: under a third of the smallest standard deviation measured, KITTI's 0.35 % with k1
