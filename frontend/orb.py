@@ -256,13 +256,49 @@ class OrbDetector:
 
     def detect(self, image: np.ndarray) -> Features:
         """``image``: (H, W) uint8. Returns :class:`Features` with (N, 32) uint8 descriptors."""
+        return self.detect_with_candidates(image)[0]
+
+    def detect_with_candidates(
+        self, image: np.ndarray, boxes_px: np.ndarray | None = None
+    ) -> tuple[Features, Features]:
+        """:meth:`detect`'s features, and every keypoint ORB found (up to ``n_features``,
+        no cell selection, no ``max_features`` cap) inside one of ``boxes_px`` ((K, 4)
+        ``u0, v0, u1, v1``, pixels), described, from one detection.
+
+        The cell selection spreads the points new tracks start on; a landmark is
+        searched for among all the keypoints, as ORB-SLAM's search by projection does:
+        its corner need not be its cell's strongest in every frame. Only the keypoints
+        inside the boxes (the search ellipses' bounding boxes) are described: all of a
+        KITTI frame's 4 800 would double the detector's time. ``boxes_px`` None or
+        empty: no candidate (the second record is then empty).
+        """
         image = check_gray(image)
         if self._too_small(image):
-            return self._empty()
+            return self._empty(), self._empty_candidates()
         orb = self._orb()
         kps = orb.detect(image, None)
         if not kps:
-            return self._empty()
+            return self._empty(), self._empty_candidates()
+        every = self._empty_candidates()
+        boxes = (
+            np.zeros((0, 4)) if boxes_px is None else np.asarray(boxes_px, dtype=np.float64).reshape(-1, 4)
+        )
+        if len(boxes):
+            pts = _pixels(kps)
+            inside = np.zeros(len(kps), bool)
+            for u0, v0, u1, v1 in boxes:  # tens of boxes
+                inside |= (pts[:, 0] >= u0) & (pts[:, 0] <= u1) & (pts[:, 1] >= v0) & (pts[:, 1] <= v1)
+            # compute() takes keypoints by reference and may drop some: describe copies
+            copies = [
+                cv2.KeyPoint(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave)
+                for k in (kps[i] for i in np.flatnonzero(inside).tolist())
+            ]
+            if copies:
+                described, desc = orb.compute(image, copies)
+                if desc is not None and described:
+                    every = Features(
+                        xy_px=_pixels(described), response=_responses(described), descriptors=desc
+                    )
         keep, xy, resp, cell = self._select(kps, image.shape)
         kept_kps = [kps[i] for i in keep.tolist()]  # only these are described
         # compute() drops keypoints it cannot describe and regroups the rest by
@@ -272,10 +308,14 @@ class OrbDetector:
             k.class_id = j
         kept_kps, desc = orb.compute(image, kept_kps)
         if desc is None or not kept_kps:
-            return self._empty()
+            return self._empty(), every
         rank = np.fromiter(map(_CLASS_ID, kept_kps), np.int64, len(kept_kps))
         o = np.argsort(rank)
         got = keep[rank[o]]
         return Features(
             xy_px=xy[got], response=resp[got], descriptors=desc[o], cell=None if cell is None else cell[got]
-        )
+        ), every
+
+    @staticmethod
+    def _empty_candidates() -> Features:
+        return Features(xy_px=np.zeros((0, 2)), response=np.zeros(0), descriptors=np.zeros((0, 32), np.uint8))

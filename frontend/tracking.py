@@ -279,15 +279,19 @@ class Tracker:
         H, W = image.shape
         timings = {}
 
+        self._view = predictions = predictions if predictions is not None else PixelPredictions.empty()
         t = time.perf_counter()
-        feats = self.detector.detect(image)
+        if self.config.search_mode == "descriptor":
+            # one ORB detection: the selected points, and the keypoints of the ellipses
+            feats, candidates = self.detector.detect_with_candidates(image, self._search_boxes(predictions))
+        else:
+            feats = candidates = self.detector.detect(image)
         if feats is None:  # an FPGA stream before its first stamp: no points yet
-            feats = Features(xy_px=np.zeros((0, 2)), response=np.zeros(0))
+            feats = candidates = Features(xy_px=np.zeros((0, 2)), response=np.zeros(0))
         timings["detect"] = time.perf_counter() - t
 
         # ---- active search of mapped landmarks
         t = time.perf_counter()
-        self._view = predictions = predictions if predictions is not None else PixelPredictions.empty()
         if len(predictions.track_ids):
             self._start_tracks_factor = 1  # the map has started
         pids, puv, pS, lm_w = self._searchable(predictions)
@@ -299,7 +303,7 @@ class Tracker:
             def link(found, uv, pending):  # indices of the predictions -> track ids
                 return repredict(pids[found], uv, pids[pending])
 
-        res = self._active_search(image, feats, pids, puv, pS, predictions.max_corrections, lm_w, link)
+        res = self._active_search(image, candidates, pids, puv, pS, predictions.max_corrections, lm_w, link)
         obs_ids: list[int] = []
         obs_uv: list[np.ndarray] = []
         for j in np.flatnonzero(res.found):
@@ -404,6 +408,16 @@ class Tracker:
                 image, puv, pS, features=feats, max_found=max_found, repredict=repredict
             )
         return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found, repredict)
+
+    def _search_boxes(self, predictions: PixelPredictions) -> np.ndarray:
+        """(K, 4) ``u0, v0, u1, v1`` bounding boxes of the search ellipses of the known
+        tracks ``predictions`` holds (the gate's Mahalanobis ellipse of each ``S``)."""
+        pids = np.asarray(predictions.track_ids, dtype=np.int64).reshape(-1)
+        known = np.array([int(i) in self._tracks for i in pids], dtype=bool)
+        uv = np.asarray(predictions.uv_px, dtype=np.float64).reshape(-1, 2)[known]
+        S = np.asarray(predictions.S_px2, dtype=np.float64).reshape(-1, 2, 2)[known]
+        half = np.sqrt(self.search_config.gate * np.abs(np.stack([S[:, 0, 0], S[:, 1, 1]], axis=1)))
+        return np.hstack([uv - half, uv + half])
 
     def _descriptor_search(
         self, shape, feats, pids, puv, pS, max_found=None, repredict=None

@@ -225,3 +225,58 @@ def test_images_too_small_to_correlate_are_tracked_without_an_opencv_error(shape
     for _ in range(3):
         r = tracker.track(rng.integers(0, 256, shape).astype(np.uint8))
     assert len(r.observations.track_ids) == 0
+
+
+def _texture(seed: int, shape=(320, 320)) -> np.ndarray:
+    import cv2
+
+    noise = np.random.default_rng(seed).uniform(0, 255, (shape[0] // 4, shape[1] // 4))
+    return cv2.resize(noise, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC).clip(0, 255).astype(np.uint8)
+
+
+def test_orb_landmarks_are_searched_among_every_keypoint_not_only_the_cells_best():
+    """ORB's cell selection keeps the strongest corner of each cell for new tracks; a
+    landmark is searched for among every keypoint of its ellipse (ORB-SLAM's search by
+    projection). A checkerboard pasted far from each landmark, in its cell, wins the
+    cell: the landmarks are still found where they are (before: none found)."""
+    from frontend.orb import OrbConfig
+
+    base = _texture(5)
+    tracker = Tracker(TrackerConfig(detector="orb"), orb=OrbConfig(cell_size_px=160), follow_unmapped=False)
+    born = tracker.track(base)
+    assert len(born.new_ids) == 4  # one a cell
+    frame = base.copy()
+    checker = (np.indices((24, 24)).sum(0) // 6 % 2 * 255).astype(np.uint8)
+    for u, v in born.new_uv:  # in the cell's quadrant farthest from the landmark
+        cu, cv = int(u // 160) * 160, int(v // 160) * 160
+        pu, pv = cu + (120 if u - cu < 80 else 40), cv + (120 if v - cv < 80 else 40)
+        frame[pv - 12:pv + 12, pu - 12:pu + 12] = checker
+    winners = tracker.detector.detect(frame).xy_px
+    assert np.min(np.linalg.norm(winners[:, None] - born.new_uv[None], axis=2)) > 20.0
+    pred = PixelPredictions(track_ids=born.new_ids, uv_px=born.new_uv,
+                            S_px2=np.repeat(4.0 * np.eye(2)[None], len(born.new_ids), axis=0))
+    res = tracker.track(frame, pred)
+    assert res.found.all()
+    np.testing.assert_allclose(res.found_uv, born.new_uv, atol=1e-6)
+
+
+def test_orb_candidates_come_from_the_same_detection():
+    """The ellipses' keypoints and the selected features come from one ORB detection: each
+    selected point inside a box is among the candidates with the same descriptor, none
+    lies outside the boxes, and no box gives no candidate."""
+    from frontend.orb import OrbDetector
+
+    image = _texture(6, (240, 320))
+    orb = OrbDetector()
+    selected, none = orb.detect_with_candidates(image)
+    assert len(none) == 0 and np.array_equal(selected.xy_px, orb.detect(image).xy_px)
+    boxes = np.array([[20.0, 20.0, 140.0, 120.0], [200.0, 100.0, 300.0, 220.0]])
+    _, cands = orb.detect_with_candidates(image, boxes)
+    u, v = cands.xy_px.T
+    inside = ((u[:, None] >= boxes[:, 0]) & (u[:, None] <= boxes[:, 2])
+              & (v[:, None] >= boxes[:, 1]) & (v[:, None] <= boxes[:, 3])).any(axis=1)
+    assert inside.all() and len(cands) > len(selected) / 4
+    for p, d in zip(selected.xy_px, selected.descriptors):
+        if ((p[0] >= boxes[:, 0]) & (p[0] <= boxes[:, 2]) & (p[1] >= boxes[:, 1]) & (p[1] <= boxes[:, 3])).any():
+            same = np.flatnonzero((cands.xy_px == p).all(axis=1))
+            assert any(np.array_equal(cands.descriptors[j], d) for j in same)

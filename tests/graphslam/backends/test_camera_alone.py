@@ -28,7 +28,7 @@ from slamcore.spatial.records import PixelObservations, PixelPredictions
 from tests.conftest import ROOT
 from tests.graphslam.pipelines.test_visual_pipeline import KITTI07
 
-#: ORB camera alone on KITTI 07's first 40 frames: 0.61 % of the path measured (stop 71);
+#: ORB camera alone on KITTI 07's first 40 frames: 0.75 % of the path measured (stop 71);
 #: 2 % fails a start on a wrong model or a drifting scale.
 ORB_FIRST_40_ATE_PERCENT = 2.0
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -495,7 +495,7 @@ def test_orb_tracks_too_short_for_a_first_map_on_kitti_is_one_line_with_the_way_
 def test_orb_from_the_camera_alone_starts_on_kitti(tmp_path):
     """The ORB front end's defaults without odometry (tracks followed by their patch, 160
     of them until the map starts) start KITTI 07's map at frame 15 and place its first 40
-    frames, 0.058 m ATE after Sim(3) over the 9.5 m they drive (0.61 %; the Harris run
+    frames, 0.072 m ATE after Sim(3) over the 9.5 m they drive (0.75 %; the Harris run
     starts at frame 13)."""
     from graphslam.cli.main import main
 
