@@ -280,10 +280,16 @@ class Tracker:
         timings = {}
 
         self._view = predictions = predictions if predictions is not None else PixelPredictions.empty()
+        if len(predictions.track_ids):
+            self._start_tracks_factor = 1  # the map has started
+        pids, puv, pS, lm_w = self._searchable(predictions)
         t = time.perf_counter()
         if self.config.search_mode == "descriptor":
-            # one ORB detection: the selected points, and the keypoints of the ellipses
-            feats, candidates = self.detector.detect_with_candidates(image, self._search_boxes(predictions))
+            # one ORB detection: the selected points, and the keypoints of the ellipses searched
+            searched = self._search.search_order(puv, pS, image.shape)
+            half = np.sqrt(self.search_config.gate * np.abs(pS[searched][:, [0, 1], [0, 1]]))
+            boxes = np.hstack([puv[searched] - half, puv[searched] + half])
+            feats, candidates = self.detector.detect_with_candidates(image, boxes)
         else:
             feats = candidates = self.detector.detect(image)
         if feats is None:  # an FPGA stream before its first stamp: no points yet
@@ -292,9 +298,6 @@ class Tracker:
 
         # ---- active search of mapped landmarks
         t = time.perf_counter()
-        if len(predictions.track_ids):
-            self._start_tracks_factor = 1  # the map has started
-        pids, puv, pS, lm_w = self._searchable(predictions)
         # a back end that corrects at most m landmarks (largest ellipses first) would
         # not use more: stop searching once m are found (paper 4.4)
         link = None
@@ -408,16 +411,6 @@ class Tracker:
                 image, puv, pS, features=feats, max_found=max_found, repredict=repredict
             )
         return self._descriptor_search(image.shape, feats, pids, puv, pS, max_found, repredict)
-
-    def _search_boxes(self, predictions: PixelPredictions) -> np.ndarray:
-        """(K, 4) ``u0, v0, u1, v1`` bounding boxes of the search ellipses of the known
-        tracks ``predictions`` holds (the gate's Mahalanobis ellipse of each ``S``)."""
-        pids = np.asarray(predictions.track_ids, dtype=np.int64).reshape(-1)
-        known = np.array([int(i) in self._tracks for i in pids], dtype=bool)
-        uv = np.asarray(predictions.uv_px, dtype=np.float64).reshape(-1, 2)[known]
-        S = np.asarray(predictions.S_px2, dtype=np.float64).reshape(-1, 2, 2)[known]
-        half = np.sqrt(self.search_config.gate * np.abs(np.stack([S[:, 0, 0], S[:, 1, 1]], axis=1)))
-        return np.hstack([uv - half, uv + half])
 
     def _descriptor_search(
         self, shape, feats, pids, puv, pS, max_found=None, repredict=None

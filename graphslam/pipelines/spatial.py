@@ -75,8 +75,6 @@ from slamcore.spatial.backend import VisualBackend
 from slamcore.spatial.geometry import invert_pose, so3_exp
 from slamcore.spatial.records import PixelPredictions, VisualEstimate
 
-#: Where a visual run's odometry comes from (module docstring).
-
 #: ``on_frame(k, image, tracking, backend)``, called after each frame's update.
 FrameHook = Callable[[int, np.ndarray, TrackingResult, VisualBackend], None]
 
