@@ -231,7 +231,8 @@ class SyntheticImagesConfig(Validated):
                 f"room_height_m {float(self.room_height_m)})"
             )
         L, W, H = self.room_length_m, self.room_width_m, self.room_height_m
-        texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m**2
+        # a product, not ** 2: a float power that overflows raises, a product is inf
+        texels = (2 * L * W + 2 * (L + W) * H) * self.texture_px_per_m * self.texture_px_per_m
         if texels > MAX_TEXELS:
             raise ConfigError(
                 f"{s}texture_px_per_m: the room's textures would take {texels:.3g} "

@@ -254,6 +254,7 @@ def test_visual_run_config_refuses_bad_values(key, value, words):
     ("room_length_m", si.MAX_ROOM_M * 10, f"<= {si.MAX_ROOM_M}"),  # surfaces per frame
     ("texture", "marble", "must be one of ['procedural', 'balbianello']"),
     ("texture_px_per_m", 1e4, "texels"),  # memory: 5e10 texels for the default room
+    ("texture_px_per_m", 1e200, "texels"),  # its square overflows: OverflowError before
     ("pixel_noise_sigma", -1.0, "must be >= 0.0"),
     ("near_m", 0.0, "must be > 0.0"),
     ("revisit_min_gap_frames", 0, "must be >= 1"),
