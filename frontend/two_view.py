@@ -32,6 +32,13 @@ solvers in place of the hand-written ones:
    there would ask hundreds of points for it, which forward motion never
    gives the points near the direction of travel. A sparse tracker keeps fewer
    than 100 points, and the test then becomes the median's.
+5. The map gets only the kept points seen under at least
+   ``min_point_parallax_deg`` (ORB-SLAM's CheckRT: rays whose cosine is below
+   0.99998, 0.36 deg): the others count towards ``min_points`` as ORB-SLAM's do,
+   but their depth is a guess. On KITTI 07 the first map held points at 160-650
+   baselines (0.1-0.35 deg), whose depth no pixel measures; iSAM2's Cholesky met
+   them as an indeterminate system as soon as its ordering put them in the root
+   (``max_predictions`` 20).
 
 Frames: ``a`` is the first view, ``b`` the second. OpenCV's
 ``findEssentialMat(p_a, p_b)``, ``findHomography(p_a, p_b)``,
@@ -92,6 +99,9 @@ class TwoViewConfig(Validated):
         homography_ratio: ``R_H = S_H / (S_H + S_F)`` above this selects the homography.
         max_reprojection_sigmas: largest reprojection error of a kept point, each
             view, in pixel sigmas (ORB-SLAM's CheckRT: 2).
+        min_point_parallax_deg: smallest parallax of a point the first map gets
+            (``mapped``); kept points below it still count towards ``min_points``
+            (ORB-SLAM's CheckRT: cos(parallax) < 0.99998, 0.36 deg).
     """
 
     TABLE: ClassVar[str] = "two_view"  # a nested table (e.g. [isam2_visual.mono.two_view])
@@ -104,6 +114,8 @@ class TwoViewConfig(Validated):
     confidence: float = bounded(0.999, gt=0.0, lt=1.0)
     homography_ratio: float = bounded(0.45, min=0.0, max=1.0)
     max_reprojection_sigmas: float = bounded(2.0, gt=0.0)
+    # ORB-SLAM's CheckRT maps a point only when cos(parallax) < 0.99998
+    min_point_parallax_deg: float = bounded(0.36, min=0.0, lt=180.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,6 +129,8 @@ class TwoViewResult:
         kept: (N,) bool: model inlier, in front of both cameras, reprojection
             within ``max_reprojection_sigmas`` in both views, parallax > 0.
         parallax_deg: (N,) angle between the two rays of each kept point (NaN elsewhere).
+        mapped: (N,) bool: the kept points seen under at least
+            ``min_point_parallax_deg``, those a first map gets.
         median_parallax_deg: median over kept points (NaN with none).
         score_h, score_f: ORB-SLAM's truncated symmetric-transfer scores.
         ok: ``min_points`` kept points with enough parallax (and, for the
@@ -129,6 +143,7 @@ class TwoViewResult:
     points_a: np.ndarray
     kept: np.ndarray
     parallax_deg: np.ndarray
+    mapped: np.ndarray
     median_parallax_deg: float
     score_h: float
     score_f: float
@@ -324,8 +339,9 @@ def _result(
             )
     bTa = np.eye(4)
     bTa[:3, :3], bTa[:3, 3] = R, t
+    mapped = kept & (np.nan_to_num(parallax, nan=-1.0) >= c.min_point_parallax_deg)
     return TwoViewResult(
-        model, invert_pose(bTa), points, kept, parallax, median, s_h, s_f, not why, "; ".join(why)
+        model, invert_pose(bTa), points, kept, parallax, mapped, median, s_h, s_f, not why, "; ".join(why)
     )
 
 

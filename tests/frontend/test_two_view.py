@@ -177,6 +177,31 @@ def test_low_parallax_is_refused_and_a_lower_bar_accepts_it():
     assert not two_view_geometry(uv_a, uv_b, K, TwoViewConfig(min_parallax_deg=ranked * 1.01)).ok
 
 
+def test_points_at_near_infinity_count_but_are_not_mapped():
+    """Points 160-650 baselines away (KITTI 07's first map had them) are seen under less
+    than ORB-SLAM's 0.36 deg: they count towards min_points, but their depth is a guess and
+    the first map must not get them (iSAM2 met them as an indeterminate system)."""
+    uv_a, uv_b, X_a, outlier = scene(GENERAL, 0)
+    rng = np.random.default_rng(3)
+    far = rng.random(len(X_a)) < 0.3
+    X_far = X_a.copy()
+    X_far[far] *= 30.0  # 150-600 m at a 1.1 m baseline: parallax 0.1-0.4 deg
+    bTa = invert_pose(GENERAL)
+    X_b = X_far @ bTa[:3, :3].T + bTa[:3, 3]
+    uv_b = (X_b @ K.T)[:, :2] / X_b[:, 2:] + rng.normal(0, NOISE_PX, uv_a.shape)
+    uv_b[outlier] = rng.uniform([0, 0], [W - 1, H - 1], (int(outlier.sum()), 2))
+    r = two_view_geometry(uv_a, uv_b, K)
+    floor = TwoViewConfig().min_point_parallax_deg
+    assert floor == pytest.approx(math.degrees(math.acos(0.99998)), abs=0.005)  # ORB-SLAM's CheckRT
+    assert r.ok, r.reason
+    low = r.kept & (r.parallax_deg < floor)
+    assert low.sum() > 10  # the scene has them, and they are kept (counted) ...
+    assert not (r.mapped & low).any()  # ... but not mapped
+    assert np.array_equal(r.mapped, r.kept & (r.parallax_deg >= floor))
+    none = two_view_geometry(uv_a, uv_b, K, TwoViewConfig(min_point_parallax_deg=0.0))
+    assert np.array_equal(none.mapped, none.kept)
+
+
 def test_too_few_points_give_none():
     uv_a, uv_b, _, _ = scene(GENERAL, 0)
     assert two_view_geometry(uv_a[:7], uv_b[:7], K) is None

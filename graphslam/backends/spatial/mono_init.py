@@ -132,7 +132,7 @@ class MonoBootstrap:
         if geo is None or not geo.ok:
             self.reason = "two-view geometry found no model" if geo is None else geo.reason
             return None
-        kept = np.asarray(geo.kept, dtype=bool)
+        kept = np.asarray(geo.mapped, dtype=bool)  # kept and seen under parallax
         first = self._build(
             j,
             common[kept],
