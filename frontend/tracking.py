@@ -331,8 +331,10 @@ class Tracker:
         inside = (puv[:, 0] >= 0) & (puv[:, 0] <= W - 1) & (puv[:, 1] >= 0) & (puv[:, 1] <= H - 1)
         occupied.extend(puv[unfound & inside])
         # the per-frame cap spreads the cost of new tracks over frames; a frame with no
-        # track at all (the first) has nothing to spread it against (fill_first_frame)
-        per_frame = self.max_tracks if self.fill_first_frame and not self._tracks else cfg.max_new_per_frame
+        # track at all (the first) has nothing to spread it against, and until a two-view
+        # start has its map every frame is one it may start from (fill_first_frame)
+        filling = self.fill_first_frame and (not self._tracks or self._start_tracks_factor > 1)
+        per_frame = self.max_tracks if filling else cfg.max_new_per_frame
         n_room = min(per_frame, max(0, self.max_tracks - len(obs_ids)))
         new_ids, new_uv = self._start_tracks(image, feats, np.array(occupied).reshape(-1, 2), n_room, k)
         obs_ids.extend(new_ids)

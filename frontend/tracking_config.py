@@ -84,7 +84,12 @@ class TrackerConfig(Validated):
             ``fill_first_frame``: a frame that starts with no track at all (the
             first) fills to ``max_tracks`` instead of ``max_new_per_frame``: the
             cap spreads the cost of new tracks over frames, and a monocular
-            start measures parallax against one frame's tracks.
+            start measures parallax against one frame's tracks. Until a two-view
+            start has its map, every frame fills so (each may be the start's
+            reference): on KITTI 07 from frame 48 every second frame (1.2 m a
+            frame) most new tracks die at their first follow, and with 20 new a
+            frame at most 46 lived 2 frames, never the 50 a start needs; filled,
+            87, and the map starts at frame 9.
             ``follow_recuts_patch``: an unmapped track re-cuts its patch at each
             frame it is followed in, whatever ``patch_update`` (as KLT follows
             a feature from one frame to the next: a followed track's only
