@@ -137,9 +137,25 @@ class _NamedStdout:
         return getattr(self.stream, name)
 
 
+def _usable_std_streams() -> None:
+    """A closed standard stream (``>&-``: Python's is None) discards what is written to
+    it, as the user asked, instead of failing the run at its first print; a stream whose
+    encoding cannot spell a path's character (``PYTHONIOENCODING=ascii``) escapes it."""
+    for name in ("stdout", "stderr"):
+        stream = getattr(sys, name)
+        if stream is None:
+            setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))  # noqa: SIM115 (lives with the process)
+        elif hasattr(stream, "reconfigure"):
+            try:
+                stream.reconfigure(errors="backslashreplace")
+            except (ValueError, OSError):  # a detached or closed stream keeps its errors
+                pass
+
+
 def main(argv: list[str] | None = None) -> int:
     from graphslam.cli.out_folder import release_out_dirs
 
+    _usable_std_streams()
     stdout = sys.stdout = _NamedStdout(sys.stdout)
     try:
         return _main(argv, stdout)
