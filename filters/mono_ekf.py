@@ -240,7 +240,10 @@ class MonoEkf(VisualBackend):
             tuple[tuple[int, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
         ) = None
         self._rng = np.random.default_rng(self.config.seed)
-        self._sigma_px = float(self.config.default_sigma_px)
+        # the pixel sigma comes with each frame's observations (update); until the first
+        # there is no landmark to predict, so this value is never used (a setting for it,
+        # default_sigma_px, changed no run and was removed)
+        self._sigma_px = 1.0
         self._frame_ids: list[int] = [int(frame_id)]
         self._poses: list[np.ndarray] = [self._wTc()]
         self._stats = {

@@ -84,9 +84,6 @@ class MonoEkfConfig(Validated):
             acceleration noise (linear m/s^2, angular rad/s^2), held over a frame.
         cv_initial_sigma_v_mps, cv_initial_sigma_w_radps: prior std of the
             initial velocities (zero mean).
-        default_sigma_px: pixel std used by
-            :meth:`~filters.mono_ekf.MonoEkf.predict_observations` before any
-            observation is seen.
         seed: RANSAC sampling seed.
     """
 
@@ -124,7 +121,6 @@ class MonoEkfConfig(Validated):
     cv_sigma_alpha_radps2: float = bounded(4.0, gt=0.0)
     cv_initial_sigma_v_mps: float = bounded(1.0, gt=0.0)
     cv_initial_sigma_w_radps: float = bounded(1.0, gt=0.0)
-    default_sigma_px: float = bounded(1.0, gt=0.0)
     seed: int = bounded(0, min=0)
 
     @property

@@ -405,7 +405,6 @@ def test_is_a_visual_backend_and_config_section():
     ("rescue_chi2_prob", 0.0, "must be > 0.0 and < 1.0"),
     ("frame_dt_s", float("nan"), "finite"),
     ("max_consecutive_misses", True, "expected a number"),
-    ("default_sigma_px", "1", "expected a number"),
     ("seed", -3, "must be >= 0"),
 ])
 def test_bad_config_is_refused_naming_the_key(key, value, words):
