@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 from graphslam.cli.common import add_command, add_out_dir_option, path_arg
@@ -175,7 +176,7 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_OK, invocation, warn
+    from graphslam.cli.common import EXIT_INTERRUPTED, EXIT_OK, invocation, warn
     from graphslam.cli.out_folder import clear_earlier_outputs
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, OutputWrites, one_run_or_the_other
@@ -191,6 +192,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     options = EvalOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(EvalOptions)})
     results = evaluate_files(args.ground_truth, args.estimates, options, fmt=args.format, times=args.times)
+    unscored = [str(e) for e in args.estimates[len(results) :]]  # a stop scores a prefix
     claim_out_dir(args.out)
     clear_earlier_outputs(args.out, set(names), EVAL_OUTPUT_NAMES)  # --no-plot: no earlier eval.png
     # a stop while plotting: the earlier eval.png goes, not left beside the new eval.json
@@ -206,6 +208,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             results,
             options,
             invocation(args),
+            unscored,
         )
         if not args.no_plot:
             from graphslam.visualisation.plots import plot_trajectory_eval
@@ -218,4 +221,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
         warn(message)
     print(writes.outputs_line(paths.values()))
     writes.check(paths.values())
+    if unscored:
+        from graphslam.pipelines.common import active_guard
+
+        guard = active_guard()
+        name = "" if guard is None else f" ({guard.signal_name})"
+        print(
+            f"graphslam: interrupted{name}; {len(results)} of {len(args.estimates)} estimates "
+            f"scored and written, not {', '.join(unscored)}",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     return EXIT_OK
