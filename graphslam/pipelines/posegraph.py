@@ -208,6 +208,12 @@ def _untested(result) -> dict | None:
     return {"robust_closures": result.robust_mode, "tested": False}
 
 
+#: Stated sigmas this many times the residuals' (``noise_overstated``) mean edges that
+#: agree to round-off: float64 residuals of poses a metre apart are ~1e-16 m, and no
+#: sensor's noise is stated a million times its error.
+EXACT_EDGES_FACTOR = 1e6
+
+
 def closures_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> list[str]:
     """One line when the solve's kept edges leave a cost the stated noise cannot explain
     at an optimum (the chi-square test the auto route applies), in a graph with closures:
@@ -227,6 +233,12 @@ def closures_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> 
     if low is not None:
         # sigmas stated f times the data's: a closure e data-sigmas off reads e / f
         factor, sentence = low
+        if not factor < EXACT_EDGES_FACTOR:  # inf (cost 0) or round-off: no noise to measure
+            return [
+                f"{sentence}: the edges agree to round-off (a graph made without noise, its measurements "
+                "the poses' own relative poses), so their residuals measure no noise and the "
+                "closure test, in stated sigmas, says nothing of the data's"
+            ]
         said = (
             f"{sentence}: the noise is stated about {factor:.3g}x larger in sigma than the "
             "residuals show (sqrt(degrees of freedom / (2 x cost)))"

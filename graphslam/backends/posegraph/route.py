@@ -28,6 +28,7 @@ the Shonan start reaches 141.006.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -71,7 +72,7 @@ def noise_overstated(graph: PoseGraph, result) -> tuple[float, str] | None:
     low = chi2.ppf(NOISE_OVERSTATED_ALPHA, dof)
     if stat >= low:
         return None
-    factor = float(np.sqrt(dof / max(stat, np.finfo(float).tiny)))
+    factor = math.sqrt(dof / stat) if stat > dof / np.finfo(float).max else math.inf  # cost 0: inf
     return factor, (
         f"2 x cost over kept edges {stat:.6g} is below the chi-square lower bound {low:.6g} "
         f"({dof} degrees of freedom, {NOISE_OVERSTATED_ALPHA:g})"
