@@ -235,6 +235,22 @@ def clock_doubts(
     ]
 
 
+def rpe_doubt(r: TrajectoryEval, options: EvalOptions) -> list[str]:
+    """An RPE of no pair: ``--delta`` longer than the matched trajectory (its columns
+    read n/a, unexplained: sixteenth hostile pass)."""
+    if len(r.rpe_trans_m) or len(r.est) < 2:
+        return []
+    if options.delta_unit == "frames":
+        span = f"{len(r.est)} matched poses"
+    else:  # the pairs follow the aligned estimate's path (rpe_pairs)
+        path_m = float(np.sum(np.linalg.norm(np.diff(r.est[:, :3, 3], axis=0), axis=1)))
+        span = f"the estimate's {path_m:.3g} m of path"
+    return [
+        f"--delta {options.delta:g} {options.delta_unit} is longer than {span}: no pair is "
+        "that far apart, so the RPE is n/a; lower --delta"
+    ]
+
+
 def doubts(r: TrajectoryEval, options: EvalOptions) -> list[str]:
     """The sentences of the checks above; an estimate that does not move is said
     alone, and a size mismatch, which fills the ATE, stands for the absurd ATE."""
@@ -242,4 +258,4 @@ def doubts(r: TrajectoryEval, options: EvalOptions) -> list[str]:
     if not said:
         said = size_doubt(r, options) or absurd_doubts(r, options)
         said += quaternion_doubt(r, options)
-    return shared_doubt(r, options) + said
+    return shared_doubt(r, options) + said + rpe_doubt(r, options)

@@ -239,6 +239,11 @@ def save_planar_run_map(
         f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "
         f"({result.steps} steps of {result.dataset.name}, {result.backend})"
     )
+    if pmap.n_landmarks == 0:  # saved in silence; run --map then placed nothing (hostile pass 16)
+        warn(
+            f"the map in {folder} has no landmark: a run against it (--map) can place nothing "
+            "(a run of more steps, with landmark sightings, makes one)"
+        )
 
 
 def _matched(metrics) -> str:

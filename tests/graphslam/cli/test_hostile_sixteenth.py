@@ -220,3 +220,28 @@ def test_a_graph_whose_edges_agree_exactly_is_said_so_not_infx(tmp_path, capsys,
     err = capsys.readouterr().err
     assert "infx" not in err and "e+" not in err
     assert "the edges agree to round-off" in err
+
+
+def test_saving_an_empty_2d_map_warns(tmp_path, capsys):
+    """``run --max-steps 5 --save-map M``: 'map in M/: 0 landmarks', exit 0, no word; a
+    run with ``--map M`` then placed nothing. Image maps already said so."""
+    assert main(["run", "--max-steps", "5", "--save-map", str(tmp_path / "m"), "--rerun", "off",
+                 "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert f"the map in {tmp_path / 'm'} has no landmark" in err
+
+
+@pytest.mark.parametrize("unit, words, fits", [("frames", "longer than 30 matched poses", "5"),
+                                               ("m", "m of path", "0.1")])
+def test_eval_delta_longer_than_the_trajectory_says_why_the_rpe_is_na(tmp_path, capsys, unit, words, fits):
+    """``eval --delta 1000`` on 30 poses: the RPE columns read n/a, nothing said."""
+    _tum(tmp_path / "gt.tum", 30, 0.0)
+    _tum(tmp_path / "est.tum", 30, 0.01)
+    argv = ["eval", str(tmp_path / "gt.tum"), str(tmp_path / "est.tum"), "--delta", "1000", "--delta-unit", unit,
+            "--no-plot", "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert words in err and "RPE is n/a; lower --delta" in err
+    capsys.readouterr()
+    assert main([*argv[:4], fits, *argv[5:]]) == 0  # a delta that fits is silent
+    assert "RPE is n/a" not in capsys.readouterr().err
