@@ -23,6 +23,7 @@ from graphslam.cli.common import (
     add_quiet_option,
     add_topics_option,
     path_arg,
+    warn,
 )
 from graphslam.cli.out_folder import claim_out_dir, clear_earlier_outputs
 from slamcore.errors import ConfigError
@@ -194,6 +195,11 @@ def cmd_loops(args: argparse.Namespace) -> int:
         print(f"training a vocabulary on {len(paths)} images ...", file=sys.stderr, flush=True)
         vocab = train_vocabulary([f.descriptors for f in features], args.words)
         print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
+        if vocab.n_words_ < args.words:  # as vocab train says it: the tree stops where nodes run dry
+            warn(
+                f"--words {args.words}: the tree has {vocab.n_words_} words, too few descriptors "
+                "for more; more images give it more"
+            )
 
     detector = LoopDetector(
         vocab,

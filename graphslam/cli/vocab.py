@@ -155,7 +155,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         flush=True,
     )
     n_desc = sum(min(len(f), args.per_image) if args.per_image else len(f) for f in feats)
-    if args.flat and n_desc * args.words > FLAT_SLOW_PRODUCT:
+    # (a flat k-means of more words than descriptors is refused below: no warning first)
+    if args.flat and n_desc >= args.words and n_desc * args.words > FLAT_SLOW_PRODUCT:
         warn(
             f"a flat k-means of {args.words} words on {n_desc} descriptors computes "
             f"{n_desc * args.words:.1e} distances an iteration: minutes, with no progress to show; "

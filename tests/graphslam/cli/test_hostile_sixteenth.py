@@ -245,3 +245,33 @@ def test_eval_delta_longer_than_the_trajectory_says_why_the_rpe_is_na(tmp_path, 
     capsys.readouterr()
     assert main([*argv[:4], fits, *argv[5:]]) == 0  # a delta that fits is silent
     assert "RPE is n/a" not in capsys.readouterr().err
+
+
+def _noise_images(tmp_path: Path) -> Path:
+    import cv2
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        img = cv2.GaussianBlur(rng.integers(0, 255, (240, 320), dtype=np.uint8), (0, 0), 1.5)
+        cv2.imwrite(str(folder / f"{i:02d}.png"), img)
+    return folder
+
+
+def test_loops_words_beyond_the_descriptors_warns_as_vocab_train_does(tmp_path, capsys):
+    """``loops --words 99999999``: 'vocabulary tree k=10 L=8, 1531 words', exit 0, nothing
+    said; ``vocab train`` warned in the same case."""
+    folder = _noise_images(tmp_path)
+    assert main(["loops", str(folder), "--words", "99999999", "--out", str(tmp_path / "l.csv"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "--words 99999999: the tree has" in err and "too few descriptors" in err
+
+
+def test_vocab_train_flat_with_more_words_than_descriptors_is_one_line(tmp_path, capsys):
+    """A warning that the flat k-means would take minutes, then the error refusing it."""
+    folder = _noise_images(tmp_path)
+    assert main(["vocab", "train", str(folder), "--out", str(tmp_path / "v.voc"), "--words",
+                 "999999999999999", "--flat", "--quiet"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("graphslam:")]
+    assert len(err) == 1 and "descriptors for 999999999999999 words" in err[0], err
