@@ -294,12 +294,13 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def require_loop_closures(backend: VisualBackend, option: str = "--loops") -> None:
+def require_loop_closures(backend: VisualBackend, option: str = "--loops", shown: str | None = None) -> None:
     """Raise :class:`UnsupportedError` unless ``backend`` takes relative-pose closures;
-    the message names ``option``, the flag the user gave that needs them."""
+    the message names ``option``, the flag the user gave that needs them, and the back
+    end as ``shown`` (the name the user gave: ``ekf``, not its class's ``mono_ekf``)."""
     if not backend.supports_loop_closures:
         raise UnsupportedError(
-            f"{option}: back end {backend.name!r} cannot use relative-pose loop "
+            f"{option}: back end {(shown or backend.name)!r} cannot use relative-pose loop "
             "closures (it closes loops by re-observing landmarks); use isam2"
         )
 

@@ -74,7 +74,7 @@ def start_relocaliser(args, config, sequence, backend):
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
 
-    require_loop_closures(backend, "--relocalise")  # a relocalised pose joins as a closure
+    require_loop_closures(backend, "--relocalise", args.backend)  # a relocalised pose joins as a closure
     return RunRelocaliser(
         sequence.K,
         config.section(RelocaliseConfig),

@@ -277,7 +277,7 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
     from loopclosure.verify import VerifyConfig
     from loopclosure.vocabulary import load_vocabulary
 
-    lc.require_loop_closures(backend)
+    lc.require_loop_closures(backend, shown=args.backend)
     detector_config = config.section(LoopDetectorConfig)
     features = None
     if args.vocab is not None:

@@ -275,3 +275,21 @@ def test_vocab_train_flat_with_more_words_than_descriptors_is_one_line(tmp_path,
                  "999999999999999", "--flat", "--quiet"]) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("graphslam:")]
     assert len(err) == 1 and "descriptors for 999999999999999 words" in err[0], err
+
+
+@pytest.mark.parametrize("flag", ["--loops", "--relocalise"])
+def test_a_flag_the_ekf_cannot_serve_names_it_as_the_user_did(tmp_path, capsys, flag):
+    """``--backend ekf --loops``: "back end 'mono_ekf' cannot use ...", a name the user never typed."""
+    assert main(["run", "--dataset", "synthetic-images", "--backend", "ekf", flag, "--max-steps", "3",
+                 "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag}: back end 'ekf' cannot use relative-pose loop closures" in err and "mono_ekf" not in err
+
+
+def test_a_dataset_that_is_a_broken_symlink_is_said_so(tmp_path, capsys):
+    """A symlink loop as --dataset: 'no such dataset or file', of a name that is there."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    assert main(["run", "--dataset", str(a), "--rerun", "off", "--out", str(tmp_path / "o")]) == 2
+    assert "a symbolic link to nothing" in capsys.readouterr().err
