@@ -156,6 +156,15 @@ def cmd_localize(args: argparse.Namespace) -> int:
     metrics["provenance"] = invocation(args)
     if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
         warn(metrics["warnings"][-1])
+    if metrics["frames"] and not metrics["localised_fraction"] and not result.interrupted:
+        # 0.0 %, a trajectory.tum of its header and exit 0 said nothing (hostile pass 16)
+        nothing = (
+            f"no frame of {metrics['frames']} was placed in the map: these frames do not see "
+            "the mapped place (another part of the sequence, another scene), or the map is too "
+            "sparse to relocalise in"
+        )
+        metrics.setdefault("warnings", []).append(nothing)
+        warn(nothing)
     out_dir = folder.resolve()
     writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     paths = localize_run.write_outputs(result, out_dir, metrics, writes)

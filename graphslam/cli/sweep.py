@@ -10,7 +10,7 @@ from pathlib import Path
 
 from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
 from graphslam.cli.out_folder import claim_out_dir, moved_to
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, InputError
 
 EPILOG = """\
 sweep file (TOML):
@@ -163,6 +163,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from slamcore.files import check_output_dir
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
+    runs_dir = args.out / "runs"
+    if runs_dir.is_symlink() and not runs_dir.exists() or runs_dir.exists() and not runs_dir.is_dir():
+        # each run's mkdir raised NotADirectoryError / FileExistsError: a traceback
+        raise InputError("is not a folder: the sweep keeps each run in runs/<run id>", runs_dir)
     from graphslam.cli.out_folder import refuse_other_outputs
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, FOLDER_OUTPUT_NAMES
 

@@ -157,8 +157,18 @@ def _scores(out_dir: Path) -> dict:
 def execute_run(run: RunSpec, root: str) -> dict:
     """Run one sweep run in ``root/runs/<run_id>`` (module doc); its ``sweep.csv`` row."""
     out_dir = Path(root) / "runs" / run.run_id
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.toml").write_text(dump_toml(run.config), encoding="utf-8")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "config.toml").write_text(dump_toml(run.config), encoding="utf-8")
+    except OSError as e:  # runs/<run id> a file, a full disk: this run fails, the sweep goes on
+        why = f"{e.strerror}: {e.filename}" if e.strerror else str(e)
+        return {
+            "run_id": run.run_id,
+            "wall_s": 0.0,
+            "peak_rss_mb": None,
+            "status": "failed",
+            "error": f"cannot write the run's folder ({why})",
+        }
     rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
     row = {"run_id": run.run_id, "wall_s": wall, "peak_rss_mb": peak}
     if rc != 0:

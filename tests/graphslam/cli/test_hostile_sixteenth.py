@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -154,50 +153,34 @@ def _tum(path: Path, n: int, offset: float) -> None:
     np.savetxt(path, np.hstack([t[:, None], xyz, q]), fmt="%.6f")
 
 
-@pytest.mark.slow
-def test_eval_stopped_among_several_estimates_keeps_those_scored(tmp_path):
+def test_eval_stopped_among_several_estimates_keeps_those_scored(tmp_path, capsys, monkeypatch):
     """``eval GT E1 E2 E3`` and Ctrl-C while E2 was scored: exit 130 and no output folder;
-    E1's scores (seconds of work on 600 000 poses) were lost."""
-    n = 300_000
-    _tum(tmp_path / "gt.tum", n, 0.0)
+    E1's scores (seconds of work on 600 000 poses) were lost. The signal is sent from inside
+    the second scoring, so the test does not depend on the machine's speed."""
+    import graphslam.pipelines.trajectory_eval as te
+
+    _tum(tmp_path / "gt.tum", 200, 0.0)
     for i in (1, 2, 3):
-        _tum(tmp_path / f"e{i}.tum", n, 0.01 * i)
-    # how long loading and one estimate take here, so that the signal lands in the second
-    t0 = time.monotonic()
-    one = _cli(["eval", "gt.tum", "e1.tum", "--out", "one", "--no-plot"], tmp_path)
-    assert one.returncode == 0, one.stderr
-    whole = time.monotonic() - t0
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "graphslam",
-            "eval",
-            "gt.tum",
-            "e1.tum",
-            "e2.tum",
-            "e3.tum",
-            "--out",
-            "o",
-            "--no-plot",
-        ],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
-    )
-    # loading four files takes about twice loading two; then e1 is scored
-    time.sleep(1.6 * whole)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=300)
-    assert proc.returncode == 130, err
-    data = json.loads((tmp_path / "o" / "eval.json").read_text())
-    assert data["interrupted"] is True
-    scored = [Path(e["estimate"]).name for e in data["estimates"]]
-    assert scored and scored == ["e1.tum", "e2.tum", "e3.tum"][: len(scored)] and len(scored) < 3
-    assert [Path(u).name for u in data["unscored"]] == ["e1.tum", "e2.tum", "e3.tum"][len(scored) :]
-    assert f"{len(scored)} of 3 estimates scored and written" in err and "Traceback" not in err
+        _tum(tmp_path / f"e{i}.tum", 200, 0.01 * i)
+    calls = []
+    real = te.evaluate
+
+    def evaluate(*a, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # held: this estimate ends, the next is not begun
+        return real(*a, **kw)
+
+    monkeypatch.setattr(te, "evaluate", evaluate)
+    out = tmp_path / "o"
+    estimates = [str(tmp_path / f"e{i}.tum") for i in (1, 2, 3)]
+    assert main(["eval", str(tmp_path / "gt.tum"), *estimates, "--out", str(out), "--no-plot"]) == 130
+    err = capsys.readouterr().err
+    data = json.loads((out / "eval.json").read_text())
+    assert data["interrupted"] is True and len(calls) == 2
+    assert [Path(e["estimate"]).name for e in data["estimates"]] == ["e1.tum", "e2.tum"]
+    assert [Path(u).name for u in data["unscored"]] == ["e3.tum"]
+    assert "2 of 3 estimates scored and written, not" in err and "Traceback" not in err
 
 
 @pytest.mark.parametrize(
@@ -293,3 +276,68 @@ def test_a_dataset_that_is_a_broken_symlink_is_said_so(tmp_path, capsys):
     b.symlink_to(a)
     assert main(["run", "--dataset", str(a), "--rerun", "off", "--out", str(tmp_path / "o")]) == 2
     assert "a symbolic link to nothing" in capsys.readouterr().err
+
+
+def _sweep_file(tmp_path: Path) -> Path:
+    spec = tmp_path / "w.toml"
+    spec.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0, 1]\nmax_steps = 20\n')
+    return spec
+
+
+def test_a_sweep_whose_runs_folder_is_a_file_is_one_line(tmp_path, capsys):
+    """OUT/runs a file: NotADirectoryError at each run's mkdir, a traceback (a broken
+    symlink: FileExistsError)."""
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "runs").write_text("")
+    assert main(["sweep", str(_sweep_file(tmp_path)), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"graphslam: error: {out / 'runs'}: is not a folder: the sweep keeps each run in runs/<run id>"
+
+
+def test_a_sweep_run_whose_folder_cannot_be_made_is_a_failed_row(tmp_path, capsys):
+    """OUT/runs/<run id> a file: FileExistsError, a traceback; now that run fails, the other runs."""
+    from graphslam.pipelines.sweep_spec import parse_sweep
+
+    spec = _sweep_file(tmp_path)
+    out = tmp_path / "s"
+    first = parse_sweep(spec).runs()[0].run_id
+    (out / "runs").mkdir(parents=True)
+    (out / "runs" / first).write_text("")
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 1
+    rows = (out / "sweep.csv").read_text().splitlines()
+    failed = [r for r in rows if r.startswith(first)]
+    assert len(rows) == 3 and failed and "failed" in failed[0] and "cannot write the run's folder" in failed[0]
+
+
+def test_mrclam_subject_with_two_barcodes_is_refused(tmp_path, capsys, shared_data):
+    """Subject 13's line turned into a second line of subject 14: two landmarks merged into
+    one, ATE 0.08 -> 0.65 m, exit 0, nothing said."""
+    import shutil
+
+    folder = tmp_path / "m"
+    shutil.copytree(shared_data / "mrclam6", folder)
+    text = (folder / "Barcodes.dat").read_text().splitlines()
+    k = next(i for i, ln in enumerate(text) if ln.split()[:1] == ["13"])
+    text[k] = text[k].replace("13", "14", 1)
+    (folder / "Barcodes.dat").write_text("\n".join(text) + "\n")
+    assert main(["run", "--dataset", str(folder), "--robot", "1", "--rerun", "off", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    second = next(i for i, ln in enumerate(text) if ln.split()[:1] == ["14"] and i != k)  # the later line
+    assert err == f"graphslam: error: {folder / 'Barcodes.dat'}:{second + 1}: subject 14 is given two barcodes (54 and 61)"
+
+
+def test_localize_that_places_no_frame_says_so(tmp_path, capsys):
+    """A map of one synthetic world, frames of another: 'localised 0.0 %', a trajectory of
+    its header, exit 0 and nothing said."""
+    assert main(["run", "--dataset", "synthetic-images", "--max-steps", "30", "--save-map", str(tmp_path / "m"),
+                 "--rerun", "off", "--quiet", "--out", str(tmp_path / "r")]) == 0
+    other = tmp_path / "w.toml"
+    other.write_text("[synthetic_images]\nseed = 7\n")
+    capsys.readouterr()
+    assert main(["localize", "--map", str(tmp_path / "m"), "--dataset", "synthetic-images", "--config", str(other),
+                 "--frames", "40:50", "--rerun", "off", "--quiet", "--out", str(tmp_path / "l")]) == 0
+    err = capsys.readouterr().err
+    assert "no frame of 10 was placed in the map" in err
+    warnings = json.loads((tmp_path / "l" / "metrics.json").read_text())["warnings"]
+    assert any("no frame of 10 was placed" in w for w in warnings)
