@@ -21,6 +21,7 @@ import hashlib
 import json
 import os
 import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -253,12 +254,13 @@ def run_sweep(
         write_rows(csv_path, header, outcome.rows)
 
     flush()
+    started = time.time()
     results = executor.map_unordered(todo, out)
     try:
         for run, result in results:
             row = {**base_row(run, spec), **result}
             outcome.ran += 1
-            outcome.failed += row["status"] != "ok"
+            outcome.failed += row["status"] == "failed"  # a stopped run is no failure
             if row["status"] != "interrupted":
                 rows[run.run_id] = row
             flush()
@@ -268,8 +270,32 @@ def run_sweep(
         outcome.interrupted = True
     finally:
         results.close()  # stops the runs still in flight
+    if outcome.interrupted:
+        _harvest(todo, rows, out, spec, started)
     flush()
     return outcome
+
+
+def _harvest(todo: list[RunSpec], rows: dict, out: Path, spec: SweepSpec, started: float) -> None:
+    """After a stop: the rows of runs that finished whole in this sweep but were not
+    yet reported (a worker's result not collected, or a run that got the signal as it
+    ended and said its outputs are complete): their metrics.json, written since the sweep
+    started, says ``interrupted: false``. A stopped sweep listed 2 of 4 finished runs, and
+    its next start ran the other two again (sixteenth hostile pass)."""
+    from graphslam.pipelines.sweep_exec import score_finished
+
+    for run in todo:
+        if run.run_id in rows:
+            continue
+        metrics = out / "runs" / run.run_id / "metrics.json"
+        try:
+            if metrics.stat().st_mtime < started or json.loads(metrics.read_text()).get("interrupted", True):
+                continue
+        except (OSError, ValueError):
+            continue
+        row = score_finished(out / "runs" / run.run_id)
+        if row is not None:
+            rows[run.run_id] = {**base_row(run, spec), "run_id": run.run_id, **row}
 
 
 #: Names of the sweep's plots: ``sweep_nees.png``, ``sweep_ate.png`` and one

@@ -187,6 +187,16 @@ def execute_run(run: RunSpec, root: str) -> dict:
     return {**row, "status": "ok", "error": ""}
 
 
+def score_finished(out_dir: Path) -> dict | None:
+    """The ``sweep.csv`` row of a run found finished in ``out_dir`` after a stop (its
+    wall time and peak memory unknown: null), or None when its files cannot be scored."""
+    try:
+        scores = _scores(out_dir)
+    except Exception:  # noqa: BLE001 (as execute_run: unscorable files are no row here)
+        return None
+    return {"wall_s": None, "peak_rss_mb": None, **scores, "status": "ok", "error": ""}
+
+
 def stop_live_runs() -> None:
     """Stop every run this process started and is still waiting for, and start no
     more until :func:`allow_runs`."""

@@ -16,7 +16,7 @@ also kept in ``eval.json`` as the estimate's ``warnings``.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +32,6 @@ from graphslam.evaluation.trajectory import (
     evaluate,
 )
 from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
-from graphslam.pipelines.common import interrupt_between_frames
 from graphslam.sources.ground_truth import Trajectory, check_not_colmap, read_times, read_trajectory
 from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError
 
@@ -100,8 +99,13 @@ def evaluate_files(
     *,
     fmt: str | None = None,
     times: Path | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> list[EstimateResult]:
-    """Score every estimate against ``ground_truth`` (same format and times options)."""
+    """Score every estimate against ``ground_truth`` (same format and times options).
+
+    ``should_stop()``, asked before each estimate: True ends the scoring
+    there, and the estimates scored so far are returned (``eval`` stopped by a signal
+    writes them; the rest are the caller's to name)."""
     ref = load(ground_truth, fmt, times)
     loaded = [
         (path, label, load(path, fmt, times))
@@ -126,20 +130,10 @@ def evaluate_files(
             "line); give them times with --times"
         )
     results: list[EstimateResult] = []
-    with interrupt_between_frames() as guard:
-        # a stop asked for while one estimate is scored ends the scoring after it: the
-        # command writes the estimates scored so far (one of several took 7 s on 600 000
-        # poses, and Ctrl-C on the third lost the first two)
-        guard.held_note = "finishing the estimate being scored; the ones scored are kept"
-        try:
-            for path, label, est in loaded:
-                if guard.requested:
-                    break
-                results.append(_score(ground_truth, ref, path, label, est, estimates, options))
-        finally:
-            guard.held_note = None
-    if not results and guard.requested:
-        raise KeyboardInterrupt  # nothing scored: nothing to keep
+    for path, label, est in loaded:
+        if should_stop is not None and should_stop():
+            break  # the caller writes the estimates scored so far
+        results.append(_score(ground_truth, ref, path, label, est, estimates, options))
     return results
 
 

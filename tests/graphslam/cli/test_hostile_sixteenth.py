@@ -341,3 +341,29 @@ def test_localize_that_places_no_frame_says_so(tmp_path, capsys):
     assert "no frame of 10 was placed in the map" in err
     warnings = json.loads((tmp_path / "l" / "metrics.json").read_text())["warnings"]
     assert any("no frame of 10 was placed" in w for w in warnings)
+
+
+class _StoppedAfterOne:
+    """An executor whose runs all finish, but whose stream of results is stopped (Ctrl-C)
+    after it reported the first: the others' rows were dropped from sweep.csv, and the
+    next start of the sweep ran them again."""
+
+    def map_unordered(self, runs, root):
+        from graphslam.pipelines.sweep_exec import execute_run
+
+        done = [(run, execute_run(run, str(root))) for run in runs]
+        yield done[0]
+        raise KeyboardInterrupt
+
+
+def test_a_stopped_sweep_keeps_runs_that_finished_but_were_not_reported(tmp_path):
+    from graphslam.pipelines.sweep import read_rows, run_sweep
+    from graphslam.pipelines.sweep_spec import parse_sweep
+
+    spec = parse_sweep(_sweep_file(tmp_path))
+    out = tmp_path / "s"
+    outcome = run_sweep(spec, out, _StoppedAfterOne())
+    assert outcome.interrupted
+    rows = read_rows(out / "sweep.csv")
+    assert [r["run_id"] for r in rows] == [run.run_id for run in spec.runs()]
+    assert all(r["status"] == "ok" and r["ate_rmse_m"] not in ("", None) for r in rows)
