@@ -229,7 +229,11 @@ def check_dataset_named(spec: str) -> None:
     before the options that depend on the dataset, so a typo is named as one)."""
     if not (is_builtin_dataset(spec) or Path(spec).exists()):
         if Path(spec).is_symlink():  # "no such file" of a name that is there misleads
-            raise InputError("a symbolic link to nothing (its target is missing, or links loop)", Path(spec))
+            raise InputError(
+                "a symbolic link that resolves to nothing (its target is missing, the links loop, "
+                "or the chain is too long)",
+                Path(spec),
+            )
         raise InputError(no_such_dataset(), Path(spec))
     refuse_part_of_a_log(spec)
 

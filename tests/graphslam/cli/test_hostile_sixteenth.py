@@ -275,7 +275,7 @@ def test_a_dataset_that_is_a_broken_symlink_is_said_so(tmp_path, capsys):
     a.symlink_to(b)
     b.symlink_to(a)
     assert main(["run", "--dataset", str(a), "--rerun", "off", "--out", str(tmp_path / "o")]) == 2
-    assert "a symbolic link to nothing" in capsys.readouterr().err
+    assert "a symbolic link that resolves to nothing" in capsys.readouterr().err
 
 
 def _sweep_file(tmp_path: Path) -> Path:
