@@ -160,16 +160,17 @@ def execute_run(run: RunSpec, root: str) -> dict:
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "config.toml").write_text(dump_toml(run.config), encoding="utf-8")
-    except OSError as e:  # runs/<run id> a file, a full disk: this run fails, the sweep goes on
+        rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
+    except OSError as e:  # runs/<run id> or its stderr.txt not a file, a full disk, no fork:
+        # this run fails, the sweep goes on
         why = f"{e.strerror}: {e.filename}" if e.strerror else str(e)
         return {
             "run_id": run.run_id,
             "wall_s": 0.0,
             "peak_rss_mb": None,
             "status": "failed",
-            "error": f"cannot write the run's folder ({why})",
+            "error": f"cannot write the run's folder or start it ({why})",
         }
-    rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
     row = {"run_id": run.run_id, "wall_s": wall, "peak_rss_mb": peak}
     if rc != 0:
         try:

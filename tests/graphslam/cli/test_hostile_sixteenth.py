@@ -295,19 +295,26 @@ def test_a_sweep_whose_runs_folder_is_a_file_is_one_line(tmp_path, capsys):
     assert err == f"graphslam: error: {out / 'runs'}: is not a folder: the sweep keeps each run in runs/<run id>"
 
 
-def test_a_sweep_run_whose_folder_cannot_be_made_is_a_failed_row(tmp_path, capsys):
-    """OUT/runs/<run id> a file: FileExistsError, a traceback; now that run fails, the other runs."""
+@pytest.mark.parametrize("blocker", ["folder", "stderr"])
+def test_a_sweep_run_whose_folder_cannot_be_made_is_a_failed_row(tmp_path, capsys, blocker):
+    """OUT/runs/<run id> a file: FileExistsError, a traceback; its stderr.txt a folder: the
+    whole sweep ended in one line, its other runs not run. Now that run fails, the others run."""
     from graphslam.pipelines.sweep_spec import parse_sweep
 
     spec = _sweep_file(tmp_path)
     out = tmp_path / "s"
     first = parse_sweep(spec).runs()[0].run_id
     (out / "runs").mkdir(parents=True)
-    (out / "runs" / first).write_text("")
+    if blocker == "folder":
+        (out / "runs" / first).write_text("")
+    else:
+        (out / "runs" / first / "stderr.txt").mkdir(parents=True)
     assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 1
     rows = (out / "sweep.csv").read_text().splitlines()
     failed = [r for r in rows if r.startswith(first)]
-    assert len(rows) == 3 and failed and "failed" in failed[0] and "cannot write the run's folder" in failed[0]
+    assert len(rows) == 3 and failed and ",failed," in failed[0]
+    assert "cannot write the run's folder or start it" in failed[0]
+    assert sum(",ok," in r for r in rows) == 1
 
 
 def test_mrclam_subject_with_two_barcodes_is_refused(tmp_path, capsys, shared_data):
