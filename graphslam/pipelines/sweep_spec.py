@@ -280,9 +280,15 @@ def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) 
     so a list of n values would give fewer than n runs without a word."""
     seen: list = []
     for v in values:
-        if v in seen:
-            raise ConfigError(f"{what} lists {v!r} twice; each value is run once", cfg.path, line)
-        seen.append(v)
+        key = (isinstance(v, bool), v)  # true == 1 in Python, not in TOML: [true, 1] is no repeat
+        if key in seen:
+            raise ConfigError(f"{what} lists {_toml_value(v)} twice; each value is run once", cfg.path, line)
+        seen.append(key)
+
+
+def _toml_value(v) -> str:
+    """``v`` as the sweep file spells it (``true``, not Python's ``True``)."""
+    return ("true" if v else "false") if isinstance(v, bool) else repr(v)
 
 
 def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> tuple[list[str], list[str]]:

@@ -187,6 +187,7 @@ def open_bag(path: Path) -> Iterator:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    _check_metadata(path)
     with _named_dot_bag(path) as readable:
         try:
             # bags without message definitions (early ROS 2 ones) are read with Humble's
@@ -213,6 +214,22 @@ def _named_dot_bag(path: Path) -> Iterator[Path]:
         link = Path(folder) / "bag.bag"
         link.symlink_to(path.resolve())
         yield link
+
+
+def _check_metadata(path: Path) -> None:
+    """InputError naming a ROS 2 bag folder's metadata.yaml that is no mapping of
+    ``rosbag2_bagfile_information`` (rosbags said "string indices must be integers")."""
+    meta = path / "metadata.yaml"
+    if not (path.is_dir() and meta.is_file()):
+        return
+    import yaml
+
+    try:
+        data = yaml.safe_load(meta.read_text(encoding="utf-8", errors="replace"))
+    except (yaml.YAMLError, OSError) as e:
+        raise InputError(f"not readable as YAML: {_reason(e)}", meta) from None
+    if not isinstance(data, dict) or not isinstance(data.get("rosbag2_bagfile_information"), dict):
+        raise InputError("not a ROS 2 bag's metadata (no rosbag2_bagfile_information mapping)", meta)
 
 
 def bag_errors(path: Path) -> tuple[type[BaseException], ...]:

@@ -374,3 +374,27 @@ def test_a_stopped_sweep_keeps_runs_that_finished_but_were_not_reported(tmp_path
     rows = read_rows(out / "sweep.csv")
     assert [r["run_id"] for r in rows] == [run.run_id for run in spec.runs()]
     assert all(r["status"] == "ok" and r["ate_rmse_m"] not in ("", None) for r in rows)
+
+
+def test_sweep_set_true_and_1_are_not_a_repeat(tmp_path, capsys):
+    """``[sweep.set] "isam2.polish" = [true, 1]``: 'lists 1 twice' (Python's true == 1); the
+    1 is what is wrong, and a real repeat is spelt as the file spells it."""
+    head = '[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0]\nmax_steps = 10\n[sweep.set]\n'
+    for values, words in (("[true, 1]", "isam2.polish: expected true/false, got 1"),
+                          ("[true, true]", "isam2.polish lists true twice")):
+        spec = tmp_path / "s.toml"
+        spec.write_text(head + f'"isam2.polish" = {values}\n')
+        assert main(["sweep", str(spec), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+        assert words in capsys.readouterr().err
+
+
+def test_a_bag_folder_whose_metadata_is_no_mapping_names_the_file(tmp_path, capsys):
+    """metadata.yaml holding ``x``: 'Invalid bag metadata: string indices must be integers'."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("x\n")
+    (bag / "bag_0.db3").write_bytes(b"")
+    assert main(["info", str(bag)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"graphslam: error: {bag / 'metadata.yaml'}: not a ROS 2 bag's metadata "
+                   "(no rosbag2_bagfile_information mapping)")
