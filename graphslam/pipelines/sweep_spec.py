@@ -282,13 +282,9 @@ def _refuse_repeats(values: list, what: str, cfg: ConfigFile, line: int | None) 
     for v in values:
         key = (isinstance(v, bool), v)  # true == 1 in Python, not in TOML: [true, 1] is no repeat
         if key in seen:
-            raise ConfigError(f"{what} lists {_toml_value(v)} twice; each value is run once", cfg.path, line)
+            shown = _toml_value(v) if isinstance(v, bool) else repr(v)  # true, not Python's True
+            raise ConfigError(f"{what} lists {shown} twice; each value is run once", cfg.path, line)
         seen.append(key)
-
-
-def _toml_value(v) -> str:
-    """``v`` as the sweep file spells it (``true``, not Python's ``True``)."""
-    return ("true" if v else "false") if isinstance(v, bool) else repr(v)
 
 
 def _datasets(sweep: dict, cfg: ConfigFile, path: Path) -> tuple[list[str], list[str]]:
