@@ -149,6 +149,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
     from graphslam.outputs.writers import OutputWrites, remove_stale_outputs
     from graphslam.pipelines.sweep import plot_files, read_rows, run_sweep
+    from graphslam.pipelines.sweep_exec import score_finished
     from graphslam.pipelines.sweep_spec import parse_sweep
     from slamcore.errors import ConfigError
 
@@ -183,7 +184,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         update, bar = _progress(n_runs, args.quiet)
         try:
             outcome = run_sweep(
-                spec, args.out, executor, on_result=update, check_out=lambda: _still_there(args.out)
+                spec,
+                args.out,
+                executor,
+                on_result=update,
+                check_out=lambda: _still_there(args.out),
+                score_finished=score_finished,
             )
         finally:
             if bar is not None:

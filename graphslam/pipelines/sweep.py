@@ -216,6 +216,7 @@ def run_sweep(
     *,
     on_result: Callable[[RunSpec, dict], None] | None = None,
     check_out: Callable[[], None] | None = None,
+    score_finished: Callable[[Path], dict | None] | None = None,
 ) -> SweepOutcome:
     """Run every run of ``spec`` not already done in ``out`` on ``executor``.
 
@@ -225,7 +226,9 @@ def run_sweep(
     says ``interrupted``. ``check_out()`` is called before each write of sweep.csv
     (as each run finishes, and at the end): an error it raises (the folder moved away, and
     the table would be written into a new folder at the old path) stops the runs
-    in flight and is raised.
+    in flight and is raised. ``score_finished(run folder)``: the row of a run found
+    finished whole after a stop (:func:`graphslam.pipelines.sweep_exec.score_finished`),
+    or None; without it such runs are left out.
     """
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "sweep.csv"
@@ -270,20 +273,25 @@ def run_sweep(
         outcome.interrupted = True
     finally:
         results.close()  # stops the runs still in flight
-    if outcome.interrupted:
-        _harvest(todo, rows, out, spec, started)
+    if outcome.interrupted and score_finished is not None:
+        _harvest(todo, rows, out, spec, started, score_finished)
     flush()
     return outcome
 
 
-def _harvest(todo: list[RunSpec], rows: dict, out: Path, spec: SweepSpec, started: float) -> None:
+def _harvest(
+    todo: list[RunSpec],
+    rows: dict,
+    out: Path,
+    spec: SweepSpec,
+    started: float,
+    score_finished: Callable[[Path], dict | None],
+) -> None:
     """After a stop: the rows of runs that finished whole in this sweep but were not
     yet reported (a worker's result not collected, or a run that got the signal as it
     ended and said its outputs are complete): their metrics.json, written since the sweep
     started, says ``interrupted: false``. A stopped sweep listed 2 of 4 finished runs, and
     its next start ran the other two again (sixteenth hostile pass)."""
-    from graphslam.pipelines.sweep_exec import score_finished
-
     for run in todo:
         if run.run_id in rows:
             continue

@@ -369,7 +369,9 @@ def test_a_stopped_sweep_keeps_runs_that_finished_but_were_not_reported(tmp_path
 
     spec = parse_sweep(_sweep_file(tmp_path))
     out = tmp_path / "s"
-    outcome = run_sweep(spec, out, _StoppedAfterOne())
+    from graphslam.pipelines.sweep_exec import score_finished
+
+    outcome = run_sweep(spec, out, _StoppedAfterOne(), score_finished=score_finished)
     assert outcome.interrupted
     rows = read_rows(out / "sweep.csv")
     assert [r["run_id"] for r in rows] == [run.run_id for run in spec.runs()]
