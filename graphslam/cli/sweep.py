@@ -165,7 +165,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out, files=("sweep.csv",))  # refused now, not as each run's error
     runs_dir = args.out / "runs"
-    if runs_dir.is_symlink() and not runs_dir.exists() or runs_dir.exists() and not runs_dir.is_dir():
+    if (runs_dir.exists() or runs_dir.is_symlink()) and not runs_dir.is_dir():  # a file, a dead link
         # each run's mkdir raised NotADirectoryError / FileExistsError: a traceback
         raise InputError("is not a folder: the sweep keeps each run in runs/<run id>", runs_dir)
     from graphslam.cli.out_folder import refuse_other_outputs

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphslam.evaluation.alignment import STILL_TOL, principal_spreads
+from graphslam.evaluation.spatial import path_length
 from graphslam.evaluation.trajectory import (
     EvalOptions,
     TrajectoryEval,
@@ -243,8 +244,7 @@ def rpe_doubt(r: TrajectoryEval, options: EvalOptions) -> list[str]:
     if options.delta_unit == "frames":
         span = f"{len(r.est)} matched poses"
     else:  # the pairs follow the aligned estimate's path (rpe_pairs)
-        path_m = float(np.sum(np.linalg.norm(np.diff(r.est[:, :3, 3], axis=0), axis=1)))
-        span = f"the estimate's {path_m:.3g} m of path"
+        span = f"the estimate's {path_length(r.est):.3g} m of path"
     return [
         f"--delta {options.delta:g} {options.delta_unit} is longer than {span}: no pair is "
         "that far apart, so the RPE is n/a; lower --delta"

@@ -343,6 +343,7 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
     path = folder / "Barcodes.dat"
     table, lines = read_table(path, 2, "subject, barcode")
     barcodes: dict[int, int] = {}
+    worn: dict[int, int] = {}  # subject -> its barcode
     for row, (subject, code) in enumerate(table):
         if subject != int(subject) or code != int(code) or subject < 1 or code < 0:
             raise InputError("subject and barcode must be whole numbers >= 1 and >= 0", path, lines[row])
@@ -350,12 +351,14 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
             raise InputError(f"barcode {int(code)} is given to two subjects", path, lines[row])
         # one subject under two barcodes merged two landmarks into one, quietly (ATE 0.08 ->
         # 0.65 m on robot 1): every subject wears one barcode
-        other = next((c for c, s in barcodes.items() if s == int(subject)), None)
-        if other is not None:
+        if int(subject) in worn:
             raise InputError(
-                f"subject {int(subject)} is given two barcodes ({other} and {int(code)})", path, lines[row]
+                f"subject {int(subject)} is given two barcodes ({worn[int(subject)]} and {int(code)})",
+                path,
+                lines[row],
             )
         barcodes[int(code)] = int(subject)
+        worn[int(subject)] = int(code)
     path = folder / "Landmark_Groundtruth.dat"
     truth: dict[int, np.ndarray] = {}
     if path.exists():

@@ -154,23 +154,40 @@ class ImageSequence:
             if self.is_distorted:
                 size_wh = (int(shape_hw[1]), int(shape_hw[0]))
                 K = np.asarray(self.K, dtype=np.float64)
-                dist = np.asarray(self.distortion, dtype=np.float64).reshape(-1)
-                mx, my = cv2.initUndistortRectifyMap(K, dist, None, K, size_wh, cv2.CV_32FC1)
-                self._check_coverage(mx, my, dist)
-                maps = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+                maps = cv2.initUndistortRectifyMap(
+                    K,
+                    np.asarray(self.distortion, dtype=np.float64).reshape(-1),
+                    None,
+                    K,
+                    size_wh,
+                    cv2.CV_16SC2,
+                )
             # frozen record: the cache is the one field written after construction
             object.__setattr__(self, "_undistort_maps", maps)
         return self._undistort_maps
 
-    def _check_coverage(self, mx: np.ndarray, my: np.ndarray, dist: np.ndarray) -> None:
+    def __post_init__(self) -> None:
+        if self.is_distorted:  # refused as the files are read, before any output is made
+            self._check_coverage()
+
+    def _check_coverage(self) -> None:
         """InputError when the distortion sends most of the pinhole image outside the
         stored one: no lens does that to its own camera (a strong barrel lens pulls the
         corners in, a pincushion pushes the outer rim out), so the coefficients are not
         this camera's, e.g. a second camera's line read as ``k1 k2 p1 p2``. The run would
-        otherwise see a smeared border, find no corner, and blame the rest."""
-        H, W = mx.shape
-        inside = (mx >= 0) & (mx <= W - 1) & (my >= 0) & (my <= H - 1)
-        coverage = float(np.count_nonzero(inside)) / float(inside.size)
+        otherwise see a smeared border, find no corner, and blame the rest.
+
+        The share is that of :meth:`_maps`' undistortion map (identity rotation, ``K`` kept),
+        on a grid of about 64 x 48 of its pixels: the lens model at each, by OpenCV."""
+        W, H = (int(v) for v in self.image_size)
+        K = np.asarray(self.K, dtype=np.float64)
+        dist = np.asarray(self.distortion, dtype=np.float64).reshape(-1)
+        u, v = np.meshgrid(np.linspace(0, W - 1, 64), np.linspace(0, H - 1, 48))
+        rays = np.linalg.solve(K, np.stack([u.ravel(), v.ravel(), np.ones(u.size)]))
+        uv, _ = cv2.projectPoints(rays.T.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+        uv = uv.reshape(-1, 2)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+        coverage = float(np.count_nonzero(inside)) / float(len(uv))
         if coverage < MIN_UNDISTORTED_COVERAGE:
             coeffs = " ".join(f"{c:g}" for c in dist)
             raise InputError(
