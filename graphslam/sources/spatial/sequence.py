@@ -255,6 +255,10 @@ def parse_euroc_line(text: str, path: Path, line: int, what: str) -> np.ndarray:
             path,
             line,
         )
+    if re.fullmatch(r"-[0-9]+", fields[0]):
+        raise InputError(
+            f"EuRoC times are nanoseconds since an epoch, never negative: {quote(fields[0])}", path, line
+        )
     if not _EUROC_STAMP.fullmatch(fields[0]):
         raise InputError(
             f"EuRoC times are integer nanoseconds, got {quote(fields[0])} (seconds: a TUM file?)", path, line

@@ -53,6 +53,19 @@ def test_euroc_with_seconds_is_refused(tmp_path, capsys):
     tr.one_error(err, "commas.csv:1", "integer nanoseconds", "1305031102.175304")
 
 
+def test_a_negative_euroc_time_is_named_not_blamed_on_tum(tmp_path, capsys):
+    """A minus sign on an integer EuRoC stamp was told "(seconds: a TUM file?)"."""
+    gt, est = tr.write_pair(tmp_path, "euroc")
+    lines = est.read_text().splitlines(keepends=True)
+    k = next(i for i, t in enumerate(lines) if not t.startswith("#"))
+    lines[k] = "-" + lines[k]
+    est.write_text("".join(lines))
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, est)
+    assert code == 2
+    tr.one_error(err, f"{est.name}:{k + 1}", "never negative")
+    assert "TUM" not in err
+
+
 def test_comma_in_a_forced_tum_or_kitti_line_is_refused(tmp_path):
     gt, _ = tr.write_pair(tmp_path, "euroc")
     for fmt in ("tum", "kitti"):
