@@ -175,6 +175,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     theirs = [name for name in FOLDER_OUTPUT_NAMES if name not in EVAL_OUTPUT_NAMES]
     refuse_other_outputs(args.out, theirs, "another graphslam command (run, compare or localize)")
     spec = parse_sweep(args.sweep_file)
+    for note in spec.notes:
+        warn(note)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
     claim_out_dir(args.out)

@@ -93,6 +93,8 @@ class SweepSpec:
     set_values: tuple[tuple, ...]
     #: each of ``datasets`` as the sweep file lists it; empty: as ``datasets``
     entries: tuple[str, ...] = ()
+    #: what the file left to a default that a reader may not expect, one line each
+    notes: tuple[str, ...] = ()
 
     def runs(self) -> list[RunSpec]:
         """Every run of the grid, in a fixed order, without repeats."""
@@ -542,6 +544,12 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         raise ConfigError(
             f"[sweep] nees must be true or false, got {nees!r}", cfg.path, cfg.line_of("sweep", "nees")
         )
+    notes = []
+    if "nees" not in sweep and not nees and "synthetic" in datasets:
+        notes.append(
+            "[sweep] nees is unset, and off because not every dataset is the synthetic world: "
+            "the synthetic runs score no NEES either; set nees = true for it"
+        )
     if nees and visual:
         raise ConfigError(
             f"[sweep] nees = true, but {visual[0]!r} is an image sequence, whose "
@@ -571,4 +579,5 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         keys,
         values,
         tuple(entries),
+        tuple(notes),
     )
