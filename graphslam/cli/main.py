@@ -8,6 +8,7 @@ was estimated so far and exits with 130, 143 or 129 (:mod:`graphslam.pipelines.c
 from __future__ import annotations
 
 import argparse
+import atexit
 import errno
 import os
 import re
@@ -263,6 +264,20 @@ def _late_stop(signum, frame) -> None:
         os._exit(EXIT_STATUS_OF_SIGNAL.get(signum, 130))
 
 
+def _ignore_stop_signals() -> None:
+    """The last exit handler: the stop signals are ignored for what remains of the exit.
+    Python then resets its signal handlers to the default action, and a SIGTERM in
+    that window killed the process with status 143 and no line, everything written
+    (hostile pass 16, a sweep stopped as it exited). Ignored, not blocked: a blocked
+    signal still reaches a thread that has not blocked it (a progress bar's monitor),
+    and kills the process by the default action. The command ends with its own status,
+    which it had earned."""
+    from graphslam.pipelines.common import stop_signals
+
+    for s in stop_signals():
+        signal.signal(s, signal.SIG_IGN)
+
+
 def entry() -> None:
     """The ``graphslam`` console script: :func:`main` between handlers for a late
     signal (installed first, so the command's guard restores them when it ends and
@@ -273,6 +288,8 @@ def entry() -> None:
 
     for s in stop_signals():
         signal.signal(s, _late_stop)
+    # registered first, so it runs after every library's exit handler
+    atexit.register(_ignore_stop_signals)
     try:
         status = main()
     finally:  # a SystemExit of the parser (--help, an error) too

@@ -214,11 +214,18 @@ def test_a_signal_while_the_interpreter_exits_is_its_status_not_a_death(sig):
     """A stop signal after the command returned (an exit handler sends it, as a user's
     kill lands while a sweep's engine tears down) ends with the signal's exit status
     and one line, never by the signal (returncode -15 before the console script's
-    late handlers)."""
+    late handlers). The handler is registered during the command, as the libraries the
+    command imports register theirs (one registered before the console script's own
+    last handler runs after it, when the stop signals are ignored:
+    ``test_hostile_seventeenth``)."""
     script = (
         "import atexit, os, signal, sys\n"
         "import graphslam.cli.main as m\n"
-        f"atexit.register(lambda: os.kill(os.getpid(), {int(sig)}))\n"
+        "command = m.main\n"
+        "def main():\n"
+        f"    atexit.register(lambda: os.kill(os.getpid(), {int(sig)}))\n"
+        "    return command()\n"
+        "m.main = main\n"
         "sys.argv = ['graphslam', '--help']\n"
         "m.entry()\n"
     )

@@ -3,9 +3,14 @@ the new pass's. Each test reproduces a finding, then checks what the code does n
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 from graphslam.pipelines.sweep_spec import parse_sweep
+
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _sweep_file(tmp_path: Path, extra: str = "") -> Path:
@@ -32,3 +37,31 @@ def test_a_sweep_that_chose_its_nees_is_told_nothing(tmp_path):
     only.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\n')
     spec = parse_sweep(only)
     assert spec.nees is True and spec.notes == ()
+
+
+def test_a_stop_signal_during_the_last_of_the_exit_is_ignored_not_a_silent_death(tmp_path):
+    """A SIGTERM as a sweep exited killed it by the default action (status -15, no line),
+    everything written: Python resets its handlers to the default late in its exit, and a
+    progress bar's thread took the signal. The console script's last exit handler now
+    ignores the stop signals; a hook that runs after it (registered before ``entry``)
+    sends one and the command keeps its own status."""
+    script = (
+        "import atexit, os, signal, sys, time\n"
+        "def late():\n"
+        "    assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN, signal.getsignal(signal.SIGTERM)\n"
+        "    os.kill(os.getpid(), signal.SIGTERM); time.sleep(0.2)\n"
+        "atexit.register(late)\n"
+        "sys.argv = ['graphslam', '--version']\n"
+        "from graphslam.cli.main import entry\n"
+        "entry()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert done.returncode == 0, (done.returncode, done.stderr)
+    assert "graphslam" in done.stdout and done.stderr == ""
