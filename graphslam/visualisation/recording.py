@@ -105,6 +105,41 @@ def _port_answers(host: str, port: int, timeout_s: float) -> str | None:
         return e.strerror or type(e).__name__
 
 
+#: What a gRPC client sends first on a plain-text connection (RFC 9113 3.4): the HTTP/2
+#: preface and an empty SETTINGS frame. A Rerun viewer (tonic gRPC) answers with a
+#: SETTINGS frame of its own.
+_HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_HTTP2_SETTINGS = 4
+
+
+def _speaks_grpc(host: str, port: int, timeout_s: float) -> str | None:
+    """None when ``host:port`` answers an HTTP/2 preface with a SETTINGS frame, as a
+    Rerun viewer's gRPC server does, else what it did instead. The TCP check alone let
+    a run "connect" to any program on the port (a web server: hostile pass 16): nothing
+    was recorded, no run.rrd kept, and the end said only "the recording is incomplete".
+    Written by hand because the one question, "does it speak HTTP/2", needs no gRPC
+    client library."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as s:
+            s.sendall(_HTTP2_HELLO)
+            head = b""
+            while len(head) < 9:
+                chunk = s.recv(9 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except TimeoutError:
+        return f"the port answers but says nothing within {timeout_s:g} s"
+    except OSError as e:
+        return e.strerror or type(e).__name__
+    if len(head) == 9 and head[3] == _HTTP2_SETTINGS:
+        return None
+    if not head:
+        return "the port closed the connection without a word"
+    shown = head.decode("ascii", "replace").encode("unicode_escape").decode("ascii")
+    return f"the port answers, but not as a gRPC server: it began '{shown}'"
+
+
 def check_recording_path(path: str | Path, flag: str | None = None) -> None:
     """ConfigError unless Rerun can save a recording at ``path``: it takes UTF-8 paths
     only, and a folder named in another encoding (Latin-1 bytes) would fail it after
@@ -140,6 +175,8 @@ def sink_problem(mode: str, url: str | None = None) -> str | None:
         url = url or DEFAULT_VIEWER_URL
         host, port = parse_viewer_url(url)
         why = _port_answers(host, port, CONNECT_TIMEOUT_S)
+        if why is None and urlsplit(url).scheme == "rerun+http":  # TLS's handshake is not probed
+            why = _speaks_grpc(host, port, CONNECT_TIMEOUT_S)
         if why is not None:
             return f"no Rerun viewer answers at {url} ({why})"
     return None

@@ -65,3 +65,83 @@ def test_a_stop_signal_during_the_last_of_the_exit_is_ignored_not_a_silent_death
     )
     assert done.returncode == 0, (done.returncode, done.stderr)
     assert "graphslam" in done.stdout and done.stderr == ""
+
+
+def _serve_once(reply: bytes | None) -> tuple[int, object]:
+    """A one-connection TCP server on a free port that reads what it is sent and answers
+    ``reply`` (None: says nothing until the client leaves). Returns (port, thread)."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+    port = srv.getsockname()[1]
+
+    def serve():
+        with srv:
+            for _ in range(4):  # the check's probes, then the run's own connection
+                try:
+                    srv.settimeout(20)
+                    conn, _ = srv.accept()
+                except OSError:
+                    return
+                with conn:
+                    conn.settimeout(3)
+                    try:
+                        conn.recv(64)
+                        if reply is not None:
+                            conn.sendall(reply)
+                        conn.recv(64)
+                    except OSError:
+                        pass
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return port, thread
+
+
+def test_connect_to_a_port_where_no_grpc_server_answers_saves_instead(tmp_path):
+    """``--rerun connect`` to a web server's port: exit 0, "the recording is incomplete",
+    nothing recorded and no run.rrd (the check asked only whether the port was open)."""
+    from graphslam.visualisation.recording import sink_problem
+
+    port, _ = _serve_once(b"HTTP/1.0 400 Bad request\r\n\r\n<!DOCTYPE html>")
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    out = tmp_path / "o"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "graphslam",
+            "run",
+            "--max-steps",
+            "10",
+            "--rerun",
+            "connect",
+            "--rerun-url",
+            url,
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert done.returncode == 0, done.stderr
+    assert "not as a gRPC server" in done.stderr and "saving run.rrd" in done.stderr
+    assert (out / "run.rrd").is_file() and (out / "trajectory.tum").is_file()
+    silent, _ = _serve_once(None)
+    why = sink_problem("connect", f"rerun+http://127.0.0.1:{silent}/proxy")
+    assert why is not None and "says nothing" in why
+
+
+def test_a_grpc_server_passes_the_connect_check():
+    """What a gRPC server (Rerun's viewer is one) answers first: a SETTINGS frame."""
+    from graphslam.visualisation.recording import sink_problem
+
+    port, _ = _serve_once(bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))
+    assert sink_problem("connect", f"rerun+http://127.0.0.1:{port}/proxy") is None
