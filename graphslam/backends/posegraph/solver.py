@@ -526,12 +526,41 @@ class Isam2PoseGraph:
                 break
             if not self.step(n):
                 return self._batch_rest(n)
-        return self.isam.calculateEstimate()
+        try:
+            return self.isam.calculateEstimate()
+        except RuntimeError as exc:
+            if not fact.is_indeterminate(exc):
+                raise
+            self._estimate_failed(exc, len(self.steps))
+            return self._batch_rest(len(self.steps))
 
     def step(self, n: int) -> bool:
         """Update ``n`` of :attr:`steps`; False when only a batch solve can go on."""
         g, ids, step = self.graph, self.ids, self.steps[n]
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        try:
+            self._initial_values(step, values, factors)
+        except RuntimeError as exc:  # the estimate a new pose starts from
+            if not fact.is_indeterminate(exc):
+                raise
+            self._estimate_failed(exc, n)
+            return False
+        for e in step.edges:
+            factors.add(self.edges.at(e))
+        return self._update(factors, values, n)
+
+    def _estimate_failed(self, exc: RuntimeError, n: int) -> None:
+        """iSAM2's back-substitution met an indeterminate system (information near 1e300 on
+        every edge, hostile pass 17: a traceback after the updates had passed)."""
+        where = fact.failed_variable(exc) or "?"
+        self.recoveries.append(
+            f"iSAM2's estimate met an indeterminate system near {where} at update {n}; "
+            "the rest of the graph was solved by batch LM"
+        )
+
+    def _initial_values(self, step, values, factors) -> None:
+        """The values of the poses update ``step`` adds (and their priors, into ``factors``)."""
+        g, ids = self.graph, self.ids
         for row, e, src in step.inits:
             k = ids[row]
             if e < 0:
@@ -545,9 +574,6 @@ class Isam2PoseGraph:
             if k in self.anchored:
                 held = fx.pose(g.vertices[row], g.rotation) if len(g.fixed) else value
                 factors.add(fx.prior(g, k, held, self.config.prior_sigma))
-        for e in step.edges:
-            factors.add(self.edges.at(e))
-        return self._update(factors, values, n)
 
     def _estimate(self, key: int):
         """One pose of the current estimate (``self.isam`` may have been rebuilt)."""
