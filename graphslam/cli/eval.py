@@ -176,7 +176,7 @@ def format_table(results) -> str:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score, print, write; the exit status."""
-    from graphslam.cli.common import EXIT_INTERRUPTED, EXIT_OK, invocation, warn
+    from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, invocation, warn
     from graphslam.cli.out_folder import clear_earlier_outputs
     from graphslam.evaluation.trajectory import EvalOptions
     from graphslam.outputs.writers import EVAL_OUTPUT_NAMES, OutputWrites, one_run_or_the_other
@@ -198,6 +198,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         # scored are written (Ctrl-C on the third of three lost the first two, seconds each
         # on 600 000 poses)
         guard.held_note = "finishing the estimate being scored; the ones scored are kept"
+        refused: list[tuple[Path, str]] = []
         try:
             results = evaluate_files(
                 args.ground_truth,
@@ -206,12 +207,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 fmt=args.format,
                 times=args.times,
                 should_stop=lambda: guard.requested,
+                refused=refused,
             )
         finally:
             guard.held_note = None
         if guard.requested and not results:
             raise KeyboardInterrupt  # nothing scored: nothing to keep
-    unscored = [str(e) for e in args.estimates[len(results) :]]  # a stop scores a prefix
+    # a stop scores a prefix of the estimates that were not refused
+    done = {Path(r.path) for r in results} | {path for path, _ in refused}
+    unscored = [str(e) for e in args.estimates if Path(e) not in done] if guard.requested else []
     claim_out_dir(args.out)
     clear_earlier_outputs(args.out, set(names), EVAL_OUTPUT_NAMES)  # --no-plot: no earlier eval.png
     # a stop while plotting: the earlier eval.png goes, not left beside the new eval.json
@@ -228,6 +232,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             options,
             invocation(args),
             unscored,
+            refused,
         )
         if not args.no_plot:
             from graphslam.visualisation.plots import plot_trajectory_eval
@@ -238,6 +243,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(format_table(results))
     for message in eval_warnings(results, options):
         warn(message)
+    for _, why in refused:
+        warn(f"not scored: {why}")
     print(writes.outputs_line(paths.values()))
     writes.check(paths.values())
     if unscored:
@@ -247,4 +254,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
+    if refused:  # the others are written, but a script must not take the eval for a whole one
+        return EXIT_FAILED
     return EXIT_OK

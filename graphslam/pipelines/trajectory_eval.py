@@ -10,7 +10,9 @@ computable, e.g. the KITTI drift of a path under 100 m), among them
 matched poses only, and :func:`coverage_warnings` says so when they are few.
 :func:`eval_warnings` adds what makes a score doubtful (a unit, convention or clock
 mix-up: :func:`stamp_doubts` and :mod:`graphslam.evaluation.trajectory_doubts`),
-also kept in ``eval.json`` as the estimate's ``warnings``.
+also kept in ``eval.json`` as the estimate's ``warnings``. With several
+estimates, those that could not be read or scored are under ``"refused"``
+(``[{"estimate", "error"}]``) and the others are scored.
 """
 
 from __future__ import annotations
@@ -100,16 +102,34 @@ def evaluate_files(
     fmt: str | None = None,
     times: Path | None = None,
     should_stop: Callable[[], bool] | None = None,
+    refused: list[tuple[Path, str]] | None = None,
 ) -> list[EstimateResult]:
     """Score every estimate against ``ground_truth`` (same format and times options).
 
     ``should_stop()``, asked before each estimate: True ends the scoring
     there, and the estimates scored so far are returned (``eval`` stopped by a signal
-    writes them; the rest are the caller's to name)."""
+    writes them; the rest are the caller's to name). ``refused``: with several
+    estimates, one that cannot be read or scored is appended there as ``(path, why)``
+    and the others are scored (hostile pass 17: an estimate that does not move lost the
+    scores of the valid ones); without it, or when every estimate is refused, the
+    first refusal is raised."""
     ref = load(ground_truth, fmt, times)
+    keep_going = refused is not None and len(estimates) > 1
+    failures: list[tuple[Path, GraphSlamError]] = []
+
+    def attempt(path: Path, work: Callable):
+        try:
+            return work()
+        except GraphSlamError as e:
+            if not keep_going:
+                raise
+            failures.append((path, e))
+            return None
+
     loaded = [
-        (path, label, load(path, fmt, times))
+        (path, label, t)
         for path, label in zip(estimates, distinct_labels(estimates), strict=True)
+        if (t := attempt(path, lambda p=path: load(p, fmt, times))) is not None
     ]
     if times is not None and all(t.format != "kitti" for t in [ref] + [t for _, _, t in loaded]):
         # the files have their own stamps: a times file that changes nothing is refused
@@ -133,7 +153,15 @@ def evaluate_files(
     for path, label, est in loaded:
         if should_stop is not None and should_stop():
             break  # the caller writes the estimates scored so far
-        results.append(_score(ground_truth, ref, path, label, est, estimates, options))
+        r = attempt(
+            path, lambda p=path, lab=label, e=est: _score(ground_truth, ref, p, lab, e, estimates, options)
+        )
+        if r is not None:
+            results.append(r)
+    if failures and not results and not (should_stop is not None and should_stop()):
+        raise failures[0][1]
+    if refused is not None:
+        refused.extend((path, str(e)) for path, e in failures)
     return results
 
 
@@ -255,10 +283,12 @@ def write_eval_json(
     options: EvalOptions,
     provenance: dict | None = None,
     unscored: Sequence[str] = (),
+    refused: Sequence[tuple[Path, str]] = (),
 ) -> Path:
     """``eval.json`` (module doc); ``provenance``: where and with what it was made
     (:func:`graphslam.cli.common.invocation`), when given; ``unscored``: the estimates a
-    stop left unscored (``interrupted``)."""
+    stop left unscored (``interrupted``); ``refused``: ``(path, why)`` of the estimates
+    that could not be read or scored (``refused``)."""
     from graphslam.outputs.writers import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -270,6 +300,7 @@ def write_eval_json(
             "estimates": [r.to_dict(options) for r in results],
             **({} if provenance is None else {"provenance": provenance}),
             **({"interrupted": True, "unscored": list(unscored)} if unscored else {}),
+            **({"refused": [{"estimate": str(p), "error": why} for p, why in refused]} if refused else {}),
         },
     )
     return path

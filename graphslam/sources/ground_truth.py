@@ -114,7 +114,7 @@ def detect_format(path: Path, first_line: str) -> str:
     if n == 8:
         return "tum"
     raise InputError(
-        f"cannot tell the ground-truth format: {n} numbers a line (TUM has 8: "
+        f"cannot tell the trajectory format: {n} numbers a line (TUM has 8: "
         "t x y z qx qy qz qw; KITTI 12; EuRoC is comma-separated; COLMAP's images.txt "
         "9 and an image name)",
         path,

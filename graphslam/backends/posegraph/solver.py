@@ -536,7 +536,7 @@ class Isam2PoseGraph:
 
     def step(self, n: int) -> bool:
         """Update ``n`` of :attr:`steps`; False when only a batch solve can go on."""
-        g, ids, step = self.graph, self.ids, self.steps[n]
+        step = self.steps[n]
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         try:
             self._initial_values(step, values, factors)

@@ -194,3 +194,35 @@ def test_information_near_1e300_is_no_traceback_in_run_or_compare(tmp_path, shar
         ]
     )
     assert code in (0, 1) and (cmp_out / "compare.json").is_file()
+
+
+def test_eval_of_several_estimates_scores_the_valid_ones_when_one_is_refused(tmp_path, capsys):
+    """``eval gt est still.tum``: the estimate that never moves was refused, exit 2, and
+    the valid one was not scored or written either."""
+    from tests import trajectories as tr
+
+    gt, est = tr.write_pair(tmp_path, "tum")
+    rows = [ln.split() for ln in est.read_text().splitlines() if ln and not ln.startswith("#")]
+    still = tmp_path / "still.tum"
+    still.write_text("".join(f"{r[0]} 0 0 0 0 0 0 1\n" for r in rows))
+    code, out, err = tr.run_eval(tmp_path, capsys, gt, est, still)
+    assert code == 1, err
+    doc = json.loads((tmp_path / "o" / "eval.json").read_text())
+    assert [Path(e["estimate"]).name for e in doc["estimates"]] == [est.name]
+    assert [Path(r["estimate"]).name for r in doc["refused"]] == ["still.tum"]
+    assert "not scored" in err and "still.tum" in err and "Traceback" not in err
+    # alone, it is the one error line it was
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, still)
+    assert code == 2
+    tr.one_error(err, "still.tum")
+
+
+def test_an_unreadable_estimate_is_not_called_the_ground_truth(tmp_path, capsys):
+    from tests import trajectories as tr
+
+    gt, _ = tr.write_pair(tmp_path, "tum")
+    five = tmp_path / "five.txt"
+    five.write_text("1 2 3 4 5\n")
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, five)
+    assert code == 2
+    tr.one_error(err, "five.txt", "cannot tell the trajectory format")

@@ -276,7 +276,7 @@ def test_pose_graph_ground_truth_by_pose_id(tmp_path, capsys):
 def test_ground_truth_format_errors_name_the_file(tmp_path):
     bad = tmp_path / "gt.txt"
     bad.write_text("1 2 3 4 5\n")
-    with pytest.raises(InputError, match="cannot tell the ground-truth format"):
+    with pytest.raises(InputError, match="cannot tell the trajectory format"):
         read_trajectory(bad)
     bad.write_text("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 x 1\n")
     with pytest.raises(InputError, match="gt.txt:2"):
