@@ -16,6 +16,8 @@ import functools
 
 import numpy as np
 
+from slamcore.errors import GraphSlamError
+
 from filters import landmark_params as lp
 
 
@@ -76,7 +78,14 @@ def apply_correction(x: np.ndarray, P: np.ndarray, PHt: np.ndarray, S: np.ndarra
     processing).
     """
     with _blas_pools().limit(limits=1, user_api="blas"):
-        L = np.linalg.cholesky(S)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:  # before x or P changed: the estimate so far stands
+            # a pixel noise of 1e-9 px left S at the state's round-off (hostile pass 17)
+            raise GraphSlamError(
+                "monocular EKF: the measurements' innovation covariance is not positive definite: "
+                "the pixel noise is too small for the state's round-off ([tracker] sigma_px?)"
+            ) from None
         M = np.linalg.solve(L, PHt.T).T  # (n, m) = P H^T L^-T
         x += M @ np.linalg.solve(L, nu)
         P -= M @ M.T

@@ -20,6 +20,11 @@ from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError
 
 
+#: Fewest landmarks a frame may give factors when the camera alone measures it: a pose
+#: has 6 unknowns and a pixel gives 2.
+MIN_CAMERA_ALONE_LANDMARKS = 3
+
+
 @dataclass(frozen=True)
 class VisualIsam2Config(Validated):
     """Visual iSAM2 settings.
@@ -160,6 +165,16 @@ class VisualIsam2Config(Validated):
             raise ConfigError(
                 "isam2_visual.newest_pose_last and isam2_visual.predicted_in_root are "
                 "two elimination orderings: set one of them to false"
+            )
+        if (
+            self.robot_model == "constant_velocity"
+            and 0 < self.max_landmarks_per_frame < MIN_CAMERA_ALONE_LANDMARKS
+        ):
+            # 1 gave a traceback (a pose with no factor), 2 an indeterminate system (hostile pass 17)
+            raise ConfigError(
+                f"isam2_visual.max_landmarks_per_frame = {self.max_landmarks_per_frame}: without odometry "
+                f"each frame's pose comes from its landmarks alone, and a pose (6 unknowns, 2 per pixel) "
+                f"needs at least {MIN_CAMERA_ALONE_LANDMARKS} (0: no bound)"
             )
         if self.max_track_observations < self.min_observations:
             raise ConfigError(

@@ -226,3 +226,57 @@ def test_an_unreadable_estimate_is_not_called_the_ground_truth(tmp_path, capsys)
     code, _, err = tr.run_eval(tmp_path, capsys, gt, five)
     assert code == 2
     tr.one_error(err, "five.txt", "cannot tell the trajectory format")
+
+
+def test_a_camera_alone_landmark_budget_below_a_pose_is_refused_with_its_line(tmp_path, shared_data, capsys):
+    """``[isam2_visual] max_landmarks_per_frame = 1`` without odometry: IndexError from
+    gtsam's jointMarginalCovariance (a pose with no factor), nothing written."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[isam2_visual]\nmax_landmarks_per_frame = 1\n")
+    argv = [
+        "run",
+        "--dataset",
+        str(shared_data / "kitti07"),
+        "--frames",
+        "0:12",
+        "--config",
+        str(cfg),
+        "--rerun",
+        "off",
+        "--quiet",
+        "--out",
+    ]
+    assert main([*argv, str(tmp_path / "o"), "--odometry", "none"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{cfg}:2" in err and "at least 3" in err
+    assert main([*argv, str(tmp_path / "d"), "--odometry", "derived"]) == 0  # odometry places the poses
+
+
+def test_a_pixel_noise_at_round_off_stops_the_monocular_ekf_in_one_line(tmp_path, shared_data, capsys):
+    """``[tracker] sigma_px = 1e-9`` under the camera-alone EKF: LinAlgError traceback."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[tracker]\nsigma_px = 1e-9\n")
+    out = tmp_path / "o"
+    code = main(
+        [
+            "run",
+            "--dataset",
+            str(shared_data / "kitti07"),
+            "--frames",
+            "0:12",
+            "--odometry",
+            "none",
+            "--backend",
+            "ekf",
+            "--config",
+            str(cfg),
+            "--rerun",
+            "off",
+            "--quiet",
+            "--out",
+            str(out),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and "not positive definite" in err and "Traceback" not in err
+    assert (out / "trajectory.tum").is_file()
