@@ -166,7 +166,9 @@ def cmd_localize(args: argparse.Namespace) -> int:
         metrics.setdefault("warnings", []).append(nothing)
         warn(nothing)
     out_dir = folder.resolve()
-    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
+    # a file the disk refuses costs no other: each is tried, after a recording being saved
+    # has made room
+    writes = OutputWrites(out_dir, make_room=folder.give_up_recording)
     paths = localize_run.write_outputs(result, out_dir, metrics, writes)
     folder.close_recorder(paths)
     folder.finish(paths)

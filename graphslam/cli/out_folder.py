@@ -239,6 +239,24 @@ class OutputFolder:
         self.path = claimed_folder(self.path, self.recorder, self.flag)
         return self.path
 
+    def give_up_recording(self) -> bool:
+        """A full disk refused one of the run's own files: a recording still being saved
+        in this folder goes, with a warning, to make room for them (hostile pass 17: the
+        recording's partial file held the disk and every text file was lost). True when
+        one went."""
+        if self.recorder is None or self.rerun_mode != "save":
+            return False
+        recorder, self.recorder = self.recorder, None
+        try:
+            recorder.discard()
+        except Exception:  # noqa: BLE001 - the write's own error is the one to report
+            return False
+        warn(
+            f"the disk is full: the recording ({self._recording_name}) is given up so that the run's "
+            "own files fit"
+        )
+        return True
+
     def close_recorder(self, paths: dict[str, Path]) -> None:
         """Close the recording; a saved one closed whole is listed in ``paths`` as
         ``recording`` (a recording not kept is not listed)."""

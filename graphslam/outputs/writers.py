@@ -217,6 +217,10 @@ def one_run_or_the_other(out_dir: Path, known: tuple[str, ...] = RUN_OUTPUT_NAME
         raise
 
 
+#: errno of a write refused for want of space (a full disk, a user's quota)
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
 class OutputWrites:
     """A command's output files written one by one: a file the file system refuses (a
     full disk, a file-size limit, a name too long, a folder in its place) is noted and
@@ -231,10 +235,13 @@ class OutputWrites:
     does); any other error is raised at once.
     """
 
-    def __init__(self, out_dir: Path) -> None:
+    def __init__(self, out_dir: Path, make_room: Callable[[], bool] | None = None) -> None:
         self.out_dir = Path(out_dir)
         #: (path, error) of each refused file, in the order tried
         self.refused: list[tuple[Path, OSError]] = []
+        #: called once, at the first write a full disk refuses: True when it freed space
+        #: (a recording still being written, given up), and the write is tried again
+        self.make_room = make_room
 
     def __call__(
         self, paths: dict[str, Path], key: str, path: Path, writer: Callable[..., object], *args, **kwargs
@@ -255,6 +262,10 @@ class OutputWrites:
         except OSError as e:
             if self._reason(e) is None:
                 raise
+            if e.errno in _DISK_FULL and self.make_room is not None:
+                make_room, self.make_room = self.make_room, None
+                if make_room():
+                    return self.attempt(what, action, *args, **kwargs)
             self.refused.append((Path(what), e))
             return False
         return True

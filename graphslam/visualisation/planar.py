@@ -326,6 +326,14 @@ class RunRecorder:
     def close(self) -> None:
         self.log.close()
 
+    def discard(self) -> None:
+        """Stop recording and delete what was recorded (a child process's log is
+        abandoned: it deletes its partial file)."""
+        if hasattr(self.log, "abandon"):
+            self.log.abandon()
+        else:
+            self.log.discard()
+
     def record_comparison(self, entries, dataset: Dataset, should_stop=None) -> bool:
         """Finished runs (:class:`graphslam.pipelines.compare.CompareEntry`), one entity
         subtree per back end, on the step timeline; True when ``should_stop()`` (asked at

@@ -317,6 +317,10 @@ class VisualRecorder:
     def close(self) -> None:
         self.log.close()
 
+    def discard(self) -> None:
+        """Stop recording and delete what was recorded (:meth:`RerunLog.discard`)."""
+        self.log.discard()
+
 
 def grid_lines(size, cell: int) -> list[np.ndarray]:
     """Tessellation cell borders of a ``(W, H)`` image as 2-point line strips."""

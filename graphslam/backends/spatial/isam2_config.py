@@ -19,7 +19,6 @@ from graphslam.backends.spatial.mono_tracking import MonoTrackingConfig
 from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError
 
-
 #: Fewest landmarks a frame may give factors when the camera alone measures it: a pose
 #: has 6 unknowns and a pixel gives 2.
 MIN_CAMERA_ALONE_LANDMARKS = 3

@@ -241,13 +241,16 @@ def run(args: argparse.Namespace) -> int:
             "ate_in_map_frame": in_map,
         }
     out_dir = args.resolved_out = folder.resolve()
-    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
+    # a file the disk refuses costs no other: each is tried, after the recording, if one
+    # is being saved, has made room
+    writes = OutputWrites(out_dir, make_room=folder.give_up_recording)
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = vp.write_outputs(result, out_dir, metrics, writes)
         if camera is not None:
             writes(paths, "intrinsics", out_dir / "intrinsics.txt", write_text, camera.file_text())
         if closer is not None:
             paths.update(write_loops(closer, out_dir, writes))
+        recorder = folder.recorder  # None once given up
         if recorder is not None:
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:

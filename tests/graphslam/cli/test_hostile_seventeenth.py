@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from graphslam.cli.main import main
 from graphslam.pipelines.sweep_spec import parse_sweep
 
@@ -280,3 +282,86 @@ def test_a_pixel_noise_at_round_off_stops_the_monocular_ekf_in_one_line(tmp_path
     err = capsys.readouterr().err
     assert code == 2 and "not positive definite" in err and "Traceback" not in err
     assert (out / "trajectory.tum").is_file()
+
+
+def test_a_full_disk_write_is_tried_again_once_room_is_made(tmp_path):
+    """OutputWrites asks its ``make_room`` once, at the first write a full disk refuses,
+    and tries that write again when room was made."""
+    import errno
+
+    from graphslam.outputs.writers import OutputWrites
+
+    calls = {"room": 0, "write": 0}
+
+    def room() -> bool:
+        calls["room"] += 1
+        return True
+
+    def writer(path):
+        calls["write"] += 1
+        if calls["write"] == 1:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        path.write_text("ok")
+
+    writes = OutputWrites(tmp_path, make_room=room)
+    paths: dict = {}
+    assert writes(paths, "a", tmp_path / "a.txt", writer) and (tmp_path / "a.txt").read_text() == "ok"
+    assert calls == {"room": 1, "write": 2} and writes.refused == []
+
+    def full(path):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    assert not writes(paths, "b", tmp_path / "b.txt", full)  # asked once only
+    assert calls["room"] == 1 and [p.name for p, _ in writes.refused] == ["b.txt"]
+
+
+def test_a_recording_that_fills_the_disk_gives_way_to_the_run_files(tmp_path, shared_data):
+    """A 600 kB disk, 20 KITTI frames camera alone: the recording's partial file held the
+    disk, every text output was refused (exit 2, an empty folder) and only then was the
+    partial deleted. Needs a tmpfs mount (root); skipped where none can be made."""
+    import shutil
+
+    disk = tmp_path / "small"
+    disk.mkdir()
+    if (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=600k", "tmpfs", str(disk)], capture_output=True
+        ).returncode
+        != 0
+    ):
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        kitti = shared_data / "kitti07"
+        seq = tmp_path / "seq"
+        (seq / "image_0").mkdir(parents=True)
+        shutil.copy(kitti / "calib.txt", seq)
+        for name in ("times.txt", "poses.txt"):
+            (seq / name).write_text("".join((kitti / name).read_text().splitlines(keepends=True)[:20]))
+        for k in range(20):
+            shutil.copy(kitti / "image_0" / f"{k:06d}.png", seq / "image_0")
+        out = disk / "o"
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "graphslam",
+                "run",
+                "--dataset",
+                str(seq),
+                "--odometry",
+                "none",
+                "--out",
+                str(out),
+                "--quiet",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+        )
+        assert done.returncode == 0, done.stderr
+        assert "recording (run.rrd) is given up" in done.stderr
+        names = sorted(p.name for p in out.iterdir())
+        assert names == ["ground_truth.tum", "landmarks.csv", "metrics.json", "trajectory.tum"], names
+    finally:
+        subprocess.run(["umount", str(disk)], capture_output=True)
