@@ -151,12 +151,14 @@ def run(args: argparse.Namespace) -> int:
                 "nees.csv gives them nan, the mean is over the others"
             )
     out_dir = args.resolved_out = folder.resolve()
-    writes = OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
+    # a file the disk refuses costs no other: each is tried, after a recording being saved
+    # has made room
+    writes = OutputWrites(out_dir, make_room=folder.give_up_recording)
     with one_run_or_the_other(out_dir):  # a full disk: no earlier run's file left beside
         paths = pipeline.write_outputs(result, out_dir, metrics, ground_truth=truth, writes=writes)
         if nees is not None:
             writes(paths, "nees", out_dir / "nees.csv", pipeline.write_nees, *nees)
-        if log is not None:
+        if log is not None and folder.recorder is not None:  # not given up for room
             log.finish(backend.name, result, backend)
             folder.close_recorder(paths)
     folder.finish(paths)
