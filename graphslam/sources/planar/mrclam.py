@@ -75,6 +75,15 @@ PRIOR_VARIANCE = 1e-6
 NO_LANDMARK_TRUTH = "no Landmark_Groundtruth.dat: the map is not scored"
 
 
+def landmark_truth_note(folder: Path) -> str:
+    """Why a data set has no landmark truth: the file is absent, or it lists no landmark
+    (a file cut to its header was said to be absent, hostile pass 17)."""
+    path = Path(folder) / "Landmark_Groundtruth.dat"
+    if path.is_file():
+        return f"{path.name} lists no landmark: the map is not scored"
+    return NO_LANDMARK_TRUTH
+
+
 @dataclass(frozen=True)
 class MrclamConfig(Validated):
     """``[mrclam]``: which robot, and its sensors' calibration.
@@ -394,7 +403,7 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
     track = robot_track(config, config.robot, odo, meas, truth, barcodes)
     track.notes.insert(0, f"robot {config.robot}")
     if not landmarks_true:
-        track.notes.append(NO_LANDMARK_TRUTH)
+        track.notes.append(landmark_truth_note(folder))
     if track.robot_sightings:
         track.notes.append(
             f"{len(track.robot_sightings)} sightings of other robots in the whole log left out "

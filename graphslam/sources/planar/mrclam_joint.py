@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.planar.mrclam import (
-    NO_LANDMARK_TRUTH,
     PRIOR_VARIANCE,
     MrclamConfig,
     landmark_observations,
+    landmark_truth_note,
     read_robot,
     read_subjects,
     robot_track,
@@ -131,7 +131,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     doubts = (truth_sightings_doubt(config, n, tr, landmarks_true) for n, tr in tracks.items())
     warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(d for d in doubts if d)
     if not landmarks_true:
-        notes.append(NO_LANDMARK_TRUTH)
+        notes.append(landmark_truth_note(folder))
     return Dataset(
         name=f"{folder_name(folder)}-all",
         frames=frames,

@@ -365,3 +365,19 @@ def test_a_recording_that_fills_the_disk_gives_way_to_the_run_files(tmp_path, sh
         assert names == ["ground_truth.tum", "landmarks.csv", "metrics.json", "trajectory.tum"], names
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+def test_an_mrclam_landmark_truth_of_its_header_alone_is_not_called_absent(tmp_path, shared_data):
+    from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam
+
+    src = shared_data / "mrclam6"
+    folder = tmp_path / "m"
+    folder.mkdir()
+    for f in src.iterdir():
+        if f.name != "Landmark_Groundtruth.dat":
+            (folder / f.name).symlink_to(f)
+    head = src.joinpath("Landmark_Groundtruth.dat").read_text().splitlines(keepends=True)[:4]
+    (folder / "Landmark_Groundtruth.dat").write_text("".join(head))
+    notes = read_mrclam(folder, MrclamConfig(robot=1)).notes
+    assert any("Landmark_Groundtruth.dat lists no landmark" in n for n in notes), notes
+    assert not any(n.startswith("no Landmark_Groundtruth.dat") for n in notes)
