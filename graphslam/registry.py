@@ -21,7 +21,7 @@ from graphslam.backend_table import (
     load,
 )
 from slamcore.config import ConfigFile, load_section, section_name
-from slamcore.errors import ConfigError, InputError, quote
+from slamcore.errors import ConfigError, GraphSlamError, InputError, quote
 from slamcore.input_files import check_input_path
 from slamcore.planar.backend import Backend
 from slamcore.planar.records import Dataset
@@ -272,14 +272,28 @@ def is_pose_graph_run(spec: str, backend: str) -> bool:
         return False
     from graphslam.sources.posegraph_files import TAGS, first_tag, has_landmark_lines, is_pose_graph_tag
 
+    whole_only = row is not None and not row.streams
     tag = first_tag(spec)
     if tag is None or not is_pose_graph_tag(tag):
-        return False
+        # a file a whole-graph solver was asked for goes to the pose-graph reader, whose
+        # refusal says what the file is (compressed, empty, of another format) where
+        # "--backend batch solves pose-graph files only" said nothing (hostile pass 17)
+        return whole_only
     # only a 2-D TORO file can be landmark SLAM (BR lines, as gtsam.load2D reads them):
     # others are read once, by the pose-graph reader, which refuses a BR line
     fmt, dim = TAGS[tag][:2] if tag in TAGS else ("toro", 2)
-    whole_only = row is not None and not row.streams
     return whole_only or (fmt, dim) != ("toro", 2) or not has_landmark_lines(spec)
+
+
+def has_pose_graph_tag(spec: str | Path) -> bool:
+    """Whether the file ``spec`` begins with a g2o or TORO tag (False for a built-in
+    name, a folder or a file that cannot be read)."""
+    from graphslam.sources.posegraph_files import first_tag, is_pose_graph_tag
+
+    try:
+        return Path(spec).is_file() and is_pose_graph_tag(first_tag(spec))
+    except (OSError, GraphSlamError):
+        return False
 
 
 def load_pose_graph(spec: str | Path, toro_noise: str = "auto", information_fix: str = "nearest"):

@@ -402,8 +402,18 @@ def _dispatch(args: argparse.Namespace) -> int:
 
     if registry.is_pose_graph_run(args.dataset, args.backend):
         from graphslam.cli.run import posegraph
+        from slamcore.errors import GraphSlamError, InputError
 
-        return posegraph.run(args)
+        try:
+            return posegraph.run(args)
+        except InputError as e:
+            # a file the pose-graph reader refuses at its first line, sent there by a
+            # whole-graph solver: its reason, and the solver's scope
+            if registry.has_pose_graph_tag(args.dataset):
+                raise
+            raise GraphSlamError(
+                f"{e}; --backend {args.backend} solves pose-graph files only (g2o or TORO)"
+            ) from None
     from graphslam.cli.run.posegraph import check_backend
 
     check_backend(args)

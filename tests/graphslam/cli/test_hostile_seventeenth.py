@@ -381,3 +381,39 @@ def test_an_mrclam_landmark_truth_of_its_header_alone_is_not_called_absent(tmp_p
     notes = read_mrclam(folder, MrclamConfig(robot=1)).notes
     assert any("Landmark_Groundtruth.dat lists no landmark" in n for n in notes), notes
     assert not any(n.startswith("no Landmark_Groundtruth.dat") for n in notes)
+
+
+@pytest.mark.parametrize("backend", ["batch", "auto"])
+def test_a_whole_graph_solver_on_a_file_that_is_no_graph_says_what_the_file_is(tmp_path, capsys, backend):
+    """``--backend batch`` on a gzipped graph, an empty file or a TUM file said only that
+    it "solves pose-graph files only"; without --backend the same files got their cause."""
+    import gzip
+
+    files = {
+        "g.g2o": gzip.compress(b"VERTEX_SE2 0 0 0 0\n"),
+        "empty.g2o": b"",
+        "poses.txt": b"0.0 1 2 3 0 0 0 1\n",
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    for name, cause in (
+        ("g.g2o", "gzip-compressed"),
+        ("empty.g2o", "no pose-graph edges"),
+        ("poses.txt", "poses.txt:1:"),
+    ):
+        code = main(
+            [
+                "run",
+                "--dataset",
+                str(tmp_path / name),
+                "--backend",
+                backend,
+                "--rerun",
+                "off",
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1, err
+        assert cause in err and "pose-graph files only" in err, err
