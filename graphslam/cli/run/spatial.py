@@ -250,8 +250,7 @@ def run(args: argparse.Namespace) -> int:
             writes(paths, "intrinsics", out_dir / "intrinsics.txt", write_text, camera.file_text())
         if closer is not None:
             paths.update(write_loops(closer, out_dir, writes))
-        recorder = folder.recorder  # None once given up
-        if recorder is not None:
+        if (recorder := folder.recorder) is not None:  # None once given up for room
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:
                 recorder.log_loop_closures(args.backend, result.estimate, closer.closures)
