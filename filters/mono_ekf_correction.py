@@ -16,9 +16,8 @@ import functools
 
 import numpy as np
 
-from slamcore.errors import GraphSlamError
-
 from filters import landmark_params as lp
+from slamcore.errors import GraphSlamError
 
 
 @functools.cache
