@@ -865,6 +865,8 @@ def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:
         a = metrics3d.ate(est.frame_ids, est.wTc, gt_ids, gt, alignment=m.alignment)
     except GraphSlamError as e:  # e.g. a Sim(3) fit to an estimate that never moved
         m.ate_error = str(e)
+        # said where the "n/a" is read, not only in metrics.json (hostile pass 17)
+        m.warnings = [*(m.warnings or []), f"ATE not scored: {e}"]
     else:
         m.ate = a
         m.ate_rmse_m = a["rmse_m"]

@@ -322,6 +322,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.backend = registry.DEFAULT_BACKEND if args.no_polish else registry.default_backend(args.dataset)
     # file times lag the clock by up to a kernel tick (a few ms): 50 ms is far beyond it
     started_ns = time.time_ns() - 50_000_000
+    before = _output_stats(args.out)
     try:
         status = _dispatch(args)
     except GraphSlamError as cut:  # a run cut by a bad frame or a failed back end keeps its estimate
@@ -330,6 +331,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 _write_bag(args)
             except GraphSlamError as e:  # the cut is the error to report; say this one too
                 raise GraphSlamError(f"{cut} (and trajectory.bag not written: {e})") from None
+        earlier = _earlier_outputs(args, before)
+        if earlier:
+            raise GraphSlamError(f"{cut}; {earlier}") from None
         raise
     finally:
         _remove_if_empty(made)
@@ -337,6 +341,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.write_bag and status in (0, 130, 143) and _trajectory_written_since(args, started_ns):
         _write_bag(args)  # a finished or stopped run's estimate
     return status
+
+
+def _output_stats(out: Path | None) -> dict[str, tuple[int, int]]:
+    """``(inode, mtime)`` of each output file already in ``out`` as a run starts."""
+    from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES
+
+    stats = {}
+    for name in FOLDER_OUTPUT_NAMES if out is not None else ():
+        try:
+            st = (Path(out) / name).stat()
+        except OSError:
+            continue
+        stats[name] = (st.st_ino, st.st_mtime_ns)
+    return stats
+
+
+def _earlier_outputs(args: argparse.Namespace, before: dict[str, tuple[int, int]]) -> str:
+    """What a failed run that wrote nothing leaves in ``--out`` of an earlier command's
+    (hostile pass 17: its trajectory and metrics of another data set stayed, unsaid,
+    beside the error), as a clause; "" when it wrote or nothing is there."""
+    out = getattr(args, "resolved_out", None) or args.out
+    now = _output_stats(out)
+    if not now or any(before.get(name) != st for name, st in now.items()):
+        return ""  # nothing there, or this run wrote (its own message says what)
+    return f"{out}/ still holds an earlier command's {', '.join(now)}, not this run's"
 
 
 def _trajectory_written_since(args: argparse.Namespace, started_ns: int) -> bool:

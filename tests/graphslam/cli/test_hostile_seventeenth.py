@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from graphslam.cli.main import main
@@ -417,3 +418,62 @@ def test_a_whole_graph_solver_on_a_file_that_is_no_graph_says_what_the_file_is(t
         err = capsys.readouterr().err
         assert code == 2 and err.count("\n") == 1, err
         assert cause in err and "pose-graph files only" in err, err
+
+
+def test_a_failed_run_says_the_folder_still_holds_an_earlier_run(tmp_path, shared_data, capsys):
+    """A run that fails before writing (camera alone, frames all black) left an earlier
+    run's trajectory and metrics in --out, unsaid, beside its error."""
+    import shutil
+
+    out = tmp_path / "o"
+    assert main(["run", "--max-steps", "5", "--rerun", "off", "--quiet", "--out", str(out)]) == 0
+    kitti = shared_data / "kitti07"
+    seq = tmp_path / "black"
+    (seq / "image_0").mkdir(parents=True)
+    shutil.copy(kitti / "calib.txt", seq)
+    (seq / "times.txt").write_text("".join(f"{0.1 * k:.1f}\n" for k in range(8)))
+    black = np.zeros((376, 1241), np.uint8)
+    import cv2
+
+    for k in range(8):
+        cv2.imwrite(str(seq / "image_0" / f"{k:06d}.png"), black)
+    capsys.readouterr()
+    code = main(
+        ["run", "--dataset", str(seq), "--odometry", "none", "--rerun", "off", "--quiet", "--out", str(out)]
+    )
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and "still holds an earlier command's trajectory.tum" in err, err
+
+
+def test_an_ate_that_cannot_be_scored_says_why_beside_its_n_a(tmp_path, shared_data, capsys):
+    """``[mono_ekf] frame_dt_s = 1e-9``: the estimate never moves, the summary read "ATE
+    n/a" and the reason was in metrics.json only."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[mono_ekf]\nframe_dt_s = 1e-9\n")
+    out = tmp_path / "o"
+    assert (
+        main(
+            [
+                "run",
+                "--dataset",
+                str(shared_data / "kitti07"),
+                "--frames",
+                "0:12",
+                "--odometry",
+                "none",
+                "--backend",
+                "ekf",
+                "--config",
+                str(cfg),
+                "--rerun",
+                "off",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    captured = capsys.readouterr()
+    said = captured.out + captured.err
+    assert "ATE not scored" in said and "does not move" in said
+    assert any("ATE not scored" in w for w in json.loads((out / "metrics.json").read_text())["warnings"])
