@@ -9,6 +9,10 @@ confusing OpenCV assertion deep inside a filter.
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
+import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -86,6 +90,31 @@ def quiet_opencv() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(old)
 
 
+#: What libjpeg and libpng print, straight to the process's standard error, when they
+#: decode a damaged file and hand back an image all the same (the rest grey or wrong).
+_DECODER_DAMAGE = ("Corrupt JPEG data", "libpng error", "libpng warning", "Premature end of JPEG file")
+_DECODE_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _decoder_messages() -> Iterator[list[str]]:
+    """File descriptor 2 caught for the block: what the C decoders print there (they bypass
+    Python and OpenCV's log) comes back as lines in the yielded list, to be judged by the
+    caller. One block at a time (the descriptor is the process's)."""
+    lines: list[str] = []
+    with _DECODE_LOCK, tempfile.TemporaryFile() as caught:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            os.dup2(caught.fileno(), 2)
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            lines.extend(caught.read().decode("utf-8", "replace").splitlines())
+
+
 def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     """Decode the bytes of an image file as ``(H, W)`` ``uint8`` greyscale.
 
@@ -100,9 +129,17 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     if data.startswith(_JPEG_START) and b"\xff\xd9" not in data[-END_MARKER_SLACK:]:
         raise InputError("truncated JPEG (no end-of-image marker)", path)
     image = None
+    said: list[str] = []
     if data:
-        with quiet_opencv():
+        with quiet_opencv(), _decoder_messages() as said:
             image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    damage = [ln.strip() for ln in said if any(d in ln for d in _DECODER_DAMAGE)]
+    if damage:
+        # a JPEG cut inside with its end marker kept decoded to grey below the cut, used
+        # as a frame with only libjpeg's bare line, naming no file (hostile pass 17)
+        raise InputError(f"damaged image data ({damage[0]})", path)
+    if said:  # another message on the descriptor meanwhile: not ours to drop
+        sys.stderr.write("\n".join(said) + "\n")
     if image is None or image.size == 0:
         raise InputError("cannot read image (not an image file, or an unsupported format)", path)
     if _levels(image) <= MAX_LEVELS_OF_LOW_16_BIT and _is_sixteen_bit(data):

@@ -477,3 +477,27 @@ def test_an_ate_that_cannot_be_scored_says_why_beside_its_n_a(tmp_path, shared_d
     said = captured.out + captured.err
     assert "ATE not scored" in said and "does not move" in said
     assert any("ATE not scored" in w for w in json.loads((out / "metrics.json").read_text())["warnings"])
+
+
+def test_image_data_damaged_inside_a_whole_file_is_refused_by_name(shared_data, capfd):
+    """A JPEG cut inside with its end marker kept decoded to grey below the cut and ran
+    as a frame (exit 0; libjpeg's bare line named no file); a PNG whose data is damaged
+    gave libpng's stray line and "not an image file"."""
+    import cv2
+
+    from frontend.image import decode_gray
+    from slamcore.errors import InputError
+
+    png = (shared_data / "kitti07" / "image_0" / "000010.png").read_bytes()
+    ok, jpg = cv2.imencode(".jpg", cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE))
+    jpg = jpg.tobytes()
+    cut = jpg[: len(jpg) // 3] + jpg[-2:]
+    bad = bytearray(png)
+    for i in range(len(bad) // 2, len(bad) // 2 + 2000):
+        bad[i] ^= 0x5A
+    for data, name, what in ((cut, "cut.jpg", "Corrupt JPEG data"), (bytes(bad), "bad.png", "libpng error")):
+        with pytest.raises(InputError, match=f"damaged image data \\({what}") as e:
+            decode_gray(data, name)
+        assert name in str(e.value)
+    assert decode_gray(jpg, "whole.jpg").shape == (370, 1226)
+    assert capfd.readouterr().err == ""  # the decoders' own lines are not left on stderr
