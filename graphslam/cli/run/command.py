@@ -347,8 +347,10 @@ def _output_stats(out: Path | None) -> dict[str, tuple[int, int]]:
     """``(inode, mtime)`` of each output file already in ``out`` as a run starts."""
     from graphslam.outputs.writers import FOLDER_OUTPUT_NAMES
 
-    stats = {}
-    for name in FOLDER_OUTPUT_NAMES if out is not None else ():
+    stats: dict[str, tuple[int, int]] = {}
+    if out is None:
+        return stats
+    for name in FOLDER_OUTPUT_NAMES:
         try:
             st = (Path(out) / name).stat()
         except OSError:
