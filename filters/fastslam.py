@@ -56,9 +56,13 @@ Per frame:
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.
 
-  Sightings are taken as independent: an observation's ``correlation`` (errors
-  correlated in time, which the EKF and iSAM2 weigh) is not used here, for the
-  reason :mod:`slamcore.planar.sighting_correlation` gives (measured worse).
+  Sightings whose errors correlate in time (an observation's ``correlation`` and
+  stamp, which the EKF and iSAM2 weigh in their updates) are weighed so in the
+  particle weights only: each sighting's log-likelihood is taken at the share of it
+  that is new since its landmark record's last sighting by the same sensor
+  (``[fastslam] temper_correlated``, :func:`filters.fastslam_update.weight_shares`);
+  the landmark EKFs and 2.0's proposal keep the stated noise, for the reason
+  :mod:`slamcore.planar.sighting_correlation` gives (measured worse).
 
 Cost per observation: known association is O(N) vectorised numpy (plus the
 O(N L) int32 table copy when resampling). Unknown association evaluates every

@@ -26,6 +26,12 @@ Costs:
 - columns no particle points to any more (landmarks only dead particles had)
   can be dropped with :meth:`ParticleMaps.drop_empty_columns`.
 
+Beside each record the pool keeps the time of the latest sighting the record took in
+and the sensor that made it (``pool_seen``, ``pool_sensor``): a sighting correlated in
+time with that one carries less new information, and FastSLAM weighs it so
+(:func:`filters.fastslam_update.weight_shares`). They travel with the record through
+resampling and compaction, as its mean does.
+
 Beside each pointer the table keeps a float: the landmark's missed-sighting score in
 that particle (:mod:`filters.landmark_existence`, ``[fastslam] prune_missed_alpha``),
 resampled and dropped with it; :meth:`ParticleMaps.forget` removes a landmark from some
@@ -50,6 +56,10 @@ class ParticleMaps:
         self.n_particles = int(n_particles)
         self.pool_mean = np.zeros((max(pool_capacity, 1), 2))
         self.pool_cov = np.zeros((max(pool_capacity, 1), 2, 2))
+        #: per record: time of the latest sighting it took in, s (-inf: none with a time),
+        #: and the sensor that made it (-1: none stated), for sightings correlated in time
+        self.pool_seen = np.full(max(pool_capacity, 1), -np.inf)
+        self.pool_sensor = np.full(max(pool_capacity, 1), -1, dtype=np.int32)
         self.pool_size = 0
         self._table = np.full((self.n_particles, max(column_capacity, 1)), -1, dtype=np.int32)
         self._score = np.zeros(self._table.shape)
@@ -142,6 +152,8 @@ class ParticleMaps:
         start = self.pool_size
         self._table[particles, cols] = np.arange(start, start + n, dtype=np.int32).reshape(shape)
         self.pool_size = start + n
+        self.pool_seen[start : start + n] = -np.inf
+        self.pool_sensor[start : start + n] = -1
         return slice(start, start + n)
 
     def resample(self, parents: np.ndarray) -> None:
@@ -182,9 +194,14 @@ class ParticleMaps:
                 new_cap *= 2
             mean = np.zeros((new_cap, 2))
             cov = np.zeros((new_cap, 2, 2))
+            seen = np.full(new_cap, -np.inf)
+            sensor = np.full(new_cap, -1, dtype=np.int32)
             mean[:live] = self.pool_mean[:live]
             cov[:live] = self.pool_cov[:live]
+            seen[:live] = self.pool_seen[:live]
+            sensor[:live] = self.pool_sensor[:live]
             self.pool_mean, self.pool_cov = mean, cov
+            self.pool_seen, self.pool_sensor = seen, sensor
 
     def compact(self) -> None:
         """Mark-and-compact: keep only referenced records, at the front, in order."""
@@ -193,6 +210,8 @@ class ParticleMaps:
         live, inverse = np.unique(t[valid], return_inverse=True)
         self.pool_mean[: live.size] = self.pool_mean[live]
         self.pool_cov[: live.size] = self.pool_cov[live]
+        self.pool_seen[: live.size] = self.pool_seen[live]
+        self.pool_sensor[: live.size] = self.pool_sensor[live]
         t[valid] = inverse.astype(np.int32)
         self.pool_size = int(live.size)
         self.compactions += 1

@@ -28,7 +28,7 @@ from filters.fastslam_math import (
     sample_gaussian,
     sandwich,
 )
-from filters.fastslam_update import landmark_steps, refine_proposal
+from filters.fastslam_update import landmark_steps, refine_proposal, weight_shares
 from filters.landmark_existence import cusum_steps
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
@@ -227,6 +227,7 @@ class ParticleSet:
             known=not unknown,
             logw=self.logw if weigh else None,
             log_p0=self._log_p0 if unknown else None,
+            temper=self.config.temper_correlated,
         )
 
     def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
@@ -266,12 +267,13 @@ class ParticleSet:
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
         landmark records ``p`` (returned; updated in place for a subset), and weighed by it."""
+        share = weight_shares(self.maps, p, [o], 0) if self.config.temper_correlated else None
         if isinstance(i, slice):
             x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu, Sig, careful, self.recoveries)
-            self.logw += logl
+            self.logw += logl if share is None else logl * share
             return x_new, S_new, ok
         x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu[i], Sig[i], careful, self.recoveries)
-        self.logw[i] += logl
+        self.logw[i] += logl if share is None else logl * share
         mu[i], Sig[i] = x_new, S_new
         return mu, Sig, ok
 

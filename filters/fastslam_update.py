@@ -42,7 +42,48 @@ from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from filters.numerics import symmetrise as sym
 from slamcore.planar.records import Observation
 
-__all__ = ["floor_noise", "joseph_where_indefinite", "landmark_joseph", "landmark_steps", "refine_proposal"]
+__all__ = [
+    "floor_noise",
+    "joseph_where_indefinite",
+    "landmark_joseph",
+    "landmark_steps",
+    "refine_proposal",
+    "weight_shares",
+]
+
+
+def weight_shares(maps: ParticleMaps, p: np.ndarray, obs: list[Observation], k) -> np.ndarray | None:
+    """Share of each (record ``p``, observation ``obs[k]``) pair's log-likelihood that a
+    particle's weight takes: :meth:`~slamcore.planar.sighting_correlation.SightingCorrelation.weight_share`
+    of the time since the record's latest sighting by the same sensor (``p`` and ``k``
+    broadcast together; a record last seen by another sensor, or never with a time,
+    counts in full). None when no observation states a correlation and a time (every
+    share is 1).
+
+    Why the weights only: a particle's weight is the evidence for its path, and a burst
+    of sightings whose errors repeat is one piece of evidence, not one per sighting (on
+    MRCLAM the range errors of one landmark correlate 0.97 within 0.3 s); counted in
+    full, a burst collapses the particles onto the path that explains its shared error.
+    The landmark EKFs and FastSLAM 2.0's proposal keep the stated noise: inflated there
+    as well (measured earlier, :mod:`slamcore.planar.sighting_correlation`), the weaker
+    sightings left the paths to the odometry."""
+    timed = [o.correlation is not None and o.stamp_s is not None for o in obs]
+    if not any(timed):
+        return None
+    p = np.asarray(p)
+    kk = np.broadcast_to(np.asarray(k), np.broadcast_shapes(p.shape, np.shape(k)))
+    p = np.broadcast_to(p, kk.shape)
+    out = np.ones(kk.shape)
+    for j, o in enumerate(obs):
+        model = o.correlation
+        if model is None or o.stamp_s is None:
+            continue
+        sel = kk == j
+        rec = p[sel]
+        same = maps.pool_sensor[rec] == model.sensor
+        dt = np.where(same, o.stamp_s - maps.pool_seen[rec], np.inf)
+        out[sel] = model.weight_share(dt)
+    return out
 
 
 def landmark_steps(
@@ -55,19 +96,25 @@ def landmark_steps(
     known: bool,
     logw: np.ndarray | None = None,
     log_p0: Callable[[np.ndarray], float] | None = None,
+    temper: bool = False,
 ) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
-    observation ``k``, all (particle, observation) pairs in one elementwise pass.
+    observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
+    new record keeps the observation's time and sensor (:class:`ParticleMaps`).
 
     ``known``: known association (one column per observation for all particles).
     ``logw``: when given, the 1.0 weights are added to it in place: the measurement
     likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
-    given (unknown association). The observations must go to distinct landmarks of a
-    particle (mutual exclusion, or distinct known ids); the updates are then independent
-    of their order.
+    given (unknown association); with ``temper``, an updated landmark's likelihood is
+    taken at its :func:`weight_shares`. The observations must go to distinct landmarks
+    of a particle (mutual exclusion, or distinct known ids); the updates are then
+    independent of their order.
     """
     Z = np.array([o.z for o in obs], dtype=float)
     R = np.array([o.covariance for o in obs], dtype=float)
+    stamps = np.array([-np.inf if o.stamp_s is None else o.stamp_s for o in obs], dtype=float)
+    sensors = np.array([-1 if o.correlation is None else o.correlation.sensor for o in obs], dtype=np.int32)
+    seen = (stamps, sensors)
     T = maps.table
     rows = np.arange(len(poses))
     if known:  # one column per observation for all particles
@@ -81,10 +128,11 @@ def landmark_steps(
         if mask.any():
             pairs = _pairs(mask, col, rows)
             if update:
-                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw)
+                shares = obs if temper else None
+                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw, seen, shares)
             else:
                 _init_pairs(
-                    maps, pairs, Z, R, poses, recoveries, logw if log_p0 is not None else None, log_p0
+                    maps, pairs, Z, R, poses, recoveries, logw if log_p0 is not None else None, log_p0, seen
                 )
 
 
@@ -109,7 +157,16 @@ def _add_weights(logw: np.ndarray, particles: np.ndarray, logl: np.ndarray) -> N
 
 
 def _update_pairs(
-    maps: ParticleMaps, pairs, ptr, Z, R, poses, recoveries: Recoveries, logw: np.ndarray | None
+    maps: ParticleMaps,
+    pairs,
+    ptr,
+    Z,
+    R,
+    poses,
+    recoveries: Recoveries,
+    logw: np.ndarray | None,
+    seen: tuple[np.ndarray, np.ndarray],
+    tempered_by: list[Observation] | None,
 ) -> None:
     i, k, c = pairs
     p = ptr[i, k]
@@ -125,8 +182,9 @@ def _update_pairs(
     if not ok.all():
         P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d), (r00, r01, r11), P_new)
     if logw is not None:
-        _add_weights(logw, i, logl)
-    _write(maps, i, c, (mx + dmx, my + dmy), P_new)
+        share = None if tempered_by is None else weight_shares(maps, p, tempered_by, k)
+        _add_weights(logw, i, logl if share is None else logl * share)
+    _write(maps, i, c, (mx + dmx, my + dmy), P_new, seen, k)
 
 
 def _init_pairs(
@@ -138,6 +196,7 @@ def _init_pairs(
     recoveries: Recoveries,
     logw: np.ndarray | None,
     log_p0: Callable[[np.ndarray], float] | None,
+    seen: tuple[np.ndarray, np.ndarray],
 ) -> None:
     i, k, c = pairs
     z0, z1 = Z[k, 0], Z[k, 1]
@@ -149,14 +208,15 @@ def _init_pairs(
     f00, f11 = floor_noise(recoveries, r00, r11, mv, mv * (1.0 / np.maximum(z0, 1e-300) ** 2))
     if f00 is not r00 or f11 is not r11:
         P0 = spread_noise(g, f00, r01, f11)
-    _write(maps, i, c, mean, P0)
+    _write(maps, i, c, mean, P0, seen, k)
     if logw is not None and log_p0 is not None:
         lp0 = np.array([log_p0(r) for r in R])
         _add_weights(logw, i, np.broadcast_to(lp0[k], np.broadcast_shapes(i.shape, k.shape)))
 
 
-def _write(maps: ParticleMaps, i, c, mean, cov) -> None:
-    """New pool records of the pairs' landmarks from their entries (upper triangles)."""
+def _write(maps: ParticleMaps, i, c, mean, cov, seen: tuple[np.ndarray, np.ndarray], k) -> None:
+    """New pool records of the pairs' landmarks from their entries (upper triangles), with
+    the time and sensor ``seen`` (per observation) of observation ``k`` of each pair."""
     shape = np.broadcast_shapes(np.shape(i), np.shape(c), np.shape(mean[0]))
     sl = maps.allocate(i, c)
     m = maps.pool_mean[sl].reshape(shape + (2,))
@@ -164,6 +224,9 @@ def _write(maps: ParticleMaps, i, c, mean, cov) -> None:
     m[..., 0], m[..., 1] = mean
     P[..., 0, 0], P[..., 0, 1], P[..., 1, 1] = cov
     P[..., 1, 0] = cov[1]
+    kk = np.broadcast_to(k, shape).ravel()
+    maps.pool_seen[sl] = seen[0][kk]
+    maps.pool_sensor[sl] = seen[1][kk]
 
 
 def floor_noise(recoveries: Recoveries, r00, r11, pv0, pv1):

@@ -56,3 +56,70 @@ def test_the_gate_is_the_sensors_quantile_unless_set():
     assert slam.particles.new_gate_d2 == pytest.approx(71.47, abs=0.01)
     slam.set_sensor_field(SensorField(8.0, 1.0, 0.5, math.inf))
     assert slam.particles.new_gate_d2 == pytest.approx(gate)
+
+
+# --- sightings correlated in time: the weights take the new information only -----------
+
+
+def _timed(z, stamp, model, pose_id=1):
+    from slamcore.planar.records import Observation
+
+    return Observation(pose_id=pose_id, landmark_id=0, z=np.array(z), covariance=np.diag([0.05**2, 0.01**2]),
+                       stamp_s=stamp, correlation=model)
+
+
+def test_weight_shares_read_each_records_last_sighting_by_the_same_sensor():
+    from filters.fastslam_map import ParticleMaps
+    from filters.fastslam_update import weight_shares
+    from slamcore.planar.sighting_correlation import SightingCorrelation
+
+    model = SightingCorrelation(time_constant_s=5.0, range_share=0.9, bearing_share=0.5, sensor=1)
+    other = SightingCorrelation(time_constant_s=5.0, range_share=0.9, bearing_share=0.5, sensor=2)
+    maps = ParticleMaps(3)
+    c = maps.add_column(0)
+    sl = maps.allocate(np.arange(3), c)
+    maps.pool_seen[sl] = [10.0, 9.0, -np.inf]  # the third: never seen with a time
+    maps.pool_sensor[sl] = 1
+    p = maps.table[:, c]
+    got = weight_shares(maps, p, [_timed([2.0, 0.1], 10.5, model)], 0)
+    np.testing.assert_allclose(got, [model.weight_share(0.5), model.weight_share(1.5), 1.0])
+    assert np.all(weight_shares(maps, p, [_timed([2.0, 0.1], 10.5, other)], 0) == 1.0)  # another camera
+    assert weight_shares(maps, p, [_timed([2.0, 0.1], None, model)], 0) is None  # no time: independent
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_burst_of_correlated_sightings_weighs_as_little_as_it_tells(version):
+    """Two particles a little apart see one landmark ten times within a second: taken as
+    independent, the burst's likelihood ratio compounds ten times; tempered, the nine
+    repeats add their weight shares (about 0.05 each at 0.1 s apart with tau 7 s)."""
+    from filters.fastslam import FastSlam
+    from filters.fastslam_config import FastSlamConfig
+    from slamcore.planar.records import Odometry
+    from slamcore.planar.sighting_correlation import SightingCorrelation
+
+    model = SightingCorrelation(time_constant_s=7.0, range_share=0.9, bearing_share=0.5)
+
+    def spread(temper: bool) -> float:
+        fs = FastSlam(FastSlamConfig(version=version, n_particles=2, resample_ess_fraction=0.0,
+                                     temper_correlated=temper))
+        fs.initialize(0, np.zeros(3), np.eye(3) * 1e-12)
+        fs.particles.poses[:] = [[0.0, 0.0, 0.0], [0.0, 0.05, 0.0]]
+        for k in range(10):
+            fs.predict(Odometry(k, k + 1, np.zeros(3), np.eye(3) * 1e-12), k + 1)
+            fs.update([_timed([2.0, 0.02], 0.1 * k, model, pose_id=k + 1)])
+        lw = fs.particles.logw
+        return float(abs(lw[0] - lw[1]))
+
+    full, tempered = spread(False), spread(True)
+    assert tempered < 0.5 * full, (tempered, full)
+
+
+def test_temper_correlated_on_data_without_a_correlation_is_said_to_do_nothing(tmp_path, capsys):
+    from graphslam.cli.main import main
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[fastslam]\ntemper_correlated = false\n")
+    assert main(["run", "--backend", "fastslam2", "--max-steps", "20", "--config", str(cfg), "--rerun", "off",
+                 "--quiet", "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert "temper_correlated did nothing" in err and "correlate in time" in err, err

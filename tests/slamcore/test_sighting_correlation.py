@@ -80,3 +80,15 @@ def test_without_time_or_model_a_sighting_is_independent():
     assert last.observation(o, 1) is o and last.observation(o, 1) is o
     timed = Observation(0, None, o.z, o.covariance, stamp_s=1.0)
     assert last.observation(timed, 1) is timed
+
+
+def test_the_weight_share_is_one_over_the_geometric_mean_of_the_factors():
+    model = SightingCorrelation(time_constant_s=7.32, range_share=0.91, bearing_share=0.53)
+    dts = np.array([0.0, 0.05, 0.3, 3.5, 10.0, 60.0, np.inf])
+    shares = model.weight_share(dts)
+    for dt, share in zip(dts, shares, strict=True):
+        fr, fb = model.factors(float(dt))
+        assert share == pytest.approx(1.0 / math.sqrt(fr * fb), rel=1e-12)
+    assert shares[-1] == 1.0 and np.all((shares > 0) & (shares <= 1.0))
+    assert np.all(np.diff(shares) >= 0)  # the longer apart, the more a sighting tells
+    assert model.weight_share(-0.3) == pytest.approx(model.weight_share(0.3))  # order-free

@@ -180,7 +180,8 @@ def _mark_unused_settings(backend, config, result) -> None:
     ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
     ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always,
     ``ANONYMOUS_SIGHTING_KEYS`` under known ids when every sighting had an id,
-    ``SENSOR_FIELD_KEYS`` under unknown ids when the data states no sensor field.
+    ``SENSOR_FIELD_KEYS`` under unknown ids when the data states no sensor field,
+    ``CORRELATION_KEYS`` when no sighting states a correlation in time.
     They are said with the gates' (:meth:`slamcore.config.ConfigFile.inert_lines`), with
     their file line, and listed in metrics.json's provenance."""
     from slamcore.config import section_name
@@ -189,7 +190,13 @@ def _mark_unused_settings(backend, config, result) -> None:
     cls = type(settings)
     closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
     field_keys = getattr(cls, "SENSOR_FIELD_KEYS", ())
-    if not closure_keys and not getattr(cls, "UNREAD_IN_RUNS", ()) and not field_keys:
+    correlation_keys = getattr(cls, "CORRELATION_KEYS", ())
+    if (
+        not closure_keys
+        and not getattr(cls, "UNREAD_IN_RUNS", ())
+        and not field_keys
+        and not correlation_keys
+    ):
         return
     section = section_name(cls)
     if (
@@ -203,6 +210,12 @@ def _mark_unused_settings(backend, config, result) -> None:
             section, field_keys, "data that states its sensor's field (MRCLAM logs, the synthetic world)"
         )
     frames = result.dataset.frames[: result.steps]
+    if correlation_keys and not any(
+        o.correlation is not None and o.stamp_s is not None for f in frames for o in f.observations
+    ):
+        config.mark_inert(
+            section, correlation_keys, "sightings that state how their errors correlate in time (MRCLAM logs)"
+        )
     anonymous = getattr(cls, "ANONYMOUS_SIGHTING_KEYS", ())
     if anonymous and getattr(settings, "association", None) == "known":
         if all(o.landmark_id is not None or o.signature is not None for f in frames for o in f.observations):
