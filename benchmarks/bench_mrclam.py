@@ -52,7 +52,6 @@ from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam  # noqa: E
 from graphslam.sources.planar.mrclam_joint import read_mrclam_all  # noqa: E402
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
-COMMAND = "python benchmarks/bench_mrclam.py --out benchmarks/figures/mrclam.json"
 BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
 
 
@@ -216,7 +215,9 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name} jointly (fastslam2, median of seeds): ATE {a['median_m']:.3f} m "
                   f"(alone {alone:.3f} m)", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"command": COMMAND + (" --quick" if args.quick else ""),
+    # the command as run (the seeds and --no-joint change what the JSON holds)
+    command = "python benchmarks/bench_mrclam.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    args.out.write_text(json.dumps({"command": command.strip(),
                                     "rows": rows, "joint": joint, "joint_ekf": joint_ekf,
                                     "joint_unknown": joint_unknown, "joint_ekf_unknown": joint_ekf_unknown,
                                     "joint_fastslam2_seeds": joint_fs2, "fastslam2_seeds": spread},

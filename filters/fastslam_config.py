@@ -80,7 +80,7 @@ class FastSlamConfig(Validated):
             is one piece of evidence for a path: counted in full, it collapsed the
             particles onto whichever path explained its shared error. On MRCLAM
             Dataset 6, FastSLAM 2.0's median ATE over seeds 0-19 on robots 1-5
-            (``python benchmarks/bench_mrclam.py --no-joint --seeds 0 1 ... 19``), known
+            (``benchmarks/figures/mrclam_seeds.json``, its command inside), known
             ids: 0.170/0.305/0.195/0.185/0.270 m without, 0.133/0.147/0.153/0.197/0.226 m
             with; unknown ids: 0.160/0.480/0.450/0.380/0.210 m without,
             0.151/0.252/0.169/0.239/0.172 m with. False: every sighting weighs in full,
