@@ -266,6 +266,14 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
                 f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
                 "those alone"
             )
+        if options.align == "se3" and len(e.ref) < 3:
+            # two positions and a rigid fit: only their distance apart is left to score
+            # (hostile pass 17: an ATE of 0.0000, nothing said)
+            out.append(
+                f"{r.label or Path(r.path).name}: only {len(e.ref)} poses matched, and an SE(3) fit "
+                "to 2 positions leaves only their distance apart to score: the ATE says almost "
+                "nothing (--align first scores them without a fit)"
+            )
     return out
 
 

@@ -501,3 +501,16 @@ def test_image_data_damaged_inside_a_whole_file_is_refused_by_name(shared_data, 
         assert name in str(e.value)
     assert decode_gray(jpg, "whole.jpg").shape == (370, 1226)
     assert capfd.readouterr().err == ""  # the decoders' own lines are not left on stderr
+
+
+def test_eval_of_two_matched_poses_under_a_rigid_fit_says_it_scores_little(tmp_path, capsys):
+    from tests import trajectories as tr
+
+    gt, _ = tr.write_pair(tmp_path, "tum")
+    rows = [ln for ln in gt.read_text().splitlines() if ln and not ln.startswith("#")][:2]
+    two = tmp_path / "two.tum"
+    two.write_text(
+        "".join(" ".join([r.split()[0], str(float(r.split()[1]) + 0.3)] + r.split()[2:]) + "\n" for r in rows)
+    )
+    code, out, err = tr.run_eval(tmp_path, capsys, gt, two)
+    assert code == 0 and "only 2 poses matched" in err, err
