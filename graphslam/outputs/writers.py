@@ -262,6 +262,8 @@ class OutputWrites:
         except OSError as e:
             if self._reason(e) is None:
                 raise
+            if e.filename is None:  # zipfile and numpy's writers name no file: say which
+                e.filename = str(what)
             if e.errno in _DISK_FULL and self.make_room is not None:
                 make_room, self.make_room = self.make_room, None
                 if make_room():
