@@ -214,6 +214,28 @@ def _untested(result) -> dict | None:
 EXACT_EDGES_FACTOR = 1e6
 
 
+def stalled_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> list[str]:
+    """One line when the final LM took no step (0 iterations, the cost unchanged) from a
+    start whose cost the stated noise cannot explain: the estimate is that start, not an
+    optimum (hostile pass 17: every edge's information times 1e12 left LAGO's and LM's
+    systems indeterminate; the trajectory was the odometry, 19 m from the optimum, and the
+    one line blamed the closures)."""
+    from graphslam.backends.posegraph.route import consistent
+
+    if result.iterations != 0 or result.cut is not None or result.stopped is not None:
+        return []
+    if result.rejected.any():  # the final LM solved the kept edges: another cost than the start's
+        return []
+    if not result.final_cost >= result.initial_cost or consistent(graph, result, alpha)[0]:
+        return []
+    return [
+        f"the solver took no step from its start (0 LM iterations, the cost unchanged at "
+        f"{result.final_cost:.6g}, beyond what the stated noise explains): the estimate is that "
+        "start, not an optimum; information of an extreme scale can leave the solver's linear "
+        "systems indeterminate (the numerical recoveries say where)"
+    ]
+
+
 def closures_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> list[str]:
     """One line when the solve's kept edges leave a cost the stated noise cannot explain
     at an optimum (the chi-square test the auto route applies), in a graph with closures:
@@ -281,6 +303,7 @@ def metrics(
     run's (default: the config's), for :func:`closures_warning`."""
     alpha = PoseGraphConfig().closure_test_alpha if closure_test_alpha is None else closure_test_alpha
     graph = solved_graph(graph, result)
+    stalled = stalled_warning(graph, result, alpha)
     # ATE needs two poses with truth: a run cut after its first pose has none (null)
     scored = truth is not None and np.isin(truth[0], graph.ids).sum() >= 2
     closures = ~graph.odometry_mask()
@@ -340,10 +363,11 @@ def metrics(
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
         odometry_ate_rmse_m=odometry_ate_m,
         interrupted=result.cut is not None or stop_requested(),
-        converged=not result.lm_capped,
+        converged=not result.lm_capped and not stalled,
         # the reader's doubts about the file (degrees, non-unit quaternions, repeats)
         warnings=[
             *graph.warnings,
+            *stalled,
             *closures_warning(graph, result, alpha),
             *ate_ratio_warning(ate_m, odometry_ate_m),
         ]

@@ -233,7 +233,9 @@ def format_summary(metrics) -> str:
         rows.append(
             (
                 "NOT CONVERGED",
-                f"LM stopped at its cap of {metrics.iterations} "
+                "LM took no step from its start (see the warning)"
+                if metrics.iterations == 0
+                else f"LM stopped at its cap of {metrics.iterations} "
                 "iterations; the cost may be far from the optimum "
                 f"(try {tries}, or [posegraph] max_iterations)",
             )
