@@ -226,6 +226,12 @@ def make_tracker(config, backend: VisualBackend, detector: str | None = None):
     if search.order == "sequential" and not backend.supports_sequential_search:
         raise ConfigError(_sequential_refusal(backend), config.path, config.line_of("active_search", "order"))
     follow = backend.needs_track_history if cfg.follow_unmapped is None else cfg.follow_unmapped
+    if not follow:  # hostile pass 17: set under the EKF, they ran the same bits, unsaid
+        config.mark_inert(
+            "tracker",
+            ("follow_window_px", "follow_min_score", "follow_min_margin", "max_unmapped_age"),
+            "following unmapped tracks (follow_unmapped; by default on for iSAM2, off for the EKF)",
+        )
     tracker = Tracker(
         cfg,
         active_search=search,
