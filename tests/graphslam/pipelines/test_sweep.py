@@ -186,8 +186,9 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
 
 def test_a_sweep_with_a_failed_run_exits_1(tmp_path, capsys):
     (tmp_path / "bad.g2o").write_text(BAD_GRAPH)
+    # nees stated: unset, a mixed grid's default (off) is said in a line of its own
     path = _file(tmp_path, SMALL.replace('["synthetic"]', '["synthetic", "bad.g2o"]')
-                 .replace("seed = [0, 1]\n", ""))
+                 .replace("seed = [0, 1]\n", "nees = false\n"))
     assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "2",
                  "--quiet", "--no-plots"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
