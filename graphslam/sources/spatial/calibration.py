@@ -122,6 +122,22 @@ def load_yaml(path: Path):
         raise InputError(f"malformed YAML: {msg[-120:]}", path, line) from None
 
 
+def yaml_key_line(path: Path, *keys: str) -> int | None:
+    """1-based line of the first top-level ``key:`` of ``keys`` in the YAML file
+    ``path``, or None: the parsed mapping has no lines, and an error about a value
+    (a principal point no camera has) should name the line the user edits."""
+    try:
+        lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+    except OSError:
+        return None
+    for key in keys:
+        pattern = re.compile(rf"^\s*[\"']?{re.escape(key)}[\"']?\s*:")
+        for n, text in enumerate(lines, start=1):
+            if pattern.match(text):
+                return n
+    return None
+
+
 def yaml_matrix(value, path: Path, key: str) -> np.ndarray:
     if isinstance(value, dict) and "data" in value:
         value = value["data"]
@@ -264,7 +280,9 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
             raise InputError(
                 "no intrinsics found: expected fx/fy/cx/cy, K, camera_matrix or intrinsics", path
             )
-        return check_K(K, path), yaml_distortion(data, path)
+        # the line of the entry read (of fx where the four are apart)
+        line = yaml_key_line(path, next(k for k in ("fx", "K", "camera_matrix", "intrinsics") if k in data))
+        return check_K(K, path, line), yaml_distortion(data, path)
     lines = read_lines(path, "intrinsics file")
     if not lines:
         raise InputError("intrinsics file is empty", path)

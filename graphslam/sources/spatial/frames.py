@@ -104,6 +104,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         return sequence
     idx = frame_indices(frames, len(sequence))
     odo, cov, sig = _composed_odometry(sequence, idx)
+    past = _past_the_end(frames, len(sequence))
     return FrameSelection(
         name=sequence.name,
         image_paths=[sequence.image_paths[i] for i in idx],
@@ -114,7 +115,7 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         image_size=sequence.image_size,
         source_path=sequence.source_path,
         camera_warnings=sequence.camera_warnings,
-        frame_warnings=sequence.frame_warnings,
+        frame_warnings=(*sequence.frame_warnings, *past),
         base=sequence,
         indices=idx,
         odometry=odo,
@@ -124,6 +125,18 @@ def select_frames(sequence: ImageSequence, frames: slice | None) -> ImageSequenc
         config=getattr(sequence, "config", None),
         notes=tuple(getattr(sequence, "notes", ())),
     )
+
+
+def _past_the_end(frames: slice, n: int) -> tuple[str, ...]:
+    """A line when ``frames`` names frames past the sequence's last (a slice clips them,
+    so ``--frames 0:5000`` on a 1100-frame folder ran 1100 frames unsaid)."""
+    step = frames.step or 1
+    bound = frames.stop if step > 0 else frames.start
+    if bound is None or bound <= (n if step > 0 else n - 1):
+        return ()
+    shown = _text(frames)
+    shown = shown if len(shown) <= QUOTE_CHARS else quote(shown)
+    return (f"--frames {shown} reaches past the sequence's {n} frames (0 to {n - 1}): only those are run",)
 
 
 def _composed_odometry(sequence, idx: np.ndarray):

@@ -94,6 +94,7 @@ from graphslam.sources.spatial.calibration import (
     stated_image_size,
     yaml_distortion,
     yaml_image_size,
+    yaml_key_line,
     yaml_matrix,
 )
 from graphslam.sources.spatial.kitti import read_kitti
@@ -275,7 +276,7 @@ def read_euroc(
     intr = yaml_matrix(data["intrinsics"], ypath, "intrinsics")
     if intr.size != 4:
         raise InputError(f"intrinsics: expected 4 numbers, got {intr.size}", ypath)
-    K = check_K(intrinsics_matrix(*intr), ypath)
+    K = check_K(intrinsics_matrix(*intr), ypath, yaml_key_line(ypath, "intrinsics"))
     dist = yaml_distortion(data, ypath, ("distortion_coefficients",))
     T_BS = np.eye(4)
     if data.get("T_BS") is not None:

@@ -12,7 +12,9 @@ download's own layout (``dataset/sequences/07/`` beside ``dataset/poses/07.txt``
 ``../../poses/<sequence>.txt``. ``times.txt`` and the poses file may cover more
 frames than the folder holds (a few frames copied out of a sequence): the
 frames are then picked by the number in each image's file name (``000042.png``
-is frame 42).
+is frame 42). A poses file that ends before the images leaves the frames after
+its last pose out of the run, and says so (as a TUM folder's frames without
+truth are).
 """
 
 from __future__ import annotations
@@ -113,6 +115,11 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
     if not paths:
         raise InputError("no .png images", img_dir)
     K, c0Tck = read_kitti_calib(folder / "calib.txt", camera)
+    ppath = kitti_poses_path(folder)
+    poses = read_kitti_poses(ppath) if ppath is not None else None
+    notes: tuple[str, ...] = ()
+    if ppath is not None and poses is not None:
+        paths, notes = _covered_by_truth(paths, len(poses), ppath)
     stamps = None
     tpath = folder / "times.txt"
     if tpath.is_file():
@@ -121,12 +128,35 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
         check_increasing(stamps, [n for n, _ in lines], tpath)
         stamps = _per_image(stamps, paths, "timestamps", img_dir, tpath)
     wTc = None
-    ppath = kitti_poses_path(folder)
-    if ppath is not None:
-        wTc = _per_image(read_kitti_poses(ppath), paths, "poses", img_dir, ppath)
+    if ppath is not None and poses is not None:
+        wTc = _per_image(poses, paths, "poses", img_dir, ppath)
         if camera != 0:
             wTc = wTc @ c0Tck
     size, doubts = image_doubts(K, paths, folder / "calib.txt")
     return ImageSequence(
-        f"kitti-{folder_name(folder)}", paths, stamps, K, None, wTc, size, str(folder), doubts
+        f"kitti-{folder_name(folder)}", paths, stamps, K, None, wTc, size, str(folder), doubts, notes
     )
+
+
+def _covered_by_truth(paths: list[str], n_poses: int, ppath: Path) -> tuple[list[str], tuple[str, ...]]:
+    """The images ``ppath`` has a pose for, and a line saying how many were left out.
+
+    A poses file that ends before the images (a truth cut short, a sequence with
+    frames added) leaves the frames after it without truth; as TUM folders do,
+    those frames are left out and said, rather than the whole folder refused
+    (a ``--frames`` range inside the truth was refused for frames it never used).
+    Frames are the numbers in the names where every name is one, else the order."""
+    if n_poses >= len(paths):
+        return paths, ()
+    stems = [Path(p).stem for p in paths]
+    if all(s.isascii() and s.isdigit() for s in stems):
+        kept = [p for p, s in zip(paths, stems, strict=True) if int(s) < n_poses]
+    else:
+        kept = paths[:n_poses]
+    if not kept:  # no image inside the truth: refused as the counts' mismatch
+        return paths, ()
+    note = (
+        f"{len(paths) - len(kept)} of {len(paths)} images come after the last of the {n_poses} "
+        f"poses in {ppath.name} and are left out of the run (no ground truth)"
+    )
+    return kept, (note,)

@@ -74,8 +74,17 @@ def test_kitti_fake_camera1_and_mismatch(tmp_path):
     seq = read_kitti(folder, camera=1)
     # P1 = K [I | (-0.5, 0, 0)]: camera 1 sits 0.5 m to the right of camera 0.
     np.testing.assert_allclose(seq.wTc_true[2, :3, 3], [2.5, 0, 0])
+    # a truth that ends before the images: the frames after it are left out and said
+    # (it refused the folder, even under a --frames range inside the truth)
     (folder / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
-    with pytest.raises(InputError, match=r"1 poses but 3 images"):
+    short = read_kitti(folder)
+    assert len(short) == 1 and short.wTc_true.shape == (1, 4, 4) and len(short.stamps_s) == 1
+    assert any("2 of 3 images come after the last of the 1 poses" in w for w in short.warnings)
+    # more poses than images whose names are not frame numbers cannot be matched: refused
+    for k in range(3):
+        (folder / "image_0" / f"{k:06d}.png").rename(folder / "image_0" / f"f{k}.png")
+    (folder / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 5)
+    with pytest.raises(InputError, match=r"5 poses but 3 images"):
         read_kitti(folder)
 
 
