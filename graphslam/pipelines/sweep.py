@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphslam.pipelines.common import active_guard
 from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec, dump_toml
 from slamcore.errors import InputError
 from slamcore.files import atomic_open
@@ -271,6 +272,12 @@ def run_sweep(
                 on_result(run, row)
     except KeyboardInterrupt:
         outcome.interrupted = True
+        guard = active_guard()
+        if guard is not None:
+            # the rest is the save: a second signal (a batch system's SIGTERM after the
+            # user's Ctrl-C) is recorded, not raised, or it cut the harvest of runs that
+            # finished as the first one came and they were left out of sweep.csv
+            guard.begin_save()
     finally:
         results.close()  # stops the runs still in flight
     if outcome.interrupted and score_finished is not None:

@@ -44,3 +44,48 @@ def test_a_principal_point_no_camera_has_names_its_yaml_line(tmp_path):
         read_intrinsics_file(path)
     path.write_text("fx: 100\nfy: 100\ncx: 32\ncy: 24\nintrinsics: [1, 2, 3]\n")
     np.testing.assert_allclose(read_intrinsics_file(path)[0][0, 0], 100)
+
+
+class _OneRowThenStop:
+    """An executor whose first run is reported and whose second finishes unreported
+    (its metrics.json written) as the stop comes: the harvest's case."""
+
+    def map_unordered(self, runs, root):
+        first, second = runs[0], runs[1]
+        folder = root / "runs" / second.run_id
+        folder.mkdir(parents=True)
+        (folder / "metrics.json").write_text('{"interrupted": false}')
+        yield first, {"run_id": first.run_id, "status": "ok", "error": "", "wall_s": 1.0}
+
+    def close(self):
+        pass
+
+
+def test_a_second_signal_while_a_stopped_sweep_saves_loses_no_finished_run(tmp_path):
+    """Ctrl-C, then a batch system's SIGTERM while the sweep gathered the runs that
+    finished as the first came: the second signal cut the harvest and those runs were
+    left out of sweep.csv (the rare race of hostile pass 17)."""
+    import signal
+
+    from graphslam.pipelines.common import stop_guard
+    from graphslam.pipelines.sweep import run_sweep
+    from graphslam.pipelines.sweep_spec import parse_sweep
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text('[sweep]\ndataset = ["synthetic"]\nbackend = ["isam2"]\nseed = [0, 1]\nmax_steps = 5\n')
+    spec = parse_sweep(sweep)
+    with stop_guard() as guard:
+
+        def ctrl_c(run, row):
+            guard._handle(signal.SIGINT, None)  # the user's Ctrl-C, through the guard
+
+        def harvested(folder):
+            guard._handle(signal.SIGTERM, None)  # the second signal, mid-harvest
+            return {"wall_s": None, "status": "ok", "error": "", "ate_rmse_m": 0.5}
+
+        outcome = run_sweep(
+            spec, tmp_path / "o", _OneRowThenStop(), on_result=ctrl_c, score_finished=harvested
+        )
+    assert outcome.interrupted
+    assert [r["status"] for r in outcome.rows] == ["ok", "ok"]
+    assert (tmp_path / "o" / "sweep.csv").read_text().count("\n") == 3  # header and both runs
