@@ -42,8 +42,8 @@ datasets:
                   iSAM2's first-map baseline or the EKF's fitted about that pose)
 
 outputs (in --out): compare.json, compare.png, compare.rrd (with --rerun
-  spawn/connect, when no viewer can be started or reached: a warning and
-  compare.rrd saved instead); files of these names that a run will not write
+  spawn/connect, when no viewer can be started or reached, or it goes during
+  the run: a warning and compare.rrd saved instead); files of these names that a run will not write
   (compare.rrd with --rerun off) are removed first, other files never
 
 a back end that fails, or is cut by Ctrl-C or SIGTERM, is marked in the table's

@@ -191,19 +191,23 @@ def open_recorder(open_fn, mode: str, path: Path, url: str | None):
     return opened
 
 
-def close_recorder(recorder) -> bool:
+def close_recorder(recorder) -> str:
     """Close a recorder; a viewer that stopped taking the stream, or a recording
     process that failed, is a warning (the run's files are written by then, and the
     steps after this one -- the map, the summary -- must still run). Returns
-    whether the recording was closed whole."""
-    from graphslam.visualisation.recording import ViewerUnavailable
+    ``"whole"`` (closed whole), ``"saved"`` (the viewer went during the run and its
+    copy was kept as the recording file) or ``"broken"``."""
+    from graphslam.visualisation.recording import SavedInstead, ViewerUnavailable
 
     try:
         recorder.close()
+    except SavedInstead as e:
+        warn(str(e))
+        return "saved"
     except (ViewerUnavailable, GraphSlamError) as e:
         warn(str(e))
-        return False
-    return True
+        return "broken"
+    return "whole"
 
 
 class OutputFolder:
@@ -262,7 +266,8 @@ class OutputFolder:
         ``recording`` (a recording not kept is not listed)."""
         if self.recorder is None:
             return
-        if close_recorder(self.recorder) and self.rerun_mode == "save" and self._recording_name:
+        closed = close_recorder(self.recorder)
+        if self._recording_name and (closed == "saved" or closed == "whole" and self.rerun_mode == "save"):
             paths["recording"] = self.path / self._recording_name
 
     def finish(self, paths: dict[str, Path]) -> None:

@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import weakref
+from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 from urllib.parse import urlsplit
@@ -57,6 +58,15 @@ def ellipse_points(centers: np.ndarray, covariances: np.ndarray, chi2: float = C
 
 class ViewerUnavailable(GraphSlamError):
     """The Rerun viewer a run was to stream to cannot be started or reached."""
+
+
+class SavedInstead(ViewerUnavailable):
+    """The viewer stopped taking the stream during the run, and the copy recorded beside
+    it was kept at ``path`` (:meth:`RerunLog._connect`)."""
+
+    def __init__(self, message: str, path: Path):
+        super().__init__(message)
+        self.path = path
 
 
 def parse_viewer_url(url: str) -> tuple[str, int]:
@@ -291,6 +301,9 @@ class RerunLog:
             recording_id = f"{recording_id}:{where}"
         self._stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self._partial: Path | None = None
+        #: a viewer stream's copy on disk (:meth:`_connect`), kept if the viewer goes
+        self._backup: Path | None = None
+        self._url: str | None = None  # the viewer's, in spawn and connect modes
         self.logged = LoggedEntities()
         self._live_layout = mode != "save" if live_layout is None else live_layout
         # (logged.version, layout_key) at the last check
@@ -319,14 +332,33 @@ class RerunLog:
                     f"the Rerun viewer started ({exe}) did not open "
                     f"port {SPAWN_PORT} within {SPAWN_WAIT_S:.0f} s"
                 )
-            self.rec.connect_grpc(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy")
+            self._connect(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy", path)
         elif mode == "connect":
             parse_viewer_url(url or DEFAULT_VIEWER_URL)
-            self.rec.connect_grpc(url or DEFAULT_VIEWER_URL)
+            self._connect(url or DEFAULT_VIEWER_URL, path)
         else:
             raise ConfigError(f"rerun: unknown mode {mode!r} (save, spawn, connect)")
         self.mode = mode
         self.path = path
+
+    def _connect(self, url: str, path: Path | None) -> None:
+        """Stream to the viewer at ``url`` and, given ``path``, to a hidden file beside
+        it: a viewer closed during the run (its window shut, its machine gone) took the
+        recording with it, and the run's only record was a warning. close() deletes the
+        copy when the viewer took everything and moves it to ``path`` when it did not."""
+        self._url = url
+        if path is not None:
+            try:
+                check_recording_path(path)
+                backup = temporary_beside(Path(path))
+            except (GraphSlamError, OSError):  # no copy where none can be written
+                backup = None
+            if backup is not None:
+                self._backup = backup
+                weakref.finalize(self, backup.unlink, missing_ok=True)
+                self._stream.set_sinks(self._rr.GrpcSink(url), self._rr.FileSink(str(backup)))
+                return
+        self.rec.connect_grpc(url)
 
     def set_step(self, step: int, stamp_s: float | None = None) -> None:
         """What follows is logged at ``step`` and, with a stamp, at that time; without
@@ -381,19 +413,26 @@ class RerunLog:
         if self._partial is not None and self.path is not None:
             self._partial = Path(folder) / self._partial.name
             self.path = Path(folder) / Path(self.path).name
+        if self._backup is not None and self.path is not None:
+            self._backup = Path(folder) / self._backup.name
+            self.path = Path(folder) / Path(self.path).name
 
     def discard(self) -> None:
         """Stop recording and delete what was recorded: the run ended without its
         outputs, and ``path`` keeps the earlier run's recording, if any."""
         self.rec.disconnect()
-        if self._partial is not None:
-            self._partial.unlink(missing_ok=True)
-            self._partial = None
+        for temporary in (self._partial, self._backup):
+            if temporary is not None:
+                temporary.unlink(missing_ok=True)
+        self._partial = self._backup = None
 
     def _flush_and_disconnect(self) -> None:
+        if self.mode != "save":
+            self._close_viewer()
+            return
         try:
             if self._partial is not None and self.path is not None:
-                self._flush_watched(self._partial)
+                self._flush_watched(self._partial, self._not_written)
             else:
                 self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except RuntimeError as e:
@@ -414,7 +453,62 @@ class RerunLog:
             if cut is not None:
                 self._not_written(cut)
 
-    def _flush_watched(self, partial: Path) -> None:
+    def _close_viewer(self) -> None:
+        """Flush and close a viewer stream (``spawn``, ``connect``) and settle its copy
+        on disk (:meth:`_connect`): deleted when the viewer took everything, else moved
+        to ``path``.
+
+        Raises:
+            SavedInstead: the viewer stopped taking the stream; the copy is now ``path``.
+            ViewerUnavailable: the same without a copy (or one cut by a full disk).
+        """
+        backup, self._backup = self._backup, None
+
+        def copy_cut(reason: str) -> NoReturn:  # a flush wedged on a full disk
+            assert backup is not None
+            backup.unlink(missing_ok=True)
+            raise ViewerUnavailable(
+                f"the recording's copy on disk could not be written ({reason}); "
+                "the viewer keeps what it received"
+            )
+
+        failed: str | None = None
+        try:
+            if backup is not None:
+                self._flush_watched(backup, copy_cut)
+            else:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as e:
+            failed = str(e).splitlines()[0]
+        self.rec.disconnect()
+        if failed is None:
+            # a viewer killed during the run (SIGKILL, its machine gone) fails no flush:
+            # what the stream sent after went nowhere, unsaid; asked again, it is gone
+            failed = sink_problem("connect", self._url)
+        if failed is None:
+            if backup is not None:
+                backup.unlink(missing_ok=True)
+            return
+        if backup is None or self.path is None:
+            raise ViewerUnavailable(
+                f"the Rerun viewer stopped taking the stream; the recording is incomplete ({failed})"
+            )
+        cut = write_limit_reached(backup)
+        if cut is not None:
+            backup.unlink(missing_ok=True)
+            raise ViewerUnavailable(
+                f"the Rerun viewer stopped taking the stream ({failed}) and the recording's copy "
+                f"on disk could not be written ({cut}); the recording is incomplete"
+            )
+        path = Path(self.path)
+        move_into_place(backup, path)
+        raise SavedInstead(
+            f"the Rerun viewer stopped taking the stream during the run ({failed}); "
+            f"{path.name} holds the whole recording",
+            path,
+        )
+
+    def _flush_watched(self, partial: Path, give_up: Callable[[str], NoReturn]) -> None:
         """Flush a save-mode stream while watching its file. When Rerun's file writer dies
         on a full disk in the middle of a flush, rerun-sdk 0.41 can wait for it forever
         (1 of 12 runs of ``compare --rerun save`` under a 300 kB file-size limit); a flush still waiting
@@ -442,7 +536,7 @@ class RerunLog:
             elif time.monotonic() - full_since >= WEDGED_AFTER_S:
                 _WEDGED.append(self._stream)
                 self._rr.unregister_shutdown()  # rerun's exit hook would flush it again
-                self._not_written(f"{write_limit_reached(partial)}; Rerun's writer stopped")
+                give_up(f"{write_limit_reached(partial)}; Rerun's writer stopped")
         if failed:
             raise failed[0]
 

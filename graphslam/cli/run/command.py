@@ -97,7 +97,9 @@ outputs (in --out):
                     run), backend_s / processing_s (the estimator alone), ...
   run.rrd           Rerun recording (open with: rerun run.rrd); with --rerun
                     spawn/connect, when no viewer can be started or reached, a
-                    warning and run.rrd is saved instead
+                    warning and run.rrd is saved instead, and when the viewer
+                    goes during the run, a warning and the whole recording
+                    kept as run.rrd
   A run first removes files of these names (and loops.csv, loops.jsonl) that
   it will not write itself, left in --out by an earlier run; other files are
   never touched.

@@ -89,3 +89,81 @@ def test_a_second_signal_while_a_stopped_sweep_saves_loses_no_finished_run(tmp_p
     assert outcome.interrupted
     assert [r["status"] for r in outcome.rows] == ["ok", "ok"]
     assert (tmp_path / "o" / "sweep.csv").read_text().count("\n") == 3  # header and both runs
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_viewer_that_dies_during_the_run_leaves_the_whole_recording(tmp_path):
+    """``--rerun connect`` to a viewer killed during the run: the end said "the recording
+    is incomplete" and nothing of it was kept. The stream is now copied to a hidden file
+    beside run.rrd, which becomes run.rrd when the viewer went, and goes when it did not."""
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import time
+
+    from graphslam.visualisation.recording import RerunLog, SavedInstead, find_viewer, sink_problem
+
+    exe = find_viewer()
+    if exe is None:
+        pytest.skip("no Rerun viewer executable")
+    url_of = "rerun+http://127.0.0.1:{}/proxy".format
+
+    def serve() -> tuple[subprocess.Popen, str]:
+        port = _free_port()
+        # its own session: the `rerun` script starts the server as a child, killed with it
+        server = subprocess.Popen(
+            [exe, "--serve-grpc", "--port", str(port)],
+            start_new_session=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        deadline = time.monotonic() + 60
+        while sink_problem("connect", url_of(port)) is not None:
+            assert server.poll() is None and time.monotonic() < deadline
+            time.sleep(0.2)
+        return server, url_of(port)
+
+    def points(log, steps):
+        for k in steps:
+            log.set_step(k)
+            log.rec.log("p", log._rr.Points2D([[k, k]]))
+
+    server, url = serve()
+    try:
+        log = RerunLog("connect", tmp_path / "run.rrd", url)
+        points(log, range(30))
+        log.rec.flush(timeout_sec=10)
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
+        points(log, range(30, 100))
+        with pytest.raises(SavedInstead, match=r"run\.rrd holds the whole recording"):
+            log.close()
+        assert [p.name for p in tmp_path.iterdir()] == ["run.rrd"]
+        rerun_cli = shutil.which("rerun", path=os.path.dirname(exe)) or exe
+        stats = subprocess.run(
+            [rerun_cli, "rrd", "stats", str(tmp_path / "run.rrd")], capture_output=True, text=True, timeout=60
+        )
+        rows = int(stats.stdout.split("num_rows = ")[1].split()[0])
+        assert rows >= 100, stats.stdout  # the 70 points sent after the death too
+    finally:
+        if server.poll() is None:
+            os.killpg(server.pid, signal.SIGKILL)
+
+    # a viewer that stays: the copy goes, nothing is said
+    server, url = serve()
+    try:
+        (tmp_path / "again").mkdir()
+        log = RerunLog("connect", tmp_path / "again" / "run.rrd", url)
+        points(log, range(10))
+        log.close()
+        assert list((tmp_path / "again").iterdir()) == []
+    finally:
+        os.killpg(server.pid, signal.SIGKILL)
