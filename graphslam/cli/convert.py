@@ -17,8 +17,8 @@ INFORMATION_FIX = ("nearest", "isotropic", "refuse")
 TORO_NOISE_HELP = (
     "how TORO edge numbers are read and written: information (the "
     "format), sqrt_information (files written by iSAM), or auto "
-    "(default: sqrt_information for the files known to hold it, such as "
-    "gtsam's sphere2500.txt, said on stderr; else information)"
+    "(default: read as sqrt_information for the files known to hold it, such as "
+    "gtsam's sphere2500.txt, said on stderr, else information; written as information)"
 )
 INFORMATION_FIX_HELP = (
     "an information matrix that is not positive definite is written as "
@@ -78,10 +78,19 @@ def cmd_convert(args: argparse.Namespace) -> int:
     self_edges = self_edges_note(graph)
     if self_edges:  # not written: the output holds every other edge, numbers unchanged
         notes.append(self_edges)
-    if fmt == "toro":  # --toro-noise says how TORO numbers are written too (auto: as read)
-        converted = dataclasses.replace(
-            converted, noise=graph.noise if args.toro_noise == "auto" else args.toro_noise
-        )
+    if fmt == "toro":
+        # auto writes information, what the format says and every reader takes: written
+        # as read, sphere2500's square roots came back as information from the second
+        # read on (only the file itself is known to hold them), its weights changed unsaid
+        noise = "information" if args.toro_noise == "auto" else args.toro_noise
+        if graph.noise == "sqrt_information" and noise == "information":
+            notes.append(
+                "the edges' square-root numbers are written as information, as TORO readers "
+                "take them (--toro-noise sqrt_information writes square roots)"
+            )
+        converted = dataclasses.replace(converted, noise=noise)
+    elif args.toro_noise != "auto" and graph.format != "toro":
+        notes.append(f"--toro-noise {args.toro_noise} did nothing: it acts only on TORO files")
     for note in notes:
         warn(note)
     try:

@@ -8,7 +8,7 @@ the estimate), ``closures.csv`` and ``metrics.json``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -427,7 +427,10 @@ def write_outputs(
     if stop_requested():  # asked while the outputs are written: say so in them
         run_metrics.interrupted = True
     graph_path = out_dir / ("graph" + graph_writer.EXTENSIONS[graph.format])
-    writes(paths, "graph", graph_path, graph_writer.write_pose_graph, graph.with_vertices(result.params))
+    # numbers as information whatever the input held (sphere2500's square roots, written
+    # as read, came back as information from graph.graph: other weights, unsaid)
+    solved = replace(graph.with_vertices(result.params), noise="information")
+    writes(paths, "graph", graph_path, graph_writer.write_pose_graph, solved)
     writes(paths, "closures", out_dir / "closures.csv", write_closures_csv, graph, result)
     writes(paths, "metrics", out_dir / "metrics.json", writers.write_json, run_metrics.to_dict())
     if truth is not None:

@@ -167,3 +167,28 @@ def test_a_viewer_that_dies_during_the_run_leaves_the_whole_recording(tmp_path):
         assert list((tmp_path / "again").iterdir()) == []
     finally:
         os.killpg(server.pid, signal.SIGKILL)
+
+
+def test_sphere2500_keeps_its_weights_through_the_toolkits_own_files(tmp_path, capsys):
+    """gtsam's sphere2500.txt (square-root numbers, known by its hash) converted to TORO
+    was written as read: the copy, no longer known, was read as information, and its
+    weights changed unsaid (cost 364 against 7403). TORO is now written as information."""
+    import gtsam
+
+    from graphslam.cli.main import main
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+
+    src = gtsam.findExampleDataFile("sphere2500.txt")
+    assert main(["convert", src, str(tmp_path / "s.graph")]) == 0
+    assert "written as information" in capsys.readouterr().err
+    direct = read_pose_graph_file(src)
+    again = read_pose_graph_file(tmp_path / "s.graph")
+    assert direct.noise == "sqrt_information" and again.noise == "information"
+    np.testing.assert_allclose(again.information, direct.information, rtol=1e-6)
+    # and a flag that acts on TORO files only says so on a g2o one
+    assert main(["convert", str(tmp_path / "s.graph"), str(tmp_path / "s.g2o")]) == 0
+    assert (
+        main(["convert", str(tmp_path / "s.g2o"), str(tmp_path / "t.g2o"), "--toro-noise", "information"])
+        == 0
+    )
+    assert "--toro-noise information did nothing" in capsys.readouterr().err
