@@ -362,8 +362,9 @@ def metrics(
         # how many poses the ATE covers: truth may cover a tenth of them (RRR's GPS)
         ate_poses=None if truth is None else int(np.isin(truth[0], graph.ids).sum()),
         odometry_ate_rmse_m=odometry_ate_m,
-        interrupted=result.cut is not None or stop_requested(),
-        converged=not result.lm_capped and not stalled,
+        interrupted=(stopped := result.cut is not None or stop_requested()),
+        # a solve cut by a signal did not converge, whatever its last step did
+        converged=not stopped and not result.lm_capped and not stalled,
         # the reader's doubts about the file (degrees, non-unit quaternions, repeats)
         warnings=[
             *graph.warnings,

@@ -318,7 +318,15 @@ class RerunLog:
             # this run ends, and a run that dies leaves no stub (the finalizer).
             self._partial = temporary_beside(Path(path))
             weakref.finalize(self, self._partial.unlink, missing_ok=True)
-            self.rec.save(str(self._partial))
+            try:
+                self.rec.save(str(self._partial))
+            except RuntimeError as e:  # Rerun's writer could not start (hostile pass 18:
+                # a pose-graph run's recording, opened after its files filled the disk)
+                self._partial.unlink(missing_ok=True)
+                reason = write_limit_reached(self._partial.parent) or str(e).splitlines()[0]
+                raise ViewerUnavailable(
+                    f"the recording could not be started ({reason}); no {Path(path).name} is kept"
+                ) from None
         elif mode == "spawn":
             # Started by path (it may not be on PATH) and without connecting, so a
             # viewer that dies at once (no display) is noticed here, not as a

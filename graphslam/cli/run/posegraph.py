@@ -149,9 +149,14 @@ def record(args, graph, result, folder: OutputFolder, paths: dict[str, Path]) ->
     """Rerun recording of the optimised graph, rejected closures in their own colour
     (listed in ``paths`` when it was kept)."""
     from graphslam.pipelines.posegraph import solved_graph
+    from graphslam.visualisation.recording import ViewerUnavailable
     from graphslam.visualisation.spatial import log_pose_graph
 
-    log = folder.open_recorder(open_posegraph_recording, args.rerun, "run.rrd", args.rerun_url)
+    try:  # opened after the run's files: a disk they filled costs the recording only
+        log = folder.open_recorder(open_posegraph_recording, args.rerun, "run.rrd", args.rerun_url)
+    except ViewerUnavailable as e:
+        warn(str(e))
+        return
     log_pose_graph(log, solved_graph(graph, result), result.params, result.rejected)
     folder.close_recorder(paths)
 
@@ -224,7 +229,7 @@ def format_summary(metrics) -> str:
     ]
     if metrics.interrupted:
         rows.append(("interrupted", f"yes: {metrics.poses} poses solved"))
-    if not metrics.converged:
+    if not metrics.converged and not metrics.interrupted:  # (a cut solve says so above)
         tries = (
             "--backend isam2, another --init"
             if not registry.backend_row(metrics.backend).streams

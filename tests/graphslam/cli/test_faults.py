@@ -138,7 +138,9 @@ def test_pose_graph_signal_keeps_every_file(tmp_path, backend, at, sig):
     assert {p.name for p in out.iterdir()} == {"trajectory.tum", "graph.graph", "closures.csv",
                                                "metrics.json", "run.rrd"}
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["interrupted"] is True
+    # a cut solve did not converge (it said "converged": true, hostile pass 18); one
+    # stopped while its files were written had
+    assert metrics["interrupted"] is True and metrics["converged"] is (at == "write")
     traj = np.loadtxt(out / "trajectory.tum", ndmin=2)
     # a stop between iSAM2 updates keeps the poses added so far, else every pose
     assert len(traj) == metrics["poses"] == (40 if at.startswith("step") else 100)

@@ -192,3 +192,27 @@ def test_sphere2500_keeps_its_weights_through_the_toolkits_own_files(tmp_path, c
         == 0
     )
     assert "--toro-noise information did nothing" in capsys.readouterr().err
+
+
+def test_a_pose_graph_recording_that_cannot_start_costs_only_itself(tmp_path, capsys, monkeypatch):
+    """A pose-graph run opens its recording after writing its files; on a disk they
+    filled, Rerun's writer refused to start and the traceback lost the run's summary
+    (hostile pass 18: "Failed to encode LogMsg ... No space left on device")."""
+    gtsam = pytest.importorskip("gtsam")
+    import rerun
+
+    from graphslam.cli.main import main
+
+    def full_disk(self, path, *args, **kwargs):
+        raise RuntimeError("Failed to encode LogMsg: Failed to write: No space left on device (os error 28)")
+
+    monkeypatch.setattr(rerun.RecordingStream, "save", full_disk)
+    out = tmp_path / "o"
+    argv = ["run", "--dataset", gtsam.findExampleDataFile("w100.graph"), "--backend", "batch"]
+    assert main([*argv, "--rerun", "save", "--quiet", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "the recording could not be started" in captured.err and "Traceback" not in captured.err
+    assert "no run.rrd is kept" in captured.err
+    listed = [ln for ln in captured.out.splitlines() if ln.startswith("outputs in")]
+    assert listed and "run.rrd" not in listed[-1] and "graph.graph" in listed[-1]
+    assert not (out / "run.rrd").exists() and not list(out.glob(".*rrd*"))
