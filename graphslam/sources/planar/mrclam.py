@@ -18,12 +18,18 @@ What the reader makes of it:
 - **Odometry** integrated exactly between frames
   (:mod:`graphslam.sources.planar.mrclam_motion`) with the calibrated motion
   model and its propagated covariance; a gap in it beyond what the loggers leave
-  (:data:`ODOMETRY_GAP_MEDIANS`) is warned of (the command before it is held).
+  (:data:`ODOMETRY_GAP_MEDIANS`) is warned of (the command before it is held). A log
+  of one time is refused (nothing to integrate); lines repeating a time with another
+  command are counted (the later is held).
 - **Sightings**: barcodes mapped to subjects through ``Barcodes.dat``; a landmark
   subject is the landmark id (known association; back ends configured for
   unknown association ignore it and are scored against it). Sightings of
   the other robots are counted and left out (a single-robot run has no use for
-  them), as are barcodes ``Barcodes.dat`` does not list.
+  them), as are barcodes ``Barcodes.dat`` does not list and the robot's own barcode;
+  a line written twice is dropped (counted). Subjects and barcodes are whole numbers
+  below :data:`~graphslam.sources.planar.mrclam_checks.ID_LIMIT`. Most sightings
+  outside the odometry's span (clocks that disagree) are a warning
+  (:mod:`graphslam.sources.planar.mrclam_checks`).
 - **Truth**: a Vicon line written twice is dropped (counted), two poses at one
   time refused; the Vicon pose interpolated at each frame inside the truth's span
   (and not across a gap in it longer than :data:`TRUTH_MAX_GAP_S`); the
@@ -45,6 +51,15 @@ from typing import ClassVar
 import numpy as np
 
 from filters.association import t2_quantile
+from graphslam.sources.planar.mrclam_checks import (
+    ID_LIMIT,
+    check_one_time,
+    drop_repeated_sightings,
+    is_id,
+    odometry_repeats_note,
+    outside_span,
+    own_barcode_note,
+)
 from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel, held_commands, integrate
 from graphslam.sources.planar.synthetic import MAX_STEPS
 from graphslam.sources.tokens import NUMBER_TOKEN
@@ -354,8 +369,13 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
     barcodes: dict[int, int] = {}
     worn: dict[int, int] = {}  # subject -> its barcode
     for row, (subject, code) in enumerate(table):
-        if subject != int(subject) or code != int(code) or subject < 1 or code < 0:
-            raise InputError("subject and barcode must be whole numbers >= 1 and >= 0", path, lines[row])
+        if not (is_id(subject, 1) and is_id(code, 0)):  # a subject of 1e20 overflowed later
+            raise InputError(
+                f"subject and barcode must be whole numbers >= 1 and >= 0, below {ID_LIMIT} "
+                f"(got {subject:.15g} and {code:.15g})",
+                path,
+                lines[row],
+            )
         if int(code) in barcodes:
             raise InputError(f"barcode {int(code)} is given to two subjects", path, lines[row])
         # one subject under two barcodes merged two landmarks into one, quietly (ATE 0.08 ->
@@ -375,8 +395,13 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
         first_line: dict[int, int] = {}
         for row, values in enumerate(table):
             subject = values[0]
-            if subject != int(subject) or subject < 1:
-                raise InputError("a landmark's subject must be a whole number >= 1", path, lines[row])
+            if not is_id(subject, 1):
+                raise InputError(
+                    f"a landmark's subject must be a whole number >= 1, below {ID_LIMIT} "
+                    f"(got {subject:.15g})",
+                    path,
+                    lines[row],
+                )
             first = first_line.get(int(subject))
             if first is not None:  # which is the truth? A map scored against either would be wrong
                 raise InputError(
@@ -543,6 +568,7 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if len(odo) == 0:
         raise InputError("no odometry line", odo_path)
     check_times(odo, lines, odo_path)
+    check_one_time(odo, lines, odo_path)
     _check_time_unit(odo, odo_path)
     _check_speeds(odo, lines, odo_path)
     meas_path = folder / f"Robot{n}_Measurement.dat"
@@ -601,8 +627,10 @@ def _check_speeds(odo, lines, path: Path) -> None:
 def _check_sightings(meas, lines, path: Path) -> None:
     for row in range(len(meas)):
         _, code, rng, bearing = meas[row]
-        if code != int(code) or code < 0:
-            raise InputError(f"barcode {code:g} is not a whole number >= 0", path, lines[row])
+        if not is_id(code, 0):
+            raise InputError(
+                f"barcode {code:.15g} is not a whole number >= 0 below {ID_LIMIT}", path, lines[row]
+            )
         if not 0.0 < rng < 1e3:
             raise InputError(f"range {rng:g} m is not in (0, 1000)", path, lines[row])
         if not abs(bearing) <= 2 * math.pi:
@@ -687,13 +715,16 @@ def robot_track(
     """Frames at the landmark sightings, at least every ``frame_every_s``; odometry
     integrated between them. With ``extra_times`` (several robots in one graph), also
     at this robot's sightings of the others and at ``extra_times`` (when they see it)."""
-    notes: list[str] = []
+    notes = odometry_repeats_note(n, odo)
     gap_s, warnings = odometry_gaps(n, odo[:, 0])
     if truth is not None:
         truth, repeated = drop_repeats(truth)
         if repeated:
             notes.append(f"robot {n}: {repeated} repeated lines of Robot{n}_Groundtruth.dat dropped")
         truth = truth if len(truth) >= 2 else None
+    meas, repeated = drop_repeated_sightings(meas)  # one sighting, not two
+    if repeated:
+        notes.append(f"robot {n}: {repeated} repeated lines of Robot{n}_Measurement.dat dropped")
     end_s = float(odo[-1, 0]) + gap_s  # the last command holds as long as between two lines
     if len(meas) == 0:  # a landmark-SLAM run on odometry alone: said, not only as 0 landmarks
         notes.append(f"robot {n}: Robot{n}_Measurement.dat holds no sighting (odometry only)")
@@ -705,16 +736,13 @@ def robot_track(
             f"robot {n}: {int(unknown.sum())} sightings of barcodes Barcodes.dat does "
             f"not list ({', '.join(map(str, codes))}) in the whole log dropped"
         )
-    keep = ~unknown & (subject != n) & (meas[:, 0] >= odo[0, 0]) & (meas[:, 0] <= end_s)
-    early = int((~unknown & (meas[:, 0] < odo[0, 0])).sum())
-    if early:
-        notes.append(f"robot {n}: {early} sightings before the first odometry dropped")
-    late = ~unknown & (meas[:, 0] > end_s)
-    if late.any():  # no motion is known there: holding the last command would invent it
-        notes.append(
-            f"robot {n}: {int(late.sum())} sightings after its odometry ends dropped (odometry to "
-            f"{odo[-1, 0] - odo[0, 0]:.1f} s into the log, sightings to {meas[-1, 0] - odo[0, 0]:.1f} s)"
-        )
+    own = subject == n
+    notes.extend(own_barcode_note(n, meas, own))
+    keep, said, late_warning = outside_span(
+        n, meas[:, 0], ~unknown & ~own, float(odo[0, 0]), end_s, float(odo[-1, 0])
+    )
+    notes.extend(said)
+    warnings.extend(late_warning)
     meas, subject = meas[keep], subject[keep]
     is_robot = np.isin(subject, list(ROBOT_SUBJECTS))
     if extra_times is None:

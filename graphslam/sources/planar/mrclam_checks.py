@@ -1,0 +1,126 @@
+"""Checks of an MRCLAM log beyond its lines' syntax, for :mod:`graphslam.sources.planar.mrclam`
+(hostile pass on its ids, its odometry and what its sightings lose):
+
+- subjects and barcodes are whole numbers below :data:`ID_LIMIT`, refused naming file and
+  line otherwise;
+- an odometry log with one time only is refused (nothing to integrate);
+- odometry lines repeating a time with another command are counted (the later is held);
+- a sighting line written twice is dropped and counted, as a repeated Vicon line is;
+- sightings of the robot's own barcode are counted; sightings outside the odometry's span
+  are a warning, not a note, when that is all of them or the odometry covers under half
+  of their time span (clocks that disagree, a file cut short).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from slamcore.errors import InputError
+
+#: Subjects and barcodes must be below this (2**31). They become landmark ids: gtsam
+#: Symbol indices (56 bits), int64 arrays, the id columns of the outputs and of other
+#: tools reading them (int32 fields). A subject of 1e20 overflowed int64 (a traceback),
+#: one of 2**56 or more gtsam's Symbol index; 2**31 fits every one of them, and MRCLAM's
+#: own barcodes and subjects are two-digit numbers.
+ID_LIMIT = 2**31
+
+
+def is_id(value: float, least: int) -> bool:
+    """Whether ``value`` (a finite float of a table) is a whole number from ``least`` to
+    :data:`ID_LIMIT` - 1."""
+    return least <= value < ID_LIMIT and value == int(value)
+
+
+def check_one_time(odo: np.ndarray, lines: list[int], path: Path) -> None:
+    """InputError naming ``path`` when its odometry ``odo`` (K >= 1, 3), time-ordered, holds
+    a single time: its first command would be held over the whole log, unsaid."""
+    if odo[-1, 0] != odo[0, 0]:
+        return
+    held = "one command" if len(odo) == 1 else f"{len(odo)} commands, all at one time"
+    raise InputError(
+        f"holds {held} (at {odo[0, 0]:.3f} s): the motion cannot be integrated from it "
+        "(its command would be held over the whole log); at least two times are needed",
+        path,
+        lines[0],
+    )
+
+
+def odometry_repeats_note(n: int, odo: np.ndarray) -> list[str]:
+    """A note counting robot ``n``'s odometry lines that repeat the time of the line before
+    with another command: the later is held (the earlier lasts no time), as
+    :func:`~graphslam.sources.planar.mrclam_motion.integrate` holds them."""
+    other = (np.diff(odo[:, 0]) == 0) & np.any(odo[1:, 1:] != odo[:-1, 1:], axis=1)
+    count = int(other.sum())
+    if not count:
+        return []
+    return [
+        f"robot {n}: {count} lines of Robot{n}_Odometry.dat repeat the time of the line before "
+        "with another command: the later of each is held (the earlier lasts no time)"
+    ]
+
+
+def drop_repeated_sightings(meas: np.ndarray) -> tuple[np.ndarray, int]:
+    """``meas`` (M, 4) without the rows equal to an earlier row (one sighting written
+    twice: same time, barcode, range and bearing), in order, and how many."""
+    if len(meas) < 2:
+        return meas, 0
+    _, first = np.unique(meas, axis=0, return_index=True)
+    return meas[np.sort(first)], len(meas) - len(first)
+
+
+def own_barcode_note(n: int, meas: np.ndarray, own: np.ndarray) -> list[str]:
+    """A note counting robot ``n``'s sightings (rows of ``meas`` marked by ``own``) of its
+    own barcode, dropped (a camera cannot see its robot)."""
+    if not own.any():
+        return []
+    codes = ", ".join(str(int(c)) for c in sorted(set(meas[own, 1].tolist())))
+    return [f"robot {n}: {int(own.sum())} sightings of its own barcode ({codes}) in the whole log dropped"]
+
+
+#: Share of the sightings' time span the odometry must cover, below which dropping those
+#: outside it is a warning, not a note: the run then holds a small part of the log
+#: (logs whose clocks disagree, a file cut short). A log cut at its start is not warned
+#: of (Dataset 6's robot 1 from 30 s on: 56 % of its sightings dropped, 78 % of their
+#: span covered); all sightings dropped always is (the run is odometry only).
+OUTSIDE_SPAN_WARN_SHARE = 0.5
+
+
+def outside_span(
+    n: int, times_s: np.ndarray, usable: np.ndarray, start_s: float, end_s: float, odo_end_s: float
+) -> tuple[np.ndarray, list[str], list[str]]:
+    """Which sightings (times ``times_s`` (M,), those ``usable`` of a known subject other
+    than robot ``n``) lie in ``[start_s, end_s]``, and the notes or the warning
+    (:data:`OUTSIDE_SPAN_WARN_SHARE`) on those that do not (before the first odometry
+    line, after ``end_s``; its last line at ``odo_end_s``)."""
+    early = usable & (times_s < start_s)
+    late = usable & (times_s > end_s)
+    inside = usable & ~early & ~late
+    out, total = int(early.sum() + late.sum()), int(usable.sum())
+    if not out:
+        return inside, [], []
+    t0, t1 = float(times_s[usable].min()), float(times_s[usable].max())
+    covered = max(0.0, min(end_s, t1) - max(start_s, t0)) / (t1 - t0) if t1 > t0 else 0.0
+    if out == total or covered < OUTSIDE_SPAN_WARN_SHARE:
+        dropped = (
+            f"all {total} of its sightings fall outside its odometry's span and are dropped: robot {n} "
+            "runs on odometry alone"
+            if out == total
+            else f"{out} of its {total} sightings fall outside its odometry's span and are dropped"
+        )
+        warning = (
+            f"robot {n}: {dropped} (sightings {t0:.3f}-{t1:.3f} s, odometry {start_s:.3f}-{odo_end_s:.3f} s, "
+            f"covering {100 * covered:.0f} % of theirs; {int(early.sum())} before it, {int(late.sum())} "
+            "after): do the logs' clocks disagree, or is a file cut?"
+        )
+        return inside, [], [warning]
+    notes = []
+    if early.any():
+        notes.append(f"robot {n}: {int(early.sum())} sightings before the first odometry dropped")
+    if late.any():  # no motion is known there: holding the last command would invent it
+        notes.append(
+            f"robot {n}: {int(late.sum())} sightings after its odometry ends dropped (odometry to "
+            f"{odo_end_s - start_s:.1f} s into the log, sightings to {times_s[-1] - start_s:.1f} s)"
+        )
+    return inside, notes, []
