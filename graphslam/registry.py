@@ -217,6 +217,20 @@ def is_builtin_dataset(spec: str) -> bool:
     return spec in DATASETS or spec in VISUAL_DATASETS
 
 
+def shadowed_dataset_name(spec) -> str | None:
+    """The sentence when ``spec`` is both a built-in name and a file or folder here
+    (hostile pass 18: which one was read was unsaid), else None. A built-in pose graph
+    gives way to the file (a user's own ``w10000``), the other built-ins do not."""
+    from graphslam.sources.builtin_posegraphs import BUILTIN_POSE_GRAPHS
+
+    name = str(spec)
+    if not (name in BUILTIN_POSE_GRAPHS or is_builtin_dataset(name)) or not Path(name).exists():
+        return None
+    if name in BUILTIN_POSE_GRAPHS:
+        return f"{name} is read from the file of that name here, not the built-in graph {name}"
+    return f"{name} is the built-in data set; the file of that name here is not read (give ./{name} for it)"
+
+
 def no_such_dataset(shown: str = "") -> str:
     """The sentence for a dataset that is neither built in nor a file or folder
     (``shown``: its name, where the error does not already say it)."""

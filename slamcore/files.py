@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import functools
 import os
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -185,6 +186,7 @@ def check_no_folder_at(folder: str | Path, names: Iterable[str], flag: str = "--
             raise ConfigError(
                 f"{flag} {folder}: {name} there is a folder; this command writes a file of that name"
             )
+        check_special_file(Path(folder) / name, flag)
 
 
 def check_output_file(path: str | Path, flag: str = "--out") -> Path:
@@ -197,8 +199,24 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     check_name_lengths(path, flag)
     if path.is_dir():
         raise ConfigError(f"{flag} {path} is a folder; give a file name")
+    check_special_file(path, flag)
     check_output_dir(path.parent if str(path.parent) else Path("."), flag)
     return path
+
+
+def check_special_file(path: str | Path, flag: str = "--out") -> None:
+    """Refuse an output that is a device, pipe or socket (``/dev/stdout``, a FIFO): the
+    output is written beside it and moved into place, which replaced the pipe with a
+    regular file, unsaid (hostile pass 18)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # not there yet (or a dangling link, replaced as a file would be)
+        return
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise ConfigError(
+            f"{flag} {path} is not a regular file (a device, pipe or socket): the output is "
+            "written beside it and moved over it, so give a file name"
+        )
 
 
 def _check_writable(folder: Path, flag: str, shown: Path) -> None:

@@ -264,9 +264,33 @@ def report_outputs(summary: str, out_dir: Path, paths: dict, interrupted: bool, 
     return EXIT_OK
 
 
+#: Longest error line printed: a full path (PATH_MAX 4096) and a sentence fit;
+#: a message that quotes a huge token whole (a bug) cannot flood stderr.
+MAX_ERROR_CHARS = 8000
+
+
+def one_line(message: str) -> str:
+    """``message`` on one line and at most :data:`MAX_ERROR_CHARS` characters."""
+    message = " ".join(message.splitlines())
+    if len(message) > MAX_ERROR_CHARS:
+        message = f"{message[:MAX_ERROR_CHARS]}... ({len(message)} characters)"
+    return message
+
+
 def warn(message: str) -> None:
-    """One ``graphslam: warning:`` line on stderr."""
-    print(f"graphslam: warning: {message}", file=sys.stderr, flush=True)
+    """One ``graphslam: warning:`` line on stderr (one, though a file name it quotes holds
+    a newline: hostile pass 18)."""
+    print(f"graphslam: warning: {one_line(message)}", file=sys.stderr, flush=True)
+
+
+def warn_shadowed_dataset(spec, flag: str = "--dataset") -> None:
+    """A warning when ``spec`` names both a built-in data set and a file here
+    (:func:`graphslam.registry.shadowed_dataset_name`)."""
+    from graphslam import registry
+
+    doubt = registry.shadowed_dataset_name(spec)
+    if doubt is not None:
+        warn(f"{flag} {doubt}")
 
 
 def invocation(args) -> dict:

@@ -147,7 +147,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     """The comparison's exit status, and whether this process read every config section
     its runs read (the 2-D one: :func:`cmd_compare` then names the others)."""
     from graphslam import registry
-    from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.cli.common import check_rerun_flags, rerun_sink, warn_shadowed_dataset
     from graphslam.pipelines import compare
 
     check_rerun_flags(args)
@@ -161,6 +161,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         check_out_keeps_the_camera(args.dataset, args.out)
     rerun_mode = rerun_sink(args.rerun, args.rerun_url, "compare.rrd")
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused flag
+    warn_shadowed_dataset(args.dataset)
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")

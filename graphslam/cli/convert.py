@@ -50,10 +50,10 @@ def register(sub) -> None:
 
 def cmd_convert(args: argparse.Namespace) -> int:
     from graphslam import registry
-    from graphslam.cli.common import warn
+    from graphslam.cli.common import warn, warn_shadowed_dataset
     from graphslam.outputs.posegraph import convert, write_pose_graph
     from graphslam.sources.planar.posegraph import self_edges_note
-    from slamcore.files import check_not_inputs
+    from slamcore.files import check_not_inputs, check_special_file
 
     fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
     if fmt is None:
@@ -63,7 +63,9 @@ def cmd_convert(args: argparse.Namespace) -> int:
         )
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
+    check_special_file(args.output, "OUT")
     check_not_inputs([("OUT", args.output)], {"IN": args.input})
+    warn_shadowed_dataset(args.input, "IN")
     graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
     converted, notes = convert(graph, fmt)
     notes[:0] = graph.warnings  # the reader's doubts: the output carries them on

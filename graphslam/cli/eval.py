@@ -197,7 +197,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         # a stop while one estimate is scored ends the scoring after it, and the estimates
         # scored are written (Ctrl-C on the third of three lost the first two, seconds each
         # on 600 000 poses)
-        guard.held_note = "finishing the estimate being scored; the ones scored are kept"
+        guard.held_note = "stopping after the estimate being scored; those scored by then are written"
         refused: list[tuple[Path, str]] = []
         try:
             results = evaluate_files(
@@ -211,8 +211,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
             )
         finally:
             guard.held_note = None
-        if guard.requested and not results:
-            raise KeyboardInterrupt  # nothing scored: nothing to keep
+        if guard.requested and not results:  # nothing scored: nothing to keep, and said
+            # (the held note had said "the ones scored are kept", and nothing was written)
+            print(
+                f"graphslam: interrupted ({guard.signal_name}) before any estimate was scored: "
+                "nothing written",
+                file=sys.stderr,
+            )
+            return EXIT_INTERRUPTED
     # a stop scores a prefix of the estimates that were not refused
     done = {Path(r.path) for r in results} | {path for path, _ in refused}
     unscored = [str(e) for e in args.estimates if Path(e) not in done] if guard.requested else []

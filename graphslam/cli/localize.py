@@ -89,7 +89,7 @@ def register(sub) -> None:
 
 def cmd_localize(args: argparse.Namespace) -> int:
     from graphslam import registry
-    from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.cli.common import check_rerun_flags, rerun_sink, warn_shadowed_dataset
     from graphslam.maps.files import load_map
     from graphslam.pipelines import localize_run
     from graphslam.pipelines.session import LocaliseSession
@@ -101,6 +101,7 @@ def cmd_localize(args: argparse.Namespace) -> int:
     args.rerun = rerun_sink(args.rerun, args.rerun_url, "localize.rrd")
     frames = None if args.frames is None else parse_frames(args.frames)
     registry.check_dataset_named(args.dataset)  # a typo is said as one, not as a misused --topics
+    warn_shadowed_dataset(args.dataset)
     registry.check_topics_flag(args.dataset, args.topics)
     if not registry.is_visual_dataset(args.dataset):
         from slamcore.errors import InputError

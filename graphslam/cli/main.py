@@ -16,7 +16,7 @@ import signal
 import sys
 from typing import NoReturn
 
-from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments
+from graphslam.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_path_arguments, one_line
 from slamcore.errors import QUOTE_CHARS, GraphSlamError, quote
 from slamcore.files import write_error_line
 
@@ -93,18 +93,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: Exit status when stdout's reader closed the pipe (128 + SIGPIPE, as a shell reports it).
 EXIT_BROKEN_PIPE = 141
-
-#: Longest error line printed: a full path (PATH_MAX 4096) and a sentence fit;
-#: a message that quotes a huge token whole (a bug) cannot flood stderr.
-MAX_ERROR_CHARS = 8000
-
-
-def one_line(message: str) -> str:
-    """``message`` on one line and at most :data:`MAX_ERROR_CHARS` characters."""
-    message = " ".join(message.splitlines())
-    if len(message) > MAX_ERROR_CHARS:
-        message = f"{message[:MAX_ERROR_CHARS]}... ({len(message)} characters)"
-    return message
 
 
 class _NamedStdout:

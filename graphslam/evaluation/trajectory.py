@@ -323,6 +323,8 @@ class TrajectoryEval:
             not kept), for :mod:`.trajectory_doubts`.
         shared_matches: matched pairs whose reference or estimate pose is also in
             another pair (evo's association allows it; a wide ``--max-diff`` does it).
+        reference_share: the matches' time span over the reference's: how much of the
+            reference the ATE covers (None when paired by index: its own doubt says so).
     """
 
     ref: np.ndarray
@@ -339,6 +341,7 @@ class TrajectoryEval:
     estimate_poses: int
     est_matched: np.ndarray | None = None
     shared_matches: int = 0
+    reference_share: float | None = None
 
     @property
     def matched_share(self) -> float:
@@ -363,6 +366,7 @@ class TrajectoryEval:
             "estimate_poses": self.estimate_poses,
             "reference_poses": self.reference_poses,
             "matched_share": self.matched_share,
+            "reference_share": self.reference_share,
             "scale": self.scale,
         }
 
@@ -419,4 +423,14 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
         len(est_wTc),
         est_matched=matched,
         shared_matches=int(shared),
+        reference_share=_reference_share(ref_t, stamps),
     )
+
+
+def _reference_share(ref_t, stamps: np.ndarray) -> float | None:
+    """The matches' time span over the reference's (None when paired by index): a
+    100-pose run scored against an hour of truth covers little of it."""
+    if ref_t is None:
+        return None
+    whole = float(np.max(ref_t) - np.min(ref_t))
+    return 1.0 if whole <= 0 else float(np.ptp(stamps)) / whole

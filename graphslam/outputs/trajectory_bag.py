@@ -24,6 +24,8 @@ __all__ = ["TOPIC", "FRAME_ID", "check_bag_writer", "write_trajectory_bag"]
 TOPIC = "/graphslam/trajectory"
 FRAME_ID = "world"
 _POSE = "geometry_msgs/msg/PoseStamped"
+#: rosbags writes the stamp's seconds as int32 (builtin_interfaces/Time), whatever ROS 1 allows
+ROS1_TIME_LIMIT_S = 2.0**31
 
 
 def check_bag_writer() -> None:
@@ -48,6 +50,12 @@ def write_trajectory_bag(path: str | Path, stamps_s: np.ndarray, wTc: np.ndarray
         raise ValueError(f"{len(stamps_s)} stamps for {len(wTc)} poses")
     if len(stamps_s) and (not np.isfinite(stamps_s).all() or stamps_s.min() < 0):
         raise InputError("a ROS bag takes finite times >= 0; the trajectory has others", path)
+    if len(stamps_s) and stamps_s.max() >= ROS1_TIME_LIMIT_S:  # its seconds are an int32
+        raise InputError(
+            f"a ROS 1 bag takes times below 2^31 s (the year 2038); the trajectory reaches "
+            f"{stamps_s.max():.6g} s (a pose graph's times are its pose ids)",
+            path,
+        )
     ts = get_typestore(Stores.ROS1_NOETIC)
     types = ts.types
     q = rotation_to_quaternion(wTc[:, :3, :3])

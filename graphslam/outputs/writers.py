@@ -137,7 +137,7 @@ def write_json(path: Path, data: dict) -> None:
 #: Several robots in one run (MRCLAM ``--robot all``) write one trajectory per robot.
 AGENT_OUTPUT_NAMES = tuple(
     f"{kind}_robot{n}.tum" for n in range(1, 6) for kind in ("trajectory", "ground_truth")
-)
+) + tuple(f"trajectory_robot{n}.bag" for n in range(1, 6))  # (--write-bag)
 RUN_OUTPUT_NAMES = (
     "trajectory.tum",
     "ground_truth.tum",

@@ -34,6 +34,7 @@ from graphslam.evaluation.trajectory import (
     evaluate,
 )
 from graphslam.evaluation.trajectory_doubts import clock_doubts, doubts
+from graphslam.pipelines.common import signal_hook
 from graphslam.sources.ground_truth import Trajectory, check_not_colmap, read_times, read_trajectory
 from slamcore.errors import ConfigError, GraphSlamError, InputError, LocatedError
 
@@ -114,6 +115,7 @@ def evaluate_files(
     scores of the valid ones); without it, or when every estimate is refused, the
     first refusal is raised."""
     ref = load(ground_truth, fmt, times)
+    signal_hook("eval")  # (test hook: a stop before any estimate is scored)
     keep_going = refused is not None and len(estimates) > 1
     failures: list[tuple[Path, GraphSlamError]] = []
 
@@ -224,7 +226,7 @@ def stamp_doubts(ref: Trajectory, est: Trajectory) -> list[str]:
     """Sentences on stamps that pair the wrong poses without failing: KITTI files of
     different lengths paired by line, stamps too large to be seconds, frame indices
     against times."""
-    out = []
+    out = [f"the {who}'s {note}" for who, t in (("reference", ref), ("estimate", est)) for note in t.notes]
     if ref.stamps_s is None and est.stamps_s is None and len(ref.wTc) != len(est.wTc):
         n = min(len(ref.wTc), len(est.wTc))
         out.append(
@@ -266,6 +268,12 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
                 f"{options.max_diff_s} s, offset {options.offset_s} s); the ATE covers "
                 "those alone"
             )
+        elif e.reference_share is not None and e.reference_share < LOW_MATCHED_SHARE:
+            out.append(  # (the reverse of the case above)
+                f"{r.label or Path(r.path).name}: the {len(e.ref)} matched poses span "
+                f"{100 * e.reference_share:.0f} % of the reference's time: the ATE scores that "
+                "part alone"
+            )
         if options.align == "se3" and len(e.ref) < 3:
             # two positions and a rigid fit: only their distance apart is left to score
             # (hostile pass 17: an ATE of 0.0000, nothing said)
@@ -273,6 +281,12 @@ def coverage_warnings(results: list[EstimateResult], options: EvalOptions) -> li
                 f"{r.label or Path(r.path).name}: only {len(e.ref)} poses matched, and an SE(3) fit "
                 "to 2 positions leaves only their distance apart to score: the ATE says almost "
                 "nothing (--align first scores them without a fit)"
+            )
+        elif options.align in ("none", "first") and len(e.ref) < 3:
+            out.append(
+                f"{r.label or Path(r.path).name}: only {len(e.ref)} poses matched: the ATE is "
+                "theirs alone"
+                + (" (and the first's error is 0 by construction)" if options.align == "first" else "")
             )
     return out
 

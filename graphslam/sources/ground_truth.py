@@ -77,6 +77,8 @@ class Trajectory:
             file order).
         path: the file.
         names: COLMAP: (N,) the image file name of each pose, else None.
+        notes: how the reader took the poses where that changes the score, one clause
+            each ("header stamps all 0: ..."), said by ``graphslam eval``.
     """
 
     format: str
@@ -84,6 +86,7 @@ class Trajectory:
     wTc: np.ndarray
     path: str
     names: tuple[str, ...] | None = None
+    notes: tuple[str, ...] = ()
 
 
 def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -93,8 +93,10 @@ def check_count(tokens: list[str], expected: int, path, line_no: int, layout: st
 
 
 def iter_lines(path):
-    """``(line_no, tokens)`` of the non-blank lines of ``path`` not starting with ``#``;
-    a byte-order mark is not a token. InputError when the file cannot be read or is not
+    """``(line_no, tokens)`` of the non-blank lines of ``path``, cut at a ``#`` (a comment
+    line, or one ending a line: g2o's own reader ignores what follows its fields, and a
+    trailing ``# odometry`` was refused with a token count); a byte-order mark is not a
+    token. InputError when the file cannot be read or is not
     UTF-8 text."""
     path = Path(path)
     check_plain_text(path)
@@ -105,8 +107,8 @@ def iter_lines(path):
     with fh:
         try:
             for line_no, line in enumerate(fh, start=1):
-                s = line.strip()
-                if s and not s.startswith("#"):
-                    yield line_no, s.split()
+                tokens = line.split("#", 1)[0].split()
+                if tokens:
+                    yield line_no, tokens
         except UnicodeDecodeError as exc:
             raise InputError(f"not a text file: {exc}", path) from None

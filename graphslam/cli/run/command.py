@@ -149,7 +149,7 @@ def register(sub) -> None:
         action="store_true",
         help="also write the estimate as trajectory.bag (ROS 1, geometry_msgs/"
         "PoseStamped on /graphslam/trajectory; rosbag and evo read it; needs "
-        'pip install ".[bags]")',
+        'pip install ".[bags]"); with --robot all, trajectory_robotN.bag a robot',
     )
     add_config_option(p, "TOML or YAML file with [synthetic], [isam2] sections")
     add_max_steps_option(p)
@@ -287,7 +287,7 @@ def _add_image_options(vis) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the 2-D or the visual pipeline, as ``--dataset`` says; the exit status."""
     from graphslam import registry
-    from graphslam.cli.common import check_rerun_flags, rerun_sink
+    from graphslam.cli.common import check_rerun_flags, rerun_sink, warn_shadowed_dataset
     from graphslam.cli.out_folder import claim_out_dir
     from slamcore.errors import ConfigError, GraphSlamError
     from slamcore.files import check_output_dir
@@ -295,6 +295,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_rerun_flags(args)
     # a mistyped path is said as one, not as a flag that does not apply to it
     registry.check_dataset_named(args.dataset)
+    warn_shadowed_dataset(args.dataset)
     registry.check_topics_flag(args.dataset, args.topics)
     if args.write_bag:  # refused now, not after the run
         from graphslam.outputs.trajectory_bag import check_bag_writer
@@ -328,9 +329,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         status = _dispatch(args)
     except GraphSlamError as cut:  # a run cut by a bad frame or a failed back end keeps its estimate
-        if args.write_bag and _trajectory_written_since(args, started_ns):
+        if args.write_bag and (tums := _trajectories_written_since(args, started_ns)):
             try:
-                _write_bag(args)
+                _write_bag(tums)
             except GraphSlamError as e:  # the cut is the error to report; say this one too
                 raise GraphSlamError(f"{cut} (and trajectory.bag not written: {e})") from None
         earlier = _earlier_outputs(args, before)
@@ -340,8 +341,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         _remove_if_empty(made)
     # an earlier run's bag went with its other files (remove_stale_outputs)
-    if args.write_bag and status in (0, 130, 143) and _trajectory_written_since(args, started_ns):
-        _write_bag(args)  # a finished or stopped run's estimate
+    if args.write_bag and status in (0, 130, 143) and (tums := _trajectories_written_since(args, started_ns)):
+        _write_bag(tums)  # a finished or stopped run's estimate
     return status
 
 
@@ -372,15 +373,21 @@ def _earlier_outputs(args: argparse.Namespace, before: dict[str, tuple[int, int]
     return f"{out}/ still holds an earlier command's {', '.join(now)}, not this run's"
 
 
-def _trajectory_written_since(args: argparse.Namespace, started_ns: int) -> bool:
-    """This run wrote ``trajectory.tum`` (an earlier run's is never made a bag)."""
+def _trajectories_written_since(args: argparse.Namespace, started_ns: int) -> list[Path]:
+    """The ``trajectory.tum`` this run wrote, or with ``--robot all`` its
+    ``trajectory_robotN.tum`` (an earlier run's is never made a bag)."""
     out = getattr(args, "resolved_out", None)
     if out is None:
-        return False
-    try:
-        return (Path(out) / "trajectory.tum").stat().st_mtime_ns >= started_ns
-    except OSError:
-        return False
+        return []
+    out = Path(out)
+    written = []
+    for tum in [out / "trajectory.tum", *sorted(out.glob("trajectory_robot[0-9].tum"))]:
+        try:
+            if tum.stat().st_mtime_ns >= started_ns:
+                written.append(tum)
+        except OSError:
+            continue
+    return written
 
 
 def _remove_if_empty(folder: Path | None) -> None:
@@ -459,20 +466,21 @@ def _dispatch(args: argparse.Namespace) -> int:
     return planar.run(args)
 
 
-def _write_bag(args: argparse.Namespace) -> None:
-    """``--write-bag``: the run's ``trajectory.tum`` as ``trajectory.bag`` beside it (each
-    run command sets ``args.resolved_out``, its output folder)."""
+def _write_bag(tums: list[Path]) -> None:
+    """``--write-bag``: each trajectory file the run wrote (:func:`_trajectories_written_since`)
+    as a bag beside it: ``trajectory.bag``, or with ``--robot all`` one
+    ``trajectory_robotN.bag`` a robot (it wrote none)."""
     from graphslam.outputs.trajectory_bag import TOPIC, write_trajectory_bag
     from graphslam.sources.ground_truth import read_trajectory
     from slamcore.errors import GraphSlamError
 
-    tum = Path(args.resolved_out) / "trajectory.tum"
-    if not tum.is_file() or not any(
-        line.strip() and not line.startswith("#") for line in tum.read_text(encoding="utf-8").splitlines()
-    ):
-        return  # nothing estimated (a stop before the first pose)
-    trajectory = read_trajectory(tum, "tum")
-    if trajectory.stamps_s is None:  # TUM has a time column: read_trajectory broke its word
-        raise GraphSlamError(f"{tum}: read without its time column")
-    bag = write_trajectory_bag(tum.with_suffix(".bag"), trajectory.stamps_s, trajectory.wTc)
-    print(f"wrote {bag} (geometry_msgs/PoseStamped on {TOPIC})")
+    for tum in tums:
+        if not any(
+            line.strip() and not line.startswith("#") for line in tum.read_text(encoding="utf-8").splitlines()
+        ):
+            continue  # nothing estimated (a stop before the first pose)
+        trajectory = read_trajectory(tum, "tum")
+        if trajectory.stamps_s is None:  # TUM has a time column: read_trajectory broke its word
+            raise GraphSlamError(f"{tum}: read without its time column")
+        bag = write_trajectory_bag(tum.with_suffix(".bag"), trajectory.stamps_s, trajectory.wTc)
+        print(f"wrote {bag} (geometry_msgs/PoseStamped on {TOPIC})")

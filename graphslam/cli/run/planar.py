@@ -76,6 +76,12 @@ def run(args: argparse.Namespace) -> int:
         args.dataset, seed=args.seed, config=config, robot=getattr(args, "robot", None)
     )
     truth = None
+    if args.ground_truth is not None and dataset.agents:
+        raise ConfigError(
+            "--ground-truth with --robot all: one file cannot be every robot's truth (it was "
+            "applied to each); the folder's RobotN_Groundtruth.dat score them, or score one "
+            "robot against the file with --robot N"
+        )
     if args.ground_truth is not None:
         from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
 
@@ -162,6 +168,10 @@ def run(args: argparse.Namespace) -> int:
             log.finish(backend.name, result, backend)
             folder.close_recorder(paths)
     folder.finish(paths)
+    # on stderr, as every command's (the summary's stdout may go to a file, and the doubt
+    # with it, hostile pass 18); a stopped run's one line is its stop (metrics.json keeps them)
+    for doubt in [] if result.interrupted else metrics.warnings or []:
+        warn(doubt)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
         # the folder --save-map locked, wherever it was moved while the run went on
@@ -329,4 +339,4 @@ def format_summary(metrics) -> str:
         rows.append(("unmapped observations", metrics.unmapped_observations))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
-    return summary_table(rows) + "".join(f"\nWARNING: {w}" for w in (metrics.warnings or []))
+    return summary_table(rows)

@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
             args.save_map, save_run_map, args, mapper, result, backend, closer, tracker, args.quiet, prior_map
         )
     folder.finish(paths)
-    warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
+    say_doubts(args, config, metrics, sequence, stopped=cut is not None or result.interrupted)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
     writes.check(paths.values())
     return status
@@ -400,5 +400,17 @@ def format_summary(m) -> str:
         rows.append(("data", note))
     if m.interrupted:
         rows.append(("interrupted", "yes"))
-    table = summary_table(rows)
-    return table + "".join(f"\nWARNING: {w}" for w in (m.warnings or []))
+    return summary_table(rows)
+
+
+def say_doubts(args, config, metrics, sequence, stopped: bool) -> None:
+    """The file's unread sections, then the estimate's doubts on stderr, as every
+    command's (they were in the summary on stdout, which may go to a file: hostile pass
+    18); the reader's were said at the start, and a stopped run's one line is its stop."""
+    warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
+    if stopped:
+        return
+    said = {*sequence.warnings, *sequence.camera_warnings}
+    for doubt in metrics.warnings or []:
+        if doubt not in said:
+            warn(doubt)

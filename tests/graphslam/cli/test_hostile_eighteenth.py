@@ -216,3 +216,180 @@ def test_a_pose_graph_recording_that_cannot_start_costs_only_itself(tmp_path, ca
     listed = [ln for ln in captured.out.splitlines() if ln.startswith("outputs in")]
     assert listed and "run.rrd" not in listed[-1] and "graph.graph" in listed[-1]
     assert not (out / "run.rrd").exists() and not list(out.glob(".*rrd*"))
+
+
+def test_convert_into_a_pipe_is_refused_and_the_pipe_kept(tmp_path, capsys):
+    """convert IN /dev/stdout (or a FIFO) replaced the pipe with a regular file, unsaid:
+    the output is written beside and moved over it."""
+    import os
+    import stat
+
+    gtsam = pytest.importorskip("gtsam")
+    from graphslam.cli.main import main
+
+    fifo = tmp_path / "pipe.g2o"
+    os.mkfifo(fifo)
+    assert main(["convert", gtsam.findExampleDataFile("w100.graph"), str(fifo)]) == 2
+    err = capsys.readouterr().err
+    assert "is not a regular file" in err and len(err.strip().splitlines()) == 1
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+
+
+def test_an_output_folder_holding_a_pipe_under_an_output_name_is_refused(tmp_path):
+    import os
+
+    from slamcore.errors import ConfigError
+    from slamcore.files import check_output_dir
+
+    os.mkfifo(tmp_path / "sweep.csv")
+    with pytest.raises(ConfigError, match="not a regular file"):
+        check_output_dir(tmp_path, files=("sweep.csv",))
+    check_output_dir(tmp_path, files=("other.csv",))
+
+
+def test_a_bag_of_times_past_its_int32_seconds_is_one_line(tmp_path):
+    """--write-bag on a pose graph whose ids (its times) pass 2^31 ended in struct.error."""
+    pytest.importorskip("rosbags")
+    from graphslam.outputs.trajectory_bag import write_trajectory_bag
+    from slamcore.errors import InputError
+
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    with pytest.raises(InputError, match="below 2\\^31 s"):
+        write_trajectory_bag(tmp_path / "t.bag", np.array([0.0, 3e9]), poses)
+    assert not list(tmp_path.iterdir())
+    write_trajectory_bag(tmp_path / "t.bag", np.array([0.0, 2.0**31 - 1]), poses)  # the last second fits
+
+
+def test_a_g2o_line_ending_in_a_comment_is_read(tmp_path):
+    """``EDGE_SE2 ... # odometry`` was refused as "needs 12 tokens, got 14"."""
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+
+    commented, plain = tmp_path / "c.g2o", tmp_path / "p.g2o"
+    body = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0{}\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1{}\n"
+    commented.write_text(body.format("  # the second pose", " # odometry"))
+    plain.write_text(body.format("", ""))
+    a, b = read_pose_graph_file(commented), read_pose_graph_file(plain)
+    assert np.array_equal(a.edges, b.edges) and np.array_equal(a.measurements, b.measurements)
+    assert np.array_equal(a.vertices, b.vertices)
+
+
+def test_a_warning_quoting_a_name_with_a_newline_is_one_line(capsys):
+    from graphslam.cli.common import warn
+
+    warn("bad\nname.tum: 3 of 4 poses have no truth")
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("graphslam: warning: bad name.tum")
+
+
+def test_a_filter_on_a_pose_graph_says_its_skipped_closures_on_stderr(tmp_path, capsys):
+    """The EKF on a 2-D pose graph with closures printed "WARNING: ekf cannot use loop
+    closures" in the summary on stdout: piped to a file, the doubt went with it."""
+    gtsam = pytest.importorskip("gtsam")
+    from graphslam.cli.main import main
+
+    argv = ["run", "--dataset", gtsam.findExampleDataFile("w100.graph"), "--backend", "ekf"]
+    assert main([*argv, "--rerun", "off", "--quiet", "--out", str(tmp_path / "o")]) == 0
+    captured = capsys.readouterr()
+    assert "graphslam: warning: ekf cannot use loop closures" in captured.err
+    assert "cannot use loop closures" not in captured.out
+
+
+def _tum_line_file(path, stamps, xs):
+    path.write_text("".join(f"{t:.3f} {x:.3f} 0 0 0 0 0 1\n" for t, x in zip(stamps, xs)))
+    return path
+
+
+@pytest.mark.parametrize(
+    "align, n_est, said",
+    [
+        ("se3", 10, "span 9 % of the reference's time"),  # 10 of 100 poses, none said
+        ("first", 2, "only 2 poses matched: the ATE is theirs alone (and the first's"),
+        ("none", 2, "only 2 poses matched: the ATE is theirs alone"),
+    ],
+)
+def test_eval_says_how_little_of_the_reference_an_estimate_covers(tmp_path, capsys, align, n_est, said):
+    """An estimate of the first 10 poses of a 100-pose truth, or --align first/none on 2
+    matched poses, was scored unsaid (the reverse, an estimate mostly unmatched, warned)."""
+    from graphslam.cli.main import main
+
+    t = np.arange(100) * 0.1
+    ref = _tum_line_file(tmp_path / "ref.tum", t, t)
+    est = _tum_line_file(tmp_path / "est.tum", t[:n_est], t[:n_est] + 0.01)
+    argv = ["eval", str(ref), str(est), "--align", align, "--no-plot", "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    assert said in capsys.readouterr().err
+    assert (
+        main(["eval", str(ref), str(ref), "--align", align, "--no-plot", "--out", str(tmp_path / "p")]) == 0
+    )
+    assert "of the reference's time" not in capsys.readouterr().err  # all of it covered
+
+
+def test_eval_stopped_before_any_score_says_nothing_was_written(tmp_path):
+    """Ctrl-C while eval read its reference: the held note promised "the ones scored are
+    kept", then "interrupted", and nothing was written, unsaid."""
+    from tests.graphslam.cli.test_faults import graphslam
+
+    t = np.arange(50) * 0.1
+    ref = _tum_line_file(tmp_path / "ref.tum", t, t)
+    est = _tum_line_file(tmp_path / "est.tum", t, t)
+    done = graphslam(tmp_path, "eval", str(ref), str(est), "--no-plot", "--out", "o", at="eval")
+    assert done.returncode == 130 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == (
+        "graphslam: interrupted (SIGINT) before any estimate was scored: nothing written"
+    )
+    assert not (tmp_path / "o").exists()
+
+
+def test_robot_all_writes_a_bag_a_robot_and_refuses_one_truth_for_all(tmp_path, shared_data, capsys):
+    """--write-bag with --robot all wrote nothing, unsaid (no trajectory.tum); one
+    --ground-truth file was applied to every robot."""
+    pytest.importorskip("rosbags")
+    from graphslam.cli.main import main
+
+    mrclam = shared_data / "mrclam6"
+    if not mrclam.is_dir():
+        pytest.skip("no MRCLAM data")
+    common = [
+        "run",
+        "--dataset",
+        str(mrclam),
+        "--robot",
+        "all",
+        "--max-steps",
+        "30",
+        "--rerun",
+        "off",
+        "--quiet",
+    ]
+    assert main([*common, "--write-bag", "--out", str(tmp_path / "o")]) == 0
+    bags = sorted(p.name for p in (tmp_path / "o").glob("*.bag"))
+    estimated = sorted(  # (a robot not seen in the first 30 steps has no pose)
+        p.with_suffix(".bag").name
+        for p in (tmp_path / "o").glob("trajectory_robot*.tum")
+        if any(ln.strip() and not ln.startswith("#") for ln in p.read_text().splitlines())
+    )
+    assert len(bags) >= 2 and bags == estimated
+    capsys.readouterr()
+    truth = tmp_path / "o" / "ground_truth_robot1.tum"
+    assert main([*common, "--ground-truth", str(truth), "--out", str(tmp_path / "p")]) == 2
+    assert "--ground-truth with --robot all" in capsys.readouterr().err
+
+
+def test_a_built_in_name_that_is_also_a_file_here_says_which_is_read(tmp_path, monkeypatch, capsys):
+    """A file named w10000 (or synthetic) in the working folder: convert read the file,
+    run the built-in, neither said so."""
+    from graphslam.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    chain = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
+    (tmp_path / "w10000").write_text(chain)
+    assert main(["convert", "w10000", "out.g2o"]) == 0
+    assert "IN w10000 is read from the file of that name here" in capsys.readouterr().err
+    (tmp_path / "synthetic").write_text(chain)
+    assert main(["run", "--dataset", "synthetic", "--max-steps", "3", "--rerun", "off", "--quiet"]) == 0
+    assert "--dataset synthetic is the built-in data set" in capsys.readouterr().err
+    (tmp_path / "w10000").unlink()
+    assert (
+        main(["run", "--dataset", "synthetic-images", "--max-steps", "3", "--rerun", "off", "--quiet"]) == 0
+    )
+    assert "built-in" not in capsys.readouterr().err  # no file of its name here

@@ -23,8 +23,13 @@ def mrclam(shared_data) -> Path:
 def _robot1(mrclam: Path, tmp_path: Path, edit=None, name="Robot1_Odometry.dat") -> Path:
     folder = tmp_path / "mr"
     folder.mkdir()
-    for f in ("Barcodes.dat", "Landmark_Groundtruth.dat", "Robot1_Odometry.dat", "Robot1_Measurement.dat",
-              "Robot1_Groundtruth.dat"):
+    for f in (
+        "Barcodes.dat",
+        "Landmark_Groundtruth.dat",
+        "Robot1_Odometry.dat",
+        "Robot1_Measurement.dat",
+        "Robot1_Groundtruth.dat",
+    ):
         shutil.copy(mrclam / f, folder / f)
     if edit is not None:
         lines = (folder / name).read_text().splitlines()
@@ -35,7 +40,9 @@ def _robot1(mrclam: Path, tmp_path: Path, edit=None, name="Robot1_Odometry.dat")
 
 def test_mrclam_times_in_milliseconds_are_refused(mrclam, tmp_path):
     ms = _robot1(mrclam, tmp_path, lambda t: [f"{float(t[0]) * 1000:.0f}", *t[1:]])
-    with pytest.raises(InputError, match=r"Robot1_Odometry\.dat: odometry lines are a median 10 s apart.*milliseconds\?"):
+    with pytest.raises(
+        InputError, match=r"Robot1_Odometry\.dat: odometry lines are a median 10 s apart.*milliseconds\?"
+    ):
         read_mrclam(ms, MrclamConfig(robot=1))
 
 
@@ -48,8 +55,12 @@ def test_mrclam_robots_log_well_under_the_step_bound(mrclam, robot):
 
 
 def test_mrclam_bearings_in_degrees_name_the_unit(mrclam, tmp_path):
-    deg = _robot1(mrclam, tmp_path, lambda t: [*t[:3], f"{math.degrees(float(t[3])):.4f}"], "Robot1_Measurement.dat")
-    with pytest.raises(InputError, match=r"Robot1_Measurement\.dat:5: bearing .* rad is not within \+-2 pi \(degrees\?\)"):
+    deg = _robot1(
+        mrclam, tmp_path, lambda t: [*t[:3], f"{math.degrees(float(t[3])):.4f}"], "Robot1_Measurement.dat"
+    )
+    with pytest.raises(
+        InputError, match=r"Robot1_Measurement\.dat:5: bearing .* rad is not within \+-2 pi \(degrees\?\)"
+    ):
         read_mrclam(deg, MrclamConfig(robot=1))
 
 
@@ -63,7 +74,9 @@ def test_victoria_park_heading_changes_in_degrees_are_refused_at_the_line(tmp_pa
         out.append(" ".join(t))
     path = tmp_path / "vp.txt"
     path.write_text("\n".join(out) + "\n")
-    with pytest.raises(InputError, match=r"vp\.txt:\d+: heading change .* beyond one turn \(2 pi\): degrees\?"):
+    with pytest.raises(
+        InputError, match=r"vp\.txt:\d+: heading change .* beyond one turn \(2 pi\): degrees\?"
+    ):
         read_victoria_park(path)
     path.write_text("\n".join(lines) + "\n")  # the log as published reads
     assert len(read_victoria_park(path).frames) > 100
@@ -79,10 +92,21 @@ def test_another_robots_truth_is_doubted_and_the_run_warns(mrclam, tmp_path, cap
     doubts = list(read_mrclam(folder, MrclamConfig(robot=1)).warnings)
     assert len(doubts) == 1 and "are not of one robot" in doubts[0]
     out = tmp_path / "out"
-    argv = ["run", "--dataset", str(folder), "--rerun", "off", "--quiet", "--out", str(out), "--max-steps", "200"]
+    argv = [
+        "run",
+        "--dataset",
+        str(folder),
+        "--rerun",
+        "off",
+        "--quiet",
+        "--out",
+        str(out),
+        "--max-steps",
+        "200",
+    ]
     assert main(argv) == 0
-    said = capsys.readouterr().out
-    assert any(ln.startswith("WARNING:") and "not of one robot" in ln for ln in said.splitlines())
+    said = capsys.readouterr().err
+    assert any(ln.startswith("graphslam: warning:") and "not of one robot" in ln for ln in said.splitlines())
     m = json.loads((out / "metrics.json").read_text())
     assert "not of one robot" in m["warnings"][0]
     assert not any("not of one robot" in n for n in m["dataset_notes"])
