@@ -283,6 +283,16 @@ def warn(message: str) -> None:
     print(f"graphslam: warning: {one_line(message)}", file=sys.stderr, flush=True)
 
 
+def warn_run_doubts(doubts, said=()) -> None:
+    """Each of one run's ``doubts`` (``metrics.warnings``) not in ``said`` (the reader's,
+    said at the start) as a warning on stderr (:func:`warn_doubts` is compare's): every
+    run command's doubts go there, not into the summary on stdout, which may go to a
+    file (hostile pass 18)."""
+    for doubt in doubts or ():
+        if doubt not in said:
+            warn(doubt)
+
+
 def warn_shadowed_dataset(spec, flag: str = "--dataset") -> None:
     """A warning when ``spec`` names both a built-in data set and a file here
     (:func:`graphslam.registry.shadowed_dataset_name`)."""

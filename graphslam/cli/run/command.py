@@ -333,7 +333,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             try:
                 _write_bag(tums)
             except GraphSlamError as e:  # the cut is the error to report; say this one too
-                raise GraphSlamError(f"{cut} (and trajectory.bag not written: {e})") from None
+                raise GraphSlamError(f"{cut} (and the bag not written: {e})") from None
         earlier = _earlier_outputs(args, before)
         if earlier:
             raise GraphSlamError(f"{cut}; {earlier}") from None

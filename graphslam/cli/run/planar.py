@@ -16,6 +16,7 @@ from graphslam.cli.common import (
     report_outputs,
     summary_table,
     warn,
+    warn_run_doubts,
     warn_unread_sections,
 )
 from graphslam.cli.out_folder import OutputFolder, claimed_folder
@@ -168,10 +169,8 @@ def run(args: argparse.Namespace) -> int:
             log.finish(backend.name, result, backend)
             folder.close_recorder(paths)
     folder.finish(paths)
-    # on stderr, as every command's (the summary's stdout may go to a file, and the doubt
-    # with it, hostile pass 18); a stopped run's one line is its stop (metrics.json keeps them)
-    for doubt in [] if result.interrupted else metrics.warnings or []:
-        warn(doubt)
+    if not result.interrupted:  # a stopped run's one line is its stop (metrics.json keeps them)
+        warn_run_doubts(metrics.warnings)
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, writes=writes)
     if save_map is not None:
         # the folder --save-map locked, wherever it was moved while the run went on

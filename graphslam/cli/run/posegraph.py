@@ -9,7 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.cli.common import fmt, provenance, report_outputs, summary_table, warn, warn_unread_sections
+from graphslam.cli.common import (
+    fmt,
+    provenance,
+    report_outputs,
+    summary_table,
+    warn,
+    warn_run_doubts,
+    warn_unread_sections,
+)
 from graphslam.cli.out_folder import OutputFolder
 from slamcore.errors import ConfigError, GraphSlamError
 
@@ -94,9 +102,7 @@ def run(args: argparse.Namespace) -> int:
             record(args, graph, result, folder, paths)
     folder.finish(paths)
     warn_unread_sections(config, args.config, "this pose-graph run")
-    for doubt in metrics.warnings or []:  # the estimate's; the reader's were said above
-        if doubt not in graph.warnings:
-            warn(doubt)
+    warn_run_doubts(metrics.warnings, said=graph.warnings)  # the reader's were said above
     status = report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted, writes=writes)
     writes.check(paths.values())
     return status

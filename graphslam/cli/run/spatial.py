@@ -36,6 +36,7 @@ from graphslam.cli.common import (
     report_outputs,
     summary_table,
     warn,
+    warn_run_doubts,
     warn_unread_sections,
 )
 from graphslam.cli.out_folder import OutputFolder
@@ -408,9 +409,5 @@ def say_doubts(args, config, metrics, sequence, stopped: bool) -> None:
     command's (they were in the summary on stdout, which may go to a file: hostile pass
     18); the reader's were said at the start, and a stopped run's one line is its stop."""
     warn_unread_sections(config, args.config, f"this run ({args.backend} on images)")
-    if stopped:
-        return
-    said = {*sequence.warnings, *sequence.camera_warnings}
-    for doubt in metrics.warnings or []:
-        if doubt not in said:
-            warn(doubt)
+    if not stopped:
+        warn_run_doubts(metrics.warnings, said=sequence.warnings)
