@@ -57,6 +57,7 @@ from graphslam.sources.planar.mrclam_checks import (
     drop_repeated_sightings,
     is_id,
     odometry_repeats_note,
+    odometry_truth_doubt,
     outside_span,
     own_barcode_note,
 )
@@ -581,6 +582,12 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
         truth, lines = read_table(gt_path, 4, "time, x, y, heading")
         check_times(truth, lines, gt_path)  # a repeated line is dropped (robot_track), another refused
         check_repeats(truth, lines, gt_path)
+        refuse_first_row(  # Vicon headings are wrapped to +-pi; degrees reach 180
+            ~(np.abs(truth[:, 3]) <= 2 * math.pi),
+            lines,
+            gt_path,
+            lambda k: f"heading {truth[k, 3]:g} rad is not within +-2 pi (degrees?)",
+        )
         if len(truth) < 2:
             truth = None
     return odo, meas, truth
@@ -753,10 +760,10 @@ def robot_track(
         )
     times = frame_times(odo[:, 0], np.sort(wanted), config.frame_every_s)
     model = config.motion_model()
-    deltas, covs = integrate(
-        *held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model), times, model.coefficients()
-    )
+    held = held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model)
+    deltas, covs = integrate(*held, times, model.coefficients())
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
+    warnings.extend(odometry_truth_doubt(n, *held, times, wTb_true))
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
         notes.append(f"robot {n}: no ground truth")

@@ -96,7 +96,9 @@ def test_ranges_in_centimetres_are_named(mrclam, tmp_path):
 def test_another_robots_truth_on_a_cut_is_still_doubted(mrclam, tmp_path):
     folder = cut(mrclam, tmp_path / "r2", robots=(1, 2))
     (folder / "Robot2_Groundtruth.dat").replace(folder / "Robot1_Groundtruth.dat")
-    (doubt,) = read_mrclam(folder, MrclamConfig(robot=1)).warnings
+    # the odometry does not follow that truth either, and says so first
+    odometry, doubt = read_mrclam(folder, MrclamConfig(robot=1)).warnings
+    assert "Robot1_Odometry.dat's turns do not follow its truth's" in odometry
     assert "not of one robot" in doubt and "no range unit and no exchange of landmark labels" in doubt
 
 

@@ -189,3 +189,78 @@ def test_all_sightings_outside_the_odometry_is_a_warning(mrclam, tmp_path):
     )
     assert "robot 1 runs on odometry alone" in warning and "do the logs' clocks disagree" in warning
     assert _sightings(ds) == 0
+
+
+# -- 5. odometry that is not the robot's, or not in the format's units ----------------
+
+
+def _scale_column(column: int, factor: float):
+    def edit(rows):
+        for r in rows:
+            r[column] = repr(float(r[column]) * factor)
+        return rows
+
+    return edit
+
+
+def _robot2_odometry(mrclam: Path):
+    """Robot 1's odometry replaced by robot 2's lines over the same minute."""
+    rows = [line.split() for line in (mrclam / "Robot2_Odometry.dat").read_text().splitlines()]
+    rows = [r for r in rows if r and not r[0].startswith("#") and float(r[0]) < T0 + END_S]
+    return lambda _rows: rows
+
+
+def test_genuine_odometry_fits_its_truth_without_a_word(mrclam, tmp_path):
+    assert _read(mrclam, tmp_path / "f", {}).warnings == ()
+
+
+@pytest.mark.parametrize(
+    "edit, said",
+    [
+        (_scale_column(2, -1.0), "Robot1_Odometry.dat's turns run opposite to its truth's (cosine -0.9"),
+        (_scale_column(2, 180.0 / np.pi), "Robot1_Odometry.dat's turns are 5"),
+        (_scale_column(1, 100.0), "Robot1_Odometry.dat's forward motions are 9"),
+    ],
+    ids=["flipped turns", "deg/s", "cm/s"],
+)
+def test_odometry_with_a_flipped_sign_or_in_other_units_is_warned(mrclam, tmp_path, edit, said):
+    """Each ran quietly: the sightings still fit the truth, so the truth doubt said nothing."""
+    (warning,) = _read(mrclam, tmp_path / "f", {"Robot1_Odometry.dat": edit}).warnings
+    assert warning.startswith("robot 1: ") and said in warning
+    if "deg/s" in said or "are 5" in said:
+        assert "(in deg/s?)" in warning
+    if "forward" in said:
+        assert "(in cm/s?)" in warning
+
+
+def test_another_robots_odometry_is_warned(mrclam, tmp_path):
+    (warning,) = _read(mrclam, tmp_path / "f", {"Robot1_Odometry.dat": _robot2_odometry(mrclam)}).warnings
+    assert "Robot1_Odometry.dat's turns do not follow its truth's (cosine" in warning
+    assert "another robot's odometry" in warning
+
+
+def test_one_robots_flipped_odometry_is_warned_in_the_joint_run(mrclam, tmp_path):
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    folder = cut(
+        mrclam,
+        tmp_path / "f",
+        robots=(1, 2),
+        end_s=END_S,
+        edits={"Robot2_Odometry.dat": _scale_column(2, -1.0)},
+    )
+    warnings = read_mrclam_all(folder, MrclamConfig()).warnings
+    assert [w[:9] for w in warnings if "Odometry.dat" in w] == ["robot 2: "]
+
+
+def test_a_truth_heading_in_degrees_is_refused_naming_file_and_line(mrclam, tmp_path):
+    """Headings in degrees were read as radians: the truth spun, the scores were noise."""
+
+    def degrees(rows):
+        return [[t, x, y, repr(float(h) * 180.0 / np.pi)] for t, x, y, h in rows]
+
+    with pytest.raises(InputError) as err:
+        _read(mrclam, tmp_path / "f", {"Robot1_Groundtruth.dat": degrees})
+    assert "Robot1_Groundtruth.dat:" in str(err.value) and "rad is not within +-2 pi (degrees?)" in str(
+        err.value
+    )
