@@ -582,11 +582,12 @@ def read_robot(folder: Path, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
         truth, lines = read_table(gt_path, 4, "time, x, y, heading")
         check_times(truth, lines, gt_path)  # a repeated line is dropped (robot_track), another refused
         check_repeats(truth, lines, gt_path)
+        heading = truth[:, 3]
         refuse_first_row(  # Vicon headings are wrapped to +-pi; degrees reach 180
-            ~(np.abs(truth[:, 3]) <= 2 * math.pi),
+            ~(np.abs(heading) <= 2 * math.pi),
             lines,
             gt_path,
-            lambda k: f"heading {truth[k, 3]:g} rad is not within +-2 pi (degrees?)",
+            lambda k: f"heading {heading[k]:g} rad is not within +-2 pi (degrees?)",
         )
         if len(truth) < 2:
             truth = None
