@@ -54,6 +54,7 @@ from filters.association import t2_quantile
 from graphslam.sources.planar.mrclam_checks import (
     ID_LIMIT,
     check_one_time,
+    drop_conflicting_sightings,
     drop_repeated_sightings,
     is_id,
     odometry_repeats_note,
@@ -733,6 +734,8 @@ def robot_track(
     meas, repeated = drop_repeated_sightings(meas)  # one sighting, not two
     if repeated:
         notes.append(f"robot {n}: {repeated} repeated lines of Robot{n}_Measurement.dat dropped")
+    meas, clashes = drop_conflicting_sightings(n, meas)
+    warnings.extend(clashes)
     end_s = float(odo[-1, 0]) + gap_s  # the last command holds as long as between two lines
     if len(meas) == 0:  # a landmark-SLAM run on odometry alone: said, not only as 0 landmarks
         notes.append(f"robot {n}: Robot{n}_Measurement.dat holds no sighting (odometry only)")

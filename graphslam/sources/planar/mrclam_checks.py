@@ -6,6 +6,7 @@
 - an odometry log with one time only is refused (nothing to integrate);
 - odometry lines repeating a time with another command are counted (the later is held);
 - a sighting line written twice is dropped and counted, as a repeated Vicon line is;
+  two readings of one barcode at one time are both dropped, with a warning;
 - sightings of the robot's own barcode are counted; sightings outside the odometry's span
   are a warning, not a note, when that is all of them or the odometry covers under half
   of their time span (clocks that disagree, a file cut short);
@@ -71,6 +72,26 @@ def drop_repeated_sightings(meas: np.ndarray) -> tuple[np.ndarray, int]:
         return meas, 0
     _, first = np.unique(meas, axis=0, return_index=True)
     return meas[np.sort(first)], len(meas) - len(first)
+
+
+def drop_conflicting_sightings(n: int, meas: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """``meas`` (M, 4) without the sightings that share a time and a barcode with another
+    (after :func:`drop_repeated_sightings`, so with another range or bearing), and the
+    warning counting them. A camera image shows a barcode once: two readings of one
+    barcode at one time contradict each other, and neither can be told right (Dataset 6
+    holds none; merged or corrupt logs do). Both kept, a back end took two sightings
+    of one landmark for independent evidence."""
+    if len(meas) < 2:
+        return meas, []
+    _, inverse, counts = np.unique(meas[:, :2], axis=0, return_inverse=True, return_counts=True)
+    clash = counts[inverse.ravel()] > 1
+    if not clash.any():
+        return meas, []
+    return meas[~clash], [
+        f"robot {n}: {int(clash.sum())} sightings in Robot{n}_Measurement.dat share their time and "
+        "barcode with another of other range or bearing (one image shows a barcode once): all "
+        "of them dropped"
+    ]
 
 
 def own_barcode_note(n: int, meas: np.ndarray, own: np.ndarray) -> list[str]:

@@ -141,6 +141,22 @@ def test_a_repeated_sighting_line_is_dropped_and_counted(mrclam, tmp_path):
     assert _sightings(dup) == _sightings(plain)
 
 
+def test_two_readings_of_one_barcode_at_one_time_are_both_dropped_and_warned(mrclam, tmp_path):
+    """A second reading 0.5 m longer of a sighting's barcode at its time was kept beside
+    it: two contradicting sightings of one landmark, each taken as evidence."""
+
+    def clash(rows):
+        r = rows[10]
+        return rows[:11] + [[r[0], r[1], f"{float(r[2]) + 0.5:.3f}", r[3]]] + rows[11:]
+
+    plain = _read(mrclam, tmp_path / "plain", {})
+    ds = _read(mrclam, tmp_path / "clash", {"Robot1_Measurement.dat": clash})
+    (warning,) = ds.warnings
+    assert warning.startswith("robot 1: 2 sightings in Robot1_Measurement.dat share their time and barcode")
+    assert "all of them dropped" in warning
+    assert _sightings(ds) == _sightings(plain) - 1
+
+
 # -- 4. odometry lines repeating a time with another command --------------------------------
 
 
