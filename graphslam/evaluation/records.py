@@ -73,7 +73,9 @@ class PlanarRunMetrics(MetricsRecord):
 
     Attributes:
         final_error: GTSAM graph error ``0.5 sum ||whitened residual||^2`` under the
-            dataset's noise model, or None.
+            dataset's noise model, or None; with unknown ids, of the sightings as the
+            run paired them (those left unused, or of a landmark no longer in the
+            estimate, out).
         ate_rmse_m, odometry_ate_rmse_m: SE(2)-aligned ATE of the estimate and of
             dead reckoning, or None without ground truth.
         wall_s: the whole run's time; backend_s: the back end's; steps_per_s: its rate.

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +50,11 @@ class RunResult:
         reassociation: ``(sightings moved, settled)`` of the back end's re-association at
             the end of the run (iSAM2 with unknown ids): ``settled`` False when its last
             pass still moved sightings; None where the back end has none.
+        paired: ``(pose id, place in its update) -> landmark id or None`` (unused) of the
+            observations the estimate pairs otherwise than their own ``landmark_id``
+            (unknown association: every one), after the back end's revisions; empty with
+            known association. The final error is taken over the graph so paired
+            (:func:`paired_dataset`): the dataset's own ids name no landmark of the estimate.
     """
 
     dataset: Dataset
@@ -66,6 +71,7 @@ class RunResult:
     observations: int = 0
     observations_rejected: int = 0
     reassociation: tuple[int, bool] | None = None
+    paired: dict[tuple[int, int], int | None] = field(default_factory=dict)
 
 
 def run(
@@ -99,12 +105,13 @@ def run(
     bar = progress_bar(len(frames), dataset.name, backend.name, progress)
     assoc: list[tuple[int, int | None]] = []
     slots: list[tuple[int, int]] = []  # (pose id, place in its update) of each of assoc
+    paired: dict = {}  # where the back end's id is not the data's (_pair)
     counters = {"steps": 0, "skipped": 0, "observations": 0}
     interrupted = False
     t0 = time.perf_counter()
     try:
         with interrupt_between_frames() as stop:
-            _feed(frames, dataset, backend, stop, (assoc, slots), on_step, bar, counters)
+            _feed(frames, dataset, backend, stop, (assoc, slots, paired), on_step, bar, counters)
             signal_hook("finalize")
         estimate = backend.finalize()
         # a stop asked for during finalisation: the estimate is whole, the
@@ -127,6 +134,8 @@ def run(
     revised = None if interrupted else backend.final_associations()
     if revised is not None:  # scored as the estimate pairs them, not as first decided
         assoc = [(true_id, revised.get(slot)) for (true_id, _), slot in zip(assoc, slots, strict=True)]
+        paired = _revised_pairing(frames[: counters["steps"]], revised)
+    paired = finish_pairing(paired)
     reassociation = backend.reassociation()
     return RunResult(
         dataset,
@@ -143,14 +152,71 @@ def run(
         counters["observations"],
         backend.rejected_observations(),
         reassociation,
+        paired,
     )
+
+
+def _pair(frame, given: list[int | None], paired: dict) -> None:
+    """Record in ``paired`` the observations of ``frame`` the back end gave another id than
+    their own (``given``), and under the key ``None`` those it left unused: with known
+    ids a gated-out sighting stays in the final error's graph, with the back end's own
+    ids (:func:`finish_pairing`) it leaves it."""
+    unused = paired.setdefault(None, [])
+    for i, (o, got) in enumerate(zip(frame.observations, given, strict=True)):
+        if got is None:
+            if o.landmark_id is not None:
+                unused.append((o.pose_id, i))
+        elif got != o.landmark_id:
+            paired[(o.pose_id, i)] = got
+
+
+def finish_pairing(paired: dict) -> dict[tuple[int, int], int | None]:
+    """:attr:`RunResult.paired` from what :func:`_pair` recorded: the unused observations
+    are None only where the back end gave its own ids to others (unknown association)."""
+    unused = paired.pop(None, [])
+    if paired:
+        paired.update(dict.fromkeys(unused))
+    return paired
+
+
+def _revised_pairing(frames, revised: dict[tuple[int, int], int]) -> dict[tuple[int, int], int | None]:
+    """:attr:`RunResult.paired` from the back end's final pairings ``revised`` (an
+    observation absent from them was left unused)."""
+    out: dict[tuple[int, int], int | None] = {}
+    for frame in frames:
+        for i, o in enumerate(frame.observations):
+            got = revised.get((o.pose_id, i))
+            if got is None or got != o.landmark_id:
+                out[(o.pose_id, i)] = got
+    return out
+
+
+def paired_dataset(
+    dataset: Dataset, paired: dict[tuple[int, int], int | None], landmark_ids: np.ndarray
+) -> Dataset:
+    """``dataset`` with each observation's ``landmark_id`` as the run paired it, for the
+    final error of a run that associated: None (left out of the graph) where it was
+    unused or its landmark is not among the estimate's ``landmark_ids`` (a filter pruned
+    it, or FastSLAM's best particle of the time is not the final one)."""
+    if not paired:
+        return dataset
+    kept = set(np.asarray(landmark_ids).tolist())
+    frames = []
+    for frame in dataset.frames:
+        obs = []
+        for i, o in enumerate(frame.observations):
+            got = paired.get((o.pose_id, i), o.landmark_id)
+            obs.append(replace(o, landmark_id=got if got in kept else None))
+        frames.append(replace(frame, observations=tuple(obs)))
+    return replace(dataset, frames=tuple(frames))
 
 
 def _feed(frames, dataset, backend, stop, scored, on_step, bar, counters) -> None:
     """Stream frames into the back end; a pending Ctrl-C is honoured between frames.
     ``scored``: the lists ``(true id, id given)`` and ``(pose id, place)`` of the
-    observations with a true id, filled in step."""
-    assoc, slots = scored
+    observations with a true id, and the pairing of those given another id than their
+    own (:attr:`RunResult.paired`), filled in step."""
+    assoc, slots, paired = scored
     for k, frame in enumerate(frames):
         stop.check()
         if k == 0:
@@ -163,6 +229,7 @@ def _feed(frames, dataset, backend, stop, scored, on_step, bar, counters) -> Non
         if frame.observations:
             backend.update(frame.observations)
             counters["observations"] += len(frame.observations)
+            _pair(frame, backend.associations(), paired)
             if frame.true_landmark_ids is not None:
                 assoc.extend(zip(frame.true_landmark_ids, backend.associations(), strict=True))
                 slots.extend((o.pose_id, i) for i, o in enumerate(frame.observations))
@@ -226,7 +293,7 @@ def compute_metrics(
         # a filter's last estimate is not a least-squares optimum: its cost is reported,
         # not tested, and the test's bulk figure is not computed for it
         smoother = not (row is None or row.landmarks is None or row.landmarks.filtering)
-        cost = graph_cost(result.dataset, est, bulk=smoother)
+        cost = graph_cost(paired_dataset(result.dataset, result.paired, est.landmark_ids), est, bulk=smoother)
         final_error = None if cost is None else cost[0]
         if not smoother:
             cost = None
