@@ -463,6 +463,15 @@ class EkfSlam(Backend):
         self._prov.sightings = self._provisional_sightings()
         self._distinct_d2 = self._distinct_gate()
 
+    def sensor_field_use(self) -> frozenset[str]:
+        if self.config.association != "unknown":
+            return frozenset()  # known ids: no gate of a new landmark, no pruning
+        pruning = self.config.prune_missed_alpha is not None
+        return frozenset({"error_dof", "field"} if pruning else {"error_dof"})
+
+    def reads_sighting_correlation(self) -> bool:
+        return True
+
     def _distinct_gate(self) -> float:
         """Squared distance beyond which the sensor tells two landmarks apart: the
         ``gate_chi2_prob`` quantile of its error (unknown association's hold)."""

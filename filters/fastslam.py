@@ -159,6 +159,15 @@ class FastSlam(Backend):
         self._pose_set.add(int(pose_id))
         self._dirty = True
 
+    def sensor_field_use(self) -> frozenset[str]:
+        if self.config.association != "unknown":
+            return frozenset()  # known ids: no gate of a new landmark, no pruning
+        pruning = self.config.prune_missed_alpha > 0.0
+        return frozenset({"error_dof", "field"} if pruning else {"error_dof"})
+
+    def reads_sighting_correlation(self) -> bool:
+        return self.config.temper_correlated
+
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
         cur = self._pose_ids[-1]

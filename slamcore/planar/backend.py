@@ -81,6 +81,20 @@ class Backend(ABC):
         need nothing from it.
         """
 
+    def sensor_field_use(self) -> frozenset[str]:
+        """What of the data's :class:`~slamcore.planar.records.SensorField` this back end,
+        as configured, reads: ``"error_dof"`` (the error's tail, for the gates of unknown
+        association) and ``"field"`` (range, field of view and detection probability, for
+        pruning landmarks missed in view). Empty (the default): none of it; a data
+        reader's settings of them then did nothing, and the CLI says so."""
+        return frozenset()
+
+    def reads_sighting_correlation(self) -> bool:
+        """Whether this back end, as configured, weighs sightings by the correlation in
+        time they state (``Observation.correlation``); False (the default): it takes
+        them as independent, and a data reader's correlation settings did nothing."""
+        return False
+
     def add_loop_closure(self, loop_closure: LoopClosure) -> None:
         """Add a relative-pose constraint between two known poses.
 

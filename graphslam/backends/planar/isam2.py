@@ -154,6 +154,12 @@ class Isam2Backend(Backend):
         if self._unknown is not None:
             self._unknown.associator.set_error_dof(error_dof(sensor_field))
 
+    def sensor_field_use(self) -> frozenset[str]:
+        return frozenset({"error_dof"}) if self._unknown is not None else frozenset()
+
+    def reads_sighting_correlation(self) -> bool:
+        return True
+
     def predict(self, odometry: Odometry, pose_id: int) -> None:
         self._require_init()
         self._flush()

@@ -134,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
     _mark_unused_settings(backend, config, result)  # before provenance, which lists them
+    _mark_unread_sensor_settings(backend, config, result.dataset)
     metrics.provenance = provenance(args, config)
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
@@ -241,6 +242,39 @@ def _mark_unused_settings(backend, config, result) -> None:
         "observations without a covariance of their own (the Python API; every "
         "observation of a run brings one)",
     )
+
+
+#: When the MRCLAM reader's settings of each sensor-field part act (``Backend.sensor_field_use``).
+_FIELD_PART_USE = {
+    "error_dof": 'association = "unknown" (the gates that start a landmark)',
+    "field": "the ekf's or fastslam's pruning of landmarks missed in view "
+    '(association = "unknown", prune_missed_alpha)',
+}
+
+
+def _mark_unread_sensor_settings(backend, config, dataset) -> None:
+    """Mark the file's ``[mrclam]`` settings of the sensor field's parts and of the
+    sightings' correlation in time that the run's back end, as configured, does not
+    read (hostile pass 18: ``sighting_error_dof`` under known ids, the field under
+    iSAM2, the correlation under FastSLAM without ``temper_correlated`` changed
+    nothing, unsaid)."""
+    from graphslam.sources.planar.mrclam import MrclamConfig, is_mrclam_folder
+
+    if dataset.source_path is None or not is_mrclam_folder(dataset.source_path):
+        return
+    used = set(getattr(backend, "sensor_field_use", frozenset)())
+    if any(f.wTb_true is not None for f in dataset.frames):
+        used.add("error_dof")  # the reader's check of the sightings against the truth reads it
+    for part, keys in MrclamConfig.SENSOR_FIELD_PARTS.items():
+        if part not in used:
+            config.mark_inert(MrclamConfig.SECTION, keys, _FIELD_PART_USE[part])
+    if not getattr(backend, "reads_sighting_correlation", bool)():
+        config.mark_inert(
+            MrclamConfig.SECTION,
+            MrclamConfig.CORRELATION_KEYS,
+            "a back end that weighs sightings by their correlation in time (isam2, ekf; fastslam "
+            "with temper_correlated)",
+        )
 
 
 def save_planar_run_map(

@@ -198,6 +198,19 @@ class MrclamConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "mrclam"
+    #: The settings of the sensor field's parts (:meth:`sensor_field`), by the name a back
+    #: end's :meth:`~slamcore.planar.backend.Backend.sensor_field_use` gives the part,
+    #: and those of the sightings' correlation in time: a back end that reads neither
+    #: part (nor the correlation) leaves them doing nothing, which the CLI says.
+    SENSOR_FIELD_PARTS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "error_dof": ("sighting_error_dof",),
+        "field": ("field_range_m", "field_half_fov_deg", "detection_prob"),
+    }
+    CORRELATION_KEYS: ClassVar[tuple[str, ...]] = (
+        "correlation_time_s",
+        "range_correlated_share",
+        "bearing_correlated_share",
+    )
     #: ``robot``: which robot's log; ``all_robots``: every robot in one graph
     #: (:mod:`graphslam.sources.planar.mrclam_joint`), ``robot`` then unused.
     robot: int = bounded(1, min=1, max=5)
