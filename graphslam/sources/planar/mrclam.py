@@ -810,17 +810,27 @@ def robot_track(
 #: command holds (Dataset 6's five robots: longest interval 1.03 s, 103 times their
 #: 0.01 s median), so twice that is beyond any the format leaves.
 ODOMETRY_GAP_MEDIANS = 200.0
+#: A log thinned to one line every few seconds (readable: :data:`ODOMETRY_STEP_MAX_S`)
+#: has a median interval of seconds, and 200 of them let a 200-s hole pass unsaid; its
+#: gaps are also those beyond this many of its median intervals (thinning leaves them
+#: regular), but never below :data:`ODOMETRY_GAP_FLOOR_S`, twice the loggers' longest
+#: interval: a genuine log's bound stays 200 medians (2 s).
+ODOMETRY_THINNED_GAP_MEDIANS, ODOMETRY_GAP_FLOOR_S = 10.0, 2.06
 
 
 def odometry_gaps(n: int, times_s: np.ndarray) -> tuple[float, list[str]]:
     """The longest interval ``times_s`` (K,) leaves between lines in the normal course
-    (:data:`ODOMETRY_GAP_MEDIANS` of its median), s (inf under two lines), and a
+    (:data:`ODOMETRY_GAP_MEDIANS` of its median, fewer for a thinned log:
+    :data:`ODOMETRY_THINNED_GAP_MEDIANS`), s (inf under two lines), and a
     warning naming the gaps beyond it, across which the last command is held."""
     step = np.diff(times_s)
     positive = step[step > 0]
     if not len(positive):
         return math.inf, []
-    gap_s = ODOMETRY_GAP_MEDIANS * float(np.median(positive))
+    median = float(np.median(positive))
+    gap_s = min(
+        ODOMETRY_GAP_MEDIANS * median, max(ODOMETRY_GAP_FLOOR_S, ODOMETRY_THINNED_GAP_MEDIANS * median)
+    )
     gaps = np.flatnonzero(step > gap_s)
     if not len(gaps):
         return gap_s, []
@@ -829,7 +839,7 @@ def odometry_gaps(n: int, times_s: np.ndarray) -> tuple[float, list[str]]:
     return gap_s, [
         f"robot {n}: Robot{n}_Odometry.dat has no line for {step[worst]:.1f} s from "
         f"{times_s[worst] - times_s[0]:.1f} s into the log{more} (gaps over {gap_s:.3g} s, "
-        f"{ODOMETRY_GAP_MEDIANS:g} times its median interval): the command before each is held "
+        f"{gap_s / median:.3g} times its median interval): the command before each is held "
         "across it, so the motion there is a guess"
     ]
 

@@ -5,6 +5,7 @@ barcode and sightings off the odometry's clock. Each folder is a 60-s cut of Dat
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -280,3 +281,27 @@ def test_a_truth_heading_in_degrees_is_refused_naming_file_and_line(mrclam, tmp_
     assert "Robot1_Groundtruth.dat:" in str(err.value) and "rad is not within +-2 pi (degrees?)" in str(
         err.value
     )
+
+
+def test_a_hole_in_a_thinned_odometry_log_is_warned(mrclam, tmp_path):
+    """Odometry thinned to about a line a second (median 1 s) with 20 s missing: the gap
+    bound was 200 medians (200 s), so the command was held over the hole unsaid."""
+
+    def thinned(rows):
+        kept, last = [], -math.inf
+        for r in rows:
+            t = float(r[0])
+            if t - last >= 1.0 and not T0 + 20 < t < T0 + 40:
+                kept.append(r)
+                last = t
+        return kept
+
+    ds = _read(mrclam, tmp_path / "f", {"Robot1_Odometry.dat": thinned})
+    (warning,) = [w for w in ds.warnings if "has no line for" in w]
+    assert "Robot1_Odometry.dat has no line for 2" in warning and "(gaps over 10" in warning
+    # the genuine log keeps its bound: two seconds
+    from graphslam.sources.planar.mrclam import odometry_gaps
+
+    rows = [line.split() for line in (mrclam / "Robot1_Odometry.dat").read_text().splitlines()]
+    times = np.array([float(r[0]) for r in rows if r and not r[0].startswith("#")])
+    assert odometry_gaps(1, times)[0] == pytest.approx(2.0, abs=0.01)
