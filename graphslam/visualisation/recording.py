@@ -220,16 +220,26 @@ def wedged() -> bool:
 
 def write_limit_reached(path: Path) -> str | None:
     """Why a file just written may have been cut, or None: it reached this process's
-    file-size limit, or its file system has no free block left (what root may use,
-    reserved blocks included, or what others may)."""
+    file-size limit, or its file system has no free block left (:func:`disk_full`)."""
     try:
         import resource  # POSIX only
 
         soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
         if soft != resource.RLIM_INFINITY and path.stat().st_size >= soft:
             return DISK_FULL_REASONS[errno.EFBIG]
-        st = os.statvfs(path)
     except (ImportError, AttributeError, OSError):
+        return None
+    return disk_full(path)
+
+
+def disk_full(path: Path) -> str | None:
+    """The full-disk reason when the file system of ``path`` (a file or a folder) has no
+    free block left (what root may use, reserved blocks included, or what others may),
+    else None. For a folder, not :func:`write_limit_reached`: a folder's own size
+    compared with the file-size limit named that limit as the cause under a small ulimit."""
+    try:
+        st = os.statvfs(path)
+    except (AttributeError, OSError):
         return None
     if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
         return DISK_FULL_REASONS[errno.ENOSPC]
@@ -323,7 +333,7 @@ class RerunLog:
             except RuntimeError as e:  # Rerun's writer could not start (hostile pass 18:
                 # a pose-graph run's recording, opened after its files filled the disk)
                 self._partial.unlink(missing_ok=True)
-                reason = write_limit_reached(self._partial.parent) or str(e).splitlines()[0]
+                reason = disk_full(self._partial.parent) or str(e).splitlines()[0]
                 raise ViewerUnavailable(
                     f"the recording could not be started ({reason}); no {Path(path).name} is kept"
                 ) from None

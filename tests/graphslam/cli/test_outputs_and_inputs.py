@@ -125,3 +125,28 @@ def test_write_limit_reached_names_a_file_size_limit_and_a_full_file_system(tmp_
     monkeypatch.setattr(resource, "getrlimit", lambda what: (resource.RLIM_INFINITY,) * 2)
     monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bfree=0, f_bavail=0))
     assert write_limit_reached(f) == "no space left on device"
+
+
+def test_a_recording_that_cannot_start_blames_the_disk_not_a_folders_size(tmp_path, monkeypatch):
+    """The writer's start failing was explained by the folder's size against the file-size
+    limit: under a limit below a folder's 4 kB, a run on a disk with room was told its
+    recording hit that limit. The folder's file system is what can be full there."""
+    resource = pytest.importorskip("resource")
+    import os
+    from types import SimpleNamespace
+
+    import rerun
+
+    from graphslam.visualisation.recording import RerunLog, ViewerUnavailable, disk_full
+
+    def refused(self, path, *args, **kwargs):
+        raise RuntimeError("Failed to encode LogMsg: the writer could not start")
+
+    monkeypatch.setattr(rerun.RecordingStream, "save", refused)
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (1, resource.RLIM_INFINITY))
+    with pytest.raises(ViewerUnavailable) as err:
+        RerunLog("save", tmp_path / "run.rrd")
+    assert "(Failed to encode LogMsg: the writer could not start)" in str(err.value)
+    assert disk_full(tmp_path) is None  # room on this disk, whatever the limit
+    monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bfree=0, f_bavail=0))
+    assert disk_full(tmp_path) == "no space left on device"
