@@ -556,6 +556,13 @@ def truth_sightings_doubt(config: MrclamConfig, robot: int, track, landmarks_tru
             "(Barcodes.dat or Landmark_Groundtruth.dat of another data set?); the trajectory and its ATE "
             "stand, the map's scores by label do not"
         )
+    if track.odometry_fits_truth:  # the robot's own files agree: the landmarks' truth does not
+        return (
+            f"{said} (no range unit and no exchange of landmark labels makes them fit), while "
+            f"Robot{robot}_Odometry.dat follows Robot{robot}_Groundtruth.dat: Landmark_Groundtruth.dat "
+            "is not of this data set's landmarks (another data set's?); the ATE stands, the map's "
+            "scores do not"
+        )
     return (
         f"{said} (no range unit and no exchange of landmark labels makes them fit): "
         f"Robot{robot}_Groundtruth.dat and Robot{robot}_Measurement.dat are not of one robot "
@@ -729,6 +736,8 @@ class RobotTrack:
     robot_sightings: list
     notes: list
     warnings: list = field(default_factory=list)
+    #: the odometry's turns were fitted to the truth and follow it (its truth is this robot's)
+    odometry_fits_truth: bool = False
 
 
 def robot_track(
@@ -780,7 +789,8 @@ def robot_track(
     held = held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model)
     deltas, covs = integrate(*held, times, model.coefficients())
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
-    warnings.extend(odometry_truth_doubt(n, *held, times, wTb_true))
+    odometry_doubts, judged = odometry_truth_doubt(n, *held, times, wTb_true)
+    warnings.extend(odometry_doubts)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
         notes.append(f"robot {n}: no ground truth")
@@ -802,7 +812,17 @@ def robot_track(
         for i, (k, s, r) in enumerate(zip(frame_of, subject, is_robot, strict=True))
         if r
     ]
-    return RobotTrack(times, deltas, covs + COVARIANCE_FLOOR, wTb_true, landmarks, robots, notes, warnings)
+    return RobotTrack(
+        times,
+        deltas,
+        covs + COVARIANCE_FLOOR,
+        wTb_true,
+        landmarks,
+        robots,
+        notes,
+        warnings,
+        odometry_fits_truth=judged and not odometry_doubts,
+    )
 
 
 #: An interval between odometry lines longer than this many of the log's median

@@ -204,3 +204,18 @@ def test_a_repeated_truth_line_is_dropped_and_a_contradicting_one_refused(mrclam
     with pytest.raises(InputError, match=r"Robot1_Groundtruth\.dat:1005: time \d+\.\d+ s repeats line 1004's "
                                          r"with other values"):
         read_mrclam(folder, MrclamConfig(robot=1))
+
+
+def test_another_data_sets_landmark_truth_is_named_when_the_robots_files_agree(mrclam, tmp_path):
+    """Landmark_Groundtruth.dat with every landmark 1 m off (another data set's): the
+    doubt said the robot's truth and sightings were not of one robot, and the ATE
+    meaningless, though the robot's odometry follows its truth and its ATE stands."""
+
+    def moved(rows):
+        return [[r[0], f"{float(r[1]) + 1.0:.6f}", *r[2:]] for r in rows]
+
+    folder = cut(mrclam, tmp_path / "lm", edits={"Landmark_Groundtruth.dat": moved})
+    (doubt,) = read_mrclam(folder, MrclamConfig(robot=1)).warnings
+    assert "while Robot1_Odometry.dat follows Robot1_Groundtruth.dat" in doubt
+    assert "Landmark_Groundtruth.dat is not of this data set's landmarks" in doubt
+    assert "the ATE stands" in doubt and "not of one robot" not in doubt
