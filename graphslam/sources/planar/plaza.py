@@ -43,6 +43,7 @@ Every refusal names the file and, for a bad line, the line.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -134,7 +135,31 @@ def read_plaza(dr_path, td_path=None, mat_path=None) -> Dataset:
     if mat_path is None and _sibling(dr_path, "_.mat").exists():
         mat_path = _sibling(dr_path, "_.mat")
     truth, beacons = _read_mat(Path(mat_path)) if mat_path is not None else (None, None)
-    return _dataset(dr_path, dr, td, truth, beacons, mat_path)
+    dataset = _dataset(dr_path, dr, td, truth, beacons, mat_path)
+    swapped = columns_swapped(td, beacons, td_path)
+    return dataset if swapped is None else replace(dataset, warnings=(*dataset.warnings, swapped))
+
+
+def columns_swapped(td: np.ndarray, beacons: dict | None, td_path: Path) -> str | None:
+    """A warning when the TD file's sender and receiver columns look exchanged: the
+    receivers (read as the beacons) are not the truth's beacons while the senders are,
+    or, without truth, one receiver is ranged by several senders (Plaza's logs: one
+    antenna, id 2, ranging four beacons). Read as they stand, every range went to one
+    "beacon" at the antenna's id, and the run said nothing."""
+    senders = set(td[:, 1].astype(np.int64).tolist())
+    receivers = set(td[:, 2].astype(np.int64).tolist())
+    if beacons:
+        known = set(beacons)
+        if receivers <= known or not senders <= known:
+            return None
+    elif not (len(receivers) == 1 and len(senders) > 1):
+        return None
+    return (
+        f"{td_path.name}: its receivers ({', '.join(map(str, sorted(receivers)))}) are read as the beacons, "
+        f"but its senders ({', '.join(map(str, sorted(senders)))}) look like them"
+        + (" (the truth's beacons)" if beacons else "")
+        + ": are the sender and receiver columns exchanged? (the format: time, sender, receiver, range)"
+    )
 
 
 def _read(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:

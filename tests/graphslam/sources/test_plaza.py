@@ -263,3 +263,20 @@ def test_the_table_says_which_back_ends_take_ranges(backend):
     else:
         with pytest.raises(UnsupportedError, match="range-bearing observations only"):
             pipeline.run(ds, be)
+
+
+@pytest.mark.parametrize("with_truth", [True, False])
+def test_sender_and_receiver_columns_exchanged_are_said(tmp_path, with_truth):
+    """Plaza2's TD file with its sender and receiver columns exchanged: every range went to
+    one "beacon" at the antenna's id 2, unsaid; the genuine file says nothing."""
+    dr = _copy_log(tmp_path)
+    assert read_plaza(dr).warnings == ()
+    td = tmp_path / "Plaza2_TD.txt"
+    rows = np.loadtxt(td)
+    np.savetxt(td, rows[:, [0, 2, 1, 3]])
+    if not with_truth:
+        (tmp_path / "Plaza2_.mat").unlink()
+    (warning,) = read_plaza(dr).warnings
+    assert warning.startswith("Plaza2_TD.txt: its receivers (2) are read as the beacons, but its senders (0, 1, 5, 6)")
+    assert "sender and receiver columns exchanged?" in warning
+    assert ("(the truth's beacons)" in warning) is with_truth
