@@ -449,9 +449,9 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
             f"{len(track.robot_sightings)} sightings of other robots in the whole log left out "
             "(single-robot run)"
         )
-    doubt = truth_sightings_doubt(config, config.robot, track, landmarks_true)
+    doubts = truth_doubts(config, config.robot, track, landmarks_true)
     dataset = _dataset(folder, config, track, landmarks_true)
-    return replace(dataset, warnings=(*track.warnings, *([doubt] if doubt else [])))
+    return replace(dataset, warnings=(*track.warnings, *doubts))
 
 
 #: A sighting misses its landmark, seen from the truth's pose, when the sighting model
@@ -563,11 +563,36 @@ def truth_sightings_doubt(config: MrclamConfig, robot: int, track, landmarks_tru
             "is not of this data set's landmarks (another data set's?); the ATE stands, the map's "
             "scores do not"
         )
+    if track.odometry_unfollowed:  # two of the robot's three files agree: the truth does not
+        return (
+            f"{said} (no range unit and no exchange of landmark labels makes them fit), and "
+            f"Robot{robot}_Odometry.dat's {' and '.join(track.odometry_unfollowed)} do not follow it "
+            f"either: Robot{robot}_Groundtruth.dat and Robot{robot}_Measurement.dat are not of one "
+            "robot, the truth is another robot's or data set's file; the ATE and map scores are "
+            "meaningless"
+        )
     return (
         f"{said} (no range unit and no exchange of landmark labels makes them fit): "
         f"Robot{robot}_Groundtruth.dat and Robot{robot}_Measurement.dat are not of one robot "
         "(another robot's or data set's file?); the ATE and map scores are meaningless"
     )
+
+
+def truth_doubts(
+    config: MrclamConfig, robot: int, track: RobotTrack, landmarks_true: dict[int, np.ndarray]
+) -> list[str]:
+    """Robot ``robot``'s doubts from its truth: on its odometry
+    (:func:`~graphslam.sources.planar.mrclam_checks.odometry_truth_doubt`) and on its
+    sightings (:func:`truth_sightings_doubt`), one line where both say the truth is not
+    the robot's."""
+    doubt = truth_sightings_doubt(config, robot, track, landmarks_true)
+    if doubt is None:
+        return list(track.odometry_doubts)
+    if track.odometry_unfollowed and "do not follow it either" in doubt:
+        # said in the sightings' line; a flipped sign or a unit on the other motion stays
+        rest = [d for d in track.odometry_doubts if "do not follow its truth's" not in d]
+        return [*rest, doubt]
+    return [*track.odometry_doubts, doubt]
 
 
 def robots_in(folder: Path) -> list[int]:
@@ -738,6 +763,11 @@ class RobotTrack:
     warnings: list = field(default_factory=list)
     #: the odometry's turns were fitted to the truth and follow it (its truth is this robot's)
     odometry_fits_truth: bool = False
+    #: doubts on the odometry from its truth, kept apart from ``warnings``: with sightings
+    #: that miss the truth too, :func:`truth_doubts` says both in one line
+    odometry_doubts: list = field(default_factory=list)
+    #: motions that do not follow the truth at all (``"turns (cosine 0.14)"``)
+    odometry_unfollowed: tuple = ()
 
 
 def robot_track(
@@ -789,8 +819,7 @@ def robot_track(
     held = held_commands(odo[:, 0], odo[:, 1], odo[:, 2], model)
     deltas, covs = integrate(*held, times, model.coefficients())
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
-    odometry_doubts, judged = odometry_truth_doubt(n, *held, times, wTb_true)
-    warnings.extend(odometry_doubts)
+    odometry_doubts, judged, unfollowed = odometry_truth_doubt(n, *held, times, wTb_true)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
         notes.append(f"robot {n}: no ground truth")
@@ -822,6 +851,8 @@ def robot_track(
         notes,
         warnings,
         odometry_fits_truth=judged and not odometry_doubts,
+        odometry_doubts=odometry_doubts,
+        odometry_unfollowed=unfollowed,
     )
 
 

@@ -205,7 +205,7 @@ def _motion_doubt(n: int, what: str, scale: float, corr: float, units: dict[str,
 
 def odometry_truth_doubt(
     n: int, start_s: np.ndarray, v: np.ndarray, w: np.ndarray, times_s: np.ndarray, wTb_true: np.ndarray
-) -> tuple[list[str], bool]:
+) -> tuple[list[str], bool, tuple[str, ...]]:
     """Doubts on robot ``n``'s odometry, its commands as executed (``start_s, v, w`` (K,):
     :func:`~graphslam.sources.planar.mrclam_motion.held_commands`), from its truth
     ``wTb_true`` (F, 3; NaN rows without) at frame times ``times_s`` (F,): its turns and
@@ -214,7 +214,9 @@ def odometry_truth_doubt(
     another robot, one in deg/s or cm/s, or one whose turns have a flipped sign runs
     without a word otherwise: the sightings still fit the truth, so
     :func:`~graphslam.sources.planar.mrclam.truth_sightings_doubt` says nothing.
-    Returns the doubts and whether the turns were judged (enough truth and turning)."""
+    Returns the doubts, whether the turns were judged (enough truth and turning), and
+    the motions that do not follow the truth at all (``"turns (cosine 0.14)"``: the
+    truth or the odometry is another robot's; the sightings tell which)."""
     t = start_s
     # piecewise-linear cumulative integrals: each command holds until the next line
     turned = np.concatenate([[0.0], np.cumsum(w[:-1] * np.diff(t))])
@@ -222,17 +224,24 @@ def odometry_truth_doubt(
     inside = (times_s >= t[0]) & (times_s <= t[-1]) & np.isfinite(wTb_true).all(axis=1)
     pair = inside[:-1] & inside[1:]
     if int(pair.sum()) < ODOMETRY_FIT_MIN_PAIRS:
-        return [], False
+        return [], False, ()
     a, b = wTb_true[:-1][pair], wTb_true[1:][pair]
     d_theta = np.angle(np.exp(1j * (b[:, 2] - a[:, 2])))
     d_xy = b[:, :2] - a[:, :2]
     d_forward = np.cos(a[:, 2]) * d_xy[:, 0] + np.sin(a[:, 2]) * d_xy[:, 1]
     odo_theta = np.diff(np.interp(times_s, t, turned))[pair]
     odo_forward = np.diff(np.interp(times_s, t, travelled))[pair]
-    out = []
+    fits = []
     judged = bool(np.abs(d_theta).sum() >= ODOMETRY_FIT_MIN_TURN_RAD)
     if judged:
-        out.append(_motion_doubt(n, "turns", *_fit(odo_theta, d_theta), TURN_UNITS))
+        fits.append(("turns", *_fit(odo_theta, d_theta), TURN_UNITS))
     if np.abs(d_forward).sum() >= ODOMETRY_FIT_MIN_TRAVEL_M:
-        out.append(_motion_doubt(n, "forward motions", *_fit(odo_forward, d_forward), SPEED_UNITS))
-    return [d for d in out if d], judged
+        fits.append(("forward motions", *_fit(odo_forward, d_forward), SPEED_UNITS))
+    out = [_motion_doubt(n, what, scale, corr, units) for what, scale, corr, units in fits]
+    unfollowed = tuple(
+        f"{what} (cosine {corr:.2f})"
+        for what, scale, corr, _ in fits
+        if corr < ODOMETRY_MIN_CORRELATION
+        and not (corr <= -ODOMETRY_MIN_CORRELATION and abs(scale + 1.0) <= ODOMETRY_SCALE_TOLERANCE)
+    )
+    return [d for d in out if d], judged, unfollowed

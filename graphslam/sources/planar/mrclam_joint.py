@@ -39,7 +39,7 @@ from graphslam.sources.planar.mrclam import (
     robot_track,
     robots_in,
     sighting_covariances,
-    truth_sightings_doubt,
+    truth_doubts,
 )
 from slamcore.errors import InputError
 from slamcore.files import folder_name
@@ -128,8 +128,8 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
     notes.extend(unmatched)
     # one robot's files that are not of one robot spoil the joint graph as much
-    doubts = (truth_sightings_doubt(config, n, tr, landmarks_true) for n, tr in tracks.items())
-    warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(d for d in doubts if d)
+    doubts = (d for n, tr in tracks.items() for d in truth_doubts(config, n, tr, landmarks_true))
+    warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(doubts)
     if not landmarks_true:
         notes.append(landmark_truth_note(folder))
     return Dataset(
