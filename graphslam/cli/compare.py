@@ -195,11 +195,15 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         print(narrowed, file=sys.stderr, flush=True)
     folder = _out_dir(args, Path(dataset.name).stem, rerun_mode)
     overrides = {name: registry.seed_override(name, args.seed) for name in args.backends}
+    built = []
     for name in args.backends:  # built here too (the runs are in child processes): their gates
         try:
-            registry.backend_settings(name, config, overrides[name])
+            built.append(registry.make_backend(name, config=config, overrides=overrides[name]))
         except GraphSlamError:  # said by its run, which fails alone (the others are kept)
             pass
+    from graphslam.cli.run.planar import mark_unread_sensor_settings
+
+    mark_unread_sensor_settings(built, config, dataset)  # [mrclam] settings none of them reads
     entries = compare.compare(
         dataset,
         args.backends,

@@ -258,17 +258,23 @@ def _mark_unread_sensor_settings(backend, config, dataset) -> None:
     read (hostile pass 18: ``sighting_error_dof`` under known ids, the field under
     iSAM2, the correlation under FastSLAM without ``temper_correlated`` changed
     nothing, unsaid)."""
+    mark_unread_sensor_settings([backend], config, dataset)
+
+
+def mark_unread_sensor_settings(backends, config, dataset) -> None:
+    """:func:`_mark_unread_sensor_settings` for several back ends run on one dataset
+    (``compare``): a setting is marked when none of them reads it."""
     from graphslam.sources.planar.mrclam import MrclamConfig, is_mrclam_folder
 
     if dataset.source_path is None or not is_mrclam_folder(dataset.source_path):
         return
-    used = set(getattr(backend, "sensor_field_use", frozenset)())
+    used = {part for b in backends for part in getattr(b, "sensor_field_use", frozenset)()}
     if any(f.wTb_true is not None for f in dataset.frames):
         used.add("error_dof")  # the reader's check of the sightings against the truth reads it
     for part, keys in MrclamConfig.SENSOR_FIELD_PARTS.items():
         if part not in used:
             config.mark_inert(MrclamConfig.SECTION, keys, _FIELD_PART_USE[part])
-    if not getattr(backend, "reads_sighting_correlation", bool)():
+    if not any(getattr(b, "reads_sighting_correlation", bool)() for b in backends):
         config.mark_inert(
             MrclamConfig.SECTION,
             MrclamConfig.CORRELATION_KEYS,

@@ -57,3 +57,25 @@ def test_what_the_back_end_does_not_read_is_said(capsys, tmp_path, folder, backe
 def test_the_error_tail_under_known_ids_is_said_only_without_truth(capsys, tmp_path, no_truth):
     """With truth the reader's check of the sightings against it reads the tail."""
     assert _said(capsys, tmp_path, no_truth, "isam2") == {"sighting_error_dof", "detection_prob"}
+
+
+@pytest.mark.parametrize(
+    "backends, extra, inert",
+    [
+        # iSAM2 weighs the sightings' correlation that FastSLAM without tempering leaves
+        (["isam2", "fastslam2"], "[fastslam]\ntemper_correlated = false\n", {"detection_prob"}),
+        (["isam2", "ekf"], '[ekf]\nassociation = "unknown"\n', set()),
+    ],
+)
+def test_compare_says_what_none_of_its_back_ends_reads(capsys, tmp_path, folder, backends, extra, inert):
+    """compare marked none of them (hostile pass 18 left it open): a setting is said to do
+    nothing there when no back end of the comparison reads it."""
+    config = tmp_path / "c.toml"
+    config.write_text(SETTINGS + extra)
+    code = main(["compare", "--dataset", str(folder), "--backends", *backends, "--config", str(config),
+                 "--out", str(tmp_path / "out"), "--rerun", "off", "--in-process"])
+    assert code == 0
+    err = capsys.readouterr().err
+    said = {k for k in ("sighting_error_dof", "detection_prob", "correlation_time_s")
+            if f"[mrclam] {k} did nothing" in err}
+    assert said == inert
