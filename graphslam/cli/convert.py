@@ -53,7 +53,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from graphslam.cli.common import warn, warn_shadowed_dataset
     from graphslam.outputs.posegraph import convert, write_pose_graph
     from graphslam.sources.planar.posegraph import self_edges_note
-    from slamcore.files import check_not_inputs, check_special_file
+    from slamcore.files import check_not_inputs, check_output_file
 
     fmt = args.to or FORMAT_OF_SUFFIX.get(args.output.suffix.lower())
     if fmt is None:
@@ -63,7 +63,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         )
     if args.output.is_dir():
         raise ConfigError("is a folder, not a file", args.output)
-    check_special_file(args.output, "OUT")
+    check_output_file(args.output, "OUT")  # refused now, not after reading the graph
     check_not_inputs([("OUT", args.output)], {"IN": args.input})
     warn_shadowed_dataset(args.input, "IN")
     graph = registry.load_pose_graph(args.input, args.toro_noise, args.information_fix)
@@ -96,6 +96,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
     for note in notes:
         warn(note)
     try:
+        args.output.parent.mkdir(parents=True, exist_ok=True)  # as every --out makes its folder
         write_pose_graph(args.output, converted)
     except OSError as exc:
         raise ConfigError(f"cannot write: {exc.strerror or exc}", args.output) from None

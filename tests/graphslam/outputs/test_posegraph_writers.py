@@ -98,6 +98,19 @@ def test_convert_command(tmp_path, capsys):
     assert "--to" in capsys.readouterr().err
 
 
+def test_convert_makes_the_output_folder_and_refuses_a_file_in_its_path(tmp_path, capsys):
+    """A missing folder was refused only after the graph was read ("cannot write: No such
+    file or directory"), where every other --out makes its folder."""
+    src = write(tmp_path / "a.graph", _lines(3, "toro"))
+    assert main(["convert", str(src), str(tmp_path / "new" / "deep" / "b.g2o")]) == 0
+    assert read_pose_graph_file(tmp_path / "new" / "deep" / "b.g2o").format == "g2o"
+    (tmp_path / "f").write_text("")
+    capsys.readouterr()
+    assert main(["convert", str(src), str(tmp_path / "f" / "b.g2o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "is an existing file, not a folder" in err
+
+
 def test_rejected_closures_in_csv_and_recording(tmp_path, capsys):
     lines = graph_lines(square_walk(10, 2), edges_with_closures(10, [(0, 9), (2, 8), (1, 5)]),
                         sigma=0.01) + ["EDGE_SE2 2 7 5.0 -3.0 1.0 100 0 0 100 0 1000"]
