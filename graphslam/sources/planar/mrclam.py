@@ -722,8 +722,18 @@ def frame_times(odometry_s: np.ndarray, sighting_s: np.ndarray, every_s: float) 
 def truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     """(F, 3) Vicon pose interpolated at ``times_s`` (heading unwrapped, then wrapped);
     NaN rows outside the truth's span or inside a gap longer than :data:`TRUTH_MAX_GAP_S`."""
-    t = truth[:, 0]
-    heading = np.unwrap(truth[:, 3])
+    return unwrapped_truth_at(unwrapped(truth), times_s)
+
+
+def unwrapped(truth: np.ndarray) -> np.ndarray:
+    """The Vicon log (T, 4) with its heading unwrapped, for :func:`unwrapped_truth_at`
+    (unwrapping the whole log is most of :func:`truth_at`'s cost, paid once here)."""
+    return np.column_stack([truth[:, :3], np.unwrap(truth[:, 3])])
+
+
+def unwrapped_truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    """:func:`truth_at` of a log :func:`unwrapped` once."""
+    t, heading = truth[:, 0], truth[:, 3]
     out = np.column_stack(
         [
             np.interp(times_s, t, truth[:, 1]),
@@ -736,7 +746,7 @@ def truth_at(truth: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     inside = (k > 0) & (k < len(t))
     kk = np.clip(k, 1, len(t) - 1)
     gap_ok = (t[kk] - t[kk - 1]) <= TRUTH_MAX_GAP_S
-    exact = np.isin(times_s, t)
+    exact = (k > 0) & (t[np.maximum(k - 1, 0)] == times_s)  # at a line: side="right" puts it at k - 1
     out[~((inside & gap_ok) | exact)] = np.nan
     return out
 

@@ -41,6 +41,7 @@ from graphslam.sources.planar.mrclam import (
     sighting_covariances,
     truth_doubts,
 )
+from graphslam.sources.planar.mrclam_clock import clock_doubts
 from slamcore.errors import InputError
 from slamcore.files import folder_name
 from slamcore.planar.geometry import between
@@ -128,8 +129,10 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     notes.append(f"{sum(len(v) for v in sightings.values())} sightings of one robot by another")
     notes.extend(unmatched)
     # one robot's files that are not of one robot spoil the joint graph as much
-    doubts = (d for n, tr in tracks.items() for d in truth_doubts(config, n, tr, landmarks_true))
-    warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(doubts)
+    doubts = {n: truth_doubts(config, n, tr, landmarks_true) for n, tr in tracks.items()}
+    warnings = tuple(w for tr in tracks.values() for w in tr.warnings) + tuple(sum(doubts.values(), []))
+    # one robot's clock off the others': judged on the robots whose own files agree with their truth
+    warnings += tuple(clock_doubts(config, logs, barcodes, judged=[n for n, d in doubts.items() if not d]))
     if not landmarks_true:
         notes.append(landmark_truth_note(folder))
     return Dataset(
