@@ -53,6 +53,13 @@ Per frame:
     that fails the scan's proposal is recomputed with a check (and Joseph-form
     repair) at every observation.
 
+  Where the data states its sensor's error tail (``SensorField.error_dof``: MRCLAM's
+  camera, Student-t with 5.1 dof), the weights' ``N(.; 0, S)`` and ``N(.; 0, L)`` are
+  that law with the same scale matrix (:func:`filters.fastslam_math.log_likelihood`;
+  the landmark EKFs and the proposal stay Gaussian): under a Gaussian an outlier
+  costs a particle ``d^2/2``, and the particles whose path explained it took the
+  weight. Without a stated tail, or with a Gaussian one, the weights are as above.
+
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.
 
@@ -160,10 +167,10 @@ class FastSlam(Backend):
         self._dirty = True
 
     def sensor_field_use(self) -> frozenset[str]:
-        if self.config.association != "unknown":
-            return frozenset()  # known ids: no gate of a new landmark, no pruning
-        pruning = self.config.prune_missed_alpha > 0.0
-        return frozenset({"error_dof", "field"} if pruning else {"error_dof"})
+        # the error's tail weighs the particles (and gates new landmarks under unknown ids)
+        if self.config.association != "unknown" or self.config.prune_missed_alpha == 0.0:
+            return frozenset({"error_dof"})
+        return frozenset({"error_dof", "field"})
 
     def reads_sighting_correlation(self) -> bool:
         return self.config.temper_correlated

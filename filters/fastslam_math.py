@@ -133,6 +133,27 @@ def log_gaussian(nu_r, nu_b, inv, det):
     return -0.5 * maha - 0.5 * np.log(det) - _LOG_2PI
 
 
+def log_likelihood(nu_r, nu_b, inv, det, dof: float = math.inf):
+    """``log p(nu)`` of a 2-D innovation with scale matrix ``S`` (``S^-1`` upper triangle,
+    ``det S``) under the sensor's error law: Gaussian for ``dof`` inf, else the bivariate
+    Student-t with ``dof`` degrees of freedom, ``log Gamma((v+2)/2) - log Gamma(v/2) -
+    log(v pi) - log(det S)/2 - (v+2)/2 log(1 + d^2/v)`` (scipy.stats.multivariate_t's).
+    A sensor with heavy tails (MRCLAM's camera: 5.1 dof) weighs a particle by a
+    Gaussian that an outlier costs ``d^2/2``, where its own law costs a logarithm: the
+    particles that explained the outlier took the weight."""
+    if math.isinf(dof):
+        return log_gaussian(nu_r, nu_b, inv, det)
+    i00, i01, i11 = inv
+    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    return t2_log_normaliser(dof) - 0.5 * np.log(det) - 0.5 * (dof + 2.0) * np.log1p(maha / dof)
+
+
+def t2_log_normaliser(dof: float) -> float:
+    """``log Gamma((v+2)/2) - log Gamma(v/2) - log(v pi)``: the bivariate Student-t's
+    log density at zero innovation for a unit scale matrix."""
+    return math.lgamma(0.5 * (dof + 2.0)) - math.lgamma(0.5 * dof) - math.log(dof * math.pi)
+
+
 def positive_definite2(p00, p01, p11):
     """Whether symmetric 2x2 matrices are finite positive definite (Sylvester)."""
     return (p00 > 0) & (p00 * p11 - p01 * p01 > 0) & (p00 + p11 < np.inf)
@@ -150,8 +171,9 @@ def raise_to_floor(r, f):
     return r + np.where(r < f, f - r, 0.0)
 
 
-def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11):
-    """Landmark EKF update on the entries: ``(dm_x, dm_y, (n00, n01, n11), log N(nu; 0, S))``.
+def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof: float = math.inf):
+    """Landmark EKF update on the entries: ``(dm_x, dm_y, (n00, n01, n11), log p(nu))``,
+    ``p`` the sensor's error law with scale ``S`` (:func:`log_likelihood`, ``dof``).
 
     ``S = H_m P H_m^T + R``, ``K = P H_m^T S^-1``, ``m += K nu``, ``P -= K (P H_m^T)^T``.
     """
@@ -161,7 +183,12 @@ def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11):
     k00, k01 = t00 * i00 + t01 * i01, t00 * i01 + t01 * i11
     k10, k11 = t10 * i00 + t11 * i01, t10 * i01 + t11 * i11
     P_new = (p00 - (k00 * t00 + k01 * t01), p01 - (k00 * t10 + k01 * t11), p11 - (k10 * t10 + k11 * t11))
-    return (k00 * nu_r + k01 * nu_b, k10 * nu_r + k11 * nu_b, P_new, log_gaussian(nu_r, nu_b, inv, det))
+    return (
+        k00 * nu_r + k01 * nu_b,
+        k10 * nu_r + k11 * nu_b,
+        P_new,
+        log_likelihood(nu_r, nu_b, inv, det, dof),
+    )
 
 
 def new_landmark(px, py, th, z0, z1, r00, r01, r11):
@@ -181,11 +208,12 @@ def spread_noise(g, r00, r01, r11):
     return u00 * g0 + u01 * g1, u00 * g2 + u01 * g3, u10 * g2 + u11 * g3
 
 
-def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
+def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math.inf):
     """One observation's refinement of FastSLAM 2.0's pose proposal N(mu, Sx), Sx (n, 3, 3).
 
     ``n..``: the noise besides the pose's, ``H_m P H_m^T + R``. Returns
-    ``(-dmu (n, 3), Sx_new (n, 3, 3), log N(nu; 0, L), -K as its columns (k0, k1),
+    ``(-dmu (n, 3), Sx_new (n, 3, 3), log p(nu) with scale L (:func:`log_likelihood`,
+    ``dof``), -K as its columns (k0, k1),
     every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``,
     ``Sx_new = Sx - K (Sx H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v``
     are the columns of ``-Sx H_x^T``; the signs cancel).
@@ -205,7 +233,7 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11):
     return (
         k0 * nu_r[:, None] + k1 * nu_b[:, None],
         S_new,
-        log_gaussian(nu_r, nu_b, inv, det),
+        log_likelihood(nu_r, nu_b, inv, det, dof),
         (k0, k1),
         L_pd,
     )

@@ -22,11 +22,13 @@ from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
     all_positive_definite3,
+    log_likelihood,
     logsumexp,
     low_variance_resample,
     rotated_xy,
     sample_gaussian,
     sandwich,
+    t2_log_normaliser,
 )
 from filters.fastslam_update import landmark_steps, refine_proposal, weight_shares
 from filters.landmark_existence import cusum_steps
@@ -75,6 +77,9 @@ class ParticleSet:
         #: Unknown association: the squared Mahalanobis gate of a new landmark
         #: (``new_landmark_mahalanobis_sq``, or the sensor's error quantile: :meth:`set_error_dof`).
         self.new_gate_d2 = self._new_gate(math.inf)
+        #: The sensor's error law the weights use: Student-t dof (inf: Gaussian), from
+        #: the data's sensor field (:meth:`set_error_dof`).
+        self.error_dof = math.inf
         #: Several robots: each other robot's latest pose id -> its (N, 3) particle poses
         #: (every particle holds every robot's latest pose; :attr:`poses` is the one moving).
         self.parked: dict[int, np.ndarray] = {}
@@ -127,11 +132,15 @@ class ParticleSet:
     ) -> None:
         """Several robots: weigh each particle by the likelihood of the range and bearing
         ``z`` (2,) (covariance ``R``) of its ``to_poses`` (N, 3) seen from its
-        ``from_poses`` (N, 3); the log-weights are normalised after."""
+        ``from_poses`` (N, 3), under the sensor's error law as the landmarks' sightings
+        (:attr:`error_dof`: one camera sees both); the log-weights are normalised after."""
         nu = models.innovation(z, models.observe(from_poses, to_poses[:, :2]))
-        L = np.linalg.cholesky(sym(R))
-        w = np.linalg.solve(L, nu.T)  # (2, N)
-        self.logw += -0.5 * np.sum(w * w, axis=0) - math.log(L[0, 0] * L[1, 1]) - _LOG_2PI
+        r = sym(R)
+        det = float(r[0, 0] * r[1, 1] - r[0, 1] ** 2)
+        if not det > 0.0:
+            raise GraphSlamError("a robot sighting's covariance is not positive definite")
+        inv = (r[1, 1] / det, -r[0, 1] / det, r[0, 0] / det)
+        self.logw += log_likelihood(nu[:, 0], nu[:, 1], inv, det, self.error_dof)
         self.logw -= logsumexp(self.logw)
 
     def resample(self, w: np.ndarray) -> np.ndarray:
@@ -228,6 +237,7 @@ class ParticleSet:
             logw=self.logw if weigh else None,
             log_p0=self._log_p0 if unknown else None,
             temper=self.config.temper_correlated,
+            dof=self.error_dof,
         )
 
     def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
@@ -269,10 +279,14 @@ class ParticleSet:
         landmark records ``p`` (returned; updated in place for a subset), and weighed by it."""
         share = weight_shares(self.maps, p, [o], 0) if self.config.temper_correlated else None
         if isinstance(i, slice):
-            x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu, Sig, careful, self.recoveries)
+            x_new, S_new, logl, ok = refine_proposal(
+                self.maps, o, p, mu, Sig, careful, self.recoveries, self.error_dof
+            )
             self.logw += logl if share is None else logl * share
             return x_new, S_new, ok
-        x_new, S_new, logl, ok = refine_proposal(self.maps, o, p, mu[i], Sig[i], careful, self.recoveries)
+        x_new, S_new, logl, ok = refine_proposal(
+            self.maps, o, p, mu[i], Sig[i], careful, self.recoveries, self.error_dof
+        )
         self.logw[i] += logl if share is None else logl * share
         mu[i], Sig[i] = x_new, S_new
         return mu, Sig, ok
@@ -371,14 +385,19 @@ class ParticleSet:
     def set_error_dof(self, dof: float) -> None:
         """The sensor's errors are Student-t with ``dof`` degrees of freedom (``inf``:
         Gaussian): an unset ``new_landmark_mahalanobis_sq`` becomes their
-        :data:`NEW_LANDMARK_PROB` quantile."""
+        :data:`NEW_LANDMARK_PROB` quantile, and the particles are weighed by that law."""
         self.new_gate_d2 = self._new_gate(dof)
+        self.error_dof = dof
 
     def _log_p0(self, R: np.ndarray) -> float:
         """Log-likelihood of a new landmark seen with noise ``R`` (unknown association)."""
         if self.config.new_landmark_log_likelihood is not None:
             return self.config.new_landmark_log_likelihood
-        return -0.5 * self.new_gate_d2 - _LOG_2PI - 0.5 * math.log(np.linalg.det(R))
+        # the density at the gate, under the law the other weights use
+        d2, dof, log_det = self.new_gate_d2, self.error_dof, math.log(np.linalg.det(R))
+        if math.isinf(dof):
+            return -0.5 * d2 - _LOG_2PI - 0.5 * log_det
+        return t2_log_normaliser(dof) - 0.5 * log_det - 0.5 * (dof + 2.0) * math.log1p(d2 / dof)
 
     def _known_column(self, o: Observation) -> int:
         key = o.landmark_id if o.landmark_id is not None else o.signature

@@ -18,6 +18,7 @@ the next one is linearised at) and vectorised over particles.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -97,6 +98,7 @@ def landmark_steps(
     logw: np.ndarray | None = None,
     log_p0: Callable[[np.ndarray], float] | None = None,
     temper: bool = False,
+    dof: float = math.inf,
 ) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
     observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
@@ -106,7 +108,8 @@ def landmark_steps(
     ``logw``: when given, the 1.0 weights are added to it in place: the measurement
     likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
     given (unknown association); with ``temper``, an updated landmark's likelihood is
-    taken at its :func:`weight_shares`. The observations must go to distinct landmarks
+    taken at its :func:`weight_shares`, under the sensor's error law (``dof``:
+    :func:`~filters.fastslam_math.log_likelihood`). The observations must go to distinct landmarks
     of a particle (mutual exclusion, or distinct known ids); the updates are then
     independent of their order.
     """
@@ -129,7 +132,7 @@ def landmark_steps(
             pairs = _pairs(mask, col, rows)
             if update:
                 shares = obs if temper else None
-                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw, seen, shares)
+                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw, seen, shares, dof)
             else:
                 _init_pairs(
                     maps, pairs, Z, R, poses, recoveries, logw if log_p0 is not None else None, log_p0, seen
@@ -167,6 +170,7 @@ def _update_pairs(
     logw: np.ndarray | None,
     seen: tuple[np.ndarray, np.ndarray],
     tempered_by: list[Observation] | None,
+    dof: float,
 ) -> None:
     i, k, c = pairs
     p = ptr[i, k]
@@ -177,7 +181,7 @@ def _update_pairs(
     r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
     mv = np.maximum(p00, p11)
     r00, r11 = floor_noise(recoveries, r00, r11, mv * (a * a + b * b), mv * (cc * cc + d * d))
-    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11)
+    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof)
     ok = positive_definite2(*P_new)
     if not ok.all():
         P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d), (r00, r01, r11), P_new)
@@ -283,9 +287,11 @@ def refine_proposal(
     Sx: np.ndarray,
     careful: bool,
     recoveries: Recoveries,
+    dof: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """2.0: the proposal N(x, Sx) of some particles refined by observation ``o`` of their
-    landmark records ``p``: ``(x_new, S_new, logl, ok)``, ``logl`` the particles' weights.
+    landmark records ``p``: ``(x_new, S_new, logl, ok)``, ``logl`` the particles' weights
+    under the sensor's error law (``dof``).
 
     ``careful``: symmetrise and check the new covariance (Joseph form where it lost
     definiteness); else it is neither, and ``ok`` says whether ``L`` was positive
@@ -300,7 +306,7 @@ def refine_proposal(
     r00, r11 = _proposal_floor(recoveries, R, Pf, Sx, a, b, c, d)
     # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
     noise = (h00 + r00, h01 + R[0, 1], h11 + r11)
-    neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise)
+    neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise, dof=dof)
     x_new = x - neg_dmu  # heading unwrapped: bearings are wrapped, and so is the draw
     if careful:
         S_new = sym(S_new)

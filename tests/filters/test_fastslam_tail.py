@@ -123,3 +123,81 @@ def test_temper_correlated_on_data_without_a_correlation_is_said_to_do_nothing(t
                  "--quiet", "--out", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
     assert "temper_correlated did nothing" in err and "correlate in time" in err, err
+
+
+# -- the particles weighed by the sensor's error law ----------------------------------
+
+#: Agreement of two evaluations of one log density, nats.
+LOG_DENSITY_TOL = 1e-10
+#: Agreement of a weight ratio with the law's, nats: the start cloud's 1e-6 m spread
+#: (covariance 1e-12) moves each particle's landmark by as much.
+LOG_GAP_TOL = 1e-4
+
+
+@pytest.mark.parametrize("dof", [1.5, 5.1, 30.0, math.inf])
+def test_log_likelihood_is_scipys_bivariate_density(dof):
+    from scipy.stats import multivariate_normal, multivariate_t
+
+    from filters.fastslam_math import inverse_sym2, log_likelihood
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        A = rng.normal(size=(2, 2))
+        S = A @ A.T + 0.1 * np.eye(2)
+        nu = rng.normal(size=2) * 3.0
+        inv, det = inverse_sym2(S[0, 0], S[0, 1], S[1, 1])
+        got = log_likelihood(np.array([nu[0]]), np.array([nu[1]]), inv, det, dof)[0]
+        law = multivariate_normal(np.zeros(2), S) if math.isinf(dof) else multivariate_t(np.zeros(2), S, df=dof)
+        assert got == pytest.approx(law.logpdf(nu), abs=LOG_DENSITY_TOL)
+
+
+def test_an_outlier_costs_a_heavy_tailed_sensor_a_logarithm_not_its_square():
+    """FastSLAM 1.0, two particles, one of them 0.6 m further from the landmark than
+    the sighting says (about 4 sigmas of its innovation): its weight against the other's
+    is the law's density ratio, scipy's t(5.1) under the camera's law (e^-5.3), the
+    Gaussian's without one (e^-8.9)."""
+    from scipy.stats import multivariate_normal, multivariate_t
+
+    shift_m = 0.6
+
+    def log_gap(field: SensorField | None):
+        slam = FastSlam(FastSlamConfig(version=1, n_particles=2, resample_ess_fraction=0.0))
+        slam.initialize(0, np.zeros(3), np.eye(3) * 1e-12)
+        slam.set_sensor_field(field)
+        z = models.observe(np.zeros(3), LANDMARK)
+        slam.update([Observation(0, 7, z, R)])
+        slam.predict(Odometry(0, 1, np.zeros(3), np.eye(3) * 1e-12), 1)
+        slam.particles.poses[:] = [[0.0, 0.0, 0.0], [-shift_m, 0.0, 0.0]]
+        P = slam.maps.pool_cov[slam.maps.table[0, 0]]  # one record, shared before the update
+        slam.update([Observation(1, 7, z, R)])
+        w = slam.weights
+        return math.log(w[1] / w[0]), P
+
+    gap, P = log_gap(SensorField(10.0, math.pi / 2, 1.0, 5.1))
+    # H_m for a landmark straight ahead at range r: d range / dx = 1, d bearing / dy = 1/r
+    S_on, S_far = (np.diag([1.0, 1.0 / r]) @ P @ np.diag([1.0, 1.0 / r]) + R for r in (4.0, 4.0 + shift_m))
+    t_on, t_far = (multivariate_t(np.zeros(2), S, df=5.1) for S in (S_on, S_far))
+    assert gap == pytest.approx(t_far.logpdf([-shift_m, 0.0]) - t_on.logpdf([0.0, 0.0]), abs=LOG_GAP_TOL)
+    gaussian, _ = log_gap(None)
+    g_on, g_far = (multivariate_normal(np.zeros(2), S) for S in (S_on, S_far))
+    assert gaussian == pytest.approx(g_far.logpdf([-shift_m, 0.0]) - g_on.logpdf([0.0, 0.0]), abs=LOG_GAP_TOL)
+    assert gaussian < gap - 3.0  # the tail forgives the outlier e^3.6 of the Gaussian's cost
+
+
+@pytest.mark.parametrize("dof", [5.1, math.inf])
+def test_a_robot_sighting_weighs_the_particles_by_the_cameras_law(dof):
+    """One camera sees landmarks and robots: a sighting of one robot by another weighs
+    the particles by the law the landmarks' sightings use (the Gaussian it used alone
+    made the robot sightings the only ones an outlier costs its square)."""
+    from scipy.stats import multivariate_normal, multivariate_t
+
+    from filters.fastslam_particles import ParticleSet
+
+    particles = ParticleSet(FastSlamConfig(version=1, n_particles=2))
+    particles.set_error_dof(dof)
+    seen = np.array([[4.0, 0.0, 0.0], [4.6, 0.0, 0.0]])  # the second 0.6 m beyond the sighting
+    before = particles.logw.copy()
+    particles.weigh_sighting(np.zeros((2, 3)), seen, np.array([4.0, 0.0]), R)
+    law = multivariate_normal(np.zeros(2), R) if math.isinf(dof) else multivariate_t(np.zeros(2), R, df=dof)
+    gap = (particles.logw[1] - before[1]) - (particles.logw[0] - before[0])
+    assert gap == pytest.approx(law.logpdf([-0.6, 0.0]) - law.logpdf([0.0, 0.0]), abs=LOG_DENSITY_TOL)

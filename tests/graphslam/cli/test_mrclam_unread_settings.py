@@ -57,6 +57,8 @@ def test_what_the_back_end_does_not_read_is_said(capsys, tmp_path, folder, backe
 def test_the_error_tail_under_known_ids_is_said_only_without_truth(capsys, tmp_path, no_truth):
     """With truth the reader's check of the sightings against it reads the tail."""
     assert _said(capsys, tmp_path, no_truth, "isam2") == {"sighting_error_dof", "detection_prob"}
+    # FastSLAM weighs its particles by the tail's law, known ids or not
+    assert "sighting_error_dof" not in _said(capsys, tmp_path, no_truth, "fastslam2")
 
 
 @pytest.mark.parametrize(

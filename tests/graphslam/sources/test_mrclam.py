@@ -685,7 +685,8 @@ def test_fastslam2_unknown_association_on_robot_3_within_the_issues_bound(mrclam
     particle's path). These are seeds 0-4 only: over seeds 0-19 robot 3's unknown-id
     runs ended near 0.13-0.19 m or near 0.43-0.58 m, a ratio of medians of 2.31x, until
     the weights took the sightings' correlation in time: now 1.10x (0.169 m against
-    0.153 m; docs/data/landmark-logs.md, where robot 2 stays over the bound at 1.72x)."""
+    0.153 m, Gaussian weights), and 1.04x over seeds 0-19 with the camera's t law
+    weighing the particles (0.140 m against 0.134 m; docs/data/landmark-logs.md)."""
     ds = read_mrclam(mrclam, MrclamConfig(robot=3))
 
     def median_ate(association: str) -> float:
