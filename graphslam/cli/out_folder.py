@@ -247,9 +247,11 @@ class OutputFolder:
         """A full disk refused one of the run's own files: a recording still being saved
         in this folder goes, with a warning, to make room for them (hostile pass 17: the
         recording's partial file held the disk and every text file was lost). True when
-        one went."""
-        if self.recorder is None or self.rerun_mode != "save":
+        one went. A viewer's stream keeps going, its copy on disk goes."""
+        if self.recorder is None:
             return False
+        if self.rerun_mode != "save":
+            return self._give_up_disk_copy()
         recorder, self.recorder = self.recorder, None
         try:
             recorder.discard()
@@ -260,6 +262,19 @@ class OutputFolder:
             "own files fit"
         )
         return True
+
+    def _give_up_disk_copy(self) -> bool:
+        drop = getattr(self.recorder, "drop_disk_copy", None)
+        try:
+            dropped = bool(drop()) if drop is not None else False
+        except Exception:  # noqa: BLE001 - the write's own error is the one to report
+            return False
+        if dropped:
+            warn(
+                "the disk is full: the recording's copy on disk is given up so that the run's own "
+                "files fit (the viewer keeps the stream; a viewer closed from now on loses it)"
+            )
+        return dropped
 
     def close_recorder(self, paths: dict[str, Path]) -> None:
         """Close the recording; a saved one closed whole is listed in ``paths`` as

@@ -326,6 +326,13 @@ class RunRecorder:
     def close(self) -> None:
         self.log.close()
 
+    def drop_disk_copy(self) -> bool:
+        """A viewer stream's copy on disk deleted, the viewer still fed
+        (:meth:`~graphslam.visualisation.recording.RerunLog.drop_disk_copy`); False
+        when there is none (a saved recording, a child process's log)."""
+        drop = getattr(self.log, "drop_disk_copy", None)
+        return bool(drop()) if drop is not None else False
+
     def discard(self) -> None:
         """Stop recording and delete what was recorded (a child process's log is
         abandoned: it deletes its partial file)."""

@@ -471,6 +471,18 @@ class RerunLog:
             if cut is not None:
                 self._not_written(cut)
 
+    def drop_disk_copy(self) -> bool:
+        """A viewer stream (``spawn``, ``connect``): stop writing its copy on disk
+        (:meth:`_connect`) and delete it, the viewer still taking the stream; a full
+        disk gives the run's own files the room. True when there was a copy."""
+        if self._backup is None or self._url is None:
+            return False
+        backup, self._backup = self._backup, None
+        # the file sink is flushed and closed as it is replaced: its space comes free
+        self._stream.set_sinks(self._rr.GrpcSink(self._url))
+        backup.unlink(missing_ok=True)
+        return True
+
     def _close_viewer(self) -> None:
         """Flush and close a viewer stream (``spawn``, ``connect``) and settle its copy
         on disk (:meth:`_connect`): deleted when the viewer took everything, else moved

@@ -321,6 +321,11 @@ class VisualRecorder:
         """Stop recording and delete what was recorded (:meth:`RerunLog.discard`)."""
         self.log.discard()
 
+    def drop_disk_copy(self) -> bool:
+        """A viewer stream's copy on disk deleted, the viewer still fed
+        (:meth:`RerunLog.drop_disk_copy`)."""
+        return self.log.drop_disk_copy()
+
 
 def grid_lines(size, cell: int) -> list[np.ndarray]:
     """Tessellation cell borders of a ``(W, H)`` image as 2-point line strips."""

@@ -99,6 +99,68 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _serve(exe: str):
+    """A Rerun gRPC server (a viewer without a window) on a free port: ``(process, url)``."""
+    import subprocess
+    import time
+
+    from graphslam.visualisation.recording import sink_problem
+
+    port = _free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    # its own session: the `rerun` script starts the server as a child, killed with it
+    server = subprocess.Popen(
+        [exe, "--serve-grpc", "--port", str(port)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 60
+    while sink_problem("connect", url) is not None:
+        assert server.poll() is None and time.monotonic() < deadline
+        time.sleep(0.2)
+    return server, url
+
+
+def test_a_full_disk_gives_up_a_viewers_copy_on_disk_and_the_stream_goes_on(tmp_path, capsys):
+    """A full disk refusing a run's own file gave up a saved recording only: under
+    ``--rerun connect`` the stream's copy on disk kept growing and the run's files were
+    lost. The copy now goes, with a warning, and the viewer keeps taking the stream."""
+    import os
+    import signal
+
+    from graphslam.cli.out_folder import OutputFolder
+    from graphslam.visualisation.planar import RunRecorder
+    from graphslam.visualisation.recording import find_viewer
+
+    exe = find_viewer()
+    if exe is None:
+        pytest.skip("no Rerun viewer executable")
+    server, url = _serve(exe)
+    try:
+        folder = OutputFolder(tmp_path / "o")
+        recorder = folder.open_recorder(RunRecorder.open, "connect", "run.rrd", url)
+        log = recorder.log
+        for k in range(20):
+            log.set_step(k)
+            log.rec.log("p", log._rr.Points2D([[k, k]]))
+        log.rec.flush(timeout_sec=10)
+        (copy,) = [p for p in (tmp_path / "o").iterdir() if p.name != "run.rrd"]
+        assert copy.stat().st_size > 0
+        assert folder.give_up_recording()
+        assert not copy.exists() and "the recording's copy on disk is given up" in capsys.readouterr().err
+        for k in range(20, 40):  # the stream goes on, to the viewer only
+            log.set_step(k)
+            log.rec.log("p", log._rr.Points2D([[k, k]]))
+        paths: dict = {}
+        folder.close_recorder(paths)  # the viewer took everything: nothing said, nothing kept
+        assert paths == {} and list((tmp_path / "o").iterdir()) == []
+        assert capsys.readouterr().err == ""
+        assert not folder.give_up_recording()  # no copy left to give up
+    finally:
+        os.killpg(server.pid, signal.SIGKILL)
+
+
 def test_a_viewer_that_dies_during_the_run_leaves_the_whole_recording(tmp_path):
     """``--rerun connect`` to a viewer killed during the run: the end said "the recording
     is incomplete" and nothing of it was kept. The stream is now copied to a hidden file
@@ -107,29 +169,15 @@ def test_a_viewer_that_dies_during_the_run_leaves_the_whole_recording(tmp_path):
     import shutil
     import signal
     import subprocess
-    import time
 
-    from graphslam.visualisation.recording import RerunLog, SavedInstead, find_viewer, sink_problem
+    from graphslam.visualisation.recording import RerunLog, SavedInstead, find_viewer
 
     exe = find_viewer()
     if exe is None:
         pytest.skip("no Rerun viewer executable")
-    url_of = "rerun+http://127.0.0.1:{}/proxy".format
 
     def serve() -> tuple[subprocess.Popen, str]:
-        port = _free_port()
-        # its own session: the `rerun` script starts the server as a child, killed with it
-        server = subprocess.Popen(
-            [exe, "--serve-grpc", "--port", str(port)],
-            start_new_session=True,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        deadline = time.monotonic() + 60
-        while sink_problem("connect", url_of(port)) is not None:
-            assert server.poll() is None and time.monotonic() < deadline
-            time.sleep(0.2)
-        return server, url_of(port)
+        return _serve(exe)
 
     def points(log, steps):
         for k in steps:
