@@ -58,6 +58,9 @@ class Attack:
     check: Callable[[Path, str, str], str | None] | None = None
     ok_codes: tuple[int, ...] = (0,)
     slow: bool = False
+    #: left out of the test suite's default run (pytest's ``heavy`` marker): slow, and
+    #: its run measured by a benchmark too; the pass itself still runs it
+    heavy: bool = False
     env: dict = field(default_factory=dict)
     #: bytes a file the command writes may hold (RLIMIT_FSIZE, SIGXFSZ ignored: a write
     #: past it fails with EFBIG as a write to a full disk fails with ENOSPC), or None
@@ -810,7 +813,7 @@ def attacks() -> list[Attack]:
                lambda f: _run(DATA / "rrr_posegraphs" / "Bovisa04_odometry_bow_tr.g2o", "--backend", "batch",
                               "--config", str(_w(f, "c.toml", "[posegraph]\nrobust_closures = 'none'\n"))),
                ("ok",), check=lambda f, o, e: _warned("trusted untested")(f, o, e)
-               or _warned("above the chi-square bound")(f, o, e), slow=True),
+               or _warned("above the chi-square bound")(f, o, e), slow=True, heavy=True),
         Attack("12th: MRCLAM robot 3, FastSLAM 1.0, 5 particles, unknown ids (83 landmarks for 15)",
                "silent",
                lambda f: _run(DATA / "mrclam6", "--robot", "3", "--backend", "fastslam1", "--config",

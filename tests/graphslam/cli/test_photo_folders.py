@@ -314,6 +314,7 @@ def test_compare_scores_every_back_end_against_a_colmap_truth(lund_colmap, share
 LUND_CAMERA_SIGMAS = 3.0
 
 
+@pytest.mark.heavy  # 18 s of CI; bench_self_calibration.py --quick runs the same estimate in CI
 def test_lund_door_camera_estimated_from_its_photos(lund_colmap, tmp_path, capsys):
     """``--intrinsics estimate``: the focal length by bundle adjustment from 1.2 times the
     longer side, near COLMAP's; the run from it within 1 % of the path, and the camera

@@ -200,6 +200,7 @@ def test_dataset_graph_holds_range_factors():
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # 12 s of CI; benchmarks/bench_plaza.py runs the same
 def test_isam2_on_plaza2_beats_dead_reckoning(tmp_path):
     out = tmp_path / "run"
     assert main(["run", "--dataset", "plaza2", "--rerun", "off", "--quiet",
