@@ -86,7 +86,8 @@ the weighted-mean particle pose of each step (after that step's observations, be
 resampling), never revised. The pose covariances are the weighted particle covariance
 of each step in both; :meth:`FastSlam.current_pose` is the trajectory's latest pose.
 
-Several robots (``graphslam run --robot all``): every particle holds every
+Several robots (``graphslam run --robot all``): ``n_particles`` is kept for each
+robot (:meth:`FastSlam.set_robot_count`, R x N in all), and every particle holds every
 robot's latest pose beside its landmark map (the robots that do not move are
 parked in :attr:`filters.fastslam_particles.ParticleSet.parked`), so the map a
 particle builds from all robots' sightings is conditioned on all their paths, as
@@ -106,17 +107,18 @@ inputs, same bits.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
-from filters.fastslam_config import FastSlamConfig
+from filters.fastslam_config import MAX_PARTICLES, FastSlamConfig
 from filters.fastslam_map import ParticleMaps
 from filters.fastslam_particles import ParticleSet
 from filters.fastslam_paths import MAX_PATH_BYTES, ParticlePaths
 from filters.numerics import Recoveries
 from filters.numerics import symmetrise as sym
 from filters.planar_inputs import checked_scan, initial_pose, linked_pose, odometry_step
-from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.backend import Backend
 from slamcore.planar.records import Estimate, Observation, Odometry, PoseSighting, Prediction, SensorField
@@ -133,9 +135,8 @@ class FastSlam(Backend):
     def __init__(self, config: FastSlamConfig | None = None):
         self.config = config if config is not None else FastSlamConfig()
         self.name = f"fastslam{self.config.version}"
-        self.n_particles = self.config.n_particles
-        self._particles = ParticleSet(self.config)
-        self._paths = ParticlePaths(self.n_particles) if self.config.trajectory == "path" else None
+        self._sensor_field: SensorField | None = None
+        self._build(self.config.n_particles)
         self._pose_ids: list[int] = []
         self._pose_set: set[int] = set()
         self._hist_mean: list[np.ndarray] = []
@@ -150,11 +151,35 @@ class FastSlam(Backend):
         # by step_ess() and resampled_this_step(), never by the filter itself
         self._decision: tuple[int, float, int] = (-1, float(self.n_particles), 0)
 
+    def _build(self, n_particles: int) -> None:
+        """The particle set and paths for ``n_particles`` (before :meth:`initialize`)."""
+        #: Particles in all: ``n_particles`` of the settings for each robot of the run.
+        self.n_particles = int(n_particles)
+        self._particles = ParticleSet(replace(self.config, n_particles=self.n_particles))
+        self._paths = ParticlePaths(self.n_particles) if self.config.trajectory == "path" else None
+
     # ------------------------------------------------------------- contract
+    def set_robot_count(self, n_robots: int) -> None:
+        """Several robots in one filter: ``n_particles`` for each (module docstring)."""
+        if self._pose_ids:
+            raise GraphSlamError(f"{self.name}: set_robot_count() after initialize()")
+        if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)) or n_robots < 1:
+            raise GraphSlamError(f"{self.name}: robot count must be a positive integer, got {n_robots!r}")
+        n = self.config.n_particles * int(n_robots)
+        if n > MAX_PARTICLES:
+            raise ConfigError(
+                f"[fastslam] n_particles = {self.config.n_particles} for each of {n_robots} robots is "
+                f"{n} particles, over the {MAX_PARTICLES} a filter may have (memory)"
+            )
+        if n != self.n_particles:
+            self._build(n)
+            self._particles.set_sensor_field(self._sensor_field)
+
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:
         """Unknown association reads the sensor's error tail from it (the gate of a new
         landmark, ``new_landmark_mahalanobis_sq`` unset; None: Gaussian errors) and its
         field, to prune the landmarks each particle misses (``prune_missed_alpha``)."""
+        self._sensor_field = sensor_field
         self._particles.set_sensor_field(sensor_field)
 
     def initialize(self, pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> None:

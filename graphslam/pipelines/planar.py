@@ -220,6 +220,7 @@ def _feed(frames, dataset, backend, stop, scored, on_step, bar, counters) -> Non
     for k, frame in enumerate(frames):
         stop.check()
         if k == 0:
+            backend.set_robot_count(max(1, len(dataset.agents)))
             backend.initialize(frame.pose_id, dataset.prior_wTb, dataset.prior_covariance)
             backend.set_sensor_field(dataset.sensor_field)
         else:

@@ -71,6 +71,14 @@ class Backend(ABC):
         Unknown landmarks are initialised from their first observation.
         """
 
+    def set_robot_count(self, n_robots: int) -> None:  # noqa: B027
+        """How many robots the run's data holds (1, or the ``agents`` of a run of
+        several in one estimate); called before :meth:`initialize`.
+
+        Only a back end whose state's sampling depends on it (FastSLAM keeps its
+        particle count per robot) uses it; the others need nothing from it.
+        """
+
     def set_sensor_field(self, sensor_field: SensorField | None) -> None:  # noqa: B027
         """Where the sensor reports landmarks and how reliably (the data's
         :class:`~slamcore.planar.records.SensorField`, None when unknown); kept across

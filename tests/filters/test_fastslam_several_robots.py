@@ -16,7 +16,7 @@ import pytest
 from filters.fastslam import FastSlam
 from filters.fastslam_config import FastSlamConfig
 from filters.fastslam_particles import ParticleSet
-from slamcore.errors import UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.records import PoseSighting
 from tests.filters.test_ekf_several_robots import PRIOR, R, STRIDE, _stream, feed
@@ -81,3 +81,43 @@ def test_a_sighting_of_a_pose_no_particle_holds_is_refused():
         fs.predict(odo, pid)
     with pytest.raises(UnsupportedError, match="latest pose only"):
         fs.add_pose_sighting(PoseSighting(STRIDE, stream[-1][1], np.array([1.0, 0.1]), R))
+
+
+def test_the_particle_count_is_per_robot():
+    """``n_particles`` for each robot of the run: three robots, three times the particles,
+    every one of them drawn, moved and weighed; one robot leaves the filter as built."""
+    fs = FastSlam(FastSlamConfig(n_particles=20, seed=0))
+    fs.set_robot_count(1)
+    assert fs.n_particles == 20
+    fs.set_robot_count(3)
+    assert fs.n_particles == 60
+    feed(fs, _stream(0)[:10])
+    assert fs._particles.poses.shape == (60, 3) and fs._particles.logw.shape == (60,)
+    assert all(p.shape == (60, 3) for p in fs._particles.parked.values())
+
+
+def test_a_robot_count_the_filter_cannot_take_is_one_line():
+    fs = FastSlam(FastSlamConfig(n_particles=400_000, seed=0))
+    with pytest.raises(ConfigError, match="for each of 3 robots is 1200000 particles"):
+        fs.set_robot_count(3)
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(GraphSlamError, match="positive integer"):
+            fs.set_robot_count(bad)
+    fs = FastSlam(FastSlamConfig(n_particles=5, seed=0))
+    fs.initialize(STRIDE, np.zeros(3), PRIOR)
+    with pytest.raises(GraphSlamError, match="after initialize"):
+        fs.set_robot_count(2)
+
+
+def test_the_pipeline_gives_fastslam_its_robot_count(shared_data):
+    """``pipeline.run`` tells the back end how many robots the data holds, before the
+    first particle is drawn: MRCLAM's five in one filter are 5 x 100 particles."""
+    from graphslam import registry
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.sources.planar.mrclam import MrclamConfig
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    ds = read_mrclam_all(shared_data / "mrclam6", MrclamConfig(all_robots=True))
+    backend = registry.make_backend("fastslam2", overrides={"seed": 0})
+    pipeline.run(ds, backend, max_steps=5)
+    assert len(ds.agents) == 5 and backend.n_particles == 500

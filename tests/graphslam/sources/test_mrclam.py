@@ -717,11 +717,11 @@ def test_fastslam_of_every_robot_with_nees_writes_its_files(mrclam, tmp_path, ca
 
 
 def test_fastslam_nees_of_a_collapsed_cloud_is_undefined_and_said(mrclam, tmp_path, capsys):
-    """One particle: every pose's cloud is one pose, its covariance zero. Each NEES is
-    NaN, said in one line, and no mean is claimed."""
+    """One particle (one robot: the count is per robot): every pose's cloud is one pose,
+    its covariance zero. Each NEES is NaN, said in one line, and no mean is claimed."""
     out, cfg = tmp_path / "o", tmp_path / "one.toml"
     cfg.write_text("[fastslam]\nn_particles = 1\n")
-    assert main(["run", "--dataset", str(mrclam), "--robot", "all", "--backend", "fastslam1",
+    assert main(["run", "--dataset", str(mrclam), "--robot", "1", "--backend", "fastslam1",
                  "--max-steps", "60", "--nees", "--rerun", "off", "--quiet", "--out", str(out),
                  "--config", str(cfg)]) == 0
     assert "NEES undefined at 60 of 60 poses" in capsys.readouterr().err
