@@ -417,6 +417,9 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
     return lo / n_runs, hi / n_runs
 
 
+#: Degrees of freedom of the 2-D pose NEES (x, y, heading).
+POSE_DOF = 3
+
 #: 95 % two-sided chi-square bounds are taken at this confidence.
 NEES_CONFIDENCE = 0.95
 
@@ -553,7 +556,7 @@ def pose_statistics(dataset: Dataset, estimate: Estimate, ground_truth=None) -> 
     out["final_pose_error_m"] = float(np.linalg.norm(err[-1, :2]))
     if est.pose_covariances is not None:
         nees_k = nees(err, est.pose_covariances[keep])
-        lo, hi = chi2_bounds(3, 1, NEES_CONFIDENCE)
+        lo, hi = chi2_bounds(POSE_DOF, 1, NEES_CONFIDENCE)
         defined = np.isfinite(nees_k)
         if defined.any():
             out["nees_mean"] = float(np.mean(nees_k[defined]))

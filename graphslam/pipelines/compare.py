@@ -298,4 +298,4 @@ def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:
 
 
 #: Degrees of freedom of the 2-D pose NEES (x, y, heading).
-PLANAR_POSE_DOF = 3
+PLANAR_POSE_DOF = metrics.POSE_DOF

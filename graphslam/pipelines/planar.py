@@ -446,7 +446,9 @@ def add_nees(
     reason added to the metrics' warnings, when the run's poses are not in the truth's
     frame (:func:`graphslam.evaluation.planar.truth_frame_doubt`).
 
-    Filters give each step's filtered covariance, iSAM2 the smoothed marginals.
+    Filters give each step's filtered covariance, iSAM2 the smoothed marginals. A mean
+    NEES outside one step's 95 % chi-square bounds adds its doubt to the warnings
+    (:func:`graphslam.evaluation.planar.nees_doubt`).
     GraphSlamError when the run has no truth or no covariances (interrupted).
     """
     from graphslam.evaluation import planar as metrics
@@ -464,6 +466,10 @@ def add_nees(
     if stats["frame_doubt"] is not None:
         run_metrics.warnings = [*(run_metrics.warnings or []), stats["frame_doubt"]]
         return None
+    # a covariance off by a clear factor (a depleted particle cloud's NEES runs to 1e12)
+    # is said, as compare says it
+    if (doubt := metrics.nees_doubt(run_metrics.nees_mean, metrics.POSE_DOF)) is not None:
+        run_metrics.warnings = [*(run_metrics.warnings or []), doubt]
     return stats["pose_ids"], stats["nees"], stats["nees_undefined"]
 
 

@@ -347,6 +347,9 @@ def format_summary(metrics) -> str:
         rows.append(
             ("landmarks recovered", f"{metrics.landmarks_recovered} of {metrics.landmarks_true} within 0.3 m")
         )
+    if metrics.nees_mean is not None:
+        rows.append(("mean NEES (3 dof)", fmt(metrics.nees_mean, ".4g")))
+        rows.append(("NEES in 95 % bounds", fmt(metrics.nees_in_bounds_fraction, ".2f")))
     for name, a in (metrics.agents or {}).items():
         rows.append(
             (
