@@ -292,10 +292,6 @@ def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:
         setattr(m, key, stats[key])
     if stats["frame_doubt"] is not None:  # every back end shares it: said once (warn_doubts)
         m.warnings = [*(m.warnings or []), stats["frame_doubt"]]
-    if (doubt := metrics.nees_doubt(m.nees_mean, PLANAR_POSE_DOF)) is not None:
+    if (doubt := metrics.nees_doubt(m.nees_mean, metrics.POSE_DOF)) is not None:
         m.warnings = [*(m.warnings or []), doubt]
     return m
-
-
-#: Degrees of freedom of the 2-D pose NEES (x, y, heading).
-PLANAR_POSE_DOF = metrics.POSE_DOF
