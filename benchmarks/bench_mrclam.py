@@ -104,7 +104,8 @@ def seed_spread(data: Path, robots: list[int], seeds: list[int]) -> dict:
               f"{per['known']['median_m']:.3f} m ({per['known']['min_m']:.3f}-{per['known']['max_m']:.3f}), "
               f"unknown median {per['unknown']['median_m']:.3f} m "
               f"({per['unknown']['min_m']:.3f}-{per['unknown']['max_m']:.3f}), "
-              f"ratio of medians {per['median_ratio']:.2f}; landmarks recovered within 0.3 m known "
+              f"ratio of medians {per['median_ratio']:.2f}; landmarks recovered within "
+              f"{metrics.MAP_RECOVERY_RADIUS_M} m known "
               f"{per['known']['landmarks_recovered']}, unknown {per['unknown']['landmarks_recovered']}",
               flush=True)
     return out
