@@ -3,7 +3,11 @@
 ``sweep.csv`` (in ``--out``) has one row a run: ``run_id``, ``dataset`` (as the sweep
 file lists it),
 ``backend``, every swept ``section.key`` (empty where the run does not read
-that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS`,
+that section), ``config_hash``, ``seed``, then :data:`METRIC_COLUMNS` (a landmark
+log's map: the landmarks built, ``map_rmse_m`` after the trajectory's alignment, the
+true landmarks recovered within
+:data:`graphslam.evaluation.planar.MAP_RECOVERY_RADIUS_M` and their number; empty
+without landmark truth),
 ``run_wall_s``, ``wall_s``, ``peak_rss_mb`` (:data:`TAIL_COLUMNS`), ``status`` (ok, failed, interrupted),
 ``error`` (the failed run's one-line error) and ``warnings`` (what the run's
 metrics.json says makes its estimate doubtful, joined by " | "; empty: nothing). The file is rewritten after
@@ -42,6 +46,10 @@ METRIC_COLUMNS = (
     "nees_in_bounds_fraction",
     "association_accuracy",
     "duplicates",
+    "landmarks",
+    "map_rmse_m",
+    "landmarks_recovered",
+    "landmarks_true",
 )
 #: ``run_wall_s``: the run's own time (its metrics.json's ``wall_s``: reading the data,
 #: the run, its outputs); ``wall_s`` and ``peak_rss_mb``: the whole child process's,

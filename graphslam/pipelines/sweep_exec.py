@@ -132,6 +132,8 @@ def _scores(out_dir: Path) -> dict:
         "nees_in_bounds_fraction": m.get("nees_in_bounds_fraction"),
         "association_accuracy": assoc.get("accuracy"),
         "duplicates": assoc.get("duplicates"),
+        # a landmark log's map (MRCLAM seeds of FastSLAM are the sweep users run most)
+        **{k: m.get(k) for k in ("landmarks", "map_rmse_m", "landmarks_recovered", "landmarks_true")},
         "warnings": WARNING_SEPARATOR.join(m.get("warnings") or []),
     }
     own = m.get("rpe")

@@ -179,7 +179,12 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
     rows = {Path(r["dataset"]).name: r for r in _csv(tmp_path / "o" / "sweep.csv")}
     assert outcome.ran == 4 and outcome.failed == 2
     assert rows["synthetic"]["status"] == "ok" and float(rows["synthetic"]["ate_rmse_m"]) > 0
+    # the map's columns: the synthetic world has landmark truth, so they are filled
+    ok = rows["synthetic"]
+    assert int(ok["landmarks"]) > 0 and float(ok["map_rmse_m"]) > 0
+    assert 0 <= int(ok["landmarks_recovered"]) <= int(ok["landmarks_true"])
     bad = rows["bad.g2o"]
+    assert bad["map_rmse_m"] == "" and bad["landmarks_recovered"] == ""
     assert bad["status"] == "failed" and "bad.g2o:2:" in bad["error"]
     assert "\n" not in bad["error"]
 
