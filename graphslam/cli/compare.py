@@ -437,6 +437,10 @@ COLUMNS = [
     ("association_oracle", "oracle acc", ".4f"),
     ("association_unused", "obs unused", "d"),
     ("association_duplicates", "dup lm", "d"),
+    # the map beside the path: a landmark log with landmark truth (MRCLAM) is judged on
+    # both, and compare.json held them with nothing on the screen
+    ("map_rmse_m", "map [m]", ".3f"),
+    ("landmarks_recovered", "lm recovered", "d"),
     ("rpe_trans_rmse_m", "RPE [m/frame]", ".4f"),
     ("rpe_rot_rmse_deg", "RPE [deg/frame]", ".3f"),
     ("wall_s", "wall [s]", ".2f"),

@@ -321,3 +321,21 @@ def test_compare_table_prints_a_huge_nees_with_an_exponent():
     table = format_table([entry("ekf", 70.23), entry("fastslam2", 2.1682e71)])
     assert "2.17e+71" in table and "70.23" in table
     assert max(len(line) for line in table.splitlines()) < 60
+
+
+def test_compare_table_shows_the_map_where_a_run_scored_one():
+    # MRCLAM's map error and landmarks recovered were in compare.json, not on the screen
+    from graphslam.cli.compare import format_table
+    from graphslam.pipelines.compare import CompareEntry
+
+    def entry(name, scores):
+        metrics = SimpleNamespace(association=None,
+                                  to_dict=lambda: {"backend": name, "ate_rmse_m": 0.1, **scores})
+        return CompareEntry(name, result=None, metrics=metrics)
+
+    table = format_table([entry("isam2", {"map_rmse_m": 0.0724, "landmarks_recovered": 15}),
+                          entry("ekf", {"map_rmse_m": None, "landmarks_recovered": None})])
+    head, _, isam2, ekf = table.splitlines()
+    assert "map [m]" in head and "lm recovered" in head
+    assert isam2.split()[-2:] == ["0.072", "15"] and ekf.split()[-2:] == ["n/a", "n/a"]
+    assert "map [m]" not in format_table([entry("ekf", {})])  # no landmark truth: no column
