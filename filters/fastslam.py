@@ -55,10 +55,13 @@ Per frame:
 
   Where the data states its sensor's error tail (``SensorField.error_dof``: MRCLAM's
   camera, Student-t with 5.1 dof), the weights' ``N(.; 0, S)`` and ``N(.; 0, L)`` are
-  that law with the same scale matrix (:func:`filters.fastslam_math.log_likelihood`;
-  the landmark EKFs and the proposal stay Gaussian): under a Gaussian an outlier
-  costs a particle ``d^2/2``, and the particles whose path explained it took the
-  weight. Without a stated tail, or with a Gaussian one, the weights are as above.
+  that law with the same scale matrix (:func:`filters.fastslam_math.log_likelihood`):
+  under a Gaussian an outlier costs a particle ``d^2/2``, and the particles whose path
+  explained it took the weight. After 2.0's draw the landmark EKFs take a sighting's
+  ``R`` times the law's factor (:func:`filters.fastslam_math.t_noise_factor`, at least
+  1: an outlier moves the landmark by its weight); the 2.0 proposal and 1.0's landmark
+  EKFs stay Gaussian (the weights correct a draw; a 1.0 innovation is mostly its
+  particle's pose error). Without a stated tail, or with a Gaussian one, all is as above.
 
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.

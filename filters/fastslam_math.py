@@ -171,24 +171,60 @@ def raise_to_floor(r, f):
     return r + np.where(r < f, f - r, 0.0)
 
 
-def landmark_update(a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof: float = math.inf):
-    """Landmark EKF update on the entries: ``(dm_x, dm_y, (n00, n01, n11), log p(nu))``,
-    ``p`` the sensor's error law with scale ``S`` (:func:`log_likelihood`, ``dof``).
+def t_noise_factor(nu_r, nu_b, inv, dof: float):
+    """Factor on the sensor noise ``R`` of one EKF step whose innovation ``nu`` has scale
+    ``S`` (``S^-1`` upper triangle) under the sensor's error law: 1.0 for a Gaussian
+    (``dof`` inf), else ``max(1, (v + d^2) / (v + 2))`` with ``d^2 = nu^T S^-1 nu``.
 
-    ``S = H_m P H_m^T + R``, ``K = P H_m^T S^-1``, ``m += K nu``, ``P -= K (P H_m^T)^T``.
+    Why: a Student-t error is a Gaussian whose precision is drawn from a Gamma law; given
+    the innovation its expected precision is ``(v + 2) / (v + d^2)`` times the scale's (the
+    weight of the EM / variational updates of heavy-tailed Kalman filters: Agamennoni,
+    Nieto and Nebot, IEEE TSP 2012; Piche et al., MLSP 2012, of which this is the first
+    iteration, with ``d^2`` under ``S`` rather than ``R``). An outlier then moves a landmark
+    or a pose by its weight, where a Gaussian update took it in full: MRCLAM's camera has
+    about 11 % of its ranges beyond 3 robust sigma, and iSAM2 needs its Cauchy kernel on
+    them (``[isam2] observation_kernel``). Floored at 1: the stated noise is the least a
+    sighting is given (sightings of one landmark correlate in time, which an EKF step does
+    not model, so no sighting is trusted beyond its stated noise; unfloored, and with the
+    proposal's noise scaled too, MRCLAM robots 1-5 with unknown ids recovered 291 true
+    landmarks over seeds 0-4 against 331 floored; 375 is all). The landmark EKFs take it, FastSLAM 2.0's
+    pose proposal does not: a proposal need not be the model (the weights, under the
+    sensor's law, correct the draw), while a landmark's EKF is the map, with nothing after
+    it to correct an outlier it took in full. And only after 2.0's draw: there the pose is
+    drawn given the scan, so what is left of an innovation is the sensor's; FastSLAM 1.0
+    draws the pose from the odometry alone, each particle's innovation is mostly its own
+    pose's error, which ``d^2`` cannot tell from an outlier (taken so, 1.0 on MRCLAM seed
+    0, barcodes given, kept 5 and 10 of robots 3 and 4's landmarks within 0.3 m, against
+    14 and 15 before)."""
+    if math.isinf(dof):
+        return 1.0
+    i00, i01, i11 = inv
+    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    return np.maximum((dof + maha) / (dof + 2.0), 1.0)
+
+
+def landmark_update(
+    a, b, c, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof: float = math.inf, robust: bool = False
+):
+    """Landmark EKF update on the entries: ``(dm_x, dm_y, (n00, n01, n11), log p(nu), f)``,
+    ``p`` the sensor's error law with scale ``S`` (:func:`log_likelihood`, ``dof``) and
+    ``f`` the factor the gain took on ``R``: :func:`t_noise_factor` with ``robust``, else
+    (and for a Gaussian) 1.0.
+
+    ``S = H_m P H_m^T + R``, ``K = P H_m^T S_f^-1`` with ``S_f = H_m P H_m^T + f R``,
+    ``m += K nu``, ``P -= K (P H_m^T)^T``.
     """
     (s00, s01, s11), (t00, t01, t10, t11) = sandwich(a, b, c, d, p00, p01, p11)
     inv, det = inverse_sym2(s00 + r00, s01 + r01, s11 + r11)
+    logl = log_likelihood(nu_r, nu_b, inv, det, dof)
+    f = t_noise_factor(nu_r, nu_b, inv, dof) if robust else 1.0
+    if robust and not math.isinf(dof):
+        inv, _ = inverse_sym2(s00 + f * r00, s01 + f * r01, s11 + f * r11)
     i00, i01, i11 = inv
     k00, k01 = t00 * i00 + t01 * i01, t00 * i01 + t01 * i11
     k10, k11 = t10 * i00 + t11 * i01, t10 * i01 + t11 * i11
     P_new = (p00 - (k00 * t00 + k01 * t01), p01 - (k00 * t10 + k01 * t11), p11 - (k10 * t10 + k11 * t11))
-    return (
-        k00 * nu_r + k01 * nu_b,
-        k10 * nu_r + k11 * nu_b,
-        P_new,
-        log_likelihood(nu_r, nu_b, inv, det, dof),
-    )
+    return k00 * nu_r + k01 * nu_b, k10 * nu_r + k11 * nu_b, P_new, logl, f
 
 
 def new_landmark(px, py, th, z0, z1, r00, r01, r11):

@@ -238,6 +238,7 @@ class ParticleSet:
             log_p0=self._log_p0 if unknown else None,
             temper=self.config.temper_correlated,
             dof=self.error_dof,
+            robust=not weigh,  # after 2.0's draw (filters.fastslam_math.t_noise_factor)
         )
 
     def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):

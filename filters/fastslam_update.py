@@ -99,19 +99,22 @@ def landmark_steps(
     log_p0: Callable[[np.ndarray], float] | None = None,
     temper: bool = False,
     dof: float = math.inf,
+    robust: bool = False,
 ) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
-    observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
-    new record keeps the observation's time and sensor (:class:`ParticleMaps`).
+        observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
+        new record keeps the observation's time and sensor (:class:`ParticleMaps`).
 
-    ``known``: known association (one column per observation for all particles).
-    ``logw``: when given, the 1.0 weights are added to it in place: the measurement
-    likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
-    given (unknown association); with ``temper``, an updated landmark's likelihood is
-    taken at its :func:`weight_shares`, under the sensor's error law (``dof``:
-    :func:`~filters.fastslam_math.log_likelihood`). The observations must go to distinct landmarks
-    of a particle (mutual exclusion, or distinct known ids); the updates are then
-    independent of their order.
+        ``known``: known association (one column per observation for all particles).
+        ``logw``: when given, the 1.0 weights are added to it in place: the measurement
+        likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
+        given (unknown association); with ``temper``, an updated landmark's likelihood is
+        taken at its :func:`weight_shares`, under the sensor's error law (``dof``:
+        :func:`~filters.fastslam_math.log_likelihood`); with ``robust``, an updated landmark takes
+    the sighting's noise times the law's factor (:func:`~filters.fastslam_math.t_noise_factor`:
+    after 2.0's draw). The observations must go to distinct landmarks
+        of a particle (mutual exclusion, or distinct known ids); the updates are then
+        independent of their order.
     """
     Z = np.array([o.z for o in obs], dtype=float)
     R = np.array([o.covariance for o in obs], dtype=float)
@@ -132,7 +135,7 @@ def landmark_steps(
             pairs = _pairs(mask, col, rows)
             if update:
                 shares = obs if temper else None
-                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw, seen, shares, dof)
+                _update_pairs(maps, pairs, ptr, Z, R, poses, recoveries, logw, seen, shares, dof, robust)
             else:
                 _init_pairs(
                     maps, pairs, Z, R, poses, recoveries, logw if log_p0 is not None else None, log_p0, seen
@@ -171,6 +174,7 @@ def _update_pairs(
     seen: tuple[np.ndarray, np.ndarray],
     tempered_by: list[Observation] | None,
     dof: float,
+    robust: bool,
 ) -> None:
     i, k, c = pairs
     p = ptr[i, k]
@@ -181,10 +185,13 @@ def _update_pairs(
     r00, r01, r11 = R[k, 0, 0], R[k, 0, 1], R[k, 1, 1]
     mv = np.maximum(p00, p11)
     r00, r11 = floor_noise(recoveries, r00, r11, mv * (a * a + b * b), mv * (cc * cc + d * d))
-    dmx, dmy, P_new, logl = landmark_update(a, b, cc, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof)
+    dmx, dmy, P_new, logl, f = landmark_update(
+        a, b, cc, d, nu_r, nu_b, p00, p01, p11, r00, r01, r11, dof, robust
+    )
     ok = positive_definite2(*P_new)
-    if not ok.all():
-        P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d), (r00, r01, r11), P_new)
+    if not ok.all():  # the repair takes the noise the gain took
+        r_used = (r00 * f, r01 * f, r11 * f)
+        P_new = landmark_joseph(recoveries, ~ok, (p00, p01, p11), (a, b, cc, d), r_used, P_new)
     if logw is not None:
         share = None if tempered_by is None else weight_shares(maps, p, tempered_by, k)
         _add_weights(logw, i, logl if share is None else logl * share)
