@@ -181,7 +181,7 @@ def t_noise_factor(nu_r, nu_b, inv, dof: float):
     weight of the EM / variational updates of heavy-tailed Kalman filters: Agamennoni,
     Nieto and Nebot, IEEE TSP 2012; Piche et al., MLSP 2012, of which this is the first
     iteration, with ``d^2`` under ``S`` rather than ``R``). An outlier then moves a landmark
-    or a pose by its weight, where a Gaussian update took it in full: MRCLAM's camera has
+    by its weight, where a Gaussian update took it in full: MRCLAM's camera has
     about 11 % of its ranges beyond 3 robust sigma, and iSAM2 needs its Cauchy kernel on
     them (``[isam2] observation_kernel``). Floored at 1: the stated noise is the least a
     sighting is given (sightings of one landmark correlate in time, which an EKF step does

@@ -102,19 +102,19 @@ def landmark_steps(
     robust: bool = False,
 ) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
-        observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
-        new record keeps the observation's time and sensor (:class:`ParticleMaps`).
+    observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
+    new record keeps the observation's time and sensor (:class:`ParticleMaps`).
 
-        ``known``: known association (one column per observation for all particles).
-        ``logw``: when given, the 1.0 weights are added to it in place: the measurement
-        likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
-        given (unknown association); with ``temper``, an updated landmark's likelihood is
-        taken at its :func:`weight_shares`, under the sensor's error law (``dof``:
-        :func:`~filters.fastslam_math.log_likelihood`); with ``robust``, an updated landmark takes
-    the sighting's noise times the law's factor (:func:`~filters.fastslam_math.t_noise_factor`:
-    after 2.0's draw). The observations must go to distinct landmarks
-        of a particle (mutual exclusion, or distinct known ids); the updates are then
-        independent of their order.
+    ``known``: known association (one column per observation for all particles).
+    ``logw``: when given, the 1.0 weights are added to it in place: the measurement
+    likelihood of an updated landmark, and ``log_p0(R)`` of a new one when ``log_p0`` is
+    given (unknown association); with ``temper``, an updated landmark's likelihood is
+    taken at its :func:`weight_shares`, under the sensor's error law (``dof``:
+    :func:`~filters.fastslam_math.log_likelihood`); with ``robust`` (after 2.0's draw), an
+    updated landmark takes the sighting's noise times the law's factor
+    (:func:`~filters.fastslam_math.t_noise_factor`). The observations must go to distinct
+    landmarks of a particle (mutual exclusion, or distinct known ids); the updates are then
+    independent of their order.
     """
     Z = np.array([o.z for o in obs], dtype=float)
     R = np.array([o.covariance for o in obs], dtype=float)

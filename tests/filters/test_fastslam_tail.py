@@ -247,7 +247,7 @@ def test_a_landmark_takes_an_outlier_by_the_laws_weight(dof):
                                       R[0, 0], R[0, 1], R[1, 1], dof)
         assert f_plain == 1.0
     if not math.isinf(dof):  # 6 sigmas in range: d^2 >= 36, R taken at least 5.8 times
-        assert want_f >= (dof + 36.0) / (dof + 2.0)
+        assert f[0] >= (dof + 36.0) / (dof + 2.0)
     assert t_noise_factor(np.zeros(1), np.zeros(1), (1.0, 0.0, 1.0), dof) == pytest.approx(1.0)
 
 
