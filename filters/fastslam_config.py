@@ -90,8 +90,9 @@ class FastSlamConfig(Validated):
             ids: 0.170/0.305/0.195/0.185/0.270 m without, 0.133/0.147/0.153/0.197/0.226 m
             with; unknown ids: 0.160/0.480/0.450/0.380/0.210 m without,
             0.151/0.252/0.169/0.239/0.172 m with (Gaussian weights; with the camera's
-            t law, :mod:`filters.fastslam`, 0.153/0.141/0.134/0.195/0.210 m known and
-            0.141/0.180/0.140/0.214/0.168 m unknown). False: every sighting weighs in
+            t law in the weights, :mod:`filters.fastslam`, and since 2026-12-06 in 2.0's
+            landmark steps after the draw: 0.135/0.147/0.134/0.168/0.213 m known and
+            0.155/0.172/0.152/0.209/0.163 m unknown). False: every sighting weighs in
             full, as if independent.
     """
 
