@@ -289,6 +289,11 @@ class FastSlam(Backend):
         if self.config.association == "unknown":
             particles.maps.drop_empty_columns()
 
+    def rejected_observations(self) -> int:
+        """Sightings of known ids that 2.0's misread gate kept out of the pose proposal
+        of at least half the particles (:func:`~filters.fastslam_update.refine_proposal`)."""
+        return self._particles.rejected
+
     def pruned_landmark_ids(self) -> list[int]:
         """Ids of the landmarks the pruning (``prune_missed_alpha``) removed from every
         particle that held them: gone from the filter's map. A landmark pruned from some

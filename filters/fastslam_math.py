@@ -275,6 +275,22 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math
     )
 
 
+def innovation_d2(S, a, b, c, d, nu_r, nu_b, n00, n01, n11) -> np.ndarray:
+    """(n,) squared Mahalanobis distance of innovations ``nu`` under
+    ``H_x S H_x^T + n`` (``S`` (n, 3, 3) or (3, 3), the pose's covariance; ``n..`` as in
+    :func:`proposal_update`; ``H_x`` from ``a..d`` as there)."""
+    S = np.broadcast_to(S, (len(a), 3, 3))
+    a_, b_, c_, d_ = a[:, None], b[:, None], c[:, None], d[:, None]
+    u = a_ * S[:, 0] + b_ * S[:, 1]
+    v = c_ * S[:, 0] + d_ * S[:, 1] + S[:, 2]
+    (i00, i01, i11), _ = inverse_sym2(
+        a * u[:, 0] + b * u[:, 1] + n00,
+        a * v[:, 0] + b * v[:, 1] + n01,
+        c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11,
+    )
+    return nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+
+
 def all_positive_definite3(S: np.ndarray) -> bool:
     """Whether every symmetric (n, 3, 3) matrix is finite positive definite (Sylvester's
     minors, as :func:`positive_definite`; a NaN or infinite entry fails a minor or the trace)."""

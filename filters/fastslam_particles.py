@@ -77,6 +77,14 @@ class ParticleSet:
         #: Unknown association: the squared Mahalanobis gate of a new landmark
         #: (``new_landmark_mahalanobis_sq``, or the sensor's error quantile: :meth:`set_error_dof`).
         self.new_gate_d2 = self._new_gate(math.inf)
+        #: Known association, 2.0: the squared Mahalanobis gate beyond which a sighting is
+        #: taken as a misread id and does not refine a particle's proposal (the sensor's
+        #: :data:`NEW_LANDMARK_PROB` quantile; :func:`~filters.fastslam_update.refine_proposal`).
+        self.misread_gate_d2 = t2_quantile(NEW_LANDMARK_PROB, math.inf)
+        #: (particle, sighting) pairs the misread gate kept out of 2.0's proposal, and the
+        #: sightings it kept out for at least half the particles (rejected)
+        self.misreads = 0
+        self.rejected = 0
         #: The sensor's error law the weights use: Student-t dof (inf: Gaussian), from
         #: the data's sensor field (:meth:`set_error_dof`).
         self.error_dof = math.inf
@@ -200,12 +208,13 @@ class ParticleSet:
         return out
 
     def _update_v2(self, obs: list[Observation]) -> list[np.ndarray]:
-        logw, counts = self.logw.copy(), dict(self.recoveries)
+        logw, counts, misreads = self.logw.copy(), dict(self.recoveries), (self.misreads, self.rejected)
         with np.errstate(invalid="ignore", divide="ignore"):  # a failed pass is redone
             mu, Sig, out, ok = self._proposal(obs)
         if not ok:  # a proposal covariance lost definiteness: again, checking every step
             self.logw = logw
             self.recoveries.update(counts)
+            self.misreads, self.rejected = misreads
             mu, Sig, _, _ = self._proposal(obs, out)
         self.poses = sample_gaussian(mu, Sig, self.rng, self.recoveries)
         self._scan_steps(obs, out, self.poses, weigh=False)
@@ -259,6 +268,12 @@ class ParticleSet:
         mu, Sig = (a.copy() for a in self._prior)
         out: list[np.ndarray] = []
         ok = True
+        # known ids may be misread: gated under the predicted cloud's spread
+        gate = (
+            (self.cloud_stats(poses=mu)[1], self.misread_gate_d2)
+            if self.config.association == "known"
+            else None
+        )
         for k, o in enumerate(obs):
             c = cols[k] if cols is not None else self._columns_for(o, mu, Sig, out)
             ptr = self._pointers(c)
@@ -266,7 +281,7 @@ class ParticleSet:
             n_old = int(np.count_nonzero(old))
             if n_old:
                 i = slice(None) if n_old == self.n_particles else np.flatnonzero(old)
-                mu, Sig, step_ok = self._refine(o, i, ptr[i], mu, Sig, careful)
+                mu, Sig, step_ok = self._refine(o, i, ptr[i], mu, Sig, careful, gate)
                 ok = ok and step_ok
             if self.config.association == "unknown" and n_old < self.n_particles:
                 self.logw[~old] += self._log_p0(o.covariance)
@@ -274,23 +289,31 @@ class ParticleSet:
         return mu, Sig, out, careful or (ok and all_positive_definite3(Sig))
 
     def _refine(
-        self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray, careful: bool
+        self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray, careful: bool, gate=None
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
-        landmark records ``p`` (returned; updated in place for a subset), and weighed by it."""
+        landmark records ``p`` (returned; updated in place for a subset), and weighed by it;
+        ``gate``: the misread gate (:func:`~filters.fastslam_update.refine_proposal`)."""
         share = weight_shares(self.maps, p, [o], 0) if self.config.temper_correlated else None
         if isinstance(i, slice):
-            x_new, S_new, logl, ok = refine_proposal(
-                self.maps, o, p, mu, Sig, careful, self.recoveries, self.error_dof
+            x_new, S_new, logl, ok, misread = refine_proposal(
+                self.maps, o, p, mu, Sig, careful, self.recoveries, self.error_dof, gate
             )
             self.logw += logl if share is None else logl * share
+            self._count_misreads(misread)
             return x_new, S_new, ok
-        x_new, S_new, logl, ok = refine_proposal(
-            self.maps, o, p, mu[i], Sig[i], careful, self.recoveries, self.error_dof
+        x_new, S_new, logl, ok, misread = refine_proposal(
+            self.maps, o, p, mu[i], Sig[i], careful, self.recoveries, self.error_dof, gate
         )
         self.logw[i] += logl if share is None else logl * share
+        self._count_misreads(misread)
         mu[i], Sig[i] = x_new, S_new
         return mu, Sig, ok
+
+    def _count_misreads(self, misread: np.ndarray) -> None:
+        n = int(np.count_nonzero(misread))
+        self.misreads += n
+        self.rejected += int(2 * n >= self.n_particles)
 
     def _pointers(self, cols: np.ndarray) -> np.ndarray:
         """(N,) pool index of each particle's landmark ``cols`` (-1: unknown to it)."""
@@ -388,6 +411,7 @@ class ParticleSet:
         Gaussian): an unset ``new_landmark_mahalanobis_sq`` becomes their
         :data:`NEW_LANDMARK_PROB` quantile, and the particles are weighed by that law."""
         self.new_gate_d2 = self._new_gate(dof)
+        self.misread_gate_d2 = t2_quantile(NEW_LANDMARK_PROB, dof)
         self.error_dof = dof
 
     def _log_p0(self, R: np.ndarray) -> float:

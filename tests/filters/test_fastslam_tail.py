@@ -42,8 +42,9 @@ def test_a_heavy_tailed_sensor_pairs_what_a_gaussian_maps_anew(version):
     assert _landmarks_after_two_sightings(unknown, None) == 2
     assert _landmarks_after_two_sightings(unknown, SensorField(8.0, 1.0, 0.5, 5.1)) == 1
     # a set gate wins over the sensor's tail
-    fixed = FastSlamConfig(version=version, association="unknown", n_particles=20,
-                           new_landmark_mahalanobis_sq=13.8155)
+    fixed = FastSlamConfig(
+        version=version, association="unknown", n_particles=20, new_landmark_mahalanobis_sq=13.8155
+    )
     assert _landmarks_after_two_sightings(fixed, SensorField(8.0, 1.0, 0.5, 5.1)) == 2
 
 
@@ -64,8 +65,14 @@ def test_the_gate_is_the_sensors_quantile_unless_set():
 def _timed(z, stamp, model, pose_id=1):
     from slamcore.planar.records import Observation
 
-    return Observation(pose_id=pose_id, landmark_id=0, z=np.array(z), covariance=np.diag([0.05**2, 0.01**2]),
-                       stamp_s=stamp, correlation=model)
+    return Observation(
+        pose_id=pose_id,
+        landmark_id=0,
+        z=np.array(z),
+        covariance=np.diag([0.05**2, 0.01**2]),
+        stamp_s=stamp,
+        correlation=model,
+    )
 
 
 def test_weight_shares_read_each_records_last_sighting_by_the_same_sensor():
@@ -100,8 +107,11 @@ def test_a_burst_of_correlated_sightings_weighs_as_little_as_it_tells(version):
     model = SightingCorrelation(time_constant_s=7.0, range_share=0.9, bearing_share=0.5)
 
     def spread(temper: bool) -> float:
-        fs = FastSlam(FastSlamConfig(version=version, n_particles=2, resample_ess_fraction=0.0,
-                                     temper_correlated=temper))
+        fs = FastSlam(
+            FastSlamConfig(
+                version=version, n_particles=2, resample_ess_fraction=0.0, temper_correlated=temper
+            )
+        )
         fs.initialize(0, np.zeros(3), np.eye(3) * 1e-12)
         fs.particles.poses[:] = [[0.0, 0.0, 0.0], [0.0, 0.05, 0.0]]
         for k in range(10):
@@ -119,8 +129,25 @@ def test_temper_correlated_on_data_without_a_correlation_is_said_to_do_nothing(t
 
     cfg = tmp_path / "c.toml"
     cfg.write_text("[fastslam]\ntemper_correlated = false\n")
-    assert main(["run", "--backend", "fastslam2", "--max-steps", "20", "--config", str(cfg), "--rerun", "off",
-                 "--quiet", "--out", str(tmp_path / "o")]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--backend",
+                "fastslam2",
+                "--max-steps",
+                "20",
+                "--config",
+                str(cfg),
+                "--rerun",
+                "off",
+                "--quiet",
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "temper_correlated did nothing" in err and "correlate in time" in err, err
 
@@ -147,7 +174,9 @@ def test_log_likelihood_is_scipys_bivariate_density(dof):
         nu = rng.normal(size=2) * 3.0
         inv, det = inverse_sym2(S[0, 0], S[0, 1], S[1, 1])
         got = log_likelihood(np.array([nu[0]]), np.array([nu[1]]), inv, det, dof)[0]
-        law = multivariate_normal(np.zeros(2), S) if math.isinf(dof) else multivariate_t(np.zeros(2), S, df=dof)
+        law = (
+            multivariate_normal(np.zeros(2), S) if math.isinf(dof) else multivariate_t(np.zeros(2), S, df=dof)
+        )
         assert got == pytest.approx(law.logpdf(nu), abs=LOG_DENSITY_TOL)
 
 
@@ -227,9 +256,22 @@ def test_a_landmark_takes_an_outlier_by_the_laws_weight(dof):
     for sigmas in (0.0, 1.0, 6.0):  # the range innovation in sigmas of S: inlier to outlier
         z = z0 + np.array([sigmas * math.sqrt(S[0, 0]), 0.0])
         *_, nu_r, nu_b = (np.atleast_1d(v) for v in range_bearing(pose[0], pose[1], pose[2], m[0], m[1], *z))
-        dmx, dmy, Pn, logl, f = landmark_update(np.atleast_1d(a), np.atleast_1d(b), np.atleast_1d(c),
-                                                np.atleast_1d(d), nu_r, nu_b, P[0, 0], P[0, 1], P[1, 1],
-                                                R[0, 0], R[0, 1], R[1, 1], dof, robust=True)
+        dmx, dmy, Pn, logl, f = landmark_update(
+            np.atleast_1d(a),
+            np.atleast_1d(b),
+            np.atleast_1d(c),
+            np.atleast_1d(d),
+            nu_r,
+            nu_b,
+            P[0, 0],
+            P[0, 1],
+            P[1, 1],
+            R[0, 0],
+            R[0, 1],
+            R[1, 1],
+            dof,
+            robust=True,
+        )
         nu = np.array([nu_r[0], nu_b[0]])
         d2 = nu @ np.linalg.solve(S, nu)
         want_f = 1.0 if math.isinf(dof) else max(1.0, (dof + d2) / (dof + 2.0))
@@ -238,13 +280,28 @@ def test_a_landmark_takes_an_outlier_by_the_laws_weight(dof):
         assert np.array([dmx[0], dmy[0]]) == pytest.approx(K @ nu, abs=EKF_STEP_TOL)
         P_want = P - K @ H @ P
         assert np.array([Pn[0][0], Pn[1][0], Pn[2][0]]) == pytest.approx(
-            [P_want[0, 0], P_want[0, 1], P_want[1, 1]], abs=EKF_STEP_TOL)
-        law = multivariate_normal(np.zeros(2), S) if math.isinf(dof) else multivariate_t(np.zeros(2), S, df=dof)
+            [P_want[0, 0], P_want[0, 1], P_want[1, 1]], abs=EKF_STEP_TOL
+        )
+        law = (
+            multivariate_normal(np.zeros(2), S) if math.isinf(dof) else multivariate_t(np.zeros(2), S, df=dof)
+        )
         assert logl[0] == pytest.approx(law.logpdf(nu), abs=LOG_DENSITY_TOL)
         # FastSLAM 1.0's step (robust False) is the Gaussian one whatever the law
-        *_, f_plain = landmark_update(np.atleast_1d(a), np.atleast_1d(b), np.atleast_1d(c),
-                                      np.atleast_1d(d), nu_r, nu_b, P[0, 0], P[0, 1], P[1, 1],
-                                      R[0, 0], R[0, 1], R[1, 1], dof)
+        *_, f_plain = landmark_update(
+            np.atleast_1d(a),
+            np.atleast_1d(b),
+            np.atleast_1d(c),
+            np.atleast_1d(d),
+            nu_r,
+            nu_b,
+            P[0, 0],
+            P[0, 1],
+            P[1, 1],
+            R[0, 0],
+            R[0, 1],
+            R[1, 1],
+            dof,
+        )
         assert f_plain == 1.0
     if not math.isinf(dof):  # 6 sigmas in range: d^2 >= 36, R taken at least 5.8 times
         assert f[0] >= (dof + 36.0) / (dof + 2.0)
@@ -276,3 +333,70 @@ def test_after_2_0s_draw_a_landmark_takes_an_outlier_by_the_laws_weight(version)
         assert moved_heavy < 0.5 * moved_gaussian
     else:
         assert moved_heavy == pytest.approx(moved_gaussian, abs=1e-9)
+
+
+#: A misread barcode: landmark 7 is reported where another landmark lies, 3 m off to
+#: the left (MRCLAM robot 5 read landmark 8 as 18 four frames running).
+MISREAD_Z = np.array([3.0, math.pi / 2])
+#: One motion step's noise: 2 cm and 0.01 rad.
+STEP_COV = np.diag([0.02**2, 0.02**2, 0.01**2])
+
+
+def _known_id_slam(n_particles: int, cloud_cov: np.ndarray) -> FastSlam:
+    """FastSLAM 2.0, known ids, the camera's t(5.1) law; landmark 7 mapped from pose 0."""
+    slam = FastSlam(FastSlamConfig(version=2, n_particles=n_particles, seed=0))
+    slam.initialize(0, np.zeros(3), cloud_cov)
+    slam.set_sensor_field(SensorField(10.0, math.pi, 1.0, 5.1))
+    for _ in range(3):
+        slam.update([Observation(0, 7, models.observe(np.zeros(3), LANDMARK), R)])
+    return slam
+
+
+def test_a_misread_id_leaves_2_0s_proposal_to_the_motion():
+    """Every particle sees the misread far outside the gate: its pose is the motion draw
+    (within 5 sigma of one step's noise), and the count says so; with the gate opened
+    the same sighting turns the particles by more than 20 sigma."""
+
+    def poses_after_misread(gate_d2: float | None) -> tuple[np.ndarray, int]:
+        slam = _known_id_slam(50, np.eye(3) * 1e-10)
+        if gate_d2 is not None:
+            slam._particles.misread_gate_d2 = gate_d2
+        slam.predict(Odometry(0, 1, np.zeros(3), STEP_COV), 1)
+        slam.update([Observation(1, 7, MISREAD_Z, R)])
+        return slam._particles.poses.copy(), (slam._particles.misreads, slam.rejected_observations())
+
+    poses, counts = poses_after_misread(None)
+    assert counts == (50, 1)
+    assert np.all(np.abs(poses) <= 5.0 * np.sqrt(np.diag(STEP_COV)))
+    pulled, _ = poses_after_misread(math.inf)
+    assert np.median(np.abs(pulled[:, 2])) > 20.0 * math.sqrt(STEP_COV[2, 2])
+
+
+#: A motion step in the dark: 5 cm and 0.05 rad (forty of them spread the cloud's
+#: headings to about 0.32 rad; the bearing's gate under one step's noise is 0.44 rad).
+DARK_STEP_COV = np.diag([0.05**2, 0.05**2, 0.05**2])
+DARK_STEPS = 40
+
+
+def test_a_sighting_that_closes_a_drift_still_refines_every_proposal():
+    """After forty motion steps without a sighting the cloud has spread; a true sighting
+    of landmark 7 then lies beyond the gate under one step's noise for many particles
+    (counted here, so the case is real) but inside the gate widened by the cloud's
+    spread: no particle takes it as a misread, and the proposal pulls each particle's
+    bearing to the landmark onto the sighting."""
+    slam = _known_id_slam(200, np.eye(3) * 1e-10)
+    for k in range(DARK_STEPS):
+        slam.predict(Odometry(k, k + 1, np.zeros(3), DARK_STEP_COV), k + 1)
+    z = models.observe(np.zeros(3), LANDMARK)
+
+    def bearing_errors(poses: np.ndarray) -> np.ndarray:
+        return np.array([models.wrap_angle(models.observe(x, LANDMARK)[1] - z[1]) for x in poses])
+
+    before = bearing_errors(slam._particles.poses)
+    one_step_sd = math.sqrt(R[1, 1] + DARK_STEP_COV[2, 2] + R[1, 1])  # sighting, step, map
+    assert np.sum(before**2 / one_step_sd**2 > t2_quantile(0.999, 5.1)) >= 10
+    slam.predict(Odometry(DARK_STEPS, DARK_STEPS + 1, np.zeros(3), DARK_STEP_COV), DARK_STEPS + 1)
+    slam.update([Observation(DARK_STEPS + 1, 7, z, R)])
+    assert (slam._particles.misreads, slam.rejected_observations()) == (0, 0)
+    after = bearing_errors(slam._particles.poses)
+    assert np.max(np.abs(after)) < 0.25 * np.max(np.abs(before))
