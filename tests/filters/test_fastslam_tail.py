@@ -256,22 +256,9 @@ def test_a_landmark_takes_an_outlier_by_the_laws_weight(dof):
     for sigmas in (0.0, 1.0, 6.0):  # the range innovation in sigmas of S: inlier to outlier
         z = z0 + np.array([sigmas * math.sqrt(S[0, 0]), 0.0])
         *_, nu_r, nu_b = (np.atleast_1d(v) for v in range_bearing(pose[0], pose[1], pose[2], m[0], m[1], *z))
-        dmx, dmy, Pn, logl, f = landmark_update(
-            np.atleast_1d(a),
-            np.atleast_1d(b),
-            np.atleast_1d(c),
-            np.atleast_1d(d),
-            nu_r,
-            nu_b,
-            P[0, 0],
-            P[0, 1],
-            P[1, 1],
-            R[0, 0],
-            R[0, 1],
-            R[1, 1],
-            dof,
-            robust=True,
-        )
+        step = (*(np.atleast_1d(v) for v in (a, b, c, d)), nu_r, nu_b, P[0, 0], P[0, 1], P[1, 1])
+        step = (*step, R[0, 0], R[0, 1], R[1, 1], dof)
+        dmx, dmy, Pn, logl, f = landmark_update(*step, robust=True)
         nu = np.array([nu_r[0], nu_b[0]])
         d2 = nu @ np.linalg.solve(S, nu)
         want_f = 1.0 if math.isinf(dof) else max(1.0, (dof + d2) / (dof + 2.0))
@@ -287,21 +274,7 @@ def test_a_landmark_takes_an_outlier_by_the_laws_weight(dof):
         )
         assert logl[0] == pytest.approx(law.logpdf(nu), abs=LOG_DENSITY_TOL)
         # FastSLAM 1.0's step (robust False) is the Gaussian one whatever the law
-        *_, f_plain = landmark_update(
-            np.atleast_1d(a),
-            np.atleast_1d(b),
-            np.atleast_1d(c),
-            np.atleast_1d(d),
-            nu_r,
-            nu_b,
-            P[0, 0],
-            P[0, 1],
-            P[1, 1],
-            R[0, 0],
-            R[0, 1],
-            R[1, 1],
-            dof,
-        )
+        *_, f_plain = landmark_update(*step)
         assert f_plain == 1.0
     if not math.isinf(dof):  # 6 sigmas in range: d^2 >= 36, R taken at least 5.8 times
         assert f[0] >= (dof + 36.0) / (dof + 2.0)
