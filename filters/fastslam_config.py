@@ -92,7 +92,8 @@ class FastSlamConfig(Validated):
             0.151/0.252/0.169/0.239/0.172 m with (Gaussian weights; with the camera's
             t law in the weights, :mod:`filters.fastslam`, and since 2026-12-06 in 2.0's
             landmark steps after the draw: 0.135/0.147/0.134/0.168/0.213 m known and
-            0.155/0.172/0.152/0.209/0.163 m unknown). False: every sighting weighs in
+            0.155/0.172/0.152/0.209/0.163 m unknown; with 2.0's misread gate too,
+            0.135/0.150/0.124/0.167/0.132 m known). False: every sighting weighs in
             full, as if independent.
     """
 
