@@ -13,7 +13,8 @@ The floor (:class:`FloorFastSlam`) is the same filter written plainly in numpy
 on dense arrays: poses (N, 3), landmark means (N, L, 2) and covariances
 (N, L, 2, 2), vectorised over particles, one observation at a time. Per step:
 motion sampling; for 2.0 the Montemerlo et al. (2003) proposal refined by each
-observation of a known landmark, with its weight, then one pose draw; the
+observation of a known landmark (except where the innovation lies beyond the
+misread gate, widened by the cloud's spread), with its weight, then one pose draw; the
 per-particle landmark EKF update (1.0: with its weight) or the initialisation
 of a new landmark from the inverse observation model; the weighted mean and
 covariance of the cloud; systematic resampling when ESS < 0.5 N (every
@@ -110,6 +111,8 @@ def run_backend(ds: Dataset, backend: FastSlam, pairs: list | None = None) -> fl
 
 # --------------------------------------------------------------------- the floor
 _LOG_2PI = math.log(2.0 * math.pi)
+#: 2.0's misread gate: the 0.999 quantile of a 2-dof chi-square (Gaussian sightings), closed form
+MISREAD_GATE_D2 = -2.0 * math.log(1.0 - 0.999)
 #: Ours and the floor draw the same random numbers in the same order, so their
 #: estimates differ by round-off only (seen: below 1e-13 m); metres.
 FLOOR_AGREEMENT_M = 1e-6
@@ -217,23 +220,37 @@ class FloorFastSlam:
         return self.col[lid], True
 
     def _sample_proposal(self, known) -> None:
-        """2.0: refine N(x_hat, Q) by each known landmark's observation, weigh, draw the pose."""
+        """2.0: refine N(x_hat, Q) by each known landmark's observation, weigh, draw the pose.
+        A particle whose innovation lies beyond the 0.999 gate under its proposal, its
+        landmark, R and the prior cloud's weighted covariance keeps its proposal (a
+        misread id, as ours)."""
         mu_x, S_x = (a.copy() for a in self.proposal)
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        th = mu_x[:, 2]
+        mean = np.array([w @ mu_x[:, 0], w @ mu_x[:, 1], math.atan2(w @ np.sin(th), w @ np.cos(th))])
+        d = mu_x - mean
+        d[:, 2] = _wrap(d[:, 2])
+        cloud = (d * w[:, None]).T @ d
+        cloud = 0.5 * (cloud + cloud.T)
         for c, z, R in known:
             m, P = self.mu[:, c], self.P[:, c]
             zhat, H_m, H_x = _observe(mu_x, m)
             nu = z - zhat
             nu[:, 1] = _wrap(nu[:, 1])
             SHt = S_x @ H_x.transpose(0, 2, 1)
-            L = H_x @ SHt + H_m @ P @ H_m.transpose(0, 2, 1) + R
+            HPHt = H_m @ P @ H_m.transpose(0, 2, 1)
+            L = H_x @ SHt + HPHt + R
             Linv, det = _inv2(L)
             self.logw += (-0.5 * np.einsum("ni,nij,nj->n", nu, Linv, nu) - 0.5 * np.log(det)
                           - _LOG_2PI)
+            Ginv, _ = _inv2(H_x @ (S_x + cloud) @ H_x.transpose(0, 2, 1) + HPHt + R)
+            keep = np.einsum("ni,nij,nj->n", nu, Ginv, nu) <= MISREAD_GATE_D2
             K = SHt @ Linv
-            mu_x = mu_x + np.einsum("nij,nj->ni", K, nu)
+            mu_x = np.where(keep[:, None], mu_x + np.einsum("nij,nj->ni", K, nu), mu_x)
             mu_x[:, 2] = _wrap(mu_x[:, 2])
-            S_x = S_x - K @ SHt.transpose(0, 2, 1)
-            S_x = 0.5 * (S_x + S_x.transpose(0, 2, 1))
+            S_new = S_x - K @ SHt.transpose(0, 2, 1)
+            S_x = np.where(keep[:, None, None], 0.5 * (S_new + S_new.transpose(0, 2, 1)), S_x)
         eps = self.rng.standard_normal((self.n, 3))
         self.x = mu_x + np.einsum("nij,nj->ni", np.linalg.cholesky(S_x), eps)
         self.x[:, 2] = _wrap(self.x[:, 2])
