@@ -196,14 +196,16 @@ class FloorFastSlam:
         if not obs:  # nothing to weigh: the motion-sampled cloud is the estimate
             self._record(np.exp(self.logw))
             return
+        keep = [None] * len(obs)
         if self.version == 2 and self.proposal is not None:
-            self._sample_proposal([(c, z, R) for c, z, R, new in obs if not new])
+            kept = iter(self._sample_proposal([(c, z, R) for c, z, R, new in obs if not new]))
+            keep = [None if new else next(kept) for _, _, _, new in obs]
         self.proposal = None
-        for c, z, R, new in obs:
+        for (c, z, R, new), k in zip(obs, keep):
             if new:
                 self._new_landmark(c, z, R)
             else:
-                self._landmark_update(c, z, R, weigh=self.version == 1)
+                self._landmark_update(c, z, R, weigh=self.version == 1, keep=k)
         self.logw -= self.logw.max() + math.log(np.sum(np.exp(self.logw - self.logw.max())))
         w = np.exp(self.logw)
         self._record(w)
@@ -219,11 +221,12 @@ class FloorFastSlam:
         self.col[lid] = len(self.col)
         return self.col[lid], True
 
-    def _sample_proposal(self, known) -> None:
+    def _sample_proposal(self, known) -> list[np.ndarray]:
         """2.0: refine N(x_hat, Q) by each known landmark's observation, weigh, draw the pose.
         A particle whose innovation lies beyond the 0.999 gate under its proposal, its
         landmark, R and the prior cloud's weighted covariance keeps its proposal (a
-        misread id, as ours)."""
+        misread id, as ours, whose landmark step then leaves that particle's record too):
+        the (N,) keep mask of each observation."""
         mu_x, S_x = (a.copy() for a in self.proposal)
         w = np.exp(self.logw - self.logw.max())
         w /= w.sum()
@@ -233,6 +236,7 @@ class FloorFastSlam:
         d[:, 2] = _wrap(d[:, 2])
         cloud = (d * w[:, None]).T @ d
         cloud = 0.5 * (cloud + cloud.T)
+        kept = []
         for c, z, R in known:
             m, P = self.mu[:, c], self.P[:, c]
             zhat, H_m, H_x = _observe(mu_x, m)
@@ -246,6 +250,7 @@ class FloorFastSlam:
                           - _LOG_2PI)
             Ginv, _ = _inv2(H_x @ (S_x + cloud) @ H_x.transpose(0, 2, 1) + HPHt + R)
             keep = np.einsum("ni,nij,nj->n", nu, Ginv, nu) <= MISREAD_GATE_D2
+            kept.append(keep)
             K = SHt @ Linv
             mu_x = np.where(keep[:, None], mu_x + np.einsum("nij,nj->ni", K, nu), mu_x)
             mu_x[:, 2] = _wrap(mu_x[:, 2])
@@ -254,8 +259,9 @@ class FloorFastSlam:
         eps = self.rng.standard_normal((self.n, 3))
         self.x = mu_x + np.einsum("nij,nj->ni", np.linalg.cholesky(S_x), eps)
         self.x[:, 2] = _wrap(self.x[:, 2])
+        return kept
 
-    def _landmark_update(self, c: int, z, R, weigh: bool) -> None:
+    def _landmark_update(self, c: int, z, R, weigh: bool, keep=None) -> None:
         m, P = self.mu[:, c], self.P[:, c]
         zhat, H_m, _ = _observe(self.x, m)
         nu = z - zhat
@@ -266,9 +272,13 @@ class FloorFastSlam:
             self.logw += (-0.5 * np.einsum("ni,nij,nj->n", nu, Sinv, nu) - 0.5 * np.log(det)
                           - _LOG_2PI)
         K = PHt @ Sinv
-        self.mu[:, c] = m + np.einsum("nij,nj->ni", K, nu)
+        m_new = m + np.einsum("nij,nj->ni", K, nu)
         P_new = P - K @ PHt.transpose(0, 2, 1)
-        self.P[:, c] = 0.5 * (P_new + P_new.transpose(0, 2, 1))
+        P_new = 0.5 * (P_new + P_new.transpose(0, 2, 1))
+        if keep is not None:
+            m_new = np.where(keep[:, None], m_new, m)
+            P_new = np.where(keep[:, None, None], P_new, P)
+        self.mu[:, c], self.P[:, c] = m_new, P_new
 
     def _new_landmark(self, c: int, z, R) -> None:
         a = self.x[:, 2] + z[1]

@@ -210,29 +210,41 @@ class ParticleSet:
     def _update_v2(self, obs: list[Observation]) -> list[np.ndarray]:
         logw, counts, misreads = self.logw.copy(), dict(self.recoveries), (self.misreads, self.rejected)
         with np.errstate(invalid="ignore", divide="ignore"):  # a failed pass is redone
-            mu, Sig, out, ok = self._proposal(obs)
+            mu, Sig, out, ok, skip = self._proposal(obs)
         if not ok:  # a proposal covariance lost definiteness: again, checking every step
             self.logw = logw
             self.recoveries.update(counts)
             self.misreads, self.rejected = misreads
-            mu, Sig, _, _ = self._proposal(obs, out)
+            mu, Sig, _, _, skip = self._proposal(obs, out)
         self.poses = sample_gaussian(mu, Sig, self.rng, self.recoveries)
-        self._scan_steps(obs, out, self.poses, weigh=False)
+        # a misread is no sighting of the landmark: its record is left as it was
+        self._scan_steps(obs, out, self.poses, weigh=False, skip=skip)
         return out
 
     def _scan_steps(
-        self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray, weigh: bool
+        self,
+        obs: list[Observation],
+        cols: list[np.ndarray],
+        poses: np.ndarray,
+        weigh: bool,
+        skip: list[np.ndarray] | None = None,
     ) -> None:
         """Landmark steps of a scan: in one pass, or one per observation when a known id
-        repeats in the scan (its updates must then follow each other)."""
+        repeats in the scan (its updates must then follow each other); ``skip``: per
+        observation, (N,) True where a particle took it as a misread id."""
         if self.config.association == "known" and len({int(c[0]) for c in cols}) < len(cols):
-            for o, c in zip(obs, cols, strict=True):
-                self._landmark_steps([o], [c], poses, weigh)
+            for k, (o, c) in enumerate(zip(obs, cols, strict=True)):
+                self._landmark_steps([o], [c], poses, weigh, None if skip is None else [skip[k]])
         else:
-            self._landmark_steps(obs, cols, poses, weigh)
+            self._landmark_steps(obs, cols, poses, weigh, skip)
 
     def _landmark_steps(
-        self, obs: list[Observation], cols: list[np.ndarray], poses: np.ndarray, weigh: bool
+        self,
+        obs: list[Observation],
+        cols: list[np.ndarray],
+        poses: np.ndarray,
+        weigh: bool,
+        skip: list[np.ndarray] | None = None,
     ) -> None:
         """:func:`~filters.fastslam_update.landmark_steps` on this set (1.0: ``weigh``)."""
         unknown = self.config.association == "unknown"
@@ -248,12 +260,14 @@ class ParticleSet:
             temper=self.config.temper_correlated,
             dof=self.error_dof,
             robust=not weigh,  # after 2.0's draw (filters.fastslam_math.t_noise_factor)
+            skip=None if skip is None or not any(m.any() for m in skip) else np.stack(skip, axis=1),
         )
 
     def _proposal(self, obs: list[Observation], cols: list[np.ndarray] | None = None):
         """2.0: the pose proposal N(mu, Sig), from the motion prediction of :meth:`move`,
         refined by each observation of a known landmark, weights included:
-        ``(mu, Sig, columns, ok)``.
+        ``(mu, Sig, columns, ok, misread)``, ``misread`` per observation (N,), True
+        where the misread gate kept it out of a particle's proposal.
 
         Without ``cols`` (the first pass) the columns are chosen here and the covariances
         are checked once, at the end: a downdate by a positive definite ``L`` keeps an
@@ -267,6 +281,7 @@ class ParticleSet:
         careful = cols is not None
         mu, Sig = (a.copy() for a in self._prior)
         out: list[np.ndarray] = []
+        skip: list[np.ndarray] = []
         ok = True
         # known ids may be misread: gated under the predicted cloud's spread
         gate = (
@@ -279,21 +294,24 @@ class ParticleSet:
             ptr = self._pointers(c)
             old = ptr >= 0
             n_old = int(np.count_nonzero(old))
+            misread = np.zeros(self.n_particles, dtype=bool)
             if n_old:
                 i = slice(None) if n_old == self.n_particles else np.flatnonzero(old)
-                mu, Sig, step_ok = self._refine(o, i, ptr[i], mu, Sig, careful, gate)
+                mu, Sig, step_ok, misread[i] = self._refine(o, i, ptr[i], mu, Sig, careful, gate)
                 ok = ok and step_ok
+            skip.append(misread)
             if self.config.association == "unknown" and n_old < self.n_particles:
                 self.logw[~old] += self._log_p0(o.covariance)
             out.append(c)
-        return mu, Sig, out, careful or (ok and all_positive_definite3(Sig))
+        return mu, Sig, out, careful or (ok and all_positive_definite3(Sig)), skip
 
     def _refine(
         self, o: Observation, i, p: np.ndarray, mu: np.ndarray, Sig: np.ndarray, careful: bool, gate=None
-    ) -> tuple[np.ndarray, np.ndarray, bool]:
+    ) -> tuple[np.ndarray, np.ndarray, bool, np.ndarray]:
         """2.0: particles ``i``'s proposal N(mu, Sig) refined by observation ``o`` of their
         landmark records ``p`` (returned; updated in place for a subset), and weighed by it;
-        ``gate``: the misread gate (:func:`~filters.fastslam_update.refine_proposal`)."""
+        ``gate``: the misread gate (:func:`~filters.fastslam_update.refine_proposal`), whose
+        mask over ``i`` is returned last."""
         share = weight_shares(self.maps, p, [o], 0) if self.config.temper_correlated else None
         if isinstance(i, slice):
             x_new, S_new, logl, ok, misread = refine_proposal(
@@ -301,14 +319,14 @@ class ParticleSet:
             )
             self.logw += logl if share is None else logl * share
             self._count_misreads(misread)
-            return x_new, S_new, ok
+            return x_new, S_new, ok, misread
         x_new, S_new, logl, ok, misread = refine_proposal(
             self.maps, o, p, mu[i], Sig[i], careful, self.recoveries, self.error_dof, gate
         )
         self.logw[i] += logl if share is None else logl * share
         self._count_misreads(misread)
         mu[i], Sig[i] = x_new, S_new
-        return mu, Sig, ok
+        return mu, Sig, ok, misread
 
     def _count_misreads(self, misread: np.ndarray) -> None:
         n = int(np.count_nonzero(misread))

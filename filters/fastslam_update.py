@@ -101,6 +101,7 @@ def landmark_steps(
     temper: bool = False,
     dof: float = math.inf,
     robust: bool = False,
+    skip: np.ndarray | None = None,
 ) -> None:
     """EKF update (or initialisation) of each particle's landmark ``cols[k]`` of every
     observation ``k``, all (particle, observation) pairs in one elementwise pass. Each
@@ -115,7 +116,7 @@ def landmark_steps(
     updated landmark takes the sighting's noise times the law's factor
     (:func:`~filters.fastslam_math.t_noise_factor`). The observations must go to distinct
     landmarks of a particle (mutual exclusion, or distinct known ids); the updates are then
-    independent of their order.
+    independent of their order. ``skip`` (N, K): pairs left out (2.0's misread ids).
     """
     Z = np.array([o.z for o in obs], dtype=float)
     R = np.array([o.covariance for o in obs], dtype=float)
@@ -131,7 +132,10 @@ def landmark_steps(
         col = np.stack(cols, axis=1)
         ptr = T[rows[:, None], col]
     old = ptr >= 0
-    for mask, update in ((old, True), (~old, False)):
+    new = ~old
+    if skip is not None:
+        old, new = old & ~skip, new & ~skip
+    for mask, update in ((old, True), (new, False)):
         if mask.any():
             pairs = _pairs(mask, col, rows)
             if update:
