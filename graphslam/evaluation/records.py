@@ -90,6 +90,9 @@ class PlanarRunMetrics(MetricsRecord):
         landmarks_pruned: landmarks the back end removed from its map as missed
             in the sensor's field (``prune_missed_alpha`` of the EKF and FastSLAM; for
             FastSLAM, those gone from every particle); left out when none.
+        observations_rejected: sightings of identified landmarks the back end's gate
+            kept out (the EKF's known-id gate, FastSLAM 2.0's misread gate for at least
+            half its particles); left out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
             folder, True, and the observations of landmarks not in the map (not used).
         warnings: what makes the estimate absurd, one line each
@@ -129,6 +132,7 @@ class PlanarRunMetrics(MetricsRecord):
     numerical_recoveries: list[str] | None = optional()
     recoveries: dict[str, int] | None = optional()
     landmarks_pruned: int | None = optional()
+    observations_rejected: int | None = optional()
     sightings_reassociated: int | None = optional()
     reassociation_settled: bool | None = optional()
     map: str | None = optional()

@@ -338,6 +338,7 @@ def compute_metrics(
         numerical_recoveries=result.numerical_recoveries or None,
         recoveries=result.recoveries,
         landmarks_pruned=result.landmarks_pruned or None,
+        observations_rejected=result.observations_rejected or None,
         # the reader's doubts about the input first, then the estimate's
         warnings=[
             *result.dataset.warnings,

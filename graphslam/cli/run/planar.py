@@ -361,6 +361,8 @@ def format_summary(metrics) -> str:
         rows.append(("data", note))
     if metrics.landmarks_pruned:
         rows.append(("landmarks pruned", f"{metrics.landmarks_pruned} (missed in the sensor's field)"))
+    if metrics.observations_rejected:
+        rows.append(("sightings rejected", f"{metrics.observations_rejected} (beyond the back end's gate)"))
     if metrics.sightings_reassociated:
         settled = (
             ""

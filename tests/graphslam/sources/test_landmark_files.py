@@ -4,6 +4,7 @@ Victoria Park's format given by path, checked against gtsam's own reader and opt
 from __future__ import annotations
 
 import json
+import re
 
 import gtsam
 import numpy as np
@@ -191,3 +192,23 @@ def test_pruning_on_data_with_a_sensor_field_is_not_said_to_do_nothing(tmp_path,
     assert main(["run", "--backend", "ekf", "--max-steps", "60", "--config", str(config),
                  "--out", str(tmp_path / "r"), "--rerun", "off", "--quiet"]) == 0
     assert "prune_missed_alpha did nothing" not in capsys.readouterr().err
+
+
+def test_a_misread_sighting_is_counted_in_the_summary_and_metrics(tmp_path, capsys):
+    """FastSLAM 2.0 with the file's landmark ids: one sighting of landmark 7 reported
+    90 deg off (a misread id) is kept out of every particle's proposal and landmark
+    step, and the run says how many sightings its gate rejected (stdout and
+    ``metrics.json``). One: had the misread moved the landmark (a Gaussian sensor's
+    full Kalman step), the true sighting after it would have been rejected too."""
+    firm = "EDGE2 {a} {b} 1 0 0 10000 0 10000 10000 0 0\n"  # 1 cm, 0.01 rad
+    sightings = ["BR 0 7 0 5 0.01 0.05", "BR 1 7 0 4 0.01 0.05", "BR 2 7 1.5708 3 0.01 0.05",
+                 "BR 3 7 0 2 0.01 0.05"]
+    path = tmp_path / "misread.graph"
+    path.write_text("".join(firm.format(a=k, b=k + 1) for k in range(3)) + "\n".join(sightings) + "\n")
+    rc = main(["run", "--dataset", str(path), "--backend", "fastslam2", "--out", str(tmp_path / "r"),
+               "--rerun", "off"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert re.search(r"sightings rejected +1 \(beyond the back end's gate\)", out)
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["observations_rejected"] == 1
