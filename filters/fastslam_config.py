@@ -93,7 +93,7 @@ class FastSlamConfig(Validated):
             t law in the weights, :mod:`filters.fastslam`, and since 2026-12-06 in 2.0's
             landmark steps after the draw: 0.135/0.147/0.134/0.168/0.213 m known and
             0.155/0.172/0.152/0.209/0.163 m unknown; with 2.0's misread gate too,
-            0.135/0.150/0.124/0.167/0.132 m known). False: every sighting weighs in
+            0.135/0.152/0.128/0.181/0.135 m known). False: every sighting weighs in
             full, as if independent.
     """
 
