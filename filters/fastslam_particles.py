@@ -78,8 +78,9 @@ class ParticleSet:
         #: (``new_landmark_mahalanobis_sq``, or the sensor's error quantile: :meth:`set_error_dof`).
         self.new_gate_d2 = self._new_gate(math.inf)
         #: Known association, 2.0: the squared Mahalanobis gate beyond which a sighting is
-        #: taken as a misread id and does not refine a particle's proposal (the sensor's
-        #: :data:`NEW_LANDMARK_PROB` quantile; :func:`~filters.fastslam_update.refine_proposal`).
+        #: taken as a misread id and neither refines a particle's proposal nor updates its
+        #: landmark record (the sensor's :data:`NEW_LANDMARK_PROB` quantile;
+        #: :func:`~filters.fastslam_update.refine_proposal`).
         self.misread_gate_d2 = t2_quantile(NEW_LANDMARK_PROB, math.inf)
         #: (particle, sighting) pairs the misread gate kept out of 2.0's proposal, and the
         #: sightings it kept out for at least half the particles (rejected)

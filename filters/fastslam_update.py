@@ -309,7 +309,8 @@ def refine_proposal(
     ``misread``: ``(C, d2_gate)``, the particle cloud's pose covariance (3, 3) and a
     squared Mahalanobis gate. A particle whose innovation lies beyond the gate under
     ``H_x (Sx + C) H_x^T + H_m P H_m^T + R`` keeps its proposal unrefined (the returned
-    (n,) mask is True there); its weight still takes ``logl``. A barcode misread as
+    (n,) mask is True there, and the caller leaves its landmark record too); its weight
+    still takes ``logl``. A barcode misread as
     another landmark's (MRCLAM robot 5 read landmark 8, 2.9 m ahead, as landmark 18, 6 m
     behind, four frames running) otherwise pulled every particle's pose by the full
     Kalman step, 0.14 rad a frame, and the run lost the robot for 500 frames. ``C``
