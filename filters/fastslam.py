@@ -282,7 +282,12 @@ class FastSlam(Backend):
         cols = particles.update(obs)
         self._best = int(np.argmax(particles.logw))
         ids = particles.maps.ids
-        self._last_associations = [int(ids[int(c[self._best])]) for c in cols]
+        # a sighting the best particle took as a misread id went unused in the estimate
+        misread = particles.last_misread
+        self._last_associations = [
+            None if misread is not None and misread[k][self._best] else int(ids[int(c[self._best])])
+            for k, c in enumerate(cols)
+        ]
         w = particles.weights
         self._close_step(force=True, w=w)
         self._maybe_resample(w)

@@ -86,6 +86,8 @@ class ParticleSet:
         #: sightings it kept out for at least half the particles (rejected)
         self.misreads = 0
         self.rejected = 0
+        #: the last scan's misread masks, per observation (N,); None when none held
+        self.last_misread: list[np.ndarray] | None = None
         #: The sensor's error law the weights use: Student-t dof (inf: Gaussian), from
         #: the data's sensor field (:meth:`set_error_dof`).
         self.error_dof = math.inf
@@ -189,6 +191,7 @@ class ParticleSet:
         """Measurement update by a scan's observations (checked by the caller): the
         landmark column of each observation per particle (N,), in order. Normalises the
         log-weights; the 2.0 motion prediction is used up."""
+        self.last_misread = None
         if self.config.version == 2 and self._prior is not None:
             cols = self._update_v2(obs)
         else:
@@ -218,6 +221,7 @@ class ParticleSet:
             self.misreads, self.rejected = misreads
             mu, Sig, _, _, skip = self._proposal(obs, out)
         self.poses = sample_gaussian(mu, Sig, self.rng, self.recoveries)
+        self.last_misread = skip if any(m.any() for m in skip) else None
         # a misread is no sighting of the landmark: its record is left as it was
         self._scan_steps(obs, out, self.poses, weigh=False, skip=skip)
         return out

@@ -339,10 +339,11 @@ def test_a_misread_id_leaves_2_0s_proposal_to_the_motion():
             slam._particles.misread_gate_d2 = gate_d2
         slam.predict(Odometry(0, 1, np.zeros(3), STEP_COV), 1)
         slam.update([Observation(1, 7, MISREAD_Z, R)])
-        return slam._particles.poses.copy(), (slam._particles.misreads, slam.rejected_observations())
+        counts = (slam._particles.misreads, slam.rejected_observations(), slam.associations())
+        return slam._particles.poses.copy(), counts
 
     poses, counts = poses_after_misread(None)
-    assert counts == (50, 1)
+    assert counts == (50, 1, [None])  # unused in the estimate, as the EKF's gated ones
     assert np.all(np.abs(poses) <= 5.0 * np.sqrt(np.diag(STEP_COV)))
     pulled, _ = poses_after_misread(math.inf)
     assert np.median(np.abs(pulled[:, 2])) > 20.0 * math.sqrt(STEP_COV[2, 2])
