@@ -126,10 +126,15 @@ def inverse_sym2(s00, s01, s11):
     return (s11 / det, -s01 / det, s00 / det), det
 
 
+def mahalanobis2(nu_r, nu_b, inv):
+    """``nu^T S^-1 nu`` of 2-D innovations from ``S^-1`` (upper triangle)."""
+    i00, i01, i11 = inv
+    return nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+
+
 def log_gaussian(nu_r, nu_b, inv, det):
     """``log N(nu; 0, S)`` from ``S^-1`` (upper triangle) and ``det S``."""
-    i00, i01, i11 = inv
-    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    maha = mahalanobis2(nu_r, nu_b, inv)
     return -0.5 * maha - 0.5 * np.log(det) - _LOG_2PI
 
 
@@ -143,8 +148,7 @@ def log_likelihood(nu_r, nu_b, inv, det, dof: float = math.inf):
     particles that explained the outlier took the weight."""
     if math.isinf(dof):
         return log_gaussian(nu_r, nu_b, inv, det)
-    i00, i01, i11 = inv
-    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    maha = mahalanobis2(nu_r, nu_b, inv)
     return t2_log_normaliser(dof) - 0.5 * np.log(det) - 0.5 * (dof + 2.0) * np.log1p(maha / dof)
 
 
@@ -198,8 +202,7 @@ def t_noise_factor(nu_r, nu_b, inv, dof: float):
     14 and 15 before)."""
     if math.isinf(dof):
         return 1.0
-    i00, i01, i11 = inv
-    maha = nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    maha = mahalanobis2(nu_r, nu_b, inv)
     return np.maximum((dof + maha) / (dof + 2.0), 1.0)
 
 
@@ -254,13 +257,8 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math
     ``Sx_new = Sx - K (Sx H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v``
     are the columns of ``-Sx H_x^T``; the signs cancel).
     """
-    a_, b_, c_, d_ = a[:, None], b[:, None], c[:, None], d[:, None]
-    S0 = Sx[:, 0]  # rows = columns (Sx symmetric), contiguous
-    S1 = Sx[:, 1]
-    u = a_ * S0 + b_ * S1
-    v = c_ * S0 + d_ * S1 + Sx[:, 2]
-    L00 = a * u[:, 0] + b * u[:, 1] + n00
-    inv, det = inverse_sym2(L00, a * v[:, 0] + b * v[:, 1] + n01, c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11)
+    u, v, (L00, L01, L11) = _pose_innovation_scale(Sx, a, b, c, d, n00, n01, n11)
+    inv, det = inverse_sym2(L00, L01, L11)
     i00, i01, i11 = inv
     L_pd = bool(np.minimum.reduce(L00) > 0 and np.minimum.reduce(det) > 0)
     k0 = u * i00[:, None] + v * i01[:, None]  # -K, columns
@@ -275,20 +273,28 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math
     )
 
 
-def innovation_d2(S, a, b, c, d, nu_r, nu_b, n00, n01, n11) -> np.ndarray:
-    """(n,) squared Mahalanobis distance of innovations ``nu`` under
-    ``H_x S H_x^T + n`` (``S`` (n, 3, 3) or (3, 3), the pose's covariance; ``n..`` as in
-    :func:`proposal_update`; ``H_x`` from ``a..d`` as there)."""
-    S = np.broadcast_to(S, (len(a), 3, 3))
+def _pose_innovation_scale(S, a, b, c, d, n00, n01, n11):
+    """``(u, v, L)``: the columns ``u, v`` of ``-S H_x^T`` and the upper triangle of
+    ``L = H_x S H_x^T + n`` (``S`` (n, 3, 3), ``H_x = [[-a, -b, 0], [-c, -d, -1]]``)."""
     a_, b_, c_, d_ = a[:, None], b[:, None], c[:, None], d[:, None]
-    u = a_ * S[:, 0] + b_ * S[:, 1]
-    v = c_ * S[:, 0] + d_ * S[:, 1] + S[:, 2]
-    (i00, i01, i11), _ = inverse_sym2(
+    S0 = S[:, 0]  # rows = columns (S symmetric), contiguous
+    S1 = S[:, 1]
+    u = a_ * S0 + b_ * S1
+    v = c_ * S0 + d_ * S1 + S[:, 2]
+    L = (
         a * u[:, 0] + b * u[:, 1] + n00,
         a * v[:, 0] + b * v[:, 1] + n01,
         c * v[:, 0] + d * v[:, 1] + v[:, 2] + n11,
     )
-    return nu_r * (i00 * nu_r + i01 * nu_b) + nu_b * (i01 * nu_r + i11 * nu_b)
+    return u, v, L
+
+
+def innovation_d2(S, a, b, c, d, nu_r, nu_b, n00, n01, n11) -> np.ndarray:
+    """(n,) squared Mahalanobis distance of innovations ``nu`` under
+    ``H_x S H_x^T + n`` (``S`` (n, 3, 3) or (3, 3), the pose's covariance; ``n..`` as in
+    :func:`proposal_update`; ``H_x`` from ``a..d`` as there)."""
+    _, _, L = _pose_innovation_scale(np.broadcast_to(S, (len(a), 3, 3)), a, b, c, d, n00, n01, n11)
+    return mahalanobis2(nu_r, nu_b, inverse_sym2(*L)[0])
 
 
 def all_positive_definite3(S: np.ndarray) -> bool:

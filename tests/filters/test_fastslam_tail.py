@@ -130,22 +130,8 @@ def test_temper_correlated_on_data_without_a_correlation_is_said_to_do_nothing(t
     cfg = tmp_path / "c.toml"
     cfg.write_text("[fastslam]\ntemper_correlated = false\n")
     assert (
-        main(
-            [
-                "run",
-                "--backend",
-                "fastslam2",
-                "--max-steps",
-                "20",
-                "--config",
-                str(cfg),
-                "--rerun",
-                "off",
-                "--quiet",
-                "--out",
-                str(tmp_path / "o"),
-            ]
-        )
+        main(["run", *"--backend fastslam2 --max-steps 20 --rerun off --quiet".split(),
+              "--config", str(cfg), "--out", str(tmp_path / "o")])
         == 0
     )
     err = capsys.readouterr().err
