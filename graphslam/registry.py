@@ -255,9 +255,20 @@ def check_dataset_named(spec: str) -> None:
 def refuse_part_of_a_log(spec: str) -> None:
     """InputError when ``spec`` is one of a Plaza log's other files (``*_TD.txt``, ``*_.mat``):
     read as a file of its own it was "not a text file" or a Victoria Park line's "unknown
-    tag" (tenth hostile pass)."""
+    tag" (tenth hostile pass); likewise one file of an MRCLAM folder (a pose graph's
+    "unknown tag" at its first data line)."""
+    from graphslam.sources.planar.mrclam import mrclam_part_of
     from graphslam.sources.planar.plaza import dr_of_part
 
+    part = mrclam_part_of(spec)
+    if part is not None:
+        folder, robot = part
+        robot_flag = f" --robot {robot}" if robot is not None else ""
+        raise InputError(
+            f"a file of the MRCLAM data set in {folder}: give --dataset {folder}{robot_flag}, "
+            "which reads it with the others",
+            Path(spec),
+        )
     dr = dr_of_part(spec)
     if dr is not None:
         raise InputError(

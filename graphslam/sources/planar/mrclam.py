@@ -43,6 +43,7 @@ Every refusal names the file and line.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -289,6 +290,22 @@ def is_mrclam_folder(path) -> bool:
     # either file says MRCLAM: a folder missing the other is read as one, and refused
     # naming what it lacks (not as an image folder "without images")
     return p.is_dir() and ((p / "Barcodes.dat").is_file() or any(p.glob("Robot*_Odometry.dat")))
+
+
+#: A file of an MRCLAM folder: ``RobotN_<part>.dat`` (N the robot) or a shared one.
+_PART_FILE = re.compile(
+    r"Robot([0-9]+)_(?:Odometry|Measurement|Groundtruth)\.dat|Barcodes\.dat|Landmark_Groundtruth\.dat"
+)
+
+
+def mrclam_part_of(path) -> tuple[Path, int | None] | None:
+    """``(folder, robot or None)`` when ``path`` is one file of an MRCLAM folder (read as a
+    file of its own it was a pose graph's "unknown tag" at its first line), else None."""
+    p = Path(path)
+    m = _PART_FILE.fullmatch(p.name)
+    if m is None or not p.is_file() or not is_mrclam_folder(p.parent):
+        return None
+    return p.parent, (int(m.group(1)) if m.group(1) else None)
 
 
 def read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[int]]:

@@ -305,3 +305,35 @@ def test_a_hole_in_a_thinned_odometry_log_is_warned(mrclam, tmp_path):
     rows = [line.split() for line in (mrclam / "Robot1_Odometry.dat").read_text().splitlines()]
     times = np.array([float(r[0]) for r in rows if r and not r[0].startswith("#")])
     assert odometry_gaps(1, times)[0] == pytest.approx(2.0, abs=0.01)
+
+
+@pytest.mark.parametrize(
+    ("name", "robot_flag"),
+    [("Robot2_Odometry.dat", " --robot 2"), ("Robot2_Measurement.dat", " --robot 2"), ("Barcodes.dat", "")],
+)
+def test_one_file_of_the_folder_as_the_dataset_names_the_folder(tmp_path, capsys, name, robot_flag):
+    """One file of an MRCLAM folder given as ``--dataset`` was read as a pose graph and refused
+    at "line 5: unknown tag '1248444187.156'"; it now names the folder (and robot) to give."""
+    from graphslam.cli.main import main
+
+    folder = tmp_path / "mrclam"
+    folder.mkdir()
+    for f in ("Barcodes.dat", "Robot2_Odometry.dat", "Robot2_Measurement.dat"):
+        (folder / f).write_text("# header\n1248444187.156 0.1 0.0\n")
+    assert main(["run", "--dataset", str(folder / name), "--out", str(tmp_path / "o"), "--rerun", "off"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"graphslam: error: {folder / name}: a file of the MRCLAM data set in {folder}: "
+                   f"give --dataset {folder}{robot_flag}, which reads it with the others")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_measurement_file_without_its_folder_is_read_as_what_it_is(tmp_path, capsys):
+    """A ``RobotN_Measurement.dat`` in a folder with neither Barcodes.dat nor an odometry
+    log is no MRCLAM part: the reader it goes to refuses it, naming its line."""
+    from graphslam.cli.main import main
+
+    lone = tmp_path / "Robot2_Measurement.dat"
+    lone.write_text("1248444187.156 0.1 0.0\n")
+    assert main(["run", "--dataset", str(lone), "--out", str(tmp_path / "o"), "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert "a file of the MRCLAM data set" not in err and f"{lone}:1:" in err
