@@ -112,6 +112,16 @@ def detect_format(path: Path, first_line: str) -> str:
     if path.suffix.lower() == ".csv" or "," in first_line:
         return "euroc"
     n = len(first_line.split())
+    from graphslam.sources.posegraph_files import TAGS
+
+    tag = first_line.split()[0] if n else ""
+    if tag in TAGS:  # "5 numbers a line" of a line that starts with a word misled
+        kind = "TORO" if TAGS[tag][0] == "toro" else TAGS[tag][0]
+        raise InputError(
+            f"a {kind} pose graph ({tag} lines), not a trajectory file: its vertex ids are "
+            "no times or frames to pair poses by (give TUM, KITTI, EuRoC or COLMAP's images.txt)",
+            path,
+        )
     if n == 12:
         return "kitti"
     if n == 8:

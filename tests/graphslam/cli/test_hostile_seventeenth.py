@@ -577,3 +577,23 @@ def test_follow_settings_under_a_back_end_that_follows_nothing_are_said_to_do_no
     assert "follow_window_px, max_unmapped_age did nothing" in err, err
     assert main([*base, str(tmp_path / "i")]) == 0  # iSAM2 follows them: read
     assert "did nothing" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "kind"),
+    [("gt.g2o", "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n", "g2o pose graph (VERTEX_SE2 lines)"),
+     # eight tokens: it was read as TUM and refused at its first word as "not a number"
+     ("gt.graph", "VERTEX3 0 0 0 0 0 0 0\n", "TORO pose graph (VERTEX3 lines)")],
+)
+def test_a_pose_graph_given_as_truth_is_named_as_one(tmp_path, capsys, name, text, kind):
+    """RRR's ``Bovisa04_GT_GPS.g2o`` given to eval: "5 numbers a line" of a line that begins
+    with a word. Its vertex ids are not the run's (1140 GPS vertices for 11393 poses), so it
+    is refused, named as what it is, not paired by id."""
+    from tests import trajectories as tr
+
+    gt, _ = tr.write_pair(tmp_path, "tum")
+    graph = tmp_path / name
+    graph.write_text(text)
+    code, _, err = tr.run_eval(tmp_path, capsys, gt, graph)
+    assert code == 2
+    tr.one_error(err, name, f"a {kind}, not a trajectory file")
