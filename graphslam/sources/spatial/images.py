@@ -109,6 +109,7 @@ from graphslam.sources.spatial.sequence import (
     check_rotation,
     image_doubts,
     image_size,
+    images_below,
     list_images,
     parse_euroc_line,
     parse_floats,
@@ -322,34 +323,6 @@ NO_INTRINSICS_HINT = (
 )
 
 
-def _images_below(folder: Path) -> str:
-    """``"; its folder X/ holds N: pass that folder"`` for the first subfolder holding
-    images (a data set whose images sit one level down), else ``""``. A TUM RGB-D
-    folder without its ``rgb.txt`` (ORB-SLAM's ``associations.txt`` in its place) is
-    said as that: its ``depth/`` sorts first and was offered as the images."""
-    if (
-        (folder / "rgb").is_dir()
-        and not (folder / "rgb.txt").is_file()
-        and ((folder / "groundtruth.txt").is_file() or (folder / "associations.txt").is_file())
-    ):
-        return (
-            "; a TUM RGB-D folder without its rgb.txt (the list 'timestamp rgb/file.png' that "
-            "graphslam reads; associations.txt is ORB-SLAM's): add rgb.txt"
-        )
-    try:
-        below = sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: (p.name == "depth", p.name))
-    except OSError:
-        return ""
-    for sub in below:
-        try:
-            n = len(list_images(sub))
-        except (OSError, InputError):  # an unreadable folder, a dangling link: not the one to name
-            continue
-        if n:
-            return f"; its folder {sub.name}/ holds {n}: pass that folder"
-    return ""
-
-
 def read_image_folder(
     folder: str | Path, intrinsics_file: str | Path | None = None, intrinsics=None
 ) -> ImageSequence:
@@ -359,7 +332,7 @@ def read_image_folder(
         raise InputError("image folder not found", folder)
     paths = list_images(folder)
     if not paths:
-        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}){_images_below(folder)}", folder)
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}){images_below(folder)}", folder)
     camera_from: Path | str
     if is_estimate(intrinsics):  # the start of the estimate: the images' own size
         K, dist = start_camera(image_size(str(paths[0]))), None

@@ -625,6 +625,34 @@ def _check_one_place_each(paths: list[str]) -> None:
             )
 
 
+def images_below(folder: Path) -> str:
+    """``"; its folder X/ holds N: pass that folder"`` for the first subfolder holding
+    images (a data set whose images sit one level down), else ``""``. A TUM RGB-D
+    folder without its ``rgb.txt`` (ORB-SLAM's ``associations.txt`` in its place) is
+    said as that: its ``depth/`` sorts first and was offered as the images."""
+    if (
+        (folder / "rgb").is_dir()
+        and not (folder / "rgb.txt").is_file()
+        and ((folder / "groundtruth.txt").is_file() or (folder / "associations.txt").is_file())
+    ):
+        return (
+            "; a TUM RGB-D folder without its rgb.txt (the list 'timestamp rgb/file.png' that "
+            "graphslam reads; associations.txt is ORB-SLAM's): add rgb.txt"
+        )
+    try:
+        below = sorted((p for p in folder.iterdir() if p.is_dir()), key=lambda p: (p.name == "depth", p.name))
+    except OSError:
+        return ""
+    for sub in below:
+        try:
+            n = len(list_images(sub))
+        except (OSError, InputError):  # an unreadable folder, a dangling link: not the one to name
+            continue
+        if n:
+            return f"; its folder {sub.name}/ holds {n}: pass that folder"
+    return ""
+
+
 def folder_images(folder: Path) -> list[Path]:
     """:func:`list_images` as paths; InputError when the folder is missing or has none."""
     folder = Path(folder)
@@ -632,7 +660,7 @@ def folder_images(folder: Path) -> list[Path]:
         raise InputError("image folder not found", folder)
     paths = [Path(p) for p in list_images(folder)]
     if not paths:
-        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in folder", folder)
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in folder{images_below(folder)}", folder)
     return paths
 
 
