@@ -253,7 +253,7 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math
     ``n..``: the noise besides the pose's, ``H_m P H_m^T + R``. Returns
     ``(-dmu (n, 3), Sx_new (n, 3, 3), log p(nu) with scale L (:func:`log_likelihood`,
     ``dof``), -K as its columns (k0, k1),
-    every L positive definite)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``,
+    every L positive definite, L's upper triangle)``: ``L = H_x Sx H_x^T + n``, ``K = Sx H_x^T L^-1``,
     ``Sx_new = Sx - K (Sx H_x^T)^T`` (not symmetrised). Written with ``-H_x`` (``u, v``
     are the columns of ``-Sx H_x^T``; the signs cancel).
     """
@@ -270,6 +270,7 @@ def proposal_update(Sx, a, b, c, d, nu_r, nu_b, n00, n01, n11, dof: float = math
         log_likelihood(nu_r, nu_b, inv, det, dof),
         (k0, k1),
         L_pd,
+        (L00, L01, L11),
     )
 
 
@@ -289,12 +290,19 @@ def _pose_innovation_scale(S, a, b, c, d, n00, n01, n11):
     return u, v, L
 
 
-def innovation_d2(S, a, b, c, d, nu_r, nu_b, n00, n01, n11) -> np.ndarray:
-    """(n,) squared Mahalanobis distance of innovations ``nu`` under
-    ``H_x S H_x^T + n`` (``S`` (n, 3, 3) or (3, 3), the pose's covariance; ``n..`` as in
-    :func:`proposal_update`; ``H_x`` from ``a..d`` as there)."""
-    _, _, L = _pose_innovation_scale(np.broadcast_to(S, (len(a), 3, 3)), a, b, c, d, n00, n01, n11)
-    return mahalanobis2(nu_r, nu_b, inverse_sym2(*L)[0])
+def widened_d2(L, C: np.ndarray, a, b, c, d, nu_r, nu_b) -> np.ndarray:
+    """(n,) squared Mahalanobis distance of innovations ``nu`` under ``L + H_x C H_x^T``:
+    ``L`` the upper triangle of an innovation covariance (as :func:`proposal_update`
+    returns it), ``C`` (3, 3) one pose covariance for every row, ``H_x`` from ``a..d`` as
+    in :func:`proposal_update`. With ``C`` shared, ``H_x C H_x^T`` is six scalar-weighted
+    products (the (n, 3, 3) sandwich of ``L`` again cost FastSLAM 2.0 a sixth of its step
+    at 10 particles)."""
+    c00, c01, c02, c11, c12, c22 = C[0, 0], C[0, 1], C[0, 2], C[1, 1], C[1, 2], C[2, 2]
+    # rows of H_x: (-a, -b, 0) and (-c, -d, -1); the signs cancel in each product
+    w00 = a * (a * c00 + 2.0 * b * c01) + b * b * c11
+    w01 = a * (c * c00 + d * c01 + c02) + b * (c * c01 + d * c11 + c12)
+    w11 = c * (c * c00 + 2.0 * d * c01 + 2.0 * c02) + d * (d * c11 + 2.0 * c12) + c22
+    return mahalanobis2(nu_r, nu_b, inverse_sym2(L[0] + w00, L[1] + w01, L[2] + w11)[0])
 
 
 def all_positive_definite3(S: np.ndarray) -> bool:

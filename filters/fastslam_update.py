@@ -27,7 +27,6 @@ from filters.fastslam_map import ParticleMaps
 from filters.fastslam_math import (
     all_positive_definite3,
     floor_hits,
-    innovation_d2,
     inv2,
     landmark_update,
     new_landmark,
@@ -39,6 +38,7 @@ from filters.fastslam_math import (
     sandwich,
     spread_noise,
     tr,
+    widened_d2,
 )
 from filters.numerics import REL_VARIANCE_FLOOR, Recoveries
 from filters.numerics import symmetrise as sym
@@ -331,12 +331,12 @@ def refine_proposal(
     r00, r11 = _proposal_floor(recoveries, R, Pf, Sx, a, b, c, d)
     # the noise besides the pose's (landmark and measurement) is HmPHmt + Rf
     noise = (h00 + r00, h01 + R[0, 1], h11 + r11)
-    neg_dmu, S_new, logl, K, ok = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise, dof=dof)
+    neg_dmu, S_new, logl, K, ok, L = proposal_update(Sx, a, b, c, d, nu_r, nu_b, *noise, dof=dof)
     x_new = x - neg_dmu  # heading unwrapped: bearings are wrapped, and so is the draw
     out = np.zeros(len(a), dtype=bool)
     if misread is not None:
         C, gate_d2 = misread
-        out = innovation_d2(Sx + C, a, b, c, d, nu_r, nu_b, *noise) > gate_d2
+        out = widened_d2(L, C, a, b, c, d, nu_r, nu_b) > gate_d2
         if out.any():
             x_new = np.where(out[:, None], x, x_new)
             S_new = np.where(out[:, None, None], Sx, S_new)

@@ -363,3 +363,30 @@ def test_a_sighting_that_closes_a_drift_still_refines_every_proposal():
     assert (slam._particles.misreads, slam.rejected_observations()) == (0, 0)
     after = bearing_errors(slam._particles.poses)
     assert np.max(np.abs(after)) < 0.25 * np.max(np.abs(before))
+
+
+def test_the_misread_gates_widened_distance_is_the_full_matrix_product():
+    """:func:`widened_d2` adds ``H_x C H_x^T`` to the proposal's ``L`` in scalars; against
+    ``nu^T (H_x (S + C) H_x^T + n)^-1 nu`` written with matrices, seeded random poses."""
+    from filters.fastslam_math import proposal_update, range_bearing, widened_d2
+
+    rng = np.random.default_rng(7)
+    n = 50
+    x = rng.normal(0.0, 2.0, (n, 3))
+    m = rng.normal(0.0, 5.0, (n, 2))
+    A = rng.normal(0.0, 0.1, (n, 3, 3))
+    S = A @ A.transpose(0, 2, 1) + 1e-4 * np.eye(3)
+    B = rng.normal(0.0, 0.2, (3, 3))
+    C = B @ B.T
+    z = np.array([4.0, 0.3])
+    a, b, c, d, nu_r, nu_b = range_bearing(x[:, 0], x[:, 1], x[:, 2], m[:, 0], m[:, 1], z[0], z[1])
+    noise = (np.full(n, 0.02), np.full(n, 0.001), np.full(n, 0.003))
+    L = proposal_update(S, a, b, c, d, nu_r, nu_b, *noise)[-1]
+    H = np.zeros((n, 2, 3))
+    H[:, 0, :2] = np.stack([-a, -b], -1)
+    H[:, 1, :] = np.stack([-c, -d, -np.ones(n)], -1)
+    N = np.stack([np.stack([noise[0], noise[1]], -1), np.stack([noise[1], noise[2]], -1)], -2)
+    full = H @ (S + C) @ H.transpose(0, 2, 1) + N
+    nu = np.stack([nu_r, nu_b], -1)
+    expected = np.einsum("ni,ni->n", nu, np.linalg.solve(full, nu[..., None])[..., 0])
+    np.testing.assert_allclose(widened_d2(L, C, a, b, c, d, nu_r, nu_b), expected, rtol=1e-10)
