@@ -126,7 +126,11 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
     obs = scan_list(observations, who)
     for o in obs:
         if o.kind is not ObservationKind.RANGE_BEARING:
-            raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}")
+            # the back end that takes ranges alone is named, as the user's next step
+            also = (
+                " (range-only data: the isam2 back end takes it)" if o.kind is ObservationKind.RANGE else ""
+            )
+            raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}{also}")
         if o.pose_id != pose_id:
             raise MeasurementError(
                 f"{who}: observation from pose {o.pose_id} but the current pose is {pose_id}"
