@@ -269,6 +269,19 @@ def _connect(Client, address: str):
     """A Dask ``Client`` of the scheduler at ``address``, or one ConfigError: no answer
     within :data:`CONNECT_TIMEOUT_S`, or any failure of the handshake (a server that is
     no scheduler answered 'SSH-2.0...' and Dask read it as a 3 EiB frame: MemoryError)."""
+    try:  # a malformed address is refused before a Client exists: its failed start in
+        # a thread left Dask's loop registry so that the next LocalCluster of this process
+        # never started (AssertionError after 10 s: a notebook's next sweep, or CI's tests)
+        from distributed.comm import parse_address
+        from distributed.comm.addressing import parse_host_port
+
+        scheme, where = parse_address(address)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            parse_host_port(where)
+    except ValueError as bad:
+        raise ConfigError(
+            f"--cluster {address}: cannot connect (ValueError: {' '.join(str(bad).split())[:200]})"
+        ) from None
     box: dict = {}
 
     def connect() -> None:
@@ -348,9 +361,16 @@ class DaskExecutor:
             for name in _START_LOGGERS:
                 logging.getLogger(name).setLevel(logging.CRITICAL + 1)
             try:
-                # one thread a worker: a run is a process of its own, a worker only waits
+                # one thread a worker: a run is a process of its own, a worker only waits.
+                # No dashboard, but the scheduler's HTTP server still binds: on Dask's 8787 by
+                # default, where a second sweep of the machine printed "Port 8787 is already
+                # in use" (three lines and a traceback line); any free port on the loopback
                 self.cluster = LocalCluster(
-                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                 )
             except Exception as e:  # noqa: BLE001 - every failure to start is said in one line
                 raise ConfigError(

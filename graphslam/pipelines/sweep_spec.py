@@ -436,6 +436,29 @@ def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     return seeds
 
 
+def _set_hint(key: str, sweep: dict, cfg: ConfigFile, path) -> str:
+    """``"; ... [sweep.set] "mrclam.robot" = [...]"`` when a section these runs read has a
+    setting named ``key`` (``robot = [1, 2]`` in [sweep] was refused naming the sweep's own
+    keys only), else ``""``; nothing when the grid itself does not parse (that error comes next)."""
+    import dataclasses
+
+    from slamcore.errors import GraphSlamError
+
+    try:
+        datasets, _ = _datasets(sweep, cfg, Path(path))
+        sections: dict[str, type] = {}
+        for d, b in itertools.product(datasets, _list(sweep, cfg, "backend", str)):
+            sections.update(run_sections(d, b))
+    except GraphSlamError:
+        return ""
+    hits = [
+        f'"{name}.{key}"'
+        for name, cls in sorted(sections.items())
+        if key in {f.name for f in dataclasses.fields(cls)}
+    ]
+    return f"; a section's setting is swept under [sweep.set]: {' or '.join(hits)} = [...]" if hits else ""
+
+
 def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple, tuple]:
     """``(keys, value lists)`` of ``[sweep.set]``, each value checked by its config class."""
     table = sweep.get("set", {})
@@ -508,8 +531,9 @@ def parse_sweep(path: str | Path) -> SweepSpec:
         raise ConfigError("no [sweep] table", cfg.path)
     for key in sweep:
         if key not in SWEEP_KEYS:
+            hint = _set_hint(key, sweep, cfg, path)
             raise ConfigError(
-                f"unknown key {key!r} in [sweep]; known: {', '.join(SWEEP_KEYS)}",
+                f"unknown key {key!r} in [sweep]; known: {', '.join(SWEEP_KEYS)}{hint}",
                 cfg.path,
                 cfg.line_of("sweep", key),
             )
