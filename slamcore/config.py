@@ -533,7 +533,7 @@ class ConfigFile:
         (``base``), so ``[loops.orb] n_features = 500`` keeps the loop detector's
         other ORB settings instead of ORB's general defaults."""
         hints = typing.get_type_hints(cls)
-        names = _field_names(cls)
+        names = field_names(cls)
         unknown = sorted(set(data) - names)
         if unknown:
             raise ConfigError(
@@ -572,7 +572,7 @@ def _toml_value(value: Any) -> str:
     return str(value)
 
 
-def _field_names(cls: type) -> set[str]:
+def field_names(cls: type) -> set[str]:
     """Names of the fields of the dataclass ``cls``."""
     return {f.name for f in dataclasses.fields(cls)}
 

@@ -265,6 +265,13 @@ class PoolExecutor:
 CONNECT_TIMEOUT_S = 20.0
 
 
+def _cannot_connect(address: str, e: BaseException) -> ConfigError:
+    """The one line of a failed connection to ``address``: the error's type and words."""
+    return ConfigError(
+        f"--cluster {address}: cannot connect ({type(e).__name__}: {' '.join(str(e).split())[:200]})"
+    )
+
+
 def _connect(Client, address: str):
     """A Dask ``Client`` of the scheduler at ``address``, or one ConfigError: no answer
     within :data:`CONNECT_TIMEOUT_S`, or any failure of the handshake (a server that is
@@ -279,9 +286,7 @@ def _connect(Client, address: str):
         if scheme in ("tcp", "tls", "ws", "wss"):
             parse_host_port(where)
     except ValueError as bad:
-        raise ConfigError(
-            f"--cluster {address}: cannot connect (ValueError: {' '.join(str(bad).split())[:200]})"
-        ) from None
+        raise _cannot_connect(address, bad) from None
     box: dict = {}
 
     def connect() -> None:
@@ -300,9 +305,7 @@ def _connect(Client, address: str):
             "not a Dask scheduler?)"
         )
     if "error" in box:
-        e = box["error"]
-        what = " ".join(str(e).split())[:200]
-        raise ConfigError(f"--cluster {address}: cannot connect ({type(e).__name__}: {what})")
+        raise _cannot_connect(address, box["error"])
     return box["client"]
 
 

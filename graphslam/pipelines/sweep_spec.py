@@ -45,8 +45,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from slamcore.config import INT_LIMIT, ConfigFile, from_dict
-from slamcore.errors import ConfigError, InputError, quote
+from slamcore.config import INT_LIMIT, ConfigFile, field_names, from_dict
+from slamcore.errors import ConfigError, GraphSlamError, InputError, quote
 
 SWEEP_KEYS = ("dataset", "backend", "seed", "max_steps", "config", "nees", "set", "max_runs")
 #: Runs a grid may hold unless ``[sweep] max_runs`` says more: a sweep of 10 000 runs
@@ -436,26 +436,23 @@ def _seeds(sweep: dict, cfg: ConfigFile) -> tuple[int | None, ...]:
     return seeds
 
 
+def _grid_sections(datasets, backends) -> dict[str, type]:
+    """Config classes by section name that some run of the grid reads."""
+    sections: dict[str, type] = {}
+    for d, b in itertools.product(datasets, backends):
+        sections.update(run_sections(d, b))
+    return sections
+
+
 def _set_hint(key: str, sweep: dict, cfg: ConfigFile, path) -> str:
     """``"; ... [sweep.set] "mrclam.robot" = [...]"`` when a section these runs read has a
     setting named ``key`` (``robot = [1, 2]`` in [sweep] was refused naming the sweep's own
     keys only), else ``""``; nothing when the grid itself does not parse (that error comes next)."""
-    import dataclasses
-
-    from slamcore.errors import GraphSlamError
-
     try:
-        datasets, _ = _datasets(sweep, cfg, Path(path))
-        sections: dict[str, type] = {}
-        for d, b in itertools.product(datasets, _list(sweep, cfg, "backend", str)):
-            sections.update(run_sections(d, b))
+        sections = _grid_sections(_datasets(sweep, cfg, Path(path))[0], _list(sweep, cfg, "backend", str))
     except GraphSlamError:
         return ""
-    hits = [
-        f'"{name}.{key}"'
-        for name, cls in sorted(sections.items())
-        if key in {f.name for f in dataclasses.fields(cls)}
-    ]
+    hits = [f'"{name}.{key}"' for name, cls in sorted(sections.items()) if key in field_names(cls)]
     return f"; a section's setting is swept under [sweep.set]: {' or '.join(hits)} = [...]" if hits else ""
 
 
@@ -584,10 +581,7 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     base = {}
     if "config" in sweep:
         base = dict(read_config(_base_config(sweep["config"], cfg, Path(path))).data)
-    grid_sections = {}
-    for d, b in itertools.product(datasets, backends):
-        grid_sections.update(run_sections(d, b))
-    keys, values = _check_set(sweep, cfg, grid_sections)
+    keys, values = _check_set(sweep, cfg, _grid_sections(datasets, backends))
     seeds = _seeds(sweep, cfg)
     _refuse_seeds_of_solves(seeds, datasets, backends, cfg)
     _refuse_keys_seed_sets(seeds, keys, cfg)

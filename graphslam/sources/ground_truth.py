@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphslam.sources.posegraph_files import TRANSLATION_MAX_M
+from graphslam.sources.posegraph_files import TAGS, TRANSLATION_MAX_M
 from graphslam.sources.spatial.frames import FrameSelection, source_indices
 from graphslam.sources.spatial.sequence import (
     ASSOCIATION_MAX_DT_S,
@@ -111,10 +111,9 @@ def detect_format(path: Path, first_line: str) -> str:
         return "colmap"
     if path.suffix.lower() == ".csv" or "," in first_line:
         return "euroc"
-    n = len(first_line.split())
-    from graphslam.sources.posegraph_files import TAGS
-
-    tag = first_line.split()[0] if n else ""
+    tokens = first_line.split()
+    n = len(tokens)
+    tag = tokens[0] if n else ""
     if tag in TAGS:  # "5 numbers a line" of a line that starts with a word misled
         kind = "TORO" if TAGS[tag][0] == "toro" else TAGS[tag][0]
         raise InputError(

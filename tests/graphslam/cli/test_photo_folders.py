@@ -40,18 +40,15 @@ def test_a_folder_without_a_camera_names_the_option_and_the_files(capsys, desk_p
 
 
 @pytest.mark.parametrize("command", [
-    ["run", "--rerun", "off", "--dataset"],
+    ["run", "--rerun", "off", "--dataset", "{desk}"],
     # loops and vocab train said "no images in folder" alone (a pass after the eighteenth)
-    ["loops", "--quiet", "--out", "{tmp}/l.csv"],
-    ["vocab", "train", "--out", "{tmp}/v.npz"],
+    ["loops", "{desk}", "--quiet", "--out", "{tmp}/l.csv"],
+    ["vocab", "train", "{desk}", "--out", "{tmp}/v.npz"],
 ])
 def test_a_data_set_whose_images_sit_one_level_down_is_pointed_there(capsys, shared_data, tmp_path, command):
     if not (shared_data / "slambook2_desk" / "images").is_dir():
         pytest.skip("desk photos missing")
-    argv = [a.format(tmp=tmp_path) for a in command]
-    # the folder is the positional argument of loops and vocab train, the last one of run
-    argv = [*argv[:2], str(shared_data / "slambook2_desk"), *argv[2:]] if argv[0] == "vocab" else [
-        *argv, str(shared_data / "slambook2_desk")]
+    argv = [a.format(tmp=tmp_path, desk=shared_data / "slambook2_desk") for a in command]
     line = _one_error_line(capsys, argv)
     assert line.endswith("its folder images/ holds 10: pass that folder")
     assert not list(tmp_path.iterdir())
