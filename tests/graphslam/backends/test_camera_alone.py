@@ -215,6 +215,7 @@ def test_room_two_laps_from_the_camera_alone(room_run):
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # benchmarks/bench_camera_alone.py measures it on seeds 0-4 (8 s of CI)
 def test_kitti07_from_the_camera_alone():
     """Issue 30: every frame tracked, ATE <= 0.5 % of the path after the Sim(3) fit
     (seed 0; benchmarks/bench_camera_alone.py measures seeds 0-4)."""
