@@ -160,6 +160,10 @@ class FastSlam(Backend):
         self.n_particles = int(n_particles)
         self._particles = ParticleSet(replace(self.config, n_particles=self.n_particles))
         self._paths = ParticlePaths(self.n_particles) if self.config.trajectory == "path" else None
+        # unknown ids: each particle's pairings, through the resamplings (final_associations)
+        unknown = self.config.association == "unknown"
+        self._pairings = ParticlePaths(self.n_particles) if unknown else None
+        self._pairing_slots: list[int] = []  # pose id of each row of _pairings
 
     # ------------------------------------------------------------- contract
     def set_robot_count(self, n_robots: int) -> None:
@@ -288,11 +292,27 @@ class FastSlam(Backend):
             None if misread is not None and misread[k][self._best] else int(ids[int(c[self._best])])
             for k, c in enumerate(cols)
         ]
+        if self._pairings is not None:
+            self._pairings.record(len(self._pairing_slots), ids[np.stack(cols, axis=1)])
+            self._pairing_slots.append(self._pose_ids[-1])
         w = particles.weights
         self._close_step(force=True, w=w)
         self._maybe_resample(w)
         if self.config.association == "unknown":
             particles.maps.drop_empty_columns()
+
+    def final_associations(self) -> dict[tuple[int, int], int] | None:
+        """Unknown ids: the pairings of the estimate's particle, as its ancestors made them
+        (the map is that particle's, built from its own lineage's pairings; the best
+        particle of each step paired otherwise where the resamplings later dropped it)."""
+        if self._pairings is None or self._pairings.given_up:
+            return None
+        rows = self._pairings.lineage(self._best, range(len(self._pairing_slots)))
+        return {
+            (pid, k): int(lid)
+            for pid, row in zip(self._pairing_slots, rows, strict=True)
+            for k, lid in enumerate(row)
+        }
 
     def rejected_observations(self) -> int:
         """Sightings of known ids that 2.0's misread gate kept out of the pose proposal
@@ -454,5 +474,7 @@ class FastSlam(Backend):
         parents = self._particles.resample(w)
         if self._paths is not None:
             self._paths.resampled(parents)
+        if self._pairings is not None:
+            self._pairings.resampled(parents)
         self._best = int(np.flatnonzero(parents == self._best)[0])
         self.resample_count += 1

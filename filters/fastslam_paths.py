@@ -96,11 +96,20 @@ class ParticlePaths:
         """(n_rows, 3) the poses of ``particle``'s path at rows ``0 .. n_rows - 1``."""
         if self.given_up:
             raise GraphSlamError("particle paths were given up (MAX_PATH_BYTES)")
+        return np.array(self.lineage(particle, range(n_rows))).reshape(n_rows, 3)
+
+    def lineage(self, particle: int, rows) -> list[np.ndarray]:
+        """Each of ``rows`` as ``particle``'s ancestors recorded it: row ``r`` recorded
+        (N, ...) gives that row's (...) entry of the ancestor (any trailing shape: poses
+        (3,), or a scan's landmark ids (K,))."""
+        if self.given_up:
+            raise GraphSlamError("particle paths were given up (MAX_PATH_BYTES)")
         ancestor = self._ancestors(particle, self.generation)
-        out = np.empty((n_rows, 3))
-        for row in range(n_rows):
-            poses, g = self._rows[row]
-            out[row] = poses if poses.ndim == 1 else poses[ancestor[g]]
+        out = []
+        for row in rows:
+            kept, g = self._rows[row]
+            full = row in self._full
+            out.append(kept[ancestor[g]] if full else kept)
         return out
 
     @property

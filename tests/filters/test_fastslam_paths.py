@@ -117,3 +117,42 @@ def test_paths_repeat_to_the_bit():
     ds = loop_world(seed=2)
     runs = [pipeline.run(ds, FastSlam(FastSlamConfig(n_particles=40, seed=5))).estimate.wTb for _ in range(2)]
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_a_lineage_of_rows_of_any_width_follows_the_resamplings():
+    """A scan's landmark ids (N, K), K varying by row, come back as the ancestor's."""
+    rng = np.random.default_rng(3)
+    n = 9
+    store = ParticlePaths(n)
+    full: list[np.ndarray] = []  # per row (N, K), permuted at every resampling
+    for row in range(200):
+        ids = rng.integers(0, 50, size=(n, 1 + row % 4)).astype(float)
+        full.append(ids)
+        store.record(row, ids)
+        if rng.random() < 0.5:
+            w = rng.random(n) ** 8
+            parents = low_variance_resample(w / w.sum(), rng)
+            full = [f[parents] for f in full]
+            store.resampled(parents)
+    store.compact()
+    for p in range(n):
+        got = store.lineage(p, range(200))
+        for row in range(200):
+            np.testing.assert_array_equal(got[row], full[row][p])
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_unknown_ids_are_scored_as_the_estimates_particle_paired_them(version):
+    """final_associations is the best particle's own pairing history: every pairing
+    names a landmark of its map or one it dropped, and the estimate's landmarks are
+    each paired at least once (its map was built from those sightings)."""
+    backend = FastSlam(
+        FastSlamConfig(version=version, n_particles=30, association="unknown", resample_ess_fraction=1.0)
+    )  # lineages that differ
+    res = pipeline.run(make_synthetic(), backend, max_steps=150)
+    pairs = backend.final_associations()
+    assert pairs is not None and len(pairs) == len(res.associations)
+    assert backend.resample_count > 0
+    used = set(pairs.values())
+    assert set(res.estimate.landmark_ids.tolist()) <= used
+    assert used - set(res.estimate.landmark_ids.tolist()) <= set(backend.pruned_landmark_ids())
