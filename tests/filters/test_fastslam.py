@@ -484,3 +484,62 @@ def test_checked_proposal_pass_runs_its_joseph_check(monkeypatch):
     be, res = run(ds, version=2, n_particles=20, seed=1)
     assert be.recoveries["joseph_fallback"] == 0
     np.testing.assert_allclose(a.wTb, res.estimate.wTb, atol=ROUNDOFF_TOL)
+
+
+def test_a_scans_assignment_beats_pairing_in_order():
+    """Observation 0 fits landmark 0 best and landmark 1 nearly as well; observation 1
+    fits landmark 0 only. In order, 0 takes landmark 0 and 1 starts a duplicate; the
+    scan's best assignment pairs both (log-likelihoods in nats, -inf outside the gate)."""
+    from filters.fastslam_particles import scan_assignments
+
+    ll = np.array([[[-1.0, -1.5], [-0.5, -np.inf]]])
+    start = np.array([-7.0, -7.0])  # a start scores as a pairing at the gate's edge
+    cols, new = scan_assignments(ll, start)
+    np.testing.assert_array_equal(cols, [[1, 0]])
+    np.testing.assert_array_equal(new, [[False, False]])
+    # a pairing worse than a start is not forced: observation 0 starts a landmark
+    cols, new = scan_assignments(np.array([[[-1.0, -8.0], [-0.5, -np.inf]]]), start)
+    np.testing.assert_array_equal(new, [[True, False]])
+    assert cols[0, 1] == 0
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_unknown_association_pairs_a_cluster_as_a_whole(version):
+    """Two mapped landmarks 0.3 m apart, seen together: the first sighting (0.12 m
+    from A, 0.18 m from B) would take A in order; the second, on A (outside B's gate),
+    would then start a third. The scan is paired as a whole: B then A, none added.
+    Noise: 0.045 m across at 5 m, so A and B, seen once each, gate 0.18 m but not 0.3 m."""
+    R = np.diag([0.05, 0.045 / 5.0]) ** 2
+    b = FastSlam(FastSlamConfig(version=version, n_particles=20, association="unknown",
+                                pair_scans_jointly=True))
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-8)
+    m_a, m_b = np.array([5.0, 0.0]), np.array([5.0, 0.3])
+    b.update([Observation(0, None, models.observe(np.zeros(3), m_a), R)])
+    b.predict(Odometry(0, 1, np.zeros(3), np.eye(3) * 1e-8), 1)
+    b.update([Observation(1, None, models.observe(np.zeros(3), m_b), R)])
+    id_a, id_b = b.associations()[0] - 1, b.associations()[0]
+    b.predict(Odometry(1, 2, np.zeros(3), np.eye(3) * 1e-8), 2)
+    b.update(
+        [
+            Observation(2, None, models.observe(np.zeros(3), np.array([5.0, 0.12])), R),
+            Observation(2, None, models.observe(np.zeros(3), m_a), R),
+        ]
+    )
+    assert b.associations() == [id_b, id_a]
+    assert b.maps.n_cols == 2
+
+
+def test_scans_are_paired_in_order_unless_asked():
+    """The same scan, pair_scans_jointly off (the default): in order, the first sighting
+    takes A and the second, outside B's gate, starts a third landmark."""
+    R = np.diag([0.05, 0.045 / 5.0]) ** 2
+    b = FastSlam(FastSlamConfig(version=2, n_particles=20, association="unknown"))
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-8)
+    for pid, m in ((0, (5.0, 0.0)), (1, (5.0, 0.3))):
+        if pid:
+            b.predict(Odometry(pid - 1, pid, np.zeros(3), np.eye(3) * 1e-8), pid)
+        b.update([Observation(pid, None, models.observe(np.zeros(3), np.array(m)), R)])
+    b.predict(Odometry(1, 2, np.zeros(3), np.eye(3) * 1e-8), 2)
+    b.update([Observation(2, None, models.observe(np.zeros(3), np.array([5.0, 0.12])), R),
+              Observation(2, None, models.observe(np.zeros(3), np.array([5.0, 0.0])), R)])
+    assert b.maps.n_cols == 3

@@ -31,7 +31,7 @@ PLANAR = [
      {"new_landmark_density_per_m2": 0.9, "detection_prob": 0.1}, False),
     ("ekf", {}, {"prune_missed_alpha": 0.5}, True),
     ("fastslam2", {}, {"new_landmark_mahalanobis_sq": 1.0, "new_landmark_log_likelihood": -50.0,
-                       "prune_missed_alpha": 0.5}, True),
+                       "prune_missed_alpha": 0.5, "pair_scans_jointly": True}, True),
 ]
 
 
