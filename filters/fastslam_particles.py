@@ -588,8 +588,9 @@ class ParticleSet:
         nu_b = wrap_angle(z[1] - np.arctan2(dy, dx) + poses[:, 2:3])
         det = s00 * s11 - s01 * s01
         d2 = (s11 * nu_r * nu_r - 2 * s01 * nu_r * nu_b + s00 * nu_b * nu_b) / det
-        ok = valid & (d2 <= self.new_gate_d2)
-        return np.where(ok, -0.5 * d2 - 0.5 * np.log(det), -np.inf)
+        # det > 0: a covariance that lost definiteness gates nothing (its log is NaN)
+        ok = valid & (d2 <= self.new_gate_d2) & (det > 0)
+        return np.where(ok, -0.5 * d2 - 0.5 * np.log(np.where(ok, det, 1.0)), -np.inf)
 
 
 @dataclass(frozen=True)
