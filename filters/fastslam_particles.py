@@ -525,10 +525,12 @@ class ParticleSet:
         duplicate. MRCLAM's landmarks come in clusters 0.18-0.26 m apart, seen together.
         Here each clashing particle pairs its scan as a whole: the assignment (each
         landmark at most once) of the highest joint log-likelihood, starting a landmark
-        scoring as a pairing at the gate's edge would (the density of the new-landmark
-        weight, :meth:`_log_p0`), solved exactly (:func:`scan_assignments`). Given the
-        particle's pose the innovations are independent, so this is JCBB's joint test.
-        Particles without a clash pair as before. The figures, for and against, are on
+        scoring as a pairing at the gate's edge would (the association's own Gaussian score
+        there with ``S = R``; not :meth:`_log_p0`, which weighs under the sensor's t law
+        where the data states one, on another scale than these scores), solved exactly
+        (:func:`scan_assignments`). Given the particle's pose the innovations are
+        independent, so this is JCBB's joint test. Particles without a clash pair as
+        before. The figures, for and against, are on
         :class:`~filters.fastslam_config.FastSlamConfig` ``pair_scans_jointly``.
 
         ``poses`` (N, 3) without their covariance: under 2.0 with the motion prior's
@@ -549,8 +551,8 @@ class ParticleSet:
         particles = np.flatnonzero(clash)
         if particles.size == 0:
             return None
-        # starting a landmark scores as a pairing at the gate's edge would (the density
-        # FastSLAM's new-landmark weight takes, :meth:`_log_p0`)
+        # starting a landmark scores as a pairing at the gate's edge would, on the scale of
+        # _gated_log_likelihoods (Gaussian, no 2 pi term)
         start = [-0.5 * self.new_gate_d2 - 0.5 * math.log(np.linalg.det(o.covariance)) for o in obs]
         cols, new = scan_assignments(ll[particles], np.array(start))
         return ScanAssignment(particles, cols, new)

@@ -93,9 +93,8 @@ class ParticlePaths:
         return out
 
     def path(self, particle: int, n_rows: int) -> np.ndarray:
-        """(n_rows, 3) the poses of ``particle``'s path at rows ``0 .. n_rows - 1``."""
-        if self.given_up:
-            raise GraphSlamError("particle paths were given up (MAX_PATH_BYTES)")
+        """(n_rows, 3) the poses of ``particle``'s path at rows ``0 .. n_rows - 1``
+        (:meth:`lineage`, which refuses once the store gave up)."""
         return np.array(self.lineage(particle, range(n_rows))).reshape(n_rows, 3)
 
     def lineage(self, particle: int, rows) -> list[np.ndarray]:
