@@ -63,6 +63,11 @@ Per frame:
   EKFs stay Gaussian (the weights correct a draw; a 1.0 innovation is mostly its
   particle's pose error). Without a stated tail, or with a Gaussian one, all is as above.
 
+  With known ids, FastSLAM 2.0 holds a sighting far beyond the sensor's gate out of
+  the proposal and of its landmark record, as a misread id; a record whose sightings
+  it has held out for longer than any run of misreads lasts (``[fastslam]
+  misread_restart_s``) starts again from the sighting instead.
+
   Weights are kept in log space; low-variance (systematic) resampling runs when
   the effective sample size drops below ``resample_ess_fraction * N``.
 

@@ -60,6 +60,9 @@ class ParticleMaps:
         #: and the sensor that made it (-1: none stated), for sightings correlated in time
         self.pool_seen = np.full(max(pool_capacity, 1), -np.inf)
         self.pool_sensor = np.full(max(pool_capacity, 1), -1, dtype=np.int32)
+        #: per record: time of the first of the sightings in a row that the record's
+        #: particles all took as misread ids, s (NaN: its latest sighting was taken in)
+        self.pool_misread_since = np.full(max(pool_capacity, 1), np.nan)
         self.pool_size = 0
         self._table = np.full((self.n_particles, max(column_capacity, 1)), -1, dtype=np.int32)
         self._score = np.zeros(self._table.shape)
@@ -154,6 +157,7 @@ class ParticleMaps:
         self.pool_size = start + n
         self.pool_seen[start : start + n] = -np.inf
         self.pool_sensor[start : start + n] = -1
+        self.pool_misread_since[start : start + n] = np.nan
         return slice(start, start + n)
 
     def resample(self, parents: np.ndarray) -> None:
@@ -196,12 +200,15 @@ class ParticleMaps:
             cov = np.zeros((new_cap, 2, 2))
             seen = np.full(new_cap, -np.inf)
             sensor = np.full(new_cap, -1, dtype=np.int32)
+            since = np.full(new_cap, np.nan)
             mean[:live] = self.pool_mean[:live]
             cov[:live] = self.pool_cov[:live]
             seen[:live] = self.pool_seen[:live]
             sensor[:live] = self.pool_sensor[:live]
+            since[:live] = self.pool_misread_since[:live]
             self.pool_mean, self.pool_cov = mean, cov
             self.pool_seen, self.pool_sensor = seen, sensor
+            self.pool_misread_since = since
 
     def compact(self) -> None:
         """Mark-and-compact: keep only referenced records, at the front, in order."""
@@ -212,6 +219,7 @@ class ParticleMaps:
         self.pool_cov[: live.size] = self.pool_cov[live]
         self.pool_seen[: live.size] = self.pool_seen[live]
         self.pool_sensor[: live.size] = self.pool_sensor[live]
+        self.pool_misread_since[: live.size] = self.pool_misread_since[live]
         t[valid] = inverse.astype(np.int32)
         self.pool_size = int(live.size)
         self.compactions += 1

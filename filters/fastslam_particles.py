@@ -87,6 +87,8 @@ class ParticleSet:
         #: sightings it kept out for at least half the particles (rejected)
         self.misreads = 0
         self.rejected = 0
+        #: (particle, record) pairs restarted after a run of misreads (:meth:`_restart_misread_records`)
+        self.misread_restarts = 0
         #: the last scan's misread masks, per observation (N,); None when none held
         self.last_misread: list[np.ndarray] | None = None
         #: The sensor's error law the weights use: Student-t dof (inf: Gaussian), from
@@ -226,7 +228,32 @@ class ParticleSet:
         self.last_misread = skip if any(m.any() for m in skip) else None
         # a misread is no sighting of the landmark: its record is left as it was
         self._scan_steps(obs, out, self.poses, weigh=False, skip=skip)
+        if self.last_misread is not None:
+            self._restart_misread_records(obs, out, skip)
         return out
+
+    def _restart_misread_records(self, obs: list[Observation], cols: list[np.ndarray], skip) -> None:
+        """2.0, known ids: a landmark record whose sightings the misread gate has kept out
+        for longer than the sensor's misreads last is the wrong one (its particle's pose
+        was off when it began): it starts again from this sighting. Under known ids every
+        particle still pointing at a record after the scan held that sighting out, so the
+        run's start is kept on the shared record."""
+        T = self.config.misread_restart_s
+        for k, o in enumerate(obs):
+            if not skip[k].any() or o.stamp_s is None:
+                continue
+            i = np.flatnonzero(skip[k])
+            p = self._pointers(cols[k])[i]
+            since = self.maps.pool_misread_since[p]
+            fresh = np.isnan(since)
+            self.maps.pool_misread_since[p[fresh]] = o.stamp_s
+            stale = ~fresh & (o.stamp_s - since > T)
+            if stale.any():
+                self.maps.table[i[stale], int(cols[k][0])] = -1
+                keep = np.ones(self.n_particles, dtype=bool)
+                keep[i[stale]] = False
+                self._landmark_steps([o], [cols[k]], self.poses, weigh=False, skip=[keep])
+                self.misread_restarts += int(stale.sum())
 
     def _scan_steps(
         self,

@@ -191,7 +191,8 @@ def _mark_unused_settings(backend, config, result) -> None:
     ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always,
     ``ANONYMOUS_SIGHTING_KEYS`` under known ids when every sighting had an id,
     ``SENSOR_FIELD_KEYS`` under unknown ids when the data states no sensor field,
-    ``CORRELATION_KEYS`` when no sighting states a correlation in time.
+    ``CORRELATION_KEYS`` when no sighting states a correlation in time, ``STAMPED_KEYS``
+    when no sighting has a time stamp.
     They are said with the gates' (:meth:`slamcore.config.ConfigFile.inert_lines`), with
     their file line, and listed in metrics.json's provenance."""
     from slamcore.config import section_name
@@ -201,11 +202,13 @@ def _mark_unused_settings(backend, config, result) -> None:
     closure_keys = getattr(cls, "LOOP_CLOSURE_KEYS", ())
     field_keys = getattr(cls, "SENSOR_FIELD_KEYS", ())
     correlation_keys = getattr(cls, "CORRELATION_KEYS", ())
+    stamped_keys = getattr(cls, "STAMPED_KEYS", ())
     if (
         not closure_keys
         and not getattr(cls, "UNREAD_IN_RUNS", ())
         and not field_keys
         and not correlation_keys
+        and not stamped_keys
     ):
         return
     section = section_name(cls)
@@ -226,6 +229,8 @@ def _mark_unused_settings(backend, config, result) -> None:
         config.mark_inert(
             section, correlation_keys, "sightings that state how their errors correlate in time (MRCLAM logs)"
         )
+    if stamped_keys and not any(o.stamp_s is not None for f in frames for o in f.observations):
+        config.mark_inert(section, stamped_keys, "sightings with a time stamp (MRCLAM logs)")
     anonymous = getattr(cls, "ANONYMOUS_SIGHTING_KEYS", ())
     if anonymous and getattr(settings, "association", None) == "known":
         if all(o.landmark_id is not None or o.signature is not None for f in frames for o in f.observations):
