@@ -372,12 +372,19 @@ class FastSlam(Backend):
         )
 
     def numerical_recoveries(self) -> list[str]:
+        out = []
         if self._paths is not None and self._paths.given_up:
-            return [
+            out.append(
                 f"{self.name}: the particles' paths outgrew {MAX_PATH_BYTES >> 20} MiB without "
                 "coalescing (no resampling): the trajectory is each step's weighted mean"
-            ]
-        return []
+            )
+        if self._pairings is not None and self._pairings.given_up:
+            out.append(
+                f"{self.name}: the particles' pairings outgrew {MAX_PATH_BYTES >> 20} MiB without "
+                "coalescing (no resampling): each sighting is scored by the pairing of its step's "
+                "best particle, not the estimate's own"
+            )
+        return out
 
     def current_pose(self) -> np.ndarray:
         """The estimate's latest pose: the highest-weight particle's (``trajectory =

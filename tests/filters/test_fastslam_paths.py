@@ -84,6 +84,19 @@ def test_a_filter_whose_paths_gave_up_reports_its_means_and_says_so(monkeypatch)
     assert means.numerical_recoveries() == []
 
 
+def test_a_filter_whose_pairings_gave_up_scores_each_steps_pairing_and_says_so(monkeypatch):
+    """Unknown ids: past the bound the pairing store gives up as the path store does; the
+    run is then scored with each step's best particle's pairing, and says so."""
+    monkeypatch.setattr(fastslam_paths, "MAX_PATH_BYTES", 1000)
+    ds = loop_world(seed=1)
+    slam = FastSlam(FastSlamConfig(n_particles=30, seed=0, resample_ess_fraction=0.0, association="unknown"))
+    result = pipeline.run(ds, slam)
+    assert slam.final_associations() is None
+    assert any("pairings outgrew" in note and "best particle" in note for note in slam.numerical_recoveries())
+    m = pipeline.compute_metrics(result, with_graph_error=False)
+    assert m.association is not None and m.association.accuracy is not None
+
+
 @pytest.mark.parametrize("version", [1, 2])
 def test_the_estimate_is_the_best_particles_path_and_map(version):
     ds = loop_world(seed=1)
