@@ -226,18 +226,29 @@ class ParticleSet:
             mu, Sig, _, _, skip = self._proposal(obs, out)
         self.poses = sample_gaussian(mu, Sig, self.rng, self.recoveries)
         self.last_misread = skip if any(m.any() for m in skip) else None
+        if self.last_misread is not None:  # the scan's sightings of records each particle had
+            had = [self._pointers(c) >= 0 for c in out]
         # a misread is no sighting of the landmark: its record is left as it was
         self._scan_steps(obs, out, self.poses, weigh=False, skip=skip)
         if self.last_misread is not None:
-            self._restart_misread_records(obs, out, skip)
+            # a particle that took in another landmark's sighting in this scan has its
+            # pose confirmed: the held-out sighting then speaks against the record
+            confirmed = np.logical_or.reduce([h & ~m for h, m in zip(had, skip, strict=True)])
+            self._restart_misread_records(obs, out, skip, confirmed)
         return out
 
-    def _restart_misread_records(self, obs: list[Observation], cols: list[np.ndarray], skip) -> None:
+    def _restart_misread_records(
+        self, obs: list[Observation], cols: list[np.ndarray], skip, confirmed: np.ndarray
+    ) -> None:
         """2.0, known ids: a landmark record whose sightings the misread gate has kept out
         for longer than the sensor's misreads last is the wrong one (its particle's pose
-        was off when it began): it starts again from this sighting. Under known ids every
-        particle still pointing at a record after the scan held that sighting out, so the
-        run's start is kept on the shared record."""
+        was off when it began): it starts again from this sighting, in the particles whose
+        pose the scan ``confirmed`` (N,) through another landmark's sighting it took in.
+        Where every sighting of the scan was held out, the pose is as likely to be off as
+        the record (MRCLAM's joint run: robot 1 off in every particle held out its
+        sightings of landmarks 16-18, whose records the other robots had built), and the
+        record is kept. Under known ids every particle still pointing at a record after the
+        scan held that sighting out, so the run's start is kept on the shared record."""
         T = self.config.misread_restart_s
         for k, o in enumerate(obs):
             if not skip[k].any() or o.stamp_s is None:
@@ -247,7 +258,7 @@ class ParticleSet:
             since = self.maps.pool_misread_since[p]
             fresh = np.isnan(since)
             self.maps.pool_misread_since[p[fresh]] = o.stamp_s
-            stale = ~fresh & (o.stamp_s - since > T)
+            stale = ~fresh & (o.stamp_s - since > T) & confirmed[i]
             if stale.any():
                 self.maps.table[i[stale], int(cols[k][0])] = -1
                 keep = np.ones(self.n_particles, dtype=bool)

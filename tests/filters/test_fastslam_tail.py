@@ -394,14 +394,21 @@ def test_the_misread_gates_widened_distance_is_the_full_matrix_product():
 
 #: Seconds between sightings in the misread-run tests (MRCLAM's camera: about 0.2-0.4 s).
 SIGHTING_DT_S = 0.5
+#: A second landmark, mapped right, seen beside landmark 7 where a scan confirms the pose.
+LANDMARK_8 = np.array([3.0, 2.0])
 
 
-def _sightings_of_7(slam: FastSlam, z: np.ndarray, n: int, t0_s: float, first_pose: int) -> None:
-    """``n`` sightings of landmark 7 at ``z``, one per motion step, ``SIGHTING_DT_S`` apart."""
+def _sightings_of_7(slam: FastSlam, z: np.ndarray, n: int, t0_s: float, first_pose: int, with_8: bool = True) -> None:
+    """``n`` scans, one per motion step, ``SIGHTING_DT_S`` apart: landmark 7 at ``z`` and,
+    ``with_8``, landmark 8 where it is."""
+    z8 = models.observe(np.zeros(3), LANDMARK_8)
     for j in range(n):
-        k = first_pose + j
+        k, t = first_pose + j, t0_s + j * SIGHTING_DT_S
         slam.predict(Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8), k)
-        slam.update([Observation(k, 7, z, R, stamp_s=t0_s + j * SIGHTING_DT_S)])
+        scan = [Observation(k, 7, z, R, stamp_s=t)]
+        if with_8:
+            scan.append(Observation(k, 8, z8, R, stamp_s=t))
+        slam.update(scan)
 
 
 def _landmark_7(slam: FastSlam) -> np.ndarray:
@@ -409,32 +416,43 @@ def _landmark_7(slam: FastSlam) -> np.ndarray:
     return np.asarray(est.landmarks_w)[list(est.landmark_ids).index(7)]
 
 
+def _slam_7_from_a_misread(restart_s: float, with_8: bool) -> FastSlam:
+    """Landmark 7's record built from three misreads (3 m to the left), then 20 true
+    sightings over 9.5 s, with landmark 8 in the same scans or alone."""
+    slam = FastSlam(FastSlamConfig(version=2, n_particles=20, seed=0, misread_restart_s=restart_s))
+    slam.initialize(0, np.zeros(3), np.eye(3) * 1e-10)
+    slam.set_sensor_field(SensorField(10.0, math.pi, 1.0, 5.1))
+    _sightings_of_7(slam, MISREAD_Z, 3, 0.0, 1)
+    _sightings_of_7(slam, models.observe(np.zeros(3), LANDMARK), 20, 10.0, 4, with_8)
+    return slam
+
+
 def test_a_record_every_later_sighting_misreads_starts_again():
-    """Landmark 7's record was built from a misread (3 m to the left); every true sighting
-    after it lies beyond the misread gate. Once they have been held out for longer than
-    ``misread_restart_s``, each particle's record starts again from the sighting, and the
-    later sightings refine it: the estimate ends on the landmark. Without the restart (a
-    run that never ends) the record stays 3 m off."""
+    """Every true sighting of landmark 7 after its misread record lies beyond the misread
+    gate, while landmark 8 in the same scans is taken in (the pose holds). Once they have
+    been held out for longer than ``misread_restart_s``, each particle's record starts
+    again from the sighting and the later sightings refine it: the estimate ends on the
+    landmark. Without the restart (a run that never ends) the record stays 3 m off."""
+    slam = _slam_7_from_a_misread(5.0, with_8=True)
+    assert np.linalg.norm(_landmark_7(slam) - LANDMARK) < 0.05
+    assert slam._particles.misread_restarts == 20  # every particle, once
+    stuck = _slam_7_from_a_misread(1e9, with_8=True)
+    assert np.linalg.norm(_landmark_7(stuck) - LANDMARK) > 2.5 and stuck._particles.misread_restarts == 0
 
-    def run(restart_s: float) -> tuple[np.ndarray, int]:
-        slam = FastSlam(FastSlamConfig(version=2, n_particles=20, seed=0, misread_restart_s=restart_s))
-        slam.initialize(0, np.zeros(3), np.eye(3) * 1e-10)
-        slam.set_sensor_field(SensorField(10.0, math.pi, 1.0, 5.1))
-        _sightings_of_7(slam, MISREAD_Z, 3, 0.0, 1)
-        _sightings_of_7(slam, models.observe(np.zeros(3), LANDMARK), 20, 10.0, 4)
-        return _landmark_7(slam), slam._particles.misread_restarts
 
-    landmark, restarts = run(5.0)
-    assert np.linalg.norm(landmark - LANDMARK) < 0.05
-    assert restarts == 20  # every particle, once
-    stuck, never = run(1e9)
-    assert np.linalg.norm(stuck - LANDMARK) > 2.5 and never == 0
+def test_a_record_is_kept_where_no_other_sighting_confirms_the_pose():
+    """The same sightings of landmark 7 alone: nothing tells a wrong record from a wrong
+    pose (MRCLAM's joint run: a robot off in every particle held out its sightings of
+    landmarks the others had mapped), so no record starts again."""
+    slam = _slam_7_from_a_misread(5.0, with_8=False)
+    assert slam._particles.misread_restarts == 0
+    assert np.linalg.norm(_landmark_7(slam) - MISREAD_Z[0] * np.array([0.0, 1.0])) < 0.05
 
 
 def test_a_burst_of_misreads_as_long_as_the_cameras_leaves_the_record():
     """Robot 5 of MRCLAM Dataset 6 misread one barcode four frames running over 1.16 s, the
-    longest run under its truth: a burst of four misreads 0.5 s apart (1.5 s) restarts
-    nothing, and the record stays on the landmark."""
+    longest run under its truth: a burst of four misreads 0.5 s apart (1.5 s), landmark 8
+    taken in beside them, restarts nothing, and the record stays on the landmark."""
     slam = _known_id_slam(20, np.eye(3) * 1e-10)
     _sightings_of_7(slam, MISREAD_Z, 4, 0.0, 1)
     assert slam._particles.misreads == 80
