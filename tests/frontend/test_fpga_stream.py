@@ -37,6 +37,7 @@ def test_stream_bit_identical_on_kitti_frames(shared_data):
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # 17 s of CI; test_stream_bit_identical_on_kitti_frames checks every 53rd frame there
 def test_stream_bit_identical_on_all_kitti07(shared_data):
     cfg = HarrisConfig(arithmetic="fixed")
     stream, ref = FpgaHarrisStream(cfg), HarrisDetector(cfg)
