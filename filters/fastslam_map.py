@@ -42,6 +42,21 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The pool's per-record arrays: ``(name, trailing shape, dtype, fill, reset on allocate)``.
+#: ``pool_mean`` (2,) and ``pool_cov`` (2, 2): the landmark EKF, written by the caller;
+#: ``pool_seen``: time of the latest sighting the record took in, s (-inf: none with a
+#: time), and ``pool_sensor``: the sensor that made it (-1: none stated), for sightings
+#: correlated in time; ``pool_misread_since``: time of the first of the sightings in a row
+#: that the record's particles all took as misread ids, s (NaN: its latest sighting was
+#: taken in; :meth:`filters.fastslam_particles.ParticleSet._restart_misread_records`).
+_POOL: tuple[tuple[str, tuple[int, ...], type, float, bool], ...] = (
+    ("pool_mean", (2,), np.float64, 0.0, False),
+    ("pool_cov", (2, 2), np.float64, 0.0, False),
+    ("pool_seen", (), np.float64, -np.inf, True),
+    ("pool_sensor", (), np.int32, -1, True),
+    ("pool_misread_since", (), np.float64, np.nan, True),
+)
+
 
 class ParticleMaps:
     """Per-particle landmark EKFs in a shared append-only pool.
@@ -52,17 +67,17 @@ class ParticleMaps:
         column_capacity: initial number of landmark columns (grows by doubling).
     """
 
+    # the per-record arrays of _POOL, made in __init__ and grown by _reserve
+    pool_mean: np.ndarray
+    pool_cov: np.ndarray
+    pool_seen: np.ndarray
+    pool_sensor: np.ndarray
+    pool_misread_since: np.ndarray
+
     def __init__(self, n_particles: int, pool_capacity: int = 1024, column_capacity: int = 16):
         self.n_particles = int(n_particles)
-        self.pool_mean = np.zeros((max(pool_capacity, 1), 2))
-        self.pool_cov = np.zeros((max(pool_capacity, 1), 2, 2))
-        #: per record: time of the latest sighting it took in, s (-inf: none with a time),
-        #: and the sensor that made it (-1: none stated), for sightings correlated in time
-        self.pool_seen = np.full(max(pool_capacity, 1), -np.inf)
-        self.pool_sensor = np.full(max(pool_capacity, 1), -1, dtype=np.int32)
-        #: per record: time of the first of the sightings in a row that the record's
-        #: particles all took as misread ids, s (NaN: its latest sighting was taken in)
-        self.pool_misread_since = np.full(max(pool_capacity, 1), np.nan)
+        for name, shape, dtype, fill, _ in _POOL:
+            setattr(self, name, np.full((max(pool_capacity, 1), *shape), fill, dtype=dtype))
         self.pool_size = 0
         self._table = np.full((self.n_particles, max(column_capacity, 1)), -1, dtype=np.int32)
         self._score = np.zeros(self._table.shape)
@@ -155,9 +170,9 @@ class ParticleMaps:
         start = self.pool_size
         self._table[particles, cols] = np.arange(start, start + n, dtype=np.int32).reshape(shape)
         self.pool_size = start + n
-        self.pool_seen[start : start + n] = -np.inf
-        self.pool_sensor[start : start + n] = -1
-        self.pool_misread_since[start : start + n] = np.nan
+        for name, _, _, fill, reset in _POOL:
+            if reset:  # the caller fills the mean and covariance
+                getattr(self, name)[start : start + n] = fill
         return slice(start, start + n)
 
     def resample(self, parents: np.ndarray) -> None:
@@ -196,30 +211,19 @@ class ParticleMaps:
             new_cap = cap
             while new_cap < cap_needed or live > new_cap // 2:
                 new_cap *= 2
-            mean = np.zeros((new_cap, 2))
-            cov = np.zeros((new_cap, 2, 2))
-            seen = np.full(new_cap, -np.inf)
-            sensor = np.full(new_cap, -1, dtype=np.int32)
-            since = np.full(new_cap, np.nan)
-            mean[:live] = self.pool_mean[:live]
-            cov[:live] = self.pool_cov[:live]
-            seen[:live] = self.pool_seen[:live]
-            sensor[:live] = self.pool_sensor[:live]
-            since[:live] = self.pool_misread_since[:live]
-            self.pool_mean, self.pool_cov = mean, cov
-            self.pool_seen, self.pool_sensor = seen, sensor
-            self.pool_misread_since = since
+            for name, shape, dtype, fill, _ in _POOL:
+                grown = np.full((new_cap, *shape), fill, dtype=dtype)
+                grown[:live] = getattr(self, name)[:live]
+                setattr(self, name, grown)
 
     def compact(self) -> None:
         """Mark-and-compact: keep only referenced records, at the front, in order."""
         t = self._table[:, : self.n_cols]
         valid = t >= 0
         live, inverse = np.unique(t[valid], return_inverse=True)
-        self.pool_mean[: live.size] = self.pool_mean[live]
-        self.pool_cov[: live.size] = self.pool_cov[live]
-        self.pool_seen[: live.size] = self.pool_seen[live]
-        self.pool_sensor[: live.size] = self.pool_sensor[live]
-        self.pool_misread_since[: live.size] = self.pool_misread_since[live]
+        for name, *_ in _POOL:
+            column = getattr(self, name)
+            column[: live.size] = column[live]
         t[valid] = inverse.astype(np.int32)
         self.pool_size = int(live.size)
         self.compactions += 1
