@@ -55,20 +55,23 @@ class FastSlamConfig(Validated):
             by the assignment of the highest joint log-likelihood (each landmark at most once;
             starting a landmark scores as a pairing at the gate's edge), instead of in the
             scan's order (:meth:`ParticleSet._scan_assignment
-            <filters.fastslam_particles.ParticleSet._scan_assignment>`). Off by default: it
-            helps on clustered landmarks and hurts FastSLAM 2.0 on spread ones. MRCLAM
-            Dataset 6 (landmarks 0.18-0.26 m apart), FastSLAM 2.0, seeds 0-19, robots 1-5:
-            seeds recovering all 15 landmarks 9/2/14/1/17 against 3/1/7/1/11 in order,
-            median ATE 0.134/0.175/0.135/0.185/0.152 m against 0.155/0.172/0.152/0.209/0.163 m
-            (``python benchmarks/bench_mrclam.py --no-joint --seeds 0 .. 19
-            --pair-scans-jointly``, ``benchmarks/figures/mrclam_seeds_joint_pairing.json``).
-            The default synthetic world (spread landmarks, 10 deg bearings), seeds 0-29
-            (``python benchmarks/bench_scan_pairing.py``, ``benchmarks/figures/scan_pairing.json``):
-            FastSLAM 2.0 lost the loop (ATE above 1.3 m) in 13 runs against 8 in order,
-            median ATE 0.89 m against 0.67 m; FastSLAM 1.0 in 12 against 13, 0.81 m against
-            1.04 m. Scoring the whole scan under 2.0's motion prior, applying it only where
-            it starts no landmark, or pairing as many sightings as possible first did no
-            better on that world (measured while building this, not kept).
+            <filters.fastslam_particles.ParticleSet._scan_assignment>`), as the EKF's and
+            iSAM2's joint compatibility tests pair a scan. On by default since 2026-12-07.
+            MRCLAM Dataset 6 (landmarks 0.18-0.26 m apart), FastSLAM 2.0, seeds 0-19,
+            robots 1-5: seeds recovering all 15 landmarks 9/2/14/1/17 against 3/1/7/1/11 in
+            order, median ATE 0.134/0.175/0.135/0.185/0.152 m against
+            0.155/0.172/0.152/0.209/0.163 m (``python benchmarks/bench_mrclam.py --no-joint
+            --seeds 0 .. 19``, ``benchmarks/figures/mrclam_seeds.json``; in order
+            ``--pair-scans-in-order``, ``mrclam_seeds_in_order.json``). The default
+            synthetic world (spread landmarks, 10 deg bearings), seeds 0-199 (``python
+            benchmarks/bench_scan_pairing.py``, ``benchmarks/figures/scan_pairing.json``):
+            FastSLAM 1.0 lost the loop (ATE above 1.3 m) in 62 runs against 86 in order,
+            FastSLAM 2.0 in 65 against 56 (median ATE 0.77 m against 0.70 m; a gap within the
+            seeds' spread, about one standard error). Off (in order) was the default until
+            then, on seeds 0-29 alone: 2.0 lost 13 against 8 there. Scoring the whole scan
+            under 2.0's motion prior, applying it only where it starts no landmark, or
+            pairing as many sightings as possible first did no better on that world
+            (measured while building this, not kept).
         new_landmark_log_likelihood: unknown association: log-likelihood
             weight factor of starting a new landmark; None uses the Gaussian
             density of the measurement noise R at the gate.
@@ -169,7 +172,7 @@ class FastSlamConfig(Validated):
     association: Literal["known", "unknown"] = "known"
     new_landmark_mahalanobis_sq: float | None = bounded(None, gt=0.0)
     new_landmark_log_likelihood: float | None = None
-    pair_scans_jointly: bool = False
+    pair_scans_jointly: bool = True
     prune_missed_alpha: float = bounded(1e-3, min=0.0, lt=1.0)
     odometry_covariance_scale: float = bounded(1.0, gt=0.0, max=MAX_ODOMETRY_COVARIANCE_SCALE)
     trajectory: Literal["path", "filtered"] = "path"
