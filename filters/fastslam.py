@@ -327,6 +327,11 @@ class FastSlam(Backend):
         of at least half the particles (:func:`~filters.fastslam_update.refine_proposal`)."""
         return self._particles.rejected
 
+    def restarted_landmark_records(self) -> int:
+        """Particle landmark records started again by 2.0's misread restart
+        (``misread_restart_s``), one per particle and record."""
+        return self._particles.misread_restarts
+
     def pruned_landmark_ids(self) -> list[int]:
         """Ids of the landmarks the pruning (``prune_missed_alpha``) removed from every
         particle that held them: gone from the filter's map. A landmark pruned from some

@@ -93,6 +93,10 @@ class PlanarRunMetrics(MetricsRecord):
         observations_rejected: sightings of identified landmarks the back end's gate
             kept out (the EKF's known-id gate, FastSLAM 2.0's misread gate for at least
             half its particles); left out when none.
+        records_restarted: landmark estimates started again from a sighting because the
+            gate had held that landmark out for longer than the back end allows (FastSLAM
+            2.0's ``misread_restart_s`` with known ids, one per particle and record); left
+            out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
             folder, True, and the observations of landmarks not in the map (not used).
         warnings: what makes the estimate absurd, one line each
@@ -133,6 +137,7 @@ class PlanarRunMetrics(MetricsRecord):
     recoveries: dict[str, int] | None = optional()
     landmarks_pruned: int | None = optional()
     observations_rejected: int | None = optional()
+    records_restarted: int | None = optional()
     sightings_reassociated: int | None = optional()
     reassociation_settled: bool | None = optional()
     map: str | None = optional()

@@ -47,6 +47,9 @@ class RunResult:
         observations: landmark observations streamed into the back end.
         observations_rejected: of those, identified ones its gate rejected
             (:meth:`~slamcore.planar.backend.Backend.rejected_observations`).
+        records_restarted: landmark estimates started again from a sighting after the
+            back end's gate held that landmark out too long
+            (:meth:`~slamcore.planar.backend.Backend.restarted_landmark_records`).
         reassociation: ``(sightings moved, settled)`` of the back end's re-association at
             the end of the run (iSAM2 with unknown ids): ``settled`` False when its last
             pass still moved sightings; None where the back end has none.
@@ -72,6 +75,7 @@ class RunResult:
     observations_rejected: int = 0
     reassociation: tuple[int, bool] | None = None
     paired: dict[tuple[int, int], int | None] = field(default_factory=dict)
+    records_restarted: int = 0
 
 
 def run(
@@ -153,6 +157,7 @@ def run(
         backend.rejected_observations(),
         reassociation,
         paired,
+        records_restarted=backend.restarted_landmark_records(),
     )
 
 
@@ -339,6 +344,7 @@ def compute_metrics(
         recoveries=result.recoveries,
         landmarks_pruned=result.landmarks_pruned or None,
         observations_rejected=result.observations_rejected or None,
+        records_restarted=result.records_restarted or None,
         # the reader's doubts about the input first, then the estimate's
         warnings=[
             *result.dataset.warnings,

@@ -162,6 +162,12 @@ class Backend(ABC):
         back ends that gate none."""
         return 0
 
+    def restarted_landmark_records(self) -> int:
+        """Landmark estimates the back end started again from a sighting because its gate
+        had held that landmark's sightings out for too long (FastSLAM 2.0's misread gate
+        with known ids: one per particle and record); 0 for back ends that restart none."""
+        return 0
+
     def pruned_landmark_ids(self) -> list[int]:
         """Ids of the landmarks removed from the map during the run (the pruning of
         landmarks missed in the sensor's field: the EKF's map, or every FastSLAM particle

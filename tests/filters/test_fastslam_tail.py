@@ -436,8 +436,34 @@ def test_a_record_every_later_sighting_misreads_starts_again():
     slam = _slam_7_from_a_misread(5.0, with_8=True)
     assert np.linalg.norm(_landmark_7(slam) - LANDMARK) < 0.05
     assert slam._particles.misread_restarts == 20  # every particle, once
+    assert slam.restarted_landmark_records() == 20
     stuck = _slam_7_from_a_misread(1e9, with_8=True)
     assert np.linalg.norm(_landmark_7(stuck) - LANDMARK) > 2.5 and stuck._particles.misread_restarts == 0
+
+
+def test_restarted_records_reach_metrics_and_the_summary():
+    """The same sightings as a dataset through the pipeline: the 20 restarts are in the
+    run's metrics (``records_restarted``) and its summary, and a run without one leaves
+    the field out."""
+    from graphslam import registry
+    from graphslam.cli.run.planar import format_summary
+    from graphslam.pipelines import planar as pipeline
+    from slamcore.planar.records import Dataset, Frame
+
+    z8 = models.observe(np.zeros(3), LANDMARK_8)
+    zs = [MISREAD_Z] * 3 + [models.observe(np.zeros(3), LANDMARK)] * 20
+    frames = [Frame(0, stamp_s=0.0)]
+    for k, z in enumerate(zs, start=1):
+        t = (k - 1) * SIGHTING_DT_S if k <= 3 else 10.0 + (k - 4) * SIGHTING_DT_S
+        frames.append(Frame(k, stamp_s=t, odometry=Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8),
+                            observations=[Observation(k, 7, z, R, stamp_s=t), Observation(k, 8, z8, R, stamp_s=t)]))
+    data = Dataset("misread", frames, prior_covariance=np.eye(3) * 1e-10, has_timestamps=True,
+                   sensor_field=SensorField(10.0, math.pi, 1.0, 5.1))
+    for restart_s, expected in ((5.0, 20), (1e9, None)):
+        backend = registry.make_backend("fastslam2", overrides={"n_particles": 20, "misread_restart_s": restart_s})
+        metrics = pipeline.compute_metrics(pipeline.run(data, backend), with_graph_error=False)
+        assert metrics.records_restarted == expected
+        assert ("records restarted" in format_summary(metrics)) == (expected is not None)
 
 
 def test_a_record_is_kept_where_no_other_sighting_confirms_the_pose():

@@ -368,6 +368,13 @@ def format_summary(metrics) -> str:
         rows.append(("landmarks pruned", f"{metrics.landmarks_pruned} (missed in the sensor's field)"))
     if metrics.observations_rejected:
         rows.append(("sightings rejected", f"{metrics.observations_rejected} (beyond the back end's gate)"))
+    if metrics.records_restarted:
+        rows.append(
+            (
+                "records restarted",
+                f"{metrics.records_restarted} (held out by the gate too long; per particle)",
+            )
+        )
     if metrics.sightings_reassociated:
         settled = (
             ""
