@@ -296,6 +296,24 @@ def signal_hook(point: str, step: int | None = None) -> None:
             os.killpg(os.getpgrp(), signum)
         else:
             os.kill(pid, signum)
+        if k == 0 and guard is not None and pid == os.getpid():
+            _await_handler(guard)
+
+
+#: How long the hook, called off the main thread, waits for the main thread's handler.
+HANDLER_WAIT_S = 5.0
+
+
+def _await_handler(guard: StopGuard) -> None:
+    """Called off the main thread (a solve's deep-stack thread), wait until the main
+    thread's handler has taken the hook's signal: Python runs it only when the main thread
+    next runs bytecode, and on a loaded machine a solve's thread ran two more LM
+    iterations first, so the moment a test aimed at moved."""
+    if threading.current_thread() is threading.main_thread():
+        return
+    deadline = time.monotonic() + HANDLER_WAIT_S
+    while guard.signum is None and time.monotonic() < deadline:
+        time.sleep(0.001)
 
 
 _fired: set[tuple[int, str]] = set()  # the hook fires once per process (a worker too)
