@@ -398,16 +398,22 @@ SIGHTING_DT_S = 0.5
 LANDMARK_8 = np.array([3.0, 2.0])
 
 
-def _sightings_of_7(slam: FastSlam, z: np.ndarray, n: int, t0_s: float, first_pose: int, with_8: bool = True) -> None:
-    """``n`` scans, one per motion step, ``SIGHTING_DT_S`` apart: landmark 7 at ``z`` and,
-    ``with_8``, landmark 8 where it is."""
+def _scans_of_7(z: np.ndarray, n: int, t0_s: float, first_pose: int, with_8: bool = True):
+    """``n`` scans ``(pose id, time, odometry, observations)``, one per motion step,
+    ``SIGHTING_DT_S`` apart: landmark 7 at ``z`` and, ``with_8``, landmark 8 where it is."""
     z8 = models.observe(np.zeros(3), LANDMARK_8)
     for j in range(n):
         k, t = first_pose + j, t0_s + j * SIGHTING_DT_S
-        slam.predict(Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8), k)
         scan = [Observation(k, 7, z, R, stamp_s=t)]
         if with_8:
             scan.append(Observation(k, 8, z8, R, stamp_s=t))
+        yield k, t, Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8), scan
+
+
+def _sightings_of_7(slam: FastSlam, z: np.ndarray, n: int, t0_s: float, first_pose: int, with_8: bool = True) -> None:
+    """:func:`_scans_of_7` fed to ``slam``."""
+    for k, _, odometry, scan in _scans_of_7(z, n, t0_s, first_pose, with_8):
+        slam.predict(odometry, k)
         slam.update(scan)
 
 
@@ -450,13 +456,9 @@ def test_restarted_records_reach_metrics_and_the_summary():
     from graphslam.pipelines import planar as pipeline
     from slamcore.planar.records import Dataset, Frame
 
-    z8 = models.observe(np.zeros(3), LANDMARK_8)
-    zs = [MISREAD_Z] * 3 + [models.observe(np.zeros(3), LANDMARK)] * 20
+    scans = [*_scans_of_7(MISREAD_Z, 3, 0.0, 1), *_scans_of_7(models.observe(np.zeros(3), LANDMARK), 20, 10.0, 4)]
     frames = [Frame(0, stamp_s=0.0)]
-    for k, z in enumerate(zs, start=1):
-        t = (k - 1) * SIGHTING_DT_S if k <= 3 else 10.0 + (k - 4) * SIGHTING_DT_S
-        frames.append(Frame(k, stamp_s=t, odometry=Odometry(k - 1, k, np.zeros(3), np.eye(3) * 1e-8),
-                            observations=[Observation(k, 7, z, R, stamp_s=t), Observation(k, 8, z8, R, stamp_s=t)]))
+    frames += [Frame(k, stamp_s=t, odometry=odo, observations=scan) for k, t, odo, scan in scans]
     data = Dataset("misread", frames, prior_covariance=np.eye(3) * 1e-10, has_timestamps=True,
                    sensor_field=SensorField(10.0, math.pi, 1.0, 5.1))
     for restart_s, expected in ((5.0, 20), (1e9, None)):
