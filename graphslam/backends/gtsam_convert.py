@@ -7,6 +7,7 @@ the ids as in the input data.
 
 from __future__ import annotations
 
+import math
 import typing
 from collections.abc import Iterable
 from functools import lru_cache
@@ -64,8 +65,48 @@ def _noise_model(cov_bytes: bytes, dim: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Gaussian.Covariance(cov.copy())
 
 
+def _pose2_tangent_to_world(theta: float) -> np.ndarray:
+    """(3, 3) first-order map from gtsam's Pose2 tangent at a pose of heading ``theta``
+    (``[x, y]`` in the body frame, then the heading) to our ``[x, y, theta]`` in the world."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def pose2_covariance_from_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
+    """(3, 3) gtsam Pose2 covariance (its tangent: body-frame ``x, y``, heading) at a pose of
+    heading ``theta`` -> ours, world ``[x, y, theta]``, as the filters and the NEES hold it.
+    gtsam's marginals are in the body frame: taken as world ones, a covariance long along
+    the track pointed wherever the heading was not 0."""
+    B = _pose2_tangent_to_world(theta)
+    return B @ np.asarray(covariance, dtype=np.float64) @ B.T
+
+
+def pose2_covariance_to_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`pose2_covariance_from_gtsam` (a prior stated in the world frame).
+    A covariance round about its heading axis (the same variance in x and y, no cross
+    terms) is the same in both frames and is returned as given, to the bit."""
+    P = np.asarray(covariance, dtype=np.float64)
+    if P[0, 0] == P[1, 1] and P[0, 1] == P[1, 0] == P[0, 2] == P[2, 0] == P[1, 2] == P[2, 1] == 0.0:
+        return P
+    B = _pose2_tangent_to_world(theta)
+    return B.T @ P @ B
+
+
+def joint_covariance_from_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
+    """(3 + n, 3 + n) gtsam joint marginal whose first block is a Pose2 of heading
+    ``theta`` (points after it, world already) -> the pose block and its cross terms in
+    world ``[x, y, theta]`` (:func:`pose2_covariance_from_gtsam`)."""
+    P = np.asarray(covariance, dtype=np.float64)
+    B = np.eye(P.shape[0])
+    B[:3, :3] = _pose2_tangent_to_world(theta)
+    return B @ P @ B.T
+
+
 def prior_factor(pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> gtsam.PriorFactorPose2:
-    return gtsam.PriorFactorPose2(X(pose_id), pose2(wTb), noise_from_covariance(covariance))
+    """Prior on ``X(pose_id)``; ``covariance`` in world ``[x, y, theta]`` (the back-end
+    contract's), rotated into gtsam's body-frame tangent."""
+    cov = pose2_covariance_to_gtsam(float(wTb[2]), covariance)
+    return gtsam.PriorFactorPose2(X(pose_id), pose2(wTb), noise_from_covariance(0.5 * (cov + cov.T)))
 
 
 def between_factor(edge: Odometry | LoopClosure, noise=None) -> gtsam.BetweenFactorPose2:

@@ -53,7 +53,8 @@ class Backend(ABC):
         Args:
             pose_id: id of the first pose.
             wTb: (3,) ``[x_m, y_m, theta_rad]``.
-            covariance: (3, 3) prior covariance.
+            covariance: (3, 3) prior covariance of ``[x, y, theta]`` in the world frame (as
+                every covariance of a pose the back ends return).
         """
 
     @abstractmethod

@@ -476,7 +476,8 @@ class Estimate:
         wTb: (N, 3) poses ``[x_m, y_m, theta_rad]``.
         landmark_ids: (M,) int landmark ids.
         landmarks_w: (M, 2) landmark positions in world, metres.
-        pose_covariances: (N, 3, 3) or ``None`` if not computed.
+        pose_covariances: (N, 3, 3) of ``[x, y, theta]`` in the world frame (not a
+            body-frame tangent), or ``None`` if not computed.
         landmark_covariances: (M, 2, 2) or ``None`` if not computed.
     """
 

@@ -361,7 +361,12 @@ class Isam2Backend(Backend):
         if not with_covariances:
             return est
         marginals = self._marginals(values)
-        pcov = np.array([marginals.marginalCovariance(X(i)) for i in self._pose_ids]).reshape(-1, 3, 3)
+        pcov = np.array(
+            [
+                conv.pose2_covariance_from_gtsam(theta, marginals.marginalCovariance(X(i)))
+                for i, theta in zip(self._pose_ids, est.wTb[:, 2], strict=True)
+            ]
+        ).reshape(-1, 3, 3)
         lcov = np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(-1, 2, 2)
         return Estimate(est.pose_ids, est.wTb, est.landmark_ids, est.landmarks_w, pcov, lcov)
 
@@ -388,7 +393,9 @@ class Isam2Backend(Backend):
     def current_pose_covariance(self) -> np.ndarray | None:
         self._require_init()
         self._flush()
-        return np.asarray(self._isam.marginalCovariance(X(self._pose_ids[-1])))
+        key = X(self._pose_ids[-1])
+        theta = self._isam.calculateEstimatePose2(key).theta()
+        return conv.pose2_covariance_from_gtsam(theta, self._isam.marginalCovariance(key))
 
     def landmark_covariances(self) -> np.ndarray:
         """The landmarks' marginals alone (what a recording draws): the pose marginals

@@ -113,6 +113,11 @@ class Isam2Localiser(Isam2Backend):
         pcov = lcov = None
         if with_covariances:
             marginals = self._marginals(values)
-            pcov = np.array([marginals.marginalCovariance(X(i)) for i in self._pose_ids]).reshape(-1, 3, 3)
+            pcov = np.array(
+                [
+                    conv.pose2_covariance_from_gtsam(theta, marginals.marginalCovariance(X(i)))
+                    for i, theta in zip(self._pose_ids, est.wTb[:, 2], strict=True)
+                ]
+            ).reshape(-1, 3, 3)
             lcov = self._map_cov.copy()
         return Estimate(est.pose_ids, est.wTb, self._map_ids.copy(), landmarks, pcov, lcov)

@@ -163,7 +163,8 @@ class UnknownAssociation:
         for k, obs in enumerate(observations):
             self.slots[id(obs)] = (pose_id, k)
         wTb = conv.pose2_vector(isam.calculateEstimatePose2(X(pose_id)))
-        pose_cov = np.asarray(isam.marginalCovariance(X(pose_id)))
+        # gtsam's marginals are in the pose's body frame; the association's Jacobians in the world's
+        pose_cov = conv.pose2_covariance_from_gtsam(wTb[2], isam.marginalCovariance(X(pose_id)))
         ids = np.array(self.active, dtype=np.int64)
         cached = np.array([self.positions[j] for j in self.active]).reshape(-1, 2)
         # reach: five sigmas of the farthest sighting's point, plus 0.5 m for a cached
@@ -181,7 +182,7 @@ class UnknownAssociation:
         joint = pose_cov
         if near:  # iSAM2's joint marginal: pose-landmark correlations are what gate well
             keys = gtsam.KeyVector([X(pose_id)] + [L(j) for j in near])
-            joint = isam.jointMarginalCovariance(keys).fullMatrix()
+            joint = conv.joint_covariance_from_gtsam(wTb[2], isam.jointMarginalCovariance(keys).fullMatrix())
         decisions = self.associator.associate(observations, wTb, np.array(near, dtype=np.int64), lm_w, joint)
         paired = sorted({d.landmark_id for d in decisions if d.landmark_id is not None})
         self.together.update((a, b) for a in paired for b in paired if a < b)
