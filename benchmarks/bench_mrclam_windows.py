@@ -73,6 +73,8 @@ def cut_window(data: Path, start: float, stop: float, out: Path) -> Path:
     """``data`` cut to the fraction ``[start, stop)`` of its odometry's time span, as an
     MRCLAM folder ``out`` (module docstring)."""
     times = [t for f in data.glob("Robot*_Odometry.dat") for t in map(_time, _rows(f)) if t is not None]
+    if not times:
+        raise GraphSlamError(f"{data}: no RobotN_Odometry.dat with a time in it (not an MRCLAM folder?)")
     t0, t1 = min(times), max(times)
     lo, hi = t0 + start * (t1 - t0), t0 + stop * (t1 - t0)
     out.mkdir(parents=True, exist_ok=True)
@@ -140,7 +142,10 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory(prefix="mrclam-windows-") as tmp:
         for spec in args.windows:
             start, stop = (float(x) for x in spec.split(":"))
-            folder = cut_window(args.data, start, stop, Path(tmp) / spec.replace(":", "-"))
+            try:
+                folder = cut_window(args.data, start, stop, Path(tmp) / spec.replace(":", "-"))
+            except (GraphSlamError, OSError, ValueError) as exc:  # not MRCLAM, unreadable, bad times
+                ap.error(f"--data: {exc}")
             for robot in args.robots:
                 try:
                     dataset = read_mrclam(folder, MrclamConfig(robot=robot))
