@@ -73,12 +73,16 @@ def _pose2_tangent_to_world(theta: float) -> np.ndarray:
 
 
 def pose2_covariance_from_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
-    """(3, 3) gtsam Pose2 covariance (its tangent: body-frame ``x, y``, heading) at a pose of
+    """gtsam Pose2 covariance (its tangent: body-frame ``x, y``, heading) at a pose of
     heading ``theta`` -> ours, world ``[x, y, theta]``, as the filters and the NEES hold it.
+    ``covariance`` is (3, 3), or (3 + n, 3 + n) for a joint marginal whose first block is
+    that pose (points after it are world already; the cross terms turn with the pose).
     gtsam's marginals are in the body frame: taken as world ones, a covariance long along
     the track pointed wherever the heading was not 0."""
-    B = _pose2_tangent_to_world(theta)
-    return B @ np.asarray(covariance, dtype=np.float64) @ B.T
+    P = np.asarray(covariance, dtype=np.float64)
+    B = np.eye(P.shape[0])
+    B[:3, :3] = _pose2_tangent_to_world(theta)
+    return B @ P @ B.T
 
 
 def pose2_covariance_to_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
@@ -90,16 +94,6 @@ def pose2_covariance_to_gtsam(theta: float, covariance: np.ndarray) -> np.ndarra
         return P
     B = _pose2_tangent_to_world(theta)
     return B.T @ P @ B
-
-
-def joint_covariance_from_gtsam(theta: float, covariance: np.ndarray) -> np.ndarray:
-    """(3 + n, 3 + n) gtsam joint marginal whose first block is a Pose2 of heading
-    ``theta`` (points after it, world already) -> the pose block and its cross terms in
-    world ``[x, y, theta]`` (:func:`pose2_covariance_from_gtsam`)."""
-    P = np.asarray(covariance, dtype=np.float64)
-    B = np.eye(P.shape[0])
-    B[:3, :3] = _pose2_tangent_to_world(theta)
-    return B @ P @ B.T
 
 
 def prior_factor(pose_id: int, wTb: np.ndarray, covariance: np.ndarray) -> gtsam.PriorFactorPose2:

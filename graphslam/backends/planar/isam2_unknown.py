@@ -182,7 +182,7 @@ class UnknownAssociation:
         joint = pose_cov
         if near:  # iSAM2's joint marginal: pose-landmark correlations are what gate well
             keys = gtsam.KeyVector([X(pose_id)] + [L(j) for j in near])
-            joint = conv.joint_covariance_from_gtsam(wTb[2], isam.jointMarginalCovariance(keys).fullMatrix())
+            joint = conv.pose2_covariance_from_gtsam(wTb[2], isam.jointMarginalCovariance(keys).fullMatrix())
         decisions = self.associator.associate(observations, wTb, np.array(near, dtype=np.int64), lm_w, joint)
         paired = sorted({d.landmark_id for d in decisions if d.landmark_id is not None})
         self.together.update((a, b) for a in paired for b in paired if a < b)
