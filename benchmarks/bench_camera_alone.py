@@ -51,6 +51,7 @@ import timing  # noqa: E402
 from graphslam import registry  # noqa: E402
 from graphslam.evaluation.trajectory import align, rpe  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
+from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.spatial.frames import select_frames  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -77,7 +78,7 @@ def run_once(backend_name: str, seed: int, frames: int) -> dict:
     backend = registry.make_visual_backend(backend_name, config=config, overrides=overrides)
     _, tracker = vp.make_tracker(config, backend)
     run_cfg = config.section(vp.VisualRunConfig, {"odometry": "none"})
-    result = vp.run(seq, backend, tracker, config=run_cfg)
+    result = whole(vp.run(seq, backend, tracker, config=run_cfg))
     m = vp.compute_metrics(result, seed=seed)
     whole_s = result.wall_s + result.load_s
     est, ids = result.estimate.wTc, np.asarray(result.estimate.frame_ids)
@@ -208,4 +209,6 @@ def figure(out: Path, runs: list, floors: dict, backends: list, seeds: list, fra
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from entry import run
+
+    raise SystemExit(run(main))

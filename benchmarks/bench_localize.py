@@ -119,6 +119,7 @@ def blackout(tmp: Path, plan: Plan = Plan()) -> dict:
     from graphslam import registry
     from graphslam.maps.files import load_map
     from graphslam.pipelines import localize_run
+    from graphslam.pipelines.common import whole
     from graphslam.pipelines.localize import make_localizer
     from graphslam.sources.spatial.frames import black_out, parse_frames, select_frames
 
@@ -127,7 +128,7 @@ def blackout(tmp: Path, plan: Plan = Plan()) -> dict:
                         parse_frames(f"{plan.split}:{plan.n_frames}"))
     black = plan.black
     seq = black_out(sel, black)
-    res = localize_run.run(seq, make_localizer(load_map(tmp / "map"), seq.K, config))
+    res = whole(localize_run.run(seq, make_localizer(load_map(tmp / "map"), seq.K, config)))
     status = [p.status for p in res.placements]
     after = status[black[-1] + 1:]
     recover = next((i + 1 for i, s in enumerate(after) if s != "lost"), None)
@@ -194,4 +195,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from entry import run
+
+    raise SystemExit(run(main))

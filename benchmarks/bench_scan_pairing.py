@@ -32,6 +32,7 @@ from filters.fastslam import FastSlam  # noqa: E402
 from filters.fastslam_config import FastSlamConfig  # noqa: E402
 from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
+from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.synthetic import make_synthetic  # noqa: E402
 
 #: ATE above which a run lost the loop (the two modes of the ATEs lie either side), m.
@@ -45,7 +46,7 @@ def spread(version: int, joint: bool, seeds: list[int], max_steps: int | None = 
     for seed in seeds:
         config = FastSlamConfig(version=version, n_particles=100, association="unknown", seed=seed,
                                 pair_scans_jointly=joint)
-        result = pipeline.run(data, FastSlam(config), max_steps=max_steps)
+        result = whole(pipeline.run(data, FastSlam(config), max_steps=max_steps))
         ates.append(pipeline.compute_metrics(result, with_graph_error=False).ate_rmse_m)
         accuracy.append(metrics.association_accuracy(result.associations).accuracy)
     return {"ate_m": ates, "median_ate_m": float(np.median(ates)),
@@ -93,4 +94,6 @@ def plot(out: dict, path: Path) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    from entry import run
+
+    raise SystemExit(run(main))
