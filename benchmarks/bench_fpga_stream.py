@@ -116,4 +116,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from entry import run
+
+    raise SystemExit(run(main))

@@ -280,4 +280,6 @@ def real_main(data: Path, out: Path) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from entry import run
+
+    raise SystemExit(run(main))

@@ -112,4 +112,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from entry import run
+
+    raise SystemExit(run(main))

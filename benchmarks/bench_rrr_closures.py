@@ -161,4 +161,6 @@ def figure(out: Path, rows: list[dict]) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from entry import run
+
+    raise SystemExit(run(main))

@@ -141,6 +141,7 @@ class StopGuard:
             self.begin_save()
 
     def _handle(self, signum, frame) -> None:
+        note_stop_signal(signum)
         if signum == getattr(signal, "SIGHUP", None):
             silence_closed_terminal()
         first = self.signum is None
@@ -194,6 +195,19 @@ def to_devnull(*fds: int) -> None:
 
 
 _active: list[StopGuard] = []  # the guard of the command running in this process
+_received: list[int] = []  # every stop signal a guard of this process received, in order
+
+
+def note_stop_signal(signum: int) -> None:
+    """Record ``signum`` as received by this process (:func:`stop_signals_received`)."""
+    _received.append(signum)
+
+
+def stop_signals_received() -> list[int]:
+    """The stop signals guards (or callers of :func:`note_stop_signal`) received in this
+    process, in order: a loop's own guard is gone once the loop is cut, and a caller that
+    catches the KeyboardInterrupt after it, or finds the run went on, still names them."""
+    return list(_received)
 
 
 @contextmanager

@@ -24,6 +24,7 @@ NOT_BENCHMARKS = {
     "check_digests": "compares output bytes with recorded digests: no figure to draw",
     "train_shipped_vocabulary": "trains the vocabulary shipped in loopclosure/data: a build step",
     "bare_run": "the floor bench_command.py runs as a subprocess (a bare gtsam script)",
+    "entry": "how every script ends: one line on a signal (tests/repo/test_benchmark_signals.py)",
 }
 
 #: Quick runs of 8 s or more on the shared 2-core machine -> seconds measured there (the

@@ -1,0 +1,90 @@
+"""How every benchmark script ends: one line, never a traceback, on Ctrl-C, SIGTERM or
+SIGHUP, and on the toolkit's own errors.
+
+A benchmark runs the library for minutes. Cut by a signal, it printed
+``KeyboardInterrupt`` under a traceback from wherever the run was (``whole()``
+raises it for a cut run, so that a cut run never passes for a whole one). Now
+SIGTERM and SIGHUP stop it as Ctrl-C does, and :func:`run` turns the
+KeyboardInterrupt into one line naming the signal and the signal's exit status
+(130, 143, 129).
+
+Not the command line's guard (:func:`graphslam.pipelines.common.stop_guard`): under
+it the library treats a stop as a request and returns what was done (a pose graph's
+solve cut short, a compare entry marked "cut"), which a command writes as such but
+a benchmark would score as a whole result. Here a signal ends the script: inside a
+run's loop the loop's own guard stops it at the next step and ``whole()`` raises;
+anywhere else the KeyboardInterrupt is raised where the script is. Files a script
+wrote before the signal stay. A script that scores a run without ``whole()`` (a loop
+detection pass, whose guard keeps the closures found so far) goes on after the cut;
+:func:`run` then says at the end that its outputs may count a cut run as whole, and
+exits with the signal's status all the same.
+
+The scripts import numpy, gtsam and the toolkit at their top, before this exists: a
+signal in that first second still ends with Python's own message.
+
+Usage, the last lines of a script::
+
+    if __name__ == "__main__":
+        from entry import run
+
+        raise SystemExit(run(main))
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+from typing import Callable
+
+#: The exit status of a toolkit error (``graphslam``'s too).
+EXIT_ERROR = 2
+
+
+def run(main: Callable[[], int | None]) -> int:
+    """``main()`` with the stop signals raising KeyboardInterrupt; its exit status (None
+    is 0), or one line on stderr and the signal's status, or 2 for a toolkit error. The
+    signal handlers are restored on return."""
+    from graphslam.pipelines.common import (
+        EXIT_STATUS_OF_SIGNAL,
+        note_stop_signal,
+        stop_signals,
+        stop_signals_received,
+    )
+    from slamcore.errors import GraphSlamError
+
+    def stop(signum, frame) -> None:
+        note_stop_signal(signum)
+        raise KeyboardInterrupt
+
+    def said(what: str) -> int:
+        signum = received()[-1] if received() else signal.SIGINT
+        print(f"{name}: interrupted ({signal.Signals(signum).name}) {what}", file=sys.stderr)
+        return EXIT_STATUS_OF_SIGNAL.get(signum, 130)
+
+    before = len(stop_signals_received())
+
+    def received() -> list[int]:
+        return stop_signals_received()[before:]
+
+    name = Path(sys.argv[0]).name
+    previous = {s: signal.signal(s, stop) for s in stop_signals()}
+    try:
+        try:
+            status = main()
+        except GraphSlamError as e:
+            print(f"{name}: error: {' '.join(str(e).split())}", file=sys.stderr)
+            return EXIT_ERROR
+        except KeyboardInterrupt:
+            # a second signal while this is said must not end in a traceback after all
+            for s in previous:
+                signal.signal(s, signal.SIG_IGN)
+            return said("before it finished")
+        if received():
+            # a run's own guard took the signal and cut the run (or let it finish a step it
+            # does not cut), and the script, not asking whole(), went on to score it
+            return said("but a run took the signal and the script went on: its outputs may count a cut run as whole")
+        return 0 if status is None else int(status)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)

@@ -1,0 +1,104 @@
+"""Every benchmark script ends in ``benchmarks/entry.py``: Ctrl-C, SIGTERM or SIGHUP give
+one line and the signal's exit status, never a traceback, and a toolkit error one line."""
+
+from __future__ import annotations
+
+import ast
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from graphslam.pipelines.common import note_stop_signal
+from slamcore.errors import GraphSlamError
+from tests.benchmarks import BENCHMARKS, load_benchmark
+
+#: Python files of benchmarks/ that are not scripts a user runs, or must stay bare.
+NOT_SCRIPTS = {
+    "plotting": "a helper module",
+    "timing": "a helper module",
+    "loop_real": "a helper module of bench_loop_pr.py",
+    "entry": "the ending itself",
+    "bare_run": "the floor bench_command.py times: a bare gtsam script, nothing of ours",
+}
+SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if p.stem not in NOT_SCRIPTS)
+
+
+def _main_block(path) -> str:
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        if isinstance(node, ast.If) and "__main__" in ast.unparse(node.test):
+            return ast.unparse(node)
+    return ""
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_script_ends_in_entry_run(name):
+    block = _main_block(BENCHMARKS / f"{name}.py")
+    assert "from entry import run" in block and "raise SystemExit(run(main))" in block, block
+
+
+@pytest.fixture
+def entry(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["bench_x.py"])
+    return load_benchmark("entry")
+
+
+def _handlers():
+    return {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+
+def test_status_and_handlers_pass_through(entry):
+    before = _handlers()
+    assert entry.run(lambda: None) == 0 and entry.run(lambda: 3) == 3
+    assert _handlers() == before
+
+
+def test_a_toolkit_error_is_one_line(entry, capsys):
+    def main():
+        raise GraphSlamError("data.txt:3: not a number\n  (second line)")
+
+    assert entry.run(main) == entry.EXIT_ERROR
+    assert capsys.readouterr().err == "bench_x.py: error: data.txt:3: not a number (second line)\n"
+
+
+def test_a_signal_noted_by_a_runs_guard_is_named(entry, capsys):
+    """A loop guard took SIGTERM and cut its run; whole() raised KeyboardInterrupt."""
+    before = _handlers()
+
+    def main():
+        note_stop_signal(signal.SIGTERM)
+        raise KeyboardInterrupt
+
+    assert entry.run(main) == 143
+    assert capsys.readouterr().err == "bench_x.py: interrupted (SIGTERM) before it finished\n"
+    assert _handlers() == before
+
+
+def test_a_script_that_went_on_after_a_signal_says_so(entry, capsys):
+    def main():
+        note_stop_signal(signal.SIGHUP)
+        return 0
+
+    assert entry.run(main) == 129
+    err = capsys.readouterr().err
+    assert err.startswith("bench_x.py: interrupted (SIGHUP) but a run took the signal") and err.count("\n") == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_to_a_running_benchmark_is_one_line(shared_data, tmp_path, sig, status):
+    """bench_mrclam.py, stopped after its first run: the signal's status, one line, no
+    traceback, no JSON."""
+    out = tmp_path / "mrclam.json"
+    cmd = [sys.executable, str(BENCHMARKS / "bench_mrclam.py"), "--data", str(shared_data / "mrclam6"),
+           "--out", str(out)]
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+        first = proc.stdout.readline()  # the first run is scored: the second one is running
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    assert first.startswith("robot 1"), first
+    assert proc.returncode == status, err
+    assert err == f"bench_mrclam.py: interrupted ({signal.Signals(sig).name}) before it finished\n"
+    assert not out.exists()
