@@ -1,5 +1,6 @@
 """How every benchmark script ends: one line, never a traceback, on Ctrl-C, SIGTERM or
-SIGHUP, and on the toolkit's own errors.
+SIGHUP, on the toolkit's own errors, and on an output the disk refuses (full, a name
+too long, a folder in its place).
 
 A benchmark runs the library for minutes. Cut by a signal, it printed
 ``KeyboardInterrupt`` under a traceback from wherever the run was (``whole()``
@@ -32,6 +33,7 @@ Usage, the last lines of a script::
 
 from __future__ import annotations
 
+import errno
 import signal
 import sys
 from pathlib import Path
@@ -39,6 +41,8 @@ from typing import Callable
 
 #: The exit status of a toolkit error (``graphslam``'s too).
 EXIT_ERROR = 2
+#: Refusals of a named file a user fixes by choosing another ``--out``.
+REFUSED = (errno.EACCES, errno.EPERM, errno.EROFS)
 
 
 def run(main: Callable[[], int | None]) -> int:
@@ -52,6 +56,7 @@ def run(main: Callable[[], int | None]) -> int:
         stop_signals_received,
     )
     from slamcore.errors import GraphSlamError
+    from slamcore.files import write_error_line
 
     def stop(signum, frame) -> None:
         note_stop_signal(signum)
@@ -74,6 +79,16 @@ def run(main: Callable[[], int | None]) -> int:
             status = main()
         except GraphSlamError as e:
             print(f"{name}: error: {' '.join(str(e).split())}", file=sys.stderr)
+            return EXIT_ERROR
+        except OSError as e:
+            # a full disk, a name too long, a folder given as --out: the user's to fix, as
+            # in graphslam; any other OSError is a bug and keeps its traceback
+            line = write_error_line(e)
+            if line is None and e.errno in REFUSED and e.filename is not None:
+                line = f"{e.filename}: {e.strerror}"
+            if line is None:
+                raise
+            print(f"{name}: error: {line}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
             # a second signal while this is said must not end in a traceback after all

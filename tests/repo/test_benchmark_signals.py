@@ -102,3 +102,24 @@ def test_a_signal_to_a_running_benchmark_is_one_line(shared_data, tmp_path, sig,
     assert proc.returncode == status, err
     assert err == f"bench_mrclam.py: interrupted ({signal.Signals(sig).name}) before it finished\n"
     assert not out.exists()
+
+
+@pytest.mark.parametrize("error, line", [
+    (OSError(28, "No space left on device"), "no space left on device writing an output file: No space left on device"),
+    (PermissionError(13, "Permission denied", "/ro/x.json"), "/ro/x.json: Permission denied"),
+    (IsADirectoryError(21, "Is a directory", "/tmp"), "/tmp is a folder; an output file of that name cannot be written"),
+])
+def test_an_output_the_disk_refuses_is_one_line(entry, capsys, error, line):
+    def main():
+        raise error
+
+    assert entry.run(main) == entry.EXIT_ERROR
+    assert capsys.readouterr().err == f"bench_x.py: error: {line}\n"
+
+
+def test_another_os_error_keeps_its_traceback(entry):
+    def main():
+        raise ConnectionResetError(104, "Connection reset by peer")
+
+    with pytest.raises(ConnectionResetError):
+        entry.run(main)
