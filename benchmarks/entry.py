@@ -1,6 +1,6 @@
 """How every benchmark script ends: one line, never a traceback, on Ctrl-C, SIGTERM or
-SIGHUP, on the toolkit's own errors, and on an output the disk refuses (full, a name
-too long, a folder in its place).
+SIGHUP, on the toolkit's own errors, on an output the disk refuses (full, a name too
+long, a folder in its place) and on an input file that is not there.
 
 A benchmark runs the library for minutes. Cut by a signal, it printed
 ``KeyboardInterrupt`` under a traceback from wherever the run was (``whole()``
@@ -41,8 +41,9 @@ from typing import Callable
 
 #: The exit status of a toolkit error (``graphslam``'s too).
 EXIT_ERROR = 2
-#: Refusals of a named file a user fixes by choosing another ``--out``.
-REFUSED = (errno.EACCES, errno.EPERM, errno.EROFS)
+#: Errors of a named file a user fixes by naming another one (``--out``, ``--data``): a
+#: refused write, or an input that is not there.
+NAMED_FILE_ERRORS = (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR)
 
 
 def run(main: Callable[[], int | None]) -> int:
@@ -81,10 +82,10 @@ def run(main: Callable[[], int | None]) -> int:
             print(f"{name}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return EXIT_ERROR
         except OSError as e:
-            # a full disk, a name too long, a folder given as --out: the user's to fix, as
-            # in graphslam; any other OSError is a bug and keeps its traceback
+            # a full disk, a name too long, a folder given as --out, an input not there:
+            # the user's to fix, as in graphslam; any other OSError keeps its traceback
             line = write_error_line(e)
-            if line is None and e.errno in REFUSED and e.filename is not None:
+            if line is None and e.errno in NAMED_FILE_ERRORS and e.filename is not None:
                 line = f"{e.filename}: {e.strerror}"
             if line is None:
                 raise

@@ -123,3 +123,11 @@ def test_another_os_error_keeps_its_traceback(entry):
 
     with pytest.raises(ConnectionResetError):
         entry.run(main)
+
+
+def test_an_input_that_is_not_there_is_one_line(entry, capsys):
+    def main():
+        open("/nonexistent/lund_door/cameras.txt")
+
+    assert entry.run(main) == entry.EXIT_ERROR
+    assert capsys.readouterr().err == "bench_x.py: error: /nonexistent/lund_door/cameras.txt: No such file or directory\n"
