@@ -209,6 +209,6 @@ def figure(out: Path, runs: list, floors: dict, backends: list, seeds: list, fra
 
 
 if __name__ == "__main__":
-    from entry import run
+    import entry  # a module, not its run(): some scripts have a run() of their own
 
-    raise SystemExit(run(main))
+    raise SystemExit(entry.run(main))

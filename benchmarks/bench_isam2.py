@@ -158,6 +158,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    from entry import run
+    import entry  # a module, not its run(): some scripts have a run() of their own
 
-    raise SystemExit(run(main))
+    raise SystemExit(entry.run(main))

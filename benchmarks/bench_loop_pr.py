@@ -280,6 +280,6 @@ def real_main(data: Path, out: Path) -> int:
 
 
 if __name__ == "__main__":
-    from entry import run
+    import entry  # a module, not its run(): some scripts have a run() of their own
 
-    raise SystemExit(run(main))
+    raise SystemExit(entry.run(main))

@@ -105,6 +105,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from entry import run
+    import entry  # a module, not its run(): some scripts have a run() of their own
 
-    raise SystemExit(run(main))
+    raise SystemExit(entry.run(main))

@@ -94,6 +94,6 @@ def plot(out: dict, path: Path) -> Path:
 
 
 if __name__ == "__main__":
-    from entry import run
+    import entry  # a module, not its run(): some scripts have a run() of their own
 
-    raise SystemExit(run(main))
+    raise SystemExit(entry.run(main))

@@ -26,9 +26,9 @@ signal in that first second still ends with Python's own message.
 Usage, the last lines of a script::
 
     if __name__ == "__main__":
-        from entry import run
+        import entry  # a module, not its run(): some scripts have a run() of their own
 
-        raise SystemExit(run(main))
+        raise SystemExit(entry.run(main))
 """
 
 from __future__ import annotations
