@@ -71,6 +71,7 @@ from slamcore.spatial.geometry import invert_pose, se3_exp
 from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses
 from frontend.harris import HarrisDetector  # noqa: E402
 from frontend.image import load_gray  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 KITTI07 = ROOT.parent / "shared" / "data" / "kitti07"
 
@@ -300,8 +301,8 @@ def plot(rows: list[dict], pairs: int, repeat: int, out: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--pairs", type=int, default=20, help="KITTI frame pairs timed (spread over the sequence)")
-    ap.add_argument("--repeat", type=int, default=5, help="repetitions per frame (the best is kept)")
+    ap.add_argument("--pairs", type=entry.count, default=20, help="KITTI frame pairs timed (spread over the sequence)")
+    ap.add_argument("--repeat", type=entry.count, default=5, help="repetitions per frame (the best is kept)")
     ap.add_argument("--quick", action="store_true", help="2 pairs, 1 repetition (a smoke run)")
     ap.add_argument("--out", type=Path, help="write the results as JSON (timing default: "
                     "benchmarks/results/active_search.json, and its PNG beside it)")

@@ -60,6 +60,7 @@ from slamcore.config import load_section
 from graphslam.backends.planar.isam2 import Isam2Backend
 from graphslam.backends.planar.isam2_config import Isam2Config
 from graphslam.sources.planar.outliers import inject_false_closures, is_injected
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 HERE = Path(__file__).resolve().parent
 #: Chi-square 3 dof 99.9 % quantile: a plain run's closure with a larger squared
@@ -153,7 +154,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-steps", type=int, default=None, help="use only the first N poses")
     ap.add_argument("--plain-max-steps", type=int, default=1500,
                     help="poses of the plain runs with injected closures (0: skip them)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=entry.seed, default=0)
     ap.add_argument("--config", type=Path, default=HERE / "robust_isam2.toml")
     ap.add_argument("--quick", action="store_true", help="a small prefix of city10000 (see the docstring)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "false_closures.json",

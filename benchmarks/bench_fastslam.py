@@ -60,6 +60,7 @@ from filters.fastslam_config import FastSlamConfig  # noqa: E402
 from graphslam.sources.planar.victoria_park import read_victoria_park  # noqa: E402
 from slamcore.planar import geometry as models  # noqa: E402
 from slamcore.planar.records import Dataset, Frame, Observation, Odometry  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 
 def simulated_run(n_landmarks: int, steps: int, seed: int = 0, visible: int = 8) -> Dataset:
@@ -423,7 +424,7 @@ def main(argv=None) -> int:
                     help="20 steps, 10 and 100 particles, 50 and 150 landmarks, 2 repeats")
     ap.add_argument("--steps", type=int, default=60, help="steps of the simulated run")
     ap.add_argument("--particles", type=int, nargs="+", default=[10, 100, 1000])
-    ap.add_argument("--repeats", type=int, default=7,
+    ap.add_argument("--repeats", type=entry.count, default=7,
                     help="alternated repeats of ours and the floor (medians are reported)")
     ap.add_argument("--landmarks", type=int, nargs="+", default=[50, 150, 500])
     ap.add_argument("--victoria-park", action="store_true")
@@ -433,7 +434,7 @@ def main(argv=None) -> int:
                          "for a particle filter: at 1 the estimate drifts away)")
     ap.add_argument("--vp-association", choices=["known", "unknown"], default="known",
                     help="unknown: the data's landmark ids are used only to score association")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=entry.seed, default=0)
     args = ap.parse_args(argv)
     if args.quick:
         args.steps, args.particles, args.landmarks, args.repeats = 20, [10, 100], [50, 150], 2

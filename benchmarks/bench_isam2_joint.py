@@ -46,6 +46,7 @@ from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.mrclam import MrclamConfig  # noqa: E402
 from graphslam.sources.planar.mrclam_joint import read_mrclam_all  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 COMMAND = "python benchmarks/bench_isam2_joint.py --frames 0 --out benchmarks/figures/isam2_joint.json"
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--frames", type=int, default=4000, help="frames of the joint stream (0: all)")
-    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--repeats", type=entry.count, default=1)
     ap.add_argument("--quick", action="store_true", help="the first 300 frames (a smoke run)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "isam2_joint.json")
     args = ap.parse_args(argv)

@@ -56,6 +56,7 @@ from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
 from slamcore.spatial.records import PixelObservations  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 
 def make_stream(frames: int, sigma_px: float, seed: int):
@@ -176,11 +177,11 @@ def run_timed(seq, obs, config, calls, repeats: int) -> tuple[dict, dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--frames", type=entry.count, default=300)
     ap.add_argument("--quick", action="store_true", help="a 40-frame sequence of the same room, one repeat")
-    ap.add_argument("--sigma-px", type=float, default=1.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--sigma-px", type=entry.positive, default=1.0)
+    ap.add_argument("--seed", type=entry.seed, default=0)
+    ap.add_argument("--repeats", type=entry.count, default=3)
     ap.add_argument("--out", default="benchmarks/results/bench_isam2_visual.json")
     args = ap.parse_args(argv)
     if args.quick:

@@ -67,6 +67,7 @@ from filters.mono_ekf_config import MonoEkfConfig  # noqa: E402
 from slamcore.spatial.geometry import invert_pose, se3_exp  # noqa: E402
 from slamcore.spatial.camera import project  # noqa: E402
 from slamcore.spatial.records import PixelObservations  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 IMAGE_SIZE = (640, 480)
@@ -220,9 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "mono_ekf.json")
-    ap.add_argument("--frames", type=int, default=150, help="frames per configuration")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--runs", type=int, default=2,
+    ap.add_argument("--frames", type=entry.count, default=150, help="frames per configuration")
+    ap.add_argument("--seed", type=entry.seed, default=0)
+    ap.add_argument("--runs", type=entry.count, default=2,
                     help="runs per configuration; the lowest median is kept (shared machines)")
     ap.add_argument("--quick", action="store_true", help="a few configurations only")
     args = ap.parse_args(argv)

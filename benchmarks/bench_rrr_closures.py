@@ -38,6 +38,7 @@ from graphslam.backends.posegraph.solver import solve
 from graphslam.pipelines.posegraph import ate_rmse
 from graphslam.sources.posegraph_files import read_pose_graph_file, truncated
 from slamcore import posegraph as pg
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "rrr_posegraphs"
 
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graphs", nargs="+", default=["Bovisa04", "Bovisa06", "NewCollege"])
     ap.add_argument("--solvers", nargs="+", default=["isam2", "batch"])
-    ap.add_argument("--true-within", type=float, default=7.5)
+    ap.add_argument("--true-within", type=entry.positive, default=7.5)
     ap.add_argument("--max-poses", type=int, default=None)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/rrr_closures.json"))

@@ -39,6 +39,7 @@ from pathlib import Path
 from graphslam.pipelines.sweep import run_sweep
 from graphslam.pipelines.sweep_exec import DaskExecutor, PoolExecutor
 from graphslam.pipelines.sweep_spec import parse_sweep
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 #: Empty Dask tasks timed for the round trip.
 ROUND_TRIPS = 50
@@ -130,9 +131,9 @@ def plot(results: dict, out: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=8)
+    ap.add_argument("--runs", type=entry.count, default=8)
     ap.add_argument("--steps", type=int, default=200)
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=entry.count, default=2)
     ap.add_argument("--quick", action="store_true", help="2 runs of 20 steps")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sweep.json"),
                     help="JSON to write (and its PNG beside it)")

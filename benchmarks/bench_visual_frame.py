@@ -100,6 +100,7 @@ from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.backends.spatial.isam2 import VisualIsam2Backend  # noqa: E402
 from graphslam.backends.spatial.isam2_config import VisualIsam2Config  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 WARMUP_FRAMES = 1  # frame 0 only: initialisation
 ISAM2_TARGET = 1.5  # issue 20 item 4: back end with predictions / bare gtsam.ISAM2
@@ -285,8 +286,8 @@ def main(argv: list[str] | None = None) -> int:
                     default=Path(__file__).resolve().parent / "results" / "bench_visual_frame.json")
     ap.add_argument("--frames", type=int, default=300,
                     help="frames per configuration (the first N of the 300-frame sequence)")
-    ap.add_argument("--seed", type=int, default=0, help="synthetic image sequence seed")
-    ap.add_argument("--runs", type=int, default=1,
+    ap.add_argument("--seed", type=entry.seed, default=0, help="synthetic image sequence seed")
+    ap.add_argument("--runs", type=entry.count, default=1,
                     help="runs per configuration, alternated; per-frame medians over the runs")
     ap.add_argument("--frontends", default="harris,fpga", help="comma-separated: harris, fpga")
     ap.add_argument("--quick", action="store_true", help="only the two target configurations")

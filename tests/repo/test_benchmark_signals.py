@@ -134,3 +134,20 @@ def test_an_input_that_is_not_there_is_one_line(entry, capsys):
 
     assert entry.run(main) == entry.EXIT_ERROR
     assert capsys.readouterr().err == "bench_x.py: error: /nonexistent/lund_door/cameras.txt: No such file or directory\n"
+
+
+@pytest.mark.parametrize("kind, good, bad", [
+    ("count", [("1", 1), ("20", 20)], ["0", "-1", "1.5", "x"]),
+    ("seed", [("0", 0), ("7", 7)], ["-1", "x"]),
+    ("positive", [("7.5", 7.5), ("1e-3", 1e-3)], ["0", "-1", "nan", "inf", "x"]),
+])
+def test_numeric_options_refuse_what_would_fail_later(entry, kind, good, bad):
+    """bench_active_search.py --pairs 0 ended in a ZeroDivisionError, --seed -1 in numpy's
+    ValueError, bench_isam2_joint.py --repeats 0 in an empty median: now argparse's line."""
+    import argparse
+
+    parse = getattr(entry, kind)
+    assert [parse(text) for text, _ in good] == [value for _, value in good]
+    for text in bad:
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse(text)
