@@ -326,7 +326,7 @@ def main(argv=None) -> int:
             args.out.write_text(json.dumps(res, indent=2))
         return 0
     if args.quick:
-        args.pairs, args.repeat = 2, 1
+        entry.quick_sizes(ap, argv, args, pairs=2, repeat=1)
     t0 = time.perf_counter()
     rows = bench(args.pairs, args.repeat)
     print(f"active search on KITTI 07, {args.pairs} frame pairs, best of {args.repeat}, one process")

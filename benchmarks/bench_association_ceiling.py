@@ -42,6 +42,7 @@ from graphslam.evaluation.planar import oracle_association_accuracy
 from slamcore.planar.records import Dataset
 from slamcore.planar.geometry import between
 from slamcore.planar.records import Odometry
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 #: Odometry sigma (m, rad) of the "known poses" run: far below any landmark or
 #: sensor scale, large enough to keep the covariance positive definite.
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="write the table as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.seeds = [0]
+        entry.quick_sizes(ap, argv, args, seeds=[0])
 
     columns = ("oracle", "known poses") + BACKENDS
     rows = []

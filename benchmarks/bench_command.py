@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import timing  # beside this script
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 ROOT = Path(__file__).resolve().parent.parent
 BARE = Path(__file__).resolve().parent / "bare_run.py"
@@ -165,7 +166,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.datasets, args.max_steps, args.repeats = ["victoria-park"], 300, 1
+        entry.quick_sizes(ap, argv, args, datasets=["victoria-park"], max_steps=300, repeats=1)
     command = "python benchmarks/bench_command.py " + " ".join(argv if argv is not None
                                                                else sys.argv[1:])
     rows = []

@@ -47,6 +47,7 @@ from filters.ekf_slam import EkfSlam  # noqa: E402
 from filters.ekf_slam_config import EkfSlamConfig  # noqa: E402
 from slamcore.planar import geometry as models  # noqa: E402
 from slamcore.planar.records import Observation  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 SIZES = (50, 100, 200, 500, 1000, 2000)
 QUICK_SIZES = (50, 200)
@@ -138,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help=f"sizes {QUICK_SIZES}, 5 repeats")
     args = ap.parse_args(argv)
     if args.quick:
-        args.sizes, args.repeats = list(QUICK_SIZES), 5
+        entry.quick_sizes(ap, argv, args, sizes=list(QUICK_SIZES), repeats=5)
     rows = []
     print(f"{'landmarks':>9} {'state':>6} {'update ms':>10} {'floor ms':>9} {'dgemm ms':>9} "
           f"{'ratio':>6} {'/dgemm':>7}")

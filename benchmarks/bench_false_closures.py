@@ -161,7 +161,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.dataset, args.fractions, args.max_steps, args.plain_max_steps = ["city10000"], [0.1], 300, 200
+        entry.quick_sizes(ap, argv, args, dataset=["city10000"], fractions=[0.1], max_steps=300, plain_max_steps=200)
 
     robust_cfg = load_section(Isam2Config, args.config)
     # plain: the robust configuration without its robustness (same polish tolerances)

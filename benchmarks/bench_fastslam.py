@@ -437,7 +437,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=entry.seed, default=0)
     args = ap.parse_args(argv)
     if args.quick:
-        args.steps, args.particles, args.landmarks, args.repeats = 20, [10, 100], [50, 150], 2
+        entry.quick_sizes(ap, argv, args, steps=20, particles=[10, 100], landmarks=[50, 150], repeats=2)
     command = "python benchmarks/bench_fastslam.py " + " ".join(
         sys.argv[1:] if argv is None else argv)
 

@@ -29,6 +29,7 @@ sys.path.insert(0, str(ROOT))
 from frontend.fpga_stream import FpgaHarrisStream, FpgaTiming  # noqa: E402
 from frontend.harris import HarrisConfig, HarrisDetector  # noqa: E402
 from frontend.image import load_gray  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 KITTI = ROOT.parent / "shared" / "data" / "kitti07" / "image_0"
 SHAPE = (480, 640)
@@ -72,7 +73,7 @@ def main(argv=None):
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.frames = 4
+        entry.quick_sizes(ap, argv, args, frames=4)
 
     imgs, source = frames(args.frames, args.synthetic)
     cfg = HarrisConfig(arithmetic="fixed")

@@ -47,6 +47,7 @@ from frontend.harris import (  # noqa: E402
 )
 from frontend.image import load_gray  # noqa: E402
 import timing  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 DATA = ROOT.parent / "shared" / "data"
 KITTI = DATA / "kitti07" / "image_0"
@@ -147,7 +148,7 @@ def main(argv=None):
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.repeats = 3
+        entry.quick_sizes(ap, argv, args, repeats=3)
     if args.threads:
         cv2.setNumThreads(args.threads)
     cfg = HarrisConfig()

@@ -33,6 +33,7 @@ from graphslam import registry
 from graphslam.pipelines import planar as pipeline
 from graphslam.backends.planar.isam2 import Isam2Backend
 from graphslam.backends.planar.isam2_config import Isam2Config
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 
 def prebuild(dataset, steps):
@@ -123,7 +124,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.datasets, args.steps, args.repeats = ["victoria-park"], 300, 2
+        entry.quick_sizes(ap, argv, args, datasets=["victoria-park"], steps=300, repeats=2)
     command = "python benchmarks/bench_isam2.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
     config = Isam2Config(polish=False)

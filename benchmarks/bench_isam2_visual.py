@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="benchmarks/results/bench_isam2_visual.json")
     args = ap.parse_args(argv)
     if args.quick:
-        args.frames, args.repeats = 40, 1
+        entry.quick_sizes(ap, argv, args, frames=40, repeats=1)
     config = VisualIsam2Config(polish=False)
 
     t = time.perf_counter()

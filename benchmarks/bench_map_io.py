@@ -31,6 +31,7 @@ from graphslam.maps.files import load_map, save_map  # noqa: E402
 from graphslam.maps.spatial_map import SpatialMap  # noqa: E402
 import timing  # noqa: E402
 from loopclosure.vocabulary import FlatVocabulary  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 TARGET_S = 2.0
 
@@ -89,7 +90,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.keyframes, args.repeat = 100, 1
+        entry.quick_sizes(ap, argv, args, keyframes=100, repeat=1)
     smap = big_map(args.keyframes, words=100, bow_kf=50) if args.quick else big_map(args.keyframes)
     arrays = {n: getattr(smap, n) for n in ("keyframe_wTc", "keyframe_cov", "landmark_w",
                                              "landmark_cov", "landmark_desc", "landmark_patch",

@@ -45,6 +45,7 @@ from plotting import Panel, save_figure  # noqa: E402
 from bench_mrclam import one_run  # noqa: E402
 from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam  # noqa: E402
 from slamcore.errors import GraphSlamError  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 #: Truth rows kept beyond each end of a window, s: the truth is about 100 Hz with gaps,
@@ -137,7 +138,8 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     max_steps = None
     if args.quick:
-        args.windows, args.robots, args.backends, max_steps = args.windows[:1], [1], ["isam2"], 300
+        max_steps = 300
+        entry.quick_sizes(ap, argv, args, windows=args.windows[:1], robots=[1], backends=["isam2"])
     rows = []
     with tempfile.TemporaryDirectory(prefix="mrclam-windows-") as tmp:
         for spec in args.windows:

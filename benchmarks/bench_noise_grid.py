@@ -37,6 +37,7 @@ from graphslam import registry  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 #: The synthetic world's noise fields (all four of its noise values).
 NOISE_FIELDS = ("sigma_v_mps", "sigma_w_degps", "sigma_r_m", "sigma_phi_deg")
@@ -126,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="write every cell's row as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.seeds, args.scales = [0], [10.0]
+        entry.quick_sizes(ap, argv, args, seeds=[0], scales=[10.0])
     rows = []
     for backend in args.backends:
         fails = 0

@@ -36,6 +36,7 @@ sys.path.insert(0, str(HERE))
 
 from frontend.orb import OrbConfig, OrbDetector  # noqa: E402
 import timing  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 KITTI = HERE.parent.parent / "shared" / "data" / "kitti07" / "image_0"
 
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.frames, args.repeats = 3, 1
+        entry.quick_sizes(ap, argv, args, frames=3, repeats=1)
     if args.threads:
         cv2.setNumThreads(args.threads)
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)

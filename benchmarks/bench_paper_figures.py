@@ -75,6 +75,7 @@ import timing  # noqa: E402  (beside this script)
 from bench_sequential_search import Prerendered, visual_run  # noqa: E402
 from frontend.fpga_stream import FpgaTiming  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 #: label -> visual_run keywords
 FRONT_ENDS = {"float Harris": dict(detector="harris", arithmetic="float"),
@@ -185,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     corrections, maps, corrections7, warmup = CORRECTIONS, MAP_LIMITS, CORRECTIONS_FIG7, WARMUP
     if args.quick:
         corrections, maps, corrections7, warmup = (1, 10), (20,), (10,), 4
-        args.frames, args.trajectory_frames = 12, 12
+        entry.quick_sizes(ap, argv, args, frames=12, trajectory_frames=12)
     if args.frames <= warmup + 1:
         ap.error(f"--frames must exceed {warmup + 1}")
     seq = Prerendered(make_synthetic_images(SyntheticImagesConfig(seed=args.seed)),

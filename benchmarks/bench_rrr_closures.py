@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/rrr_closures.json"))
     args = ap.parse_args(argv)
     if args.quick:
-        args.graphs, args.solvers, args.max_poses = ["Bovisa06"], ["batch"], 3000
+        entry.quick_sizes(ap, argv, args, graphs=["Bovisa06"], solvers=["batch"], max_poses=3000)
     rows = []
     for name in args.graphs:
         graph = read_pose_graph_file(DATA / f"{name}_odometry_bow_tr.g2o")

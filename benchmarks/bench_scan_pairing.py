@@ -34,6 +34,7 @@ from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.synthetic import make_synthetic  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 #: ATE above which a run lost the loop (the two modes of the ATEs lie either side), m.
 LOST_ATE_M = 1.3
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/scan_pairing.json"))
     args = ap.parse_args(argv)
     if args.quick:
-        args.seeds, args.versions = [0], [2]
+        entry.quick_sizes(ap, argv, args, seeds=[0], versions=[2])
     max_steps = 200 if args.quick else None
     out = {"command": "python benchmarks/bench_scan_pairing.py " + " ".join(sys.argv[1:]),
            "seeds": args.seeds, "lost_ate_m": LOST_ATE_M, "rows": {}}

@@ -74,6 +74,7 @@ from frontend.tracking import Tracker  # noqa: E402
 from frontend.tracking_config import TrackerConfig  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images  # noqa: E402
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 #: label -> (order, ransac_every, pixel sigma of the tracker and filter)
 ORDERS = {"batch": ("batch", 0, 1.0), "sequential": ("sequential", 0, 1.0),
@@ -281,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     if args.quick:
-        seeds, args.frames, args.repeats = seeds[:1], 30, 1
+        seeds = seeds[:1]
+        entry.quick_sizes(ap, argv, args, frames=30, repeats=1)
     per_seed = {}
     labels = {**ORDERS, **(CONTROL if args.control else {})}
     print(f"{'seed':>4} {'order':<31} {'ATE m':>7} {'ms/frame':>8} {'cpu ms':>6} {'srch':>5} {'found':>5} "

@@ -139,7 +139,7 @@ def main(argv=None) -> int:
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.runs, args.steps = 2, 20
+        entry.quick_sizes(ap, argv, args, runs=2, steps=20)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         spec = parse_sweep(sweep_file(folder, args.runs, args.steps))

@@ -61,6 +61,7 @@ from loopclosure.shipped import load_shipped_vocabulary
 from loopclosure.vocabulary import VocabularyTree
 
 import timing  # beside this script
+import entry  # noqa: E402  (beside this script: --quick sizes, argparse types)
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 KITTI = DATA / "kitti07" / "image_0"
@@ -324,7 +325,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     n_train, max_frames, depth = (20_000, 20, 3) if args.quick else (N_TRAIN, None, 4)
     if args.quick:
-        args.sizes, args.passes = [1000], 2
+        entry.quick_sizes(ap, argv, args, sizes=[1000], passes=2)
     if args.passes < 1 or min(args.sizes) < MAX_RESULTS:
         raise SystemExit(f"--passes must be >= 1 and --sizes >= {MAX_RESULTS}")
     load_start = os.getloadavg()

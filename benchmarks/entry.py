@@ -1,6 +1,7 @@
 """How every benchmark script ends: one line, never a traceback, on Ctrl-C, SIGTERM or
 SIGHUP, on the toolkit's own errors, on an output the disk refuses (full, a name too
-long, a folder in its place) and on an input file that is not there.
+long, a folder in its place) and on an input file that is not there; and no lost
+measurement when the reader of its printout leaves (``| head``).
 
 A benchmark runs the library for minutes. Cut by a signal, it printed
 ``KeyboardInterrupt`` under a traceback from wherever the run was (``whole()``
@@ -77,6 +78,7 @@ def run(main: Callable[[], int | None]) -> int:
 
     name = Path(sys.argv[0]).name
     previous = {s: signal.signal(s, stop) for s in stop_signals()}
+    stdout, sys.stdout = sys.stdout, ReaderGone(sys.stdout)
     try:
         try:
             status = main()
@@ -104,8 +106,41 @@ def run(main: Callable[[], int | None]) -> int:
             return said("but a run took the signal and the script went on: its outputs may count a cut run as whole")
         return 0 if status is None else int(status)
     finally:
+        sys.stdout = stdout
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+class ReaderGone:
+    """``stdout`` that, once its reader has left (``bench_x.py | head``: EPIPE), writes to
+    /dev/null: the script goes on to write its JSON and PNG. A BrokenPipeError from a
+    print ended the measurement in a traceback with nothing written."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._gone()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._gone()
+
+    def _gone(self) -> None:
+        from graphslam.pipelines.common import to_devnull
+
+        # the file descriptor, not only this object: Python's exit-time flush of the
+        # stream would meet the closed pipe again
+        to_devnull(self._stream.fileno())
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
 
 
 # argparse types for the scripts' numeric options: a bad value is argparse's one error
@@ -141,3 +176,17 @@ def _number(text: str, kind: type):
         return kind(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}, got {text!r}") from None
+
+
+def quick_sizes(ap: argparse.ArgumentParser, argv: list[str] | None, args: argparse.Namespace, **sizes) -> None:
+    """``--quick``'s smoke sizes (``name=value``) set on ``args`` for the options the user
+    did not give: ``--quick --particles 5`` ran with 10 and 100 particles, the 5 dropped
+    without a word. The command line ``argv`` (None: ``sys.argv[1:]``) is parsed again
+    into a namespace that already holds a marker for each name, which argparse leaves
+    in place unless the option is given (abbreviated or not, ``--x=v`` or ``--x v``)."""
+    unset = object()
+    probe = argparse.Namespace(**dict.fromkeys(sizes, unset))
+    ap.parse_args(sys.argv[1:] if argv is None else argv, namespace=probe)
+    for name, value in sizes.items():
+        if getattr(probe, name) is unset:
+            setattr(args, name, value)

@@ -151,3 +151,68 @@ def test_numeric_options_refuse_what_would_fail_later(entry, kind, good, bad):
     for text in bad:
         with pytest.raises(argparse.ArgumentTypeError):
             parse(text)
+
+
+@pytest.mark.parametrize("argv, particles, steps", [
+    (["--quick"], [10, 100], 20),
+    (["--quick", "--particles", "5"], [5], 20),
+    (["--quick", "--part", "5", "7"], [5, 7], 20),  # argparse's abbreviation
+    (["--steps=7", "--quick"], [10, 100], 7),
+])
+def test_quick_sizes_leave_the_options_the_user_gave(entry, argv, particles, steps):
+    """``--quick --particles 5`` ran bench_fastslam.py with 10 and 100 particles."""
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--particles", type=int, nargs="+", default=[10, 100, 1000])
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    entry.quick_sizes(ap, argv, args, particles=[10, 100], steps=20)
+    assert (args.particles, args.steps) == (particles, steps)
+
+
+def test_every_quick_mode_sets_its_sizes_through_quick_sizes():
+    """No script assigns an option under ``if args.quick:`` itself."""
+    import re
+
+    for path in sorted(BENCHMARKS.glob("*.py")):
+        for block in re.findall(r"if args\.quick:\n((?:        .*\n)+)", path.read_text()):
+            assert not re.search(r"^        (?:[a-z_]+, )*args\.[a-z_]+(?:, [a-z_.]+)* = ", block, re.M), (path.name, block)
+
+
+def test_a_reader_that_leaves_costs_no_output(entry, tmp_path, monkeypatch):
+    """``bench_fastslam.py | head -3`` ended in a BrokenPipeError traceback, its JSON not
+    written: the rest of the printout now goes to /dev/null and the files are written."""
+    import os
+
+    r, w = os.pipe()
+    os.close(r)  # the reader has left
+    pipe = os.fdopen(w, "w", buffering=1)
+    monkeypatch.setattr(sys, "stdout", pipe)
+    out = tmp_path / "x.json"
+
+    def main():
+        for i in range(3):
+            print(f"row {i}")
+        out.write_text("{}")
+
+    try:
+        assert entry.run(main) == 0
+    finally:
+        pipe.close()
+    assert out.read_text() == "{}" and sys.stdout is pipe
+
+
+@pytest.mark.slow
+def test_a_benchmark_piped_into_head_writes_its_json(shared_data, tmp_path):
+    out = tmp_path / "mrclam.json"
+    cmd = [sys.executable, str(BENCHMARKS / "bench_mrclam.py"), "--quick", "--data", str(shared_data / "mrclam6"),
+           "--out", str(out)]
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+        proc.stdout.readline()
+        proc.stdout.close()  # as head does after its lines
+        err = proc.stderr.read()
+        proc.wait(timeout=120)
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert out.is_file() and out.with_suffix(".png").is_file()
