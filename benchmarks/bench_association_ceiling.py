@@ -90,7 +90,7 @@ def plot(rows: list[dict], means: dict, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
+    ap.add_argument("--seeds", type=entry.seed, nargs="+", default=[0, 1, 2, 3, 4],
                     help="synthetic world seeds (default 0-4)")
     ap.add_argument("--quick", action="store_true", help="seed 0 only")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "association_ceiling.json",

@@ -53,6 +53,7 @@ from graphslam.evaluation.trajectory import align, rpe  # noqa: E402
 from graphslam.pipelines import spatial as vp  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.spatial.frames import select_frames  # noqa: E402
+import entry  # noqa: E402  (beside this script: argparse types)
 
 HERE = Path(__file__).resolve().parent
 KITTI = HERE.parent.parent / "shared" / "data" / "kitti07"
@@ -138,7 +139,7 @@ def _small(stats: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="0,1,2,3,4")
-    ap.add_argument("--frames", type=int, default=160)
+    ap.add_argument("--frames", type=entry.count, default=160)
     ap.add_argument("--backends", default="isam2,ekf")
     ap.add_argument("--quick", action="store_true", help="40 frames, seed 0")
     ap.add_argument("--out", default=str(HERE / "figures" / "camera_alone.json"))
@@ -147,7 +148,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"KITTI 07 not found at {KITTI}", file=sys.stderr)
         return 2
     seeds = [0] if args.quick else [int(s) for s in args.seeds.split(",")]
-    frames = 40 if args.quick else args.frames
+    if args.quick:
+        entry.quick_sizes(ap, argv, args, frames=40)
+    frames = args.frames
     backends = args.backends.split(",")
     load_start = os.getloadavg()
     runs, floors = [], {}

@@ -159,8 +159,8 @@ def plot(rows: list[dict], out) -> object:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--max-steps", type=int, default=None, help="first N poses only")
+    ap.add_argument("--repeats", type=entry.count, default=3)
+    ap.add_argument("--max-steps", type=entry.count, default=None, help="first N poses only")
     ap.add_argument("--quick", action="store_true", help="Victoria Park, 300 poses, 1 repeat (a smoke run)")
     ap.add_argument("--out", default="benchmarks/results/bench_command.json",
                     help="JSON to write (and its PNG beside it)")

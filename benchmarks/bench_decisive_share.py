@@ -47,6 +47,7 @@ from graphslam.sources.spatial.kitti import read_kitti_calib, read_kitti_poses  
 from graphslam.sources.spatial.sequence import folder_images  # noqa: E402
 from loopclosure.detector import LoopDetectorConfig  # noqa: E402
 from loopclosure.verify import GeometricVerifier, VerifyConfig  # noqa: E402
+import entry  # noqa: E402  (beside this script: argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data"
 #: KITTI pairs further apart than this (m) are other places; these near are the same street.
@@ -98,7 +99,7 @@ def measure(data: Path, n_features: int, thin: int = 1) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
-    ap.add_argument("--features", type=int, nargs="+", default=[250, 500, 1000, 2000])
+    ap.add_argument("--features", type=entry.count, nargs="+", default=[250, 500, 1000, 2000])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "decisive_share.json")
     args = ap.parse_args(argv)

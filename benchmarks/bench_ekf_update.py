@@ -132,8 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, help="write the results as JSON here (and its PNG beside it)",
                     default=Path(__file__).resolve().parent / "results" / "ekf_update.json")
-    ap.add_argument("--repeats", type=int, default=31)
-    ap.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
+    ap.add_argument("--repeats", type=entry.count, default=31)
+    ap.add_argument("--sizes", type=entry.count, nargs="+", default=list(SIZES))
     ap.add_argument("--threads", type=int, default=1,
                     help="BLAS threads for ours and the floor alike (0: leave as they are)")
     ap.add_argument("--quick", action="store_true", help=f"sizes {QUICK_SIZES}, 5 repeats")

@@ -151,8 +151,8 @@ def main(argv=None) -> int:
     ap.add_argument("--dataset", nargs="+", default=["city10000", "w10000"],
                     choices=["city10000", "w10000"])
     ap.add_argument("--fractions", nargs="+", type=float, default=[0.1, 0.3])
-    ap.add_argument("--max-steps", type=int, default=None, help="use only the first N poses")
-    ap.add_argument("--plain-max-steps", type=int, default=1500,
+    ap.add_argument("--max-steps", type=entry.count, default=None, help="use only the first N poses")
+    ap.add_argument("--plain-max-steps", type=entry.count, default=1500,
                     help="poses of the plain runs with injected closures (0: skip them)")
     ap.add_argument("--seed", type=entry.seed, default=0)
     ap.add_argument("--config", type=Path, default=HERE / "robust_isam2.toml")

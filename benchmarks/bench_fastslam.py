@@ -422,14 +422,14 @@ def main(argv=None) -> int:
                     help="write results as JSON here (and its PNG beside it)")
     ap.add_argument("--quick", action="store_true",
                     help="20 steps, 10 and 100 particles, 50 and 150 landmarks, 2 repeats")
-    ap.add_argument("--steps", type=int, default=60, help="steps of the simulated run")
-    ap.add_argument("--particles", type=int, nargs="+", default=[10, 100, 1000])
+    ap.add_argument("--steps", type=entry.count, default=60, help="steps of the simulated run")
+    ap.add_argument("--particles", type=entry.count, nargs="+", default=[10, 100, 1000])
     ap.add_argument("--repeats", type=entry.count, default=7,
                     help="alternated repeats of ours and the floor (medians are reported)")
-    ap.add_argument("--landmarks", type=int, nargs="+", default=[50, 150, 500])
+    ap.add_argument("--landmarks", type=entry.count, nargs="+", default=[50, 150, 500])
     ap.add_argument("--victoria-park", action="store_true")
-    ap.add_argument("--vp-particles", type=int, nargs="+", default=[100])
-    ap.add_argument("--vp-odometry-scale", type=float, default=10.0,
+    ap.add_argument("--vp-particles", type=entry.count, nargs="+", default=[100])
+    ap.add_argument("--vp-odometry-scale", type=entry.positive, default=10.0,
                     help="odometry covariance scale (the file's covariance is too confident "
                          "for a particle filter: at 1 the estimate drifts away)")
     ap.add_argument("--vp-association", choices=["known", "unknown"], default="known",

@@ -47,6 +47,7 @@ from graphslam import registry  # noqa: E402
 from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402  (a cut run is no row)
+import entry  # noqa: E402  (beside this script: argparse types)
 
 #: A loop is broken when the final ATE exceeds this times the known-association ATE.
 BROKEN_LOOP_RATIO = 2.0
@@ -140,7 +141,7 @@ def plot(rows: list[dict], backends: list[str], out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="+")
+    ap.add_argument("--seeds", type=entry.seed, nargs="+")
     ap.add_argument("--from", dest="first", type=int, default=0)
     ap.add_argument("--to", dest="last", type=int, default=49)
     ap.add_argument("--backends", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
@@ -151,9 +152,11 @@ def main(argv: list[str] | None = None) -> int:
                          "--victoria-park)")
     ap.add_argument("--victoria-park", action="store_true",
                     help="RMS to iSAM2 on Victoria Park instead (see the docstring)")
-    ap.add_argument("--max-steps", type=int, help="--victoria-park: first N steps only")
+    ap.add_argument("--max-steps", type=entry.count, help="--victoria-park: first N steps only")
     args = ap.parse_args(argv)
-    seeds = [0] if args.quick else args.seeds or list(range(args.first, args.last + 1))
+    if args.quick:
+        entry.quick_sizes(ap, argv, args, seeds=[0])
+    seeds = args.seeds or list(range(args.first, args.last + 1))
     if not seeds:
         ap.error("no seed: --from is after --to")
     if args.max_steps is not None and args.max_steps < 2:

@@ -66,7 +66,7 @@ def plot(result: dict, per_frame_ms: list[float], out: Path) -> Path:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--frames", type=entry.count, default=40)
     ap.add_argument("--synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="4 frames")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fpga_stream.json",

@@ -141,7 +141,7 @@ def plot(result: dict, out: Path) -> Path:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frame", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--repeats", type=entry.count, default=30)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
     ap.add_argument("--quick", action="store_true", help="3 repeats")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "harris.json",

@@ -115,8 +115,8 @@ def plot(rows: list[dict], out) -> object:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--datasets", nargs="+", default=["victoria-park", "w10000"])
-    ap.add_argument("--steps", type=int, default=None, help="first N frames only")
-    ap.add_argument("--repeats", type=int, default=3,
+    ap.add_argument("--steps", type=entry.count, default=None, help="first N frames only")
+    ap.add_argument("--repeats", type=entry.count, default=3,
                     help="alternate ours/bare this many times; the median of each is kept")
     ap.add_argument("--quick", action="store_true",
                     help="the first 300 frames of Victoria Park, 2 repeats")

@@ -56,6 +56,7 @@ from graphslam.backends.spatial.isam2_config import VisualIsam2Config
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from graphslam.pipelines.loop_closing import VisualLoopCloser
 from loopclosure.detector import LoopDetector
+import entry  # noqa: E402  (beside this script: argparse types)
 
 HERE = Path(__file__).resolve().parent
 
@@ -78,7 +79,7 @@ def plot(rows: list[dict], n_frames: int, out: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--window", type=int, default=30,
+    ap.add_argument("--window", type=entry.count, default=30,
                     help="prediction window of the local-map runs, frames (default 30)")
     ap.add_argument("--odometry", choices=("sequence", "none"), default="sequence",
                     help="the sequence's noisy odometry (default) or none: the camera alone")

@@ -83,8 +83,8 @@ def plot(out: dict, repeat: int, path: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--keyframes", type=int, default=10_000)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--keyframes", type=entry.count, default=10_000)
+    ap.add_argument("--repeat", type=entry.count, default=3)
     ap.add_argument("--quick", action="store_true", help="100 keyframes, 100 words, 1 repeat")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "map_io.json",
                     help="JSON to write (and its PNG beside it)")

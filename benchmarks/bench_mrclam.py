@@ -55,6 +55,7 @@ from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
 from graphslam.sources.planar.mrclam import MrclamConfig, read_mrclam  # noqa: E402
 from graphslam.sources.planar.mrclam_joint import read_mrclam_all  # noqa: E402
+import entry  # noqa: E402  (beside this script: argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 BACKENDS = ("isam2", "ekf", "fastslam1", "fastslam2")
@@ -155,17 +156,19 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--robots", type=int, nargs="+", choices=range(1, 6), default=[1, 2, 3, 4, 5])
     ap.add_argument("--no-joint", dest="joint", action="store_false",
                     help="leave out the run of all robots in one graph (about 4.5 min)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/mrclam.json"))
-    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4],
+    ap.add_argument("--seeds", type=entry.seed, nargs="*", default=[0, 1, 2, 3, 4],
                     help="FastSLAM 2.0 seeds for the spread of its ATE (none: skip)")
     ap.add_argument("--pair-scans-in-order", action="store_true",
                     help="the seeds' unknown-id runs pair each scan in its order "
                          "([fastslam] pair_scans_jointly = false)")
     args = ap.parse_args(argv)
-    robots = [1] if args.quick else args.robots
+    if args.quick:
+        entry.quick_sizes(ap, argv, args, robots=[1])
+    robots = args.robots
     max_steps = 300 if args.quick else None
     associations = ("known",) if args.quick else ("known", "unknown")
     rows, panels = [], []

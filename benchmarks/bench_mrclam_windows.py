@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--windows", nargs="+", default=["0:0.5", "0.5:1", "0.25:0.75"], type=window_spec,
                     help="fractions START:STOP of the data's time span (default: %(default)s)")
-    ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--robots", type=int, nargs="+", choices=range(1, 6), default=[1, 2, 3, 4, 5])
     ap.add_argument("--backends", nargs="+", default=["isam2", "ekf", "fastslam2"],
                     choices=sorted(RATIO_BOUND))
     ap.add_argument("--quick", action="store_true")

@@ -119,8 +119,8 @@ def plot(rows: list[dict], backends: list[str], scales: list[float], out: Path) 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=BACKENDS)
-    ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS))
-    ap.add_argument("--scales", type=float, nargs="+", default=list(SCALES))
+    ap.add_argument("--seeds", type=entry.seed, nargs="+", default=list(SEEDS))
+    ap.add_argument("--scales", type=entry.positive, nargs="+", default=list(SCALES))
     ap.add_argument("--quick", action="store_true", help="seed 0, scale 10 (each noise alone and all)")
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "noise_grid.json",

@@ -57,8 +57,8 @@ def plot(t_ours: list[float], t_cv: list[float], n_frames: int, ratio: float, ou
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=int, default=40)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--frames", type=entry.count, default=40)
+    ap.add_argument("--repeats", type=entry.count, default=5)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
     ap.add_argument("--quick", action="store_true", help="3 frames, 1 repeat")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "orb.json",

@@ -176,9 +176,9 @@ def plot_trajectory(traj: dict, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=60, help="frames per rate run (first N of 300)")
-    ap.add_argument("--trajectory-frames", type=int, default=300, help="frames of the figure 4 runs")
-    ap.add_argument("--seed", type=int, default=0, help="synthetic sequence seed")
+    ap.add_argument("--frames", type=entry.count, default=60, help="frames per rate run (first N of 300)")
+    ap.add_argument("--trajectory-frames", type=entry.count, default=300, help="frames of the figure 4 runs")
+    ap.add_argument("--seed", type=entry.seed, default=0, help="synthetic sequence seed")
     ap.add_argument("--quick", action="store_true", help="a few configurations, 12 frames")
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "paper_figures.json")

@@ -76,6 +76,7 @@ from slamcore import posegraph as pg
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import timing  # noqa: E402
+import entry  # noqa: E402  (beside this script: argparse types)
 
 #: The numbers of every file read as the format defines them (information), not
 #: ``toro_noise = "auto"``: the figures below and in benchmarks/README.md (sphere2500
@@ -319,7 +320,7 @@ def main(argv=None) -> int:
                     help="folder for bench_posegraph.json and the PNGs")
     ap.add_argument("--isam2", action="store_true", help="also time iSAM2 against bare ISAM2")
     ap.add_argument("--quick", action="store_true", help="small files only (see the docstring)")
-    ap.add_argument("--repeats", type=int, default=None,
+    ap.add_argument("--repeats", type=entry.count, default=None,
                     help="batch: ours and the bare script alternated this many times, median "
                          "kept (default: 5; 3 where a solve takes 5 s or more, 1 past 30 s)")
     args = ap.parse_args(argv)

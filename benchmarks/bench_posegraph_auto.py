@@ -37,6 +37,7 @@ from plotting import Panel, save_figure  # noqa: E402
 from graphslam.backends.posegraph.config import PoseGraphConfig  # noqa: E402
 from graphslam.backends.posegraph.solver import solve  # noqa: E402
 from graphslam.sources.posegraph_files import read_pose_graph_file  # noqa: E402
+import entry  # noqa: E402  (beside this script: argparse types)
 
 #: The issue's bound: the default on sphere2500 under 1.5x the batch time.
 TARGET = 1.5
@@ -81,11 +82,13 @@ def bench(name: str, path: Path, noise: str, repeats: int) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=entry.count, default=3)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph_auto.json"))
     args = ap.parse_args(argv)
-    repeats = 1 if args.quick else args.repeats
+    if args.quick:
+        entry.quick_sizes(ap, argv, args, repeats=1)
+    repeats = args.repeats
     with tempfile.TemporaryDirectory() as tmp:
         rows = [bench(n, p, noise, repeats) for n, p, noise in files(args.quick, Path(tmp))]
     summaries = [timing.summary(f"posegraph auto / batch: {r['file']}", r["auto_s"], r["batch_s"],

@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--graphs", nargs="+", default=["Bovisa04", "Bovisa06", "NewCollege"])
     ap.add_argument("--solvers", nargs="+", default=["isam2", "batch"])
     ap.add_argument("--true-within", type=entry.positive, default=7.5)
-    ap.add_argument("--max-poses", type=int, default=None)
+    ap.add_argument("--max-poses", type=entry.count, default=None)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/rrr_closures.json"))
     args = ap.parse_args(argv)

@@ -57,7 +57,7 @@ def spread(version: int, joint: bool, seeds: list[int], max_steps: int | None = 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(200)))
+    ap.add_argument("--seeds", type=entry.seed, nargs="+", default=list(range(200)))
     ap.add_argument("--versions", type=int, nargs="+", default=[1, 2], choices=[1, 2])
     ap.add_argument("--quick", action="store_true", help="seed 0, FastSLAM 2.0, 200 steps")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/scan_pairing.json"))

@@ -272,8 +272,8 @@ def plot(seeds: list[int], per_seed: dict, out: Path, labels: dict) -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2", help="synthetic sequence seeds, comma-separated")
-    ap.add_argument("--frames", type=int, default=300, help="frames per run (the sequence has 300)")
-    ap.add_argument("--repeats", type=int, default=2, help="alternated runs per order (median)")
+    ap.add_argument("--frames", type=entry.count, default=300, help="frames per run (the sequence has 300)")
+    ap.add_argument("--repeats", type=entry.count, default=2, help="alternated runs per order (median)")
     ap.add_argument("--control", action="store_true",
                     help="also run the batch order with a 1 %% larger pixel sigma (chance variation)")
     ap.add_argument("--quick", action="store_true", help="seed 0, 30 frames, one run each")

@@ -132,7 +132,7 @@ def plot(results: dict, out: Path) -> Path:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=entry.count, default=8)
-    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--steps", type=entry.count, default=200)
     ap.add_argument("--workers", type=entry.count, default=2)
     ap.add_argument("--quick", action="store_true", help="2 runs of 20 steps")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sweep.json"),

@@ -284,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "bench_visual_frame.json")
-    ap.add_argument("--frames", type=int, default=300,
+    ap.add_argument("--frames", type=entry.count, default=300,
                     help="frames per configuration (the first N of the 300-frame sequence)")
     ap.add_argument("--seed", type=entry.seed, default=0, help="synthetic image sequence seed")
     ap.add_argument("--runs", type=entry.count, default=1,

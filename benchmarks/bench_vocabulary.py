@@ -316,9 +316,9 @@ def plot(training: dict, quant: dict, rows: list[dict], out) -> object:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--passes", type=int, default=3,
+    ap.add_argument("--passes", type=entry.count, default=3,
                     help="timed passes over all the queries per database size")
-    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000, 20_000])
+    ap.add_argument("--sizes", type=entry.count, nargs="+", default=[1000, 5000, 20_000])
     ap.add_argument("--quick", action="store_true", help="small sizes (see the docstring)")
     ap.add_argument("--out", default="benchmarks/results/bench_vocabulary.json",
                     help="JSON to write (and its PNG beside it)")

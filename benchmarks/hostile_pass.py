@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import entry  # noqa: E402  (beside this script: argparse types)
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -1620,7 +1621,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="skip the slow attacks")
     ap.add_argument("--only", default=None, help="attacks whose name holds this text")
-    ap.add_argument("--timeout", type=float, default=300.0, help="hang guard per attack, s")
+    ap.add_argument("--timeout", type=entry.positive, default=300.0, help="hang guard per attack, s")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "hostile_pass.json")
     args = ap.parse_args(argv)
     chosen = [a for a in attacks() if not (args.quick and a.slow)

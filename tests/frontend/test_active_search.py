@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 
 import cv2
 import numpy as np
@@ -16,7 +14,6 @@ from frontend.search_matchers import ellipse_pixels, extract_patches
 from frontend.features import Features
 from slamcore.errors import ConfigError, InputError, MeasurementError
 
-from tests.conftest import ROOT
 
 #: The parabolic sub-pixel refinement of an integer shift stays within this of the truth, px
 #: (the correlation peak of a random texture is not exactly symmetric).
@@ -30,11 +27,11 @@ SAME_WARP_TOL_PX = 1e-3
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_active_search", ROOT / "benchmarks" / "bench_active_search.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod
+    # as every test loads a benchmark: with benchmarks/ on sys.path, so the script's
+    # siblings (entry.py) import as when it runs
+    from tests.benchmarks import load_benchmark
+
+    return load_benchmark("bench_active_search")
 
 
 def noise_image(seed=0, shape=(200, 300)) -> np.ndarray:

@@ -177,6 +177,7 @@ def test_every_quick_mode_sets_its_sizes_through_quick_sizes():
     import re
 
     for path in sorted(BENCHMARKS.glob("*.py")):
+        assert not re.search(r"if args\.quick else args\.", path.read_text()), path.name
         for block in re.findall(r"if args\.quick:\n((?:        .*\n)+)", path.read_text()):
             assert not re.search(r"^        (?:[a-z_]+, )*args\.[a-z_]+(?:, [a-z_.]+)* = ", block, re.M), (path.name, block)
 
