@@ -308,7 +308,7 @@ def main(argv=None) -> int:
                     "benchmarks/results/active_search.json, and its PNG beside it)")
     ap.add_argument("--evaluate", action="store_true", help="run the accuracy protocol instead")
     ap.add_argument("--step", type=entry.count, default=1, help="with --evaluate: every step-th pair")
-    ap.add_argument("--max-corrections", type=int, default=20, help="with --evaluate (0 = no cap)")
+    ap.add_argument("--max-corrections", type=entry.count_or_zero, default=20, help="with --evaluate (0 = no cap)")
     ap.add_argument("--mode", default="zncc", choices=("zncc", "nearest"), help="with --evaluate")
     ap.add_argument("--predict-appearance", action="store_true",
                     help="with --evaluate: warp patches by the predicted motion (fronto-parallel plane)")

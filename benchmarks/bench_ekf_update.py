@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
                     default=Path(__file__).resolve().parent / "results" / "ekf_update.json")
     ap.add_argument("--repeats", type=entry.count, default=31)
     ap.add_argument("--sizes", type=entry.count, nargs="+", default=list(SIZES))
-    ap.add_argument("--threads", type=int, default=1,
+    ap.add_argument("--threads", type=entry.count_or_zero, default=1,
                     help="BLAS threads for ours and the floor alike (0: leave as they are)")
     ap.add_argument("--quick", action="store_true", help=f"sizes {QUICK_SIZES}, 5 repeats")
     args = ap.parse_args(argv)

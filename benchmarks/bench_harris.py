@@ -142,7 +142,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frame", type=int, default=0)
     ap.add_argument("--repeats", type=entry.count, default=30)
-    ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
+    ap.add_argument("--threads", type=entry.count_or_zero, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
     ap.add_argument("--quick", action="store_true", help="3 repeats")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "harris.json",
                     help="JSON to write (and its PNG beside it)")

@@ -71,7 +71,7 @@ def one_run(dataset, make, steps):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
-    ap.add_argument("--frames", type=int, default=4000, help="frames of the joint stream (0: all)")
+    ap.add_argument("--frames", type=entry.count_or_zero, default=4000, help="frames of the joint stream (0: all)")
     ap.add_argument("--repeats", type=entry.count, default=1)
     ap.add_argument("--quick", action="store_true", help="the first 300 frames (a smoke run)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "isam2_joint.json")

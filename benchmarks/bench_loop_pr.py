@@ -67,6 +67,7 @@ from graphslam.pipelines.place_recognition import train_vocabulary
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.verify import VerifyConfig
+import entry  # noqa: E402  (beside this script: argparse types)
 
 HERE = Path(__file__).resolve().parent
 KITTI_DEFAULT = HERE.parent.parent / "shared" / "data" / "kitti07"
@@ -138,7 +139,7 @@ def plot(rows: list[dict], kitti: dict | None, n_frames: int, out: Path) -> Path
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--tol", type=int, default=2, help="frame tolerance of a true closure (default 2)")
+    ap.add_argument("--tol", type=entry.count_or_zero, default=2, help="frame tolerance of a true closure (default 2)")
     ap.add_argument("--no-variants", action="store_true", help="only the default configuration")
     ap.add_argument("--kitti", default=None,
                     help="KITTI odometry folder with image_0/ (default: ../shared/data/kitti07 "

@@ -69,6 +69,7 @@ from graphslam.sources.spatial.sequence import folder_images
 from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
 from loopclosure.detector import LoopDetector, LoopDetectorConfig
 from loopclosure.shipped import load_shipped_vocabulary
+import entry  # noqa: E402  (beside this script: argparse types)
 
 HERE = Path(__file__).resolve().parent
 DATA_DEFAULT = HERE.parent.parent / "shared" / "data"
@@ -235,7 +236,7 @@ def plot(rows: list[dict], out: Path) -> Path:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (see the docstring)")
-    ap.add_argument("--tol", type=int, default=2, help="synthetic: frame tolerance of a true closure")
+    ap.add_argument("--tol", type=entry.count_or_zero, default=2, help="synthetic: frame tolerance of a true closure")
     ap.add_argument("--data", type=Path, default=DATA_DEFAULT, help="the shared data folder")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_revisit.json")
     args = ap.parse_args(argv)

@@ -155,6 +155,15 @@ def count(text: str) -> int:
     return value
 
 
+def count_or_zero(text: str) -> int:
+    """A whole number of at least 0, where 0 means something of its own (no cap, all
+    frames, the library's default thread count, no tolerance)."""
+    value = _number(text, int)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number of at least 0, got {text!r}")
+    return value
+
+
 def seed(text: str) -> int:
     """A random seed: a whole number of at least 0 (numpy refuses negative ones)."""
     value = _number(text, int)

@@ -139,6 +139,7 @@ def test_an_input_that_is_not_there_is_one_line(entry, capsys):
 @pytest.mark.parametrize("kind, good, bad", [
     ("count", [("1", 1), ("20", 20)], ["0", "-1", "1.5", "x"]),
     ("seed", [("0", 0), ("7", 7)], ["-1", "x"]),
+    ("count_or_zero", [("0", 0), ("3", 3)], ["-1", "x"]),
     ("positive", [("7.5", 7.5), ("1e-3", 1e-3)], ["0", "-1", "nan", "inf", "x"]),
 ])
 def test_numeric_options_refuse_what_would_fail_later(entry, kind, good, bad):
