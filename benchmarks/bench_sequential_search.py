@@ -280,10 +280,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path,
                     default=Path(__file__).resolve().parent / "results" / "sequential_search.json")
     args = ap.parse_args(argv)
-    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     if args.quick:
-        seeds = seeds[:1]
-        entry.quick_sizes(ap, argv, args, frames=30, repeats=1)
+        entry.quick_sizes(ap, argv, args, seeds="0", frames=30, repeats=1)
+    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     per_seed = {}
     labels = {**ORDERS, **(CONTROL if args.control else {})}
     print(f"{'seed':>4} {'order':<31} {'ATE m':>7} {'ms/frame':>8} {'cpu ms':>6} {'srch':>5} {'found':>5} "

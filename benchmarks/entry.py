@@ -42,6 +42,8 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+from graphslam.cli.common import seed_arg
+
 #: The exit status of a toolkit error (``graphslam``'s too).
 EXIT_ERROR = 2
 #: Errors of a named file a user fixes by naming another one (``--out``, ``--data``): a
@@ -147,29 +149,27 @@ class ReaderGone:
 # line (and the usage), not a ZeroDivisionError or an empty median minutes later
 
 
-def count(text: str) -> int:
-    """A whole number of at least 1: repeats, runs, frames, pairs, workers."""
-    value = _number(text, int)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of at least 1, got {text!r}")
-    return value
+def _at_least(minimum: int, doc: str) -> Callable[[str], int]:
+    """An argparse type: a whole number of at least ``minimum``."""
+
+    def parse(text: str) -> int:
+        value = _number(text, int)
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number of at least {minimum}, got {text!r}")
+        return value
+
+    parse.__doc__ = doc
+    return parse
 
 
-def count_or_zero(text: str) -> int:
-    """A whole number of at least 0, where 0 means something of its own (no cap, all
-    frames, the library's default thread count, no tolerance)."""
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number of at least 0, got {text!r}")
-    return value
-
-
-def seed(text: str) -> int:
-    """A random seed: a whole number of at least 0 (numpy refuses negative ones)."""
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a seed of at least 0, got {text!r}")
-    return value
+count = _at_least(1, "A whole number of at least 1: repeats, runs, frames, pairs, workers.")
+count_or_zero = _at_least(
+    0,
+    "A whole number of at least 0, where 0 means something of its own (no cap, all "
+    "frames, the library's default thread count, no tolerance).",
+)
+#: A random seed: the command line's own (0 to 2**62; numpy refuses negative ones).
+seed = seed_arg
 
 
 def positive(text: str) -> float:
