@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from graphslam.backends import deep_stack
+from graphslam.backends import bounded, deep_stack
 from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from slamcore.errors import GraphSlamError
@@ -190,11 +190,26 @@ def _shonan(graph: PoseGraph) -> Start:
         shonan = gtsam.ShonanAveraging3(
             [gtsam.BetweenFactorPose3(*f) for f in ranked], gtsam.ShonanAveragingParameters3(lm)
         )
+    R, min_eigenvalue = bounded.call(
+        _run_shonan, shonan_budget_s(graph), shonan, _random_rotations(graph), graph
+    )
+    return Start("shonan", _with_translations(graph, R, rows), min_eigenvalue)
+
+
+def shonan_budget_s(graph: PoseGraph) -> float:
+    """Seconds Shonan averaging may take on ``graph``: :data:`SHONAN_BUDGET_BASE_S`
+    and :data:`SHONAN_BUDGET_PER_EDGE_S` per edge."""
+    return SHONAN_BUDGET_BASE_S + SHONAN_BUDGET_PER_EDGE_S * graph.n_edges
+
+
+def _run_shonan(shonan, initial: gtsam.Values, graph: PoseGraph) -> tuple[np.ndarray, float]:
+    """Shonan's rotations ((N, d, d), by rank) and its minimum eigenvalue; in the
+    child process of :func:`.bounded.call`, so numpy out, not gtsam."""
     p_min = graph.dim
-    rotations, min_eigenvalue = deep_stack.call(shonan.run, _random_rotations(graph), p_min, p_min + 7)
+    rotations, min_eigenvalue = shonan.run(initial, p_min, p_min + 7)
     rot_of = rotations.atRot2 if graph.dim == 2 else rotations.atRot3
     R = np.array([np.asarray(rot_of(r).matrix()) for r in range(graph.n_poses)])
-    return Start("shonan", _with_translations(graph, R, rows), float(min_eigenvalue))
+    return R, float(min_eigenvalue)
 
 
 #: Seed of Shonan's random start. gtsam's own ``initializeRandomly`` draws from
@@ -202,6 +217,13 @@ def _shonan(graph: PoseGraph) -> Start:
 #: start (and estimate, and run time) after any other Shonan call; in one
 #: pytest worker a start drawn that way ran past ten minutes.
 SHONAN_START_SEED = 0
+#: Shonan's budget is this plus :data:`SHONAN_BUDGET_PER_EDGE_S` per edge. Timed
+#: on this project's two-core machine: a 300-pose Manhattan walk 1-4 s (about
+#: 10 ms an edge), w10000 68 s (1 ms an edge), Bovisa04's 11 589 edges 102 s
+#: (9 ms an edge, then it failed). Five times the slowest per edge, so that only
+#: a run that has run away meets it.
+SHONAN_BUDGET_BASE_S = 60.0
+SHONAN_BUDGET_PER_EDGE_S = 0.05
 
 
 def _random_rotations(graph: PoseGraph) -> gtsam.Values:

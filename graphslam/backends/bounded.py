@@ -1,0 +1,85 @@
+"""Run a gtsam call whose time has no bound in a child process with a budget.
+
+gtsam's wrappers hold the GIL for the whole of a call, so a call that runs on
+(Shonan averaging from one random start ran past 75 minutes on a 300-pose
+graph that it solves in 2 s from others) cannot be stopped from Python: no
+timer fires, and Ctrl-C or SIGTERM wait for it. In a forked child the parent
+waits in Python, so it can give up at a budget (and kill the child) and a
+signal reaches it at once. Where ``fork`` does not exist (Windows), or no
+child can be made, the call runs here, without a budget.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import signal
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+from graphslam.backends import deep_stack
+
+T = TypeVar("T")
+
+#: How often the parent looks at the child's pipe.
+POLL_S = 0.05
+
+
+class BudgetExceeded(RuntimeError):
+    """The call ran past its budget; its child process was killed."""
+
+
+def call(fn: Callable[..., T], budget_s: float, *args) -> T:
+    """``fn(*args)`` (on a deep-stack thread) in a forked child, its result or its
+    exception handed back by pickling; :class:`BudgetExceeded` after ``budget_s``
+    seconds. ``fn``'s result must pickle (numpy arrays, floats)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return deep_stack.call(fn, *args)
+    ctx = multiprocessing.get_context("fork")
+    reader, writer = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_child, args=(writer, fn, args), daemon=True)
+    try:
+        child.start()
+    except OSError:  # no process left to make (a hard limit, no memory)
+        reader.close()
+        writer.close()
+        return deep_stack.call(fn, *args)
+    writer.close()
+    try:
+        return _wait(reader, child, budget_s)
+    finally:  # the budget, a signal in the parent, or a result: no child outlives it
+        reader.close()
+        if child.is_alive():
+            child.kill()
+        child.join()
+
+
+def _wait(reader, child, budget_s: float):
+    t0 = time.monotonic()
+    while not reader.poll(POLL_S):
+        if not child.is_alive() and not reader.poll(0):
+            raise RuntimeError(f"its process ended with status {child.exitcode} and no answer")
+        if time.monotonic() - t0 > budget_s:
+            raise BudgetExceeded(f"it ran past its {budget_s:.0f} s budget and was stopped")
+    try:
+        ok, value = reader.recv()
+    except EOFError:
+        raise RuntimeError(f"its process ended with status {child.exitcode} and no answer") from None
+    if ok:
+        return value
+    raise value
+
+
+def _child(writer, fn, args) -> None:
+    # the parent owns signals: it kills this process when it gives up
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        answer = (True, deep_stack.call(fn, *args))
+    except BaseException as exc:  # noqa: BLE001 - handed to the parent as is
+        answer = (False, exc)
+    try:
+        writer.send(answer)
+    except Exception as exc:  # noqa: BLE001 - an exception that will not pickle
+        writer.send((False, RuntimeError(f"{type(answer[1]).__name__}: {exc}")))
+    writer.close()

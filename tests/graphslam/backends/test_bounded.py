@@ -1,0 +1,84 @@
+"""A gtsam call with no bound on its time runs in a child with a budget
+(graphslam.backends.bounded): its answer, its exception, the budget, and a
+signal in the parent all end the wait, and no child outlives it."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from graphslam.backends import bounded
+from graphslam.backends.posegraph import init
+from graphslam.sources.posegraph_files import read_pose_graph_file
+from tests.posegraphs import MANHATTAN_SIGMA, manhattan_walk
+
+#: The parent notices the end of the budget within this (it polls every 50 ms).
+NOTICE_S = 2.0
+
+
+def _raise_value_error(text):
+    raise ValueError(text)
+
+
+def _kill_self():
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_the_answer_and_the_exception_come_back_from_the_child():
+    assert bounded.call(np.linalg.norm, 10.0, np.array([3.0, 4.0])) == 5.0
+    assert bounded.call(os.getpid, 10.0) != os.getpid()
+    with pytest.raises(ValueError, match="isotropic"):
+        bounded.call(_raise_value_error, 10.0, "isotropic")
+    assert not multiprocessing.active_children()
+
+
+def test_the_budget_stops_a_call_that_runs_on():
+    t0 = time.monotonic()
+    with pytest.raises(bounded.BudgetExceeded, match="past its 0 s budget"):
+        bounded.call(time.sleep, 0.2, 60)
+    assert time.monotonic() - t0 < 0.2 + NOTICE_S
+    assert not multiprocessing.active_children()
+
+
+def test_a_child_that_dies_is_a_failure_not_a_wait():
+    with pytest.raises(RuntimeError, match="ended with status -9"):
+        bounded.call(_kill_self, 30.0)
+    assert not multiprocessing.active_children()
+
+
+class _Alarm(Exception):
+    pass
+
+
+def test_a_signal_reaches_the_parent_during_the_call():
+    """The parent waits in Python, not inside gtsam with the GIL held: a signal's
+    handler runs at once, and the child is killed on the way out."""
+
+    def on_alarm(signum, frame):
+        raise _Alarm
+
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    t0 = time.monotonic()
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.3)
+        with pytest.raises(_Alarm):
+            bounded.call(time.sleep, 60.0, 60)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert time.monotonic() - t0 < 0.3 + NOTICE_S
+    assert not multiprocessing.active_children()
+
+
+def test_shonan_past_its_budget_hands_over_to_the_odometry_start(tmp_path, monkeypatch):
+    monkeypatch.setattr(init, "SHONAN_BUDGET_BASE_S", 0.0)
+    monkeypatch.setattr(init, "SHONAN_BUDGET_PER_EDGE_S", 0.0)
+    graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA), seed=2))
+    start = init.initial(graph, "shonan", 1e-3)
+    assert start.method == "odometry"
+    assert "Shonan averaging failed (BudgetExceeded: it ran past its 0 s budget" in start.note
