@@ -29,10 +29,16 @@ class BudgetExceeded(RuntimeError):
     """The call ran past its budget; its child process was killed."""
 
 
-def call(fn: Callable[..., T], budget_s: float, *args) -> T:
+class Stopped(RuntimeError):
+    """``should_stop`` ended the wait (a signal the caller's guard took); the child
+    process was killed."""
+
+
+def call(fn: Callable[..., T], budget_s: float, *args, should_stop: Callable[[], bool] | None = None) -> T:
     """``fn(*args)`` (on a deep-stack thread) in a forked child, its result or its
     exception handed back by pickling; :class:`BudgetExceeded` after ``budget_s``
-    seconds. ``fn``'s result must pickle (numpy arrays, floats)."""
+    seconds, :class:`Stopped` once ``should_stop()`` is true. ``fn``'s result must
+    pickle (numpy arrays, floats)."""
     if "fork" not in multiprocessing.get_all_start_methods():
         return deep_stack.call(fn, *args)
     ctx = multiprocessing.get_context("fork")
@@ -46,7 +52,7 @@ def call(fn: Callable[..., T], budget_s: float, *args) -> T:
         return deep_stack.call(fn, *args)
     writer.close()
     try:
-        return _wait(reader, child, budget_s)
+        return _wait(reader, child, budget_s, should_stop or (lambda: False))
     finally:  # the budget, a signal in the parent, or a result: no child outlives it
         reader.close()
         if child.is_alive():
@@ -54,13 +60,15 @@ def call(fn: Callable[..., T], budget_s: float, *args) -> T:
         child.join()
 
 
-def _wait(reader, child, budget_s: float):
+def _wait(reader, child, budget_s: float, should_stop: Callable[[], bool]):
     t0 = time.monotonic()
     while not reader.poll(POLL_S):
         if not child.is_alive() and not reader.poll(0):
             raise RuntimeError(f"its process ended with status {child.exitcode} and no answer")
         if time.monotonic() - t0 > budget_s:
             raise BudgetExceeded(f"it ran past its {budget_s:.0f} s budget and was stopped")
+        if should_stop():
+            raise Stopped("a signal stopped it")
     try:
         ok, value = reader.recv()
     except EOFError:

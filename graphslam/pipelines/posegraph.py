@@ -122,7 +122,7 @@ def _retried(
     from graphslam.backends.posegraph import route
 
     try:
-        retried = route.retry_from_certified_rotations(graph, config, solve, result)
+        retried = route.retry_from_certified_rotations(graph, config, solve, result, should_stop)
     except (GraphSlamError, RuntimeError, IndexError, MemoryError) as exc:
         # a second opinion that fails leaves the first estimate, whole and written
         result.route = {

@@ -27,6 +27,7 @@ solver lists among its recoveries.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -83,11 +84,14 @@ def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
     )
 
 
-def relaxed(graph: PoseGraph, method: str, sigma: float) -> tuple[Start | None, str]:
+def relaxed(
+    graph: PoseGraph, method: str, sigma: float, should_stop: Callable[[], bool] | None = None
+) -> tuple[Start | None, str]:
     """The relaxation ``method`` (``lago``, ``chordal`` or ``shonan``) of ``graph``, or
-    None and why it failed (no fallback: :func:`initial` chooses one)."""
+    None and why it failed (no fallback: :func:`initial` chooses one). ``should_stop``
+    ends Shonan's wait (a signal), which then counts as failed."""
     try:
-        start = _shonan(graph) if method == "shonan" else _relaxation(graph, method, sigma)
+        start = _shonan(graph, should_stop) if method == "shonan" else _relaxation(graph, method, sigma)
     # gtsam's C++ exceptions: std::out_of_range (IndexError), std::invalid_argument
     # (ValueError: Shonan takes isotropic noise only), IndeterminateLinearSystem and the
     # rest (RuntimeError); anything else is a bug of ours and propagates
@@ -170,7 +174,7 @@ def _by_id(graph: PoseGraph, values: gtsam.Values) -> gtsam.Values:
     return out
 
 
-def _shonan(graph: PoseGraph) -> Start:
+def _shonan(graph: PoseGraph, should_stop: Callable[[], bool] | None = None) -> Start:
     """Shonan rotations (certified or not), translations by a linear solve.
 
     Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id.
@@ -191,7 +195,7 @@ def _shonan(graph: PoseGraph) -> Start:
             [gtsam.BetweenFactorPose3(*f) for f in ranked], gtsam.ShonanAveragingParameters3(lm)
         )
     R, min_eigenvalue = bounded.call(
-        _run_shonan, shonan_budget_s(graph), shonan, _random_rotations(graph), graph
+        _run_shonan, shonan_budget_s(graph), shonan, _random_rotations(graph), graph, should_stop=should_stop
     )
     return Start("shonan", _with_translations(graph, R, rows), min_eigenvalue)
 

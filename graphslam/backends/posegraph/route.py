@@ -157,16 +157,22 @@ def solve_auto(graph: PoseGraph, config: PoseGraphConfig, solve, should_stop=Non
     return _named(kept, t0, route)
 
 
-def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, solve, kept):
+def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, solve, kept, should_stop=None):
     """``auto``'s kept result, or batch from Shonan's rotations where that costs less
     (compared as :func:`solve_auto` compares; the route says which, and names the
-    local minimum). ``solve``: :func:`.solver.solve`."""
+    local minimum). ``solve``: :func:`.solver.solve`; ``should_stop`` (a signal)
+    ends Shonan's averaging, with no retry."""
     t0 = time.perf_counter()
-    start, failure = init.relaxed(graph, "shonan", config.prior_sigma)
+    start, failure = init.relaxed(graph, "shonan", config.prior_sigma, should_stop)
     if start is None:  # its fallback (the odometry start) would be no second opinion
         kept.route = {
             **(kept.route or {}),
-            "shonan_retry": f"not certified; no retry: Shonan averaging failed ({failure})",
+            "shonan_retry": "not certified; no retry: "
+            + (
+                "a signal stopped Shonan averaging"
+                if failure.startswith("Stopped:")
+                else f"Shonan averaging failed ({failure})"
+            ),
         }
         kept.wall_s += time.perf_counter() - t0
         return kept

@@ -82,3 +82,20 @@ def test_shonan_past_its_budget_hands_over_to_the_odometry_start(tmp_path, monke
     start = init.initial(graph, "shonan", 1e-3)
     assert start.method == "odometry"
     assert "Shonan averaging failed (BudgetExceeded: it ran past its 0 s budget" in start.note
+
+
+def test_a_signal_the_guard_took_ends_shonan_and_the_retry_says_so(tmp_path):
+    """Under the command line's stop guard a signal only sets a flag: ``should_stop``
+    ends Shonan's wait at once, and the retry is not run."""
+    from graphslam.backends.posegraph import route
+    from graphslam.backends.posegraph.config import PoseGraphConfig
+    from graphslam.backends.posegraph.solver import solve
+
+    graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA) * 1.5, seed=2))
+    start, failure = init.relaxed(graph, "shonan", 1e-3, should_stop=lambda: True)
+    assert start is None and failure == "Stopped: a signal stopped it"
+    first = solve(graph, PoseGraphConfig(), "auto")
+    kept = route.retry_from_certified_rotations(graph, PoseGraphConfig(), solve, first, lambda: True)
+    assert kept is first
+    assert kept.route["shonan_retry"] == "not certified; no retry: a signal stopped Shonan averaging"
+    assert not multiprocessing.active_children()
