@@ -304,7 +304,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=entry.count, default=20, help="KITTI frame pairs timed (spread over the sequence)")
     ap.add_argument("--repeat", type=entry.count, default=5, help="repetitions per frame (the best is kept)")
     ap.add_argument("--quick", action="store_true", help="2 pairs, 1 repetition (a smoke run)")
-    ap.add_argument("--out", type=Path, help="write the results as JSON (timing default: "
+    ap.add_argument("--out", type=entry.output_file, help="write the results as JSON (timing default: "
                     "benchmarks/results/active_search.json, and its PNG beside it)")
     ap.add_argument("--evaluate", action="store_true", help="run the accuracy protocol instead")
     ap.add_argument("--step", type=entry.count, default=1, help="with --evaluate: every step-th pair")

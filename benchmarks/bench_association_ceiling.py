@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=entry.seed, nargs="+", default=[0, 1, 2, 3, 4],
                     help="synthetic world seeds (default 0-4)")
     ap.add_argument("--quick", action="store_true", help="seed 0 only")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "association_ceiling.json",
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "association_ceiling.json",
                     help="write the table as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=entry.count, default=160)
     ap.add_argument("--backends", default="isam2,ekf")
     ap.add_argument("--quick", action="store_true", help="40 frames, seed 0")
-    ap.add_argument("--out", default=str(HERE / "figures" / "camera_alone.json"))
+    ap.add_argument("--out", type=entry.output_file, default=str(HERE / "figures" / "camera_alone.json"))
     args = ap.parse_args(argv)
     if not KITTI.is_dir():
         print(f"KITTI 07 not found at {KITTI}", file=sys.stderr)

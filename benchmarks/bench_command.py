@@ -162,7 +162,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=entry.count, default=3)
     ap.add_argument("--max-steps", type=entry.count, default=None, help="first N poses only")
     ap.add_argument("--quick", action="store_true", help="Victoria Park, 300 poses, 1 repeat (a smoke run)")
-    ap.add_argument("--out", default="benchmarks/results/bench_command.json",
+    ap.add_argument("--out", type=entry.output_file, default="benchmarks/results/bench_command.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--features", type=entry.count, nargs="+", default=[250, 500, 1000, 2000])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "decisive_share.json")
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "decisive_share.json")
     args = ap.parse_args(argv)
     counts, thin = ([250], 10) if args.quick else (args.features, 1)
     rows = []

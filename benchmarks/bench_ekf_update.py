@@ -130,7 +130,7 @@ def plot(rows: list[dict], out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, help="write the results as JSON here (and its PNG beside it)",
+    ap.add_argument("--out", type=entry.output_file, help="write the results as JSON here (and its PNG beside it)",
                     default=Path(__file__).resolve().parent / "results" / "ekf_update.json")
     ap.add_argument("--repeats", type=entry.count, default=31)
     ap.add_argument("--sizes", type=entry.count, nargs="+", default=list(SIZES))

@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=entry.seed, default=0)
     ap.add_argument("--config", type=Path, default=HERE / "robust_isam2.toml")
     ap.add_argument("--quick", action="store_true", help="a small prefix of city10000 (see the docstring)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "false_closures.json",
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "false_closures.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

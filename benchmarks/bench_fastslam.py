@@ -418,7 +418,7 @@ FLOOR_WORDS = ("the same FastSLAM step written plainly in numpy on dense (N, L, 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "fastslam.json",
+    ap.add_argument("--out", type=entry.output_file, default=Path(__file__).resolve().parent / "results" / "fastslam.json",
                     help="write results as JSON here (and its PNG beside it)")
     ap.add_argument("--quick", action="store_true",
                     help="20 steps, 10 and 100 particles, 50 and 150 landmarks, 2 repeats")

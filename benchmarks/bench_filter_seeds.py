@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--to", dest="last", type=int, default=49)
     ap.add_argument("--backends", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--quick", action="store_true", help="seed 0 only")
-    ap.add_argument("--out", type=Path, default=None,
+    ap.add_argument("--out", type=entry.output_file, default=None,
                     help="write the rows as JSON to this file (and its PNG beside it); default "
                          "benchmarks/results/filter_seeds.json (filter_seeds_vp.json with "
                          "--victoria-park)")

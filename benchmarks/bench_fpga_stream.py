@@ -69,7 +69,7 @@ def main(argv=None):
     ap.add_argument("--frames", type=entry.count, default=40)
     ap.add_argument("--synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="4 frames")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fpga_stream.json",
+    ap.add_argument("--out", type=entry.output_file, default=ROOT / "benchmarks" / "results" / "fpga_stream.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

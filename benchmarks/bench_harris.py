@@ -144,7 +144,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=entry.count, default=30)
     ap.add_argument("--threads", type=entry.count_or_zero, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
     ap.add_argument("--quick", action="store_true", help="3 repeats")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "harris.json",
+    ap.add_argument("--out", type=entry.output_file, default=ROOT / "benchmarks" / "results" / "harris.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

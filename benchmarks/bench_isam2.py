@@ -120,7 +120,7 @@ def main(argv=None) -> int:
                     help="alternate ours/bare this many times; the median of each is kept")
     ap.add_argument("--quick", action="store_true",
                     help="the first 300 frames of Victoria Park, 2 repeats")
-    ap.add_argument("--out", default="benchmarks/results/bench_isam2.json",
+    ap.add_argument("--out", type=entry.output_file, default="benchmarks/results/bench_isam2.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=entry.count_or_zero, default=4000, help="frames of the joint stream (0: all)")
     ap.add_argument("--repeats", type=entry.count, default=1)
     ap.add_argument("--quick", action="store_true", help="the first 300 frames (a smoke run)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "isam2_joint.json")
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "isam2_joint.json")
     args = ap.parse_args(argv)
     dataset = read_mrclam_all(args.data, MrclamConfig(all_robots=True))
     steps = 300 if args.quick else (args.frames or None)

@@ -182,7 +182,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sigma-px", type=entry.positive, default=1.0)
     ap.add_argument("--seed", type=entry.seed, default=0)
     ap.add_argument("--repeats", type=entry.count, default=3)
-    ap.add_argument("--out", default="benchmarks/results/bench_isam2_visual.json")
+    ap.add_argument("--out", type=entry.output_file, default="benchmarks/results/bench_isam2_visual.json")
     args = ap.parse_args(argv)
     if args.quick:
         entry.quick_sizes(ap, argv, args, frames=40, repeats=1)

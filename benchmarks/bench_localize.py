@@ -36,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from graphslam.cli.main import main as graphslam  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 KITTI = ROOT.parent / "shared" / "data" / "kitti07"
 BLACK = range(40, 50)  # frames 240-249 of the localised range 200:300
@@ -174,7 +175,7 @@ def plot(out: dict, plan: Plan, path: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "localize.json",
+    ap.add_argument("--out", type=entry.output_file, default=ROOT / "benchmarks" / "results" / "localize.json",
                     help="JSON to write (and its PNG beside it)")
     ap.add_argument("--skip-kitti", action="store_true")
     ap.add_argument("--quick", action="store_true", help="a 90-frame room, no KITTI (see the docstring)")

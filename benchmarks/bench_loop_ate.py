@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     ap.add_argument("--odometry", choices=("sequence", "none"), default="sequence",
                     help="the sequence's noisy odometry (default) or none: the camera alone")
     ap.add_argument("--quick", action="store_true", help="an 80-frame sequence (smoke size)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_ate.json",
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "loop_ate.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
 

@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     ap.add_argument("--kitti", default=None,
                     help="KITTI odometry folder with image_0/ (default: ../shared/data/kitti07 "
                          "if present; 'none' to skip)")
-    ap.add_argument("--out", type=Path, default=None,
+    ap.add_argument("--out", type=entry.output_file, default=None,
                     help="JSON to write (default benchmarks/results/loop_pr.json, "
                          "loop_pr_real.json with --real)")
     ap.add_argument("--real", action="store_true", help="real images instead (see the docstring)")

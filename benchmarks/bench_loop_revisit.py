@@ -238,7 +238,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes (see the docstring)")
     ap.add_argument("--tol", type=entry.count_or_zero, default=2, help="synthetic: frame tolerance of a true closure")
     ap.add_argument("--data", type=Path, default=DATA_DEFAULT, help="the shared data folder")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "loop_revisit.json")
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "loop_revisit.json")
     args = ap.parse_args(argv)
     vocab = load_shipped_vocabulary()
     orb = OrbDetector(LoopDetectorConfig().orb)

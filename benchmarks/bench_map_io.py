@@ -86,7 +86,7 @@ def main(argv=None) -> int:
     ap.add_argument("--keyframes", type=entry.count, default=10_000)
     ap.add_argument("--repeat", type=entry.count, default=3)
     ap.add_argument("--quick", action="store_true", help="100 keyframes, 100 words, 1 repeat")
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "map_io.json",
+    ap.add_argument("--out", type=entry.output_file, default=Path(__file__).resolve().parent / "results" / "map_io.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

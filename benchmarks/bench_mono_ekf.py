@@ -219,7 +219,7 @@ def plot(rows: list[dict], frames: int, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path,
+    ap.add_argument("--out", type=entry.output_file,
                     default=Path(__file__).resolve().parent / "results" / "mono_ekf.json")
     ap.add_argument("--frames", type=entry.count, default=150, help="frames per configuration")
     ap.add_argument("--seed", type=entry.seed, default=0)

@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--robots", type=int, nargs="+", choices=range(1, 6), default=[1, 2, 3, 4, 5])
     ap.add_argument("--no-joint", dest="joint", action="store_false",
                     help="leave out the run of all robots in one graph (about 4.5 min)")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/mrclam.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/mrclam.json"))
     ap.add_argument("--seeds", type=entry.seed, nargs="*", default=[0, 1, 2, 3, 4],
                     help="FastSLAM 2.0 seeds for the spread of its ATE (none: skip)")
     ap.add_argument("--pair-scans-in-order", action="store_true",

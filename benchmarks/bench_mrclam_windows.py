@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--backends", nargs="+", default=["isam2", "ekf", "fastslam2"],
                     choices=sorted(RATIO_BOUND))
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/mrclam_windows.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/mrclam_windows.json"))
     args = ap.parse_args(argv)
     max_steps = None
     if args.quick:

@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=entry.seed, nargs="+", default=list(SEEDS))
     ap.add_argument("--scales", type=entry.positive, nargs="+", default=list(SCALES))
     ap.add_argument("--quick", action="store_true", help="seed 0, scale 10 (each noise alone and all)")
-    ap.add_argument("--out", type=Path,
+    ap.add_argument("--out", type=entry.output_file,
                     default=Path(__file__).resolve().parent / "results" / "noise_grid.json",
                     help="write every cell's row as JSON to this file (and its PNG beside it)")
     args = ap.parse_args(argv)

@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=entry.count, default=5)
     ap.add_argument("--threads", type=entry.count_or_zero, default=1, help="cv2.setNumThreads for both (0: OpenCV's default)")
     ap.add_argument("--quick", action="store_true", help="3 frames, 1 repeat")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "orb.json",
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "orb.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

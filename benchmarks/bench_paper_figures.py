@@ -180,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trajectory-frames", type=entry.count, default=300, help="frames of the figure 4 runs")
     ap.add_argument("--seed", type=entry.seed, default=0, help="synthetic sequence seed")
     ap.add_argument("--quick", action="store_true", help="a few configurations, 12 frames")
-    ap.add_argument("--out", type=Path,
+    ap.add_argument("--out", type=entry.output_file,
                     default=Path(__file__).resolve().parent / "results" / "paper_figures.json")
     args = ap.parse_args(argv)
     corrections, maps, corrections7, warmup = CORRECTIONS, MAP_LIMITS, CORRECTIONS_FIG7, WARMUP

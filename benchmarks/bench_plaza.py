@@ -34,6 +34,7 @@ from graphslam import registry  # noqa: E402
 from graphslam.evaluation import planar as metrics  # noqa: E402
 from graphslam.pipelines import planar as pipeline  # noqa: E402
 from graphslam.pipelines.common import whole  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 COMMAND = "python benchmarks/bench_plaza.py --out benchmarks/figures/plaza.json"
 #: Frames of the quick run: the four beacons are placed by frame 321 of Plaza2.
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true",
                     help=f"Plaza2's first {QUICK_STEPS} frames only")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/plaza.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/plaza.json"))
     args = ap.parse_args(argv)
     names = ("plaza2",) if args.quick else ("plaza1", "plaza2")
     max_steps = QUICK_STEPS if args.quick else None

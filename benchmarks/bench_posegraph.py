@@ -316,7 +316,7 @@ def summaries(result: dict, args: argparse.Namespace) -> list[dict]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("inputs", nargs="*", help="pose-graph files or folders (default: gtsam's)")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph"),
+    ap.add_argument("--out", type=entry.output_folder, default=Path("benchmarks/results/posegraph"),
                     help="folder for bench_posegraph.json and the PNGs")
     ap.add_argument("--isam2", action="store_true", help="also time iSAM2 against bare ISAM2")
     ap.add_argument("--quick", action="store_true", help="small files only (see the docstring)")

@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=entry.count, default=3)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph_auto.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/posegraph_auto.json"))
     args = ap.parse_args(argv)
     if args.quick:
         entry.quick_sizes(ap, argv, args, repeats=1)

@@ -38,6 +38,7 @@ from graphslam.backends.posegraph import certificate as cert  # noqa: E402
 from graphslam.backends.posegraph.config import PoseGraphConfig  # noqa: E402
 from graphslam.backends.posegraph.solver import solve  # noqa: E402
 from graphslam.sources.posegraph_files import read_pose_graph_file  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 COMMAND = ("python benchmarks/bench_posegraph_certificate.py "
            "--out benchmarks/figures/posegraph_certificate.json")
@@ -118,7 +119,7 @@ def bench(name: str, path: Path, noise: str, estimates) -> list[dict]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/posegraph_certificate.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/posegraph_certificate.json"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         rows = [r for n, p, noise, est in cases(args.quick, Path(tmp)) for r in bench(n, p, noise, est)]

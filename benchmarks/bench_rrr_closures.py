@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--true-within", type=entry.positive, default=7.5)
     ap.add_argument("--max-poses", type=entry.count, default=None)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/rrr_closures.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/rrr_closures.json"))
     args = ap.parse_args(argv)
     if args.quick:
         entry.quick_sizes(ap, argv, args, graphs=["Bovisa06"], solvers=["batch"], max_poses=3000)

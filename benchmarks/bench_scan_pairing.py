@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=entry.seed, nargs="+", default=list(range(200)))
     ap.add_argument("--versions", type=int, nargs="+", default=[1, 2], choices=[1, 2])
     ap.add_argument("--quick", action="store_true", help="seed 0, FastSLAM 2.0, 200 steps")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/scan_pairing.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/scan_pairing.json"))
     args = ap.parse_args(argv)
     if args.quick:
         entry.quick_sizes(ap, argv, args, seeds=[0], versions=[2])

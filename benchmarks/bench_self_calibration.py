@@ -39,6 +39,7 @@ sys.path.insert(0, str(HERE.parent))
 from plotting import Panel, save_figure  # noqa: E402
 
 from graphslam.cli.main import main as graphslam  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data"
 
@@ -131,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "self_calibration.json")
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "self_calibration.json")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:  # the runs' folders: not results
         rows = [measure(case, Path(tmp)) for case in _cases(args.data, Path(tmp), args.quick)]

@@ -277,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--control", action="store_true",
                     help="also run the batch order with a 1 %% larger pixel sigma (chance variation)")
     ap.add_argument("--quick", action="store_true", help="seed 0, 30 frames, one run each")
-    ap.add_argument("--out", type=Path,
+    ap.add_argument("--out", type=entry.output_file,
                     default=Path(__file__).resolve().parent / "results" / "sequential_search.json")
     args = ap.parse_args(argv)
     if args.quick:

@@ -135,7 +135,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=entry.count, default=200)
     ap.add_argument("--workers", type=entry.count, default=2)
     ap.add_argument("--quick", action="store_true", help="2 runs of 20 steps")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sweep.json"),
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/bench_sweep.json"),
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -282,7 +282,7 @@ def plot(rows: list[dict], frames: int, out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path,
+    ap.add_argument("--out", type=entry.output_file,
                     default=Path(__file__).resolve().parent / "results" / "bench_visual_frame.json")
     ap.add_argument("--frames", type=entry.count, default=300,
                     help="frames per configuration (the first N of the 300-frame sequence)")

@@ -320,7 +320,7 @@ def main(argv=None) -> int:
                     help="timed passes over all the queries per database size")
     ap.add_argument("--sizes", type=entry.count, nargs="+", default=[1000, 5000, 20_000])
     ap.add_argument("--quick", action="store_true", help="small sizes (see the docstring)")
-    ap.add_argument("--out", default="benchmarks/results/bench_vocabulary.json",
+    ap.add_argument("--out", type=entry.output_file, default="benchmarks/results/bench_vocabulary.json",
                     help="JSON to write (and its PNG beside it)")
     args = ap.parse_args(argv)
     n_train, max_frames, depth = (20_000, 20, 3) if args.quick else (N_TRAIN, None, 4)

@@ -78,6 +78,7 @@ from graphslam.sources.planar.mrclam import (MIN_MODEL_RANGE_M, MrclamConfig,  #
 from filters.ekf_slam_config import EkfSlamConfig  # noqa: E402
 from graphslam.sources.planar.mrclam_motion import MotionModel, held_commands, integrate  # noqa: E402
 from slamcore.planar.geometry import between, wrap_angle  # noqa: E402
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 DATA = HERE.parent.parent / "shared" / "data" / "mrclam6"
 COMMAND = "python benchmarks/calibrate_mrclam.py --out benchmarks/figures/calibrate_mrclam.json"
@@ -423,7 +424,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/calibrate_mrclam.json"))
+    ap.add_argument("--out", type=entry.output_file, default=Path("benchmarks/results/calibrate_mrclam.json"))
     args = ap.parse_args(argv)
     robots = [1] if args.quick else [1, 2, 3, 4, 5]
     logs = {r: load(args.data, r) for r in robots}

@@ -21,6 +21,11 @@ detection pass, whose guard keeps the closures found so far) goes on after the c
 :func:`run` then says at the end that its outputs may count a cut run as whole, and
 exits with the signal's status all the same.
 
+Every ``--out`` is checked as argparse parses it (:func:`output_file`,
+:func:`output_folder`): a folder given for a file, a parent that is a file, a folder
+the user cannot write or a name too long is refused before the measurement, not
+found at its end. A full disk still is found at the end, and loses the results.
+
 The scripts import numpy, gtsam and the toolkit at their top, before this exists: a
 signal in that first second still ends with Python's own message.
 
@@ -178,6 +183,33 @@ def positive(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number above 0, got {text!r}")
     return value
+
+
+def output_file(text: str) -> Path:
+    """An output file (``--out``): refused by argparse, before the measurement, where it
+    cannot be written (a folder of that name, a parent that is a file, a folder
+    without write permission, a name too long). Found at the end, it cost the whole
+    measurement: the one line came after the work."""
+    from slamcore.files import check_output_file
+
+    return _checked(check_output_file, text)
+
+
+def output_folder(text: str) -> Path:
+    """An output folder (``--out`` of a script that writes several files), refused as
+    :func:`output_file` is."""
+    from slamcore.files import check_output_dir
+
+    return _checked(check_output_dir, text)
+
+
+def _checked(check: Callable[[str, str], Path], text: str) -> Path:
+    from slamcore.errors import ConfigError
+
+    try:
+        return check(text, "")
+    except ConfigError as e:  # argparse names the option itself
+        raise argparse.ArgumentTypeError(str(e).lstrip(": ")) from None
 
 
 def _number(text: str, kind: type):

@@ -1622,7 +1622,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="skip the slow attacks")
     ap.add_argument("--only", default=None, help="attacks whose name holds this text")
     ap.add_argument("--timeout", type=entry.positive, default=300.0, help="hang guard per attack, s")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "hostile_pass.json")
+    ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "hostile_pass.json")
     args = ap.parse_args(argv)
     chosen = [a for a in attacks() if not (args.quick and a.slow)
               and (args.only is None or args.only in a.name)]

@@ -36,6 +36,7 @@ from frontend.image import load_gray
 from frontend.orb import OrbDetector
 from loopclosure.detector import LoopDetectorConfig
 from loopclosure.vocabulary import VocabularyTree
+import entry  # noqa: E402  (beside this script: its argparse types)
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -78,7 +79,7 @@ def training_images() -> dict[str, list]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=HERE.parent / "loopclosure" / "data" / "orb_vocabulary.npz")
+    ap.add_argument("--out", type=entry.output_file, default=HERE.parent / "loopclosure" / "data" / "orb_vocabulary.npz")
     args = ap.parse_args(argv)
     orb = OrbDetector(LoopDetectorConfig().orb)
     descriptors = []

@@ -218,3 +218,50 @@ def test_a_benchmark_piped_into_head_writes_its_json(shared_data, tmp_path):
         proc.wait(timeout=120)
     assert proc.returncode == 0 and "Traceback" not in err, err
     assert out.is_file() and out.with_suffix(".png").is_file()
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_output_option_is_checked_before_the_measurement(name):
+    """``--out`` naming a folder, or a folder the user cannot write, was found when
+    the results were written: one line, but after minutes of work, all of it lost."""
+    import re
+
+    for line in re.findall(r'add_argument\("--out",[^\n]*', (BENCHMARKS / f"{name}.py").read_text()):
+        assert re.search(r"type=entry\.output_(file|folder)\b", line), (name, line)
+
+
+def test_an_output_that_cannot_be_written_is_refused_by_argparse(entry, tmp_path):
+    import argparse
+
+    (tmp_path / "a_file").write_text("")
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    assert entry.output_file(str(tmp_path / "new" / "x.json")) == tmp_path / "new" / "x.json"
+    assert entry.output_folder(str(tmp_path / "runs")) == tmp_path / "runs"
+    refusals = {
+        entry.output_file: [(str(tmp_path), "is a folder; give a file name"),
+                            (str(tmp_path / "a_file" / "x.json"), "a_file is an existing file, not a folder"),
+                            (str(tmp_path / ("n" * 300) / "x.json"), "file systems take at most 255")],
+        entry.output_folder: [(str(tmp_path / "a_file"), "is an existing file, not a folder")],
+    }
+    for check, cases in refusals.items():
+        for text, reason in cases:
+            with pytest.raises(argparse.ArgumentTypeError, match=reason) as e:
+                check(text)
+            assert not str(e.value).startswith(("--out", ":", " "))
+    try:  # root writes anywhere: the permission case only where it holds
+        (locked / "probe").write_text("")
+    except PermissionError:
+        with pytest.raises(argparse.ArgumentTypeError, match="cannot write in"):
+            entry.output_file(str(locked / "x.json"))
+    finally:
+        locked.chmod(0o700)
+
+
+def test_a_folder_as_out_stops_a_script_before_its_work(tmp_path):
+    """One line from argparse and status 2, in the time it takes to import the script."""
+    cmd = [sys.executable, str(BENCHMARKS / "bench_fastslam.py"), "--quick", "--out", str(tmp_path)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1].endswith(f"argument --out: {tmp_path} is a folder; give a file name")
+    assert done.stdout == ""
