@@ -11,6 +11,7 @@ child can be made, the call runs here, without a budget.
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import signal
 import time
@@ -23,6 +24,8 @@ T = TypeVar("T")
 
 #: How often the parent looks at the child's pipe.
 POLL_S = 0.05
+#: The child ends itself this long after the budget, should its parent be gone.
+ALARM_SLACK_S = 5
 
 
 class BudgetExceeded(RuntimeError):
@@ -43,7 +46,7 @@ def call(fn: Callable[..., T], budget_s: float, *args, should_stop: Callable[[],
         return deep_stack.call(fn, *args)
     ctx = multiprocessing.get_context("fork")
     reader, writer = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_child, args=(writer, fn, args), daemon=True)
+    child = ctx.Process(target=_child, args=(writer, fn, args, budget_s), daemon=True)
     try:
         child.start()
     except OSError:  # no process left to make (a hard limit, no memory)
@@ -64,7 +67,7 @@ def _wait(reader, child, budget_s: float, should_stop: Callable[[], bool]):
     t0 = time.monotonic()
     while not reader.poll(POLL_S):
         if not child.is_alive() and not reader.poll(0):
-            raise RuntimeError(f"its process ended with status {child.exitcode} and no answer")
+            raise _no_answer(child)
         if time.monotonic() - t0 > budget_s:
             raise BudgetExceeded(f"it ran past its {budget_s:.0f} s budget and was stopped")
         if should_stop():
@@ -72,16 +75,25 @@ def _wait(reader, child, budget_s: float, should_stop: Callable[[], bool]):
     try:
         ok, value = reader.recv()
     except EOFError:
-        raise RuntimeError(f"its process ended with status {child.exitcode} and no answer") from None
+        raise _no_answer(child) from None
     if ok:
         return value
     raise value
 
 
-def _child(writer, fn, args) -> None:
+def _no_answer(child) -> RuntimeError:
+    child.join(1.0)  # its pipe may close before its status is known
+    return RuntimeError(f"its process ended with status {child.exitcode} and no answer")
+
+
+def _child(writer, fn, args, budget_s: float) -> None:
     # the parent owns signals: it kills this process when it gives up
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    # and should the parent be killed outright (SIGKILL), the kernel ends this one
+    # after the budget: SIGALRM's default action needs no Python, nor the GIL
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(max(1, math.ceil(budget_s) + ALARM_SLACK_S))
     try:
         answer = (True, deep_stack.call(fn, *args))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent as is

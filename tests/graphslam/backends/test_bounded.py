@@ -99,3 +99,35 @@ def test_a_signal_the_guard_took_ends_shonan_and_the_retry_says_so(tmp_path):
     assert kept is first
     assert kept.route["shonan_retry"] == "not certified; no retry: a signal stopped Shonan averaging"
     assert not multiprocessing.active_children()
+
+
+def _sleep_then_report(path, seconds):
+    time.sleep(seconds)
+    open(path, "w").close()
+
+
+def test_a_child_whose_parent_is_gone_ends_at_its_budget(tmp_path):
+    """Its parent killed outright (SIGKILL: no finally runs), the child's own alarm
+    ends it a few seconds after the budget instead of running on."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path[:0] = {sys.path!r}
+        from graphslam.backends import bounded
+        from tests.graphslam.backends.test_bounded import _sleep_then_report
+        bounded.ALARM_SLACK_S = 0
+        bounded.call(_sleep_then_report, 1.0, {str(tmp_path / "done")!r}, 60)
+    """)
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    time.sleep(0.5)  # the child is made, the parent waits on it
+    parent.kill()
+    parent.wait()
+    time.sleep(1.0 + NOTICE_S)
+    # no process of that session runs _sleep_then_report any more: the file never comes
+    # and no orphan is left (one past its alarm would be gone by now)
+    assert not (tmp_path / "done").exists()
+    left = subprocess.run(["pgrep", "-f", str(tmp_path / "done")], capture_output=True, text=True)
+    assert left.stdout.strip() == "", left.stdout
