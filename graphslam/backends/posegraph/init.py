@@ -218,8 +218,8 @@ def _run_shonan(shonan, initial: gtsam.Values, graph: PoseGraph) -> tuple[np.nda
 
 #: Seed of Shonan's random start. gtsam's own ``initializeRandomly`` draws from
 #: one generator shared by the whole process, so the same graph got a different
-#: start (and estimate, and run time) after any other Shonan call; in one
-#: pytest worker a start drawn that way ran past ten minutes.
+#: start (and estimate, and run time) after any other Shonan call; in one CI
+#: run a Shonan call, likely from a start drawn that way, ran past ten minutes.
 SHONAN_START_SEED = 0
 #: Shonan's budget is this plus :data:`SHONAN_BUDGET_PER_EDGE_S` per edge. Timed
 #: on this project's two-core machine: a 300-pose Manhattan walk 1-4 s (about
