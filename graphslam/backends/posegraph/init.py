@@ -65,22 +65,30 @@ def resolve(method: str, dim: int) -> str:
     return method
 
 
-def initial(graph: PoseGraph, method: str, sigma: float) -> Start:
+def initial(
+    graph: PoseGraph, method: str, sigma: float, should_stop: Callable[[], bool] | None = None
+) -> Start:
     """The start named by ``method`` (``auto`` resolved by dimension); the
-    ``odometry`` start with a :attr:`Start.note` where a relaxation fails."""
+    ``odometry`` start with a :attr:`Start.note` where a relaxation fails, or where
+    ``should_stop`` (a signal) ended Shonan's averaging."""
     method = resolve(method, graph.dim)
     if method == "vertices":
         return Start(method, fx.values_of(graph, graph.vertices))
     if method == "odometry":
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
-    start, failure = relaxed(graph, method, sigma)
+    start, failure = relaxed(graph, method, sigma, should_stop)
     if start is not None:
         return start
+    what = (
+        f"a signal stopped {NAMES[method]}"
+        if failure.startswith(f"{bounded.Stopped.__name__}:")
+        else f"{NAMES[method]} failed ({failure})"
+    )
     return Start(
         "odometry",
         fx.values_of(graph, chain_initialisation(graph)),
-        note=f"--init {method}: {NAMES[method]} failed ({failure}); LM started from "
-        "the odometry start (edges composed along a spanning tree) instead",
+        note=f"--init {method}: {what}; LM started from the odometry start (edges composed "
+        "along a spanning tree) instead",
     )
 
 

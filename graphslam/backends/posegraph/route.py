@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 
+from graphslam.backends import bounded
 from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph import init
 from graphslam.backends.posegraph import robust as rb
@@ -170,7 +171,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
             "shonan_retry": "not certified; no retry: "
             + (
                 "a signal stopped Shonan averaging"
-                if failure.startswith("Stopped:")
+                if failure.startswith(f"{bounded.Stopped.__name__}:")
                 else f"Shonan averaging failed ({failure})"
             ),
         }

@@ -105,9 +105,9 @@ class SolveResult:
     stopped: str | None = None
 
 
-#: ``should_stop(point, step)``: asked before each iSAM2 update (``"step"``, the update)
-#: and after each batch LM or GNC iteration (``"lm"``, ``"gnc"``, the iteration); True
-#: ends the solve there.
+#: ``should_stop(point, step)``: asked before each iSAM2 update (``"step"``, the update),
+#: after each batch LM or GNC iteration (``"lm"``, ``"gnc"``, the iteration) and while
+#: Shonan averaging computes a start (``"init"``, 0); True ends the solve there.
 StopCheck = Callable[[str, int], bool]
 
 #: How long a batch iteration's stop check lets the main thread run, s: gtsam keeps
@@ -178,7 +178,12 @@ def solve(
             out.robust_mode = config.robust_closures if robust else None
             return out
         starts.append(initialisers.Start("isam2", values))
-    first = initialisers.initial(graph, config.init, config.prior_sigma)
+    first = initialisers.initial(
+        graph,
+        config.init,
+        config.prior_sigma,
+        None if should_stop is None else lambda: should_stop("init", 0),
+    )
     if first.note:
         recoveries.append(first.note)
     starts.append(first)

@@ -131,3 +131,24 @@ def test_a_child_whose_parent_is_gone_ends_at_its_budget(tmp_path):
     assert not (tmp_path / "done").exists()
     left = subprocess.run(["pgrep", "-f", str(tmp_path / "done")], capture_output=True, text=True)
     assert left.stdout.strip() == "", left.stdout
+
+
+def test_a_signal_during_init_shonan_ends_the_wait_and_the_solve_says_so(tmp_path):
+    """``--init shonan`` under the stop guard: the stop reaches Shonan's wait (point
+    ``"init"``), the start is the odometry's with a note, and LM stops at once."""
+    from graphslam.backends.posegraph.config import PoseGraphConfig
+    from graphslam.backends.posegraph.solver import solve
+
+    graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA), seed=2))
+    asked = []
+
+    def should_stop(point, step):
+        asked.append(point)
+        return point == "init" or len(asked) > 1
+
+    t0 = time.monotonic()
+    result = solve(graph, PoseGraphConfig(init="shonan"), "batch", should_stop)
+    assert time.monotonic() - t0 < 1.0 + NOTICE_S  # Shonan alone takes 1-2 s here
+    assert asked[0] == "init" and result.stopped and result.init_method == "odometry"
+    assert "--init shonan: a signal stopped Shonan averaging; LM started from the odometry start" in result.recoveries[0]
+    assert not multiprocessing.active_children()
