@@ -21,7 +21,8 @@ class PoseGraphConfig(Validated):
             spanning tree that prefers the odometry chain), ``vertices`` (the
             file's), ``lago`` (2-D, ``gtsam.lago``), ``chordal`` (3-D,
             ``gtsam.InitializePose3``), ``shonan`` (``gtsam.ShonanAveraging2/3``
-            rotations, certified when its minimum eigenvalue is >= 0), or
+            rotations, certified when its minimum eigenvalue is >= 0; in 3-D on
+            SE-Sync's isotropic weights of each edge, which gtsam needs), or
             ``auto`` = lago in 2-D, chordal in 3-D. iSAM2's polish starts from
             whichever of the iSAM2 estimate and this start has the lower cost.
         factorization: ``auto`` (Cholesky; QR where it meets an indeterminate

@@ -37,7 +37,7 @@ from graphslam.backends import bounded, deep_stack
 from graphslam.backends import factorization as fact
 from graphslam.backends.posegraph import factors as fx
 from slamcore.errors import GraphSlamError
-from slamcore.posegraph import PoseGraph, chain_initialisation
+from slamcore.posegraph import PoseGraph, chain_initialisation, fixed_information
 
 
 @dataclass
@@ -76,7 +76,9 @@ def initial(
         return Start(method, fx.values_of(graph, graph.vertices))
     if method == "odometry":
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))
-    start, failure = relaxed(graph, method, sigma, should_stop)
+    # asked for by name, Shonan takes SE-Sync's isotropic weights where gtsam refuses
+    # the file's; auto's retry does not (see route.retry_from_certified_rotations)
+    start, failure = relaxed(graph, method, sigma, should_stop, isotropic_weights=True)
     if start is not None:
         return start
     what = (
@@ -93,13 +95,21 @@ def initial(
 
 
 def relaxed(
-    graph: PoseGraph, method: str, sigma: float, should_stop: Callable[[], bool] | None = None
+    graph: PoseGraph,
+    method: str,
+    sigma: float,
+    should_stop: Callable[[], bool] | None = None,
+    isotropic_weights: bool = False,
 ) -> tuple[Start | None, str]:
     """The relaxation ``method`` (``lago``, ``chordal`` or ``shonan``) of ``graph``, or
     None and why it failed (no fallback: :func:`initial` chooses one). ``should_stop``
-    ends Shonan's wait (a signal), which then counts as failed."""
+    ends Shonan's wait (a signal), which then counts as failed; ``isotropic_weights``:
+    see :func:`_shonan`."""
     try:
-        start = _shonan(graph, should_stop) if method == "shonan" else _relaxation(graph, method, sigma)
+        if method == "shonan":
+            start = _shonan(graph, should_stop, isotropic_weights)
+        else:
+            start = _relaxation(graph, method, sigma)
     # gtsam's C++ exceptions: std::out_of_range (IndexError), std::invalid_argument
     # (ValueError: Shonan takes isotropic noise only), IndeterminateLinearSystem and the
     # rest (RuntimeError); anything else is a bug of ours and propagates
@@ -182,14 +192,24 @@ def _by_id(graph: PoseGraph, values: gtsam.Values) -> gtsam.Values:
     return out
 
 
-def _shonan(graph: PoseGraph, should_stop: Callable[[], bool] | None = None) -> Start:
+def _shonan(
+    graph: PoseGraph, should_stop: Callable[[], bool] | None = None, isotropic_weights: bool = False
+) -> Start:
     """Shonan rotations (certified or not), translations by a linear solve.
 
-    Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id.
+    Shonan indexes poses 0..N-1, so its factors are keyed by rank, not id. gtsam's
+    Shonan takes a rotation noise that is isotropic, and refuses the file's where it
+    is not (3-D graphs with anisotropic rotation information, sphere2500 among
+    them). ``isotropic_weights`` gives it SE-Sync's isotropic weights of each edge
+    there instead (the weights the certificate's problem has); the translations
+    still take the file's information.
     """
     rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    info = graph.information
+    if isotropic_weights and graph.dim == 3:  # the same weights where the file's are isotropic
+        info = fixed_information(info, "isotropic", graph.dim)
     ranked = [
-        (int(a), int(b), fx.pose(graph.measurements[e], graph.rotation), fx.noise_model(graph.information[e]))
+        (int(a), int(b), fx.pose(graph.measurements[e], graph.rotation), fx.noise_model(info[e]))
         for e, (a, b) in enumerate(rows)
     ]
     lm = gtsam.LevenbergMarquardtParams.CeresDefaults()

@@ -311,7 +311,7 @@ def test_no_retry_where_shonan_fails_and_the_summary_says_so(tmp_path, monkeypat
     graph = read_pose_graph_file(manhattan_walk(tmp_path, sigma=np.asarray(MANHATTAN_SIGMA) * 1.5, seed=2))
     first = solve(graph, PoseGraphConfig(), "auto")
 
-    def failing(graph, should_stop=None):
+    def failing(graph, should_stop=None, isotropic_weights=False):
         raise RuntimeError("SparseMinimumEigenValue failed to compute minimum eigenvalue.")
 
     monkeypatch.setattr(init, "_shonan", failing)
