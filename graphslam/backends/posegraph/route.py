@@ -169,15 +169,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
     # sphere2500 beside a 2 s solve, too much for a second opinion
     start, failure = init.relaxed(graph, "shonan", config.prior_sigma, should_stop)
     if start is None:  # its fallback (the odometry start) would be no second opinion
-        kept.route = {
-            **(kept.route or {}),
-            "shonan_retry": "not certified; no retry: "
-            + (
-                "a signal stopped Shonan averaging"
-                if failure.startswith(f"{bounded.Stopped.__name__}:")
-                else f"Shonan averaging failed ({failure})"
-            ),
-        }
+        kept.route = {**(kept.route or {}), "shonan_retry": f"not certified; no retry: {_no_retry(failure)}"}
         kept.wall_s += time.perf_counter() - t0
         return kept
     # batch from Shonan's poses, computed once: the graph's vertices replaced by them
@@ -201,6 +193,18 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
     route["shonan_retry"] = "not certified: batch from Shonan's rotations reached a lower cost"
     shonan.solver, shonan.route, shonan.wall_s = "auto", route, wall_s
     return shonan
+
+
+def _no_retry(failure: str) -> str:
+    """Why Shonan gave no retry, from :func:`.init.relaxed`'s reason."""
+    if failure.startswith(f"{bounded.Stopped.__name__}:"):
+        return "a signal stopped Shonan averaging"
+    if "must be isotropic" in failure:  # gtsam's std::invalid_argument, as worded in 4.3
+        return (
+            "the file's rotation information is not isotropic, which gtsam's Shonan "
+            "averaging needs (--init shonan runs it on SE-Sync's isotropic weights)"
+        )
+    return f"Shonan averaging failed ({failure})"
 
 
 def _summary(result, cost: float) -> dict:

@@ -236,3 +236,9 @@ def test_init_shonan_takes_se_syncs_weights_where_gtsam_refuses_the_files(tmp_pa
     from_chordal = solve(graph, PoseGraphConfig(init="chordal", **PLAIN), "batch")
     assert from_shonan.init_method == "shonan"
     assert math.isclose(from_shonan.final_cost, from_chordal.final_cost, rel_tol=OPTIMUM_REL)
+    from graphslam.backends.posegraph import route
+
+    kept = route.retry_from_certified_rotations(graph, PoseGraphConfig(**PLAIN), solve, from_chordal)
+    assert kept is from_chordal and kept.route["shonan_retry"] == (
+        "not certified; no retry: the file's rotation information is not isotropic, which "
+        "gtsam's Shonan averaging needs (--init shonan runs it on SE-Sync's isotropic weights)")
