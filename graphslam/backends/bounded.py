@@ -4,9 +4,9 @@ gtsam's wrappers hold the GIL for the whole of a call, so a call that runs on
 cannot be stopped from Python: no timer fires, and Ctrl-C or SIGTERM wait for
 it. In one CI run, Shonan averaging on a 300-pose graph that it solves in 2 s
 was still running after ten minutes, until CI's own limit ended the run
-(likely an unlucky random start: see :data:`.posegraph.init.SHONAN_START_SEED`). In a forked child the parent
-waits in Python, so it can give up at a budget (and kill the child) and a
-signal reaches it at once. Where ``fork`` does not exist (Windows), or no
+(likely an unlucky random start: see :data:`.posegraph.init.SHONAN_START_SEED`).
+In a forked child the parent waits in Python, so it can give up at a budget
+(and kill the child) and a signal reaches it at once. Where ``fork`` does not exist (Windows), or no
 child can be made, the call runs here, without a budget.
 """
 
@@ -58,10 +58,10 @@ def call(fn: Callable[..., T], budget_s: float, *args, should_stop: Callable[[],
     try:
         return _wait(reader, child, budget_s, should_stop or (lambda: False))
     finally:  # the budget, a signal in the parent, or a result: no child outlives it
-        reader.close()
         if child.is_alive():
             child.kill()
         child.join()
+        reader.close()
 
 
 def _wait(reader, child, budget_s: float, should_stop: Callable[[], bool]):
@@ -101,6 +101,11 @@ def _child(writer, fn, args, budget_s: float) -> None:
         answer = (False, exc)
     try:
         writer.send(answer)
-    except Exception as exc:  # noqa: BLE001 - an exception that will not pickle
-        writer.send((False, RuntimeError(f"{type(answer[1]).__name__}: {exc}")))
+    except OSError:  # the parent gave up and closed its end: nobody to tell
+        pass
+    except Exception as exc:  # noqa: BLE001 - an answer that will not pickle
+        try:
+            writer.send((False, RuntimeError(f"{type(answer[1]).__name__}: {exc}")))
+        except OSError:
+            pass
     writer.close()

@@ -37,6 +37,16 @@ def test_the_answer_and_the_exception_come_back_from_the_child():
     assert not multiprocessing.active_children()
 
 
+def _unpicklable():
+    return lambda: None
+
+
+def test_an_answer_that_will_not_pickle_is_an_error_not_a_wait():
+    with pytest.raises(RuntimeError, match="^function: "):
+        bounded.call(_unpicklable, 10.0)
+    assert not multiprocessing.active_children()
+
+
 def test_the_budget_stops_a_call_that_runs_on():
     t0 = time.monotonic()
     with pytest.raises(bounded.BudgetExceeded, match="past its 0 s budget"):
