@@ -165,7 +165,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
     ends Shonan's averaging, with no retry."""
     t0 = time.perf_counter()
     # the file's weights only: where gtsam refuses them (anisotropic 3-D rotation
-    # information) there is no retry, for SE-Sync's weights cost Shonan 47 s on
+    # information) there is no retry, for SE-Sync's weights cost Shonan 45-47 s on
     # sphere2500 beside a 2 s solve, too much for a second opinion
     start, failure = init.relaxed(graph, "shonan", config.prior_sigma, should_stop)
     if start is None:  # its fallback (the odometry start) would be no second opinion
