@@ -6,8 +6,10 @@ it. In one CI run, Shonan averaging on a 300-pose graph that it solves in 2 s
 was still running after ten minutes, until CI's own limit ended the run
 (likely an unlucky random start: see :data:`.posegraph.init.SHONAN_START_SEED`).
 In a forked child the parent waits in Python, so it can give up at a budget
-(and kill the child) and a signal reaches it at once. Where ``fork`` does not exist (Windows), or no
-child can be made, the call runs here, without a budget.
+(and kill the child) and a signal reaches it at once. Where ``fork`` does not
+exist (Windows), in a daemonic process (a ``multiprocessing.Pool`` worker, which
+may have no children), or where no child can be made, the call runs here,
+without a budget.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def call(fn: Callable[..., T], budget_s: float, *args, should_stop: Callable[[],
     exception handed back by pickling; :class:`BudgetExceeded` after ``budget_s``
     seconds, :class:`Stopped` once ``should_stop()`` is true. ``fn``'s result must
     pickle (numpy arrays, floats)."""
-    if "fork" not in multiprocessing.get_all_start_methods():
+    if "fork" not in multiprocessing.get_all_start_methods() or multiprocessing.current_process().daemon:
         return deep_stack.call(fn, *args)
     ctx = multiprocessing.get_context("fork")
     reader, writer = ctx.Pipe(duplex=False)

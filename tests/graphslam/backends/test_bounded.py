@@ -162,3 +162,14 @@ def test_a_signal_during_init_shonan_ends_the_wait_and_the_solve_says_so(tmp_pat
     assert asked[0] == "init" and result.stopped and result.init_method == "odometry"
     assert "--init shonan: a signal stopped Shonan averaging; LM started from the odometry start" in result.recoveries[0]
     assert not multiprocessing.active_children()
+
+
+def _norm_in_a_pool_worker(_):
+    return bounded.call(np.linalg.norm, 10.0, np.array([3.0, 4.0]))
+
+
+def test_a_daemonic_process_runs_the_call_itself():
+    """A ``multiprocessing.Pool`` worker is daemonic and may have no children: the
+    call ran into multiprocessing's AssertionError there; now it runs in process."""
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.map(_norm_in_a_pool_worker, [0]) == [5.0]
