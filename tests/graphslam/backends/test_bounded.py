@@ -116,31 +116,43 @@ def _sleep_then_report(path, seconds):
     open(path, "w").close()
 
 
-def test_a_child_whose_parent_is_gone_ends_at_its_budget(tmp_path):
-    """Its parent killed outright (SIGKILL: no finally runs), the child's own alarm
-    ends it a few seconds after the budget instead of running on."""
+def _orphan_left(tmp_path, budget_s: float, slack_s: int, no_prctl: bool) -> str:
+    """Kill (SIGKILL) a parent waiting on a child that sleeps 60 s; after
+    ``budget_s + slack_s + NOTICE_S`` the processes still running it, by pgrep."""
     import subprocess
     import sys
     import textwrap
 
+    marker = tmp_path / "done"
     script = textwrap.dedent(f"""
-        import os, signal, sys
+        import sys
         sys.path[:0] = {sys.path!r}
         from graphslam.backends import bounded
         from tests.graphslam.backends.test_bounded import _sleep_then_report
-        bounded.ALARM_SLACK_S = 0
-        bounded.call(_sleep_then_report, 1.0, {str(tmp_path / "done")!r}, 60)
+        bounded.ALARM_SLACK_S = {slack_s}
+        if {no_prctl}:
+            bounded._die_with = lambda parent_pid: None
+        bounded.call(_sleep_then_report, {budget_s}, {str(marker)!r}, 60)
     """)
     parent = subprocess.Popen([sys.executable, "-c", script])
-    time.sleep(0.5)  # the child is made, the parent waits on it
+    time.sleep(1.0)  # the child is made, the parent waits on it
     parent.kill()
     parent.wait()
-    time.sleep(1.0 + NOTICE_S)
-    # no process of that session runs _sleep_then_report any more: the file never comes
-    # and no orphan is left (one past its alarm would be gone by now)
-    assert not (tmp_path / "done").exists()
-    left = subprocess.run(["pgrep", "-f", str(tmp_path / "done")], capture_output=True, text=True)
-    assert left.stdout.strip() == "", left.stdout
+    time.sleep(budget_s + slack_s + NOTICE_S if no_prctl else NOTICE_S)
+    assert not marker.exists()
+    return subprocess.run(["pgrep", "-f", str(marker)], capture_output=True, text=True).stdout.strip()
+
+
+def test_a_child_whose_parent_is_killed_dies_with_it(tmp_path):
+    """Its parent killed outright (SIGKILL: no finally runs), the child is killed by
+    the kernel at once (Linux's parent-death signal), not at its 60 s budget."""
+    assert _orphan_left(tmp_path, budget_s=60.0, slack_s=5, no_prctl=False) == ""
+
+
+def test_without_the_parent_death_signal_the_alarm_ends_the_orphan(tmp_path):
+    """Where prctl is missing, the child's own alarm ends it just past its budget."""
+    assert _orphan_left(tmp_path, budget_s=1.0, slack_s=0, no_prctl=True) == ""
+
 
 
 def test_a_signal_during_init_shonan_ends_the_wait_and_the_solve_says_so(tmp_path):
