@@ -207,9 +207,12 @@ def _checked(check: Callable[[str, str], Path], text: str) -> Path:
     from slamcore.errors import ConfigError
 
     try:
-        return check(text, "")
-    except ConfigError as e:  # argparse names the option itself
-        raise argparse.ArgumentTypeError(str(e).lstrip(": ")) from None
+        return check(text, "--out")
+    except ConfigError as e:  # argparse names the option itself: said once, not twice
+        line = str(e)
+        for prefix in ("--out: ", "--out "):
+            line = line.removeprefix(prefix)
+        raise argparse.ArgumentTypeError(line) from None
 
 
 def _number(text: str, kind: type):

@@ -81,17 +81,19 @@ def initial(
     start, failure = relaxed(graph, method, sigma, should_stop, isotropic_weights=True)
     if start is not None:
         return start
-    what = (
-        f"a signal stopped {NAMES[method]}"
-        if failure.startswith(f"{bounded.Stopped.__name__}:")
-        else f"{NAMES[method]} failed ({failure})"
-    )
     return Start(
         "odometry",
         fx.values_of(graph, chain_initialisation(graph)),
-        note=f"--init {method}: {what}; LM started from the odometry start (edges composed "
-        "along a spanning tree) instead",
+        note=f"--init {method}: {why_no_start(method, failure)}; LM started from the odometry "
+        "start (edges composed along a spanning tree) instead",
     )
+
+
+def why_no_start(method: str, failure: str) -> str:
+    """The clause that says why :func:`relaxed` gave no start, from its ``failure``."""
+    if failure.startswith(f"{bounded.Stopped.__name__}:"):  # as :func:`_why` words it
+        return f"a signal stopped {NAMES[method]}"
+    return f"{NAMES[method]} failed ({failure})"
 
 
 def relaxed(

@@ -33,7 +33,6 @@ import time
 
 import numpy as np
 
-from graphslam.backends import bounded
 from graphslam.backends.posegraph import factors as fx
 from graphslam.backends.posegraph import init
 from graphslam.backends.posegraph import robust as rb
@@ -197,14 +196,12 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
 
 def _no_retry(failure: str) -> str:
     """Why Shonan gave no retry, from :func:`.init.relaxed`'s reason."""
-    if failure.startswith(f"{bounded.Stopped.__name__}:"):
-        return "a signal stopped Shonan averaging"
     if "must be isotropic" in failure:  # gtsam's std::invalid_argument, as worded in 4.3
         return (
             "the file's rotation information is not isotropic, which gtsam's Shonan "
             "averaging needs (--init shonan runs it on SE-Sync's isotropic weights)"
         )
-    return f"Shonan averaging failed ({failure})"
+    return init.why_no_start("shonan", failure)
 
 
 def _summary(result, cost: float) -> dict:

@@ -135,7 +135,13 @@ def _orphan_left(tmp_path, budget_s: float, slack_s: int, no_prctl: bool) -> str
         bounded.call(_sleep_then_report, {budget_s}, {str(marker)!r}, 60)
     """)
     parent = subprocess.Popen([sys.executable, "-c", script])
-    time.sleep(1.0)  # the child is made, the parent waits on it
+    running = ""
+    for _ in range(100):  # the parent, then its child, once made
+        time.sleep(0.1)
+        running = subprocess.run(["pgrep", "-f", str(marker)], capture_output=True, text=True).stdout.split()
+        if len(running) == 2:
+            break
+    assert len(running) == 2, running  # else the test would pass with no child at all
     parent.kill()
     parent.wait()
     time.sleep(budget_s + slack_s + NOTICE_S if no_prctl else NOTICE_S)

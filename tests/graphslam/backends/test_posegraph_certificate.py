@@ -327,8 +327,8 @@ def test_no_retry_where_shonan_fails_and_the_summary_says_so(tmp_path, monkeypat
 @pytest.mark.parametrize("dim", [2, 3])
 def test_shonan_starts_the_same_graph_from_the_same_rotations(tmp_path, dim):
     """gtsam's ``initializeRandomly`` draws from one generator for the whole process:
-    a second call on the same graph started elsewhere (and, in one CI worker, ran past
-    ten minutes). The start is now seeded, so other Shonan calls between two runs of
+    a second call on the same graph started elsewhere (and, likely from such a start,
+    one CI run's call ran past ten minutes). The start is now seeded, so other Shonan calls between two runs of
     one graph change nothing, to the bit."""
     from graphslam.backends.posegraph import init
 
