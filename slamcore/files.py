@@ -195,6 +195,8 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
 
     Creates nothing; raises ConfigError.
     """
+    if isinstance(path, str) and path.endswith(("/", os.sep)):  # Path() drops the slash
+        raise ConfigError(f"{flag} {path} names a folder (it ends in a slash); give a file name")
     path = Path(path)
     check_name_lengths(path, flag)
     if path.is_dir():

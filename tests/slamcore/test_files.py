@@ -35,6 +35,14 @@ def test_an_output_folder_through_a_link_to_nothing_is_refused(tmp_path):
     assert check_output_dir(tmp_path / "link" / "sub") == tmp_path / "link" / "sub"
 
 
+def test_an_output_file_named_with_a_trailing_slash_is_refused(tmp_path):
+    """``--out results/`` (a folder not made yet): Path() drops the slash, and the run
+    wrote a file named ``results``."""
+    with pytest.raises(ConfigError, match="names a folder .it ends in a slash.; give a file name"):
+        check_output_file(f"{tmp_path}/results/")
+    assert check_output_file(f"{tmp_path}/results.json") == tmp_path / "results.json"
+
+
 def test_an_output_that_is_an_input_is_refused(tmp_path):
     """Seventh hostile pass: a run wrote over (or removed as stale) its own input."""
     data = tmp_path / "o" / "trajectory.bag"
