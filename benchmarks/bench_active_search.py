@@ -323,7 +323,7 @@ def main(argv=None) -> int:
         res["config"] = dict(cfg.__dict__)
         print(json.dumps(res, indent=2))
         if args.out:
-            args.out.write_text(json.dumps(res, indent=2))
+            entry.write_json(args.out, res, indent=2)
         return 0
     if args.quick:
         entry.quick_sizes(ap, argv, args, pairs=2, repeat=1)
@@ -339,7 +339,7 @@ def main(argv=None) -> int:
     print(f"total {time.perf_counter() - t0:.1f} s")
     out = args.out or ROOT / "benchmarks" / "results" / "active_search.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"pairs": args.pairs, "repeat": args.repeat, "rows": rows}, indent=2))
+    entry.write_json(out, {"pairs": args.pairs, "repeat": args.repeat, "rows": rows}, indent=2)
     plot(rows, args.pairs, args.repeat, out)
     return 0
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -118,8 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     means = {c: float(np.mean([r[c] for r in rows])) for c in columns}
     print(f"{'mean':>4}  " + "  ".join(f"{100 * means[c]:10.1f}%" for c in columns))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as fh:
-        json.dump({"rows": rows, "mean": means}, fh, indent=1)
+    entry.write_json(args.out, {"rows": rows, "mean": means}, indent=1)
     plot(rows, means, args.out)
     return 0
 

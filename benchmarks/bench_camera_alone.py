@@ -36,7 +36,6 @@ frames per second with the floors.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -180,11 +179,10 @@ def main(argv: list[str] | None = None) -> int:
             floor="the same tracker on the same frames, no back end (tracking alone, images read)"))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out, "w") as f:
-        json.dump({"benchmark": "camera_alone", "cores": os.cpu_count(), "load_average_start": load_start,
-                   "load_average_end": os.getloadavg(), "frames": frames, "seeds": seeds,
-                   "configs": {k: str(v.relative_to(HERE.parent)) for k, v in CONFIGS.items()},
-                   "summaries": summaries, "floors": floors, "runs": runs}, f, indent=1)
+    entry.write_json(out, {"benchmark": "camera_alone", "cores": os.cpu_count(), "load_average_start": load_start,
+                           "load_average_end": os.getloadavg(), "frames": frames, "seeds": seeds,
+                           "configs": {k: str(v.relative_to(HERE.parent)) for k, v in CONFIGS.items()},
+                           "summaries": summaries, "floors": floors, "runs": runs}, indent=1)
     print(f"wrote {out}")
     figure(out, runs, floors, backends, seeds, frames)
     return 0

@@ -181,9 +181,8 @@ def main(argv=None) -> int:
               f"save={row['save_cpu_s']:7.2f}s  run/bare={row['command_cpu_ratio']:.3f}  "
               f"save/off={row['rerun_cpu_ratio']:.3f}", flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"benchmark": "command_overhead", "rows": rows,
-                   "summaries": summaries(rows, command.strip())}, f, indent=2)
+    entry.write_json(args.out, {"benchmark": "command_overhead", "rows": rows,
+                                "summaries": summaries(rows, command.strip())}, indent=2)
     print(f"wrote {args.out}")
     plot(rows, args.out)
     return 0

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     threshold = VerifyConfig().decisive_share
     out = {"decisive_share": threshold, "far_m": FAR_M, "near_m": NEAR_M, "quick": args.quick, "rows": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1))
+    entry.write_json(args.out, out, indent=1)
     xs = [r["n_features"] for r in rows]
     save_figure(
         args.out,

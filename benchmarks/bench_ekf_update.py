@@ -31,7 +31,6 @@ Usage: ``python benchmarks/bench_ekf_update.py [--out FILE.json] [--repeats R]
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 from pathlib import Path
@@ -165,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
                                    "update_s / downdate_s (informational, issue 20's figures)",
                "summary": summary, "results": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    entry.write_json(args.out, payload, indent=2, trailing_newline=True)
     print(f"worst ratio {worst['ratio']:.2f} at {worst['landmarks']} landmarks "
           f"(target {timing.TARGETS['ekf']:g}); wrote {args.out}")
     plot(rows, args.out)

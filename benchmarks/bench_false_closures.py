@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import platform
 import sys
 import time
@@ -218,7 +217,7 @@ def main(argv=None) -> int:
     payload = {"argv": sys.argv[1:], "seed": args.seed, "robust_config": str(args.config),
                "robust": robust_cfg.__dict__, "machine": platform.platform(),
                "date": time.strftime("%Y-%m-%d %H:%M:%S"), "rows": rows}
-    args.out.write_text(json.dumps(payload, indent=2, default=str))
+    entry.write_json(args.out, payload, indent=2, default=str)
     print(f"wrote {args.out}")
     plot(rows, args.out)
     return 0

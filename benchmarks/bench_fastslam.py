@@ -44,7 +44,6 @@ per version and particle count) and its PNG beside it.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -502,8 +501,7 @@ def main(argv=None) -> int:
             print(line)
             results["victoria_park"].append(row)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(results, f, indent=2)
+    entry.write_json(args.out, results, indent=2)
     print(f"wrote {args.out}")
     plot(results, args.out)
     return 0

@@ -33,7 +33,6 @@ JSON (default ``benchmarks/results/filter_seeds.json``, with ``--victoria-park``
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -168,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         out = victoria_park(seeds, args.max_steps)
         path = args.out or results / "filter_seeds_vp.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(out, indent=1))
+        entry.write_json(path, out, indent=1)
         return 0
     args.out = args.out or results / "filter_seeds.json"
     import bench_association_ceiling as ceiling_mod  # beside this script
@@ -189,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{v}: within {CEILING_POINTS} points of the ceiling on {within}/{n} seeds, "
               f"loop unbroken on {unbroken}/{n}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=1))
+    entry.write_json(args.out, rows, indent=1)
     plot(rows, args.backends, args.out)
     return 0
 

@@ -15,7 +15,6 @@ JSON (default ``benchmarks/results/fpga_stream.json``) and its PNG beside it.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -111,7 +110,7 @@ def main(argv=None):
               "hardware_fps": hw_fps, "points_per_frame": n_points / len(imgs),
               "bit_identical_frame0": ok, "target_fps": 20.0}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
+    entry.write_json(args.out, result, indent=2)
     plot(result, [1e3 * t for t in per_frame], args.out)
     return 0
 

@@ -24,7 +24,6 @@ JSON (default ``benchmarks/results/harris.json``) and its PNG beside it.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -177,7 +176,7 @@ def main(argv=None):
     result = {"repeats": args.repeats, "threads": args.threads, "images": rows,
               "summary": summary, "fixed_point": approx}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
+    entry.write_json(args.out, result, indent=2)
     plot(result, args.out)
     return 0
 

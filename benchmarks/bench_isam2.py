@@ -18,7 +18,6 @@ The PNG beside the JSON shows both loops' times and the ratio against the target
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import gtsam
@@ -150,9 +149,8 @@ def main(argv=None) -> int:
     from pathlib import Path
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"benchmark": "isam2_overhead", "target_ratio": TARGET, "rows": rows,
-                   "summaries": summaries(rows, command)}, f, indent=2)
+    entry.write_json(args.out, {"benchmark": "isam2_overhead", "target_ratio": TARGET, "rows": rows,
+                                "summaries": summaries(rows, command)}, indent=2)
     print(f"wrote {args.out}")
     plot(rows, args.out)
     return 0

@@ -26,7 +26,6 @@ first 300 frames.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import sys
@@ -104,12 +103,12 @@ def main(argv=None) -> int:
         floor="the same back end starting every new pose from the estimate of the pose it "
               "extends (the route before)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
+    entry.write_json(args.out, {
         "benchmark": "isam2_joint", "frames": frames, "repeats": args.repeats,
         "wall_s": walls, "median_s": med, "ratio_estimate_over_ours": ratio,
         "ate_m": ates, "largest_ate_difference_m": diff, "final_cost": costs, "summary": summary,
         "machine": {"python": platform.python_version(), "platform": platform.platform()},
-    }, indent=2) + "\n")
+    }, indent=2, trailing_newline=True)
     print(f"wrote {args.out}")
     robots = list(ates["ours"])
     save_figure(args.out, f"MRCLAM Dataset 6, five robots in one iSAM2 graph ({frames} frames)", [

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
@@ -229,16 +228,15 @@ def main(argv=None) -> int:
           f"odometry alone {ate_odo:.3f} m; stats {est.stats}")
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"benchmark": "isam2_visual", "frames": args.frames, "repeats": args.repeats,
-                   "visible_per_frame_mean": float(visible.mean()),
-                   "config": dataclasses.asdict(config),
-                   "summary": summary,
-                   "timings": {k: timing.timing_dict(v) for k, v in timings.items()},
-                   "per_frame_ms": {k: (1e3 * v).tolist() for k, v in per_frame.items()},
-                   "predictions_per_frame_mean": float(first["n_pred"].mean()),
-                   "ate_m": ate, "odometry_ate_m": ate_odo, "path_m": path_m,
-                   "stats": est.stats}, f, indent=2)
+    entry.write_json(args.out, {"benchmark": "isam2_visual", "frames": args.frames, "repeats": args.repeats,
+                                "visible_per_frame_mean": float(visible.mean()),
+                                "config": dataclasses.asdict(config),
+                                "summary": summary,
+                                "timings": {k: timing.timing_dict(v) for k, v in timings.items()},
+                                "per_frame_ms": {k: (1e3 * v).tolist() for k, v in per_frame.items()},
+                                "predictions_per_frame_mean": float(first["n_pred"].mean()),
+                                "ate_m": ate, "odometry_ate_m": ate_odo, "path_m": path_m,
+                                "stats": est.stats}, indent=2)
     print(f"wrote {args.out}")
     plot(per_frame, summary, args.out)
     return 0

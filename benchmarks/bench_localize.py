@@ -187,10 +187,9 @@ def main(argv=None) -> int:
                "round_trip": round_trip(tmp)}
         if not (args.skip_kitti or args.quick) and KITTI.is_dir():
             out["kitti07"] = kitti(tmp)
-    text = json.dumps(out, indent=2)
-    print(text)
+    print(json.dumps(out, indent=2))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text + "\n")
+    entry.write_json(args.out, out, indent=2, trailing_newline=True)
     plot(out, plan, args.out)
     return 0 if all(v["pass"] for v in out.values()) else 1
 

@@ -36,7 +36,6 @@ Target (issue 6): with closures, ATE at most half of the same run without.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
@@ -144,9 +143,9 @@ def main(argv=None) -> int:
     else:
         print(f"camera alone: ATE after the {rows[0]['alignment']} fit")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"benchmark": "loop_ate", "rows": rows, "vocabulary_s": vocab_s,
-                                    "machine": {"python": platform.python_version(),
-                                                "platform": platform.platform()}}, indent=2))
+    entry.write_json(args.out, {"benchmark": "loop_ate", "rows": rows, "vocabulary_s": vocab_s,
+                                "machine": {"python": platform.python_version(),
+                                            "platform": platform.platform()}}, indent=2)
     print(f"wrote {args.out}")
     plot(rows, len(seq), args.out)
     return 0

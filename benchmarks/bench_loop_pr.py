@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import platform
 import sys
@@ -235,11 +234,11 @@ def main(argv=None) -> int:
         print(f"KITTI 07 ({kitti['frames']} frames, default detector, vocabulary trained on the "
               f"folder): {kitti['closures']} closures ({kitti['total_s']:.1f} s)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
+    entry.write_json(args.out, {
         "benchmark": "loop_pr", "sequence": dataclasses.asdict(seq.config), "tolerance_frames": args.tol,
         "vocabulary_words": vocab.n_words_, "timings": timings, "variants": rows, "kitti07": kitti,
         "machine": {"python": platform.python_version(), "platform": platform.platform()},
-    }, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o)))
+    }, indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o))
     print(f"wrote {args.out}")
     plot(rows, kitti, len(images), args.out)
     return 0
@@ -273,8 +272,8 @@ def real_main(data: Path, out: Path) -> int:
     r = real_figures(data)
     print_figures(r)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"benchmark": "loop_pr_real", **r, "machine": {
-        "python": platform.python_version(), "platform": platform.platform()}}, indent=2))
+    entry.write_json(out, {"benchmark": "loop_pr_real", **r, "machine": {
+        "python": platform.python_version(), "platform": platform.platform()}}, indent=2)
     print(f"wrote {out}")
     plot_real(r, out)
     return 0

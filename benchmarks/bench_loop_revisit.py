@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import platform
 import sys
 import tempfile
@@ -278,7 +277,7 @@ def main(argv=None) -> int:
         if key in out:
             print(f"{key}: {out[key]}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1))
+    entry.write_json(args.out, out, indent=1)
     print(f"wrote {args.out} and {plot(rows, args.out)}", file=sys.stderr)
     return 0
 

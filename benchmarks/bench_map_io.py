@@ -119,10 +119,9 @@ def main(argv=None) -> int:
         floor=f"np.{name} of the same arrays", command=cmd)
         for op, ours, base, name in (("save", save_s, base_save_s, "savez"),
                                      ("load", load_s, base_load_s, "load"))]
-    text = json.dumps(out, indent=2)
-    print(text)
+    print(json.dumps(out, indent=2))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text + "\n")
+    entry.write_json(args.out, out, indent=2, trailing_newline=True)
     plot(out, args.repeat, args.out)
     return 0 if out["pass"] else 1
 

@@ -45,7 +45,6 @@ against map size).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -274,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
                                    "same n and k)",
                "results": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    entry.write_json(args.out, payload, indent=2, trailing_newline=True)
     print(f"wrote {args.out}")
     plot(rows, args.frames, args.out)
     return 0

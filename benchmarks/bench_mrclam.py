@@ -35,7 +35,6 @@ scored by the sightings the estimate's particle paired with it, through its ance
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -238,11 +237,11 @@ def main(argv: list[str] | None = None) -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     # the command as run (the seeds and --no-joint change what the JSON holds)
     command = "python benchmarks/bench_mrclam.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    args.out.write_text(json.dumps({"command": command.strip(),
-                                    "rows": rows, "joint": joint, "joint_ekf": joint_ekf,
-                                    "joint_unknown": joint_unknown, "joint_ekf_unknown": joint_ekf_unknown,
-                                    "joint_fastslam2_seeds": joint_fs2, "fastslam2_seeds": spread},
-                                   indent=1) + "\n")
+    entry.write_json(args.out, {"command": command.strip(),
+                                "rows": rows, "joint": joint, "joint_ekf": joint_ekf,
+                                "joint_unknown": joint_unknown, "joint_ekf_unknown": joint_ekf_unknown,
+                                "joint_fastslam2_seeds": joint_fs2, "fastslam2_seeds": spread},
+                               indent=1, trailing_newline=True)
     save_figure(args.out, "MRCLAM Dataset 6: landmark SLAM against Vicon truth", panels,
                 ncols=3)
 

@@ -30,7 +30,6 @@ unknown/known ATE ratio of every run with the issue's bounds.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 import tempfile
@@ -171,9 +170,9 @@ def main(argv: list[str] | None = None) -> None:
                   "ok": sum(bool(r["ok"]) for r in rows if r["backend"] == b)} for b in args.backends}
     print("within the issue's bounds: " + ", ".join(f"{b} {t['ok']} of {t['runs']}" for b, t in totals.items()))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"command": "python benchmarks/bench_mrclam_windows.py "
-                                    + " ".join(argv if argv is not None else sys.argv[1:]),
-                                    "totals": totals, "rows": rows}, indent=1) + "\n")
+    entry.write_json(args.out, {"command": "python benchmarks/bench_mrclam_windows.py "
+                                + " ".join(argv if argv is not None else sys.argv[1:]),
+                                "totals": totals, "rows": rows}, indent=1, trailing_newline=True)
     panels = []
     for spec in args.windows:
         series = {b: ([f"robot {r['robot']}" for r in rows if r["backend"] == b and r["window"] == spec],

@@ -23,7 +23,6 @@ default) and the world seed as its own seed.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import traceback
@@ -146,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         n = len(noise_cells(args.scales)) * len(args.seeds)
         print(f"{backend}: {n - fails}/{n} cells ran to the end", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=1))
+    entry.write_json(args.out, rows, indent=1)
     plot(rows, args.backends, args.scales, args.out)
     return 1 if any(not r["ok"] for r in rows) else 0
 

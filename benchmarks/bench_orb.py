@@ -22,7 +22,6 @@ JSON (default ``benchmarks/results/orb.json``) and its PNG beside it.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -106,13 +105,13 @@ def main(argv=None) -> int:
         target=timing.TARGETS["orb"], unit="s CPU", frames=len(images),
         floor="OpenCV ORB detect + compute of the same kept keypoints, same settings, "
               "1 OpenCV thread", command="python benchmarks/bench_orb.py")
-    args.out.write_text(json.dumps({"benchmark": "orb", "ratio": ratio, "summary": summary,
-                                    "ratio_per_repeat": per_repeat.tolist(),
-                                    "opencv_threads": cv2.getNumThreads(),
-                                    "ours_ms": 1000 * float(np.median(t_ours)),
-                                    "opencv_ms": 1000 * float(np.median(t_cv)),
-                                    "candidates": float(np.median(n_cand)),
-                                    "kept": float(np.median(n_kept))}, indent=2))
+    entry.write_json(args.out, {"benchmark": "orb", "ratio": ratio, "summary": summary,
+                                "ratio_per_repeat": per_repeat.tolist(),
+                                "opencv_threads": cv2.getNumThreads(),
+                                "ours_ms": 1000 * float(np.median(t_ours)),
+                                "opencv_ms": 1000 * float(np.median(t_cv)),
+                                "candidates": float(np.median(n_cand)),
+                                "kept": float(np.median(n_kept))}, indent=2)
     plot(t_ours, t_cv, len(images), ratio, args.out)
     return 0
 

@@ -58,7 +58,6 @@ Usage: ``python benchmarks/bench_paper_figures.py [--frames N] [--seed S]
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -208,12 +207,12 @@ def main(argv: list[str] | None = None) -> int:
                                                "core (sections 4.4, 5.1), as a time per frame",
                                          command=cmd)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    entry.write_json(args.out, payload, indent=2, trailing_newline=True)
     print(f"wrote {args.out}")
     plot_rates(res, corrections, corrections7, args.out)
     traj_json = args.out.with_name(args.out.stem + "_trajectory.json")
-    traj_json.write_text(json.dumps({"benchmark": "paper_figures (figure 4)", "trajectory": traj},
-                                    indent=2) + "\n")
+    entry.write_json(traj_json, {"benchmark": "paper_figures (figure 4)", "trajectory": traj},
+                                indent=2, trailing_newline=True)
     plot_trajectory(traj, traj_json)
     return 0
 

@@ -17,7 +17,6 @@ log's trajectories and beacons over the truth, and the ATE bars.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -106,8 +105,8 @@ def main(argv: list[str] | None = None) -> None:
                          "beacon map RMSE": (labels, [r["map_rmse_m"] or 0.0 for r in rows])},
                         kind="bar", logy=True))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"command": COMMAND + (" --quick" if args.quick else ""),
-                                    "rows": rows}, indent=1) + "\n")
+    entry.write_json(args.out, {"command": COMMAND + (" --quick" if args.quick else ""),
+                                "rows": rows}, indent=1, trailing_newline=True)
     save_figure(args.out, "Plaza range-only SLAM (iSAM2) against the truth", panels,
                 ncols=len(panels))
 

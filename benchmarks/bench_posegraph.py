@@ -347,7 +347,7 @@ def main(argv=None) -> int:
             result["sphere2500_ate_m"] = sphere2500_ate(config)
             print("sphere2500 ATE (SE(3)-aligned) [m]:", json.dumps(result["sphere2500_ate_m"]))
     result["summaries"] = summaries(result, args)
-    (args.out / "bench_posegraph.json").write_text(json.dumps(result, indent=2) + "\n")
+    entry.write_json(args.out / "bench_posegraph.json", result, indent=2, trailing_newline=True)
     plot(result, args.out)
     return 0
 

@@ -20,7 +20,6 @@ a local minimum there).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -97,7 +96,7 @@ def main(argv: list[str] | None = None) -> None:
                                 command=COMMAND + (" --quick" if args.quick else ""))
                  for r in rows]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"rows": rows, "summaries": summaries}, indent=1) + "\n")
+    entry.write_json(args.out, {"rows": rows, "summaries": summaries}, indent=1, trailing_newline=True)
     names = [r["file"] for r in rows]
     save_figure(args.out, "--backend auto against batch (alternated, medians)", [
         Panel("time over batch", "file", "auto / batch", {"auto": (names, [r["ratio"] for r in rows])},

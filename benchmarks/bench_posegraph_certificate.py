@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -125,10 +124,10 @@ def main(argv: list[str] | None = None) -> None:
         rows = [r for n, p, noise, est in cases(args.quick, Path(tmp)) for r in bench(n, p, noise, est)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     ratios = [r["wall_s"] / r["solve_s"] for r in rows]
-    args.out.write_text(json.dumps({"command": COMMAND + (" --quick" if args.quick else ""),
-                                    "rows": rows,
-                                    "check_over_solve_median": float(np.median(ratios))},
-                                   indent=1) + "\n")
+    entry.write_json(args.out, {"command": COMMAND + (" --quick" if args.quick else ""),
+                                "rows": rows,
+                                "check_over_solve_median": float(np.median(ratios))},
+                               indent=1, trailing_newline=True)
     names = [f"{r['file']}\n{r['estimate']}" for r in rows]
     save_figure(args.out, "SE-Sync's certificate of pose-graph estimates", [
         Panel("check time over solve time", "estimate", "check / solve",

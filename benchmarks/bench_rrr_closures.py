@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
                 truth = (truth[0][truth[0] < args.max_poses], truth[1][truth[0] < args.max_poses])
         rows += graph_rows(name, graph, truth, args)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=1) + "\n")
+    entry.write_json(args.out, rows, indent=1, trailing_newline=True)
     figure(args.out, rows)
 
 

@@ -20,7 +20,6 @@ The clustered landmarks of MRCLAM are measured by ``benchmarks/bench_mrclam.py``
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -75,7 +74,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name:22s} median ATE {row['median_ate_m']:.2f} m, lost {row['lost']} of "
                   f"{len(args.seeds)}, median accuracy {row['median_accuracy']:.3f}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1))
+    entry.write_json(args.out, out, indent=1)
     print(f"wrote {args.out}")
     plot(out, args.out)
 

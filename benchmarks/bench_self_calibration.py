@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"quick": args.quick, "rows": rows}, indent=1))
+    entry.write_json(args.out, {"quick": args.quick, "rows": rows}, indent=1)
     panels = []
     for r in rows:
         if "refused" in r:

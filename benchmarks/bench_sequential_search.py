@@ -51,7 +51,6 @@ Usage: ``python benchmarks/bench_sequential_search.py [--seeds 0,1,2]
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -333,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
                "results": {str(s): v for s, v in per_seed.items()}, "mean": mean,
                "summaries": summaries}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    entry.write_json(args.out, payload, indent=2, trailing_newline=True)
     print(f"wrote {args.out}")
     plot(seeds, per_seed, args.out, labels)
     return 0

@@ -28,7 +28,6 @@ per-run costs, for each engine. ``--quick``: 2 runs of 20 steps.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import statistics
 import sys
@@ -165,7 +164,7 @@ def main(argv=None) -> int:
                   f"{r['one_worker']['overhead_per_run_ms']:>15.1f} "
                   f"{r['one_worker']['this_process_cpu_per_run_ms']:>10.1f} {trip:>13}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=1) + "\n")
+    entry.write_json(args.out, results, indent=1, trailing_newline=True)
     print(f"wrote {args.out}")
     plot(results, args.out)
     return 0

@@ -72,7 +72,6 @@ output ``benchmarks/results/bench_visual_frame.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -390,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
                                        "detection in hardware",
                "targets": verdicts, "summary": summary, "results": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
+    entry.write_json(args.out, payload, indent=2, trailing_newline=True)
     print(f"wrote {args.out}")
     plot(rows, len(images), args.out)
     return 0

@@ -47,7 +47,6 @@ of 1 000 images, 2 passes.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -349,16 +348,15 @@ def main(argv=None) -> int:
               "sliced, clipped at the query weights (DBoW2's L1 score), summed per image, "
               "top 10 by np.argpartition; one BLAS thread, alternated with ours, median")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"benchmark": "vocabulary", "cores": os.cpu_count(),
-                   "load_average_start": load_start, "load_average_end": load_end,
-                   "summary": summ, "training": training, "quantisation": quant,
-                   "query": {"images": names, "queries": n_queries, "passes": args.passes,
-                             "replicas": f"words of a real image, a fraction U{P_REPLACE} "
-                                         f"replaced by pooled real words, seed 0",
-                             "max_results": MAX_RESULTS, "target_median_ms": TARGET_MS,
-                             "score_tolerance": SCORE_TOL, "rows": rows}},
-                  f, indent=2)
+    entry.write_json(args.out, {"benchmark": "vocabulary", "cores": os.cpu_count(),
+                                "load_average_start": load_start, "load_average_end": load_end,
+                                "summary": summ, "training": training, "quantisation": quant,
+                                "query": {"images": names, "queries": n_queries, "passes": args.passes,
+                                          "replicas": f"words of a real image, a fraction U{P_REPLACE} "
+                                                      f"replaced by pooled real words, seed 0",
+                                          "max_results": MAX_RESULTS, "target_median_ms": TARGET_MS,
+                                          "score_tolerance": SCORE_TOL, "rows": rows}},
+                     indent=2)
     print(f"wrote {args.out}")
     plot(training, quant, rows, args.out)
     return 0

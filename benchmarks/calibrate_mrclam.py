@@ -461,7 +461,7 @@ def main(argv: list[str] | None = None) -> None:
                             **{n: getattr(default, n) for n in FIELD_NAMES}},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    entry.write_json(args.out, report, indent=1, trailing_newline=True)
     print(json.dumps({k: report[k] for k in ("odometry", "noise", "nees", "sightings")}, indent=1))
     print(json.dumps({k: v for k, v in correlation.items() if not isinstance(v, list)}, indent=1))
     print(json.dumps({"sensor_field": field, "sighting_tail": tail}, indent=1))

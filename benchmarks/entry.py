@@ -24,7 +24,9 @@ exits with the signal's status all the same.
 Every ``--out`` is checked as argparse parses it (:func:`output_file`,
 :func:`output_folder`): a folder given for a file, a parent that is a file, a folder
 the user cannot write or a name too long is refused before the measurement, not
-found at its end. A full disk still is found at the end, and loses the results.
+found at its end. A full disk (or a quota, or a file-size limit) still is found at
+the end, by :func:`write_json`: the JSON is printed on stdout instead, an earlier file
+at ``--out`` is left as it was (never a truncated one), and the one line says so.
 
 The scripts import numpy, gtsam and the toolkit at their top, before this exists: a
 signal in that first second still ends with Python's own message.
@@ -41,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import json
 import math
 import signal
 import sys
@@ -54,6 +57,9 @@ EXIT_ERROR = 2
 #: Errors of a named file a user fixes by naming another one (``--out``, ``--data``): a
 #: refused write, or an input that is not there.
 NAMED_FILE_ERRORS = (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR)
+#: A write refused for want of room (a full disk, a quota, a file-size limit): the
+#: results are printed rather than lost.
+DISK_FULL_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 def run(main: Callable[[], int | None]) -> int:
@@ -116,6 +122,32 @@ def run(main: Callable[[], int | None]) -> int:
         sys.stdout = stdout
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+def write_json(path: str | Path, payload, *, trailing_newline: bool = False, **dumps_kwargs) -> None:
+    """A script's JSON result, ``json.dumps(payload, **dumps_kwargs)`` (and a newline if
+    asked), written whole to ``path`` or not at all (a temporary file moved into place).
+
+    On a full disk the minutes of measurement are not lost: the JSON goes to stdout and a
+    GraphSlamError is raised, which :func:`run` says in one line (status 2). Any other
+    OSError is raised as it is."""
+    from slamcore.errors import GraphSlamError
+    from slamcore.files import atomic_open
+
+    text = json.dumps(payload, **dumps_kwargs) + ("\n" if trailing_newline else "")
+    try:
+        with atomic_open(path, "w") as fh:
+            fh.write(text)
+    except OSError as e:
+        if e.errno not in DISK_FULL_ERRORS:
+            raise
+        reason = e.strerror or str(e)
+        try:
+            sys.stdout.write(text if text.endswith("\n") else text + "\n")
+            sys.stdout.flush()
+        except OSError:  # stdout on the same full disk (``> log``), where Python says so
+            raise GraphSlamError(f"{path}: {reason}; the results could not be printed on stdout either") from e
+        raise GraphSlamError(f"{path}: {reason}; the results are printed on stdout above") from e
 
 
 class ReaderGone:

@@ -1637,10 +1637,10 @@ def main(argv=None) -> int:
     totals = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "silent", "fail", "skipped")}
     print(f"{len(rows)} attacks: " + ", ".join(f"{n} {v}" for v, n in totals.items()))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"benchmark": "hostile_pass", "quick": args.quick,
-                                    "totals": totals, "rows": rows,
-                                    "machine": {"python": platform.python_version(),
-                                                "platform": platform.platform()}}, indent=1))
+    entry.write_json(args.out, {"benchmark": "hostile_pass", "quick": args.quick,
+                                "totals": totals, "rows": rows,
+                                "machine": {"python": platform.python_version(),
+                                            "platform": platform.platform()}}, indent=1)
     print(f"wrote {args.out} and {plot(rows, args.out)}", file=sys.stderr)
     return 0
 

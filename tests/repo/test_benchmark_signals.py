@@ -4,6 +4,9 @@ one line and the signal's exit status, never a traceback, and a toolkit error on
 from __future__ import annotations
 
 import ast
+import errno
+import json
+import os
 import signal
 import subprocess
 import sys
@@ -134,6 +137,137 @@ def test_an_input_that_is_not_there_is_one_line(entry, capsys):
 
     assert entry.run(main) == entry.EXIT_ERROR
     assert capsys.readouterr().err == "bench_x.py: error: /nonexistent/lund_door/cameras.txt: No such file or directory\n"
+
+
+def test_write_json_writes_what_json_dumps_would(entry, tmp_path):
+    """The results keep their bytes: each script's indent, default= and trailing newline."""
+    payload = {"rows": [{"ate_m": 0.25, "backend": "ekf"}], "data": tmp_path, "runs": 3}
+    out = tmp_path / "x.json"
+    for kwargs, newline in [({"indent": 1, "default": str}, False), ({"indent": 2, "default": str}, True)]:
+        entry.write_json(out, payload, trailing_newline=newline, **kwargs)
+        assert out.read_bytes() == (json.dumps(payload, **kwargs) + ("\n" if newline else "")).encode()
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"]  # no temporary file left beside it
+
+
+def _full_disk(monkeypatch, error: int) -> None:
+    """Files opened by slamcore.files (atomic_open's temporary file) take half of a write,
+    then fail with ``error`` as a full disk does."""
+    import builtins
+
+    from slamcore import files
+
+    def full_open(path, mode="r", **kwargs):
+        fh = builtins.open(path, mode, **kwargs)
+
+        def write(text):
+            type(fh).write(fh, text[: len(text) // 2])
+            fh.flush()
+            raise OSError(error, os.strerror(error))
+
+        fh.write = write
+        return fh
+
+    monkeypatch.setattr(files, "open", full_open, raising=False)
+
+
+@pytest.mark.parametrize("error, older", [(errno.ENOSPC, True), (errno.EDQUOT, False), (errno.EFBIG, True)])
+def test_a_full_disk_prints_the_results_and_leaves_no_truncated_file(entry, tmp_path, capsys, monkeypatch,
+                                                                      error, older):
+    """A full disk at the end lost minutes of measurement and could leave half a JSON at
+    --out, read later as a result: now the JSON is on stdout, the older file (or none) stays."""
+    out = tmp_path / "x.json"
+    if older:
+        out.write_text('{"older": true}')
+    payload = {"rows": [{"ate_m": 0.25}] * 20}
+    _full_disk(monkeypatch, error)
+    assert entry.run(lambda: entry.write_json(out, payload, indent=1)) == entry.EXIT_ERROR
+    printed = capsys.readouterr()
+    assert printed.out == json.dumps(payload, indent=1) + "\n"
+    assert printed.err == (f"bench_x.py: error: {out}: {os.strerror(error)}; "
+                           "the results are printed on stdout above\n")
+    assert [p.name for p in tmp_path.iterdir()] == (["x.json"] if older else [])
+    assert not older or out.read_text() == '{"older": true}'
+
+
+def test_a_full_disk_under_stdout_too_is_said(entry, tmp_path, monkeypatch, capsys):
+    """``bench_x.py > log`` on the same full disk: the JSON is lost, and the line says so."""
+    class Full:
+        def write(self, text):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        def flush(self):
+            pass
+
+    _full_disk(monkeypatch, errno.ENOSPC)
+    monkeypatch.setattr(sys, "stdout", Full())
+    assert entry.run(lambda: entry.write_json(tmp_path / "x.json", {"rows": []})) == entry.EXIT_ERROR
+    assert capsys.readouterr().err.endswith("the results could not be printed on stdout either\n")
+
+
+def test_another_write_error_is_not_taken_for_a_full_disk(entry, tmp_path, capsys, monkeypatch):
+    """An I/O error keeps its traceback, as before write_json; the older file stays."""
+    out = tmp_path / "x.json"
+    out.write_text("older")
+    _full_disk(monkeypatch, errno.EIO)
+    with pytest.raises(OSError) as e:
+        entry.run(lambda: entry.write_json(out, {"rows": []}))
+    assert e.value.errno == errno.EIO and capsys.readouterr().out == "" and out.read_text() == "older"
+
+
+def test_a_benchmark_over_a_file_size_limit_prints_its_json(tmp_path):
+    """bench_ekf_update.py --quick (about 2 s), its 4 kB JSON under a 1 kB file-size limit:
+    the write fails with EFBIG as on a full disk, for real (temporary file, rename)."""
+    import resource
+
+    out = tmp_path / "ekf.json"
+    out.write_text('{"older": true}\n')
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG from write(), not a kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1024, 1024))
+
+    cmd = [sys.executable, str(BENCHMARKS / "bench_ekf_update.py"), "--quick", "--out", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, preexec_fn=limit)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr == (f"bench_ekf_update.py: error: {out}: {os.strerror(errno.EFBIG)}; "
+                           "the results are printed on stdout above\n")
+    printed = json.loads(done.stdout[done.stdout.index("\n{\n"):])  # after the printed table
+    assert printed["benchmark"] == "ekf_update" and len(printed["results"]) == 2
+    assert out.read_text() == '{"older": true}\n'
+    assert [p.name for p in tmp_path.iterdir()] == ["ekf.json"]  # no temporary file, no PNG
+
+
+#: JSON writes in benchmarks/ that are no result at --out, by script and line start -> why
+#: they stay plain writes.
+NOT_RESULT_WRITES = {
+    ("check_digests", "DIGESTS.write_text(json.dumps("):
+        "--record rewrites benchmarks/digests.json, the repository's record (in git), not an --out",
+    ("hostile_pass", '(path / "map.json").write_text(json.dumps('):
+        "an attack's input: a saved map with its map.json edited",
+    ("hostile_pass", '(folder / "earlier.json").write_text(json.dumps('):
+        "the pass's note of an earlier run's bytes, in an attack's scratch folder",
+}
+#: Scripts that write no JSON result -> what they write.
+NO_JSON_RESULT = {
+    "check_digests": "nothing at an --out (digests.json: NOT_RESULT_WRITES)",
+    "table": "the README's targets table",
+    "train_shipped_vocabulary": "the vocabulary .npz (VocabularyTree.save)",
+}
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_script_writes_its_json_through_write_json(name):
+    """A plain ``write_text(json.dumps(...))`` at the end lost the results on a full disk
+    and could leave half a file at --out."""
+    import re
+
+    text = (BENCHMARKS / f"{name}.py").read_text()
+    allowed = {start for script, start in NOT_RESULT_WRITES if script == name}
+    plain = [line.strip() for line in text.splitlines()
+             if re.search(r"json\.dump\(|\.write(_text)?\(json\.dumps\(", line)]
+    assert [line for line in plain if not line.startswith(tuple(allowed))] == []
+    assert all(any(line.startswith(start) for line in plain) for start in allowed), "a stale allow-list entry"
+    assert name in NO_JSON_RESULT or "entry.write_json(" in text
 
 
 @pytest.mark.parametrize("kind, good, bad", [
