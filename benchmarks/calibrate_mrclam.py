@@ -51,6 +51,13 @@ this script, run on every robot of Dataset 6:
    the EKF's default ``alpha``: ``p = 1 - alpha^(1 / N)``. With the 35 % a real
    landmark would be pruned after its 16th miss in a row, 50 times as often as
    ``alpha`` says.
+6. The sightings' error tail: the measured quantiles of their squared Mahalanobis
+   distance under the model, matched by a Student-t's degrees of freedom
+   (:func:`sighting_tail`; ``[mrclam] sighting_error_dof``).
+7. What the sightings of one frame share: the correlation of the normalised errors
+   of two sightings of different landmarks in one frame, and the bearing error they
+   share in radians (:func:`shared_scan_error`). Reported, not used by the reader:
+   the back ends take a frame's sightings as independent of each other.
 
     python benchmarks/calibrate_mrclam.py [--data ../shared/data/mrclam6] [--quick]
 
@@ -420,6 +427,41 @@ def sighting_correlation(per_robot: list[dict], config: MrclamConfig) -> dict:
             "range_correlation": corr[0].tolist(), "bearing_correlation": corr[1].tolist()}
 
 
+def shared_scan_error(per_robot: list[dict], config: MrclamConfig) -> dict:
+    """Step 7 of the module docstring: what two sightings of different landmarks in one
+    frame share of their errors. Per robot and landmark the median error is removed;
+    errors beyond :data:`CORRELATION_CLIP` model sigmas are left out. Returns the
+    correlation of the normalised range and bearing errors over every such pair, and
+    the bearing error they share in radians, the square root of the mean product."""
+    from graphslam.sources.planar.mrclam import sighting_covariances
+
+    products = np.zeros(2)  # normalised range, bearing
+    squares = np.zeros(2)
+    shared_b = 0.0  # sum of raw bearing products, rad^2
+    pairs = 0
+    for robot in per_robot:
+        sub, t = robot["subject"], robot["time"]
+        sigma = np.sqrt(np.diagonal(sighting_covariances(config, robot["z"]), axis1=1, axis2=2))
+        e = robot["residual"].copy()
+        for s in np.unique(sub):
+            e[sub == s] -= np.median(e[sub == s], axis=0)
+        keep = np.all(np.abs(e / sigma) <= CORRELATION_CLIP, axis=1)
+        frames, inverse = np.unique(t, return_inverse=True)
+        for f in np.flatnonzero(np.bincount(inverse[keep], minlength=len(frames)) >= 2):
+            k = np.flatnonzero(keep & (inverse == f))
+            a, b = np.triu_indices(k.size, 1)
+            a, b = k[a], k[b]
+            a, b = a[sub[a] != sub[b]], b[sub[a] != sub[b]]
+            n = e / sigma
+            products += np.sum(n[a] * n[b], axis=0)
+            squares += np.sum(0.5 * (n[a] ** 2 + n[b] ** 2), axis=0)
+            shared_b += float(np.sum(e[a, 1] * e[b, 1]))
+            pairs += a.size
+    corr = products / np.maximum(squares, 1e-300)
+    return {"pairs": pairs, "range_correlation": float(corr[0]), "bearing_correlation": float(corr[1]),
+            "bearing_shared_sigma_rad": math.sqrt(max(shared_b / max(pairs, 1), 0.0))}
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -442,6 +484,7 @@ def main(argv: list[str] | None = None) -> None:
     correlation = sighting_correlation(per_robot, default)
     field = sensor_field(args.data, logs, per_robot)
     tail = sighting_tail(sightings)
+    shared = shared_scan_error(per_robot, default)
     report = {
         "robots": robots, "data": str(args.data), "command": COMMAND,
         "odometry": {k: v for k, v in motion.items() if k != "residual"},
@@ -452,6 +495,7 @@ def main(argv: list[str] | None = None) -> None:
         "correlation": correlation,
         "sensor_field": field,
         "sighting_tail": tail,
+        "shared_scan_error": shared,
         "defaults_in_use": {"sighting_error_dof": default.sighting_error_dof, "lag_s": default.odometry_lag_s,
                             "forward_scale": default.forward_scale,
                             "angular_scale": default.angular_scale,
@@ -464,7 +508,7 @@ def main(argv: list[str] | None = None) -> None:
     entry.write_json(args.out, report, indent=1, trailing_newline=True)
     print(json.dumps({k: report[k] for k in ("odometry", "noise", "nees", "sightings")}, indent=1))
     print(json.dumps({k: v for k, v in correlation.items() if not isinstance(v, list)}, indent=1))
-    print(json.dumps({"sensor_field": field, "sighting_tail": tail}, indent=1))
+    print(json.dumps({"sensor_field": field, "sighting_tail": tail, "shared_scan_error": shared}, indent=1))
     model = sightings["model"]
     ranges = model["measured_range"]
     model_sigma = {"range_m": np.hypot(model["sigma_range_m"], model["sigma_range_per_m"] * ranges),
