@@ -200,6 +200,17 @@ def _xy_yaw(T: np.ndarray) -> np.ndarray:
     return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
 
 
+def in_plane(T: np.ndarray) -> np.ndarray:
+    """Poses (N, 4, 4) as a 2-D run scores them: x, y and the yaw, at height 0. What a 2-D
+    graph's ``ground_truth.tum`` holds, so that scoring the files gives the run's ATE."""
+    xy_yaw = _xy_yaw(np.asarray(T, dtype=np.float64).reshape(-1, 4, 4))
+    out = np.tile(np.eye(4), (len(xy_yaw), 1, 1))
+    c, s = np.cos(xy_yaw[:, 2]), np.sin(xy_yaw[:, 2])
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
+    out[:, 0, 3], out[:, 1, 3] = xy_yaw[:, 0], xy_yaw[:, 1]
+    return out
+
+
 def _untested(result) -> dict | None:
     """``closure_test`` of a solve whose closures were suspects but never tested (iSAM2
     without its polish: they went in under the Cauchy kernel), else None (none suspect)."""
@@ -223,6 +234,8 @@ def stalled_warning(graph: pg.PoseGraph, result: SolveResult, alpha: float) -> l
     from graphslam.backends.posegraph.route import consistent
 
     if result.iterations != 0 or result.cut is not None or result.stopped is not None:
+        return []
+    if result.stationary_start:  # the start was already an optimum: nothing to take a step to
         return []
     if result.rejected.any():  # the final LM solved the kept edges: another cost than the start's
         return []

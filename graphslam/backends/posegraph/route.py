@@ -51,12 +51,16 @@ NOISE_OVERSTATED_ALPHA = 1e-3
 
 
 def cost_statistic(graph: PoseGraph, result) -> tuple[float, int]:
-    """``2 x`` the kept-edge cost and its degrees of freedom ``d (M_kept - N + 1)``."""
+    """``2 x`` the kept-edge cost and its degrees of freedom ``d (M_kept - N + F)``, ``F``
+    the poses held: the ``FIX`` poses, else the first. Each ``FIX`` pose past the first
+    takes ``d`` unknowns away; counted as one, a chain between two ``FIX`` poses that
+    disagree with its edges was "a tree: every start is the optimum" at any cost."""
     d = 3 if graph.dim == 2 else 6
     kept = int(graph.n_edges - result.rejected.sum())
+    held = max(1, len(np.unique(graph.fixed)))
     # nothing rejected (an unpolished iSAM2 solve keeps every edge): the kept cost is the cost
     stat = 2.0 * (result.final_cost if result.final_cost_kept is None else result.final_cost_kept)
-    return stat, d * (kept - graph.n_poses + 1)
+    return stat, d * (kept - graph.n_poses + held)
 
 
 def noise_overstated(graph: PoseGraph, result) -> tuple[float, str] | None:

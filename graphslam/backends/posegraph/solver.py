@@ -77,6 +77,8 @@ class SolveResult:
         stopped: a stop (signal) ended the batch part between two LM or GNC
             iterations: ``params`` is the estimate in hand then, whole but not an
             optimum (``recoveries`` says which), else None.
+        stationary_start: where the final LM took no step, whether its start already
+            was a stationary point (:func:`_stationary`), else None.
     """
 
     solver: str
@@ -103,6 +105,7 @@ class SolveResult:
     optimality: Certificate | None = None
     optimality_unchecked: str | None = None
     stopped: str | None = None
+    stationary_start: bool | None = None
 
 
 #: ``should_stop(point, step)``: asked before each iSAM2 update (``"step"``, the update),
@@ -213,7 +216,28 @@ def solve(
     out.final_cost_kept = float(np.sum(np.square(out.residuals[~final.rejected])) / 2.0)
     out.robust_mode = config.robust_closures if robust else None
     out.stopped = final.stopped
+    if final.iterations == 0 and final.stopped is None:
+        out.stationary_start = _stationary(graph, edges, final, config)
     return out
+
+
+def _stationary(graph, edges, final: FinalSolve, config: PoseGraphConfig) -> bool:
+    """Whether the estimate of a final LM that took no step is a stationary point of its
+    graph: the Gauss-Newton step there would lower the cost by no more than LM's own
+    tolerances. LM also takes no step from a start it cannot improve on for want of a
+    solvable system (information 1e12 times too large, hostile pass 17), which is no
+    optimum; a start that already is one (a chain whose one closure disagrees with it,
+    solved exactly by LAGO) was reported as "NOT CONVERGED" while certified optimal."""
+    drop = final.rejected if final.rejected.any() else None
+    factors = with_priors(graph, edges, final.values, config.prior_sigma, drop=drop)
+    try:
+        linear = factors.linearize(final.values)
+        step = linear.optimize()
+    except RuntimeError:  # indeterminate: no step to take, and no optimum shown
+        return False
+    cost = float(factors.error(final.values))
+    decrease = cost - float(linear.error(step))
+    return decrease <= max(config.absolute_error_tol, config.relative_error_tol * cost)
 
 
 class FinalSolve(NamedTuple):

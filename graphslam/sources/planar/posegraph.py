@@ -166,7 +166,7 @@ def dataset_of_pose_graph(
         has_timestamps=False,
         source_path=path,
         notes=_notes(graph),
-        warnings=graph.warnings,
+        warnings=(*graph.warnings, *_fix_warnings(graph)),
     )
 
 
@@ -264,6 +264,22 @@ def _notes(graph: pg.PoseGraph) -> tuple[str, ...]:
     if self_edges:
         notes.append(self_edges)
     return tuple(notes)
+
+
+def _fix_warnings(graph: pg.PoseGraph) -> tuple[str, ...]:
+    """The sentence for ``FIX`` lines that hold more than one pose, which the frames leave
+    out: a stream starts at the origin and follows the edges, so two held poses that the
+    edges disagree with gave a different trajectory here than in a batch run of the file,
+    with nothing said (one held pose fixes the gauge only)."""
+    held = np.unique(graph.fixed)
+    if len(held) < 2:
+        return ()
+    listed = ", ".join(map(str, held[:10].tolist())) + (", ..." if len(held) > 10 else "")
+    return (
+        f"FIX holds {len(held)} poses ({listed}): frame by frame they are not held, "
+        "the run starts at the origin and follows the edges; --backend batch or isam2 on the "
+        "whole file holds them",
+    )
 
 
 def self_edges_note(graph: pg.PoseGraph) -> str | None:
