@@ -31,7 +31,9 @@ file name when every name is one, else the position), or COLMAP's image of the
 frame's file name (a NAME with folders matches the end of the path); frames without truth
 are dropped, as the TUM and EuRoC readers do. A 2-D dataset takes the truth
 of each pose by its pose id (TUM time column, KITTI line number), or by its
-timestamp when the dataset has real ones, keeping x, y and the yaw.
+timestamp when the dataset has real ones, keeping x, y and the yaw; a truth that
+leaves the plane (:func:`off_plane`) is said to, since that drops what the score
+cannot see.
 """
 
 from __future__ import annotations
@@ -62,6 +64,19 @@ from slamcore.input_files import check_input_path
 from slamcore.planar.records import Dataset
 
 TRAJECTORY_FORMATS = ("tum", "kitti", "euroc", "colmap")
+
+#: A 2-D run is scored on its truth's x, y and yaw. A truth whose height varies by more
+#: than this share of its horizontal extent (and by more than the floor below) is
+#: taken off a plane it does not lie in: a 3-D trajectory, or one whose up axis is not
+#: z (KITTI's camera frame, y down): its ATE in the plane is no ATE of the motion.
+#: A building's ramps rise about 1 in 12, a road's grades stay under 1 in 10 over a
+#: short stretch and far less over a route: 5 % keeps such truths quiet.
+PLANAR_HEIGHT_SHARE = 0.05
+#: Height variation no truth of a planar robot is said for, m (motion capture and
+#: survey noise, a floor's unevenness).
+PLANAR_HEIGHT_FLOOR_M = 0.1
+#: Tilt of a truth pose's up axis beyond which it is said, deg: no floor slopes so.
+PLANAR_TILT_DEG = 15.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -435,6 +450,25 @@ def with_ground_truth(sequence: ImageSequence, truth: Trajectory) -> ImageSequen
     if len(warnings) > len(sequence.frame_warnings):
         changes["frame_warnings"] = tuple(warnings)
     return dataclasses.replace(sequence, **changes)
+
+
+def off_plane(wTc: np.ndarray) -> str | None:
+    """The sentence for truth poses (N, 4, 4) that a 2-D run's score (x, y and yaw) would
+    take off a plane they do not lie in (:data:`PLANAR_HEIGHT_SHARE`,
+    :data:`PLANAR_TILT_DEG`), else None."""
+    wTc = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)
+    if not len(wTc):
+        return None
+    height = float(np.ptp(wTc[:, 2, 3]))
+    extent = float(np.hypot(np.ptp(wTc[:, 0, 3]), np.ptp(wTc[:, 1, 3])))
+    tilt = float(np.degrees(np.arccos(np.clip(wTc[:, 2, 2], -1.0, 1.0))).max())
+    if height <= max(PLANAR_HEIGHT_FLOOR_M, PLANAR_HEIGHT_SHARE * extent) and tilt <= PLANAR_TILT_DEG:
+        return None
+    return (
+        f"the ground truth is not planar (height spans {height:.3g} m against {extent:.3g} m "
+        f"across x and y; up axis tilted up to {tilt:.3g} deg): this 2-D run is scored on its "
+        "x, y and yaw only, which is no ATE of a 3-D motion or of a truth whose up axis is not z"
+    )
 
 
 def planar_ground_truth(dataset: Dataset, truth: Trajectory) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import time
 from pathlib import Path
@@ -84,9 +85,12 @@ def run(args: argparse.Namespace) -> int:
             "robot against the file with --robot N"
         )
     if args.ground_truth is not None:
-        from graphslam.sources.ground_truth import planar_ground_truth, read_trajectory
+        from graphslam.sources.ground_truth import off_plane, planar_ground_truth, read_trajectory
 
-        truth = planar_ground_truth(dataset, read_trajectory(args.ground_truth))
+        trajectory = read_trajectory(args.ground_truth)
+        truth = planar_ground_truth(dataset, trajectory)
+        if (doubt := off_plane(trajectory.wTc)) is not None:  # scored on x, y and yaw only
+            dataset = dataclasses.replace(dataset, warnings=(*dataset.warnings, doubt))
     if args.nees and truth is None and not dataset.has_ground_truth:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
     overrides = {"polish": False} if args.no_polish else {}

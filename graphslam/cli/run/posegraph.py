@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -145,9 +146,14 @@ def load_graph(dataset: str, solver_config, max_steps: int | None = None, ground
         keep = np.isin(truth[0], graph.ids)
         truth = (truth[0][keep], truth[1][keep]) if keep.sum() >= 2 else None
     if ground_truth is not None:
-        from graphslam.sources.ground_truth import read_trajectory
+        from graphslam.sources.ground_truth import off_plane, read_trajectory
 
         truth = pipeline.ground_truth_of(graph, read_trajectory(ground_truth))
+        if graph.dim == 2:  # scored in the plane: said when that drops something, written as scored
+            doubt = off_plane(truth[1])
+            if doubt is not None:
+                graph = dataclasses.replace(graph, warnings=(*graph.warnings, doubt))
+            truth = (truth[0], pipeline.in_plane(truth[1]))
     return graph, truth
 
 

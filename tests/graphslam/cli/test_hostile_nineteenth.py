@@ -1,0 +1,120 @@
+"""The nineteenth hostile pass (2026-12-07): silent wrong answers on pose graphs. Each
+test reproduces a finding, then checks what the code does now."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.sources.ground_truth import off_plane
+
+#: How close the run's ATE and ``graphslam eval``'s of its written files must be, m.
+ATE_AGREE_M = 1e-6
+#: Two FIX poses 6 m apart joined by two 1 m edges (sigma 0.1 m): no start holds both.
+FIX_CHAIN = """VERTEX_SE2 0 0 0 0
+VERTEX_SE2 1 5 0 0
+VERTEX_SE2 2 6 0 0
+FIX 0 2
+EDGE_SE2 0 1 1 0 0 100 0 0 100 0 100
+EDGE_SE2 1 2 1 0 0 100 0 0 100 0 100
+"""
+#: The same chain with a 6 m closure 1000 times as sure in place of the FIX line: LAGO
+#: solves it exactly, so LM takes no step from an optimum.
+CLOSED_CHAIN = """VERTEX_SE2 0 0 0 0
+VERTEX_SE2 1 1 0 0
+VERTEX_SE2 2 2 0 0
+EDGE_SE2 0 1 1 0 0 100 0 0 100 0 100
+EDGE_SE2 1 2 1 0 0 100 0 0 100 0 100
+EDGE_SE2 0 2 6 0 0 1e6 0 0 1e6 0 1e6
+"""
+
+
+def _run(tmp_path: Path, capsys, text: str, *extra: str) -> tuple[dict, str]:
+    graph = tmp_path / "g.g2o"
+    graph.write_text(text)
+    out = tmp_path / "out"
+    assert main(["run", "--dataset", str(graph), "--rerun", "off", "--out", str(out), *extra]) == 0
+    return json.loads((out / "metrics.json").read_text()), capsys.readouterr().err
+
+
+@pytest.mark.parametrize("backend", ["auto", "batch", "isam2"])
+def test_two_fix_poses_the_edges_disagree_with_are_no_tree(tmp_path, capsys, backend):
+    """The chain between two FIX poses 6 m apart ended with 1 m edges stretched to 3 m (20
+    sigma each) and "the graph is a tree: every start is the optimum": the chi-square
+    test counted one held pose. Each held pose takes 3 unknowns: 3 degrees of freedom."""
+    metrics, _ = _run(tmp_path, capsys, FIX_CHAIN, "--backend", backend)
+    assert metrics["final_cost"] == pytest.approx(399.92, rel=1e-3)
+    if backend == "auto":
+        assert "tree" not in metrics["route"]["reason"]
+        assert "above the chi-square bound" in metrics["route"]["reason"]
+        assert "(3 degrees of freedom" in metrics["route"]["reason"]
+
+
+@pytest.mark.parametrize("backend", ["ekf", "fastslam1"])
+def test_fix_lines_a_stream_cannot_hold_are_said(tmp_path, capsys, backend):
+    """The EKF and FastSLAM ran the chain at 0, 1, 2 (the FIX poses not held) while a batch
+    run of the same file held them, and nothing said so."""
+    metrics, err = _run(tmp_path, capsys, FIX_CHAIN, "--backend", backend)
+    assert "FIX holds 2 poses (0, 2): frame by frame they are not held" in err
+    assert any("FIX holds 2 poses" in w for w in metrics["warnings"])
+
+
+def test_one_fix_pose_is_the_gauge_and_says_nothing(tmp_path, capsys):
+    _, err = _run(tmp_path, capsys, FIX_CHAIN.replace("FIX 0 2", "FIX 1"), "--backend", "ekf")
+    assert "FIX holds" not in err
+
+
+def test_a_start_that_is_the_optimum_is_not_called_unconverged(tmp_path, capsys):
+    """LM took no step from LAGO's start, which already was the optimum (certified): the run
+    said "NOT CONVERGED ... the estimate is that start, not an optimum". A start that the
+    Gauss-Newton step cannot improve is converged; the chi-square line stays (the closure
+    disagrees with the chain)."""
+    metrics, err = _run(tmp_path, capsys, CLOSED_CHAIN, "--backend", "batch")
+    assert metrics["iterations"] == 0
+    assert metrics["converged"] is True
+    assert "took no step" not in err
+
+
+def _chain(tmp_path: Path, n: int = 30) -> Path:
+    lines = [f"VERTEX_SE2 {i} {i} 0 0" for i in range(n)]
+    lines += [f"EDGE_SE2 {i} {i + 1} 1 0 0 100 0 0 100 0 100" for i in range(n - 1)]
+    path = tmp_path / "chain.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("backend", ["batch", "ekf"])
+def test_a_3d_truth_for_a_2d_graph_is_said_and_written_as_scored(tmp_path, capsys, backend):
+    """A truth climbing 145 m scored a 2-D chain at ATE 0 with nothing said, and its
+    ground_truth.tum kept the climb, so scoring the run's own files gave 35 m."""
+    truth = tmp_path / "gt.tum"
+    truth.write_text("".join(f"{i} {i} 0 {5 * i} 0 0 0 1\n" for i in range(30)))
+    out = tmp_path / f"o_{backend}"
+    assert main(["run", "--dataset", str(_chain(tmp_path)), "--backend", backend, "--ground-truth",
+                 str(truth), "--rerun", "off", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "the ground truth is not planar (height spans 145 m" in err
+    written = np.loadtxt(out / "ground_truth.tum")
+    assert np.allclose(written[:, 3], 0.0)  # the height the score left out is not written
+    assert main(["eval", str(out / "ground_truth.tum"), str(out / "trajectory.tum"),
+                 "--out", str(tmp_path / f"e_{backend}"), "--no-plot"]) == 0
+    scored = json.loads((out / "metrics.json").read_text())["ate_rmse_m"]
+    evaluated = json.loads((tmp_path / f"e_{backend}" / "eval.json").read_text())["estimates"][0]
+    assert evaluated["ate_rmse_m"] == pytest.approx(scored, abs=ATE_AGREE_M)
+
+
+def test_off_plane_keeps_a_planar_robots_truth_quiet():
+    """A floor's truth: 2 cm of height noise over a 10 m room, 2 deg of tilt."""
+    rng = np.random.default_rng(0)
+    T = np.tile(np.eye(4), (200, 1, 1))
+    T[:, 0, 3], T[:, 1, 3] = rng.uniform(0, 10, 200), rng.uniform(0, 10, 200)
+    T[:, 2, 3] = rng.normal(0, 0.005, 200)
+    tilt = np.radians(2.0)
+    T[:, 1, 1], T[:, 1, 2], T[:, 2, 1], T[:, 2, 2] = np.cos(tilt), -np.sin(tilt), np.sin(tilt), np.cos(tilt)
+    assert off_plane(T) is None
+    T[:, 2, 3] = np.linspace(0, 3, 200)  # a 3 m climb over the room: 21 % of its extent
+    assert "height spans 3 m" in off_plane(T)
