@@ -36,9 +36,13 @@ class PoseGraphCompareRun:
     error: str | None = None
     #: RMS (m) of its positions against the first solver's, over the poses both solved
     rms_to_first_m: float | None = None
+    #: a stop came before it started: "not run", as the 2-D compare says it
+    not_run: bool = False
 
     @property
     def status(self) -> str:
+        if self.not_run:
+            return "not run"
         if self.error is not None:
             return "failed"
         if self.metrics is None:  # a run has its metrics or its error
@@ -62,8 +66,9 @@ def compare(
     ``progress(name)`` is called before each."""
     runs: list[PoseGraphCompareRun] = []
     for name in backends:
-        if stop_requested():
-            break
+        if stop_requested():  # the rest are listed, not left out: a table short of a row reads as whole
+            runs.append(PoseGraphCompareRun(name, not_run=True))
+            continue
         if progress is not None:
             progress(name)
         t0 = time.perf_counter()

@@ -115,7 +115,9 @@ def _position(t: np.ndarray, path: Path, line: int | None) -> np.ndarray:
     """``t`` when within :data:`TRANSLATION_MAX_M` (as the pose-graph readers), else
     InputError: beyond it the alignment's sums overflow (LAPACK hung on the inf)."""
     if not np.max(np.abs(t)) <= TRANSLATION_MAX_M:
-        raise InputError(f"position beyond {TRANSLATION_MAX_M:.0e} m: no trajectory's", path, line)
+        raise InputError(
+            f"position beyond {TRANSLATION_MAX_M:.0e} m: no trajectory's poses lie so far", path, line
+        )
     return t
 
 

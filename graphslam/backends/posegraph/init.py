@@ -176,7 +176,10 @@ def _relaxation(graph: PoseGraph, method: str, sigma: float) -> Start:
     pose_graph = gtsam.NonlinearFactorGraph()
     for e in range(graph.n_edges):
         pose_graph.add(fx.between(by_rank, e, fx.diagonal_model(graph.information[e])))
-    anchor = int(fx.anchors(by_rank)[0])
+    # gtsam's LAGO roots its orientation tree at the first key and failed (IndexError:
+    # map::at) with the prior on another (a FIX line naming pose 1): the start's gauge is
+    # the first pose, and at_anchor moves it onto the FIX pose's vertex after
+    anchor = 0 if method == "lago" else int(fx.anchors(by_rank)[0])
     pose_graph.add(fx.prior(by_rank, anchor, fx.pose(graph.vertices[anchor], graph.rotation), sigma))
     if method == "lago":
         values = deep_stack.call(gtsam.lago.initialize, pose_graph, has_odometric_path(graph))

@@ -118,3 +118,30 @@ def test_off_plane_keeps_a_planar_robots_truth_quiet():
     assert off_plane(T) is None
     T[:, 2, 3] = np.linspace(0, 3, 200)  # a 3 m climb over the room: 21 % of its extent
     assert "height spans 3 m" in off_plane(T)
+
+
+def test_a_solver_a_stop_came_before_is_listed_as_not_run(tmp_path, monkeypatch):
+    """SIGINT 5 s into ``compare --backends isam2 batch``: batch, never started, was in
+    neither the table nor compare.json's runs, which then read as whole."""
+    from graphslam import registry
+    from graphslam.pipelines import compare_posegraph
+
+    asked = iter([False, True])
+    monkeypatch.setattr(compare_posegraph, "stop_requested", lambda: next(asked))
+    graph = registry.load_pose_graph(str(_chain(tmp_path, 10)), "auto", "nearest")
+    runs = compare_posegraph.compare(graph, ["isam2", "batch"])
+    assert [r.status for r in runs] == ["ok", "not run"]
+    assert runs[1].to_dict() == {"backend": "batch", "status": "not run", "error": None}
+
+
+def test_lago_starts_a_graph_whose_fix_pose_is_not_the_first(tmp_path, capsys):
+    """FIX 1 made gtsam's LAGO fail (IndexError: map::at, said as a numerical recovery):
+    its orientation tree is rooted at the first key. The start is rooted there and moved
+    onto the FIX pose's vertex, which the estimate keeps."""
+    text = "VERTEX_SE2 0 3 4 0.5\nVERTEX_SE2 1 5 4 0.5\nVERTEX_SE2 2 7 4 0.5\nFIX 2\n" + "".join(
+        f"EDGE_SE2 {a} {b} {d} 0.1 0.2 100 0 0 100 0 100\n" for a, b, d in ((0, 1, 1), (1, 2, 1), (0, 2, 2))
+    )
+    metrics, err = _run(tmp_path, capsys, text, "--backend", "batch")
+    assert metrics["init"] == "lago" and "LAGO failed" not in json.dumps(metrics)
+    held = np.loadtxt(tmp_path / "out" / "trajectory.tum")[2]
+    assert np.allclose(held[1:3], [7.0, 4.0], atol=1e-6)
