@@ -45,6 +45,8 @@ for the first):
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 import math

@@ -27,6 +27,8 @@ JSON (default ``benchmarks/results/association_ceiling.json``) and its PNG besid
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 from pathlib import Path

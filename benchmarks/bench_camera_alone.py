@@ -35,6 +35,8 @@ frames per second with the floors.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import os
 import sys

@@ -31,6 +31,8 @@ Victoria Park's first 300 poses, 1 repeat (a smoke run of the code path).
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 import resource

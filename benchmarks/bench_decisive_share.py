@@ -26,6 +26,8 @@ Writes ``benchmarks/results/decisive_share.json`` (or ``--out``) and a PNG besid
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import sys

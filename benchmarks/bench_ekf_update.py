@@ -30,6 +30,8 @@ Usage: ``python benchmarks/bench_ekf_update.py [--out FILE.json] [--repeats R]
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import platform
 import sys

@@ -41,6 +41,8 @@ its clean optimum.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import platform

@@ -43,6 +43,8 @@ per version and particle count) and its PNG beside it.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import math
 import sys

@@ -32,6 +32,8 @@ JSON (default ``benchmarks/results/filter_seeds.json``, with ``--victoria-park``
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import math
 import sys

@@ -23,6 +23,8 @@ JSON (default ``benchmarks/results/harris.json``) and its PNG beside it.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 from pathlib import Path

@@ -25,6 +25,8 @@ first 300 frames.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import platform
 import statistics

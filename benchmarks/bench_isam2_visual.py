@@ -39,6 +39,8 @@ relinearisation steps, every 10th update).
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import sys

@@ -35,6 +35,8 @@ Target (issue 6): with closures, ATE at most half of the same run without.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import platform
 import sys

@@ -50,6 +50,8 @@ Targets: 100 % precision, recall >= 80 %; no closure on KITTI 07.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import math

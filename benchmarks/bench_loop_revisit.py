@@ -50,6 +50,8 @@ only (10, 01), KITTI 07 0-159 nothing; 100 VGA images under 10 s.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import platform

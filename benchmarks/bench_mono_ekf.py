@@ -44,6 +44,8 @@ against map size).
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import math
 import os

@@ -34,6 +34,8 @@ scored by the sightings the estimate's particle paired with it, through its ance
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import math
 import sys

@@ -29,6 +29,8 @@ unknown/known ATE ratio of every run with the issue's bounds.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import shutil
 import sys

@@ -22,6 +22,8 @@ default) and the world seed as its own seed.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 import time

@@ -21,6 +21,8 @@ JSON (default ``benchmarks/results/orb.json``) and its PNG beside it.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 import time

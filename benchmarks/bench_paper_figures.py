@@ -57,6 +57,8 @@ Usage: ``python benchmarks/bench_paper_figures.py [--frames N] [--seed S]
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import os
 import sys

@@ -16,6 +16,8 @@ log's trajectories and beacons over the truth, and the ATE bars.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 import time

@@ -54,6 +54,8 @@ load's, not ours. sphere2500 ATE 0.2030 m for iSAM2 and for batch (ratio
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 import math

@@ -19,6 +19,8 @@ a local minimum there).
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 import tempfile

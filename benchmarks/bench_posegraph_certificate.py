@@ -17,6 +17,8 @@ sphere2500 and w10000 and a 3-D grid of 8000 poses (about 4 minutes).
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import sys

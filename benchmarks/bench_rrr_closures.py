@@ -25,6 +25,8 @@ recall of the kept closures. ``--quick``: Bovisa06's first 3000 poses, batch.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import dataclasses
 import json

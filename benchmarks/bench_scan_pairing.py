@@ -19,6 +19,8 @@ The clustered landmarks of MRCLAM are measured by ``benchmarks/bench_mrclam.py``
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 from pathlib import Path

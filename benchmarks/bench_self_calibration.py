@@ -23,6 +23,8 @@ calibration's.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import contextlib
 import io

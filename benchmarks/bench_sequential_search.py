@@ -50,6 +50,8 @@ Usage: ``python benchmarks/bench_sequential_search.py [--seeds 0,1,2]
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import os
 import sys

@@ -27,6 +27,8 @@ per-run costs, for each engine. ``--quick``: 2 runs of 20 steps.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import shutil
 import statistics

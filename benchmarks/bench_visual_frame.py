@@ -71,6 +71,8 @@ output ``benchmarks/results/bench_visual_frame.json``.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import math
 import os

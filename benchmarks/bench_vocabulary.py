@@ -46,6 +46,8 @@ of 1 000 images, 2 passes.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import os
 import sys

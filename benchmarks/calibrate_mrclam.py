@@ -66,6 +66,8 @@ this script, run on every robot of Dataset 6:
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 import math

@@ -19,6 +19,8 @@ refactor, not a CI test.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import hashlib
 import json

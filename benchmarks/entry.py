@@ -29,7 +29,8 @@ the end, by :func:`write_json`: the JSON is printed on stdout instead, an earlie
 at ``--out`` is left as it was (never a truncated one), and the one line says so.
 
 The scripts import numpy, gtsam and the toolkit at their top, before this exists: a
-signal in that first second still ends with Python's own message.
+signal in that first second is :mod:`quiet_start`'s, each script's first import, which
+ends it with one line too.
 
 Usage, the last lines of a script::
 
@@ -40,6 +41,8 @@ Usage, the last lines of a script::
 """
 
 from __future__ import annotations
+
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
 
 import argparse
 import errno

@@ -25,6 +25,8 @@ issue category) to ``benchmarks/results/hostile_pass.json`` or ``--out``.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 import os

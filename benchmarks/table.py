@@ -17,6 +17,8 @@ without a summary are listed after the table, so none is silently left out.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import json
 from pathlib import Path

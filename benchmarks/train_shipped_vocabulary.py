@@ -24,6 +24,8 @@ millions of descriptors; 10^4 words keeps the file near 1 MB), seed 0.
 
 from __future__ import annotations
 
+import quiet_start  # noqa: F401  (first: a signal while the imports load is one line)
+
 import argparse
 import sys
 import time

@@ -23,6 +23,7 @@ NOT_SCRIPTS = {
     "timing": "a helper module",
     "loop_real": "a helper module of bench_loop_pr.py",
     "entry": "the ending itself",
+    "quiet_start": "the beginning itself",
     "bare_run": "the floor bench_command.py times: a bare gtsam script, nothing of ours",
 }
 SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if p.stem not in NOT_SCRIPTS)
@@ -399,3 +400,42 @@ def test_a_folder_as_out_stops_a_script_before_its_work(tmp_path):
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].endswith(f"argument --out: {tmp_path} is a folder; give a file name")
     assert done.stdout == ""
+
+
+def _script_beside_quiet_start(tmp_path):
+    import shutil
+
+    shutil.copy(BENCHMARKS / "quiet_start.py", tmp_path / "quiet_start.py")
+    script = tmp_path / "bench_x.py"
+    script.write_text(
+        "from __future__ import annotations\n\nimport quiet_start  # noqa: F401\n"
+        "import os\nimport signal\nimport time\n\n"
+        "os.kill(os.getpid(), signal.SIGINT)  # as a Ctrl-C while numpy loads\n"
+        "time.sleep(5)\nprint('not reached')\n"
+    )
+    return script
+
+
+def test_a_signal_while_a_script_starts_is_one_line(tmp_path):
+    """The scripts import numpy, gtsam and the toolkit before entry.run installs its
+    handlers: a Ctrl-C in that first second printed a KeyboardInterrupt traceback."""
+    done = subprocess.run([sys.executable, str(_script_beside_quiet_start(tmp_path))],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 130
+    assert done.stderr == "bench_x.py: interrupted (SIGINT) while starting\n"
+    assert "not reached" not in done.stdout
+
+
+def test_quiet_start_leaves_a_test_process_its_handlers():
+    import signal
+
+    before = signal.getsignal(signal.SIGINT)
+    load_benchmark("quiet_start")
+    assert signal.getsignal(signal.SIGINT) is before
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_script_imports_quiet_start_first(name):
+    source = (BENCHMARKS / f"{name}.py").read_text()
+    imports = [ln for ln in source.splitlines() if ln.startswith(("import ", "from ")) and "__future__" not in ln]
+    assert imports[0].startswith("import quiet_start"), name
