@@ -83,33 +83,48 @@ class PoseGraphRunMetrics(MetricsRecord):
     provenance: dict | None = optional()
 
 
-def run(graph: pg.PoseGraph, solver: str = "isam2", config: PoseGraphConfig | None = None) -> SolveResult:
+def run(
+    graph: pg.PoseGraph,
+    solver: str = "isam2",
+    config: PoseGraphConfig | None = None,
+    progress: Callable[[str, int], None] | None = None,
+) -> SolveResult:
     """Optimise ``graph``; see :func:`graphslam.backends.posegraph.solver.solve`.
 
     SIGINT or SIGTERM between iSAM2 updates ends the solve with the poses added
     so far (``result.cut``); during the batch part (LM, GNC) it ends it after the
     iteration it came in, the estimate in hand then whole (``result.stopped``). A
     whole estimate is then certified when ``config.certify`` (``result.optimality``;
-    not after a stop).
+    not after a stop). ``progress(point, step)``: told at every stop check
+    (:class:`~graphslam.pipelines.progress.SolveProgress`).
     """
     config = config or PoseGraphConfig()
+    tell = progress if progress is not None else (lambda point, step: None)
     with interrupt_between_frames() as stop:
 
         def should_stop(point: str, step: int) -> bool:
             signal_hook(point, step)
+            tell(point, step)
             return stop.requested
+
+        def stop_in(point: str) -> Callable[[], bool]:  # (no signal hook: none was placed there)
+            def check() -> bool:
+                tell(point, 0)
+                return stop.requested
+
+            return check
 
         result = solve(graph, config, solver, should_stop)
         signal_hook("finalize")
         if config.certify and result.cut is None and not stop.requested:
-            certify(graph, result, lambda: stop.requested)
+            certify(graph, result, stop_in("certificate"))
             if (
                 solver == "auto"
                 and result.optimality is not None
                 and not result.optimality.certified
                 and not stop.requested
             ):
-                result = _retried(graph, config, result, lambda: stop.requested)
+                result = _retried(graph, config, result, stop_in("init"))
     return result
 
 

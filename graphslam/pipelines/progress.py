@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Sized
 
-__all__ = ["progress", "ProgressLines", "PROGRESS_LINE_INTERVAL_S"]
+__all__ = ["progress", "ProgressLines", "PROGRESS_LINE_INTERVAL_S", "SolveProgress"]
 
 #: Seconds between two progress lines off a terminal: a log stays short (six lines a
 #: minute) and a stalled run still shows within seconds that it lives.
@@ -123,3 +123,63 @@ def progress(
     if terminal:
         return tqdm(iterable, total=total, desc=desc, unit=unit, file=file, dynamic_ncols=True)
     return ProgressLines(iterable, total=total, desc=desc, unit=unit, file=file)
+
+
+#: What each stop-check point of a pose-graph solve is doing, and what its count counts
+#: (:data:`graphslam.backends.posegraph.solver.StopCheck`'s points; ``init`` and
+#: ``certificate`` are waits without a count).
+SOLVE_PHASES = {
+    "step": ("iSAM2", "update"),
+    "lm": ("batch LM", "iteration"),
+    "gnc": ("GNC", "iteration"),
+    "init": ("Shonan averaging", None),
+    "certificate": ("certificate", None),
+}
+
+
+class SolveProgress:
+    """Progress of a pose-graph solve on stderr, from its stop checks: ``tracker(point,
+    step)``. A whole-graph solve has phases (iSAM2 updates, LM and GNC iterations, Shonan
+    averaging, the certificate) and no total known in advance, so no bar: the phase, its
+    count and the time so far, rewritten in place on a terminal (five times a second at
+    most) and as a line every :data:`PROGRESS_LINE_INTERVAL_S` elsewhere. NewCollege's
+    default run went 40 s and more without a word."""
+
+    def __init__(self, enabled: bool = True, file=None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.file = file if file is not None else sys.stderr
+        self.enabled = enabled
+        self.clock = clock
+        try:
+            self.terminal = bool(self.file.isatty())
+        except (AttributeError, ValueError):
+            self.terminal = False
+        self._start = self._last = clock()
+        self._width = 0  # of the line drawn in place
+        self._said = False
+
+    def __call__(self, point: str, step: int = 0) -> None:
+        if not self.enabled:
+            return
+        now = self.clock()
+        if now - self._last < (0.2 if self.terminal else PROGRESS_LINE_INTERVAL_S):
+            return
+        phase, unit = SOLVE_PHASES.get(point, (point, None))
+        count = f" {unit} {step}" if unit is not None else ""
+        self._write(f"solving: {phase}{count}, {now - self._start:.0f} s")
+        self._last = now
+
+    def close(self) -> None:
+        """Clear the line drawn in place (a terminal); lines written elsewhere stay."""
+        if self._width:
+            self._write("", clear=True)
+
+    def _write(self, text: str, clear: bool = False) -> None:
+        try:
+            if self.terminal:
+                self.file.write("\r" + text.ljust(self._width) + ("\r" if clear else ""))
+                self._width = 0 if clear else len(text)
+            else:
+                print(text, file=self.file)
+            self.file.flush()
+        except (OSError, ValueError):
+            pass  # a closed or full stderr costs the progress line, never the run

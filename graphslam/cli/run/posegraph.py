@@ -89,7 +89,13 @@ def run(args: argparse.Namespace) -> int:
         warn(doubt)
     out_dir = args.resolved_out = args.out or Path("runs") / f"{graph.name}-{args.backend}"
     folder = OutputFolder(out_dir, OUTPUTS | ({"run.rrd"} if args.rerun == "save" else set()))
-    result = pipeline.run(graph, args.backend, solver_config)
+    from graphslam.pipelines.progress import SolveProgress
+
+    tracker = SolveProgress(enabled=not args.quiet)
+    try:
+        result = pipeline.run(graph, args.backend, solver_config, progress=tracker)
+    finally:
+        tracker.close()
     metrics = pipeline.metrics(
         graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
     )
