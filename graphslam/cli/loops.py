@@ -133,6 +133,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
         featureless_images,
         folder_places,
         train_vocabulary,
+        vocabulary_doubt,
     )
     from graphslam.registry import read_config
     from loopclosure.detector import LoopDetector, LoopDetectorConfig
@@ -200,6 +201,8 @@ def cmd_loops(args: argparse.Namespace) -> int:
                 f"--words {args.words}: the tree has {vocab.n_words_} words, too few descriptors "
                 "for more; more images give it more"
             )
+    if (doubt := vocabulary_doubt(vocab)) is not None:  # the shipped one's weights are not all 0
+        warn(doubt)
 
     detector = LoopDetector(
         vocab,

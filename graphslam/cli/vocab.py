@@ -109,6 +109,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         describe,
         detect_all,
         train_vocabulary,
+        vocabulary_doubt,
     )
     from graphslam.registry import read_config
     from graphslam.sources.spatial.sequence import expand_images, natural_key
@@ -181,6 +182,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"wrote {args.out}: {describe(vocab)}, from {n_desc} descriptors of {len(feats)} "
         f"images, trained in {wall:.1f} s"
     )
+    if (doubt := vocabulary_doubt(vocab)) is not None:
+        warn(doubt)
     if n_desc < args.words:  # a flat k-means refuses this; a tree stops where nodes run dry
         warn(
             f"--words {args.words}: only {n_desc} descriptors, the tree has {vocab.n_words_} "

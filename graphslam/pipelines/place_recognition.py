@@ -124,6 +124,21 @@ def describe(vocab) -> str:
     return f"flat vocabulary, {vocab.n_words_} words"
 
 
+def vocabulary_doubt(vocab) -> str | None:
+    """The warning for a vocabulary whose IDF weights are all 0 (every word in every
+    training image: one image, or 10 words on 10 photos), under which every place scores
+    0 and no loop is ever found, else None. Trained and used without a word, loop
+    detection found nothing and said nothing (nineteenth hostile pass)."""
+    idf = np.asarray(getattr(vocab, "idf_", ()), dtype=np.float64)
+    if getattr(vocab, "n_training_images_", 0) and idf.size and not np.any(idf > 0.0):
+        return (
+            f"every IDF weight of the vocabulary is 0: each of its {idf.size} words occurs in "
+            f"each of its {vocab.n_training_images_} training images, so every place scores 0 "
+            "and no loop can be found; train on more, and more varied, images or with more words"
+        )
+    return None
+
+
 def check_vocabulary(vocab, path: Path) -> None:
     """Refuse (InputError naming ``path``) a vocabulary that cannot quantise ORB descriptors."""
     # ORB descriptors are 32-byte binary strings; a float vocabulary cannot quantise them.

@@ -214,6 +214,20 @@ def stop_live_runs() -> None:
                 pass
 
 
+def _wait_for_runs(pool: ThreadPoolExecutor) -> None:
+    """Wait for the pool's runs, stopped by :func:`stop_live_runs`, to end. A second
+    Ctrl-C (0.1 s after the first) raised out of the wait and the sweep exited with a run
+    still going, which wrote its files into ``--out`` after the sweep had reported: each
+    further signal now tells the runs again and the wait goes on (a stopped run saves and
+    ends within seconds)."""
+    while True:
+        try:
+            pool.shutdown(wait=True)
+            return
+        except KeyboardInterrupt:
+            stop_live_runs()
+
+
 def allow_runs() -> None:
     """Let runs start again (after :func:`stop_live_runs`)."""
     _STOPPING.clear()
@@ -253,7 +267,7 @@ class PoolExecutor:
             for f in futures:
                 f.cancel()
             stop_live_runs()
-            pool.shutdown(wait=True)
+            _wait_for_runs(pool)
             allow_runs()
 
     def close(self) -> None:

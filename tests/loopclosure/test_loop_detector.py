@@ -265,7 +265,7 @@ def test_default_detector_on_images_is_repeatable():
     imgs = [seq.load(i) for i in range(40)]
     from frontend.orb import OrbDetector
 
-    vocab = VocabularyTree(branching=4, depth=2, seed=0).fit(
+    vocab = VocabularyTree(branching=4, depth=3, seed=0).fit(
         [OrbDetector(n_features=200, cell_size_px=0).detect(im).descriptors for im in imgs[::4]])
     runs = []
     for _ in range(2):

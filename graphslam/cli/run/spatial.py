@@ -274,7 +274,12 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
 
     from frontend.orb import OrbDetector
     from graphslam.pipelines import loop_closing as lc
-    from graphslam.pipelines.place_recognition import check_vocabulary, describe, train_vocabulary
+    from graphslam.pipelines.place_recognition import (
+        check_vocabulary,
+        describe,
+        train_vocabulary,
+        vocabulary_doubt,
+    )
     from loopclosure.detector import LoopDetectorConfig
     from loopclosure.pnp import PnpConfig
     from loopclosure.verify import VerifyConfig
@@ -295,6 +300,8 @@ def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
         source = f"trained on the sequence ({n_frames} frames)"
         if not args.quiet:
             print(f"vocabulary: {describe(vocab)}", file=sys.stderr)
+    if (doubt := vocabulary_doubt(vocab)) is not None:
+        warn(doubt)
     return lc.make_loop_closer(
         sequence,
         backend,

@@ -145,3 +145,44 @@ def test_lago_starts_a_graph_whose_fix_pose_is_not_the_first(tmp_path, capsys):
     assert metrics["init"] == "lago" and "LAGO failed" not in json.dumps(metrics)
     held = np.loadtxt(tmp_path / "out" / "trajectory.tum")[2]
     assert np.allclose(held[1:3], [7.0, 4.0], atol=1e-6)
+
+
+def test_a_second_ctrl_c_does_not_leave_a_sweeps_run_behind(monkeypatch):
+    """A second SIGINT 0.1 s after the first raised out of the pool's wait and the sweep
+    exited with its run still going; the run wrote its files into --out 0.2 s later. Now
+    each further signal tells the runs again and the wait goes on until they end."""
+    from graphslam.pipelines import sweep_exec
+
+    told = []
+    monkeypatch.setattr(sweep_exec, "stop_live_runs", lambda: told.append("stop"))
+
+    class Pool:
+        waits = 0
+
+        def shutdown(self, wait):
+            self.waits += 1
+            if self.waits <= 2:  # two more signals arrive while the runs save
+                raise KeyboardInterrupt
+
+    pool = Pool()
+    sweep_exec._wait_for_runs(pool)
+    assert pool.waits == 3 and told == ["stop", "stop"]
+
+
+def test_a_vocabulary_whose_weights_are_all_0_is_said(tmp_path, capsys, shared_data):
+    """Trained on one photo, every word occurs in every training image: every IDF weight 0,
+    every place scores 0, and loops found nothing with nothing said."""
+    photo = shared_data / "slambook2_desk" / "images" / "01.png"
+    vocab = tmp_path / "v.npz"
+    assert main(["vocab", "train", str(photo), "--words", "50", "--out", str(vocab), "--quiet"]) == 0
+    assert "every IDF weight of the vocabulary is 0" in capsys.readouterr().err
+    out = tmp_path / "loops.csv"
+    assert main(["loops", str(photo.parent), "--vocab", str(vocab), "--out", str(out), "--quiet"]) == 0
+    assert "every IDF weight of the vocabulary is 0" in capsys.readouterr().err
+
+
+def test_a_vocabulary_with_weights_says_nothing_of_them(tmp_path, capsys, shared_data):
+    folder = shared_data / "slambook2_desk" / "images"
+    vocab = tmp_path / "v.npz"
+    assert main(["vocab", "train", str(folder), "--words", "200", "--out", str(vocab), "--quiet"]) == 0
+    assert "IDF weight" not in capsys.readouterr().err
