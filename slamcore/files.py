@@ -66,8 +66,10 @@ def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path``; moved over ``path`` when the block ends
     without an exception, deleted otherwise.
 
-    For writers that want a file name (``np.savez``, matplotlib)."""
-    path = Path(path)
+    For writers that want a file name (``np.savez``, matplotlib). A symbolic link is
+    written through (its target replaced, the link kept), as ``open`` would: the link
+    itself was replaced by a regular file (nineteenth hostile pass)."""
+    path = through_links(path)
     tmp_path = temporary_beside(path)
     try:
         yield tmp_path
@@ -80,6 +82,11 @@ def replacing(path: str | Path) -> Iterator[Path]:
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise
+
+
+def through_links(path: str | Path) -> Path:
+    """``path``, or the file it names through symbolic links (which need not exist yet)."""
+    return Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
 
 
 def temporary_beside(path: Path) -> Path:
@@ -110,7 +117,7 @@ def replacing_all(paths: list[Path]) -> Iterator[list[Path]]:
     while writing leaves the old set whole. The last path marks the set complete
     (``map.json``): it is removed before the first move, so a cut between the
     moves leaves a set that says it is incomplete, never old and new mixed."""
-    paths = [Path(p) for p in paths]
+    paths = [through_links(p) for p in paths]
     tmps: list[Path] = []
     try:
         for p in paths:
@@ -197,6 +204,8 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     """
     if isinstance(path, str) and path.endswith(("/", os.sep)):  # Path() drops the slash
         raise ConfigError(f"{flag} {path} names a folder (it ends in a slash); give a file name")
+    if str(path) == "-":  # stdout, by the usual convention: not a file written whole
+        raise ConfigError(f"{flag} -: writing to stdout is not supported; give a file name")
     path = Path(path)
     check_name_lengths(path, flag)
     if path.is_dir():
@@ -210,15 +219,36 @@ def check_special_file(path: str | Path, flag: str = "--out") -> None:
     """Refuse an output that is a device, pipe or socket (``/dev/stdout``, a FIFO): the
     output is written beside it and moved into place, which replaced the pipe with a
     regular file, unsaid (hostile pass 18)."""
+    if _links_into_proc(path):
+        raise ConfigError(
+            f"{flag} {path} is a stream of this process (a link into /proc: /dev/stdout), not "
+            "a file it can write whole; give a file name"
+        )
     try:
         mode = os.stat(path).st_mode
-    except OSError:  # not there yet (or a dangling link, replaced as a file would be)
+    except OSError:  # not there yet (or a dangling link, written through as open would)
         return
     if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
         raise ConfigError(
             f"{flag} {path} is not a regular file (a device, pipe or socket): the output is "
             "written beside it and moved over it, so give a file name"
         )
+
+
+def _links_into_proc(path: str | Path) -> bool:
+    """Whether ``path`` or a link on the way to its file points into ``/proc`` (``/dev/stdout``
+    -> ``/proc/self/fd/1``): with stdout redirected to a file the link passed the device test,
+    and the output was written beside ``/dev/stdout`` and moved over it (the system's
+    link became a regular file, the output never reached stdout: nineteenth hostile pass)."""
+    seen = 0
+    current = os.path.abspath(path)
+    while os.path.islink(current) and seen < 40:  # (40: the kernel's own limit on a chain)
+        if current.startswith("/proc/"):
+            return True
+        target = os.readlink(current)
+        current = os.path.normpath(os.path.join(os.path.dirname(current), target))
+        seen += 1
+    return current.startswith("/proc/")
 
 
 def _check_writable(folder: Path, flag: str, shown: Path) -> None:

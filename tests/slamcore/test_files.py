@@ -104,3 +104,32 @@ def test_a_write_cut_by_a_size_limit_names_its_output(tmp_path):
                           timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert done.stdout.split() == ["27", str(target)], done.stderr  # EFBIG
     assert not list(tmp_path.iterdir())  # no partial file left
+
+
+def test_an_output_named_through_a_link_into_proc_is_refused(tmp_path, monkeypatch):
+    """``convert g.g2o /dev/stdout > file``: /dev/stdout -> /proc/self/fd/1 -> a regular
+    file passed the device test, and the output replaced the /dev/stdout link itself."""
+    from slamcore.errors import ConfigError
+    from slamcore.files import check_special_file
+
+    link = tmp_path / "stdout"
+    link.symlink_to("/proc/self/fd/1")
+    with pytest.raises(ConfigError, match="a link into /proc"):
+        check_special_file(link)
+    with pytest.raises(ConfigError, match="writing to stdout is not supported"):
+        check_output_file("-")
+
+
+def test_a_link_is_written_through_and_kept(tmp_path):
+    from slamcore.files import atomic_open
+
+    target = tmp_path / "data" / "real.csv"
+    target.parent.mkdir()
+    link = tmp_path / "out.csv"
+    link.symlink_to(target)  # dangling: the target is made, as open() would
+    with atomic_open(link) as fh:
+        fh.write("a\n")
+    assert link.is_symlink() and target.read_text() == "a\n"
+    with atomic_open(link) as fh:
+        fh.write("b\n")
+    assert link.is_symlink() and target.read_text() == "b\n"
