@@ -38,6 +38,15 @@ def path_arg(text: str) -> Path:
     return Path(os.path.expanduser(text))
 
 
+def file_out_arg(text: str) -> Path:
+    """argparse ``type`` of an output that is one file (:func:`path_arg`): one ending in a
+    slash names a folder, which ``Path`` forgets (``convert g.g2o x.g2o/`` wrote a file
+    ``x.g2o``)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text} names a folder (it ends in a slash); give a file name")
+    return path_arg(text)
+
+
 def add_command(sub, name: str, func, *, help: str, description: str, epilog: str | None = None):
     """Register the sub-command ``graphslam NAME`` (``func(args)`` runs it; None for a
     command with sub-commands of its own) and return its parser. With an ``epilog``

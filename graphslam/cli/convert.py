@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from graphslam.cli.common import add_choice_option, add_command, path_arg
+from graphslam.cli.common import add_choice_option, add_command, file_out_arg, path_arg
 from slamcore.errors import ConfigError
 
 FORMAT_OF_SUFFIX = {".g2o": "g2o", ".graph": "toro"}
@@ -40,7 +40,7 @@ def register(sub) -> None:
         "so.",
     )
     p.add_argument("input", type=path_arg, metavar="IN")
-    p.add_argument("output", type=path_arg, metavar="OUT")
+    p.add_argument("output", type=file_out_arg, metavar="OUT")
     p.add_argument(
         "--to", choices=("g2o", "toro"), default=None, help="output format (default: from OUT's extension)"
     )

@@ -22,6 +22,7 @@ from graphslam.cli.common import (
     add_frames_option,
     add_quiet_option,
     add_topics_option,
+    file_out_arg,
     path_arg,
     warn,
 )
@@ -70,7 +71,7 @@ def register(subparsers) -> None:
     add_topics_option(p)
     p.add_argument(
         "--out",
-        type=path_arg,
+        type=file_out_arg,
         required=True,
         metavar="FILE",
         help="CSV file to write: query,match,score,inliers",
@@ -102,7 +103,7 @@ def register(subparsers) -> None:
     add_config_option(p, "TOML or YAML file with [loops] and [loop_verify] sections", metavar="FILE")
     p.add_argument(
         "--log",
-        type=path_arg,
+        type=file_out_arg,
         default=None,
         metavar="FILE",
         help="write every candidate's fate (scores, inliers, accepted or why rejected) as JSON lines",

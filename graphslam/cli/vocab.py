@@ -12,7 +12,13 @@ import argparse
 import os
 import sys
 
-from graphslam.cli.common import add_command, add_config_option, add_quiet_option, kmeans_seed_arg, path_arg
+from graphslam.cli.common import (
+    add_command,
+    add_config_option,
+    add_quiet_option,
+    file_out_arg,
+    kmeans_seed_arg,
+)
 
 EPILOG = """\
 examples:
@@ -58,7 +64,7 @@ def register(subparsers) -> None:
     )
     t.add_argument(
         "--out",
-        type=path_arg,
+        type=file_out_arg,
         required=True,
         metavar="FILE",
         help="vocabulary file to write (.npz archive, written under exactly this name)",

@@ -186,3 +186,19 @@ def test_a_vocabulary_with_weights_says_nothing_of_them(tmp_path, capsys, shared
     vocab = tmp_path / "v.npz"
     assert main(["vocab", "train", str(folder), "--words", "200", "--out", str(vocab), "--quiet"]) == 0
     assert "IDF weight" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["convert", "IN", "x.g2o/"], ["loops", "IMGS", "--out", "l.csv/"],
+                                  ["vocab", "train", "IMGS", "--out", "v.npz/"]])
+def test_a_file_output_ending_in_a_slash_is_refused(tmp_path, capsys, shared_data, argv):
+    """``convert g.g2o x.g2o/`` wrote a file named x.g2o: Path() forgets the slash."""
+    photos = shared_data / "slambook2_desk" / "images"
+    graph = tmp_path / "g.g2o"
+    graph.write_text(CLOSED_CHAIN)
+    argv = [{"IN": str(graph), "IMGS": str(photos)}.get(a, a) for a in argv]
+    argv = [f"{tmp_path}/{a}" if a.endswith("/") else a for a in argv]
+    with pytest.raises(SystemExit) as done:  # argparse's own error: status 2
+        main(argv)
+    assert done.value.code == 2
+    assert "names a folder (it ends in a slash)" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == [graph]
