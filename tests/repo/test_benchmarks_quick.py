@@ -25,6 +25,7 @@ NOT_BENCHMARKS = {
     "train_shipped_vocabulary": "trains the vocabulary shipped in loopclosure/data: a build step",
     "bare_run": "the floor bench_command.py runs as a subprocess (a bare gtsam script)",
     "entry": "how every script ends: one line on a signal (tests/repo/test_benchmark_signals.py)",
+    "quiet_start": "how every script begins: one line on a signal while it imports (the same tests)",
 }
 
 #: Quick runs of 8 s or more on the shared 2-core machine -> seconds measured there (the

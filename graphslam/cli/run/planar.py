@@ -65,6 +65,26 @@ def refuse_ignored_flags(args: argparse.Namespace) -> None:
         )
 
 
+def _ground_truth(args: argparse.Namespace, dataset):
+    """``(dataset, truth or None)``: ``--ground-truth`` of the dataset's poses, the dataset
+    then carrying the warning of a truth that leaves the plane (scored on x, y and yaw)."""
+    if args.ground_truth is None:
+        return dataset, None
+    if dataset.agents:
+        raise ConfigError(
+            "--ground-truth with --robot all: one file cannot be every robot's truth (it was "
+            "applied to each); the folder's RobotN_Groundtruth.dat score them, or score one "
+            "robot against the file with --robot N"
+        )
+    from graphslam.sources.ground_truth import off_plane, planar_ground_truth, read_trajectory
+
+    trajectory = read_trajectory(args.ground_truth)
+    truth = planar_ground_truth(dataset, trajectory)
+    if (doubt := off_plane(trajectory.wTc)) is not None:
+        dataset = dataclasses.replace(dataset, warnings=(*dataset.warnings, doubt))
+    return dataset, truth
+
+
 def run(args: argparse.Namespace) -> int:
     """The 2-D ``graphslam run``; returns the exit status."""
     from graphslam import registry
@@ -77,20 +97,7 @@ def run(args: argparse.Namespace) -> int:
     dataset = registry.load_dataset(
         args.dataset, seed=args.seed, config=config, robot=getattr(args, "robot", None)
     )
-    truth = None
-    if args.ground_truth is not None and dataset.agents:
-        raise ConfigError(
-            "--ground-truth with --robot all: one file cannot be every robot's truth (it was "
-            "applied to each); the folder's RobotN_Groundtruth.dat score them, or score one "
-            "robot against the file with --robot N"
-        )
-    if args.ground_truth is not None:
-        from graphslam.sources.ground_truth import off_plane, planar_ground_truth, read_trajectory
-
-        trajectory = read_trajectory(args.ground_truth)
-        truth = planar_ground_truth(dataset, trajectory)
-        if (doubt := off_plane(trajectory.wTc)) is not None:  # scored on x, y and yaw only
-            dataset = dataclasses.replace(dataset, warnings=(*dataset.warnings, doubt))
+    dataset, truth = _ground_truth(args, dataset)
     if args.nees and truth is None and not dataset.has_ground_truth:
         raise GraphSlamError(f"--nees needs ground truth; {args.dataset} has none")
     overrides = {"polish": False} if args.no_polish else {}
