@@ -887,7 +887,46 @@ def attacks() -> list[Attack]:
         Attack("15th: MRCLAM with another data set's barcodes (the ATE called meaningless)", "silent",
                lambda f: _run(_mrclam_barcodes_rotated(f), "--max-steps", "1500"),
                ("ok",), check=_says("labels are exchanged")),
+        # ---- the nineteenth pass (2026-12-07)
+        Attack("19th: two FIX poses the edges disagree with ('a tree: every start is the optimum')", "silent",
+               lambda f: _run(_w(f, "fix2.g2o", FIX_CHAIN)), ("ok",), check=_route_says("above the chi-square")),
+        Attack("19th: two FIX poses under the EKF (not held, unsaid)", "silent",
+               lambda f: _run(_w(f, "fix2.g2o", FIX_CHAIN), "--backend", "ekf"), ("ok",),
+               check=_warned("FIX holds 2 poses")),
+        Attack("19th: a 2-D graph scored against a truth climbing 145 m (ATE 0, unsaid)", "silent",
+               lambda f: _run(_w(f, "chain.g2o", _chain_g2o(30)), "--ground-truth", str(_w(
+                   f, "gt.tum", "".join(f"{i} {i} 0 {5 * i} 0 0 0 1\n" for i in range(30))))),
+               ("ok",), check=_warned("the ground truth is not planar")),
+        Attack("19th: LAGO with the FIX pose not the first (IndexError: map::at as a recovery)", "fail",
+               lambda f: _run(_w(f, "fix1.g2o", FIX_CHAIN.replace("FIX 0 2", "FIX 1")), "--backend", "batch"),
+               ("ok",), check=lambda f, o, e: "LAGO failed" in (f / "out" / "metrics.json").read_text()
+               and "LAGO failed" or None),
+        Attack("19th: a vocabulary of one photo (every IDF weight 0: loops find nothing, unsaid)", "silent",
+               lambda f: ["vocab", "train", str(DATA / "slambook2_desk" / "images" / "01.png"),
+                          "--words", "50", "--out", "v.npz", "--quiet"],
+               ("ok",), check=_says("every IDF weight of the vocabulary is 0")),
+        Attack("19th: convert to a link into /proc (the link replaced by a file, exit 0)", "silent",
+               lambda f: (Path(f / "stdout").symlink_to("/proc/self/fd/1"),
+                          ["convert", str(_w(f, "g.g2o", _chain_g2o(3))), str(f / "stdout")])[1]),
+        Attack("19th: convert to a name ending in a slash (a file of that name written)", "silent",
+               lambda f: ["convert", str(_w(f, "g.g2o", _chain_g2o(3))), f"{f}/x.g2o/"]),
     ]
+
+
+#: A 2-D chain between two FIX poses 6 m apart, its two edges 1 m (sigma 0.1 m).
+FIX_CHAIN = (
+    "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 5 0 0\nVERTEX_SE2 2 6 0 0\nFIX 0 2\n"
+    "EDGE_SE2 0 1 1 0 0 100 0 0 100 0 100\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 100\n"
+)
+
+
+def _route_says(word: str):
+    """metrics.json's ``route`` reason says ``word``."""
+    def check(folder, out, err):
+        m = json.loads((folder / "out" / "metrics.json").read_text())
+        reason = (m.get("route") or {}).get("reason", "")
+        return None if word in reason else f"the route says {reason!r}"
+    return check
 
 
 def _kitti_gt_from(folder: Path, first: int) -> Path:
