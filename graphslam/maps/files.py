@@ -244,6 +244,12 @@ def load_map(folder) -> SpatialMap:
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
     if not np.all(np.isfinite(K)):
         raise InputError("damaged map.json (camera K not finite)", folder / MAP_JSON)
+    if not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0])):
+        # a hand-edited K (zeros) ended in numpy's "Singular matrix" traceback
+        raise InputError("damaged map.json (camera K is no pinhole matrix)", folder / MAP_JSON)
+    _check_distortion(
+        doc["meta"].get("distortion") if isinstance(doc.get("meta"), dict) else None, folder / MAP_JSON
+    )
     if min(size) < 1:  # else blamed on the images a localisation compares with it
         raise InputError(f"damaged map.json (camera image_size {width}x{height})", folder / MAP_JSON)
     _check_detectors(doc["meta"], folder / MAP_JSON)
@@ -259,6 +265,30 @@ def load_map(folder) -> SpatialMap:
     if smap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
     return smap
+
+
+#: Distortion coefficient counts OpenCV's camera models take (k1 k2 p1 p2 [k3 [k4-k6 [s1-s4
+#: [tx ty]]]]).
+DISTORTION_COUNTS = (4, 5, 8, 12, 14)
+
+
+def _check_distortion(distortion, path: Path) -> None:
+    """InputError naming ``path`` unless ``distortion`` (map.json ``meta.distortion``) is
+    absent, empty, or a list of finite numbers of a count OpenCV takes: ``map.json`` is not covered
+    by the arrays' checksum, and an edited ``[-0.034]`` (k1 alone, as COLMAP's SIMPLE_RADIAL
+    gives it) ended in OpenCV's traceback when a localisation compared cameras."""
+    if distortion is None:
+        return
+    try:
+        values = np.asarray(distortion, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        values = None
+    if values is None or values.size not in (0, *DISTORTION_COUNTS) or not np.all(np.isfinite(values)):
+        raise InputError(
+            f"damaged map.json (camera distortion {str(distortion)[:80]}: "
+            f"{', '.join(map(str, DISTORTION_COUNTS))} finite numbers, as OpenCV takes them)",
+            path,
+        )
 
 
 def _check_detectors(meta: dict, path: Path) -> None:

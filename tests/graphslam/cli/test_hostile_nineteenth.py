@@ -202,3 +202,15 @@ def test_a_file_output_ending_in_a_slash_is_refused(tmp_path, capsys, shared_dat
     assert done.value.code == 2
     assert "names a folder (it ends in a slash)" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == [graph]
+
+
+def test_a_map_of_a_range_only_log_is_refused_by_name_not_by_an_observation(tmp_path, capsys):
+    """plaza1 with --map: "observation of landmark 5 from pose 6: covariance must be 1x1",
+    as if the log were bad; the localisers take range-bearing sightings only."""
+    saved = tmp_path / "m"
+    assert main(["run", "--dataset", "plaza1", "--max-steps", "300", "--save-map", str(saved),
+                 "--out", str(tmp_path / "a"), "--rerun", "off", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["run", "--dataset", "plaza1", "--max-steps", "300", "--map", str(saved),
+                 "--out", str(tmp_path / "b"), "--rerun", "off", "--quiet"]) == 2
+    assert "localising against a map takes range-bearing sightings" in capsys.readouterr().err

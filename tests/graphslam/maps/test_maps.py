@@ -204,3 +204,31 @@ def test_an_image_size_of_other_than_two_numbers_is_refused(saved, size):
     with pytest.raises(InputError) as e:
         load_map(saved)
     assert "damaged map.json (camera" in one_line(e) and "map.json" in one_line(e)
+
+
+@pytest.mark.parametrize("distortion", [[-0.034], [0.1, 0.2], [float("nan")] * 5, {"k1": 1}, "abc"])
+def test_a_distortion_opencv_cannot_take_is_refused_on_load(saved, distortion):
+    """map.json is outside the arrays' checksum: an edited [-0.034] (k1 alone) ended in
+    OpenCV's traceback when a localisation compared cameras (nineteenth hostile pass)."""
+    meta = json.loads((saved / "map.json").read_text())["meta"]
+    _edit_json(saved, meta={**meta, "distortion": distortion})
+    with pytest.raises(InputError) as e:
+        load_map(saved)
+    assert "damaged map.json (camera distortion" in one_line(e)
+
+
+@pytest.mark.parametrize("distortion", [[], [0.0] * 4, [0.1, -0.2, 0.0, 0.0, 0.01]])
+def test_a_distortion_opencv_takes_is_kept(saved, distortion):
+    meta = json.loads((saved / "map.json").read_text())["meta"]
+    _edit_json(saved, meta={**meta, "distortion": distortion})
+    assert load_map(saved).meta["distortion"] == distortion
+
+
+def test_a_singular_camera_matrix_is_refused_on_load(saved):
+    """K of zeros: numpy's "Singular matrix" traceback when a localisation compared cameras."""
+    doc = json.loads((saved / "map.json").read_text())
+    doc["camera"]["K"] = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]
+    (saved / "map.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError) as e:
+        load_map(saved)
+    assert "camera K is no pinhole matrix" in one_line(e)
