@@ -35,12 +35,50 @@ def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | No
         from graphslam.pipelines.sweep import sweep_output_names
 
         refuse_other_outputs(out_dir, sweep_output_names(out_dir), "graphslam sweep")
+        _refuse_files_of_unknown_origin(out_dir, will_write, FOLDER_OUTPUT_NAMES)
     removed = remove_stale_outputs(out_dir, will_write, FOLDER_OUTPUT_NAMES if known is None else known)
     if removed:
         print(
             f"removed from {out_dir}/ an earlier command's {', '.join(p.name for p in removed)} "
             "(this one writes no such file: they would read as its own)"
         )
+
+
+#: The files in which a graphslam command records itself (``provenance``): one of them in a
+#: folder shows that its other output names are an earlier command's too.
+RECORDS = ("metrics.json", "compare.json", "eval.json")
+
+
+def holds_a_record(out_dir: Path) -> bool:
+    """Whether ``out_dir`` holds a graphslam command's record of itself (:data:`RECORDS`
+    with its ``provenance``)."""
+    import json
+
+    for name in RECORDS:
+        try:
+            doc = json.loads((Path(out_dir) / name).read_text())
+        except (OSError, ValueError):
+            continue
+        provenance = doc.get("provenance") if isinstance(doc, dict) else None
+        if isinstance(provenance, dict) and "command" in provenance and "code_sha256" in provenance:
+            return True
+    return False
+
+
+def _refuse_files_of_unknown_origin(out_dir: Path, will_write, names) -> None:
+    """GraphSlamError when ``out_dir`` holds files of our output names that this command
+    would remove and no earlier graphslam command is shown to have written there (no
+    record of one, :data:`RECORDS`): a user's own ``graph.g2o`` and ``closures.csv`` in
+    the folder given as ``--out`` were deleted as "an earlier command's" (nineteenth
+    hostile pass)."""
+    stale = [n for n in names if n not in will_write and (Path(out_dir) / n).is_file()]
+    if not stale or holds_a_record(out_dir):
+        return
+    raise GraphSlamError(
+        f"--out {out_dir} holds {', '.join(stale)}, which this command does not write and no "
+        "graphslam command is shown to have written there (no metrics.json, compare.json or "
+        "eval.json of one): they would be removed; move them away, or choose another --out"
+    )
 
 
 def refuse_other_outputs(out_dir: Path, names, command: str, flag: str = "--out") -> None:

@@ -370,7 +370,10 @@ def _earlier_outputs(args: argparse.Namespace, before: dict[str, tuple[int, int]
     now = _output_stats(out)
     if not now or any(before.get(name) != st for name, st in now.items()):
         return ""  # nothing there, or this run wrote (its own message says what)
-    return f"{out}/ still holds an earlier command's {', '.join(now)}, not this run's"
+    from graphslam.cli.out_folder import holds_a_record
+
+    whose = "an earlier command's " if holds_a_record(Path(out)) else ""  # else maybe the user's
+    return f"{out}/ still holds {whose}{', '.join(now)}, not this run's"
 
 
 def _trajectories_written_since(args: argparse.Namespace, started_ns: int) -> list[Path]:

@@ -99,7 +99,8 @@ class _Recorder:
 def test_output_folder_lists_a_recording_only_when_it_was_saved_whole(tmp_path, capsys, mode, closes, listed):
     out = tmp_path / "out"
     out.mkdir()
-    (out / "metrics.json").write_text("{}")  # an earlier run's, which this one rewrites
+    # an earlier run's (its record of itself), which this one rewrites
+    (out / "metrics.json").write_text('{"provenance": {"command": "graphslam run", "code_sha256": "0"}}')
     (out / "run.rrd").write_bytes(b"old")  # an earlier run's recording
     folder = OutputFolder(out, {"metrics.json"} | ({"run.rrd"} if mode == "save" else set()))
     try:

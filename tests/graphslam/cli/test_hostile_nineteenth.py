@@ -214,3 +214,23 @@ def test_a_map_of_a_range_only_log_is_refused_by_name_not_by_an_observation(tmp_
     assert main(["run", "--dataset", "plaza1", "--max-steps", "300", "--map", str(saved),
                  "--out", str(tmp_path / "b"), "--rerun", "off", "--quiet"]) == 2
     assert "localising against a map takes range-bearing sightings" in capsys.readouterr().err
+
+
+def test_a_users_files_of_our_output_names_are_not_removed_unasked(tmp_path, capsys):
+    """A folder holding the user's own graph.g2o, closures.csv and eval.json given as --out:
+    the run deleted all three as "an earlier command's". With no record of a graphslam
+    command there, they are refused and kept; after a run of ours they are its, removed."""
+    folder = tmp_path / "U"
+    folder.mkdir()
+    mine = {"graph.g2o": "VERTEX_SE2 0 0 0 0\n", "closures.csv": "a,b\n", "eval.json": "{}\n"}
+    for name, text in mine.items():
+        (folder / name).write_text(text)
+    argv = ["run", "--max-steps", "20", "--out", str(folder), "--rerun", "off", "--quiet"]
+    assert main(argv) == 2
+    assert "no graphslam command is shown to have written there" in capsys.readouterr().err
+    assert {p.name: p.read_text() for p in folder.iterdir()} == mine
+    ours = tmp_path / "ours"
+    assert main(["run", "--dataset", str(_chain(tmp_path, 5)), "--out", str(ours), "--rerun", "off",
+                 "--quiet"]) == 0
+    assert main(argv[:4] + [str(ours)] + argv[5:]) == 0
+    assert "removed from" in capsys.readouterr().out and not (ours / "graph.g2o").exists()

@@ -58,7 +58,7 @@ def test_a_run_into_a_localize_folder_clears_localize_csv(tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()
     (out / "localize.csv").write_text("frame,status\n")
-    (out / "eval.json").write_text("{}\n")
+    (out / "eval.json").write_text('{"provenance": {"command": "graphslam eval", "code_sha256": "0"}}\n')
     (out / "notes.txt").write_text("mine\n")
     assert main(["run", "--max-steps", "10", *RUN, "--out", str(out)]) == 0
     assert not (out / "localize.csv").exists() and not (out / "eval.json").exists()
@@ -71,6 +71,7 @@ def test_an_earlier_output_that_cannot_be_removed_is_one_line(tmp_path, capsys, 
     out = tmp_path / "o"
     out.mkdir()
     (out / "run.rrd").write_bytes(b"old")
+    (out / "metrics.json").write_text('{"provenance": {"command": "graphslam run", "code_sha256": "0"}}')
     real_unlink = Path.unlink
 
     def unlink(self, missing_ok=False):
