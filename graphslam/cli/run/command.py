@@ -101,8 +101,10 @@ outputs (in --out):
                     goes during the run, a warning and the whole recording
                     kept as run.rrd
   A run first removes files of these names (and loops.csv, loops.jsonl) that
-  it will not write itself, left in --out by an earlier run; other files are
-  never touched.
+  it will not write itself, left in --out by an earlier run (one whose
+  metrics.json, compare.json or eval.json is there: without such a record
+  they may be yours, and the run refuses instead); other files are never
+  touched.
 
 examples:
   graphslam run
