@@ -158,6 +158,14 @@ def run(args: argparse.Namespace) -> int:
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
+        if result.observations and metrics.unmapped_observations == result.observations:
+            # a map of other landmark ids: every sighting unmapped, said only as a count
+            metrics.warnings = [
+                *(metrics.warnings or []),
+                f"none of the {result.observations} sightings is of a landmark of the map "
+                f"({args.map}: its landmark ids and this run's have none in common): the run "
+                "localised on its odometry alone",
+            ]
     nees = None
     if args.nees and result.interrupted and registry.landmark_implementation(args.backend).filtering:
         # a filter keeps each step's covariance as it goes: the steps run are scored

@@ -234,3 +234,30 @@ def test_a_users_files_of_our_output_names_are_not_removed_unasked(tmp_path, cap
                  "--quiet"]) == 0
     assert main(argv[:4] + [str(ours)] + argv[5:]) == 0
     assert "removed from" in capsys.readouterr().out and not (ours / "graph.g2o").exists()
+
+
+def test_a_map_of_other_landmark_ids_is_said(tmp_path, capsys):
+    """A 2-D map whose landmark ids the run never sees (shifted by 10^6): every sighting
+    unmapped, said only as a count, and the run was dead reckoning without a word."""
+    import hashlib
+
+    saved = tmp_path / "m"
+    assert main(["run", "--max-steps", "60", "--save-map", str(saved), "--out", str(tmp_path / "a"),
+                 "--rerun", "off", "--quiet"]) == 0
+    arrays = dict(np.load(saved / "map.npz"))
+    arrays["landmark_ids"] = arrays["landmark_ids"] + 10**6
+    np.savez(saved / "map.npz", **arrays)
+    doc = json.loads((saved / "map.json").read_text())
+    doc["arrays"]["sha256"] = hashlib.sha256((saved / "map.npz").read_bytes()).hexdigest()
+    (saved / "map.json").write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert main(["run", "--max-steps", "60", "--map", str(saved), "--out", str(tmp_path / "b"),
+                 "--rerun", "off", "--quiet"]) == 0
+    assert "is of a landmark of the map" in capsys.readouterr().err
+    kept = tmp_path / "k"  # the same map unedited: its sightings match, nothing is said
+    assert main(["run", "--max-steps", "60", "--save-map", str(kept), "--out", str(tmp_path / "c"),
+                 "--rerun", "off", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["run", "--max-steps", "60", "--map", str(kept), "--out", str(tmp_path / "d"),
+                 "--rerun", "off", "--quiet"]) == 0
+    assert "is of a landmark of the map" not in capsys.readouterr().err
