@@ -447,14 +447,14 @@ def shared_scan_error(per_robot: list[dict], config: MrclamConfig) -> dict:
         e = robot["residual"].copy()
         for s in np.unique(sub):
             e[sub == s] -= np.median(e[sub == s], axis=0)
-        keep = np.all(np.abs(e / sigma) <= CORRELATION_CLIP, axis=1)
+        n = e / sigma
+        keep = np.all(np.abs(n) <= CORRELATION_CLIP, axis=1)
         frames, inverse = np.unique(t, return_inverse=True)
         for f in np.flatnonzero(np.bincount(inverse[keep], minlength=len(frames)) >= 2):
             k = np.flatnonzero(keep & (inverse == f))
             a, b = np.triu_indices(k.size, 1)
             a, b = k[a], k[b]
             a, b = a[sub[a] != sub[b]], b[sub[a] != sub[b]]
-            n = e / sigma
             products += np.sum(n[a] * n[b], axis=0)
             squares += np.sum(0.5 * (n[a] ** 2 + n[b] ** 2), axis=0)
             shared_b += float(np.sum(e[a, 1] * e[b, 1]))

@@ -196,13 +196,18 @@ def check_no_folder_at(folder: str | Path, names: Iterable[str], flag: str = "--
         check_special_file(Path(folder) / name, flag)
 
 
+def names_a_folder(text: str) -> bool:
+    """Whether a path as typed ends in a slash: a folder, which ``Path()`` forgets."""
+    return text.endswith(("/", os.sep))
+
+
 def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     """Refuse, before any work, an output file that cannot be written: an existing
     folder, a parent that is a file, or a folder without write permission.
 
     Creates nothing; raises ConfigError.
     """
-    if isinstance(path, str) and path.endswith(("/", os.sep)):  # Path() drops the slash
+    if isinstance(path, str) and names_a_folder(path):  # Path() drops the slash
         raise ConfigError(f"{flag} {path} names a folder (it ends in a slash); give a file name")
     if str(path) == "-":  # stdout, by the usual convention: not a file written whole
         raise ConfigError(f"{flag} -: writing to stdout is not supported; give a file name")

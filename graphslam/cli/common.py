@@ -42,7 +42,9 @@ def file_out_arg(text: str) -> Path:
     """argparse ``type`` of an output that is one file (:func:`path_arg`): one ending in a
     slash names a folder, which ``Path`` forgets (``convert g.g2o x.g2o/`` wrote a file
     ``x.g2o``)."""
-    if text.endswith(("/", os.sep)):
+    from slamcore.files import names_a_folder
+
+    if names_a_folder(text):
         raise argparse.ArgumentTypeError(f"{text} names a folder (it ends in a slash); give a file name")
     return path_arg(text)
 

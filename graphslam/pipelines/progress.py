@@ -155,7 +155,6 @@ class SolveProgress:
             self.terminal = False
         self._start = self._last = clock()
         self._width = 0  # of the line drawn in place
-        self._said = False
 
     def __call__(self, point: str, step: int = 0) -> None:
         if not self.enabled:

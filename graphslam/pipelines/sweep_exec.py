@@ -200,16 +200,17 @@ def score_finished(out_dir: Path) -> dict | None:
     return {"wall_s": None, "peak_rss_mb": None, **scores, "status": "ok", "error": ""}
 
 
-def stop_live_runs() -> None:
-    """Stop every run this process started and is still waiting for, and start no
-    more until :func:`allow_runs`."""
+def stop_live_runs(signum: int = signal.SIGTERM) -> None:
+    """Stop every run this process started and is still waiting for (``signum``: SIGTERM,
+    which lets a run save; SIGKILL, which does not), and start no more until
+    :func:`allow_runs`."""
     with _LIVE_LOCK:
         _STOPPING.set()
         for proc in _LIVE:
             # os.kill, not proc.terminate(): terminate() polls, which could reap the
             # child under the thread blocked in os.wait4 on it
             try:
-                os.kill(proc.pid, signal.SIGTERM)
+                os.kill(proc.pid, signum)
             except ProcessLookupError:
                 pass
 
@@ -217,15 +218,18 @@ def stop_live_runs() -> None:
 def _wait_for_runs(pool: ThreadPoolExecutor) -> None:
     """Wait for the pool's runs, stopped by :func:`stop_live_runs`, to end. A second
     Ctrl-C (0.1 s after the first) raised out of the wait and the sweep exited with a run
-    still going, which wrote its files into ``--out`` after the sweep had reported: each
+    still going, which wrote its files into ``--out`` after the sweep had reported: a
     further signal now tells the runs again and the wait goes on (a stopped run saves and
-    ends within seconds)."""
+    ends within seconds); one more kills them, for a run stuck in C code never runs its
+    SIGTERM handler and the wait would have no end."""
+    further = 0
     while True:
         try:
             pool.shutdown(wait=True)
             return
         except KeyboardInterrupt:
-            stop_live_runs()
+            further += 1
+            stop_live_runs(signal.SIGTERM if further == 1 else signal.SIGKILL)
 
 
 def allow_runs() -> None:

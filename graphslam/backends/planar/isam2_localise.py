@@ -36,9 +36,9 @@ from gtsam.symbol_shorthand import L, X
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2 import Isam2Backend
 from graphslam.backends.planar.isam2_config import Isam2Config
-from slamcore.errors import GraphSlamError
+from slamcore.errors import GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
-from slamcore.planar.records import Estimate, Observation, Prediction
+from slamcore.planar.records import Estimate, Observation, ObservationKind, Prediction
 
 
 class Isam2Localiser(Isam2Backend):
@@ -63,6 +63,14 @@ class Isam2Localiser(Isam2Backend):
         self.unmapped_count = 0
 
     def update(self, observations: Sequence[Observation]) -> None:
+        if any(o.kind is not ObservationKind.RANGE_BEARING for o in observations):
+            # a range-only log's map was refused as "covariance must be 1x1" of one
+            # observation, as if the file were bad
+            raise UnsupportedError(
+                "isam2: localising against a map takes range-bearing sightings; got "
+                f"{next(o.kind.value for o in observations if o.kind is not ObservationKind.RANGE_BEARING)} "
+                "ones (range-only data runs without a map)"
+            )
         assoc: list[int | None] = []
         for obs in observations:
             slot = None if obs.landmark_id is None else self._map_slot.get(int(obs.landmark_id))

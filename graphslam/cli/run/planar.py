@@ -22,7 +22,6 @@ from graphslam.cli.common import (
 )
 from graphslam.cli.out_folder import OutputFolder, claimed_folder
 from slamcore.errors import ConfigError, GraphSlamError
-from slamcore.planar.records import ObservationKind
 
 if TYPE_CHECKING:
     from filters.ekf_localise import EkfLocaliser
@@ -107,13 +106,6 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "map", None) is not None:
         from graphslam.pipelines import planar_maps
 
-        if any(o.kind is ObservationKind.RANGE for f in dataset.frames for o in f.observations):
-            # the localisers take range-bearing sightings: a range-only log's map was refused
-            # as "covariance must be 1x1" of one observation, as if the file were bad
-            raise ConfigError(
-                f"--map: localising against a map takes range-bearing sightings; {dataset.name} "
-                "holds range-only ones (run it without --map)"
-            )
         pmap = planar_maps.load_run_map(args.map, dataset.name, dataset.seed, config)
         backend = planar_maps.localiser(args.backend, pmap, config, overrides)
         if dataset.agents and not backend.supports_pose_sightings:

@@ -4,6 +4,7 @@ test reproduces a finding, then checks what the code does now."""
 from __future__ import annotations
 
 import json
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -153,8 +154,8 @@ def test_a_second_ctrl_c_does_not_leave_a_sweeps_run_behind(monkeypatch):
     each further signal tells the runs again and the wait goes on until they end."""
     from graphslam.pipelines import sweep_exec
 
-    told = []
-    monkeypatch.setattr(sweep_exec, "stop_live_runs", lambda: told.append("stop"))
+    told, signals = [], []
+    monkeypatch.setattr(sweep_exec, "stop_live_runs", lambda signum: (told.append("stop"), signals.append(signum)))
 
     class Pool:
         waits = 0
@@ -167,6 +168,8 @@ def test_a_second_ctrl_c_does_not_leave_a_sweeps_run_behind(monkeypatch):
     pool = Pool()
     sweep_exec._wait_for_runs(pool)
     assert pool.waits == 3 and told == ["stop", "stop"]
+    # the third signal kills: a run stuck in C code never takes its SIGTERM
+    assert signals == [signal.SIGTERM, signal.SIGKILL]
 
 
 def test_a_vocabulary_whose_weights_are_all_0_is_said(tmp_path, capsys, shared_data):
