@@ -238,7 +238,7 @@ def load_map(folder) -> SpatialMap:
     arrays = _read_npz(blob, npz_path, _NAMES)
     try:
         K = np.array(doc["camera"]["K"], dtype=np.float64).reshape(3, 3)
-        width, height = (int(v) for v in doc["camera"]["image_size"])  # exactly two
+        width, height = (_whole(v) for v in doc["camera"]["image_size"])  # exactly two
         size = (width, height)
     except (KeyError, TypeError, ValueError):
         raise InputError("damaged map.json (camera)", folder / MAP_JSON) from None
@@ -265,6 +265,13 @@ def load_map(folder) -> SpatialMap:
     if smap.counts() != doc["counts"]:
         raise InputError(f"map arrays hold {smap.counts()}, map.json says {doc['counts']}", npz_path)
     return smap
+
+
+def _whole(value) -> int:
+    """``value`` as an int; ValueError for a fraction (``int(640.5)`` silently gave 640)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        raise ValueError(value)
+    return int(value)
 
 
 #: Distortion coefficient counts OpenCV's camera models take (k1 k2 p1 p2 [k3 [k4-k6 [s1-s4

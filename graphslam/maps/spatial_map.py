@@ -165,9 +165,13 @@ class SpatialMap:
             raise InputError(
                 f"map bag-of-words word ids outside the vocabulary's {self.vocabulary.n_words_} words", where
             )
-        for name in ("keyframe_wTc", "landmark_w", "bow_weights", "keyframe_cov", "landmark_cov"):
+        for name in ("keyframe_wTc", "landmark_w", "obs_uv", "bow_weights", "keyframe_cov", "landmark_cov"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise InputError(f"map array {name} holds non-finite values", where)
+        # landmarks are looked up by id (a joined map renumbers them; keyframe ids are
+        # per session and may repeat): a repeated id kept one of its landmarks unsaid
+        if len(np.unique(self.landmark_ids)) != self.n_landmarks:
+            raise InputError("map array landmark_ids repeats an id", where)
         self._check_geometry(where)
         self._check_bow_rows(where)
 

@@ -196,7 +196,7 @@ def test_inconsistent_arrays_are_refused_on_save(tmp_path):
         save_map(smap, tmp_path / "bad")
 
 
-@pytest.mark.parametrize("size", [[640], [640, 480, 3], [0, 0], [640, -480]])
+@pytest.mark.parametrize("size", [[640], [640, 480, 3], [0, 0], [640, -480], [640.5, 480], [True, 480], ["640", 480]])
 def test_an_image_size_of_other_than_two_numbers_is_refused(saved, size):
     doc = json.loads((saved / "map.json").read_text())
     doc["camera"]["image_size"] = size
@@ -232,3 +232,40 @@ def test_a_singular_camera_matrix_is_refused_on_load(saved):
     with pytest.raises(InputError) as e:
         load_map(saved)
     assert "camera K is no pinhole matrix" in one_line(e)
+
+
+def test_a_whole_image_size_written_as_floats_is_kept(saved):
+    doc = json.loads((saved / "map.json").read_text())
+    doc["camera"]["image_size"] = [640.0, 480.0]
+    (saved / "map.json").write_text(json.dumps(doc))
+    assert load_map(saved).image_size == (640, 480)
+
+
+def test_a_map_with_a_repeated_landmark_id_is_refused_on_save(tmp_path):
+    """The arrays were checked for shape and range only: a repeated id (or NaN pixels)
+    was saved and loaded (nineteenth hostile pass, rebuilt with its checksum)."""
+    smap = random_map()
+    smap.landmark_ids[1] = smap.landmark_ids[0]
+    with pytest.raises(InputError) as e:
+        save_map(smap, tmp_path / "bad")
+    assert "landmark_ids repeats an id" in one_line(e)
+
+
+def test_a_map_with_non_finite_pixels_is_refused_on_save(tmp_path):
+    smap = random_map()
+    smap.obs_uv[3, 1] = np.nan
+    with pytest.raises(InputError) as e:
+        save_map(smap, tmp_path / "bad")
+    assert "obs_uv holds non-finite values" in one_line(e)
+
+
+def test_a_joined_map_repeats_keyframe_ids_and_is_kept(tmp_path):
+    """Two sessions both start at frame 0: keyframe ids repeat by design."""
+    from graphslam.maps.merge import merge_maps
+
+    a = random_map()
+    b = random_map(seed=1)
+    b.vocabulary = a.vocabulary
+    joined = merge_maps(a, b)
+    save_map(joined, tmp_path / "joined")
+    assert load_map(tmp_path / "joined").n_keyframes == 2 * a.n_keyframes
