@@ -119,7 +119,8 @@ class EkfLocaliser(Backend):
 
     def update(self, observations: Sequence[Observation]) -> None:
         self._require_init()
-        obs = checked_scan(observations, self._pose_id, "ekf")
+        # the isam2 localiser refuses ranges alone too: the step is to run without a map
+        obs = checked_scan(observations, self._pose_id, "ekf", "it runs without a map")
         assoc: list[int | None] = []
         for o in obs:
             lid = o.landmark_id

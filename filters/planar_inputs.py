@@ -115,9 +115,16 @@ def chain_break(first_id: int, steps: Iterable[tuple[Odometry | None, int]], who
     return None
 
 
-def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: str) -> list[Observation]:
+def checked_scan(
+    observations: Iterable[Observation],
+    pose_id: int | None,
+    who: str,
+    range_only_hint: str = "the isam2 back end takes it",
+) -> list[Observation]:
     """The scan as a list, refused whole before any of it touches a filter's state: each
     item must be a range-bearing :class:`Observation` taken at the current pose ``pose_id``.
+    ``range_only_hint`` is the user's next step for ranges alone (a localiser's differs:
+    no back end localises them).
 
     Raises:
         MeasurementError: not an Observation, or taken at another pose.
@@ -127,9 +134,7 @@ def checked_scan(observations: Iterable[Observation], pose_id: int | None, who: 
     for o in obs:
         if o.kind is not ObservationKind.RANGE_BEARING:
             # the back end that takes ranges alone is named, as the user's next step
-            also = (
-                " (range-only data: the isam2 back end takes it)" if o.kind is ObservationKind.RANGE else ""
-            )
+            also = f" (range-only data: {range_only_hint})" if o.kind is ObservationKind.RANGE else ""
             raise UnsupportedError(f"{who} handles range-bearing observations only, got {o.kind.value}{also}")
         if o.pose_id != pose_id:
             raise MeasurementError(

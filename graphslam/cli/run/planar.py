@@ -140,7 +140,11 @@ def run(args: argparse.Namespace) -> int:
         chained=registry.landmark_implementation(args.backend).filtering,
     )
     metrics = pipeline.compute_metrics(
-        result, seed=dataset.seed, ground_truth=truth, wall_s=time.perf_counter() - t0
+        result,
+        seed=dataset.seed,
+        ground_truth=truth,
+        wall_s=time.perf_counter() - t0,
+        map_fixed=pmap is not None,
     )
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
@@ -327,6 +331,12 @@ def save_planar_run_map(
         f"map in {folder}/: {pmap.n_landmarks} landmarks with covariances "
         f"({result.steps} steps of {result.dataset.name}, {result.backend})"
     )
+    if pmap.n_landmarks and not _has_bearings(result.dataset):
+        # saved in silence, then refused by every localiser (hostile pass 19)
+        warn(
+            f"the map in {folder} is of range-only beacons: no back end localises against "
+            "ranges alone (--map takes range-bearing sightings)"
+        )
     if pmap.n_landmarks == 0:  # saved in silence; run --map then placed nothing (hostile pass 16)
         warn(
             f"the map in {folder} has no landmark: a run against it (--map) can place nothing "
@@ -415,3 +425,10 @@ def format_summary(metrics) -> str:
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)
+
+
+def _has_bearings(dataset) -> bool:
+    """Whether any frame of ``dataset`` holds a range-bearing sighting."""
+    from slamcore.planar.records import ObservationKind
+
+    return any(o.kind is ObservationKind.RANGE_BEARING for f in dataset.frames for o in f.observations)

@@ -257,6 +257,12 @@ def test_a_map_of_other_landmark_ids_is_said(tmp_path, capsys):
     assert main(["run", "--max-steps", "60", "--map", str(saved), "--out", str(tmp_path / "b"),
                  "--rerun", "off", "--quiet"]) == 0
     assert "is of a landmark of the map" in capsys.readouterr().err
+    # 9 map landmarks, 2 sightings: a localisation makes no landmark, and the line on
+    # landmarks "made too readily" followed the one above and misled
+    assert main(["run", "--max-steps", "8", "--map", str(saved), "--out", str(tmp_path / "b8"),
+                 "--rerun", "off", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "is of a landmark of the map" in err and "too readily" not in err
     kept = tmp_path / "k"  # the same map unedited: its sightings match, nothing is said
     assert main(["run", "--max-steps", "60", "--save-map", str(kept), "--out", str(tmp_path / "c"),
                  "--rerun", "off", "--quiet"]) == 0

@@ -282,3 +282,18 @@ def test_sender_and_receiver_columns_exchanged_are_said(tmp_path, with_truth):
     assert warning.startswith("Plaza2_TD.txt: its receivers (2) are read as the beacons, but its senders (0, 1, 5, 6)")
     assert "sender and receiver columns exchanged?" in warning
     assert ("(the truth's beacons)" in warning) is with_truth
+
+
+def test_a_map_of_range_only_beacons_says_no_back_end_localises_on_it(tmp_path, capsys):
+    """``--save-map`` on Plaza wrote a map in silence that every localiser then refused;
+    the EKF's refusal named isam2, which refuses it too (nineteenth hostile pass)."""
+    base = ["--dataset", "plaza2", "--rerun", "off", "--quiet"]
+    assert main(["run", *base, "--max-steps", "800", "--save-map", str(tmp_path / "map"),
+                 "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "is of range-only beacons: no back end localises against ranges alone" in err
+    assert main(["run", *base, "--backend", "ekf", "--map", str(tmp_path / "map"),
+                 "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("got range (range-only data: it runs without a map)")
+    assert "isam2" not in err
