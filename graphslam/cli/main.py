@@ -54,13 +54,27 @@ def _short_value(match: re.Match) -> str:
 _SLICE = re.compile(r"-?\d*(:-?\d*){0,2}")
 
 
+#: ``--offset -1e-3``: argparse reads a negative number as a value only in its plain
+#: forms (``-1``, ``-0.001``), and ``-1e-3`` ended in "expected one argument".
+_EXPONENT_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def glued_slices(argv: list[str]) -> list[str]:
     """``argv`` with ``--frames VALUE`` written ``--frames=VALUE`` where VALUE is a
-    slice starting with "-" (``-1:``, ``-10:-2``)."""
+    slice starting with "-" (``-1:``, ``-10:-2``), and ``--flag -1e-3`` written
+    ``--flag=-1e-3`` (a negative number in exponent form after any long option)."""
     out: list[str] = []
     for arg in argv:
         if out and out[-1] == "--frames" and arg.startswith("-") and _SLICE.fullmatch(arg):
             out[-1] = f"--frames={arg}"
+        elif (
+            out
+            and out[-1].startswith("--")
+            and out[-1] != "--"
+            and "=" not in out[-1]
+            and _EXPONENT_NUMBER.fullmatch(arg)
+        ):
+            out[-1] = f"{out[-1]}={arg}"
         else:
             out.append(arg)
     return out

@@ -1,0 +1,48 @@
+"""Twentieth hostile pass and the nineteenth's leftovers: each test reproduces a finding."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import glued_slices, main
+
+
+def _tum(path, t, xyz):
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+    np.savetxt(path, np.column_stack([t, xyz, q]), fmt="%.9f")
+
+
+def test_a_negative_offset_in_exponent_form_is_a_value(tmp_path, capsys):
+    """``eval --offset -1e-3`` ended in argparse's "expected one argument" (only the
+    plain forms -1 and -0.001 are read as negative numbers)."""
+    t = np.arange(50) * 0.1
+    xyz = np.column_stack([np.cos(t), np.sin(t), 0.1 * t])
+    _tum(tmp_path / "gt.tum", t, xyz)
+    _tum(tmp_path / "est.tum", t + 1e-3, xyz)
+    results = []
+    for i, argv in enumerate((["--offset", "-1e-3"], ["--offset=-1e-3"], ["--offset", "-0.001"])):
+        out = tmp_path / f"e{i}"
+        assert main(["eval", str(tmp_path / "gt.tum"), str(tmp_path / "est.tum"), *argv, "--no-plot",
+                     "--out", str(out)]) == 0, capsys.readouterr().err
+        results.append(json.loads((out / "eval.json").read_text()))
+    assert results[0]["provenance"]["command"][4:6] == ["--offset", "-1e-3"]  # as typed
+    for r in results:
+        del r["provenance"]
+    assert results[0] == results[1] == results[2]
+
+
+@pytest.mark.parametrize(("argv", "glued"), [
+    (["--offset", "-1e-3"], ["--offset=-1e-3"]),
+    (["--offset", "-.5E+2"], ["--offset=-.5E+2"]),
+    (["--frames", "-10:"], ["--frames=-10:"]),
+    (["--offset", "-0.5"], ["--offset", "-0.5"]),  # argparse reads the plain form itself
+    (["--", "-1e-3"], ["--", "-1e-3"]),
+    (["-o", "-1e-3"], ["-o", "-1e-3"]),
+    (["--offset=1", "-1e-3"], ["--offset=1", "-1e-3"]),
+    (["--offset", "-1e-3x"], ["--offset", "-1e-3x"]),
+])
+def test_only_exponent_numbers_after_a_long_option_are_glued(argv, glued):
+    assert glued_slices(argv) == glued
