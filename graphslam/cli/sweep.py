@@ -214,6 +214,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             f"{len(outcome.stale)} runs sweep.csv listed as done were run again: "
             + "; ".join(f"{run_id}: {why}" for run_id, why in outcome.stale)
         )
+    if outcome.edited:
+        warn(
+            f"{len(outcome.edited)} rows of sweep.csv differed from their runs' metrics.json "
+            f"({_names(outcome.edited)}): the files' figures are kept"
+        )
     if outcome.dropped:
         warn(
             f"{args.out / 'sweep.csv'} held {outcome.dropped} rows of runs that are not in this "
@@ -227,7 +232,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     )
     print(writes.outputs_line(written))
     if outcome.interrupted:
-        print("graphslam: interrupted; sweep.csv keeps every finished run", file=sys.stderr)
+        finished = {r["run_id"] for r in outcome.rows}
+        left = [run.run_id for run in outcome.runs if run.run_id not in finished]
+        print(
+            "graphslam: interrupted; sweep.csv keeps every finished run"
+            + (
+                f"; {len(left)} not run to the end ({_names(left)}): the same command runs them"
+                if left
+                else ""
+            ),
+            file=sys.stderr,
+        )
         writes.check(written)
         return EXIT_INTERRUPTED
     for line, count in _config_warnings(args.out, outcome.rows).items():
@@ -241,3 +256,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         warn(f"{failed} of {len(outcome.rows)} runs failed; their errors are in sweep.csv")
         return EXIT_FAILED
     return EXIT_OK
+
+
+def _names(run_ids: list[str], most: int = 5) -> str:
+    """The first ``most`` run ids, and how many more."""
+    more = f" and {len(run_ids) - most} more" if len(run_ids) > most else ""
+    return ", ".join(run_ids[:most]) + more

@@ -139,6 +139,9 @@ class SweepOutcome:
     #: ``(run_id, why)`` of runs sweep.csv says are done whose folder does not hold them
     #: (:func:`folder_mismatch`): run again
     stale: list[tuple[str, str]] = field(default_factory=list)
+    #: run ids of done rows whose figures in sweep.csv differed from their run's files
+    #: (edited by hand): the files' figures are kept
+    edited: list[str] = field(default_factory=list)
 
 
 def _key(run: RunSpec) -> tuple[str, str]:
@@ -253,9 +256,10 @@ def run_sweep(
             del done[_key(run)]
     # a done row in this sweep's spelling (its dataset as the sweep file lists it)
     rows = {run.run_id: {**done[_key(run)], **base_row(run, spec)} for run in runs if _key(run) in done}
+    edited = _rescore(rows, out, score_finished) if score_finished is not None else []
     todo = [run for run in runs if _key(run) not in done]
     ours = {_key(run) for run in runs}
-    outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs, stale=stale)
+    outcome = SweepOutcome([], csv_path, skipped=len(runs) - len(todo), runs=runs, stale=stale, edited=edited)
     outcome.dropped = sum((r.get("config_hash"), r.get("seed")) not in ours for r in earlier)
     order = {run.run_id: i for i, run in enumerate(runs)}
 
@@ -292,6 +296,32 @@ def run_sweep(
         _harvest(todo, rows, out, spec, started, score_finished)
     flush()
     return outcome
+
+
+#: Columns only sweep.csv holds (the sweep measured them around the run): kept on resume.
+SWEEP_ONLY_COLUMNS = ("wall_s", "peak_rss_mb")
+
+
+def _rescore(rows: dict, out: Path, score_finished: Callable[[Path], dict | None]) -> list[str]:
+    """Each done row's figures read again from its run's files, which hold them; ids of
+    the rows whose table disagreed. A number edited in sweep.csv was carried forward on
+    resume as the run's (nineteenth hostile pass). A folder :func:`folder_mismatch` passed
+    but that cannot be scored keeps its row."""
+    edited = []
+    for run_id, row in rows.items():
+        fresh = score_finished(out / "runs" / run_id)
+        if fresh is None:
+            continue
+        fresh = {k: v for k, v in fresh.items() if k not in SWEEP_ONLY_COLUMNS}
+        if any(_cell(v) != _cell(row.get(k)) for k, v in fresh.items()):
+            edited.append(run_id)
+        row.update(fresh)
+    return edited
+
+
+def _cell(value) -> str:
+    """``value`` as csv.DictWriter writes it (None: empty), to compare a read row."""
+    return "" if value is None else str(value)
 
 
 def _harvest(
