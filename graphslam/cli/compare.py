@@ -341,6 +341,7 @@ def _write_comparison(
     and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
     of the back ends that have a result (the failed and cut ones marked); the exit status."""
     from graphslam.cli.common import (
+        EXIT_ERROR,
         EXIT_FAILED,
         EXIT_INTERRUPTED,
         invocation,
@@ -414,6 +415,14 @@ def _write_comparison(
         writes.check(out_dir / o for o in outputs)
         return EXIT_INTERRUPTED
     writes.check(out_dir / o for o in outputs)
+    unreadable = next((e.error for e in entries if e.status == "cut" and e.error), None)
+    if unreadable is not None:  # as run says it: the frames before it are scored and written
+        print(
+            f"graphslam: error: {unreadable}; the runs stopped at this frame: {out_dir}/ holds what "
+            "they estimated from the frames before it",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     return EXIT_FAILED if any(e.status == "failed" for e in entries) else 0
 
 

@@ -48,8 +48,9 @@ NUMERIC_FAILURES = (np.linalg.LinAlgError, FloatingPointError, OverflowError, Ze
 
 @dataclass
 class CompareEntry:
-    """One back end's row: ``status`` "ok", "cut" (stopped by a signal; the
-    estimate so far), "failed" or "not run" (the comparison was stopped first);
+    """One back end's row: ``status`` "ok", "cut" (stopped by a signal, or by a frame
+    that cannot be read, which ``error`` then names; the estimate so far), "failed" or
+    "not run" (the comparison was stopped first);
     ``result`` and ``metrics`` are None unless ok or cut; ``error`` says why not;
     ``nees``: the per-frame pose NEES record of an image comparison
     (:func:`graphslam.evaluation.spatial.pose_nees`), when there is one."""
@@ -278,7 +279,10 @@ def _compare_one(name, job, score, isolate, strip) -> CompareEntry:
         return CompareEntry(name, None, None, "failed", f"{name}: {numeric_failure_line(e)}")
     except Exception:  # a bug in one back end must not lose the others' results
         return CompareEntry(name, None, None, "failed", traceback.format_exc())
-    return CompareEntry(name, result, scored, "cut" if result.interrupted else "ok")
+    # a frame that could not be read ended it early: cut, and why (an image compare)
+    return CompareEntry(
+        name, result, scored, "cut" if result.interrupted else "ok", getattr(result, "unreadable", None)
+    )
 
 
 def _score(dataset, result, peak_mb, seed) -> PlanarRunMetrics:

@@ -39,6 +39,7 @@ from graphslam.evaluation.planar import nees_doubt
 from graphslam.evaluation.records import SpatialRunMetrics
 from graphslam.evaluation.spatial import POSE_DOF, pose_nees
 from graphslam.pipelines import spatial as vp
+from graphslam.pipelines.common import FrameUnreadable
 from graphslam.pipelines.compare import CompareEntry, finished, run_entries
 from graphslam.pipelines.session import VisualSetup
 from graphslam.sources.spatial.sequence import ImageSequence
@@ -95,7 +96,11 @@ def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
     kind, overrides = registry.visual_compare_backend(name)
     session = setup.session(kind, overrides)
     feed = _Feed(filtered=registry.visual_implementation(kind).filtering)
-    result = session.run(on_frame=feed)
+    try:
+        result = session.run(on_frame=feed)
+    except FrameUnreadable as e:  # scored on the frames before it, as run keeps them
+        result = e.result
+        result.unreadable = str(e)
     if setup.odometry is not None:
         feed.sha.update(np.ascontiguousarray(setup.odometry[: max(result.frames - 1, 0)]).tobytes())
     result.input_digest = feed.sha.hexdigest()

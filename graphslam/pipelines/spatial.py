@@ -150,6 +150,8 @@ class VisualRunResult:
             corners, odometry), filled by ``graphslam compare``, else None.
         config_sections_read: the config sections the run read (``graphslam compare``
             fills it in a worker process, for the sections no run read).
+        unreadable: the error line of the frame that could not be read and ended the run
+            early (``graphslam compare`` keeps the estimate of the frames before it).
     """
 
     sequence: ImageSequence
@@ -169,6 +171,7 @@ class VisualRunResult:
     finalised: bool = False
     backend_seed: int | None = None
     config_sections_read: tuple[str, ...] = ()
+    unreadable: str | None = None
 
 
 def backend_overrides(

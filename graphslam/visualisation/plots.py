@@ -55,7 +55,8 @@ def plot_visual_comparison(entries, sequence, path: Path) -> Path:
     camera frame with its 3-sigma bounds (after the NEES alignment) over the frames."""
     truth = None if sequence.wTc_true is None else np.asarray(sequence.wTc_true)[:, :3, 3]
     ref = truth if truth is not None else entries[0].result.estimate.wTc[:, :3, 3]
-    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
+    # the two widest axes (a run cut before its first map holds no pose: x and y)
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:]) if len(ref) else (0, 1)
     tracks = []
     for e in entries:
         centres, landmarks = as_scored(e, truth)
@@ -313,7 +314,8 @@ def plot_trajectory_eval(results, path: Path, options=None) -> Path:
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
     ref = results[0].result.ref[:, :3, 3]
-    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
+    # the two widest axes (a run cut before its first map holds no pose: x and y)
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:]) if len(ref) else (0, 1)
     names = "xyz"
     axes[0].plot(ref[:, a], ref[:, b], color="0.5", lw=2, label="reference")
     for i, r in enumerate(results):

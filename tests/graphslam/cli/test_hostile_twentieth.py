@@ -46,3 +46,35 @@ def test_a_negative_offset_in_exponent_form_is_a_value(tmp_path, capsys):
 ])
 def test_only_exponent_numbers_after_a_long_option_are_glued(argv, glued):
     assert glued_slices(argv) == glued
+
+
+def test_compare_keeps_the_frames_before_an_unreadable_one_as_run_does(tmp_path, capsys):
+    """A zero-byte frame 3 of 5: ``run`` writes the estimate of the frames before it and
+    says so; ``compare`` failed every back end and kept nothing (nineteenth hostile pass)."""
+    import cv2
+
+    from graphslam.sources.spatial.synthetic_images import SyntheticImagesConfig, make_synthetic_images
+
+    seq = make_synthetic_images(
+        SyntheticImagesConfig(width=160, height=120, fx=125, fy=125, cx=79.5, cy=59.5, n_frames=5)
+    )
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for i in range(len(seq)):
+        cv2.imwrite(str(folder / f"f{i}.png"), seq.load(i))
+    (folder / "intrinsics.txt").write_text("125 125 79.5 59.5\n")
+    (folder / "f3.png").write_bytes(b"")
+    out = tmp_path / "o"
+    assert main(["compare", "--dataset", str(folder), "--odometry", "none", "--rerun", "off",
+                 "--in-process", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "failed" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
+    assert len(lines) == 1 and "f3.png: cannot read image" in lines[0], err
+    assert "the runs stopped at this frame" in lines[0]
+    runs = json.loads((out / "compare.json").read_text())["runs"]
+    assert [r["status"] for r in runs] == ["cut"] * len(runs) and len(runs) >= 2
+    assert all(r["error"].endswith("f3.png: cannot read image (not an image file, or an unsupported format)")
+               for r in runs)
+    assert all(r["frames"] == 3 for r in runs), [r.get("frames") for r in runs]
+    assert (out / "compare.png").is_file()  # the plot took runs that hold no pose yet
