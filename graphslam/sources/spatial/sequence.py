@@ -547,25 +547,27 @@ def check_exist(paths: Sequence[str], where: Path) -> None:
         )
 
 
-#: Runs of ASCII digits only: ``\d`` and ``str.isdigit`` also take ``²`` or
-#: ``١``, which ``int`` refuses or which no file-name order means as a number.
-_ASCII_DIGITS = re.compile(r"([0-9]+)")
-#: A file name whose stem is one decimal number: a time stamp (``1.25.png``,
-#: ``1305031102.175304.png``), ordered by its value (``1.5`` after ``1.25``), not as
-#: two digit runs (``5`` before ``25``).
-_DECIMAL_STEM = re.compile(r"([0-9]+)\.([0-9]+)(\.[^.]*)?")
+#: Numbers in a file name: runs of ASCII digits (``\d`` and ``str.isdigit`` also take
+#: ``²`` or ``١``, which ``int`` refuses or which no file-name order means as a number),
+#: with a fraction where a point joins two runs: a time stamp (``1.25.png``,
+#: ``cam_0.30000000000000004.png``, ``1305031102.175304.png``) is ordered by its value
+#: (``0.3`` after ``0.25`` and before ``1.0``), not as two digit runs (``5`` before
+#: ``25``), which read a folder of ``f"cam_{t}.png"`` names out of time order.
+_NUMBER = re.compile(r"([0-9]+(?:\.[0-9]+)?)")
 
 
 def natural_key(name: str):
-    """Sort key of a file name: ``img2`` before ``img10`` (ASCII digit runs as numbers),
-    ``1.25.png`` before ``1.5.png`` (a stem that is one decimal number, by its value)."""
-    m = _DECIMAL_STEM.fullmatch(name)
-    if m is not None:
-        # (integer part, fraction digits): fractions compare as text ("25" < "5")
-        return ["", (int(m.group(1)), m.group(2).rstrip("0")), (m.group(3) or "").lower()]
-    parts = _ASCII_DIGITS.split(name)
-    # split with a group alternates text and digit runs: odd places are digits
-    return [(int(t), "") if i % 2 else t.lower() for i, t in enumerate(parts)]
+    """Sort key of a file name: ``img2`` before ``img10`` (digit runs as numbers),
+    ``cam_1.25.png`` before ``cam_1.5.png`` (a decimal number by its value)."""
+    parts = _NUMBER.split(name)
+    # split with a group alternates text and numbers: odd places are numbers, as
+    # (integer part, fraction digits): fractions compare as text ("25" < "5")
+    return [_number_key(t) if i % 2 else t.lower() for i, t in enumerate(parts)]
+
+
+def _number_key(text: str) -> tuple[int, str]:
+    whole, _, fraction = text.partition(".")
+    return int(whole), fraction.rstrip("0")
 
 
 def associate(img_t: np.ndarray, gt_t: np.ndarray, max_dt_s: float) -> np.ndarray:

@@ -48,8 +48,20 @@ def test_decimal_stamp_names_sort_by_value():
     assert sorted(["img10.png", "img2.png", "3.5.png"], key=natural_key) == ["3.5.png", "img2.png", "img10.png"]
 
 
+def test_stamps_after_a_prefix_sort_by_value():
+    """``f"cam_{t}.png"`` names (cam_0.30000000000000004.png) were read as two digit runs:
+    0.3 after 0.9, and the run went on out of time order (twentieth hostile pass)."""
+    names = [f"cam_{k * 0.1}.png" for k in range(20)]
+    shuffled = sorted(names, key=lambda n: n[::-1])
+    assert sorted(shuffled, key=natural_key) == names
+    assert sorted(["cam_1.1.png", "cam_1.05.png", "cam_1.0.png"], key=natural_key) == [
+        "cam_1.0.png", "cam_1.05.png", "cam_1.1.png"]
+    # one dot between two runs only: a dotted version is still read run by run
+    assert sorted(["v1.2.10.png", "v1.2.9.png"], key=natural_key) == ["v1.2.9.png", "v1.2.10.png"]
+
+
 def test_two_spellings_of_one_frame_are_refused(tmp_path):
-    for a, b in (("frame_1.png", "frame_01.png"), ("000003.png", "000003.jpg")):
+    for a, b in (("frame_1.png", "frame_01.png"), ("000003.png", "000003.jpg"), ("cam_1.5.png", "cam_1.50.png")):
         folder = tmp_path / a
         folder.mkdir()
         for name in (a, b, "000009.png"):
