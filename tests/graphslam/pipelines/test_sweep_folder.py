@@ -45,7 +45,8 @@ def fake_runs(monkeypatch):
             "config_sha256": hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest(),
             **code_identity(),  # the code that made it, as a run records it
         }
-        (folder / "metrics.json").write_text(json.dumps({"provenance": provenance}))
+        # the figures the row says too: a resumed sweep reads them again from the files
+        (folder / "metrics.json").write_text(json.dumps({"provenance": provenance, "ate_rmse_m": 0.1}))
         return {"run_id": run.run_id, "status": "ok", "error": "", "warnings": "", "ate_rmse_m": 0.1}
 
     monkeypatch.setattr(sweep_exec, "execute_run", fake)
