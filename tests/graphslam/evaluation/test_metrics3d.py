@@ -175,3 +175,30 @@ def test_rpe_of_rotations_slightly_off_orthonormal_has_no_floor():
         Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
         turned[k, :3, :3] = wTc[k, :3, :3] @ Rz
     assert abs(rpe(ids, turned, ids, wTc)["rot_rmse_deg"] - 0.05) < 1e-9
+
+
+def test_travel_direction_error_is_zero_under_any_sim3_and_sees_turned_cameras():
+    """The direction of travel in the camera's axes needs no alignment: any Sim(3) of the
+    estimate leaves it at 0; cameras turned 90 deg about their own y axis (the path kept)
+    read 90 deg, however the Sim(3)-fitted ATE scores them (hostile pass 20)."""
+    gt = _traj()
+    ids = np.arange(len(gt))
+    moved = _apply(2.5, so3_exp([0.3, -1.2, 0.7]), np.array([4.0, -2.0, 0.5]), gt)
+    same = metrics3d.travel_direction_error(ids, moved, ids, gt)
+    assert same["median_deg"] < 1e-6 and same["n"] >= 3
+    turned = gt.copy()
+    turned[:, :3, :3] = gt[:, :3, :3] @ so3_exp([0.0, np.pi / 2, 0.0])
+    assert metrics3d.ate(ids, turned, ids, gt, alignment="sim3")["rmse_m"] < EXACT
+    # a step v (camera axes) turned 90 deg about y: cos of the angle = v_y^2 / |v|^2
+    d = np.einsum("nji,nj->ni", gt[:-1, :3, :3], np.diff(gt[:, :3, 3], axis=0))
+    expected = np.degrees(np.arccos(d[:, 1] ** 2 / np.sum(d**2, axis=1)))
+    got = metrics3d.travel_direction_error(ids, turned, ids, gt)
+    assert abs(got["median_deg"] - np.median(expected)) < 1e-6
+
+
+def test_travel_direction_error_needs_three_moving_steps():
+    gt = _traj(n=4)
+    ids = np.arange(4)
+    assert metrics3d.travel_direction_error(ids, gt, ids, gt) is not None
+    still = np.tile(np.eye(4), (6, 1, 1))
+    assert metrics3d.travel_direction_error(np.arange(6), still, np.arange(6), still) is None
