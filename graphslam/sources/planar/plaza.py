@@ -23,7 +23,8 @@ What the reader makes of it:
   order of time): a :attr:`~slamcore.planar.records.ObservationKind.RANGE`
   observation of beacon ``receiver`` at the frame nearest in time (the DR
   period is 0.1-0.2 s; gtsam's example takes the next frame instead); ranges
-  more than one DR period outside the frames' span are dropped and counted.
+  more than one DR period outside the frames' span are dropped and counted, as are
+  those inside a gap of the DR file (:data:`DR_GAP_MEDIANS`), which a warning names.
   The beacon id is the landmark id (known association).
 - **Truth**: ``GT`` interpolated at each frame time (exact at the DR times);
   the beacons' ``TL`` scores the map. Plaza2's ``GT`` heading points against
@@ -68,6 +69,11 @@ STEP_MAX_M = 100.0
 RANGE_MAX_M = 1e3
 #: Steps shorter than this (m) say nothing about the truth's heading convention.
 MOVING_STEP_M = 0.05
+#: A DR interval beyond this many of the log's median intervals is a gap: the logger
+#: writes a line every 0.1 s (Plaza2) or 0.2 s (Plaza1), and their longest interval is
+#: 3.5 and 1.2 medians (0.35 s, 0.23 s). A log with 60 s of lines removed ran with that
+#: motion lost and every range inside it put on the two frames at its edges, unsaid.
+DR_GAP_MEDIANS = 10.0
 
 
 def is_plaza_dr_file(path) -> bool:
@@ -135,7 +141,7 @@ def read_plaza(dr_path, td_path=None, mat_path=None) -> Dataset:
     if mat_path is None and _sibling(dr_path, "_.mat").exists():
         mat_path = _sibling(dr_path, "_.mat")
     truth, beacons = _read_mat(Path(mat_path)) if mat_path is not None else (None, None)
-    dataset = _dataset(dr_path, dr, td, truth, beacons, mat_path)
+    dataset = _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path)
     swapped = columns_swapped(td, beacons, td_path)
     return dataset if swapped is None else replace(dataset, warnings=(*dataset.warnings, swapped))
 
@@ -225,7 +231,7 @@ def heading_reversed(truth: np.ndarray) -> tuple[bool, float]:
     return median > math.pi / 2, median
 
 
-def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
+def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
     notes = [f"{len(dr)} dead-reckoning steps from {dr_path.name}"]
     period = float(np.median(np.diff(dr[:, 0]))) if len(dr) > 1 else 0.1
     t0 = dr[0, 0] - period
@@ -257,6 +263,8 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
     if not inside.all():
         notes.append(f"{int((~inside).sum())} ranges outside the dead reckoning's time span dropped")
     td = td[inside]
+    gap_warning, in_gap = _gaps(dr_path, dr_lines, times, period, td[:, 0])
+    td = td[~in_gap]
     unordered = int((np.diff(td[:, 0]) < 0).sum())
     if unordered:  # Plaza1_TD.txt has two blocks a minute early; each goes by its own time
         notes.append(f"ranges out of time order at {unordered} places (each assigned by its time)")
@@ -281,7 +289,31 @@ def _dataset(dr_path, dr, td, truth, beacons, mat_path) -> Dataset:
         has_timestamps=True,
         source_path=str(dr_path),
         notes=tuple(notes),
+        warnings=tuple(gap_warning),
     )
+
+
+def _gaps(
+    dr_path: Path, dr_lines: list[int], times: np.ndarray, period: float, range_times: np.ndarray
+) -> tuple[list[str], np.ndarray]:
+    """A warning naming the DR file's gaps (:data:`DR_GAP_MEDIANS`), and which ranges
+    fall inside one (more than a DR period from both its edges): they are dropped, for
+    the nearest frame lies seconds from them, where the motion is not in the log."""
+    step = np.diff(times)
+    gaps = np.flatnonzero(step > DR_GAP_MEDIANS * period)
+    in_gap = np.zeros(len(range_times), dtype=bool)
+    for k in gaps:
+        in_gap |= (range_times > times[k] + period) & (range_times < times[k + 1] - period)
+    if not len(gaps):
+        return [], in_gap
+    worst = int(gaps[np.argmax(step[gaps])])
+    more = f" (and {len(gaps) - 1} more gaps)" if len(gaps) > 1 else ""
+    # times[k + 1] is the DR file's row k (times[0] is the start, before its first row)
+    return [
+        f"{dr_path.name} has no line for {step[worst]:.1f} s before its line {dr_lines[worst]} "
+        f"(lines come every {period:.2g} s){more}: the motion there is not in the log, and "
+        f"{int(in_gap.sum())} ranges timed inside {'them' if len(gaps) > 1 else 'it'} are dropped"
+    ], in_gap
 
 
 def _nearest(times: np.ndarray, t: np.ndarray) -> np.ndarray:

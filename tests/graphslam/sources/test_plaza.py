@@ -158,6 +158,30 @@ def _copy_log(tmp_path: Path, name: str = "Plaza2") -> Path:
     return tmp_path / f"{name}_DR.txt"
 
 
+def test_a_gap_in_the_dead_reckoning_is_said_and_its_ranges_dropped(tmp_path):
+    """600 DR lines (60 s) removed from Plaza2: no word, and the 256 ranges timed inside
+    the gap were put on the two frames at its edges (twentieth hostile pass)."""
+    dr = _copy_log(tmp_path)
+    lines = dr.read_text().splitlines(keepends=True)
+    gap_t = float(lines[2600].split()[0]) - float(lines[1998].split()[0])
+    dr.write_text("".join(lines[:1999] + lines[2600:]))
+    td = np.loadtxt(dr.with_name("Plaza2_TD.txt"))
+    t_a, t_b = float(lines[1998].split()[0]), float(lines[2600].split()[0])
+    inside = int(np.sum((td[:, 0] > t_a + 0.1) & (td[:, 0] < t_b - 0.1)))
+    ds = read_plaza(dr)
+    assert len(ds.warnings) == 1
+    assert ds.warnings[0].startswith(f"Plaza2_DR.txt has no line for {gap_t:.1f} s before its line 2000 ")
+    assert f"{inside} ranges timed inside it are dropped" in ds.warnings[0] and inside > 200
+    n_ranges = sum(len(f.observations) for f in ds.frames)
+    assert n_ranges == sum(len(f.observations) for f in read_plaza(_plaza("Plaza2")).frames) - inside
+
+
+@pytest.mark.parametrize("name", ["Plaza1", "Plaza2"])
+def test_the_shipped_logs_have_no_gap(name):
+    """Their longest DR intervals are 1.2 and 3.5 medians, under DR_GAP_MEDIANS."""
+    assert read_plaza(_plaza(name)).warnings == ()
+
+
 @pytest.mark.parametrize("which, line, text, reason", [
     ("_DR.txt", 3, "3152.3 abc 0.1", "is not a number"),
     ("_DR.txt", 2, "3152.1 0.1", "needs 3 numbers"),
