@@ -94,8 +94,9 @@ Estimates: the landmarks are those of the highest-weight particle, and the traje
 is that particle's path (``trajectory = "path"``, :mod:`filters.fastslam_paths`: the
 path its map is conditioned on, revised by every resampling) or, with ``"filtered"``,
 the weighted-mean particle pose of each step (after that step's observations, before
-resampling), never revised; the weighted mean too while no observation has weighed the
-particles (any of them is then as good as the "best"). The pose covariances are the
+resampling), never revised. Until an observation weighs the particles, both are the
+odometry composed from the start (any particle is then as good as the "best", and their
+mean varies by seed). The pose covariances are the
 weighted particle covariance of each step in both; :meth:`FastSlam.current_pose` is the
 trajectory's latest pose.
 
@@ -158,8 +159,11 @@ class FastSlam(Backend):
         self._dirty = False
         self._best = 0
         # whether any observation has weighed the particles: until one does they are
-        # draws alike, and the "best" one's path is one draw of the motion model
+        # draws alike, and the "best" one's path is one draw of the motion model; the
+        # estimate is then the odometry composed from the start (the motion model's mode,
+        # the EKF's and iSAM2's estimate): the particles' mean still varied by seed
         self._weighed = False
+        self._nominal: dict[int, np.ndarray] = {}
         self._last_associations: list[int | None] = []
         #: How many times the particles were resampled.
         self.resample_count = 0
@@ -207,6 +211,7 @@ class FastSlam(Backend):
             raise GraphSlamError(f"{self.name}: initialize() called twice")
         pose_id, wTb, cov = initial_pose(pose_id, wTb, covariance, f"{self.name} initial pose")
         self._particles.draw_initial(wTb, cov)
+        self._nominal[int(pose_id)] = np.asarray(wTb, dtype=np.float64).copy()
         self._pose_ids.append(int(pose_id))
         self._pose_set.add(int(pose_id))
         self._dirty = True
@@ -239,6 +244,7 @@ class FastSlam(Backend):
         u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._close_step()
         particles.move(u, cov)
+        self._nominal[int(pose_id)] = models.compose(self._nominal[cur], u)
         self._add_pose_id(pose_id)
 
     def _add_pose_id(self, pose_id: int) -> None:
@@ -258,6 +264,7 @@ class FastSlam(Backend):
         self._particles.park_and_start(
             self._pose_ids[-1], models.compose(mean0, u), sym(F @ cov0 @ F.T + G @ Q @ G.T)
         )
+        self._nominal[int(pose_id)] = models.compose(self._nominal[first], u)
         self._add_pose_id(pose_id)
 
     def add_pose_sighting(self, sighting: PoseSighting) -> None:
@@ -373,7 +380,9 @@ class FastSlam(Backend):
         self._refresh_parked()
         ids, means, covs = self._particles.maps.landmarks_of(self._best)
         paths = self._paths
-        if self._tracks_paths() and paths is not None:
+        if not self._weighed:
+            wTb = np.array([self._nominal[p] for p in self._pose_ids])
+        elif self._tracks_paths() and paths is not None:
             wTb = paths.path(self._best, len(self._hist_mean))
         else:
             wTb = np.array(self._hist_mean)
@@ -406,16 +415,18 @@ class FastSlam(Backend):
         "path"``, the pose its landmarks are predicted from) or the weighted mean."""
         self._require_init()
         self._close_step()
+        if not self._weighed:
+            return self._nominal[self._pose_ids[-1]].copy()
         if self._tracks_paths():
             return self._particles.poses[self._best].copy()
         return self._hist_mean[-1].copy()
 
     def _tracks_paths(self) -> bool:
-        """Whether the estimate is the best particle's path: ``trajectory = "path"``, its
-        paths kept, and some observation weighed the particles (a log whose sightings
-        were all dropped gave one random particle's path, a different ATE each seed and
+        """Whether the estimate is the best particle's path once an observation weighed
+        them: ``trajectory = "path"`` and its paths kept (before, a log whose sightings
+        were all dropped gave one random particle's path, a different ATE each seed,
         ranked above iSAM2's dead reckoning by ``compare``: twentieth hostile pass)."""
-        return self._paths is not None and not self._paths.given_up and self._weighed
+        return self._paths is not None and not self._paths.given_up
 
     def current_pose_covariance(self) -> np.ndarray | None:
         self._require_init()
