@@ -910,7 +910,50 @@ def attacks() -> list[Attack]:
                           ["convert", str(_w(f, "g.g2o", _chain_g2o(3))), str(f / "stdout")])[1]),
         Attack("19th: convert to a name ending in a slash (a file of that name written)", "silent",
                lambda f: ["convert", str(_w(f, "g.g2o", _chain_g2o(3))), f"{f}/x.g2o/"]),
+        # ---- the twentieth pass (2026-12-07)
+        Attack("20th: eval --offset -1e-3 (argparse: 'expected one argument')", "fail",
+               lambda f: _eval(_oval(f, "gt"), _oval(f, "est", est=True), "--offset", "-1e-3"), ("ok",)),
+        Attack("20th: KITTI driven backwards, camera alone (sideways camera, Sim(3) ATE 0.04 m, unsaid)",
+               "silent", lambda f: _run(_kitti_seq(f, 20), "--frames", "19:0:-1"), ("ok",),
+               check=_warned("direction of travel")),
+        Attack("20th: Plaza2 with 60 s of dead reckoning removed (its ranges piled on the gap's edges)",
+               "silent", lambda f: _run(_plaza_gap(f)), ("ok",), check=_warned("has no line for")),
+        Attack("20th: FastSLAM on a log with every sighting dropped (one random particle's path)", "silent",
+               lambda f: _run(_mrclam_blind(f), "--backend", "fastslam2", "--max-steps", "1500"), ("ok",),
+               check=_near_odometry),
+        Attack("20th: compare on images with a zero-byte frame (every back end failed, nothing kept)", "fail",
+               lambda f: (_kitti_seq(f, 8), (f / "kit" / "image_0" / "000005.png").write_bytes(b""),
+                          ["compare", "--dataset", str(f / "kit"), "--rerun", "off", "--out", "out"])[2],
+               check=_files("out/compare.json", "out/compare.png")),
     ]
+
+
+def _plaza_gap(folder: Path) -> Path:
+    """Plaza2 with DR lines 2000-2600 (60 s) removed."""
+    dr = Path(_gtsam("Plaza2_DR.txt"))
+    for suffix in ("_TD.txt", "_.mat"):
+        (folder / f"Plaza2{suffix}").write_bytes(dr.with_name(f"Plaza2{suffix}").read_bytes())
+    lines = dr.read_text().splitlines(True)
+    return _w(folder, "Plaza2_DR.txt", "".join(lines[:1999] + lines[2600:]))
+
+
+def _mrclam_blind(folder: Path) -> Path:
+    """:func:`_mrclam` with every sighting timed after the odometry ends (all dropped)."""
+    mr = _mrclam(folder)
+    lines = (mr / "Robot1_Measurement.dat").read_text().splitlines()
+    moved = [ln if ln.startswith("#") or not ln.strip() else
+             " ".join([f"{float(ln.split()[0]) + 1e4:.3f}", *ln.split()[1:]]) for ln in lines]
+    (mr / "Robot1_Measurement.dat").write_text("\n".join(moved) + "\n")
+    return mr
+
+
+def _near_odometry(folder, out, err):
+    """With no observation the estimate is the odometry's (the EKF's and iSAM2's too)."""
+    m = json.loads((folder / "out" / "metrics.json").read_text())
+    ate, odo = m.get("ate_rmse_m"), m.get("odometry_ate_rmse_m")
+    if ate is None or odo is None:
+        return "no ATE"
+    return None if abs(ate - odo) <= 1e-6 else f"ATE {ate:.4f} m, the odometry's {odo:.4f} m"
 
 
 #: A 2-D chain between two FIX poses 6 m apart, its two edges 1 m (sigma 0.1 m).
