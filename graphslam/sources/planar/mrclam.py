@@ -468,7 +468,24 @@ def read_mrclam(folder, config: MrclamConfig | None = None) -> Dataset:
         )
     doubts = truth_doubts(config, config.robot, track, landmarks_true)
     dataset = _dataset(folder, config, track, landmarks_true)
-    return replace(dataset, warnings=(*track.warnings, *doubts))
+    unscored = unscored_landmarks(dataset.frames, landmarks_true)
+    return replace(dataset, notes=(*dataset.notes, *unscored), warnings=(*track.warnings, *doubts))
+
+
+def unscored_landmarks(frames, landmarks_true: dict) -> list[str]:
+    """A note naming the landmarks sighted that ``Landmark_Groundtruth.dat`` has no row
+    for (none without that file: its own note says the map is not scored). A truth
+    missing one landmark scored "14 of 14 recovered" with that one mapped and unsaid."""
+    if not landmarks_true:
+        return []
+    sighted = {o.landmark_id for f in frames for o in f.observations if o.landmark_id is not None}
+    missing = sorted(int(i) for i in sighted - set(landmarks_true))
+    if not missing:
+        return []
+    return [
+        f"landmark{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} sighted but not in "
+        "Landmark_Groundtruth.dat: mapped, not scored"
+    ]
 
 
 #: A sighting misses its landmark, seen from the truth's pose, when the sighting model

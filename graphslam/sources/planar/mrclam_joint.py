@@ -40,6 +40,7 @@ from graphslam.sources.planar.mrclam import (
     robots_in,
     sighting_covariances,
     truth_doubts,
+    unscored_landmarks,
 )
 from graphslam.sources.planar.mrclam_clock import clock_doubts
 from slamcore.errors import InputError
@@ -135,6 +136,7 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     warnings += tuple(clock_doubts(config, logs, barcodes, judged=[n for n, d in doubts.items() if not d]))
     if not landmarks_true:
         notes.append(landmark_truth_note(folder))
+    notes.extend(unscored_landmarks(frames, landmarks_true))
     return Dataset(
         name=f"{folder_name(folder)}-all",
         frames=frames,

@@ -767,3 +767,16 @@ def test_run_says_a_mean_nees_no_consistent_filter_gives(mrclam, tmp_path, capsy
                  "--out", str(tmp_path / "e")]) == 0
     said = capsys.readouterr()
     assert "mean NEES (3 dof)" in said.out and "NEES" not in said.err
+
+
+def test_a_sighted_landmark_without_truth_is_named_as_not_scored(mrclam, tmp_path):
+    """Landmark_Groundtruth.dat without landmark 8's row scored "14 of 14 recovered" with
+    landmark 8 mapped and nothing said (twentieth hostile pass)."""
+    from graphslam.sources.planar.mrclam import read_mrclam
+
+    folder = _copy(mrclam, tmp_path)
+    truth = folder / "Landmark_Groundtruth.dat"
+    truth.write_text("".join(ln for ln in truth.read_text().splitlines(True) if ln.split()[:1] != ["8"]))
+    ds = read_mrclam(folder, MrclamConfig(robot=1))
+    assert "landmark 8 sighted but not in Landmark_Groundtruth.dat: mapped, not scored" in ds.notes
+    assert not any("not scored" in n for n in read_mrclam(mrclam, MrclamConfig(robot=1)).notes)
