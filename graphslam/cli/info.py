@@ -42,7 +42,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     )
     if args.topics is not None and not isinstance(roles, dict):
         # the listing is printed; the check the --topics asked for failed: a script sees it
-        raise ConfigError(f"--topics {args.topics}: {roles}")
+        # (the reason may name the flag itself: "--topics image=/x: no such topic")
+        prefix = f"--topics {args.topics}: "
+        raise ConfigError(roles if roles.startswith("--topics ") else prefix + roles)
     return 0
 
 

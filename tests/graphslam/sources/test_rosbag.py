@@ -281,6 +281,7 @@ def test_info_with_topics_that_pick_nothing_lists_then_fails(tmp_path, capsys):
     assert out.splitlines()[0].split()[0] == "topic" and "no such topic" in out
     (line,) = err.strip().splitlines()
     assert line.startswith("graphslam: error: --topics image=/nosuch: ") and "no such topic" in line
+    assert line.count("--topics image=/nosuch") == 1  # said twice before (twentieth hostile pass)
 
 
 def test_a_fifo_among_a_ros2_bags_files_is_refused(tmp_path, capsys):
