@@ -262,8 +262,10 @@ def _run_backend(cli, key):
 def _run_seed(cli, key):
     differ(cli(*RUN_2D), cli(*RUN_2D, "--seed", "7"))
     graph = str(_square_graph(cli))
-    # recorded data: only FastSLAM's particles draw random numbers
-    particles = [*RUN_2D, "--dataset", graph, "--backend", "fastslam1"]
+    # recorded data: only FastSLAM's particles draw random numbers (on a log with
+    # sightings: until one weighs them, its trajectory is the odometry whatever the seed)
+    particles = [*RUN_2D, "--dataset", str(SHARED_DATA / "mrclam6"), "--max-steps", "200",
+                 "--backend", "fastslam1"]
     differ(cli(*particles), cli(*particles, "--seed", "7"))
     refused(cli(*RUN_2D, "--dataset", graph, "--seed", "7"), "--seed")
 
