@@ -228,10 +228,21 @@ def in_plane(T: np.ndarray) -> np.ndarray:
 
 def _untested(result) -> dict | None:
     """``closure_test`` of a solve whose closures were suspects but never tested (iSAM2
-    without its polish: they went in under the Cauchy kernel), else None (none suspect)."""
+    without its polish, or cut by a signal before it: they went in under the Cauchy
+    kernel), else None (none suspect)."""
     if result.robust_mode is None:
         return None
-    return {"robust_closures": result.robust_mode, "tested": False}
+    # a cut iSAM2 run said 'robust_closures = "none": every closure kept' (hostile pass 20)
+    return {
+        "robust_closures": result.robust_mode,
+        "tested": False,
+        **({"stopped": "isam2"} if result.cut else {}),
+    }
+
+
+def closures_tested(result) -> bool:
+    """Whether the outlier test decided the closures (``closures.csv``'s ``tested``)."""
+    return result.closure_threshold is not None and result.cut is None and result.stopped not in ("lm", "gnc")
 
 
 #: Stated sigmas this many times the residuals' (``noise_overstated``) mean edges that
@@ -471,13 +482,15 @@ def write_outputs(
 
 
 def write_closures_csv(path: Path, graph: pg.PoseGraph, result: SolveResult) -> None:
-    """Every non-odometry edge: ``from,to,line,kept,whitened_residual``."""
+    """Every non-odometry edge: ``from,to,line,kept,whitened_residual,tested`` (``tested``
+    0: kept without the outlier test, by setting, without the polish or after a stop)."""
     closures = np.flatnonzero(~graph.odometry_mask())
+    tested = int(closures_tested(result))
     with atomic_open(path, "w", encoding="utf-8") as f:
-        f.write("from,to,line,kept,whitened_residual\n")
+        f.write("from,to,line,kept,whitened_residual,tested\n")
         for e in closures.tolist():
             a, b = graph.edges[e].tolist()
             f.write(
                 f"{a},{b},{int(graph.edge_lines[e])},{int(not result.rejected[e])},"
-                f"{result.residuals[e]:.9g}\n"
+                f"{result.residuals[e]:.9g},{tested}\n"
             )

@@ -173,7 +173,10 @@ def solve(
         values = incremental.run(should_stop)
         recoveries += incremental.recoveries
         if incremental.stopped:
-            return _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
+            cut = _cut_result(graph, values, recoveries, t0, time.perf_counter() - t1)
+            # suspects cut off before their test: said as such, not as robust_closures "none"
+            cut.robust_mode = config.robust_closures if robust else None
+            return cut
         isam2_s, isam2_cost = time.perf_counter() - t1, fx.cost(graph, values, edges)
         if not config.polish:
             out = _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost)

@@ -331,6 +331,11 @@ def closure_row(metrics) -> str:
             '[posegraph] robust_closures = "none": every closure kept' if metrics.closures else "no closures"
         )
         return f"{metrics.closures_rejected} ({why})"
+    if test.get("stopped") == "isam2":
+        return (
+            f"none tested of {metrics.closures} (a signal stopped iSAM2 before the outlier test; "
+            "the closures of the poses solved went in under a Cauchy kernel)"
+        )
     if test.get("tested") is False:
         return (
             f"none tested of {metrics.closures} (no polish: iSAM2 kept them under a Cauchy kernel; "

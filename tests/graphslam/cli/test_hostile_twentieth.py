@@ -91,3 +91,38 @@ def test_a_camera_alone_run_whose_path_does_not_fit_its_orientations_is_said(tmp
                  "--quiet", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert ("the estimate's direction of travel, in the camera's own axes" in err) is warned, err
+
+
+def _two_laps_g2o(path, n=60):
+    """A 2-D circle driven twice, a closure every 5 poses of the second lap."""
+    th = np.linspace(0, 4 * np.pi, n, endpoint=False)
+    x, y, h = 20 * np.cos(th), 20 * np.sin(th), th + np.pi / 2
+
+    def rel(a, b):
+        dx, dy = x[b] - x[a], y[b] - y[a]
+        c, s = np.cos(h[a]), np.sin(h[a])
+        return c * dx + s * dy, -s * dx + c * dy, (h[b] - h[a] + np.pi) % (2 * np.pi) - np.pi
+
+    rows = [f"VERTEX_SE2 {k} 0 0 0" for k in range(n)]
+    pairs = [(k, k + 1) for k in range(n - 1)] + [(k, k + n // 2) for k in range(0, n // 2, 5)]
+    rows += [f"EDGE_SE2 {a} {b} {' '.join(f'{v:.6f}' for v in rel(a, b))} 400 0 0 400 0 40000" for a, b in pairs]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_signal_during_isam2_says_the_closures_were_not_tested(tmp_path, monkeypatch, capsys):
+    """Cut during iSAM2's pose-by-pose phase, the summary said 'robust_closures = "none":
+    every closure kept' (the setting was "auto") and closures.csv marked every closure
+    kept, wrong ones too (twentieth hostile pass)."""
+    import csv
+
+    monkeypatch.setenv("GRAPHSLAM_SIGNAL_AT", "step:45")
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(_two_laps_g2o(tmp_path / "g.g2o")), "--backend", "isam2",
+                 "--rerun", "off", "--out", str(out)]) == 130
+    said = capsys.readouterr().out
+    assert "a signal stopped iSAM2 before the outlier test" in said and '"none"' not in said
+    rows = list(csv.DictReader((out / "closures.csv").open()))
+    assert rows and {r["tested"] for r in rows} == {"0"}
+    test = json.loads((out / "metrics.json").read_text())["closure_test"]
+    assert test["tested"] is False and test["stopped"] == "isam2" and test["robust_closures"] == "auto"

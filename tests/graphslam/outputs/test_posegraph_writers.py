@@ -85,7 +85,8 @@ def test_run_writes_the_optimised_graph(tmp_path, capsys, dim, backend):
     assert cost == pytest.approx(metrics["final_cost"], rel=COST_REL)
     assert metrics["final_cost"] < metrics["initial_cost"]
     closures = (out / "closures.csv").read_text().splitlines()
-    assert closures[0] == "from,to,line,kept,whitened_residual" and len(closures) == 1 + 3
+    assert closures[0] == "from,to,line,kept,whitened_residual,tested" and len(closures) == 1 + 3
+    assert {row.split(",")[-1] for row in closures[1:]} == {"1"}  # the polish tested them
     assert len((out / "trajectory.tum").read_text().splitlines()) == 1 + 10
 
 
