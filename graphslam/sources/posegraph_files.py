@@ -586,7 +586,14 @@ def truncated(graph: pg.PoseGraph, n_poses: int) -> pg.PoseGraph:
     cut = graph.subgraph(keep_rows)
     if not cut.n_edges:
         raise InputError(f"the first {n_poses} poses have no edge between them", graph.source_path)
-    check_connected(cut, graph.source_path)
+    try:
+        check_connected(cut, graph.source_path)
+    except InputError as e:  # the file is connected: the cut is not (ids out of travel order)
+        raise InputError(
+            f"the first {n_poses} poses by id (--max-steps {n_poses}) do not form a connected graph: "
+            + e.reason.removeprefix("the graph is not connected: "),
+            graph.source_path,
+        ) from None
     return with_chain_start(cut)
 
 

@@ -126,3 +126,24 @@ def test_a_signal_during_isam2_says_the_closures_were_not_tested(tmp_path, monke
     assert rows and {r["tested"] for r in rows} == {"0"}
     test = json.loads((out / "metrics.json").read_text())["closure_test"]
     assert test["tested"] is False and test["stopped"] == "isam2" and test["robust_closures"] == "auto"
+
+
+def test_max_steps_that_cut_a_connected_file_into_parts_names_the_flag(tmp_path, capsys):
+    """Ids out of travel order: the first 50 by id are in pieces, and the refusal blamed
+    the file ('the graph is not connected'), which runs whole (twentieth hostile pass)."""
+    path = _two_laps_g2o(tmp_path / "g.g2o")
+    perm = np.random.default_rng(5).permutation(60)
+    rows = []
+    for line in path.read_text().splitlines():
+        t = line.split()
+        t[1] = str(perm[int(t[1])])
+        if t[0] == "EDGE_SE2":
+            t[2] = str(perm[int(t[2])])
+        rows.append(" ".join(t))
+    path.write_text("\n".join(rows) + "\n")
+    argv = ["run", "--dataset", str(path), "--rerun", "off", "--quiet", "--out"]
+    assert main([*argv, str(tmp_path / "a")]) == 0
+    assert main([*argv, str(tmp_path / "b"), "--max-steps", "20"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "the first 20 poses by id (--max-steps 20) do not form a connected graph: " in err
+    assert len(err.splitlines()) == 1 and "the graph is not connected" not in err
