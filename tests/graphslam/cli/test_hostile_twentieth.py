@@ -143,6 +143,7 @@ def test_max_steps_that_cut_a_connected_file_into_parts_names_the_flag(tmp_path,
     path.write_text("\n".join(rows) + "\n")
     argv = ["run", "--dataset", str(path), "--rerun", "off", "--quiet", "--out"]
     assert main([*argv, str(tmp_path / "a")]) == 0
+    capsys.readouterr()
     assert main([*argv, str(tmp_path / "b"), "--max-steps", "20"]) == 2
     err = capsys.readouterr().err.strip()
     assert "the first 20 poses by id (--max-steps 20) do not form a connected graph: " in err
