@@ -409,10 +409,103 @@ def metrics(
             *graph.warnings,
             *stalled,
             *closures_warning(graph, result, alpha),
+            *split_warning(graph, result),
+            *lone_closure_warning(graph, result),
             *ate_ratio_warning(ate_m, odometry_ate_m),
         ]
         or None,
     )
+
+
+def lone_closure_warning(graph: pg.PoseGraph, result: SolveResult) -> list[str]:
+    """One line naming the kept closures that alone join two parts of the graph (its
+    odometry chains): no other edge can contradict such a closure, so the outlier test
+    keeps it whatever it says. Two sessions joined by three wrong closures, one kept,
+    were reported certified with the second session 16 m off (twentieth hostile pass)."""
+    if not closures_tested(result):
+        return []
+    rows = graph.index_of(graph.edges.ravel()).reshape(-1, 2)
+    kept, odometry = ~result.rejected, graph.odometry_mask()
+    pieces = pg.components(graph.n_poses, rows[kept & odometry])
+    if len(pieces) < 2:
+        return []
+    piece_of = np.empty(graph.n_poses, dtype=np.int64)
+    for i, p in enumerate(pieces):
+        piece_of[p] = i
+    links = [int(e) for e in np.flatnonzero(kept & ~odometry) if piece_of[rows[e, 0]] != piece_of[rows[e, 1]]]
+    lone = [
+        links[k] for k in bridges(len(pieces), [(piece_of[rows[e, 0]], piece_of[rows[e, 1]]) for e in links])
+    ]
+    if not lone:
+        return []
+    named = ", ".join(
+        f"{a}-{b} (line {int(graph.edge_lines[e])})" for e in lone[:5] for a, b in [graph.edges[e]]
+    )
+    more = f" and {len(lone) - 5} more" if len(lone) > 5 else ""
+    return [
+        f"{len(lone)} kept closure{'s' if len(lone) > 1 else ''} alone join{'' if len(lone) > 1 else 's'} "
+        f"parts of the graph ({named}{more}): no other edge can contradict "
+        f"{'them' if len(lone) > 1 else 'it'}, so the outlier test cannot tell a wrong one"
+    ]
+
+
+def bridges(n: int, links: list[tuple[int, int]]) -> list[int]:
+    """Indices into ``links`` ((a, b) node pairs of a multigraph on ``n`` nodes) of its
+    bridges: links whose removal disconnects their ends. Tarjan's low-link DFS,
+    iterative (written here: scipy's csgraph has no bridge search, and a graph of
+    sessions is small, but a recursive DFS would not be bounded by it)."""
+    adjacent: list[list[tuple[int, int]]] = [[] for _ in range(n)]
+    for k, (a, b) in enumerate(links):
+        adjacent[a].append((b, k))
+        adjacent[b].append((a, k))
+    order, low = [-1] * n, [0] * n
+    out, counter = [], 0
+    for root in range(n):
+        if order[root] >= 0:
+            continue
+        order[root] = low[root] = counter
+        counter += 1
+        stack = [(root, -1, iter(adjacent[root]))]
+        while stack:
+            node, via, it = stack[-1]
+            step = next(it, None)
+            if step is None:
+                stack.pop()
+                if stack:
+                    parent = stack[-1][0]
+                    low[parent] = min(low[parent], low[node])
+                    if low[node] > order[parent]:
+                        out.append(via)
+                continue
+            other, k = step
+            if k == via:
+                continue
+            if order[other] < 0:
+                order[other] = low[other] = counter
+                counter += 1
+                stack.append((other, k, iter(adjacent[other])))
+            else:
+                low[node] = min(low[node], order[other])
+    return sorted(out)
+
+
+def split_warning(graph: pg.PoseGraph, result: SolveResult) -> list[str]:
+    """One line when the rejected closures were every link between parts of the graph:
+    the kept edges leave it in pieces, each placed against the others by the start alone.
+    Two sessions joined by three wrong closures gave a second session 7 m off, with only
+    the optimality row's "not checked" (twentieth hostile pass)."""
+    if not result.rejected.any() or result.cut is not None:
+        return []
+    rows = graph.index_of(graph.edges[~result.rejected].ravel()).reshape(-1, 2)
+    parts = pg.components(graph.n_poses, rows)
+    if len(parts) < 2:
+        return []
+    return [
+        f"the rejected closures were every link between parts of the graph: the kept edges "
+        f"leave it in {len(parts)} parts ({pg.describe_components(graph.ids, parts)}), each placed "
+        "against the others by the start alone, not by any edge (if those closures are right, "
+        'run with [posegraph] robust_closures = "none")'
+    ]
 
 
 def _certificate_of(result: SolveResult) -> dict | None:

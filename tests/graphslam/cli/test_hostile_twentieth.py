@@ -148,3 +148,53 @@ def test_max_steps_that_cut_a_connected_file_into_parts_names_the_flag(tmp_path,
     err = capsys.readouterr().err.strip()
     assert "the first 20 poses by id (--max-steps 20) do not form a connected graph: " in err
     assert len(err.splitlines()) == 1 and "the graph is not connected" not in err
+
+
+def _two_sessions_g2o(path, n=100):
+    """Two sessions of one circle (the second 3 m, 1 m off), each with its own closures,
+    joined only by three wrong closures (20 m of error each)."""
+    rng = np.random.default_rng(11)
+    th = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    poses = [(15 * np.cos(t) + dx, 15 * np.sin(t) + dy, t + np.pi / 2) for dx, dy in ((0, 0), (3, 1)) for t in th]
+
+    def rel(a, b):
+        (xa, ya, ha), (xb, yb, hb) = poses[a], poses[b]
+        c, s = np.cos(ha), np.sin(ha)
+        return c * (xb - xa) + s * (yb - ya), -s * (xb - xa) + c * (yb - ya), (hb - ha + np.pi) % (2 * np.pi) - np.pi
+
+    rows = [f"VERTEX_SE2 {k} 0 0 0" for k in range(2 * n)]
+    pairs = [(s + k, s + k + 1, 0) for s in (0, n) for k in range(n - 1)]
+    pairs += [(s + k, s + (k + n // 2) % n, 0) for s in (0, n) for k in range(0, n // 2, 10)]
+    pairs += [(10, 110, 1), (40, 160, 1), (70, 190, 1)]
+    for a, b, wrong in pairs:
+        d = np.array(rel(a, b)) + rng.normal(0, [0.03, 0.03, 0.003])
+        if wrong:
+            d += [rng.normal() * 20, rng.normal() * 20, rng.uniform(-2, 2)]
+        rows.append(f"EDGE_SE2 {a} {b} {d[0]:.5f} {d[1]:.5f} {d[2]:.5f} 1000 0 0 1000 0 100000")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(("backend", "words"), [
+    ("batch", "the kept edges leave it in 2 parts"),
+    ("isam2", "1 kept closure alone joins parts of the graph (10-110"),
+])
+def test_closures_the_test_cannot_judge_are_said(tmp_path, capsys, backend, words):
+    """Two sessions joined only by wrong closures: batch rejected all three and placed the
+    second session by its start; iSAM2 kept one, the only link, which no edge can
+    contradict (reported certified). Neither said a word (twentieth hostile pass)."""
+    out = tmp_path / "o"
+    assert main(["run", "--dataset", str(_two_sessions_g2o(tmp_path / "g.g2o")), "--backend", backend,
+                 "--rerun", "off", "--quiet", "--out", str(out)]) == 0
+    assert words in capsys.readouterr().err
+    assert any(words in w for w in json.loads((out / "metrics.json").read_text())["warnings"])
+
+
+def test_bridges_of_small_multigraphs():
+    from graphslam.pipelines.posegraph import bridges
+
+    assert bridges(4, [(0, 1), (1, 2), (2, 0), (2, 3)]) == [3]
+    assert bridges(2, [(0, 1), (0, 1)]) == []  # two links: each can contradict the other
+    assert bridges(3, [(0, 1), (1, 2)]) == [0, 1]
+    assert bridges(5, [(0, 1), (2, 3)]) == [0, 1]
+    assert bridges(1, []) == []
