@@ -187,14 +187,22 @@ class Isam2Backend(Backend):
         if self._unknown is not None:
             self._last_associations = self._update_unknown(self._unknown, observations)
             return
+        # the scan is refused whole before any of it touches the graph, as the filters do
+        # (a pixel observation was refused after its landmark was placed from it)
+        for obs in observations:
+            if obs.landmark_id is None:
+                continue
+            if obs.pose_id not in self._pose_set:
+                raise GraphSlamError(f"isam2: observation from unknown pose {obs.pose_id}")
+            if obs.kind not in (ObservationKind.RANGE, ObservationKind.RANGE_BEARING):
+                raise UnsupportedError(f"2-D back end cannot use {obs.kind.value} observations")
+            conv.key_index(obs.landmark_id, "isam2: landmark")
         assoc: list[int | None] = []
         for obs in observations:
             if obs.landmark_id is None:
                 # iSAM2 here needs known association; unknown ones are skipped, and reported.
                 assoc.append(None)
                 continue
-            if obs.pose_id not in self._pose_set:
-                raise GraphSlamError(f"isam2: observation from unknown pose {obs.pose_id}")
             lid = conv.key_index(obs.landmark_id, "isam2: landmark")
             if obs.kind is ObservationKind.RANGE:
                 self._add_range(obs, lid)
@@ -360,15 +368,23 @@ class Isam2Backend(Backend):
         est = conv.values_to_estimate(values, self._pose_ids, self._landmark_ids)
         if not with_covariances:
             return est
-        marginals = self._marginals(values)
-        pcov = np.array(
-            [
-                conv.pose2_covariance_from_gtsam(theta, marginals.marginalCovariance(X(i)))
-                for i, theta in zip(self._pose_ids, est.wTb[:, 2], strict=True)
-            ]
-        ).reshape(-1, 3, 3)
-        lcov = np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(-1, 2, 2)
-        return Estimate(est.pose_ids, est.wTb, est.landmark_ids, est.landmarks_w, pcov, lcov)
+
+        def covariances(marginals):
+            pcov = np.array(
+                [
+                    conv.pose2_covariance_from_gtsam(theta, marginals.marginalCovariance(X(i)))
+                    for i, theta in zip(self._pose_ids, est.wTb[:, 2], strict=True)
+                ]
+            ).reshape(-1, 3, 3)
+            lcov = np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(
+                -1, 2, 2
+            )
+            return pcov, lcov
+
+        found = fact.marginals_or_none(lambda: covariances(self._marginals(values)), self._recoveries)
+        if found is None:
+            return est
+        return Estimate(est.pose_ids, est.wTb, est.landmark_ids, est.landmarks_w, *found)
 
     def finalize(self, with_covariances: bool = False) -> Estimate:
         self._require_init()
@@ -395,13 +411,22 @@ class Isam2Backend(Backend):
         self._flush()
         key = X(self._pose_ids[-1])
         theta = self._isam.calculateEstimatePose2(key).theta()
-        return conv.pose2_covariance_from_gtsam(theta, self._isam.marginalCovariance(key))
+        return fact.marginals_or_none(
+            lambda: conv.pose2_covariance_from_gtsam(theta, self._isam.marginalCovariance(key)),
+            self._recoveries,
+        )
 
-    def landmark_covariances(self) -> np.ndarray:
+    def landmark_covariances(self) -> np.ndarray | None:
         """The landmarks' marginals alone (what a recording draws): the pose marginals
         :meth:`estimate` adds are most of its cost on long runs."""
-        marginals = self._marginals(self._values_now())
-        return np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(-1, 2, 2)
+
+        def compute():
+            marginals = self._marginals(self._values_now())
+            return np.array([marginals.marginalCovariance(L(j)) for j in self._landmark_ids]).reshape(
+                -1, 2, 2
+            )
+
+        return fact.marginals_or_none(compute, self._recoveries)
 
     # --- extras -------------------------------------------------------------
 

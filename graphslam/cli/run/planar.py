@@ -167,10 +167,13 @@ def run(args: argparse.Namespace) -> int:
         # a filter keeps each step's covariance as it goes: the steps run are scored
         # (an interrupted --nees wrote no nees.csv at all, stop 56)
         result.estimate = backend.estimate(with_covariances=True)
-    if args.nees and result.interrupted and result.estimate.pose_covariances is None:
+    if args.nees and result.estimate.pose_covariances is None:
+        # a system without marginals refused --nees before any output was written
         warn(
             "run interrupted before its covariances (a smoother's come from its marginals at "
             "the end): no nees.csv"
+            if result.interrupted
+            else "the estimate has no covariances (numerical recovery above): no NEES, no nees.csv"
         )
     elif args.nees and (scored := pipeline.add_nees(result, metrics, truth)) is not None:
         pose_ids, nees_k, undefined = scored

@@ -198,3 +198,55 @@ def test_bridges_of_small_multigraphs():
     assert bridges(3, [(0, 1), (1, 2)]) == [0, 1]
     assert bridges(5, [(0, 1), (2, 3)]) == [0, 1]
     assert bridges(1, []) == []
+
+
+def test_isam2_refuses_a_scan_whole_before_it_touches_the_graph():
+    """A pixel observation was refused after its landmark was placed from it (the pixel
+    read as range and bearing); a scan with a sighting from an unknown pose kept the
+    factors of the sightings before it (twentieth hostile pass, the Python API)."""
+    from graphslam.registry import make_backend
+    from slamcore.errors import GraphSlamError, UnsupportedError
+    from slamcore.planar.records import Observation, ObservationKind, Odometry
+
+    b = make_backend("isam2")
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-4)
+    b.predict(Odometry(0, 1, np.array([1.0, 0, 0.1]), np.eye(3) * 0.01), 1)
+    with pytest.raises(UnsupportedError):
+        b.update([Observation(1, 5, np.array([100.0, 50.0]), np.eye(2), kind=ObservationKind.PIXEL)])
+    sighting = Observation(1, 3, np.array([2.0, 0.3]), np.eye(2) * 0.01)
+    with pytest.raises(GraphSlamError, match="unknown pose 99"):
+        b.update([sighting, Observation(99, 4, np.array([2.0, 0.3]), np.eye(2) * 0.01)])
+    b.finalize()
+    est = b.estimate(with_covariances=True)
+    assert len(est.landmark_ids) == 0 and len(est.pose_ids) == 2
+
+
+#: A synthetic world the config takes whose sighting noise (1e-6 m, 1e-6 deg) is a million
+#: times below its odometry's: iSAM2's system is indeterminate for Cholesky at the end.
+TINY_NOISE = "[synthetic]\nsigma_r_m = 1e-6\nsigma_phi_deg = 1e-6\nlaps = 1\nn_landmarks = 40\n"
+
+
+def test_isam2_without_marginals_keeps_the_run_and_says_so(tmp_path, capsys):
+    """gtsam's Marginals (Cholesky only) raised its bare RuntimeError: a traceback from
+    --save-map with a recording, and --nees refused the run before any output was written
+    (twentieth hostile pass, the Python API)."""
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.registry import make_backend
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
+
+    ds = make_synthetic(SyntheticConfig(seed=0, laps=1, n_landmarks=40, sigma_r_m=1e-6, sigma_phi_deg=1e-6))
+    backend = make_backend("isam2")
+    est = pipeline.run(ds, backend, max_steps=120, with_covariances=True).estimate
+    assert est.pose_covariances is None and len(est.pose_ids) == 120
+    assert any(n.startswith("no covariances: the system at the estimate is indeterminate")
+               for n in backend.numerical_recoveries())
+    config = tmp_path / "c.toml"
+    config.write_text(TINY_NOISE)
+    base = ["run", "--config", str(config), "--max-steps", "120", "--quiet"]
+    assert main([*base, "--nees", "--rerun", "off", "--out", str(tmp_path / "a")]) == 0
+    assert "the estimate has no covariances (numerical recovery above): no NEES" in capsys.readouterr().err
+    assert (tmp_path / "a" / "metrics.json").is_file() and not (tmp_path / "a" / "nees.csv").exists()
+    assert main([*base, "--rerun", "save", "--save-map", str(tmp_path / "m"), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "the run has no landmark covariances to save" in err
+    assert (tmp_path / "b" / "run.rrd").is_file()
