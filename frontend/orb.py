@@ -27,6 +27,7 @@ import numpy as np
 from frontend.features import Features
 from frontend.image import MAX_PATCH_PX, MAX_POINTS_PER_FRAME, MAX_SIDE_PX, check_gray
 from slamcore.config import Validated, bounded, with_overrides
+from slamcore.errors import GraphSlamError
 
 #: Per-keypoint attribute readers: ``map`` over an ``attrgetter`` is the
 #: fastest way OpenCV's Python binding offers (it has no array accessor for
@@ -202,7 +203,7 @@ class OrbDetector:
         ``index`` says which points got a descriptor, in input order.
         """
         image = check_gray(image)
-        xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 2)
+        xy = _rows(xy_px, 2, "describe: points", "(N, 2) pixels")
         if len(xy) == 0 or self._too_small(image):
             return np.zeros(0, np.int64), np.zeros((0, 32), np.uint8)
         # class_id carries the input index through compute(), which may drop points
@@ -280,9 +281,7 @@ class OrbDetector:
         if not kps:
             return self._empty(), self._empty_candidates()
         every = self._empty_candidates()
-        boxes = (
-            np.zeros((0, 4)) if boxes_px is None else np.asarray(boxes_px, dtype=np.float64).reshape(-1, 4)
-        )
+        boxes = np.zeros((0, 4)) if boxes_px is None else _rows(boxes_px, 4, "boxes", "(K, 4) u0 v0 u1 v1")
         if len(boxes):
             pts = _pixels(kps)
             inside = np.zeros(len(kps), bool)
@@ -319,3 +318,20 @@ class OrbDetector:
     @staticmethod
     def _empty_candidates() -> Features:
         return Features(xy_px=np.zeros((0, 2)), response=np.zeros(0), descriptors=np.zeros((0, 32), np.uint8))
+
+
+def _rows(values, width: int, what: str, form: str) -> np.ndarray:
+    """``values`` as (N, ``width``) float64 rows, or GraphSlamError: a (2, N) array was
+    reshaped row-major into scrambled pixels and described there (twentieth hostile
+    pass, the Python API). An empty input is no rows."""
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError(f"orb {what}: expected {form}, not numbers") from None
+    if a.size == 0:
+        return np.zeros((0, width))
+    if a.ndim == 1 and a.shape == (width,):
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != width:
+        raise GraphSlamError(f"orb {what}: expected {form}, got shape {a.shape}")
+    return a

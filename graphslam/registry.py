@@ -370,9 +370,45 @@ def make_localiser(
         raise ConfigError(
             f"--map: {name} cannot localise against a fixed map (available: {', '.join(LOCALISING_BACKENDS)})"
         )
-    return load(impl.localiser)(
-        landmark_ids, landmarks_w, landmark_cov, _settings(name, impl, config, overrides)
-    )
+    ids, xy, cov = checked_landmark_map(landmark_ids, landmarks_w, landmark_cov)
+    return load(impl.localiser)(ids, xy, cov, _settings(name, impl, config, overrides))
+
+
+def checked_landmark_map(landmark_ids, landmarks_w, landmark_cov):
+    """``(ids (M,) int64, positions (M, 2), covariances (M, 2, 2))`` or MeasurementError.
+    The localisers reshaped what they were given: positions of shape (2, 3) for three ids
+    moved the pose, ids 1.5 became 1, a repeated id, NaN positions and negative variances
+    were taken (twentieth hostile pass, the Python API)."""
+    import numpy as np
+
+    from slamcore.errors import MeasurementError
+
+    try:
+        ids = np.asarray(landmark_ids)
+        xy = np.asarray(landmarks_w, dtype=np.float64)
+        cov = np.asarray(landmark_cov, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MeasurementError("landmark map: ids, positions and covariances must be numbers") from None
+    m = len(ids) if ids.ndim == 1 else -1
+    if m < 0 or xy.shape != (m, 2) or cov.shape != (m, 2, 2):
+        raise MeasurementError(
+            f"landmark map: expected ids (M,), positions (M, 2) and covariances (M, 2, 2); got "
+            f"{ids.shape}, {xy.shape} and {cov.shape}"
+        )
+    if ids.dtype.kind not in "iu" and not (
+        ids.dtype.kind == "f" and np.all(np.isfinite(ids)) and np.all(ids == np.round(ids))
+    ):
+        raise MeasurementError(f"landmark map: ids must be whole numbers, got {ids[:3].tolist()}")
+    ids = ids.astype(np.int64)
+    if len(np.unique(ids)) != m:
+        raise MeasurementError("landmark map: a landmark id is repeated")
+    if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(cov))):
+        raise MeasurementError("landmark map: positions or covariances are not finite")
+    if np.any(np.diagonal(cov, axis1=1, axis2=2) <= 0) or np.any(
+        np.abs(cov - np.swapaxes(cov, 1, 2)) > 1e-9 * (1 + np.abs(cov))
+    ):
+        raise MeasurementError("landmark map: a covariance is not symmetric with positive variances")
+    return ids, xy, cov
 
 
 def seed_draws_nothing(dataset: str, backend: str) -> bool:

@@ -357,10 +357,23 @@ def rpe(est_ids, est_wTb, gt_ids, gt_wTb, delta: int = 1) -> dict:
     }
 
 
+def _poses_2d(wTb, what: str) -> np.ndarray:
+    """``wTb`` as (N, 3) ``[x, y, theta]`` rows, or GraphSlamError: a (3, N) array was
+    reshaped row-major into scrambled poses and scored (twentieth hostile pass)."""
+    try:
+        a = np.asarray(wTb, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError(f"pose_errors: the {what} is not numbers") from None
+    if a.ndim == 1 and a.shape == (3,):
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise GraphSlamError(f"pose_errors: the {what} must be (N, 3) [x, y, theta] rows, got {a.shape}")
+    return a
+
+
 def pose_errors(est_wTb: np.ndarray, gt_wTb: np.ndarray) -> np.ndarray:
     """(N, 3) ``est - gt`` row by row, heading difference wrapped to [-pi, pi)."""
-    est = np.asarray(est_wTb, dtype=np.float64).reshape(-1, 3)
-    gt = np.asarray(gt_wTb, dtype=np.float64).reshape(-1, 3)
+    est, gt = _poses_2d(est_wTb, "estimate"), _poses_2d(gt_wTb, "truth")
     if est.shape != gt.shape:
         raise GraphSlamError(f"pose_errors: shapes differ, {est.shape} vs {gt.shape}")
     err = est - gt

@@ -97,6 +97,11 @@ def run(
     next frame; the estimate so far is still returned (without the final
     polish and the covariances) with ``interrupted=True``.
     """
+    if max_steps is not None and (
+        isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1
+    ):
+        # -1 ran all frames but the last and True one frame, as slices (twentieth hostile pass)
+        raise GraphSlamError(f"max_steps must be a whole number >= 1 or None, got {max_steps!r}")
     frames = dataset.frames if max_steps is None else dataset.frames[:max_steps]
     if not frames:
         raise GraphSlamError(f"dataset {dataset.name!r} has no frames")

@@ -86,7 +86,7 @@ import numpy as np
 from graphslam.sources.posegraph_bulk import FileLines, Sightings, read_in_bulk
 from graphslam.sources.tokens import MAX_ID, check_count, iter_lines, parse_id, parse_numbers
 from slamcore import posegraph as pg
-from slamcore.errors import InputError, quote
+from slamcore.errors import ConfigError, InputError, quote
 
 #: tag -> (format, dim, rotation, kind, token count)
 TAGS = {
@@ -623,10 +623,11 @@ def read_pose_graph_records(
     TORO file beside the graph (else refused); ids above ``id_limit`` are refused
     (``tokens.MAX_KEY_ID`` where they become gtsam symbol keys)."""
     path = Path(path)
+    # the exception family's ConfigError, as a config file's bad value is (a bare ValueError)
     if toro_noise not in TORO_NOISE:
-        raise ValueError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
+        raise ConfigError(f"toro_noise must be one of {TORO_NOISE}, got {toro_noise!r}")
     if information_fix not in INFORMATION_FIX:
-        raise ValueError(f"information_fix must be one of {INFORMATION_FIX}, got {information_fix!r}")
+        raise ConfigError(f"information_fix must be one of {INFORMATION_FIX}, got {information_fix!r}")
     toro_noise, note = resolve_toro_noise(path, toro_noise)
     lines = read_in_bulk(path, TAGS, id_limit)
     if lines is None or not _in_range(lines):

@@ -31,9 +31,23 @@ from slamcore.planar.sighting_correlation import SightingCorrelation
 COV_SYMMETRY_RTOL = 1e-6
 
 
+def _float_array(value, what: str) -> np.ndarray:
+    """``value`` as a float64 array, or MeasurementError: text, a dict or ragged lists
+    were numpy's bare ValueError or TypeError (twentieth hostile pass, the Python API)."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MeasurementError(f"{what}: expected numbers, got {_shape_text(value)}") from None
+
+
+def _shape_text(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def as_vector(value, size: int, what: str) -> np.ndarray:
     """Return ``value`` as a read-only float64 vector of ``size``; refuse NaN/inf."""
-    v = np.array(value, dtype=np.float64).reshape(-1)
+    v = _float_array(value, what).reshape(-1)
     if v.shape != (size,):
         raise MeasurementError(f"{what}: expected {size} values, got {v.size}")
     if not np.all(np.isfinite(v)):
@@ -44,7 +58,7 @@ def as_vector(value, size: int, what: str) -> np.ndarray:
 
 def as_covariance(value, size: int, what: str) -> np.ndarray:
     """Return ``value`` as a read-only (size, size) SPD covariance or raise."""
-    c = np.array(value, dtype=np.float64)
+    c = _float_array(value, what)
     if c.shape != (size, size):
         raise MeasurementError(f"{what}: covariance must be {size}x{size}, got {c.shape}")
     if not np.all(np.isfinite(c)):
@@ -184,6 +198,14 @@ class Observation:
         what = f"observation of landmark {self.landmark_id} from pose {self.pose_id}"
         _check_ids(self, ("pose_id", "landmark_id"), what, optional=("landmark_id",))
         object.__setattr__(self, "stamp_s", checked_stamp(self.stamp_s, what))
+        if not isinstance(self.kind, ObservationKind):
+            # the enum's value ("range_bearing") is the plausible slip: taken; anything
+            # else was AttributeError: 'str' object has no attribute 'size'
+            try:
+                object.__setattr__(self, "kind", ObservationKind(self.kind))
+            except (TypeError, ValueError):
+                kinds = ", ".join(k.value for k in ObservationKind)
+                raise MeasurementError(f"{what}: kind must be one of {kinds}, got {self.kind!r}") from None
         size = self.kind.size
         _check_mean_and_covariance(self, "z", size, what)
         if self.kind in (ObservationKind.RANGE_BEARING, ObservationKind.RANGE) and self.z[0] <= 0.0:

@@ -250,3 +250,55 @@ def test_isam2_without_marginals_keeps_the_run_and_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err and "the run has no landmark covariances to save" in err
     assert (tmp_path / "b" / "run.rrd").is_file()
+
+
+# ---- the Python API (the twentieth pass's third helper): one exception family, no reshaping
+
+
+def test_records_take_the_kinds_value_and_refuse_what_is_no_number():
+    from slamcore.errors import MeasurementError
+    from slamcore.planar.records import Observation, ObservationKind, Odometry
+
+    assert Observation(0, 1, [1.0, 0.1], np.eye(2), kind="range_bearing").kind is ObservationKind.RANGE_BEARING
+    for kind in (None, "pixels", [1]):
+        with pytest.raises(MeasurementError, match="kind must be one of"):
+            Observation(0, 1, [1.0, 0.1], np.eye(2), kind=kind)
+    for delta in ("abc", [1, [2, 3]], {"a": 1}):
+        with pytest.raises(MeasurementError, match="expected numbers"):
+            Odometry(0, 1, delta, np.eye(3))
+
+
+def test_library_calls_refuse_inputs_they_used_to_reshape_or_slice(tmp_path):
+    from frontend.orb import OrbDetector
+    from graphslam.evaluation.planar import pose_errors
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.registry import make_backend, make_localiser
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+    from slamcore.errors import ConfigError, GraphSlamError, MeasurementError
+
+    est, gt = np.zeros((4, 3)), np.zeros((4, 3))
+    gt[:, 0] = [0, 5, 10, 15]
+    np.testing.assert_array_equal(pose_errors(est, gt)[:, 0], [0, -5, -10, -15])
+    with pytest.raises(GraphSlamError, match=r"must be \(N, 3\)"):
+        pose_errors(est.T, gt.T)  # read row-major, the heading wrap fell on x
+    ds = make_synthetic(SyntheticConfig(seed=0))
+    for steps in (-1, True, 2.5, 0):
+        with pytest.raises(GraphSlamError, match="max_steps must be a whole number"):
+            pipeline.run(ds, make_backend("ekf"), max_steps=steps)
+    path = tmp_path / "g.g2o"
+    path.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    with pytest.raises(ConfigError, match="toro_noise"):
+        read_pose_graph_file(path, toro_noise="bogus")
+    lm = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    cov = np.tile(np.eye(2) * 0.01, (3, 1, 1))
+    make_localiser("ekf", [1, 2, 3], lm, cov)
+    for ids, xy, c in (([1, 2, 3], lm.T.reshape(2, 3), cov), ([1.5, 2, 3], lm, cov), ([1, 1, 2], lm, cov),
+                       ([1, 2, 3], lm * np.nan, cov), ([1, 2, 3], lm, -cov)):
+        with pytest.raises(MeasurementError, match="landmark map"):
+            make_localiser("ekf", ids, xy, c)
+    image = (np.random.default_rng(0).random((120, 160)) * 255).astype(np.uint8)
+    points = np.array([[60.0, 50.0], [80.0, 60.0], [100.0, 70.0]])
+    assert len(OrbDetector().describe(image, points)[0]) == 3
+    with pytest.raises(GraphSlamError, match=r"expected \(N, 2\) pixels"):
+        OrbDetector().describe(image, points.T)
