@@ -18,7 +18,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from slamcore import chi2
-from slamcore.errors import MeasurementError, UnsupportedError
+from slamcore.errors import GraphSlamError, MeasurementError, UnsupportedError
 from slamcore.planar.records import Dataset, Estimate, LoopClosure, Observation, ObservationKind, Odometry
 
 #: Reorders ``[range, bearing]`` (ours) into ``[bearing, range]`` (gtsam's BearingRange).
@@ -37,6 +37,21 @@ def key_index(value: int, what: str) -> int:
     if not 0 <= value < SYMBOL_INDEX_LIMIT:
         raise MeasurementError(f"{what} {value}: this back end keys ids as gtsam symbols, 0 to 2**56 - 1")
     return value
+
+
+def checked_known_sighting(obs: Observation, pose_ids, who: str) -> None:
+    """Refuse, before anything is added, a sighting with an id that a 2-D factor cannot
+    take: from a pose not in ``pose_ids``, of a kind other than range (bearing), or with
+    an id no symbol holds. A pixel observation was refused after its landmark had been
+    placed from it, and a scan's later sighting after the earlier ones' factors were in
+    (twentieth hostile pass). Sightings without an id pass (the caller skips them)."""
+    if obs.landmark_id is None:
+        return
+    if obs.pose_id not in pose_ids:
+        raise GraphSlamError(f"{who}: observation from unknown pose {obs.pose_id}")
+    if obs.kind not in (ObservationKind.RANGE, ObservationKind.RANGE_BEARING):
+        raise UnsupportedError(f"2-D back end cannot use {obs.kind.value} observations")
+    key_index(obs.landmark_id, f"{who}: landmark")
 
 
 def pose2(wTb: np.ndarray) -> gtsam.Pose2:

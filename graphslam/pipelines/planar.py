@@ -311,10 +311,17 @@ def compute_metrics(
         final_error = None if cost is None else cost[0]
         if not smoother:
             cost = None
-    gt = result.dataset.ground_truth() if ground_truth is None else ground_truth
+    gt = result.dataset.ground_truth() if ground_truth is None else _checked_truth(ground_truth)
     # ATE needs two common poses: a run cut after its first step has none (null)
     ate_poses = spread = None
-    if gt is not None and np.intersect1d(est.pose_ids, gt[0]).size >= 2:
+    common = 0 if gt is None else np.intersect1d(est.pose_ids, gt[0]).size
+    n_est = len(est.pose_ids)
+    unscored = (
+        [f"ATE not scored: the ground truth given shares {common} pose ids with the estimate's {n_est}"]
+        if ground_truth is not None and common < 2 <= n_est
+        else []
+    )
+    if gt is not None and common >= 2:
         scored = metrics.ate(est.pose_ids, est.wTb, *gt)
         ate, ate_poses = scored["rmse_m"], scored["n"]
         spread = metrics.truth_spread_m(est.pose_ids, *gt)
@@ -369,9 +376,25 @@ def compute_metrics(
                 len(est.landmark_ids), map_scores, metrics.landmark_spread_m(result.dataset.landmarks_true)
             ),
             *metrics.skipped_closures_warning(result.loop_closures_skipped, result.backend),
+            *unscored,
         ]
         or None,
     )
+
+
+def _checked_truth(ground_truth) -> tuple[np.ndarray, np.ndarray]:
+    """``(pose_ids (M,), wTb (M, 3))``, or GraphSlamError: a dict or a triple ended in
+    numpy's ValueError or TypeError (twentieth hostile pass, the Python API)."""
+    try:
+        ids, wTb = ground_truth
+        ids, wTb = np.asarray(ids), np.asarray(wTb, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError("ground_truth must be (pose_ids (M,), wTb (M, 3))") from None
+    if ids.ndim != 1 or wTb.shape != (len(ids), 3):
+        raise GraphSlamError(
+            f"ground_truth must be (pose_ids (M,), wTb (M, 3)), got {ids.shape} and {wTb.shape}"
+        )
+    return ids, wTb
 
 
 def agent_ates(result: RunResult, ground_truth) -> dict[str, dict]:

@@ -70,7 +70,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from filters.planar_inputs import initial_pose, scan_list
+from filters.planar_inputs import initial_pose, linked_pose, scan_list
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2_config import Isam2Config
@@ -165,6 +165,7 @@ class Isam2Backend(Backend):
         self._flush()
         if pose_id in self._pose_set:
             raise GraphSlamError(f"isam2: pose {pose_id} added twice")
+        linked_pose(odometry, pose_id)  # an Odometry record, or one line
         if odometry.to_id == pose_id and odometry.from_id in self._pose_set:
             wTb = self._seed(odometry.from_id).compose(conv.pose2(odometry.delta))
         elif odometry.from_id == pose_id and odometry.to_id in self._pose_set:
@@ -187,16 +188,8 @@ class Isam2Backend(Backend):
         if self._unknown is not None:
             self._last_associations = self._update_unknown(self._unknown, observations)
             return
-        # the scan is refused whole before any of it touches the graph, as the filters do
-        # (a pixel observation was refused after its landmark was placed from it)
-        for obs in observations:
-            if obs.landmark_id is None:
-                continue
-            if obs.pose_id not in self._pose_set:
-                raise GraphSlamError(f"isam2: observation from unknown pose {obs.pose_id}")
-            if obs.kind not in (ObservationKind.RANGE, ObservationKind.RANGE_BEARING):
-                raise UnsupportedError(f"2-D back end cannot use {obs.kind.value} observations")
-            conv.key_index(obs.landmark_id, "isam2: landmark")
+        for obs in observations:  # refused whole before any of it touches the graph
+            conv.checked_known_sighting(obs, self._pose_set, "isam2")
         assoc: list[int | None] = []
         for obs in observations:
             if obs.landmark_id is None:

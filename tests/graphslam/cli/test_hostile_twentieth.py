@@ -302,3 +302,34 @@ def test_library_calls_refuse_inputs_they_used_to_reshape_or_slice(tmp_path):
     assert len(OrbDetector().describe(image, points)[0]) == 3
     with pytest.raises(GraphSlamError, match=r"expected \(N, 2\) pixels"):
         OrbDetector().describe(image, points.T)
+
+
+@pytest.mark.parametrize("name", ["isam2", "ekf", "fastslam1", "fastslam2"])
+def test_predict_refuses_what_is_no_odometry_record(name):
+    """A tuple in place of an Odometry was AttributeError on every back end (update
+    already refused a tuple with MeasurementError)."""
+    from graphslam.registry import make_backend
+    from slamcore.errors import MeasurementError
+
+    b = make_backend(name)
+    b.initialize(0, np.zeros(3), np.eye(3) * 1e-4)
+    with pytest.raises(MeasurementError, match="predict takes an Odometry record, got tuple"):
+        b.predict((0, 1, np.array([1.0, 0, 0]), np.eye(3)), 1)
+
+
+def test_metrics_against_a_truth_of_other_poses_say_the_ate_is_not_scored():
+    """compute_metrics with a user truth sharing no pose id gave ate_rmse_m None in
+    silence; a dict or a triple ended in numpy's errors."""
+    from graphslam.pipelines import planar as pipeline
+    from graphslam.registry import make_backend
+    from graphslam.sources.planar.synthetic import SyntheticConfig, make_synthetic
+    from slamcore.errors import GraphSlamError
+
+    result = pipeline.run(make_synthetic(SyntheticConfig(seed=0)), make_backend("ekf"), max_steps=20)
+    m = pipeline.compute_metrics(result, ground_truth=(np.arange(100, 120), np.zeros((20, 3))))
+    assert m.ate_rmse_m is None
+    assert "ATE not scored: the ground truth given shares 0 pose ids with the estimate's 20" in m.warnings
+    assert pipeline.compute_metrics(result).ate_rmse_m is not None
+    for truth in ({"a": 1}, (np.arange(3), np.zeros((3, 3)), 1), (np.arange(3), np.zeros((3, 2)))):
+        with pytest.raises(GraphSlamError, match=r"ground_truth must be \(pose_ids"):
+            pipeline.compute_metrics(result, ground_truth=truth)
