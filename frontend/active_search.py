@@ -152,7 +152,7 @@ class ActiveSearch:
     """
 
     def __init__(self, config: ActiveSearchConfig | None = None, **overrides):
-        self.config = with_overrides(config or ActiveSearchConfig(), overrides)
+        self.config = with_overrides(config or ActiveSearchConfig(), overrides, ActiveSearchConfig)
 
     # ------------------------------------------------------------------ ordering
 

@@ -147,7 +147,7 @@ class FpgaHarrisStream:
     SLOT_NAMES = ("Harris_LMK_A", "Harris_LMK_B")
 
     def __init__(self, config: HarrisConfig | None = None, timing: FpgaTiming | None = None, **overrides):
-        self.config = with_overrides(config or HarrisConfig(arithmetic="fixed"), overrides)
+        self.config = with_overrides(config or HarrisConfig(arithmetic="fixed"), overrides, HarrisConfig)
         self.timing = timing or FpgaTiming()
         self._frames: deque[_Frame] = deque(maxlen=3)
         self._n_frames = 0

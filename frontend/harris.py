@@ -385,7 +385,7 @@ class HarrisDetector:
     """
 
     def __init__(self, config: HarrisConfig | None = None, **overrides):
-        self.config = with_overrides(config or HarrisConfig(), overrides)
+        self.config = with_overrides(config or HarrisConfig(), overrides, HarrisConfig)
         self._work: dict = {}
 
     def response(self, image: np.ndarray) -> np.ndarray:

@@ -108,7 +108,7 @@ class OrbDetector:
     """
 
     def __init__(self, config: OrbConfig | None = None, **overrides):
-        self.config = with_overrides(config or OrbConfig(), overrides)
+        self.config = with_overrides(config or OrbConfig(), overrides, OrbConfig)
         self._cv_orb = None
 
     def __getstate__(self) -> dict:

@@ -600,6 +600,10 @@ def _settings(name: str, impl: Implementation, config: ConfigSource, overrides: 
     top of those what the back end's name fixes (FastSLAM's version). A file or an
     override setting such a key otherwise is refused: ``[fastslam] version = 1`` under
     ``--backend fastslam2`` ran FastSLAM 2.0 with nothing said."""
+    if overrides is not None and not isinstance(overrides, dict):  # a list of pairs was AttributeError
+        raise ConfigError(f"overrides must be a dict of settings, got {type(overrides).__name__}")
+    if not (config is None or isinstance(config, (ConfigFile, str, Path))):
+        raise ConfigError(f"config must be a ConfigFile or a path, got {type(config).__name__}")
     cls = load(impl.config)
     file = config if isinstance(config, ConfigFile) else ConfigFile.read(config)
     section = section_name(cls)

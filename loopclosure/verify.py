@@ -365,7 +365,7 @@ class GeometricVerifier:
     """
 
     def __init__(self, config: VerifyConfig | None = None, **overrides):
-        self.config = with_overrides(config or VerifyConfig(), overrides)
+        self.config = with_overrides(config or VerifyConfig(), overrides, VerifyConfig)
 
     def _fit(self, model: str, pa: np.ndarray, pb: np.ndarray, K):
         """Robust fit -> (3x3 model or None, (n,) bool inlier mask or None)."""

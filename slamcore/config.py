@@ -600,11 +600,19 @@ def from_dict(cls: type[T], data: dict[str, Any] | None) -> T:
     return ConfigFile(data={section_name(cls): dict(data or {})}).section(cls)
 
 
-def with_overrides(config: D, overrides: dict[str, Any]) -> D:
+def with_overrides(config: D, overrides: dict[str, Any], expected: type | None = None) -> D:
     """``config`` with the named fields replaced (checked again by its ``__post_init__``),
     or ``config`` itself without overrides: what ``Part(config, **overrides)`` makes of
     its arguments, for the parts that take their settings either way. A name that is
-    no setting of ``config`` is a ConfigError, not Python's TypeError."""
+    no setting of ``config`` is a ConfigError, not Python's TypeError; so is a config
+    that is not an ``expected`` instance (a dict of settings, or another part's config,
+    was taken and failed at first use with AttributeError: twentieth hostile pass)."""
+    wanted = expected or type(config)
+    if not (dataclasses.is_dataclass(config) and isinstance(config, wanted)):
+        raise ConfigError(
+            f"expected {wanted.__name__} settings, got {type(config).__name__} (or pass the settings "
+            "as keyword arguments: Part(name=value))"
+        )
     if not overrides:
         return config
     unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(config)})

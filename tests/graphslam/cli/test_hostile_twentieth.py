@@ -333,3 +333,23 @@ def test_metrics_against_a_truth_of_other_poses_say_the_ate_is_not_scored():
     for truth in ({"a": 1}, (np.arange(3), np.zeros((3, 3)), 1), (np.arange(3), np.zeros((3, 2)))):
         with pytest.raises(GraphSlamError, match=r"ground_truth must be \(pose_ids"):
             pipeline.compute_metrics(result, ground_truth=truth)
+
+
+def test_parts_refuse_settings_of_another_kind():
+    """HarrisDetector({"k": 0.04}) and OrbDetector(HarrisConfig()) were taken and failed at
+    first use with AttributeError; make_backend's overrides as a list of pairs and a
+    config of 123 were AttributeError and TypeError."""
+    from frontend.harris import HarrisConfig, HarrisDetector
+    from frontend.orb import OrbDetector
+    from graphslam.registry import make_backend
+    from slamcore.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="expected HarrisConfig settings, got dict"):
+        HarrisDetector({"k": 0.04})
+    with pytest.raises(ConfigError, match="expected OrbConfig settings, got HarrisConfig"):
+        OrbDetector(HarrisConfig())
+    assert HarrisDetector(k=0.05).config.k == 0.05
+    with pytest.raises(ConfigError, match="overrides must be a dict"):
+        make_backend("ekf", overrides=[("a", 1)])
+    with pytest.raises(ConfigError, match="config must be a ConfigFile or a path"):
+        make_backend("ekf", config=123)
