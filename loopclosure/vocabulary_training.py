@@ -71,6 +71,10 @@ def _finite(x: np.ndarray) -> np.ndarray:
     and all-NaN rows made one word (NaN rows are all 'the same')."""
     if x.dtype.kind == "f" and not np.isfinite(x).all():
         raise VocabularyError("training descriptors must be finite (NaN or inf found)")
+    # k-means runs in float32 (kmeans_features): finite float64 beyond its range became inf
+    # there, and scikit-learn's own ValueError (twentieth hostile pass)
+    if x.dtype.kind == "f" and x.size and float(np.max(np.abs(x))) > float(np.finfo(np.float32).max):
+        raise VocabularyError("training descriptors must be within float32's range (k-means runs in float32)")
     return x
 
 

@@ -353,3 +353,15 @@ def test_parts_refuse_settings_of_another_kind():
         make_backend("ekf", overrides=[("a", 1)])
     with pytest.raises(ConfigError, match="config must be a ConfigFile or a path"):
         make_backend("ekf", config=123)
+
+
+def test_a_vocabulary_refuses_descriptors_beyond_float32():
+    """Finite float64 descriptors of 1e300 became inf in k-means' float32 and ended in
+    scikit-learn's own ValueError."""
+    from loopclosure.vocabulary import FlatVocabulary, VocabularyError, VocabularyTree
+
+    x = np.random.default_rng(0).random((50, 8)) * 1e300
+    for vocabulary in (FlatVocabulary(8), VocabularyTree(branching=2, depth=2)):
+        with pytest.raises(VocabularyError, match="within float32's range"):
+            vocabulary.fit(x)
+    assert FlatVocabulary(4, seed=0).fit(x / 1e300).n_words_ == 4
