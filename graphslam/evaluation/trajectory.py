@@ -71,6 +71,14 @@ class EvalOptions:
         # 2 positions always lie on one line: the rotation about it is not determined
         if n_align is not None and (n_align < 3 or self.align not in ("se3", "sim3")):
             raise ConfigError("--n-align needs --align se3 or sim3 and at least 3 poses")
+        for flag, value in (
+            ("--max-diff", self.max_diff_s),
+            ("--offset", self.offset_s),
+            ("--delta", self.delta),
+        ):
+            # a string or None reached np.isfinite's TypeError (twentieth hostile pass)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ConfigError(f"{flag} must be a number, got {value!r}")
         if not (np.isfinite(self.max_diff_s) and self.max_diff_s >= 0):
             raise ConfigError(f"--max-diff must be >= 0 seconds, got {self.max_diff_s}")
         if not np.isfinite(self.offset_s):
@@ -371,6 +379,17 @@ class TrajectoryEval:
         }
 
 
+def _stamps(stamps, what: str) -> np.ndarray | None:
+    """``stamps`` as (N,) float64 seconds (None stays None), or GraphSlamError: a 2-D,
+    boolean, text or scalar array ended in numpy's errors (twentieth hostile pass)."""
+    if stamps is None:
+        return None
+    a = np.asarray(stamps)
+    if a.ndim != 1 or a.dtype.kind not in "iuf":
+        raise GraphSlamError(f"the {what}'s stamps must be (N,) numbers, got {a.dtype} of shape {a.shape}")
+    return a.astype(np.float64)
+
+
 def _count(stamps, poses) -> int:
     """How many poses ``stamps`` stand for (all of ``poses`` when there are none)."""
     return len(poses) if stamps is None else int(np.size(stamps))
@@ -384,6 +403,7 @@ def evaluate(ref_t, ref_wTc, est_t, est_wTc, options: EvalOptions) -> Trajectory
             fit), or not rigid (a scaled rotation was scored); no stamps matched.
     """
     # the checks the planar and spatial ATE/RPE apply (common_poses), one pose per stamp
+    ref_t, est_t = _stamps(ref_t, "reference"), _stamps(est_t, "estimate")
     ref_wTc = checked_poses(ref_wTc, (4, 4), _count(ref_t, ref_wTc), "reference", "stamps")
     est_wTc = checked_poses(est_wTc, (4, 4), _count(est_t, est_wTc), "estimate", "stamps")
     if ref_t is None and est_t is None:

@@ -365,3 +365,21 @@ def test_a_vocabulary_refuses_descriptors_beyond_float32():
         with pytest.raises(VocabularyError, match="within float32's range"):
             vocabulary.fit(x)
     assert FlatVocabulary(4, seed=0).fit(x / 1e300).n_words_ == 4
+
+
+def test_eval_library_refuses_options_and_stamps_that_are_no_numbers():
+    """EvalOptions(max_diff_s="0.1") and stamps of shape (N, 1), text, bool or a scalar
+    ended in numpy's TypeError and ValueError."""
+    from graphslam.evaluation.trajectory import EvalOptions, evaluate
+    from slamcore.errors import ConfigError, GraphSlamError
+
+    for kw in ({"max_diff_s": "0.1"}, {"delta": "1"}, {"offset_s": None}):
+        with pytest.raises(ConfigError, match="must be a number"):
+            EvalOptions(**kw)
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[:, 0, 3] = np.arange(4)
+    t = np.arange(4.0)
+    evaluate(t, poses, t.astype(int), poses, EvalOptions())
+    for bad in (t.reshape(2, 2), t[:, None], t.astype(str), t > 1, 3.0):
+        with pytest.raises(GraphSlamError, match=r"stamps must be \(N,\) numbers"):
+            evaluate(bad, poses, t, poses, EvalOptions())
