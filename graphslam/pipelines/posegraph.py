@@ -68,6 +68,8 @@ class PoseGraphRunMetrics(MetricsRecord):
     information_fixed: dict | None = optional()
     noise: str | None = optional()
     closure_test: dict | None = optional()
+    #: the file's poses when a stop cut the solve (``poses`` are those solved)
+    poses_in_file: int | None = optional()
     route: dict | None = optional()
     self_edges_ignored: dict | None = optional()
     equiv_ignored: int | None = optional()
@@ -341,6 +343,7 @@ def metrics(
     (of the poses solved, when a stop cut the solve); ``closure_test_alpha``: the
     run's (default: the config's), for :func:`closures_warning`."""
     alpha = PoseGraphConfig().closure_test_alpha if closure_test_alpha is None else closure_test_alpha
+    in_file = graph.n_poses
     graph = solved_graph(graph, result)
     stalled = stalled_warning(graph, result, alpha)
     # ATE needs two poses with truth: a run cut after its first pose has none (null)
@@ -357,6 +360,7 @@ def metrics(
         dim=graph.dim,
         format=graph.format,
         poses=graph.n_poses,
+        poses_in_file=in_file if graph.n_poses != in_file else None,
         edges=graph.n_edges,
         closures=int(closures.sum()),
         closures_rejected=int(result.rejected.sum()),

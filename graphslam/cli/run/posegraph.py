@@ -193,8 +193,9 @@ def format_summary(metrics) -> str:
         ("backend", metrics.backend),
         (
             "graph",
-            f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses, "
-            f"{metrics.edges} edges ({metrics.closures} closures)",
+            f"{metrics.dim}-D {metrics.format}, {metrics.poses} poses"
+            + (f" solved of the file's {metrics.poses_in_file}" if metrics.poses_in_file else "")
+            + f", {metrics.edges} edges ({metrics.closures} closures)",
         ),
         *information_rows(metrics.information_fixed),
         *([("edge numbers read as", metrics.noise)] if metrics.noise else []),
