@@ -238,7 +238,7 @@ def _untested(result) -> dict | None:
     return {
         "robust_closures": result.robust_mode,
         "tested": False,
-        **({"stopped": "isam2"} if result.cut else {}),
+        **({"stopped": "incremental"} if result.cut else {}),
     }
 
 

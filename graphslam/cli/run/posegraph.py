@@ -332,7 +332,7 @@ def closure_row(metrics) -> str:
             '[posegraph] robust_closures = "none": every closure kept' if metrics.closures else "no closures"
         )
         return f"{metrics.closures_rejected} ({why})"
-    if test.get("stopped") == "isam2":
+    if test.get("stopped") == "incremental":
         return (
             f"none tested of {metrics.closures} (a signal stopped iSAM2 before the outlier test; "
             "the closures of the poses solved went in under a Cauchy kernel)"

@@ -126,7 +126,7 @@ def test_a_signal_during_isam2_says_the_closures_were_not_tested(tmp_path, monke
     assert rows and {r["tested"] for r in rows} == {"0"}
     metrics = json.loads((out / "metrics.json").read_text())
     test = metrics["closure_test"]
-    assert test["tested"] is False and test["stopped"] == "isam2" and test["robust_closures"] == "auto"
+    assert test["tested"] is False and test["stopped"] == "incremental" and test["robust_closures"] == "auto"
     # the graph row said the solved part's size as the file's
     assert metrics["poses"] == 45 and metrics["poses_in_file"] == 60
     assert "45 poses solved of the file's 60" in said
