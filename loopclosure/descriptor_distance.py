@@ -47,6 +47,9 @@ def check_query(descriptors: np.ndarray, metric: str, dim: int) -> np.ndarray:
         raise VocabularyError(f"vocabulary is float, got {d.dtype}")
     if not np.all(np.isfinite(d)):  # NaN is nearest to no centre: it became word 0
         raise VocabularyError("descriptors must be finite")
+    # finite float64 beyond float32's range became inf in the cast, and word 0 as NaN did
+    if float(np.max(np.abs(d))) > float(np.finfo(np.float32).max):
+        raise VocabularyError("descriptors must be within float32's range (the vocabulary is float32)")
     return np.ascontiguousarray(d, dtype=np.float32)
 
 

@@ -387,3 +387,14 @@ def test_eval_library_refuses_options_and_stamps_that_are_no_numbers():
     for bad in (t.reshape(2, 2), t[:, None], t.astype(str), t > 1, 3.0):
         with pytest.raises(GraphSlamError, match=r"stamps must be \(N,\) numbers"):
             evaluate(bad, poses, t, poses, EvalOptions())
+
+
+def test_a_vocabulary_refuses_queries_beyond_float32():
+    """transform() of finite float64 beyond float32's range returned word 0 (inf after the
+    cast), as NaN did before it was refused."""
+    from loopclosure.vocabulary import FlatVocabulary, VocabularyError
+
+    vocabulary = FlatVocabulary(4, seed=0).fit(np.random.default_rng(0).random((50, 8)))
+    with pytest.raises(VocabularyError, match="within float32's range"):
+        vocabulary.transform(np.full((2, 8), 1e300))
+    assert vocabulary.transform(np.random.default_rng(1).random((3, 8))).shape == (3,)
