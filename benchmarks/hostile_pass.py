@@ -917,7 +917,8 @@ def attacks() -> list[Attack]:
                "silent", lambda f: _run(_kitti_seq(f, 20), "--frames", "19:0:-1"), ("ok",),
                check=_warned("direction of travel")),
         Attack("20th: Plaza2 with 60 s of dead reckoning removed (its ranges piled on the gap's edges)",
-               "silent", lambda f: _run(_plaza_gap(f)), ("ok",), check=_warned("has no line for")),
+               "silent", lambda f: _run(_plaza_gap(f)), ("ok",), check=_warned("has no line for"),
+               heavy=True),  # a whole Plaza2 run (9 s); tests/graphslam/sources/test_plaza.py reads the gap
         Attack("20th: FastSLAM on a log with every sighting dropped (one random particle's path)", "silent",
                lambda f: _run(_mrclam_blind(f), "--backend", "fastslam2", "--max-steps", "1500"), ("ok",),
                check=_near_odometry),
