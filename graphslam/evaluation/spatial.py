@@ -133,7 +133,7 @@ def rpe(est_ids, est_wTc, gt_ids, gt_wTc, delta: int = 1, scale: float = 1.0) ->
 TRAVEL_STEP_SHARE = 0.5
 
 
-def travel_direction_error(est_ids, est_wTc, gt_ids, gt_wTc) -> dict | None:
+def travel_direction_error(est_ids, est_wTc, gt_ids, gt_wTc, min_step_m: float = 0.0) -> dict | None:
     """Angle between the estimate's and the truth's direction of travel, each step's in
     the camera's own axes at its start (``R^T (t[k+1] - t[k])``), over the consecutive
     common frames where the truth moved (:data:`TRAVEL_STEP_SHARE`).
@@ -141,6 +141,10 @@ def travel_direction_error(est_ids, est_wTc, gt_ids, gt_wTc) -> dict | None:
     It needs no alignment and no scale, so it sees what a Sim(3)-fitted ATE does not: a
     reconstruction whose orientations do not fit its path (the camera sliding sideways
     along a road it drove backwards, hostile pass 20: Sim(3) ATE 0.04 m on 20 frames).
+
+    ``min_step_m``: steps the truth made shorter than this are left out too (the run's
+    ATE: a step shorter than the position error has no direction to score, as in a
+    camera turning in place).
 
     Returns ``{"median_deg", "n"}``, or None with fewer than 3 such steps.
     """
@@ -150,7 +154,7 @@ def travel_direction_error(est_ids, est_wTc, gt_ids, gt_wTc) -> dict | None:
     step_est = np.einsum("nji,nj->ni", est[:-1, :3, :3], np.diff(est[:, :3, 3], axis=0))
     step_gt = np.einsum("nji,nj->ni", gt[:-1, :3, :3], np.diff(gt[:, :3, 3], axis=0))
     n_est, n_gt = np.linalg.norm(step_est, axis=1), np.linalg.norm(step_gt, axis=1)
-    keep = (n_gt >= TRAVEL_STEP_SHARE * np.median(n_gt)) & (n_gt > 0) & (n_est > 0)
+    keep = (n_gt >= TRAVEL_STEP_SHARE * np.median(n_gt)) & (n_gt > max(min_step_m, 0.0)) & (n_est > 0)
     if keep.sum() < 3:
         return None
     cos = np.sum(step_est[keep] * step_gt[keep], axis=1) / (n_est[keep] * n_gt[keep])

@@ -889,7 +889,12 @@ def _score_against_truth(m: SpatialRunMetrics, result: VisualRunResult) -> None:
         m.ate_rmse_m = a["rmse_m"]
         m.ate_percent_of_path = metrics3d.percent_of(a["rmse_m"], length)
         m.rpe = metrics3d.rpe(est.frame_ids, est.wTc, gt_ids, gt, delta=1, scale=a["scale"])
-    travel = metrics3d.travel_direction_error(est.frame_ids, est.wTc, gt_ids, gt)
+    # steps longer than the position error only: a camera turning in place has no direction
+    travel = (
+        None
+        if m.ate_rmse_m is None
+        else metrics3d.travel_direction_error(est.frame_ids, est.wTc, gt_ids, gt, min_step_m=m.ate_rmse_m)
+    )
     if travel is not None and travel["median_deg"] > TRAVEL_DIRECTION_MAX_DEG:
         angle, steps = travel["median_deg"], travel["n"]
         m.warnings = [

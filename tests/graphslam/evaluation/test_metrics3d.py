@@ -202,3 +202,16 @@ def test_travel_direction_error_needs_three_moving_steps():
     assert metrics3d.travel_direction_error(ids, gt, ids, gt) is not None
     still = np.tile(np.eye(4), (6, 1, 1))
     assert metrics3d.travel_direction_error(np.arange(6), still, np.arange(6), still) is None
+
+
+def test_travel_direction_error_leaves_out_steps_shorter_than_the_position_error():
+    """A camera turning in place moves by noise: its steps have no direction to score."""
+    rng = np.random.default_rng(3)
+    gt = np.tile(np.eye(4), (30, 1, 1))
+    gt[:, :3, :3] = [so3_exp([0.0, 0.05 * k, 0.0]) for k in range(30)]
+    gt[:, :3, 3] = rng.normal(0, 1e-3, (30, 3))  # millimetres of jitter
+    est = gt.copy()
+    est[:, :3, 3] += rng.normal(0, 1e-3, (30, 3))
+    ids = np.arange(30)
+    assert metrics3d.travel_direction_error(ids, est, ids, gt)["median_deg"] > 20  # noise read as direction
+    assert metrics3d.travel_direction_error(ids, est, ids, gt, min_step_m=0.01) is None
