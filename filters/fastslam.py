@@ -244,7 +244,8 @@ class FastSlam(Backend):
         u, cov = odometry_step(odometry, cur, pose_id, self.name)
         self._close_step()
         particles.move(u, cov)
-        self._nominal[int(pose_id)] = models.compose(self._nominal[cur], u)
+        if not self._weighed:  # needed only until then: not a dict a pose for the whole run
+            self._nominal[int(pose_id)] = models.compose(self._nominal[cur], u)
         self._add_pose_id(pose_id)
 
     def _add_pose_id(self, pose_id: int) -> None:
@@ -264,7 +265,8 @@ class FastSlam(Backend):
         self._particles.park_and_start(
             self._pose_ids[-1], models.compose(mean0, u), sym(F @ cov0 @ F.T + G @ Q @ G.T)
         )
-        self._nominal[int(pose_id)] = models.compose(self._nominal[first], u)
+        if not self._weighed:
+            self._nominal[int(pose_id)] = models.compose(self._nominal[first], u)
         self._add_pose_id(pose_id)
 
     def add_pose_sighting(self, sighting: PoseSighting) -> None:

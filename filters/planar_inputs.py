@@ -32,6 +32,7 @@ __all__ = [
     "odometry_step",
     "chain_break",
     "checked_scan",
+    "require_odometry",
     "scan_list",
     "mapped_predictions",
 ]
@@ -53,12 +54,18 @@ def initial_pose(
     return checked_id(pose_id, what, "pose_id"), as_vector(wTb, 3, what), as_covariance(covariance, 3, what)
 
 
+def require_odometry(odometry) -> None:
+    """MeasurementError unless ``odometry`` is an :class:`Odometry` record: a tuple given
+    to ``predict`` was AttributeError: 'tuple' ... 'to_id' on every back end."""
+    if not isinstance(odometry, Odometry):
+        raise MeasurementError(f"predict takes an Odometry record, got {type(odometry).__name__}")
+
+
 def linked_pose(odometry: Odometry, pose_id: int) -> int | None:
     """The pose ``odometry`` links the new pose ``pose_id`` to (either way round), or
     None when it does not touch ``pose_id``. With several robots the filters keep each
     robot's latest pose and read from this which one a step extends."""
-    if not isinstance(odometry, Odometry):  # a tuple was AttributeError: 'tuple' ... 'to_id'
-        raise MeasurementError(f"predict takes an Odometry record, got {type(odometry).__name__}")
+    require_odometry(odometry)
     if odometry.to_id == pose_id:
         return odometry.from_id
     if odometry.from_id == pose_id:
@@ -74,7 +81,7 @@ def odometry_step(odometry: Odometry, cur: int, pose_id: int, who: str) -> tuple
         GraphSlamError: the odometry links other poses, or ``pose_id`` is ``cur``
             (messages start with ``who``, the filter's name).
     """
-    linked_pose(odometry, pose_id)  # an Odometry record, or one line
+    require_odometry(odometry)
     if odometry.from_id == cur and odometry.to_id == pose_id:
         u, Q = odometry.delta, odometry.covariance
     elif odometry.from_id == pose_id and odometry.to_id == cur:

@@ -48,9 +48,15 @@ def check_query(descriptors: np.ndarray, metric: str, dim: int) -> np.ndarray:
     if not np.all(np.isfinite(d)):  # NaN is nearest to no centre: it became word 0
         raise VocabularyError("descriptors must be finite")
     # finite float64 beyond float32's range became inf in the cast, and word 0 as NaN did
-    if float(np.max(np.abs(d))) > float(np.finfo(np.float32).max):
+    if beyond_float32(d):
         raise VocabularyError("descriptors must be within float32's range (the vocabulary is float32)")
     return np.ascontiguousarray(d, dtype=np.float32)
+
+
+def beyond_float32(x: np.ndarray) -> bool:
+    """Whether finite float ``x`` holds a value float32 cannot (it becomes inf in the cast
+    the vocabulary and its k-means work in)."""
+    return bool(x.size) and float(np.max(np.abs(x))) > float(np.finfo(np.float32).max)
 
 
 def popcount_sum(x: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 # only to pin k-means to one thread: see one_thread.
 from threadpoolctl import threadpool_limits
 
+from loopclosure.descriptor_distance import beyond_float32
 from slamcore.errors import ConfigError, VocabularyError
 
 
@@ -73,7 +74,7 @@ def _finite(x: np.ndarray) -> np.ndarray:
         raise VocabularyError("training descriptors must be finite (NaN or inf found)")
     # k-means runs in float32 (kmeans_features): finite float64 beyond its range became inf
     # there, and scikit-learn's own ValueError (twentieth hostile pass)
-    if x.dtype.kind == "f" and x.size and float(np.max(np.abs(x))) > float(np.finfo(np.float32).max):
+    if x.dtype.kind == "f" and beyond_float32(x):
         raise VocabularyError("training descriptors must be within float32's range (k-means runs in float32)")
     return x
 

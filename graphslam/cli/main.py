@@ -59,7 +59,7 @@ _SLICE = re.compile(r"-?\d*(:-?\d*){0,2}")
 _EXPONENT_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
-def glued_slices(argv: list[str]) -> list[str]:
+def glued_values(argv: list[str]) -> list[str]:
     """``argv`` with ``--frames VALUE`` written ``--frames=VALUE`` where VALUE is a
     slice starting with "-" (``-1:``, ``-10:-2``), and ``--flag -1e-3`` written
     ``--flag=-1e-3`` (a negative number in exponent form after any long option)."""
@@ -188,7 +188,7 @@ def _main(argv: list[str] | None, stdout: _NamedStdout) -> int:
             parser = build_parser()
             words = sys.argv[1:] if argv is None else list(argv)
             try:
-                args = parser.parse_args(glued_slices(words))
+                args = parser.parse_args(glued_values(words))
             except SystemExit as stop:
                 if stop.code == 0:  # --help, --version: said, not lost with status 0
                     sys.stdout.flush()

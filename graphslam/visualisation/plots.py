@@ -314,8 +314,7 @@ def plot_trajectory_eval(results, path: Path, options=None) -> Path:
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
     ref = results[0].result.ref[:, :3, 3]
-    # the two widest axes (a run cut before its first map holds no pose: x and y)
-    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:]) if len(ref) else (0, 1)
+    a, b = sorted(np.argsort(np.ptp(ref, axis=0))[1:])  # the two widest axes
     names = "xyz"
     axes[0].plot(ref[:, a], ref[:, b], color="0.5", lw=2, label="reference")
     for i, r in enumerate(results):

@@ -70,7 +70,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from filters.planar_inputs import initial_pose, linked_pose, scan_list
+from filters.planar_inputs import initial_pose, require_odometry, scan_list
 from graphslam.backends import factorization as fact
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2_config import Isam2Config
@@ -165,7 +165,7 @@ class Isam2Backend(Backend):
         self._flush()
         if pose_id in self._pose_set:
             raise GraphSlamError(f"isam2: pose {pose_id} added twice")
-        linked_pose(odometry, pose_id)  # an Odometry record, or one line
+        require_odometry(odometry)
         if odometry.to_id == pose_id and odometry.from_id in self._pose_set:
             wTb = self._seed(odometry.from_id).compose(conv.pose2(odometry.delta))
         elif odometry.from_id == pose_id and odometry.to_id in self._pose_set:

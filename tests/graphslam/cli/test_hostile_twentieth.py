@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from graphslam.cli.main import glued_slices, main
+from graphslam.cli.main import glued_values, main
 
 
 def _tum(path, t, xyz):
@@ -45,7 +45,7 @@ def test_a_negative_offset_in_exponent_form_is_a_value(tmp_path, capsys):
     (["--offset", "-1e-3x"], ["--offset", "-1e-3x"]),
 ])
 def test_only_exponent_numbers_after_a_long_option_are_glued(argv, glued):
-    assert glued_slices(argv) == glued
+    assert glued_values(argv) == glued
 
 
 def test_compare_keeps_the_frames_before_an_unreadable_one_as_run_does(tmp_path, capsys):
