@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from filters.association import JcbbResult, ambiguous_pairings, individual_candidates, jcbb, mahalanobis_sq_2d
+from slamcore.errors import GraphSlamError
 from slamcore.planar import geometry as models
 
 
@@ -249,8 +250,27 @@ def ambiguous_gates(
     hold there (:func:`associate_scan` lets such a pairing stand alone only where
     the measurement's own likelihood ratio favours the landmark). The gate
     quantile ``gate`` and its probability ``gate_prob`` are the individual gate's.
+    ``Z`` (m, 2) range (m) and bearing (rad), ``Rs`` (m, 2, 2) their noise, ``S0``
+    (L, 2, 2) the landmarks' predicted covariances; GraphSlamError on other shapes.
     """
+    Z = _stack(Z, (2,), "Z")
+    Rs, S0 = _stack(Rs, (2, 2), "Rs"), _stack(S0, (2, 2), "S0")
+    if len(Rs) != len(Z):
+        raise GraphSlamError(f"ambiguous_gates: {len(Z)} observations but {len(Rs)} noise matrices")
     return _ambiguous(Z, _det2(S0[None] + Rs[:, None]), gate, gate_prob, density_per_m2, detection_prob)
+
+
+def _stack(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a finite float array (n, *shape); GraphSlamError otherwise."""
+    try:
+        out = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError(f"ambiguous_gates: {name} is not an array of numbers") from None
+    if out.ndim != 1 + len(shape) or out.shape[1:] != shape or not np.all(np.isfinite(out)):
+        raise GraphSlamError(
+            f"ambiguous_gates: {name} needs finite shape (n, {', '.join(map(str, shape))}), got {out.shape}"
+        )
+    return out
 
 
 def _ambiguous(Z, det_S, gate, gate_prob, density_per_m2, detection_prob) -> np.ndarray:

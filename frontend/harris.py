@@ -174,9 +174,16 @@ def _float_image(image) -> np.ndarray:
 
 
 def smooth_float(image: np.ndarray, kernel: np.ndarray = GAUSS5_FLOAT) -> np.ndarray:
-    """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders)."""
+    """Separable smoothing of a uint8 or float image, float64 out (reflect-101 borders);
+    ``kernel`` (k,), k odd, finite: an even one would shift the image half a pixel."""
     a = _float_image(image)
-    return cv2.sepFilter2D(a, cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101)
+    try:
+        k = np.asarray(kernel, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("smoothing kernel: need a 1-D array of numbers") from None
+    if k.ndim != 1 or len(k) % 2 == 0 or not np.all(np.isfinite(k)):
+        raise InputError(f"smoothing kernel: need a finite 1-D array of odd length, got shape {k.shape}")
+    return cv2.sepFilter2D(a, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT_101)
 
 
 _DIFF = np.array([-0.5, 0.0, 0.5])

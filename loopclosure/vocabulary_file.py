@@ -31,9 +31,16 @@ FORMAT_VERSION = 1
 def save_npz(path, kind: str, arrays: dict) -> None:
     """Write ``arrays`` with the format version and ``kind`` as one .npz at exactly ``path``."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError("is a folder: give the vocabulary file's name", path)
     # A file handle, so numpy does not append ".npz" to the name.
-    with open(path, "wb") as fh:
-        np.savez(fh, format_version=np.int64(FORMAT_VERSION), kind=np.str_(kind), **arrays)
+    try:
+        with open(path, "wb") as fh:
+            np.savez(fh, format_version=np.int64(FORMAT_VERSION), kind=np.str_(kind), **arrays)
+    except OSError as exc:
+        if path.is_file():  # a half-written file (a full disk) would load as damaged
+            path.unlink()
+        raise InputError(f"cannot write the vocabulary: {exc.strerror or exc}", path) from None
 
 
 def read_npz(path) -> dict:

@@ -79,8 +79,23 @@ def umeyama(
 
 def principal_spreads(points: np.ndarray) -> np.ndarray:
     """RMS spread (3,) of ``points`` (k, 3) from their mean along their principal axes, largest first."""
+    points = _checked_points(points)
     centred = points - points.mean(axis=0)
     return np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
+
+
+def _checked_points(points) -> np.ndarray:
+    """``points`` as a finite (k, 3) float array, k >= 1; GraphSlamError otherwise (an SVD of
+    NaN raises LinAlgError, and the mean of no point is NaN)."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError("points: need a (k, 3) array of numbers") from None
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
+        raise GraphSlamError(f"points: need a (k, 3) array with k >= 1, got shape {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise GraphSlamError("points: not finite (NaN or inf)")
+    return p
 
 
 def collinear(points: np.ndarray, spreads: np.ndarray | None = None) -> bool:

@@ -420,7 +420,8 @@ def chi2_bounds(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[fl
     freedom, so the bounds are its ``(1 -+ confidence) / 2`` quantiles divided
     by ``n_runs``.
     """
-    if dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
+    whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (dof, n_runs))
+    if not whole or dof < 1 or n_runs < 1 or not 0.0 < confidence < 1.0:
         raise GraphSlamError(
             f"chi2_bounds: need dof >= 1, n_runs >= 1, 0 < confidence < 1; got {dof}, {n_runs}, {confidence}"
         )

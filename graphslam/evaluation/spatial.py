@@ -163,8 +163,15 @@ def travel_direction_error(est_ids, est_wTc, gt_ids, gt_wTc, min_step_m: float =
 
 
 def path_length(wTc: np.ndarray) -> float:
-    """Sum of the distances between consecutive camera centres, metres."""
-    p = np.asarray(wTc, dtype=np.float64).reshape(-1, 4, 4)[:, :3, 3]
+    """Sum of the distances between consecutive camera centres (``wTc`` (N, 4, 4)), metres."""
+    try:
+        poses = np.asarray(wTc, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GraphSlamError("path_length: need an (N, 4, 4) array of poses") from None
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        # a reshape would read an (N, 16) or (4, 4, N) array as other poses in silence
+        raise GraphSlamError(f"path_length: need an (N, 4, 4) array of poses, got shape {poses.shape}")
+    p = poses[:, :3, 3]
     if len(p) < 2:
         return 0.0
     return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))

@@ -59,7 +59,16 @@ def closure_mahalanobis(lc: LoopClosure, wTi: np.ndarray, wTj: np.ndarray) -> fl
     ``wTi`` (its ``from_id`` pose) and ``wTj`` (its ``to_id`` pose), each (3,)
     ``[x, y, theta]``: ``[dx, dy, wrap(dtheta)]`` of claimed minus reference
     relative pose, whitened by ``lc.covariance``."""
-    e = np.asarray(lc.delta, dtype=np.float64) - between(wTi, wTj)
+    poses = []
+    for name, pose in (("wTi", wTi), ("wTj", wTj)):
+        try:
+            p = np.asarray(pose, dtype=np.float64)
+        except (TypeError, ValueError):
+            p = np.empty(0)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise GraphSlamError(f"closure_mahalanobis: {name} needs a finite [x, y, theta], got {pose!r}")
+        poses.append(p)
+    e = np.asarray(lc.delta, dtype=np.float64) - between(*poses)
     e[2] = float(wrap_angle(e[2]))
     return float(np.sqrt(e @ np.linalg.solve(lc.covariance, e)))
 

@@ -398,3 +398,46 @@ def test_a_vocabulary_refuses_queries_beyond_float32():
     with pytest.raises(VocabularyError, match="within float32's range"):
         vocabulary.transform(np.full((2, 8), 1e300))
     assert vocabulary.transform(np.random.default_rng(1).random((3, 8))).shape == (3,)
+
+
+def test_lower_level_helpers_refuse_what_they_would_misread(tmp_path):
+    """Hostile pass 20's leftovers: each of these raised a bare numpy, OpenCV or OS error,
+    or read a wrong shape in silence (path_length reshaped (N, 16) into poses; an even
+    smoothing kernel shifted the image half a pixel)."""
+    from filters.ekf_slam_association import ambiguous_gates
+    from frontend.harris import smooth_float
+    from graphslam.evaluation.alignment import collinear, principal_spreads
+    from graphslam.evaluation.planar import chi2_bounds
+    from graphslam.evaluation.spatial import path_length
+    from graphslam.sources.planar.outliers import closure_mahalanobis
+    from loopclosure.vocabulary import FlatVocabulary
+    from slamcore.errors import GraphSlamError, InputError
+    from slamcore.planar.records import LoopClosure
+
+    with pytest.raises(GraphSlamError, match="dof"):
+        chi2_bounds(float("nan"))
+    assert chi2_bounds(np.int64(3)) == chi2_bounds(3)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 0, 3] = [0.0, 1.0, 3.0]
+    assert path_length(poses) == pytest.approx(3.0)
+    with pytest.raises(GraphSlamError, match=r"\(N, 4, 4\)"):
+        path_length(poses.reshape(3, 16))
+    with pytest.raises(GraphSlamError, match="not finite"):
+        principal_spreads(np.full((3, 3), np.nan))
+    with pytest.raises(GraphSlamError, match="k >= 1"):
+        collinear(np.empty((0, 3)))
+    lc = LoopClosure(0, 1, np.array([1.0, 0.0, 0.0]), np.eye(3))
+    assert closure_mahalanobis(lc, [0, 0, 0], [1, 0, 0]) == pytest.approx(0.0)
+    with pytest.raises(GraphSlamError, match="wTi"):
+        closure_mahalanobis(lc, [0, 0], [1, 0, 0])
+    args = (9.0, 0.99, 0.01, 0.9)
+    assert ambiguous_gates([[5.0, 0.1]], [np.eye(2) * 0.01], [np.eye(2)], *args).shape == (1, 1)
+    with pytest.raises(GraphSlamError, match="Z needs"):
+        ambiguous_gates([5.0, 0.1], [np.eye(2) * 0.01], [np.eye(2)], *args)
+    image = np.zeros((8, 8), np.uint8)
+    for kernel in ([1.0, 2.0], [np.nan, 1.0, 1.0], np.ones((3, 3))):
+        with pytest.raises(InputError, match="kernel"):
+            smooth_float(image, np.asarray(kernel))
+    vocab = FlatVocabulary(n_words=2, seed=0).fit(np.random.default_rng(0).integers(0, 255, (20, 32)).astype(np.uint8))
+    with pytest.raises(InputError, match="folder"):
+        vocab.save(tmp_path)
