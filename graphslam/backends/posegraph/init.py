@@ -43,7 +43,8 @@ from slamcore.posegraph import PoseGraph, chain_initialisation, fixed_informatio
 @dataclass
 class Start:
     """An initial estimate. ``certificate``: Shonan's minimum eigenvalue (else None);
-    ``note``: one sentence when the start asked for failed and this one replaces it."""
+    ``note``: one sentence when the start asked for failed and this one replaces it
+    (``--init vertices`` of a file without vertex lines among them)."""
 
     method: str
     values: gtsam.Values
@@ -73,6 +74,9 @@ def initial(
     ``should_stop`` (a signal) ended Shonan's averaging."""
     method = resolve(method, graph.dim)
     if method == "vertices":
+        if not np.any(graph.has_vertex):  # the reader composed them: the odometry start, named so
+            note = "--init vertices: the file has no VERTEX line; LM started from the odometry start instead"
+            return Start("odometry", fx.values_of(graph, graph.vertices), note=note)
         return Start(method, fx.values_of(graph, graph.vertices))
     if method == "odometry":
         return Start(method, fx.values_of(graph, chain_initialisation(graph)))

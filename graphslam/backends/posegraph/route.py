@@ -176,7 +176,7 @@ def retry_from_certified_rotations(graph: PoseGraph, config: PoseGraphConfig, so
         kept.wall_s += time.perf_counter() - t0
         return kept
     # batch from Shonan's poses, computed once: the graph's vertices replaced by them
-    seeded = dataclasses.replace(graph, vertices=fx.params_from(graph, start.values))
+    seeded = graph.with_vertices(fx.params_from(graph, start.values))
     shonan = solve(seeded, dataclasses.replace(config, init="vertices"), "batch")
     shonan.init_method = "shonan"
     threshold = shared_threshold(kept, shonan)

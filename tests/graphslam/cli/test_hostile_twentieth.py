@@ -441,3 +441,18 @@ def test_lower_level_helpers_refuse_what_they_would_misread(tmp_path):
     vocab = FlatVocabulary(n_words=2, seed=0).fit(np.random.default_rng(0).integers(0, 255, (20, 32)).astype(np.uint8))
     with pytest.raises(InputError, match="folder"):
         vocab.save(tmp_path)
+
+
+def test_init_vertices_of_a_file_without_vertex_lines_says_what_started(tmp_path, capsys):
+    """An edge-only g2o file: the summary said 'initialisation vertices' of vertices the
+    reader had composed from the edges."""
+    g = tmp_path / "edges.g2o"
+    g.write_text("EDGE_SE2 0 1 1 0 0 100 0 0 100 0 100\nEDGE_SE2 1 2 1 0.1 0 100 0 0 100 0 100\n"
+                 "EDGE_SE2 2 0 -2 0 0 100 0 0 100 0 100\n")
+    assert main(["run", "--dataset", str(g), "--backend", "batch", "--init", "vertices", "--rerun", "off",
+                 "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "initialisation         odometry" in out
+    assert "no VERTEX line" in out
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["init"] == "odometry"
