@@ -113,8 +113,9 @@ def register(sub) -> None:
         type=path_arg,
         default=None,
         metavar="FILE",
-        help="image sequences: the truth to score every back end against, as graphslam run "
-        "reads it (TUM, KITTI, EuRoC or COLMAP images.txt/.bin)",
+        help="image sequences and pose graphs solved whole (batch, auto): the truth to score "
+        "every back end against, as graphslam run reads it (TUM, KITTI, EuRoC or COLMAP "
+        "images.txt/.bin; a pose graph's matched by pose id)",
     )
     add_out_dir_option(p, "output folder (default: runs/<dataset>-compare)")
     add_config_option(p, "TOML or YAML config file")
@@ -165,12 +166,18 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
     registry.check_topics_flag(args.dataset, args.topics)
     if args.robot is not None and not registry.is_mrclam_dataset(args.dataset):
         raise GraphSlamError("--robot applies to MRCLAM folders only")
-    for flag, value in (("--intrinsics", args.intrinsics), ("--ground-truth", args.ground_truth)):
-        if value is not None and not registry.is_visual_dataset(args.dataset):
-            raise GraphSlamError(f"{flag} applies to image sequences only")
     from graphslam.cli.compare_posegraph import compare_pose_graph, wants_pose_graph_compare
 
-    if wants_pose_graph_compare(args.dataset, args.backends):
+    whole_graph = wants_pose_graph_compare(args.dataset, args.backends)
+    for flag, value in (("--intrinsics", args.intrinsics), ("--ground-truth", args.ground_truth)):
+        if value is not None and not registry.is_visual_dataset(args.dataset):
+            if flag == "--ground-truth" and whole_graph:
+                continue
+            where = "image sequences only"
+            if flag == "--ground-truth" and registry.is_pose_graph_run(args.dataset, "batch"):
+                where = "image sequences and to pose graphs compared whole (--backends batch auto)"
+            raise GraphSlamError(f"{flag} applies to {where}")
+    if whole_graph:
         return compare_pose_graph(
             args, config, rerun_mode, lambda name: _out_dir(args, name, rerun_mode)
         ), True

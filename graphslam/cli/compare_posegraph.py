@@ -55,7 +55,7 @@ def compare_pose_graph(args: argparse.Namespace, config, rerun_mode: str, out_di
     if args.seed is not None:
         raise GraphSlamError("--seed has no effect here: the pose-graph solvers draw no random numbers")
     solver_config = registry.pose_graph_config(config)
-    graph, truth = load_graph(args.dataset, solver_config, args.max_steps)
+    graph, truth = load_graph(args.dataset, solver_config, args.max_steps, args.ground_truth)
     folder = out_dir_of(graph.name)
     runs = compare(
         graph,
