@@ -183,7 +183,11 @@ def load_dataset(
         check_input_path(path, "--dataset", folder_ok=True)
         files = plaza_files(path)
         if files is None:
-            raise InputError("not a Plaza log: no *_DR.txt with its *_TD.txt", path)
+            from graphslam.sources.planar.plaza import plaza_folder_problem
+
+            raise InputError(
+                plaza_folder_problem(path) or "not a Plaza log: no *_DR.txt with its *_TD.txt", path
+            )
         dr, td, _ = files
         return read_plaza(dr, td)
     if spec == "city10000":
@@ -458,10 +462,13 @@ def is_mrclam_dataset(spec: str) -> bool:
 
 def is_plaza_dataset(spec: str) -> bool:
     """Whether ``--dataset spec`` is a Plaza range-only log: a ``*_DR.txt`` file, or a
-    folder holding one with its ``*_TD.txt`` (the built-in ``plaza1``, ``plaza2`` aside)."""
-    from graphslam.sources.planar.plaza import plaza_files
+    folder holding one with its ``*_TD.txt`` (the built-in ``plaza1``, ``plaza2`` aside),
+    or a folder of ``*_DR.txt`` files that is not one (its reading says why)."""
+    from graphslam.sources.planar.plaza import plaza_files, plaza_folder_problem
 
-    return spec not in DATASETS and spec not in VISUAL_DATASETS and plaza_files(spec) is not None
+    if spec in DATASETS or spec in VISUAL_DATASETS:
+        return False
+    return plaza_files(spec) is not None or plaza_folder_problem(spec) is not None
 
 
 def is_bag_dataset(spec: str) -> bool:

@@ -434,6 +434,13 @@ def read_subjects(folder: Path) -> tuple[dict[int, int], dict[int, np.ndarray]]:
                     path,
                     lines[row],
                 )
+            if int(subject) in ROBOT_SUBJECTS:  # scored as a 16th landmark no run could map
+                raise InputError(
+                    f"subject {int(subject)} is a robot (subjects 1-5 are, in every MRCLAM set), "
+                    "not a landmark",
+                    path,
+                    lines[row],
+                )
             first = first_line.get(int(subject))
             if first is not None:  # which is the truth? A map scored against either would be wrong
                 raise InputError(
@@ -630,11 +637,13 @@ def truth_doubts(
 
 
 def robots_in(folder: Path) -> list[int]:
-    """Robot numbers N with a ``RobotN_Odometry.dat`` in ``folder``, in order."""
+    """Robot numbers N in 1-5 (:data:`ROBOT_SUBJECTS`) with a ``RobotN_Odometry.dat`` in
+    ``folder``, in order: a ``Robot6`` file is no MRCLAM robot (subject 6 is a landmark,
+    whose barcode a robot 6 would drop as its own), and ``--robot 6`` is refused."""
     out = []
     for p in folder.glob("Robot*_Odometry.dat"):
         digits = p.name[len("Robot") : -len("_Odometry.dat")]
-        if digits.isascii() and digits.isdigit():
+        if digits.isascii() and digits.isdigit() and int(digits) in ROBOT_SUBJECTS:
             out.append(int(digits))
     return sorted(out)
 

@@ -70,12 +70,19 @@ def read_mrclam_all(folder: Path, config: MrclamConfig) -> Dataset:
     order = sorted(((t, n, k) for n, tr in tracks.items() for k, t in enumerate(tr.times.tolist())))
     _, anchor_n, _ = order[0]
     notes = [f"robots {', '.join(map(str, robots))} in one graph; all starts from the truth"]
+    stray = sorted(
+        {p.name for p in folder.glob("Robot*_Odometry.dat")} - {f"Robot{n}_Odometry.dat" for n in robots}
+    )
+    if stray:  # Robot6: subject 6 is a landmark, and its barcode would be dropped as the robot's own
+        notes.append(f"{', '.join(stray)} left out: MRCLAM's robots are subjects 1-5")
     starts = {}
     for n, tr in tracks.items():
         if not np.isfinite(tr.wTb_true[0]).all():
+            missing = not (folder / f"Robot{n}_Groundtruth.dat").is_file()
             raise InputError(
-                f"robot {n} has no truth at its first frame: --robot all takes "
-                "every robot's start from the truth",
+                f"robot {n} has no truth at its first frame"
+                + (f" (no Robot{n}_Groundtruth.dat)" if missing else "")
+                + ": --robot all takes every robot's start from the truth",
                 folder,
             )
         starts[n] = tr.wTb_true[0]

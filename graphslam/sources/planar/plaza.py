@@ -102,6 +102,21 @@ def plaza_files(path) -> tuple[Path, Path, Path] | None:
     return p, _sibling(p, "_TD.txt"), _sibling(p, "_.mat")
 
 
+def plaza_folder_problem(path) -> str | None:
+    """Why the folder ``path``, which holds a ``*_DR.txt``, is no Plaza log
+    :func:`plaza_files` takes (two logs, or a DR file without its TD file), else None:
+    such a folder was taken for an image folder ("no images")."""
+    p = Path(path)
+    if not p.is_dir():
+        return None
+    drs = sorted(q.name for q in p.glob("*_DR.txt") if q.is_file())
+    if not drs or plaza_files(p) is not None:
+        return None
+    if len(drs) > 1:
+        return f"holds {len(drs)} Plaza logs ({', '.join(drs)}): give one *_DR.txt as --dataset"
+    return f"{drs[0]} has no {drs[0][: -len('_DR.txt')]}_TD.txt beside it (the Plaza log's ranges)"
+
+
 #: The other files of a Plaza log, beside its ``*_DR.txt``.
 PART_SUFFIXES = ("_TD.txt", "_.mat")
 
@@ -214,7 +229,13 @@ def _read_mat(path: Path) -> tuple[np.ndarray | None, dict[int, np.ndarray] | No
     tl = np.asarray(mat.get("TL", np.zeros((0, 3))), dtype=np.float64)
     if tl.ndim != 2 or tl.shape[1] != 3 or not np.isfinite(tl).all():
         raise InputError(f"TL must be finite rows of beacon id, x, y (got shape {tl.shape})", path)
-    beacons = {int(row[0]): row[1:3].copy() for row in tl}
+    beacons: dict[int, np.ndarray] = {}
+    for k, row in enumerate(tl, start=1):  # int() would read 1.6 as beacon 1, a dict keep the last of two
+        if row[0] != round(row[0]):
+            raise InputError(f"TL row {k}: beacon id {row[0]:g} is not a whole number", path)
+        if int(row[0]) in beacons:
+            raise InputError(f"TL row {k}: beacon {int(row[0])} is given a second position", path)
+        beacons[int(row[0])] = row[1:3].copy()
     return (gt if len(gt) >= 2 else None), (beacons or None)
 
 

@@ -267,6 +267,8 @@ def _corrupt(path: Path, line_no: int, text: str) -> None:
     ("Landmark_Groundtruth.dat", 6, "6 1.0 2.0 0.0001 0.0001",
      "landmark 6 is given a second position (first on line 5)"),
     ("Landmark_Groundtruth.dat", 6, "7.5 1.0 2.0 0.0001 0.0001", "subject must be a whole number"),
+    # hostile pass 21: a robot's subject in the landmark truth read as a 16th landmark
+    ("Landmark_Groundtruth.dat", 6, "3 1.0 1.0 0.0001 0.0001", "subject 3 is a robot"),
     ("Robot1_Groundtruth.dat", 7, "1248444175.103 1 2 3", "must be in time order"),
 ])
 def test_bad_lines_are_refused_naming_file_and_line(mrclam, tmp_path, name, line, text, message):
@@ -780,3 +782,19 @@ def test_a_sighted_landmark_without_truth_is_named_as_not_scored(mrclam, tmp_pat
     ds = read_mrclam(folder, MrclamConfig(robot=1))
     assert "landmark 8 sighted but not in Landmark_Groundtruth.dat: mapped, not scored" in ds.notes
     assert not any("not scored" in n for n in read_mrclam(mrclam, MrclamConfig(robot=1)).notes)
+
+
+def test_a_robot_file_beyond_five_is_left_out_of_the_joint_run_and_said(mrclam, tmp_path):
+    """Hostile pass 21: ``--robot all`` ran ``Robot6_*.dat`` (which ``--robot 6`` refuses)
+    and dropped landmark 6's barcode as that robot's own."""
+    folder = _copy(mrclam, tmp_path, robots=(1, 2))
+    for kind in ("Odometry", "Measurement", "Groundtruth"):
+        shutil.copy(folder / f"Robot2_{kind}.dat", folder / f"Robot6_{kind}.dat")
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+
+    ds = read_mrclam_all(folder, MrclamConfig())
+    assert "Robot6_Odometry.dat left out: MRCLAM's robots are subjects 1-5" in ds.notes
+    assert not any("robot 6" in n for n in ds.notes)
+    (folder / "Robot2_Groundtruth.dat").unlink()
+    with pytest.raises(InputError, match=r"robot 2 has no truth at its first frame \(no Robot2_Groundtruth.dat\)"):
+        read_mrclam_all(folder, MrclamConfig())

@@ -321,3 +321,39 @@ def test_a_map_of_range_only_beacons_says_no_back_end_localises_on_it(tmp_path, 
     err = capsys.readouterr().err.strip()
     assert err.endswith("got range (range-only data: it runs without a map)")
     assert "isam2" not in err
+
+
+@pytest.mark.parametrize("extra, reason", [
+    ([1.0, 100.0, 100.0], "TL row 5: beacon 1 is given a second position"),
+    ([1.6, 0.0, 0.0], "TL row 5: beacon id 1.6 is not a whole number"),
+])
+def test_a_truth_file_giving_a_beacon_twice_or_a_fractional_id_is_refused(tmp_path, extra, reason):
+    """Hostile pass 21: the last of two TL rows won (map RMSE 95.5 m against 3.09 m, blamed
+    on units), and beacon 1.6 was read as beacon 1."""
+    from scipy.io import loadmat, savemat
+
+    dr = _copy_log(tmp_path)
+    mat_path = tmp_path / "Plaza2_.mat"
+    mat = {k: v for k, v in loadmat(str(mat_path)).items() if not k.startswith("__")}
+    assert len(mat["TL"]) == 4
+    mat["TL"] = np.vstack([mat["TL"], extra])
+    savemat(str(mat_path), mat)
+    with pytest.raises(InputError, match=reason) as err:
+        read_plaza(dr)
+    assert str(mat_path) in str(err.value)
+
+
+def test_a_folder_of_plaza_files_that_is_no_one_log_says_why(tmp_path, capsys):
+    """Hostile pass 21: two logs in one folder, or a DR file alone, were read as an image
+    folder ("no images (.png, ...)")."""
+    from graphslam.cli.main import main
+
+    (tmp_path / "both").mkdir()
+    _copy_log(tmp_path / "both", "Plaza1")
+    _copy_log(tmp_path / "both", "Plaza2")
+    assert main(["run", "--dataset", str(tmp_path / "both"), "--out", str(tmp_path / "o")]) == 2
+    assert "holds 2 Plaza logs (Plaza1_DR.txt, Plaza2_DR.txt)" in capsys.readouterr().err
+    (tmp_path / "both" / "Plaza1_TD.txt").unlink()
+    (tmp_path / "both" / "Plaza2_DR.txt").unlink()
+    assert main(["run", "--dataset", str(tmp_path / "both"), "--out", str(tmp_path / "o")]) == 2
+    assert "Plaza1_DR.txt has no Plaza1_TD.txt beside it" in capsys.readouterr().err
