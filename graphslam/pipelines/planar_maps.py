@@ -48,6 +48,38 @@ def dataset_world(dataset_name: str, seed: int | None, config) -> dict | None:
     return {k: getattr(world, k) for k in WORLD_KEYS}
 
 
+#: Bytes of a source file read for its digest: past it the map's check falls back on the
+#: dataset's name (Victoria Park's log is 0.6 MB, an MRCLAM set's landmark files 2 kB).
+LANDMARK_SOURCE_MAX_BYTES = 64 * 1024 * 1024
+
+
+def landmark_source(dataset) -> str | None:
+    """What names and places ``dataset``'s landmarks, as a digest: an MRCLAM set's
+    ``Barcodes.dat`` and ``Landmark_Groundtruth.dat`` (every robot of the set, alone or
+    joint, shares them), or the log file's bytes; None for a synthetic world (its
+    geometry and seed say it, :func:`dataset_world`) or a source not read."""
+    import hashlib
+    from pathlib import Path
+
+    source = getattr(dataset, "source_path", None)
+    if source is None or dataset.name == "synthetic":
+        return None
+    path = Path(source)
+    try:
+        if path.is_dir() and (path / "Barcodes.dat").is_file():
+            digest = hashlib.sha256()
+            for name in ("Barcodes.dat", "Landmark_Groundtruth.dat"):
+                part = path / name
+                digest.update(part.read_bytes() if part.is_file() else b"")
+                digest.update(b"\0")
+            return "mrclam:" + digest.hexdigest()[:16]
+        if path.is_file() and path.stat().st_size <= LANDMARK_SOURCE_MAX_BYTES:
+            return "file:" + hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    except OSError:
+        return None
+    return None
+
+
 def build_run_map(result: RunResult, backend: Backend, config, max_steps: int | None) -> PlanarMap:
     """The map of a finished run (its estimate must hold landmark covariances)."""
     ds = result.dataset
@@ -70,21 +102,51 @@ def build_run_map(result: RunResult, backend: Backend, config, max_steps: int | 
         "max_steps": max_steps,
         "backend": result.backend,
         "world": dataset_world(ds.name, ds.seed, config),
+        "landmarks": landmark_source(ds),
         "config": sections,
     }
     return map_from_estimate(result.estimate, meta)
 
 
-def load_run_map(folder, dataset_name: str, seed: int | None, config) -> PlanarMap:
-    """The 2-D map in ``folder``; InputError when it was built on other data."""
+def load_run_map(folder, dataset, config) -> PlanarMap:
+    """The 2-D map in ``folder`` for a run on ``dataset``; InputError when it was built on
+    other landmarks, or its landmark ids are a run's own labels.
+
+    The landmarks are the same when :func:`landmark_source` agrees (another robot of the
+    same MRCLAM set, the built-in Victoria Park and its file by path); an MRCLAM set whose
+    landmark files differ is refused whatever its folder's name. A map without that record,
+    or a log edited since (a file cut shorter), falls back on the dataset's name."""
     pmap = load_planar_map(folder)
-    built_on = pmap.meta.get("dataset")
-    if built_on != dataset_name:
+    meta = pmap.meta
+    unknown = [
+        name
+        for name, section in (meta.get("config") or {}).items()
+        if isinstance(section, dict) and section.get("association") == "unknown"
+    ]
+    if unknown:  # its ids are the run's own labels 0, 1, ...: paired by id with the data's, wrongly
         raise InputError(
-            f"map was built on {built_on!r}, this run is on {dataset_name!r} "
+            f'map was built with [{unknown[0]}] association = "unknown": its landmark ids are that '
+            "run's own labels, not the data's, and --map associates by id; save the map from a run "
+            'with association = "known"',
+            folder,
+        )
+    built_on, saved, ours = meta.get("dataset"), meta.get("landmarks"), landmark_source(dataset)
+    same = built_on == dataset.name
+    if saved is not None and ours is not None and saved != ours:
+        if saved.startswith("mrclam:") or ours.startswith("mrclam:") or not same:
+            raise InputError(
+                f"map was built on {built_on!r}, whose landmarks (ids and true positions) are not "
+                f"this run's {dataset.name!r}: its landmark files differ (landmarks are associated by id)",
+                folder,
+            )
+    elif not same and not (saved is not None and saved == ours):
+        raise InputError(
+            f"map was built on {built_on!r}, this run is on {dataset.name!r} "
             "(landmarks are associated by id)",
             folder,
         )
+    seed = dataset.seed
+    dataset_name = dataset.name
     world = dataset_world(dataset_name, seed, config)
     if world is not None and pmap.meta.get("world") != world:
         saved = pmap.meta.get("world")

@@ -36,7 +36,7 @@ from gtsam.symbol_shorthand import L, X
 from graphslam.backends import gtsam_convert as conv
 from graphslam.backends.planar.isam2 import Isam2Backend
 from graphslam.backends.planar.isam2_config import Isam2Config
-from slamcore.errors import GraphSlamError, UnsupportedError
+from slamcore.errors import ConfigError, GraphSlamError, UnsupportedError
 from slamcore.planar import geometry as models
 from slamcore.planar.records import Estimate, Observation, ObservationKind, Prediction
 
@@ -54,6 +54,11 @@ class Isam2Localiser(Isam2Backend):
 
     def __init__(self, landmark_ids, landmarks_w, landmark_cov, config: Isam2Config | None = None):
         super().__init__(config)
+        if self.config.association != "known":  # ran by id anyway, and its metrics counted none used
+            raise ConfigError(
+                "isam2: localisation against a map associates by landmark id; "
+                '[isam2] association = "unknown" is not supported with --map'
+            )
         self._map_ids = np.asarray(landmark_ids, dtype=np.int64).copy()
         self._map_xy = np.asarray(landmarks_w, dtype=np.float64).reshape(-1, 2).copy()
         self._map_cov = np.asarray(landmark_cov, dtype=np.float64).reshape(-1, 2, 2).copy()

@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "map", None) is not None:
         from graphslam.pipelines import planar_maps
 
-        pmap = planar_maps.load_run_map(args.map, dataset.name, dataset.seed, config)
+        pmap = planar_maps.load_run_map(args.map, dataset, config)
         backend = planar_maps.localiser(args.backend, pmap, config, overrides)
         if dataset.agents and not backend.supports_pose_sightings:
             raise GraphSlamError(

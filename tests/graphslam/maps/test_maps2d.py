@@ -185,7 +185,7 @@ def test_localisation_keeps_the_map_fixed_and_localises(backend, tmp_path, capsy
     assert _ate(loc) <= _ate(slam) + ATE_TOLERANCE_M, (_ate(loc), _ate(slam))
     # the estimate's landmarks are the map's, to the bit, after every step
     dataset = registry.load_dataset("synthetic")
-    pmap = load_run_map(folder, "synthetic", 0, None)
+    pmap = load_run_map(folder, dataset, None)
     be = localiser(backend, pmap, None, {})
     moved = []
 

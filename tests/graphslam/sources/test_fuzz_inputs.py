@@ -309,7 +309,9 @@ def use_planar_map(folder: Path):
     """``run --map`` on the synthetic world: load the map, check its world, localiser."""
     from graphslam.pipelines.planar_maps import load_run_map, localiser
 
-    pmap = load_run_map(folder, "synthetic", None, None)
+    from graphslam import registry
+
+    pmap = load_run_map(folder, registry.load_dataset("synthetic"), None)
     return localiser("ekf", pmap, None, None)
 
 
