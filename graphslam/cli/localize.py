@@ -155,8 +155,9 @@ def cmd_localize(args: argparse.Namespace) -> int:
     }
     metrics = localize_run.compute_metrics(result, map_info, wall_s=time.perf_counter() - t0)
     metrics["provenance"] = invocation(args)
-    if not map_info["metric"]:  # what the scores mean (metrics.json says it too)
-        warn(metrics["warnings"][-1])
+    for doubt in metrics.get("warnings", []):  # what the scores mean (metrics.json says it too)
+        if doubt not in sequence.warnings:  # the reader's were said above
+            warn(doubt)
     if metrics["frames"] and not metrics["localised_fraction"] and not result.interrupted:
         # 0.0 %, a trajectory.tum of its header and exit 0 said nothing (hostile pass 16)
         nothing = (

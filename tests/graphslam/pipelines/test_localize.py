@@ -153,3 +153,32 @@ def test_a_camera_alone_map_is_scored_in_its_own_scale_and_joined_by_no_metric_r
     assert main(["run", "--dataset", "synthetic-images", "--frames", "20:60", "--map", str(folder),
                  "--out", str(tmp_path / "joined"), "--rerun", "off", "--quiet"]) == 2
     assert "was built from the camera alone, in a scale of its own" in capsys.readouterr().err
+
+
+def test_a_truth_in_another_frame_than_the_maps_is_doubted(room):
+    """Hostile pass 21: KITTI 07 frames 40-159 localised right on a map of frames 0-159,
+    scored against a truth restarted at the identity (a second recording's): ATE 62 m,
+    median 57 m, no word, where a rigid fit gave 0.19 m."""
+    import dataclasses
+
+    from graphslam import registry
+    from graphslam.maps.files import load_map
+    from graphslam.pipelines import localize_run
+    from graphslam.pipelines.session import LocaliseSession
+    from graphslam.sources.spatial.frames import parse_frames, select_frames
+
+    config_path, folder = room
+    config = registry.read_config(config_path)
+    seq = select_frames(registry.load_image_sequence("synthetic-images", config=config), parse_frames("200:240"))
+    result = LocaliseSession.open(seq, config, load_map(folder), "synthetic-images").run()
+    info = {"metric": True}
+    sound = localize_run.compute_metrics(result, info)
+    assert sound["ate_rmse_m"] <= ATE_TOL_M and "ate_rmse_se3_m" not in sound
+    assert not any("map's frame" in w for w in sound.get("warnings", []))
+    # the same truth, restarted at the identity
+    restart = np.linalg.inv(np.asarray(seq.wTc_true[0]))
+    result.sequence = dataclasses.replace(seq, wTc_true=np.array([restart @ T for T in seq.wTc_true]))
+    moved = localize_run.compute_metrics(result, info)
+    assert moved["ate_rmse_m"] > 1.0
+    assert moved["ate_rmse_se3_m"] == pytest.approx(sound["ate_rmse_m"], abs=0.05)
+    assert any("is the truth in the map's frame?" in w for w in moved["warnings"])
