@@ -186,16 +186,10 @@ def _frame_doubt(result: LocalizeResult, ate_m: float) -> tuple[float, str] | No
     """``(SE(3)-fitted RMSE, warning)`` when a rigid fit of the placed camera centres to the
     truth takes their error down by :data:`FRAME_DOUBT_RATIO` (the truth recorded in another
     frame than the map's: a second recording's poses starting at the identity), else None."""
-    from graphslam.evaluation.spatial import align_umeyama
-
-    truth = getattr(result.sequence, "wTc_true", None)
-    placed = result.placed()
-    if truth is None or placed.sum() < 3:
+    fitted_err = fitted_errors_m(result, with_scale=False)
+    if fitted_err is None:
         return None
-    est = np.array([p.wTc[:3, 3] for p in result.placements if p.wTc is not None])
-    ref = np.asarray(truth)[: len(result.placements)][placed][:, :3, 3]
-    _, R, t = align_umeyama(est, ref, with_scale=False)
-    fitted = float(np.sqrt(np.mean(np.sum((est @ R.T + t - ref) ** 2, axis=1))))
+    fitted = float(np.sqrt(np.nanmean(fitted_err**2)))
     if not (ate_m > FRAME_DOUBT_RATIO * fitted and ate_m - fitted > FAR_M):
         return None
     return fitted, (
@@ -210,6 +204,12 @@ def sim3_errors_m(result: LocalizeResult) -> np.ndarray | None:
     """:func:`errors_m` after the Sim(3) fit of the placed camera centres to the truth (a map
     without metric scale: :func:`graphslam.evaluation.spatial.align_umeyama`); None without
     truth or with fewer than 3 placed frames (a scale needs them)."""
+    return fitted_errors_m(result, with_scale=True)
+
+
+def fitted_errors_m(result: LocalizeResult, with_scale: bool) -> np.ndarray | None:
+    """:func:`errors_m` after the Sim(3) (``with_scale``) or SE(3) fit of the placed camera
+    centres to the truth; None without truth or with fewer than 3 placed frames."""
     from graphslam.evaluation.spatial import align_umeyama
 
     truth = getattr(result.sequence, "wTc_true", None)
@@ -218,7 +218,7 @@ def sim3_errors_m(result: LocalizeResult) -> np.ndarray | None:
         return None
     est = np.array([p.wTc[:3, 3] for p in result.placements if p.wTc is not None])
     ref = np.asarray(truth)[: len(result.placements)][placed][:, :3, 3]
-    s, R, t = align_umeyama(est, ref, with_scale=True)
+    s, R, t = align_umeyama(est, ref, with_scale=with_scale)
     out = np.full(len(result.placements), np.nan)
     out[placed] = np.linalg.norm(est * s @ R.T + t - ref, axis=1)
     return out
