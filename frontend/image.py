@@ -115,6 +115,20 @@ def _decoder_messages() -> Iterator[list[str]]:
             lines.extend(caught.read().decode("utf-8", "replace").splitlines())
 
 
+def to_gray(image: np.ndarray | None) -> np.ndarray | None:
+    """A decoded image (H, W), (H, W, 3) BGR or (H, W, 4) BGRA as (H, W) grey: colour by
+    OpenCV's ``cvtColor`` (ITU-R BT.601 weights, rounded), the one conversion of every
+    source. A decoder's own grey (``IMREAD_GRAYSCALE``: libpng's weights, one level below
+    on half the pixels of the desk photos; libjpeg's luma) made the same photos differ
+    read from a folder and from a bag of raw ``bgr8`` images (hostile pass 21)."""
+    if image is None or image.ndim == 2:
+        return image
+    code = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}.get(image.shape[2])
+    if code is None:  # a two-channel file, grey and alpha: the grey
+        return np.ascontiguousarray(image[..., 0])
+    return cv2.cvtColor(image, code)
+
+
 def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     """Decode the bytes of an image file as ``(H, W)`` ``uint8`` greyscale.
 
@@ -132,7 +146,8 @@ def decode_gray(data: bytes, path: str | Path) -> np.ndarray:
     said: list[str] = []
     if data:
         with quiet_opencv(), _decoder_messages() as said:
-            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_ANYCOLOR)
+        image = to_gray(image)
     damage = [ln.strip() for ln in said if any(d in ln for d in _DECODER_DAMAGE)]
     if damage:
         # a JPEG cut inside with its end marker kept decoded to grey below the cut, used
@@ -185,7 +200,7 @@ def check_sixteen_bit_levels(image: np.ndarray, path: str | Path) -> None:
 
 
 def load_gray(path: str | Path) -> np.ndarray:
-    """Read an image file as ``(H, W)`` ``uint8`` greyscale (``cv2.IMREAD_GRAYSCALE``).
+    """Read an image file as ``(H, W)`` ``uint8`` greyscale (:func:`to_gray`).
 
     Raises :class:`InputError` naming the file when it is missing, unreadable,
     truncated (:func:`decode_gray`) or not an image.
