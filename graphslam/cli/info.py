@@ -24,14 +24,20 @@ def register(sub) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from graphslam.sources.spatial.rosbag import bag_topics, chosen_roles
+    from graphslam.sources.spatial.rosbag import bag_topics, chosen_roles, parse_topics
 
+    parse_topics(args.topics)  # a misspelt role is said before every message is read
     topics = bag_topics(args.bag)
     print(format_topics(topics))
     for t in topics:
         if t.count != t.stated_count:  # a ROS 2 bag's metadata.yaml edited or left stale
             warn(f"{args.bag}: {t.name}: the bag states {t.stated_count} messages, it holds {t.count}")
     roles = chosen_roles(args.bag, topics, args.topics)
+    if args.topics is not None and not isinstance(roles, dict):
+        # the listing is printed; the check the --topics asked for failed: a script sees it
+        # (the reason may name the flag itself: "--topics image=/x: no such topic"), once
+        prefix = f"--topics {args.topics}: "
+        raise ConfigError(roles if roles.startswith("--topics ") else prefix + roles)
     print(
         "read by --dataset: "
         + (
@@ -40,11 +46,6 @@ def cmd_info(args: argparse.Namespace) -> int:
             else f"nothing ({roles})"
         )
     )
-    if args.topics is not None and not isinstance(roles, dict):
-        # the listing is printed; the check the --topics asked for failed: a script sees it
-        # (the reason may name the flag itself: "--topics image=/x: no such topic")
-        prefix = f"--topics {args.topics}: "
-        raise ConfigError(roles if roles.startswith("--topics ") else prefix + roles)
     return 0
 
 

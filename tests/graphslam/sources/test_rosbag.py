@@ -285,10 +285,21 @@ def test_info_with_topics_that_pick_nothing_lists_then_fails(tmp_path, capsys):
     bag = write_kitti_bag(bag_path(tmp_path, "ros1"), "ros1")
     assert main(["info", str(bag), "--topics", "image=/nosuch"]) == 2
     out, err = capsys.readouterr()
-    assert out.splitlines()[0].split()[0] == "topic" and "no such topic" in out
+    assert out.splitlines()[0].split()[0] == "topic"
+    assert "no such topic" not in out  # the reason once, in the error line (hostile pass 21)
     (line,) = err.strip().splitlines()
     assert line.startswith("graphslam: error: --topics image=/nosuch: ") and "no such topic" in line
     assert line.count("--topics image=/nosuch") == 1  # said twice before (twentieth hostile pass)
+
+
+def test_info_refuses_an_unknown_role_before_reading_the_bag(tmp_path, capsys, monkeypatch):
+    """Hostile pass 21: --topics banana=/x read every message of the bag first."""
+    from graphslam.sources.spatial import rosbag
+
+    bag = write_kitti_bag(bag_path(tmp_path, "ros1"), "ros1")
+    monkeypatch.setattr(rosbag, "bag_topics", lambda *a: pytest.fail("the bag was read"))
+    line = one_error_line(capsys, ["info", bag, "--topics", "banana=/x"])
+    assert "unknown role 'banana'" in line
 
 
 def test_a_fifo_among_a_ros2_bags_files_is_refused(tmp_path, capsys):
