@@ -450,6 +450,12 @@ def check_path_arguments(args) -> None:
     minutes of work)."""
     from slamcore.files import check_name_lengths
 
+    try:  # every relative path, and a sweep's runs, start from it
+        os.getcwd()
+    except FileNotFoundError:
+        raise GraphSlamError(
+            "the working folder was deleted (a shell still in it): cd to a folder that exists"
+        ) from None
     command = getattr(args, "command", None)
     for dest, value in vars(args).items():
         values = value if isinstance(value, list) else [value]

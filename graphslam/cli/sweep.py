@@ -182,6 +182,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     claim_out_dir(args.out)
     # more workers than runs would only wait (a local cluster of a million never starts)
     executor = make_executor(min(workers, max(n_runs, 1)), args.cluster)
+    for note in executor.notes:
+        warn(note)
     try:
         update, bar = _progress(n_runs, args.quiet)
         try:
@@ -200,12 +202,22 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         executor.close()
     written = [outcome.csv_path]
     writes = OutputWrites(args.out)  # a plot the disk refuses costs no other: each is tried
+    # an earlier sweep's plots go first: a stop while these are drawn left them beside
+    # this sweep.csv, looking current (hostile pass 21); those drawn are kept
+    remove_stale_outputs(args.out, set(), plot_files(args.out))
     if not args.no_plots and outcome.rows:
         from graphslam.pipelines.sweep import nees_series, with_labels
         from graphslam.visualisation.plots import plot_sweep
 
         rows = with_labels(outcome.rows, spec.set_keys)
-        written += plot_sweep(rows, nees_series(args.out, rows), spec.set_keys, args.out, writes)
+        series, unreadable = nees_series(args.out, rows)
+        if unreadable:
+            warn(
+                f"the NEES plot leaves out {len(unreadable)} run(s) whose nees.csv cannot be read "
+                f"({', '.join(unreadable[:3])}{', ...' if len(unreadable) > 3 else ''}); delete their "
+                "folders under runs/ and the same command runs them again"
+            )
+        written += plot_sweep(rows, series, spec.set_keys, args.out, writes)
     # an earlier sweep's plots (other settings swept, or --no-plots now) would disagree
     # with this sweep.csv
     remove_stale_outputs(args.out, {p.name for p in written}, plot_files(args.out))

@@ -26,6 +26,7 @@ import json
 import os
 import re
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.pipelines.common import active_guard
-from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec, dump_toml
+from graphslam.pipelines.sweep_spec import RunSpec, SweepSpec, run_config_file
 from slamcore.errors import InputError
 from slamcore.files import atomic_open
 
@@ -214,10 +215,20 @@ def folder_mismatch(run: RunSpec, folder: Path) -> str | None:
         differ.insert(0, "--dataset")
     if ("--nees" in command) != run.nees:
         differ.append("--nees")
-    if prov.get("config_sha256") != hashlib.sha256(dump_toml(run.config).encode("utf-8")).hexdigest():
+    if (
+        prov.get("config_sha256")
+        != hashlib.sha256(run_config_file(run.config)[1].encode("utf-8")).hexdigest()
+    ):
         differ.append("config")
     if differ:
         return f"its folder holds another run (other {', '.join(differ)})"
+    if metrics.get("interrupted"):  # a stop kept its estimate so far: no finished run
+        return "its run was stopped before the end"
+    # the table's RPE and the NEES plot are read from these: a run without them is not done
+    needed = ["trajectory.tum"] + (["nees.csv"] if run.nees and metrics.get("nees_mean") is not None else [])
+    missing = [name for name in needed if not (folder / name).is_file()]
+    if missing:
+        return f"its {' and '.join(missing)} is gone"
     return _other_code(prov)
 
 
@@ -271,7 +282,10 @@ def run_sweep(
 
     flush()
     started = time.time()
-    results = executor.map_unordered(todo, out)
+    # an absolute root: a cluster's worker starts elsewhere (a relative --out put the runs
+    # in its working folder, the sweep none the wiser), and a child's "--out -o/runs/x"
+    # was read as a flag (hostile pass 21)
+    results = executor.map_unordered(todo, Path(os.path.abspath(out)))
     try:
         for run, result in results:
             row = {**base_row(run, spec), **result}
@@ -380,13 +394,26 @@ def with_labels(rows: list[dict], set_keys) -> list[dict]:
     return out
 
 
-def nees_series(out: Path, rows: list[dict]) -> dict[str, np.ndarray]:
+def nees_series(out: Path, rows: list[dict]) -> tuple[dict[str, np.ndarray], list[str]]:
     """Per ``label`` (:func:`with_labels`), the (runs, steps) pose NEES of its ok runs
-    (``nees.csv`` of each), cut to the shortest run."""
+    (``nees.csv`` of each), cut to the shortest run; and the run ids whose ``nees.csv``
+    could not be read (left out of the plot: an emptied or edited file raised in the
+    plotting after every run was done, hostile pass 21)."""
     by_backend: dict[str, list[np.ndarray]] = {}
+    unreadable: list[str] = []
     for r in rows:
         path = out / "runs" / r["run_id"] / "nees.csv"
         if r.get("status") == "ok" and path.is_file():
-            values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 2]
+            try:
+                with warnings.catch_warnings():  # "input contained no data": counted below
+                    warnings.simplefilter("ignore", UserWarning)
+                    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 2]
+            except (OSError, ValueError, IndexError):
+                unreadable.append(r["run_id"])
+                continue
+            if not len(values):
+                unreadable.append(r["run_id"])
+                continue
             by_backend.setdefault(r["label"], []).append(values)
-    return {b: np.array([v[: min(len(x) for x in vs)] for v in vs]) for b, vs in by_backend.items()}
+    series = {b: np.array([v[: min(len(x) for x in vs)] for v in vs]) for b, vs in by_backend.items()}
+    return series, unreadable

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from graphslam.pipelines.common import EXIT_STATUS_OF_SIGNAL, PARENT_PID_ENV
 from graphslam.pipelines.sweep import WARNING_SEPARATOR
-from graphslam.pipelines.sweep_spec import RunSpec, dump_toml
+from graphslam.pipelines.sweep_spec import RunSpec, run_config_file
 from slamcore.errors import ConfigError, GraphSlamError
 
 #: Runs in flight in this process (Ctrl-C stops them), and the flag that keeps
@@ -56,7 +56,7 @@ def run_command(run: RunSpec, out_dir: Path) -> list[str]:
         "--backend",
         run.backend,
         "--config",
-        str(out_dir / "config.toml"),
+        str(out_dir / run_config_file(run.config)[0]),
         "--out",
         str(out_dir),
         "--rerun",
@@ -161,7 +161,8 @@ def execute_run(run: RunSpec, root: str) -> dict:
     out_dir = Path(root) / "runs" / run.run_id
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "config.toml").write_text(dump_toml(run.config), encoding="utf-8")
+        name, text = run_config_file(run.config)
+        (out_dir / name).write_text(text, encoding="utf-8")
         rc, wall, peak = _spawn_and_wait(run_command(run, out_dir), out_dir)
     except OSError as e:  # runs/<run id> or its stderr.txt not a file, a full disk, no fork:
         # this run fails, the sweep goes on
@@ -244,6 +245,7 @@ class PoolExecutor:
 
     def __init__(self, workers: int):
         self.workers = workers
+        self.notes: list[str] = []  # what the command says before the runs (none here)
 
     def map_unordered(self, runs: list[RunSpec], root: Path):
         """Yield ``(run, row)`` as runs finish; on KeyboardInterrupt stop everything.
@@ -408,6 +410,14 @@ class DaskExecutor:
             self.client = Client(self.cluster)
         else:
             self.client = _connect(Client, address)
+        #: what the command should say before the runs (a scheduler without a worker)
+        self.notes: list[str] = []
+        if self.cluster is None and not self.client.scheduler_info().get("workers"):
+            # the runs wait for a worker to join; they waited with no word (hostile pass 21)
+            self.notes.append(
+                f"--cluster {address}: the scheduler has no worker yet; the runs wait until one "
+                f"joins (dask worker {address})"
+            )
         self.client.run(allow_runs)  # a Ctrl-C'd sweep before this one left them stopped
 
     def map_unordered(self, runs: list[RunSpec], root: Path):
@@ -417,7 +427,13 @@ class DaskExecutor:
         finished = False
         try:
             for f in as_completed(list(futures)):
-                yield futures[f], f.result()
+                row = f.result()
+                # released once collected: a worker lost later (killed) made the scheduler
+                # compute a result it still held again, the run rewritten in its folder
+                # after its row was in the table (hostile pass 21)
+                run = futures.pop(f)
+                f.release()
+                yield run, row
             finished = True
         finally:
             for f in futures:

@@ -247,6 +247,25 @@ def _toml_value(value) -> str:
     return json.dumps(value)  # strings, booleans, integers and floats read back as TOML
 
 
+def run_config_file(config: dict) -> tuple[str, str]:
+    """``(file name, text)`` of a run's config: TOML, or YAML where a setting is null
+    (TOML has none; a YAML base config's ``known_gate_chi2_prob: null``, which ``run``
+    takes, was written as TOML no run could read, and every run of the sweep failed)."""
+
+    def holds_none(value) -> bool:
+        if isinstance(value, dict):
+            return any(holds_none(v) for v in value.values())
+        if isinstance(value, list):
+            return any(holds_none(v) for v in value)
+        return value is None
+
+    if holds_none(config):
+        import yaml
+
+        return "config.yaml", yaml.safe_dump(config, sort_keys=False, allow_unicode=True)
+    return "config.toml", dump_toml(config)
+
+
 def dump_toml(config: dict, prefix: tuple[str, ...] = ()) -> str:
     """A run's config as TOML text (tables and sub-tables of scalars and lists)."""
     lines, tables = [], []

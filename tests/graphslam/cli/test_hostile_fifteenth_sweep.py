@@ -92,6 +92,7 @@ def test_one_sweep_file_is_one_set_of_runs_from_any_working_directory(tmp_path, 
     (run,) = runs[0]
     folder = tmp_path / "run"
     folder.mkdir()
+    (folder / "trajectory.tum").write_text("0 0 0 0 0 0 0 1\n")
     from graphslam.pipelines.sweep_spec import dump_toml
     from graphslam.pipelines.provenance import code_identity
 
@@ -118,6 +119,7 @@ def test_a_run_folder_made_by_other_code_is_run_again(tmp_path):
     (run,) = parse_sweep(tmp_path / "s.toml").runs()
     folder = tmp_path / "run"
     folder.mkdir()
+    (folder / "trajectory.tum").write_text("0 0 0 0 0 0 0 1\n")
     from graphslam.pipelines.sweep_exec import run_command
 
     prov = {

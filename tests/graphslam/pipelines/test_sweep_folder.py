@@ -47,6 +47,7 @@ def fake_runs(monkeypatch):
         }
         # the figures the row says too: a resumed sweep reads them again from the files
         (folder / "metrics.json").write_text(json.dumps({"provenance": provenance, "ate_rmse_m": 0.1}))
+        (folder / "trajectory.tum").write_text("0 0 0 0 0 0 0 1\n")  # a run without it is not done
         return {"run_id": run.run_id, "status": "ok", "error": "", "warnings": "", "ate_rmse_m": 0.1}
 
     monkeypatch.setattr(sweep_exec, "execute_run", fake)

@@ -1,0 +1,143 @@
+"""The twenty-first hostile pass (run management: sweeps, the working folder): each test
+reproduces a finding, then checks what the toolkit does now."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphslam.cli.main import main
+from graphslam.pipelines.sweep import folder_mismatch, nees_series
+from graphslam.pipelines.sweep_spec import parse_sweep, run_config_file
+
+SWEEP = '[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseed = [0]\nmax_steps = 20\nnees = false\n'
+
+
+def test_a_deleted_working_folder_is_one_line(tmp_path, monkeypatch, capsys):
+    """Every command ended in chained tracebacks (FileNotFoundError of os.getcwd)."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    for argv in (["run", "--dataset", "synthetic", "--max-steps", "5", "--rerun", "off"], ["eval", "a", "b"]):
+        assert main(argv) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line == "graphslam: error: the working folder was deleted (a shell still in it): cd to a folder that exists"
+
+
+def test_a_yaml_null_and_an_out_folder_named_with_a_dash_run(tmp_path, monkeypatch, capsys):
+    """A YAML base config's null was written into each run's config.toml, which no run could
+    read (every run failed); a relative --out=-o reached each run as '--config -o/runs/...',
+    read as a flag (every run failed). Both as run takes them now."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "base.yaml").write_text("ekf:\n  known_gate_chi2_prob: null\n")
+    (tmp_path / "sw.toml").write_text(SWEEP + 'config = "base.yaml"\n')
+    assert main(["sweep", "sw.toml", "--out=-o", "--workers", "1", "--quiet", "--no-plots"]) == 0
+    (row,) = [ln for ln in (tmp_path / "-o" / "sweep.csv").read_text().splitlines()[1:]]
+    assert ",ok," in row
+    (run_dir,) = (tmp_path / "-o" / "runs").iterdir()
+    assert (run_dir / "config.yaml").read_text() == "ekf:\n  known_gate_chi2_prob: null\n"
+    assert main(["sweep", "sw.toml", "--out=-o", "--workers", "1", "--quiet", "--no-plots"]) == 0
+    assert "1 already done" in capsys.readouterr().out  # resumed: the YAML's digest is the run's
+
+
+def test_run_config_file_is_toml_unless_a_setting_is_null():
+    assert run_config_file({"ekf": {"gate": 0.5}}) == ("config.toml", "[ekf]\ngate = 0.5\n")
+    name, text = run_config_file({"ekf": {"gate": None, "k": [1, 2]}})
+    assert name == "config.yaml" and "gate: null" in text
+
+
+def _done_run(tmp_path: Path):
+    """A run folder a resumed sweep takes as done (provenance, metrics, trajectory)."""
+    import hashlib
+
+    from graphslam.pipelines.provenance import code_identity
+    from graphslam.pipelines.sweep_exec import run_command
+
+    (tmp_path / "s.toml").write_text(SWEEP.replace("nees = false", "nees = true"))
+    (run,) = parse_sweep(tmp_path / "s.toml").runs()
+    folder = tmp_path / "run"
+    folder.mkdir()
+    prov = {
+        "command": ["graphslam", *run_command(run, folder)[3:]],
+        "config_sha256": hashlib.sha256(run_config_file(run.config)[1].encode()).hexdigest(),
+        **code_identity(),
+    }
+    for name in ("trajectory.tum", "nees.csv"):
+        (folder / name).write_text("x\n")
+    return run, folder, prov
+
+
+def test_a_resumed_sweep_runs_again_a_stopped_run_or_one_whose_files_are_gone(tmp_path):
+    """A run stopped at 643 of 769 steps (interrupted: true), or whose trajectory.tum was
+    deleted, was taken as done: its row kept 'ok' with the cut run's ATE, or with its RPE
+    emptied."""
+    run, folder, prov = _done_run(tmp_path)
+
+    def mismatch(**metrics):
+        (folder / "metrics.json").write_text(json.dumps({"provenance": prov, "nees_mean": 3.0, **metrics}))
+        return folder_mismatch(run, folder)
+
+    assert mismatch() is None
+    assert mismatch(interrupted=True) == "its run was stopped before the end"
+    (folder / "nees.csv").unlink()
+    assert mismatch() == "its nees.csv is gone"
+    (folder / "trajectory.tum").unlink()
+    assert mismatch() == "its trajectory.tum and nees.csv is gone"
+
+
+def test_an_unreadable_nees_file_is_left_out_of_the_plot(tmp_path):
+    """An emptied or edited nees.csv of a done run raised IndexError / ValueError in the
+    plotting, after every run was done."""
+    rows = []
+    for k, text in enumerate(("step,pose_id,nees\n0,0,1.0\n1,1,2.0\n", "", "step,pose_id,nees\n0,0,oops\n")):
+        folder = tmp_path / "runs" / f"r{k}"
+        folder.mkdir(parents=True)
+        (folder / "nees.csv").write_text(text)
+        rows.append({"run_id": f"r{k}", "status": "ok", "label": "ekf"})
+    series, unreadable = nees_series(tmp_path, rows)
+    assert unreadable == ["r1", "r2"]
+    assert np.array_equal(series["ekf"], [[1.0, 2.0]])
+
+
+def test_the_runs_get_an_absolute_root_whatever_the_out_given(tmp_path, monkeypatch):
+    """A relative --out with --cluster ADDRESS put the runs in the worker's working folder
+    (the sweep said 6 ok, its runs/ empty)."""
+    from graphslam.pipelines.sweep import run_sweep
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(SWEEP)
+    roots = []
+
+    class Recorder:
+        notes: list[str] = []
+
+        def map_unordered(self, runs, root):
+            roots.append(root)
+            yield from ()
+
+    run_sweep(parse_sweep(tmp_path / "s.toml"), Path("rel"), Recorder())
+    assert roots == [tmp_path / "rel"] and roots[0].is_absolute()
+
+
+def test_a_scheduler_without_workers_is_said(tmp_path):
+    """The sweep waited with no word for a worker that never came."""
+    pytest.importorskip("dask.distributed")
+    from dask.distributed import LocalCluster
+
+    from graphslam.pipelines.sweep_exec import DaskExecutor
+
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        executor = DaskExecutor(cluster.scheduler_address, 1)
+        try:
+            assert executor.notes == [
+                f"--cluster {cluster.scheduler_address}: the scheduler has no worker yet; the runs wait "
+                f"until one joins (dask worker {cluster.scheduler_address})"
+            ]
+        finally:
+            executor.close()
+    assert os.getcwd()
