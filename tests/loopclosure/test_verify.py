@@ -268,3 +268,21 @@ def test_too_few_features_is_a_rejection_not_an_error():
     d = np.random.default_rng(0).integers(0, 256, size=(5, 32), dtype=np.uint8)
     v = GeometricVerifier().verify(np.zeros((5, 2)), d, np.zeros((0, 2)), np.zeros((0, 32), np.uint8))
     assert not v.accepted and "too few matches" in v.reason and v.n_matches == 0
+
+
+def test_a_pair_whose_ransac_finds_no_model_is_not_a_traceback(shared_data):
+    """Desk photos 4 and 5 at 250 ORB features, without intrinsics: OpenCV's USAC raised
+    cv2.error (!model.empty()) out of findFundamentalMat, a traceback of the decisive-share
+    benchmark found while re-measuring it (hostile pass 21's grey conversion)."""
+    import dataclasses
+
+    from frontend.image import load_gray
+    from loopclosure.detector import LoopDetectorConfig
+
+    orb = OrbDetector(dataclasses.replace(LoopDetectorConfig().orb, n_features=250))
+    folder = shared_data / "slambook2_desk" / "images"
+    (a, sa), (b, sb) = [(orb.detect(img), (float(img.shape[1]), float(img.shape[0])))
+                        for img in (load_gray(folder / "06.png"), load_gray(folder / "05.png"))]
+    result = GeometricVerifier(VerifyConfig(decisive_share=0.0)).verify(
+        a.xy_px, a.descriptors, b.xy_px, b.descriptors, None, size_a=sa, size_b=sb)
+    assert not result.accepted
