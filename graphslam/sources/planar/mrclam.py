@@ -876,6 +876,12 @@ def robot_track(
     has_truth = np.isfinite(wTb_true).all(axis=1)
     if truth is None:
         notes.append(f"robot {n}: no ground truth")
+    elif not has_truth.any():  # a note only, and ATE n/a with exit 0 (hostile pass 21)
+        warnings.append(
+            f"Robot{n}_Groundtruth.dat covers none of robot {n}'s log ({truth[0, 0]:.3f}-"
+            f"{truth[-1, 0]:.3f} s against {times[0]:.3f}-{times[-1]:.3f} s): nothing is scored "
+            "(another log's truth, or its times shifted?)"
+        )
     elif not has_truth.all():
         notes.append(
             f"robot {n}: truth on {int(has_truth.sum())} of the whole log's {len(times)} frames "

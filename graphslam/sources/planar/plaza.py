@@ -270,8 +270,14 @@ def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
             )
         wTb_true = truth_at(truth, times)
     has_truth = np.isfinite(wTb_true).all(axis=1)
+    truth_doubt = []
     if truth is None:
         notes.append("no truth (no .mat beside the log)")
+    elif not has_truth.any():  # a note only, and ATE n/a with exit 0 (hostile pass 21)
+        truth_doubt.append(
+            f"the .mat's GT covers none of the log ({truth[0, 0]:.1f}-{truth[-1, 0]:.1f} s against "
+            f"{times[0]:.1f}-{times[-1]:.1f} s): nothing is scored (another log's .mat?)"
+        )
     elif not has_truth.all():
         notes.append(f"truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
     prior = wTb_true[0] if has_truth[0] else np.zeros(3)
@@ -296,6 +302,11 @@ def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
     )
     ids = sorted(set(beacon_ids.tolist()))
     notes.append(f"{len(td)} ranges to {len(ids)} beacons ({', '.join(map(str, ids))})")
+    unscored = [b for b in ids if beacons is not None and b not in beacons]
+    if unscored:  # MRCLAM says it of its landmarks; here the map scored fewer in silence
+        notes.append(
+            f"beacon(s) {', '.join(map(str, unscored))} ranged but not in the .mat's TL: mapped, not scored"
+        )
     by_frame: dict[int, list] = {}
     for obs in ranges:
         by_frame.setdefault(obs.pose_id, []).append(obs)
@@ -310,7 +321,7 @@ def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
         has_timestamps=True,
         source_path=str(dr_path),
         notes=tuple(notes),
-        warnings=tuple(gap_warning),
+        warnings=(*truth_doubt, *gap_warning),
     )
 
 

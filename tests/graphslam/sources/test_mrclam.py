@@ -836,3 +836,14 @@ def test_a_map_is_judged_by_its_landmarks_not_the_folders_name(mrclam, tmp_path,
     assert main(["run", "--dataset", str(folder), "--robot", "1", *steps, "--config", str(tmp_path / "iu.toml"),
                  "--map", str(tmp_path / "m1"), "--out", str(tmp_path / "liu")]) == 2
     assert "[isam2] association = \"unknown\" is not supported with --map" in capsys.readouterr().err
+
+
+def test_a_truth_that_covers_none_of_the_log_is_a_warning(mrclam, tmp_path):
+    """Hostile pass 21: truth times shifted by 1e5 s gave exit 0 and ATE n/a, only a note."""
+    folder = _copy(mrclam, tmp_path)
+    path = folder / "Robot1_Groundtruth.dat"
+    path.write_text("".join(ln if ln.startswith("#") or not ln.strip() else
+                            " ".join([f"{float(ln.split()[0]) + 1e5:.3f}", *ln.split()[1:]]) + "\n"
+                            for ln in path.read_text().splitlines(True)))
+    ds = read_mrclam(folder, MrclamConfig(robot=1))
+    assert any(w.startswith("Robot1_Groundtruth.dat covers none of robot 1's log") for w in ds.warnings)

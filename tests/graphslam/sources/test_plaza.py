@@ -357,3 +357,26 @@ def test_a_folder_of_plaza_files_that_is_no_one_log_says_why(tmp_path, capsys):
     (tmp_path / "both" / "Plaza2_DR.txt").unlink()
     assert main(["run", "--dataset", str(tmp_path / "both"), "--out", str(tmp_path / "o")]) == 2
     assert "Plaza1_DR.txt has no Plaza1_TD.txt beside it" in capsys.readouterr().err
+
+
+def test_a_truth_of_another_log_is_a_warning_and_an_unlisted_beacon_a_note(tmp_path):
+    """Hostile pass 21: Plaza1's .mat beside Plaza2's log gave exit 0 and ATE n/a with only
+    a data note; a beacon missing from TL was mapped and not scored, unsaid."""
+    from scipy.io import loadmat, savemat
+
+    dr = _copy_log(tmp_path)
+    other = Path(gtsam.findExampleDataFile("Plaza1_DR.txt")).with_name("Plaza1_.mat")
+    mat = {k: v for k, v in loadmat(str(other)).items() if not k.startswith("__")}
+    mat["GT"] = mat["GT"].copy()
+    mat["GT"][:, 0] += 1e5  # nowhere near Plaza2's clock
+    savemat(str(tmp_path / "Plaza2_.mat"), mat)
+    ds = read_plaza(dr)
+    assert any(w.startswith("the .mat's GT covers none of the log") for w in ds.warnings)
+    shutil.copy(Path(gtsam.findExampleDataFile("Plaza2_DR.txt")).with_name("Plaza2_.mat"), tmp_path / "Plaza2_.mat")
+    mat = {k: v for k, v in loadmat(str(tmp_path / "Plaza2_.mat")).items() if not k.startswith("__")}
+    ranged = sorted({int(b) for b in np.loadtxt(tmp_path / "Plaza2_TD.txt")[:, 2]})
+    mat["TL"] = mat["TL"][mat["TL"][:, 0] != ranged[0]]
+    savemat(str(tmp_path / "Plaza2_.mat"), mat)
+    ds = read_plaza(dr)
+    assert f"beacon(s) {ranged[0]} ranged but not in the .mat's TL: mapped, not scored" in ds.notes
+    assert not any("covers none" in w for w in ds.warnings)
