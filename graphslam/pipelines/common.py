@@ -1,4 +1,4 @@
-"""What the pipelines share: the stop guard (SIGINT, SIGTERM, SIGHUP), its test hook,
+"""What the pipelines share: the stop guard (SIGINT, SIGTERM, SIGHUP, SIGQUIT), its test hook,
 and the progress bar.
 
 A command runs inside one :func:`stop_guard` (``graphslam.cli.main`` opens it).
@@ -53,6 +53,8 @@ ODOMETRY_MODES: tuple[str, ...] = get_args(OdometryMode)
 EXIT_STATUS_OF_SIGNAL: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
 if hasattr(signal, "SIGHUP"):  # not on Windows
     EXIT_STATUS_OF_SIGNAL[signal.SIGHUP] = 129
+if hasattr(signal, "SIGQUIT"):  # Ctrl-\: killed a run with no line and lost its estimate (hostile pass 21)
+    EXIT_STATUS_OF_SIGNAL[signal.SIGQUIT] = 131
 STOP_SIGNALS = tuple(EXIT_STATUS_OF_SIGNAL)
 
 

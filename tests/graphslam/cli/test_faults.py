@@ -27,7 +27,7 @@ from graphslam.visualisation.recording import find_viewer
 from tests.conftest import ROOT
 
 RUN_FILES = {"trajectory.tum", "ground_truth.tum", "landmarks.csv", "metrics.json", "run.rrd"}
-STATUS = {"INT": 130, "TERM": 143, "HUP": 129}
+STATUS = {"INT": 130, "TERM": 143, "HUP": 129, "QUIT": 131}
 #: Longest a small command may take here, seconds (a hang fails, not blocks CI).
 TIMEOUT_S = 120
 
@@ -110,7 +110,7 @@ def test_nees_run_cut_keeps_every_file(tmp_path):
 
 
 @pytest.mark.parametrize("at, sig", [("step:3", "INT"), ("step:3", "TERM"), ("step:3", "HUP"),
-                                     ("finalize", "TERM"), ("write", "INT")])
+                                     ("step:3", "QUIT"), ("finalize", "TERM"), ("write", "INT")])
 def test_run_signal_keeps_every_file(tmp_path, at, sig):
     done = graphslam(tmp_path, "run", "--max-steps", "40", "--out", "o", "--quiet",
                      at=at, sig=sig)
