@@ -127,6 +127,16 @@ def cmd_train(args: argparse.Namespace) -> int:
         from slamcore.errors import ConfigError
 
         raise ConfigError("--branching is the tree's; --flat trains one flat k-means, no tree")
+    from graphslam.registry import is_bag_dataset
+    from slamcore.errors import InputError
+
+    for item in args.images:  # read as one image file it "could not be read": say what it is
+        if is_bag_dataset(str(item)):
+            raise InputError(
+                "is a ROS bag: vocab train reads image files and folders (graphslam loops BAG "
+                "--words N trains a vocabulary on a bag's images for its own search)",
+                item,
+            )
     paths, repeats = expand_images(args.images)
     # k-means starts from the descriptors' order: the same images listed in another
     # order (a shell's glob under another locale) must give the same vocabulary

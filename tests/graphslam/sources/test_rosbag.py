@@ -453,3 +453,11 @@ def test_compressed_images_of_changing_size(tmp_path, capsys):
     line = one_error_line(capsys, [*RUN, "--dataset", bag, "--odometry", "none", "--backend",
                                    "ekf", "--out", tmp_path / "o"])
     assert "/cam/image/compressed/000002: image is 48x64 px, the sequence's are 64x48" in line
+
+
+def test_vocab_train_names_a_bag_as_a_bag(tmp_path, capsys):
+    """Hostile pass 21: a bag given to vocab train was 'cannot read image (not an image
+    file...)', where loops takes the same bag."""
+    bag = small_bag(bag_path(tmp_path, "ros1"), "ros1")
+    line = one_error_line(capsys, ["vocab", "train", bag, "--out", tmp_path / "v.npz"])
+    assert "is a ROS bag: vocab train reads image files and folders" in line
