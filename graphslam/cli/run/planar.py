@@ -391,7 +391,8 @@ def format_summary(metrics) -> str:
         rows.append(
             (
                 f"ATE RMSE {name} [m]",
-                f"{a['ate_rmse_m']:.4f} (odometry {a['odometry_ate_rmse_m']:.4f}, {a['poses']} poses)",
+                f"{a['ate_rmse_m']:.4f} (odometry {a['odometry_ate_rmse_m']:.4f}, over {a['poses']} of "
+                f"{a['poses_estimated']} poses)",
             )
         )
     for note in metrics.dataset_notes or ():

@@ -405,6 +405,9 @@ def test_all_robots_run_on_isam2_and_each_is_scored(mrclam, tmp_path, capsys):
     for name, a in metrics["agents"].items():
         assert a["ate_rmse_m"] < 0.2, name
         assert (out / f"trajectory_{name.replace(' ', '')}.tum").is_file()
+        # the ATE's count is of the poses with truth (hostile pass 21: all of them were said)
+        assert a["poses"] <= a["poses_estimated"]
+    assert sum(a["poses"] for a in metrics["agents"].values()) == metrics["ate_poses"]
     assert not (out / "trajectory.tum").exists()  # five robots' stamps interleave
 
 
