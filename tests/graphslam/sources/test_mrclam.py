@@ -817,6 +817,8 @@ def test_a_map_is_judged_by_its_landmarks_not_the_folders_name(mrclam, tmp_path,
     for dataset, robot in ((folder, "2"), (renamed, "1"), (folder, "all")):
         assert main(["run", "--dataset", str(dataset), "--robot", robot, *steps, "--map", str(tmp_path / "m1"),
                      "--out", str(tmp_path / "loc")]) == 0, capsys.readouterr().err
+        association = json.loads((tmp_path / "loc" / "metrics.json").read_text())["association"]
+        assert association["landmarks_created"] == 0  # the map's, sighted: it counted them
     capsys.readouterr()
     moved = tmp_path / "moved"
     shutil.copytree(folder, moved)
