@@ -926,7 +926,69 @@ def attacks() -> list[Attack]:
                lambda f: (_kitti_seq(f, 8), (f / "kit" / "image_0" / "000005.png").write_bytes(b""),
                           ["compare", "--dataset", str(f / "kit"), "--rerun", "off", "--out", "out"])[2],
                check=_files("out/compare.json", "out/compare.png")),
+        # ---- the twenty-first pass (2026-12-07)
+        Attack("21st: a Plaza .mat giving a beacon twice (the last row won: map RMSE 95 m, blamed on units)",
+               "silent", lambda f: _run(_plaza_tl(f, [1.0, 100.0, 100.0]) / "Plaza2_DR.txt"),
+               check=_says("beacon 1 is given a second position", "err")),
+        Attack("21st: a robot's subject in Landmark_Groundtruth.dat (scored as a 16th landmark)", "silent",
+               lambda f: _run(_mrclam_appended(f, "Landmark_Groundtruth.dat", "3 1.0 1.0 0.0001 0.0001"),
+                              "--max-steps", "200"), check=_says("subject 3 is a robot", "err")),
+        Attack("21st: a folder of two Plaza logs (said as an image folder without images)", "fail",
+               lambda f: _run(_two_plaza_logs(f)), check=_says("holds 2 Plaza logs", "err")),
+        Attack("21st: MRCLAM truth that covers none of the log (ATE n/a, exit 0, a note only)", "silent",
+               lambda f: _run(_mrclam_edited(f, "Robot1_Groundtruth.dat",
+                                             lambda t: [f"{float(t[0]) + 1e5:.3f}", *t[1:]]), "--max-steps", "200"),
+               ("ok",), check=_warned("covers none of")),
+        Attack("21st: vocab train on a ROS bag (read as an unreadable image)", "fail",
+               lambda f: ["vocab", "train", str(_bag_at(f, "b.bag")), "--out", "v.npz", "--quiet"],
+               check=_says("is a ROS bag", "err")),
+        Attack("21st: sweep --out=-o (each run read '--config -o/runs/...' as a flag: all failed)", "fail",
+               lambda f: (_w(f, "sw.toml", SWEEP_20), ["sweep", "sw.toml", "--out=-o", "--workers", "1",
+                                                       "--quiet", "--no-plots"])[1], ("ok",),
+               check=_files("-o/sweep.csv")),
+        Attack("21st: a sweep whose YAML base config holds null (written as TOML no run read: all failed)",
+               "fail", lambda f: (_w(f, "base.yaml", "ekf:\n  known_gate_chi2_prob: null\n"),
+                                  _w(f, "sw.toml", SWEEP_20 + 'config = "base.yaml"\n'),
+                                  ["sweep", "sw.toml", "--out", "o", "--workers", "1", "--quiet", "--no-plots"])[2],
+               ("ok",), check=_says("1 ok")),
+        Attack("21st: Ctrl-\\ (SIGQUIT) to a run (killed, nothing written)", "fail",
+               lambda f: _run("synthetic", "--max-steps", "300"), ("ok",), ok_codes=(131,),
+               env={"GRAPHSLAM_SIGNAL_AT": "step:30", "GRAPHSLAM_SIGNAL": "QUIT"},
+               check=lambda f, o, e: _files("out/trajectory.tum", "out/metrics.json")(f, o, e)
+               or (None if "interrupted (SIGQUIT)" in e else "the quit is not said")),
     ]
+
+
+#: A sweep of one short synthetic EKF run.
+SWEEP_20 = '[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nseed = [0]\nmax_steps = 20\nnees = false\n'
+
+
+def _plaza_tl(folder: Path, row: list[float]) -> Path:
+    """:func:`_plaza_copy` with ``row`` (beacon id, x, y) added to its truth's TL."""
+    from scipy.io import loadmat, savemat
+
+    out = _plaza_copy(folder)
+    mat = {k: v for k, v in loadmat(str(out / "Plaza2_.mat")).items() if not k.startswith("__")}
+    mat["TL"] = np.vstack([mat["TL"], row])
+    savemat(str(out / "Plaza2_.mat"), mat)
+    return out
+
+
+def _two_plaza_logs(folder: Path) -> Path:
+    """Plaza1's and Plaza2's three files in one folder."""
+    out = _plaza_copy(folder)
+    dr = Path(_gtsam("Plaza1_DR.txt"))
+    for suffix in ("_DR.txt", "_TD.txt", "_.mat"):
+        (out / f"Plaza1{suffix}").write_bytes(dr.with_name(f"Plaza1{suffix}").read_bytes())
+    return out
+
+
+def _mrclam_appended(folder: Path, name: str, line: str) -> Path:
+    """:func:`_mrclam` with ``line`` appended to ``name``."""
+    mr = _mrclam(folder)
+    with open(mr / name, "a") as fh:
+        fh.write(line + "\n")
+    return mr
 
 
 def _plaza_gap(folder: Path) -> Path:

@@ -556,8 +556,11 @@ class ConfigFile:
             if self.path is None or e.path is not None:
                 raise
             key = next((k for k in kwargs if re.search(rf"\b{re.escape(k)}\b", str(e))), None)
+            reason, own, full = e.reason, f"{section_name(cls)}.", f"{'.'.join(where)}."
+            if own != full and reason.startswith(own):  # [loops.orb] read as "orb.scale_factor"
+                reason = full + reason[len(own) :]
             raise ConfigError(
-                str(e), self.path, self.line_of(*where, key) if key else self.line_of(*where)
+                reason, self.path, self.line_of(*where, key) if key else self.line_of(*where)
             ) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None

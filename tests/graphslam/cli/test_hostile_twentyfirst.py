@@ -141,3 +141,13 @@ def test_a_scheduler_without_workers_is_said(tmp_path):
         finally:
             executor.close()
     assert os.getcwd()
+
+
+def test_a_nested_tables_error_names_the_table_as_written(tmp_path, capsys, shared_data):
+    """[loops.orb] scale_factor = 0.5 was refused as 'orb.scale_factor', the name of
+    another table ([orb], the tracker's)."""
+    (tmp_path / "c.toml").write_text("[loops.orb]\nscale_factor = 0.5\n")
+    folder = shared_data / "slambook2_desk" / "images"
+    assert main(["loops", str(folder), "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "l.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "c.toml:2: loops.orb.scale_factor must be > 1.0" in err
