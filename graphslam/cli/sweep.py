@@ -10,7 +10,7 @@ from pathlib import Path
 
 from graphslam.cli.common import add_command, add_out_dir_option, add_quiet_option, path_arg
 from graphslam.cli.out_folder import claim_out_dir, moved_to
-from slamcore.errors import GraphSlamError, InputError
+from slamcore.errors import ConfigError, GraphSlamError, InputError
 
 EPILOG = """\
 sweep file (TOML):
@@ -76,6 +76,23 @@ def register(sub) -> None:
     )
     p.add_argument("--no-plots", action="store_true", help="write sweep.csv only")
     add_quiet_option(p)
+
+
+def _check_run_paths(out: Path, spec) -> None:
+    """Refuse, before any run, an ``--out`` under which the runs' files would pass the
+    system's path limit (each run failed with its own cut-off 'cannot write' line)."""
+    from slamcore.files import check_name_lengths
+
+    runs = spec.runs()
+    if not runs:
+        return
+    longest = max((r.run_id for r in runs), key=len)
+    # the longest name a run writes: a joint MRCLAM run's per-robot trajectory
+    deepest = Path(os.path.abspath(out)) / "runs" / longest / "trajectory_robot5.tum"
+    try:
+        check_name_lengths(deepest, "--out")
+    except ConfigError as e:
+        raise ConfigError(f"{e.reason} (for the runs' files under it: runs/{longest}/...)") from None
 
 
 def make_executor(workers: int, cluster: str | None):
@@ -151,7 +168,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from graphslam.pipelines.sweep import plot_files, read_rows, run_sweep
     from graphslam.pipelines.sweep_exec import score_finished
     from graphslam.pipelines.sweep_spec import parse_sweep
-    from slamcore.errors import ConfigError
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
     if workers < 1:
@@ -177,6 +193,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = parse_sweep(args.sweep_file)
     for note in spec.notes:
         warn(note)
+    _check_run_paths(args.out, spec)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(spec.runs())
     claim_out_dir(args.out)

@@ -151,3 +151,15 @@ def test_a_nested_tables_error_names_the_table_as_written(tmp_path, capsys, shar
     assert main(["loops", str(folder), "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "l.csv")]) == 2
     err = capsys.readouterr().err
     assert "c.toml:2: loops.orb.scale_factor must be > 1.0" in err
+
+
+def test_a_sweep_whose_runs_would_pass_the_path_limit_is_refused_first(tmp_path, capsys):
+    """An --out near the 4 kB limit started the sweep, and every run failed with a cut-off
+    'cannot write' line."""
+    (tmp_path / "sw.toml").write_text(SWEEP)
+    room = 4070 - len(str(tmp_path))
+    out = tmp_path.joinpath(*(["d" * 200] * (room // 201)), "e" * max(room % 201 - 1, 1))
+    assert main(["sweep", str(tmp_path / "sw.toml"), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "for the runs' files under it: runs/ekf-" in err
+    assert not (tmp_path / ("d" * 200)).exists()
