@@ -25,7 +25,10 @@ def test_run_says_frames_stored_twice_and_keeps_it(desk, tmp_path, capsys):
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: warning:")]
-    assert len(lines) == 1 and "same image twice (first: 03.png, 03b.png)" in lines[0]
+    # said once; the run's own doubts may follow (these five desk photos give the EKF few
+    # landmarks: since colour turns grey by cvtColor, fewer than 4 in every frame, said)
+    twice = [ln for ln in lines if "same image twice" in ln]
+    assert len(twice) == 1 and "same image twice (first: 03.png, 03b.png)" in twice[0]
     assert any("same image twice" in w for w in json.loads((out / "metrics.json").read_text())["warnings"])
 
 
