@@ -35,13 +35,18 @@ MAX_SUFFIX_BYTES = 16
 
 def write_error_line(e: OSError) -> str | None:
     """The one line for an OSError met writing that the user can act on (a full disk,
-    a file-size limit, a name too long, a folder in an output's place), or None for any
-    other (a bug: the traceback is wanted)."""
+    a file-size limit, a name too long, a folder in an output's place, a file the user
+    may not replace), or None for any other (a bug: the traceback is wanted)."""
     where = e.filename if e.filename is not None else "an output file"
     if e.errno in DISK_FULL_REASONS:
         return f"{DISK_FULL_REASONS[e.errno]} writing {where}: {e.strerror}"
     if e.errno == errno.ENAMETOOLONG:
         return f"{where}: a file or folder name is too long ({e.strerror})"
+    if e.errno in (errno.EPERM, errno.EACCES):
+        # an output the user may not replace (another user's file in a shared folder, an
+        # immutable one): the rename names the temporary file first and the output second
+        target = e.filename2 if getattr(e, "filename2", None) is not None else where
+        return f"{target} cannot be written or replaced ({e.strerror}: another user's, or read-only)"
     if e.errno == errno.EISDIR:
         # a folder under an output's name: the rename of the finished file onto it
         # names the temporary file first and the output second

@@ -163,3 +163,29 @@ def test_a_sweep_whose_runs_would_pass_the_path_limit_is_refused_first(tmp_path,
     err = capsys.readouterr().err
     assert "for the runs' files under it: runs/ekf-" in err
     assert not (tmp_path / ("d" * 200)).exists()
+
+
+def test_an_output_the_user_may_not_replace_is_one_line(tmp_path, monkeypatch, capsys):
+    """Hostile pass 22: an immutable run.rrd (or another user's file in a shared folder)
+    ended in PermissionError's traceback out of os.replace."""
+    import errno
+
+    from slamcore import files
+    from slamcore.files import write_error_line
+
+    e = PermissionError(errno.EPERM, "Operation not permitted", str(tmp_path / ".gs-x.part.rrd"), None,
+                        str(tmp_path / "run.rrd"))
+    assert write_error_line(e) == (f"{tmp_path / 'run.rrd'} cannot be written or replaced "
+                                   "(Operation not permitted: another user's, or read-only)")
+    real = files.os.replace
+
+    def refuse(src, dst):
+        if str(dst).endswith("metrics.json"):
+            raise PermissionError(errno.EACCES, "Permission denied", str(src), None, str(dst))
+        return real(src, dst)
+
+    monkeypatch.setattr(files.os, "replace", refuse)
+    assert main(["run", "--max-steps", "20", "--rerun", "off", "--out", str(tmp_path / "o")]) == 2
+    (line,) = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("graphslam: error:")]
+    assert "metrics.json cannot be written or replaced (Permission denied" in line
+    assert (tmp_path / "o" / "trajectory.tum").is_file()  # the files it could write are kept
