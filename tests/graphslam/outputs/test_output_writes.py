@@ -38,8 +38,10 @@ def test_a_refused_file_is_noted_the_next_written_and_the_earlier_file_removed(t
 
 def test_an_error_that_is_not_the_file_systems_refusal_is_raised_at_once(tmp_path):
     writes = OutputWrites(tmp_path)
-    with pytest.raises(PermissionError):
-        writes({}, "a", tmp_path / "a.tum", _refused(errno.EACCES))
+    # (EACCES and EPERM are a refusal since hostile pass 22: an output the user may not replace)
+    with pytest.raises(OSError) as err:
+        writes({}, "a", tmp_path / "a.tum", _refused(errno.EBADF))
+    assert err.value.errno == errno.EBADF
     writes.check([])  # nothing refused: no error
 
 
