@@ -113,7 +113,8 @@ def test_a_signal_to_a_running_benchmark_is_one_line(shared_data, tmp_path, sig,
 
 @pytest.mark.parametrize("error, line", [
     (OSError(28, "No space left on device"), "no space left on device writing an output file: No space left on device"),
-    (PermissionError(13, "Permission denied", "/ro/x.json"), "/ro/x.json: Permission denied"),
+    (PermissionError(13, "Permission denied", "/ro/x.json"),
+     "/ro/x.json cannot be written or replaced (Permission denied: another user's, or read-only)"),
     (IsADirectoryError(21, "Is a directory", "/tmp"), "/tmp is a folder; an output file of that name cannot be written"),
 ])
 def test_an_output_the_disk_refuses_is_one_line(entry, capsys, error, line):
