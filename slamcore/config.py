@@ -406,6 +406,7 @@ class ConfigFile:
         data, lines, sha256 = _parse(path)
         if not isinstance(data, dict):
             raise ConfigError("top level must be a table of sections", path, 1)
+        _check_keys(data, (), path, lines)
         for name, value in list(data.items()):
             if value is None and path.suffix.lower() in (".yaml", ".yml"):
                 data[name] = value = {}  # a YAML section whose keys are all commented out
@@ -564,6 +565,22 @@ class ConfigFile:
             ) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"[{'.'.join(where)}] {e}", self.path, self.line_of(*where)) from None
+
+
+def _check_keys(table: dict, where: tuple[str, ...], path: Path, lines: dict) -> None:
+    """ConfigError (file and line) for a key that is no text: YAML reads ``1:`` as the
+    number 1 and ``null:`` as None, which no setting is named (a section mixing them
+    with names raised TypeError out of sorting its keys: hostile pass 22)."""
+    for key, value in table.items():
+        if not isinstance(key, str):
+            raise ConfigError(
+                f"key {key!r} in [{'.'.join(where) or 'the top level'}] is not a name (YAML read it as "
+                f"{type(key).__name__}); settings and sections are named by words",
+                path,
+                lines.get((*where, str(key))),
+            )
+        if isinstance(value, dict):
+            _check_keys(value, (*where, key), path, lines)
 
 
 def _toml_value(value: Any) -> str:

@@ -141,7 +141,9 @@ def _config_warnings(out: Path, rows: list[dict]) -> dict[str, int]:
         for line in dict.fromkeys(text.splitlines()):
             if line.startswith(_CONFIG_WARNING):
                 said = line[len(_CONFIG_WARNING) :]
-                said = said.replace(str(out / "runs" / str(r.get("run_id"))) + "/", "")
+                # the runs get an absolute root (sweep.run_sweep); a relative --out as typed too
+                for folder in (Path(os.path.abspath(out)), out):
+                    said = said.replace(str(folder / "runs" / str(r.get("run_id"))) + "/", "")
                 counts[said] = counts.get(said, 0) + 1
     return counts
 

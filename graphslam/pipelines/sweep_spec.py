@@ -475,8 +475,14 @@ def _set_hint(key: str, sweep: dict, cfg: ConfigFile, path) -> str:
     return f"; a section's setting is swept under [sweep.set]: {' or '.join(hits)} = [...]" if hits else ""
 
 
-def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple, tuple]:
-    """``(keys, value lists)`` of ``[sweep.set]``, each value checked by its config class."""
+def _check_set(
+    sweep: dict, cfg: ConfigFile, grid_sections: dict, base: dict | None = None
+) -> tuple[tuple, tuple]:
+    """``(keys, value lists)`` of ``[sweep.set]``, each value checked by its config class
+    over the base config's section, and every combination of one section's swept values
+    (a value fine with the defaults may not be with the base's, and two values fine alone
+    may not be together: either failed every run it made, hostile pass 22)."""
+    base = base or {}
     table = sweep.get("set", {})
     if not isinstance(table, dict):
         raise ConfigError("[sweep.set] must be a table", cfg.path, cfg.line_of("sweep", "set"))
@@ -501,12 +507,53 @@ def _check_set(sweep: dict, cfg: ConfigFile, grid_sections: dict) -> tuple[tuple
         _refuse_repeats(options, f"[sweep.set] {dotted}", cfg, line)
         for value in options:
             try:
-                from_dict(cls, {key: value})
+                from_dict(cls, {**_section_of(base, section), key: value})
             except ConfigError as e:
                 raise ConfigError(f"[sweep.set] {dotted} = {quote(value)}: {e}", cfg.path, line) from None
         keys.append(dotted)
         values.append(tuple(options))
+    _check_combinations(keys, values, grid_sections, base, cfg)
     return tuple(keys), tuple(values)
+
+
+def _check_base(base_cfg: ConfigFile, sections: dict, table) -> None:
+    """Build every section the grid reads from the base config, with the first value of
+    each key ``[sweep.set]`` sweeps in it: an error names the base file and line (every
+    run failed instead, naming its own generated config.toml: hostile pass 22), or the
+    swept key; :func:`_check_set` then checks every swept value."""
+    swept: dict[str, dict] = {}
+    for dotted, options in (table if isinstance(table, dict) else {}).items():
+        if isinstance(dotted, str) and isinstance(options, list) and options:
+            section, _, key = dotted.partition(".")
+            swept.setdefault(section, {})[key] = options[0]
+    for name, cls in sections.items():
+        over = {k: v for k, v in swept.get(name, {}).items() if k in field_names(cls)}
+        base_cfg.section(cls, overrides=over or None, flags={k: f"[sweep.set] {name}.{k}" for k in over})
+
+
+def _section_of(base: dict, section: str) -> dict:
+    table = base.get(section)
+    return dict(table) if isinstance(table, dict) else {}
+
+
+def _check_combinations(keys: list, values: list, grid_sections: dict, base: dict, cfg: ConfigFile) -> None:
+    """ConfigError naming the first combination of one section's swept values (over the
+    base's) that its config class refuses; the grid is capped (:func:`_check_size`)."""
+    by_section: dict[str, list[int]] = {}
+    for i, dotted in enumerate(keys):
+        by_section.setdefault(dotted.partition(".")[0], []).append(i)
+    for section, idx in by_section.items():
+        if len(idx) < 2:
+            continue
+        for combo in itertools.islice(itertools.product(*(values[i] for i in idx)), MAX_RUNS):
+            settings = {keys[i].partition(".")[2]: v for i, v in zip(idx, combo, strict=True)}
+            try:
+                from_dict(grid_sections[section], {**_section_of(base, section), **settings})
+            except ConfigError as e:
+                said = ", ".join(f"{keys[i]} = {quote(v)}" for i, v in zip(idx, combo, strict=True))
+                raise ConfigError(
+                    f"[sweep.set] {said} together: {e}", cfg.path, cfg.line_of("sweep", "set")
+                ) from None
 
 
 def _check_size(sweep: dict, cfg: ConfigFile, outer: int, values: tuple[tuple, ...]) -> None:
@@ -598,9 +645,12 @@ def parse_sweep(path: str | Path) -> SweepSpec:
             cfg.line_of("sweep", "nees"),
         )
     base = {}
+    sections = _grid_sections(datasets, backends)
     if "config" in sweep:
-        base = dict(read_config(_base_config(sweep["config"], cfg, Path(path))).data)
-    keys, values = _check_set(sweep, cfg, _grid_sections(datasets, backends))
+        base_cfg = read_config(_base_config(sweep["config"], cfg, Path(path)))
+        _check_base(base_cfg, sections, sweep.get("set"))
+        base = dict(base_cfg.data)
+    keys, values = _check_set(sweep, cfg, sections, base)
     seeds = _seeds(sweep, cfg)
     _refuse_seeds_of_solves(seeds, datasets, backends, cfg)
     _refuse_keys_seed_sets(seeds, keys, cfg)

@@ -189,3 +189,35 @@ def test_an_output_the_user_may_not_replace_is_one_line(tmp_path, monkeypatch, c
     (line,) = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("graphslam: error:")]
     assert "metrics.json cannot be written or replaced (Permission denied" in line
     assert (tmp_path / "o" / "trajectory.tum").is_file()  # the files it could write are kept
+
+
+@pytest.mark.parametrize("text, line", [("synthetic:\n  1: 2\n  foo: 3\n", 2), ("1: {}\nsynthetic: {}\n", 1)])
+def test_a_yaml_key_that_is_no_word_is_refused_with_its_line(tmp_path, text, line):
+    """Hostile pass 22: a section mixing 1: with names raised TypeError (sorting its keys);
+    alone it was refused without a line."""
+    from slamcore.config import ConfigFile
+    from slamcore.errors import ConfigError
+
+    (tmp_path / "c.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=rf"c.yaml:{line}: key 1 in \[.*\] is not a name"):
+        ConfigFile.read(tmp_path / "c.yaml")
+
+
+def test_a_sweeps_base_config_is_checked_with_its_swept_values_before_any_run(tmp_path):
+    """Hostile pass 22: a bad value in the base config failed every run, each naming its
+    generated config.toml; swept values were checked against the defaults, not the base's,
+    so a grid right with the base was refused and one wrong with it failed at run time."""
+    from slamcore.errors import ConfigError
+
+    head = '[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nmax_steps = 50\nconfig = "base.toml"\n'
+    (tmp_path / "base.toml").write_text('[synthetic]\n\nseed = "x"\n')
+    (tmp_path / "s.toml").write_text(head)
+    with pytest.raises(ConfigError, match=r"base.toml:3: synthetic.seed: expected a number"):
+        parse_sweep(tmp_path / "s.toml")
+    (tmp_path / "base.toml").write_text("[ekf]\ngate_chi2_prob = 0.9\n")
+    (tmp_path / "s.toml").write_text(head + '[sweep.set]\n"ekf.new_landmark_chi2_prob" = [0.95, 0.99]\n')
+    assert parse_sweep(tmp_path / "s.toml").set_values == ((0.95, 0.99),)
+    (tmp_path / "base.toml").write_text("[synthetic]\nroute_width_m = 15.0\n")
+    (tmp_path / "s.toml").write_text(head + '[sweep.set]\n"synthetic.corner_radius_m" = [5.0, 9.0]\n')
+    with pytest.raises(ConfigError, match=r"s.toml:7: \[sweep.set\] synthetic.corner_radius_m = 9.0"):
+        parse_sweep(tmp_path / "s.toml")
