@@ -315,13 +315,28 @@ def strict_yaml_loader():
         # with its line, and 1e-3 is the float it looks like.
         def construct_yaml_int(self, node):
             text = str(node.value)
-            if re.fullmatch(r"[-+]?0[0-9_]+", text) or ":" in text or "_" in text:
+            if (
+                re.fullmatch(r"[-+]?0[0-9_]+", text)
+                or re.fullmatch(r"[-+]?0[bB][01_]+", text)  # YAML 1.2 reads 0b11 as a string
+                or ":" in text
+                or "_" in text
+            ):
                 raise yaml.MarkedYAMLError(
                     problem=f"{quote(text)} is not a plain integer (YAML 1.1 reads it as "
                     f"{super().construct_yaml_int(node)}); write the number you mean, or quote it",
                     problem_mark=node.start_mark,
                 )
             return super().construct_yaml_int(node)
+
+        def construct_yaml_float(self, node):
+            text = str(node.value)
+            if ":" in text or "_" in text:  # 1:30.0 read as 90.0, 1_0.5 as 10.5 (hostile pass 22)
+                raise yaml.MarkedYAMLError(
+                    problem=f"{quote(text)} is not a plain number (YAML 1.1 reads it as "
+                    f"{super().construct_yaml_float(node)}); write the number you mean, or quote it",
+                    problem_mark=node.start_mark,
+                )
+            return super().construct_yaml_float(node)
 
         def construct_yaml_bool(self, node):
             if str(node.value).lower() not in ("true", "false"):
@@ -334,6 +349,7 @@ def strict_yaml_loader():
 
     StrictLoader.add_constructor("tag:yaml.org,2002:int", StrictLoader.construct_yaml_int)
     StrictLoader.add_constructor("tag:yaml.org,2002:bool", StrictLoader.construct_yaml_bool)
+    StrictLoader.add_constructor("tag:yaml.org,2002:float", StrictLoader.construct_yaml_float)
     StrictLoader.add_implicit_resolver(
         "tag:yaml.org,2002:float",
         re.compile(r"^[-+]?[0-9]+(?:\.[0-9]*)?[eE][-+]?[0-9]+$"),

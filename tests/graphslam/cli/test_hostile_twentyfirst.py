@@ -221,3 +221,17 @@ def test_a_sweeps_base_config_is_checked_with_its_swept_values_before_any_run(tm
     (tmp_path / "s.toml").write_text(head + '[sweep.set]\n"synthetic.corner_radius_m" = [5.0, 9.0]\n')
     with pytest.raises(ConfigError, match=r"s.toml:7: \[sweep.set\] synthetic.corner_radius_m = 9.0"):
         parse_sweep(tmp_path / "s.toml")
+
+
+@pytest.mark.parametrize("value, read", [("1:30.0", "90.0"), ("1_0.5", "10.5"), ("0b11", "3")])
+def test_yaml_1_1_numbers_are_refused_as_floats_and_binary_too(tmp_path, value, read):
+    """Hostile pass 22: the refusal of YAML 1.1 readings held for decimal integers only:
+    1:30.0 ran as 90.0, 1_0.5 as 10.5, 0b11 as 3."""
+    from slamcore.config import ConfigFile
+    from slamcore.errors import ConfigError
+
+    (tmp_path / "c.yaml").write_text(f"synthetic:\n  sensor_range_m: {value}\n")
+    with pytest.raises(ConfigError, match=rf"c.yaml:2: '{value}' is not a plain .*reads it as {read}\)"):
+        ConfigFile.read(tmp_path / "c.yaml")
+    (tmp_path / "c.yaml").write_text("synthetic:\n  sensor_range_m: 12.5\n  dt_s: 1e-1\n")
+    assert ConfigFile.read(tmp_path / "c.yaml").data["synthetic"] == {"sensor_range_m": 12.5, "dt_s": 0.1}
