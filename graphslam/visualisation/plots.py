@@ -19,9 +19,31 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     errors with 3-sigma bounds over time."""
     gt = dataset.ground_truth()
     lm = np.array(list(dataset.landmarks_true.values())).reshape(-1, 2) if dataset.landmarks_true else None
-    tracks = [(e.backend, e.result.estimate.wTb[:, :2], e.result.estimate.landmarks_w) for e in entries]
+    # one line per robot of a joint run (--robot all): its poses in frame order were one
+    # zig-zag line across the room (hostile pass 22), as the recording already splits them
+    agent_of = {int(pid): i for i, (_, ids) in enumerate(dataset.agents) for pid in ids}
+
+    def robot_of(ids) -> np.ndarray:
+        return np.array([agent_of.get(int(i), -1) for i in ids], dtype=np.int64)
+
+    def strips(ids, xy) -> list[np.ndarray]:
+        robot = robot_of(ids)
+        return [xy[robot == r] for r in sorted(set(robot.tolist()))]
+
+    tracks = [
+        (
+            e.backend,
+            strips(e.result.estimate.pose_ids, e.result.estimate.wTb[:, :2]),
+            e.result.estimate.landmarks_w,
+        )
+        for e in entries
+    ]
     errors = []
+    truth_strips = None
     if gt is not None:
+        # the truth of the poses run, not of the whole log (--max-steps)
+        ran = np.isin(gt[0], np.concatenate([e.result.estimate.pose_ids for e in entries]))
+        truth_strips = strips(gt[0][ran], gt[1][ran][:, :2])
         gt_of = dict(zip(gt[0].tolist(), gt[1], strict=True))
         for e in entries:
             est = e.result.estimate
@@ -32,11 +54,14 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
                 if est.pose_covariances is None
                 else 3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances[has]), 0, None))
             )
-            errors.append((e.backend, np.flatnonzero(has), err, s3))
+            steps, robot = np.flatnonzero(has), robot_of(est.pose_ids[has])
+            for r in sorted(set(robot.tolist())):
+                mine = robot == r
+                errors.append((e.backend, steps[mine], err[mine], None if s3 is None else s3[mine]))
     return _comparison_figure(
         path,
         f"{dataset.name}: trajectories",
-        None if gt is None else gt[1][:, :2],
+        truth_strips,
         lm,
         tracks,
         errors,
@@ -151,20 +176,23 @@ def _comparison_figure(
     error_title: str,
     step_label: str,
 ) -> Path:
-    """Trajectories ``(label, (N, 2) path, (L, 2) landmarks)`` over ``truth_xy`` on the
-    left; per error component, ``(label, steps, (N, r) errors, (N, r) 3-sigma or None)``
-    on the right (none without truth)."""
+    """Trajectories ``(label, (N, 2) path or a list of them, (L, 2) landmarks)`` over
+    ``truth_xy`` (the same) on the left; per error component, ``(label, steps, (N, r)
+    errors, (N, r) 3-sigma or None)`` on the right (none without truth; a label may come
+    once a robot). A list is drawn as separate lines of one colour, labelled once."""
     plt = _pyplot()
     n_err = len(error_labels) if errors else 0
     fig = plt.figure(figsize=(13, 7 if n_err else 6), constrained_layout=True)
     grid = fig.add_gridspec(max(n_err, 1), 2, width_ratios=[1.1, 1])
     ax = fig.add_subplot(grid[:, 0])
     if truth_xy is not None:
-        ax.plot(truth_xy[:, 0], truth_xy[:, 1], color="0.6", lw=2, label="ground truth")
+        for k, xy in enumerate(truth_xy if isinstance(truth_xy, list) else [truth_xy]):
+            ax.plot(xy[:, 0], xy[:, 1], color="0.6", lw=2, label=None if k else "ground truth")
     if marks_xy is not None:
         ax.scatter(marks_xy[:, 0], marks_xy[:, 1], marker="x", color="0.6", s=12, label="true landmarks")
-    for i, (label, xy, landmarks) in enumerate(tracks):
-        ax.plot(xy[:, 0], xy[:, 1], lw=1, color=f"C{i}", label=label)
+    for i, (label, path_xy, landmarks) in enumerate(tracks):
+        for k, xy in enumerate(path_xy if isinstance(path_xy, list) else [path_xy]):
+            ax.plot(xy[:, 0], xy[:, 1], lw=1, color=f"C{i}", label=None if k else label)
         if len(landmarks):
             ax.scatter(landmarks[:, 0], landmarks[:, 1], s=6, color=f"C{i}")
     ax.set_aspect("equal", adjustable="datalim")
@@ -175,9 +203,12 @@ def _comparison_figure(
     if n_err:
         axes = [fig.add_subplot(grid[r, 1]) for r in range(n_err)]
         colour = {label: f"C{i}" for i, (label, *_) in enumerate(tracks)}
+        shown: set[str] = set()
         for label, steps, err, s3 in errors:
+            legend = None if label in shown else label
+            shown.add(label)
             for r in range(n_err):
-                axes[r].plot(steps, err[:, r], color=colour[label], lw=0.8, label=label)
+                axes[r].plot(steps, err[:, r], color=colour[label], lw=0.8, label=legend)
                 if s3 is not None:
                     axes[r].fill_between(steps, -s3[:, r], s3[:, r], color=colour[label], alpha=0.15, lw=0)
         for r in range(n_err):

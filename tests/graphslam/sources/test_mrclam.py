@@ -867,3 +867,23 @@ def test_a_given_truth_replaces_the_readers_lines_on_its_own(mrclam, tmp_path, c
     notes = json.loads((tmp_path / "b" / "metrics.json").read_text())["dataset_notes"]
     assert not any("truth on " in n for n in notes)
     assert any(n.startswith("truth from gt.tum: ") for n in notes)
+
+
+def test_the_comparison_plot_draws_one_line_a_robot(mrclam, monkeypatch, tmp_path):
+    """Hostile pass 22: compare.png of --robot all drew each back end's poses in frame order,
+    one zig-zag line across the five robots, over the whole log's truth."""
+    from types import SimpleNamespace
+
+    from graphslam.sources.planar.mrclam_joint import read_mrclam_all
+    from graphslam.visualisation import plots
+
+    ds = read_mrclam_all(mrclam, MrclamConfig()).truncated(400)
+    result = pipeline.run(ds, registry.make_backend("ekf"))
+    seen = {}
+    monkeypatch.setattr(plots, "_comparison_figure", lambda path, title, truth, marks, tracks, errors, *a: seen.update(
+        truth=truth, tracks=tracks, errors=errors) or path)
+    plots.plot_comparison([SimpleNamespace(backend="ekf", result=result)], ds, tmp_path / "c.png")
+    (label, strips, _), = seen["tracks"]
+    assert label == "ekf" and len(strips) == 5 and sum(len(s) for s in strips) == len(result.estimate.pose_ids)
+    assert len(seen["truth"]) == 5 and sum(len(s) for s in seen["truth"]) <= 400
+    assert len(seen["errors"]) == 5 and {e[0] for e in seen["errors"]} == {"ekf"}
