@@ -38,9 +38,17 @@ def clear_earlier_outputs(out_dir: Path, will_write, known: tuple[str, ...] | No
         _refuse_files_of_unknown_origin(out_dir, will_write, FOLDER_OUTPUT_NAMES)
     removed = remove_stale_outputs(out_dir, will_write, FOLDER_OUTPUT_NAMES if known is None else known)
     if removed:
+        # a recording streamed to a viewer is written all the same if the viewer fails
+        # (recording.SavedInstead): "no such file" then read as a promise broken
+        streamed = any(p.suffix == ".rrd" for p in removed)
         print(
             f"removed from {out_dir}/ an earlier command's {', '.join(p.name for p in removed)} "
-            "(this one writes no such file: they would read as its own)"
+            + (
+                "(this one writes none of these, a recording only if a viewer it streams to "
+                "does not take it: they would read as its own)"
+                if streamed
+                else "(this one writes no such file: they would read as its own)"
+            )
         )
 
 

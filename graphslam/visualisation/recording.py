@@ -532,9 +532,12 @@ class RerunLog:
             )
         path = Path(self.path)
         move_into_place(backup, path)
+        # never reached or lost midway: the copy on disk is the recording either way (it
+        # read "stopped during the run" of a viewer never reached, after a line saying an
+        # earlier run.rrd was removed because this command would write none: hostile pass 22)
         raise SavedInstead(
-            f"the Rerun viewer stopped taking the stream during the run ({failed}); "
-            f"{path.name} holds the whole recording",
+            f"the Rerun viewer did not take the whole stream ({failed}); {path.name} holds the "
+            "whole recording instead, written from the copy kept for that case",
             path,
         )
 

@@ -235,3 +235,13 @@ def test_yaml_1_1_numbers_are_refused_as_floats_and_binary_too(tmp_path, value, 
         ConfigFile.read(tmp_path / "c.yaml")
     (tmp_path / "c.yaml").write_text("synthetic:\n  sensor_range_m: 12.5\n  dt_s: 1e-1\n")
     assert ConfigFile.read(tmp_path / "c.yaml").data["synthetic"] == {"sensor_range_m": 12.5, "dt_s": 0.1}
+
+
+def test_a_removed_recording_is_not_said_to_be_one_this_command_never_writes(tmp_path, capsys):
+    """Hostile pass 22: '--rerun connect' said an earlier run.rrd was removed as 'this one
+    writes no such file', then wrote one when the viewer was never reached."""
+    assert main(["run", "--max-steps", "10", "--rerun", "save", "--out", str(tmp_path / "o")]) == 0
+    capsys.readouterr()
+    assert main(["run", "--max-steps", "10", "--rerun", "off", "--out", str(tmp_path / "o")]) == 0
+    said = capsys.readouterr().out
+    assert "an earlier command's run.rrd" in said and "a recording only if a viewer it streams to" in said
