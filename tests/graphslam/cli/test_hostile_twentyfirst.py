@@ -245,3 +245,21 @@ def test_a_removed_recording_is_not_said_to_be_one_this_command_never_writes(tmp
     assert main(["run", "--max-steps", "10", "--rerun", "off", "--out", str(tmp_path / "o")]) == 0
     said = capsys.readouterr().out
     assert "an earlier command's run.rrd" in said and "a recording only if a viewer it streams to" in said
+
+
+def test_pose_graph_compare_warms_every_solver_up_before_timing_any(tmp_path, monkeypatch):
+    """Hostile pass 22: the first solver named paid the process's one-time costs, and the
+    table ranked the solvers by the order they were named."""
+    from graphslam.pipelines import compare_posegraph
+    from graphslam.sources.posegraph_files import read_pose_graph_file
+
+    g = tmp_path / "chain.g2o"
+    g.write_text("".join(f"VERTEX_SE2 {k} {k} 0 0\n" for k in range(10))
+                 + "".join(f"EDGE_SE2 {k} {k + 1} 1 0 0 100 0 0 100 0 1000\n" for k in range(9)))
+    calls = []
+    real = compare_posegraph.run
+    monkeypatch.setattr(compare_posegraph, "run", lambda graph, name, config: calls.append(
+        (graph.n_poses, name)) or real(graph, name, config))
+    compare_posegraph.compare(read_pose_graph_file(g), ["batch", "isam2", "batch"])
+    assert calls[:2] == [(4, "batch"), (4, "isam2")]  # each solver once, on the start
+    assert calls[2:] == [(10, "batch"), (10, "isam2"), (10, "batch")]
