@@ -66,7 +66,7 @@ from graphslam.sources.planar.mrclam_checks import (
 from graphslam.sources.planar.mrclam_motion import COVARIANCE_FLOOR, MotionModel, held_commands, integrate
 from graphslam.sources.planar.synthetic import MAX_STEPS
 from graphslam.sources.tokens import NUMBER_TOKEN
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError, InputError, quote
 from slamcore.files import folder_name
 from slamcore.input_files import check_input_path, check_plain_text
@@ -211,6 +211,15 @@ class MrclamConfig(Validated):
         "correlation_time_s",
         "range_correlated_share",
         "bearing_correlated_share",
+    )
+    #: settings read only in some modes of the others (hostile pass 22: each ran silent)
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(("robot",), "all_robots = false (every robot runs under it)", lambda c: not c.all_robots),
+        Gate(
+            ("range_correlated_share", "bearing_correlated_share"),
+            "correlation_time_s > 0 (0: the sightings' errors independent)",
+            lambda c: c.correlation_time_s > 0.0,
+        ),
     )
     #: ``robot``: which robot's log; ``all_robots``: every robot in one graph
     #: (:mod:`graphslam.sources.planar.mrclam_joint`), ``robot`` then unused.

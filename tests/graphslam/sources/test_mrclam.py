@@ -887,3 +887,17 @@ def test_the_comparison_plot_draws_one_line_a_robot(mrclam, monkeypatch, tmp_pat
     assert label == "ekf" and len(strips) == 5 and sum(len(s) for s in strips) == len(result.estimate.pose_ids)
     assert len(seen["truth"]) == 5 and sum(len(s) for s in seen["truth"]) <= 400
     assert len(seen["errors"]) == 5 and {e[0] for e in seen["errors"]} == {"ekf"}
+
+
+@pytest.mark.parametrize("config, flags, said", [
+    ("[mrclam]\nall_robots = true\nrobot = 3\n", [], "[mrclam] robot did nothing"),
+    ("[mrclam]\ncorrelation_time_s = 0\nrange_correlated_share = 0.1\n", ["--robot", "1"],
+     "[mrclam] range_correlated_share did nothing"),
+])
+def test_mrclam_settings_another_leaves_unread_are_said(mrclam, tmp_path, capsys, config, flags, said):
+    """Hostile pass 22: robot under all_robots, and the correlated shares without a
+    correlation time, ran byte-identical and silent."""
+    (tmp_path / "c.toml").write_text(config)
+    assert main(["run", "--dataset", str(mrclam), *flags, "--config", str(tmp_path / "c.toml"),
+                 "--max-steps", "100", "--rerun", "off", "--out", str(tmp_path / "o")]) == 0
+    assert said in capsys.readouterr().err
