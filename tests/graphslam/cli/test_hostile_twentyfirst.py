@@ -263,3 +263,18 @@ def test_pose_graph_compare_warms_every_solver_up_before_timing_any(tmp_path, mo
     compare_posegraph.compare(read_pose_graph_file(g), ["batch", "isam2", "batch"])
     assert calls[:2] == [(4, "batch"), (4, "isam2")]  # each solver once, on the start
     assert calls[2:] == [(10, "batch"), (10, "isam2"), (10, "batch")]
+
+
+def test_loops_says_when_its_model_leaves_the_camera_unused(tmp_path, capsys, shared_data):
+    """Hostile pass 22: --intrinsics under model = "fundamental" ran identical to a run
+    without it, unsaid; "essential" without one failed naming neither file nor line."""
+    desk = shared_data / "slambook2_desk" / "images"
+    (tmp_path / "K.txt").write_text("520 520 319.5 239.5\n")
+    (tmp_path / "f.toml").write_text('[loop_verify]\nmodel = "fundamental"\n')
+    assert main(["loops", str(desk), "--config", str(tmp_path / "f.toml"), "--intrinsics", str(tmp_path / "K.txt"),
+                 "--quiet", "--out", str(tmp_path / "f.csv")]) == 0
+    assert 'model = "fundamental" (--config line 2) checks pairs without the camera' in capsys.readouterr().err
+    (tmp_path / "e.toml").write_text('[loop_verify]\nmodel = "essential"\n')
+    assert main(["loops", str(desk), "--config", str(tmp_path / "e.toml"), "--quiet",
+                 "--out", str(tmp_path / "e.csv")]) == 2
+    assert 'e.toml:2: [loop_verify] model = "essential" needs the camera' in capsys.readouterr().err
