@@ -23,7 +23,7 @@ from graphslam.cli.common import (
     seed_arg,
 )
 from graphslam.cli.out_folder import OutputFolder
-from slamcore.errors import GraphSlamError
+from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.files import check_output_dir, folder_name
 
 EPILOG = """\
@@ -285,6 +285,27 @@ def _out_dir(args, name: str, rerun_mode: str) -> OutputFolder:
     )
 
 
+def _refuse_settings_names_choose(names: list[str], config) -> None:
+    """ConfigError for a config setting that a compared entry's name replaces
+    (``[mono_ekf] landmark_param = "ahp"`` under ``ekf-idp`` ran idp, unsaid: hostile pass
+    22), as ``run`` refuses ``[fastslam] version = 1`` under ``fastslam2``."""
+    from graphslam import registry
+    from slamcore.config import section_name
+
+    for name in names:
+        kind, overrides = registry.visual_compare_backend(name)
+        section = section_name(registry.visual_backend_config(kind))
+        table = config.data.get(section) or {}
+        for key, value in overrides.items():
+            if key in table and table[key] != value:
+                raise ConfigError(
+                    f"[{section}] {key} = {table[key]!r} contradicts the compared entry {name} "
+                    f"({key} = {value!r}); the entry's name chooses it: remove the setting",
+                    config.path,
+                    config.line_of(section, key),
+                )
+
+
 def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[int, bool]:
     """``compare`` on an image sequence (:mod:`graphslam.pipelines.compare_spatial`): the
     exit status, and whether every run sent back the config sections it read."""
@@ -298,6 +319,7 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
 
     names = args.backends or list(VISUAL_COMPARE_BACKENDS)
     _check_names(names, VISUAL_COMPARE_BACKENDS, "image sequences")
+    _refuse_settings_names_choose(names, config)
     refuse_intrinsics_estimate(args.intrinsics, "compare")
     sequence = registry.load_image_sequence(
         args.dataset, seed=args.seed, config=config, topics=args.topics, intrinsics=args.intrinsics

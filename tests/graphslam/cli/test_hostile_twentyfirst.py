@@ -278,3 +278,11 @@ def test_loops_says_when_its_model_leaves_the_camera_unused(tmp_path, capsys, sh
     assert main(["loops", str(desk), "--config", str(tmp_path / "e.toml"), "--quiet",
                  "--out", str(tmp_path / "e.csv")]) == 2
     assert 'e.toml:2: [loop_verify] model = "essential" needs the camera' in capsys.readouterr().err
+
+
+def test_compare_refuses_a_setting_an_entrys_name_replaces(tmp_path, capsys):
+    """Hostile pass 22: [mono_ekf] landmark_param = "ahp" under --backends ekf-idp ran idp."""
+    (tmp_path / "c.toml").write_text('[mono_ekf]\nlandmark_param = "ahp"\n')
+    assert main(["compare", "--dataset", "synthetic-images", "--max-steps", "5", "--rerun", "off", "--config",
+                 str(tmp_path / "c.toml"), "--backends", "ekf-idp", "--out", str(tmp_path / "o")]) == 2
+    assert "c.toml:2: [mono_ekf] landmark_param = 'ahp' contradicts the compared entry ekf-idp" in capsys.readouterr().err
