@@ -174,20 +174,7 @@ def cmd_loops(args: argparse.Namespace) -> int:
     detector_config = config.section(LoopDetectorConfig)
     verify_config = config.section(VerifyConfig)
     K, distortion = _camera(args, bag, paths)
-    model_line = config.line_of("loop_verify", "model")
-    if verify_config.model == "essential" and K is None:  # refused at the first pair, naming no file
-        raise ConfigError(
-            '[loop_verify] model = "essential" needs the camera: give --intrinsics (or "auto")',
-            config.path,
-            model_line,
-        )
-    if K is not None and verify_config.model in ("fundamental", "homography"):
-        # the essential-matrix check the help promises with --intrinsics is off: it ran
-        # identical to a run without it, unsaid (hostile pass 22)
-        warn(
-            f'--intrinsics: [loop_verify] model = "{verify_config.model}" (--config line {model_line}) '
-            "checks pairs without the camera; only its distortion, if any, is used"
-        )
+    _check_camera_use(verify_config.model, K, config)
 
     if args.vocab is not None and args.words is not None:
         raise ConfigError("give --vocab FILE or --words N, not both")
@@ -319,6 +306,25 @@ def _images(args):
                     f"{args.frames} leaves out; scored on the other {len(truth)}"
                 )
     return paths, times, truth, bag
+
+
+def _check_camera_use(model: str, K, config) -> None:
+    """Refuse ``[loop_verify] model = "essential"`` without a camera (it failed at the first
+    pair, naming neither file nor line), and say that "fundamental" or "homography" leaves
+    ``--intrinsics`` unused: the essential-matrix check the help promises with it is off,
+    and the run was identical to one without it, unsaid (hostile pass 22)."""
+    line = config.line_of("loop_verify", "model")
+    if model == "essential" and K is None:
+        raise ConfigError(
+            '[loop_verify] model = "essential" needs the camera: give --intrinsics (or "auto")',
+            config.path,
+            line,
+        )
+    if K is not None and model in ("fundamental", "homography"):
+        warn(
+            f'--intrinsics: [loop_verify] model = "{model}" (--config line {line}) '
+            "checks pairs without the camera; only its distortion, if any, is used"
+        )
 
 
 def _camera(args, bag, paths):

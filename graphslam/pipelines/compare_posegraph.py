@@ -104,9 +104,7 @@ def _warm_up(graph: pg.PoseGraph, backends: list[str], config) -> None:
         start = truncated(graph, WARM_UP_POSES)
     except GraphSlamError:
         return
-    for name in dict.fromkeys(backends):
-        if stop_requested():
-            return
+    for name in dict.fromkeys(backends):  # four poses each: the stop is asked in the loop after
         try:
             run(start, name, config)
         except GraphSlamError:
