@@ -475,6 +475,20 @@ def _set_hint(key: str, sweep: dict, cfg: ConfigFile, path) -> str:
     return f"; a section's setting is swept under [sweep.set]: {' or '.join(hits)} = [...]" if hits else ""
 
 
+def _dotted(table: dict, prefix: str = "") -> dict:
+    """``[sweep.set]`` with its sub-tables as dotted keys: TOML reads an unquoted
+    ``ekf.association = [...]`` (and a ``[sweep.set.ekf]`` table) as a table ``ekf``,
+    which was refused as "'ekf': not a section.key" with no line (hostile pass 22)."""
+    out: dict = {}
+    for key, value in table.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and isinstance(key, str):
+            out.update(_dotted(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
 def _check_set(
     sweep: dict, cfg: ConfigFile, grid_sections: dict, base: dict | None = None
 ) -> tuple[tuple, tuple]:
@@ -592,6 +606,8 @@ def parse_sweep(path: str | Path) -> SweepSpec:
     sweep = cfg.data.get("sweep")
     if sweep is None:
         raise ConfigError("no [sweep] table", cfg.path)
+    if isinstance(sweep, dict) and isinstance(sweep.get("set"), dict):
+        sweep = {**sweep, "set": _dotted(sweep["set"])}
     for key in sweep:
         if key not in SWEEP_KEYS:
             hint = _set_hint(key, sweep, cfg, path)

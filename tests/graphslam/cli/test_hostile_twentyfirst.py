@@ -286,3 +286,17 @@ def test_compare_refuses_a_setting_an_entrys_name_replaces(tmp_path, capsys):
     assert main(["compare", "--dataset", "synthetic-images", "--max-steps", "5", "--rerun", "off", "--config",
                  str(tmp_path / "c.toml"), "--backends", "ekf-idp", "--out", str(tmp_path / "o")]) == 2
     assert "c.toml:2: [mono_ekf] landmark_param = 'ahp' contradicts the compared entry ekf-idp" in capsys.readouterr().err
+
+
+def test_an_unquoted_dotted_key_in_a_sweeps_set_table_is_the_quoted_one(tmp_path):
+    """Hostile pass 22: TOML reads ekf.association = [...] as a table ekf, refused as
+    "'ekf': not a section.key" with no line."""
+    from slamcore.errors import ConfigError
+
+    head = '[sweep]\ndataset = ["synthetic"]\nbackend = ["ekf"]\nmax_steps = 50\n[sweep.set]\n'
+    (tmp_path / "s.toml").write_text(head + 'ekf.association = ["known", "unknown"]\n')
+    spec = parse_sweep(tmp_path / "s.toml")
+    assert spec.set_keys == ("ekf.association",) and spec.set_values == (("known", "unknown"),)
+    (tmp_path / "s.toml").write_text(head + 'ekf.association = ["known", "bogus"]\n')
+    with pytest.raises(ConfigError, match=r"s.toml:6: \[sweep.set\] ekf.association = 'bogus'"):
+        parse_sweep(tmp_path / "s.toml")
