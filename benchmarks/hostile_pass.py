@@ -956,6 +956,29 @@ def attacks() -> list[Attack]:
                env={"GRAPHSLAM_SIGNAL_AT": "step:30", "GRAPHSLAM_SIGNAL": "QUIT"},
                check=lambda f, o, e: _files("out/trajectory.tum", "out/metrics.json")(f, o, e)
                or (None if "interrupted (SIGQUIT)" in e else "the quit is not said")),
+        # ---- the twenty-second pass (2026-12-07)
+        Attack("22nd: a YAML section mixing a key 1: with names (TypeError sorting its keys)", "fail",
+               lambda f: _run("synthetic", "--max-steps", "20", "--config",
+                              str(_w(f, "c.yaml", "synthetic:\n  1: 2\n  foo: 3\n"))),
+               check=_says("c.yaml:2: key 1 in [synthetic] is not a name", "err")),
+        Attack("22nd: YAML 1:30.0 (run as 90.0)", "silent",
+               lambda f: _run("synthetic", "--max-steps", "20", "--config",
+                              str(_w(f, "c.yaml", "synthetic:\n  sensor_range_m: 1:30.0\n"))),
+               check=_says("is not a plain number", "err")),
+        Attack("22nd: a sweep's base config with a bad value (every run failed, naming its own copy)", "fail",
+               lambda f: (_w(f, "base.toml", '[synthetic]\nseed = "x"\n'),
+                          _w(f, "sw.toml", SWEEP_20 + 'config = "base.toml"\n'),
+                          ["sweep", "sw.toml", "--out", "o", "--workers", "1", "--quiet"])[2],
+               check=_says("base.toml:2: synthetic.seed", "err")),
+        Attack("22nd: loops with model = essential and no camera (refused at the first pair, no line)", "fail",
+               lambda f: ["loops", str(_desk_copy(f, _DESK_3)), "--out", "l.csv", "--quiet", "--config",
+                          str(_w(f, "c.toml", '[loop_verify]\nmodel = "essential"\n'))],
+               check=_says('c.toml:2: [loop_verify] model = "essential" needs the camera', "err")),
+        Attack("22nd: compare ekf-idp under landmark_param = ahp (ran idp, unsaid)", "silent",
+               lambda f: ["compare", "--dataset", "synthetic-images", "--max-steps", "5", "--rerun", "off",
+                          "--backends", "ekf-idp", "--out", "out", "--config",
+                          str(_w(f, "c.toml", '[mono_ekf]\nlandmark_param = "ahp"\n'))],
+               check=_says("contradicts the compared entry ekf-idp", "err")),
     ]
 
 
