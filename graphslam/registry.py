@@ -613,19 +613,28 @@ def _settings(name: str, impl: Implementation, config: ConfigSource, overrides: 
         raise ConfigError(f"config must be a ConfigFile or a path, got {type(config).__name__}")
     cls = load(impl.config)
     file = config if isinstance(config, ConfigFile) else ConfigFile.read(config)
-    section = section_name(cls)
+    refuse_contradicted(file, section_name(cls), impl.fixed, f"the back end {name}", overrides)
+    return file.section(cls, {**(overrides or {}), **impl.fixed})
+
+
+def refuse_contradicted(
+    file: ConfigFile, section: str, chosen: dict, who: str, overrides: dict | None = None
+) -> None:
+    """ConfigError for a setting of ``section`` (in ``file`` or ``overrides``) that ``who``
+    (a back end, a compared entry) fixes otherwise by its name (``chosen``): ``[fastslam]
+    version = 1`` under ``--backend fastslam2`` ran FastSLAM 2.0, and ``[mono_ekf]
+    landmark_param = "ahp"`` under compare's ``ekf-idp`` ran idp, each with nothing said."""
     in_file = file.data.get(section) or {}
     given = {**in_file, **{k: v for k, v in (overrides or {}).items() if v is not None}}
-    for key, value in impl.fixed.items():
+    for key, value in chosen.items():
         if key in given and given[key] != value:
             line = file.line_of(section, key) if key in in_file else None
             raise ConfigError(
-                f"[{section}] {key} = {quote(given[key])} contradicts the back end {name} "
-                f"({key} = {value}); the back end's name chooses it: remove the setting",
+                f"[{section}] {key} = {quote(given[key])} contradicts {who} ({key} = {quote(value)}); "
+                "its name chooses it: remove the setting",
                 file.path if line is not None else None,
                 line,
             )
-    return file.section(cls, {**(overrides or {}), **impl.fixed})
 
 
 def visual_compare_backend(name: str) -> tuple[str, dict]:

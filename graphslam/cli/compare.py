@@ -23,7 +23,7 @@ from graphslam.cli.common import (
     seed_arg,
 )
 from graphslam.cli.out_folder import OutputFolder
-from slamcore.errors import ConfigError, GraphSlamError
+from slamcore.errors import GraphSlamError
 from slamcore.files import check_output_dir, folder_name
 
 EPILOG = """\
@@ -295,15 +295,7 @@ def _refuse_settings_names_choose(names: list[str], config) -> None:
     for name in names:
         kind, overrides = registry.visual_compare_backend(name)
         section = section_name(registry.visual_backend_config(kind))
-        table = config.data.get(section) or {}
-        for key, value in overrides.items():
-            if key in table and table[key] != value:
-                raise ConfigError(
-                    f"[{section}] {key} = {table[key]!r} contradicts the compared entry {name} "
-                    f"({key} = {value!r}); the entry's name chooses it: remove the setting",
-                    config.path,
-                    config.line_of(section, key),
-                )
+        registry.refuse_contradicted(config, section, overrides, f"the compared entry {name}")
 
 
 def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[int, bool]:

@@ -78,12 +78,11 @@ def register(sub) -> None:
     add_quiet_option(p)
 
 
-def _check_run_paths(out: Path, spec) -> None:
+def _check_run_paths(out: Path, runs) -> None:
     """Refuse, before any run, an ``--out`` under which the runs' files would pass the
     system's path limit (each run failed with its own cut-off 'cannot write' line)."""
     from slamcore.files import check_name_lengths
 
-    runs = spec.runs()
     if not runs:
         return
     longest = max((r.run_id for r in runs), key=len)
@@ -195,9 +194,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = parse_sweep(args.sweep_file)
     for note in spec.notes:
         warn(note)
-    _check_run_paths(args.out, spec)
+    runs = spec.runs()  # once here: each call fingerprints every dataset's files again
+    _check_run_paths(args.out, runs)
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
-    n_runs = len(spec.runs())
+    n_runs = len(runs)
     claim_out_dir(args.out)
     # more workers than runs would only wait (a local cluster of a million never starts)
     executor = make_executor(min(workers, max(n_runs, 1)), args.cluster)

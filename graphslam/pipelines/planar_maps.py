@@ -58,26 +58,37 @@ def landmark_source(dataset) -> str | None:
     ``Barcodes.dat`` and ``Landmark_Groundtruth.dat`` (every robot of the set, alone or
     joint, shares them), or the log file's bytes; None for a synthetic world (its
     geometry and seed say it, :func:`dataset_world`) or a source not read."""
-    import hashlib
     from pathlib import Path
+
+    from graphslam.sources.planar.mrclam import is_mrclam_folder
 
     source = getattr(dataset, "source_path", None)
     if source is None or dataset.name == "synthetic":
         return None
     path = Path(source)
     try:
-        if path.is_dir() and (path / "Barcodes.dat").is_file():
-            digest = hashlib.sha256()
-            for name in ("Barcodes.dat", "Landmark_Groundtruth.dat"):
-                part = path / name
-                digest.update(part.read_bytes() if part.is_file() else b"")
-                digest.update(b"\0")
-            return "mrclam:" + digest.hexdigest()[:16]
+        if is_mrclam_folder(path):
+            return "mrclam:" + _digest([path / "Barcodes.dat", path / "Landmark_Groundtruth.dat"])
         if path.is_file() and path.stat().st_size <= LANDMARK_SOURCE_MAX_BYTES:
-            return "file:" + hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+            return "file:" + _digest([path])
     except OSError:
         return None
     return None
+
+
+def _digest(paths) -> str:
+    """SHA-256 (16 hex digits) of the files' bytes in order, read in 1 MB blocks; a file
+    that is not there counts as empty (an MRCLAM set may lack its landmark truth)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for path in paths:
+        if path.is_file():
+            with open(path, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    digest.update(block)
+        digest.update(b"\0")
+    return digest.hexdigest()[:16]
 
 
 def build_run_map(result: RunResult, backend: Backend, config, max_steps: int | None) -> PlanarMap:
@@ -130,7 +141,8 @@ def load_run_map(folder, dataset, config) -> PlanarMap:
             'with association = "known"',
             folder,
         )
-    built_on, saved, ours = meta.get("dataset"), meta.get("landmarks"), landmark_source(dataset)
+    built_on, ours = meta.get("dataset"), landmark_source(dataset)
+    saved = meta.get("landmarks") if isinstance(meta.get("landmarks"), str) else None  # damaged: unknown
     same = built_on == dataset.name
     if saved is not None and ours is not None and saved != ours:
         if saved.startswith("mrclam:") or ours.startswith("mrclam:") or not same:
@@ -145,13 +157,11 @@ def load_run_map(folder, dataset, config) -> PlanarMap:
             "(landmarks are associated by id)",
             folder,
         )
-    seed = dataset.seed
-    dataset_name = dataset.name
-    world = dataset_world(dataset_name, seed, config)
-    if world is not None and pmap.meta.get("world") != world:
-        saved = pmap.meta.get("world")
-        saved = saved if isinstance(saved, dict) else {}  # a damaged map.json: every key differs
-        diff = sorted(k for k in world if saved.get(k) != world[k])
+    world = dataset_world(dataset.name, dataset.seed, config)
+    if world is not None and meta.get("world") != world:
+        built = meta.get("world")
+        built = built if isinstance(built, dict) else {}  # a damaged map.json: every key differs
+        diff = sorted(k for k in world if built.get(k) != world[k])
         raise InputError(
             f"map was built on another synthetic world ([synthetic] {', '.join(diff) or 'world'} differ)",
             folder,

@@ -231,11 +231,7 @@ class RunRecorder:
         if gt is not None:
             run = np.isin(gt[0], [f.pose_id for f in dataset.frames[:n_steps]])
             ids, xy = gt[0][run], gt[1][run]
-            if self._agent_of:
-                robot = np.array([self._agent_of.get(int(i), -1) for i in ids])
-                strips = [xy[robot == r] for r in sorted(set(robot.tolist()))]
-            else:
-                strips = [xy]
+            strips = [xy[mine] for mine in dataset.agent_groups(ids) if len(mine)]
         self.log.log_ground_truth(strips, dataset.landmarks_true)
 
     def color_index(self, backend: str) -> int:
@@ -271,10 +267,7 @@ class RunRecorder:
 
     def _groups(self, est) -> list | None:
         """Index arrays of each robot's poses in ``est`` (None for one robot)."""
-        if not self._agent_of:
-            return None
-        robot = np.array([self._agent_of.get(int(i), -1) for i in est.pose_ids])
-        return [np.flatnonzero(robot == r) for r in range(max(self._agent_of.values()) + 1)]
+        return self._dataset.agent_groups(est.pose_ids) if self._agent_of else None
 
     def _send_poses(self, backend: str) -> None:
         steps, stamps, poses, robots = self._pending.get(backend, ([], [], [], []))

@@ -21,14 +21,9 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
     lm = np.array(list(dataset.landmarks_true.values())).reshape(-1, 2) if dataset.landmarks_true else None
     # one line per robot of a joint run (--robot all): its poses in frame order were one
     # zig-zag line across the room (hostile pass 22), as the recording already splits them
-    agent_of = {int(pid): i for i, (_, ids) in enumerate(dataset.agents) for pid in ids}
-
-    def robot_of(ids) -> np.ndarray:
-        return np.array([agent_of.get(int(i), -1) for i in ids], dtype=np.int64)
 
     def strips(ids, xy) -> list[np.ndarray]:
-        robot = robot_of(ids)
-        return [xy[robot == r] for r in sorted(set(robot.tolist()))]
+        return [xy[mine] for mine in dataset.agent_groups(ids)]  # an empty line keeps its label
 
     tracks = [
         (
@@ -54,10 +49,10 @@ def plot_comparison(entries, dataset: Dataset, path: Path) -> Path:
                 if est.pose_covariances is None
                 else 3 * np.sqrt(np.clip(np.einsum("nii->ni", est.pose_covariances[has]), 0, None))
             )
-            steps, robot = np.flatnonzero(has), robot_of(est.pose_ids[has])
-            for r in sorted(set(robot.tolist())):
-                mine = robot == r
-                errors.append((e.backend, steps[mine], err[mine], None if s3 is None else s3[mine]))
+            steps = np.flatnonzero(has)
+            for mine in dataset.agent_groups(est.pose_ids[has]):
+                if len(mine):
+                    errors.append((e.backend, steps[mine], err[mine], None if s3 is None else s3[mine]))
     return _comparison_figure(
         path,
         f"{dataset.name}: trajectories",

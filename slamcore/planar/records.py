@@ -575,6 +575,15 @@ class Dataset:
         ids = np.array([f.pose_id for f in known], dtype=np.int64)
         return ids, np.array([f.wTb_true for f in known], dtype=np.float64)
 
+    def agent_groups(self, pose_ids) -> list[np.ndarray]:
+        """Index arrays into ``pose_ids`` (N,) of each robot's poses, one per robot of
+        :attr:`agents` in order (empty for a robot with none there); without agents, one
+        array of them all. Plots and recordings draw a robot's poses as its own line."""
+        ids = np.asarray(pose_ids, dtype=np.int64).reshape(-1)
+        if not self.agents:
+            return [np.arange(len(ids))]
+        return [np.flatnonzero(np.isin(ids, np.asarray(mine, dtype=np.int64))) for _, mine in self.agents]
+
     def truncated(self, max_frames: int) -> Dataset:
         """The first ``max_frames`` frames (loop closures to later poses cannot occur)."""
         return replace(self, frames=list(self.frames[:max_frames]))

@@ -820,6 +820,14 @@ def test_a_map_is_judged_by_its_landmarks_not_the_folders_name(mrclam, tmp_path,
         association = json.loads((tmp_path / "loc" / "metrics.json").read_text())["association"]
         assert association["landmarks_created"] == 0  # the map's, sighted: it counted them
     capsys.readouterr()
+    # a damaged record of the landmarks is no record: judged by the name (it was AttributeError)
+    original = (tmp_path / "m1" / "map.json").read_text()
+    record = json.loads(original)
+    record["meta"]["landmarks"] = 5
+    (tmp_path / "m1" / "map.json").write_text(json.dumps(record))
+    assert main(["run", "--dataset", str(folder), "--robot", "1", *steps, "--map", str(tmp_path / "m1"),
+                 "--out", str(tmp_path / "loc")]) == 0
+    (tmp_path / "m1" / "map.json").write_text(original)
     moved = tmp_path / "moved"
     shutil.copytree(folder, moved)
     truth = moved / "Landmark_Groundtruth.dat"
