@@ -517,6 +517,50 @@ class ConfigFile:
             if key in table and (section, key) not in self.inert:  # a gate's note said it already
                 self.marked[(section, key)] = when
 
+    def fork(self) -> ConfigFile:
+        """A copy whose notes (sections read, settings that did nothing, what ran) start
+        as this one's and then go apart: one of several runs of a command (``compare``),
+        merged back with :meth:`merge_notes`."""
+        return dataclasses.replace(
+            self,
+            read_sections=set(self.read_sections),
+            inert=dict(self.inert),
+            marked=dict(self.marked),
+            settings=dict(self.settings),
+        )
+
+    def notes(self) -> tuple[set, dict, dict]:
+        """``(sections read, inert, marked)``: what :meth:`merge_notes` takes (plain
+        values, sent back from a run in another process)."""
+        return set(self.read_sections), dict(self.inert), dict(self.marked)
+
+    def merge_notes(self, runs: typing.Sequence[tuple[set, dict, dict]]) -> None:
+        """Take the :meth:`notes` of several runs forked from this config: a section any
+        of them read is read, and a setting did nothing where every run that read its
+        section left it unread (one run's gate is no note of a comparison whose other
+        back end read it)."""
+        if not runs:
+            return
+        for read, _, _ in runs:
+            self.read_sections.update(read)
+        noted = [{**marked, **inert} for _, inert, marked in runs]
+        inert_any: dict = {}
+        marked_any: dict = {}
+        for _, inert, marked in runs:
+            for key, when in inert.items():
+                inert_any.setdefault(key, when)
+            for key, when in marked.items():
+                marked_any.setdefault(key, when)
+        kept = {
+            key
+            for key in inert_any.keys() | marked_any.keys()
+            if all(key in n for n, (read, _, _) in zip(noted, runs, strict=True) if key[0] in read)
+        }
+        self.inert.clear()
+        self.inert.update({k: w for k, w in inert_any.items() if k in kept})
+        self.marked.clear()
+        self.marked.update({k: w for k, w in marked_any.items() if k in kept and k not in self.inert})
+
     def inert_lines(self) -> list[str]:
         """One line per group of the file's settings that did nothing, with the line
         of the first and when they act."""

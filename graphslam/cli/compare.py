@@ -208,9 +208,11 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
             built.append(registry.make_backend(name, config=config, overrides=overrides[name]))
         except GraphSlamError:  # said by its run, which fails alone (the others are kept)
             pass
-    from graphslam.cli.run.planar import mark_unread_sensor_settings
+    from graphslam.cli.run.planar import mark_unread_sensor_settings, mark_unused_settings
 
     mark_unread_sensor_settings(built, config, dataset)  # [mrclam] settings none of them reads
+    for backend in built:  # as run marks them (hostile pass 22: compare left them unsaid)
+        mark_unused_settings(backend, config, dataset, args.max_steps)
     entries = compare.compare(
         dataset,
         args.backends,
@@ -233,6 +235,7 @@ def _compare(args: argparse.Namespace, config) -> tuple[int, bool]:
         lambda done, path: plot_comparison(done, dataset, path),
         RunRecorder.open,
         dataset,
+        config.inert_lines(),
     )
     return status, True
 
@@ -351,14 +354,24 @@ def _compare_images(args: argparse.Namespace, config, rerun_mode: str) -> tuple[
         lambda done, path: plot_visual_comparison(done, sequence, path),
         VisualRecorder.open,
         sequence,
+        config.inert_lines(),
     )
     return status, all(e.result is not None for e in entries)
 
 
 def _write_comparison(
-    args, entries, header: dict, folder: OutputFolder, rerun_mode: str, plot, open_recording, source
+    args,
+    entries,
+    header: dict,
+    folder: OutputFolder,
+    rerun_mode: str,
+    plot,
+    open_recording,
+    source,
+    did_nothing: list[str],
 ) -> int:
-    """Table, compare.json (``header`` and the runs), compare.png (``plot(done, path)``)
+    """Table, compare.json (``header``, the runs, and ``did_nothing``: the config's settings
+    that did nothing, as said on stderr), compare.png (``plot(done, path)``)
     and compare.rrd (``open_recording``'s recorder, ``record_comparison(done, source)``)
     of the back ends that have a result (the failed and cut ones marked); the exit status."""
     from graphslam.cli.common import (
@@ -389,7 +402,7 @@ def _write_comparison(
     writes = writers.OutputWrites(out_dir)  # a file the disk refuses costs no other: each is tried
     paths: dict[str, Path] = {}
     runs = [e.metrics if e.status == "ok" else _marked(e) for e in entries]
-    record = {**header, "runs": runs, "provenance": invocation(args)}
+    record = {**header, "runs": runs, "provenance": {**invocation(args), "did_nothing": did_nothing}}
     writes(paths, "json", out_dir / "compare.json", writers.write_json, record)
     if done:
         writes(paths, "png", out_dir / "compare.png", lambda path: plot(done, path))

@@ -29,6 +29,7 @@ prior's, and make the NEES meaningless.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from typing import cast
 
@@ -79,8 +80,9 @@ def compare(
         return _score(setup, name, result, peak_mb)
 
     entries = run_entries(names, job, score, isolate=isolate, strip=_without_sequence, progress=progress)
-    for e in finished(entries):  # what the workers read is read (the others did nothing)
-        setup.config.read_sections.update(e.result.config_sections_read)
+    # what the runs read is read, and what none of those reading it used did nothing
+    setup.config.merge_notes([e.result.config_notes for e in finished(entries)])
+    for e in finished(entries):
         e.nees = entry_nees(e.result, e.metrics.alignment)
         if e.nees is not None:
             e.metrics.nees_mean = e.nees["nees_mean"]
@@ -94,6 +96,8 @@ def compare(
 def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
     """Entry ``name``'s run, with its input digest and pose covariances."""
     kind, overrides = registry.visual_compare_backend(name)
+    # this entry's notes of the config apart from the others' (merged in :func:`compare`)
+    setup = dataclasses.replace(setup, config=setup.config.fork())
     session = setup.session(kind, overrides)
     feed = _Feed(filtered=registry.visual_implementation(kind).filtering)
     try:
@@ -105,7 +109,7 @@ def run_one(setup: VisualSetup, name: str) -> vp.VisualRunResult:
         feed.sha.update(np.ascontiguousarray(setup.odometry[: max(result.frames - 1, 0)]).tobytes())
     result.input_digest = feed.sha.hexdigest()
     result.pose_covariances = _covariances(feed, session.backend, result)
-    result.config_sections_read = tuple(sorted(setup.config.read_sections))
+    result.config_notes = setup.config.notes()
     return result
 
 

@@ -92,6 +92,12 @@ class VisualSetup:
             },
         )
         mode, odo, _, _ = vp.resolve_odometry(sequence, run_config.odometry, noise)
+        own = getattr(sequence, "config", None)
+        if mode != "sequence" and own is not None and hasattr(own, "ODOMETRY_KEYS"):
+            # the synthetic sequence's odometry noise, unread under derived or no odometry
+            config.mark_inert(
+                own.SECTION, own.ODOMETRY_KEYS, "--odometry sequence (the sequence's own odometry)"
+            )
         return cls(sequence, config, run_config, noise, mode, odo, seed, max_frames, detector, no_polish)
 
     def check_seed(self, backends: list[str], simulated: bool) -> None:

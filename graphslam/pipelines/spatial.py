@@ -148,8 +148,9 @@ class VisualRunResult:
         backend_seed: the back end's own seed (its RANSAC draws), None if it has none.
         input_digest: SHA-256 of what the back end was fed (images, detected
             corners, odometry), filled by ``graphslam compare``, else None.
-        config_sections_read: the config sections the run read (``graphslam compare``
-            fills it in a worker process, for the sections no run read).
+        config_notes: the config's notes of the run, :meth:`slamcore.config.ConfigFile.notes`
+            (``graphslam compare`` fills it, in a worker process too: the sections no run
+            read, the settings none of those reading them used), else None.
         unreadable: the error line of the frame that could not be read and ended the run
             early (``graphslam compare`` keeps the estimate of the frames before it).
     """
@@ -170,7 +171,7 @@ class VisualRunResult:
     input_digest: str | None = None
     finalised: bool = False
     backend_seed: int | None = None
-    config_sections_read: tuple[str, ...] = ()
+    config_notes: tuple | None = None
     unreadable: str | None = None
 
 

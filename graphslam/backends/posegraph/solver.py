@@ -79,6 +79,8 @@ class SolveResult:
             optimum (``recoveries`` says which), else None.
         stationary_start: where the final LM took no step, whether its start already
             was a stationary point (:func:`_stationary`), else None.
+        lm_ran: whether any batch LM ran (False: iSAM2 without its polish, where its own
+            factorisation never failed), so ``max_iterations`` and the LM tolerances were read.
     """
 
     solver: str
@@ -106,6 +108,7 @@ class SolveResult:
     optimality_unchecked: str | None = None
     stopped: str | None = None
     stationary_start: bool | None = None
+    lm_ran: bool = True
 
 
 #: ``should_stop(point, step)``: asked before each iSAM2 update (``"step"``, the update),
@@ -182,6 +185,7 @@ def solve(
             out = _isam2_result(graph, values, edges, recoveries, t0, isam2_s, isam2_cost)
             # the closures went in under the Cauchy kernel, untested: said as such, not as "none"
             out.robust_mode = config.robust_closures if robust else None
+            out.lm_ran = incremental.batch_lm
             return out
         starts.append(initialisers.Start("isam2", values))
     first = initialisers.initial(
@@ -548,6 +552,8 @@ class Isam2PoseGraph:
         self.ids = graph.ids.tolist()
         self.to_row = self.rows[:, 1].tolist()
         self.stopped = False
+        #: the rest of the graph went to batch LM (:meth:`_batch_rest`)
+        self.batch_lm = False
 
     def run(self, should_stop: StopCheck | None = None) -> gtsam.Values:
         """The estimate; when ``should_stop`` says so, that of the poses added so far
@@ -647,6 +653,7 @@ class Isam2PoseGraph:
 
     def _batch_rest(self, n: int) -> gtsam.Values:
         """All factors at the last values, remaining poses from the odometry start."""
+        self.batch_lm = True
         values = gtsam.Values(self.isam.getLinearizationPoint())
         chain = initialisers.initial(self.graph, "odometry", self.config.prior_sigma).values
         for k in self.graph.ids.tolist():

@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.backend in registry.SEEDED_BACKENDS:  # the particles' seed: a run repeats from it
         metrics.backend_seed = getattr(getattr(backend, "config", None), "seed", None)
-    _mark_unused_settings(backend, config, result)  # before provenance, which lists them
+    mark_unused_settings(backend, config, result.dataset, result.steps)  # before provenance, which lists them
     _mark_unread_sensor_settings(backend, config, result.dataset)
     metrics.provenance = provenance(args, config)
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
@@ -220,8 +220,9 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def _mark_unused_settings(backend, config, result) -> None:
-    """Mark the file's settings of the back end that did nothing in this run
+def mark_unused_settings(backend, config, dataset, steps: int | None) -> None:
+    """Mark the file's settings of the back end that did nothing in this run over the
+    first ``steps`` frames of ``dataset`` (None: all)
     (eleventh hostile pass: ``polish_method = "gnc"`` on a landmark world and the EKF's
     ``default_sigma_range_m`` were bit-identical to the defaults, silent): its config's
     ``LOOP_CLOSURE_KEYS`` when the run had no loop closure, ``UNREAD_IN_RUNS`` always,
@@ -248,17 +249,13 @@ def _mark_unused_settings(backend, config, result) -> None:
     ):
         return
     section = section_name(cls)
-    if (
-        field_keys
-        and result.dataset.sensor_field is None
-        and getattr(settings, "association", None) == "unknown"
-    ):
+    if field_keys and dataset.sensor_field is None and getattr(settings, "association", None) == "unknown":
         # the pruning needs the field the sensor sees and its detection probability:
         # Victoria Park and the g2o/TORO logs state neither (nothing was pruned)
         config.mark_inert(
             section, field_keys, "data that states its sensor's field (MRCLAM logs, the synthetic world)"
         )
-    frames = result.dataset.frames[: result.steps]
+    frames = dataset.frames[:steps]
     if correlation_keys and not any(
         o.correlation is not None and o.stamp_s is not None for f in frames for o in f.observations
     ):

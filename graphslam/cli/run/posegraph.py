@@ -99,6 +99,13 @@ def run(args: argparse.Namespace) -> int:
     metrics = pipeline.metrics(
         graph, result, time.perf_counter() - t0, truth, solver_config.closure_test_alpha
     )
+    if not result.lm_ran:  # iSAM2 without its polish, its factorisation never failing
+        config.mark_inert(
+            "posegraph",
+            LM_KEYS,
+            "a batch LM (polish = true, --backend batch or auto; iSAM2 alone reads them only "
+            "where its factorisation fails)",
+        )
     metrics.provenance = provenance(args, config)
     out_dir = args.resolved_out = folder.resolve()
     # a full disk part way: no earlier run's file left beside this run's
@@ -113,6 +120,10 @@ def run(args: argparse.Namespace) -> int:
     status = report_outputs(format_summary(metrics), out_dir, paths, metrics.interrupted, writes=writes)
     writes.check(paths.values())
     return status
+
+
+#: the ``[posegraph]`` keys only a batch LM reads
+LM_KEYS = ("max_iterations", "relative_error_tol", "absolute_error_tol")
 
 
 def mark_unread_settings(config, solver: str, settings, toro_read: bool) -> None:

@@ -72,7 +72,7 @@ from graphslam.sources.spatial.synthetic_render import (
     procedural_texture,
     render_surfaces,
 )
-from slamcore.config import Validated, bounded
+from slamcore.config import Gate, Validated, bounded
 from slamcore.errors import ConfigError, GraphSlamError
 from slamcore.spatial.camera import intrinsics_matrix
 
@@ -163,6 +163,23 @@ class SyntheticImagesConfig(Validated):
     """
 
     SECTION: ClassVar[str] = "synthetic_images"
+    #: the revisit rule scores loop detectors in the benchmarks; no command reads it
+    #: (hostile pass 22: set in a run's config, it changed nothing, unsaid)
+    REVISIT_KEYS: ClassVar[tuple[str, ...]] = (
+        "revisit_distance_m",
+        "revisit_heading_deg",
+        "revisit_min_gap_frames",
+    )
+    #: the sequence's own odometry noise, unread where the run takes other odometry
+    ODOMETRY_KEYS: ClassVar[tuple[str, ...]] = ("odometry_sigma_t_m", "odometry_sigma_r_rad")
+    GATES: ClassVar[tuple[Gate, ...]] = (
+        Gate(
+            REVISIT_KEYS,
+            "the benchmarks' scoring of loop detectors (bench_loop_pr.py, bench_loop_ate.py, "
+            "bench_loop_revisit.py); no command reads them",
+            lambda c: False,
+        ),
+    )
 
     seed: int = bounded(0, min=0)
     width: int = bounded(640, min=16, max=MAX_IMAGE_SIDE_PX)
