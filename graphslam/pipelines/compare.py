@@ -262,13 +262,18 @@ def numeric_failure_line(e: BaseException) -> str:
 def _compare_one(name, job, score, isolate, strip) -> CompareEntry:
     """One back end's entry; its failure is recorded, not raised. Scoring is
     inside the guard too: an estimate too absurd to score (a singular
-    covariance) fails its own row, not the whole comparison."""
+    covariance) fails its own row, not the whole comparison. The metrics' ``wall_s`` is
+    the entry's whole time (its process, the back end's set-up and run, the scoring), as
+    ``run``'s is the whole run's; ``backend_s`` or ``processing_s`` keeps the back end's."""
+    t0 = time.perf_counter()
     try:
         if isolate:
             result, peak_mb = run_isolated(job, name, strip)
         else:
             result, peak_mb = job(), None
         scored = score(name, result, peak_mb)
+        if hasattr(scored, "wall_s"):  # (compare.json's wall_s was the back end's alone)
+            scored.wall_s = time.perf_counter() - t0
     except KeyboardInterrupt:  # a second signal while it ran: this one is lost, the others kept
         return CompareEntry(
             name, None, None, "cut", "a second signal cut it before it could stop; no estimate"

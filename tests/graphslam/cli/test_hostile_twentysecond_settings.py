@@ -83,3 +83,13 @@ def test_merged_notes_keep_what_every_reader_left_unread():
     assert config.marked == {ekf_only: "mark"} and config.inert == {}
     config.merge_notes([_notes({"tracker"}, inert=[follow]), _notes({"tracker"}, marked=[follow])])
     assert config.inert == {follow: "gate"} and config.marked == {}
+
+
+def test_compare_json_wall_s_is_the_entrys_whole_time_as_runs_is(tmp_path, capsys):
+    """compare.json's wall_s was the back end's time, run's metrics.json's the whole run's:
+    now the entry's whole time, the back end's kept as backend_s and shown in the table."""
+    argv = ["compare", "--dataset", "synthetic", "--backends", "ekf", "--max-steps", "20", "--rerun", "off"]
+    assert main([*argv, "--out", str(tmp_path / "o"), "--in-process"]) == 0
+    assert "processing [s]" in capsys.readouterr().out
+    (row,) = json.loads((tmp_path / "o" / "compare.json").read_text())["runs"]
+    assert row["wall_s"] > row["backend_s"] > 0.0
