@@ -547,6 +547,9 @@ class Dataset:
         sensor_field: where the sensor reports landmarks and how reliably
             (:class:`SensorField`), when the source knows it; back ends that use
             negative information read it (:meth:`~slamcore.planar.backend.Backend.set_sensor_field`).
+        truth_lines: those of ``notes`` and ``warnings`` that describe the source's own
+            ground truth (its coverage, its absence): a truth given apart (``run
+            --ground-truth``) replaces them.
     """
 
     name: str
@@ -561,6 +564,7 @@ class Dataset:
     agents: tuple[tuple[str, tuple[int, ...]], ...] = ()
     warnings: tuple[str, ...] = ()
     sensor_field: SensorField | None = None
+    truth_lines: tuple[str, ...] = ()
 
     @property
     def has_ground_truth(self) -> bool:

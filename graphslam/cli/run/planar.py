@@ -82,14 +82,14 @@ def _ground_truth(args: argparse.Namespace, dataset):
     truth = planar_ground_truth(dataset, trajectory)
     # the reader's lines on its own truth's coverage do not describe this one (MRCLAM's
     # "truth on 1416 of 1545 frames" stood beside an ATE over 165: hostile pass 21)
-    own = ("truth on ", "no ground truth", "no truth (", "covers none of")
-    notes = [n for n in dataset.notes if not any(o in n for o in own)]
+    own = set(dataset.truth_lines)
+    notes = [n for n in dataset.notes if n not in own]
     notes.append(
         f"truth from {Path(args.ground_truth).name}: {len(truth[0])} of the log's "
         f"{len(dataset.frames)} frames (scored there only)"
     )
-    warnings = tuple(w for w in dataset.warnings if not any(o in w for o in own))
-    dataset = dataclasses.replace(dataset, notes=tuple(notes), warnings=warnings)
+    warnings = tuple(w for w in dataset.warnings if w not in own)
+    dataset = dataclasses.replace(dataset, notes=tuple(notes), warnings=warnings, truth_lines=())
     if (doubt := off_plane(trajectory.wTc)) is not None:
         dataset = dataclasses.replace(dataset, warnings=(*dataset.warnings, doubt))
     return dataset, truth

@@ -828,6 +828,8 @@ class RobotTrack:
     #: doubts on the odometry from its truth, kept apart from ``warnings``: with sightings
     #: that miss the truth too, :func:`truth_doubts` says both in one line
     odometry_doubts: list = field(default_factory=list)
+    #: those of ``notes`` and ``warnings`` on the robot's own truth (``Dataset.truth_lines``)
+    truth_lines: list = field(default_factory=list)
     #: motions that do not follow the truth at all (``"turns (cosine 0.14)"``)
     odometry_unfollowed: tuple = ()
 
@@ -883,19 +885,23 @@ def robot_track(
     wTb_true = truth_at(truth, times) if truth is not None else np.full((len(times), 3), np.nan)
     odometry_doubts, judged, unfollowed = odometry_truth_doubt(n, *held, times, wTb_true)
     has_truth = np.isfinite(wTb_true).all(axis=1)
+    truth_lines = []
     if truth is None:
-        notes.append(f"robot {n}: no ground truth")
+        truth_lines.append(f"robot {n}: no ground truth")
+        notes.append(truth_lines[-1])
     elif not has_truth.any():  # a note only, and ATE n/a with exit 0 (hostile pass 21)
-        warnings.append(
+        truth_lines.append(
             f"Robot{n}_Groundtruth.dat covers none of robot {n}'s log ({truth[0, 0]:.3f}-"
             f"{truth[-1, 0]:.3f} s against {times[0]:.3f}-{times[-1]:.3f} s): nothing is scored "
             "(another log's truth, or its times shifted?)"
         )
+        warnings.append(truth_lines[-1])
     elif not has_truth.all():
-        notes.append(
+        truth_lines.append(
             f"robot {n}: truth on {int(has_truth.sum())} of the whole log's {len(times)} frames "
             "(scored there only)"
         )
+        notes.append(truth_lines[-1])
     frame_of = np.searchsorted(times, meas[:, 0]).tolist()
     is_robot = is_robot.tolist()
     zs, stamps = meas[:, 2:4], meas[:, 0].tolist()
@@ -921,6 +927,7 @@ def robot_track(
         odometry_fits_truth=judged and not odometry_doubts,
         odometry_doubts=odometry_doubts,
         odometry_unfollowed=unfollowed,
+        truth_lines=truth_lines,
     )
 
 
@@ -1040,4 +1047,5 @@ def _dataset(folder: Path, config: MrclamConfig, track: RobotTrack, landmarks_tr
         source_path=str(folder),
         notes=tuple(track.notes),
         sensor_field=config.sensor_field(),
+        truth_lines=tuple(track.truth_lines),
     )

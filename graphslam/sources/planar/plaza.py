@@ -271,15 +271,19 @@ def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
         wTb_true = truth_at(truth, times)
     has_truth = np.isfinite(wTb_true).all(axis=1)
     truth_doubt = []
+    truth_lines = []  # Dataset.truth_lines: what a truth given apart replaces
     if truth is None:
-        notes.append("no truth (no .mat beside the log)")
+        truth_lines.append("no truth (no .mat beside the log)")
+        notes.append(truth_lines[-1])
     elif not has_truth.any():  # a note only, and ATE n/a with exit 0 (hostile pass 21)
-        truth_doubt.append(
+        truth_lines.append(
             f"the .mat's GT covers none of the log ({truth[0, 0]:.1f}-{truth[-1, 0]:.1f} s against "
             f"{times[0]:.1f}-{times[-1]:.1f} s): nothing is scored (another log's .mat?)"
         )
+        truth_doubt.append(truth_lines[-1])
     elif not has_truth.all():
-        notes.append(f"truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
+        truth_lines.append(f"truth on {int(has_truth.sum())} of {len(times)} frames (scored there only)")
+        notes.append(truth_lines[-1])
     prior = wTb_true[0] if has_truth[0] else np.zeros(3)
     notes.append("start pose from the truth" if has_truth[0] else "start pose at the origin")
     n = len(times)
@@ -322,6 +326,7 @@ def _dataset(dr_path, dr, dr_lines, td, truth, beacons, mat_path) -> Dataset:
         source_path=str(dr_path),
         notes=tuple(notes),
         warnings=(*truth_doubt, *gap_warning),
+        truth_lines=tuple(truth_lines),
     )
 
 

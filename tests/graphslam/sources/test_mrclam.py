@@ -216,6 +216,9 @@ def test_robot_1_is_read_as_the_data_set_is(mrclam):
     assert "1 sightings of barcodes Barcodes.dat does not list (43) in the whole log dropped" in notes
     assert "407 sightings of other robots in the whole log left out" in notes
     assert "truth on 1416 of the whole log's 1545 frames" in notes
+    # the one line on its own truth, which a --ground-truth file replaces, is named as such
+    (line,) = ds.truth_lines
+    assert line in ds.notes and "truth on 1416 " in line
     assert sorted(ds.landmarks_true) == list(range(6, 21))
     seen = [o.landmark_id for f in ds.frames for o in f.observations]
     assert len(seen) == 1534 and set(seen) <= set(range(6, 21))
