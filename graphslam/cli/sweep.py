@@ -200,7 +200,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     n_runs = len(runs)
     claim_out_dir(args.out)
     # more workers than runs would only wait (a local cluster of a million never starts)
-    executor = make_executor(min(workers, max(n_runs, 1)), args.cluster)
+    workers = min(workers, max(n_runs, 1))
+    cores = os.cpu_count() or 1
+    if args.cluster in (None, "local") and workers > cores:  # each a process with its own memory
+        warn(
+            f"--workers {workers} on {cores} cores: the runs share them, each slower, and each "
+            "worker holds its own memory; fewer workers finish as soon"
+        )
+    executor = make_executor(workers, args.cluster)
     for note in executor.notes:
         warn(note)
     try:
