@@ -162,6 +162,21 @@ def _still_there(out: Path) -> None:
         )
 
 
+def _capped_workers(workers: int, n_runs: int, cluster: str | None) -> int:
+    """``workers`` capped at the runs (more would only wait: a local cluster of a million
+    never starts), said when more than the cores (each a process with its own memory)."""
+    from graphslam.cli.common import warn
+
+    workers = min(workers, max(n_runs, 1))
+    cores = os.cpu_count() or 1
+    if cluster in (None, "local") and workers > cores:
+        warn(
+            f"--workers {workers} on {cores} cores: the runs share them, each slower, and each "
+            "worker holds its own memory; fewer workers finish as soon"
+        )
+    return workers
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run the sweep, write the table and plots; the exit status."""
     from graphslam.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, warn
@@ -199,15 +214,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     read_rows(args.out / "sweep.csv")  # a file there that is no sweep table: refused before any run
     n_runs = len(runs)
     claim_out_dir(args.out)
-    # more workers than runs would only wait (a local cluster of a million never starts)
-    workers = min(workers, max(n_runs, 1))
-    cores = os.cpu_count() or 1
-    if args.cluster in (None, "local") and workers > cores:  # each a process with its own memory
-        warn(
-            f"--workers {workers} on {cores} cores: the runs share them, each slower, and each "
-            "worker holds its own memory; fewer workers finish as soon"
-        )
-    executor = make_executor(workers, args.cluster)
+    executor = make_executor(_capped_workers(workers, n_runs, args.cluster), args.cluster)
     for note in executor.notes:
         warn(note)
     try:

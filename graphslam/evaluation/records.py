@@ -184,6 +184,9 @@ class SpatialRunMetrics(MetricsRecord):
             alignment it was scored after, the digest of what was fed).
             dataset_notes: what the reader made of the source (a ROS bag's
             topics), one line each, or None.
+            stopped_by: the error that ended the run before its last frame (a frame
+            that could not be read, the back end failing), else None; ``interrupted``
+            is then true, as after a stop (the estimate so far, not finalised).
     """
 
     dataset: str
@@ -229,5 +232,6 @@ class SpatialRunMetrics(MetricsRecord):
     frames_with_pose: int | None = None
     warnings: list | None = optional()
     dataset_notes: list | None = optional()
+    stopped_by: str | None = optional()
     #: what ran (as :class:`PlanarRunMetrics`)
     provenance: dict | None = optional()

@@ -58,7 +58,7 @@ CandidateHook = Callable[[int, "LoopCandidate", np.ndarray, "np.ndarray | None"]
 
 #: Where a candidate stopped: rejected by the detector, accepted, skipped as
 #: redundant, or rejected by the metric pose.
-STAGES = ("detector", "accepted", "redundant", "pnp")
+STAGES = ("detector", "accepted", "unplaced", "redundant", "pnp")
 
 
 @dataclass
@@ -178,13 +178,15 @@ class VisualLoopCloser:
     @property
     def stats(self) -> dict:
         """Counts over :attr:`records`: candidates (queries with a candidate match),
-        verified (passed the detector's geometry), redundant, pnp_rejected, closures,
+        verified (passed the detector's geometry), unplaced (a frame of the pair had no
+        pose yet: a camera-alone map not started), redundant, pnp_rejected, closures,
         second_views (closures verified from a second view of the candidate's place,
         ``[loops] second_views``)."""
         stages = [r.stage for r in self.records]
         return {
             "candidates": sum(r.match is not None for r in self.records),
-            "verified": sum(s in ("accepted", "redundant", "pnp") for s in stages),
+            "verified": sum(s in ("accepted", "unplaced", "redundant", "pnp") for s in stages),
+            "unplaced": stages.count("unplaced"),
             "redundant": stages.count("redundant"),
             "pnp_rejected": stages.count("pnp"),
             "closures": len(self.closures),
@@ -228,6 +230,14 @@ class VisualLoopCloser:
             record.shared_tracks = len(
                 np.intersect1d(self._frames[int(loop.match)].track_ids, np.asarray(obs.track_ids, np.int64))
             )
+        unplaced = [] if loop is None else [f for f in (int(loop.match), int(k)) if not backend.has_pose(f)]
+        if unplaced:  # a camera-alone map not started there: no landmarks to place it by
+            record.stage, record.accepted = "unplaced", False
+            record.reason = (
+                f"unplaced: frame {' and '.join(map(str, unplaced))} has no pose (the map had not "
+                "started there)"
+            )
+            loop = None
         need = self.config.redundant_shared_tracks
         if loop is not None and need and record.shared_tracks is not None and record.shared_tracks >= need:
             record.stage, record.accepted = "redundant", False
@@ -269,12 +279,17 @@ class VisualLoopCloser:
         links = np.stack([xy_b[pairs[:, 1]], old.uv_px[ok][pairs[:, 0]]], axis=1)
         return result, links
 
-    def write_log(self, path: str | Path) -> Path:
-        """Every record as one JSON object per line."""
+    def write_log(self, path: str | Path, files: np.ndarray | None = None) -> Path:
+        """Every record as one JSON object per line; with ``files`` ((N,) each run frame's
+        index in the files), ``query_file_frame`` and ``match_file_frame`` too."""
         path = Path(path)
         with atomic_open(path, "w", encoding="utf-8") as fh:
             for r in self.records:
-                fh.write(json.dumps(r.to_dict(), default=_json_default) + "\n")
+                d = r.to_dict()
+                if files is not None:
+                    d["query_file_frame"] = int(files[int(r.query)])
+                    d["match_file_frame"] = None if r.match is None else int(files[int(r.match)])
+                fh.write(json.dumps(d, default=_json_default) + "\n")
         return path
 
 

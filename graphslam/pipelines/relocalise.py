@@ -3,7 +3,9 @@ counted, and a lost camera placed back in the run's own map instead of drifting 
 
 A frame hook of :func:`graphslam.pipelines.spatial.run` (called after the back
 end's update). A frame is *lost* when active search found fewer than
-``min_found`` landmarks; ``lost_after`` lost frames in a row open a loss. While
+``min_found`` landmarks or, camera alone, PnP could not place it (the back end
+coasted it: :meth:`VisualBackend.coasting`); frames before a camera-alone map
+starts have no pose and count neither way. ``lost_after`` lost frames in a row open a loss. While
 a loss is open, every frame is relocalised: the landmarks the back end has
 mapped among the tracks observed in the last good frames before the loss
 (``candidates`` of them, each with the ORB descriptors of its pixels there) are
@@ -78,8 +80,9 @@ class RunRelocaliser:
             # failures are its own losses, said apart; the summary named both "tracking
             # losses", 0 against 2 on KITTI 07)
             "loss_rule": (
-                f"active search found fewer than {self.config.min_found} landmarks in "
-                f"{self.config.lost_after} frames in a row"
+                f"active search found fewer than {self.config.min_found} landmarks, or the "
+                f"camera alone could not place the frame (coasted), in {self.config.lost_after} "
+                "frames in a row"
             ),
             "losses": 0,
             "lost_frames": 0,
@@ -90,7 +93,12 @@ class RunRelocaliser:
 
     def __call__(self, k, image, tracking, backend) -> None:
         k = int(k)
-        lost = tracking.n_found < self.config.min_found
+        if not backend.has_pose(k):  # before a camera-alone map starts: neither lost nor good
+            return
+        # a camera-alone frame PnP could not place is lost, however many landmarks active
+        # search found around its prediction (pass 23: the two rules disagreed, and
+        # --relocalise did nothing on KITTI's camera-alone loss at frames 32-40)
+        lost = tracking.n_found < self.config.min_found or backend.coasting()
         self.stats["lost_frames"] += int(lost)
         self._streak = self._streak + 1 if lost else 0
         if self._open is None and self._streak >= self.config.lost_after and self._good:

@@ -137,6 +137,19 @@ class VisualSetup:
             ),
         }
         backend = registry.make_visual_backend(backend_name, config=self.config, overrides=overrides)
+        settings = getattr(backend, "config", None)
+        if self.mode != "none" and getattr(settings, "robot_model", None) == "constant_velocity":
+            # refused before the first frame: it failed at the second, "interrupted"
+            from slamcore.config import section_name
+
+            section = section_name(type(settings))
+            raise ConfigError(
+                f'[{section}] robot_model = "constant_velocity" tracks by the camera alone, and '
+                f"this run has odometry (--odometry {self.mode}): use --odometry none, or leave "
+                "robot_model to the run",
+                self.config.path,
+                self.config.line_of(section, "robot_model"),
+            )
         tracker_config, tracker = vp.make_tracker(self.config, backend, self.detector)
         return VisualSession(self, backend_name, backend, tracker_config, tracker)
 

@@ -647,9 +647,14 @@ def _finalize(backend, sequence):
     except LocatedError:
         raise
     except GraphSlamError as e:
+        # a camera-alone map that never started on large images: the pixel settings
+        # (pass 23: KITTI upscaled 2x was told "more frames, or odometry")
+        hint = _large_image_hint(int(getattr(sequence, "image_size", (0, 0))[0]))
         if sequence.source_path is None:
+            if hint:
+                raise GraphSlamError(str(e) + hint) from None
             raise
-        raise InputError(str(e), sequence.source_path) from None
+        raise InputError(str(e) + hint, sequence.source_path) from None
 
 
 def _with_file_frames(stats: dict | None, seq) -> dict:
@@ -672,13 +677,13 @@ def _with_file_frames(stats: dict | None, seq) -> dict:
 LARGE_IMAGE_WIDTH_PX = 2000
 
 
-def _large_image_hint(result: VisualRunResult) -> str:
+def _large_image_hint(width: int) -> str:
     """What to try when the images are large (thirteenth hostile pass: KITTI upscaled 3x,
     3678 px wide, mapped nothing with either front end; it maps at 1x and 2x). The
     settings in pixels were measured on smaller images; which of them fails depends on
     the camera (an upscaled image localises corners to ~3 px, a sharp one to ~1 px but
-    moves 3x farther a frame), so the hint names them and the tested route."""
-    width = _image_size(result)[0]
+    moves 3x farther a frame), so the hint names them and the tested route. ``width``:
+    the images', pixels."""
     if width <= LARGE_IMAGE_WIDTH_PX:
         return ""
     return (
@@ -711,16 +716,26 @@ def _no_corner_hint(result: VisualRunResult) -> str:
 BRIDGED_FRAMES = 1
 
 
-def _loss_doubts(losses: list[dict]) -> list[str]:
+def _loss_doubts(losses: list[dict], files: np.ndarray | None = None) -> list[str]:
     """A doubt for the camera-alone tracking losses longer than :data:`BRIDGED_FRAMES`:
     their poses are the constant-velocity guess, and landmarks mapped from them may hold
     another scale (thirteenth hostile pass: a cut to another place 55 m away was bridged
     as 0.65 m of motion, and a blurred stretch came back at 1.8x the scale, with nothing
-    said but "found again by PnP" in metrics.json)."""
+    said but "found again by PnP" in metrics.json). ``files``: (N,) each run frame's
+    index in the files (:func:`~graphslam.sources.spatial.frames.source_indices`), said
+    beside the run's where ``--frames`` moved them (pass 23: "frames 13-17" were the
+    run's, the trajectory's times the files')."""
     long = [x for x in losses if int(x.get("frames", 0)) > BRIDGED_FRAMES]
     if not long:
         return []
-    spans = ", ".join(f"{int(x['frame'])}-{int(x['frame']) + int(x['frames']) - 1}" for x in long[:5])
+
+    def span(x: dict) -> str:
+        a, b = int(x["frame"]), int(x["frame"]) + int(x["frames"]) - 1
+        if files is None or (files[a] == a and files[b] == b):
+            return f"{a}-{b}"
+        return f"{a}-{b} of the run, file frames {int(files[a])}-{int(files[b])}"
+
+    spans = ", ".join(span(x) for x in long[:5])
     more = f" and {len(long) - 5} more" if len(long) > 5 else ""
     return [
         f"tracking was lost {len(long)} time(s) for more than {BRIDGED_FRAMES} frame (frames {spans}{more}): "
@@ -752,11 +767,14 @@ def _doubts(result: VisualRunResult) -> list[str]:
             f"no landmark entered the map in {n} frames ({corners} corners detected, "
             f"{sum(result.tracking.get('observations', []))} matched in all): the trajectory is the "
             "odometry alone, the images corrected nothing"
-            + (_no_corner_hint(result) if corners == 0 else _large_image_hint(result))
+            + (_no_corner_hint(result) if corners == 0 else _large_image_hint(_image_size(result)[0]))
         ]
     mono = (result.estimate.stats or {}).get("camera_alone")
     if mono is not None:
-        out += _loss_doubts(mono.get("losses") or [])
+        from graphslam.sources.spatial.frames import source_indices
+
+        files = None if result.sequence is None else source_indices(result.sequence)
+        out += _loss_doubts(mono.get("losses") or [], files)
         unmeasured = int(mono.get("coasted_frames", 0))
         what = "PnP could not measure the pose"
     else:

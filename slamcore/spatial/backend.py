@@ -117,6 +117,18 @@ class VisualBackend(ABC):
             f"{self.name} cannot correct one landmark at a time (sequential active search)"
         )
 
+    def coasting(self) -> bool:
+        """Whether the latest frame kept its motion model's prediction because the images
+        could not place it (a camera-alone tracking loss); False for a back end whose
+        frames are always measured or carried by odometry."""
+        return False
+
+    def has_pose(self, frame_id: int) -> bool:
+        """Whether frame ``frame_id`` has a pose in the estimate (a camera-alone back end
+        places none before its map starts). This reads the whole estimate; a back end
+        that keeps its frames apart answers from them."""
+        return int(frame_id) in set(np.asarray(self.estimate().frame_ids).tolist())
+
     def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
         """(N, 3) current positions of the landmarks ``track_ids`` in camera
         ``frame_id``'s frame (metres), NaN rows for tracks not mapped. Needed

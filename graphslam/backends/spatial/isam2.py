@@ -376,6 +376,12 @@ class VisualIsam2Backend(VisualBackend):
         self._closures.append((a, b, measured, cov))
         self._stats["loop_closures"] += 1
 
+    def has_pose(self, frame_id: int) -> bool:
+        return int(frame_id) in self._frame_set
+
+    def coasting(self) -> bool:
+        return self._mono is not None and self._mono.coasting
+
     def landmarks_in_frame(self, frame_id: int, track_ids: np.ndarray) -> np.ndarray:
         fid = int(frame_id)
         if fid not in self._frame_set:

@@ -219,6 +219,11 @@ class MonoMotion:
         self.covariance[3:, 3:] = np.eye(3) * max(sigma_r, 1e-6) ** 2
         return True
 
+    @property
+    def coasting(self) -> bool:
+        """The current frame is coasted (PnP could not place it)."""
+        return self._coasting > 0
+
     def coast(self, reason: str) -> None:
         """The current frame keeps its constant-velocity prediction (counted)."""
         self.awaiting = False

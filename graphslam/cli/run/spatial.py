@@ -223,23 +223,17 @@ def run(args: argparse.Namespace) -> int:
         )
     except (FrameUnreadable, BackendFailed) as e:  # the frames before it written, then the error
         result, cut = e.result, e
-    metrics = vp.compute_metrics(
-        result, seed=getattr(getattr(sequence, "config", None), "seed", None), wall_s=time.perf_counter() - t0
-    )
-    metrics.backend = args.backend
-    metrics.backend_class = result.backend
-    metrics.provenance = provenance(args, config)
+    metrics = _run_metrics(args, config, sequence, result, time.perf_counter() - t0, cut)
     if closer is not None:
         metrics.loops = {**closer.stats, "vocabulary": closer.vocabulary_source}
     if relocaliser is not None:
         metrics.tracking_loss = relocaliser.stats
     metrics.camera_estimate = None if camera is None else camera.to_dict()
     if prior_map is not None:  # what the run joined, and its error in the map's frame
-        in_map = vp.map_frame_ate(result)
         metrics.map = {
             "path": str(args.map),
             "start": "the first frame relocalised in the map",
-            "ate_in_map_frame": in_map,
+            "ate_in_map_frame": vp.map_frame_ate(result),
         }
     out_dir = args.resolved_out = folder.resolve()
     # a file the disk refuses costs no other: each is tried, after the recording, if one
@@ -250,7 +244,9 @@ def run(args: argparse.Namespace) -> int:
         if camera is not None:
             writes(paths, "intrinsics", out_dir / "intrinsics.txt", write_text, camera.file_text())
         if closer is not None:
-            paths.update(write_loops(closer, out_dir, writes))
+            from graphslam.sources.spatial.frames import source_indices
+
+            paths.update(write_loops(closer, out_dir, writes, source_indices(sequence)))
         if (recorder := folder.recorder) is not None:  # None once given up for room
             recorder.finish(args.backend, result, every=args.rerun_every or 5)
             if closer is not None:
@@ -265,6 +261,21 @@ def run(args: argparse.Namespace) -> int:
     status = report_outputs(format_summary(metrics), out_dir, paths, result.interrupted, cut, writes)
     writes.check(paths.values())
     return status
+
+
+def _run_metrics(args, config, sequence, result, wall_s: float, cut):
+    """The run's metrics record: scored, named, with its provenance and, when an error
+    (``cut``) ended it early, that error."""
+    from graphslam.pipelines import spatial as vp
+
+    metrics = vp.compute_metrics(
+        result, seed=getattr(getattr(sequence, "config", None), "seed", None), wall_s=wall_s
+    )
+    metrics.backend = args.backend
+    metrics.backend_class = result.backend
+    metrics.stopped_by = None if cut is None else str(cut)
+    metrics.provenance = provenance(args, config)
+    return metrics
 
 
 def _loop_closer(args, config, sequence, backend, n_frames: int, on_candidate):
@@ -381,7 +392,7 @@ def format_summary(m) -> str:
         tl = m.tracking_loss
         rows.append(
             counts_row(
-                "search losses / relocalised / found again",
+                "relocaliser's losses / relocalised / found again",
                 tl,
                 "losses",
                 "relocalisations",
@@ -406,7 +417,9 @@ def format_summary(m) -> str:
         rows.append(("frames by PnP / coasted", f"{mono['pnp_tracked_frames']} / {mono['coasted_frames']}"))
     for note in m.dataset_notes or ():
         rows.append(("data", note))
-    if m.interrupted:
+    if m.stopped_by is not None:  # not by the user: the error line below says what
+        rows.append(("stopped early", "by the error below"))
+    elif m.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)
 

@@ -24,12 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from graphslam.sources.spatial.sequence import (
+    IMAGE_EXTENSIONS,
     ImageSequence,
     check_increasing,
     check_K,
     check_rotation,
     image_doubts,
-    natural_key,
+    list_images,
     parse_floats,
     read_lines,
 )
@@ -91,14 +92,8 @@ def _per_image(rows: np.ndarray, paths: list[str], what: str, img_dir: Path, sou
         return rows
     stems = [Path(p).stem for p in paths]
     if len(rows) > len(paths) and all(s.isascii() and s.isdigit() for s in stems):
+        # (two names of one frame, 000010.png and 0000010.png, were refused by list_images)
         numbers = np.array([int(s) for s in stems])
-        same = np.flatnonzero(np.diff(numbers) == 0)  # 000010.png and 0000010.png
-        if same.size:
-            raise InputError(
-                f"two images of frame {numbers[same[0]]}: {Path(paths[same[0]]).name} "
-                f"and {Path(paths[same[0] + 1]).name}",
-                img_dir,
-            )
         if numbers.max() < len(rows):
             return rows[numbers]
     raise InputError(f"{len(rows)} {what} but {len(paths)} images in {img_dir}", source)
@@ -110,10 +105,12 @@ def read_kitti(folder: str | Path, camera: int = 0) -> ImageSequence:
     img_dir = folder / f"image_{camera}"
     if not img_dir.is_dir():
         raise InputError(f"KITTI image folder image_{camera}/ not found", folder)
-    # by frame number, not text: 0000010.png (frame 10) is after 000005.png
-    paths = sorted((str(p) for p in img_dir.glob("*.png")), key=lambda s: natural_key(Path(s).name))
+    # by frame number, not text: 0000010.png (frame 10) is after 000005.png; every image
+    # format a plain folder takes (pass 23: frames saved as .jpg, or .PNG, were left out
+    # unsaid, the run jumping over them)
+    paths = list_images(img_dir)
     if not paths:
-        raise InputError("no .png images", img_dir)
+        raise InputError(f"no images ({', '.join(IMAGE_EXTENSIONS)})", img_dir)
     K, c0Tck = read_kitti_calib(folder / "calib.txt", camera)
     ppath = kitti_poses_path(folder)
     poses = read_kitti_poses(ppath) if ppath is not None else None

@@ -504,7 +504,7 @@ def _run_relocalise(cli, key):
     assert res.rc == 0, res.err
     assert "tracking_loss" in res.metrics() and "tracking_loss" not in plain.metrics()
     assert set(res.metrics()["tracking_loss"]) >= {"loss_rule", "losses", "relocalisations", "loss_lengths"}
-    assert "active search found fewer than 3 landmarks in 2 frames in a row" in res.metrics()["tracking_loss"]["loss_rule"]
+    assert "active search found fewer than 3 landmarks, or the camera alone could not place the frame (coasted), in 2 frames in a row" in res.metrics()["tracking_loss"]["loss_rule"]
     refused(cli(*RUN_IMAGES, "--relocalise"), "use isam2")
     refused(cli(*RUN_2D, "--relocalise"), "image sequences only")
 

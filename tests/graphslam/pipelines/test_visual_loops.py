@@ -246,6 +246,9 @@ class _StubBackend:
     def landmarks_in_frame(self, frame_id, track_ids):
         return np.full((len(track_ids), 3), np.nan)  # nothing mapped: PnP must refuse
 
+    def has_pose(self, frame_id):
+        return True
+
     def add_loop_closure(self, closure):
         self.closures.append(closure)
 
@@ -317,7 +320,7 @@ def test_cli_loops_writes_csv_log_and_counts(tmp_path, capsys):
                  "--loops", "--rerun", "off", "--quiet", "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     assert (out / "loops.csv").read_text().splitlines()[0] == \
-        "query,match,score,inliers,pnp_inliers,distance_m"
+        "query,match,score,inliers,pnp_inliers,distance_m,query_file_frame,match_file_frame"
     records = [json.loads(l) for l in (out / "loops.jsonl").read_text().splitlines()]
     # covisibility: every query excludes at least its previous frame
     assert records and all(r["excluded"] >= 1 for r in records)

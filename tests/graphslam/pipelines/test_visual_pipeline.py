@@ -414,7 +414,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     camera = _config(tmp_path, '[isam2_visual]\nrobot_model = "constant_velocity"\n')
     _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--odometry", "sequence",
                              "--backend", "isam2", "--config", str(camera),
-                             "--out", str(tmp_path / "o2")], "takes no odometry")
+                             "--out", str(tmp_path / "o2")], "tracks by the camera alone, and this run has odometry")
     _one_line_error(capsys, ["run", "--dataset", "synthetic", "--frontend", "orb"], "image sequences only")
     _one_line_error(capsys, ["run", "--dataset", "synthetic-images", "--max-steps", "0"], "--max-steps")
     bad = _config(tmp_path, "[tracker]\ndetector = \"sift\"\n")

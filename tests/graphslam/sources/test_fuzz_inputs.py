@@ -516,5 +516,5 @@ def test_kitti_frame_numbers_order_the_images(tmp_path, shared_data):
                                                            "0000010.png"]
     assert np.all(np.diff(seq.stamps_s) > 0)
     shutil.copy(folder / "image_0" / "000015.png", folder / "image_0" / "0000015.png")
-    with pytest.raises(InputError, match="two images of frame 15"):
+    with pytest.raises(InputError, match="000015.png and 0000015.png name the same frame"):
         read_image_sequence(folder)
