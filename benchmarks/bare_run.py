@@ -104,10 +104,15 @@ def solve(factors: list, max_poses: int | None) -> tuple[gtsam.ISAM2, list[int]]
 
 
 def main(argv=None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    name, out = args[0], Path(args[1])
-    max_poses = int(args[3]) if len(args) > 3 and args[2] == "--max-poses" else None
-    isam, poses = solve(load(name), max_poses)
+    import argparse  # (the standard library: the script stays bare of the toolkit)
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("name", choices=tuple(FILES))
+    ap.add_argument("out", type=Path, help="folder for trajectory.tum")
+    ap.add_argument("--max-poses", type=int, default=None, help="the first poses only")
+    args = ap.parse_args(argv)
+    out = args.out
+    isam, poses = solve(load(args.name), args.max_poses)
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(100)
     lm.setRelativeErrorTol(1e-5)

@@ -104,7 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "decisive_share.json")
     args = ap.parse_args(argv)
-    counts, thin = ([250], 10) if args.quick else (args.features, 1)
+    if args.quick:  # smoke sizes for the options not given (--quick --features 500 ran 250)
+        entry.quick_sizes(ap, argv, args, features=[250])
+    counts, thin = args.features, 10 if args.quick else 1
     rows = []
     for n in counts:
         r = measure(args.data, n, thin)

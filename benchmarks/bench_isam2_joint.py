@@ -78,7 +78,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "isam2_joint.json")
     args = ap.parse_args(argv)
     dataset = read_mrclam_all(args.data, MrclamConfig(all_robots=True))
-    steps = 300 if args.quick else (args.frames or None)
+    if args.quick:  # smoke size unless --frames is given (--quick --frames 50 ran 300)
+        entry.quick_sizes(ap, argv, args, frames=300)
+    steps = args.frames or None
     routes = {
         "ours": lambda: registry.make_backend("isam2"),
         "estimate": lambda: EstimateSeeded(registry.make_backend("isam2").config),

@@ -154,6 +154,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=KITTI_DEFAULT.parent,
                     help="the shared data folder (default ../shared/data)")
     args = ap.parse_args(argv)
+    if args.kitti not in (None, "none") and not (Path(args.kitti) / "image_0").is_dir():
+        # a folder named and not there was passed over, "kitti07": null, exit 0 (pass 23)
+        ap.error(f"--kitti {args.kitti}: no KITTI folder with image_0/ there (none: leave KITTI out)")
     if args.real:
         return real_main(args.data, args.out or HERE / "results" / "loop_pr_real.json")
     args.out = args.out or HERE / "results" / "loop_pr.json"

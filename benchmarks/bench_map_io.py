@@ -93,7 +93,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         entry.quick_sizes(ap, argv, args, keyframes=100, repeat=1)
-    smap = big_map(args.keyframes, words=100, bow_kf=50) if args.quick else big_map(args.keyframes)
+    smap = big_map(args.keyframes, **({"words": 100, "bow_kf": 50} if args.quick else {}))
     arrays = {n: getattr(smap, n) for n in ("keyframe_wTc", "keyframe_cov", "landmark_w",
                                              "landmark_cov", "landmark_desc", "landmark_patch",
                                              "obs_keyframe", "obs_landmark", "obs_uv", "obs_desc",

@@ -167,8 +167,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="the seeds' unknown-id runs pair each scan in its order "
                          "([fastslam] pair_scans_jointly = false)")
     args = ap.parse_args(argv)
-    if args.quick:
-        entry.quick_sizes(ap, argv, args, robots=[1])
+    if args.quick:  # smoke sizes for the options not given: no seed spread unless --seeds
+        entry.quick_sizes(ap, argv, args, robots=[1], seeds=[])
     robots = args.robots
     max_steps = 300 if args.quick else None
     associations = ("known",) if args.quick else ("known", "unknown")
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> None:
             names, [joint_fs2["agents"].get(n, {}).get("median_m", 0.0) for n in names])
     panels.append(Panel("ATE per robot", "robot", "ATE [m]", ate, kind="bar", logy=True,
                         targets={"iSAM2 bound 0.12 m": 0.12}))
-    spread = None if args.quick or not args.seeds else seed_spread(args.data, robots, args.seeds,
+    spread = None if not args.seeds else seed_spread(args.data, robots, args.seeds,
                                                                      args.pair_scans_in_order)
     if joint_fs2 is not None and spread is not None:
         for name, a in joint_fs2["agents"].items():

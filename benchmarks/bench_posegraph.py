@@ -331,12 +331,15 @@ def main(argv=None) -> int:
     args.given_inputs = list(args.inputs)
     if args.quick and not args.inputs:
         args.inputs = [gtsam.findExampleDataFile(n) for n in ("w100.graph", "pose3example.txt")]
+    files = list(gather(args.inputs))
+    if not files:  # a folder of none ended in "max() arg is an empty sequence", an empty --out
+        ap.error(f"no pose-graph files in {', '.join(map(str, args.inputs))}")
     args.out.mkdir(parents=True, exist_ok=True)
     config = PoseGraphConfig()
     rows = []
     print(f"{'file':24s} {'dim':>3s} {'poses':>6s} {'edges':>6s} {'init':>8s} {'init cost':>12s} "
           f"{'final cost':>14s} {'it':>4s} {'wall s':>7s} {'/bare':>6s}")
-    for path in gather(args.inputs):
+    for path in files:
         r = bench_file(path, args.out, config, args.repeats)
         rows.append(r)
         print(f"{r['file']:24s} {r['dim']:3d} {r['poses']:6d} {r['edges']:6d} {r['init']:>8s} "

@@ -272,7 +272,7 @@ def plot(seeds: list[int], per_seed: dict, out: Path, labels: dict) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="0,1,2", help="synthetic sequence seeds, comma-separated")
+    ap.add_argument("--seeds", type=entry.int_list, default=[0, 1, 2], help="synthetic sequence seeds, comma-separated")
     ap.add_argument("--frames", type=entry.count, default=300, help="frames per run (the sequence has 300)")
     ap.add_argument("--repeats", type=entry.count, default=2, help="alternated runs per order (median)")
     ap.add_argument("--control", action="store_true",
@@ -282,8 +282,8 @@ def main(argv: list[str] | None = None) -> int:
                     default=Path(__file__).resolve().parent / "results" / "sequential_search.json")
     args = ap.parse_args(argv)
     if args.quick:
-        entry.quick_sizes(ap, argv, args, seeds="0", frames=30, repeats=1)
-    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+        entry.quick_sizes(ap, argv, args, seeds=[0], frames=30, repeats=1)
+    seeds = args.seeds
     per_seed = {}
     labels = {**ORDERS, **(CONTROL if args.control else {})}
     print(f"{'seed':>4} {'order':<31} {'ATE m':>7} {'ms/frame':>8} {'cpu ms':>6} {'srch':>5} {'found':>5} "
@@ -317,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
               f"truth outside ellipse {100 * m['truth_outside_share']:.2f} %")
     floor = "the batch order: one prediction per frame, the 10 matches corrected at once " \
             "(same tracker, filter and sequence)"
-    cmd = COMMAND + (" --quick" if args.quick else f" --seeds {args.seeds} --frames {args.frames}") \
+    # the sizes that ran, --quick's too (it left out those the user gave with it)
+    cmd = COMMAND + " --quick" * args.quick + f" --seeds {','.join(map(str, seeds))} --frames {args.frames}" \
         + (" --control" if args.control else "")
     summaries = [timing.summary(f"sequential active search ({label}), time per frame",
                                 mean[label]["ms_per_frame"] / 1e3, mean["batch"]["ms_per_frame"] / 1e3,

@@ -1,4 +1,4 @@
-"""Same outputs before and after a refactor: SHA-256 of the files five commands write.
+"""Same outputs before and after a refactor: SHA-256 of the files a set of commands write.
 
 Runs the default ``graphslam run`` (iSAM2, the EKF and FastSLAM, known and unknown
 association), ``--dataset victoria-park``, the synthetic image sequence on both

@@ -227,7 +227,35 @@ def output_file(text: str) -> Path:
     measurement: the one line came after the work."""
     from slamcore.files import check_output_file
 
+    if Path(text).suffix.lower() == ".png":  # the figure's own name: it overwrote the JSON
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is a figure's name: --out names the JSON result, the figure goes beside it (.png)"
+        )
     return _checked(check_output_file, text)
+
+
+def int_list(text: str) -> list[int]:
+    """Comma-separated whole numbers of at least 0 (``--seeds 0,1,2``): a bad one is
+    argparse's one line, not a ValueError traceback when the list is first read."""
+    values = [_number(part.strip(), int) for part in text.split(",")]
+    if not values or any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected whole numbers of at least 0 separated by commas, got {text!r}")
+    return values
+
+
+def names_from(*allowed: str) -> Callable[[str], list[str]]:
+    """An argparse type: comma-separated names, each one of ``allowed`` (``--backends
+    isam2,ekf``): an unknown one was a KeyError after the first back end's work."""
+
+    def parse(text: str) -> list[str]:
+        names = [part.strip() for part in text.split(",")]
+        bad = [n for n in names if n not in allowed]
+        if bad:
+            raise argparse.ArgumentTypeError(f"unknown {', '.join(map(repr, bad))}; choose from {', '.join(allowed)}")
+        return names
+
+    parse.__doc__ = f"Comma-separated names, each one of {', '.join(allowed)}."
+    return parse
 
 
 def output_folder(text: str) -> Path:

@@ -1753,6 +1753,10 @@ def run_attack(a: Attack, timeout_s: float) -> dict:
             proc.communicate()
             return {"attack": a.name, "category": a.category, "verdict": "fail",
                     "outcome": "crash", "why": f"hang: over {timeout_s:g} s"}
+        except BaseException:  # this script stopped (a signal): its attack goes with it (pass 23:
+            proc.kill()        # it ran on, its folder already removed)
+            proc.wait()
+            raise
         wall = time.perf_counter() - t0
         lines = [ln for ln in err.splitlines() if ln.startswith("graphslam: error:")]
         if "Traceback" in err or rc < 0:
@@ -1789,7 +1793,9 @@ def plot(rows: list[dict], out: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="skip the slow attacks")
+    ap.add_argument("--quick", action="store_true",
+                    help="a smoke run: the first 6 attacks that are not slow (with --only: every "
+                         "matching attack that is not slow)")
     ap.add_argument("--only", default=None, help="attacks whose name holds this text")
     ap.add_argument("--timeout", type=entry.positive, default=300.0, help="hang guard per attack, s")
     ap.add_argument("--out", type=entry.output_file, default=HERE / "results" / "hostile_pass.json")
@@ -1798,6 +1804,8 @@ def main(argv=None) -> int:
               and (args.only is None or args.only in a.name)]
     if args.quick and args.only is None:
         chosen = chosen[:6]  # a smoke run: the suite runs the full pass's cases as tests
+    if not chosen:  # a typo in --only ran nothing and wrote a result of 0 attacks
+        ap.error(f"--only {args.only!r}: no attack's name holds it" if args.only is not None else "no attack to run")
     rows = []
     for a in chosen:
         r = run_attack(a, args.timeout)
