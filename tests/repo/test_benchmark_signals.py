@@ -290,6 +290,36 @@ def test_numeric_options_refuse_what_would_fail_later(entry, kind, good, bad):
             parse(text)
 
 
+def test_lists_and_outputs_refuse_what_would_fail_later(entry, tmp_path):
+    """Hostile pass 23: --seeds abc was a ValueError traceback, --backends abc a KeyError
+    after the first back end's work, and --out x.png had the figure overwrite the JSON."""
+    import argparse
+
+    assert entry.int_list("0, 1,2") == [0, 1, 2]
+    backends = entry.names_from("isam2", "ekf")
+    assert backends("ekf,isam2") == ["ekf", "isam2"]
+    for parse, text in ((entry.int_list, "abc"), (entry.int_list, "1,-2"), (backends, "isam2,ekf,"),
+                        (backends, "abc"), (entry.output_file, str(tmp_path / "x.png"))):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse(text)
+    assert entry.output_file(str(tmp_path / "x.json")) == tmp_path / "x.json"
+
+
+@pytest.mark.parametrize("script, argv, says", [
+    ("bench_posegraph", ["{tmp}", "--out", "{tmp}/pg"], "no pose-graph files in"),
+    ("bench_loop_pr", ["--kitti", "{tmp}/nowhere", "--out", "{tmp}/lp.json"], "no KITTI folder"),
+    ("hostile_pass", ["--only", "no such attack", "--out", "{tmp}/h.json"], "no attack's name holds it"),
+])
+def test_arguments_that_select_nothing_are_refused_first(script, argv, says, tmp_path, capsys):
+    """Each ran (a traceback after an empty folder was made, exit 0 with kitti07 null, a
+    result of 0 attacks); now argparse's line before any work."""
+    main = load_benchmark(script).main
+    with pytest.raises(SystemExit) as e:
+        main([a.replace("{tmp}", str(tmp_path)) for a in argv])
+    assert e.value.code == 2 and says in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("argv, particles, steps", [
     (["--quick"], [10, 100], 20),
     (["--quick", "--particles", "5"], [5], 20),
