@@ -89,8 +89,9 @@ ground truth: built in for synthetic, synthetic-images, city10000, KITTI
 
 outputs (in --out):
   trajectory.tum    TUM format; time column = pose id where the data has no stamps
-  ground_truth.tum  the truth of the same poses, same time column (when there is
-                    truth): evo_ape tum ground_truth.tum trajectory.tum
+  ground_truth.tum  the truth of the run's frames, same time column (when there is
+                    truth; a camera-alone run's frames before its first map too,
+                    which have no pose): evo_ape tum ground_truth.tum trajectory.tum
   landmarks.csv     id,x,y
   nees.csv          with --nees: step,pose_id,nees (2-D runs with ground truth)
   metrics.json      final_error (gtsam graph error), ate_rmse_m, wall_s (the whole

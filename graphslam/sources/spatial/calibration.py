@@ -290,6 +290,13 @@ def read_intrinsics_file(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     if is_colmap_camera_line(first):
         K, dist, _ = _colmap_cameras(lines, path)
         return K, dist
+    if re.match(r"\s*P\d+\s*:", first):  # which P it would be depends on the folder it came from
+        raise InputError(
+            "a KITTI calib.txt (projection matrices P0-P3): run the KITTI sequence folder itself "
+            "(image_0/ beside calib.txt), which reads the camera's P, or give fx fy cx cy",
+            path,
+            first_no,
+        )
     v = parse_floats(first, path, first_no, what="intrinsics numbers")
     if v.size == 4:
         K, rest = intrinsics_matrix(*v), lines[1:]

@@ -401,6 +401,24 @@ def _offset(cx: float, cy: float, w: int, h: int) -> float:
     return math.hypot((cx - (w - 1) / 2) / (w / 2), (cy - (h - 1) / 2) / (h / 2))
 
 
+#: fx / fy beyond which the pixels are doubted not square. Sensors have square pixels (the
+#: calibrations at hand: KITTI 1.000, the Lund door's COLMAP 1.000, TUM's fr1 1.002); an
+#: anamorphic lens squeezes 1.33-2x, and a 5 % difference is already far outside what any
+#: calibration of square pixels gives (pass 23: fy = fx / 2 ran without a word).
+PIXEL_ASPECT_DOUBT = 0.05
+
+
+def _aspect_doubt(fx: float, fy: float, where) -> list[str]:
+    ratio = fx / fy
+    if abs(ratio - 1.0) <= PIXEL_ASPECT_DOUBT:
+        return []
+    return [
+        f"{where}: fx = {fx:.6g} and fy = {fy:.6g} px differ by {100 * abs(ratio - 1):.0f} % (square "
+        "pixels: within a few tenths of a %): a camera of non-square pixels, or fx and fy of two "
+        "calibrations? the estimate is doubtful"
+    ]
+
+
 def camera_doubts(K: np.ndarray, size: tuple[int, int], where, first_image: str | None = None) -> list[str]:
     """Check that ``K`` is a camera of ``size`` ``(W, H)`` images; InputError (naming
     ``where``) when it cannot be, else the reasons to doubt it (warning lines).
@@ -436,14 +454,15 @@ def camera_doubts(K: np.ndarray, size: tuple[int, int], where, first_image: str 
             f"{MAX_HALF_VIEW_DEG:g}): intrinsics divided by the image size? they are in pixels",
             where,
         )
+    aspect = _aspect_doubt(fx, fy, where)
     off = _offset(cx, cy, w, h)
     # half the doubt when the photos are turned on reading and K fits them as stored:
     # a 4:3 photo's landscape K on the portrait image is 42 % off, beyond any lens too
     exif = _exif_turned(cx, cy, w, h, first_image) if off > PRINCIPAL_POINT_DOUBT / 2 else ""
     if off <= PRINCIPAL_POINT_DOUBT and not exif:
-        return []
+        return aspect
     why = exif or "intrinsics of another resolution or orientation?"
-    return [
+    return aspect + [
         f"{where}: principal point ({cx:.6g}, {cy:.6g}) px is {100 * off:.0f} % of the way from "
         f"the centre of the {w}x{h} px images to their edge (a lens: a few %): {why}; "
         "the estimate is doubtful"
@@ -530,7 +549,8 @@ def repeated_frames(paths: Sequence[str]) -> list[str]:
     return [
         f"{len(pairs)} of {len(paths) - 1} consecutive frames are the same image twice "
         f"(first: {Path(a).name}, {Path(b).name}): two exposures of a camera always differ, "
-        "so these are frames stored twice, taken as instants at which the camera did not move"
+        "so these are frames stored twice, or blank (a covered lens, no signal), taken as "
+        "instants at which the camera did not move"
     ]
 
 

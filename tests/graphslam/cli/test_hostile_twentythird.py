@@ -174,3 +174,23 @@ def test_loss_doubts_name_the_files_frames_under_a_frame_selection():
     assert "frames 13-17 of the run, file frames 163-167" in line
     (line,) = _loss_doubts(losses, np.arange(200))
     assert "(frames 13-17)" in line
+
+
+def test_a_kitti_calib_txt_as_intrinsics_says_where_it_is_read(kitti):
+    """It was 'malformed line, expected intrinsics numbers: P0: ...'."""
+    from graphslam.sources.spatial.calibration import read_intrinsics_file
+    from slamcore.errors import InputError
+
+    with pytest.raises(InputError) as e:
+        read_intrinsics_file(kitti / "calib.txt")
+    assert e.value.line == 1 and "run the KITTI sequence folder itself" in str(e.value)
+
+
+@pytest.mark.parametrize("fy, doubted", [(500.0, False), (510.0, False), (250.0, True), (600.0, True)])
+def test_pixels_far_from_square_are_doubted(fy, doubted):
+    """fy = fx / 2 ran without a word (pass 23)."""
+    from graphslam.sources.spatial.sequence import camera_doubts
+
+    K = np.array([[500.0, 0, 319.5], [0, fy, 239.5], [0, 0, 1]])
+    said = camera_doubts(K, (640, 480), "cam.txt")
+    assert any("square pixels" in w for w in said) is doubted
