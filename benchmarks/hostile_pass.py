@@ -979,7 +979,40 @@ def attacks() -> list[Attack]:
                           "--backends", "ekf-idp", "--out", "out", "--config",
                           str(_w(f, "c.toml", '[mono_ekf]\nlandmark_param = "ahp"\n'))],
                check=_says("contradicts the compared entry ekf-idp", "err")),
+        # ---- the twenty-third pass (2026-12-08)
+        Attack("23rd: --loops on photos whose camera-alone map never starts (internal 'unknown frame 0')",
+               "fail", lambda f: ["run", "--dataset", str(_desk_copy(f, _DESK_10)), "--intrinsics",
+                                  str(_w(f, "cam.txt", "520 520 319.5 239.5\n")), "--loops", "--rerun", "off",
+                                  "--quiet", "--out", "out"],
+               check=_says("monocular tracking never started", "err")),
+        Attack("23rd: a KITTI folder with frames saved as .jpg (left out unsaid)", "silent",
+               lambda f: (_kitti_jpg(_kitti_seq(f, 30), (20, 21, 22)),
+                          _run(str(f / "kit"), "--odometry", "derived"))[1], ("ok",),
+               check=lambda f, o, e: None if len((f / "out" / "trajectory.tum").read_text().splitlines()) == 31
+               else "not every frame ran"),
+        Attack("23rd: robot_model = constant_velocity with odometry (failed at frame 1, 'interrupted')", "fail",
+               lambda f: _run(str(_kitti_seq(f, 6)), "--odometry", "derived", "--config",
+                              str(_w(f, "c.toml", '[isam2_visual]\nrobot_model = "constant_velocity"\n'))),
+               check=_says('c.toml:2: [isam2_visual] robot_model = "constant_velocity"', "err")),
+        Attack("23rd: KITTI's calib.txt as --intrinsics (a malformed line)", "fail",
+               lambda f: _run(str(_desk_copy(f, _DESK_3)), "--intrinsics", str(DATA / "kitti07" / "calib.txt")),
+               check=_says("run the KITTI sequence folder itself", "err")),
+        Attack("23rd: fy = fx / 2 (run without a word)", "silent",
+               lambda f: _run(str(_desk_copy(f, _DESK_3)), "--intrinsics",
+                              str(_w(f, "cam.txt", "520 260 319.5 239.5\n")), "--odometry", "none"),
+               ("ok", "error"), check=_says("square pixels", "err")),
     ]
+
+
+def _kitti_jpg(kit: Path, frames) -> Path:
+    """``kit``'s ``frames`` saved as JPEG in place of their PNG."""
+    import cv2
+
+    for k in frames:
+        png = kit / "image_0" / f"{k:06d}.png"
+        cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png), cv2.IMREAD_GRAYSCALE))
+        png.unlink()
+    return kit
 
 
 #: A sweep of one short synthetic EKF run.
