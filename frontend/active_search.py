@@ -99,6 +99,10 @@ class ActiveSearchResult:
         skipped: (N,) bool, searchable but left unsearched because the search
             stopped (``max_corrections`` searched or ``max_found`` found); None
             for a result made without a search (no prediction).
+        z, S: (N, 2), (N, 2, 2) the ellipse each landmark was searched in: the
+            predictions, or in sequential order the re-predictions (the caller's
+            arrays are not changed: hostile pass 24 found the tracker recording the
+            first prediction for zncc and nearest searches); None without a search.
     """
 
     order: np.ndarray
@@ -111,6 +115,8 @@ class ActiveSearchResult:
     image_fraction: float
     image_fraction_sum: float
     skipped: np.ndarray | None = None
+    z: np.ndarray | None = None
+    S: np.ndarray | None = None
 
     @property
     def n_found(self) -> int:
@@ -304,6 +310,8 @@ class ActiveSearch:
             image_fraction=float(union.sum()) / npx,
             image_fraction_sum=float(pixels.sum()) / npx,
             skipped=skipped,
+            z=z,
+            S=S,
         )
 
     @staticmethod

@@ -63,7 +63,8 @@ class ActiveSearchConfig(Validated):
     max_corrections: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
     patch_size_px: int = bounded(11, min=3, max=MAX_PATCH_PX)
     min_score: float = bounded(0.8, min=-1.0, max=1.0)
-    min_patch_std: float = bounded(3.0, min=0.0)
+    # 8-bit grey levels spread at most 127.5 (half 0, half 255): more refuses every patch
+    min_patch_std: float = bounded(3.0, min=0.0, max=127.5)
     subpixel: bool = True
     predict_appearance: bool = False
     max_half_extent_px: float = bounded(150.0, gt=0.0)

@@ -220,7 +220,11 @@ class FpgaHarrisStream:
             raise InputError(f"frame start time must be finite, got {t0_s}")
         if self._frames:
             earliest = self.next_start_s()
-            if t0_s < earliest - 1e-12:
+            # round-off of the stamps' own size: at a Unix-epoch time (1.4e9 s) one float
+            # step is 2.4e-7 s, and frames one period apart were refused as overlapping
+            # (hostile pass 24); 16 steps of float spacing, 1e-12 s near 0
+            tol = max(1e-12, 16.0 * math.ulp(max(abs(t0_s), abs(earliest))))
+            if t0_s < earliest - tol:
                 raise InputError(
                     f"frame pushed at t0 = {t0_s:.9f} s overlaps the previous frame "
                     f"(earliest start {earliest:.9f} s)"

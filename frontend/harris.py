@@ -396,7 +396,10 @@ class HarrisDetector:
         self._work: dict = {}
 
     def response(self, image: np.ndarray) -> np.ndarray:
-        """Full (H, W) response in float units (float64); NaN-free, -inf where undefined."""
+        """Full (H, W) response in float units (float64), NaN-free. The fixed arithmetic
+        is -inf where its windows leave the image (the FPGA's pipeline has no pixel
+        there); the float one is finite there, its filters reflecting the image at the
+        edge. Neither band holds a detection: ``detect`` keeps ``border_px`` clear."""
         image = check_gray(image)
         cfg = self.config
         if cfg.arithmetic == "float":

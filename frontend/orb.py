@@ -17,6 +17,7 @@ output is sorted by cell, then decreasing response).
 
 from __future__ import annotations
 
+import math
 import operator
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -138,11 +139,17 @@ class OrbDetector:
 
     def _too_small(self, image: np.ndarray) -> bool:
         """No point of ``image`` is ``edge_threshold`` px inside every border, so ORB
-        can describe none (and OpenCV fails on a 1-px side, whose pyramid levels
-        have no pixel)."""
+        can describe none, or OpenCV would fail: its coarsest level, the side divided by
+        ``scale_factor ** (n_levels - 1)`` and rounded, has no pixel (measured: a 100-px
+        side at 2.0 runs with 8 levels, 0.78 px, and fails with 9, 0.39 px). It took
+        1.5 px for the limit and so dropped every corner of KITTI at scale 2, 9 levels,
+        which OpenCV runs (hostile pass 24). Compared in logarithms: scale_factor = 1e300
+        overflowed the power."""
         c = self.config
         side = min(image.shape)
-        return side <= 2 * c.edge_threshold or side / c.scale_factor ** (c.n_levels - 1) < 1.5
+        if side <= 2 * c.edge_threshold:
+            return True
+        return math.log(side / 0.5) <= (c.n_levels - 1) * math.log(c.scale_factor)
 
     def _cells(self, xy: np.ndarray, shape) -> np.ndarray:
         cs = self.config.cell_size_px

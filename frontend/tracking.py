@@ -353,8 +353,9 @@ class Tracker:
             corners=np.asarray(feats.xy_px, dtype=np.float64).reshape(-1, 2),
             cell_size_px=self.cell_size_px(),
             pred_ids=pids,
-            pred_uv=puv,
-            pred_S=pS,
+            # the ellipses searched in (sequential order: re-predicted), as documented
+            pred_uv=puv if res.z is None else res.z,
+            pred_S=pS if res.S is None else res.S,
             searched=res.searched,
             found=res.found,
             found_uv=res.uv,

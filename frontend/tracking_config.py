@@ -144,7 +144,8 @@ class TrackerConfig(Validated):
     search: SearchMode = "auto"
     max_tracks: int = bounded(80, min=1, max=MAX_POINTS_PER_FRAME)
     max_new_per_frame: int = bounded(20, min=0, max=MAX_POINTS_PER_FRAME)
-    min_distance_px: float = bounded(16.0, min=0.0)
+    # beyond any image's diagonal it blocks every corner; 1e200 overflowed its square
+    min_distance_px: float = bounded(16.0, min=0.0, max=2.0 * MAX_SIDE_PX)
     follow_unmapped: bool | None = None
     follow_window_px: int = bounded(24, min=1, max=MAX_SIDE_PX)
     follow_image_motion: bool | None = None

@@ -37,7 +37,7 @@ def write_error_line(e: OSError) -> str | None:
     """The one line for an OSError met writing that the user can act on (a full disk,
     a file-size limit, a name too long, a folder in an output's place, a file the user
     may not replace), or None for any other (a bug: the traceback is wanted)."""
-    where = e.filename if e.filename is not None else "an output file"
+    where = short_path(e.filename) if e.filename is not None else "an output file"
     if e.errno in DISK_FULL_REASONS:
         return f"{DISK_FULL_REASONS[e.errno]} writing {where}: {e.strerror}"
     if e.errno == errno.ENAMETOOLONG:
@@ -45,14 +45,26 @@ def write_error_line(e: OSError) -> str | None:
     if e.errno in (errno.EPERM, errno.EACCES):
         # an output the user may not replace (another user's file in a shared folder, an
         # immutable one): the rename names the temporary file first and the output second
-        target = e.filename2 if getattr(e, "filename2", None) is not None else where
+        target = short_path(e.filename2) if getattr(e, "filename2", None) is not None else where
         return f"{target} cannot be written or replaced ({e.strerror}: another user's, or read-only)"
     if e.errno == errno.EISDIR:
         # a folder under an output's name: the rename of the finished file onto it
         # names the temporary file first and the output second
-        target = e.filename2 if getattr(e, "filename2", None) is not None else where
+        target = short_path(e.filename2) if getattr(e, "filename2", None) is not None else where
         return f"{target} is a folder; an output file of that name cannot be written"
     return None
+
+
+#: Longest path an error line quotes whole; a longer one keeps its head and its tail.
+SHORT_PATH_CHARS = 200
+
+
+def short_path(path) -> str:
+    """``path`` as an error line quotes it: whole up to :data:`SHORT_PATH_CHARS`, else its
+    first 80 and last 100 characters around an ellipsis (a 4 kB path made a 4175-character
+    line: hostile pass 24)."""
+    text = os.fsdecode(path) if isinstance(path, bytes) else str(path)
+    return text if len(text) <= SHORT_PATH_CHARS else f"{text[:80]}...{text[-100:]}"
 
 
 def folder_name(path: str | Path) -> str:
@@ -175,6 +187,14 @@ def check_output_dir(path: str | Path, flag: str = "--out", files: Iterable[str]
     """
     path = Path(path)
     check_name_lengths(path, flag)
+    longest = max(files, key=lambda n: len(os.fsencode(n)), default=None)
+    if longest is not None:  # the folder fits, its files would not (hostile pass 24)
+        size = len(os.fsencode(str(path / longest)))
+        if size > PATH_MAX_BYTES:
+            raise ConfigError(
+                f"{flag}: its file {longest} would have a path of {size} bytes; systems take at most "
+                f"{PATH_MAX_BYTES}"
+            )
     for p in (path, *path.parents):  # a link to nothing cannot be made into a folder
         if p.is_symlink() and not p.exists():
             raise ConfigError(

@@ -98,7 +98,9 @@ class PlanarRunMetrics(MetricsRecord):
             2.0's ``misread_restart_s`` with known ids, one per particle and record); left
             out when none.
         map, localisation_only, unmapped_observations: with ``run --map``: the map
-            folder, True, and the observations of landmarks not in the map (not used).
+            folder, True, and the observations of landmarks not in the map (not used);
+            ate_in_map_frame_m: the ATE there without the SE(2) fit (the map's frame is
+            the truth's when the map's run started at the truth, as every reader's does).
         warnings: what makes the estimate absurd, one line each
             (:func:`graphslam.evaluation.planar.estimate_warnings`); left out when none.
         dataset_notes: what the reader made of the source (``Dataset.notes``).
@@ -143,6 +145,7 @@ class PlanarRunMetrics(MetricsRecord):
     map: str | None = optional()
     localisation_only: bool | None = optional()
     unmapped_observations: int | None = optional()
+    ate_in_map_frame_m: float | None = optional()
     warnings: list[str] | None = optional()
     dataset_notes: list[str] | None = optional()
     map_rmse_m: float | None = optional()

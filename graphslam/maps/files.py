@@ -207,7 +207,31 @@ def read_map_json(folder, kind: str = SPATIAL) -> dict:
     sessions = doc["meta"].get("sessions", [])  # extended by a run with --map and --save-map
     if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
         raise InputError("damaged map.json (meta 'sessions' is not a list of tables)", path)
+    for where, table in [
+        ("meta", doc["meta"]),
+        *((f"meta 'sessions' {i}", t) for i, t in enumerate(sessions)),
+    ]:
+        _check_meta_fields(table, where, path)
     return doc
+
+
+def _check_meta_fields(table: dict, where: str, path: Path) -> None:
+    """InputError for the fields of ``table`` (the map's meta or one session) a command
+    reads as numbers or tables, given as something else (hostile pass 24: a frame range
+    written "0:100:2", n_frames "fifty" or a config "isam2" were tracebacks, after the run)."""
+    frames = table.get("frame_range")
+    if frames is not None and not (
+        isinstance(frames, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in frames)
+    ):
+        raise InputError(f"damaged map.json ({where} 'frame_range' is not a list of whole numbers)", path)
+    n = table.get("n_frames")
+    if n is not None and (not isinstance(n, int) or isinstance(n, bool) or n < 0):
+        raise InputError(f"damaged map.json ({where} 'n_frames' is not a whole number)", path)
+    config = table.get("config")
+    if config is not None and not (
+        isinstance(config, dict) and all(isinstance(v, dict) for v in config.values())
+    ):
+        raise InputError(f"damaged map.json ({where} 'config' is not a table of sections)", path)
 
 
 def _checked_bytes(folder: Path, entry: dict, what: str) -> tuple[Path, bytes]:

@@ -47,6 +47,11 @@ ARRAYS: dict[str, tuple[tuple[int, ...], str]] = {
 COUNTS = {"keyframe": "keyframes", "landmark": "landmarks", "obs": "observations"}
 
 
+#: A map covariance's smallest eigenvalue may be negative by this share of its largest
+#: (round-off of the marginals, 1e-16 relative, far inside), not more.
+COV_EIGEN_TOL = 1e-8
+
+
 @dataclass(eq=False)
 class SpatialMap:
     """A saved visual map (module docstring). K keyframes, L landmarks, O observations.
@@ -198,6 +203,16 @@ class SpatialMap:
             if np.any(diag < 0.0) or np.any(np.abs(C - np.swapaxes(C, 1, 2)) > 1e-9 * (1.0 + np.abs(C))):
                 raise InputError(
                     f"map array {name} holds a covariance that is not symmetric or has a negative variance",
+                    where,
+                )
+            # a correlation beyond 1 (hostile pass 24: localize.csv then carried covariances
+            # with negative eigenvalues): negative beyond round-off of the largest
+            w = np.linalg.eigvalsh(0.5 * (C + np.swapaxes(C, 1, 2))) if len(C) else np.zeros((0, 1))
+            bad = np.flatnonzero(w[:, 0] < -COV_EIGEN_TOL * np.maximum(np.abs(w[:, -1]), 1e-300))
+            if bad.size:
+                raise InputError(
+                    f"map array {name} holds a covariance that is not positive semi-definite (row "
+                    f"{int(bad[0])}, smallest eigenvalue {w[bad[0], 0]:.3g}): a correlation beyond 1",
                     where,
                 )
 

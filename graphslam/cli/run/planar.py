@@ -162,8 +162,13 @@ def run(args: argparse.Namespace) -> int:
     _mark_unread_sensor_settings(backend, config, result.dataset)
     metrics.provenance = provenance(args, config)
     if pmap is not None:  # backend is planar_maps.localiser's (annotated Backend there)
+        from graphslam.pipelines import planar_maps
+
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
+        metrics.ate_in_map_frame_m, doubts = planar_maps.map_frame_ate(result, truth)
+        source = planar_maps.map_source_doubt(pmap, result.dataset)
+        metrics.warnings = [*(metrics.warnings or []), *([source] if source else []), *doubts] or None
         if result.observations and metrics.unmapped_observations == result.observations:
             # a map of other landmark ids: every sighting unmapped, said only as a count
             metrics.warnings = [
@@ -433,6 +438,8 @@ def format_summary(metrics) -> str:
     if metrics.localisation_only:
         rows.append(("localisation only", f"map {metrics.map}"))
         rows.append(("unmapped observations", metrics.unmapped_observations))
+        if metrics.ate_in_map_frame_m is not None:
+            rows.append(("ATE in the map's frame (no fit) [m]", fmt(metrics.ate_in_map_frame_m, ".4f")))
     if metrics.interrupted:
         rows.append(("interrupted", "yes"))
     return summary_table(rows)
