@@ -202,13 +202,15 @@ def _revised_pairing(frames, revised: dict[tuple[int, int], int]) -> dict[tuple[
 
 
 def paired_dataset(
-    dataset: Dataset, paired: dict[tuple[int, int], int | None], landmark_ids: np.ndarray
+    dataset: Dataset, paired: dict[tuple[int, int], int | None], landmark_ids: np.ndarray, prune: bool = False
 ) -> Dataset:
     """``dataset`` with each observation's ``landmark_id`` as the run paired it, for the
     final error of a run that associated: None (left out of the graph) where it was
     unused or its landmark is not among the estimate's ``landmark_ids`` (a filter pruned
-    it, or FastSLAM's best particle of the time is not the final one)."""
-    if not paired:
+    it, or FastSLAM's best particle of the time is not the final one). ``prune``: the
+    latter also without pairings (a ``--map`` run, whose sightings of landmarks not in the
+    map are unused: one of them made the final error n/a and skipped its test)."""
+    if not paired and not prune:
         return dataset
     kept = set(np.asarray(landmark_ids).tolist())
     frames = []
@@ -307,7 +309,11 @@ def compute_metrics(
         # a filter's last estimate is not a least-squares optimum: its cost is reported,
         # not tested, and the test's bulk figure is not computed for it
         smoother = not (row is None or row.landmarks is None or row.landmarks.filtering)
-        cost = graph_cost(paired_dataset(result.dataset, result.paired, est.landmark_ids), est, bulk=smoother)
+        cost = graph_cost(
+            paired_dataset(result.dataset, result.paired, est.landmark_ids, prune=map_fixed),
+            est,
+            bulk=smoother,
+        )
         final_error = None if cost is None else cost[0]
         if not smoother:
             cost = None

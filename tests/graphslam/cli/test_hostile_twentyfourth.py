@@ -164,3 +164,13 @@ def test_a_map_folder_whose_files_would_pass_the_path_limit_is_refused_first(tmp
     with pytest.raises(ConfigError, match="its file vocabulary.npz would have a path of"):
         check_output_dir(deep, "--save-map", files=("map.json", "vocabulary.npz"))
     assert len(short_path(deep)) < 200 and short_path("a/b") == "a/b"
+
+
+def test_a_localisation_past_the_map_keeps_its_final_error_and_test(tmp_path):
+    """Sightings of landmarks not in the map (Victoria Park past the mapped 3000 steps)
+    left their keys out of the estimate: final error n/a, its chi-square test skipped."""
+    argv = ["run", "--dataset", "victoria-park", *QUIET]
+    assert main([*argv, "--max-steps", "3000", "--save-map", str(tmp_path / "m"), "--out", str(tmp_path / "a")]) == 0
+    assert main([*argv, "--max-steps", "5000", "--map", str(tmp_path / "m"), "--out", str(tmp_path / "b")]) == 0
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert m["unmapped_observations"] > 0 and m["final_error"] is not None
