@@ -1001,7 +1001,52 @@ def attacks() -> list[Attack]:
                lambda f: _run(str(_desk_copy(f, _DESK_3)), "--intrinsics",
                               str(_w(f, "cam.txt", "520 260 319.5 239.5\n")), "--odometry", "none"),
                ("ok", "error"), check=_says("square pixels", "err")),
+        # ---- the twenty-fourth pass (2026-12-08)
+        Attack("24th: ORB at scale 2.0 with 9 levels (every corner dropped; OpenCV finds 3027)", "silent",
+               lambda f: _run(str(_kitti_seq(f, 6)), "--odometry", "derived", "--frontend", "orb", "--config",
+                              str(_w(f, "c.toml", "[orb]\nscale_factor = 2.0\nn_levels = 9\n"))), ("ok",),
+               check=lambda f, o, e: "no corner in any frame" if "detector found no corner" in e else None),
+        Attack("24th: [tracker] min_distance_px = 1e200 (OverflowError)", "fail",
+               lambda f: _run(str(_kitti_seq(f, 6)), "--odometry", "derived", "--config",
+                              str(_w(f, "c.toml", "[tracker]\nmin_distance_px = 1e200\n"))),
+               check=_says("c.toml:2: tracker.min_distance_px", "err")),
+        Attack("24th: a 2-D map moved 3 m (0.64 m after the fit, 4.17 m where it is, unsaid)", "silent",
+               lambda f: _run("synthetic", "--map", str(_moved_map(f, 3.0))), ("ok",),
+               check=_says("in the map's frame the ATE is", "err")),
+        Attack("24th: map.json meta config 'isam2' (AttributeError)", "fail",
+               lambda f: _run("synthetic", "--map", str(_map_meta(f, config="isam2"))),
+               check=_says("'config' is not a table of sections", "err")),
     ]
+
+
+def _saved_2d_map(folder: Path) -> Path:
+    """The synthetic world's map of its first 400 steps, saved by an ordinary run."""
+    subprocess.run([sys.executable, "-m", "graphslam", "run", "--max-steps", "400", "--save-map", "m",
+                    "--rerun", "off", "--quiet", "--out", "r0"],
+                   cwd=folder, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True,
+                   capture_output=True, timeout=300)
+    return folder / "m"
+
+
+def _moved_map(folder: Path, by_m: float) -> Path:
+    """:func:`_saved_2d_map` with every landmark moved ``by_m`` along x and y (saved anew,
+    its checksums right: a map edited by hand and saved by the library)."""
+    sys.path.insert(0, str(ROOT))
+    from graphslam.maps.files import load_planar_map, save_planar_map
+
+    pmap = load_planar_map(_saved_2d_map(folder))
+    pmap.landmark_xy[:] += by_m
+    save_planar_map(pmap, folder / "moved")
+    return folder / "moved"
+
+
+def _map_meta(folder: Path, **fields) -> Path:
+    """:func:`_saved_2d_map` with ``fields`` written into its map.json meta."""
+    m = _saved_2d_map(folder)
+    doc = json.loads((m / "map.json").read_text())
+    doc["meta"].update(fields)
+    (m / "map.json").write_text(json.dumps(doc))
+    return m
 
 
 def _kitti_jpg(kit: Path, frames) -> Path:
