@@ -248,6 +248,8 @@ NOT_RESULT_WRITES = {
         "an attack's input: a saved map with its map.json edited",
     ("hostile_pass", '(folder / "earlier.json").write_text(json.dumps('):
         "the pass's note of an earlier run's bytes, in an attack's scratch folder",
+    ("hostile_pass", '(m / "map.json").write_text(json.dumps('):
+        "an attack's map.json edited by hand, in its scratch folder",
 }
 #: Scripts that write no JSON result -> what they write.
 NO_JSON_RESULT = {
