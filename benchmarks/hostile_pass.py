@@ -1031,7 +1031,8 @@ def _saved_2d_map(folder: Path) -> Path:
 def _moved_map(folder: Path, by_m: float) -> Path:
     """:func:`_saved_2d_map` with every landmark moved ``by_m`` along x and y (saved anew,
     its checksums right: a map edited by hand and saved by the library)."""
-    sys.path.insert(0, str(ROOT))
+    if str(ROOT) not in sys.path:  # the toolkit beside this script, as the attacks run it
+        sys.path.insert(0, str(ROOT))
     from graphslam.maps.files import load_planar_map, save_planar_map
 
     pmap = load_planar_map(_saved_2d_map(folder))

@@ -171,26 +171,21 @@ def load_run_map(folder, dataset, config) -> PlanarMap:
     return pmap
 
 
-#: A fitted ATE this many times under the map-frame one (and FAR_M apart) is said: the map
-#: sits away from the truth, or the truth is in another frame (localize's rule).
-MAP_FRAME_DOUBT_RATIO = 5.0
-MAP_FRAME_DOUBT_FAR_M = 0.5
-
-
-def map_frame_ate(result, truth) -> tuple[float | None, list[str]]:
-    """``(ATE in the map's frame, without the SE(2) fit, doubts)`` of a ``run --map`` (2-D):
-    the fitted ATE hid a map moved 3 m (0.64 m fitted, 4.17 m where it was; hostile pass
-    24). A doubt when the fit divides the error by :data:`MAP_FRAME_DOUBT_RATIO`."""
+def map_frame_ate(result, truth, fitted: float | None) -> tuple[float | None, list[str]]:
+    """``(ATE in the map's frame, without the SE(2) fit, doubts)`` of a ``run --map`` (2-D),
+    ``fitted`` the run's SE(2)-fitted ATE (None: not scored): the fitted ATE hid a map
+    moved 3 m (0.64 m fitted, 4.17 m where it was; hostile pass 24). A doubt by localize's
+    rule (:data:`~graphslam.pipelines.localize_run.FRAME_DOUBT_RATIO`, ``FAR_M``)."""
     from graphslam.evaluation import planar as metrics
+    from graphslam.pipelines.localize_run import FAR_M, FRAME_DOUBT_RATIO
 
     gt = result.dataset.ground_truth() if truth is None else truth
     est = result.estimate
-    if gt is None or np.intersect1d(est.pose_ids, gt[0]).size < 2:
+    if fitted is None or gt is None or np.intersect1d(est.pose_ids, gt[0]).size < 2:
         return None, []
     gt_ids, gt_wTb = gt
     placed = metrics.ate(est.pose_ids, est.wTb, gt_ids, gt_wTb, align=False)["rmse_m"]
-    fitted = metrics.ate(est.pose_ids, est.wTb, gt_ids, gt_wTb)["rmse_m"]
-    if not (placed > MAP_FRAME_DOUBT_RATIO * fitted and placed - fitted > MAP_FRAME_DOUBT_FAR_M):
+    if not (placed > FRAME_DOUBT_RATIO * fitted and placed - fitted > FAR_M):
         return placed, []
     return placed, [
         f"in the map's frame the ATE is {placed:.3g} m, {fitted:.3g} m after the SE(2) fit: the "

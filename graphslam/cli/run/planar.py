@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
 
         metrics.map, metrics.localisation_only = str(args.map), True
         metrics.unmapped_observations = cast("Localiser", backend).unmapped_count
-        metrics.ate_in_map_frame_m, doubts = planar_maps.map_frame_ate(result, truth)
+        metrics.ate_in_map_frame_m, doubts = planar_maps.map_frame_ate(result, truth, metrics.ate_rmse_m)
         source = planar_maps.map_source_doubt(pmap, result.dataset)
         metrics.warnings = [*(metrics.warnings or []), *([source] if source else []), *doubts] or None
         if result.observations and metrics.unmapped_observations == result.observations:
